@@ -1,0 +1,40 @@
+"""brdfscale: scale-dependent evolution of BRDFs (Pak 2016, "Scale-related evolution of BRDFs").
+
+The public API:
+
+* :mod:`brdfscale.stats` — facet-slope statistics ``s(m)``, their transforms, scale laws;
+* :mod:`brdfscale.lobes` — BRDF lobes at one scale;
+* :func:`brdfscale.evolve` — the evolution operator of seed Eq. 4.4;
+* :mod:`brdfscale.geometry` — directions, slopes, half vectors;
+* the exception classes, all derived from :class:`BrdfscaleError`.
+"""
+
+from importlib.metadata import PackageNotFoundError, version as _version
+
+from . import geometry, lobes, stats
+from ._errors import (
+    BrdfscaleError,
+    InvalidInputError,
+    MethodNotApplicableError,
+    NoBRDFAtScaleError,
+    SingularDensityError,
+)
+from ._evolve import evolve
+
+try:
+    __version__ = _version("brdfscale")
+except PackageNotFoundError:  # running from a source tree that is not installed
+    __version__ = "0.0.0+unknown"
+
+__all__ = [
+    "evolve",
+    "geometry",
+    "lobes",
+    "stats",
+    "BrdfscaleError",
+    "InvalidInputError",
+    "MethodNotApplicableError",
+    "NoBRDFAtScaleError",
+    "SingularDensityError",
+    "__version__",
+]

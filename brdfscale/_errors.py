@@ -1,0 +1,31 @@
+"""Exception classes of brdfscale.
+
+Every error raised on bad input derives from :class:`BrdfscaleError`, so a script can catch
+all of brdfscale's complaints at once.  The messages name what was wrong and what would
+have been accepted.
+"""
+
+
+class BrdfscaleError(Exception):
+    """Base class of all errors raised by brdfscale."""
+
+
+class InvalidInputError(BrdfscaleError, ValueError):
+    """An argument has the wrong shape, dtype, range or type."""
+
+
+class SingularDensityError(BrdfscaleError, ValueError):
+    """A point evaluation was asked of a distribution that has no pointwise density (δ)."""
+
+
+class NoBRDFAtScaleError(BrdfscaleError, ValueError):
+    """No non-negative BRDF exists at the requested scale.
+
+    Raised when the evolution towards a finer scale would need, for example, a Gaussian
+    lobe of negative variance, or a lobe whose transform exceeds 1 in modulus (which no
+    non-negative density has).
+    """
+
+
+class MethodNotApplicableError(BrdfscaleError, ValueError):
+    """A forced evolution path (``method=...``) cannot handle the given inputs."""

@@ -1,0 +1,109 @@
+"""The isotropic (slope-space) evolution operator, seed Eq. 4.4."""
+
+from typing import Literal
+
+import jax.numpy as jnp
+
+from .._errors import InvalidInputError, MethodNotApplicableError
+from .._validation import as_float_array, is_concrete
+from ..lobes import AbstractLobe, Lobe
+from ..stats import AbstractSlopeDensity
+from ._algebra import convolve, deconvolve
+from ._spectral import EvolvedDensity, choose_size
+
+Method = Literal["auto", "closed_form", "radial", "grid"]
+
+_DEFAULT_SIZE = {"radial": 256, "grid": 256}
+_MAX_SIZE = {"radial": 4096, "grid": 2048}
+
+
+def evolve(
+    lobe: AbstractLobe,
+    s_from: AbstractSlopeDensity,
+    s_to: AbstractSlopeDensity,
+    method: Method = "auto",
+    *,
+    regularisation: float = 0.0,
+    tol: float = 1e-10,
+    size: int | None = None,
+) -> AbstractLobe:
+    """Evolve a lobe measured at scale μ0 to scale μ (seed Eq. 4.4, DESIGN §2).
+
+    With the facet-slope densities ``s_from = s(·, μ0)`` and ``s_to = s(·, μ)`` the lobe
+    transform evolves as
+
+        G(W, μ) = G(W, μ0) · S(W, μ0) / S(W, μ),
+
+    which is the seed's ``R(W, μ) = R(W, μ0) Q(W, μ0)/Q(W, μ)`` with ``Q(W) = S(−W)`` (the
+    seed's q is the reflection of s). Going coarser (μ > μ0, ``s_to`` narrower) is a stable
+    blur; going finer is a deconvolution. The amplitude is unchanged (energy is conserved).
+
+    Args:
+        lobe: the lobe at μ0 (:mod:`brdfscale.lobes`).
+        s_from, s_to: facet-slope statistics at μ0 and μ (:mod:`brdfscale.stats`), e.g.
+            ``law.at(mu0)`` and ``law.at(mu)`` of a scale law. ``s_to = Delta()`` is μ = ∞.
+        method: ``"closed_form"`` (Gaussian/δ/mixture algebra: exact), ``"radial"`` (Hankel
+            quadrature; everything radially symmetric), ``"grid"`` (2D FFT; general), or
+            ``"auto"``: the first of these that applies.
+        regularisation: Tikhonov λ ≥ 0 of the division, ``1/S → S*/(|S|² + λ²)``. Leave 0
+            for analytic inputs; for tabulated or noisy lobes use about the relative noise
+            level of ``G(W, μ0)`` (Wiener's choice λ² = noise power / signal power).
+        tol: error target relative to the lobe's peak; sets the frequency cut-off and the
+            grid extent of the spectral paths.
+        size: Gauss–Legendre nodes (radial) or grid side (grid). Default: chosen from
+            ``tol`` when the parameters are concrete (capped at 4096 / 2048), else 256.
+
+    Returns:
+        The lobe at μ. Closed forms return a lobe whose shape is a :mod:`brdfscale.stats`
+        family; the spectral paths return a lobe whose shape evaluates the exact transform
+        and inverts it only where asked: ``.density(u)`` at query offsets, or
+        ``.shape.on_grid()`` on the FFT grid (grid path).
+
+    Raises:
+        NoBRDFAtScaleError: no non-negative lobe exists at μ (e.g. a Gaussian lobe would
+            need a negative variance, or the quotient's transform exceeds 1 in modulus).
+            Under ``jax.jit`` this is raised at run time through ``equinox.error_if``.
+        MethodNotApplicableError: a forced ``method`` cannot handle the inputs.
+        InvalidInputError: wrong argument types or values.
+
+    Everything is differentiable in all continuous parameters (and in μ through a scale
+    law), works under ``jax.jit``/``jax.vmap`` and in float32 or float64.
+    """
+    if not isinstance(lobe, AbstractLobe):
+        raise InvalidInputError(f"lobe must be a brdfscale.lobes lobe; got {type(lobe).__name__}.")
+    for name, s in (("s_from", s_from), ("s_to", s_to)):
+        if not isinstance(s, AbstractSlopeDensity):
+            raise InvalidInputError(f"{name} must be a brdfscale.stats density; got {type(s).__name__}.")
+    if method not in ("auto", "closed_form", "radial", "grid"):
+        raise InvalidInputError(f"method must be 'auto', 'closed_form', 'radial' or 'grid'; got {method!r}.")
+    if not 0 < tol < 1:
+        raise InvalidInputError(f"tol must lie in (0, 1); got {tol!r}.")
+    lam = as_float_array(regularisation, "regularisation")
+    if is_concrete(lam) and float(lam) < 0:
+        raise InvalidInputError(f"regularisation must be ≥ 0; got {float(lam)}.")
+
+    if method in ("auto", "closed_form"):
+        numerator = convolve(lobe.shape, s_from)
+        shape = deconvolve(numerator, s_to) if numerator is not None else None
+        if shape is not None:
+            return Lobe(shape, lobe.amplitude)
+        if method == "closed_form":
+            raise MethodNotApplicableError(
+                f"no closed form for a {type(lobe.shape).__name__} lobe with {type(s_from).__name__} → "
+                f"{type(s_to).__name__} statistics; closed forms exist for Gaussian/Beckmann lobes and "
+                "statistics (and mixtures of them), δ (Mirror) lobes, and δ statistics. Use method='grid'."
+            )
+
+    isotropic = lobe.shape.isotropic and s_from.isotropic and s_to.isotropic
+    if method == "radial" and not isotropic:
+        raise MethodNotApplicableError(
+            "method='radial' needs a radially symmetric lobe and statistics (isotropic, centred); "
+            "use method='grid' for anisotropic, shifted, skewed or tabulated inputs."
+        )
+    path = "radial" if (method == "radial" or (method == "auto" and isotropic)) else "grid"
+    if size is not None and (int(size) != size or size < 8):
+        raise InvalidInputError(f"size must be an integer ≥ 8; got {size!r}.")
+    shape = EvolvedDensity(lobe.shape, s_from, s_to, lam, path, size or _DEFAULT_SIZE[path], tol)
+    if size is None and is_concrete(shape):
+        shape = EvolvedDensity(lobe.shape, s_from, s_to, lam, path, choose_size(shape, path, _MAX_SIZE[path]), tol)
+    return Lobe(shape, lobe.amplitude)

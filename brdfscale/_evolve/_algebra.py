@@ -1,0 +1,72 @@
+"""Closed-form convolution and deconvolution of slope densities, where the families allow it.
+
+Rules (exact): δ is the identity (a shifted δ shifts); Gaussians add (subtract)
+covariances and means; mixtures distribute over components. Everything else returns
+``None`` and is left to the spectral paths.
+"""
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from .._errors import NoBRDFAtScaleError
+from .._validation import is_concrete
+from ..stats import AbstractSlopeDensity, Delta, Gaussian, Mixture
+from ..stats._families import _eig2
+
+
+def _neg(offset):
+    return None if offset is None else -offset
+
+
+def _sum_means(a, b):
+    if a is None:
+        return b
+    if b is None:
+        return a
+    return a + b
+
+
+def convolve(a: AbstractSlopeDensity, b: AbstractSlopeDensity) -> AbstractSlopeDensity | None:
+    """``a ∗ b`` in closed form, or None."""
+    if isinstance(a, Delta):
+        return b if a.mean is None else b.shifted(a.mean)
+    if isinstance(b, Delta):
+        return convolve(b, a)
+    if isinstance(a, Gaussian) and isinstance(b, Gaussian):
+        return Gaussian(cov=a.cov + b.cov, mean=_sum_means(a.mean, b.mean))
+    for mix, other in ((a, b), (b, a)):
+        if isinstance(mix, Mixture):
+            parts = [convolve(c, other) for c in mix.components]
+            if all(p is not None for p in parts):
+                return Mixture(mix.weights, parts)
+    return None
+
+
+_NEGATIVE_VARIANCE = (
+    "no BRDF exists at the requested scale: evolving this Gaussian lobe would need a covariance "
+    "that is not positive definite (a negative variance). The target statistics are wider than "
+    "the lobe and source statistics together; choose a coarser target scale, or a lobe measured "
+    "at a finer scale."
+)
+
+
+def deconvolve(a: AbstractSlopeDensity, b: AbstractSlopeDensity) -> AbstractSlopeDensity | None:
+    """``c`` with ``c ∗ b = a`` in closed form, or None; raises when no density ``c`` exists."""
+    if isinstance(b, Delta):
+        return a if b.mean is None else a.shifted(_neg(b.mean))
+    if isinstance(a, Gaussian) and isinstance(b, Gaussian):
+        cov = a.cov - b.cov
+        lo, _ = _eig2(cov)
+        if is_concrete(lo):
+            if not np.all(np.asarray(lo) > 0):
+                raise NoBRDFAtScaleError(_NEGATIVE_VARIANCE + f" (smallest eigenvalue {float(np.min(lo)):.6g})")
+        else:
+            cov = eqx.error_if(cov, jnp.any(lo <= 0), _NEGATIVE_VARIANCE)
+        mean = _sum_means(a.mean, _neg(b.mean))
+        return Gaussian(cov=cov, mean=mean)
+    if isinstance(a, Mixture) and isinstance(b, Gaussian):
+        parts = [deconvolve(c, b) if isinstance(c, Gaussian) else None for c in a.components]
+        if all(p is not None for p in parts):
+            return Mixture(a.weights, parts)
+    return None

@@ -1,0 +1,132 @@
+"""Directions, slopes and half vectors.
+
+Conventions (DESIGN §1; seed §2 and §4):
+
+* Global frame: ``z`` is the macroscopic surface normal. ``i`` points from the surface to
+  the light and ``o`` from the surface to the detector; both are unit vectors with z > 0.
+* The slope of a normal ``n`` (``n_z > 0``) is ``m(n) = (n_x/n_z, n_y/n_z)``; this is the
+  seed's ``m = n/(n·z) − z`` (§4) without its zero z-component. Slopes are dimensionless.
+* The half-vector slope is ``m_s(i, o) = m(h)`` with ``h = (i + o)/|i + o|``: the slope of
+  the mirror facet that reflects ``i`` into ``o``.
+* Area elements: ``d²m = dω_n / cos³θ_n``. A normal distribution ``D`` normalised as
+  ``∫ D cosθ dω = 1`` and its slope density are related by ``P22(m) = D(n) cos⁴θ_n``.
+
+All functions are pure, jit-compatible and differentiable; inputs broadcast over leading
+dimensions. The ``validate_*`` helpers check concrete (non-traced) inputs and raise
+:class:`~brdfscale.InvalidInputError`; under ``jax.jit`` they pass values through.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from ._errors import InvalidInputError
+
+__all__ = [
+    "direction_to_slope",
+    "slope_to_direction",
+    "half_vector",
+    "half_slope",
+    "solid_angle_per_slope_area",
+    "microfacet_factor",
+    "reflect",
+    "validate_directions",
+    "validate_slopes",
+]
+
+
+def _is_concrete(x) -> bool:
+    return not isinstance(x, jax.core.Tracer)
+
+
+def validate_directions(v: ArrayLike, name: str = "direction", atol: float = 1e-6):
+    """Check that ``v`` has shape (..., 3), is finite, unit length and points upwards.
+
+    Returns ``v`` as a JAX array. Raises :class:`InvalidInputError` otherwise.
+    """
+    if _is_concrete(v):
+        a = np.asarray(v)
+        if a.ndim < 1 or a.shape[-1] != 3:
+            raise InvalidInputError(
+                f"{name} must have shape (..., 3) (unit vectors in the surface frame, z = "
+                f"macroscopic normal); got shape {a.shape}."
+            )
+        if not np.all(np.isfinite(a)):
+            raise InvalidInputError(f"{name} contains non-finite values.")
+        norm = np.linalg.norm(a, axis=-1)
+        if np.any(np.abs(norm - 1) > max(atol, 1e2 * np.finfo(a.dtype).eps if a.dtype.kind == "f" else atol)):
+            raise InvalidInputError(
+                f"{name} must be unit vectors; got norms in [{norm.min():.6g}, {norm.max():.6g}]."
+            )
+        if np.any(a[..., 2] <= 0):
+            raise InvalidInputError(
+                f"{name} must lie in the upper hemisphere (z > 0, z = macroscopic normal); "
+                f"smallest z component is {a[..., 2].min():.6g}."
+            )
+    return jnp.asarray(v)
+
+
+def validate_slopes(m: ArrayLike, name: str = "slopes"):
+    """Check that ``m`` has shape (..., 2) and is finite; return it as a JAX array."""
+    if _is_concrete(m):
+        a = np.asarray(m)
+        if a.ndim < 1 or a.shape[-1] != 2:
+            raise InvalidInputError(
+                f"{name} must have shape (..., 2) (slope components m_x, m_y); got shape {a.shape}."
+            )
+        if not np.all(np.isfinite(a)):
+            raise InvalidInputError(f"{name} contains non-finite values.")
+    return jnp.asarray(m)
+
+
+def direction_to_slope(n: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch 2"]:
+    """Slope ``m = (n_x/n_z, n_y/n_z)`` of an upward direction (seed §4)."""
+    n = jnp.asarray(n)
+    return n[..., :2] / n[..., 2:3]
+
+
+def slope_to_direction(m: Float[ArrayLike, "*batch 2"]) -> Float[Array, "*batch 3"]:
+    """Unit normal with slope ``m``, the inverse of :func:`direction_to_slope`: ``(m, 1)/√(1+|m|²)``."""
+    m = jnp.asarray(m)
+    one = jnp.ones(m.shape[:-1] + (1,), dtype=m.dtype)
+    v = jnp.concatenate([m, one], axis=-1)
+    return v / jnp.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def half_vector(i: Float[ArrayLike, "*batch 3"], o: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch 3"]:
+    """``h = (i + o)/|i + o|``, the normal of the mirror facet reflecting ``i`` into ``o``."""
+    s = jnp.asarray(i) + jnp.asarray(o)
+    return s / jnp.linalg.norm(s, axis=-1, keepdims=True)
+
+
+def half_slope(i: Float[ArrayLike, "*batch 3"], o: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch 2"]:
+    """Half-vector slope ``m_s(i, o) = m(h)``; the normalisation of ``h`` cancels."""
+    s = jnp.asarray(i) + jnp.asarray(o)
+    return s[..., :2] / s[..., 2:3]
+
+
+def solid_angle_per_slope_area(m: Float[ArrayLike, "*batch 2"]) -> Float[Array, "*batch"]:
+    """Jacobian ``dω_n / d²m = cos³θ_n = (1 + |m|²)^{−3/2}``."""
+    m = jnp.asarray(m)
+    return (1.0 + jnp.sum(m**2, axis=-1)) ** -1.5
+
+
+def reflect(i: Float[ArrayLike, "*batch 3"], n: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch 3"]:
+    """Mirror reflection of ``i`` (pointing away from the surface) about the normal ``n``."""
+    i = jnp.asarray(i)
+    n = jnp.asarray(n)
+    return 2 * jnp.sum(i * n, axis=-1, keepdims=True) * n - i
+
+
+def microfacet_factor(i: Float[ArrayLike, "*batch 3"], o: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch"]:
+    """Geometric factor ``1 / (4 (h·o) cos⁴θ_h)`` that turns a slope-space lobe into ``ρ``.
+
+    For mirror microfacets (no masking, Fresnel factor 1) the reflected radiance obeys
+    ``ρ(i, o) = β cosθ_i = D(h) / (4 (h·o))`` with the normal distribution D (seed §2 defines
+    ρ = β cosθ_i); with ``D = P22 / cos⁴θ_h`` this is ``P22(m_s) · microfacet_factor(i, o)``.
+    ``dω_h / dω_o = 1/(4 h·o)`` is the half-vector Jacobian.
+    """
+    h = half_vector(i, o)
+    cos_h = h[..., 2]
+    return 1.0 / (4.0 * jnp.sum(h * jnp.asarray(o), axis=-1) * cos_h**4)

@@ -1,0 +1,123 @@
+"""BRDF lobes at one observation scale (seed §2, §4; DESIGN §2).
+
+In the nearly-flat approximation the microscopic BRDF of a facet tilted by ``m∞`` is, for
+fixed directions, ``ρ(i, o, m∞) = A · F(i, o) · g(m_s(i, o) − m∞)``: an amplitude ``A``
+times a *lobe* ``g`` in slope space around the specular (half-vector) slope ``m_s``, with
+the mirror-microfacet factor ``F = 1/(4 (h·o) cos⁴θ_h)`` of
+:func:`brdfscale.geometry.microfacet_factor`. The lobe shape is a normalised slope density
+(``∫ g d²u = 1``), so every :mod:`brdfscale.stats` family can serve as a lobe, and the
+amplitude ``A`` is the lobe's integral over half-vector slope offsets ``u = m_s − m∞``.
+A mirror gives ``g = δ``.
+"""
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Complex, Float
+
+from .. import stats
+from .._errors import InvalidInputError
+from .._validation import as_float_array
+from ..geometry import half_slope, microfacet_factor, validate_directions
+
+__all__ = ["AbstractLobe", "Lobe", "Mirror", "Beckmann", "GGX", "Tabulated"]
+
+
+class AbstractLobe(eqx.Module):
+    """A lobe ``A · g(u)`` over half-vector slope offsets ``u = m_s − m∞`` (shape (..., 2))."""
+
+    shape: eqx.AbstractVar[stats.AbstractSlopeDensity]
+    amplitude: eqx.AbstractVar[Float[Array, ""]]
+
+    def density(self, u: Float[ArrayLike, "*batch 2"]) -> Float[Array, "*batch"]:
+        """``A · g(u)``: the lobe per unit slope area at offsets ``u``."""
+        return self.amplitude * self.shape.density(u)
+
+    def cf(self, W: Float[ArrayLike, "*batch 2"]) -> Complex[Array, "*batch"]:
+        """``A · G(W)`` with ``G(W) = ∫ g(u) e^{−iW·u} d²u``."""
+        return self.amplitude * self.shape.cf(W)
+
+    def evaluate(
+        self,
+        i: Float[ArrayLike, "*batch 3"],
+        o: Float[ArrayLike, "*batch 3"],
+        m_inf: Float[ArrayLike, "*batch 2"] | None = None,
+    ) -> Float[Array, "*batch"]:
+        """``ρ(i, o, m∞) = A · F(i, o) · g(m_s(i, o) − m∞)`` (seed §2: ρ = β cosθ_i).
+
+        ``i``, ``o``: unit directions (..., 3) towards light and detector, z > 0.
+        ``m_inf``: global facet slope (..., 2), default flat. Units: 1/sr.
+        """
+        i = validate_directions(i, "i")
+        o = validate_directions(o, "o")
+        u = half_slope(i, o)
+        if m_inf is not None:
+            u = u - jnp.asarray(m_inf)
+        return self.density(u) * microfacet_factor(i, o)
+
+
+def _amplitude(a):
+    return as_float_array(a, "amplitude")
+
+
+class Lobe(AbstractLobe):
+    """A lobe with any slope density as its shape (e.g. the result of :func:`brdfscale.evolve`)."""
+
+    shape: stats.AbstractSlopeDensity
+    amplitude: Float[Array, ""]
+
+    def __init__(self, shape: stats.AbstractSlopeDensity, amplitude: Float[ArrayLike, ""] = 1.0):
+        if not isinstance(shape, stats.AbstractSlopeDensity):
+            raise InvalidInputError(f"shape must be a brdfscale.stats density; got {type(shape).__name__}.")
+        self.shape = shape
+        self.amplitude = _amplitude(amplitude)
+
+
+class Mirror(AbstractLobe):
+    """A perfect mirror: ``g = δ`` (seed §2, ``ρ_mirror = A δ(n − n_s)``)."""
+
+    shape: stats.Delta
+    amplitude: Float[Array, ""]
+
+    def __init__(self, amplitude: Float[ArrayLike, ""] = 1.0):
+        self.shape = stats.Delta()
+        self.amplitude = _amplitude(amplitude)
+
+
+class Beckmann(AbstractLobe):
+    """Beckmann lobe: ``g`` Gaussian with per-axis variance ``α²/2`` (isotropic or α_x, α_y)."""
+
+    shape: stats.Gaussian
+    amplitude: Float[Array, ""]
+
+    def __init__(self, alpha=None, *, alpha_x=None, alpha_y=None, amplitude=1.0):
+        self.shape = stats.Beckmann(alpha, alpha_x=alpha_x, alpha_y=alpha_y)
+        self.amplitude = _amplitude(amplitude)
+
+
+class GGX(AbstractLobe):
+    """GGX / Trowbridge–Reitz lobe (isotropic ``alpha`` or anisotropic ``alpha_x, alpha_y``)."""
+
+    shape: stats.GGX
+    amplitude: Float[Array, ""]
+
+    def __init__(self, alpha=None, *, alpha_x=None, alpha_y=None, amplitude=1.0):
+        self.shape = stats.GGX(alpha, alpha_x=alpha_x, alpha_y=alpha_y)
+        self.amplitude = _amplitude(amplitude)
+
+
+class Tabulated(AbstractLobe):
+    """A lobe tabulated on a regular grid of offsets ``u`` (e.g. a measurement).
+
+    ``values`` (rows: u_y, columns: u_x, spanning ``[−extent, extent]``) are the lobe itself,
+    ``A · g``; the amplitude is their (bilinear-interpolant) integral and the shape is the
+    normalised :class:`brdfscale.stats.Tabulated`.
+    """
+
+    shape: stats.Tabulated
+    amplitude: Float[Array, ""]
+
+    def __init__(self, values, *, extent, center=None):
+        values = as_float_array(values, "values")
+        self.shape = stats.Tabulated(values, extent=extent, center=center)
+        h = self.shape.spacing
+        self.amplitude = h[0] * h[1] * jnp.sum(values)

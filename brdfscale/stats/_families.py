@@ -1,0 +1,238 @@
+"""Parametric slope densities: Delta, Gaussian (Beckmann), GGX, Disk."""
+
+import math
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Complex, Float
+
+from .._errors import InvalidInputError, SingularDensityError
+from .._special import jinc, xk1
+from .._validation import as_float_array, is_concrete, positive, vector2
+from ._base import AbstractSlopeDensity, add_offset, check_slopes, offset_norm, phase
+
+
+def _per_axis(value, value_x, value_y, name: str):
+    """Resolve ``alpha=`` versus ``alpha_x=, alpha_y=`` into a (..., 2) array.
+
+    Returns the array and whether the density is structurally isotropic."""
+    if value is not None:
+        if value_x is not None or value_y is not None:
+            raise InvalidInputError(f"give either {name}= or {name}_x= and {name}_y=, not both.")
+        v = positive(value, name)
+        return jnp.stack([v, v], axis=-1), True
+    if value_x is None or value_y is None:
+        raise InvalidInputError(f"give {name}= (isotropic) or both {name}_x= and {name}_y= (anisotropic).")
+    vx = positive(value_x, f"{name}_x")
+    vy = positive(value_y, f"{name}_y")
+    vx, vy = jnp.broadcast_arrays(vx, vy)
+    return jnp.stack([vx, vy], axis=-1), False
+
+
+class Delta(AbstractSlopeDensity):
+    """Point mass at ``mean`` (default: the origin): a perfectly flat surface, ``S(W) = e^{−iW·mean}``.
+
+    It has no pointwise density; :meth:`density` raises :class:`SingularDensityError`.
+    """
+
+    mean: Float[Array, "*batch 2"] | None
+    isotropic: bool = eqx.field(static=True)
+
+    def __init__(self, mean: Float[ArrayLike, "*batch 2"] | None = None):
+        self.mean = vector2(mean, "mean")
+        self.isotropic = mean is None
+
+    def density(self, m):
+        raise SingularDensityError(
+            "Delta (a point mass) has no pointwise density; use .cf(W), or convolve it with a "
+            "smooth density (e.g. brdfscale.evolve) before evaluating."
+        )
+
+    def cf(self, W):
+        return phase(check_slopes(W, "W"), self.mean)
+
+    def shifted(self, offset):
+        return Delta(add_offset(self.mean, offset))
+
+    def support_radius(self, tol):
+        return jnp.asarray(offset_norm(self.mean))
+
+    def bandwidth(self, tol):
+        return jnp.asarray(jnp.inf)
+
+
+def _eig2(cov):
+    a, b, c = cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]
+    mid, rad = (a + c) / 2, jnp.sqrt(((a - c) / 2) ** 2 + b**2)
+    return mid - rad, mid + rad
+
+
+class Gaussian(AbstractSlopeDensity):
+    """Gaussian slope density with covariance ``cov`` (2×2) and optional ``mean``.
+
+    ``s(m) = exp(−½ dᵀ Σ⁻¹ d) / (2π √det Σ)`` with ``d = m − mean``;
+    ``S(W) = exp(−i W·mean − ½ Wᵀ Σ W)``. Convolution adds covariances.
+
+    Construct with ``cov=`` (full 2×2), or ``sigma=`` (a scalar: isotropic standard
+    deviation per axis; a pair: per-axis standard deviations). See also :func:`Beckmann`.
+    """
+
+    cov: Float[Array, "*batch 2 2"]
+    mean: Float[Array, "*batch 2"] | None
+    isotropic: bool = eqx.field(static=True)
+
+    def __init__(self, cov=None, *, sigma=None, mean=None):
+        isotropic = False
+        if (cov is None) == (sigma is None):
+            raise InvalidInputError("Gaussian needs exactly one of cov= (2×2) or sigma= (scalar or pair).")
+        if sigma is not None:
+            s = positive(sigma, "sigma", "positive (a standard deviation)")
+            if s.ndim >= 1 and s.shape[-1] == 2:
+                var = s**2
+            else:
+                var = jnp.stack([s**2, s**2], axis=-1)
+                isotropic = True
+            zero = jnp.zeros_like(var[..., 0])
+            cov = jnp.stack(
+                [jnp.stack([var[..., 0], zero], -1), jnp.stack([zero, var[..., 1]], -1)], axis=-2
+            )
+        else:
+            cov = as_float_array(cov, "cov")
+            if cov.ndim < 2 or cov.shape[-2:] != (2, 2):
+                raise InvalidInputError(f"cov must have shape (..., 2, 2); got {cov.shape}.")
+            if is_concrete(cov):
+                c = np.asarray(cov)
+                if not np.allclose(c, np.swapaxes(c, -1, -2), rtol=0, atol=1e-12 * np.max(np.abs(c))):
+                    raise InvalidInputError(f"cov must be symmetric; got {c!r}.")
+                lo, _ = _eig2(c)
+                if not np.all(lo > 0):
+                    raise InvalidInputError(
+                        f"cov must be positive definite (a Gaussian of zero or negative variance is "
+                        f"not a density; use Delta for a flat surface); smallest eigenvalue {np.min(lo):.6g}."
+                    )
+        self.cov = cov
+        self.mean = vector2(mean, "mean")
+        self.isotropic = isotropic and mean is None
+
+    def density(self, m):
+        d = check_slopes(m, "m")
+        if self.mean is not None:
+            d = d - self.mean
+        a, b, c = self.cov[..., 0, 0], self.cov[..., 0, 1], self.cov[..., 1, 1]
+        det = a * c - b**2
+        quad = (c * d[..., 0] ** 2 - 2 * b * d[..., 0] * d[..., 1] + a * d[..., 1] ** 2) / det
+        return jnp.exp(-0.5 * quad) / (2 * jnp.pi * jnp.sqrt(det))
+
+    def cf(self, W):
+        W = check_slopes(W, "W")
+        quad = jnp.einsum("...i,...ij,...j->...", W, self.cov, W)
+        return jnp.exp(-0.5 * quad) * phase(W, self.mean)
+
+    def shifted(self, offset):
+        return Gaussian(cov=self.cov, mean=add_offset(self.mean, offset))
+
+    def support_radius(self, tol):
+        _, hi = _eig2(self.cov)
+        return jnp.max(jnp.sqrt(2 * hi * math.log(1 / tol)) + offset_norm(self.mean))
+
+    def bandwidth(self, tol):
+        lo, _ = _eig2(self.cov)
+        return jnp.max(jnp.sqrt(2 * math.log(1 / tol) / lo))
+
+
+def Beckmann(alpha=None, *, alpha_x=None, alpha_y=None, mean=None) -> Gaussian:
+    """Beckmann slope statistics: a Gaussian with per-axis variance ``α²/2`` (DESIGN §1).
+
+    ``S(W) = exp(−(α_x² W_x² + α_y² W_y²)/4)``; convolution adds ``α²``. The Beckmann normal
+    distribution ``D(h) = exp(−tan²θ/α²)/(π α² cos⁴θ)`` is this density divided by cos⁴θ.
+    """
+    a, isotropic = _per_axis(alpha, alpha_x, alpha_y, "alpha")
+    sigma = a / math.sqrt(2.0)
+    return Gaussian(sigma=sigma[..., 0] if isotropic else sigma, mean=mean)
+
+
+def _xk1_inverse(tol: float) -> float:
+    """x with ``x K1(x) = tol`` (asymptotically ``√(πx/2) e^{−x} (1 + 3/(8x))``)."""
+    x = math.log(1 / tol)
+    for _ in range(8):
+        x = math.log(1 / tol) + 0.5 * math.log(math.pi * x / 2) + math.log1p(3 / (8 * x))
+    return x
+
+
+class GGX(AbstractSlopeDensity):
+    """GGX / Trowbridge–Reitz slope statistics (a bivariate Student-t with ν = 2).
+
+    ``s(m) = 1 / (π α_x α_y (1 + x² )²)`` with ``x = ((m_x − mean_x)/α_x, (m_y − mean_y)/α_y)``;
+    ``S(W) = |A W| K₁(|A W|) e^{−iW·mean}`` with ``A = diag(α_x, α_y)`` (DESIGN §1). The
+    tails fall off as ``|m|⁻⁴``: slopes have no finite variance.
+    """
+
+    alpha: Float[Array, "*batch 2"]
+    mean: Float[Array, "*batch 2"] | None
+    isotropic: bool = eqx.field(static=True)
+
+    def __init__(self, alpha=None, *, alpha_x=None, alpha_y=None, mean=None):
+        self.alpha, isotropic = _per_axis(alpha, alpha_x, alpha_y, "alpha")
+        self.mean = vector2(mean, "mean")
+        self.isotropic = isotropic and mean is None
+
+    def density(self, m):
+        d = check_slopes(m, "m")
+        if self.mean is not None:
+            d = d - self.mean
+        x2 = jnp.sum((d / self.alpha) ** 2, axis=-1)
+        return 1.0 / (jnp.pi * self.alpha[..., 0] * self.alpha[..., 1] * (1 + x2) ** 2)
+
+    def cf(self, W):
+        W = check_slopes(W, "W")
+        r = jnp.sqrt(jnp.sum((W * self.alpha) ** 2, axis=-1))
+        return xk1(r) * phase(W, self.mean)
+
+    def shifted(self, offset):
+        return GGX(alpha_x=self.alpha[..., 0], alpha_y=self.alpha[..., 1], mean=add_offset(self.mean, offset))
+
+    def support_radius(self, tol):
+        return jnp.max(jnp.max(self.alpha, axis=-1) * math.sqrt(tol**-0.5 - 1) + offset_norm(self.mean))
+
+    def bandwidth(self, tol):
+        return jnp.max(_xk1_inverse(tol) / jnp.min(self.alpha, axis=-1))
+
+
+class Disk(AbstractSlopeDensity):
+    """Uniform density on a disk of slope ``radius`` about ``mean``.
+
+    ``s(m) = 1/(π r²)`` for ``|m − mean| < r``; ``S(W) = 2 J₁(r|W|)/(r|W|) e^{−iW·mean}``. The
+    transform has zeros, so dividing by it (evolving *towards* a disk statistic) needs
+    regularisation.
+    """
+
+    radius: Float[Array, "*batch"]
+    mean: Float[Array, "*batch 2"] | None
+    isotropic: bool = eqx.field(static=True)
+
+    def __init__(self, radius, *, mean=None):
+        self.radius = positive(radius, "radius")
+        self.mean = vector2(mean, "mean")
+        self.isotropic = mean is None
+
+    def density(self, m):
+        d = check_slopes(m, "m")
+        if self.mean is not None:
+            d = d - self.mean
+        inside = jnp.sum(d**2, axis=-1) < self.radius**2
+        return jnp.where(inside, 1.0 / (jnp.pi * self.radius**2), 0.0)
+
+    def cf(self, W):
+        W = check_slopes(W, "W")
+        return jinc(self.radius * jnp.linalg.norm(W, axis=-1)) * phase(W, self.mean)
+
+    def shifted(self, offset):
+        return Disk(self.radius, mean=add_offset(self.mean, offset))
+
+    def support_radius(self, tol):
+        return jnp.max(self.radius + offset_norm(self.mean))
+
+    def bandwidth(self, tol):
+        # |2 J1(x)/x| ≤ 2 √(2/(π x)) / x for large x.
+        return jnp.max((2 * math.sqrt(2 / math.pi) / tol) ** (2 / 3) / self.radius)

@@ -1,0 +1,60 @@
+"""Finite mixtures of slope densities."""
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._errors import InvalidInputError
+from .._validation import as_float_array, is_concrete
+from ._base import AbstractSlopeDensity, check_slopes
+
+
+class Mixture(AbstractSlopeDensity):
+    """``s(m) = Σ_k w_k s_k(m)`` with non-negative weights normalised to sum to 1.
+
+    Components may be of different families, including :class:`Delta` point masses, so
+    sawtooth or blazed micro-structure (facets at a few discrete slopes) is
+    ``Mixture(weights=[0.7, 0.3], components=[Delta(mean=[0.03, 0]), Delta(mean=[-0.07, 0])])``:
+    zero mean, but skewed. ``S(W) = Σ_k w_k S_k(W)``.
+    """
+
+    weights: Float[Array, " k"]
+    components: tuple[AbstractSlopeDensity, ...]
+    isotropic: bool = eqx.field(static=True)
+
+    def __init__(self, weights, components):
+        components = tuple(components)
+        if not components or not all(isinstance(c, AbstractSlopeDensity) for c in components):
+            raise InvalidInputError(
+                "components must be a non-empty sequence of slope densities (brdfscale.stats objects)."
+            )
+        w = as_float_array(weights, "weights")
+        if w.shape != (len(components),):
+            raise InvalidInputError(
+                f"weights must have shape ({len(components)},), one per component; got {w.shape}."
+            )
+        if is_concrete(w):
+            wn = np.asarray(w)
+            if np.any(wn < 0) or wn.sum() <= 0:
+                raise InvalidInputError(f"weights must be non-negative with a positive sum; got {wn!r}.")
+        self.weights = w / jnp.sum(w)
+        self.components = components
+        self.isotropic = all(c.isotropic for c in components)
+
+    def density(self, m):
+        m = check_slopes(m, "m")
+        return sum(w * c.density(m) for w, c in zip(self.weights, self.components))
+
+    def cf(self, W):
+        W = check_slopes(W, "W")
+        return sum(w * c.cf(W) for w, c in zip(self.weights, self.components))
+
+    def shifted(self, offset):
+        return Mixture(self.weights, [c.shifted(offset) for c in self.components])
+
+    def support_radius(self, tol):
+        return jnp.max(jnp.stack([c.support_radius(tol) for c in self.components]))
+
+    def bandwidth(self, tol):
+        return jnp.max(jnp.stack([c.bandwidth(tol) for c in self.components]))

@@ -1,0 +1,132 @@
+"""Slope densities tabulated on a regular grid (histograms, measurements)."""
+
+import math
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Float
+
+from .._errors import InvalidInputError
+from .._validation import as_float_array, is_concrete, positive, vector2
+from ._base import AbstractSlopeDensity, add_offset, check_slopes, offset_norm, phase
+
+
+def _sinc(x):
+    """sin(x)/x with the limit 1 at 0."""
+    safe = jnp.where(jnp.abs(x) < 1e-4, 1.0, x)
+    return jnp.where(jnp.abs(x) < 1e-4, 1 - x**2 / 6 + x**4 / 120, jnp.sin(safe) / safe)
+
+
+class Tabulated(AbstractSlopeDensity):
+    """A density given by its values on a regular slope grid, bilinearly interpolated.
+
+    ``values[j, k]`` is the density at ``m = center + (x_k, y_j)`` with ``x_k`` and ``y_j``
+    evenly spaced over ``[−extent_x, extent_x]`` and ``[−extent_y, extent_y]`` (so the
+    first array axis is ``m_y``, the second ``m_x``, as in an image). The density is the
+    bilinear interpolant, zero outside the grid, rescaled to integrate to 1.
+
+    Its transform is exact for that interpolant: ``S(W) = h_x h_y Σ_jk v_jk e^{−iW·m_jk}
+    sinc²(W_x h_x/2) sinc²(W_y h_y/2)`` (the hat function's transform), so spectral
+    evolution of a tabulated lobe introduces no further discretisation error.
+    """
+
+    values: Float[Array, "ny nx"]
+    extent: Float[Array, "2"]
+    center: Float[Array, "2"] | None
+    isotropic: bool = eqx.field(static=True)
+
+    def __init__(self, values, *, extent, center=None):
+        v = as_float_array(values, "values")
+        if v.ndim != 2 or min(v.shape) < 2:
+            raise InvalidInputError(
+                f"values must be a 2D array (rows: m_y, columns: m_x) of at least 2×2; got shape {v.shape}."
+            )
+        if is_concrete(v) and np.any(np.asarray(v) < 0):
+            raise InvalidInputError("values must be non-negative (a density); found negative entries.")
+        e = positive(extent, "extent", "positive (the grid's half-width in slope units)")
+        e = jnp.broadcast_to(e, (2,)) if e.ndim == 0 else e
+        if e.shape != (2,):
+            raise InvalidInputError(f"extent must be a scalar or a pair (x, y); got shape {e.shape}.")
+        hx, hy = 2 * e[0] / (v.shape[1] - 1), 2 * e[1] / (v.shape[0] - 1)
+        total = hx * hy * jnp.sum(v)
+        if is_concrete(total) and not float(total) > 0:
+            raise InvalidInputError("values must have a positive sum.")
+        self.values = v / total
+        self.extent = e
+        self.center = vector2(center, "center")
+        self.isotropic = False
+
+    @classmethod
+    def from_samples(cls, samples, *, extent: float, bins: int = 129, weights=None, center=None):
+        """Histogram slope samples of shape (n, 2) onto a ``bins × bins`` grid of nodes.
+
+        Each sample is shared among the four surrounding nodes with bilinear weights (cloud
+        in cell), so the interpolant's integral equals the sample count and its mean is
+        exactly the sample mean for samples inside the grid.
+        """
+        s = np.asarray(samples, dtype=float)
+        if s.ndim != 2 or s.shape[1] != 2:
+            raise InvalidInputError(f"samples must have shape (n, 2); got {s.shape}.")
+        c = np.zeros(2) if center is None else np.asarray(center, float)
+        h = 2 * extent / (bins - 1)
+        g = (s - c + extent) / h
+        inside = np.all((g >= 0) & (g <= bins - 1), axis=1)
+        if not np.any(inside):
+            raise InvalidInputError(f"no sample lies inside the grid of half-width {extent}.")
+        g = g[inside]
+        w = np.ones(len(s))[inside] if weights is None else np.asarray(weights, float)[inside]
+        i0 = np.minimum(np.floor(g).astype(int), bins - 2)
+        f = g - i0
+        hist = np.zeros((bins, bins))
+        for dx, wx in ((0, 1 - f[:, 0]), (1, f[:, 0])):
+            for dy, wy in ((0, 1 - f[:, 1]), (1, f[:, 1])):
+                np.add.at(hist, (i0[:, 1] + dy, i0[:, 0] + dx), w * wx * wy)
+        return cls(hist, extent=extent, center=center)
+
+    @property
+    def spacing(self) -> Float[Array, "2"]:
+        ny, nx = self.values.shape
+        return jnp.stack([2 * self.extent[0] / (nx - 1), 2 * self.extent[1] / (ny - 1)])
+
+    def nodes(self) -> tuple[Float[Array, " nx"], Float[Array, " ny"]]:
+        """Node coordinates ``(x, y)`` relative to ``center``."""
+        ny, nx = self.values.shape
+        return (jnp.linspace(-1.0, 1.0, nx) * self.extent[0], jnp.linspace(-1.0, 1.0, ny) * self.extent[1])
+
+    def density(self, m):
+        d = check_slopes(m, "m")
+        if self.center is not None:
+            d = d - self.center
+        ny, nx = self.values.shape
+        h = self.spacing
+        g = (d + self.extent) / h
+        inside = jnp.all((g >= 0) & (g <= jnp.array([nx - 1, ny - 1])), axis=-1)
+        i0 = jnp.clip(jnp.floor(g), 0, jnp.array([nx - 2, ny - 2])).astype(jnp.int32)
+        f = g - i0
+        v = self.values
+        ix, iy = i0[..., 0], i0[..., 1]
+        fx, fy = f[..., 0], f[..., 1]
+        val = (v[iy, ix] * (1 - fx) * (1 - fy) + v[iy, ix + 1] * fx * (1 - fy)
+               + v[iy + 1, ix] * (1 - fx) * fy + v[iy + 1, ix + 1] * fx * fy)
+        return jnp.where(inside, val, 0.0)
+
+    def cf(self, W):
+        W = check_slopes(W, "W")
+        x, y = self.nodes()
+        h = self.spacing
+        ex = jnp.exp(-1j * W[..., 0, None] * x)  # (..., nx)
+        ey = jnp.exp(-1j * W[..., 1, None] * y)  # (..., ny)
+        total = jnp.einsum("...y,yx,...x->...", ey, self.values.astype(ex.dtype), ex)
+        hat = (_sinc(W[..., 0] * h[0] / 2) * _sinc(W[..., 1] * h[1] / 2)) ** 2
+        return h[0] * h[1] * total * hat * phase(W, self.center)
+
+    def shifted(self, offset):
+        return Tabulated(self.values, extent=self.extent, center=add_offset(self.center, offset))
+
+    def support_radius(self, tol):
+        return jnp.linalg.norm(self.extent) + offset_norm(self.center)
+
+    def bandwidth(self, tol):
+        # The hat transform bounds |S| by sinc²(W_x h/2) sinc²(W_y h/2) ≤ 8/(|W| h)² (worst: the diagonal).
+        return jnp.max(3 / (self.spacing * math.sqrt(tol)))
