@@ -6,6 +6,7 @@ The public API:
 * :mod:`brdfscale.lobes` — BRDF lobes at one scale;
 * :func:`brdfscale.evolve` — the evolution operator of seed Eq. 4.4;
 * :mod:`brdfscale.geometry` — directions, slopes, half vectors;
+* :class:`MeasurementSet` / :class:`LobeImage` — multi-scale lobe measurements in memory;
 * the exception classes, all derived from :class:`BrdfscaleError`.
 """
 
@@ -20,6 +21,7 @@ from ._errors import (
     SingularDensityError,
 )
 from ._evolve import evolve
+from ._measurement import LobeImage, MeasurementSet
 
 try:
     __version__ = _version("brdfscale")
@@ -28,6 +30,8 @@ except PackageNotFoundError:  # running from a source tree that is not installed
 
 __all__ = [
     "evolve",
+    "LobeImage",
+    "MeasurementSet",
     "geometry",
     "lobes",
     "stats",
