@@ -29,3 +29,12 @@ class NoBRDFAtScaleError(BrdfscaleError, ValueError):
 
 class MethodNotApplicableError(BrdfscaleError, ValueError):
     """A forced evolution path (``method=...``) cannot handle the given inputs."""
+
+
+class MeasurementFileError(BrdfscaleError):
+    """A measurement or lobe-table file cannot be read or written as asked.
+
+    Raised for missing, truncated, corrupted or malformed OpenEXR files (the message names
+    the file, the part and the attribute or channel at fault), and when writing would
+    overwrite an existing file without ``overwrite=True``.
+    """

@@ -109,10 +109,19 @@ def _j2(x):
 def jinc(x):
     """``2 J1(x) / x`` with its limit 1 at x = 0: the transform of a uniform disk."""
     x = jnp.asarray(x)
-    small = jnp.abs(x) < 1e-3
+    small = jnp.abs(x) < 1.0
     safe = jnp.where(small, 1.0, x)
-    series = 1 - x**2 / 8 + x**4 / 192 - x**6 / 9216
-    return jnp.where(small, series, 2 * j1(safe) / safe)
+    return jnp.where(small, _jinc_series(x), 2 * j1(safe) / safe)
+
+
+def _jinc_series(x):
+    """``2 J1(x)/x = Σ_k (−x²/4)^k / (k! (k+1)!)``; 12 terms reach 1e-20 for |x| < 1."""
+    term = jnp.ones_like(x)
+    total = term
+    for k in range(1, 12):
+        term = term * (-(x**2) / 4) / (k * (k + 1))
+        total = total + term
+    return total
 
 
 @jinc.defjvp

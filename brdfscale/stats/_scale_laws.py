@@ -63,7 +63,7 @@ class GaussianCorrelation(AbstractPowerSpectrum):
         return jnp.pi * lx * ly * self.rms_height**2 * jnp.exp(-((k[..., 0] * lx) ** 2 + (k[..., 1] * ly) ** 2) / 4)
 
     def wavenumber_range(self):
-        return 1e-3 / jnp.max(self.correlation_length), 14.0 / jnp.min(self.correlation_length)
+        return 1e-4 / jnp.max(self.correlation_length), 14.0 / jnp.min(self.correlation_length)
 
 
 class KCorrelation(AbstractPowerSpectrum):
@@ -149,6 +149,7 @@ class GaussianSurface(AbstractScaleLaw):
         """``Σ(μ)`` (dimensionless slope²)."""
         mu = positive(mu, "mu", "a positive facet size")
         k_lo, k_hi = self.spectrum.wavenumber_range()
+        k_lo = jnp.minimum(k_lo, 1e-3 / mu)  # the window passes k ≲ 1/μ: start well below
         x, w = np.polynomial.legendre.leggauss(self.n_k)
         t_lo, t_hi = jnp.log(k_lo), jnp.log(k_hi)
         t = 0.5 * (t_hi - t_lo) * x + 0.5 * (t_hi + t_lo)

@@ -1,0 +1,91 @@
+"""The height-field container."""
+
+import dataclasses
+import math
+
+import numpy as np
+
+from .. import stats
+from .._errors import InvalidInputError
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class HeightField:
+    """A periodic height field sampled on a square grid, with the micro-facets' own lobe.
+
+    Attributes:
+        heights: ``h[j, k]`` at ``(x, y) = (k Δ, j Δ)`` (rows y, columns x), shape (n, n),
+            length units; the field is periodic with period ``n Δ`` on both axes.
+        spacing: the pixel pitch Δ (length units, > 0). A *pixel facet* is the plane
+            through ``h[j, k]``, ``h[j, k+1]`` and ``h[j+1, k]``: its height gradient is the
+            forward difference. Facets at scale μ are blocks of ``μ/Δ × μ/Δ`` pixels.
+        micro: the lobe of one pixel facet in slope space (:mod:`brdfscale.stats` density):
+            :class:`~brdfscale.stats.Delta` for mirror micro-facets (default), e.g.
+            ``stats.Beckmann(0.01)`` for rough ones.
+        spectrum: the power spectrum the heights were drawn from, when they were (it makes
+            the analytic ``Σ(μ)`` of :class:`brdfscale.stats.GaussianSurface` available).
+        description: JSON-serialisable provenance (generator, parameters, seed).
+
+    Slope convention (DESIGN §1): the slope of a facet is the slope of its *normal*,
+    ``m = (n_x/n_z, n_y/n_z) = −∇h``. A mirror facet of slope m reflects light into the
+    half-vector slope ``m_s = m``.
+    """
+
+    heights: np.ndarray
+    spacing: float
+    micro: stats.AbstractSlopeDensity = dataclasses.field(default_factory=stats.Delta)
+    spectrum: stats.AbstractPowerSpectrum | None = None
+    description: dict = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self):
+        h = np.asarray(self.heights, dtype=float)
+        if h.ndim != 2 or h.shape[0] != h.shape[1] or h.shape[0] < 4:
+            raise InvalidInputError(f"heights must be a square (n, n) array with n ≥ 4; got shape {h.shape}.")
+        if not np.all(np.isfinite(h)):
+            raise InvalidInputError("heights contains non-finite values.")
+        spacing = float(self.spacing)
+        if not (math.isfinite(spacing) and spacing > 0):
+            raise InvalidInputError(f"spacing must be a positive pixel pitch; got {self.spacing!r}.")
+        if not isinstance(self.micro, stats.AbstractSlopeDensity):
+            raise InvalidInputError(
+                f"micro must be a brdfscale.stats density (Delta() for mirror facets); got {type(self.micro).__name__}."
+            )
+        if self.spectrum is not None and not isinstance(self.spectrum, stats.AbstractPowerSpectrum):
+            raise InvalidInputError(f"spectrum must be a brdfscale.stats power spectrum; got {type(self.spectrum).__name__}.")
+        object.__setattr__(self, "heights", h)
+        object.__setattr__(self, "spacing", spacing)
+        object.__setattr__(self, "description", dict(self.description))
+
+    @property
+    def size(self) -> int:
+        """Pixels per side, n."""
+        return self.heights.shape[0]
+
+    def __add__(self, other: "HeightField") -> "HeightField":
+        """Superpose two fields of equal size and pitch (heights add; micro lobe of ``self``).
+
+        The sum has no single power spectrum, so ``spectrum`` is dropped.
+        """
+        if not isinstance(other, HeightField):
+            return NotImplemented
+        if other.size != self.size or not math.isclose(other.spacing, self.spacing, rel_tol=1e-12):
+            raise InvalidInputError(
+                f"can only add fields of equal size and spacing; got {self.size}@{self.spacing} and {other.size}@{other.spacing}."
+            )
+        return HeightField(
+            self.heights + other.heights,
+            self.spacing,
+            micro=self.micro,
+            description={"generator": "sum", "terms": [self.description, other.description]},
+        )
+
+    def block(self, mu: float) -> int:
+        """The facet size μ in pixels; μ must be a whole number of pixels between 1 and n."""
+        b = float(mu) / self.spacing
+        nb = round(b)
+        if not (math.isfinite(b) and abs(b - nb) <= 1e-9 * max(1.0, b) and 1 <= nb <= self.size):
+            raise InvalidInputError(
+                f"scale mu={mu!r} must be a whole number of pixels (spacing {self.spacing}) between "
+                f"{self.spacing} and {self.size * self.spacing}."
+            )
+        return nb

@@ -1,0 +1,195 @@
+"""Slope statistics: normalisation, transforms, references (Mitsuba, SciPy), scale laws, errors."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.integrate as si
+import scipy.special as sp
+from hypothesis import given, settings, strategies as st
+
+import brdfscale as bs
+from brdfscale import stats
+
+
+def _grid(extent, n):
+    x = np.linspace(-extent, extent, n)
+    X, Y = np.meshgrid(x, x, indexing="xy")
+    return x, np.stack([X, Y], -1), (x[1] - x[0]) ** 2
+
+
+def _numerical_cf(dens, W, extent, n):
+    """∫ s(m) e^{−iW·m} d²m by a fine Riemann sum (spectrally accurate for smooth densities)."""
+    _, M, dA = _grid(extent, n)
+    vals = np.asarray(dens.density(jnp.asarray(M)))
+    return np.array([np.sum(vals * np.exp(-1j * (M @ w))) * dA for w in W])
+
+
+SMOOTH = [
+    stats.Beckmann(0.2),
+    stats.Beckmann(alpha_x=0.1, alpha_y=0.3, mean=[0.02, -0.01]),
+    stats.Gaussian(cov=[[0.01, 0.004], [0.004, 0.02]], mean=[0.05, 0.0]),
+    stats.Mixture([0.7, 0.3], [stats.Beckmann(0.1, mean=[0.03, 0.0]), stats.Beckmann(0.15, mean=[-0.07, 0.0])]),
+]
+
+
+@pytest.mark.parametrize("dens", SMOOTH)
+def test_smooth_density_normalised_and_cf_matches_quadrature(dens):
+    W = np.array([[0.0, 0.0], [3.0, -2.0], [10.0, 4.0], [-7.0, 15.0]])
+    ours = np.asarray(dens.cf(jnp.asarray(W)))
+    ref = _numerical_cf(dens, W, 2.0, 801)
+    np.testing.assert_allclose(ours, ref, atol=1e-12)
+    assert abs(ours[0] - 1) < 1e-15
+
+
+def test_ggx_cf_closed_form_and_density_normalisation():
+    alpha = 0.25
+    g = stats.GGX(alpha)
+    k = np.logspace(-4, 2, 50)
+    W = np.stack([k, np.zeros_like(k)], -1)
+    np.testing.assert_allclose(np.asarray(g.cf(jnp.asarray(W))).real, alpha * k * sp.k1(alpha * k), rtol=1e-13)
+    # radial normalisation ∫ 2π r s(r) dr = 1 (heavy tails: adaptive quadrature)
+    mass, _ = si.quad(lambda r: 2 * np.pi * r * float(g.density(jnp.array([r, 0.0]))), 0, np.inf, limit=200)
+    assert abs(mass - 1) < 1e-10
+    # anisotropic: S(W) = |A W| K1(|A W|)
+    ga = stats.GGX(alpha_x=0.1, alpha_y=0.3)
+    w = np.array([2.0, -3.0])
+    r = np.hypot(0.1 * 2.0, 0.3 * 3.0)
+    assert abs(complex(ga.cf(jnp.asarray(w))) - r * sp.k1(r)) < 1e-14
+
+
+def test_disk_cf_and_density():
+    d = stats.Disk(0.1)
+    k = np.linspace(0.0, 400.0, 41)
+    W = np.stack([k, np.zeros_like(k)], -1)
+    ref = np.where(k == 0, 1.0, 2 * sp.j1(0.1 * np.where(k == 0, 1, k)) / (0.1 * np.where(k == 0, 1, k)))
+    np.testing.assert_allclose(np.asarray(d.cf(jnp.asarray(W))).real, ref, atol=1e-14)
+    assert float(d.density(jnp.array([0.05, 0.05]))) == pytest.approx(1 / (np.pi * 0.01))
+    assert float(d.density(jnp.array([0.1, 0.05]))) == 0.0
+
+
+@pytest.mark.parametrize("kind", ["Beckmann", "GGX"])
+def test_against_mitsuba_microfacet_distribution(kind):
+    """Mitsuba's D(h) times cos⁴θ is the slope density P22 (DESIGN §1). Mitsuba's pip build is
+    float32 only, so agreement is to float32 rounding (≤ 2e-6 relative)."""
+    mi = pytest.importorskip("mitsuba")
+    mi.set_variant("scalar_rgb")
+    ax, ay = 0.2, 0.35
+    dist = mi.MicrofacetDistribution(getattr(mi.MicrofacetType, kind), ax, ay, False)
+    ours = stats.Beckmann(alpha_x=ax, alpha_y=ay) if kind == "Beckmann" else stats.GGX(alpha_x=ax, alpha_y=ay)
+    rng = np.random.default_rng(0)
+    m = rng.normal(scale=0.3, size=(200, 2))
+    n = np.concatenate([m, np.ones((200, 1))], 1)
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    D = np.array([dist.eval(mi.Vector3f(*v)) for v in n])
+    P22 = D * n[:, 2] ** 4
+    # float32 rounding of Mitsuba's exp(−x) / (1 + x)^−2 grows with the exponent x
+    x = (m[:, 0] / ax) ** 2 + (m[:, 1] / ay) ** 2
+    rtol = 4 * np.finfo(np.float32).eps * (4 + x)
+    ours_vals = np.asarray(ours.density(jnp.asarray(m)))
+    assert np.all(np.abs(ours_vals / P22 - 1) <= rtol)
+
+
+def test_tabulated_cf_is_exact_for_the_interpolant_and_from_samples_mean():
+    rng = np.random.default_rng(1)
+    samples = rng.normal(size=(20000, 2)) * [0.08, 0.05] + [0.02, 0.0]
+    t = stats.Tabulated.from_samples(samples, extent=0.5, bins=65)
+    W = np.array([[0.0, 0.0], [4.0, 1.0], [-9.0, 12.0], [30.0, -20.0]])
+    ref = _numerical_cf(t, W, 0.5, 65 * 16 + 1)  # the interpolant is piecewise bilinear; refine 16×
+    np.testing.assert_allclose(np.asarray(t.cf(jnp.asarray(W))), ref, atol=2e-5)
+    # cloud-in-cell deposition keeps the sample mean exactly; E[m] = i ∂S/∂W at W = 0
+    mean_x = 1j * (complex(t.cf(jnp.array([1e-6, 0.0]))) - complex(t.cf(jnp.array([-1e-6, 0.0])))) / 2e-6
+    assert abs(mean_x.real - samples[:, 0].mean()) < 1e-6
+
+
+def test_mixture_is_weighted_sum_and_shift():
+    a, b = stats.GGX(0.1), stats.Disk(0.2)
+    mix = stats.Mixture([2.0, 6.0], [a, b])
+    W = jnp.array([[3.0, 1.0], [0.0, 20.0]])
+    np.testing.assert_allclose(mix.cf(W), 0.25 * a.cf(W) + 0.75 * b.cf(W), atol=1e-15)
+    shifted = mix.shifted(jnp.array([0.1, 0.0]))
+    np.testing.assert_allclose(shifted.cf(W), mix.cf(W) * np.exp(-1j * np.asarray(W)[:, 0] * 0.1), atol=1e-15)
+    assert not shifted.isotropic and mix.isotropic
+
+
+def test_gaussian_surface_closed_form_with_gaussian_window():
+    """Gaussian spectrum + Gaussian window (σ_w = μ/√12): Σ = 2σ²ℓ²/(ℓ² + 4σ_w²)² per axis."""
+    sigma_h, ell = 0.5, 3.0
+    law = stats.GaussianSurface(stats.GaussianCorrelation(sigma_h, ell), window="gaussian")
+    for mu in [1e-3, 1.0, 10.0, 100.0]:
+        sw2 = mu**2 / 12
+        expected = 2 * sigma_h**2 * ell**2 / (ell**2 + 4 * sw2) ** 2
+        cov = np.asarray(law.slope_covariance(mu))
+        np.testing.assert_allclose(np.diag(cov), expected, rtol=1e-12)
+        assert abs(cov[0, 1]) < 1e-15 * expected
+
+
+def test_gaussian_surface_box_window_against_scipy():
+    """Box window, anisotropic Gaussian spectrum: separable, so Σ_xx is a product of 1D integrals."""
+    sigma_h, lx, ly, mu = 0.5, 2.0, 5.0, 4.0
+    law = stats.GaussianSurface(stats.GaussianCorrelation(sigma_h, [lx, ly]), window="box")
+    cov = np.asarray(law.slope_covariance(mu))
+
+    def one_d(ell, power):
+        f = lambda k: k**power * math.sqrt(math.pi) * ell * math.exp(-(k * ell) ** 2 / 4) * np.sinc(k * mu / 2 / math.pi) ** 2
+        return 2 * si.quad(f, 0, 40 / ell, limit=400, epsabs=1e-15, epsrel=1e-13)[0] / (2 * math.pi)
+
+    ref_xx = sigma_h**2 * one_d(lx, 2) * one_d(ly, 0)
+    ref_yy = sigma_h**2 * one_d(lx, 0) * one_d(ly, 2)
+    np.testing.assert_allclose([cov[0, 0], cov[1, 1]], [ref_xx, ref_yy], rtol=1e-9)
+
+
+def test_kcorrelation_gaussian_window_against_scipy():
+    A, B, C, mu = 2.0, 1.5, 3.2, 0.7
+    spec = stats.KCorrelation(A, B, C)
+    cov = np.asarray(stats.GaussianSurface(spec, window="gaussian").slope_covariance(mu))
+    f = lambda k: k**3 * A / (1 + (B * k) ** 2) ** (C / 2) * math.exp(-(k**2) * mu**2 / 12)
+    ref = si.quad(f, 0, float(spec.k_max), limit=400, epsrel=1e-12)[0] * math.pi / (2 * math.pi) ** 2
+    np.testing.assert_allclose(cov[0, 0], ref, rtol=1e-9)
+
+
+def test_scale_laws_tend_to_delta_and_are_differentiable():
+    law = stats.ScaledFamily(stats.GGX, stats.WidthLaw(alpha_max=0.3, mu_c=1.0, exponent=0.8))
+    assert float(law.at(1e6).alpha[0]) < 1e-4
+    gsurf = stats.GaussianSurface(stats.GaussianCorrelation(0.5, 3.0), window="gaussian")
+    assert float(gsurf.slope_covariance(1e4)[0, 0]) < 1e-10
+    d = jax.grad(lambda mu: gsurf.slope_covariance(mu)[0, 0])(10.0)
+    eps = 1e-5
+    fd = (gsurf.slope_covariance(10.0 + eps)[0, 0] - gsurf.slope_covariance(10.0 - eps)[0, 0]) / (2 * eps)
+    np.testing.assert_allclose(d, fd, rtol=1e-6)
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    ax=st.floats(0.01, 1.0), ay=st.floats(0.01, 1.0),
+    wx=st.floats(-50, 50), wy=st.floats(-50, 50),
+)
+def test_cf_is_hermitian_and_bounded(ax, ay, wx, wy):
+    W = jnp.array([wx, wy])
+    for dens in (stats.Beckmann(alpha_x=ax, alpha_y=ay, mean=[0.01, 0.02]), stats.GGX(alpha_x=ax, alpha_y=ay)):
+        assert abs(complex(dens.cf(W))) <= 1 + 1e-12
+        assert abs(complex(dens.cf(-W)) - np.conj(complex(dens.cf(W)))) < 1e-14
+
+
+@pytest.mark.parametrize(
+    "make, match",
+    [
+        (lambda: stats.Beckmann(-0.1), "alpha must be a positive"),
+        (lambda: stats.GGX(0.1, alpha_x=0.2, alpha_y=0.1), "not both"),
+        (lambda: stats.Gaussian(cov=[[1.0, 2.0], [2.0, 1.0]]), "positive definite"),
+        (lambda: stats.Gaussian(cov=[[1.0, 0.5], [0.0, 1.0]]), "symmetric"),
+        (lambda: stats.Mixture([0.5, -0.5], [stats.Delta(), stats.Delta()]), "non-negative"),
+        (lambda: stats.Mixture([1.0], [stats.Delta(), stats.Delta()]), "one per component"),
+        (lambda: stats.Tabulated(np.ones(5), extent=1.0), "2D array"),
+        (lambda: stats.Disk(float("nan")), "finite"),
+        (lambda: stats.KCorrelation(1.0, 1.0, 1.5), "C must exceed 2"),
+        (lambda: stats.GaussianSurface(stats.GaussianCorrelation(1.0, 1.0), window="hann"), "window must be"),
+        (lambda: stats.Delta().density(jnp.zeros(2)), "no pointwise density"),
+        (lambda: stats.Beckmann(0.1).density(jnp.zeros(3)), r"shape \(\.\.\., 2\)"),
+    ],
+)
+def test_errors_name_the_problem(make, match):
+    with pytest.raises(bs.BrdfscaleError, match=match):
+        make()
