@@ -14,8 +14,9 @@ class SlopeHistogram:
     nodes with bilinear weights (cloud in cell), the scheme of
     :meth:`brdfscale.stats.Tabulated.from_samples`, so the bilinear interpolant of
     ``counts / h²`` integrates to the total weight of the samples inside the grid. Unlike
-    ``from_samples`` it takes samples in chunks (constant memory for 4096² fields) and keeps
-    the weight that fell outside, so a lobe can be reported as a fraction of *all* samples.
+    ``from_samples`` it takes samples in chunks (constant memory for 4096² fields, and
+    ``np.bincount`` instead of ``np.add.at``: ~20× faster) and counts the samples that fell
+    outside, so a lobe can be reported per sample, not renormalised over the grid.
     """
 
     def __init__(self, extent: float, bins: int):
@@ -27,35 +28,51 @@ class SlopeHistogram:
         self.bins = int(bins)
         self.spacing = 2 * self.extent / (self.bins - 1)
         self.counts = np.zeros(self.bins * self.bins)
-        self.total_weight = 0.0
+        self.samples = 0
 
     def add(self, mx: np.ndarray, my: np.ndarray, weights: np.ndarray | None = None) -> None:
         """Add samples with slope components ``mx``, ``my`` (equal shapes) and optional weights."""
-        gx = (np.ravel(mx) + self.extent) / self.spacing
-        gy = (np.ravel(my) + self.extent) / self.spacing
-        w = np.ones_like(gx) if weights is None else np.ravel(weights).astype(float)
-        self.total_weight += float(np.sum(w))
-        last = self.bins - 1
-        inside = (gx >= 0) & (gx <= last) & (gy >= 0) & (gy <= last)
-        gx, gy, w = gx[inside], gy[inside], w[inside]
+        scale, last = 1 / self.spacing, self.bins - 1
+        gx = np.ravel(mx) * scale + self.extent * scale
+        gy = np.ravel(my) * scale + self.extent * scale
+        w = None if weights is None else np.ravel(weights).astype(float)
+        self.samples += gx.size
+        if min(gx.min(initial=0), gy.min(initial=0)) < 0 or max(gx.max(initial=0), gy.max(initial=0)) > last:
+            inside = (gx >= 0) & (gx <= last) & (gy >= 0) & (gy <= last)
+            gx, gy = gx[inside], gy[inside]
+            w = None if w is None else w[inside]
         ix = np.minimum(gx.astype(np.int64), last - 1)
         iy = np.minimum(gy.astype(np.int64), last - 1)
         fx, fy = gx - ix, gy - iy
         base = iy * self.bins + ix
+        # Bilinear shares from four sums per node: Σw, Σw fx, Σw fy, Σw fx fy.
         size = self.bins * self.bins
-        for shift, weight in ((0, (1 - fx) * (1 - fy)), (1, fx * (1 - fy)),
-                              (self.bins, (1 - fx) * fy), (self.bins + 1, fx * fy)):
-            self.counts += np.bincount(base + shift, weights=w * weight, minlength=size)
+        fxy = fx * fy
+        if w is not None:
+            fx, fy, fxy = fx * w, fy * w, fxy * w
+        s1 = np.bincount(base, weights=w, minlength=size).reshape(self.bins, self.bins)
+        sx = np.bincount(base, weights=fx, minlength=size).reshape(self.bins, self.bins)
+        sy = np.bincount(base, weights=fy, minlength=size).reshape(self.bins, self.bins)
+        sxy = np.bincount(base, weights=fxy, minlength=size).reshape(self.bins, self.bins)
+        counts = self.counts.reshape(self.bins, self.bins)
+        counts += s1 - sx - sy + sxy
+        counts[:, 1:] += (sx - sxy)[:, :-1]
+        counts[1:, :] += (sy - sxy)[:-1, :]
+        counts[1:, 1:] += sxy[:-1, :-1]
 
     def node_counts(self) -> np.ndarray:
         """The accumulated weights per node, shape (bins, bins)."""
         return self.counts.reshape(self.bins, self.bins)
 
     def density(self) -> np.ndarray:
-        """Node values of the density as a fraction of *all* the weight added (per unit slope area)."""
-        if self.total_weight <= 0:
-            raise InvalidInputError("no samples (or only zero weights) were added to the histogram.")
-        return self.node_counts() / (self.total_weight * self.spacing**2)
+        """Node values of the density per sample added, inside the grid or not (per unit slope area).
+
+        Unweighted, its interpolant integrates to the fraction of samples inside the grid;
+        weighted, to the mean weight carried inside.
+        """
+        if self.samples == 0:
+            raise InvalidInputError("no samples were added to the histogram.")
+        return self.node_counts() / (self.samples * self.spacing**2)
 
     def tabulated(self) -> stats.Tabulated:
         """The histogram as a normalised :class:`brdfscale.stats.Tabulated` density."""

@@ -2,14 +2,20 @@
 
 import math
 
+import equinox as eqx
 import numpy as np
 
 from .. import stats
 from .._errors import InvalidInputError
 from ._random import as_generator, seed_record
-from ._surface import HeightField
+from ._surface import HeightField, parameter_record
 
 _ROWS_PER_CHUNK = 256
+
+
+@eqx.filter_jit
+def _evaluate(spectrum, k):
+    return spectrum(k)
 
 
 def _check_size(size) -> int:
@@ -62,7 +68,7 @@ def spectral_field(
     for start in range(0, n, _ROWS_PER_CHUNK):
         rows = slice(start, min(start + _ROWS_PER_CHUNK, n))
         k = np.stack(np.broadcast_arrays(kx[None, :], ky[rows, None]), axis=-1)
-        power = np.asarray(spectrum(k), dtype=float)
+        power = np.asarray(_evaluate(spectrum, k), dtype=float)
         if not np.all(np.isfinite(power) & (power >= 0)):
             raise InvalidInputError("spectrum(k) must be finite and non-negative on the grid's wave vectors.")
         noise_hat[rows] *= np.sqrt(power) / spacing
@@ -70,19 +76,10 @@ def spectral_field(
     heights = np.fft.irfft2(noise_hat, s=(n, n))
     description = {
         "generator": "spectral_field",
-        "spectrum": _spectrum_record(spectrum),
+        "spectrum": parameter_record(spectrum),
         "size": n,
         "spacing": float(spacing),
         "seed": seed_record(seed),
     }
     return HeightField(heights, spacing, micro=stats.Delta() if micro is None else micro, spectrum=spectrum,
                        description=description)
-
-
-def _spectrum_record(spectrum) -> dict:
-    """The spectrum's class and parameters, as plain JSON numbers."""
-    record = {"type": type(spectrum).__name__}
-    for name, value in vars(spectrum).items():
-        a = np.asarray(value, dtype=float)
-        record[name] = a.tolist()
-    return record

@@ -3,6 +3,7 @@
 import dataclasses
 import math
 
+import equinox as eqx
 import numpy as np
 
 from .. import stats
@@ -89,3 +90,23 @@ class HeightField:
                 f"{self.spacing} and {self.size * self.spacing}."
             )
         return nb
+
+
+def parameter_record(obj) -> dict:
+    """An equinox module (density, spectrum) as ``{"type": name, field: value}`` with JSON values."""
+    record = {"type": type(obj).__name__}
+    for name, value in vars(obj).items():
+        record[name] = _value_record(value)
+    return record
+
+
+def _value_record(value):
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if isinstance(value, eqx.Module):
+        return parameter_record(value)
+    if isinstance(value, (tuple, list)):
+        return [_value_record(v) for v in value]
+    if callable(value):
+        return getattr(value, "__name__", repr(value))
+    return np.asarray(value, dtype=float).tolist()

@@ -1,0 +1,70 @@
+"""File access: atomic, no-clobber writes and checked opening."""
+
+import os
+import tempfile
+import warnings
+
+import OpenEXR
+
+from .._errors import MeasurementFileError
+from ._format import PREFIX
+
+
+def write_parts(path, parts: list, overwrite: bool) -> None:
+    """Write ``OpenEXR.Part``s to ``path`` atomically.
+
+    The file is written to a temporary name in the same directory and then moved into
+    place, so readers never see a half-written file. Without ``overwrite`` an existing file
+    is never replaced: the temporary file is hard-linked to ``path``, which fails if ``path``
+    exists even when another process creates it meanwhile.
+    """
+    path = os.fspath(path)
+    if not overwrite and os.path.lexists(path):
+        raise MeasurementFileError(f"{path}: file exists; pass overwrite=True (CLI: --force) to replace it.")
+    directory = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(directory):
+        raise MeasurementFileError(f"{path}: directory {directory} does not exist.")
+    fd, tmp = tempfile.mkstemp(dir=directory, prefix=".brdfscale-", suffix=".exr.tmp")
+    os.close(fd)
+    try:
+        try:
+            OpenEXR.File(parts).write(tmp)
+        except (RuntimeError, TypeError, ValueError) as err:
+            raise MeasurementFileError(f"{path}: OpenEXR could not write the file: {err}") from err
+        if overwrite:
+            os.replace(tmp, path)
+        else:
+            try:
+                os.link(tmp, path)
+            except FileExistsError:
+                raise MeasurementFileError(f"{path}: file exists; pass overwrite=True (CLI: --force) to replace it.") from None
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def open_parts(path) -> list:
+    """Open ``path`` and return its parts, checking that none is missing.
+
+    OpenEXR 3.5 raises for a missing, non-EXR or header-truncated file but only *warns* and
+    returns no parts when the file is cut inside the pixel data (FIELD-NOTES); every part
+    records the part count, so a short file is reported here.
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise MeasurementFileError(f"{path}: no such file.")
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            parts = list(OpenEXR.File(path, separate_channels=True).parts)
+    except RuntimeError as err:
+        raise MeasurementFileError(f"{path}: not a readable OpenEXR file ({err}).") from err
+    if not parts:
+        raise MeasurementFileError(f"{path}: no readable part: the file is truncated or its pixel data are damaged.")
+    declared = parts[0].header.get(PREFIX + "part_count")
+    if isinstance(declared, int) and not isinstance(declared, bool) and declared != len(parts):
+        raise MeasurementFileError(
+            f"{path}: attribute {PREFIX + 'part_count'!r} of part 0 declares {declared} parts but {len(parts)} "
+            "could be read: the file is truncated or damaged."
+        )
+    return parts

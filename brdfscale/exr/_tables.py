@@ -1,0 +1,126 @@
+"""Evolved-BRDF tables: lobes tabulated on a half-slope grid at several scales, as OpenEXR."""
+
+import dataclasses
+import math
+
+import jax.numpy as jnp
+import numpy as np
+import OpenEXR
+
+from .._errors import BrdfscaleError, InvalidInputError, MeasurementFileError
+from ..lobes import AbstractLobe
+from ._format import PREFIX, PartReader
+from ._io import open_parts, write_parts
+from ._measurements import check_dtype, image_channels, metadata_json, part_header, read_image_part
+
+KIND = "lobe_table"
+
+
+@dataclasses.dataclass(frozen=True)
+class LobeTable:
+    """Lobes ``A·g(u, μ)`` at several scales on one grid of offsets ``u = m_s − m∞``.
+
+    Attributes:
+        scales: the scales μ, shape (k,), positive and distinct.
+        extent: half-width a of the grid: nodes ``linspace(−a, a, n)`` on both axes
+            (rows u_y, columns u_x, as :class:`brdfscale.stats.Tabulated`).
+        values: shape (k, n, n) or (k, n, n, 3) (RGB); finite (an evolved lobe may dip below
+            zero by quadrature or regularisation error, so the sign is not checked).
+        metadata: JSON-serialisable extras (how the table was made).
+    """
+
+    scales: np.ndarray
+    extent: float
+    values: np.ndarray
+    metadata: dict = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self):
+        scales = np.atleast_1d(np.asarray(self.scales, dtype=float))
+        if scales.ndim != 1 or not np.all(np.isfinite(scales) & (scales > 0)) or len(np.unique(scales)) != len(scales):
+            raise InvalidInputError(f"scales must be distinct positive numbers; got {scales!r}.")
+        extent = float(self.extent)
+        if not (math.isfinite(extent) and extent > 0):
+            raise InvalidInputError(f"extent must be positive; got {self.extent!r}.")
+        values = np.asarray(self.values, dtype=float)
+        ok = values.ndim in (3, 4) and values.shape[0] == len(scales) and values.shape[1] == values.shape[2] >= 2
+        if not ok or (values.ndim == 4 and values.shape[3] != 3):
+            raise InvalidInputError(
+                f"values must have shape (k, n, n) or (k, n, n, 3) with k = {len(scales)} scales, n ≥ 2; got {values.shape}."
+            )
+        if not np.all(np.isfinite(values)):
+            raise InvalidInputError("values contains non-finite entries.")
+        object.__setattr__(self, "scales", scales)
+        object.__setattr__(self, "extent", extent)
+        object.__setattr__(self, "values", values)
+        object.__setattr__(self, "metadata", dict(self.metadata))
+
+    @classmethod
+    def from_lobes(cls, scales, lobes, *, extent: float, size: int = 128, metadata: dict | None = None) -> "LobeTable":
+        """Tabulate :mod:`brdfscale.lobes` lobes (e.g. results of :func:`brdfscale.evolve`).
+
+        ``lobes[k].density(u)`` is evaluated on the ``size × size`` grid over
+        ``[−extent, extent]²``.
+        """
+        lobes = list(lobes)
+        if not all(isinstance(lobe, AbstractLobe) for lobe in lobes):
+            raise InvalidInputError("lobes must be brdfscale.lobes lobes (one per scale).")
+        if len(lobes) != len(np.atleast_1d(scales)):
+            raise InvalidInputError(f"give one lobe per scale; got {len(lobes)} lobes for {len(np.atleast_1d(scales))} scales.")
+        if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 2:
+            raise InvalidInputError(f"size must be an integer ≥ 2; got {size!r}.")
+        x = jnp.linspace(-extent, extent, size)
+        u = jnp.stack(jnp.meshgrid(x, x, indexing="xy"), axis=-1)
+        values = np.stack([np.asarray(lobe.density(u), dtype=float) for lobe in lobes])
+        return cls(np.atleast_1d(scales), extent, values, metadata or {})
+
+
+def write_lobe_table(path, table: LobeTable, *, overwrite: bool = False, dtype: str = "float32") -> None:
+    """Write a :class:`LobeTable` as a multi-part OpenEXR file, one part per scale.
+
+    Same layout and guarantees as :func:`write_measurements` (``brdfscale.kind =
+    "lobe_table"``, no incident direction, no σ or mask).
+    """
+    if not isinstance(table, LobeTable):
+        raise InvalidInputError(f"table must be a brdfscale.exr.LobeTable; got {type(table).__name__}.")
+    stored = check_dtype(dtype)
+    meta = metadata_json(table.metadata)
+    parts = []
+    for index, (mu, values) in enumerate(zip(table.scales, table.values)):
+        channels = image_channels(values, None, None, stored, f"scale {index}")
+        header = part_header(KIND, index, len(table.scales), mu, table.extent, channels, values.shape[0])
+        if index == 0:
+            header[PREFIX + "metadata"] = meta
+        parts.append(OpenEXR.Part(header, channels, name=f"scale{index:04d}"))
+    write_parts(path, parts, overwrite)
+
+
+def read_lobe_table(path) -> LobeTable:
+    """Read a file written by :func:`write_lobe_table`, validating every attribute and channel.
+
+    Raises:
+        MeasurementFileError: as :func:`read_measurements`; also when the parts disagree on
+            the extent, the grid size or the channels.
+    """
+    parts = open_parts(path)
+    scales, planes, extent, metadata = [], [], None, {}
+    for index, raw in enumerate(parts):
+        part = PartReader(path, index, raw)
+        part.common(KIND, len(parts))
+        mu = part.positive_double("mu")
+        e = part.positive_double("extent")
+        if extent is not None and e != extent:
+            part.fail(f"attribute {PREFIX + 'extent'!r}", f"is {e}, but part 0 has {extent}; a table has one grid.")
+        extent = e
+        values, sigma, mask = read_image_part(part)
+        if sigma is not None or mask is not None:
+            part.fail("channels", "a lobe table has no sigma or mask channels.")
+        if planes and values.shape != planes[0].shape:
+            part.fail("channels", f"shape {values.shape} differs from part 0's {planes[0].shape}.")
+        if index == 0:
+            metadata = part.json_object("metadata")
+        scales.append(mu)
+        planes.append(values)
+    try:
+        return LobeTable(np.array(scales), extent, np.stack(planes), metadata)
+    except BrdfscaleError as err:
+        raise MeasurementFileError(f"{path}: {err}") from err

@@ -1,0 +1,39 @@
+"""Random height fields and synthetic multi-scale measurements (DESIGN §2, §6).
+
+* Surfaces: :func:`spectral_field` (Gaussian random fields with any
+  :mod:`brdfscale.stats` power spectrum — Gaussian-correlated, anisotropic, K-correlation /
+  ABC fractal), :func:`scratches` and :func:`blazed` (non-Gaussian micro-structure), the
+  built-in named surfaces of :func:`named_surface`; all in a :class:`HeightField`.
+* Statistics: :func:`facet_slopes`, :func:`facet_statistics` (``s(·, μ)`` and the
+  within-facet lobe ``g_μ`` as :class:`brdfscale.stats.Tabulated`), :func:`global_slopes`.
+* Measurements: :func:`gonioreflectometer` turns a surface into a
+  :class:`brdfscale.MeasurementSet` with :class:`PoissonNoise` or :class:`GaussianNoise`
+  and an optional angular resolution.
+
+Every random generator takes an explicit ``seed`` (int, NumPy Generator or JAX key).
+"""
+
+from ._facets import FacetStatistics, facet_slopes, facet_statistics, global_slopes
+from ._gonio import GaussianNoise, PoissonNoise, gonioreflectometer
+from ._named import SURFACES, named_surface
+from ._profiles import blazed, scratches
+from ._random import as_generator
+from ._spectral import spectral_field
+from ._surface import HeightField
+
+__all__ = [
+    "HeightField",
+    "spectral_field",
+    "scratches",
+    "blazed",
+    "SURFACES",
+    "named_surface",
+    "FacetStatistics",
+    "facet_slopes",
+    "facet_statistics",
+    "global_slopes",
+    "GaussianNoise",
+    "PoissonNoise",
+    "gonioreflectometer",
+    "as_generator",
+]

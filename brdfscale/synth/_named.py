@@ -1,0 +1,57 @@
+"""Built-in named surfaces (pixel pitch 1: lengths and scales in pixels)."""
+
+from typing import Callable
+
+from .. import stats
+from .._errors import InvalidInputError
+from ._profiles import blazed, scratches
+from ._random import as_generator
+from ._spectral import spectral_field
+from ._surface import HeightField
+
+
+def _gaussian(size, seed):
+    return spectral_field(stats.GaussianCorrelation(0.05, 8.0), size=size, seed=seed)
+
+
+def _anisotropic(size, seed):
+    return spectral_field(stats.GaussianCorrelation(0.05, (6.0, 24.0)), size=size, seed=seed)
+
+
+def _fractal(size, seed):
+    return spectral_field(stats.KCorrelation(A=30.0, B=32.0, C=3.5), size=size, seed=seed)
+
+
+def _scratched(size, seed):
+    rng = as_generator(seed)
+    base = spectral_field(stats.GaussianCorrelation(0.02, 8.0), size=size, seed=rng)
+    cuts = scratches(size=size, count=max(1, size // 32), depth=0.2, width=8.0, length=size / 4, seed=rng)
+    return base + cuts
+
+
+def _blazed(size, seed):
+    if size % 16:
+        raise InvalidInputError(f"the 'blazed' surface needs a size divisible by its 16-pixel period; got {size}.")
+    return blazed(size=size, period=16, slopes=(0.03, -0.09))
+
+
+SURFACES: dict[str, tuple[str, Callable[[int, object], HeightField]]] = {
+    "gaussian": ("Gaussian-correlated, σ_h = 0.05, ℓ = 8 px (rms slope per axis 0.0088)", _gaussian),
+    "anisotropic": ("Gaussian-correlated, σ_h = 0.05, ℓ = (6, 24) px", _anisotropic),
+    "fractal": ("K-correlation (ABC) fractal, A = 30, B = 32 px, C = 3.5", _fractal),
+    "scratched": ("Gaussian σ_h = 0.02, ℓ = 8 px, plus size/32 V-scratches 0.2 deep, 8 px wide", _scratched),
+    "blazed": ("blazed grating, period 16 px, 75 % of facets at slope +0.03, 25 % at −0.09", _blazed),
+}
+"""name → (description, builder(size, seed))."""
+
+
+def named_surface(name: str, *, size: int = 512, seed=0, micro: stats.AbstractSlopeDensity | None = None) -> HeightField:
+    """A built-in surface by name (keys of :data:`SURFACES`), pixel pitch 1.
+
+    ``micro`` replaces the pixel facets' lobe (default: mirror facets).
+    """
+    if name not in SURFACES:
+        raise InvalidInputError(f"unknown surface {name!r}; built-in surfaces: {', '.join(SURFACES)}.")
+    field = SURFACES[name][1](size, seed)
+    return HeightField(field.heights, field.spacing, micro=field.micro if micro is None else micro,
+                       spectrum=field.spectrum, description={**field.description, "name": name})
