@@ -11,7 +11,7 @@ import sys
 
 from .._errors import BrdfscaleError
 
-_SUBCOMMANDS = ("example",)
+_SUBCOMMANDS = ("example", "synth", "info")
 
 
 def build_parser() -> argparse.ArgumentParser:
