@@ -1,0 +1,252 @@
+"""Physical models on SO(3): facet-orientation statistics and an anisotropic microfacet lobe.
+
+A facet's orientation relative to the global one is a rotation Δ = Γ∞⁻¹Γ whose columns are
+the facet's tangent, bitangent and normal; ``s(Δ)`` is its density with respect to the Haar
+measure ``dΓ = sin β dα dβ dγ`` (total 8π²), what a histogram of facet frames shows. Every
+density exposes ``operator(B)``: ``S̃^J = (8π²/(2J+1)) s^J`` for J < B, padded to (2B−1)² with
+the identity (so block solves stay well posed), and ``coefficients(B)``: ``s^J`` itself.
+The seed's q is the reflection: ``Q̃^J = (S̃^J)†`` (:mod:`._convolution`).
+"""
+
+import abc
+import math
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, ArrayLike, Complex, Float
+
+from .. import stats
+from .._errors import InvalidInputError
+from .._special import xk1
+from .._validation import as_float_array, is_concrete, positive
+from ..geometry import microfacet_factor, validate_directions
+from ._convolution import to_operator
+from ._generators import check_diffusion, diffusion_operator
+from ._grid import check_band_limit, grid
+from ._rotations import euler_to_matrix, matrix_to_euler
+from ._transform import analyse_points, forward
+
+__all__ = [
+    "AbstractOrientationDensity",
+    "Identity",
+    "RotationalDiffusion",
+    "TiltTwist",
+    "EmpiricalOrientations",
+    "AnisotropicMicrofacetLobe",
+    "operator_padding",
+]
+
+
+def operator_padding(B: int) -> np.ndarray:
+    """The identity on the padding of (B, 2B−1, 2B−1) blocks (entries with |M| or |M'| > J)."""
+    M = np.arange(-(B - 1), B)
+    outside = np.abs(M)[None, :] > np.arange(B)[:, None]
+    return outside[:, :, None] * np.eye(2 * B - 1)[None]
+
+
+class AbstractOrientationDensity(eqx.Module):
+    """A density ``s(Δ)`` of facet orientations relative to the global one (module docstring)."""
+
+    @abc.abstractmethod
+    def operator(self, B: int) -> Complex[Array, "B 2B-1 2B-1"]:
+        """``S̃^J = (8π²/(2J+1)) s^J`` for J < B, identity on the padding."""
+
+    def coefficients(self, B: int) -> Complex[Array, "B 2B-1 2B-1"]:
+        """``s^J = (2J+1)/(8π²) ∫ s D^{J*} dΓ`` for J < B (zeros on the padding)."""
+        B = check_band_limit(B)
+        op = self.operator(B) - operator_padding(B)
+        return op * jnp.asarray((2 * np.arange(B) + 1) / (8 * np.pi**2))[:, None, None]
+
+
+def _with_padding(coefficients, B):
+    return to_operator(coefficients) + operator_padding(B)
+
+
+class Identity(AbstractOrientationDensity):
+    """δ at the identity: every facet aligned with the global frame (μ → ∞). ``S̃^J = I``."""
+
+    def operator(self, B):
+        B = check_band_limit(B)
+        return jnp.broadcast_to(jnp.eye(2 * B - 1, dtype=complex), (B, 2 * B - 1, 2 * B - 1))
+
+
+class RotationalDiffusion(AbstractOrientationDensity):
+    """Rotational diffusion from the identity for time τ: ``S̃^J = exp(−τ G^J)``.
+
+    ``G = D_x J_x² + D_y J_y² + D_z J_z²`` (:mod:`._generators`); for small τ the facet tilt
+    about x (y) has angular variance ``2 D_x τ`` (``2 D_y τ``) and the twist ``2 D_z τ``.
+    Isotropic D is the heat kernel of SO(3); D_x ≠ D_y gives anisotropic tilt (grooves).
+    """
+
+    tau: Float[Array, ""]
+    D: Float[Array, "3"]
+
+    def __init__(self, tau: Float[ArrayLike, ""], D: Float[ArrayLike, "3"] = 1.0):
+        self.tau = as_float_array(tau, "tau")
+        if is_concrete(self.tau) and float(self.tau) < 0:
+            raise InvalidInputError(f"tau must be ≥ 0; got {float(self.tau)}.")
+        self.D = check_diffusion(D)
+
+    def operator(self, B):
+        return diffusion_operator(check_band_limit(B), self.D, self.tau).astype(jnp.result_type(self.tau, 1j))
+
+
+def _wrapped_normal(psi, mean, std):
+    """Wrapped normal density on the circle, by its Fourier series (1/2π) Σ_k e^{−σ²k²/2} cos k(ψ − ψ0)."""
+    k_max = int(min(4096, math.ceil(9.0 / max(float(std), 1e-6)))) if is_concrete(std) else 4096
+    k = jnp.arange(1, k_max + 1)
+    terms = jnp.exp(-0.5 * (std * k) ** 2) * jnp.cos(k * (psi[..., None] - mean))
+    return (1 + 2 * jnp.sum(terms, axis=-1)) / (2 * jnp.pi)
+
+
+class TiltTwist(AbstractOrientationDensity):
+    """Tilt × twist: the facet normal tilts with a slope density, the frame twists independently.
+
+    A facet with normal of slope ``m`` (``n = (m, 1)/√(1+|m|²)``: polar angle β = atan|m|,
+    azimuth α) and twist ψ about its normal has Euler angles ``(α, β, ψ − α)`` (the minimal
+    tilt ``U(α)A(β)U(−α)`` followed by the twist ``U(ψ)``). Its density on SO(3) is
+
+        s(α, β, γ) = s_m(tan β (cos α, sin α)) / cos³β · p(α + γ),     β < π/2,
+
+    with ``s_m`` any :mod:`brdfscale.stats` slope density (``d²m = dω/cos³β``) and ``p`` a
+    wrapped normal twist density of ``twist_mean`` and ``twist_std`` (radians; None: uniform,
+    an isotropic twist). Coefficients come from :func:`forward` on the grid of band limit B
+    (exact only for band-limited s; choose B with :func:`band_limit`).
+    """
+
+    tilt: stats.AbstractSlopeDensity
+    twist_mean: Float[Array, ""]
+    twist_std: Float[Array, ""] | None
+
+    def __init__(self, tilt: stats.AbstractSlopeDensity, twist_mean: float = 0.0, twist_std: float | None = None):
+        if not isinstance(tilt, stats.AbstractSlopeDensity):
+            raise InvalidInputError(f"tilt must be a brdfscale.stats slope density; got {type(tilt).__name__}.")
+        self.tilt = tilt
+        self.twist_mean = as_float_array(twist_mean, "twist_mean")
+        self.twist_std = None if twist_std is None else positive(twist_std, "twist_std")
+
+    def density(self, alpha, beta, gamma) -> Float[Array, "..."]:
+        """``s(α, β, γ)`` per unit Haar measure."""
+        alpha, beta, gamma = jnp.broadcast_arrays(*(as_float_array(x, n) for x, n in
+                                                    ((alpha, "alpha"), (beta, "beta"), (gamma, "gamma"))))
+        upper = beta < jnp.pi / 2
+        b = jnp.where(upper, beta, 0.0)
+        t = jnp.tan(b)
+        m = jnp.stack([t * jnp.cos(alpha), t * jnp.sin(alpha)], axis=-1)
+        tilt = self.tilt.density(m) / jnp.cos(b) ** 3
+        if self.twist_std is None:
+            twist = jnp.full_like(alpha, 1 / (2 * jnp.pi))
+        else:
+            twist = _wrapped_normal(alpha + gamma, self.twist_mean, self.twist_std)
+        return jnp.where(upper, tilt * twist, 0.0)
+
+    def operator(self, B):
+        B = check_band_limit(B)
+        a, b, g = (jnp.asarray(x) for x in grid(B))
+        samples = self.density(a[:, None, None], b[None, :, None], g[None, None, :])
+        return _with_padding(forward(samples), B)
+
+
+class EmpiricalOrientations(AbstractOrientationDensity):
+    """The distribution of n measured facet frames, optionally smoothed (a kernel density).
+
+    ``frames`` (n, 3, 3): rotation matrices (columns: tangent, bitangent, normal in the
+    global frame). The coefficients are the exact transform of the empirical measure,
+    ``(2J+1)/(8π²) (1/n) Σ_k D^J(Δ_k)*`` (no binning), multiplied by the heat kernel
+    ``exp(−τ_s J(J+1))`` when ``smoothing = τ_s > 0`` (Gaussian kernel of angular variance
+    2τ_s per axis), which makes it a smooth, band-limited density estimate.
+    """
+
+    frames: Float[Array, "n 3 3"]
+    smoothing: Float[Array, ""]
+
+    def __init__(self, frames: Float[ArrayLike, "n 3 3"], smoothing: float = 0.0):
+        f = as_float_array(frames, "frames")
+        if f.ndim != 3 or f.shape[1:] != (3, 3) or f.shape[0] == 0:
+            raise InvalidInputError(f"frames must have shape (n, 3, 3) with n ≥ 1; got {f.shape}.")
+        matrix_to_euler(f)  # validates: proper rotations
+        self.frames = f
+        self.smoothing = as_float_array(smoothing, "smoothing")
+        if is_concrete(self.smoothing) and float(self.smoothing) < 0:
+            raise InvalidInputError(f"smoothing must be ≥ 0; got {float(self.smoothing)}.")
+
+    def operator(self, B):
+        B = check_band_limit(B)
+        a, b, g = matrix_to_euler(self.frames)
+        J = jnp.arange(B, dtype=self.smoothing.dtype)
+        kernel = jnp.exp(-self.smoothing * J * (J + 1))
+        return _with_padding(analyse_points(a, b, g, B) * kernel[:, None, None], B)
+
+
+class AnisotropicMicrofacetLobe(eqx.Module):
+    """An anisotropic microfacet BRDF of a facet with orientation Γ: ``ρ(i, o, Γ)`` (seed §2, §5).
+
+    In the facet's frame (``i' = Γᵀ i``, ``o' = Γᵀ o``, ``h' = Γᵀ h``) the facet is a rough
+    surface with slope statistics ``g`` — Beckmann or GGX with roughness α_x along the facet's
+    tangent and α_y along its bitangent — and (no masking, Fresnel 1, DESIGN §1)
+
+        ρ(i, o, Γ) = A · g(m(h')) / (4 (h'·o') cos⁴θ_h'),
+
+    zero where the light or the detector is below the facet's horizon (i'_z ≤ 0 or o'_z ≤ 0).
+    Units 1/sr. For fixed (i, o) this is a function on SO(3) whose coefficients evolve
+    with the statistics (:func:`evolve`).
+    """
+
+    shape: stats.AbstractSlopeDensity
+    amplitude: Float[Array, ""]
+    family: str = eqx.field(static=True)
+
+    def __init__(self, alpha_x, alpha_y, family: str = "beckmann", amplitude=1.0):
+        if family == "beckmann":
+            self.shape = stats.Beckmann(alpha_x=alpha_x, alpha_y=alpha_y)
+        elif family == "ggx":
+            self.shape = stats.GGX(alpha_x=alpha_x, alpha_y=alpha_y)
+        else:
+            raise InvalidInputError(f"family must be 'beckmann' or 'ggx'; got {family!r}.")
+        self.family = family
+        self.amplitude = as_float_array(amplitude, "amplitude")
+
+    def _alpha_min(self):
+        if self.family == "ggx":
+            return jnp.min(self.shape.alpha)
+        return jnp.sqrt(2 * jnp.min(jnp.diagonal(self.shape.cov)))
+
+    def evaluate(
+        self, i: Float[ArrayLike, "*batch 3"], o: Float[ArrayLike, "*batch 3"], rotation: Float[ArrayLike, "*batch 3 3"]
+    ) -> Float[Array, "*batch"]:
+        """``ρ(i, o, Γ)`` for global directions i, o (z > 0) and facet orientations Γ (3×3)."""
+        i = validate_directions(i, "i")
+        o = validate_directions(o, "o")
+        rot = jnp.asarray(rotation)
+        ip = jnp.einsum("...ji,...j->...i", rot, i)
+        op = jnp.einsum("...ji,...j->...i", rot, o)
+        visible = (ip[..., 2] > 0) & (op[..., 2] > 0)
+        up = jnp.array([0.0, 0.0, 1.0], dtype=ip.dtype)
+        ip = jnp.where(visible[..., None], ip, up)
+        op = jnp.where(visible[..., None], op, up)
+        h = ip + op
+        m = h[..., :2] / h[..., 2:3]
+        value = self.amplitude * self.shape.density(m) * microfacet_factor(ip, op)
+        return jnp.where(visible, value, 0.0)
+
+    def samples(self, i: Float[ArrayLike, "3"], o: Float[ArrayLike, "3"], B: int) -> Float[Array, "2B 2B 2B"]:
+        """``ρ(i, o, Γ)`` on the Kostelec–Rockmore grid of band limit B (axes α, β, γ)."""
+        B = check_band_limit(B)
+        a, b, g = (jnp.asarray(x) for x in grid(B))
+        rot = euler_to_matrix(a[:, None, None], b[None, :, None], g[None, None, :])
+        return self.evaluate(jnp.asarray(i), jnp.asarray(o), rot)
+
+    def coefficients(self, i, o, B: int) -> Complex[Array, "B 2B-1 2B-1"]:
+        """SO(3) coefficients of ``Γ ↦ ρ(i, o, Γ)`` at band limit B (:func:`forward` of :meth:`samples`)."""
+        return forward(self.samples(i, o, B))
+
+    def spectrum(self, J: Float[ArrayLike, "*batch"]) -> Float[Array, "*batch"]:
+        """Decay of the lobe's degree-J content along its narrowest axis, ``|G(W)|`` at |W|² = J(J+1):
+        ``exp(−α_min² J(J+1)/4)`` (Beckmann) or ``x K₁(x)``, ``x = α_min √(J(J+1))`` (GGX)."""
+        J = jnp.asarray(J, dtype=float)
+        w = jnp.sqrt(J * (J + 1))
+        a = self._alpha_min()
+        if self.family == "ggx":
+            return xk1(a * w)
+        return jnp.exp(-((a * w) ** 2) / 4)
