@@ -114,8 +114,8 @@ def gonioreflectometer(
         A :class:`brdfscale.MeasurementSet` with one image per (μ, i), scales outermost; its
         ``metadata`` records the surface, the instrument and the truth (facet-slope mean and
         covariance per scale, and the analytic ``Σ(μ)`` of
-        :class:`brdfscale.stats.GaussianSurface` with a box window when the field has a
-        spectrum).
+        :class:`brdfscale.stats.GaussianSurface` with a box window and 256 quadrature
+        nodes in k when the field has a spectrum).
     """
     if not isinstance(field, HeightField):
         raise InvalidInputError(f"field must be a brdfscale.synth.HeightField; got {type(field).__name__}.")
@@ -147,7 +147,7 @@ def gonioreflectometer(
     pad = kernel_padding(field.micro, resolution, h)
     crop = slice(pad, pad + pixels)
     images, truth = [], {"facet_slope_mean": [], "facet_slope_covariance": []}
-    law = None if field.spectrum is None else stats.GaussianSurface(field.spectrum, window="box")
+    law = None if field.spectrum is None else stats.GaussianSurface(field.spectrum, window="box", n_k=256)
     if law is not None:
         truth["analytic_facet_slope_covariance"] = []
     for mu in scales:
