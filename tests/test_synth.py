@@ -11,6 +11,7 @@ import math
 import jax
 import numpy as np
 import pytest
+from scipy.integrate import quad
 
 from brdfscale import InvalidInputError, geometry, stats, synth
 from brdfscale.synth._histogram import SlopeHistogram
@@ -233,8 +234,13 @@ def test_gonioreflectometer_rgb_and_metadata():
     np.testing.assert_allclose(mset.images[0].values[..., 1] / 0.5, mset.images[0].values[..., 0] / 0.8)
     assert [p.mu for p in mset.images] == [4.0, 4.0, 16.0, 16.0]
     truth = mset.metadata["truth"]
-    law = stats.GaussianSurface(GAUSS_ISO, window="box")
-    np.testing.assert_allclose(truth["analytic_facet_slope_covariance"][1], np.asarray(law.slope_covariance(16.0)), rtol=1e-12, atol=1e-16)
+    # Σ_xx(μ) for a Gaussian-correlated spectrum and a box window separates into 1D integrals
+    sigma_h, ell, mu = 1.0, 8.0, 16.0
+    sinc2 = lambda k: np.sinc(k * mu / (2 * np.pi)) ** 2  # noqa: E731  (np.sinc(x) = sin(πx)/(πx))
+    ix = quad(lambda k: k**2 * np.exp(-(k * ell) ** 2 / 4) * sinc2(k), -np.inf, np.inf, epsabs=0, epsrel=1e-12)[0]
+    iy = quad(lambda k: np.exp(-(k * ell) ** 2 / 4) * sinc2(k), -np.inf, np.inf, epsabs=0, epsrel=1e-12)[0]
+    sxx = np.pi * ell * ell * sigma_h**2 * ix * iy / (2 * np.pi) ** 2
+    np.testing.assert_allclose(np.asarray(truth["analytic_facet_slope_covariance"][1]), [[sxx, 0], [0, sxx]], rtol=1e-9, atol=1e-16)
     np.testing.assert_allclose(truth["facet_slope_covariance"][0], np.cov(synth.facet_slopes(field, 4.0).reshape(-1, 2).T))
     assert mset.metadata["surface"]["spectrum"]["type"] == "GaussianCorrelation"
 

@@ -18,6 +18,7 @@ up to ``O((kΔ)²)``).
 import dataclasses
 import math
 
+import equinox as eqx
 import numpy as np
 
 from .. import stats
@@ -133,6 +134,11 @@ def _is_mirror(micro) -> bool:
     return isinstance(micro, stats.Delta) and micro.mean is None
 
 
+@eqx.filter_jit
+def _transform(density: stats.AbstractSlopeDensity, w):
+    return density.cf(w)
+
+
 def blur(values: np.ndarray, spacing: float, micro: stats.AbstractSlopeDensity, resolution: float = 0.0) -> np.ndarray:
     """Convolve node values on a grid of pitch ``spacing`` with ``micro`` and a Gaussian.
 
@@ -150,7 +156,7 @@ def blur(values: np.ndarray, spacing: float, micro: stats.AbstractSlopeDensity, 
     w = np.stack(np.broadcast_arrays(wx[None, :], wy[:, None]), axis=-1)
     kernel = np.ones(w.shape[:-1], dtype=complex)
     if not _is_mirror(micro):
-        kernel = kernel * np.asarray(micro.cf(w), dtype=complex)
+        kernel = kernel * np.asarray(_transform(micro, w), dtype=complex)
     if resolution > 0:
         kernel = kernel * np.exp(-0.5 * resolution**2 * np.sum(w**2, axis=-1))
     out = np.fft.irfft2(np.fft.rfft2(values) * kernel, s=values.shape)
