@@ -25,10 +25,9 @@ KIND = "measurement_set"
 
 
 def _store(a: np.ndarray, dtype, what: str) -> np.ndarray:
-    stored = np.ascontiguousarray(a, dtype=dtype)
     if dtype == np.float16 and np.max(np.abs(a), initial=0) > FLOAT16_MAX:
         raise InvalidInputError(f"{what} exceeds the float16 range (±{FLOAT16_MAX}); write with dtype='float32'.")
-    return stored
+    return np.ascontiguousarray(a, dtype=dtype)
 
 
 def image_channels(values, sigma, mask, dtype, what: str) -> dict:

@@ -1,0 +1,303 @@
+"""Tests of brdfscale.exr: round trips, independent readers, damaged and malformed files.
+
+Independent references: Debian's `exrheader` (C++ OpenEXR tools), a plain OpenEXR.File
+reader, and files built by hand with OpenEXR.File to inject wrong attributes, missing
+channels and silently changed pixels.
+"""
+
+import json
+import os
+import shutil
+import subprocess
+
+import hypothesis.strategies as st
+import numpy as np
+import OpenEXR
+import pytest
+from hypothesis import HealthCheck, given, settings
+
+from brdfscale import InvalidInputError, LobeImage, MeasurementSet, exr, lobes
+from brdfscale._errors import MeasurementFileError
+
+MU = 0.1 + 1e-12  # not representable in float32: must come back exactly
+
+
+def _mset(rgb=False, n=9, seed=0):
+    rng = np.random.default_rng(seed)
+    shape = (n, n, 3) if rgb else (n, n)
+    images = []
+    for k, (mu, theta) in enumerate([(MU, 0.0), (MU, 0.4), (3.7, 0.2)]):
+        incident = np.array([np.sin(theta) * np.cos(k), np.sin(theta) * np.sin(k), np.cos(theta)])
+        values = rng.uniform(0, 5, shape)
+        sigma = rng.uniform(0.1, 1, shape) if k != 1 else None
+        mask = rng.uniform(size=(n, n)) > 0.2 if k != 2 else None
+        images.append(LobeImage(mu=mu, incident=incident, extent=0.05 + k / 3, values=values, sigma=sigma, mask=mask))
+    return MeasurementSet(tuple(images), {"surface": "test", "numbers": [1.5, 1e-300, -2], "nested": {"a": None}})
+
+
+def _assert_same(read, mset, dtype):
+    assert len(read.images) == len(mset.images)
+    assert read.metadata == mset.metadata
+    for a, b in zip(read.images, mset.images):
+        assert a.mu == b.mu and a.extent == b.extent  # doubles kept as doubles
+        assert np.array_equal(a.incident, b.incident)
+        np.testing.assert_array_equal(a.values, b.values.astype(dtype).astype(float))
+        if b.sigma is None:
+            assert a.sigma is None
+        else:
+            np.testing.assert_array_equal(a.sigma, b.sigma.astype(dtype).astype(float))
+        assert (a.mask is None) == (b.mask is None)
+        if b.mask is not None:
+            assert np.array_equal(a.mask, b.mask)
+
+
+@pytest.mark.parametrize("rgb", [False, True])
+@pytest.mark.parametrize("dtype", ["float32", "float16"])
+def test_round_trip(tmp_path, rgb, dtype):
+    mset = _mset(rgb)
+    path = tmp_path / "set.exr"
+    exr.write_measurements(path, mset, dtype=dtype)
+    read = exr.read_measurements(path)
+    _assert_same(read, mset, np.float32 if dtype == "float32" else np.float16)
+    assert read.images[0].mu == MU and float(np.float32(MU)) != MU
+    assert exr.file_kind(path) == "measurement_set"
+    assert [p for p in os.listdir(tmp_path)] == ["set.exr"]  # no temporary file left behind
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    n=st.integers(2, 12),
+    mu=st.floats(1e-9, 1e9, allow_nan=False),
+    extent=st.floats(1e-6, 10.0),
+    theta=st.floats(0.0, 1.5),
+    phi=st.floats(-3.0, 3.0),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_round_trip_property(tmp_path, n, mu, extent, theta, phi, seed):
+    rng = np.random.default_rng(seed)
+    incident = np.array([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)])
+    values = rng.standard_normal((n, n)) * 10.0 ** rng.uniform(-20, 20)
+    image = LobeImage(mu=mu, incident=incident / np.linalg.norm(incident), extent=extent,
+                      values=values.astype(np.float32).astype(float))
+    mset = MeasurementSet((image,), {"seed": seed})
+    path = tmp_path / f"p{seed}.exr"
+    exr.write_measurements(path, mset, overwrite=True)
+    _assert_same(exr.read_measurements(path), mset, np.float32)
+
+
+def test_no_overwrite_unless_asked(tmp_path):
+    path = tmp_path / "set.exr"
+    path.write_bytes(b"precious")
+    with pytest.raises(MeasurementFileError, match="exists.*overwrite=True"):
+        exr.write_measurements(path, _mset())
+    assert path.read_bytes() == b"precious"
+    exr.write_measurements(path, _mset(), overwrite=True)
+    assert exr.read_measurements(path).images[0].mu == MU
+    assert sorted(os.listdir(tmp_path)) == ["set.exr"]
+    with pytest.raises(MeasurementFileError, match="does not exist"):
+        exr.write_measurements(tmp_path / "nowhere" / "x.exr", _mset())
+
+
+def test_exrheader_reads_the_file(tmp_path):
+    if shutil.which("exrheader") is None:
+        pytest.skip("Debian's exrheader is not installed (apt-get install openexr; .ci/run installs it)")
+    path = tmp_path / "set.exr"
+    exr.write_measurements(path, _mset(rgb=True))
+    out = subprocess.run(["exrheader", str(path)], capture_output=True, text=True, check=True).stdout
+    assert out.count("brdfscale.mu (type double)") == 3
+    assert "brdfscale.incident (type v3d)" in out and "brdfscale.part_count (type int): 3" in out
+    assert '"lobe0002"' in out and "sigma.G, 32-bit floating-point" in out and "mask, 32-bit unsigned integer" in out
+    if shutil.which("exrmaketiled"):  # decodes every pixel of every part
+        result = subprocess.run(["exrmaketiled", str(path), str(tmp_path / "tiled.exr")], capture_output=True, text=True)
+        assert result.returncode == 0, result.stderr
+
+
+def test_plain_openexr_reader_sees_the_layout(tmp_path):
+    mset = _mset()
+    path = tmp_path / "set.exr"
+    exr.write_measurements(path, mset)
+    f = OpenEXR.File(str(path), separate_channels=True)
+    assert len(f.parts) == 3
+    for part, image in zip(f.parts, mset.images):
+        np.testing.assert_array_equal(part.channels["Y"].pixels, image.values.astype(np.float32))
+        assert part.header["brdfscale.mu"][0] == image.mu
+        np.testing.assert_array_equal(part.header["brdfscale.incident"], image.incident)
+        assert part.header["brdfscale.domain"] == "half_slope"
+    assert np.array_equal(f.parts[0].channels["mask"].pixels, mset.images[0].mask.astype(np.uint32))
+    assert json.loads(f.parts[0].header["brdfscale.metadata"]) == mset.metadata
+
+
+def _rewrite(src, dst, edit):
+    """Copy an EXR part by part through OpenEXR.File, letting ``edit(index, header, channels)`` tamper."""
+    f = OpenEXR.File(str(src), separate_channels=True)
+    parts = []
+    for k, part in enumerate(f.parts):
+        header = {key: value for key, value in part.header.items() if key not in ("channels", "chunkCount", "name")}
+        channels = {name: c.pixels.copy() for name, c in part.channels.items()}
+        edit(k, header, channels)
+        parts.append(OpenEXR.Part(header, channels, name=part.header["name"]))
+    OpenEXR.File(parts).write(str(dst))
+
+
+@pytest.fixture
+def written(tmp_path):
+    path = tmp_path / "good.exr"
+    exr.write_measurements(path, _mset(rgb=True))
+    return path
+
+
+def _set(key, value, part=1):
+    def edit(k, header, channels):
+        if k == part:
+            if value is None:
+                del header[key]
+            else:
+                header[key] = value
+    return edit
+
+
+@pytest.mark.parametrize(
+    "edit, match",
+    [
+        (_set("brdfscale.mu", 0.5), r"part 1 \('lobe0001'\): attribute 'brdfscale.mu': must be a double"),
+        (_set("brdfscale.mu", np.array([-1.0])), r"'brdfscale.mu': must be a positive finite"),
+        (_set("brdfscale.mu", None), r"part 1 .*'brdfscale.mu': missing"),
+        (_set("brdfscale.extent", np.array([np.inf])), r"'brdfscale.extent': must be a positive finite"),
+        (_set("brdfscale.incident", np.array([0.0, 0.6, 0.6])), r"'brdfscale.incident': must be a unit vector"),
+        (_set("brdfscale.incident", np.array([0.0, 0.0, 1.0], np.float32)), r"'brdfscale.incident': must be a V3d"),
+        (_set("brdfscale.domain", "direction"), r"'brdfscale.domain': must be 'half_slope'"),
+        (_set("brdfscale.version", 99), r"'brdfscale.version': layout version 99"),
+        (_set("brdfscale.kind", "lobe_table", part=0), r"part 0 .*'brdfscale.kind': must be 'measurement_set'"),
+        (_set("brdfscale.part_index", 2), r"'brdfscale.part_index'"),
+        (_set("brdfscale.part_count", 4, part=2), r"part 2 .*'brdfscale.part_count': declares 4"),
+        (_set("brdfscale.metadata", "{not json", part=0), r"part 0 .*'brdfscale.metadata': is not valid JSON"),
+        (_set("brdfscale.checksums", "[]"), r"'brdfscale.checksums': must be a JSON object"),
+    ],
+)
+def test_wrong_attributes_are_named(written, tmp_path, edit, match):
+    bad = tmp_path / "bad.exr"
+    _rewrite(written, bad, edit)
+    with pytest.raises(MeasurementFileError, match=match) as info:
+        exr.read_measurements(bad)
+    assert str(bad) in str(info.value)
+
+
+def test_untampered_rewrite_reads(written, tmp_path):
+    """The tampering helper itself preserves a valid file (so the failures above are the edits')."""
+    copy = tmp_path / "copy.exr"
+    _rewrite(written, copy, lambda k, h, c: None)
+    _assert_same(exr.read_measurements(copy), _mset(rgb=True), np.float32)
+
+
+def _drop(channel, part=0):
+    def edit(k, header, channels):
+        if k == part:
+            del channels[channel]
+    return edit
+
+
+@pytest.mark.parametrize(
+    "edit, match",
+    [
+        (_drop("G"), r"part 0 .*channel 'G': missing"),
+        (_drop("sigma.B"), r"part 0 .*channel 'sigma.B': missing"),
+        (lambda k, h, c: c.update(extra=np.zeros((9, 9), np.float32)), r"unexpected channel\(s\) \['extra'\]"),
+        (lambda k, h, c: c.update(Y=np.zeros((9, 9), np.float32)), r"has both Y and R/G/B"),
+        (lambda k, h, c: c.update(mask=np.full((9, 9), 2, np.uint32)) if k == 0 else None, r"channel 'mask'"),
+    ],
+)
+def test_missing_or_unexpected_channels(written, tmp_path, edit, match):
+    bad = tmp_path / "bad.exr"
+    _rewrite(written, bad, edit)
+    with pytest.raises(MeasurementFileError, match=match):
+        exr.read_measurements(bad)
+
+
+def test_silently_changed_pixels_fail_the_checksum(written, tmp_path):
+    bad = tmp_path / "bad.exr"
+
+    def edit(k, header, channels):
+        if k == 2:
+            channels["R"][4, 4] = np.nextafter(channels["R"][4, 4], np.float32(np.inf))
+
+    _rewrite(written, bad, edit)
+    with pytest.raises(MeasurementFileError, match=r"part 2 .*channel 'R': pixel data do not match the stored checksum"):
+        exr.read_measurements(bad)
+
+
+@pytest.mark.parametrize("fraction", [0.02, 0.3, 0.6, 0.9, 0.999])
+def test_truncated_files(written, tmp_path, fraction):
+    data = written.read_bytes()
+    bad = tmp_path / "cut.exr"
+    bad.write_bytes(data[: int(len(data) * fraction)])
+    with pytest.raises(MeasurementFileError, match=r"cut\.exr: (not a readable OpenEXR|no readable part|.*truncated)"):
+        exr.read_measurements(bad)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_garbled_bytes_never_pass_silently(written, tmp_path, seed):
+    """Random bytes overwritten after the headers: an OpenEXR error or a checksum mismatch."""
+    data = bytearray(written.read_bytes())
+    rng = np.random.default_rng(seed)
+    start = len(data) // 2
+    positions = rng.integers(start, len(data), 8)
+    for p in positions:
+        data[p] ^= int(rng.integers(1, 256))
+    bad = tmp_path / "garbled.exr"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(MeasurementFileError, match="garbled.exr"):
+        exr.read_measurements(bad)
+
+
+def test_not_an_exr_and_missing(tmp_path):
+    junk = tmp_path / "junk.exr"
+    junk.write_text("hello")
+    with pytest.raises(MeasurementFileError, match="junk.exr: not a readable OpenEXR"):
+        exr.read_measurements(junk)
+    with pytest.raises(MeasurementFileError, match="no such file"):
+        exr.read_measurements(tmp_path / "absent.exr")
+    foreign = tmp_path / "foreign.exr"
+    OpenEXR.File({"type": OpenEXR.scanlineimage}, {"Y": np.zeros((4, 4), np.float32)}).write(str(foreign))
+    with pytest.raises(MeasurementFileError, match=r"'brdfscale.format': missing"):
+        exr.read_measurements(foreign)
+
+
+def test_write_rejects_bad_input(tmp_path):
+    with pytest.raises(InvalidInputError, match="MeasurementSet"):
+        exr.write_measurements(tmp_path / "a.exr", {"images": []})
+    bad_meta = MeasurementSet(_mset().images, {"x": np.float32(1.0)})
+    with pytest.raises(InvalidInputError, match="JSON"):
+        exr.write_measurements(tmp_path / "a.exr", bad_meta)
+    big = MeasurementSet((LobeImage(mu=1.0, incident=[0, 0, 1.0], extent=1.0, values=np.full((3, 3), 1e5)),))
+    with pytest.raises(InvalidInputError, match="float16"):
+        exr.write_measurements(tmp_path / "a.exr", big, dtype="float16")
+    with pytest.raises(InvalidInputError, match="dtype"):
+        exr.write_measurements(tmp_path / "a.exr", big, dtype="float64")
+    assert not (tmp_path / "a.exr").exists()
+
+
+def test_lobe_table_round_trip(tmp_path):
+    scales = [0.5, 2.0 + 1e-13, 8.0]
+    table = exr.LobeTable.from_lobes(scales, [lobes.Beckmann(a, amplitude=0.9) for a in (0.05, 0.03, 0.02)],
+                                     extent=0.2, size=33, metadata={"law": "test"})
+    x = np.linspace(-0.2, 0.2, 33)
+    u = np.stack(np.meshgrid(x, x, indexing="xy"), axis=-1)
+    np.testing.assert_allclose(table.values[1], 0.9 * np.exp(-np.sum(u**2, -1) / 0.03**2) / (np.pi * 0.03**2), rtol=1e-12)
+    path = tmp_path / "table.exr"
+    exr.write_lobe_table(path, table)
+    read = exr.read_lobe_table(path)
+    assert read.scales.tolist() == scales and read.extent == 0.2 and read.metadata == {"law": "test"}
+    np.testing.assert_array_equal(read.values, table.values.astype(np.float32).astype(float))
+    assert exr.file_kind(path) == "lobe_table"
+    with pytest.raises(MeasurementFileError, match=r"'brdfscale.kind': must be 'measurement_set'"):
+        exr.read_measurements(path)
+    mpath = tmp_path / "m.exr"
+    exr.write_measurements(mpath, _mset())
+    with pytest.raises(MeasurementFileError, match=r"'brdfscale.kind': must be 'lobe_table'"):
+        exr.read_lobe_table(mpath)
+    bad = tmp_path / "bad.exr"
+    _rewrite(path, bad, _set("brdfscale.extent", np.array([0.3]), part=2))
+    with pytest.raises(MeasurementFileError, match="part 2 .*a table has one grid"):
+        exr.read_lobe_table(bad)
+    with pytest.raises(InvalidInputError, match="distinct"):
+        exr.LobeTable([1.0, 1.0], 0.1, np.zeros((2, 3, 3)))
