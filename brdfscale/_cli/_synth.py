@@ -74,7 +74,6 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from .. import exr, synth
-    from ..synth._facets import max_pixel_slope
 
     if args.seed < 0:
         raise InvalidInputError(f"--seed must be ≥ 0; got {args.seed}.")
@@ -82,7 +81,7 @@ def run(args) -> int:
     field = synth.named_surface(args.surface, size=args.size, seed=np.random.default_rng(surface_seed))
     field = synth.HeightField(field.heights, field.spacing, micro=field.micro, spectrum=field.spectrum,
                               description={**field.description, "seed": args.seed})
-    extent = args.extent if args.extent is not None else 1.05 * max_pixel_slope(field)
+    extent = args.extent if args.extent is not None else 1.05 * synth.steepest_slope(field)
     incident = np.array(args.incident) if args.incident else np.array([[0.0, 0.0, 1.0]])
     mset = synth.gonioreflectometer(
         field, args.scales, incident, extent=extent, pixels=args.pixels, noise=args.noise,

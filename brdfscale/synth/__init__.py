@@ -5,7 +5,7 @@
   ABC fractal), :func:`scratches` and :func:`blazed` (non-Gaussian micro-structure), the
   built-in named surfaces of :func:`named_surface`; all in a :class:`HeightField`.
 * Statistics: :func:`facet_slopes`, :func:`facet_statistics` (``s(·, μ)`` and the
-  within-facet lobe ``g_μ`` as :class:`brdfscale.stats.Tabulated`), :func:`global_slopes`.
+  within-facet lobe ``g_μ`` as :class:`brdfscale.stats.Tabulated`), :func:`global_slopes`, :func:`steepest_slope`.
 * Measurements: :func:`gonioreflectometer` turns a surface into a
   :class:`brdfscale.MeasurementSet` with :class:`PoissonNoise` or :class:`GaussianNoise`
   and an optional angular resolution.
@@ -13,7 +13,7 @@
 Every random generator takes an explicit ``seed`` (int, NumPy Generator or JAX key).
 """
 
-from ._facets import FacetStatistics, facet_slopes, facet_statistics, global_slopes
+from ._facets import FacetStatistics, facet_slopes, facet_statistics, global_slopes, steepest_slope
 from ._gonio import GaussianNoise, PoissonNoise, gonioreflectometer
 from ._named import SURFACES, named_surface
 from ._profiles import blazed, scratches
@@ -32,6 +32,7 @@ __all__ = [
     "facet_slopes",
     "facet_statistics",
     "global_slopes",
+    "steepest_slope",
     "GaussianNoise",
     "PoissonNoise",
     "gonioreflectometer",

@@ -112,8 +112,8 @@ def offset_histogram(field: HeightField, mu: float | None, hist: SlopeHistogram,
     return hist
 
 
-def max_pixel_slope(field: HeightField) -> float:
-    """The largest |component| of any pixel facet's normal slope."""
+def steepest_slope(field: HeightField) -> float:
+    """The largest |component| of any pixel facet's normal slope (sizes slope grids)."""
     top = 0.0
     for _, _, mx, my in _pixel_strips(field, 1):
         top = max(top, float(np.max(np.abs(mx))), float(np.max(np.abs(my))))
@@ -179,7 +179,7 @@ def facet_statistics(field: HeightField, scales, *, bins: int = 129, extent: flo
     scales = [float(mu) for mu in np.atleast_1d(np.asarray(scales, dtype=float))]
     if not scales:
         raise InvalidInputError("scales must list at least one facet size.")
-    steepest = max_pixel_slope(field) if extent is None else None
+    steepest = steepest_slope(field) if extent is None else None
     results = []
     for mu in scales:
         b = field.block(mu)
@@ -206,5 +206,5 @@ def global_slopes(field: HeightField, *, bins: int = 129, extent: float | None =
     Harvey's relation ``R(W, μ) = Q(W, μ0)``). Default extent: the steepest pixel slope.
     """
     if extent is None:
-        extent = max_pixel_slope(field) * (1 + 1e-9) + 1e-12
+        extent = steepest_slope(field) * (1 + 1e-9) + 1e-12
     return offset_histogram(field, None, SlopeHistogram(extent, bins)).tabulated()

@@ -1,0 +1,86 @@
+"""`brdfscale synth` and `brdfscale info` end to end."""
+
+import importlib.util
+import json
+
+import numpy as np
+import pytest
+
+import brdfscale._cli as cli
+from brdfscale import exr
+
+
+@pytest.fixture(autouse=True)
+def _only_existing_subcommands(monkeypatch):
+    """Register only the subcommand modules that exist (another module may still be missing)."""
+    present = tuple(n for n in cli._SUBCOMMANDS if importlib.util.find_spec(f"brdfscale._cli._{n}") is not None)
+    monkeypatch.setattr(cli, "_SUBCOMMANDS", present)
+
+
+def test_synth_then_info(tmp_path, capsys):
+    out = tmp_path / "set.exr"
+    argv = ["synth", "blazed", "--out", str(out), "--size", "160", "--scales", "1,16,32", "--incident", "0",
+            "--incident", "30:90", "--noise", "poisson:1000", "--seed", "4", "--pixels", "17"]
+    assert cli.main(argv) == 0
+    mset = exr.read_measurements(out)
+    assert len(mset.images) == 6 and sorted(set(p.mu for p in mset.images)) == [1.0, 16.0, 32.0]
+    np.testing.assert_allclose(mset.images[1].incident, [0.0, 0.5, np.sqrt(0.75)], atol=1e-15)
+    assert mset.metadata["seed"] == 4 and mset.metadata["noise"] == {"type": "poisson", "exposure": 1000.0}
+    assert mset.images[0].sigma is not None
+    capsys.readouterr()
+    assert cli.main(["info", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "measurement_set, 6 parts" in text and "surface: blazed" in text and "(30, 90)" in text
+    assert cli.main(["info", str(out), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["parts"] == 6 and summary["scales"] == [1.0, 16.0, 32.0]
+    # the same seed gives the same file contents
+    again = tmp_path / "again.exr"
+    assert cli.main([*argv[:2], "--out", str(again), *argv[4:]]) == 0
+    for a, b in zip(exr.read_measurements(again).images, mset.images):
+        assert np.array_equal(a.values, b.values)
+
+
+def test_no_overwrite_without_force(tmp_path, capsys):
+    out = tmp_path / "set.exr"
+    base = ["synth", "gaussian", "--out", str(out), "--size", "64", "--scales", "4,16", "--pixels", "9"]
+    assert cli.main(base) == 0
+    before = out.read_bytes()
+    assert cli.main(base + ["--seed", "2"]) == 2
+    assert "file exists" in capsys.readouterr().err and out.read_bytes() == before
+    assert cli.main(base + ["--seed", "2", "--force"]) == 0
+    assert out.read_bytes() != before
+
+
+def test_info_on_lobe_table_and_on_a_bad_file(tmp_path, capsys):
+    table = exr.LobeTable([1.0, 2.0], 0.1, np.ones((2, 5, 5)))
+    path = tmp_path / "t.exr"
+    exr.write_lobe_table(path, table)
+    assert cli.main(["info", str(path)]) == 0
+    assert "lobe_table, 2 parts" in capsys.readouterr().out
+    junk = tmp_path / "junk.exr"
+    junk.write_text("x")
+    assert cli.main(["info", str(junk)]) == 2
+    assert "not a readable OpenEXR" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["synth", "velvet", "--out", "x.exr"],
+        ["synth", "gaussian", "--out", "x.exr", "--incident", "95"],
+        ["synth", "gaussian", "--out", "x.exr", "--noise", "poisson:-1"],
+        ["synth", "gaussian", "--out", "x.exr", "--scales", "a,b"],
+    ],
+)
+def test_bad_arguments_exit_with_usage_error(argv, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as info:
+        cli.main(argv)
+    assert info.value.code == 2
+    assert not (tmp_path / "x.exr").exists()
+
+
+def test_library_errors_exit_2(tmp_path, capsys):
+    assert cli.main(["synth", "gaussian", "--out", str(tmp_path / "x.exr"), "--size", "64", "--scales", "3.5"]) == 2
+    assert "whole number of pixels" in capsys.readouterr().err
