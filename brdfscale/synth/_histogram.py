@@ -15,7 +15,7 @@ class SlopeHistogram:
     :meth:`brdfscale.stats.Tabulated.from_samples`, so the bilinear interpolant of
     ``counts / h²`` integrates to the total weight of the samples inside the grid. Unlike
     ``from_samples`` it takes samples in chunks (constant memory for 4096² fields, and
-    ``np.bincount`` instead of ``np.add.at``: ~20× faster) and counts the samples that fell
+    ``np.bincount`` instead of ``np.add.at``; experiments/bench_synth.py times both) and counts the samples that fell
     outside, so a lobe can be reported per sample, not renormalised over the grid.
     """
 
