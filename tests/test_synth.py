@@ -284,3 +284,18 @@ def test_invalid_arguments():
         synth.PoissonNoise(0.0)
     with pytest.raises(InvalidInputError, match="heights"):
         synth.HeightField(np.full((8, 8), np.nan), 1.0)
+
+
+def test_float32_parameters_agree_with_float64():
+    """With jax_enable_x64 off, spectra and micro lobes evaluate in float32; the NumPy
+    synthesis stays float64, so only the spectrum's and the kernel's rounding differ."""
+    field64 = synth.spectral_field(stats.GaussianCorrelation(1.0, 8.0), size=64, seed=0).heights
+    (lobe64,) = synth.facet_statistics(_flat(stats.GGX(0.01)), [4.0], bins=33, extent=0.05)
+    with jax.enable_x64(False):
+        spectrum32 = stats.GaussianCorrelation(1.0, 8.0)
+        assert spectrum32.rms_height.dtype == np.float32
+        field32 = synth.spectral_field(spectrum32, size=64, seed=0).heights
+        (lobe32,) = synth.facet_statistics(_flat(stats.GGX(0.01)), [4.0], bins=33, extent=0.05)
+    assert np.max(np.abs(field32 - field64)) < 1e-6 * np.max(np.abs(field64))
+    v32, v64 = np.asarray(lobe32.lobe.values), np.asarray(lobe64.lobe.values)
+    assert np.max(np.abs(v32 - v64)) < 1e-5 * v64.max()

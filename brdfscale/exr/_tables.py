@@ -6,6 +6,7 @@ import math
 import jax.numpy as jnp
 import numpy as np
 import OpenEXR
+from jaxtyping import Float
 
 from .._errors import BrdfscaleError, InvalidInputError, MeasurementFileError
 from ..lobes import AbstractLobe
@@ -29,9 +30,9 @@ class LobeTable:
         metadata: JSON-serialisable extras (how the table was made).
     """
 
-    scales: np.ndarray
+    scales: Float[np.ndarray, " k"]
     extent: float
-    values: np.ndarray
+    values: Float[np.ndarray, "k n n"] | Float[np.ndarray, "k n n 3"]
     metadata: dict = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):

@@ -20,6 +20,7 @@ import math
 
 import equinox as eqx
 import numpy as np
+from jaxtyping import Float
 
 from .. import stats
 from .._errors import InvalidInputError
@@ -47,12 +48,12 @@ class FacetStatistics:
     block: int
     slopes: stats.Tabulated
     lobe: stats.Tabulated
-    mean: np.ndarray
-    covariance: np.ndarray
+    mean: Float[np.ndarray, "2"]
+    covariance: Float[np.ndarray, "2 2"]
     count: int
 
 
-def facet_slopes(field: HeightField, mu: float) -> np.ndarray:
+def facet_slopes(field: HeightField, mu: float) -> Float[np.ndarray, "nb nb 2"]:
     """Normal slopes of the facets at scale μ, shape ``(n // b, n // b, 2)`` with ``b = μ/Δ``.
 
     Facet ``[J, K]`` covers rows ``J b … J b + b − 1`` and columns ``K b … K b + b − 1``; the

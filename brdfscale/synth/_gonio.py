@@ -7,6 +7,7 @@ from typing import Literal
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import ArrayLike, Float
 
 from .. import stats
 from .._errors import InvalidInputError
@@ -33,7 +34,7 @@ class PoissonNoise:
         if not (math.isfinite(self.exposure) and self.exposure > 0):
             raise InvalidInputError(f"exposure must be a positive number of counts per unit value; got {self.exposure!r}.")
 
-    def sample(self, values: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    def sample(self, values: Float[np.ndarray, "..."], rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         expected = values * self.exposure
         return rng.poisson(expected) / self.exposure, np.sqrt(np.maximum(expected, 1.0)) / self.exposure
 
@@ -54,7 +55,7 @@ class GaussianNoise:
         if not (math.isfinite(self.relative) and self.relative >= 0):
             raise InvalidInputError(f"relative must be ≥ 0; got {self.relative!r}.")
 
-    def sample(self, values: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    def sample(self, values: Float[np.ndarray, "..."], rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         sigma = np.sqrt((self.relative * values) ** 2 + self.floor**2)
         return values + sigma * rng.standard_normal(values.shape), sigma
 
@@ -73,7 +74,7 @@ Weighting = Literal["nearly_flat", "projected_area"]
 def gonioreflectometer(
     field: HeightField,
     scales,
-    incident,
+    incident: Float[ArrayLike, "*k 3"],
     *,
     extent: float,
     pixels: int = 64,

@@ -5,6 +5,7 @@ import math
 
 import equinox as eqx
 import numpy as np
+from jaxtyping import Float
 
 from .. import stats
 from .._errors import InvalidInputError
@@ -32,7 +33,7 @@ class HeightField:
     half-vector slope ``m_s = m``.
     """
 
-    heights: np.ndarray
+    heights: Float[np.ndarray, "n n"]
     spacing: float
     micro: stats.AbstractSlopeDensity = dataclasses.field(default_factory=stats.Delta)
     spectrum: stats.AbstractPowerSpectrum | None = None
