@@ -301,3 +301,13 @@ def test_lobe_table_round_trip(tmp_path):
         exr.read_lobe_table(bad)
     with pytest.raises(InvalidInputError, match="distinct"):
         exr.LobeTable([1.0, 1.0], 0.1, np.zeros((2, 3, 3)))
+
+
+def test_images_of_different_sizes(tmp_path):
+    mset = MeasurementSet((
+        LobeImage(mu=1.0, incident=[0, 0, 1.0], extent=0.1, values=np.arange(25.0).reshape(5, 5)),
+        LobeImage(mu=2.0, incident=[0, 0, 1.0], extent=0.2, values=np.arange(81.0).reshape(9, 9), sigma=np.ones((9, 9))),
+    ))
+    path = tmp_path / "mixed.exr"
+    exr.write_measurements(path, mset)
+    _assert_same(exr.read_measurements(path), mset, np.float32)

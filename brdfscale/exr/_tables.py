@@ -12,7 +12,7 @@ from .._errors import BrdfscaleError, InvalidInputError, MeasurementFileError
 from ..lobes import AbstractLobe
 from ._format import PREFIX, PartReader
 from ._io import open_parts, write_parts
-from ._measurements import check_dtype, image_channels, metadata_json, part_header, read_image_part
+from ._parts import check_dtype, image_channels, metadata_json, part_header, read_image_part
 
 KIND = "lobe_table"
 
