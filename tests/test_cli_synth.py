@@ -71,6 +71,7 @@ def test_info_on_lobe_table_and_on_a_bad_file(tmp_path, capsys):
         ["synth", "gaussian", "--out", "x.exr", "--incident", "95"],
         ["synth", "gaussian", "--out", "x.exr", "--noise", "poisson:-1"],
         ["synth", "gaussian", "--out", "x.exr", "--scales", "a,b"],
+        ["synth", "gaussian", "--out", "x.exr", "--micro-alpha", "x"],
     ],
 )
 def test_bad_arguments_exit_with_usage_error(argv, tmp_path, monkeypatch):
@@ -79,6 +80,17 @@ def test_bad_arguments_exit_with_usage_error(argv, tmp_path, monkeypatch):
         cli.main(argv)
     assert info.value.code == 2
     assert not (tmp_path / "x.exr").exists()
+
+
+def test_rough_micro_facets(tmp_path):
+    out = tmp_path / "rough.exr"
+    assert cli.main(["synth", "gaussian", "--out", str(out), "--size", "64", "--scales", "64", "--micro-alpha", "0.02",
+                     "--pixels", "33", "--extent", "0.1"]) == 0
+    mset = exr.read_measurements(out)
+    assert mset.metadata["micro"]["type"] == "Gaussian"
+    image = mset.images[0]
+    h = 0.2 / 32
+    assert image.values.sum() * h * h == pytest.approx(1.0, abs=1e-3)  # the blurred lobe stays inside the grid
 
 
 def test_library_errors_exit_2(tmp_path, capsys):

@@ -61,6 +61,8 @@ def register(subparsers) -> None:
     parser.add_argument("--noise", type=_noise, default=None, metavar="MODEL",
                         help="none (default), poisson:EXPOSURE (counts per unit lobe value) or gaussian:SIGMA")
     parser.add_argument("--resolution", type=float, default=0.0, help="instrument blur, slope std (default 0)")
+    parser.add_argument("--micro-alpha", type=float, default=None, metavar="ALPHA",
+                        help="Beckmann roughness of the pixel facets (default: mirror facets)")
     parser.add_argument("--extent", type=float, default=None, help="image half-width in slope units (default: 1.05 × steepest pixel slope)")
     parser.add_argument("--pixels", type=int, default=65, help="image nodes per axis (default 65)")
     parser.add_argument("--size", type=int, default=512, help="height field pixels per side (default 512)")
@@ -73,12 +75,13 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from .. import exr, synth
+    from .. import exr, stats, synth
 
     if args.seed < 0:
         raise InvalidInputError(f"--seed must be ≥ 0; got {args.seed}.")
     surface_seed, noise_seed = np.random.SeedSequence(args.seed).spawn(2)
-    field = synth.named_surface(args.surface, size=args.size, seed=np.random.default_rng(surface_seed))
+    micro = None if args.micro_alpha is None else stats.Beckmann(args.micro_alpha)
+    field = synth.named_surface(args.surface, size=args.size, seed=np.random.default_rng(surface_seed), micro=micro)
     field = synth.HeightField(field.heights, field.spacing, micro=field.micro, spectrum=field.spectrum,
                               description={**field.description, "seed": args.seed})
     extent = args.extent if args.extent is not None else 1.05 * synth.steepest_slope(field)
