@@ -2,7 +2,6 @@
 
 import os
 import tempfile
-import warnings
 
 import OpenEXR
 
@@ -46,17 +45,16 @@ def write_parts(path, parts: list, overwrite: bool) -> None:
 def open_parts(path) -> list:
     """Open ``path`` and return its parts, checking that none is missing.
 
-    OpenEXR 3.5 raises for a missing, non-EXR or header-truncated file but only *warns* and
-    returns no parts when the file is cut inside the pixel data (FIELD-NOTES); every part
-    records the part count, so a short file is reported here.
+    OpenEXR 3.5 raises for a missing, non-EXR or header-truncated file but only prints a
+    warning (to stderr, from C++) and drops the damaged parts when the file is cut inside the
+    pixel data (FIELD-NOTES); every part records the part count, so a short file is
+    reported here.
     """
     path = os.fspath(path)
     if not os.path.isfile(path):
         raise MeasurementFileError(f"{path}: no such file.")
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            parts = list(OpenEXR.File(path, separate_channels=True).parts)
+        parts = list(OpenEXR.File(path, separate_channels=True).parts)
     except RuntimeError as err:
         raise MeasurementFileError(f"{path}: not a readable OpenEXR file ({err}).") from err
     if not parts:
