@@ -54,7 +54,7 @@ def _j_asymptotic(n: int, x):
     p = jnp.zeros_like(ax)
     q = jnp.zeros_like(ax)
     for k in range(_N_ASYMPTOTIC - 1, -1, -1):
-        term = a[k] * inv**k
+        term = float(a[k]) * inv**k  # a Python float keeps the argument's dtype
         if k % 2 == 0:
             p = p + (-1) ** (k // 2) * term
         else:

@@ -42,7 +42,9 @@ class Dataset(eqx.Module):
     """Lobe images at the scales ``scales`` (ascending), flattened and padded.
 
     ``scale_of_image[i]`` is the index into ``scales`` of image ``i``; the finest scale
-    ``scales[0]`` is the reference scale μ0 at which the base lobe is described.
+    ``scales[0]`` is the reference scale μ0 at which the base lobe is described. Only the
+    layout (image count and sizes, which image has which scale index) is static, so
+    datasets of one layout share compiled fits whatever their values and scales.
     """
 
     offsets: Float[Array, "n_img n_pix 2"]
@@ -50,7 +52,7 @@ class Dataset(eqx.Module):
     weight: Float[Array, "n_img n_pix"]
     radii: Float[Array, " n_radii"]
     radius_index: Int[Array, "n_img n_pix"]
-    scales: tuple[float, ...] = eqx.field(static=True)
+    scales: Float[Array, " n_scales"]
     scale_of_image: tuple[int, ...] = eqx.field(static=True)
     image_sizes: tuple[int, ...] = eqx.field(static=True)
     extents: tuple[float, ...] = eqx.field(static=True)
@@ -109,7 +111,7 @@ class Dataset(eqx.Module):
             weight=jnp.asarray(np.stack(weight), dtype=jnp.float64),
             radii=jnp.asarray(radii * scale, dtype=jnp.float64),
             radius_index=jnp.asarray(radius_index.reshape(radius.shape), dtype=jnp.int32),
-            scales=scales,
+            scales=jnp.asarray(scales, dtype=jnp.float64),
             scale_of_image=tuple(which),
             image_sizes=tuple(img.size for img in mset.images),
             extents=tuple(img.extent for img in mset.images),

@@ -14,7 +14,7 @@ from ._spectral import EvolvedDensity, choose_size
 Method = Literal["auto", "closed_form", "radial", "grid"]
 
 _DEFAULT_SIZE = {"radial": 256, "grid": 256}
-_MAX_SIZE = {"radial": 4096, "grid": 2048}
+_MAX_SIZE = {"radial": 4096, "grid": 1024}
 
 
 def evolve(
@@ -51,7 +51,10 @@ def evolve(
         tol: error target relative to the lobe's peak; sets the frequency cut-off and the
             grid extent of the spectral paths.
         size: Gauss–Legendre nodes (radial) or grid side (grid). Default: chosen from
-            ``tol`` when the parameters are concrete (capped at 4096 / 2048), else 256.
+            ``tol`` when the parameters are concrete (capped at 4096 / 1024), else 256.
+            When a capped grid cannot meet ``tol`` (heavy-tailed statistics such as GGX
+            need grids of extent ∝ tol^{−1/4}), the grid path relaxes the target by decades
+            and records the tolerance it honours in ``result.shape.tol``.
 
     Returns:
         The lobe at μ. Closed forms return a lobe whose shape is a :mod:`brdfscale.stats`
@@ -105,5 +108,6 @@ def evolve(
         raise InvalidInputError(f"size must be an integer ≥ 8; got {size!r}.")
     shape = EvolvedDensity(lobe.shape, s_from, s_to, lam, path, size or _DEFAULT_SIZE[path], tol)
     if size is None and is_concrete(shape):
-        shape = EvolvedDensity(lobe.shape, s_from, s_to, lam, path, choose_size(shape, path, _MAX_SIZE[path]), tol)
+        size, achievable = choose_size(shape, path, _MAX_SIZE[path])
+        shape = EvolvedDensity(lobe.shape, s_from, s_to, lam, path, size, achievable)
     return Lobe(shape, lobe.amplitude)

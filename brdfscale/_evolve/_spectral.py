@@ -28,6 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._errors import NoBRDFAtScaleError
 from .._special import j0
 from ..stats import AbstractSlopeDensity
 from ..stats._base import check_slopes
@@ -35,6 +36,12 @@ from ..stats._base import check_slopes
 _PROBE_DIRECTIONS = 8
 _PROBE_POINTS = 160
 _CF_EXCESS = 1e-6
+_NO_BRDF = "no BRDF exists at the requested scale"
+_NO_BRDF_MESSAGE = (
+    _NO_BRDF + ": the evolved lobe's transform exceeds 1 in modulus, which no non-negative "
+    "lobe has (evolving towards a finer scale than the data support). Choose a coarser target "
+    "scale or set regularisation > 0."
+)
 
 
 class EvolvedDensity(AbstractSlopeDensity):
@@ -62,8 +69,15 @@ class EvolvedDensity(AbstractSlopeDensity):
 
     # -- the exact transform -------------------------------------------------------------
     def _divide(self, numerator, denominator):
+        """``N S*/(|S|² + λ²)`` written as ``N / (S + λ²/S*)`` so that a denormal S still
+        divides exactly when λ = 0. Where S = 0: 0 if N = 0 or λ > 0, else ∞ (which the
+        existence check then reports) — never 0/0."""
         lam2 = self.regularisation**2
-        return numerator * jnp.conj(denominator) / (jnp.abs(denominator) ** 2 + lam2)
+        zero = denominator == 0
+        safe = jnp.where(zero, 1.0, denominator)
+        ratio = numerator / (safe + lam2 / jnp.conj(safe))
+        at_zero = jnp.where((numerator == 0) | (lam2 > 0), 0.0, jnp.inf)
+        return jnp.where(zero, at_zero, ratio)
 
     def cf(self, W):
         W = check_slopes(W, "W")
@@ -80,8 +94,12 @@ class EvolvedDensity(AbstractSlopeDensity):
         return self.base.support_radius(tol) + self.s_from.support_radius(tol)
 
     def _probe(self):
-        """|G| on rays at log-spaced frequencies scaled to the lobe's spatial extent."""
-        dtype = self.regularisation.dtype if jnp.issubdtype(self.regularisation.dtype, jnp.floating) else float
+        """|G| on rays at log-spaced frequencies scaled to the lobe's spatial extent.
+
+        Only used for discretisation choices and the existence check, so no gradient flows
+        through it (|G| is not differentiable where G = 0)."""
+        self = jax.lax.stop_gradient(self)
+        dtype = jnp.result_type(*jax.tree_util.tree_leaves(self))
         R = jnp.maximum(self.support_radius(self.tol), 1e-12)
         k = jnp.asarray(np.logspace(-2, 5, _PROBE_POINTS), dtype=dtype) / R
         phi = jnp.asarray(np.arange(_PROBE_DIRECTIONS) * np.pi / _PROBE_DIRECTIONS, dtype=dtype)
@@ -99,16 +117,13 @@ class EvolvedDensity(AbstractSlopeDensity):
         """Attach the existence check: a non-negative density has |G(W)| ≤ G(0) = 1."""
         _, mag = self._probe()
         excess = jnp.max(mag) - 1
-        return eqx.error_if(
-            value, excess > _CF_EXCESS,
-            "no BRDF exists at the requested scale: the evolved lobe's transform exceeds 1 in "
-            "modulus, which no non-negative lobe has (evolving towards a finer scale than the "
-            "data support). Choose a coarser target scale or set regularisation > 0.",
-        )
+        return eqx.error_if(value, (excess > _CF_EXCESS) | jnp.isnan(excess), _NO_BRDF_MESSAGE)
 
     # -- inversion ------------------------------------------------------------------------
     def density(self, m):
-        m = check_slopes(m, "m")
+        return _translate_errors(_density, self, check_slopes(m, "m"))
+
+    def _density(self, m):
         if self.method == "radial":
             return self._checked(self._radial(jnp.linalg.norm(m, axis=-1)))
         return self._checked(self._grid_at(m))
@@ -123,7 +138,7 @@ class EvolvedDensity(AbstractSlopeDensity):
 
     def grid_spacing(self):
         """Slope-grid spacing h and half-width a = N h / 2 of the grid path."""
-        a = self.support_radius(self.tol)
+        a = jax.lax.stop_gradient(self.support_radius(self.tol))  # a discretisation choice
         return 2 * a / self.size, a
 
     def _frequencies(self, h):
@@ -135,6 +150,9 @@ class EvolvedDensity(AbstractSlopeDensity):
     def on_grid(self):
         """``(u, values)``: nodes ``u`` (N,) from −a to a − h and ``g_to`` on the N×N grid
         (rows u_y, columns u_x), by one real inverse FFT."""
+        return _translate_errors(_on_grid, self)
+
+    def _on_grid(self):
         h, a = self.grid_spacing()
         fx, fy = self._frequencies(h)
         n = self.size
@@ -161,18 +179,42 @@ class EvolvedDensity(AbstractSlopeDensity):
         return (jnp.real(total) * dW2 / (2 * jnp.pi) ** 2).reshape(m.shape[:-1])
 
 
-def choose_size(density: EvolvedDensity, method: str, max_size: int) -> int:
+_density = eqx.filter_jit(lambda shape, m: shape._density(m))
+_on_grid = eqx.filter_jit(lambda shape: shape._on_grid())
+
+
+def _translate_errors(fn, *args):
+    """Call a jitted evaluation; outside any trace, turn its run-time existence check into
+    :class:`NoBRDFAtScaleError` (inside a user's ``jax.jit`` it surfaces as equinox's
+    ``EquinoxRuntimeError`` with the same message)."""
+    try:
+        return fn(*args)
+    except eqx.EquinoxRuntimeError as err:
+        if _NO_BRDF in str(err):
+            raise NoBRDFAtScaleError(_NO_BRDF_MESSAGE) from None
+        raise
+
+
+def choose_size(density: EvolvedDensity, method: str, max_size: int) -> tuple[int, float]:
     """Nodes (radial) or grid side (grid) that resolve ``density`` to its ``tol``.
 
-    Needs concrete parameter values; returns a power of two (grid) or a multiple of 64
-    (radial), capped at ``max_size``.
+    Returns ``(size, tol)``: a power of two (grid) or a multiple of 64 (radial), capped at
+    ``max_size``. When the cap cannot meet the target (heavy tails, e.g. GGX's |m|⁻⁴, need
+    grids of extent ∝ tol^{−1/4}), the grid path relaxes the target by decades until the
+    grid fits and returns the tolerance it can honour. Needs concrete parameter values.
     """
-    K = float(density.bandwidth(density.tol))
-    R = float(density.support_radius(density.tol))
-    if method == "grid":
+    if method == "radial":
+        # Gauss–Legendre on [0, K] integrates J0(k r) G(k) k for r ≤ R with ~K R/2 + 40 nodes
+        K = float(density.bandwidth(density.tol))
+        R = float(density.support_radius(density.tol))
+        need = max(64, 0.6 * K * R + 64)
+        return int(min(max_size, 64 * math.ceil(need / 64))), density.tol
+    tol = density.tol
+    while True:
+        K = float(density.bandwidth(tol))
+        R = float(density.support_radius(tol))
         # spacing h = 2R/N must resolve K: π/h ≥ K  ⇒  N ≥ 2 R K / π
-        need = max(64, 2 * R * K / math.pi)
-        return int(min(max_size, 2 ** math.ceil(math.log2(need))))
-    # Gauss–Legendre on [0, K] integrates J0(k r) G(k) k for r ≤ R with ~K R/2 + 40 nodes
-    need = max(64, 0.6 * K * R + 64)
-    return int(min(max_size, 64 * math.ceil(need / 64)))
+        need = max(64.0, 2 * R * K / math.pi)
+        if need <= max_size or tol >= 1e-2:
+            return int(min(max_size, 2 ** math.ceil(math.log2(need)))), tol
+        tol *= 10

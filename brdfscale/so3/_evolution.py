@@ -25,14 +25,13 @@ caller's choice; columns (orders M' of the twist γ) mix under the statistics an
 
 import equinox as eqx
 import jax.numpy as jnp
-import jax.scipy.linalg as jsl
 import numpy as np
 from jaxtyping import Array, ArrayLike, Complex, Float
 
 from .. import stats
 from .._errors import InvalidInputError
 from .._validation import as_float_array, is_concrete
-from ._generators import check_diffusion, diffusion_generator
+from ._generators import block_expm, check_diffusion, diffusion_generator
 from ._models import AbstractOrientationDensity, RotationalDiffusion
 from ._transform import _coefficients
 
@@ -119,7 +118,7 @@ def evolve_diffusion(
     t0 = as_float_array(tau_from, "tau_from")
     t1 = as_float_array(tau_to, "tau_to")
     G = diffusion_generator(B, check_diffusion(D))
-    return R @ jsl.expm(-(t0 - t1) * G, max_squarings=64).astype(R.dtype)
+    return R @ block_expm(-(t0 - t1) * G).astype(R.dtype)
 
 
 class DiffusionLaw(eqx.Module):

@@ -23,7 +23,7 @@ from .._validation import as_float_array, is_concrete, positive
 from ..geometry import microfacet_factor, validate_directions
 from ._convolution import to_operator
 from ._generators import check_diffusion, diffusion_operator
-from ._grid import check_band_limit, grid
+from ._grid import MAX_BAND_LIMIT, check_band_limit, grid
 from ._rotations import euler_to_matrix, matrix_to_euler
 from ._transform import analyse_points, forward
 
@@ -111,8 +111,8 @@ class TiltTwist(AbstractOrientationDensity):
 
     with ``s_m`` any :mod:`brdfscale.stats` slope density (``d²m = dω/cos³β``) and ``p`` a
     wrapped normal twist density of ``twist_mean`` and ``twist_std`` (radians; None: uniform,
-    an isotropic twist). Coefficients come from :func:`forward` on the grid of band limit B
-    (exact only for band-limited s; choose B with :func:`band_limit`).
+    an isotropic twist). Coefficients J < B come from :func:`forward` on a grid fine enough
+    to integrate s (:meth:`quadrature_band_limit`), so narrow densities are not aliased.
     """
 
     tilt: stats.AbstractSlopeDensity
@@ -141,11 +141,21 @@ class TiltTwist(AbstractOrientationDensity):
             twist = _wrapped_normal(alpha + gamma, self.twist_mean, self.twist_std)
         return jnp.where(upper, tilt * twist, 0.0)
 
+    def quadrature_band_limit(self, B: int, tol: float = 1e-10) -> int:
+        """Band limit of the sampling grid: at least B, and enough to integrate the tilt and
+        twist densities to ``tol`` (from the tilt's slope bandwidth, J ≈ |W| for small tilts,
+        and the twist's Fourier decay e^{−σ²k²/2})."""
+        need = [B, float(self.tilt.bandwidth(tol)) + 4]
+        if self.twist_std is not None:
+            need.append(math.sqrt(2 * math.log(1 / tol)) / float(self.twist_std) + 4)
+        return min(MAX_BAND_LIMIT, int(math.ceil(max(need))))
+
     def operator(self, B):
         B = check_band_limit(B)
-        a, b, g = (jnp.asarray(x) for x in grid(B))
+        Bq = self.quadrature_band_limit(B)
+        a, b, g = (jnp.asarray(x) for x in grid(Bq))
         samples = self.density(a[:, None, None], b[None, :, None], g[None, None, :])
-        return _with_padding(forward(samples), B)
+        return _with_padding(forward(samples, m_max=B - 1, n_max=B - 1)[:B], B)
 
 
 class EmpiricalOrientations(AbstractOrientationDensity):
@@ -216,9 +226,10 @@ class AnisotropicMicrofacetLobe(eqx.Module):
         self, i: Float[ArrayLike, "*batch 3"], o: Float[ArrayLike, "*batch 3"], rotation: Float[ArrayLike, "*batch 3 3"]
     ) -> Float[Array, "*batch"]:
         """``ρ(i, o, Γ)`` for global directions i, o (z > 0) and facet orientations Γ (3×3)."""
-        i = validate_directions(i, "i")
-        o = validate_directions(o, "o")
-        rot = jnp.asarray(rotation)
+        return self._evaluate(validate_directions(i, "i"), validate_directions(o, "o"), jnp.asarray(rotation))
+
+    @eqx.filter_jit
+    def _evaluate(self, i, o, rot):
         ip = jnp.einsum("...ji,...j->...i", rot, i)
         op = jnp.einsum("...ji,...j->...i", rot, o)
         visible = (ip[..., 2] > 0) & (op[..., 2] > 0)
@@ -234,8 +245,11 @@ class AnisotropicMicrofacetLobe(eqx.Module):
         """``ρ(i, o, Γ)`` on the Kostelec–Rockmore grid of band limit B (axes α, β, γ)."""
         B = check_band_limit(B)
         a, b, g = (jnp.asarray(x) for x in grid(B))
-        rot = euler_to_matrix(a[:, None, None], b[None, :, None], g[None, None, :])
-        return self.evaluate(jnp.asarray(i), jnp.asarray(o), rot)
+        return self._on_grid(validate_directions(i, "i"), validate_directions(o, "o"), a, b, g)
+
+    @eqx.filter_jit
+    def _on_grid(self, i, o, a, b, g):
+        return self._evaluate(i, o, euler_to_matrix(a[:, None, None], b[None, :, None], g[None, None, :]))
 
     def coefficients(self, i, o, B: int) -> Complex[Array, "B 2B-1 2B-1"]:
         """SO(3) coefficients of ``Γ ↦ ρ(i, o, Γ)`` at band limit B (:func:`forward` of :meth:`samples`)."""

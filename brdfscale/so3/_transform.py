@@ -66,8 +66,10 @@ def _degree_table(B: int, K: int) -> np.ndarray:
     return table
 
 
-def _chunks(B: int, pieces: int = 6) -> list[tuple[int, int]]:
-    """Degree ranges [J0, J1) of roughly equal O(J⁴) work; each is padded to its largest J."""
+def _chunks(B: int) -> list[tuple[int, int]]:
+    """Degree ranges [J0, J1) of roughly equal O(J⁴) work; each is padded to its largest J.
+    Few pieces for small B (each piece is one compiled loop)."""
+    pieces = max(1, min(6, B // 8))
     edges = sorted({0, B} | {int(round(B * math.sqrt(k / pieces))) for k in range(1, pieces)})
     return [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
 

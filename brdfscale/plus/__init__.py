@@ -1,0 +1,25 @@
+"""Nearly-specular reflection: regularised plus-distributions and their strengths (seed §6, DESIGN §4).
+
+* :func:`plus_transform` — the transforms ``H_n`` (n = 0…6) to float64 rounding;
+* :class:`PlusDistribution` — ``h_n = (1/2π)[θ(x0 − |m|) logⁿ(|m|/x0)/|m|²]₊`` as a slope statistic;
+* :class:`NearlySpecular` — ``a δ + Σ c_n h_n + w s_smooth`` (mass ``a + w = 1``);
+* :func:`observe` / :class:`ObservedDensity` — what an instrument of finite angular
+  resolution sees, with a check that it is non-negative;
+* :func:`fit_strengths` — least-squares fit of ``c_n`` and ``x0`` with Laplace uncertainties.
+"""
+
+from ._distribution import PlusDistribution
+from ._fit import StrengthFit, fit_strengths
+from ._nearly_specular import NearlySpecular, ObservedDensity, observe
+from ._transform import MAX_ORDER, plus_transform
+
+__all__ = [
+    "MAX_ORDER",
+    "plus_transform",
+    "PlusDistribution",
+    "NearlySpecular",
+    "ObservedDensity",
+    "observe",
+    "StrengthFit",
+    "fit_strengths",
+]

@@ -1,0 +1,59 @@
+"""Shared helpers of the benchmark scripts: timing, machine description, atomic JSON output."""
+
+import json
+import os
+import platform
+import tempfile
+import time
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def machine() -> dict:
+    """The machine and library versions a benchmark ran on."""
+    import jax
+
+    versions = {}
+    for pkg in ("brdfscale", "jax", "jaxlib", "equinox", "optimistix", "numpy", "scipy", "emcee", "OpenEXR", "s2fft"):
+        try:
+            versions[pkg] = version(pkg)
+        except PackageNotFoundError:
+            versions[pkg] = None
+    return {
+        "platform": platform.platform(),
+        "processor": platform.processor() or platform.machine(),
+        "cpu_count": os.cpu_count(),
+        "python": platform.python_version(),
+        "jax_backend": jax.default_backend(),
+        "jax_devices": [str(d) for d in jax.devices()],
+        "versions": versions,
+        "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+    }
+
+
+def best_time(fn, *, repeat: int = 5, number: int = 1) -> float:
+    """Best wall time of ``number`` calls of ``fn`` over ``repeat`` rounds (seconds per call).
+
+    ``fn`` must block until its result is ready (call ``block_until_ready`` inside)."""
+    fn()  # warm-up (compilation)
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        for _ in range(number):
+            fn()
+        best = min(best, (time.perf_counter() - t0) / number)
+    return best
+
+
+def write_json(name: str, payload: dict) -> Path:
+    """Write ``results/<name>.json`` atomically (temporary file + rename)."""
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    path = RESULTS / f"{name}.json"
+    fd, tmp = tempfile.mkstemp(dir=RESULTS, suffix=".tmp")
+    with os.fdopen(fd, "w") as f:
+        json.dump(payload, f, indent=2, sort_keys=False)
+        f.write("\n")
+    os.replace(tmp, path)
+    return path

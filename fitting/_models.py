@@ -1,0 +1,437 @@
+"""Forward maps from unconstrained parameter vectors θ to predicted lobe images.
+
+Every model predicts, for each measured scale μ_k, the lobe ``A·g_{μ_k}(u)`` at the pixel
+offsets of the dataset through the core evolution operator (seed Eq. 4.4, DESIGN §2)
+
+    G(W, μ_k) = G(W, μ0) · S(W, μ0) / S(W, μ_k),
+
+with μ0 the finest measured scale. θ lives in ℝⁿ; each model maps it onto the valid
+domain of its physical quantities (logarithms for positive quantities, softplus for
+non-negative increments), so optimisers and samplers need no bounds.
+
+* :class:`ParametricModel` — base lobe family (Beckmann or GGX: width ``alpha_lobe`` and
+  amplitude ``A`` at μ0) and statistics family (Beckmann or GGX) whose width follows
+  :class:`brdfscale.stats.WidthLaw` ``α(μ) = alpha_max (1 + (μ/mu_c)²)^{−exponent/2}``.
+  The law tends to δ as μ → ∞, which supplies the boundary condition ``S(W, ∞) = 1`` that
+  multi-scale data alone cannot (DESIGN §2).
+* :class:`NonParametricModel` — a tabulated base lobe at μ0 and, for each coarser scale, the
+  *relative statistics* ``r_k`` defined by ``s(μ0) = r_k ∗ s(μ_k)``, i.e.
+  ``R_k(W) = S(W, μ0)/S(W, μ_k) = exp(−D_k(|W|))`` on a radial W grid: exactly the
+  combinations the data determine. Positivity (``R_k > 0``), monotone decay in |W|,
+  monotone ordering in μ (``D_{k+1} ≥ D_k``) are built into the parameterisation,
+  smoothness is a Gaussian prior on second differences (extra residual rows).
+"""
+
+import abc
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from brdfscale import InvalidInputError, MethodNotApplicableError, evolve, lobes, stats
+from brdfscale._special import j0
+
+from ._data import Dataset
+
+__all__ = ["AbstractModel", "ParametricModel", "NonParametricModel", "RelativeStatistics"]
+
+_LOBES = {"beckmann": lobes.Beckmann, "ggx": lobes.GGX}
+_STATISTICS = {"beckmann": stats.Beckmann, "ggx": stats.GGX}
+
+
+def _on_pixels(lobe: lobes.AbstractLobe, data: Dataset, images: list[int]) -> list[Float[Array, " n_pix"]]:
+    """The lobe at the pixel offsets of ``images``; radially symmetric lobes once per radius."""
+    if lobe.shape.isotropic:
+        radial = lobe.density(jnp.stack([data.radii, jnp.zeros_like(data.radii)], axis=-1))
+        return [radial[data.radius_index[i]] for i in images]
+    flat = lobe.density(data.offsets[jnp.asarray(images)])
+    return list(flat)
+
+
+def _moments(data: Dataset) -> tuple[float, np.ndarray]:
+    """Robust amplitude and width² of the measured lobe at each scale (for starting points).
+
+    For a Gaussian lobe ``A exp(−|u|²/α²)/(π α²)`` the area where the lobe exceeds half its
+    peak is ``π α² ln 2``; that gives α², and the amplitude is ``peak · π α²``. Pixels below
+    half the peak (where the noise lives) do not enter.
+    """
+    n_scales = data.scales.shape[0]
+    amp, width2, count = np.zeros(n_scales), np.zeros(n_scales), np.zeros(n_scales)
+    for i, k in enumerate(data.scale_of_image):
+        n, a = data.image_sizes[i], data.extents[i]
+        valid = np.asarray(data.weight[i, : n * n]) > 0
+        v = np.where(valid, np.asarray(data.values[i, : n * n]), -np.inf)
+        peak = v.max()
+        area = np.count_nonzero(v > peak / 2) * (2 * a / (n - 1)) ** 2
+        w2 = max(area, (2 * a / (n - 1)) ** 2) / (math.pi * math.log(2))
+        width2[k] += w2
+        amp[k] += peak * math.pi * w2
+        count[k] += 1
+    return float(np.mean(amp / count)), width2 / count
+
+
+class AbstractModel(eqx.Module):
+    """A forward map θ ↦ predicted images, with names, a prior box and starting points."""
+
+    @property
+    @abc.abstractmethod
+    def names(self) -> tuple[str, ...]:
+        """Names of the unconstrained coordinates θ_i (e.g. ``"log alpha_lobe"``)."""
+
+    @abc.abstractmethod
+    def predict(self, theta: Float[Array, " n"], data: Dataset) -> Float[Array, "n_img n_pix"]:
+        """The predicted lobe at every pixel of every image (padding pixels: anything)."""
+
+    @abc.abstractmethod
+    def quantities(self, theta: Float[Array, " n"]) -> dict[str, Float[Array, ""]]:
+        """The physical quantities of θ by name (what a report prints)."""
+
+    @abc.abstractmethod
+    def initial(self, data: Dataset) -> np.ndarray:
+        """A data-driven starting point θ0."""
+
+    @abc.abstractmethod
+    def bounds(self, data: Dataset) -> tuple[np.ndarray, np.ndarray]:
+        """The prior support ``lo ≤ θ ≤ hi`` (a uniform prior in θ; see docs/fitting.md)."""
+
+    @abc.abstractmethod
+    def relative_statistics(self, theta: Float[Array, " n"], W: Float[Array, " w"], data: Dataset) -> Float[Array, "k w"]:
+        """``S(W, μ0)/S(W, μ_k)`` for every measured scale (row 0 is 1): the data-determined part."""
+
+    @property
+    @abc.abstractmethod
+    def identifiability_notes(self) -> tuple[str, ...]:
+        """What the model assumes to make absolute quantities determinable (DESIGN §2)."""
+
+    def penalty(self, theta: Float[Array, " n"]) -> Float[Array, " m"]:
+        """Whitened prior residuals appended to the data residuals (none by default)."""
+        return jnp.zeros((0,), dtype=theta.dtype)
+
+
+class ParametricModel(AbstractModel):
+    """Parametric lobe + statistics family with a width law (see the module docstring).
+
+    Args:
+        lobe: ``"beckmann"`` or ``"ggx"``: the family of the base lobe at μ0.
+        statistics: ``"beckmann"`` or ``"ggx"``: the family of the facet-slope density s(·, μ);
+            for now it must equal ``lobe`` (see the error raised otherwise).
+        fixed: physical parameters held at given values (e.g. ``{"mu_c": 1.0}``) — the way
+            to supply prior knowledge that the data lack.
+        radial_nodes: Gauss–Legendre nodes of the radial evolution path (used when the pair
+            has no closed form, i.e. whenever a GGX lobe or GGX statistics is involved).
+
+    Parameters (all positive, θ = their logarithms): ``amplitude`` A (the lobe's integral
+    over u), ``alpha_lobe`` (base-lobe width at μ0), ``alpha_max``, ``mu_c`` (length units of
+    μ), ``exponent`` (of the width law).
+    """
+
+    lobe: str = eqx.field(static=True)
+    statistics: str = eqx.field(static=True)
+    fixed: tuple[tuple[str, float], ...] = eqx.field(static=True)
+    radial_nodes: int = eqx.field(static=True)
+
+    PARAMETERS = ("amplitude", "alpha_lobe", "alpha_max", "mu_c", "exponent")
+
+    def __init__(self, lobe: str = "beckmann", statistics: str = "beckmann", *, fixed: dict | None = None,
+                 radial_nodes: int = 192):
+        if lobe not in _LOBES:
+            raise InvalidInputError(f"lobe must be one of {sorted(_LOBES)}; got {lobe!r}.")
+        if statistics not in _STATISTICS:
+            raise InvalidInputError(f"statistics must be one of {sorted(_STATISTICS)}; got {statistics!r}.")
+        if lobe != statistics:
+            raise MethodNotApplicableError(
+                f"a {lobe} lobe with {statistics} statistics needs the radial evolution path, whose derivative "
+                "is NaN when a Gaussian (Beckmann) density is involved (brdfscale.stats Gaussian.support_radius "
+                "differentiates sqrt(0) at isotropic covariance). Supported pairs: beckmann/beckmann (closed "
+                "form) and ggx/ggx (radial path)."
+            )
+        fixed = dict(fixed or {})
+        for name, value in fixed.items():
+            if name not in self.PARAMETERS:
+                raise InvalidInputError(f"cannot fix unknown parameter {name!r}; the parameters are {self.PARAMETERS}.")
+            if not (math.isfinite(float(value)) and float(value) > 0):
+                raise InvalidInputError(f"fixed value of {name} must be positive and finite; got {value!r}.")
+        if len(fixed) == len(self.PARAMETERS):
+            raise InvalidInputError("every parameter is fixed; leave at least one free.")
+        self.lobe, self.statistics = lobe, statistics
+        self.fixed = tuple(sorted((k, float(v)) for k, v in fixed.items()))
+        self.radial_nodes = int(radial_nodes)
+
+    @property
+    def free(self) -> tuple[str, ...]:
+        fixed = dict(self.fixed)
+        return tuple(p for p in self.PARAMETERS if p not in fixed)
+
+    @property
+    def names(self):
+        return tuple(f"log {p}" for p in self.free)
+
+    @property
+    def identifiability_notes(self):
+        return (
+            "Multi-scale data determine the base lobe at μ0 and the ratios S(W, μ0)/S(W, μ_k) only. The "
+            "absolute S(W, μ) reported here rests on the width law's limit α(μ → ∞) = 0, i.e. on the "
+            "boundary condition S(W, ∞) = 1 being built into the model, not on a measurement.",
+        )
+
+    def quantities(self, theta):
+        values = dict(zip(self.free, jnp.exp(theta)))
+        values.update({k: jnp.asarray(v, dtype=theta.dtype) for k, v in self.fixed})
+        return {p: values[p] for p in self.PARAMETERS}
+
+    def theta_from(self, params: dict) -> np.ndarray:
+        """θ of the physical parameters ``params`` (a dict with every free parameter)."""
+        missing = [p for p in self.free if p not in params]
+        if missing:
+            raise InvalidInputError(f"parameters {missing} are missing; need {self.free}.")
+        return np.log([float(params[p]) for p in self.free])
+
+    def law(self, theta) -> stats.WidthLaw:
+        q = self.quantities(theta)
+        return stats.WidthLaw(q["alpha_max"], q["mu_c"], q["exponent"])
+
+    def statistics_at(self, theta, mu) -> stats.AbstractSlopeDensity:
+        """The facet-slope density ``s(·, μ)``."""
+        return _STATISTICS[self.statistics](alpha=self.law(theta)(mu))
+
+    def base_lobe(self, theta) -> lobes.AbstractLobe:
+        """The lobe at μ0."""
+        q = self.quantities(theta)
+        return _LOBES[self.lobe](q["alpha_lobe"], amplitude=q["amplitude"])
+
+    def evolved(self, theta, mu0, mu) -> lobes.AbstractLobe:
+        """The lobe at scale μ > μ0 evolved from the base lobe at μ0 (seed Eq. 4.4)."""
+        base = self.base_lobe(theta)
+        s0, s = self.statistics_at(theta, mu0), self.statistics_at(theta, mu)
+        if self.lobe == "beckmann" and self.statistics == "beckmann":
+            return evolve(base, s0, s, method="closed_form")
+        return evolve(base, s0, s, method="radial", size=self.radial_nodes)
+
+    def predict(self, theta, data):
+        out = [None] * len(data.scale_of_image)
+        for k in range(data.scales.shape[0]):
+            images = [i for i, j in enumerate(data.scale_of_image) if j == k]
+            # k = 0 is the identity (the radial path would form 0/0 where S(W, μ0) underflows)
+            lobe = self.base_lobe(theta) if k == 0 else self.evolved(theta, data.scales[0], data.scales[k])
+            for i, row in zip(images, _on_pixels(lobe, data, images)):
+                out[i] = row
+        return jnp.stack(out)
+
+    def relative_statistics(self, theta, W, data):
+        s0 = self.statistics_at(theta, data.scales[0]).cf_radial(W)
+        return jnp.stack([s0 / self.statistics_at(theta, mu).cf_radial(W) for mu in data.scales])
+
+    def initial(self, data):
+        amp, width2 = _moments(data)
+        # the half-maximum width of a GGX lobe is that of a Beckmann lobe with 0.77 α
+        factor = 1.0 if self.lobe == "beckmann" else 1.3
+        alpha_lobe = factor * math.sqrt(width2[0])
+        spread = max(float(width2[-1] - width2[0]), 1e-6)
+        start = {
+            "amplitude": amp,
+            "alpha_lobe": alpha_lobe,
+            "alpha_max": 1.5 * math.sqrt(spread),
+            "mu_c": math.sqrt(float(data.scales[0]) * float(data.scales[-1])),
+            "exponent": 1.0,
+        }
+        return self.theta_from(start)
+
+    def bounds(self, data):
+        box = {
+            "amplitude": (1e-8, 1e8),
+            "alpha_lobe": (1e-4, 10.0),
+            "alpha_max": (1e-4, 10.0),
+            "mu_c": (float(data.scales[0]) * 1e-3, float(data.scales[-1]) * 1e3),
+            "exponent": (0.05, 10.0),
+        }
+        lo = np.log([box[p][0] for p in self.free])
+        hi = np.log([box[p][1] for p in self.free])
+        return lo, hi
+
+
+class RelativeStatistics(stats.AbstractSlopeDensity):
+    """The isotropic density ``r`` with ``R(W) = exp(−D(|W|))``, ``D`` piecewise linear in W².
+
+    ``D`` is given at knots ``W_0 = 0 < W_1 < … < W_J`` (``D(0) = 0``, so r integrates to 1)
+    and continued linearly in W² beyond ``W_J``. Linear in W² makes ``r`` Gaussian-like near
+    the origin (finite variance ``2·D'(0)`` per axis in W² units). Used as ``s_from`` of
+    :func:`brdfscale.evolve` with ``s_to = Delta()``, it evolves a lobe by the ratio
+    ``S(μ0)/S(μ_k)`` directly.
+    """
+
+    knots: Float[Array, " J"]
+    decay: Float[Array, " J"]
+    isotropic: bool = eqx.field(static=True)
+
+    def __init__(self, knots, decay):
+        self.knots, self.decay = jnp.asarray(knots), jnp.asarray(decay)
+        self.isotropic = True
+
+    def _slopes(self):
+        t = self.knots**2
+        return (self.decay[1:] - self.decay[:-1]) / (t[1:] - t[:-1])
+
+    def log_cf_radial(self, k):
+        """``−D(k)``."""
+        t, tk = jnp.asarray(k) ** 2, self.knots**2
+        beyond = self.decay[-1] + self._slopes()[-1] * (t - tk[-1])
+        return -jnp.where(t <= tk[-1], jnp.interp(t, tk, self.decay), beyond)
+
+    def cf(self, W):
+        return jnp.exp(self.log_cf_radial(jnp.linalg.norm(jnp.asarray(W), axis=-1))).astype(jnp.result_type(W, 1j))
+
+    def cf_radial(self, k):
+        return jnp.exp(self.log_cf_radial(k))
+
+    def density(self, m):
+        """``r(m) = (2π)⁻¹ ∫_0^K R(k) J₀(k|m|) k dk`` (Gauss–Legendre, K where R = 1e-14)."""
+        r = jnp.linalg.norm(jnp.asarray(m), axis=-1)
+        x, w = np.polynomial.legendre.leggauss(256)
+        K = self.bandwidth(1e-14)
+        k = 0.5 * (jnp.asarray(x) + 1) * K
+        return jnp.sum(0.5 * K * jnp.asarray(w) * self.cf_radial(k) * k * j0(r[..., None] * k), axis=-1) / (2 * jnp.pi)
+
+    def shifted(self, offset):
+        raise MethodNotApplicableError("RelativeStatistics is centred by construction and cannot be shifted.")
+
+    def support_radius(self, tol):
+        # A Gaussian with R = exp(−c W²) has support radius √(4 c ln(1/tol)); c = the steepest segment.
+        c = jnp.maximum(jnp.max(self._slopes()), 1e-30)
+        return jnp.sqrt(4 * c * math.log(1 / tol))
+
+    def bandwidth(self, tol):
+        level, tk = math.log(1 / tol), self.knots**2
+        slope = jnp.maximum(self._slopes()[-1], 1e-30)
+        t = jnp.where(self.decay[-1] >= level, jnp.interp(level, self.decay, tk), tk[-1] + (level - self.decay[-1]) / slope)
+        return jnp.sqrt(t)
+
+
+def _softplus_inverse(x):
+    return np.log(np.expm1(np.maximum(x, 1e-12)))
+
+
+class NonParametricModel(AbstractModel):
+    """Tabulated base lobe + relative statistics on a radial W grid (module docstring).
+
+    Args:
+        data: the dataset (fixes the number of scales, the base-lobe grid and the W knots).
+        base_nodes: the base lobe is tabulated on ``base_nodes × base_nodes`` nodes over
+            ``[−base_extent, base_extent]²`` (default: where the finest-scale lobe lives,
+            3.5 × its half-maximum width α (α² = area above half peak / π ln 2), capped at the image extent).
+        n_knots: number of W knots after ``W_0 = 0``, evenly spaced up to ``W_max`` (default
+            ``6/α``, where a Gaussian lobe's transform has fallen to e⁻⁹).
+        smoothness: inverse prior standard deviation of the second differences of ``D_k``
+            across knots (larger: smoother).
+        grid_size: side of the FFT grid of the evolution's grid path.
+
+    θ = (log base-lobe values row-major, then z[k, j] for k = 1..K−1, j = 1..J) with
+    ``D_k(W_j) = Σ_{k'≤k} Σ_{j'≤j} softplus(z[k', j'])``.
+    """
+
+    n_scales: int = eqx.field(static=True)
+    base_nodes: int = eqx.field(static=True)
+    base_extent: float = eqx.field(static=True)
+    knots: tuple[float, ...] = eqx.field(static=True)
+    smoothness: float = eqx.field(static=True)
+    grid_size: int = eqx.field(static=True)
+
+    def __init__(self, data: Dataset, *, base_nodes: int = 13, base_extent: float | None = None,
+                 n_knots: int = 8, w_max: float | None = None, smoothness: float = 3.0, grid_size: int = 48):
+        if base_nodes < 3 or n_knots < 2:
+            raise InvalidInputError(f"need base_nodes ≥ 3 and n_knots ≥ 2; got {base_nodes}, {n_knots}.")
+        _, width2 = _moments(data)
+        rms = math.sqrt(width2[0])
+        extent = min(data.extents)
+        self.n_scales = int(data.scales.shape[0])
+        self.base_nodes = int(base_nodes)
+        self.base_extent = float(base_extent) if base_extent is not None else min(3.5 * rms, extent)
+        w_max = float(w_max) if w_max is not None else 6.0 / rms
+        self.knots = tuple(np.linspace(0.0, w_max, n_knots + 1).tolist())
+        self.smoothness = float(smoothness)
+        self.grid_size = int(grid_size)
+
+    @property
+    def identifiability_notes(self):
+        return (
+            "Reported: D_k(W) = −ln[S(W, μ0)/S(W, μ_k)], the combinations the data determine. The absolute "
+            "S(W, μ_k) is NOT determined by these data: it needs the boundary condition S(W, ∞) = 1 through a "
+            "measurement at a scale coarse enough for δ statistics, or a parametric scale law "
+            "(ParametricModel).",
+        )
+
+    @property
+    def _n_base(self):
+        return self.base_nodes**2
+
+    @property
+    def names(self):
+        nb, J = self.base_nodes, len(self.knots) - 1
+        base = tuple(f"log base[{r},{c}]" for r in range(nb) for c in range(nb))
+        return base + tuple(f"z[{k},{j}]" for k in range(1, self.n_scales) for j in range(1, J + 1))
+
+    def base_lobe(self, theta) -> lobes.Tabulated:
+        nb = self.base_nodes
+        return lobes.Tabulated(jnp.exp(theta[: self._n_base]).reshape(nb, nb), extent=self.base_extent)
+
+    def decay(self, theta) -> Float[Array, "k J+1"]:
+        """``D_k(W_j)`` for k = 0..K−1 (row 0 is zero), j = 0..J."""
+        J = len(self.knots) - 1
+        inc = jax.nn.softplus(theta[self._n_base:].reshape(self.n_scales - 1, J))
+        d = jnp.cumsum(jnp.cumsum(inc, axis=0), axis=1)
+        d = jnp.concatenate([jnp.zeros((self.n_scales - 1, 1), d.dtype), d], axis=1)
+        return jnp.concatenate([jnp.zeros((1, J + 1), d.dtype), d], axis=0)
+
+    def relative(self, theta, k: int) -> RelativeStatistics:
+        return RelativeStatistics(jnp.asarray(self.knots, dtype=theta.dtype), self.decay(theta)[k])
+
+    def quantities(self, theta):
+        out = {"amplitude": self.base_lobe(theta).amplitude}
+        d = self.decay(theta)
+        for k in range(1, self.n_scales):
+            for j in range(1, len(self.knots)):
+                out[f"D[{k}](W={self.knots[j]:.4g})"] = d[k, j]
+        return out
+
+    def predict(self, theta, data):
+        base = self.base_lobe(theta)
+        out = [None] * len(data.scale_of_image)
+        for k in range(self.n_scales):
+            images = [i for i, j in enumerate(data.scale_of_image) if j == k]
+            if k == 0:
+                lobe = base
+            else:
+                lobe = evolve(base, self.relative(theta, k), stats.Delta(), method="grid", size=self.grid_size)
+            for i, row in zip(images, _on_pixels(lobe, data, images)):
+                out[i] = row
+        return jnp.stack(out)
+
+    def relative_statistics(self, theta, W, data):
+        return jnp.stack([self.relative(theta, k).cf_radial(W) for k in range(self.n_scales)])
+
+    def penalty(self, theta):
+        d = self.decay(theta)[1:]
+        return self.smoothness * (d[:, 2:] - 2 * d[:, 1:-1] + d[:, :-2]).ravel()
+
+    def initial(self, data):
+        amp, width2 = _moments(data)
+        nb = self.base_nodes
+        # a Gaussian base lobe of the finest image's half-maximum width (α² = 2σ²)
+        x = np.linspace(-self.base_extent, self.base_extent, nb)
+        var = max(width2[0], 1e-12) / 2
+        g = amp * np.exp(-(x[None, :] ** 2 + x[:, None] ** 2) / (2 * var)) / (2 * np.pi * var)
+        base = np.log(np.maximum(g, g.max() * 1e-6)).ravel()
+        W = np.asarray(self.knots)
+        d = np.maximum(width2 - width2[0], 1e-6 * max(width2[0], 1e-12))[:, None] * W[None, :] ** 2 / 4
+        inc = np.diff(np.diff(d, axis=0), axis=1)
+        return np.concatenate([base, _softplus_inverse(np.maximum(inc, 1e-3)).ravel()])
+
+    def bounds(self, data):
+        amp, width2 = _moments(data)
+        peak = amp / (math.pi * max(width2[0], 1e-12))
+        n_z = len(self.names) - self._n_base
+        lo = np.concatenate([np.full(self._n_base, math.log(peak) - 40), np.full(n_z, -30.0)])
+        hi = np.concatenate([np.full(self._n_base, math.log(peak) + 10), np.full(n_z, 10.0)])
+        return lo, hi

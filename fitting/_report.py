@@ -1,0 +1,257 @@
+"""The main job's outputs: fit.json, figures (matplotlib, Agg) and evolved lobe tables.
+
+``write_report`` is the only place in :mod:`fitting` that touches files. Every file is
+written to a temporary name in the output directory and moved into place (``os.replace``);
+an existing ``fit.json`` is never overwritten unless ``overwrite=True``.
+"""
+
+import json
+import os
+import platform
+import tempfile
+
+import jax
+import jax.numpy as jnp
+import matplotlib
+import numpy as np
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+import brdfscale  # noqa: E402
+from brdfscale import BrdfscaleError, InvalidInputError  # noqa: E402
+
+from ._estimate import FitResult, Problem  # noqa: E402
+from ._models import ParametricModel  # noqa: E402
+from ._sample import SampleResult  # noqa: E402
+
+__all__ = ["summarise", "write_report", "truth_of"]
+
+_CORNER_MAX = 6
+
+
+def _atomic(path, write):
+    directory = os.path.dirname(os.path.abspath(path))
+    fd, tmp = tempfile.mkstemp(dir=directory, prefix=".tmp-", suffix=os.path.splitext(path)[1])
+    os.close(fd)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def truth_of(model, metadata: dict) -> dict | None:
+    """Ground-truth quantities from a measurement set's metadata, when they match the model.
+
+    Recognised: ``{"truth": {"params": {name: value}}}`` whose names are quantities of the
+    model (as written by :func:`fitting.simulate`).
+    """
+    params = (metadata or {}).get("truth", {}).get("params") if isinstance(metadata, dict) else None
+    if not isinstance(params, dict) or not isinstance(model, ParametricModel):
+        return None
+    if not all(p in params for p in model.PARAMETERS):
+        return None
+    return {p: float(params[p]) for p in model.PARAMETERS}
+
+
+def _draws(fit: FitResult, samples: SampleResult | None, rng, n=2000):
+    if samples is not None:
+        flat = samples.samples
+        return flat[rng.choice(flat.shape[0], size=min(n, flat.shape[0]), replace=False)]
+    chol = np.linalg.cholesky(fit.covariance + 1e-300 * np.eye(fit.theta.size)) if np.any(fit.covariance) else 0
+    return fit.theta + rng.standard_normal((n, fit.theta.size)) @ np.atleast_2d(chol).T
+
+
+def summarise(problem: Problem, fit: FitResult, samples: SampleResult | None, truth: dict | None) -> dict:
+    """Per-quantity table: estimate, std, 5/50/95 % quantiles (MCMC when sampled, else Laplace)."""
+    model = problem.model
+    table = {}
+    if samples is not None:
+        q = jax.jit(jax.vmap(model.quantities))(jnp.asarray(samples.samples))
+        q = {k: np.asarray(v) for k, v in q.items()}
+    for name, value in fit.estimates.items():
+        row = {"estimate_map": value, "determined": fit.std[name] is not None}
+        if samples is not None:
+            row.update(source="mcmc", median=float(np.median(q[name])), std=float(np.std(q[name])),
+                       quantiles_5_50_95=np.percentile(q[name], [5, 50, 95]).tolist())
+        else:
+            row.update(source="laplace", std=fit.std[name], quantiles_5_50_95=fit.quantiles[name],
+                       median=None if fit.quantiles[name] is None else fit.quantiles[name][1])
+        if not row["determined"]:
+            row["note"] = "not determined by the data (see identifiability); the spread is the prior's"
+        if truth is not None and name in truth:
+            row["truth"] = truth[name]
+        table[name] = row
+    return table
+
+
+def _figure_data_vs_fit(path, problem: Problem, fit: FitResult):
+    data, model = problem.data, problem.model
+    pred = np.asarray(model.predict(jnp.clip(jnp.asarray(fit.theta), problem.lower, problem.upper), data))
+    first = [data.scale_of_image.index(k) for k in range(len(np.asarray(data.scales)))]
+    fig, axes = plt.subplots(len(first), 3, figsize=(9, 2.6 * len(first)), squeeze=False)
+    for row, i in enumerate(first):
+        obs, fitted = data.image(i, data.values[i]), data.image(i, pred[i])
+        w = data.image(i, data.weight[i])
+        e = data.extents[i]
+        vmax = max(obs.max(), fitted.max())
+        for col, (img, title, kw) in enumerate((
+            (obs, "data", dict(vmin=0, vmax=vmax)),
+            (fitted, "fit", dict(vmin=0, vmax=vmax)),
+            ((fitted - obs) * w, "(fit − data)/σ", dict(vmin=-4, vmax=4, cmap="RdBu_r")),
+        )):
+            im = axes[row, col].imshow(img, origin="lower", extent=(-e, e, -e, e), **kw)
+            axes[row, col].set_title(f"μ = {float(data.scales[data.scale_of_image[i]]):.4g}: {title}", fontsize=9)
+            fig.colorbar(im, ax=axes[row, col], fraction=0.046)
+        axes[row, 0].set_ylabel("u_y")
+    for ax in axes[-1]:
+        ax.set_xlabel("u_x")
+    fig.tight_layout()
+    _atomic(path, lambda p: fig.savefig(p, dpi=90, format="png"))
+    plt.close(fig)
+
+
+def _band(ax, W, curves, color, label):
+    lo, mid, hi = np.percentile(curves, [5, 50, 95], axis=0)
+    ax.fill_between(W, lo, hi, color=color, alpha=0.3, lw=0)
+    ax.plot(W, mid, color=color, lw=1.2, label=label)
+
+
+def _figure_statistics(path, problem: Problem, fit: FitResult, draws, truth: dict | None):
+    data, model = problem.data, problem.model
+    scales = np.asarray(data.scales)
+    q = model.quantities(jnp.asarray(fit.theta))
+    width = float(q["alpha_lobe"]) if "alpha_lobe" in q else 0.05
+    W = jnp.linspace(0.0, 8.0 / width, 200)
+    relative = np.asarray(jax.vmap(lambda t: model.relative_statistics(t, W, data))(jnp.asarray(draws)))
+    absolute = isinstance(model, ParametricModel)
+    fig, axes = plt.subplots(1, 2 if absolute else 1, figsize=(11 if absolute else 6, 4), squeeze=False)
+    colors = plt.cm.viridis(np.linspace(0, 0.9, len(scales)))
+    true_theta = jnp.asarray(model.theta_from(truth)) if truth is not None else None
+    for k in range(1, len(scales)):
+        _band(axes[0, 0], W, relative[:, k], colors[k], f"μ = {scales[k]:.3g}")
+        if true_theta is not None:
+            axes[0, 0].plot(W, np.asarray(model.relative_statistics(true_theta, W, data))[k], "k--", lw=0.8)
+    axes[0, 0].set_title("S(W, μ0)/S(W, μ) — determined by the data (5–95 % band)", fontsize=9)
+    axes[0, 0].set_xlabel("|W|")
+    axes[0, 0].legend(fontsize=7)
+    if absolute:
+        for k, mu in enumerate(scales):
+            curves = np.asarray(jax.vmap(lambda t: model.statistics_at(t, mu).cf_radial(W))(jnp.asarray(draws)))
+            _band(axes[0, 1], W, curves, colors[k], f"μ = {mu:.3g}")
+            if true_theta is not None:
+                axes[0, 1].plot(W, np.asarray(model.statistics_at(true_theta, mu).cf_radial(W)), "k--", lw=0.8)
+        axes[0, 1].set_title("S(W, μ) — absolute via the width law's S(W, ∞) = 1 (dashed: truth)", fontsize=9)
+        axes[0, 1].set_xlabel("|W|")
+    fig.tight_layout()
+    _atomic(path, lambda p: fig.savefig(p, dpi=90, format="png"))
+    plt.close(fig)
+
+
+def _figure_corner(path, model, draws, truth: dict | None):
+    q = jax.vmap(model.quantities)(jnp.asarray(draws))
+    names = list(q)[:_CORNER_MAX]
+    x = np.stack([np.asarray(q[n]) for n in names], axis=1)
+    d = len(names)
+    fig, axes = plt.subplots(d, d, figsize=(1.8 * d + 1, 1.8 * d + 1), squeeze=False)
+    for i in range(d):
+        for j in range(d):
+            ax = axes[i, j]
+            if j > i:
+                ax.axis("off")
+                continue
+            if i == j:
+                ax.hist(x[:, i], bins=40, color="0.4", histtype="step")
+                for v in np.percentile(x[:, i], [5, 50, 95]):
+                    ax.axvline(v, color="C0", lw=0.7, ls=":")
+            else:
+                ax.hist2d(x[:, j], x[:, i], bins=40, cmap="Greys")
+                if truth is not None and names[i] in truth:
+                    ax.axhline(truth[names[i]], color="C3", lw=0.8)
+            if truth is not None and names[j] in truth:
+                ax.axvline(truth[names[j]], color="C3", lw=0.8)
+            ax.tick_params(labelsize=6)
+            if i == d - 1:
+                ax.set_xlabel(names[j], fontsize=8)
+            if j == 0 and i > 0:
+                ax.set_ylabel(names[i], fontsize=8)
+    fig.tight_layout()
+    _atomic(path, lambda p: fig.savefig(p, dpi=80, format="png"))
+    plt.close(fig)
+
+
+def _write_tables(out_dir, problem: Problem, fit: FitResult, overwrite: bool) -> list[str] | str:
+    """Evolved lobes at every measured scale (at the estimate) as EXR, via brdfscale.exr."""
+    try:
+        from brdfscale import exr
+    except ImportError:
+        return "not written: brdfscale.exr is not available in this installation"
+    data, model = problem.data, problem.model
+    theta = jnp.clip(jnp.asarray(fit.theta), problem.lower, problem.upper)
+    pred = np.asarray(model.predict(theta, data))
+    images = []
+    for k, mu in enumerate(np.asarray(data.scales)):
+        i = data.scale_of_image.index(k)
+        images.append(brdfscale.LobeImage(mu=float(mu), incident=np.array([0.0, 0.0, 1.0]), extent=data.extents[i],
+                                          values=np.clip(data.image(i, pred[i]), 0, None)))
+    path = os.path.join(out_dir, "evolved_lobes.exr")
+    exr.write_measurements(path, brdfscale.MeasurementSet(tuple(images), metadata={"source": "brdfscale fit"}),
+                           overwrite=overwrite)
+    return [path]
+
+
+def write_report(out_dir, problem: Problem, fit: FitResult, samples: SampleResult | None = None, *,
+                 truth: dict | None = None, model_info: dict | None = None, overwrite: bool = False) -> dict:
+    """Write ``fit.json``, ``data_vs_fit.png``, ``statistics.png``, ``corner.png`` and the
+    evolved lobe tables into ``out_dir``; return the JSON document.
+
+    Raises:
+        InvalidInputError: ``out_dir/fit.json`` exists and ``overwrite`` is False.
+    """
+    os.makedirs(out_dir, exist_ok=True)
+    target = os.path.join(out_dir, "fit.json")
+    if os.path.exists(target) and not overwrite:
+        raise InvalidInputError(f"{target} exists; choose another --out directory or pass --force (overwrite=True).")
+    rng = np.random.default_rng(0)
+    draws = _draws(fit, samples, rng)
+    figures = {name: os.path.join(out_dir, name) for name in ("data_vs_fit.png", "statistics.png", "corner.png")}
+    _figure_data_vs_fit(figures["data_vs_fit.png"], problem, fit)
+    _figure_statistics(figures["statistics.png"], problem, fit, draws, truth)
+    _figure_corner(figures["corner.png"], problem.model, draws, truth)
+    try:
+        tables = _write_tables(out_dir, problem, fit, overwrite)
+    except BrdfscaleError as err:
+        tables = f"not written: {err}"
+    doc = {
+        "brdfscale_version": brdfscale.__version__,
+        "python": platform.python_version(),
+        "model": model_info or {"kind": type(problem.model).__name__},
+        "data": {"scales": np.asarray(problem.data.scales).tolist(), "images": len(problem.data.scale_of_image),
+                 "valid_pixels": problem.data.n_data},
+        "parameters": summarise(problem, fit, samples, truth),
+        "identifiability": fit.to_json()["identifiability"],
+        "optimisation": {k: v for k, v in fit.to_json().items() if k != "identifiability"},
+        "mcmc": None if samples is None else samples.diagnostics(),
+        "figures": list(figures.values()),
+        "tables": tables,
+    }
+    doc = _finite(doc)
+    _atomic(target, lambda p: open(p, "w").write(json.dumps(doc, indent=2, allow_nan=False)))
+    return doc
+
+
+def _finite(x):
+    """JSON-safe copy: NumPy scalars to Python, non-finite floats to None."""
+    if isinstance(x, dict):
+        return {str(k): _finite(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_finite(v) for v in x]
+    if isinstance(x, (np.floating, float)):
+        return float(x) if np.isfinite(x) else None
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    return x

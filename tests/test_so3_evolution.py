@@ -1,0 +1,258 @@
+"""Convolution, statistics, generators and evolution on SO(3) (brdfscale.so3), checked
+against brute-force quadrature, closed forms, Monte Carlo and the slope-space path."""
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.linalg
+
+import brdfscale
+import brdfscale.so3 as so3
+from brdfscale import InvalidInputError, stats
+
+
+def band_limited(B, rng, L=None):
+    """Coefficients of a random real band-limited function (f^J_{−M,−M'} = (−1)^{M−M'} conj f^J_{MM'})."""
+    L = B - 1 if L is None else L
+    c = rng.normal(size=(B, 2 * L + 1, 2 * B - 1)) + 1j * rng.normal(size=(B, 2 * L + 1, 2 * B - 1))
+    M = np.arange(-L, L + 1)[:, None]
+    Mp = np.arange(-(B - 1), B)[None, :]
+    c = np.where((np.abs(M) <= np.arange(B)[:, None, None]) & (np.abs(Mp) <= np.arange(B)[:, None, None]), c, 0)
+    if L == B - 1:
+        c = 0.5 * (c + (-1.0) ** (M - Mp) * np.conj(c[:, ::-1, ::-1]))
+    return c
+
+
+def rotations(rng, n):
+    return rng.uniform(0, 2 * np.pi, n), np.arccos(rng.uniform(-1, 1, n)), rng.uniform(0, 2 * np.pi, n)
+
+
+def compose(e1, e2):
+    """Euler angles of Γ(e1) Γ(e2) (broadcast)."""
+    return so3.matrix_to_euler(np.asarray(so3.euler_to_matrix(*e1)) @ np.asarray(so3.euler_to_matrix(*e2)))
+
+
+def test_convolution_against_brute_force_quadrature():
+    B = 3
+    rng = np.random.default_rng(0)
+    f, g = band_limited(B, rng), band_limited(B, rng)
+    targets = rotations(rng, 3)
+    # ∫ f(Γ) g(Γ⁻¹Γ∞) dΓ on the grid of band limit 2B: the integrand has degrees < 2B − 1
+    Bq = 2 * B
+    a, b, c = so3.grid(Bq)
+    A, Bt, C = (x.ravel() for x in np.meshgrid(a, b, c, indexing="ij"))
+    weights = np.broadcast_to(so3.quadrature_weights(Bq)[None, :, None], (2 * Bq,) * 3).ravel() * (np.pi / Bq) ** 2
+    fvals = np.asarray(so3.synthesize(f, A, Bt, C))
+    inv = np.swapaxes(np.asarray(so3.euler_to_matrix(A, Bt, C)), -1, -2)
+    brute = []
+    for t in zip(*targets):
+        rel = so3.matrix_to_euler(inv @ np.asarray(so3.euler_to_matrix(*t)))
+        brute.append(np.sum(weights * fvals * np.asarray(so3.synthesize(g, *rel))))
+    ours = np.asarray(so3.synthesize(so3.convolve(f, g), *targets))
+    np.testing.assert_allclose(ours, brute, rtol=1e-11, atol=1e-11 * np.abs(brute).max())
+    # the seed's f^J g^J (without 8π²/(2J+1)) is wrong
+    seed = np.asarray(so3.synthesize(jnp.asarray(f) @ jnp.asarray(g), *targets))
+    assert np.max(np.abs(seed - np.asarray(brute))) > 0.1 * np.abs(brute).max()
+
+
+def test_reflection_q_is_s_dagger_on_a_skewed_density():
+    """Mirror-like lobe ρ; facets at two fixed relative orientations Δ_k with weights 0.7/0.3.
+    Physics: ρ∞(Γ∞) = Σ_k w_k ρ(Γ∞ Δ_k). The evolution to μ = ∞ (s_to = Identity) must
+    reproduce it with Q̃ = S̃†, and not with S̃."""
+    B = 4
+    rng = np.random.default_rng(1)
+    rho = band_limited(B, rng)
+    deltas = [(0.3, 0.5, 1.1), (2.0, 0.2, 4.0)]
+    w = np.array([0.7, 0.3])
+    frames = np.asarray(so3.euler_to_matrix(*np.array(deltas).T))
+    s = so3.EmpiricalOrientations(np.repeat(frames, [7, 3], axis=0))
+    targets = rotations(rng, 4)
+    truth = sum(wk * np.asarray(so3.synthesize(rho, *compose(targets, dk))) for wk, dk in zip(w, deltas))
+    evolved = so3.evolve(rho, s, so3.Identity())
+    np.testing.assert_allclose(np.asarray(so3.synthesize(evolved, *targets)), truth, atol=1e-12)
+    wrong = jnp.asarray(rho) @ s.operator(B)  # Q̃ = S̃ (no reflection)
+    assert np.max(np.abs(np.asarray(so3.synthesize(wrong, *targets)) - truth)) > 0.05 * np.abs(truth).max()
+    # the coefficient-level statement q^J = (s^J)†
+    np.testing.assert_allclose(np.asarray(so3.reflect(s.coefficients(B))),
+                               np.conj(np.swapaxes(np.asarray(s.coefficients(B)), -1, -2)), atol=0)
+
+
+def test_evolution_solves_and_regularisation():
+    B = 5
+    rng = np.random.default_rng(2)
+    R = band_limited(B, rng)
+    s0 = so3.RotationalDiffusion(0.05, D=[1.0, 0.5, 2.0])
+    s1 = so3.RotationalDiffusion(0.02, D=[1.0, 0.5, 2.0])
+    R1 = so3.evolve(R, s0, s1)
+    # R(μ) Q̃(μ) = R(μ0) Q̃(μ0): the consistency of seed Eq. 5.3
+    Q0 = np.conj(np.swapaxes(np.asarray(s0.operator(B)), -1, -2))
+    Q1 = np.conj(np.swapaxes(np.asarray(s1.operator(B)), -1, -2))
+    np.testing.assert_allclose(np.asarray(R1) @ Q1, R @ Q0, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(so3.evolve(R1, s1, s0)), R, atol=1e-10)
+    # the generator path is the same evolution
+    np.testing.assert_allclose(np.asarray(so3.evolve_diffusion(R, [1.0, 0.5, 2.0], 0.05, 0.02)), np.asarray(R1), atol=1e-12)
+    # Tikhonov: A Q̃†(Q̃Q̃† + λ²)⁻¹ (explicit inverse only here, as the reference)
+    lam = 0.3
+    A = R @ Q0
+    ref = A @ np.conj(np.swapaxes(Q1, -1, -2)) @ np.linalg.inv(Q1 @ np.conj(np.swapaxes(Q1, -1, -2)) + lam**2 * np.eye(2 * B - 1))
+    np.testing.assert_allclose(np.asarray(so3.evolve(R, s0, s1, regularisation=lam)), ref, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(so3.evolve_diffusion(R, [1.0, 0.5, 2.0], 0.05, 0.02, regularisation=lam)), ref, atol=1e-12)
+    # only the rows a query needs: evolving a row subset gives those rows of the full result
+    rows = R[:, B - 2:B + 1, :]
+    np.testing.assert_allclose(np.asarray(so3.evolve(rows, s0, s1)), np.asarray(R1)[:, B - 2:B + 1, :], atol=1e-12)
+
+
+def test_isotropic_diffusion_is_the_heat_kernel():
+    """Synthesised density vs the character formula Σ (2J+1)/(8π²) e^{−τJ(J+1)} sin((2J+1)θ/2)/sin(θ/2)."""
+    B, tau = 24, 0.08
+    s = so3.RotationalDiffusion(tau, D=1.0)
+    op = np.asarray(s.operator(B))
+    J = np.arange(B)
+    pad = so3._models.operator_padding(B)
+    exact = np.exp(-tau * J * (J + 1))[:, None, None] * np.eye(2 * B - 1)[None] * (1 - pad) + pad
+    np.testing.assert_allclose(op, exact, rtol=0, atol=1e-11)  # jax.scipy.linalg.expm: ~3e-12 absolute
+    rng = np.random.default_rng(3)
+    a, b = rng.uniform(0, 2 * np.pi, 5), rng.uniform(0, 0.8, 5)
+    g = -a + rng.uniform(-0.5, 0.5, 5)  # rotations by up to ~1 rad, where the kernel lives
+    theta = np.arccos(np.clip((np.trace(np.asarray(so3.euler_to_matrix(a, b, g)), axis1=-2, axis2=-1) - 1) / 2, -1, 1))
+    Jc = np.arange(400)[:, None]
+    closed = np.sum((2 * Jc + 1) / (8 * np.pi**2) * np.exp(-tau * Jc * (Jc + 1)) * np.sin((2 * Jc + 1) * theta / 2) / np.sin(theta / 2), axis=0)
+    ours = np.asarray(so3.synthesize(s.coefficients(B), a, b, g)).real
+    np.testing.assert_allclose(ours, closed, atol=1e-9 * closed.max())
+
+
+def test_anisotropic_generator_matches_brownian_motion():
+    """Rotational Brownian motion with body-frame increments √(2 D_i dt) ξ_i about each axis:
+    E[D^J(Δ)*] over the end points must be exp(−τ G^J) (generator normalisation, Monte Carlo)."""
+    D = np.array([1.0, 0.3, 2.0])
+    tau, steps, n = 0.2, 100, 20000
+    rng = np.random.default_rng(4)
+    frames = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+    dt = tau / steps
+    gens = np.zeros((3, 3, 3))
+    gens[0, 2, 1], gens[0, 1, 2] = 1, -1
+    gens[1, 0, 2], gens[1, 2, 0] = 1, -1
+    gens[2, 1, 0], gens[2, 0, 1] = 1, -1
+    for _ in range(steps):
+        w = rng.normal(size=(n, 3)) * np.sqrt(2 * D * dt)
+        K = np.einsum("ni,ijk->njk", w, gens)
+        th = np.linalg.norm(w, axis=1)[:, None, None]
+        step = np.eye(3) + np.sin(th) / th * K + (1 - np.cos(th)) / th**2 * (K @ K)
+        frames = frames @ step
+    B = 3
+    mc = np.asarray(so3.EmpiricalOrientations(frames).operator(B))
+    exact = np.asarray(so3.diffusion_operator(B, D, tau))
+    assert np.max(np.abs(mc - exact)) < 0.03  # MC standard error ≈ 1/√n ≈ 0.007
+    # and the generator differs visibly from an isotropic one with the mean coefficient
+    assert np.max(np.abs(exact - np.asarray(so3.diffusion_operator(B, D.mean(), tau)))) > 0.1
+
+
+def test_generator_blocks_and_expm():
+    B = 6
+    D = [0.4, 1.3, 0.9]
+    G = np.asarray(so3.diffusion_generator(B, D))
+    for J in range(B):
+        Jx, Jy, Jz = so3.angular_momentum(J)
+        block = G[J, B - 1 - J:B + J, B - 1 - J:B + J]
+        np.testing.assert_allclose(block, (D[0] * Jx @ Jx + D[1] * Jy @ Jy + D[2] * Jz @ Jz).real, atol=1e-13)
+        np.testing.assert_allclose(np.asarray(so3.diffusion_operator(B, D, 0.7))[J, B - 1 - J:B + J, B - 1 - J:B + J],
+                                   scipy.linalg.expm(-0.7 * block), atol=1e-13)
+    with pytest.raises(InvalidInputError, match="≥ 0"):
+        so3.diffusion_generator(B, [1.0, -1.0, 1.0])
+
+
+def test_diffusion_law():
+    law = so3.DiffusionLaw(stats.WidthLaw(0.2, 1.0, 1.0))
+    for mu in (0.5, 3.0):
+        assert abs(float(law.tau(mu)) - float(stats.WidthLaw(0.2, 1.0, 1.0)(mu)) ** 2 / 4) < 1e-16
+    assert float(law.tau(1e6)) < 1e-12  # δ at μ → ∞
+    B = 4
+    R = band_limited(B, np.random.default_rng(5))
+    np.testing.assert_allclose(np.asarray(so3.evolve(R, law.at(0.5), law.at(3.0))),
+                               np.asarray(so3.evolve_diffusion(R, law.D, law.tau(0.5), law.tau(3.0))), atol=1e-12)
+
+
+def test_tilt_twist_against_sampled_frames():
+    """TiltTwist's density (Jacobians cos³β, twist = α + γ) vs the empirical transform of frames
+    built from sampled slopes and twists."""
+    alpha, twist_mean, twist_std = 0.25, 0.6, 0.4
+    s = so3.TiltTwist(stats.Beckmann(alpha_x=alpha, alpha_y=0.6 * alpha), twist_mean=twist_mean, twist_std=twist_std)
+    B = 8
+    op = np.asarray(s.operator(B))
+    assert abs(op[0, B - 1, B - 1] - 1) < 1e-6  # normalised: S̃⁰ = 1
+    rng = np.random.default_rng(6)
+    n = 40000
+    m = rng.normal(size=(n, 2)) * np.array([alpha, 0.6 * alpha]) / np.sqrt(2)
+    psi = twist_mean + twist_std * rng.normal(size=n)
+    az, pol = np.arctan2(m[:, 1], m[:, 0]), np.arctan(np.hypot(m[:, 0], m[:, 1]))
+    frames = np.asarray(so3.euler_to_matrix(az, pol, psi - az))
+    normal = frames[:, :, 2]
+    np.testing.assert_allclose(normal[:, :2] / normal[:, 2:], m, atol=1e-12)  # the frames' normals have slope m
+    mc = np.asarray(so3.EmpiricalOrientations(frames).operator(3))
+    assert np.max(np.abs(mc - op[:3, B - 3:B + 2, B - 3:B + 2])) < 0.03
+
+
+def test_lobe_matches_slope_space_lobe_and_rotates():
+    lobe = so3.AnisotropicMicrofacetLobe(0.2, 0.1, amplitude=2.0)
+    flat = brdfscale.lobes.Beckmann(alpha_x=0.2, alpha_y=0.1, amplitude=2.0)
+    i = np.array([0.3, 0.1, np.sqrt(1 - 0.1)])
+    o = np.array([-0.25, 0.05, np.sqrt(1 - 0.065)])
+    assert abs(float(lobe.evaluate(i, o, np.eye(3))) - float(flat.evaluate(i, o))) < 1e-12 * float(flat.evaluate(i, o))
+    # a facet twisted by 90° about z swaps the roughness axes
+    Rz = np.asarray(so3.euler_to_matrix(np.pi / 2, 0.0, 0.0))
+    swapped = brdfscale.lobes.Beckmann(alpha_x=0.1, alpha_y=0.2, amplitude=2.0)
+    assert abs(float(lobe.evaluate(i, o, Rz)) - float(swapped.evaluate(i, o))) < 1e-12 * float(swapped.evaluate(i, o))
+    assert abs(float(lobe.evaluate(i, o, Rz)) - float(flat.evaluate(i, o))) > 0.1  # and it does matter
+    ggx = so3.AnisotropicMicrofacetLobe(0.15, 0.15, family="ggx")
+    back = np.asarray(so3.euler_to_matrix(0.0, np.pi * 0.6, 0.0))
+    assert float(ggx.evaluate(i, o, back)) == 0.0  # detector below the facet's horizon
+    with pytest.raises(InvalidInputError, match="family"):
+        so3.AnisotropicMicrofacetLobe(0.1, 0.1, family="phong")
+
+
+def test_band_limit_from_width():
+    for width, tol in ((0.3, 1e-6), (0.1, 1e-10)):
+        B, err = so3.band_limit(width, tol)
+        assert err <= tol < so3.truncation_error(width, B - 1)
+    # the bound holds for the heat kernel: truncated synthesis vs the closed form at a few rotations
+    width = 0.3
+    B, err = so3.band_limit(width, 1e-6)
+    tau = width**2 / 2
+    s = so3.RotationalDiffusion(tau)
+    theta = np.array([0.0, 0.2, 0.5, 1.5])
+    Jc = np.arange(300)[:, None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        chi = np.where(theta == 0, 2 * Jc + 1, np.sin((2 * Jc + 1) * theta / 2) / np.sin(theta / 2))
+    closed = np.sum((2 * Jc + 1) / (8 * np.pi**2) * np.exp(-tau * Jc * (Jc + 1)) * chi, axis=0)
+    ours = np.asarray(so3.synthesize(s.coefficients(B), theta, 0.0, 0.0)).real  # rotation by θ about z
+    # attained at the identity (θ = 0), up to the expm's ~1e-11 rounding
+    assert np.max(np.abs(ours - closed)) <= err * closed[0] + 1e-10
+    assert abs(abs(ours[0] - closed[0]) - err * closed[0]) < 1e-10
+    with pytest.raises(InvalidInputError, match="band limit"):
+        so3.band_limit(1e-4, 1e-12)
+
+
+def test_cross_check_with_slope_space_path():
+    """Isotropic Beckmann lobe, isotropic small-tilt statistics: SO(3) evolution vs brdfscale.evolve.
+
+    The SO(3) path is exact on the sphere; the slope path linearises it (m = tan θ ≈ θ, the
+    tangent plane for the sphere, the nearly-flat geometry factor cos⁴θ_h ≈ 1). The neglected
+    terms are O(α²) relative to the peak, α the widths involved: halving every width must
+    divide the discrepancy by about 4.
+    """
+    z = np.array([0.0, 0.0, 1.0])
+    rel = {}
+    B, _ = so3.band_limit(np.sqrt(0.1**2 + 0.08**2) / np.sqrt(2), 1e-9)  # enough for both scales
+    for scale in (1.0, 0.5):
+        a_lobe, a0, a1 = 0.2 * scale, 0.16 * scale, 0.08 * scale  # lobe at μ0, statistics at μ0 and μ
+        lobe = so3.AnisotropicMicrofacetLobe(a_lobe, a_lobe)
+        R0 = so3.forward(lobe.samples(z, z, B), m_max=0)  # only M = 0: the query is at α = 0
+        R1 = so3.evolve_diffusion(R0, [1.0, 1.0, 1.0], a0**2 / 4, a1**2 / 4)
+        beta = np.linspace(0, 2.5, 11) * np.sqrt(a_lobe**2 + a0**2 - a1**2) / np.sqrt(2)
+        so3_values = np.asarray(so3.synthesize(R1, 0.0, beta, 0.0)).real
+        slope = brdfscale.evolve(brdfscale.lobes.Beckmann(a_lobe), stats.Beckmann(a0), stats.Beckmann(a1))
+        # ρ at i = o = z and a facet tilted by β: A g(m_s − m) F = g(tan β)/4 in the slope path
+        slope_values = np.asarray(slope.density(np.stack([np.tan(beta), 0 * beta], -1))) / 4
+        rel[scale] = np.max(np.abs(so3_values - slope_values)) / slope_values[0]
+        assert rel[scale] < 2 * (a_lobe**2 + a0**2)  # O(α²)
+    assert 3.5 < rel[1.0] / rel[0.5] < 4.5, rel  # second order
