@@ -6,16 +6,19 @@ The public API:
 * :mod:`brdfscale.lobes` — BRDF lobes at one scale;
 * :func:`brdfscale.evolve` — the evolution operator of seed Eq. 4.4;
 * :mod:`brdfscale.geometry` — directions, slopes, half vectors;
+* :mod:`brdfscale.synth` — random height fields and a synthetic gonioreflectometer;
+* :mod:`brdfscale.exr` — measurement sets and lobe tables as OpenEXR files;
 * :class:`MeasurementSet` / :class:`LobeImage` — multi-scale lobe measurements in memory;
 * the exception classes, all derived from :class:`BrdfscaleError`.
 """
 
 from importlib.metadata import PackageNotFoundError, version as _version
 
-from . import geometry, lobes, stats
+from . import exr, geometry, lobes, stats, synth
 from ._errors import (
     BrdfscaleError,
     InvalidInputError,
+    MeasurementFileError,
     MethodNotApplicableError,
     NoBRDFAtScaleError,
     SingularDensityError,
@@ -35,8 +38,11 @@ __all__ = [
     "geometry",
     "lobes",
     "stats",
+    "synth",
+    "exr",
     "BrdfscaleError",
     "InvalidInputError",
+    "MeasurementFileError",
     "MethodNotApplicableError",
     "NoBRDFAtScaleError",
     "SingularDensityError",

@@ -29,8 +29,10 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._errors import NoBRDFAtScaleError
+from .._quadrature import gauss_legendre
 from .._special import j0
 from ..stats import AbstractSlopeDensity
+from .._validation import is_concrete
 from ..stats._base import check_slopes
 
 _PROBE_DIRECTIONS = 8
@@ -98,7 +100,9 @@ class EvolvedDensity(AbstractSlopeDensity):
 
         Only used for discretisation choices and the existence check, so no gradient flows
         through it (|G| is not differentiable where G = 0)."""
-        self = jax.lax.stop_gradient(self)
+        return _probe(jax.lax.stop_gradient(self))
+
+    def _probe_values(self):
         dtype = jnp.result_type(*jax.tree_util.tree_leaves(self))
         R = jnp.maximum(self.support_radius(self.tol), 1e-12)
         k = jnp.asarray(np.logspace(-2, 5, _PROBE_POINTS), dtype=dtype) / R
@@ -121,7 +125,16 @@ class EvolvedDensity(AbstractSlopeDensity):
 
     # -- inversion ------------------------------------------------------------------------
     def density(self, m):
-        return _translate_errors(_density, self, check_slopes(m, "m"))
+        m = check_slopes(m, "m")
+        shape = self
+        if self.method == "radial" and is_concrete((self, m)):
+            # evaluate only what is asked: nodes enough for the largest queried radius
+            r_max = float(jnp.max(jnp.linalg.norm(m, axis=-1))) if m.size else 0.0
+            n = radial_nodes(float(self.bandwidth(self.tol)), r_max)
+            if n < self.size:
+                shape = EvolvedDensity(self.base, self.s_from, self.s_to, self.regularisation,
+                                       self.method, n, self.tol)
+        return _translate_errors(_density, shape, m)
 
     def _density(self, m):
         if self.method == "radial":
@@ -129,7 +142,7 @@ class EvolvedDensity(AbstractSlopeDensity):
         return self._checked(self._grid_at(m))
 
     def _radial(self, r):
-        x, w = np.polynomial.legendre.leggauss(self.size)
+        x, w = gauss_legendre(self.size)
         K = self.bandwidth(self.tol)
         k = (0.5 * (jnp.asarray(x, r.dtype) + 1)) * K
         wk = 0.5 * K * jnp.asarray(w, r.dtype)
@@ -180,6 +193,7 @@ class EvolvedDensity(AbstractSlopeDensity):
 
 
 _density = eqx.filter_jit(lambda shape, m: shape._density(m))
+_probe = eqx.filter_jit(lambda shape: shape._probe_values())
 _on_grid = eqx.filter_jit(lambda shape: shape._on_grid())
 
 
@@ -195,6 +209,12 @@ def _translate_errors(fn, *args):
         raise
 
 
+def radial_nodes(K: float, r_max: float) -> int:
+    """Gauss–Legendre nodes on [0, K] that integrate ``G(k) J0(k r) k`` for ``r ≤ r_max``:
+    about ``K r/2`` oscillations' worth plus a margin for G, in multiples of 64."""
+    return int(64 * math.ceil(max(64.0, 0.6 * K * r_max + 64) / 64))
+
+
 def choose_size(density: EvolvedDensity, method: str, max_size: int) -> tuple[int, float]:
     """Nodes (radial) or grid side (grid) that resolve ``density`` to its ``tol``.
 
@@ -204,11 +224,9 @@ def choose_size(density: EvolvedDensity, method: str, max_size: int) -> tuple[in
     grid fits and returns the tolerance it can honour. Needs concrete parameter values.
     """
     if method == "radial":
-        # Gauss–Legendre on [0, K] integrates J0(k r) G(k) k for r ≤ R with ~K R/2 + 40 nodes
         K = float(density.bandwidth(density.tol))
         R = float(density.support_radius(density.tol))
-        need = max(64, 0.6 * K * R + 64)
-        return int(min(max_size, 64 * math.ceil(need / 64))), density.tol
+        return min(max_size, radial_nodes(K, R)), density.tol
     tol = density.tol
     while True:
         K = float(density.bandwidth(tol))

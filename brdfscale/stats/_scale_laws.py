@@ -21,6 +21,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import InvalidInputError
+from .._quadrature import gauss_legendre
 from .._validation import is_concrete, positive
 from ._base import AbstractSlopeDensity
 from ._families import Gaussian
@@ -150,7 +151,7 @@ class GaussianSurface(AbstractScaleLaw):
         mu = positive(mu, "mu", "a positive facet size")
         k_lo, k_hi = self.spectrum.wavenumber_range()
         k_lo = jnp.minimum(k_lo, 1e-3 / mu)  # the window passes k ≲ 1/μ: start well below
-        x, w = np.polynomial.legendre.leggauss(self.n_k)
+        x, w = gauss_legendre(self.n_k)
         t_lo, t_hi = jnp.log(k_lo), jnp.log(k_hi)
         t = 0.5 * (t_hi - t_lo) * x + 0.5 * (t_hi + t_lo)
         wt = 0.5 * (t_hi - t_lo) * w
