@@ -24,7 +24,7 @@ import jax
 import numpy as np
 
 from brdfscale import exr, stats, synth
-from brdfscale.synth._histogram import SlopeHistogram
+from brdfscale.stats._histogram import SlopeHistogram
 
 
 def _stage(fn, *args, **kw):

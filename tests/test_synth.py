@@ -14,7 +14,7 @@ import pytest
 from scipy.integrate import quad
 
 from brdfscale import InvalidInputError, geometry, stats, synth
-from brdfscale.synth._histogram import SlopeHistogram
+from brdfscale.stats._histogram import SlopeHistogram
 
 GAUSS_ISO = stats.GaussianCorrelation(1.0, 8.0)
 GAUSS_ANISO = stats.GaussianCorrelation(1.0, (6.0, 16.0))
@@ -81,12 +81,32 @@ def test_bad_seeds(seed):
         synth.spectral_field(GAUSS_ISO, size=16, seed=seed)
 
 
-def test_histogram_equals_from_samples():
+def _cloud_in_cell_reference(samples, weights, extent, bins):
+    """Direct bilinear deposition with np.add.at, written independently of SlopeHistogram."""
+    h = 2 * extent / (bins - 1)
+    g = (samples + extent) / h
+    keep = np.all((g >= 0) & (g <= bins - 1), axis=1)
+    g, w = g[keep], (np.ones(len(samples)) if weights is None else weights)[keep]
+    i0 = np.minimum(np.floor(g).astype(int), bins - 2)
+    f = g - i0
+    out = np.zeros((bins, bins))
+    for dx, wx in ((0, 1 - f[:, 0]), (1, f[:, 0])):
+        for dy, wy in ((0, 1 - f[:, 1]), (1, f[:, 1])):
+            np.add.at(out, (i0[:, 1] + dy, i0[:, 0] + dx), w * wx * wy)
+    return out
+
+
+def test_histogram_equals_direct_cloud_in_cell():
     rng = np.random.default_rng(0)
     samples = rng.standard_normal((30000, 2)) * 0.4
     weights = rng.uniform(0, 2, len(samples))
     for w in (None, weights):
-        reference = stats.Tabulated.from_samples(samples, extent=1.0, bins=41, weights=w)
+        ref_counts = _cloud_in_cell_reference(samples, w, 1.0, 41)
+        reference = stats.Tabulated(ref_counts, extent=1.0)
+        np.testing.assert_allclose(
+            np.asarray(stats.Tabulated.from_samples(samples, extent=1.0, bins=41, weights=w).values),
+            np.asarray(reference.values), rtol=1e-12, atol=1e-15,
+        )
         hist = SlopeHistogram(1.0, 41)
         for chunk in np.array_split(np.arange(len(samples)), 3):
             hist.add(samples[chunk, 0], samples[chunk, 1], None if w is None else w[chunk])

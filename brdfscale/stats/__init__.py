@@ -8,6 +8,7 @@ Every class represents the density of a facet's slope relative to the global ori
 
 from ._base import AbstractSlopeDensity
 from ._families import GGX, Beckmann, Delta, Disk, Gaussian
+from ._histogram import SlopeHistogram
 from ._mixture import Mixture
 from ._scale_laws import (
     AbstractPowerSpectrum,
@@ -30,6 +31,7 @@ __all__ = [
     "Disk",
     "Mixture",
     "Tabulated",
+    "SlopeHistogram",
     "AbstractPowerSpectrum",
     "GaussianCorrelation",
     "KCorrelation",

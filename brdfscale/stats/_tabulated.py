@@ -62,27 +62,18 @@ class Tabulated(AbstractSlopeDensity):
         """Histogram slope samples of shape (n, 2) onto a ``bins × bins`` grid of nodes.
 
         Each sample is shared among the four surrounding nodes with bilinear weights (cloud
-        in cell), so the interpolant's integral equals the sample count and its mean is
-        exactly the sample mean for samples inside the grid.
+        in cell, :class:`SlopeHistogram`), so the interpolant's integral equals the total
+        weight and its mean is exactly the sample mean for samples inside the grid.
         """
+        from ._histogram import SlopeHistogram
+
         s = np.asarray(samples, dtype=float)
         if s.ndim != 2 or s.shape[1] != 2:
             raise InvalidInputError(f"samples must have shape (n, 2); got {s.shape}.")
         c = np.zeros(2) if center is None else np.asarray(center, float)
-        h = 2 * extent / (bins - 1)
-        g = (s - c + extent) / h
-        inside = np.all((g >= 0) & (g <= bins - 1), axis=1)
-        if not np.any(inside):
-            raise InvalidInputError(f"no sample lies inside the grid of half-width {extent}.")
-        g = g[inside]
-        w = np.ones(len(s))[inside] if weights is None else np.asarray(weights, float)[inside]
-        i0 = np.minimum(np.floor(g).astype(int), bins - 2)
-        f = g - i0
-        hist = np.zeros((bins, bins))
-        for dx, wx in ((0, 1 - f[:, 0]), (1, f[:, 0])):
-            for dy, wy in ((0, 1 - f[:, 1]), (1, f[:, 1])):
-                np.add.at(hist, (i0[:, 1] + dy, i0[:, 0] + dx), w * wx * wy)
-        return cls(hist, extent=extent, center=center)
+        hist = SlopeHistogram(extent, bins)
+        hist.add(s[:, 0] - c[0], s[:, 1] - c[1], weights)
+        return hist.tabulated(center=center)
 
     @property
     def spacing(self) -> Float[Array, "2"]:

@@ -24,7 +24,7 @@ from jaxtyping import Float
 
 from .. import stats
 from .._errors import InvalidInputError
-from ._histogram import SlopeHistogram
+from ..stats._histogram import SlopeHistogram
 from ._surface import HeightField
 
 _PIXELS_PER_CHUNK = 1 << 21  # pixels per strip: ~16 MB per float64 work array

@@ -14,7 +14,7 @@ from .._errors import InvalidInputError
 from .._measurement import LobeImage, MeasurementSet
 from ..geometry import validate_directions
 from ._facets import blur, facet_slopes, kernel_padding, offset_histogram
-from ._histogram import SlopeHistogram
+from ..stats._histogram import SlopeHistogram
 from ._random import as_generator, seed_record
 from ._surface import HeightField, parameter_record
 

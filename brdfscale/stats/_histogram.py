@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from .. import stats
 from .._errors import InvalidInputError
+from ._tabulated import Tabulated
 
 
 class SlopeHistogram:
@@ -11,12 +11,12 @@ class SlopeHistogram:
 
     The nodes span ``[−extent, extent]`` on both axes (rows m_y, columns m_x: the layout of
     :class:`brdfscale.stats.Tabulated`). Each sample is shared among the four surrounding
-    nodes with bilinear weights (cloud in cell), the scheme of
-    :meth:`brdfscale.stats.Tabulated.from_samples`, so the bilinear interpolant of
-    ``counts / h²`` integrates to the total weight of the samples inside the grid. Unlike
-    ``from_samples`` it takes samples in chunks (constant memory for 4096² fields, and
-    ``np.bincount`` instead of ``np.add.at``; experiments/bench_synth.py times both) and counts the samples that fell
-    outside, so a lobe can be reported per sample, not renormalised over the grid.
+    nodes with bilinear weights (cloud in cell), so the bilinear interpolant of
+    ``counts / h²`` integrates to the total weight of the samples inside the grid and keeps
+    their mean. It takes samples in chunks (constant memory for 4096² fields; four
+    ``np.bincount`` sums per chunk) and counts the samples that fell outside, so a lobe can
+    be reported per sample, not renormalised over the grid. :meth:`Tabulated.from_samples`
+    is the one-shot use of it.
     """
 
     def __init__(self, extent: float, bins: int):
@@ -74,8 +74,8 @@ class SlopeHistogram:
             raise InvalidInputError("no samples were added to the histogram.")
         return self.node_counts() / (self.samples * self.spacing**2)
 
-    def tabulated(self) -> stats.Tabulated:
-        """The histogram as a normalised :class:`brdfscale.stats.Tabulated` density."""
+    def tabulated(self, center=None) -> Tabulated:
+        """The histogram as a normalised :class:`Tabulated` density (nodes offset by ``center``)."""
         if not np.any(self.counts > 0):
             raise InvalidInputError(f"no sample fell inside the grid of half-width {self.extent}.")
-        return stats.Tabulated(self.node_counts(), extent=self.extent)
+        return Tabulated(self.node_counts(), extent=self.extent, center=center)
