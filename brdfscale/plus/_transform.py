@@ -127,7 +127,7 @@ def _polynomial(ell, max_order: int):
     for n in range(max_order + 1):
         value = jnp.zeros_like(ell)
         for a in _POLYNOMIAL[n][::-1]:
-            value = value * ell + a
+            value = value * ell + float(a)
         out.append(value)
     return jnp.stack(out, axis=-1)
 
