@@ -102,7 +102,9 @@ class FitResult:
     ``status`` is ``"converged"`` when the best start's solver reported success, else the
     optimistix result name of the best start (e.g. ``"nonlinear_max_steps_reached"``).
     ``estimates``/``std``/``quantiles`` are keyed by quantity name; ``std`` and
-    ``quantiles`` hold None for quantities that the data do not determine.
+    ``quantiles`` hold None for quantities that the data do not determine. ``at_bounds``
+    lists coordinates that ended on the prior box's edge (there the residuals are flat in
+    that coordinate, so it also shows up as undetermined).
     """
 
     names: tuple[str, ...]
@@ -119,6 +121,7 @@ class FitResult:
     undetermined: list[dict]
     notes: list[str]
     solver: str
+    at_bounds: list[str]
 
     @property
     def dof(self) -> int:
@@ -137,6 +140,7 @@ class FitResult:
             "dof": self.dof,
             "reduced_chi2": self.chi2 / self.dof,
             "starts": self.starts,
+            "at_prior_bounds": self.at_bounds,
             "theta_names": list(self.names),
             "theta": self.theta.tolist(),
             "estimates": self.estimates,
@@ -217,6 +221,8 @@ def fit(
         for c, k, s in zip(chi2s, codes, steps)
     ]
     status = "converged" if ok[best] else _RESULT_NAMES.get(int(codes[best]), "failed")
+    lo, hi = np.asarray(problem.lower), np.asarray(problem.upper)
+    at_bounds = [n for n, t, a, b in zip(model.names, theta, lo, hi) if t <= a + 1e-6 * (b - a) or t >= b - 1e-6 * (b - a)]
 
     J, r = map(np.asarray, _jacobian(problem, jnp.asarray(theta)))
     lam, V = np.linalg.eigh(J.T @ J)
@@ -251,5 +257,5 @@ def fit(
     return FitResult(
         names=names, theta=theta, covariance=cov, chi2=float(r @ r), n_data=data.n_data, status=status,
         starts=start_info, estimates=estimates, std=std, quantiles=quantiles, eigenvalues=lam,
-        undetermined=undetermined, notes=list(model.identifiability_notes), solver=solver,
+        undetermined=undetermined, notes=list(model.identifiability_notes), solver=solver, at_bounds=at_bounds,
     )

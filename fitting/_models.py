@@ -112,35 +112,51 @@ class AbstractModel(eqx.Module):
 
 
 class ParametricModel(AbstractModel):
-    """Parametric lobe + statistics family with a width law (see the module docstring).
+    """Parametric lobe + statistics family with a scale law (see the module docstring).
 
     Args:
         lobe: ``"beckmann"`` or ``"ggx"``: the family of the base lobe at μ0.
         statistics: ``"beckmann"`` or ``"ggx"``: the family of the facet-slope density s(·, μ);
             for now it must equal ``lobe`` (see the error raised otherwise).
+        law: ``"width"`` — :class:`brdfscale.stats.WidthLaw` for the family's width α(μ);
+            ``"gaussian_surface"`` — Beckmann statistics of a Gaussian-correlated random
+            surface, :class:`brdfscale.stats.GaussianSurface` with a ``window`` facet window
+            (Σ(μ) by quadrature with ``n_k`` × 64 nodes; the physical law of DESIGN §2).
         fixed: physical parameters held at given values (e.g. ``{"mu_c": 1.0}``) — the way
             to supply prior knowledge that the data lack.
-        radial_nodes: Gauss–Legendre nodes of the radial evolution path (used when the pair
-            has no closed form, i.e. whenever a GGX lobe or GGX statistics is involved).
+        radial_nodes: Gauss–Legendre nodes of the radial evolution path (used for GGX).
 
     Parameters (all positive, θ = their logarithms): ``amplitude`` A (the lobe's integral
-    over u), ``alpha_lobe`` (base-lobe width at μ0), ``alpha_max``, ``mu_c`` (length units of
-    μ), ``exponent`` (of the width law).
+    over u), ``alpha_lobe`` (base-lobe width at μ0), and for ``law="width"``: ``alpha_max``,
+    ``mu_c`` (length units of μ), ``exponent``; for ``law="gaussian_surface"``:
+    ``rms_height`` and ``correlation_length`` (length units of μ).
     """
 
     lobe: str = eqx.field(static=True)
     statistics: str = eqx.field(static=True)
+    law_kind: str = eqx.field(static=True)
+    window: str = eqx.field(static=True)
+    n_k: int = eqx.field(static=True)
     fixed: tuple[tuple[str, float], ...] = eqx.field(static=True)
     radial_nodes: int = eqx.field(static=True)
 
-    PARAMETERS = ("amplitude", "alpha_lobe", "alpha_max", "mu_c", "exponent")
+    _LAWS = {
+        "width": ("amplitude", "alpha_lobe", "alpha_max", "mu_c", "exponent"),
+        "gaussian_surface": ("amplitude", "alpha_lobe", "rms_height", "correlation_length"),
+    }
 
-    def __init__(self, lobe: str = "beckmann", statistics: str = "beckmann", *, fixed: dict | None = None,
-                 radial_nodes: int = 192):
+    def __init__(self, lobe: str = "beckmann", statistics: str = "beckmann", *, law: str = "width",
+                 fixed: dict | None = None, window: str = "box", n_k: int = 256, radial_nodes: int = 96):
         if lobe not in _LOBES:
             raise InvalidInputError(f"lobe must be one of {sorted(_LOBES)}; got {lobe!r}.")
         if statistics not in _STATISTICS:
             raise InvalidInputError(f"statistics must be one of {sorted(_STATISTICS)}; got {statistics!r}.")
+        if law not in self._LAWS:
+            raise InvalidInputError(f"law must be one of {sorted(self._LAWS)}; got {law!r}.")
+        if law == "gaussian_surface" and (lobe, statistics) != ("beckmann", "beckmann"):
+            raise InvalidInputError("law='gaussian_surface' gives Gaussian (Beckmann) statistics; use lobe='beckmann'.")
+        if window not in ("box", "gaussian"):
+            raise InvalidInputError(f"window must be 'box' or 'gaussian'; got {window!r}.")
         if lobe != statistics:
             raise MethodNotApplicableError(
                 f"a {lobe} lobe with {statistics} statistics needs the radial evolution path, whose derivative "
@@ -148,22 +164,27 @@ class ParametricModel(AbstractModel):
                 "differentiates sqrt(0) at isotropic covariance). Supported pairs: beckmann/beckmann (closed "
                 "form) and ggx/ggx (radial path)."
             )
+        parameters = self._LAWS[law]
         fixed = dict(fixed or {})
         for name, value in fixed.items():
-            if name not in self.PARAMETERS:
-                raise InvalidInputError(f"cannot fix unknown parameter {name!r}; the parameters are {self.PARAMETERS}.")
+            if name not in parameters:
+                raise InvalidInputError(f"cannot fix unknown parameter {name!r}; the parameters are {parameters}.")
             if not (math.isfinite(float(value)) and float(value) > 0):
                 raise InvalidInputError(f"fixed value of {name} must be positive and finite; got {value!r}.")
-        if len(fixed) == len(self.PARAMETERS):
+        if len(fixed) == len(parameters):
             raise InvalidInputError("every parameter is fixed; leave at least one free.")
-        self.lobe, self.statistics = lobe, statistics
+        self.lobe, self.statistics, self.law_kind, self.window, self.n_k = lobe, statistics, law, window, int(n_k)
         self.fixed = tuple(sorted((k, float(v)) for k, v in fixed.items()))
         self.radial_nodes = int(radial_nodes)
 
     @property
+    def parameters(self) -> tuple[str, ...]:
+        return self._LAWS[self.law_kind]
+
+    @property
     def free(self) -> tuple[str, ...]:
         fixed = dict(self.fixed)
-        return tuple(p for p in self.PARAMETERS if p not in fixed)
+        return tuple(p for p in self.parameters if p not in fixed)
 
     @property
     def names(self):
@@ -180,7 +201,7 @@ class ParametricModel(AbstractModel):
     def quantities(self, theta):
         values = dict(zip(self.free, jnp.exp(theta)))
         values.update({k: jnp.asarray(v, dtype=theta.dtype) for k, v in self.fixed})
-        return {p: values[p] for p in self.PARAMETERS}
+        return {p: values[p] for p in self.parameters}
 
     def theta_from(self, params: dict) -> np.ndarray:
         """θ of the physical parameters ``params`` (a dict with every free parameter)."""
@@ -189,13 +210,17 @@ class ParametricModel(AbstractModel):
             raise InvalidInputError(f"parameters {missing} are missing; need {self.free}.")
         return np.log([float(params[p]) for p in self.free])
 
-    def law(self, theta) -> stats.WidthLaw:
+    def law(self, theta) -> stats.AbstractScaleLaw:
+        """The scale law μ ↦ s(·, μ) at θ."""
         q = self.quantities(theta)
-        return stats.WidthLaw(q["alpha_max"], q["mu_c"], q["exponent"])
+        if self.law_kind == "gaussian_surface":
+            spectrum = stats.GaussianCorrelation(q["rms_height"], q["correlation_length"])
+            return stats.GaussianSurface(spectrum, window=self.window, n_k=self.n_k)
+        return stats.ScaledFamily(_STATISTICS[self.statistics], stats.WidthLaw(q["alpha_max"], q["mu_c"], q["exponent"]))
 
     def statistics_at(self, theta, mu) -> stats.AbstractSlopeDensity:
         """The facet-slope density ``s(·, μ)``."""
-        return _STATISTICS[self.statistics](alpha=self.law(theta)(mu))
+        return self.law(theta).at(mu)
 
     def base_lobe(self, theta) -> lobes.AbstractLobe:
         """The lobe at μ0."""
@@ -229,23 +254,24 @@ class ParametricModel(AbstractModel):
         # the half-maximum width of a GGX lobe is that of a Beckmann lobe with 0.77 α
         factor = 1.0 if self.lobe == "beckmann" else 1.3
         alpha_lobe = factor * math.sqrt(width2[0])
-        spread = max(float(width2[-1] - width2[0]), 1e-6)
-        start = {
-            "amplitude": amp,
-            "alpha_lobe": alpha_lobe,
-            "alpha_max": 1.5 * math.sqrt(spread),
-            "mu_c": math.sqrt(float(data.scales[0]) * float(data.scales[-1])),
-            "exponent": 1.0,
-        }
+        spread = max(float(width2[-1] - width2[0]), 1e-6 * width2[0])
+        alpha_s = 1.5 * math.sqrt(spread)
+        mid = math.sqrt(float(data.scales[0]) * float(data.scales[-1]))
+        # Gaussian correlation: α_s² = 2·(2σ_h²/ℓ²) unwindowed, so σ_h = ℓ α_s / 2
+        start = {"amplitude": amp, "alpha_lobe": alpha_lobe, "alpha_max": alpha_s, "mu_c": mid, "exponent": 1.0,
+                 "correlation_length": mid, "rms_height": mid * alpha_s / 2}
         return self.theta_from(start)
 
     def bounds(self, data):
+        mu0, mu1 = float(data.scales[0]), float(data.scales[-1])
         box = {
             "amplitude": (1e-8, 1e8),
             "alpha_lobe": (1e-4, 10.0),
             "alpha_max": (1e-4, 10.0),
-            "mu_c": (float(data.scales[0]) * 1e-3, float(data.scales[-1]) * 1e3),
+            "mu_c": (mu0 * 1e-3, mu1 * 1e3),
             "exponent": (0.05, 10.0),
+            "rms_height": (mu0 * 1e-8, mu1 * 1e2),
+            "correlation_length": (mu0 * 1e-2, mu1 * 1e2),
         }
         lo = np.log([box[p][0] for p in self.free])
         hi = np.log([box[p][1] for p in self.free])

@@ -43,17 +43,34 @@ def _atomic(path, write):
 
 
 def truth_of(model, metadata: dict) -> dict | None:
-    """Ground-truth quantities from a measurement set's metadata, when they match the model.
+    """Ground-truth quantities from a measurement set's metadata, where they match the model.
 
-    Recognised: ``{"truth": {"params": {name: value}}}`` whose names are quantities of the
-    model (as written by :func:`fitting.simulate`).
+    Recognised: ``{"truth": {"params": {name: value}}}`` (written by :func:`fitting.simulate`),
+    and for ``law="gaussian_surface"`` the spectrum of a :mod:`brdfscale.synth` surface
+    (``surface.spectrum`` of type GaussianCorrelation with an isotropic correlation length)
+    plus its ``albedo`` as the amplitude. Returns the known subset, or None.
     """
-    params = (metadata or {}).get("truth", {}).get("params") if isinstance(metadata, dict) else None
-    if not isinstance(params, dict) or not isinstance(model, ParametricModel):
+    if not isinstance(metadata, dict) or not isinstance(model, ParametricModel):
         return None
-    if not all(p in params for p in model.PARAMETERS):
+    params = metadata.get("truth", {}).get("params") if isinstance(metadata.get("truth"), dict) else None
+    truth = {}
+    if isinstance(params, dict):
+        truth = {p: float(params[p]) for p in model.parameters if p in params}
+    spectrum = metadata.get("surface", {}).get("spectrum") if isinstance(metadata.get("surface"), dict) else None
+    if model.law_kind == "gaussian_surface" and isinstance(spectrum, dict) and spectrum.get("type") == "GaussianCorrelation":
+        ell = np.atleast_1d(np.asarray(spectrum["correlation_length"], dtype=float))
+        if np.allclose(ell, ell[0]):
+            truth.update(rms_height=float(spectrum["rms_height"]), correlation_length=float(ell[0]))
+        if np.ndim(metadata.get("albedo")) == 0 and metadata.get("albedo") is not None:
+            truth["amplitude"] = float(metadata["albedo"])
+    return truth or None
+
+
+def _complete_theta(model, truth):
+    """θ of the truth when it names every free parameter, else None."""
+    if truth is None or not all(p in truth for p in model.free):
         return None
-    return {p: float(params[p]) for p in model.PARAMETERS}
+    return jnp.asarray(model.theta_from(truth))
 
 
 def _draws(fit: FitResult, samples: SampleResult | None, rng, n=2000):
@@ -129,7 +146,7 @@ def _figure_statistics(path, problem: Problem, fit: FitResult, draws, truth: dic
     absolute = isinstance(model, ParametricModel)
     fig, axes = plt.subplots(1, 2 if absolute else 1, figsize=(11 if absolute else 6, 4), squeeze=False)
     colors = plt.cm.viridis(np.linspace(0, 0.9, len(scales)))
-    true_theta = jnp.asarray(model.theta_from(truth)) if truth is not None else None
+    true_theta = _complete_theta(model, truth) if absolute else None
     for k in range(1, len(scales)):
         _band(axes[0, 0], W, relative[:, k], colors[k], f"μ = {scales[k]:.3g}")
         if true_theta is not None:

@@ -11,7 +11,7 @@ import sys
 
 from .._errors import BrdfscaleError
 
-_SUBCOMMANDS = ("example", "synth", "info")
+_SUBCOMMANDS = ("example", "synth", "info", "fit", "demo")
 
 
 def build_parser() -> argparse.ArgumentParser:

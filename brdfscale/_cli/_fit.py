@@ -27,8 +27,11 @@ def add_fit_options(parser) -> None:
                         help="parametric lobe + width law (default), or tabulated lobe + relative statistics")
     parser.add_argument("--family", choices=("beckmann", "ggx"), default="beckmann",
                         help="family of the base lobe and of the slope statistics (parametric model; default beckmann)")
+    parser.add_argument("--law", choices=("width", "gaussian_surface"), default="width",
+                        help="scale law of the parametric model: width (α(μ) power law, default) or gaussian_surface "
+                        "(Gaussian-correlated random surface: rms_height, correlation_length; beckmann only)")
     parser.add_argument("--fix", type=_fixed, action="append", default=[], metavar="NAME=VALUE",
-                        help="hold a parametric quantity fixed (amplitude, alpha_lobe, alpha_max, mu_c, exponent)")
+                        help="hold a parametric quantity fixed (e.g. mu_c=1.0); repeatable")
     parser.add_argument("--solver", choices=("lm", "gauss_newton", "dogleg", "bfgs"), default="lm",
                         help="optimistix solver (default lm: Levenberg–Marquardt)")
     parser.add_argument("--starts", type=int, default=6, help="multi-start count (default 6)")
@@ -61,9 +64,11 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
     data = fitting.Dataset.from_measurements(mset, default_sigma=getattr(args, "default_sigma", None))
     fixed = dict(args.fix)
     if args.model == "parametric":
-        model = fitting.ParametricModel(args.family, args.family, fixed=fixed)
+        model = fitting.ParametricModel(args.family, args.family, law=args.law, fixed=fixed)
+        law = {"width": "WidthLaw alpha(mu) = alpha_max (1 + (mu/mu_c)^2)^(-exponent/2)",
+               "gaussian_surface": "GaussianSurface(GaussianCorrelation(rms_height, correlation_length), box window)"}
         info = {"kind": "parametric", "lobe": args.family, "statistics": args.family,
-                "scale_law": "WidthLaw alpha(mu) = alpha_max (1 + (mu/mu_c)^2)^(-exponent/2)", "fixed": fixed}
+                "scale_law": law[args.law], "fixed": fixed}
     else:
         if fixed:
             raise InvalidInputError("--fix applies to the parametric model only.")
@@ -97,6 +102,8 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
 
 
 def run(args) -> int:
+    import fitting  # noqa: F401  (first: it switches JAX to float64 before any array is made)
+
     from .. import exr
 
     mset = exr.read_measurements(args.measurements)
