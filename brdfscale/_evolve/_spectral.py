@@ -31,7 +31,7 @@ from jaxtyping import Array, Float
 from .._errors import NoBRDFAtScaleError
 from .._quadrature import gauss_legendre
 from .._special import j0
-from ..stats import AbstractSlopeDensity
+from ..stats import AbstractSlopeDensity, Delta
 from .._validation import is_concrete
 from ..stats._base import check_slopes
 
@@ -83,7 +83,10 @@ class EvolvedDensity(AbstractSlopeDensity):
 
     def cf(self, W):
         W = check_slopes(W, "W")
-        return self._divide(self.base.cf(W) * self.s_from.cf(W), self.s_to.cf(W))
+        numerator = self.base.cf(W) * self.s_from.cf(W)
+        if isinstance(self.s_to, Delta) and self.s_to.mean is None:  # μ = ∞: nothing to divide
+            return numerator
+        return self._divide(numerator, self.s_to.cf(W))
 
     def cf_radial(self, k):
         return jnp.real(self._divide(self.base.cf_radial(k) * self.s_from.cf_radial(k), self.s_to.cf_radial(k)))

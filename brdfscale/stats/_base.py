@@ -69,6 +69,13 @@ def phase(W, offset):
     return jnp.exp(-1j * jnp.sum(W * offset, axis=-1))
 
 
+def shifted_cf(value, W, offset):
+    """``value · e^{−i W·offset}`` as a complex array; no multiplication for a centred density."""
+    if offset is None:
+        return value.astype(jnp.result_type(value, 1j))
+    return value * phase(W, offset)
+
+
 def offset_norm(offset):
     return 0.0 if offset is None else jnp.linalg.norm(offset, axis=-1)
 

@@ -10,7 +10,7 @@ from jaxtyping import Array, ArrayLike, Complex, Float
 from .._errors import InvalidInputError, SingularDensityError
 from .._special import jinc, xk1
 from .._validation import as_float_array, is_concrete, positive, vector2
-from ._base import AbstractSlopeDensity, add_offset, check_slopes, offset_norm, phase
+from ._base import AbstractSlopeDensity, add_offset, check_slopes, offset_norm, phase, shifted_cf
 
 
 def _per_axis(value, value_x, value_y, name: str):
@@ -126,8 +126,9 @@ class Gaussian(AbstractSlopeDensity):
 
     def cf(self, W):
         W = check_slopes(W, "W")
-        quad = jnp.einsum("...i,...ij,...j->...", W, self.cov, W)
-        return jnp.exp(-0.5 * quad) * phase(W, self.mean)
+        a, b, c = self.cov[..., 0, 0], self.cov[..., 0, 1], self.cov[..., 1, 1]
+        quad = a * W[..., 0] ** 2 + 2 * b * W[..., 0] * W[..., 1] + c * W[..., 1] ** 2  # Wᵀ Σ W
+        return shifted_cf(jnp.exp(-0.5 * quad), W, self.mean)
 
     def shifted(self, offset):
         return Gaussian(cov=self.cov, mean=add_offset(self.mean, offset))
@@ -187,7 +188,7 @@ class GGX(AbstractSlopeDensity):
     def cf(self, W):
         W = check_slopes(W, "W")
         r = jnp.sqrt(jnp.sum((W * self.alpha) ** 2, axis=-1))
-        return xk1(r) * phase(W, self.mean)
+        return shifted_cf(xk1(r), W, self.mean)
 
     def shifted(self, offset):
         return GGX(alpha_x=self.alpha[..., 0], alpha_y=self.alpha[..., 1], mean=add_offset(self.mean, offset))
@@ -225,7 +226,7 @@ class Disk(AbstractSlopeDensity):
 
     def cf(self, W):
         W = check_slopes(W, "W")
-        return jinc(self.radius * jnp.linalg.norm(W, axis=-1)) * phase(W, self.mean)
+        return shifted_cf(jinc(self.radius * jnp.linalg.norm(W, axis=-1)), W, self.mean)
 
     def shifted(self, offset):
         return Disk(self.radius, mean=add_offset(self.mean, offset))
