@@ -1,0 +1,167 @@
+"""Plus-distributions as slope statistics: action on test functions, nearly-specular statistics,
+the instrument view, and their use in evolve and Mixture (DESIGN §4)."""
+
+import jax
+import jax.numpy as jnp
+import mpmath as mp
+import numpy as np
+import pytest
+
+from brdfscale import InvalidInputError, NoBRDFAtScaleError, SingularDensityError, evolve, lobes, plus, stats
+
+
+def _action_reference(n, x0, angular_mean, points):
+    """∫_0^{x0} (logⁿ(x/x0)/x)(ψ̄(x) − ψ̄(0)) dx (the definition, DESIGN §4) by mpmath quadrature
+    in v = ln(x0/x) on unit panels, split at the images of ``points``; beyond v = 40 the
+    integrand is below e^{−80} (ψ̄(x) − ψ̄(0) = O(x²)) and is dropped (there 1 − ψ̄/ψ̄(0) is
+    below the working precision)."""
+    with mp.workdps(40):
+        x0 = mp.mpf(x0)
+        centre = angular_mean(mp.mpf(0))
+        f = lambda v: (-v) ** n * (angular_mean(x0 * mp.exp(-v)) - centre)
+        breaks = {mp.log(x0 / mp.mpf(p)) for p in points if 0 < p < x0}
+        return float(mp.quad(f, sorted(breaks | set(mp.linspace(0, 40, 41)))))
+
+
+def _gaussian_angular_mean(rho, s):
+    """Mean of exp(−|m − m1|²/2s²) over the circle |m| = x, |m1| = ρ (closed form with I₀)."""
+    rho, s = mp.mpf(rho), mp.mpf(s)
+    return lambda x: mp.exp(-(x * x + rho * rho) / (2 * s * s)) * mp.besseli(0, x * rho / (s * s))
+
+
+@pytest.mark.parametrize("n", [0, 1, 3, 6])
+def test_apply_against_definition(n):
+    """⟨h_n, ψ⟩ for an off-centre Gaussian bump (not radially symmetric about the centre)."""
+    x0, m1, s = 0.2, np.array([0.05, -0.03]), 0.04
+    psi = lambda m: jnp.exp(-jnp.sum((m - m1) ** 2, axis=-1) / (2 * s**2))
+    got = float(plus.PlusDistribution(n, x0).apply(psi, scale=s))
+    rho = float(np.linalg.norm(m1))
+    want = _action_reference(n, x0, _gaussian_angular_mean(rho, s), [rho - 3 * s, rho, rho + 3 * s])
+    # rounding of ψ̄ − ψ̄(0) (about 1e-16) is weighted by vⁿ: the bound grows with n
+    assert abs(got - want) <= 1e-11 * (n + 1) * abs(want)
+
+
+def test_apply_shifted_is_translation():
+    x0, offset = 0.1, jnp.array([0.02, 0.01])
+    psi = lambda m: jnp.exp(-jnp.sum((m - 0.03) ** 2, axis=-1) / 0.002) * (1 + m[..., 0])
+    h = plus.PlusDistribution(2, x0)
+    moved = h.shifted(offset).apply(psi)
+    direct = h.apply(lambda m: psi(m + offset))
+    assert abs(float(moved - direct)) <= 1e-13 * abs(float(direct))
+
+
+@pytest.mark.parametrize("n", [0, 4])
+def test_apply_plane_wave_is_transform(n):
+    """ψ(m) = cos(W·m) gives H_n(|W|): the action and the transform agree."""
+    x0 = 0.3
+    for k in (10.0, 70.0):  # z = 3 (series branch) and z = 21 (expansion branch)
+        W = jnp.array([0.6, 0.8]) * k
+        got = plus.PlusDistribution(n, x0).apply(lambda m: jnp.cos(m @ W), scale=x0 / 40, angles=128)
+        want = plus.plus_transform(k * x0, n)
+        assert abs(float(got - want)) <= 1e-11 * abs(float(want))
+
+
+def test_distribution_interface():
+    h = plus.PlusDistribution(1, 0.05)
+    with pytest.raises(SingularDensityError, match="apply"):
+        h.density(jnp.zeros(2))
+    assert float(h.cf(jnp.zeros(2)).real) == 0.0  # no mass
+    W = jnp.array([[30.0, -40.0]])
+    offset = jnp.array([0.01, 0.02])
+    np.testing.assert_allclose(np.asarray(h.shifted(offset).cf(W)),
+                               np.asarray(h.cf(W) * jnp.exp(-1j * W @ offset)), rtol=1e-15)
+    assert float(h.support_radius(1e-9)) == pytest.approx(0.05)
+    with pytest.raises(InvalidInputError, match="x0"):
+        plus.PlusDistribution(1, -0.1)
+    with pytest.raises(InvalidInputError, match="psi"):
+        h.apply(3.0)
+
+
+def test_in_mixture_with_delta_and_smooth():
+    """Mixture distributes over components: weights (a, c, w) normalised by their sum."""
+    x0, smooth = 0.05, stats.Beckmann(0.1)
+    mixture = stats.Mixture([0.6, 0.1, 0.3], [stats.Delta(), plus.PlusDistribution(1, x0), smooth])
+    nearly = plus.NearlySpecular(0.6, [0.0, 0.1], x0, smooth=smooth, smooth_weight=0.3)
+    W = jnp.array([[0.0, 0.0], [10.0, 5.0], [200.0, -100.0]])
+    # NearlySpecular normalises by a + w = 0.9, Mixture by a + c + w = 1.0
+    np.testing.assert_allclose(np.asarray(mixture.cf(W)), 0.9 * np.asarray(nearly.cf(W)), rtol=1e-14)
+    with pytest.raises(SingularDensityError):
+        mixture.density(jnp.zeros(2))
+
+
+def test_nearly_specular_normalisation_and_validation():
+    s = plus.NearlySpecular(3.0, [0.6, -0.3], 0.1, smooth=stats.Beckmann(0.2), smooth_weight=1.0)
+    assert float(s.specular) == pytest.approx(0.75) and float(s.smooth_weight) == pytest.approx(0.25)
+    np.testing.assert_allclose(np.asarray(s.strengths), [0.15, -0.075])
+    assert complex(s.cf(jnp.zeros(2))) == pytest.approx(1.0)
+    for bad in (dict(specular=-1.0), dict(strengths=np.zeros(8)), dict(smooth_weight=0.5)):
+        kwargs = dict(specular=1.0, strengths=[0.1], x0=0.1) | bad
+        with pytest.raises(InvalidInputError):
+            plus.NearlySpecular(**kwargs)
+
+
+def _observed_reference(a, c, x0, sigma, r):
+    """a K(r) + Σ c_n ∫ (logⁿ(x/x0)/x)(K̄(x; r) − K(r)) dx, K̄ the kernel's circular mean."""
+    mean = lambda x: _gaussian_angular_mean(r, sigma)(x) / (2 * mp.pi * mp.mpf(sigma) ** 2)
+    total = a * float(mean(mp.mpf(0)))
+    for n, cn in enumerate(c):
+        total += cn * _action_reference(n, x0, mean, [r - 3 * sigma, r, r + 3 * sigma, sigma])
+    return total
+
+
+def test_observed_density_against_mpmath():
+    a, c, x0, sigma = 1.0, [0.25, 0.08, -0.01], 0.06, 0.008
+    seen = plus.observe(plus.NearlySpecular(a, c, x0), stats.Gaussian(sigma=sigma))
+    r = np.array([0.0, 0.059])
+    got = np.asarray(seen.density(jnp.stack([r, np.zeros_like(r)], -1)))
+    want = np.array([_observed_reference(a, c, x0, sigma, v) for v in r])
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-11 * want.max())
+
+
+@pytest.mark.parametrize("method", ["radial", "grid"])
+def test_evolve_agrees_with_slope_space_view(method):
+    """brdfscale.evolve (spectral, from S(W) = a + Σ c_n H_n + w S_smooth) sees the same lobe as the
+    slope-space action: the statistic works in evolve's paths."""
+    s = plus.NearlySpecular(0.7, [0.2, 0.05], 0.05, smooth=stats.Beckmann(0.04), smooth_weight=0.3)
+    kernel = stats.Gaussian(sigma=0.006)
+    u = jnp.array([[0.0, 0.0], [0.004, 0.003], [0.02, 0.0], [0.0, -0.045], [0.07, 0.02]])
+    direct = np.asarray(plus.observe(s, kernel).density(u))
+    spectral = np.asarray(evolve(lobes.Lobe(kernel), s, stats.Delta(), method=method,
+                                 **({"size": 256} if method == "grid" else {})).density(u))
+    tol = 1e-8 if method == "radial" else 1e-6
+    np.testing.assert_allclose(spectral, direct, rtol=0, atol=tol * direct.max())
+
+
+def test_observed_gradients_against_finite_differences():
+    kernel = stats.Gaussian(sigma=0.01)
+    u = jnp.array([[0.0, 0.0], [0.015, 0.01], [0.05, 0.0]])
+
+    def total(params):
+        c, x0 = params[:2], params[2]
+        return jnp.sum(plus.ObservedDensity(plus.NearlySpecular(1.0, c, x0), kernel).density(u))
+
+    p = jnp.array([0.2, 0.05, 0.06])
+    grad = np.asarray(jax.grad(total)(p))
+    assert np.all(np.isfinite(grad))
+    for i in range(3):
+        h = 1e-6 * max(abs(float(p[i])), 1e-2)
+        e = jnp.zeros(3).at[i].set(h)
+        fd = float(total(p + e) - total(p - e)) / (2 * h)
+        assert grad[i] == pytest.approx(fd, rel=1e-6)
+
+
+def test_negative_observation_is_reported():
+    """c_0 > 0 removes ~c_0 ln(x0/σ) of the δ's weight at the centre; c_0 < 0 puts negative mass
+    on the disk. Both are physical at a coarse resolution only."""
+    fine, coarse = stats.Gaussian(sigma=1e-4), stats.Gaussian(sigma=0.05)
+    too_strong = plus.NearlySpecular(1.0, [0.5], 0.2)
+    with pytest.raises(NoBRDFAtScaleError, match="negative"):
+        plus.observe(too_strong, fine)
+    plus.observe(too_strong, coarse)  # fine when blurred enough
+    negative = plus.NearlySpecular(1.0, [-0.1], 0.2)
+    with pytest.raises(NoBRDFAtScaleError, match=r"u = \[0\.[01]"):
+        plus.observe(negative, stats.Gaussian(sigma=0.005))
+    low, high, where = plus.ObservedDensity(negative, stats.Gaussian(sigma=0.005)).minimum()
+    assert float(low) < 0 < float(high) and 0 < float(jnp.linalg.norm(where)) < 0.2
+    with pytest.raises(InvalidInputError, match="kernel"):
+        plus.observe(too_strong, stats.Disk(0.01))
