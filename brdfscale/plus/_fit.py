@@ -90,6 +90,14 @@ def _linear_start(u, y, sigma, kernel, smooth, orders, x0):
         zero = jnp.zeros(orders, y.dtype)
         columns.append(ObservedDensity(NearlySpecular(0.0, zero, x0, smooth=smooth, smooth_weight=1.0), kernel).density(u))
     design = np.stack([np.asarray(col).reshape(-1) for col in columns], axis=-1) / np.asarray(sigma).reshape(-1, 1)
+    _, singular_values, vt = np.linalg.svd(design, full_matrices=False)
+    if singular_values[-1] <= singular_values[0] * 1e-10:
+        names = ["A·a"] + [f"A·c_{n}" for n in range(orders)] + (["A·w"] if smooth is not None else [])
+        combination = " + ".join(f"{v:+.3f}·{n}" for v, n in zip(vt[-1], names) if abs(v) > 0.05)
+        raise BrdfscaleError(
+            "the data do not determine the strength fit: at the starting x0 the linear parameters have "
+            f"an undetermined combination: {combination}. Measure more distinct offsets or fit fewer orders."
+        )
     beta, *_ = np.linalg.lstsq(design, np.asarray(y).reshape(-1) / np.asarray(sigma).reshape(-1), rcond=None)
     mass = beta[0] + (beta[-1] if smooth is not None else 0.0)
     if not mass > 0:
@@ -152,6 +160,12 @@ def fit_strengths(
     if smooth is not None:
         smooth = jax.tree_util.tree_map(lambda a: jnp.asarray(a, jnp.float64) if eqx.is_inexact_array(a) else a, smooth)
 
+    n_params = 2 + orders + (smooth is not None)
+    if y.size <= n_params:
+        raise BrdfscaleError(
+            f"the data do not determine the strength fit: {y.size} samples for {n_params} parameters "
+            "(amplitude, x0, the strengths and any specular fraction); measure more offsets or fit fewer orders."
+        )
     theta0 = _linear_start(u, y, s, kernel, smooth, orders, x0)
     args = (u, y, s, kernel, smooth)
     solution = optx.least_squares(_residuals, _SOLVER, theta0, args=args, max_steps=max_steps, throw=False)
