@@ -1,0 +1,79 @@
+"""The evaluation plan: frozen discretisation choices, a jit-compiled differentiable evaluation."""
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from .._errors import InvalidInputError
+from ._description import Material
+from ._steps import MaterialPlan
+
+
+class Plan(eqx.Module):
+    """What to compute for a scene, and how (built by :func:`brdfscale.scene.plan`).
+
+    ``evaluate()`` returns ``ρ(i, o, m∞, μ)`` (1/sr, seed §2: ρ = β cos θ_i) for every query of
+    the scene, in the scene's order. It is jit-compiled and differentiable in the materials'
+    parameters: pass ``materials=`` of the same structure (e.g. from a fit) to evaluate the
+    same plan with other values, or differentiate through ``plan.evaluate`` with
+    ``equinox.filter_grad``. The discretisation (sizes, nodes, kernels) stays as planned:
+    re-plan when parameters move far enough to change it.
+    """
+
+    materials: tuple[Material, ...]
+    parts: tuple[MaterialPlan, ...]
+    n_queries: int = eqx.field(static=True)
+    tol: float = eqx.field(static=True)
+    pixels: Int[Array, " Q"] | None = None
+    resolution: tuple[int, int] | None = eqx.field(static=True, default=None)
+
+    def evaluate(self, materials: tuple[Material, ...] | None = None) -> Float[Array, " Q"]:
+        """ρ at every query (jit-compiled)."""
+        materials = self.materials if materials is None else tuple(materials)
+        if len(materials) != len(self.materials):
+            raise InvalidInputError(f"expected {len(self.materials)} materials; got {len(materials)}.")
+        return _evaluate(self.parts, materials, self.n_queries)
+
+    def image(self, values: Float[Array, " Q"] | None = None) -> Float[Array, "rows cols"]:
+        """The values scattered into the camera image (pixels without a query are 0)."""
+        if self.pixels is None:
+            raise InvalidInputError("this plan has no camera; image() needs a scene from camera_scene().")
+        values = self.evaluate() if values is None else values
+        rows, cols = self.resolution
+        return jnp.zeros(rows * cols, values.dtype).at[self.pixels].set(values).reshape(rows, cols)
+
+    @property
+    def predicted_error(self) -> float:
+        """The largest predicted error of any material, relative to its lobe's peak."""
+        return max(p.predicted_error for p in self.parts)
+
+    @property
+    def predicted_seconds(self) -> float:
+        """Predicted run time of :meth:`evaluate` (cost model of :mod:`brdfscale.scene._cost`)."""
+        return sum(p.predicted_seconds for p in self.parts)
+
+    def explain(self) -> str:
+        """What will be computed and why, with the predicted cost and error."""
+        lines = [f"Plan for {self.n_queries} queries, error target {self.tol:.3g} (relative to each lobe's peak):"]
+        for p in self.parts:
+            material = self.materials[p.material]
+            lines.append(
+                f"- material {p.material} ({type(material.lobe).__name__} lobe at μ0 = {float(material.mu0):.4g}, "
+                f"{type(material.law).__name__} statistics): {len(p.rows)} queries, "
+                f"{len(np.unique(np.asarray(p.inverse)))} distinct (u, μ) pairs"
+            )
+            lines.append(f"    path: {p.path} — {p.reason}")
+            lines.append(f"    {p.details}")
+            lines.append(f"    predicted error ≤ {p.predicted_error:.2g}, predicted time {p.predicted_seconds * 1e3:.3g} ms")
+        lines.append(f"Total: predicted error ≤ {self.predicted_error:.2g}, time {self.predicted_seconds * 1e3:.3g} ms.")
+        return "\n".join(lines)
+
+
+@eqx.filter_jit
+def _evaluate(parts, materials, n):
+    dtype = jnp.result_type(*[p.factor for p in parts])
+    out = jnp.zeros(n, dtype)
+    for p in parts:
+        out = out.at[p.rows].set(p(materials[p.material]))
+    return out

@@ -1,0 +1,263 @@
+"""The planner: from a scene's queries and error target to the cheapest adequate evaluation.
+
+Per material, on the distinct (offset u = m_s − m∞, scale μ) pairs its queries present:
+
+1. **Path** — closed form (Gaussian/δ/mixture algebra; exact) when the lobe and statistics
+   allow it; otherwise the radial Hankel path when everything is radially symmetric;
+   otherwise the 2D-FFT grid path. ``method=`` forces one.
+2. **Error budget** — the target ``tol`` (relative to the lobe's peak at each scale) is split
+   into three quarters: spectral truncation (the frequency cut-off K or the grid's extent),
+   interpolation in u (or r), interpolation in log μ. The last quarter is margin.
+3. **Sizes from a-priori bounds** — radial: K from the evolved transform's decay
+   (``|G| ≤ tol/4`` beyond K), Gauss–Legendre nodes from K and the largest queried radius,
+   and the radius spacing from the cubic-interpolation bound
+   ``|error| ≤ (9/16)/4! · h⁴ max|g⁗|`` with ``max|g⁗| ≤ (2π)⁻¹ ∫|G| k⁵ dk``; grid: the side
+   from the bandwidth and support radius (:func:`brdfscale._evolve._spectral.choose_size`),
+   doubled until cubic interpolation between its nodes is within budget (checked on the
+   doubled grid, whose odd nodes are the midpoints).
+4. **Scales** — the distinct μ present are used as they are when there are few; otherwise
+   nodes uniform in log μ, refined until cubic interpolation in log μ, checked against exact
+   tables at the midpoints between nodes, is within budget.
+5. **Cost** — radial: direct evaluation at the query radii (a cached per-query J₀ kernel)
+   versus a radius table plus interpolation, whichever the cost model (:mod:`._cost`)
+   predicts cheaper.
+
+Reusable pieces (Gauss–Legendre rules, J₀ kernels, the grids' frequency sets) are computed
+once at planning time and frozen into the plan.
+"""
+
+import functools
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.special
+
+from .._errors import InvalidInputError, MethodNotApplicableError, NoBRDFAtScaleError
+from .._evolve import evolve
+from .._evolve._spectral import EvolvedDensity, choose_size, radial_nodes
+from .._quadrature import gauss_legendre
+from ..geometry import half_slope, microfacet_factor
+from . import _cost
+from ._description import Material, Scene
+from ._interpolate import interpolate
+from ._plan import Plan
+from ._steps import ClosedFormStep, GridStep, MaterialPlan, RadialStep
+
+_METHODS = ("auto", "closed_form", "radial", "grid")
+_CUBIC_CONSTANT = 0.5625 / 24  # max |s(s−1)(s−2)(s−3)|/4! on the middle interval
+_NODES_PER_DECADE = 8
+_MAX_SCALE_NODES = 2049
+_MAX_GRID = 1024
+_DIRECT_MEMORY = 2e7  # largest (distinct queries × nodes) kernel kept for direct evaluation
+_EXACT_SCALES = 4  # at most this many distinct μ are always evaluated exactly
+
+
+def plan(scene: Scene, method: str = "auto") -> Plan:
+    """Plan the evaluation of ``scene`` (module docstring). Needs concrete values.
+
+    Args:
+        scene: materials, queries and the error target (:class:`Scene`).
+        method: ``"auto"``, or force ``"closed_form"``, ``"radial"`` or ``"grid"`` for every
+            material.
+
+    Returns:
+        A :class:`Plan`; ``plan.evaluate()`` runs it (jit-compiled, differentiable in the
+        materials' parameters), ``plan.explain()`` says what it computes and why.
+
+    Raises:
+        MethodNotApplicableError: a forced method does not apply to a material.
+        NoBRDFAtScaleError: a material has no BRDF at a queried scale.
+    """
+    if not isinstance(scene, Scene):
+        raise InvalidInputError(f"scene must be a brdfscale.scene.Scene; got {type(scene).__name__}.")
+    if method not in _METHODS:
+        raise InvalidInputError(f"method must be one of {_METHODS}; got {method!r}.")
+    q = scene.queries
+    u, factor = (np.asarray(a) for a in _geometry(q.i, q.o, q.m_inf))
+    log_mu = np.log(np.asarray(q.mu))
+    index = np.asarray(q.material)
+    parts = []
+    for m in np.unique(index):
+        rows = np.flatnonzero(index == m)
+        keys, inverse = np.unique(np.column_stack([u[rows], log_mu[rows]]), axis=0, return_inverse=True)
+        step, path, reason, error, seconds, details = _plan_material(
+            scene.materials[m], keys[:, :2], keys[:, 2], scene.tol, method
+        )
+        parts.append(MaterialPlan(int(m), jnp.asarray(rows), jnp.asarray(inverse.ravel()), jnp.asarray(factor[rows]),
+                                  step, path, reason, error, seconds, details))
+    return Plan(scene.materials, tuple(parts), len(q), scene.tol, scene.pixels, scene.resolution)
+
+
+def _plan_material(material: Material, u, log_mu, tol, method):
+    mus = np.exp(log_mu)
+    s_from = material.statistics(material.mu0)
+    if method in ("auto", "closed_form"):
+        try:
+            for mu in (mus.min(), mus.max()):
+                evolve(material.lobe, s_from, material.statistics(mu), method="closed_form")
+        except MethodNotApplicableError:
+            if method == "closed_form":
+                raise
+        else:
+            n = len(mus)
+            return (ClosedFormStep(jnp.asarray(u), jnp.asarray(mus)), "closed_form",
+                    "the lobe and statistics have a closed-form evolution (exact)", 0.0,
+                    _cost.seconds(8 * n, 40 * n), f"{n} distinct (u, μ) evaluated exactly")
+    isotropic = (material.lobe.shape.isotropic and s_from.isotropic
+                 and material.statistics(mus.min()).isotropic)
+    if method == "radial" and not isotropic:
+        raise MethodNotApplicableError(
+            "method='radial' needs radially symmetric lobe and statistics; use 'grid' or 'auto'."
+        )
+    try:
+        if method == "radial" or (method == "auto" and isotropic):
+            return _plan_radial(material, u, log_mu, tol)
+        return _plan_grid(material, u, log_mu, tol)
+    except eqx.EquinoxRuntimeError as err:
+        raise NoBRDFAtScaleError(f"{err} (scales μ in [{mus.min():.4g}, {mus.max():.4g}])") from None
+
+
+# -- scale nodes ---------------------------------------------------------------------------
+def _scale_nodes(log_mu, tables, budget):
+    """Scale nodes (log μ) and whether they are the exact distinct scales, with the measured
+    interpolation error. ``tables(nodes)`` returns concrete arrays (n, ...) of the lobe."""
+    distinct = np.unique(log_mu)
+    lo, hi = distinct[0], distinct[-1]
+    n = max(4, math.ceil(_NODES_PER_DECADE * (hi - lo) / math.log(10)) + 1)
+    while len(distinct) > _EXACT_SCALES and n < len(distinct) and n <= _MAX_SCALE_NODES:
+        nodes = np.linspace(lo, hi, n)
+        mid = 0.5 * (nodes[1:] + nodes[:-1])
+        values = np.asarray(tables(np.concatenate([nodes, mid])))
+        at_nodes, exact = values[:n], values[n:]
+        interpolated = np.asarray(_interpolate(jnp.asarray(at_nodes), jnp.arange(n - 1)[:, None] + 0.5))
+        peak = np.max(np.abs(exact.reshape(n - 1, -1)), axis=1)
+        error = float(np.max(np.max(np.abs(interpolated - exact).reshape(n - 1, -1), axis=1) / peak))
+        if error <= budget:
+            return nodes, False, error
+        n = 2 * n - 1
+    return distinct, True, 0.0
+
+
+# -- radial ---------------------------------------------------------------------------------
+@functools.lru_cache(maxsize=32)
+def _hankel_kernel(K: float, n_k: int, radii: tuple | None, h_r: float, n_r: int):
+    """``w_k k J₀(k r)/2π`` for radii on the grid ``(j − 3) h_r`` (or given radii): cached."""
+    x, w = gauss_legendre(n_k)
+    k = 0.5 * (x + 1) * K
+    wk = 0.5 * K * w
+    r = np.asarray(radii) if radii is not None else (np.arange(n_r) - 3) * h_r
+    kernel = (wk * k)[:, None] * scipy.special.j0(k[:, None] * r[None, :]) / (2 * np.pi)
+    kernel.setflags(write=False)
+    return k, kernel
+
+
+def _evolved(material, mu, method, size, tol):
+    return EvolvedDensity(material.lobe.shape, material.statistics(material.mu0), material.statistics(mu),
+                          material.regularisation, method, size, tol)
+
+
+def _plan_radial(material, u, log_mu, tol):
+    budget = tol / 4
+    radius = np.linalg.norm(u, axis=-1)
+    r_max = float(radius.max())
+    distinct = np.unique(log_mu)
+    probe = distinct if len(distinct) <= 64 else np.linspace(distinct[0], distinct[-1], 64)
+    # |G| ≤ budget beyond K: probe log-spaced frequencies scaled to the lobe's extent (as
+    # EvolvedDensity.bandwidth does), all probe scales in one call
+    extent = float(_evolved(material, np.exp(probe[0]), "radial", 64, budget).support_radius(budget))
+    k_probe = np.logspace(-2, 5, 281) / max(extent, 1e-12)
+    above = np.any(np.abs(_radial_transform_rows(material, probe, k_probe, budget)) > budget, axis=0)
+    K = float(k_probe[min(np.flatnonzero(above).max() + 1 if above.any() else 0, len(k_probe) - 1)])
+    n_k = radial_nodes(K, r_max)
+    k, _ = _hankel_kernel(K, n_k, None, 1.0, 1)
+    x, w = gauss_legendre(n_k)
+    wk = 0.5 * K * w
+    G = _radial_transform_rows(material, probe, k, budget)
+    peak = np.abs(G) @ (wk * k) / (2 * np.pi)
+    fourth = np.abs(G) @ (wk * k**5) / (2 * np.pi)
+    h_r = float(np.min((budget * peak / (_CUBIC_CONSTANT * fourth)) ** 0.25))
+    n_r = math.ceil(r_max / h_r) + 7
+    _, kernel = _hankel_kernel(K, n_k, None, h_r, n_r)
+    kernel_j = jnp.asarray(kernel)
+    nodes, exact, mu_error = _scale_nodes(
+        log_mu, lambda t: _radial_transform_rows(material, t, k, budget) @ kernel, budget
+    )
+    n_s, n_q = len(nodes), len(radius)
+    evaluations = 3 * n_s * n_k
+    table_seconds = _cost.seconds(evaluations, n_s * n_k * n_r + 32 * n_q)
+    direct_seconds = _cost.seconds(evaluations, n_q * n_k)
+    direct = exact and n_q * n_k <= _DIRECT_MEMORY and direct_seconds < table_seconds
+    if direct:
+        _, kernel = _hankel_kernel(K, n_k, tuple(radius), 0.0, 0)
+        kernel_j, r_error = jnp.asarray(kernel), 0.0
+    else:
+        r_error = budget
+    step = RadialStep(jnp.asarray(u), jnp.asarray(log_mu), jnp.asarray(nodes), jnp.asarray(k), kernel_j,
+                      h_r, exact, direct, budget)
+    scales = f"{n_s} distinct scales" if exact else f"{n_s} log-μ nodes ({np.exp(nodes[0]):.3g}–{np.exp(nodes[-1]):.3g})"
+    layout = f"at the {n_q} query radii" if direct else f"on {n_r} radii (h = {h_r:.3g}), cubic in (log μ, r)"
+    details = f"K = {K:.4g}, {n_k} Gauss–Legendre nodes; {scales}; lobe {layout}"
+    return (step, "radial", "lobe and statistics are radially symmetric; no closed form",
+            budget + r_error + mu_error, min(table_seconds, direct_seconds) if direct else table_seconds, details)
+
+
+# -- grid -----------------------------------------------------------------------------------
+def _plan_grid(material, u, log_mu, tol):
+    budget = tol / 4
+    distinct = np.unique(log_mu)
+    probe = distinct if len(distinct) <= 16 else np.linspace(distinct[0], distinct[-1], 16)
+    size, achieved = 0, budget
+    for t in probe:
+        n, honoured = choose_size(_evolved(material, np.exp(t), "grid", 256, budget), "grid", _MAX_GRID)
+        size, achieved = max(size, n), max(achieved, honoured)
+
+    def tables(n, t):
+        step = GridStep(jnp.zeros((1, 2)), jnp.zeros(1), _padded(t), n, True, achieved)
+        return np.asarray(_grid_tables(step, material))[: len(t)]
+
+    ends = np.array([distinct[0], distinct[-1]]) if len(distinct) > 1 else distinct
+    u_error = np.inf
+    while True:
+        coarse, fine = np.asarray(tables(size, ends)), np.asarray(tables(2 * size, ends))
+        odd = np.arange(1, 2 * size - 1, 2) / 2
+        Y, X = np.meshgrid(odd, odd, indexing="ij")
+        pos = np.stack([Y.ravel(), X.ravel()], -1)
+        errors = []
+        for c, f in zip(coarse, fine):
+            guess = np.asarray(_interpolate(jnp.asarray(c), jnp.asarray(pos)))
+            errors.append(np.max(np.abs(guess - f[1::2, 1::2][: len(odd), : len(odd)].ravel())) / np.max(f))
+        u_error = float(max(errors))
+        if u_error <= budget or 2 * size > _MAX_GRID:
+            break
+        size *= 2
+    nodes, exact, mu_error = _scale_nodes(log_mu, lambda t: tables(size, t), budget)
+    n_s, n_q = len(nodes), len(u)
+    seconds = _cost.seconds(3 * n_s * size * (size // 2 + 1), n_s * _cost.fft2_multiply_adds(size) + 128 * n_q)
+    step = GridStep(jnp.asarray(u), jnp.asarray(log_mu), jnp.asarray(nodes), size, exact, achieved)
+    scales = f"{n_s} distinct scales" if exact else f"{n_s} log-μ nodes ({np.exp(nodes[0]):.3g}–{np.exp(nodes[-1]):.3g})"
+    relaxed = "" if achieved <= budget else f" (grid capped at {_MAX_GRID}: truncation {achieved:.1g})"
+    details = f"{size}×{size} FFT grid per scale node{relaxed}; {scales}; cubic in (log μ, u_y, u_x)"
+    return (step, "grid", "lobe or statistics not radially symmetric; no closed form",
+            achieved + u_error + mu_error, seconds, details)
+
+
+def _padded(nodes):
+    """Scale nodes padded (repeating the last) to a power-of-two length: fewer compilations."""
+    n = 1 << max(0, math.ceil(math.log2(len(nodes))))
+    return jnp.asarray(np.concatenate([nodes, np.full(n - len(nodes), nodes[-1])]))
+
+
+def _radial_transform_rows(material, nodes, k, tol):
+    """Concrete ``G(k, μ)`` (len(nodes), len(k)) of the radial path."""
+    step = RadialStep(jnp.zeros((1, 2)), jnp.zeros(1), _padded(nodes), jnp.asarray(k), jnp.zeros((len(k), 1)),
+                      1.0, True, False, tol)
+    return np.asarray(_radial_transforms(step, material))[: len(nodes)]
+
+
+_radial_transforms = eqx.filter_jit(lambda step, material: step.transforms(material))
+_interpolate = jax.jit(interpolate)
+_geometry = jax.jit(lambda i, o, m_inf: (half_slope(i, o) - m_inf, microfacet_factor(i, o)))
+_grid_tables = eqx.filter_jit(lambda step, material: step.table(material))

@@ -1,0 +1,156 @@
+"""The evaluation steps a plan is made of, one per material (and path).
+
+Each step holds the material's queries, deduplicated to the distinct (offset u, scale μ)
+pairs present, and the discretisation the planner chose; calling it with the material
+returns ``A · g_μ(u)`` at those pairs. All discretisation choices are frozen in the step
+(static fields and constant arrays), so a step is a pure, jit-able and differentiable
+function of the material's parameters.
+
+* :class:`ClosedFormStep` — the closed-form evolution (Gaussian/δ/mixture algebra) at every
+  query's own μ: exact.
+* :class:`RadialStep` — radially symmetric inputs: the evolved transform ``G(k, μ_n)`` at
+  Gauss–Legendre nodes on [0, K] for scale nodes ``μ_n``, times a cached Hankel kernel
+  ``w_k k J₀(k r_j)/2π`` gives the lobe on a radius grid ``r_j`` (or directly at the query
+  radii); queries are read off by cubic interpolation in (log μ, r).
+* :class:`GridStep` — general inputs: the 2D-FFT grid path at scale nodes, cubic
+  interpolation in (log μ, u_y, u_x).
+
+Scale nodes are either the distinct μ of the queries (``exact_scales``: no interpolation in
+μ) or uniform in log μ (cubic interpolation in log μ).
+"""
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float, Int
+
+from .._evolve import evolve
+from .._evolve._spectral import EvolvedDensity
+from ._description import Material
+from ._interpolate import interpolate
+
+_CF_EXCESS = 1e-6
+_NO_BRDF = (
+    "no BRDF exists at a planned scale: the evolved lobe's transform exceeds 1 in modulus "
+    "(evolving towards a finer scale than the data support). Re-plan with coarser scales or "
+    "a material with regularisation > 0."
+)
+
+
+class ClosedFormStep(eqx.Module):
+    """Closed-form evolution at each distinct (u, μ): exact, cost O(1) per query."""
+
+    u: Float[Array, "n 2"]
+    mu: Float[Array, " n"]
+
+    def __call__(self, material: Material) -> Float[Array, " n"]:
+        s_from = material.statistics(material.mu0)
+
+        def one(mu, u):
+            return evolve(material.lobe, s_from, material.statistics(mu), method="closed_form").density(u)
+
+        return jax.vmap(one)(self.mu, self.u)
+
+
+def _scale_position(log_mu, nodes, exact):
+    """Index positions of the queries' log μ on the scale nodes."""
+    if exact:
+        return jnp.searchsorted(nodes, log_mu).astype(log_mu.dtype)
+    if nodes.shape[0] == 1:
+        return jnp.zeros_like(log_mu)
+    return (log_mu - nodes[0]) / (nodes[1] - nodes[0])
+
+
+def _evolved(material: Material, mu, method: str, size: int, tol: float) -> EvolvedDensity:
+    return EvolvedDensity(
+        material.lobe.shape, material.statistics(material.mu0), material.statistics(mu),
+        material.regularisation, method, size, tol,
+    )
+
+
+class RadialStep(eqx.Module):
+    """Hankel path: ``g(r, μ_n) = Σ_k G(k_k, μ_n) · kernel[k, j]`` (module docstring).
+
+    ``kernel`` is ``w_k k J₀(k r_j)/2π`` on the radius grid ``r_j = (j − 3) h_r`` (three mirror
+    nodes below r = 0, so cubic stencils near 0 are centred), or at the queries' own radii
+    (``direct``: one row per distinct (u, μ), no interpolation in r).
+    """
+
+    u: Float[Array, "n 2"]
+    log_mu: Float[Array, " n"]
+    nodes: Float[Array, " s"]  # log μ of the scale nodes
+    k: Float[Array, " K"]
+    kernel: Float[Array, "K r"]
+    h_r: float = eqx.field(static=True)
+    exact_scales: bool = eqx.field(static=True)
+    direct: bool = eqx.field(static=True)
+    tol: float = eqx.field(static=True)
+
+    def transforms(self, material: Material) -> Float[Array, "s K"]:
+        """``G(k, μ_n)`` for every scale node, with the existence check |G| ≤ 1."""
+        size = self.k.shape[0]
+        G = jax.vmap(lambda t: _evolved(material, jnp.exp(t), "radial", size, self.tol).cf_radial(self.k))(self.nodes)
+        return eqx.error_if(G, jnp.max(jnp.abs(G)) > 1 + _CF_EXCESS, _NO_BRDF)
+
+    def table(self, material: Material) -> Float[Array, "s r"]:
+        """The lobe shape ``g`` on (scale nodes × radius grid)."""
+        return self.transforms(material) @ self.kernel
+
+    def __call__(self, material: Material) -> Float[Array, " n"]:
+        s = _scale_position(self.log_mu, self.nodes, self.exact_scales)
+        if self.direct:
+            G = self.transforms(material)
+            return jnp.sum(G[s.astype(int)] * self.kernel.T, axis=-1) * material.lobe.amplitude
+        r = jnp.linalg.norm(self.u, axis=-1) / self.h_r + 3
+        return interpolate(self.table(material), jnp.stack([s, r], -1)) * material.lobe.amplitude
+
+
+class GridStep(eqx.Module):
+    """2D-FFT grid path at each scale node (side ``size``), cubic interpolation in (log μ, u).
+
+    Offsets outside the grid's half-width ``a`` (where the lobe is below ``tol`` of its peak by
+    the statistics' support radius) evaluate to 0.
+    """
+
+    u: Float[Array, "n 2"]
+    log_mu: Float[Array, " n"]
+    nodes: Float[Array, " s"]
+    size: int = eqx.field(static=True)
+    exact_scales: bool = eqx.field(static=True)
+    tol: float = eqx.field(static=True)
+
+    def densities(self, material: Material, mu):
+        return _evolved(material, mu, "grid", self.size, self.tol)
+
+    def table(self, material: Material) -> Float[Array, "s N N"]:
+        """The lobe shape on (scale nodes × u_y × u_x) grids."""
+        return jax.vmap(lambda t: self.densities(material, jnp.exp(t)).on_grid()[1])(self.nodes)
+
+    def __call__(self, material: Material) -> Float[Array, " n"]:
+        h, a = self.densities(material, jnp.exp(self.nodes[0])).grid_spacing()
+        s = _scale_position(self.log_mu, self.nodes, self.exact_scales)
+        pos = (self.u[:, ::-1] + a) / h  # (y, x) index positions
+        inside = jnp.all((pos >= 0) & (pos <= self.size - 1), axis=-1)
+        values = interpolate(self.table(material), jnp.concatenate([s[:, None], pos], -1))
+        return jnp.where(inside, values, 0.0) * material.lobe.amplitude
+
+
+Step = ClosedFormStep | RadialStep | GridStep
+
+
+class MaterialPlan(eqx.Module):
+    """One material's part of a plan: which queries, through which step, and what it predicts."""
+
+    material: int = eqx.field(static=True)
+    rows: Int[Array, " q"]  # the queries (indices into the scene's list) this step serves
+    inverse: Int[Array, " q"]  # each query's distinct (u, μ) pair
+    factor: Float[Array, " q"]  # F(i, o), the mirror-microfacet factor
+    step: Step
+    path: str = eqx.field(static=True)
+    reason: str = eqx.field(static=True)
+    predicted_error: float = eqx.field(static=True)
+    predicted_seconds: float = eqx.field(static=True)
+    details: str = eqx.field(static=True)
+
+    def __call__(self, material: Material) -> Float[Array, " q"]:
+        return self.step(material)[self.inverse] * self.factor
