@@ -22,6 +22,8 @@ Derivatives are supplied analytically (``J0' = −J1``, ``J1' = J0 − J1/x``, `
 Accuracy against SciPy/mpmath is tested in tests/test_special.py.
 """
 
+import math
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -178,7 +180,7 @@ def _k_scaled_large(nu: int, x):
     asym = jnp.zeros_like(x)
     for k in range(_N_ASYMPTOTIC - 1, -1, -1):
         asym = asym * inv + float(a[k])
-    asym = asym * np.sqrt(np.pi / 2)
+    asym = asym * math.sqrt(math.pi / 2)
     y = jnp.clip(inv, 1 / _K_HIGH, 1 / _K_LOW)
     return jnp.where(x > _K_HIGH, asym, _clenshaw(_K_CHEB[nu], y, 1 / _K_HIGH, 1 / _K_LOW))
 

@@ -148,7 +148,9 @@ class GaussianSurface(AbstractScaleLaw):
 
     def slope_covariance(self, mu: Float[ArrayLike, ""]) -> Float[Array, "2 2"]:
         """``Σ(μ)`` (dimensionless slope²)."""
-        mu = positive(mu, "mu", "a positive facet size")
+        return _slope_covariance(self, positive(mu, "mu", "a positive facet size"))
+
+    def _slope_covariance(self, mu):
         k_lo, k_hi = self.spectrum.wavenumber_range()
         k_lo = jnp.minimum(k_lo, 1e-3 / mu)  # the window passes k ≲ 1/μ: start well below
         x, w = gauss_legendre(self.n_k)
@@ -166,6 +168,9 @@ class GaussianSurface(AbstractScaleLaw):
 
     def at(self, mu):
         return Gaussian(cov=self.slope_covariance(mu))
+
+
+_slope_covariance = eqx.filter_jit(lambda law, mu: law._slope_covariance(mu))
 
 
 class WidthLaw(eqx.Module):
