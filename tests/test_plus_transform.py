@@ -119,12 +119,12 @@ def test_jit_matches_eager():
 
 
 def test_float32_against_float64():
-    """float32 (rounding 6e-8): the series' cancellation near the switch costs up to ~35×."""
+    """float32 (rounding 6e-8): measured ≤ 5e-7 relative (experiments/plus_transform_accuracy.py)."""
     z = np.logspace(-6, 8, 141)
     f64 = np.asarray(_all_orders(jnp.asarray(z, jnp.float64)))
     f32 = _all_orders(jnp.asarray(z, jnp.float32))
     assert f32.dtype == jnp.float32
-    np.testing.assert_allclose(np.asarray(f32, np.float64), f64, rtol=5e-6)
+    np.testing.assert_allclose(np.asarray(f32, np.float64), f64, rtol=1e-6)
 
 
 @settings(max_examples=40, deadline=None)
