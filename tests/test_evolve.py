@@ -78,6 +78,16 @@ def _ggx(alpha):
     return lambda x, y: 1.0 / (math.pi * alpha**2 * (1 + (x * x + y * y) / alpha**2) ** 2)
 
 
+def test_grid_extent_and_size_can_be_forced():
+    args = (lobes.Beckmann(0.1), stats.Beckmann(0.2), stats.Beckmann(0.05))
+    out = bs.evolve(*args, method="grid", size=128, extent=1.5)
+    u, values = out.shape.on_grid()
+    assert values.shape == (128, 128) and float(u[0]) == pytest.approx(-1.5)
+    assert _max_rel(out.density(U), bs.evolve(*args).density(U)) < 1e-8
+    with pytest.raises(bs.InvalidInputError, match="extent"):
+        bs.evolve(*args, method="grid", extent=-1.0)
+
+
 def _direct_convolution(g0, s, u, s_radius=1.2):
     """∫ g0(u − m) s(m) d²m by adaptive 2D quadrature (SciPy) in polar coordinates about the
     origin of s, with g0 and s written out independently of the library (plain math)."""

@@ -26,6 +26,7 @@ def evolve(
     regularisation: float = 0.0,
     tol: float = 1e-10,
     size: int | None = None,
+    extent: float | None = None,
 ) -> AbstractLobe:
     """Evolve a lobe measured at scale μ0 to scale μ (seed Eq. 4.4, DESIGN §2).
 
@@ -55,6 +56,8 @@ def evolve(
             When a capped grid cannot meet ``tol`` (heavy-tailed statistics such as GGX
             need grids of extent ∝ tol^{−1/4}), the grid path relaxes the target by decades
             and records the tolerance it honours in ``result.shape.tol``.
+        extent: half-width of the grid path's slope grid. Default: the radius beyond which
+            the lobe stays below ``tol`` relative to its peak (aliasing below ``tol``).
 
     Returns:
         The lobe at μ. Closed forms return a lobe whose shape is a :mod:`brdfscale.stats`
@@ -106,8 +109,12 @@ def evolve(
     path = "radial" if (method == "radial" or (method == "auto" and isotropic)) else "grid"
     if size is not None and (int(size) != size or size < 8):
         raise InvalidInputError(f"size must be an integer ≥ 8; got {size!r}.")
-    shape = EvolvedDensity(lobe.shape, s_from, s_to, lam, path, size or _DEFAULT_SIZE[path], tol)
+    if extent is not None:
+        extent = as_float_array(extent, "extent")
+        if is_concrete(extent) and not float(extent) > 0:
+            raise InvalidInputError(f"extent must be a positive slope half-width; got {float(extent)}.")
+    shape = EvolvedDensity(lobe.shape, s_from, s_to, lam, path, size or _DEFAULT_SIZE[path], tol, extent)
     if size is None and is_concrete(shape):
         size, achievable = choose_size(shape, path, _MAX_SIZE[path])
-        shape = EvolvedDensity(lobe.shape, s_from, s_to, lam, path, size, achievable)
+        shape = EvolvedDensity(lobe.shape, s_from, s_to, lam, path, size, achievable, extent)
     return Lobe(shape, lobe.amplitude)

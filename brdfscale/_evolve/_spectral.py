@@ -51,21 +51,23 @@ class EvolvedDensity(AbstractSlopeDensity):
 
     ``method`` is ``"radial"`` or ``"grid"``; ``size`` is the number of Gauss–Legendre nodes
     (radial) or the grid's side (grid); ``tol`` is the error target relative to the peak
-    that sets the frequency cut-off and the grid's extent.
+    that sets the frequency cut-off and, unless ``extent`` is given, the grid's half-width.
     """
 
     base: AbstractSlopeDensity
     s_from: AbstractSlopeDensity
     s_to: AbstractSlopeDensity
     regularisation: Float[Array, ""]
+    extent: Float[Array, ""] | None
     method: str = eqx.field(static=True)
     size: int = eqx.field(static=True)
     tol: float = eqx.field(static=True)
     isotropic: bool = eqx.field(static=True)
 
-    def __init__(self, base, s_from, s_to, regularisation, method, size, tol):
+    def __init__(self, base, s_from, s_to, regularisation, method, size, tol, extent=None):
         self.base, self.s_from, self.s_to = base, s_from, s_to
         self.regularisation = jnp.asarray(regularisation)
+        self.extent = None if extent is None else jnp.asarray(extent)
         self.method, self.size, self.tol = method, size, tol
         self.isotropic = base.isotropic and s_from.isotropic and s_to.isotropic
 
@@ -93,7 +95,7 @@ class EvolvedDensity(AbstractSlopeDensity):
 
     def shifted(self, offset):
         return EvolvedDensity(self.base.shifted(offset), self.s_from, self.s_to, self.regularisation,
-                              self.method, self.size, self.tol)
+                              self.method, self.size, self.tol, self.extent)
 
     def support_radius(self, tol):
         return self.base.support_radius(tol) + self.s_from.support_radius(tol)
@@ -136,7 +138,7 @@ class EvolvedDensity(AbstractSlopeDensity):
             n = radial_nodes(float(self.bandwidth(self.tol)), r_max)
             if n < self.size:
                 shape = EvolvedDensity(self.base, self.s_from, self.s_to, self.regularisation,
-                                       self.method, n, self.tol)
+                                       self.method, n, self.tol, self.extent)
         return _translate_errors(_density, shape, m)
 
     def _density(self, m):
@@ -154,7 +156,8 @@ class EvolvedDensity(AbstractSlopeDensity):
 
     def grid_spacing(self):
         """Slope-grid spacing h and half-width a = N h / 2 of the grid path."""
-        a = jax.lax.stop_gradient(self.support_radius(self.tol))  # a discretisation choice
+        a = self.support_radius(self.tol) if self.extent is None else self.extent
+        a = jax.lax.stop_gradient(a)  # a discretisation choice
         return 2 * a / self.size, a
 
     def _frequencies(self, h):
@@ -233,7 +236,7 @@ def choose_size(density: EvolvedDensity, method: str, max_size: int) -> tuple[in
     tol = density.tol
     while True:
         K = float(density.bandwidth(tol))
-        R = float(density.support_radius(tol))
+        R = float(density.support_radius(tol) if density.extent is None else density.extent)
         # spacing h = 2R/N must resolve K: π/h ≥ K  ⇒  N ≥ 2 R K / π
         need = max(64.0, 2 * R * K / math.pi)
         if need <= max_size or tol >= 1e-2:
