@@ -53,7 +53,7 @@ def main():
         kernel = stats.Gaussian(sigma=sigma)
         curves[name] = {
             "specular δ": np.asarray(kernel.density(u)),
-            f"Beckmann α = x0/2": np.asarray(evolve(lobes.Beckmann(X0 / 2), kernel, stats.Delta()).density(u)),
+            "Beckmann α = x0/2": np.asarray(evolve(lobes.Beckmann(X0 / 2), kernel, stats.Delta()).density(u)),
         }
         for n in ORDERS:
             c = np.zeros(n + 1)

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from brdfscale import InvalidInputError, plus
+from brdfscale import InvalidInputError, plus, stats
 from brdfscale.plus import _transform
 
 from _plus_reference import decaying, polynomial, reference
@@ -108,6 +108,9 @@ def test_gradient_finite_at_zero_frequency():
     assert np.array_equal(np.asarray(grad_W), np.zeros(2))
     grad_x0 = jax.grad(lambda x0: plus.PlusDistribution(2, x0).cf_radial(0.0))(0.1)
     assert float(grad_x0) == 0.0
+    nearly = plus.NearlySpecular(0.5, [0.1, -0.2], 0.1, smooth=stats.Beckmann(0.2), smooth_weight=0.5)
+    grad_W = jax.grad(lambda W: jnp.real(nearly.cf(W)))(jnp.zeros(2))
+    assert np.array_equal(np.asarray(grad_W), np.zeros(2))
 
 
 def test_jit_matches_eager():

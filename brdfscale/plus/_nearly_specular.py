@@ -85,10 +85,10 @@ class NearlySpecular(AbstractSlopeDensity):
     def max_order(self) -> int:
         return self.strengths.shape[0] - 1
 
-    def singular_cf_radial(self, k):
-        """``a + Σ c_n H_n(k x0)``: the transform of the δ and plus parts (about their centre)."""
-        k = jnp.asarray(k)
-        H = transforms_from_square(k * k * self.x0**2, self.max_order)
+    def _singular_cf(self, k2):
+        """``a + Σ c_n H_n(k x0)`` from ``k2 = k²``: the δ and plus parts' transform about their
+        centre (``k²``, not k, keeps gradients finite at W = 0)."""
+        H = transforms_from_square(k2 * self.x0**2, self.max_order)
         return self.specular + H @ self.strengths
 
     def density(self, m):
@@ -100,7 +100,7 @@ class NearlySpecular(AbstractSlopeDensity):
 
     def cf(self, W: Float[ArrayLike, "*batch 2"]) -> Complex[Array, "*batch"]:
         W = check_slopes(W, "W")
-        value = self.singular_cf_radial(jnp.sqrt(jnp.sum(W * W, axis=-1))) * phase(W, self.mean)
+        value = self._singular_cf(jnp.sum(W * W, axis=-1)) * phase(W, self.mean)
         if self.smooth is not None:
             value = value + self.smooth_weight * self.smooth.cf(W)
         return value
@@ -108,7 +108,8 @@ class NearlySpecular(AbstractSlopeDensity):
     def cf_radial(self, k: Float[ArrayLike, "*batch"]) -> Float[Array, "*batch"]:
         if not self.isotropic:
             return super().cf_radial(k)
-        value = self.singular_cf_radial(k)
+        k = jnp.asarray(k)
+        value = self._singular_cf(k * k)
         if self.smooth is not None:
             value = value + self.smooth_weight * self.smooth.cf_radial(k)
         return value
