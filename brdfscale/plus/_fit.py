@@ -37,7 +37,9 @@ _CONDITION_LIMIT = 1e12
 class StrengthFit(eqx.Module):
     """The result of :func:`fit_strengths`: estimates, 1σ (Laplace) uncertainties and diagnostics.
 
-    ``covariance`` is over the natural parameters in the order ``names``.
+    ``covariance`` is over the natural parameters in the order ``names``. Without a smooth
+    shape the specular fraction is 1 by construction (``specular_fraction_sigma`` = 0).
+    ``chi2`` is the minimum of Σ((model − y)/σ)², ``dof`` the samples minus the parameters.
     """
 
     strengths: Float[Array, " N"]
