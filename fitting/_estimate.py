@@ -203,10 +203,10 @@ def fit(
         raise InvalidInputError("fit(model, data) needs a fitting model and a fitting.Dataset.")
     if int(starts) < 1 or int(max_steps) < 1:
         raise InvalidInputError(f"starts and max_steps must be ≥ 1; got {starts}, {max_steps}.")
+    optimiser = _make_solver(solver, rtol, atol)
     problem = Problem(model, data)
     y0 = jnp.asarray(_starting_points(model, data, int(starts), spread, seed), dtype=jnp.float64)
     # one compiled solve, called per start (vmapping the solve compiles ~2.5× longer here)
-    optimiser = _make_solver(solver, rtol, atol)
     runs = [_solve(problem, y, optimiser, int(max_steps)) for y in y0]
     values, codes, steps, chi2s = (np.stack([np.asarray(run[i]) for run in runs]) for i in range(4))
     ok = (codes == optx.RESULTS.successful._value) & np.isfinite(chi2s)

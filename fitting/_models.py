@@ -116,15 +116,15 @@ class ParametricModel(AbstractModel):
 
     Args:
         lobe: ``"beckmann"`` or ``"ggx"``: the family of the base lobe at μ0.
-        statistics: ``"beckmann"`` or ``"ggx"``: the family of the facet-slope density s(·, μ);
-            for now it must equal ``lobe`` (see the error raised otherwise).
+        statistics: ``"beckmann"`` or ``"ggx"``: the family of the facet-slope density s(·, μ).
         law: ``"width"`` — :class:`brdfscale.stats.WidthLaw` for the family's width α(μ);
             ``"gaussian_surface"`` — Beckmann statistics of a Gaussian-correlated random
             surface, :class:`brdfscale.stats.GaussianSurface` with a ``window`` facet window
             (Σ(μ) by quadrature with ``n_k`` × 64 nodes; the physical law of DESIGN §2).
         fixed: physical parameters held at given values (e.g. ``{"mu_c": 1.0}``) — the way
             to supply prior knowledge that the data lack.
-        radial_nodes: Gauss–Legendre nodes of the radial evolution path (used for GGX).
+        radial_nodes: Gauss–Legendre nodes of the radial evolution path (used whenever GGX is
+            involved; Beckmann with Beckmann has a closed form).
 
     Parameters (all positive, θ = their logarithms): ``amplitude`` A (the lobe's integral
     over u), ``alpha_lobe`` (base-lobe width at μ0), and for ``law="width"``: ``alpha_max``,
@@ -157,13 +157,6 @@ class ParametricModel(AbstractModel):
             raise InvalidInputError("law='gaussian_surface' gives Gaussian (Beckmann) statistics; use lobe='beckmann'.")
         if window not in ("box", "gaussian"):
             raise InvalidInputError(f"window must be 'box' or 'gaussian'; got {window!r}.")
-        if lobe != statistics:
-            raise MethodNotApplicableError(
-                f"a {lobe} lobe with {statistics} statistics needs the radial evolution path, whose derivative "
-                "is NaN when a Gaussian (Beckmann) density is involved (brdfscale.stats Gaussian.support_radius "
-                "differentiates sqrt(0) at isotropic covariance). Supported pairs: beckmann/beckmann (closed "
-                "form) and ggx/ggx (radial path)."
-            )
         parameters = self._LAWS[law]
         fixed = dict(fixed or {})
         for name, value in fixed.items():

@@ -73,7 +73,7 @@ def _complete_theta(model, truth):
     return jnp.asarray(model.theta_from(truth))
 
 
-def _draws(fit: FitResult, samples: SampleResult | None, rng, n=2000):
+def _draws(fit: FitResult, samples: SampleResult | None, rng, n=400):
     if samples is not None:
         flat = samples.samples
         return flat[rng.choice(flat.shape[0], size=min(n, flat.shape[0]), replace=False)]
