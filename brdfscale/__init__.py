@@ -8,13 +8,14 @@ The public API:
 * :mod:`brdfscale.geometry` — directions, slopes, half vectors;
 * :mod:`brdfscale.synth` — random height fields and a synthetic gonioreflectometer;
 * :mod:`brdfscale.exr` — measurement sets and lobe tables as OpenEXR files;
+* :mod:`brdfscale.plus` — plus-distributions and nearly-specular reflection (seed §6);
 * :class:`MeasurementSet` / :class:`LobeImage` — multi-scale lobe measurements in memory;
 * the exception classes, all derived from :class:`BrdfscaleError`.
 """
 
 from importlib.metadata import PackageNotFoundError, version as _version
 
-from . import exr, geometry, lobes, stats, synth
+from . import exr, geometry, lobes, plus, stats, synth
 from ._errors import (
     BrdfscaleError,
     InvalidInputError,
@@ -39,6 +40,7 @@ __all__ = [
     "lobes",
     "stats",
     "synth",
+    "plus",
     "exr",
     "BrdfscaleError",
     "InvalidInputError",
