@@ -125,7 +125,7 @@ def test_anisotropic_generator_matches_brownian_motion():
     """Rotational Brownian motion with body-frame increments √(2 D_i dt) ξ_i about each axis:
     E[D^J(Δ)*] over the end points must be exp(−τ G^J) (generator normalisation, Monte Carlo)."""
     D = np.array([1.0, 0.3, 2.0])
-    tau, steps, n = 0.2, 100, 20000
+    tau, steps, n = 0.2, 50, 20000
     rng = np.random.default_rng(4)
     frames = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
     dt = tau / steps
@@ -175,7 +175,7 @@ def test_diffusion_law():
 def test_tilt_twist_against_sampled_frames():
     """TiltTwist's density (Jacobians cos³β, twist = α + γ) vs the empirical transform of frames
     built from sampled slopes and twists."""
-    alpha, twist_mean, twist_std = 0.25, 0.6, 0.4
+    alpha, twist_mean, twist_std = 0.4, 0.6, 0.5
     s = so3.TiltTwist(stats.Beckmann(alpha_x=alpha, alpha_y=0.6 * alpha), twist_mean=twist_mean, twist_std=twist_std)
     B = 8
     op = np.asarray(s.operator(B))
@@ -242,9 +242,9 @@ def test_cross_check_with_slope_space_path():
     """
     z = np.array([0.0, 0.0, 1.0])
     rel = {}
-    B, _ = so3.band_limit(np.sqrt(0.1**2 + 0.08**2) / np.sqrt(2), 1e-9)  # enough for both scales
+    B, _ = so3.band_limit(np.sqrt(0.15**2 + 0.12**2) / np.sqrt(2), 1e-7)  # enough for both scales
     for scale in (1.0, 0.5):
-        a_lobe, a0, a1 = 0.2 * scale, 0.16 * scale, 0.08 * scale  # lobe at μ0, statistics at μ0 and μ
+        a_lobe, a0, a1 = 0.3 * scale, 0.24 * scale, 0.12 * scale  # lobe at μ0, statistics at μ0 and μ
         lobe = so3.AnisotropicMicrofacetLobe(a_lobe, a_lobe)
         R0 = so3.forward(lobe.samples(z, z, B), m_max=0)  # only M = 0: the query is at α = 0
         R1 = so3.evolve_diffusion(R0, [1.0, 1.0, 1.0], a0**2 / 4, a1**2 / 4)

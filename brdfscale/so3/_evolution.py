@@ -25,7 +25,6 @@ caller's choice; columns (orders M' of the twist γ) mix under the statistics an
 
 import equinox as eqx
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, ArrayLike, Complex, Float
 
 from .. import stats

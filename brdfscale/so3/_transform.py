@@ -34,7 +34,7 @@ from jaxtyping import Array, ArrayLike, Complex, Float, Shaped
 
 from .._errors import InvalidInputError
 from .._validation import as_float_array
-from ._grid import MAX_BAND_LIMIT, check_band_limit, grid, quadrature_weights
+from ._grid import check_band_limit, grid, quadrature_weights
 from ._wigner import fourier_rows, fourier_weights, parity_sign
 
 __all__ = ["forward", "inverse", "synthesize", "analyse_points", "band_orders"]
@@ -75,8 +75,8 @@ def _chunks(B: int) -> list[tuple[int, int]]:
 
 
 def _sign_and_parity(L: int, N: int):
-    odd, sigma = parity_sign(np.arange(-L, L + 1), np.arange(-N, N + 1))
-    return odd, sigma
+    """``(odd, σ)`` of :func:`parity_sign` for orders −L … L by −N … N."""
+    return parity_sign(np.arange(-L, L + 1), np.arange(-N, N + 1))
 
 
 def _pack(z, core: int):
@@ -187,8 +187,8 @@ def _fft_order(G, L, B, axis):
 
 
 def _tables(B: int, L: int, N: int, dtype):
-    X = jnp.asarray(_degree_table(B, max(L, N)), dtype)
-    return X
+    """The degree table for orders up to max(L, N), as a JAX array of ``dtype``."""
+    return jnp.asarray(_degree_table(B, max(L, N)), dtype)
 
 
 def _grid_trig(B: int, dtype, weighted: bool):
