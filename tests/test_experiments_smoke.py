@@ -1,0 +1,123 @@
+"""Smoke versions of the studies in experiments/ at tiny sizes, plus checks of their parts
+against closed forms and the library's independent implementations."""
+
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import OpenEXR
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "experiments"))
+
+import _studies
+import consistency
+import evolution_accuracy
+import render_plane
+import validity
+
+from brdfscale import exr, synth
+
+
+def test_box_window_is_the_library_facet_slope():
+    field = synth.named_surface("gaussian", size=64, seed=3)
+    m = _studies.pixel_slopes(field.heights)
+    for b in (2, 8):
+        np.testing.assert_allclose(_studies.window_slopes(m, b, "box"), synth.facet_slopes(field, b), atol=1e-15)
+
+
+@pytest.mark.parametrize("window", _studies.WINDOWS)
+def test_windows_keep_a_plane_and_a_band_limited_wave(window):
+    n, b = 32, 4
+    x = np.arange(n)
+    # a constant slope field, and a wave far below the cut-off, sampled at block centres
+    const = np.broadcast_to(np.array([0.1, -0.2]), (n, n, 2)).copy()
+    np.testing.assert_allclose(_studies.window_slopes(const, b, window), const[::b, ::b], atol=1e-12)
+    if window == "spectral":
+        k = 2 * np.pi / n
+        wave = np.zeros((n, n, 2))
+        wave[..., 0] = np.cos(k * x)[None, :]
+        centres = np.cos(k * (x[::b] + (b - 1) / 2))
+        np.testing.assert_allclose(_studies.window_slopes(wave, b, window)[0, :, 0], centres, atol=1e-12)
+
+
+def test_lattice_convolution_is_the_distribution_of_independent_sums():
+    rng = np.random.default_rng(0)
+    a = rng.integers(-3, 4, size=(800, 2))
+    c = rng.integers(-2, 3, size=(800, 2))
+    pa, pc = _studies.lattice_masses(a, 8), _studies.lattice_masses(c, 8)
+    # exact: the distribution of a + c over all pairs
+    pairs = (a[:, None, :] + c[None, :, :]).reshape(-1, 2)
+    np.testing.assert_allclose(_studies.convolve_masses(pa, pc), _studies.lattice_masses(pairs, 8), atol=1e-12)
+
+
+def test_consistency_smoke(tmp_path):
+    out = consistency.run(size=64, scales=[2, 8], surfaces=["gaussian", "blazed"], seed=0, out=tmp_path)
+    assert (tmp_path / "consistency.json").exists() and (tmp_path / "consistency.png").exists()
+    rec = {(r["surface"], r["window"], r["mu_px"]): r for r in out["records"]}
+    # Blazed grating (period 16, 12 px at +0.03, 4 px at −0.09), box facets of 8 px: by hand,
+    # p_∞ = {a: 3/4, −c: 1/4}, g = {0: 1/2, 2a: 1/4, a−c: 1/4}, s = {a: 1/2, −a: 1/2}, whose
+    # convolution shares no mass with p_∞ beyond 3/8 at a: TV = ½(3/8 + 1/8 + 1/4 + 1/8 + 1/8) = 1/2.
+    assert rec[("blazed", "box", 8)]["violation"] == pytest.approx(0.5, abs=1e-12)
+    assert rec[("blazed", "box", 2)]["violation"] == pytest.approx(0.0, abs=1e-12)  # pure facets
+    # Block means: within- and between-facet variances add up exactly (pooled cross term = 0).
+    r = rec[("gaussian", "box", 8)]
+    assert r["within_variance"] + r["between_variance"] == pytest.approx(r["total_variance"], rel=1e-12)
+    json.loads((tmp_path / "consistency.json").read_text())
+
+
+def test_evolution_accuracy_smoke(tmp_path):
+    out = evolution_accuracy.run(size=64, scales=[2], surfaces=["blazed"], seed=0, factors=(1.0,), out=tmp_path)
+    assert (tmp_path / "evolution_accuracy.json").exists() and (tmp_path / "lobe_slices.png").exists()
+    rec = {(r["mu_from"], r["mu_to"]): r for r in out["records"]}
+    # 2-px facets of the grating are pure, so s_2 is the global slope density and the finer
+    # lobe g_2 = δ: Eq. 4.4 gives G_∞ / S_2 = 1 exactly; the naive lobe (g_∞) misses entirely.
+    fine = rec[("∞", "2")]
+    assert fine["error_evolved_c1"] < 0.05
+    assert fine["error_naive"] > 1.5
+    for r in out["records"]:
+        assert all(math.isfinite(r[f"error_{m}"]) for m in ("naive", "second_moment", "evolved_c1"))
+
+
+def test_ray_marching_sees_a_wall():
+    heights = np.zeros((32, 32))
+    heights[:, 20:22] = 5.0  # a wall along y at x = 20, 21
+    x, y, z = np.array([10.5, 10.5]), np.array([5.5, 5.5]), np.array([1e-9, 1e-9])
+    towards = np.array([[math.cos(0.3), 0.0, math.sin(0.3)], [-math.cos(0.3), 0.0, math.sin(0.3)]])
+    # towards +x at 0.3 rad: height at the wall 9.5·tan(0.3) ≈ 2.9 < 5, blocked; −x: the wall
+    # is 20.5 px away through the periodic boundary (height 6.3 > 5), free.
+    assert validity.escapes(heights, x, y, z, towards).tolist() == [False, True]
+
+
+def test_validity_smoke(tmp_path):
+    out = validity.run(size=32, rms_slopes=[0.01, 0.3], angles_deg=[0.0, 60.0], seed=0, out=tmp_path)
+    rec = {(r["rms_slope_per_axis"], r["theta_i_deg"]): r for r in out["records"]}
+    # zero-mean slopes: the projected-area weights 1 + m·i_xy/i_z average to 1 exactly
+    assert rec[(0.01, 60.0)]["albedo_brute"] == pytest.approx(1.0, abs=1e-9)
+    # nearly flat at normal incidence: the model's weight o_z/(i_z cos θ_h) ≈ 1 − O(m²)
+    assert rec[(0.01, 0.0)]["error_vs_brute"] < 1e-3
+    assert rec[(0.3, 60.0)]["error_vs_brute_masked"] > rec[(0.01, 60.0)]["error_vs_brute_masked"]
+
+
+def test_camera_centre_ray_hits_the_plane_where_trigonometry_says():
+    cam = render_plane.Camera(40, 30)
+    p, _ = cam.hit(np.array([20.0]), np.array([15.0]))
+    dist = render_plane.CAMERA_HEIGHT / math.tan(math.radians(render_plane.PITCH_DEG))
+    np.testing.assert_allclose(p[0], [0.0, dist], atol=1e-12)
+    mu = render_plane.footprints(cam)
+    assert np.all(np.diff(mu[:, 20]) < 0)  # rows go down: the footprint shrinks towards the camera
+
+
+def test_render_plane_smoke(tmp_path):
+    out = render_plane.run(surface="scratched", size=64, width=24, height=16, alpha0=0.04, slope_scale=4.0,
+                           seed=0, out=tmp_path)
+    f = OpenEXR.File(str(tmp_path / "scratched.exr"))
+    channels = f.channels()
+    truth = channels["truth.Y"].pixels
+    assert truth.shape == (16, 24) and np.all(np.isfinite(truth)) and np.all(truth >= 0)
+    assert {"naive.Y", "second_moment.Y", "evolved.Y", "abs_error_evolved.Y"} <= set(channels)
+    table = exr.read_lobe_table(tmp_path / "scratched_lobes.exr")
+    assert list(table.scales) == out["levels_px"]
+    assert (tmp_path / "scratched.png").exists()
