@@ -77,8 +77,10 @@ def _draws(fit: FitResult, samples: SampleResult | None, rng, n=400):
     if samples is not None:
         flat = samples.samples
         return flat[rng.choice(flat.shape[0], size=min(n, flat.shape[0]), replace=False)]
-    chol = np.linalg.cholesky(fit.covariance + 1e-300 * np.eye(fit.theta.size)) if np.any(fit.covariance) else 0
-    return fit.theta + rng.standard_normal((n, fit.theta.size)) @ np.atleast_2d(chol).T
+    # Laplace draws; the covariance is singular along undetermined directions (they stay at θ̂)
+    lam, V = np.linalg.eigh(fit.covariance)
+    root = V * np.sqrt(np.clip(lam, 0, None))
+    return fit.theta + rng.standard_normal((n, fit.theta.size)) @ root.T
 
 
 def summarise(problem: Problem, fit: FitResult, samples: SampleResult | None, truth: dict | None) -> dict:
@@ -139,11 +141,10 @@ def _band(ax, W, curves, color, label):
 def _figure_statistics(path, problem: Problem, fit: FitResult, draws, truth: dict | None):
     data, model = problem.data, problem.model
     scales = np.asarray(data.scales)
-    q = model.quantities(jnp.asarray(fit.theta))
-    width = float(q["alpha_lobe"]) if "alpha_lobe" in q else 0.05
-    W = jnp.linspace(0.0, 8.0 / width, 200)
-    relative = np.asarray(jax.vmap(lambda t: model.relative_statistics(t, W, data))(jnp.asarray(draws)))
     absolute = isinstance(model, ParametricModel)
+    w_max = 8.0 / float(model.quantities(jnp.asarray(fit.theta))["alpha_lobe"]) if absolute else model.knots[-1]
+    W = jnp.linspace(0.0, w_max, 200)
+    relative = np.asarray(jax.vmap(lambda t: model.relative_statistics(t, W, data))(jnp.asarray(draws)))
     fig, axes = plt.subplots(1, 2 if absolute else 1, figsize=(11 if absolute else 6, 4), squeeze=False)
     colors = plt.cm.viridis(np.linspace(0, 0.9, len(scales)))
     true_theta = _complete_theta(model, truth) if absolute else None

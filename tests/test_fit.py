@@ -78,6 +78,18 @@ def test_models_refuse_bad_configurations():
         fitting.fit(fitting.ParametricModel(), data, solver="newton")
 
 
+def test_gaussian_surface_law_quadrature_is_converged():
+    """The model's cheap quadrature (128 × 32 nodes) against the library's at 2048 × 128."""
+    from brdfscale import stats
+
+    model = fitting.ParametricModel(law="gaussian_surface")
+    theta = jnp.asarray(model.theta_from(dict(amplitude=1.0, alpha_lobe=0.01, rms_height=0.05, correlation_length=8.0)))
+    fine = stats.GaussianSurface(stats.GaussianCorrelation(0.05, 8.0), window="box", n_k=2048, n_phi=128)
+    for mu in (2.0, 8.0, 32.0):
+        ref = np.asarray(fine.slope_covariance(mu))
+        np.testing.assert_allclose(model.statistics_at(theta, mu).cov, ref, rtol=0, atol=1e-10 * ref[0, 0])
+
+
 # -- recovery ------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("truth", TRUTHS)

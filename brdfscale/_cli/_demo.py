@@ -30,7 +30,7 @@ def register(subparsers) -> None:
     parser.add_argument("--out", default="brdfscale-demo", help="output directory (default ./brdfscale-demo)")
     parser.add_argument("--source", choices=("synth", "model"), default="synth",
                         help="synth: height-field simulation (default); model: the fit model plus noise")
-    parser.add_argument("--steps", type=int, default=1500, help="emcee steps (default 1500)")
+    parser.add_argument("--steps", type=int, default=1000, help="emcee steps (default 1000, 16 walkers)")
     parser.add_argument("--seed", type=int, default=1, help="seed of surface, noise and sampler (default 1)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--force", action="store_true", help="overwrite an existing demo output")
@@ -64,7 +64,7 @@ def run(args) -> int:
     mset = exr.read_measurements(path)
     print("[3/4] fitting and sampling")
     options = argparse.Namespace(out=args.out, model="parametric", family="beckmann", fix=[], solver="lm", starts=4,
-                                 steps=args.steps, walkers=None, seed=args.seed, no_progress=args.no_progress,
+                                 steps=args.steps, walkers=16, seed=args.seed, no_progress=args.no_progress,
                                  force=args.force, default_sigma=None, law="gaussian_surface")
     doc = fit_measurements(mset, options)
     print(f"[4/4] report in {args.out}/ (fit.json, data_vs_fit.png, statistics.png, corner.png)")
