@@ -2,7 +2,6 @@
 
 from typing import Literal
 
-import jax.numpy as jnp
 
 from .._errors import InvalidInputError, MethodNotApplicableError
 from .._validation import as_float_array, is_concrete

@@ -62,6 +62,12 @@ def check_slopes(m, name: str = "m"):
     return last_axis(m, 2, name)
 
 
+def centred(m, offset, name: str = "m"):
+    """Validated slopes ``m`` (..., 2) relative to ``offset`` (None: the origin)."""
+    d = check_slopes(m, name)
+    return d if offset is None else d - offset
+
+
 def phase(W, offset):
     """``e^{−i W·offset}``, the transform of a shift by ``offset`` (1 when offset is None)."""
     if offset is None:

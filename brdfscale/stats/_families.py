@@ -5,12 +5,12 @@ import math
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Complex, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import InvalidInputError, SingularDensityError
 from .._special import jinc, xk1
 from .._validation import as_float_array, is_concrete, positive, vector2
-from ._base import AbstractSlopeDensity, add_offset, check_slopes, offset_norm, phase, shifted_cf
+from ._base import AbstractSlopeDensity, add_offset, centred, check_slopes, offset_norm, phase, shifted_cf
 
 
 def _per_axis(value, value_x, value_y, name: str):
@@ -116,9 +116,7 @@ class Gaussian(AbstractSlopeDensity):
         self.isotropic = isotropic and mean is None
 
     def density(self, m):
-        d = check_slopes(m, "m")
-        if self.mean is not None:
-            d = d - self.mean
+        d = centred(m, self.mean)
         a, b, c = self.cov[..., 0, 0], self.cov[..., 0, 1], self.cov[..., 1, 1]
         det = a * c - b**2
         quad = (c * d[..., 0] ** 2 - 2 * b * d[..., 0] * d[..., 1] + a * d[..., 1] ** 2) / det
@@ -179,9 +177,7 @@ class GGX(AbstractSlopeDensity):
         self.isotropic = isotropic and mean is None
 
     def density(self, m):
-        d = check_slopes(m, "m")
-        if self.mean is not None:
-            d = d - self.mean
+        d = centred(m, self.mean)
         x2 = jnp.sum((d / self.alpha) ** 2, axis=-1)
         return 1.0 / (jnp.pi * self.alpha[..., 0] * self.alpha[..., 1] * (1 + x2) ** 2)
 
@@ -218,9 +214,7 @@ class Disk(AbstractSlopeDensity):
         self.isotropic = mean is None
 
     def density(self, m):
-        d = check_slopes(m, "m")
-        if self.mean is not None:
-            d = d - self.mean
+        d = centred(m, self.mean)
         inside = jnp.sum(d**2, axis=-1) < self.radius**2
         return jnp.where(inside, 1.0 / (jnp.pi * self.radius**2), 0.0)
 

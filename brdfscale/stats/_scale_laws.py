@@ -12,12 +12,10 @@ cut-off and Σ → 0: s(·, μ→∞) → δ, the consistency boundary condition
 """
 
 import abc
-import math
 from typing import Callable, Literal
 
 import equinox as eqx
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import InvalidInputError

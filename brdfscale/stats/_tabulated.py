@@ -5,11 +5,11 @@ import math
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float
+from jaxtyping import Array, Float
 
 from .._errors import InvalidInputError
 from .._validation import as_float_array, is_concrete, positive, vector2
-from ._base import AbstractSlopeDensity, add_offset, check_slopes, offset_norm, phase
+from ._base import AbstractSlopeDensity, add_offset, centred, check_slopes, offset_norm, phase
 
 
 def _sinc(x):
@@ -86,9 +86,7 @@ class Tabulated(AbstractSlopeDensity):
         return (jnp.linspace(-1.0, 1.0, nx) * self.extent[0], jnp.linspace(-1.0, 1.0, ny) * self.extent[1])
 
     def density(self, m):
-        d = check_slopes(m, "m")
-        if self.center is not None:
-            d = d - self.center
+        d = centred(m, self.center)
         ny, nx = self.values.shape
         h = self.spacing
         g = (d + self.extent) / h
