@@ -2,7 +2,6 @@
 
 from typing import Literal
 
-
 from .._errors import InvalidInputError, MethodNotApplicableError
 from .._validation import as_float_array, is_concrete
 from ..lobes import AbstractLobe, Lobe
