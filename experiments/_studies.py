@@ -28,11 +28,14 @@ def study_dir(study: str, out: str | os.PathLike | None = None) -> Path:
     return path
 
 
-def _atomic(path: Path, write) -> Path:
+def atomic_write(path: Path, write) -> Path:
+    """Call ``write(tmp)`` on a temporary file next to ``path``, then move it into place
+    (readers never see a partial file); the file gets mode 0644 like a plain ``open``."""
     fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp" + path.suffix)
     os.close(fd)
     try:
         write(tmp)
+        os.chmod(tmp, 0o644)
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
@@ -50,7 +53,7 @@ def write_results(directory: Path, name: str, payload: dict) -> Path:
             json.dump(payload, f, indent=2)
             f.write("\n")
 
-    return _atomic(directory / f"{name}.json", write)
+    return atomic_write(directory / f"{name}.json", write)
 
 
 def save_figure(fig, path: Path) -> Path:
@@ -60,7 +63,7 @@ def save_figure(fig, path: Path) -> Path:
     def write(tmp):
         fig.savefig(tmp, dpi=110, bbox_inches="tight", format=path.suffix[1:])
 
-    _atomic(path, write)
+    atomic_write(path, write)
     plt.close(fig)
     return path
 

@@ -34,9 +34,7 @@ Writes experiments/results/render_plane/<surface>.{json,exr,png} and <surface>_l
 
 import argparse
 import math
-import os
 import sys
-import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -49,6 +47,7 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np
 import OpenEXR
 from _studies import (
+    atomic_write,
     gaussian_density,
     node_grid,
     pixel_slopes,
@@ -71,6 +70,7 @@ VFOV_DEG = 32.0
 LIGHT_ELEVATION_DEG = 8.0
 MAX_SUPERSAMPLING = 48
 LOBE_NODES = 129
+EVOLVE_GRID = 256
 LAMBDA_FACTOR = 3.0
 METHODS = ("naive", "second_moment", "evolved")
 
@@ -180,7 +180,7 @@ def level_lobes(field, alpha0: float, levels: list[int]) -> dict:
         lam = 0.0 if b == 1 else LAMBDA_FACTOR / math.sqrt(sb.count)
         for _ in range(8):
             try:
-                lobe = bs.evolve(lobes.Beckmann(alpha0), s1, sb.slopes, method="grid", size=256, regularisation=lam)
+                lobe = bs.evolve(lobes.Beckmann(alpha0), s1, sb.slopes, method="grid", size=EVOLVE_GRID, regularisation=lam)
                 values = np.asarray(lobe.density(u))
                 break
             except bs.NoBRDFAtScaleError:
@@ -245,14 +245,7 @@ def write_exr(path: Path, images: dict) -> None:
     """All images (and |error| maps) as channels ``<name>.Y`` of one float32 EXR, atomically."""
     channels = {f"{k}.Y": np.ascontiguousarray(v, dtype=np.float32) for k, v in images.items()}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".exr.tmp")
-    os.close(fd)
-    try:
-        OpenEXR.File(header, channels).write(tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+    atomic_write(path, lambda tmp: OpenEXR.File(header, channels).write(tmp))
 
 
 def run(*, surface: str, size: int, width: int, height: int, alpha0: float, slope_scale: float, seed: int,

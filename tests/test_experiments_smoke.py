@@ -68,7 +68,8 @@ def test_consistency_smoke(tmp_path):
     json.loads((tmp_path / "consistency.json").read_text())
 
 
-def test_evolution_accuracy_smoke(tmp_path):
+def test_evolution_accuracy_smoke(tmp_path, monkeypatch):
+    monkeypatch.setattr(evolution_accuracy, "BINS", 33)
     out = evolution_accuracy.run(size=64, scales=[2], surfaces=["blazed"], seed=0, factors=(1.0,), out=tmp_path)
     assert (tmp_path / "evolution_accuracy.json").exists() and (tmp_path / "lobe_slices.png").exists()
     rec = {(r["mu_from"], r["mu_to"]): r for r in out["records"]}
@@ -110,7 +111,9 @@ def test_camera_centre_ray_hits_the_plane_where_trigonometry_says():
     assert np.all(np.diff(mu[:, 20]) < 0)  # rows go down: the footprint shrinks towards the camera
 
 
-def test_render_plane_smoke(tmp_path):
+def test_render_plane_smoke(tmp_path, monkeypatch):
+    monkeypatch.setattr(render_plane, "LOBE_NODES", 33)
+    monkeypatch.setattr(render_plane, "EVOLVE_GRID", 64)
     out = render_plane.run(surface="scratched", size=64, width=24, height=16, alpha0=0.04, slope_scale=4.0,
                            seed=0, out=tmp_path)
     f = OpenEXR.File(str(tmp_path / "scratched.exr"))
