@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 from _bench import RESULTS, machine
 
+import brdfscale as bs
+
 WINDOWS = ("box", "gaussian", "spectral")
 """Facet windows: the b×b block mean (the library's), a Gaussian of the box's second moment
 (σ = b/√12 per axis, centred on the block) and an ideal low-pass (|k_x|, |k_y| < π/b)."""
@@ -195,3 +197,28 @@ def second_moment_covariance(lobe_cov, s_from_cov, s_to_cov, floor: float) -> tu
     w, v = np.linalg.eigh(cov)
     clipped = bool(np.any(w < floor**2))
     return (v * np.maximum(w, floor**2)) @ v.T, clipped
+
+
+# -- the evolution with a regularisation the library accepts -------------------------------------
+
+LAMBDA_STEP = 3.0
+LAMBDA_TRIES = 8
+
+
+def evolve_accepted(lobe, s_from, s_to, evaluate, *, regularisation: float, size: int):
+    """``evaluate(brdfscale.evolve(lobe, s_from, s_to, "grid", size=size, regularisation=λ))``
+    with the smallest λ of the ladder ``λ0, 3λ0, 9λ0, …`` (``1e-3, 3e-3, …`` after λ0 = 0)
+    for which the library finds a non-negative lobe.
+
+    Tabulated statistics are noisy, so the quotient ``G S_from / S_to`` can exceed 1 in
+    modulus and :func:`brdfscale.evolve` refuses it (:class:`brdfscale.NoBRDFAtScaleError`,
+    raised when the lobe is evaluated). Returns ``(evaluate(...), λ, refusals)``.
+    """
+    lam = float(regularisation)
+    for attempt in range(LAMBDA_TRIES):
+        try:
+            evolved = bs.evolve(lobe, s_from, s_to, method="grid", size=size, regularisation=lam)
+            return evaluate(evolved), lam, attempt
+        except bs.NoBRDFAtScaleError:
+            lam = LAMBDA_STEP * lam if lam > 0 else 1e-3
+    raise bs.NoBRDFAtScaleError(f"no non-negative lobe up to λ = {lam / LAMBDA_STEP:g}")

@@ -43,6 +43,7 @@ jax.config.update("jax_enable_x64", True)
 
 import numpy as np
 from _studies import (
+    evolve_accepted,
     gaussian_density,
     l1_error,
     node_grid,
@@ -54,7 +55,6 @@ from _studies import (
     write_results,
 )
 
-import brdfscale as bs
 from brdfscale import lobes, stats, synth
 from brdfscale.stats import SlopeHistogram
 
@@ -62,8 +62,6 @@ BINS = 65
 MAX_GRID = 512
 RESOLUTION_NODES = 2.0
 LAMBDA_FACTORS = (1.0, 3.0)
-LAMBDA_STEP = 3.0
-LAMBDA_TRIES = 8
 NON_GAUSSIAN = ("scratched", "blazed")
 
 
@@ -108,15 +106,13 @@ def evolved(source: Scale, target: Scale, factor: float) -> tuple[np.ndarray, fl
     radius = float(source.lobe.support_radius(0.0) + source.slopes.support_radius(0.0))
     step = 2 * target.extent / (BINS - 1)
     size = int(min(MAX_GRID, 2 ** math.ceil(math.log2(2 * radius / step))))
-    for attempt in range(LAMBDA_TRIES):
-        try:
-            lobe = bs.evolve(lobes.Lobe(source.lobe), source.slopes, target.slopes, method="grid", size=size,
-                             regularisation=lam)
-            nodes, values = (np.asarray(a) for a in lobe.shape.on_grid())
-            return deposit(nodes, values, target.extent), lam, attempt
-        except bs.NoBRDFAtScaleError:
-            lam = LAMBDA_STEP * lam if lam > 0 else 1e-3
-    raise bs.NoBRDFAtScaleError(f"no lobe up to λ = {lam}")
+
+    def on_target_nodes(lobe):
+        nodes, values = (np.asarray(a) for a in lobe.shape.on_grid())
+        return deposit(nodes, values, target.extent)
+
+    return evolve_accepted(lobes.Lobe(source.lobe), source.slopes, target.slopes, on_target_nodes,
+                           regularisation=lam, size=size)
 
 
 def deposit(nodes: np.ndarray, values: np.ndarray, extent: float) -> np.ndarray:

@@ -48,6 +48,7 @@ import numpy as np
 import OpenEXR
 from _studies import (
     atomic_write,
+    evolve_accepted,
     gaussian_density,
     node_grid,
     pixel_slopes,
@@ -60,7 +61,6 @@ from _studies import (
 )
 from scipy import ndimage
 
-import brdfscale as bs
 from brdfscale import exr, geometry, lobes, stats, synth
 
 TEXEL = 0.01
@@ -178,15 +178,8 @@ def level_lobes(field, alpha0: float, levels: list[int]) -> dict:
         _, covb = tabulated_moments(np.asarray(sb.slopes.values), float(sb.slopes.extent[0]))
         cov, _ = second_moment_covariance(np.eye(2) * alpha0**2 / 2, cov1, covb, h / 4)
         lam = 0.0 if b == 1 else LAMBDA_FACTOR / math.sqrt(sb.count)
-        for _ in range(8):
-            try:
-                lobe = bs.evolve(lobes.Beckmann(alpha0), s1, sb.slopes, method="grid", size=EVOLVE_GRID, regularisation=lam)
-                values = np.asarray(lobe.density(u))
-                break
-            except bs.NoBRDFAtScaleError:
-                lam *= 3
-        else:
-            raise bs.NoBRDFAtScaleError(f"no evolved lobe at b = {b} up to λ = {lam}")
+        values, lam, _ = evolve_accepted(lobes.Beckmann(alpha0), s1, sb.slopes, lambda lobe: np.asarray(lobe.density(u)),
+                                         regularisation=lam, size=EVOLVE_GRID)
         tables.append(values)
         records.append({"level_px": b, "lambda": lam, "evolved_min_over_peak": float(values.min() / values.max()),
                         "second_moment_cov": cov.tolist(), "facets": sb.count})
