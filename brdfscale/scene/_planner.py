@@ -8,8 +8,8 @@ Per material, on the distinct (offset u = m_s − m∞, scale μ) pairs its quer
 2. **Error budget** — the target ``tol`` (relative to the lobe's peak at each scale) is split
    into three quarters: spectral truncation (the frequency cut-off K or the grid's extent),
    interpolation in u (or r), interpolation in log μ. The last quarter is margin.
-3. **Sizes from a-priori bounds** — radial: K from the evolved transform's decay
-   (``|G| ≤ tol/4`` beyond K), Gauss–Legendre nodes from K and the largest queried radius,
+3. **Sizes from a-priori bounds** — radial: K from the truncation bound
+   ``(2π)⁻¹ ∫_K^∞ |G| k dk ≤ (tol/4) g(0)``, Gauss–Legendre nodes from K and the largest queried radius,
    and the radius spacing from the cubic-interpolation bound
    ``|error| ≤ (9/16)/4! · h⁴ max|g⁗|`` with ``max|g⁗| ≤ (2π)⁻¹ ∫|G| k⁵ dk``; grid: the side
    from the bandwidth and support radius (:func:`brdfscale._evolve._spectral.choose_size`),
@@ -38,7 +38,6 @@ import scipy.special
 from .._errors import InvalidInputError, MethodNotApplicableError, NoBRDFAtScaleError
 from .._evolve import evolve
 from .._evolve._spectral import EvolvedDensity, choose_size, radial_nodes
-from .._quadrature import gauss_legendre
 from ..geometry import half_slope, microfacet_factor
 from . import _cost
 from ._description import Material, Scene
@@ -52,7 +51,8 @@ _NODES_PER_DECADE = 8
 _MAX_SCALE_NODES = 2049
 _MAX_GRID = 1024
 _DIRECT_MEMORY = 2e7  # largest (distinct queries × nodes) kernel kept for direct evaluation
-_EXACT_SCALES = 4  # at most this many distinct μ are always evaluated exactly
+_EXACT_SCALES = 4
+_TABLE_OVERSAMPLING = 4  # at most this many distinct μ are always evaluated exactly
 
 
 def plan(scene: Scene, method: str = "auto") -> Plan:
@@ -145,7 +145,7 @@ def _scale_nodes(log_mu, tables, budget):
 @functools.lru_cache(maxsize=32)
 def _hankel_kernel(K: float, n_k: int, radii: tuple | None, h_r: float, n_r: int):
     """``w_k k J₀(k r)/2π`` for radii on the grid ``(j − 3) h_r`` (or given radii): cached."""
-    x, w = gauss_legendre(n_k)
+    x, w = scipy.special.roots_legendre(n_k)  # O(n) (NumPy's leggauss is O(n²) and slow beyond ~500)
     k = 0.5 * (x + 1) * K
     wk = 0.5 * K * w
     r = np.asarray(radii) if radii is not None else (np.arange(n_r) - 3) * h_r
@@ -165,15 +165,19 @@ def _plan_radial(material, u, log_mu, tol):
     r_max = float(radius.max())
     distinct = np.unique(log_mu)
     probe = distinct if len(distinct) <= 64 else np.linspace(distinct[0], distinct[-1], 64)
-    # |G| ≤ budget beyond K: probe log-spaced frequencies scaled to the lobe's extent (as
-    # EvolvedDensity.bandwidth does), all probe scales in one call
+    # K from the tail bound |g(r) − g_K(r)| ≤ (2π)⁻¹ ∫_K^∞ |G| k dk ≤ budget · g(0), on
+    # log-spaced probe frequencies scaled to the lobe's extent, all probe scales in one call
     extent = float(_evolved(material, np.exp(probe[0]), "radial", 64, budget).support_radius(budget))
-    k_probe = np.logspace(-2, 5, 281) / max(extent, 1e-12)
-    above = np.any(np.abs(_radial_transform_rows(material, probe, k_probe, budget)) > budget, axis=0)
-    K = float(k_probe[min(np.flatnonzero(above).max() + 1 if above.any() else 0, len(k_probe) - 1)])
+    k_probe = np.logspace(-3, 5, 801) / max(extent, 1e-12)
+    G = _radial_transform_rows(material, probe, k_probe, budget)
+    integrand = np.abs(G) * k_probe**2 * np.log(k_probe[1] / k_probe[0])  # |G| k dk in d(log k)
+    tail = np.cumsum(integrand[:, ::-1], axis=1)[:, ::-1]
+    peak = np.abs(np.sum(G * k_probe**2, axis=1) * np.log(k_probe[1] / k_probe[0]))
+    inside = np.all(tail <= budget * peak[:, None], axis=0)
+    K = float(k_probe[np.argmax(inside)] if inside.any() else k_probe[-1])
     n_k = radial_nodes(K, r_max)
     k, _ = _hankel_kernel(K, n_k, None, 1.0, 1)
-    x, w = gauss_legendre(n_k)
+    _, w = scipy.special.roots_legendre(n_k)
     wk = 0.5 * K * w
     G = _radial_transform_rows(material, probe, k, budget)
     peak = np.abs(G) @ (wk * k) / (2 * np.pi)
@@ -213,35 +217,58 @@ def _plan_grid(material, u, log_mu, tol):
     for t in probe:
         n, honoured = choose_size(_evolved(material, np.exp(t), "grid", 256, budget), "grid", _MAX_GRID)
         size, achieved = max(size, n), max(achieved, honoured)
+    n_q, half = len(u), size // 2 + 1
+    direct_seconds = _cost.seconds(3 * len(distinct) * size * half, 4 * n_q * len(distinct) * size * half)
+    # a table needs cubic interpolation between its nodes: typically 4× the Nyquist grid
+    big = _TABLE_OVERSAMPLING * size
+    table_guess = _cost.seconds(3 * len(distinct) * big * (big // 2 + 1),
+                                len(distinct) * _cost.fft2_multiply_adds(big) + 128 * n_q)
+    if len(distinct) <= 16 and n_q * size * 2 <= _DIRECT_MEMORY and direct_seconds <= table_guess:
+        return _plan_grid_direct(material, u, log_mu, size, achieved, direct_seconds)
 
     def tables(n, t):
-        step = GridStep(jnp.zeros((1, 2)), jnp.zeros(1), _padded(t), n, True, achieved)
+        step = GridStep(jnp.zeros((1, 2)), jnp.zeros(1), _padded(t), None, None, n, True, achieved)
         return np.asarray(_grid_tables(step, material))[: len(t)]
 
     ends = np.array([distinct[0], distinct[-1]]) if len(distinct) > 1 else distinct
-    u_error = np.inf
     while True:
-        coarse, fine = np.asarray(tables(size, ends)), np.asarray(tables(2 * size, ends))
+        coarse, fine = tables(size, ends), tables(2 * size, ends)
         odd = np.arange(1, 2 * size - 1, 2) / 2
         Y, X = np.meshgrid(odd, odd, indexing="ij")
-        pos = np.stack([Y.ravel(), X.ravel()], -1)
+        pos = jnp.asarray(np.stack([Y.ravel(), X.ravel()], -1))
         errors = []
         for c, f in zip(coarse, fine):
-            guess = np.asarray(_interpolate(jnp.asarray(c), jnp.asarray(pos)))
+            guess = np.asarray(_interpolate(jnp.asarray(c), pos))
             errors.append(np.max(np.abs(guess - f[1::2, 1::2][: len(odd), : len(odd)].ravel())) / np.max(f))
         u_error = float(max(errors))
         if u_error <= budget or 2 * size > _MAX_GRID:
             break
         size *= 2
     nodes, exact, mu_error = _scale_nodes(log_mu, lambda t: tables(size, t), budget)
-    n_s, n_q = len(nodes), len(u)
+    n_s = len(nodes)
     seconds = _cost.seconds(3 * n_s * size * (size // 2 + 1), n_s * _cost.fft2_multiply_adds(size) + 128 * n_q)
-    step = GridStep(jnp.asarray(u), jnp.asarray(log_mu), jnp.asarray(nodes), size, exact, achieved)
+    step = GridStep(jnp.asarray(u), jnp.asarray(log_mu), jnp.asarray(nodes), None, None, size, exact, achieved)
     scales = f"{n_s} distinct scales" if exact else f"{n_s} log-μ nodes ({np.exp(nodes[0]):.3g}–{np.exp(nodes[-1]):.3g})"
     relaxed = "" if achieved <= budget else f" (grid capped at {_MAX_GRID}: truncation {achieved:.1g})"
     details = f"{size}×{size} FFT grid per scale node{relaxed}; {scales}; cubic in (log μ, u_y, u_x)"
     return (step, "grid", "lobe or statistics not radially symmetric; no closed form",
             achieved + u_error + mu_error, seconds, details)
+
+
+def _plan_grid_direct(material, u, log_mu, size, achieved, seconds):
+    """Few queries: the inverse DFT summed at the queries, phases frozen (no interpolation)."""
+    nodes = np.unique(log_mu)
+    h, _ = _evolved(material, np.exp(nodes[0]), "grid", size, achieved).grid_spacing()
+    h = float(h)
+    fy = np.fft.fftfreq(size) * (2 * np.pi / h)
+    fx = np.fft.rfftfreq(size) * (2 * np.pi / h)
+    W = np.stack(np.broadcast_arrays(fx[None, :], fy[:, None]), -1)
+    phases = (jnp.asarray(np.exp(1j * u[:, 1, None] * fy[None, :])), jnp.asarray(np.exp(1j * u[:, 0, None] * fx[None, :])))
+    step = GridStep(jnp.asarray(u), jnp.asarray(log_mu), jnp.asarray(nodes), phases, jnp.asarray(W), size, True, achieved)
+    details = (f"{size}×{size} frequency grid per scale; {len(nodes)} distinct scales; inverse DFT summed at the "
+               f"{len(u)} query offsets (no interpolation)")
+    return (step, "grid", "lobe or statistics not radially symmetric; no closed form; few queries", achieved, seconds,
+            details)
 
 
 def _padded(nodes):

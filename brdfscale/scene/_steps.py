@@ -106,15 +106,20 @@ class RadialStep(eqx.Module):
 
 
 class GridStep(eqx.Module):
-    """2D-FFT grid path at each scale node (side ``size``), cubic interpolation in (log μ, u).
+    """2D-FFT grid path at each scale node (side ``size``).
 
-    Offsets outside the grid's half-width ``a`` (where the lobe is below ``tol`` of its peak by
-    the statistics' support radius) evaluate to 0.
+    Table mode: the lobe on the grid by one inverse FFT per scale node, cubic interpolation in
+    (log μ, u_y, u_x); offsets outside the grid's half-width ``a`` (where the lobe is below
+    ``tol`` of its peak by the statistics' support radius) evaluate to 0. Direct mode (few
+    queries, exact scales): the same inverse DFT summed at the query offsets, with the
+    frequency grid and the per-query phase factors ``e^{iW·u}`` frozen at planning time.
     """
 
     u: Float[Array, "n 2"]
     log_mu: Float[Array, " n"]
     nodes: Float[Array, " s"]
+    phases: tuple[Array, Array] | None  # direct mode: e^{i u_y W_y} (n, N), e^{i u_x W_x} (n, N/2+1)
+    frequencies: Float[Array, "N N/2+1 2"] | None
     size: int = eqx.field(static=True)
     exact_scales: bool = eqx.field(static=True)
     tol: float = eqx.field(static=True)
@@ -127,12 +132,25 @@ class GridStep(eqx.Module):
         return jax.vmap(lambda t: self.densities(material, jnp.exp(t)).on_grid()[1])(self.nodes)
 
     def __call__(self, material: Material) -> Float[Array, " n"]:
-        h, a = self.densities(material, jnp.exp(self.nodes[0])).grid_spacing()
         s = _scale_position(self.log_mu, self.nodes, self.exact_scales)
+        if self.phases is not None:
+            return self._direct(material, s.astype(int)) * material.lobe.amplitude
+        h, a = self.densities(material, jnp.exp(self.nodes[0])).grid_spacing()
         pos = (self.u[:, ::-1] + a) / h  # (y, x) index positions
         inside = jnp.all((pos >= 0) & (pos <= self.size - 1), axis=-1)
         values = interpolate(self.table(material), jnp.concatenate([s[:, None], pos], -1))
         return jnp.where(inside, values, 0.0) * material.lobe.amplitude
+
+    def _direct(self, material, s):
+        W = self.frequencies
+        G = jax.vmap(lambda t: self.densities(material, jnp.exp(t)).cf(W))(self.nodes)  # (s, N, N/2+1)
+        G = eqx.error_if(G, jnp.max(jnp.abs(G)) > 1 + _CF_EXCESS, _NO_BRDF)
+        nx = W.shape[1]
+        half = jnp.where((jnp.arange(nx) == 0) | (2 * jnp.arange(nx) == self.size), 1.0, 2.0)
+        ey, ex = self.phases
+        total = jnp.einsum("qy,syx,qx->qs", ey, G * half, ex)
+        dW = W[0, 1, 0] - W[0, 0, 0]
+        return jnp.real(jnp.take_along_axis(total, s[:, None], axis=1)[:, 0]) * dW**2 / (2 * jnp.pi) ** 2
 
 
 Step = ClosedFormStep | RadialStep | GridStep

@@ -1,0 +1,456 @@
+"""Run time versus error of every evolution path, where the planner lands, and a rendering workload.
+
+Reference problems (each a material evaluated at a few scales μ and offsets u, with an answer
+computed independently of brdfscale's evolution code):
+
+* ``closed_form``   — Beckmann lobe, Beckmann statistics: Gaussian variances add (exact);
+* ``beckmann_ggx``  — Beckmann lobe, GGX statistics: Hankel integral by SciPy Gauss–Legendre
+  quadrature with SciPy's K₁, J₀ (checked against mpmath at one point per scale);
+* ``skewed_mixture`` — Beckmann lobe, skewed zero-mean two-Gaussian statistics: the 2D inverse
+  Fourier integral by a tensor Gauss–Legendre rule in NumPy;
+* ``disk``          — Beckmann lobe, statistics that dilute a uniform disk of slopes with flat
+  facets (``f Disk + (1 − f) δ``): Hankel integral by SciPy quadrature (and mpmath).
+
+For each problem every path's accuracy knobs are swept — ``evolve(..., method, size, tol)``
+for the radial (Gauss–Legendre nodes × cut-off tolerance) and grid (side × tolerance) paths,
+and the closed form where it applies — recording (time, max error relative to the lobe's peak
+at each scale) and the Pareto front; then the planner (:func:`brdfscale.scene.plan`) at
+several error targets, with the ratio of its time to the Pareto-optimal time at the error
+it reaches.
+
+Workload: a camera looking at a checkerboard plane receding to the horizon (two materials:
+Beckmann lobe with GGX statistics, and with Beckmann statistics), μ from the pixel footprint.
+Planner (plan + jit-compiled evaluation) versus naive per-pixel grid evaluation (the
+library's ``evolve(..., method="grid", tol)`` at each pixel's own μ, its ``density`` at the
+pixel's offset; timed on a random sample of pixels and extrapolated to the image, lobe
+construction and size choice not counted). Errors against a per-pixel SciPy Hankel reference.
+
+Run: ``python experiments/bench_planner.py`` (``--quick`` for the smoke version) →
+experiments/results/bench_planner.json and bench_planner_*.png.
+"""
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+import equinox as eqx  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+import scipy.special as sp  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(1, str(Path(__file__).resolve().parent.parent))
+from _bench import RESULTS, best_time, machine, write_json  # noqa: E402
+
+import brdfscale as bs  # noqa: E402
+from brdfscale import lobes, scene, stats  # noqa: E402
+from brdfscale.geometry import microfacet_factor, slope_to_direction  # noqa: E402
+
+LOBE_ALPHA = 0.05
+MU0 = 1e-4
+WIDTH = stats.WidthLaw(0.2, 1e-3, 0.5)  # α(μ) of the statistics
+
+
+# -- statistics families for the reference problems -----------------------------------------------
+SKEW = (0.7, 0.3)  # weights; means ±: 0.7·d1 + 0.3·d2 = 0
+
+
+def skewed(alpha):
+    """Zero-mean skewed mixture: 70 % Beckmann(α) at +0.3α, 30 % Beckmann(1.5α) at −0.7α (x)."""
+    alpha = jnp.asarray(alpha)
+    d1 = jnp.stack([0.3 * alpha, 0.0 * alpha])
+    d2 = jnp.stack([-0.7 * alpha, 0.0 * alpha])
+    return stats.Mixture(jnp.array(SKEW), [stats.Beckmann(alpha, mean=d1), stats.Beckmann(1.5 * alpha, mean=d2)])
+
+
+def disk_fraction(alpha):
+    """f(μ) of the diluted-disk statistics, from the width law: f = (α/α_max)²."""
+    return (alpha / WIDTH.alpha_max) ** 2
+
+
+def diluted_disk(alpha):
+    """``f Disk(r) + (1 − f) δ``: a fraction f of facets in pits with slopes uniform in a disk of
+    radius r = 0.1, the rest flat; f = (α/α_max)² falls with the scale."""
+    f = disk_fraction(jnp.asarray(alpha))
+    return stats.Mixture(jnp.stack([f, 1 - f]), [stats.Disk(0.1), stats.Delta()])
+
+
+def material(kind):
+    family = {"closed_form": stats.Beckmann, "beckmann_ggx": stats.GGX, "skewed_mixture": skewed,
+              "disk": diluted_disk}[kind]
+    return scene.Material(lobes.Beckmann(LOBE_ALPHA), MU0, stats.ScaledFamily(family, WIDTH))
+
+
+def alpha(mu):
+    return float(WIDTH(mu))
+
+
+# -- independent references --------------------------------------------------------------------------
+def _xk1(x):
+    """x K₁(x) by SciPy (1 at 0), computed as x k1e(x) e^{−x}."""
+    x = np.asarray(x, float)
+    safe = np.where(x > 0, x, 1.0)
+    return np.where(x > 0, safe * sp.k1e(safe) * np.exp(-safe), 1.0)
+
+
+def _radial_transform(kind, mu, k):
+    a0, a1 = alpha(MU0), alpha(mu)
+    lobe = np.exp(-(LOBE_ALPHA * k) ** 2 / 4)
+    if kind == "beckmann_ggx":
+        # ratio x0 K1(x0) / (x1 K1(x1)) with the exponentials combined (no underflow)
+        x0, x1 = a0 * k, a1 * k
+        s0 = np.where(x0 > 0, x0 * sp.k1e(np.where(x0 > 0, x0, 1)), 1.0)
+        s1 = np.where(x1 > 0, x1 * sp.k1e(np.where(x1 > 0, x1, 1)), 1.0)
+        return lobe * s0 / s1 * np.exp(-(x0 - x1))
+    if kind == "disk":
+        def S(a):
+            f = (a / float(WIDTH.alpha_max)) ** 2
+            x = 0.1 * k
+            jinc = np.where(x > 0, 2 * sp.j1(np.where(x > 0, x, 1)) / np.where(x > 0, x, 1), 1.0)
+            return f * jinc + (1 - f)
+        return lobe * S(a0) / S(a1)
+    raise ValueError(kind)
+
+
+def hankel_reference(kind, mu, r, nodes=4096):
+    """``g(r) = (2π)⁻¹ ∫ G(k) J₀(kr) k dk`` by Gauss–Legendre on [0, K] (G < 1e-17 beyond K)."""
+    K = math.sqrt(4 * math.log(1e17)) / LOBE_ALPHA
+    x, w = sp.roots_legendre(nodes)
+    k, wk = 0.5 * K * (x + 1), 0.5 * K * w
+    G = _radial_transform(kind, mu, k)
+    out = []
+    for chunk in np.array_split(np.asarray(r, float), max(1, len(r) // 4096)):
+        out.append((sp.j0(chunk[:, None] * k[None, :]) @ (wk * k * G)) / (2 * np.pi))
+    return np.concatenate(out)
+
+
+def mpmath_check(kind, mu, r):
+    """The same Hankel integral by mpmath (15 digits), for one radius."""
+    import mpmath
+
+    a0, a1 = alpha(MU0), alpha(mu)
+
+    def S(a, k):
+        if kind == "beckmann_ggx":
+            return a * k * mpmath.besselk(1, a * k) if k > 0 else mpmath.mpf(1)
+        f = (a / float(WIDTH.alpha_max)) ** 2
+        x = 0.1 * k
+        return f * (2 * mpmath.besselj(1, x) / x if x > 0 else 1) + (1 - f)
+
+    def G(k):
+        return mpmath.exp(-(LOBE_ALPHA * k) ** 2 / 4) * S(a0, k) / S(a1, k)
+
+    K = math.sqrt(4 * math.log(1e17)) / LOBE_ALPHA
+    edges = list(np.linspace(0, K, 9))
+    return float(mpmath.quad(lambda k: G(k) * mpmath.besselj(0, k * r) * k, edges) / (2 * mpmath.pi))
+
+
+def gaussian_reference(mu, u):
+    """Closed form: Beckmann lobe ∗ Beckmann(μ0) ∗⁻¹ Beckmann(μ) = Gaussian of variance
+    (α_l² + α0² − α1²)/2 per axis."""
+    var = (LOBE_ALPHA**2 + alpha(MU0) ** 2 - alpha(mu) ** 2) / 2
+    return np.exp(-np.sum(u**2, -1) / (2 * var)) / (2 * np.pi * var)
+
+
+def skewed_reference(mu, u, nodes=600):
+    """2D inverse transform of ``G = G_lobe S(μ0)/S(μ)`` by a tensor Gauss–Legendre rule."""
+    def S(a, Wx, Wy):
+        out = 0
+        for w, scale, shift in ((SKEW[0], 1.0, 0.3), (SKEW[1], 1.5, -0.7)):
+            out = out + w * np.exp(-((scale * a) ** 2) * (Wx**2 + Wy**2) / 4 - 1j * Wx * shift * a)
+        return out
+
+    K = math.sqrt(4 * math.log(1e17)) / LOBE_ALPHA
+    x, w = sp.roots_legendre(nodes)
+    W, wW = K * x, K * w
+    Wx, Wy = np.meshgrid(W, W, indexing="xy")
+    G = np.exp(-(LOBE_ALPHA**2) * (Wx**2 + Wy**2) / 4) * S(alpha(MU0), Wx, Wy) / S(alpha(mu), Wx, Wy)
+    Gw = G * wW[None, :] * wW[:, None]
+    ex = np.exp(1j * u[:, 0, None] * W[None, :])  # (q, nx)
+    ey = np.exp(1j * u[:, 1, None] * W[None, :])  # (q, ny)
+    return np.real(np.einsum("qy,yx,qx->q", ey, Gw, ex)) / (2 * np.pi) ** 2
+
+
+def reference(kind, mu, u):
+    if kind == "closed_form":
+        return gaussian_reference(mu, u)
+    if kind == "skewed_mixture":
+        return skewed_reference(mu, u)
+    return hankel_reference(kind, mu, np.linalg.norm(u, axis=-1))
+
+
+# -- problems ---------------------------------------------------------------------------------------
+def offsets(kind, n):
+    """Query offsets: a polar set around the lobe (radial problems) or a 2D grid (skewed)."""
+    reach = 0.15
+    if kind == "skewed_mixture":
+        g = np.linspace(-reach, reach, n)
+        return np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    r = np.linspace(0, reach, n * n)
+    phi = np.linspace(0, 2 * np.pi, n * n, endpoint=False) * 7.3
+    return np.stack([r * np.cos(phi), r * np.sin(phi)], -1)
+
+
+def problem_queries(kind, mus, n):
+    u = offsets(kind, n)
+    U = np.concatenate([u] * len(mus))
+    M = np.repeat(mus, len(u))
+    d = np.asarray(slope_to_direction(jnp.asarray(U)))
+    ref = np.concatenate([reference(kind, mu, u) for mu in mus])
+    peak = np.repeat([np.max(np.abs(reference(kind, mu, u))) for mu in mus], len(u))
+    return U, M, d, ref, peak
+
+
+def relative_error(values, ref, peak):
+    return float(np.max(np.abs(np.asarray(values) - ref) / peak))
+
+
+def sweep_point(mat, kind, mus, U, ref, peak, method, size, tol, repeat):
+    groups = [np.flatnonzero(np.repeat(mus, len(U) // len(mus)) == mu) for mu in mus]
+
+    @eqx.filter_jit
+    def run(mat, U):
+        s0 = mat.statistics(mat.mu0)
+        out = []
+        for mu, g in zip(mus, groups):
+            lobe = bs.evolve(mat.lobe, s0, mat.statistics(mu), method=method, size=size, tol=tol)
+            out.append(lobe.density(U[g]))
+        return jnp.concatenate(out)
+
+    Uj = jnp.asarray(U)
+    values = run(mat, Uj)
+    t = best_time(lambda: run(mat, Uj).block_until_ready(), repeat=repeat)
+    return {"method": method, "size": size, "tol": tol, "seconds": t, "error": relative_error(values, ref, peak)}
+
+
+def pareto(points):
+    front, best = [], math.inf
+    for p in sorted(points, key=lambda p: (p["seconds"], p["error"])):
+        if p["error"] < best:
+            front.append(p)
+            best = p["error"]
+    return front
+
+
+def bench_problem(kind, quick):
+    started = time.perf_counter()
+    mat = material(kind)
+    mus = np.array([3e-3, 0.1]) if not quick else np.array([0.01])
+    n = 7 if quick else 15
+    U, M, d, ref, peak = problem_queries(kind, mus, n)
+    F = np.asarray(microfacet_factor(jnp.asarray(d), jnp.asarray(d)))
+    repeat = 2 if quick else 5
+    closed = kind == "closed_form"
+    isotropic = kind in ("closed_form", "beckmann_ggx", "disk")
+    tols = [1e-8] if quick else [1e-4, 1e-7, 1e-10]
+    knobs = []
+    if closed:
+        knobs.append(("closed_form", None, 1e-10))
+    if isotropic:
+        knobs += [("radial", n_, t) for n_ in ([64] if quick else [32, 64, 128, 256, 512]) for t in tols]
+    knobs += [("grid", n_, t) for n_ in ([64] if quick else [64, 128, 256, 512]) for t in tols]
+    points = []
+    for method, size, tol in knobs:
+        try:
+            points.append(sweep_point(mat, kind, mus, U, ref, peak, method, size, tol, repeat))
+        except bs.BrdfscaleError as err:  # e.g. a grid too coarse for the cut-off it was given
+            points.append({"method": method, "size": size, "tol": tol, "failed": str(err)})
+    ok = [p for p in points if "error" in p]
+    front = pareto(ok)
+    planner = []
+    for target in ([1e-4] if quick else [1e-3, 1e-4, 1e-6, 1e-8]):
+        sc = scene.Scene((mat,), scene.Queries(d, d, M), float(target))
+        t0 = time.perf_counter()
+        p = scene.plan(sc)
+        plan_seconds = time.perf_counter() - t0
+        values = np.asarray(p.evaluate()) / F
+        t = best_time(lambda: p.evaluate().block_until_ready(), repeat=repeat)
+        err = relative_error(values, ref, peak)
+        adequate = [q["seconds"] for q in ok if q["error"] <= err]
+        planner.append({
+            "target": target, "error": err, "seconds": t, "plan_seconds": plan_seconds,
+            "predicted_error": p.predicted_error, "predicted_seconds": p.predicted_seconds,
+            "path": p.parts[0].path, "details": p.parts[0].details,
+            "pareto_seconds_at_error": min(adequate) if adequate else None,
+            "ratio_to_pareto": t / min(adequate) if adequate else None,
+            "explain": p.explain(),
+        })
+    check = None
+    if not quick and kind in ("beckmann_ggx", "disk"):
+        r = float(np.linalg.norm(U[3]))
+        check = {"radius": r, "mu": float(mus[0]), "scipy": float(hankel_reference(kind, mus[0], [r])[0]),
+                 "mpmath": mpmath_check(kind, mus[0], r)}
+    return {"problem": kind, "mus": mus.tolist(), "queries": len(U), "sweep": points, "pareto": front,
+            "planner": planner, "reference_check": check, "wall_seconds": time.perf_counter() - started}
+
+
+# -- workload ---------------------------------------------------------------------------------------
+def checkerboard(points):
+    return (np.floor(points[:, 0] / 0.5) + np.floor(points[:, 1] / 0.5)).astype(int) % 2
+
+
+def workload_reference(sc):
+    """Per-query lobe shape g and its peak g(0) at the query's own μ (SciPy / closed form)."""
+    q = sc.queries
+    from brdfscale.geometry import half_slope
+
+    u = np.asarray(half_slope(q.i, q.o) - q.m_inf)
+    mu = np.asarray(q.mu)
+    index = np.asarray(q.material)
+    g, peak = np.empty(len(mu)), np.empty(len(mu))
+    for m, kind in enumerate(("beckmann_ggx", "closed_form")):
+        rows = np.flatnonzero(index == m)
+        for chunk in np.array_split(rows, max(1, len(rows) // 2048)):
+            g[chunk] = [0.0] * len(chunk)
+            if kind == "closed_form":
+                var = (LOBE_ALPHA**2 + alpha(MU0) ** 2 - np.asarray(WIDTH(mu[chunk])) ** 2) / 2
+                g[chunk] = np.exp(-np.sum(u[chunk] ** 2, -1) / (2 * var)) / (2 * np.pi * var)
+                peak[chunk] = 1 / (2 * np.pi * var)
+            else:
+                g[chunk] = _hankel_rows(mu[chunk], np.linalg.norm(u[chunk], axis=-1))
+                peak[chunk] = _hankel_rows(mu[chunk], np.zeros(len(chunk)))
+    return g, peak
+
+
+def _hankel_rows(mu, r, nodes=2048):
+    """GGX problem's Hankel integral, one scale per row (SciPy)."""
+    K = math.sqrt(4 * math.log(1e17)) / LOBE_ALPHA
+    x, w = sp.roots_legendre(nodes)
+    k, wk = 0.5 * K * (x + 1), 0.5 * K * w
+    a0, a1 = alpha(MU0), np.asarray(WIDTH(mu))[:, None]
+    x0, x1 = a0 * k[None, :], a1 * k[None, :]
+    G = np.exp(-(LOBE_ALPHA * k) ** 2 / 4) * x0 * sp.k1e(x0) / (x1 * sp.k1e(x1)) * np.exp(-(x0 - x1))
+    return np.sum(G * (wk * k) * sp.j0(r[:, None] * k[None, :]), axis=1) / (2 * np.pi)
+
+
+def bench_workload(resolution, naive_samples, tol):
+    cam = scene.Camera(height=1.0, pitch=0.35, fov=0.7, resolution=(resolution, resolution))
+    light = np.array([0.9, 0.0, 0.44])
+    light /= np.linalg.norm(light)
+    mats = (material("beckmann_ggx"), material("closed_form"))
+    sc = scene.camera_scene(mats, cam, light, tol, texture=checkerboard)
+    q = sc.queries
+    F = np.asarray(microfacet_factor(q.i, q.o))
+    t0 = time.perf_counter()
+    p = scene.plan(sc)
+    plan_seconds = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    values = np.asarray(p.evaluate().block_until_ready())
+    first_seconds = time.perf_counter() - t0
+    t_eval = best_time(lambda: p.evaluate().block_until_ready(), repeat=3)
+    g, peak = workload_reference(sc)
+    err_peak = np.abs(values / F - g) / peak
+    strong = g > 1e-2 * peak
+    err_point = np.abs(values[strong] / F[strong] - g[strong]) / g[strong]
+
+    # naive: the grid path at each sampled pixel's own μ
+    rng = np.random.default_rng(0)
+    sample = rng.choice(len(q), size=naive_samples, replace=False)
+    from brdfscale.geometry import half_slope
+
+    u = np.asarray(half_slope(q.i, q.o) - q.m_inf)
+    naive_times, naive_err, sizes = [], [], []
+    for j in sample:
+        mat = mats[int(q.material[j])]
+        lobe = bs.evolve(mat.lobe, mat.statistics(mat.mu0), mat.statistics(q.mu[j]), method="grid", tol=tol)
+        uj = jnp.asarray(u[j])
+        value = float(lobe.density(uj))
+        t = best_time(lambda: lobe.density(uj).block_until_ready(), repeat=2)
+        naive_times.append(t)
+        sizes.append(lobe.shape.size)
+        naive_err.append(abs(value - g[j]) / peak[j])
+    naive_seconds = float(np.mean(naive_times)) * len(q)
+    image = np.asarray(p.image(jnp.asarray(values)))
+    mu_image = np.zeros(resolution * resolution)
+    mu_image[np.asarray(sc.pixels)] = np.asarray(q.mu)
+    return {
+        "resolution": resolution, "queries": len(q), "tol": tol,
+        "mu_min": float(q.mu.min()), "mu_max": float(q.mu.max()), "mu_ratio": float(q.mu.max() / q.mu.min()),
+        "plan_seconds": plan_seconds, "first_evaluate_seconds_with_compile": first_seconds,
+        "evaluate_seconds": t_eval, "predicted_seconds": p.predicted_seconds,
+        "max_error_rel_peak": float(err_peak.max()), "predicted_error": p.predicted_error,
+        "max_pointwise_rel_error_where_above_1pct_of_peak": float(err_point.max()),
+        "naive_pixels_sampled": naive_samples, "naive_grid_sizes": sorted(set(int(s) for s in sizes)),
+        "naive_seconds_per_pixel": float(np.mean(naive_times)), "naive_seconds_extrapolated": naive_seconds,
+        "naive_max_error_rel_peak_on_sample": float(max(naive_err)),
+        "speedup_evaluate_vs_naive": naive_seconds / t_eval,
+        "speedup_plan_plus_evaluate_vs_naive": naive_seconds / (plan_seconds + first_seconds),
+        "explain": p.explain(),
+    }, image, mu_image.reshape(resolution, resolution), err_peak, sc
+
+
+def plots(results, image, mu_image, suffix):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    problems = results["problems"]
+    fig, axes = plt.subplots(1, len(problems), figsize=(4.2 * len(problems), 3.6), squeeze=False)
+    colours = {"closed_form": "k", "radial": "tab:blue", "grid": "tab:orange"}
+    for ax, prob in zip(axes[0], problems):
+        for method, c in colours.items():
+            pts = [p for p in prob["sweep"] if p.get("method") == method and "error" in p]
+            if pts:
+                ax.scatter([p["seconds"] for p in pts], [max(p["error"], 1e-17) for p in pts], s=12, c=c, label=method, alpha=0.6)
+        front = prob["pareto"]
+        ax.step([p["seconds"] for p in front], [max(p["error"], 1e-17) for p in front], where="post", c="grey", lw=1)
+        for pl in prob["planner"]:
+            ax.scatter(pl["seconds"], max(pl["error"], 1e-17), marker="*", s=120, c="red",
+                       label="planner" if pl is prob["planner"][0] else None)
+        ax.set(xscale="log", yscale="log", xlabel="time per evaluation [s]", ylabel="max error / peak", title=prob["problem"])
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(RESULTS / f"bench_planner_pareto{suffix}.png", dpi=110)
+    plt.close(fig)
+    fig, axes = plt.subplots(1, 2, figsize=(9, 4))
+    axes[0].imshow(np.log10(np.maximum(image, 1e-6 * image.max())), cmap="magma")
+    axes[0].set_title("log10 ρ (planner)")
+    im = axes[1].imshow(np.log10(np.where(mu_image > 0, mu_image, np.nan)), cmap="viridis")
+    axes[1].set_title("log10 μ (pixel footprint)")
+    fig.colorbar(im, ax=axes[1])
+    for ax in axes:
+        ax.axis("off")
+    fig.tight_layout()
+    fig.savefig(RESULTS / f"bench_planner_workload{suffix}.png", dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true", help="small sweep and a 48×48 image (smoke test)")
+    parser.add_argument("--resolution", type=int, default=512)
+    parser.add_argument("--naive-samples", type=int, default=32)
+    parser.add_argument("--no-plots", action="store_true")
+    args = parser.parse_args(argv)
+    quick = args.quick
+    kinds = ["closed_form", "beckmann_ggx", "skewed_mixture", "disk"]
+    problems = [bench_problem(kind, quick) for kind in kinds]
+    for prob in problems:
+        for pl in prob["planner"]:
+            ratio = pl["ratio_to_pareto"]
+            pareto_text = "none as accurate" if ratio is None else f"{pl['pareto_seconds_at_error'] * 1e3:8.3f} ms, ratio {ratio:.2f}"
+            print(f"{prob['problem']:>15} target {pl['target']:.0e}: {pl['path']:>11} error {pl['error']:.2e} "
+                  f"time {pl['seconds'] * 1e3:8.3f} ms; Pareto time at that error {pareto_text}")
+    work, image, mu_image, _, _ = bench_workload(24 if quick else args.resolution, 1 if quick else args.naive_samples, 1e-4)
+    print(f"workload {work['resolution']}²: μ ratio {work['mu_ratio']:.0f}; planner {work['evaluate_seconds'] * 1e3:.1f} ms "
+          f"(plan {work['plan_seconds']:.1f} s), max error {work['max_error_rel_peak']:.2e}; naive "
+          f"{work['naive_seconds_extrapolated']:.1f} s (extrapolated), speedup {work['speedup_evaluate_vs_naive']:.0f}×")
+    results = {"benchmark": "bench_planner", "machine": machine(), "dtype": "float64", "quick": quick,
+               "problems": problems, "workload": work}
+    name = "bench_planner_quick" if quick else "bench_planner"
+    path = write_json(name, results)
+    if not args.no_plots:
+        plots(results, image, mu_image, "_quick" if quick else "")
+    print(f"wrote {path}")
+    return results
+
+
+if __name__ == "__main__":
+    main()
