@@ -120,13 +120,14 @@ def reflect(i: Float[ArrayLike, "*batch 3"], n: Float[ArrayLike, "*batch 3"]) ->
 
 
 def microfacet_factor(i: Float[ArrayLike, "*batch 3"], o: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch"]:
-    """Geometric factor ``1 / (4 (h·o) cos⁴θ_h)`` that turns a slope-space lobe into ``ρ``.
+    """Geometric factor ``1 / (4 cosθ_o cos⁴θ_h)`` that turns a slope-space lobe into ``ρ``.
 
-    For mirror microfacets (no masking, Fresnel factor 1) the reflected radiance obeys
-    ``ρ(i, o) = β cosθ_i = D(h) / (4 (h·o))`` with the normal distribution D (seed §2 defines
-    ρ = β cosθ_i); with ``D = P22 / cos⁴θ_h`` this is ``P22(m_s) · microfacet_factor(i, o)``.
-    ``dω_h / dω_o = 1/(4 h·o)`` is the half-vector Jacobian.
+    Mirror microfacets with normal distribution D (``∫ D cosθ dω = 1``), no masking and
+    Fresnel factor 1 give ``f = D(h) / (4 cosθ_i cosθ_o)``: the facets with normals in dω_h
+    have area ``D dω_h`` per unit macro-area, intercept ``(i·h)`` of the beam and send it into
+    ``dω_o = 4 (h·o) dω_h``, and ``i·h = h·o``. With the seed's ``ρ = β cosθ_i`` (§2) and
+    ``D = P22 / cos⁴θ_h`` this is ``ρ(i, o) = P22(m_s) · microfacet_factor(i, o)``.
     """
     h = half_vector(i, o)
     cos_h = h[..., 2]
-    return 1.0 / (4.0 * jnp.sum(h * jnp.asarray(o), axis=-1) * cos_h**4)
+    return 1.0 / (4.0 * jnp.asarray(o)[..., 2] * cos_h**4)

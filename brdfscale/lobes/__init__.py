@@ -3,7 +3,7 @@
 In the nearly-flat approximation the microscopic BRDF of a facet tilted by ``m∞`` is, for
 fixed directions, ``ρ(i, o, m∞) = A · F(i, o) · g(m_s(i, o) − m∞)``: an amplitude ``A``
 times a *lobe* ``g`` in slope space around the specular (half-vector) slope ``m_s``, with
-the mirror-microfacet factor ``F = 1/(4 (h·o) cos⁴θ_h)`` of
+the mirror-microfacet factor ``F = 1/(4 cosθ_o cos⁴θ_h)`` of
 :func:`brdfscale.geometry.microfacet_factor`. The lobe shape is a normalised slope density
 (``∫ g d²u = 1``), so every :mod:`brdfscale.stats` family can serve as a lobe, and the
 amplitude ``A`` is the lobe's integral over half-vector slope offsets ``u = m_s − m∞``.
