@@ -10,11 +10,13 @@ and identifiability is read from its eigen-decomposition ``F = V Λ Vᵀ``: a di
 ``v_i`` is *undetermined* when its standard deviation ``1/√λ_i`` exceeds
 ``undetermined_std`` (default 1: in log-parameters, the combination is not known to within
 a factor e) or when ``λ_i`` is numerically zero (``λ_i ≤ 1e-12 λ_max``). Undetermined
-combinations are reported by name (e.g. ``"0.71·log mu_c − 0.70·log exponent"``) and every
-quantity that depends on them is reported as undetermined instead of with a standard
-deviation (DESIGN §2). The covariance of θ is ``V_d Λ_d⁻¹ V_dᵀ`` over the determined
-directions; quantities' standard deviations and 5/50/95 % quantiles come from 4000 draws of
-that Gaussian pushed through the model's quantities.
+combinations are reported by name (e.g. ``"0.71·log mu_c − 0.70·log exponent"``), and a
+quantity q with gradient g is reported as undetermined (no standard deviation, no
+quantiles) when the undetermined directions would move it more than the determined ones,
+``Σ_u (g·v_u)²/λ_u > 9 Σ_d (g·v_d)²/λ_d`` (λ floored at 1e-12 λ_max), instead of with a
+fake precision (DESIGN §2). The covariance of θ is the pseudo-inverse ``V Λ⁺ Vᵀ`` over the
+numerically non-zero directions; the quantities' standard deviations and 5/50/95 %
+quantiles come from 4000 draws of that Gaussian pushed through the model's quantities.
 """
 
 import dataclasses
@@ -234,22 +236,23 @@ def fit(
          "std": (float(1 / np.sqrt(lam[i])) if lam[i] > 1e-12 * lam_max else None)}
         for i in np.flatnonzero(undetermined_mask)
     ]
-    det = ~undetermined_mask
-    cov = (V[:, det] / lam[det]) @ V[:, det].T
+    null = lam <= 1e-12 * lam_max
+    cov = (V[:, ~null] / lam[~null]) @ V[:, ~null].T  # Laplace covariance (pseudo-inverse of F)
 
-    # quantities: Laplace draws over the determined subspace; flag those moved by the rest
+    # quantities: Laplace draws; a quantity is undetermined when the undetermined directions
+    # would move it by more than 3× its standard deviation along the determined ones
     rng = np.random.default_rng(seed + 1)
-    draws = theta + rng.standard_normal((_LAPLACE_DRAWS, det.sum())) @ (V[:, det] / np.sqrt(lam[det])).T
+    draws = theta + rng.standard_normal((_LAPLACE_DRAWS, (~null).sum())) @ (V[:, ~null] / np.sqrt(lam[~null])).T
     q_draws = {k: np.asarray(v) for k, v in _quantities_of(model, jnp.asarray(draws)).items()}
     q_hat = {k: float(v) for k, v in model.quantities(jnp.asarray(theta)).items()}
-    grads = jax.jacfwd(lambda t: jnp.stack(list(model.quantities(t).values())))(jnp.asarray(theta))
-    grads = np.asarray(grads)
+    grads = np.asarray(jax.jacfwd(lambda t: jnp.stack(list(model.quantities(t).values())))(jnp.asarray(theta)))
+    floor = np.maximum(lam, 1e-12 * lam_max)
+    var_undetermined = ((grads @ V[:, undetermined_mask]) ** 2 / floor[undetermined_mask]).sum(axis=1)
+    var_determined = ((grads @ V[:, ~undetermined_mask]) ** 2 / floor[~undetermined_mask]).sum(axis=1)
     estimates, std, quantiles = {}, {}, {}
     for idx, (name, value) in enumerate(q_hat.items()):
-        g = grads[idx]
-        moved = np.abs(g @ V[:, undetermined_mask]) > 1e-6 * max(np.linalg.norm(g), 1e-300)
         estimates[name] = value
-        if moved.any():
+        if var_undetermined[idx] > 9 * var_determined[idx]:
             std[name], quantiles[name] = None, None
         else:
             std[name] = float(np.std(q_draws[name]))

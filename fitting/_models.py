@@ -121,7 +121,7 @@ class ParametricModel(AbstractModel):
             ``"gaussian_surface"`` — Beckmann statistics of a Gaussian-correlated random
             surface, :class:`brdfscale.stats.GaussianSurface` with a ``window`` facet window
             (Σ(μ) by quadrature with ``n_k`` × ``n_phi`` nodes — the defaults 128 × 32 agree
-            with 2048 × 128 to 1e-10 relative, tests/test_fit.py — the law of DESIGN §2).
+            with 1024 × 64 to 1e-10 relative, tests/test_fit.py — the law of DESIGN §2).
         fixed: physical parameters held at given values (e.g. ``{"mu_c": 1.0}``) — the way
             to supply prior knowledge that the data lack.
         radial_nodes: Gauss–Legendre nodes of the radial evolution path (used whenever GGX is

@@ -73,14 +73,14 @@ def _complete_theta(model, truth):
     return jnp.asarray(model.theta_from(truth))
 
 
-def _draws(fit: FitResult, samples: SampleResult | None, rng, n=400):
+def _draws(fit: FitResult, samples: SampleResult | None, bounds, rng, n=400):
     if samples is not None:
         flat = samples.samples
         return flat[rng.choice(flat.shape[0], size=min(n, flat.shape[0]), replace=False)]
     # Laplace draws; the covariance is singular along undetermined directions (they stay at θ̂)
     lam, V = np.linalg.eigh(fit.covariance)
     root = V * np.sqrt(np.clip(lam, 0, None))
-    return fit.theta + rng.standard_normal((n, fit.theta.size)) @ root.T
+    return np.clip(fit.theta + rng.standard_normal((n, fit.theta.size)) @ root.T, *bounds)
 
 
 def summarise(problem: Problem, fit: FitResult, samples: SampleResult | None, truth: dict | None) -> dict:
@@ -233,7 +233,7 @@ def write_report(out_dir, problem: Problem, fit: FitResult, samples: SampleResul
     if os.path.exists(target) and not overwrite:
         raise InvalidInputError(f"{target} exists; choose another --out directory or pass --force (overwrite=True).")
     rng = np.random.default_rng(0)
-    draws = _draws(fit, samples, rng)
+    draws = _draws(fit, samples, (np.asarray(problem.lower), np.asarray(problem.upper)), rng)
     figures = {name: os.path.join(out_dir, name) for name in ("data_vs_fit.png", "statistics.png", "corner.png")}
     _figure_data_vs_fit(figures["data_vs_fit.png"], problem, fit)
     _figure_statistics(figures["statistics.png"], problem, fit, draws, truth)

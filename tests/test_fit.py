@@ -9,6 +9,8 @@ The calibrated coverage of the 68 %/90 % intervals is measured by experiments/ca
 
 import json
 
+import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -79,15 +81,17 @@ def test_models_refuse_bad_configurations():
 
 
 def test_gaussian_surface_law_quadrature_is_converged():
-    """The model's cheap quadrature (128 × 32 nodes) against the library's at 2048 × 128."""
+    """The model's cheap quadrature (128 × 32 nodes) against the library default (1024 × 64)."""
     from brdfscale import stats
 
     model = fitting.ParametricModel(law="gaussian_surface")
     theta = jnp.asarray(model.theta_from(dict(amplitude=1.0, alpha_lobe=0.01, rms_height=0.05, correlation_length=8.0)))
-    fine = stats.GaussianSurface(stats.GaussianCorrelation(0.05, 8.0), window="box", n_k=2048, n_phi=128)
-    for mu in (2.0, 8.0, 32.0):
-        ref = np.asarray(fine.slope_covariance(mu))
-        np.testing.assert_allclose(model.statistics_at(theta, mu).cov, ref, rtol=0, atol=1e-10 * ref[0, 0])
+    fine = stats.GaussianSurface(stats.GaussianCorrelation(0.05, 8.0), window="box", n_k=1024, n_phi=64)
+    reference = jax.jit(lambda mu: fine.slope_covariance(mu))
+    cheap = jax.jit(lambda mu: model.statistics_at(theta, mu).cov)
+    for mu in (2.0, 32.0):
+        ref = np.asarray(reference(mu))
+        np.testing.assert_allclose(cheap(mu), ref, rtol=0, atol=1e-10 * ref[0, 0])
 
 
 # -- recovery ------------------------------------------------------------------------------
@@ -111,21 +115,13 @@ def test_laplace_covariance_and_optimum_agree_with_scipy():
     _, data = _dataset(model, TRUTHS[0], 0.01, seed=5)
     res = fitting.fit(model, data, starts=2)
     problem = fitting.Problem(model, data)
-    f = lambda t: np.asarray(problem.residuals(jnp.asarray(t)))  # noqa: E731
+    residuals = eqx.filter_jit(fitting._estimate._residuals)
+    f = lambda t: np.asarray(residuals(jnp.asarray(t), problem))  # noqa: E731
     ref = scipy.optimize.least_squares(f, model.initial(data), method="trf", x_scale="jac", xtol=1e-12, ftol=1e-12)
     assert ref.cost * 2 == pytest.approx(res.chi2, rel=1e-7)
     np.testing.assert_allclose(ref.x, res.theta, atol=1e-4 * np.sqrt(np.diag(res.covariance)).max() * 100)
     cov_scipy = np.linalg.inv(ref.jac.T @ ref.jac)
     np.testing.assert_allclose(res.covariance, cov_scipy, rtol=2e-3)
-
-
-def test_solvers_reach_the_same_optimum():
-    model = fitting.ParametricModel()
-    _, data = _dataset(model, TRUTHS[1], 0.01, seed=7)
-    lm = fitting.fit(model, data, starts=1)
-    gn = fitting.fit(model, data, starts=1, solver="gauss_newton")
-    assert gn.chi2 == pytest.approx(lm.chi2, rel=1e-8)
-    np.testing.assert_allclose(gn.theta, lm.theta, atol=1e-5)
 
 
 # -- identifiability -----------------------------------------------------------------------
@@ -150,8 +146,8 @@ def test_two_scales_name_the_undetermined_law_combinations():
 
 @pytest.fixture(scope="module")
 def small_problem():
-    model = fitting.ParametricModel(fixed={"mu_c": 1.0})
-    _, data = _dataset(model, TRUTHS[0], 0.02, seed=4, scales=(0.5, 2.0, 8.0), size=16)
+    model = fitting.ParametricModel()  # the recovery tests' layout: their compiled solve is reused
+    _, data = _dataset(model, TRUTHS[1], 0.02, seed=4)
     return fitting.Problem(model, data), fitting.fit(model, data, starts=1)
 
 
@@ -164,7 +160,7 @@ def test_interrupted_sampling_resumes_bit_identically(small_problem, tmp_path):
 
     def interrupting(thetas, prob):
         calls["n"] += 1
-        if calls["n"] == 2 * 45:  # mid-way through the second chunk
+        if calls["n"] == 1 + 2 * 45:  # initial ensemble + 45 steps (2 half-ensemble calls each): inside chunk 2
             raise KeyboardInterrupt
         return original(thetas, prob)
 
@@ -187,7 +183,7 @@ def test_interrupted_sampling_resumes_bit_identically(small_problem, tmp_path):
 def test_posterior_matches_laplace_on_a_well_determined_problem(small_problem):
     """Nearly linear problem: the emcee posterior std agrees with the Laplace std (15 %)."""
     problem, res = small_problem
-    s = fitting.sample(problem, res, walkers=24, steps=1200, chunk=600, progress=False, seed=1)
+    s = fitting.sample(problem, res, walkers=16, steps=1500, chunk=1500, progress=False, seed=1)
     np.testing.assert_allclose(s.samples.std(axis=0), np.sqrt(np.diag(res.covariance)), rtol=0.15)
     d = s.diagnostics()
     assert set(d["autocorrelation_time"]) == set(problem.model.names)
@@ -201,20 +197,19 @@ def test_fit_command_writes_report_and_refuses_to_overwrite(tmp_path, capsys):
     from brdfscale import exr
 
     model = fitting.ParametricModel()
-    mset, _ = _dataset(model, TRUTHS[0], 0.02, seed=9, scales=(0.5, 2.0, 8.0), size=16)
+    mset, _ = _dataset(model, TRUTHS[1], 0.02, seed=9)
     path = tmp_path / "m.exr"
     exr.write_measurements(str(path), mset)
     out = tmp_path / "out"
-    argv = ["fit", str(path), "--out", str(out), "--fix", "mu_c=1.0", "--steps", "200", "--starts", "2",
-            "--no-progress"]
+    argv = ["fit", str(path), "--out", str(out), "--steps", "200", "--walkers", "16", "--starts", "2", "--no-progress"]
     assert main(argv) == 0
     doc = json.loads((out / "fit.json").read_text())
-    for name in ("amplitude", "alpha_lobe", "alpha_max", "exponent"):
+    for name in TRUTHS[1]:
         row = doc["parameters"][name]
-        assert row["determined"] and len(row["quantiles_5_50_95"]) == 3 and row["truth"] == TRUTHS[0][name]
+        assert row["determined"] and len(row["quantiles_5_50_95"]) == 3 and row["truth"] == TRUTHS[1][name]
     assert doc["mcmc"]["steps"] == 200 and "identifiability" in doc
     for fig in ("data_vs_fit.png", "statistics.png", "corner.png"):
         assert (out / fig).read_bytes()[:4] == b"\x89PNG"
-    assert exr.read_measurements(str(out / "evolved_lobes.exr")).scales.tolist() == [0.5, 2.0, 8.0]
+    assert exr.read_measurements(str(out / "evolved_lobes.exr")).scales.tolist() == list(SCALES)
     assert main(argv) == 2
     assert "--force" in capsys.readouterr().err

@@ -1,10 +1,12 @@
 """Slow parameter-recovery tests of fitting/ (deselected by default; run with -m slow).
 
 They compile the radial evolution path (GGX) and the grid path with ~100 parameters
-(non-parametric model) into Levenberg–Marquardt, which costs 40–200 s on 2 cores.
+(non-parametric model) into Levenberg–Marquardt, and every selectable solver, which costs
+minutes on 2 cores.
 """
 
 import jax.numpy as jnp
+import numpy as np
 import pytest
 
 import fitting
@@ -46,3 +48,14 @@ def test_nonparametric_recovers_the_determined_ratios():
                 checked += 1
     assert checked >= 4
     assert any("NOT determined" in note for note in res.notes)
+
+
+def test_solvers_reach_the_same_optimum():
+    model = fitting.ParametricModel()
+    _, data = _dataset(model, TRUTHS[1], 0.01, seed=7)
+    lm = fitting.fit(model, data, starts=1)
+    for solver in ("gauss_newton", "dogleg", "bfgs"):
+        other = fitting.fit(model, data, starts=1, solver=solver)
+        assert other.status == "converged"
+        assert other.chi2 == pytest.approx(lm.chi2, rel=1e-8), solver
+        np.testing.assert_allclose(other.theta, lm.theta, atol=1e-4)
