@@ -1,7 +1,7 @@
 """Study 3: where does the nearly-flat approximation break? (seed §2 footnote 1, DESIGN §2)
 
 The library's lobe model for mirror micro-facets is ``ρ(i, o) = P22(m_s) · F(i, o)`` with
-``F = 1/(4 (h·o) cos⁴θ_h)`` (:func:`brdfscale.geometry.microfacet_factor`) and P22 the
+``F = 1/(4 cosθ_o cos⁴θ_h)`` (:func:`brdfscale.geometry.microfacet_factor`) and P22 the
 facet-slope density: every facet counts once, whatever its tilt. Brute force on the height
 field instead reflects the light of every pixel facet exactly:
 
