@@ -3,7 +3,6 @@
 import json
 import os
 import platform
-import tempfile
 import time
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -49,11 +48,15 @@ def best_time(fn, *, repeat: int = 5, number: int = 1) -> float:
 
 def write_json(name: str, payload: dict) -> Path:
     """Write ``results/<name>.json`` atomically (temporary file + rename)."""
+    from brdfscale import _files
+
     RESULTS.mkdir(parents=True, exist_ok=True)
     path = RESULTS / f"{name}.json"
-    fd, tmp = tempfile.mkstemp(dir=RESULTS, suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        json.dump(payload, f, indent=2, sort_keys=False)
-        f.write("\n")
-    os.replace(tmp, path)
+
+    def write(tmp):
+        with open(tmp, "w") as f:
+            json.dump(payload, f, indent=2, sort_keys=False)
+            f.write("\n")
+
+    _files.atomic_write(path, write, overwrite=True)
     return path

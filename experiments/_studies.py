@@ -8,13 +8,13 @@ studies post-process histograms of millions of samples, which gains nothing from
 
 import json
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 from _bench import RESULTS, machine
 
 import brdfscale as bs
+from brdfscale import _files as files
 
 WINDOWS = ("box", "gaussian", "spectral")
 """Facet windows: the b×b block mean (the library's), a Gaussian of the box's second moment
@@ -31,18 +31,8 @@ def study_dir(study: str, out: str | os.PathLike | None = None) -> Path:
 
 
 def atomic_write(path: Path, write) -> Path:
-    """Call ``write(tmp)`` on a temporary file next to ``path``, then move it into place
-    (readers never see a partial file); the file gets mode 0644 like a plain ``open``."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp" + path.suffix)
-    os.close(fd)
-    try:
-        write(tmp)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.remove(tmp)
-        raise
+    """Write ``path`` through ``write(tmp)`` atomically, replacing an earlier result."""
+    files.atomic_write(path, write, overwrite=True)
     return path
 
 

@@ -1,13 +1,12 @@
 """``brdfscale example``: evolve a measured lobe across scales on a built-in material."""
 
 import argparse
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from .._errors import InvalidInputError
+from .._files import atomic_write
 
 
 def register(sub) -> None:
@@ -40,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
 
     png = args.out / "example.png"
     if png.exists() and not args.force:
-        raise InvalidInputError(f"{png} exists; pass --force to overwrite it.")
+        raise InvalidInputError(f"{png}: file exists; pass --force to replace it.")
     law = stats.ScaledFamily(stats.GGX, stats.WidthLaw(alpha_max=0.15, mu_c=1.0, exponent=0.8))
     mu0 = 1.0
     lobe0 = lobes.Beckmann(0.08)
@@ -68,10 +67,7 @@ def run(args: argparse.Namespace) -> int:
     ax.legend()
     fig.tight_layout()
     args.out.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=args.out, suffix=".png.tmp")
-    os.close(fd)
-    fig.savefig(tmp, dpi=120, format="png")
+    atomic_write(png, lambda tmp: fig.savefig(tmp, dpi=120, format="png"), overwrite=args.force)
     plt.close(fig)
-    os.replace(tmp, png)
     print(f"wrote {png}")
     return 0

@@ -1,45 +1,25 @@
 """File access: atomic, no-clobber writes and checked opening."""
 
 import os
-import tempfile
 
 import OpenEXR
 
 from .._errors import MeasurementFileError
+from .._files import atomic_write
 from ._format import PREFIX
 
 
 def write_parts(path, parts: list, overwrite: bool) -> None:
-    """Write ``OpenEXR.Part``s to ``path`` atomically.
+    """Write ``OpenEXR.Part``s to ``path`` atomically, never replacing a file unless
+    ``overwrite`` (see :func:`brdfscale._files.atomic_write`)."""
 
-    The file is written to a temporary name in the same directory and then moved into
-    place, so readers never see a half-written file. Without ``overwrite`` an existing file
-    is never replaced: the temporary file is hard-linked to ``path``, which fails if ``path``
-    exists even when another process creates it meanwhile.
-    """
-    path = os.fspath(path)
-    if not overwrite and os.path.lexists(path):
-        raise MeasurementFileError(f"{path}: file exists; pass overwrite=True (CLI: --force) to replace it.")
-    directory = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(directory):
-        raise MeasurementFileError(f"{path}: directory {directory} does not exist.")
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=".brdfscale-", suffix=".exr.tmp")
-    os.close(fd)
-    try:
+    def write(tmp):
         try:
             OpenEXR.File(parts).write(tmp)
         except (RuntimeError, TypeError, ValueError) as err:
-            raise MeasurementFileError(f"{path}: OpenEXR could not write the file: {err}") from err
-        if overwrite:
-            os.replace(tmp, path)
-        else:
-            try:
-                os.link(tmp, path)
-            except FileExistsError:
-                raise MeasurementFileError(f"{path}: file exists; pass overwrite=True (CLI: --force) to replace it.") from None
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+            raise MeasurementFileError(f"{os.fspath(path)}: OpenEXR could not write the file: {err}") from err
+
+    atomic_write(path, write, overwrite=overwrite, error=MeasurementFileError)
 
 
 def open_parts(path) -> list:

@@ -12,7 +12,8 @@ up to ``O((kΔ)²)``).
   the facet that contains them, pooled over all facets, convolved with the pixel facets'
   own lobe (δ for mirror micro-facets). It is the lobe a gonioreflectometer sees when it
   measures one facet of size μ in that facet's own frame, averaged over facets, and
-  ``g_∞ = g_μ ∗ s(·, μ)`` holds for the pooled histograms by construction.
+  ``g_∞ = g_μ ∗ s(·, μ)`` (seed Eq. 3.1) holds only when the within-facet residuals are
+  independent of the facet slope; experiments/consistency.py measures its violation.
 """
 
 import dataclasses
