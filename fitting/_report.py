@@ -10,6 +10,7 @@ import os
 import platform
 import tempfile
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import matplotlib
@@ -28,6 +29,29 @@ from ._sample import SampleResult  # noqa: E402
 __all__ = ["summarise", "write_report", "truth_of"]
 
 _CORNER_MAX = 6
+
+
+@eqx.filter_jit
+def _predict(model, theta, data):
+    return model.predict(theta, data)
+
+
+@eqx.filter_jit
+def _quantities(model, thetas):
+    return jax.vmap(model.quantities)(thetas)
+
+
+@eqx.filter_jit
+def _relative(model, thetas, W, data):
+    return jax.vmap(lambda t: model.relative_statistics(t, W, data))(thetas)
+
+
+@eqx.filter_jit
+def _absolute(model, thetas, W, data):
+    """``S(W, μ_k)`` for every draw and measured scale (parametric models)."""
+    def one(t):
+        return jnp.stack([model.statistics_at(t, data.scales[k]).cf_radial(W) for k in range(data.scales.shape[0])])
+    return jax.vmap(one)(thetas)
 
 
 def _atomic(path, write):
@@ -66,11 +90,17 @@ def truth_of(model, metadata: dict) -> dict | None:
     return truth or None
 
 
-def _complete_theta(model, truth):
-    """θ of the truth when it names every free parameter, else None."""
-    if truth is None or not all(p in truth for p in model.free):
+def _truth_theta(model, truth, fit: FitResult):
+    """θ of the truth for the statistics curves: parameters the truth lacks (e.g. the base
+    lobe of a height-field simulation) are taken from the estimate; None without truth for
+    every scale-law parameter."""
+    if truth is None:
         return None
-    return jnp.asarray(model.theta_from(truth))
+    law_parameters = [p for p in model.free if p not in ("amplitude", "alpha_lobe")]
+    if not all(p in truth for p in law_parameters):
+        return None
+    estimate = dict(fit.estimates)
+    return jnp.asarray(model.theta_from({**estimate, **truth}))
 
 
 def _draws(fit: FitResult, samples: SampleResult | None, bounds, rng, n=400):
@@ -88,8 +118,7 @@ def summarise(problem: Problem, fit: FitResult, samples: SampleResult | None, tr
     model = problem.model
     table = {}
     if samples is not None:
-        q = jax.jit(jax.vmap(model.quantities))(jnp.asarray(samples.samples))
-        q = {k: np.asarray(v) for k, v in q.items()}
+        q = {k: np.asarray(v) for k, v in _quantities(model, jnp.asarray(samples.samples)).items()}
     for name, value in fit.estimates.items():
         row = {"estimate_map": value, "determined": fit.std[name] is not None}
         if samples is not None:
@@ -108,7 +137,7 @@ def summarise(problem: Problem, fit: FitResult, samples: SampleResult | None, tr
 
 def _figure_data_vs_fit(path, problem: Problem, fit: FitResult):
     data, model = problem.data, problem.model
-    pred = np.asarray(model.predict(jnp.clip(jnp.asarray(fit.theta), problem.lower, problem.upper), data))
+    pred = np.asarray(_predict(model, jnp.clip(jnp.asarray(fit.theta), problem.lower, problem.upper), data))
     first = [data.scale_of_image.index(k) for k in range(len(np.asarray(data.scales)))]
     fig, axes = plt.subplots(len(first), 3, figsize=(9, 2.6 * len(first)), squeeze=False)
     for row, i in enumerate(first):
@@ -144,10 +173,10 @@ def _figure_statistics(path, problem: Problem, fit: FitResult, draws, truth: dic
     absolute = isinstance(model, ParametricModel)
     w_max = 8.0 / float(model.quantities(jnp.asarray(fit.theta))["alpha_lobe"]) if absolute else model.knots[-1]
     W = jnp.linspace(0.0, w_max, 200)
-    relative = np.asarray(jax.vmap(lambda t: model.relative_statistics(t, W, data))(jnp.asarray(draws)))
+    relative = np.asarray(_relative(model, jnp.asarray(draws), W, data))
     fig, axes = plt.subplots(1, 2 if absolute else 1, figsize=(11 if absolute else 6, 4), squeeze=False)
     colors = plt.cm.viridis(np.linspace(0, 0.9, len(scales)))
-    true_theta = _complete_theta(model, truth) if absolute else None
+    true_theta = _truth_theta(model, truth, fit) if absolute else None
     for k in range(1, len(scales)):
         _band(axes[0, 0], W, relative[:, k], colors[k], f"μ = {scales[k]:.3g}")
         if true_theta is not None:
@@ -156,12 +185,12 @@ def _figure_statistics(path, problem: Problem, fit: FitResult, draws, truth: dic
     axes[0, 0].set_xlabel("|W|")
     axes[0, 0].legend(fontsize=7)
     if absolute:
+        curves = np.asarray(_absolute(model, jnp.asarray(draws), W, data))
         for k, mu in enumerate(scales):
-            curves = np.asarray(jax.vmap(lambda t: model.statistics_at(t, mu).cf_radial(W))(jnp.asarray(draws)))
-            _band(axes[0, 1], W, curves, colors[k], f"μ = {mu:.3g}")
+            _band(axes[0, 1], W, curves[:, k], colors[k], f"μ = {mu:.3g}")
             if true_theta is not None:
                 axes[0, 1].plot(W, np.asarray(model.statistics_at(true_theta, mu).cf_radial(W)), "k--", lw=0.8)
-        axes[0, 1].set_title("S(W, μ) — absolute via the width law's S(W, ∞) = 1 (dashed: truth)", fontsize=9)
+        axes[0, 1].set_title("S(W, μ) — absolute via the scale law's S(W, ∞) = 1 (dashed: truth)", fontsize=9)
         axes[0, 1].set_xlabel("|W|")
     fig.tight_layout()
     _atomic(path, lambda p: fig.savefig(p, dpi=90, format="png"))
@@ -169,7 +198,7 @@ def _figure_statistics(path, problem: Problem, fit: FitResult, draws, truth: dic
 
 
 def _figure_corner(path, model, draws, truth: dict | None):
-    q = jax.vmap(model.quantities)(jnp.asarray(draws))
+    q = _quantities(model, jnp.asarray(draws))
     names = list(q)[:_CORNER_MAX]
     x = np.stack([np.asarray(q[n]) for n in names], axis=1)
     d = len(names)
@@ -208,7 +237,7 @@ def _write_tables(out_dir, problem: Problem, fit: FitResult, overwrite: bool) ->
         return "not written: brdfscale.exr is not available in this installation"
     data, model = problem.data, problem.model
     theta = jnp.clip(jnp.asarray(fit.theta), problem.lower, problem.upper)
-    pred = np.asarray(model.predict(theta, data))
+    pred = np.asarray(_predict(model, theta, data))
     images = []
     for k, mu in enumerate(np.asarray(data.scales)):
         i = data.scale_of_image.index(k)
