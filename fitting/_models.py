@@ -189,10 +189,11 @@ class ParametricModel(AbstractModel):
 
     @property
     def identifiability_notes(self):
+        limit = "width law's limit α(μ → ∞) = 0" if self.law_kind == "width" else "surface law's limit Σ(μ → ∞) = 0"
         return (
             "Multi-scale data determine the base lobe at μ0 and the ratios S(W, μ0)/S(W, μ_k) only. The "
-            "absolute S(W, μ) reported here rests on the width law's limit α(μ → ∞) = 0, i.e. on the "
-            "boundary condition S(W, ∞) = 1 being built into the model, not on a measurement.",
+            f"absolute S(W, μ) reported here rests on the {limit}, i.e. on the boundary condition "
+            "S(W, ∞) = 1 being built into the model, not on a measurement.",
         )
 
     def quantities(self, theta):
