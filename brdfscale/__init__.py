@@ -9,13 +9,14 @@ The public API:
 * :mod:`brdfscale.synth` — random height fields and a synthetic gonioreflectometer;
 * :mod:`brdfscale.exr` — measurement sets and lobe tables as OpenEXR files;
 * :mod:`brdfscale.plus` — plus-distributions and nearly-specular reflection (seed §6);
+* :mod:`brdfscale.so3` — anisotropic evolution on SO(3) (seed §5);
 * :class:`MeasurementSet` / :class:`LobeImage` — multi-scale lobe measurements in memory;
 * the exception classes, all derived from :class:`BrdfscaleError`.
 """
 
 from importlib.metadata import PackageNotFoundError, version as _version
 
-from . import exr, geometry, lobes, plus, stats, synth
+from . import exr, geometry, lobes, plus, so3, stats, synth
 from ._errors import (
     BrdfscaleError,
     InvalidInputError,
@@ -41,6 +42,7 @@ __all__ = [
     "stats",
     "synth",
     "plus",
+    "so3",
     "exr",
     "BrdfscaleError",
     "InvalidInputError",
