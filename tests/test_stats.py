@@ -161,6 +161,15 @@ def test_scale_laws_tend_to_delta_and_are_differentiable():
     np.testing.assert_allclose(d, fd, rtol=1e-6)
 
 
+@pytest.mark.parametrize("make", [lambda a: stats.GGX(a), lambda a: stats.Disk(a), lambda a: stats.Beckmann(a)])
+def test_gradients_at_zero_frequency_are_zero_not_nan(make):
+    """S(0) = 1 for every width, so ∂S(0)/∂α = 0 (a naive |W| would give NaN)."""
+    for W in (jnp.zeros(2), jnp.array([3.0, 0.0])):
+        g = jax.grad(lambda a: jnp.real(make(a).cf(W)))(0.2)
+        assert np.isfinite(float(g))
+    assert float(jax.grad(lambda a: jnp.real(make(a).cf(jnp.zeros(2))))(0.2)) == 0.0
+
+
 @settings(max_examples=25, deadline=None)
 @given(
     ax=st.floats(0.01, 1.0), ay=st.floats(0.01, 1.0),

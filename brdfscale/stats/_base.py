@@ -62,6 +62,13 @@ def check_slopes(m, name: str = "m"):
     return last_axis(m, 2, name)
 
 
+def safe_norm(v):
+    """``|v|`` over the last axis with a zero (not NaN) gradient at ``v = 0``."""
+    r2 = jnp.sum(v * v, axis=-1)
+    positive = r2 > 0
+    return jnp.where(positive, jnp.sqrt(jnp.where(positive, r2, 1.0)), 0.0)
+
+
 def centred(m, offset, name: str = "m"):
     """Validated slopes ``m`` (..., 2) relative to ``offset`` (None: the origin)."""
     d = check_slopes(m, name)

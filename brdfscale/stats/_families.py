@@ -10,7 +10,7 @@ from jaxtyping import Array, ArrayLike, Float
 from .._errors import InvalidInputError, SingularDensityError
 from .._special import jinc, xk1
 from .._validation import as_float_array, is_concrete, positive, vector2
-from ._base import AbstractSlopeDensity, add_offset, centred, check_slopes, offset_norm, phase, shifted_cf
+from ._base import AbstractSlopeDensity, add_offset, centred, check_slopes, offset_norm, phase, safe_norm, shifted_cf
 
 
 def _per_axis(value, value_x, value_y, name: str):
@@ -183,8 +183,7 @@ class GGX(AbstractSlopeDensity):
 
     def cf(self, W):
         W = check_slopes(W, "W")
-        r = jnp.sqrt(jnp.sum((W * self.alpha) ** 2, axis=-1))
-        return shifted_cf(xk1(r), W, self.mean)
+        return shifted_cf(xk1(safe_norm(W * self.alpha)), W, self.mean)
 
     def shifted(self, offset):
         return GGX(alpha_x=self.alpha[..., 0], alpha_y=self.alpha[..., 1], mean=add_offset(self.mean, offset))
@@ -220,7 +219,7 @@ class Disk(AbstractSlopeDensity):
 
     def cf(self, W):
         W = check_slopes(W, "W")
-        return shifted_cf(jinc(self.radius * jnp.linalg.norm(W, axis=-1)), W, self.mean)
+        return shifted_cf(jinc(self.radius * safe_norm(W)), W, self.mean)
 
     def shifted(self, offset):
         return Disk(self.radius, mean=add_offset(self.mean, offset))

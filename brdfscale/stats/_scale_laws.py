@@ -138,7 +138,7 @@ class GaussianSurface(AbstractScaleLaw):
     n_k: int = eqx.field(static=True)
     n_phi: int = eqx.field(static=True)
 
-    def __init__(self, spectrum: AbstractPowerSpectrum, window: FacetWindow = "box", n_k: int = 1024, n_phi: int = 64):
+    def __init__(self, spectrum: AbstractPowerSpectrum, window: FacetWindow = "box", n_k: int = 256, n_phi: int = 32):
         if not isinstance(spectrum, AbstractPowerSpectrum):
             raise InvalidInputError("spectrum must be a brdfscale.stats power spectrum (GaussianCorrelation, KCorrelation).")
         window_power(jnp.zeros(2), 1.0, window)  # validates the name
