@@ -8,7 +8,7 @@ an existing ``fit.json`` is never overwritten unless ``overwrite=True``.
 import json
 import os
 import platform
-import tempfile
+from pathlib import Path
 
 import equinox as eqx
 import jax
@@ -21,6 +21,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 import brdfscale  # noqa: E402
 from brdfscale import BrdfscaleError, InvalidInputError  # noqa: E402
+from brdfscale._files import atomic_write  # noqa: E402
 
 from ._estimate import FitResult, Problem  # noqa: E402
 from ._models import ParametricModel  # noqa: E402
@@ -55,15 +56,8 @@ def _absolute(model, thetas, W, data):
 
 
 def _atomic(path, write):
-    directory = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=".tmp-", suffix=os.path.splitext(path)[1])
-    os.close(fd)
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+    """Write ``path`` atomically; the caller has already decided about overwriting."""
+    atomic_write(path, write, overwrite=True)
 
 
 def truth_of(model, metadata: dict) -> dict | None:
@@ -285,7 +279,8 @@ def write_report(out_dir, problem: Problem, fit: FitResult, samples: SampleResul
         "tables": tables,
     }
     doc = _finite(doc)
-    _atomic(target, lambda p: open(p, "w").write(json.dumps(doc, indent=2, allow_nan=False)))
+    text = json.dumps(doc, indent=2, allow_nan=False)
+    _atomic(target, lambda p: Path(p).write_text(text))
     return doc
 
 
