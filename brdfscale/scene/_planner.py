@@ -102,10 +102,12 @@ def _plan_material(material: Material, u, log_mu, tol, method):
             if method == "closed_form":
                 raise
         else:
+            distinct, scale = np.unique(log_mu, return_inverse=True)
             n = len(mus)
-            return (ClosedFormStep(jnp.asarray(u), jnp.asarray(mus)), "closed_form",
-                    "the lobe and statistics have a closed-form evolution (exact)", 0.0,
-                    _cost.seconds(8 * n, 40 * n), f"{n} distinct (u, μ) evaluated exactly")
+            step = ClosedFormStep(jnp.asarray(u), jnp.asarray(scale.ravel()), jnp.asarray(np.exp(distinct)))
+            return (step, "closed_form", "the lobe and statistics have a closed-form evolution (exact)", 0.0,
+                    _cost.seconds(8 * (n + len(distinct)), 40 * n),
+                    f"{len(distinct)} distinct scales evolved exactly, {n} offsets evaluated")
     isotropic = (material.lobe.shape.isotropic and s_from.isotropic
                  and material.statistics(mus.min()).isotropic)
     if method == "radial" and not isotropic:

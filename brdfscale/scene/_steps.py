@@ -38,18 +38,19 @@ _NO_BRDF = (
 
 
 class ClosedFormStep(eqx.Module):
-    """Closed-form evolution at each distinct (u, μ): exact, cost O(1) per query."""
+    """Closed-form evolution at each distinct scale, evaluated at its queries: exact."""
 
     u: Float[Array, "n 2"]
-    mu: Float[Array, " n"]
+    scale: Int[Array, " n"]  # each query's index into ``mu``
+    mu: Float[Array, " s"]  # the distinct scales
 
     def __call__(self, material: Material) -> Float[Array, " n"]:
         s_from = material.statistics(material.mu0)
-
-        def one(mu, u):
-            return evolve(material.lobe, s_from, material.statistics(mu), method="closed_form").density(u)
-
-        return jax.vmap(one)(self.mu, self.u)
+        evolved = jax.vmap(
+            lambda mu: evolve(material.lobe, s_from, material.statistics(mu), method="closed_form")
+        )(self.mu)
+        per_query = jax.tree_util.tree_map(lambda leaf: leaf[self.scale], evolved)
+        return jax.vmap(lambda lobe, u: lobe.density(u))(per_query, self.u)
 
 
 def _scale_position(log_mu, nodes, exact):

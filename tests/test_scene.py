@@ -1,0 +1,225 @@
+"""Tests of brdfscale.scene: planner choices, accuracy against independent references
+(closed forms, SciPy Hankel quadrature, a NumPy 2D quadrature), camera geometry,
+jit/differentiability, input validation, and a smoke run of experiments/bench_planner.py."""
+
+import math
+import sys
+from pathlib import Path
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+import brdfscale as bs
+from brdfscale import lobes, scene, stats
+from brdfscale.geometry import microfacet_factor, slope_to_direction
+from brdfscale.scene._interpolate import interpolate
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "experiments"))
+import bench_planner as bench  # noqa: E402  (independent references live in the benchmark)
+
+TOL = 1e-4
+
+
+def queries_at(u, mu):
+    """Queries whose half-vector slope is u (i = o = the direction of slope u), flat m∞."""
+    d = np.asarray(slope_to_direction(jnp.asarray(u)))
+    return scene.Queries(d, d, mu), np.asarray(microfacet_factor(jnp.asarray(d), jnp.asarray(d)))
+
+
+def spiral(n, reach=0.15):
+    r = np.linspace(0, reach, n)
+    phi = 7.3 * np.linspace(0, 2 * np.pi, n, endpoint=False)
+    return np.stack([r * np.cos(phi), r * np.sin(phi)], -1)
+
+
+def test_closed_form_chosen_and_exact():
+    mat = bench.material("closed_form")
+    u = spiral(40)
+    mu = np.geomspace(1e-3, 10, 40)
+    q, F = queries_at(u, mu)
+    plan = scene.plan(scene.Scene((mat,), q, TOL))
+    assert plan.parts[0].path == "closed_form"
+    got = np.asarray(plan.evaluate()) / F
+    want = np.array([bench.gaussian_reference(m, x[None])[0] for m, x in zip(mu, u)])
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+
+
+def test_radial_log_mu_binning_meets_target_against_scipy_hankel():
+    """Many distinct scales over four decades: log-μ nodes with interpolation; max error
+    relative to each scale's peak within the target (SciPy Hankel reference)."""
+    mat = bench.material("beckmann_ggx")
+    rng = np.random.default_rng(1)
+    n = 200
+    u = rng.uniform(-0.12, 0.12, (n, 2))
+    mu = np.exp(rng.uniform(np.log(2e-3), np.log(20), n))
+    q, F = queries_at(u, mu)
+    plan = scene.plan(scene.Scene((mat,), q, TOL))
+    part = plan.parts[0]
+    assert part.path == "radial" and "log-μ nodes" in part.details
+    got = np.asarray(plan.evaluate()) / F
+    want = bench._hankel_rows(mu, np.linalg.norm(u, axis=-1))
+    peak = bench._hankel_rows(mu, np.zeros(n))
+    err = np.max(np.abs(got - want) / peak)
+    assert err <= TOL
+    assert err <= plan.predicted_error * 4  # the prediction is not wildly optimistic
+
+
+@pytest.mark.slow
+def test_scipy_hankel_reference_matches_mpmath():
+    r = 0.05
+    assert bench.hankel_reference("beckmann_ggx", 0.01, [r])[0] == pytest.approx(
+        bench.mpmath_check("beckmann_ggx", 0.01, r), rel=1e-10
+    )
+
+
+def test_grid_for_skewed_statistics_against_2d_quadrature():
+    mat = bench.material("skewed_mixture")
+    g = np.linspace(-0.12, 0.12, 9)
+    u = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    mu = np.full(len(u), 0.01)
+    q, F = queries_at(u, mu)
+    plan = scene.plan(scene.Scene((mat,), q, TOL))
+    assert plan.parts[0].path == "grid"
+    got = np.asarray(plan.evaluate()) / F
+    want = bench.skewed_reference(0.01, u)
+    assert np.max(np.abs(got - want)) / np.max(want) <= TOL
+    # the skew is physical: mass sits on the +x side of the lobe (DESIGN §2 sign test)
+    assert want[np.argmax(want)] > 0 and u[np.argmax(got), 0] > 0 or np.isclose(u[np.argmax(got), 0], 0)
+
+
+def test_grid_table_mode_matches_direct_mode():
+    """Many queries → FFT tables + cubic interpolation; few → direct DFT sums. Same answer."""
+    mat = bench.material("skewed_mixture")
+    rng = np.random.default_rng(2)
+    u = rng.uniform(-0.1, 0.1, (2000, 2))
+    mu = np.exp(rng.uniform(np.log(8e-3), np.log(1.2e-2), len(u)))
+    q, F = queries_at(u, mu)
+    table = scene.plan(scene.Scene((mat,), q, 1e-3))
+    assert "FFT grid" in table.parts[0].details
+    few = np.arange(0, len(u), 500)
+    q_few, F_few = queries_at(u[few], mu[few])
+    direct = scene.plan(scene.Scene((mat,), q_few, 1e-6))
+    assert "summed at the" in direct.parts[0].details
+    a = np.asarray(table.evaluate())[few] / F[few]
+    b = np.asarray(direct.evaluate()) / F_few
+    assert np.max(np.abs(a - b)) / np.max(b) <= 1e-3
+
+
+def test_duplicate_queries_are_computed_once():
+    mat = bench.material("beckmann_ggx")
+    u = np.repeat(spiral(5), 4, axis=0)
+    q, F = queries_at(u, np.full(len(u), 0.05))
+    plan = scene.plan(scene.Scene((mat,), q, TOL))
+    assert plan.parts[0].inverse.max() == 4
+    v = np.asarray(plan.evaluate()).reshape(5, 4)
+    np.testing.assert_array_equal(v, v[:, :1].repeat(4, 1))
+    assert "5 distinct (u, μ) pairs" in plan.explain()
+
+
+def test_camera_scene_geometry_and_image():
+    cam = scene.Camera(height=2.0, pitch=0.3, fov=0.8, resolution=(20, 30))
+    light = np.array([0.6, 0.0, 0.8])
+    sc = scene.camera_scene([bench.material("closed_form")], cam, light, TOL)
+    rays = cam.rays().reshape(-1, 3)
+    hit = rays[:, 2] < 0
+    assert len(sc.queries) == hit.sum() < 600  # the sky above the horizon gives no queries
+    # independent check of one pixel: distance to the plane and footprint
+    j = int(np.asarray(sc.pixels)[7])
+    d = rays[j]
+    t = 2.0 / -d[2]
+    np.testing.assert_allclose(np.asarray(sc.queries.o)[7], -d, atol=1e-12)
+    np.testing.assert_allclose(float(sc.queries.mu[7]), t * (0.8 / 20) / math.sqrt(-d[2]), rtol=1e-12)
+    plan = scene.plan(sc)
+    img = np.asarray(plan.image())
+    assert img.shape == (20, 30) and np.all(img.ravel()[~hit] == 0) and np.all(img.ravel()[hit] > 0)
+
+
+def test_plan_is_jitted_and_differentiable():
+    mat = bench.material("beckmann_ggx")
+    u = spiral(12)
+    mu = np.geomspace(5e-3, 0.5, 12)
+    q, F = queries_at(u, mu)
+    plan = scene.plan(scene.Scene((mat,), q, 1e-4))
+
+    def loss(alpha):
+        m = eqx.tree_at(lambda m: m.lobe, mat, lobes.Beckmann(alpha))
+        return jnp.sum(plan.evaluate((m,)) ** 2)
+
+    a = 0.05
+    grad = jax.grad(loss)(jnp.asarray(a))
+    h = 1e-6
+    fd = (loss(jnp.asarray(a + h)) - loss(jnp.asarray(a - h))) / (2 * h)
+    assert float(grad) == pytest.approx(float(fd), rel=1e-5)
+
+
+def test_explain_reports_choices_costs_and_errors():
+    mats = (bench.material("beckmann_ggx"), bench.material("closed_form"))
+    u = spiral(10)
+    q, _ = queries_at(u, np.full(10, 0.02))
+    q = scene.Queries(q.i, q.o, q.mu, material=np.arange(10) % 2)
+    text = scene.plan(scene.Scene(mats, q, TOL)).explain()
+    assert "path: radial" in text and "path: closed_form" in text
+    assert "predicted error" in text and "ms" in text and "Gauss–Legendre" in text
+
+
+def test_forced_method_that_does_not_apply():
+    mat = bench.material("skewed_mixture")
+    q, _ = queries_at(spiral(4), np.full(4, 0.01))
+    with pytest.raises(bs.MethodNotApplicableError):
+        scene.plan(scene.Scene((mat,), q, TOL), method="radial")
+    with pytest.raises(bs.MethodNotApplicableError):
+        scene.plan(scene.Scene((mat,), q, TOL), method="closed_form")
+
+
+def test_no_brdf_at_a_finer_scale_is_reported_at_planning():
+    coarse = scene.Material(lobes.Beckmann(0.01), 10.0, stats.ScaledFamily(stats.Beckmann, bench.WIDTH))
+    q, _ = queries_at(spiral(3), np.full(3, 1e-4))
+    with pytest.raises(bs.NoBRDFAtScaleError):
+        scene.plan(scene.Scene((coarse,), q, TOL))
+
+
+def test_bad_input():
+    mat = bench.material("closed_form")
+    q, _ = queries_at(spiral(3), np.full(3, 0.1))
+    with pytest.raises(bs.InvalidInputError, match="tol"):
+        scene.Scene((mat,), q, 2.0)
+    with pytest.raises(bs.InvalidInputError, match="material indices"):
+        scene.Scene((mat,), scene.Queries(q.i, q.o, q.mu, material=[0, 1, 0]), TOL)
+    with pytest.raises(bs.InvalidInputError, match="shape"):
+        scene.Queries(q.i, q.o[:2], q.mu)
+    with pytest.raises(bs.InvalidInputError, match="positive"):
+        scene.Queries(q.i, q.o, [0.1, -1.0, 0.1])
+    with pytest.raises(bs.InvalidInputError, match="scale law"):
+        scene.Material(lobes.Beckmann(0.1), 1.0, stats.Beckmann(0.1))
+    with pytest.raises(bs.InvalidInputError, match="method"):
+        scene.plan(scene.Scene((mat,), q, TOL), method="fast")
+    with pytest.raises(bs.InvalidInputError, match="fov"):
+        scene.Camera(height=1.0, pitch=0.1, fov=4.0, resolution=(4, 4))
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.lists(st.floats(-2, 2), min_size=4, max_size=4), st.lists(st.floats(-2, 2), min_size=4, max_size=4))
+def test_cubic_interpolation_is_exact_for_cubics(cx, cy):
+    """Tensor cubic Lagrange interpolation reproduces bicubic polynomials (clamped stencils too)."""
+    px, py = np.polynomial.Polynomial(cx), np.polynomial.Polynomial(cy)
+    x, y = np.linspace(-1, 1, 9), np.linspace(0, 2, 7)
+    table = px(x)[:, None] * py(y)[None, :]
+    rng = np.random.default_rng(0)
+    qx, qy = rng.uniform(-1, 1, 50), rng.uniform(0, 2, 50)
+    pos = np.stack([(qx + 1) / 0.25, qy / (2 / 6)], -1)
+    got = np.asarray(interpolate(jnp.asarray(table), jnp.asarray(pos)))
+    want = px(qx) * py(qy)
+    np.testing.assert_allclose(got, want, atol=1e-10 * (1 + np.max(np.abs(table))))
+
+
+def test_benchmark_smoke():
+    """A quick run of experiments/bench_planner.py's problem and workload code (no timing checks)."""
+    prob = bench.bench_problem("closed_form", quick=True)
+    assert prob["pareto"] and prob["planner"][0]["error"] <= 1e-4
+    work, image, mu_image, err, _ = bench.bench_workload(16, 1, 1e-4)
+    assert image.shape == (16, 16) and work["mu_ratio"] > 10
+    assert work["max_error_rel_peak"] <= 1e-4 and np.all(np.isfinite(err))
