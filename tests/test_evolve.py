@@ -32,6 +32,13 @@ def test_beckmann_alpha_squared_adds():
     assert _max_rel(out.density(U), ref) < 1e-13
 
 
+def test_closed_form_keeps_isotropy_for_later_radial_evolution():
+    out = bs.evolve(lobes.Beckmann(0.1), stats.Beckmann(0.2), stats.Beckmann(0.05))
+    assert out.shape.isotropic
+    assert not bs.evolve(lobes.Beckmann(alpha_x=0.1, alpha_y=0.2), stats.Beckmann(0.2), stats.Delta()).shape.isotropic
+    assert bs.evolve(out, stats.GGX(0.1), stats.GGX(0.05)).shape.method == "radial"
+
+
 def test_mirror_with_ggx_statistics_is_the_ggx_lobe():
     """Harvey's relation (seed Eq. 6.1): mirror facets at μ0, flat at μ: the lobe is s(μ0)."""
     s = stats.GGX(alpha_x=0.1, alpha_y=0.2)

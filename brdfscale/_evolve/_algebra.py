@@ -27,6 +27,14 @@ def _sum_means(a, b):
     return a + b
 
 
+def _gaussian(cov, mean, isotropic: bool) -> Gaussian:
+    """A Gaussian that keeps the structural isotropy of its inputs (so that later evolutions
+    of it can take the radial path)."""
+    if isotropic:
+        return Gaussian(sigma=jnp.sqrt(cov[..., 0, 0]), mean=mean)
+    return Gaussian(cov=cov, mean=mean)
+
+
 def convolve(a: AbstractSlopeDensity, b: AbstractSlopeDensity) -> AbstractSlopeDensity | None:
     """``a ∗ b`` in closed form, or None."""
     if isinstance(a, Delta):
@@ -34,7 +42,7 @@ def convolve(a: AbstractSlopeDensity, b: AbstractSlopeDensity) -> AbstractSlopeD
     if isinstance(b, Delta):
         return convolve(b, a)
     if isinstance(a, Gaussian) and isinstance(b, Gaussian):
-        return Gaussian(cov=a.cov + b.cov, mean=_sum_means(a.mean, b.mean))
+        return _gaussian(a.cov + b.cov, _sum_means(a.mean, b.mean), a.isotropic and b.isotropic)
     for mix, other in ((a, b), (b, a)):
         if isinstance(mix, Mixture):
             parts = [convolve(c, other) for c in mix.components]
@@ -63,8 +71,7 @@ def deconvolve(a: AbstractSlopeDensity, b: AbstractSlopeDensity) -> AbstractSlop
                 raise NoBRDFAtScaleError(_NEGATIVE_VARIANCE + f" (smallest eigenvalue {float(np.min(lo)):.6g})")
         else:
             cov = eqx.error_if(cov, jnp.any(lo <= 0), _NEGATIVE_VARIANCE)
-        mean = _sum_means(a.mean, _neg(b.mean))
-        return Gaussian(cov=cov, mean=mean)
+        return _gaussian(cov, _sum_means(a.mean, _neg(b.mean)), a.isotropic and b.isotropic)
     if isinstance(a, Mixture) and isinstance(b, Gaussian):
         parts = [deconvolve(c, b) if isinstance(c, Gaussian) else None for c in a.components]
         if all(p is not None for p in parts):
