@@ -10,13 +10,14 @@ The public API:
 * :mod:`brdfscale.exr` — measurement sets and lobe tables as OpenEXR files;
 * :mod:`brdfscale.plus` — plus-distributions and nearly-specular reflection (seed §6);
 * :mod:`brdfscale.so3` — anisotropic evolution on SO(3) (seed §5);
+* :mod:`brdfscale.scene` — a planner that evaluates only what a scene needs;
 * :class:`MeasurementSet` / :class:`LobeImage` — multi-scale lobe measurements in memory;
 * the exception classes, all derived from :class:`BrdfscaleError`.
 """
 
 from importlib.metadata import PackageNotFoundError, version as _version
 
-from . import exr, geometry, lobes, plus, so3, stats, synth
+from . import exr, geometry, lobes, plus, scene, so3, stats, synth
 from ._errors import (
     BrdfscaleError,
     InvalidInputError,
@@ -43,6 +44,7 @@ __all__ = [
     "synth",
     "plus",
     "so3",
+    "scene",
     "exr",
     "BrdfscaleError",
     "InvalidInputError",
