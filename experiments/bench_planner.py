@@ -9,7 +9,10 @@ computed independently of brdfscale's evolution code):
 * ``skewed_mixture`` — Beckmann lobe, skewed zero-mean two-Gaussian statistics: the 2D inverse
   Fourier integral by a tensor Gauss–Legendre rule in NumPy;
 * ``disk``          — Beckmann lobe, statistics that dilute a uniform disk of slopes with flat
-  facets (``f Disk + (1 − f) δ``): Hankel integral by SciPy quadrature (and mpmath).
+  facets (``f Disk + (1 − f) δ``): Hankel integral by SciPy quadrature (and mpmath);
+* ``plus``          — Beckmann lobe, nearly-specular statistics ``(1 − w) δ + c h_0 + w Beckmann``
+  with the plus-distribution h_0 (seed §6): Hankel integral by SciPy quadrature with H_0 from
+  its power series (checked against mpmath).
 
 For each problem every path's accuracy knobs are swept — ``evolve(..., method, size, tol)``
 for the radial (Gauss–Legendre nodes × cut-off tolerance) and grid (side × tolerance) paths,
@@ -49,7 +52,7 @@ sys.path.insert(1, str(Path(__file__).resolve().parent.parent))
 from _bench import RESULTS, best_time, machine, write_json  # noqa: E402
 
 import brdfscale as bs  # noqa: E402
-from brdfscale import lobes, scene, stats  # noqa: E402
+from brdfscale import lobes, plus, scene, stats  # noqa: E402
 from brdfscale.geometry import microfacet_factor, slope_to_direction  # noqa: E402
 
 LOBE_ALPHA = 0.05
@@ -81,9 +84,28 @@ def diluted_disk(alpha):
     return stats.Mixture(jnp.stack([f, 1 - f]), [stats.Disk(0.1), stats.Delta()])
 
 
+PLUS_X0, PLUS_STRENGTH = 0.02, 0.05
+
+
+def nearly_specular(alpha):
+    """``(1 − w) δ + 0.05 w h_0 + w Beckmann(α)`` with w = α/α_max and the plus-distribution
+    h_0 of cut-off 0.02 (seed §6): mirror-like at coarse scales, rough and glinting at fine."""
+    w = jnp.asarray(alpha) / WIDTH.alpha_max
+    return plus.NearlySpecular(1 - w, jnp.stack([PLUS_STRENGTH * w]), PLUS_X0, smooth=stats.Beckmann(alpha), smooth_weight=w)
+
+
+def plus_h0(z):
+    """``H_0`` at ``z = |W| x0`` by its power series (DESIGN §4), fine in float64 for z ≲ 10."""
+    z = np.asarray(z, float)
+    k = np.arange(1, 80)[:, None]
+    logs = 2 * k * np.log(np.maximum(z, 1e-300) / 2)[None, :] - 2 * sp.gammaln(k + 1)
+    terms = (-1.0) ** k * np.exp(logs) / (2 * k)
+    return np.where(z > 0, np.sum(terms, axis=0), 0.0)
+
+
 def material(kind):
     family = {"closed_form": stats.Beckmann, "beckmann_ggx": stats.GGX, "skewed_mixture": skewed,
-              "disk": diluted_disk}[kind]
+              "disk": diluted_disk, "plus": nearly_specular}[kind]
     return scene.Material(lobes.Beckmann(LOBE_ALPHA), MU0, stats.ScaledFamily(family, WIDTH))
 
 
@@ -114,6 +136,11 @@ def _radial_transform(kind, mu, k):
             x = 0.1 * k
             jinc = np.where(x > 0, 2 * sp.j1(np.where(x > 0, x, 1)) / np.where(x > 0, x, 1), 1.0)
             return f * jinc + (1 - f)
+        return lobe * S(a0) / S(a1)
+    if kind == "plus":
+        def S(a):
+            w = a / float(WIDTH.alpha_max)
+            return (1 - w) + PLUS_STRENGTH * w * plus_h0(k * PLUS_X0) + w * np.exp(-(a * k) ** 2 / 4)
         return lobe * S(a0) / S(a1)
     raise ValueError(kind)
 
@@ -247,7 +274,7 @@ def bench_problem(kind, quick):
     F = np.asarray(microfacet_factor(jnp.asarray(d), jnp.asarray(d)))
     repeat = 2 if quick else 5
     closed = kind == "closed_form"
-    isotropic = kind in ("closed_form", "beckmann_ggx", "disk")
+    isotropic = kind in ("closed_form", "beckmann_ggx", "disk", "plus")
     tols = [1e-8] if quick else [1e-4, 1e-7, 1e-10]
     knobs = []
     if closed:
@@ -282,6 +309,12 @@ def bench_problem(kind, quick):
             "explain": p.explain(),
         })
     check = None
+    if not quick and kind == "plus":
+        import mpmath
+
+        z = [0.5, 2.0, 5.0]
+        exact = [float(mpmath.quad(lambda x: (mpmath.besselj(0, zz * x / PLUS_X0) - 1) / x, [0, PLUS_X0])) for zz in z]
+        check = {"z": z, "series_H0": plus_h0(np.array(z)).tolist(), "mpmath_H0": exact}
     if not quick and kind in ("beckmann_ggx", "disk"):
         r = float(np.linalg.norm(U[3]))
         check = {"radius": r, "mu": float(mus[0]), "scipy": float(hankel_reference(kind, mus[0], [r])[0]),
@@ -430,7 +463,7 @@ def main(argv=None):
     parser.add_argument("--no-plots", action="store_true")
     args = parser.parse_args(argv)
     quick = args.quick
-    kinds = ["closed_form", "beckmann_ggx", "skewed_mixture", "disk"]
+    kinds = ["closed_form", "beckmann_ggx", "skewed_mixture", "disk", "plus"]
     problems = [bench_problem(kind, quick) for kind in kinds]
     for prob in problems:
         for pl in prob["planner"]:

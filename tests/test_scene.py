@@ -87,8 +87,24 @@ def test_grid_for_skewed_statistics_against_2d_quadrature():
     got = np.asarray(plan.evaluate()) / F
     want = bench.skewed_reference(0.01, u)
     assert np.max(np.abs(got - want)) / np.max(want) <= TOL
-    # the skew is physical: mass sits on the +x side of the lobe (DESIGN §2 sign test)
-    assert want[np.argmax(want)] > 0 and u[np.argmax(got), 0] > 0 or np.isclose(u[np.argmax(got), 0], 0)
+    # the skew is resolved: the lobe is not symmetric under u_x → −u_x (the grid is)
+    mirrored = want.reshape(9, 9)[:, ::-1].ravel()
+    assert np.max(np.abs(want - mirrored)) > 100 * TOL * np.max(want)
+
+
+def test_nearly_specular_statistics_against_series_reference():
+    """Plus-distribution statistics (seed §6): radial path against SciPy quadrature with H_0
+    from its power series, which itself matches mpmath."""
+    mat = bench.material("plus")
+    u = spiral(40)
+    mu = np.full(40, 0.01)
+    q, F = queries_at(u, mu)
+    plan = scene.plan(scene.Scene((mat,), q, TOL))
+    assert plan.parts[0].path == "radial"
+    want = bench.hankel_reference("plus", 0.01, np.linalg.norm(u, axis=-1))
+    got = np.asarray(plan.evaluate()) / F
+    assert np.max(np.abs(got - want)) / np.max(want) <= TOL
+    np.testing.assert_allclose(bench.plus_h0(np.array([2.0])), [-0.44191940220810094], rtol=1e-12)  # mpmath value
 
 
 def test_grid_table_mode_matches_direct_mode():

@@ -1,7 +1,7 @@
 """Cubic Lagrange interpolation on uniform grids (tensor products in 1–3 dimensions).
 
-Four-point Lagrange interpolation has error ``≤ (9/16)/4! · h⁴ max|f⁽⁴⁾|`` (⅜·h⁴/16 between
-the middle nodes); the stencil is clamped at the ends of the grid, so queries never read
+Four-point Lagrange interpolation between the middle nodes of its stencil has error
+``≤ (9/16)/4! · h⁴ max|f⁗|``; the stencil is clamped at the ends of the grid, so queries never read
 outside it. Positions are given in index units ``x = (t − t_0)/h``.
 """
 

@@ -37,13 +37,13 @@ import scipy.special
 
 from .._errors import InvalidInputError, MethodNotApplicableError, NoBRDFAtScaleError
 from .._evolve import evolve
-from .._evolve._spectral import EvolvedDensity, choose_size, radial_nodes
+from .._evolve._spectral import choose_size, radial_nodes
 from ..geometry import half_slope, microfacet_factor
 from . import _cost
 from ._description import Material, Scene
 from ._interpolate import interpolate
 from ._plan import Plan
-from ._steps import ClosedFormStep, GridStep, MaterialPlan, RadialStep
+from ._steps import ClosedFormStep, GridStep, MaterialPlan, RadialStep, evolved_density
 
 _METHODS = ("auto", "closed_form", "radial", "grid")
 _CUBIC_CONSTANT = 0.5625 / 24  # max |s(s−1)(s−2)(s−3)|/4! on the middle interval
@@ -156,11 +156,6 @@ def _hankel_kernel(K: float, n_k: int, radii: tuple | None, h_r: float, n_r: int
     return k, kernel
 
 
-def _evolved(material, mu, method, size, tol):
-    return EvolvedDensity(material.lobe.shape, material.statistics(material.mu0), material.statistics(mu),
-                          material.regularisation, method, size, tol)
-
-
 def _plan_radial(material, u, log_mu, tol):
     budget = tol / 4
     radius = np.linalg.norm(u, axis=-1)
@@ -169,7 +164,7 @@ def _plan_radial(material, u, log_mu, tol):
     probe = distinct if len(distinct) <= 64 else np.linspace(distinct[0], distinct[-1], 64)
     # K from the tail bound |g(r) − g_K(r)| ≤ (2π)⁻¹ ∫_K^∞ |G| k dk ≤ budget · g(0), on
     # log-spaced probe frequencies scaled to the lobe's extent, all probe scales in one call
-    extent = float(_evolved(material, np.exp(probe[0]), "radial", 64, budget).support_radius(budget))
+    extent = float(evolved_density(material, np.exp(probe[0]), "radial", 64, budget).support_radius(budget))
     k_probe = np.logspace(-3, 5, 801) / max(extent, 1e-12)
     G = _radial_transform_rows(material, probe, k_probe, budget)
     integrand = np.abs(G) * k_probe**2 * np.log(k_probe[1] / k_probe[0])  # |G| k dk in d(log k)
@@ -217,7 +212,7 @@ def _plan_grid(material, u, log_mu, tol):
     probe = distinct if len(distinct) <= 16 else np.linspace(distinct[0], distinct[-1], 16)
     size, achieved = 0, budget
     for t in probe:
-        n, honoured = choose_size(_evolved(material, np.exp(t), "grid", 256, budget), "grid", _MAX_GRID)
+        n, honoured = choose_size(evolved_density(material, np.exp(t), "grid", 256, budget), "grid", _MAX_GRID)
         size, achieved = max(size, n), max(achieved, honoured)
     n_q, half = len(u), size // 2 + 1
     direct_seconds = _cost.seconds(3 * len(distinct) * size * half, 4 * n_q * len(distinct) * size * half)
@@ -260,7 +255,7 @@ def _plan_grid(material, u, log_mu, tol):
 def _plan_grid_direct(material, u, log_mu, size, achieved, seconds):
     """Few queries: the inverse DFT summed at the queries, phases frozen (no interpolation)."""
     nodes = np.unique(log_mu)
-    h, _ = _evolved(material, np.exp(nodes[0]), "grid", size, achieved).grid_spacing()
+    h, _ = evolved_density(material, np.exp(nodes[0]), "grid", size, achieved).grid_spacing()
     h = float(h)
     fy = np.fft.fftfreq(size) * (2 * np.pi / h)
     fx = np.fft.rfftfreq(size) * (2 * np.pi / h)

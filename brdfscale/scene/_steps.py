@@ -62,7 +62,8 @@ def _scale_position(log_mu, nodes, exact):
     return (log_mu - nodes[0]) / (nodes[1] - nodes[0])
 
 
-def _evolved(material: Material, mu, method: str, size: int, tol: float) -> EvolvedDensity:
+def evolved_density(material: Material, mu, method: str, size: int, tol: float) -> EvolvedDensity:
+    """The material's lobe shape evolved from μ0 to μ (seed Eq. 4.4) on a spectral path."""
     return EvolvedDensity(
         material.lobe.shape, material.statistics(material.mu0), material.statistics(mu),
         material.regularisation, method, size, tol,
@@ -90,7 +91,7 @@ class RadialStep(eqx.Module):
     def transforms(self, material: Material) -> Float[Array, "s K"]:
         """``G(k, μ_n)`` for every scale node, with the existence check |G| ≤ 1."""
         size = self.k.shape[0]
-        G = jax.vmap(lambda t: _evolved(material, jnp.exp(t), "radial", size, self.tol).cf_radial(self.k))(self.nodes)
+        G = jax.vmap(lambda t: evolved_density(material, jnp.exp(t), "radial", size, self.tol).cf_radial(self.k))(self.nodes)
         return eqx.error_if(G, jnp.max(jnp.abs(G)) > 1 + _CF_EXCESS, _NO_BRDF)
 
     def table(self, material: Material) -> Float[Array, "s r"]:
@@ -126,7 +127,7 @@ class GridStep(eqx.Module):
     tol: float = eqx.field(static=True)
 
     def densities(self, material: Material, mu):
-        return _evolved(material, mu, "grid", self.size, self.tol)
+        return evolved_density(material, mu, "grid", self.size, self.tol)
 
     def table(self, material: Material) -> Float[Array, "s N N"]:
         """The lobe shape on (scale nodes × u_y × u_x) grids."""
