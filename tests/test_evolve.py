@@ -85,6 +85,11 @@ def _ggx(alpha):
     return lambda x, y: 1.0 / (math.pi * alpha**2 * (1 + (x * x + y * y) / alpha**2) ** 2)
 
 
+def test_too_small_explicit_grid_warns():
+    with pytest.warns(UserWarning, match="below the"):
+        bs.evolve(lobes.Beckmann(0.1), stats.GGX(0.08), stats.Delta(), method="grid", size=64)
+
+
 def test_grid_extent_and_size_can_be_forced():
     args = (lobes.Beckmann(0.1), stats.Beckmann(0.2), stats.Beckmann(0.05))
     out = bs.evolve(*args, method="grid", size=128, extent=1.5)
@@ -241,7 +246,7 @@ def test_batched_over_scales_with_vmap():
 def test_float32_matches_float64(method):
     def run(dtype):
         lobe = lobes.Beckmann(jnp.asarray(0.1, dtype))
-        out = bs.evolve(lobe, stats.GGX(jnp.asarray(0.08, dtype)), stats.GGX(jnp.asarray(0.03, dtype)), method=method, size=256)
+        out = bs.evolve(lobe, stats.GGX(jnp.asarray(0.08, dtype)), stats.GGX(jnp.asarray(0.03, dtype)), method=method, size=256, tol=1e-6)
         return out.density(jnp.asarray(U, dtype))
 
     v32, v64 = run(jnp.float32), run(jnp.float64)

@@ -1,5 +1,6 @@
 """The isotropic (slope-space) evolution operator, seed Eq. 4.4."""
 
+import warnings
 from typing import Literal
 
 from .._errors import InvalidInputError, MethodNotApplicableError
@@ -112,7 +113,14 @@ def evolve(
         if is_concrete(extent) and not float(extent) > 0:
             raise InvalidInputError(f"extent must be a positive slope half-width; got {float(extent)}.")
     shape = EvolvedDensity(lobe.shape, s_from, s_to, lam, path, size or _DEFAULT_SIZE[path], tol, extent)
-    if size is None and is_concrete(shape):
-        size, achievable = choose_size(shape, path, _MAX_SIZE[path])
-        shape = EvolvedDensity(lobe.shape, s_from, s_to, lam, path, size, achievable, extent)
+    if is_concrete(shape):
+        needed, achievable = choose_size(shape, path, max(_MAX_SIZE[path], size or 0))
+        if size is None:
+            shape = EvolvedDensity(lobe.shape, s_from, s_to, lam, path, needed, achievable, extent)
+        elif path == "grid" and size < needed:
+            warnings.warn(
+                f"size={size} is below the {needed} nodes per side that tol={tol:g} needs on this "
+                f"grid; expect errors well above tol (leave size=None to choose it).",
+                stacklevel=2,
+            )
     return Lobe(shape, lobe.amplitude)

@@ -38,6 +38,7 @@ import scipy.special
 from .._errors import InvalidInputError, MethodNotApplicableError, NoBRDFAtScaleError
 from .._evolve import evolve
 from .._evolve._spectral import choose_size, radial_nodes
+from .._quadrature import gauss_legendre
 from ..geometry import half_slope, microfacet_factor
 from . import _cost
 from ._description import Material, Scene
@@ -147,7 +148,7 @@ def _scale_nodes(log_mu, tables, budget):
 @functools.lru_cache(maxsize=32)
 def _hankel_kernel(K: float, n_k: int, radii: tuple | None, h_r: float, n_r: int):
     """``w_k k J₀(k r)/2π`` for radii on the grid ``(j − 3) h_r`` (or given radii): cached."""
-    x, w = scipy.special.roots_legendre(n_k)  # O(n) (NumPy's leggauss is O(n²) and slow beyond ~500)
+    x, w = gauss_legendre(n_k)
     k = 0.5 * (x + 1) * K
     wk = 0.5 * K * w
     r = np.asarray(radii) if radii is not None else (np.arange(n_r) - 3) * h_r
@@ -174,7 +175,7 @@ def _plan_radial(material, u, log_mu, tol):
     K = float(k_probe[np.argmax(inside)] if inside.any() else k_probe[-1])
     n_k = radial_nodes(K, r_max)
     k, _ = _hankel_kernel(K, n_k, None, 1.0, 1)
-    _, w = scipy.special.roots_legendre(n_k)
+    _, w = gauss_legendre(n_k)
     wk = 0.5 * K * w
     G = _radial_transform_rows(material, probe, k, budget)
     peak = np.abs(G) @ (wk * k) / (2 * np.pi)
