@@ -116,17 +116,7 @@ class EvolvedDensity(AbstractSlopeDensity):
         return k, jnp.abs(self.cf(W))
 
     def bandwidth(self, tol):
-        k, mag = self._probe()
-        above = jnp.any(mag > tol, axis=1)
-        # the first probe frequency past the last one where |G| > tol
-        last = jnp.max(jnp.where(above, jnp.arange(k.shape[0]), 0))
-        return k[jnp.minimum(last + 1, k.shape[0] - 1)]
-
-    def _checked(self, value):
-        """Attach the existence check: a non-negative density has |G(W)| ≤ G(0) = 1."""
-        _, mag = self._probe()
-        excess = jnp.max(mag) - 1
-        return eqx.error_if(value, (excess > _CF_EXCESS) | jnp.isnan(excess), _NO_BRDF_MESSAGE)
+        return _cutoff(*self._probe(), tol)
 
     # -- inversion ------------------------------------------------------------------------
     def density(self, m):
@@ -142,13 +132,15 @@ class EvolvedDensity(AbstractSlopeDensity):
         return _translate_errors(_density, shape, m)
 
     def _density(self, m):
+        k, mag = self._probe()
         if self.method == "radial":
-            return self._checked(self._radial(jnp.linalg.norm(m, axis=-1)))
-        return self._checked(self._grid_at(m))
+            value = self._radial(jnp.linalg.norm(m, axis=-1), _cutoff(k, mag, self.tol))
+        else:
+            value = self._grid_at(m)
+        return _checked(value, mag)
 
-    def _radial(self, r):
+    def _radial(self, r, K):
         x, w = gauss_legendre(self.size)
-        K = self.bandwidth(self.tol)
         k = (0.5 * (jnp.asarray(x, r.dtype) + 1)) * K
         wk = 0.5 * K * jnp.asarray(w, r.dtype)
         G = self.cf_radial(k)
@@ -181,7 +173,7 @@ class EvolvedDensity(AbstractSlopeDensity):
         sign = (-1.0) ** (jnp.arange(n)[:, None] + jnp.arange(fx.shape[0])[None, :])
         values = jnp.fft.irfft2(G * sign, s=(n, n)) / h**2
         u = -a + h * jnp.arange(n, dtype=h.dtype)
-        return u, self._checked(values)
+        return u, _checked(values, self._probe()[1])
 
     def _grid_at(self, m):
         """Inverse DFT of the grid path summed directly at query offsets (no interpolation)."""
@@ -196,6 +188,19 @@ class EvolvedDensity(AbstractSlopeDensity):
         total = jnp.einsum("qy,yx,qx->q", ey, G * weight, ex)
         dW2 = (2 * jnp.pi / (self.size * h)) ** 2
         return (jnp.real(total) * dW2 / (2 * jnp.pi) ** 2).reshape(m.shape[:-1])
+
+
+def _cutoff(k, mag, tol):
+    """The first probe frequency past the last one where ``|G| > tol``."""
+    above = jnp.any(mag > tol, axis=1)
+    last = jnp.max(jnp.where(above, jnp.arange(k.shape[0]), 0))
+    return k[jnp.minimum(last + 1, k.shape[0] - 1)]
+
+
+def _checked(value, mag):
+    """Attach the existence check: a non-negative density has |G(W)| ≤ G(0) = 1."""
+    excess = jnp.max(mag) - 1
+    return eqx.error_if(value, (excess > _CF_EXCESS) | jnp.isnan(excess), _NO_BRDF_MESSAGE)
 
 
 _density = eqx.filter_jit(lambda shape, m: shape._density(m))
