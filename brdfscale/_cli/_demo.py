@@ -76,7 +76,8 @@ def run(args) -> int:
         std = row["std"] if row["std"] is not None else float("nan")
         est = row["median"] if row["median"] is not None else row["estimate_map"]
         pull = f"{abs(est - truth) / std:.2f}" if truth is not None and std > 0 else "—"
-        print(f"{name:20s} {truth if truth is not None else float('nan'):10.4g} {est:10.4g} {std:10.3g} "
+        truth_text = f"{truth:10.4g}" if truth is not None else f"{'unknown':>10s}"
+        print(f"{name:20s} {truth_text} {est:10.4g} {std:10.3g} "
               f"{q[0]:10.4g} {q[2]:10.4g}  {pull}")
     if doc["mcmc"]:
         print(f"\nemcee: τ_max = {max(doc['mcmc']['autocorrelation_time'].values()):.1f}, "
