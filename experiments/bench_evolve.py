@@ -55,11 +55,11 @@ def bench_grid(kind: str, n: int) -> dict:
 
     grid_fn = jax.jit(jax.vmap(one))
     grids = grid_fn(widths).block_until_ready()
-    t_grid = best_time(lambda: grid_fn(widths).block_until_ready())
+    t_grid = best_time(lambda: grid_fn(widths).block_until_ready(), repeat=15)
 
     x = jnp.asarray(np.random.default_rng(0).random((BATCH, n, n)))
     floor_fn = jax.jit(lambda a: jnp.fft.irfft2(jnp.fft.rfft2(a), s=(n, n)))
-    t_floor = best_time(lambda: floor_fn(x).block_until_ready())
+    t_floor = best_time(lambda: floor_fn(x).block_until_ready(), repeat=15)
 
     # SciPy: sample g0 and s on the same grid and convolve (the straightforward implementation)
     u, _ = bs.evolve(lobe, statistics(kind, widths[0]), stats.Delta(), method="grid", size=n, extent=EXTENT).shape.on_grid()
@@ -71,7 +71,7 @@ def bench_grid(kind: str, n: int) -> dict:
     def scipy_all():
         return [scipy.signal.fftconvolve(g0, s, mode="same") * h * h for s in s_grids]
 
-    t_scipy = best_time(scipy_all, repeat=3)
+    t_scipy = best_time(scipy_all, repeat=7)
     # accuracy of both on the first lobe, against the auto path (closed form for the
     # mixture, radial Hankel quadrature for GGX) at the grid's nodes, relative to the peak
     reference = np.asarray(bs.evolve(lobe, statistics(kind, widths[0]), stats.Delta()).density(jnp.asarray(U)))
