@@ -113,7 +113,7 @@ def evolve(
         if is_concrete(extent) and not float(extent) > 0:
             raise InvalidInputError(f"extent must be a positive slope half-width; got {float(extent)}.")
     shape = EvolvedDensity(lobe.shape, s_from, s_to, lam, path, size or _DEFAULT_SIZE[path], tol, extent)
-    if is_concrete(shape):
+    if is_concrete(shape) and (size is None or path == "grid"):  # an explicit radial size needs no check
         needed, achievable = choose_size(shape, path, max(_MAX_SIZE[path], size or 0))
         if size is None:
             shape = EvolvedDensity(lobe.shape, s_from, s_to, lam, path, needed, achievable, extent)
