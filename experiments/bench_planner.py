@@ -34,6 +34,7 @@ experiments/results/bench_planner.json and bench_planner_*.png.
 
 import argparse
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -52,7 +53,7 @@ sys.path.insert(1, str(Path(__file__).resolve().parent.parent))
 from _bench import RESULTS, best_time, machine, write_json  # noqa: E402
 
 import brdfscale as bs  # noqa: E402
-from brdfscale import lobes, plus, scene, stats  # noqa: E402
+from brdfscale import lobes, plus, scene, so3, stats  # noqa: E402
 from brdfscale.geometry import microfacet_factor, slope_to_direction  # noqa: E402
 
 LOBE_ALPHA = 0.05
@@ -204,6 +205,99 @@ def skewed_reference(mu, u, nodes=600):
     return np.real(np.einsum("qy,yx,qx->q", ey, Gw, ex)) / (2 * np.pi) ** 2
 
 
+# -- SO(3) reference problem --------------------------------------------------------------------------
+SO3_ALPHA = (0.3, 0.15)  # the facet lobe's roughness along the facet's tangent and bitangent
+SO3_PAIRS = (((0.3, 0.0), (0.4, math.pi)), ((0.5, 0.4), (0.2, 2.5)))  # (polar, azimuth) of i and o
+
+
+def so3_material(alpha=SO3_ALPHA, D=1.0):
+    """Anisotropic Beckmann facet lobe at μ0 with rotational-diffusion statistics (isotropic
+    by default: D = 1, τ(μ) = α(μ)²/4 with the problems' width law)."""
+    return scene.AnisotropicMaterial(so3.AnisotropicMicrofacetLobe(*alpha), MU0, so3.DiffusionLaw(WIDTH, D))
+
+
+def _unit(polar, azimuth):
+    return np.array([math.sin(polar) * math.cos(azimuth), math.sin(polar) * math.sin(azimuth), math.cos(polar)])
+
+
+def so3_lobe(i, o, rotations, alpha=SO3_ALPHA):
+    """ρ(i, o, Γ) of the anisotropic Beckmann facet lobe in NumPy (seed §2, DESIGN §1): in the
+    facet frame ``g(m(h'))/(4 o'_z h'_z⁴)``, zero where i or o is below the facet's horizon."""
+    ip = np.einsum("...ji,j->...i", rotations, i)
+    op = np.einsum("...ji,j->...i", rotations, o)
+    h = ip + op
+    h = h / np.linalg.norm(h, axis=-1, keepdims=True)
+    ax, ay = alpha
+    m = h[..., :2] / h[..., 2:3]
+    g = np.exp(-((m[..., 0] / ax) ** 2) - (m[..., 1] / ay) ** 2) / (np.pi * ax * ay)
+    value = g / (4 * op[..., 2] * h[..., 2] ** 4)
+    return np.where((ip[..., 2] > 0) & (op[..., 2] > 0), value, 0.0)
+
+
+def heat_kernel(t, theta):
+    """The SO(3) heat kernel (isotropic rotational diffusion for time t, D = 1) at rotation
+    angle θ, by its character sum ``Σ_J (2J+1)/(8π²) e^{−tJ(J+1)} sin((2J+1)θ/2)/sin(θ/2)``."""
+    J = np.arange(int(math.sqrt(45 / t)) + 2)[:, None]
+    theta = np.asarray(theta, float)[None, :]
+    half = np.maximum(np.sin(theta / 2), 1e-300)
+    chi = np.where(theta > 1e-8, np.sin((2 * J + 1) * theta / 2) / half, 2 * J + 1.0)
+    return np.sum((2 * J + 1) / (8 * np.pi**2) * np.exp(-t * J * (J + 1)) * chi, axis=0)
+
+
+def so3_reference(mu, i, o, angles, nodes=40, alpha=SO3_ALPHA):
+    """``ρ_μ(Γ∞) = ∫ ρ_μ0(Γ∞ Δ) k(Δ) dΔ`` with k the heat kernel of time τ(μ0) − τ(μ): the
+    evolution ``R(μ) = R(μ0) e^{−(τ0 − τ)J(J+1)}`` as a group integral, by a tensor
+    Gauss–Legendre rule in exponential coordinates Δ = exp(ω) (Haar density 4 sin²(|ω|/2)/|ω|²),
+    with SciPy's rotations (``Rotation.from_euler('ZYZ')`` for Γ∞ = U(α) A(β) U(γ)). Returns the
+    values and the rule's total weight (1 when the kernel is resolved and normalised)."""
+    from scipy.spatial.transform import Rotation
+
+    t = float(so3_material().tau(MU0) - so3_material().tau(mu))
+    R = math.sqrt(4 * t * 42)
+    x, w = sp.roots_legendre(nodes)
+    X, Y, Z = np.meshgrid(R * x, R * x, R * x, indexing="ij")
+    omega = np.stack([X.ravel(), Y.ravel(), Z.ravel()], -1)
+    theta = np.linalg.norm(omega, axis=-1)
+    haar = np.where(theta > 0, 4 * np.sin(theta / 2) ** 2 / np.maximum(theta, 1e-300) ** 2, 1.0)
+    weight = (R**3 * (w[:, None, None] * w[None, :, None] * w[None, None, :]).ravel()) * heat_kernel(t, theta) * haar
+    delta = Rotation.from_rotvec(omega).as_matrix()
+    out = []
+    for a in np.atleast_2d(angles):
+        gamma = Rotation.from_euler("ZYZ", a).as_matrix()
+        out.append(np.sum(weight * so3_lobe(i, o, gamma @ delta, alpha)))
+    return np.array(out), float(np.sum(weight))
+
+
+def so3_problem(mus, n, nodes=48):
+    """Queries: for each (i, o) pair, global orientations whose normal slope lies on a spiral of
+    radius ≤ 0.25 around the half vector's slope, with twists spread over [0, π)."""
+    i_all, o_all, m_all, twist_all, mu_all, ref, peak = [], [], [], [], [], [], []
+    pairs, pair_angles = [], []
+    r = np.linspace(0, 0.25, n)
+    phi = 7.3 * np.linspace(0, 2 * np.pi, n, endpoint=False)
+    twist = np.pi * ((np.arange(n) * 0.618034) % 1.0)
+    for (ti, pi_), (to, po) in SO3_PAIRS:
+        i, o = _unit(ti, pi_), _unit(to, po)
+        h = (i + o) / np.linalg.norm(i + o)
+        m = h[:2] / h[2] + np.stack([r * np.cos(phi), r * np.sin(phi)], -1)
+        q = scene.Queries(np.tile(i, (n, 1)), np.tile(o, (n, 1)), np.ones(n), m_inf=m, twist=twist)
+        angles = np.asarray(q.euler_angles())
+        pairs.append((i, o))
+        pair_angles.append(angles)
+        for mu in mus:
+            values, _ = so3_reference(mu, i, o, angles, nodes)
+            i_all.append(np.tile(i, (n, 1)))
+            o_all.append(np.tile(o, (n, 1)))
+            m_all.append(m)
+            twist_all.append(twist)
+            mu_all.append(np.full(n, mu))
+            ref.append(values)
+            peak.append(np.full(n, np.max(np.abs(values))))
+    cat = np.concatenate
+    queries = scene.Queries(cat(i_all), cat(o_all), cat(mu_all), m_inf=cat(m_all), twist=cat(twist_all))
+    return queries, cat(ref), cat(peak), {"pairs": pairs, "angles": pair_angles, "mus": mus}
+
+
 def reference(kind, mu, u):
     if kind == "closed_form":
         return gaussian_reference(mu, u)
@@ -265,6 +359,50 @@ def pareto(points):
     return front
 
 
+TARGETS = [1e-3, 1e-4, 1e-6, 1e-8]
+RANKING_TARGET = 1e-6
+
+
+def planner_points(materials, queries, factor, ref, peak, sweep, targets, repeat):
+    """The planner at each error target: its path, time, error, predicted cost, and the ratio of
+    its time to the fastest swept configuration at least as accurate."""
+    out = []
+    for target in targets:
+        sc = scene.Scene(materials, queries, float(target))
+        t0 = time.perf_counter()
+        p = scene.plan(sc)
+        plan_seconds = time.perf_counter() - t0
+        values = np.asarray(p.evaluate()) / factor
+        t = best_time(lambda: p.evaluate().block_until_ready(), repeat=repeat)
+        err = relative_error(values, ref, peak)
+        adequate = [q["seconds"] for q in sweep if q["error"] <= err]
+        out.append({
+            "target": target, "error": err, "seconds": t, "plan_seconds": plan_seconds,
+            "predicted_error": p.predicted_error, "predicted_cost_units": p.predicted_cost,
+            "seconds_per_unit": t / p.predicted_cost,
+            "path": p.parts[0].path, "details": p.parts[0].details,
+            "pareto_seconds_at_error": min(adequate) if adequate else None,
+            "ratio_to_pareto": t / min(adequate) if adequate else None,
+            "explain": p.explain(),
+        })
+    return out
+
+
+def ranking(materials, queries, methods, target, repeat):
+    """Every applicable path forced on one problem: the cost model's predicted ranking against
+    the measured ranking (the ranking is what the planner relies on)."""
+    forced = []
+    for method in methods:
+        p = scene.plan(scene.Scene(materials, queries, float(target)), method=method)
+        t = best_time(lambda: p.evaluate().block_until_ready(), repeat=repeat)
+        forced.append({"method": method, "details": p.parts[0].details, "predicted_cost_units": p.predicted_cost,
+                       "seconds": t, "seconds_per_unit": t / p.predicted_cost})
+    predicted = [f["method"] for f in sorted(forced, key=lambda f: f["predicted_cost_units"])]
+    measured = [f["method"] for f in sorted(forced, key=lambda f: f["seconds"])]
+    return {"target": target, "forced": forced, "predicted_order": predicted, "measured_order": measured,
+            "order_matches": predicted == measured}
+
+
 def bench_problem(kind, quick):
     started = time.perf_counter()
     mat = material(kind)
@@ -289,25 +427,10 @@ def bench_problem(kind, quick):
         except bs.BrdfscaleError as err:  # e.g. a grid too coarse for the cut-off it was given
             points.append({"method": method, "size": size, "tol": tol, "failed": str(err)})
     ok = [p for p in points if "error" in p]
-    front = pareto(ok)
-    planner = []
-    for target in ([1e-4] if quick else [1e-3, 1e-4, 1e-6, 1e-8]):
-        sc = scene.Scene((mat,), scene.Queries(d, d, M), float(target))
-        t0 = time.perf_counter()
-        p = scene.plan(sc)
-        plan_seconds = time.perf_counter() - t0
-        values = np.asarray(p.evaluate()) / F
-        t = best_time(lambda: p.evaluate().block_until_ready(), repeat=repeat)
-        err = relative_error(values, ref, peak)
-        adequate = [q["seconds"] for q in ok if q["error"] <= err]
-        planner.append({
-            "target": target, "error": err, "seconds": t, "plan_seconds": plan_seconds,
-            "predicted_error": p.predicted_error, "predicted_seconds": p.predicted_seconds,
-            "path": p.parts[0].path, "details": p.parts[0].details,
-            "pareto_seconds_at_error": min(adequate) if adequate else None,
-            "ratio_to_pareto": t / min(adequate) if adequate else None,
-            "explain": p.explain(),
-        })
+    queries = scene.Queries(d, d, M)
+    planner = planner_points((mat,), queries, F, ref, peak, ok, [1e-4] if quick else TARGETS, repeat)
+    methods = (["closed_form"] if closed else []) + (["radial"] if isotropic else []) + ["grid"]
+    ranked = ranking((mat,), queries, methods, RANKING_TARGET, repeat) if len(methods) > 1 else None
     check = None
     if not quick and kind == "plus":
         import mpmath
@@ -319,8 +442,54 @@ def bench_problem(kind, quick):
         r = float(np.linalg.norm(U[3]))
         check = {"radius": r, "mu": float(mus[0]), "scipy": float(hankel_reference(kind, mus[0], [r])[0]),
                  "mpmath": mpmath_check(kind, mus[0], r)}
-    return {"problem": kind, "mus": mus.tolist(), "queries": len(U), "sweep": points, "pareto": front,
-            "planner": planner, "reference_check": check, "wall_seconds": time.perf_counter() - started}
+    return {"problem": kind, "mus": mus.tolist(), "queries": len(U), "sweep": points, "pareto": pareto(ok),
+            "planner": planner, "ranking": ranked, "reference_check": check,
+            "wall_seconds": time.perf_counter() - started}
+
+
+def so3_sweep_point(mat, problem, ref, peak, B, repeat):
+    """The public SO(3) pipeline at band limit B for all orders: lobe samples and
+    :func:`so3.forward` at B, :func:`so3.evolve_diffusion` to each scale, :func:`so3.synthesize`."""
+    pairs, angles, mus = problem["pairs"], problem["angles"], problem["mus"]
+
+    @eqx.filter_jit
+    def run(mat):
+        tau0 = mat.tau(mat.mu0)
+        out = []
+        for (i, o), a in zip(pairs, angles):
+            R0 = so3.forward(mat.lobe.samples(i, o, B))
+            for mu in mus:
+                R = so3.evolve_diffusion(R0, mat.law.D, tau0, mat.tau(mu))
+                out.append(jnp.real(so3.synthesize(R, a[:, 0], a[:, 1], a[:, 2])))
+        return jnp.concatenate(out)
+
+    values = run(mat)
+    t = best_time(lambda: run(mat).block_until_ready(), repeat=repeat)
+    return {"method": "so3", "size": B, "tol": None, "seconds": t, "error": relative_error(values, ref, peak)}
+
+
+def bench_so3_problem(quick):
+    """SO(3) reference problem: an anisotropic Beckmann facet lobe (α = 0.3 along the tangent,
+    0.15 along the bitangent) under isotropic rotational-diffusion statistics, two (i, o) pairs,
+    global orientations with tilts and twists; reference: the group integral (so3_reference)."""
+    started = time.perf_counter()
+    mat = so3_material()
+    mus = np.array([3e-3, 0.1]) if not quick else np.array([0.01])
+    n = 6 if quick else 20
+    repeat = 2 if quick else 3
+    queries, ref, peak, problem = so3_problem(mus, n, nodes=32 if quick else 48)
+    points = [so3_sweep_point(mat, problem, ref, peak, B, repeat) for B in ([16] if quick else [16, 24, 32, 40, 48, 64])]
+    planner = planner_points((mat,), queries, np.ones(len(ref)), ref, peak, points,
+                             [1e-3] if quick else TARGETS[:3], repeat)
+    check = None
+    if not quick:  # convergence of the reference quadrature at one orientation per scale
+        i, o = problem["pairs"][0]
+        a = problem["angles"][0][:1]
+        check = {"nodes": [48, 64], "values": [[float(so3_reference(mu, i, o, a, nodes)[0][0]) for nodes in (48, 64)]
+                                              for mu in mus]}
+    return {"problem": "so3", "mus": mus.tolist(), "queries": len(ref), "sweep": points, "pareto": pareto(points),
+            "planner": planner, "ranking": None, "reference_check": check,
+            "wall_seconds": time.perf_counter() - started}
 
 
 # -- workload ---------------------------------------------------------------------------------------
@@ -406,7 +575,8 @@ def bench_workload(resolution, naive_samples, tol):
         "resolution": resolution, "queries": len(q), "tol": tol,
         "mu_min": float(q.mu.min()), "mu_max": float(q.mu.max()), "mu_ratio": float(q.mu.max() / q.mu.min()),
         "plan_seconds": plan_seconds, "first_evaluate_seconds_with_compile": first_seconds,
-        "evaluate_seconds": t_eval, "predicted_seconds": p.predicted_seconds,
+        "evaluate_seconds": t_eval, "predicted_cost_units": p.predicted_cost,
+        "seconds_per_unit": t_eval / p.predicted_cost,
         "max_error_rel_peak": float(err_peak.max()), "predicted_error": p.predicted_error,
         "max_pointwise_rel_error_where_above_1pct_of_peak": float(err_point.max()),
         "naive_pixels_sampled": naive_samples, "naive_grid_sizes": sorted(set(int(s) for s in sizes)),
@@ -418,6 +588,24 @@ def bench_workload(resolution, naive_samples, tol):
     }, image, mu_image.reshape(resolution, resolution), err_peak, sc
 
 
+def cost_model_summary(problems, work):
+    """How well the cost model's relative units predict measured time: the forced-path rankings
+    per problem, the rank correlation over every plan timed in this run, the seconds per unit."""
+    from scipy.stats import spearmanr
+
+    plans = [(pl["predicted_cost_units"], pl["seconds"]) for prob in problems for pl in prob["planner"]]
+    plans += [(f["predicted_cost_units"], f["seconds"]) for prob in problems if prob["ranking"]
+              for f in prob["ranking"]["forced"]]
+    plans.append((work["predicted_cost_units"], work["evaluate_seconds"]))
+    units, seconds = np.array(plans).T
+    rankings = [prob["ranking"] for prob in problems if prob["ranking"]]
+    per_unit = seconds / units
+    return {"rankings": len(rankings), "rankings_matching": sum(r["order_matches"] for r in rankings),
+            "plans": len(plans), "spearman": float(spearmanr(units, seconds).statistic) if len(plans) > 2 else None,
+            "seconds_per_unit_min": float(per_unit.min()), "seconds_per_unit_max": float(per_unit.max()),
+            "seconds_per_unit_median": float(np.median(per_unit))}
+
+
 def plots(results, image, mu_image, suffix):
     import matplotlib
 
@@ -426,7 +614,7 @@ def plots(results, image, mu_image, suffix):
 
     problems = results["problems"]
     fig, axes = plt.subplots(1, len(problems), figsize=(4.2 * len(problems), 3.6), squeeze=False)
-    colours = {"closed_form": "k", "radial": "tab:blue", "grid": "tab:orange"}
+    colours = {"closed_form": "k", "radial": "tab:blue", "grid": "tab:orange", "so3": "tab:green"}
     for ax, prob in zip(axes[0], problems):
         for method, c in colours.items():
             pts = [p for p in prob["sweep"] if p.get("method") == method and "error" in p]
@@ -464,7 +652,8 @@ def main(argv=None):
     args = parser.parse_args(argv)
     quick = args.quick
     kinds = ["closed_form", "beckmann_ggx", "skewed_mixture", "disk", "plus"]
-    problems = [bench_problem(kind, quick) for kind in kinds]
+    load_before = os.getloadavg()
+    problems = [bench_problem(kind, quick) for kind in kinds] + [bench_so3_problem(quick)]
     for prob in problems:
         for pl in prob["planner"]:
             ratio = pl["ratio_to_pareto"]
@@ -475,8 +664,14 @@ def main(argv=None):
     print(f"workload {work['resolution']}²: μ ratio {work['mu_ratio']:.0f}; planner {work['evaluate_seconds'] * 1e3:.1f} ms "
           f"(plan {work['plan_seconds']:.1f} s), max error {work['max_error_rel_peak']:.2e}; naive "
           f"{work['naive_seconds_extrapolated']:.1f} s (extrapolated), speedup {work['speedup_evaluate_vs_naive']:.0f}×")
+    cost_model = cost_model_summary(problems, work)
+    print(f"cost model: predicted order of forced paths matches the measured order on "
+          f"{cost_model['rankings_matching']}/{cost_model['rankings']} problems; Spearman ρ(predicted units, "
+          f"measured s) over {cost_model['plans']} plans = {cost_model['spearman']:.2f}; seconds per unit "
+          f"{cost_model['seconds_per_unit_min']:.2g}–{cost_model['seconds_per_unit_max']:.2g}")
     results = {"benchmark": "bench_planner", "machine": machine(), "dtype": "float64", "quick": quick,
-               "problems": problems, "workload": work}
+               "load_average_before": load_before, "load_average_after": os.getloadavg(),
+               "problems": problems, "workload": work, "cost_model": cost_model}
     name = "bench_planner_quick" if quick else "bench_planner"
     path = write_json(name, results)
     if not args.no_plots:

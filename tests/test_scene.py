@@ -1,6 +1,7 @@
 """Tests of brdfscale.scene: planner choices, accuracy against independent references
-(closed forms, SciPy Hankel quadrature, a NumPy 2D quadrature), camera geometry,
-jit/differentiability, input validation, and a smoke run of experiments/bench_planner.py."""
+(closed forms, SciPy Hankel quadrature, a NumPy 2D quadrature, a SciPy-rotation group
+integral for the SO(3) path), camera geometry, jit/differentiability, input validation, and a
+smoke run of experiments/bench_planner.py."""
 
 import math
 import sys
@@ -14,7 +15,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 import brdfscale as bs
-from brdfscale import lobes, scene, stats
+from brdfscale import lobes, scene, so3, stats
 from brdfscale.geometry import microfacet_factor, slope_to_direction
 from brdfscale.scene._interpolate import interpolate
 
@@ -133,7 +134,7 @@ def test_duplicate_queries_are_computed_once():
     assert plan.parts[0].inverse.max() == 4
     v = np.asarray(plan.evaluate()).reshape(5, 4)
     np.testing.assert_array_equal(v, v[:, :1].repeat(4, 1))
-    assert "5 distinct (u, μ) pairs" in plan.explain()
+    assert "5 distinct (u, μ)" in plan.explain()
 
 
 def test_camera_scene_geometry_and_image():
@@ -232,10 +233,120 @@ def test_cubic_interpolation_is_exact_for_cubics(cx, cy):
     np.testing.assert_allclose(got, want, atol=1e-10 * (1 + np.max(np.abs(table))))
 
 
+# -- SO(3) path -------------------------------------------------------------------------------------
+def test_so3_reference_parts_are_sound():
+    """The benchmark's independent pieces: its NumPy facet lobe is the library's model, and the
+    heat kernel (character sum) times the Haar density integrates to 1 on its quadrature."""
+    i, o = bench._unit(0.3, 0.0), bench._unit(0.4, math.pi)
+    rot = np.asarray(so3.euler_to_matrix(np.array([0.1, 2.0, 4.0]), np.array([0.2, 0.3, 0.1]), np.array([0.0, 1.0, 5.0])))
+    np.testing.assert_allclose(bench.so3_lobe(i, o, rot), np.asarray(bench.so3_material().lobe.evaluate(i, o, rot)),
+                               rtol=1e-12)
+    _, total = bench.so3_reference(0.01, i, o, np.zeros((1, 3)), nodes=32)
+    assert total == pytest.approx(1.0, abs=1e-8)
+
+
+def test_so3_material_is_planned_on_so3_and_meets_target_against_group_integral():
+    queries, ref, peak, _ = bench.so3_problem(np.array([0.01]), 6, nodes=32)
+    plan = scene.plan(scene.Scene((bench.so3_material(),), queries, 1e-3))
+    part = plan.parts[0]
+    assert part.path == "so3"
+    B = int(part.details.split("band limit B = ")[1].split(" ")[0])
+    # a priori from the lobe's width and the least damping (not the largest band limit allowed)
+    assert B == so3.band_limit(
+        lambda J: np.asarray(bench.so3_material().lobe.spectrum(J))
+        * np.exp(-(bench.so3_material().tau(bench.MU0) - bench.so3_material().tau(0.01)) * J * (J + 1)), 2.5e-4)[0]
+    assert part.step.rows == B - 1 and part.step.columns == B - 1  # tilted Γ∞, twist-dependent lobe
+    err = np.max(np.abs(np.asarray(plan.evaluate()) - ref) / peak)
+    assert err <= 1e-3
+    assert err <= 4 * plan.predicted_error + 1e-4  # the prediction is not wildly optimistic
+    text = plan.explain()
+    assert "path: so3" in text and "band limit B =" in text and "twist columns" in text and "units" in text
+
+
+def test_so3_twist_free_lobe_on_a_flat_plane_needs_one_order():
+    """An isotropic facet lobe depends on the facet normal only (M' = 0); at flat global
+    orientations D^J is diagonal, so only M = M' = 0 is computed — and the result is still
+    right (group-integral reference) and independent of the twist."""
+    alpha = (0.2, 0.2)
+    mat = bench.so3_material(alpha)
+    i, o = bench._unit(0.3, 0.0), bench._unit(0.4, math.pi)
+    twist = np.array([0.0, 0.7, 2.0])
+    m = np.zeros((3, 2))
+    q = scene.Queries(np.tile(i, (3, 1)), np.tile(o, (3, 1)), np.full(3, 0.01), m_inf=m, twist=twist)
+    plan = scene.plan(scene.Scene((mat,), q, 1e-4))
+    step = plan.parts[0].step
+    assert (step.rows, step.lobe_columns, step.columns) == (0, 0, 0)
+    got = np.asarray(plan.evaluate())
+    want, _ = bench.so3_reference(0.01, i, o, np.asarray(q.euler_angles()), nodes=40, alpha=alpha)
+    np.testing.assert_allclose(got, got[0], rtol=1e-12)
+    assert np.max(np.abs(got - want)) / np.max(want) <= 1e-4
+
+
+def test_so3_anisotropic_diffusion_matches_the_public_pipeline():
+    """D_x ≠ D_y mixes twist orders: the plan keeps them all and agrees with so3.forward →
+    so3.evolve_diffusion (matrix exponentials) → so3.synthesize at the same band limit."""
+    mat = bench.so3_material((0.3, 0.3), D=(1.0, 0.4, 0.2))
+    i, o = bench._unit(0.3, 0.0), bench._unit(0.4, math.pi)
+    m = np.array([[0.15, 0.0], [0.1, 0.05], [0.2, -0.05]])
+    twist = np.array([0.0, 1.0, 2.5])
+    q = scene.Queries(np.tile(i, (3, 1)), np.tile(o, (3, 1)), np.full(3, 0.01), m_inf=m, twist=twist)
+    plan = scene.plan(scene.Scene((mat,), q, 1e-2))
+    step = plan.parts[0].step
+    assert step.lobe_columns == 0 and step.columns == step.band_limit - 1 and not step.diagonal
+    assert "mixes twist orders" in plan.parts[0].details
+    a = np.asarray(q.euler_angles())
+    B = step.band_limit
+    R0 = so3.forward(mat.lobe.samples(i, o, step.sample_band_limit), m_max=B - 1, n_max=B - 1)[:B]
+    R = so3.evolve_diffusion(R0, mat.law.D, mat.tau(mat.mu0), mat.tau(0.01))
+    want = np.real(np.asarray(so3.synthesize(R, a[:, 0], a[:, 1], a[:, 2])))
+    np.testing.assert_allclose(np.asarray(plan.evaluate()), want, rtol=1e-9, atol=1e-9 * np.max(np.abs(want)))
+
+
+def test_so3_plan_is_differentiable():
+    mat = bench.so3_material((0.3, 0.3))
+    i, o = bench._unit(0.3, 0.0), bench._unit(0.4, math.pi)
+    q = scene.Queries(np.tile(i, (2, 1)), np.tile(o, (2, 1)), np.full(2, 0.01), m_inf=np.zeros((2, 2)),
+                      twist=np.array([0.0, 1.0]))
+    plan = scene.plan(scene.Scene((mat,), q, 1e-2))
+
+    def loss(a):
+        m = eqx.tree_at(lambda m: m.lobe, mat, so3.AnisotropicMicrofacetLobe(a, 0.3))
+        return jnp.sum(plan.evaluate((m,)))
+
+    a = jnp.asarray(0.3)
+    h = 1e-5
+    fd = (loss(a + h) - loss(a - h)) / (2 * h)
+    assert float(jax.grad(loss)(a)) == pytest.approx(float(fd), rel=1e-5)
+
+
+def test_so3_bad_requests():
+    mat = bench.so3_material()
+    i, o = bench._unit(0.3, 0.0), bench._unit(0.4, math.pi)
+    q = scene.Queries(i[None], o[None], [1e-5])  # finer than μ0 = 1e-4: a deconvolution
+    with pytest.raises(bs.NoBRDFAtScaleError, match="finer"):
+        scene.plan(scene.Scene((mat,), q, TOL))
+    q = scene.Queries(i[None], o[None], [0.01])
+    with pytest.raises(bs.MethodNotApplicableError, match="so3"):
+        scene.plan(scene.Scene((mat,), q, TOL), method="grid")
+    with pytest.raises(bs.MethodNotApplicableError, match="AnisotropicMaterial"):
+        scene.plan(scene.Scene((bench.material("closed_form"),), q, TOL), method="so3")
+    with pytest.raises(bs.InvalidInputError, match="AnisotropicMicrofacetLobe"):
+        scene.AnisotropicMaterial(lobes.Beckmann(0.1), 1.0, mat.law)
+    with pytest.raises(bs.InvalidInputError, match="DiffusionLaw"):
+        scene.AnisotropicMaterial(mat.lobe, 1.0, bench.WIDTH)
+    with pytest.raises(bs.InvalidInputError, match="twist"):
+        scene.Queries(i[None], o[None], [0.01], twist=[0.0, 1.0])
+
+
 def test_benchmark_smoke():
     """A quick run of experiments/bench_planner.py's problem and workload code (no timing checks)."""
     prob = bench.bench_problem("closed_form", quick=True)
     assert prob["pareto"] and prob["planner"][0]["error"] <= 1e-4
+    assert prob["ranking"]["predicted_order"][-1] == "grid"  # the cost model's order (not timed here)
+    so3_prob = bench.bench_so3_problem(quick=True)
+    assert so3_prob["planner"][0]["path"] == "so3" and so3_prob["planner"][0]["error"] <= 1e-3
     work, image, mu_image, err, _ = bench.bench_workload(16, 1, 1e-4)
     assert image.shape == (16, 16) and work["mu_ratio"] > 10
     assert work["max_error_rel_peak"] <= 1e-4 and np.all(np.isfinite(err))
+    summary = bench.cost_model_summary([prob, so3_prob], work)
+    assert summary["rankings"] == 1 and summary["plans"] == len(prob["ranking"]["forced"]) + 3

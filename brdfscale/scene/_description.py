@@ -6,7 +6,13 @@ facet-slope statistics; its BRDF at any scale μ is the lobe evolved by seed Eq.
     G(W, μ) = G(W, μ0) · S(W, μ0) / S(W, μ),      ρ(i, o, m∞, μ) = A · F(i, o) · g_μ(m_s(i, o) − m∞),
 
 with ``F`` the mirror-microfacet factor of :func:`brdfscale.geometry.microfacet_factor`
-(DESIGN §1–2). A *query* is one (i, o, m∞, μ, material) tuple; a :class:`Scene` is the list
+(DESIGN §1–2). An *anisotropic material* (:class:`AnisotropicMaterial`) is a BRDF that
+depends on the facet's whole orientation Γ ∈ SO(3) — tilt and twist — with statistics of
+facet orientations that evolve on SO(3) (seed §5, DESIGN §3):
+
+    R^J(μ) = R^J(μ0) exp(−(τ(μ0) − τ(μ)) G^J),      ρ(i, o, Γ∞, μ) = Σ_J Σ_{MM'} R^J_{MM'}(μ) D^J_{MM'}(Γ∞).
+
+A *query* is one (i, o, m∞, twist, μ, material) tuple; a :class:`Scene` is the list
 of queries present plus the error target, either given explicitly or produced by a
 :class:`Camera` looking at a textured plane (:func:`camera_scene`).
 """
@@ -23,6 +29,7 @@ from .._errors import InvalidInputError
 from .._validation import as_float_array, is_concrete, positive
 from ..geometry import validate_directions
 from ..lobes import AbstractLobe
+from ..so3 import AnisotropicMicrofacetLobe, DiffusionLaw
 from ..stats import AbstractScaleLaw, AbstractSlopeDensity
 
 
@@ -61,21 +68,68 @@ class Material(eqx.Module):
         return self.law.at(mu)
 
 
+class AnisotropicMaterial(eqx.Module):
+    """A BRDF of the facet's whole orientation Γ (tilt and twist), measured at scale ``mu0``,
+    and the rotational-diffusion scale law of its facet-orientation statistics (seed §5).
+
+    Args:
+        lobe: :class:`brdfscale.so3.AnisotropicMicrofacetLobe` — ``ρ(i, o, Γ)`` of a facet with
+            orientation Γ (Beckmann or GGX with roughness α_x along the facet's tangent, α_y
+            along its bitangent), the BRDF at μ0.
+        mu0: the facet size at which ``lobe`` was measured.
+        law: :class:`brdfscale.so3.DiffusionLaw` — statistics ``S̃^J(μ) = exp(−τ(μ) G^J)``,
+            ``G = D_x J_x² + D_y J_y² + D_z J_z²``, τ(μ) = α(μ)²/4.
+
+    At a scale μ ≥ μ0 (τ(μ) ≤ τ(μ0)) the BRDF is ``R^J(μ) = R^J(μ0) exp(−(τ(μ0) − τ(μ)) G^J)``
+    (:func:`brdfscale.so3.evolve_diffusion`), a function of the global orientation Γ∞ of each
+    query (:class:`Queries`: its slope m∞ and twist). Finer scales (a deconvolution on SO(3))
+    are not planned: use :func:`brdfscale.so3.evolve` with ``regularisation`` directly.
+    All array fields are differentiable parameters of a :class:`~brdfscale.scene.Plan`.
+    """
+
+    lobe: AnisotropicMicrofacetLobe
+    mu0: Float[Array, ""]
+    law: DiffusionLaw
+
+    def __init__(self, lobe: AnisotropicMicrofacetLobe, mu0: Float[ArrayLike, ""], law: DiffusionLaw):
+        if not isinstance(lobe, AnisotropicMicrofacetLobe):
+            raise InvalidInputError(
+                f"lobe must be a brdfscale.so3.AnisotropicMicrofacetLobe; got {type(lobe).__name__} (slope-space "
+                "lobes belong in brdfscale.scene.Material)."
+            )
+        if not isinstance(law, DiffusionLaw):
+            raise InvalidInputError(
+                f"law must be a brdfscale.so3.DiffusionLaw (rotational-diffusion statistics); got {type(law).__name__}."
+            )
+        self.lobe = lobe
+        self.mu0 = positive(mu0, "mu0", "a positive facet size")
+        self.law = law
+
+    def tau(self, mu) -> Float[Array, "..."]:
+        """The diffusion time ``τ(μ)`` of the statistics at scale μ."""
+        return self.law.tau(mu)
+
+
 class Queries(eqx.Module):
-    """The (i, o, m∞, μ, material) tuples a scene needs, one per row.
+    """The (i, o, m∞, twist, μ, material) tuples a scene needs, one per row.
 
     ``i``, ``o``: unit directions (Q, 3) towards light and detector (z = macroscopic normal);
     ``mu``: facet size (Q,) > 0; ``m_inf``: global facet slope (Q, 2), default flat;
-    ``material``: index (Q,) into the scene's materials, default 0.
+    ``twist``: the global frame's twist ψ about its normal (Q,) in radians, default 0 (used by
+    :class:`AnisotropicMaterial` only); ``material``: index (Q,) into the scene's materials,
+    default 0. The global orientation is ``Γ∞ = U(φ) A(β) U(ψ − φ)`` with β = atan|m∞| and
+    φ = atan2(m∞_y, m∞_x): the minimal tilt of the normal to slope m∞, then the twist ψ
+    (the convention of :class:`brdfscale.so3.TiltTwist`).
     """
 
     i: Float[Array, "Q 3"]
     o: Float[Array, "Q 3"]
     mu: Float[Array, " Q"]
     m_inf: Float[Array, "Q 2"]
+    twist: Float[Array, " Q"]
     material: Int[Array, " Q"]
 
-    def __init__(self, i, o, mu, m_inf=None, material=None):
+    def __init__(self, i, o, mu, m_inf=None, material=None, twist=None):
         self.i = validate_directions(jnp.atleast_2d(as_float_array(i, "i")), "i")
         self.o = validate_directions(jnp.atleast_2d(as_float_array(o, "o")), "o")
         self.mu = jnp.atleast_1d(positive(mu, "mu", "a positive facet size"))
@@ -88,12 +142,21 @@ class Queries(eqx.Module):
         self.m_inf = jnp.zeros((n, 2), self.mu.dtype) if m_inf is None else as_float_array(m_inf, "m_inf")
         if self.m_inf.shape != (n, 2):
             raise InvalidInputError(f"m_inf must have shape ({n}, 2); got {self.m_inf.shape}.")
+        self.twist = jnp.zeros(n, self.mu.dtype) if twist is None else as_float_array(twist, "twist")
+        if self.twist.shape != (n,):
+            raise InvalidInputError(f"twist must have shape ({n},) (radians); got {self.twist.shape}.")
         self.material = jnp.zeros(n, int) if material is None else jnp.asarray(material)
         if self.material.shape != (n,) or not jnp.issubdtype(self.material.dtype, jnp.integer):
             raise InvalidInputError(f"material must be integer indices of shape ({n},); got {self.material.shape}.")
 
     def __len__(self):
         return self.mu.shape[0]
+
+    def euler_angles(self) -> Float[Array, "Q 3"]:
+        """z-y-z Euler angles (φ, β, ψ − φ) of each query's global orientation Γ∞."""
+        phi = jnp.arctan2(self.m_inf[:, 1], self.m_inf[:, 0])
+        beta = jnp.arctan(jnp.linalg.norm(self.m_inf, axis=-1))
+        return jnp.stack([phi, beta, self.twist - phi], -1)
 
 
 class Scene(eqx.Module):
@@ -105,15 +168,17 @@ class Scene(eqx.Module):
     image; explicit query lists leave them None.
     """
 
-    materials: tuple[Material, ...]
+    materials: tuple[Material | AnisotropicMaterial, ...]
     queries: Queries
     tol: float = eqx.field(static=True)
     pixels: Int[Array, " Q"] | None = None
     resolution: tuple[int, int] | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
-        if not self.materials or not all(isinstance(m, Material) for m in self.materials):
-            raise InvalidInputError("materials must be a non-empty sequence of brdfscale.scene.Material.")
+        if not self.materials or not all(isinstance(m, (Material, AnisotropicMaterial)) for m in self.materials):
+            raise InvalidInputError(
+                "materials must be a non-empty sequence of brdfscale.scene.Material or AnisotropicMaterial."
+            )
         if not isinstance(self.queries, Queries):
             raise InvalidInputError(f"queries must be brdfscale.scene.Queries; got {type(self.queries).__name__}.")
         if not (isinstance(self.tol, float) and 0 < self.tol < 1):
@@ -166,7 +231,7 @@ Texture = Callable[[np.ndarray], np.ndarray]
 
 
 def camera_scene(
-    materials: Sequence[Material],
+    materials: Sequence[Material | AnisotropicMaterial],
     camera: Camera,
     light: Float[ArrayLike, "3"],
     tol: float,

@@ -1,13 +1,28 @@
 """The evaluation plan: frozen discretisation choices, a jit-compiled differentiable evaluation."""
 
+import functools
+
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
 from .._errors import InvalidInputError
-from ._description import Material
+from . import _cost
+from ._description import AnisotropicMaterial, Material
 from ._steps import MaterialPlan
+
+
+class _plain_method:
+    """A method that equinox does not wrap into a pytree ``BoundMethod`` on every attribute
+    access: that wrapping costs about 0.1 ms per access, more than evaluating a small plan."""
+
+    def __init__(self, fn):
+        self.fn = fn
+        functools.update_wrapper(self, fn)
+
+    def __get__(self, obj, owner=None):
+        return self.fn if obj is None else functools.partial(self.fn, obj)
 
 
 class Plan(eqx.Module):
@@ -21,14 +36,15 @@ class Plan(eqx.Module):
     re-plan when parameters move far enough to change it.
     """
 
-    materials: tuple[Material, ...]
+    materials: tuple[Material | AnisotropicMaterial, ...]
     parts: tuple[MaterialPlan, ...]
     n_queries: int = eqx.field(static=True)
     tol: float = eqx.field(static=True)
     pixels: Int[Array, " Q"] | None = None
     resolution: tuple[int, int] | None = eqx.field(static=True, default=None)
 
-    def evaluate(self, materials: tuple[Material, ...] | None = None) -> Float[Array, " Q"]:
+    @_plain_method
+    def evaluate(self, materials: tuple[Material | AnisotropicMaterial, ...] | None = None) -> Float[Array, " Q"]:
         """ρ at every query (jit-compiled)."""
         materials = self.materials if materials is None else tuple(materials)
         if len(materials) != len(self.materials):
@@ -49,24 +65,31 @@ class Plan(eqx.Module):
         return max(p.predicted_error for p in self.parts)
 
     @property
-    def predicted_seconds(self) -> float:
-        """Predicted run time of :meth:`evaluate` (cost model of :mod:`brdfscale.scene._cost`)."""
-        return sum(p.predicted_seconds for p in self.parts)
+    def predicted_cost(self) -> float:
+        """Predicted work of :meth:`evaluate` in relative cost units, not seconds
+        (:mod:`brdfscale.scene._cost`: one unit per multiply-add, 20 per transcendental
+        evaluation, plus the fixed cost of a call). It ranks alternatives; experiments/bench_planner.py measures the seconds
+        per unit on its machine."""
+        return _cost.CALL_UNITS + sum(p.predicted_cost for p in self.parts)
 
     def explain(self) -> str:
         """What will be computed and why, with the predicted cost and error."""
         lines = [f"Plan for {self.n_queries} queries, error target {self.tol:.3g} (relative to each lobe's peak):"]
         for p in self.parts:
             material = self.materials[p.material]
+            keys = "(pair, Γ∞, μ)" if p.path == "so3" else "(u, μ)"
             lines.append(
                 f"- material {p.material} ({type(material.lobe).__name__} lobe at μ0 = {float(material.mu0):.4g}, "
                 f"{type(material.law).__name__} statistics): {len(p.rows)} queries, "
-                f"{len(np.unique(np.asarray(p.inverse)))} distinct (u, μ) pairs"
+                f"{len(np.unique(np.asarray(p.inverse)))} distinct {keys}"
             )
             lines.append(f"    path: {p.path} — {p.reason}")
             lines.append(f"    {p.details}")
-            lines.append(f"    predicted error ≤ {p.predicted_error:.2g}, predicted time {p.predicted_seconds * 1e3:.3g} ms")
-        lines.append(f"Total: predicted error ≤ {self.predicted_error:.2g}, time {self.predicted_seconds * 1e3:.3g} ms.")
+            lines.append(f"    predicted error ≤ {p.predicted_error:.2g}, predicted cost {p.predicted_cost:.3g} units")
+        lines.append(
+            f"Total: predicted error ≤ {self.predicted_error:.2g}, predicted cost {self.predicted_cost:.3g} units "
+            "(relative units that rank the paths, not seconds; see brdfscale.scene._cost)."
+        )
         return "\n".join(lines)
 
 

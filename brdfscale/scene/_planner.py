@@ -4,7 +4,8 @@ Per material, on the distinct (offset u = m_s − m∞, scale μ) pairs its quer
 
 1. **Path** — closed form (Gaussian/δ/mixture algebra; exact) when the lobe and statistics
    allow it; otherwise the radial Hankel path when everything is radially symmetric;
-   otherwise the 2D-FFT grid path. ``method=`` forces one.
+   otherwise the 2D-FFT grid path; the SO(3) path for an :class:`AnisotropicMaterial`, whose
+   BRDF depends on the facet's twist (planned in :mod:`._so3_planner`). ``method=`` forces one.
 2. **Error budget** — the target ``tol`` (relative to the lobe's peak at each scale) is split
    into three quarters: spectral truncation (the frequency cut-off K or the grid's extent),
    interpolation in u (or r), interpolation in log μ. The last quarter is margin.
@@ -19,8 +20,8 @@ Per material, on the distinct (offset u = m_s − m∞, scale μ) pairs its quer
    nodes uniform in log μ, refined until cubic interpolation in log μ, checked against exact
    tables at the midpoints between nodes, is within budget.
 5. **Cost** — radial: direct evaluation at the query radii (a cached per-query J₀ kernel)
-   versus a radius table plus interpolation, whichever the cost model (:mod:`._cost`)
-   predicts cheaper.
+   versus a radius table plus interpolation, whichever the cost model (:mod:`._cost`,
+   relative units) predicts cheaper; likewise the grid's direct DFT sums versus FFT tables.
 
 Reusable pieces (Gauss–Legendre rules, J₀ kernels, the grids' frequency sets) are computed
 once at planning time and frozen into the plan.
@@ -41,19 +42,17 @@ from .._evolve._spectral import choose_size, radial_nodes
 from .._quadrature import gauss_legendre
 from ..geometry import half_slope, microfacet_factor
 from . import _cost
-from ._description import Material, Scene
-from ._interpolate import interpolate
+from ._description import AnisotropicMaterial, Material, Scene
 from ._plan import Plan
+from ._scales import interpolate_jit, scale_nodes
+from ._so3_planner import plan_so3
 from ._steps import ClosedFormStep, GridStep, MaterialPlan, RadialStep, evolved_density
 
-_METHODS = ("auto", "closed_form", "radial", "grid")
+_METHODS = ("auto", "closed_form", "radial", "grid", "so3")
 _CUBIC_CONSTANT = 0.5625 / 24  # max |s(s−1)(s−2)(s−3)|/4! on the middle interval
-_NODES_PER_DECADE = 8
-_MAX_SCALE_NODES = 2049
 _MAX_GRID = 1024
 _DIRECT_MEMORY = 2e7  # largest (distinct queries × nodes) kernel kept for direct evaluation
-_EXACT_SCALES = 4
-_TABLE_OVERSAMPLING = 4  # at most this many distinct μ are always evaluated exactly
+_TABLE_OVERSAMPLING = 4  # a grid table needs about this many times the Nyquist side
 
 
 def plan(scene: Scene, method: str = "auto") -> Plan:
@@ -62,7 +61,7 @@ def plan(scene: Scene, method: str = "auto") -> Plan:
     Args:
         scene: materials, queries and the error target (:class:`Scene`).
         method: ``"auto"``, or force ``"closed_form"``, ``"radial"`` or ``"grid"`` for every
-            material.
+            (slope-space) material, or ``"so3"`` (every material an :class:`AnisotropicMaterial`).
 
     Returns:
         A :class:`Plan`; ``plan.evaluate()`` runs it (jit-compiled, differentiable in the
@@ -83,12 +82,27 @@ def plan(scene: Scene, method: str = "auto") -> Plan:
     parts = []
     for m in np.unique(index):
         rows = np.flatnonzero(index == m)
-        keys, inverse = np.unique(np.column_stack([u[rows], log_mu[rows]]), axis=0, return_inverse=True)
-        step, path, reason, error, seconds, details = _plan_material(
-            scene.materials[m], keys[:, :2], keys[:, 2], scene.tol, method
-        )
-        parts.append(MaterialPlan(int(m), jnp.asarray(rows), jnp.asarray(inverse.ravel()), jnp.asarray(factor[rows]),
-                                  step, path, reason, error, seconds, details))
+        material = scene.materials[m]
+        if isinstance(material, AnisotropicMaterial):
+            if method not in ("auto", "so3"):
+                raise MethodNotApplicableError(
+                    f"material {m} is an AnisotropicMaterial (a BRDF of the facet's orientation on SO(3)): only "
+                    f"method='so3' or 'auto' applies; got {method!r}."
+                )
+            inverse, planned = plan_so3(material, np.asarray(q.i)[rows], np.asarray(q.o)[rows],
+                                        np.asarray(q.euler_angles())[rows], log_mu[rows], scene.tol)
+            factor_rows = np.ones(len(rows))
+        else:
+            if method == "so3":
+                raise MethodNotApplicableError(
+                    f"method='so3' needs an AnisotropicMaterial (a BRDF of the facet's orientation); material {m} "
+                    "is a slope-space Material."
+                )
+            keys, inverse = np.unique(np.column_stack([u[rows], log_mu[rows]]), axis=0, return_inverse=True)
+            planned = _plan_material(material, keys[:, :2], keys[:, 2], scene.tol, method)
+            factor_rows = factor[rows]
+        parts.append(MaterialPlan(int(m), jnp.asarray(rows), jnp.asarray(inverse.ravel()), jnp.asarray(factor_rows),
+                                  *planned))
     return Plan(scene.materials, tuple(parts), len(q), scene.tol, scene.pixels, scene.resolution)
 
 
@@ -107,7 +121,7 @@ def _plan_material(material: Material, u, log_mu, tol, method):
             n = len(mus)
             step = ClosedFormStep(jnp.asarray(u), jnp.asarray(scale.ravel()), jnp.asarray(np.exp(distinct)))
             return (step, "closed_form", "the lobe and statistics have a closed-form evolution (exact)", 0.0,
-                    _cost.seconds(8 * (n + len(distinct)), 40 * n),
+                    _cost.units(8 * (n + len(distinct)), 40 * n),
                     f"{len(distinct)} distinct scales evolved exactly, {n} offsets evaluated")
     isotropic = (material.lobe.shape.isotropic and s_from.isotropic
                  and material.statistics(mus.min()).isotropic)
@@ -121,27 +135,6 @@ def _plan_material(material: Material, u, log_mu, tol, method):
         return _plan_grid(material, u, log_mu, tol)
     except eqx.EquinoxRuntimeError as err:
         raise NoBRDFAtScaleError(f"{err} (scales μ in [{mus.min():.4g}, {mus.max():.4g}])") from None
-
-
-# -- scale nodes ---------------------------------------------------------------------------
-def _scale_nodes(log_mu, tables, budget):
-    """Scale nodes (log μ) and whether they are the exact distinct scales, with the measured
-    interpolation error. ``tables(nodes)`` returns concrete arrays (n, ...) of the lobe."""
-    distinct = np.unique(log_mu)
-    lo, hi = distinct[0], distinct[-1]
-    n = max(4, math.ceil(_NODES_PER_DECADE * (hi - lo) / math.log(10)) + 1)
-    while len(distinct) > _EXACT_SCALES and n < len(distinct) and n <= _MAX_SCALE_NODES:
-        nodes = np.linspace(lo, hi, n)
-        mid = 0.5 * (nodes[1:] + nodes[:-1])
-        values = np.asarray(tables(np.concatenate([nodes, mid])))
-        at_nodes, exact = values[:n], values[n:]
-        interpolated = np.asarray(_interpolate(jnp.asarray(at_nodes), jnp.arange(n - 1)[:, None] + 0.5))
-        peak = np.max(np.abs(exact.reshape(n - 1, -1)), axis=1)
-        error = float(np.max(np.max(np.abs(interpolated - exact).reshape(n - 1, -1), axis=1) / peak))
-        if error <= budget:
-            return nodes, False, error
-        n = 2 * n - 1
-    return distinct, True, 0.0
 
 
 # -- radial ---------------------------------------------------------------------------------
@@ -184,14 +177,14 @@ def _plan_radial(material, u, log_mu, tol):
     n_r = math.ceil(r_max / h_r) + 7
     _, kernel = _hankel_kernel(K, n_k, None, h_r, n_r)
     kernel_j = jnp.asarray(kernel)
-    nodes, exact, mu_error = _scale_nodes(
+    nodes, exact, mu_error = scale_nodes(
         log_mu, lambda t: _radial_transform_rows(material, t, k, budget) @ kernel, budget
     )
     n_s, n_q = len(nodes), len(radius)
     evaluations = 3 * n_s * n_k
-    table_seconds = _cost.seconds(evaluations, n_s * n_k * n_r + 32 * n_q)
-    direct_seconds = _cost.seconds(evaluations, n_q * n_k)
-    direct = exact and n_q * n_k <= _DIRECT_MEMORY and direct_seconds < table_seconds
+    table_cost = _cost.units(evaluations, n_s * n_k * n_r + 32 * n_q)
+    direct_cost = _cost.units(evaluations, n_q * n_k)
+    direct = exact and n_q * n_k <= _DIRECT_MEMORY and direct_cost < table_cost
     if direct:
         _, kernel = _hankel_kernel(K, n_k, tuple(radius), 0.0, 0)
         kernel_j, r_error = jnp.asarray(kernel), 0.0
@@ -203,7 +196,7 @@ def _plan_radial(material, u, log_mu, tol):
     layout = f"at the {n_q} query radii" if direct else f"on {n_r} radii (h = {h_r:.3g}), cubic in (log μ, r)"
     details = f"K = {K:.4g}, {n_k} Gauss–Legendre nodes; {scales}; lobe {layout}"
     return (step, "radial", "lobe and statistics are radially symmetric; no closed form",
-            budget + r_error + mu_error, min(table_seconds, direct_seconds) if direct else table_seconds, details)
+            budget + r_error + mu_error, min(table_cost, direct_cost) if direct else table_cost, details)
 
 
 # -- grid -----------------------------------------------------------------------------------
@@ -216,13 +209,13 @@ def _plan_grid(material, u, log_mu, tol):
         n, honoured = choose_size(evolved_density(material, np.exp(t), "grid", 256, budget), "grid", _MAX_GRID)
         size, achieved = max(size, n), max(achieved, honoured)
     n_q, half = len(u), size // 2 + 1
-    direct_seconds = _cost.seconds(3 * len(distinct) * size * half, 4 * n_q * len(distinct) * size * half)
+    direct_cost = _cost.units(3 * len(distinct) * size * half, 4 * n_q * len(distinct) * size * half)
     # a table needs cubic interpolation between its nodes: typically 4× the Nyquist grid
     big = _TABLE_OVERSAMPLING * size
-    table_guess = _cost.seconds(3 * len(distinct) * big * (big // 2 + 1),
+    table_cost_guess = _cost.units(3 * len(distinct) * big * (big // 2 + 1),
                                 len(distinct) * _cost.fft2_multiply_adds(big) + 128 * n_q)
-    if len(distinct) <= 16 and n_q * size * 2 <= _DIRECT_MEMORY and direct_seconds <= table_guess:
-        return _plan_grid_direct(material, u, log_mu, size, achieved, direct_seconds)
+    if len(distinct) <= 16 and n_q * size * 2 <= _DIRECT_MEMORY and direct_cost <= table_cost_guess:
+        return _plan_grid_direct(material, u, log_mu, size, achieved, direct_cost)
 
     def tables(n, t):
         step = GridStep(jnp.zeros((1, 2)), jnp.zeros(1), _padded(t), None, None, n, True, achieved)
@@ -236,24 +229,24 @@ def _plan_grid(material, u, log_mu, tol):
         pos = jnp.asarray(np.stack([Y.ravel(), X.ravel()], -1))
         errors = []
         for c, f in zip(coarse, fine):
-            guess = np.asarray(_interpolate(jnp.asarray(c), pos))
+            guess = np.asarray(interpolate_jit(jnp.asarray(c), pos))
             errors.append(np.max(np.abs(guess - f[1::2, 1::2][: len(odd), : len(odd)].ravel())) / np.max(f))
         u_error = float(max(errors))
         if u_error <= budget or 2 * size > _MAX_GRID:
             break
         size *= 2
-    nodes, exact, mu_error = _scale_nodes(log_mu, lambda t: tables(size, t), budget)
+    nodes, exact, mu_error = scale_nodes(log_mu, lambda t: tables(size, t), budget)
     n_s = len(nodes)
-    seconds = _cost.seconds(3 * n_s * size * (size // 2 + 1), n_s * _cost.fft2_multiply_adds(size) + 128 * n_q)
+    cost = _cost.units(3 * n_s * size * (size // 2 + 1), n_s * _cost.fft2_multiply_adds(size) + 128 * n_q)
     step = GridStep(jnp.asarray(u), jnp.asarray(log_mu), jnp.asarray(nodes), None, None, size, exact, achieved)
     scales = f"{n_s} distinct scales" if exact else f"{n_s} log-μ nodes ({np.exp(nodes[0]):.3g}–{np.exp(nodes[-1]):.3g})"
     relaxed = "" if achieved <= budget else f" (grid capped at {_MAX_GRID}: truncation {achieved:.1g})"
     details = f"{size}×{size} FFT grid per scale node{relaxed}; {scales}; cubic in (log μ, u_y, u_x)"
     return (step, "grid", "lobe or statistics not radially symmetric; no closed form",
-            achieved + u_error + mu_error, seconds, details)
+            achieved + u_error + mu_error, cost, details)
 
 
-def _plan_grid_direct(material, u, log_mu, size, achieved, seconds):
+def _plan_grid_direct(material, u, log_mu, size, achieved, cost):
     """Few queries: the inverse DFT summed at the queries, phases frozen (no interpolation)."""
     nodes = np.unique(log_mu)
     h, _ = evolved_density(material, np.exp(nodes[0]), "grid", size, achieved).grid_spacing()
@@ -265,7 +258,7 @@ def _plan_grid_direct(material, u, log_mu, size, achieved, seconds):
     step = GridStep(jnp.asarray(u), jnp.asarray(log_mu), jnp.asarray(nodes), phases, jnp.asarray(W), size, True, achieved)
     details = (f"{size}×{size} frequency grid per scale; {len(nodes)} distinct scales; inverse DFT summed at the "
                f"{len(u)} query offsets (no interpolation)")
-    return (step, "grid", "lobe or statistics not radially symmetric; no closed form; few queries", achieved, seconds,
+    return (step, "grid", "lobe or statistics not radially symmetric; no closed form; few queries", achieved, cost,
             details)
 
 
@@ -283,6 +276,5 @@ def _radial_transform_rows(material, nodes, k, tol):
 
 
 _radial_transforms = eqx.filter_jit(lambda step, material: step.transforms(material))
-_interpolate = jax.jit(interpolate)
 _geometry = jax.jit(lambda i, o, m_inf: (half_slope(i, o) - m_inf, microfacet_factor(i, o)))
 _grid_tables = eqx.filter_jit(lambda step, material: step.table(material))

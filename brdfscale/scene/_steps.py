@@ -14,6 +14,9 @@ function of the material's parameters.
   radii); queries are read off by cubic interpolation in (log μ, r).
 * :class:`GridStep` — general inputs: the 2D-FFT grid path at scale nodes, cubic
   interpolation in (log μ, u_y, u_x).
+* :class:`SO3Step` — anisotropic materials (:class:`AnisotropicMaterial`): per distinct
+  (i, o) pair, the SO(3) transform of the lobe at μ0 (only the degrees and orders needed), the
+  block evolution to the scale nodes, synthesis at the queries' global orientations.
 
 Scale nodes are either the distinct μ of the queries (``exact_scales``: no interpolation in
 μ) or uniform in log μ (cubic interpolation in log μ).
@@ -22,12 +25,13 @@ Scale nodes are either the distinct μ of the queries (``exact_scales``: no inte
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Complex, Float, Int
 
+from .. import so3
 from .._evolve import evolve
 from .._evolve._spectral import EvolvedDensity
-from ._description import Material
-from ._interpolate import interpolate
+from ._description import AnisotropicMaterial, Material
+from ._interpolate import cubic_stencil, interpolate
 
 _CF_EXCESS = 1e-6
 _NO_BRDF = (
@@ -155,7 +159,74 @@ class GridStep(eqx.Module):
         return jnp.real(jnp.take_along_axis(total, s[:, None], axis=1)[:, 0]) * dW**2 / (2 * jnp.pi) ** 2
 
 
-Step = ClosedFormStep | RadialStep | GridStep
+class SO3Step(eqx.Module):
+    """SO(3) path (seed §5): ``ρ(i, o, Γ∞, μ) = Σ_J Σ_{MM'} R^J_{MM'}(μ) D^J_{MM'}(Γ∞)``.
+
+    Per distinct (i, o) pair: the lobe's samples on the Kostelec–Rockmore grid of band limit
+    ``sample_band_limit`` (≥ ``band_limit``, so that the μ0 lobe's content above the band
+    limit does not alias into the kept degrees), :func:`brdfscale.so3.forward` restricted to
+    the orders needed (rows |M| ≤ ``rows``, twist columns |M'| ≤ ``lobe_columns``), kept for
+    degrees J < ``band_limit``. Evolution to each scale node by the diffusion propagator
+    ``exp(−(τ(μ0) − τ(μ)) G^J)``: elementwise on the twist orders when ``G`` is diagonal
+    (``D_x = D_y``: columns do not mix), else the blocks of
+    :func:`brdfscale.so3.diffusion_operator` from ``lobe_columns`` to ``columns``. Then
+    :func:`brdfscale.so3.synthesize` at the pair's query orientations (Euler angles, padded to a
+    common count per pair) and, between scale nodes, cubic interpolation in log μ.
+    """
+
+    pairs: Float[Array, "P 2 3"]  # (i, o) per distinct pair
+    angles: Float[Array, "P q 3"]  # Euler angles of each pair's distinct orientations (padded)
+    key_pair: Int[Array, " n"]  # each distinct (pair, Γ∞, μ) key's pair
+    key_slot: Int[Array, " n"]  # … and its orientation's slot in ``angles``
+    log_mu: Float[Array, " n"]
+    nodes: Float[Array, " s"]
+    band_limit: int = eqx.field(static=True)
+    sample_band_limit: int = eqx.field(static=True)
+    rows: int = eqx.field(static=True)
+    lobe_columns: int = eqx.field(static=True)
+    columns: int = eqx.field(static=True)
+    diagonal: bool = eqx.field(static=True)
+    exact_scales: bool = eqx.field(static=True)
+
+    def lobe_coefficients(self, material: AnisotropicMaterial) -> Complex[Array, "P B 2L+1 2N0+1"]:
+        """SO(3) coefficients of ``Γ ↦ ρ(i, o, Γ)`` at μ0 for every pair (degrees J < band limit)."""
+
+        def one(io):
+            samples = material.lobe.samples(io[0], io[1], self.sample_band_limit)
+            return so3.forward(samples, m_max=self.rows, n_max=self.lobe_columns)[: self.band_limit]
+
+        return jax.lax.map(one, self.pairs)
+
+    def evolved(self, material: AnisotropicMaterial) -> Complex[Array, "P s B 2L+1 2N+1"]:
+        """``R^J(μ_n) = R^J(μ0) exp(−(τ(μ0) − τ(μ_n)) G^J)`` for every pair and scale node."""
+        B, n0, n1 = self.band_limit, self.lobe_columns, self.columns
+        R0 = self.lobe_coefficients(material)
+        dtau = material.tau(material.mu0) - material.tau(jnp.exp(self.nodes))  # (s,)
+        if self.diagonal:
+            g = jnp.diagonal(so3.diffusion_generator(B, material.law.D), axis1=-2, axis2=-1)[:, B - 1 - n1 : B + n1]
+            return R0[:, None] * jnp.exp(-dtau[:, None, None] * g)[None, :, :, None, :]
+        E = jax.vmap(lambda t: so3.diffusion_operator(B, material.law.D, t))(dtau)
+        E = E[:, :, B - 1 - n0 : B + n0, B - 1 - n1 : B + n1].astype(R0.dtype)
+        return jnp.einsum("pjab,sjbc->psjac", R0, E)
+
+    def node_values(self, material: AnisotropicMaterial) -> Float[Array, "n s"]:
+        """ρ at every key's orientation, at every scale node."""
+        values = jax.lax.map(
+            lambda args: jnp.real(so3.synthesize(args[0], args[1][:, 0], args[1][:, 1], args[1][:, 2])),
+            (self.evolved(material), self.angles),
+        )  # (P, s, q)
+        return values[self.key_pair, :, self.key_slot]
+
+    def __call__(self, material: AnisotropicMaterial) -> Float[Array, " n"]:
+        per_key = self.node_values(material)
+        s = _scale_position(self.log_mu, self.nodes, self.exact_scales)
+        if self.exact_scales or self.nodes.shape[0] < 4:
+            return jnp.take_along_axis(per_key, jnp.round(s).astype(int)[:, None], axis=1)[:, 0]
+        base, w = cubic_stencil(s, self.nodes.shape[0])
+        return jnp.sum(jnp.take_along_axis(per_key, base[:, None] + jnp.arange(4), axis=1) * w, axis=1)
+
+
+Step = ClosedFormStep | RadialStep | GridStep | SO3Step
 
 
 class MaterialPlan(eqx.Module):
@@ -164,13 +235,13 @@ class MaterialPlan(eqx.Module):
     material: int = eqx.field(static=True)
     rows: Int[Array, " q"]  # the queries (indices into the scene's list) this step serves
     inverse: Int[Array, " q"]  # each query's distinct (u, μ) pair
-    factor: Float[Array, " q"]  # F(i, o), the mirror-microfacet factor
+    factor: Float[Array, " q"]  # F(i, o), the mirror-microfacet factor (1 on the SO(3) path: ρ includes it)
     step: Step
     path: str = eqx.field(static=True)
     reason: str = eqx.field(static=True)
     predicted_error: float = eqx.field(static=True)
-    predicted_seconds: float = eqx.field(static=True)
+    predicted_cost: float = eqx.field(static=True)  # relative units (:mod:`._cost`)
     details: str = eqx.field(static=True)
 
-    def __call__(self, material: Material) -> Float[Array, " q"]:
+    def __call__(self, material: Material | AnisotropicMaterial) -> Float[Array, " q"]:
         return self.step(material)[self.inverse] * self.factor
