@@ -5,7 +5,8 @@ The chain, each step in its own module:
 
 * :class:`Dataset` — images of a :class:`brdfscale.MeasurementSet` with σ and masks;
 * :class:`ParametricModel`, :class:`NonParametricModel` — forward maps θ ↦ images built on
-  :func:`brdfscale.evolve`;
+  :func:`brdfscale.evolve` (:class:`GaussianCorrelatedSurface`: the closed-form Σ(μ) of a
+  Gaussian-correlated surface);
 * :func:`fit` — optimistix least squares (Levenberg–Marquardt by default), multi-start,
   Laplace covariance, identifiability (names the combinations the data cannot determine);
 * :func:`sample` — emcee with chunked, resumable HDF5 checkpoints, τ and ESS;
@@ -21,19 +22,22 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-from ._data import Dataset  # noqa: E402
+from ._data import Dataset, PointData  # noqa: E402
 from ._estimate import SOLVERS, FitResult, Problem, fit  # noqa: E402
 from ._models import AbstractModel, NonParametricModel, ParametricModel, RelativeStatistics  # noqa: E402
 from ._report import summarise, truth_of, write_report  # noqa: E402
 from ._sample import SampleResult, log_posterior, sample  # noqa: E402
 from ._simulate import simulate  # noqa: E402
+from ._surface import GaussianCorrelatedSurface  # noqa: E402
 
 __all__ = [
     "Dataset",
+    "PointData",
     "AbstractModel",
     "ParametricModel",
     "NonParametricModel",
     "RelativeStatistics",
+    "GaussianCorrelatedSurface",
     "Problem",
     "FitResult",
     "fit",

@@ -10,9 +10,19 @@ are replicates. :class:`Dataset` stacks the images into padded arrays:
 * ``values[i, p]`` — the measured lobe (per unit slope area);
 * ``weight[i, p]`` — ``1/σ`` for valid pixels, 0 for masked or padding pixels, so the
   whitened residual of a model prediction ``f`` is ``(f − values)·weight``;
-* ``radii`` and ``radius_index`` — the distinct offset radii ``|u|`` of all pixels and, per
-  pixel, the index of its radius: a radially symmetric lobe is evaluated once per distinct
-  radius (a square grid has about 8× fewer radii than pixels).
+
+A model predicts the same value at every pixel of one scale with the same offset (replicate
+images), and a radially symmetric model at every pixel of one scale with the same radius
+``|u|``. Least squares therefore needs only the sufficient statistics of each such group
+``u`` of pixels ``p`` (:meth:`Dataset.points`): with ``c_u = Σ_p w_p²`` and the weighted
+mean ``v̄_u = Σ_p w_p² v_p / c_u``,
+
+    χ² = Σ_p w_p² (f_u − v_p)² = Σ_u c_u (f_u − v̄_u)² + Σ_u Σ_p w_p² (v_p − v̄_u)²,
+
+exactly, so the residuals ``√c_u (f_u − v̄_u)`` have the same optimum, the same Jacobian
+product ``JᵀJ`` (hence the same Laplace covariance) and, with the constant second sum
+added, the same χ² as the per-pixel residuals — at a fraction of the rows (a square grid
+has about 8× fewer radii than pixels).
 
 RGB images are reduced to luminance ``Y = 0.2126 R + 0.7152 G + 0.0722 B`` (Rec. 709) with
 ``σ_Y² = Σ_c w_c² σ_c²`` (independent channel noise).
@@ -21,11 +31,11 @@ RGB images are reduced to luminance ``Y = 0.2126 R + 0.7152 G + 0.0722 B`` (Rec.
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Float
 
 from brdfscale import InvalidInputError, MeasurementSet
 
-__all__ = ["Dataset"]
+__all__ = ["Dataset", "PointData"]
 
 _LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 
@@ -50,8 +60,6 @@ class Dataset(eqx.Module):
     offsets: Float[Array, "n_img n_pix 2"]
     values: Float[Array, "n_img n_pix"]
     weight: Float[Array, "n_img n_pix"]
-    radii: Float[Array, " n_radii"]
-    radius_index: Int[Array, "n_img n_pix"]
     scales: Float[Array, " n_scales"]
     scale_of_image: tuple[int, ...] = eqx.field(static=True)
     image_sizes: tuple[int, ...] = eqx.field(static=True)
@@ -100,17 +108,10 @@ class Dataset(eqx.Module):
             values.append(np.pad(v.ravel(), (0, pad)))
             weight.append(np.pad(np.where(m, 1.0 / s, 0.0).ravel(), (0, pad)))
             which.append(scales.index(img.mu))
-        offsets = np.stack(offsets)
-        # radii rounded to 1e-12 (relative to the extent) so mirror-symmetric pixels share one
-        scale = max(img.extent for img in mset.images)
-        radius = np.round(np.linalg.norm(offsets, axis=-1) / scale, 12)
-        radii, radius_index = np.unique(radius, return_inverse=True)
         return cls(
-            offsets=jnp.asarray(offsets, dtype=jnp.float64),
+            offsets=jnp.asarray(np.stack(offsets), dtype=jnp.float64),
             values=jnp.asarray(np.stack(values), dtype=jnp.float64),
             weight=jnp.asarray(np.stack(weight), dtype=jnp.float64),
-            radii=jnp.asarray(radii * scale, dtype=jnp.float64),
-            radius_index=jnp.asarray(radius_index.reshape(radius.shape), dtype=jnp.int32),
             scales=jnp.asarray(scales, dtype=jnp.float64),
             scale_of_image=tuple(which),
             image_sizes=tuple(img.size for img in mset.images),
@@ -122,6 +123,46 @@ class Dataset(eqx.Module):
         """Number of valid (unmasked) pixels."""
         return int(np.count_nonzero(np.asarray(self.weight)))
 
+    def images_of_scale(self, k: int) -> list[int]:
+        """Indices of the images measured at ``scales[k]``."""
+        return [i for i, j in enumerate(self.scale_of_image) if j == k]
+
+    def points(self, radial: bool) -> "PointData":
+        """The sufficient statistics of the pixels that share a prediction (module docstring).
+
+        Args:
+            radial: group by radius ``|u|`` (radially symmetric models) instead of by offset.
+                Coordinates are rounded to 1e-12 of the largest extent before grouping, so
+                mirror-symmetric pixels share a group.
+        """
+        offsets, values = np.asarray(self.offsets), np.asarray(self.values)
+        w2 = np.asarray(self.weight) ** 2
+        scale = max(self.extents)
+        groups, n_scales = [], len(np.asarray(self.scales))
+        for k in range(n_scales):
+            images = self.images_of_scale(k)
+            u = offsets[images].reshape(-1, 2)
+            key = np.linalg.norm(u, axis=-1, keepdims=True) if radial else u
+            key, index = np.unique(np.round(key / scale, 12), axis=0, return_inverse=True)
+            index = index.ravel()
+            c = np.bincount(index, w2[images].ravel(), len(key))
+            sums = np.bincount(index, (w2[images] * values[images]).ravel(), len(key))
+            mean = np.divide(sums, c, out=np.zeros_like(sums), where=c > 0)
+            spread = float(np.sum(w2[images].ravel() * (values[images].ravel() - mean[index]) ** 2))
+            point = np.concatenate([key * scale, np.zeros_like(key)], axis=1) if radial else key * scale
+            groups.append((point, mean, np.sqrt(c), spread))
+        n = max(len(g[1]) for g in groups)
+
+        def padded(i):  # zero rows up to n points (zero weight: no contribution)
+            return jnp.asarray(np.stack([np.pad(g[i], [(0, n - len(g[i]))] + [(0, 0)] * (g[i].ndim - 1)) for g in groups]))
+
+        return PointData(
+            points=padded(0),
+            mean=padded(1),
+            weight=padded(2),
+            chi2_offset=jnp.asarray(sum(g[3] for g in groups)),
+        )
+
     def whitened(self, prediction: Float[Array, "n_img n_pix"]) -> Float[Array, " n_img*n_pix"]:
         """``(prediction − values)/σ`` over all pixels (0 where masked), flattened."""
         return ((prediction - self.values) * self.weight).ravel()
@@ -130,3 +171,18 @@ class Dataset(eqx.Module):
         """Pixel row ``flat`` of image ``i`` reshaped to its (n, n) grid."""
         n = self.image_sizes[i]
         return np.asarray(flat[: n * n]).reshape(n, n)
+
+
+class PointData(eqx.Module):
+    """The dataset reduced to the distinct points of each scale (:meth:`Dataset.points`).
+
+    ``points[k, j]`` is a measured offset (for radial grouping ``(|u|, 0)``) at ``scales[k]``,
+    ``mean[k, j]`` the σ-weighted mean of its pixels and ``weight[k, j] = √c`` (0 for padding
+    and fully masked points); ``chi2_offset`` is the within-group scatter, the constant that
+    turns the reduced χ² into the per-pixel χ².
+    """
+
+    points: Float[Array, "n_scales n_points 2"]
+    mean: Float[Array, "n_scales n_points"]
+    weight: Float[Array, "n_scales n_points"]
+    chi2_offset: Float[Array, ""]

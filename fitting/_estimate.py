@@ -1,7 +1,9 @@
 """Point estimates with optimistix, multi-start, Laplace covariance and identifiability.
 
 The fit minimises ``½‖r(θ)‖²`` over the unconstrained coordinates θ of a model, with the
-whitened residuals ``r = ((prediction − data)/σ, prior rows)``. At the optimum θ̂ the
+whitened residuals ``r = ((prediction − data)/σ, prior rows)`` — computed on the dataset's
+distinct points (:meth:`Dataset.points`), which gives the per-pixel χ² up to a constant
+and the same ``JᵀJ``. At the optimum θ̂ the
 Laplace approximation of the posterior is Gaussian with precision (Fisher information)
 
     F = Jᵀ J,   J = ∂r/∂θ (θ̂)   (``jax.jacfwd``; optimistix exposes no Jacobian),
@@ -26,10 +28,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
+from jaxtyping import Array, Float
 
 from brdfscale import InvalidInputError
 
-from ._data import Dataset
+from ._data import Dataset, PointData
 from ._models import AbstractModel
 
 __all__ = ["Problem", "FitResult", "fit", "SOLVERS"]
@@ -42,6 +45,11 @@ _LAPLACE_DRAWS = 4000
 class Problem(eqx.Module):
     """A model paired with its data: the whitened residual vector ``r(θ)``.
 
+    The data rows of ``r`` are ``√c_u (f_u(θ) − v̄_u)`` over the distinct points ``u`` of the
+    dataset (grouped by radius for radially symmetric models, :meth:`Dataset.points`), then
+    the model's prior rows; ``chi2(θ) = ‖r‖² + (within-group scatter)`` is the χ² over all
+    valid pixels (plus the prior rows), exactly.
+
     θ is clipped to the model's prior box before the prediction, so no solver step can
     reach parameters where the forward model does not exist (e.g. a lobe width that
     underflows to 0); inside the box (where every reported optimum lies) the clip is the
@@ -50,17 +58,26 @@ class Problem(eqx.Module):
 
     model: AbstractModel
     data: Dataset
+    points: PointData
     lower: jax.Array
     upper: jax.Array
 
     def __init__(self, model: AbstractModel, data: Dataset):
         self.model, self.data = model, data
+        self.points = data.points(model.radial)
         lo, hi = model.bounds(data)
         self.lower, self.upper = jnp.asarray(lo, jnp.float64), jnp.asarray(hi, jnp.float64)
 
-    def residuals(self, theta):
+    def residuals(self, theta: Float[Array, " n"]) -> Float[Array, " m"]:
         theta = jnp.clip(theta, self.lower, self.upper)
-        return jnp.concatenate([self.data.whitened(self.model.predict(theta, self.data)), self.model.penalty(theta)])
+        p = self.points
+        fitted = self.model.predict_points(theta, self.data.scales, p.points)
+        return jnp.concatenate([((fitted - p.mean) * p.weight).ravel(), self.model.penalty(theta)])
+
+    def chi2(self, theta: Float[Array, " n"]) -> Float[Array, ""]:
+        """χ² over every valid pixel plus the prior rows."""
+        r = self.residuals(theta)
+        return r @ r + self.points.chi2_offset
 
 
 def _residuals(theta, problem: Problem):
@@ -82,19 +99,19 @@ def _make_solver(name: str, rtol: float, atol: float):
 
 @eqx.filter_jit
 def _solve(problem, y0, solver, max_steps):
+    """One least-squares solve from ``y0``: θ̂, result code, steps, χ² and the Jacobian at θ̂."""
     sol = optx.least_squares(_residuals, solver, y0, args=problem, max_steps=max_steps, throw=False)
-    r = problem.residuals(sol.value)
-    return sol.value, sol.result._value, sol.stats["num_steps"], r @ r
+    jac = jax.jacfwd(problem.residuals)(sol.value)
+    return sol.value, sol.result._value, sol.stats["num_steps"], problem.chi2(sol.value), jac
 
 
 @eqx.filter_jit
-def _jacobian(problem, theta):
-    return jax.jacfwd(problem.residuals)(theta), problem.residuals(theta)
+def _quantities(model, theta, draws):
+    """The quantities at θ̂, their Jacobian there, and at every Laplace draw."""
+    def stacked(t):
+        return jnp.stack(list(model.quantities(t).values()))
 
-
-@eqx.filter_jit
-def _quantities_of(model, thetas):
-    return jax.vmap(model.quantities)(thetas)
+    return stacked(theta), jax.jacfwd(stacked)(theta), jax.vmap(stacked)(draws)
 
 
 @dataclasses.dataclass
@@ -181,8 +198,8 @@ def fit(
     spread: float = 0.5,
     seed: int = 0,
     max_steps: int = 256,
-    rtol: float = 1e-8,
-    atol: float = 1e-8,
+    rtol: float = 1e-6,
+    atol: float = 1e-6,
     undetermined_std: float = 1.0,
 ) -> FitResult:
     """Maximum-likelihood fit of ``model`` to ``data`` from several starting points.
@@ -195,7 +212,11 @@ def fit(
             copies (normal, standard deviation ``spread`` in θ), all clipped to the prior box.
             They share one compiled solve.
         seed: seed of the jitter.
-        max_steps, rtol, atol: optimistix settings.
+        max_steps, rtol, atol: optimistix settings: a start has converged when an accepted
+            step changes every θ_i by less than ``atol + rtol·|θ_i|`` and every residual by
+            less than ``atol + rtol·|r_i|`` (residuals are in units of σ, so 1e-6 is far below
+            the noise; Levenberg–Marquardt converges quadratically, so the last step's
+            change bounds the error).
         undetermined_std: threshold of the identifiability analysis (module docstring).
 
     Returns:
@@ -210,7 +231,7 @@ def fit(
     y0 = jnp.asarray(_starting_points(model, data, int(starts), spread, seed), dtype=jnp.float64)
     # one compiled solve, called per start (vmapping the solve compiles ~2.5× longer here)
     runs = [_solve(problem, y, optimiser, int(max_steps)) for y in y0]
-    values, codes, steps, chi2s = (np.stack([np.asarray(run[i]) for run in runs]) for i in range(4))
+    values, codes, steps, chi2s, jacobians = (np.stack([np.asarray(run[i]) for run in runs]) for i in range(5))
     ok = (codes == optx.RESULTS.successful._value) & np.isfinite(chi2s)
     pool = np.flatnonzero(ok) if ok.any() else np.flatnonzero(np.isfinite(chi2s))
     if pool.size == 0:
@@ -226,7 +247,7 @@ def fit(
     lo, hi = np.asarray(problem.lower), np.asarray(problem.upper)
     at_bounds = [n for n, t, a, b in zip(model.names, theta, lo, hi) if t <= a + 1e-6 * (b - a) or t >= b - 1e-6 * (b - a)]
 
-    J, r = map(np.asarray, _jacobian(problem, jnp.asarray(theta)))
+    J = jacobians[best]
     lam, V = np.linalg.eigh(J.T @ J)
     lam_max = max(float(lam[-1]), 1e-300)
     undetermined_mask = (lam <= 1e-12 * lam_max) | (1.0 / np.sqrt(np.maximum(lam, 1e-300)) > undetermined_std)
@@ -243,22 +264,21 @@ def fit(
     # would move it by more than 3× its standard deviation along the determined ones
     rng = np.random.default_rng(seed + 1)
     draws = theta + rng.standard_normal((_LAPLACE_DRAWS, (~null).sum())) @ (V[:, ~null] / np.sqrt(lam[~null])).T
-    q_draws = {k: np.asarray(v) for k, v in _quantities_of(model, jnp.asarray(draws)).items()}
-    q_hat = {k: float(v) for k, v in model.quantities(jnp.asarray(theta)).items()}
-    grads = np.asarray(jax.jacfwd(lambda t: jnp.stack(list(model.quantities(t).values())))(jnp.asarray(theta)))
+    q_hat, grads, q_draws = map(np.asarray, _quantities(model, jnp.asarray(theta), jnp.asarray(draws)))
+    q_names = list(model.quantities(jnp.asarray(theta)))
     floor = np.maximum(lam, 1e-12 * lam_max)
     var_undetermined = ((grads @ V[:, undetermined_mask]) ** 2 / floor[undetermined_mask]).sum(axis=1)
     var_determined = ((grads @ V[:, ~undetermined_mask]) ** 2 / floor[~undetermined_mask]).sum(axis=1)
     estimates, std, quantiles = {}, {}, {}
-    for idx, (name, value) in enumerate(q_hat.items()):
-        estimates[name] = value
+    for idx, name in enumerate(q_names):
+        estimates[name] = float(q_hat[idx])
         if var_undetermined[idx] > 9 * var_determined[idx]:
             std[name], quantiles[name] = None, None
         else:
-            std[name] = float(np.std(q_draws[name]))
-            quantiles[name] = np.percentile(q_draws[name], [5, 50, 95]).tolist()
+            std[name] = float(np.std(q_draws[:, idx]))
+            quantiles[name] = np.percentile(q_draws[:, idx], [5, 50, 95]).tolist()
     return FitResult(
-        names=names, theta=theta, covariance=cov, chi2=float(r @ r), n_data=data.n_data, status=status,
+        names=names, theta=theta, covariance=cov, chi2=float(chi2s[best]), n_data=data.n_data, status=status,
         starts=start_info, estimates=estimates, std=std, quantiles=quantiles, eigenvalues=lam,
         undetermined=undetermined, notes=list(model.identifiability_notes), solver=solver, at_bounds=at_bounds,
     )

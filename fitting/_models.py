@@ -35,20 +35,12 @@ from brdfscale import InvalidInputError, MethodNotApplicableError, evolve, lobes
 from brdfscale._special import j0
 
 from ._data import Dataset
+from ._surface import GaussianCorrelatedSurface
 
 __all__ = ["AbstractModel", "ParametricModel", "NonParametricModel", "RelativeStatistics"]
 
 _LOBES = {"beckmann": lobes.Beckmann, "ggx": lobes.GGX}
 _STATISTICS = {"beckmann": stats.Beckmann, "ggx": stats.GGX}
-
-
-def _on_pixels(lobe: lobes.AbstractLobe, data: Dataset, images: list[int]) -> list[Float[Array, " n_pix"]]:
-    """The lobe at the pixel offsets of ``images``; radially symmetric lobes once per radius."""
-    if lobe.shape.isotropic:
-        radial = lobe.density(jnp.stack([data.radii, jnp.zeros_like(data.radii)], axis=-1))
-        return [radial[data.radius_index[i]] for i in images]
-    flat = lobe.density(data.offsets[jnp.asarray(images)])
-    return list(flat)
 
 
 def _moments(data: Dataset) -> tuple[float, np.ndarray]:
@@ -81,9 +73,29 @@ class AbstractModel(eqx.Module):
     def names(self) -> tuple[str, ...]:
         """Names of the unconstrained coordinates θ_i (e.g. ``"log alpha_lobe"``)."""
 
+    @property
     @abc.abstractmethod
+    def radial(self) -> bool:
+        """Whether every predicted lobe is radially symmetric (then it depends on |u| only)."""
+
+    @abc.abstractmethod
+    def predict_points(
+        self, theta: Float[Array, " n"], scales: Float[Array, " n_scales"], points: Float[Array, "n_scales n_points 2"]
+    ) -> Float[Array, "n_scales n_points"]:
+        """The lobe at ``scales[k]`` evaluated at the offsets ``points[k]`` (``scales[0]`` = μ0)."""
+
     def predict(self, theta: Float[Array, " n"], data: Dataset) -> Float[Array, "n_img n_pix"]:
         """The predicted lobe at every pixel of every image (padding pixels: anything)."""
+        n_scales, n_pix = data.scales.shape[0], data.values.shape[1]
+        groups = [data.images_of_scale(k) for k in range(n_scales)]
+        n = max(len(g) for g in groups) * n_pix
+        points = jnp.stack([jnp.pad(data.offsets[jnp.asarray(g)].reshape(-1, 2), ((0, n - len(g) * n_pix), (0, 0)))
+                            for g in groups])
+        if self.radial:
+            points = jnp.stack([jnp.linalg.norm(points, axis=-1), jnp.zeros(points.shape[:-1])], axis=-1)
+        values = self.predict_points(theta, data.scales, points)
+        rows = {i: values[k, j * n_pix:(j + 1) * n_pix] for k, g in enumerate(groups) for j, i in enumerate(g)}
+        return jnp.stack([rows[i] for i in range(len(data.scale_of_image))])
 
     @abc.abstractmethod
     def quantities(self, theta: Float[Array, " n"]) -> dict[str, Float[Array, ""]]:
@@ -119,9 +131,9 @@ class ParametricModel(AbstractModel):
         statistics: ``"beckmann"`` or ``"ggx"``: the family of the facet-slope density s(·, μ).
         law: ``"width"`` — :class:`brdfscale.stats.WidthLaw` for the family's width α(μ);
             ``"gaussian_surface"`` — Beckmann statistics of a Gaussian-correlated random
-            surface, :class:`brdfscale.stats.GaussianSurface` with a ``window`` facet window
-            (Σ(μ) by quadrature with ``n_k`` × ``n_phi`` nodes — the defaults 128 × 32 agree
-            with 1024 × 64 to 1e-10 relative, tests/test_fit.py — the law of DESIGN §2).
+            surface with a ``window`` facet window, Σ(μ) in closed form
+            (:class:`fitting.GaussianCorrelatedSurface`; the law of DESIGN §2 that
+            :class:`brdfscale.stats.GaussianSurface` evaluates by quadrature).
         fixed: physical parameters held at given values (e.g. ``{"mu_c": 1.0}``) — the way
             to supply prior knowledge that the data lack.
         radial_nodes: Gauss–Legendre nodes of the radial evolution path (used whenever GGX is
@@ -137,8 +149,6 @@ class ParametricModel(AbstractModel):
     statistics: str = eqx.field(static=True)
     law_kind: str = eqx.field(static=True)
     window: str = eqx.field(static=True)
-    n_k: int = eqx.field(static=True)
-    n_phi: int = eqx.field(static=True)
     fixed: tuple[tuple[str, float], ...] = eqx.field(static=True)
     radial_nodes: int = eqx.field(static=True)
 
@@ -148,8 +158,7 @@ class ParametricModel(AbstractModel):
     }
 
     def __init__(self, lobe: str = "beckmann", statistics: str = "beckmann", *, law: str = "width",
-                 fixed: dict | None = None, window: str = "box", n_k: int = 128, n_phi: int = 32,
-                 radial_nodes: int = 96):
+                 fixed: dict | None = None, window: str = "box", radial_nodes: int = 96):
         if lobe not in _LOBES:
             raise InvalidInputError(f"lobe must be one of {sorted(_LOBES)}; got {lobe!r}.")
         if statistics not in _STATISTICS:
@@ -170,7 +179,6 @@ class ParametricModel(AbstractModel):
         if len(fixed) == len(parameters):
             raise InvalidInputError("every parameter is fixed; leave at least one free.")
         self.lobe, self.statistics, self.law_kind, self.window = lobe, statistics, law, window
-        self.n_k, self.n_phi = int(n_k), int(n_phi)
         self.fixed = tuple(sorted((k, float(v)) for k, v in fixed.items()))
         self.radial_nodes = int(radial_nodes)
 
@@ -212,8 +220,7 @@ class ParametricModel(AbstractModel):
         """The scale law μ ↦ s(·, μ) at θ."""
         q = self.quantities(theta)
         if self.law_kind == "gaussian_surface":
-            spectrum = stats.GaussianCorrelation(q["rms_height"], q["correlation_length"])
-            return stats.GaussianSurface(spectrum, window=self.window, n_k=self.n_k, n_phi=self.n_phi)
+            return GaussianCorrelatedSurface(q["rms_height"], q["correlation_length"], self.window)
         return stats.ScaledFamily(_STATISTICS[self.statistics], stats.WidthLaw(q["alpha_max"], q["mu_c"], q["exponent"]))
 
     def statistics_at(self, theta, mu) -> stats.AbstractSlopeDensity:
@@ -233,15 +240,15 @@ class ParametricModel(AbstractModel):
             return evolve(base, s0, s, method="closed_form")
         return evolve(base, s0, s, method="radial", size=self.radial_nodes)
 
-    def predict(self, theta, data):
-        out = [None] * len(data.scale_of_image)
-        for k in range(data.scales.shape[0]):
-            images = [i for i, j in enumerate(data.scale_of_image) if j == k]
-            # k = 0 is the identity (the radial path would form 0/0 where S(W, μ0) underflows)
-            lobe = self.base_lobe(theta) if k == 0 else self.evolved(theta, data.scales[0], data.scales[k])
-            for i, row in zip(images, _on_pixels(lobe, data, images)):
-                out[i] = row
-        return jnp.stack(out)
+    @property
+    def radial(self):
+        return True
+
+    def predict_points(self, theta, scales, points):
+        # k = 0 is the identity (the radial path would form 0/0 where S(W, μ0) underflows);
+        # the coarser scales share one vectorised evolution
+        coarser = jax.vmap(lambda mu, u: self.evolved(theta, scales[0], mu).density(u))(scales[1:], points[1:])
+        return jnp.concatenate([self.base_lobe(theta).density(points[0])[None], coarser])
 
     def relative_statistics(self, theta, W, data):
         s0 = self.statistics_at(theta, data.scales[0]).cf_radial(W)
@@ -419,18 +426,20 @@ class NonParametricModel(AbstractModel):
                 out[f"D[{k}](W={self.knots[j]:.4g})"] = d[k, j]
         return out
 
-    def predict(self, theta, data):
+    @property
+    def radial(self):
+        return False
+
+    def predict_points(self, theta, scales, points):
         base = self.base_lobe(theta)
-        out = [None] * len(data.scale_of_image)
-        for k in range(self.n_scales):
-            images = [i for i, j in enumerate(data.scale_of_image) if j == k]
-            if k == 0:
-                lobe = base
-            else:
-                lobe = evolve(base, self.relative(theta, k), stats.Delta(), method="grid", size=self.grid_size)
-            for i, row in zip(images, _on_pixels(lobe, data, images)):
-                out[i] = row
-        return jnp.stack(out)
+        knots = jnp.asarray(self.knots, dtype=theta.dtype)
+
+        def at_scale(decay, u):
+            relative = RelativeStatistics(knots, decay)
+            return evolve(base, relative, stats.Delta(), method="grid", size=self.grid_size).density(u)
+
+        coarser = jax.vmap(at_scale)(self.decay(theta)[1:], points[1:])
+        return jnp.concatenate([base.density(points[0])[None], coarser])
 
     def relative_statistics(self, theta, W, data):
         return jnp.stack([self.relative(theta, k).cf_radial(W) for k in range(self.n_scales)])

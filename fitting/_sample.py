@@ -2,7 +2,7 @@
 
 Posterior (in the unconstrained coordinates θ of the model):
 
-    log p(θ | data) = −½ ‖r(θ)‖² + log π(θ),
+    log p(θ | data) = −½ χ²(θ) + log π(θ),
 
 with ``r`` the whitened residuals of :class:`fitting.Problem` (Gaussian noise of the stated
 σ; smoothness rows of the non-parametric model are part of the prior) and ``π`` uniform on
@@ -51,8 +51,7 @@ _MOVES = {
 
 def log_posterior(theta, problem: Problem):
     """``−½‖r(θ)‖²`` inside the prior box, −∞ outside or where not finite."""
-    r = problem.residuals(theta)
-    lp = -0.5 * (r @ r)
+    lp = -0.5 * problem.chi2(theta)
     inside = jnp.all((theta >= problem.lower) & (theta <= problem.upper))
     return jnp.where(inside & jnp.isfinite(lp), lp, -jnp.inf)
 

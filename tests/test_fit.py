@@ -64,8 +64,38 @@ def test_dataset_whitening_masks_and_luminance():
     np.testing.assert_allclose(d.weight[1], 1 / (0.1 * np.sqrt(0.2126**2 + 0.7152**2 + 0.0722**2)))
     r = d.whitened(jnp.zeros_like(d.values))
     assert r[0] == 0 and r[1] == pytest.approx(-10.0)
-    # every pixel's radius index reproduces its offset's norm
-    np.testing.assert_allclose(d.radii[d.radius_index], np.linalg.norm(d.offsets, axis=-1), atol=1e-12)
+
+
+@pytest.mark.parametrize("radial", [True, False])
+def test_reduced_residuals_give_the_per_pixel_chi2_and_fisher_matrix(radial):
+    """Least squares on the distinct points (Dataset.points) is exact: at any θ, ‖r‖² plus the
+    within-group scatter equals the per-pixel χ², and JᵀJ (the Laplace precision) is the same."""
+    rng = np.random.default_rng(0)
+    model = fitting.ParametricModel()
+    mset = fitting.simulate(model, TRUTHS[0], (0.5, 2.0, 8.0), size=9, extent=0.3, noise=0.05, replicates=2, seed=1)
+    images = list(mset.images)
+    mask = rng.random((9, 9)) > 0.2
+    images[1] = LobeImage(mu=images[1].mu, incident=images[1].incident, extent=0.3, values=images[1].values,
+                          sigma=images[1].sigma * rng.uniform(0.5, 2.0, (9, 9)), mask=mask)
+    data = fitting.Dataset.from_measurements(MeasurementSet(tuple(images)))
+    reduced = data.points(radial)
+    # replicates merge (81 offsets per scale); radially also mirror pixels (15 radii on a 9 × 9 grid)
+    i, j = np.meshgrid(np.arange(-4, 5), np.arange(-4, 5))
+    assert np.count_nonzero(reduced.weight) == 3 * (np.unique(i**2 + j**2).size if radial else 81)
+    problem = eqx.tree_at(lambda p: p.points, fitting.Problem(model, data), reduced)
+
+    @jax.jit
+    def both(theta):
+        def per_pixel(t):
+            return data.whitened(model.predict(t, data))
+
+        return (per_pixel(theta), jax.jacfwd(per_pixel)(theta), problem.chi2(theta),
+                jax.jacfwd(problem.residuals)(theta))
+
+    for _ in range(3):
+        full, J_full, chi2, J = both(jnp.asarray(model.initial(data) + rng.normal(0, 0.3, 5)))
+        assert float(chi2) == pytest.approx(float(full @ full), rel=1e-12)
+        np.testing.assert_allclose(J.T @ J, J_full.T @ J_full, rtol=1e-10)
 
 
 def test_models_refuse_bad_configurations():
@@ -80,18 +110,37 @@ def test_models_refuse_bad_configurations():
         fitting.fit(fitting.ParametricModel(), data, solver="newton")
 
 
-def test_gaussian_surface_law_quadrature_is_converged():
-    """The model's cheap quadrature (128 × 32 nodes) against the library default (1024 × 64)."""
+@pytest.mark.parametrize("window", ["box", "gaussian"])
+def test_gaussian_surface_closed_form_matches_quadratures(window):
+    """Σ(μ) in closed form (fitting.GaussianCorrelatedSurface) against the library's 2D
+    quadrature (brdfscale.stats.GaussianSurface, 1024 × 64 nodes) and against mpmath's
+    quadrature of the factorised 1D integrals; limits μ → 0 (2σ_h²/ℓ²) and derivatives."""
+    import mpmath as mp
+
     from brdfscale import stats
 
-    model = fitting.ParametricModel(law="gaussian_surface")
-    theta = jnp.asarray(model.theta_from(dict(amplitude=1.0, alpha_lobe=0.01, rms_height=0.05, correlation_length=8.0)))
-    fine = stats.GaussianSurface(stats.GaussianCorrelation(0.05, 8.0), window="box", n_k=1024, n_phi=64)
-    reference = jax.jit(lambda mu: fine.slope_covariance(mu))
-    cheap = jax.jit(lambda mu: model.statistics_at(theta, mu).cov)
-    for mu in (2.0, 32.0):
-        ref = np.asarray(reference(mu))
-        np.testing.assert_allclose(cheap(mu), ref, rtol=0, atol=1e-10 * ref[0, 0])
+    sigma_h, ell = 0.05, 1.5
+    law = fitting.GaussianCorrelatedSurface(sigma_h, ell, window)
+    quadrature = stats.GaussianSurface(stats.GaussianCorrelation(sigma_h, ell), window=window, n_k=1024, n_phi=64)
+    for mu in (1e-3, 0.3, 1.5, 8.0):
+        np.testing.assert_allclose(law.slope_variance(mu), quadrature.slope_covariance(mu)[0, 0], rtol=1e-12)
+
+    def reference(mu):  # Σ_xx = π ℓ² σ_h² / (2π)² · ∫ k² e^{−ℓ²k²/4} w(k) dk · ∫ e^{−ℓ²k²/4} w(k) dk
+        if window == "box":
+            w = lambda k: mp.sinc(k * mu / 2) ** 2  # noqa: E731
+        else:
+            w = lambda k: mp.exp(-(k**2) * mu**2 / 12)  # noqa: E731
+        g = lambda k: mp.exp(-(ell**2) * k**2 / 4) * w(k)  # noqa: E731
+        inf = [-mp.inf, 0, mp.inf] if window == "gaussian" else mp.linspace(-40, 40, 81)
+        i2, i0 = mp.quad(lambda k: k**2 * g(k), inf), mp.quad(g, inf)
+        return float(mp.pi * ell**2 * sigma_h**2 / (2 * mp.pi) ** 2 * i2 * i0)
+
+    with mp.workdps(30):
+        for mu in (0.01, 1.5, 50.0):
+            np.testing.assert_allclose(law.slope_variance(mu), reference(mu), rtol=1e-12)
+    np.testing.assert_allclose(law.slope_variance(1e-9), 2 * sigma_h**2 / ell**2, rtol=1e-12)
+    fd = (law.slope_variance(1.5 + 1e-6) - law.slope_variance(1.5 - 1e-6)) / 2e-6
+    np.testing.assert_allclose(jax.grad(law.slope_variance)(1.5), fd, rtol=1e-7)
 
 
 # -- recovery ------------------------------------------------------------------------------
@@ -118,7 +167,7 @@ def test_laplace_covariance_and_optimum_agree_with_scipy():
     residuals = eqx.filter_jit(fitting._estimate._residuals)
     f = lambda t: np.asarray(residuals(jnp.asarray(t), problem))  # noqa: E731
     ref = scipy.optimize.least_squares(f, model.initial(data), method="trf", x_scale="jac", xtol=1e-12, ftol=1e-12)
-    assert ref.cost * 2 == pytest.approx(res.chi2, rel=1e-7)
+    assert ref.cost * 2 + float(problem.points.chi2_offset) == pytest.approx(res.chi2, rel=1e-7)
     np.testing.assert_allclose(ref.x, res.theta, atol=1e-4 * np.sqrt(np.diag(res.covariance)).max() * 100)
     cov_scipy = np.linalg.inv(ref.jac.T @ ref.jac)
     np.testing.assert_allclose(res.covariance, cov_scipy, rtol=2e-3)
