@@ -25,7 +25,6 @@ All functions are jit-compiled, differentiable and batched over leading dimensio
 """
 
 import functools
-import math
 
 import jax
 import jax.numpy as jnp
@@ -34,8 +33,9 @@ from jaxtyping import Array, ArrayLike, Complex, Float, Shaped
 
 from .._errors import InvalidInputError
 from .._validation import as_float_array
+from ._contraction import MIXED, QUADRANTS, Plan, degree_to_frequency, frequency_to_degree, kernel_tables, plan
 from ._grid import check_band_limit, grid, quadrature_weights
-from ._wigner import fourier_rows, fourier_weights, parity_sign
+from ._wigner import fourier_weights, parity_sign
 
 __all__ = ["forward", "inverse", "synthesize", "analyse_points", "band_orders"]
 
@@ -55,80 +55,79 @@ def band_orders(coefficients) -> tuple[int, int, int]:
     return B, L, N
 
 
-@functools.lru_cache(maxsize=6)
-def _degree_table(B: int, K: int) -> np.ndarray:
-    """``X[J, m, K + M] = X^J_{mM}`` for J < B, m ≤ J, |M| ≤ min(J, K); zero elsewhere."""
-    table = np.zeros((B, B, 2 * K + 1))
-    for J in range(B):
-        k = min(J, K)
-        table[J, : J + 1, K - k : K + k + 1] = fourier_rows(J)[:, J - k : J + k + 1]
-    table.setflags(write=False)
-    return table
+# --- the quadrant layout of ._contraction ----------------------------------------------------
+def _coefficient_positions(K: int):
+    """Indices of +μ and −μ (μ = 0 … K) along an order axis laid out M = −K … K."""
+    mu = np.arange(K + 1)
+    return K + mu, K - mu
 
 
-def _chunks(B: int) -> list[tuple[int, int]]:
-    """Degree ranges [J0, J1) of roughly equal O(J⁴) work; each is padded to its largest J.
-    Few pieces for small B (each piece is one compiled loop)."""
-    pieces = max(1, min(6, B // 8))
-    edges = sorted({0, B} | {int(round(B * math.sqrt(k / pieces))) for k in range(1, pieces)})
-    return [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
+def _fft_positions(K: int, B: int):
+    """Indices of +μ and −μ (μ = 0 … K) along an FFT-ordered axis of length 2B."""
+    mu = np.arange(K + 1)
+    return mu, (-mu) % (2 * B)
 
 
-def _sign_and_parity(L: int, N: int):
-    """``(odd, σ)`` of :func:`parity_sign` for orders −L … L by −N … N."""
-    return parity_sign(np.arange(-L, L + 1), np.arange(-N, N + 1))
+def _split(z, rows, cols, columns: int):
+    """Complex ``(n, R, X, C)`` → the quadrant layout ``(X, L+1, columns, ch)``, real.
+
+    ``rows``/``cols`` are the (+μ, −μ) index pairs of :func:`_coefficient_positions` or
+    :func:`_fft_positions` along R and C; channels are (quadrant, re/im, n)."""
+    quadrants = [jnp.take(jnp.take(z, rows[sr < 0], axis=1), cols[sc < 0], axis=3) for sr, sc in QUADRANTS]
+    q = jnp.stack(quadrants, axis=-1)  # (n, L+1, X, N+1, 4)
+    r = jnp.stack([jnp.real(q), jnp.imag(q)], axis=-1)  # (n, L+1, X, N+1, 4, 2)
+    r = jnp.transpose(r, (2, 1, 3, 4, 5, 0))
+    r = r.reshape(r.shape[:3] + (-1,))
+    return jnp.pad(r, ((0, 0), (0, 0), (0, columns - r.shape[2]), (0, 0)))
 
 
-def _pack(z, core: int):
-    """Complex (*batch, *core) → real (*core, 2·n_batch) channels and the batch shape."""
-    batch = z.shape[: z.ndim - core]
-    z = jnp.moveaxis(z.reshape((-1,) + z.shape[z.ndim - core :]), 0, -1)
-    return jnp.concatenate([jnp.real(z), jnp.imag(z)], axis=-1), batch
+def _sources(signs_mu, size: int):
+    """For each position of an output order axis: (μ, sign index 0/1, valid)."""
+    mu = np.zeros(size, int)
+    neg = np.zeros(size, int)
+    valid = np.zeros(size, bool)
+    for s, positions in enumerate(signs_mu):
+        mu[positions] = np.arange(len(positions))
+        neg[positions] = s
+        valid[positions] = True
+    return mu, neg, valid
 
 
-def _unpack(r, batch):
-    n = r.shape[-1] // 2
-    z = jnp.moveaxis(r[..., :n] + 1j * r[..., n:], -1, 0)
-    return z.reshape(batch + z.shape[1:])
+_QUADRANT_OF = np.array([[QUADRANTS.index((sr, sc)) for sc in (1, -1)] for sr in (1, -1)])
 
 
-def _to_fourier(X, coeffs, L, N):
-    """``T[m, M, M', c] = Σ_J X^J_{mM} X^J_{mM'} coeffs[J, M, M', c]`` (real channels c)."""
-    B, K, C = coeffs.shape[0], (X.shape[-1] - 1) // 2, coeffs.shape[-1]
-    T = jnp.zeros((B, 2 * L + 1, 2 * N + 1, C), coeffs.dtype)
-    for J0, J1 in _chunks(B):
-        lr, lc = min(J1 - 1, L), min(J1 - 1, N)
-        xr = X[J0:J1, :J1, K - lr : K + lr + 1]
-        xc = X[J0:J1, :J1, K - lc : K + lc + 1]
-        fc = coeffs[J0:J1, L - lr : L + lr + 1, N - lc : N + lc + 1]
-
-        def add_degree(acc, slices):
-            a, b, f = slices
-            return acc + a[:, :, None, None] * b[:, None, :, None] * f[None], None
-
-        part, _ = jax.lax.scan(add_degree, jnp.zeros((J1, 2 * lr + 1, 2 * lc + 1, C), coeffs.dtype), (xr, xc, fc))
-        T = T.at[:J1, L - lr : L + lr + 1, N - lc : N + lc + 1].add(part)
-    return T
+def _merge(r, n: int, rows, cols, size_r: int, size_c: int):
+    """The quadrant layout ``(X, L+1, N_p, ch)`` → complex ``(n, R, X, C)``; positions that no
+    (sign, μ) maps to are zero. ``rows``/``cols`` as in :func:`_split`."""
+    mu_r, neg_r, ok_r = _sources(rows, size_r)
+    mu_c, neg_c, ok_c = _sources(cols, size_c)
+    r = r.reshape(r.shape[:3] + (4, 2, n))
+    quadrant = _QUADRANT_OF[neg_r[:, None], neg_c[None, :]]
+    g = r[:, mu_r[:, None], mu_c[None, :], quadrant]  # (X, R, C, 2, n)
+    g = jnp.where(jnp.asarray(ok_r[:, None] & ok_c[None, :])[None, :, :, None, None], g, 0)
+    z = g[..., 0, :] + 1j * g[..., 1, :]  # (X, R, C, n)
+    return jnp.transpose(z, (3, 1, 0, 2))
 
 
-def _from_fourier(X, phi, L, N):
-    """The transpose of :func:`_to_fourier`: ``f[J, M, M', c] = Σ_{m≤J} X^J_{mM} X^J_{mM'} phi[m, M, M', c]``."""
-    B, K, C = phi.shape[0], (X.shape[-1] - 1) // 2, phi.shape[-1]
-    out = jnp.zeros((B, 2 * L + 1, 2 * N + 1, C), phi.dtype)
-    xr_all = X[:, :, K - L : K + L + 1]
-    xc_all = X[:, :, K - N : K + N + 1]
-    for m0, m1 in _chunks(B):
-        xr, xc = xr_all[m0:], xc_all[m0:]  # only J ≥ m0 receive frequencies m ≥ m0
+def _mixed_sign(size: int, channels: int, dtype):
+    """``(−1)^x`` on the mixed-quadrant channels, 1 elsewhere: shape (size, 1, 1, channels)."""
+    mixed = np.repeat(MIXED, channels // 4)
+    sign = np.where(mixed[None, :] & (np.arange(size)[:, None] % 2 == 1), -1.0, 1.0)
+    return jnp.asarray(sign[:, None, None, :], dtype)
 
-        def add_frequency(acc, m):
-            a = jax.lax.dynamic_index_in_dim(xr, m, axis=1, keepdims=False)
-            b = jax.lax.dynamic_index_in_dim(xc, m, axis=1, keepdims=False)
-            p = jax.lax.dynamic_index_in_dim(phi, m, axis=0, keepdims=False)
-            return acc + a[:, :, None, None] * b[:, None, :, None] * p[None], None
 
-        part, _ = jax.lax.scan(add_frequency, jnp.zeros((B - m0, 2 * L + 1, 2 * N + 1, C), phi.dtype), jnp.arange(m0, m1))
-        out = out.at[m0:].add(part)
-    return out
+def _cosine_frequencies(p: Plan, m_size: int, columns: int):
+    """Where frequency m meets order pair (μ, μ') of the same parity as m + μ + μ' even:
+    ``(m, L+1, N_p, 1)`` booleans (:func:`_beta_matrices`)."""
+    m = np.arange(m_size)[:, None, None]
+    mu = np.arange(p.L + 1)[None, :, None]
+    mup = np.arange(columns)[None, None, :]
+    return jnp.asarray(((m + mu + mup) % 2 == 0)[..., None])
+
+
+def _sigma(L: int, N: int, dtype):
+    _, sigma = parity_sign(np.arange(-L, L + 1), np.arange(-N, N + 1))
+    return jnp.asarray(sigma, dtype)
 
 
 def _degree_normalisation(B, dtype):
@@ -139,68 +138,92 @@ def _real_dtype(x):
     return jnp.finfo(jnp.result_type(x)).dtype
 
 
-# --------------------------------------------------------------------------------------------
-@functools.partial(jax.jit, static_argnames=("L", "N"))
-def _forward(samples, X, cos_w, sin_w, *, L, N):
-    B = samples.shape[-1] // 2
-    rdt = X.dtype
-    odd, sigma = _sign_and_parity(L, N)
+def _batch(z, core: int):
+    """Leading batch shape and the array reshaped to (n, *core)."""
+    batch = z.shape[: z.ndim - core]
+    return batch, z.reshape((-1,) + z.shape[z.ndim - core :])
+
+
+# --- forward ----------------------------------------------------------------------------------
+def _analysis(p: Plan, tables, phi, n: int, dtype):
+    """Quadrant-layout β-Fourier coefficients φ[m, μ, μ', ch] → complex f^J_{MM'} (n, B, 2L+1, 2N+1)."""
+    phi = phi * _mixed_sign(p.B, phi.shape[-1], dtype)
+    f = frequency_to_degree(p, tables, phi) * _mixed_sign(p.B, phi.shape[-1], dtype)
+    rows, cols = _coefficient_positions(p.L), _coefficient_positions(p.N)
+    c = jnp.moveaxis(_merge(f, n, rows, cols, 2 * p.L + 1, 2 * p.N + 1), 2, 1)  # (n, J, M, M')
+    return c * _sigma(p.L, p.N, dtype) * _degree_normalisation(p.B, dtype)[:, None, None]
+
+
+@functools.partial(jax.jit, static_argnames=("p",))
+def _forward(samples, tables, wa, wb, *, p: Plan):
+    B, rdt = p.B, tables[0].dtype
+    batch, s = _batch(samples.astype(jnp.result_type(rdt, 1j)), 3)
     # (1) Σ_a Σ_g f e^{+iMα_a} e^{+iM'γ_g} (π/B)²: an inverse FFT times (2B)²
-    F = jnp.fft.ifft2(samples.astype(jnp.result_type(rdt, 1j)), axes=(-3, -1)) * (4 * np.pi**2)
-    F = jnp.take(F, np.arange(-L, L + 1) % (2 * B), axis=-3)
-    F = jnp.take(F, np.arange(-N, N + 1) % (2 * B), axis=-1)
-    F, batch = _pack(jnp.moveaxis(F, -2, -3), 3)  # (2B[k], 2L+1, 2N+1, C)
-    # (2) the β quadrature against ε_m cos mβ_k, ε_m sin mβ_k
-    phi = jnp.where(odd[None, :, :, None], jnp.tensordot(sin_w, F, axes=1), jnp.tensordot(cos_w, F, axes=1))
+    F = jnp.fft.ifft2(s, axes=(1, 3)) * (4 * np.pi**2)  # (n, a', k, g')
+    r = _split(F, _fft_positions(p.L, B), _fft_positions(p.N, B), p.columns)  # (2B[k], L+1, N_p, ch)
+    # (2) the β quadrature, folded about β = π/2 (β_{2B−1−k} = π − β_k, equal weights)
+    reflected = r[::-1][:B]
+    A = jnp.tensordot(wa, r[:B] + reflected, axes=1)
+    Bm = jnp.tensordot(wb, r[:B] - reflected, axes=1)
+    phi = jnp.where(_cosine_frequencies(p, B, p.columns), A, Bm)
     # (3) the degree–frequency contraction
-    coeffs = _from_fourier(X, phi, L, N) * jnp.asarray(sigma, rdt)[None, :, :, None]
-    coeffs = coeffs * _degree_normalisation(B, rdt)[:, None, None, None]
-    return _unpack(coeffs, batch)
+    c = _analysis(p, tables, phi, s.shape[0], rdt)
+    return c.reshape(batch + c.shape[1:])
 
 
-def _fourier_series(coefficients, X, L, N):
-    """``σ_{MM'} Σ_J X X f^J`` as real channels, and the batch shape: the β-Fourier
-    coefficients of ``Σ_J f^J_{MM'} d^J_{MM'}(β)``."""
-    rdt = X.dtype
-    odd, sigma = _sign_and_parity(L, N)
-    f, batch = _pack(coefficients, 3)
-    T = _to_fourier(X, f * jnp.asarray(sigma, rdt)[None, :, :, None], L, N)
-    return T, odd, batch
+# --- inverse ----------------------------------------------------------------------------------
+def _fourier_series(p: Plan, tables, coefficients):
+    """``σ_{MM'} Σ_J X X f^J`` in the quadrant layout (m, L+1, N_p, ch), the batch shape and n:
+    the β-Fourier coefficients of ``Σ_J f^J_{MM'} d^J_{MM'}(β)``."""
+    rdt = tables[0].dtype
+    batch, c = _batch(coefficients * _sigma(p.L, p.N, rdt), 3)
+    g = _split(jnp.moveaxis(c, 1, 2), _coefficient_positions(p.L), _coefficient_positions(p.N), p.columns)
+    sign = _mixed_sign(p.B, g.shape[-1], rdt)
+    return degree_to_frequency(p, tables, g * sign) * sign, batch, c.shape[0]
 
 
-@functools.partial(jax.jit, static_argnames=("L", "N"))
-def _inverse(coefficients, X, cos_t, sin_t, *, L, N):
-    B = coefficients.shape[-3]
-    T, odd, batch = _fourier_series(coefficients, X, L, N)
-    oddj = jnp.asarray(odd)[None, :, :, None]
-    G = jnp.tensordot(cos_t, jnp.where(oddj, 0.0, T), axes=1) + jnp.tensordot(sin_t, jnp.where(oddj, T, 0.0), axes=1)
-    G = _unpack(G, batch)  # (..., 2B[k], 2L+1, 2N+1)
-    f = jnp.fft.fft2(_fft_order(_fft_order(G, L, B, -2), N, B, -1), axes=(-2, -1))  # Σ G e^{−iMα_a} e^{−iM'γ_g}
-    return jnp.moveaxis(f, -3, -2)  # (..., α, β, γ)
-
-
-def _fft_order(G, L, B, axis):
-    """Orders M = −L … L along ``axis`` → FFT order (0 … L, zeros, −L … −1) of length 2B."""
-    G = jnp.moveaxis(G, axis, -1)
-    zeros = jnp.zeros(G.shape[:-1] + (2 * B - 2 * L - 1,), G.dtype)
-    return jnp.moveaxis(jnp.concatenate([G[..., L:], zeros, G[..., :L]], axis=-1), -1, axis)
+@functools.partial(jax.jit, static_argnames=("p",))
+def _inverse(coefficients, tables, va, vb, *, p: Plan):
+    B = p.B
+    T, batch, n = _fourier_series(p, tables, coefficients)
+    cosine = _cosine_frequencies(p, B, p.columns)
+    R1 = jnp.tensordot(va, jnp.where(cosine, T, 0), axes=1)  # (B[k], …)
+    R2 = jnp.tensordot(vb, jnp.where(cosine, 0, T), axes=1)
+    G = jnp.concatenate([R1 + R2, (R1 - R2)[::-1]], axis=0)  # (2B[k], …): β_k and π − β_k
+    spectrum = _merge(G, n, _fft_positions(p.L, B), _fft_positions(p.N, B), 2 * B, 2 * B)  # (n, a', k, g')
+    f = jnp.fft.fft2(spectrum, axes=(1, 3))  # Σ G e^{−iMα_a} e^{−iM'γ_g}
+    return f.reshape(batch + f.shape[1:])
 
 
 def _tables(B: int, L: int, N: int, dtype):
-    """The degree table for orders up to max(L, N), as a JAX array of ``dtype``."""
-    return jnp.asarray(_degree_table(B, max(L, N)), dtype)
+    p = plan(B, L, N)
+    return p, kernel_tables(p, dtype)
 
 
-def _grid_trig(B: int, dtype, weighted: bool):
+@functools.lru_cache(maxsize=32)
+def _beta_matrices_f64(B: int, weighted: bool):
     _, beta, _ = grid(B)
     m = np.arange(B)
     eps = fourier_weights(B - 1)
-    w = quadrature_weights(B)[:, None] if weighted else 1.0
-    cos_t = eps * np.cos(np.outer(beta, m)) * w
-    sin_t = eps * np.sin(np.outer(beta, m)) * w
+    x = np.outer(beta[:B], m)
+    even = m % 2 == 0
+    a = eps * np.where(even, np.cos(x), np.sin(x))
+    b = eps * np.where(even, np.sin(x), np.cos(x))
     if weighted:  # forward: (m, k)
-        return jnp.asarray(cos_t.T, dtype), jnp.asarray(sin_t.T, dtype)
-    return jnp.asarray(cos_t, dtype), jnp.asarray(sin_t, dtype)  # inverse: (k, m)
+        w = quadrature_weights(B)[:B, None]
+        return (a * w).T, (b * w).T
+    return a, b  # inverse: (k, m)
+
+
+def _beta_matrices(B: int, dtype, weighted: bool):
+    """The folded β matrices for k < B: ``ε_m (cos mβ_k if m even else sin mβ_k)`` and
+    ``ε_m (sin mβ_k if m even else cos mβ_k)``, times the weights w_k for the forward.
+
+    For order pairs with M − M' even (cosine series) the first collects the even, the second
+    the odd frequencies, and the other way round for the sine series; with
+    ``cos m(π−β) = (−1)^m cos mβ`` and ``sin m(π−β) = −(−1)^m sin mβ`` the half-grid sums
+    ``R1 ± R2`` give the values at β_k and π − β_k (half the work of the unfolded product)."""
+    return tuple(jnp.asarray(x, dtype) for x in _beta_matrices_f64(B, weighted))
 
 
 def _orders(B, m_max, n_max):
@@ -239,8 +262,8 @@ def forward(
         s = s.astype(jnp.result_type(float))
     L, N = _orders(B, m_max, n_max)
     rdt = _real_dtype(s)
-    cos_w, sin_w = _grid_trig(B, rdt, weighted=True)
-    return _forward(s, _tables(B, L, N, rdt), cos_w, sin_w, L=L, N=N)
+    p, tables = _tables(B, L, N, rdt)
+    return _forward(s, tables, *_beta_matrices(B, rdt, weighted=True), p=p)
 
 
 def _coefficients(coefficients):
@@ -259,16 +282,17 @@ def inverse(coefficients: Complex[ArrayLike, "*batch B 2L+1 2N+1"]) -> Complex[A
     """
     c, B, L, N = _coefficients(coefficients)
     rdt = _real_dtype(c)
-    cos_t, sin_t = _grid_trig(B, rdt, weighted=False)
-    return _inverse(c, _tables(B, L, N, rdt), cos_t, sin_t, L=L, N=N)
+    p, tables = _tables(B, L, N, rdt)
+    return _inverse(c, tables, *_beta_matrices(B, rdt, weighted=False), p=p)
 
 
-@functools.partial(jax.jit, static_argnames=("L", "N", "chunk"))
-def _synthesize(coefficients, X, alpha, beta, gamma, *, L, N, chunk):
-    B = coefficients.shape[-3]
-    rdt = X.dtype
-    T, odd, batch = _fourier_series(coefficients, X, L, N)
-    T = _unpack(T, batch)  # (..., m, 2L+1, 2N+1) complex
+@functools.partial(jax.jit, static_argnames=("p", "chunk"))
+def _synthesize(coefficients, tables, alpha, beta, gamma, *, p: Plan, chunk):
+    B, L, N, rdt = p.B, p.L, p.N, tables[0].dtype
+    T, batch, n = _fourier_series(p, tables, coefficients)
+    T = jnp.moveaxis(_merge(T, n, _coefficient_positions(L), _coefficient_positions(N), 2 * L + 1, 2 * N + 1), 2, 1)
+    T = T.reshape(batch + T.shape[1:])  # (..., m, 2L+1, 2N+1) complex
+    odd, _ = parity_sign(np.arange(-L, L + 1), np.arange(-N, N + 1))
     even_part = jnp.where(jnp.asarray(odd), 0.0, T)
     odd_part = jnp.where(jnp.asarray(odd), T, 0.0)
     m = jnp.arange(B, dtype=rdt)
@@ -313,14 +337,15 @@ def synthesize(
     qshape = a.shape
     if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
         raise InvalidInputError(f"chunk must be a positive integer; got {chunk!r}.")
-    out = _synthesize(c, _tables(B, L, N, rdt), a.reshape(-1), b.reshape(-1), g.reshape(-1), L=L, N=N, chunk=chunk)
+    p, tables = _tables(B, L, N, rdt)
+    out = _synthesize(c, tables, a.reshape(-1), b.reshape(-1), g.reshape(-1), p=p, chunk=chunk)
     return out.reshape(out.shape[:-1] + qshape)
 
 
-@functools.partial(jax.jit, static_argnames=("B", "L", "N"))
-def _analyse_points(X, alpha, beta, gamma, weights, *, B, L, N):
-    rdt = X.dtype
-    odd, sigma = _sign_and_parity(L, N)
+@functools.partial(jax.jit, static_argnames=("p",))
+def _analyse_points(tables, alpha, beta, gamma, weights, *, p: Plan):
+    B, L, N, rdt = p.B, p.L, p.N, tables[0].dtype
+    odd, _ = parity_sign(np.arange(-L, L + 1), np.arange(-N, N + 1))
     m = jnp.arange(B, dtype=rdt)
     eps = jnp.asarray(fourier_weights(B - 1), rdt)
     ea = jnp.exp(1j * alpha[:, None] * jnp.arange(-L, L + 1, dtype=rdt))
@@ -330,9 +355,8 @@ def _analyse_points(X, alpha, beta, gamma, weights, *, B, L, N):
     phi_c = jnp.einsum("qm,qa,qb->mab", wc, ea, eg, optimize="optimal")
     phi_s = jnp.einsum("qm,qa,qb->mab", ws, ea, eg, optimize="optimal")
     phi = jnp.where(jnp.asarray(odd), phi_s, phi_c)
-    phi, batch = _pack(phi, 3)
-    coeffs = _from_fourier(X, phi, L, N) * jnp.asarray(sigma, rdt)[None, :, :, None]
-    return _unpack(coeffs * _degree_normalisation(B, rdt)[:, None, None, None], batch)
+    phi = _split(jnp.moveaxis(phi, 0, 1)[None], _coefficient_positions(L), _coefficient_positions(N), p.columns)
+    return _analysis(p, tables, phi, 1, rdt)[0]
 
 
 def analyse_points(
@@ -361,4 +385,5 @@ def analyse_points(
     w = jnp.full(a.shape, 1.0 / a.shape[0], rdt) if weights is None else as_float_array(weights, "weights").reshape(-1).astype(rdt)
     if w.shape != a.shape:
         raise InvalidInputError(f"weights must have one entry per rotation ({a.shape[0]}); got {w.shape[0]}.")
-    return _analyse_points(_tables(B, L, N, rdt), a, b, g, w, B=B, L=L, N=N)
+    p, tables = _tables(B, L, N, rdt)
+    return _analyse_points(tables, a, b, g, w, p=p)
