@@ -31,7 +31,7 @@ from jaxtyping import Array, Float
 from .._errors import NoBRDFAtScaleError
 from .._quadrature import gauss_legendre
 from .._special import j0
-from ..stats import AbstractSlopeDensity, Delta
+from ..stats import AbstractSlopeDensity, Delta, FrequencyGrid
 from .._validation import is_concrete
 from ..stats._base import check_slopes
 
@@ -83,12 +83,19 @@ class EvolvedDensity(AbstractSlopeDensity):
         at_zero = jnp.where((numerator == 0) | (lam2 > 0), 0.0, jnp.inf)
         return jnp.where(zero, at_zero, ratio)
 
-    def cf(self, W):
-        W = check_slopes(W, "W")
-        numerator = self.base.cf(W) * self.s_from.cf(W)
+    def _quotient(self, transform):
+        """``G_from S_from / S_to`` from ``transform(density)`` of each factor."""
+        numerator = transform(self.base) * transform(self.s_from)
         if isinstance(self.s_to, Delta) and self.s_to.mean is None:  # μ = ∞: nothing to divide
             return numerator
-        return self._divide(numerator, self.s_to.cf(W))
+        return self._divide(numerator, transform(self.s_to))
+
+    def cf(self, W):
+        W = check_slopes(W, "W")
+        return self._quotient(lambda density: density.cf(W))
+
+    def cf_grid(self, grid):
+        return self._quotient(lambda density: density.cf_grid(grid))
 
     def cf_radial(self, k):
         return jnp.real(self._divide(self.base.cf_radial(k) * self.s_from.cf_radial(k), self.s_to.cf_radial(k)))
@@ -111,7 +118,8 @@ class EvolvedDensity(AbstractSlopeDensity):
         dtype = jnp.result_type(*jax.tree_util.tree_leaves(self))
         R = jnp.maximum(self.support_radius(self.tol), 1e-12)
         k = jnp.asarray(np.logspace(-2, 5, _PROBE_POINTS), dtype=dtype) / R
-        phi = jnp.asarray(np.arange(_PROBE_DIRECTIONS) * np.pi / _PROBE_DIRECTIONS, dtype=dtype)
+        directions = 1 if self.isotropic else _PROBE_DIRECTIONS  # one ray says all for radial G
+        phi = jnp.asarray(np.arange(directions) * np.pi / directions, dtype=dtype)
         W = k[:, None, None] * jnp.stack([jnp.cos(phi), jnp.sin(phi)], -1)[None]
         return k, jnp.abs(self.cf(W))
 
@@ -152,11 +160,9 @@ class EvolvedDensity(AbstractSlopeDensity):
         a = jax.lax.stop_gradient(a)  # a discretisation choice
         return 2 * a / self.size, a
 
-    def _frequencies(self, h):
-        n = self.size
-        fy = jnp.fft.fftfreq(n, 1.0).astype(h.dtype) * (2 * jnp.pi / h)
-        fx = jnp.fft.rfftfreq(n, 1.0).astype(h.dtype) * (2 * jnp.pi / h)
-        return fx, fy
+    def frequency_grid(self, h) -> FrequencyGrid:
+        """The real-FFT frequencies of the ``size × size`` slope grid of spacing ``h``."""
+        return FrequencyGrid(self.size, 2 * jnp.pi / (self.size * h))
 
     def on_grid(self):
         """``(u, values)``: nodes ``u`` (N,) from −a to a − h and ``g_to`` on the N×N grid
@@ -165,13 +171,11 @@ class EvolvedDensity(AbstractSlopeDensity):
 
     def _on_grid(self):
         h, a = self.grid_spacing()
-        fx, fy = self._frequencies(h)
         n = self.size
-        W = jnp.stack(jnp.broadcast_arrays(fx[None, :], fy[:, None]), axis=-1)
-        G = self.cf(W)
+        G = self.cf_grid(self.frequency_grid(h))
         # nodes start at −a: multiply by e^{+iW·a} = (−1)^{kx+ky} for a = N h / 2 (a constant
         # pattern; cheaper than rolling the output by half a period)
-        parity = (np.arange(n)[:, None] + np.arange(fx.shape[0])[None, :]) % 2
+        parity = (np.arange(n)[:, None] + np.arange(n // 2 + 1)[None, :]) % 2
         values = jnp.fft.irfft2(G * (1.0 - 2.0 * parity), s=(n, n)) / h**2
         u = -a + h * jnp.arange(n, dtype=h.dtype)
         return u, _checked(values, self._probe()[1])
@@ -179,9 +183,9 @@ class EvolvedDensity(AbstractSlopeDensity):
     def _grid_at(self, m):
         """Inverse DFT of the grid path summed directly at query offsets (no interpolation)."""
         h, _ = self.grid_spacing()
-        fx, fy = self._frequencies(h)
-        W = jnp.stack(jnp.broadcast_arrays(fx[None, :], fy[:, None]), axis=-1)
-        G = self.cf(W)  # (n, n//2+1): half plane, the other half is the conjugate
+        grid = self.frequency_grid(h)
+        fx, fy = grid.wx, grid.wy
+        G = self.cf_grid(grid)  # (n, n//2+1): half plane, the other half is the conjugate
         weight = jnp.where((jnp.arange(fx.shape[0]) == 0) | (2 * jnp.arange(fx.shape[0]) == self.size), 1.0, 2.0)
         flat = m.reshape(-1, 2)
         ex = jnp.exp(1j * flat[:, 0, None] * fx[None, :])  # (q, nx)

@@ -7,6 +7,7 @@ Every class represents the density of a facet's slope relative to the global ori
 """
 
 from ._base import AbstractSlopeDensity
+from ._grid import FrequencyGrid
 from ._families import GGX, Beckmann, Delta, Disk, Gaussian
 from ._histogram import SlopeHistogram
 from ._mixture import Mixture
@@ -24,6 +25,7 @@ from ._tabulated import Tabulated
 
 __all__ = [
     "AbstractSlopeDensity",
+    "FrequencyGrid",
     "Delta",
     "Gaussian",
     "Beckmann",

@@ -11,6 +11,7 @@ from .._errors import InvalidInputError, SingularDensityError
 from .._special import jinc, xk1
 from .._validation import as_float_array, is_concrete, positive, vector2
 from ._base import AbstractSlopeDensity, add_offset, centred, check_slopes, offset_norm, phase, safe_norm, shifted_cf
+from ._grid import axis_phase
 
 
 def _per_axis(value, value_x, value_y, name: str):
@@ -52,6 +53,10 @@ class Delta(AbstractSlopeDensity):
     def cf(self, W):
         return phase(check_slopes(W, "W"), self.mean)
 
+    def cf_grid(self, grid):
+        mx, my = (None, None) if self.mean is None else (self.mean[0], self.mean[1])
+        return grid.separable(lambda w: axis_phase(w, mx), lambda w: axis_phase(w, my))
+
     def shifted(self, offset):
         return Delta(add_offset(self.mean, offset))
 
@@ -81,6 +86,8 @@ class Gaussian(AbstractSlopeDensity):
     cov: Float[Array, "*batch 2 2"]
     mean: Float[Array, "*batch 2"] | None
     isotropic: bool = eqx.field(static=True)
+    diagonal: bool = eqx.field(static=True)
+    """True when ``cov`` is diagonal by construction (``sigma=``), so ``S`` factorises."""
 
     def __init__(self, cov=None, *, sigma=None, mean=None):
         isotropic = False
@@ -114,6 +121,7 @@ class Gaussian(AbstractSlopeDensity):
         self.cov = cov
         self.mean = vector2(mean, "mean")
         self.isotropic = isotropic and mean is None
+        self.diagonal = sigma is not None
 
     def density(self, m):
         d = centred(m, self.mean)
@@ -128,7 +136,25 @@ class Gaussian(AbstractSlopeDensity):
         quad = a * W[..., 0] ** 2 + 2 * b * W[..., 0] * W[..., 1] + c * W[..., 1] ** 2  # Wᵀ Σ W
         return shifted_cf(jnp.exp(-0.5 * quad), W, self.mean)
 
+    def cf_grid(self, grid):
+        # exp(−½WᵀΣW − iW·mean) = Π_axes exp(−½Σ_aa W_a² − iW_a mean_a) when Σ is diagonal by
+        # construction: per-axis factors
+        mx, my = (None, None) if self.mean is None else (self.mean[0], self.mean[1])
+        a, b, c = self.cov[0, 0], self.cov[0, 1], self.cov[1, 1]
+        if self.diagonal:
+            return grid.separable(
+                lambda w: jnp.exp(-0.5 * a * w**2) * axis_phase(w, mx),
+                lambda w: jnp.exp(-0.5 * c * w**2) * axis_phase(w, my),
+            )
+        # with a cross term the per-axis factors can under- and overflow (0 · ∞); one exponential
+        # of the whole (non-negative) quadratic form per node instead
+        wx, wy = grid.wx[None, :], grid.wy[:, None]
+        quad = a * wx**2 + 2 * b * wx * wy + c * wy**2
+        return jnp.exp(-0.5 * quad) * grid.separable(lambda w: axis_phase(w, mx), lambda w: axis_phase(w, my))
+
     def shifted(self, offset):
+        if self.diagonal:
+            return Gaussian(sigma=jnp.sqrt(jnp.diagonal(self.cov, axis1=-2, axis2=-1)), mean=add_offset(self.mean, offset))
         return Gaussian(cov=self.cov, mean=add_offset(self.mean, offset))
 
     def support_radius(self, tol):

@@ -50,6 +50,9 @@ class Mixture(AbstractSlopeDensity):
         W = check_slopes(W, "W")
         return sum(w * c.cf(W) for w, c in zip(self.weights, self.components))
 
+    def cf_grid(self, grid):
+        return sum(w * c.cf_grid(grid) for w, c in zip(self.weights, self.components))
+
     def shifted(self, offset):
         return Mixture(self.weights, [c.shifted(offset) for c in self.components])
 
