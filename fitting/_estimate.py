@@ -17,8 +17,13 @@ quantity q with gradient g is reported as undetermined (no standard deviation, n
 quantiles) when the undetermined directions would move it more than the determined ones,
 ``Σ_u (g·v_u)²/λ_u > 9 Σ_d (g·v_d)²/λ_d`` (λ floored at 1e-12 λ_max), instead of with a
 fake precision (DESIGN §2). The covariance of θ is the pseudo-inverse ``V Λ⁺ Vᵀ`` over the
-numerically non-zero directions; the quantities' standard deviations and 5/50/95 %
-quantiles come from 4000 draws of that Gaussian pushed through the model's quantities.
+numerically non-zero directions. The quantities' standard deviations and 5/50/95 %
+quantiles come from 4000 draws of that Gaussian along the *determined* directions pushed
+through the model's quantities (draws along an undetermined direction, with standard
+deviations up to 1e6 in θ, would overflow any exponential and say nothing about the data),
+widened by the linearised contribution ``Σ_u (g·v_u)²/λ_u`` of the undetermined directions
+(at most 1/9 of the determined variance for a quantity that is reported at all): the
+variance is added, the quantiles are stretched about the median by the same factor.
 """
 
 import dataclasses
@@ -263,7 +268,8 @@ def fit(
     # quantities: Laplace draws; a quantity is undetermined when the undetermined directions
     # would move it by more than 3× its standard deviation along the determined ones
     rng = np.random.default_rng(seed + 1)
-    draws = theta + rng.standard_normal((_LAPLACE_DRAWS, (~null).sum())) @ (V[:, ~null] / np.sqrt(lam[~null])).T
+    known = ~undetermined_mask  # drawn along the determined directions only (module docstring)
+    draws = theta + rng.standard_normal((_LAPLACE_DRAWS, known.sum())) @ (V[:, known] / np.sqrt(lam[known])).T
     q_hat, grads, q_draws = map(np.asarray, _quantities(model, jnp.asarray(theta), jnp.asarray(draws)))
     q_names = list(model.quantities(jnp.asarray(theta)))
     floor = np.maximum(lam, 1e-12 * lam_max)
@@ -275,8 +281,11 @@ def fit(
         if var_undetermined[idx] > 9 * var_determined[idx]:
             std[name], quantiles[name] = None, None
         else:
-            std[name] = float(np.std(q_draws[:, idx]))
-            quantiles[name] = np.percentile(q_draws[:, idx], [5, 50, 95]).tolist()
+            spread = float(np.var(q_draws[:, idx]))
+            widen = np.sqrt(1 + var_undetermined[idx] / spread) if spread > 0 else 1.0
+            std[name] = float(np.sqrt(spread + var_undetermined[idx]))
+            q = np.percentile(q_draws[:, idx], [5, 50, 95])
+            quantiles[name] = (q[1] + widen * (q - q[1])).tolist()
     return FitResult(
         names=names, theta=theta, covariance=cov, chi2=float(chi2s[best]), n_data=data.n_data, status=status,
         starts=start_info, estimates=estimates, std=std, quantiles=quantiles, eigenvalues=lam,

@@ -123,6 +123,12 @@ class AbstractModel(eqx.Module):
         return jnp.zeros((0,), dtype=theta.dtype)
 
 
+@eqx.filter_jit
+def predict_images(model: AbstractModel, theta: Float[Array, " n"], data: Dataset) -> Float[Array, "n_img n_pix"]:
+    """``model.predict(theta, data)``, compiled once per model and data layout."""
+    return model.predict(theta, data)
+
+
 class ParametricModel(AbstractModel):
     """Parametric lobe + statistics family with a scale law (see the module docstring).
 

@@ -24,17 +24,12 @@ from brdfscale import BrdfscaleError, InvalidInputError  # noqa: E402
 from brdfscale._files import atomic_write  # noqa: E402
 
 from ._estimate import FitResult, Problem  # noqa: E402
-from ._models import ParametricModel  # noqa: E402
+from ._models import ParametricModel, predict_images  # noqa: E402
 from ._sample import SampleResult  # noqa: E402
 
 __all__ = ["summarise", "write_report", "truth_of"]
 
 _CORNER_MAX = 6
-
-
-@eqx.filter_jit
-def _predict(model, theta, data):
-    return model.predict(theta, data)
 
 
 @eqx.filter_jit
@@ -131,7 +126,7 @@ def summarise(problem: Problem, fit: FitResult, samples: SampleResult | None, tr
 
 def _figure_data_vs_fit(path, problem: Problem, fit: FitResult):
     data, model = problem.data, problem.model
-    pred = np.asarray(_predict(model, jnp.clip(jnp.asarray(fit.theta), problem.lower, problem.upper), data))
+    pred = np.asarray(predict_images(model, jnp.clip(jnp.asarray(fit.theta), problem.lower, problem.upper), data))
     first = [data.scale_of_image.index(k) for k in range(len(np.asarray(data.scales)))]
     fig, axes = plt.subplots(len(first), 3, figsize=(9, 2.6 * len(first)), squeeze=False)
     for row, i in enumerate(first):
@@ -231,7 +226,7 @@ def _write_tables(out_dir, problem: Problem, fit: FitResult, overwrite: bool) ->
         return "not written: brdfscale.exr is not available in this installation"
     data, model = problem.data, problem.model
     theta = jnp.clip(jnp.asarray(fit.theta), problem.lower, problem.upper)
-    pred = np.asarray(_predict(model, theta, data))
+    pred = np.asarray(predict_images(model, theta, data))
     images = []
     for k, mu in enumerate(np.asarray(data.scales)):
         i = data.scale_of_image.index(k)

@@ -8,12 +8,13 @@ check of the inverse machinery, not of the physics (for height-field simulations
 :mod:`brdfscale.synth`).
 """
 
+import jax.numpy as jnp
 import numpy as np
 
 from brdfscale import InvalidInputError, LobeImage, MeasurementSet
 
 from ._data import Dataset
-from ._models import ParametricModel
+from ._models import ParametricModel, predict_images
 
 __all__ = ["simulate"]
 
@@ -54,7 +55,7 @@ def simulate(
         for mu in scales for inc in incidents
     ]
     data = Dataset.from_measurements(MeasurementSet(tuple(blank)))
-    clean = np.asarray(model.predict(model.theta_from(params), data))
+    clean = np.asarray(predict_images(model, jnp.asarray(model.theta_from(params)), data))
     images = []
     for i, img in enumerate(blank):
         v = clean[i, : size * size].reshape(size, size)

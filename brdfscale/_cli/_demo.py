@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from ._fit import fit_measurements
+from ._fit import add_fit_options, fit_measurements
 
 _SCALES = (2.0, 4.0, 8.0, 16.0, 32.0)
 _MODEL_TRUTH = {"amplitude": 0.9, "alpha_lobe": 0.01, "rms_height": 0.05, "correlation_length": 8.0}
@@ -63,9 +63,11 @@ def run(args) -> int:
     print("[2/4] reading it back")
     mset = exr.read_measurements(path)
     print("[3/4] fitting and sampling")
-    options = argparse.Namespace(out=args.out, model="parametric", family="beckmann", fix=[], solver="lm", starts=4,
-                                 steps=args.steps, walkers=16, seed=args.seed, no_progress=args.no_progress,
-                                 force=args.force, default_sigma=None, law="gaussian_surface")
+    parser = argparse.ArgumentParser()
+    add_fit_options(parser)
+    options = parser.parse_args(["--out", args.out, "--law", "gaussian_surface", "--starts", "4", "--steps",
+                                 str(args.steps), "--walkers", "16", "--seed", str(args.seed)]
+                                + ["--no-progress"] * args.no_progress + ["--force"] * args.force)
     doc = fit_measurements(mset, options)
     print(f"[4/4] report in {args.out}/ (fit.json, data_vs_fit.png, statistics.png, corner.png)")
     print()

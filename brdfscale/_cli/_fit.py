@@ -35,6 +35,12 @@ def add_fit_options(parser) -> None:
     parser.add_argument("--solver", choices=("lm", "gauss_newton", "dogleg", "bfgs"), default="lm",
                         help="optimistix solver (default lm: Levenberg–Marquardt)")
     parser.add_argument("--starts", type=int, default=6, help="multi-start count (default 6)")
+    parser.add_argument("--max-steps", type=int, default=256,
+                        help="solver steps per start (default 256); a start that needs more is reported as such")
+    parser.add_argument("--base-nodes", type=int, default=13,
+                        help="non-parametric model: base lobe tabulated on N × N nodes (default 13)")
+    parser.add_argument("--knots", type=int, default=8,
+                        help="non-parametric model: W knots of the relative statistics (default 8)")
     parser.add_argument("--steps", type=int, default=2000, help="emcee steps (default 2000; 0: Laplace only)")
     parser.add_argument("--walkers", type=int, default=None, help="emcee walkers (default max(32, 4·dim))")
     parser.add_argument("--seed", type=int, default=0, help="seed of the starts and the sampler (default 0)")
@@ -72,7 +78,7 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
     else:
         if fixed:
             raise InvalidInputError("--fix applies to the parametric model only.")
-        model = fitting.NonParametricModel(data)
+        model = fitting.NonParametricModel(data, base_nodes=args.base_nodes, n_knots=args.knots)
         info = {"kind": "nonparametric", "base_nodes": model.base_nodes, "base_extent": model.base_extent,
                 "knots_W": list(model.knots), "smoothness": model.smoothness}
     info["solver"] = args.solver
@@ -81,7 +87,7 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
         raise InvalidInputError(f"{os.path.join(args.out, 'fit.json')} exists; choose another --out or pass --force.")
     stream(f"fitting {len(data.scale_of_image)} images at scales μ = {[float(s) for s in data.scales]} "
            f"({data.n_data} valid pixels), {len(model.names)} parameters, {args.starts} starts ...")
-    result = fitting.fit(model, data, solver=args.solver, starts=args.starts, seed=args.seed)
+    result = fitting.fit(model, data, solver=args.solver, starts=args.starts, seed=args.seed, max_steps=args.max_steps)
     stream(f"  {result.status}: χ²/dof = {result.chi2 / result.dof:.3f}, "
            f"{sum(s['at_best'] for s in result.starts)}/{len(result.starts)} starts at the optimum")
     for item in result.undetermined:
@@ -112,6 +118,6 @@ def run(args) -> int:
     for name, row in doc["parameters"].items():
         if name.startswith("D["):
             continue
-        std = "undetermined" if not row["determined"] else f"± {row['std']:.4g}"
+        std = f"± {row['std']:.4g}" if row["determined"] and row["std"] is not None else "undetermined"
         print(f"  {name:12s} {row['median'] if row['median'] is not None else row['estimate_map']:.5g} {std}")
     return 0
