@@ -2,9 +2,12 @@
 
 Writes experiments/results/bench_so3.json:
 
-* forward + inverse time and round-trip error of brdfscale.so3 versus the band limit B
-  (16 … 128; sizes whose predicted cost would push the sweep past ~3 minutes are skipped
-  and listed), the fitted scaling exponent of the time;
+* forward + inverse time (wall and process CPU) and round-trip error of brdfscale.so3 versus
+  the band limit B (16 … 128; sizes whose predicted cost would push the sweep past its budget
+  are skipped and listed), with the load average around each size; the fitted scaling
+  exponent of the time over B ≥ 32 (where the O(B⁴) terms dominate the O(B³ log B) FFTs and
+  the per-call overhead) and over the full range, and the local exponent between neighbouring
+  sizes (a cache cliff shows up there);
 * block evolution cost versus B (regularised solves with precomputed statistics, and the
   matrix-exponential path of rotational diffusion);
 * s2fft's exact Wigner transforms at equal band limit L = N = B in float64, measured in the
@@ -17,6 +20,7 @@ Run: ``python experiments/bench_so3.py`` (add ``--quick`` for B ≤ 32 only).
 
 import argparse
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -34,7 +38,7 @@ from _bench import best_time, machine, write_json  # noqa: E402
 
 import brdfscale.so3 as so3  # noqa: E402
 
-SWEEP_BUDGET_S = 180.0
+SWEEP_BUDGET_S = 240.0
 
 
 def band_limited(B, rng):
@@ -45,8 +49,21 @@ def band_limited(B, rng):
     return np.where((M[None, :, None] <= J) & (M[None, None, :] <= J), c, 0.0)
 
 
+def best_cpu_time(fn, repeat):
+    """Best process CPU time (all threads) of ``repeat`` calls after a warm-up: less sensitive
+    than wall time to other jobs taking the cores, though not to their use of the caches."""
+    fn()
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.process_time()
+        fn()
+        best = min(best, time.process_time() - t0)
+    return best
+
+
 def time_ours(B, rng, repeat):
     c = jnp.asarray(band_limited(B, rng))
+    load_before = os.getloadavg()[0]
     t0 = time.perf_counter()
     f = so3.inverse(c).block_until_ready()
     back = so3.forward(f).block_until_ready()
@@ -54,9 +71,30 @@ def time_ours(B, rng, repeat):
     err = float(jnp.max(jnp.abs(back - c)))
     t_inv = best_time(lambda: so3.inverse(c).block_until_ready(), repeat=repeat)
     t_fwd = best_time(lambda: so3.forward(f).block_until_ready(), repeat=repeat)
-    return {"B": B, "inverse_s": t_inv, "forward_s": t_fwd, "total_s": t_inv + t_fwd,
+    cpu = best_cpu_time(lambda: (so3.inverse(c).block_until_ready(), so3.forward(f).block_until_ready()), repeat)
+    return {"B": B, "inverse_s": t_inv, "forward_s": t_fwd, "total_s": t_inv + t_fwd, "total_cpu_s": cpu,
             "first_call_with_compile_s": first, "round_trip_max_abs_error": err,
-            "max_abs_coefficient": float(jnp.max(jnp.abs(c)))}
+            "max_abs_coefficient": float(jnp.max(jnp.abs(c))),
+            "load_average_1min": [load_before, os.getloadavg()[0]]}
+
+
+def exponent(rows, key, B_min=0):
+    """Least-squares slope of log(time) against log(B) over the rows with B ≥ B_min."""
+    fit = [r for r in rows if r["B"] >= B_min]
+    if len(fit) < 2:
+        return None
+    return float(np.polyfit(np.log([r["B"] for r in fit]), np.log([r[key] for r in fit]), 1)[0])
+
+
+def scaling(rows, key):
+    """Fitted exponents over B ≥ 32 and over every measured size, and the local exponents."""
+    Bs = [r["B"] for r in rows]
+    return {
+        "fit_B_ge_32": {"B": [b for b in Bs if b >= 32], "exponent": exponent(rows, key, 32)},
+        "fit_all": {"B": Bs, "exponent": exponent(rows, key)},
+        "local": [{"B": [a["B"], b["B"]], "exponent": float(math.log(b[key] / a[key]) / math.log(b["B"] / a["B"]))}
+                  for a, b in zip(rows[:-1], rows[1:])],
+    }
 
 
 def to_s2fft(c):
@@ -177,23 +215,23 @@ def main():
     parser.add_argument("--quick", action="store_true", help="B ≤ 32 only")
     args = parser.parse_args()
     rng = np.random.default_rng(0)
+    load_start = os.getloadavg()[0]
     sizes = [16, 32] if args.quick else [16, 24, 32, 48, 64, 96, 128]
-    repeat = 3
+    repeat = 5
     ours, skipped, spent = [], [], 0.0
     for i, B in enumerate(sizes):
         if ours and len(ours) >= 2:
             # predict from the last two sizes' scaling: (repeat + 2) calls of each direction
             p = math.log(ours[-1]["total_s"] / ours[-2]["total_s"]) / math.log(ours[-1]["B"] / ours[-2]["B"])
-            predicted = (repeat + 3) * ours[-1]["total_s"] * (B / ours[-1]["B"]) ** max(p, 3.0)
+            calls = 3 * repeat + 4  # wall (each direction), CPU (both), warm-ups
+            predicted = calls * ours[-1]["total_s"] * (B / ours[-1]["B"]) ** max(p, 3.0)
             if spent + predicted > SWEEP_BUDGET_S:
-                skipped.extend({"B": b, "reason": f"predicted {(repeat + 3) * ours[-1]['total_s'] * (b / ours[-1]['B']) ** max(p, 3.0):.0f} s would exceed the {SWEEP_BUDGET_S:.0f} s sweep budget"} for b in sizes[i:])
+                skipped.extend({"B": b, "reason": f"predicted {calls * ours[-1]['total_s'] * (b / ours[-1]['B']) ** max(p, 3.0):.0f} s would exceed the {SWEEP_BUDGET_S:.0f} s sweep budget"} for b in sizes[i:])
                 break
         t0 = time.perf_counter()
         ours.append(time_ours(B, rng, repeat))
         spent += time.perf_counter() - t0
         print(ours[-1], flush=True)
-    fit = [r for r in ours if r["B"] >= 32]
-    exponent = float(np.polyfit(np.log([r["B"] for r in fit]), np.log([r["total_s"] for r in fit]), 1)[0]) if len(fit) >= 2 else None
 
     s2, ratio = [], {}
     ref_B = 32 if args.quick else 64
@@ -208,6 +246,7 @@ def main():
             best = interleaved(calls)
             fastest = min(("fourier", best["s2fft_fourier"]), ("precompute", best["s2fft_precompute"]), key=lambda x: x[1])
             ratio = {"B": B, "method": "interleaved rounds (5), best forward+inverse of each",
+                     "load_average_1min": os.getloadavg()[0],
                      "times_s": best, "s2fft_fastest_exact_mode": fastest[0], "s2fft_total_s": fastest[1],
                      "brdfscale_total_s": best["brdfscale_so3"], "speedup": fastest[1] / best["brdfscale_so3"]}
             print(ratio, flush=True)
@@ -222,14 +261,21 @@ def main():
 
     payload = {
         "machine": machine(),
-        "notes": ("Times are the best of 3 calls after a warm-up (compilation excluded), float64, "
+        "notes": ("Times are the best of 5 calls after a warm-up (compilation excluded), float64, "
                   "complex random band-limited coefficients; forward+inverse = one call of each. Our grid is "
                   "the Kostelec–Rockmore (2B)^3 grid; s2fft uses its MW grid (L x (2L-1) x (2N-1)) at L = N = B. "
-                  "s2fft errors are on coefficients rescaled to this library's normalisation. The machine "
-                  "was shared with other jobs (2 cores), so absolute times carry noise."),
+                  "s2fft errors are on coefficients rescaled to this library's normalisation. Exponents: "
+                  "least-squares slope of log time against log B, over B >= 32 (below that the O(B^3 log B) "
+                  "FFTs and fixed per-call costs dominate the O(B^4) terms) and over all sizes; 'local' between "
+                  "neighbouring sizes. Both wall time and process CPU time (all threads) are fitted; the 1-minute "
+                  "load average before and after each size is recorded: on a loaded machine the larger sizes "
+                  "(whose data leave the caches) suffer most, which inflates the exponents."),
+        "load_average_1min_at_start_and_end": [load_start, os.getloadavg()[0]],
         "transforms": ours,
         "skipped_sizes": skipped,
-        "time_scaling_exponent_B_ge_32": exponent,
+        "time_scaling_exponent_B_ge_32": exponent(ours, "total_s", 32),
+        "time_scaling_exponent_all_B": exponent(ours, "total_s"),
+        "time_scaling": {"wall": scaling(ours, "total_s"), "cpu": scaling(ours, "total_cpu_s")},
         "s2fft": s2,
         "ratio": ratio,
         "evolution": evo,

@@ -162,3 +162,19 @@ def test_bad_angles_and_rotations():
         so3.wigner_d(2, np.nan)
     with pytest.raises(InvalidInputError, match="proper rotation"):
         so3.matrix_to_euler(np.diag([1.0, 1.0, -1.0]))
+
+
+@pytest.mark.parametrize("J", [0, 1, 2, 7, 40, 255])
+def test_flip_symmetry_of_the_fourier_rows(J):
+    """X^J_{m,−M} = (−1)^{J+m} X^J_{mM}: the symmetry the transforms' contraction relies on
+    (four sign quadrants of (M, M') share one kernel). Equivalent, through the Fourier form, to
+    d^J_{M,−M'}(β) = (−1)^{J+M} d^J_{MM'}(π − β), checked on wigner_d too."""
+    from brdfscale.so3._wigner import fourier_rows
+
+    X = fourier_rows(J)
+    eta = (-1.0) ** (J + np.arange(J + 1))
+    assert np.max(np.abs(X[:, ::-1] - eta[:, None] * X)) < 1e-13 * max(1, J)
+    d = np.asarray(so3.wigner_d(J, 0.7))
+    d_reflected = np.asarray(so3.wigner_d(J, np.pi - 0.7))
+    M = np.arange(-J, J + 1)
+    np.testing.assert_allclose(d[:, ::-1], ((-1.0) ** (J + M))[:, None] * d_reflected, atol=1e-12)

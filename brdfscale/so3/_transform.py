@@ -56,57 +56,51 @@ def band_orders(coefficients) -> tuple[int, int, int]:
 
 
 # --- the quadrant layout of ._contraction ----------------------------------------------------
-def _coefficient_positions(K: int):
-    """Indices of +μ and −μ (μ = 0 … K) along an order axis laid out M = −K … K."""
-    mu = np.arange(K + 1)
-    return K + mu, K - mu
+# An order axis is either the coefficient layout M = −K … K ("orders") or the FFT layout of
+# length 2B, M at index M mod 2B ("fft"). Splitting and merging use slices and reversals
+# only (no gathers), so that XLA fuses each into one pass over the data.
+def _signed(z, axis: int, K: int, layout: str):
+    """The entries at +μ and at −μ (μ = 0 … K) along ``axis``."""
+    take = lambda start, stop: jax.lax.slice_in_dim(z, start, stop, axis=axis)
+    if layout == "orders":
+        return take(K, 2 * K + 1), jnp.flip(take(0, K + 1), axis)
+    n = z.shape[axis]
+    return take(0, K + 1), jnp.concatenate([take(0, 1), jnp.flip(take(n - K, n), axis)], axis)
 
 
-def _fft_positions(K: int, B: int):
-    """Indices of +μ and −μ (μ = 0 … K) along an FFT-ordered axis of length 2B."""
-    mu = np.arange(K + 1)
-    return mu, (-mu) % (2 * B)
+def _unsigned(plus, minus, axis: int, layout: str, size: int):
+    """The inverse of :func:`_signed`: an order axis of ``size`` from the +μ and −μ parts
+    (zeros at orders beyond K in the FFT layout)."""
+    K = plus.shape[axis] - 1
+    rest = jnp.flip(jax.lax.slice_in_dim(minus, 1, K + 1, axis=axis), axis)
+    if layout == "orders":
+        return jnp.concatenate([rest, plus], axis)
+    zeros = jnp.zeros(plus.shape[:axis] + (size - 2 * K - 1,) + plus.shape[axis + 1 :], plus.dtype)
+    return jnp.concatenate([plus, zeros, rest], axis)
 
 
-def _split(z, rows, cols, columns: int):
-    """Complex ``(n, R, X, C)`` → the quadrant layout ``(X, L+1, columns, ch)``, real.
-
-    ``rows``/``cols`` are the (+μ, −μ) index pairs of :func:`_coefficient_positions` or
-    :func:`_fft_positions` along R and C; channels are (quadrant, re/im, n)."""
-    quadrants = [jnp.take(jnp.take(z, rows[sr < 0], axis=1), cols[sc < 0], axis=3) for sr, sc in QUADRANTS]
-    q = jnp.stack(quadrants, axis=-1)  # (n, L+1, X, N+1, 4)
-    r = jnp.stack([jnp.real(q), jnp.imag(q)], axis=-1)  # (n, L+1, X, N+1, 4, 2)
-    r = jnp.transpose(r, (2, 1, 3, 4, 5, 0))
+def _split(z, L: int, N: int, layout: str, columns: int):
+    """Complex ``(X, n, R, C)`` (orders M along R, M' along C, in ``layout``) → the quadrant
+    layout ``(X, L+1, columns, ch)``, real, channels (quadrant, re/im, n)."""
+    parts = {}
+    for sr, r in zip((1, -1), _signed(z, 2, L, layout)):
+        for sc, q in zip((1, -1), _signed(r, 3, N, layout)):
+            parts[sr, sc] = q
+    q = jnp.stack([parts[s] for s in QUADRANTS], axis=-1)  # (X, n, L+1, N+1, 4)
+    r = jnp.stack([jnp.real(q), jnp.imag(q)], axis=-1)  # (X, n, L+1, N+1, 4, 2)
+    r = jnp.moveaxis(r, 1, -1)
     r = r.reshape(r.shape[:3] + (-1,))
     return jnp.pad(r, ((0, 0), (0, 0), (0, columns - r.shape[2]), (0, 0)))
 
 
-def _sources(signs_mu, size: int):
-    """For each position of an output order axis: (μ, sign index 0/1, valid)."""
-    mu = np.zeros(size, int)
-    neg = np.zeros(size, int)
-    valid = np.zeros(size, bool)
-    for s, positions in enumerate(signs_mu):
-        mu[positions] = np.arange(len(positions))
-        neg[positions] = s
-        valid[positions] = True
-    return mu, neg, valid
-
-
-_QUADRANT_OF = np.array([[QUADRANTS.index((sr, sc)) for sc in (1, -1)] for sr in (1, -1)])
-
-
-def _merge(r, n: int, rows, cols, size_r: int, size_c: int):
-    """The quadrant layout ``(X, L+1, N_p, ch)`` → complex ``(n, R, X, C)``; positions that no
-    (sign, μ) maps to are zero. ``rows``/``cols`` as in :func:`_split`."""
-    mu_r, neg_r, ok_r = _sources(rows, size_r)
-    mu_c, neg_c, ok_c = _sources(cols, size_c)
-    r = r.reshape(r.shape[:3] + (4, 2, n))
-    quadrant = _QUADRANT_OF[neg_r[:, None], neg_c[None, :]]
-    g = r[:, mu_r[:, None], mu_c[None, :], quadrant]  # (X, R, C, 2, n)
-    g = jnp.where(jnp.asarray(ok_r[:, None] & ok_c[None, :])[None, :, :, None, None], g, 0)
-    z = g[..., 0, :] + 1j * g[..., 1, :]  # (X, R, C, n)
-    return jnp.transpose(z, (3, 1, 0, 2))
+def _merge(r, n: int, N: int, layout: str, size_r: int, size_c: int):
+    """The quadrant layout ``(X, L+1, N_p, ch)`` → complex ``(X, n, R, C)`` (the inverse of
+    :func:`_split`; R has ``size_r`` and C ``size_c`` entries)."""
+    r = r[:, :, : N + 1].reshape(r.shape[:2] + (N + 1, 4, 2, n))
+    z = r[..., 0, :] + 1j * r[..., 1, :]  # (X, L+1, N+1, 4, n)
+    q = dict(zip(QUADRANTS, jnp.transpose(z, (3, 0, 4, 1, 2))))  # each (X, n, L+1, N+1)
+    rows = [_unsigned(q[sr, 1], q[sr, -1], 3, layout, size_c) for sr in (1, -1)]
+    return _unsigned(*rows, 2, layout, size_r)
 
 
 def _mixed_sign(size: int, channels: int, dtype):
@@ -149,8 +143,7 @@ def _analysis(p: Plan, tables, phi, n: int, dtype):
     """Quadrant-layout β-Fourier coefficients φ[m, μ, μ', ch] → complex f^J_{MM'} (n, B, 2L+1, 2N+1)."""
     phi = phi * _mixed_sign(p.B, phi.shape[-1], dtype)
     f = frequency_to_degree(p, tables, phi) * _mixed_sign(p.B, phi.shape[-1], dtype)
-    rows, cols = _coefficient_positions(p.L), _coefficient_positions(p.N)
-    c = jnp.moveaxis(_merge(f, n, rows, cols, 2 * p.L + 1, 2 * p.N + 1), 2, 1)  # (n, J, M, M')
+    c = jnp.moveaxis(_merge(f, n, p.N, "orders", 2 * p.L + 1, 2 * p.N + 1), 1, 0)  # (n, J, M, M')
     return c * _sigma(p.L, p.N, dtype) * _degree_normalisation(p.B, dtype)[:, None, None]
 
 
@@ -158,13 +151,15 @@ def _analysis(p: Plan, tables, phi, n: int, dtype):
 def _forward(samples, tables, wa, wb, *, p: Plan):
     B, rdt = p.B, tables[0].dtype
     batch, s = _batch(samples.astype(jnp.result_type(rdt, 1j)), 3)
-    # (1) Σ_a Σ_g f e^{+iMα_a} e^{+iM'γ_g} (π/B)²: an inverse FFT times (2B)²
-    F = jnp.fft.ifft2(s, axes=(1, 3)) * (4 * np.pi**2)  # (n, a', k, g')
-    r = _split(F, _fft_positions(p.L, B), _fft_positions(p.N, B), p.columns)  # (2B[k], L+1, N_p, ch)
-    # (2) the β quadrature, folded about β = π/2 (β_{2B−1−k} = π − β_k, equal weights)
-    reflected = r[::-1][:B]
-    A = jnp.tensordot(wa, r[:B] + reflected, axes=1)
-    Bm = jnp.tensordot(wb, r[:B] - reflected, axes=1)
+    # (1) fold about β = π/2 (β_{2B−1−k} = π − β_k, equal weights): f(β_k) ± f(π − β_k), k < B,
+    # one β per slab; then Σ_a Σ_g e^{+iMα_a} e^{+iM'γ_g} (π/B)², an inverse FFT times (2B)²
+    reflected = jnp.flip(s[:, :, B:], 2)
+    folded = jnp.stack([s[:, :, :B] + reflected, s[:, :, :B] - reflected])  # (±, n, a, k, g)
+    F = jnp.fft.ifft2(jnp.transpose(folded, (0, 3, 1, 2, 4)), axes=(3, 4)) * (4 * np.pi**2)
+    r = _split(F.reshape((2 * B,) + F.shape[2:]), p.L, p.N, "fft", p.columns)  # (±k, L+1, N_p, ch)
+    # (2) the β quadrature (see _beta_matrices)
+    A = jnp.tensordot(wa, r[:B], axes=1)
+    Bm = jnp.tensordot(wb, r[B:], axes=1)
     phi = jnp.where(_cosine_frequencies(p, B, p.columns), A, Bm)
     # (3) the degree–frequency contraction
     c = _analysis(p, tables, phi, s.shape[0], rdt)
@@ -177,7 +172,7 @@ def _fourier_series(p: Plan, tables, coefficients):
     the β-Fourier coefficients of ``Σ_J f^J_{MM'} d^J_{MM'}(β)``."""
     rdt = tables[0].dtype
     batch, c = _batch(coefficients * _sigma(p.L, p.N, rdt), 3)
-    g = _split(jnp.moveaxis(c, 1, 2), _coefficient_positions(p.L), _coefficient_positions(p.N), p.columns)
+    g = _split(jnp.moveaxis(c, 1, 0), p.L, p.N, "orders", p.columns)
     sign = _mixed_sign(p.B, g.shape[-1], rdt)
     return degree_to_frequency(p, tables, g * sign) * sign, batch, c.shape[0]
 
@@ -189,9 +184,11 @@ def _inverse(coefficients, tables, va, vb, *, p: Plan):
     cosine = _cosine_frequencies(p, B, p.columns)
     R1 = jnp.tensordot(va, jnp.where(cosine, T, 0), axes=1)  # (B[k], …)
     R2 = jnp.tensordot(vb, jnp.where(cosine, 0, T), axes=1)
-    G = jnp.concatenate([R1 + R2, (R1 - R2)[::-1]], axis=0)  # (2B[k], …): β_k and π − β_k
-    spectrum = _merge(G, n, _fft_positions(p.L, B), _fft_positions(p.N, B), 2 * B, 2 * B)  # (n, a', k, g')
-    f = jnp.fft.fft2(spectrum, axes=(1, 3))  # Σ G e^{−iMα_a} e^{−iM'γ_g}
+    spectrum = _merge(jnp.concatenate([R1, R2]), n, p.N, "fft", 2 * B, 2 * B)  # (2B, n, a', g')
+    S = jnp.fft.fft2(spectrum, axes=(2, 3))  # Σ G e^{−iMα_a} e^{−iM'γ_g}, one β slab at a time
+    S1, S2 = S[:B], S[B:]
+    f = jnp.concatenate([S1 + S2, jnp.flip(S1 - S2, 0)])  # β_k and π − β_k
+    f = jnp.transpose(f, (1, 2, 0, 3))  # (n, a, k, g)
     return f.reshape(batch + f.shape[1:])
 
 
@@ -290,7 +287,7 @@ def inverse(coefficients: Complex[ArrayLike, "*batch B 2L+1 2N+1"]) -> Complex[A
 def _synthesize(coefficients, tables, alpha, beta, gamma, *, p: Plan, chunk):
     B, L, N, rdt = p.B, p.L, p.N, tables[0].dtype
     T, batch, n = _fourier_series(p, tables, coefficients)
-    T = jnp.moveaxis(_merge(T, n, _coefficient_positions(L), _coefficient_positions(N), 2 * L + 1, 2 * N + 1), 2, 1)
+    T = jnp.moveaxis(_merge(T, n, N, "orders", 2 * L + 1, 2 * N + 1), 1, 0)
     T = T.reshape(batch + T.shape[1:])  # (..., m, 2L+1, 2N+1) complex
     odd, _ = parity_sign(np.arange(-L, L + 1), np.arange(-N, N + 1))
     even_part = jnp.where(jnp.asarray(odd), 0.0, T)
@@ -355,7 +352,7 @@ def _analyse_points(tables, alpha, beta, gamma, weights, *, p: Plan):
     phi_c = jnp.einsum("qm,qa,qb->mab", wc, ea, eg, optimize="optimal")
     phi_s = jnp.einsum("qm,qa,qb->mab", ws, ea, eg, optimize="optimal")
     phi = jnp.where(jnp.asarray(odd), phi_s, phi_c)
-    phi = _split(jnp.moveaxis(phi, 0, 1)[None], _coefficient_positions(L), _coefficient_positions(N), p.columns)
+    phi = _split(phi[:, None], L, N, "orders", p.columns)
     return _analysis(p, tables, phi, 1, rdt)[0]
 
 
