@@ -12,14 +12,27 @@ computed independently of brdfscale's evolution code):
   facets (``f Disk + (1 − f) δ``): Hankel integral by SciPy quadrature (and mpmath);
 * ``plus``          — Beckmann lobe, nearly-specular statistics ``(1 − w) δ + c h_0 + w Beckmann``
   with the plus-distribution h_0 (seed §6): Hankel integral by SciPy quadrature with H_0 from
-  its power series (checked against mpmath).
+  its power series (checked against mpmath);
+* ``so3``           — an anisotropic Beckmann facet lobe (α = 0.3 / 0.15 along the facet's
+  tangent / bitangent) as a function of the facet orientation Γ ∈ SO(3), isotropic
+  rotational-diffusion statistics, queries at tilted and twisted global orientations Γ∞:
+  the group integral ``∫ ρ_μ0(Γ∞Δ) k(Δ) dΔ`` against the SO(3) heat kernel (character sum) by a
+  tensor Gauss–Legendre rule in exponential coordinates with SciPy's rotations (its
+  convergence, 48 versus 64 nodes per axis, is recorded in the JSON).
 
 For each problem every path's accuracy knobs are swept — ``evolve(..., method, size, tol)``
 for the radial (Gauss–Legendre nodes × cut-off tolerance) and grid (side × tolerance) paths,
-and the closed form where it applies — recording (time, max error relative to the lobe's peak
-at each scale) and the Pareto front; then the planner (:func:`brdfscale.scene.plan`) at
-several error targets, with the ratio of its time to the Pareto-optimal time at the error
-it reaches.
+the closed form where it applies, and for ``so3`` the public SO(3) pipeline (``so3.forward`` →
+``so3.evolve_diffusion`` → ``so3.synthesize``) at band limits 16 … 64 — recording (time, max error
+relative to the lobe's peak at each scale) and the Pareto front; then the planner
+(:func:`brdfscale.scene.plan`) at several error targets, with the ratio of its time to the
+Pareto-optimal time at the error it reaches.
+
+Cost model: the planner's predicted cost is in relative units (:mod:`brdfscale.scene._cost`).
+For every slope-space problem each applicable path is forced at tol = 1e-6 and the predicted
+order of their costs is compared with the measured order of their times; over every plan
+timed, the Spearman rank correlation between predicted units and measured seconds and the
+range of seconds per unit are recorded (``cost_model`` in the JSON).
 
 Workload: a camera looking at a checkerboard plane receding to the horizon (two materials:
 Beckmann lobe with GGX statistics, and with Beckmann statistics), μ from the pixel footprint.
@@ -28,8 +41,9 @@ library's ``evolve(..., method="grid", tol)`` at each pixel's own μ, its ``dens
 pixel's offset; timed on a random sample of pixels and extrapolated to the image, lobe
 construction and size choice not counted). Errors against a per-pixel SciPy Hankel reference.
 
-Run: ``python experiments/bench_planner.py`` (``--quick`` for the smoke version) →
-experiments/results/bench_planner.json and bench_planner_*.png.
+Run: ``flock /tmp/brdfscale-bench.lock python experiments/bench_planner.py`` (``--quick`` for the
+smoke version) → experiments/results/bench_planner.json and bench_planner_*.png; the load
+average before and after is recorded.
 """
 
 import argparse

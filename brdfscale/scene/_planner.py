@@ -44,7 +44,7 @@ from ..geometry import half_slope, microfacet_factor
 from . import _cost
 from ._description import AnisotropicMaterial, Material, Scene
 from ._plan import Plan
-from ._scales import interpolate_jit, scale_nodes
+from ._scales import interpolate_jit, padded_nodes, scale_nodes
 from ._so3_planner import plan_so3
 from ._steps import ClosedFormStep, GridStep, MaterialPlan, RadialStep, evolved_density
 
@@ -218,7 +218,7 @@ def _plan_grid(material, u, log_mu, tol):
         return _plan_grid_direct(material, u, log_mu, size, achieved, direct_cost)
 
     def tables(n, t):
-        step = GridStep(jnp.zeros((1, 2)), jnp.zeros(1), _padded(t), None, None, n, True, achieved)
+        step = GridStep(jnp.zeros((1, 2)), jnp.zeros(1), padded_nodes(t), None, None, n, True, achieved)
         return np.asarray(_grid_tables(step, material))[: len(t)]
 
     ends = np.array([distinct[0], distinct[-1]]) if len(distinct) > 1 else distinct
@@ -262,15 +262,9 @@ def _plan_grid_direct(material, u, log_mu, size, achieved, cost):
             details)
 
 
-def _padded(nodes):
-    """Scale nodes padded (repeating the last) to a power-of-two length: fewer compilations."""
-    n = 1 << max(0, math.ceil(math.log2(len(nodes))))
-    return jnp.asarray(np.concatenate([nodes, np.full(n - len(nodes), nodes[-1])]))
-
-
 def _radial_transform_rows(material, nodes, k, tol):
     """Concrete ``G(k, μ)`` (len(nodes), len(k)) of the radial path."""
-    step = RadialStep(jnp.zeros((1, 2)), jnp.zeros(1), _padded(nodes), jnp.asarray(k), jnp.zeros((len(k), 1)),
+    step = RadialStep(jnp.zeros((1, 2)), jnp.zeros(1), padded_nodes(nodes), jnp.asarray(k), jnp.zeros((len(k), 1)),
                       1.0, True, False, tol)
     return np.asarray(_radial_transforms(step, material))[: len(nodes)]
 

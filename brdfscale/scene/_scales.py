@@ -45,3 +45,10 @@ def scale_nodes(log_mu, tables, budget):
             return nodes, False, error
         n = 2 * n - 1
     return distinct, True, 0.0
+
+
+def padded_nodes(nodes):
+    """Scale nodes padded (repeating the last) to a power-of-two length: fewer compilations of
+    the planning-time tables."""
+    n = 1 << max(0, math.ceil(math.log2(len(nodes))))
+    return jnp.asarray(np.concatenate([nodes, np.full(n - len(nodes), nodes[-1])]))

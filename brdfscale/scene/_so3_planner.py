@@ -34,7 +34,7 @@ from .. import so3
 from .._errors import InvalidInputError, NoBRDFAtScaleError
 from . import _cost
 from ._description import AnisotropicMaterial
-from ._scales import scale_nodes
+from ._scales import padded_nodes, scale_nodes
 from ._steps import SO3Step
 
 _MAX_COEFFICIENTS = 5e7  # (i, o) pairs × scale nodes × kept coefficients held at once
@@ -101,8 +101,10 @@ def plan_so3(material: AnisotropicMaterial, i, o, angles, log_mu, tol):
             f"the SO(3) path would hold {n_pairs} (i, o) pairs × {len(distinct)} scales × {kept} coefficients "
             f"(B = {B}); that is too many. Query fewer distinct direction pairs or relax tol."
         )
+    R0 = _lobe_coefficients(step_at(distinct[:1], True), material)  # once: tables differ only in their nodes
     nodes, exact, mu_error = scale_nodes(
-        key_log_mu, lambda t: np.asarray(_node_values(step_at(t, True), material)).T, budget
+        key_log_mu, lambda t: np.asarray(_node_values(step_at(padded_nodes(t), True), material, R0)).T[: len(t)],
+        budget,
     )
     step = step_at(nodes, exact)
     cost = _predicted_cost(n_pairs, len(nodes), q_max, B, B_s, rows, lobe_columns, columns, diagonal)
@@ -153,4 +155,5 @@ def _predicted_cost(pairs, scales, per_pair, B, B_s, rows, lobe_columns, columns
     return _cost.units(evaluations, work)
 
 
-_node_values = eqx.filter_jit(lambda step, material: step.node_values(material))
+_lobe_coefficients = eqx.filter_jit(lambda step, material: step.lobe_coefficients(material))
+_node_values = eqx.filter_jit(lambda step, material, R0: step.node_values(material, R0))

@@ -197,10 +197,10 @@ class SO3Step(eqx.Module):
 
         return jax.lax.map(one, self.pairs)
 
-    def evolved(self, material: AnisotropicMaterial) -> Complex[Array, "P s B 2L+1 2N+1"]:
-        """``R^J(μ_n) = R^J(μ0) exp(−(τ(μ0) − τ(μ_n)) G^J)`` for every pair and scale node."""
+    def evolved(self, material: AnisotropicMaterial, R0) -> Complex[Array, "P s B 2L+1 2N+1"]:
+        """``R^J(μ_n) = R^J(μ0) exp(−(τ(μ0) − τ(μ_n)) G^J)`` for every pair and scale node, from
+        the lobe's coefficients ``R0`` (:meth:`lobe_coefficients`)."""
         B, n0, n1 = self.band_limit, self.lobe_columns, self.columns
-        R0 = self.lobe_coefficients(material)
         dtau = material.tau(material.mu0) - material.tau(jnp.exp(self.nodes))  # (s,)
         if self.diagonal:
             g = jnp.diagonal(so3.diffusion_generator(B, material.law.D), axis1=-2, axis2=-1)[:, B - 1 - n1 : B + n1]
@@ -209,16 +209,16 @@ class SO3Step(eqx.Module):
         E = E[:, :, B - 1 - n0 : B + n0, B - 1 - n1 : B + n1].astype(R0.dtype)
         return jnp.einsum("pjab,sjbc->psjac", R0, E)
 
-    def node_values(self, material: AnisotropicMaterial) -> Float[Array, "n s"]:
+    def node_values(self, material: AnisotropicMaterial, R0) -> Float[Array, "n s"]:
         """ρ at every key's orientation, at every scale node."""
         values = jax.lax.map(
             lambda args: jnp.real(so3.synthesize(args[0], args[1][:, 0], args[1][:, 1], args[1][:, 2])),
-            (self.evolved(material), self.angles),
+            (self.evolved(material, R0), self.angles),
         )  # (P, s, q)
         return values[self.key_pair, :, self.key_slot]
 
     def __call__(self, material: AnisotropicMaterial) -> Float[Array, " n"]:
-        per_key = self.node_values(material)
+        per_key = self.node_values(material, self.lobe_coefficients(material))
         s = _scale_position(self.log_mu, self.nodes, self.exact_scales)
         if self.exact_scales or self.nodes.shape[0] < 4:
             return jnp.take_along_axis(per_key, jnp.round(s).astype(int)[:, None], axis=1)[:, 0]
