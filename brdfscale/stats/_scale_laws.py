@@ -12,10 +12,12 @@ cut-off and Σ → 0: s(·, μ→∞) → δ, the consistency boundary condition
 """
 
 import abc
+import math
 from typing import Callable, Literal
 
 import equinox as eqx
 import jax.numpy as jnp
+from jax.scipy.special import erf
 from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import InvalidInputError
@@ -40,6 +42,12 @@ class AbstractPowerSpectrum(eqx.Module):
     def wavenumber_range(self) -> tuple[Float[Array, ""], Float[Array, ""]]:
         """Wavenumbers (k_lo, k_hi) between which the slope spectrum ``k² P`` lives."""
 
+    def windowed_slope_variances(self, mu, window: "FacetWindow") -> Float[Array, "2"] | None:
+        """``(Σ_xx(μ), Σ_yy(μ))`` in closed form where spectrum and window factorise over the
+        axes (then ``Σ_xy = 0``); ``None`` where there is none, and :class:`GaussianSurface`
+        integrates numerically."""
+        return None
+
 
 class GaussianCorrelation(AbstractPowerSpectrum):
     """Gaussian-correlated heights: ``C(r) = σ_h² exp(−x²/ℓ_x² − y²/ℓ_y²)``.
@@ -63,6 +71,29 @@ class GaussianCorrelation(AbstractPowerSpectrum):
 
     def wavenumber_range(self):
         return 1e-4 / jnp.max(self.correlation_length), 14.0 / jnp.min(self.correlation_length)
+
+    def windowed_slope_variances(self, mu, window):
+        """Spectrum and both windows factorise, so ``Σ_xx`` is a product of 1D Gaussian integrals.
+
+        With ``x_a = μ/ℓ_a`` and the unwindowed variance ``σ_x² = 2σ_h²/ℓ_x²``:
+
+        * Gaussian window: ``Σ_xx = σ_x² (1 + x_x²/3)^{−3/2} (1 + x_y²/3)^{−1/2}``;
+        * box window: ``Σ_xx = σ_x² b(x_x) p(x_y)`` with ``b(x) = (1 − e^{−x²})/x²`` (from
+          ``∫ k² e^{−ℓ²k²/4} sinc²(kμ/2) dk``) and ``p(x) = √π erf(x)/x − b(x)`` (from
+          ``∫ e^{−ℓ²k²/4} sinc²(kμ/2) dk``); both → 1 as μ → 0 and → 0 as μ → ∞.
+
+        ``Σ_yy`` swaps the axes.
+        """
+        x2 = (jnp.asarray(mu) / self.correlation_length) ** 2  # (x_x², x_y²)
+        unwindowed = 2 * self.rms_height**2 / self.correlation_length**2
+        if window == "gaussian":
+            along, across = (1 + x2 / 3) ** -1.5, (1 + x2 / 3) ** -0.5
+        else:
+            x2 = jnp.maximum(x2, 1e-200)  # μ > 0; the floor only keeps x = 0 out of 0/0
+            x = jnp.sqrt(x2)
+            along = -jnp.expm1(-x2) / x2
+            across = math.sqrt(math.pi) * erf(x) / x - along  # cancels at most a factor 2
+        return unwindowed * along * across[::-1]
 
 
 class KCorrelation(AbstractPowerSpectrum):
@@ -126,11 +157,12 @@ class AbstractScaleLaw(eqx.Module):
 class GaussianSurface(AbstractScaleLaw):
     """Facet slopes of a Gaussian random surface: ``s(·, μ) = Gaussian(cov=Σ(μ))``.
 
-    ``Σ(μ)`` is the window-averaged gradient covariance of the module docstring, computed by
-    quadrature in polar wave-vector coordinates: ``n_phi`` trapezoidal nodes in the angle
+    ``Σ(μ)`` is the window-averaged gradient covariance of the module docstring: in closed
+    form where the spectrum has one (:class:`GaussianCorrelation`, both windows), otherwise
+    by quadrature in polar wave-vector coordinates: ``n_phi`` trapezoidal nodes in the angle
     (spectrally accurate for the periodic integrand) and ``n_k`` Gauss–Legendre nodes in
-    ``log k`` over the spectrum's range. Accuracy is tested against the closed form for a
-    Gaussian spectrum with a Gaussian window and against adaptive SciPy quadrature.
+    ``log k`` over the spectrum's range. Both are tested against adaptive SciPy quadrature
+    and against each other.
     """
 
     spectrum: AbstractPowerSpectrum
@@ -149,6 +181,12 @@ class GaussianSurface(AbstractScaleLaw):
         return _slope_covariance(self, positive(mu, "mu", "a positive facet size"))
 
     def _slope_covariance(self, mu):
+        variances = self.spectrum.windowed_slope_variances(mu, self.window)
+        if variances is not None:
+            return jnp.diag(variances)
+        return self._quadrature_covariance(mu)
+
+    def _quadrature_covariance(self, mu):
         k_lo, k_hi = self.spectrum.wavenumber_range()
         k_lo = jnp.minimum(k_lo, 1e-3 / mu)  # the window passes k ≲ 1/μ: start well below
         x, w = gauss_legendre(self.n_k)
@@ -165,6 +203,8 @@ class GaussianSurface(AbstractScaleLaw):
         return 0.5 * (cov + cov.T)
 
     def at(self, mu):
+        if self.spectrum.windowed_slope_variances(1.0, self.window) is not None:  # diagonal Σ
+            return Gaussian(sigma=jnp.sqrt(jnp.diagonal(self.slope_covariance(mu))))
         return Gaussian(cov=self.slope_covariance(mu))
 
 
