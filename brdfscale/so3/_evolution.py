@@ -10,7 +10,8 @@ The inverse is never formed: each block is a linear solve, optionally Tikhonov-r
 
     R(μ) = argmin_X ‖X Q̃(μ) − R(μ0) Q̃(μ0)‖² + λ² ‖X‖²  =  A Q̃† (Q̃ Q̃† + λ² I)⁻¹,
 
-solved as ``(Q̃Q̃† + λ²I) X† = Q̃ A†``. Going coarser (s(μ) narrower) is a stable blur; going
+solved as ``(Q̃Q̃† + λ²I) X† = Q̃ A†`` by a Cholesky factorisation (the matrix is Hermitian
+positive definite for λ > 0). Going coarser (s(μ) narrower) is a stable blur; going
 finer divides by a faster-decaying Q̃ (a deconvolution): set λ to about the relative noise
 level of R(μ0) for measured or tabulated data (Wiener's choice λ² = noise/signal power).
 
@@ -25,6 +26,7 @@ caller's choice; columns (orders M' of the twist γ) mix under the statistics an
 
 import equinox as eqx
 import jax.numpy as jnp
+from jax.scipy.linalg import cho_factor, cho_solve
 from jaxtyping import Array, ArrayLike, Complex, Float
 
 from .. import stats
@@ -91,7 +93,8 @@ def evolve(
         # X Q1 = A  ⇔  Q1ᵀ Xᵀ = Aᵀ
         return jnp.swapaxes(jnp.linalg.solve(jnp.swapaxes(Q1, -1, -2), jnp.swapaxes(A, -1, -2)), -1, -2)
     normal = Q1 @ jnp.conj(jnp.swapaxes(Q1, -1, -2)) + (lam**2) * jnp.eye(2 * B - 1, dtype=R.dtype)
-    Xh = jnp.linalg.solve(normal, Q1 @ jnp.conj(jnp.swapaxes(A, -1, -2)))
+    # Hermitian positive definite for λ > 0: a Cholesky factorisation (half the work of LU)
+    Xh = cho_solve(cho_factor(normal, lower=True), Q1 @ jnp.conj(jnp.swapaxes(A, -1, -2)))
     return jnp.conj(jnp.swapaxes(Xh, -1, -2))
 
 

@@ -92,10 +92,17 @@ class RotationalDiffusion(AbstractOrientationDensity):
         return diffusion_operator(check_band_limit(B), self.D, self.tau).astype(jnp.result_type(self.tau, 1j))
 
 
-def _wrapped_normal(psi, mean, std):
-    """Wrapped normal density on the circle, by its Fourier series (1/2π) Σ_k e^{−σ²k²/2} cos k(ψ − ψ0)."""
-    k_max = int(min(4096, math.ceil(9.0 / max(float(std), 1e-6)))) if is_concrete(std) else 4096
-    k = jnp.arange(1, k_max + 1)
+_MAX_TWIST_TERMS = 4096
+
+
+def _twist_terms(std) -> int:
+    """Fourier terms of a wrapped normal of standard deviation ``std`` (concrete): e^{−σ²k²/2} < e^{−40}."""
+    return int(min(_MAX_TWIST_TERMS, math.ceil(9.0 / max(float(std), 1e-6))))
+
+
+def _wrapped_normal(psi, mean, std, terms: int):
+    """Wrapped normal density on the circle, by its Fourier series (1/2π) Σ_{k≤terms} e^{−σ²k²/2} cos k(ψ − ψ0)."""
+    k = jnp.arange(1, terms + 1)
     terms = jnp.exp(-0.5 * (std * k) ** 2) * jnp.cos(k * (psi[..., None] - mean))
     return (1 + 2 * jnp.sum(terms, axis=-1)) / (2 * jnp.pi)
 
@@ -113,18 +120,44 @@ class TiltTwist(AbstractOrientationDensity):
     wrapped normal twist density of ``twist_mean`` and ``twist_std`` (radians; None: uniform,
     an isotropic twist). Coefficients J < B come from :func:`forward` on a grid fine enough
     to integrate s (:meth:`quadrature_band_limit`), so narrow densities are not aliased.
+
+    The grid's band limit and the number of twist Fourier terms are fixed when the density is
+    built (from its concrete parameters; ``resolution`` overrides the former): ``operator`` and
+    ``coefficients`` are then jit-compatible with the parameters traced, e.g. a
+    ``jax.jit(lambda s: s.operator(B))`` or a gradient with respect to the roughness. Building
+    the density inside a traced function needs an explicit ``resolution`` (and ``twist_std``
+    None or concrete).
     """
 
     tilt: stats.AbstractSlopeDensity
     twist_mean: Float[Array, ""]
     twist_std: Float[Array, ""] | None
+    resolution: int = eqx.field(static=True)
+    twist_terms: int = eqx.field(static=True)
 
-    def __init__(self, tilt: stats.AbstractSlopeDensity, twist_mean: float = 0.0, twist_std: float | None = None):
+    def __init__(
+        self,
+        tilt: stats.AbstractSlopeDensity,
+        twist_mean: float = 0.0,
+        twist_std: float | None = None,
+        *,
+        resolution: int | None = None,
+    ):
         if not isinstance(tilt, stats.AbstractSlopeDensity):
             raise InvalidInputError(f"tilt must be a brdfscale.stats slope density; got {type(tilt).__name__}.")
         self.tilt = tilt
         self.twist_mean = as_float_array(twist_mean, "twist_mean")
+        if twist_std is not None and not is_concrete(twist_std):
+            raise InvalidInputError("twist_std must be concrete (not traced) when a TiltTwist is built: it sets the "
+                                    "number of twist Fourier terms. Build the density outside jit and pass it in.")
         self.twist_std = None if twist_std is None else positive(twist_std, "twist_std")
+        self.twist_terms = 0 if twist_std is None else _twist_terms(np.asarray(twist_std))
+        if resolution is None:
+            if not is_concrete(tilt.bandwidth(1e-10)):
+                raise InvalidInputError("TiltTwist built from traced parameters needs an explicit resolution= "
+                                        "(the sampling grid's band limit); or build it outside jit.")
+            resolution = self.quadrature_band_limit(1)
+        self.resolution = check_band_limit(resolution, "resolution")
 
     def density(self, alpha, beta, gamma) -> Float[Array, "..."]:
         """``s(α, β, γ)`` per unit Haar measure."""
@@ -138,7 +171,7 @@ class TiltTwist(AbstractOrientationDensity):
         if self.twist_std is None:
             twist = jnp.full_like(alpha, 1 / (2 * jnp.pi))
         else:
-            twist = _wrapped_normal(alpha + gamma, self.twist_mean, self.twist_std)
+            twist = _wrapped_normal(alpha + gamma, self.twist_mean, self.twist_std, self.twist_terms)
         return jnp.where(upper, tilt * twist, 0.0)
 
     def quadrature_band_limit(self, B: int, tol: float = 1e-10) -> int:
@@ -152,7 +185,7 @@ class TiltTwist(AbstractOrientationDensity):
 
     def operator(self, B):
         B = check_band_limit(B)
-        Bq = self.quadrature_band_limit(B)
+        Bq = max(B, self.resolution)  # quadrature_band_limit(B), fixed at construction
         a, b, g = (jnp.asarray(x) for x in grid(Bq))
         samples = self.density(a[:, None, None], b[None, :, None], g[None, None, :])
         return _with_padding(forward(samples, m_max=B - 1, n_max=B - 1)[:B], B)
