@@ -6,6 +6,8 @@ For each problem (parametric model, simulated 5-scale data set, 32×32 pixels pe
 * ``fit``: :func:`fitting.fit` with 4 starts (solve + Jacobian + Laplace quantities) —
   the first call in the process (compilation included) and a warm call; their difference
   is the compile time a user waits for once per model and data layout;
+* ``compile_breakdown``: the compiled solve again, ahead of time: tracing, lowering and
+  XLA compilation times and the size of the lowered program (characters of StableHLO);
 * ``jax_lm``: one warm optimistix Levenberg–Marquardt solve (``fit``'s default tolerances,
   the Jacobian at the optimum included) from the model's data-driven start: best wall time;
 * ``scipy_trf_fd`` / ``scipy_lm_fd``: ``scipy.optimize.least_squares`` with 2-point
@@ -26,6 +28,7 @@ import os
 import tempfile
 import time
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -51,6 +54,15 @@ def _wall(fn):
     return time.perf_counter() - t0, out
 
 
+def _compile_breakdown(problem, y0, solver):
+    dynamic, static = eqx.partition(problem, eqx.is_array)
+    solve = jax.jit(lambda d, y: _solve.__wrapped__(eqx.combine(d, static), y, solver, FIT_DEFAULTS["max_steps"]))
+    trace_s, traced = _wall(lambda: solve.trace(dynamic, y0))
+    lower_s, lowered = _wall(traced.lower)
+    compile_s, _ = _wall(lowered.compile)
+    return {"trace_s": trace_s, "lower_s": lower_s, "xla_compile_s": compile_s, "hlo_chars": len(lowered.as_text())}
+
+
 def bench_problem(options, truth):
     model = fitting.ParametricModel(**options)
     mset = fitting.simulate(model, truth, SCALES, size=32, extent=0.5, noise=0.01, floor=1e-3, seed=0)
@@ -65,6 +77,7 @@ def bench_problem(options, truth):
     def jax_solve():
         return jax.block_until_ready(_solve(problem, y0, solver, FIT_DEFAULTS["max_steps"]))
 
+    record_compile = _compile_breakdown(problem, y0, solver)
     warm = best_time(jax_solve, repeat=20)
     theta, code, steps, chi2, _ = jax_solve()
     theta = np.asarray(theta)
@@ -73,6 +86,7 @@ def bench_problem(options, truth):
         "parameters": len(model.names), "pixels": data.n_data,
         "residual_rows": int(problem.residuals(y0).size),
         "fit_4_starts": {"first_call_s": first_fit, "warm_s": warm_fit, "compile_s": first_fit - warm_fit},
+        "compile_breakdown": record_compile,
         "jax_lm": {"warm_solve_s": warm, "steps": int(steps), "per_step_s": warm / int(steps), "chi2": float(chi2),
                    "result_code": int(code), "tolerances": FIT_DEFAULTS},
     }
