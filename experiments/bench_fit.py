@@ -15,6 +15,11 @@ For each problem (parametric model, simulated 5-scale data set, 32×32 pixels pe
   the jit-compiled JAX residuals, compiled ahead of time, called with NumPy arrays — from
   the same start: best wall time, evaluations, χ², and the largest |θ difference| from the
   JAX optimum (also in units of the Laplace standard deviation);
+* ``dispatch_s``: a compiled call that does nothing with the same arguments (the fixed cost
+  of every warm solve);
+* ``optimistix_floor`` (once): the same Levenberg–Marquardt settings on a trivial problem of
+  the same size, ``r(θ) = tanh(Aθ) − b`` with a 545 × 5 Gaussian A: optimistix's own cost
+  per step, below which no residual function can bring a solve;
 * ``emcee``: log-posterior evaluations per second and ensemble steps per second (32 walkers,
   vectorised jit log-probability), with and without HDF5 checkpoints.
 
@@ -32,6 +37,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optimistix as optx
 import scipy.optimize
 
 import fitting
@@ -63,6 +69,23 @@ def _compile_breakdown(problem, y0, solver):
     return {"trace_s": trace_s, "lower_s": lower_s, "xla_compile_s": compile_s, "hlo_chars": len(lowered.as_text())}
 
 
+def optimistix_floor(rows=545, n=5):
+    rng = np.random.default_rng(0)
+    args = (jnp.asarray(rng.normal(size=(rows, n)) / np.sqrt(n)), jnp.asarray(rng.normal(size=rows) * 0.1))
+    solver = _make_solver("lm", FIT_DEFAULTS["rtol"], FIT_DEFAULTS["atol"])
+
+    @eqx.filter_jit
+    def solve(args, y0):
+        sol = optx.least_squares(lambda y, a: jnp.tanh(a[0] @ y) - a[1], solver, y0, args=args,
+                                 max_steps=FIT_DEFAULTS["max_steps"], throw=False)
+        return sol.value, sol.stats["num_steps"]
+
+    y0 = jnp.zeros(n)
+    warm = best_time(lambda: jax.block_until_ready(solve(args, y0)), repeat=20)
+    steps = int(solve(args, y0)[1])
+    return {"rows": rows, "parameters": n, "warm_solve_s": warm, "steps": steps, "per_step_s": warm / steps}
+
+
 def bench_problem(options, truth):
     model = fitting.ParametricModel(**options)
     mset = fitting.simulate(model, truth, SCALES, size=32, extent=0.5, noise=0.01, floor=1e-3, seed=0)
@@ -78,6 +101,8 @@ def bench_problem(options, truth):
         return jax.block_until_ready(_solve(problem, y0, solver, FIT_DEFAULTS["max_steps"]))
 
     record_compile = _compile_breakdown(problem, y0, solver)
+    nothing = eqx.filter_jit(lambda p, y: y)
+    dispatch = best_time(lambda: jax.block_until_ready(nothing(problem, y0)), repeat=5, number=100)
     warm = best_time(jax_solve, repeat=20)
     theta, code, steps, chi2, _ = jax_solve()
     theta = np.asarray(theta)
@@ -87,6 +112,7 @@ def bench_problem(options, truth):
         "residual_rows": int(problem.residuals(y0).size),
         "fit_4_starts": {"first_call_s": first_fit, "warm_s": warm_fit, "compile_s": first_fit - warm_fit},
         "compile_breakdown": record_compile,
+        "dispatch_s": dispatch,
         "jax_lm": {"warm_solve_s": warm, "steps": int(steps), "per_step_s": warm / int(steps), "chi2": float(chi2),
                    "result_code": int(code), "tolerances": FIT_DEFAULTS},
     }
@@ -132,6 +158,7 @@ def bench_problem(options, truth):
 
 def main():
     results = {"machine": machine(), "load_average_at_start": os.getloadavg(), "problems": {}}
+    results["optimistix_floor"] = optimistix_floor()
     for name, (options, truth) in PROBLEMS.items():
         results["problems"][name] = bench_problem(options, truth)
         print(name, json.dumps(results["problems"][name], indent=1), flush=True)
