@@ -8,6 +8,8 @@ For each problem (parametric model, simulated 5-scale data set, 32×32 pixels pe
   is the compile time a user waits for once per model and data layout;
 * ``compile_breakdown``: the compiled solve again, ahead of time: tracing, lowering and
   XLA compilation times and the size of the lowered program (characters of StableHLO);
+  tracing re-uses what the fit above already traced (a lower bound), the XLA compilation
+  is a fresh one;
 * ``jax_lm``: one warm optimistix Levenberg–Marquardt solve (``fit``'s default tolerances,
   the Jacobian at the optimum included) from the model's data-driven start: best wall time;
 * ``scipy_trf_fd`` / ``scipy_lm_fd``: ``scipy.optimize.least_squares`` with 2-point
