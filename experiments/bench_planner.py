@@ -667,7 +667,10 @@ def main(argv=None):
     quick = args.quick
     kinds = ["closed_form", "beckmann_ggx", "skewed_mixture", "disk", "plus"]
     load_before = os.getloadavg()
-    problems = [bench_problem(kind, quick) for kind in kinds] + [bench_so3_problem(quick)]
+    problems = []
+    for kind in kinds + ["so3"]:
+        problems.append(bench_so3_problem(quick) if kind == "so3" else bench_problem(kind, quick))
+        print(f"{kind}: {problems[-1]['wall_seconds']:.0f} s", flush=True)
     for prob in problems:
         for pl in prob["planner"]:
             ratio = pl["ratio_to_pareto"]

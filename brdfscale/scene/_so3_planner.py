@@ -101,11 +101,14 @@ def plan_so3(material: AnisotropicMaterial, i, o, angles, log_mu, tol):
             f"the SO(3) path would hold {n_pairs} (i, o) pairs × {len(distinct)} scales × {kept} coefficients "
             f"(B = {B}); that is too many. Query fewer distinct direction pairs or relax tol."
         )
-    R0 = _lobe_coefficients(step_at(distinct[:1], True), material)  # once: tables differ only in their nodes
-    nodes, exact, mu_error = scale_nodes(
-        key_log_mu, lambda t: np.asarray(_node_values(step_at(padded_nodes(t), True), material, R0)).T[: len(t)],
-        budget,
-    )
+    lobe = []  # the lobe's coefficients, computed once when tables are needed (they differ only in their nodes)
+
+    def tables(t):
+        if not lobe:
+            lobe.append(_lobe_coefficients(step_at(distinct[:1], True), material))
+        return np.asarray(_node_values(step_at(padded_nodes(t), True), material, lobe[0])).T[: len(t)]
+
+    nodes, exact, mu_error = scale_nodes(key_log_mu, tables, budget)
     step = step_at(nodes, exact)
     cost = _predicted_cost(n_pairs, len(nodes), q_max, B, B_s, rows, lobe_columns, columns, diagonal)
 
