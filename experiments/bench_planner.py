@@ -413,8 +413,11 @@ def ranking(materials, queries, methods, target, repeat):
                        "seconds": t, "seconds_per_unit": t / p.predicted_cost})
     predicted = [f["method"] for f in sorted(forced, key=lambda f: f["predicted_cost_units"])]
     measured = [f["method"] for f in sorted(forced, key=lambda f: f["seconds"])]
+    # pairs the model separates clearly (predicted costs ≥ 2× apart): is the cheaper one faster?
+    clear = [(a, b) for a in forced for b in forced if b["predicted_cost_units"] >= 2 * a["predicted_cost_units"]]
     return {"target": target, "forced": forced, "predicted_order": predicted, "measured_order": measured,
-            "order_matches": predicted == measured}
+            "order_matches": predicted == measured, "clear_pairs": len(clear),
+            "clear_pairs_ordered_right": sum(a["seconds"] < b["seconds"] for a, b in clear)}
 
 
 def bench_problem(kind, quick):
@@ -615,6 +618,8 @@ def cost_model_summary(problems, work):
     rankings = [prob["ranking"] for prob in problems if prob["ranking"]]
     per_unit = seconds / units
     return {"rankings": len(rankings), "rankings_matching": sum(r["order_matches"] for r in rankings),
+            "clear_pairs": sum(r["clear_pairs"] for r in rankings),
+            "clear_pairs_ordered_right": sum(r["clear_pairs_ordered_right"] for r in rankings),
             "plans": len(plans), "spearman": float(spearmanr(units, seconds).statistic) if len(plans) > 2 else None,
             "seconds_per_unit_min": float(per_unit.min()), "seconds_per_unit_max": float(per_unit.max()),
             "seconds_per_unit_median": float(np.median(per_unit))}
@@ -683,7 +688,8 @@ def main(argv=None):
           f"{work['naive_seconds_extrapolated']:.1f} s (extrapolated), speedup {work['speedup_evaluate_vs_naive']:.0f}×")
     cost_model = cost_model_summary(problems, work)
     print(f"cost model: predicted order of forced paths matches the measured order on "
-          f"{cost_model['rankings_matching']}/{cost_model['rankings']} problems; Spearman ρ(predicted units, "
+          f"{cost_model['rankings_matching']}/{cost_model['rankings']} problems (pairs ≥ 2× apart in prediction "
+          f"ordered right: {cost_model['clear_pairs_ordered_right']}/{cost_model['clear_pairs']}); Spearman ρ(predicted units, "
           f"measured s) over {cost_model['plans']} plans = {cost_model['spearman']:.2f}; seconds per unit "
           f"{cost_model['seconds_per_unit_min']:.2g}–{cost_model['seconds_per_unit_max']:.2g}")
     results = {"benchmark": "bench_planner", "machine": machine(), "dtype": "float64", "quick": quick,
