@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import scipy.integrate as si
+import scipy.special as sp
 from hypothesis import given, settings, strategies as st
 
 import brdfscale as bs
@@ -193,6 +194,21 @@ def test_no_brdf_at_finer_scale_spectral_and_under_jit():
     assert np.all(np.isfinite(f(0.02)))
     with pytest.raises(Exception, match="negative variance"):
         f(0.3).block_until_ready()
+
+
+def test_no_brdf_found_beyond_the_grids_nyquist_frequency():
+    """Mirror lobe from GGX(α) to GGX(α + δ): G = xK₁(αW)/xK₁((α+δ)W) grows like e^{δW}. With
+    δ = 5e-9 it stays within 1e-6 of 1 on the 64² grid (|W| ≤ √2·π·64/1.6, checked with
+    SciPy's K₁) but not three decades above: the grid path still refuses."""
+    alpha, delta = 0.01, 5e-9
+    ratio = lambda w: (sp.k1e(alpha * w) / sp.k1e((alpha + delta) * w)) * np.exp(delta * w) * alpha / (alpha + delta)
+    nyquist = math.pi * 64 / 1.6
+    assert np.max(ratio(np.linspace(1.0, math.sqrt(2) * nyquist, 200))) < 1 + 1e-6 < ratio(100 * nyquist)
+    evolved = bs.evolve(lobes.Mirror(), stats.GGX(alpha), stats.GGX(alpha + delta), method="grid", size=64, extent=0.8)
+    with pytest.raises(bs.NoBRDFAtScaleError, match="exceeds 1"):
+        evolved.shape.on_grid()
+    with pytest.raises(bs.NoBRDFAtScaleError, match="exceeds 1"):
+        evolved.density(U)
 
 
 def test_bad_arguments():

@@ -37,6 +37,7 @@ from ..stats._base import check_slopes
 
 _PROBE_DIRECTIONS = 8
 _PROBE_POINTS = 160
+_PROBE_POINTS_BEYOND = 48  # 16 per decade: beyond the grid, |G| is only watched for growth
 _CF_EXCESS = 1e-6
 _NO_BRDF = "no BRDF exists at the requested scale"
 _NO_BRDF_MESSAGE = (
@@ -107,17 +108,21 @@ class EvolvedDensity(AbstractSlopeDensity):
     def support_radius(self, tol):
         return self.base.support_radius(tol) + self.s_from.support_radius(tol)
 
-    def _probe(self):
-        """|G| on rays at log-spaced frequencies scaled to the lobe's spatial extent.
+    def _probe(self, k_lo=None):
+        """|G| on rays at log-spaced frequencies: over seven decades scaled to the lobe's
+        spatial extent, or (``k_lo`` given) over the three decades above ``k_lo``.
 
         Only used for discretisation choices and the existence check, so no gradient flows
         through it (|G| is not differentiable where G = 0)."""
-        return _probe(jax.lax.stop_gradient(self))
+        return _probe(jax.lax.stop_gradient(self), k_lo)
 
-    def _probe_values(self):
+    def _probe_values(self, k_lo):
         dtype = jnp.result_type(*jax.tree_util.tree_leaves(self))
-        R = jnp.maximum(self.support_radius(self.tol), 1e-12)
-        k = jnp.asarray(np.logspace(-2, 5, _PROBE_POINTS), dtype=dtype) / R
+        if k_lo is None:
+            R = jnp.maximum(self.support_radius(self.tol), 1e-12)
+            k = jnp.asarray(np.logspace(-2, 5, _PROBE_POINTS), dtype=dtype) / R
+        else:
+            k = k_lo * jnp.asarray(np.logspace(0, 3, _PROBE_POINTS_BEYOND), dtype=dtype)
         directions = 1 if self.isotropic else _PROBE_DIRECTIONS  # one ray says all for radial G
         phi = jnp.asarray(np.arange(directions) * np.pi / directions, dtype=dtype)
         W = k[:, None, None] * jnp.stack([jnp.cos(phi), jnp.sin(phi)], -1)[None]
@@ -140,12 +145,10 @@ class EvolvedDensity(AbstractSlopeDensity):
         return _translate_errors(_density, shape, m)
 
     def _density(self, m):
-        k, mag = self._probe()
         if self.method == "radial":
-            value = self._radial(jnp.linalg.norm(m, axis=-1), _cutoff(k, mag, self.tol))
-        else:
-            value = self._grid_at(m)
-        return _checked(value, mag)
+            k, mag = self._probe()
+            return _checked(self._radial(jnp.linalg.norm(m, axis=-1), _cutoff(k, mag, self.tol)), jnp.max(mag))
+        return self._grid_at(m)
 
     def _radial(self, r, K):
         x, w = gauss_legendre(self.size)
@@ -169,30 +172,39 @@ class EvolvedDensity(AbstractSlopeDensity):
         (rows u_y, columns u_x), by one real inverse FFT."""
         return _translate_errors(_on_grid, self)
 
+    def _grid_transform(self, h):
+        """``G`` on the frequency grid of spacing ``h`` and the largest ``|G|`` for the
+        existence check: on the grid itself, and on rays beyond its Nyquist frequency π/h
+        (where the grid cannot see)."""
+        G = self.cf_grid(self.frequency_grid(h))
+        on_grid = jnp.sqrt(jnp.max(jnp.abs(jax.lax.stop_gradient(G)) ** 2))
+        beyond = jnp.max(self._probe(jnp.pi / h)[1])
+        return G, jnp.maximum(on_grid, beyond)
+
     def _on_grid(self):
         h, a = self.grid_spacing()
         n = self.size
-        G = self.cf_grid(self.frequency_grid(h))
+        G, peak = self._grid_transform(h)
         # nodes start at −a: multiply by e^{+iW·a} = (−1)^{kx+ky} for a = N h / 2 (a constant
         # pattern; cheaper than rolling the output by half a period)
         parity = (np.arange(n)[:, None] + np.arange(n // 2 + 1)[None, :]) % 2
         values = jnp.fft.irfft2(G * (1.0 - 2.0 * parity), s=(n, n)) / h**2
         u = -a + h * jnp.arange(n, dtype=h.dtype)
-        return u, _checked(values, self._probe()[1])
+        return u, _checked(values, peak)
 
     def _grid_at(self, m):
         """Inverse DFT of the grid path summed directly at query offsets (no interpolation)."""
         h, _ = self.grid_spacing()
+        G, peak = self._grid_transform(h)  # (n, n//2+1): half plane, the other half is the conjugate
         grid = self.frequency_grid(h)
         fx, fy = grid.wx, grid.wy
-        G = self.cf_grid(grid)  # (n, n//2+1): half plane, the other half is the conjugate
         weight = jnp.where((jnp.arange(fx.shape[0]) == 0) | (2 * jnp.arange(fx.shape[0]) == self.size), 1.0, 2.0)
         flat = m.reshape(-1, 2)
         ex = jnp.exp(1j * flat[:, 0, None] * fx[None, :])  # (q, nx)
         ey = jnp.exp(1j * flat[:, 1, None] * fy[None, :])  # (q, ny)
         total = jnp.einsum("qy,yx,qx->q", ey, G * weight, ex)
         dW2 = (2 * jnp.pi / (self.size * h)) ** 2
-        return (jnp.real(total) * dW2 / (2 * jnp.pi) ** 2).reshape(m.shape[:-1])
+        return _checked((jnp.real(total) * dW2 / (2 * jnp.pi) ** 2).reshape(m.shape[:-1]), peak)
 
 
 def _cutoff(k, mag, tol):
@@ -202,14 +214,15 @@ def _cutoff(k, mag, tol):
     return k[jnp.minimum(last + 1, k.shape[0] - 1)]
 
 
-def _checked(value, mag):
-    """Attach the existence check: a non-negative density has |G(W)| ≤ G(0) = 1."""
-    excess = jnp.max(mag) - 1
+def _checked(value, peak):
+    """Attach the existence check: a non-negative density has |G(W)| ≤ G(0) = 1 (``peak``:
+    the largest |G| found)."""
+    excess = peak - 1
     return eqx.error_if(value, (excess > _CF_EXCESS) | jnp.isnan(excess), _NO_BRDF_MESSAGE)
 
 
 _density = eqx.filter_jit(lambda shape, m: shape._density(m))
-_probe = eqx.filter_jit(lambda shape: shape._probe_values())
+_probe = eqx.filter_jit(lambda shape, k_lo: shape._probe_values(k_lo))
 _on_grid = eqx.filter_jit(lambda shape: shape._on_grid())
 
 
