@@ -13,15 +13,22 @@ Writes experiments/results/bench_so3.json:
 * s2fft's exact Wigner transforms at equal band limit L = N = B in float64, measured in the
   same run: the Fourier/Δ method (``precompute_transforms.fourier_wigner``) and the
   precomputed kernel (``precompute_transforms.wigner``); the speed ratio at B = 64;
-* the band limit chosen for a lobe width and an error target, with the error reached.
+* the band limit chosen for a lobe width and an error target, with the error reached;
+* with ``--baseline-rev REV``: brdfscale.so3 as of git revision REV (exported to a temporary
+  directory and imported as a separate package), its forward + inverse timed against the
+  current one at every B, calls interleaved round by round: a before/after comparison
+  measured in the same run.
 
 Run: ``python experiments/bench_so3.py`` (add ``--quick`` for B ≤ 32 only).
 """
 
 import argparse
+import importlib.util
 import math
 import os
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -157,6 +164,37 @@ def interleaved(calls: dict, rounds: int = 5) -> dict:
     return best
 
 
+def baseline_so3(rev: str):
+    """``brdfscale.so3`` as of git revision ``rev``, imported as the package ``brdfscale_baseline``."""
+    root = Path(__file__).resolve().parent.parent
+    tmp = Path(tempfile.mkdtemp(prefix="so3_baseline_"))
+    subprocess.run(f"git -C '{root}' archive {rev} brdfscale | tar -x -C '{tmp}'", shell=True, check=True)
+    spec = importlib.util.spec_from_file_location(
+        "brdfscale_baseline", tmp / "brdfscale" / "__init__.py", submodule_search_locations=[str(tmp / "brdfscale")])
+    package = importlib.util.module_from_spec(spec)
+    sys.modules["brdfscale_baseline"] = package
+    spec.loader.exec_module(package)
+    return importlib.import_module("brdfscale_baseline.so3")
+
+
+def before_after(old, sizes, rng, rounds=5):
+    """Best forward + inverse of the baseline and the current version per B, interleaved."""
+    rows = []
+    for B in sizes:
+        c = jnp.asarray(band_limited(B, rng))
+        calls = {}
+        for name, mod in (("before", old), ("after", so3)):
+            f = mod.inverse(c).block_until_ready()
+            err = float(jnp.max(jnp.abs(mod.forward(f) - c)))
+            calls[name] = (lambda mod=mod, f=f: (mod.inverse(c).block_until_ready(), mod.forward(f).block_until_ready()), err)
+        best = interleaved({name: fn for name, (fn, _) in calls.items()}, rounds)
+        rows.append({"B": B, "before_s": best["before"], "after_s": best["after"], "speedup": best["before"] / best["after"],
+                     "before_round_trip_max_abs_error": calls["before"][1], "after_round_trip_max_abs_error": calls["after"][1],
+                     "load_average_1min": os.getloadavg()[0]})
+        print(rows[-1], flush=True)
+    return rows
+
+
 def time_evolution(B, rng, repeat):
     R = jnp.asarray(band_limited(B, rng))
     s0 = so3.RotationalDiffusion(0.02, D=[1.0, 0.4, 2.0])
@@ -213,6 +251,8 @@ def band_limit_study():
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="B ≤ 32 only")
+    parser.add_argument("--baseline-rev", default=None,
+                        help="also time brdfscale.so3 as of this git revision against the current one (before/after)")
     args = parser.parse_args()
     rng = np.random.default_rng(0)
     load_start = os.getloadavg()[0]
@@ -259,6 +299,14 @@ def main():
     evo_fit = [r for r in evo if r["B"] >= 16]
     evo_exponent = float(np.polyfit(np.log([r["B"] for r in evo_fit]), np.log([r["solve_s"] for r in evo_fit]), 1)[0])
 
+    comparison = None
+    if args.baseline_rev:
+        comparison = {"revision": args.baseline_rev,
+                      "method": "interleaved rounds (5), best forward+inverse of each version",
+                      "rows": before_after(baseline_so3(args.baseline_rev), sizes, rng)}
+        comparison["before_exponent_B_ge_32"] = exponent(comparison["rows"], "before_s", 32)
+        comparison["after_exponent_B_ge_32"] = exponent(comparison["rows"], "after_s", 32)
+
     payload = {
         "machine": machine(),
         "notes": ("Times are the best of 5 calls after a warm-up (compilation excluded), float64, "
@@ -281,6 +329,7 @@ def main():
         "evolution": evo,
         "evolution_solve_scaling_exponent_B_ge_16": evo_exponent,
         "band_limits": band_limit_study(),
+        "before_after": comparison,
     }
     path = write_json("bench_so3", payload)
     print("wrote", path)
