@@ -14,10 +14,13 @@ Algorithm. With the Fourier form of d (see :mod:`._wigner`),
 ``d^J_{MM'}(β) = σ_{MM'} Σ_{m≤J} ε_m X^J_{mM} X^J_{mM'} t_{MM'}(mβ)`` (t = cos or sin by the
 parity of M − M'), a transform factors into
 
-1. FFTs over α and γ (O(B³ log B));
-2. a cosine/sine series in β: a dense (2B × B) matrix product with the grid (O(B⁴), BLAS);
+1. a fold of the samples about β = π/2 (the grid is symmetric and cos/sin of m(π − β) are
+   ±cos/sin mβ), then FFTs over α and γ on contiguous slabs, one β at a time (O(B³ log B));
+2. a cosine/sine series in β: two dense (B × B) matrix products on the folded halves
+   (O(B⁴), BLAS; :func:`_beta_matrices`);
 3. the degree–frequency contraction ``T_{MM'}(m) = Σ_J X^J_{mM} X^J_{mM'} f^J_{MM'}`` and
-   its transpose (O(B⁴) with a small constant; memory O(B³)).
+   its transpose, on the four sign quadrants of (M, M') at once and blocked for the cache
+   (:mod:`._contraction`; O(B⁴) with a small constant, memory O(B³)).
 
 Forward and inverse are exact for band-limited functions (the β quadrature is exact for
 products of d's with J < B): round trip ≤ 1e-11 at B = 64 in float64 (tests, benchmark).
