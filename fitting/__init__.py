@@ -5,8 +5,7 @@ The chain, each step in its own module:
 
 * :class:`Dataset` — images of a :class:`brdfscale.MeasurementSet` with σ and masks;
 * :class:`ParametricModel`, :class:`NonParametricModel` — forward maps θ ↦ images built on
-  :func:`brdfscale.evolve` (:class:`GaussianCorrelatedSurface`: the closed-form Σ(μ) of a
-  Gaussian-correlated surface);
+  :func:`brdfscale.evolve`;
 * :func:`fit` — optimistix least squares (Levenberg–Marquardt by default), multi-start,
   Laplace covariance, identifiability (names the combinations the data cannot determine);
 * :func:`sample` — emcee with chunked, resumable HDF5 checkpoints, τ and ESS;
@@ -28,7 +27,6 @@ from ._models import AbstractModel, NonParametricModel, ParametricModel, Relativ
 from ._report import summarise, truth_of, write_report  # noqa: E402
 from ._sample import SampleResult, log_posterior, sample  # noqa: E402
 from ._simulate import simulate  # noqa: E402
-from ._surface import GaussianCorrelatedSurface  # noqa: E402
 
 __all__ = [
     "Dataset",
@@ -37,7 +35,6 @@ __all__ = [
     "ParametricModel",
     "NonParametricModel",
     "RelativeStatistics",
-    "GaussianCorrelatedSurface",
     "Problem",
     "FitResult",
     "fit",

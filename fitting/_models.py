@@ -35,7 +35,6 @@ from brdfscale import InvalidInputError, MethodNotApplicableError, evolve, lobes
 from brdfscale._special import j0
 
 from ._data import Dataset
-from ._surface import GaussianCorrelatedSurface
 
 __all__ = ["AbstractModel", "ParametricModel", "NonParametricModel", "RelativeStatistics"]
 
@@ -137,9 +136,9 @@ class ParametricModel(AbstractModel):
         statistics: ``"beckmann"`` or ``"ggx"``: the family of the facet-slope density s(·, μ).
         law: ``"width"`` — :class:`brdfscale.stats.WidthLaw` for the family's width α(μ);
             ``"gaussian_surface"`` — Beckmann statistics of a Gaussian-correlated random
-            surface with a ``window`` facet window, Σ(μ) in closed form
-            (:class:`fitting.GaussianCorrelatedSurface`; the law of DESIGN §2 that
-            :class:`brdfscale.stats.GaussianSurface` evaluates by quadrature).
+            surface with a ``window`` facet window (:class:`brdfscale.stats.GaussianSurface`
+            of a :class:`~brdfscale.stats.GaussianCorrelation` spectrum: Σ(μ) of DESIGN §2
+            in closed form).
         fixed: physical parameters held at given values (e.g. ``{"mu_c": 1.0}``) — the way
             to supply prior knowledge that the data lack.
         radial_nodes: Gauss–Legendre nodes of the radial evolution path (used whenever GGX is
@@ -226,7 +225,8 @@ class ParametricModel(AbstractModel):
         """The scale law μ ↦ s(·, μ) at θ."""
         q = self.quantities(theta)
         if self.law_kind == "gaussian_surface":
-            return GaussianCorrelatedSurface(q["rms_height"], q["correlation_length"], self.window)
+            spectrum = stats.GaussianCorrelation(q["rms_height"], q["correlation_length"])
+            return stats.GaussianSurface(spectrum, window=self.window)
         return stats.ScaledFamily(_STATISTICS[self.statistics], stats.WidthLaw(q["alpha_max"], q["mu_c"], q["exponent"]))
 
     def statistics_at(self, theta, mu) -> stats.AbstractSlopeDensity:

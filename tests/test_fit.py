@@ -110,39 +110,6 @@ def test_models_refuse_bad_configurations():
         fitting.fit(fitting.ParametricModel(), data, solver="newton")
 
 
-@pytest.mark.parametrize("window", ["box", "gaussian"])
-def test_gaussian_surface_closed_form_matches_quadratures(window):
-    """Σ(μ) in closed form (fitting.GaussianCorrelatedSurface) against the library's 2D
-    quadrature (brdfscale.stats.GaussianSurface, 1024 × 64 nodes) and against mpmath's
-    quadrature of the factorised 1D integrals; limits μ → 0 (2σ_h²/ℓ²) and derivatives."""
-    import mpmath as mp
-
-    from brdfscale import stats
-
-    sigma_h, ell = 0.05, 1.5
-    law = fitting.GaussianCorrelatedSurface(sigma_h, ell, window)
-    quadrature = stats.GaussianSurface(stats.GaussianCorrelation(sigma_h, ell), window=window, n_k=1024, n_phi=64)
-    for mu in (1e-3, 0.3, 1.5, 8.0):
-        np.testing.assert_allclose(law.slope_variance(mu), quadrature.slope_covariance(mu)[0, 0], rtol=1e-12)
-
-    def reference(mu):  # Σ_xx = π ℓ² σ_h² / (2π)² · ∫ k² e^{−ℓ²k²/4} w(k) dk · ∫ e^{−ℓ²k²/4} w(k) dk
-        if window == "box":
-            w = lambda k: mp.sinc(k * mu / 2) ** 2  # noqa: E731
-        else:
-            w = lambda k: mp.exp(-(k**2) * mu**2 / 12)  # noqa: E731
-        g = lambda k: mp.exp(-(ell**2) * k**2 / 4) * w(k)  # noqa: E731
-        inf = [-mp.inf, 0, mp.inf] if window == "gaussian" else mp.linspace(-40, 40, 81)
-        i2, i0 = mp.quad(lambda k: k**2 * g(k), inf), mp.quad(g, inf)
-        return float(mp.pi * ell**2 * sigma_h**2 / (2 * mp.pi) ** 2 * i2 * i0)
-
-    with mp.workdps(30):
-        for mu in (0.01, 1.5, 50.0):
-            np.testing.assert_allclose(law.slope_variance(mu), reference(mu), rtol=1e-12)
-    np.testing.assert_allclose(law.slope_variance(1e-9), 2 * sigma_h**2 / ell**2, rtol=1e-12)
-    fd = (law.slope_variance(1.5 + 1e-6) - law.slope_variance(1.5 - 1e-6)) / 2e-6
-    np.testing.assert_allclose(jax.grad(law.slope_variance)(1.5), fd, rtol=1e-7)
-
-
 # -- recovery ------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("truth", TRUTHS)

@@ -156,6 +156,36 @@ def test_gaussian_surface_quadrature_agrees_with_its_closed_form(window):
         np.testing.assert_allclose(np.asarray(law._quadrature_covariance(jnp.asarray(mu))), closed, rtol=5e-14, atol=1e-16)
 
 
+@pytest.mark.parametrize("window", ["box", "gaussian"])
+def test_gaussian_surface_closed_form_against_mpmath(window):
+    """Σ(μ) of the isotropic Gaussian-correlated surface (closed form) against mpmath's
+    quadrature of the factorised 1D integrals; limits μ → 0 (2σ_h²/ℓ²) and derivatives; the
+    law gives isotropic Gaussians."""
+    import mpmath as mp
+
+    sigma_h, ell = 0.05, 1.5
+    surface = stats.GaussianSurface(stats.GaussianCorrelation(sigma_h, ell), window=window)
+    slope_variance = lambda mu: surface.slope_covariance(mu)[0, 0]  # noqa: E731
+    assert surface.at(1.0).isotropic
+
+    def reference(mu):  # Σ_xx = π ℓ² σ_h² / (2π)² · ∫ k² e^{−ℓ²k²/4} w(k) dk · ∫ e^{−ℓ²k²/4} w(k) dk
+        if window == "box":
+            w = lambda k: mp.sinc(k * mu / 2) ** 2  # noqa: E731
+        else:
+            w = lambda k: mp.exp(-(k**2) * mu**2 / 12)  # noqa: E731
+        g = lambda k: mp.exp(-(ell**2) * k**2 / 4) * w(k)  # noqa: E731
+        inf = [-mp.inf, 0, mp.inf] if window == "gaussian" else mp.linspace(-40, 40, 81)
+        i2, i0 = mp.quad(lambda k: k**2 * g(k), inf), mp.quad(g, inf)
+        return float(mp.pi * ell**2 * sigma_h**2 / (2 * mp.pi) ** 2 * i2 * i0)
+
+    with mp.workdps(30):
+        for mu in (0.01, 1.5, 50.0):
+            np.testing.assert_allclose(slope_variance(mu), reference(mu), rtol=1e-12)
+    np.testing.assert_allclose(slope_variance(1e-9), 2 * sigma_h**2 / ell**2, rtol=1e-12)
+    fd = (slope_variance(1.5 + 1e-6) - slope_variance(1.5 - 1e-6)) / 2e-6
+    np.testing.assert_allclose(jax.grad(slope_variance)(1.5), fd, rtol=1e-7)
+
+
 def test_kcorrelation_gaussian_window_against_scipy():
     A, B, C, mu = 2.0, 1.5, 3.2, 0.7
     spec = stats.KCorrelation(A, B, C)

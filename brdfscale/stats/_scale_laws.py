@@ -35,6 +35,9 @@ class AbstractPowerSpectrum(eqx.Module):
     ``P(k) = P(−k)``, as for any real height field.
     """
 
+    isotropic: eqx.AbstractVar[bool]
+    """True when ``P`` depends on ``|k|`` only (known structurally, not from values)."""
+
     @abc.abstractmethod
     def __call__(self, k: Float[ArrayLike, "*batch 2"]) -> Float[Array, "*batch"]: ...
 
@@ -58,10 +61,13 @@ class GaussianCorrelation(AbstractPowerSpectrum):
 
     rms_height: Float[Array, ""]
     correlation_length: Float[Array, "2"]
+    isotropic: bool = eqx.field(static=True)
+    """True when built with one correlation length (known structurally, not from values)."""
 
     def __init__(self, rms_height, correlation_length):
         self.rms_height = positive(rms_height, "rms_height")
         ell = positive(correlation_length, "correlation_length")
+        self.isotropic = ell.ndim == 0
         self.correlation_length = jnp.broadcast_to(ell, (2,)) if ell.ndim == 0 else ell
 
     def __call__(self, k):
@@ -109,6 +115,7 @@ class KCorrelation(AbstractPowerSpectrum):
     B: Float[Array, ""]
     C: Float[Array, ""]
     k_max: Float[Array, ""]
+    isotropic: bool = eqx.field(default=True, static=True)
 
     def __init__(self, A, B, C, k_max=None):
         self.A = positive(A, "A")
@@ -203,9 +210,16 @@ class GaussianSurface(AbstractScaleLaw):
         return 0.5 * (cov + cov.T)
 
     def at(self, mu):
-        if self.spectrum.windowed_slope_variances(1.0, self.window) is not None:  # diagonal Σ
-            return Gaussian(sigma=jnp.sqrt(jnp.diagonal(self.slope_covariance(mu))))
-        return Gaussian(cov=self.slope_covariance(mu))
+        """``Gaussian(cov=Σ(μ))``; isotropic where the spectrum is (Σ = σ² I, σ² its mean
+        diagonal), built from per-axis standard deviations where Σ is diagonal by
+        construction (closed form), so that :func:`brdfscale.evolve` (radial path) and the
+        grid path (separable factors) can exploit the structure."""
+        cov = self.slope_covariance(mu)
+        if self.spectrum.isotropic:  # Σ = σ² I
+            return Gaussian(sigma=jnp.sqrt(0.5 * jnp.trace(cov)))
+        if self.spectrum.windowed_slope_variances(1.0, self.window) is None:
+            return Gaussian(cov=cov)
+        return Gaussian(sigma=jnp.sqrt(jnp.diagonal(cov)))
 
 
 _slope_covariance = eqx.filter_jit(lambda law, mu: law._slope_covariance(mu))
