@@ -466,10 +466,11 @@ def bench_problem(kind, quick):
 
 def so3_sweep_point(mat, problem, ref, peak, B, repeat):
     """The public SO(3) pipeline at band limit B for all orders: lobe samples and
-    :func:`so3.forward` at B, :func:`so3.evolve_diffusion` to each scale, :func:`so3.synthesize`."""
+    :func:`so3.forward` at B, :func:`so3.evolve_diffusion` to each scale, :func:`so3.synthesize` —
+    each the library's own jit-compiled call (one program fusing them all stalled the XLA CPU
+    runtime at B = 64 in a trial run: no progress, no CPU use, waiting on a futex)."""
     pairs, angles, mus = problem["pairs"], problem["angles"], problem["mus"]
 
-    @eqx.filter_jit
     def run(mat):
         tau0 = mat.tau(mat.mu0)
         out = []
