@@ -16,6 +16,7 @@ Run: ``python experiments/bench_evolve.py`` → experiments/results/bench_evolve
 """
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -131,6 +132,7 @@ def main(argv=None):
     results = {
         "benchmark": "bench_evolve",
         "machine": machine(),
+        "load_average_at_start": os.getloadavg(),
         "dtype": "float64",
         "grid": [bench_grid(kind, n) for kind in ("gaussian_mixture", "ggx") for n in sizes],
         "queries": bench_queries(sizes[-1] if not args.quick else 64),
