@@ -65,7 +65,10 @@ def plan_so3(material: AnisotropicMaterial, i, o, angles, log_mu, tol):
             "is a deconvolution: use brdfscale.so3.evolve with regularisation > 0."
         )
     D = np.asarray(material.law.D)
-    lobe_spectrum = lambda J: np.asarray(material.lobe.spectrum(J))  # noqa: E731
+
+    def lobe_spectrum(J):
+        return np.asarray(material.lobe.spectrum(J))
+
     damping = (tau0 - tau.max()) * D.min()
     B, truncation = so3.band_limit(lambda J: lobe_spectrum(J) * np.exp(-damping * J * (J + 1)), budget)
     B0, _ = so3.band_limit(lobe_spectrum, budget)
