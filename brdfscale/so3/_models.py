@@ -229,7 +229,7 @@ class AnisotropicMicrofacetLobe(eqx.Module):
     surface with slope statistics ``g`` — Beckmann or GGX with roughness α_x along the facet's
     tangent and α_y along its bitangent — and (no masking, Fresnel 1, DESIGN §1)
 
-        ρ(i, o, Γ) = A · g(m(h')) / (4 (h'·o') cos⁴θ_h'),
+        ρ(i, o, Γ) = A · g(m(h')) / (4 o'_z cos⁴θ_h')   (:func:`brdfscale.geometry.microfacet_factor`),
 
     zero where the light or the detector is below the facet's horizon (i'_z ≤ 0 or o'_z ≤ 0).
     Units 1/sr. For fixed (i, o) this is a function on SO(3) whose coefficients evolve
