@@ -46,6 +46,21 @@ def best_time(fn, *, repeat: int = 5, number: int = 1) -> float:
     return best
 
 
+def best_times_interleaved(fns: dict, *, repeat: int = 15) -> dict:
+    """Best wall time of each of ``fns`` (name → blocking callable), the calls alternated in
+    ``repeat`` rounds so that every candidate sees the same machine conditions (on a shared
+    machine, back-to-back phases can differ by tens of per cent)."""
+    for fn in fns.values():
+        fn()  # warm-up (compilation)
+    best = {name: float("inf") for name in fns}
+    for _ in range(repeat):
+        for name, fn in fns.items():
+            t0 = time.perf_counter()
+            fn()
+            best[name] = min(best[name], time.perf_counter() - t0)
+    return best
+
+
 def write_json(name: str, payload: dict) -> Path:
     """Write ``results/<name>.json`` atomically (temporary file + rename)."""
     from brdfscale import _files

@@ -6,7 +6,8 @@ N × N grid of offsets. Measured in one run, in float64 on the CPU:
 
 * grid path: ``evolve(..., method="grid", size=N).shape.on_grid()`` under ``jax.vmap``;
 * floor: a raw batched ``rfft2`` + ``irfft2`` of the same grids (the least any grid method
-  does to apply a spectral multiplier);
+  does to apply a spectral multiplier), timed alternately with the grid path (best of 25
+  rounds each);
 * SciPy baseline: sampling lobe and statistics on the grid and ``scipy.signal.fftconvolve``;
 * accuracy of both against the exact answer (closed form or radial quadrature) on the grid;
 * closed form versus grid path *per query*: 1024 queries, each at its own scale (the grid
@@ -29,7 +30,7 @@ import numpy as np  # noqa: E402
 import scipy.signal  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _bench import best_time, machine, write_json  # noqa: E402
+from _bench import best_time, best_times_interleaved, machine, write_json  # noqa: E402
 
 import brdfscale as bs  # noqa: E402
 from brdfscale import lobes, stats  # noqa: E402
@@ -56,11 +57,11 @@ def bench_grid(kind: str, n: int) -> dict:
 
     grid_fn = jax.jit(jax.vmap(one))
     grids = grid_fn(widths).block_until_ready()
-    t_grid = best_time(lambda: grid_fn(widths).block_until_ready(), repeat=15)
-
     x = jnp.asarray(np.random.default_rng(0).random((BATCH, n, n)))
     floor_fn = jax.jit(lambda a: jnp.fft.irfft2(jnp.fft.rfft2(a), s=(n, n)))
-    t_floor = best_time(lambda: floor_fn(x).block_until_ready(), repeat=15)
+    best = best_times_interleaved({"grid": lambda: grid_fn(widths).block_until_ready(),
+                                   "floor": lambda: floor_fn(x).block_until_ready()}, repeat=25)
+    t_grid, t_floor = best["grid"], best["floor"]
 
     # SciPy: sample g0 and s on the same grid and convolve (the straightforward implementation)
     u, _ = bs.evolve(lobe, statistics(kind, widths[0]), stats.Delta(), method="grid", size=n, extent=EXTENT).shape.on_grid()
