@@ -82,7 +82,7 @@ def _evaluated_once(f, x: Float[Array, " n"]) -> Array:
 
     Evaluated in two blocks by ``lax.map``: the loop boundary stops XLA:CPU from fusing the
     (transcendental) evaluation into the per-node products that consume it, where it would
-    be repeated at every grid node — measured 4–6× slower on the grid path at n = 256.
+    be repeated at every grid node (several times slower on the grid path when profiled).
     (``lax.optimization_barrier`` does not help: the CPU compiler removes it.)
     """
     n = x.shape[0]
