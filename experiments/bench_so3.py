@@ -41,7 +41,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(1, str(Path(__file__).resolve().parent.parent))  # the repository (brdfscale) when not installed
-from _bench import best_time, machine, write_json  # noqa: E402
+from _bench import best_time, best_times_interleaved, machine, write_json  # noqa: E402
 
 import brdfscale.so3 as so3  # noqa: E402
 
@@ -152,18 +152,6 @@ def time_s2fft(B, rng, repeat, methods):
     return out, calls
 
 
-def interleaved(calls: dict, rounds: int = 5) -> dict:
-    """Best forward+inverse time of each contender, calls alternated round by round so that a
-    drifting load on a shared machine affects all of them alike."""
-    best = {name: float("inf") for name in calls}
-    for _ in range(rounds):
-        for name, fn in calls.items():
-            t0 = time.perf_counter()
-            fn()
-            best[name] = min(best[name], time.perf_counter() - t0)
-    return best
-
-
 def baseline_so3(rev: str):
     """``brdfscale.so3`` as of git revision ``rev``, imported as the package ``brdfscale_baseline``."""
     root = Path(__file__).resolve().parent.parent
@@ -187,7 +175,7 @@ def before_after(old, sizes, rng, rounds=5):
             f = mod.inverse(c).block_until_ready()
             err = float(jnp.max(jnp.abs(mod.forward(f) - c)))
             calls[name] = (lambda mod=mod, f=f: (mod.inverse(c).block_until_ready(), mod.forward(f).block_until_ready()), err)
-        best = interleaved({name: fn for name, (fn, _) in calls.items()}, rounds)
+        best = best_times_interleaved({name: fn for name, (fn, _) in calls.items()}, repeat=rounds)
         rows.append({"B": B, "before_s": best["before"], "after_s": best["after"], "speedup": best["before"] / best["after"],
                      "before_round_trip_max_abs_error": calls["before"][1], "after_round_trip_max_abs_error": calls["after"][1],
                      "load_average_1min": os.getloadavg()[0]})
@@ -283,7 +271,7 @@ def main():
             c = jnp.asarray(band_limited(B, rng))
             f = so3.inverse(c)
             calls["brdfscale_so3"] = lambda: (so3.inverse(c).block_until_ready(), so3.forward(f).block_until_ready())
-            best = interleaved(calls)
+            best = best_times_interleaved(calls, repeat=5)
             fastest = min(("fourier", best["s2fft_fourier"]), ("precompute", best["s2fft_precompute"]), key=lambda x: x[1])
             ratio = {"B": B, "method": "interleaved rounds (5), best forward+inverse of each",
                      "load_average_1min": os.getloadavg()[0],
