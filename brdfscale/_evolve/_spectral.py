@@ -172,24 +172,24 @@ class EvolvedDensity(AbstractSlopeDensity):
         (rows u_y, columns u_x), by one real inverse FFT."""
         return _translate_errors(_on_grid, self)
 
-    def _grid_transform(self, h):
-        """``G`` on the frequency grid of spacing ``h`` and the largest ``|G|`` for the
+    def _grid_transform(self, grid: FrequencyGrid):
+        """``G`` on ``grid`` and the largest ``|G|`` for the
         existence check: on the grid itself, and on rays beyond its Nyquist frequency π/h
         (where the grid cannot see), 24 frequencies per ray over three decades. ``None``
         when nothing is divided (``s_to`` a point mass, |S_to| = 1): then G is a product of
         transforms of densities, |G| ≤ 1 holds by construction and there is nothing to check."""
-        G = self.cf_grid(self.frequency_grid(h))
+        G = self.cf_grid(grid)
         if isinstance(self.s_to, Delta):
             return G, None
         G_fixed = jax.lax.stop_gradient(G)
         on_grid = jnp.sqrt(jnp.max(G_fixed.real**2 + G_fixed.imag**2))  # no per-node hypot
-        beyond = jnp.max(self._probe(jnp.pi / h)[1])
+        beyond = jnp.max(self._probe(grid.step * (grid.size / 2))[1])  # from π/h
         return G, jnp.maximum(on_grid, beyond)
 
     def _on_grid(self):
         h, a = self.grid_spacing()
         n = self.size
-        G, peak = self._grid_transform(h)
+        G, peak = self._grid_transform(self.frequency_grid(h))
         # nodes start at −a: multiply by e^{+iW·a} = (−1)^{kx+ky} for a = N h / 2 (a constant
         # pattern; cheaper than rolling the output by half a period); the 1/h² of the inverse
         # DFT is applied on the half-size frequency side, in the same pass
@@ -201,8 +201,8 @@ class EvolvedDensity(AbstractSlopeDensity):
     def _grid_at(self, m):
         """Inverse DFT of the grid path summed directly at query offsets (no interpolation)."""
         h, _ = self.grid_spacing()
-        G, peak = self._grid_transform(h)  # (n, n//2+1): half plane, the other half is the conjugate
         grid = self.frequency_grid(h)
+        G, peak = self._grid_transform(grid)  # (n, n//2+1): half plane, the other half is the conjugate
         fx, fy = grid.wx, grid.wy
         weight = jnp.where((jnp.arange(fx.shape[0]) == 0) | (2 * jnp.arange(fx.shape[0]) == self.size), 1.0, 2.0)
         flat = m.reshape(-1, 2)
