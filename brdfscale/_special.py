@@ -9,13 +9,15 @@ integral representations with quadratures whose error is provably below float64 
   (e x / 2(N−n))^{N−n}``, below 1e-17 for N = 96 at x = 25.
 * The Hankel asymptotic expansion (DLMF 10.17.3) for ``|x| > 25``: the terms decrease
   until ``k ≈ 2x``, so 24 terms leave a truncation error below ``e^{−50}``.
-* ``K0`` and ``x K1(x)``: the ascending series (DLMF 10.31.1–2) for ``x ≤ 2``, where all
-  terms are positive apart from the logarithm and 18 terms reach 1e-17; a Chebyshev
-  expansion in ``1/x`` of the smooth ``√x eˣ K_ν(x)`` on ``2 < x ≤ 25``; the Hankel
-  asymptotic expansion (DLMF 10.40.2) beyond. The Chebyshev coefficients are computed at
-  import from the integral ``K_ν(x) = ∫_0^∞ e^{−x cosh t} cosh(ν t) dt`` (DLMF 10.32.9)
-  by the trapezoidal rule, whose error for this double-exponentially decaying integrand
-  is below 1e-17 with 400 nodes; nothing is copied from a table.
+* ``K0`` and ``x K1(x)``: the ascending series (DLMF 10.31.1–2) in ``q = x²/4`` for
+  ``x ≤ 2``, where 13 terms reach 1e-17 (Horner's rule on precomputed coefficients); for
+  ``x > 2`` one Chebyshev expansion (degree 24) of the smooth ``√x eˣ K_ν(x)`` in
+  ``y = 1/x ∈ [0, 1/2]``, whose value at y = 0 is the limit ``√(π/2)`` (DLMF 10.40.2). Its
+  coefficients are fitted at import to the integral ``K_ν(x) = ∫_0^∞ e^{−x cosh t}
+  cosh(ν t) dt`` (DLMF 10.32.9) evaluated by the trapezoidal rule, whose error for this
+  double-exponentially decaying integrand is below 1e-17 with 400 nodes; nothing is copied
+  from a table. Each evaluation costs one of each of log, exp and square root and ~40
+  multiply–adds (both branches are computed, as ``jnp.where`` does under ``vmap``).
 
 Derivatives are supplied analytically (``J0' = −J1``, ``J1' = J0 − J1/x``, ``K0' = −K1``,
 ``(x K1)' = −x K0``) through ``jax.custom_jvp``, so gradients are as accurate as values.
@@ -138,30 +140,58 @@ def _jinc_jvp(primals, tangents):
     return jinc(x), jnp.where(small, series, -2 * _j2(safe) / safe) * dx
 
 
-_K_SERIES_TERMS = 18
-_K_CHEB_DEGREE = 40
-_K_LOW, _K_HIGH = 2.0, 25.0
+_K_SERIES_TERMS = 13  # x ≤ 2 (q ≤ 1): the k-th terms are ≤ (1 + ψ-sums)/(k!)² < 1e-17 for k ≥ 12
+_K_CHEB_DEGREE = 24
+_K_SWITCH = 2.0
 
 
 def _k_integral_numpy(nu: int, x: np.ndarray) -> np.ndarray:
-    """``√x eˣ K_ν(x)`` by the trapezoidal rule on DLMF 10.32.9 (NumPy, for the fit only)."""
+    """``√x eˣ K_ν(x)`` by the trapezoidal rule on DLMF 10.32.9 (NumPy, for the fit only).
+
+    ``cosh t − 1`` is written ``2 sinh²(t/2)``, which keeps full relative precision at the
+    small t that dominate for large x."""
     T = np.arccosh(1.0 + 45.0 / x)
     t = T[:, None] * np.linspace(0.0, 1.0, 401)[None, :]
-    f = np.exp(-x[:, None] * (np.cosh(t) - 1.0)) * np.cosh(nu * t)
+    f = np.exp(-x[:, None] * 2.0 * np.sinh(t / 2) ** 2) * np.cosh(nu * t)
     h = T / 400
     return np.sqrt(x) * h * (f.sum(axis=1) - 0.5 * (f[:, 0] + f[:, -1]))
 
 
 def _chebyshev_in_inverse_x(nu: int) -> np.ndarray:
-    """Chebyshev coefficients of ``√x eˣ K_ν(x)`` as a function of ``y = 1/x`` on the middle range."""
-    cheb = np.polynomial.chebyshev.Chebyshev.interpolate(
-        lambda y: _k_integral_numpy(nu, 1.0 / y), _K_CHEB_DEGREE, domain=[1 / _K_HIGH, 1 / _K_LOW]
-    )
-    return cheb.coef
+    """Chebyshev coefficients of ``√x eˣ K_ν(x)`` in ``y = 1/x`` on ``[0, 1/2]`` (all x ≥ 2).
+
+    Least squares on 401 Chebyshev–Lobatto points, the one at y = 0 taking the limit
+    ``√(π/2)`` (DLMF 10.40.2), so that the fit is not extrapolated towards x → ∞."""
+    y = 0.25 * (1.0 - np.cos(np.pi * np.arange(401) / 400))
+    f = np.empty_like(y)
+    f[0] = math.sqrt(math.pi / 2)
+    f[1:] = _k_integral_numpy(nu, 1.0 / y[1:])
+    return np.polynomial.chebyshev.Chebyshev.fit(y, f, _K_CHEB_DEGREE, domain=[0.0, 1 / _K_SWITCH]).coef
+
+
+def _series_coefficients() -> dict[str, np.ndarray]:
+    """Coefficients in ``q = x²/4`` of the ascending series (DLMF 10.31.1–2):
+
+    ``K0(x) = −(ln(x/2) + γ) Σ q^k/(k!)² + Σ H_k q^k/(k!)²``,
+    ``x K1(x) = 1 + (x²/2) ln(x/2) Σ q^k/(k!(k+1)!) − q Σ (ψ(k+1) + ψ(k+2)) q^k/(k!(k+1)!)``,
+    with ``H_k`` the harmonic numbers and ``ψ(k+1) + ψ(k+2) = 2H_k + 1/(k+1) − 2γ``."""
+    k = np.arange(_K_SERIES_TERMS)
+    harmonic = np.concatenate([[0.0], np.cumsum(1.0 / np.arange(1, _K_SERIES_TERMS))])
+    square = np.array([1.0 / math.factorial(int(j)) ** 2 for j in k])
+    pair = np.array([1.0 / (math.factorial(int(j)) * math.factorial(int(j) + 1)) for j in k])
+    psi = 2 * harmonic + 1.0 / (k + 1) - 2 * np.euler_gamma
+    return {"i0": square, "k0": harmonic * square, "i1": pair, "xk1": psi * pair}
 
 
 _K_CHEB = {0: _chebyshev_in_inverse_x(0), 1: _chebyshev_in_inverse_x(1)}
-_HARMONIC = np.concatenate([[0.0], np.cumsum(1.0 / np.arange(1, _K_SERIES_TERMS + 1))])
+_K_SERIES = _series_coefficients()
+
+
+def _horner(coef: np.ndarray, q):
+    total = jnp.full_like(q, float(coef[-1]))
+    for c in coef[-2::-1]:
+        total = total * q + float(c)
+    return total
 
 
 def _clenshaw(coef: np.ndarray, y, lo: float, hi: float):
@@ -173,39 +203,13 @@ def _clenshaw(coef: np.ndarray, y, lo: float, hi: float):
     return t * b1 - b2 + float(coef[0])
 
 
-def _k_scaled_large(nu: int, x):
-    """``√x eˣ K_ν(x)`` for x > 2: Chebyshev in 1/x up to 25, Hankel's expansion beyond."""
-    a = _HANKEL[nu]
-    inv = 1.0 / x
-    asym = jnp.zeros_like(x)
-    for k in range(_N_ASYMPTOTIC - 1, -1, -1):
-        asym = asym * inv + float(a[k])
-    asym = asym * math.sqrt(math.pi / 2)
-    y = jnp.clip(inv, 1 / _K_HIGH, 1 / _K_LOW)
-    return jnp.where(x > _K_HIGH, asym, _clenshaw(_K_CHEB[nu], y, 1 / _K_HIGH, 1 / _K_LOW))
-
-
-def _k_series(x):
-    """``(K0(x), x K1(x))`` from the ascending series, for 0 < x ≤ 2 (DLMF 10.31.1–2)."""
+def _k_series(nu: int, x):
+    """``K0(x)`` (ν = 0) or ``x K1(x)`` (ν = 1) from the ascending series, for 0 < x ≤ 2."""
     q = x * x / 4
     log_half = jnp.log(x / 2)
-    term0 = jnp.ones_like(x)  # q^k / (k!)²
-    i0 = term0
-    k0_sum = jnp.zeros_like(x)  # Σ H_k q^k/(k!)²
-    i1_sum = term0  # Σ q^k/(k!(k+1)!)
-    psi_sum = jnp.full_like(x, -2 * np.euler_gamma + 1.0)  # Σ (ψ(k+1)+ψ(k+2)) q^k/(k!(k+1)!)
-    term1 = term0
-    for k in range(1, _K_SERIES_TERMS):
-        term0 = term0 * q / (k * k)
-        term1 = term1 * q / (k * (k + 1))
-        i0 = i0 + term0
-        k0_sum = k0_sum + float(_HARMONIC[k]) * term0
-        i1_sum = i1_sum + term1
-        psi = 2 * float(_HARMONIC[k]) - 2 * np.euler_gamma + 1.0 / (k + 1)
-        psi_sum = psi_sum + psi * term1
-    k0_val = -(log_half + np.euler_gamma) * i0 + k0_sum
-    xk1_val = 1 + x * x / 2 * log_half * i1_sum - q * psi_sum
-    return k0_val, xk1_val
+    if nu == 0:
+        return -(log_half + np.euler_gamma) * _horner(_K_SERIES["i0"], q) + _horner(_K_SERIES["k0"], q)
+    return 1 + 2 * q * log_half * _horner(_K_SERIES["i1"], q) - q * _horner(_K_SERIES["xk1"], q)
 
 
 def _as_float(x):
@@ -216,15 +220,14 @@ def _as_float(x):
 
 
 def _k_branches(nu: int, x):
-    small = x <= _K_LOW
+    """``K0(x)`` or ``x K1(x)`` for x > 0: the series up to x = 2, ``e^{−x}/√x`` times the
+    Chebyshev expansion in 1/x beyond (one expansion for all x > 2)."""
+    small = x <= _K_SWITCH
     xs = jnp.where(small, x, 1.0)
-    xl = jnp.where(small, 2 * _K_LOW, x)
-    series = _k_series(xs)[nu]
-    scaled = _k_scaled_large(nu, xl)
-    large = scaled * jnp.exp(-xl) / jnp.sqrt(xl)
-    if nu == 1:
-        large = large * xl
-    return jnp.where(small, series, large)
+    xl = jnp.where(small, 2 * _K_SWITCH, x)
+    scaled = _clenshaw(_K_CHEB[nu], 1.0 / xl, 0.0, 1 / _K_SWITCH)  # √x eˣ K_ν(x)
+    large = scaled * jnp.exp(-xl) * (jnp.sqrt(xl) if nu == 1 else jax.lax.rsqrt(xl))
+    return jnp.where(small, _k_series(nu, xs), large)
 
 
 @jax.custom_jvp

@@ -46,19 +46,30 @@ def best_time(fn, *, repeat: int = 5, number: int = 1) -> float:
     return best
 
 
-def best_times_interleaved(fns: dict, *, repeat: int = 15) -> dict:
-    """Best wall time of each of ``fns`` (name → blocking callable), the calls alternated in
-    ``repeat`` rounds so that every candidate sees the same machine conditions (on a shared
-    machine, back-to-back phases can differ by tens of per cent)."""
+def interleaved_times(fns: dict, *, repeat: int = 15) -> dict:
+    """Wall times (seconds, sorted) of each of ``fns`` (name → blocking callable) over
+    ``repeat`` rounds, the calls alternated within each round so that every candidate sees
+    the same machine conditions (on a shared machine, back-to-back phases can differ by tens
+    of per cent)."""
     for fn in fns.values():
         fn()  # warm-up (compilation)
-    best = {name: float("inf") for name in fns}
+    times = {name: [] for name in fns}
     for _ in range(repeat):
         for name, fn in fns.items():
             t0 = time.perf_counter()
             fn()
-            best[name] = min(best[name], time.perf_counter() - t0)
-    return best
+            times[name].append(time.perf_counter() - t0)
+    return {name: sorted(t) for name, t in times.items()}
+
+
+def best_times_interleaved(fns: dict, *, repeat: int = 15) -> dict:
+    """Best (minimum) wall time of each of ``fns`` by :func:`interleaved_times`."""
+    return {name: t[0] for name, t in interleaved_times(fns, repeat=repeat).items()}
+
+
+def median(sorted_times: list) -> float:
+    n = len(sorted_times)
+    return 0.5 * (sorted_times[(n - 1) // 2] + sorted_times[n // 2])
 
 
 def write_json(name: str, payload: dict) -> Path:

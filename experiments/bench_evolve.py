@@ -6,22 +6,36 @@ N × N grid of offsets. Measured in one run, in float64 on the CPU:
 
 * grid path: ``evolve(..., method="grid", size=N).shape.on_grid()`` under ``jax.vmap``;
 * floor: a raw batched ``rfft2`` + ``irfft2`` of the same grids (the least any grid method
-  does to apply a spectral multiplier), timed alternately with the grid path (best of 25
-  rounds each);
+  does to apply a spectral multiplier), timed alternately with the grid path and with the
+  floor a second time (the control) in 41 rounds. Times are the
+  medians over rounds: on this shared 2-core VM the *best* of the rounds is bimodal (two
+  identical programs differ by up to 1.6× in their best round, not in their median), and
+  the control's ratio to the floor records how much either statistic moves by chance;
 * SciPy baseline: sampling lobe and statistics on the grid and ``scipy.signal.fftconvolve``;
 * accuracy of both against the exact answer (closed form or radial quadrature) on the grid;
 * closed form versus grid path *per query*: 1024 queries, each at its own scale (the grid
   path needs one grid per scale, the closed form one Gaussian).
 
+The grid rows are measured twice: with XLA's default threads (two on this machine) and, in a
+child process, with XLA on one thread (``grid_single_thread``), where the timings are tight
+and the ratio measures the work itself.
+
 Run: ``python experiments/bench_evolve.py`` → experiments/results/bench_evolve.json.
 """
 
 import argparse
+import json
 import os
+import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
-import jax
+SINGLE_THREAD_FLAGS = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+if "--single-thread" in sys.argv:  # must precede the first import of jax
+    os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + SINGLE_THREAD_FLAGS).strip()
+
+import jax  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 
@@ -30,12 +44,13 @@ import numpy as np  # noqa: E402
 import scipy.signal  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _bench import best_time, best_times_interleaved, machine, write_json  # noqa: E402
+from _bench import best_time, interleaved_times, machine, median, write_json  # noqa: E402
 
 import brdfscale as bs  # noqa: E402
 from brdfscale import lobes, stats  # noqa: E402
 
 BATCH = 32
+ROUNDS = 41  # interleaved rounds of grid path, floor and control; the figures are medians
 EXTENT = 0.8  # half-width of the slope grid shared by all methods (lobe α0 = 0.1, statistics ≤ 0.18)
 
 
@@ -59,9 +74,12 @@ def bench_grid(kind: str, n: int) -> dict:
     grids = grid_fn(widths).block_until_ready()
     x = jnp.asarray(np.random.default_rng(0).random((BATCH, n, n)))
     floor_fn = jax.jit(lambda a: jnp.fft.irfft2(jnp.fft.rfft2(a), s=(n, n)))
-    best = best_times_interleaved({"grid": lambda: grid_fn(widths).block_until_ready(),
-                                   "floor": lambda: floor_fn(x).block_until_ready()}, repeat=25)
-    t_grid, t_floor = best["grid"], best["floor"]
+    # the control: the floor timed a second time in every round; its ratio to the floor shows
+    # how far each statistic of the timings moves by chance alone
+    times = interleaved_times({"grid": lambda: grid_fn(widths).block_until_ready(),
+                               "floor": lambda: floor_fn(x).block_until_ready(),
+                               "control": lambda: floor_fn(x).block_until_ready()}, repeat=ROUNDS)
+    t_grid, t_floor = median(times["grid"]), median(times["floor"])
 
     # SciPy: sample g0 and s on the same grid and convolve (the straightforward implementation)
     u, _ = bs.evolve(lobe, statistics(kind, widths[0]), stats.Delta(), method="grid", size=n, extent=EXTENT).shape.on_grid()
@@ -88,6 +106,10 @@ def bench_grid(kind: str, n: int) -> dict:
         "raw_fft_floor_s_per_grid": t_floor / BATCH,
         "scipy_fftconvolve_s_per_lobe": t_scipy / BATCH,
         "throughput_vs_floor": t_floor / t_grid,
+        "throughput_vs_floor_best_of_rounds": times["floor"][0] / times["grid"][0],
+        "control_floor_vs_floor": {"median": median(times["floor"]) / median(times["control"]),
+                                        "best_of_rounds": times["floor"][0] / times["control"][0]},
+        "rounds": ROUNDS,
         "speedup_vs_scipy": t_scipy / t_grid,
         "extent": EXTENT,
         "grid_path_max_error_rel_peak": grid_error,
@@ -124,25 +146,46 @@ def bench_queries(n: int) -> dict:
     }
 
 
+def grid_rows(sizes) -> list:
+    return [bench_grid(kind, n) for kind in ("gaussian_mixture", "ggx") for n in sizes]
+
+
+def single_thread_rows(sizes) -> list:
+    """The grid rows again in a child process whose XLA runs on one thread (``XLA_FLAGS`` must
+    be set before jax starts): the work itself, free of the two-thread scheduling noise."""
+    with tempfile.TemporaryDirectory() as tmp:
+        rows = Path(tmp) / "rows.json"
+        cmd = [sys.executable, __file__, "--single-thread", "--rows", str(rows), "--sizes", *map(str, sizes)]
+        subprocess.run(cmd, check=True)
+        return json.loads(rows.read_text())
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[128, 256])
     parser.add_argument("--quick", action="store_true", help="small sizes, for the smoke test")
+    parser.add_argument("--single-thread", action="store_true",
+                        help="(internal) time the grid rows with XLA on one thread and write them to --rows")
+    parser.add_argument("--rows", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     sizes = [64] if args.quick else args.sizes
+    if args.single_thread:
+        args.rows.write_text(json.dumps(grid_rows(sizes)))
+        return None
     results = {
         "benchmark": "bench_evolve",
         "machine": machine(),
         "load_average_at_start": os.getloadavg(),
         "dtype": "float64",
-        "grid": [bench_grid(kind, n) for kind in ("gaussian_mixture", "ggx") for n in sizes],
+        "grid": grid_rows(sizes),
+        "grid_single_thread": single_thread_rows(sizes),
         "queries": bench_queries(sizes[-1] if not args.quick else 64),
     }
     name = "bench_evolve_quick" if args.quick else "bench_evolve"
     path = write_json(name, results)
-    for row in results["grid"]:
+    for threads, row in [("default", r) for r in results["grid"]] + [("1 thread", r) for r in results["grid_single_thread"]]:
         print(
-            f"{row['statistics']:>17} N={row['grid_size']:4d}: grid {row['grid_path_s_per_lobe'] * 1e3:8.3f} ms/lobe, "
+            f"{threads:>8} {row['statistics']:>17} N={row['grid_size']:4d}: grid {row['grid_path_s_per_lobe'] * 1e3:8.3f} ms/lobe, "
             f"floor {row['raw_fft_floor_s_per_grid'] * 1e3:8.3f} ms, scipy {row['scipy_fftconvolve_s_per_lobe'] * 1e3:8.3f} ms; "
             f"throughput/floor {row['throughput_vs_floor']:.2f}, speedup vs scipy {row['speedup_vs_scipy']:.1f}"
         )

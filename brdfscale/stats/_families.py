@@ -211,6 +211,9 @@ class GGX(AbstractSlopeDensity):
         W = check_slopes(W, "W")
         return shifted_cf(xk1(safe_norm(W * self.alpha)), W, self.mean)
 
+    def cf_radial(self, k):
+        return xk1(self.alpha[..., 0] * jnp.asarray(k))  # isotropic: α_x = α_y
+
     def shifted(self, offset):
         return GGX(alpha_x=self.alpha[..., 0], alpha_y=self.alpha[..., 1], mean=add_offset(self.mean, offset))
 
@@ -246,6 +249,9 @@ class Disk(AbstractSlopeDensity):
     def cf(self, W):
         W = check_slopes(W, "W")
         return shifted_cf(jinc(self.radius * safe_norm(W)), W, self.mean)
+
+    def cf_radial(self, k):
+        return jinc(self.radius * jnp.asarray(k))
 
     def shifted(self, offset):
         return Disk(self.radius, mean=add_offset(self.mean, offset))

@@ -78,14 +78,20 @@ def axis_phase(w, offset):
 
 
 def _evaluated_once(f, x: Float[Array, " n"]) -> Array:
-    """``f(x)`` for a 1D ``x``, computed once and stored.
+    """``f(x)`` for a 1D ``x``, computed once into its own buffer.
 
-    Evaluated in two blocks by ``lax.map``: the loop boundary stops XLA:CPU from fusing the
-    (transcendental) evaluation into the per-node products that consume it, where it would
-    be repeated at every grid node (several times slower on the grid path when profiled).
-    (``lax.optimization_barrier`` does not help: the CPU compiler removes it.)
+    XLA:CPU fuses an elementwise evaluation into the per-node products and gathers that
+    consume it, where it is then repeated at every grid node (several times slower on the
+    grid path when profiled); ``lax.optimization_barrier`` does not stop it (the CPU compiler
+    removes it), and a loop boundary (``lax.map``) stops it but runs the evaluation on one
+    thread. XLA does not fuse an expensive evaluation into a reduce-window that reads each
+    value twice, so the values pass through one: the running sum of ``(0, f(x))`` along a new
+    axis of length 2, whose second row is ``0 + f(x) = f(x)`` exactly. The evaluation stays a
+    parallel loop of its own.
     """
-    n = x.shape[0]
-    half = -(-n // 2)
-    blocks = jnp.pad(x, (0, 2 * half - n), mode="edge").reshape(2, half)
-    return jax.lax.map(f, blocks).reshape(-1)[:n]
+    values = f(x)
+    stacked = jnp.stack([jnp.zeros_like(values), values])
+    running = jax.lax.reduce_window(stacked, jnp.zeros((), values.dtype), jax.lax.add,
+                                    window_dimensions=(2, 1), window_strides=(1, 1),
+                                    padding=((1, 0), (0, 0)))
+    return running[1]
