@@ -109,8 +109,18 @@ def _make_solver(name: str, rtol: float, atol: float):
 def _solve(problem, y0, solver, max_steps):
     """One least-squares solve from ``y0``: θ̂, result code, steps, χ² and the Jacobian at θ̂."""
     sol = optx.least_squares(_residuals, solver, y0, args=problem, max_steps=max_steps, throw=False)
-    jac = jax.jacfwd(problem.residuals)(sol.value)
-    return sol.value, sol.result._value, sol.stats["num_steps"], problem.chi2(sol.value), jac
+    residuals, jac = _residuals_and_jacobian_at_solution(sol, problem)
+    return sol.value, sol.result._value, sol.stats["num_steps"], residuals @ residuals + problem.points.chi2_offset, jac
+
+
+def _residuals_and_jacobian_at_solution(sol, problem):
+    """``r(θ̂)`` and ``∂r/∂θ(θ̂)``. The Gauss–Newton family (LM, dogleg) carries them in its
+    state (``f_info``: the linearisation at the last accepted point, which is θ̂), so they
+    are read from there rather than evaluated once more; other solvers evaluate them."""
+    info = getattr(sol.state, "f_info", None)
+    if isinstance(info, optx.FunctionInfo.ResidualJac):
+        return info.residual, info.jac.as_matrix()
+    return problem.residuals(sol.value), jax.jacfwd(problem.residuals)(sol.value)
 
 
 @eqx.filter_jit

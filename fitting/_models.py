@@ -240,8 +240,9 @@ class ParametricModel(AbstractModel):
 
     def evolved(self, theta, mu0, mu) -> lobes.AbstractLobe:
         """The lobe at scale μ > μ0 evolved from the base lobe at μ0 (seed Eq. 4.4)."""
-        base = self.base_lobe(theta)
-        s0, s = self.statistics_at(theta, mu0), self.statistics_at(theta, mu)
+        return self._evolve(self.base_lobe(theta), self.statistics_at(theta, mu0), self.statistics_at(theta, mu))
+
+    def _evolve(self, base, s0, s):
         if self.lobe == "beckmann" and self.statistics == "beckmann":
             return evolve(base, s0, s, method="closed_form")
         return evolve(base, s0, s, method="radial", size=self.radial_nodes)
@@ -251,10 +252,15 @@ class ParametricModel(AbstractModel):
         return True
 
     def predict_points(self, theta, scales, points):
-        # k = 0 is the identity (the radial path would form 0/0 where S(W, μ0) underflows);
-        # the coarser scales share one vectorised evolution
-        coarser = jax.vmap(lambda mu, u: self.evolved(theta, scales[0], mu).density(u))(scales[1:], points[1:])
-        return jnp.concatenate([self.base_lobe(theta).density(points[0])[None], coarser])
+        # the statistics of every scale in one batch (one evaluation of the scale law); k = 0
+        # is the identity (the radial path would form 0/0 where S(W, μ0) underflows); the
+        # coarser scales share one vectorised evolution
+        base = self.base_lobe(theta)
+        statistics = jax.vmap(lambda mu: self.statistics_at(theta, mu))(scales)
+        s0 = jax.tree.map(lambda leaf: leaf[0], statistics)
+        coarser_statistics = jax.tree.map(lambda leaf: leaf[1:], statistics)
+        coarser = jax.vmap(lambda s, u: self._evolve(base, s0, s).density(u))(coarser_statistics, points[1:])
+        return jnp.concatenate([base.density(points[0])[None], coarser])
 
     def relative_statistics(self, theta, W, data):
         s0 = self.statistics_at(theta, data.scales[0]).cf_radial(W)

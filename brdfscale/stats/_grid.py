@@ -90,8 +90,6 @@ def _evaluated_once(f, x: Float[Array, " n"]) -> Array:
     parallel loop of its own.
     """
     values = f(x)
-    stacked = jnp.stack([jnp.zeros_like(values), values])
-    running = jax.lax.reduce_window(stacked, jnp.zeros((), values.dtype), jax.lax.add,
-                                    window_dimensions=(2, 1), window_strides=(1, 1),
-                                    padding=((1, 0), (0, 0)))
-    return running[1]
+    # jnp.cumsum lowers to a reduce-window on CPU and, unlike lax.reduce_window with a
+    # generic computation, is differentiable in both modes
+    return jnp.cumsum(jnp.stack([jnp.zeros_like(values), values]), axis=0)[1]

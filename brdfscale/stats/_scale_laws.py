@@ -214,12 +214,16 @@ class GaussianSurface(AbstractScaleLaw):
         diagonal), built from per-axis standard deviations where Σ is diagonal by
         construction (closed form), so that :func:`brdfscale.evolve` (radial path) and the
         grid path (separable factors) can exploit the structure."""
-        cov = self.slope_covariance(mu)
+        mu = positive(mu, "mu", "a positive facet size")
+        variances = self.spectrum.windowed_slope_variances(mu, self.window)
+        if variances is None:
+            cov = _slope_covariance(self, mu)
+            variances = jnp.diagonal(cov)
+            if not self.spectrum.isotropic:
+                return Gaussian(cov=cov)
         if self.spectrum.isotropic:  # Σ = σ² I
-            return Gaussian(sigma=jnp.sqrt(0.5 * jnp.trace(cov)))
-        if self.spectrum.windowed_slope_variances(1.0, self.window) is None:
-            return Gaussian(cov=cov)
-        return Gaussian(sigma=jnp.sqrt(jnp.diagonal(cov)))
+            return Gaussian(sigma=jnp.sqrt(0.5 * (variances[..., 0] + variances[..., 1])))
+        return Gaussian(sigma=jnp.sqrt(variances))
 
 
 _slope_covariance = eqx.filter_jit(lambda law, mu: law._slope_covariance(mu))
