@@ -196,6 +196,24 @@ def test_no_brdf_at_finer_scale_spectral_and_under_jit():
         f(0.3).block_until_ready()
 
 
+@pytest.mark.parametrize("method", ["closed_form", "radial", "grid"])
+def test_check_false_leaves_out_only_the_run_time_check(method):
+    """Where a BRDF exists, check=False gives the checked values bit for bit; where none
+    exists it no longer raises (the caller has taken that responsibility)."""
+    lobe = lobes.Beckmann(0.1)
+
+    def evaluate(alpha_to, check):
+        return bs.evolve(lobe, stats.Beckmann(0.05), stats.Beckmann(alpha_to), method=method, size=64,
+                         check=check).density(U)
+
+    checked = jax.jit(lambda a: evaluate(a, True))
+    unchecked = jax.jit(lambda a: evaluate(a, False))
+    np.testing.assert_array_equal(np.asarray(checked(0.02)), np.asarray(unchecked(0.02)))
+    with pytest.raises(Exception, match="negative variance|exceeds 1"):
+        checked(0.3).block_until_ready()
+    unchecked(0.3).block_until_ready()  # no error: undefined values, by request
+
+
 def test_no_brdf_found_beyond_the_grids_nyquist_frequency():
     """Mirror lobe from GGX(α) to GGX(α + δ): G = xK₁(αW)/xK₁((α+δ)W) grows like e^{δW}. With
     δ = 5e-9 it stays within 1e-6 of 1 on the 64² grid (|W| ≤ √2·π·64/1.6, checked with

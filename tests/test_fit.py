@@ -8,16 +8,19 @@ The calibrated coverage of the 68 %/90 % intervals is measured by experiments/ca
 """
 
 import json
+import math
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 import scipy.optimize
 
 import fitting
-from brdfscale import InvalidInputError, LobeImage, MeasurementSet
+from brdfscale import InvalidInputError, LobeImage, MeasurementSet, stats
 from brdfscale._cli import main
 
 SCALES = (0.5, 1.0, 2.0, 4.0, 8.0)
@@ -154,6 +157,33 @@ def test_solve_returns_chi2_and_jacobian_at_the_optimum(solver):
     assert float(chi2) == pytest.approx(float(problem.chi2(theta)), rel=1e-12)
     reference = jax.jacfwd(problem.residuals)(theta)
     np.testing.assert_allclose(np.asarray(jac), np.asarray(reference), rtol=0, atol=1e-12 * float(jnp.max(jnp.abs(reference))))
+
+
+@settings(max_examples=25, deadline=None)
+@given(log_params=st.lists(st.floats(-4.0, 2.0), min_size=3, max_size=3), window=st.sampled_from(["box", "gaussian"]))
+def test_scale_laws_narrow_with_mu_so_coarser_lobes_exist(log_params, window):
+    """ParametricModel evolves without the run-time existence check: that rests on both laws'
+    slope widths decreasing with μ (then S(W, μ0)/S(W, μ) ≤ 1 for μ > μ0), checked here over
+    wide parameter ranges and six decades of μ."""
+    mu = jnp.logspace(-3, 3, 400)
+    a, b, c = (math.exp(x) for x in log_params)
+    surface = stats.GaussianSurface(stats.GaussianCorrelation(a, b), window=window)
+    variance = jax.vmap(lambda m: surface.spectrum.windowed_slope_variances(m, window)[0])(mu)
+    assert np.all(np.diff(np.asarray(variance)) <= 1e-14 * float(variance[0]))
+    width = jax.vmap(stats.WidthLaw(a, b, c))(mu)
+    assert np.all(np.diff(np.asarray(width)) <= 0)
+
+
+def test_unchecked_predictions_are_the_checked_evolution():
+    model = fitting.ParametricModel(law="gaussian_surface")
+    _, data = _dataset(model, dict(amplitude=0.8, alpha_lobe=0.05, rms_height=0.06, correlation_length=1.5),
+                       0.01, seed=2, size=8)
+    theta = jnp.asarray(model.initial(data))
+    points = jnp.asarray(np.random.default_rng(0).normal(scale=0.1, size=(len(SCALES), 7, 2)))
+    predicted = model.predict_points(theta, data.scales, points)
+    for k, mu in enumerate(np.asarray(data.scales)[1:], start=1):
+        reference = model.evolved(theta, data.scales[0], mu).density(points[k])
+        np.testing.assert_allclose(np.asarray(predicted[k]), np.asarray(reference), rtol=1e-13)
 
 
 # -- identifiability -----------------------------------------------------------------------

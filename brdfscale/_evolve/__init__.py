@@ -26,6 +26,7 @@ def evolve(
     tol: float = 1e-10,
     size: int | None = None,
     extent: float | None = None,
+    check: bool = True,
 ) -> AbstractLobe:
     """Evolve a lobe measured at scale μ0 to scale μ (seed Eq. 4.4, DESIGN §2).
 
@@ -57,6 +58,14 @@ def evolve(
             and records the tolerance it honours in ``result.shape.tol``.
         extent: half-width of the grid path's slope grid. Default: the radius beyond which
             the lobe stays below ``tol`` relative to its peak (aliasing below ``tol``).
+        check: verify that a BRDF exists at μ (see Raises). ``check=False`` leaves out the
+            run-time check (an ``equinox.error_if`` conditional, which costs a measurable
+            share of a small model's evaluation inside an optimiser's loop: ``python
+            experiments/bench_fit.py``); a closed form built from concrete values is still
+            checked when it is built. Only for callers that have established existence
+            otherwise, e.g. evolving towards coarser scales with a scale law whose slope
+            variances decrease with μ; where no BRDF exists the result is then undefined
+            (NaN for the closed form).
 
     Returns:
         The lobe at μ. Closed forms return a lobe whose shape is a :mod:`brdfscale.stats`
@@ -89,7 +98,7 @@ def evolve(
 
     if method in ("auto", "closed_form"):
         numerator = convolve(lobe.shape, s_from)
-        shape = deconvolve(numerator, s_to) if numerator is not None else None
+        shape = deconvolve(numerator, s_to, check) if numerator is not None else None
         if shape is not None:
             return Lobe(shape, lobe.amplitude)
         if method == "closed_form":
@@ -112,11 +121,11 @@ def evolve(
         extent = as_float_array(extent, "extent")
         if is_concrete(extent) and not float(extent) > 0:
             raise InvalidInputError(f"extent must be a positive slope half-width; got {float(extent)}.")
-    shape = EvolvedDensity(lobe.shape, s_from, s_to, lam, path, size or _DEFAULT_SIZE[path], tol, extent)
+    shape = EvolvedDensity(lobe.shape, s_from, s_to, lam, path, size or _DEFAULT_SIZE[path], tol, extent, check)
     if is_concrete(shape) and (size is None or path == "grid"):  # an explicit radial size needs no check
         needed, achievable = choose_size(shape, path, max(_MAX_SIZE[path], size or 0))
         if size is None:
-            shape = EvolvedDensity(lobe.shape, s_from, s_to, lam, path, needed, achievable, extent)
+            shape = EvolvedDensity(lobe.shape, s_from, s_to, lam, path, needed, achievable, extent, check)
         elif path == "grid" and size < needed:
             warnings.warn(
                 f"size={size} is below the {needed} nodes per side that tol={tol:g} needs on this "

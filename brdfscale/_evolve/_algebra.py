@@ -59,8 +59,9 @@ _NEGATIVE_VARIANCE = (
 )
 
 
-def deconvolve(a: AbstractSlopeDensity, b: AbstractSlopeDensity) -> AbstractSlopeDensity | None:
-    """``c`` with ``c ∗ b = a`` in closed form, or None; raises when no density ``c`` exists."""
+def deconvolve(a: AbstractSlopeDensity, b: AbstractSlopeDensity, check: bool = True) -> AbstractSlopeDensity | None:
+    """``c`` with ``c ∗ b = a`` in closed form, or None; raises when no density ``c`` exists
+    (``check=False``: traced values are not checked; see :func:`brdfscale.evolve`)."""
     if isinstance(b, Delta):
         return a if b.mean is None else a.shifted(_neg(b.mean))
     if isinstance(a, Gaussian) and isinstance(b, Gaussian):
@@ -69,11 +70,11 @@ def deconvolve(a: AbstractSlopeDensity, b: AbstractSlopeDensity) -> AbstractSlop
         if is_concrete(lo):
             if not np.all(np.asarray(lo) > 0):
                 raise NoBRDFAtScaleError(_NEGATIVE_VARIANCE + f" (smallest eigenvalue {float(np.min(lo)):.6g})")
-        else:
+        elif check:
             cov = eqx.error_if(cov, jnp.any(lo <= 0), _NEGATIVE_VARIANCE)
         return _gaussian(cov, _sum_means(a.mean, _neg(b.mean)), a.isotropic and b.isotropic)
     if isinstance(a, Mixture) and isinstance(b, Gaussian):
-        parts = [deconvolve(c, b) if isinstance(c, Gaussian) else None for c in a.components]
+        parts = [deconvolve(c, b, check) if isinstance(c, Gaussian) else None for c in a.components]
         if all(p is not None for p in parts):
             return Mixture(a.weights, parts)
     return None
