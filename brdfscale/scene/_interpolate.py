@@ -8,15 +8,16 @@ outside it. Positions are given in index units ``x = (t − t_0)/h``.
 import jax.numpy as jnp
 
 
-def cubic_stencil(x, n: int):
-    """First stencil index (n ≥ 4) and the four Lagrange weights at index position ``x``."""
-    base = jnp.clip(jnp.floor(x).astype(int) - 1, 0, n - 4)
+def cubic_stencil(x, n: int, xp=jnp):
+    """First stencil index (n ≥ 4) and the four Lagrange weights at index position ``x``
+    (``xp``: the array namespace, ``numpy`` for concrete planning-time values)."""
+    base = xp.clip(xp.floor(x).astype(int) - 1, 0, n - 4)
     s = x - base  # in [0, 3] inside the grid
     w0 = -(s - 1) * (s - 2) * (s - 3) / 6
     w1 = s * (s - 2) * (s - 3) / 2
     w2 = -s * (s - 1) * (s - 3) / 2
     w3 = s * (s - 1) * (s - 2) / 6
-    return base, jnp.stack([w0, w1, w2, w3], axis=-1)
+    return base, xp.stack([w0, w1, w2, w3], axis=-1)
 
 
 def interpolate(table, positions):

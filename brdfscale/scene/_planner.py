@@ -44,7 +44,7 @@ from ..geometry import half_slope, microfacet_factor
 from . import _cost
 from ._description import AnisotropicMaterial, Material, Scene
 from ._plan import Plan
-from ._scales import interpolate_jit, padded_nodes, scale_nodes
+from ._scales import in_chunks, interpolate_jit, scale_nodes
 from ._so3_planner import plan_so3
 from ._steps import ClosedFormStep, GridStep, MaterialPlan, RadialStep, evolved_density
 
@@ -53,6 +53,8 @@ _CUBIC_CONSTANT = 0.5625 / 24  # max |s(s−1)(s−2)(s−3)|/4! on the middle i
 _MAX_GRID = 1024
 _DIRECT_MEMORY = 2e7  # largest (distinct queries × nodes) kernel kept for direct evaluation
 _TABLE_OVERSAMPLING = 4  # a grid table needs about this many times the Nyquist side
+_CHUNK = 64  # scales (and frequencies) per planning-time evaluation of radial transforms
+_GRID_CHUNK_NODES = 64 * 256 * 256  # grid nodes per planning-time evaluation of grid tables
 
 
 def plan(scene: Scene, method: str = "auto") -> Plan:
@@ -218,8 +220,9 @@ def _plan_grid(material, u, log_mu, tol):
         return _plan_grid_direct(material, u, log_mu, size, achieved, direct_cost)
 
     def tables(n, t):
-        step = GridStep(jnp.zeros((1, 2)), jnp.zeros(1), padded_nodes(t), None, None, n, True, achieved)
-        return np.asarray(_grid_tables(step, material))[: len(t)]
+        def chunk_tables(chunk):
+            return _grid_tables(GridStep(jnp.zeros((1, 2)), jnp.zeros(1), chunk, None, None, n, True, achieved), material)
+        return in_chunks(chunk_tables, t, max(1, _GRID_CHUNK_NODES // (n * n)))
 
     ends = np.array([distinct[0], distinct[-1]]) if len(distinct) > 1 else distinct
     while True:
@@ -263,10 +266,17 @@ def _plan_grid_direct(material, u, log_mu, size, achieved, cost):
 
 
 def _radial_transform_rows(material, nodes, k, tol):
-    """Concrete ``G(k, μ)`` (len(nodes), len(k)) of the radial path."""
-    step = RadialStep(jnp.zeros((1, 2)), jnp.zeros(1), padded_nodes(nodes), jnp.asarray(k), jnp.zeros((len(k), 1)),
-                      1.0, True, False, tol)
-    return np.asarray(_radial_transforms(step, material))[: len(nodes)]
+    """Concrete ``G(k, μ)`` (len(nodes), len(k)) of the radial path, evaluated in fixed-size
+    blocks of scales × frequencies (one compilation for every probe of the planner)."""
+    def block(node_chunk, k_chunk):
+        step = RadialStep(jnp.zeros((1, 2)), jnp.zeros(1), node_chunk, k_chunk, jnp.zeros((_CHUNK, 1)),
+                          1.0, True, False, tol)
+        return _radial_transforms(step, material)
+
+    def rows(node_chunk):  # (chunk nodes, len(k)): frequencies in chunks along the second axis
+        return in_chunks(lambda k_chunk: block(node_chunk, k_chunk).T, k, _CHUNK).T
+
+    return in_chunks(rows, nodes, _CHUNK)
 
 
 _radial_transforms = eqx.filter_jit(lambda step, material: step.transforms(material))

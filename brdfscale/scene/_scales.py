@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._interpolate import interpolate
+from ._interpolate import cubic_stencil, interpolate
 
 NODES_PER_DECADE = 8
 MAX_SCALE_NODES = 2049
@@ -23,9 +23,11 @@ interpolate_jit = jax.jit(interpolate)  # for concrete tables at planning time
 
 def midpoint_error(at_nodes, at_midpoints) -> float:
     """Largest error of cubic interpolation between ``at_nodes`` (n, ...) at the midpoints,
-    against exact values ``at_midpoints`` (n − 1, ...), relative to each midpoint's peak."""
+    against exact values ``at_midpoints`` (n − 1, ...), relative to each midpoint's peak.
+    In NumPy with the evaluation's own stencil (no compilation per table shape)."""
     n = at_nodes.shape[0]
-    interpolated = np.asarray(interpolate_jit(jnp.asarray(at_nodes), jnp.arange(n - 1)[:, None] + 0.5))
+    base, weights = cubic_stencil(np.arange(n - 1) + 0.5, n, xp=np)
+    interpolated = np.einsum("qs...,qs->q...", at_nodes[base[:, None] + np.arange(4)], weights)
     peak = np.max(np.abs(at_midpoints.reshape(n - 1, -1)), axis=1)
     return float(np.max(np.max(np.abs(interpolated - at_midpoints).reshape(n - 1, -1), axis=1) / peak))
 
@@ -47,8 +49,11 @@ def scale_nodes(log_mu, tables, budget):
     return distinct, True, 0.0
 
 
-def padded_nodes(nodes):
-    """Scale nodes padded (repeating the last) to a power-of-two length: fewer compilations of
-    the planning-time tables."""
-    n = 1 << max(0, math.ceil(math.log2(len(nodes))))
-    return jnp.asarray(np.concatenate([nodes, np.full(n - len(nodes), nodes[-1])]))
+def in_chunks(fn, nodes, chunk: int) -> np.ndarray:
+    """``fn`` over ``nodes`` in calls of exactly ``chunk`` nodes (the last chunk padded by
+    repeating the final node), concatenated along the node axis (first) and cut to
+    ``len(nodes)``: every call has the same shapes, so planning compiles ``fn`` once however
+    many nodes the refinement asks for. ``fn`` returns concrete arrays, node axis first."""
+    nodes = np.asarray(nodes)
+    padded = np.concatenate([nodes, np.full(-len(nodes) % chunk, nodes[-1])])
+    return np.concatenate([np.asarray(fn(jnp.asarray(part))) for part in padded.reshape(-1, chunk)])[: len(nodes)]

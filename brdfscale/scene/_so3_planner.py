@@ -34,7 +34,7 @@ from .. import so3
 from .._errors import InvalidInputError, NoBRDFAtScaleError
 from . import _cost
 from ._description import AnisotropicMaterial
-from ._scales import padded_nodes, scale_nodes
+from ._scales import in_chunks, scale_nodes
 from ._steps import SO3Step
 
 _MAX_COEFFICIENTS = 5e7  # (i, o) pairs × scale nodes × kept coefficients held at once
@@ -109,7 +109,9 @@ def plan_so3(material: AnisotropicMaterial, i, o, angles, log_mu, tol):
     def tables(t):
         if not lobe:
             lobe.append(_lobe_coefficients(step_at(distinct[:1], True), material))
-        return np.asarray(_node_values(step_at(padded_nodes(t), True), material, lobe[0])).T[: len(t)]
+        # chunks of up to 64 nodes, a power of two (each node is costly here: few nodes, small chunks)
+        chunk = min(64, 1 << max(0, math.ceil(math.log2(len(t)))))
+        return in_chunks(lambda nodes: np.asarray(_node_values(step_at(nodes, True), material, lobe[0])).T, t, chunk)
 
     nodes, exact, mu_error = scale_nodes(key_log_mu, tables, budget)
     step = step_at(nodes, exact)
