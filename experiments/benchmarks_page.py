@@ -124,14 +124,17 @@ def fit() -> str:
     d = load("bench_fit")
     if d is None:
         return "(bench_fit.json missing)"
-    rows, speedups = [], []
+    rows, warm, cold = [], [], []
     for name, p in d["problems"].items():
         j, trf, lm = p["jax_lm"], p["scipy_trf_fd"], p["scipy_lm_fd"]
-        speedups += [trf["speedup_of_jax_warm_solve"], lm["speedup_of_jax_warm_solve"]]
+        warm += [trf["speedup_of_jax_warm_solve"], lm["speedup_of_jax_warm_solve"]]
+        cold += [trf["speedup_of_jax_solve_after_scipy"], lm["speedup_of_jax_solve_after_scipy"]]
         rows.append([name, str(p["parameters"]), str(p["residual_rows"]), f"{p['fit_4_starts']['compile_s']:.1f}",
-                     f"{p['fit_4_starts']['warm_s'] * 1e3:.0f}", f"{j['warm_solve_s'] * 1e3:.2f} ({j['steps']})",
+                     f"{p['fit_4_starts']['warm_s'] * 1e3:.0f}",
+                     f"{j['warm_solve_s'] * 1e3:.2f} / {j['solve_after_scipy_s'] * 1e3:.2f} ({j['steps']})",
                      f"{trf['solve_s'] * 1e3:.2f} / {lm['solve_s'] * 1e3:.2f}",
                      f"{trf['speedup_of_jax_warm_solve']:.1f}× / {lm['speedup_of_jax_warm_solve']:.1f}×",
+                     f"{trf['speedup_of_jax_solve_after_scipy']:.1f}× / {lm['speedup_of_jax_solve_after_scipy']:.1f}×",
                      str(trf["same_optimum"] and lm["same_optimum"]), f"{p['emcee']['log_prob_evaluations_per_s']:.0f}"])
     floor = d.get("optimistix_floor", {})
     floor_line = ""
@@ -141,11 +144,46 @@ def fit() -> str:
                       f"{floor['normal_cholesky']['per_step_s'] * 1e6:.0f} µs with Cholesky of the normal equations.")
     return "\n\n".join([
         machine_line(d),
-        table(["problem", "params", "rows", "fit compile s", "warm fit (4 starts) ms", "warm LM solve ms (steps)",
-               "SciPy trf / lm + FD ms", "SciPy ÷ JAX (trf / lm)", "same optimum", "emcee log-p/s"], rows),
-        f"Target ≥ 10× the SciPy baseline — {met(min(speedups) >= 10)} ({min(speedups):.1f}–{max(speedups):.1f}×)."
+        table(["problem", "params", "rows", "fit compile s", "warm fit (4 starts) ms",
+               "LM solve ms: warm / after SciPy (steps)", "SciPy trf / lm + FD ms", "SciPy ÷ warm JAX (trf / lm)",
+               "SciPy ÷ JAX after SciPy (trf / lm)", "same optimum", "emcee log-p/s"], rows),
+        f"Target ≥ 10× the SciPy baseline — warm solves (as in a loop of fits): {met(min(warm) >= 10)} "
+        f"({min(warm):.1f}–{max(warm):.1f}×); the first solve after a SciPy solve (caches filled by SciPy's "
+        f"Python): {met(min(cold) >= 10)} ({min(cold):.1f}–{max(cold):.1f}×). Medians over {d['problems'][name].get('rounds', '?')} rounds."
         + floor_line + f" {load_line(d)}",
     ])
+
+
+def planner() -> str:
+    d = load("bench_planner")
+    if d is None:
+        return "(bench_planner.json missing)"
+    rows, ratios = [], []
+    for prob in d["problems"]:
+        for pl in prob["planner"]:
+            ratio = pl["ratio_to_pareto"]
+            if ratio is not None:
+                ratios.append(ratio)
+            rows.append([prob["problem"], f"{pl['target']:.0e}", pl["path"], f"{pl['error']:.1e}",
+                         f"{pl['seconds'] * 1e3:.3f}",
+                         "none as accurate" if ratio is None else f"{pl['pareto_seconds_at_error'] * 1e3:.3f}",
+                         "—" if ratio is None else f"{ratio:.2f}"])
+    w = d["workload"]
+    work = table(["image", "queries", "μ ratio", "plan s (fresh process)", "first evaluation s (compile)",
+                  "evaluation ms", "max error ÷ peak", "naive s (extrapolated)", "speed-up: evaluation",
+                  "speed-up: plan + first evaluation"],
+                 [[f"{w['resolution']}²", str(w["queries"]), f"{w['mu_ratio']:.0f}", f"{w['plan_seconds']:.2f}",
+                   f"{w['first_evaluate_seconds_with_compile']:.2f}", f"{w['evaluate_seconds'] * 1e3:.1f}",
+                   f"{w['max_error_rel_peak']:.1e}", f"{w['naive_seconds_extrapolated']:.1f}",
+                   f"{w['speedup_evaluate_vs_naive']:.0f}×", f"{w['speedup_plan_plus_evaluate_vs_naive']:.1f}×"]])
+    verdict = (f"Targets: the planner's choice within 2× of the Pareto-optimal time at its error on every reference "
+               f"problem — {met(max(ratios) <= 2)} (worst {max(ratios):.2f}×); the receding plane ≥ 20× faster than "
+               f"naive per-pixel grid evaluation at max error ≤ 1e-4 — "
+               f"{met(w['speedup_plan_plus_evaluate_vs_naive'] >= 20 and w['max_error_rel_peak'] <= 1e-4)} "
+               f"({w['speedup_plan_plus_evaluate_vs_naive']:.1f}× counting planning and compilation, "
+               f"{w['speedup_evaluate_vs_naive']:.0f}× per evaluation; error {w['max_error_rel_peak']:.1e}).")
+    return "\n\n".join([machine_line(d), table(["problem", "target", "path", "error", "planner ms", "Pareto ms at that error",
+                                                "ratio"], rows), work, verdict])
 
 
 def synth() -> str:
@@ -166,7 +204,7 @@ def synth() -> str:
 
 
 SECTIONS = [("Core evolution (bench_evolve)", evolve), ("SO(3) (bench_so3)", so3),
-            ("Fitting (bench_fit)", fit), ("Synthesis (bench_synth)", synth)]
+            ("Fitting (bench_fit)", fit), ("Synthesis (bench_synth)", synth), ("Scene planner (bench_planner)", planner)]
 PAGE = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
 
 
