@@ -19,7 +19,8 @@ Writes experiments/results/bench_so3.json:
   current one at every B, calls interleaved round by round: a before/after comparison
   measured in the same run.
 
-Run: ``python experiments/bench_so3.py`` (add ``--quick`` for B ≤ 32 only).
+Run: ``python experiments/bench_so3.py`` (add ``--quick`` for B ≤ 32 only, written to
+``bench_so3_quick.json``).
 """
 
 import argparse
@@ -319,7 +320,7 @@ def main():
         "band_limits": band_limit_study(),
         "before_after": comparison,
     }
-    path = write_json("bench_so3", payload)
+    path = write_json("bench_so3_quick" if args.quick else "bench_so3", payload)  # a quick run keeps the full results
     print("wrote", path)
 
 
