@@ -11,6 +11,10 @@ N × N grid of offsets. Measured in one run, in float64 on the CPU:
   medians over rounds: on this shared 2-core VM the *best* of the rounds is bimodal (two
   identical programs differ by up to 1.6× in their best round, not in their median), and
   the control's ratio to the floor records how much either statistic moves by chance;
+* in the same rounds, ``irfft2`` alone on a given spectrum and an elementwise product with a
+  given multiplier followed by ``irfft2`` in one program: the least any grid method does once
+  its multiplier is known (with XLA's default threads on this 2-vCPU machine the second costs
+  far more than the first plus a product; see docs/benchmarks.md);
 * SciPy baseline: sampling lobe and statistics on the grid and ``scipy.signal.fftconvolve``;
 * accuracy of both against the exact answer (closed form or radial quadrature) on the grid;
 * closed form versus grid path *per query*: 1024 queries, each at its own scale (the grid
@@ -74,11 +78,19 @@ def bench_grid(kind: str, n: int) -> dict:
     grids = grid_fn(widths).block_until_ready()
     x = jnp.asarray(np.random.default_rng(0).random((BATCH, n, n)))
     floor_fn = jax.jit(lambda a: jnp.fft.irfft2(jnp.fft.rfft2(a), s=(n, n)))
+    # the least a grid method does once its multiplier is known: one elementwise product with a
+    # given spectrum and one irfft2, in one program (and the irfft2 alone)
+    spectrum = jnp.fft.rfft2(x)
+    multiplier = jnp.asarray(np.random.default_rng(1).random((n, n // 2 + 1)))
+    multiply_fn = jax.jit(lambda X, M: jnp.fft.irfft2(X * M, s=(n, n)))
+    irfft_fn = jax.jit(lambda X: jnp.fft.irfft2(X, s=(n, n)))
     # the control: the floor timed a second time in every round; its ratio to the floor shows
     # how far each statistic of the timings moves by chance alone
     times = interleaved_times({"grid": lambda: grid_fn(widths).block_until_ready(),
                                "floor": lambda: floor_fn(x).block_until_ready(),
-                               "control": lambda: floor_fn(x).block_until_ready()}, repeat=ROUNDS)
+                               "control": lambda: floor_fn(x).block_until_ready(),
+                               "multiply_irfft": lambda: multiply_fn(spectrum, multiplier).block_until_ready(),
+                               "irfft": lambda: irfft_fn(spectrum).block_until_ready()}, repeat=ROUNDS)
     t_grid, t_floor = median(times["grid"]), median(times["floor"])
 
     # SciPy: sample g0 and s on the same grid and convolve (the straightforward implementation)
@@ -110,6 +122,8 @@ def bench_grid(kind: str, n: int) -> dict:
         "control_floor_vs_floor": {"median": median(times["floor"]) / median(times["control"]),
                                         "best_of_rounds": times["floor"][0] / times["control"][0]},
         "rounds": ROUNDS,
+        "irfft2_alone_s_per_grid": median(times["irfft"]) / BATCH,
+        "multiply_then_irfft2_s_per_grid": median(times["multiply_irfft"]) / BATCH,
         "speedup_vs_scipy": t_scipy / t_grid,
         "extent": EXTENT,
         "grid_path_max_error_rel_peak": grid_error,
