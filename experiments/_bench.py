@@ -50,12 +50,15 @@ def interleaved_times(fns: dict, *, repeat: int = 15) -> dict:
     """Wall times (seconds, sorted) of each of ``fns`` (name → blocking callable) over
     ``repeat`` rounds, the calls alternated within each round so that every candidate sees
     the same machine conditions (on a shared machine, back-to-back phases can differ by tens
-    of per cent)."""
+    of per cent); the order rotates from round to round, so no candidate always follows the
+    same one."""
     for fn in fns.values():
         fn()  # warm-up (compilation)
+    names = list(fns)
     times = {name: [] for name in fns}
-    for _ in range(repeat):
-        for name, fn in fns.items():
+    for round_ in range(repeat):
+        for name in names[round_ % len(names):] + names[: round_ % len(names)]:
+            fn = fns[name]
             t0 = time.perf_counter()
             fn()
             times[name].append(time.perf_counter() - t0)

@@ -7,10 +7,9 @@ N × N grid of offsets. Measured in one run, in float64 on the CPU:
 * grid path: ``evolve(..., method="grid", size=N).shape.on_grid()`` under ``jax.vmap``;
 * floor: a raw batched ``rfft2`` + ``irfft2`` of the same grids (the least any grid method
   does to apply a spectral multiplier), timed alternately with the grid path and with the
-  floor a second time (the control) in 41 rounds. Times are the
-  medians over rounds: on this shared 2-core VM the *best* of the rounds is bimodal (two
-  identical programs differ by up to 1.6× in their best round, not in their median), and
-  the control's ratio to the floor records how much either statistic moves by chance;
+  floor a second time (the control) in 41 rounds (order rotating). Times are the medians
+  over rounds (the best round is recorded too, and every round's time); the control's
+  ratio to the floor records how much either statistic moves by chance in the same run;
 * in the same rounds, ``irfft2`` alone on a given spectrum and an elementwise product with a
   given multiplier followed by ``irfft2`` in one program: the least any grid method does once
   its multiplier is known (with XLA's default threads on this 2-vCPU machine the second costs
@@ -21,8 +20,8 @@ N × N grid of offsets. Measured in one run, in float64 on the CPU:
   path needs one grid per scale, the closed form one Gaussian).
 
 The grid rows are measured twice: with XLA's default threads (two on this machine) and, in a
-child process, with XLA on one thread (``grid_single_thread``), where the timings are tight
-and the ratio measures the work itself.
+child process, with XLA on one thread (``grid_single_thread``), which measures the work
+without the two-thread scheduling.
 
 Run: ``python experiments/bench_evolve.py`` → experiments/results/bench_evolve.json.
 """
@@ -119,8 +118,10 @@ def bench_grid(kind: str, n: int) -> dict:
         "scipy_fftconvolve_s_per_lobe": t_scipy / BATCH,
         "throughput_vs_floor": t_floor / t_grid,
         "throughput_vs_floor_best_of_rounds": times["floor"][0] / times["grid"][0],
-        "control_floor_vs_floor": {"median": median(times["floor"]) / median(times["control"]),
+        # throughput of the control (the floor again) relative to the floor, like throughput_vs_floor
+        "control_throughput_vs_floor": {"median": median(times["floor"]) / median(times["control"]),
                                         "best_of_rounds": times["floor"][0] / times["control"][0]},
+        "round_times_s": times,
         "rounds": ROUNDS,
         "irfft2_alone_s_per_grid": median(times["irfft"]) / BATCH,
         "multiply_then_irfft2_s_per_grid": median(times["multiply_irfft"]) / BATCH,

@@ -81,7 +81,10 @@ class Problem(eqx.Module):
 
     def chi2(self, theta: Float[Array, " n"]) -> Float[Array, ""]:
         """χ² over every valid pixel plus the prior rows."""
-        r = self.residuals(theta)
+        return self.chi2_of_residuals(self.residuals(theta))
+
+    def chi2_of_residuals(self, r: Float[Array, " m"]) -> Float[Array, ""]:
+        """χ² from the reduced residuals ``r`` (adds the within-group constant back)."""
         return r @ r + self.points.chi2_offset
 
 
@@ -110,7 +113,7 @@ def _solve(problem, y0, solver, max_steps):
     """One least-squares solve from ``y0``: θ̂, result code, steps, χ² and the Jacobian at θ̂."""
     sol = optx.least_squares(_residuals, solver, y0, args=problem, max_steps=max_steps, throw=False)
     residuals, jac = _residuals_and_jacobian_at_solution(sol, problem)
-    return sol.value, sol.result._value, sol.stats["num_steps"], residuals @ residuals + problem.points.chi2_offset, jac
+    return sol.value, sol.result._value, sol.stats["num_steps"], problem.chi2_of_residuals(residuals), jac
 
 
 def _residuals_and_jacobian_at_solution(sol, problem):

@@ -81,7 +81,11 @@ class AbstractModel(eqx.Module):
     def predict_points(
         self, theta: Float[Array, " n"], scales: Float[Array, " n_scales"], points: Float[Array, "n_scales n_points 2"]
     ) -> Float[Array, "n_scales n_points"]:
-        """The lobe at ``scales[k]`` evaluated at the offsets ``points[k]`` (``scales[0]`` = μ0)."""
+        """The lobe at ``scales[k]`` evaluated at the offsets ``points[k]`` (``scales[0]`` = μ0).
+
+        ``scales`` ascend (``scales[0]`` the finest, as :class:`~fitting.Dataset` orders them):
+        models evolve from μ0 towards coarser scales and may rely on it (ParametricModel
+        leaves out the run-time existence check, which holds only in that direction)."""
 
     def predict(self, theta: Float[Array, " n"], data: Dataset) -> Float[Array, "n_img n_pix"]:
         """The predicted lobe at every pixel of every image (padding pixels: anything)."""

@@ -143,17 +143,18 @@ def test_laplace_covariance_and_optimum_agree_with_scipy():
     np.testing.assert_allclose(res.covariance, cov_scipy, rtol=2e-3)
 
 
-@pytest.mark.parametrize("solver", ["lm", "bfgs"])
-def test_solve_returns_chi2_and_jacobian_at_the_optimum(solver):
+@pytest.mark.parametrize("solver, max_steps", [("lm", 512), ("lm", 2), ("bfgs", 512)])
+def test_solve_returns_chi2_and_jacobian_at_the_optimum(solver, max_steps):
     """The Gauss–Newton family hands back the linearisation its state holds at θ̂, other
-    solvers evaluate it; either way they are r(θ̂) and jacfwd(r)(θ̂)."""
+    solvers evaluate it; either way they are r(θ̂) and jacfwd(r)(θ̂) — also when the solve
+    stops at max_steps."""
     model = fitting.ParametricModel()
     _, data = _dataset(model, TRUTHS[0], 0.01, seed=5, size=12)
     problem = fitting.Problem(model, data)
     y0 = jnp.asarray(np.clip(model.initial(data), *model.bounds(data)))
     theta, code, steps, chi2, jac = fitting._estimate._solve(
-        problem, y0, fitting._estimate._make_solver(solver, 1e-6, 1e-6), 512)
-    assert int(code) == 0
+        problem, y0, fitting._estimate._make_solver(solver, 1e-6, 1e-6), max_steps)
+    assert (int(code) == 0) == (max_steps > 2)
     assert float(chi2) == pytest.approx(float(problem.chi2(theta)), rel=1e-12)
     reference = jax.jacfwd(problem.residuals)(theta)
     np.testing.assert_allclose(np.asarray(jac), np.asarray(reference), rtol=0, atol=1e-12 * float(jnp.max(jnp.abs(reference))))

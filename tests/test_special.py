@@ -61,4 +61,6 @@ def test_float32_matches_float64():
     for f in (j0, j1, jinc):
         np.testing.assert_allclose(np.asarray(f(jnp.asarray(x, jnp.float32))), np.asarray(f(jnp.asarray(x))), atol=2e-6)
     xs = np.logspace(-4, np.log10(60), 200)  # x K1(x) ≥ 1e-25: inside float32's normal range
-    np.testing.assert_allclose(np.asarray(xk1(jnp.asarray(xs, jnp.float32))), xs * sp.k1(xs), rtol=2e-5, atol=1e-30)
+    np.testing.assert_allclose(np.asarray(xk1(jnp.asarray(xs, jnp.float32))), xs * sp.k1(xs), rtol=2e-6, atol=1e-30)
+    np.testing.assert_allclose(np.asarray(k0(jnp.asarray(xs, jnp.float32))), sp.k0(xs), rtol=2e-6, atol=1e-30)
+    assert k0(jnp.asarray(xs, jnp.float32)).dtype == jnp.float32

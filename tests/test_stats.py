@@ -295,6 +295,26 @@ def test_cf_grid_equals_cf_at_the_nodes(a, b, c, n, step):
                                    err_msg=type(dens).__name__)
 
 
+@settings(max_examples=10, deadline=None)
+@given(a=st.floats(0.02, 0.5), b=st.floats(0.02, 0.5), c=st.floats(-0.2, 0.2))
+def test_cf_radial_is_cf_on_a_ray_for_every_isotropic_family(a, b, c):
+    """``cf_radial(k)`` (overridden by GGX and Disk, the default for the rest) equals the real
+    part of ``cf`` at ``(k cos φ, k sin φ)`` for every structurally isotropic density, and so
+    does its derivative in the width."""
+    k = jnp.asarray(np.concatenate([[0.0], np.logspace(-2, 3, 40)]))
+    phi = 0.7
+    W = jnp.stack([k * np.cos(phi), k * np.sin(phi)], -1)
+    isotropic = [d for d in _all_families(a, b, c) if d.isotropic]
+    assert {type(d).__name__ for d in isotropic} >= {"GGX", "Disk", "Gaussian", "Delta"}
+    for dens in isotropic:
+        np.testing.assert_allclose(np.asarray(dens.cf_radial(k)), np.asarray(jnp.real(dens.cf(W))),
+                                   rtol=1e-13, atol=1e-15, err_msg=type(dens).__name__)
+    for family in (stats.GGX, stats.Disk):
+        radial = jax.grad(lambda w: jnp.sum(family(w).cf_radial(k)))(a)
+        pointwise = jax.grad(lambda w: jnp.sum(jnp.real(family(w).cf(W))))(a)
+        assert float(radial) == pytest.approx(float(pointwise), rel=1e-12), family.__name__
+
+
 def test_cf_grid_is_differentiable_like_cf():
     grid = stats.FrequencyGrid(16, 3.0)
     weights = jnp.asarray(np.random.default_rng(0).normal(size=(16, 9)))

@@ -93,10 +93,22 @@ class Plan(eqx.Module):
         return "\n".join(lines)
 
 
-@eqx.filter_jit
 def _evaluate(parts, materials, n):
-    dtype = jnp.result_type(*[p.factor for p in parts])
-    out = jnp.zeros(n, dtype)
-    for p in parts:
-        out = out.at[p.rows].set(p(materials[p.material]))
+    """Each material's step is its own compiled program, and one more scatters the values into
+    the queries' order: compiled as one program, XLA:CPU's fusion choices for one material's
+    step changed with the other's, and the whole ran much slower than its parts together
+    (profiled on the receding-plane workload of experiments/bench_planner.py). Under a
+    caller's ``jax.jit`` the programs are traced into the caller's."""
+    values = [_evaluate_step(p, materials[p.material]) for p in parts]
+    return _scatter(tuple(p.rows for p in parts), tuple(values), n)
+
+
+_evaluate_step = eqx.filter_jit(lambda part, material: part(material))
+
+
+@eqx.filter_jit
+def _scatter(rows, values, n):
+    out = jnp.zeros(n, jnp.result_type(*values))
+    for r, v in zip(rows, values):
+        out = out.at[r].set(v)
     return out

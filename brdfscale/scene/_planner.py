@@ -222,7 +222,7 @@ def _plan_grid(material, u, log_mu, tol):
     def tables(n, t):
         def chunk_tables(chunk):
             return _grid_tables(GridStep(jnp.zeros((1, 2)), jnp.zeros(1), chunk, None, None, n, True, achieved), material)
-        return in_chunks(chunk_tables, t, max(1, _GRID_CHUNK_NODES // (n * n)))
+        return in_chunks(chunk_tables, t, max(1, min(_CHUNK, _GRID_CHUNK_NODES // (n * n))))
 
     ends = np.array([distinct[0], distinct[-1]]) if len(distinct) > 1 else distinct
     while True:

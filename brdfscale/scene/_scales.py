@@ -49,11 +49,14 @@ def scale_nodes(log_mu, tables, budget):
     return distinct, True, 0.0
 
 
-def in_chunks(fn, nodes, chunk: int) -> np.ndarray:
-    """``fn`` over ``nodes`` in calls of exactly ``chunk`` nodes (the last chunk padded by
-    repeating the final node), concatenated along the node axis (first) and cut to
-    ``len(nodes)``: every call has the same shapes, so planning compiles ``fn`` once however
-    many nodes the refinement asks for. ``fn`` returns concrete arrays, node axis first."""
+def in_chunks(fn, nodes, max_chunk: int) -> np.ndarray:
+    """``fn`` over the (non-empty) ``nodes`` in calls of equal size — the smallest power of two
+    that holds them all, at most ``max_chunk`` — the last chunk padded by repeating the final
+    node; concatenated along the node axis (first) and cut to ``len(nodes)``. Calls share their
+    shapes, so planning compiles ``fn`` once for all the refinements beyond ``max_chunk``
+    nodes, and small node sets are not padded far. ``fn`` returns concrete arrays, node axis
+    first."""
     nodes = np.asarray(nodes)
+    chunk = min(max_chunk, 1 << max(0, math.ceil(math.log2(len(nodes)))))
     padded = np.concatenate([nodes, np.full(-len(nodes) % chunk, nodes[-1])])
     return np.concatenate([np.asarray(fn(jnp.asarray(part))) for part in padded.reshape(-1, chunk)])[: len(nodes)]

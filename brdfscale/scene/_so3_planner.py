@@ -109,9 +109,7 @@ def plan_so3(material: AnisotropicMaterial, i, o, angles, log_mu, tol):
     def tables(t):
         if not lobe:
             lobe.append(_lobe_coefficients(step_at(distinct[:1], True), material))
-        # chunks of up to 64 nodes, a power of two (each node is costly here: few nodes, small chunks)
-        chunk = min(64, 1 << max(0, math.ceil(math.log2(len(t)))))
-        return in_chunks(lambda nodes: np.asarray(_node_values(step_at(nodes, True), material, lobe[0])).T, t, chunk)
+        return in_chunks(lambda nodes: np.asarray(_node_values(step_at(nodes, True), material, lobe[0])).T, t, 64)
 
     nodes, exact, mu_error = scale_nodes(key_log_mu, tables, budget)
     step = step_at(nodes, exact)
