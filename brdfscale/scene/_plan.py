@@ -94,21 +94,16 @@ class Plan(eqx.Module):
 
 
 def _evaluate(parts, materials, n):
-    """Each material's step is its own compiled program, and one more scatters the values into
-    the queries' order: compiled as one program, XLA:CPU's fusion choices for one material's
-    step changed with the other's, and the whole ran much slower than its parts together
-    (profiled on the receding-plane workload of experiments/bench_planner.py). Under a
-    caller's ``jax.jit`` the programs are traced into the caller's."""
-    values = [_evaluate_step(p, materials[p.material]) for p in parts]
-    return _scatter(tuple(p.rows for p in parts), tuple(values), n)
-
-
-_evaluate_step = eqx.filter_jit(lambda part, material: part(material))
+    """One compiled program per material: its step, scattered into the queries' order (the
+    materials' query rows are disjoint, so the programs' outputs add up exactly). Compiled as
+    one program, XLA:CPU's fusion choices for one material's step changed with the other's and
+    the whole ran much slower than its parts together (profiled on the receding-plane workload
+    of experiments/bench_planner.py); a plan with one material is one program, as before.
+    Under a caller's ``jax.jit`` the programs are traced into the caller's."""
+    return functools.reduce(jnp.add, [_evaluate_part(p, materials[p.material], n) for p in parts])
 
 
 @eqx.filter_jit
-def _scatter(rows, values, n):
-    out = jnp.zeros(n, jnp.result_type(*values))
-    for r, v in zip(rows, values):
-        out = out.at[r].set(v)
-    return out
+def _evaluate_part(part, material, n):
+    values = part(material)
+    return jnp.zeros(n, values.dtype).at[part.rows].set(values)
