@@ -32,17 +32,20 @@ def machine() -> dict:
     }
 
 
-def best_time(fn, *, repeat: int = 5, number: int = 1) -> float:
-    """Best wall time of ``number`` calls of ``fn`` over ``repeat`` rounds (seconds per call).
+def best_time(fn, *, repeat: int = 5, number: int = 1, budget: float = 0.0) -> float:
+    """Best wall time of ``number`` calls of ``fn`` over ``repeat`` rounds (seconds per call),
+    and more rounds while less than ``budget`` seconds have been spent (so that sub-millisecond
+    calls get enough rounds for their best to be representative).
 
     ``fn`` must block until its result is ready (call ``block_until_ready`` inside)."""
     fn()  # warm-up (compilation)
-    best = float("inf")
-    for _ in range(repeat):
+    best, rounds, started = float("inf"), 0, time.perf_counter()
+    while rounds < repeat or time.perf_counter() - started < budget:
         t0 = time.perf_counter()
         for _ in range(number):
             fn()
         best = min(best, (time.perf_counter() - t0) / number)
+        rounds += 1
     return best
 
 

@@ -12,8 +12,8 @@ N × N grid of offsets. Measured in one run, in float64 on the CPU:
   ratio to the floor records how much either statistic moves by chance in the same run;
 * in the same rounds, ``irfft2`` alone on a given spectrum and an elementwise product with a
   given multiplier followed by ``irfft2`` in one program: the least any grid method does once
-  its multiplier is known (with XLA's default threads on this 2-vCPU machine the second costs
-  far more than the first plus a product; see docs/benchmarks.md);
+  its multiplier is known (they separate the FFT's cost, that of a multiplier computed in
+  the same program, and the grid path's own evaluation of the transform);
 * SciPy baseline: sampling lobe and statistics on the grid and ``scipy.signal.fftconvolve``;
 * accuracy of both against the exact answer (closed form or radial quadrature) on the grid;
 * closed form versus grid path *per query*: 1024 queries, each at its own scale (the grid
