@@ -346,3 +346,17 @@ def test_benchmark_smoke():
     assert work["max_error_rel_peak"] <= 1e-4 and np.all(np.isfinite(err))
     summary = bench.cost_model_summary([prob, so3_prob], work)
     assert summary["rankings"] == 1 and summary["plans"] == len(prob["ranking"]["forced"]) + 3
+
+
+def test_midpoint_error_uses_the_evaluations_interpolation():
+    """The planner's interpolation check (NumPy, the evaluation's own stencil) equals the
+    jit-compiled interpolation at the midpoints between nodes, ends of the grid included."""
+    from brdfscale.scene._scales import interpolate_jit, midpoint_error
+
+    rng = np.random.default_rng(0)
+    at_nodes = rng.random((9, 5))
+    exact = np.asarray(interpolate_jit(jnp.asarray(at_nodes), jnp.arange(8)[:, None] + 0.5))
+    assert midpoint_error(at_nodes, exact) < 1e-15
+    perturbed = exact.copy()
+    perturbed[0, 0] += 1e-3 * np.max(np.abs(exact[0]))
+    assert midpoint_error(at_nodes, perturbed) == pytest.approx(1e-3 * np.max(np.abs(exact[0])) / np.max(np.abs(perturbed[0])))
