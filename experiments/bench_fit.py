@@ -108,19 +108,14 @@ def _solve_times(jax_solve, scipy_solves: dict) -> dict:
     four times — the first call after SciPy's (caches filled by SciPy's Python) and the next
     three (warm, as in a loop of fits; each call counted). Sorted lists per name; the medians
     compare like with like (single calls on both sides)."""
-    def wall(fn):
-        t0 = time.perf_counter()
-        fn()
-        return time.perf_counter() - t0
-
     for fn in (jax_solve, *scipy_solves.values()):
         fn()  # warm-up
     times = {"jax_after_scipy": [], "jax_warm": [], **{name: [] for name in scipy_solves}}
     for _ in range(ROUNDS):
         for name, fn in scipy_solves.items():
-            times[name].append(wall(fn))
-        times["jax_after_scipy"].append(wall(jax_solve))
-        times["jax_warm"] += [wall(jax_solve) for _ in range(3)]
+            times[name].append(_wall(fn)[0])
+        times["jax_after_scipy"].append(_wall(jax_solve)[0])
+        times["jax_warm"] += [_wall(jax_solve)[0] for _ in range(3)]
     return {name: sorted(t) for name, t in times.items()}
 
 

@@ -269,7 +269,7 @@ def _radial_transform_rows(material, nodes, k, tol):
     """Concrete ``G(k, μ)`` (len(nodes), len(k)) of the radial path, evaluated in fixed-size
     blocks of scales × frequencies (one compilation for every probe of the planner)."""
     def block(node_chunk, k_chunk):
-        step = RadialStep(jnp.zeros((1, 2)), jnp.zeros(1), node_chunk, k_chunk, jnp.zeros((_CHUNK, 1)),
+        step = RadialStep(jnp.zeros((1, 2)), jnp.zeros(1), node_chunk, k_chunk, jnp.zeros((k_chunk.shape[0], 1)),
                           1.0, True, False, tol)
         return _radial_transforms(step, material)
 
