@@ -21,6 +21,15 @@ For each problem (parametric model, simulated 5-scale data set, 32×32 pixels pe
   the jit-compiled JAX residuals, compiled ahead of time, called with NumPy arrays — from
   the same start: median wall time (same rounds), evaluations, χ², and the largest |θ difference| from the
   JAX optimum (also in units of the Laplace standard deviation);
+* ``error_vs_time``: run time against error, for both sides at several tolerances — the JAX
+  solve at ``rtol = atol`` ∈ {1e-4, 1e-5, 1e-6 (``fit``'s default), 1e-8} and each SciPy method at
+  ``ftol = xtol = gtol`` ∈ {1e-8 (SciPy's default), 1e-10}, all timed in the same rounds (warm
+  medians); each solution's error is its distance from the least-squares optimum θ* (the JAX
+  solve converged to 1e-13) in the metric of the Fisher information JᵀJ at θ*, i.e. in Laplace
+  standard deviations (the residuals are whitened). ``equal_accuracy`` compares each SciPy
+  point with the fastest JAX point that is at least as close to θ*: the speed-up "to the same
+  optimum" at equal accuracy (at ``fit``'s default tolerance the JAX solve is about 100×
+  closer to θ* than SciPy's default and pays one more step for it);
 * ``dispatch_s``: a compiled call that does nothing with the same arguments (the fixed cost
   of every warm solve);
 * ``optimistix_floor`` (once): the same Levenberg–Marquardt settings on a trivial problem of
@@ -62,6 +71,9 @@ PROBLEMS = {
 }
 FIT_DEFAULTS = dict(rtol=1e-6, atol=1e-6, max_steps=256)  # fitting.fit's defaults
 ROUNDS = 41  # rounds of SciPy solves and JAX solves (see _solve_times); medians are the figures
+JAX_TOLERANCES = (1e-4, 1e-5, 1e-6, 1e-8)  # rtol = atol of the error-vs-time ladder (1e-6: fit's default)
+SCIPY_TOLERANCES = (1e-8, 1e-10)  # ftol = xtol = gtol (1e-8: SciPy's default)
+REFERENCE_TOLERANCE = 1e-13  # θ*, the optimum every error is measured from
 
 
 def _wall(fn):
@@ -103,20 +115,44 @@ def optimistix_floor(rows=545, n=5):
     return record
 
 
-def _solve_times(jax_solve, scipy_solves: dict) -> dict:
+def _solve_times(jax_solve, scipy_solves: dict, jax_variants: dict) -> dict:
     """Wall times over ``ROUNDS`` rounds, each: every SciPy solve once, then the JAX solve
     four times — the first call after SciPy's (caches filled by SciPy's Python) and the next
-    three (warm, as in a loop of fits; each call counted). Sorted lists per name; the medians
-    compare like with like (single calls on both sides)."""
-    for fn in (jax_solve, *scipy_solves.values()):
+    three (warm, as in a loop of fits; each call counted) — then every JAX variant three times
+    (warm). Sorted lists per name; the medians compare like with like (single calls on both
+    sides)."""
+    for fn in (jax_solve, *scipy_solves.values(), *jax_variants.values()):
         fn()  # warm-up
-    times = {"jax_after_scipy": [], "jax_warm": [], **{name: [] for name in scipy_solves}}
+    times = {"jax_after_scipy": [], "jax_warm": [], **{name: [] for name in (*scipy_solves, *jax_variants)}}
     for _ in range(ROUNDS):
         for name, fn in scipy_solves.items():
             times[name].append(_wall(fn)[0])
         times["jax_after_scipy"].append(_wall(jax_solve)[0])
         times["jax_warm"] += [_wall(jax_solve)[0] for _ in range(3)]
+        for name, fn in jax_variants.items():
+            times[name] += [_wall(fn)[0] for _ in range(3)]
     return {name: sorted(t) for name, t in times.items()}
+
+
+def _equal_accuracy(points: list) -> dict:
+    """Each SciPy point against the fastest JAX point at least as close to θ*."""
+    jax_points = [p for p in points if p["solver"] == "jax_lm"]
+    out = {}
+    for p in points:
+        if p["solver"] == "jax_lm":
+            continue
+        as_close = [q for q in jax_points if q["error_laplace_std"] <= p["error_laplace_std"]]
+        best = min(as_close, key=lambda q: q["median_s"]) if as_close else None
+        out[f"{p['solver']}@{p['tolerance']:g}"] = {
+            "scipy_error_laplace_std": p["error_laplace_std"], "scipy_s": p["median_s"],
+            "scipy_evaluations": p["evaluations"],
+            "jax_tolerance": None if best is None else best["tolerance"],
+            "jax_error_laplace_std": None if best is None else best["error_laplace_std"],
+            "jax_steps": None if best is None else best["evaluations"],
+            "jax_s": None if best is None else best["median_s"],
+            "speedup": None if best is None else p["median_s"] / best["median_s"],
+        }
+    return out
 
 
 def bench_problem(options, truth):
@@ -145,10 +181,21 @@ def bench_problem(options, truth):
     def f(t):
         return np.asarray(compiled(t))
 
-    def scipy_solver(method):
-        return lambda: scipy.optimize.least_squares(f, np.asarray(y0), jac="2-point", method=method)
+    def scipy_solver(method, tol=1e-8):  # SciPy's default tolerances: ftol = xtol = gtol = 1e-8
+        return lambda: scipy.optimize.least_squares(f, np.asarray(y0), jac="2-point", method=method,
+                                                    ftol=tol, xtol=tol, gtol=tol)
 
-    times = _solve_times(jax_solve, {"trf": scipy_solver("trf"), "lm": scipy_solver("lm")})
+    def jax_solver(tol):
+        return jax.jit(lambda y: _solve(problem, y, _make_solver("lm", tol, tol), FIT_DEFAULTS["max_steps"])
+                       ).lower(y0).compile()
+
+    # the error-vs-time ladder (the defaults of both sides are in it)
+    ladder_jax = {f"jax_lm@{tol:g}": (tol, jax_solver(tol)) for tol in JAX_TOLERANCES if tol != FIT_DEFAULTS["rtol"]}
+    ladder_scipy = {f"scipy_{method}@{tol:g}": (tol, scipy_solver(method, tol))
+                    for method in ("trf", "lm") for tol in SCIPY_TOLERANCES}
+    times = _solve_times(jax_solve, {name: fn for name, (_, fn) in ladder_scipy.items()},
+                         {name: (lambda c=c: jax.block_until_ready(c(y0))) for name, (_, c) in ladder_jax.items()})
+    times["trf"], times["lm"] = times["scipy_trf@1e-08"], times["scipy_lm@1e-08"]
     warm = median(times["jax_warm"])
     theta, code, steps, chi2, _ = jax_solve()
     theta = np.asarray(theta)
@@ -180,6 +227,34 @@ def bench_problem(options, truth):
             "speedup_of_jax_solve_after_scipy": t_scipy / median(times["jax_after_scipy"]),
             "target_10x_met": bool(t_scipy / warm >= 10),
         }
+
+    # errors: distance from θ* in the Fisher metric JᵀJ(θ*) (whitened residuals: Laplace σ)
+    reference = _solve(problem, y0, _make_solver("lm", REFERENCE_TOLERANCE, REFERENCE_TOLERANCE),
+                       FIT_DEFAULTS["max_steps"])
+    theta_star, jac_star = np.asarray(reference[0]), np.asarray(reference[4])
+
+    def error(x):
+        d = jac_star @ (np.asarray(x) - theta_star)
+        return float(np.sqrt(d @ d))
+
+    points = [{"solver": "jax_lm", "tolerance": FIT_DEFAULTS["rtol"], "evaluations": int(steps),
+               "error_laplace_std": error(theta), "median_s": warm}]
+    for name, (tol, compiled_solve) in ladder_jax.items():
+        out = compiled_solve(y0)
+        points.append({"solver": "jax_lm", "tolerance": tol, "evaluations": int(out[2]),
+                       "error_laplace_std": error(out[0]), "median_s": median(times[name])})
+    for name, (tol, solve) in ladder_scipy.items():
+        out = solve()
+        points.append({"solver": name.split("@")[0] + "_fd", "tolerance": tol, "evaluations": int(out.nfev),
+                       "error_laplace_std": error(out.x), "median_s": median(times[name])})
+    equal = _equal_accuracy(points)
+    record["error_vs_time"] = {
+        "reference": {"tolerance": REFERENCE_TOLERANCE, "steps": int(reference[2]), "result_code": int(reference[1])},
+        "points": points,
+        "equal_accuracy": equal,
+        "target_10x_met_at_equal_accuracy_vs_scipy_defaults": {
+            method: bool((equal[f"scipy_{method}_fd@1e-08"]["speedup"] or 0) >= 10) for method in ("trf", "lm")},
+    }
 
     walkers, steps = 32, 400
     first_mcmc, _ = _wall(lambda: fitting.sample(problem, result, walkers=walkers, steps=20, chunk=20, progress=False))
