@@ -16,6 +16,9 @@ N × N grid of offsets. Measured in one run, in float64 on the CPU:
   the same program, and the grid path's own evaluation of the transform);
 * SciPy baseline: sampling lobe and statistics on the grid and ``scipy.signal.fftconvolve``;
 * accuracy of both against the exact answer (closed form or radial quadrature) on the grid;
+* minor page faults per call of every candidate (median over the rounds): how often a call
+  touches memory the allocator has just mapped afresh — a cost the timings include and that
+  differs between programs with the allocator's state;
 * closed form versus grid path *per query*: 1024 queries, each at its own scale (the grid
   path needs one grid per scale, the closed form one Gaussian).
 
@@ -29,6 +32,7 @@ Run: ``python experiments/bench_evolve.py`` → experiments/results/bench_evolve
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -66,6 +70,17 @@ def statistics(kind: str, width):
     return stats.GGX(width)
 
 
+def _counting_page_faults(fn, counts: list):
+    """``fn``, appending to ``counts`` the minor page faults of the process during each call
+    (first touches of freshly mapped memory: the allocator handing out pages the kernel must
+    map and zero; one ``getrusage`` on either side, about a microsecond)."""
+    def counted():
+        before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+        fn()
+        counts.append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+    return counted
+
+
 def bench_grid(kind: str, n: int) -> dict:
     widths = jnp.linspace(0.03, 0.12, BATCH)
     lobe = lobes.Beckmann(0.1)
@@ -85,11 +100,14 @@ def bench_grid(kind: str, n: int) -> dict:
     irfft_fn = jax.jit(lambda X: jnp.fft.irfft2(X, s=(n, n)))
     # the control: the floor timed a second time in every round; its ratio to the floor shows
     # how far each statistic of the timings moves by chance alone
-    times = interleaved_times({"grid": lambda: grid_fn(widths).block_until_ready(),
-                               "floor": lambda: floor_fn(x).block_until_ready(),
-                               "control": lambda: floor_fn(x).block_until_ready(),
-                               "multiply_irfft": lambda: multiply_fn(spectrum, multiplier).block_until_ready(),
-                               "irfft": lambda: irfft_fn(spectrum).block_until_ready()}, repeat=ROUNDS)
+    candidates = {"grid": lambda: grid_fn(widths).block_until_ready(),
+                  "floor": lambda: floor_fn(x).block_until_ready(),
+                  "control": lambda: floor_fn(x).block_until_ready(),
+                  "multiply_irfft": lambda: multiply_fn(spectrum, multiplier).block_until_ready(),
+                  "irfft": lambda: irfft_fn(spectrum).block_until_ready()}
+    faults = {name: [] for name in candidates}
+    times = interleaved_times({name: _counting_page_faults(fn, faults[name]) for name, fn in candidates.items()},
+                              repeat=ROUNDS)
     t_grid, t_floor = median(times["grid"]), median(times["floor"])
 
     # SciPy: sample g0 and s on the same grid and convolve (the straightforward implementation)
@@ -122,6 +140,8 @@ def bench_grid(kind: str, n: int) -> dict:
         "control_throughput_vs_floor": {"median": median(times["floor"]) / median(times["control"]),
                                         "best_of_rounds": times["floor"][0] / times["control"][0]},
         "round_times_s": times,
+        # the first entry of each list is the warm-up call's
+        "minor_page_faults_per_call_median": {name: median(sorted(c[1:])) for name, c in faults.items()},
         "rounds": ROUNDS,
         "irfft2_alone_s_per_grid": median(times["irfft"]) / BATCH,
         "multiply_then_irfft2_s_per_grid": median(times["multiply_irfft"]) / BATCH,

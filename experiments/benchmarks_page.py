@@ -58,14 +58,19 @@ def evolve() -> str:
     def grid_table(rows):
         return table(["threads", "statistics", "N", "grid path ms/lobe", "rfft2+irfft2 floor ms", "irfft2 alone ms",
                       "product + irfft2 ms", "SciPy fftconvolve ms", "throughput ÷ floor (median)", "(best round)",
-                      "control's throughput ÷ floor (median)", "speed-up vs SciPy", "grid path error", "SciPy error"], rows)
+                      "control's throughput ÷ floor (median)", "page faults per call: grid / floor / product + irfft2",
+                      "speed-up vs SciPy", "grid path error", "SciPy error"], rows)
+
+    def faults(r):
+        f = r.get("minor_page_faults_per_call_median")
+        return "–" if f is None else f"{f['grid']:.0f} / {f['floor']:.0f} / {f['multiply_irfft']:.0f}"
 
     configurations = [("default", d["grid"]), ("1", d.get("grid_single_thread", []))]
     rows = [[threads, r["statistics"], str(r["grid_size"]), f"{r['grid_path_s_per_lobe'] * 1e3:.2f}",
              f"{r['raw_fft_floor_s_per_grid'] * 1e3:.2f}", f"{r['irfft2_alone_s_per_grid'] * 1e3:.2f}",
              f"{r['multiply_then_irfft2_s_per_grid'] * 1e3:.2f}", f"{r['scipy_fftconvolve_s_per_lobe'] * 1e3:.2f}",
              f"{r['throughput_vs_floor']:.2f}", f"{r['throughput_vs_floor_best_of_rounds']:.2f}",
-             f"{r['control_throughput_vs_floor']['median']:.2f}", f"{r['speedup_vs_scipy']:.2f}",
+             f"{r['control_throughput_vs_floor']['median']:.2f}", faults(r), f"{r['speedup_vs_scipy']:.2f}",
              f"{r['grid_path_max_error_rel_peak']:.1e}", f"{r['scipy_max_error_rel_peak']:.1e}"]
             for threads, group in configurations for r in group]
     q = d["queries"]
