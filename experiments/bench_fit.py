@@ -118,9 +118,10 @@ def optimistix_floor(rows=545, n=5):
 def _solve_times(jax_solve, scipy_solves: dict, jax_variants: dict) -> dict:
     """Wall times over ``ROUNDS`` rounds, each: every SciPy solve once, then the JAX solve
     four times — the first call after SciPy's (caches filled by SciPy's Python) and the next
-    three (warm, as in a loop of fits; each call counted) — then every JAX variant three times
-    (warm). Sorted lists per name; the medians compare like with like (single calls on both
-    sides)."""
+    three (warm, as in a loop of fits; each call counted) — then every JAX variant four times,
+    the last three counted (warm: the first call brings the variant's own program back into
+    the caches after the others ran). Sorted lists per name; the medians compare like with
+    like (single calls on both sides)."""
     for fn in (jax_solve, *scipy_solves.values(), *jax_variants.values()):
         fn()  # warm-up
     times = {"jax_after_scipy": [], "jax_warm": [], **{name: [] for name in (*scipy_solves, *jax_variants)}}
@@ -130,6 +131,7 @@ def _solve_times(jax_solve, scipy_solves: dict, jax_variants: dict) -> dict:
         times["jax_after_scipy"].append(_wall(jax_solve)[0])
         times["jax_warm"] += [_wall(jax_solve)[0] for _ in range(3)]
         for name, fn in jax_variants.items():
+            fn()
             times[name] += [_wall(fn)[0] for _ in range(3)]
     return {name: sorted(t) for name, t in times.items()}
 

@@ -185,13 +185,11 @@ class GaussianSurface(AbstractScaleLaw):
 
     def slope_covariance(self, mu: Float[ArrayLike, ""]) -> Float[Array, "2 2"]:
         """``Σ(μ)`` (dimensionless slope²)."""
-        return _slope_covariance(self, positive(mu, "mu", "a positive facet size"))
-
-    def _slope_covariance(self, mu):
+        mu = positive(mu, "mu", "a positive facet size")
         variances = self.spectrum.windowed_slope_variances(mu, self.window)
         if variances is not None:
             return jnp.diag(variances)
-        return self._quadrature_covariance(mu)
+        return _quadrature_covariance_jit(self, mu)
 
     def _quadrature_covariance(self, mu):
         k_lo, k_hi = self.spectrum.wavenumber_range()
@@ -217,7 +215,7 @@ class GaussianSurface(AbstractScaleLaw):
         mu = positive(mu, "mu", "a positive facet size")
         variances = self.spectrum.windowed_slope_variances(mu, self.window)
         if variances is None:
-            cov = _slope_covariance(self, mu)
+            cov = _quadrature_covariance_jit(self, mu)
             variances = jnp.diagonal(cov)
             if not self.spectrum.isotropic:
                 return Gaussian(cov=cov)
@@ -226,7 +224,7 @@ class GaussianSurface(AbstractScaleLaw):
         return Gaussian(sigma=jnp.sqrt(variances))
 
 
-_slope_covariance = eqx.filter_jit(lambda law, mu: law._slope_covariance(mu))
+_quadrature_covariance_jit = eqx.filter_jit(lambda law, mu: law._quadrature_covariance(mu))
 
 
 class WidthLaw(eqx.Module):
