@@ -7,7 +7,9 @@ For each problem (parametric model, simulated 5-scale data set, 32×32 pixels pe
   the first call in the process (compilation included) and a warm call; their difference
   is the compile time a user waits for once per model and data layout;
 * ``compile_breakdown``: the compiled solve again, ahead of time: tracing, lowering and
-  XLA compilation times and the size of the lowered program (characters of StableHLO);
+  XLA compilation times, the size of the lowered program (characters of StableHLO) and the
+  number of XLA kernels (fusions) in the compiled solve and in the residuals with their
+  forward-mode Jacobian alone;
   tracing re-uses what the fit above already traced (a lower bound), the XLA compilation
   is a fresh one;
 * ``jax_lm``: one warm optimistix Levenberg–Marquardt solve (``fit``'s solver and default
@@ -87,8 +89,18 @@ def _compile_breakdown(problem, y0, solver):
     solve = jax.jit(lambda d, y: _solve.__wrapped__(eqx.combine(d, static), y, solver, FIT_DEFAULTS["max_steps"]))
     trace_s, traced = _wall(lambda: solve.trace(dynamic, y0))
     lower_s, lowered = _wall(traced.lower)
-    compile_s, _ = _wall(lowered.compile)
-    return {"trace_s": trace_s, "lower_s": lower_s, "xla_compile_s": compile_s, "hlo_chars": len(lowered.as_text())}
+    compile_s, compiled = _wall(lowered.compile)
+    model_part = jax.jit(jax.jacfwd(problem.residuals)).lower(y0).compile()
+    return {"trace_s": trace_s, "lower_s": lower_s, "xla_compile_s": compile_s, "hlo_chars": len(lowered.as_text()),
+            # XLA:CPU runs each fusion as a kernel of its own: the solve's kernels, and those of
+            # the residuals with their forward-mode Jacobian (the model's share of every step)
+            "xla_fusions_in_solve": _fusions(compiled),
+            "xla_fusions_in_residuals_and_jacobian": _fusions(model_part)}
+
+
+def _fusions(compiled) -> int:
+    """Fusion instructions (kernels) in a compiled XLA program."""
+    return sum(" fusion(" in line for line in compiled.as_text().splitlines())
 
 
 def optimistix_floor(rows=545, n=5):
