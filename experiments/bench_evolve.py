@@ -19,6 +19,8 @@ N × N grid of offsets. Measured in one run, in float64 on the CPU:
 * minor page faults per call of every candidate (median over the rounds): how often a call
   touches memory the allocator has just mapped afresh — a cost the timings include and that
   differs between programs with the allocator's state;
+* which thread runs the inverse FFT in the grid path and in ``irfft2`` alone, and how long it
+  takes there (a ``jax.profiler`` trace of GGX at the largest N; see :func:`fft_threads`);
 * closed form versus grid path *per query*: 1024 queries, each at its own scale (the grid
   path needs one grid per scale, the closed form one Gaussian).
 
@@ -181,6 +183,53 @@ def bench_queries(n: int) -> dict:
     }
 
 
+def fft_threads(kind: str, n: int, calls: int = 21) -> dict:
+    """Which thread runs the inverse FFT, and for how long, read from a ``jax.profiler`` trace:
+    in the grid path (the spectrum's evaluation and the FFT in one XLA program) and in
+    ``irfft2`` alone on the same spectrum. XLA:CPU's FFT hands its work to the intra-op thread
+    pool; run *on* one of the pool's threads (which is where a program continues after a
+    parallel loop finished there), it waits for the others and gets one fewer. Per program:
+    per thread pool the FFT ran in (``tf_XLAEigen``: the intra-op pool; ``tf_XLAPjRtCpuClient``:
+    the thread that runs the program), how many of the calls' FFTs ran there and their median
+    duration."""
+    import glob
+    import gzip
+
+    widths = jnp.linspace(0.03, 0.12, BATCH)
+    lobe = lobes.Beckmann(0.1)
+
+    def one(w):
+        return bs.evolve(lobe, statistics(kind, w), stats.Delta(), method="grid", size=n, extent=EXTENT).shape
+
+    def spectrum(w):
+        shape = one(w)
+        h, _ = shape.grid_spacing()
+        return shape.cf_grid(shape.frequency_grid(h))
+
+    grid_fn = jax.jit(jax.vmap(lambda w: one(w).on_grid()[1]))
+    given = jax.jit(jax.vmap(spectrum))(widths)
+    irfft_fn = jax.jit(lambda X: jnp.fft.irfft2(X, s=(n, n)))
+    out = {"statistics": kind, "grid_size": n, "calls": calls}
+    for name, fn in (("grid_path", lambda: grid_fn(widths).block_until_ready()),
+                     ("irfft2_alone", lambda: irfft_fn(given).block_until_ready())):
+        fn()
+        with tempfile.TemporaryDirectory() as tmp:
+            with jax.profiler.trace(tmp):
+                for _ in range(calls):
+                    fn()
+            traces = glob.glob(os.path.join(tmp, "**", "*.trace.json.gz"), recursive=True)
+            if not traces:
+                return {**out, "error": "no profiler trace written"}
+            events = json.load(gzip.open(traces[0]))["traceEvents"]
+        threads = {e["tid"]: e["args"]["name"] for e in events if e.get("ph") == "M" and e.get("name") == "thread_name"}
+        by_pool = {}
+        for e in events:
+            if e.get("ph") == "X" and e["name"].startswith("fft"):
+                by_pool.setdefault(threads.get(e["tid"], "?").split("/")[0], []).append(e["dur"] / 1e3)
+        out[name] = {pool: {"ffts": len(d), "median_ms": median(sorted(d))} for pool, d in by_pool.items()}
+    return out
+
+
 def grid_rows(sizes) -> list:
     return [bench_grid(kind, n) for kind in ("gaussian_mixture", "ggx") for n in sizes]
 
@@ -215,6 +264,7 @@ def main(argv=None):
         "grid": grid_rows(sizes),
         "grid_single_thread": single_thread_rows(sizes),
         "queries": bench_queries(sizes[-1] if not args.quick else 64),
+        "fft_threads": fft_threads("ggx", sizes[-1]),
     }
     name = "bench_evolve_quick" if args.quick else "bench_evolve"
     path = write_json(name, results)

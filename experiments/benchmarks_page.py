@@ -94,6 +94,13 @@ def evolve() -> str:
         f"closed form ≥ 1000× the grid path per query — {met(q['closed_form_speedup_per_query'] >= 1000)} "
         f"({q['closed_form_speedup_per_query']:.2g}×). {load_line(d)}"
     )
+    threads = d.get("fft_threads")
+    if threads and "grid_path" in threads:
+        def where(record):
+            return ", ".join(f"{v['ffts']} in `{pool}` (median {v['median_ms']:.1f} ms)" for pool, v in record.items())
+        verdict += (f"\n\nThe inverse FFT itself (profiler, {threads['statistics']} at N = {threads['grid_size']}, "
+                    f"{threads['calls']} calls each): inside the grid path's program {where(threads['grid_path'])}; "
+                    f"alone on the same spectra {where(threads['irfft2_alone'])}.")
     return "\n\n".join([
         machine_line(d),
         grid_table(rows),
