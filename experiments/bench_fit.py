@@ -149,7 +149,9 @@ def _solve_times(jax_solve, scipy_solves: dict, jax_variants: dict) -> dict:
 
 
 def _equal_accuracy(points: list) -> dict:
-    """Each SciPy point against the fastest JAX point at least as close to θ*."""
+    """Each SciPy point (``solver`` other than ``"jax_lm"``) against the fastest JAX point
+    whose error is at most the SciPy point's; keyed ``"<solver>@<tolerance>"``, with None
+    entries where no JAX point is that close."""
     jax_points = [p for p in points if p["solver"] == "jax_lm"]
     out = {}
     for p in points:
@@ -205,11 +207,11 @@ def bench_problem(options, truth):
 
     # the error-vs-time ladder (the defaults of both sides are in it)
     ladder_jax = {f"jax_lm@{tol:g}": (tol, jax_solver(tol)) for tol in JAX_TOLERANCES if tol != FIT_DEFAULTS["rtol"]}
-    ladder_scipy = {f"scipy_{method}@{tol:g}": (tol, scipy_solver(method, tol))
+    ladder_scipy = {f"scipy_{method}_fd@{tol:g}": (tol, scipy_solver(method, tol))
                     for method in ("trf", "lm") for tol in SCIPY_TOLERANCES}
     times = _solve_times(jax_solve, {name: fn for name, (_, fn) in ladder_scipy.items()},
                          {name: (lambda c=c: jax.block_until_ready(c(y0))) for name, (_, c) in ladder_jax.items()})
-    times["trf"], times["lm"] = times["scipy_trf@1e-08"], times["scipy_lm@1e-08"]
+    times["trf"], times["lm"] = times["scipy_trf_fd@1e-08"], times["scipy_lm_fd@1e-08"]
     warm = median(times["jax_warm"])
     theta, code, steps, chi2, _ = jax_solve()
     theta = np.asarray(theta)
@@ -259,7 +261,7 @@ def bench_problem(options, truth):
                        "error_laplace_std": error(out[0]), "median_s": median(times[name])})
     for name, (tol, solve) in ladder_scipy.items():
         out = solve()
-        points.append({"solver": name.split("@")[0] + "_fd", "tolerance": tol, "evaluations": int(out.nfev),
+        points.append({"solver": name.split("@")[0], "tolerance": tol, "evaluations": int(out.nfev),
                        "error_laplace_std": error(out.x), "median_s": median(times[name])})
     equal = _equal_accuracy(points)
     record["error_vs_time"] = {
