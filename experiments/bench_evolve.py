@@ -32,6 +32,8 @@ Run: ``python experiments/bench_evolve.py`` → experiments/results/bench_evolve
 """
 
 import argparse
+import glob
+import gzip
 import json
 import os
 import resource
@@ -192,9 +194,6 @@ def fft_threads(kind: str, n: int, calls: int = 21) -> dict:
     per thread pool the FFT ran in (``tf_XLAEigen``: the intra-op pool; ``tf_XLAPjRtCpuClient``:
     the thread that runs the program), how many of the calls' FFTs ran there and their median
     duration."""
-    import glob
-    import gzip
-
     widths = jnp.linspace(0.03, 0.12, BATCH)
     lobe = lobes.Beckmann(0.1)
 

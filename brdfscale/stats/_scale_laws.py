@@ -185,11 +185,17 @@ class GaussianSurface(AbstractScaleLaw):
 
     def slope_covariance(self, mu: Float[ArrayLike, ""]) -> Float[Array, "2 2"]:
         """``Σ(μ)`` (dimensionless slope²)."""
-        mu = positive(mu, "mu", "a positive facet size")
+        variances, cov = self._covariance(positive(mu, "mu", "a positive facet size"))
+        return jnp.diag(variances) if cov is None else cov
+
+    def _covariance(self, mu):
+        """``(diagonal of Σ(μ), Σ(μ))``; ``Σ`` is None where the spectrum gives the (diagonal)
+        variances in closed form, else the jitted quadrature's."""
         variances = self.spectrum.windowed_slope_variances(mu, self.window)
         if variances is not None:
-            return jnp.diag(variances)
-        return _quadrature_covariance_jit(self, mu)
+            return variances, None
+        cov = _quadrature_covariance_jit(self, mu)
+        return jnp.diagonal(cov), cov
 
     def _quadrature_covariance(self, mu):
         k_lo, k_hi = self.spectrum.wavenumber_range()
@@ -212,13 +218,9 @@ class GaussianSurface(AbstractScaleLaw):
         diagonal), built from per-axis standard deviations where Σ is diagonal by
         construction (closed form), so that :func:`brdfscale.evolve` (radial path) and the
         grid path (separable factors) can exploit the structure."""
-        mu = positive(mu, "mu", "a positive facet size")
-        variances = self.spectrum.windowed_slope_variances(mu, self.window)
-        if variances is None:
-            cov = _quadrature_covariance_jit(self, mu)
-            variances = jnp.diagonal(cov)
-            if not self.spectrum.isotropic:
-                return Gaussian(cov=cov)
+        variances, cov = self._covariance(positive(mu, "mu", "a positive facet size"))
+        if cov is not None and not self.spectrum.isotropic:
+            return Gaussian(cov=cov)
         if self.spectrum.isotropic:  # Σ = σ² I
             return Gaussian(sigma=jnp.sqrt(0.5 * (variances[..., 0] + variances[..., 1])))
         return Gaussian(sigma=jnp.sqrt(variances))
