@@ -265,8 +265,24 @@ def synth() -> str:
     return f"{d['size']}² field; max RSS {d['max_rss_MiB']} MiB.\n\n" + table(["stage", "seconds", "NumPy peak MiB"], rows)
 
 
+def cli_cache() -> str:
+    d = load("bench_cli_cache")
+    if d is None:
+        return "(bench_cli_cache.json missing)"
+    return "\n\n".join([
+        machine_line(d),
+        table(["runs", "first run (empty cache) s", "cache warm s (median)", "--no-compilation-cache s (median)",
+               "saving per run s", "cache entries", "cache MiB"],
+              [[f"1 + {d['rounds']} + {d['rounds']}", f"{d['cold_cache_s']:.1f}", f"{d['warm_cache_median_s']:.1f}",
+                f"{d['no_cache_median_s']:.1f}", f"{d['saving_per_run_s']:.1f}", str(d["cache_entries"]),
+                f"{d['cache_bytes'] / 2**20:.1f}"]]),
+        f"Command: `{' '.join(d['command'])}`, each run a fresh process. {load_line(d)}",
+    ])
+
+
 SECTIONS = [("Core evolution (bench_evolve)", evolve), ("SO(3) (bench_so3)", so3),
-            ("Fitting (bench_fit)", fit), ("Synthesis (bench_synth)", synth), ("Scene planner (bench_planner)", planner)]
+            ("Fitting (bench_fit)", fit), ("Command-line compilation cache (bench_cli_cache)", cli_cache),
+            ("Synthesis (bench_synth)", synth), ("Scene planner (bench_planner)", planner)]
 PAGE = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
 
 

@@ -22,6 +22,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Scale-dependent evolution of BRDFs: forward model, synthesis, fitting.",
     )
     parser.add_argument("--version", action="version", version=f"brdfscale {__version__}")
+    parser.add_argument("--no-compilation-cache", action="store_true",
+                        help="compile every XLA program afresh instead of keeping compiled programs between "
+                        "runs (kept by default in $BRDFSCALE_COMPILATION_CACHE, else ~/.cache/brdfscale/jax)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in _SUBCOMMANDS:
         importlib.import_module(f"{__name__}._{name}").register(sub)
@@ -34,6 +37,10 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 0
+    if not args.no_compilation_cache:
+        from ._compilation_cache import enable
+
+        enable()
     try:
         return int(args.func(args) or 0)
     except BrdfscaleError as err:
