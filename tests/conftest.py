@@ -1,8 +1,7 @@
 import jax
+import pytest
 
 jax.config.update("jax_enable_x64", True)
-
-import pytest  # noqa: E402
 
 
 @pytest.fixture(autouse=True)
