@@ -189,9 +189,9 @@ def fft_threads(kind: str, n: int, calls: int = 21) -> dict:
     """Which thread runs the inverse FFT, and for how long, read from a ``jax.profiler`` trace:
     in the grid path (the spectrum's evaluation and the FFT in one XLA program) and in
     ``irfft2`` alone on the same spectrum. XLA:CPU's FFT hands its work to the intra-op thread
-    pool; run *on* one of the pool's threads (which is where a program continues after a
-    parallel loop finished there), it waits for the others and gets one fewer. Per program:
-    per thread pool the FFT ran in (``tf_XLAEigen``: the intra-op pool; ``tf_XLAPjRtCpuClient``:
+    pool, and may itself run on one of the pool's threads; whether that, or the locality of a
+    spectrum just written by the pool, makes it slower inside the program is what these
+    figures are for (docs/benchmarks.md). Per program: per thread pool the FFT ran in (``tf_XLAEigen``: the intra-op pool; ``tf_XLAPjRtCpuClient``:
     the thread that runs the program), how many of the calls' FFTs ran there and their median
     duration."""
     widths = jnp.linspace(0.03, 0.12, BATCH)
