@@ -20,24 +20,25 @@ def cubic_stencil(x, n: int, xp=jnp):
     return base, xp.stack([w0, w1, w2, w3], axis=-1)
 
 
-def interpolate(table, positions):
+def interpolate(table, positions, xp=jnp):
     """Interpolate ``table`` (d leading grid axes, then any trailing axes) at index positions
     ``positions`` (Q, d) → (Q, ...trailing). An axis shorter than 4 is not interpolated:
-    its positions must be node indices (the nearest node is read)."""
+    its positions must be node indices (the nearest node is read). ``xp``: the array
+    namespace, ``numpy`` for concrete planning-time tables (no compilation per shape)."""
     d = positions.shape[-1]
     index, weight = [], []
     for axis in range(d):
         n = table.shape[axis]
         if n < 4:
-            index.append(jnp.round(positions[..., axis]).astype(int)[..., None])
-            weight.append(jnp.ones(positions.shape[:-1] + (1,), table.dtype))
+            index.append(xp.round(positions[..., axis]).astype(int)[..., None])
+            weight.append(xp.ones(positions.shape[:-1] + (1,), table.dtype))
         else:
-            base, w = cubic_stencil(positions[..., axis], n)
-            index.append(base[..., None] + jnp.arange(4))
+            base, w = cubic_stencil(positions[..., axis], n, xp)
+            index.append(base[..., None] + xp.arange(4))
             weight.append(w)
     # gather the (≤ 4^d) stencil values, then contract the stencil axes one by one
-    stencil = jnp.meshgrid(*[jnp.arange(ix.shape[-1]) for ix in index], indexing="ij")
+    stencil = xp.meshgrid(*[xp.arange(ix.shape[-1]) for ix in index], indexing="ij")
     values = table[tuple(ix[:, s] for ix, s in zip(index, stencil))]  # (Q, s_1, …, s_d, trailing)
     for w in weight:
-        values = jnp.einsum("qs...,qs->q...", values, w)
+        values = xp.einsum("qs...,qs->q...", values, w)
     return values

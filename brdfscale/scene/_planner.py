@@ -44,7 +44,8 @@ from ..geometry import half_slope, microfacet_factor
 from . import _cost
 from ._description import AnisotropicMaterial, Material, Scene
 from ._plan import Plan
-from ._scales import in_chunks, interpolate_jit, scale_nodes
+from ._interpolate import interpolate
+from ._scales import in_chunks, scale_nodes
 from ._so3_planner import plan_so3
 from ._steps import ClosedFormStep, GridStep, MaterialPlan, RadialStep, evolved_density
 
@@ -229,10 +230,10 @@ def _plan_grid(material, u, log_mu, tol):
         coarse, fine = tables(size, ends), tables(2 * size, ends)
         odd = np.arange(1, 2 * size - 1, 2) / 2
         Y, X = np.meshgrid(odd, odd, indexing="ij")
-        pos = jnp.asarray(np.stack([Y.ravel(), X.ravel()], -1))
+        pos = np.stack([Y.ravel(), X.ravel()], -1)
         errors = []
         for c, f in zip(coarse, fine):
-            guess = np.asarray(interpolate_jit(jnp.asarray(c), pos))
+            guess = interpolate(c, pos, xp=np)
             errors.append(np.max(np.abs(guess - f[1::2, 1::2][: len(odd), : len(odd)].ravel())) / np.max(f))
         u_error = float(max(errors))
         if u_error <= budget or 2 * size > _MAX_GRID:
