@@ -49,6 +49,13 @@ def best_time(fn, *, repeat: int = 5, number: int = 1, budget: float = 0.0) -> f
     return best
 
 
+def rotated(names, k: int) -> list:
+    """``names`` (any iterable) rotated left by ``k``: round ``k``'s order, so that no
+    candidate always runs in the same position."""
+    names = list(names)
+    return names[k % len(names):] + names[: k % len(names)]
+
+
 def interleaved_times(fns: dict, *, repeat: int = 15) -> dict:
     """Wall times (seconds, sorted) of each of ``fns`` (name → blocking callable) over
     ``repeat`` rounds, the calls alternated within each round so that every candidate sees
@@ -57,10 +64,9 @@ def interleaved_times(fns: dict, *, repeat: int = 15) -> dict:
     same one."""
     for fn in fns.values():
         fn()  # warm-up (compilation)
-    names = list(fns)
     times = {name: [] for name in fns}
     for round_ in range(repeat):
-        for name in names[round_ % len(names):] + names[: round_ % len(names)]:
+        for name in rotated(fns, round_):
             fn = fns[name]
             t0 = time.perf_counter()
             fn()

@@ -85,15 +85,18 @@ def _counting_page_faults(fn, counts: list):
     return counted
 
 
+LOBE = lobes.Beckmann(0.1)
+WIDTHS = jnp.linspace(0.03, 0.12, BATCH)  # the statistics' widths, one per lobe of the batch
+
+
+def grid_shape(kind: str, width, n: int):
+    """The benchmarked lobe's shape: ``LOBE`` evolved to μ = ∞ by the grid path (N × N, half-width ``EXTENT``)."""
+    return bs.evolve(LOBE, statistics(kind, width), stats.Delta(), method="grid", size=n, extent=EXTENT).shape
+
+
 def bench_grid(kind: str, n: int) -> dict:
-    widths = jnp.linspace(0.03, 0.12, BATCH)
-    lobe = lobes.Beckmann(0.1)
-
-    def one(w):
-        return bs.evolve(lobe, statistics(kind, w), stats.Delta(), method="grid", size=n, extent=EXTENT).shape.on_grid()[1]
-
-    grid_fn = jax.jit(jax.vmap(one))
-    grids = grid_fn(widths).block_until_ready()
+    grid_fn = jax.jit(jax.vmap(lambda w: grid_shape(kind, w, n).on_grid()[1]))
+    grids = grid_fn(WIDTHS).block_until_ready()
     x = jnp.asarray(np.random.default_rng(0).random((BATCH, n, n)))
     floor_fn = jax.jit(lambda a: jnp.fft.irfft2(jnp.fft.rfft2(a), s=(n, n)))
     # the least a grid method does once its multiplier is known: one elementwise product with a
@@ -104,7 +107,7 @@ def bench_grid(kind: str, n: int) -> dict:
     irfft_fn = jax.jit(lambda X: jnp.fft.irfft2(X, s=(n, n)))
     # the control: the floor timed a second time in every round; its ratio to the floor shows
     # how far each statistic of the timings moves by chance alone
-    candidates = {"grid": lambda: grid_fn(widths).block_until_ready(),
+    candidates = {"grid": lambda: grid_fn(WIDTHS).block_until_ready(),
                   "floor": lambda: floor_fn(x).block_until_ready(),
                   "control": lambda: floor_fn(x).block_until_ready(),
                   "multiply_irfft": lambda: multiply_fn(spectrum, multiplier).block_until_ready(),
@@ -115,11 +118,11 @@ def bench_grid(kind: str, n: int) -> dict:
     t_grid, t_floor = median(times["grid"]), median(times["floor"])
 
     # SciPy: sample g0 and s on the same grid and convolve (the straightforward implementation)
-    u, _ = bs.evolve(lobe, statistics(kind, widths[0]), stats.Delta(), method="grid", size=n, extent=EXTENT).shape.on_grid()
+    u, _ = grid_shape(kind, WIDTHS[0], n).on_grid()
     h = float(u[1] - u[0])
     U = np.stack(np.meshgrid(np.asarray(u), np.asarray(u), indexing="xy"), -1)
-    g0 = np.asarray(lobe.density(jnp.asarray(U)))
-    s_grids = np.stack([np.asarray(statistics(kind, w).density(jnp.asarray(U))) for w in widths])
+    g0 = np.asarray(LOBE.density(jnp.asarray(U)))
+    s_grids = np.stack([np.asarray(statistics(kind, w).density(jnp.asarray(U))) for w in WIDTHS])
 
     def scipy_all():
         return [scipy.signal.fftconvolve(g0, s, mode="same") * h * h for s in s_grids]
@@ -127,7 +130,7 @@ def bench_grid(kind: str, n: int) -> dict:
     t_scipy = best_time(scipy_all, repeat=7)
     # accuracy of both on the first lobe, against the auto path (closed form for the
     # mixture, radial Hankel quadrature for GGX) at the grid's nodes, relative to the peak
-    reference = np.asarray(bs.evolve(lobe, statistics(kind, widths[0]), stats.Delta()).density(jnp.asarray(U)))
+    reference = np.asarray(bs.evolve(LOBE, statistics(kind, WIDTHS[0]), stats.Delta()).density(jnp.asarray(U)))
     peak = np.max(reference)
     grid_error = float(np.max(np.abs(np.asarray(grids[0]) - reference)) / peak)
     scipy_error = float(np.max(np.abs(scipy_all()[0] - reference)) / peak)
@@ -162,13 +165,12 @@ def bench_queries(n: int) -> dict:
     rng = np.random.default_rng(1)
     alphas = jnp.asarray(rng.uniform(0.01, 0.09, q))
     offsets = jnp.asarray(rng.normal(scale=0.1, size=(q, 2)))
-    lobe = lobes.Beckmann(0.1)
 
     def closed(a, u):
-        return bs.evolve(lobe, stats.Beckmann(0.1), stats.Beckmann(a)).density(u)
+        return bs.evolve(LOBE, stats.Beckmann(0.1), stats.Beckmann(a)).density(u)
 
     def grid(a, u):
-        return bs.evolve(lobe, stats.Beckmann(0.1), stats.Beckmann(a), method="grid", size=n).density(u)
+        return bs.evolve(LOBE, stats.Beckmann(0.1), stats.Beckmann(a), method="grid", size=n).density(u)
 
     closed_fn = jax.jit(jax.vmap(closed))
     grid_fn = jax.jit(jax.vmap(grid))
@@ -194,22 +196,16 @@ def fft_threads(kind: str, n: int, calls: int = 21) -> dict:
     figures are for (docs/benchmarks.md). Per program: per thread pool the FFT ran in (``tf_XLAEigen``: the intra-op pool; ``tf_XLAPjRtCpuClient``:
     the thread that runs the program), how many of the calls' FFTs ran there and their median
     duration."""
-    widths = jnp.linspace(0.03, 0.12, BATCH)
-    lobe = lobes.Beckmann(0.1)
-
-    def one(w):
-        return bs.evolve(lobe, statistics(kind, w), stats.Delta(), method="grid", size=n, extent=EXTENT).shape
-
     def spectrum(w):
-        shape = one(w)
+        shape = grid_shape(kind, w, n)
         h, _ = shape.grid_spacing()
         return shape.cf_grid(shape.frequency_grid(h))
 
-    grid_fn = jax.jit(jax.vmap(lambda w: one(w).on_grid()[1]))
-    given = jax.jit(jax.vmap(spectrum))(widths)
+    grid_fn = jax.jit(jax.vmap(lambda w: grid_shape(kind, w, n).on_grid()[1]))
+    given = jax.jit(jax.vmap(spectrum))(WIDTHS)
     irfft_fn = jax.jit(lambda X: jnp.fft.irfft2(X, s=(n, n)))
     out = {"statistics": kind, "grid_size": n, "calls": calls}
-    for name, fn in (("grid_path", lambda: grid_fn(widths).block_until_ready()),
+    for name, fn in (("grid_path", lambda: grid_fn(WIDTHS).block_until_ready()),
                      ("irfft2_alone", lambda: irfft_fn(given).block_until_ready())):
         fn()
         with tempfile.TemporaryDirectory() as tmp:

@@ -61,7 +61,7 @@ import optimistix as optx
 import scipy.optimize
 
 import fitting
-from _bench import best_time, interleaved_times, machine, median, write_json
+from _bench import best_time, interleaved_times, machine, median, rotated, write_json
 from fitting._estimate import _make_solver, _solve
 
 SCALES = (0.5, 1.0, 2.0, 4.0, 8.0)
@@ -140,10 +140,6 @@ def _solve_times(scipy_solves: dict, jax_solves: dict) -> dict:
         fn()  # warm-up
     times = {"jax_after_scipy": [], **{name: [] for name in (*scipy_solves, *jax_solves)}}
     default = next(iter(jax_solves))
-
-    def rotated(names, k):
-        names = list(names)
-        return names[k % len(names):] + names[: k % len(names)]
 
     for round_ in range(ROUNDS):
         for name in rotated(scipy_solves, round_):
