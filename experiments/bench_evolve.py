@@ -19,8 +19,9 @@ N × N grid of offsets. Measured in one run, in float64 on the CPU:
 * minor page faults per call of every candidate (median over the rounds): how often a call
   touches memory the allocator has just mapped afresh — a cost the timings include and that
   differs between programs with the allocator's state;
-* which thread runs the inverse FFT in the grid path and in ``irfft2`` alone, and how long it
-  takes there (a ``jax.profiler`` trace of GGX at the largest N; see :func:`fft_threads`);
+* which thread runs the inverse FFT in the grid path and in ``irfft2`` alone, how long it
+  takes there and how many threads work on it (a ``jax.profiler`` trace of GGX at the
+  largest N; see :func:`fft_threads`);
 * closed form versus grid path *per query*: 1024 queries, each at its own scale (the grid
   path needs one grid per scale, the closed form one Gaussian).
 
@@ -187,15 +188,46 @@ def bench_queries(n: int) -> dict:
     }
 
 
+def fft_records(events: list) -> dict:
+    """The inverse FFTs of a ``jax.profiler`` trace (Chrome trace events), per thread pool
+    they ran in (``tf_XLAEigen``: XLA's intra-op pool; ``tf_XLAPjRtCpuClient``: the thread
+    that runs the program): how many, their median duration (ms), and the median time the
+    *other* threads of the intra-op pool spent in pool tasks while each FFT ran, in units of
+    its duration (``helpers``; the profiler's ``ThreadpoolListener::StartRegion`` …
+    ``StopRegion`` on each pool thread): 0 when the FFT ran on its own, about 1 when another
+    pool thread worked alongside it throughout."""
+    threads = {e["tid"]: e["args"]["name"] for e in events if e.get("ph") == "M" and e.get("name") == "thread_name"}
+    busy, open_since = {}, {}
+    for e in sorted((e for e in events if e.get("ph") == "X"), key=lambda e: e["ts"]):
+        if not threads.get(e["tid"], "").startswith("tf_XLAEigen"):
+            continue
+        if e["name"] == "ThreadpoolListener::StartRegion":
+            open_since[e["tid"]] = e["ts"]
+        elif e["name"] == "ThreadpoolListener::StopRegion" and e["tid"] in open_since:
+            busy.setdefault(e["tid"], []).append((open_since.pop(e["tid"]), e["ts"]))
+    by_pool = {}
+    for e in events:
+        if e.get("ph") == "X" and e["name"].startswith("fft") and e["dur"] > 0:
+            start, stop = e["ts"], e["ts"] + e["dur"]
+            helped = sum(max(0.0, min(stop, b) - max(start, a))
+                         for tid, spans in busy.items() if tid != e["tid"] for a, b in spans)
+            pool = threads.get(e["tid"], "?").split("/")[0]
+            by_pool.setdefault(pool, []).append((e["dur"] / 1e3, helped / e["dur"]))
+    return {pool: {"ffts": len(d), "median_ms": median(sorted(t for t, _ in d)),
+                   "helpers_median": median(sorted(w for _, w in d))} for pool, d in by_pool.items()}
+
+
 def fft_threads(kind: str, n: int, calls: int = 21) -> dict:
-    """Which thread runs the inverse FFT, and for how long, read from a ``jax.profiler`` trace:
-    in the grid path (the spectrum's evaluation and the FFT in one XLA program) and in
-    ``irfft2`` alone on the same spectrum. XLA:CPU's FFT hands its work to the intra-op thread
-    pool, and may itself run on one of the pool's threads; whether that, or the locality of a
-    spectrum just written by the pool, makes it slower inside the program is what these
-    figures are for (docs/benchmarks.md). Per program: per thread pool the FFT ran in (``tf_XLAEigen``: the intra-op pool; ``tf_XLAPjRtCpuClient``:
-    the thread that runs the program), how many of the calls' FFTs ran there and their median
-    duration."""
+    """Which thread runs the inverse FFT, for how long and with how much help from the pool
+    (:func:`fft_records` of a ``jax.profiler`` trace): in the grid path (the spectrum's
+    evaluation and the FFT in one XLA program), in ``irfft2`` alone on the same spectrum, and in
+    the floor (``rfft2`` + ``irfft2``: two FFTs per call).
+
+    XLA:CPU continues a program on whichever thread finished the operation it waited for:
+    after a kernel split over the intra-op pool, often a pool thread. Its FFT (DUCC) splits
+    its lines over the pool only when called from outside the pool — XLA's adapter
+    (``ducc/google/threading.h``, ``adjust_nthreads``) gives a caller that is itself a pool
+    thread one thread — so an FFT that lands on a pool thread runs on one thread. These figures show it as it happens (docs/benchmarks.md)."""
     def spectrum(w):
         shape = grid_shape(kind, w, n)
         h, _ = shape.grid_spacing()
@@ -204,9 +236,12 @@ def fft_threads(kind: str, n: int, calls: int = 21) -> dict:
     grid_fn = jax.jit(jax.vmap(lambda w: grid_shape(kind, w, n).on_grid()[1]))
     given = jax.jit(jax.vmap(spectrum))(WIDTHS)
     irfft_fn = jax.jit(lambda X: jnp.fft.irfft2(X, s=(n, n)))
+    x = jnp.fft.irfft2(given, s=(n, n))
+    floor_fn = jax.jit(lambda a: jnp.fft.irfft2(jnp.fft.rfft2(a), s=(n, n)))
     out = {"statistics": kind, "grid_size": n, "calls": calls}
     for name, fn in (("grid_path", lambda: grid_fn(WIDTHS).block_until_ready()),
-                     ("irfft2_alone", lambda: irfft_fn(given).block_until_ready())):
+                     ("irfft2_alone", lambda: irfft_fn(given).block_until_ready()),
+                     ("floor", lambda: floor_fn(x).block_until_ready())):
         fn()
         with tempfile.TemporaryDirectory() as tmp:
             with jax.profiler.trace(tmp):
@@ -215,13 +250,7 @@ def fft_threads(kind: str, n: int, calls: int = 21) -> dict:
             traces = glob.glob(os.path.join(tmp, "**", "*.trace.json.gz"), recursive=True)
             if not traces:
                 return {**out, "error": "no profiler trace written"}
-            events = json.load(gzip.open(traces[0]))["traceEvents"]
-        threads = {e["tid"]: e["args"]["name"] for e in events if e.get("ph") == "M" and e.get("name") == "thread_name"}
-        by_pool = {}
-        for e in events:
-            if e.get("ph") == "X" and e["name"].startswith("fft"):
-                by_pool.setdefault(threads.get(e["tid"], "?").split("/")[0], []).append(e["dur"] / 1e3)
-        out[name] = {pool: {"ffts": len(d), "median_ms": median(sorted(d))} for pool, d in by_pool.items()}
+            out[name] = fft_records(json.load(gzip.open(traces[0]))["traceEvents"])
     return out
 
 

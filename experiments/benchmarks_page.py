@@ -97,10 +97,15 @@ def evolve() -> str:
     threads = d.get("fft_threads")
     if threads and "grid_path" in threads:
         def where(record):
-            return ", ".join(f"{v['ffts']} in `{pool}` (median {v['median_ms']:.1f} ms)" for pool, v in record.items())
+            return ", ".join(f"{v['ffts']} in `{pool}` (median {v['median_ms']:.1f} ms"
+                             + (f", other pool threads working alongside {v['helpers_median']:.2f} of the time"
+                                if "helpers_median" in v else "") + ")"
+                             for pool, v in record.items())
         verdict += (f"\n\nThe inverse FFT itself (profiler, {threads['statistics']} at N = {threads['grid_size']}, "
                     f"{threads['calls']} calls each): inside the grid path's program {where(threads['grid_path'])}; "
-                    f"alone on the same spectra {where(threads['irfft2_alone'])}.")
+                    f"alone on the same spectra {where(threads['irfft2_alone'])}"
+                    + (f"; the floor's (two per call) {where(threads['floor'])}" if "floor" in threads else "")
+                    + ".")
     return "\n\n".join([
         machine_line(d),
         grid_table(rows),

@@ -161,3 +161,28 @@ def test_equal_accuracy_pairs_each_scipy_solve_with_the_least_work_as_close():
     # none is as close as 1e-12 σ: no pairing, no speed-up claimed
     assert out["scipy_lm_fd@1e-10"]["jax_tolerance"] is None and out["scipy_lm_fd@1e-10"]["speedup"] is None
     assert set(out) == {"scipy_trf_fd@1e-08", "scipy_trf_fd@1e-10", "scipy_lm_fd@1e-08", "scipy_lm_fd@1e-10"}
+
+
+def test_fft_records_reads_threads_durations_and_pool_help_from_a_trace():
+    import bench_evolve
+
+    def meta(tid, name):
+        return {"ph": "M", "name": "thread_name", "tid": tid, "args": {"name": name}}
+
+    def span(tid, name, ts, dur=1e-6):
+        return {"ph": "X", "tid": tid, "name": name, "ts": ts, "dur": dur}
+
+    client, pool_a, pool_b = 1, 2, 3
+    events = [meta(client, "tf_XLAPjRtCpuClient/1"), meta(pool_a, "tf_XLAEigen/2"), meta(pool_b, "tf_XLAEigen/3"),
+              # an FFT on the client thread, pool thread b busy for the middle half of it; the
+              # client's own region (it waits for the program) is not help
+              span(client, "ThreadpoolListener::StartRegion", 0.0), span(client, "fft.0", 0.0, 400.0),
+              span(pool_b, "ThreadpoolListener::StartRegion", 100.0), span(pool_b, "ThreadpoolListener::StopRegion", 300.0),
+              span(client, "ThreadpoolListener::StopRegion", 400.0),
+              # an FFT on pool thread a inside a's own region, nobody else working; b's region ends before
+              span(pool_b, "ThreadpoolListener::StartRegion", 500.0), span(pool_b, "ThreadpoolListener::StopRegion", 900.0),
+              span(pool_a, "ThreadpoolListener::StartRegion", 800.0), span(pool_a, "fft.3", 1000.0, 2000.0),
+              span(pool_a, "ThreadpoolListener::StopRegion", 3000.0), span(pool_a, "end: fft.3", 3000.0)]
+    out = bench_evolve.fft_records(events)
+    assert out == {"tf_XLAPjRtCpuClient": {"ffts": 1, "median_ms": 0.4, "helpers_median": 0.5},
+                   "tf_XLAEigen": {"ffts": 1, "median_ms": 2.0, "helpers_median": 0.0}}
