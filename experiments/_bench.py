@@ -98,3 +98,10 @@ def write_json(name: str, payload: dict) -> Path:
 
     _files.atomic_write(path, write, overwrite=True)
     return path
+
+
+def table(header: list[str], rows: list[list[str]]) -> str:
+    """A Markdown table."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
