@@ -140,6 +140,16 @@ def test_benchmark_pages_are_generated_from_the_committed_json():
         assert benchmarks_page.rendered(name) == page, f"docs/{name} is stale: run python experiments/benchmarks_page.py"
 
 
+@pytest.mark.parametrize("result", ["bench_fit", "calibration_fit", "bench_cli_cache"])
+def test_hand_written_analyses_cite_the_committed_run(result):
+    """docs/fitting.md analyses these runs in prose (figures checked against the JSON when
+    written): it names each run by the timestamp in its JSON, so a rerun that is not followed
+    by a new analysis fails here instead of leaving the prose describing other numbers."""
+    stamp = json.loads((Path(__file__).resolve().parent.parent / "experiments" / "results" / f"{result}.json")
+                       .read_text())["machine"]["date_utc"]
+    assert f"run of {stamp}" in (Path(__file__).resolve().parent.parent / "docs" / "fitting.md").read_text().replace("\n", " ")
+
+
 def test_equal_accuracy_pairs_each_scipy_solve_with_the_least_work_as_close():
     import bench_fit
 
