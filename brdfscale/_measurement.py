@@ -10,6 +10,7 @@ nodes span ``[−extent, extent]`` on both axes (rows u_y, columns u_x, as
 
 import dataclasses
 import math
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -98,7 +99,9 @@ class LobeImage:
 class MeasurementSet:
     """Lobe images of one material at several scales and incident directions.
 
-    ``metadata`` holds JSON-serialisable extras (e.g. the ground truth of a synthetic set).
+    ``metadata`` is a dict of extras (e.g. the ground truth of a synthetic set) with str keys
+    and JSON-serialisable values: its type is checked here (another mapping is copied into a
+    dict), its JSON when :func:`brdfscale.exr.write_measurements` stores it.
     """
 
     images: tuple[LobeImage, ...]
@@ -109,6 +112,12 @@ class MeasurementSet:
         if not images or not all(isinstance(p, LobeImage) for p in images):
             raise InvalidInputError("images must be a non-empty sequence of LobeImage.")
         object.__setattr__(self, "images", images)
+        if not isinstance(self.metadata, Mapping):
+            raise InvalidInputError(
+                f"metadata must be a dict (str keys, JSON-serialisable values); got {type(self.metadata).__name__}."
+            )
+        if not isinstance(self.metadata, dict):
+            object.__setattr__(self, "metadata", dict(self.metadata))
 
     @property
     def scales(self) -> np.ndarray:

@@ -9,6 +9,8 @@ import json
 import os
 import shutil
 import subprocess
+import types
+import warnings
 
 import hypothesis.strategies as st
 import numpy as np
@@ -311,3 +313,122 @@ def test_images_of_different_sizes(tmp_path):
     path = tmp_path / "mixed.exr"
     exr.write_measurements(path, mset)
     _assert_same(exr.read_measurements(path), mset, np.float32)
+
+
+def _one(values, sigma=None, metadata=None):
+    image = LobeImage(mu=1.0, incident=[0, 0, 1.0], extent=1.0, values=values, sigma=sigma)
+    return MeasurementSet((image,), {} if metadata is None else metadata)
+
+
+@pytest.mark.parametrize("dtype, big", [("float32", 1e39), ("float16", 7e4)])
+def test_values_beyond_the_stored_range_are_refused(tmp_path, dtype, big):
+    """A finite value or σ that the cast turns into inf is refused (was: inf written, RuntimeWarning)."""
+    path = tmp_path / "big.exr"
+    values = np.ones((3, 3))
+    values[1, 2] = -big
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no numpy overflow warning either
+        with pytest.raises(InvalidInputError, match=rf"image 0 values \(channel Y\): 1 entries .*exceed the {dtype} range"):
+            exr.write_measurements(path, _one(values), dtype=dtype)
+        with pytest.raises(InvalidInputError, match=rf"image 0 sigma .*exceed the {dtype} range"):
+            exr.write_measurements(path, _one(np.ones((3, 3)), sigma=np.full((3, 3), big)), dtype=dtype)
+    assert not path.exists()
+    hint = "rescale" if dtype == "float32" else "dtype='float32'"
+    with pytest.raises(InvalidInputError, match=hint):
+        exr.write_measurements(path, _one(values), dtype=dtype)
+    exr.write_measurements(path, _one(np.full((3, 3), 3.4e38)))  # the float32 maximum itself fits
+    assert np.all(np.isfinite(exr.read_measurements(path).images[0].values))
+
+
+def test_values_underflowing_to_zero_are_refused(tmp_path):
+    """Nonzero values that the cast turns into 0 are refused as σ's are, unless negligible
+    against the channel's largest value (a lobe's far tail)."""
+    path = tmp_path / "small.exr"
+    with pytest.raises(InvalidInputError, match=r"image 0 values \(channel Y\): 9 nonzero entries .*underflow to 0 in float16"):
+        exr.write_measurements(path, _one(np.full((3, 3), 1e-9)), dtype="float16")
+    rgb = np.ones((3, 3, 3))
+    rgb[..., 2] = 1e-9  # one channel lost entirely
+    with pytest.raises(InvalidInputError, match=r"channel B\).*underflow to 0 in float16.*dtype='float32'"):
+        exr.write_measurements(path, _one(rgb), dtype="float16")
+    with pytest.raises(InvalidInputError, match=r"sigma \(channel sigma\).*underflow to 0 in float16"):
+        exr.write_measurements(path, _one(np.ones((3, 3)), sigma=np.full((3, 3), 1e-9)), dtype="float16")
+    with pytest.raises(InvalidInputError, match="underflow to 0 in float32.*rescale"):
+        exr.write_measurements(path, _one(np.full((3, 3), 1e-46)))
+    assert not path.exists()
+    tail = np.ones((3, 3))
+    tail[0, 0] = 1e-60  # below float32 precision relative to the largest value: a tail, stored as 0
+    exr.write_measurements(path, _one(tail))
+    read = exr.read_measurements(path).images[0].values
+    assert read[0, 0] == 0 and read[1, 1] == 1
+    exr.write_measurements(path, _one(np.full((3, 3), 1e-9)), overwrite=True)  # fits float32
+    assert np.all(exr.read_measurements(path).images[0].values > 0)
+
+
+def test_metadata_must_be_a_json_object(tmp_path):
+    with pytest.raises(InvalidInputError, match="metadata must be a dict.*got list"):
+        _one(np.ones((3, 3)), metadata=[1, 2])
+    with pytest.raises(InvalidInputError, match="metadata must be a dict.*got NoneType"):
+        MeasurementSet(_mset().images, None)
+    with pytest.raises(InvalidInputError, match="metadata must be a dict.*got list"):
+        exr.LobeTable([1.0], 0.1, np.ones((1, 3, 3)), [1, 2])
+    path = tmp_path / "m.exr"
+    with pytest.raises(InvalidInputError, match=r"keys must be strings.*int key 2 in metadata\['a'\]"):
+        exr.write_measurements(path, _one(np.ones((3, 3)), metadata={"a": {2: "two"}}))
+    with pytest.raises(InvalidInputError, match="keys must be strings"):
+        exr.write_lobe_table(path, exr.LobeTable([1.0], 0.1, np.ones((1, 3, 3)), {1: "x", "y": 2}))
+    mset = _one(np.ones((3, 3)), metadata={"a": 1})
+    mset.metadata["later"] = [1, 2]  # a dict may still change: JSON is checked when written
+    mset.metadata[3] = "x"
+    with pytest.raises(InvalidInputError, match="keys must be strings"):
+        exr.write_measurements(path, mset)
+    assert not path.exists()
+    proxy = _one(np.ones((3, 3)), metadata=types.MappingProxyType({"a": [1, "b"]}))
+    assert type(proxy.metadata) is dict
+    exr.write_measurements(path, proxy)
+    assert exr.read_measurements(path).metadata == {"a": [1, "b"]}
+
+
+def test_bad_paths_are_named(tmp_path):
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    for overwrite in (False, True):
+        with pytest.raises(MeasurementFileError, match=rf"{folder}: is a directory"):
+            exr.write_measurements(folder, _mset(), overwrite=overwrite)
+    assert folder.is_dir() and not os.listdir(folder) and os.listdir(tmp_path) == ["folder"]
+    with pytest.raises(MeasurementFileError, match=rf"{folder}: is a directory"):
+        exr.read_measurements(folder)
+    for bad in (None, 3, ""):
+        with pytest.raises(InvalidInputError, match="path must be"):
+            exr.write_measurements(bad, _mset())
+        with pytest.raises(InvalidInputError, match="path must be"):
+            exr.read_measurements(bad)
+    path = tmp_path / "set.exr"
+    path.write_bytes(b"precious")
+    with pytest.raises(InvalidInputError, match="overwrite must be True or False"):
+        exr.write_measurements(path, _mset(), overwrite="no")
+    assert path.read_bytes() == b"precious"
+    if os.geteuid() != 0:  # root writes anywhere
+        locked = tmp_path / "locked"
+        locked.mkdir(mode=0o500)
+        with pytest.raises(MeasurementFileError, match=rf"{locked / 'x.exr'}: cannot write the file"):
+            exr.write_measurements(locked / "x.exr", _mset())
+
+
+def test_lobe_table_writer_has_the_same_checks(tmp_path):
+    path = tmp_path / "t.exr"
+    with pytest.raises(InvalidInputError, match=r"scale 1 values \(channel Y\).*exceed the float32 range"):
+        exr.write_lobe_table(path, exr.LobeTable([1.0, 2.0], 0.1, np.stack([np.ones((3, 3)), np.full((3, 3), 1e39)])))
+    with pytest.raises(InvalidInputError, match=r"scale 0 values \(channel G\).*underflow to 0 in float16"):
+        rgb = np.ones((1, 3, 3, 3))
+        rgb[..., 1] = -1e-9
+        exr.write_lobe_table(path, exr.LobeTable([1.0], 0.1, rgb), dtype="float16")
+    table = exr.LobeTable([1.0], 0.1, np.ones((1, 3, 3)))
+    with pytest.raises(MeasurementFileError, match=rf"{tmp_path}: is a directory"):
+        exr.write_lobe_table(tmp_path, table, overwrite=True)
+    with pytest.raises(InvalidInputError, match="path must be"):
+        exr.write_lobe_table(None, table)
+    with pytest.raises(InvalidInputError, match="path must be"):
+        exr.read_lobe_table(None)
+    with pytest.raises(InvalidInputError, match="dtype must be"):
+        exr.write_lobe_table(path, table, dtype=["float32"])
+    assert os.listdir(tmp_path) == []

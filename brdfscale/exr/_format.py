@@ -41,7 +41,6 @@ FORMAT_VERSION = 1
 DOMAIN = "half_slope"
 PREFIX = "brdfscale."
 VALUE_DTYPES = {"float32": np.float32, "float16": np.float16}
-FLOAT16_MAX = float(np.finfo(np.float16).max)
 
 
 def checksum(pixels: np.ndarray) -> str:

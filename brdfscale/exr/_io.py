@@ -2,24 +2,57 @@
 
 import os
 
+import numpy as np
 import OpenEXR
 
-from .._errors import MeasurementFileError
+from .._errors import InvalidInputError, MeasurementFileError
 from .._files import atomic_write
 from ._format import PREFIX
 
 
+def file_path(path) -> str:
+    """``path`` as a str, or InvalidInputError when it cannot name a file."""
+    try:
+        p = os.fspath(path)
+    except TypeError:
+        raise InvalidInputError(
+            f"path must be a str or os.PathLike naming an .exr file; got {type(path).__name__} {path!r}."
+        ) from None
+    if isinstance(p, bytes):
+        p = os.fsdecode(p)
+    if not p or "\0" in p:
+        raise InvalidInputError(f"path must be a non-empty file name without NUL characters; got {p!r}.")
+    return p
+
+
+def check_overwrite(overwrite) -> bool:
+    if not isinstance(overwrite, (bool, np.bool_)):
+        raise InvalidInputError(f"overwrite must be True or False; got {type(overwrite).__name__} {overwrite!r}.")
+    return bool(overwrite)
+
+
 def write_parts(path, parts: list, overwrite: bool) -> None:
     """Write ``OpenEXR.Part``s to ``path`` atomically, never replacing a file unless
-    ``overwrite`` (see :func:`brdfscale._files.atomic_write`)."""
+    ``overwrite`` (see :func:`brdfscale._files.atomic_write`).
+
+    Raises InvalidInputError for a ``path`` that is no file name, MeasurementFileError
+    naming the path when it is a directory or cannot be written (permissions, full disk, …).
+    """
+    path = file_path(path)
+    overwrite = check_overwrite(overwrite)
+    if os.path.isdir(path):
+        raise MeasurementFileError(f"{path}: is a directory; give the path of an .exr file to write (e.g. inside it).")
 
     def write(tmp):
         try:
             OpenEXR.File(parts).write(tmp)
         except (RuntimeError, TypeError, ValueError) as err:
-            raise MeasurementFileError(f"{os.fspath(path)}: OpenEXR could not write the file: {err}") from err
+            raise MeasurementFileError(f"{path}: OpenEXR could not write the file: {err}") from err
 
-    atomic_write(path, write, overwrite=overwrite, error=MeasurementFileError)
+    try:
+        atomic_write(path, write, overwrite=overwrite, error=MeasurementFileError)
+    except OSError as err:
+        raise MeasurementFileError(f"{path}: cannot write the file: {err.strerror or err}.") from err
 
 
 def open_parts(path) -> list:
@@ -30,7 +63,9 @@ def open_parts(path) -> list:
     pixel data (FIELD-NOTES); every part records the part count, so a short file is
     reported here.
     """
-    path = os.fspath(path)
+    path = file_path(path)
+    if os.path.isdir(path):
+        raise MeasurementFileError(f"{path}: is a directory, not an .exr file.")
     if not os.path.isfile(path):
         raise MeasurementFileError(f"{path}: no such file.")
     try:

@@ -6,7 +6,7 @@ import OpenEXR
 from .._errors import BrdfscaleError, InvalidInputError, MeasurementFileError
 from .._measurement import LobeImage, MeasurementSet
 from ._format import FORMAT, PREFIX, PartReader
-from ._io import open_parts, write_parts
+from ._io import check_overwrite, file_path, open_parts, write_parts
 from ._parts import check_dtype, image_channels, metadata_json, part_header, read_image_part
 
 KIND = "measurement_set"
@@ -16,15 +16,23 @@ def write_measurements(path, mset: MeasurementSet, *, overwrite: bool = False, d
     """Write a measurement set as a multi-part OpenEXR file (layout: :mod:`brdfscale.exr`).
 
     One part per :class:`LobeImage`, in order; values and σ stored as ``dtype``
-    (``"float32"`` or ``"float16"``: about 3 significant digits, |x| ≤ 65504), μ, the
-    extent and the incident direction as doubles, ``mset.metadata`` as JSON in part 0.
-    The write is atomic; an existing ``path`` is replaced only with ``overwrite=True``.
+    (``"float32"``: |x| ≤ 3.4e38, or ``"float16"``: about 3 significant digits,
+    |x| ≤ 65504, nonzero |x| ≥ 6e-8), μ, the extent and the incident direction as doubles,
+    ``mset.metadata`` as JSON in part 0. Nothing is lost beyond rounding: an entry that the
+    cast would turn into inf, a σ that it would turn into 0, or a value that it would turn
+    into 0 although it is not negligible against the largest of its channel (beyond the
+    dtype's precision) is refused. The write is atomic; an existing ``path`` is replaced
+    only with ``overwrite=True``.
 
     Raises:
-        InvalidInputError: not a MeasurementSet, metadata not JSON-serialisable, or values
-            outside the float16 range.
-        MeasurementFileError: ``path`` exists (and not ``overwrite``), or cannot be written.
+        InvalidInputError: ``path`` not a str or os.PathLike, not a MeasurementSet,
+            metadata not a dict with str keys and JSON-serialisable values, a bad ``dtype``
+            or ``overwrite``, or values or σ that do not fit ``dtype`` (as above).
+        MeasurementFileError: ``path`` exists (and not ``overwrite``), is a directory, or
+            cannot be written.
     """
+    path = file_path(path)
+    overwrite = check_overwrite(overwrite)
     if not isinstance(mset, MeasurementSet):
         raise InvalidInputError(f"mset must be a brdfscale.MeasurementSet; got {type(mset).__name__}.")
     stored = check_dtype(dtype)
@@ -49,6 +57,7 @@ def read_measurements(path) -> MeasurementSet:
     μ, extent and incident directions as the doubles written.
 
     Raises:
+        InvalidInputError: ``path`` not a str or os.PathLike.
         MeasurementFileError: missing, unreadable, truncated or corrupted file (checksum
             mismatch), wrong or missing attribute or channel, not a measurement set. The
             message names the file, the part and the attribute or channel.

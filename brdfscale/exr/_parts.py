@@ -8,7 +8,6 @@ import OpenEXR
 from .._errors import InvalidInputError
 from ._format import (
     DOMAIN,
-    FLOAT16_MAX,
     FORMAT,
     FORMAT_VERSION,
     PREFIX,
@@ -20,24 +19,52 @@ from ._format import (
 )
 
 
-def _store(a: np.ndarray, dtype, what: str) -> np.ndarray:
-    if dtype == np.float16 and np.max(np.abs(a), initial=0) > FLOAT16_MAX:
-        raise InvalidInputError(f"{what} exceeds the float16 range (±{FLOAT16_MAX}); write with dtype='float32'.")
-    return np.ascontiguousarray(a, dtype=dtype)
+def store(a: np.ndarray, dtype, what: str, *, positive: bool = False) -> np.ndarray:
+    """``a`` cast to the stored ``dtype``, refusing what the cast would lose beyond rounding.
+
+    The one check for every float array a writer stores (values, σ, lobe tables), made on
+    the cast result itself: a finite entry that becomes ±inf (beyond the dtype's range), or
+    a nonzero entry that becomes 0. Zero is a valid value, so for values an entry flushed to
+    0 is accepted when it is below the dtype's precision relative to the array's largest
+    magnitude (|x| ≤ eps·max|a|: a lobe's far tail); for ``positive`` arrays (σ, which must
+    stay > 0) any entry flushed to 0 is refused. Raises InvalidInputError naming ``what``,
+    the dtype and its range.
+    """
+    a = np.asarray(a, dtype=float)
+    name = np.dtype(dtype).name
+    info = np.finfo(dtype)
+    with np.errstate(over="ignore", under="ignore"):
+        stored = np.ascontiguousarray(a, dtype=dtype)
+    wider = ("write with dtype='float32'" if name == "float16" else
+             "rescale the data (other units) to fit: float32 is the widest float pixel type of OpenEXR")
+    over = np.isfinite(a) & ~np.isfinite(stored)
+    if np.any(over):
+        raise InvalidInputError(
+            f"{what}: {np.count_nonzero(over)} entries (largest |x| = {np.max(np.abs(a[over])):.4g}) exceed the "
+            f"{name} range (|x| ≤ {float(info.max):.6g}) and would be stored as inf; {wider}."
+        )
+    lost = (stored == 0) & (a != 0)
+    if not positive:
+        lost &= np.abs(a) > float(info.eps) * np.max(np.abs(a), initial=0)
+    if np.any(lost):
+        raise InvalidInputError(
+            f"{what}: {np.count_nonzero(lost)} nonzero entries (largest |x| = {np.max(np.abs(a[lost])):.4g}) underflow "
+            f"to 0 in {name} (smallest nonzero |x|: {float(info.smallest_subnormal):.4g}; normal range from "
+            f"{float(info.tiny):.4g}); {wider}."
+        )
+    return stored
 
 
 def image_channels(values, sigma, mask, dtype, what: str) -> dict:
-    """The channel dict of one image (values Y or R,G,B; σ; mask) in the stored dtypes."""
+    """The channel dict of one image (values Y or R,G,B; σ; mask) in the stored dtypes,
+    each float channel checked by :func:`store`."""
     rgb = values.ndim == 3
     names, sigma_names = channel_names(rgb)
     planes = [values[..., c] for c in range(3)] if rgb else [values]
-    channels = {n: _store(p, dtype, f"{what} values") for n, p in zip(names, planes)}
+    channels = {n: store(p, dtype, f"{what} values (channel {n})") for n, p in zip(names, planes)}
     if sigma is not None:
         for n, p in zip(sigma_names, [sigma[..., c] for c in range(3)] if rgb else [sigma]):
-            stored = _store(p, dtype, f"{what} sigma")
-            if not np.all(stored > 0):
-                raise InvalidInputError(f"{what} sigma underflows to 0 in {np.dtype(dtype)}; write with dtype='float32'.")
-            channels[n] = stored
+            channels[n] = store(p, dtype, f"{what} sigma (channel {n})", positive=True)
     if mask is not None:
         channels["mask"] = np.ascontiguousarray(mask, dtype=np.uint32)
     return channels
@@ -62,15 +89,43 @@ def part_header(kind: str, index: int, count: int, mu: float, extent: float, cha
     }
 
 
-def metadata_json(metadata: dict) -> str:
+def _string_keys(value, where: str) -> None:
+    """JSON turns every key into a string: a non-str key would come back changed."""
+    if isinstance(value, dict):
+        for key, item in value.items():
+            if not isinstance(key, str):
+                raise InvalidInputError(
+                    "metadata keys must be strings (JSON stores every key as a string, so it would be read back "
+                    f"changed); got {type(key).__name__} key {key!r} in {where}."
+                )
+            _string_keys(item, f"{where}[{key!r}]")
+    elif isinstance(value, (list, tuple)):
+        for k, item in enumerate(value):
+            _string_keys(item, f"{where}[{k}]")
+
+
+def metadata_json(metadata) -> str:
+    """``metadata`` as the JSON object text stored in part 0; InvalidInputError unless it is a
+    dict with str keys and JSON-serialisable values (finite numbers, str, bool, None, lists,
+    dicts), so that the reader gets the same object back (tuples come back as lists)."""
+    if not isinstance(metadata, dict):
+        raise InvalidInputError(
+            f"metadata must be a dict (str keys, JSON-serialisable values); got {type(metadata).__name__}."
+        )
     try:
-        return json.dumps(metadata, allow_nan=False, sort_keys=True)
-    except (TypeError, ValueError) as err:
+        text = json.dumps(metadata, allow_nan=False, sort_keys=True)
+    except (TypeError, ValueError, RecursionError) as err:
+        try:
+            _string_keys(metadata, "metadata")  # the clearer message when mixed keys made sorting fail
+        except RecursionError:
+            pass
         raise InvalidInputError(f"metadata must be JSON-serialisable (finite numbers, str, lists, dicts): {err}") from err
+    _string_keys(metadata, "metadata")  # no cycles: json.dumps would have refused them
+    return text
 
 
 def check_dtype(dtype: str):
-    if dtype not in VALUE_DTYPES:
+    if not isinstance(dtype, str) or dtype not in VALUE_DTYPES:
         raise InvalidInputError(f"dtype must be 'float32' or 'float16'; got {dtype!r}.")
     return VALUE_DTYPES[dtype]
 

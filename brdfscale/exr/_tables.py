@@ -2,6 +2,7 @@
 
 import dataclasses
 import math
+from collections.abc import Mapping
 
 import jax.numpy as jnp
 import numpy as np
@@ -11,7 +12,7 @@ from jaxtyping import Float
 from .._errors import BrdfscaleError, InvalidInputError, MeasurementFileError
 from ..lobes import AbstractLobe
 from ._format import PREFIX, PartReader
-from ._io import open_parts, write_parts
+from ._io import check_overwrite, file_path, open_parts, write_parts
 from ._parts import check_dtype, image_channels, metadata_json, part_header, read_image_part
 
 KIND = "lobe_table"
@@ -27,7 +28,8 @@ class LobeTable:
             (rows u_y, columns u_x, as :class:`brdfscale.stats.Tabulated`).
         values: shape (k, n, n) or (k, n, n, 3) (RGB); finite (an evolved lobe may dip below
             zero by quadrature or regularisation error, so the sign is not checked).
-        metadata: JSON-serialisable extras (how the table was made).
+        metadata: a dict of extras (how the table was made), str keys and JSON-serialisable
+            values (a mapping is copied into a dict; JSON is checked when written).
     """
 
     scales: Float[np.ndarray, " k"]
@@ -53,6 +55,10 @@ class LobeTable:
         object.__setattr__(self, "scales", scales)
         object.__setattr__(self, "extent", extent)
         object.__setattr__(self, "values", values)
+        if not isinstance(self.metadata, Mapping):
+            raise InvalidInputError(
+                f"metadata must be a dict (str keys, JSON-serialisable values); got {type(self.metadata).__name__}."
+            )
         object.__setattr__(self, "metadata", dict(self.metadata))
 
     @classmethod
@@ -78,9 +84,13 @@ class LobeTable:
 def write_lobe_table(path, table: LobeTable, *, overwrite: bool = False, dtype: str = "float32") -> None:
     """Write a :class:`LobeTable` as a multi-part OpenEXR file, one part per scale.
 
-    Same layout and guarantees as :func:`write_measurements` (``brdfscale.kind =
-    "lobe_table"``, no incident direction, no σ or mask).
+    Same layout, checks and guarantees as :func:`write_measurements` (``brdfscale.kind =
+    "lobe_table"``, no incident direction, no σ or mask): values that ``dtype`` cannot hold
+    (overflow, or underflow to 0 beyond its precision) raise InvalidInputError, a
+    directory or unwritable ``path`` MeasurementFileError.
     """
+    path = file_path(path)
+    overwrite = check_overwrite(overwrite)
     if not isinstance(table, LobeTable):
         raise InvalidInputError(f"table must be a brdfscale.exr.LobeTable; got {type(table).__name__}.")
     stored = check_dtype(dtype)
