@@ -37,8 +37,9 @@ from jaxtyping import Array, Float
 
 from brdfscale import InvalidInputError
 
+from brdfscale._validation import integer, real
 from ._data import Dataset, PointData
-from ._models import AbstractModel
+from ._models import AbstractModel, require_dataset
 
 __all__ = ["Problem", "FitResult", "fit", "SOLVERS"]
 
@@ -59,6 +60,11 @@ class Problem(eqx.Module):
     reach parameters where the forward model does not exist (e.g. a lobe width that
     underflows to 0); inside the box (where every reported optimum lies) the clip is the
     identity.
+
+    Raises:
+        InvalidInputError: ``model`` is not a fitting model, ``data`` not a
+            :class:`~fitting.Dataset`, or the two do not belong together (a
+            :class:`~fitting.NonParametricModel` built from data with another number of scales).
     """
 
     model: AbstractModel
@@ -68,6 +74,11 @@ class Problem(eqx.Module):
     upper: jax.Array
 
     def __init__(self, model: AbstractModel, data: Dataset):
+        if not isinstance(model, AbstractModel):
+            raise InvalidInputError(f"Problem(model, data) needs a fitting model (ParametricModel or "
+                                    f"NonParametricModel) as model; got {type(model).__name__}.")
+        require_dataset(data, "Problem(model, data)")
+        model.check_data(data)
         self.model, self.data = model, data
         self.points = data.points(model.radial)
         lo, hi = model.bounds(data)
@@ -86,6 +97,24 @@ class Problem(eqx.Module):
     def chi2_of_residuals(self, r: Float[Array, " m"]) -> Float[Array, ""]:
         """χ² from the reduced residuals ``r`` (adds the within-group constant back)."""
         return r @ r + self.points.chi2_offset
+
+
+def check_fit(problem, fit, what: str) -> None:
+    """Raise :class:`~brdfscale.InvalidInputError` unless ``fit`` is a :class:`FitResult` of
+    ``problem``'s model (same θ coordinates); ``what`` names the caller in the message."""
+    if not isinstance(problem, Problem):
+        raise InvalidInputError(f"{what} needs a fitting.Problem as problem; got {type(problem).__name__}.")
+    if not isinstance(fit, FitResult):
+        raise InvalidInputError(f"{what} needs the FitResult of fitting.fit as fit; got {type(fit).__name__}.")
+    names = tuple(problem.model.names)
+    theta, cov = np.asarray(fit.theta), np.asarray(fit.covariance)
+    if tuple(fit.names) != names or theta.shape != (len(names),) or cov.shape != (len(names), len(names)):
+        def brief(n):
+            return f"{len(n)} coordinates ({', '.join(n[:3])}{', …' if len(n) > 3 else ''})"
+        raise InvalidInputError(
+            f"{what}: fit is the result for {brief(tuple(fit.names))}, but the problem's model has "
+            f"{brief(names)}; pass the fit of this model and data (fitting.fit(problem.model, problem.data))."
+        )
 
 
 def _residuals(theta, problem: Problem):
@@ -244,16 +273,34 @@ def fit(
 
     Returns:
         A :class:`FitResult`; inspect ``status`` and ``undetermined`` before trusting it.
+
+    Raises:
+        InvalidInputError: ``model``/``data`` of the wrong type or not belonging together
+            (:class:`Problem`); an unknown ``solver``; ``starts``, ``max_steps`` not integers
+            ≥ 1, ``seed`` not an integer ≥ 0; ``spread``, ``rtol``, ``atol`` not finite and
+            ≥ 0 (``rtol``, ``atol`` not both 0), ``undetermined_std`` not finite and > 0;
+            every start ending with a non-finite χ².
     """
     if not isinstance(model, AbstractModel) or not isinstance(data, Dataset):
-        raise InvalidInputError("fit(model, data) needs a fitting model and a fitting.Dataset.")
-    if int(starts) < 1 or int(max_steps) < 1:
-        raise InvalidInputError(f"starts and max_steps must be ≥ 1; got {starts}, {max_steps}.")
-    optimiser = _make_solver(solver, rtol, atol)
+        raise InvalidInputError(
+            "fit(model, data) needs a fitting model (ParametricModel or NonParametricModel) and a fitting.Dataset "
+            f"(fitting.Dataset.from_measurements); got {type(model).__name__} and {type(data).__name__}.")
+    if not isinstance(solver, str) or solver not in SOLVERS:
+        raise InvalidInputError(f"solver must be one of {SOLVERS}; got {solver!r}.")
+    starts = integer(starts, "starts", 1)
+    max_steps = integer(max_steps, "max_steps", 1)
+    spread = real(spread, "spread", minimum=0.0)
+    seed = integer(seed, "seed", 0)
+    rtol = real(rtol, "rtol", minimum=0.0)
+    atol = real(atol, "atol", minimum=0.0)
+    if rtol == 0 and atol == 0:
+        raise InvalidInputError("rtol and atol must not both be 0: no step could ever meet the convergence test.")
+    undetermined_std = real(undetermined_std, "undetermined_std", minimum=0.0, strict=True)
     problem = Problem(model, data)
-    y0 = jnp.asarray(_starting_points(model, data, int(starts), spread, seed), dtype=jnp.float64)
+    optimiser = _make_solver(solver, rtol, atol)
+    y0 = jnp.asarray(_starting_points(model, data, starts, spread, seed), dtype=jnp.float64)
     # one compiled solve, called per start (vmapping the solve compiles ~2.5× longer here)
-    runs = [_solve(problem, y, optimiser, int(max_steps)) for y in y0]
+    runs = [_solve(problem, y, optimiser, max_steps) for y in y0]
     values, codes, steps, chi2s, jacobians = (np.stack([np.asarray(run[i]) for run in runs]) for i in range(5))
     ok = (codes == optx.RESULTS.successful._value) & np.isfinite(chi2s)
     pool = np.flatnonzero(ok) if ok.any() else np.flatnonzero(np.isfinite(chi2s))

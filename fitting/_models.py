@@ -24,6 +24,7 @@ non-negative increments), so optimisers and samplers need no bounds.
 
 import abc
 import math
+from collections.abc import Mapping
 
 import equinox as eqx
 import jax
@@ -31,9 +32,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from brdfscale import InvalidInputError, MethodNotApplicableError, evolve, lobes, stats
+from brdfscale import InvalidInputError, MeasurementSet, MethodNotApplicableError, evolve, lobes, stats
 from brdfscale._special import j0
 
+from brdfscale._validation import integer, real
 from ._data import Dataset
 
 __all__ = ["AbstractModel", "ParametricModel", "NonParametricModel", "RelativeStatistics"]
@@ -48,6 +50,9 @@ def _moments(data: Dataset) -> tuple[float, np.ndarray]:
     For a Gaussian lobe ``A exp(−|u|²/α²)/(π α²)`` the area where the lobe exceeds half its
     peak is ``π α² ln 2``; that gives α², and the amplitude is ``peak · π α²``. Pixels below
     half the peak (where the noise lives) do not enter.
+
+    Raises:
+        InvalidInputError: an image has no positive valid pixel (no lobe to measure).
     """
     n_scales = data.scales.shape[0]
     amp, width2, count = np.zeros(n_scales), np.zeros(n_scales), np.zeros(n_scales)
@@ -56,6 +61,11 @@ def _moments(data: Dataset) -> tuple[float, np.ndarray]:
         valid = np.asarray(data.weight[i, : n * n]) > 0
         v = np.where(valid, np.asarray(data.values[i, : n * n]), -np.inf)
         peak = v.max()
+        if not peak > 0:
+            raise InvalidInputError(
+                f"image {i} (μ = {float(data.scales[k]):g}) has no positive valid pixel (largest value {peak:g}); "
+                "a lobe image must be positive where the lobe is, or no amplitude and width can be estimated."
+            )
         area = np.count_nonzero(v > peak / 2) * (2 * a / (n - 1)) ** 2
         w2 = max(area, (2 * a / (n - 1)) ** 2) / (math.pi * math.log(2))
         width2[k] += w2
@@ -125,6 +135,19 @@ class AbstractModel(eqx.Module):
         """Whitened prior residuals appended to the data residuals (none by default)."""
         return jnp.zeros((0,), dtype=theta.dtype)
 
+    def check_data(self, data: Dataset) -> None:
+        """Raise :class:`~brdfscale.InvalidInputError` unless ``data`` is a :class:`~fitting.Dataset`
+        this model can be fitted to (a model built from one dataset fixes its layout)."""
+        require_dataset(data, f"{type(self).__name__}.check_data(data)")
+
+
+def require_dataset(data, where: str) -> None:
+    """InvalidInputError naming ``where`` unless ``data`` is a :class:`~fitting.Dataset`."""
+    if not isinstance(data, Dataset):
+        hint = (" (build one with fitting.Dataset.from_measurements(measurement_set))"
+                if isinstance(data, MeasurementSet) else "")
+        raise InvalidInputError(f"{where}: data must be a fitting.Dataset{hint}; got {type(data).__name__}.")
+
 
 @eqx.filter_jit
 def predict_images(model: AbstractModel, theta: Float[Array, " n"], data: Dataset) -> Float[Array, "n_img n_pix"]:
@@ -146,7 +169,7 @@ class ParametricModel(AbstractModel):
         fixed: physical parameters held at given values (e.g. ``{"mu_c": 1.0}``) — the way
             to supply prior knowledge that the data lack.
         radial_nodes: Gauss–Legendre nodes of the radial evolution path (used whenever GGX is
-            involved; Beckmann with Beckmann has a closed form).
+            involved; Beckmann with Beckmann has a closed form); an integer ≥ 8.
 
     Parameters (all positive, θ = their logarithms): ``amplitude`` A (the lobe's integral
     over u), ``alpha_lobe`` (base-lobe width at μ0), and for ``law="width"``: ``alpha_max``,
@@ -183,13 +206,12 @@ class ParametricModel(AbstractModel):
         for name, value in fixed.items():
             if name not in parameters:
                 raise InvalidInputError(f"cannot fix unknown parameter {name!r}; the parameters are {parameters}.")
-            if not (math.isfinite(float(value)) and float(value) > 0):
-                raise InvalidInputError(f"fixed value of {name} must be positive and finite; got {value!r}.")
+            real(value, f"fixed value of {name}", minimum=0.0, strict=True)
         if len(fixed) == len(parameters):
             raise InvalidInputError("every parameter is fixed; leave at least one free.")
         self.lobe, self.statistics, self.law_kind, self.window = lobe, statistics, law, window
         self.fixed = tuple(sorted((k, float(v)) for k, v in fixed.items()))
-        self.radial_nodes = int(radial_nodes)
+        self.radial_nodes = integer(radial_nodes, "radial_nodes", 8)
 
     @property
     def parameters(self) -> tuple[str, ...]:
@@ -219,11 +241,29 @@ class ParametricModel(AbstractModel):
         return {p: values[p] for p in self.parameters}
 
     def theta_from(self, params: dict) -> np.ndarray:
-        """θ of the physical parameters ``params`` (a dict with every free parameter)."""
+        """θ of the physical parameters ``params`` (a dict with every free parameter; other
+        keys are ignored).
+
+        Raises:
+            InvalidInputError: a free parameter is missing, or its value is not a positive,
+                finite number (θ holds its logarithm).
+        """
+        if not isinstance(params, Mapping):
+            raise InvalidInputError(f"params must be a dict of parameter values; got {type(params).__name__}.")
         missing = [p for p in self.free if p not in params]
         if missing:
             raise InvalidInputError(f"parameters {missing} are missing; need {self.free}.")
-        return np.log([float(params[p]) for p in self.free])
+        values = []
+        for p in self.free:
+            try:
+                value = float(params[p])
+            except (TypeError, ValueError):
+                raise InvalidInputError(f"parameter {p} must be a positive, finite number; got {params[p]!r}.") from None
+            if not (math.isfinite(value) and value > 0):
+                raise InvalidInputError(f"parameter {p} must be a positive, finite number (θ holds its "
+                                        f"logarithm); got {params[p]!r}.")
+            values.append(value)
+        return np.log(values)
 
     def law(self, theta) -> stats.AbstractScaleLaw:
         """The scale law μ ↦ s(·, μ) at θ."""
@@ -374,10 +414,16 @@ class NonParametricModel(AbstractModel):
             ``6/α``, where a Gaussian lobe's transform has fallen to e⁻⁹).
         smoothness: inverse prior standard deviation of the second differences of ``D_k``
             across knots (larger: smoother).
-        grid_size: side of the FFT grid of the evolution's grid path.
+        grid_size: side of the FFT grid of the evolution's grid path (≥ 8).
 
     θ = (log base-lobe values row-major, then z[k, j] for k = 1..K−1, j = 1..J) with
     ``D_k(W_j) = Σ_{k'≤k} Σ_{j'≤j} softplus(z[k', j'])``.
+
+    Raises:
+        InvalidInputError: ``data`` is not a :class:`~fitting.Dataset`, an image has no
+            positive valid pixel, or an option is out of range (``base_nodes`` ≥ 3,
+            ``n_knots`` ≥ 2, ``grid_size`` ≥ 8 integers; ``base_extent``, ``w_max`` > 0,
+            ``smoothness`` ≥ 0, finite).
     """
 
     n_scales: int = eqx.field(static=True)
@@ -389,18 +435,37 @@ class NonParametricModel(AbstractModel):
 
     def __init__(self, data: Dataset, *, base_nodes: int = 13, base_extent: float | None = None,
                  n_knots: int = 8, w_max: float | None = None, smoothness: float = 3.0, grid_size: int = 48):
-        if base_nodes < 3 or n_knots < 2:
-            raise InvalidInputError(f"need base_nodes ≥ 3 and n_knots ≥ 2; got {base_nodes}, {n_knots}.")
+        require_dataset(data, "NonParametricModel(data)")
+        base_nodes = integer(base_nodes, "base_nodes", 3)
+        n_knots = integer(n_knots, "n_knots", 2)
+        grid_size = integer(grid_size, "grid_size", 8)
+        smoothness = real(smoothness, "smoothness", minimum=0.0)
+        if base_extent is not None:
+            base_extent = real(base_extent, "base_extent", minimum=0.0, strict=True)
+        if w_max is not None:
+            w_max = real(w_max, "w_max", minimum=0.0, strict=True)
         _, width2 = _moments(data)
         rms = math.sqrt(width2[0])
         extent = min(data.extents)
         self.n_scales = int(data.scales.shape[0])
-        self.base_nodes = int(base_nodes)
-        self.base_extent = float(base_extent) if base_extent is not None else min(3.5 * rms, extent)
-        w_max = float(w_max) if w_max is not None else 6.0 / rms
+        self.base_nodes = base_nodes
+        self.base_extent = base_extent if base_extent is not None else min(3.5 * rms, extent)
+        w_max = w_max if w_max is not None else 6.0 / rms
         self.knots = tuple(np.linspace(0.0, w_max, n_knots + 1).tolist())
-        self.smoothness = float(smoothness)
-        self.grid_size = int(grid_size)
+        self.smoothness = smoothness
+        self.grid_size = grid_size
+
+    def check_data(self, data: Dataset) -> None:
+        """The model's θ layout is fixed by the dataset it was built from: ``data`` must have
+        as many scales (:class:`~brdfscale.InvalidInputError` otherwise)."""
+        super().check_data(data)
+        n = int(data.scales.shape[0])
+        if n != self.n_scales:
+            raise InvalidInputError(
+                f"this NonParametricModel was built for a dataset with {self.n_scales} scales, but the data have "
+                f"{n} (μ = {np.asarray(data.scales).tolist()}); build the model from the dataset it is fitted to: "
+                "NonParametricModel(data)."
+            )
 
     @property
     def identifiability_notes(self):

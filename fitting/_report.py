@@ -1,13 +1,15 @@
 """The main job's outputs: fit.json, figures (matplotlib, Agg) and evolved lobe tables.
 
-``write_report`` is the only place in :mod:`fitting` that touches files. Every file is
-written to a temporary name in the output directory and moved into place (``os.replace``);
-an existing ``fit.json`` is never overwritten unless ``overwrite=True``.
+``write_report`` is the only place in :mod:`fitting` that writes report files. Every file is
+written through :func:`brdfscale._files.atomic_write` (a hidden temporary file in the output
+directory, moved into place); before anything is written, every file the report would write
+is checked, and none that exists is overwritten unless ``overwrite=True``.
 """
 
 import json
 import os
 import platform
+from collections.abc import Mapping
 from pathlib import Path
 
 import equinox as eqx
@@ -20,16 +22,19 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 import brdfscale  # noqa: E402
-from brdfscale import BrdfscaleError, InvalidInputError  # noqa: E402
+from brdfscale import BrdfscaleError, InvalidInputError, MeasurementFileError  # noqa: E402
 from brdfscale._files import atomic_write  # noqa: E402
 
-from ._estimate import FitResult, Problem  # noqa: E402
+from brdfscale._validation import flag, real  # noqa: E402
+from ._estimate import FitResult, Problem, check_fit  # noqa: E402
 from ._models import ParametricModel, predict_images  # noqa: E402
 from ._sample import SampleResult  # noqa: E402
 
 __all__ = ["summarise", "write_report", "truth_of"]
 
 _CORNER_MAX = 6
+_FIGURES = ("data_vs_fit.png", "statistics.png", "corner.png")
+_TABLES = "evolved_lobes.exr"
 
 
 @eqx.filter_jit
@@ -50,9 +55,57 @@ def _absolute(model, thetas, W, data):
     return jax.vmap(one)(thetas)
 
 
-def _atomic(path, write):
-    """Write ``path`` atomically; the caller has already decided about overwriting."""
-    atomic_write(path, write, overwrite=True)
+def _atomic(path, write, overwrite: bool):
+    """Write ``path`` atomically; without ``overwrite`` an existing file is never replaced
+    (write_report has checked up front; this also holds against a file created meanwhile:
+    InvalidInputError, as from the check)."""
+    atomic_write(path, write, overwrite=overwrite, error=InvalidInputError)
+
+
+def _exr_available() -> bool:
+    try:
+        from brdfscale import exr  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def report_files(out_dir) -> list[str]:
+    """The paths :func:`write_report` writes into ``out_dir`` (fit.json last: it is written
+    when everything else is in place)."""
+    names = list(_FIGURES) + ([_TABLES] if _exr_available() else []) + ["fit.json"]
+    return [os.path.join(os.fspath(out_dir), name) for name in names]
+
+
+def check_out_dir(out_dir, overwrite: bool = False) -> list[str]:
+    """Check that a report can be written into ``out_dir`` without clobbering anything, and
+    create the directory; return :func:`report_files`.
+
+    Raises:
+        MeasurementFileError: ``out_dir`` exists but is not a directory, or cannot be created.
+        InvalidInputError: without ``overwrite``, some report files already exist there
+            (all of them are listed).
+    """
+    try:
+        out_dir = os.fspath(out_dir)
+    except TypeError:
+        raise InvalidInputError(f"out_dir must be a path; got {type(out_dir).__name__} {out_dir!r}.") from None
+    overwrite = flag(overwrite, "overwrite")
+    if os.path.exists(out_dir) and not os.path.isdir(out_dir):
+        raise MeasurementFileError(f"report directory {out_dir} exists but is not a directory; give a directory "
+                                   "(existing or to be created) as out_dir (CLI: --out).")
+    targets = report_files(out_dir)
+    existing = [os.path.basename(t) for t in targets if os.path.lexists(t)]
+    if existing and not overwrite:
+        raise InvalidInputError(
+            f"{out_dir} already holds {', '.join(existing)}, which the report would overwrite; choose another "
+            "--out directory or pass --force (overwrite=True)."
+        )
+    try:
+        os.makedirs(out_dir, exist_ok=True)
+    except OSError as err:
+        raise MeasurementFileError(f"report directory {out_dir} cannot be created: {err}") from None
+    return targets
 
 
 def truth_of(model, metadata: dict) -> dict | None:
@@ -124,7 +177,7 @@ def summarise(problem: Problem, fit: FitResult, samples: SampleResult | None, tr
     return table
 
 
-def _figure_data_vs_fit(path, problem: Problem, fit: FitResult):
+def _figure_data_vs_fit(path, problem: Problem, fit: FitResult, overwrite: bool):
     data, model = problem.data, problem.model
     pred = np.asarray(predict_images(model, jnp.clip(jnp.asarray(fit.theta), problem.lower, problem.upper), data))
     first = [data.scale_of_image.index(k) for k in range(len(np.asarray(data.scales)))]
@@ -146,8 +199,10 @@ def _figure_data_vs_fit(path, problem: Problem, fit: FitResult):
     for ax in axes[-1]:
         ax.set_xlabel("u_x")
     fig.tight_layout()
-    _atomic(path, lambda p: fig.savefig(p, dpi=90, format="png"))
-    plt.close(fig)
+    try:
+        _atomic(path, lambda p: fig.savefig(p, dpi=90, format="png"), overwrite)
+    finally:
+        plt.close(fig)
 
 
 def _band(ax, W, curves, color, label):
@@ -156,7 +211,7 @@ def _band(ax, W, curves, color, label):
     ax.plot(W, mid, color=color, lw=1.2, label=label)
 
 
-def _figure_statistics(path, problem: Problem, fit: FitResult, draws, truth: dict | None):
+def _figure_statistics(path, problem: Problem, fit: FitResult, draws, true_theta, overwrite: bool):
     data, model = problem.data, problem.model
     scales = np.asarray(data.scales)
     absolute = isinstance(model, ParametricModel)
@@ -165,7 +220,6 @@ def _figure_statistics(path, problem: Problem, fit: FitResult, draws, truth: dic
     relative = np.asarray(_relative(model, jnp.asarray(draws), W, data))
     fig, axes = plt.subplots(1, 2 if absolute else 1, figsize=(11 if absolute else 6, 4), squeeze=False)
     colors = plt.cm.viridis(np.linspace(0, 0.9, len(scales)))
-    true_theta = _truth_theta(model, truth, fit) if absolute else None
     for k in range(1, len(scales)):
         _band(axes[0, 0], W, relative[:, k], colors[k], f"μ = {scales[k]:.3g}")
         if true_theta is not None:
@@ -182,11 +236,13 @@ def _figure_statistics(path, problem: Problem, fit: FitResult, draws, truth: dic
         axes[0, 1].set_title("S(W, μ) — absolute via the scale law's S(W, ∞) = 1 (dashed: truth)", fontsize=9)
         axes[0, 1].set_xlabel("|W|")
     fig.tight_layout()
-    _atomic(path, lambda p: fig.savefig(p, dpi=90, format="png"))
-    plt.close(fig)
+    try:
+        _atomic(path, lambda p: fig.savefig(p, dpi=90, format="png"), overwrite)
+    finally:
+        plt.close(fig)
 
 
-def _figure_corner(path, model, draws, truth: dict | None):
+def _figure_corner(path, model, draws, truth: dict | None, overwrite: bool):
     q = _quantities(model, jnp.asarray(draws))
     names = list(q)[:_CORNER_MAX]
     x = np.stack([np.asarray(q[n]) for n in names], axis=1)
@@ -214,8 +270,10 @@ def _figure_corner(path, model, draws, truth: dict | None):
             if j == 0 and i > 0:
                 ax.set_ylabel(names[i], fontsize=8)
     fig.tight_layout()
-    _atomic(path, lambda p: fig.savefig(p, dpi=80, format="png"))
-    plt.close(fig)
+    try:
+        _atomic(path, lambda p: fig.savefig(p, dpi=80, format="png"), overwrite)
+    finally:
+        plt.close(fig)
 
 
 def _write_tables(out_dir, problem: Problem, fit: FitResult, overwrite: bool) -> list[str] | str:
@@ -241,42 +299,78 @@ def _write_tables(out_dir, problem: Problem, fit: FitResult, overwrite: bool) ->
 def write_report(out_dir, problem: Problem, fit: FitResult, samples: SampleResult | None = None, *,
                  truth: dict | None = None, model_info: dict | None = None, overwrite: bool = False) -> dict:
     """Write ``fit.json``, ``data_vs_fit.png``, ``statistics.png``, ``corner.png`` and the
-    evolved lobe tables into ``out_dir``; return the JSON document.
+    evolved lobe tables (``evolved_lobes.exr``) into ``out_dir`` (created if missing); return
+    the JSON document.
+
+    Everything is checked before the first file is written: the arguments, and (without
+    ``overwrite``) that none of those files exists. ``fit.json`` is written last.
 
     Raises:
-        InvalidInputError: ``out_dir/fit.json`` exists and ``overwrite`` is False.
+        InvalidInputError: without ``overwrite``, any of the report's files exists in
+            ``out_dir`` (the message lists them); ``fit`` or ``samples`` do not belong to
+            ``problem``'s model; ``truth`` is not a dict of finite numbers (for a parametric
+            model, positive ones); ``model_info`` is not a JSON-serialisable dict.
+        MeasurementFileError: ``out_dir`` exists but is not a directory, or it or a report
+            file cannot be created or written.
     """
-    os.makedirs(out_dir, exist_ok=True)
-    target = os.path.join(out_dir, "fit.json")
-    if os.path.exists(target) and not overwrite:
-        raise InvalidInputError(f"{target} exists; choose another --out directory or pass --force (overwrite=True).")
+    check_fit(problem, fit, "write_report(out_dir, problem, fit)")
+    if samples is not None and (not isinstance(samples, SampleResult) or tuple(samples.names) != tuple(fit.names)):
+        got = type(samples).__name__ if not isinstance(samples, SampleResult) else f"a chain of {len(samples.names)} coordinates"
+        raise InvalidInputError(f"samples must be None or the SampleResult of fitting.sample for this problem's "
+                                f"{len(fit.names)} coordinates; got {got}.")
+    truth = _check_truth(truth)
+    if model_info is not None and not isinstance(model_info, dict):
+        raise InvalidInputError(f"model_info must be a dict or None; got {type(model_info).__name__}.")
+    overwrite = flag(overwrite, "overwrite")
+    # everything that can fail on the arguments is computed before the first file is written
+    model = problem.model
+    true_theta = _truth_theta(model, truth, fit) if isinstance(model, ParametricModel) else None
     rng = np.random.default_rng(0)
     draws = _draws(fit, samples, (np.asarray(problem.lower), np.asarray(problem.upper)), rng)
-    figures = {name: os.path.join(out_dir, name) for name in ("data_vs_fit.png", "statistics.png", "corner.png")}
-    _figure_data_vs_fit(figures["data_vs_fit.png"], problem, fit)
-    _figure_statistics(figures["statistics.png"], problem, fit, draws, truth)
-    _figure_corner(figures["corner.png"], problem.model, draws, truth)
-    try:
-        tables = _write_tables(out_dir, problem, fit, overwrite)
-    except BrdfscaleError as err:
-        tables = f"not written: {err}"
     doc = {
         "brdfscale_version": brdfscale.__version__,
         "python": platform.python_version(),
-        "model": model_info or {"kind": type(problem.model).__name__},
+        "model": model_info or {"kind": type(model).__name__},
         "data": {"scales": np.asarray(problem.data.scales).tolist(), "images": len(problem.data.scale_of_image),
                  "valid_pixels": problem.data.n_data},
         "parameters": summarise(problem, fit, samples, truth),
         "identifiability": fit.to_json()["identifiability"],
         "optimisation": {k: v for k, v in fit.to_json().items() if k != "identifiability"},
         "mcmc": None if samples is None else samples.diagnostics(),
-        "figures": list(figures.values()),
-        "tables": tables,
     }
-    doc = _finite(doc)
-    text = json.dumps(doc, indent=2, allow_nan=False)
-    _atomic(target, lambda p: Path(p).write_text(text))
+    try:
+        json.dumps(_finite(doc), allow_nan=False)
+    except (TypeError, ValueError) as err:
+        raise InvalidInputError(f"model_info must hold JSON values only (str, numbers, lists, dicts): {err}.") from None
+
+    check_out_dir(out_dir, overwrite)
+    out_dir = os.fspath(out_dir)
+    figures = {name: os.path.join(out_dir, name) for name in _FIGURES}
+    target = os.path.join(out_dir, "fit.json")
+    try:
+        _figure_data_vs_fit(figures["data_vs_fit.png"], problem, fit, overwrite)
+        _figure_statistics(figures["statistics.png"], problem, fit, draws, true_theta, overwrite)
+        _figure_corner(figures["corner.png"], model, draws, truth, overwrite)
+        try:
+            tables = _write_tables(out_dir, problem, fit, overwrite)
+        except BrdfscaleError as err:
+            tables = f"not written: {err}"
+        doc.update(figures=list(figures.values()), tables=tables)
+        doc = _finite(doc)
+        text = json.dumps(doc, indent=2, allow_nan=False)
+        _atomic(target, lambda p: Path(p).write_text(text), overwrite)
+    except OSError as err:
+        raise MeasurementFileError(f"the report cannot be written into {out_dir}: {err}") from None
     return doc
+
+
+def _check_truth(truth):
+    """``truth`` (None or {name: value}) with float values; InvalidInputError otherwise."""
+    if truth is None:
+        return None
+    if not isinstance(truth, Mapping):
+        raise InvalidInputError(f"truth must be None or a dict of parameter values; got {type(truth).__name__}.")
+    return {str(name): real(value, f"truth[{name!r}]") for name, value in truth.items()}
 
 
 def _finite(x):

@@ -21,7 +21,8 @@ very same chain, bit for bit, as an uninterrupted one.
 Diagnostics: the integrated autocorrelation time τ per coordinate (emcee's estimator on
 the chain after burn-in), the effective sample size ``ESS = walkers · steps / τ``, and
 whether the chain is long enough (≥ 50 τ) for τ itself to be trusted — reported, never
-silenced.
+silenced. A coordinate in which no walker moved (a very short or stuck chain) has τ = ∞:
+ESS 0, τ not reliable, burn-in half the chain.
 """
 
 import dataclasses
@@ -37,9 +38,11 @@ import jax.numpy as jnp
 import numpy as np
 from tqdm.auto import tqdm
 
-from brdfscale import InvalidInputError
+from brdfscale import InvalidInputError, MeasurementFileError
+from brdfscale._files import atomic_write
 
-from ._estimate import FitResult, Problem
+from brdfscale._validation import flag, integer
+from ._estimate import FitResult, Problem, check_fit
 
 __all__ = ["SampleResult", "sample", "log_posterior"]
 
@@ -98,53 +101,90 @@ class SampleResult:
 class _Checkpoint:
     """An HDF5 file holding the chain so far and the sampler's state after the last chunk."""
 
+    _EXPECTED = "an HDF5 checkpoint written by fitting.sample"
+
     def __init__(self, path, names, n_walkers, chunk):
         self.path, self.names, self.n_walkers, self.chunk = os.fspath(path), tuple(names), n_walkers, chunk
+        if os.path.isdir(self.path):
+            raise MeasurementFileError(f"checkpoint {self.path} is a directory; expected the path of {self._EXPECTED} "
+                                       "(e.g. DIR/chain.h5).")
+        directory = os.path.dirname(os.path.abspath(self.path))
+        if not os.path.isdir(directory):
+            raise MeasurementFileError(f"checkpoint {self.path}: directory {directory} does not exist; create it "
+                                       "or choose another checkpoint path.")
 
     def _signature(self):
         return json.dumps({"names": list(self.names), "walkers": self.n_walkers})
 
     def load(self):
-        """``(chain, log_prob, random_state)`` of the completed steps, or None if no file."""
+        """``(chain, log_prob, random_state)`` of the completed steps (``random_state`` None
+        when no chunk was completed), or None if there is no file."""
         if not os.path.exists(self.path):
             return None
-        with h5py.File(self.path, "r") as f:
-            if f.attrs.get("signature") != self._signature():
+        retry = "use another path, or pass overwrite=True (CLI: --force) to start afresh."
+        try:
+            f = h5py.File(self.path, "r")
+        except OSError as err:
+            raise MeasurementFileError(f"checkpoint {self.path} cannot be read as {self._EXPECTED} ({err}); {retry}") from None
+        with f:
+            signature = f.attrs.get("signature")
+            if signature is None or "steps_done" not in f.attrs or not {"chain", "log_prob", "rng_keys"} <= set(f):
+                raise MeasurementFileError(f"{self.path} is not {self._EXPECTED} (it lacks the signature, steps_done, "
+                                           f"chain, log_prob or rng_keys entries); {retry}")
+            if signature != self._signature():
                 raise InvalidInputError(
                     f"checkpoint {self.path} belongs to a different run (parameters/walkers "
-                    f"{f.attrs.get('signature')!r}); use another path or pass overwrite=True."
+                    f"{signature!r}); use another path or pass overwrite=True."
                 )
-            done = int(f.attrs["steps_done"])
-            chain, log_prob = f["chain"][:done], f["log_prob"][:done]
-            state = ("MT19937", f["rng_keys"][:], int(f.attrs["rng_pos"]), int(f.attrs["rng_has_gauss"]),
-                     float(f.attrs["rng_cached_gaussian"]))
+            try:
+                done = int(f.attrs["steps_done"])
+                chain, log_prob = f["chain"][:done], f["log_prob"][:done]
+                state = None
+                if done > 0:
+                    state = ("MT19937", f["rng_keys"][:], int(f.attrs["rng_pos"]), int(f.attrs["rng_has_gauss"]),
+                             float(f.attrs["rng_cached_gaussian"]))
+            except (OSError, KeyError, ValueError, TypeError) as err:
+                raise MeasurementFileError(f"checkpoint {self.path} is damaged ({err}); {retry}") from None
+        shape = (done, self.n_walkers, len(self.names))
+        if chain.shape != shape or log_prob.shape != shape[:2]:
+            raise MeasurementFileError(f"checkpoint {self.path} is damaged (steps_done = {done}, but chain has shape "
+                                       f"{chain.shape} and log_prob {log_prob.shape}); {retry}")
         return chain, log_prob, state
 
-    def create(self):
-        tmp = self.path + ".tmp"
-        with h5py.File(tmp, "w") as f:
-            d = len(self.names)
-            f.create_dataset("chain", (0, self.n_walkers, d), maxshape=(None, self.n_walkers, d),
-                             chunks=(self.chunk, self.n_walkers, d), dtype="f8")
-            f.create_dataset("log_prob", (0, self.n_walkers), maxshape=(None, self.n_walkers),
-                             chunks=(self.chunk, self.n_walkers), dtype="f8")
-            f.create_dataset("rng_keys", (624,), dtype="u4")
-            f.attrs["signature"] = self._signature()
-            f.attrs["steps_done"] = 0
-        os.replace(tmp, self.path)
+    def create(self, replace: bool):
+        """A checkpoint with no steps, written atomically (a hidden temporary file in the same
+        directory, moved into place); an existing file is replaced only when ``replace``."""
+        def write(tmp):
+            with h5py.File(tmp, "w") as f:
+                d = len(self.names)
+                f.create_dataset("chain", (0, self.n_walkers, d), maxshape=(None, self.n_walkers, d),
+                                 chunks=(self.chunk, self.n_walkers, d), dtype="f8")
+                f.create_dataset("log_prob", (0, self.n_walkers), maxshape=(None, self.n_walkers),
+                                 chunks=(self.chunk, self.n_walkers), dtype="f8")
+                f.create_dataset("rng_keys", (624,), dtype="u4")
+                f.attrs["signature"] = self._signature()
+                f.attrs["steps_done"] = 0
+
+        try:
+            atomic_write(self.path, write, overwrite=replace, error=MeasurementFileError)
+        except OSError as err:
+            raise MeasurementFileError(f"checkpoint {self.path} cannot be written: {err}") from None
 
     def append(self, chain, log_prob, random_state):
-        with h5py.File(self.path, "r+") as f:
-            done = int(f.attrs["steps_done"])
-            n = done + chain.shape[0]
-            for name, block in (("chain", chain), ("log_prob", log_prob)):
-                f[name].resize(n, axis=0)
-                f[name][done:n] = block
-            f["rng_keys"][:] = random_state[1]
-            f.attrs["rng_pos"], f.attrs["rng_has_gauss"] = int(random_state[2]), int(random_state[3])
-            f.attrs["rng_cached_gaussian"] = float(random_state[4])
-            f.flush()
-            f.attrs["steps_done"] = n  # the commit marker, written last
+        try:
+            with h5py.File(self.path, "r+") as f:
+                done = int(f.attrs["steps_done"])
+                n = done + chain.shape[0]
+                for name, block in (("chain", chain), ("log_prob", log_prob)):
+                    f[name].resize(n, axis=0)
+                    f[name][done:n] = block
+                f["rng_keys"][:] = random_state[1]
+                f.attrs["rng_pos"], f.attrs["rng_has_gauss"] = int(random_state[2]), int(random_state[3])
+                f.attrs["rng_cached_gaussian"] = float(random_state[4])
+                f.flush()
+                f.attrs["steps_done"] = n  # the commit marker, written last
+        except OSError as err:
+            raise MeasurementFileError(f"checkpoint {self.path} cannot be updated: {err}") from None
 
 
 def _initial_walkers(fit: FitResult, lo, hi, n_walkers, rng):
@@ -174,20 +214,36 @@ def sample(
         problem: the model and data (as used by :func:`fitting.fit`).
         fit: its point estimate; walkers start in a small Laplace ball around it.
         walkers: ensemble size (default ``max(32, 4·dim)``, even).
-        steps: total steps (a resumed run continues up to this count).
+        steps: total steps, at least 2 (a resumed run continues up to this count; of a
+            checkpoint that holds more, the first ``steps`` are returned).
         chunk: steps between checkpoints.
         checkpoint: HDF5 path; an existing compatible file is resumed.
-        overwrite: start afresh even if ``checkpoint`` exists.
+        overwrite: start afresh even if ``checkpoint`` exists (whatever it holds; it is
+            replaced when the new, empty checkpoint is in place).
         moves: ``"stretch"`` (default) or ``"de"`` (differential evolution + snooker).
         seed: seed of the initial ball and of the sampler's random state.
         progress: show a tqdm progress bar.
+
+    Raises:
+        InvalidInputError: ``fit`` is not the :class:`~fitting.FitResult` of ``problem``'s
+            model; ``walkers`` not an integer ≥ 2·dim, ``steps`` not an integer ≥ 2,
+            ``chunk`` not an integer ≥ 1, ``seed`` not an integer ≥ 0, an unknown ``moves``;
+            ``checkpoint`` belongs to a run with other parameters or walkers.
+        MeasurementFileError: ``checkpoint`` is a directory, lies in a directory that does
+            not exist, is not a readable checkpoint of :func:`fitting.sample` (and
+            ``overwrite`` is False), or cannot be written.
     """
+    check_fit(problem, fit, "sample(problem, fit)")
     d = len(problem.model.names)
-    walkers = int(walkers or max(32, 4 * d))
+    if walkers is None:
+        walkers = max(32, 4 * d)
+    walkers = integer(walkers, "walkers", 2 * d)
     walkers += walkers % 2
-    if walkers < 2 * d or steps < 1 or chunk < 1:
-        raise InvalidInputError(f"need walkers ≥ 2·dim = {2 * d}, steps ≥ 1, chunk ≥ 1; got {walkers}, {steps}, {chunk}.")
-    if moves not in _MOVES:
+    steps = integer(steps, "steps", 2)  # one step has no transition: no acceptance, no τ
+    chunk = integer(chunk, "chunk", 1)
+    seed = integer(seed, "seed", 0)
+    overwrite = flag(overwrite, "overwrite")
+    if not isinstance(moves, str) or moves not in _MOVES:
         raise InvalidInputError(f"moves must be one of {sorted(_MOVES)}; got {moves!r}.")
     lo, hi = np.asarray(problem.lower), np.asarray(problem.upper)
 
@@ -200,17 +256,18 @@ def sample(
     store = None
     if checkpoint is not None:
         store = _Checkpoint(checkpoint, problem.model.names, walkers, chunk)
-        if overwrite and os.path.exists(store.path):
-            os.remove(store.path)
-    resumed = store.load() if store is not None else None
+    # with overwrite the old file stays until the new, empty checkpoint replaces it (create)
+    resumed = store.load() if store is not None and not overwrite else None
     sampler = emcee.EnsembleSampler(walkers, d, logp, vectorize=True, moves=_MOVES[moves]())
     if resumed is not None and resumed[0].shape[0] > 0:
         chain, log_prob, random_state = resumed
-        chains, log_probs = [chain], [log_prob]
+        # a checkpoint longer than asked: its first `steps` steps are the chain of a run of `steps`
+        chains, log_probs = [chain[:steps]], [log_prob[:steps]]
         state = emcee.State(chain[-1], log_prob=log_prob[-1], random_state=random_state)
     else:
         if store is not None:
-            store.create()
+            # replaces only what the user asked to replace, or a checkpoint of this run with no chunk done
+            store.create(replace=overwrite or resumed is not None)
         sampler.random_state = np.random.RandomState(seed).get_state()
         p0 = _initial_walkers(fit, lo, hi, walkers, rng)
         state = emcee.State(p0, log_prob=logp(p0), random_state=sampler.random_state)
@@ -244,12 +301,16 @@ def _integrated_time(chain):
 
 
 def _diagnose(names, chain, log_prob) -> SampleResult:
+    # τ is NaN for a coordinate no walker moved in (zero variance; short chains, stuck
+    # ensembles): taken as ∞ — burn-in half the chain, ESS 0, τ not reliable (JSON: null)
     n_steps, n_walkers, _ = chain.shape
-    tau_all = _integrated_time(chain)
-    burn = int(min(np.ceil(2 * np.max(tau_all)), n_steps // 2))
-    kept = chain[burn:]
-    tau = _integrated_time(kept)
-    ess = n_walkers * kept.shape[0] / tau
+    with np.errstate(invalid="ignore", divide="ignore"):
+        tau_all = _integrated_time(chain)
+        burn = int(min(np.ceil(2 * np.max(tau_all)), n_steps // 2)) if np.all(np.isfinite(tau_all)) else n_steps // 2
+        kept = chain[burn:]
+        tau = _integrated_time(kept)
+        tau = np.where(np.isfinite(tau), tau, np.inf)
+        ess = n_walkers * kept.shape[0] / tau
     moved = np.any(np.diff(chain, axis=0) != 0, axis=-1)
     return SampleResult(
         names=tuple(names), chain=chain, log_prob=log_prob, burn=burn, tau=tau, ess=ess,

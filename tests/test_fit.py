@@ -276,3 +276,122 @@ def test_fit_command_writes_report_and_refuses_to_overwrite(tmp_path, capsys):
     assert exr.read_measurements(str(out / "evolved_lobes.exr")).scales.tolist() == list(SCALES)
     assert main(argv) == 2
     assert "--force" in capsys.readouterr().err
+
+
+# -- bad input: clear errors, nothing of the user's overwritten ------------------------------
+
+def test_write_report_checks_every_file_before_writing(small_problem, tmp_path):
+    """A user's figure in out_dir is not overwritten even without a fit.json there: every file
+    the report would write is checked before the first is written, and the error lists them."""
+    from brdfscale import MeasurementFileError
+
+    problem, res = small_problem
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "corner.png").write_text("mine")
+    (out / "statistics.png").write_text("mine too")
+    with pytest.raises(InvalidInputError, match=r"statistics\.png, corner\.png.*overwrite=True"):
+        fitting.write_report(out, problem, res)
+    assert sorted(p.name for p in out.iterdir()) == ["corner.png", "statistics.png"]
+    assert (out / "corner.png").read_text() == "mine"
+    not_a_dir = tmp_path / "file"
+    not_a_dir.write_text("x")
+    with pytest.raises(MeasurementFileError, match="not a directory"):
+        fitting.write_report(not_a_dir, problem, res)
+    with pytest.raises(InvalidInputError, match="truth"):
+        fitting.write_report(tmp_path / "new", problem, res, truth={"amplitude": "big"})
+    assert not (tmp_path / "new").exists()
+    doc = fitting.write_report(out, problem, res, overwrite=True)
+    assert (out / "corner.png").read_bytes()[:4] == b"\x89PNG" and doc["figures"][-1] == str(out / "corner.png")
+    assert not [p.name for p in out.iterdir() if p.name.startswith(".")]  # no temporary file left
+
+
+def test_sample_checkpoint_paths_and_first_chunk_resume(small_problem, tmp_path):
+    """The checkpoint's temporary file cannot collide with a user's file; paths that are not a
+    checkpoint give MeasurementFileError naming them; a run interrupted before its first chunk
+    completed resumes."""
+    import h5py
+
+    from brdfscale import MeasurementFileError
+
+    problem, res = small_problem
+    kw = dict(walkers=10, steps=3, chunk=1, progress=False)
+    path = tmp_path / "c.h5"
+    (tmp_path / "c.h5.tmp").write_text("user's file")
+    fitting.sample(problem, res, checkpoint=path, **kw)
+    assert (tmp_path / "c.h5.tmp").read_text() == "user's file"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.h5", "c.h5.tmp"]
+    (tmp_path / "text.h5").write_text("not HDF5")
+    with h5py.File(tmp_path / "other.h5", "w") as f:
+        f["x"] = 1
+    for bad, match in [(tmp_path / "text.h5", "cannot be read as an HDF5 checkpoint"),
+                       (tmp_path / "other.h5", "is not an HDF5 checkpoint"),
+                       (tmp_path / "missing" / "c.h5", "does not exist"),
+                       (tmp_path, "is a directory")]:
+        with pytest.raises(MeasurementFileError, match=match) as err:
+            fitting.sample(problem, res, checkpoint=bad, **kw)
+        assert str(bad) in str(err.value)
+    assert (tmp_path / "text.h5").read_text() == "not HDF5"
+    fitting.sample(problem, res, checkpoint=tmp_path / "text.h5", overwrite=True, **kw)  # asked: replaced
+    # interrupted inside the first chunk: the checkpoint holds no step yet, and resumes
+    original = fitting._sample._batched_log_posterior
+
+    def interrupting(thetas, prob):
+        raise KeyboardInterrupt
+
+    fitting._sample._batched_log_posterior = interrupting
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            fitting.sample(problem, res, checkpoint=tmp_path / "d.h5", **kw)
+    finally:
+        fitting._sample._batched_log_posterior = original
+    resumed = fitting.sample(problem, res, checkpoint=tmp_path / "d.h5", **kw)
+    assert np.array_equal(resumed.chain, fitting.sample(problem, res, checkpoint=path, **kw).chain)
+    # a checkpoint longer than asked gives the first `steps` steps: the chain of that shorter run
+    shorter = fitting.sample(problem, res, checkpoint=path, **{**kw, "steps": 2})
+    assert np.array_equal(shorter.chain, resumed.chain[:2])
+
+
+def test_inconsistent_or_out_of_range_arguments_are_refused(small_problem, tmp_path):
+    problem, res = small_problem
+    two = fitting.Dataset.from_measurements(MeasurementSet((_image(1.0), _image(2.0))))
+    mset3 = MeasurementSet((_image(1.0), _image(2.0), _image(4.0)))
+    three = fitting.Dataset.from_measurements(mset3)
+    npm = fitting.NonParametricModel(three, base_nodes=3, n_knots=2)
+    with pytest.raises(InvalidInputError, match="built for a dataset with 3 scales, but the data have 2"):
+        fitting.fit(npm, two)
+    with pytest.raises(InvalidInputError, match="fit is the result for 5 coordinates"):
+        fitting.sample(fitting.Problem(npm, three), res, progress=False)
+    with pytest.raises(InvalidInputError, match="fit is the result for 5 coordinates"):
+        fitting.write_report(tmp_path / "r", fitting.Problem(npm, three), res)
+    assert not (tmp_path / "r").exists()
+    with pytest.raises(InvalidInputError, match="Dataset.from_measurements"):
+        fitting.Problem(fitting.ParametricModel(), mset3)
+    with pytest.raises(InvalidInputError, match="Dataset.from_measurements"):
+        fitting.NonParametricModel(mset3)
+    with pytest.raises(InvalidInputError, match="grid_size must be an integer ≥ 8"):
+        fitting.NonParametricModel(three, grid_size=4)
+    model = fitting.ParametricModel()
+    for kw, match in [(dict(spread=-1), "spread must be a finite number ≥ 0"),
+                      (dict(seed=-1), "seed must be an integer ≥ 0"),
+                      (dict(starts="a"), "starts must be an integer ≥ 1"), (dict(starts=True), "starts"),
+                      (dict(max_steps=2.5), "max_steps"), (dict(rtol=float("nan")), "rtol must be a finite"),
+                      (dict(rtol=0, atol=0), "not both be 0"), (dict(undetermined_std=0), "undetermined_std")]:
+        with pytest.raises(InvalidInputError, match=match):
+            fitting.fit(model, two, **kw)
+    for kw, match in [(dict(walkers=4), "walkers must be an integer ≥ 10"), (dict(steps=1), "steps must be an integer ≥ 2"),
+                      (dict(seed=-1), "seed"), (dict(chunk="10"), "chunk"), (dict(overwrite=1), "overwrite")]:
+        with pytest.raises(InvalidInputError, match=match):
+            fitting.sample(problem, res, progress=False, **kw)
+
+
+def test_parameters_taken_a_log_of_must_be_positive():
+    model = fitting.ParametricModel()
+    for bad in (-1.0, 0.0, float("nan"), float("inf"), "wide"):
+        with pytest.raises(InvalidInputError, match="parameter alpha_lobe must be a positive, finite number"):
+            model.theta_from({**TRUTHS[0], "alpha_lobe": bad})
+    with pytest.raises(InvalidInputError, match="fixed value of mu_c"):
+        fitting.ParametricModel(fixed={"mu_c": -2.0})
+    negative = fitting.Dataset.from_measurements(MeasurementSet((_image(1.0), _image(2.0, values=-np.ones((4, 4))))))
+    with pytest.raises(InvalidInputError, match="no positive valid pixel"):
+        fitting.fit(model, negative)

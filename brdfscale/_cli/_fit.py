@@ -66,6 +66,7 @@ def register(subparsers) -> None:
 def fit_measurements(mset, args, *, stream=print) -> dict:
     """Fit, sample and report ``mset`` according to the parsed options; returns fit.json's content."""
     import fitting
+    from fitting._report import check_out_dir
 
     data = fitting.Dataset.from_measurements(mset, default_sigma=getattr(args, "default_sigma", None))
     fixed = dict(args.fix)
@@ -82,9 +83,7 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
         info = {"kind": "nonparametric", "base_nodes": model.base_nodes, "base_extent": model.base_extent,
                 "knots_W": list(model.knots), "smoothness": model.smoothness}
     info["solver"] = args.solver
-    os.makedirs(args.out, exist_ok=True)
-    if os.path.exists(os.path.join(args.out, "fit.json")) and not args.force:
-        raise InvalidInputError(f"{os.path.join(args.out, 'fit.json')} exists; choose another --out or pass --force.")
+    check_out_dir(args.out, args.force)  # before the long work: every report file, not only fit.json
     stream(f"fitting {len(data.scale_of_image)} images at scales μ = {[float(s) for s in data.scales]} "
            f"({data.n_data} valid pixels), {len(model.names)} parameters, {args.starts} starts ...")
     result = fitting.fit(model, data, solver=args.solver, starts=args.starts, seed=args.seed, max_steps=args.max_steps)

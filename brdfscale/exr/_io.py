@@ -2,11 +2,11 @@
 
 import os
 
-import numpy as np
 import OpenEXR
 
 from .._errors import InvalidInputError, MeasurementFileError
 from .._files import atomic_write
+from .._validation import flag
 from ._format import PREFIX
 
 
@@ -25,12 +25,6 @@ def file_path(path) -> str:
     return p
 
 
-def check_overwrite(overwrite) -> bool:
-    if not isinstance(overwrite, (bool, np.bool_)):
-        raise InvalidInputError(f"overwrite must be True or False; got {type(overwrite).__name__} {overwrite!r}.")
-    return bool(overwrite)
-
-
 def write_parts(path, parts: list, overwrite: bool) -> None:
     """Write ``OpenEXR.Part``s to ``path`` atomically, never replacing a file unless
     ``overwrite`` (see :func:`brdfscale._files.atomic_write`).
@@ -39,7 +33,7 @@ def write_parts(path, parts: list, overwrite: bool) -> None:
     naming the path when it is a directory or cannot be written (permissions, full disk, …).
     """
     path = file_path(path)
-    overwrite = check_overwrite(overwrite)
+    overwrite = flag(overwrite, "overwrite")
     if os.path.isdir(path):
         raise MeasurementFileError(f"{path}: is a directory; give the path of an .exr file to write (e.g. inside it).")
 

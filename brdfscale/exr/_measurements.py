@@ -6,7 +6,8 @@ import OpenEXR
 from .._errors import BrdfscaleError, InvalidInputError, MeasurementFileError
 from .._measurement import LobeImage, MeasurementSet
 from ._format import FORMAT, PREFIX, PartReader
-from ._io import check_overwrite, file_path, open_parts, write_parts
+from .._validation import flag
+from ._io import file_path, open_parts, write_parts
 from ._parts import check_dtype, image_channels, metadata_json, part_header, read_image_part
 
 KIND = "measurement_set"
@@ -32,7 +33,7 @@ def write_measurements(path, mset: MeasurementSet, *, overwrite: bool = False, d
             cannot be written.
     """
     path = file_path(path)
-    overwrite = check_overwrite(overwrite)
+    overwrite = flag(overwrite, "overwrite")
     if not isinstance(mset, MeasurementSet):
         raise InvalidInputError(f"mset must be a brdfscale.MeasurementSet; got {type(mset).__name__}.")
     stored = check_dtype(dtype)

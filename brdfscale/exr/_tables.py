@@ -12,7 +12,8 @@ from jaxtyping import Float
 from .._errors import BrdfscaleError, InvalidInputError, MeasurementFileError
 from ..lobes import AbstractLobe
 from ._format import PREFIX, PartReader
-from ._io import check_overwrite, file_path, open_parts, write_parts
+from .._validation import flag
+from ._io import file_path, open_parts, write_parts
 from ._parts import check_dtype, image_channels, metadata_json, part_header, read_image_part
 
 KIND = "lobe_table"
@@ -90,7 +91,7 @@ def write_lobe_table(path, table: LobeTable, *, overwrite: bool = False, dtype: 
     directory or unwritable ``path`` MeasurementFileError.
     """
     path = file_path(path)
-    overwrite = check_overwrite(overwrite)
+    overwrite = flag(overwrite, "overwrite")
     if not isinstance(table, LobeTable):
         raise InvalidInputError(f"table must be a brdfscale.exr.LobeTable; got {type(table).__name__}.")
     stored = check_dtype(dtype)
