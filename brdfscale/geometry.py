@@ -52,8 +52,7 @@ def validate_directions(v: ArrayLike, name: str = "direction", atol: float = 1e-
                 f"{name} must have shape (..., 3) (unit vectors in the surface frame, z = "
                 f"macroscopic normal); got shape {a.shape}."
             )
-        if not np.all(np.isfinite(a)):
-            raise InvalidInputError(f"{name} contains non-finite values.")
+        _real_and_finite(a, name)
         norm = np.linalg.norm(a, axis=-1)
         if np.any(np.abs(norm - 1) > max(atol, 1e2 * np.finfo(a.dtype).eps if a.dtype.kind == "f" else atol)):
             raise InvalidInputError(
@@ -75,34 +74,41 @@ def validate_slopes(m: ArrayLike, name: str = "slopes"):
             raise InvalidInputError(
                 f"{name} must have shape (..., 2) (slope components m_x, m_y); got shape {a.shape}."
             )
-        if not np.all(np.isfinite(a)):
-            raise InvalidInputError(f"{name} contains non-finite values.")
+        _real_and_finite(a, name)
     return jnp.asarray(m)
 
 
+def _real_and_finite(a: np.ndarray, name: str) -> None:
+    if a.dtype.kind not in "fiu":
+        raise InvalidInputError(f"{name} must be real numbers; got dtype {a.dtype}.")
+    if not np.all(np.isfinite(a)):
+        raise InvalidInputError(f"{name} contains non-finite values.")
+
+
 def direction_to_slope(n: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch 2"]:
-    """Slope ``m = (n_x/n_z, n_y/n_z)`` of an upward direction (seed §4)."""
-    n = jnp.asarray(n)
+    """Slope ``m = (n_x/n_z, n_y/n_z)`` of a unit direction in the upper hemisphere (seed §4)."""
+    n = validate_directions(n, "n")
     return n[..., :2] / n[..., 2:3]
 
 
 def slope_to_direction(m: Float[ArrayLike, "*batch 2"]) -> Float[Array, "*batch 3"]:
     """Unit normal with slope ``m``, the inverse of :func:`direction_to_slope`: ``(m, 1)/√(1+|m|²)``."""
-    m = jnp.asarray(m)
+    m = validate_slopes(m, "m")
     one = jnp.ones(m.shape[:-1] + (1,), dtype=m.dtype)
     v = jnp.concatenate([m, one], axis=-1)
     return v / jnp.linalg.norm(v, axis=-1, keepdims=True)
 
 
 def half_vector(i: Float[ArrayLike, "*batch 3"], o: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch 3"]:
-    """``h = (i + o)/|i + o|``, the normal of the mirror facet reflecting ``i`` into ``o``."""
-    s = jnp.asarray(i) + jnp.asarray(o)
+    """``h = (i + o)/|i + o|``, the normal of the mirror facet reflecting ``i`` into ``o``
+    (unit directions in the upper hemisphere)."""
+    s = validate_directions(i, "i") + validate_directions(o, "o")
     return s / jnp.linalg.norm(s, axis=-1, keepdims=True)
 
 
 def half_slope(i: Float[ArrayLike, "*batch 3"], o: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch 2"]:
     """Half-vector slope ``m_s(i, o) = m(h)``; the normalisation of ``h`` cancels."""
-    s = jnp.asarray(i) + jnp.asarray(o)
+    s = validate_directions(i, "i") + validate_directions(o, "o")
     return s[..., :2] / s[..., 2:3]
 
 

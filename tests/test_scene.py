@@ -362,3 +362,18 @@ def test_midpoint_error_uses_the_evaluations_interpolation():
     perturbed = exact.copy()
     perturbed[0, 0] += 1e-3 * np.max(np.abs(exact[0]))
     assert midpoint_error(at_nodes, perturbed) == pytest.approx(1e-3 * np.max(np.abs(exact[0])) / np.max(np.abs(perturbed[0])))
+
+
+def test_no_brdf_from_a_spectral_path_reads_as_one_message():
+    """The run-time check's equinox error is turned into NoBRDFAtScaleError with the library's
+    message first, not JAX's traceback text around it."""
+    finer = scene.Material(lobes.GGX(0.05), 10.0, stats.ScaledFamily(stats.GGX, bench.WIDTH))
+    q, _ = queries_at(spiral(3), np.full(3, 1e-3))
+    with pytest.raises(bs.NoBRDFAtScaleError) as err:
+        scene.plan(scene.Scene((finer,), q, TOL))
+    assert str(err.value).startswith("no BRDF exists") and "stack" not in str(err.value)
+
+
+def test_material_regularisation_must_be_non_negative():
+    with pytest.raises(bs.InvalidInputError, match="regularisation must be ≥ 0"):
+        scene.Material(lobes.GGX(0.05), 10.0, stats.ScaledFamily(stats.GGX, bench.WIDTH), regularisation=-1.0)

@@ -328,3 +328,30 @@ def test_cf_grid_is_differentiable_like_cf():
     params = jnp.array([0.2, 0.05])
     gradient = jax.jit(jax.grad(loss), static_argnums=1)
     np.testing.assert_allclose(gradient(params, True), gradient(params, False), rtol=1e-12)
+
+
+@pytest.mark.parametrize("make", [
+    lambda: stats.GaussianSurface(stats.GaussianCorrelation(1.0, 1.0)).at(jnp.array([1.0, 2.0])),
+    lambda: stats.GaussianSurface(stats.GaussianCorrelation(1.0, 1.0)).slope_covariance(jnp.array([1.0, 2.0])),
+    lambda: stats.ScaledFamily(stats.GGX, stats.WidthLaw(0.1, 1.0, 1.0)).at(-1.0),
+    lambda: stats.ScaledFamily(stats.Disk, stats.WidthLaw(0.1, 1.0, 1.0)),
+    lambda: stats.ScaledFamily(stats.GGX, None),
+    lambda: stats.GGX(0.1).cf(jnp.array([jnp.nan, 0.0])),
+    lambda: stats.Disk(radius=0.1).cf(jnp.array([jnp.inf, 0.0])),
+    lambda: stats.Beckmann(0.1).density(jnp.array([0.1, 0.2j])),
+    lambda: stats.FrequencyGrid(4.7, 1.0),
+    lambda: stats.FrequencyGrid(4, -1.0),
+    lambda: stats.FrequencyGrid(4, float("nan")),
+], ids=["vector mu", "vector mu covariance", "negative mu", "family without alpha", "no law", "NaN frequency",
+        "infinite frequency", "complex slopes", "fractional grid size", "negative step", "NaN step"])
+def test_bad_arguments_are_named(make):
+    """Each of these once returned a value (a wrong one, or a NaN turned finite) or failed deep
+    inside; each is now an InvalidInputError."""
+    with pytest.raises(bs.InvalidInputError):
+        make()
+
+
+def test_integer_frequency_step_gives_real_radii():
+    """FrequencyGrid(4, 1): an integer step once truncated the radii to integers."""
+    grid = stats.FrequencyGrid(4, 1)
+    assert complex(stats.GGX(0.1).cf_grid(grid)[1, 1]) == pytest.approx(complex(stats.GGX(0.1).cf(jnp.array([1.0, 1.0]))), rel=1e-14)

@@ -21,6 +21,7 @@ space (Wiener's rule: λ² = noise power / signal power); see :func:`brdfscale.e
 """
 
 import math
+import warnings
 
 import equinox as eqx
 import jax
@@ -28,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._errors import NoBRDFAtScaleError
+from .._errors import InvalidInputError, NoBRDFAtScaleError
 from .._quadrature import gauss_legendre
 from .._special import j0
 from ..stats import AbstractSlopeDensity, Delta, FrequencyGrid
@@ -39,6 +40,7 @@ _PROBE_DIRECTIONS = 8
 _PROBE_POINTS = 160
 _PROBE_POINTS_BEYOND = 24  # 8 per decade: beyond the grid, |G| is only watched for growth
 _CF_EXCESS = 1e-6
+CORE_TOL = 1e-3  # the probe's frequency window is scaled to the lobe's extent at this level
 _NO_BRDF = "no BRDF exists at the requested scale"
 _NO_BRDF_MESSAGE = (
     _NO_BRDF + ": the evolved lobe's transform exceeds 1 in modulus, which no non-negative "
@@ -113,7 +115,10 @@ class EvolvedDensity(AbstractSlopeDensity):
 
     def _probe(self, k_lo=None):
         """|G| on rays at log-spaced frequencies: over seven decades scaled to the lobe's
-        spatial extent, or (``k_lo`` given) over the three decades above ``k_lo``.
+        spatial extent (its support radius at 10⁻³ of the peak, or at ``tol`` when looser:
+        the core, not a heavy tail's reach, which at a tight ``tol`` would pull the window
+        below the frequencies the lobe has), or (``k_lo`` given) over the three decades above
+        ``k_lo``.
 
         Only used for discretisation choices and the existence check, so no gradient flows
         through it (|G| is not differentiable where G = 0)."""
@@ -122,7 +127,7 @@ class EvolvedDensity(AbstractSlopeDensity):
     def _probe_values(self, k_lo):
         dtype = jnp.result_type(*jax.tree_util.tree_leaves(self))
         if k_lo is None:
-            R = jnp.maximum(self.support_radius(self.tol), 1e-12)
+            R = jnp.maximum(self.support_radius(max(self.tol, CORE_TOL)), 1e-12)
             k = jnp.asarray(np.logspace(-2, 5, _PROBE_POINTS), dtype=dtype) / R
         else:
             k = k_lo * jnp.asarray(np.logspace(0, 3, _PROBE_POINTS_BEYOND), dtype=dtype)
@@ -132,7 +137,15 @@ class EvolvedDensity(AbstractSlopeDensity):
         return k, jnp.abs(self.cf(W))
 
     def bandwidth(self, tol):
+        """The frequency beyond which |G| stays below ``tol`` (the largest probe frequency
+        when it does not fall that low in the probed window: :func:`choose_size` reports
+        that for concrete inputs)."""
         return _cutoff(*self._probe(), tol)
+
+    def resolves(self, tol) -> bool:
+        """Whether |G| falls below ``tol`` within the probed window (concrete inputs)."""
+        k, mag = self._probe()
+        return bool(jnp.any(mag[-1] <= tol))
 
     # -- inversion ------------------------------------------------------------------------
     def density(self, m):
@@ -141,8 +154,13 @@ class EvolvedDensity(AbstractSlopeDensity):
         if self.method == "radial" and is_concrete((self, m)):
             # evaluate only what is asked: nodes enough for the largest queried radius
             r_max = float(jnp.max(jnp.linalg.norm(m, axis=-1))) if m.size else 0.0
-            n = radial_nodes(float(self.bandwidth(self.tol)), r_max)
-            if n < self.size:
+            n = radial_nodes(float(self.bandwidth(self.tol)), r_max, self.tol)
+            if n > self.size:
+                warnings.warn(
+                    f"queries at offsets up to {r_max:.3g} need {n} Gauss–Legendre nodes for tol={self.tol:g}; "
+                    f"this lobe has {self.size} (evolve(..., size=...) raises it): errors there may exceed tol.",
+                    stacklevel=2)
+            elif n < self.size:
                 shape = EvolvedDensity(self.base, self.s_from, self.s_to, self.regularisation,
                                        self.method, n, self.tol, self.extent, self.check)
         return _translate_errors(_density, shape, m)
@@ -251,10 +269,13 @@ def _translate_errors(fn, *args):
         raise
 
 
-def radial_nodes(K: float, r_max: float) -> int:
-    """Gauss–Legendre nodes on [0, K] that integrate ``G(k) J0(k r) k`` for ``r ≤ r_max``:
-    about ``K r/2`` oscillations' worth plus a margin for G, in multiples of 64."""
-    return int(64 * math.ceil(max(64.0, 0.6 * K * r_max + 64) / 64))
+def radial_nodes(K: float, r_max: float, tol: float) -> int:
+    """Gauss–Legendre nodes on [0, K] that integrate ``G(k) J0(k r) k`` for ``r ≤ r_max`` to
+    ``tol``: about ``K r/2`` oscillations' worth plus a margin for G, in multiples of 64. The
+    margin grows as ``tol^{−1/5}`` below 1e-10: the rule converges algebraically on the
+    ``k² ln k`` behaviour of K₀/K₁-type transforms (GGX, Student-t) at the origin."""
+    margin = 64 * math.ceil(max(1e-10 / tol, 1.0) ** 0.2)
+    return int(64 * math.ceil(max(64.0, 0.6 * K * r_max + margin) / 64))
 
 
 def choose_size(density: EvolvedDensity, method: str, max_size: int) -> tuple[int, float]:
@@ -265,10 +286,15 @@ def choose_size(density: EvolvedDensity, method: str, max_size: int) -> tuple[in
     grids of extent ∝ tol^{−1/4}), the grid path relaxes the target by decades until the
     grid fits and returns the tolerance it can honour. Needs concrete parameter values.
     """
+    if not density.resolves(density.tol):
+        raise InvalidInputError(
+            f"tol={density.tol:g}: the evolved lobe's transform does not fall below tol within seven decades "
+            "of frequency above the lobe's width (a transform that decays this slowly, or a tol below the "
+            "rounding of its evaluation); choose a larger tol.")
     if method == "radial":
         K = float(density.bandwidth(density.tol))
         R = float(density.support_radius(density.tol))
-        return min(max_size, radial_nodes(K, R)), density.tol
+        return min(max_size, radial_nodes(K, R, density.tol)), density.tol
     tol = density.tol
     while True:
         K = float(density.bandwidth(tol))

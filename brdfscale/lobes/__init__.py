@@ -12,11 +12,12 @@ A mirror gives ``g = δ``.
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Complex, Float
 
 from .. import stats
 from .._errors import InvalidInputError
-from .._validation import as_float_array
+from .._validation import as_float_array, is_concrete
 from ..geometry import half_slope, microfacet_factor, validate_directions
 
 __all__ = ["AbstractLobe", "Lobe", "Mirror", "Beckmann", "GGX", "Tabulated"]
@@ -56,7 +57,11 @@ class AbstractLobe(eqx.Module):
 
 
 def _amplitude(a):
-    return as_float_array(a, "amplitude")
+    """A lobe's amplitude: a real number ≥ 0 (its integral over slope offsets)."""
+    a = as_float_array(a, "amplitude")
+    if is_concrete(a) and not np.all(np.asarray(a) >= 0):
+        raise InvalidInputError(f"amplitude must be ≥ 0 (a lobe's integral); got {np.asarray(a)!r}.")
+    return a
 
 
 class Lobe(AbstractLobe):

@@ -62,6 +62,8 @@ class Material(eqx.Module):
         self.mu0 = positive(mu0, "mu0", "a positive facet size")
         self.law = law
         self.regularisation = as_float_array(regularisation, "regularisation")
+        if is_concrete(self.regularisation) and not float(self.regularisation) >= 0:
+            raise InvalidInputError(f"regularisation must be ≥ 0 (see brdfscale.evolve); got {float(self.regularisation)}.")
 
     def statistics(self, mu) -> AbstractSlopeDensity:
         """``s(·, μ)``."""

@@ -38,7 +38,7 @@ import scipy.special
 
 from .._errors import InvalidInputError, MethodNotApplicableError, NoBRDFAtScaleError
 from .._evolve import evolve
-from .._evolve._spectral import choose_size, radial_nodes
+from .._evolve._spectral import _NO_BRDF_MESSAGE, CORE_TOL, choose_size, radial_nodes
 from .._quadrature import gauss_legendre
 from ..geometry import half_slope, microfacet_factor
 from . import _cost
@@ -47,6 +47,7 @@ from ._plan import Plan
 from ._interpolate import interpolate
 from ._scales import in_chunks, scale_nodes
 from ._so3_planner import plan_so3
+from ._steps import _NO_BRDF as _NO_BRDF_PLANNED
 from ._steps import ClosedFormStep, GridStep, MaterialPlan, RadialStep, evolved_density
 
 _METHODS = ("auto", "closed_form", "radial", "grid", "so3")
@@ -136,8 +137,9 @@ def _plan_material(material: Material, u, log_mu, tol, method):
         if method == "radial" or (method == "auto" and isotropic):
             return _plan_radial(material, u, log_mu, tol)
         return _plan_grid(material, u, log_mu, tol)
-    except eqx.EquinoxRuntimeError as err:
-        raise NoBRDFAtScaleError(f"{err} (scales μ in [{mus.min():.4g}, {mus.max():.4g}])") from None
+    except eqx.EquinoxRuntimeError as err:  # equinox's text wraps the message in JAX's tracebacks
+        message = next((m for m in (_NO_BRDF_MESSAGE, _NO_BRDF_PLANNED) if m in str(err)), _NO_BRDF_PLANNED)
+        raise NoBRDFAtScaleError(f"{message} (scales μ in [{mus.min():.4g}, {mus.max():.4g}])") from None
 
 
 # -- radial ---------------------------------------------------------------------------------
@@ -160,16 +162,24 @@ def _plan_radial(material, u, log_mu, tol):
     distinct = np.unique(log_mu)
     probe = distinct if len(distinct) <= 64 else np.linspace(distinct[0], distinct[-1], 64)
     # K from the tail bound |g(r) − g_K(r)| ≤ (2π)⁻¹ ∫_K^∞ |G| k dk ≤ budget · g(0), on
-    # log-spaced probe frequencies scaled to the lobe's extent, all probe scales in one call
-    extent = float(evolved_density(material, np.exp(probe[0]), "radial", 64, budget).support_radius(budget))
+    # log-spaced probe frequencies scaled to the lobe's core (its extent at 10⁻³ of the peak:
+    # a heavy tail's reach at the budget would pull the window below the lobe's bandwidth),
+    # all probe scales in one call
+    core = max(budget, CORE_TOL)
+    extent = float(evolved_density(material, np.exp(probe[0]), "radial", 64, budget).support_radius(core))
     k_probe = np.logspace(-3, 5, 801) / max(extent, 1e-12)
     G = _radial_transform_rows(material, probe, k_probe, budget)
     integrand = np.abs(G) * k_probe**2 * np.log(k_probe[1] / k_probe[0])  # |G| k dk in d(log k)
     tail = np.cumsum(integrand[:, ::-1], axis=1)[:, ::-1]
     peak = np.abs(np.sum(G * k_probe**2, axis=1) * np.log(k_probe[1] / k_probe[0]))
     inside = np.all(tail <= budget * peak[:, None], axis=0)
-    K = float(k_probe[np.argmax(inside)] if inside.any() else k_probe[-1])
-    n_k = radial_nodes(K, r_max)
+    if not inside.any():
+        raise InvalidInputError(
+            f"tol={tol:g}: the evolved lobe's transform does not decay enough within eight decades of "
+            "frequency above the lobe's width to meet it (or tol is below the rounding of its evaluation); "
+            "choose a larger tol.")
+    K = float(k_probe[np.argmax(inside)])
+    n_k = radial_nodes(K, r_max, budget)
     k, _ = _hankel_kernel(K, n_k, None, 1.0, 1)
     _, w = gauss_legendre(n_k)
     wk = 0.5 * K * w

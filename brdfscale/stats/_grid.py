@@ -8,6 +8,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Complex, Float
 
+from .._errors import InvalidInputError
+from .._validation import positive
+
 
 @functools.lru_cache(maxsize=32)
 def _radii(size: int) -> tuple[np.ndarray, np.ndarray]:
@@ -38,8 +41,10 @@ class FrequencyGrid(eqx.Module):
     step: Float[Array, ""]
 
     def __init__(self, size: int, step: Float[ArrayLike, ""]):
+        if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 2:
+            raise InvalidInputError(f"size must be an integer ≥ 2 (nodes per side); got {size!r}.")
         self.size = int(size)
-        self.step = jnp.asarray(step)
+        self.step = positive(step, "step", "a positive frequency spacing Δk")
 
     @property
     def wx(self) -> Float[Array, " nx"]:

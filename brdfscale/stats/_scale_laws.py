@@ -22,7 +22,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import InvalidInputError
 from .._quadrature import gauss_legendre
-from .._validation import is_concrete, positive
+from .._validation import facet_size, is_concrete, positive
 from ._base import AbstractSlopeDensity
 from ._families import Gaussian
 
@@ -185,7 +185,7 @@ class GaussianSurface(AbstractScaleLaw):
 
     def slope_covariance(self, mu: Float[ArrayLike, ""]) -> Float[Array, "2 2"]:
         """``Σ(μ)`` (dimensionless slope²)."""
-        variances, cov = self._covariance(positive(mu, "mu", "a positive facet size"))
+        variances, cov = self._covariance(facet_size(mu))
         return jnp.diag(variances) if cov is None else cov
 
     def _covariance(self, mu):
@@ -218,7 +218,7 @@ class GaussianSurface(AbstractScaleLaw):
         diagonal), built from per-axis standard deviations where Σ is diagonal by
         construction (closed form), so that :func:`brdfscale.evolve` (radial path) and the
         grid path (separable factors) can exploit the structure."""
-        variances, cov = self._covariance(positive(mu, "mu", "a positive facet size"))
+        variances, cov = self._covariance(facet_size(mu))
         if cov is not None and not self.spectrum.isotropic:
             return Gaussian(cov=cov)
         if self.spectrum.isotropic:  # Σ = σ² I
@@ -261,5 +261,18 @@ class ScaledFamily(AbstractScaleLaw):
     family: Callable[..., AbstractSlopeDensity] = eqx.field(static=True)
     law: WidthLaw
 
+    def __init__(self, family: Callable[..., AbstractSlopeDensity], law: WidthLaw):
+        if not callable(law):
+            raise InvalidInputError(f"law must map a facet size μ to a width α (e.g. stats.WidthLaw); got {law!r}.")
+        try:
+            probe = family(alpha=1.0)
+        except TypeError as err:
+            raise InvalidInputError(
+                f"family must be a constructor taking alpha= (e.g. stats.Beckmann, stats.GGX); {family!r} does "
+                f"not: {err}") from None
+        if not isinstance(probe, AbstractSlopeDensity):
+            raise InvalidInputError(f"family(alpha=...) must build a brdfscale.stats density; got {type(probe).__name__}.")
+        self.family, self.law = family, law
+
     def at(self, mu):
-        return self.family(alpha=self.law(mu))
+        return self.family(alpha=self.law(facet_size(mu)))
