@@ -105,3 +105,14 @@ def test_mirror_lobe_has_no_pointwise_value():
 def test_geometry_and_lobes_refuse_what_has_no_meaning(call):
     with pytest.raises(bs.InvalidInputError):
         call()
+
+
+def test_plus_distributions_are_not_accepted_as_densities():
+    """A plus-distribution h_n has mass 0 and no pointwise density: as statistics it gave a
+    negative lobe (−38.6 at the origin), as a lobe shape it was accepted."""
+    from brdfscale import plus
+
+    with pytest.raises(bs.InvalidInputError, match="probability density"):
+        bs.evolve(lobes.GGX(0.08), plus.PlusDistribution(0, 0.1), stats.Delta())
+    with pytest.raises(bs.InvalidInputError, match="probability density"):
+        lobes.Lobe(plus.PlusDistribution(0, 0.1))

@@ -165,3 +165,62 @@ def test_negative_observation_is_reported():
     assert float(low) < 0 < float(high) and 0 < float(jnp.linalg.norm(where)) < 0.2
     with pytest.raises(InvalidInputError, match="kernel"):
         plus.observe(too_strong, stats.Disk(0.01))
+
+
+# --- input handling -------------------------------------------------------------------------------
+
+
+def test_observe_validates_rtol_and_points():
+    s, kernel = plus.NearlySpecular(1.0, [0.1], 0.1), stats.Gaussian(sigma=0.01)
+    for bad in (-1, float("nan"), float("inf"), "1e-9"):
+        with pytest.raises(InvalidInputError, match="rtol must be a finite number ≥ 0"):
+            plus.observe(s, kernel, rtol=bad)
+    plus.observe(s, kernel, rtol=0)
+    for bad in (10**9, 8, 100.5):
+        with pytest.raises(InvalidInputError, match=r"points must be an integer in \[16, 65536\]"):
+            plus.observe(s, kernel, points=bad)
+    # above one batch of samples the minimum is found batch by batch, same values
+    shifted = plus.NearlySpecular(1.0, [-0.1], 0.2, mean=[0.01, 0.0])
+    seen = plus.ObservedDensity(shifted, stats.Gaussian(sigma=0.005))
+    low, high, where = seen.minimum(600)  # 8 rays × 600 radii > 4096
+    radii = np.linspace(0.0, 1.0, 600) * float(seen.support_radius(1e-12))
+    phi = np.arange(8) * np.pi / 4
+    u = (np.array([0.01, 0.0]) + radii[:, None, None] * np.stack([np.cos(phi), np.sin(phi)], -1)[None]).reshape(-1, 2)
+    direct = np.asarray(seen.density(u))
+    assert float(low) == direct.min() and float(high) == direct.max()
+    np.testing.assert_array_equal(np.asarray(where), u[np.argmin(direct)])
+
+
+def test_kernel_variance_must_be_representable():
+    s = plus.NearlySpecular(1.0, [0.1], 0.1)
+    with pytest.raises(InvalidInputError, match="σ²"):
+        plus.observe(s, stats.Gaussian(sigma=1e-200))  # σ² underflows to 0
+
+
+def test_transforms_stay_finite_for_huge_arguments():
+    """Far out H_n = P_n(ℓ), ℓ = ln(z e^γ/2): P_0 = −ℓ, P_1 = ℓ²/2; needs ln z only, so z² may
+    overflow (z > 1.3e154), and x0² too at W = 0."""
+    for z in (1e160, 1e300):
+        ell = np.log(z) + np.euler_gamma - np.log(2)
+        assert float(plus.plus_transform(z, 0)) == pytest.approx(-ell, rel=1e-15)
+        assert float(plus.plus_transform(z, 1)) == pytest.approx(ell**2 / 2, rel=1e-15)
+    assert np.isfinite(float(plus.plus_transform(1e160, 6)))
+    # continuous where the decaying terms are dropped and where z² overflows
+    for z in (1e15, 1.3e154):
+        below, above = (float(plus.plus_transform(z * f, 2)) for f in (1 - 1e-9, 1 + 1e-9))
+        assert abs(above - below) < 1e-6 * abs(below)
+    h = plus.PlusDistribution(0, 1e200)
+    W = jnp.array([[0.0, 0.0], [3.0, 4.0]])
+    ell = np.log(5.0 * 1e200) + np.euler_gamma - np.log(2)
+    np.testing.assert_allclose(np.asarray(h.cf(W)), [0.0, -ell], rtol=1e-15)
+    assert np.all(np.isfinite(np.asarray(plus.NearlySpecular(1.0, [0.1, 0.01], 1e200).cf(W))))
+
+
+def test_plus_distribution_is_marked_as_not_a_density():
+    """A plus-distribution has mass 0 and no pointwise density: it carries a flag for the checks
+    of code that needs a probability density, and is refused as a nearly-specular smooth part."""
+    assert plus.PlusDistribution.is_probability_density is False
+    assert plus.PlusDistribution(1, 0.1).is_probability_density is False
+    assert getattr(stats.Beckmann(0.1), "is_probability_density", True)
+    with pytest.raises(InvalidInputError, match="smooth must be a probability density"):
+        plus.NearlySpecular(0.5, [0.1], 0.1, smooth=plus.PlusDistribution(0, 0.1), smooth_weight=0.5)

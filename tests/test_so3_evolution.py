@@ -278,3 +278,106 @@ def test_cross_check_with_slope_space_path():
         rel[scale] = np.max(np.abs(so3_values - slope_values)) / slope_values[0]
         assert rel[scale] < 2 * (a_lobe**2 + a0**2)  # O(α²)
     assert 3.5 < rel[1.0] / rel[0.5] < 4.5, rel  # second order
+
+
+# --- input handling -------------------------------------------------------------------------------
+
+
+def test_deconvolution_without_a_solution_raises_no_brdf():
+    """Dividing by statistics with vanishing coefficients, or amplifying a finer diffusion scale
+    past float range, has no finite answer: NoBRDFAtScaleError (naming the regularisation), not
+    NaN/inf; the regularised solves stay finite; under jit equinox's run-time error."""
+    B = 4
+    R = band_limited(B, np.random.default_rng(7))
+    zeros = np.zeros((B, 2 * B - 1, 2 * B - 1))
+    with pytest.raises(brdfscale.NoBRDFAtScaleError, match="regularisation > 0"):
+        so3.evolve(R, so3.Identity(), zeros)
+    with pytest.raises(brdfscale.NoBRDFAtScaleError, match="regularisation > 0"):
+        so3.evolve_diffusion(R, 1.0, 0.0, 1000.0)  # exp(1000 J(J+1)) overflows
+    with pytest.raises(brdfscale.NoBRDFAtScaleError, match="regularisation > 0"):
+        so3.evolve(R, so3.RotationalDiffusion(0.0), so3.RotationalDiffusion(1000.0))
+    assert np.all(np.isfinite(np.asarray(so3.evolve(R, so3.Identity(), zeros, regularisation=0.1))))
+    assert np.all(np.isfinite(np.asarray(so3.evolve_diffusion(R, 1.0, 0.0, 1000.0, regularisation=0.1))))
+    with pytest.raises(Exception, match="no BRDF at this scale"):
+        jax.jit(lambda t: so3.evolve_diffusion(R, 1.0, 0.0, t))(1000.0)
+    # a mild deconvolution is still exact and finite
+    assert np.all(np.isfinite(np.asarray(so3.evolve_diffusion(R, 1.0, 0.0, 0.05))))
+    with pytest.raises(InvalidInputError, match="finite"):
+        so3.evolve(np.where(np.arange(2 * B - 1) == 0, np.nan, R), so3.Identity(), so3.Identity())
+
+
+def test_negative_times_scales_and_band_limits_are_rejected():
+    B = 3
+    R = band_limited(B, np.random.default_rng(8))
+    with pytest.raises(InvalidInputError, match="tau_from must be ≥ 0"):
+        so3.evolve_diffusion(R, 1.0, -1.0, 0.0)
+    with pytest.raises(InvalidInputError, match="tau_to must be ≥ 0"):
+        so3.evolve_diffusion(R, 1.0, 0.1, -0.5, regularisation=0.1)
+    with pytest.raises(InvalidInputError, match=r"B must be an integer band limit in \[0, "):
+        so3.truncation_error(0.1, -1)
+    with pytest.raises(InvalidInputError, match="B must"):
+        so3.truncation_error(0.1, 2.5)
+    assert so3.truncation_error(0.1, 0) == 1.0
+    law = so3.DiffusionLaw(stats.WidthLaw(0.2, 1.0, 1.0))
+    for bad in (-1.0, 0.0, np.inf):
+        with pytest.raises(InvalidInputError, match="mu"):
+            law.at(bad)
+    assert float(law.tau(2.0)) > 0
+
+
+def test_lobe_rejects_non_rotations_and_negative_amplitude():
+    lobe = so3.AnisotropicMicrofacetLobe(0.1, 0.2)
+    z = np.array([0.0, 0.0, 1.0])
+    with pytest.raises(InvalidInputError, match="proper rotation"):
+        lobe.evaluate(z, z, 2 * np.eye(3))
+    with pytest.raises(InvalidInputError, match="proper rotation"):
+        lobe.evaluate(z, z, np.diag([1.0, 1.0, -1.0]))  # orthogonal, det −1
+    with pytest.raises(InvalidInputError, match="index \\(1,\\)"):
+        lobe.evaluate(z, z, np.stack([np.eye(3), np.eye(3) + 1e-3]))
+    with pytest.raises(InvalidInputError, match="finite"):
+        lobe.evaluate(z, z, np.full((3, 3), np.nan))
+    rot = np.asarray(so3.euler_to_matrix(0.3, 0.1, -0.2))
+    assert float(lobe.evaluate(z, z, rot)) > 0
+    assert float(jax.jit(lambda r: lobe.evaluate(z, z, r))(rot)) == pytest.approx(float(lobe.evaluate(z, z, rot)))
+    with pytest.raises(InvalidInputError, match="amplitude must be ≥ 0"):
+        so3.AnisotropicMicrofacetLobe(0.1, 0.2, amplitude=-1.0)
+
+
+def test_evolve_names_the_accepted_statistics():
+    B = 3
+    R = band_limited(B, np.random.default_rng(9))
+    with pytest.raises(InvalidInputError, match="TiltTwist"):
+        so3.evolve(R, stats.GGX(0.1), so3.Identity())
+    with pytest.raises(InvalidInputError, match="s_to must be facet-orientation statistics"):
+        so3.evolve(R, so3.Identity(), "beckmann")
+    with pytest.raises(InvalidInputError, match=r"\(3, 5, 5\)"):
+        so3.evolve(R, so3.Identity(), np.eye(5))
+
+
+def test_tilt_twist_resolution_is_capped_and_the_twist_exact():
+    """A tilt that needs a huge sampling grid (or has no density) is refused before allocating;
+    the twist needs no resolution of its own: a narrow twist gives the same coefficients on any
+    grid, and a nearly-δ twist works."""
+    with pytest.raises(InvalidInputError, match="MAX_AUTO_RESOLUTION = 256.*resolution="):
+        so3.TiltTwist(stats.Tabulated(jnp.ones((4, 4)), extent=0.3))
+    with pytest.raises(InvalidInputError, match="finite slope bandwidth"):
+        so3.TiltTwist(stats.Delta())
+    from brdfscale import plus
+
+    with pytest.raises(InvalidInputError, match="finite slope bandwidth"):
+        so3.TiltTwist(plus.PlusDistribution(0, 0.1))
+    tilt = stats.Beckmann(alpha_x=0.6, alpha_y=0.5)
+    coarse = so3.TiltTwist(tilt, twist_mean=0.4, twist_std=0.02)  # the old rule wanted N ≈ 340
+    assert coarse.resolution <= 30
+    fine = so3.TiltTwist(tilt, twist_mean=0.4, twist_std=0.02, resolution=coarse.resolution + 16)
+    np.testing.assert_allclose(np.asarray(coarse.operator(5)), np.asarray(fine.operator(5)), atol=1e-10)  # the tilt's 1e-10
+    delta_like = np.asarray(so3.TiltTwist(stats.Beckmann(0.3), twist_std=1e-9).operator(2))
+    assert np.all(np.isfinite(delta_like)) and abs(delta_like[0, 1, 1] - 1) < 1e-12
+    # the pointwise twist density of a narrow twist is resolved (no truncated Fourier series):
+    # at α = β = 0, s(0, 0, ψ)/s(0, 0, 0) = p(ψ)/p(0), whose integral is 1/p(0) = σ√(2π)
+    std = 0.01
+    s = so3.TiltTwist(tilt, twist_mean=0.0, twist_std=std)
+    psi = np.linspace(-np.pi, np.pi, 4001)[:-1]
+    ratio = np.asarray(s.density(0.0 * psi, 0.0 * psi, psi)) / float(s.density(0.0, 0.0, 0.0))
+    assert np.sum(ratio) * (psi[1] - psi[0]) == pytest.approx(std * np.sqrt(2 * np.pi), rel=1e-12)
+    assert np.min(ratio) >= 0

@@ -91,6 +91,11 @@ def evolve(
     for name, s in (("s_from", s_from), ("s_to", s_to)):
         if not isinstance(s, AbstractSlopeDensity):
             raise InvalidInputError(f"{name} must be a brdfscale.stats density; got {type(s).__name__}.")
+        if not getattr(s, "is_probability_density", True):
+            raise InvalidInputError(
+                f"{name} must be a probability density of facet slopes (mass 1); got {type(s).__name__}, "
+                "a generalised function of mass 0 (a plus-distribution h_n). Use it through "
+                "brdfscale.plus.NearlySpecular(a, [c_0, …], x0, ...) (a δ + Σ c_n h_n + w s_smooth, mass 1).")
     if method not in ("auto", "closed_form", "radial", "grid"):
         raise InvalidInputError(f"method must be 'auto', 'closed_form', 'radial' or 'grid'; got {method!r}.")
     if not isinstance(tol, (int, float)) or not _MIN_TOL <= tol < 1:

@@ -73,6 +73,11 @@ class Lobe(AbstractLobe):
     def __init__(self, shape: stats.AbstractSlopeDensity, amplitude: Float[ArrayLike, ""] = 1.0):
         if not isinstance(shape, stats.AbstractSlopeDensity):
             raise InvalidInputError(f"shape must be a brdfscale.stats density; got {type(shape).__name__}.")
+        if not getattr(shape, "is_probability_density", True):
+            raise InvalidInputError(
+                f"shape must be a probability density of facet slopes (mass 1); got {type(shape).__name__}, "
+                "a generalised function of mass 0 with no pointwise density (a plus-distribution h_n). Use "
+                "lobes.Lobe(plus.observe(plus.NearlySpecular(...), kernel)).")
         self.shape = shape
         self.amplitude = _amplitude(amplitude)
 

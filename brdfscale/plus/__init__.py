@@ -10,7 +10,7 @@
 
 from ._distribution import PlusDistribution
 from ._fit import StrengthFit, fit_strengths
-from ._nearly_specular import NearlySpecular, ObservedDensity, observe
+from ._nearly_specular import MAX_POINTS, NearlySpecular, ObservedDensity, observe
 from ._transform import MAX_ORDER, plus_transform
 
 __all__ = [
@@ -20,6 +20,7 @@ __all__ = [
     "NearlySpecular",
     "ObservedDensity",
     "observe",
+    "MAX_POINTS",
     "StrengthFit",
     "fit_strengths",
 ]

@@ -1,6 +1,7 @@
 """The regularised plus-distributions ``h_n`` as slope statistics (seed §6, DESIGN §4)."""
 
 import math
+from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -11,7 +12,7 @@ from .._validation import positive, vector2
 from ..stats import AbstractSlopeDensity
 from ..stats._base import add_offset, check_slopes, offset_norm, phase
 from ._action import radial_action
-from ._transform import check_order, transforms_from_square
+from ._transform import check_order, transforms_scaled
 
 _ANGLES = 64
 
@@ -35,8 +36,15 @@ class PlusDistribution(AbstractSlopeDensity):
     :class:`brdfscale.stats.AbstractSlopeDensity`, so it can enter :func:`brdfscale.evolve` and
     :class:`brdfscale.stats.Mixture` wherever a statistic is expected — but a physical
     statistic must have mass 1 and be non-negative, so use it through :class:`NearlySpecular`
-    (``a δ + Σ c_n h_n + w s_smooth``).
+    (``a δ + Σ c_n h_n + w s_smooth``). The class attribute ``is_probability_density = False``
+    marks it for the checks of code that needs a probability density.
     """
+
+    is_probability_density: ClassVar[bool] = False
+    """False: ``h_n`` is a generalised function of mass 0, not a probability density of facet
+    slopes. Code that needs a density (a lobe's shape, the statistics of ``brdfscale.evolve``)
+    tests ``getattr(s, "is_probability_density", True)``; use ``h_n`` through
+    :class:`NearlySpecular`, which has mass 1."""
 
     order: int = eqx.field(static=True)
     x0: Float[Array, ""]
@@ -61,14 +69,14 @@ class PlusDistribution(AbstractSlopeDensity):
 
     def cf(self, W: Float[ArrayLike, "*batch 2"]) -> Complex[Array, "*batch"]:
         W = check_slopes(W, "W")
-        H = transforms_from_square(jnp.sum(W * W, axis=-1) * self.x0**2, self.order)[..., self.order]
+        H = transforms_scaled(jnp.sum(W * W, axis=-1), self.x0, self.order)[..., self.order]
         return H * phase(W, self.mean)
 
     def cf_radial(self, k: Float[ArrayLike, "*batch"]) -> Float[Array, "*batch"]:
         if self.mean is not None:
             return super().cf_radial(k)
         k = jnp.asarray(k)
-        return transforms_from_square(k * k * self.x0**2, self.order)[..., self.order]
+        return transforms_scaled(k * k, self.x0, self.order)[..., self.order]
 
     def apply(self, psi, *, scale: Float[ArrayLike, ""] | None = None, angles: int = _ANGLES) -> Float[Array, ""]:
         """``⟨h_n, ψ⟩`` for a test function ``psi`` mapping slopes (..., 2) to values (...).

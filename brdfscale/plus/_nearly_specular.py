@@ -15,7 +15,7 @@ from ..lobes import Lobe
 from ..stats import AbstractSlopeDensity, Delta, Gaussian
 from ..stats._base import add_offset, check_slopes, offset_norm, phase
 from ._action import radial_action
-from ._transform import MAX_ORDER, transforms_from_square
+from ._transform import MAX_ORDER, transforms_scaled
 
 
 class NearlySpecular(AbstractSlopeDensity):
@@ -64,6 +64,12 @@ class NearlySpecular(AbstractSlopeDensity):
             )
         if smooth is not None and not isinstance(smooth, AbstractSlopeDensity):
             raise InvalidInputError(f"smooth must be a brdfscale.stats density or None; got {type(smooth).__name__}.")
+        if smooth is not None and not getattr(smooth, "is_probability_density", True):
+            raise InvalidInputError(
+                f"smooth must be a probability density of facet slopes (mass 1, e.g. stats.Beckmann(0.1)); got "
+                f"{type(smooth).__name__}, a generalised function of mass 0. Plus-distributions enter through "
+                "the strengths c_n."
+            )
         if is_concrete((a, w)):
             if float(a) < 0 or float(w) < 0 or float(a + w) <= 0:
                 raise InvalidInputError(
@@ -88,7 +94,7 @@ class NearlySpecular(AbstractSlopeDensity):
     def _singular_cf(self, k2):
         """``a + Σ c_n H_n(k x0)`` from ``k2 = k²``: the δ and plus parts' transform about their
         centre (``k²``, not k, keeps gradients finite at W = 0)."""
-        H = transforms_from_square(k2 * self.x0**2, self.max_order)
+        H = transforms_scaled(k2, self.x0, self.max_order)
         return self.specular + H @ self.strengths
 
     def density(self, m):
@@ -155,6 +161,9 @@ class ObservedDensity(AbstractSlopeDensity):
     ``brdfscale.plus._action`` and the last one by :func:`brdfscale.evolve` (closed form for a
     Gaussian smooth part, the radial Hankel path otherwise). ``G(W) = K(W) S(W)``.
 
+    ``σ²`` must be a positive normal floating-point number (σ from about 1.5e-154 to 1.3e154 in
+    float64), so that the kernel's peak ``1/(2πσ²)`` is finite; checked when concrete.
+
     ``g`` may be negative where the ``c_n`` are not physical at this resolution;
     :meth:`minimum` finds its most negative value and :func:`observe` refuses such statistics.
     """
@@ -174,6 +183,15 @@ class ObservedDensity(AbstractSlopeDensity):
                 f"Beckmann(α)); got {type(kernel).__name__}. For other instrument kernels use "
                 "brdfscale.evolve(lobes.Lobe(kernel), statistic, stats.Delta()) (spectral path)."
             )
+        if is_concrete(kernel.cov):
+            var = np.asarray(kernel.cov[..., 0, 0])
+            tiny = np.finfo(var.dtype).tiny
+            if not (np.all(np.isfinite(var)) and np.all(var >= tiny) and np.all(np.isfinite(1 / (2 * np.pi * var)))):
+                raise InvalidInputError(
+                    f"the kernel's variance σ² = {var!r} must be a positive, normal {var.dtype} number "
+                    f"(σ² in [{tiny:.3g}, {np.finfo(var.dtype).max:.3g}]: σ between about {np.sqrt(tiny):.2g} and "
+                    f"{np.sqrt(np.finfo(var.dtype).max):.2g}) so that the kernel's peak 1/(2πσ²) is finite."
+                )
         self.statistic, self.kernel = statistic, kernel
         self.isotropic = statistic.isotropic
 
@@ -220,19 +238,36 @@ class ObservedDensity(AbstractSlopeDensity):
 
         Sampled on ``points`` radii from the centre to the support radius (1e-12) along one ray
         (isotropic) or 8 rays; the spacing must resolve σ, so ``points`` should exceed about
-        ``4 R/σ`` (the default suits ``x0/σ`` up to about 200).
+        ``4 R/σ`` (the default suits ``x0/σ`` up to about 200). ``points``: an integer in
+        [16, :data:`MAX_POINTS`]; the samples are evaluated in batches of at most
+        ``_BATCH`` = 4096, so memory stays bounded.
         """
-        if int(points) != points or points < 16:
-            raise InvalidInputError(f"points must be an integer ≥ 16; got {points!r}.")
+        if isinstance(points, bool) or not isinstance(points, (int, np.integer)) or not 16 <= points <= MAX_POINTS:
+            raise InvalidInputError(
+                f"points must be an integer in [16, {MAX_POINTS}] (radii sampled per ray); got {points!r}."
+            )
         R = self.support_radius(1e-12)
         rays = 1 if self.isotropic else 8
         phi = jnp.arange(rays) * (math.pi * 2 / rays)
         radii = jnp.linspace(0.0, 1.0, points) * R
         centre = 0.0 if self.statistic.mean is None else self.statistic.mean
         u = centre + radii[:, None, None] * jnp.stack([jnp.cos(phi), jnp.sin(phi)], axis=-1)[None]
-        values = self.density(u).reshape(-1)
+        u = u.reshape(-1, 2)
+        n = u.shape[0]
+        if n <= _BATCH:
+            values = self.density(u)
+        else:  # equal batches (one compilation), the last one padded with the first sample
+            pad = -n % _BATCH
+            padded = jnp.concatenate([u, jnp.broadcast_to(u[:1], (pad, 2))]) if pad else u
+            values = jnp.concatenate([self.density(batch) for batch in padded.reshape(-1, _BATCH, 2)])[:n]
         i = jnp.argmin(values)
-        return values[i], jnp.max(values), u.reshape(-1, 2)[i]
+        return values[i], jnp.max(values), u[i]
+
+
+MAX_POINTS = 65536
+"""Largest ``points`` accepted by :meth:`ObservedDensity.minimum` and :func:`observe` (radii per ray;
+8 rays for an anisotropic statistic)."""
+_BATCH = 4096
 
 
 @eqx.filter_jit
@@ -262,12 +297,26 @@ def observe(statistic: NearlySpecular, kernel: Gaussian, *, rtol: float = 1e-9, 
     instrument sees is non-negative: a facet-slope statistic is a probability density, so
     ``K ∗ s`` must be ≥ 0 at every resolution.
 
+    Args:
+        statistic: a :class:`NearlySpecular` statistic.
+        kernel: the instrument's isotropic, centred Gaussian kernel.
+        rtol: a finite number ≥ 0: negative values down to ``−rtol · max g`` are accepted as
+            rounding (0: none at all).
+        points: radii sampled per ray by :meth:`ObservedDensity.minimum`, an integer in
+            [16, :data:`MAX_POINTS`].
+
     Raises:
         NoBRDFAtScaleError: ``min g < −rtol · max g`` (the ``c_n`` are not physical at this
             resolution); the message gives the value and where it occurs. Under ``jax.jit``
             the check is skipped — call :meth:`ObservedDensity.minimum` for the diagnostic.
-        InvalidInputError: a wrong statistic or kernel.
+        InvalidInputError: a wrong statistic or kernel, ``rtol`` negative or not finite,
+            ``points`` outside [16, MAX_POINTS].
     """
+    if isinstance(rtol, bool) or not isinstance(rtol, (int, float, np.floating, np.integer)) \
+            or not math.isfinite(rtol) or rtol < 0:
+        raise InvalidInputError(
+            f"rtol must be a finite number ≥ 0 (the negative fraction of the peak tolerated as rounding); got {rtol!r}."
+        )
     observed = ObservedDensity(statistic, kernel)
     if is_concrete(observed):
         low, high, where = (np.asarray(v) for v in observed.minimum(points))

@@ -155,18 +155,37 @@ def _decaying(z, max_order: int):
     return (math.sqrt(2.0) / math.pi) * value / (z**1.5)[..., None]
 
 
+Z_DECAYING = 1e15
+"""Above this ``z`` the decaying terms ``T_n`` (``O(n! z^{−3/2−n})``, below 1e-20 of ``|H_n|``) are
+dropped: ``H_n = P_n(ℓ)``, which needs only ``ln z`` and so stays finite where ``z²`` overflows."""
+
+
 @functools.partial(jax.jit, static_argnames="max_order")
-def transforms_from_square(z2, max_order: int):
+def transforms_from_square(z2, max_order: int, log_z=None):
     """``H_0 … H_{max_order}`` at ``z = √z2`` (z2 = |W|² x0² ≥ 0); shape (..., max_order+1).
 
-    Working from ``z²`` keeps the gradient finite at ``W = 0``.
+    Working from ``z²`` keeps the gradient finite at ``W = 0``. ``log_z``: ``ln z`` where
+    ``z2 > SWITCH²`` (any finite value elsewhere), for callers whose ``z²`` may overflow to
+    inf (:func:`transforms_scaled`); default ``ln √z2``.
     """
     large = z2 > SWITCH**2
     q = jnp.where(large, 0.0, z2) / 4
     z = jnp.sqrt(jnp.where(large, z2, 4 * SWITCH**2))
-    ell = jnp.log(z) + (_EULER_GAMMA - math.log(2.0))
-    expansion = _polynomial(ell, max_order) - _decaying(z, max_order)
+    log_z = jnp.log(z) if log_z is None else jnp.where(large, log_z, math.log(2 * SWITCH))
+    ell = log_z + (_EULER_GAMMA - math.log(2.0))
+    far = z > Z_DECAYING
+    decaying = jnp.where(far[..., None], 0.0, _decaying(jnp.where(far, Z_DECAYING, z), max_order))
+    expansion = _polynomial(ell, max_order) - decaying
     return jnp.where(large[..., None], expansion, _series(q, max_order))
+
+
+def transforms_scaled(k2, x0, max_order: int):
+    """``H_0 … H_{max_order}`` at ``z = k x0`` from ``k2 = k²`` and ``x0 > 0``, finite even where
+    ``z² = k² x0²`` overflows (``ln z`` is formed from the factors) or ``x0²`` does (at k = 0)."""
+    z2 = k2 * x0 * x0  # (k² x0) x0: 0 at k = 0 even when x0² overflows
+    large = z2 > SWITCH**2
+    log_z = 0.5 * jnp.log(jnp.where(large, k2, 1.0)) + jnp.log(x0)
+    return transforms_from_square(z2, max_order, log_z)
 
 
 def check_order(order) -> int:
@@ -180,8 +199,11 @@ def plus_transform(z: Float[ArrayLike, "*batch"], order: int) -> Float[Array, "*
 
     ``H_n(W) = ∫_0^{x0} (logⁿ(x/x0)/x)(J₀(Wx) − 1) dx``, ``n = order ∈ {0, …, 6}``; see the
     module docstring for the two evaluations and their accuracy (≤ 3e-14 relative in float64
-    over ``z ∈ [1e-6, 1e8]``, measured by experiments/plus_transform_accuracy.py).
+    over ``z ∈ [1e-6, 1e8]``, measured by experiments/plus_transform_accuracy.py). Finite for
+    every finite z (above ``Z_DECAYING`` only ``ln z`` enters).
     """
     order = check_order(order)
     z = as_float_array(z, "z")
-    return transforms_from_square(z * z, order)[..., order]
+    z2 = z * z
+    log_z = jnp.log(jnp.where(z2 > SWITCH**2, jnp.abs(z), 1.0))  # finite where z² overflows (|z| > 1.3e154)
+    return transforms_from_square(z2, order, log_z)[..., order]

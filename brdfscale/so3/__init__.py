@@ -13,8 +13,9 @@ block by block in the Wigner-D basis.
   :func:`from_operator`, :func:`reflect`.
 * Generators: :func:`angular_momentum`, :func:`diffusion_generator`, :func:`diffusion_operator`.
 * Evolution: :func:`evolve`, :func:`evolve_diffusion`, :class:`DiffusionLaw`.
-* Models: :class:`Identity`, :class:`RotationalDiffusion`, :class:`TiltTwist`,
-  :class:`EmpiricalOrientations`, :class:`AnisotropicMicrofacetLobe`.
+* Models: :class:`Identity`, :class:`RotationalDiffusion`, :class:`TiltTwist` (sampling grid
+  chosen up to :data:`MAX_AUTO_RESOLUTION`), :class:`EmpiricalOrientations`,
+  :class:`AnisotropicMicrofacetLobe`.
 * Band limits: :func:`band_limit`, :func:`truncation_error`, :func:`gaussian_spectrum`.
 """
 
@@ -24,6 +25,7 @@ from ._evolution import DiffusionLaw, evolve, evolve_diffusion
 from ._generators import angular_momentum, diffusion_generator, diffusion_operator
 from ._grid import MAX_BAND_LIMIT, grid, quadrature_weights
 from ._models import (
+    MAX_AUTO_RESOLUTION,
     AbstractOrientationDensity,
     AnisotropicMicrofacetLobe,
     EmpiricalOrientations,
@@ -62,6 +64,7 @@ __all__ = [
     "Identity",
     "RotationalDiffusion",
     "TiltTwist",
+    "MAX_AUTO_RESOLUTION",
     "EmpiricalOrientations",
     "AnisotropicMicrofacetLobe",
     "band_limit",

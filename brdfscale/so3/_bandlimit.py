@@ -46,7 +46,13 @@ def _weights(spectrum):
 
 
 def truncation_error(lobe, B: int) -> float:
-    """``ε(B)`` for a lobe given by its angular width σ (radians) or a spectrum ``a(J)``."""
+    """``ε(B)`` for a lobe given by its angular width σ (radians) or a spectrum ``a(J)``.
+
+    ``B``: the band limit (degrees J < B kept), an integer in [0, 100000] (ε(0) = 1); the
+    spectrum is summed over J < 100000.
+    """
+    if isinstance(B, bool) or not isinstance(B, (int, np.integer)) or not 0 <= B <= _J_MAX:
+        raise InvalidInputError(f"B must be an integer band limit in [0, {_J_MAX}] (degrees J < B kept); got {B!r}.")
     w = _weights(_spectrum(lobe))
     return float(w[B:].sum() / w.sum())
 

@@ -26,12 +26,13 @@ caller's choice; columns (orders M' of the twist γ) mix under the statistics an
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 from jax.scipy.linalg import cho_factor, cho_solve
 from jaxtyping import Array, ArrayLike, Complex, Float
 
 from .. import stats
-from .._errors import InvalidInputError
-from .._validation import as_float_array, is_concrete
+from .._errors import InvalidInputError, NoBRDFAtScaleError
+from .._validation import as_float_array, is_concrete, positive
 from ._generators import block_expm, check_diffusion, diffusion_generator
 from ._models import AbstractOrientationDensity, RotationalDiffusion
 from ._transform import _coefficients
@@ -42,17 +43,35 @@ __all__ = ["evolve", "evolve_diffusion", "DiffusionLaw"]
 def _operator(s, B, name):
     if isinstance(s, AbstractOrientationDensity):
         return s.operator(B)
-    op = jnp.asarray(s)
-    if op.shape != (B, 2 * B - 1, 2 * B - 1):
+    expected = (
+        f"{name} must be facet-orientation statistics on SO(3) — a brdfscale.so3 density (Identity, "
+        f"RotationalDiffusion, TiltTwist, EmpiricalOrientations) — or its operator blocks of shape "
+        f"({B}, {2 * B - 1}, {2 * B - 1}) (.operator({B}); identity on the padding)"
+    )
+    if isinstance(s, stats.AbstractSlopeDensity):
         raise InvalidInputError(
-            f"{name} must be an orientation density (brdfscale.so3 statistics) or operator blocks of shape "
-            f"({B}, {2 * B - 1}, {2 * B - 1}) (identity on the padding); got {type(s).__name__} {getattr(op, 'shape', '')}."
+            f"{expected}; got the slope-space density {type(s).__name__}. Wrap a slope density as the facet "
+            f"normal's tilt: brdfscale.so3.TiltTwist({type(s).__name__}(...), twist_std=...), or use "
+            "brdfscale.evolve for slope-space lobes."
         )
+    try:
+        op = jnp.asarray(s)
+    except TypeError:
+        raise InvalidInputError(f"{expected}; got {type(s).__name__}.") from None
+    if op.shape != (B, 2 * B - 1, 2 * B - 1) or not (
+        jnp.issubdtype(op.dtype, jnp.floating) or jnp.issubdtype(op.dtype, jnp.complexfloating)
+        or jnp.issubdtype(op.dtype, jnp.integer)
+    ):
+        raise InvalidInputError(f"{expected}; got {type(s).__name__} of shape {op.shape}, dtype {op.dtype}.")
+    if is_concrete(op) and not np.all(np.isfinite(np.asarray(op))):
+        raise InvalidInputError(f"the operator blocks {name} must be finite.")
     return op
 
 
 def _full_columns(R):
     c, B, L, N = _coefficients(R)
+    if is_concrete(c) and not np.all(np.isfinite(np.asarray(c))):
+        raise InvalidInputError("the BRDF coefficients R must be finite; got NaN or infinite entries.")
     if N != B - 1:
         raise InvalidInputError(
             f"the BRDF coefficients must keep all twist orders |M'| ≤ B − 1 = {B - 1} (the statistics mix "
@@ -61,11 +80,29 @@ def _full_columns(R):
     return c, B
 
 
+_NO_BRDF = "no BRDF at this scale"
+
+
+def _finite_or_no_brdf(X, message: str):
+    """``X`` if finite. A non-finite result of finite inputs means the statistics at μ cannot be
+    divided out in floating point (singular or vanishing blocks: a deconvolution too far):
+    :class:`NoBRDFAtScaleError` for concrete values; under ``jax.jit`` an ``equinox.error_if``
+    with the same message (raised as equinox's ``EquinoxRuntimeError``)."""
+    if is_concrete(X):
+        if not np.all(np.isfinite(np.asarray(X))):
+            raise NoBRDFAtScaleError(message)
+        return X
+    return eqx.error_if(X, ~jnp.all(jnp.isfinite(X)), message)
+
+
 def _regularisation(lam):
+    """``(λ, exact)``: λ validated (≥ 0 when concrete), and whether it is a concrete 0 (decided on
+    the argument as given, so that a literal 0 keeps the exact path under ``jax.jit`` too)."""
+    exact = is_concrete(lam) and np.all(np.asarray(lam) == 0)
     lam = as_float_array(lam, "regularisation")
     if is_concrete(lam) and float(lam) < 0:
         raise InvalidInputError(f"regularisation must be ≥ 0; got {float(lam)}.")
-    return lam
+    return lam, bool(exact)
 
 
 def evolve(
@@ -83,19 +120,35 @@ def evolve(
         s_from, s_to: facet-orientation statistics at μ0 and μ: :mod:`brdfscale.so3` densities
             (``Identity()`` for μ = ∞) or their operator blocks ``S̃`` (``.operator(B)``).
         regularisation: Tikhonov λ ≥ 0 (module docstring); 0 solves exactly.
+
+    Raises:
+        NoBRDFAtScaleError: the solve gives non-finite coefficients: some block ``Q̃^J(μ)`` is
+            singular or too small to divide by in floating point (e.g. statistics whose
+            coefficients vanish, or a deconvolution towards a much finer scale). Pass
+            ``regularisation > 0``. Under ``jax.jit`` the check runs through
+            ``equinox.error_if`` (same message).
+        InvalidInputError: R not finite or without all twist orders; statistics that are not
+            SO(3) densities or operator blocks of the right shape; ``regularisation < 0``.
     """
     R, B = _full_columns(R)
     Q0 = jnp.conj(jnp.swapaxes(_operator(s_from, B, "s_from"), -1, -2)).astype(R.dtype)
     Q1 = jnp.conj(jnp.swapaxes(_operator(s_to, B, "s_to"), -1, -2)).astype(R.dtype)
     A = R @ Q0
-    lam = _regularisation(regularisation)
-    if is_concrete(lam) and float(lam) == 0:
+    lam, exact = _regularisation(regularisation)
+    if exact:
         # X Q1 = A  ⇔  Q1ᵀ Xᵀ = Aᵀ
-        return jnp.swapaxes(jnp.linalg.solve(jnp.swapaxes(Q1, -1, -2), jnp.swapaxes(A, -1, -2)), -1, -2)
-    normal = Q1 @ jnp.conj(jnp.swapaxes(Q1, -1, -2)) + (lam**2) * jnp.eye(2 * B - 1, dtype=R.dtype)
-    # Hermitian positive definite for λ > 0: a Cholesky factorisation (half the work of LU)
-    Xh = cho_solve(cho_factor(normal, lower=True), Q1 @ jnp.conj(jnp.swapaxes(A, -1, -2)))
-    return jnp.conj(jnp.swapaxes(Xh, -1, -2))
+        X = jnp.swapaxes(jnp.linalg.solve(jnp.swapaxes(Q1, -1, -2), jnp.swapaxes(A, -1, -2)), -1, -2)
+    else:
+        normal = Q1 @ jnp.conj(jnp.swapaxes(Q1, -1, -2)) + (lam**2) * jnp.eye(2 * B - 1, dtype=R.dtype)
+        # Hermitian positive definite for λ > 0: a Cholesky factorisation (half the work of LU)
+        Xh = cho_solve(cho_factor(normal, lower=True), Q1 @ jnp.conj(jnp.swapaxes(A, -1, -2)))
+        X = jnp.conj(jnp.swapaxes(Xh, -1, -2))
+    return _finite_or_no_brdf(X, _NO_BRDF + (
+        ": dividing by the statistics at μ (solving X Q̃^J(μ) = R^J(μ0) Q̃^J(μ0) block by block) gives "
+        "non-finite coefficients — a block Q̃^J(μ) is singular or too small to divide by in floating point "
+        "(statistics with vanishing coefficients, or a deconvolution towards a much finer scale). Pass "
+        "regularisation > 0 (about the relative noise level of R(μ0)) for the regularised solve."
+    ))
 
 
 def evolve_diffusion(
@@ -112,15 +165,34 @@ def evolve_diffusion(
     ``tau_to < tau_from`` (coarser) the exponential damps; ``tau_to > tau_from`` (finer)
     amplifies degree J by up to ``exp((τ − τ0) D_max J(J+1))``: pass ``regularisation > 0`` to
     replace the exact exponential by the regularised solve of :func:`evolve`.
+
+    Raises:
+        NoBRDFAtScaleError: without regularisation, the amplification overflows (non-finite
+            coefficients): pass ``regularisation > 0``. Under ``jax.jit`` through
+            ``equinox.error_if`` (same message).
+        InvalidInputError: ``tau_from`` or ``tau_to`` negative (diffusion times are ≥ 0),
+            negative ``D`` or ``regularisation``, non-finite R.
     """
     R, B = _full_columns(R)
-    lam = _regularisation(regularisation)
-    if not (is_concrete(lam) and float(lam) == 0):
-        return evolve(R, RotationalDiffusion(tau_from, D), RotationalDiffusion(tau_to, D), regularisation=lam)
-    t0 = as_float_array(tau_from, "tau_from")
-    t1 = as_float_array(tau_to, "tau_to")
+    t0 = _diffusion_time(tau_from, "tau_from")
+    t1 = _diffusion_time(tau_to, "tau_to")
+    lam, exact = _regularisation(regularisation)
+    if not exact:
+        return evolve(R, RotationalDiffusion(t0, D), RotationalDiffusion(t1, D), regularisation=lam)
     G = diffusion_generator(B, check_diffusion(D))
-    return R @ block_expm(-(t0 - t1) * G).astype(R.dtype)
+    return _finite_or_no_brdf(R @ block_expm(-(t0 - t1) * G).astype(R.dtype), _NO_BRDF + (
+        ": evolving towards a finer scale (tau_to > tau_from) multiplies degree J by up to "
+        "exp((tau_to − tau_from) D_max J(J+1)), which overflows here (non-finite coefficients). Pass "
+        "regularisation > 0 (about the relative noise level of R(μ0)) for the regularised solve of "
+        "brdfscale.so3.evolve, or a smaller band limit."
+    ))
+
+
+def _diffusion_time(tau, name: str):
+    t = as_float_array(tau, name)
+    if is_concrete(t) and np.any(np.asarray(t) < 0):
+        raise InvalidInputError(f"{name} must be ≥ 0 (a rotational-diffusion time τ); got {np.asarray(t)!r}.")
+    return t
 
 
 class DiffusionLaw(eqx.Module):
@@ -142,9 +214,9 @@ class DiffusionLaw(eqx.Module):
         self.D = check_diffusion(D)
 
     def tau(self, mu: Float[ArrayLike, "*batch"]) -> Float[Array, "*batch"]:
-        """``τ(μ) = α(μ)²/4``."""
-        return self.width(jnp.asarray(mu)) ** 2 / 4
+        """``τ(μ) = α(μ)²/4`` for facet sizes μ > 0 (finite; checked when concrete)."""
+        return self.width(positive(mu, "mu", "a positive facet size (the scale μ)")) ** 2 / 4
 
     def at(self, mu: Float[ArrayLike, ""]) -> RotationalDiffusion:
-        """The statistics at scale μ."""
+        """The statistics at scale μ > 0."""
         return RotationalDiffusion(self.tau(mu), self.D)

@@ -24,7 +24,7 @@ from ..geometry import microfacet_factor, validate_directions
 from ._convolution import to_operator
 from ._generators import check_diffusion, diffusion_operator
 from ._grid import MAX_BAND_LIMIT, check_band_limit, grid
-from ._rotations import euler_to_matrix, matrix_to_euler
+from ._rotations import check_rotation, euler_to_matrix, matrix_to_euler
 from ._transform import analyse_points, forward
 
 __all__ = [
@@ -93,6 +93,7 @@ class RotationalDiffusion(AbstractOrientationDensity):
 
 
 _MAX_TWIST_TERMS = 4096
+_FOURIER_TWIST_TERMS = 9  # σ ≥ 1: e^{−σ²k²/2} < e^{−40} beyond 9 terms; narrower twists use wrapped Gaussians
 
 
 def _twist_terms(std) -> int:
@@ -105,6 +106,22 @@ def _wrapped_normal(psi, mean, std, terms: int):
     k = jnp.arange(1, terms + 1)
     terms = jnp.exp(-0.5 * (std * k) ** 2) * jnp.cos(k * (psi[..., None] - mean))
     return (1 + 2 * jnp.sum(terms, axis=-1)) / (2 * jnp.pi)
+
+
+def _wrapped_gaussian(psi, mean, std):
+    """The same density as a sum of Gaussians over the wraps n = −1, 0, 1 of ``ψ − ψ0`` reduced to
+    [−π, π): for σ < 1 the omitted wraps lie ≥ 3π away (below e^{−44} of the peak)."""
+    d = jnp.mod(psi - mean + jnp.pi, 2 * jnp.pi) - jnp.pi
+    shifts = jnp.asarray([-2 * math.pi, 0.0, 2 * math.pi], dtype=d.dtype)
+    z = (d[..., None] + shifts) / std
+    return jnp.sum(jnp.exp(-0.5 * z * z), axis=-1) / (std * math.sqrt(2 * math.pi))
+
+
+MAX_AUTO_RESOLUTION = 256
+"""Largest sampling band limit :class:`TiltTwist` chooses by itself (the grid has (2N)³ points:
+1 GiB of float64 samples at N = 256; the operator then peaks near 6 GiB).
+Tilt densities that need more raise :class:`InvalidInputError`; an explicit ``resolution=`` (up
+to :data:`MAX_BAND_LIMIT`) overrides the cap."""
 
 
 class TiltTwist(AbstractOrientationDensity):
@@ -120,6 +137,15 @@ class TiltTwist(AbstractOrientationDensity):
     wrapped normal twist density of ``twist_mean`` and ``twist_std`` (radians; None: uniform,
     an isotropic twist). Coefficients J < B come from :func:`forward` on a grid fine enough
     to integrate s (:meth:`quadrature_band_limit`), so narrow densities are not aliased.
+
+    The twist enters the coefficients exactly, whatever ``twist_std``: on the grid only its
+    Fourier terms |k| ≤ 2N − B are kept (N the grid's band limit), which the γ sum integrates
+    without aliasing, and only |k| ≤ B − 1 reach the coefficients. The grid's band limit N
+    (``resolution``) is therefore set by the tilt alone: by default enough to integrate it to
+    1e-10 (:meth:`quadrature_band_limit`), at most :data:`MAX_AUTO_RESOLUTION`; a tilt that
+    needs more (very narrow or discontinuous, e.g. a coarse ``stats.Tabulated``) or that has no
+    pointwise density (``stats.Delta``, plus-distributions) raises :class:`InvalidInputError`
+    unless an explicit ``resolution`` (≤ :data:`MAX_BAND_LIMIT`) is given.
 
     The grid's band limit and the number of twist Fourier terms are fixed when the density is
     built (from its concrete parameters; ``resolution`` overrides the former): ``operator`` and
@@ -156,6 +182,16 @@ class TiltTwist(AbstractOrientationDensity):
             if not is_concrete(tilt.bandwidth(1e-10)):
                 raise InvalidInputError("TiltTwist built from traced parameters needs an explicit resolution= "
                                         "(the sampling grid's band limit); or build it outside jit.")
+            need = self._tilt_band_limit(1e-10)
+            if need > MAX_AUTO_RESOLUTION:
+                raise InvalidInputError(
+                    f"the tilt density {type(tilt).__name__} needs a sampling grid of band limit about "
+                    f"N = {math.ceil(need)} to be integrated to 1e-10 (from its slope bandwidth; the grid has (2N)³ "
+                    f"points, {_grid_gib(need):.3g} GiB of float64 samples), more than TiltTwist chooses by itself "
+                    f"(MAX_AUTO_RESOLUTION = {MAX_AUTO_RESOLUTION}, {_grid_gib(MAX_AUTO_RESOLUTION):.2g} GiB). "
+                    f"Use a wider tilt density, or pass resolution= explicitly (an integer ≤ {MAX_BAND_LIMIT}; "
+                    "a grid coarser than needed integrates the tilt less accurately)."
+                )
             resolution = self.quadrature_band_limit(1)
         self.resolution = check_band_limit(resolution, "resolution")
 
@@ -163,32 +199,61 @@ class TiltTwist(AbstractOrientationDensity):
         """``s(α, β, γ)`` per unit Haar measure."""
         alpha, beta, gamma = jnp.broadcast_arrays(*(as_float_array(x, n) for x, n in
                                                     ((alpha, "alpha"), (beta, "beta"), (gamma, "gamma"))))
+        return self._tilt(alpha, beta) * self._twist(alpha + gamma)
+
+    def _tilt(self, alpha, beta):
+        """``s_m(tan β (cos α, sin α)) / cos³β`` for β < π/2, else 0."""
         upper = beta < jnp.pi / 2
         b = jnp.where(upper, beta, 0.0)
         t = jnp.tan(b)
         m = jnp.stack([t * jnp.cos(alpha), t * jnp.sin(alpha)], axis=-1)
-        tilt = self.tilt.density(m) / jnp.cos(b) ** 3
+        return jnp.where(upper, self.tilt.density(m) / jnp.cos(b) ** 3, 0.0)
+
+    def _twist(self, psi, terms: int | None = None):
+        """The twist density ``p(ψ)``; ``terms``: keep exactly the Fourier terms |k| ≤ terms."""
         if self.twist_std is None:
-            twist = jnp.full_like(alpha, 1 / (2 * jnp.pi))
-        else:
-            twist = _wrapped_normal(alpha + gamma, self.twist_mean, self.twist_std, self.twist_terms)
-        return jnp.where(upper, tilt * twist, 0.0)
+            return jnp.full_like(psi, 1 / (2 * jnp.pi))
+        if terms is not None:
+            return _wrapped_normal(psi, self.twist_mean, self.twist_std, min(terms, self.twist_terms))
+        if self.twist_terms <= _FOURIER_TWIST_TERMS:
+            return _wrapped_normal(psi, self.twist_mean, self.twist_std, self.twist_terms)
+        return _wrapped_gaussian(psi, self.twist_mean, self.twist_std)
+
+    def _tilt_band_limit(self, tol: float) -> float:
+        """The grid band limit that integrates the tilt to ``tol`` (J ≈ |W| for small tilts), as
+        a float, uncapped; :class:`InvalidInputError` for a tilt without finite bandwidth."""
+        bandwidth = float(self.tilt.bandwidth(tol))
+        if not math.isfinite(bandwidth):
+            raise InvalidInputError(
+                f"the tilt density {type(self.tilt).__name__} has no finite slope bandwidth (e.g. stats.Delta, a "
+                "plus-distribution or a nearly-specular statistic: no pointwise density to sample on the SO(3) "
+                "grid); TiltTwist needs a tilt with a pointwise density (e.g. stats.Beckmann, stats.GGX). For "
+                "facets with no tilt use a narrow tilt or RotationalDiffusion(tau, D=(0, 0, D_z))."
+            )
+        return bandwidth + 4
 
     def quadrature_band_limit(self, B: int, tol: float = 1e-10) -> int:
-        """Band limit of the sampling grid: at least B, and enough to integrate the tilt and
-        twist densities to ``tol`` (from the tilt's slope bandwidth, J ≈ |W| for small tilts,
-        and the twist's Fourier decay e^{−σ²k²/2})."""
-        need = [B, float(self.tilt.bandwidth(tol)) + 4]
-        if self.twist_std is not None:
-            need.append(math.sqrt(2 * math.log(1 / tol)) / float(self.twist_std) + 4)
-        return min(MAX_BAND_LIMIT, int(math.ceil(max(need))))
+        """Band limit of the sampling grid: at least B, and enough to integrate the tilt density
+        to ``tol`` (from the tilt's slope bandwidth, J ≈ |W| for small tilts), at most
+        :data:`MAX_BAND_LIMIT`. The twist needs no resolution of its own (class docstring)."""
+        return min(MAX_BAND_LIMIT, int(math.ceil(max(B, self._tilt_band_limit(tol)))))
 
     def operator(self, B):
         B = check_band_limit(B)
         Bq = max(B, self.resolution)  # quadrature_band_limit(B), fixed at construction
-        a, b, g = (jnp.asarray(x) for x in grid(Bq))
-        samples = self.density(a[:, None, None], b[None, :, None], g[None, None, :])
+        a, b, _ = grid(Bq)
+        tilt = self._tilt(jnp.asarray(a)[:, None], jnp.asarray(b)[None, :])  # (α, β)
+        # on the grid α_j + γ_l = π (j + l)/Bq: the twist takes 2Bq values, gathered onto (α, γ);
+        # Fourier terms |k| ≤ 2Bq − B are integrated by the γ sum without aliasing into |M'| < B
+        twist = self._twist(jnp.asarray(a), terms=2 * Bq - B)
+        index = np.add.outer(np.arange(2 * Bq), np.arange(2 * Bq)) % (2 * Bq)
+        samples = tilt[:, :, None] * twist[index][:, None, :]
         return _with_padding(forward(samples, m_max=B - 1, n_max=B - 1)[:B], B)
+
+
+def _grid_gib(B) -> float:
+    """GiB of float64 samples on the grid of band limit B."""
+    return (2 * B) ** 3 * 8 / 2**30
 
 
 class EmpiricalOrientations(AbstractOrientationDensity):
@@ -233,7 +298,7 @@ class AnisotropicMicrofacetLobe(eqx.Module):
 
     zero where the light or the detector is below the facet's horizon (i'_z ≤ 0 or o'_z ≤ 0).
     Units 1/sr. For fixed (i, o) this is a function on SO(3) whose coefficients evolve
-    with the statistics (:func:`evolve`).
+    with the statistics (:func:`evolve`). ``amplitude`` A ≥ 0 (checked when concrete).
     """
 
     shape: stats.AbstractSlopeDensity
@@ -249,6 +314,10 @@ class AnisotropicMicrofacetLobe(eqx.Module):
             raise InvalidInputError(f"family must be 'beckmann' or 'ggx'; got {family!r}.")
         self.family = family
         self.amplitude = as_float_array(amplitude, "amplitude")
+        if is_concrete(self.amplitude) and np.any(np.asarray(self.amplitude) < 0):
+            raise InvalidInputError(
+                f"amplitude must be ≥ 0 (a BRDF is non-negative); got {np.asarray(self.amplitude)!r}."
+            )
 
     def _alpha_min(self):
         if self.family == "ggx":
@@ -258,8 +327,13 @@ class AnisotropicMicrofacetLobe(eqx.Module):
     def evaluate(
         self, i: Float[ArrayLike, "*batch 3"], o: Float[ArrayLike, "*batch 3"], rotation: Float[ArrayLike, "*batch 3 3"]
     ) -> Float[Array, "*batch"]:
-        """``ρ(i, o, Γ)`` for global directions i, o (z > 0) and facet orientations Γ (3×3)."""
-        return self._evaluate(validate_directions(i, "i"), validate_directions(o, "o"), jnp.asarray(rotation))
+        """``ρ(i, o, Γ)`` for global directions i, o (z > 0) and facet orientations Γ (3×3).
+
+        Concrete ``rotation`` must be proper rotation matrices (finite, ``max |ΓᵀΓ − I| ≤ 1e-6``,
+        det +1; :func:`brdfscale.so3._rotations.check_rotation`), else :class:`InvalidInputError`.
+        """
+        return self._evaluate(validate_directions(i, "i"), validate_directions(o, "o"),
+                              check_rotation(rotation, "rotation"))
 
     @eqx.filter_jit
     def _evaluate(self, i, o, rot):

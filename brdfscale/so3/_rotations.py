@@ -11,12 +11,13 @@ whose polar angle is β and azimuth α.
 """
 
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import InvalidInputError
 from .._validation import as_float_array, is_concrete
 
-__all__ = ["euler_to_matrix", "matrix_to_euler"]
+__all__ = ["euler_to_matrix", "matrix_to_euler", "check_rotation", "ROTATION_TOLERANCE"]
 
 
 def _rot_z(t):
@@ -42,6 +43,34 @@ def euler_to_matrix(
     return _rot_z(alpha) @ _rot_y(beta) @ _rot_z(gamma)
 
 
+ROTATION_TOLERANCE = 1e-6
+"""Largest ``max |ΓᵀΓ − I|`` accepted of a concrete rotation matrix (entries of a rotation are ≤ 1
+in modulus, so this is a relative tolerance)."""
+
+
+def check_rotation(rotation, name: str = "rotation") -> Float[Array, "*batch 3 3"]:
+    """``rotation`` as a floating array of shape (..., 3, 3), validated when concrete: finite,
+    orthogonal to :data:`ROTATION_TOLERANCE` and with determinant +1 (a proper rotation).
+    Traced values pass through unchecked."""
+    r = as_float_array(rotation, name)
+    if r.ndim < 2 or r.shape[-2:] != (3, 3):
+        raise InvalidInputError(f"{name} must have shape (..., 3, 3); got {r.shape}.")
+    if is_concrete(r) and r.size:
+        a = np.asarray(r, dtype=np.float64)
+        residual = np.abs(np.swapaxes(a, -1, -2) @ a - np.eye(3)).max(axis=(-2, -1))
+        det = np.linalg.det(a)
+        bad = (residual > ROTATION_TOLERANCE) | (det < 0)
+        if np.any(bad):
+            err = float(residual.max())
+            first = tuple(int(k) for k in np.argwhere(bad)[0])
+            at = f" (first offending matrix at index {first})" if first else ""
+            raise InvalidInputError(
+                f"{name} must be a proper rotation matrix: orthogonal (max |ΓᵀΓ − I| ≤ {ROTATION_TOLERANCE:g}) with "
+                f"determinant +1; got max |ΓᵀΓ − I| = {err:.3g}{at}, min det = {float(det.min()):.3g}."
+            )
+    return r
+
+
 def matrix_to_euler(
     rotation: Float[ArrayLike, "*batch 3 3"],
 ) -> tuple[Float[Array, "*batch"], Float[Array, "*batch"], Float[Array, "*batch"]]:
@@ -49,20 +78,10 @@ def matrix_to_euler(
 
     ``β = atan2(√(Γ₁₃² + Γ₂₃²), Γ₃₃) ∈ [0, π]``, ``α = atan2(Γ₂₃, Γ₁₃)``, ``γ = atan2(Γ₃₂, −Γ₃₁)``,
     with α, γ in [0, 2π). At the poles (β = 0 or π) only α ± γ is defined; there γ = 0.
-    Raises :class:`InvalidInputError` for concrete inputs that are not rotations (tolerance 1e-6).
+    Raises :class:`InvalidInputError` for concrete inputs that are not proper rotations
+    (:func:`check_rotation`: tolerance 1e-6).
     """
-    r = as_float_array(rotation, "rotation")
-    if r.ndim < 2 or r.shape[-2:] != (3, 3):
-        raise InvalidInputError(f"rotation must have shape (..., 3, 3); got {r.shape}.")
-    if is_concrete(r):
-        eye = jnp.eye(3, dtype=r.dtype)
-        err = float(jnp.max(jnp.abs(jnp.swapaxes(r, -1, -2) @ r - eye))) if r.size else 0.0
-        det = jnp.linalg.det(r)
-        if err > 1e-6 or (r.size and float(jnp.min(det)) < 0):
-            raise InvalidInputError(
-                f"rotation must be orthogonal with determinant +1 (a proper rotation); "
-                f"max |ΓᵀΓ − I| = {err:.3g}, min det = {float(jnp.min(det)):.3g}."
-            )
+    r = check_rotation(rotation, "rotation")
     sin_b = jnp.hypot(r[..., 0, 2], r[..., 1, 2])
     beta = jnp.arctan2(sin_b, r[..., 2, 2])
     two_pi = 2 * jnp.pi

@@ -12,6 +12,7 @@ cut-off and Σ → 0: s(·, μ→∞) → δ, the consistency boundary condition
 """
 
 import abc
+import inspect
 import math
 from typing import Callable, Literal
 
@@ -265,14 +266,17 @@ class ScaledFamily(AbstractScaleLaw):
         if not callable(law):
             raise InvalidInputError(f"law must map a facet size μ to a width α (e.g. stats.WidthLaw); got {law!r}.")
         try:
-            probe = family(alpha=1.0)
+            inspect.signature(family).bind(alpha=None)
         except TypeError as err:
             raise InvalidInputError(
                 f"family must be a constructor taking alpha= (e.g. stats.Beckmann, stats.GGX); {family!r} does "
                 f"not: {err}") from None
-        if not isinstance(probe, AbstractSlopeDensity):
-            raise InvalidInputError(f"family(alpha=...) must build a brdfscale.stats density; got {type(probe).__name__}.")
+        except ValueError:  # no signature to read (a builtin): left to the first call
+            pass
         self.family, self.law = family, law
 
     def at(self, mu):
-        return self.family(alpha=self.law(facet_size(mu)))
+        density = self.family(alpha=self.law(facet_size(mu)))
+        if not isinstance(density, AbstractSlopeDensity):
+            raise InvalidInputError(f"family(alpha=...) must build a brdfscale.stats density; got {type(density).__name__}.")
+        return density
