@@ -193,7 +193,7 @@ def test_observe_validates_rtol_and_points():
 
 def test_kernel_variance_must_be_representable():
     s = plus.NearlySpecular(1.0, [0.1], 0.1)
-    with pytest.raises(InvalidInputError, match="σ²"):
+    with pytest.raises(InvalidInputError, match="σ²|variances"):
         plus.observe(s, stats.Gaussian(sigma=1e-200))  # σ² underflows to 0
 
 

@@ -377,3 +377,8 @@ def test_no_brdf_from_a_spectral_path_reads_as_one_message():
 def test_material_regularisation_must_be_non_negative():
     with pytest.raises(bs.InvalidInputError, match="regularisation must be ≥ 0"):
         scene.Material(lobes.GGX(0.05), 10.0, stats.ScaledFamily(stats.GGX, bench.WIDTH), regularisation=-1.0)
+
+
+def test_no_queries_is_refused_by_name():
+    with pytest.raises(bs.InvalidInputError, match="at least one"):
+        scene.Queries(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0))

@@ -342,8 +342,13 @@ def test_cf_grid_is_differentiable_like_cf():
     lambda: stats.FrequencyGrid(4.7, 1.0),
     lambda: stats.FrequencyGrid(4, -1.0),
     lambda: stats.FrequencyGrid(4, float("nan")),
+    lambda: stats.Beckmann(1e-77),
+    lambda: stats.Beckmann(1e160),
+    lambda: stats.Gaussian(cov=1e-300 * jnp.eye(2)),
+    lambda: stats.GGX("0.1"),
 ], ids=["vector mu", "vector mu covariance", "negative mu", "family without alpha", "no law", "NaN frequency",
-        "infinite frequency", "complex slopes", "fractional grid size", "negative step", "NaN step"])
+        "infinite frequency", "complex slopes", "fractional grid size", "negative step", "NaN step",
+        "variance underflows", "variance overflows", "determinant underflows", "string width"])
 def test_bad_arguments_are_named(make):
     """Each of these once returned a value (a wrong one, or a NaN turned finite) or failed deep
     inside; each is now an InvalidInputError."""
@@ -355,3 +360,12 @@ def test_integer_frequency_step_gives_real_radii():
     """FrequencyGrid(4, 1): an integer step once truncated the radii to integers."""
     grid = stats.FrequencyGrid(4, 1)
     assert complex(stats.GGX(0.1).cf_grid(grid)[1, 1]) == pytest.approx(complex(stats.GGX(0.1).cf(jnp.array([1.0, 1.0]))), rel=1e-14)
+
+
+@pytest.mark.parametrize("scale", [1e-320, 1.0, 1e308])
+def test_mixture_weights_normalise_at_any_scale(scale):
+    """Subnormal weights (flushed to zero by XLA) and weights whose sum overflows once gave NaN."""
+    given = np.array([0.7 * scale, 0.3 * scale])  # as represented (subnormals carry few digits)
+    mixture = stats.Mixture(given, [stats.Beckmann(0.1), stats.Beckmann(0.2)])
+    np.testing.assert_allclose(np.asarray(mixture.weights), given / given[0] / (1 + given[1] / given[0]), rtol=1e-14)
+    assert np.isfinite(float(mixture.density(jnp.zeros(2))))

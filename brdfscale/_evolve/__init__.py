@@ -51,9 +51,8 @@ def evolve(
             for analytic inputs; for tabulated or noisy lobes use about the relative noise
             level of ``G(W, μ0)`` (Wiener's choice λ² = noise power / signal power).
         tol: error target relative to the lobe's peak, in [1e-14, 1); sets the frequency
-            cut-off (where |G| falls below tol) and the grid extent of the spectral paths. For
-            a slowly decaying transform the tail beyond the cut-off can add up to a small
-            multiple of tol (up to ~14× for GGX statistics at tol = 1e-12, tested).
+            cut-off (beyond it |G| < tol and its k-weighted tail < tol of the whole), the
+            radial rule's nodes and the grid extent of the spectral paths.
         size: Gauss–Legendre nodes (radial) or grid side (grid). Default: chosen from
             ``tol`` when the parameters are concrete (capped at 4096 / 1024), else 256.
             When a capped grid cannot meet ``tol`` (heavy-tailed statistics such as GGX

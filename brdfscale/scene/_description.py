@@ -136,6 +136,9 @@ class Queries(eqx.Module):
         self.o = validate_directions(jnp.atleast_2d(as_float_array(o, "o")), "o")
         self.mu = jnp.atleast_1d(positive(mu, "mu", "a positive facet size"))
         n = self.mu.shape[0]
+        if n == 0:
+            raise InvalidInputError("Queries needs at least one (i, o, μ) query; got none (e.g. a camera that sees "
+                                    "only sky: plan the pixels that see the surface).")
         if self.mu.ndim != 1 or self.i.shape != (n, 3) or self.o.shape != (n, 3):
             raise InvalidInputError(
                 f"i and o must have shape (Q, 3) and mu shape (Q,) with the same Q; got {self.i.shape}, "

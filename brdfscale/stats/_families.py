@@ -118,6 +118,14 @@ class Gaussian(AbstractSlopeDensity):
                         f"cov must be positive definite (a Gaussian of zero or negative variance is "
                         f"not a density; use Delta for a flat surface); smallest eigenvalue {np.min(lo):.6g}."
                     )
+        if is_concrete(cov):
+            c = np.asarray(cov)
+            det = c[..., 0, 0] * c[..., 1, 1] - c[..., 0, 1] ** 2
+            if not (np.all(np.isfinite(c)) and np.all(np.isfinite(det)) and np.all(det >= np.finfo(c.dtype).tiny)):
+                raise InvalidInputError(
+                    f"the covariance's variances and determinant must be finite normal {c.dtype} numbers "
+                    f"(standard deviations between about 1e-76 and 1e76 in float64); got variances "
+                    f"{c[..., 0, 0]!r}, {c[..., 1, 1]!r} and determinant {det!r}.")
         self.cov = cov
         self.mean = vector2(mean, "mean")
         self.isotropic = isotropic and mean is None

@@ -35,10 +35,13 @@ class Mixture(AbstractSlopeDensity):
                 f"weights must have shape ({len(components)},), one per component; got {w.shape}."
             )
         if is_concrete(w):
-            wn = np.asarray(w)
-            if np.any(wn < 0) or wn.sum() <= 0:
+            wn = np.asarray(weights, dtype=np.result_type(np.asarray(weights), np.float64))
+            if np.any(wn < 0) or not np.any(wn > 0):
                 raise InvalidInputError(f"weights must be non-negative with a positive sum; got {wn!r}.")
-        self.weights = w / jnp.sum(w)
+            wn = wn / wn.max()  # first to the largest: the sum neither under- nor overflows
+            self.weights = jnp.asarray(wn / wn.sum(), dtype=w.dtype)
+        else:
+            self.weights = w / jnp.sum(w)
         self.components = components
         self.isotropic = all(c.isotropic for c in components)
 
