@@ -9,23 +9,31 @@ nodes span ``[−extent, extent]`` on both axes (rows u_y, columns u_x, as
 """
 
 import dataclasses
-import math
 from collections.abc import Mapping
 
 import numpy as np
 
 from ._errors import InvalidInputError
+from ._validation import real, real_array
 
 __all__ = ["LobeImage", "MeasurementSet"]
 
 
-def _finite_array(x, name: str, ndim: int) -> np.ndarray:
-    a = np.asarray(x, dtype=float)
-    if a.ndim != ndim:
-        raise InvalidInputError(f"{name} must have {ndim} dimensions; got shape {a.shape}.")
-    if not np.all(np.isfinite(a)):
-        raise InvalidInputError(f"{name} contains non-finite values.")
-    return a
+def _boolean_mask(x, name: str) -> np.ndarray:
+    """``x`` as a bool array; only True/False or the numbers 0 and 1 are accepted."""
+    try:
+        m = np.asarray(x)
+    except (TypeError, ValueError) as err:
+        raise InvalidInputError(f"{name} must be a boolean array (True/False or 0/1); got {type(x).__name__} ({err}).") from None
+    if m.dtype.kind == "b":
+        return m
+    if m.dtype.kind in "iuf" and np.all((m == 0) | (m == 1)):
+        return m.astype(bool)
+    bad = "" if m.dtype.kind not in "iuf" else f" with {np.count_nonzero((m != 0) & (m != 1))} entries other than 0 and 1"
+    raise InvalidInputError(
+        f"{name} must be boolean-valued, True (or 1) where the pixel is valid and False (or 0) where not; got dtype "
+        f"{m.dtype}{bad}. Threshold it yourself (e.g. mask=weights > 0) if another rule is meant."
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -39,7 +47,13 @@ class LobeImage:
         values: the lobe ``A·g(u)`` (per unit slope area), shape (n, n), or
             (n, n, 3) for R, G, B.
         sigma: per-pixel standard deviation of ``values`` (same shape), or None.
-        mask: boolean (n, n), True where the pixel is valid, or None (all valid).
+        mask: boolean (n, n), True where the pixel is valid, or None (all valid); the
+            numbers 0 and 1 are accepted for False and True.
+
+    Raises InvalidInputError for a value of the wrong type or range: ``mu``/``extent`` not a
+    positive real number (a string, None, bool, complex or array is refused, not converted),
+    arrays that are not finite real numbers (complex, bool, text or ragged input is refused,
+    not cast), wrong shapes, a σ ≤ 0, or a mask with entries other than True/False/0/1.
     """
 
     mu: float
@@ -50,32 +64,26 @@ class LobeImage:
     mask: np.ndarray | None = None
 
     def __post_init__(self):
-        mu = float(self.mu)
-        if not (math.isfinite(mu) and mu > 0):
-            raise InvalidInputError(f"mu must be a positive finite scale; got {self.mu!r}.")
-        inc = _finite_array(self.incident, "incident", 1)
+        mu = real(self.mu, "mu", minimum=0, strict=True)
+        inc = real_array(self.incident, "incident", 1)
         if inc.shape != (3,) or abs(np.linalg.norm(inc) - 1) > 1e-6 or inc[2] <= 0:
             raise InvalidInputError(f"incident must be a unit 3-vector with z > 0; got {inc!r}.")
-        extent = float(self.extent)
-        if not (math.isfinite(extent) and extent > 0):
-            raise InvalidInputError(f"extent must be positive; got {self.extent!r}.")
-        values = np.asarray(self.values, dtype=float)
+        extent = real(self.extent, "extent", minimum=0, strict=True)
+        values = real_array(self.values, "values")
         if values.ndim not in (2, 3) or values.shape[0] != values.shape[1] or values.shape[0] < 2 or (
             values.ndim == 3 and values.shape[2] != 3
         ):
             raise InvalidInputError(f"values must have shape (n, n) or (n, n, 3) with n ≥ 2; got {values.shape}.")
-        if not np.all(np.isfinite(values)):
-            raise InvalidInputError("values contains non-finite entries.")
         sigma = None
         if self.sigma is not None:
-            sigma = np.asarray(self.sigma, dtype=float)
-            if sigma.shape != values.shape or not np.all(np.isfinite(sigma)) or np.any(sigma <= 0):
+            sigma = real_array(self.sigma, "sigma")
+            if sigma.shape != values.shape or np.any(sigma <= 0):
                 raise InvalidInputError(
                     f"sigma must be positive and finite with the shape of values {values.shape}; got {sigma.shape}."
                 )
         mask = None
         if self.mask is not None:
-            mask = np.asarray(self.mask).astype(bool)
+            mask = _boolean_mask(self.mask, "mask")
             if mask.shape != values.shape[:2]:
                 raise InvalidInputError(f"mask must have shape {values.shape[:2]}; got {mask.shape}.")
         object.__setattr__(self, "mu", mu)
@@ -108,7 +116,11 @@ class MeasurementSet:
     metadata: dict = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):
-        images = tuple(self.images)
+        try:
+            images = tuple(self.images)
+        except TypeError:
+            raise InvalidInputError(
+                f"images must be a non-empty sequence of LobeImage; got {type(self.images).__name__}.") from None
         if not images or not all(isinstance(p, LobeImage) for p in images):
             raise InvalidInputError("images must be a non-empty sequence of LobeImage.")
         object.__setattr__(self, "images", images)

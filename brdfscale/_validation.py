@@ -24,7 +24,12 @@ def as_float_array(x, name: str):
     """``x`` as a floating JAX array (ints become the default float dtype)."""
     if x is None:
         raise InvalidInputError(f"{name} is required.")
-    a = jnp.asarray(x)
+    if isinstance(x, (str, bytes)):
+        raise InvalidInputError(f"{name} must be a real number or array; got the string {x!r}.")
+    try:
+        a = jnp.asarray(x)
+    except (TypeError, ValueError) as err:
+        raise InvalidInputError(f"{name} must be a real number or array; got {type(x).__name__}: {err}") from None
     if not jnp.issubdtype(a.dtype, jnp.floating):
         if jnp.issubdtype(a.dtype, jnp.complexfloating) or a.dtype == bool:
             raise InvalidInputError(f"{name} must be real; got dtype {a.dtype}.")
@@ -71,6 +76,33 @@ def facet_size(mu, name: str = "mu"):
         raise InvalidInputError(f"{name} must be a single facet size (a scalar; map over scales with jax.vmap); "
                                 f"got shape {a.shape}.")
     return a
+
+
+def real_array(x, name: str, ndim: int | None = None) -> np.ndarray:
+    """``x`` as a finite float64 NumPy array, refusing what is not an array of real numbers.
+
+    Integers are widened to float64; a bool, complex, string or object array (None, a
+    ragged nest) is refused with InvalidInputError rather than cast (a complex value would
+    lose its imaginary part, a bool become 0/1). ``ndim`` (when given) is checked too. The
+    host-side (NumPy, float64 whatever ``jax_enable_x64`` says) counterpart of
+    :func:`as_float_array`, for the containers that hold measured data.
+    """
+    try:
+        a = np.asarray(x)
+    except (TypeError, ValueError) as err:  # a ragged nest
+        raise InvalidInputError(f"{name} must be an array of real numbers; got a {type(x).__name__} NumPy cannot "
+                                f"read as one ({err}).") from None
+    if a.dtype.kind not in "fiu":
+        what = {"c": "complex values are not cast to real", "b": "booleans are not numbers here",
+                "O": "None or mixed objects", "U": "text", "S": "text"}.get(a.dtype.kind, "not numbers")
+        raise InvalidInputError(f"{name} must be real numbers (float or int); got dtype {a.dtype} ({what}).")
+    a = a.astype(float, copy=False)
+    if ndim is not None and a.ndim != ndim:
+        raise InvalidInputError(f"{name} must have {ndim} dimensions; got shape {a.shape}.")
+    if not np.all(np.isfinite(a)):
+        raise InvalidInputError(f"{name} contains non-finite values ({np.count_nonzero(~np.isfinite(a))} NaN or inf).")
+    return a
+
 
 
 # -- plain Python arguments (counts, seeds, tolerances, switches) ---------------------------

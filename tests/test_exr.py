@@ -432,3 +432,74 @@ def test_lobe_table_writer_has_the_same_checks(tmp_path):
     with pytest.raises(InvalidInputError, match="dtype must be"):
         exr.write_lobe_table(path, table, dtype=["float32"])
     assert os.listdir(tmp_path) == []
+
+
+def test_lobe_table_from_lobes_refuses_tables_above_the_cap(monkeypatch):
+    """Was: JAX RESOURCE_EXHAUSTED (8 TB) from deep inside; now refused before allocating."""
+    from brdfscale.exr import _tables
+
+    beckmann = [lobes.Beckmann(0.1)]
+    with pytest.raises(InvalidInputError, match=r"size=1000000 needs about .* GiB.*MAX_TABLE_BYTES = 2147483648.*smaller size"):
+        exr.LobeTable.from_lobes([1.0], beckmann, extent=0.1, size=10**6)
+    for size in (1e6, 33.0, "33", None):
+        with pytest.raises(InvalidInputError, match="size must be an integer ≥ 2"):
+            exr.LobeTable.from_lobes([1.0], beckmann, extent=0.1, size=size)
+    monkeypatch.setattr(_tables, "MAX_TABLE_BYTES", 8 * 3 * 33 * 33)  # one scale: table + grid = 3 planes
+    assert exr.LobeTable.from_lobes([1.0], beckmann, extent=0.1, size=33).values.shape == (1, 33, 33)
+    with pytest.raises(InvalidInputError, match="MAX_TABLE_BYTES"):
+        exr.LobeTable.from_lobes([1.0], beckmann, extent=0.1, size=34)
+    with pytest.raises(InvalidInputError, match=r"2 scale\(s\)"):
+        exr.LobeTable.from_lobes([1.0, 2.0], beckmann * 2, extent=0.1, size=33)
+
+
+def test_complex_input_and_non_boolean_masks_are_refused():
+    """Was: complex cast to real with a ComplexWarning only; mask=NaN or 0.5 became True."""
+    ok = {"mu": 1.0, "incident": [0, 0, 1.0], "extent": 1.0, "values": np.ones((3, 3))}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no ComplexWarning on the way to the error
+        for field, bad in (("values", np.ones((3, 3)) + 0j), ("incident", np.array([0, 0, 1.0]) + 0j),
+                           ("sigma", np.ones((3, 3), complex))):
+            with pytest.raises(InvalidInputError, match=rf"{field} must be real numbers.*complex"):
+                LobeImage(**{**ok, field: bad})
+        with pytest.raises(InvalidInputError, match=r"values must be real numbers.*complex"):
+            exr.LobeTable([1.0], 0.1, np.ones((1, 3, 3)) + 0j)
+        with pytest.raises(InvalidInputError, match=r"scales must be real numbers.*complex"):
+            exr.LobeTable(np.array([1.0 + 0j]), 0.1, np.ones((1, 3, 3)))
+    for mask in (np.full((3, 3), np.nan), np.full((3, 3), 0.5), np.full((3, 3), 2), np.full((3, 3), "yes")):
+        with pytest.raises(InvalidInputError, match="mask must be boolean-valued"):
+            LobeImage(**ok, mask=mask)
+    image = LobeImage(**ok, mask=np.eye(3))  # 0/1 numbers are booleans
+    assert image.mask.dtype == bool and image.mask.tolist() == np.eye(3, dtype=bool).tolist()
+    with pytest.raises(InvalidInputError, match="values must be real numbers.*bool"):
+        LobeImage(**{**ok, "values": np.ones((3, 3), bool)})
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda ok: LobeImage(**{**ok, "mu": "a"}), "mu must be a finite real number > 0; got str"),
+    (lambda ok: LobeImage(**{**ok, "mu": "1"}), "mu"),  # was silently converted
+    (lambda ok: LobeImage(**{**ok, "mu": None}), "mu"),
+    (lambda ok: LobeImage(**{**ok, "mu": True}), "mu"),
+    (lambda ok: LobeImage(**{**ok, "mu": np.array([1.0, 2.0])}), "mu"),
+    (lambda ok: LobeImage(**{**ok, "extent": None}), "extent"),
+    (lambda ok: LobeImage(**{**ok, "incident": "abc"}), "incident must be real numbers"),
+    (lambda ok: LobeImage(**{**ok, "incident": None}), "incident"),
+    (lambda ok: LobeImage(**{**ok, "values": "x"}), "values"),
+    (lambda ok: LobeImage(**{**ok, "values": [[1.0, 2.0], [3.0]]}), "values must be an array of real numbers"),
+    (lambda ok: LobeImage(**{**ok, "sigma": "x"}), "sigma"),
+    (lambda ok: MeasurementSet(None), "images must be a non-empty sequence of LobeImage; got NoneType"),
+    (lambda ok: MeasurementSet(LobeImage(**ok)), "images must be a non-empty sequence"),
+    (lambda ok: exr.LobeTable("a", 0.1, np.ones((1, 3, 3))), "scales"),
+    (lambda ok: exr.LobeTable(None, 0.1, np.ones((1, 3, 3))), "scales"),
+    (lambda ok: exr.LobeTable([1.0], "a", np.ones((1, 3, 3))), "extent"),
+    (lambda ok: exr.LobeTable([1.0], 0.1, None), "values"),
+    (lambda ok: exr.LobeTable.from_lobes([1.0], [lobes.Beckmann(0.1)], extent="a"), "extent"),
+    (lambda ok: exr.LobeTable.from_lobes([1.0], [lobes.Beckmann(0.1)], extent=float("nan")), "extent"),
+    (lambda ok: exr.LobeTable.from_lobes([1.0], None, extent=0.1), "lobes must be a sequence"),
+    (lambda ok: exr.LobeTable.from_lobes(None, [lobes.Beckmann(0.1)], extent=0.1), "scales"),
+    (lambda ok: exr.LobeTable.from_lobes([1.0], [lobes.Beckmann(0.1)], extent=0.1, metadata=[]), "metadata must be a dict"),
+], ids=lambda x: x if isinstance(x, str) else "")
+def test_constructor_arguments_of_the_wrong_type(call, match):
+    """Was: bare TypeError/ValueError from float()/numpy, or a silent conversion."""
+    ok = {"mu": 1.0, "incident": [0, 0, 1.0], "extent": 1.0, "values": np.ones((3, 3))}
+    with pytest.raises(InvalidInputError, match=match):
+        call(ok)

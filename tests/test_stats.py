@@ -369,3 +369,15 @@ def test_mixture_weights_normalise_at_any_scale(scale):
     mixture = stats.Mixture(given, [stats.Beckmann(0.1), stats.Beckmann(0.2)])
     np.testing.assert_allclose(np.asarray(mixture.weights), given / given[0] / (1 + given[1] / given[0]), rtol=1e-14)
     assert np.isfinite(float(mixture.density(jnp.zeros(2))))
+
+
+@pytest.mark.parametrize("call", [
+    lambda: stats.Tabulated.from_samples(np.array([[0.1, 0.2j]]), extent=0.5),
+    lambda: stats.Tabulated.from_samples(np.zeros((4, 2)), extent=0.5, weights=np.ones(3)),
+    lambda: stats.Tabulated.from_samples(np.zeros((4, 2)), extent=0.5, weights=np.full(4, np.nan)),
+    lambda: stats.Tabulated.from_samples([["a", "b"]], extent=0.5),
+    lambda: stats.Tabulated.from_samples(np.zeros((4, 2)), extent=0.5, bins=10**6),
+], ids=["complex samples", "weights per sample", "NaN weights", "text samples", "bins beyond the memory cap"])
+def test_histogram_input_is_checked_before_binning(call):
+    with pytest.raises(bs.InvalidInputError):
+        call()

@@ -319,3 +319,142 @@ def test_float32_parameters_agree_with_float64():
     assert np.max(np.abs(field32 - field64)) < 1e-6 * np.max(np.abs(field64))
     v32, v64 = np.asarray(lobe32.lobe.values), np.asarray(lobe64.lobe.values)
     assert np.max(np.abs(v32 - v64)) < 1e-5 * v64.max()
+
+
+def _refused_without_allocating(call, match):
+    """``call`` raises InvalidInputError matching ``match`` having traced < 1 MB of allocations
+    (NumPy reports its buffers to tracemalloc): the refusal comes before the work."""
+    import tracemalloc
+
+    tracemalloc.start()
+    try:
+        with pytest.raises(InvalidInputError, match=match):
+            call()
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 2**20, peak
+
+
+def test_grids_above_the_memory_cap_are_refused_before_allocating(monkeypatch):
+    """Was: numpy MemoryError (7 TiB) or 'Maximum allowed dimension exceeded' from deep inside."""
+    cap = "MAX_GRID_BYTES"
+    _refused_without_allocating(lambda: synth.spectral_field(GAUSS_ISO, size=10**6, seed=0), cap)
+    _refused_without_allocating(lambda: synth.named_surface("gaussian", size=10**6), cap)
+    _refused_without_allocating(lambda: synth.blazed(size=10**6, period=4), cap)
+    _refused_without_allocating(lambda: synth.scratches(size=10**6, count=1, depth=1.0, width=2.0, length=4.0, seed=0), cap)
+    field = _flat(size=16)
+    _refused_without_allocating(lambda: synth.gonioreflectometer(field, [4.0], [0, 0, 1.0], extent=0.1, resolution=1e6),
+                                r"image grid \(pixels=64, resolution=1e\+06\).*MAX_GRID_BYTES.*smaller resolution")
+    _refused_without_allocating(lambda: synth.gonioreflectometer(field, [4.0], [0, 0, 1.0], extent=0.1, resolution=1e300), cap)
+    _refused_without_allocating(lambda: synth.gonioreflectometer(field, [4.0], [0, 0, 1.0], extent=0.1, pixels=10**6), cap)
+    _refused_without_allocating(lambda: synth.facet_statistics(field, [4.0], bins=10**6), r"bins=1000000.*fewer bins")
+    _refused_without_allocating(lambda: synth.global_slopes(field, bins=10**6), cap)
+    rough = _flat(stats.Beckmann(0.5), size=16)  # a wide micro lobe pads a fine grid far out
+    _refused_without_allocating(lambda: synth.facet_statistics(rough, [4.0], bins=65, extent=1e-7), "within-facet lobe grid")
+    # the cap is the documented constant, read when called: 64² float64 nodes pass, 68² do not
+    assert synth.MAX_GRID_BYTES == 2**31
+    monkeypatch.setattr("brdfscale.synth._surface.MAX_GRID_BYTES", 8 * 64 * 64)
+    assert synth.spectral_field(GAUSS_ISO, size=64, seed=0).size == 64
+    _refused_without_allocating(lambda: synth.spectral_field(GAUSS_ISO, size=68, seed=0), "32768 bytes")
+    assert synth.gonioreflectometer(_flat(), [4.0], [0, 0, 1.0], extent=0.1, pixels=64).images[0].size == 64
+    with pytest.raises(InvalidInputError, match="MAX_GRID_BYTES"):
+        synth.gonioreflectometer(_flat(), [4.0], [0, 0, 1.0], extent=0.1, pixels=64, resolution=0.01)  # padded beyond 64
+
+
+@pytest.mark.parametrize("size", [1e6, 64.0, "64", None, True])
+def test_size_must_be_an_integer(size):
+    """Documented as int: an integral float is refused as well (no silent conversion)."""
+    with pytest.raises(InvalidInputError, match=r"size \(pixels per side\) must be an integer ≥ 4"):
+        synth.spectral_field(GAUSS_ISO, size=size, seed=0)
+
+
+def test_poisson_counts_beyond_numpy_are_refused():
+    """Was: numpy's bare 'lam value too large' ValueError when sampling. Refused instead (the
+    class documents Poisson counts, not a normal approximation)."""
+    with pytest.raises(InvalidInputError, match=r"exposure must be a positive number.*MAX_EXPECTED_COUNT = 1e\+18"):
+        synth.PoissonNoise(1e30)
+    assert synth.MAX_EXPECTED_COUNT == 1e18 < np.iinfo(np.int64).max - 10 * math.sqrt(np.iinfo(np.int64).max)
+    noise = synth.PoissonNoise(synth.MAX_EXPECTED_COUNT)  # the cap itself is fine
+    rng = np.random.default_rng(0)
+    values, sigma = noise.sample(np.array([[1.0, 0.0]]), rng)
+    assert values[0, 1] == 0 and abs(values[0, 0] - 1) < 1e-6 and sigma[0, 0] == pytest.approx(1e-9)
+    with pytest.raises(InvalidInputError, match=r"largest expected count, 2e\+18.*use exposure ≤ 5e\+17"):
+        noise.sample(np.array([[2.0]]), rng)
+    with pytest.raises(InvalidInputError, match="values ≥ 0"):
+        synth.PoissonNoise(10.0).sample(np.array([[-1.0]]), rng)
+    field = synth.spectral_field(GAUSS_ISO, size=16, seed=0)
+    with pytest.raises(InvalidInputError, match="largest expected count"):
+        synth.gonioreflectometer(field, [4.0], [0, 0, 1.0], extent=0.5, pixels=9, noise=noise, seed=1)
+    assert type(synth.PoissonNoise(np.float32(3.0)).exposure) is float  # JSON-ready in the metadata
+
+
+def test_complex_heights_are_refused():
+    """Was: cast to real with only a ComplexWarning."""
+    with pytest.raises(InvalidInputError, match=r"heights must be real numbers.*complex128"):
+        synth.HeightField(np.zeros((8, 8)) + 1j, 1.0)
+    for bad in (np.zeros((8, 8), bool), None, "flat", [[0.0] * 8] * 7 + [[0.0]]):
+        with pytest.raises(InvalidInputError, match="heights"):
+            synth.HeightField(bad, 1.0)
+    with pytest.raises(InvalidInputError, match="incident must be real"):
+        synth.gonioreflectometer(_flat(), [4.0], np.array([0, 0, 1.0]) + 0j, extent=0.1)
+    with pytest.raises(InvalidInputError, match="scales must be real"):
+        synth.gonioreflectometer(_flat(), [4.0 + 0j], [0, 0, 1.0], extent=0.1)
+    assert synth.HeightField(np.zeros((8, 8), np.int32), 2).heights.dtype == np.float64  # ints are widened
+
+
+@pytest.mark.parametrize("call, match", [
+    (lambda: synth.PoissonNoise("a"), "exposure must be a finite real number; got str"),
+    (lambda: synth.PoissonNoise(None), "exposure"),
+    (lambda: synth.GaussianNoise(None), "floor"),
+    (lambda: synth.GaussianNoise(0.1, relative="x"), "relative"),
+    (lambda: synth.HeightField(np.zeros((8, 8)), "a"), "spacing must be a finite real number"),
+    (lambda: synth.HeightField(np.zeros((8, 8)), None), "spacing"),
+    (lambda: synth.HeightField(np.zeros((8, 8)), 1 + 0j), "spacing"),
+    (lambda: synth.HeightField(np.zeros((8, 8)), 1.0, description=None), "description must be a dict"),
+    (lambda: synth.spectral_field(GAUSS_ISO, size=16, spacing=True, seed=0), "spacing"),
+    (lambda: synth.blazed(size=16, period=4, slopes=None), "slopes"),
+    (lambda: synth.blazed(size=16, period=4, slopes=("a", -1.0)), r"slopes\[0\]"),
+    (lambda: synth.blazed(size=16, period=4, spacing="a"), "spacing"),
+    (lambda: synth.blazed(size=16, period=4, angle=np.zeros(2)), "angle"),
+    (lambda: synth.scratches(size=16, count=1, depth="a", width=2.0, length=4.0, seed=0), "depth"),
+    (lambda: synth.scratches(size=16, count=1.0, depth=1.0, width=2.0, length=4.0, seed=0), "count"),
+    (lambda: synth.named_surface(["gaussian"]), "unknown surface"),
+    (lambda: synth.named_surface("blazed", size="64"), "size"),
+    (lambda: synth.gonioreflectometer(_flat(), [4.0], [0, 0, 1.0], extent="a"), "extent"),
+    (lambda: synth.gonioreflectometer(_flat(), [4.0], [0, 0, 1.0], extent=None), "extent"),
+    (lambda: synth.gonioreflectometer(_flat(), [4.0], [0, 0, 1.0], extent=0.1, resolution=None), "resolution"),
+    (lambda: synth.gonioreflectometer(_flat(), [4.0], [0, 0, 1.0], extent=0.1, pixels=33.0), "pixels"),
+    (lambda: synth.gonioreflectometer(_flat(), None, [0, 0, 1.0], extent=0.1), "scales"),
+    (lambda: synth.gonioreflectometer(_flat(), [4.0], "up", extent=0.1), "incident"),
+    (lambda: synth.gonioreflectometer(_flat(), [4.0], [0, 0, 1.0], extent=0.1, albedo="white"), "albedo"),
+    (lambda: synth.facet_statistics(_flat(), "a"), "scales"),
+    (lambda: synth.facet_statistics(_flat(), [4.0], extent="a"), "extent"),
+    (lambda: synth.facet_slopes(None, 4.0), "field must be a brdfscale.synth.HeightField"),
+    (lambda: synth.facet_slopes(_flat(), "a"), "mu"),
+    (lambda: synth.facet_slopes(_flat(), float("nan")), "mu"),
+    (lambda: synth.steepest_slope(np.zeros((8, 8))), "field"),
+], ids=lambda x: x if isinstance(x, str) else "")
+def test_arguments_of_the_wrong_type_are_named(call, match):
+    """Was: bare TypeError/ValueError from float() or numpy (strings, None, complex, arrays)."""
+    with pytest.raises(InvalidInputError, match=match):
+        call()
+
+
+def test_plus_distribution_is_not_a_micro_lobe():
+    """A plus-distribution has mass 0: refused wherever a micro lobe is taken, in Lobe's words."""
+    from brdfscale import plus
+
+    h0 = plus.PlusDistribution(0, 0.1)
+    match = r"micro must be a probability density of facet slopes \(mass 1\); got PlusDistribution.*plus.NearlySpecular"
+    for call in (lambda: synth.HeightField(np.zeros((8, 8)), 1.0, micro=h0),
+                 lambda: synth.spectral_field(GAUSS_ISO, size=16, seed=0, micro=h0),
+                 lambda: synth.named_surface("gaussian", size=16, micro=h0),
+                 lambda: synth.blazed(size=16, period=4, micro=h0),
+                 lambda: synth.scratches(size=16, count=1, depth=1.0, width=2.0, length=4.0, seed=0, micro=h0)):
+        with pytest.raises(InvalidInputError, match=match):
+            call()
+    # the suggested replacement works as a micro lobe: a flat field reflects all of its mass
+    nearly = plus.NearlySpecular(0.9, [0.001], 0.01, smooth=stats.Beckmann(0.05), smooth_weight=0.1)
+    image = synth.gonioreflectometer(_flat(nearly), [4.0], [0, 0, 1.0], extent=0.5, pixels=17).images[0]
+    assert image.values.sum() * (1 / 16) ** 2 == pytest.approx(1.0, abs=0.02)  # coarse 17² grid

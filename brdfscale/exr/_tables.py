@@ -1,7 +1,6 @@
 """Evolved-BRDF tables: lobes tabulated on a half-slope grid at several scales, as OpenEXR."""
 
 import dataclasses
-import math
 from collections.abc import Mapping
 
 import jax.numpy as jnp
@@ -12,11 +11,16 @@ from jaxtyping import Float
 from .._errors import BrdfscaleError, InvalidInputError, MeasurementFileError
 from ..lobes import AbstractLobe
 from ._format import PREFIX, PartReader
-from .._validation import flag
+from .._validation import flag, integer, real, real_array
 from ._io import file_path, open_parts, write_parts
 from ._parts import check_dtype, image_channels, metadata_json, part_header, read_image_part
 
 KIND = "lobe_table"
+
+MAX_TABLE_BYTES = 2**31
+"""The most bytes :meth:`LobeTable.from_lobes` may allocate for the table and its offset grid
+(``8 · size² · (k + 2)`` for k scales, float64): 2 GiB, e.g. ``size`` up to 9459 for one
+scale or 4096 for 14 scales. Larger requests are refused before anything is allocated."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -31,6 +35,10 @@ class LobeTable:
             zero by quadrature or regularisation error, so the sign is not checked).
         metadata: a dict of extras (how the table was made), str keys and JSON-serialisable
             values (a mapping is copied into a dict; JSON is checked when written).
+
+    Raises InvalidInputError for scales, extent or values that are not finite real numbers
+    (complex, bool, text, None or ragged input is refused, not cast), wrong shapes, or
+    scales that are not distinct and positive.
     """
 
     scales: Float[np.ndarray, " k"]
@@ -39,20 +47,16 @@ class LobeTable:
     metadata: dict = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):
-        scales = np.atleast_1d(np.asarray(self.scales, dtype=float))
-        if scales.ndim != 1 or not np.all(np.isfinite(scales) & (scales > 0)) or len(np.unique(scales)) != len(scales):
+        scales = np.atleast_1d(real_array(self.scales, "scales"))
+        if scales.ndim != 1 or not np.all(scales > 0) or len(np.unique(scales)) != len(scales):
             raise InvalidInputError(f"scales must be distinct positive numbers; got {scales!r}.")
-        extent = float(self.extent)
-        if not (math.isfinite(extent) and extent > 0):
-            raise InvalidInputError(f"extent must be positive; got {self.extent!r}.")
-        values = np.asarray(self.values, dtype=float)
+        extent = real(self.extent, "extent", minimum=0, strict=True)
+        values = real_array(self.values, "values")
         ok = values.ndim in (3, 4) and values.shape[0] == len(scales) and values.shape[1] == values.shape[2] >= 2
         if not ok or (values.ndim == 4 and values.shape[3] != 3):
             raise InvalidInputError(
                 f"values must have shape (k, n, n) or (k, n, n, 3) with k = {len(scales)} scales, n ≥ 2; got {values.shape}."
             )
-        if not np.all(np.isfinite(values)):
-            raise InvalidInputError("values contains non-finite entries.")
         object.__setattr__(self, "scales", scales)
         object.__setattr__(self, "extent", extent)
         object.__setattr__(self, "values", values)
@@ -68,18 +72,52 @@ class LobeTable:
 
         ``lobes[k].density(u)`` is evaluated on the ``size × size`` grid over
         ``[−extent, extent]²``.
+
+        Memory: the float64 table and the offset grid, ``8 · size² · (k + 2)`` bytes for k
+        scales, must not exceed :data:`MAX_TABLE_BYTES` (2**31 bytes, 2 GiB); a larger
+        request is refused before anything is allocated — use a smaller ``size`` (a
+        coarser grid, or a smaller ``extent`` at the same pitch), or tabulate the scales in
+        several tables.
+
+        Raises:
+            InvalidInputError: scales not distinct positive numbers, lobes not one
+                :mod:`brdfscale.lobes` lobe per scale, ``extent`` not a positive real number,
+                ``size`` not an integer ≥ 2 (a float such as 128.0 is refused), the table
+                above :data:`MAX_TABLE_BYTES`, or ``metadata`` not a dict.
         """
-        lobes = list(lobes)
+        scales = np.atleast_1d(real_array(scales, "scales"))
+        try:
+            lobes = list(lobes)
+        except TypeError:
+            raise InvalidInputError(f"lobes must be a sequence of brdfscale.lobes lobes (one per scale); "
+                                    f"got {type(lobes).__name__}.") from None
         if not all(isinstance(lobe, AbstractLobe) for lobe in lobes):
             raise InvalidInputError("lobes must be brdfscale.lobes lobes (one per scale).")
-        if len(lobes) != len(np.atleast_1d(scales)):
-            raise InvalidInputError(f"give one lobe per scale; got {len(lobes)} lobes for {len(np.atleast_1d(scales))} scales.")
-        if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 2:
-            raise InvalidInputError(f"size must be an integer ≥ 2; got {size!r}.")
+        if scales.ndim != 1 or len(lobes) != len(scales):
+            raise InvalidInputError(f"give one lobe per scale; got {len(lobes)} lobes for scales of shape {scales.shape}.")
+        extent = real(extent, "extent", minimum=0, strict=True)
+        size = integer(size, "size", 2)
+        needed = 8 * size * size * (len(lobes) + 2)
+        if needed > MAX_TABLE_BYTES:
+            raise InvalidInputError(
+                f"a lobe table of {len(lobes)} scale(s) at size={size} needs about {needed / 2**30:.3g} GiB "
+                f"(8 · size² · (scales + 2) bytes), above brdfscale.exr's MAX_TABLE_BYTES = {MAX_TABLE_BYTES} bytes; "
+                "use a smaller size (a coarser grid, or a smaller extent at the same pitch) or split the scales "
+                "over several tables."
+            )
+        if metadata is None:
+            metadata = {}
         x = jnp.linspace(-extent, extent, size)
         u = jnp.stack(jnp.meshgrid(x, x, indexing="xy"), axis=-1)
-        values = np.stack([np.asarray(lobe.density(u), dtype=float) for lobe in lobes])
-        return cls(np.atleast_1d(scales), extent, values, metadata or {})
+        values = None
+        for k, lobe in enumerate(lobes):
+            plane = np.asarray(lobe.density(u), dtype=float)
+            if values is None:
+                values = np.empty((len(lobes),) + plane.shape)  # filled in place: no second copy
+            elif plane.shape != values.shape[1:]:
+                raise InvalidInputError(f"lobe {k} tabulates to shape {plane.shape}, lobe 0 to {values.shape[1:]}.")
+            values[k] = plane
+        return cls(scales, extent, values, metadata)
 
 
 def write_lobe_table(path, table: LobeTable, *, overwrite: bool = False, dtype: str = "float32") -> None:

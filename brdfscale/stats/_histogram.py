@@ -1,9 +1,14 @@
 """Streaming slope histograms on a regular grid of nodes (cloud in cell)."""
 
+import math
+
 import numpy as np
 
 from .._errors import InvalidInputError
 from ._tabulated import Tabulated
+
+MAX_HISTOGRAM_BYTES = 2**31
+"""The largest ``bins × bins`` float64 count grid a :class:`SlopeHistogram` allocates (2 GiB)."""
 
 
 class SlopeHistogram:
@@ -24,6 +29,10 @@ class SlopeHistogram:
             raise InvalidInputError(f"extent must be a positive slope half-width; got {extent!r}.")
         if isinstance(bins, bool) or not isinstance(bins, (int, np.integer)) or bins < 2:
             raise InvalidInputError(f"bins must be an integer ≥ 2; got {bins!r}.")
+        if 8 * int(bins) ** 2 > MAX_HISTOGRAM_BYTES:
+            raise InvalidInputError(
+                f"bins = {bins} needs {8 * int(bins) ** 2 / 2**30:.3g} GiB of counts, more than MAX_HISTOGRAM_BYTES "
+                f"({MAX_HISTOGRAM_BYTES / 2**30:g} GiB); use fewer bins (at most {math.isqrt(MAX_HISTOGRAM_BYTES // 8)}).")
         self.extent = float(extent)
         self.bins = int(bins)
         self.spacing = 2 * self.extent / (self.bins - 1)

@@ -8,7 +8,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._errors import InvalidInputError
-from .._validation import as_float_array, is_concrete, positive, vector2
+from .._validation import as_float_array, is_concrete, positive, real_array, vector2
 from ._base import AbstractSlopeDensity, add_offset, centred, check_slopes, offset_norm, phase
 from ._grid import axis_phase
 
@@ -68,12 +68,17 @@ class Tabulated(AbstractSlopeDensity):
         """
         from ._histogram import SlopeHistogram
 
-        s = np.asarray(samples, dtype=float)
+        s = real_array(samples, "samples")
         if s.ndim != 2 or s.shape[1] != 2:
             raise InvalidInputError(f"samples must have shape (n, 2); got {s.shape}.")
-        c = np.zeros(2) if center is None else np.asarray(center, float)
+        w = None if weights is None else real_array(weights, "weights")
+        if w is not None and w.shape != (len(s),):
+            raise InvalidInputError(f"weights must be {len(s)} finite real numbers, one per sample; got shape {w.shape}.")
+        c = np.zeros(2) if center is None else real_array(center, "center", 1)
+        if c.shape != (2,):
+            raise InvalidInputError(f"center must have shape (2,); got {c.shape}.")
         hist = SlopeHistogram(extent, bins)
-        hist.add(s[:, 0] - c[0], s[:, 1] - c[1], weights)
+        hist.add(s[:, 0] - c[0], s[:, 1] - c[1], w)
         return hist.tabulated(center=center)
 
     @property

@@ -11,15 +11,18 @@
   and an optional angular resolution.
 
 Every random generator takes an explicit ``seed`` (int, NumPy Generator or JAX key).
+Bad arguments raise :class:`brdfscale.InvalidInputError` before any work; every grid is
+bounded by :data:`MAX_GRID_BYTES` (2**31 bytes of float64 nodes, 16384² — use tiles or
+coarser grids beyond), Poisson counts by :data:`MAX_EXPECTED_COUNT` (1e18).
 """
 
 from ._facets import FacetStatistics, facet_slopes, facet_statistics, global_slopes, steepest_slope
-from ._gonio import GaussianNoise, PoissonNoise, gonioreflectometer
+from ._gonio import MAX_EXPECTED_COUNT, GaussianNoise, PoissonNoise, gonioreflectometer
 from ._named import SURFACES, named_surface
 from ._profiles import blazed, scratches
 from ._random import as_generator
 from ._spectral import spectral_field
-from ._surface import HeightField
+from ._surface import MAX_GRID_BYTES, HeightField
 
 __all__ = [
     "HeightField",
@@ -37,4 +40,6 @@ __all__ = [
     "PoissonNoise",
     "gonioreflectometer",
     "as_generator",
+    "MAX_GRID_BYTES",
+    "MAX_EXPECTED_COUNT",
 ]

@@ -25,8 +25,9 @@ from jaxtyping import Float
 
 from .. import stats
 from .._errors import InvalidInputError
+from .._validation import integer, real, real_array
 from ..stats._histogram import SlopeHistogram
-from ._surface import HeightField
+from ._surface import HeightField, check_grid
 
 _PIXELS_PER_CHUNK = 1 << 21  # pixels per strip: ~16 MB per float64 work array
 _TAIL = 1e-6  # kernel tails below this fraction of their peak may be cut or wrapped
@@ -54,6 +55,22 @@ class FacetStatistics:
     count: int
 
 
+def check_field(field) -> HeightField:
+    if not isinstance(field, HeightField):
+        raise InvalidInputError(f"field must be a brdfscale.synth.HeightField; got {type(field).__name__}.")
+    return field
+
+
+def check_scales(scales) -> list[float]:
+    """Facet sizes μ: one real number or a 1-D sequence of them, at least one."""
+    a = real_array(scales, "scales")
+    if a.ndim > 1:
+        raise InvalidInputError(f"scales must be a facet size or a 1-D sequence of them; got shape {a.shape}.")
+    if a.size == 0:
+        raise InvalidInputError("scales must list at least one facet size.")
+    return [float(mu) for mu in np.atleast_1d(a)]
+
+
 def facet_slopes(field: HeightField, mu: float) -> Float[np.ndarray, "nb nb 2"]:
     """Normal slopes of the facets at scale μ, shape ``(n // b, n // b, 2)`` with ``b = μ/Δ``.
 
@@ -61,6 +78,7 @@ def facet_slopes(field: HeightField, mu: float) -> Float[np.ndarray, "nb nb 2"]:
     pixels beyond the last whole facet (when b does not divide n) are left out.
     Cost: two passes over the heights, ``O(n²/b)`` memory.
     """
+    check_field(field)
     return np.stack(_facet_slope_components(field, field.block(mu)), axis=-1)
 
 
@@ -116,20 +134,29 @@ def offset_histogram(field: HeightField, mu: float | None, hist: SlopeHistogram,
 
 def steepest_slope(field: HeightField) -> float:
     """The largest |component| of any pixel facet's normal slope (sizes slope grids)."""
+    check_field(field)
     top = 0.0
     for _, _, mx, my in _pixel_strips(field, 1):
         top = max(top, float(np.max(np.abs(mx))), float(np.max(np.abs(my))))
     return top
 
 
-def kernel_padding(micro: stats.AbstractSlopeDensity, resolution: float, spacing: float) -> int:
-    """Grid nodes to add on each side so a blur by ``micro`` ⊛ N(0, resolution²) is not cut."""
+def kernel_padding(micro: stats.AbstractSlopeDensity, resolution: float, spacing: float, nodes: int = 0,
+                   what: str = "the slope grid", advice: str = "use fewer nodes or a coarser grid") -> int:
+    """Grid nodes to add on each side so a blur by ``micro`` ⊛ N(0, resolution²) is not cut.
+
+    The padded grid, ``nodes + 2·pad`` per side, is checked against :data:`MAX_GRID_BYTES`
+    (InvalidInputError naming ``what`` and ``advice``) before anything is allocated.
+    """
     radius = 0.0
     if not _is_mirror(micro):
         radius += float(micro.support_radius(_TAIL))
     if resolution > 0:
         radius += resolution * math.sqrt(2 * math.log(1 / _TAIL))
-    return int(math.ceil(radius / spacing))
+    pad = 0.0 if radius == 0 else radius / spacing if spacing > 0 else math.inf
+    check_grid(nodes + 2.0 * math.ceil(pad) if math.isfinite(pad) else math.inf, what,
+               f"{advice} (the grid is padded by {pad:.6g} nodes per side for the micro lobe's support and the blur)")
+    return math.ceil(pad)
 
 
 def _is_mirror(micro) -> bool:
@@ -177,10 +204,23 @@ def facet_statistics(field: HeightField, scales, *, bins: int = 129, extent: flo
             outside (lobe grids are widened further for a rough micro lobe).
 
     Cost: one pass over the pixels per scale, ``O(n²)`` time, constant memory per strip.
+    The grids (``bins`` nodes per side, widened for a rough micro lobe) must fit
+    :data:`MAX_GRID_BYTES` (2**31 bytes of float64 nodes): a larger one is refused before it
+    is allocated — use fewer bins or a larger extent.
+
+    Raises:
+        InvalidInputError: ``field`` not a :class:`HeightField`; ``scales`` not real numbers
+            (each a whole number of pixels between Δ and nΔ); ``bins`` not an integer ≥ 2;
+            ``extent`` not a positive real number or None; a grid above MAX_GRID_BYTES.
     """
-    scales = [float(mu) for mu in np.atleast_1d(np.asarray(scales, dtype=float))]
-    if not scales:
-        raise InvalidInputError("scales must list at least one facet size.")
+    check_field(field)
+    scales = check_scales(scales)
+    bins = integer(bins, "bins", 2)
+    if extent is not None:
+        extent = real(extent, "extent", minimum=0, strict=True)
+    check_grid(bins, f"bins={bins}", "use fewer bins")
+    for mu in scales:
+        field.block(mu)
     steepest = steepest_slope(field) if extent is None else None
     results = []
     for mu in scales:
@@ -193,7 +233,8 @@ def facet_statistics(field: HeightField, scales, *, bins: int = 129, extent: flo
         slopes = s_hist.tabulated()
         g_extent = extent if extent is not None else (steepest + top) * (1 + 1e-9) + 1e-12
         h = 2 * g_extent / (bins - 1)
-        pad = kernel_padding(field.micro, 0.0, h)
+        pad = kernel_padding(field.micro, 0.0, h, bins, f"the within-facet lobe grid at mu={mu}",
+                             "use fewer bins or a larger extent")
         hist = offset_histogram(field, mu, SlopeHistogram(g_extent + pad * h, bins + 2 * pad))
         lobe = stats.Tabulated(blur(hist.node_counts(), h, field.micro), extent=g_extent + pad * h)
         cov = np.cov(samples.T, bias=False) if len(samples) > 1 else np.zeros((2, 2))
@@ -206,7 +247,16 @@ def global_slopes(field: HeightField, *, bins: int = 129, extent: float | None =
 
     For mirror micro-facets this is the lobe at the coarsest scale, ``g_∞`` (seed §6,
     Harvey's relation ``R(W, μ) = Q(W, μ0)``). Default extent: the steepest pixel slope.
+
+    Raises InvalidInputError for a ``field`` that is not a :class:`HeightField`, ``bins``
+    not an integer ≥ 2 or above :data:`MAX_GRID_BYTES` (``8 bins²`` bytes), or an
+    ``extent`` that is not a positive real number or None.
     """
+    check_field(field)
+    bins = integer(bins, "bins", 2)
+    check_grid(bins, f"bins={bins}", "use fewer bins")
+    if extent is not None:
+        extent = real(extent, "extent", minimum=0, strict=True)
     if extent is None:
         extent = steepest_slope(field) * (1 + 1e-9) + 1e-12
     return offset_histogram(field, None, SlopeHistogram(extent, bins)).tabulated()

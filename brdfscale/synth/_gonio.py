@@ -1,7 +1,6 @@
 """A synthetic gonioreflectometer: lobe images of a height field at several scales."""
 
 import dataclasses
-import math
 from typing import Literal
 
 import equinox as eqx
@@ -12,11 +11,20 @@ from jaxtyping import ArrayLike, Float
 from .. import stats
 from .._errors import InvalidInputError
 from .._measurement import LobeImage, MeasurementSet
+from .._validation import integer, real, real_array
 from ..geometry import validate_directions
-from ._facets import blur, facet_slopes, kernel_padding, offset_histogram
+from ._facets import blur, check_field, check_scales, facet_slopes, kernel_padding, offset_histogram
 from ..stats._histogram import SlopeHistogram
 from ._random import as_generator, seed_record
 from ._surface import HeightField, parameter_record
+
+
+MAX_EXPECTED_COUNT = 1e18
+"""The largest expected count ``v · exposure`` :class:`PoissonNoise` draws from. NumPy's
+Poisson sampler returns int64 and refuses ``lam`` within 10 standard deviations of the
+int64 maximum (about 9.22e18); 1e18 stays clear of that. No detector counts that many
+photons per pixel; at such counts the noise is negligible (relative σ ≤ 1e-9), so measure
+without noise (``noise=None``) or with :class:`GaussianNoise` instead."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -26,16 +34,35 @@ class PoissonNoise:
     A pixel of true value v reads ``N / exposure`` with ``N ~ Poisson(v · exposure)``; its
     reported standard deviation is ``√max(v · exposure, 1) / exposure`` (the model's, at the
     truth; the floor of one count keeps σ positive where the lobe is dark).
+
+    ``exposure`` must be a positive real number ≤ :data:`MAX_EXPECTED_COUNT` (1e18); an
+    expected count ``v · exposure`` above that cap when sampling is refused too (NumPy's
+    Poisson sampler cannot draw it; the normal approximation is not substituted).
+    InvalidInputError otherwise.
     """
 
     exposure: float
 
     def __post_init__(self):
-        if not (math.isfinite(self.exposure) and self.exposure > 0):
-            raise InvalidInputError(f"exposure must be a positive number of counts per unit value; got {self.exposure!r}.")
+        exposure = real(self.exposure, "exposure")
+        if not 0 < exposure <= MAX_EXPECTED_COUNT:
+            raise InvalidInputError(
+                f"exposure must be a positive number of counts per unit value, at most MAX_EXPECTED_COUNT = "
+                f"{MAX_EXPECTED_COUNT:g} (NumPy's Poisson sampler cannot draw larger counts); got {self.exposure!r}."
+            )
+        object.__setattr__(self, "exposure", exposure)
 
     def sample(self, values: Float[np.ndarray, "..."], rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-        expected = values * self.exposure
+        expected = real_array(values, "values") * self.exposure
+        if np.any(expected < 0):
+            raise InvalidInputError(f"Poisson noise needs values ≥ 0; the smallest is {np.min(expected) / self.exposure:.6g}.")
+        peak = float(np.max(expected, initial=0.0))
+        if not peak <= MAX_EXPECTED_COUNT:
+            raise InvalidInputError(
+                f"the largest expected count, {peak:.4g} (value {peak / self.exposure:.4g} × exposure "
+                f"{self.exposure:g}), exceeds MAX_EXPECTED_COUNT = {MAX_EXPECTED_COUNT:g}, beyond NumPy's Poisson "
+                f"sampler; use exposure ≤ {MAX_EXPECTED_COUNT / peak * self.exposure:.4g}, or noise=None or GaussianNoise."
+            )
         return rng.poisson(expected) / self.exposure, np.sqrt(np.maximum(expected, 1.0)) / self.exposure
 
     def record(self) -> dict:
@@ -44,16 +71,22 @@ class PoissonNoise:
 
 @dataclasses.dataclass(frozen=True)
 class GaussianNoise:
-    """Additive Gaussian noise with per-pixel ``σ = √((relative · v)² + floor²)`` for true value v."""
+    """Additive Gaussian noise with per-pixel ``σ = √((relative · v)² + floor²)`` for true value v.
+
+    ``floor`` must be a positive real number, ``relative`` a real number ≥ 0 (InvalidInputError
+    otherwise, also for a string, None, bool or complex).
+    """
 
     floor: float
     relative: float = 0.0
 
     def __post_init__(self):
-        if not (math.isfinite(self.floor) and self.floor > 0):
+        floor = real(self.floor, "floor")
+        if not floor > 0:
             raise InvalidInputError(f"floor must be a positive standard deviation; got {self.floor!r}.")
-        if not (math.isfinite(self.relative) and self.relative >= 0):
-            raise InvalidInputError(f"relative must be ≥ 0; got {self.relative!r}.")
+        relative = real(self.relative, "relative", minimum=0)
+        object.__setattr__(self, "floor", floor)
+        object.__setattr__(self, "relative", relative)
 
     def sample(self, values: Float[np.ndarray, "..."], rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         sigma = np.sqrt((self.relative * values) ** 2 + self.floor**2)
@@ -111,32 +144,46 @@ def gonioreflectometer(
             to a flat one (no masking or shadowing by other facets).
         seed: int / NumPy Generator / JAX key for the noise (required when noise is set).
 
+    Memory: each image is computed on a grid of ``pixels + 2·pad`` nodes per side, the pad
+    covering the micro lobe's support and the resolution blur (``pad ≈ (support +
+    5.3·resolution) / pitch``, pitch ``2·extent/(pixels − 1)``); that float64 grid must fit
+    :data:`MAX_GRID_BYTES` (2**31 bytes, 16384² nodes) and is refused before it is allocated
+    otherwise — use fewer pixels, a smaller resolution or a larger extent (a coarser pitch).
+
     Returns:
         A :class:`brdfscale.MeasurementSet` with one image per (μ, i), scales outermost; its
         ``metadata`` records the surface, the instrument and the truth (facet-slope mean and
         covariance per scale, and the analytic ``Σ(μ)`` of
         :class:`brdfscale.stats.GaussianSurface` with a box window and 256 quadrature
         nodes in k when the field has a spectrum).
+
+    Raises:
+        InvalidInputError: checked before any work, for a ``field`` that is not a
+            :class:`HeightField`; ``scales`` that are not real numbers or not whole numbers
+            of pixels; ``incident`` not real unit vectors with z > 0 (complex is refused);
+            ``extent`` not a positive real number; ``pixels`` not an integer ≥ 2;
+            ``resolution`` not a real number ≥ 0; ``albedo`` not a positive scalar or RGB
+            triple; an unknown ``weighting``; a wrong ``noise`` or a missing/bad ``seed``;
+            an image grid above :data:`MAX_GRID_BYTES`. Also when a Poisson expected count
+            exceeds :data:`MAX_EXPECTED_COUNT` (see :class:`PoissonNoise`).
     """
-    if not isinstance(field, HeightField):
-        raise InvalidInputError(f"field must be a brdfscale.synth.HeightField; got {type(field).__name__}.")
-    scales = [float(mu) for mu in np.atleast_1d(np.asarray(scales, dtype=float))]
-    if not scales:
-        raise InvalidInputError("scales must list at least one facet size.")
+    check_field(field)
+    scales = check_scales(scales)
     for mu in scales:
         field.block(mu)
-    directions = np.atleast_2d(np.asarray(incident, dtype=float))
+    directions = np.atleast_2d(real_array(incident, "incident"))
     validate_directions(directions, "incident")
-    if not (math.isfinite(extent) and extent > 0):
+    extent = real(extent, "extent")
+    if not extent > 0:
         raise InvalidInputError(f"extent must be a positive slope half-width; got {extent!r}.")
-    if isinstance(pixels, bool) or not isinstance(pixels, (int, np.integer)) or pixels < 2:
-        raise InvalidInputError(f"pixels must be an integer ≥ 2; got {pixels!r}.")
-    if not (math.isfinite(resolution) and resolution >= 0):
+    pixels = integer(pixels, "pixels", 2)
+    resolution = real(resolution, "resolution")
+    if not resolution >= 0:
         raise InvalidInputError(f"resolution must be a slope standard deviation ≥ 0; got {resolution!r}.")
-    albedo = np.asarray(albedo, dtype=float)
-    if albedo.shape not in ((), (3,)) or not np.all(np.isfinite(albedo) & (albedo > 0)):
+    albedo = real_array(albedo, "albedo")
+    if albedo.shape not in ((), (3,)) or not np.all(albedo > 0):
         raise InvalidInputError(f"albedo must be a positive scalar or an RGB triple; got {albedo!r}.")
-    if weighting not in ("nearly_flat", "projected_area"):
+    if not isinstance(weighting, str) or weighting not in ("nearly_flat", "projected_area"):
         raise InvalidInputError(f"weighting must be 'nearly_flat' or 'projected_area'; got {weighting!r}.")
     if noise is not None and not isinstance(noise, (PoissonNoise, GaussianNoise)):
         raise InvalidInputError(f"noise must be PoissonNoise, GaussianNoise or None; got {type(noise).__name__}.")
@@ -145,7 +192,8 @@ def gonioreflectometer(
     rng = None if noise is None else as_generator(seed)
 
     h = 2 * extent / (pixels - 1)
-    pad = kernel_padding(field.micro, resolution, h)
+    pad = kernel_padding(field.micro, resolution, h, pixels, f"the image grid (pixels={pixels}, resolution={resolution:g})",
+                         "use fewer pixels, a smaller resolution or a larger extent (a coarser pitch)")
     crop = slice(pad, pad + pixels)
     images, truth = [], {"facet_slope_mean": [], "facet_slope_covariance": []}
     law = None if field.spectrum is None else stats.GaussianSurface(field.spectrum, window="box", n_k=256)

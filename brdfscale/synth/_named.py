@@ -6,8 +6,8 @@ from .. import stats
 from .._errors import InvalidInputError
 from ._profiles import blazed, scratches
 from ._random import as_generator
-from ._spectral import spectral_field
-from ._surface import HeightField
+from ._spectral import _check_size, spectral_field
+from ._surface import HeightField, check_micro
 
 
 def _gaussian(size, seed):
@@ -49,9 +49,17 @@ def named_surface(name: str, *, size: int = 512, seed=0, micro: stats.AbstractSl
     """A built-in surface by name (keys of :data:`SURFACES`), pixel pitch 1.
 
     ``micro`` replaces the pixel facets' lobe (default: mirror facets).
+
+    Raises InvalidInputError for an unknown name, ``size`` not an integer ≥ 4 or above
+    :data:`MAX_GRID_BYTES` (n × n float64 heights), a bad seed, or a ``micro`` that is not a
+    probability density of facet slopes — all before the surface is synthesised.
     """
-    if name not in SURFACES:
+    if not isinstance(name, str) or name not in SURFACES:
         raise InvalidInputError(f"unknown surface {name!r}; built-in surfaces: {', '.join(SURFACES)}.")
+    size = _check_size(size)
+    as_generator(seed)  # checked here (the builder draws from it; "blazed" needs none)
+    if micro is not None:
+        check_micro(micro)
     field = SURFACES[name][1](size, seed)
     return HeightField(field.heights, field.spacing, micro=field.micro if micro is None else micro,
                        spectrum=field.spectrum, description={**field.description, "name": name})

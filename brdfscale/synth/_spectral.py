@@ -1,14 +1,13 @@
 """Gaussian random height fields by spectral synthesis."""
 
-import math
-
 import equinox as eqx
 import numpy as np
 
 from .. import stats
 from .._errors import InvalidInputError
+from .._validation import integer, real
 from ._random import as_generator, seed_record
-from ._surface import HeightField, parameter_record
+from ._surface import HeightField, check_grid, check_micro, parameter_record
 
 _ROWS_PER_CHUNK = 256
 
@@ -19,9 +18,10 @@ def _evaluate(spectrum, k):
 
 
 def _check_size(size) -> int:
-    if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 4:
-        raise InvalidInputError(f"size must be an integer ≥ 4 (pixels per side); got {size!r}.")
-    return int(size)
+    """Pixels per side of a synthesised field: an integer ≥ 4 (not a float) within MAX_GRID_BYTES."""
+    n = integer(size, "size (pixels per side)", 4)
+    check_grid(n, f"a height field of size={n}", "synthesise smaller tiles (a smaller size)")
+    return n
 
 
 def spectral_field(
@@ -45,7 +45,9 @@ def spectral_field(
     ``GaussianCorrelation`` with a pair of correlation lengths gives an anisotropic field;
     ``KCorrelation`` a fractal (ABC) one. Memory: the noise, its half-spectrum and the
     result, about ``3 × 8 N²`` bytes (0.4 GB at N = 4096); the spectrum is evaluated in
-    strips of rows.
+    strips of rows. The heights (``8 N²`` bytes) must fit :data:`MAX_GRID_BYTES` (2**31
+    bytes, N ≤ 16384): a larger ``size`` is refused before anything is allocated —
+    synthesise smaller tiles instead.
 
     Args:
         spectrum: a :mod:`brdfscale.stats` power spectrum (``GaussianCorrelation``, ``KCorrelation``).
@@ -53,14 +55,20 @@ def spectral_field(
         spacing: the pixel pitch Δ (length units of the spectrum).
         seed: an int, a NumPy ``Generator`` or a JAX PRNG key (see :func:`as_generator`).
         micro: the pixel facets' lobe; default mirror (``stats.Delta()``).
+
+    Raises:
+        InvalidInputError: a spectrum that is not a :mod:`brdfscale.stats` power spectrum;
+            ``size`` not an integer ≥ 4 (a float such as 256.0 is refused) or above
+            :data:`MAX_GRID_BYTES`; ``spacing`` not a positive real number; a bad seed; a
+            ``micro`` that is not a probability density of facet slopes.
     """
     if not isinstance(spectrum, stats.AbstractPowerSpectrum):
         raise InvalidInputError(
             f"spectrum must be a brdfscale.stats power spectrum (GaussianCorrelation, KCorrelation); got {type(spectrum).__name__}."
         )
     n = _check_size(size)
-    if not (isinstance(spacing, (int, float, np.floating)) and math.isfinite(spacing) and spacing > 0):
-        raise InvalidInputError(f"spacing must be a positive pixel pitch; got {spacing!r}.")
+    spacing = real(spacing, "spacing (the pixel pitch)", minimum=0, strict=True)
+    micro = stats.Delta() if micro is None else check_micro(micro)
     rng = as_generator(seed)
     noise_hat = np.fft.rfft2(rng.standard_normal((n, n)))
     ky = 2 * np.pi * np.fft.fftfreq(n, spacing)
@@ -81,5 +89,5 @@ def spectral_field(
         "spacing": float(spacing),
         "seed": seed_record(seed),
     }
-    return HeightField(heights, spacing, micro=stats.Delta() if micro is None else micro, spectrum=spectrum,
+    return HeightField(heights, spacing, micro=micro, spectrum=spectrum,
                        description=description)

@@ -2,6 +2,7 @@
 
 import dataclasses
 import math
+from collections.abc import Mapping
 
 import equinox as eqx
 import numpy as np
@@ -9,6 +10,42 @@ from jaxtyping import Float
 
 from .. import stats
 from .._errors import InvalidInputError
+from .._validation import real, real_array
+
+MAX_GRID_BYTES = 2**31
+"""The largest float64 grid synthesis allocates, in bytes: 2 GiB, i.e. 16384 × 16384 nodes.
+
+It bounds the main array of each step — the height field of :func:`spectral_field`,
+:func:`scratches` and :func:`blazed` (``8 n²`` bytes), the padded slope grid of
+:func:`gonioreflectometer`, :func:`facet_statistics` and :func:`global_slopes` — and is
+checked before anything is allocated (InvalidInputError). Peak memory is a small multiple of
+it (FFT work arrays, histogram sums). To go beyond, synthesise smaller tiles, use fewer image
+pixels or histogram bins, a coarser slope grid (a larger extent per node) or a narrower blur.
+"""
+
+
+def check_grid(side: float, what: str, advice: str) -> None:
+    """Refuse a ``side × side`` float64 grid above :data:`MAX_GRID_BYTES` (before allocating it)."""
+    needed = 8.0 * side * side
+    if not needed <= MAX_GRID_BYTES:  # also NaN
+        raise InvalidInputError(
+            f"{what} would be a {side:.6g} × {side:.6g} float64 grid ({needed / 2**30:.3g} GiB), above "
+            f"brdfscale.synth.MAX_GRID_BYTES = {MAX_GRID_BYTES} bytes ({math.isqrt(MAX_GRID_BYTES // 8)}² nodes); {advice}."
+        )
+
+
+def check_micro(micro) -> stats.AbstractSlopeDensity:
+    """The pixel facets' lobe: a :mod:`brdfscale.stats` probability density (not a plus-distribution)."""
+    if not isinstance(micro, stats.AbstractSlopeDensity):
+        raise InvalidInputError(
+            f"micro must be a brdfscale.stats density (Delta() for mirror facets); got {type(micro).__name__}."
+        )
+    if not getattr(micro, "is_probability_density", True):
+        raise InvalidInputError(
+            f"micro must be a probability density of facet slopes (mass 1); got {type(micro).__name__}, "
+            "a generalised function of mass 0 with no pointwise density (a plus-distribution h_n). Use "
+            "plus.NearlySpecular(...) (mass 1) or plus.observe(plus.NearlySpecular(...), kernel).")
+    return micro
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -31,6 +68,12 @@ class HeightField:
     Slope convention (DESIGN §1): the slope of a facet is the slope of its *normal*,
     ``m = (n_x/n_z, n_y/n_z) = −∇h``. A mirror facet of slope m reflects light into the
     half-vector slope ``m_s = m``.
+
+    Raises InvalidInputError for heights that are not a finite real (n, n) array with n ≥ 4
+    (complex, bool, text or None is refused, not cast), a spacing that is not a positive
+    real number, a ``micro`` that is not a probability density of facet slopes (a
+    :class:`brdfscale.plus.PlusDistribution` has mass 0), a wrong ``spectrum`` or a
+    ``description`` that is not a mapping.
     """
 
     heights: Float[np.ndarray, "n n"]
@@ -40,20 +83,15 @@ class HeightField:
     description: dict = dataclasses.field(default_factory=dict)
 
     def __post_init__(self):
-        h = np.asarray(self.heights, dtype=float)
+        h = real_array(self.heights, "heights")
         if h.ndim != 2 or h.shape[0] != h.shape[1] or h.shape[0] < 4:
             raise InvalidInputError(f"heights must be a square (n, n) array with n ≥ 4; got shape {h.shape}.")
-        if not np.all(np.isfinite(h)):
-            raise InvalidInputError("heights contains non-finite values.")
-        spacing = float(self.spacing)
-        if not (math.isfinite(spacing) and spacing > 0):
-            raise InvalidInputError(f"spacing must be a positive pixel pitch; got {self.spacing!r}.")
-        if not isinstance(self.micro, stats.AbstractSlopeDensity):
-            raise InvalidInputError(
-                f"micro must be a brdfscale.stats density (Delta() for mirror facets); got {type(self.micro).__name__}."
-            )
+        spacing = real(self.spacing, "spacing", minimum=0, strict=True)
+        check_micro(self.micro)
         if self.spectrum is not None and not isinstance(self.spectrum, stats.AbstractPowerSpectrum):
             raise InvalidInputError(f"spectrum must be a brdfscale.stats power spectrum; got {type(self.spectrum).__name__}.")
+        if not isinstance(self.description, Mapping):
+            raise InvalidInputError(f"description must be a dict (JSON-serialisable provenance); got {type(self.description).__name__}.")
         object.__setattr__(self, "heights", h)
         object.__setattr__(self, "spacing", spacing)
         object.__setattr__(self, "description", dict(self.description))
@@ -83,9 +121,9 @@ class HeightField:
 
     def block(self, mu: float) -> int:
         """The facet size μ in pixels; μ must be a whole number of pixels between 1 and n."""
-        b = float(mu) / self.spacing
-        nb = round(b)
-        if not (math.isfinite(b) and abs(b - nb) <= 1e-9 * max(1.0, b) and 1 <= nb <= self.size):
+        b = real(mu, "mu") / self.spacing
+        nb = round(b) if math.isfinite(b) else 0
+        if not (abs(b - nb) <= 1e-9 * max(1.0, b) and 1 <= nb <= self.size):
             raise InvalidInputError(
                 f"scale mu={mu!r} must be a whole number of pixels (spacing {self.spacing}) between "
                 f"{self.spacing} and {self.size * self.spacing}."
