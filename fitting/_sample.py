@@ -26,9 +26,11 @@ ESS 0, τ not reliable, burn-in half the chain.
 """
 
 import dataclasses
+import hashlib
 import json
 import logging
 import os
+import warnings
 
 import emcee
 import equinox as eqx
@@ -103,8 +105,9 @@ class _Checkpoint:
 
     _EXPECTED = "an HDF5 checkpoint written by fitting.sample"
 
-    def __init__(self, path, names, n_walkers, chunk):
+    def __init__(self, path, names, n_walkers, chunk, run: dict):
         self.path, self.names, self.n_walkers, self.chunk = os.fspath(path), tuple(names), n_walkers, chunk
+        self.run = run  # what else makes a chain this run's: the problem's digest, the start, seed, moves
         if os.path.isdir(self.path):
             raise MeasurementFileError(f"checkpoint {self.path} is a directory; expected the path of {self._EXPECTED} "
                                        "(e.g. DIR/chain.h5).")
@@ -113,8 +116,11 @@ class _Checkpoint:
             raise MeasurementFileError(f"checkpoint {self.path}: directory {directory} does not exist; create it "
                                        "or choose another checkpoint path.")
 
-    def _signature(self):
-        return json.dumps({"names": list(self.names), "walkers": self.n_walkers})
+    def _signature(self, legacy: bool = False):
+        """The run's identity in the file: parameters and walkers, and (since checkpoints record
+        it) the problem's digest, the fit it starts from, the seed and the moves."""
+        identity = {"names": list(self.names), "walkers": self.n_walkers}
+        return json.dumps(identity if legacy else {**identity, **self.run})
 
     def load(self):
         """``(chain, log_prob, random_state)`` of the completed steps (``random_state`` None
@@ -131,10 +137,13 @@ class _Checkpoint:
             if signature is None or "steps_done" not in f.attrs or not {"chain", "log_prob", "rng_keys"} <= set(f):
                 raise MeasurementFileError(f"{self.path} is not {self._EXPECTED} (it lacks the signature, steps_done, "
                                            f"chain, log_prob or rng_keys entries); {retry}")
-            if signature != self._signature():
+            if signature == self._signature(legacy=True):
+                warnings.warn(f"checkpoint {self.path} predates the recording of the problem, start, seed and moves; "
+                              "resuming it assumes they are the same as in this call.", stacklevel=3)
+            elif signature != self._signature():
                 raise InvalidInputError(
-                    f"checkpoint {self.path} belongs to a different run (parameters/walkers "
-                    f"{signature!r}); use another path or pass overwrite=True."
+                    f"checkpoint {self.path} belongs to a different run (its record: {signature}; this run: "
+                    f"{self._signature()}); use another path or pass overwrite=True."
                 )
             try:
                 done = int(f.attrs["steps_done"])
@@ -187,6 +196,16 @@ class _Checkpoint:
             raise MeasurementFileError(f"checkpoint {self.path} cannot be updated: {err}") from None
 
 
+def _digest(tree) -> str:
+    """SHA-256 of the arrays of a pytree (dtypes, shapes and bytes, in tree order)."""
+    h = hashlib.sha256()
+    for leaf in jax.tree_util.tree_leaves(tree):
+        a = np.ascontiguousarray(np.asarray(leaf))
+        h.update(f"{a.dtype.str}{a.shape}".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()[:32]
+
+
 def _initial_walkers(fit: FitResult, lo, hi, n_walkers, rng):
     """A small ball around the optimum: Laplace draws (×0.1) plus 1e-3 jitter in every direction."""
     d = fit.theta.size
@@ -228,7 +247,8 @@ def sample(
         InvalidInputError: ``fit`` is not the :class:`~fitting.FitResult` of ``problem``'s
             model; ``walkers`` not an integer ≥ 2·dim, ``steps`` not an integer ≥ 2,
             ``chunk`` not an integer ≥ 1, ``seed`` not an integer ≥ 0, an unknown ``moves``;
-            ``checkpoint`` belongs to a run with other parameters or walkers.
+            ``checkpoint`` belongs to another run (other parameters, walkers, problem data,
+            starting fit, seed or moves).
         MeasurementFileError: ``checkpoint`` is a directory, lies in a directory that does
             not exist, is not a readable checkpoint of :func:`fitting.sample` (and
             ``overwrite`` is False), or cannot be written.
@@ -255,7 +275,8 @@ def sample(
     chains, log_probs = [], []
     store = None
     if checkpoint is not None:
-        store = _Checkpoint(checkpoint, problem.model.names, walkers, chunk)
+        store = _Checkpoint(checkpoint, problem.model.names, walkers, chunk,
+                            {"problem": _digest(problem), "start": _digest(fit.theta), "seed": seed, "moves": moves})
     # with overwrite the old file stays until the new, empty checkpoint replaces it (create)
     resumed = store.load() if store is not None and not overwrite else None
     sampler = emcee.EnsembleSampler(walkers, d, logp, vectorize=True, moves=_MOVES[moves]())

@@ -7,6 +7,7 @@ truth (a 4σ miss has probability 6e-5 per quantity if the stated uncertainties 
 The calibrated coverage of the 68 %/90 % intervals is measured by experiments/calibration_fit.py.
 """
 
+import dataclasses
 import json
 import math
 
@@ -239,8 +240,20 @@ def test_interrupted_sampling_resumes_bit_identically(small_problem, tmp_path):
         assert int(f.attrs["steps_done"]) == 30
     resumed = fitting.sample(problem, res, walkers=16, steps=90, chunk=30, checkpoint=tmp_path / "b.h5", progress=False)
     assert np.array_equal(full.chain, resumed.chain) and np.array_equal(full.log_prob, resumed.log_prob)
+    kw = dict(walkers=16, steps=90, chunk=30, checkpoint=tmp_path / "b.h5", progress=False)
+    # another run's checkpoint is not continued: other walkers, seed, moves or starting fit
+    for other in ({"walkers": 18}, {"seed": 1}, {"moves": "de"}):
+        with pytest.raises(InvalidInputError, match="different run"):
+            fitting.sample(problem, res, **{**kw, **other})
+    moved = dataclasses.replace(res, theta=res.theta * (1 + 1e-9))
     with pytest.raises(InvalidInputError, match="different run"):
-        fitting.sample(problem, res, walkers=18, steps=90, chunk=30, checkpoint=tmp_path / "b.h5", progress=False)
+        fitting.sample(problem, moved, **kw)
+    # a checkpoint from before the run was recorded in full resumes, with a warning
+    with h5py.File(tmp_path / "b.h5", "r+") as f:
+        f.attrs["signature"] = json.dumps({"names": list(problem.model.names), "walkers": 16})
+    with pytest.warns(UserWarning, match="predates"):
+        legacy = fitting.sample(problem, res, **kw)
+    assert np.array_equal(full.chain, legacy.chain)
 
 
 def test_posterior_matches_laplace_on_a_well_determined_problem(small_problem):
