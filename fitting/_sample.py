@@ -107,7 +107,10 @@ class _Checkpoint:
 
     def __init__(self, path, names, n_walkers, chunk, run: dict):
         self.path, self.names, self.n_walkers, self.chunk = os.fspath(path), tuple(names), n_walkers, chunk
-        self.run = run  # what else makes a chain this run's: the problem's digest, the start, seed, moves
+        # what else makes a chain this run's: the problem's digest, the seed, the moves (not the
+        # fit it started from: once resumed, the state comes from the file, and a refit of the
+        # same problem need not agree to the last bit)
+        self.run = run
         if os.path.isdir(self.path):
             raise MeasurementFileError(f"checkpoint {self.path} is a directory; expected the path of {self._EXPECTED} "
                                        "(e.g. DIR/chain.h5).")
@@ -118,7 +121,7 @@ class _Checkpoint:
 
     def _signature(self, legacy: bool = False):
         """The run's identity in the file: parameters and walkers, and (since checkpoints record
-        it) the problem's digest, the fit it starts from, the seed and the moves."""
+        it) the problem's digest, the seed and the moves."""
         identity = {"names": list(self.names), "walkers": self.n_walkers}
         return json.dumps(identity if legacy else {**identity, **self.run})
 
@@ -138,7 +141,7 @@ class _Checkpoint:
                 raise MeasurementFileError(f"{self.path} is not {self._EXPECTED} (it lacks the signature, steps_done, "
                                            f"chain, log_prob or rng_keys entries); {retry}")
             if signature == self._signature(legacy=True):
-                warnings.warn(f"checkpoint {self.path} predates the recording of the problem, start, seed and moves; "
+                warnings.warn(f"checkpoint {self.path} predates the recording of the problem, seed and moves; "
                               "resuming it assumes they are the same as in this call.", stacklevel=3)
             elif signature != self._signature():
                 raise InvalidInputError(
@@ -248,7 +251,7 @@ def sample(
             model; ``walkers`` not an integer ≥ 2·dim, ``steps`` not an integer ≥ 2,
             ``chunk`` not an integer ≥ 1, ``seed`` not an integer ≥ 0, an unknown ``moves``;
             ``checkpoint`` belongs to another run (other parameters, walkers, problem data,
-            starting fit, seed or moves).
+            seed or moves).
         MeasurementFileError: ``checkpoint`` is a directory, lies in a directory that does
             not exist, is not a readable checkpoint of :func:`fitting.sample` (and
             ``overwrite`` is False), or cannot be written.
@@ -276,7 +279,7 @@ def sample(
     store = None
     if checkpoint is not None:
         store = _Checkpoint(checkpoint, problem.model.names, walkers, chunk,
-                            {"problem": _digest(problem), "start": _digest(fit.theta), "seed": seed, "moves": moves})
+                            {"problem": _digest(problem), "seed": seed, "moves": moves})
     # with overwrite the old file stays until the new, empty checkpoint replaces it (create)
     resumed = store.load() if store is not None and not overwrite else None
     sampler = emcee.EnsembleSampler(walkers, d, logp, vectorize=True, moves=_MOVES[moves]())
