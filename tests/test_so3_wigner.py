@@ -178,3 +178,10 @@ def test_flip_symmetry_of_the_fourier_rows(J):
     d_reflected = np.asarray(so3.wigner_d(J, np.pi - 0.7))
     M = np.arange(-J, J + 1)
     np.testing.assert_allclose(d[:, ::-1], ((-1.0) ** (J + M))[:, None] * d_reflected, atol=1e-12)
+
+
+def test_euler_angles_that_do_not_broadcast_are_named():
+    with pytest.raises(InvalidInputError, match="broadcast"):
+        so3.wigner_D(2, jnp.zeros(3), jnp.zeros(2), jnp.zeros(3))
+    with pytest.raises(InvalidInputError, match="broadcast"):
+        so3.analyse_points(jnp.zeros(3), jnp.zeros(2), jnp.zeros(3), 4)

@@ -38,7 +38,7 @@ from .._errors import InvalidInputError
 from .._validation import as_float_array
 from ._contraction import MIXED, QUADRANTS, Plan, degree_to_frequency, frequency_to_degree, kernel_tables, plan
 from ._grid import check_band_limit, grid, quadrature_weights
-from ._wigner import fourier_weights, parity_sign
+from ._wigner import euler_angles, fourier_weights, parity_sign
 
 __all__ = ["forward", "inverse", "synthesize", "analyse_points", "band_orders"]
 
@@ -332,8 +332,7 @@ def synthesize(
     """
     c, B, L, N = _coefficients(coefficients)
     rdt = _real_dtype(c)
-    a, b, g = (as_float_array(x, name).astype(rdt) for x, name in ((alpha, "alpha"), (beta, "beta"), (gamma, "gamma")))
-    a, b, g = jnp.broadcast_arrays(a, b, g)
+    a, b, g = (x.astype(rdt) for x in euler_angles(alpha, beta, gamma))
     qshape = a.shape
     if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
         raise InvalidInputError(f"chunk must be a positive integer; got {chunk!r}.")
@@ -377,8 +376,7 @@ def analyse_points(
     """
     B = check_band_limit(B)
     L, N = _orders(B, m_max, n_max)
-    a, b, g = (as_float_array(x, name) for x, name in ((alpha, "alpha"), (beta, "beta"), (gamma, "gamma")))
-    a, b, g = (x.reshape(-1) for x in jnp.broadcast_arrays(a, b, g))
+    a, b, g = (x.reshape(-1) for x in euler_angles(alpha, beta, gamma))
     if a.shape[0] == 0:
         raise InvalidInputError("analyse_points needs at least one rotation.")
     rdt = _real_dtype(a)

@@ -116,6 +116,17 @@ def _wigner_d(J, beta, X):
     return jnp.asarray(sigma, beta.dtype) * d
 
 
+def euler_angles(alpha, beta, gamma):
+    """``(α, β, γ)`` as float arrays broadcast to one shape (radians); InvalidInputError names
+    the shapes when they do not broadcast."""
+    a, b, g = (as_float_array(x, name) for x, name in ((alpha, "alpha"), (beta, "beta"), (gamma, "gamma")))
+    try:
+        return jnp.broadcast_arrays(a, b, g)
+    except ValueError:
+        raise InvalidInputError(f"alpha, beta and gamma must broadcast to one shape (one rotation per entry); got "
+                                f"shapes {a.shape}, {b.shape} and {g.shape}.") from None
+
+
 def wigner_D(
     J: int,
     alpha: Float[ArrayLike, "*batch"],
@@ -127,8 +138,7 @@ def wigner_D(
     With Γ = U(α) A(β) U(γ) (active z-y-z, :func:`euler_to_matrix`), D^J is a unitary
     representation: ``D^J(Γ₁Γ₂) = D^J(Γ₁) D^J(Γ₂)`` and ``D^J(Γ⁻¹) = D^J(Γ)†``.
     """
-    alpha = as_float_array(alpha, "alpha")
-    gamma = as_float_array(gamma, "gamma")
+    alpha, beta, gamma = euler_angles(alpha, beta, gamma)
     d = wigner_d(J, beta)
     return _phases(J, alpha, d, gamma)
 
