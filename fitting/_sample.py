@@ -200,8 +200,9 @@ class _Checkpoint:
 
 
 def _digest(tree) -> str:
-    """SHA-256 of the arrays of a pytree (dtypes, shapes and bytes, in tree order)."""
-    h = hashlib.sha256()
+    """SHA-256 of a pytree: its structure (which holds the static fields — a model's families,
+    law, fixed values, quadrature settings) and its arrays (dtypes, shapes and bytes)."""
+    h = hashlib.sha256(str(jax.tree_util.tree_structure(tree)).encode())
     for leaf in jax.tree_util.tree_leaves(tree):
         a = np.ascontiguousarray(np.asarray(leaf))
         h.update(f"{a.dtype.str}{a.shape}".encode())

@@ -217,16 +217,23 @@ def test_check_false_leaves_out_only_the_run_time_check(method):
 def test_no_brdf_found_beyond_the_grids_nyquist_frequency():
     """Mirror lobe from GGX(α) to GGX(α + δ): G = xK₁(αW)/xK₁((α+δ)W) grows like e^{δW}. With
     δ = 5e-9 it stays within 1e-6 of 1 on the 64² grid (|W| ≤ √2·π·64/1.6, checked with
-    SciPy's K₁) but not three decades above: the grid path still refuses."""
+    SciPy's K₁) but not three decades above: the grid path still refuses — when it is built
+    from concrete parameters (the probe), and at run time when they are traced."""
     alpha, delta = 0.01, 5e-9
     ratio = lambda w: (sp.k1e(alpha * w) / sp.k1e((alpha + delta) * w)) * np.exp(delta * w) * alpha / (alpha + delta)
     nyquist = math.pi * 64 / 1.6
     assert np.max(ratio(np.linspace(1.0, math.sqrt(2) * nyquist, 200))) < 1 + 1e-6 < ratio(100 * nyquist)
-    evolved = bs.evolve(lobes.Mirror(), stats.GGX(alpha), stats.GGX(alpha + delta), method="grid", size=64, extent=0.8)
+
+    def evolved(a):
+        return bs.evolve(lobes.Mirror(), stats.GGX(a), stats.GGX(a + delta), method="grid", size=64, extent=0.8)
+
     with pytest.raises(bs.NoBRDFAtScaleError, match="exceeds 1"):
-        evolved.shape.on_grid()
-    with pytest.raises(bs.NoBRDFAtScaleError, match="exceeds 1"):
-        evolved.density(U)
+        evolved(alpha)
+    # inside a user's jit equinox raises from its run-time callback (the type depends on the JAX version)
+    with pytest.raises((eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError), match="exceeds 1"):
+        jax.jit(lambda a: evolved(a).shape.on_grid()[1])(alpha)
+    with pytest.raises((eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError), match="exceeds 1"):
+        jax.jit(lambda a: evolved(a).density(U))(alpha)
 
 
 def test_bad_arguments():
@@ -313,7 +320,7 @@ def test_tight_tolerances_resolve_heavy_tailed_lobes_against_scipy_quadrature():
 
     reference = si.quad(lambda k: G(k) * k, 0, np.inf, epsabs=0, epsrel=1e-13, limit=500)[0] / (2 * np.pi)
     errors = []
-    for tol in (1e-10, 1e-12, 1e-14):
+    for tol in (1e-8, 1e-10, 1e-12):  # the reference's own accuracy (1e-13) cannot judge 1e-14
         value = float(bs.evolve(lobes.GGX(0.08), stats.GGX(0.1), stats.GGX(0.05), tol=tol).density(jnp.zeros(2)))
         errors.append(abs(value - reference) / reference)
         assert errors[-1] <= tol, (tol, value, reference)

@@ -381,3 +381,18 @@ def test_tilt_twist_resolution_is_capped_and_the_twist_exact():
     ratio = np.asarray(s.density(0.0 * psi, 0.0 * psi, psi)) / float(s.density(0.0, 0.0, 0.0))
     assert np.sum(ratio) * (psi[1] - psi[0]) == pytest.approx(std * np.sqrt(2 * np.pi), rel=1e-12)
     assert np.min(ratio) >= 0
+
+
+@pytest.mark.parametrize("mean, std", [(0.4, 0.3), (-1.1, 0.02), (2.0, 1.5)])
+def test_tilt_twist_coefficients_carry_the_wrapped_normals_fourier_factor(mean, std):
+    """A tilt × wrapped-normal twist has, column M' by column M', the coefficients of the same
+    tilt with a δ twist times the wrapped normal's Fourier coefficient e^{−σ²M'²/2 + iM'μ}
+    (closed form), for any J and at any twist width on one grid."""
+    tilt = stats.Beckmann(alpha_x=0.6, alpha_y=0.5)
+    twisted = so3.TiltTwist(tilt, twist_mean=mean, twist_std=std)
+    plain = so3.TiltTwist(tilt, twist_mean=0.0, twist_std=1e-9, resolution=twisted.resolution)
+    ct, cp = np.asarray(twisted.coefficients(5)), np.asarray(plain.coefficients(5))
+    n = (ct.shape[2] - 1) // 2
+    m = np.arange(-n, n + 1)
+    factor = np.exp(-0.5 * std**2 * m**2 + 1j * m * mean)
+    np.testing.assert_allclose(ct, cp * factor[None, None, :], atol=1e-14 * np.max(np.abs(cp)))

@@ -1,5 +1,6 @@
 """The isotropic (slope-space) evolution operator, seed Eq. 4.4."""
 
+import numbers
 import warnings
 from typing import Literal
 
@@ -97,10 +98,11 @@ def evolve(
                 "brdfscale.plus.NearlySpecular(a, [c_0, …], x0, ...) (a δ + Σ c_n h_n + w s_smooth, mass 1).")
     if method not in ("auto", "closed_form", "radial", "grid"):
         raise InvalidInputError(f"method must be 'auto', 'closed_form', 'radial' or 'grid'; got {method!r}.")
-    if not isinstance(tol, (int, float)) or not _MIN_TOL <= tol < 1:
+    if isinstance(tol, bool) or not isinstance(tol, numbers.Real) or not _MIN_TOL <= tol < 1:
         raise InvalidInputError(
             f"tol must be a number in [{_MIN_TOL:g}, 1) (an error relative to the lobe's peak; below "
             f"{_MIN_TOL:g} float64 rounding in the evaluation exceeds it); got {tol!r}.")
+    tol = float(tol)
     lam = as_float_array(regularisation, "regularisation")
     if is_concrete(lam) and float(lam) < 0:
         raise InvalidInputError(f"regularisation must be ≥ 0; got {float(lam)}.")
@@ -132,7 +134,13 @@ def evolve(
             raise InvalidInputError(f"extent must be a positive slope half-width; got {float(extent)}.")
     shape = EvolvedDensity(lobe.shape, s_from, s_to, lam, path, size or _DEFAULT_SIZE[path], tol, extent, check)
     if is_concrete(shape) and (size is None or path == "grid"):  # an explicit radial size needs no check
-        needed, achievable = choose_size(shape, path, max(_MAX_SIZE[path], size or 0))
+        try:
+            needed, achievable = choose_size(shape, path, max(_MAX_SIZE[path], size or 0))
+        except InvalidInputError as err:  # no automatic size resolves it: the caller's own size stands
+            if size is None:
+                raise
+            warnings.warn(f"{err} Evaluating with size={size} as given: expect errors well above tol.", stacklevel=2)
+            needed = size
         if size is None:
             shape = EvolvedDensity(lobe.shape, s_from, s_to, lam, path, needed, achievable, extent, check)
         elif path == "grid" and size < needed:

@@ -37,7 +37,7 @@ from .._validation import is_concrete
 from ..stats._base import check_slopes
 
 _PROBE_DIRECTIONS = 8
-_PROBE_POINTS = 160
+_PROBE_POINTS = 206  # 9 decades, ~23 per decade
 _PROBE_POINTS_BEYOND = 24  # 8 per decade: beyond the grid, |G| is only watched for growth
 _CF_EXCESS = 1e-6
 CORE_TOL = 1e-3  # the probe's frequency window is scaled to the lobe's extent at this level
@@ -114,7 +114,7 @@ class EvolvedDensity(AbstractSlopeDensity):
         return self.base.support_radius(tol) + self.s_from.support_radius(tol)
 
     def _probe(self, k_lo=None):
-        """|G| on rays at log-spaced frequencies: over seven decades scaled to the lobe's
+        """|G| on rays at log-spaced frequencies: over nine decades scaled to the lobe's
         spatial extent (its support radius at 10⁻³ of the peak, or at ``tol`` when looser:
         the core, not a heavy tail's reach, which at a tight ``tol`` would pull the window
         below the frequencies the lobe has), or (``k_lo`` given) over the three decades above
@@ -128,7 +128,7 @@ class EvolvedDensity(AbstractSlopeDensity):
         dtype = jnp.result_type(*jax.tree_util.tree_leaves(self))
         if k_lo is None:
             R = jnp.maximum(self.support_radius(max(self.tol, CORE_TOL)), 1e-12)
-            k = jnp.asarray(np.logspace(-2, 5, _PROBE_POINTS), dtype=dtype) / R
+            k = jnp.asarray(np.logspace(-2, 7, _PROBE_POINTS), dtype=dtype) / R
         else:
             k = k_lo * jnp.asarray(np.logspace(0, 3, _PROBE_POINTS_BEYOND), dtype=dtype)
         directions = 1 if self.isotropic else _PROBE_DIRECTIONS  # one ray says all for radial G
@@ -143,9 +143,10 @@ class EvolvedDensity(AbstractSlopeDensity):
         return _cutoff(*self._probe(), tol)
 
     def resolves(self, tol) -> bool:
-        """Whether |G| falls below ``tol`` within the probed window (concrete inputs)."""
+        """Whether |G| falls below ``tol`` on every probed ray within the window (concrete
+        inputs): a lobe narrow along one axis decays late on the rays along it."""
         k, mag = self._probe()
-        return bool(jnp.any(mag[-1] <= tol))
+        return bool(jnp.all(mag[-1] <= tol))
 
     # -- inversion ------------------------------------------------------------------------
     def density(self, m):
@@ -154,7 +155,9 @@ class EvolvedDensity(AbstractSlopeDensity):
         if self.method == "radial" and is_concrete((self, m)):
             # evaluate only what is asked: nodes enough for the largest queried radius
             r_max = float(jnp.max(jnp.linalg.norm(m, axis=-1))) if m.size else 0.0
-            n = radial_nodes(float(self.bandwidth(self.tol)), r_max, self.tol)
+            # J₀(k r) oscillates over r_max, and G itself over the lobe's extent
+            reach = r_max + float(self.support_radius(self.tol))
+            n = radial_nodes(float(self.bandwidth(self.tol)), reach, self.tol)
             if n > self.size:
                 warnings.warn(
                     f"queries at offsets up to {r_max:.3g} need {n} Gauss–Legendre nodes for tol={self.tol:g}; "
@@ -284,8 +287,10 @@ def _translate_errors(fn, *args):
 
 
 def radial_nodes(K: float, r_max: float, tol: float) -> int:
-    """Gauss–Legendre nodes on [0, K] that integrate ``G(k) J0(k r) k`` for ``r ≤ r_max`` to
-    ``tol``: about ``K r/2`` oscillations' worth plus a margin for G, in multiples of 64. The
+    """Gauss–Legendre nodes on [0, K] that integrate ``G(k) J0(k r) k`` to ``tol`` when the
+    integrand's oscillation spans ``r_max`` in slope (the query radius plus the lobe's own
+    extent, over which G oscillates): about ``K r_max/2`` oscillations' worth plus a margin,
+    in multiples of 64. The
     margin grows as ``tol^{−1/5}`` below 1e-8: the rule converges algebraically on the
     ``k² ln k`` behaviour of K₀/K₁-type transforms (GGX, Student-t) at the origin (64 nodes
     leave ~5e-10 of the peak there; measured in tests/test_evolve.py)."""
@@ -299,23 +304,36 @@ def choose_size(density: EvolvedDensity, method: str, max_size: int) -> tuple[in
     Returns ``(size, tol)``: a power of two (grid) or a multiple of 64 (radial), capped at
     ``max_size``. When the cap cannot meet the target (heavy tails, e.g. GGX's |m|⁻⁴, need
     grids of extent ∝ tol^{−1/4}), the grid path relaxes the target by decades until the
-    grid fits and returns the tolerance it can honour. Needs concrete parameter values.
+    grid fits and returns the tolerance it can honour; InvalidInputError when not even 1e-2
+    fits (a lobe far narrower along one axis than its extent along another).
+    NoBRDFAtScaleError when the transform exceeds 1 in modulus (no tol can help). Needs
+    concrete parameter values.
     """
+    if density.check and not isinstance(density.s_to, Delta):  # a transform above 1 is no lobe, whatever tol
+        peak = float(jnp.max(density._probe()[1]))
+        if not peak <= 1 + _CF_EXCESS:
+            raise NoBRDFAtScaleError(_NO_BRDF_MESSAGE)
     if not density.resolves(density.tol):
         raise InvalidInputError(
-            f"tol={density.tol:g}: the evolved lobe's transform does not fall below tol within seven decades "
+            f"tol={density.tol:g}: the evolved lobe's transform does not fall below tol within nine decades "
             "of frequency above the lobe's width (a transform that decays this slowly, or a tol below the "
             "rounding of its evaluation); choose a larger tol.")
     if method == "radial":
         K = float(density.bandwidth(density.tol))
         R = float(density.support_radius(density.tol))
-        return min(max_size, radial_nodes(K, R, density.tol)), density.tol
+        # queries out to the support R; G itself oscillates over the lobe's extent R as well
+        return min(max_size, radial_nodes(K, 2 * R, density.tol)), density.tol
     tol = density.tol
     while True:
         K = float(density.bandwidth(tol))
         R = float(density.support_radius(tol) if density.extent is None else density.extent)
         # spacing h = 2R/N must resolve K: π/h ≥ K  ⇒  N ≥ 2 R K / π
         need = max(64.0, 2 * R * K / math.pi)
-        if need <= max_size or tol >= 1e-2:
-            return int(min(max_size, 2 ** math.ceil(math.log2(need)))), tol
+        if need <= max_size:
+            return int(2 ** math.ceil(math.log2(need))), tol
+        if tol >= 1e-2:
+            raise InvalidInputError(
+                f"the grid path cannot resolve this lobe even to 1e-2: it needs {need:.3g} nodes per side (extent "
+                f"{R:.3g}, bandwidth {K:.3g}), more than {max_size}. Pass a larger size= (memory ∝ size²), use "
+                "method='radial' for radially symmetric inputs, or evolve the narrow and wide parts separately.")
         tol *= 10

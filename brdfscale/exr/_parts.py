@@ -45,7 +45,7 @@ def store(a: np.ndarray, dtype, what: str, *, positive: bool = False) -> np.ndar
         )
     lost = (stored == 0) & (a != 0)
     if not positive:
-        lost &= np.abs(a) > float(info.eps) * np.max(np.abs(a), initial=0)
+        lost &= np.abs(a) > float(info.eps) * np.max(np.abs(a[np.isfinite(a)]), initial=0)
     if np.any(lost):
         raise InvalidInputError(
             f"{what}: {np.count_nonzero(lost)} nonzero entries (largest |x| = {np.max(np.abs(a[lost])):.4g}) underflow "

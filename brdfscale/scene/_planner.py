@@ -138,7 +138,9 @@ def _plan_material(material: Material, u, log_mu, tol, method):
             return _plan_radial(material, u, log_mu, tol)
         return _plan_grid(material, u, log_mu, tol)
     except eqx.EquinoxRuntimeError as err:  # equinox's text wraps the message in JAX's tracebacks
-        message = next((m for m in (_NO_BRDF_MESSAGE, _NO_BRDF_PLANNED) if m in str(err)), _NO_BRDF_PLANNED)
+        message = next((m for m in (_NO_BRDF_MESSAGE, _NO_BRDF_PLANNED) if m in str(err)), None)
+        if message is None:
+            raise
         raise NoBRDFAtScaleError(f"{message} (scales μ in [{mus.min():.4g}, {mus.max():.4g}])") from None
 
 
@@ -166,7 +168,9 @@ def _plan_radial(material, u, log_mu, tol):
     # a heavy tail's reach at the budget would pull the window below the lobe's bandwidth),
     # all probe scales in one call
     core = max(budget, CORE_TOL)
-    extent = float(evolved_density(material, np.exp(probe[0]), "radial", 64, budget).support_radius(core))
+    density = evolved_density(material, np.exp(probe[0]), "radial", 64, budget)
+    extent = float(density.support_radius(core))
+    spread = float(density.support_radius(budget))  # G oscillates over the lobe's extent
     k_probe = np.logspace(-3, 5, 801) / max(extent, 1e-12)
     G = _radial_transform_rows(material, probe, k_probe, budget)
     integrand = np.abs(G) * k_probe**2 * np.log(k_probe[1] / k_probe[0])  # |G| k dk in d(log k)
@@ -179,7 +183,7 @@ def _plan_radial(material, u, log_mu, tol):
             "frequency above the lobe's width to meet it (or tol is below the rounding of its evaluation); "
             "choose a larger tol.")
     K = float(k_probe[np.argmax(inside)])
-    n_k = radial_nodes(K, r_max, budget)
+    n_k = radial_nodes(K, r_max + spread, budget)
     k, _ = _hankel_kernel(K, n_k, None, 1.0, 1)
     _, w = gauss_legendre(n_k)
     wk = 0.5 * K * w
