@@ -337,3 +337,23 @@ def test_radial_queries_beyond_the_lobes_nodes_warn():
     lobe = bs.evolve(lobes.GGX(0.08), stats.GGX(0.1), stats.GGX(0.05), method="radial", size=64, tol=1e-10)
     with pytest.warns(UserWarning, match="Gauss–Legendre nodes"):
         lobe.density(jnp.array([[30.0, 0.0]]))
+
+
+def test_radial_queries_at_the_centre_resolve_an_oscillating_transform():
+    """Narrow Beckmann lobe (α = 1e-3) with uniform-disk statistics (radius 0.1): g(0) is
+    (πr²)⁻¹ (1 − e^{−r²/α²}) = 1/(π · 0.01) exactly in float64. G oscillates over the disk's
+    extent, so a query at the centre alone needs the nodes for that extent too (it once got
+    64 nodes and returned 41.2)."""
+    exact = 1 / (math.pi * 0.1**2)
+    for tol in (1e-3, 1e-6):
+        lobe = bs.evolve(lobes.Beckmann(1e-3), stats.Disk(0.1), stats.Delta(), method="radial", tol=tol)
+        alone = float(lobe.density(jnp.zeros(2)))
+        together = float(lobe.density(jnp.array([[0.0, 0.0], [0.05, 0.0]]))[0])
+        assert abs(alone - exact) <= tol * exact and abs(together - exact) <= tol * exact, (tol, alone, together)
+
+
+def test_grid_path_refuses_a_lobe_it_cannot_resolve():
+    """Aspect ratio 5·10⁴: no grid within the size cap spans the wide axis and resolves the
+    narrow one; the grid path once returned a lobe 100 times too low at its centre."""
+    with pytest.raises(bs.InvalidInputError, match="cannot resolve this lobe even to 1e-2"):
+        bs.evolve(lobes.Beckmann(alpha_x=1.0, alpha_y=2e-5), stats.GGX(1e-6), stats.Delta(), method="grid")
