@@ -206,6 +206,130 @@ def test_scale_laws_tend_to_delta_and_are_differentiable():
     np.testing.assert_allclose(d, fd, rtol=1e-6)
 
 
+@pytest.mark.parametrize("make", [lambda a: stats.GGX(a), lambda a: stats.Disk(a), lambda a: stats.Beckmann(a)])
+def test_gradients_at_zero_frequency_are_zero_not_nan(make):
+    """S(0) = 1 for every width, so ∂S(0)/∂α = 0 (a naive |W| would give NaN)."""
+    for W in (jnp.zeros(2), jnp.array([3.0, 0.0])):
+        g = jax.grad(lambda a: jnp.real(make(a).cf(W)))(0.2)
+        assert np.isfinite(float(g))
+    assert float(jax.grad(lambda a: jnp.real(make(a).cf(jnp.zeros(2))))(0.2)) == 0.0
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    ax=st.floats(0.01, 1.0), ay=st.floats(0.01, 1.0),
+    wx=st.floats(-50, 50), wy=st.floats(-50, 50),
+)
+def test_cf_is_hermitian_and_bounded(ax, ay, wx, wy):
+    W = jnp.array([wx, wy])
+    for dens in (stats.Beckmann(alpha_x=ax, alpha_y=ay, mean=[0.01, 0.02]), stats.GGX(alpha_x=ax, alpha_y=ay)):
+        assert abs(complex(dens.cf(W))) <= 1 + 1e-12
+        assert abs(complex(dens.cf(-W)) - np.conj(complex(dens.cf(W)))) < 1e-14
+
+
+@pytest.mark.parametrize(
+    "make, match",
+    [
+        (lambda: stats.Beckmann(-0.1), "alpha must be a positive"),
+        (lambda: stats.GGX(0.1, alpha_x=0.2, alpha_y=0.1), "not both"),
+        (lambda: stats.Gaussian(cov=[[1.0, 2.0], [2.0, 1.0]]), "positive definite"),
+        (lambda: stats.Gaussian(cov=[[1.0, 0.5], [0.0, 1.0]]), "symmetric"),
+        (lambda: stats.Mixture([0.5, -0.5], [stats.Delta(), stats.Delta()]), "non-negative"),
+        (lambda: stats.Mixture([1.0], [stats.Delta(), stats.Delta()]), "one per component"),
+        (lambda: stats.Tabulated(np.ones(5), extent=1.0), "2D array"),
+        (lambda: stats.Disk(float("nan")), "finite"),
+        (lambda: stats.KCorrelation(1.0, 1.0, 1.5), "C must exceed 2"),
+        (lambda: stats.GaussianSurface(stats.GaussianCorrelation(1.0, 1.0), window="hann"), "window must be"),
+        (lambda: stats.Delta().density(jnp.zeros(2)), "no pointwise density"),
+        (lambda: stats.Beckmann(0.1).density(jnp.zeros(3)), r"shape \(\.\.\., 2\)"),
+    ],
+)
+def test_errors_name_the_problem(make, match):
+    with pytest.raises(bs.BrdfscaleError, match=match):
+        make()
+
+
+def _all_families(a, b, c):
+    """One density of every family (and a shifted, anisotropic variant where it has one)."""
+    rng = np.random.default_rng(int(1e3 * a))
+    return [
+        stats.Delta(),
+        stats.Delta(mean=[c, -a]),
+        stats.Beckmann(a),
+        stats.Beckmann(alpha_x=a, alpha_y=b, mean=[c, 0.5 * c]),
+        stats.Gaussian(cov=[[a * a, 0.3 * a * b], [0.3 * a * b, b * b]], mean=[0.0, c]),
+        stats.GGX(a),
+        stats.GGX(alpha_x=a, alpha_y=b, mean=[c, c]),
+        stats.Disk(b),
+        stats.Mixture([0.6, 0.4], [stats.GGX(b), stats.Beckmann(a, mean=[c, 0.0])]),
+        stats.Tabulated(rng.random((9, 13)), extent=[a, b]),
+        stats.Tabulated(rng.random((9, 13)), extent=[b, a], center=[c, -c]),
+    ]
+
+
+def test_frequency_grid_is_numpys_rfft2_grid():
+    n, h = 12, 0.05
+    grid = stats.FrequencyGrid(n, 2 * np.pi / (n * h))
+    W = np.asarray(grid.nodes())
+    np.testing.assert_allclose(W[..., 0], np.broadcast_to(2 * np.pi * np.fft.rfftfreq(n, h), (n, n // 2 + 1)), rtol=1e-15)
+    np.testing.assert_allclose(W[..., 1], np.broadcast_to(2 * np.pi * np.fft.fftfreq(n, h)[:, None], (n, n // 2 + 1)), rtol=1e-15)
+
+
+_cf_grid_and_pointwise = eqx.filter_jit(lambda dens, grid: (dens.cf_grid(grid), dens.cf(grid.nodes())))
+
+
+@settings(max_examples=10, deadline=None)
+@given(
+    a=st.floats(0.02, 0.5), b=st.floats(0.02, 0.5), c=st.floats(-0.2, 0.2),
+    n=st.sampled_from([7, 16]), step=st.floats(0.5, 20.0),
+)
+@example(a=0.5, b=0.5, c=0.0, n=16, step=20.0)  # exp(−3200) · exp(+1920) if factorised
+def test_cf_grid_equals_cf_at_the_nodes(a, b, c, n, step):
+    """The structured evaluation (separable factors, one value per distinct radius, matmuls
+    for tables) is the pointwise transform, for every family, odd and even grids, including
+    where per-axis factors of a correlated Gaussian would under- and overflow."""
+    grid = stats.FrequencyGrid(n, step)
+    for dens in _all_families(a, b, c):
+        structured, pointwise = _cf_grid_and_pointwise(dens, grid)
+        np.testing.assert_allclose(np.asarray(structured), np.asarray(pointwise), rtol=0, atol=2e-14,
+                                   err_msg=type(dens).__name__)
+
+
+@settings(max_examples=10, deadline=None)
+@given(a=st.floats(0.02, 0.5), b=st.floats(0.02, 0.5), c=st.floats(-0.2, 0.2))
+def test_cf_radial_is_cf_on_a_ray_for_every_isotropic_family(a, b, c):
+    """``cf_radial(k)`` (overridden by GGX and Disk, the default for the rest) equals the real
+    part of ``cf`` at ``(k cos φ, k sin φ)`` for every structurally isotropic density, and so
+    does its derivative in the width."""
+    k = jnp.asarray(np.concatenate([[0.0], np.logspace(-2, 3, 40)]))
+    phi = 0.7
+    W = jnp.stack([k * np.cos(phi), k * np.sin(phi)], -1)
+    isotropic = [d for d in _all_families(a, b, c) if d.isotropic]
+    assert {type(d).__name__ for d in isotropic} >= {"GGX", "Disk", "Gaussian", "Delta"}
+    for dens in isotropic:
+        np.testing.assert_allclose(np.asarray(dens.cf_radial(k)), np.asarray(jnp.real(dens.cf(W))),
+                                   rtol=1e-13, atol=1e-15, err_msg=type(dens).__name__)
+    for family in (stats.GGX, stats.Disk):
+        radial = jax.grad(lambda w: jnp.sum(family(w).cf_radial(k)))(a)
+        pointwise = jax.grad(lambda w: jnp.sum(jnp.real(family(w).cf(W))))(a)
+        assert float(radial) == pytest.approx(float(pointwise), rel=1e-12), family.__name__
+
+
+def test_cf_grid_is_differentiable_like_cf():
+    grid = stats.FrequencyGrid(16, 3.0)
+    weights = jnp.asarray(np.random.default_rng(0).normal(size=(16, 9)))
+
+    def loss(params, structured):
+        a, c = params
+        dens = stats.Mixture([0.5, 0.5], [stats.GGX(a), stats.Beckmann(a, mean=jnp.stack([c, 0.0]))])
+        values = dens.cf_grid(grid) if structured else dens.cf(grid.nodes())
+        return jnp.sum(weights * jnp.abs(values) ** 2)
+
+    params = jnp.array([0.2, 0.05])
+    gradient = jax.jit(jax.grad(loss), static_argnums=1)
+    np.testing.assert_allclose(gradient(params, True), gradient(params, False), rtol=1e-12)
+
+
 @pytest.mark.parametrize("make, match", [
     (lambda: stats.GaussianSurface(stats.GaussianCorrelation(1.0, 1.0)).at(jnp.array([1.0, 2.0])), "single facet size"),
     (lambda: stats.GaussianSurface(stats.GaussianCorrelation(1.0, 1.0)).slope_covariance(jnp.array([1.0, 2.0])),
