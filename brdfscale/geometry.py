@@ -108,7 +108,12 @@ def half_vector(i: Float[ArrayLike, "*batch 3"], o: Float[ArrayLike, "*batch 3"]
 
 def half_slope(i: Float[ArrayLike, "*batch 3"], o: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch 2"]:
     """Half-vector slope ``m_s(i, o) = m(h)``; the normalisation of ``h`` cancels."""
-    s = validate_directions(i, "i") + validate_directions(o, "o")
+    return _half_slope_of_valid(validate_directions(i, "i"), validate_directions(o, "o"))
+
+
+def _half_slope_of_valid(i: Array, o: Array) -> Array:
+    """:func:`half_slope` of directions already validated (no second check)."""
+    s = i + o
     return s[..., :2] / s[..., 2:3]
 
 
@@ -134,6 +139,11 @@ def microfacet_factor(i: Float[ArrayLike, "*batch 3"], o: Float[ArrayLike, "*bat
     ``dω_o = 4 (h·o) dω_h``, and ``i·h = h·o``. With the seed's ``ρ = β cosθ_i`` (§2) and
     ``D = P22 / cos⁴θ_h`` this is ``ρ(i, o) = P22(m_s) · microfacet_factor(i, o)``.
     """
-    h = half_vector(i, o)
-    cos_h = h[..., 2]
-    return 1.0 / (4.0 * jnp.asarray(o)[..., 2] * cos_h**4)
+    return _microfacet_factor_of_valid(validate_directions(i, "i"), validate_directions(o, "o"))
+
+
+def _microfacet_factor_of_valid(i: Array, o: Array) -> Array:
+    """:func:`microfacet_factor` of directions already validated (no second check)."""
+    s = i + o
+    cos_h = s[..., 2] / jnp.linalg.norm(s, axis=-1)
+    return 1.0 / (4.0 * o[..., 2] * cos_h**4)

@@ -18,7 +18,7 @@ from jaxtyping import Array, ArrayLike, Complex, Float
 from .. import stats
 from .._errors import InvalidInputError
 from .._validation import as_float_array, is_concrete
-from ..geometry import half_slope, microfacet_factor, validate_directions
+from ..geometry import _half_slope_of_valid, _microfacet_factor_of_valid, validate_directions
 
 __all__ = ["AbstractLobe", "Lobe", "Mirror", "Beckmann", "GGX", "Tabulated"]
 
@@ -50,10 +50,10 @@ class AbstractLobe(eqx.Module):
         """
         i = validate_directions(i, "i")
         o = validate_directions(o, "o")
-        u = half_slope(i, o)
+        u = _half_slope_of_valid(i, o)
         if m_inf is not None:
             u = u - jnp.asarray(m_inf)
-        return self.density(u) * microfacet_factor(i, o)
+        return self.density(u) * _microfacet_factor_of_valid(i, o)
 
 
 def _amplitude(a):
