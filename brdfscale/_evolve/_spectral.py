@@ -142,12 +142,6 @@ class EvolvedDensity(AbstractSlopeDensity):
         that for concrete inputs)."""
         return _cutoff(*self._probe(), tol)
 
-    def resolves(self, tol) -> bool:
-        """Whether |G| falls below ``tol`` on every probed ray within the window (concrete
-        inputs): a lobe narrow along one axis decays late on the rays along it."""
-        k, mag = self._probe()
-        return bool(jnp.all(mag[-1] <= tol))
-
     # -- inversion ------------------------------------------------------------------------
     def density(self, m):
         m = check_slopes(m, "m")
@@ -309,23 +303,24 @@ def choose_size(density: EvolvedDensity, method: str, max_size: int) -> tuple[in
     NoBRDFAtScaleError when the transform exceeds 1 in modulus (no tol can help). Needs
     concrete parameter values.
     """
+    k, mag = density._probe()  # one probe serves every check and cut-off below
     if density.check and not isinstance(density.s_to, Delta):  # a transform above 1 is no lobe, whatever tol
-        peak = float(jnp.max(density._probe()[1]))
-        if not peak <= 1 + _CF_EXCESS:
+        if not float(jnp.max(mag)) <= 1 + _CF_EXCESS:
             raise NoBRDFAtScaleError(_NO_BRDF_MESSAGE)
-    if not density.resolves(density.tol):
+    # every ray must decay within the window: a lobe narrow along one axis decays late along it
+    if not bool(jnp.all(mag[-1] <= density.tol)):
         raise InvalidInputError(
             f"tol={density.tol:g}: the evolved lobe's transform does not fall below tol within nine decades "
             "of frequency above the lobe's width (a transform that decays this slowly, or a tol below the "
             "rounding of its evaluation); choose a larger tol.")
     if method == "radial":
-        K = float(density.bandwidth(density.tol))
+        K = float(_cutoff(k, mag, density.tol))
         R = float(density.support_radius(density.tol))
         # queries out to the support R; G itself oscillates over the lobe's extent R as well
         return min(max_size, radial_nodes(K, 2 * R, density.tol)), density.tol
     tol = density.tol
     while True:
-        K = float(density.bandwidth(tol))
+        K = float(_cutoff(k, mag, tol))
         R = float(density.support_radius(tol) if density.extent is None else density.extent)
         # spacing h = 2R/N must resolve K: π/h ≥ K  ⇒  N ≥ 2 R K / π
         need = max(64.0, 2 * R * K / math.pi)
