@@ -22,6 +22,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from ._errors import InvalidInputError
+from ._validation import is_concrete, last_axis
 
 __all__ = [
     "direction_to_slope",
@@ -36,23 +37,15 @@ __all__ = [
 ]
 
 
-def _is_concrete(x) -> bool:
-    return not isinstance(x, jax.core.Tracer)
-
-
 def validate_directions(v: ArrayLike, name: str = "direction", atol: float = 1e-6):
-    """Check that ``v`` has shape (..., 3), is finite, unit length and points upwards.
+    """Check that ``v`` has shape (..., 3) (unit vectors in the surface frame, z = the
+    macroscopic normal), is real, finite, unit length and points upwards.
 
     Returns ``v`` as a JAX array. Raises :class:`InvalidInputError` otherwise.
     """
-    if _is_concrete(v):
+    v = last_axis(v, 3, name)  # shape, real, finite
+    if is_concrete(v):
         a = np.asarray(v)
-        if a.ndim < 1 or a.shape[-1] != 3:
-            raise InvalidInputError(
-                f"{name} must have shape (..., 3) (unit vectors in the surface frame, z = "
-                f"macroscopic normal); got shape {a.shape}."
-            )
-        _real_and_finite(a, name)
         norm = np.linalg.norm(a, axis=-1)
         if np.any(np.abs(norm - 1) > max(atol, 1e2 * np.finfo(a.dtype).eps if a.dtype.kind == "f" else atol)):
             raise InvalidInputError(
@@ -63,26 +56,13 @@ def validate_directions(v: ArrayLike, name: str = "direction", atol: float = 1e-
                 f"{name} must lie in the upper hemisphere (z > 0, z = macroscopic normal); "
                 f"smallest z component is {a[..., 2].min():.6g}."
             )
-    return jnp.asarray(v)
+    return v
 
 
 def validate_slopes(m: ArrayLike, name: str = "slopes"):
-    """Check that ``m`` has shape (..., 2) and is finite; return it as a JAX array."""
-    if _is_concrete(m):
-        a = np.asarray(m)
-        if a.ndim < 1 or a.shape[-1] != 2:
-            raise InvalidInputError(
-                f"{name} must have shape (..., 2) (slope components m_x, m_y); got shape {a.shape}."
-            )
-        _real_and_finite(a, name)
-    return jnp.asarray(m)
-
-
-def _real_and_finite(a: np.ndarray, name: str) -> None:
-    if a.dtype.kind not in "fiu":
-        raise InvalidInputError(f"{name} must be real numbers; got dtype {a.dtype}.")
-    if not np.all(np.isfinite(a)):
-        raise InvalidInputError(f"{name} contains non-finite values.")
+    """Check that ``m`` has shape (..., 2) (slope components m_x, m_y), is real and finite;
+    return it as a JAX array."""
+    return last_axis(m, 2, name)
 
 
 def direction_to_slope(n: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch 2"]:
