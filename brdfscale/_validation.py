@@ -58,7 +58,10 @@ def vector2(x, name: str):
 
 def last_axis(x, size: int, name: str):
     """``x`` as a real array of shape (..., size); concrete values must be finite."""
-    a = jnp.asarray(x)
+    try:
+        a = jnp.asarray(x)
+    except (TypeError, ValueError) as err:
+        raise InvalidInputError(f"{name} must be a real array of shape (..., {size}); got {type(x).__name__}: {err}") from None
     if a.ndim < 1 or a.shape[-1] != size:
         raise InvalidInputError(f"{name} must have shape (..., {size}); got shape {a.shape}.")
     if jnp.issubdtype(a.dtype, jnp.complexfloating) or a.dtype == bool:
