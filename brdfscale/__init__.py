@@ -4,7 +4,9 @@ The public API:
 
 * :mod:`brdfscale.stats` — facet-slope statistics ``s(m)``, their transforms, scale laws;
 * :mod:`brdfscale.lobes` — BRDF lobes at one scale;
-* :func:`brdfscale.evolve` — the evolution operator of seed Eq. 4.4;
+* :func:`brdfscale.evolve` — the evolution operator of seed Eq. 4.4, with its paths as objects
+  (:class:`Auto`, :class:`ClosedForm`, :class:`Radial`, :class:`Grid`) and
+  :func:`brdfscale.select`, which resolves their discretisation once from concrete values;
 * :mod:`brdfscale.geometry` — directions, slopes, half vectors;
 * :mod:`brdfscale.synth` — random height fields and a synthetic gonioreflectometer;
 * :mod:`brdfscale.exr` — measurement sets and lobe tables as OpenEXR files;
@@ -25,8 +27,9 @@ from ._errors import (
     MethodNotApplicableError,
     NoBRDFAtScaleError,
     SingularDensityError,
+    UnresolvedMethodError,
 )
-from ._evolve import evolve
+from ._evolve import AbstractMethod, Auto, ClosedForm, Grid, Radial, RadialTable, evolve, select
 from ._measurement import LobeImage, MeasurementSet
 
 try:
@@ -36,6 +39,14 @@ except PackageNotFoundError:  # running from a source tree that is not installed
 
 __all__ = [
     "evolve",
+    "select",
+    "AbstractMethod",
+    "Auto",
+    "ClosedForm",
+    "Radial",
+    "Grid",
+    "RadialTable",
+    "UnresolvedMethodError",
     "LobeImage",
     "MeasurementSet",
     "geometry",

@@ -38,3 +38,12 @@ class MeasurementFileError(BrdfscaleError):
     the file, the part and the attribute or channel at fault), and when writing would
     overwrite an existing file without ``overwrite=True``.
     """
+
+
+class UnresolvedMethodError(BrdfscaleError, ValueError):
+    """A spectral path's discretisation depends on parameter values that are traced.
+
+    Raised by :func:`brdfscale.evolve` inside ``jax.jit``/``grad``/``vmap`` when the method has
+    no node count (radial) or grid side (grid): resolve it with :func:`brdfscale.select` from
+    concrete values outside the transformation, and pass the resolved method in.
+    """

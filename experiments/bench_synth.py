@@ -24,7 +24,7 @@ import jax
 import numpy as np
 
 from brdfscale import exr, stats, synth
-from brdfscale.stats import SlopeHistogram
+from brdfscale.stats import SlopeHistogram, Tabulated
 from brdfscale._files import atomic_write
 
 
@@ -81,7 +81,7 @@ def main():
         hist = SlopeHistogram(0.06, 129)
         for chunk in np.array_split(samples, 8):
             hist.add(chunk[:, 0], chunk[:, 1])
-        return hist.tabulated()
+        return Tabulated.from_histogram(hist)
 
     _, record["slope_histogram_N2_over_4"] = _stage(streaming)
     record["max_rss_MiB"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)

@@ -118,8 +118,13 @@ def test_ggx_statistics_against_direct_convolution(method):
     out = bs.evolve(lobes.Beckmann(0.1), stats.GGX(0.08), stats.Delta(), method=method)
     pts = np.array([[0.0, 0.0], [0.07, 0.02], [0.15, -0.1]])
     ref = np.array([_direct_convolution(_beckmann(0.1), _ggx(0.08), p) for p in pts])
-    # GGX's |m|⁻⁴ tail beyond the quadrature's 1.2 radius holds < 1e-8 of the mass
-    np.testing.assert_allclose(np.asarray(out.density(jnp.asarray(pts))), ref, rtol=2e-8)
+    # GGX's |m|⁻⁴ tail beyond the quadrature's 1.2 radius holds < 1e-8 of the mass; the capped
+    # grid honours a looser tolerance than the radial path, and says so (out.shape.tol)
+    values = np.asarray(out.density(jnp.asarray(pts)))
+    if method == "radial":
+        np.testing.assert_allclose(values, ref, rtol=2e-8)
+    else:
+        assert out.shape.tol <= 1e-8 and np.max(np.abs(values - ref)) <= out.shape.tol * ref[0]
 
 
 def test_disk_statistics_radial_against_direct_convolution():

@@ -77,16 +77,20 @@ def test_distribution_interface():
         h.apply(3.0)
 
 
-def test_in_mixture_with_delta_and_smooth():
-    """Mixture distributes over components: weights (a, c, w) normalised by their sum."""
+def test_nearly_specular_is_the_sum_of_its_terms_and_mixture_refuses_h_n():
+    """S = (a·1 + c_1 H_1 + w S_smooth)/(a + w): the terms' transforms, normalised by the mass a + w
+    (the h_n have none). A Mixture of probability densities cannot take an h_n: its weights
+    would be normalised by a sum that is not the mass."""
     x0, smooth = 0.05, stats.Beckmann(0.1)
-    mixture = stats.Mixture([0.6, 0.1, 0.3], [stats.Delta(), plus.PlusDistribution(1, x0), smooth])
+    h1 = plus.PlusDistribution(1, x0)
     nearly = plus.NearlySpecular(0.6, [0.0, 0.1], x0, smooth=smooth, smooth_weight=0.3)
     W = jnp.array([[0.0, 0.0], [10.0, 5.0], [200.0, -100.0]])
-    # NearlySpecular normalises by a + w = 0.9, Mixture by a + c + w = 1.0
-    np.testing.assert_allclose(np.asarray(mixture.cf(W)), 0.9 * np.asarray(nearly.cf(W)), rtol=1e-14)
+    terms = 0.6 * stats.Delta().cf(W) + 0.1 * h1.cf(W) + 0.3 * smooth.cf(W)
+    np.testing.assert_allclose(np.asarray(nearly.cf(W)), np.asarray(terms) / 0.9, rtol=1e-14)
     with pytest.raises(SingularDensityError):
-        mixture.density(jnp.zeros(2))
+        nearly.density(jnp.zeros(2))
+    with pytest.raises(InvalidInputError, match=r"components must be probability densities.*PlusDistribution.*NearlySpecular"):
+        stats.Mixture([0.6, 0.1, 0.3], [stats.Delta(), h1, smooth])
 
 
 def test_nearly_specular_normalisation_and_validation():
@@ -216,11 +220,23 @@ def test_transforms_stay_finite_for_huge_arguments():
     assert np.all(np.isfinite(np.asarray(plus.NearlySpecular(1.0, [0.1, 0.01], 1e200).cf(W))))
 
 
-def test_plus_distribution_is_marked_as_not_a_density():
-    """A plus-distribution has mass 0 and no pointwise density: it carries a flag for the checks
-    of code that needs a probability density, and is refused as a nearly-specular smooth part."""
-    assert plus.PlusDistribution.is_probability_density is False
-    assert plus.PlusDistribution(1, 0.1).is_probability_density is False
-    assert getattr(stats.Beckmann(0.1), "is_probability_density", True)
+def test_plus_distribution_is_a_generalised_density_not_a_probability_density():
+    """A plus-distribution has mass 0 and no pointwise density: its type says so
+    (AbstractGeneralisedDensity, sharing only the transform interface AbstractDistribution with
+    the probability densities), and it is refused as a nearly-specular smooth part."""
+    h = plus.PlusDistribution(1, 0.1)
+    assert issubclass(plus.PlusDistribution, stats.AbstractGeneralisedDensity)
+    assert isinstance(h, stats.AbstractGeneralisedDensity) and isinstance(h, stats.AbstractDistribution)
+    assert not isinstance(h, stats.AbstractSlopeDensity)
+    assert not hasattr(plus.PlusDistribution, "is_probability_density")
+    assert complex(h.cf(jnp.zeros(2))) == 0  # mass 0
+    with pytest.raises(SingularDensityError, match="no pointwise density"):
+        h.density(jnp.zeros(2))
+    for density in (stats.Beckmann(0.1), stats.Delta(), plus.NearlySpecular(0.5, [0.1], 0.1),
+                    stats.Tabulated(np.ones((3, 3)), extent=0.1)):
+        assert isinstance(density, stats.AbstractSlopeDensity) and isinstance(density, stats.AbstractDistribution)
+        assert not isinstance(density, stats.AbstractGeneralisedDensity)
+    assert not issubclass(stats.AbstractSlopeDensity, stats.AbstractGeneralisedDensity)
+    assert not issubclass(stats.AbstractGeneralisedDensity, stats.AbstractSlopeDensity)
     with pytest.raises(InvalidInputError, match="smooth must be a probability density"):
         plus.NearlySpecular(0.5, [0.1], 0.1, smooth=plus.PlusDistribution(0, 0.1), smooth_weight=0.5)

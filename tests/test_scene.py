@@ -17,7 +17,7 @@ from hypothesis import given, settings, strategies as st
 import brdfscale as bs
 from brdfscale import lobes, scene, so3, stats
 from brdfscale.geometry import microfacet_factor, slope_to_direction
-from brdfscale.scene._interpolate import interpolate
+from brdfscale._interpolate import interpolate
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "experiments"))
 import bench_planner as bench  # noqa: E402  (independent references live in the benchmark)

@@ -298,7 +298,7 @@ def test_deconvolution_without_a_solution_raises_no_brdf():
         so3.evolve(R, so3.RotationalDiffusion(0.0), so3.RotationalDiffusion(1000.0))
     assert np.all(np.isfinite(np.asarray(so3.evolve(R, so3.Identity(), zeros, regularisation=0.1))))
     assert np.all(np.isfinite(np.asarray(so3.evolve_diffusion(R, 1.0, 0.0, 1000.0, regularisation=0.1))))
-    with pytest.raises(Exception, match="no BRDF at this scale"):
+    with pytest.raises(Exception, match="no BRDF exists at the requested scale"):
         jax.jit(lambda t: so3.evolve_diffusion(R, 1.0, 0.0, t))(1000.0)
     # a mild deconvolution is still exact and finite
     assert np.all(np.isfinite(np.asarray(so3.evolve_diffusion(R, 1.0, 0.0, 0.05))))

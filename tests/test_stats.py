@@ -105,6 +105,242 @@ def test_tabulated_cf_is_exact_for_the_interpolant_and_from_samples_mean():
     assert abs(mean_x.real - samples[:, 0].mean()) < 1e-6
 
 
+def _tent_sum_quadrature(f, xb, yb, gl_nodes=16):
+    """∫∫ f(m) d²m over ``[xb₀, xb₋₁] × [yb₀, yb₋₁]``, independently of the library's formulas:
+    SciPy's adaptive ``quad_vec`` in m_x with the node lines ``xb`` as break points, and
+    Gauss–Legendre on each cell ``[yb_j, yb_j+1]`` in m_y (exact for a tent sum's piecewise-linear
+    m_y dependence; ``gl_nodes`` points resolve the oscillation of ``e^{−iW·m}``).
+    ``f`` maps slopes (n, 2) to values (n,) or (n, k)."""
+    t, w = np.polynomial.legendre.leggauss(gl_nodes)
+    lo, hi = yb[:-1, None], yb[1:, None]
+    y = ((hi - lo) / 2 * t + (hi + lo) / 2).ravel()
+    wy = ((hi - lo) / 2 * w).ravel()
+
+    def column(x):
+        values = np.asarray(f(np.stack([np.full_like(y, x), y], axis=-1)))
+        return np.tensordot(wy, values, axes=(0, 0))
+
+    value, error = si.quad_vec(column, xb[0], xb[-1], points=xb[1:-1], epsabs=1e-14, epsrel=1e-13)
+    assert np.all(np.abs(error) < 1e-11)
+    return value
+
+
+def _bordered_node_lines(values, extent, center):
+    """Node coordinates of the table bordered by a ring of zero nodes: (x lines, y lines, spacing)."""
+    ny, nx = np.shape(values)
+    e, c = np.broadcast_to(np.asarray(extent, float), (2,)), np.zeros(2) if center is None else np.asarray(center, float)
+    h = np.array([2 * e[0] / (nx - 1), 2 * e[1] / (ny - 1)])
+    xb = c[0] + np.linspace(-e[0] - h[0], e[0] + h[0], nx + 2)
+    yb = c[1] + np.linspace(-e[1] - h[1], e[1] + h[1], ny + 2)
+    return xb, yb, h
+
+
+_density_of = eqx.filter_jit(lambda dist, m: dist.density(m))
+
+
+def test_tabulated_is_one_sum_of_tents_whose_density_integrates_to_its_cf():
+    """A table with a non-zero border (random positive values, 7 × 10 nodes, extent pair, centre)
+    means one thing: tents on the nodes, i.e. bilinear between nodes and falling to zero over one
+    spacing beyond the outermost (a zero-padded grid). Its density is that interpolant, written
+    here independently with SciPy, integrates to 1, and its quadrature transform is cf(W)."""
+    import scipy.interpolate
+
+    rng = np.random.default_rng(7)
+    V = rng.uniform(0.2, 1.0, (7, 10))
+    extent, center = np.array([0.3, 0.5]), np.array([0.05, -0.1])
+    t = stats.Tabulated(V, extent=extent, center=center)
+    xb, yb, h = _bordered_node_lines(V, extent, center)
+    np.testing.assert_allclose(np.asarray(t.spacing), h, rtol=1e-15)
+    reference = scipy.interpolate.RegularGridInterpolator(
+        (yb, xb), np.pad(V, 1) / (h[0] * h[1] * V.sum()), method="linear", bounds_error=False, fill_value=0.0)
+    R = float(t.support_radius(1e-6))
+    assert R == pytest.approx(np.hypot(*(extent + h)) + np.hypot(*center), rel=1e-14)
+    phi = np.linspace(0, 2 * np.pi, 64, endpoint=False)
+    m = np.concatenate([
+        center + rng.uniform(-1.3, 1.3, (4000, 2)) * (extent + h),  # inside, in the ring and beyond
+        [center + extent + 0.5 * h],  # half a spacing beyond the corner node: a quarter of its value
+        center + (extent + h) * np.array([[1, 1], [-1, 1], [1, -1], [-1, -1]]) * 1.0001,  # beyond the ring
+        R * (1 + 1e-9) * np.stack([np.cos(phi), np.sin(phi)], -1),  # beyond the support radius
+    ])
+    ours = np.asarray(_density_of(t, jnp.asarray(m)))
+    np.testing.assert_allclose(ours, reference(m[:, ::-1]), rtol=1e-12, atol=1e-13)
+    assert ours[4000] == pytest.approx(np.asarray(t.values)[-1, -1] / 4, rel=1e-12) and ours[4000] > 0
+    assert np.all(ours[4001:] == 0)
+    # mass 1, and the transform by quadrature of s(m) e^{−iW·m} is cf(W)
+    assert _tent_sum_quadrature(lambda m: _density_of(t, jnp.asarray(m)), xb, yb) == pytest.approx(1.0, abs=1e-12)
+    W = np.array([[0.0, 0.0], [7.0, -3.0], [-20.0, 15.0], [35.0, 28.0]])
+    quad = _tent_sum_quadrature(
+        lambda m: np.asarray(_density_of(t, jnp.asarray(m)))[:, None] * np.exp(-1j * m @ W.T), xb, yb, gl_nodes=24)
+    np.testing.assert_allclose(np.asarray(t.cf(jnp.asarray(W))), quad, rtol=0, atol=1e-10)
+    # a shift keeps the one meaning (cf_grid is checked against cf in test_cf_grid_equals_cf_at_the_nodes)
+    moved = np.asarray(_density_of(t.shifted([0.02, 0.03]), jnp.asarray(m + [0.02, 0.03])))
+    np.testing.assert_allclose(moved, ours, rtol=1e-12, atol=1e-13)
+
+
+def test_tabulated_lobe_amplitude_is_the_integral_of_the_lobe():
+    """lobes.Tabulated takes the values as the lobe A·g itself: A = h_x h_y Σ values is exactly
+    the integral of the lobe (the tent sum on the nodes), for a border that is not zero."""
+    rng = np.random.default_rng(11)
+    V = 3.7 * rng.uniform(0.1, 1.0, (6, 9))
+    extent, center = [0.4, 0.25], [-0.03, 0.08]
+    lobe = bs.lobes.Tabulated(V, extent=extent, center=center)
+    xb, yb, h = _bordered_node_lines(V, extent, center)
+    integral = _tent_sum_quadrature(lambda m: _density_of(lobe, jnp.asarray(m)), xb, yb)
+    assert float(lobe.amplitude) == pytest.approx(h[0] * h[1] * V.sum(), rel=1e-14)
+    assert float(lobe.amplitude) == pytest.approx(integral, rel=1e-12)
+    assert integral == pytest.approx(float(np.real(lobe.cf(jnp.zeros(2)))), rel=1e-12)
+
+
+def test_tabulated_ones_integrate_to_one_not_to_the_grid_fraction():
+    """The issue's example: V = ones((5, 5)), extent 1. cf(0) = 1, and the density integrates to 1
+    (the interpolant cut at the grid, as it once was, integrated to 0.64); the lobe of the same
+    values has amplitude h² Σ V = 0.5² · 25 = 6.25, its integral."""
+    V = np.ones((5, 5))
+    t = stats.Tabulated(V, extent=1.0)
+    lobe = bs.lobes.Tabulated(V, extent=1.0)
+    xb, yb, _ = _bordered_node_lines(V, 1.0, None)
+    assert complex(t.cf(jnp.zeros(2))) == pytest.approx(1.0, abs=1e-15)
+    mass = _tent_sum_quadrature(lambda m: _density_of(t, jnp.asarray(m)), xb, yb)
+    assert mass == pytest.approx(1.0, abs=1e-12)
+    inner = np.array([-1.0, 1.0])
+    assert _tent_sum_quadrature(lambda m: _density_of(t, jnp.asarray(m)), inner, inner) == pytest.approx(0.64, abs=1e-12)
+    assert float(lobe.amplitude) == 6.25
+    lobe_integral = _tent_sum_quadrature(lambda m: _density_of(lobe, jnp.asarray(m)), xb, yb)
+    assert lobe_integral == pytest.approx(6.25, rel=1e-12)
+    # inside the grid the density is 1/6.25; half of that half a spacing beyond; zero one spacing beyond
+    np.testing.assert_allclose(
+        np.asarray(_density_of(t, jnp.array([[0.3, -0.7], [1.25, 0.0], [1.25, 1.25], [1.5, 0.2], [0.0, -1.6]]))),
+        [0.16, 0.08, 0.04, 0.0, 0.0], atol=1e-15)
+    assert float(t.support_radius(1e-6)) == pytest.approx(1.5 * math.sqrt(2), rel=1e-15)
+
+
+def test_from_histogram_is_from_samples_and_checks_its_input():
+    rng = np.random.default_rng(2)
+    samples = rng.normal(size=(5000, 2)) * 0.1
+    hist = stats.SlopeHistogram(0.5, 33)
+    hist.add(samples[:, 0] - 0.01, samples[:, 1] + 0.02)
+    ours = stats.Tabulated.from_histogram(hist, center=[0.01, -0.02])
+    direct = stats.Tabulated.from_samples(samples, extent=0.5, bins=33, center=[0.01, -0.02])
+    np.testing.assert_allclose(np.asarray(ours.values), np.asarray(direct.values), rtol=1e-13, atol=1e-15)
+    np.testing.assert_allclose(np.asarray(ours.center), [0.01, -0.02])
+    assert not hasattr(stats.SlopeHistogram, "tabulated")
+    with pytest.raises(bs.InvalidInputError, match="hist must be a brdfscale.stats.SlopeHistogram"):
+        stats.Tabulated.from_histogram(np.ones((3, 3)))
+    with pytest.raises(bs.InvalidInputError, match="no sample fell inside"):
+        stats.Tabulated.from_histogram(stats.SlopeHistogram(0.5, 9))
+
+
+_STATS_DIR = __import__("pathlib").Path(bs.__file__).parent / "stats"
+
+
+def _stats_imports(source: str) -> set[str]:
+    """The modules of brdfscale/stats (file stems, ``__init__`` for the package) that ``source``,
+    a module of that package, imports anywhere — at the top or lazily inside a function."""
+    import ast
+
+    siblings = {p.stem for p in _STATS_DIR.glob("*.py")}
+    found = set()
+
+    def target(dotted: str | None, names):
+        # ``dotted`` is relative to brdfscale.stats: None for the package itself
+        if dotted is None:
+            found.update(n if n in siblings else "__init__" for n in names)
+        else:
+            found.add(dotted.split(".")[0] if dotted.split(".")[0] in siblings else "__init__")
+
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.ImportFrom):
+            names = [a.name for a in node.names]
+            module = node.module or ""
+            if node.level == 1:
+                target(module or None, names)
+            elif node.level == 2 and (module == "stats" or module.startswith("stats.")):
+                target(module[len("stats."):] or None, names)
+            elif node.level == 2 and not module and "stats" in names:
+                found.add("__init__")
+            elif node.level == 0 and (module == "brdfscale.stats" or module.startswith("brdfscale.stats.")):
+                target(module[len("brdfscale.stats."):] or None, names)
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name == "brdfscale.stats" or alias.name.startswith("brdfscale.stats."):
+                    target(alias.name[len("brdfscale.stats."):] or None, [])
+    return found
+
+
+def test_no_module_of_stats_imports_one_that_imports_it_back():
+    """The import graph of brdfscale/stats, read from the sources with ast (lazy imports inside
+    functions included), has no cycle: _histogram once imported _tabulated, which imported
+    _histogram back inside from_samples. The package __init__ imports every module, so a module
+    importing the package is a cycle too."""
+    # the reader sees lazy imports and relative forms
+    assert _stats_imports("def f():\n    from ._histogram import SlopeHistogram\n") == {"_histogram"}
+    assert _stats_imports("from . import _grid\nfrom ..stats import Delta\n") == {"_grid", "__init__"}
+    graph = {p.stem: _stats_imports(p.read_text()) - {p.stem} for p in sorted(_STATS_DIR.glob("*.py"))}
+    assert graph["__init__"] >= set(graph) - {"__init__"}  # the check below covers every module
+    for a, imported in graph.items():
+        for b in imported:
+            assert a not in graph[b], f"brdfscale/stats/{a}.py imports {b}, which imports {a} back"
+    state = {}
+
+    def visit(node, path):
+        state[node] = "open"
+        for nxt in sorted(graph[node]):
+            assert state.get(nxt) != "open", "import cycle in brdfscale/stats: " + " → ".join(path + [nxt])
+            if nxt not in state:
+                visit(nxt, path + [nxt])
+        state[node] = "done"
+
+    for node in sorted(graph):
+        if node not in state:
+            visit(node, [node])
+
+
+def test_each_stats_module_imports_alone_in_a_fresh_interpreter():
+    """Every module of brdfscale/stats imports by itself: in a fresh interpreter, with the
+    package __init__ files not run at all (stub packages) and every brdfscale module dropped
+    from sys.modules before each import (third-party modules stay loaded, so jax is imported
+    once), each module loads only what it imports itself and cannot lean on the order in which
+    the package imports its modules. The two that once imported each other also import plainly,
+    ``python -c "import brdfscale.stats._histogram"``, in a second interpreter."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    root = _STATS_DIR.parent
+    modules = [f"brdfscale.stats.{p.stem}" for p in sorted(_STATS_DIR.glob("*.py")) if p.stem != "__init__"]
+    alone = (
+        "import importlib, json, sys, traceback, types\n"
+        "result = {}\n"
+        f"for module in {modules!r}:\n"
+        "    for name in [m for m in sys.modules if m == 'brdfscale' or m.startswith('brdfscale.')]:\n"
+        "        del sys.modules[name]\n"
+        f"    for name, path in (('brdfscale', {str(root)!r}), ('brdfscale.stats', {str(_STATS_DIR)!r})):\n"
+        "        package = types.ModuleType(name); package.__path__ = [path]; sys.modules[name] = package\n"
+        "    try:\n"
+        "        importlib.import_module(module)\n"
+        "        result[module] = sorted(m for m in sys.modules if m.startswith('brdfscale.stats.'))\n"
+        "    except Exception:\n"
+        "        result[module] = 'failed: ' + traceback.format_exc().strip().splitlines()[-1]\n"
+        "print(json.dumps(result))\n"
+    )
+    env = dict(os.environ, JAX_PLATFORMS="cpu", PYTHONPATH=os.pathsep.join([str(root.parent), os.environ.get("PYTHONPATH", "")]))
+    run = lambda code: subprocess.Popen([sys.executable, "-c", code], env=env, stdout=subprocess.PIPE,
+                                        stderr=subprocess.PIPE, text=True)
+    first, plain = run(alone), run("import brdfscale.stats._histogram, brdfscale.stats._tabulated")
+    out, err = first.communicate(timeout=300)
+    assert first.returncode == 0, err
+    loaded = json.loads(out.strip().splitlines()[-1])
+    assert sorted(loaded) == modules
+    failures = {m: r for m, r in loaded.items() if isinstance(r, str)}
+    assert not failures, failures
+    # alone, the histogram needs no table (the conversion is Tabulated.from_histogram)
+    assert "brdfscale.stats._tabulated" not in loaded["brdfscale.stats._histogram"]
+    assert "brdfscale.stats._histogram" in loaded["brdfscale.stats._tabulated"]
+    _, err = plain.communicate(timeout=300)
+    assert plain.returncode == 0, err
+
+
 def test_mixture_is_weighted_sum_and_shift():
     a, b = stats.GGX(0.1), stats.Disk(0.2)
     mix = stats.Mixture([2.0, 6.0], [a, b])

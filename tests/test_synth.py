@@ -110,7 +110,7 @@ def test_histogram_equals_direct_cloud_in_cell():
         hist = SlopeHistogram(1.0, 41)
         for chunk in np.array_split(np.arange(len(samples)), 3):
             hist.add(samples[chunk, 0], samples[chunk, 1], None if w is None else w[chunk])
-        np.testing.assert_allclose(np.asarray(hist.tabulated().values), np.asarray(reference.values), rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(np.asarray(stats.Tabulated.from_histogram(hist).values), np.asarray(reference.values), rtol=1e-12, atol=1e-15)
     inside = np.all(np.abs(samples) <= 1.0, axis=1).mean()
     h = 2.0 / 40
     assert math.isclose(hist.density().sum() * h * h, np.sum(weights[np.all(np.abs(samples) <= 1.0, axis=1)]) / len(samples), rel_tol=1e-12)

@@ -1,28 +1,29 @@
-"""The isotropic (slope-space) evolution operator, seed Eq. 4.4."""
+"""The isotropic (slope-space) evolution operator, seed Eq. 4.4, and its paths as objects."""
 
-import numbers
-import warnings
 from typing import Literal
 
-from .._errors import InvalidInputError, MethodNotApplicableError
-from .._validation import as_float_array, is_concrete
+from .._errors import MethodNotApplicableError, UnresolvedMethodError
+from .._validation import is_concrete
 from ..lobes import AbstractLobe, Lobe
 from ..stats import AbstractSlopeDensity
-from ._algebra import convolve, deconvolve
-from ._spectral import EvolvedDensity, choose_size
+from ._algebra import convolve, deconvolve, has_closed_form
+from ._methods import AbstractMethod, Auto, ClosedForm, Grid, Radial, RadialTable, as_method, with_sizes
+from ._select import (MAX_GRID, MAX_RADIAL_NODES, check_arguments, resolve, select, spectral_path,
+                      unresolved)
+from ._spectral import CORE_TOL, EvolvedDensity, cutoff, grid_size, probe_checks, radial_nodes, radial_reach
 
-Method = Literal["auto", "closed_form", "radial", "grid"]
+MethodName = Literal["auto", "closed_form", "radial", "grid"]
 
-_DEFAULT_SIZE = {"radial": 256, "grid": 256}
-_MAX_SIZE = {"radial": 4096, "grid": 1024}
-_MIN_TOL = 1e-14
+__all__ = ["evolve", "select", "AbstractMethod", "Auto", "ClosedForm", "Radial", "Grid", "RadialTable",
+           "UnresolvedMethodError", "EvolvedDensity", "cutoff", "radial_nodes", "radial_reach", "grid_size",
+           "probe_checks", "has_closed_form", "CORE_TOL", "MAX_GRID", "MAX_RADIAL_NODES"]
 
 
 def evolve(
     lobe: AbstractLobe,
     s_from: AbstractSlopeDensity,
     s_to: AbstractSlopeDensity,
-    method: Method = "auto",
+    method: AbstractMethod | MethodName = "auto",
     *,
     regularisation: float = 0.0,
     tol: float = 1e-10,
@@ -45,22 +46,30 @@ def evolve(
         lobe: the lobe at μ0 (:mod:`brdfscale.lobes`).
         s_from, s_to: facet-slope statistics at μ0 and μ (:mod:`brdfscale.stats`), e.g.
             ``law.at(mu0)`` and ``law.at(mu)`` of a scale law. ``s_to = Delta()`` is μ = ∞.
-        method: ``"closed_form"`` (Gaussian/δ/mixture algebra: exact), ``"radial"`` (Hankel
-            quadrature; everything radially symmetric), ``"grid"`` (2D FFT; general), or
-            ``"auto"``: the first of these that applies.
+        method: a method object — :class:`brdfscale.ClosedForm` (Gaussian/δ/mixture algebra:
+            exact), :class:`brdfscale.Radial` (Hankel quadrature; everything radially
+            symmetric), :class:`brdfscale.Grid` (2D FFT; general), :class:`brdfscale.Auto`
+            (the first that applies) — or its name ``"closed_form"``, ``"radial"``, ``"grid"``,
+            ``"auto"``. For concrete values the spectral paths are resolved here
+            (:func:`brdfscale.select`); under ``jax.jit``/``grad``/``vmap`` pass a resolved
+            method (from ``select`` outside the transformation) or an explicit size — an
+            unresolved spectral path raises :class:`brdfscale.UnresolvedMethodError`
+            instead of guessing a size.
         regularisation: Tikhonov λ ≥ 0 of the division, ``1/S → S*/(|S|² + λ²)``. Leave 0
             for analytic inputs; for tabulated or noisy lobes use about the relative noise
             level of ``G(W, μ0)`` (Wiener's choice λ² = noise power / signal power).
         tol: error target relative to the lobe's peak, in [1e-14, 1); sets the frequency
             cut-off (beyond it |G| < tol and its k-weighted tail < tol of the whole), the
             radial rule's nodes and the grid extent of the spectral paths.
-        size: Gauss–Legendre nodes (radial) or grid side (grid). Default: chosen from
-            ``tol`` when the parameters are concrete (capped at 4096 / 1024), else 256.
+        size: with a method name: Gauss–Legendre nodes (radial) or grid side (grid), as
+            ``Radial(nodes=size)`` / ``Grid(size=size)``. Default: chosen from ``tol`` for
+            concrete parameters (capped at 16384 / 1024); required under tracing.
             When a capped grid cannot meet ``tol`` (heavy-tailed statistics such as GGX
             need grids of extent ∝ tol^{−1/4}), the grid path relaxes the target by decades
             and records the tolerance it honours in ``result.shape.tol``.
-        extent: half-width of the grid path's slope grid. Default: the radius beyond which
-            the lobe stays below ``tol`` relative to its peak (aliasing below ``tol``).
+        extent: with a method name: half-width of the grid path's slope grid (a number).
+            Default: the radius beyond which the lobe stays below ``tol/2`` relative to its
+            peak; offsets outside the grid evaluate to 0 (never a periodic image).
         check: verify that a BRDF exists at μ (see Raises). ``check=False`` leaves out the
             run-time check (an ``equinox.error_if`` conditional, which costs a measurable
             share of a small model's evaluation inside an optimiser's loop: ``python
@@ -73,80 +82,55 @@ def evolve(
     Returns:
         The lobe at μ. Closed forms return a lobe whose shape is a :mod:`brdfscale.stats`
         family; the spectral paths return a lobe whose shape evaluates the exact transform
-        and inverts it only where asked: ``.density(u)`` at query offsets, or
-        ``.shape.on_grid()`` on the FFT grid (grid path).
+        and inverts it only where asked: ``.density(u)`` at any number of query offsets (in
+        blocks within the method's memory budget), or ``.shape.on_grid()`` on the FFT grid
+        (grid path). ``result.shape.discretisation`` is the resolved method
+        (``.explain()``), ``result.shape.tol`` the error it honours relative to the peak.
 
     Raises:
         NoBRDFAtScaleError: no non-negative lobe exists at μ (e.g. a Gaussian lobe would
-            need a negative variance, or the quotient's transform exceeds 1 in modulus).
-            Under ``jax.jit`` this is raised at run time through ``equinox.error_if``.
+            need a negative variance, the quotient's transform exceeds 1 in modulus, or the
+            evolved values fall below −tol of the peak). Inside a user's ``jax.jit`` the check
+            runs with the program (``equinox.error_if``) and reaches the user as equinox's
+            runtime error carrying the same message (``brdfscale._existence``).
+        UnresolvedMethodError: traced parameters and a spectral path without a size.
         MethodNotApplicableError: a forced ``method`` cannot handle the inputs.
         InvalidInputError: wrong argument types or values.
 
     Everything is differentiable in all continuous parameters (and in μ through a scale
     law), works under ``jax.jit``/``jax.vmap`` and in float32 or float64.
     """
-    if not isinstance(lobe, AbstractLobe):
-        raise InvalidInputError(f"lobe must be a brdfscale.lobes lobe; got {type(lobe).__name__}.")
-    for name, s in (("s_from", s_from), ("s_to", s_to)):
-        if not isinstance(s, AbstractSlopeDensity):
-            raise InvalidInputError(f"{name} must be a brdfscale.stats density; got {type(s).__name__}.")
-        if not getattr(s, "is_probability_density", True):
-            raise InvalidInputError(
-                f"{name} must be a probability density of facet slopes (mass 1); got {type(s).__name__}, "
-                "a generalised function of mass 0 (a plus-distribution h_n). Use it through "
-                "brdfscale.plus.NearlySpecular(a, [c_0, …], x0, ...) (a δ + Σ c_n h_n + w s_smooth, mass 1).")
-    if method not in ("auto", "closed_form", "radial", "grid"):
-        raise InvalidInputError(f"method must be 'auto', 'closed_form', 'radial' or 'grid'; got {method!r}.")
-    if isinstance(tol, bool) or not isinstance(tol, numbers.Real) or not _MIN_TOL <= tol < 1:
-        raise InvalidInputError(
-            f"tol must be a number in [{_MIN_TOL:g}, 1) (an error relative to the lobe's peak; below "
-            f"{_MIN_TOL:g} float64 rounding in the evaluation exceeds it); got {tol!r}.")
-    tol = float(tol)
-    lam = as_float_array(regularisation, "regularisation")
-    if is_concrete(lam) and float(lam) < 0:
-        raise InvalidInputError(f"regularisation must be ≥ 0; got {float(lam)}.")
+    tol, lam = check_arguments(lobe, s_from, s_to, tol, regularisation)
+    named = isinstance(method, str)
+    method = as_method(method, None if named else size, None if named else extent)
 
-    if method in ("auto", "closed_form"):
+    if isinstance(method, (Auto, ClosedForm)):
         numerator = convolve(lobe.shape, s_from)
         shape = deconvolve(numerator, s_to, check) if numerator is not None else None
         if shape is not None:
             return Lobe(shape, lobe.amplitude)
-        if method == "closed_form":
+        if isinstance(method, ClosedForm):
             raise MethodNotApplicableError(
                 f"no closed form for a {type(lobe.shape).__name__} lobe with {type(s_from).__name__} → "
                 f"{type(s_to).__name__} statistics; closed forms exist for Gaussian/Beckmann lobes and "
                 "statistics (and mixtures of them), δ (Mirror) lobes, and δ statistics. Use method='grid'."
             )
-
-    isotropic = lobe.shape.isotropic and s_from.isotropic and s_to.isotropic
-    if method == "radial" and not isotropic:
-        raise MethodNotApplicableError(
-            "method='radial' needs a radially symmetric lobe and statistics (isotropic, centred); "
-            "use method='grid' for anisotropic, shifted, skewed or tabulated inputs."
-        )
-    path = "radial" if (method == "radial" or (method == "auto" and isotropic)) else "grid"
-    if size is not None and (int(size) != size or size < 8):
-        raise InvalidInputError(f"size must be an integer ≥ 8; got {size!r}.")
-    if extent is not None:
-        extent = as_float_array(extent, "extent")
-        if is_concrete(extent) and not float(extent) > 0:
-            raise InvalidInputError(f"extent must be a positive slope half-width; got {float(extent)}.")
-    shape = EvolvedDensity(lobe.shape, s_from, s_to, lam, path, size or _DEFAULT_SIZE[path], tol, extent, check)
-    if is_concrete(shape) and (size is None or path == "grid"):  # an explicit radial size needs no check
-        try:
-            needed, achievable = choose_size(shape, path, max(_MAX_SIZE[path], size or 0))
-        except InvalidInputError as err:  # no automatic size resolves it: the caller's own size stands
-            if size is None:
-                raise
-            warnings.warn(f"{err} Evaluating with size={size} as given: expect errors well above tol.", stacklevel=2)
-            needed = size
-        if size is None:
-            shape = EvolvedDensity(lobe.shape, s_from, s_to, lam, path, needed, achievable, extent, check)
-        elif path == "grid" and size < needed:
-            warnings.warn(
-                f"size={size} is below the {needed} nodes per side that tol={tol:g} needs on this "
-                f"grid; expect errors well above tol (leave size=None to choose it).",
-                stacklevel=2,
-            )
+    method = spectral_path(method if not isinstance(method, Auto) else _spectral_auto(lobe, s_from, s_to),
+                           lobe, s_from, s_to)
+    if named:
+        method = with_sizes(method, size, extent)
+    shape = EvolvedDensity(lobe.shape, s_from, s_to, lam, method, tol if method.tol is None else method.tol, check)
+    if method.tol is None and is_concrete(shape):
+        method = resolve(shape, method)
+        shape = shape.with_discretisation(method, method.tol)
+    elif not method.resolved:
+        raise unresolved(method)
     return Lobe(shape, lobe.amplitude)
+
+
+def _spectral_auto(lobe, s_from, s_to):
+    """Auto's spectral choice once the closed form has been tried (an Auto that would pick the
+    closed form but whose algebra returned None has no closed form for these inputs)."""
+    if lobe.shape.isotropic and s_from.isotropic and s_to.isotropic:
+        return Radial()
+    return Grid()

@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import NoBRDFAtScaleError
+from .._existence import NEGATIVE_VARIANCE
 from .._validation import is_concrete
 from ..stats import AbstractSlopeDensity, Delta, Gaussian, Mixture
 from ..stats._families import _eig2
@@ -51,12 +52,17 @@ def convolve(a: AbstractSlopeDensity, b: AbstractSlopeDensity) -> AbstractSlopeD
     return None
 
 
-_NEGATIVE_VARIANCE = (
-    "no BRDF exists at the requested scale: evolving this Gaussian lobe would need a covariance "
-    "that is not positive definite (a negative variance). The target statistics are wider than "
-    "the lobe and source statistics together; choose a coarser target scale, or a lobe measured "
-    "at a finer scale."
-)
+def has_closed_form(lobe: AbstractSlopeDensity, s_from: AbstractSlopeDensity, s_to: AbstractSlopeDensity) -> bool:
+    """Whether :func:`convolve` and :func:`deconvolve` handle these families (structure only,
+    never values: the same answer under ``jax.jit``)."""
+    a = convolve(lobe, s_from)
+    if a is None:
+        return False
+    if isinstance(s_to, Delta):
+        return True
+    if not isinstance(s_to, Gaussian):
+        return False
+    return isinstance(a, Gaussian) or (isinstance(a, Mixture) and all(isinstance(c, Gaussian) for c in a.components))
 
 
 def deconvolve(a: AbstractSlopeDensity, b: AbstractSlopeDensity, check: bool = True) -> AbstractSlopeDensity | None:
@@ -69,9 +75,9 @@ def deconvolve(a: AbstractSlopeDensity, b: AbstractSlopeDensity, check: bool = T
         lo, _ = _eig2(cov)
         if is_concrete(lo):
             if not np.all(np.asarray(lo) > 0):
-                raise NoBRDFAtScaleError(_NEGATIVE_VARIANCE + f" (smallest eigenvalue {float(np.min(lo)):.6g})")
+                raise NoBRDFAtScaleError(NEGATIVE_VARIANCE + f" (smallest eigenvalue {float(np.min(lo)):.6g})")
         elif check:
-            cov = eqx.error_if(cov, jnp.any(lo <= 0), _NEGATIVE_VARIANCE)
+            cov = eqx.error_if(cov, jnp.any(lo <= 0), NEGATIVE_VARIANCE)
         return _gaussian(cov, _sum_means(a.mean, _neg(b.mean)), a.isotropic and b.isotropic)
     if isinstance(a, Mixture) and isinstance(b, Gaussian):
         parts = [deconvolve(c, b, check) if isinstance(c, Gaussian) else None for c in a.components]

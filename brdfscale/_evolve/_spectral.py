@@ -9,10 +9,17 @@ scale has the transform
 ``g_to(u) = (2π)⁻² ∫ G_to(W) e^{+iW·u} d²W`` is then obtained by
 
 * the radial (Hankel) path, when all three factors are radially symmetric:
-  ``g(r) = (2π)⁻¹ ∫_0^K G(k) J₀(k r) k dk``, Gauss–Legendre in k on [0, K]; or
-* the grid path: ``G`` sampled on a regular frequency grid and inverted by a real 2D FFT
-  (``irfft2``) onto the slope grid, or summed directly at query offsets (a non-uniform
-  inverse DFT on the same frequency grid, so queries need no interpolation).
+  ``g(r) = (2π)⁻¹ ∫_0^K G(k) J₀(k r) k dk``, Gauss–Legendre in k on [0, K] — at the query
+  radii, or (many queries) on a table of radii verified by :func:`brdfscale.select` and read
+  off by cubic interpolation; or
+* the grid path: ``G`` sampled on a regular frequency grid and summed directly at query
+  offsets (a non-uniform inverse DFT), or (many queries) inverted by one zero-padded real
+  FFT onto a finer slope grid read off by bicubic interpolation; offsets outside the grid's
+  half-width evaluate to 0 (the lobe is below the error target there), never to a periodic
+  image.
+
+Queries are evaluated in blocks whose temporaries stay within the method's memory budget
+(:mod:`brdfscale._blocks`), so any number of offsets can be asked for.
 
 Division uses Tikhonov regularisation, ``1/S → S*/(|S|² + λ²)``: ``λ = 0`` (the default) is
 the exact Eq. 4.4; a positive λ suppresses the frequencies where ``|S_to| ≲ λ``. For
@@ -29,53 +36,81 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from .._blocks import in_blocks
 from .._errors import InvalidInputError, NoBRDFAtScaleError
+from .._existence import (NEGATIVE_LOBE, TRANSFORM_ABOVE_ONE, attach, negative_beyond, transform_exceeds_one,
+                          translated)
+from .._interpolate import interpolate
 from .._quadrature import gauss_legendre
 from .._special import j0
-from ..stats import AbstractSlopeDensity, Delta, FrequencyGrid
 from .._validation import is_concrete
-from ..stats._base import check_slopes
+from ..stats import AbstractSlopeDensity, Delta, FrequencyGrid, Gaussian
+from ..stats._base import add_offset, check_slopes, safe_norm, shifted_cf
+from ._methods import Grid, Radial
 
 _PROBE_DIRECTIONS = 8
 _PROBE_POINTS = 206  # 9 decades, ~23 per decade
 _PROBE_POINTS_BEYOND = 24  # 8 per decade: beyond the grid, |G| is only watched for growth
-_CF_EXCESS = 1e-6
-CORE_TOL = 1e-3  # the probe's frequency window is scaled to the lobe's extent at this level
-_NO_BRDF = "no BRDF exists at the requested scale"
-_NO_BRDF_MESSAGE = (
-    _NO_BRDF + ": the evolved lobe's transform exceeds 1 in modulus, which no non-negative "
-    "lobe has (evolving towards a finer scale than the data support). Choose a coarser target "
-    "scale or set regularisation > 0."
-)
+GRID_POINTS = 6  # Lagrange points per axis of the grid table (its verification: brdfscale._evolve._select)
+CORE_TOL = 1e-3
+"""The probe's frequency window is scaled to the lobe's extent at this level (of its peak)."""
 
 
 class EvolvedDensity(AbstractSlopeDensity):
     """``g_to`` of seed Eq. 4.4: transform ``G_from S_from / S_to`` (regularised by λ).
 
-    ``method`` is ``"radial"`` or ``"grid"``; ``size`` is the number of Gauss–Legendre nodes
-    (radial) or the grid's side (grid); ``tol`` is the error target relative to the peak
-    that sets the frequency cut-off and, unless ``extent`` is given, the grid's half-width.
+    ``discretisation`` is a :class:`~brdfscale.Radial` or :class:`~brdfscale.Grid` method with
+    at least its node count or grid side fixed (:mod:`brdfscale._evolve._methods`); ``tol`` is
+    the error relative to the peak that the evaluation honours: half of it for the spectral
+    truncation (cut-off and extent), half for interpolation (tables), each verified by
+    :func:`brdfscale.select` for concrete values.
+
+    When both statistics are Gaussian (and λ = 0) the quotient ``S_from/S_to`` is evaluated
+    as the single exponential ``exp(−½Wᵀ(Σ_from − Σ_to)W − iW·(mean_from − mean_to))``: the
+    two transforms underflow separately long before their quotient is negligible (a narrow lobe
+    between close scales was 9 % off at its peak when divided).
     """
 
     base: AbstractSlopeDensity
     s_from: AbstractSlopeDensity
     s_to: AbstractSlopeDensity
     regularisation: Float[Array, ""]
-    extent: Float[Array, ""] | None
-    method: str = eqx.field(static=True)
-    size: int = eqx.field(static=True)
+    discretisation: Radial | Grid
     tol: float = eqx.field(static=True)
     isotropic: bool = eqx.field(static=True)
     check: bool = eqx.field(static=True)
-    """Whether evaluations attach the existence check (|G| ≤ 1) at run time."""
+    """Whether evaluations attach the existence check (|G| ≤ 1, no negative values) at run time."""
+    gaussian_ratio: bool = eqx.field(static=True)
 
-    def __init__(self, base, s_from, s_to, regularisation, method, size, tol, extent=None, check=True):
+    def __init__(self, base, s_from, s_to, regularisation, discretisation, tol, check=True):
         self.base, self.s_from, self.s_to = base, s_from, s_to
         self.regularisation = jnp.asarray(regularisation)
-        self.extent = None if extent is None else jnp.asarray(extent)
-        self.method, self.size, self.tol = method, size, tol
+        self.discretisation = discretisation
+        self.tol = float(tol)
         self.isotropic = base.isotropic and s_from.isotropic and s_to.isotropic
         self.check = bool(check)
+        lam = self.regularisation
+        self.gaussian_ratio = (isinstance(s_from, Gaussian) and isinstance(s_to, Gaussian) and is_concrete(lam)
+                               and bool(np.all(np.asarray(lam) == 0)))
+
+    @property
+    def method(self) -> str:
+        """``"radial"`` or ``"grid"``."""
+        return self.discretisation.path
+
+    @property
+    def size(self) -> int:
+        """Gauss–Legendre nodes (radial) or grid side (grid)."""
+        d = self.discretisation
+        return d.nodes if isinstance(d, Radial) else d.size
+
+    @property
+    def extent(self) -> float | None:
+        return self.discretisation.extent if isinstance(self.discretisation, Grid) else None
+
+    def with_discretisation(self, discretisation, tol=None) -> "EvolvedDensity":
+        return EvolvedDensity(self.base, self.s_from, self.s_to, self.regularisation, discretisation,
+                              self.tol if tol is None else tol, self.check)
 
     # -- the exact transform -------------------------------------------------------------
     def _divide(self, numerator, denominator):
@@ -89,8 +124,20 @@ class EvolvedDensity(AbstractSlopeDensity):
         at_zero = jnp.where((numerator == 0) | (lam2 > 0), 0.0, jnp.inf)
         return jnp.where(zero, at_zero, ratio)
 
-    def _quotient(self, transform):
-        """``G_from S_from / S_to`` from ``transform(density)`` of each factor."""
+    def _ratio(self, W):
+        """``S_from/S_to`` of two Gaussians at W (..., 2), as one exponential."""
+        C = self.s_from.cov - self.s_to.cov
+        quad = jnp.einsum("...i,ij,...j->...", W, C, W)
+        mean = add_offset(self.s_from.mean, 0.0) if self.s_from.mean is not None else None
+        if self.s_to.mean is not None:
+            mean = -self.s_to.mean if mean is None else mean - self.s_to.mean
+        return shifted_cf(_exp_capped(-0.5 * quad), W, mean)
+
+    def _quotient(self, transform, W=None):
+        """``G_from S_from / S_to`` from ``transform(density)`` of each factor (``W``: the
+        frequencies, for the Gaussian quotient)."""
+        if self.gaussian_ratio:
+            return transform(self.base) * self._ratio(W)
         numerator = transform(self.base) * transform(self.s_from)
         if isinstance(self.s_to, Delta) and self.s_to.mean is None:  # μ = ∞: nothing to divide
             return numerator
@@ -98,17 +145,20 @@ class EvolvedDensity(AbstractSlopeDensity):
 
     def cf(self, W):
         W = check_slopes(W, "W")
-        return self._quotient(lambda density: density.cf(W))
+        return self._quotient(lambda density: density.cf(W), W)
 
     def cf_grid(self, grid):
-        return self._quotient(lambda density: density.cf_grid(grid))
+        return self._quotient(lambda density: density.cf_grid(grid), grid.nodes() if self.gaussian_ratio else None)
 
     def cf_radial(self, k):
+        k = jnp.asarray(k)
+        if self.gaussian_ratio:
+            return self.base.cf_radial(k) * _exp_capped(-0.5 * k**2 * (self.s_from.cov[0, 0] - self.s_to.cov[0, 0]))
         return jnp.real(self._divide(self.base.cf_radial(k) * self.s_from.cf_radial(k), self.s_to.cf_radial(k)))
 
     def shifted(self, offset):
         return EvolvedDensity(self.base.shifted(offset), self.s_from, self.s_to, self.regularisation,
-                              self.method, self.size, self.tol, self.extent, self.check)
+                              self.discretisation, self.tol, self.check)
 
     def support_radius(self, tol):
         return self.base.support_radius(tol) + self.s_from.support_radius(tol)
@@ -138,102 +188,248 @@ class EvolvedDensity(AbstractSlopeDensity):
 
     def bandwidth(self, tol):
         """The frequency beyond which |G| stays below ``tol`` (the largest probe frequency
-        when it does not fall that low in the probed window: :func:`choose_size` reports
+        when it does not fall that low in the probed window: :func:`brdfscale.select` reports
         that for concrete inputs)."""
-        return _cutoff(*self._probe(), tol)
+        return cutoff(*self._probe(), tol)
 
     # -- inversion ------------------------------------------------------------------------
     def density(self, m):
+        """``g_to(m)`` at any number of offsets, in blocks within the method's memory budget
+        (:mod:`brdfscale._blocks`); within ``tol`` of the peak wherever the discretisation
+        covers (module docstring)."""
         m = check_slopes(m, "m")
-        shape = self
-        if self.method == "radial" and is_concrete((self, m)):
-            # evaluate only what is asked: nodes enough for the largest queried radius
-            r_max = float(jnp.max(jnp.linalg.norm(m, axis=-1))) if m.size else 0.0
-            # J₀(k r) oscillates over r_max, and G itself over the lobe's extent
-            reach = r_max + float(self.support_radius(self.tol))
-            n = radial_nodes(float(self.bandwidth(self.tol)), reach, self.tol)
-            if n > self.size:
+        d = self.discretisation
+        if isinstance(d, Radial) and d.cutoff is not None and m.size and is_concrete((self, m)):
+            # nodes enough for the largest queried radius (J₀(k r) oscillates over it, G over the lobe's extent)
+            r_max = float(np.max(np.linalg.norm(np.asarray(m), axis=-1)))
+            R = float(concrete_support(self, self.tol / 2))
+            reach = min(r_max, R) + R
+            n = radial_nodes(d.cutoff, reach, self.tol / 2)
+            if n > d.nodes:
                 warnings.warn(
                     f"queries at offsets up to {r_max:.3g} need {n} Gauss–Legendre nodes for tol={self.tol:g}; "
-                    f"this lobe has {self.size} (evolve(..., size=...) raises it): errors there may exceed tol.",
+                    f"this lobe has {d.nodes} (evolve(..., size=...) raises it): errors there may exceed tol.",
                     stacklevel=2)
-            elif n < self.size:
-                shape = EvolvedDensity(self.base, self.s_from, self.s_to, self.regularisation,
-                                       self.method, n, self.tol, self.extent, self.check)
-        return _translate_errors(_density, shape, m)
+        return _density(self, m)
 
     def _density(self, m):
-        if self.method == "radial":
-            k, mag = self._probe()
-            peak = jnp.max(mag) if self.check else None
-            return _checked(self._radial(jnp.linalg.norm(m, axis=-1), _cutoff(k, mag, self.tol)), peak)
-        return self._grid_at(m)
+        flat = m.reshape(-1, 2)
+        if isinstance(self.discretisation, Radial):
+            values = self._radial_at(flat)
+        else:
+            values = self._grid_at(flat)
+        return values.reshape(m.shape[:-1])
 
-    def _radial(self, r, K):
-        x, w = gauss_legendre(self.size)
-        k = (0.5 * (jnp.asarray(x, r.dtype) + 1)) * K
-        wk = 0.5 * K * jnp.asarray(w, r.dtype)
-        G = self.cf_radial(k)
-        return jnp.sum(wk * G * k * j0(r[..., None] * k), axis=-1) / (2 * jnp.pi)
+    @property
+    def _sign_check(self) -> bool:
+        """The check that no value lies below −tol of the peak (with ``check``; not for μ = ∞,
+        where nothing is divided and the lobe is a convolution of densities)."""
+        plain = isinstance(self.s_to, Delta) and self.s_to.mean is None
+        return self.check and self.discretisation.sign_check and not plain
 
+    # radial ----------------------------------------------------------------------------------
+    def radial_coefficients(self):
+        """``(k, c, peak, failed)``: the Gauss–Legendre frequencies on [0, K], the weights
+        ``c_k = w_k k G(k)/2π`` (so ``g(r) = Σ c_k J₀(k r)``), the bound ``Σ|c_k| ≥ max g``,
+        and the existence predicate (None without the check)."""
+        d = self.discretisation
+        need_probe = d.cutoff is None or (self.check and not isinstance(self.s_to, Delta))
+        if need_probe:
+            k_probe, mag = self._probe()
+        K = cutoff(k_probe, mag, self.tol / 2) if d.cutoff is None else d.cutoff
+        x, w = gauss_legendre(d.nodes)
+        dtype = jnp.result_type(*jax.tree_util.tree_leaves(self.base), float)
+        k = (0.5 * (jnp.asarray(x, dtype) + 1)) * K
+        c = 0.5 * K * jnp.asarray(w, dtype) * k * self.cf_radial(k) / (2 * jnp.pi)
+        failed = None
+        if self.check and not isinstance(self.s_to, Delta):
+            failed = transform_exceeds_one(jnp.maximum(jnp.max(mag), jnp.max(jnp.abs(jax.lax.stop_gradient(
+                self.cf_radial(k))))))
+        return k, c, jnp.sum(jnp.abs(jax.lax.stop_gradient(c))), failed
+
+    def radial_table(self):
+        """The lobe at the radii of the method's table (:class:`~brdfscale.RadialTable`)."""
+        _, c, _, failed = self.radial_coefficients()
+        values = c @ self.discretisation.table.kernel.astype(c.dtype)
+        return values, failed
+
+    def _radial_at(self, m):
+        d = self.discretisation
+        r = safe_norm(m)
+        q = r.shape[0]
+        size = jnp.dtype(r.dtype).itemsize
+        if d.table is not None and q > max(16, d.table.count // 64):
+            values, failed = self.radial_table()
+            t = d.table
+            negative = negative_beyond(values, jnp.max(values), self.tol) if self._sign_check else None
+
+            def read(rows):
+                pos = jnp.arcsinh(rows / t.scale) / t.step + 3
+                return jnp.where(rows <= t.radius, interpolate(values, pos[:, None], points=t.points), 0.0)
+
+            out = in_blocks(read, r, (4 + 3 * t.points) * size, d.budget)
+        else:
+            k, c, peak, failed = self.radial_coefficients()
+
+            def direct(rows):
+                return jnp.sum(c * j0(rows[:, None] * k), axis=-1)
+
+            # J₀'s quadrature holds (rows × nodes × 96) values at once (brdfscale._special)
+            out = in_blocks(direct, r, k.shape[0] * (_special_width() + 4) * size, d.budget)
+            negative = negative_beyond(out, peak, self.tol) if self._sign_check else None
+        return _checked(out, failed, negative)
+
+    # grid ------------------------------------------------------------------------------------
     def grid_spacing(self):
         """Slope-grid spacing h and half-width a = N h / 2 of the grid path."""
-        a = self.support_radius(self.tol) if self.extent is None else self.extent
-        a = jax.lax.stop_gradient(a)  # a discretisation choice
-        return 2 * a / self.size, a
+        d = self.discretisation
+        dtype = jnp.result_type(*jax.tree_util.tree_leaves(self.base), float)
+        if d.extent is None:
+            a = jax.lax.stop_gradient(self.support_radius(self.tol / 2))  # a discretisation choice
+        else:
+            a = jnp.asarray(d.extent, dtype)
+        return 2 * a / d.size, a
 
     def frequency_grid(self, h) -> FrequencyGrid:
         """The real-FFT frequencies of the ``size × size`` slope grid of spacing ``h``."""
         return FrequencyGrid(self.size, 2 * jnp.pi / (self.size * h))
 
-    def on_grid(self):
-        """``(u, values)``: nodes ``u`` (N,) from −a to a − h and ``g_to`` on the N×N grid
-        (rows u_y, columns u_x), by one real inverse FFT."""
-        return _translate_errors(_on_grid, self)
-
     def _grid_transform(self, grid: FrequencyGrid):
-        """``G`` on ``grid`` and the largest ``|G|`` for the
-        existence check: on the grid itself, and on rays beyond its Nyquist frequency π/h
-        (where the grid cannot see), 24 frequencies per ray over three decades. ``None``
-        when nothing is divided (``s_to`` a point mass, |S_to| = 1): then G is a product of
-        transforms of densities, |G| ≤ 1 holds by construction and there is nothing to check;
-        and when the check is switched off (``check=False``)."""
+        """``G`` on ``grid`` and the existence predicate from the largest ``|G|``: on the grid
+        itself, and on rays beyond its Nyquist frequency π/h (where the grid cannot see), 24
+        frequencies per ray over three decades. ``None`` when nothing is divided (``s_to`` a
+        point mass, |S_to| = 1): then G is a product of transforms of densities, |G| ≤ 1 holds
+        by construction and there is nothing to check; and when the check is switched off
+        (``check=False``)."""
         G = self.cf_grid(grid)
         if isinstance(self.s_to, Delta) or not self.check:
             return G, None
         G_fixed = jax.lax.stop_gradient(G)
         on_grid = jnp.sqrt(jnp.max(G_fixed.real**2 + G_fixed.imag**2))  # no per-node hypot
         beyond = jnp.max(self._probe(grid.step * (grid.size / 2))[1])  # from π/h
-        return G, jnp.maximum(on_grid, beyond)
+        return G, transform_exceeds_one(jnp.maximum(on_grid, beyond))
 
-    def _on_grid(self):
+    def on_grid(self, oversample: int = 1):
+        """``(u, values)``: nodes ``u`` (pN,) from −a to a − h/p and ``g_to`` on the pN × pN
+        slope grid (rows u_y, columns u_x) by one real inverse FFT of the N × N spectrum,
+        zero-padded by the factor ``p = oversample`` (the trigonometric interpolant of the
+        N-grid sampled p times as densely)."""
+        return _on_grid(self, oversample)
+
+    def _on_grid(self, p: int):
         h, a = self.grid_spacing()
         n = self.size
-        G, peak = self._grid_transform(self.frequency_grid(h))
-        # nodes start at −a: multiply by e^{+iW·a} = (−1)^{kx+ky} for a = N h / 2 (a constant
-        # pattern; cheaper than rolling the output by half a period); the 1/h² of the inverse
-        # DFT is applied on the half-size frequency side, in the same pass
-        sign = 1.0 - 2.0 * ((np.arange(n)[:, None] + np.arange(n // 2 + 1)[None, :]) % 2)
-        values = jnp.fft.irfft2(G * (sign / h**2), s=(n, n))
-        u = -a + h * jnp.arange(n, dtype=h.dtype)
-        return u, _checked(values, peak)
+        G, failed = self._grid_transform(self.frequency_grid(h))
+        values = _inverse_fft(G, h, n, p)
+        negative = None
+        if self._sign_check:
+            fixed = jax.lax.stop_gradient(values)
+            negative = negative_beyond(fixed, jnp.max(fixed), self.tol)
+        u = -a + (h / p) * jnp.arange(n * p, dtype=h.dtype)
+        return u, _checked(values, failed, negative)
 
     def _grid_at(self, m):
-        """Inverse DFT of the grid path summed directly at query offsets (no interpolation)."""
-        h, _ = self.grid_spacing()
-        grid = self.frequency_grid(h)
-        G, peak = self._grid_transform(grid)  # (n, n//2+1): half plane, the other half is the conjugate
-        fx, fy = grid.wx, grid.wy
-        weight = jnp.where((jnp.arange(fx.shape[0]) == 0) | (2 * jnp.arange(fx.shape[0]) == self.size), 1.0, 2.0)
-        flat = m.reshape(-1, 2)
-        ex = jnp.exp(1j * flat[:, 0, None] * fx[None, :])  # (q, nx)
-        ey = jnp.exp(1j * flat[:, 1, None] * fy[None, :])  # (q, ny)
-        total = jnp.einsum("qy,yx,qx->q", ey, G * weight, ex)
-        dW2 = (2 * jnp.pi / (self.size * h)) ** 2
-        return _checked((jnp.real(total) * dW2 / (2 * jnp.pi) ** 2).reshape(m.shape[:-1]), peak)
+        """Offsets inside ``[−a, a]²``: bicubic interpolation on the oversampled slope grid
+        (many queries, a verified oversampling) or the inverse DFT summed at each offset;
+        outside: 0 (the lobe is below tol/2 of its peak there when a is its support radius)."""
+        d = self.discretisation
+        h, a = self.grid_spacing()
+        n = self.size
+        size = jnp.dtype(m.dtype).itemsize
+        inside = jnp.all(jnp.abs(m) <= a, axis=-1)
+        q = m.shape[0]
+        if d.oversample is not None and q * n > 4 * (n * d.oversample) ** 2:
+            p = d.oversample
+            G, failed = self._grid_transform(self.frequency_grid(h))
+            table = _inverse_fft(G, h, n, p)
+            negative = None
+            if self._sign_check:
+                fixed = jax.lax.stop_gradient(table)
+                negative = negative_beyond(fixed, jnp.max(fixed), self.tol)
+            hp = h / p
+            # the table's period is 2a: append its first row and column (the images of −a) so
+            # that offsets up to +a interpolate without wrapping
+            table = jnp.concatenate([table, table[:1]], axis=0)
+            table = jnp.concatenate([table, table[:, :1]], axis=1)
+
+            def read(rows):
+                pos = (rows[:, ::-1] + a) / hp
+                return interpolate(table, pos, points=GRID_POINTS)
+
+            out = in_blocks(read, m, (8 + 4 * GRID_POINTS * (GRID_POINTS + 2)) * size, d.budget)
+        else:
+            grid = self.frequency_grid(h)
+            G, failed = self._grid_transform(grid)
+            fx, fy = grid.wx, grid.wy
+            weight = jnp.where((jnp.arange(fx.shape[0]) == 0) | (2 * jnp.arange(fx.shape[0]) == n), 1.0, 2.0)
+            Gw = G * weight * ((2 * jnp.pi / (n * h)) ** 2 / (2 * jnp.pi) ** 2)
+
+            def direct(rows):
+                ex = jnp.exp(1j * rows[:, 0, None] * fx[None, :])  # (q, nx)
+                ey = jnp.exp(1j * rows[:, 1, None] * fy[None, :])  # (q, ny)
+                return jnp.real(jnp.einsum("qy,yx,qx->q", ey, Gw, ex))
+
+            out = in_blocks(direct, m, 6 * n * 2 * size, d.budget)
+            negative = None
+            if self._sign_check:
+                peak = jnp.sum(jnp.abs(jax.lax.stop_gradient(Gw)))
+                negative = negative_beyond(out, peak, self.tol)
+        return _checked(jnp.where(inside, out, 0.0), failed, negative)
 
 
-def _cutoff(k, mag, tol):
+def _exp_capped(x):
+    """``e^x`` with x capped below overflow: a growing Gaussian quotient (target wider than the
+    source statistics) times a lobe transform that has underflowed to 0 is 0, not 0 · ∞; where
+    the lobe has not underflowed the capped value still exceeds 1 by far (the existence check)."""
+    cap = math.log(float(jnp.finfo(jnp.result_type(x)).max)) - 8
+    return jnp.exp(jnp.minimum(x, cap))
+
+
+def _special_width() -> int:
+    from .._special import _N_TRAPEZOID_J
+
+    return _N_TRAPEZOID_J
+
+
+def _inverse_fft(G, h, n: int, p: int):
+    """``g`` on the (pN)² slope grid from ``−a`` with spacing ``h/p``: the N × N half-plane
+    spectrum ``G`` zero-padded (its Nyquist row and column dropped: |G| < tol there by the
+    grid's choice) and inverted by one real FFT. Nodes start at −a: the factor
+    ``e^{+iW·a} = (−1)^{kx+ky}`` for a = N h/2; the 1/h² of the inverse DFT (for the fine
+    spacing) is applied on the half-size frequency side."""
+    if p == 1:
+        sign = 1.0 - 2.0 * ((np.arange(n)[:, None] + np.arange(n // 2 + 1)[None, :]) % 2)
+        return jnp.fft.irfft2(G * (sign / h**2), s=(n, n))
+    big = n * p
+    half = n // 2
+    fine = jnp.zeros((big, big // 2 + 1), G.dtype)
+    fine = fine.at[:half, :half].set(G[:half, :half])
+    fine = fine.at[big - half + 1:, :half].set(G[half + 1:, :half])
+    rows = np.concatenate([np.arange(half), np.arange(big - half + 1, big)])
+    sign = 1.0 - 2.0 * ((rows[:, None] + np.arange(half)[None, :]) % 2)
+    hp = h / p
+    fine = fine.at[:half, :half].multiply(sign[:half] / hp**2)
+    fine = fine.at[big - half + 1:, :half].multiply(sign[half:] / hp**2)
+    return jnp.fft.irfft2(fine, s=(big, big))
+
+
+def _checked(value, failed, negative):
+    """Attach the existence checks: ``|G| ≤ 1`` (``failed``) and no values below −tol of the
+    peak (``negative``); None: nothing to check."""
+    value = attach(value, failed, TRANSFORM_ABOVE_ONE)
+    return attach(value, negative, NEGATIVE_LOBE)
+
+
+_density = translated(eqx.filter_jit(lambda shape, m: shape._density(m)))
+# compiled once each for the host-side choices (eager dispatch would compile every operation)
+concrete_cutoff = eqx.filter_jit(lambda k, mag, tol: cutoff(k, mag, tol))
+concrete_support = eqx.filter_jit(lambda shape, tol: shape.support_radius(tol))
+concrete_cf_radial = eqx.filter_jit(lambda shape, k: shape.cf_radial(k))
+_probe = eqx.filter_jit(lambda shape, k_lo: shape._probe_values(k_lo))
+_on_grid = translated(eqx.filter_jit(lambda shape, p: shape._on_grid(p)))
+
+
+def cutoff(k, mag, tol):
     """The cut-off frequency K for an error ``tol`` relative to the lobe's peak: the larger of
     the first probe frequency past the last one where ``|G| > tol``, and the first beyond which
     the k-weighted tail is below ``tol`` of the whole,
@@ -254,32 +450,6 @@ def _cutoff(k, mag, tol):
     return k[jnp.maximum(pointwise, by_tail)]
 
 
-def _checked(value, peak):
-    """Attach the existence check: a non-negative density has |G(W)| ≤ G(0) = 1 (``peak``:
-    the largest |G| found; None: nothing to check)."""
-    if peak is None:
-        return value
-    excess = peak - 1
-    return eqx.error_if(value, (excess > _CF_EXCESS) | jnp.isnan(excess), _NO_BRDF_MESSAGE)
-
-
-_density = eqx.filter_jit(lambda shape, m: shape._density(m))
-_probe = eqx.filter_jit(lambda shape, k_lo: shape._probe_values(k_lo))
-_on_grid = eqx.filter_jit(lambda shape: shape._on_grid())
-
-
-def _translate_errors(fn, *args):
-    """Call a jitted evaluation; outside any trace, turn its run-time existence check into
-    :class:`NoBRDFAtScaleError` (inside a user's ``jax.jit`` it surfaces as equinox's
-    ``EquinoxRuntimeError`` with the same message)."""
-    try:
-        return fn(*args)
-    except eqx.EquinoxRuntimeError as err:
-        if _NO_BRDF in str(err):
-            raise NoBRDFAtScaleError(_NO_BRDF_MESSAGE) from None
-        raise
-
-
 def radial_nodes(K: float, r_max: float, tol: float) -> int:
     """Gauss–Legendre nodes on [0, K] that integrate ``G(k) J0(k r) k`` to ``tol`` when the
     integrand's oscillation spans ``r_max`` in slope (the query radius plus the lobe's own
@@ -288,40 +458,49 @@ def radial_nodes(K: float, r_max: float, tol: float) -> int:
     margin grows as ``tol^{−1/5}`` below 1e-8: the rule converges algebraically on the
     ``k² ln k`` behaviour of K₀/K₁-type transforms (GGX, Student-t) at the origin (64 nodes
     leave ~5e-10 of the peak there; measured in tests/test_evolve.py)."""
-    margin = 64 * math.ceil(max(1e-8 / tol, 1.0) ** 0.2)
-    return int(64 * math.ceil(max(64.0, 0.6 * K * r_max + margin) / 64))
+    return int(64 * math.ceil(max(64.0, 0.6 * K * r_max + _margin(tol)) / 64))
 
 
-def choose_size(density: EvolvedDensity, method: str, max_size: int) -> tuple[int, float]:
-    """Nodes (radial) or grid side (grid) that resolve ``density`` to its ``tol``.
+def _margin(tol: float) -> int:
+    return 64 * math.ceil(max(1e-8 / tol, 1.0) ** 0.2)
 
-    Returns ``(size, tol)``: a power of two (grid) or a multiple of 64 (radial), capped at
-    ``max_size``. When the cap cannot meet the target (heavy tails, e.g. GGX's |m|⁻⁴, need
-    grids of extent ∝ tol^{−1/4}), the grid path relaxes the target by decades until the
-    grid fits and returns the tolerance it can honour; InvalidInputError when not even 1e-2
-    fits (a lobe far narrower along one axis than its extent along another).
-    NoBRDFAtScaleError when the transform exceeds 1 in modulus (no tol can help). Needs
-    concrete parameter values.
-    """
-    k, mag = density._probe()  # one probe serves every check and cut-off below
-    if density.check and not isinstance(density.s_to, Delta):  # a transform above 1 is no lobe, whatever tol
-        if not float(jnp.max(mag)) <= 1 + _CF_EXCESS:
-            raise NoBRDFAtScaleError(_NO_BRDF_MESSAGE)
-    # every ray must decay within the window: a lobe narrow along one axis decays late along it
-    if not bool(jnp.all(mag[-1] <= density.tol)):
+
+def radial_reach(K: float, nodes: int, tol: float) -> float:
+    """The largest oscillation span (query radius plus the lobe's extent) that ``nodes``
+    Gauss–Legendre nodes on [0, K] integrate to ``tol`` (the inverse of :func:`radial_nodes`)."""
+    return max(0.0, (nodes - _margin(tol)) / (0.6 * K))
+
+
+def probe_checks(density: EvolvedDensity, k, mag) -> None:
+    """For concrete values: no transform above 1 (whatever tol), and every probe ray decays
+    below tol/2 within the window (a lobe narrow along one axis decays late along it)."""
+    if density.check and not isinstance(density.s_to, Delta):
+        if bool(transform_exceeds_one(jnp.max(mag))):
+            raise NoBRDFAtScaleError(TRANSFORM_ABOVE_ONE)
+    if not bool(jnp.all(mag[-1] <= density.tol / 2)):
         raise InvalidInputError(
-            f"tol={density.tol:g}: the evolved lobe's transform does not fall below tol within nine decades "
+            f"tol={density.tol:g}: the evolved lobe's transform does not fall below tol/2 within nine decades "
             "of frequency above the lobe's width (a transform that decays this slowly, or a tol below the "
             "rounding of its evaluation); choose a larger tol.")
-    if method == "radial":
-        K = float(_cutoff(k, mag, density.tol))
-        R = float(density.support_radius(density.tol))
-        # queries out to the support R; G itself oscillates over the lobe's extent R as well
-        return min(max_size, radial_nodes(K, 2 * R, density.tol)), density.tol
-    tol = density.tol
+
+
+def grid_size(density: EvolvedDensity, max_size: int, k=None, mag=None, truncation=None) -> tuple[int, float]:
+    """Grid side that resolves ``density`` to the truncation error ``truncation`` (default
+    ``tol/2``, the other half being interpolation's) in its cut-off and extent, and the
+    truncation error honoured.
+
+    A power of two, capped at ``max_size``. When the cap cannot meet the target (heavy tails,
+    e.g. GGX's |m|⁻⁴, need grids of extent ∝ tol^{−1/4}) the target is relaxed by decades
+    until the grid fits, and the error it can honour is returned; InvalidInputError when not
+    even 1e-2 fits (a lobe far narrower along one axis than its extent along another).
+    Needs concrete values (``k``, ``mag``: the density's probe, when already computed).
+    """
+    if k is None:
+        k, mag = density._probe()
+    tol = density.tol / 2 if truncation is None else truncation
     while True:
-        K = float(_cutoff(k, mag, tol))
-        R = float(density.support_radius(tol) if density.extent is None else density.extent)
+        K = float(concrete_cutoff(k, mag, tol))
+        R = float(concrete_support(density, tol) if density.extent is None else density.extent)
         # spacing h = 2R/N must resolve K: π/h ≥ K  ⇒  N ≥ 2 R K / π
         need = max(64.0, 2 * R * K / math.pi)
         if need <= max_size:

@@ -71,13 +71,13 @@ class Lobe(AbstractLobe):
     amplitude: Float[Array, ""]
 
     def __init__(self, shape: stats.AbstractSlopeDensity, amplitude: Float[ArrayLike, ""] = 1.0):
-        if not isinstance(shape, stats.AbstractSlopeDensity):
-            raise InvalidInputError(f"shape must be a brdfscale.stats density; got {type(shape).__name__}.")
-        if not getattr(shape, "is_probability_density", True):
+        if isinstance(shape, stats.AbstractGeneralisedDensity):
             raise InvalidInputError(
                 f"shape must be a probability density of facet slopes (mass 1); got {type(shape).__name__}, "
                 "a generalised function of mass 0 with no pointwise density (a plus-distribution h_n). Use "
                 "lobes.Lobe(plus.observe(plus.NearlySpecular(...), kernel)).")
+        if not isinstance(shape, stats.AbstractSlopeDensity):
+            raise InvalidInputError(f"shape must be a brdfscale.stats density; got {type(shape).__name__}.")
         self.shape = shape
         self.amplitude = _amplitude(amplitude)
 
@@ -118,9 +118,12 @@ class GGX(AbstractLobe):
 class Tabulated(AbstractLobe):
     """A lobe tabulated on a regular grid of offsets ``u`` (e.g. a measurement).
 
-    ``values`` (rows: u_y, columns: u_x, spanning ``[−extent, extent]``) are the lobe itself,
-    ``A · g``; the amplitude is their (bilinear-interpolant) integral and the shape is the
-    normalised :class:`brdfscale.stats.Tabulated`.
+    ``values`` (rows: u_y, columns: u_x, nodes spanning ``center + [−extent, extent]``) are the
+    lobe itself, ``A · g``, at the nodes, with the one meaning of :class:`brdfscale.stats.Tabulated`:
+    a sum of tent functions on the nodes (bilinear between nodes, falling linearly to zero over
+    one spacing beyond the outermost ones). The amplitude ``A = h_x h_y Σ values`` is then
+    exactly the integral of the lobe, and the shape is the normalised
+    :class:`brdfscale.stats.Tabulated` of the same values (``∫ g d²u = 1``).
     """
 
     shape: stats.Tabulated

@@ -1,7 +1,6 @@
-"""The regularised plus-distributions ``h_n`` as slope statistics (seed §6, DESIGN §4)."""
+"""The regularised plus-distributions ``h_n``: generalised functions of mass 0 on slope space (seed §6, DESIGN §4)."""
 
 import math
-from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -9,7 +8,7 @@ from jaxtyping import Array, ArrayLike, Complex, Float
 
 from .._errors import InvalidInputError, SingularDensityError
 from .._validation import positive, vector2
-from ..stats import AbstractSlopeDensity
+from ..stats import AbstractGeneralisedDensity
 from ..stats._base import add_offset, check_slopes, offset_norm, phase
 from ._action import radial_action
 from ._transform import check_order, transforms_scaled
@@ -17,7 +16,7 @@ from ._transform import check_order, transforms_scaled
 _ANGLES = 64
 
 
-class PlusDistribution(AbstractSlopeDensity):
+class PlusDistribution(AbstractGeneralisedDensity):
     """The regularised 2D plus-distribution ``h_n = (1/2π) [θ(x0 − |m|) logⁿ(|m|/x0)/|m|²]₊``.
 
     Defined by its action on a test function ψ (DESIGN §4; seed §6 without its divergence):
@@ -33,18 +32,12 @@ class PlusDistribution(AbstractSlopeDensity):
         H_n(W) = ∫_0^{x0} (logⁿ(x/x0)/x)(J₀(|W| x) − 1) dx,   times e^{−iW·c} when shifted.
 
     ``order`` n ∈ {0, …, 6}; ``x0`` > 0 is the cut-off slope. It is a
-    :class:`brdfscale.stats.AbstractSlopeDensity`, so it can enter :func:`brdfscale.evolve` and
-    :class:`brdfscale.stats.Mixture` wherever a statistic is expected — but a physical
-    statistic must have mass 1 and be non-negative, so use it through :class:`NearlySpecular`
-    (``a δ + Σ c_n h_n + w s_smooth``). The class attribute ``is_probability_density = False``
-    marks it for the checks of code that needs a probability density.
+    :class:`brdfscale.stats.AbstractGeneralisedDensity` (mass 0, no pointwise density), not an
+    :class:`~brdfscale.stats.AbstractSlopeDensity`: a physical statistic must have mass 1 and
+    be non-negative, so :func:`brdfscale.evolve`, :class:`brdfscale.lobes.Lobe`,
+    :class:`brdfscale.stats.Mixture` and the micro lobes of :mod:`brdfscale.synth` refuse it.
+    Use it through :class:`NearlySpecular` (``a δ + Σ c_n h_n + w s_smooth``, mass 1).
     """
-
-    is_probability_density: ClassVar[bool] = False
-    """False: ``h_n`` is a generalised function of mass 0, not a probability density of facet
-    slopes. Code that needs a density (a lobe's shape, the statistics of ``brdfscale.evolve``)
-    tests ``getattr(s, "is_probability_density", True)``; use ``h_n`` through
-    :class:`NearlySpecular`, which has mass 1."""
 
     order: int = eqx.field(static=True)
     x0: Float[Array, ""]

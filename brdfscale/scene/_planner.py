@@ -13,7 +13,8 @@ Per material, on the distinct (offset u = m_s − m∞, scale μ) pairs its quer
    ``(2π)⁻¹ ∫_K^∞ |G| k dk ≤ (tol/4) g(0)``, Gauss–Legendre nodes from K and the largest queried radius,
    and the radius spacing from the cubic-interpolation bound
    ``|error| ≤ (9/16)/4! · h⁴ max|g⁗|`` with ``max|g⁗| ≤ (2π)⁻¹ ∫|G| k⁵ dk``; grid: the side
-   from the bandwidth and support radius (:func:`brdfscale._evolve._spectral.choose_size`),
+   from the bandwidth and support radius (``grid_size`` of :mod:`brdfscale._evolve`, as
+   :func:`brdfscale.select` uses it),
    doubled until cubic interpolation between its nodes is within budget (checked on the
    doubled grid, whose odd nodes are the midpoints).
 4. **Scales** — the distinct μ present are used as they are when there are few; otherwise
@@ -37,22 +38,21 @@ import numpy as np
 import scipy.special
 
 from .._errors import InvalidInputError, MethodNotApplicableError, NoBRDFAtScaleError
-from .._evolve import evolve
-from .._evolve._spectral import _NO_BRDF_MESSAGE, CORE_TOL, choose_size, radial_nodes
+from .._evolve import CORE_TOL, MAX_GRID, Auto, ClosedForm, evolve, grid_size, radial_nodes
+from .._existence import message_of
 from .._quadrature import gauss_legendre
 from ..geometry import half_slope, microfacet_factor
 from . import _cost
 from ._description import AnisotropicMaterial, Material, Scene
 from ._plan import Plan
-from ._interpolate import interpolate
+from .._interpolate import interpolate
 from ._scales import in_chunks, scale_nodes
 from ._so3_planner import plan_so3
-from ._steps import _NO_BRDF as _NO_BRDF_PLANNED
 from ._steps import ClosedFormStep, GridStep, MaterialPlan, RadialStep, evolved_density
 
 _METHODS = ("auto", "closed_form", "radial", "grid", "so3")
 _CUBIC_CONSTANT = 0.5625 / 24  # max |s(s−1)(s−2)(s−3)|/4! on the middle interval
-_MAX_GRID = 1024
+_MAX_GRID = MAX_GRID
 _DIRECT_MEMORY = 2e7  # largest (distinct queries × nodes) kernel kept for direct evaluation
 _TABLE_OVERSAMPLING = 4  # a grid table needs about this many times the Nyquist side
 _CHUNK = 64  # scales (and frequencies) per planning-time evaluation of radial transforms
@@ -114,13 +114,13 @@ def _plan_material(material: Material, u, log_mu, tol, method):
     mus = np.exp(log_mu)
     s_from = material.statistics(material.mu0)
     if method in ("auto", "closed_form"):
-        try:
-            for mu in (mus.min(), mus.max()):
+        # the path as brdfscale.select decides it (structure only)
+        if isinstance(Auto().select_method(material.lobe, s_from, material.statistics(mus.min())), ClosedForm):
+            for mu in (mus.min(), mus.max()):  # existence at the ends (NoBRDFAtScaleError)
                 evolve(material.lobe, s_from, material.statistics(mu), method="closed_form")
-        except MethodNotApplicableError:
-            if method == "closed_form":
-                raise
-        else:
+        elif method == "closed_form":
+            evolve(material.lobe, s_from, material.statistics(mus.min()), method="closed_form")  # raises
+        if isinstance(Auto().select_method(material.lobe, s_from, material.statistics(mus.min())), ClosedForm):
             distinct, scale = np.unique(log_mu, return_inverse=True)
             n = len(mus)
             step = ClosedFormStep(jnp.asarray(u), jnp.asarray(scale.ravel()), jnp.asarray(np.exp(distinct)))
@@ -137,8 +137,8 @@ def _plan_material(material: Material, u, log_mu, tol, method):
         if method == "radial" or (method == "auto" and isotropic):
             return _plan_radial(material, u, log_mu, tol)
         return _plan_grid(material, u, log_mu, tol)
-    except eqx.EquinoxRuntimeError as err:  # equinox's text wraps the message in JAX's tracebacks
-        message = next((m for m in (_NO_BRDF_MESSAGE, _NO_BRDF_PLANNED) if m in str(err)), None)
+    except (eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError) as err:  # the message inside JAX's traceback
+        message = message_of(err)
         if message is None:
             raise
         raise NoBRDFAtScaleError(f"{message} (scales μ in [{mus.min():.4g}, {mus.max():.4g}])") from None
@@ -223,7 +223,8 @@ def _plan_grid(material, u, log_mu, tol):
     probe = distinct if len(distinct) <= 16 else np.linspace(distinct[0], distinct[-1], 16)
     size, achieved = 0, budget
     for t in probe:
-        n, honoured = choose_size(evolved_density(material, np.exp(t), "grid", 256, budget), "grid", _MAX_GRID)
+        n, honoured = grid_size(evolved_density(material, np.exp(t), "grid", 256, budget), _MAX_GRID,
+                                truncation=budget)
         size, achieved = max(size, n), max(achieved, honoured)
     n_q, half = len(u), size // 2 + 1
     direct_cost = _cost.units(3 * len(distinct) * size * half, 4 * n_q * len(distinct) * size * half)

@@ -11,7 +11,7 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from ._interpolate import interpolate
+from .._interpolate import interpolate
 
 NODES_PER_DECADE = 8
 MAX_SCALE_NODES = 2049

@@ -28,17 +28,16 @@ import jax.numpy as jnp
 from jaxtyping import Array, Complex, Float, Int
 
 from .. import so3
-from .._evolve import evolve
-from .._evolve._spectral import EvolvedDensity
+from .._evolve import EvolvedDensity, Grid, Radial, evolve
+from .._existence import TRANSFORM_ABOVE_ONE, attach, transform_exceeds_one
 from ._description import AnisotropicMaterial, Material
-from ._interpolate import cubic_stencil, interpolate
+from .._blocks import in_blocks
+from .._interpolate import cubic_stencil, interpolate
 
-_CF_EXCESS = 1e-6
-_NO_BRDF = (
-    "no BRDF exists at a planned scale: the evolved lobe's transform exceeds 1 in modulus "
-    "(evolving towards a finer scale than the data support). Re-plan with coarser scales or "
-    "a material with regularisation > 0."
-)
+# temporaries per query of cubic interpolation in d dimensions (4^d gathered values, indices and
+# weights, float64): the blocks of brdfscale._blocks keep Plan.evaluate within its budget
+_INTERPOLATION_BYTES = {d: 8 * (3 * 4**d + 8 * d) for d in (1, 2, 3)}
+
 
 
 class ClosedFormStep(eqx.Module):
@@ -68,9 +67,10 @@ def _scale_position(log_mu, nodes, exact):
 
 def evolved_density(material: Material, mu, method: str, size: int, tol: float) -> EvolvedDensity:
     """The material's lobe shape evolved from μ0 to μ (seed Eq. 4.4) on a spectral path."""
+    discretisation = Radial(nodes=size) if method == "radial" else Grid(size=size)
     return EvolvedDensity(
         material.lobe.shape, material.statistics(material.mu0), material.statistics(mu),
-        material.regularisation, method, size, tol,
+        material.regularisation, discretisation, tol,
     )
 
 
@@ -96,7 +96,7 @@ class RadialStep(eqx.Module):
         """``G(k, μ_n)`` for every scale node, with the existence check |G| ≤ 1."""
         size = self.k.shape[0]
         G = jax.vmap(lambda t: evolved_density(material, jnp.exp(t), "radial", size, self.tol).cf_radial(self.k))(self.nodes)
-        return eqx.error_if(G, jnp.max(jnp.abs(G)) > 1 + _CF_EXCESS, _NO_BRDF)
+        return attach(G, transform_exceeds_one(jnp.max(jnp.abs(G))), TRANSFORM_ABOVE_ONE)
 
     def table(self, material: Material) -> Float[Array, "s r"]:
         """The lobe shape ``g`` on (scale nodes × radius grid)."""
@@ -108,7 +108,9 @@ class RadialStep(eqx.Module):
             G = self.transforms(material)
             return jnp.sum(G[s.astype(int)] * self.kernel.T, axis=-1) * material.lobe.amplitude
         r = jnp.linalg.norm(self.u, axis=-1) / self.h_r + 3
-        return interpolate(self.table(material), jnp.stack([s, r], -1)) * material.lobe.amplitude
+        table = self.table(material)
+        values = in_blocks(lambda p: interpolate(table, p), jnp.stack([s, r], -1), _INTERPOLATION_BYTES[2])
+        return values * material.lobe.amplitude
 
 
 class GridStep(eqx.Module):
@@ -144,13 +146,15 @@ class GridStep(eqx.Module):
         h, a = self.densities(material, jnp.exp(self.nodes[0])).grid_spacing()
         pos = (self.u[:, ::-1] + a) / h  # (y, x) index positions
         inside = jnp.all((pos >= 0) & (pos <= self.size - 1), axis=-1)
-        values = interpolate(self.table(material), jnp.concatenate([s[:, None], pos], -1))
+        table = self.table(material)
+        values = in_blocks(lambda p: interpolate(table, p), jnp.concatenate([s[:, None], pos], -1),
+                           _INTERPOLATION_BYTES[3])
         return jnp.where(inside, values, 0.0) * material.lobe.amplitude
 
     def _direct(self, material, s):
         W = self.frequencies
         G = jax.vmap(lambda t: self.densities(material, jnp.exp(t)).cf(W))(self.nodes)  # (s, N, N/2+1)
-        G = eqx.error_if(G, jnp.max(jnp.abs(G)) > 1 + _CF_EXCESS, _NO_BRDF)
+        G = attach(G, transform_exceeds_one(jnp.max(jnp.abs(G))), TRANSFORM_ABOVE_ONE)
         nx = W.shape[1]
         half = jnp.where((jnp.arange(nx) == 0) | (2 * jnp.arange(nx) == self.size), 1.0, 2.0)
         ey, ex = self.phases

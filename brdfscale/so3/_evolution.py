@@ -31,7 +31,8 @@ from jax.scipy.linalg import cho_factor, cho_solve
 from jaxtyping import Array, ArrayLike, Complex, Float
 
 from .. import stats
-from .._errors import InvalidInputError, NoBRDFAtScaleError
+from .._errors import InvalidInputError
+from .._existence import NOT_FINITE, not_finite, require
 from .._validation import as_float_array, is_concrete, positive
 from ._generators import block_expm, check_diffusion, diffusion_generator
 from ._models import AbstractOrientationDensity, RotationalDiffusion
@@ -48,6 +49,12 @@ def _operator(s, B, name):
         f"RotationalDiffusion, TiltTwist, EmpiricalOrientations) — or its operator blocks of shape "
         f"({B}, {2 * B - 1}, {2 * B - 1}) (.operator({B}); identity on the padding)"
     )
+    if isinstance(s, stats.AbstractGeneralisedDensity):
+        raise InvalidInputError(
+            f"{expected}; got {type(s).__name__}, a slope-space generalised function of mass 0 (a "
+            "plus-distribution h_n), which is no statistic on SO(3) nor in slope space; use it through "
+            "brdfscale.plus.NearlySpecular for slope-space lobes."
+        )
     if isinstance(s, stats.AbstractSlopeDensity):
         raise InvalidInputError(
             f"{expected}; got the slope-space density {type(s).__name__}. Wrap a slope density as the facet "
@@ -80,19 +87,12 @@ def _full_columns(R):
     return c, B
 
 
-_NO_BRDF = "no BRDF at this scale"
-
-
-def _finite_or_no_brdf(X, message: str):
+def _finite_or_no_brdf(X, detail: str):
     """``X`` if finite. A non-finite result of finite inputs means the statistics at μ cannot be
-    divided out in floating point (singular or vanishing blocks: a deconvolution too far):
-    :class:`NoBRDFAtScaleError` for concrete values; under ``jax.jit`` an ``equinox.error_if``
-    with the same message (raised as equinox's ``EquinoxRuntimeError``)."""
-    if is_concrete(X):
-        if not np.all(np.isfinite(np.asarray(X))):
-            raise NoBRDFAtScaleError(message)
-        return X
-    return eqx.error_if(X, ~jnp.all(jnp.isfinite(X)), message)
+    divided out in floating point (singular or vanishing blocks: a deconvolution too far): the
+    library's existence check (:mod:`brdfscale._existence`) — :class:`NoBRDFAtScaleError` for
+    concrete values, an ``equinox.error_if`` with the same message under ``jax.jit``."""
+    return require(X, not_finite(X), NOT_FINITE + detail)
 
 
 def _regularisation(lam):
@@ -143,9 +143,8 @@ def evolve(
         # Hermitian positive definite for λ > 0: a Cholesky factorisation (half the work of LU)
         Xh = cho_solve(cho_factor(normal, lower=True), Q1 @ jnp.conj(jnp.swapaxes(A, -1, -2)))
         X = jnp.conj(jnp.swapaxes(Xh, -1, -2))
-    return _finite_or_no_brdf(X, _NO_BRDF + (
-        ": dividing by the statistics at μ (solving X Q̃^J(μ) = R^J(μ0) Q̃^J(μ0) block by block) gives "
-        "non-finite coefficients — a block Q̃^J(μ) is singular or too small to divide by in floating point "
+    return _finite_or_no_brdf(X, (
+        " (solving X Q̃^J(μ) = R^J(μ0) Q̃^J(μ0) block by block): a block Q̃^J(μ) is singular or too small to divide by in floating point "
         "(statistics with vanishing coefficients, or a deconvolution towards a much finer scale). Pass "
         "regularisation > 0 (about the relative noise level of R(μ0)) for the regularised solve."
     ))
@@ -180,9 +179,9 @@ def evolve_diffusion(
     if not exact:
         return evolve(R, RotationalDiffusion(t0, D), RotationalDiffusion(t1, D), regularisation=lam)
     G = diffusion_generator(B, check_diffusion(D))
-    return _finite_or_no_brdf(R @ block_expm(-(t0 - t1) * G).astype(R.dtype), _NO_BRDF + (
+    return _finite_or_no_brdf(R @ block_expm(-(t0 - t1) * G).astype(R.dtype), (
         ": evolving towards a finer scale (tau_to > tau_from) multiplies degree J by up to "
-        "exp((tau_to − tau_from) D_max J(J+1)), which overflows here (non-finite coefficients). Pass "
+        "exp((tau_to − tau_from) D_max J(J+1)), which overflows here. Pass "
         "regularisation > 0 (about the relative noise level of R(μ0)) for the regularised solve of "
         "brdfscale.so3.evolve, or a smaller band limit."
     ))

@@ -1,12 +1,16 @@
 """Facet-slope statistics ``s(m)`` and their transforms ``S(W)`` (seed §4, DESIGN §1–2).
 
-Every class represents the density of a facet's slope relative to the global orientation
-(what a histogram of facet slopes shows). The seed's ``q`` in Eq. 4.2 is its reflection,
+Every density class here (Delta, Gaussian, …, Tabulated) is an :class:`AbstractSlopeDensity`:
+the probability density (mass 1) of a facet's slope relative to the global orientation (what
+a histogram of facet slopes shows). Its base :class:`AbstractDistribution`, the transform
+interface, is shared with :class:`AbstractGeneralisedDensity`: generalised functions of mass 0
+with no pointwise density (the plus-distributions of :mod:`brdfscale.plus`), which are terms
+of a statistic, not statistics. The seed's ``q`` in Eq. 4.2 is the reflection of ``s``,
 ``q(x) = s(−x)``, hence ``Q(W) = S(−W)``; Eq. 4.4 in this library's terms reads
 ``G(W, μ) = G(W, μ0) S(W, μ0) / S(W, μ)`` for a lobe ``g`` around the specular slope.
 """
 
-from ._base import AbstractSlopeDensity
+from ._base import AbstractDistribution, AbstractGeneralisedDensity, AbstractSlopeDensity
 from ._grid import FrequencyGrid
 from ._families import GGX, Beckmann, Delta, Disk, Gaussian
 from ._histogram import SlopeHistogram
@@ -24,7 +28,9 @@ from ._scale_laws import (
 from ._tabulated import Tabulated
 
 __all__ = [
+    "AbstractDistribution",
     "AbstractSlopeDensity",
+    "AbstractGeneralisedDensity",
     "FrequencyGrid",
     "Delta",
     "Gaussian",

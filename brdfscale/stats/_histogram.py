@@ -5,7 +5,6 @@ import math
 import numpy as np
 
 from .._errors import InvalidInputError
-from ._tabulated import Tabulated
 
 MAX_HISTOGRAM_BYTES = 2**31
 """The largest ``bins × bins`` float64 count grid a :class:`SlopeHistogram` allocates (2 GiB)."""
@@ -16,12 +15,14 @@ class SlopeHistogram:
 
     The nodes span ``[−extent, extent]`` on both axes (rows m_y, columns m_x: the layout of
     :class:`brdfscale.stats.Tabulated`). Each sample is shared among the four surrounding
-    nodes with bilinear weights (cloud in cell), so the bilinear interpolant of
-    ``counts / h²`` integrates to the total weight of the samples inside the grid and keeps
-    their mean. It takes samples in chunks (constant memory for 4096² fields; four
-    ``np.bincount`` sums per chunk) and counts the samples that fell outside, so a lobe can
-    be reported per sample, not renormalised over the grid. :meth:`Tabulated.from_samples`
-    is the one-shot use of it.
+    nodes with bilinear weights (cloud in cell), so the sum of tent functions on the nodes
+    with heights ``counts / h²`` — the meaning of a :class:`~brdfscale.stats.Tabulated` table:
+    bilinear between nodes, falling linearly to zero over one spacing beyond the outermost —
+    integrates to the total weight of the samples inside the grid and has their mean, exactly.
+    It takes samples in chunks (constant memory for 4096² fields; four ``np.bincount`` sums
+    per chunk) and counts the samples that fell outside, so a lobe can be reported per
+    sample, not renormalised over the grid. :meth:`Tabulated.from_histogram` turns it into a
+    normalised density and :meth:`Tabulated.from_samples` is the one-shot use of both.
     """
 
     def __init__(self, extent: float, bins: int):
@@ -76,15 +77,10 @@ class SlopeHistogram:
     def density(self) -> np.ndarray:
         """Node values of the density per sample added, inside the grid or not (per unit slope area).
 
-        Unweighted, its interpolant integrates to the fraction of samples inside the grid;
-        weighted, to the mean weight carried inside.
+        Unweighted, its tent sum (the meaning of :class:`~brdfscale.stats.Tabulated`)
+        integrates to the fraction of samples inside the grid; weighted, to the mean weight
+        carried inside.
         """
         if self.samples == 0:
             raise InvalidInputError("no samples were added to the histogram.")
         return self.node_counts() / (self.samples * self.spacing**2)
-
-    def tabulated(self, center=None) -> Tabulated:
-        """The histogram as a normalised :class:`Tabulated` density (nodes offset by ``center``)."""
-        if not np.any(self.counts > 0):
-            raise InvalidInputError(f"no sample fell inside the grid of half-width {self.extent}.")
-        return Tabulated(self.node_counts(), extent=self.extent, center=center)

@@ -7,7 +7,7 @@ from jaxtyping import Array, Float
 
 from .._errors import InvalidInputError
 from .._validation import as_float_array, is_concrete
-from ._base import AbstractSlopeDensity, check_slopes
+from ._base import AbstractGeneralisedDensity, AbstractSlopeDensity, check_slopes
 
 
 class Mixture(AbstractSlopeDensity):
@@ -16,7 +16,9 @@ class Mixture(AbstractSlopeDensity):
     Components may be of different families, including :class:`Delta` point masses, so
     sawtooth or blazed micro-structure (facets at a few discrete slopes) is
     ``Mixture(weights=[0.7, 0.3], components=[Delta(mean=[0.03, 0]), Delta(mean=[-0.07, 0])])``:
-    zero mean, but skewed. ``S(W) = Σ_k w_k S_k(W)``.
+    zero mean, but skewed. ``S(W) = Σ_k w_k S_k(W)``. Components must be probability
+    densities (:class:`AbstractSlopeDensity`), so the mixture is one; plus-distributions
+    (mass 0) enter a statistic through :class:`brdfscale.plus.NearlySpecular`.
     """
 
     weights: Float[Array, " k"]
@@ -25,6 +27,14 @@ class Mixture(AbstractSlopeDensity):
 
     def __init__(self, weights, components):
         components = tuple(components)
+        generalised = [type(c).__name__ for c in components if isinstance(c, AbstractGeneralisedDensity)]
+        if generalised:
+            raise InvalidInputError(
+                f"components must be probability densities of facet slopes (mass 1); got {', '.join(generalised)}, "
+                "a generalised function of mass 0 with no pointwise density (a plus-distribution h_n), so the "
+                "mixture would not have mass 1. Use brdfscale.plus.NearlySpecular(a, [c_0, …], x0, smooth=..., "
+                "smooth_weight=w) for a δ + Σ c_n h_n + w s_smooth."
+            )
         if not components or not all(isinstance(c, AbstractSlopeDensity) for c in components):
             raise InvalidInputError(
                 "components must be a non-empty sequence of slope densities (brdfscale.stats objects)."

@@ -1,4 +1,4 @@
-"""Slope densities tabulated on a regular grid (histograms, measurements)."""
+"""Slope densities tabulated on a regular grid (histograms, measurements): sums of tent functions."""
 
 import math
 
@@ -11,6 +11,7 @@ from .._errors import InvalidInputError
 from .._validation import as_float_array, is_concrete, positive, real_array, vector2
 from ._base import AbstractSlopeDensity, add_offset, centred, check_slopes, offset_norm, phase
 from ._grid import axis_phase
+from ._histogram import SlopeHistogram
 
 
 def _sinc(x):
@@ -20,15 +21,23 @@ def _sinc(x):
 
 
 class Tabulated(AbstractSlopeDensity):
-    """A density given by its values on a regular slope grid, bilinearly interpolated.
+    """A density given by its values on a regular slope grid: a sum of tent functions on the nodes.
 
-    ``values[j, k]`` is the density at ``m = center + (x_k, y_j)`` with ``x_k`` and ``y_j``
-    evenly spaced over ``[−extent_x, extent_x]`` and ``[−extent_y, extent_y]`` (so the
-    first array axis is ``m_y``, the second ``m_x``, as in an image). The density is the
-    bilinear interpolant, zero outside the grid, rescaled to integrate to 1.
+    ``values[j, k]`` is the density at the node ``m_jk = center + (x_k, y_j)``, with ``x_k`` and
+    ``y_j`` evenly spaced over ``[−extent_x, extent_x]`` and ``[−extent_y, extent_y]`` (spacings
+    ``h_x = 2 extent_x/(n_x − 1)``, ``h_y = 2 extent_y/(n_y − 1)``; the first array axis is
+    ``m_y``, the second ``m_x``, as in an image). The density is
 
-    Its transform is exact for that interpolant: ``S(W) = h_x h_y Σ_jk v_jk e^{−iW·m_jk}
-    sinc²(W_x h_x/2) sinc²(W_y h_y/2)`` (the hat function's transform), so spectral
+        s(m) = Σ_jk v_jk Λ((d_x − x_k)/h_x) Λ((d_y − y_j)/h_y),   d = m − center,  Λ(t) = max(0, 1 − |t|):
+
+    the bilinear interpolant between the nodes, falling linearly to zero over one spacing
+    beyond the outermost nodes — as if the table were bordered by a ring of zero nodes — and
+    zero beyond ``extent + spacing`` on each axis (a table whose border values are zero is the
+    plain bilinear interpolant on ``[−extent, extent]``). Each tent integrates to ``h_x h_y``, so
+    the values are rescaled to ``h_x h_y Σ_jk v_jk = 1``, and ``∫ s d²m = 1`` exactly.
+
+    Its transform is exact for that density: ``S(W) = h_x h_y Σ_jk v_jk e^{−iW·m_jk}
+    sinc²(W_x h_x/2) sinc²(W_y h_y/2)`` (the tent's transform is ``h sinc²(w h/2)``), so spectral
     evolution of a tabulated lobe introduces no further discretisation error.
     """
 
@@ -62,12 +71,12 @@ class Tabulated(AbstractSlopeDensity):
     def from_samples(cls, samples, *, extent: float, bins: int = 129, weights=None, center=None):
         """Histogram slope samples of shape (n, 2) onto a ``bins × bins`` grid of nodes.
 
-        Each sample is shared among the four surrounding nodes with bilinear weights (cloud
-        in cell, :class:`SlopeHistogram`), so the interpolant's integral equals the total
-        weight and its mean is exactly the sample mean for samples inside the grid.
+        The nodes span ``center + [−extent, extent]²``. Each sample is shared among the four
+        surrounding nodes with bilinear weights (cloud in cell, :class:`SlopeHistogram`), so the
+        tent sum of the node weights has exactly the total weight and the (weighted) mean of the
+        samples inside the grid; samples outside it are dropped. The result is that tent sum,
+        normalised (see :meth:`from_histogram`).
         """
-        from ._histogram import SlopeHistogram
-
         s = real_array(samples, "samples")
         if s.ndim != 2 or s.shape[1] != 2:
             raise InvalidInputError(f"samples must have shape (n, 2); got {s.shape}.")
@@ -79,7 +88,22 @@ class Tabulated(AbstractSlopeDensity):
             raise InvalidInputError(f"center must have shape (2,); got {c.shape}.")
         hist = SlopeHistogram(extent, bins)
         hist.add(s[:, 0] - c[0], s[:, 1] - c[1], w)
-        return hist.tabulated(center=center)
+        return cls.from_histogram(hist, center=center)
+
+    @classmethod
+    def from_histogram(cls, hist: SlopeHistogram, center=None) -> "Tabulated":
+        """A :class:`SlopeHistogram` as a normalised density: node values ``counts / (h² Σ counts)``.
+
+        The histogram's nodes, offset by ``center``, become the table's (``extent`` is the
+        histogram's). By cloud-in-cell deposition the tent sum of the counts has the total
+        weight and mean of the samples that fell inside the grid; normalising divides by the
+        former, so the density is the distribution of those samples (per unit slope area).
+        """
+        if not isinstance(hist, SlopeHistogram):
+            raise InvalidInputError(f"hist must be a brdfscale.stats.SlopeHistogram; got {type(hist).__name__}.")
+        if not np.any(hist.counts > 0):
+            raise InvalidInputError(f"no sample fell inside the grid of half-width {hist.extent}.")
+        return cls(hist.node_counts(), extent=hist.extent, center=center)
 
     @property
     def spacing(self) -> Float[Array, "2"]:
@@ -92,14 +116,16 @@ class Tabulated(AbstractSlopeDensity):
         return (jnp.linspace(-1.0, 1.0, nx) * self.extent[0], jnp.linspace(-1.0, 1.0, ny) * self.extent[1])
 
     def density(self, m):
+        # Bilinear interpolation on the table bordered by a ring of zero nodes, one spacing
+        # beyond [−extent, extent]: the tent sum, which is zero outside the bordered grid.
         d = centred(m, self.center)
-        ny, nx = self.values.shape
+        v = jnp.pad(self.values, 1)
+        ny, nx = v.shape
         h = self.spacing
-        g = (d + self.extent) / h
+        g = (d + self.extent + h) / h
         inside = jnp.all((g >= 0) & (g <= jnp.array([nx - 1, ny - 1])), axis=-1)
         i0 = jnp.clip(jnp.floor(g), 0, jnp.array([nx - 2, ny - 2])).astype(jnp.int32)
         f = g - i0
-        v = self.values
         ix, iy = i0[..., 0], i0[..., 1]
         fx, fy = f[..., 0], f[..., 1]
         val = (v[iy, ix] * (1 - fx) * (1 - fy) + v[iy, ix + 1] * fx * (1 - fy)
@@ -134,8 +160,10 @@ class Tabulated(AbstractSlopeDensity):
         return Tabulated(self.values, extent=self.extent, center=add_offset(self.center, offset))
 
     def support_radius(self, tol):
-        return jnp.linalg.norm(self.extent) + offset_norm(self.center)
+        # the outermost tents reach one spacing beyond the grid: s = 0 outside center + [−e − h, e + h]
+        return jnp.linalg.norm(self.extent + self.spacing) + offset_norm(self.center)
 
     def bandwidth(self, tol):
-        # The hat transform bounds |S| by sinc²(W_x h/2) sinc²(W_y h/2) ≤ 8/(|W| h)² (worst: the diagonal).
+        # With h_x h_y Σ v = 1 and |sinc x| ≤ min(1, 1/|x|): |S| ≤ min(1, 4/(W_x h_x)²) min(1, 4/(W_y h_y)²).
+        # Some |W_i| ≥ |W|/√2, so |S| ≤ 8/(|W| h_min)² < tol beyond 3/(h_min √tol).
         return jnp.max(3 / (self.spacing * math.sqrt(tol)))

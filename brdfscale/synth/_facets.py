@@ -230,7 +230,7 @@ def facet_statistics(field: HeightField, scales, *, bins: int = 129, extent: flo
         s_extent = extent if extent is not None else max(top, 1e-12) * (1 + 1e-9) + 1e-12
         s_hist = SlopeHistogram(s_extent, bins)
         s_hist.add(samples[:, 0], samples[:, 1])
-        slopes = s_hist.tabulated()
+        slopes = stats.Tabulated.from_histogram(s_hist)
         g_extent = extent if extent is not None else (steepest + top) * (1 + 1e-9) + 1e-12
         h = 2 * g_extent / (bins - 1)
         pad = kernel_padding(field.micro, 0.0, h, bins, f"the within-facet lobe grid at mu={mu}",
@@ -259,4 +259,4 @@ def global_slopes(field: HeightField, *, bins: int = 129, extent: float | None =
         extent = real(extent, "extent", minimum=0, strict=True)
     if extent is None:
         extent = steepest_slope(field) * (1 + 1e-9) + 1e-12
-    return offset_histogram(field, None, SlopeHistogram(extent, bins)).tabulated()
+    return stats.Tabulated.from_histogram(offset_histogram(field, None, SlopeHistogram(extent, bins)))

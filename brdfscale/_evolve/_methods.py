@@ -1,0 +1,238 @@
+"""The evolution operator's paths as objects (the pattern of lineax's ``AutoLinearSolver``).
+
+A *method* says how :func:`brdfscale.evolve` inverts the evolved transform
+``G_to = G_from S_from / S_to`` (seed Eq. 4.4):
+
+* :class:`ClosedForm` — Gaussian/δ/mixture algebra: exact, nothing to discretise;
+* :class:`Radial` — radially symmetric inputs: ``g(r) = (2π)⁻¹ ∫_0^K G(k) J₀(kr) k dk`` by an
+  n-node Gauss–Legendre rule on [0, K], evaluated at the queries or on a verified table of
+  radii read off by cubic interpolation;
+* :class:`Grid` — general inputs: ``G`` on an N × N real-FFT frequency grid over the slope
+  half-width a, inverted at the queries (direct sums) or onto a finer slope grid (zero-padded
+  inverse FFT) read off by bicubic interpolation;
+* :class:`Auto` — the first of these that applies (:meth:`Auto.select_method`).
+
+A method whose discretisation is not given is *unresolved*. :func:`brdfscale.select` resolves
+one from concrete parameter values (nodes, cut-off, grid side and extent, interpolation
+tables — each verified against the tolerance it reports); :func:`brdfscale.evolve` calls it
+itself when the values are concrete. Under ``jax.jit``/``grad``/``vmap`` the values are traced
+and unknown, so an unresolved spectral method is refused (:class:`UnresolvedMethodError`)
+instead of falling back to a default size: resolve outside the transformation and pass the
+resolved object in. A method with an explicit ``nodes`` (radial) or ``size`` (grid) but no
+cut-off or extent is resolved at run time from the traced values themselves (the cut-off by
+the spectral probe, the extent from the support radius): sizes are static, values are not.
+"""
+
+import equinox as eqx
+import numpy as np
+from jaxtyping import Array, Float
+
+from .._blocks import DEFAULT_BUDGET
+from .._errors import InvalidInputError
+
+
+class AbstractMethod(eqx.Module):
+    """How :func:`brdfscale.evolve` evaluates the evolved lobe (module docstring)."""
+
+    @property
+    def path(self) -> str:
+        return type(self).__name__.lower().replace("closedform", "closed_form")
+
+    @property
+    def resolved(self) -> bool:
+        """Whether every discretisation choice is fixed (no value-dependent choice left)."""
+        return True
+
+    def explain(self) -> str:
+        return self.path
+
+
+class ClosedForm(AbstractMethod):
+    """Gaussian/δ/mixture algebra (exact); :class:`brdfscale.MethodNotApplicableError` where the
+    families have no closed form."""
+
+    def explain(self) -> str:
+        return "closed form (Gaussian/δ/mixture algebra): exact"
+
+
+class RadialTable(eqx.Module):
+    """The radial path's table: the lobe at radii ``r_j = c sinh((j − 3) h)`` (three mirror
+    nodes below r = 0, where g is even, and five beyond the last radius served), as
+    ``kernel[:, j] = J₀(k_i r_j)`` on the method's Gauss–Legendre frequencies ``k_i``, read
+    off by ``points``-point Lagrange interpolation in ``t = asinh(r/c)``. Uniform in r near 0
+    (spacing ``c h``), geometric beyond ``c``: heavy tails need few radii."""
+
+    kernel: Float[Array, "nodes radii"]
+    scale: float = eqx.field(static=True)  # c
+    step: float = eqx.field(static=True)  # h
+    radius: float = eqx.field(static=True)  # the last radius covered; beyond it the lobe is < tol/2 of its peak
+    error: float = eqx.field(static=True)  # verified interpolation error, relative to the peak
+    points: int = eqx.field(static=True, default=8)
+
+    @property
+    def count(self) -> int:
+        return self.kernel.shape[1]
+
+
+class Radial(AbstractMethod):
+    """The radial (Hankel) path: ``g(r) = (2π)⁻¹ ∫_0^K G(k) J₀(kr) k dk``.
+
+    Args:
+        nodes: Gauss–Legendre nodes on [0, K]; ``None`` for :func:`brdfscale.select` to choose.
+        cutoff: the frequency cut-off K; ``None``: chosen at run time from the transform's
+            probe (truncation below ``tol/2`` of the peak; traced values allowed).
+        table: a verified table of radii (built by :func:`brdfscale.select`); ``None``:
+            evaluate at the queries themselves.
+        tol: the error, relative to the lobe's peak, the discretisation honours (set by
+            :func:`brdfscale.select`).
+        budget: bytes of temporaries an evaluation may hold at once (default 256 MiB): queries
+            are evaluated in blocks that fit it, so any number of offsets can be asked for.
+    """
+
+    nodes: int | None = eqx.field(static=True, default=None)
+    cutoff: float | None = eqx.field(static=True, default=None)
+    table: RadialTable | None = None
+    tol: float | None = eqx.field(static=True, default=None)
+    budget: int = eqx.field(static=True, default=DEFAULT_BUDGET)
+    sign_check: bool = eqx.field(static=True, default=True)
+    """Whether evaluations refuse values below −tol of the peak (off where a caller's explicit
+    nodes are too few for tol: their ringing is no evidence about existence)."""
+
+    def __check_init__(self):
+        _check_budget(self.budget)
+        if self.nodes is not None and (isinstance(self.nodes, bool) or int(self.nodes) != self.nodes or self.nodes < 8):
+            raise InvalidInputError(f"Radial(nodes=...) must be an integer ≥ 8; got {self.nodes!r}.")
+        if self.cutoff is not None and not (np.isfinite(self.cutoff) and self.cutoff > 0):
+            raise InvalidInputError(f"Radial(cutoff=...) must be a positive frequency; got {self.cutoff!r}.")
+
+    @property
+    def resolved(self) -> bool:
+        return self.nodes is not None
+
+    def explain(self) -> str:
+        if self.nodes is None:
+            return "radial (Hankel) path, not yet resolved"
+        cut = "K from the run-time probe" if self.cutoff is None else f"K = {self.cutoff:.4g}"
+        if self.table is None:
+            layout = "evaluated at the query radii"
+        else:
+            t = self.table
+            layout = (f"table of {t.count} radii to r = {t.radius:.3g} (uniform in asinh(r/{t.scale:.3g}), {t.points}-point Lagrange; "
+                      f"verified error {t.error:.2g} of the peak), direct at the queries when they are few")
+        tol = "" if self.tol is None else f"; honours tol = {self.tol:.3g} of the peak"
+        return f"radial (Hankel) path: {self.nodes} Gauss–Legendre nodes, {cut}; {layout}{tol}"
+
+
+class Grid(AbstractMethod):
+    """The 2D-FFT grid path: ``G`` on a ``size × size`` real-FFT frequency grid for the slope
+    half-width ``extent``.
+
+    Args:
+        size: grid side (even); ``None`` for :func:`brdfscale.select` to choose.
+        extent: slope half-width a of the grid; ``None``: the radius beyond which the lobe stays
+            below ``tol/2`` of its peak (computed from the values, traced ones included).
+            Offsets outside ``[−a, a)²`` evaluate to 0 (within tol when a is that radius;
+            never a periodic image).
+        oversample: the factor p of the zero-padded inverse FFT onto a slope grid of spacing
+            ``h/p`` that bicubic interpolation reads (set by :func:`brdfscale.select` after
+            verifying it); ``None``: evaluate at the queries by direct sums.
+        tol: the error the discretisation honours (set by :func:`brdfscale.select`; may be
+            looser than asked when the size cap forbids the target, see ``evolve``).
+        budget: bytes of temporaries an evaluation may hold at once (default 256 MiB).
+    """
+
+    size: int | None = eqx.field(static=True, default=None)
+    extent: float | None = eqx.field(static=True, default=None)
+    oversample: int | None = eqx.field(static=True, default=None)
+    tol: float | None = eqx.field(static=True, default=None)
+    error: float | None = eqx.field(static=True, default=None)  # verified interpolation error
+    budget: int = eqx.field(static=True, default=DEFAULT_BUDGET)
+    sign_check: bool = eqx.field(static=True, default=True)
+    """Whether evaluations refuse values below −tol of the peak (off where a caller's explicit
+    size or extent is too small for tol: its ringing and aliasing are no evidence about existence)."""
+
+    def __check_init__(self):
+        _check_budget(self.budget)
+        if self.size is not None and (isinstance(self.size, bool) or int(self.size) != self.size or self.size < 8):
+            raise InvalidInputError(f"Grid(size=...) must be an integer ≥ 8; got {self.size!r}.")
+        if self.extent is not None and not (np.isfinite(self.extent) and self.extent > 0):
+            raise InvalidInputError(f"Grid(extent=...) must be a positive slope half-width; got {self.extent!r}.")
+        if self.oversample is not None and (int(self.oversample) != self.oversample or self.oversample < 1):
+            raise InvalidInputError(f"Grid(oversample=...) must be an integer ≥ 1; got {self.oversample!r}.")
+
+    @property
+    def resolved(self) -> bool:
+        return self.size is not None
+
+    def explain(self) -> str:
+        if self.size is None:
+            return "grid (2D FFT) path, not yet resolved"
+        a = "a from the support radius at run time" if self.extent is None else f"half-width a = {self.extent:.4g}"
+        if self.oversample is None:
+            layout = "inverse DFT summed at the queries"
+        else:
+            layout = (f"zero-padded inverse FFT onto {self.size * self.oversample}² slope nodes, 6×6-point Lagrange "
+                      f"(verified error {self.error:.2g} of the peak), direct at the queries when they are few")
+        tol = "" if self.tol is None else f"; honours tol = {self.tol:.3g} of the peak"
+        return f"grid (2D FFT) path: {self.size}×{self.size} frequencies, {a}; {layout}{tol}"
+
+
+def _check_budget(budget):
+    if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 2**20:
+        raise InvalidInputError(f"budget must be a number of bytes ≥ 2**20 (1 MiB); got {budget!r}.")
+
+
+class Auto(AbstractMethod):
+    """The first path that applies: closed form, else radial (everything radially symmetric),
+    else grid (:meth:`select_method`)."""
+
+    def select_method(self, lobe, s_from, s_to) -> AbstractMethod:
+        """The path for these inputs, unresolved (structure only: the families and their
+        isotropy, never parameter values, so it is the same under ``jax.jit``)."""
+        from ._algebra import convolve, has_closed_form
+
+        if has_closed_form(lobe.shape, s_from, s_to):
+            return ClosedForm()
+        if lobe.shape.isotropic and s_from.isotropic and s_to.isotropic:
+            return Radial()
+        return Grid()
+
+    def explain(self) -> str:
+        return "auto: closed form, else radial, else grid"
+
+
+_NAMES = {"auto": Auto, "closed_form": ClosedForm, "radial": Radial, "grid": Grid}
+
+
+def as_method(method, size=None, extent=None) -> AbstractMethod:
+    """A method object from a method or its name (``size``/``extent``: the string API's
+    explicit discretisation, applied to whichever spectral path is taken)."""
+    if isinstance(method, AbstractMethod):
+        if size is not None or extent is not None:
+            raise InvalidInputError("size= and extent= go with a method name; with a method object put them in it: "
+                                    "Radial(nodes=...) or Grid(size=..., extent=...).")
+        return method
+    if not isinstance(method, str) or method not in _NAMES:
+        raise InvalidInputError(
+            f"method must be 'auto', 'closed_form', 'radial' or 'grid', or a method object (brdfscale.Auto(), "
+            f"ClosedForm(), Radial(...), Grid(...)); got {method!r}.")
+    return _NAMES[method]()
+
+
+def with_sizes(method: AbstractMethod, size, extent) -> AbstractMethod:
+    """The string API's ``size=``/``extent=`` put into the path taken."""
+    if size is not None and (isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 8):
+        raise InvalidInputError(f"size must be an integer ≥ 8; got {size!r}.")
+    if isinstance(method, Radial) and size is not None:
+        return Radial(nodes=int(size))
+    if isinstance(method, Grid):
+        if extent is not None:
+            try:
+                extent = float(extent)
+            except TypeError:
+                raise InvalidInputError("extent must be a concrete positive number (a discretisation choice), "
+                                        f"not a traced value; got {type(extent).__name__}.") from None
+            if not (np.isfinite(extent) and extent > 0):
+                raise InvalidInputError(f"extent must be a positive slope half-width; got {extent}.")
+        return Grid(size=None if size is None else int(size), extent=extent)
+    return method
