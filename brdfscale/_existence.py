@@ -16,9 +16,10 @@ Where the values are concrete the check raises :class:`brdfscale.NoBRDFAtScaleEr
 to the result with ``equinox.error_if`` (:func:`attach`) and fires when the program runs: inside
 the library's own compiled evaluations :func:`translated` turns it back into
 ``NoBRDFAtScaleError``; inside a *user's* ``jax.jit`` JAX offers no way to raise a chosen
-exception type from a running program, so it reaches the user as equinox's runtime error
-(``equinox.EquinoxRuntimeError``, or ``jax.errors.JaxRuntimeError`` on some JAX versions) whose
-text starts with :data:`NO_BRDF` — the library's message.
+exception type from a running program, so it reaches the user as the exception JAX raises for a failed run-time check
+(``equinox.EquinoxRuntimeError``, ``jax.errors.JaxRuntimeError``, or — JAX 0.10 on the CPU, at
+``block_until_ready`` — a ``ValueError`` from its callback) whose text holds the library's
+message, starting with :data:`NO_BRDF`.
 """
 
 import functools
@@ -90,7 +91,7 @@ def require(value, failed, message: str):
     return eqx.error_if(value, failed, message)
 
 
-_RUNTIME_ERRORS = (eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError)
+_RUNTIME_ERRORS = (eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError, ValueError)  # ValueError: JAX's CPU callback
 
 
 def message_of(err: BaseException) -> str | None:

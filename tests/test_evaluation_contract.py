@@ -2,7 +2,7 @@
 honoured under jit, grad and vmap, at any number of offsets in bounded memory, and either
 within the tolerance it reports or refused (issue "One evaluation contract").
 
-References are independent of the library: mpmath quadrature of the radial inverse transform
+References are independent of the library: SciPy quadrature of the radial inverse transform
 of closed-form transforms, closed forms, SciPy's Bessel functions.
 """
 
@@ -11,7 +11,6 @@ import math
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import mpmath
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
@@ -93,7 +92,7 @@ def test_jit_with_the_selected_method_equals_the_eager_result_of_the_issues_case
     np.testing.assert_allclose(np.asarray(eager), [4.284, 0.914], atol=1e-3)
 
 
-@settings(max_examples=8, deadline=None)
+@settings(max_examples=4, deadline=None)
 @given(a=st.floats(0.03, 0.2), f=st.floats(0.03, 0.2), frac=st.floats(0.2, 0.9),
        path=st.sampled_from(["radial", "grid"]))
 def test_jit_grad_vmap_equal_eager_on_the_spectral_paths(a, f, frac, path):
@@ -141,29 +140,35 @@ def test_no_brdf_under_jit_reaches_the_user_with_the_librarys_message():
     m = bs.select(lobe, s0, stats.GGX(0.01), method="grid", tol=1e-6)
     f = jax.jit(lambda t: bs.evolve(lobe, s0, stats.GGX(t), method=m).density(jnp.zeros((1, 2))))
     assert np.isfinite(float(f(0.01)[0]))
-    with pytest.raises((eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError), match="no BRDF exists at the requested"):
+    # the type is JAX's (equinox's runtime error, JaxRuntimeError, or a ValueError from the CPU
+    # callback when the error surfaces at block_until_ready on this JAX); the message is the library's
+    with pytest.raises((eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError, ValueError),
+                       match="no BRDF exists at the requested scale: the evolved lobe's transform exceeds 1"):
         f(0.2).block_until_ready()
     with pytest.raises(bs.NoBRDFAtScaleError, match="^no BRDF exists at the requested scale: the evolved lobe"):
         bs.evolve(lobe, s0, stats.GGX(0.2), method=m).density(jnp.zeros((1, 2)))
 
 
 # -- silently wrong no more -------------------------------------------------------------------
-def _radial_reference(G, r):
-    """g(r) = (2π)⁻¹ ∫_0^∞ G(k) J₀(kr) k dk by mpmath quadrature (50 digits)."""
-    with mpmath.workdps(30):
-        f = lambda k: G(k) * mpmath.besselj(0, k * r) * k
-        return float(mpmath.quad(f, mpmath.linspace(0, 4000, 81)) / (2 * mpmath.pi))
-
-
-def test_narrow_lobe_between_close_scales_against_mpmath():
+def test_narrow_lobe_between_close_scales_against_quadrature():
     """The issue's case: GGX(9.67e-4) lobe, Beckmann 0.0982 → 0.0978 statistics returned
     [3860.55, 0.4999] claiming tol 1e-10; the exact values are [3870.73, 0.05457]. The two
-    Gaussian transforms underflowed separately long before their quotient was negligible."""
+    Gaussian transforms underflowed separately long before their quotient was negligible.
+    Reference: g(r) = (2π)⁻¹ ∫ G(k) J₀(kr) k dk, G = αk K₁(αk) e^{−k²(α_f² − α_t²)/4}, by SciPy's
+    adaptive quadrature (K₁ exponentially scaled), written out independently of the library."""
+    import scipy.integrate as si
+    import scipy.special as sp
+
     alpha, af, at = 0.000967, 0.0982, 0.0978
     out = bs.evolve(lobes.GGX(alpha), stats.Beckmann(af), stats.Beckmann(at))
     values = np.asarray(out.density(jnp.array([[0.0, 0.0], [0.05, 0.0]])))
-    G = lambda k: alpha * k * mpmath.besselk(1, alpha * k) * mpmath.exp(-k**2 * (af**2 - at**2) / 4) if k else 1
-    exact = np.array([_radial_reference(G, 0.0), _radial_reference(G, 0.05)])
+
+    def G(k):
+        x = alpha * k
+        return (x * sp.k1e(x) * np.exp(-x) if x > 0 else 1.0) * np.exp(-k**2 * (af**2 - at**2) / 4)
+
+    exact = np.array([si.quad(lambda k: G(k) * sp.j0(k * r) * k, 0, 3000, limit=2000, epsabs=1e-9, epsrel=1e-13)[0]
+                      / (2 * np.pi) for r in (0.0, 0.05)])
     assert np.max(np.abs(values - exact)) <= out.shape.tol * exact[0], (values, exact)
     np.testing.assert_allclose(exact, [3870.73, 0.05457], rtol=1e-4)
 
@@ -246,6 +251,14 @@ def test_compiled_temporaries_at_a_million_offsets_stay_within_the_budget(case):
     q = 10**6
     temporaries = _temporaries(lambda u: lobe.density(u), q)
     assert temporaries <= DEFAULT_BUDGET + 64 * q, temporaries
+
+
+@pytest.mark.parametrize("lobe", [lobes.Beckmann(0.1), lobes.GGX(alpha_x=0.1, alpha_y=0.2), lobes.Lobe(stats.Disk(0.1)),
+                                  lobes.Tabulated(np.ones((9, 7)), extent=(0.2, 0.3))], ids=["beckmann", "ggx", "disk", "table"])
+def test_closed_forms_and_tables_hold_no_temporaries_per_offset(lobe):
+    """Densities of the families (and closed-form evolutions) are elementwise: XLA fuses them
+    into the output, whatever the number of offsets."""
+    assert _temporaries(lambda u: lobe.density(u), 10**6) <= 64 * 2**10
 
 
 def test_temporaries_do_not_grow_with_the_number_of_offsets_beyond_the_output():

@@ -24,11 +24,27 @@ the spectral probe, the extent from the support radius): sizes are static, value
 """
 
 import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
 from .._blocks import DEFAULT_BUDGET
 from .._errors import InvalidInputError
+from .._validation import is_concrete
+
+
+def _optional_array(x):
+    """Floats of a method as array leaves (a changed value recompiles nothing)."""
+    if x is None:
+        return None
+    try:
+        return jnp.asarray(x, dtype=jnp.result_type(float))
+    except TypeError:
+        raise InvalidInputError(f"expected a real number; got {type(x).__name__}.") from None
+
+
+def _number(x) -> float | None:
+    return None if x is None or not is_concrete(x) else float(x)
 
 
 class AbstractMethod(eqx.Module):
@@ -62,11 +78,12 @@ class RadialTable(eqx.Module):
     off by ``points``-point Lagrange interpolation in ``t = asinh(r/c)``. Uniform in r near 0
     (spacing ``c h``), geometric beyond ``c``: heavy tails need few radii."""
 
+    # the floats are array leaves, not static fields: a new value must not recompile the evaluation
     kernel: Float[Array, "nodes radii"]
-    scale: float = eqx.field(static=True)  # c
-    step: float = eqx.field(static=True)  # h
-    radius: float = eqx.field(static=True)  # the last radius covered; beyond it the lobe is < tol/2 of its peak
-    error: float = eqx.field(static=True)  # verified interpolation error, relative to the peak
+    scale: Float[Array, ""] = eqx.field(converter=jnp.asarray)  # c
+    step: Float[Array, ""] = eqx.field(converter=jnp.asarray)  # h
+    radius: Float[Array, ""] = eqx.field(converter=jnp.asarray)  # the last radius served; beyond it g < tol/2 of its peak
+    error: Float[Array, ""] = eqx.field(converter=jnp.asarray)  # verified interpolation error, relative to the peak
     points: int = eqx.field(static=True, default=8)
 
     @property
@@ -90,7 +107,7 @@ class Radial(AbstractMethod):
     """
 
     nodes: int | None = eqx.field(static=True, default=None)
-    cutoff: float | None = eqx.field(static=True, default=None)
+    cutoff: Float[Array, ""] | None = eqx.field(default=None, converter=_optional_array)
     table: RadialTable | None = None
     tol: float | None = eqx.field(static=True, default=None)
     budget: int = eqx.field(static=True, default=DEFAULT_BUDGET)
@@ -100,10 +117,8 @@ class Radial(AbstractMethod):
 
     def __check_init__(self):
         _check_budget(self.budget)
-        if self.nodes is not None and (isinstance(self.nodes, bool) or int(self.nodes) != self.nodes or self.nodes < 8):
-            raise InvalidInputError(f"Radial(nodes=...) must be an integer ≥ 8; got {self.nodes!r}.")
-        if self.cutoff is not None and not (np.isfinite(self.cutoff) and self.cutoff > 0):
-            raise InvalidInputError(f"Radial(cutoff=...) must be a positive frequency; got {self.cutoff!r}.")
+        _check_count("Radial(nodes=...)", self.nodes, 8)
+        _check_positive("Radial(cutoff=...)", self.cutoff, "a positive frequency")
 
     @property
     def resolved(self) -> bool:
@@ -112,13 +127,14 @@ class Radial(AbstractMethod):
     def explain(self) -> str:
         if self.nodes is None:
             return "radial (Hankel) path, not yet resolved"
-        cut = "K from the run-time probe" if self.cutoff is None else f"K = {self.cutoff:.4g}"
+        cut = "K from the run-time probe" if self.cutoff is None else f"K = {_number(self.cutoff):.4g}"
         if self.table is None:
             layout = "evaluated at the query radii"
         else:
             t = self.table
-            layout = (f"table of {t.count} radii to r = {t.radius:.3g} (uniform in asinh(r/{t.scale:.3g}), {t.points}-point Lagrange; "
-                      f"verified error {t.error:.2g} of the peak), direct at the queries when they are few")
+            layout = (f"table of {t.count} radii to r = {_number(t.radius):.3g} (uniform in asinh(r/{_number(t.scale):.3g}), "
+                      f"{t.points}-point Lagrange; verified error {_number(t.error):.2g} of the peak), direct at the queries "
+                      "when they are few")
         tol = "" if self.tol is None else f"; honours tol = {self.tol:.3g} of the peak"
         return f"radial (Hankel) path: {self.nodes} Gauss–Legendre nodes, {cut}; {layout}{tol}"
 
@@ -134,18 +150,19 @@ class Grid(AbstractMethod):
             Offsets outside ``[−a, a)²`` evaluate to 0 (within tol when a is that radius;
             never a periodic image).
         oversample: the factor p of the zero-padded inverse FFT onto a slope grid of spacing
-            ``h/p`` that bicubic interpolation reads (set by :func:`brdfscale.select` after
-            verifying it); ``None``: evaluate at the queries by direct sums.
+            ``h/p`` that 6 × 6-point Lagrange interpolation reads (set by
+            :func:`brdfscale.select` after verifying it); ``None``: evaluate at the queries by
+            direct sums.
         tol: the error the discretisation honours (set by :func:`brdfscale.select`; may be
             looser than asked when the size cap forbids the target, see ``evolve``).
         budget: bytes of temporaries an evaluation may hold at once (default 256 MiB).
     """
 
     size: int | None = eqx.field(static=True, default=None)
-    extent: float | None = eqx.field(static=True, default=None)
+    extent: Float[Array, ""] | None = eqx.field(default=None, converter=_optional_array)
     oversample: int | None = eqx.field(static=True, default=None)
     tol: float | None = eqx.field(static=True, default=None)
-    error: float | None = eqx.field(static=True, default=None)  # verified interpolation error
+    error: Float[Array, ""] | None = eqx.field(default=None, converter=_optional_array)  # verified interpolation error
     budget: int = eqx.field(static=True, default=DEFAULT_BUDGET)
     sign_check: bool = eqx.field(static=True, default=True)
     """Whether evaluations refuse values below −tol of the peak (off where a caller's explicit
@@ -153,12 +170,9 @@ class Grid(AbstractMethod):
 
     def __check_init__(self):
         _check_budget(self.budget)
-        if self.size is not None and (isinstance(self.size, bool) or int(self.size) != self.size or self.size < 8):
-            raise InvalidInputError(f"Grid(size=...) must be an integer ≥ 8; got {self.size!r}.")
-        if self.extent is not None and not (np.isfinite(self.extent) and self.extent > 0):
-            raise InvalidInputError(f"Grid(extent=...) must be a positive slope half-width; got {self.extent!r}.")
-        if self.oversample is not None and (int(self.oversample) != self.oversample or self.oversample < 1):
-            raise InvalidInputError(f"Grid(oversample=...) must be an integer ≥ 1; got {self.oversample!r}.")
+        _check_count("Grid(size=...)", self.size, 8)
+        _check_positive("Grid(extent=...)", self.extent, "a positive slope half-width")
+        _check_count("Grid(oversample=...)", self.oversample, 1)
 
     @property
     def resolved(self) -> bool:
@@ -167,14 +181,28 @@ class Grid(AbstractMethod):
     def explain(self) -> str:
         if self.size is None:
             return "grid (2D FFT) path, not yet resolved"
-        a = "a from the support radius at run time" if self.extent is None else f"half-width a = {self.extent:.4g}"
+        a = "a from the support radius at run time" if self.extent is None else f"half-width a = {_number(self.extent):.4g}"
         if self.oversample is None:
             layout = "inverse DFT summed at the queries"
         else:
+            verified = "not verified" if self.error is None else f"verified error {_number(self.error):.2g} of the peak"
             layout = (f"zero-padded inverse FFT onto {self.size * self.oversample}² slope nodes, 6×6-point Lagrange "
-                      f"(verified error {self.error:.2g} of the peak), direct at the queries when they are few")
+                      f"({verified}), direct at the queries when they are few")
         tol = "" if self.tol is None else f"; honours tol = {self.tol:.3g} of the peak"
         return f"grid (2D FFT) path: {self.size}×{self.size} frequencies, {a}; {layout}{tol}"
+
+
+def _check_count(name, value, least):
+    if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least):
+        raise InvalidInputError(f"{name} must be an integer ≥ {least}; got {value!r}.")
+
+
+def _check_positive(name, value, what):
+    if value is None or not is_concrete(value):
+        return
+    v = np.asarray(value)
+    if v.shape != () or not (np.isfinite(v) and v > 0):
+        raise InvalidInputError(f"{name} must be {what}; got {v!r}.")
 
 
 def _check_budget(budget):

@@ -160,7 +160,7 @@ def _resolve_radial(density: EvolvedDensity, method: Radial) -> Radial:
     k, mag = density._probe()
     probe_checks(density, k, mag)
     half = density.tol / 2
-    K = method.cutoff if method.cutoff is not None else float(concrete_cutoff(k, mag, half))
+    K = float(method.cutoff) if method.cutoff is not None else float(concrete_cutoff(k, mag, half))
     R = float(concrete_support(density, half))
     needed = radial_nodes(K, 2 * R, half)
     nodes = method.nodes if method.nodes is not None else min(MAX_RADIAL_NODES, needed)
@@ -258,7 +258,7 @@ def _resolve_grid(density: EvolvedDensity, method: Grid) -> Grid:
     if method.extent is None:
         extent = support
     else:
-        extent = method.extent
+        extent = float(method.extent)
         if extent < support:
             warnings.warn(
                 f"extent={extent:g} is inside the radius {support:.3g} beyond which the lobe is below tol/2 of its "

@@ -172,7 +172,8 @@ class EvolvedDensity(AbstractSlopeDensity):
 
         Only used for discretisation choices and the existence check, so no gradient flows
         through it (|G| is not differentiable where G = 0)."""
-        return _probe(jax.lax.stop_gradient(self), k_lo)
+        canonical = self.with_discretisation(_PROBE_METHOD)  # sizes and cut-offs do not recompile the probe
+        return _probe(jax.lax.stop_gradient(canonical), k_lo)
 
     def _probe_values(self, k_lo):
         dtype = jnp.result_type(*jax.tree_util.tree_leaves(self))
@@ -204,7 +205,7 @@ class EvolvedDensity(AbstractSlopeDensity):
             r_max = float(np.max(np.linalg.norm(np.asarray(m), axis=-1)))
             R = float(concrete_support(self, self.tol / 2))
             reach = min(r_max, R) + R
-            n = radial_nodes(d.cutoff, reach, self.tol / 2)
+            n = radial_nodes(float(d.cutoff), reach, self.tol / 2)
             if n > d.nodes:
                 warnings.warn(
                     f"queries at offsets up to {r_max:.3g} need {n} Gauss–Legendre nodes for tol={self.tol:g}; "
@@ -236,9 +237,9 @@ class EvolvedDensity(AbstractSlopeDensity):
         need_probe = d.cutoff is None or (self.check and not isinstance(self.s_to, Delta))
         if need_probe:
             k_probe, mag = self._probe()
-        K = cutoff(k_probe, mag, self.tol / 2) if d.cutoff is None else d.cutoff
-        x, w = gauss_legendre(d.nodes)
         dtype = jnp.result_type(*jax.tree_util.tree_leaves(self.base), float)
+        K = cutoff(k_probe, mag, self.tol / 2) if d.cutoff is None else jnp.asarray(d.cutoff, dtype)
+        x, w = gauss_legendre(d.nodes)
         k = (0.5 * (jnp.asarray(x, dtype) + 1)) * K
         c = 0.5 * K * jnp.asarray(w, dtype) * k * self.cf_radial(k) / (2 * jnp.pi)
         failed = None
@@ -263,9 +264,11 @@ class EvolvedDensity(AbstractSlopeDensity):
             t = d.table
             negative = negative_beyond(values, jnp.max(values), self.tol) if self._sign_check else None
 
+            scale, step, radius = (jnp.asarray(x, r.dtype) for x in (t.scale, t.step, t.radius))
+
             def read(rows):
-                pos = jnp.arcsinh(rows / t.scale) / t.step + 3
-                return jnp.where(rows <= t.radius, interpolate(values, pos[:, None], points=t.points), 0.0)
+                pos = jnp.arcsinh(rows / scale) / step + 3
+                return jnp.where(rows <= radius, interpolate(values, pos[:, None], points=t.points), 0.0)
 
             out = in_blocks(read, r, (4 + 3 * t.points) * size, d.budget)
         else:
@@ -287,7 +290,7 @@ class EvolvedDensity(AbstractSlopeDensity):
         if d.extent is None:
             a = jax.lax.stop_gradient(self.support_radius(self.tol / 2))  # a discretisation choice
         else:
-            a = jnp.asarray(d.extent, dtype)
+            a = jax.lax.stop_gradient(jnp.asarray(d.extent, dtype))
         return 2 * a / d.size, a
 
     def frequency_grid(self, h) -> FrequencyGrid:
@@ -316,16 +319,21 @@ class EvolvedDensity(AbstractSlopeDensity):
         N-grid sampled p times as densely)."""
         return _on_grid(self, oversample)
 
-    def _on_grid(self, p: int):
-        h, a = self.grid_spacing()
-        n = self.size
+    def _grid_table(self, h, p: int):
+        """``g`` on the (pN)² slope grid and its existence predicates (|G| ≤ 1; no value
+        below −tol of the grid's maximum)."""
         G, failed = self._grid_transform(self.frequency_grid(h))
-        values = _inverse_fft(G, h, n, p)
+        values = _inverse_fft(G, h, self.size, p)
         negative = None
         if self._sign_check:
             fixed = jax.lax.stop_gradient(values)
             negative = negative_beyond(fixed, jnp.max(fixed), self.tol)
-        u = -a + (h / p) * jnp.arange(n * p, dtype=h.dtype)
+        return values, failed, negative
+
+    def _on_grid(self, p: int):
+        h, a = self.grid_spacing()
+        values, failed, negative = self._grid_table(h, p)
+        u = -a + (h / p) * jnp.arange(self.size * p, dtype=h.dtype)
         return u, _checked(values, failed, negative)
 
     def _grid_at(self, m):
@@ -338,14 +346,10 @@ class EvolvedDensity(AbstractSlopeDensity):
         size = jnp.dtype(m.dtype).itemsize
         inside = jnp.all(jnp.abs(m) <= a, axis=-1)
         q = m.shape[0]
-        if d.oversample is not None and q * n > 4 * (n * d.oversample) ** 2:
+        # direct sums cost ~4 N² per offset, the table ~5 (pN)² log₂(pN) once plus 36 reads per offset
+        if d.oversample is not None and q > 16 * d.oversample**2 + 64:
             p = d.oversample
-            G, failed = self._grid_transform(self.frequency_grid(h))
-            table = _inverse_fft(G, h, n, p)
-            negative = None
-            if self._sign_check:
-                fixed = jax.lax.stop_gradient(table)
-                negative = negative_beyond(fixed, jnp.max(fixed), self.tol)
+            table, failed, negative = self._grid_table(h, p)
             hp = h / p
             # the table's period is 2a: append its first row and column (the images of −a) so
             # that offsets up to +a interpolate without wrapping
@@ -420,11 +424,20 @@ def _checked(value, failed, negative):
     return attach(value, negative, NEGATIVE_LOBE)
 
 
+_PROBE_METHOD = Radial(nodes=64)
 _density = translated(eqx.filter_jit(lambda shape, m: shape._density(m)))
 # compiled once each for the host-side choices (eager dispatch would compile every operation)
 concrete_cutoff = eqx.filter_jit(lambda k, mag, tol: cutoff(k, mag, tol))
-concrete_support = eqx.filter_jit(lambda shape, tol: shape.support_radius(tol))
-concrete_cf_radial = eqx.filter_jit(lambda shape, k: shape.cf_radial(k))
+_concrete_support = eqx.filter_jit(lambda shape, tol: shape.support_radius(tol))
+_concrete_cf_radial = eqx.filter_jit(lambda shape, k: shape.cf_radial(k))
+
+
+def concrete_support(shape, tol):
+    return _concrete_support(shape.with_discretisation(_PROBE_METHOD), tol)
+
+
+def concrete_cf_radial(shape, k):
+    return _concrete_cf_radial(shape.with_discretisation(_PROBE_METHOD), k)
 _probe = eqx.filter_jit(lambda shape, k_lo: shape._probe_values(k_lo))
 _on_grid = translated(eqx.filter_jit(lambda shape, p: shape._on_grid(p)))
 
