@@ -281,3 +281,14 @@ def test_readme_snippet_runs_as_written():
     x = jnp.linspace(-0.4, 0.4, 512)
     image = np.asarray(lobe.density(jnp.stack(jnp.meshgrid(x, x), -1)))
     assert image.shape == (512, 512) and np.all(np.isfinite(image)) and image.max() > 0
+
+
+def test_the_explanation_quoted_in_the_docs_is_what_select_says():
+    """docs/evaluation.md quotes ``select(...).explain()`` for README's lobe: recomputed here."""
+    import re
+    from pathlib import Path
+
+    page = (Path(__file__).resolve().parents[1] / "docs" / "evaluation.md").read_text()
+    quoted = page.split(">>> print(m.explain())\n", 1)[1].split("```", 1)[0]
+    said = bs.select(lobes.Beckmann(0.08), LAW.at(1.0), LAW.at(10.0)).explain()
+    assert re.sub(r"\s+", " ", quoted).strip() == said

@@ -10,7 +10,8 @@ Per material, on the distinct (offset u = m_s − m∞, scale μ) pairs its quer
    into three quarters: spectral truncation (the frequency cut-off K or the grid's extent),
    interpolation in u (or r), interpolation in log μ. The last quarter is margin.
 3. **Sizes from a-priori bounds** — radial: K from the truncation bound
-   ``(2π)⁻¹ ∫_K^∞ |G| k dk ≤ (tol/4) g(0)``, Gauss–Legendre nodes from K and the largest queried radius,
+   ``(2π)⁻¹ ∫_K^∞ |G| k dk ≤ (tol/4) g(0)`` (the library's ``cutoff``, the one
+   :func:`brdfscale.select` uses, at each probed scale), Gauss–Legendre nodes from K and the largest queried radius,
    and the radius spacing from the cubic-interpolation bound
    ``|error| ≤ (9/16)/4! · h⁴ max|g⁗|`` with ``max|g⁗| ≤ (2π)⁻¹ ∫|G| k⁵ dk``; grid: the side
    from the bandwidth and support radius (``grid_size`` of :mod:`brdfscale._evolve`, as
@@ -38,7 +39,7 @@ import numpy as np
 import scipy.special
 
 from .._errors import InvalidInputError, MethodNotApplicableError, NoBRDFAtScaleError
-from .._evolve import CORE_TOL, MAX_GRID, Auto, ClosedForm, evolve, grid_size, radial_nodes
+from .._evolve import CORE_TOL, MAX_GRID, Auto, ClosedForm, cutoff, evolve, grid_size, radial_nodes
 from .._existence import message_of
 from .._quadrature import gauss_legendre
 from ..geometry import half_slope, microfacet_factor
@@ -173,16 +174,14 @@ def _plan_radial(material, u, log_mu, tol):
     spread = float(density.support_radius(budget))  # G oscillates over the lobe's extent
     k_probe = np.logspace(-3, 5, 801) / max(extent, 1e-12)
     G = _radial_transform_rows(material, probe, k_probe, budget)
-    integrand = np.abs(G) * k_probe**2 * np.log(k_probe[1] / k_probe[0])  # |G| k dk in d(log k)
-    tail = np.cumsum(integrand[:, ::-1], axis=1)[:, ::-1]
-    peak = np.abs(np.sum(G * k_probe**2, axis=1) * np.log(k_probe[1] / k_probe[0]))
-    inside = np.all(tail <= budget * peak[:, None], axis=0)
-    if not inside.any():
+    # the library's cut-off (tail criterion, brdfscale.select's), scale by scale; the largest
+    per_scale = jax.vmap(lambda g: cutoff(jnp.asarray(k_probe), g[:, None], budget))(jnp.abs(jnp.asarray(G)))
+    K = float(jnp.max(per_scale))
+    if not K < k_probe[-1]:
         raise InvalidInputError(
             f"tol={tol:g}: the evolved lobe's transform does not decay enough within eight decades of "
             "frequency above the lobe's width to meet it (or tol is below the rounding of its evaluation); "
             "choose a larger tol.")
-    K = float(k_probe[np.argmax(inside)])
     n_k = radial_nodes(K, r_max + spread, budget)
     k, _ = _hankel_kernel(K, n_k, None, 1.0, 1)
     _, w = gauss_legendre(n_k)
