@@ -6,7 +6,7 @@ float64 and float32, and Q = 10²…10⁷ offsets on a square image: the wall ti
 ``lobe.density(u)`` (first call, which compiles, and warm: best of three), the process's peak
 RSS (a fresh subprocess per point, so that the high-water mark is this point's alone; the RSS
 before the evaluation is recorded beside it) and the error against the evaluation of the same
-lobe at 64 sampled offsets on their own (direct evaluation at each offset), relative to the
+lobe at 64 sampled offsets, each on its own (a single query is evaluated at itself), relative to the
 lobe's peak. With ``--baseline-rev REV`` the same points at Q = 10² and 10³ run on brdfscale as
 of git revision REV (exported to a temporary directory), in the same run.
 
@@ -93,7 +93,9 @@ def point(case: str, dtype_name: str, q: int) -> dict:
         warm = min(warm, time.perf_counter() - t0)
     rss_peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     rows = np.random.default_rng(0).choice(q, size=min(64, q), replace=False)
-    direct = np.asarray(lobe.density(u[rows]), dtype=np.float64)
+    # the reference: each sampled offset evaluated alone (a single query is evaluated at itself on
+    # every path: no table, no interpolation)
+    direct = np.array([float(lobe.density(u[i][None])[0]) for i in rows])
     peak = float(np.max(np.asarray(lobe.density(jnp.zeros((1, 2), dtype)), dtype=np.float64)))
     peak = max(peak, float(np.max(np.abs(direct))))
     error = float(np.max(np.abs(np.asarray(values, np.float64)[rows] - direct)) / peak)
