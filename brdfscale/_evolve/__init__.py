@@ -115,8 +115,8 @@ def evolve(
                 f"{type(s_to).__name__} statistics; closed forms exist for Gaussian/Beckmann lobes and "
                 "statistics (and mixtures of them), δ (Mirror) lobes, and δ statistics. Use method='grid'."
             )
-    method = spectral_path(method if not isinstance(method, Auto) else _spectral_auto(lobe, s_from, s_to),
-                           lobe, s_from, s_to)
+    # Auto cannot pick the closed form here: has_closed_form holds exactly where the algebra above answers
+    method = spectral_path(method, lobe, s_from, s_to)
     if named:
         method = with_sizes(method, size, extent)
     shape = EvolvedDensity(lobe.shape, s_from, s_to, lam, method, tol if method.tol is None else method.tol, check)
@@ -127,10 +127,3 @@ def evolve(
         raise unresolved(method)
     return Lobe(shape, lobe.amplitude)
 
-
-def _spectral_auto(lobe, s_from, s_to):
-    """Auto's spectral choice once the closed form has been tried (an Auto that would pick the
-    closed form but whose algebra returned None has no closed form for these inputs)."""
-    if lobe.shape.isotropic and s_from.isotropic and s_to.isotropic:
-        return Radial()
-    return Grid()

@@ -30,7 +30,7 @@ from jaxtyping import Array, Float
 
 from .._blocks import DEFAULT_BUDGET
 from .._errors import InvalidInputError
-from .._validation import is_concrete
+from .._validation import integer, is_concrete, real
 
 
 def _optional_array(x):
@@ -193,21 +193,18 @@ class Grid(AbstractMethod):
 
 
 def _check_count(name, value, least):
-    if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least):
-        raise InvalidInputError(f"{name} must be an integer ≥ {least}; got {value!r}.")
+    if value is not None:
+        integer(value, name, least)
 
 
 def _check_positive(name, value, what):
-    if value is None or not is_concrete(value):
-        return
-    v = np.asarray(value)
-    if v.shape != () or not (np.isfinite(v) and v > 0):
-        raise InvalidInputError(f"{name} must be {what}; got {v!r}.")
+    if value is not None and is_concrete(value):
+        v = np.asarray(value)
+        real(v.item() if v.ndim == 0 else v, f"{name} ({what})", minimum=0.0, strict=True)
 
 
 def _check_budget(budget):
-    if isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 2**20:
-        raise InvalidInputError(f"budget must be a number of bytes ≥ 2**20 (1 MiB); got {budget!r}.")
+    integer(budget, "budget (bytes of temporaries)", 2**20)
 
 
 class Auto(AbstractMethod):
@@ -217,7 +214,7 @@ class Auto(AbstractMethod):
     def select_method(self, lobe, s_from, s_to) -> AbstractMethod:
         """The path for these inputs, unresolved (structure only: the families and their
         isotropy, never parameter values, so it is the same under ``jax.jit``)."""
-        from ._algebra import convolve, has_closed_form
+        from ._algebra import has_closed_form
 
         if has_closed_form(lobe.shape, s_from, s_to):
             return ClosedForm()
@@ -249,8 +246,8 @@ def as_method(method, size=None, extent=None) -> AbstractMethod:
 
 def with_sizes(method: AbstractMethod, size, extent) -> AbstractMethod:
     """The string API's ``size=``/``extent=`` put into the path taken."""
-    if size is not None and (isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 8):
-        raise InvalidInputError(f"size must be an integer ≥ 8; got {size!r}.")
+    if size is not None:
+        integer(size, "size", 8)
     if isinstance(method, Radial) and size is not None:
         return Radial(nodes=int(size))
     if isinstance(method, Grid):

@@ -25,7 +25,6 @@ import math
 import numbers
 import warnings
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.special

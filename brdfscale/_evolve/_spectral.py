@@ -42,10 +42,10 @@ from .._existence import (NEGATIVE_LOBE, TRANSFORM_ABOVE_ONE, attach, negative_b
                           translated)
 from .._interpolate import interpolate
 from .._quadrature import gauss_legendre
-from .._special import j0
+from .._special import _N_TRAPEZOID_J as J0_QUADRATURE_NODES, j0
 from .._validation import is_concrete
 from ..stats import AbstractSlopeDensity, Delta, FrequencyGrid, Gaussian
-from ..stats._base import add_offset, check_slopes, safe_norm, shifted_cf
+from ..stats._base import check_slopes, safe_norm, shifted_cf
 from ._methods import Grid, Radial
 
 _PROBE_DIRECTIONS = 8
@@ -128,7 +128,7 @@ class EvolvedDensity(AbstractSlopeDensity):
         """``S_from/S_to`` of two Gaussians at W (..., 2), as one exponential."""
         C = self.s_from.cov - self.s_to.cov
         quad = jnp.einsum("...i,ij,...j->...", W, C, W)
-        mean = add_offset(self.s_from.mean, 0.0) if self.s_from.mean is not None else None
+        mean = self.s_from.mean
         if self.s_to.mean is not None:
             mean = -self.s_to.mean if mean is None else mean - self.s_to.mean
         return shifted_cf(_exp_capped(-0.5 * quad), W, mean)
@@ -241,11 +241,11 @@ class EvolvedDensity(AbstractSlopeDensity):
         K = cutoff(k_probe, mag, self.tol / 2) if d.cutoff is None else jnp.asarray(d.cutoff, dtype)
         x, w = gauss_legendre(d.nodes)
         k = (0.5 * (jnp.asarray(x, dtype) + 1)) * K
-        c = 0.5 * K * jnp.asarray(w, dtype) * k * self.cf_radial(k) / (2 * jnp.pi)
+        G = self.cf_radial(k)
+        c = 0.5 * K * jnp.asarray(w, dtype) * k * G / (2 * jnp.pi)
         failed = None
         if self.check and not isinstance(self.s_to, Delta):
-            failed = transform_exceeds_one(jnp.maximum(jnp.max(mag), jnp.max(jnp.abs(jax.lax.stop_gradient(
-                self.cf_radial(k))))))
+            failed = transform_exceeds_one(jnp.maximum(jnp.max(mag), jnp.max(jnp.abs(jax.lax.stop_gradient(G)))))
         return k, c, jnp.sum(jnp.abs(jax.lax.stop_gradient(c))), failed
 
     def radial_table(self):
@@ -278,7 +278,7 @@ class EvolvedDensity(AbstractSlopeDensity):
                 return jnp.sum(c * j0(rows[:, None] * k), axis=-1)
 
             # J₀'s quadrature holds (rows × nodes × 96) values at once (brdfscale._special)
-            out = in_blocks(direct, r, k.shape[0] * (_special_width() + 4) * size, d.budget)
+            out = in_blocks(direct, r, k.shape[0] * (J0_QUADRATURE_NODES + 4) * size, d.budget)
             negative = negative_beyond(out, peak, self.tol) if self._sign_check else None
         return _checked(out, failed, negative)
 
@@ -387,12 +387,6 @@ def _exp_capped(x):
     the lobe has not underflowed the capped value still exceeds 1 by far (the existence check)."""
     cap = math.log(float(jnp.finfo(jnp.result_type(x)).max)) - 8
     return jnp.exp(jnp.minimum(x, cap))
-
-
-def _special_width() -> int:
-    from .._special import _N_TRAPEZOID_J
-
-    return _N_TRAPEZOID_J
 
 
 def _inverse_fft(G, h, n: int, p: int):

@@ -116,12 +116,13 @@ def _plan_material(material: Material, u, log_mu, tol, method):
     s_from = material.statistics(material.mu0)
     if method in ("auto", "closed_form"):
         # the path as brdfscale.select decides it (structure only)
-        if isinstance(Auto().select_method(material.lobe, s_from, material.statistics(mus.min())), ClosedForm):
+        closed = isinstance(Auto().select_method(material.lobe, s_from, material.statistics(mus.min())), ClosedForm)
+        if closed:
             for mu in (mus.min(), mus.max()):  # existence at the ends (NoBRDFAtScaleError)
                 evolve(material.lobe, s_from, material.statistics(mu), method="closed_form")
         elif method == "closed_form":
             evolve(material.lobe, s_from, material.statistics(mus.min()), method="closed_form")  # raises
-        if isinstance(Auto().select_method(material.lobe, s_from, material.statistics(mus.min())), ClosedForm):
+        if closed:
             distinct, scale = np.unique(log_mu, return_inverse=True)
             n = len(mus)
             step = ClosedFormStep(jnp.asarray(u), jnp.asarray(scale.ravel()), jnp.asarray(np.exp(distinct)))
