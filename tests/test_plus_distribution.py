@@ -240,3 +240,44 @@ def test_plus_distribution_is_a_generalised_density_not_a_probability_density():
     assert not issubclass(stats.AbstractGeneralisedDensity, stats.AbstractSlopeDensity)
     with pytest.raises(InvalidInputError, match="smooth must be a probability density"):
         plus.NearlySpecular(0.5, [0.1], 0.1, smooth=plus.PlusDistribution(0, 0.1), smooth_weight=0.5)
+
+
+@pytest.mark.parametrize("n", [0, 2])
+def test_transform_depends_on_w_x0_only_against_mpmath(n):
+    """Regression (issue 16): ``PlusDistribution(2, x0).cf(W)`` was NaN for |W| ≳ 1.3e154 even
+    where W·x0 = 1 — the norm was formed as |W|² x0², which overflows before x0 scales it.
+    H_n depends on z = |W| x0 alone: against mpmath's series at the same z, wherever |W| and
+    x0 sit in float64's range (and with |W| tiny, x0 huge), on the vector and radial paths and
+    in the nearly-specular statistic."""
+    from _plus_reference import polynomial, reference
+
+    cases = []
+    wanted = {z: reference(n, z) for z in (1e-3, 1.0, 7.5, 30.0, 400.0)}
+    for z in wanted:
+        for w in (1e-200, 1e-20, 1.3e154, 1e155, 1e200, 1e300):
+            x0 = z / w
+            if 1e-300 < x0 < 1e300:
+                cases.append((w, x0, z))
+    for w, x0, z in cases:
+        want = wanted[z]
+        h = plus.PlusDistribution(n, x0)
+        along = complex(h.cf(jnp.array([w, 0.0])))
+        diagonal = complex(h.cf(jnp.array([w, w]) / np.sqrt(2)))
+        radial = float(h.cf_radial(w))
+        for got in (along.real, diagonal.real, radial):
+            assert np.isfinite(got) and abs(got - want) <= 2e-13 * abs(want), (w, x0, z, got, want)
+        assert along.imag == 0
+    # far out (z > 1e15 drops the decaying terms): z² overflows as well; H_n = P_n(ln z + γ − ln 2)
+    with mp.workdps(30):
+        want = float(polynomial(n, mp.mpf(10) ** 200))
+    for w, x0 in ((1e300, 1e-100), (1e250, 1e-50), (1e-100, 1e300)):
+        got = complex(plus.PlusDistribution(n, x0).cf(jnp.array([w, 0.0]))).real
+        assert abs(got - want) <= 1e-14 * abs(want), (w, x0)
+    s = plus.NearlySpecular(1.0, [0.1, 0.2], 1e-200)
+    W = jnp.array([[1e200, 0.0], [0.0, 0.0], [1e300, 1e300]])
+    value = np.asarray(s.cf(W))
+    assert np.all(np.isfinite(value)) and value[1] == 1
+    assert abs(value[0].real - (1 + (0.1 * reference(0, 1.0) + 0.2 * reference(1, 1.0)) / 1.0)) < 1e-14
+    # gradients stay finite at W = 0 and where |W|² overflows
+    grad = jax.grad(lambda t: plus.PlusDistribution(n, 1e-200).cf(jnp.array([t, 0.0])).real)
+    assert np.isfinite(float(grad(1e200))) and float(grad(0.0)) == 0

@@ -11,7 +11,7 @@ from .._validation import positive, vector2
 from ..stats import AbstractGeneralisedDensity
 from ..stats._base import add_offset, check_slopes, offset_norm, phase
 from ._action import radial_action
-from ._transform import check_order, transforms_scaled
+from ._transform import check_order, transforms_radial, transforms_scaled
 
 _ANGLES = 64
 
@@ -62,14 +62,14 @@ class PlusDistribution(AbstractGeneralisedDensity):
 
     def cf(self, W: Float[ArrayLike, "*batch 2"]) -> Complex[Array, "*batch"]:
         W = check_slopes(W, "W")
-        H = transforms_scaled(jnp.sum(W * W, axis=-1), self.x0, self.order)[..., self.order]
+        H = transforms_scaled(W, self.x0, self.order)[..., self.order]
         return H * phase(W, self.mean)
 
     def cf_radial(self, k: Float[ArrayLike, "*batch"]) -> Float[Array, "*batch"]:
         if self.mean is not None:
             return super().cf_radial(k)
         k = jnp.asarray(k)
-        return transforms_scaled(k * k, self.x0, self.order)[..., self.order]
+        return transforms_radial(k, self.x0, self.order)[..., self.order]
 
     def apply(self, psi, *, scale: Float[ArrayLike, ""] | None = None, angles: int = _ANGLES) -> Float[Array, ""]:
         """``⟨h_n, ψ⟩`` for a test function ``psi`` mapping slopes (..., 2) to values (...).

@@ -15,7 +15,7 @@ from ..lobes import Lobe
 from ..stats import AbstractGeneralisedDensity, AbstractSlopeDensity, Delta, Gaussian
 from ..stats._base import add_offset, check_slopes, offset_norm, phase
 from ._action import radial_action
-from ._transform import MAX_ORDER, transforms_scaled
+from ._transform import MAX_ORDER, transforms_radial, transforms_scaled
 
 
 class NearlySpecular(AbstractSlopeDensity):
@@ -91,10 +91,9 @@ class NearlySpecular(AbstractSlopeDensity):
     def max_order(self) -> int:
         return self.strengths.shape[0] - 1
 
-    def _singular_cf(self, k2):
-        """``a + Σ c_n H_n(k x0)`` from ``k2 = k²``: the δ and plus parts' transform about their
-        centre (``k²``, not k, keeps gradients finite at W = 0)."""
-        H = transforms_scaled(k2, self.x0, self.max_order)
+    def _singular_cf(self, H):
+        """``a + Σ c_n H_n(k x0)`` from ``H_0 … H_N``: the δ and plus parts' transform about
+        their centre."""
         return self.specular + H @ self.strengths
 
     def density(self, m):
@@ -106,7 +105,7 @@ class NearlySpecular(AbstractSlopeDensity):
 
     def cf(self, W: Float[ArrayLike, "*batch 2"]) -> Complex[Array, "*batch"]:
         W = check_slopes(W, "W")
-        value = self._singular_cf(jnp.sum(W * W, axis=-1)) * phase(W, self.mean)
+        value = self._singular_cf(transforms_scaled(W, self.x0, self.max_order)) * phase(W, self.mean)
         if self.smooth is not None:
             value = value + self.smooth_weight * self.smooth.cf(W)
         return value
@@ -115,7 +114,7 @@ class NearlySpecular(AbstractSlopeDensity):
         if not self.isotropic:
             return super().cf_radial(k)
         k = jnp.asarray(k)
-        value = self._singular_cf(k * k)
+        value = self._singular_cf(transforms_radial(k, self.x0, self.max_order))
         if self.smooth is not None:
             value = value + self.smooth_weight * self.smooth.cf_radial(k)
         return value

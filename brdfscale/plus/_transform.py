@@ -166,7 +166,8 @@ def transforms_from_square(z2, max_order: int, log_z=None):
 
     Working from ``z²`` keeps the gradient finite at ``W = 0``. ``log_z``: ``ln z`` where
     ``z2 > SWITCH²`` (any finite value elsewhere), for callers whose ``z²`` may overflow to
-    inf (:func:`transforms_scaled`); default ``ln √z2``.
+    inf (:func:`transforms_scaled`); default ``ln √z2``. ``z2 = inf`` with a finite ``log_z`` is
+    a valid input (the polynomial branch needs only ``ln z``).
     """
     large = z2 > SWITCH**2
     q = jnp.where(large, 0.0, z2) / 4
@@ -179,12 +180,35 @@ def transforms_from_square(z2, max_order: int, log_z=None):
     return jnp.where(large[..., None], expansion, _series(q, max_order))
 
 
-def transforms_scaled(k2, x0, max_order: int):
-    """``H_0 … H_{max_order}`` at ``z = k x0`` from ``k2 = k²`` and ``x0 > 0``, finite even where
-    ``z² = k² x0²`` overflows (``ln z`` is formed from the factors) or ``x0²`` does (at k = 0)."""
-    z2 = k2 * x0 * x0  # (k² x0) x0: 0 at k = 0 even when x0² overflows
+def transforms_scaled(W, x0, max_order: int):
+    """``H_0 … H_{max_order}`` at ``z = |W| x0`` for frequencies ``W`` (..., 2) and ``x0 > 0``.
+
+    ``z`` is formed as ``|W x0|`` — the product first, then the norm — so a finite ``z`` is found
+    wherever it is representable, however large ``|W|`` or ``x0`` is alone (``|W|²`` overflows
+    above 1.3e154 and ``x0²`` likewise, e.g. ``W = 1e200, x0 = 1e-200`` is ``z = 1``; forming
+    ``|W|² x0²`` gave NaN there); where ``z²`` itself overflows, only
+    ``ln z = ln s + ½ ln Σ(W_i/s)² + ln x0`` (``s = max |W_i|``) enters. The square
+    ``Σ (W_i x0)²`` keeps gradients finite at ``W = 0``."""
+    W = jnp.asarray(W)
+    return _transforms_of(W * x0, W, x0, max_order)
+
+
+def transforms_radial(k, x0, max_order: int):
+    """``H_0 … H_{max_order}`` at ``z = k x0`` for radial frequencies ``k ≥ 0`` (as
+    :func:`transforms_scaled`)."""
+    k = jnp.asarray(k)
+    return _transforms_of((k * x0)[..., None], k[..., None], x0, max_order)
+
+
+def _transforms_of(V, W, x0, max_order: int):
+    """From the scaled frequencies ``V = W x0`` (..., d) and the factors ``W``, ``x0`` (for
+    ``ln z`` where ``z² = |V|²`` overflows, or ``V`` itself does)."""
+    z2 = jnp.sum(V * V, axis=-1)
     large = z2 > SWITCH**2
-    log_z = 0.5 * jnp.log(jnp.where(large, k2, 1.0)) + jnp.log(x0)
+    s = jnp.max(jnp.abs(W), axis=-1)
+    s_safe = jnp.where(large & (s > 0), s, 1.0)
+    ratio = jnp.where(large[..., None], W, 1.0) / s_safe[..., None]
+    log_z = jnp.log(s_safe) + 0.5 * jnp.log(jnp.sum(ratio * ratio, axis=-1)) + jnp.log(x0)
     return transforms_from_square(z2, max_order, log_z)
 
 
