@@ -114,6 +114,12 @@ class Radial(AbstractMethod):
     sign_check: bool = eqx.field(static=True, default=True)
     """Whether evaluations refuse values below −tol of the peak (off where a caller's explicit
     nodes are too few for tol: their ringing is no evidence about existence)."""
+    regularisation: Float[Array, ""] | None = eqx.field(default=None, converter=_optional_array)
+    """The Tikhonov λ chosen with the discretisation (:func:`brdfscale.select` with a rule or a
+    λ; ``evolve(..., method=m)`` uses it unless given another); None: none chosen."""
+    regularisation_rule: str | None = eqx.field(static=True, default=None)
+    """How it was chosen (``"gcv"``, ``"discrepancy"``, ``"l_curve"``; ``"given"`` for a number)."""
+    regularisation_note: str | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
         _check_budget(self.budget)
@@ -136,7 +142,7 @@ class Radial(AbstractMethod):
                       f"{t.points}-point Lagrange; verified error {_number(t.error):.2g} of the peak), direct at the queries "
                       "when they are few")
         tol = "" if self.tol is None else f"; honours tol = {self.tol:.3g} of the peak"
-        return f"radial (Hankel) path: {self.nodes} Gauss–Legendre nodes, {cut}; {layout}{tol}"
+        return f"radial (Hankel) path: {self.nodes} Gauss–Legendre nodes, {cut}; {layout}{tol}{_lambda_note(self)}"
 
 
 class Grid(AbstractMethod):
@@ -167,6 +173,10 @@ class Grid(AbstractMethod):
     sign_check: bool = eqx.field(static=True, default=True)
     """Whether evaluations refuse values below −tol of the peak (off where a caller's explicit
     size or extent is too small for tol: its ringing and aliasing are no evidence about existence)."""
+    regularisation: Float[Array, ""] | None = eqx.field(default=None, converter=_optional_array)
+    """The Tikhonov λ chosen with the discretisation (as :class:`Radial`'s)."""
+    regularisation_rule: str | None = eqx.field(static=True, default=None)
+    regularisation_note: str | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
         _check_budget(self.budget)
@@ -189,7 +199,30 @@ class Grid(AbstractMethod):
             layout = (f"zero-padded inverse FFT onto {self.size * self.oversample}² slope nodes, 6×6-point Lagrange "
                       f"({verified}), direct at the queries when they are few")
         tol = "" if self.tol is None else f"; honours tol = {self.tol:.3g} of the peak"
-        return f"grid (2D FFT) path: {self.size}×{self.size} frequencies, {a}; {layout}{tol}"
+        return f"grid (2D FFT) path: {self.size}×{self.size} frequencies, {a}; {layout}{tol}{_lambda_note(self)}"
+
+
+def _lambda_note(method) -> str:
+    if method.regularisation is None:
+        return ""
+    value = _number(method.regularisation)
+    text = "traced" if value is None else f"{value:.3g}"
+    detail = "" if method.regularisation_note is None else f" ({method.regularisation_note})"
+    return f"; Tikhonov λ = {text}{detail}"
+
+
+def carrying(method, lam, rule: str | None, note: str | None):
+    """``method`` (Radial or Grid) carrying the Tikhonov λ chosen with it (None: none)."""
+    import dataclasses
+
+    if not isinstance(method, (Radial, Grid)):
+        return method
+    return dataclasses.replace(method, regularisation=lam, regularisation_rule=rule, regularisation_note=note)
+
+
+def carried(method):
+    """``(λ, rule)`` a method carries, ``(None, None)`` when none."""
+    return getattr(method, "regularisation", None), getattr(method, "regularisation_rule", None)
 
 
 def _check_count(name, value, least):

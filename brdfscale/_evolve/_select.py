@@ -37,7 +37,8 @@ from .._validation import as_float_array, is_concrete
 from ..lobes import AbstractLobe
 from ..stats import AbstractGeneralisedDensity, AbstractSlopeDensity
 from ._algebra import has_closed_form
-from ._methods import AbstractMethod, Auto, ClosedForm, Grid, Radial, RadialTable, as_method
+from ._methods import AbstractMethod, Auto, ClosedForm, Grid, Radial, RadialTable, as_method, carried, carrying
+from ._regularise import check_noise, choose, needs_data, rule_name, unresolved_regularisation
 from ._spectral import (GRID_POINTS, EvolvedDensity, concrete_cf_radial, concrete_cutoff, concrete_support,
                          grid_size, probe_checks, radial_nodes, radial_reach)
 
@@ -59,8 +60,10 @@ the peak for README's lobe, where cubic stencils need 4096)."""
 
 
 
-def check_arguments(lobe, s_from, s_to, tol, regularisation):
-    """The checks :func:`brdfscale.evolve` and :func:`select` share: ``(tol, λ)``."""
+def check_arguments(lobe, s_from, s_to, tol, regularisation, noise=None):
+    """The checks :func:`brdfscale.evolve` and :func:`select` share: ``(tol, λ, rule, noise)`` —
+    λ a float array (None when ``regularisation`` is None or a rule), the rule's name (None for a
+    number; ``"auto"`` is the default rule) and the discrepancy rule's noise level."""
     if not isinstance(lobe, AbstractLobe):
         raise InvalidInputError(f"lobe must be a brdfscale.lobes lobe; got {type(lobe).__name__}.")
     for name, s in (("s_from", s_from), ("s_to", s_to)):
@@ -75,10 +78,35 @@ def check_arguments(lobe, s_from, s_to, tol, regularisation):
         raise InvalidInputError(
             f"tol must be a number in [{MIN_TOL:g}, 1) (an error relative to the lobe's peak; below "
             f"{MIN_TOL:g} float64 rounding in the evaluation exceeds it); got {tol!r}.")
+    rule = rule_name(regularisation)
+    noise = check_noise(rule, noise)
+    if rule is not None or regularisation is None:
+        return float(tol), None, rule, noise
     lam = as_float_array(regularisation, "regularisation")
+    if lam.ndim != 0:
+        raise InvalidInputError(f"regularisation must be one number λ ≥ 0 (or a rule's name); got shape {lam.shape}.")
     if is_concrete(lam) and float(lam) < 0:
         raise InvalidInputError(f"regularisation must be ≥ 0; got {float(lam)}.")
-    return float(tol), lam
+    return float(tol), lam, rule, noise
+
+
+def regularised(method, lobe, s_from, s_to, lam, rule, noise):
+    """``(λ, method)``: the λ of the division for a spectral ``method`` — a number as given; a
+    rule's choice (:mod:`._regularise`), reused from a method that carries one of that rule,
+    else chosen here from concrete values (UnresolvedMethodError when traced) and carried by the
+    returned method; None: the method's own λ, else 0."""
+    own, own_rule = carried(method)
+    if rule is None:
+        if lam is not None:
+            return lam, method
+        return (jnp.asarray(0.0) if own is None else own), method
+    if own is not None and own_rule == rule:
+        return own, method
+    if needs_data(lobe, s_to) and not is_concrete((lobe, s_from, s_to, noise)):
+        raise unresolved_regularisation(rule)
+    value, how = choose(lobe, s_from, s_to, rule, noise)
+    value = jnp.asarray(value)
+    return value, carrying(method, value, rule, how)
 
 
 def spectral_path(method: AbstractMethod, lobe, s_from, s_to) -> AbstractMethod:
@@ -113,7 +141,8 @@ def select(
     *,
     tol: float = 1e-10,
     method: AbstractMethod | str = "auto",
-    regularisation: float = 0.0,
+    regularisation: float | str = 0.0,
+    noise=None,
     check: bool = True,
 ) -> AbstractMethod:
     """The resolved discretisation with which :func:`brdfscale.evolve` meets ``tol``.
@@ -127,13 +156,20 @@ def select(
     it is. ``result.explain()`` says what it chose; ``result.tol`` is the error relative to the
     lobe's peak it honours (looser than asked only when a capped grid cannot do better).
 
+    ``regularisation``: the Tikhonov λ of the division as in :func:`brdfscale.evolve` — a
+    number, or a rule (``"auto"``, ``"gcv"``, ``"discrepancy"`` with ``noise=σ``, ``"l_curve"``)
+    that chooses λ from the concrete values here. A spectral result carries the λ (a rule's
+    choice, or a nonzero number) and the discretisation verified for it:
+    ``result.regularisation``, reported by ``result.explain()``; ``evolve(..., method=result)``
+    uses it, under ``jax.jit`` too.
+
     Raises:
         UnresolvedMethodError: the values are traced (call it outside the transformation).
         NoBRDFAtScaleError: no non-negative lobe exists for these values.
         MethodNotApplicableError: a forced method does not apply.
         InvalidInputError: bad arguments.
     """
-    tol, lam = check_arguments(lobe, s_from, s_to, tol, regularisation)
+    tol, lam, rule, noise = check_arguments(lobe, s_from, s_to, tol, regularisation, noise)
     method = spectral_path(as_method(method), lobe, s_from, s_to)
     if isinstance(method, ClosedForm):
         if not has_closed_form(lobe.shape, s_from, s_to):
@@ -141,10 +177,17 @@ def select(
                 f"no closed form for a {type(lobe.shape).__name__} lobe with {type(s_from).__name__} → "
                 f"{type(s_to).__name__} statistics.")
         return method
+    if not is_concrete((lobe, s_from, s_to)):
+        raise unresolved(method)
+    lam, method = regularised(method, lobe, s_from, s_to, lam, rule, noise)
     density = EvolvedDensity(lobe.shape, s_from, s_to, lam, method, tol, check)
     if not is_concrete(density):
         raise unresolved(method)
-    return resolve(density, method)
+    chosen, how = carried(method)
+    if chosen is None and rule is None and float(lam) != 0:
+        chosen, how = lam, "given"
+    return carrying(resolve(density, method), chosen, how if rule is None else rule,
+                    getattr(method, "regularisation_note", None))
 
 
 def resolve(density: EvolvedDensity, method: Radial | Grid) -> Radial | Grid:

@@ -488,7 +488,8 @@ def probe_checks(density: EvolvedDensity, k, mag) -> None:
         raise InvalidInputError(
             f"tol={density.tol:g}: the evolved lobe's transform does not fall below tol/2 within nine decades "
             "of frequency above the lobe's width (a transform that decays this slowly, or a tol below the "
-            "rounding of its evaluation); choose a larger tol.")
+            "rounding of its evaluation); choose a larger tol. Towards a finer scale with tabulated or noisy input "
+            "the unregularised quotient grows with frequency instead: pass regularisation='auto' (or a λ > 0).")
 
 
 def grid_size(density: EvolvedDensity, max_size: int, k=None, mag=None, truncation=None) -> tuple[int, float]:
