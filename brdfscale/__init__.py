@@ -10,6 +10,7 @@ The public API:
 * :mod:`brdfscale.geometry` — directions, slopes, half vectors;
 * :mod:`brdfscale.synth` — random height fields and a synthetic gonioreflectometer;
 * :mod:`brdfscale.exr` — measurement sets and lobe tables as OpenEXR files;
+* :mod:`brdfscale.files` — atomic no-clobber writes and exclusive output locations;
 * :mod:`brdfscale.plus` — plus-distributions and nearly-specular reflection (seed §6);
 * :mod:`brdfscale.so3` — anisotropic evolution on SO(3) (seed §5);
 * :mod:`brdfscale.scene` — a planner that evaluates only what a scene needs;
@@ -19,14 +20,16 @@ The public API:
 
 from importlib.metadata import PackageNotFoundError, version as _version
 
-from . import exr, geometry, lobes, plus, scene, so3, stats, synth
+from . import exr, files, geometry, lobes, plus, scene, so3, stats, synth
 from ._errors import (
     BrdfscaleError,
     InvalidInputError,
     MeasurementFileError,
     MethodNotApplicableError,
     NoBRDFAtScaleError,
+    OutputInUseError,
     SingularDensityError,
+    UnprotectedHeaderWarning,
     UnresolvedMethodError,
 )
 from ._evolve import AbstractMethod, Auto, ClosedForm, Grid, Radial, RadialTable, evolve, select
@@ -57,11 +60,14 @@ __all__ = [
     "so3",
     "scene",
     "exr",
+    "files",
     "BrdfscaleError",
     "InvalidInputError",
     "MeasurementFileError",
     "MethodNotApplicableError",
     "NoBRDFAtScaleError",
     "SingularDensityError",
+    "OutputInUseError",
+    "UnprotectedHeaderWarning",
     "__version__",
 ]

@@ -40,6 +40,21 @@ class MeasurementFileError(BrdfscaleError):
     """
 
 
+class OutputInUseError(BrdfscaleError):
+    """Another run holds the lock on an output directory or checkpoint.
+
+    Raised at once, before any work, by the writers of runs (:func:`fitting.sample` with a
+    checkpoint, :func:`fitting.write_report`, ``brdfscale fit``/``demo``); the message names
+    the holder (PID, host, start time, command). See :func:`brdfscale.files.exclusive`.
+    """
+
+
+class UnprotectedHeaderWarning(UserWarning):
+    """A file of an earlier layout version whose header attributes carry no digest: its
+    pixels are checked against their checksums, its μ, extent, incident direction and
+    metadata are not. Rewrite it (read and write again) to protect them."""
+
+
 class UnresolvedMethodError(BrdfscaleError, ValueError):
     """A spectral path's discretisation depends on parameter values that are traced.
 

@@ -86,7 +86,7 @@ def median(sorted_times: list) -> float:
 
 def write_json(name: str, payload: dict) -> Path:
     """Write ``results/<name>.json`` atomically (temporary file + rename)."""
-    from brdfscale import _files
+    from brdfscale import files as _files
 
     RESULTS.mkdir(parents=True, exist_ok=True)
     path = RESULTS / f"{name}.json"

@@ -14,7 +14,7 @@ import numpy as np
 from _bench import RESULTS, machine
 
 import brdfscale as bs
-from brdfscale import _files as files
+from brdfscale import files
 
 WINDOWS = ("box", "gaussian", "spectral")
 """Facet windows: the b×b block mean (the library's), a Gaussian of the box's second moment

@@ -25,7 +25,7 @@ import numpy as np
 
 from brdfscale import exr, stats, synth
 from brdfscale.stats import SlopeHistogram, Tabulated
-from brdfscale._files import atomic_write
+from brdfscale.files import atomic_write
 
 
 def _stage(fn, *args, **kw):

@@ -7,6 +7,7 @@ is checked, and none that exists is overwritten unless ``overwrite=True``.
 """
 
 import json
+import math
 import os
 import platform
 from collections.abc import Mapping
@@ -23,7 +24,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 import brdfscale  # noqa: E402
 from brdfscale import BrdfscaleError, InvalidInputError, MeasurementFileError  # noqa: E402
-from brdfscale._files import atomic_write  # noqa: E402
+from brdfscale.files import atomic_write, exclusive  # noqa: E402
 
 from brdfscale._validation import flag, real  # noqa: E402
 from ._estimate import FitResult, Problem, check_fit  # noqa: E402
@@ -121,15 +122,26 @@ def truth_of(model, metadata: dict) -> dict | None:
     params = metadata.get("truth", {}).get("params") if isinstance(metadata.get("truth"), dict) else None
     truth = {}
     if isinstance(params, dict):
-        truth = {p: float(params[p]) for p in model.parameters if p in params}
+        truth = {p: _truth_value(params[p], f"truth.params.{p}") for p in model.parameters if p in params}
     spectrum = metadata.get("surface", {}).get("spectrum") if isinstance(metadata.get("surface"), dict) else None
     if model.law_kind == "gaussian_surface" and isinstance(spectrum, dict) and spectrum.get("type") == "GaussianCorrelation":
-        ell = np.atleast_1d(np.asarray(spectrum["correlation_length"], dtype=float))
+        raw = spectrum.get("correlation_length")
+        ell = [_truth_value(v, "surface.spectrum.correlation_length") for v in (raw if isinstance(raw, list) else [raw])]
         if np.allclose(ell, ell[0]):
-            truth.update(rms_height=float(spectrum["rms_height"]), correlation_length=float(ell[0]))
-        if np.ndim(metadata.get("albedo")) == 0 and metadata.get("albedo") is not None:
-            truth["amplitude"] = float(metadata["albedo"])
+            truth.update(rms_height=_truth_value(spectrum.get("rms_height"), "surface.spectrum.rms_height"),
+                         correlation_length=ell[0])
+        if metadata.get("albedo") is not None:
+            truth["amplitude"] = _truth_value(metadata["albedo"], "albedo")
     return truth or None
+
+
+def _truth_value(value, key: str) -> float:
+    """A known-truth number from metadata: positive and finite (every parameter is), or
+    InvalidInputError naming the metadata key."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
+        raise InvalidInputError(f"metadata {key} must be a positive finite number (a known true value); got "
+                                f"{value!r:.80}. Correct or remove it from the measurement set's metadata.")
+    return float(value)
 
 
 def _truth_theta(model, truth, fit: FitResult):
@@ -345,6 +357,12 @@ def write_report(out_dir, problem: Problem, fit: FitResult, samples: SampleResul
 
     check_out_dir(out_dir, overwrite)
     out_dir = os.fspath(out_dir)
+    with exclusive(out_dir, what="report directory"):  # re-entrant: `brdfscale fit` holds it for the whole run
+        return _write_files(out_dir, problem, fit, model, draws, true_theta, truth, doc, overwrite)
+
+
+def _write_files(out_dir, problem, fit, model, draws, true_theta, truth, doc, overwrite) -> dict:
+    check_out_dir(out_dir, overwrite)  # again, now that no other run can write here
     figures = {name: os.path.join(out_dir, name) for name in _FIGURES}
     target = os.path.join(out_dir, "fit.json")
     try:

@@ -25,6 +25,7 @@ silenced. A coordinate in which no walker moved (a very short or stuck chain) ha
 ESS 0, τ not reliable, burn-in half the chain.
 """
 
+import contextlib
 import dataclasses
 import hashlib
 import json
@@ -41,7 +42,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from brdfscale import InvalidInputError, MeasurementFileError
-from brdfscale._files import atomic_write
+from brdfscale.files import atomic_write, exclusive
 
 from brdfscale._validation import flag, integer
 from ._estimate import FitResult, Problem, check_fit
@@ -275,12 +276,26 @@ def sample(
         out = np.asarray(_batched_log_posterior(jnp.asarray(thetas), problem))
         return np.where(np.isfinite(out), out, -np.inf)
 
-    rng = np.random.default_rng(seed)
-    chains, log_probs = [], []
+    # the checkpoint is this run's alone until the last chunk is in it: a second run on the same
+    # file is refused at once (it would interleave its chunks with ours)
     store = None
     if checkpoint is not None:
         store = _Checkpoint(checkpoint, problem.model.names, walkers, chunk,
                             {"problem": _digest(problem), "seed": seed, "moves": moves})
+    lock = contextlib.nullcontext() if store is None else exclusive(store.path, what="checkpoint")
+    with lock:
+        chains, log_probs = _run_chain(fit, logp, d, lo, hi, walkers, steps, chunk, seed, moves, store,
+                                       overwrite, progress)
+    chain, log_prob = np.concatenate(chains), np.concatenate(log_probs)
+    return _diagnose(problem.model.names, chain, log_prob)
+
+
+
+def _run_chain(fit, logp, d, lo, hi, walkers, steps, chunk, seed, moves, store, overwrite, progress):
+    """The chunks of the chain: resumed from the checkpoint ``store`` where it holds some, each
+    new one appended to it as soon as it is sampled (the caller holds the checkpoint's lock)."""
+    rng = np.random.default_rng(seed)
+    chains, log_probs = [], []
     # with overwrite the old file stays until the new, empty checkpoint replaces it (create)
     resumed = store.load() if store is not None and not overwrite else None
     sampler = emcee.EnsembleSampler(walkers, d, logp, vectorize=True, moves=_MOVES[moves]())
@@ -310,9 +325,7 @@ def sample(
             chains.append(block)
             log_probs.append(block_lp)
             done += n
-    chain, log_prob = np.concatenate(chains), np.concatenate(log_probs)
-    return _diagnose(problem.model.names, chain, log_prob)
-
+    return chains, log_probs
 
 def _integrated_time(chain):
     # quiet=True logs a warning for short chains; the shortfall is reported in tau_reliable instead

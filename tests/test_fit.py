@@ -319,7 +319,8 @@ def test_write_report_checks_every_file_before_writing(small_problem, tmp_path):
     assert not (tmp_path / "new").exists()
     doc = fitting.write_report(out, problem, res, overwrite=True)
     assert (out / "corner.png").read_bytes()[:4] == b"\x89PNG" and doc["figures"][-1] == str(out / "corner.png")
-    assert not [p.name for p in out.iterdir() if p.name.startswith(".")]  # no temporary file left
+    # no temporary file left; the run's lock file stays (removing it would race with a next run)
+    assert [p.name for p in out.iterdir() if p.name.startswith(".")] == [".brdfscale.lock"]
 
 
 def test_sample_checkpoint_paths_and_first_chunk_resume(small_problem, tmp_path):
@@ -336,7 +337,7 @@ def test_sample_checkpoint_paths_and_first_chunk_resume(small_problem, tmp_path)
     (tmp_path / "c.h5.tmp").write_text("user's file")
     fitting.sample(problem, res, checkpoint=path, **kw)
     assert (tmp_path / "c.h5.tmp").read_text() == "user's file"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.h5", "c.h5.tmp"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".c.h5.brdfscale.lock", "c.h5", "c.h5.tmp"]  # + its lock
     (tmp_path / "text.h5").write_text("not HDF5")
     with h5py.File(tmp_path / "other.h5", "w") as f:
         f["x"] = 1

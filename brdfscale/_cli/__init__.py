@@ -2,50 +2,84 @@
 
 Each subcommand lives in its own module of this package and exposes ``register(subparsers)``
 which adds its parser and sets ``func`` (a callable taking the parsed namespace and returning
-an exit status). Add new subcommands to ``_SUBCOMMANDS``.
+an exit status). Add new subcommands to ``_SUBCOMMANDS``. Options are parsed by
+:class:`._options.Parser` (no abbreviations, no silent repeats) with typed domains.
+
+Exit status (also in ``brdfscale --help``): 0 success; 1 an unexpected failure (a bug: the
+message says so and ``--debug`` shows the traceback); 2 a bad command line or input (an option
+outside its domain, a damaged file, no BRDF at a scale, an output that exists); 3 the output
+directory or checkpoint is in use by another run; 130 interrupted (Ctrl-C).
 """
 
-import argparse
 import importlib
 import sys
 
-from .._errors import BrdfscaleError
+from .._errors import BrdfscaleError, OutputInUseError
+from ._options import Parser
 
 _SUBCOMMANDS = ("example", "synth", "info", "fit", "demo")
 
+EXIT_OK, EXIT_FAILURE, EXIT_USAGE, EXIT_IN_USE, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
 
-def build_parser() -> argparse.ArgumentParser:
+_EPILOG = ("exit status: 0 success; 1 unexpected failure (rerun with --debug for the traceback); 2 bad command "
+           "line or input (option outside its domain, damaged file, output exists, no BRDF at a scale); 3 output "
+           "directory or checkpoint in use by another run; 130 interrupted.")
+
+
+def build_parser() -> Parser:
     from .. import __version__
 
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="brdfscale",
         description="Scale-dependent evolution of BRDFs: forward model, synthesis, fitting.",
+        epilog=_EPILOG,
     )
     parser.add_argument("--version", action="version", version=f"brdfscale {__version__}")
     parser.add_argument("--no-compilation-cache", action="store_true",
                         help="compile every XLA program afresh instead of keeping compiled programs between "
-                        "runs (kept by default in $BRDFSCALE_COMPILATION_CACHE, else ~/.cache/brdfscale/jax)")
+                        "runs (kept by default in $BRDFSCALE_COMPILATION_CACHE, else "
+                        "$XDG_CACHE_HOME/brdfscale/jax, by default ~/.cache/brdfscale/jax)")
+    parser.add_argument("--debug", action="store_true",
+                        help="show the Python traceback of an unexpected failure instead of a one-line message")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in _SUBCOMMANDS:
         importlib.import_module(f"{__name__}._{name}").register(sub)
+    parser.subcommands = sub.choices
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # the subcommand's own usage, not the top level's
+        (parser.subcommands.get(args.command) or parser).error(f"unrecognized arguments: {' '.join(extra)}")
     if not getattr(args, "func", None):
         parser.print_help()
-        return 0
-    if not args.no_compilation_cache:
-        from ._compilation_cache import enable
-
-        enable()
+        return EXIT_OK
+    name = f"brdfscale {args.command}"
     try:
+        if not args.no_compilation_cache:
+            from ._compilation_cache import enable
+
+            enable()
         return int(args.func(args) or 0)
+    except OutputInUseError as err:
+        print(f"{name}: error: {err}", file=sys.stderr)
+        return EXIT_IN_USE
     except BrdfscaleError as err:
-        print(f"brdfscale {args.command}: error: {err}", file=sys.stderr)
-        return 2
+        print(f"{name}: error: {err}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print(f"{name}: interrupted.", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except Exception as err:  # noqa: BLE001 — the last resort: a one-line message, never a traceback
+        if args.debug:
+            raise
+        text = " ".join(str(err).split())[:300]
+        print(f"{name}: unexpected failure ({type(err).__name__}: {text}); rerun as `brdfscale --debug "
+              f"{args.command} ...` for the traceback, and report it if it is not the machine's (memory, disk).",
+              file=sys.stderr)
+        return EXIT_FAILURE
 
 
 if __name__ == "__main__":

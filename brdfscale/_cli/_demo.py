@@ -7,13 +7,13 @@ versus estimate ± uncertainty. ``--source model`` replaces the synthesis by the
 model's own forward map plus Gaussian noise (a pure check of the inverse machinery).
 """
 
-import argparse
 import os
 import time
 
 import numpy as np
 
 from ._fit import add_fit_options, fit_measurements
+from ._options import MAX_SEED, Parser, integer, make_directory, seed
 
 _SCALES = (2.0, 4.0, 8.0, 16.0, 32.0)
 _MODEL_TRUTH = {"amplitude": 0.9, "alpha_lobe": 0.01, "rms_height": 0.05, "correlation_length": 8.0}
@@ -30,8 +30,9 @@ def register(subparsers) -> None:
     parser.add_argument("--out", default="brdfscale-demo", help="output directory (default ./brdfscale-demo)")
     parser.add_argument("--source", choices=("synth", "model"), default="synth",
                         help="synth: height-field simulation (default); model: the fit model plus noise")
-    parser.add_argument("--steps", type=int, default=1000, help="emcee steps (default 1000, 16 walkers)")
-    parser.add_argument("--seed", type=int, default=1, help="seed of surface, noise and sampler (default 1)")
+    parser.add_argument("--steps", type=integer(0, 100_000), default=1000,
+                        help="emcee steps, 0–100000 (default 1000, 16 walkers; 0: Laplace only)")
+    parser.add_argument("--seed", type=seed, default=1, help=f"seed of surface, noise and sampler, 0–{MAX_SEED} (default 1)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--force", action="store_true", help="overwrite an existing demo output")
     parser.set_defaults(func=run)
@@ -55,15 +56,22 @@ def run(args) -> int:
 
     from .. import exr
 
+    from .. import files
+
     start = time.perf_counter()
-    os.makedirs(args.out, exist_ok=True)
+    make_directory(args.out)
+    with files.exclusive(args.out, what="demo output directory"):
+        return _run(args, exr, start)
+
+
+def _run(args, exr, start) -> int:
     path = os.path.join(args.out, "measurements.exr")
     print(f"[1/4] synthesising ({args.source}) scales μ = {list(_SCALES)} px → {path}")
     exr.write_measurements(path, _measurements(args.source, args.seed), overwrite=args.force)
     print("[2/4] reading it back")
     mset = exr.read_measurements(path)
     print("[3/4] fitting and sampling")
-    parser = argparse.ArgumentParser()
+    parser = Parser()
     add_fit_options(parser)
     options = parser.parse_args(["--out", args.out, "--law", "gaussian_surface", "--starts", "4", "--steps",
                                  str(args.steps), "--walkers", "16", "--seed", str(args.seed)]

@@ -5,8 +5,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .._errors import InvalidInputError
 from .._files import atomic_write
+from ._options import make_directory, output_file
 
 
 def register(sub) -> None:
@@ -19,7 +19,7 @@ def register(sub) -> None:
             "evolved to coarser and finer scales with brdfscale.evolve (seed Eq. 4.4)."
         ),
     )
-    p.add_argument("--out", type=Path, default=Path("brdfscale-example"), help="output folder (default: %(default)s)")
+    p.add_argument("--out", default="brdfscale-example", help="output folder (default: %(default)s)")
     p.add_argument("--force", action="store_true", help="overwrite an existing example.png")
     p.set_defaults(func=run)
 
@@ -37,9 +37,9 @@ def run(args: argparse.Namespace) -> int:
     import brdfscale as bs
     from brdfscale import lobes, stats
 
-    png = args.out / "example.png"
-    if png.exists() and not args.force:
-        raise InvalidInputError(f"{png}: file exists; pass --force to replace it.")
+    make_directory(args.out)
+    png = Path(args.out) / "example.png"
+    output_file(str(png), args.force, flag="--out")
     law = stats.ScaledFamily(stats.GGX, stats.WidthLaw(alpha_max=0.15, mu_c=1.0, exponent=0.8))
     mu0 = 1.0
     lobe0 = lobes.Beckmann(0.08)
@@ -66,7 +66,6 @@ def run(args: argparse.Namespace) -> int:
     ax.set_title("Beckmann lobe at μ0 = 1 evolved with GGX facet statistics")
     ax.legend()
     fig.tight_layout()
-    args.out.mkdir(parents=True, exist_ok=True)
     atomic_write(png, lambda tmp: fig.savefig(tmp, dpi=120, format="png"), overwrite=args.force)
     plt.close(fig)
     print(f"wrote {png}")

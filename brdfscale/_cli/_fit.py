@@ -5,9 +5,15 @@ Reads a measurement set, fits a model (optimistix, multi-start), samples its pos
 DIR/fit.json, the figures and the evolved lobe tables (:func:`fitting.write_report`).
 """
 
+import math
 import os
 
 from .._errors import InvalidInputError
+from ._options import MAX_SEED, integer, output_directory, real, seed
+
+
+#: The chain is held in memory (and in chain.h5): walkers × steps × parameters × 8 bytes at most.
+CHAIN_BUDGET = 2 * 2**30
 
 
 def _fixed(text: str) -> tuple[str, float]:
@@ -15,14 +21,20 @@ def _fixed(text: str) -> tuple[str, float]:
 
     name, sep, value = text.partition("=")
     try:
-        return name.strip(), float(value)
+        number = float(value)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected NAME=VALUE (e.g. mu_c=1.0); got {text!r}") from None
+        number = None
+    if not sep or not name.strip() or number is None:
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE (e.g. mu_c=1.0); got {text!r:.60}")
+    if not (math.isfinite(number) and number > 0):
+        raise argparse.ArgumentTypeError(f"the value must be a positive finite number (every parameter is); got {text!r:.60}")
+    return name.strip(), number
 
 
 def add_fit_options(parser) -> None:
     """Options shared by ``fit`` and ``demo``."""
-    parser.add_argument("--out", required=True, help="output directory (fit.json, figures, tables, chain.h5)")
+    parser.add_argument("--out", required=True, help="output directory (fit.json, figures, tables, chain.h5); "
+                        "one run at a time: a second run into it is refused (exit 3)")
     parser.add_argument("--model", choices=("parametric", "nonparametric"), default="parametric",
                         help="parametric lobe + width law (default), or tabulated lobe + relative statistics")
     parser.add_argument("--family", choices=("beckmann", "ggx"), default="beckmann",
@@ -31,21 +43,49 @@ def add_fit_options(parser) -> None:
                         help="scale law of the parametric model: width (α(μ) power law, default) or gaussian_surface "
                         "(Gaussian-correlated random surface: rms_height, correlation_length; beckmann only)")
     parser.add_argument("--fix", type=_fixed, action="append", default=[], metavar="NAME=VALUE",
-                        help="hold a parametric quantity fixed (e.g. mu_c=1.0); repeatable")
+                        help="hold a parametric quantity fixed (e.g. mu_c=1.0) at a value inside its prior box "
+                        "(docs/fitting.md); repeatable, once per name")
     parser.add_argument("--solver", choices=("lm", "gauss_newton", "dogleg", "bfgs"), default="lm",
                         help="optimistix solver (default lm: Levenberg–Marquardt)")
-    parser.add_argument("--starts", type=int, default=6, help="multi-start count (default 6)")
-    parser.add_argument("--max-steps", type=int, default=256,
-                        help="solver steps per start (default 256); a start that needs more is reported as such")
-    parser.add_argument("--base-nodes", type=int, default=13,
-                        help="non-parametric model: base lobe tabulated on N × N nodes (default 13)")
-    parser.add_argument("--knots", type=int, default=8,
-                        help="non-parametric model: W knots of the relative statistics (default 8)")
-    parser.add_argument("--steps", type=int, default=2000, help="emcee steps (default 2000; 0: Laplace only)")
-    parser.add_argument("--walkers", type=int, default=None, help="emcee walkers (default max(32, 4·dim))")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the starts and the sampler (default 0)")
+    parser.add_argument("--starts", type=integer(1, 256), default=6, help="multi-start count, 1–256 (default 6)")
+    parser.add_argument("--max-steps", type=integer(1, 100_000), default=256,
+                        help="solver steps per start, 1–100000 (default 256); a start that needs more is reported")
+    parser.add_argument("--base-nodes", type=integer(3, 41), default=13,
+                        help="non-parametric model: base lobe tabulated on N × N nodes, 3–41 (default 13)")
+    parser.add_argument("--knots", type=integer(2, 64), default=8,
+                        help="non-parametric model: W knots of the relative statistics, 2–64 (default 8)")
+    parser.add_argument("--steps", type=integer(0, 1_000_000), default=2000,
+                        help="emcee steps, 0–1000000 (default 2000; 0: Laplace only); the chain is kept in memory: "
+                        f"walkers × steps × parameters × 8 bytes ≤ {CHAIN_BUDGET // 2**30} GiB")
+    parser.add_argument("--walkers", type=integer(2, 4096), default=None,
+                        help="emcee walkers, even, ≥ 2 × parameters, ≤ 4096 (default max(32, 4 × parameters))")
+    parser.add_argument("--seed", type=seed, default=0, help=f"seed of the starts and the sampler, 0–{MAX_SEED} (default 0)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--force", action="store_true", help="overwrite DIR/fit.json and restart DIR/chain.h5")
+
+
+def check_fit_options(args) -> None:
+    """Cross-option checks that need no data: each --fix name once."""
+    names = [name for name, _ in args.fix]
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise InvalidInputError(f"--fix {', '.join(repeated)} given more than once; fix each quantity once.")
+    if args.fix and args.model != "parametric":
+        raise InvalidInputError("--fix applies to the parametric model only.")
+
+
+def check_sampler_options(args, n_parameters: int) -> None:
+    """--walkers and --steps against the model's size, before the fit runs."""
+    if args.steps == 1:
+        raise InvalidInputError("--steps 1 has no transition to measure (no acceptance rate, no τ); give 0 or ≥ 2.")
+    walkers = args.walkers if args.walkers is not None else max(32, 4 * n_parameters)
+    if walkers < 2 * n_parameters:
+        raise InvalidInputError(f"--walkers {walkers}: the model has {n_parameters} parameters, so emcee needs at "
+                                f"least {2 * n_parameters} walkers.")
+    size = (walkers + walkers % 2) * args.steps * n_parameters * 8
+    if size > CHAIN_BUDGET:
+        raise InvalidInputError(f"--walkers {walkers} × --steps {args.steps} × {n_parameters} parameters is a chain of "
+                                f"{size / 2**30:.1f} GiB; at most {CHAIN_BUDGET // 2**30} GiB (fewer steps or walkers).")
 
 
 def register(subparsers) -> None:
@@ -58,8 +98,8 @@ def register(subparsers) -> None:
     )
     parser.add_argument("measurements", help="multi-part OpenEXR measurement set (brdfscale.exr format)")
     add_fit_options(parser)
-    parser.add_argument("--default-sigma", type=float, default=None,
-                        help="noise σ for images without a sigma channel (lobe units)")
+    parser.add_argument("--default-sigma", type=real(0.0, 1e30, strict_lo=True), default=None,
+                        help="noise σ > 0 for images without a sigma channel (lobe units)")
     parser.set_defaults(func=run)
 
 
@@ -68,22 +108,37 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
     import fitting
     from fitting._report import check_out_dir
 
+    from .. import files
+
+    check_fit_options(args)
     data = fitting.Dataset.from_measurements(mset, default_sigma=getattr(args, "default_sigma", None))
     fixed = dict(args.fix)
     if args.model == "parametric":
-        model = fitting.ParametricModel(args.family, args.family, law=args.law, fixed=fixed)
+        try:
+            model = fitting.ParametricModel(args.family, args.family, law=args.law, fixed=fixed)
+            fitting.Problem(model, data)  # fixed values inside their prior box for these data
+        except InvalidInputError as err:
+            if not fixed:
+                raise
+            raise InvalidInputError(f"--fix: {err}") from None
         law = {"width": "WidthLaw alpha(mu) = alpha_max (1 + (mu/mu_c)^2)^(-exponent/2)",
                "gaussian_surface": "GaussianSurface(GaussianCorrelation(rms_height, correlation_length), box window)"}
         info = {"kind": "parametric", "lobe": args.family, "statistics": args.family,
                 "scale_law": law[args.law], "fixed": fixed}
     else:
-        if fixed:
-            raise InvalidInputError("--fix applies to the parametric model only.")
         model = fitting.NonParametricModel(data, base_nodes=args.base_nodes, n_knots=args.knots)
         info = {"kind": "nonparametric", "base_nodes": model.base_nodes, "base_extent": model.base_extent,
                 "knots_W": list(model.knots), "smoothness": model.smoothness}
     info["solver"] = args.solver
+    if args.steps > 0:
+        check_sampler_options(args, len(model.names))
+    truth = fitting.truth_of(model, mset.metadata)  # a damaged truth is refused before the work, not after
     check_out_dir(args.out, args.force)  # before the long work: every report file, not only fit.json
+    with files.exclusive(args.out, what="output directory"):
+        return _fit_and_report(fitting, mset, data, model, info, truth, args, stream)
+
+
+def _fit_and_report(fitting, mset, data, model, info, truth, args, stream) -> dict:
     stream(f"fitting {len(data.scale_of_image)} images at scales μ = {[float(s) for s in data.scales]} "
            f"({data.n_data} valid pixels), {len(model.names)} parameters, {args.starts} starts ...")
     result = fitting.fit(model, data, solver=args.solver, starts=args.starts, seed=args.seed, max_steps=args.max_steps)
@@ -101,7 +156,6 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
         stream(f"  emcee: {diag['walkers']} walkers × {diag['steps']} steps, burn-in {diag['burn_in']}, "
                f"max τ = {max(diag['autocorrelation_time'].values()):.1f}, "
                f"min ESS = {min(diag['effective_sample_size'].values()):.0f} ({diag['tau_note']})")
-    truth = fitting.truth_of(model, mset.metadata)
     return fitting.write_report(args.out, fitting.Problem(model, data), result, samples, truth=truth,
                                 model_info=info, overwrite=args.force)
 
@@ -111,6 +165,7 @@ def run(args) -> int:
 
     from .. import exr
 
+    output_directory(args.out)
     mset = exr.read_measurements(args.measurements)
     doc = fit_measurements(mset, args)
     print(f"wrote {os.path.join(args.out, 'fit.json')}")

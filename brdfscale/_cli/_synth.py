@@ -6,13 +6,19 @@ import math
 import numpy as np
 
 from .._errors import InvalidInputError
+from ._options import MAX_SEED, integer, output_file, real, seed
 
 
-def _floats(text: str) -> list[float]:
+def _scales(text: str) -> list[float]:
+    """Comma-separated facet sizes μ: 1–64 whole numbers of pixels ≥ 1 (each ≤ --size, checked
+    with the size)."""
     try:
-        return [float(x) for x in text.split(",") if x.strip()]
+        values = [float(x) for x in text.split(",") if x.strip()]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers; got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers; got {text!r:.60}") from None
+    if not 1 <= len(values) <= 64 or not all(math.isfinite(v) and v >= 1 and v == round(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected 1–64 comma-separated whole numbers of pixels ≥ 1; got {text!r:.60}")
+    return values
 
 
 def _incident(text: str) -> np.ndarray:
@@ -20,27 +26,33 @@ def _incident(text: str) -> np.ndarray:
     try:
         angles = [float(x) for x in text.split(":")]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected THETA or THETA:PHI in degrees; got {text!r}") from None
-    if len(angles) not in (1, 2) or not 0 <= angles[0] < 90:
-        raise argparse.ArgumentTypeError(f"expected THETA (0 ≤ θ < 90) or THETA:PHI in degrees; got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected THETA or THETA:PHI in degrees; got {text!r:.60}") from None
+    if len(angles) not in (1, 2) or not 0 <= angles[0] < 90 or not all(math.isfinite(a) for a in angles):
+        raise argparse.ArgumentTypeError(f"expected THETA (0 ≤ θ < 90) or THETA:PHI in degrees (finite); got {text!r:.60}")
     theta, phi = math.radians(angles[0]), math.radians(angles[1] if len(angles) == 2 else 0.0)
     return np.array([math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta)])
+
+
+#: Domains of the noise parameters: the lobe images are stored as float32 (|x| ≤ 3.4e38).
+_EXPOSURE, _SIGMA = (1e-6, 1e15), (1e-30, 1e30)
 
 
 def _noise(text: str):
     from .. import synth
 
     kind, _, value = text.partition(":")
-    try:
-        if kind == "none" and not value:
-            return None
-        if kind == "poisson":
-            return synth.PoissonNoise(float(value))
-        if kind == "gaussian":
-            return synth.GaussianNoise(floor=float(value))
-    except (ValueError, InvalidInputError) as err:
-        raise argparse.ArgumentTypeError(f"bad noise {text!r}: {err}") from None
-    raise argparse.ArgumentTypeError(f"noise must be none, poisson:EXPOSURE or gaussian:SIGMA; got {text!r}")
+    if kind == "none" and not value:
+        return None
+    if kind in ("poisson", "gaussian"):
+        lo, hi = _EXPOSURE if kind == "poisson" else _SIGMA
+        number = real(lo, hi)(value)
+        try:
+            return synth.PoissonNoise(number) if kind == "poisson" else synth.GaussianNoise(floor=number)
+        except InvalidInputError as err:
+            raise argparse.ArgumentTypeError(f"bad noise {text!r:.60}: {err}") from None
+    raise argparse.ArgumentTypeError(f"noise must be none, poisson:EXPOSURE (EXPOSURE in [{_EXPOSURE[0]:g}, "
+                                     f"{_EXPOSURE[1]:g}]) or gaussian:SIGMA (SIGMA in [{_SIGMA[0]:g}, {_SIGMA[1]:g}]); "
+                                     f"got {text!r:.60}")
 
 
 def register(subparsers) -> None:
@@ -55,18 +67,20 @@ def register(subparsers) -> None:
     )
     parser.add_argument("surface", choices=sorted(SURFACES), metavar="SURFACE", help="one of: " + ", ".join(SURFACES))
     parser.add_argument("--out", required=True, help="output .exr file")
-    parser.add_argument("--scales", type=_floats, default=[4.0, 16.0, 64.0], help="facet sizes μ in pixels (default 4,16,64)")
+    parser.add_argument("--scales", type=_scales, default=[4.0, 16.0, 64.0],
+                        help="facet sizes μ, whole numbers of pixels from 1 to --size (default 4,16,64)")
     parser.add_argument("--incident", type=_incident, action="append", metavar="THETA[:PHI]",
                         help="incident direction in degrees; repeat for several (default 0)")
     parser.add_argument("--noise", type=_noise, default=None, metavar="MODEL",
                         help="none (default), poisson:EXPOSURE (counts per unit lobe value) or gaussian:SIGMA")
-    parser.add_argument("--resolution", type=float, default=0.0, help="instrument blur, slope std (default 0)")
-    parser.add_argument("--micro-alpha", type=float, default=None, metavar="ALPHA",
-                        help="Beckmann roughness of the pixel facets (default: mirror facets)")
-    parser.add_argument("--extent", type=float, default=None, help="image half-width in slope units (default: 1.05 × steepest pixel slope)")
-    parser.add_argument("--pixels", type=int, default=65, help="image nodes per axis (default 65)")
-    parser.add_argument("--size", type=int, default=512, help="height field pixels per side (default 512)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed of surface and noise (default 0)")
+    parser.add_argument("--resolution", type=real(0.0, 10.0), default=0.0, help="instrument blur, slope std, 0–10 (default 0)")
+    parser.add_argument("--micro-alpha", type=real(0.0, 10.0, strict_lo=True), default=None, metavar="ALPHA",
+                        help="Beckmann roughness of the pixel facets, in (0, 10] (default: mirror facets)")
+    parser.add_argument("--extent", type=real(0.0, 1000.0, strict_lo=True), default=None,
+                        help="image half-width in slope units, in (0, 1000] (default: 1.05 × steepest pixel slope)")
+    parser.add_argument("--pixels", type=integer(3, 1025), default=65, help="image nodes per axis, 3–1025 (default 65)")
+    parser.add_argument("--size", type=integer(16, 4096), default=512, help="height field pixels per side, 16–4096 (default 512)")
+    parser.add_argument("--seed", type=seed, default=0, help=f"random seed of surface and noise, 0–{MAX_SEED} (default 0)")
     parser.add_argument("--weighting", choices=("nearly_flat", "projected_area"), default="nearly_flat",
                         help="pixel-facet weighting (default nearly_flat, the seed's approximation)")
     parser.add_argument("--dtype", choices=("float32", "float16"), default="float32", help="pixel type (default float32)")
@@ -77,8 +91,10 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from .. import exr, stats, synth
 
-    if args.seed < 0:
-        raise InvalidInputError(f"--seed must be ≥ 0; got {args.seed}.")
+    output_file(args.out, args.force)
+    if max(args.scales) > args.size:
+        raise InvalidInputError(f"--scales {max(args.scales):g} exceeds the field's --size {args.size}: a facet cannot "
+                                "be larger than the surface.")
     surface_seed, noise_seed = np.random.SeedSequence(args.seed).spawn(2)
     micro = None if args.micro_alpha is None else stats.Beckmann(args.micro_alpha)
     field = synth.named_surface(args.surface, size=args.size, seed=np.random.default_rng(surface_seed), micro=micro)

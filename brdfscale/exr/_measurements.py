@@ -1,14 +1,13 @@
 """Measurement sets (:class:`brdfscale.MeasurementSet`) as multi-part OpenEXR files."""
 
 import numpy as np
-import OpenEXR
 
 from .._errors import BrdfscaleError, InvalidInputError, MeasurementFileError
 from .._measurement import LobeImage, MeasurementSet
 from ._format import FORMAT, PREFIX, PartReader
 from .._validation import flag
 from ._io import file_path, open_parts, write_parts
-from ._parts import check_dtype, image_channels, metadata_json, part_header, read_image_part
+from ._parts import check_dtype, image_channels, metadata_json, part_header, read_image_part, sealed_part
 
 KIND = "measurement_set"
 
@@ -47,7 +46,7 @@ def write_measurements(path, mset: MeasurementSet, *, overwrite: bool = False, d
         header[PREFIX + "incident"] = np.asarray(image.incident, dtype=np.float64)
         if index == 0:
             header[PREFIX + "metadata"] = meta
-        parts.append(OpenEXR.Part(header, channels, name=f"lobe{index:04d}"))
+        parts.append(sealed_part(header, channels, f"lobe{index:04d}"))
     write_parts(path, parts, overwrite)
 
 
@@ -74,6 +73,7 @@ def read_measurements(path) -> MeasurementSet:
         values, sigma, mask = read_image_part(part)
         if index == 0:
             metadata = part.json_object("metadata")
+        part.verify_header()
         try:
             images.append(LobeImage(mu=mu, incident=incident, extent=extent, values=values, sigma=sigma, mask=mask))
         except BrdfscaleError as err:

@@ -7,6 +7,7 @@ import OpenEXR
 
 from .._errors import InvalidInputError
 from ._format import (
+    DIGEST,
     DOMAIN,
     FORMAT,
     FORMAT_VERSION,
@@ -16,6 +17,8 @@ from ._format import (
     channel_names,
     checksum,
     double,
+    header_digest,
+    json_limit_problem,
 )
 
 
@@ -89,6 +92,13 @@ def part_header(kind: str, index: int, count: int, mu: float, extent: float, cha
     }
 
 
+def sealed_part(header: dict, channels: dict, name: str) -> "OpenEXR.Part":
+    """The ``OpenEXR.Part`` of a complete header, with its header digest added last (every
+    ``brdfscale.*`` attribute must be in ``header`` by now)."""
+    header = {**header, PREFIX + DIGEST: header_digest(header, channels)}
+    return OpenEXR.Part(header, channels, name=name)
+
+
 def _string_keys(value, where: str) -> None:
     """JSON turns every key into a string: a non-str key would come back changed."""
     if isinstance(value, dict):
@@ -121,6 +131,9 @@ def metadata_json(metadata) -> str:
             pass
         raise InvalidInputError(f"metadata must be JSON-serialisable (finite numbers, str, lists, dicts): {err}") from err
     _string_keys(metadata, "metadata")  # no cycles: json.dumps would have refused them
+    problem = json_limit_problem(text, metadata)
+    if problem:
+        raise InvalidInputError(f"metadata: {problem} (the reader's limit, so that a damaged file cannot exhaust it).")
     return text
 
 

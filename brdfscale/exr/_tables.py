@@ -5,7 +5,6 @@ from collections.abc import Mapping
 
 import jax.numpy as jnp
 import numpy as np
-import OpenEXR
 from jaxtyping import Float
 
 from .._errors import BrdfscaleError, InvalidInputError, MeasurementFileError
@@ -13,7 +12,7 @@ from ..lobes import AbstractLobe
 from ._format import PREFIX, PartReader
 from .._validation import flag, integer, real, real_array
 from ._io import file_path, open_parts, write_parts
-from ._parts import check_dtype, image_channels, metadata_json, part_header, read_image_part
+from ._parts import check_dtype, image_channels, metadata_json, part_header, read_image_part, sealed_part
 
 KIND = "lobe_table"
 
@@ -140,7 +139,7 @@ def write_lobe_table(path, table: LobeTable, *, overwrite: bool = False, dtype: 
         header = part_header(KIND, index, len(table.scales), mu, table.extent, channels, values.shape[0])
         if index == 0:
             header[PREFIX + "metadata"] = meta
-        parts.append(OpenEXR.Part(header, channels, name=f"scale{index:04d}"))
+        parts.append(sealed_part(header, channels, f"scale{index:04d}"))
     write_parts(path, parts, overwrite)
 
 
@@ -168,6 +167,7 @@ def read_lobe_table(path) -> LobeTable:
             part.fail("channels", f"shape {values.shape} differs from part 0's {planes[0].shape}.")
         if index == 0:
             metadata = part.json_object("metadata")
+        part.verify_header()
         scales.append(mu)
         planes.append(values)
     try:

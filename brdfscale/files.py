@@ -1,0 +1,11 @@
+"""Files that brdfscale and its users' runs write: atomic, no-clobber, exclusive.
+
+* :func:`atomic_write` — a file appears whole or not at all, and an existing one is replaced
+  only when asked; temporary files of a killed write are removed by the next write;
+* :func:`exclusive` — an OS-level lock on an output directory or checkpoint, refusing a
+  second run at once with the holder named (:class:`brdfscale.OutputInUseError`).
+"""
+
+from ._files import atomic_write, exclusive
+
+__all__ = ["atomic_write", "exclusive"]

@@ -1,0 +1,385 @@
+"""Reliability fuzzing (issue 16): damaged measurement files and hostile command lines.
+
+Files. A small valid measurement set (two parts, RGB values, σ, mask, metadata) and a lobe
+table are written, then mutated; each mutant is read with :func:`brdfscale.exr.read_measurements`
+(or ``read_lobe_table``). Kinds of mutation:
+
+* ``bit_flip`` / ``byte_set`` / ``truncate`` / ``insert`` — raw bytes anywhere in the file;
+* ``attribute`` — one ``brdfscale.*`` attribute rewritten with a plausible other value (μ × 2,
+  another extent or incident direction, metadata changed) keeping the stored digest;
+* ``channel`` — the ``sigma.*`` or ``mask`` channel removed, or an unlisted channel added;
+* ``crafted`` — a consistently re-sealed file (digest recomputed, as a buggy or hostile
+  writer would) whose metadata JSON is hostile: nested 10 000 deep, a 5 000-digit integer,
+  NaN, 17 MiB, a non-object; or whose attribute strings are not UTF-8.
+
+Outcomes: ``refused`` (:class:`brdfscale.MeasurementFileError`), ``same`` (read back identical
+to the original: the mutation hit bytes that carry no data, e.g. the part name), and the two
+failures ``changed`` (data read back different, silently) and ``foreign`` (any other exception).
+
+Command lines. Templates of every subcommand, mutated: an option's value replaced by one of a
+pool of hostile values (negative, 0, 1e300, nan, inf, '', a 22-digit integer, text, …), an
+option repeated, abbreviated, unknown, a required argument dropped. Each command line's
+expected verdict follows from the documented domains (``--help``): valid ones must exit 0,
+invalid ones exit 2 with a one-line message; fit/demo/example lines are generated invalid
+only (a valid one would run a fit). Failures: ``traceback`` (stderr holds a Python traceback),
+``accepted_nonsense`` (invalid but exit 0), ``refused_valid``, ``wrong_status``.
+
+Run: ``flock /tmp/brdfscale-bench.lock python experiments/fuzz_robustness.py`` (5 000 file
+mutants, 300 command lines) → experiments/results/fuzz_robustness/fuzz_robustness.json;
+``--quick`` for the smoke version (tests/test_experiments_smoke.py).
+"""
+
+import argparse
+import collections
+import contextlib
+import io
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import numpy as np  # noqa: E402
+import OpenEXR  # noqa: E402
+
+import brdfscale as bs  # noqa: E402
+from brdfscale import exr  # noqa: E402
+from brdfscale._cli import main as cli_main  # noqa: E402
+from brdfscale.exr import _format  # noqa: E402
+
+from _studies import study_dir, write_results  # noqa: E402
+
+
+# -- files -----------------------------------------------------------------------------------
+
+def sample_set() -> bs.MeasurementSet:
+    rng = np.random.default_rng(7)
+    images = []
+    for k, mu in enumerate((2.0, 8.0)):
+        v = rng.random((9, 9, 3)) + 0.1
+        images.append(bs.LobeImage(mu=mu, incident=np.array([0.1 * k, 0.0, np.sqrt(1 - 0.01 * k * k)]), extent=0.2,
+                                   values=v, sigma=0.05 + 0.1 * v, mask=v[..., 0] > 0.3))
+    return bs.MeasurementSet(tuple(images), {"surface": {"name": "fuzz"}, "truth": {"params": {"mu_c": 3.0}},
+                                             "note": "ünïcode"})
+
+
+def sample_table() -> exr.LobeTable:
+    v = np.random.default_rng(8).random((2, 7, 7)) + 0.01
+    return exr.LobeTable(np.array([1.0, 4.0]), 0.3, v, {"source": "fuzz"})
+
+
+def same_set(a: bs.MeasurementSet, b: bs.MeasurementSet) -> bool:
+    if len(a.images) != len(b.images) or a.metadata != b.metadata:
+        return False
+    for p, q in zip(a.images, b.images):
+        for x, y in ((p.values, q.values), (p.sigma, q.sigma), (p.mask, q.mask), (p.incident, q.incident)):
+            if (x is None) != (y is None) or (x is not None and not np.array_equal(x, y)):
+                return False
+        if p.mu != q.mu or p.extent != q.extent:
+            return False
+    return True
+
+
+def same_table(a: exr.LobeTable, b: exr.LobeTable) -> bool:
+    return (np.array_equal(a.scales, b.scales) and a.extent == b.extent and np.array_equal(a.values, b.values)
+            and a.metadata == b.metadata)
+
+
+@contextlib.contextmanager
+def quiet_stderr():
+    """OpenEXR's C++ layer prints warnings on file descriptors 1 and 2 for damaged pixel data."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    with open(os.devnull, "w") as null:
+        os.dup2(null.fileno(), 1)
+        os.dup2(null.fileno(), 2)
+        try:
+            yield
+        finally:
+            for fd, copy in zip((1, 2), saved):
+                os.dup2(copy, fd)
+                os.close(copy)
+
+
+def _rewrite(src: str, dst: str, edit, reseal: bool = False) -> None:
+    """Copy ``src`` to ``dst`` through OpenEXR, applying ``edit(index, header, channels)``."""
+    parts = []
+    for index, part in enumerate(OpenEXR.File(src, separate_channels=True).parts):
+        header = dict(part.header)
+        channels = {name: c.pixels for name, c in part.channels.items()}
+        edit(index, header, channels)
+        for key in ("channels", "chunkCount", "dataWindow", "type"):
+            header.pop(key, None)
+        if reseal:
+            header[_format.PREFIX + _format.DIGEST] = _format.header_digest(header, channels)
+        parts.append(OpenEXR.Part(header, channels, name=part.header.get("name", f"p{index}")))
+    OpenEXR.File(parts).write(dst)
+
+
+def _attribute_edits(kind: str):
+    P = _format.PREFIX
+    edits = [
+        lambda i, h, c: h.__setitem__(P + "mu", h[P + "mu"] * 2),
+        lambda i, h, c: h.__setitem__(P + "extent", h[P + "extent"] * 1.5),
+        lambda i, h, c: h.__setitem__(P + "checksums", h[P + "checksums"]) if i else h.__setitem__(
+            P + "metadata", json.dumps({**json.loads(h[P + "metadata"]), "extra": 1})),
+        lambda i, h, c: h.__setitem__(P + "domain", h[P + "domain"]),  # no change: must read identically
+    ]
+    if kind == "measurement_set":
+        edits.append(lambda i, h, c: h.__setitem__(P + "incident", np.array([0.0, 0.6, 0.8])))
+    return edits
+
+
+def _channel_edits(kind: str):
+    edits = [lambda i, h, c: c.__setitem__("extra", np.zeros_like(next(iter(c.values()))))]
+    if kind == "measurement_set":
+        edits += [lambda i, h, c: c.pop("mask"), lambda i, h, c: [c.pop(k) for k in list(c) if k.startswith("sigma")]]
+    return edits
+
+
+def _crafted(rng, kind: str):
+    P = _format.PREFIX
+    deep = "[" * 10_000 + "]" * 10_000
+    bad_json = [f'{{"a": {deep}}}', '{"n": ' + "7" * 5000 + "}", '{"x": NaN}', '[1, 2]',
+                '{"big": "' + "x" * (17 * 2**20) + '"}']
+    choice = rng.integers(len(bad_json))
+    return lambda i, h, c: h.__setitem__(P + "metadata", bad_json[choice]) if i == 0 else None
+
+
+def mutate_file(kind_of_mutation: str, data: bytes, src: str, dst: str, rng, file_kind: str) -> None:
+    if kind_of_mutation in ("bit_flip", "byte_set", "truncate", "insert"):
+        b = bytearray(data)
+        i = int(rng.integers(len(b)))
+        if kind_of_mutation == "bit_flip":
+            b[i] ^= 1 << int(rng.integers(8))
+        elif kind_of_mutation == "byte_set":
+            b[i] = int(rng.integers(256))
+        elif kind_of_mutation == "truncate":
+            b = b[:i]
+        else:
+            b[i:i] = bytes(rng.integers(0, 256, int(rng.integers(1, 9))).astype(np.uint8))
+        Path(dst).write_bytes(bytes(b))
+    elif kind_of_mutation == "attribute":
+        edits = _attribute_edits(file_kind)
+        _rewrite(src, dst, edits[int(rng.integers(len(edits)))])
+    elif kind_of_mutation == "channel":
+        edits = _channel_edits(file_kind)
+        edit = edits[int(rng.integers(len(edits)))]
+        part = int(rng.integers(2))
+        _rewrite(src, dst, lambda i, h, c: edit(i, h, c) if i == part else None)
+    elif kind_of_mutation == "crafted":
+        _rewrite(src, dst, _crafted(rng, file_kind), reseal=True)
+        if rng.random() < 0.4:  # a non-UTF-8 byte inside an attribute string, in place
+            b = bytearray(Path(dst).read_bytes())
+            at = b.find(b"half_slope")
+            b[at + int(rng.integers(10))] = 0xFF
+            Path(dst).write_bytes(bytes(b))
+    else:
+        raise ValueError(kind_of_mutation)
+
+
+FILE_KINDS = ("bit_flip", "byte_set", "truncate", "insert", "attribute", "channel", "crafted")
+
+
+def fuzz_files(n: int, seed: int = 0, directory: str | None = None) -> dict:
+    """``n`` mutants (spread over :data:`FILE_KINDS` and the two file kinds); tallies by kind."""
+    rng = np.random.default_rng(seed)
+    tmp = tempfile.mkdtemp(dir=directory)
+    originals = {}
+    for file_kind, obj, write, read, same in (
+        ("measurement_set", sample_set(), exr.write_measurements, exr.read_measurements, same_set),
+        ("lobe_table", sample_table(), exr.write_lobe_table, exr.read_lobe_table, same_table),
+    ):
+        path = os.path.join(tmp, f"{file_kind}.exr")
+        write(path, obj)
+        originals[file_kind] = (path, Path(path).read_bytes(), read(path), read, same)
+    tally = collections.defaultdict(collections.Counter)
+    failures = []
+    dst = os.path.join(tmp, "mutant.exr")
+    for t in range(n):
+        kind = FILE_KINDS[t % len(FILE_KINDS)]
+        file_kind = ("measurement_set", "lobe_table")[(t // len(FILE_KINDS)) % 2]
+        src, data, ref, read, same = originals[file_kind]
+        mutate_file(kind, data, src, dst, rng, file_kind)
+        with quiet_stderr():
+            try:
+                out = read(dst)
+                outcome = "same" if same(out, ref) else "changed"
+            except bs.MeasurementFileError:
+                outcome = "refused"
+            except Exception as err:  # noqa: BLE001 — what the fuzzing is looking for
+                outcome = "foreign"
+                failures.append({"kind": kind, "file": file_kind, "error": f"{type(err).__name__}: {err}"[:300]})
+        if outcome == "changed":
+            failures.append({"kind": kind, "file": file_kind, "error": "data changed silently"})
+        tally[kind][outcome] += 1
+    rows = {k: {"tried": sum(c.values()), "refused": c["refused"], "same": c["same"],
+                "changed": c["changed"], "foreign": c["foreign"]} for k, c in tally.items()}
+    return {"mutants": n, "by_kind": rows, "failures": failures[:50],
+            "bad": sum(r["changed"] + r["foreign"] for r in rows.values())}
+
+
+# -- command lines -----------------------------------------------------------------------------
+
+HOSTILE = ["-1", "0", "1e300", "-1e300", "nan", "inf", "", "1180591620717411303424", "abc", "1e-30",
+           "100000", "0x10", "1.5", "2", "3", "-0", "1e9", "65", "∞"]
+
+
+def _number(text: str, lo, hi, *, strict: bool = False, integral: bool = False) -> bool:
+    import math
+
+    try:
+        x = int(text) if integral else float(text)
+    except ValueError:
+        return False
+    return math.isfinite(x) and (x > lo if strict else x >= lo) and x <= hi
+
+
+#: synth's options and their documented domains (``brdfscale synth --help``), for the
+#: template ``--size 16 --scales 2,4``: a scale must not exceed the size, the size not be
+#: below the largest scale.
+SYNTH_DOMAINS = {
+    "--pixels": lambda t: _number(t, 3, 1025, integral=True),
+    "--size": lambda t: _number(t, 16, 4096, integral=True),
+    "--seed": lambda t: _number(t, 0, 2**32 - 1, integral=True),
+    "--extent": lambda t: _number(t, 0, 1000, strict=True),
+    "--resolution": lambda t: _number(t, 0, 10),
+    "--micro-alpha": lambda t: _number(t, 0, 10, strict=True),
+    "--scales": lambda t: _number(t, 1, 16) and float(t) == round(float(t)),
+}
+
+
+def _invalid_for(option: str, text: str) -> bool:
+    """Invalid values used for fit/demo lines (so that no fit runs)."""
+    domain = {"--steps": (0, 10**6), "--starts": (1, 256), "--walkers": (2, 4096), "--seed": (0, 2**32 - 1),
+              "--base-nodes": (3, 41), "--knots": (2, 64), "--max-steps": (1, 10**5)}.get(option)
+    try:
+        if domain is None:  # --default-sigma: positive finite ≤ 1e30
+            x = float(text)
+            return not (x == x and 0 < x <= 1e30)
+        x = int(text)
+        return not domain[0] <= x <= domain[1]
+    except ValueError:
+        return True
+
+
+def command_lines(n: int, rng, tmp: str, measurements: str) -> list[tuple[list[str], bool]]:
+    """``n`` (argv, valid) pairs."""
+    out = []
+    synth_base = ["synth", "gaussian", "--size", "16", "--pixels", "5", "--scales", "2,4"]
+    fit_options = ["--steps", "--starts", "--walkers", "--seed", "--base-nodes", "--knots", "--max-steps",
+                   "--default-sigma"]
+    k = 0
+    while len(out) < n:
+        k += 1
+        r = rng.random()
+        target = os.path.join(tmp, f"o{k}.exr")
+        if r < 0.35:  # synth with one option mutated (valid or not, per the documented domain)
+            option = sorted(SYNTH_DOMAINS)[int(rng.integers(len(SYNTH_DOMAINS)))]
+            value = HOSTILE[int(rng.integers(len(HOSTILE)))]
+            argv = list(synth_base)
+            if option in argv:
+                i = argv.index(option)
+                del argv[i:i + 2]
+            argv += ["--out", target, option, value]
+            out.append((argv, SYNTH_DOMAINS[option](value)))
+        elif r < 0.7:  # fit / demo with an invalid value
+            cmd = "fit" if rng.random() < 0.7 else "demo"
+            options = fit_options if cmd == "fit" else ["--steps", "--seed"]
+            option = options[int(rng.integers(len(options)))]
+            candidates = [v for v in HOSTILE if _invalid_for(option, v)]
+            value = candidates[int(rng.integers(len(candidates)))]
+            argv = ([cmd, measurements] if cmd == "fit" else [cmd]) + ["--out", os.path.join(tmp, f"d{k}"), option, value]
+            out.append((argv, False))
+        elif r < 0.85:  # structural: repeated, abbreviated, unknown option, missing argument
+            s = int(rng.integers(5))
+            argv = {0: ["fit", measurements, "--out", os.path.join(tmp, f"d{k}"), "--force", "--force"],
+                    1: ["fit", measurements, "--out", os.path.join(tmp, f"d{k}"), "--walker", "8"],
+                    2: ["synth", "gaussian", "--out", target, "--pix", "5"],
+                    3: ["fit", "--out", os.path.join(tmp, f"d{k}")],
+                    4: ["fit", measurements, "--out", os.path.join(tmp, f"d{k}"), "--fix", "mu_c=1", "--fix",
+                        "mu_c=2"]}[s]
+            out.append((argv, False))
+        else:  # paths: empty, existing file, directory as a file, missing input, a device
+            s = int(rng.integers(6))
+            existing = os.path.join(tmp, "existing_file")
+            Path(existing).touch()
+            argv = {0: ["demo", "--out", ""], 1: ["demo", "--out", existing], 2: ["example", "--out", ""],
+                    3: ["synth", "gaussian", "--out", tmp], 4: ["info", os.path.join(tmp, "missing.exr")],
+                    5: ["info", "/dev/null"]}[s]
+            out.append((argv, False))
+    return out
+
+
+def run_command(argv: list[str]) -> tuple[int, str]:
+    err = io.StringIO()
+    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+        try:
+            code = cli_main(["--no-compilation-cache", *argv])
+        except SystemExit as exit_:  # argparse's usage errors
+            code = exit_.code if isinstance(exit_.code, int) else 1
+        except BaseException as exc:  # noqa: BLE001 — main() must never let one out
+            import traceback
+
+            traceback.print_exc(file=err)
+            code = -1
+            del exc
+    return code, err.getvalue()
+
+
+def fuzz_command_lines(n: int, seed: int = 0) -> dict:
+    rng = np.random.default_rng(seed)
+    tmp = tempfile.mkdtemp()
+    measurements = os.path.join(tmp, "m.exr")
+    exr.write_measurements(measurements, sample_set())
+    tally = collections.defaultdict(collections.Counter)
+    failures = []
+    for argv, valid in command_lines(n, rng, tmp, measurements):
+        code, err = run_command(argv)
+        kind = argv[0]
+        if "Traceback" in err:
+            outcome = "traceback"
+        elif valid:
+            outcome = "ok" if code == 0 else "refused_valid"
+        elif code == 0:
+            outcome = "accepted_nonsense"
+        elif code == 2:
+            outcome = "refused"
+        else:
+            outcome = "wrong_status"
+        tally[kind][outcome] += 1
+        if outcome not in ("ok", "refused"):
+            failures.append({"argv": argv, "status": code, "stderr": err[-400:]})
+    rows = {k: {"tried": sum(c.values()), **{o: c[o] for o in ("ok", "refused", "traceback", "accepted_nonsense",
+                                                               "refused_valid", "wrong_status")}}
+            for k, c in sorted(tally.items())}
+    bad = sum(r["traceback"] + r["accepted_nonsense"] + r["refused_valid"] + r["wrong_status"] for r in rows.values())
+    return {"command_lines": n, "by_command": rows, "failures": failures[:50], "bad": bad}
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="smoke version: 140 file mutants, 40 command lines")
+    parser.add_argument("--files", type=int, default=5000)
+    parser.add_argument("--commands", type=int, default=300)
+    parser.add_argument("--out", default=None, help="results directory (default experiments/results/fuzz_robustness)")
+    args = parser.parse_args(argv)
+    n_files, n_commands = (140, 40) if args.quick else (args.files, args.commands)
+    start = time.perf_counter()
+    files_result = fuzz_files(n_files)
+    print(f"files: {n_files} mutants, bad {files_result['bad']}: " + json.dumps(files_result["by_kind"]))
+    cli_result = fuzz_command_lines(n_commands)
+    print(f"command lines: {n_commands}, bad {cli_result['bad']}: " + json.dumps(cli_result["by_command"]))
+    payload = {"study": "fuzz_robustness", "quick": args.quick, "files": files_result, "cli": cli_result,
+               "wall_seconds": time.perf_counter() - start}
+    path = write_results(study_dir("fuzz_robustness", args.out), "fuzz_robustness", payload)
+    print(f"wrote {path}")
+    return 0 if files_result["bad"] == 0 and cli_result["bad"] == 0 else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
