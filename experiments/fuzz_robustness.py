@@ -361,6 +361,27 @@ def fuzz_command_lines(n: int, seed: int = 0) -> dict:
     return {"command_lines": n, "by_command": rows, "failures": failures[:50], "bad": bad}
 
 
+def page(payload: dict) -> str:
+    """The tables of docs/robustness.md (generated block) from the study's JSON."""
+    from _bench import table
+
+    f, c = payload["files"], payload["cli"]
+    rows = [[k, str(r["tried"]), str(r["refused"]), str(r["same"]), str(r["changed"]), str(r["foreign"])]
+            for k, r in f["by_kind"].items()]
+    total = {x: sum(r[x] for r in f["by_kind"].values()) for x in ("tried", "refused", "same", "changed", "foreign")}
+    rows.append(["**all**", *(f"**{total[x]}**" for x in ("tried", "refused", "same", "changed", "foreign"))])
+    out = [f"{f['mutants']} mutated files (seed 0), {payload['machine']['date_utc']}: refused = the library's "
+           "`MeasurementFileError`; same = read back identical (the bytes hit carry no data, e.g. a part name); "
+           "changed and foreign are the failures.",
+           "", table(["mutation", "tried", "refused", "same", "changed", "foreign"], rows), ""]
+    keys = ("ok", "refused", "traceback", "accepted_nonsense", "refused_valid", "wrong_status")
+    rows = [[k, str(r["tried"]), *(str(r[x]) for x in keys)] for k, r in c["by_command"].items()]
+    out += [f"{c['command_lines']} command lines (seed 0): ok = valid and exit 0, refused = invalid and exit 2 "
+            "with one message; the other columns are failures.", "",
+            table(["command", "tried", *keys], rows)]
+    return "\n".join(out)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="smoke version: 140 file mutants, 40 command lines")

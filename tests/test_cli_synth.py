@@ -94,5 +94,10 @@ def test_rough_micro_facets(tmp_path):
 
 
 def test_library_errors_exit_2(tmp_path, capsys):
-    assert cli.main(["synth", "gaussian", "--out", str(tmp_path / "x.exr"), "--size", "64", "--scales", "3.5"]) == 2
-    assert "whole number of pixels" in capsys.readouterr().err
+    # a fractional scale is refused while parsing (the domain --help states), a library error after it
+    with pytest.raises(SystemExit) as info:
+        cli.main(["synth", "gaussian", "--out", str(tmp_path / "x.exr"), "--size", "64", "--scales", "3.5"])
+    assert info.value.code == 2 and "whole numbers of pixels" in capsys.readouterr().err
+    (tmp_path / "x.exr").write_bytes(b"not an exr")
+    assert cli.main(["info", str(tmp_path / "x.exr")]) == 2
+    assert "not a readable OpenEXR file" in capsys.readouterr().err
