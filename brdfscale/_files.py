@@ -156,8 +156,7 @@ def exclusive(target: str | os.PathLike, *, what: str = "output") -> Iterator[st
     except OSError as err:
         raise OutputInUseError(f"{target}: cannot take the lock {lock_path}: {err.strerror or err}.") from err
     try:
-        first = lock.lock_counter == 1
-        if first:
+        if lock.lock_counter == 1:
             holder = {"pid": os.getpid(), "host": socket.gethostname(),
                       "started": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
                       "command": " ".join(sys.argv[:1] + sys.argv[1:])[:500]}
@@ -169,8 +168,8 @@ def exclusive(target: str | os.PathLike, *, what: str = "output") -> Iterator[st
             with contextlib.suppress(OSError):  # the record only informs; the lock is the OS's
                 atomic_write(record, write, overwrite=True, error=OutputInUseError)
         yield target
-        if first:
+    finally:
+        if lock.lock_counter == 1:  # the outermost holder: the record goes with the lock
             with contextlib.suppress(OSError):
                 os.unlink(record)
-    finally:
         lock.release()

@@ -390,3 +390,20 @@ def test_synth_option_values_outside_their_domain_are_refused(option, value):
         del argv[i:i + 2]
     code, err = fz.run_command(argv + [option, value])
     assert code == 2 and "Traceback" not in err, (option, value, err)
+
+
+def test_demo_runs_again_into_its_own_directory_and_never_replaces_a_users_files(tmp_path, capsys):
+    out = tmp_path / "demo"
+    argv = ["--no-compilation-cache", "demo", "--out", str(out), "--source", "model", "--steps", "0", "--no-progress"]
+    assert main(argv) == 0
+    first = (out / "fit.json").read_text()
+    assert main(argv) == 0  # README's main command, run again
+    assert "replacing them" in capsys.readouterr().out
+    assert json.loads((out / "fit.json").read_text())["parameters"] == json.loads(first)["parameters"]
+    user = tmp_path / "user"
+    user.mkdir()
+    (user / "fit.json").write_text("mine")
+    assert main([*argv[:3], str(user), *argv[4:]]) == 2
+    assert "already holds fit.json" in capsys.readouterr().err
+    assert sorted(p.name for p in user.iterdir() if not p.name.startswith(".brdfscale.lock")) == ["fit.json"]
+    assert (user / "fit.json").read_text() == "mine"

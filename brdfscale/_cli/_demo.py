@@ -12,6 +12,7 @@ import time
 
 import numpy as np
 
+from .._errors import InvalidInputError
 from ._fit import add_fit_options, fit_measurements
 from ._options import MAX_SEED, Parser, integer, make_directory, seed
 
@@ -34,7 +35,9 @@ def register(subparsers) -> None:
                         help="emcee steps, 0–100000 (default 1000, 16 walkers; 0: Laplace only)")
     parser.add_argument("--seed", type=seed, default=1, help=f"seed of surface, noise and sampler, 0–{MAX_SEED} (default 1)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    parser.add_argument("--force", action="store_true", help="overwrite an existing demo output")
+    parser.add_argument("--force", action="store_true",
+                        help="overwrite existing files in --out (a directory an earlier demo made is replaced "
+                        "without it)")
     parser.set_defaults(func=run)
 
 
@@ -54,14 +57,37 @@ def _measurements(source: str, seed: int):
 def run(args) -> int:
     import fitting  # noqa: F401  (first: it switches JAX to float64 before any array is made)
 
-    from .. import exr
-
-    from .. import files
+    from .. import exr, files
 
     start = time.perf_counter()
     make_directory(args.out)
     with files.exclusive(args.out, what="demo output directory"):
+        marker = os.path.join(args.out, _MARKER)
+        if os.path.exists(marker) and not args.force:
+            # a directory the demo made itself: running it again replaces its own outputs
+            print(f"{args.out} holds an earlier demo's outputs (marked by {_MARKER}); replacing them")
+            args.force = True
+        existing = [os.path.basename(p) for p in _outputs(args.out) if os.path.lexists(p)]
+        if existing and not args.force:
+            raise InvalidInputError(f"--out {args.out} already holds {', '.join(existing)} (not written by an earlier "
+                                    "demo); choose another --out directory or pass --force to replace them.")
+        if not os.path.exists(marker) and not existing:
+            # nothing of the demo's is here yet, so whatever it writes here from now on is its own
+            files.atomic_write(marker, lambda tmp: open(tmp, "w").write("written by `brdfscale demo`; a rerun "
+                                                                     "replaces the demo's files here\n"))
         return _run(args, exr, start)
+
+
+#: Marks a directory as the demo's own: a rerun may replace what the demo wrote there; the
+#: files of a directory without it (a user's) are never replaced unless --force.
+_MARKER = ".brdfscale-demo"
+
+
+def _outputs(out: str) -> list[str]:
+    """The files the demo writes into ``out``."""
+    from fitting._report import report_files
+
+    return [os.path.join(out, "measurements.exr"), os.path.join(out, "chain.h5"), *report_files(out)]
 
 
 def _run(args, exr, start) -> int:
