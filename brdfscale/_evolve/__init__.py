@@ -68,11 +68,11 @@ def evolve(
               ``Σ|(1 − f)V|²/(Σ(1 − f))²`` over the table's own DFT frequencies, with the filter
               factors ``f = |S_to|²/(|S_to|² + λ²)`` and ``V`` the transform of the node values.
               Needs no noise level. In the stability study (docs/results.md) its error stayed
-              within 1.3× of the best fixed λ chosen in hindsight at every noise level and case;
+              within 1.2× of the best fixed λ chosen in hindsight at every noise level and case;
             * ``"discrepancy"`` — the largest λ whose residual does not exceed the expected noise
               (Morozov); needs ``noise=σ`` (per node value, one number or an array of the table's
-              shape). Erratic where the residual is flat in λ (study: up to ×2e3 off);
-            * ``"l_curve"`` — the corner of the L-curve (study: up to ×33 off with disk statistics).
+              shape). Erratic where the residual is flat in λ (study: up to ×8e4 off);
+            * ``"l_curve"`` — the corner of the L-curve (study: up to ×38 off with disk statistics).
 
             A lobe that is not tabulated is exact and every rule gives λ = 0 (Eq. 4.4 itself), as
             when nothing is divided (``s_to`` a point mass); only the lobe's noise is modelled
@@ -120,7 +120,8 @@ def evolve(
             evolved values fall below −tol of the peak). Inside a user's ``jax.jit`` the check
             runs with the program (``equinox.error_if``) and reaches the user as equinox's
             runtime error carrying the same message (``brdfscale._existence``).
-        UnresolvedMethodError: traced parameters and a spectral path without a size.
+        UnresolvedMethodError: traced parameters and a spectral path without a size, or a
+            regularisation rule with a traced tabulated lobe and no λ carried by ``method``.
         MethodNotApplicableError: a forced ``method`` cannot handle the inputs.
         InvalidInputError: wrong argument types or values.
 

@@ -23,8 +23,8 @@ Queries are evaluated in blocks whose temporaries stay within the method's memor
 
 Division uses Tikhonov regularisation, ``1/S → S*/(|S|² + λ²)``: ``λ = 0`` (the default) is
 the exact Eq. 4.4; a positive λ suppresses the frequencies where ``|S_to| ≲ λ``. For
-tabulated or noisy input choose λ ≈ the relative noise level of ``G_from`` in frequency
-space (Wiener's rule: λ² = noise power / signal power); see :func:`brdfscale.evolve`.
+tabulated or noisy input let the data choose it, ``evolve(..., regularisation="auto")``
+(generalised cross-validation, :mod:`brdfscale._evolve._regularise`); see :func:`brdfscale.evolve`.
 """
 
 import math
@@ -124,18 +124,33 @@ class EvolvedDensity(AbstractSlopeDensity):
         at_zero = jnp.where((numerator == 0) | (lam2 > 0), 0.0, jnp.inf)
         return jnp.where(zero, at_zero, ratio)
 
-    def _ratio(self, W):
-        """``S_from/S_to`` of two Gaussians at W (..., 2), as one exponential."""
+    def _ratio(self, W, with_base=False):
+        """``S_from/S_to`` of two Gaussians at W (..., 2), as one exponential (``with_base``: times
+        the Gaussian lobe's transform, in the same exponent)."""
         C = self.s_from.cov - self.s_to.cov
-        quad = jnp.einsum("...i,ij,...j->...", W, C, W)
         mean = self.s_from.mean
         if self.s_to.mean is not None:
             mean = -self.s_to.mean if mean is None else mean - self.s_to.mean
+        if with_base:
+            C = C + self.base.cov
+            if self.base.mean is not None:
+                mean = self.base.mean if mean is None else mean + self.base.mean
+        quad = jnp.einsum("...i,ij,...j->...", W, C, W)
         return shifted_cf(_exp_capped(-0.5 * quad), W, mean)
+
+    @property
+    def _gaussian_base(self) -> bool:
+        """A Gaussian lobe between Gaussian statistics: the whole transform is one exponential.
+        Going finer, the lobe's transform underflows where the growing quotient is still large
+        (a Beckmann lobe of 1.73 between Beckmann 1 and 2, whose result is Beckmann 0.05: the
+        product was 0 beyond |W| ≈ 31 and the forced spectral paths refused it as negative)."""
+        return self.gaussian_ratio and isinstance(self.base, Gaussian)
 
     def _quotient(self, transform, W=None):
         """``G_from S_from / S_to`` from ``transform(density)`` of each factor (``W``: the
         frequencies, for the Gaussian quotient)."""
+        if self._gaussian_base:
+            return self._ratio(W, with_base=True)
         if self.gaussian_ratio:
             return transform(self.base) * self._ratio(W)
         numerator = transform(self.base) * transform(self.s_from)
@@ -152,6 +167,8 @@ class EvolvedDensity(AbstractSlopeDensity):
 
     def cf_radial(self, k):
         k = jnp.asarray(k)
+        if self._gaussian_base:
+            return _exp_capped(-0.5 * k**2 * (self.base.cov[0, 0] + self.s_from.cov[0, 0] - self.s_to.cov[0, 0]))
         if self.gaussian_ratio:
             return self.base.cf_radial(k) * _exp_capped(-0.5 * k**2 * (self.s_from.cov[0, 0] - self.s_to.cov[0, 0]))
         return jnp.real(self._divide(self.base.cf_radial(k) * self.s_from.cf_radial(k), self.s_to.cf_radial(k)))
@@ -396,7 +413,7 @@ def _inverse_fft(G, h, n: int, p: int):
     ``e^{+iW·a} = (−1)^{kx+ky}`` for a = N h/2; the 1/h² of the inverse DFT (for the fine
     spacing) is applied on the half-size frequency side."""
     if p == 1:
-        sign = 1.0 - 2.0 * ((np.arange(n)[:, None] + np.arange(n // 2 + 1)[None, :]) % 2)
+        sign = jnp.asarray(1.0 - 2.0 * ((np.arange(n)[:, None] + np.arange(n // 2 + 1)[None, :]) % 2), dtype=G.real.dtype)
         return jnp.fft.irfft2(G * (sign / h**2), s=(n, n))
     big = n * p
     half = n // 2
@@ -404,7 +421,8 @@ def _inverse_fft(G, h, n: int, p: int):
     fine = fine.at[:half, :half].set(G[:half, :half])
     fine = fine.at[big - half + 1:, :half].set(G[half + 1:, :half])
     rows = np.concatenate([np.arange(half), np.arange(big - half + 1, big)])
-    sign = 1.0 - 2.0 * ((rows[:, None] + np.arange(half)[None, :]) % 2)
+    # in G's precision: a float64 factor scattered into a complex64 spectrum is an unsafe cast
+    sign = jnp.asarray(1.0 - 2.0 * ((rows[:, None] + np.arange(half)[None, :]) % 2), dtype=G.real.dtype)
     hp = h / p
     fine = fine.at[:half, :half].multiply(sign[:half] / hp**2)
     fine = fine.at[big - half + 1:, :half].multiply(sign[half:] / hp**2)

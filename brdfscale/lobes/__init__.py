@@ -47,6 +47,12 @@ class AbstractLobe(eqx.Module):
 
         ``i``, ``o``: unit directions (..., 3) towards light and detector, z > 0.
         ``m_inf``: global facet slope (..., 2), default flat. Units: 1/sr.
+
+        Accurate to grazing angles (θ = 89.9°: relative error ≤ 1e-13 in float64 against
+        mpmath, experiments/stability.py). The lobe's relative error grows with the half-vector
+        slope as ``ε (1 + |m_s|²/α²)`` (the argument of its exponential or power), and in float32
+        values below its smallest normal number (1.2e-38, e.g. a Beckmann lobe far from its peak)
+        are subnormal or 0.
         """
         i = validate_directions(i, "i")
         o = validate_directions(o, "o")

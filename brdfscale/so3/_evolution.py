@@ -121,6 +121,12 @@ def evolve(
             (``Identity()`` for μ = ∞) or their operator blocks ``S̃`` (``.operator(B)``).
         regularisation: Tikhonov λ ≥ 0 (module docstring); 0 solves exactly.
 
+    Accuracy: the exact solve is backward stable; its relative error per block is bounded by
+    about ``κ(Q̃^J(μ)) ε`` (κ the condition number, ε the dtype's rounding unit). For the normal
+    blocks of rotational diffusion the observed error is far below that bound — float64 within
+    2e-6 of the exact exponential up to κ ≈ 1e143 — but float32 loses about ``κ ε``: 3e-3 at
+    κ ≈ 6e4 (experiments/stability.py, docs/results.md). Deconvolve in float64.
+
     Raises:
         NoBRDFAtScaleError: the solve gives non-finite coefficients: some block ``Q̃^J(μ)`` is
             singular or too small to divide by in floating point (e.g. statistics whose
