@@ -562,7 +562,8 @@ SECTIONS = [("benchmarks.md", "Core evolution (bench_evolve)", evolve),
             ("results.md", "Consistency (results_page)", results_page.consistency),
             ("results.md", "Evolution accuracy (results_page)", results_page.evolution),
             ("results.md", "Validity (results_page)", results_page.validity),
-            ("results.md", "Render (results_page)", results_page.render)]
+            ("results.md", "Render (results_page)", results_page.render),
+            ("results.md", "Stability (results_page)", results_page.stability)]
 
 
 def splice(page: str, title: str, body: str, name: str) -> str:
@@ -601,6 +602,8 @@ def main(argv=None):
         tmp.write_text(rendered(name))
         tmp.replace(path)
         print(f"rewrote {path}")
+    for path in results_page.stability_figures():  # figures drawn from JSON, like the tables
+        print(f"redrew {path}")
 
 if __name__ == "__main__":
     main()

@@ -105,3 +105,65 @@ def render() -> str:
                        ["method", "mean abs error", "RMS error", *[f"bias μ∈[{b:g},{2 * b:g})" for b in bands]], rows))
     return "\n\n".join(out)
 
+
+
+def _param_text(params: dict) -> str:
+    return ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in params.items()
+                     if k not in ("alpha_from", "alpha_to", "alpha_lobe", "x0", "honoured_tol"))
+
+
+def stability() -> str:
+    d = load("stability", "stability")
+    s = d["summary"]
+    t = s["totals"]
+    out = [(f"{t['tried']} cases: {t['good']} good (accurate, or refused with the library's error where no result "
+            f"exists), {t['limit']} at a documented limit, {t['bad']} bad; NaN {t['nan']}, Inf {t['inf']} in the "
+            f"returned values; non-finite results on valid input: {t['nonfinite_on_valid_input']} (target 0 — "
+            f"{'met' if t['nonfinite_on_valid_input'] == 0 else '**not met**'}). Evolution targets: tol "
+            f"{d['evolve_tol']['float64']:g} (float64), {d['float32_target']:g} of the peak (float32).\n")]
+    rows = []
+    for p in s["by_path"]:
+        where = "; ".join(f"{_param_text(f['params'])}: {f['status']}"
+                          + ("" if f["error"] is None else f" ({f['error']:.1e})") for f in p["failing"][:4])
+        if len(p["failing"]) > 4:
+            where += f"; … ({len(p['failing'])} in all)"
+        rows.append([p["kind"], p["path"], p["dtype"], str(p["tried"]), str(p["good"]), str(p["limit"]), str(p["bad"]),
+                     str(p["nan"]), str(p["inf"]), "–" if p["max_error"] is None else f"{p['max_error']:.1e}",
+                     where or "–"])
+    out.append(table(["kind", "path", "dtype", "tried", "good", "limit", "bad", "NaN", "Inf", "largest error (accurate)",
+                      "not accurate at"], rows))
+    n = d.get("noise")
+    if n:
+        rules = list(n["summary"])
+        rows = []
+        keys = list(dict.fromkeys((r["case"], r["counts_at_peak"]) for r in n["runs"]))
+        for case, count in keys:
+            runs = [r for r in n["runs"] if r["case"] == case and r["counts_at_peak"] == count]
+            best = sorted(r["best_fixed_error"] for r in runs)[len(runs) // 2]
+            cells = []
+            for rule in rules:
+                ratios = [r["rules"][rule]["ratio_to_best_fixed"] for r in runs]
+                lam = runs[0]["rules"][rule]["lambda"]
+                cells.append(f"{max(ratios):.2f} (λ {lam:.2g})")
+            rows.append([case, f"{count:.0e}", f"{1 / count ** 0.5:.2g}", f"{best:.3f}",
+                         f"{runs[0]['best_fixed_lambda']:.2g}", *cells])
+        seeds = len({r["seed"] for r in n["runs"]})
+        out.append(f"\n**Coarse → fine under noise** ({n['nodes']}² nodes, Poisson noise, {seeds} seed(s) per level; error: "
+                   f"{n['error']}; entries: the largest ratio over the seeds of a rule's error to the best fixed λ's, "
+                   "and the λ it chose for seed 0)\n")
+        out.append(table(["case", "counts at peak", "noise at peak", "best fixed λ error (median)", "best fixed λ (seed 0)",
+                          *[f"{r} ratio" for r in rules]], rows))
+        summary = "; ".join(f"{r}: largest ratio {v['max_ratio']:.2f}, median {v['median_ratio']:.2f}, "
+                            f"{v['runs_within_2']}/{v['runs']} runs within 2×" for r, v in n["summary"].items())
+        out.append(f"\n{summary}. Default rule `{n['default_rule']}`; target ({n['target']}): "
+                   f"{'met' if n['target_met'] else '**not met**'}.")
+    return "\n".join(out)
+
+
+def stability_figures(directory: Path | None = None) -> list:
+    """Redraw the stability study's figures from its committed JSON (into ``directory``,
+    default the study's folder): ``python experiments/benchmarks_page.py`` does it with the
+    tables, and tests/test_experiments_smoke.py checks the committed PNGs are what the JSON gives."""
+    import stability
+
+    return stability.plot(load("stability", "stability"), directory or RESULTS / "stability")

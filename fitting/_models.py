@@ -325,9 +325,11 @@ class ParametricModel(AbstractModel):
                  "correlation_length": mid, "rms_height": mid * alpha_s / 2}
         return self.theta_from(start)
 
-    def bounds(self, data):
+    def box(self, data) -> dict[str, tuple[float, float]]:
+        """The prior box of every parameter (fixed ones included), in physical units: a
+        uniform prior in log θ between the two values (docs/fitting.md)."""
         mu0, mu1 = float(data.scales[0]), float(data.scales[-1])
-        box = {
+        return {
             "amplitude": (1e-8, 1e8),
             "alpha_lobe": (1e-4, 10.0),
             "alpha_max": (1e-4, 10.0),
@@ -336,6 +338,20 @@ class ParametricModel(AbstractModel):
             "rms_height": (mu0 * 1e-8, mu1 * 1e2),
             "correlation_length": (mu0 * 1e-2, mu1 * 1e2),
         }
+
+    def check_data(self, data: Dataset) -> None:
+        """Also: every fixed value lies inside its prior box (:meth:`box`), where the model is
+        defined and tested; InvalidInputError naming the parameter and its box otherwise."""
+        super().check_data(data)
+        box = self.box(data)
+        for name, value in self.fixed:
+            lo, hi = box[name]
+            if not lo <= value <= hi:
+                raise InvalidInputError(f"fixed {name} = {value:g} lies outside its prior box [{lo:g}, {hi:g}] for "
+                                        f"these data (scales μ = {np.asarray(data.scales).tolist()}); fix it inside.")
+
+    def bounds(self, data):
+        box = self.box(data)
         lo = np.log([box[p][0] for p in self.free])
         hi = np.log([box[p][1] for p in self.free])
         return lo, hi
@@ -398,6 +414,63 @@ class RelativeStatistics(stats.AbstractSlopeDensity):
         return jnp.sqrt(t)
 
 
+SMOOTHNESS_RULES = ("auto", "gcv")
+DEFAULT_SMOOTHNESS = 3.0
+SMOOTHNESS_CANDIDATES = tuple(np.logspace(-2.0, 3.0, 31).tolist())
+"""The smoothness weights :func:`choose_smoothness` compares (6 per decade)."""
+
+
+def choose_smoothness(model: "NonParametricModel", data: Dataset, *, candidates=SMOOTHNESS_CANDIDATES,
+                      max_steps: int = 300) -> tuple[float, tuple]:
+    """The smoothness weight s of ``model`` chosen by generalised cross-validation.
+
+    The fit minimises ``‖r(θ)‖² + s² ‖Δ²D(θ)‖²`` (whitened data residuals r, second
+    differences of the decay D across knots). A pilot fit at the model's weight ``s0`` gives
+    θ̂; about it the problem is linear: with the Jacobians ``J`` (data rows) and ``L`` (the
+    second differences per unit weight) and the residuals ``r0``, ``p0`` there, one
+    Gauss–Newton step for weight s,
+
+        δ(s) = −(JᵀJ + s² LᵀL)⁺ (Jᵀr0 + s² Lᵀp0),
+
+    predicts the data residual ``r0 + J δ`` and has the influence matrix
+    ``A(s) = J (JᵀJ + s² LᵀL)⁺ Jᵀ``. The choice minimises
+
+        GCV(s) = n χ²(s) / (n − tr A(s))²,   χ²(s) = ‖r0 + J δ(s)‖² + (within-pixel scatter),
+
+    over ``candidates`` (n: the valid pixels). The linearisation is exact for a linear model
+    and good near s0; one pilot fit suffices when the curvature of the model is mild
+    (re-construct with ``regularisation=<the choice>`` and compare if in doubt).
+
+    Returns ``(s, record)``: the choice and ``(candidates, GCV values, s0)`` as tuples.
+    """
+    from ._estimate import Problem, fit
+
+    problem = Problem(model, data)
+    pilot = fit(model, data, starts=1, max_steps=max_steps)
+    theta = jnp.asarray(pilot.theta)
+    jac = np.asarray(jax.jacfwd(problem.residuals)(theta))
+    res = np.asarray(problem.residuals(theta))
+    n_pen = len(np.asarray(model.penalty(theta)))
+    s0 = model.smoothness
+    J, r0 = jac[: len(res) - n_pen], res[: len(res) - n_pen]
+    if n_pen == 0 or s0 == 0:
+        return s0, (tuple(candidates), tuple(float("nan") for _ in candidates), s0)
+    L, p0 = jac[len(res) - n_pen:] / s0, res[len(res) - n_pen:] / s0
+    n = data.n_data
+    offset = float(problem.points.chi2_offset)
+    JtJ, LtL, Jtr, Ltp = J.T @ J, L.T @ L, J.T @ r0, L.T @ p0
+    values = []
+    for s in candidates:
+        H = JtJ + s * s * LtL
+        Hinv = np.linalg.pinv(H, rcond=1e-12, hermitian=True)
+        delta = -Hinv @ (Jtr + s * s * Ltp)
+        r = r0 + J @ delta
+        trace = float(np.sum(Hinv * JtJ))  # tr(J H⁺ Jᵀ) = tr(H⁺ JᵀJ)
+        values.append(n * (float(r @ r) + offset) / max(n - trace, 1e-12) ** 2)
+    best = int(np.argmin(values))
+    return float(candidates[best]), (tuple(float(c) for c in candidates), tuple(float(v) for v in values), float(s0))
+
+
 def _softplus_inverse(x):
     return np.log(np.expm1(np.maximum(x, 1e-12)))
 
@@ -412,8 +485,12 @@ class NonParametricModel(AbstractModel):
             3.5 × its half-maximum width α (α² = area above half peak / π ln 2), capped at the image extent).
         n_knots: number of W knots after ``W_0 = 0``, evenly spaced up to ``W_max`` (default
             ``6/α``, where a Gaussian lobe's transform has fallen to e⁻⁹).
-        smoothness: inverse prior standard deviation of the second differences of ``D_k``
-            across knots (larger: smoother).
+        regularisation: the Tikhonov weight of the smoothness prior — a number (the inverse
+            prior standard deviation of the second differences of ``D_k`` across knots; larger:
+            smoother), or ``"auto"`` (``"gcv"``): chosen from the data by generalised
+            cross-validation, linearised about a pilot fit (:func:`choose_smoothness`; this runs
+            one fit at construction, about as long as the fit itself). Default 3.0.
+        smoothness: the same number under its earlier name (give one of the two).
         grid_size: side of the FFT grid of the evolution's grid path (≥ 8).
 
     θ = (log base-lobe values row-major, then z[k, j] for k = 1..K−1, j = 1..J) with
@@ -423,7 +500,11 @@ class NonParametricModel(AbstractModel):
         InvalidInputError: ``data`` is not a :class:`~fitting.Dataset`, an image has no
             positive valid pixel, or an option is out of range (``base_nodes`` ≥ 3,
             ``n_knots`` ≥ 2, ``grid_size`` ≥ 8 integers; ``base_extent``, ``w_max`` > 0,
-            ``smoothness`` ≥ 0, finite).
+            ``smoothness`` ≥ 0, finite; ``regularisation`` such a number or ``"auto"``/``"gcv"``;
+            not both ``smoothness`` and ``regularisation``).
+
+    ``smoothness_choice`` records an automatic choice (None for a given number): the
+    candidates, their GCV values and the pilot fit's smoothness.
     """
 
     n_scales: int = eqx.field(static=True)
@@ -432,14 +513,25 @@ class NonParametricModel(AbstractModel):
     knots: tuple[float, ...] = eqx.field(static=True)
     smoothness: float = eqx.field(static=True)
     grid_size: int = eqx.field(static=True)
+    smoothness_choice: tuple | None = eqx.field(static=True)
 
     def __init__(self, data: Dataset, *, base_nodes: int = 13, base_extent: float | None = None,
-                 n_knots: int = 8, w_max: float | None = None, smoothness: float = 3.0, grid_size: int = 48):
+                 n_knots: int = 8, w_max: float | None = None, smoothness: float | None = None,
+                 regularisation: float | str | None = None, grid_size: int = 48):
         require_dataset(data, "NonParametricModel(data)")
         base_nodes = integer(base_nodes, "base_nodes", 3)
         n_knots = integer(n_knots, "n_knots", 2)
         grid_size = integer(grid_size, "grid_size", 8)
-        smoothness = real(smoothness, "smoothness", minimum=0.0)
+        if smoothness is not None and regularisation is not None:
+            raise InvalidInputError("give the smoothness prior's weight once: regularisation= (a number or 'auto') or "
+                                    "smoothness= (its earlier name), not both.")
+        weight = regularisation if regularisation is not None else (3.0 if smoothness is None else smoothness)
+        auto = isinstance(weight, str)
+        if auto and weight not in SMOOTHNESS_RULES:
+            raise InvalidInputError(f"regularisation must be a number ≥ 0 or one of {SMOOTHNESS_RULES} (generalised "
+                                    f"cross-validation); got {weight!r}.")
+        smoothness = DEFAULT_SMOOTHNESS if auto else real(weight, "regularisation" if regularisation is not None
+                                                          else "smoothness", minimum=0.0)
         if base_extent is not None:
             base_extent = real(base_extent, "base_extent", minimum=0.0, strict=True)
         if w_max is not None:
@@ -454,6 +546,11 @@ class NonParametricModel(AbstractModel):
         self.knots = tuple(np.linspace(0.0, w_max, n_knots + 1).tolist())
         self.smoothness = smoothness
         self.grid_size = grid_size
+        self.smoothness_choice = None
+        if auto:  # a pilot model, complete, at the default weight (this one is still being built)
+            pilot = NonParametricModel(data, base_nodes=base_nodes, base_extent=self.base_extent, n_knots=n_knots,
+                                       w_max=w_max, regularisation=DEFAULT_SMOOTHNESS, grid_size=grid_size)
+            self.smoothness, self.smoothness_choice = choose_smoothness(pilot, data)
 
     def check_data(self, data: Dataset) -> None:
         """The model's θ layout is fixed by the dataset it was built from: ``data`` must have

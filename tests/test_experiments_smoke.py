@@ -18,6 +18,7 @@ import evolution_accuracy
 import render_plane
 import validity
 
+import brdfscale as bs
 from brdfscale import exr, synth
 
 
@@ -196,3 +197,47 @@ def test_fft_records_reads_threads_durations_and_pool_help_from_a_trace():
     out = bench_evolve.fft_records(events)
     assert out == {"tf_XLAPjRtCpuClient": {"ffts": 1, "median_ms": 0.4, "helpers_median": 0.5},
                    "tf_XLAEigen": {"ffts": 1, "median_ms": 2.0, "helpers_median": 0.0}}
+
+
+def test_stability_smoke(tmp_path):
+    """The cheap kinds of the stability sweep in quick mode: every case good or at a documented
+    limit, no NaN/Inf on valid input, JSON and figure written."""
+    import stability
+
+    out = stability.run(quick=True, kinds=("incidence", "wigner"), out=tmp_path)
+    totals = out["summary"]["totals"]
+    assert totals["tried"] > 40 and totals["bad"] == 0 and totals["nonfinite_on_valid_input"] == 0
+    assert totals["nan"] == 0 and totals["inf"] == 0
+    saved = json.loads((tmp_path / "stability.json").read_text())
+    assert saved["summary"] == out["summary"] and (tmp_path / "stability.png").exists()
+    # the status rules: a library refusal where no result exists is good; a foreign exception is bad
+    ok = stability.record("k", "p", "float64", {}, failure=bs.NoBRDFAtScaleError("none"), exists=False)
+    crash = stability.record("k", "p", "float64", {}, failure=ZeroDivisionError())
+    wrong = stability.record("k", "p", "float64", {}, failure=bs.NoBRDFAtScaleError("none"), exists=True)
+    nan = stability.record("k", "p", "float64", {}, error=0.0, target=1.0, values=np.array([np.nan, 1.0]))
+    assert (ok["status"], crash["status"], wrong["status"], nan["status"]) == (
+        "refused_correctly", "crash", "false_refusal", "nonfinite") and nan["nan"] == 1
+
+
+@pytest.mark.slow
+def test_stability_quick_mode(tmp_path):
+    """Every kind of the sweep and the noise study in quick mode (minutes: it compiles every path
+    in both precisions)."""
+    import stability
+
+    out = stability.run(quick=True, out=tmp_path)
+    assert out["summary"]["totals"]["bad"] == 0 and out["summary"]["totals"]["nonfinite_on_valid_input"] == 0
+    assert out["noise"]["target_met"]
+    assert (tmp_path / "regularisation.png").exists()
+
+
+def test_stability_figures_are_drawn_from_the_committed_json(tmp_path):
+    """The PNGs in experiments/results/stability/ (shown in docs/results.md) are what the plot
+    function draws from the committed JSON: redrawn here and compared pixel by pixel."""
+    import matplotlib.image
+    import results_page
+
+    for path in results_page.stability_figures(tmp_path):
+        committed = Path(__file__).resolve().parent.parent / "experiments" / "results" / "stability" / path.name
+        np.testing.assert_allclose(matplotlib.image.imread(path), matplotlib.image.imread(committed), atol=1e-6,
+                                   err_msg=f"{path.name} is stale: run python experiments/benchmarks_page.py")

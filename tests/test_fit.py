@@ -412,3 +412,18 @@ def test_parameters_taken_a_log_of_must_be_positive():
     negative = fitting.Dataset.from_measurements(MeasurementSet((_image(1.0), _image(2.0, values=-np.ones((4, 4))))))
     with pytest.raises(InvalidInputError, match="no positive valid pixel"):
         fitting.fit(model, negative)
+
+
+def test_nonparametric_regularisation_arguments_are_checked():
+    data = fitting.Dataset.from_measurements(MeasurementSet((_image(1.0), _image(2.0))))
+    default = fitting.NonParametricModel(data, base_nodes=3, n_knots=2)
+    assert default.smoothness == 3.0 and default.smoothness_choice is None
+    assert fitting.NonParametricModel(data, base_nodes=3, n_knots=2, regularisation=5.0).smoothness == 5.0
+    assert fitting.NonParametricModel(data, base_nodes=3, n_knots=2, smoothness=5.0).smoothness == 5.0
+    for bad in ("gvc", "l_curve", "discrepancy"):
+        with pytest.raises(InvalidInputError, match="one of \\('auto', 'gcv'\\)"):
+            fitting.NonParametricModel(data, regularisation=bad)
+    with pytest.raises(InvalidInputError, match="not both"):
+        fitting.NonParametricModel(data, regularisation=1.0, smoothness=1.0)
+    with pytest.raises(InvalidInputError, match="regularisation must be a finite number ≥ 0"):
+        fitting.NonParametricModel(data, regularisation=-1.0)

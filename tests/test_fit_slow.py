@@ -59,3 +59,28 @@ def test_solvers_reach_the_same_optimum():
         assert other.status == "converged"
         assert other.chi2 == pytest.approx(lm.chi2, rel=1e-8), solver
         np.testing.assert_allclose(other.theta, lm.theta, atol=1e-4)
+
+
+def test_nonparametric_auto_smoothness_is_within_a_factor_two_of_the_best_fixed():
+    """regularisation="auto" (GCV linearised about a pilot fit) against fixed smoothness weights
+    chosen in hindsight: the error of the determined ratios R_k(W) = S(W, μ0)/S(W, μ_k) =
+    exp(−D_k(W)) at the knots, against the truth (Beckmann statistics: D = (α0² − α_k²) W²/4)."""
+    truth = TRUTHS[1]
+    param = fitting.ParametricModel()
+    _, data = _dataset(param, truth, 0.01, seed=2, scales=(0.5, 2.0, 8.0), size=16)
+    law = param.law(jnp.asarray(param.theta_from(truth)))
+    a0 = float(law.law(0.5))
+
+    def ratio_error(model):
+        res = fitting.fit(model, data, starts=1, max_steps=500)
+        e = [np.exp(-res.estimates[f"D[{k}](W={W:.4g})"]) - np.exp(-(a0**2 - float(law.law(mu)) ** 2) * W**2 / 4)
+             for k, mu in ((1, 2.0), (2, 8.0)) for W in model.knots[1:]]
+        return float(np.sqrt(np.mean(np.square(e))))
+
+    options = dict(base_nodes=7, n_knots=4, grid_size=32)
+    auto = fitting.NonParametricModel(data, regularisation="auto", **options)
+    candidates, gcv, pilot = auto.smoothness_choice
+    assert auto.smoothness in candidates and pilot == 3.0 and np.all(np.isfinite(gcv))
+    assert gcv[candidates.index(auto.smoothness)] == min(gcv)
+    best = min(ratio_error(fitting.NonParametricModel(data, regularisation=s, **options)) for s in (0.01, 0.1, 1.0, 10.0))
+    assert ratio_error(auto) <= 2 * best
