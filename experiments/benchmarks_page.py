@@ -549,6 +549,13 @@ def queries() -> str:
     return "\n".join(out)
 
 DOCS = Path(__file__).resolve().parent.parent / "docs"
+def robustness() -> str:
+    """The fuzzing tables of docs/robustness.md (experiments/results/fuzz_robustness/)."""
+    import fuzz_robustness
+
+    return fuzz_robustness.page(json.loads((RESULTS / "fuzz_robustness" / "fuzz_robustness.json").read_text()))
+
+
 SECTIONS = [("benchmarks.md", "Core evolution (bench_evolve)", evolve),
             ("benchmarks.md", "Queries (bench_queries)", queries), ("benchmarks.md", "SO(3) (bench_so3)", so3),
             ("benchmarks.md", "Fitting (bench_fit)", fit),
@@ -563,7 +570,8 @@ SECTIONS = [("benchmarks.md", "Core evolution (bench_evolve)", evolve),
             ("results.md", "Evolution accuracy (results_page)", results_page.evolution),
             ("results.md", "Validity (results_page)", results_page.validity),
             ("results.md", "Render (results_page)", results_page.render),
-            ("results.md", "Stability (results_page)", results_page.stability)]
+            ("results.md", "Stability (results_page)", results_page.stability),
+            ("robustness.md", "Fuzzing (fuzz_robustness)", robustness)]
 
 
 def splice(page: str, title: str, body: str, name: str) -> str:
