@@ -24,12 +24,12 @@ def test_nonparametric_fit_command(tmp_path, capsys):
     exr.write_measurements(str(path), mset)
     out = tmp_path / "out"
     argv = ["fit", str(path), "--model", "nonparametric", "--base-nodes", "7", "--knots", "3", "--max-steps", "40",
-            "--starts", "1", "--steps", "0", "--out", str(out), "--no-progress"]
+            "--starts", "1", "--steps", "0", "--out", str(out), "--no-progress", "--regularisation", "2.5"]
     assert main(argv) == 0
     printed = capsys.readouterr().out
     doc = json.loads((out / "fit.json").read_text())
     assert doc["model"]["kind"] == "nonparametric" and doc["model"]["base_nodes"] == 7
-    assert len(doc["model"]["knots_W"]) == 4
+    assert len(doc["model"]["knots_W"]) == 4 and doc["model"]["smoothness"] == 2.5
     status = doc["optimisation"]["status"]
     assert status in ("converged", "nonlinear_max_steps_reached") and status in printed
     assert np.isfinite(doc["optimisation"]["reduced_chi2"])

@@ -314,6 +314,8 @@ def _bad_lines(measurements, tmp):
         (fit + ["--default-sigma", "nan"], "argument --default-sigma: must be a finite number"),
         (fit + ["--fix", "alpha_lobe=1e-30", "--steps", "0"], "--fix: fixed alpha_lobe = 1e-30 lies outside its prior box"),
         (fit + ["--force", "--force"], "--force: given more than once"),
+        (fit + ["--regularisation", "auto"], "--regularisation applies to the non-parametric model only"),
+        (fit + ["--model", "nonparametric", "--regularisation", "-1"], "argument --regularisation"),
         (fit + ["--walkers", "4", "--steps", "10"], "--walkers 4: the model has 5 parameters"),
         (fit + ["--walkers", "4096", "--steps", "1000000"], "GiB"),
         (["demo", "--out", ""], "--out: give a directory name"),

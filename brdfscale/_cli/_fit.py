@@ -31,6 +31,13 @@ def _fixed(text: str) -> tuple[str, float]:
     return name.strip(), number
 
 
+def _smoothness(text: str):
+    """``auto``/``gcv`` or a weight in [0, 1e6]."""
+    if text in ("auto", "gcv"):
+        return text
+    return real(0.0, 1e6)(text)
+
+
 def add_fit_options(parser) -> None:
     """Options shared by ``fit`` and ``demo``."""
     parser.add_argument("--out", required=True, help="output directory (fit.json, figures, tables, chain.h5); "
@@ -54,6 +61,9 @@ def add_fit_options(parser) -> None:
                         help="non-parametric model: base lobe tabulated on N × N nodes, 3–41 (default 13)")
     parser.add_argument("--knots", type=integer(2, 64), default=8,
                         help="non-parametric model: W knots of the relative statistics, 2–64 (default 8)")
+    parser.add_argument("--regularisation", type=_smoothness, default=None, metavar="auto|WEIGHT",
+                        help="non-parametric model: weight of the smoothness prior, a number in [0, 1e6] (default "
+                        "3) or auto (generalised cross-validation about a pilot fit; docs/fitting.md)")
     parser.add_argument("--steps", type=integer(0, 1_000_000), default=2000,
                         help="emcee steps, 0–1000000 (default 2000; 0: Laplace only); the chain is kept in memory: "
                         f"walkers × steps × parameters × 8 bytes ≤ {CHAIN_BUDGET // 2**30} GiB")
@@ -72,6 +82,8 @@ def check_fit_options(args) -> None:
         raise InvalidInputError(f"--fix {', '.join(repeated)} given more than once; fix each quantity once.")
     if args.fix and args.model != "parametric":
         raise InvalidInputError("--fix applies to the parametric model only.")
+    if args.regularisation is not None and args.model != "nonparametric":
+        raise InvalidInputError("--regularisation applies to the non-parametric model only (--model nonparametric).")
 
 
 def check_sampler_options(args, n_parameters: int) -> None:
@@ -126,7 +138,10 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
         info = {"kind": "parametric", "lobe": args.family, "statistics": args.family,
                 "scale_law": law[args.law], "fixed": fixed}
     else:
-        model = fitting.NonParametricModel(data, base_nodes=args.base_nodes, n_knots=args.knots)
+        if args.regularisation in ("auto", "gcv"):
+            stream("choosing the smoothness weight by generalised cross-validation (one pilot fit) ...")
+        model = fitting.NonParametricModel(data, base_nodes=args.base_nodes, n_knots=args.knots,
+                                           regularisation=args.regularisation)
         info = {"kind": "nonparametric", "base_nodes": model.base_nodes, "base_extent": model.base_extent,
                 "knots_W": list(model.knots), "smoothness": model.smoothness}
     info["solver"] = args.solver
