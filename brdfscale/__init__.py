@@ -15,12 +15,23 @@ The public API:
 * :mod:`brdfscale.so3` — anisotropic evolution on SO(3) (seed §5);
 * :mod:`brdfscale.scene` — a planner that evaluates only what a scene needs;
 * :class:`MeasurementSet` / :class:`LobeImage` — multi-scale lobe measurements in memory;
+* :mod:`brdfscale.checks` — argument checks for code built on brdfscale;
+* :mod:`brdfscale.special` — Bessel functions J0, J1, K0, x·K1 in pure JAX;
+* :mod:`brdfscale.plot` — one-call matplotlib figures of lobes, statistics, measurements, plans;
+* :mod:`brdfscale.fitting` — the ``fitting`` package under a name no local file can shadow;
 * the exception classes, all derived from :class:`BrdfscaleError`.
+
+Importing brdfscale changes no global state (JAX's configuration, matplotlib's backend) and
+imports only the exception classes: every submodule and name below is loaded on first use
+(PEP 562), so ``brdfscale --help`` starts without JAX. Precision is the user's choice: the
+library computes in the dtype of its inputs, and code that needs float64 (the fits) says so
+with :class:`InvalidInputError` naming the line to add,
+``jax.config.update("jax_enable_x64", True)``.
 """
 
-from importlib.metadata import PackageNotFoundError, version as _version
+import importlib
+from typing import TYPE_CHECKING
 
-from . import exr, files, geometry, lobes, plus, scene, so3, stats, synth
 from ._errors import (
     BrdfscaleError,
     InvalidInputError,
@@ -32,13 +43,42 @@ from ._errors import (
     UnprotectedHeaderWarning,
     UnresolvedMethodError,
 )
-from ._evolve import AbstractMethod, Auto, ClosedForm, Grid, Radial, RadialTable, evolve, select
-from ._measurement import LobeImage, MeasurementSet
 
-try:
-    __version__ = _version("brdfscale")
-except PackageNotFoundError:  # running from a source tree that is not installed
-    __version__ = "0.0.0+unknown"
+_SUBMODULES = ("checks", "exr", "files", "fitting", "geometry", "lobes", "plot", "plus", "scene", "so3", "special",
+               "stats", "synth")
+_NAMES = {
+    **dict.fromkeys(("AbstractMethod", "Auto", "ClosedForm", "Grid", "Radial", "RadialTable", "evolve", "select"),
+                    "._evolve"),
+    **dict.fromkeys(("LobeImage", "MeasurementSet"), "._measurement"),
+}
+
+if TYPE_CHECKING:  # what the lazy loader below provides, for type checkers and IDEs
+    from . import checks, exr, files, fitting, geometry, lobes, plot, plus, scene, so3, special, stats, synth
+    from ._evolve import AbstractMethod, Auto, ClosedForm, Grid, Radial, RadialTable, evolve, select
+    from ._measurement import LobeImage, MeasurementSet
+
+
+def __getattr__(name: str):
+    if name in _SUBMODULES:
+        value = importlib.import_module(f"{__name__}.{name}")
+    elif name in _NAMES:
+        value = getattr(importlib.import_module(_NAMES[name], __name__), name)
+    elif name == "__version__":
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            value = version("brdfscale")
+        except PackageNotFoundError:  # running from a source tree that is not installed
+            value = "0.0.0+unknown"
+    else:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))
+
 
 __all__ = [
     "evolve",
@@ -61,6 +101,10 @@ __all__ = [
     "scene",
     "exr",
     "files",
+    "checks",
+    "special",
+    "plot",
+    "fitting",
     "BrdfscaleError",
     "InvalidInputError",
     "MeasurementFileError",

@@ -3,13 +3,14 @@
 Checks run on concrete values only: under ``jax.jit``/``vmap``/``grad`` the arguments are
 tracers, their values are unknown and they pass through unchanged (the fitting code keeps
 traced parameters on their valid domains by reparameterisation).
+
+JAX is imported inside the checks that need it, so the host-side ones (numbers, NumPy arrays)
+serve JAX-free paths such as ``brdfscale info`` on a measurement file.
 """
 
 import math
 import operator
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
 from ._errors import InvalidInputError
@@ -17,11 +18,15 @@ from ._errors import InvalidInputError
 
 def is_concrete(x) -> bool:
     """True when ``x`` (and every leaf of it) holds actual values, not tracers."""
+    import jax
+
     return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(x))
 
 
 def as_float_array(x, name: str):
     """``x`` as a floating JAX array (ints become the default float dtype)."""
+    import jax.numpy as jnp
+
     if x is None:
         raise InvalidInputError(f"{name} is required.")
     if isinstance(x, (str, bytes)):
@@ -58,6 +63,8 @@ def vector2(x, name: str):
 
 def last_axis(x, size: int, name: str):
     """``x`` as a real array of shape (..., size); concrete values must be finite."""
+    import jax.numpy as jnp
+
     try:
         a = jnp.asarray(x)
     except (TypeError, ValueError) as err:
@@ -142,3 +149,20 @@ def flag(value, name: str) -> bool:
     if not isinstance(value, (bool, np.bool_)):
         raise InvalidInputError(f"{name} must be True or False; got {type(value).__name__} {value!r}.")
     return bool(value)
+
+
+def require_float64(what: str) -> None:
+    """Refuse to run ``what`` unless JAX computes in float64 (``jax_enable_x64``).
+
+    brdfscale changes no global JAX setting on import; work that needs float64 (the fits:
+    optimistix refuses mixed float32/float64 structures, and σ-whitened residuals of
+    well-measured lobes lose their precision in float32) calls this first.
+    """
+    import jax
+
+    if not jax.config.jax_enable_x64:
+        raise InvalidInputError(
+            f"{what} needs float64, and JAX is in float32 mode: add `jax.config.update(\"jax_enable_x64\", True)` "
+            "at the start of the script or notebook, before any JAX array is made (brdfscale changes no global "
+            "setting itself)."
+        )

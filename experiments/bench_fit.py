@@ -61,6 +61,8 @@ import optimistix as optx
 import scipy.optimize
 
 import fitting
+
+jax.config.update("jax_enable_x64", True)  # the fits need float64; fitting changes no global setting
 from _bench import best_time, interleaved_times, machine, median, rotated, write_json
 from fitting._estimate import _make_solver, _solve
 

@@ -17,9 +17,12 @@ import argparse
 import os
 import time
 
+import jax
 import numpy as np
 
 import fitting
+
+jax.config.update("jax_enable_x64", True)  # the fits need float64; fitting changes no global setting
 from _bench import machine, write_json
 
 SCALES = (0.5, 1.0, 2.0, 4.0, 8.0)

@@ -1,5 +1,5 @@
 """Inverse fitting: recover the facet-slope statistics S(W, μ) and the base lobe at μ0 from
-multi-scale lobe measurements, with uncertainties (seed Eq. 4.4; DESIGN §2).
+multi-scale lobe measurements, with uncertainties (seed Eq. 4.4; docs/conventions.md §2).
 
 The chain, each step in its own module:
 
@@ -12,21 +12,26 @@ The chain, each step in its own module:
 * :func:`write_report` — fit.json, figures, evolved lobe tables;
 * :func:`simulate` — noisy measurement sets from a parametric model (tests, demo).
 
-Importing this package enables ``jax_enable_x64``: the fits run in float64 (optimistix's
+Importing this package changes no global state. The fits need float64 (optimistix's
 Levenberg–Marquardt refuses mixed float32/float64 structures, and σ-whitened residuals of
-well-measured lobes need the precision).
+well-measured lobes need the precision): start a script or notebook with
+``jax.config.update("jax_enable_x64", True)``; without it :class:`Dataset` and
+:class:`Problem` raise :class:`brdfscale.InvalidInputError` naming that line. The ``brdfscale``
+command switches float64 on itself.
+
+Import it as ``from brdfscale import fitting``. Plain ``import fitting`` works too, but a
+local file named ``fitting.py`` in the working directory would silently take its place; the
+``brdfscale.fitting`` path checks, and raises an ImportError naming that file.
 """
 
-import jax
+__distribution__ = "brdfscale"  # how brdfscale.fitting recognises this package (not a local fitting.py)
 
-jax.config.update("jax_enable_x64", True)
-
-from ._data import Dataset, PointData  # noqa: E402
-from ._estimate import SOLVERS, FitResult, Problem, fit  # noqa: E402
-from ._models import AbstractModel, NonParametricModel, ParametricModel, RelativeStatistics  # noqa: E402
-from ._report import summarise, truth_of, write_report  # noqa: E402
-from ._sample import SampleResult, log_posterior, sample  # noqa: E402
-from ._simulate import simulate  # noqa: E402
+from ._data import Dataset, PointData
+from ._estimate import SOLVERS, FitResult, Problem, fit
+from ._models import AbstractModel, NonParametricModel, ParametricModel, RelativeStatistics
+from ._report import check_report_directory, report_files, summarise, truth_of, write_report
+from ._sample import SampleResult, log_posterior, sample
+from ._simulate import simulate
 
 __all__ = [
     "Dataset",
@@ -44,6 +49,8 @@ __all__ = [
     "log_posterior",
     "summarise",
     "write_report",
+    "report_files",
+    "check_report_directory",
     "truth_of",
     "simulate",
 ]

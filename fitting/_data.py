@@ -1,7 +1,7 @@
 """The multi-scale dataset a fit consumes: lobe images flattened, whitened and masked.
 
 A :class:`brdfscale.MeasurementSet` holds lobe images ``A·g_μ(u)`` on grids of half-vector
-slope offsets ``u = m_s − m∞`` (DESIGN §6). In the nearly-flat approximation the lobe in
+slope offsets ``u = m_s − m∞`` (docs/conventions.md §6). In the nearly-flat approximation the lobe in
 those offsets does not depend on the incident direction (seed §2), so every image at scale
 μ is a measurement of the same function ``A·g_μ``; several incident directions at one scale
 are replicates. :class:`Dataset` stacks the images into padded arrays:
@@ -34,6 +34,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from brdfscale import InvalidInputError, MeasurementSet
+from brdfscale.checks import require_float64
 
 __all__ = ["Dataset", "PointData"]
 
@@ -79,6 +80,7 @@ class Dataset(eqx.Module):
             InvalidInputError: fewer than two scales, an image without σ and no
                 ``default_sigma``, or an image with no valid pixel.
         """
+        require_float64("fitting.Dataset.from_measurements")
         if not isinstance(mset, MeasurementSet):
             raise InvalidInputError(f"expected a brdfscale.MeasurementSet; got {type(mset).__name__}.")
         scales = tuple(float(s) for s in mset.scales)

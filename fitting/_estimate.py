@@ -16,7 +16,7 @@ combinations are reported by name (e.g. ``"0.71·log mu_c − 0.70·log exponent
 quantity q with gradient g is reported as undetermined (no standard deviation, no
 quantiles) when the undetermined directions would move it more than the determined ones,
 ``Σ_u (g·v_u)²/λ_u > 9 Σ_d (g·v_d)²/λ_d`` (λ floored at 1e-12 λ_max), instead of with a
-fake precision (DESIGN §2). The covariance of θ is the pseudo-inverse ``V Λ⁺ Vᵀ`` over the
+fake precision (docs/conventions.md §2). The covariance of θ is the pseudo-inverse ``V Λ⁺ Vᵀ`` over the
 numerically non-zero directions. The quantities' standard deviations and 5/50/95 %
 quantiles come from 4000 draws of that Gaussian along the *determined* directions pushed
 through the model's quantities (draws along an undetermined direction, with standard
@@ -37,7 +37,7 @@ from jaxtyping import Array, Float
 
 from brdfscale import InvalidInputError
 
-from brdfscale._validation import integer, real
+from brdfscale.checks import integer, real, require_float64
 from ._data import Dataset, PointData
 from ._models import AbstractModel, require_dataset
 
@@ -74,6 +74,7 @@ class Problem(eqx.Module):
     upper: jax.Array
 
     def __init__(self, model: AbstractModel, data: Dataset):
+        require_float64("fitting.Problem")
         if not isinstance(model, AbstractModel):
             raise InvalidInputError(f"Problem(model, data) needs a fitting model (ParametricModel or "
                                     f"NonParametricModel) as model; got {type(model).__name__}.")

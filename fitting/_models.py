@@ -1,7 +1,7 @@
 """Forward maps from unconstrained parameter vectors θ to predicted lobe images.
 
 Every model predicts, for each measured scale μ_k, the lobe ``A·g_{μ_k}(u)`` at the pixel
-offsets of the dataset through the core evolution operator (seed Eq. 4.4, DESIGN §2)
+offsets of the dataset through the core evolution operator (seed Eq. 4.4, docs/conventions.md §2)
 
     G(W, μ_k) = G(W, μ0) · S(W, μ0) / S(W, μ_k),
 
@@ -13,7 +13,7 @@ non-negative increments), so optimisers and samplers need no bounds.
   amplitude ``A`` at μ0) and statistics family (Beckmann or GGX) whose width follows
   :class:`brdfscale.stats.WidthLaw` ``α(μ) = alpha_max (1 + (μ/mu_c)²)^{−exponent/2}``.
   The law tends to δ as μ → ∞, which supplies the boundary condition ``S(W, ∞) = 1`` that
-  multi-scale data alone cannot (DESIGN §2).
+  multi-scale data alone cannot (docs/conventions.md §2).
 * :class:`NonParametricModel` — a tabulated base lobe at μ0 and, for each coarser scale, the
   *relative statistics* ``r_k`` defined by ``s(μ0) = r_k ∗ s(μ_k)``, i.e.
   ``R_k(W) = S(W, μ0)/S(W, μ_k) = exp(−D_k(|W|))`` on a radial W grid: exactly the
@@ -33,9 +33,9 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from brdfscale import InvalidInputError, MeasurementSet, MethodNotApplicableError, evolve, lobes, stats
-from brdfscale._special import j0
+from brdfscale.special import j0
 
-from brdfscale._validation import integer, real
+from brdfscale.checks import integer, real
 from ._data import Dataset
 
 __all__ = ["AbstractModel", "ParametricModel", "NonParametricModel", "RelativeStatistics"]
@@ -129,7 +129,7 @@ class AbstractModel(eqx.Module):
     @property
     @abc.abstractmethod
     def identifiability_notes(self) -> tuple[str, ...]:
-        """What the model assumes to make absolute quantities determinable (DESIGN §2)."""
+        """What the model assumes to make absolute quantities determinable (docs/conventions.md §2)."""
 
     def penalty(self, theta: Float[Array, " n"]) -> Float[Array, " m"]:
         """Whitened prior residuals appended to the data residuals (none by default)."""
@@ -164,7 +164,7 @@ class ParametricModel(AbstractModel):
         law: ``"width"`` — :class:`brdfscale.stats.WidthLaw` for the family's width α(μ);
             ``"gaussian_surface"`` — Beckmann statistics of a Gaussian-correlated random
             surface with a ``window`` facet window (:class:`brdfscale.stats.GaussianSurface`
-            of a :class:`~brdfscale.stats.GaussianCorrelation` spectrum: Σ(μ) of DESIGN §2
+            of a :class:`~brdfscale.stats.GaussianCorrelation` spectrum: Σ(μ) of docs/conventions.md §2
             in closed form).
         fixed: physical parameters held at given values (e.g. ``{"mu_c": 1.0}``) — the way
             to supply prior knowledge that the data lack.

@@ -1,7 +1,11 @@
-"""The main job's outputs: fit.json, figures (matplotlib, Agg) and evolved lobe tables.
+"""The main job's outputs: fit.json, figures (matplotlib) and evolved lobe tables.
+
+Figures are drawn on :class:`matplotlib.figure.Figure` objects made without pyplot, so writing a
+report touches neither pyplot's figure list nor the backend a notebook or script has chosen;
+matplotlib itself is imported only when a figure is drawn.
 
 ``write_report`` is the only place in :mod:`fitting` that writes report files. Every file is
-written through :func:`brdfscale._files.atomic_write` (a hidden temporary file in the output
+written through :func:`brdfscale.files.atomic_write` (a hidden temporary file in the output
 directory, moved into place); before anything is written, every file the report would write
 is checked, and none that exists is overwritten unless ``overwrite=True``.
 """
@@ -16,22 +20,18 @@ from pathlib import Path
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import matplotlib
 import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+import brdfscale
+from brdfscale import BrdfscaleError, InvalidInputError, MeasurementFileError
+from brdfscale.files import atomic_write, exclusive
 
-import brdfscale  # noqa: E402
-from brdfscale import BrdfscaleError, InvalidInputError, MeasurementFileError  # noqa: E402
-from brdfscale.files import atomic_write, exclusive  # noqa: E402
+from brdfscale.checks import flag, real
+from ._estimate import FitResult, Problem, check_fit
+from ._models import ParametricModel, predict_images
+from ._sample import SampleResult
 
-from brdfscale._validation import flag, real  # noqa: E402
-from ._estimate import FitResult, Problem, check_fit  # noqa: E402
-from ._models import ParametricModel, predict_images  # noqa: E402
-from ._sample import SampleResult  # noqa: E402
-
-__all__ = ["summarise", "write_report", "truth_of"]
+__all__ = ["summarise", "write_report", "truth_of", "report_files", "check_report_directory"]
 
 _CORNER_MAX = 6
 _FIGURES = ("data_vs_fit.png", "statistics.png", "corner.png")
@@ -56,6 +56,19 @@ def _absolute(model, thetas, W, data):
     return jax.vmap(one)(thetas)
 
 
+def _figure(**kwargs):
+    """A matplotlib Figure outside pyplot (no backend, no global figure list; freed with its last reference)."""
+    from matplotlib.figure import Figure
+
+    return Figure(**kwargs)
+
+
+def _colormap(name: str):
+    import matplotlib
+
+    return matplotlib.colormaps[name]
+
+
 def _atomic(path, write, overwrite: bool):
     """Write ``path`` atomically; without ``overwrite`` an existing file is never replaced
     (write_report has checked up front; this also holds against a file created meanwhile:
@@ -78,7 +91,7 @@ def report_files(out_dir) -> list[str]:
     return [os.path.join(os.fspath(out_dir), name) for name in names]
 
 
-def check_out_dir(out_dir, overwrite: bool = False) -> list[str]:
+def check_report_directory(out_dir, overwrite: bool = False) -> list[str]:
     """Check that a report can be written into ``out_dir`` without clobbering anything, and
     create the directory; return :func:`report_files`.
 
@@ -193,7 +206,8 @@ def _figure_data_vs_fit(path, problem: Problem, fit: FitResult, overwrite: bool)
     data, model = problem.data, problem.model
     pred = np.asarray(predict_images(model, jnp.clip(jnp.asarray(fit.theta), problem.lower, problem.upper), data))
     first = [data.scale_of_image.index(k) for k in range(len(np.asarray(data.scales)))]
-    fig, axes = plt.subplots(len(first), 3, figsize=(9, 2.6 * len(first)), squeeze=False)
+    fig = _figure(figsize=(9, 2.6 * len(first)))
+    axes = fig.subplots(len(first), 3, squeeze=False)
     for row, i in enumerate(first):
         obs, fitted = data.image(i, data.values[i]), data.image(i, pred[i])
         w = data.image(i, data.weight[i])
@@ -211,10 +225,7 @@ def _figure_data_vs_fit(path, problem: Problem, fit: FitResult, overwrite: bool)
     for ax in axes[-1]:
         ax.set_xlabel("u_x")
     fig.tight_layout()
-    try:
-        _atomic(path, lambda p: fig.savefig(p, dpi=90, format="png"), overwrite)
-    finally:
-        plt.close(fig)
+    _atomic(path, lambda p: fig.savefig(p, dpi=90, format="png"), overwrite)
 
 
 def _band(ax, W, curves, color, label):
@@ -230,8 +241,9 @@ def _figure_statistics(path, problem: Problem, fit: FitResult, draws, true_theta
     w_max = 8.0 / float(model.quantities(jnp.asarray(fit.theta))["alpha_lobe"]) if absolute else model.knots[-1]
     W = jnp.linspace(0.0, w_max, 200)
     relative = np.asarray(_relative(model, jnp.asarray(draws), W, data))
-    fig, axes = plt.subplots(1, 2 if absolute else 1, figsize=(11 if absolute else 6, 4), squeeze=False)
-    colors = plt.cm.viridis(np.linspace(0, 0.9, len(scales)))
+    fig = _figure(figsize=(11 if absolute else 6, 4))
+    axes = fig.subplots(1, 2 if absolute else 1, squeeze=False)
+    colors = _colormap("viridis")(np.linspace(0, 0.9, len(scales)))
     for k in range(1, len(scales)):
         _band(axes[0, 0], W, relative[:, k], colors[k], f"μ = {scales[k]:.3g}")
         if true_theta is not None:
@@ -248,10 +260,7 @@ def _figure_statistics(path, problem: Problem, fit: FitResult, draws, true_theta
         axes[0, 1].set_title("S(W, μ) — absolute via the scale law's S(W, ∞) = 1 (dashed: truth)", fontsize=9)
         axes[0, 1].set_xlabel("|W|")
     fig.tight_layout()
-    try:
-        _atomic(path, lambda p: fig.savefig(p, dpi=90, format="png"), overwrite)
-    finally:
-        plt.close(fig)
+    _atomic(path, lambda p: fig.savefig(p, dpi=90, format="png"), overwrite)
 
 
 def _figure_corner(path, model, draws, truth: dict | None, overwrite: bool):
@@ -259,7 +268,8 @@ def _figure_corner(path, model, draws, truth: dict | None, overwrite: bool):
     names = list(q)[:_CORNER_MAX]
     x = np.stack([np.asarray(q[n]) for n in names], axis=1)
     d = len(names)
-    fig, axes = plt.subplots(d, d, figsize=(1.8 * d + 1, 1.8 * d + 1), squeeze=False)
+    fig = _figure(figsize=(1.8 * d + 1, 1.8 * d + 1))
+    axes = fig.subplots(d, d, squeeze=False)
     for i in range(d):
         for j in range(d):
             ax = axes[i, j]
@@ -282,10 +292,7 @@ def _figure_corner(path, model, draws, truth: dict | None, overwrite: bool):
             if j == 0 and i > 0:
                 ax.set_ylabel(names[i], fontsize=8)
     fig.tight_layout()
-    try:
-        _atomic(path, lambda p: fig.savefig(p, dpi=80, format="png"), overwrite)
-    finally:
-        plt.close(fig)
+    _atomic(path, lambda p: fig.savefig(p, dpi=80, format="png"), overwrite)
 
 
 def _write_tables(out_dir, problem: Problem, fit: FitResult, overwrite: bool) -> list[str] | str:
@@ -355,14 +362,14 @@ def write_report(out_dir, problem: Problem, fit: FitResult, samples: SampleResul
     except (TypeError, ValueError) as err:
         raise InvalidInputError(f"model_info must hold JSON values only (str, numbers, lists, dicts): {err}.") from None
 
-    check_out_dir(out_dir, overwrite)
+    check_report_directory(out_dir, overwrite)
     out_dir = os.fspath(out_dir)
     with exclusive(out_dir, what="report directory"):  # re-entrant: `brdfscale fit` holds it for the whole run
         return _write_files(out_dir, problem, fit, model, draws, true_theta, truth, doc, overwrite)
 
 
 def _write_files(out_dir, problem, fit, model, draws, true_theta, truth, doc, overwrite) -> dict:
-    check_out_dir(out_dir, overwrite)  # again, now that no other run can write here
+    check_report_directory(out_dir, overwrite)  # again, now that no other run can write here
     figures = {name: os.path.join(out_dir, name) for name in _FIGURES}
     target = os.path.join(out_dir, "fit.json")
     try:

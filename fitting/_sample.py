@@ -44,7 +44,7 @@ from tqdm.auto import tqdm
 from brdfscale import InvalidInputError, MeasurementFileError
 from brdfscale.files import atomic_write, exclusive
 
-from brdfscale._validation import flag, integer
+from brdfscale.checks import flag, integer
 from ._estimate import FitResult, Problem, check_fit
 
 __all__ = ["SampleResult", "sample", "log_posterior"]

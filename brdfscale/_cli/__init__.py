@@ -2,7 +2,9 @@
 
 Each subcommand lives in its own module of this package and exposes ``register(subparsers)``
 which adds its parser and sets ``func`` (a callable taking the parsed namespace and returning
-an exit status). Add new subcommands to ``_SUBCOMMANDS``. Options are parsed by
+an exit status; a subcommand that runs no JAX sets ``compiles=False``, which skips the
+persistent compilation cache and keeps its start-up free of JAX). Add new subcommands to
+``_SUBCOMMANDS``. Options are parsed by
 :class:`._options.Parser` (no abbreviations, no silent repeats) with typed domains.
 
 Exit status (also in ``brdfscale --help``): 0 success; 1 an unexpected failure (a bug: the
@@ -58,7 +60,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_OK
     name = f"brdfscale {args.command}"
     try:
-        if not args.no_compilation_cache:
+        if not args.no_compilation_cache and getattr(args, "compiles", True):
             from ._compilation_cache import enable
 
             enable()

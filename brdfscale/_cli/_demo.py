@@ -10,10 +10,8 @@ model's own forward map plus Gaussian noise (a pure check of the inverse machine
 import os
 import time
 
-import numpy as np
-
 from .._errors import InvalidInputError
-from ._fit import add_fit_options, fit_measurements
+from ._fit import add_fit_options, fit_measurements, load_fitting
 from ._options import MAX_SEED, Parser, integer, make_directory, seed
 
 _SCALES = (2.0, 4.0, 8.0, 16.0, 32.0)
@@ -43,19 +41,20 @@ def register(subparsers) -> None:
 
 def _measurements(source: str, seed: int):
     if source == "synth":
+        import numpy as np
+
         from .. import stats, synth
 
         field = synth.named_surface("gaussian", size=512, seed=seed, micro=stats.Beckmann(0.01))
         return synth.gonioreflectometer(field, _SCALES, np.array([0.0, 0.0, 1.0]), extent=0.05, pixels=33,
                                         noise=synth.PoissonNoise(0.05), seed=seed + 1)
-    import fitting
-
+    fitting = load_fitting()
     model = fitting.ParametricModel(law="gaussian_surface")
     return fitting.simulate(model, _MODEL_TRUTH, _SCALES, size=33, extent=0.05, noise=0.01, floor=0.05, seed=seed)
 
 
 def run(args) -> int:
-    import fitting  # noqa: F401  (first: it switches JAX to float64 before any array is made)
+    load_fitting()  # first: float64 before any array is made
 
     from .. import exr, files
 
@@ -85,9 +84,7 @@ _MARKER = ".brdfscale-demo"
 
 def _outputs(out: str) -> list[str]:
     """The files the demo writes into ``out``."""
-    from fitting._report import report_files
-
-    return [os.path.join(out, "measurements.exr"), os.path.join(out, "chain.h5"), *report_files(out)]
+    return [os.path.join(out, "measurements.exr"), os.path.join(out, "chain.h5"), *load_fitting().report_files(out)]
 
 
 def _run(args, exr, start) -> int:

@@ -3,8 +3,6 @@
 import argparse
 from pathlib import Path
 
-import numpy as np
-
 from .._files import atomic_write
 from ._options import make_directory, output_file
 
@@ -30,6 +28,7 @@ def run(args: argparse.Namespace) -> int:
     jax.config.update("jax_enable_x64", True)
     import jax.numpy as jnp
     import matplotlib
+    import numpy as np
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -100,6 +100,17 @@ def check_sampler_options(args, n_parameters: int) -> None:
                                 f"{size / 2**30:.1f} GiB; at most {CHAIN_BUDGET // 2**30} GiB (fewer steps or walkers).")
 
 
+def load_fitting():
+    """The fitting package, with JAX switched to float64 (the command owns its process; the
+    library itself changes no global setting)."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    from .. import fitting
+
+    return fitting
+
+
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
         "fit",
@@ -117,10 +128,9 @@ def register(subparsers) -> None:
 
 def fit_measurements(mset, args, *, stream=print) -> dict:
     """Fit, sample and report ``mset`` according to the parsed options; returns fit.json's content."""
-    import fitting
-    from fitting._report import check_out_dir
-
     from .. import files
+
+    fitting = load_fitting()
 
     check_fit_options(args)
     data = fitting.Dataset.from_measurements(mset, default_sigma=getattr(args, "default_sigma", None))
@@ -148,7 +158,7 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
     if args.steps > 0:
         check_sampler_options(args, len(model.names))
     truth = fitting.truth_of(model, mset.metadata)  # a damaged truth is refused before the work, not after
-    check_out_dir(args.out, args.force)  # before the long work: every report file, not only fit.json
+    fitting.check_report_directory(args.out, args.force)  # before the long work: every report file, not only fit.json
     with files.exclusive(args.out, what="output directory"):
         return _fit_and_report(fitting, mset, data, model, info, truth, args, stream)
 
@@ -176,8 +186,7 @@ def _fit_and_report(fitting, mset, data, model, info, truth, args, stream) -> di
 
 
 def run(args) -> int:
-    import fitting  # noqa: F401  (first: it switches JAX to float64 before any array is made)
-
+    load_fitting()  # first: float64 before any array is made
     from .. import exr
 
     output_directory(args.out)

@@ -13,7 +13,7 @@ def register(subparsers) -> None:
     )
     parser.add_argument("file", help="a .exr file written by brdfscale")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
-    parser.set_defaults(func=run)
+    parser.set_defaults(func=run, compiles=False)  # reads headers and pixels: no JAX, no cache
 
 
 def _angles(incident) -> tuple[float, float]:

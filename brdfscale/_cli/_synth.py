@@ -3,8 +3,6 @@
 import argparse
 import math
 
-import numpy as np
-
 from .._errors import InvalidInputError
 from ._options import MAX_SEED, integer, output_file, real, seed
 
@@ -21,7 +19,7 @@ def _scales(text: str) -> list[float]:
     return values
 
 
-def _incident(text: str) -> np.ndarray:
+def _incident(text: str) -> tuple[float, float, float]:
     """``THETA`` or ``THETA:PHI`` (degrees) → unit vector towards the light."""
     try:
         angles = [float(x) for x in text.split(":")]
@@ -30,7 +28,7 @@ def _incident(text: str) -> np.ndarray:
     if len(angles) not in (1, 2) or not 0 <= angles[0] < 90 or not all(math.isfinite(a) for a in angles):
         raise argparse.ArgumentTypeError(f"expected THETA (0 ≤ θ < 90) or THETA:PHI in degrees (finite); got {text!r:.60}")
     theta, phi = math.radians(angles[0]), math.radians(angles[1] if len(angles) == 2 else 0.0)
-    return np.array([math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta)])
+    return (math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta))
 
 
 #: Domains of the noise parameters: the lobe images are stored as float32 (|x| ≤ 3.4e38).
@@ -56,14 +54,14 @@ def _noise(text: str):
 
 
 def register(subparsers) -> None:
-    from ..synth import SURFACES
+    from .._surfaces import DESCRIPTIONS as SURFACES
 
     parser = subparsers.add_parser(
         "synth",
         help="write a synthetic multi-scale measurement set from a built-in surface",
         description="Simulate a gonioreflectometer on a built-in random surface and write the lobe images "
         "as a multi-part OpenEXR measurement set. Lengths and scales are in pixels.",
-        epilog="surfaces: " + "; ".join(f"{name}: {desc}" for name, (desc, _) in SURFACES.items()),
+        epilog="surfaces: " + "; ".join(f"{name}: {desc}" for name, desc in SURFACES.items()),
     )
     parser.add_argument("surface", choices=sorted(SURFACES), metavar="SURFACE", help="one of: " + ", ".join(SURFACES))
     parser.add_argument("--out", required=True, help="output .exr file")
@@ -89,6 +87,8 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
+    import numpy as np
+
     from .. import exr, stats, synth
 
     output_file(args.out, args.force)

@@ -1,4 +1,4 @@
-"""OpenEXR measurement sets and lobe tables (DESIGN §6): the only module that touches files.
+"""OpenEXR measurement sets and lobe tables (docs/conventions.md §6): the only module that touches files.
 
 * :func:`write_measurements` / :func:`read_measurements` — a :class:`brdfscale.MeasurementSet`
   as one multi-part file, one part per lobe image;
@@ -13,7 +13,22 @@ and docs/synth_exr.md. Every reader validates every attribute and checksum and r
 
 from ._format import FORMAT_VERSION
 from ._measurements import file_kind, read_measurements, write_measurements
-from ._tables import LobeTable, read_lobe_table, write_lobe_table
+
+_TABLES = ("LobeTable", "read_lobe_table", "write_lobe_table")
+
+
+def __getattr__(name: str):  # the lobe tables need JAX; measurement files do not (``brdfscale info`` starts fast)
+    if name in _TABLES:
+        from . import _tables
+
+        value = getattr(_tables, name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))
 
 __all__ = [
     "write_measurements",

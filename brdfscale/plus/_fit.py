@@ -25,7 +25,7 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import BrdfscaleError, InvalidInputError
-from .._validation import as_float_array, positive
+from .._validation import as_float_array, positive, require_float64
 from ..stats import AbstractSlopeDensity, Gaussian
 from ._nearly_specular import NearlySpecular, ObservedDensity
 from ._transform import MAX_ORDER
@@ -145,8 +145,7 @@ def fit_strengths(
             parameters (singular ``JᵀJ``; the message names the undetermined combination).
         InvalidInputError: bad shapes or values.
     """
-    if not jax.config.jax_enable_x64:
-        raise InvalidInputError("fit_strengths needs float64: call jax.config.update('jax_enable_x64', True).")
+    require_float64("fit_strengths")
     if isinstance(orders, bool) or not isinstance(orders, (int, np.integer)) or not 1 <= orders <= MAX_ORDER + 1:
         raise InvalidInputError(f"orders must be an integer in 1…{MAX_ORDER + 1}; got {orders!r}.")
     if not (isinstance(kernel, Gaussian) and kernel.isotropic):

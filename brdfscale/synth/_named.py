@@ -4,6 +4,7 @@ from typing import Callable
 
 from .. import stats
 from .._errors import InvalidInputError
+from .._surfaces import DESCRIPTIONS
 from ._profiles import blazed, scratches
 from ._random import as_generator
 from ._spectral import _check_size, spectral_field
@@ -35,12 +36,10 @@ def _blazed(size, seed):
     return blazed(size=size, period=16, slopes=(0.03, -0.09))
 
 
+_BUILDERS = {"gaussian": _gaussian, "anisotropic": _anisotropic, "fractal": _fractal, "scratched": _scratched,
+             "blazed": _blazed}
 SURFACES: dict[str, tuple[str, Callable[[int, object], HeightField]]] = {
-    "gaussian": ("Gaussian-correlated, σ_h = 0.05, ℓ = 8 px (rms slope per axis 0.0088)", _gaussian),
-    "anisotropic": ("Gaussian-correlated, σ_h = 0.05, ℓ = (6, 24) px", _anisotropic),
-    "fractal": ("K-correlation (ABC) fractal, A = 30, B = 32 px, C = 3.5", _fractal),
-    "scratched": ("Gaussian σ_h = 0.02, ℓ = 8 px, plus size/32 V-scratches 0.2 deep, 8 px wide", _scratched),
-    "blazed": ("blazed grating, period 16 px, 75 % of facets at slope +0.03, 25 % at −0.09", _blazed),
+    name: (DESCRIPTIONS[name], _BUILDERS[name]) for name in DESCRIPTIONS
 }
 """name → (description, builder(size, seed))."""
 

@@ -1,0 +1,109 @@
+"""Import hygiene (issue 17): importing brdfscale or fitting changes no global state, loads
+JAX and matplotlib only when used, and the command line starts without JAX where it needs none.
+
+Each check runs in a fresh interpreter (this test process has imported everything already).
+"""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+
+def _run(code: str, cwd=None) -> dict:
+    """Run ``code`` in a fresh interpreter; it prints one JSON line, returned parsed."""
+    env = {k: v for k, v in os.environ.items() if k not in ("JAX_ENABLE_X64", "MPLBACKEND")}
+    out = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True, cwd=cwd,
+                         env=env, timeout=300)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_import_changes_no_global_state_and_is_lazy():
+    got = _run("""
+        import json, sys
+        import brdfscale
+        after_brdfscale = sorted(m for m in ("jax", "matplotlib", "numpy", "scipy", "equinox") if m in sys.modules)
+        import fitting, brdfscale.exr, brdfscale.stats
+        import jax
+        print(json.dumps({"after_brdfscale": after_brdfscale, "x64": bool(jax.config.jax_enable_x64),
+                          "matplotlib": "matplotlib" in sys.modules, "evolve": callable(brdfscale.evolve),
+                          "dir": "MeasurementSet" in dir(brdfscale)}))
+    """)
+    assert got["after_brdfscale"] == []  # only the exception classes are loaded by `import brdfscale`
+    assert got["x64"] is False
+    assert got["matplotlib"] is False
+    assert got["evolve"] and got["dir"]
+
+
+def test_fitting_in_float32_mode_says_which_line_to_add():
+    got = _run("""
+        import json
+        import numpy as np
+        import brdfscale
+        from brdfscale import LobeImage, MeasurementSet, fitting
+        m = MeasurementSet(tuple(LobeImage(mu=mu, incident=np.array([0., 0., 1.]), extent=0.5, values=np.ones((8, 8)),
+                                           sigma=np.ones((8, 8))) for mu in (1.0, 2.0)))
+        try:
+            fitting.Dataset.from_measurements(m)
+        except brdfscale.InvalidInputError as err:
+            print(json.dumps({"message": str(err)}))
+    """)
+    assert 'jax.config.update("jax_enable_x64", True)' in got["message"]
+
+
+def test_unknown_attribute_is_an_attribute_error():
+    import brdfscale
+
+    with pytest.raises(AttributeError, match="no attribute 'nonexistent'"):
+        brdfscale.nonexistent  # noqa: B018
+
+
+def test_brdfscale_fitting_is_the_fitting_package():
+    import fitting
+
+    import brdfscale
+    import brdfscale.fitting
+
+    assert brdfscale.fitting is fitting and sys.modules["brdfscale.fitting"] is fitting
+
+
+def test_a_local_fitting_py_cannot_shadow_brdfscale_fitting(tmp_path):
+    (tmp_path / "fitting.py").write_text("x = 1\n")
+    code = """
+        import json
+        try:
+            from brdfscale import fitting
+        except ImportError as err:
+            print(json.dumps({"error": str(err)}))
+    """
+    got = _run(code, cwd=tmp_path)  # `python -c` puts the working directory first on sys.path
+    assert str(tmp_path / "fitting.py") in got["error"] and "shadows brdfscale's fitting package" in got["error"]
+    got = _run("import fitting\n" + textwrap.dedent(code), cwd=tmp_path)  # the impostor imported first
+    assert "is not brdfscale's fitting package" in got["error"]
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["info", "{file}"]])
+def test_command_line_starts_without_jax(tmp_path, argv):
+    import numpy as np
+
+    from brdfscale import LobeImage, MeasurementSet, exr
+
+    path = tmp_path / "m.exr"
+    exr.write_measurements(path, MeasurementSet(tuple(
+        LobeImage(mu=mu, incident=np.array([0.0, 0.0, 1.0]), extent=0.5, values=np.ones((8, 8))) for mu in (1.0, 2.0))))
+    argv = [a.format(file=path) for a in argv]
+    got = _run(f"""
+        import contextlib, io, json, sys
+        from brdfscale._cli import main
+        with contextlib.redirect_stdout(io.StringIO()):
+            try:
+                code = main({argv!r})
+            except SystemExit as exit:
+                code = exit.code
+        print(json.dumps({{"code": code, "jax": "jax" in sys.modules, "matplotlib": "matplotlib" in sys.modules}}))
+    """)
+    assert got == {"code": 0, "jax": False, "matplotlib": False}
