@@ -2,7 +2,7 @@
 
 A :class:`MeasurementSet` is what a (real or synthetic) gonioreflectometer delivers and
 what the fitting code consumes; :mod:`brdfscale.exr` stores it as multi-part OpenEXR
-(DESIGN §6). Each :class:`LobeImage` is one (scale μ, incident direction i) pair: the lobe
+(docs/conventions.md §6). Each :class:`LobeImage` is one (scale μ, incident direction i) pair: the lobe
 sampled on a regular ``n × n`` grid of half-vector slope offsets ``u = m_s − m∞`` whose
 nodes span ``[−extent, extent]`` on both axes (rows u_y, columns u_x, as
 :class:`brdfscale.stats.Tabulated`), with optional per-pixel standard deviations and a mask.

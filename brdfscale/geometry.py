@@ -1,6 +1,6 @@
 """Directions, slopes and half vectors.
 
-Conventions (DESIGN §1; seed §2 and §4):
+Conventions (docs/conventions.md §1; seed §2 and §4):
 
 * Global frame: ``z`` is the macroscopic surface normal. ``i`` points from the surface to
   the light and ``o`` from the surface to the detector; both are unit vectors with z > 0.

@@ -101,7 +101,14 @@ def write_json(name: str, payload: dict) -> Path:
 
 
 def table(header: list[str], rows: list[list[str]]) -> str:
-    """A Markdown table."""
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    """A Markdown table. A ``|`` inside a cell (``|M| ≤ 27``) is escaped, so that it does not end
+    the cell; a row with more or fewer cells than the header is refused."""
+    def line(cells):
+        return "| " + " | ".join(str(c).replace("|", "\\|") for c in cells) + " |"
+
+    for r in rows:
+        if len(r) != len(header):
+            raise ValueError(f"a table row has {len(r)} cells, its header {len(header)}: {r!r}")
+    lines = [line(header), "|" + "---|" * len(header)]
+    lines += [line(r) for r in rows]
     return "\n".join(lines)

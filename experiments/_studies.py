@@ -1,6 +1,6 @@
 """Shared code of the studies (consistency, evolution accuracy, validity, rendering).
 
-Conventions are the library's (DESIGN §1, docs/synth_exr.md): heights ``h[j, k]`` at
+Conventions are the library's (docs/conventions.md §1, docs/synth_exr.md): heights ``h[j, k]`` at
 ``(x, y) = (kΔ, jΔ)``, pixel facets with forward-difference normal slopes ``m = −∇h``,
 facets at scale μ are ``b × b`` pixel blocks (``b = μ/Δ``). Everything here is NumPy: the
 studies post-process histograms of millions of samples, which gains nothing from tracing.

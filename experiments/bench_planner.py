@@ -110,7 +110,7 @@ def nearly_specular(alpha):
 
 
 def plus_h0(z):
-    """``H_0`` at ``z = |W| x0`` by its power series (DESIGN §4), fine in float64 for z ≲ 10."""
+    """``H_0`` at ``z = |W| x0`` by its power series (docs/conventions.md §4), fine in float64 for z ≲ 10."""
     z = np.asarray(z, float)
     k = np.arange(1, 80)[:, None]
     logs = 2 * k * np.log(np.maximum(z, 1e-300) / 2)[None, :] - 2 * sp.gammaln(k + 1)
@@ -235,7 +235,7 @@ def _unit(polar, azimuth):
 
 
 def so3_lobe(i, o, rotations, alpha=SO3_ALPHA):
-    """ρ(i, o, Γ) of the anisotropic Beckmann facet lobe in NumPy (seed §2, DESIGN §1): in the
+    """ρ(i, o, Γ) of the anisotropic Beckmann facet lobe in NumPy (seed §2, docs/conventions.md §1): in the
     facet frame ``g(m(h'))/(4 o'_z h'_z⁴)``, zero where i or o is below the facet's horizon."""
     ip = np.einsum("...ji,j->...i", rotations, i)
     op = np.einsum("...ji,j->...i", rotations, o)

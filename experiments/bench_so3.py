@@ -106,7 +106,7 @@ def scaling(rows, key):
 
 
 def to_s2fft(c):
-    """Our f^J_{MM'} → s2fft flmn[N−1+n, l, L−1+m] (FIELD-NOTES index map)."""
+    """Our f^J_{MM'} → s2fft flmn[N−1+n, l, L−1+m] (docs/dependencies.md index map)."""
     B = c.shape[0]
     J = np.arange(B)[:, None, None]
     M = np.arange(-(B - 1), B)

@@ -1,4 +1,4 @@
-"""Nearly-specular lobes (seed §6, DESIGN §4) as instruments of two angular resolutions see them.
+"""Nearly-specular lobes (seed §6, docs/conventions.md §4) as instruments of two angular resolutions see them.
 
 For n = 0…3 the statistic ``s = δ + c_n h_n`` (cut-off x0) next to a pure specular lobe (δ)
 and a Beckmann lobe (α = x0/2), all of unit energy (∫ g d²u = 1: plus-distributions carry no

@@ -1,4 +1,4 @@
-"""Study 3: where does the nearly-flat approximation break? (seed §2 footnote 1, DESIGN §2)
+"""Study 3: where does the nearly-flat approximation break? (seed §2 footnote 1, docs/conventions.md §2)
 
 The library's lobe model for mirror micro-facets is ``ρ(i, o) = P22(m_s) · F(i, o)`` with
 ``F = 1/(4 cosθ_o cos⁴θ_h)`` (:func:`brdfscale.geometry.microfacet_factor`) and P22 the

@@ -155,7 +155,7 @@ def test_fine_coarse_fine_round_trip_grid_honours_its_stated_tolerance():
     assert _max_rel(back.density(U), lobe.density(U)) < back.shape.tol
 
 
-# -- physics: the sign of skewed statistics (DESIGN §2) --------------------------------------
+# -- physics: the sign of skewed statistics (docs/conventions.md §2) --------------------------------------
 def test_skewed_statistics_sign_against_brute_force_reflection():
     """70 % of the mirror facets have slope +0.03 (30 % −0.07): the coarse lobe peaks at +0.03.
 

@@ -29,7 +29,7 @@ def test_ggx_surface_recovery():
 
 def test_nonparametric_recovers_the_determined_ratios():
     """Tabulated base lobe + relative statistics: D_k(W) = −ln S(μ0)/S(μ_k) equals
-    (α_s(μ0)² − α_s(μ_k)²) W²/4 for Beckmann statistics (DESIGN §1), within 4σ."""
+    (α_s(μ0)² − α_s(μ_k)²) W²/4 for Beckmann statistics (docs/conventions.md §1), within 4σ."""
     truth = TRUTHS[1]
     param = fitting.ParametricModel()
     _, data = _dataset(param, truth, 0.01, seed=2, scales=(0.5, 2.0, 8.0), size=20)

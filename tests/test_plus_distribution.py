@@ -1,5 +1,5 @@
 """Plus-distributions as slope statistics: action on test functions, nearly-specular statistics,
-the instrument view, and their use in evolve and Mixture (DESIGN §4)."""
+the instrument view, and their use in evolve and Mixture (docs/conventions.md §4)."""
 
 import jax
 import jax.numpy as jnp
@@ -11,7 +11,7 @@ from brdfscale import InvalidInputError, NoBRDFAtScaleError, SingularDensityErro
 
 
 def _action_reference(n, x0, angular_mean, points):
-    """∫_0^{x0} (logⁿ(x/x0)/x)(ψ̄(x) − ψ̄(0)) dx (the definition, DESIGN §4) by mpmath quadrature
+    """∫_0^{x0} (logⁿ(x/x0)/x)(ψ̄(x) − ψ̄(0)) dx (the definition, docs/conventions.md §4) by mpmath quadrature
     in v = ln(x0/x) on unit panels, split at the images of ``points``; beyond v = 40 the
     integrand is below e^{−80} (ψ̄(x) − ψ̄(0) = O(x²)) and is dropped (there 1 − ψ̄/ψ̄(0) is
     below the working precision)."""

@@ -1,4 +1,4 @@
-"""H_n(W): the transforms of the regularised plus-distributions against mpmath (DESIGN §4)."""
+"""H_n(W): the transforms of the regularised plus-distributions against mpmath (docs/conventions.md §4)."""
 
 import math
 

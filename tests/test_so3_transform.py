@@ -99,7 +99,7 @@ def test_forward_of_a_single_D_from_spherical():
 
 
 def test_synthesis_matches_s2fft_inverse():
-    """s2fft's exact precomputed inverse, with the index map of FIELD-NOTES:
+    """s2fft's exact precomputed inverse, with the index map of docs/dependencies.md:
     f^J_{MM'} = (2J+1)/(8π²) (−1)^{M−M'} flmn[N−1−M', J, L−1−M]."""
     from s2fft.precompute_transforms import construct, wigner
     from s2fft.sampling import s2_samples

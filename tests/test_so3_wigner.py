@@ -125,7 +125,7 @@ def test_against_spherical_package():
     for J in (1, 4, 8):
         ours = np.asarray(so3.wigner_D(J, alpha, beta, gamma))
         theirs = np.array([[Dsph[wigner.Dindex(J, M, Mp)] for Mp in range(-J, J + 1)] for M in range(-J, J + 1)])
-        # `spherical`'s D is the complex conjugate of the seed's (FIELD-NOTES)
+        # `spherical`'s D is the complex conjugate of the seed's (docs/dependencies.md)
         assert np.max(np.abs(ours - np.conj(theirs))) < 1e-13
 
 

@@ -73,7 +73,7 @@ def test_disk_cf_and_density():
 
 @pytest.mark.parametrize("kind", ["Beckmann", "GGX"])
 def test_against_mitsuba_microfacet_distribution(kind):
-    """Mitsuba's D(h) times cos⁴θ is the slope density P22 (DESIGN §1). Mitsuba's pip build is
+    """Mitsuba's D(h) times cos⁴θ is the slope density P22 (docs/conventions.md §1). Mitsuba's pip build is
     float32 only, so agreement is to float32 rounding (≤ 2e-6 relative)."""
     mi = pytest.importorskip("mitsuba")
     mi.set_variant("scalar_rgb")

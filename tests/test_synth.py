@@ -147,7 +147,7 @@ def _blazed(**kw):
 def test_blazed_mirror_facets_reflect_into_their_slope():
     """Mirror reflection computed independently (normals by a cross product of the tangents,
     geometry.reflect, geometry.half_slope) lands where the gonioreflectometer puts the lobe:
-    70 % of the light at half-vector slope +0.03 (DESIGN §2's sign test)."""
+    70 % of the light at half-vector slope +0.03 (docs/conventions.md §2's sign test)."""
     field = _blazed()
     h = field.heights
     tx = np.stack([np.ones_like(h), np.zeros_like(h), np.roll(h, -1, axis=1) - h], axis=-1)

@@ -36,7 +36,7 @@ def evolve(
     extent: float | None = None,
     check: bool = True,
 ) -> AbstractLobe:
-    """Evolve a lobe measured at scale μ0 to scale μ (seed Eq. 4.4, DESIGN §2).
+    """Evolve a lobe measured at scale μ0 to scale μ (seed Eq. 4.4, docs/conventions.md §2).
 
     With the facet-slope densities ``s_from = s(·, μ0)`` and ``s_to = s(·, μ)`` the lobe
     transform evolves as

@@ -1,6 +1,6 @@
 """The evolved lobe as a spectral quotient, and the two paths that invert its transform.
 
-Seed Eq. 4.4 in terms of the facet-slope densities (DESIGN §2): the lobe at the target
+Seed Eq. 4.4 in terms of the facet-slope densities (docs/conventions.md §2): the lobe at the target
 scale has the transform
 
     G_to(W) = G_from(W) · S_from(W) / S_to(W).

@@ -1,4 +1,4 @@
-"""The on-disk layout shared by measurement sets and lobe tables (DESIGN §6).
+"""The on-disk layout shared by measurement sets and lobe tables (docs/conventions.md §6).
 
 One multi-part scanline OpenEXR file; one part per image, all parts ``n × n`` pixels with
 the same display window. Pixel ``[j, k]`` of a part (row j from the top of the file) is
@@ -11,7 +11,7 @@ Channels: ``Y``, or ``R``, ``G``, ``B`` — the values; optionally ``sigma`` (or
 1 where the pixel is valid, 0 elsewhere. Values and σ are float32 or float16.
 
 Header attributes of every part (OpenEXR 3.5 keeps a 1-element float64 array as a double
-and a float64 3-vector as a V3d; a Python float would be cut to 32 bits, FIELD-NOTES):
+and a float64 3-vector as a V3d; a Python float would be cut to 32 bits, docs/dependencies.md):
 
 ========================== ========= ===================================================
 ``brdfscale.format``       string    ``"brdfscale"``

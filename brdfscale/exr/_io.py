@@ -87,7 +87,7 @@ def open_parts(path) -> list:
 
     OpenEXR 3.5 raises for a missing, non-EXR or header-truncated file but only prints a
     warning (to stderr, from C++) and drops the damaged parts when the file is cut inside the
-    pixel data (FIELD-NOTES); every part records the part count, so a short file is
+    pixel data (docs/dependencies.md); every part records the part count, so a short file is
     reported here. Headers are read first, and a part whose data window is larger than
     :data:`MAX_SIDE` pixels a side, or whose pixels would decode to more than
     :data:`MAX_EXPANSION` times the file's size, is refused before any pixel is decoded.

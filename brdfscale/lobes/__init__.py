@@ -1,4 +1,4 @@
-"""BRDF lobes at one observation scale (seed §2, §4; DESIGN §2).
+"""BRDF lobes at one observation scale (seed §2, §4; docs/conventions.md §2).
 
 In the nearly-flat approximation the microscopic BRDF of a facet tilted by ``m∞`` is, for
 fixed directions, ``ρ(i, o, m∞) = A · F(i, o) · g(m_s(i, o) − m∞)``: an amplitude ``A``

@@ -1,4 +1,4 @@
-"""Nearly-specular reflection: regularised plus-distributions and their strengths (seed §6, DESIGN §4).
+"""Nearly-specular reflection: regularised plus-distributions and their strengths (seed §6, docs/conventions.md §4).
 
 * :func:`plus_transform` — the transforms ``H_n`` (n = 0…6) to float64 rounding;
 * :class:`PlusDistribution` — ``h_n = (1/2π)[θ(x0 − |m|) logⁿ(|m|/x0)/|m|²]₊``, a generalised function of

@@ -1,4 +1,4 @@
-"""The action of the plus-distributions on test functions, by radial quadrature (DESIGN §4).
+"""The action of the plus-distributions on test functions, by radial quadrature (docs/conventions.md §4).
 
 For a test function whose angular mean about the distribution's centre is ``ψ̄(x)``,
 

@@ -1,4 +1,4 @@
-"""The regularised plus-distributions ``h_n``: generalised functions of mass 0 on slope space (seed §6, DESIGN §4)."""
+"""The regularised plus-distributions ``h_n``: generalised functions of mass 0 on slope space (seed §6, docs/conventions.md §4)."""
 
 import math
 
@@ -19,7 +19,7 @@ _ANGLES = 64
 class PlusDistribution(AbstractGeneralisedDensity):
     """The regularised 2D plus-distribution ``h_n = (1/2π) [θ(x0 − |m|) logⁿ(|m|/x0)/|m|²]₊``.
 
-    Defined by its action on a test function ψ (DESIGN §4; seed §6 without its divergence):
+    Defined by its action on a test function ψ (docs/conventions.md §4; seed §6 without its divergence):
 
         ⟨h_n, ψ⟩ = ∫_0^{x0} (logⁿ(x/x0)/x) (ψ̄(x) − ψ(c)) dx,
 

@@ -19,7 +19,7 @@ from ._transform import MAX_ORDER, transforms_radial, transforms_scaled
 
 
 class NearlySpecular(AbstractSlopeDensity):
-    """Nearly-specular facet-slope statistics (seed §6, DESIGN §4):
+    """Nearly-specular facet-slope statistics (seed §6, docs/conventions.md §4):
 
         s = a δ_c + Σ_{n=0}^{N−1} c_n h_n + w s_smooth,
         S(W) = (a + Σ_n c_n H_n(|W| x0)) e^{−iW·c} + w S_smooth(W),
@@ -147,7 +147,7 @@ _BREAKS = np.array([-6.0, -3.0, -1.5, 0.0, 1.5, 3.0, 6.0])
 
 
 class ObservedDensity(AbstractSlopeDensity):
-    """What an instrument of Gaussian angular resolution sees: ``g = K ∗ s`` (DESIGN §4).
+    """What an instrument of Gaussian angular resolution sees: ``g = K ∗ s`` (docs/conventions.md §4).
 
     ``s`` is a :class:`NearlySpecular` statistic, ``K`` an isotropic centred Gaussian kernel in
     slope space with per-axis standard deviation ``σ`` (e.g. ``stats.Gaussian(sigma=σ)`` or

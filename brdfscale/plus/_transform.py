@@ -1,4 +1,4 @@
-"""The transforms ``H_n(W)`` of the regularised plus-distributions (seed §6, DESIGN §4).
+"""The transforms ``H_n(W)`` of the regularised plus-distributions (seed §6, docs/conventions.md §4).
 
 With ``z = |W| x0`` and ``t = x/x0``,
 
@@ -7,7 +7,7 @@ With ``z = |W| x0`` and ``t = x/x0``,
 an entire function of ``z²``, of sign ``(−1)^{n+1}`` for ``z > 0`` (``logⁿt`` has sign ``(−1)ⁿ``
 and ``J₀ ≤ 1``), so relative accuracy is well defined everywhere. Two evaluations:
 
-* ``z ≤ 8``: the power series (DESIGN §4)
+* ``z ≤ 8``: the power series (docs/conventions.md §4)
 
       H_n = (−1)ⁿ n! Σ_{k≥1} (−z²/4)^k / ((k!)² (2k)^{n+1}),
 
@@ -219,7 +219,7 @@ def check_order(order) -> int:
 
 
 def plus_transform(z: Float[ArrayLike, "*batch"], order: int) -> Float[Array, "*batch"]:
-    """``H_n`` at ``z = |W| x0`` (dimensionless, ≥ 0): the transform of ``h_n`` (DESIGN §4).
+    """``H_n`` at ``z = |W| x0`` (dimensionless, ≥ 0): the transform of ``h_n`` (docs/conventions.md §4).
 
     ``H_n(W) = ∫_0^{x0} (logⁿ(x/x0)/x)(J₀(Wx) − 1) dx``, ``n = order ∈ {0, …, 6}``; see the
     module docstring for the two evaluations and their accuracy (≤ 3e-14 relative in float64

@@ -6,9 +6,9 @@ facet-slope statistics; its BRDF at any scale μ is the lobe evolved by seed Eq.
     G(W, μ) = G(W, μ0) · S(W, μ0) / S(W, μ),      ρ(i, o, m∞, μ) = A · F(i, o) · g_μ(m_s(i, o) − m∞),
 
 with ``F`` the mirror-microfacet factor of :func:`brdfscale.geometry.microfacet_factor`
-(DESIGN §1–2). An *anisotropic material* (:class:`AnisotropicMaterial`) is a BRDF that
+(docs/conventions.md §1–2). An *anisotropic material* (:class:`AnisotropicMaterial`) is a BRDF that
 depends on the facet's whole orientation Γ ∈ SO(3) — tilt and twist — with statistics of
-facet orientations that evolve on SO(3) (seed §5, DESIGN §3):
+facet orientations that evolve on SO(3) (seed §5, docs/conventions.md §3):
 
     R^J(μ) = R^J(μ0) exp(−(τ(μ0) − τ(μ)) G^J),      ρ(i, o, Γ∞, μ) = Σ_J Σ_{MM'} R^J_{MM'}(μ) D^J_{MM'}(Γ∞).
 

@@ -1,4 +1,4 @@
-"""Planning the SO(3) path for an :class:`AnisotropicMaterial` (seed §5, DESIGN §3).
+"""Planning the SO(3) path for an :class:`AnisotropicMaterial` (seed §5, docs/conventions.md §3).
 
 On the distinct (i, o) pairs, global orientations Γ∞ and scales μ its queries present:
 

@@ -1,4 +1,4 @@
-"""Anisotropic evolution on the rotation group SO(3) (seed §5, DESIGN §3).
+"""Anisotropic evolution on the rotation group SO(3) (seed §5, docs/conventions.md §3).
 
 When a facet's twist about its normal matters (brushed metal, grooves, oriented fibres),
 BRDFs and facet statistics are functions of the facet orientation Γ ∈ SO(3) and evolve

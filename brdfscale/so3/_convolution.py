@@ -4,13 +4,13 @@ With ``f^J = (2J+1)/(8π²) ∫ f D^{J*} dΓ`` (seed §5) the convolution
 
     (f ⋆ g)(Γ∞) = ∫ f(Γ) g(Γ⁻¹ Γ∞) dΓ        has coefficients   (8π²/(2J+1)) f^J g^J.
 
-The seed (below Eq. 5.3) writes ``f^J g^J`` and drops the factor 8π²/(2J+1) (DESIGN §3).
+The seed (below Eq. 5.3) writes ``f^J g^J`` and drops the factor 8π²/(2J+1) (docs/conventions.md §3).
 In *operator normalisation* ``f̃^J = (8π²/(2J+1)) f^J`` a δ at the identity has
 ``f̃^J = I`` and convolution with g is ``f^J g̃^J``: the form used by the evolution.
 
 Reflection. The seed's statistic q (``p(Γ∞, Γ) = q(Γ⁻¹Γ∞)``) and the density s of a facet's
 orientation Δ = Γ∞⁻¹Γ relative to the global one (what users histogram) are related by
-``q(Δ⁻¹) = s(Δ)``, hence ``q^J = (s^J)†`` for real s (DESIGN §3; tested on a skewed s).
+``q(Δ⁻¹) = s(Δ)``, hence ``q^J = (s^J)†`` for real s (docs/conventions.md §3; tested on a skewed s).
 """
 
 import jax.numpy as jnp

@@ -1,4 +1,4 @@
-"""Block-wise evolution of an SO(3) BRDF between scales (seed Eq. 5.3–5.4, DESIGN §3).
+"""Block-wise evolution of an SO(3) BRDF between scales (seed Eq. 5.3–5.4, docs/conventions.md §3).
 
 Consistency (seed Eq. 5.3) with operator-normalised statistics ``Q̃^J = (8π²/(2J+1)) q^J``:
 ``R^J(μ) Q̃^J(μ)`` is independent of μ, hence
@@ -205,7 +205,7 @@ class DiffusionLaw(eqx.Module):
 
     ``width`` maps the scale μ to a Beckmann-equivalent tilt roughness α(μ) (e.g.
     :class:`brdfscale.stats.WidthLaw`); with ``D = (1, 1, D_z)`` each tilt axis has angular
-    variance ``2τ = α²/2`` for small α, the slope variance of Beckmann statistics (DESIGN §1),
+    variance ``2τ = α²/2`` for small α, the slope variance of Beckmann statistics (docs/conventions.md §1),
     and ``D_z`` sets the twist diffusion relative to the tilt. τ → 0 (δ) as μ → ∞.
     """
 

@@ -297,7 +297,7 @@ class AnisotropicMicrofacetLobe(eqx.Module):
 
     In the facet's frame (``i' = Γᵀ i``, ``o' = Γᵀ o``, ``h' = Γᵀ h``) the facet is a rough
     surface with slope statistics ``g`` — Beckmann or GGX with roughness α_x along the facet's
-    tangent and α_y along its bitangent — and (no masking, Fresnel 1, DESIGN §1)
+    tangent and α_y along its bitangent — and (no masking, Fresnel 1, docs/conventions.md §1)
 
         ρ(i, o, Γ) = A · g(m(h')) / (4 o'_z cos⁴θ_h')   (:func:`brdfscale.geometry.microfacet_factor`),
 

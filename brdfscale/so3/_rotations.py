@@ -1,4 +1,4 @@
-"""Rotations as z-y-z Euler angles and 3×3 matrices (seed Eq. 5.1–5.2, DESIGN §3).
+"""Rotations as z-y-z Euler angles and 3×3 matrices (seed Eq. 5.1–5.2, docs/conventions.md §3).
 
 ``Γ(α, β, γ) = U(α) A(β) U(γ)``: *active* rotations, ``U`` about z and ``A`` about y,
 

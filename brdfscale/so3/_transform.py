@@ -1,7 +1,7 @@
 """Forward and inverse SO(3) Fourier transforms on the Kostelec–Rockmore grid, and synthesis
 at arbitrary rotations.
 
-Coefficients (seed §5, DESIGN §3):
+Coefficients (seed §5, docs/conventions.md §3):
 
     f^J_{MM'} = (2J+1)/(8π²) ∫ f(Γ) D^J_{MM'}(Γ)* dΓ,      f(Γ) = Σ_J Σ_{MM'} f^J_{MM'} D^J_{MM'}(Γ),
 

@@ -1,6 +1,6 @@
 """Wigner small-d and D matrices by the Fourier (J_y eigen-decomposition) method.
 
-Convention (seed §5, DESIGN §3): ``D^J_{MM'}(α, β, γ) = e^{−iMα} d^J_{MM'}(β) e^{−iM'γ}`` with
+Convention (seed §5, docs/conventions.md §3): ``D^J_{MM'}(α, β, γ) = e^{−iMα} d^J_{MM'}(β) e^{−iM'γ}`` with
 ``d^J(β) = exp(−iβ J_y)`` in the basis ``|J M⟩`` ordered M = −J … J, where
 ``J_y = (J₊ − J₋)/(2i)`` and ``J₊|J M⟩ = √(J(J+1) − M(M+1)) |J M+1⟩`` (Condon–Shortley).
 This is the convention of Varshalovich, Sakurai and Wikipedia, ``d¹₁₀(β) = −sin β/√2``;

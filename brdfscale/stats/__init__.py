@@ -1,4 +1,4 @@
-"""Facet-slope statistics ``s(m)`` and their transforms ``S(W)`` (seed §4, DESIGN §1–2).
+"""Facet-slope statistics ``s(m)`` and their transforms ``S(W)`` (seed §4, docs/conventions.md §1–2).
 
 Every density class here (Delta, Gaussian, …, Tabulated) is an :class:`AbstractSlopeDensity`:
 the probability density (mass 1) of a facet's slope relative to the global orientation (what

@@ -71,7 +71,7 @@ class AbstractSlopeDensity(AbstractDistribution):
 
     Subclasses represent the *facet-slope density* ``s(m)``: the density of the slope ``m``
     of a facet relative to the global orientation, i.e. what a histogram of facet slopes
-    shows (DESIGN §2). The seed's ``q`` of Eq. 4.2 is its reflection, ``q(x) = s(−x)``, so
+    shows (docs/conventions.md §2). The seed's ``q`` of Eq. 4.2 is its reflection, ``q(x) = s(−x)``, so
     the seed's ``Q(W) = S(−W)``; for centrally symmetric statistics the two coincide. The
     same classes describe the normalised *shape* of a BRDF lobe in slope space.
 

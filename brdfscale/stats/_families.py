@@ -175,7 +175,7 @@ class Gaussian(AbstractSlopeDensity):
 
 
 def Beckmann(alpha=None, *, alpha_x=None, alpha_y=None, mean=None) -> Gaussian:
-    """Beckmann slope statistics: a Gaussian with per-axis variance ``α²/2`` (DESIGN §1).
+    """Beckmann slope statistics: a Gaussian with per-axis variance ``α²/2`` (docs/conventions.md §1).
 
     ``S(W) = exp(−(α_x² W_x² + α_y² W_y²)/4)``; convolution adds ``α²``. The Beckmann normal
     distribution ``D(h) = exp(−tan²θ/α²)/(π α² cos⁴θ)`` is this density divided by cos⁴θ.
@@ -197,7 +197,7 @@ class GGX(AbstractSlopeDensity):
     """GGX / Trowbridge–Reitz slope statistics (a bivariate Student-t with ν = 2).
 
     ``s(m) = 1 / (π α_x α_y (1 + x² )²)`` with ``x = ((m_x − mean_x)/α_x, (m_y − mean_y)/α_y)``;
-    ``S(W) = |A W| K₁(|A W|) e^{−iW·mean}`` with ``A = diag(α_x, α_y)`` (DESIGN §1). The
+    ``S(W) = |A W| K₁(|A W|) e^{−iW·mean}`` with ``A = diag(α_x, α_y)`` (docs/conventions.md §1). The
     tails fall off as ``|m|⁻⁴``: slopes have no finite variance.
     """
 

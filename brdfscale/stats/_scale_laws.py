@@ -3,7 +3,7 @@
 A *facet* at scale μ is a window of size μ (length units of the height field). Its slope,
 relative to the global orientation, is the window-averaged surface gradient. For a
 Gaussian random height field with power spectrum ``P(k)`` (normalised so that
-``∫ P(k) d²k / (2π)² = ⟨h²⟩``) that slope is Gaussian with covariance (DESIGN §2)
+``∫ P(k) d²k / (2π)² = ⟨h²⟩``) that slope is Gaussian with covariance (docs/conventions.md §2)
 
     Σ(μ) = ∫ k kᵀ P(k) |ŵ_μ(k)|² d²k / (2π)²,
 

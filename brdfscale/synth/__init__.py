@@ -1,4 +1,4 @@
-"""Random height fields and synthetic multi-scale measurements (DESIGN §2, §6).
+"""Random height fields and synthetic multi-scale measurements (docs/conventions.md §2, §6).
 
 * Surfaces: :func:`spectral_field` (Gaussian random fields with any
   :mod:`brdfscale.stats` power spectrum — Gaussian-correlated, anisotropic, K-correlation /

@@ -1,4 +1,4 @@
-"""Facet statistics of a height field at a scale μ (seed §3–4, DESIGN §2).
+"""Facet statistics of a height field at a scale μ (seed §3–4, docs/conventions.md §2).
 
 A facet at scale μ is a block of ``b × b`` pixels, ``b = μ/Δ``, of a :class:`HeightField`.
 Its slope is the block average of the pixel facets' normal slopes ``m = −∇h`` (forward
@@ -115,7 +115,7 @@ def offset_histogram(field: HeightField, mu: float | None, hist: SlopeHistogram,
     With ``incident`` (a unit vector towards the light) every pixel facet is weighted by the
     light it intercepts relative to a flat one, ``max(0, 1 + m·i_xy / i_z)`` (its area
     ``√(1+|m|²)`` times ``n·i``); without it every pixel counts once, the seed's nearly-flat
-    approximation (DESIGN §2, seed footnote 1).
+    approximation (docs/conventions.md §2, seed footnote 1).
     """
     block = 1 if mu is None else field.block(mu)
     facets = None if mu is None else _facet_slope_components(field, block)
@@ -173,7 +173,7 @@ def blur(values: np.ndarray, spacing: float, micro: stats.AbstractSlopeDensity, 
 
     The product of the DFT with ``S_micro(W) · exp(−resolution² |W|²/2)`` (the transforms
     of the micro lobe and of an isotropic Gaussian of standard deviation ``resolution`` per
-    axis, DESIGN §1's sign convention) is transformed back: a circular convolution, so the
+    axis, docs/conventions.md §1's sign convention) is transformed back: a circular convolution, so the
     grid must carry :func:`kernel_padding` empty nodes on each side. Results below zero by
     round-off are set to zero.
     """

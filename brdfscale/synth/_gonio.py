@@ -120,7 +120,7 @@ def gonioreflectometer(
     """Measure the lobes of ``field`` at each scale μ and incident direction i.
 
     Each image is the lobe a facet of size μ shows in its own frame, averaged over the
-    facets: the density of half-vector slope offsets ``u = m_s − m∞`` (DESIGN §6) of the
+    facets: the density of half-vector slope offsets ``u = m_s − m∞`` (docs/conventions.md §6) of the
     light its pixel facets reflect, per unit slope area and per unit of light falling on
     the flat surface, times ``albedo`` — i.e. ``A·g_μ(u)`` of
     :func:`facet_statistics` with ``A = albedo`` (a mirror pixel facet of normal slope m

@@ -30,7 +30,7 @@ def blazed(
     Along the direction ``(cos angle, sin angle)`` the facet normal slope is ``slopes[0]``
     over a fraction ``f`` of each period and ``slopes[1]`` over the rest, with
     ``f = −s₁/(s₀ − s₁)`` so that the mean slope vanishes (the profile is periodic). The
-    default gives DESIGN §2's skewed example: 70 % of the facets at slope +0.03, 30 % at
+    default gives docs/conventions.md §2's skewed example: 70 % of the facets at slope +0.03, 30 % at
     −0.07. Slopes are normal slopes, ``m = −∇h``.
 
     ``period`` is in pixels and must divide ``size``; ``angle`` must be 0 (grooves along y)

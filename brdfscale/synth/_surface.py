@@ -65,7 +65,7 @@ class HeightField:
             the analytic ``Σ(μ)`` of :class:`brdfscale.stats.GaussianSurface` available).
         description: JSON-serialisable provenance (generator, parameters, seed).
 
-    Slope convention (DESIGN §1): the slope of a facet is the slope of its *normal*,
+    Slope convention (docs/conventions.md §1): the slope of a facet is the slope of its *normal*,
     ``m = (n_x/n_z, n_y/n_z) = −∇h``. A mirror facet of slope m reflects light into the
     half-vector slope ``m_s = m``.
 
