@@ -25,7 +25,7 @@ def test_synth_then_info(tmp_path, capsys):
     mset = exr.read_measurements(out)
     assert len(mset.images) == 6 and sorted(set(p.mu for p in mset.images)) == [1.0, 16.0, 32.0]
     np.testing.assert_allclose(mset.images[1].incident, [0.0, 0.5, np.sqrt(0.75)], atol=1e-15)
-    assert mset.metadata["seed"] == 4 and mset.metadata["noise"] == {"type": "poisson", "exposure": 1000.0}
+    assert mset.metadata["seed"] == 4 and mset.metadata["noise"] == {"type": "poisson", "exposure": 1000.0, "read_noise": 0.0}
     assert mset.images[0].sigma is not None
     capsys.readouterr()
     assert cli.main(["info", str(out)]) == 0

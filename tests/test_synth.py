@@ -246,6 +246,49 @@ def test_noise_models():
     assert abs(zp.mean()) < 4 / math.sqrt(zp.size) and abs(zp.std() - 1) < 0.15
 
 
+
+def test_poisson_read_noise_gives_chi2_one_in_dark_and_bright_pixels():
+    """σ of PoissonNoise(exposure, read_noise) is the reading's true spread: ⟨z²⟩ = 1 at every
+    expected count, down to counts ≪ 1 where the one-count floor of read_noise = 0 gives ⟨z²⟩ ≪ 1
+    (the demo's former χ²/dof of 0.31)."""
+    rng = np.random.default_rng(7)
+    exposure, n = 2.0, 200_000
+    for counts in (0.0, 0.01, 0.3, 5.0, 400.0):
+        values = np.full(n, counts / exposure)
+        reading, sigma = synth.PoissonNoise(exposure, read_noise=1.5).sample(values, rng)
+        z2 = np.mean(((reading - values) / sigma) ** 2)
+        assert abs(z2 - 1) < 5 * math.sqrt(2 / n) * 3, (counts, z2)  # var(z²) ≤ ~3·2 for these mixtures
+        np.testing.assert_allclose(sigma, np.sqrt(counts + 1.5**2) / exposure)
+    reading, sigma = synth.PoissonNoise(exposure).sample(np.full(n, 0.01 / exposure), rng)
+    assert np.mean(((reading - 0.01 / exposure) / sigma) ** 2) < 0.05  # the floor overstates σ of dark pixels
+    assert synth.PoissonNoise(3.0, 2.0).record() == {"type": "poisson", "exposure": 3.0, "read_noise": 2.0}
+    with pytest.raises(InvalidInputError, match="read_noise"):
+        synth.PoissonNoise(3.0, -1.0)
+
+
+def test_derived_base_lobe_width_is_the_second_moment_of_the_finest_image():
+    """fitting.truth_of's alpha_lobe for a synthetic measurement (√tr of micro + within-facet +
+    binning covariance, from the recorded slope covariances) equals the second moment of the
+    image at μ0 computed directly from its pixels (quadrature over the grid)."""
+    import fitting
+
+    field = synth.spectral_field(stats.GaussianCorrelation(0.4, 6.0), size=256, seed=3, micro=stats.Beckmann(0.04))
+    extent, pixels = 0.6, 121
+    mset = synth.gonioreflectometer(field, [2.0, 8.0], [0, 0, 1.0], extent=extent, pixels=pixels)
+    image = mset.images[0]
+    u = np.linspace(-extent, extent, pixels)
+    ux, uy = np.meshgrid(u, u)
+    v = np.asarray(image.values)
+    mass = v.sum()
+    mean_x, mean_y = (v * ux).sum() / mass, (v * uy).sum() / mass
+    second = (v * ((ux - mean_x) ** 2 + (uy - mean_y) ** 2)).sum() / mass
+    model = fitting.ParametricModel(law="gaussian_surface")
+    truth = fitting.truth_of(model, mset.metadata)
+    assert truth["alpha_lobe"] ** 2 == pytest.approx(second, rel=2e-3)
+    within = np.trace(np.asarray(mset.metadata["truth"]["pixel_slope_covariance"])
+                      - np.asarray(mset.metadata["truth"]["facet_slope_covariance"][0]))
+    assert within > 0.1 * second  # the within-facet slopes matter here, not only the micro lobe
+
 def test_gonioreflectometer_rgb_and_metadata():
     field = synth.spectral_field(GAUSS_ISO, size=64, seed=0)
     mset = synth.gonioreflectometer(field, [4.0, 16.0], [[0, 0, 1.0], [0.6, 0, 0.8]], extent=0.5, pixels=17,

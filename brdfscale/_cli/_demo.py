@@ -15,6 +15,19 @@ from ._fit import add_fit_options, fit_measurements, load_fitting
 from ._options import MAX_SEED, Parser, integer, make_directory, seed
 
 _SCALES = (2.0, 4.0, 8.0, 16.0, 32.0)
+#: Where each printed truth comes from (the table's "truth" column).
+_TRUTH_SOURCES = {
+    "synth": {
+        "amplitude": "the surface's albedo",
+        "alpha_lobe": "derived, the width of a Beckmann lobe with the second moment of the μ0 image (micro lobe, "
+                      "slopes within the μ0 facets of this surface, the instrument's bilinear binning); the fitted "
+                      "Beckmann shape only approximates that lobe, so a few σ between the two is model error",
+        "rms_height": "the spectrum's (the ensemble; this 512² realisation differs by a few %)",
+        "correlation_length": "the spectrum's (the ensemble)",
+    },
+    "model": {"amplitude": "simulated", "alpha_lobe": "simulated", "rms_height": "simulated",
+              "correlation_length": "simulated"},
+}
 _MODEL_TRUTH = {"amplitude": 0.9, "alpha_lobe": 0.01, "rms_height": 0.05, "correlation_length": 8.0}
 
 
@@ -47,7 +60,7 @@ def _measurements(source: str, seed: int):
 
         field = synth.named_surface("gaussian", size=512, seed=seed, micro=stats.Beckmann(0.01))
         return synth.gonioreflectometer(field, _SCALES, np.array([0.0, 0.0, 1.0]), extent=0.05, pixels=33,
-                                        noise=synth.PoissonNoise(0.05), seed=seed + 1)
+                                        noise=synth.PoissonNoise(0.05, read_noise=1.0), seed=seed + 1)
     fitting = load_fitting()
     model = fitting.ParametricModel(law="gaussian_surface")
     return fitting.simulate(model, _MODEL_TRUTH, _SCALES, size=33, extent=0.05, noise=0.01, floor=0.05, seed=seed)
@@ -112,8 +125,12 @@ def _run(args, exr, start) -> int:
         truth_text = f"{truth:10.4g}" if truth is not None else f"{'unknown':>10s}"
         print(f"{name:20s} {truth_text} {est:10.4g} {std:10.3g} "
               f"{q[0]:10.4g} {q[2]:10.4g}  {pull}")
+    print("\nthe truth column:")
+    for name, text in _TRUTH_SOURCES[args.source].items():
+        if name in doc["parameters"]:
+            print(f"  {name:20s} {text}")
     if doc["mcmc"]:
-        print(f"\nemcee: τ_max = {max(doc['mcmc']['autocorrelation_time'].values()):.1f}, "
+        print(f"emcee: τ_max = {max(doc['mcmc']['autocorrelation_time'].values()):.1f}, "
               f"ESS_min = {min(doc['mcmc']['effective_sample_size'].values()):.0f}; {doc['mcmc']['tau_note']}")
     print(f"reduced χ² = {doc['optimisation']['reduced_chi2']:.3f}; finished in {time.perf_counter() - start:.0f} s")
     return 0

@@ -32,7 +32,7 @@ def _incident(text: str) -> tuple[float, float, float]:
 
 
 #: Domains of the noise parameters: the lobe images are stored as float32 (|x| ≤ 3.4e38).
-_EXPOSURE, _SIGMA = (1e-6, 1e15), (1e-30, 1e30)
+_EXPOSURE, _SIGMA, _READ = (1e-6, 1e15), (1e-30, 1e30), (0.0, 1e6)
 
 
 def _noise(text: str):
@@ -43,13 +43,15 @@ def _noise(text: str):
         return None
     if kind in ("poisson", "gaussian"):
         lo, hi = _EXPOSURE if kind == "poisson" else _SIGMA
+        value, _, read = value.partition(":") if kind == "poisson" else (value, "", "")
         number = real(lo, hi)(value)
+        read_noise = real(*_READ)(read) if read else 0.0
         try:
-            return synth.PoissonNoise(number) if kind == "poisson" else synth.GaussianNoise(floor=number)
+            return synth.PoissonNoise(number, read_noise) if kind == "poisson" else synth.GaussianNoise(floor=number)
         except InvalidInputError as err:
             raise argparse.ArgumentTypeError(f"bad noise {text!r:.60}: {err}") from None
-    raise argparse.ArgumentTypeError(f"noise must be none, poisson:EXPOSURE (EXPOSURE in [{_EXPOSURE[0]:g}, "
-                                     f"{_EXPOSURE[1]:g}]) or gaussian:SIGMA (SIGMA in [{_SIGMA[0]:g}, {_SIGMA[1]:g}]); "
+    raise argparse.ArgumentTypeError(f"noise must be none, poisson:EXPOSURE[:READ_NOISE] (EXPOSURE in [{_EXPOSURE[0]:g}, "
+                                     f"{_EXPOSURE[1]:g}], READ_NOISE in counts in [0, {_READ[1]:g}]) or gaussian:SIGMA (SIGMA in [{_SIGMA[0]:g}, {_SIGMA[1]:g}]); "
                                      f"got {text!r:.60}")
 
 
@@ -70,7 +72,8 @@ def register(subparsers) -> None:
     parser.add_argument("--incident", type=_incident, action="append", metavar="THETA[:PHI]",
                         help="incident direction in degrees; repeat for several (default 0)")
     parser.add_argument("--noise", type=_noise, default=None, metavar="MODEL",
-                        help="none (default), poisson:EXPOSURE (counts per unit lobe value) or gaussian:SIGMA")
+                        help="none (default), poisson:EXPOSURE[:READ_NOISE] (counts per unit lobe value; optional Gaussian "
+                        "read noise in counts, which makes σ exact in dark pixels) or gaussian:SIGMA")
     parser.add_argument("--resolution", type=real(0.0, 10.0), default=0.0, help="instrument blur, slope std, 0–10 (default 0)")
     parser.add_argument("--micro-alpha", type=real(0.0, 10.0, strict_lo=True), default=None, metavar="ALPHA",
                         help="Beckmann roughness of the pixel facets, in (0, 10] (default: mirror facets)")

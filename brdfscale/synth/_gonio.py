@@ -29,19 +29,30 @@ without noise (``noise=None``) or with :class:`GaussianNoise` instead."""
 
 @dataclasses.dataclass(frozen=True)
 class PoissonNoise:
-    """Photon-counting noise: ``exposure`` counts per unit lobe value.
+    """Photon-counting noise: ``exposure`` counts per unit lobe value, plus optional read noise.
 
-    A pixel of true value v reads ``N / exposure`` with ``N ~ Poisson(v · exposure)``; its
-    reported standard deviation is ``√max(v · exposure, 1) / exposure`` (the model's, at the
-    truth; the floor of one count keeps σ positive where the lobe is dark).
+    A pixel of true value v reads ``(N + r·ε) / exposure`` with ``N ~ Poisson(v · exposure)``,
+    ``ε ~ Normal(0, 1)`` and ``r = read_noise`` (counts). Its reported standard deviation is
+    the model's, at the truth:
 
-    ``exposure`` must be a positive real number ≤ :data:`MAX_EXPECTED_COUNT` (1e18); an
-    expected count ``v · exposure`` above that cap when sampling is refused too (NumPy's
-    Poisson sampler cannot draw it; the normal approximation is not substituted).
-    InvalidInputError otherwise.
+    * ``read_noise > 0``: ``√(v · exposure + r²) / exposure`` — exactly the standard deviation
+      of the reading, so at the truth ``E[((reading − v)/σ)²] = 1`` in every pixel and χ²/dof
+      of a correct model is ≈ 1 however dark the lobe is (the detector model of a CCD/CMOS
+      camera: shot noise plus Gaussian read noise);
+    * ``read_noise = 0`` (default): ``√max(v · exposure, 1) / exposure`` — pure counts, with a
+      floor of one count that keeps σ positive where the lobe is dark. That floor is larger
+      than the true spread of a pixel whose expected count is below 1 (an exact 0 almost
+      always), so χ²/dof of a correct model falls below 1 when many pixels are dark.
+
+    ``exposure`` must be a positive real number ≤ :data:`MAX_EXPECTED_COUNT` (1e18),
+    ``read_noise`` a real number ≥ 0; an expected count ``v · exposure`` above the cap when
+    sampling is refused too (NumPy's Poisson sampler cannot draw it; the normal
+    approximation is not substituted). InvalidInputError otherwise. The χ² claim is tested in
+    tests/test_synth.py.
     """
 
     exposure: float
+    read_noise: float = 0.0
 
     def __post_init__(self):
         exposure = real(self.exposure, "exposure")
@@ -51,6 +62,7 @@ class PoissonNoise:
                 f"{MAX_EXPECTED_COUNT:g} (NumPy's Poisson sampler cannot draw larger counts); got {self.exposure!r}."
             )
         object.__setattr__(self, "exposure", exposure)
+        object.__setattr__(self, "read_noise", real(self.read_noise, "read_noise", minimum=0))
 
     def sample(self, values: Float[np.ndarray, "..."], rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         expected = real_array(values, "values") * self.exposure
@@ -63,10 +75,14 @@ class PoissonNoise:
                 f"{self.exposure:g}), exceeds MAX_EXPECTED_COUNT = {MAX_EXPECTED_COUNT:g}, beyond NumPy's Poisson "
                 f"sampler; use exposure ≤ {MAX_EXPECTED_COUNT / peak * self.exposure:.4g}, or noise=None or GaussianNoise."
             )
-        return rng.poisson(expected) / self.exposure, np.sqrt(np.maximum(expected, 1.0)) / self.exposure
+        counts = rng.poisson(expected).astype(np.float64)
+        if self.read_noise == 0:
+            return counts / self.exposure, np.sqrt(np.maximum(expected, 1.0)) / self.exposure
+        counts += self.read_noise * rng.standard_normal(expected.shape)
+        return counts / self.exposure, np.sqrt(expected + self.read_noise**2) / self.exposure
 
     def record(self) -> dict:
-        return {"type": "poisson", "exposure": self.exposure}
+        return {"type": "poisson", "exposure": self.exposure, "read_noise": self.read_noise}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -152,8 +168,8 @@ def gonioreflectometer(
 
     Returns:
         A :class:`brdfscale.MeasurementSet` with one image per (μ, i), scales outermost; its
-        ``metadata`` records the surface, the instrument and the truth (facet-slope mean and
-        covariance per scale, and the analytic ``Σ(μ)`` of
+        ``metadata`` records the surface, the instrument and the truth (the pixel facets' slope
+        covariance, facet-slope mean and covariance per scale, and the analytic ``Σ(μ)`` of
         :class:`brdfscale.stats.GaussianSurface` with a box window and 256 quadrature
         nodes in k when the field has a spectrum).
 
@@ -197,6 +213,8 @@ def gonioreflectometer(
     crop = slice(pad, pad + pixels)
     images, truth = [], {"facet_slope_mean": [], "facet_slope_covariance": []}
     law = None if field.spectrum is None else stats.GaussianSurface(field.spectrum, window="box", n_k=256)
+    pixel = facet_slopes(field, field.spacing).reshape(-1, 2)  # the pixel facets' own normal slopes
+    truth["pixel_slope_covariance"] = np.cov(pixel.T).tolist()
     if law is not None:
         truth["analytic_facet_slope_covariance"] = []
     for mu in scales:
