@@ -11,10 +11,10 @@ import os
 from pathlib import Path
 
 import numpy as np
-from _bench import RESULTS, machine
 
 import brdfscale as bs
 from brdfscale import files
+from experiments._bench import RESULTS, machine
 
 WINDOWS = ("box", "gaussian", "spectral")
 """Facet windows: the b×b block mean (the library's), a Gaussian of the box's second moment

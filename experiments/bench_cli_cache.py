@@ -10,7 +10,7 @@ of each alternating series, and the saving on every run after the first; the cac
 on disk and its number of entries.
 
 Writes experiments/results/bench_cli_cache.json.
-Run: ``flock /tmp/brdfscale-bench.lock python experiments/bench_cli_cache.py``.
+Run: ``flock /tmp/brdfscale-bench.lock python -m experiments.bench_cli_cache``.
 """
 
 import os
@@ -20,8 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _bench import machine, median, write_json  # noqa: E402
+from experiments._bench import machine, median, write_json
 
 ROUNDS = 3
 FIT_OPTIONS = ["--law", "gaussian_surface", "--starts", "4", "--steps", "1000", "--walkers", "16", "--no-progress",

@@ -29,7 +29,7 @@ The grid rows are measured twice: with XLA's default threads (two on this machin
 child process, with XLA on one thread (``grid_single_thread``), which measures the work
 without the two-thread scheduling.
 
-Run: ``python experiments/bench_evolve.py`` → experiments/results/bench_evolve.json.
+Run: ``python -m experiments.bench_evolve`` → experiments/results/bench_evolve.json.
 """
 
 import argparse
@@ -55,11 +55,9 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import scipy.signal  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _bench import best_time, interleaved_times, machine, median, write_json  # noqa: E402
-
 import brdfscale as bs  # noqa: E402
 from brdfscale import lobes, stats  # noqa: E402
+from experiments._bench import best_time, interleaved_times, machine, median, write_json  # noqa: E402
 
 BATCH = 32
 ROUNDS = 41  # interleaved rounds of grid path, floor and control; the figures are medians
@@ -263,8 +261,9 @@ def single_thread_rows(sizes) -> list:
     be set before jax starts): the work itself, free of the two-thread scheduling noise."""
     with tempfile.TemporaryDirectory() as tmp:
         rows = Path(tmp) / "rows.json"
-        cmd = [sys.executable, __file__, "--single-thread", "--rows", str(rows), "--sizes", *map(str, sizes)]
-        subprocess.run(cmd, check=True)
+        cmd = [sys.executable, "-m", "experiments.bench_evolve", "--single-thread", "--rows", str(rows),
+               "--sizes", *map(str, sizes)]
+        subprocess.run(cmd, check=True, cwd=Path(__file__).resolve().parents[1])  # the checkout: experiments/'s parent
         return json.loads(rows.read_text())
 
 

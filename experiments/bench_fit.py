@@ -44,7 +44,7 @@ For each problem (parametric model, simulated 5-scale data set, 32×32 pixels pe
 
 Writes experiments/results/bench_fit.json (machine, versions, load average, all timings and
 the speed-up ratios against the baseline measured in the same run).
-Run: ``flock /tmp/brdfscale-bench.lock python experiments/bench_fit.py``.
+Run: ``flock /tmp/brdfscale-bench.lock python -m experiments.bench_fit``.
 """
 
 import json
@@ -63,7 +63,7 @@ import scipy.optimize
 import fitting
 
 jax.config.update("jax_enable_x64", True)  # the fits need float64; fitting changes no global setting
-from _bench import best_time, interleaved_times, machine, median, rotated, write_json
+from experiments._bench import best_time, interleaved_times, machine, median, rotated, write_json
 from fitting._estimate import _make_solver, _solve
 
 SCALES = (0.5, 1.0, 2.0, 4.0, 8.0)

@@ -41,7 +41,7 @@ library's ``evolve(..., method="grid", tol)`` at each pixel's own μ, its ``dens
 pixel's offset; timed on a random sample of pixels and extrapolated to the image, lobe
 construction and size choice not counted). Errors against a per-pixel SciPy Hankel reference.
 
-Run: ``flock /tmp/brdfscale-bench.lock python experiments/bench_planner.py`` (``--quick`` for the
+Run: ``flock /tmp/brdfscale-bench.lock python -m experiments.bench_planner`` (``--quick`` for the
 smoke version) → experiments/results/bench_planner.json and bench_planner_*.png; the load
 average before and after is recorded.
 """
@@ -49,9 +49,7 @@ average before and after is recorded.
 import argparse
 import math
 import os
-import sys
 import time
-from pathlib import Path
 
 import jax
 
@@ -62,13 +60,10 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import scipy.special as sp  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(1, str(Path(__file__).resolve().parent.parent))
-from _bench import RESULTS, best_time, machine, write_json  # noqa: E402
-
 import brdfscale as bs  # noqa: E402
 from brdfscale import lobes, plus, scene, so3, stats  # noqa: E402
 from brdfscale.geometry import microfacet_factor, slope_to_direction  # noqa: E402
+from experiments._bench import RESULTS, best_time, machine, write_json  # noqa: E402
 
 LOBE_ALPHA = 0.05
 MU0 = 1e-4

@@ -10,7 +10,7 @@ lobe at 64 sampled offsets, each on its own (a single query is evaluated at itse
 lobe's peak. With ``--baseline-rev REV`` the same points at Q = 10² and 10³ run on brdfscale as
 of git revision REV (exported to a temporary directory), in the same run.
 
-Run: ``python experiments/bench_queries.py --baseline-rev e0f374b`` →
+Run: ``python -m experiments.bench_queries --baseline-rev e0f374b`` →
 experiments/results/bench_queries.json (``--quick``: fewer points, bench_queries_quick.json).
 """
 
@@ -24,8 +24,7 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
+ROOT = Path(__file__).resolve().parents[1]  # the checkout (experiments/'s parent)
 CASES = ("closed_form", "radial", "grid", "tabulated")
 TOL = {"closed_form": 1e-10, "radial": 1e-10, "grid": 1e-8, "tabulated": 1e-8}
 TOL32 = 1e-5
@@ -109,15 +108,19 @@ def point(case: str, dtype_name: str, q: int) -> dict:
             "error_vs_direct": error, "method": label}
 
 
-def _run_point(case, dtype, q, pythonpath=None) -> dict:
-    env = dict(os.environ)
-    if pythonpath:
-        env["PYTHONPATH"] = pythonpath
-    cmd = [sys.executable, __file__, "--point", case, dtype, str(q)]
-    if pythonpath:
+def _run_point(case, dtype, q, baseline=None) -> dict:
+    """One point in a fresh process (``python -m experiments.bench_queries --point``). With
+    ``baseline`` (a folder holding an exported ``brdfscale/``) the child starts in that folder, so
+    that its brdfscale comes first on the path (``-m`` puts the working directory there), and
+    finds ``experiments`` through ``PYTHONPATH``; otherwise it starts in the checkout."""
+    env, cwd = dict(os.environ), ROOT
+    cmd = [sys.executable, "-m", "experiments.bench_queries", "--point", case, dtype, str(q)]
+    if baseline:
+        env["PYTHONPATH"] = os.pathsep.join([str(ROOT), *filter(None, [env.get("PYTHONPATH")])])
+        cwd = baseline
         cmd.append("--baseline")
     try:
-        out = subprocess.run(cmd, check=True, capture_output=True, text=True, env=env, timeout=1800)
+        out = subprocess.run(cmd, check=True, capture_output=True, text=True, env=env, cwd=cwd, timeout=1800)
     except subprocess.CalledProcessError as err:
         tail = (err.stderr or "").strip().splitlines()[-1:] or ["(no output)"]
         return {"case": case, "dtype": dtype, "queries": q, "failed": tail[0][:300]}
@@ -135,7 +138,7 @@ def main():
         case, dtype, q = args.point
         print(json.dumps(point(case, dtype, int(q))))
         return
-    from _bench import machine, write_json
+    from experiments._bench import machine, write_json
 
     sizes = [100, 1000, 10**4, 10**5] if args.quick else [100, 1000, 10**4, 10**5, 10**6, 10**7]
     plan = [(c, "float64", q) for c in CASES for q in sizes]
@@ -149,7 +152,7 @@ def main():
                                    f"error {r['error_vs_direct']:.2g}")
     baseline = None
     if args.baseline_rev:
-        root = Path(__file__).resolve().parents[1]
+        root = ROOT
         with tempfile.TemporaryDirectory() as tmp:
             subprocess.run(f"git -C '{root}' archive {args.baseline_rev} brdfscale | tar -x -C '{tmp}'", shell=True,
                            check=True)
@@ -159,7 +162,7 @@ def main():
             for case in CASES:
                 for q in (100, 1000):
                     print(f"baseline {case:12s} Q={q}", end=" ", flush=True)
-                    baseline["points"].append(_run_point(case, "float64", q, pythonpath=tmp))
+                    baseline["points"].append(_run_point(case, "float64", q, baseline=tmp))
                     r = baseline["points"][-1]
                     print(r.get("failed") or f"warm {r['warm_s']:.4f} s, peak RSS {r['rss_peak_bytes'] / 2**20:.0f} MiB")
     readme = _run_point("radial", "float64", 512 * 512)

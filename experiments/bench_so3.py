@@ -19,7 +19,7 @@ Writes experiments/results/bench_so3.json:
   current one at every B, calls interleaved round by round: a before/after comparison
   measured in the same run.
 
-Run: ``python experiments/bench_so3.py`` (add ``--quick`` for B ≤ 32 only, written to
+Run: ``python -m experiments.bench_so3`` (add ``--quick`` for B ≤ 32 only, written to
 ``bench_so3_quick.json``).
 """
 
@@ -40,11 +40,8 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(1, str(Path(__file__).resolve().parent.parent))  # the repository (brdfscale) when not installed
-from _bench import best_time, best_times_interleaved, machine, write_json  # noqa: E402
-
 import brdfscale.so3 as so3  # noqa: E402
+from experiments._bench import best_time, best_times_interleaved, machine, write_json  # noqa: E402
 
 SWEEP_BUDGET_S = 240.0
 

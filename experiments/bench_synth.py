@@ -1,7 +1,7 @@
 """Benchmark: size, time and peak memory of a 4096² synthesis, facet statistics, a synthetic
 measurement and its OpenEXR file.
 
-Run:  python experiments/bench_synth.py [--size 4096] [--out experiments/results/bench_synth.json]
+Run:  python -m experiments.bench_synth [--size 4096] [--out experiments/results/bench_synth.json]
 
 Baseline measured in the same run: the FFT floor of the synthesis (one rfft2 + irfft2 of
 an N² float64 array, which any spectral synthesis must pay); and the cost of histogramming

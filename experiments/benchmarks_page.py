@@ -1,7 +1,7 @@
 """Regenerate the tables and target verdicts of the documentation from the benchmarks' and studies' JSON.
 
-Run:  python experiments/benchmarks_page.py            (rewrites the generated blocks in place)
-      python experiments/benchmarks_page.py --print    (prints them instead)
+Run:  python -m experiments.benchmarks_page            (rewrites the generated blocks in place)
+      python -m experiments.benchmarks_page --print    (prints them instead)
 
 Every number in a generated block comes from experiments/results/ (bench_*.json, and the
 studies' folders through :mod:`results_page`): each block sits between
@@ -14,13 +14,10 @@ quotes no figure that a rerun could change.
 import argparse
 import json
 import re
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import results_page  # noqa: E402
-from _bench import RESULTS, table  # noqa: E402
+from experiments import results_page
+from experiments._bench import RESULTS, table
 
 
 def load(name: str) -> dict | None:
@@ -177,7 +174,7 @@ def so3_details() -> str:
         f"samples and intermediates of the same size: "
         + ", ".join(f"{(2 * b) ** 3 * 16 / 2**20:.0f} MiB at B = {b}" for b in (32, 48, 64)) + ".")
     parts = [
-        f"Command: `python experiments/bench_so3.py --baseline-rev {d['before_after']['revision']}` → "
+        f"Command: `python -m experiments.bench_so3 --baseline-rev {d['before_after']['revision']}` → "
         f"`experiments/results/bench_so3.json` ({m.get('date_utc', '?')}, {m.get('cpu_count', '?')} CPU cores, "
         f"jax {v.get('jax', '?')}, s2fft {v.get('s2fft', '?')}; float64; best of 5 after a warm-up; 1-minute load "
         f"average {load_start:.2f} at the start and {load_end:.2f} at the end, per size in the table).",
@@ -551,7 +548,7 @@ def queries() -> str:
 DOCS = Path(__file__).resolve().parent.parent / "docs"
 def robustness() -> str:
     """The fuzzing tables of docs/robustness.md (experiments/results/fuzz_robustness/)."""
-    import fuzz_robustness
+    from experiments import fuzz_robustness
 
     return fuzz_robustness.page(json.loads((RESULTS / "fuzz_robustness" / "fuzz_robustness.json").read_text()))
 

@@ -10,7 +10,7 @@ first ``--mcmc-replicas`` replicas of each configuration the emcee posterior's 1
 0.683 / 0.90 up to the binomial error √(p(1−p)/n) (±0.047 / ±0.030 for n = 100).
 
 Writes experiments/results/calibration_fit.json. Slow (minutes); run:
-``python experiments/calibration_fit.py [--replicas 100] [--mcmc-replicas 100] [--steps 600]``.
+``python -m experiments.calibration_fit [--replicas 100] [--mcmc-replicas 100] [--steps 600]``.
 """
 
 import argparse
@@ -23,7 +23,7 @@ import numpy as np
 import fitting
 
 jax.config.update("jax_enable_x64", True)  # the fits need float64; fitting changes no global setting
-from _bench import machine, write_json
+from experiments._bench import machine, write_json
 
 SCALES = (0.5, 1.0, 2.0, 4.0, 8.0)
 CONFIGS = {

@@ -17,18 +17,17 @@ and the test loses its resolution: the fraction of facets off the lattice origin
 recorded with every point. Three facet windows: box (block mean, the library's),
 Gaussian (σ = b/√12) and an ideal spectral cut (|k| < π/b per axis).
 
-Run:  python experiments/consistency.py [--size 1024] [--seed 0]
+Run:  python -m experiments.consistency [--size 1024] [--seed 0]
 Writes experiments/results/consistency/consistency.json and consistency.png.
 """
 
 import argparse
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
 import numpy as np
-from _studies import (
+
+from brdfscale import synth
+from experiments._studies import (
     WINDOWS,
     convolve_masses,
     expand,
@@ -41,8 +40,6 @@ from _studies import (
     window_slopes,
     write_results,
 )
-
-from brdfscale import synth
 
 
 def violation(m: np.ndarray, mq: np.ndarray, M: np.ndarray, b: int, h: float, rng: np.random.Generator) -> dict:

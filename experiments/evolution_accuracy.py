@@ -24,25 +24,25 @@ by a Gaussian instrument resolution of σ_r = 2 node steps (mirror facets make s
 histograms; without a resolution a shift by one node would count as total failure). The
 raw, unblurred E is recorded too.
 
-Run:  python experiments/evolution_accuracy.py [--size 512] [--seed 0]
+Run:  python -m experiments.evolution_accuracy [--size 512] [--seed 0]
 Writes experiments/results/evolution_accuracy/evolution_accuracy.json and figures.
 """
 
 import argparse
 import itertools
 import math
-import sys
 import time
 from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import jax
 
 jax.config.update("jax_enable_x64", True)
 
 import numpy as np
-from _studies import (
+
+from brdfscale import lobes, stats, synth
+from brdfscale.stats import SlopeHistogram
+from experiments._studies import (
     evolve_accepted,
     gaussian_density,
     l1_error,
@@ -54,9 +54,6 @@ from _studies import (
     tabulated_moments,
     write_results,
 )
-
-from brdfscale import lobes, stats, synth
-from brdfscale.stats import SlopeHistogram
 
 BINS = 65
 MAX_GRID = 512

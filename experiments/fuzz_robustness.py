@@ -24,7 +24,7 @@ invalid ones exit 2 with a one-line message; fit/demo/example lines are generate
 only (a valid one would run a fit). Failures: ``traceback`` (stderr holds a Python traceback),
 ``accepted_nonsense`` (invalid but exit 0), ``refused_valid``, ``wrong_status``.
 
-Run: ``flock /tmp/brdfscale-bench.lock python experiments/fuzz_robustness.py`` (5 000 file
+Run: ``flock /tmp/brdfscale-bench.lock python -m experiments.fuzz_robustness`` (5 000 file
 mutants, 300 command lines) → experiments/results/fuzz_robustness/fuzz_robustness.json;
 ``--quick`` for the smoke version (tests/test_experiments_smoke.py).
 """
@@ -40,17 +40,14 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+import numpy as np
+import OpenEXR
 
-import numpy as np  # noqa: E402
-import OpenEXR  # noqa: E402
-
-import brdfscale as bs  # noqa: E402
-from brdfscale import exr  # noqa: E402
-from brdfscale._cli import main as cli_main  # noqa: E402
-from brdfscale.exr import _format  # noqa: E402
-
-from _studies import study_dir, write_results  # noqa: E402
+import brdfscale as bs
+from brdfscale import exr
+from brdfscale._cli import main as cli_main
+from brdfscale.exr import _format
+from experiments._studies import study_dir, write_results
 
 
 # -- files -----------------------------------------------------------------------------------
@@ -363,7 +360,7 @@ def fuzz_command_lines(n: int, seed: int = 0) -> dict:
 
 def page(payload: dict) -> str:
     """The tables of docs/robustness.md (generated block) from the study's JSON."""
-    from _bench import table
+    from experiments._bench import table
 
     f, c = payload["files"], payload["cli"]
     rows = [[k, str(r["tried"]), str(r["refused"]), str(r["same"]), str(r["changed"]), str(r["foreign"])]

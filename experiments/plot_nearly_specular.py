@@ -7,13 +7,11 @@ and σ = x0/3 (coarse). ``c_n = (−1)ⁿ 0.3 (n+1)/ln(x0/σ_fine)^{n+1}`` makes
 density positive and removes about 30 % of the δ's weight at the fine resolution, so both
 views are non-negative (checked by brdfscale.plus.observe).
 
-    python experiments/plot_nearly_specular.py   # writes results/nearly_specular/lobes.png + .json
+    python -m experiments.plot_nearly_specular   # writes results/nearly_specular/lobes.png + .json
 """
 
 import argparse
 import math
-import sys
-from pathlib import Path
 
 import jax
 
@@ -26,10 +24,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _studies import save_figure, study_dir, write_results  # noqa: E402
-
 from brdfscale import evolve, lobes, plus, stats  # noqa: E402
+from experiments._studies import save_figure, study_dir, write_results  # noqa: E402
 
 X0 = 0.05
 SIGMAS = {"fine": X0 / 30, "coarse": X0 / 3}

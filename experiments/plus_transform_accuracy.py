@@ -1,17 +1,15 @@
 """Accuracy of the plus-distribution transforms H_n (n = 0…6) over z = |W| x0 ∈ [1e-6, 1e8].
 
-References (tests/_plus_reference.py, mpmath): the power series summed with enough digits
+References (experiments/_plus_reference.py, mpmath): the power series summed with enough digits
 for z ≤ 3000, and beyond that mpmath's Taylor coefficients of the Gamma-function ratio minus
 mpmath's Hankel-function quadrature of the decaying part. Writes
 experiments/results/plus_transform_accuracy/accuracy.json with the maximum relative error
 of float64 and float32 per order and per branch (series z ≤ 8, expansion z > 8).
 
-    python experiments/plus_transform_accuracy.py            # ~10 min on 2 busy cores
+    python -m experiments.plus_transform_accuracy            # ~10 min on 2 busy cores
 """
 
 import argparse
-import sys
-from pathlib import Path
 
 import jax
 
@@ -21,14 +19,10 @@ import jax.numpy as jnp  # noqa: E402
 import mpmath as mp  # noqa: E402
 import numpy as np  # noqa: E402
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(HERE.parent / "tests"))
-from _plus_reference import reference  # noqa: E402
-from _studies import progress, study_dir, write_results  # noqa: E402
-
 from brdfscale import plus  # noqa: E402
 from brdfscale.plus import _transform  # noqa: E402
+from experiments._plus_reference import reference  # noqa: E402
+from experiments._studies import progress, study_dir, write_results  # noqa: E402
 
 
 def grid(per_decade: int, large_per_decade: int) -> np.ndarray:

@@ -28,16 +28,13 @@ Errors: relative to the truth's mean radiance, per pixel (mean |Δ|, RMS) and af
 averaging pixels in bands of equal μ (a factor 2 wide; bias without the sparkle noise
 that no statistical model can reproduce).
 
-Run:  python experiments/render_plane.py [--width 192] [--height 128]
+Run:  python -m experiments.render_plane [--width 192] [--height 128]
 Writes experiments/results/render_plane/<surface>.{json,exr,png} and <surface>_lobes.exr.
 """
 
 import argparse
 import math
-import sys
 from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import equinox as eqx
 import jax
@@ -46,7 +43,10 @@ jax.config.update("jax_enable_x64", True)
 
 import numpy as np
 import OpenEXR
-from _studies import (
+from scipy import ndimage
+
+from brdfscale import exr, geometry, lobes, stats, synth
+from experiments._studies import (
     atomic_write,
     evolve_accepted,
     gaussian_density,
@@ -59,9 +59,6 @@ from _studies import (
     tabulated_moments,
     write_results,
 )
-from scipy import ndimage
-
-from brdfscale import exr, geometry, lobes, stats, synth
 
 TEXEL = 0.01
 CAMERA_HEIGHT = 1.0

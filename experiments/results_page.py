@@ -1,16 +1,13 @@
 """The tables of docs/results.md, from the studies' JSON files (experiments/results/<study>/).
 
-``python experiments/benchmarks_page.py`` writes them into the page's generated blocks, with
+``python -m experiments.benchmarks_page`` writes them into the page's generated blocks, with
 the benchmarks' tables.
 """
 
 import json
-import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from _bench import RESULTS, table
+from experiments._bench import RESULTS, table
 
 
 def load(study: str, name: str) -> dict:
@@ -162,8 +159,8 @@ def stability() -> str:
 
 def stability_figures(directory: Path | None = None) -> list:
     """Redraw the stability study's figures from its committed JSON (into ``directory``,
-    default the study's folder): ``python experiments/benchmarks_page.py`` does it with the
+    default the study's folder): ``python -m experiments.benchmarks_page`` does it with the
     tables, and tests/test_experiments_smoke.py checks the committed PNGs are what the JSON gives."""
-    import stability
+    from experiments import stability
 
     return stability.plot(load("stability", "stability"), directory or RESULTS / "stability")

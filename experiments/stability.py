@@ -39,7 +39,7 @@ discrepancy principle with the true σ, the L-curve). Cases: Beckmann lobe from 
 (μ0 = ∞), GGX lobe between Beckmann statistics, Beckmann lobe from a disk. Target: the
 automatic λ within a factor 2 of the best fixed λ chosen in hindsight.
 
-Run:  flock /tmp/brdfscale-bench.lock python experiments/stability.py [--quick] [--kinds a,b]
+Run:  flock /tmp/brdfscale-bench.lock python -m experiments.stability [--quick] [--kinds a,b]
 Writes experiments/results/stability/stability.json, stability.png and regularisation.png.
 """
 
@@ -51,9 +51,6 @@ import traceback
 import warnings
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-
 import jax
 
 jax.config.update("jax_enable_x64", True)
@@ -63,11 +60,11 @@ import mpmath as mp
 import numpy as np
 import scipy.integrate
 import scipy.special
-from _studies import save_figure, study_dir, write_results
 
 import brdfscale as bs
 from brdfscale import geometry, lobes, plus, so3, stats
 from brdfscale._evolve import _regularise
+from experiments._studies import save_figure, study_dir, write_results
 
 KINDS = ("roughness", "scale_ratio", "incidence", "disk", "heavy_tails", "plus", "wigner", "so3", "noise")
 DTYPES = ("float64", "float32")
@@ -449,7 +446,7 @@ def heavy_tails(quick: bool) -> list:
 # -- A6 plus-distributions ----------------------------------------------------------------------
 
 def plus_transforms(quick: bool) -> list:
-    from _plus_reference import decaying, polynomial, series
+    from experiments._plus_reference import decaying, polynomial, series
 
     orders = [2] if quick else [0, 2, 6]
     zs = [1e-8, 1.0, 30.0, 1e20, 1e300] if quick else [1e-8, 1e-3, 1.0, 8.0, 30.0, 1e3, 1e5, 1e20, 1e100, 1e300]

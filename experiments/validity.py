@@ -23,24 +23,21 @@ same grid (48² bins over ±4 rms slopes) and compared by the relative L1 error
 together with the albedo ratio Σ flux_model / Σ flux_brute. Surface: Gaussian-correlated
 heights (ℓ = 8 px) scaled to a range of rms slopes; incidence in the x–z plane.
 
-Run:  python experiments/validity.py [--size 256] [--seed 0]
+Run:  python -m experiments.validity [--size 256] [--seed 0]
 Writes experiments/results/validity/validity.json and validity.png.
 """
 
 import argparse
-import sys
 from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import jax
 
 jax.config.update("jax_enable_x64", True)
 
 import numpy as np
-from _studies import pixel_slopes, progress, save_figure, study_dir, write_results
 
 from brdfscale import geometry, stats, synth
+from experiments._studies import pixel_slopes, progress, save_figure, study_dir, write_results
 
 CORRELATION_PX = 8.0
 HIST_BINS = 48

@@ -3,23 +3,15 @@ against closed forms and the library's independent implementations."""
 
 import json
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
 import OpenEXR
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "experiments"))
-
-import _studies
-import consistency
-import evolution_accuracy
-import render_plane
-import validity
-
 import brdfscale as bs
 from brdfscale import exr, synth
+from experiments import _studies, consistency, evolution_accuracy, render_plane, validity
 
 
 def test_box_window_is_the_library_facet_slope():
@@ -132,13 +124,13 @@ def test_benchmark_pages_are_generated_from_the_committed_json():
     from the committed JSON (a change of a benchmark's JSON layout cannot silently break a
     page), and each page as committed is what the generator makes of that JSON: a benchmark
     rerun without regenerating its pages leaves stale figures, and fails here."""
-    import benchmarks_page
+    from experiments import benchmarks_page
 
     for name in benchmarks_page.PAGES:
         page = (benchmarks_page.DOCS / name).read_text()
         for _, title, fn in (x for x in benchmarks_page.SECTIONS if x[0] == name):
             assert "missing)" not in fn()
-        assert benchmarks_page.rendered(name) == page, f"docs/{name} is stale: run python experiments/benchmarks_page.py"
+        assert benchmarks_page.rendered(name) == page, f"docs/{name} is stale: run python -m experiments.benchmarks_page"
 
 
 @pytest.mark.parametrize("result", ["bench_fit", "calibration_fit", "bench_cli_cache"])
@@ -152,7 +144,7 @@ def test_hand_written_analyses_cite_the_committed_run(result):
 
 
 def test_equal_accuracy_pairs_each_scipy_solve_with_the_least_work_as_close():
-    import bench_fit
+    from experiments import bench_fit
 
     def point(solver, tol, steps, error, seconds):
         return {"solver": solver, "tolerance": tol, "evaluations": steps, "error_laplace_std": error,
@@ -175,7 +167,7 @@ def test_equal_accuracy_pairs_each_scipy_solve_with_the_least_work_as_close():
 
 
 def test_fft_records_reads_threads_durations_and_pool_help_from_a_trace():
-    import bench_evolve
+    from experiments import bench_evolve
 
     def meta(tid, name):
         return {"ph": "M", "name": "thread_name", "tid": tid, "args": {"name": name}}
@@ -202,7 +194,7 @@ def test_fft_records_reads_threads_durations_and_pool_help_from_a_trace():
 def test_stability_smoke(tmp_path):
     """The cheap kinds of the stability sweep in quick mode: every case good or at a documented
     limit, no NaN/Inf on valid input, JSON and figure written."""
-    import stability
+    from experiments import stability
 
     out = stability.run(quick=True, kinds=("incidence", "wigner"), out=tmp_path)
     totals = out["summary"]["totals"]
@@ -223,7 +215,7 @@ def test_stability_smoke(tmp_path):
 def test_stability_quick_mode(tmp_path):
     """Every kind of the sweep and the noise study in quick mode (minutes: it compiles every path
     in both precisions)."""
-    import stability
+    from experiments import stability
 
     out = stability.run(quick=True, out=tmp_path)
     assert out["summary"]["totals"]["bad"] == 0 and out["summary"]["totals"]["nonfinite_on_valid_input"] == 0
@@ -235,9 +227,10 @@ def test_stability_figures_are_drawn_from_the_committed_json(tmp_path):
     """The PNGs in experiments/results/stability/ (shown in docs/results.md) are what the plot
     function draws from the committed JSON: redrawn here and compared pixel by pixel."""
     import matplotlib.image
-    import results_page
+
+    from experiments import results_page
 
     for path in results_page.stability_figures(tmp_path):
         committed = Path(__file__).resolve().parent.parent / "experiments" / "results" / "stability" / path.name
         np.testing.assert_allclose(matplotlib.image.imread(path), matplotlib.image.imread(committed), atol=1e-6,
-                                   err_msg=f"{path.name} is stale: run python experiments/benchmarks_page.py")
+                                   err_msg=f"{path.name} is stale: run python -m experiments.benchmarks_page")

@@ -22,8 +22,7 @@ from brdfscale import _files, exr, files
 from brdfscale._cli import main
 from brdfscale.exr import _format
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "experiments"))
-import fuzz_robustness as fz  # noqa: E402
+from experiments import fuzz_robustness as fz
 
 P = _format.PREFIX
 

@@ -4,8 +4,6 @@ integral for the SO(3) path), camera geometry, jit/differentiability, input vali
 smoke run of experiments/bench_planner.py."""
 
 import math
-import sys
-from pathlib import Path
 
 import equinox as eqx
 import jax
@@ -18,9 +16,7 @@ import brdfscale as bs
 from brdfscale import lobes, scene, so3, stats
 from brdfscale.geometry import microfacet_factor, slope_to_direction
 from brdfscale._interpolate import interpolate
-
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "experiments"))
-import bench_planner as bench  # noqa: E402  (independent references live in the benchmark)
+from experiments import bench_planner as bench  # independent references live in the benchmark
 
 TOL = 1e-4
 

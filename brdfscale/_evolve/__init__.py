@@ -99,8 +99,8 @@ def evolve(
             peak; offsets outside the grid evaluate to 0 (never a periodic image).
         check: verify that a BRDF exists at μ (see Raises). ``check=False`` leaves out the
             run-time check (an ``equinox.error_if`` conditional, which costs a measurable
-            share of a small model's evaluation inside an optimiser's loop: ``python
-            experiments/bench_fit.py``); a closed form built from concrete values is still
+            share of a small model's evaluation inside an optimiser's loop: ``python -m
+            experiments.bench_fit``); a closed form built from concrete values is still
             checked when it is built. Only for callers that have established existence
             otherwise, e.g. evolving towards coarser scales with a scale law whose slope
             variances decrease with μ; where no BRDF exists the result is then undefined
