@@ -5,6 +5,8 @@ They compile the radial evolution path (GGX) and the grid path with ~100 paramet
 minutes on 2 cores.
 """
 
+import json
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -84,3 +86,18 @@ def test_nonparametric_auto_smoothness_is_within_a_factor_two_of_the_best_fixed(
     assert gcv[candidates.index(auto.smoothness)] == min(gcv)
     best = min(ratio_error(fitting.NonParametricModel(data, regularisation=s, **options)) for s in (0.01, 0.1, 1.0, 10.0))
     assert ratio_error(auto) <= 2 * best
+
+
+@pytest.mark.slow
+def test_demo_reduced_chi2_is_one_and_every_truth_is_stated(tmp_path, capsys):
+    """README: the demo's noise model gives a good fit a reduced χ² ≈ 1 (1.00 on its default
+    seed), and its table states the truth of every parameter it prints (issue 17)."""
+    from brdfscale._cli import main
+
+    code = main(["--no-compilation-cache", "demo", "--out", str(tmp_path / "demo"), "--steps", "0", "--no-progress"])
+    out = capsys.readouterr().out
+    assert code == 0
+    doc = json.loads((tmp_path / "demo" / "fit.json").read_text())
+    assert abs(doc["optimisation"]["reduced_chi2"] - 1.0) < 0.02, doc["optimisation"]["reduced_chi2"]
+    assert all(row.get("truth") is not None for row in doc["parameters"].values()), doc["parameters"]
+    assert "unknown" not in out and "the truth column:" in out
