@@ -43,6 +43,7 @@ def _run_command(*args, env_extra, cwd):
                           env=env, cwd=cwd)
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 @pytest.mark.compilation_cache
 def test_command_keeps_compiled_programs_between_runs_unless_told_not_to(tmp_path):
     cache = tmp_path / "cache"

@@ -95,6 +95,7 @@ def test_jit_with_the_selected_method_equals_the_eager_result_of_the_issues_case
 @settings(max_examples=4, deadline=None)
 @given(a=st.floats(0.03, 0.2), f=st.floats(0.03, 0.2), frac=st.floats(0.2, 0.9),
        path=st.sampled_from(["radial", "grid"]))
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_jit_grad_vmap_equal_eager_on_the_spectral_paths(a, f, frac, path):
     """GGX lobe and statistics (no closed form): jit, grad and vmap of the evolution with the
     selected method equal the eager evaluation (grad against central differences of it)."""

@@ -65,6 +65,7 @@ def test_spectral_paths_match_closed_form(method):
     assert _max_rel(bs.evolve(*args, method=method).density(U), exact) < 1e-8
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_grid_path_matches_closed_form_for_skewed_anisotropic_mixture():
     s_from = stats.Mixture(
         [0.7, 0.3],
@@ -86,6 +87,7 @@ def _ggx(alpha):
     return lambda x, y: 1.0 / (math.pi * alpha**2 * (1 + (x * x + y * y) / alpha**2) ** 2)
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_too_small_explicit_grid_warns():
     with pytest.warns(UserWarning, match="below the"):
         bs.evolve(lobes.Beckmann(0.1), stats.GGX(0.08), stats.Delta(), method="grid", size=64)
@@ -144,6 +146,7 @@ def test_fine_coarse_fine_round_trip_radial():
     assert _max_rel(back.density(U), lobe.density(U)) < 1e-8
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_fine_coarse_fine_round_trip_grid_honours_its_stated_tolerance():
     """Anisotropic GGX statistics (|m|⁻⁴ tails): the capped grid states the accuracy it can
     reach in ``shape.tol``; the round trip must be within it."""
@@ -288,7 +291,7 @@ def test_batched_over_scales_with_vmap():
         np.testing.assert_allclose(batched[k], bs.evolve(lobe, law.at(1.0), law.at(mu)).density(U), rtol=1e-14)
 
 
-@pytest.mark.parametrize("method", ["radial", "grid"])
+@pytest.mark.parametrize("method", [pytest.param("radial", marks=pytest.mark.slow), "grid"])
 def test_float32_matches_float64(method):
     def run(dtype):
         lobe = lobes.Beckmann(jnp.asarray(0.1, dtype))
@@ -309,6 +312,7 @@ def test_radial_path_agrees_with_closed_form_over_parameters(a0, af, frac):
     assert _max_rel(bs.evolve(*args, method="radial").density(pts), bs.evolve(*args).density(pts)) < 1e-8
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_tight_tolerances_resolve_heavy_tailed_lobes_against_scipy_quadrature():
     """GGX lobe and statistics (|m|⁻⁴ tails): at tight tol the support radius is large, and the
     frequency window that finds the cut-off must stay on the lobe's core (it once slid down to

@@ -61,6 +61,7 @@ def test_consistency_smoke(tmp_path):
     json.loads((tmp_path / "consistency.json").read_text())
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_evolution_accuracy_smoke(tmp_path, monkeypatch):
     monkeypatch.setattr(evolution_accuracy, "BINS", 33)
     out = evolution_accuracy.run(size=64, scales=[2], surfaces=["blazed"], seed=0, factors=(1.0,), out=tmp_path)
@@ -104,6 +105,7 @@ def test_camera_centre_ray_hits_the_plane_where_trigonometry_says():
     assert np.all(np.diff(mu[:, 20]) < 0)  # rows go down: the footprint shrinks towards the camera
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_render_plane_smoke(tmp_path, monkeypatch):
     monkeypatch.setattr(render_plane, "LOBE_NODES", 33)
     monkeypatch.setattr(render_plane, "EVOLVE_GRID", 64)
@@ -191,6 +193,7 @@ def test_fft_records_reads_threads_durations_and_pool_help_from_a_trace():
                    "tf_XLAEigen": {"ffts": 1, "median_ms": 2.0, "helpers_median": 0.0}}
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_stability_smoke(tmp_path):
     """The cheap kinds of the stability sweep in quick mode: every case good or at a documented
     limit, no NaN/Inf on valid input, JSON and figure written."""

@@ -144,7 +144,7 @@ def test_laplace_covariance_and_optimum_agree_with_scipy():
     np.testing.assert_allclose(res.covariance, cov_scipy, rtol=2e-3)
 
 
-@pytest.mark.parametrize("solver, max_steps", [("lm", 512), ("lm", 2), ("bfgs", 512)])
+@pytest.mark.parametrize("solver, max_steps", [pytest.param("lm", 512, marks=pytest.mark.slow), ("lm", 2), pytest.param("bfgs", 512, marks=pytest.mark.slow)])
 def test_solve_returns_chi2_and_jacobian_at_the_optimum(solver, max_steps):
     """The Gauss–Newton family hands back the linearisation its state holds at θ̂, other
     solvers evaluate it; either way they are r(θ̂) and jacfwd(r)(θ̂) — also when the solve

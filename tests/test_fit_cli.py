@@ -8,6 +8,7 @@ must then say so. Recovery by the non-parametric model is tests/test_fit_slow.py
 import json
 
 import numpy as np
+import pytest
 
 import fitting
 from brdfscale import exr
@@ -17,6 +18,7 @@ TRUTH = dict(amplitude=0.8, alpha_lobe=0.06, alpha_max=0.2, mu_c=1.0, exponent=0
 SCALES = (0.5, 2.0, 8.0)
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_nonparametric_fit_command(tmp_path, capsys):
     mset = fitting.simulate(fitting.ParametricModel(), TRUTH, SCALES, size=12, extent=0.35, noise=0.01, floor=1e-3,
                             seed=2)

@@ -113,6 +113,7 @@ def _observed_reference(a, c, x0, sigma, r):
     return total
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_observed_density_against_mpmath():
     a, c, x0, sigma = 1.0, [0.25, 0.08, -0.01], 0.06, 0.008
     seen = plus.observe(plus.NearlySpecular(a, c, x0), stats.Gaussian(sigma=sigma))
@@ -122,7 +123,7 @@ def test_observed_density_against_mpmath():
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-11 * want.max())
 
 
-@pytest.mark.parametrize("method", ["radial", "grid"])
+@pytest.mark.parametrize("method", ["radial", pytest.param("grid", marks=pytest.mark.slow)])
 def test_evolve_agrees_with_slope_space_view(method):
     """brdfscale.evolve (spectral, from S(W) = a + Σ c_n H_n + w S_smooth) sees the same lobe as the
     slope-space action: the statistic works in evolve's paths."""
@@ -201,6 +202,7 @@ def test_kernel_variance_must_be_representable():
         plus.observe(s, stats.Gaussian(sigma=1e-200))  # σ² underflows to 0
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_transforms_stay_finite_for_huge_arguments():
     """Far out H_n = P_n(ℓ), ℓ = ln(z e^γ/2): P_0 = −ℓ, P_1 = ℓ²/2; needs ln z only, so z² may
     overflow (z > 1.3e154), and x0² too at W = 0."""
@@ -242,7 +244,7 @@ def test_plus_distribution_is_a_generalised_density_not_a_probability_density():
         plus.NearlySpecular(0.5, [0.1], 0.1, smooth=plus.PlusDistribution(0, 0.1), smooth_weight=0.5)
 
 
-@pytest.mark.parametrize("n", [0, 2])
+@pytest.mark.parametrize("n", [pytest.param(0, marks=pytest.mark.slow), 2])
 def test_transform_depends_on_w_x0_only_against_mpmath(n):
     """Regression (issue 16): ``PlusDistribution(2, x0).cf(W)`` was NaN for |W| ≳ 1.3e154 even
     where W·x0 = 1 — the norm was formed as |W|² x0², which overflows before x0 scales it.

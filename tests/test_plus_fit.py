@@ -28,6 +28,7 @@ def _fit(u, y, sigma):
     return fit, estimate, sd
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_recovery_within_stated_uncertainties():
     u, clean, sigma, rng = _synthetic(seed=1)
     truth = np.array([TRUTH["amplitude"], TRUTH["x0"], *TRUTH["c"]])

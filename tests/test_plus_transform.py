@@ -38,6 +38,7 @@ def test_large_argument_against_mpmath_quadrature(n, z):
     assert abs(got - want) <= 1e-13 * abs(want)
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_decaying_terms_against_mpmath():
     """The Gauss–Laguerre form of T_n against mpmath quadrature with mpmath's H₀⁽¹⁾ at the switch
     (n = 0, where T_n is largest relative to H_n)."""

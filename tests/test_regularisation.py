@@ -46,7 +46,7 @@ def _error(lobe, lam, truth, u):
         return float(np.linalg.norm(np.asarray(r.density(u)) - truth) / np.linalg.norm(truth))
 
 
-@pytest.mark.parametrize("counts", [1e3, 1e5])
+@pytest.mark.parametrize("counts", [pytest.param(1e3, marks=pytest.mark.slow), 1e5])
 def test_auto_lambda_is_within_a_factor_two_of_the_best_fixed_lambda(counts):
     lobe, truth, _, u = _noisy_case(counts)
     fixed = np.logspace(-5, 0, 16)
@@ -109,6 +109,7 @@ def test_discrepancy_meets_the_expected_noise_and_l_curve_finds_a_corner():
     assert 1e-5 < corner < 1 and _error(lobe, corner, truth, u) < 0.5 * _error(lobe, 1e-8, truth, u)
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_auto_under_jit_uses_the_lambda_select_carries():
     lobe, truth, _, u = _noisy_case(1e4)
     s_from, s_to = stats.Delta(), stats.Beckmann(ALPHA_FINE)

@@ -104,6 +104,7 @@ def test_nearly_specular_statistics_against_series_reference():
     np.testing.assert_allclose(bench.plus_h0(np.array([2.0])), [-0.44191940220810094], rtol=1e-12)  # mpmath value
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_grid_table_mode_matches_direct_mode():
     """Many queries → FFT tables + cubic interpolation; few → direct DFT sums. Same answer."""
     mat = bench.material("skewed_mixture")
@@ -243,6 +244,7 @@ def test_so3_reference_parts_are_sound():
     assert total == pytest.approx(1.0, abs=1e-8)
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_so3_material_is_planned_on_so3_and_meets_target_against_group_integral():
     queries, ref, peak, _ = bench.so3_problem(np.array([0.01]), 6, nodes=32)
     plan = scene.plan(scene.Scene((bench.so3_material(),), queries, 1e-3))
@@ -261,6 +263,7 @@ def test_so3_material_is_planned_on_so3_and_meets_target_against_group_integral(
     assert "path: so3" in text and "band limit B =" in text and "twist columns" in text and "units" in text
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_so3_twist_free_lobe_on_a_flat_plane_needs_one_order():
     """An isotropic facet lobe depends on the facet normal only (M' = 0); at flat global
     orientations D^J is diagonal, so only M = M' = 0 is computed — and the result is still
@@ -293,6 +296,7 @@ def test_so3_twist_free_lobe_on_a_flat_plane_needs_one_order():
     assert float(jax.grad(loss)(a)) == pytest.approx(float(fd), rel=1e-5)
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_so3_anisotropic_diffusion_matches_the_public_pipeline():
     """D_x ≠ D_y mixes twist orders: the plan keeps them all and agrees with so3.forward →
     so3.evolve_diffusion (matrix exponentials) → so3.synthesize at the same band limit."""
@@ -332,6 +336,7 @@ def test_so3_bad_requests():
         scene.Queries(i[None], o[None], [0.01], twist=[0.0, 1.0])
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_benchmark_smoke():
     """A quick run of experiments/bench_planner.py's problem and workload code (no timing checks)."""
     prob = bench.bench_problem("closed_form", quick=True)

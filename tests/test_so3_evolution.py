@@ -173,6 +173,7 @@ def test_diffusion_law():
                                np.asarray(so3.evolve_diffusion(R, law.D, law.tau(0.5), law.tau(3.0))), atol=1e-12)
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_tilt_twist_against_sampled_frames():
     """TiltTwist's density (Jacobians cos³β, twist = α + γ) vs the empirical transform of frames
     built from sampled slopes and twists."""
@@ -254,6 +255,7 @@ def test_band_limit_from_width():
         so3.band_limit(1e-4, 1e-12)
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_cross_check_with_slope_space_path():
     """Isotropic Beckmann lobe, isotropic small-tilt statistics: SO(3) evolution vs brdfscale.evolve.
 
@@ -354,6 +356,7 @@ def test_evolve_names_the_accepted_statistics():
         so3.evolve(R, so3.Identity(), np.eye(5))
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_tilt_twist_resolution_is_capped_and_the_twist_exact():
     """A tilt that needs a huge sampling grid (or has no density) is refused before allocating;
     the twist needs no resolution of its own: a narrow twist gives the same coefficients on any

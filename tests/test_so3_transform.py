@@ -154,6 +154,7 @@ def test_batched_equals_individual():
     assert q.shape == (2, 3)
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_differentiable_through_the_transforms():
     B = 4
     c0 = jnp.asarray(random_coefficients(B, np.random.default_rng(8)))

@@ -67,6 +67,7 @@ def test_small_J_against_mpmath_all_entries(J):
     assert np.max(np.abs(d - ref)) <= 1e-14
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_large_J_entries_and_unitarity():
     J = 1024
     beta = 1.1

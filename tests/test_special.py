@@ -56,6 +56,7 @@ def test_derivatives():
         assert np.isfinite(float(jax.grad(f)(0.0)))
 
 
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_float32_matches_float64():
     x = np.linspace(0.01, 60.0, 500)
     for f in (j0, j1, jinc):
