@@ -17,7 +17,8 @@ The public API:
 * :class:`MeasurementSet` / :class:`LobeImage` — multi-scale lobe measurements in memory;
 * :mod:`brdfscale.checks` — argument checks for code built on brdfscale;
 * :mod:`brdfscale.special` — Bessel functions J0, J1, K0, x·K1 in pure JAX;
-* :mod:`brdfscale.plot` — one-call matplotlib figures of lobes, statistics, measurements, plans;
+* :mod:`brdfscale.plot` — one-call matplotlib figures of lobes, statistics, measurements, plans, fits;
+* :mod:`brdfscale.show` — the compact ``repr``/``_repr_html_`` of every object, and progress bars;
 * :mod:`brdfscale.fitting` — the ``fitting`` package under a name no local file can shadow;
 * the exception classes, all derived from :class:`BrdfscaleError`.
 
@@ -44,8 +45,8 @@ from ._errors import (
     UnresolvedMethodError,
 )
 
-_SUBMODULES = ("checks", "exr", "files", "fitting", "geometry", "lobes", "plot", "plus", "scene", "so3", "special",
-               "stats", "synth")
+_SUBMODULES = ("checks", "exr", "files", "fitting", "geometry", "lobes", "plot", "plus", "scene", "show", "so3",
+               "special", "stats", "synth")
 _NAMES = {
     **dict.fromkeys(("AbstractMethod", "Auto", "ClosedForm", "Grid", "Radial", "RadialTable", "evolve", "select"),
                     "._evolve"),
@@ -53,7 +54,7 @@ _NAMES = {
 }
 
 if TYPE_CHECKING:  # what the lazy loader below provides, for type checkers and IDEs
-    from . import checks, exr, files, fitting, geometry, lobes, plot, plus, scene, so3, special, stats, synth
+    from . import checks, exr, files, fitting, geometry, lobes, plot, plus, scene, show, so3, special, stats, synth
     from ._evolve import AbstractMethod, Auto, ClosedForm, Grid, Radial, RadialTable, evolve, select
     from ._measurement import LobeImage, MeasurementSet
 
@@ -104,6 +105,7 @@ __all__ = [
     "checks",
     "special",
     "plot",
+    "show",
     "fitting",
     "BrdfscaleError",
     "InvalidInputError",

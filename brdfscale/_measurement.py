@@ -14,6 +14,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from ._errors import InvalidInputError
+from ._show import Shown, Table, Values
 from ._validation import real, real_array
 
 __all__ = ["LobeImage", "MeasurementSet"]
@@ -36,8 +37,8 @@ def _boolean_mask(x, name: str) -> np.ndarray:
     )
 
 
-@dataclasses.dataclass(frozen=True)
-class LobeImage:
+@dataclasses.dataclass(frozen=True, repr=False)
+class LobeImage(Shown):
     """One lobe image.
 
     Attributes:
@@ -97,14 +98,33 @@ class LobeImage:
     def size(self) -> int:
         return self.values.shape[0]
 
+    @property
+    def incident_angles(self) -> tuple[float, float]:
+        """``(θ_i, φ_i)`` of the incident direction in degrees (polar angle from the normal, azimuth)."""
+        x, y, z = (float(c) for c in self.incident)
+        return float(np.degrees(np.arccos(np.clip(z, -1, 1)))), float(np.degrees(np.arctan2(y, x)))
+
+    def _show_items(self):
+        theta, phi = self.incident_angles
+        items = [("mu", self.mu), ("incident", f"(θ {theta:.4g}°, φ {phi:.4g}°)"), ("extent", self.extent),
+                 ("values", self.values), ("sigma", self.sigma)]
+        if self.mask is not None:
+            items.append(("mask", f"{int(np.count_nonzero(~self.mask))} of {self.mask.size} px masked"))
+        return items
+
+    def plot(self, **options):
+        """A figure of the image and its σ: :func:`brdfscale.plot.measurements` of this image
+        alone (options as there); returns a ``matplotlib.figure.Figure``."""
+        return MeasurementSet((self,)).plot(**options)
+
     def offsets(self) -> np.ndarray:
         """Offsets ``u`` of the pixels, shape (n, n, 2): ``u[j, k] = (x_k, y_j)``."""
         x = np.linspace(-self.extent, self.extent, self.size)
         return np.stack(np.meshgrid(x, x, indexing="xy"), axis=-1)
 
 
-@dataclasses.dataclass(frozen=True)
-class MeasurementSet:
+@dataclasses.dataclass(frozen=True, repr=False)
+class MeasurementSet(Shown):
     """Lobe images of one material at several scales and incident directions.
 
     ``metadata`` is a dict of extras (e.g. the ground truth of a synthetic set) with str keys
@@ -135,3 +155,37 @@ class MeasurementSet:
     def scales(self) -> np.ndarray:
         """The distinct scales μ, ascending."""
         return np.unique([p.mu for p in self.images])
+
+    def _show_items(self):
+        images = self.images
+        sizes = sorted({p.values.shape for p in images})
+        angles = sorted({round(p.incident_angles[0], 2) for p in images})
+        with_sigma = sum(p.sigma is not None for p in images)
+        items = [("images", len(images)), ("scales", Values(self.scales)),
+                 ("sizes", ", ".join("×".join(str(n) for n in shape) for shape in sizes[:3]) + (" …" if len(sizes) > 3 else "")),
+                 ("theta_i", "(" + ", ".join(f"{a:.4g}°" for a in angles[:6]) + (", …)" if len(angles) > 6 else ")")),
+                 ("sigma", "all" if with_sigma == len(images) else "none" if not with_sigma else
+                  f"{with_sigma} of {len(images)} images")]
+        masked = sum(p.mask is not None for p in images)
+        if masked:
+            items.append(("masks", f"{masked} of {len(images)} images"))
+        if self.metadata:
+            keys = list(self.metadata)
+            items.append(("metadata", ", ".join(str(k) for k in keys[:5]) + (", …" if len(keys) > 5 else "")))
+        return items
+
+    def _show_tables(self):
+        rows = []
+        for i, p in enumerate(self.images):
+            theta, phi = p.incident_angles
+            rows.append((i, p.mu, f"{theta:.4g}°", f"{phi:.4g}°", p.extent, "×".join(str(n) for n in p.values.shape),
+                         "yes" if p.sigma is not None else "no",
+                         "—" if p.mask is None else int(np.count_nonzero(~p.mask))))
+        return [Table("images", ("image", "μ", "θ_i", "φ_i", "extent", "values", "σ", "masked px"), rows)]
+
+    def plot(self, **options):
+        """A figure of every image (values and σ): :func:`brdfscale.plot.measurements`
+        (options as there); returns a ``matplotlib.figure.Figure``."""
+        from . import plot
+
+        return plot.measurements(self, **options)

@@ -61,10 +61,11 @@ def save_figure(fig, path: Path) -> Path:
 
 
 def progress(iterable, **kw):
-    """tqdm progress bar on stderr (silent when not a terminal is fine too)."""
-    from tqdm import tqdm
+    """The library's progress bar (:func:`brdfscale.show.progress_bar`: text on stderr, the
+    notebook widget in Jupyter; none with ``BRDFSCALE_PROGRESS=0``)."""
+    from brdfscale.show import progress_bar
 
-    return tqdm(iterable, mininterval=1.0, **kw)
+    return progress_bar(iterable, mininterval=1.0, **kw)
 
 
 # -- surfaces and facet slopes -------------------------------------------------------------

@@ -10,6 +10,9 @@ The chain, each step in its own module:
   Laplace covariance, identifiability (names the combinations the data cannot determine);
 * :func:`sample` — emcee with chunked, resumable HDF5 checkpoints, τ and ESS;
 * :func:`write_report` — fit.json, figures, evolved lobe tables;
+* :func:`plot_fit`, :func:`plot_recovered_statistics`, :func:`plot_corner` — the report's figures
+  as ``matplotlib.figure.Figure`` objects made without pyplot (a notebook shows them; also
+  ``brdfscale.plot.fit`` and its siblings, docs/plotting.md);
 * :func:`simulate` — noisy measurement sets from a parametric model (tests, demo).
 
 Importing this package changes no global state. The fits need float64 (optimistix's
@@ -29,6 +32,7 @@ __distribution__ = "brdfscale"  # how brdfscale.fitting recognises this package 
 from ._data import Dataset, PointData
 from ._estimate import SOLVERS, FitResult, Problem, fit
 from ._models import AbstractModel, NonParametricModel, ParametricModel, RelativeStatistics
+from ._plot import plot_corner, plot_fit, plot_recovered_statistics
 from ._report import check_report_directory, report_files, summarise, truth_of, write_report
 from ._sample import SampleResult, log_posterior, sample
 from ._simulate import simulate
@@ -52,5 +56,8 @@ __all__ = [
     "report_files",
     "check_report_directory",
     "truth_of",
+    "plot_fit",
+    "plot_recovered_statistics",
+    "plot_corner",
     "simulate",
 ]

@@ -35,6 +35,7 @@ from jaxtyping import Array, Float
 
 from brdfscale import InvalidInputError, MeasurementSet
 from brdfscale.checks import require_float64
+from brdfscale.show import Shown, Values, concrete
 
 __all__ = ["Dataset", "PointData"]
 
@@ -49,7 +50,7 @@ def _luminance(values, sigma):
     return y, s
 
 
-class Dataset(eqx.Module):
+class Dataset(Shown, eqx.Module):
     """Lobe images at the scales ``scales`` (ascending), flattened and padded.
 
     ``scale_of_image[i]`` is the index into ``scales`` of image ``i``; the finest scale
@@ -124,6 +125,17 @@ class Dataset(eqx.Module):
     def n_data(self) -> int:
         """Number of valid (unmasked) pixels."""
         return int(np.count_nonzero(np.asarray(self.weight)))
+
+    def _show_items(self):
+        sizes = sorted(set(self.image_sizes))
+        items = [("images", len(self.scale_of_image)), ("scales", Values(self.scales)),
+                 ("sizes", ", ".join(f"{n}×{n}" for n in sizes[:3]) + (" …" if len(sizes) > 3 else ""))]
+        if concrete(self.weight):  # not under jax.jit
+            items.append(("valid_pixels", self.n_data))
+        extents = sorted(set(self.extents))
+        shown = extents[0] if len(extents) == 1 else Values(np.asarray(extents), 3) if len(extents) <= 3 else \
+            f"{len(extents)} values from {extents[0]:.4g} to {extents[-1]:.4g}"
+        return items + [("extents" if len(extents) > 1 else "extent", shown)]
 
     def images_of_scale(self, k: int) -> list[int]:
         """Indices of the images measured at ``scales[k]``."""

@@ -36,6 +36,7 @@ import optimistix as optx
 from jaxtyping import Array, Float
 
 from brdfscale import InvalidInputError
+from brdfscale.show import Shown, Table
 
 from brdfscale.checks import integer, real, require_float64
 from ._data import Dataset, PointData
@@ -48,7 +49,7 @@ _RESULT_NAMES = {int(item._value): name for name, item in optx.RESULTS._name_to_
 _LAPLACE_DRAWS = 4000
 
 
-class Problem(eqx.Module):
+class Problem(Shown, eqx.Module):
     """A model paired with its data: the whitened residual vector ``r(θ)``.
 
     The data rows of ``r`` are ``√c_u (f_u(θ) − v̄_u)`` over the distinct points ``u`` of the
@@ -84,6 +85,9 @@ class Problem(eqx.Module):
         self.points = data.points(model.radial)
         lo, hi = model.bounds(data)
         self.lower, self.upper = jnp.asarray(lo, jnp.float64), jnp.asarray(hi, jnp.float64)
+
+    def _show_items(self):
+        return [("model", self.model), ("data", self.data), ("coordinates", len(self.model.names))]
 
     def residuals(self, theta: Float[Array, " n"]) -> Float[Array, " m"]:
         theta = jnp.clip(theta, self.lower, self.upper)
@@ -165,8 +169,8 @@ def _quantities(model, theta, draws):
     return stacked(theta), jax.jacfwd(stacked)(theta), jax.vmap(stacked)(draws)
 
 
-@dataclasses.dataclass
-class FitResult:
+@dataclasses.dataclass(repr=False)
+class FitResult(Shown):
     """Outcome of :func:`fit` (all NumPy / Python values; ``to_json()`` for reports).
 
     ``status`` is ``"converged"`` when the best start's solver reported success, else the
@@ -200,6 +204,39 @@ class FitResult:
     @property
     def determined(self) -> bool:
         return not self.undetermined
+
+    def _estimate_text(self, name: str) -> str:
+        std = self.std.get(name)
+        return f"{self.estimates[name]:.4g} ± {std:.2g}" if std is not None else f"{self.estimates[name]:.4g} (undetermined)"
+
+    def _show_items(self):
+        items = [("status", self.status), ("solver", self.solver),
+                 ("chi2/dof", f"{self.chi2:.4g}/{self.dof} = {self.chi2 / self.dof:.4g}")]
+        items += [(name, self._estimate_text(name)) for name in self.estimates]
+        if self.undetermined:
+            items.append(("undetermined", "; ".join(u["combination"] for u in self.undetermined)))
+        if self.at_bounds:
+            items.append(("at_bounds", ", ".join(self.at_bounds)))
+        return items
+
+    def _show_tables(self):
+        rows = []
+        for name, value in self.estimates.items():
+            q = self.quantiles.get(name) or (None, None, None)
+            rows.append((name, value, self.std.get(name), *q))
+        tables = [Table("parameters (Laplace: estimate, standard deviation, 5/50/95 % quantiles; — where the data "
+                        "do not determine it)", ("quantity", "estimate", "std", "5 %", "50 %", "95 %"), rows)]
+        if self.undetermined:
+            tables.append(Table("combinations the data do not determine", ("combination", "Fisher eigenvalue", "std"),
+                                [(u["combination"], u["fisher_eigenvalue"], u["std"]) for u in self.undetermined]))
+        return tables
+
+    def plot(self, problem: "Problem", **options):
+        """Data, fit and whitened residuals per scale: :func:`fitting.plot_fit` (``problem`` is
+        the fit's, options as there); returns a ``matplotlib.figure.Figure``."""
+        from ._plot import plot_fit
+
+        return plot_fit(problem, self, **options)
 
     def to_json(self) -> dict:
         return {

@@ -36,6 +36,7 @@ from brdfscale import InvalidInputError, MeasurementSet, MethodNotApplicableErro
 from brdfscale.special import j0
 
 from brdfscale.checks import integer, real
+from brdfscale.show import Shown
 from ._data import Dataset
 
 __all__ = ["AbstractModel", "ParametricModel", "NonParametricModel", "RelativeStatistics"]
@@ -74,8 +75,10 @@ def _moments(data: Dataset) -> tuple[float, np.ndarray]:
     return float(np.mean(amp / count)), width2 / count
 
 
-class AbstractModel(eqx.Module):
+class AbstractModel(Shown, eqx.Module):
     """A forward map θ ↦ predicted images, with names, a prior box and starting points."""
+
+    _show_hidden = ("smoothness_choice", "knots")
 
     @property
     @abc.abstractmethod

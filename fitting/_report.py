@@ -1,8 +1,10 @@
 """The main job's outputs: fit.json, figures (matplotlib) and evolved lobe tables.
 
-Figures are drawn on :class:`matplotlib.figure.Figure` objects made without pyplot, so writing a
-report touches neither pyplot's figure list nor the backend a notebook or script has chosen;
-matplotlib itself is imported only when a figure is drawn.
+The figures are those of :func:`fitting.plot_fit`, :func:`fitting.plot_recovered_statistics` and
+:func:`fitting.plot_corner` (:mod:`fitting._plot`, the one place that draws them), on
+:class:`matplotlib.figure.Figure` objects made without pyplot, so writing a report touches
+neither pyplot's figure list nor the backend a notebook or script has chosen; matplotlib
+itself is imported only when a figure is drawn.
 
 ``write_report`` is the only place in :mod:`fitting` that writes report files. Every file is
 written through :func:`brdfscale.files.atomic_write` (a hidden temporary file in the output
@@ -14,11 +16,8 @@ import json
 import math
 import os
 import platform
-from collections.abc import Mapping
 from pathlib import Path
 
-import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -26,47 +25,17 @@ import brdfscale
 from brdfscale import BrdfscaleError, InvalidInputError, MeasurementFileError
 from brdfscale.files import atomic_write, exclusive
 
-from brdfscale.checks import flag, real
+from brdfscale.checks import flag
 from ._estimate import FitResult, Problem, check_fit
 from ._models import ParametricModel, predict_images
+from ._plot import (_quantities, check_samples, check_truth, corner_figure, plot_fit, posterior_draws,
+                    statistics_figure, truth_theta)
 from ._sample import SampleResult
 
 __all__ = ["summarise", "write_report", "truth_of", "report_files", "check_report_directory"]
 
-_CORNER_MAX = 6
 _FIGURES = ("data_vs_fit.png", "statistics.png", "corner.png")
 _TABLES = "evolved_lobes.exr"
-
-
-@eqx.filter_jit
-def _quantities(model, thetas):
-    return jax.vmap(model.quantities)(thetas)
-
-
-@eqx.filter_jit
-def _relative(model, thetas, W, data):
-    return jax.vmap(lambda t: model.relative_statistics(t, W, data))(thetas)
-
-
-@eqx.filter_jit
-def _absolute(model, thetas, W, data):
-    """``S(W, μ_k)`` for every draw and measured scale (parametric models)."""
-    def one(t):
-        return jnp.stack([model.statistics_at(t, data.scales[k]).cf_radial(W) for k in range(data.scales.shape[0])])
-    return jax.vmap(one)(thetas)
-
-
-def _figure(**kwargs):
-    """A matplotlib Figure outside pyplot (no backend, no global figure list; freed with its last reference)."""
-    from matplotlib.figure import Figure
-
-    return Figure(**kwargs)
-
-
-def _colormap(name: str):
-    import matplotlib
-
-    return matplotlib.colormaps[name]
 
 
 def _atomic(path, write, overwrite: bool):
@@ -157,29 +126,6 @@ def _truth_value(value, key: str) -> float:
     return float(value)
 
 
-def _truth_theta(model, truth, fit: FitResult):
-    """θ of the truth for the statistics curves: parameters the truth lacks (e.g. the base
-    lobe of a height-field simulation) are taken from the estimate; None without truth for
-    every scale-law parameter."""
-    if truth is None:
-        return None
-    law_parameters = [p for p in model.free if p not in ("amplitude", "alpha_lobe")]
-    if not all(p in truth for p in law_parameters):
-        return None
-    estimate = dict(fit.estimates)
-    return jnp.asarray(model.theta_from({**estimate, **truth}))
-
-
-def _draws(fit: FitResult, samples: SampleResult | None, bounds, rng, n=400):
-    if samples is not None:
-        flat = samples.samples
-        return flat[rng.choice(flat.shape[0], size=min(n, flat.shape[0]), replace=False)]
-    # Laplace draws; the covariance is singular along undetermined directions (they stay at θ̂)
-    lam, V = np.linalg.eigh(fit.covariance)
-    root = V * np.sqrt(np.clip(lam, 0, None))
-    return np.clip(fit.theta + rng.standard_normal((n, fit.theta.size)) @ root.T, *bounds)
-
-
 def summarise(problem: Problem, fit: FitResult, samples: SampleResult | None, truth: dict | None) -> dict:
     """Per-quantity table: estimate, std, 5/50/95 % quantiles (MCMC when sampled, else Laplace)."""
     model = problem.model
@@ -202,97 +148,8 @@ def summarise(problem: Problem, fit: FitResult, samples: SampleResult | None, tr
     return table
 
 
-def _figure_data_vs_fit(path, problem: Problem, fit: FitResult, overwrite: bool):
-    data, model = problem.data, problem.model
-    pred = np.asarray(predict_images(model, jnp.clip(jnp.asarray(fit.theta), problem.lower, problem.upper), data))
-    first = [data.scale_of_image.index(k) for k in range(len(np.asarray(data.scales)))]
-    fig = _figure(figsize=(9, 2.6 * len(first)))
-    axes = fig.subplots(len(first), 3, squeeze=False)
-    for row, i in enumerate(first):
-        obs, fitted = data.image(i, data.values[i]), data.image(i, pred[i])
-        w = data.image(i, data.weight[i])
-        e = data.extents[i]
-        vmax = max(obs.max(), fitted.max())
-        for col, (img, title, kw) in enumerate((
-            (obs, "data", dict(vmin=0, vmax=vmax)),
-            (fitted, "fit", dict(vmin=0, vmax=vmax)),
-            ((fitted - obs) * w, "(fit − data)/σ", dict(vmin=-4, vmax=4, cmap="RdBu_r")),
-        )):
-            im = axes[row, col].imshow(img, origin="lower", extent=(-e, e, -e, e), **kw)
-            axes[row, col].set_title(f"μ = {float(data.scales[data.scale_of_image[i]]):.4g}: {title}", fontsize=9)
-            fig.colorbar(im, ax=axes[row, col], fraction=0.046)
-        axes[row, 0].set_ylabel("u_y")
-    for ax in axes[-1]:
-        ax.set_xlabel("u_x")
-    fig.tight_layout()
-    _atomic(path, lambda p: fig.savefig(p, dpi=90, format="png"), overwrite)
-
-
-def _band(ax, W, curves, color, label):
-    lo, mid, hi = np.percentile(curves, [5, 50, 95], axis=0)
-    ax.fill_between(W, lo, hi, color=color, alpha=0.3, lw=0)
-    ax.plot(W, mid, color=color, lw=1.2, label=label)
-
-
-def _figure_statistics(path, problem: Problem, fit: FitResult, draws, true_theta, overwrite: bool):
-    data, model = problem.data, problem.model
-    scales = np.asarray(data.scales)
-    absolute = isinstance(model, ParametricModel)
-    w_max = 8.0 / float(model.quantities(jnp.asarray(fit.theta))["alpha_lobe"]) if absolute else model.knots[-1]
-    W = jnp.linspace(0.0, w_max, 200)
-    relative = np.asarray(_relative(model, jnp.asarray(draws), W, data))
-    fig = _figure(figsize=(11 if absolute else 6, 4))
-    axes = fig.subplots(1, 2 if absolute else 1, squeeze=False)
-    colors = _colormap("viridis")(np.linspace(0, 0.9, len(scales)))
-    for k in range(1, len(scales)):
-        _band(axes[0, 0], W, relative[:, k], colors[k], f"μ = {scales[k]:.3g}")
-        if true_theta is not None:
-            axes[0, 0].plot(W, np.asarray(model.relative_statistics(true_theta, W, data))[k], "k--", lw=0.8)
-    axes[0, 0].set_title("S(W, μ0)/S(W, μ) — determined by the data (5–95 % band)", fontsize=9)
-    axes[0, 0].set_xlabel("|W|")
-    axes[0, 0].legend(fontsize=7)
-    if absolute:
-        curves = np.asarray(_absolute(model, jnp.asarray(draws), W, data))
-        for k, mu in enumerate(scales):
-            _band(axes[0, 1], W, curves[:, k], colors[k], f"μ = {mu:.3g}")
-            if true_theta is not None:
-                axes[0, 1].plot(W, np.asarray(model.statistics_at(true_theta, mu).cf_radial(W)), "k--", lw=0.8)
-        axes[0, 1].set_title("S(W, μ) — absolute via the scale law's S(W, ∞) = 1 (dashed: truth)", fontsize=9)
-        axes[0, 1].set_xlabel("|W|")
-    fig.tight_layout()
-    _atomic(path, lambda p: fig.savefig(p, dpi=90, format="png"), overwrite)
-
-
-def _figure_corner(path, model, draws, truth: dict | None, overwrite: bool):
-    q = _quantities(model, jnp.asarray(draws))
-    names = list(q)[:_CORNER_MAX]
-    x = np.stack([np.asarray(q[n]) for n in names], axis=1)
-    d = len(names)
-    fig = _figure(figsize=(1.8 * d + 1, 1.8 * d + 1))
-    axes = fig.subplots(d, d, squeeze=False)
-    for i in range(d):
-        for j in range(d):
-            ax = axes[i, j]
-            if j > i:
-                ax.axis("off")
-                continue
-            if i == j:
-                ax.hist(x[:, i], bins=40, color="0.4", histtype="step")
-                for v in np.percentile(x[:, i], [5, 50, 95]):
-                    ax.axvline(v, color="C0", lw=0.7, ls=":")
-            else:
-                ax.hist2d(x[:, j], x[:, i], bins=40, cmap="Greys")
-                if truth is not None and names[i] in truth:
-                    ax.axhline(truth[names[i]], color="C3", lw=0.8)
-            if truth is not None and names[j] in truth:
-                ax.axvline(truth[names[j]], color="C3", lw=0.8)
-            ax.tick_params(labelsize=6)
-            if i == d - 1:
-                ax.set_xlabel(names[j], fontsize=8)
-            if j == 0 and i > 0:
-                ax.set_ylabel(names[i], fontsize=8)
-    fig.tight_layout()
-    _atomic(path, lambda p: fig.savefig(p, dpi=80, format="png"), overwrite)
+def _save(path, fig, dpi: int, overwrite: bool):
+    _atomic(path, lambda p: fig.savefig(p, dpi=dpi, format="png"), overwrite)
 
 
 def _write_tables(out_dir, problem: Problem, fit: FitResult, overwrite: bool) -> list[str] | str:
@@ -333,19 +190,15 @@ def write_report(out_dir, problem: Problem, fit: FitResult, samples: SampleResul
             file cannot be created or written.
     """
     check_fit(problem, fit, "write_report(out_dir, problem, fit)")
-    if samples is not None and (not isinstance(samples, SampleResult) or tuple(samples.names) != tuple(fit.names)):
-        got = type(samples).__name__ if not isinstance(samples, SampleResult) else f"a chain of {len(samples.names)} coordinates"
-        raise InvalidInputError(f"samples must be None or the SampleResult of fitting.sample for this problem's "
-                                f"{len(fit.names)} coordinates; got {got}.")
-    truth = _check_truth(truth)
+    check_samples(fit, samples, "write_report(out_dir, problem, fit, samples)")
+    truth = check_truth(truth)
     if model_info is not None and not isinstance(model_info, dict):
         raise InvalidInputError(f"model_info must be a dict or None; got {type(model_info).__name__}.")
     overwrite = flag(overwrite, "overwrite")
     # everything that can fail on the arguments is computed before the first file is written
     model = problem.model
-    true_theta = _truth_theta(model, truth, fit) if isinstance(model, ParametricModel) else None
-    rng = np.random.default_rng(0)
-    draws = _draws(fit, samples, (np.asarray(problem.lower), np.asarray(problem.upper)), rng)
+    true_theta = truth_theta(model, truth, fit)
+    draws = posterior_draws(problem, fit, samples)  # those of plot_recovered_statistics and plot_corner
     doc = {
         "brdfscale_version": brdfscale.__version__,
         "python": platform.python_version(),
@@ -373,9 +226,10 @@ def _write_files(out_dir, problem, fit, model, draws, true_theta, truth, doc, ov
     figures = {name: os.path.join(out_dir, name) for name in _FIGURES}
     target = os.path.join(out_dir, "fit.json")
     try:
-        _figure_data_vs_fit(figures["data_vs_fit.png"], problem, fit, overwrite)
-        _figure_statistics(figures["statistics.png"], problem, fit, draws, true_theta, overwrite)
-        _figure_corner(figures["corner.png"], model, draws, truth, overwrite)
+        # the figures of fitting.plot_fit, plot_recovered_statistics and plot_corner (fitting._plot)
+        _save(figures["data_vs_fit.png"], plot_fit(problem, fit), 90, overwrite)
+        _save(figures["statistics.png"], statistics_figure(problem, fit, draws, true_theta), 90, overwrite)
+        _save(figures["corner.png"], corner_figure(model, draws, truth), 80, overwrite)
         try:
             tables = _write_tables(out_dir, problem, fit, overwrite)
         except BrdfscaleError as err:
@@ -387,15 +241,6 @@ def _write_files(out_dir, problem, fit, model, draws, true_theta, truth, doc, ov
     except OSError as err:
         raise MeasurementFileError(f"the report cannot be written into {out_dir}: {err}") from None
     return doc
-
-
-def _check_truth(truth):
-    """``truth`` (None or {name: value}) with float values; InvalidInputError otherwise."""
-    if truth is None:
-        return None
-    if not isinstance(truth, Mapping):
-        raise InvalidInputError(f"truth must be None or a dict of parameter values; got {type(truth).__name__}.")
-    return {str(name): real(value, f"truth[{name!r}]") for name, value in truth.items()}
 
 
 def _finite(x):

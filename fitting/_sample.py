@@ -39,10 +39,10 @@ import h5py
 import jax
 import jax.numpy as jnp
 import numpy as np
-from tqdm.auto import tqdm
 
 from brdfscale import InvalidInputError, MeasurementFileError
 from brdfscale.files import atomic_write, exclusive
+from brdfscale.show import Shown, Table, progress_bar, progress_mode
 
 from brdfscale.checks import flag, integer
 from ._estimate import FitResult, Problem, check_fit
@@ -67,8 +67,8 @@ def _batched_log_posterior(thetas, problem):
     return jax.vmap(log_posterior, in_axes=(0, None))(thetas, problem)
 
 
-@dataclasses.dataclass
-class SampleResult:
+@dataclasses.dataclass(repr=False)
+class SampleResult(Shown):
     """The chain and its diagnostics; ``samples`` is the flattened chain after burn-in."""
 
     names: tuple[str, ...]
@@ -83,6 +83,27 @@ class SampleResult:
     @property
     def samples(self) -> np.ndarray:
         return self.chain[self.burn:].reshape(-1, self.chain.shape[-1])
+
+    def _show_items(self):
+        n_steps, n_walkers, _ = self.chain.shape
+        return [("walkers", n_walkers), ("steps", n_steps), ("burn_in", self.burn),
+                ("draws", (n_steps - self.burn) * n_walkers), ("acceptance", self.acceptance),
+                ("tau_max", float(np.max(self.tau))), ("ess_min", float(np.min(self.ess))),
+                ("tau_reliable", self.tau_reliable), ("chain", self.chain)]
+
+    def _show_tables(self):
+        flat = self.samples
+        rows = [(name, float(np.mean(flat[:, i])), float(np.std(flat[:, i])), float(self.tau[i]), float(self.ess[i]))
+                for i, name in enumerate(self.names)]
+        return [Table("coordinates after burn-in (θ: the model's unconstrained coordinates)",
+                      ("coordinate", "mean", "std", "τ (steps)", "ESS"), rows)]
+
+    def plot(self, **options):
+        """The chains (trace plots, burn-in marked): :func:`brdfscale.plot.chains` (options as
+        there); returns a ``matplotlib.figure.Figure``."""
+        from brdfscale import plot
+
+        return plot.chains(self, **options)
 
     def diagnostics(self) -> dict:
         n_steps, n_walkers, _ = self.chain.shape
@@ -246,12 +267,15 @@ def sample(
             replaced when the new, empty checkpoint is in place).
         moves: ``"stretch"`` (default) or ``"de"`` (differential evolution + snooker).
         seed: seed of the initial ball and of the sampler's random state.
-        progress: show a tqdm progress bar.
+        progress: show a progress bar (:func:`brdfscale.show.progress_bar`: the notebook widget
+            in Jupyter with ipywidgets, else text on stderr; every bar is off with the
+            environment variable ``BRDFSCALE_PROGRESS=0``).
 
     Raises:
         InvalidInputError: ``fit`` is not the :class:`~fitting.FitResult` of ``problem``'s
             model; ``walkers`` not an integer ≥ 2·dim, ``steps`` not an integer ≥ 2,
-            ``chunk`` not an integer ≥ 1, ``seed`` not an integer ≥ 0, an unknown ``moves``;
+            ``chunk`` not an integer ≥ 1, ``seed`` not an integer ≥ 0, an unknown ``moves``,
+            ``progress`` not a bool, or ``BRDFSCALE_PROGRESS`` set to a value it does not accept;
             ``checkpoint`` belongs to another run (other parameters, walkers, problem data,
             seed or moves).
         MeasurementFileError: ``checkpoint`` is a directory, lies in a directory that does
@@ -268,6 +292,9 @@ def sample(
     chunk = integer(chunk, "chunk", 1)
     seed = integer(seed, "seed", 0)
     overwrite = flag(overwrite, "overwrite")
+    progress = flag(progress, "progress")
+    if progress:
+        progress_mode()  # a BRDFSCALE_PROGRESS it does not accept is refused before any work
     if not isinstance(moves, str) or moves not in _MOVES:
         raise InvalidInputError(f"moves must be one of {sorted(_MOVES)}; got {moves!r}.")
     lo, hi = np.asarray(problem.lower), np.asarray(problem.upper)
@@ -312,7 +339,7 @@ def _run_chain(fit, logp, d, lo, hi, walkers, steps, chunk, seed, moves, store, 
         p0 = _initial_walkers(fit, lo, hi, walkers, rng)
         state = emcee.State(p0, log_prob=logp(p0), random_state=sampler.random_state)
     done = sum(c.shape[0] for c in chains)
-    with tqdm(total=steps, initial=done, disable=not progress, desc="emcee", unit="step") as bar:
+    with progress_bar(enabled=progress, total=steps, initial=done, desc="emcee", unit="step") as bar:
         while done < steps:
             n = min(chunk, steps - done)
             block, block_lp = np.empty((n, walkers, d)), np.empty((n, walkers))

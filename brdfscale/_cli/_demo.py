@@ -45,7 +45,8 @@ def register(subparsers) -> None:
     parser.add_argument("--steps", type=integer(0, 100_000), default=1000,
                         help="emcee steps, 0–100000 (default 1000, 16 walkers; 0: Laplace only)")
     parser.add_argument("--seed", type=seed, default=1, help=f"seed of surface, noise and sampler, 0–{MAX_SEED} (default 1)")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--no-progress", action="store_true",
+                        help="no progress bar (BRDFSCALE_PROGRESS=0 in the environment turns off every bar)")
     parser.add_argument("--force", action="store_true",
                         help="overwrite existing files in --out (a directory an earlier demo made is replaced "
                         "without it)")

@@ -70,7 +70,8 @@ def add_fit_options(parser) -> None:
     parser.add_argument("--walkers", type=integer(2, 4096), default=None,
                         help="emcee walkers, even, ≥ 2 × parameters, ≤ 4096 (default max(32, 4 × parameters))")
     parser.add_argument("--seed", type=seed, default=0, help=f"seed of the starts and the sampler, 0–{MAX_SEED} (default 0)")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--no-progress", action="store_true",
+                        help="no progress bar (BRDFSCALE_PROGRESS=0 in the environment turns off every bar)")
     parser.add_argument("--force", action="store_true", help="overwrite DIR/fit.json and restart DIR/chain.h5")
 
 

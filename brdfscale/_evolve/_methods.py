@@ -30,6 +30,7 @@ from jaxtyping import Array, Float
 
 from .._blocks import DEFAULT_BUDGET
 from .._errors import InvalidInputError
+from .._show import Shown
 from .._validation import integer, is_concrete, real
 
 
@@ -47,8 +48,10 @@ def _number(x) -> float | None:
     return None if x is None or not is_concrete(x) else float(x)
 
 
-class AbstractMethod(eqx.Module):
+class AbstractMethod(Shown, eqx.Module):
     """How :func:`brdfscale.evolve` evaluates the evolved lobe (module docstring)."""
+
+    _show_hidden = ("budget", "sign_check", "regularisation_note")
 
     @property
     def path(self) -> str:
@@ -71,7 +74,7 @@ class ClosedForm(AbstractMethod):
         return "closed form (Gaussian/δ/mixture algebra): exact"
 
 
-class RadialTable(eqx.Module):
+class RadialTable(Shown, eqx.Module):
     """The radial path's table: the lobe at radii ``r_j = c sinh((j − 3) h)`` (three mirror
     nodes below r = 0, where g is even, and five beyond the last radius served), as
     ``kernel[:, j] = J₀(k_i r_j)`` on the method's Gauss–Legendre frequencies ``k_i``, read

@@ -82,6 +82,16 @@ class EvolvedDensity(AbstractSlopeDensity):
     """Whether evaluations attach the existence check (|G| ≤ 1, no negative values) at run time."""
     gaussian_ratio: bool = eqx.field(static=True)
 
+    _show_in_lobe = True  # a Lobe of this shape lists these items itself
+
+    def _show_items(self):
+        d = self.discretisation
+        items = [("base", self.base), ("s_from", self.s_from), ("s_to", self.s_to), ("path", d.path),
+                 ("nodes" if isinstance(d, Radial) else "size", self.size)]
+        if isinstance(d, Grid) and d.extent is not None:
+            items.append(("extent", d.extent))
+        return items + [("tol", self.tol), ("regularisation", self.regularisation)]
+
     def __init__(self, base, s_from, s_to, regularisation, discretisation, tol, check=True):
         self.base, self.s_from, self.s_to = base, s_from, s_to
         self.regularisation = jnp.asarray(regularisation)

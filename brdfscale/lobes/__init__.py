@@ -17,17 +17,29 @@ from jaxtyping import Array, ArrayLike, Complex, Float
 
 from .. import stats
 from .._errors import InvalidInputError
+from .._show import Shown, derived
 from .._validation import as_float_array, is_concrete
 from ..geometry import _half_slope_of_valid, _microfacet_factor_of_valid, validate_directions
 
 __all__ = ["AbstractLobe", "Lobe", "Mirror", "Beckmann", "GGX", "Tabulated"]
 
 
-class AbstractLobe(eqx.Module):
+class AbstractLobe(Shown, eqx.Module):
     """A lobe ``A · g(u)`` over half-vector slope offsets ``u = m_s − m∞`` (shape (..., 2))."""
 
     shape: eqx.AbstractVar[stats.AbstractSlopeDensity]
     amplitude: eqx.AbstractVar[Float[Array, ""]]
+
+    def _show_items(self):
+        return [("shape", self.shape), ("amplitude", self.amplitude)]
+
+    def plot(self, **options):
+        """A figure of the lobe on the slope-offset plane with slices (and, given ``incident=``,
+        the BRDF over outgoing directions): :func:`brdfscale.plot.lobe` (options as there);
+        returns a ``matplotlib.figure.Figure``."""
+        from .. import plot
+
+        return plot.lobe(self, **options)
 
     def density(self, u: Float[ArrayLike, "*batch 2"]) -> Float[Array, "*batch"]:
         """``A · g(u)``: the lobe per unit slope area at offsets ``u``."""
@@ -76,6 +88,12 @@ class Lobe(AbstractLobe):
     shape: stats.AbstractSlopeDensity
     amplitude: Float[Array, ""]
 
+    def _show_items(self):
+        # an evolved shape (brdfscale.evolve) shows its factors and discretisation in the lobe's summary
+        if getattr(self.shape, "_show_in_lobe", False):
+            return [("shape", type(self.shape).__name__), *self.shape._show_items(), ("amplitude", self.amplitude)]
+        return super()._show_items()
+
     def __init__(self, shape: stats.AbstractSlopeDensity, amplitude: Float[ArrayLike, ""] = 1.0):
         if isinstance(shape, stats.AbstractGeneralisedDensity):
             raise InvalidInputError(
@@ -98,6 +116,9 @@ class Mirror(AbstractLobe):
         self.shape = stats.Delta()
         self.amplitude = _amplitude(amplitude)
 
+    def _show_items(self):
+        return [("amplitude", self.amplitude)]
+
 
 class Beckmann(AbstractLobe):
     """Beckmann lobe: ``g`` Gaussian with per-axis variance ``α²/2`` (isotropic or α_x, α_y)."""
@@ -109,6 +130,14 @@ class Beckmann(AbstractLobe):
         self.shape = stats.Beckmann(alpha, alpha_x=alpha_x, alpha_y=alpha_y)
         self.amplitude = _amplitude(amplitude)
 
+    def _show_items(self):
+        # α per axis is √2 σ of the Gaussian shape; one number where both axes agree
+        alpha = dict(self.shape._show_items()).get("alpha")
+        if alpha is None:
+            alpha = derived(self.shape.cov, lambda c: (2 * c[..., (0, 1), (0, 1)]) ** 0.5)
+        return [("alpha", alpha), ("amplitude", self.amplitude)] + (
+            [("mean", self.shape.mean)] if self.shape.mean is not None else [])
+
 
 class GGX(AbstractLobe):
     """GGX / Trowbridge–Reitz lobe (isotropic ``alpha`` or anisotropic ``alpha_x, alpha_y``)."""
@@ -119,6 +148,9 @@ class GGX(AbstractLobe):
     def __init__(self, alpha=None, *, alpha_x=None, alpha_y=None, amplitude=1.0):
         self.shape = stats.GGX(alpha, alpha_x=alpha_x, alpha_y=alpha_y)
         self.amplitude = _amplitude(amplitude)
+
+    def _show_items(self):
+        return self.shape._show_items()[:1] + [("amplitude", self.amplitude)] + self.shape._show_items()[1:]
 
 
 class Tabulated(AbstractLobe):
@@ -140,3 +172,7 @@ class Tabulated(AbstractLobe):
         self.shape = stats.Tabulated(values, extent=extent, center=center)
         h = self.shape.spacing
         self.amplitude = h[0] * h[1] * jnp.sum(values)
+
+    def _show_items(self):
+        items = [("values", self.shape.values), ("extent", self.shape.extent), ("amplitude", self.amplitude)]
+        return items + ([("center", self.shape.center)] if self.shape.center is not None else [])

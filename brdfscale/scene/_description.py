@@ -26,6 +26,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._errors import InvalidInputError
+from .._show import Shown, concrete
 from .._validation import as_float_array, is_concrete, positive
 from ..geometry import validate_directions
 from ..lobes import AbstractLobe
@@ -33,7 +34,7 @@ from ..so3 import AnisotropicMicrofacetLobe, DiffusionLaw
 from ..stats import AbstractScaleLaw, AbstractSlopeDensity
 
 
-class Material(eqx.Module):
+class Material(Shown, eqx.Module):
     """A lobe measured at scale ``mu0`` and the scale law of its facet-slope statistics.
 
     Args:
@@ -70,7 +71,7 @@ class Material(eqx.Module):
         return self.law.at(mu)
 
 
-class AnisotropicMaterial(eqx.Module):
+class AnisotropicMaterial(Shown, eqx.Module):
     """A BRDF of the facet's whole orientation Γ (tilt and twist), measured at scale ``mu0``,
     and the rotational-diffusion scale law of its facet-orientation statistics (seed §5).
 
@@ -112,7 +113,7 @@ class AnisotropicMaterial(eqx.Module):
         return self.law.tau(mu)
 
 
-class Queries(eqx.Module):
+class Queries(Shown, eqx.Module):
     """The (i, o, m∞, twist, μ, material) tuples a scene needs, one per row.
 
     ``i``, ``o``: unit directions (Q, 3) towards light and detector (z = macroscopic normal);
@@ -157,6 +158,14 @@ class Queries(eqx.Module):
     def __len__(self):
         return self.mu.shape[0]
 
+    def _show_items(self):
+        items = [("n", len(self))]
+        if concrete(self.mu):
+            mu = np.asarray(self.mu)
+            items.append(("mu", f"{mu.min():.4g} … {mu.max():.4g}" if mu.min() < mu.max() else mu[0]))
+            items.append(("materials", len(np.unique(np.asarray(self.material)))))
+        return items
+
     def euler_angles(self) -> Float[Array, "Q 3"]:
         """z-y-z Euler angles (φ, β, ψ − φ) of each query's global orientation Γ∞."""
         phi = jnp.arctan2(self.m_inf[:, 1], self.m_inf[:, 0])
@@ -164,7 +173,7 @@ class Queries(eqx.Module):
         return jnp.stack([phi, beta, self.twist - phi], -1)
 
 
-class Scene(eqx.Module):
+class Scene(Shown, eqx.Module):
     """Materials, the queries present, and the error target.
 
     ``tol`` is the error target relative to each query's lobe peak at its own scale,
@@ -178,6 +187,12 @@ class Scene(eqx.Module):
     tol: float = eqx.field(static=True)
     pixels: Int[Array, " Q"] | None = None
     resolution: tuple[int, int] | None = eqx.field(static=True, default=None)
+
+    def _show_items(self):
+        materials = self.materials[0] if len(self.materials) == 1 else "; ".join(
+            f"{type(m.lobe).__name__} lobe, {type(m.law).__name__}" for m in self.materials)
+        items = [("materials", materials), ("queries", len(self.queries)), ("tol", self.tol)]
+        return items + ([("camera", f"{self.resolution[0]}×{self.resolution[1]} px")] if self.resolution else [])
 
     def __check_init__(self):
         if not self.materials or not all(isinstance(m, (Material, AnisotropicMaterial)) for m in self.materials):
@@ -195,7 +210,7 @@ class Scene(eqx.Module):
             )
 
 
-class Camera(eqx.Module):
+class Camera(Shown, eqx.Module):
     """A pinhole camera at ``height`` above the plane z = 0, looking along +x, tilted down by ``pitch``.
 
     ``fov``: vertical (= horizontal) field of view in radians; ``resolution``: (rows, columns).

@@ -8,6 +8,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from .._errors import InvalidInputError
+from .._show import Shown, Table
 from . import _cost
 from ._description import AnisotropicMaterial, Material
 from ._steps import MaterialPlan
@@ -25,7 +26,7 @@ class _plain_method:
         return self.fn if obj is None else functools.partial(self.fn, obj)
 
 
-class Plan(eqx.Module):
+class Plan(Shown, eqx.Module):
     """What to compute for a scene, and how (built by :func:`brdfscale.scene.plan`).
 
     ``evaluate()`` returns ``ρ(i, o, m∞, μ)`` (1/sr, seed §2: ρ = β cos θ_i) for every query of
@@ -71,6 +72,27 @@ class Plan(eqx.Module):
         evaluation, plus the fixed cost of a call). It ranks alternatives; experiments/bench_planner.py measures the seconds
         per unit on its machine."""
         return _cost.CALL_UNITS + sum(p.predicted_cost for p in self.parts)
+
+    def _show_items(self):
+        items = [("queries", self.n_queries), ("tol", self.tol)]
+        if self.resolution is not None:
+            items.append(("camera", f"{self.resolution[0]}×{self.resolution[1]} px"))
+        items += [("predicted_error", self.predicted_error), ("predicted_cost", self.predicted_cost)]
+        parts = "; ".join(f"material {p.material}: {p.path}, {p.queries} queries" for p in self.parts)
+        return items + [("parts" if len(self.parts) > 1 else "part", parts)]
+
+    def _show_tables(self):
+        rows = [(p.material, type(self.materials[p.material]).__name__, p.path, p.queries, p.predicted_error,
+                 p.predicted_cost, p.reason) for p in self.parts]
+        return [Table("parts (one per material)", ("material", "kind", "path", "queries", "predicted error",
+                                                    "predicted cost", "why"), rows)]
+
+    def plot(self, **options):
+        """A figure of what is computed where: :func:`brdfscale.plot.plan` (options as there);
+        returns a ``matplotlib.figure.Figure``."""
+        from .. import plot
+
+        return plot.plan(self, **options)
 
     def explain(self) -> str:
         """What will be computed and why, with the predicted cost and error."""

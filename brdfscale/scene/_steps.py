@@ -32,6 +32,7 @@ from .._evolve import EvolvedDensity, Grid, Radial, evolve
 from .._existence import TRANSFORM_ABOVE_ONE, attach, transform_exceeds_one
 from ._description import AnisotropicMaterial, Material
 from .._blocks import in_blocks
+from .._show import Shown
 from .._interpolate import cubic_stencil, interpolate
 
 # temporaries per query of cubic interpolation in d dimensions (4^d gathered values, indices and
@@ -40,7 +41,7 @@ _INTERPOLATION_BYTES = {d: 8 * (3 * 4**d + 8 * d) for d in (1, 2, 3)}
 
 
 
-class ClosedFormStep(eqx.Module):
+class ClosedFormStep(Shown, eqx.Module):
     """Closed-form evolution at each distinct scale, evaluated at its queries: exact."""
 
     u: Float[Array, "n 2"]
@@ -74,7 +75,7 @@ def evolved_density(material: Material, mu, method: str, size: int, tol: float) 
     )
 
 
-class RadialStep(eqx.Module):
+class RadialStep(Shown, eqx.Module):
     """Hankel path: ``g(r, μ_n) = Σ_k G(k_k, μ_n) · kernel[k, j]`` (module docstring).
 
     ``kernel`` is ``w_k k J₀(k r_j)/2π`` on the radius grid ``r_j = (j − 3) h_r`` (three mirror
@@ -113,7 +114,7 @@ class RadialStep(eqx.Module):
         return values * material.lobe.amplitude
 
 
-class GridStep(eqx.Module):
+class GridStep(Shown, eqx.Module):
     """2D-FFT grid path at each scale node (side ``size``).
 
     Table mode: the lobe on the grid by one inverse FFT per scale node, cubic interpolation in
@@ -163,7 +164,7 @@ class GridStep(eqx.Module):
         return jnp.real(jnp.take_along_axis(total, s[:, None], axis=1)[:, 0]) * dW**2 / (2 * jnp.pi) ** 2
 
 
-class SO3Step(eqx.Module):
+class SO3Step(Shown, eqx.Module):
     """SO(3) path (seed §5): ``ρ(i, o, Γ∞, μ) = Σ_J Σ_{MM'} R^J_{MM'}(μ) D^J_{MM'}(Γ∞)``.
 
     Per distinct (i, o) pair: the lobe's samples on the Kostelec–Rockmore grid of band limit
@@ -233,7 +234,7 @@ class SO3Step(eqx.Module):
 Step = ClosedFormStep | RadialStep | GridStep | SO3Step
 
 
-class MaterialPlan(eqx.Module):
+class MaterialPlan(Shown, eqx.Module):
     """One material's part of a plan: which queries, through which step, and what it predicts."""
 
     material: int = eqx.field(static=True)
@@ -246,6 +247,15 @@ class MaterialPlan(eqx.Module):
     predicted_error: float = eqx.field(static=True)
     predicted_cost: float = eqx.field(static=True)  # relative units (:mod:`._cost`)
     details: str = eqx.field(static=True)
+
+    @property
+    def queries(self) -> int:
+        """How many of the scene's queries this part serves."""
+        return self.rows.shape[0]
+
+    def _show_items(self):
+        return [("material", self.material), ("path", self.path), ("queries", self.queries),
+                ("predicted_error", self.predicted_error), ("predicted_cost", self.predicted_cost)]
 
     def __call__(self, material: Material | AnisotropicMaterial) -> Float[Array, " q"]:
         return self.step(material)[self.inverse] * self.factor

@@ -12,11 +12,12 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Complex, Float
 
 from .._errors import SingularDensityError
+from .._show import Shown
 from .._validation import last_axis
 from ._grid import FrequencyGrid
 
 
-class AbstractDistribution(eqx.Module):
+class AbstractDistribution(Shown, eqx.Module):
     """A distribution over 2D slope space known through its transform (seed §4).
 
     The common interface of :class:`AbstractSlopeDensity` (probability densities, mass 1) and
@@ -34,6 +35,13 @@ class AbstractDistribution(eqx.Module):
     isotropic: eqx.AbstractVar[bool]
     """True when the distribution is radially symmetric about the origin (known structurally,
     not from parameter values)."""
+
+    def plot(self, **options):
+        """A figure of the density and its transform: :func:`brdfscale.plot.statistics` (options
+        as there); returns a ``matplotlib.figure.Figure``."""
+        from .. import plot
+
+        return plot.statistics(self, **options)
 
     @abc.abstractmethod
     def cf(self, W: Float[ArrayLike, "*batch 2"]) -> Complex[Array, "*batch"]:

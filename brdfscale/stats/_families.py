@@ -8,6 +8,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import InvalidInputError, SingularDensityError
+from .._show import concrete, derived
 from .._special import jinc, xk1
 from .._validation import as_float_array, is_concrete, positive, vector2
 from ._base import AbstractSlopeDensity, add_offset, centred, check_slopes, offset_norm, phase, safe_norm, shifted_cf
@@ -44,6 +45,9 @@ class Delta(AbstractSlopeDensity):
         self.mean = vector2(mean, "mean")
         self.isotropic = mean is None
 
+    def _show_items(self):
+        return [("mean", self.mean)] if self.mean is not None else [("", "point mass at the origin")]
+
     def density(self, m):
         raise SingularDensityError(
             "Delta (a point mass) has no pointwise density; use .cf(W), or convolve it with a "
@@ -65,6 +69,27 @@ class Delta(AbstractSlopeDensity):
 
     def bandwidth(self, tol):
         return jnp.asarray(jnp.inf)
+
+
+def _same_axes(cov, isotropic: bool) -> bool:
+    """Whether a diagonal covariance has equal variances: structurally (``isotropic``) or by its
+    concrete values."""
+    if isotropic:
+        return True
+    if not concrete(cov):
+        return False
+    c = np.asarray(cov)
+    return bool(np.all(c[..., 0, 0] == c[..., 1, 1]))
+
+
+def _same_axes_alpha(alpha, isotropic: bool) -> bool:
+    """Whether per-axis widths (..., 2) are equal: structurally or by their concrete values."""
+    if isotropic:
+        return True
+    if not concrete(alpha):
+        return False
+    a = np.asarray(alpha)
+    return bool(np.all(a[..., 0] == a[..., 1]))
 
 
 def _eig2(cov):
@@ -130,6 +155,18 @@ class Gaussian(AbstractSlopeDensity):
         self.mean = vector2(mean, "mean")
         self.isotropic = isotropic and mean is None
         self.diagonal = sigma is not None
+
+    def _show_items(self):
+        # per-axis standard deviations (and the Beckmann width α = σ√2 of each axis), the
+        # correlation where Σ has a cross term
+        if self.diagonal and _same_axes(self.cov, self.isotropic):
+            sigma = derived(self.cov, lambda c: c[..., 0, 0] ** 0.5)
+            items = [("sigma", sigma), ("alpha", derived(self.cov, lambda c: (2 * c[..., 0, 0]) ** 0.5))]
+        else:
+            items = [("sigma", derived(self.cov, lambda c: (c[..., (0, 1), (0, 1)]) ** 0.5))]
+            if not self.diagonal:
+                items.append(("rho", derived(self.cov, lambda c: c[..., 0, 1] / (c[..., 0, 0] * c[..., 1, 1]) ** 0.5)))
+        return items + ([("mean", self.mean)] if self.mean is not None else [])
 
     def density(self, m):
         d = centred(m, self.mean)
@@ -209,6 +246,10 @@ class GGX(AbstractSlopeDensity):
         self.alpha, isotropic = _per_axis(alpha, alpha_x, alpha_y, "alpha")
         self.mean = vector2(mean, "mean")
         self.isotropic = isotropic and mean is None
+
+    def _show_items(self):
+        alpha = derived(self.alpha, lambda a: a[..., 0]) if _same_axes_alpha(self.alpha, self.isotropic) else self.alpha
+        return [("alpha", alpha)] + ([("mean", self.mean)] if self.mean is not None else [])
 
     def density(self, m):
         d = centred(m, self.mean)

@@ -9,6 +9,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Complex, Float
 
 from .._errors import InvalidInputError
+from .._show import Shown
 from .._validation import positive
 
 
@@ -21,7 +22,7 @@ def _radii(size: int) -> tuple[np.ndarray, np.ndarray]:
     return np.sqrt(unique.astype(np.float64)), which.reshape(size, size // 2 + 1).astype(np.int32)
 
 
-class FrequencyGrid(eqx.Module):
+class FrequencyGrid(Shown, eqx.Module):
     """The frequencies of a real 2D FFT over an ``n × n`` slope grid of spacing ``h``.
 
     Nodes ``W = (Δk·j, Δk·ι(i))`` with ``Δk = 2π/(n h)``: columns ``j = 0 … n/2`` (the

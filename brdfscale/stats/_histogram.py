@@ -5,12 +5,13 @@ import math
 import numpy as np
 
 from .._errors import InvalidInputError
+from .._show import Shown
 
 MAX_HISTOGRAM_BYTES = 2**31
 """The largest ``bins × bins`` float64 count grid a :class:`SlopeHistogram` allocates (2 GiB)."""
 
 
-class SlopeHistogram:
+class SlopeHistogram(Shown):
     """Accumulates weighted slope samples onto a ``bins × bins`` grid of nodes, chunk by chunk.
 
     The nodes span ``[−extent, extent]`` on both axes (rows m_y, columns m_x: the layout of
@@ -39,6 +40,10 @@ class SlopeHistogram:
         self.spacing = 2 * self.extent / (self.bins - 1)
         self.counts = np.zeros(self.bins * self.bins)
         self.samples = 0
+
+    def _show_items(self):
+        return [("extent", self.extent), ("bins", self.bins), ("samples", self.samples),
+                ("inside", float(self.counts.sum()))]
 
     def add(self, mx: np.ndarray, my: np.ndarray, weights: np.ndarray | None = None) -> None:
         """Add samples with slope components ``mx``, ``my`` (equal shapes) and optional weights."""

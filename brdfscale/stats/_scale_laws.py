@@ -23,12 +23,13 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import InvalidInputError
 from .._quadrature import gauss_legendre
+from .._show import Shown
 from .._validation import facet_size, is_concrete, positive
 from ._base import AbstractSlopeDensity
 from ._families import Gaussian
 
 
-class AbstractPowerSpectrum(eqx.Module):
+class AbstractPowerSpectrum(Shown, eqx.Module):
     """Height power spectral density ``P(k)`` of a stationary random surface.
 
     ``P`` takes wave vectors of shape (..., 2) (radians per length unit) and is normalised
@@ -154,12 +155,19 @@ def window_power(k, mu, window: FacetWindow):
     raise InvalidInputError(f"window must be 'box' or 'gaussian'; got {window!r}.")
 
 
-class AbstractScaleLaw(eqx.Module):
+class AbstractScaleLaw(Shown, eqx.Module):
     """Maps a facet size μ to the facet-slope statistics ``s(·, μ)``."""
 
     @abc.abstractmethod
     def at(self, mu: Float[ArrayLike, ""]) -> AbstractSlopeDensity:
         """The facet-slope density at scale μ (differentiable in μ and the parameters)."""
+
+    def plot(self, mu, **options):
+        """A figure of ``s(·, μ)`` and ``S(W, μ)`` at the facet sizes ``mu`` (a sequence):
+        :func:`brdfscale.plot.statistics` (options as there); returns a ``matplotlib.figure.Figure``."""
+        from .. import plot
+
+        return plot.statistics(self, mu=mu, **options)
 
 
 class GaussianSurface(AbstractScaleLaw):
@@ -230,7 +238,7 @@ class GaussianSurface(AbstractScaleLaw):
 _quadrature_covariance_jit = eqx.filter_jit(lambda law, mu: law._quadrature_covariance(mu))
 
 
-class WidthLaw(eqx.Module):
+class WidthLaw(Shown, eqx.Module):
     """A parametric width law ``α(μ) = α_max (1 + (μ/μ_c)²)^{−H/2}``.
 
     Saturates at ``α_max`` for facets much smaller than the corner scale ``μ_c`` (finite
