@@ -490,6 +490,19 @@ def cli_cache() -> str:
     ])
 
 
+def startup() -> str:
+    d = load("bench_startup")
+    if d is None:
+        return "(bench_startup.json missing)"
+    rows = [[f"`{r['case']}`", f"{r['baseline_median_s']:.2f}", f"{r['current_median_s']:.2f}",
+             f"{r['speedup_median']:.1f}×"] for r in d["cases"]]
+    return "\n\n".join([
+        machine_line(d),
+        table(["command (fresh process)", f"baseline {d['baseline_rev']} s (median)", "now s (median)", "faster"], rows),
+        f"{d['repeat']} runs of each, the two trees alternated. {load_line(d)}",
+    ])
+
+
 def queries() -> str:
     d = load("bench_queries")
     if d is None:
@@ -557,6 +570,7 @@ SECTIONS = [("benchmarks.md", "Core evolution (bench_evolve)", evolve),
             ("benchmarks.md", "Queries (bench_queries)", queries), ("benchmarks.md", "SO(3) (bench_so3)", so3),
             ("benchmarks.md", "Fitting (bench_fit)", fit),
             ("benchmarks.md", "Command-line compilation cache (bench_cli_cache)", cli_cache),
+            ("benchmarks.md", "Command-line start-up (bench_startup)", startup),
             ("benchmarks.md", "Synthesis (bench_synth)", synth), ("benchmarks.md", "Scene planner (bench_planner)", planner),
             ("so3.md", "SO(3) benchmark (bench_so3)", so3_details),
             ("planner.md", "Planner against the Pareto front (bench_planner)", planner_pareto),

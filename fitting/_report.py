@@ -97,7 +97,9 @@ def truth_of(model, metadata: dict) -> dict | None:
     Recognised: ``{"truth": {"params": {name: value}}}`` (written by :func:`fitting.simulate`),
     and for ``law="gaussian_surface"`` the spectrum of a :mod:`brdfscale.synth` surface
     (``surface.spectrum`` of type GaussianCorrelation with an isotropic correlation length)
-    plus its ``albedo`` as the amplitude. Returns the known subset, or None.
+    plus its ``albedo`` as the amplitude, and for a Beckmann base lobe the width of the
+    synthetic lobe at μ0 derived from the surface's recorded slope covariances
+    (:func:`_synth_base_width`). Returns the known subset, or None.
     """
     if not isinstance(metadata, dict) or not isinstance(model, ParametricModel):
         return None
@@ -114,7 +116,49 @@ def truth_of(model, metadata: dict) -> dict | None:
                          correlation_length=ell[0])
         if metadata.get("albedo") is not None:
             truth["amplitude"] = _truth_value(metadata["albedo"], "albedo")
+    if model.lobe == "beckmann" and "alpha_lobe" not in truth:
+        width = _synth_base_width(metadata)
+        if width is not None:
+            truth["alpha_lobe"] = width
     return truth or None
+
+
+def _synth_base_width(metadata: dict) -> float | None:
+    """The Beckmann width with the second moment of a :func:`brdfscale.synth.gonioreflectometer`
+    lobe at its finest scale μ0, from the measurement set's own record of its surface.
+
+    The lobe at μ0 is the density of the pixel facets' slopes relative to their facet's mean
+    slope, blurred by the micro lobe and the instrument's resolution, and binned onto the image
+    nodes with bilinear (cloud-in-cell) weights, which convolves it with a tent of one node pitch
+    h per axis (variance h²/6 per axis). By the law of total variance its covariance is
+    ``Σ_micro + (C_pixel − C_μ0) + (resolution² + h²/6)·I``, where ``C_pixel`` and ``C_μ0`` are
+    the recorded covariances of the pixel and μ0-facet slopes of this very surface (a facet's
+    slope is the mean of its pixels' slopes); a Beckmann lobe of width α has ``tr Σ = α²``. So
+    ``α_lobe`` is the square root of that trace — the width of a Beckmann lobe with the measured
+    lobe's second moment, for this realisation (the spectrum's ``rms_height`` and ``correlation_length`` are those of the
+    ensemble). None when the record lacks any of these (e.g. a file from elsewhere) or the
+    micro lobe is not Gaussian (Beckmann) or a mirror.
+    """
+    record, micro = metadata.get("truth"), metadata.get("micro")
+    scales, resolution = metadata.get("scales"), metadata.get("resolution", 0.0)
+    if metadata.get("generator") != "brdfscale.synth.gonioreflectometer" or not isinstance(record, dict):
+        return None
+    try:
+        pixel = np.asarray(record["pixel_slope_covariance"], dtype=float)
+        facets = np.asarray(record["facet_slope_covariance"], dtype=float)
+        first = int(np.argmin(np.asarray(scales, dtype=float)))
+        if micro.get("type") == "Delta":
+            micro_trace = 0.0
+        elif micro.get("type") == "Gaussian" and micro.get("mean") is None:
+            micro_trace = float(np.trace(np.asarray(micro["cov"], dtype=float)))
+        else:
+            return None
+        pitch = 2.0 * float(metadata["extent"]) / (int(metadata["pixels"]) - 1)
+        second = (micro_trace + float(np.trace(pixel - facets[first])) + 2.0 * float(resolution) ** 2
+                  + pitch**2 / 3.0)
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError):
+        return None
+    return math.sqrt(second) if math.isfinite(second) and second > 0 else None
 
 
 def _truth_value(value, key: str) -> float:

@@ -33,9 +33,7 @@ import logging
 import os
 import warnings
 
-import emcee
 import equinox as eqx
-import h5py
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -47,11 +45,25 @@ from brdfscale.show import Shown, Table, progress_bar, progress_mode
 from brdfscale.checks import flag, integer
 from ._estimate import FitResult, Problem, check_fit
 
+
+def _emcee():
+    """emcee, imported on first use (``import fitting`` stays light: the command line's start-up)."""
+    import emcee
+
+    return emcee
+
+
+def _h5py():
+    """h5py, imported on first use (the checkpoints)."""
+    import h5py
+
+    return h5py
+
 __all__ = ["SampleResult", "sample", "log_posterior"]
 
 _MOVES = {
-    "stretch": lambda: emcee.moves.StretchMove(),
-    "de": lambda: [(emcee.moves.DEMove(), 0.8), (emcee.moves.DESnookerMove(), 0.2)],
+    "stretch": lambda: _emcee().moves.StretchMove(),
+    "de": lambda: [(_emcee().moves.DEMove(), 0.8), (_emcee().moves.DESnookerMove(), 0.2)],
 }
 
 
@@ -154,7 +166,7 @@ class _Checkpoint:
             return None
         retry = "use another path, or pass overwrite=True (CLI: --force) to start afresh."
         try:
-            f = h5py.File(self.path, "r")
+            f = _h5py().File(self.path, "r")
         except OSError as err:
             raise MeasurementFileError(f"checkpoint {self.path} cannot be read as {self._EXPECTED} ({err}); {retry}") from None
         with f:
@@ -189,7 +201,7 @@ class _Checkpoint:
         """A checkpoint with no steps, written atomically (a hidden temporary file in the same
         directory, moved into place); an existing file is replaced only when ``replace``."""
         def write(tmp):
-            with h5py.File(tmp, "w") as f:
+            with _h5py().File(tmp, "w") as f:
                 d = len(self.names)
                 f.create_dataset("chain", (0, self.n_walkers, d), maxshape=(None, self.n_walkers, d),
                                  chunks=(self.chunk, self.n_walkers, d), dtype="f8")
@@ -206,7 +218,7 @@ class _Checkpoint:
 
     def append(self, chain, log_prob, random_state):
         try:
-            with h5py.File(self.path, "r+") as f:
+            with _h5py().File(self.path, "r+") as f:
                 done = int(f.attrs["steps_done"])
                 n = done + chain.shape[0]
                 for name, block in (("chain", chain), ("log_prob", log_prob)):
@@ -325,19 +337,19 @@ def _run_chain(fit, logp, d, lo, hi, walkers, steps, chunk, seed, moves, store, 
     chains, log_probs = [], []
     # with overwrite the old file stays until the new, empty checkpoint replaces it (create)
     resumed = store.load() if store is not None and not overwrite else None
-    sampler = emcee.EnsembleSampler(walkers, d, logp, vectorize=True, moves=_MOVES[moves]())
+    sampler = _emcee().EnsembleSampler(walkers, d, logp, vectorize=True, moves=_MOVES[moves]())
     if resumed is not None and resumed[0].shape[0] > 0:
         chain, log_prob, random_state = resumed
         # a checkpoint longer than asked: its first `steps` steps are the chain of a run of `steps`
         chains, log_probs = [chain[:steps]], [log_prob[:steps]]
-        state = emcee.State(chain[-1], log_prob=log_prob[-1], random_state=random_state)
+        state = _emcee().State(chain[-1], log_prob=log_prob[-1], random_state=random_state)
     else:
         if store is not None:
             # replaces only what the user asked to replace, or a checkpoint of this run with no chunk done
             store.create(replace=overwrite or resumed is not None)
         sampler.random_state = np.random.RandomState(seed).get_state()
         p0 = _initial_walkers(fit, lo, hi, walkers, rng)
-        state = emcee.State(p0, log_prob=logp(p0), random_state=sampler.random_state)
+        state = _emcee().State(p0, log_prob=logp(p0), random_state=sampler.random_state)
     done = sum(c.shape[0] for c in chains)
     with progress_bar(enabled=progress, total=steps, initial=done, desc="emcee", unit="step") as bar:
         while done < steps:
@@ -360,7 +372,7 @@ def _integrated_time(chain):
     level = logger.level
     logger.setLevel(logging.ERROR)
     try:
-        return emcee.autocorr.integrated_time(chain, quiet=True)
+        return _emcee().autocorr.integrated_time(chain, quiet=True)
     finally:
         logger.setLevel(level)
 

@@ -14,12 +14,14 @@ densities are per unit area of the slope plane."""
 def figure(width: float = 6.4, height: float = 4.8, **options):
     """A ``matplotlib.figure.Figure`` made without pyplot: no backend is chosen, pyplot's list
     of figures is untouched, and the figure is freed with its last reference. Jupyter shows it
-    when it is a cell's value; ``fig.savefig(path)`` writes it. Constrained layout (colour bars
-    and labels fitted) unless ``layout=`` says otherwise; ``options`` go to ``Figure``."""
-    from matplotlib.figure import Figure
+    as a PNG when it is a cell's value, with or without pyplot's inline backend
+    (:class:`~brdfscale.plot._figure.ShownFigure`); ``fig.savefig(path)`` writes it. Constrained
+    layout (colour bars and labels fitted) unless ``layout=`` says otherwise; ``options`` go to
+    ``Figure``."""
+    from ._figure import ShownFigure
 
     options.setdefault("layout", "constrained")
-    return Figure(figsize=(width, height), **options)
+    return ShownFigure(figsize=(width, height), **options)
 
 
 def colormap(name: str):
