@@ -5,7 +5,7 @@ Measures, in fresh interpreters, the wall time of ``brdfscale --help``, ``brdfsc
 tree and for a baseline revision exported from git (``--baseline-rev``, default 7d40106: the
 last commit before the lazy imports), the two alternated run by run (:func:`interleaved_times`)
 so both see the same machine. Each child starts in its own tree (``python -m`` and ``-c`` put
-the working directory first on ``sys.path``), so each imports its own brdfscale. Writes
+the working directory first on the import path), so each imports its own brdfscale. Writes
 experiments/results/bench_startup.json; docs/benchmarks.md shows it.
 
 Run from the checkout: ``python -m experiments.bench_startup [--repeat N] [--baseline-rev REV]``.

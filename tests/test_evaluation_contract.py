@@ -53,6 +53,7 @@ def test_select_returns_resolved_static_objects_that_explain_themselves():
     assert not bs.Radial().resolved and not bs.Grid().resolved
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_method_objects_names_and_the_selected_method_give_one_answer():
     args = (lobes.GGX(0.08), stats.GGX(0.1), stats.GGX(0.05))
     u = jnp.array([[0.0, 0.0], [0.05, 0.02], [0.2, 0.1]])
@@ -174,6 +175,7 @@ def test_narrow_lobe_between_close_scales_against_quadrature():
     np.testing.assert_allclose(exact, [3870.73, 0.05457], rtol=1e-4)
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_grid_offsets_outside_the_grid_are_not_periodic_images():
     """The issue's case returned 46.0 at u = (1, 0) (the periodic image of the peak); the exact
     value is e^{−1/0.0025}/(π 0.0025) ≈ 8.8e-86."""
@@ -218,6 +220,7 @@ def test_grid_table_for_many_offsets_matches_direct_sums():
     assert np.max(np.abs(image[rows[:, 0], rows[:, 1]] - direct)) <= m.tol * peak
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_a_smaller_budget_changes_blocks_not_values():
     lobe, s0, s1 = lobes.GGX(0.08), stats.GGX(0.1), stats.GGX(0.05)
     m = bs.select(lobe, s0, s1, method=bs.Radial(nodes=512))

@@ -93,6 +93,7 @@ def test_too_small_explicit_grid_warns():
         bs.evolve(lobes.Beckmann(0.1), stats.GGX(0.08), stats.Delta(), method="grid", size=64)
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_grid_extent_and_size_can_be_forced():
     args = (lobes.Beckmann(0.1), stats.Beckmann(0.2), stats.Beckmann(0.05))
     out = bs.evolve(*args, method="grid", size=128, extent=1.5)
@@ -291,7 +292,8 @@ def test_batched_over_scales_with_vmap():
         np.testing.assert_allclose(batched[k], bs.evolve(lobe, law.at(1.0), law.at(mu)).density(U), rtol=1e-14)
 
 
-@pytest.mark.parametrize("method", [pytest.param("radial", marks=pytest.mark.slow), "grid"])
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
+@pytest.mark.parametrize("method", ["radial", "grid"])
 def test_float32_matches_float64(method):
     def run(dtype):
         lobe = lobes.Beckmann(jnp.asarray(0.1, dtype))
@@ -303,6 +305,7 @@ def test_float32_matches_float64(method):
     assert _max_rel(v32, v64) < 1e-5  # float32: ~1e-7 per operation, a few hundred summed terms
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 @settings(max_examples=15, deadline=None)
 @given(a0=st.floats(0.02, 0.3), af=st.floats(0.02, 0.3), frac=st.floats(0.05, 0.95))
 def test_radial_path_agrees_with_closed_form_over_parameters(a0, af, frac):
@@ -348,6 +351,7 @@ def test_radial_queries_beyond_the_lobes_nodes_warn():
         lobe.density(jnp.array([[30.0, 0.0]]))
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_radial_queries_at_the_centre_resolve_an_oscillating_transform():
     """Narrow Beckmann lobe (α = 1e-3) with uniform-disk statistics (radius 0.1): g(0) is
     (πr²)⁻¹ (1 − e^{−r²/α²}) = 1/(π · 0.01) exactly in float64. G oscillates over the disk's
@@ -361,6 +365,7 @@ def test_radial_queries_at_the_centre_resolve_an_oscillating_transform():
         assert abs(alone - exact) <= tol * exact and abs(together - exact) <= tol * exact, (tol, alone, together)
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_grid_path_refuses_a_lobe_it_cannot_resolve():
     """Aspect ratio 5·10⁴: no grid within the size cap spans the wide axis and resolves the
     narrow one; the grid path once returned a lobe 100 times too low at its centre."""

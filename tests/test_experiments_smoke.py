@@ -226,6 +226,7 @@ def test_stability_quick_mode(tmp_path):
     assert (tmp_path / "regularisation.png").exists()
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_stability_figures_are_drawn_from_the_committed_json(tmp_path):
     """The PNGs in experiments/results/stability/ (shown in docs/results.md) are what the plot
     function draws from the committed JSON: redrawn here and compared pixel by pixel."""

@@ -116,6 +116,7 @@ def test_models_refuse_bad_configurations():
 
 # -- recovery ------------------------------------------------------------------------------
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 @pytest.mark.parametrize("truth", TRUTHS)
 @pytest.mark.parametrize("noise", [0.003, 0.03])
 def test_parametric_recovery_within_stated_uncertainty(truth, noise):
@@ -144,7 +145,8 @@ def test_laplace_covariance_and_optimum_agree_with_scipy():
     np.testing.assert_allclose(res.covariance, cov_scipy, rtol=2e-3)
 
 
-@pytest.mark.parametrize("solver, max_steps", [pytest.param("lm", 512, marks=pytest.mark.slow), ("lm", 2), pytest.param("bfgs", 512, marks=pytest.mark.slow)])
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
+@pytest.mark.parametrize("solver, max_steps", [("lm", 512), ("lm", 2), ("bfgs", 512)])
 def test_solve_returns_chi2_and_jacobian_at_the_optimum(solver, max_steps):
     """The Gauss–Newton family hands back the linearisation its state holds at θ̂, other
     solvers evaluate it; either way they are r(θ̂) and jacfwd(r)(θ̂) — also when the solve
@@ -176,6 +178,7 @@ def test_scale_laws_narrow_with_mu_so_coarser_lobes_exist(log_params, window):
     assert np.all(np.diff(np.asarray(width)) <= 0)
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_unchecked_predictions_are_the_checked_evolution():
     model = fitting.ParametricModel(law="gaussian_surface")
     _, data = _dataset(model, dict(amplitude=0.8, alpha_lobe=0.05, rms_height=0.06, correlation_length=1.5),

@@ -31,6 +31,7 @@ def test_slope_area_jacobian_against_quadrature():
     assert abs(val - 2 * math.pi * (1 - math.cos(math.atan(R)))) < 1e-12
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_microfacet_factor_energy_at_normal_incidence():
     """∫ ρ dω_o for a Beckmann lobe at normal incidence, against an independent 1D integral.
 

@@ -123,7 +123,8 @@ def test_observed_density_against_mpmath():
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-11 * want.max())
 
 
-@pytest.mark.parametrize("method", ["radial", pytest.param("grid", marks=pytest.mark.slow)])
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
+@pytest.mark.parametrize("method", ["radial", "grid"])
 def test_evolve_agrees_with_slope_space_view(method):
     """brdfscale.evolve (spectral, from S(W) = a + Σ c_n H_n + w S_smooth) sees the same lobe as the
     slope-space action: the statistic works in evolve's paths."""
@@ -244,7 +245,8 @@ def test_plus_distribution_is_a_generalised_density_not_a_probability_density():
         plus.NearlySpecular(0.5, [0.1], 0.1, smooth=plus.PlusDistribution(0, 0.1), smooth_weight=0.5)
 
 
-@pytest.mark.parametrize("n", [pytest.param(0, marks=pytest.mark.slow), 2])
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
+@pytest.mark.parametrize("n", [0, 2])
 def test_transform_depends_on_w_x0_only_against_mpmath(n):
     """Regression (issue 16): ``PlusDistribution(2, x0).cf(W)`` was NaN for |W| ≳ 1.3e154 even
     where W·x0 = 1 — the norm was formed as |W|² x0², which overflows before x0 scales it.

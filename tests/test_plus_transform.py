@@ -102,6 +102,7 @@ def test_gradient_against_recurrence():
         np.testing.assert_allclose(grad[:, n], want, rtol=1e-11, err_msg=f"n = {n}")
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_gradient_finite_at_zero_frequency():
     """cf is written in |W|², so ∂/∂W and ∂/∂x0 are 0, not NaN, at W = 0."""
     h = plus.PlusDistribution(2, 0.1)
@@ -131,6 +132,7 @@ def test_float32_against_float64():
     np.testing.assert_allclose(np.asarray(f32, np.float64), f64, rtol=1e-6)
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 @settings(max_examples=40, deadline=None)
 @given(n=st.integers(0, plus.MAX_ORDER), a=st.floats(1e-5, 1e7), ratio=st.floats(1.0001, 10.0))
 def test_sign_and_monotone_modulus(n, a, ratio):

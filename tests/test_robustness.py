@@ -393,6 +393,7 @@ def test_synth_option_values_outside_their_domain_are_refused(option, value):
     assert code == 2 and "Traceback" not in err, (option, value, err)
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_demo_runs_again_into_its_own_directory_and_never_replaces_a_users_files(tmp_path, capsys):
     out = tmp_path / "demo"
     argv = ["--no-compilation-cache", "demo", "--out", str(out), "--source", "model", "--steps", "0", "--no-progress"]

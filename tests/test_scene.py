@@ -45,6 +45,7 @@ def test_closed_form_chosen_and_exact():
     np.testing.assert_allclose(got, want, rtol=1e-12)
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_radial_log_mu_binning_meets_target_against_scipy_hankel():
     """Many distinct scales over four decades: log-μ nodes with interpolation; max error
     relative to each scale's peak within the target (SciPy Hankel reference)."""
@@ -73,6 +74,7 @@ def test_scipy_hankel_reference_matches_mpmath():
     )
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_grid_for_skewed_statistics_against_2d_quadrature():
     mat = bench.material("skewed_mixture")
     g = np.linspace(-0.12, 0.12, 9)

@@ -33,6 +33,7 @@ def compose(e1, e2):
     return so3.matrix_to_euler(np.asarray(so3.euler_to_matrix(*e1)) @ np.asarray(so3.euler_to_matrix(*e2)))
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_convolution_against_brute_force_quadrature():
     B = 3
     rng = np.random.default_rng(0)
@@ -56,6 +57,7 @@ def test_convolution_against_brute_force_quadrature():
     assert np.max(np.abs(seed - np.asarray(brute))) > 0.1 * np.abs(brute).max()
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_reflection_q_is_s_dagger_on_a_skewed_density():
     """Mirror-like lobe ρ; facets at two fixed relative orientations Δ_k with weights 0.7/0.3.
     Physics: ρ∞(Γ∞) = Σ_k w_k ρ(Γ∞ Δ_k). The evolution to μ = ∞ (s_to = Identity) must
@@ -103,6 +105,7 @@ def test_evolution_solves_and_regularisation():
     np.testing.assert_allclose(np.asarray(so3.evolve(rows, s0, s1)), np.asarray(R1)[:, B - 2:B + 1, :], atol=1e-12)
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_isotropic_diffusion_is_the_heat_kernel():
     """Synthesised density vs the character formula Σ (2J+1)/(8π²) e^{−τJ(J+1)} sin((2J+1)θ/2)/sin(θ/2)."""
     B, tau = 24, 0.08
@@ -122,6 +125,7 @@ def test_isotropic_diffusion_is_the_heat_kernel():
     np.testing.assert_allclose(ours, closed, atol=1e-9 * closed.max())
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_anisotropic_generator_matches_brownian_motion():
     """Rotational Brownian motion with body-frame increments √(2 D_i dt) ξ_i about each axis:
     E[D^J(Δ)*] over the end points must be exp(−τ G^J) (generator normalisation, Monte Carlo)."""

@@ -56,6 +56,7 @@ def test_round_trip_B64():
     assert np.max(np.abs(np.asarray(so3.forward(so3.inverse(c))) - c)) <= 1e-11
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 @pytest.mark.parametrize("B, L, N, tile_entries", [(9, 8, 8, 64), (9, 3, 6, 256), (12, 11, 0, 64), (16, 15, 9, 256)])
 def test_blocked_contraction_against_direct_sums(B, L, N, tile_entries, monkeypatch):
     """The inverse at grid points against Σ f^J D^J summed with wigner_D, and the round trip,
@@ -119,6 +120,7 @@ def test_synthesis_matches_s2fft_inverse():
     assert np.max(np.abs(ours - theirs)) < 1e-12 * np.abs(theirs).max()
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_synthesis_at_arbitrary_rotations_and_on_the_grid():
     B = 4
     c = random_coefficients(B, np.random.default_rng(3))

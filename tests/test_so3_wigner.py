@@ -96,6 +96,7 @@ def test_seed_formula_agrees_at_high_precision_and_fails_in_float64():
     assert abs(float(so3.wigner_d(60, beta)[60 + 7, 60 - 30]) - float(d_mpmath(60, 7, -30, beta))) < 1e-14
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 @settings(max_examples=8, deadline=None)
 @given(st.integers(0, 6), st.tuples(*[st.floats(0, 2 * np.pi)] * 3), st.tuples(*[st.floats(0, 2 * np.pi)] * 3))
 def test_representation_property(J, e1, e2):

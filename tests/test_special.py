@@ -18,6 +18,7 @@ def test_bessel_j_absolute_error(ours, ref):
     assert err.max() < 2e-15
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_jinc_against_scipy():
     x = X_J[X_J != 0]
     err = np.abs(np.asarray(jinc(jnp.asarray(x))) - 2 * sp.j1(x) / x)

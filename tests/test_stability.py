@@ -11,6 +11,7 @@ import brdfscale as bs
 from brdfscale import lobes, stats
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 @pytest.mark.parametrize("method", ["radial", "grid"])
 def test_gaussian_lobe_between_gaussian_statistics_towards_finer_is_one_exponential(method):
     """A Beckmann lobe of √(0.05² + 3) ≈ 1.73 between Beckmann statistics 1 → 2 (finer) is

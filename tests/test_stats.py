@@ -93,6 +93,7 @@ def test_against_mitsuba_microfacet_distribution(kind):
     assert np.all(np.abs(ours_vals / P22 - 1) <= rtol)
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_tabulated_cf_is_exact_for_the_interpolant_and_from_samples_mean():
     rng = np.random.default_rng(1)
     samples = rng.normal(size=(20000, 2)) * [0.08, 0.05] + [0.02, 0.0]
@@ -519,6 +520,7 @@ _cf_grid_and_pointwise = eqx.filter_jit(lambda dens, grid: (dens.cf_grid(grid), 
     a=st.floats(0.02, 0.5), b=st.floats(0.02, 0.5), c=st.floats(-0.2, 0.2),
     n=st.sampled_from([7, 16]), step=st.floats(0.5, 20.0),
 )
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 @example(a=0.5, b=0.5, c=0.0, n=16, step=20.0)  # exp(−3200) · exp(+1920) if factorised
 def test_cf_grid_equals_cf_at_the_nodes(a, b, c, n, step):
     """The structured evaluation (separable factors, one value per distinct radius, matmuls
@@ -531,6 +533,7 @@ def test_cf_grid_equals_cf_at_the_nodes(a, b, c, n, step):
                                    err_msg=type(dens).__name__)
 
 
+@pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 @settings(max_examples=10, deadline=None)
 @given(a=st.floats(0.02, 0.5), b=st.floats(0.02, 0.5), c=st.floats(-0.2, 0.2))
 def test_cf_radial_is_cf_on_a_ray_for_every_isotropic_family(a, b, c):
