@@ -18,6 +18,7 @@ def test_help_and_version(capsys):
     assert brdfscale.__version__ in capsys.readouterr().out
 
 
+@pytest.mark.slow  # 5–60 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_example_writes_png_and_refuses_to_overwrite(tmp_path, capsys):
     assert main(["example", "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out

@@ -138,6 +138,7 @@ def test_disk_statistics_radial_against_direct_convolution():
     np.testing.assert_allclose(np.asarray(out.density(jnp.asarray(pts))), ref, rtol=1e-8)
 
 
+@pytest.mark.slow  # 5–60 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_fine_coarse_fine_round_trip_radial():
     lobe = lobes.Beckmann(0.1)
     s0, s1 = stats.GGX(0.15), stats.GGX(0.05)

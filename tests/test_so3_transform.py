@@ -81,6 +81,7 @@ def test_blocked_contraction_against_direct_sums(B, L, N, tile_entries, monkeypa
         _contraction.plan.cache_clear()
 
 
+@pytest.mark.slow  # 5–60 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_forward_of_a_single_D_from_spherical():
     """Samples of the seed's D^2_{1,−1} taken from `spherical` (conjugate convention) transform
     to the single coefficient 1 at (J, M, M') = (2, 1, −1)."""

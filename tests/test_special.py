@@ -45,6 +45,7 @@ def test_bessel_k_against_mpmath_to_a_few_ulp():
     assert np.max(np.abs(np.asarray(k0(jnp.asarray(x))) / ref_k0 - 1)) < 1e-14
 
 
+@pytest.mark.slow  # 5–60 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_derivatives():
     x = np.array([1e-6, 0.3, 2.0, 17.0, 40.0, 300.0])
     for f, ref in [(j0, -sp.j1(x)), (j1, sp.jvp(1, x)), (k0, -sp.k1(x)), (xk1, -x * sp.k0(x))]:

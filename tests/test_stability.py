@@ -28,6 +28,7 @@ def test_gaussian_lobe_between_gaussian_statistics_towards_finer_is_one_exponent
     assert np.max(np.abs(got - want)) <= 1e-8 * want[0]
 
 
+@pytest.mark.slow  # 5–60 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_float32_grid_path_keeps_its_precision():
     """The grid path's inverse FFT scattered a float64 sign pattern into a complex64 spectrum
     (JAX: 'cannot safely cast', an error in future releases): float32 in, float32 out, no warning."""
