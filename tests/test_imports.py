@@ -27,7 +27,9 @@ def test_import_changes_no_global_state_and_is_lazy():
         import json, sys
         import brdfscale
         after_brdfscale = sorted(m for m in ("jax", "matplotlib", "numpy", "scipy", "equinox") if m in sys.modules)
-        import fitting, brdfscale.exr, brdfscale.stats
+        import fitting, brdfscale.exr, brdfscale.stats, brdfscale.plot, brdfscale.show
+        from brdfscale import lobes, stats
+        repr(lobes.Beckmann(0.1)); repr(stats.GGX(0.2))  # showing objects needs no matplotlib either
         import jax
         print(json.dumps({"after_brdfscale": after_brdfscale, "x64": bool(jax.config.jax_enable_x64),
                           "matplotlib": "matplotlib" in sys.modules, "evolve": callable(brdfscale.evolve),

@@ -6,9 +6,7 @@ progress bar's mode and its switches. Small sizes throughout: the file runs in s
 import dataclasses
 import html.parser
 import io
-import subprocess
 import sys
-import textwrap
 import warnings
 
 import equinox as eqx
@@ -29,26 +27,6 @@ LAW = stats.ScaledFamily(stats.Beckmann, stats.WidthLaw(0.2, 1.0, 0.8))
 
 
 # -- fixtures: one of everything, built without fits or compiled solves where possible -------
-
-@pytest.fixture(scope="module")
-def fresh_interpreter():
-    """A new interpreter that imports brdfscale and fitting (and shows two objects), then reports
-    whether matplotlib got imported and float64 switched on. Started with the first test, so it
-    runs while the others do; read by test_imports_leave_matplotlib_and_float64_alone."""
-    code = textwrap.dedent("""
-        import sys
-        import brdfscale, fitting, brdfscale.plot, brdfscale.show
-        from brdfscale import lobes, stats
-        repr(lobes.Beckmann(0.1)); repr(stats.GGX(0.2))
-        import jax
-        print(sorted(m for m in ("matplotlib", "matplotlib.pyplot") if m in sys.modules), jax.config.jax_enable_x64)
-    """)
-    process = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    yield process
-    if process.poll() is None:
-        process.kill()
-        process.communicate()
-
 
 @pytest.fixture(scope="module")
 def fitted():
@@ -153,7 +131,7 @@ def _compact(text: str, what: str) -> None:
 
 # -- reprs --------------------------------------------------------------------------------
 
-def test_every_repr_is_a_few_lines_and_no_array_dump(fresh_interpreter, objects):
+def test_every_repr_is_a_few_lines_and_no_array_dump(objects):
     for what, obj in objects.items():
         text = repr(obj)
         _compact(text, what)
@@ -327,12 +305,6 @@ def test_plot_functions_refuse_what_they_cannot_draw(fitted):
     seen = []
     jax.jit(lambda a: seen.append(pytest.raises(InvalidInputError, plot.lobe, lobes.Beckmann(a))) or a)(0.1)
     assert "traced" in str(seen[0].value)
-
-
-def test_imports_leave_matplotlib_and_float64_alone(fresh_interpreter):
-    stdout, stderr = fresh_interpreter.communicate(timeout=120)
-    assert fresh_interpreter.returncode == 0, stderr
-    assert stdout.split() == ["[]", "False"], stdout
 
 
 # -- progress bars -------------------------------------------------------------------------
