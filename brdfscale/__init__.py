@@ -9,6 +9,7 @@ The public API:
   :func:`brdfscale.select`, which resolves their discretisation once from concrete values;
 * :mod:`brdfscale.geometry` — directions, slopes, half vectors;
 * :mod:`brdfscale.synth` — random height fields and a synthetic gonioreflectometer;
+* :mod:`brdfscale.topography` — measured height maps: instrument files and arrays, detrended, masked;
 * :mod:`brdfscale.exr` — measurement sets and lobe tables as OpenEXR files;
 * :mod:`brdfscale.files` — atomic no-clobber writes and exclusive output locations;
 * :mod:`brdfscale.plus` — plus-distributions and nearly-specular reflection (seed §6);
@@ -38,6 +39,7 @@ from ._errors import (
     InvalidInputError,
     MeasurementFileError,
     MethodNotApplicableError,
+    MissingDependencyError,
     NoBRDFAtScaleError,
     OutputInUseError,
     SingularDensityError,
@@ -46,7 +48,7 @@ from ._errors import (
 )
 
 _SUBMODULES = ("checks", "exr", "files", "fitting", "geometry", "lobes", "plot", "plus", "scene", "show", "so3",
-               "special", "stats", "synth")
+               "special", "stats", "synth", "topography")
 _NAMES = {
     **dict.fromkeys(("AbstractMethod", "Auto", "ClosedForm", "Grid", "Radial", "RadialTable", "evolve", "select"),
                     "._evolve"),
@@ -54,7 +56,8 @@ _NAMES = {
 }
 
 if TYPE_CHECKING:  # what the lazy loader below provides, for type checkers and IDEs
-    from . import checks, exr, files, fitting, geometry, lobes, plot, plus, scene, show, so3, special, stats, synth
+    from . import (checks, exr, files, fitting, geometry, lobes, plot, plus, scene, show, so3, special, stats, synth,
+                   topography)
     from ._evolve import AbstractMethod, Auto, ClosedForm, Grid, Radial, RadialTable, evolve, select
     from ._measurement import LobeImage, MeasurementSet
 
@@ -97,6 +100,7 @@ __all__ = [
     "lobes",
     "stats",
     "synth",
+    "topography",
     "plus",
     "so3",
     "scene",
@@ -111,6 +115,7 @@ __all__ = [
     "InvalidInputError",
     "MeasurementFileError",
     "MethodNotApplicableError",
+    "MissingDependencyError",
     "NoBRDFAtScaleError",
     "SingularDensityError",
     "OutputInUseError",

@@ -40,6 +40,11 @@ class MeasurementFileError(BrdfscaleError):
     """
 
 
+class MissingDependencyError(BrdfscaleError, ImportError):
+    """An optional dependency is not installed; the message names the extra that brings it
+    (e.g. ``pip install "brdfscale[topography]"`` for instrument files)."""
+
+
 class OutputInUseError(BrdfscaleError):
     """Another run holds the lock on an output directory or checkpoint.
 

@@ -75,7 +75,7 @@ def run(*, size: int, scales: list[int], surfaces: list[str], seed: int, out=Non
     for name, window, b in progress(jobs, desc="consistency"):
         if name not in fields:
             field = synth.named_surface(name, size=size, seed=seed)
-            m = pixel_slopes(field.heights, field.spacing)
+            m = pixel_slopes(field.heights, field.spacing[0])  # square pixels (synthesised fields)
             h = float(np.sqrt(np.mean(np.sum((m - m.mean((0, 1))) ** 2, -1)) / 2)) / 4
             fields[name] = (m, np.rint(m / h).astype(np.int64), h)
         m, mq, h = fields[name]

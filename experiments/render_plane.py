@@ -163,7 +163,7 @@ def render_truth(camera, slopes, mu, incident, beckmann, seed) -> tuple[np.ndarr
 def level_lobes(field, alpha0: float, levels: list[int]) -> dict:
     """Per level b: naive, second-moment and evolved lobes as functions of u, plus records."""
     beckmann = stats.Beckmann(alpha0)
-    stats_at = {fs.block: fs for fs in synth.facet_statistics(field, levels, bins=LOBE_NODES)}
+    stats_at = {fs.block[1]: fs for fs in synth.facet_statistics(field, levels, bins=LOBE_NODES)}  # square pixels
     s1 = stats_at[1].slopes
     _, cov1 = tabulated_moments(np.asarray(s1.values), float(s1.extent[0]))
     extent = 4 * math.sqrt(alpha0**2 / 2 + np.trace(cov1)) + float(np.max(np.abs(pixel_slopes(field.heights))))

@@ -134,7 +134,7 @@ def test_facet_slopes_are_block_means_of_pixel_normals(size, mu):
 
 def test_scale_must_be_whole_pixels():
     field = synth.spectral_field(GAUSS_ISO, size=16, spacing=0.5, seed=0)
-    assert field.block(2.0) == 4
+    assert field.block(2.0) == (4, 4)
     for mu in (0.75, 0.25, 9.0, -1.0):
         with pytest.raises(InvalidInputError, match="whole number of pixels"):
             synth.facet_slopes(field, mu)

@@ -26,6 +26,7 @@ from jaxtyping import Float
 from .. import stats
 from .._errors import InvalidInputError
 from .._validation import integer, real, real_array
+from .._show import Shown
 from ..stats._histogram import SlopeHistogram
 from ._surface import HeightField, check_grid
 
@@ -33,31 +34,58 @@ _PIXELS_PER_CHUNK = 1 << 21  # pixels per strip: ~16 MB per float64 work array
 _TAIL = 1e-6  # kernel tails below this fraction of their peak may be cut or wrapped
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
-class FacetStatistics:
+@dataclasses.dataclass(frozen=True, eq=False, repr=False)
+class FacetStatistics(Shown):
     """Slope statistics of one height field at one scale.
 
     Attributes:
-        mu: the scale (facet size, length units); ``block = μ/Δ`` pixels per side.
+        mu: the scale (facet size, length units): a window of ``block = (μ/Δy, μ/Δx)``
+            pixel facets (rows, cols).
+        block: that window, ``(rows, cols)``.
         slopes: ``s(·, μ)``, the density of the facets' normal slopes (histogram).
         lobe: ``g_μ``, the within-facet lobe in slope space (histogram ⊛ micro lobe).
-        mean, covariance: sample mean (2,) and covariance (2, 2) of the facet slopes,
-            the latter to compare with ``GaussianSurface(spectrum, window="box")`` Σ(μ).
-        count: the number of facets, ``(n // block)²``.
+        mean, covariance: sample mean (2,) and covariance (2, 2) of the facet slopes (the
+            unbiased ``1/(N − 1)`` estimate), ``Σ(μ)`` — to compare with
+            ``GaussianSurface(spectrum, window="box")`` for a synthesised field.
+        covariance_error: the standard error of each entry of ``covariance`` (2, 2):
+            ``√(Var(z_ab) · τ_ab / N)`` for the centred products ``z_ab = (m_a − m̄_a)(m_b − m̄_b)``
+            of the N facets, with ``τ_ab`` the sum of the products' autocorrelation over the
+            facet lattice (neighbouring facets of a surface correlated beyond μ are not
+            independent). The fourth moments are the data's, floored by the Gaussian value
+            (:func:`covariance_error`). ∞ with fewer than 2 facets.
+        count: the number of facets used: whole windows placed without wrap-around on a
+            measured field (with wrap-around on a periodic one), less those touching an
+            unmeasured pixel.
+        excluded: the windows left out because they touch an unmeasured pixel.
+        independent: the effective number of independent facets, ``N / max_ab τ_ab`` (≤ count).
+        rms_slope: ``√⟨|m|²⟩`` over the facets (not centred); at the pixel scale of a measured
+            field it is SurfaceTopography's ``rms_gradient()`` of the same heights.
     """
 
     mu: float
-    block: int
+    block: tuple[int, int]
     slopes: stats.Tabulated
     lobe: stats.Tabulated
     mean: Float[np.ndarray, "2"]
     covariance: Float[np.ndarray, "2 2"]
     count: int
+    covariance_error: Float[np.ndarray, "2 2"] = dataclasses.field(default_factory=lambda: np.full((2, 2), np.inf))
+    independent: float = 0.0
+    excluded: int = 0
+    rms_slope: float = 0.0
+
+    def _show_items(self):
+        sd = np.sqrt(np.diag(self.covariance))
+        return [("mu", self.mu), ("block", "×".join(map(str, self.block))), ("facets", self.count),
+                ("independent", round(self.independent, 1)), ("excluded", self.excluded),
+                ("σ_x, σ_y", f"{sd[0]:.4g}, {sd[1]:.4g}"),
+                ("Σ error", f"{self.covariance_error[0, 0]:.2g}, {self.covariance_error[1, 1]:.2g}")]
 
 
 def check_field(field) -> HeightField:
     if not isinstance(field, HeightField):
-        raise InvalidInputError(f"field must be a brdfscale.synth.HeightField; got {type(field).__name__}.")
+        raise InvalidInputError(f"field must be a brdfscale.synth.HeightField (brdfscale.topography.read or "
+                                f"from_array make one of a measured surface); got {type(field).__name__}.")
     return field
 
 
@@ -71,73 +99,173 @@ def check_scales(scales) -> list[float]:
     return [float(mu) for mu in np.atleast_1d(a)]
 
 
-def facet_slopes(field: HeightField, mu: float) -> Float[np.ndarray, "nb nb 2"]:
-    """Normal slopes of the facets at scale μ, shape ``(n // b, n // b, 2)`` with ``b = μ/Δ``.
+def facet_slopes(field: HeightField, mu: float) -> Float[np.ndarray, "rows cols 2"]:
+    """Normal slopes of the facets at scale μ, shape ``(F_y // b_y, F_x // b_x, 2)``.
 
-    Facet ``[J, K]`` covers rows ``J b … J b + b − 1`` and columns ``K b … K b + b − 1``; the
-    pixels beyond the last whole facet (when b does not divide n) are left out.
-    Cost: two passes over the heights, ``O(n²/b)`` memory.
+    ``(b_y, b_x) = field.block(μ)`` and ``(F_y, F_x) = field.facet_grid``. Facet ``[J, K]``
+    covers pixel facets ``J b_y … J b_y + b_y − 1`` (rows) and ``K b_x … K b_x + b_x − 1``
+    (columns); the pixel facets beyond the last whole window are left out. Windows touching an
+    unmeasured pixel are NaN (:attr:`HeightField.mask`). Cost: two passes over the heights,
+    ``O(n²/b)`` memory.
     """
     check_field(field)
-    return np.stack(_facet_slope_components(field, field.block(mu)), axis=-1)
+    block = field.block(mu)
+    mx, my = _facet_slope_components(field, block)
+    valid = _window_validity(field, block)
+    if valid is not None:
+        mx, my = np.where(valid, mx, np.nan), np.where(valid, my, np.nan)
+    return np.stack((mx, my), axis=-1)
 
 
-def _facet_slope_components(field: HeightField, b: int) -> tuple[np.ndarray, np.ndarray]:
-    n, h, d = field.size, field.heights, field.spacing
-    nb = n // b
-    edges = (np.arange(nb + 1) * b) % n
-    row_sums = h[: nb * b].reshape(nb, b, n).sum(axis=1)  # (nb, n): Σ over each facet's rows
-    col_sums = h[:, : nb * b].reshape(n, nb, b).sum(axis=2)  # (n, nb)
-    mx = -np.diff(row_sums[:, edges], axis=1) / (b * b * d)
-    my = -np.diff(col_sums[edges], axis=0) / (b * b * d)
+def _facet_slope_components(field: HeightField, block: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """The mean pixel-facet slope of every whole window, telescoped to the heights on its edges."""
+    (ny, nx), (fy, fx), h = field.shape, field.facet_grid, field.heights
+    (dx, dy), (by, bx) = field.spacing, block
+    nby, nbx = fy // by, fx // bx
+    cols = (np.arange(nbx + 1) * bx) % nx
+    rows = (np.arange(nby + 1) * by) % ny
+    row_sums = h[: nby * by].reshape(nby, by, nx).sum(axis=1)  # (nby, nx): Σ over each facet's rows
+    col_sums = h[:, : nbx * bx].reshape(ny, nbx, bx).sum(axis=2)  # (ny, nbx)
+    mx = -np.diff(row_sums[:, cols], axis=1) / (by * bx * dx)
+    my = -np.diff(col_sums[rows], axis=0) / (by * bx * dy)
     return mx, my
 
 
-def _pixel_strips(field: HeightField, block: int):
-    """Yield ``(rows, mx, my)`` for strips of whole facet rows: the pixel facets' normal slopes."""
-    n, h, d = field.size, field.heights, field.spacing
-    nb = n // block
-    width = nb * block
-    step = block * max(1, _PIXELS_PER_CHUNK // (width * block))
-    for start in range(0, width, step):
-        stop = min(start + step, width)
-        below = (np.arange(start, stop) + 1) % n
+def _window_validity(field: HeightField, block: tuple[int, int]) -> np.ndarray | None:
+    """Which whole windows have every pixel facet measured (None: all of them)."""
+    valid = field.pixel_facets
+    if valid is None:
+        return None
+    (fy, fx), (by, bx) = field.facet_grid, block
+    nby, nbx = fy // by, fx // bx
+    return valid[: nby * by, : nbx * bx].reshape(nby, by, nbx, bx).all(axis=(1, 3))
+
+
+def facet_samples(field: HeightField, block: tuple[int, int]) -> tuple[np.ndarray, np.ndarray | None]:
+    """The measured windows' slopes ``(N, 2)`` and the window validity grid (None: all valid)."""
+    mx, my = _facet_slope_components(field, block)
+    valid = _window_validity(field, block)
+    if valid is None:
+        return np.stack((mx.ravel(), my.ravel()), axis=-1), None
+    return np.stack((mx[valid], my[valid]), axis=-1), valid
+
+
+def _pixel_strips(field: HeightField, block: tuple[int, int] | None):
+    """Yield ``(start, stop, mx, my, valid)`` for strips of whole facet rows: the pixel facets'
+    normal slopes in the whole windows (all pixel facets when ``block`` is None) and which of
+    them count (None: all) — a pixel facet counts when its window is measured throughout."""
+    (ny, nx), (fy, fx), h = field.shape, field.facet_grid, field.heights
+    dx, dy = field.spacing
+    by, bx = (1, 1) if block is None else block
+    height, width = (fy // by) * by, (fx // bx) * bx
+    windows = None if block is None else _window_validity(field, block)
+    pixels = field.pixel_facets
+    step = by * max(1, _PIXELS_PER_CHUNK // (width * by))
+    for start in range(0, height, step):
+        stop = min(start + step, height)
+        below = (np.arange(start, stop) + 1) % ny
         strip = h[start:stop, :width]
-        right = h[start:stop, 1 : width + 1] if width < n else np.roll(h[start:stop], -1, axis=1)
-        mx = -(right - strip) / d
-        my = -(h[below, :width] - strip) / d
-        yield start, stop, mx, my
+        right = h[start:stop, 1 : width + 1] if width < nx else np.roll(h[start:stop], -1, axis=1)
+        mx = -(right - strip) / dx
+        my = -(h[below, :width] - strip) / dy
+        if windows is not None:
+            valid = np.repeat(np.repeat(windows[start // by : stop // by], by, axis=0), bx, axis=1)
+        elif block is None and pixels is not None:
+            valid = pixels[start:stop, :width]
+        else:
+            valid = None
+        yield start, stop, mx, my, valid
 
 
 def offset_histogram(field: HeightField, mu: float | None, hist: SlopeHistogram, incident=None) -> SlopeHistogram:
     """Accumulate pixel slopes relative to their facet at scale μ (all pixels when μ is None).
 
-    With ``incident`` (a unit vector towards the light) every pixel facet is weighted by the
+    Only pixel facets in measured windows count (measured pixel facets when μ is None). With
+    ``incident`` (a unit vector towards the light) every pixel facet is weighted by the
     light it intercepts relative to a flat one, ``max(0, 1 + m·i_xy / i_z)`` (its area
     ``√(1+|m|²)`` times ``n·i``); without it every pixel counts once, the seed's nearly-flat
     approximation (docs/conventions.md §2, seed footnote 1).
     """
-    block = 1 if mu is None else field.block(mu)
+    block = None if mu is None else field.block(mu)
     facets = None if mu is None else _facet_slope_components(field, block)
-    for start, stop, mx, my in _pixel_strips(field, block):
+    for start, stop, mx, my, valid in _pixel_strips(field, block):
         weights = None
         if incident is not None:
             weights = np.maximum(0.0, 1 + (mx * incident[0] + my * incident[1]) / incident[2])
         if facets is not None:
-            fx, fy = (f[start // block : stop // block, :, None] for f in facets)  # (r, nb, 1)
+            by, bx = block
+            fx, fy = (f[start // by : stop // by, :, None] for f in facets)  # (r, nb, 1)
             r, nb = fx.shape[:2]
-            mx = (mx.reshape(r, block, nb, block) - fx[:, None]).reshape(mx.shape)
-            my = (my.reshape(r, block, nb, block) - fy[:, None]).reshape(my.shape)
-        hist.add(mx, my, weights)
+            mx = (mx.reshape(r, by, nb, bx) - fx[:, None]).reshape(mx.shape)
+            my = (my.reshape(r, by, nb, bx) - fy[:, None]).reshape(my.shape)
+        if valid is not None:
+            mx, my = mx[valid], my[valid]
+            weights = None if weights is None else weights[valid]
+        if mx.size:
+            hist.add(mx, my, weights)
     return hist
 
 
+def covariance_error(samples: np.ndarray, valid: np.ndarray | None, lattice: tuple[int, int]) -> tuple[np.ndarray, float]:
+    """Standard errors of the sample covariance of facet slopes and the effective facet count.
+
+    For each entry ab the centred products ``z = (m_a − m̄_a)(m_b − m̄_b)`` of the N facets
+    give ``Var(Σ̂_ab) ≈ Var(z) τ / N`` with ``τ = Σ_lag ρ_z(lag)``, the autocorrelation of z
+    on the facet lattice summed over lags ``|ℓ_x|, |ℓ_y| ≤ L``, ``L = min(rows, cols) // 4``
+    (at most 8; windows that are unmeasured are left out of every lag's average), and
+    ``τ ≥ 1``. The error is never below the Gaussian value ``√((Σ_aa Σ_bb + Σ_ab²)/(N_eff − 1))``
+    with ``N_eff = N / max τ``: with few facets the empirical fourth moment is unreliable (two
+    facets give identical centred squares, ``Var(z) = 0``). Returns the (2, 2) errors and
+    ``N_eff``.
+    """
+    n = len(samples)
+    if n < 2:
+        return np.full((2, 2), np.inf), float(n)
+    rows, cols = lattice
+    present = np.ones(lattice, bool) if valid is None else valid
+    centred = samples - samples.mean(axis=0)
+    lag = min(rows, cols, 32) // 4
+    lag = min(lag, 8)
+    errors, taus = np.zeros((2, 2)), []
+    for a, b in ((0, 0), (0, 1), (1, 1)):
+        z = centred[:, a] * centred[:, b]
+        zc = z - z.mean()
+        var = float(np.mean(zc**2))
+        tau = 1.0
+        if lag > 0 and var > 0:
+            grid = np.zeros(lattice)
+            grid[present] = zc
+            tau = _lattice_tau(grid, present.astype(float), lag, var)
+        taus.append(tau)
+        errors[a, b] = errors[b, a] = math.sqrt(var * tau / n)
+    independent = n / max(taus)
+    cov = np.cov(samples.T)
+    gaussian = np.sqrt((np.outer(np.diag(cov), np.diag(cov)) + cov**2) / max(independent - 1, 1))
+    return np.maximum(errors, gaussian), independent
+
+
+def _lattice_tau(grid: np.ndarray, present: np.ndarray, lag: int, var: float) -> float:
+    """``max(1, Σ_{|ℓ|≤lag} ρ(ℓ))`` of a lattice series (zero where absent), by FFT products."""
+    rows, cols = grid.shape
+    shape = (2 * rows, 2 * cols)
+    f, p = np.fft.rfft2(grid, shape), np.fft.rfft2(present, shape)
+    products = np.fft.irfft2(f * np.conj(f), shape)
+    pairs = np.fft.irfft2(p * np.conj(p), shape)
+    ly = np.r_[0 : lag + 1, -lag:0] % shape[0]
+    lx = np.r_[0 : lag + 1, -lag:0] % shape[1]
+    num, cnt = products[np.ix_(ly, lx)], np.rint(pairs[np.ix_(ly, lx)])
+    rho = np.where(cnt > 0, num / np.maximum(cnt, 1) / var, 0.0)
+    return max(1.0, float(rho.sum()))
+
+
 def steepest_slope(field: HeightField) -> float:
-    """The largest |component| of any pixel facet's normal slope (sizes slope grids)."""
+    """The largest |component| of any measured pixel facet's normal slope (sizes slope grids)."""
     check_field(field)
     top = 0.0
-    for _, _, mx, my in _pixel_strips(field, 1):
-        top = max(top, float(np.max(np.abs(mx))), float(np.max(np.abs(my))))
+    for _, _, mx, my, valid in _pixel_strips(field, None):
+        if valid is not None:
+            mx, my = mx[valid], my[valid]
+        top = max(top, float(np.max(np.abs(mx), initial=0.0)), float(np.max(np.abs(my), initial=0.0)))
     return top
 
 
@@ -203,6 +331,12 @@ def facet_statistics(field: HeightField, scales, *, bins: int = 129, extent: flo
             component plus the largest facet slope component, so that no sample falls
             outside (lobe grids are widened further for a rough micro lobe).
 
+    Facets are the whole μ × μ windows of :func:`facet_slopes` (without wrap-around on a
+    measured field); windows touching an unmeasured pixel are excluded (counted in
+    ``excluded``), and so are their pixel facets from ``g_μ``. Each result carries the facet
+    count, the effective number of independent facets and the standard error of ``Σ(μ)``
+    (:class:`FacetStatistics`).
+
     Cost: one pass over the pixels per scale, ``O(n²)`` time, constant memory per strip.
     The grids (``bins`` nodes per side, widened for a rough micro lobe) must fit
     :data:`MAX_GRID_BYTES` (2**31 bytes of float64 nodes): a larger one is refused before it
@@ -224,8 +358,13 @@ def facet_statistics(field: HeightField, scales, *, bins: int = 129, extent: flo
     steepest = steepest_slope(field) if extent is None else None
     results = []
     for mu in scales:
-        b = field.block(mu)
-        samples = facet_slopes(field, mu).reshape(-1, 2)
+        block = field.block(mu)
+        samples, valid = facet_samples(field, block)
+        lattice = tuple(g // b for g, b in zip(field.facet_grid, block))
+        if len(samples) == 0:
+            raise InvalidInputError(
+                f"no facet window of mu={mu:g} ({block[0]} × {block[1]} pixel facets) lies wholly on measured pixels; "
+                "use a smaller scale (field.scales lists admissible ones).")
         top = float(np.max(np.abs(samples)))
         s_extent = extent if extent is not None else max(top, 1e-12) * (1 + 1e-9) + 1e-12
         s_hist = SlopeHistogram(s_extent, bins)
@@ -238,7 +377,12 @@ def facet_statistics(field: HeightField, scales, *, bins: int = 129, extent: flo
         hist = offset_histogram(field, mu, SlopeHistogram(g_extent + pad * h, bins + 2 * pad))
         lobe = stats.Tabulated(blur(hist.node_counts(), h, field.micro), extent=g_extent + pad * h)
         cov = np.cov(samples.T, bias=False) if len(samples) > 1 else np.zeros((2, 2))
-        results.append(FacetStatistics(mu, b, slopes, lobe, samples.mean(axis=0), cov, len(samples)))
+        error, independent = covariance_error(samples, valid, lattice)
+        results.append(FacetStatistics(
+            mu, block, slopes, lobe, samples.mean(axis=0), cov, len(samples),
+            covariance_error=error, independent=independent,
+            excluded=lattice[0] * lattice[1] - len(samples),
+            rms_slope=float(np.sqrt(np.mean(np.sum(samples**2, axis=1))))))
     return tuple(results)
 
 

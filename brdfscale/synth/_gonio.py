@@ -13,7 +13,7 @@ from .._errors import InvalidInputError
 from .._measurement import LobeImage, MeasurementSet
 from .._validation import integer, real, real_array
 from ..geometry import validate_directions
-from ._facets import blur, check_field, check_scales, facet_slopes, kernel_padding, offset_histogram
+from ._facets import blur, check_field, check_scales, facet_samples, kernel_padding, offset_histogram
 from ..stats._histogram import SlopeHistogram
 from ._random import as_generator, seed_record
 from ._surface import HeightField, parameter_record
@@ -213,12 +213,14 @@ def gonioreflectometer(
     crop = slice(pad, pad + pixels)
     images, truth = [], {"facet_slope_mean": [], "facet_slope_covariance": []}
     law = None if field.spectrum is None else stats.GaussianSurface(field.spectrum, window="box", n_k=256)
-    pixel = facet_slopes(field, field.spacing).reshape(-1, 2)  # the pixel facets' own normal slopes
+    pixel, _ = facet_samples(field, (1, 1))  # the measured pixel facets' own normal slopes
     truth["pixel_slope_covariance"] = np.cov(pixel.T).tolist()
     if law is not None:
         truth["analytic_facet_slope_covariance"] = []
     for mu in scales:
-        samples = facet_slopes(field, mu).reshape(-1, 2)
+        samples, _ = facet_samples(field, field.block(mu))
+        if len(samples) == 0:
+            raise InvalidInputError(f"no facet window of mu={mu:g} lies wholly on measured pixels; use a smaller scale.")
         truth["facet_slope_mean"].append(samples.mean(axis=0).tolist())
         truth["facet_slope_covariance"].append(np.cov(samples.T).tolist() if len(samples) > 1 else [[0.0, 0.0], [0.0, 0.0]])
         if law is not None:
@@ -235,8 +237,11 @@ def gonioreflectometer(
     metadata = {
         "generator": "brdfscale.synth.gonioreflectometer",
         "surface": field.description,
-        "spacing": field.spacing,
-        "size": field.size,
+        "spacing": field.spacing[0] if field.spacing[0] == field.spacing[1] else list(field.spacing),
+        "shape": list(field.shape),
+        "periodic": field.periodic,
+        "unit": field.unit,
+        "unmeasured": 0 if field.mask is None else int(np.count_nonzero(~field.mask)),
         "micro": parameter_record(field.micro),
         "scales": scales,
         "pixels": int(pixels),

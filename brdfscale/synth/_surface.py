@@ -1,16 +1,19 @@
 """The height-field container."""
 
 import dataclasses
+import functools
 import math
 from collections.abc import Mapping
 
 import equinox as eqx
 import numpy as np
-from jaxtyping import Float
+from jaxtyping import Bool, Float
 
 from .. import stats
 from .._errors import InvalidInputError
-from .._validation import real, real_array
+from .._measurement import _boolean_mask as boolean_mask
+from .._show import Shown
+from .._validation import flag, integer, real, real_array
 
 MAX_GRID_BYTES = 2**31
 """The largest float64 grid synthesis allocates, in bytes: 2 GiB, i.e. 16384 × 16384 nodes.
@@ -48,87 +51,240 @@ def check_micro(micro) -> stats.AbstractSlopeDensity:
     return micro
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
-class HeightField:
-    """A periodic height field sampled on a square grid, with the micro-facets' own lobe.
+@dataclasses.dataclass(frozen=True, eq=False, repr=False)
+class HeightField(Shown):
+    """A sampled height field — synthesised or measured — with the micro-facets' own lobe.
 
     Attributes:
-        heights: ``h[j, k]`` at ``(x, y) = (k Δ, j Δ)`` (rows y, columns x), shape (n, n),
-            length units; the field is periodic with period ``n Δ`` on both axes.
-        spacing: the pixel pitch Δ (length units, > 0). A *pixel facet* is the plane
-            through ``h[j, k]``, ``h[j, k+1]`` and ``h[j+1, k]``: its height gradient is the
-            forward difference. Facets at scale μ are blocks of ``μ/Δ × μ/Δ`` pixels.
+        heights: ``h[j, k]`` at ``(x, y) = (k Δx, j Δy)`` (rows y, columns x), shape (ny, nx)
+            with ny, nx ≥ 4, length units. Entries where ``mask`` is False are unmeasured:
+            they are stored as 0 and never used.
+        spacing: the pixel pitch ``(Δx, Δy)`` (length units, > 0); a single number means
+            square pixels. A *pixel facet* is the plane through ``h[j, k]``, ``h[j, k+1]``
+            and ``h[j+1, k]``: its height gradient is the forward difference along each axis
+            with that axis's pitch. A facet at scale μ is a window of ``μ/Δy × μ/Δx`` pixel
+            facets (:meth:`block`): μ × μ in length units, so non-square pixels are exact.
         micro: the lobe of one pixel facet in slope space (:mod:`brdfscale.stats` density):
             :class:`~brdfscale.stats.Delta` for mirror micro-facets (default), e.g.
             ``stats.Beckmann(0.01)`` for rough ones.
         spectrum: the power spectrum the heights were drawn from, when they were (it makes
             the analytic ``Σ(μ)`` of :class:`brdfscale.stats.GaussianSurface` available).
-        description: JSON-serialisable provenance (generator, parameters, seed).
+        description: JSON-serialisable provenance (generator, parameters, seed; for a
+            measured field the file, format, instrument, channel and detrending —
+            :mod:`brdfscale.topography`).
+        mask: boolean (ny, nx), True where the height was measured, or None (all measured).
+            A pixel facet is measured when its three nodes are; a facet window is used only
+            when all its pixel facets are (windows touching unmeasured pixels are excluded).
+        periodic: True for a field periodic with period ``(nx Δx, ny Δy)`` (synthesised
+            fields: pixel facets and facets wrap around the edges); False for a measured
+            field (``(ny − 1) × (nx − 1)`` pixel facets, facet windows placed without
+            wrap-around).
+        unit: the length unit of ``heights`` and ``spacing`` (``"m"`` for fields read by
+            :mod:`brdfscale.topography`), or None for the dimensionless lengths of
+            synthesised fields. Slopes are ratios of lengths and carry no unit.
 
     Slope convention (docs/conventions.md §1): the slope of a facet is the slope of its *normal*,
     ``m = (n_x/n_z, n_y/n_z) = −∇h``. A mirror facet of slope m reflects light into the
     half-vector slope ``m_s = m``.
 
-    Raises InvalidInputError for heights that are not a finite real (n, n) array with n ≥ 4
-    (complex, bool, text or None is refused, not cast), a spacing that is not a positive
-    real number, a ``micro`` that is not a probability density of facet slopes (a
-    :class:`brdfscale.plus.PlusDistribution` has mass 0), a wrong ``spectrum`` or a
-    ``description`` that is not a mapping.
+    Raises InvalidInputError for heights that are not a real (ny, nx) array with ny, nx ≥ 4,
+    finite where measured (complex, bool, text or None is refused, not cast); a spacing that
+    is not a positive real number or pair; a mask of the wrong shape, not boolean or leaving
+    no measured pixel facet; a ``micro`` that is not a probability density of facet slopes (a
+    :class:`brdfscale.plus.PlusDistribution` has mass 0), a wrong ``spectrum``, a
+    ``description`` that is not a mapping, a ``periodic`` that is not a bool or a ``unit``
+    that is not a string or None.
     """
 
-    heights: Float[np.ndarray, "n n"]
-    spacing: float
+    heights: Float[np.ndarray, "ny nx"]
+    spacing: tuple[float, float]
     micro: stats.AbstractSlopeDensity = dataclasses.field(default_factory=stats.Delta)
     spectrum: stats.AbstractPowerSpectrum | None = None
     description: dict = dataclasses.field(default_factory=dict)
+    mask: Bool[np.ndarray, "ny nx"] | None = None
+    periodic: bool = True
+    unit: str | None = None
 
     def __post_init__(self):
-        h = real_array(self.heights, "heights")
-        if h.ndim != 2 or h.shape[0] != h.shape[1] or h.shape[0] < 4:
-            raise InvalidInputError(f"heights must be a square (n, n) array with n ≥ 4; got shape {h.shape}.")
-        spacing = real(self.spacing, "spacing", minimum=0, strict=True)
+        mask = None if self.mask is None else boolean_mask(self.mask, "mask")
+        raw = self.heights
+        if mask is not None:
+            raw = np.asarray(raw)
+            if raw.shape != mask.shape:
+                raise InvalidInputError(f"mask must have the shape of heights, {raw.shape}; got {mask.shape}.")
+            if raw.dtype.kind in "fiu":
+                raw = np.where(mask, raw, 0.0)
+        h = real_array(raw, "heights")
+        if h.ndim != 2 or min(h.shape) < 4:
+            raise InvalidInputError(f"heights must be a 2-D (ny, nx) array with ny, nx ≥ 4 (rows y, columns x); got shape {h.shape}.")
+        spacing = pitch(self.spacing)
         check_micro(self.micro)
         if self.spectrum is not None and not isinstance(self.spectrum, stats.AbstractPowerSpectrum):
             raise InvalidInputError(f"spectrum must be a brdfscale.stats power spectrum; got {type(self.spectrum).__name__}.")
         if not isinstance(self.description, Mapping):
             raise InvalidInputError(f"description must be a dict (JSON-serialisable provenance); got {type(self.description).__name__}.")
+        periodic = flag(self.periodic, "periodic")
+        if self.unit is not None and not isinstance(self.unit, str):
+            raise InvalidInputError(f"unit must be the name of a length unit (a string) or None; got {type(self.unit).__name__}.")
+        if mask is not None and mask.all():
+            mask = None
         object.__setattr__(self, "heights", h)
         object.__setattr__(self, "spacing", spacing)
         object.__setattr__(self, "description", dict(self.description))
+        object.__setattr__(self, "mask", mask)
+        object.__setattr__(self, "periodic", periodic)
+        if mask is not None and not self.pixel_facets.any():
+            raise InvalidInputError(
+                f"the mask leaves no measured pixel facet (a pixel facet needs its node and its right and lower "
+                f"neighbours measured); {int(mask.sum())} of {mask.size} pixels are measured.")
+
+    # -- geometry ------------------------------------------------------------------------
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(ny, nx)``: rows (y) and columns (x) of ``heights``."""
+        return self.heights.shape
 
     @property
     def size(self) -> int:
-        """Pixels per side, n."""
-        return self.heights.shape[0]
+        """Pixels per side of a square field, n (a rectangular field has :attr:`shape` instead)."""
+        ny, nx = self.shape
+        if ny != nx:
+            raise InvalidInputError(f"this field is rectangular, {ny} rows × {nx} columns; use field.shape.")
+        return nx
+
+    @property
+    def facet_grid(self) -> tuple[int, int]:
+        """Pixel facets per axis, ``(rows, cols)``: ``(ny, nx)`` when periodic, else ``(ny − 1, nx − 1)``."""
+        ny, nx = self.shape
+        return (ny, nx) if self.periodic else (ny - 1, nx - 1)
+
+    @functools.cached_property
+    def pixel_facets(self) -> Bool[np.ndarray, "rows cols"] | None:
+        """Which pixel facets are measured (:attr:`facet_grid` shape), or None when all are."""
+        if self.mask is None:
+            return None
+        m, (fy, fx) = self.mask, self.facet_grid
+        right = np.roll(m, -1, axis=1)[:fy, :fx]
+        below = np.roll(m, -1, axis=0)[:fy, :fx]
+        return m[:fy, :fx] & right & below
+
+    def block(self, mu: float) -> tuple[int, int]:
+        """The facet window at scale μ, ``(rows, cols) = (μ/Δy, μ/Δx)`` pixel facets.
+
+        μ must be a whole number of pixels along both axes, at least one pixel and at most
+        :attr:`facet_grid` (InvalidInputError otherwise, naming the admissible scales).
+        """
+        mu = real(mu, "mu")
+        dx, dy = self.spacing
+        fy, fx = self.facet_grid
+        counts = []
+        for d, top in ((dy, fy), (dx, fx)):
+            b = mu / d
+            nb = round(b) if math.isfinite(b) else 0
+            if not (abs(b - nb) <= 1e-9 * max(1.0, b) and 1 <= nb <= top):
+                unit = f" {self.unit}" if self.unit else ""
+                square = math.isclose(dx, dy, rel_tol=1e-12)
+                whole = ("a whole number of pixels" if square else
+                         f"a whole number of pixels along both axes (Δx = {dx:.6g}{unit}, Δy = {dy:.6g}{unit})")
+                raise InvalidInputError(
+                    f"scale mu={mu!r} must be {whole} between {max(dx, dy):.6g}{unit} and "
+                    f"{min(fx * dx, fy * dy):.6g}{unit} (the field's {fy} × {fx} pixel facets); "
+                    f"field.scales(count) lists admissible ones.")
+            counts.append(int(nb))
+        return counts[0], counts[1]
+
+    def scales(self, count: int = 8, *, smallest: int = 1, largest: int | None = None) -> list[float]:
+        """Up to ``count`` admissible facet sizes μ, log-spaced whole multiples of the pixel.
+
+        ``smallest`` and ``largest`` count the *unit window* — one pixel for square pixels,
+        the smallest window that is whole along both axes otherwise. The default largest is
+        half the shorter side, reduced until at least 4 windows lie wholly on measured pixels
+        (at most 2 × 2 fit at half the side). Repeated whole numbers are dropped, so fewer than
+        ``count`` may come back at small ranges.
+        """
+        count = integer(count, "count", 1)
+        smallest = integer(smallest, "smallest", 1)
+        dx, dy = self.spacing
+        ratio, k = dy / dx, 1
+        while not abs(k * ratio - round(k * ratio)) <= 1e-9 * k * ratio and k < 1000:
+            k += 1
+        if k == 1000:
+            raise InvalidInputError(f"the pixel pitches Δx = {dx:.6g} and Δy = {dy:.6g} have no common multiple of "
+                                    "under 1000 pixels; resample the field onto square pixels.")
+        unit_px = (k, round(k * ratio))  # unit window in (x, y) pixels
+        fy, fx = self.facet_grid
+        top = min(fx // unit_px[0], fy // unit_px[1])
+        if largest is None:
+            largest = max(1, top // 2)
+            while largest > 1 and self._measured_windows((largest * unit_px[1], largest * unit_px[0])) < 4:
+                largest -= max(1, largest // 16)
+        else:
+            largest = min(integer(largest, "largest", smallest), top)
+        if smallest > largest:
+            raise InvalidInputError(f"smallest={smallest} exceeds the largest admissible window, {largest} unit windows.")
+        multiples = np.unique(np.rint(np.geomspace(smallest, largest, count)).astype(int))
+        return [float(m * k * dx) for m in multiples]
+
+    def _measured_windows(self, block: tuple[int, int]) -> int:
+        """How many whole windows of ``block`` (rows, cols) pixel facets are measured throughout."""
+        (fy, fx), (by, bx) = self.facet_grid, block
+        nby, nbx = fy // by, fx // bx
+        if self.pixel_facets is None:
+            return nby * nbx
+        return int(self.pixel_facets[: nby * by, : nbx * bx].reshape(nby, by, nbx, bx).all(axis=(1, 3)).sum())
 
     def __add__(self, other: "HeightField") -> "HeightField":
-        """Superpose two fields of equal size and pitch (heights add; micro lobe of ``self``).
-
-        The sum has no single power spectrum, so ``spectrum`` is dropped.
-        """
+        """Superpose two fields of equal shape, pitch and periodicity (heights add; masks
+        combine; micro lobe and unit of ``self``). The sum has no single power spectrum, so
+        ``spectrum`` is dropped."""
         if not isinstance(other, HeightField):
             return NotImplemented
-        if other.size != self.size or not math.isclose(other.spacing, self.spacing, rel_tol=1e-12):
+        same = (other.shape == self.shape and other.periodic == self.periodic
+                and all(math.isclose(a, b, rel_tol=1e-12) for a, b in zip(other.spacing, self.spacing)))
+        if not same or other.unit != self.unit:
             raise InvalidInputError(
-                f"can only add fields of equal size and spacing; got {self.size}@{self.spacing} and {other.size}@{other.spacing}."
-            )
+                f"can only add fields of equal shape, spacing, periodicity and unit; got {self.shape}@{self.spacing} "
+                f"(periodic={self.periodic}, unit={self.unit}) and {other.shape}@{other.spacing} "
+                f"(periodic={other.periodic}, unit={other.unit}).")
+        if self.mask is None or other.mask is None:
+            mask = self.mask if other.mask is None else other.mask
+        else:
+            mask = self.mask & other.mask
         return HeightField(
             self.heights + other.heights,
             self.spacing,
             micro=self.micro,
             description={"generator": "sum", "terms": [self.description, other.description]},
+            mask=mask,
+            periodic=self.periodic,
+            unit=self.unit,
         )
 
-    def block(self, mu: float) -> int:
-        """The facet size μ in pixels; μ must be a whole number of pixels between 1 and n."""
-        b = real(mu, "mu") / self.spacing
-        nb = round(b) if math.isfinite(b) else 0
-        if not (abs(b - nb) <= 1e-9 * max(1.0, b) and 1 <= nb <= self.size):
-            raise InvalidInputError(
-                f"scale mu={mu!r} must be a whole number of pixels (spacing {self.spacing}) between "
-                f"{self.spacing} and {self.size * self.spacing}."
-            )
-        return nb
+    def _show_items(self):
+        ny, nx = self.shape
+        dx, dy = self.spacing
+        unit = f" {self.unit}" if self.unit else ""
+        items = [("shape", f"{ny} × {nx}"), ("spacing", f"{dx:.4g} × {dy:.4g}{unit}" if dx != dy else f"{dx:.4g}{unit}"),
+                 ("periodic", self.periodic)]
+        if self.mask is not None:
+            items.append(("unmeasured", f"{int(np.count_nonzero(~self.mask))} of {self.mask.size} px"))
+        source = self.description.get("file") or self.description.get("generator") or self.description.get("name")
+        if source:
+            items.append(("source", source))
+        if "detrend" in self.description:
+            items.append(("detrend", self.description["detrend"]))
+        items.append(("micro", type(self.micro).__name__))
+        return items
+
+
+def pitch(spacing) -> tuple[float, float]:
+    """The pixel pitch ``(Δx, Δy)`` from one positive number or a pair of them."""
+    if isinstance(spacing, (tuple, list, np.ndarray)) and np.ndim(spacing) == 1:
+        if len(spacing) != 2:
+            raise InvalidInputError(f"spacing must be one pixel pitch or a pair (dx, dy); got {len(spacing)} numbers.")
+        return (real(spacing[0], "spacing dx", minimum=0, strict=True), real(spacing[1], "spacing dy", minimum=0, strict=True))
+    d = real(spacing, "spacing", minimum=0, strict=True)
+    return (d, d)
 
 
 def parameter_record(obj) -> dict:

@@ -1,0 +1,177 @@
+"""Height maps from arrays: units, masks and detrending (one place for each)."""
+
+from collections.abc import Mapping
+
+import numpy as np
+from jaxtyping import ArrayLike, Bool, Float
+
+from .._errors import InvalidInputError
+from .._measurement import _boolean_mask
+from .._validation import real_array
+from ..synth._surface import HeightField, check_micro, pitch
+
+#: Length units accepted for heights and pitches, in metres (µ as U+00B5 or U+03BC, or "u").
+UNITS: dict[str, float] = {
+    "km": 1e3, "m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6, "\u00b5m": 1e-6, "\u03bcm": 1e-6,
+    "nm": 1e-9, "\u00c5": 1e-10, "A": 1e-10, "pm": 1e-12,
+}
+
+#: The detrending modes: the polynomial in ``ξ = x/L_x, η = y/L_y`` removed by least squares
+#: over the measured pixels (SurfaceTopography's ``detrend("height")`` and ``detrend("curvature")``).
+DETRENDS: dict[str | None, tuple[str, ...]] = {
+    None: (),
+    "plane": ("1", "ξ", "η"),
+    "curvature": ("1", "ξ", "η", "ξ²", "η²", "ξη"),
+}
+
+
+def metres_per(unit) -> float:
+    """The size of one ``unit`` in metres (InvalidInputError naming the accepted units)."""
+    if not isinstance(unit, str) or unit not in UNITS:
+        raise InvalidInputError(f"unit must be one of {', '.join(repr(u) for u in UNITS)}; got {unit!r}.")
+    return UNITS[unit]
+
+
+def _check_mode(mode) -> str | None:
+    if mode is not None and (not isinstance(mode, str) or mode not in DETRENDS):
+        raise InvalidInputError(f"detrend must be None, 'plane' or 'curvature'; got {mode!r}.")
+    return mode
+
+
+def detrend(heights: Float[ArrayLike, "ny nx"], mode: str | None = "plane", mask: Bool[ArrayLike, "ny nx"] | None = None
+            ) -> tuple[Float[np.ndarray, "ny nx"], dict]:
+    """Remove a plane or a quadratic from ``heights`` by least squares over the measured pixels.
+
+    The trend is ``p(ξ, η) = Σ_t c_t t(ξ, η)`` over the terms of :data:`DETRENDS` in the
+    normalised coordinates ``ξ = k/n_x``, ``η = j/n_y`` of pixel ``[j, k]`` — the
+    parametrisation of SurfaceTopography's ``polyfit``, so the coefficients are its
+    coefficients for the same heights (tests/test_topography.py). Detrending changes the
+    heights, not the pitch: slopes change by the trend's gradient.
+
+    Returns the detrended heights (unmeasured entries 0) and a record ``{"mode", "terms",
+    "coefficients"}`` (coefficients in the heights' unit) for the field's provenance.
+    InvalidInputError for heights that are not a finite real 2-D array where measured, a bad
+    mask or mode, or fewer measured pixels than coefficients.
+    """
+    mode = _check_mode(mode)
+    valid = None if mask is None else _boolean_mask(mask, "mask")
+    h = np.asarray(heights)
+    if valid is not None and h.shape != valid.shape:
+        raise InvalidInputError(f"mask must have the shape of heights, {h.shape}; got {valid.shape}.")
+    if valid is not None and h.dtype.kind in "fiu":
+        h = np.where(valid, h, 0.0)
+    h = real_array(h, "heights", ndim=2)
+    return _fit_trend(h, mode, np.ones(h.shape, bool) if valid is None else valid)
+
+
+def _fit_trend(h: np.ndarray, mode: str | None, valid: np.ndarray) -> tuple[np.ndarray, dict]:
+    record = {"mode": mode, "terms": list(DETRENDS[mode]), "coefficients": []}
+    if mode is None:
+        return np.where(valid, h, 0.0), record
+    ny, nx = h.shape
+    xi = (np.arange(nx) / nx)[None, :]
+    eta = (np.arange(ny) / ny)[:, None]
+    columns = [np.ones_like(h), np.broadcast_to(xi, h.shape), np.broadcast_to(eta, h.shape)]
+    if mode == "curvature":
+        columns += [np.broadcast_to(xi**2, h.shape), np.broadcast_to(eta**2, h.shape), xi * eta]
+    design = np.stack([c[valid] for c in columns], axis=-1)
+    if design.shape[0] < design.shape[1]:
+        raise InvalidInputError(f"detrend={mode!r} fits {design.shape[1]} coefficients but only {design.shape[0]} "
+                                "pixels are measured.")
+    coefficients, *_ = np.linalg.lstsq(design, h[valid], rcond=None)
+    trend = sum(c * t for c, t in zip(coefficients, columns))
+    record["coefficients"] = [float(c) for c in coefficients]
+    return np.where(valid, h - trend, 0.0), record
+
+
+def from_array(
+    heights: Float[ArrayLike, "ny nx"],
+    spacing,
+    *,
+    unit: str = "m",
+    mask: Bool[ArrayLike, "ny nx"] | None = None,
+    detrend: str | None = "plane",
+    periodic: bool = False,
+    micro=None,
+    description: Mapping | None = None,
+) -> HeightField:
+    """A measured height map as a :class:`brdfscale.synth.HeightField` in metres.
+
+    Args:
+        heights: ``h[j, k]`` at ``(x, y) = (k Δx, j Δy)`` — rows y, columns x — in ``unit``.
+            NaN entries and the masked entries of a :class:`numpy.ma.MaskedArray` are
+            unmeasured.
+        spacing: the pixel pitch, ``(Δx, Δy)`` or one number for square pixels, in ``unit``.
+        unit: the length unit of heights and spacing, one of :data:`UNITS`; the field is
+            stored in metres.
+        mask: boolean (ny, nx), True where measured (combined with NaN and a masked array's
+            own mask), or None.
+        detrend: ``"plane"`` (default: tilt removed), ``"curvature"`` (a quadratic removed)
+            or None, by least squares over the measured pixels (:func:`detrend`); recorded
+            in the provenance with its coefficients.
+        periodic: True only for a height map that is periodic (a simulation's); then
+            ``detrend`` must be None, since a removed plane is not periodic.
+        micro: the pixel facets' own lobe (default mirror facets, ``stats.Delta()``).
+        description: extra provenance to record (merged into ``field.description``).
+
+    Raises InvalidInputError for heights that are not a real 2-D array of at least 4 × 4
+    (infinite values are refused; NaN means unmeasured), a bad spacing, unit, mask or
+    detrend, ``periodic=True`` with detrending, or a mask that leaves no measured pixel facet.
+    """
+    raw = heights
+    masks = []
+    if isinstance(raw, np.ma.MaskedArray):
+        masks.append(~np.ma.getmaskarray(raw))
+        raw = np.ma.getdata(raw)
+    try:
+        h = np.array(raw, copy=True)
+    except (TypeError, ValueError) as err:
+        raise InvalidInputError(f"heights must be an array of real numbers; got a {type(heights).__name__} NumPy "
+                                f"cannot read as one ({err}).") from None
+    if h.dtype.kind not in "fiu":
+        raise InvalidInputError(f"heights must be real numbers (float or int); got dtype {h.dtype}.")
+    h = h.astype(float)
+    if h.ndim != 2:
+        raise InvalidInputError(f"heights must be a 2-D (ny, nx) array, rows y and columns x; got shape {h.shape}.")
+    if np.any(np.isinf(h)):
+        raise InvalidInputError(f"heights contain {int(np.count_nonzero(np.isinf(h)))} infinite values; mark "
+                                "unmeasured pixels with NaN or mask=False instead.")
+    masks.append(~np.isnan(h))
+    if mask is not None:
+        m = _boolean_mask(mask, "mask")
+        if m.shape != h.shape:
+            raise InvalidInputError(f"mask must have the shape of heights, {h.shape}; got {m.shape}.")
+        masks.append(m)
+    valid = np.logical_and.reduce(masks)
+    scale = metres_per(unit)
+    dx, dy = pitch(spacing)
+    mode = _check_mode(detrend)
+    if not isinstance(periodic, (bool, np.bool_)):
+        raise InvalidInputError(f"periodic must be True or False; got {type(periodic).__name__} {periodic!r}.")
+    if periodic and mode is not None:
+        raise InvalidInputError(f"periodic=True needs detrend=None: a removed {mode} is not periodic; got detrend={mode!r}.")
+    if description is not None and not isinstance(description, Mapping):
+        raise InvalidInputError(f"description must be a dict of provenance; got {type(description).__name__}.")
+    if not valid.any():
+        raise InvalidInputError("no height is measured: every entry is NaN or masked.")
+    if min(h.shape) < 4:
+        raise InvalidInputError(f"heights must be at least 4 × 4 pixels (rows y, columns x); got shape {h.shape}.")
+    h, trend = _fit_trend(np.where(valid, h, 0.0) * scale, mode, valid)
+    provenance = {
+        "generator": "brdfscale.topography.from_array",
+        "unit": unit,
+        "detrend": mode,
+        "trend": trend,
+        "shape": list(h.shape),
+        "spacing": [dx * scale, dy * scale],
+        "unmeasured": int(np.count_nonzero(~valid)),
+        **(dict(description) if description else {}),
+    }
+    return HeightField(h, (dx * scale, dy * scale), micro=check_micro(micro) if micro is not None else _mirror(),
+                       description=provenance, mask=None if valid.all() else valid, periodic=bool(periodic), unit="m")
+
+
+def _mirror():
+    from .. import stats
+
+    return stats.Delta()

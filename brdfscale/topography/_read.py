@@ -1,0 +1,123 @@
+"""Instrument files through SurfaceTopography (the optional extra ``brdfscale[topography]``)."""
+
+import os
+
+import numpy as np
+
+from .._errors import InvalidInputError, MeasurementFileError, MissingDependencyError
+from ._array import UNITS, from_array
+
+
+def _surface_topography():
+    try:
+        import SurfaceTopography
+    except ImportError as err:
+        raise MissingDependencyError(
+            "reading instrument files needs SurfaceTopography, the optional extra brdfscale[topography]: "
+            'pip install "brdfscale[topography]" (or build the field from your own array with '
+            f"brdfscale.topography.from_array); the import failed: {err}") from None
+    return SurfaceTopography
+
+
+def read(path, *, channel: int | str | None = None, detrend: str | None = "plane", micro=None):
+    """Read a measured height map from an instrument file as a :class:`brdfscale.synth.HeightField`.
+
+    The file is opened by SurfaceTopography (AFM: Bruker/Digital Instruments ``.di``,
+    Molecular Imaging ``.mi``, Asylum ``.ibw``, Park, NT-MDT…; optical: Veeco/Bruker ``.opd``,
+    Sensofar ``.plu``/``.plux``, Zygo, Keyence, Olympus…; profilometers: FRT ``.frt``,
+    Mitutoyo…; and text, MATLAB, HDF5 and image formats — its documentation lists them).
+    Heights and pitch are converted to metres; rows are y and columns x (SurfaceTopography
+    indexes ``[x, y]``: transposed here); pixels the instrument did not measure are masked;
+    then :func:`from_array` detrends and records the provenance: the file, its format, the
+    instrument, the channel, the units of the file and the trend removed.
+
+    Args:
+        path: the instrument file.
+        channel: the data channel, by index or name (``None``: the file's default height
+            channel). The error for a wrong one lists the file's channels.
+        detrend: ``"plane"`` (default), ``"curvature"`` or None (see :func:`from_array`).
+        micro: the pixel facets' own lobe (default mirror facets).
+
+    Raises:
+        MissingDependencyError: SurfaceTopography is not installed (``brdfscale[topography]``).
+        MeasurementFileError: the file is missing, unreadable, of no format SurfaceTopography
+            knows, or holds no areal height map with physical sizes (a line scan, or a file
+            without lateral calibration).
+        InvalidInputError: a bad ``channel``, ``detrend`` or ``micro``.
+    """
+    st = _surface_topography()
+    name = os.fspath(path) if isinstance(path, (str, os.PathLike)) else None
+    if name is None:
+        raise InvalidInputError(f"path must be a file name (str or os.PathLike); got {type(path).__name__}.")
+    if not os.path.isfile(name):
+        what = "is a directory" if os.path.isdir(name) else "does not exist" if not os.path.lexists(name) else "is not a regular file"
+        raise MeasurementFileError(f"{name}: {what}; expected an instrument height map (e.g. .di, .opd, .plu, .frt).")
+    try:
+        reader = st.open_topography(name)
+    except Exception as err:  # SurfaceTopography reports every reader it tried in one message
+        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        raise MeasurementFileError(
+            f"{name}: SurfaceTopography {st.__version__} cannot read it as a topography ({type(err).__name__}: "
+            f"{first[:300]}); check the file is an instrument height map it supports.") from None
+    channels = list(reader.channels)
+    index = _channel_index(name, reader, channels, channel)
+    info = channels[index]
+    try:
+        topo = reader.topography(channel_index=index)
+    except Exception as err:
+        raise MeasurementFileError(f"{name}: channel {index} ({info.name!r}) cannot be read as a topography "
+                                   f"({type(err).__name__}: {str(err)[:300]}).") from None
+    if topo.dim != 2:
+        raise MeasurementFileError(f"{name}: channel {index} ({info.name!r}) is a line scan, not an areal height map.")
+    unit = topo.unit
+    unit = {"µm": "\u00b5m", "μm": "\u03bcm"}.get(unit, unit)
+    if unit not in UNITS:
+        raise MeasurementFileError(f"{name}: the heights' unit {topo.unit!r} is not a length unit brdfscale knows "
+                                   f"({', '.join(UNITS)}).")
+    heights = topo.heights()
+    mask = ~np.ma.getmaskarray(heights) if np.ma.isMaskedArray(heights) else None
+    heights = np.ma.getdata(heights)
+    (nx, ny), (lx, ly) = topo.nb_grid_pts, topo.physical_sizes
+    instrument = (topo.info or {}).get("instrument")
+    description = {
+        "generator": "brdfscale.topography.read",
+        "file": os.path.basename(name),
+        "path": os.path.abspath(name),
+        "format": reader.format() if callable(getattr(reader, "format", None)) else type(reader).__name__,
+        "reader": f"SurfaceTopography {st.__version__} {type(reader).__name__}",
+        "instrument": _plain(instrument),
+        "channel": {"index": index, "name": info.name},
+        "file_unit": topo.unit,
+        "acquisition_time": _plain((topo.info or {}).get("acquisition_time")),
+    }
+    return from_array(heights.T, (lx / nx, ly / ny), unit=unit, mask=None if mask is None else mask.T,
+                      detrend=detrend, micro=micro, description=description)
+
+
+def _channel_index(name, reader, channels, channel) -> int:
+    listing = ", ".join(f"{i}: {c.name!r}" for i, c in enumerate(channels))
+    if channel is None:
+        default = getattr(reader, "default_channel", None)
+        return channels.index(default) if default in channels else 0
+    if isinstance(channel, str):
+        names = [c.name for c in channels]
+        if channel in names:
+            return names.index(channel)
+        raise InvalidInputError(f"{name} has no channel named {channel!r}; its channels are {listing}.")
+    if isinstance(channel, (int, np.integer)) and not isinstance(channel, bool) and 0 <= channel < len(channels):
+        return int(channel)
+    raise InvalidInputError(f"channel must be an index from 0 to {len(channels) - 1} or a name; {name} has {listing}; "
+                            f"got {channel!r}.")
+
+
+def _plain(value):
+    """A JSON-serialisable copy of metadata (dates as ISO text, other objects as str)."""
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if hasattr(value, "isoformat"):
+        return value.isoformat()
+    return str(value)
