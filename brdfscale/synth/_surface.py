@@ -211,7 +211,7 @@ class HeightField(Shown):
         if k == 1000:
             raise InvalidInputError(f"the pixel pitches Δx = {dx:.6g} and Δy = {dy:.6g} have no common multiple of "
                                     "under 1000 pixels; resample the field onto square pixels.")
-        unit_px = (k, round(k * ratio))  # unit window in (x, y) pixels
+        unit_px = (round(k * ratio), k)  # the unit window in (x, y) pixels: k Δy = round(k Δy/Δx) Δx
         fy, fx = self.facet_grid
         top = min(fx // unit_px[0], fy // unit_px[1])
         if largest is None:
@@ -223,7 +223,7 @@ class HeightField(Shown):
         if smallest > largest:
             raise InvalidInputError(f"smallest={smallest} exceeds the largest admissible window, {largest} unit windows.")
         multiples = np.unique(np.rint(np.geomspace(smallest, largest, count)).astype(int))
-        return [float(m * k * dx) for m in multiples]
+        return [float(m * unit_px[0] * dx) for m in multiples]
 
     def _measured_windows(self, block: tuple[int, int]) -> int:
         """How many whole windows of ``block`` (rows, cols) pixel facets are measured throughout."""

@@ -1,0 +1,248 @@
+"""Measured surfaces: brdfscale.topography and the facet statistics of measured fields (issue 18).
+
+References nobody here wrote: SurfaceTopography (its readers, its polyfit detrending, its
+``rms_gradient``), the README of the copied instrument files (sizes, units, missing pixels),
+hand-computed planes and masks, and an explicit window-by-window average written below.
+"""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from brdfscale import InvalidInputError, MeasurementFileError, MissingDependencyError, synth, topography
+
+DATA = Path(__file__).parent / "data" / "topographies"
+#: file → (pixels nx × ny, physical size in metres, unmeasured pixels) from tests/data/topographies/README.md
+FILES = {
+    "di-3.di": ((256, 256), (10e-6, 10e-6), 0),
+    "opd-1.opd": ((640, 480), (125.9e-6, 94.4e-6), 116),
+    "plu-1.plu": ((768, 576), (1275e-6, 956e-6), 0),
+    "mi-1.mi": ((256, 256), (20e-6, 20e-6), 0),
+    "frt-1.frt": ((500, 500), (12e-3, 12e-3), 76456),
+}
+
+
+def _surface_topography():
+    return pytest.importorskip("SurfaceTopography", reason="the topography extra (pip install 'brdfscale[topography]') "
+                               "is not installed; CI installs it")
+
+
+@pytest.fixture(scope="module")
+def st():
+    return _surface_topography()
+
+
+def _st_detrended(st, name, mode):
+    return st.open_topography(str(DATA / name)).topography().detrend({"plane": "height", "curvature": "curvature"}[mode])
+
+
+# -- reading ----------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", sorted(FILES))
+def test_every_real_file_reads_with_its_size_units_mask_and_provenance(st, name):
+    (nx, ny), (lx, ly), unmeasured = FILES[name]
+    field = topography.read(DATA / name, detrend="curvature")
+    assert field.shape == (ny, nx) and field.unit == "m" and not field.periodic
+    assert field.spacing[0] * nx == pytest.approx(lx, rel=2e-3) and field.spacing[1] * ny == pytest.approx(ly, rel=2e-3)
+    assert (0 if field.mask is None else int(np.count_nonzero(~field.mask))) == unmeasured
+    d = field.description
+    assert d["file"] == name and d["detrend"] == "curvature" and len(d["trend"]["coefficients"]) == 6
+    assert d["channel"]["index"] >= 0 and d["reader"].startswith("SurfaceTopography")
+    assert np.all(field.heights[~field.mask] == 0) if field.mask is not None else True
+
+
+@pytest.mark.parametrize("mode", ["plane", "curvature"])
+@pytest.mark.parametrize("name", ["opd-1.opd", "frt-1.frt", "mi-1.mi"])
+def test_detrending_equals_surface_topographys_polyfit(st, name, mode):
+    """The same least-squares polynomial as SurfaceTopography's detrend("height"/"curvature"),
+    over the measured pixels only, in metres; rows y, columns x (its heights() is [x, y])."""
+    ref = _st_detrended(st, name, mode)
+    field = topography.read(DATA / name, detrend=mode)
+    h = ref.heights().T
+    valid = ~np.ma.getmaskarray(h)
+    assert np.array_equal(valid, np.ones_like(valid) if field.mask is None else field.mask)
+    scale = topography.UNITS[ref.unit]
+    rms = np.std(field.heights[valid])
+    assert np.max(np.abs(np.ma.getdata(h)[valid] * scale - field.heights[valid])) < 1e-10 * rms
+    assert np.allclose(np.array(field.description["trend"]["coefficients"]), np.asarray(ref.coeffs) * scale, rtol=1e-8,
+                       atol=1e-10 * rms)
+
+
+def test_from_array_equals_read_on_the_same_heights(st):
+    name = "frt-1.frt"
+    raw = st.open_topography(str(DATA / name)).topography()
+    heights = raw.heights().T  # a masked array, rows y
+    nx, ny = raw.nb_grid_pts
+    lx, ly = raw.physical_sizes
+    read = topography.read(DATA / name, detrend="plane")
+    mine = topography.from_array(heights, (lx / nx, ly / ny), unit=raw.unit, detrend="plane")
+    nan = topography.from_array(np.ma.filled(heights.astype(float), np.nan), (lx / nx, ly / ny), unit=raw.unit)
+    for other in (mine, nan):
+        assert np.array_equal(other.mask, read.mask) and other.spacing == read.spacing
+        assert np.allclose(other.heights, read.heights, rtol=0, atol=1e-12 * np.std(read.heights))
+    a, b = (synth.facet_statistics(f, [read.spacing[0] * 4])[0] for f in (read, mine))
+    assert a.count == b.count and np.allclose(a.covariance, b.covariance, rtol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["di-3.di", "plu-1.plu", "mi-1.mi"])
+def test_pixel_scale_rms_slope_is_surface_topographys_rms_gradient(st, name):
+    for mode in ("plane", "curvature"):
+        field = topography.read(DATA / name, detrend=mode)
+        pixel = synth.facet_statistics(field, [field.spacing[0]])[0]
+        assert pixel.rms_slope == pytest.approx(_st_detrended(st, name, mode).rms_gradient(), rel=1e-12)
+
+
+@pytest.mark.parametrize("name", ["opd-1.opd", "frt-1.frt"])
+def test_with_missing_data_the_rms_slope_is_surface_topographys_on_its_pixel_facets(st, name):
+    """SurfaceTopography's linear-interpolation derivative also drops the pixel facets whose
+    diagonal neighbour is unmeasured (0·NaN in its interpolator): on its set of facets the two
+    agree exactly, and brdfscale's set (the three nodes of each facet measured) contains it."""
+    ref = _st_detrended(st, name, "curvature")
+    field = topography.read(DATA / name, detrend="curvature")
+    slx, sly = ref.derivative(1, interpolation="linear")
+    theirs = ~np.ma.getmaskarray(slx**2 + sly**2).T
+    assert np.all(field.pixel_facets[theirs]) and theirs.sum() < field.pixel_facets.sum()
+    m = synth.facet_slopes(field, field.spacing[0])
+    assert math.sqrt(np.mean(np.sum(m[theirs] ** 2, axis=-1))) == pytest.approx(ref.rms_gradient(), rel=1e-12)
+    ours = synth.facet_statistics(field, [field.spacing[0]])[0]
+    assert ours.count == int(field.pixel_facets.sum())
+    assert ours.rms_slope == pytest.approx(math.sqrt(np.mean(np.sum(m[field.pixel_facets] ** 2, axis=-1))), rel=1e-12)
+
+
+# -- hand-computed cases: tilt, masks, non-square pixels ------------------------------------------
+def test_a_tilted_plane_on_non_square_pixels_has_the_exact_slope_and_detrends_to_zero():
+    dx, dy, a, b = 2e-6, 5e-6, 0.03, -0.07  # heights h = a x + b y, so m = −∇h = (−a, −b)
+    ny, nx = 12, 20
+    y, x = np.mgrid[0:ny, 0:nx] * np.array([dy, dx])[:, None, None]
+    raw = topography.from_array(a * x + b * y + 1e-6, (dx, dy), detrend=None)
+    assert raw.block(10e-6) == (2, 5) and raw.facet_grid == (11, 19)
+    s = synth.facet_statistics(raw, [10e-6])[0]
+    assert s.count == (11 // 2) * (19 // 5) and np.allclose(s.mean, [-a, -b], rtol=1e-12)
+    assert np.allclose(s.covariance, 0, atol=1e-20)
+    flat = topography.from_array(a * x + b * y, (dx, dy), detrend="plane")
+    assert np.max(np.abs(flat.heights)) < 1e-18 and np.allclose(flat.description["trend"]["coefficients"][1:],
+                                                               [a * nx * dx, b * ny * dy], rtol=1e-10)
+    with pytest.raises(InvalidInputError, match="whole number of pixels along both axes"):
+        raw.block(3e-6)
+    assert all(abs(mu / dx - round(mu / dx)) < 1e-9 and abs(mu / dy - round(mu / dy)) < 1e-9 for mu in raw.scales(4))
+
+
+def test_one_unmeasured_pixel_excludes_exactly_the_windows_that_touch_it():
+    rng = np.random.default_rng(1)
+    h = rng.standard_normal((9, 9))
+    h[4, 4] = np.nan
+    field = topography.from_array(h, 1.0, unit="m", detrend=None)
+    # pixel facets (j, k) use nodes (j, k), (j, k+1), (j+1, k): those touching node (4, 4) are (4, 4), (4, 3), (3, 4)
+    bad = {(j, k) for j in range(8) for k in range(8) if not field.pixel_facets[j, k]}
+    assert bad == {(4, 4), (4, 3), (3, 4)}
+    s1, s2 = synth.facet_statistics(field, [1.0, 2.0])
+    assert (s1.count, s1.excluded) == (61, 3)
+    assert (s2.count, s2.excluded) == (16 - 3, 3)  # 2×2 windows (J, K) hold facets 2J…2J+1, 2K…2K+1: (2, 2), (2, 1), (1, 2)
+    assert np.isnan(synth.facet_slopes(field, 2.0)[2, 2]).all() and not np.isnan(synth.facet_slopes(field, 2.0)[0, 0]).any()
+
+
+def test_facet_covariance_equals_an_explicit_window_average_on_a_real_masked_file(st):
+    """Σ(μ) against a plain loop over windows, each slope the mean of its pixel facets'
+    forward differences (not telescoped), windows with any unmeasured node of a pixel facet left out."""
+    field = topography.read(DATA / "frt-1.frt", detrend="plane")
+    h, m = field.heights, field.mask
+    dx, dy = field.spacing
+    for b in (5, 25, 60):
+        slopes = []
+        for j0 in range(0, (h.shape[0] - 1) // b * b, b):
+            for k0 in range(0, (h.shape[1] - 1) // b * b, b):
+                if not (m[j0 : j0 + b, k0 : k0 + b + 1].all() and m[j0 + b, k0 : k0 + b].all()):
+                    continue
+                w = h[j0 : j0 + b + 1, k0 : k0 + b + 1]
+                slopes.append((-np.mean((w[:-1, 1:] - w[:-1, :-1]) / dx), -np.mean((w[1:, :-1] - w[:-1, :-1]) / dy)))
+        slopes = np.array(slopes)
+        s = synth.facet_statistics(field, [b * dx])[0]
+        assert s.count == len(slopes)
+        assert np.allclose(s.covariance, np.cov(slopes.T), rtol=1e-9, atol=0)
+        assert np.all(np.abs(s.covariance - np.cov(slopes.T)) <= 1e-6 * s.covariance_error)
+
+
+def test_stated_covariance_errors_match_the_spread_over_independent_surfaces():
+    """Calibration of covariance_error: over 48 independent Gaussian-correlated fields
+    (non-periodic, plane removed), the scatter of Σ̂_xx at μ = 8 px against the mean stated error."""
+    from brdfscale import stats
+
+    spectrum = stats.GaussianCorrelation(0.05, 6.0)
+    estimates, errors = [], []
+    for seed in range(48):
+        periodic = synth.spectral_field(spectrum, size=128, spacing=1.0, seed=seed)
+        field = topography.from_array(periodic.heights[:96, :112], 1.0, unit="m", detrend="plane")
+        s = synth.facet_statistics(field, [8.0], bins=17)[0]
+        estimates.append(s.covariance[0, 0])
+        errors.append(s.covariance_error[0, 0])
+    ratio = np.std(estimates, ddof=1) / np.mean(errors)
+    assert 0.6 < ratio < 1.6, ratio  # the ratio's own sampling spread over 48 fields is about ±0.1
+
+
+# -- errors ---------------------------------------------------------------------------------------
+@pytest.mark.parametrize("call, match", [
+    (lambda: topography.from_array(np.zeros((3, 8)), 1.0), "at least 4 × 4"),
+    (lambda: topography.from_array(np.zeros((8, 8)), 1.0, unit="furlong"), "unit must be one of"),
+    (lambda: topography.from_array(np.zeros((8, 8)), (1.0, 0.0)), "spacing dy"),
+    (lambda: topography.from_array(np.zeros((8, 8)), 1.0, detrend="quartic"), "detrend must be None, 'plane' or 'curvature'"),
+    (lambda: topography.from_array(np.full((8, 8), np.inf), 1.0), "infinite"),
+    (lambda: topography.from_array(np.full((8, 8), np.nan), 1.0), "no height is measured"),
+    (lambda: topography.from_array(np.zeros((8, 8)), 1.0, mask=np.zeros((8, 7), bool)), "mask must have the shape"),
+    (lambda: topography.from_array(np.zeros((8, 8)), 1.0, periodic=True), "periodic=True needs detrend=None"),
+    (lambda: topography.from_array(np.zeros((8, 8), complex), 1.0), "real numbers"),
+    (lambda: topography.from_array(np.eye(8), 1.0, mask=np.eye(8, dtype=bool), detrend=None), "no measured pixel facet"),
+])
+def test_bad_arrays_are_refused_naming_what_is_accepted(call, match):
+    with pytest.raises(InvalidInputError, match=match):
+        call()
+
+
+def test_bad_files_and_channels_get_the_librarys_errors(st, tmp_path):
+    with pytest.raises(MeasurementFileError, match="does not exist"):
+        topography.read(tmp_path / "missing.di")
+    with pytest.raises(MeasurementFileError, match="is a directory"):
+        topography.read(tmp_path)
+    junk = tmp_path / "junk.di"
+    junk.write_bytes(b"\\*File list\r\nnot a real header\r\n" * 8)
+    with pytest.raises(MeasurementFileError, match="cannot read it"):
+        topography.read(junk)
+    truncated = tmp_path / "truncated.di"
+    truncated.write_bytes((DATA / "di-3.di").read_bytes()[:40000])
+    with pytest.raises(MeasurementFileError):
+        topography.read(truncated)
+    with pytest.raises(InvalidInputError, match="its channels are 0: 'ZSensor'"):
+        topography.read(DATA / "di-3.di", channel="nope")
+    with pytest.raises(InvalidInputError, match="channel must be an index from 0 to 3"):
+        topography.read(DATA / "di-3.di", channel=7)
+    assert topography.read(DATA / "di-3.di", channel="Height").description["channel"] == {"index": 3, "name": "Height"}
+
+
+def test_a_missing_extra_is_named(monkeypatch):
+    import builtins
+
+    real_import = builtins.__import__
+
+    def no_surface_topography(name, *args, **kwargs):
+        if name == "SurfaceTopography" or name.startswith("SurfaceTopography."):
+            raise ImportError("No module named 'SurfaceTopography'")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_surface_topography)
+    with pytest.raises(MissingDependencyError, match=r'pip install "brdfscale\[topography\]"'):
+        topography.read(DATA / "di-3.di")
+
+
+# -- the gonioreflectometer on a measured field -----------------------------------------------------
+def test_gonioreflectometer_on_a_masked_field_measures_the_within_facet_lobe(st):
+    field = topography.read(DATA / "frt-1.frt", detrend="curvature")
+    mu = 10 * field.spacing[0]
+    extent = 1.05 * synth.steepest_slope(field)
+    mset = synth.gonioreflectometer(field, [mu], [0.0, 0.0, 1.0], extent=extent, pixels=33)
+    fs = synth.facet_statistics(field, [mu], bins=33, extent=extent)[0]
+    image = mset.images[0].values
+    assert np.allclose(image, np.asarray(fs.lobe.values), rtol=1e-10, atol=1e-12 * image.max())
+    truth = mset.metadata["truth"]
+    assert np.allclose(truth["facet_slope_covariance"][0], fs.covariance)
+    assert mset.metadata["unmeasured"] == 76456 and mset.metadata["shape"] == [500, 500]
+    assert mset.metadata["surface"]["file"] == "frt-1.frt"
