@@ -3,9 +3,13 @@
 * Surfaces: :func:`spectral_field` (Gaussian random fields with any
   :mod:`brdfscale.stats` power spectrum — Gaussian-correlated, anisotropic, K-correlation /
   ABC fractal), :func:`scratches` and :func:`blazed` (non-Gaussian micro-structure), the
-  built-in named surfaces of :func:`named_surface`; all in a :class:`HeightField`.
+  built-in named surfaces of :func:`named_surface`; all in a :class:`HeightField` — the one
+  height-field type, which also holds measured surfaces (rectangular, per-axis pitch, a mask
+  of unmeasured pixels, not periodic) from :mod:`brdfscale.topography`.
 * Statistics: :func:`facet_slopes`, :func:`facet_statistics` (``s(·, μ)`` and the
-  within-facet lobe ``g_μ`` as :class:`brdfscale.stats.Tabulated`), :func:`global_slopes`, :func:`steepest_slope`.
+  within-facet lobe ``g_μ`` as :class:`brdfscale.stats.Tabulated`, with facet counts,
+  effective independent facets and standard errors of ``Σ(μ)``), :func:`global_slopes`,
+  :func:`steepest_slope`.
 * Measurements: :func:`gonioreflectometer` turns a surface into a
   :class:`brdfscale.MeasurementSet` with :class:`PoissonNoise` or :class:`GaussianNoise`
   and an optional angular resolution.
