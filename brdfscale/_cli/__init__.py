@@ -19,7 +19,7 @@ import sys
 from .._errors import BrdfscaleError, OutputInUseError
 from ._options import Parser
 
-_SUBCOMMANDS = ("example", "synth", "info", "fit", "demo")
+_SUBCOMMANDS = ("example", "synth", "topography", "info", "fit", "demo")
 
 EXIT_OK, EXIT_FAILURE, EXIT_USAGE, EXIT_IN_USE, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
 

@@ -1,22 +1,14 @@
-"""``brdfscale synth SURFACE --out FILE.exr``: a synthetic measurement set from a built-in surface."""
+"""``brdfscale synth SURFACE --out FILE.exr``: a synthetic measurement set from a built-in surface;
+``brdfscale synth --topography FILE --out FILE.exr``: the same of a measured height map."""
 
 import argparse
 import math
 
 from .._errors import InvalidInputError
-from ._options import MAX_SEED, integer, output_file, real, seed
+from ._options import MAX_SEED, integer, output_file, real, scales, seed
+from ._topography import add_reading_options, read_field, reading_command
 
-
-def _scales(text: str) -> list[float]:
-    """Comma-separated facet sizes μ: 1–64 whole numbers of pixels ≥ 1 (each ≤ --size, checked
-    with the size)."""
-    try:
-        values = [float(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers; got {text!r:.60}") from None
-    if not 1 <= len(values) <= 64 or not all(math.isfinite(v) and v >= 1 and v == round(v) for v in values):
-        raise argparse.ArgumentTypeError(f"expected 1–64 comma-separated whole numbers of pixels ≥ 1; got {text!r:.60}")
-    return values
+_SIZE, _SEED = 512, 0  # the defaults of --size and --seed (None in the namespace: given or not)
 
 
 def _incident(text: str) -> tuple[float, float, float]:
@@ -60,15 +52,24 @@ def register(subparsers) -> None:
 
     parser = subparsers.add_parser(
         "synth",
-        help="write a synthetic multi-scale measurement set from a built-in surface",
-        description="Simulate a gonioreflectometer on a built-in random surface and write the lobe images "
-        "as a multi-part OpenEXR measurement set. Lengths and scales are in pixels.",
+        help="write a synthetic multi-scale measurement set from a built-in surface or a measured topography",
+        description="Simulate a gonioreflectometer on a built-in random surface (SURFACE) or on a measured height "
+        "map (--topography FILE; give one of the two) and write the lobe images as a multi-part OpenEXR measurement "
+        "set. A built-in surface's lengths and scales are in pixels; a topography's in metres.",
         epilog="surfaces: " + "; ".join(f"{name}: {desc}" for name, desc in SURFACES.items()),
     )
-    parser.add_argument("surface", choices=sorted(SURFACES), metavar="SURFACE", help="one of: " + ", ".join(SURFACES))
+    parser.add_argument("surface", nargs="?", choices=sorted(SURFACES), metavar="SURFACE",
+                        help="one of: " + ", ".join(SURFACES) + " (or --topography FILE instead)")
+    parser.add_argument("--topography", metavar="FILE", default=None,
+                        help="instead of SURFACE: an instrument height map (brdfscale topography reads the same "
+                        "files; needs the extra brdfscale[topography])")
+    add_reading_options(parser)
     parser.add_argument("--out", required=True, help="output .exr file")
-    parser.add_argument("--scales", type=_scales, default=[4.0, 16.0, 64.0],
-                        help="facet sizes μ, whole numbers of pixels from 1 to --size (default 4,16,64)")
+    parser.add_argument("--scales", type=scales, default=None, metavar="SCALES",
+                        help="facet sizes μ, comma-separated, each a whole number of pixels: for SURFACE pixel counts "
+                        "from 1 to --size (4,16,64, the default, or 4px,16px,64px); for --topography lengths with a "
+                        "unit (0.5um, 1e-6m, 0.1mm) or pixel counts (4px); or auto[:COUNT] (COUNT log-spaced pixel "
+                        "counts up to half the field; the default for --topography is auto:8)")
     parser.add_argument("--incident", type=_incident, action="append", metavar="THETA[:PHI]",
                         help="incident direction in degrees; repeat for several (default 0)")
     parser.add_argument("--noise", type=_noise, default=None, metavar="MODEL",
@@ -80,8 +81,11 @@ def register(subparsers) -> None:
     parser.add_argument("--extent", type=real(0.0, 1000.0, strict_lo=True), default=None,
                         help="image half-width in slope units, in (0, 1000] (default: 1.05 × steepest pixel slope)")
     parser.add_argument("--pixels", type=integer(3, 1025), default=65, help="image nodes per axis, 3–1025 (default 65)")
-    parser.add_argument("--size", type=integer(16, 4096), default=512, help="height field pixels per side, 16–4096 (default 512)")
-    parser.add_argument("--seed", type=seed, default=0, help=f"random seed of surface and noise, 0–{MAX_SEED} (default 0)")
+    parser.add_argument("--size", type=integer(16, 4096), default=None,
+                        help=f"height field pixels per side of SURFACE, 16–4096 (default {_SIZE}; not with --topography)")
+    parser.add_argument("--seed", type=seed, default=None,
+                        help=f"random seed of surface and noise, 0–{MAX_SEED} (default {_SEED}; with --topography it "
+                        "seeds the noise, so it needs --noise)")
     parser.add_argument("--weighting", choices=("nearly_flat", "projected_area"), default="nearly_flat",
                         help="pixel-facet weighting (default nearly_flat, the seed's approximation)")
     parser.add_argument("--dtype", choices=("float32", "float16"), default="float32", help="pixel type (default float32)")
@@ -89,29 +93,62 @@ def register(subparsers) -> None:
     parser.set_defaults(func=run)
 
 
+def _check_source(args) -> None:
+    """Exactly one of SURFACE and --topography, and only the options that apply to it."""
+    if (args.surface is None) == (args.topography is None):
+        raise InvalidInputError("give either a built-in SURFACE or --topography FILE (exactly one of the two).")
+    if args.topography is None:
+        given = [flag for flag, value in (("--channel", args.channel), ("--detrend", args.detrend)) if value is not None]
+        if given:
+            raise InvalidInputError(f"{' and '.join(given)}: how a topography file is read; give "
+                                    f"{'them' if len(given) > 1 else 'it'} with --topography only.")
+        return
+    if args.size is not None:
+        raise InvalidInputError("--size sets the size of a built-in SURFACE; a topography has its own "
+                                "(brdfscale topography FILE prints it): leave --size out with --topography.")
+    if args.seed is not None and args.noise is None:
+        raise InvalidInputError("--seed: a topography is not random, so with --topography the seed only seeds the "
+                                "noise; give --noise too, or leave --seed out.")
+
+
 def run(args) -> int:
     import numpy as np
 
     from .. import exr, stats, synth
 
+    _check_source(args)
     output_file(args.out, args.force)
-    if max(args.scales) > args.size:
-        raise InvalidInputError(f"--scales {max(args.scales):g} exceeds the field's --size {args.size}: a facet cannot "
-                                "be larger than the surface.")
-    surface_seed, noise_seed = np.random.SeedSequence(args.seed).spawn(2)
+    seed_value = _SEED if args.seed is None else args.seed
+    surface_seed, noise_seed = np.random.SeedSequence(seed_value).spawn(2)
     micro = None if args.micro_alpha is None else stats.Beckmann(args.micro_alpha)
-    field = synth.named_surface(args.surface, size=args.size, seed=np.random.default_rng(surface_seed), micro=micro)
-    field = synth.HeightField(field.heights, field.spacing, micro=field.micro, spectrum=field.spectrum,
-                              description={**field.description, "seed": args.seed})
+    if args.topography is None:
+        size = _SIZE if args.size is None else args.size
+        chosen = args.scales if args.scales is not None else scales("4,16,64")
+        pixels = chosen.pixels()
+        if pixels is not None and max(pixels) > size:
+            raise InvalidInputError(f"--scales {max(pixels):g} exceeds the field's --size {size}: a facet cannot "
+                                    "be larger than the surface.")
+        field = synth.named_surface(args.surface, size=size, seed=np.random.default_rng(surface_seed), micro=micro)
+        field = synth.HeightField(field.heights, field.spacing, micro=field.micro, spectrum=field.spectrum,
+                                  description={**field.description, "seed": seed_value})
+        source, command = f"{args.surface}, {size}² field", f"brdfscale synth {args.surface}"
+    else:
+        chosen = args.scales if args.scales is not None else scales("auto:8")
+        field = read_field(args.topography, args, micro=micro)
+        (ny, nx) = field.shape
+        source = f"{field.description.get('file', args.topography)}, {ny} × {nx} measured field"
+        command = f"brdfscale synth --topography {args.topography} {reading_command(args)} --scales {chosen}"
+    mus = chosen.resolve(field)
     extent = args.extent if args.extent is not None else 1.05 * synth.steepest_slope(field)
     incident = np.array(args.incident) if args.incident else np.array([[0.0, 0.0, 1.0]])
     mset = synth.gonioreflectometer(
-        field, args.scales, incident, extent=extent, pixels=args.pixels, noise=args.noise,
+        field, mus, incident, extent=extent, pixels=args.pixels, noise=args.noise,
         resolution=args.resolution, weighting=args.weighting,
         seed=np.random.default_rng(noise_seed) if args.noise is not None else None,
     )
-    mset.metadata["seed"] = args.seed
-    mset.metadata["command"] = f"brdfscale synth {args.surface}"
+    mset.metadata["seed"] = seed_value
+    mset.metadata["command"] = command
     exr.write_measurements(args.out, mset, overwrite=args.force, dtype=args.dtype)
-    print(f"wrote {args.out}: {len(mset.images)} lobe images ({args.surface}, {args.size}² field, scales {args.scales})")
+    shown = ", ".join(f"{mu:.6g}" for mu in mus) + ("" if field.unit is None else f" {field.unit}")
+    print(f"wrote {args.out}: {len(mset.images)} lobe images ({source}, scales {shown})")
     return 0

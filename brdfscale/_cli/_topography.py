@@ -1,0 +1,313 @@
+"""``brdfscale topography FILE --out DIR``: the scale-dependent slope statistics of a measured surface.
+
+Reads an instrument height map (:func:`brdfscale.topography.read`), measures
+:func:`brdfscale.synth.facet_statistics` at the requested scales and writes into DIR
+``statistics.json`` (provenance and, per scale, μ, facet counts, Σ(μ) with its standard error),
+``statistics.md`` (the same as a readable table) and ``statistics.png`` (Σ(μ) against μ beside
+cuts through the within-facet lobes g_μ), and prints the table. The options that read a
+topography (``--channel``, ``--detrend``) are shared with ``brdfscale synth --topography``
+(:func:`add_reading_options`, :func:`read_field`).
+"""
+
+import json
+import math
+import os
+
+from .._errors import InvalidInputError
+from ._options import integer, make_directory, output_directory, scales
+
+#: What the command writes into --out, in the order it writes them (the JSON last: it is
+#: written when everything else is in place).
+OUTPUTS = ("statistics.png", "statistics.md", "statistics.json")
+DETRENDS = ("plane", "curvature", "none")
+#: Units μ is shown in (the one that puts the largest scale in [1, 1000)).
+_DISPLAY_UNITS = (("m", 1.0), ("mm", 1e-3), ("µm", 1e-6), ("nm", 1e-9), ("pm", 1e-12))
+
+
+def channel(text: str):
+    """An option type: a data channel by index (a whole number) or by name."""
+    return int(text) if text.isascii() and text.isdigit() else text
+
+
+def add_reading_options(parser) -> None:
+    """``--channel`` and ``--detrend``: how a topography file is read (``topography``, ``synth``)."""
+    parser.add_argument("--channel", type=channel, default=None, metavar="C",
+                        help="data channel of the file, by index or name (default: the file's height channel; a wrong "
+                        "one is refused with the file's channels listed)")
+    parser.add_argument("--detrend", choices=DETRENDS, default=None,
+                        help="trend removed from the heights by least squares over the measured pixels before the "
+                        "statistics: plane (default: tilt), curvature (a quadratic) or none; recorded in the provenance")
+
+
+def _detrend(args) -> str:
+    return args.detrend if args.detrend is not None else "plane"  # None: not given (synth refuses it without a file)
+
+
+def read_field(path: str, args, micro=None):
+    """The measured :class:`brdfscale.synth.HeightField` of ``path`` read with ``args.channel``
+    and ``args.detrend`` (lengths in metres; provenance in ``field.description``)."""
+    from .. import topography
+
+    mode = _detrend(args)
+    return topography.read(path, channel=args.channel, detrend=None if mode == "none" else mode, micro=micro)
+
+
+def reading_command(args) -> str:
+    """The reading options as they would be typed (for a record of the command)."""
+    parts = [] if args.channel is None else ["--channel", str(args.channel)]
+    return " ".join(parts + ["--detrend", _detrend(args)])
+
+
+def register(subparsers) -> None:
+    parser = subparsers.add_parser(
+        "topography",
+        help="measure the scale-dependent slope statistics Σ(μ) and lobes g_μ of a measured height map",
+        description="Read an instrument height map (AFM, interferometer, confocal microscope, profilometer: "
+        "the formats of SurfaceTopography, the optional extra brdfscale[topography]), measure the facet-slope "
+        "covariance Σ(μ), its standard error, the facet counts and the within-facet lobes g_μ at each scale μ, "
+        "and write DIR/statistics.json, DIR/statistics.md and DIR/statistics.png. Lengths are in metres.",
+    )
+    parser.add_argument("file", metavar="FILE", help="instrument height map (e.g. .di, .mi, .opd, .plu, .frt)")
+    add_reading_options(parser)
+    parser.add_argument("--scales", type=scales, default=scales("auto:8"), metavar="SCALES",
+                        help="facet sizes μ, comma-separated: lengths with a unit (0.5um, 1e-6m, 0.1mm; units m, mm, "
+                        "um or µm, nm, Å, …) or pixel counts (1px,4px,16px), each a whole number of pixels; or "
+                        "auto[:COUNT]: COUNT log-spaced whole pixel counts up to half the field (default auto:8)")
+    parser.add_argument("--bins", type=integer(2, 4097), default=129,
+                        help="nodes per axis of the tabulated lobes g_μ, 2–4097 (default 129)")
+    parser.add_argument("--out", required=True, help="output directory (created; statistics.json, .md, .png); one "
+                        "run at a time: a second run into it is refused (exit 3)")
+    parser.add_argument("--force", action="store_true", help="overwrite the statistics files in --out")
+    parser.set_defaults(func=run)
+
+
+def _refuse_existing(out: str, force: bool) -> None:
+    existing = [name for name in OUTPUTS if os.path.lexists(os.path.join(out, name))]
+    if existing and not force:
+        raise InvalidInputError(f"--out {out} already holds {', '.join(existing)}; choose another --out directory or "
+                                "pass --force to replace them.")
+
+
+def run(args) -> int:
+    from .. import files, synth
+
+    output_directory(args.out)
+    _refuse_existing(args.out, args.force)  # before the work; again under the lock
+    field = read_field(args.file, args)
+    mus = sorted(args.scales.resolve(field))
+    results = synth.facet_statistics(field, mus, bins=args.bins)
+    command = f"brdfscale topography {args.file} {reading_command(args)} --scales {args.scales} --bins {args.bins}"
+    doc = document(field, results, args.bins, command)
+    fig = figure(field, results)
+    make_directory(args.out)
+    with files.exclusive(args.out, what="output directory"):
+        _refuse_existing(args.out, args.force)
+        png, md, js = (os.path.join(args.out, name) for name in OUTPUTS)
+        files.atomic_write(png, lambda tmp: fig.savefig(tmp, dpi=120, format="png"), overwrite=args.force)
+        files.atomic_write(md, lambda tmp: _write_text(tmp, markdown(doc)), overwrite=args.force)
+        files.atomic_write(js, lambda tmp: _write_text(tmp, json.dumps(doc, indent=2, ensure_ascii=False) + "\n"),
+                           overwrite=args.force)
+    print(summary_line(doc))
+    print(table(doc))
+    print(f"wrote {js}, {os.path.basename(md)} and {os.path.basename(png)}")
+    return 0
+
+
+def _write_text(path: str, text: str) -> None:
+    with open(path, "w", encoding="utf-8") as f:
+        f.write(text)
+
+
+def _finite(value):
+    """A JSON number, or None where it is not finite (e.g. the error of a single facet's Σ)."""
+    return float(value) if math.isfinite(value) else None
+
+
+def _matrix(a) -> list[list[float | None]]:
+    return [[_finite(v) for v in row] for row in a.tolist()]
+
+
+def document(field, results, bins: int, command: str) -> dict:
+    """statistics.json's content: provenance, the field's geometry and per scale the statistics."""
+    from .. import __version__, synth
+
+    dx, dy = field.spacing
+    measured = field.heights.size if field.mask is None else int(field.mask.sum())
+    return {
+        "format": "brdfscale topography statistics", "version": 1, "brdfscale": __version__, "command": command,
+        "topography": field.description,
+        "field": {"shape": list(field.shape), "spacing_m": [dx, dy], "unit": field.unit, "periodic": field.periodic,
+                  "measured_pixels": measured, "unmeasured_pixels": field.heights.size - measured,
+                  "steepest_pixel_slope": synth.steepest_slope(field)},
+        "bins": bins,
+        "conventions": "slopes are normal slopes m = −∇h (dimensionless); a facet at scale μ is a window of block = "
+                       "(rows, cols) = (μ/Δy, μ/Δx) pixel facets placed without wrap-around; mean and covariance are "
+                       "those of the facet slopes (covariance: the unbiased sample covariance Σ(μ)), covariance_error "
+                       "the standard error of each entry (null where undefined), independent the effective number of "
+                       "independent facets, excluded the windows touching an unmeasured pixel, rms_slope √⟨|m|²⟩ "
+                       "over the facets",
+        "scales": [{
+            "mu_m": r.mu, "mu_px": r.block[1], "block": list(r.block), "count": r.count, "excluded": r.excluded,
+            "independent": r.independent, "mean": r.mean.tolist(), "covariance": _matrix(r.covariance),
+            "covariance_error": _matrix(r.covariance_error), "rms_slope": r.rms_slope,
+        } for r in results],
+    }
+
+
+def _display_unit(mus) -> tuple[str, float]:
+    top = max(mus)
+    for name, size in _DISPLAY_UNITS:
+        if top / size >= 1:
+            return name, size
+    return _DISPLAY_UNITS[-1]
+
+
+def _sigma(row) -> tuple[list[float], list[float]]:
+    """σ_x, σ_y and their standard errors (from those of Σ_xx, Σ_yy: δσ = δΣ / 2σ)."""
+    cov, err = row["covariance"], row["covariance_error"]
+    sd = [math.sqrt(max(cov[a][a], 0.0)) for a in (0, 1)]
+    de = [err[a][a] / (2 * s) if err[a][a] is not None and s > 0 else math.nan for a, s in zip((0, 1), sd)]
+    return sd, de
+
+
+def summary_line(doc: dict) -> str:
+    d, f = doc["topography"], doc["field"]
+    (ny, nx), (dx, dy) = f["shape"], f["spacing_m"]
+    unit, size = _display_unit([dx])
+    instrument = (d.get("instrument") or {}).get("name") if isinstance(d.get("instrument"), dict) else d.get("instrument")
+    ch = d.get("channel") or {}
+    trend = d.get("detrend") or "none"
+    return (f"{d.get('file', '?')}: {ny} × {nx} pixels of {dx / size:.4g} × {dy / size:.4g} {unit}"
+            + (f", {instrument}" if instrument else "") + f", channel {ch.get('index')} {ch.get('name')!r}"
+            + f", detrend {trend}, {f['unmeasured_pixels']} unmeasured pixels")
+
+
+def _rows(doc: dict) -> tuple[str, list[list[str]]]:
+    unit, size = _display_unit([r["mu_m"] for r in doc["scales"]])
+    rows = []
+    for r in doc["scales"]:
+        (sx, sy), (ex, ey) = _sigma(r)
+        rows.append([f"{r['mu_m'] / size:.4g}", str(r["mu_px"]), "×".join(map(str, r["block"])), str(r["count"]),
+                     f"{r['independent']:.1f}", str(r["excluded"]), f"{sx:.4g} ± {ex:.2g}", f"{sy:.4g} ± {ey:.2g}",
+                     f"{r['covariance'][0][1]:.3g}", f"{r['rms_slope']:.4g}"])
+    return unit, rows
+
+
+def table(doc: dict) -> str:
+    """The compact table printed on stdout."""
+    unit, rows = _rows(doc)
+    head = [f"μ ({unit})", "px", "block", "facets", "indep.", "excl.", "σ_x ± err", "σ_y ± err", "Σ_xy", "rms slope"]
+    widths = [max(len(h), *(len(r[k]) for r in rows)) for k, h in enumerate(head)]
+    line = lambda cells: "  " + "  ".join(c.rjust(w) for c, w in zip(cells, widths))  # noqa: E731
+    return "\n".join([line(head)] + [line(r) for r in rows])
+
+
+def markdown(doc: dict) -> str:
+    """statistics.md: the provenance and the table."""
+    d, f = doc["topography"], doc["field"]
+    unit, rows = _rows(doc)
+    trend = d.get("trend") or {}
+    lines = [f"# Facet-slope statistics of {d.get('file', 'a topography')}", "",
+             f"Written by `{doc['command']}` (brdfscale {doc['brdfscale']}).", ""]
+    for key, label in (("path", "file"), ("format", "format"), ("reader", "reader"), ("instrument", "instrument"),
+                       ("channel", "channel"), ("file_unit", "unit of the file"), ("acquisition_time", "acquired")):
+        if d.get(key) not in (None, "", {}):
+            value = d[key]
+            if isinstance(value, dict):
+                value = ", ".join(f"{k}: {v}" for k, v in value.items())
+            lines.append(f"* {label}: {value}")
+    lines += [f"* field: {f['shape'][0]} × {f['shape'][1]} pixels (rows y × columns x), pitch Δx = "
+              f"{f['spacing_m'][0]:.6g} m, Δy = {f['spacing_m'][1]:.6g} m; {f['unmeasured_pixels']} unmeasured pixels; "
+              f"steepest pixel slope component {f['steepest_pixel_slope']:.4g}",
+              f"* detrend: {trend.get('mode') or 'none'}"
+              + (f" (terms {', '.join(trend['terms'])}; coefficients {', '.join(f'{c:.6g}' for c in trend['coefficients'])}, "
+                 "in metres)" if trend.get("coefficients") else ""),
+              f"* lobes g_μ tabulated on {doc['bins']} × {doc['bins']} nodes", ""]
+    head = [f"μ ({unit})", "μ (px)", "block (rows×cols)", "facets", "independent", "excluded",
+            "σ_x ± error", "σ_y ± error", "Σ_xy", "rms slope"]
+    lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    lines += ["", "σ_a = √Σ_aa (Σ(μ): the unbiased sample covariance of the facets' normal slopes m = −∇h); the "
+              "error is the standard error of Σ_aa carried to σ_a (δσ = δΣ/2σ), with the facets' correlation over "
+              "the facet lattice (the effective number of independent facets). Excluded: windows touching an "
+              "unmeasured pixel. The full covariances and their errors are in statistics.json.", ""]
+    return "\n".join(lines)
+
+
+def _cut(lobe, axis: int):
+    """The tabulated lobe along u_x (axis 0) or u_y (axis 1) through u = 0: (u, values)."""
+    import numpy as np
+
+    values, extent = np.asarray(lobe.values, dtype=float), np.asarray(lobe.extent, dtype=float)
+    if axis == 1:
+        values, extent = values.T, extent[::-1]
+    n_other, n = values.shape
+    pos = (n_other - 1) / 2  # the fractional row where the other coordinate is 0 (the grid is centred)
+    j = min(int(math.floor(pos)), n_other - 2)
+    w = pos - j
+    return np.linspace(-extent[0], extent[0], n), (1 - w) * values[j] + w * values[j + 1]
+
+
+def figure(field, results):
+    """statistics.png: σ_x(μ), σ_y(μ) log–log with standard errors and facet counts, beside cuts through
+    the within-facet lobes g_μ along u_x and u_y at up to four scales."""
+    import numpy as np
+
+    from .. import plot
+
+    mus = [r.mu for r in results]
+    unit, size = _display_unit(mus)
+    fig = plot.figure(13.0, 4.2)
+    ax, cx, cy = fig.subplots(1, 3)
+    x = np.array(mus) / size
+    for a, (marker, name) in enumerate((("o-", "σ_x"), ("s--", "σ_y"))):
+        sd = np.sqrt(np.maximum([r.covariance[a, a] for r in results], 0.0))
+        err = np.array([r.covariance_error[a, a] for r in results]) / np.where(sd > 0, 2 * sd, np.inf)
+        ax.errorbar(x, np.where(sd > 0, sd, np.nan), yerr=np.where(np.isfinite(err), err, np.nan), fmt=marker,
+                    ms=4, capsize=2, label=f"{name} = √Σ_{name[-1]}{name[-1]}")
+    top = np.sqrt(np.max([np.max(np.diag(r.covariance)) for r in results]))
+    for xi, r in zip(x, results):
+        peak = np.sqrt(max(np.max(np.diag(r.covariance)), 0.0))
+        if peak > 0:
+            ax.annotate(f"{r.count}", (xi, peak), textcoords="offset points", xytext=(3, 5), ha="left", fontsize=6)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    if top > 0:
+        ax.set_ylim(None, top * 1.6)
+    dx = field.spacing[0] / size
+    pixels = ax.secondary_xaxis("top", functions=(lambda v: v / dx, lambda p: p * dx))
+    pixels.set_xlabel("μ (pixels)", fontsize=8)
+    pixels.tick_params(labelsize=7)
+    ax.set_xlabel(f"facet size μ ({unit})", fontsize=8)
+    ax.set_ylabel("facet-slope standard deviation", fontsize=8)
+    ax.set_title("Σ(μ) ± standard error (numbers: facets)", fontsize=9)
+    ax.legend(fontsize=7)
+    plot.small_ticks(ax)
+
+    shown = [k for k, r in enumerate(results) if r.block != (1, 1)]  # at one pixel g_μ is the micro lobe alone
+    if len(shown) > 4:
+        shown = [shown[k] for k in np.unique(np.rint(np.linspace(0, len(shown) - 1, 4)).astype(int))]
+    colours = plot.colormap("viridis")(np.linspace(0.0, 0.85, max(len(shown), 1)))
+    for axis, panel, name in ((0, cx, "u_x (u_y = 0)"), (1, cy, "u_y (u_x = 0)")):
+        reach, peak = 0.0, 0.0
+        for colour, k in zip(colours, shown):
+            u, g = _cut(results[k].lobe, axis)
+            if not g.max() > 0:
+                continue
+            inside = u[g > 1e-4 * g.max()]
+            reach, peak = max(reach, float(np.max(np.abs(inside)))), max(peak, float(g.max()))
+            panel.semilogy(u, np.where(g > 0, g, np.nan), color=colour, lw=1.2,
+                           label=f"μ = {results[k].mu / size:.3g} {unit}, {results[k].count} facets")
+        if peak > 0:
+            panel.set_xlim(-1.1 * reach, 1.1 * reach)
+            panel.set_ylim(peak * 1e-4, peak * 2)
+            panel.legend(fontsize=6)
+        else:
+            panel.text(0.5, 0.5, "no scale above one pixel", ha="center", va="center", transform=panel.transAxes,
+                       fontsize=8)
+        panel.set_xlabel(f"slope offset {name}", fontsize=8)
+        panel.set_ylabel(f"g_μ ({plot.SLOPE_DENSITY})", fontsize=8)
+        panel.set_title(f"within-facet lobe g_μ along {name[:3]}", fontsize=9)
+        plot.small_ticks(panel)
+    fig.suptitle(f"{field.description.get('file', 'topography')}: facet-slope statistics", fontsize=10)
+    return fig
