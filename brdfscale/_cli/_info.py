@@ -48,7 +48,7 @@ def summarise(path) -> dict:
     return {
         "file": str(path), "kind": kind, "parts": len(mset.images), "scales": mset.scales.tolist(),
         "incident_deg": sorted({(round(i["theta_deg"], 6), round(i["phi_deg"], 6)) for i in images}),
-        "surface": meta.get("surface", {}).get("name") if isinstance(meta.get("surface"), dict) else None,
+        "surface": _surface(meta.get("surface")),
         "metadata_keys": sorted(meta), "images": images,
     }
 
@@ -75,3 +75,16 @@ def run(args) -> int:
     if summary["metadata_keys"]:
         print(f"  metadata: {', '.join(summary['metadata_keys'])}")
     return 0
+
+
+def _surface(record) -> str | None:
+    """The surface a measurement set was made of: a built-in name, or a measured file (brdfscale.topography)."""
+    if not isinstance(record, dict):
+        return None
+    if isinstance(record.get("name"), str):
+        return record["name"]
+    if isinstance(record.get("file"), str):
+        instrument = record.get("instrument")
+        name = instrument.get("name") if isinstance(instrument, dict) else None
+        return f"{record['file']} (measured{', ' + str(name) if name else ''}, detrend {record.get('detrend')})"
+    return None

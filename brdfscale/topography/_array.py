@@ -49,7 +49,8 @@ def detrend(heights: Float[ArrayLike, "ny nx"], mode: str | None = "plane", mask
     heights, not the pitch: slopes change by the trend's gradient.
 
     Returns the detrended heights (unmeasured entries 0) and a record ``{"mode", "terms",
-    "coefficients"}`` (coefficients in the heights' unit) for the field's provenance.
+    "coefficients"}`` for the field's provenance, the coefficients in the unit of the heights
+    given (:func:`from_array` detrends after converting to metres, so its records are in metres).
     InvalidInputError for heights that are not a finite real 2-D array where measured, a bad
     mask or mode, or fewer measured pixels than coefficients.
     """
@@ -159,7 +160,7 @@ def from_array(
     h, trend = _fit_trend(np.where(valid, h, 0.0) * scale, mode, valid)
     provenance = {
         "generator": "brdfscale.topography.from_array",
-        "unit": unit,
+        "input_unit": unit,  # the unit of the arrays given; the field, its spacing and the trend are in metres
         "detrend": mode,
         "trend": trend,
         "shape": list(h.shape),

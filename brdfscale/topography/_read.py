@@ -1,6 +1,7 @@
 """Instrument files through SurfaceTopography (the optional extra ``brdfscale[topography]``)."""
 
 import os
+import re
 
 import numpy as np
 
@@ -55,10 +56,9 @@ def read(path, *, channel: int | str | None = None, detrend: str | None = "plane
     try:
         reader = st.open_topography(name)
     except Exception as err:  # SurfaceTopography reports every reader it tried in one message
-        first = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
         raise MeasurementFileError(
-            f"{name}: SurfaceTopography {st.__version__} cannot read it as a topography ({type(err).__name__}: "
-            f"{first[:300]}); check the file is an instrument height map it supports.") from None
+            f"{name}: SurfaceTopography {st.__version__} cannot read it as a topography ({_reason(err)}); check the "
+            "file is an instrument height map of a format it supports.") from None
     channels = list(reader.channels)
     index = _channel_index(name, reader, channels, channel)
     info = channels[index]
@@ -92,6 +92,16 @@ def read(path, *, channel: int | str | None = None, detrend: str | None = "plane
     }
     return from_array(heights.T, (lx / nx, ly / ny), unit=unit, mask=None if mask is None else mask.T,
                       detrend=detrend, micro=micro, description=description)
+
+
+def _reason(err: Exception) -> str:
+    """SurfaceTopography's failure in one line: the readers it tried, or its first line."""
+    text = str(err).strip()
+    tried = re.findall(r"tried (\w+):", text)
+    if tried:
+        return f"no reader recognises the format; it tried {len(tried)}: {', '.join(tried)}"
+    first = text.splitlines()[0] if text else ""
+    return f"{type(err).__name__}: {first[:300]}" if first else type(err).__name__
 
 
 def _channel_index(name, reader, channels, channel) -> int:
