@@ -193,6 +193,8 @@ def test_synth_from_a_topography_writes_a_measurement_set(tmp_path, capsys, di_f
     again = tmp_path / "again.exr"  # the same seed, the same noise
     assert _status([*argv[:-1], str(again)]) == 0
     assert all(np.array_equal(a.values, b.values) for a, b in zip(exr.read_measurements(again).images, mset.images))
+    assert _status(["info", str(out)]) == 0
+    assert "surface: di-3.di (measured, Dimension Icon, detrend plane)" in capsys.readouterr().out
 
 
 @pytest.mark.parametrize("argv, message", [
