@@ -17,6 +17,7 @@ The public API:
 * :mod:`brdfscale.scene` — a planner that evaluates only what a scene needs;
 * :class:`MeasurementSet` / :class:`LobeImage` — multi-scale lobe measurements in memory;
 * :mod:`brdfscale.checks` — argument checks for code built on brdfscale;
+* :mod:`brdfscale.laplace` — the Laplace approximation of a fit and what its data determine (one policy for every fit);
 * :mod:`brdfscale.special` — Bessel functions J0, J1, K0, x·K1 in pure JAX;
 * :mod:`brdfscale.plot` — one-call matplotlib figures of lobes, statistics, measurements, plans, fits;
 * :mod:`brdfscale.show` — the compact ``repr``/``_repr_html_`` of every object, and progress bars;
@@ -48,7 +49,7 @@ from ._errors import (
 )
 
 _SUBMODULES = ("checks", "exr", "files", "fitting", "geometry", "lobes", "plot", "plus", "scene", "show", "so3",
-               "special", "stats", "synth", "topography")
+               "special", "stats", "synth", "topography", "laplace")
 _NAMES = {
     **dict.fromkeys(("AbstractMethod", "Auto", "ClosedForm", "Grid", "Radial", "RadialTable", "evolve", "select"),
                     "._evolve"),
@@ -56,8 +57,8 @@ _NAMES = {
 }
 
 if TYPE_CHECKING:  # what the lazy loader below provides, for type checkers and IDEs
-    from . import (checks, exr, files, fitting, geometry, lobes, plot, plus, scene, show, so3, special, stats, synth,
-                   topography)
+    from . import (checks, exr, files, fitting, geometry, laplace, lobes, plot, plus, scene, show, so3, special, stats,
+                   synth, topography)
     from ._evolve import AbstractMethod, Auto, ClosedForm, Grid, Radial, RadialTable, evolve, select
     from ._measurement import LobeImage, MeasurementSet
 
@@ -107,6 +108,7 @@ __all__ = [
     "exr",
     "files",
     "checks",
+    "laplace",
     "special",
     "plot",
     "show",

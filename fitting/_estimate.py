@@ -8,7 +8,8 @@ Laplace approximation of the posterior is Gaussian with precision (Fisher inform
 
     F = Jᵀ J,   J = ∂r/∂θ (θ̂)   (``jax.jacfwd``; optimistix exposes no Jacobian),
 
-and identifiability is read from its eigen-decomposition ``F = V Λ Vᵀ``: a direction
+and identifiability is read from its eigen-decomposition ``F = V Λ Vᵀ`` by
+:func:`brdfscale.laplace.laplace` (the one policy of every fit in the project): a direction
 ``v_i`` is *undetermined* when its standard deviation ``1/√λ_i`` exceeds
 ``undetermined_std`` (default 1: in log-parameters, the combination is not known to within
 a factor e) or when ``λ_i`` is numerically zero (``λ_i ≤ 1e-12 λ_max``). Undetermined
@@ -36,6 +37,7 @@ import optimistix as optx
 from jaxtyping import Array, Float
 
 from brdfscale import InvalidInputError
+from brdfscale.laplace import laplace
 from brdfscale.show import Shown, Table
 
 from brdfscale.checks import integer, real, require_float64
@@ -196,6 +198,7 @@ class FitResult(Shown):
     notes: list[str]
     solver: str
     at_bounds: list[str]
+    eigenvectors: np.ndarray | None = None  # V of the Fisher matrix's eigen-decomposition, columns by eigenvalue
 
     @property
     def dof(self) -> int:
@@ -259,14 +262,6 @@ class FitResult(Shown):
                 "notes": self.notes,
             },
         }
-
-
-def _combination(vector, names, cutoff=0.1) -> str:
-    order = np.argsort(-np.abs(vector))
-    if vector[order[0]] < 0:
-        vector = -vector
-    parts = [f"{vector[i]:+.2f}·{names[i]}" for i in order if abs(vector[i]) >= cutoff]
-    return " ".join(parts).lstrip("+").replace("+", "+ ").replace("-", "− ").replace("·", "·", 1)
 
 
 def _starting_points(model, data, starts, spread, seed):
@@ -355,33 +350,23 @@ def fit(
     lo, hi = np.asarray(problem.lower), np.asarray(problem.upper)
     at_bounds = [n for n, t, a, b in zip(model.names, theta, lo, hi) if t <= a + 1e-6 * (b - a) or t >= b - 1e-6 * (b - a)]
 
-    J = jacobians[best]
-    lam, V = np.linalg.eigh(J.T @ J)
-    lam_max = max(float(lam[-1]), 1e-300)
-    undetermined_mask = (lam <= 1e-12 * lam_max) | (1.0 / np.sqrt(np.maximum(lam, 1e-300)) > undetermined_std)
     names = model.names
-    undetermined = [
-        {"combination": _combination(V[:, i], names), "fisher_eigenvalue": float(lam[i]),
-         "std": (float(1 / np.sqrt(lam[i])) if lam[i] > 1e-12 * lam_max else None)}
-        for i in np.flatnonzero(undetermined_mask)
-    ]
-    null = lam <= 1e-12 * lam_max
-    cov = (V[:, ~null] / lam[~null]) @ V[:, ~null].T  # Laplace covariance (pseudo-inverse of F)
+    analysis = laplace(jacobians[best], names, undetermined_std=undetermined_std)  # brdfscale.laplace: the one policy
+    lam, cov, undetermined = analysis.eigenvalues, analysis.covariance, analysis.undetermined
 
-    # quantities: Laplace draws; a quantity is undetermined when the undetermined directions
-    # would move it by more than 3× its standard deviation along the determined ones
+    # quantities: Laplace draws along the determined directions only (module docstring); a
+    # quantity the undetermined directions move more than the determined ones gets no interval
     rng = np.random.default_rng(seed + 1)
-    known = ~undetermined_mask  # drawn along the determined directions only (module docstring)
-    draws = theta + rng.standard_normal((_LAPLACE_DRAWS, known.sum())) @ (V[:, known] / np.sqrt(lam[known])).T
+    basis = analysis.determined_basis()
+    draws = theta + rng.standard_normal((_LAPLACE_DRAWS, basis.shape[1])) @ basis.T
     q_hat, grads, q_draws = map(np.asarray, _quantities(model, jnp.asarray(theta), jnp.asarray(draws)))
     q_names = list(model.quantities(jnp.asarray(theta)))
-    floor = np.maximum(lam, 1e-12 * lam_max)
-    var_undetermined = ((grads @ V[:, undetermined_mask]) ** 2 / floor[undetermined_mask]).sum(axis=1)
-    var_determined = ((grads @ V[:, ~undetermined_mask]) ** 2 / floor[~undetermined_mask]).sum(axis=1)
+    _, var_undetermined = analysis.variances(grads)
+    determined = analysis.quantity_is_determined(grads)
     estimates, std, quantiles = {}, {}, {}
     for idx, name in enumerate(q_names):
         estimates[name] = float(q_hat[idx])
-        if var_undetermined[idx] > 9 * var_determined[idx]:
+        if not determined[idx]:
             std[name], quantiles[name] = None, None
         else:
             spread = float(np.var(q_draws[:, idx]))
@@ -393,4 +378,5 @@ def fit(
         names=names, theta=theta, covariance=cov, chi2=float(chi2s[best]), n_data=data.n_data, status=status,
         starts=start_info, estimates=estimates, std=std, quantiles=quantiles, eigenvalues=lam,
         undetermined=undetermined, notes=list(model.identifiability_notes), solver=solver, at_bounds=at_bounds,
+        eigenvectors=analysis.eigenvectors,
     )

@@ -11,10 +11,12 @@ fixed ``x0``: those are solved by linear least squares at the initial ``x0`` to 
 Levenberg–Marquardt (optimistix) on ``θ = (ln A, ln x0, c_0…c_{N−1}[, logit f])`` —
 the logarithms and the logit keep ``A, x0 > 0`` and ``0 < f < 1`` without bounds.
 
-Uncertainties: the Laplace (Gauss–Newton) covariance ``(JᵀJ)⁻¹`` of the whitened residuals'
-Jacobian at the optimum, mapped to the natural parameters by the delta method. If ``JᵀJ`` is
-singular to working precision the data do not determine the parameters and the fit raises,
-naming the undetermined combination, instead of returning arbitrary numbers.
+Uncertainties: the Laplace (Gauss–Newton) approximation of the whitened residuals' Jacobian at
+the optimum by :func:`brdfscale.laplace.laplace` — the identifiability policy of every fit in the
+project: an eigen-decomposition of ``JᵀJ``, its pseudo-inverse over the determined directions,
+the numerically null directions named as undetermined combinations — mapped to the natural
+parameters by the delta method. A parameter the undetermined directions move gets σ = NaN and
+the combination is listed in :attr:`StrengthFit.undetermined`, instead of arbitrary numbers.
 """
 
 import equinox as eqx
@@ -26,18 +28,21 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import BrdfscaleError, InvalidInputError
 from .._validation import as_float_array, positive, require_float64
+from ..laplace import laplace
 from ..stats import AbstractSlopeDensity, Gaussian
 from ._nearly_specular import NearlySpecular, ObservedDensity
 from ._transform import MAX_ORDER
 
 _SOLVER = optx.LevenbergMarquardt(rtol=1e-10, atol=1e-12)
-_CONDITION_LIMIT = 1e12
 
 
 class StrengthFit(eqx.Module):
     """The result of :func:`fit_strengths`: estimates, 1σ (Laplace) uncertainties and diagnostics.
 
-    ``covariance`` is over the natural parameters in the order ``names``. Without a smooth
+    ``covariance`` is over the natural parameters in the order ``names`` (the pseudo-inverse
+    over the determined directions, :mod:`brdfscale.laplace`). ``undetermined`` names the
+    combinations of ``(ln A, ln x0, c_n[, logit f])`` the data do not determine; a parameter
+    they move has σ = NaN — no interval that would look like a measurement. Without a smooth
     shape the specular fraction is 1 by construction (``specular_fraction_sigma`` = 0).
     ``chi2`` is the minimum of Σ((model − y)/σ)², ``dof`` the samples minus the parameters.
     """
@@ -57,6 +62,12 @@ class StrengthFit(eqx.Module):
     steps: int = eqx.field(static=True)
     statistic: NearlySpecular
     kernel: Gaussian
+    undetermined: tuple[str, ...] = eqx.field(static=True, default=())
+
+    @property
+    def determined(self) -> bool:
+        """True when the data determine every parameter (no undetermined combination)."""
+        return not self.undetermined
 
     def model(self) -> ObservedDensity:
         """The fitted lobe shape as the instrument sees it (multiply by ``amplitude``)."""
@@ -92,13 +103,13 @@ def _linear_start(u, y, sigma, kernel, smooth, orders, x0):
         zero = jnp.zeros(orders, y.dtype)
         columns.append(ObservedDensity(NearlySpecular(0.0, zero, x0, smooth=smooth, smooth_weight=1.0), kernel).density(u))
     design = np.stack([np.asarray(col).reshape(-1) for col in columns], axis=-1) / np.asarray(sigma).reshape(-1, 1)
-    _, singular_values, vt = np.linalg.svd(design, full_matrices=False)
-    if singular_values[-1] <= singular_values[0] * 1e-10:
-        names = ["A·a"] + [f"A·c_{n}" for n in range(orders)] + (["A·w"] if smooth is not None else [])
-        combination = " + ".join(f"{v:+.3f}·{n}" for v, n in zip(vt[-1], names) if abs(v) > 0.05)
+    names = ["A·a"] + [f"A·c_{n}" for n in range(orders)] + (["A·w"] if smooth is not None else [])
+    start = laplace(design, names, undetermined_std=np.inf)  # the linear model's Jacobian is its design matrix
+    if start.undetermined:
+        combinations = "; ".join(u["combination"] for u in start.undetermined)
         raise BrdfscaleError(
             "the data do not determine the strength fit: at the starting x0 the linear parameters have "
-            f"an undetermined combination: {combination}. Measure more distinct offsets or fit fewer orders."
+            f"an undetermined combination: {combinations}. Measure more distinct offsets or fit fewer orders."
         )
     beta, *_ = np.linalg.lstsq(design, np.asarray(y).reshape(-1) / np.asarray(sigma).reshape(-1), rcond=None)
     mass = beta[0] + (beta[-1] if smooth is not None else 0.0)
@@ -141,8 +152,8 @@ def fit_strengths(
         A :class:`StrengthFit`. Everything runs in float64 (optimistix requires one dtype).
 
     Raises:
-        BrdfscaleError: the solver did not converge, or the data do not determine the
-            parameters (singular ``JᵀJ``; the message names the undetermined combination).
+        BrdfscaleError: the solver did not converge, there are fewer samples than
+            parameters, or the linear start is singular (the message names the combination).
         InvalidInputError: bad shapes or values.
     """
     require_float64("fit_strengths")
@@ -177,27 +188,19 @@ def fit_strengths(
         )
     theta = solution.value
     J = np.asarray(jax.jacfwd(_residuals)(theta, args))
-    jtj = J.T @ J
-    eigenvalues, eigenvectors = np.linalg.eigh(jtj)
     names = ("amplitude", "x0") + tuple(f"c_{n}" for n in range(orders)) + (("specular_fraction",) if smooth is not None else ())
     internal = ("ln A", "ln x0") + names[2 : 2 + orders] + (("logit f",) if smooth is not None else ())
-    if eigenvalues[0] <= eigenvalues[-1] / _CONDITION_LIMIT:
-        direction = eigenvectors[:, 0]
-        combination = " + ".join(f"{v:+.3f}·{n}" for v, n in zip(direction, internal) if abs(v) > 0.05)
-        raise BrdfscaleError(
-            "the data do not determine all strength-fit parameters (JᵀJ condition number "
-            f"{eigenvalues[-1] / max(eigenvalues[0], 1e-300):.3g}); undetermined combination: {combination}. "
-            "Fit fewer orders, fix x0, or measure at a finer instrument resolution."
-        )
-    cov_theta = np.linalg.inv(jtj)
+    # brdfscale.laplace, the one policy of every fit: only numerically null directions are
+    # undetermined here (θ mixes logarithms, strengths and a logit: no common unit for a threshold)
+    analysis = laplace(J, internal, undetermined_std=np.inf)
     theta_np = np.asarray(theta)
-    scale = np.ones_like(theta_np)
+    scale = np.ones_like(theta_np)  # dθ_natural/dθ: the delta method
     scale[0], scale[1] = np.exp(theta_np[0]), np.exp(theta_np[1])
     if smooth is not None:
         f = 1 / (1 + np.exp(-theta_np[-1]))
         scale[-1] = f * (1 - f)
-    covariance = scale[:, None] * cov_theta * scale[None, :]
-    sd = np.sqrt(np.diag(covariance))
+    covariance = scale[:, None] * analysis.covariance * scale[None, :]
+    sd = analysis.std(np.diag(scale)) # NaN for a parameter the undetermined directions move (never a fake precision)
     statistic = _statistic(theta, smooth, orders)
     residual = np.asarray(_residuals(theta, args))
     return StrengthFit(
@@ -216,4 +219,5 @@ def fit_strengths(
         steps=int(solution.stats["num_steps"]),
         statistic=statistic,
         kernel=kernel,
+        undetermined=tuple(u["combination"] for u in analysis.undetermined),
     )
