@@ -31,7 +31,9 @@ __distribution__ = "brdfscale"  # how brdfscale.fitting recognises this package 
 
 from ._data import Dataset, PointData
 from ._estimate import SOLVERS, FitResult, Problem, fit
-from ._models import AbstractModel, NonParametricModel, ParametricModel, RelativeStatistics
+from ._model import AbstractModel
+from ._nonparametric import NonParametricModel, RelativeStatistics
+from ._parametric import ParametricModel
 from ._plot import plot_corner, plot_fit, plot_recovered_statistics
 from ._report import check_report_directory, report_files, summarise, truth_of, write_report
 from ._sample import SampleResult, log_posterior, sample

@@ -42,7 +42,7 @@ from brdfscale.show import Shown, Table
 
 from brdfscale.checks import integer, real, require_float64
 from ._data import Dataset, PointData
-from ._models import AbstractModel, require_dataset
+from ._model import AbstractModel, require_dataset
 
 __all__ = ["Problem", "FitResult", "fit", "SOLVERS"]
 

@@ -28,7 +28,8 @@ from brdfscale import plot as _figures
 from brdfscale.checks import integer, real
 
 from ._estimate import FitResult, Problem, check_fit
-from ._models import ParametricModel, predict_images
+from ._model import predict_images
+from ._parametric import ParametricModel
 from ._sample import SampleResult
 
 __all__ = ["plot_fit", "plot_recovered_statistics", "plot_corner"]

@@ -27,7 +27,8 @@ from brdfscale.files import atomic_write, exclusive
 
 from brdfscale.checks import flag
 from ._estimate import FitResult, Problem, check_fit
-from ._models import ParametricModel, predict_images
+from ._model import predict_images
+from ._parametric import ParametricModel
 from ._plot import (_quantities, check_samples, check_truth, corner_figure, plot_fit, posterior_draws,
                     statistics_figure, truth_theta)
 from ._sample import SampleResult

@@ -14,7 +14,8 @@ import numpy as np
 from brdfscale import InvalidInputError, LobeImage, MeasurementSet
 
 from ._data import Dataset
-from ._models import ParametricModel, predict_images
+from ._model import predict_images
+from ._parametric import ParametricModel
 
 __all__ = ["simulate"]
 
