@@ -30,12 +30,12 @@ local file named ``fitting.py`` in the working directory would silently take its
 __distribution__ = "brdfscale"  # how brdfscale.fitting recognises this package (not a local fitting.py)
 
 from ._data import Dataset, PointData
-from ._estimate import SOLVERS, FitResult, Problem, fit
+from ._estimate import RATIO_FREQUENCIES, SOLVERS, FitResult, Problem, fit, ratio_frequencies
 from ._model import AbstractModel
 from ._nonparametric import NonParametricModel, RelativeStatistics
 from ._parametric import ParametricModel
 from ._plot import plot_corner, plot_fit, plot_recovered_statistics
-from ._report import check_report_directory, report_files, summarise, truth_of, write_report
+from ._report import check_report_directory, report_files, summarise, summarise_ratios, truth_of, write_report
 from ._sample import SampleResult, log_posterior, sample
 from ._simulate import simulate
 
@@ -54,6 +54,9 @@ __all__ = [
     "sample",
     "log_posterior",
     "summarise",
+    "summarise_ratios",
+    "ratio_frequencies",
+    "RATIO_FREQUENCIES",
     "write_report",
     "report_files",
     "check_report_directory",

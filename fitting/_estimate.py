@@ -37,12 +37,12 @@ import optimistix as optx
 from jaxtyping import Array, Float
 
 from brdfscale import InvalidInputError
-from brdfscale.laplace import laplace
+from brdfscale.laplace import combination, laplace
 from brdfscale.show import Shown, Table
 
 from brdfscale.checks import integer, real, require_float64
 from ._data import Dataset, PointData
-from ._model import AbstractModel, require_dataset
+from ._model import AbstractModel, moments, require_dataset
 
 __all__ = ["Problem", "FitResult", "fit", "SOLVERS"]
 
@@ -199,6 +199,8 @@ class FitResult(Shown):
     solver: str
     at_bounds: list[str]
     eigenvectors: np.ndarray | None = None  # V of the Fisher matrix's eigen-decomposition, columns by eigenvalue
+    ratios: dict = dataclasses.field(default_factory=dict)  # S(μ0)/S(μk) at reference |W| (ratio_frequencies)
+    combinations: list = dataclasses.field(default_factory=list)  # determined Fisher eigen-directions: value ± std
 
     @property
     def dof(self) -> int:
@@ -229,6 +231,14 @@ class FitResult(Shown):
             rows.append((name, value, self.std.get(name), *q))
         tables = [Table("parameters (Laplace: estimate, standard deviation, 5/50/95 % quantiles; — where the data "
                         "do not determine it)", ("quantity", "estimate", "std", "5 %", "50 %", "95 %"), rows)]
+        if self.ratios:
+            tables.append(Table("what the data determine: ratios S(W, μ0)/S(W, μk) (Laplace)",
+                                ("ratio", "estimate", "std", "5 %", "95 %"),
+                                [(n, r["estimate"], r["std"], *((r["quantiles_5_50_95"] or [None] * 3)[::2]))
+                                 for n, r in self.ratios.items()]))
+        if self.combinations:
+            tables.append(Table("determined combinations of θ (Fisher eigen-directions)", ("combination", "value", "std"),
+                                [(c["combination"], c["value"], c["std"]) for c in self.combinations]))
         if self.undetermined:
             tables.append(Table("combinations the data do not determine", ("combination", "Fisher eigenvalue", "std"),
                                 [(u["combination"], u["fisher_eigenvalue"], u["std"]) for u in self.undetermined]))
@@ -258,9 +268,11 @@ class FitResult(Shown):
             "quantiles_5_50_95": self.quantiles,
             "identifiability": {
                 "fisher_eigenvalues": self.eigenvalues.tolist(),
+                "determined_combinations": self.combinations,
                 "undetermined_combinations": self.undetermined,
                 "notes": self.notes,
             },
+            "ratios": self.ratios,
         }
 
 
@@ -361,22 +373,74 @@ def fit(
     draws = theta + rng.standard_normal((_LAPLACE_DRAWS, basis.shape[1])) @ basis.T
     q_hat, grads, q_draws = map(np.asarray, _quantities(model, jnp.asarray(theta), jnp.asarray(draws)))
     q_names = list(model.quantities(jnp.asarray(theta)))
-    _, var_undetermined = analysis.variances(grads)
-    determined = analysis.quantity_is_determined(grads)
-    estimates, std, quantiles = {}, {}, {}
-    for idx, name in enumerate(q_names):
-        estimates[name] = float(q_hat[idx])
-        if not determined[idx]:
-            std[name], quantiles[name] = None, None
-        else:
-            spread = float(np.var(q_draws[:, idx]))
-            widen = np.sqrt(1 + var_undetermined[idx] / spread) if spread > 0 else 1.0
-            std[name] = float(np.sqrt(spread + var_undetermined[idx]))
-            q = np.percentile(q_draws[:, idx], [5, 50, 95])
-            quantiles[name] = (q[1] + widen * (q - q[1])).tolist()
+    estimates, std, quantiles = _summaries(analysis, q_names, q_hat, grads, q_draws)
+    # what the data determine whatever the parametrisation: the ratios S(μ0)/S(μ_k) and the
+    # determined eigen-directions of the Fisher matrix (docs/fitting.md, "What the data determine")
+    W = ratio_frequencies(data)
+    r_hat, r_grads, r_draws = map(np.asarray, _ratios(model, jnp.asarray(theta), jnp.asarray(draws), jnp.asarray(W), data))
+    r_est, r_std, r_q = _summaries(analysis, ratio_names(data, W), r_hat, r_grads, r_draws)
+    ratios = {name: {"estimate": r_est[name], "std": r_std[name], "quantiles_5_50_95": r_q[name], "mu0": float(data.scales[0]),
+                     "mu": float(data.scales[1 + i // len(W)]), "W": float(W[i % len(W)])}
+              for i, name in enumerate(r_est)}
+    keep = ~analysis.undetermined_mask
+    combinations = [{"combination": combination(analysis.eigenvectors[:, i], names),
+                     "value": float(_signed(analysis.eigenvectors[:, i]) @ theta),
+                     "std": float(1 / np.sqrt(analysis.eigenvalues[i]))}
+                    for i in np.flatnonzero(keep)[::-1]]
     return FitResult(
         names=names, theta=theta, covariance=cov, chi2=float(chi2s[best]), n_data=data.n_data, status=status,
         starts=start_info, estimates=estimates, std=std, quantiles=quantiles, eigenvalues=lam,
         undetermined=undetermined, notes=list(model.identifiability_notes), solver=solver, at_bounds=at_bounds,
-        eigenvectors=analysis.eigenvectors,
+        eigenvectors=analysis.eigenvectors, ratios=ratios, combinations=combinations,
     )
+
+
+def _summaries(analysis, names, values, grads, draws):
+    """Estimate, standard deviation and widened 5/50/95 % quantiles of quantities from their
+    Laplace draws along the determined directions (module docstring); None where undetermined."""
+    _, var_undetermined = analysis.variances(grads)
+    determined = analysis.quantity_is_determined(grads)
+    estimates, std, quantiles = {}, {}, {}
+    for idx, name in enumerate(names):
+        estimates[name] = float(values[idx])
+        if not determined[idx]:
+            std[name], quantiles[name] = None, None
+            continue
+        spread = float(np.var(draws[:, idx]))
+        widen = np.sqrt(1 + var_undetermined[idx] / spread) if spread > 0 else 1.0
+        std[name] = float(np.sqrt(spread + var_undetermined[idx]))
+        q = np.percentile(draws[:, idx], [5, 50, 95])
+        quantiles[name] = (q[1] + widen * (q - q[1])).tolist()
+    return estimates, std, quantiles
+
+
+def _signed(vector):
+    """The eigenvector with the sign :func:`brdfscale.laplace.combination` prints it with."""
+    return vector if vector[np.argmax(np.abs(vector))] >= 0 else -vector
+
+
+RATIO_FREQUENCIES = (0.5, 1.0, 2.0)
+"""The frequencies |W| at which the ratios ``S(W, μ0)/S(W, μ_k)`` are reported, in units of
+``1/α``, α the half-maximum width of the widest (coarsest-scale) images: there every scale's
+lobe transform is still well above the noise (``≈ e^{−1/16}, e^{−1/4}, e^{−1}`` of its peak for
+a Beckmann lobe), so the ratio ``G(W, μ_k)/G(W, μ0)`` is what the images measure."""
+
+
+def ratio_frequencies(data: Dataset) -> np.ndarray:
+    """The reported ratios' frequencies |W| for this dataset (:data:`RATIO_FREQUENCIES` / α)."""
+    _, width2 = moments(data)
+    return np.asarray(RATIO_FREQUENCIES) / np.sqrt(max(float(np.max(width2)), 1e-300))
+
+
+def ratio_names(data: Dataset, W) -> list[str]:
+    """``"S(μ0)/S(μk) @ |W|=w"`` for every coarser scale k and frequency w."""
+    return [f"S(μ0)/S(μ{k}) @ |W|={w:.4g}" for k in range(1, len(data.scales)) for w in np.asarray(W)]
+
+
+@eqx.filter_jit
+def _ratios(model, theta, draws, W, data):
+    """The ratios ``S(W, μ0)/S(W, μ_k)``, k ≥ 1, flattened: at θ̂, their Jacobian, at every draw."""
+    def flat(t):
+        return model.relative_statistics(t, W, data)[1:].ravel()
+
+    return flat(theta), jax.jacfwd(flat)(theta), jax.vmap(flat)(draws)

@@ -29,7 +29,7 @@ from brdfscale.checks import flag
 from ._estimate import FitResult, Problem, check_fit
 from ._model import predict_images
 from ._parametric import ParametricModel
-from ._plot import (_quantities, check_samples, check_truth, corner_figure, plot_fit, posterior_draws,
+from ._plot import (_quantities, _relative, check_samples, check_truth, corner_figure, plot_fit, posterior_draws,
                     statistics_figure, truth_theta)
 from ._sample import SampleResult
 
@@ -172,25 +172,53 @@ def _truth_value(value, key: str) -> float:
 
 
 def summarise(problem: Problem, fit: FitResult, samples: SampleResult | None, truth: dict | None) -> dict:
-    """Per-quantity table: estimate, std, 5/50/95 % quantiles (MCMC when sampled, else Laplace)."""
+    """Per-quantity table: estimate, std, 5/50/95 % quantiles (MCMC when sampled, else Laplace).
+
+    A quantity the fit's identifiability analysis (:mod:`brdfscale.laplace`) finds undetermined
+    gets no standard deviation and no quantiles — not even from the chain, whose spread along an
+    undetermined direction is the prior's, not a measurement: its row carries ``prior_range``
+    (the quantity at the prior box's lower and upper corner; for log-uniform parameters their
+    bounds) and a note pointing at the determined combinations and ratios (:func:`summarise_ratios`).
+    """
     model = problem.model
     table = {}
     if samples is not None:
         q = {k: np.asarray(v) for k, v in _quantities(model, jnp.asarray(samples.samples)).items()}
+    corners = [{k: float(v) for k, v in model.quantities(jnp.asarray(b)).items()} for b in (problem.lower, problem.upper)]
     for name, value in fit.estimates.items():
-        row = {"estimate_map": value, "determined": fit.std[name] is not None}
-        if samples is not None:
+        determined = fit.std[name] is not None
+        row = {"estimate_map": value, "determined": determined}
+        if not determined:
+            row.update(source="prior", std=None, quantiles_5_50_95=None, median=None,
+                       prior_range=sorted([corners[0][name], corners[1][name]]),
+                       note="not determined by the data (identifiability); no interval is reported — the data determine "
+                            "the combinations and ratios in identifiability.determined_combinations and ratios")
+        elif samples is not None:
             row.update(source="mcmc", median=float(np.median(q[name])), std=float(np.std(q[name])),
                        quantiles_5_50_95=np.percentile(q[name], [5, 50, 95]).tolist())
         else:
             row.update(source="laplace", std=fit.std[name], quantiles_5_50_95=fit.quantiles[name],
                        median=None if fit.quantiles[name] is None else fit.quantiles[name][1])
-        if not row["determined"]:
-            row["note"] = "not determined by the data (see identifiability); the spread is the prior's"
         if truth is not None and name in truth:
             row["truth"] = truth[name]
         table[name] = row
     return table
+
+
+def summarise_ratios(problem: Problem, fit: FitResult, samples: SampleResult | None) -> dict:
+    """The ratios ``S(W, μ0)/S(W, μ_k)`` the data determine (:attr:`FitResult.ratios`), with the
+    chain's median, std and 5/50/95 % quantiles when sampled (else the fit's Laplace values)."""
+    if samples is None or not fit.ratios:
+        return {name: {**r, "source": "laplace"} for name, r in fit.ratios.items()}
+    W = jnp.asarray(sorted({r["W"] for r in fit.ratios.values()}))
+    values = np.asarray(_relative(problem.model, jnp.asarray(samples.samples), W, problem.data))[:, 1:]
+    values = values.reshape(values.shape[0], -1)
+    out = {}
+    for i, (name, r) in enumerate(fit.ratios.items()):
+        v = values[:, i]
+        out[name] = {**r, "source": "mcmc", "median": float(np.median(v)), "std": float(np.std(v)),
+                     "quantiles_5_50_95": np.percentile(v, [5, 50, 95]).tolist()}
+    return out
 
 
 def _save(path, fig, dpi: int, overwrite: bool):
@@ -251,8 +279,9 @@ def write_report(out_dir, problem: Problem, fit: FitResult, samples: SampleResul
         "data": {"scales": np.asarray(problem.data.scales).tolist(), "images": len(problem.data.scale_of_image),
                  "valid_pixels": problem.data.n_data},
         "parameters": summarise(problem, fit, samples, truth),
+        "ratios": summarise_ratios(problem, fit, samples),
         "identifiability": fit.to_json()["identifiability"],
-        "optimisation": {k: v for k, v in fit.to_json().items() if k != "identifiability"},
+        "optimisation": {k: v for k, v in fit.to_json().items() if k not in ("identifiability", "ratios")},
         "mcmc": None if samples is None else samples.diagnostics(),
     }
     try:

@@ -207,6 +207,22 @@ def test_two_scales_name_the_undetermined_law_combinations():
     for name in ("alpha_lobe", "amplitude"):
         assert abs(res.estimates[name] - TRUTHS[0][name]) < 4 * res.std[name]
     assert any("S(W, ∞) = 1" in note for note in res.notes)
+    # what the data do determine is reported with its uncertainty: the ratio S(W, μ0)/S(W, μ1)
+    # at three frequencies (against the truth's ratio), and the determined Fisher directions
+    W = fitting.ratio_frequencies(data)
+    true_ratios = np.asarray(model.relative_statistics(jnp.asarray(model.theta_from(TRUTHS[0])), jnp.asarray(W), data))[1]
+    assert len(res.ratios) == 3 and all(r["std"] is not None and r["mu"] == 4.0 for r in res.ratios.values())
+    for (name, r), truth in zip(res.ratios.items(), true_ratios):
+        assert f"@ |W|={r['W']:.4g}" in name and abs(r["estimate"] - truth) < 4 * r["std"], (name, r, truth)
+    assert len(res.combinations) + len(res.undetermined) == len(model.names)
+    assert all(c["std"] <= 1.0 for c in res.combinations)
+    doc = res.to_json()
+    assert doc["ratios"] == res.ratios and doc["identifiability"]["determined_combinations"] == res.combinations
+    # the report gives an undetermined parameter its prior range, never an interval
+    rows = fitting.summarise(fitting.Problem(model, data), res, None, None)
+    assert rows["mu_c"]["quantiles_5_50_95"] is None and rows["mu_c"]["std"] is None
+    lo, hi = rows["mu_c"]["prior_range"]
+    assert lo < res.estimates["mu_c"] < hi
 
 
 # -- sampling ------------------------------------------------------------------------------

@@ -194,9 +194,25 @@ def run(args) -> int:
     mset = exr.read_measurements(args.measurements)
     doc = fit_measurements(mset, args)
     print(f"wrote {os.path.join(args.out, 'fit.json')}")
+    print_determined(doc)
+    return 0
+
+
+def print_determined(doc: dict, stream=print) -> None:
+    """The parameters (undetermined ones with their prior range, no interval), then the ratios
+    S(W, μ0)/S(W, μk) the data determine, from a report document (fitting.write_report)."""
     for name, row in doc["parameters"].items():
         if name.startswith("D["):
             continue
-        std = f"± {row['std']:.4g}" if row["determined"] and row["std"] is not None else "undetermined"
-        print(f"  {name:12s} {row['median'] if row['median'] is not None else row['estimate_map']:.5g} {std}")
-    return 0
+        value = row["median"] if row["median"] is not None else row["estimate_map"]
+        if row["determined"] and row["std"] is not None:
+            stream(f"  {name:12s} {value:.5g} ± {row['std']:.4g}")
+        else:
+            lo, hi = row.get("prior_range") or (float("nan"), float("nan"))
+            stream(f"  {name:12s} undetermined by the data (prior range {lo:.3g} … {hi:.3g}; best fit {value:.4g})")
+    if doc.get("ratios"):
+        stream("  what the data determine — S(W, μ0)/S(W, μk):")
+        for name, r in doc["ratios"].items():
+            value = r["median"] if r.get("median") is not None else r["estimate"]
+            std = f"± {r['std']:.3g}" if r["std"] is not None else "(undetermined)"
+            stream(f"    {name:28s} {value:.4g} {std}   (μ0 = {r['mu0']:g}, μk = {r['mu']:g})")
