@@ -16,6 +16,7 @@ a seeded generator (``seed``, default 0, as in the report), from the MCMC sample
 else from the Laplace approximation of the fit.
 """
 
+import textwrap
 from collections.abc import Mapping
 
 import equinox as eqx
@@ -37,7 +38,9 @@ __all__ = ["plot_fit", "plot_recovered_statistics", "plot_corner"]
 CORNER_MAX = 6
 """The most quantities a corner plot shows (the first ones)."""
 DRAWS = 400
-"""Posterior draws behind the bands and the corner plot."""
+"""Posterior draws behind the bands of the statistics figure."""
+CORNER_DRAWS = 4000
+"""Posterior draws behind the corner plot (smooth histograms need more than the bands)."""
 _LOBE_UNIT = f"A·g(u) ({_figures.SLOPE_DENSITY})"
 
 
@@ -210,43 +213,37 @@ def plot_recovered_statistics(problem: Problem, fit: FitResult, samples: SampleR
     return statistics_figure(problem, fit, posterior_draws(problem, fit, samples, seed), true_theta)
 
 
-def corner_figure(model, draws, truth: dict | None):
-    """The figure of :func:`plot_corner` from given draws of θ."""
-    from matplotlib.ticker import MaxNLocator
+def corner_figure(model, draws, truth: dict | None, fit: FitResult | None = None):
+    """The figure of :func:`plot_corner` from given draws of θ, drawn by the ``corner`` package."""
+    import corner
 
-    q = _quantities(model, jnp.asarray(draws))
-    names = list(q)[:CORNER_MAX]
-    x = np.stack([np.asarray(q[n]) for n in names], axis=1)
+    q = {k: np.asarray(v) for k, v in _quantities(model, jnp.asarray(draws)).items()}
+    order = list(model.quantities(jnp.asarray(draws[0])))  # the model's order (vmap returns the keys sorted)
+    left_out = [n for n in order if fit is not None and fit.std.get(n, 0.0) is None]
+    names = [n for n in order if n not in left_out and np.ptp(q[n]) > 0][:CORNER_MAX]
     d = len(names)
-    fig = _figures.figure(1.8 * d + 1, 1.8 * d + 1)
-    axes = fig.subplots(d, d, squeeze=False)
-    for i in range(d):
-        for j in range(d):
-            ax = axes[i, j]
-            if j > i:
-                ax.axis("off")
-                continue
-            if i == j:
-                ax.hist(x[:, i], bins=40, color="0.4", histtype="step")
-                for v in np.percentile(x[:, i], [5, 50, 95]):
-                    ax.axvline(v, color="C0", lw=0.7, ls=":")
-                ax.set_yticks([])
-            else:
-                ax.hist2d(x[:, j], x[:, i], bins=40, cmap="Greys")
-                if truth is not None and names[i] in truth:
-                    ax.axhline(truth[names[i]], color="C3", lw=0.8)
-            if truth is not None and names[j] in truth:
-                ax.axvline(truth[names[j]], color="C3", lw=0.8)
-            ax.tick_params(labelsize=6)
-            ax.xaxis.set_major_locator(MaxNLocator(3))
-            if i != j:
-                ax.yaxis.set_major_locator(MaxNLocator(3))
-            if i == d - 1:
-                ax.set_xlabel(names[j], fontsize=8)
-            if j == 0 and i > 0:
-                ax.set_ylabel(names[i], fontsize=8)
-    fig.suptitle("posterior draws: 5/50/95 % (dotted), truth (red)" if truth else "posterior draws: 5/50/95 % (dotted)",
-                 fontsize=9)
+    if d == 0:
+        fig = _figures.figure(5, 2)
+        fig.text(0.5, 0.5, "no determined quantity varies across the draws", ha="center", va="center")
+        return fig
+    side = max(2.2 * d + 0.8, 5.5)
+    fig = _figures.figure(side, side, layout=None)  # corner places the panels itself (subplots_adjust)
+    fig.subplots(d, d, squeeze=False)
+    truths = [None if truth is None else truth.get(n) for n in names]
+    corner.corner(np.stack([q[n] for n in names], axis=1), bins=30, labels=names, truths=truths, truth_color="C3",
+                  quantiles=[0.05, 0.5, 0.95], show_titles=True, title_fmt=".3g", title_kwargs={"fontsize": 9},
+                  label_kwargs={"fontsize": 10}, smooth=1.0, smooth1d=1.0, max_n_ticks=3, fig=fig,
+                  plot_datapoints=False, fill_contours=True, levels=(0.393, 0.865))
+    for k, ax in enumerate(fig.axes):
+        ax.tick_params(labelsize=8)
+        if k % d > k // d:  # above the diagonal: empty (corner only hides the frame)
+            ax.set_axis_off()
+    title = f"posterior ({len(draws)} draws): 5/50/95 % dashed, 1σ and 2σ contours" + (", truth red" if truth else "")
+    if left_out:
+        title += "; not shown, undetermined by the data: " + ", ".join(left_out) + " (see the ratios in fit.json)"
+    text = textwrap.fill(title, int(side * 14))
+    fig.suptitle(text, fontsize=9, y=0.995, va="top")
+    fig.subplots_adjust(top=1 - (0.17 * (text.count("\n") + 1) + 0.45) / side)  # room for it above the panels' titles
     return fig
 
 
@@ -254,11 +251,13 @@ def plot_corner(problem: Problem, fit: FitResult, samples: SampleResult | None =
                 seed: int = 0):
     """The posterior's marginals (the report's ``corner.png``).
 
-    For the first six quantities (physical parameters, e.g. ``amplitude``, ``alpha_lobe``):
-    histograms on the diagonal with the 5/50/95 % quantiles dotted, two-dimensional histograms
-    below it, over 400 draws (MCMC ``samples`` when given, else the fit's Laplace
-    approximation); known truth (``truth``) as red lines. Axes: d × d for d quantities (those
-    above the diagonal switched off).
+    Drawn by the ``corner`` package for the first six quantities the data determine, in the
+    model's order (physical parameters, e.g. ``amplitude``, ``alpha_lobe``; those the fit finds
+    undetermined are left out and named in the title — their spread would be the prior's):
+    smoothed histograms on the diagonal with the 5/50/95 % quantiles dashed and the median ± in
+    the titles, 1σ and 2σ contours below it, over up to 4000 draws (MCMC ``samples`` when
+    given, else the fit's Laplace approximation); known truth (``truth``) in red. Axes: d × d
+    for d quantities (those above the diagonal switched off by ``corner``).
 
     Returns a ``matplotlib.figure.Figure`` (made without pyplot).
 
@@ -269,4 +268,4 @@ def plot_corner(problem: Problem, fit: FitResult, samples: SampleResult | None =
     check_samples(fit, samples, "plot_corner(problem, fit, samples)")
     truth = check_truth(truth)
     seed = integer(seed, "seed", 0)
-    return corner_figure(problem.model, posterior_draws(problem, fit, samples, seed), truth)
+    return corner_figure(problem.model, posterior_draws(problem, fit, samples, seed, n=CORNER_DRAWS), truth, fit)

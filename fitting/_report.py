@@ -29,8 +29,8 @@ from brdfscale.checks import flag
 from ._estimate import FitResult, Problem, check_fit
 from ._model import predict_images
 from ._parametric import ParametricModel
-from ._plot import (_quantities, _relative, check_samples, check_truth, corner_figure, plot_fit, posterior_draws,
-                    statistics_figure, truth_theta)
+from ._plot import (CORNER_DRAWS, _quantities, _relative, check_samples, check_truth, corner_figure, plot_fit,
+                    posterior_draws, statistics_figure, truth_theta)
 from ._sample import SampleResult
 
 __all__ = ["summarise", "write_report", "truth_of", "report_files", "check_report_directory"]
@@ -271,7 +271,8 @@ def write_report(out_dir, problem: Problem, fit: FitResult, samples: SampleResul
     # everything that can fail on the arguments is computed before the first file is written
     model = problem.model
     true_theta = truth_theta(model, truth, fit)
-    draws = posterior_draws(problem, fit, samples)  # those of plot_recovered_statistics and plot_corner
+    draws = posterior_draws(problem, fit, samples)  # those of plot_recovered_statistics
+    corner_draws = posterior_draws(problem, fit, samples, n=CORNER_DRAWS)  # those of plot_corner
     doc = {
         "brdfscale_version": brdfscale.__version__,
         "python": platform.python_version(),
@@ -292,10 +293,11 @@ def write_report(out_dir, problem: Problem, fit: FitResult, samples: SampleResul
     check_report_directory(out_dir, overwrite)
     out_dir = os.fspath(out_dir)
     with exclusive(out_dir, what="report directory"):  # re-entrant: `brdfscale fit` holds it for the whole run
-        return _write_files(out_dir, problem, fit, model, draws, true_theta, truth, doc, overwrite)
+        return _write_files(out_dir, problem, fit, model, (draws, corner_draws), true_theta, truth, doc, overwrite)
 
 
 def _write_files(out_dir, problem, fit, model, draws, true_theta, truth, doc, overwrite) -> dict:
+    draws, corner_draws = draws
     check_report_directory(out_dir, overwrite)  # again, now that no other run can write here
     figures = {name: os.path.join(out_dir, name) for name in _FIGURES}
     target = os.path.join(out_dir, "fit.json")
@@ -303,7 +305,7 @@ def _write_files(out_dir, problem, fit, model, draws, true_theta, truth, doc, ov
         # the figures of fitting.plot_fit, plot_recovered_statistics and plot_corner (fitting._plot)
         _save(figures["data_vs_fit.png"], plot_fit(problem, fit), 90, overwrite)
         _save(figures["statistics.png"], statistics_figure(problem, fit, draws, true_theta), 90, overwrite)
-        _save(figures["corner.png"], corner_figure(model, draws, truth), 80, overwrite)
+        _save(figures["corner.png"], corner_figure(model, corner_draws, truth, fit), 80, overwrite)
         try:
             tables = _write_tables(out_dir, problem, fit, overwrite)
         except BrdfscaleError as err:

@@ -47,7 +47,10 @@ def fitted():
         starts=[{"chi2": 231.5, "result": "successful", "steps": 7, "at_best": True}], estimates=dict(TRUTH), std=std,
         quantiles=quantiles, eigenvalues=np.array([1e-13, 3e2, 1e3, 3e3, 1e4]),
         undetermined=[{"combination": "0.77·log exponent + 0.64·log mu_c", "fisher_eigenvalue": 1e-13, "std": None}],
-        notes=list(model.identifiability_notes), solver="lm", at_bounds=[])
+        notes=list(model.identifiability_notes), solver="lm", at_bounds=[],
+        ratios={"S(μ0)/S(μ1) @ |W|=4.2": {"estimate": 0.913, "std": 0.004, "quantiles_5_50_95": [0.906, 0.913, 0.92],
+                                          "mu0": 0.5, "mu": 2.0, "W": 4.2}},
+        combinations=[{"combination": "0.84·log alpha_max + 0.52·log alpha_lobe", "value": -4.1, "std": 0.01}])
     rng = np.random.default_rng(0)
     chain = theta + 0.01 * rng.standard_normal((300, 16, len(names)))
     samples = fitting.SampleResult(names=names, chain=chain, log_prob=-0.5 * rng.chisquare(5, (300, 16)), burn=50,
@@ -216,9 +219,10 @@ def test_html_summaries_parse_and_hold_the_key_numbers(objects):
         parsed = _parse(obj._repr_html_())
         assert parsed.tables >= 1 and type(obj).__name__ in parsed.text, what
     fit_html = _parse(objects["FitResult"]._repr_html_())
-    assert fit_html.tables == 3  # summary, parameter table, undetermined combinations
+    assert fit_html.tables == 5  # summary, parameters, ratios, determined and undetermined combinations
     text = " ".join(fit_html.text)
-    for token in ("estimate", "std", "5 %", "95 %", "0.8", "0.0007", "0.77·log exponent"):
+    for token in ("estimate", "std", "5 %", "95 %", "0.8", "0.0007", "0.77·log exponent", "S(μ0)/S(μ1) @ |W|=4.2",
+                  "0.913", "0.84·log alpha_max"):
         assert token in text, token
     mset_html = _parse(objects["MeasurementSet"]._repr_html_())
     assert mset_html.tables == 2 and "512×512" in " ".join(mset_html.text)
@@ -267,7 +271,9 @@ def test_plot_functions_return_figures_outside_pyplot(fitted, plans):
         (result.plot(problem), 18, "FitResult.plot"),
         (plot.recovered_statistics(problem, result, truth=TRUTH), 2, "recovered statistics"),
         (plot.recovered_statistics(problem, result, samples), 2, "recovered statistics, MCMC"),
-        (plot.corner(problem, result, samples, truth=TRUTH), 25, "corner", 7),  # labels on the grid's edges
+        # the corner package's grid of the determined quantities (3 here: mu_c and exponent are left out,
+        # undetermined), labels on its edges
+        (plot.corner(problem, result, samples, truth=TRUTH), 9, "corner", 2),
         (plot.chains(samples), 6, "chains"),
         (samples.plot(coordinates=2), 3, "samples.plot"),
     ]
