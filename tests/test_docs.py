@@ -291,3 +291,140 @@ def test_every_page_is_in_the_sites_navigation_and_every_entry_exists():
     pages = {p.relative_to(DOCS).as_posix() for p in DOCS.rglob("*.md")}
     assert entries == pages, {"not in the navigation": sorted(pages - entries),
                               "in the navigation, missing": sorted(entries - pages)}
+
+
+# -- docs/topography.md ("Your own surface") --------------------------------------------------------
+
+TOPOGRAPHY = DOCS / "topography.md"
+
+
+def _python_blocks_and_output(path: Path) -> list[tuple[int, str, str | None]]:
+    """(first line, code, text shown under it) of every python block; the shown text is a
+    ``text`` block following the python block with only blank lines between, else None."""
+    lines = path.read_text(encoding="utf-8").splitlines()
+    fenced, k = [], 0  # (language, first body line, opening line index, closing line index, body)
+    while k < len(lines):
+        m = re.match(r"^```(\w+)\s*$", lines[k])
+        if m:
+            opening = k
+            k += 1
+            while k < len(lines) and not lines[k].startswith("```"):
+                k += 1
+            assert k < len(lines), f"{_rel(path)}:{opening + 1}: a {m.group(1)} block is not closed"
+            fenced.append((m.group(1), opening + 2, opening, k, "\n".join(lines[opening + 1:k]) + "\n"))
+        k += 1
+    out = []
+    for n, (language, first, _, closing, body) in enumerate(fenced):
+        if language == "python":
+            following = fenced[n + 1] if n + 1 < len(fenced) else None
+            shown = (following[4] if following and following[0] == "text"
+                     and not any(line.strip() for line in lines[closing + 1:following[2]]) else None)
+            out.append((first, body, shown))
+    return out
+
+
+def test_topography_examples_run_and_print_what_the_page_shows(monkeypatch):
+    """Every python block of docs/topography.md, in order, in one namespace, from the
+    repository root (the page reads tests/data/topographies/); each block's output has the
+    words and numbers of the text block shown under it (the page may wrap long lines). Needs
+    the topography extra, as the page does."""
+    pytest.importorskip("SurfaceTopography", reason="docs/topography.md reads instrument files (brdfscale[topography])")
+    blocks = _python_blocks_and_output(TOPOGRAPHY)
+    assert len(blocks) >= 8 and sum(shown is not None for *_, shown in blocks) >= 6
+    monkeypatch.chdir(ROOT)
+    namespace = {"__name__": "__topography_examples__"}
+    problems = []
+    for line, code, shown in blocks:
+        printed = io.StringIO()
+        with contextlib.redirect_stdout(printed):
+            exec(compile(code, f"{TOPOGRAPHY}:{line}", "exec"), namespace)  # noqa: S102 — the page's own examples
+        if shown is not None and printed.getvalue().split() != shown.split():
+            problems.append(f"docs/topography.md:{line} prints\n{printed.getvalue()}\nbut the page shows\n{shown}")
+    assert not problems, "\n".join(problems) + "\n(python -m experiments.topography_page --update-text rewrites them)"
+    # the figures the page shows are those its code draws (experiments/topography_page.py saves each fig_<name>)
+    from matplotlib.figure import Figure
+
+    drawn = {k[4:] for k, v in namespace.items() if k.startswith("fig_") and isinstance(v, Figure)}
+    shown = set(re.findall(r"\]\(\.\./experiments/results/topography_page/(\w+)\.png\)", TOPOGRAPHY.read_text()))
+    assert drawn and drawn == shown, (drawn, shown)
+    for name in shown:
+        assert (ROOT / "experiments" / "results" / "topography_page" / f"{name}.png").is_file(), name
+
+
+def _difference_quotients(topo, steps, untrimmed=False):
+    """SurfaceTopography's forward difference quotients at scale factors ``steps`` (a list of
+    (x, y) pairs), transposed to rows y, columns x. For a non-periodic topography it trims
+    both axes of both components by the stencil's reach, also the rows the x quotient does not
+    need; ``untrimmed`` computes them as if periodic (the windows' slopes use no wrapped value)."""
+    import numpy as np
+
+    qx, qy = topo.derivative(1, scale_factor=steps, interpolation="disable", periodic=True if untrimmed else None)
+    return [np.asarray(q).T for q in qx], [np.asarray(q).T for q in qy]
+
+
+def _row_means(qx, qy, block, grid):
+    """The facets' slopes from the quotients: −(mean over the window's rows of the x quotient
+    at its left column, mean over its columns of the y quotient at its top row)."""
+    (by, bx), (rows, cols) = block, grid
+    mx = -qx[: rows * by].reshape(rows, by, -1).mean(axis=1)[:, ::bx][:, :cols]
+    my = -qy[:, : cols * bx].reshape(-1, cols, bx).mean(axis=2)[::by][:rows]
+    return mx, my
+
+
+def test_facet_slopes_are_row_means_of_surface_topographys_difference_quotients():
+    """docs/topography.md §6: the facet slope at μ = bΔ is minus the mean over the window's
+    b rows of SurfaceTopography's difference quotient at distance ℓ = μ (exactly, square and
+    non-square pixels); at one pixel Σ = N/(N−1) times its slope variance; beyond, Σ(μ) is
+    below its slope variance at ℓ = μ — on the AFM file, and on a simulated isotropic surface,
+    where Σ also matches the stationary formula b⁻² Σ_{|k|<b} (b − |k|) C_ℓ(kΔ) built from
+    SurfaceTopography's quotients within the stated standard errors."""
+    st = pytest.importorskip("SurfaceTopography", reason="the comparison needs SurfaceTopography (brdfscale[topography])")
+    import numpy as np
+
+    from brdfscale import stats, synth, topography
+
+    # the real AFM file, square pixels
+    field = topography.read(ROOT / "tests" / "data" / "topographies" / "di-3.di", detrend="curvature")
+    theirs = st.open_topography(str(ROOT / "tests" / "data" / "topographies" / "di-3.di")).topography().detrend("curvature")
+    steps = [1, 2, 3, 4, 8, 16, 25, 32, 64]
+    qx, qy = _difference_quotients(theirs, [(b, b) for b in steps])
+    ux, uy = _difference_quotients(theirs, [(b, b) for b in steps], untrimmed=True)
+    for k, (b, s) in enumerate(zip(steps, synth.facet_statistics(field, [b * field.spacing[0] for b in steps], bins=9))):
+        dx, dy = qx[k], qy[k]
+        m = synth.facet_slopes(field, s.mu)
+        mx, my = _row_means(ux[k], uy[k], (b, b), m.shape[:2])
+        np.testing.assert_allclose(mx, m[..., 0], rtol=0, atol=1e-13)
+        np.testing.assert_allclose(my, m[..., 1], rtol=0, atol=1e-13)
+        if b == 1:
+            n = s.count
+            assert n == dx.size == dy.size
+            np.testing.assert_allclose(np.diag(s.covariance), n / (n - 1) * np.array([np.var(dx), np.var(dy)]), rtol=1e-12)
+        else:
+            assert s.covariance[0, 0] < np.var(dx) and s.covariance[1, 1] < np.var(dy), b
+
+    # non-square pixels (Δy = 3Δx), the same heights in both libraries, nothing removed
+    periodic = synth.spectral_field(stats.GaussianCorrelation(0.3, 6.0), size=128, seed=5)
+    heights = periodic.heights[:90, :120]
+    dx, dy = 0.5, 1.5
+    mine = topography.from_array(heights, (dx, dy), unit="m", detrend=None)
+    topo = st.Topography(heights.T, (120 * dx, 90 * dy), periodic=False)
+    for mu in (1.5, 4.5, 9.0):
+        by, bx = mine.block(mu)
+        (qx,), (qy,) = _difference_quotients(topo, [(bx, by)], untrimmed=True)
+        m = synth.facet_slopes(mine, mu)
+        mx, my = _row_means(qx, qy, (by, bx), m.shape[:2])
+        np.testing.assert_allclose(mx, m[..., 0], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(my, m[..., 1], rtol=0, atol=1e-12)
+
+    # a simulated isotropic surface: Σ(μ) from the row covariances of the quotients
+    periodic = synth.spectral_field(stats.GaussianCorrelation(0.2, 8.0), size=512, seed=11)
+    field = topography.from_array(periodic.heights[:400, :400], 1.0, unit="m", detrend=None)
+    topo = st.Topography(field.heights.T, (400.0, 400.0), periodic=False)
+    steps = [2, 4, 8, 16]
+    qx, _ = _difference_quotients(topo, [(b, b) for b in steps])
+    for b, s, q in zip(steps, synth.facet_statistics(field, [float(b) for b in steps], bins=9), qx):
+        q = q - q.mean()
+        cov = [np.mean(q[k:] * q[: q.shape[0] - k]) for k in range(b)]  # C_ℓ(kΔ) between rows k apart
+        predicted = (b * cov[0] + 2 * sum((b - k) * cov[k] for k in range(1, b))) / b**2
+        assert s.covariance[0, 0] < np.var(q), b
+        assert abs(s.covariance[0, 0] - predicted) < 3 * s.covariance_error[0, 0], (b, s.covariance[0, 0], predicted)
