@@ -238,3 +238,25 @@ def test_stability_figures_are_drawn_from_the_committed_json(tmp_path):
         committed = Path(__file__).resolve().parent.parent / "experiments" / "results" / "stability" / path.name
         np.testing.assert_allclose(matplotlib.image.imread(path), matplotlib.image.imread(committed), atol=1e-6,
                                    err_msg=f"{path.name} is stale: run python -m experiments.benchmarks_page")
+
+
+def test_bench_topography_smoke(tmp_path):
+    """experiments/bench_topography.py at a tiny size: the X3P round trip through
+    SurfaceTopography and topography.read, every timing present, brdfscale's Σ(μ) equal to the
+    plain NumPy baseline's (with and without unmeasured pixels), and at one pixel Σ is
+    N/(N − 1) times SurfaceTopography's slope variance."""
+    pytest.importorskip("SurfaceTopography", reason="the benchmark reads files through SurfaceTopography")
+    from experiments import bench_topography
+
+    out = bench_topography.run(files=(), size=48, repeats=1, fresh=False, out=tmp_path / "bench_topography.json")
+    assert json.loads((tmp_path / "bench_topography.json").read_text())["cases"] == out["cases"]
+    cases = {c["case"]: c for c in out["cases"]}
+    assert set(cases) == {"x3p-48", "array-48-masked"}
+    assert cases["x3p-48"]["shape"] == [48, 48] and cases["x3p-48"]["unmeasured"] == 0
+    assert 0.03 * 48 * 48 < cases["array-48-masked"]["unmeasured"] < 0.07 * 48 * 48
+    for c in cases.values():
+        assert set(c["median_s"]) == {"total", "read", "detrend", "statistics", "baseline_surface_topography", "baseline_numpy"}
+        assert c["numpy_sigma_max_rel_diff"] < 1e-10 and c["scales_px"][0] == 1
+    c = cases["x3p-48"]
+    n = c["facets"][0]
+    assert c["sigma_xx"][0] == pytest.approx(n / (n - 1) * c["surface_topography_slope_variance_x"][0], rel=1e-9)
