@@ -95,9 +95,10 @@ def test_pixel_scale_rms_slope_is_surface_topographys_rms_gradient(st, name):
 
 @pytest.mark.parametrize("name", ["opd-1.opd", "frt-1.frt"])
 def test_with_missing_data_the_rms_slope_is_surface_topographys_on_its_pixel_facets(st, name):
-    """SurfaceTopography's linear-interpolation derivative also drops the pixel facets whose
-    diagonal neighbour is unmeasured (0·NaN in its interpolator): on its set of facets the two
-    agree exactly, and brdfscale's set (the three nodes of each facet measured) contains it."""
+    """SurfaceTopography's linear-interpolation derivative also drops some pixel facets next to an
+    unmeasured pixel whose three nodes are measured (its interpolator reads a neighbouring cell
+    with zero weight, 0·NaN; which cell depends on how the node position rounds): on its set of
+    facets the two agree exactly, and brdfscale's set (the three nodes measured) contains it."""
     ref = _st_detrended(st, name, "curvature")
     field = topography.read(DATA / name, detrend="curvature")
     slx, sly = ref.derivative(1, interpolation="linear")
