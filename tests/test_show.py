@@ -19,11 +19,13 @@ from matplotlib.figure import Figure
 
 import brdfscale as bs
 import fitting
-from brdfscale import InvalidInputError, lobes, plot, scene, show, stats
+from brdfscale import InvalidInputError, lobes, plot, scene, show, stats, synth
 from brdfscale._evolve import EvolvedDensity
 
 TRUTH = dict(amplitude=0.8, alpha_lobe=0.05, alpha_max=0.2, mu_c=1.0, exponent=0.8)
 LAW = stats.ScaledFamily(stats.Beckmann, stats.WidthLaw(0.2, 1.0, 0.8))
+FIELD = synth.named_surface("gaussian", size=64, seed=0)
+FACETS = synth.facet_statistics(FIELD, [1.0, 4.0, 16.0], bins=33)
 
 
 # -- fixtures: one of everything, built without fits or compiled solves where possible -------
@@ -263,6 +265,7 @@ def test_plot_functions_return_figures_outside_pyplot(fitted, plans):
         (LAW.plot(mu=[1.0], size=33), 2, "law.plot"),
         (stats.Beckmann(0.1).plot(size=33), 2, "density.plot"),
         (plot.measurements(mset), 12, "measurements"),
+        (plot.facet_statistics(FACETS, field=FIELD), 3, "facet statistics"),
         (mset.plot(images=[0]), 4, "mset.plot"),
         (mset.images[1].plot(), 4, "image.plot"),
         (plot.plan(plans[0]), 4, "camera plan"),
@@ -302,6 +305,8 @@ def test_plot_functions_refuse_what_they_cannot_draw(fitted):
         (lambda: plot.measurements([1, 2]), "MeasurementSet"),
         (lambda: plot.plan(42), "Plan"),
         (lambda: plot.chains(result), "SampleResult"),
+        (lambda: plot.facet_statistics([1, 2]), "FacetStatistics"),
+        (lambda: plot.facet_statistics(FACETS, field="f"), "HeightField"),
         (lambda: plot.fit(problem, "fit"), "FitResult"),
         (lambda: plot.corner(problem, result, truth="x"), "truth"),
     ]

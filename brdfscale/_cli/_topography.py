@@ -14,6 +14,7 @@ import math
 import os
 
 from .._errors import InvalidInputError
+from ..plot._facets import display_unit
 from ._options import integer, make_directory, output_directory, scales
 
 #: What the command writes into --out, in the order it writes them (the JSON last: it is
@@ -21,7 +22,6 @@ from ._options import integer, make_directory, output_directory, scales
 OUTPUTS = ("statistics.png", "statistics.md", "statistics.json")
 DETRENDS = ("plane", "curvature", "none")
 #: Units μ is shown in (the one that puts the largest scale in [1, 1000)).
-_DISPLAY_UNITS = (("m", 1.0), ("mm", 1e-3), ("µm", 1e-6), ("nm", 1e-9), ("pm", 1e-12))
 
 
 def channel(text: str):
@@ -89,7 +89,7 @@ def _refuse_existing(out: str, force: bool) -> None:
 
 
 def run(args) -> int:
-    from .. import files, synth
+    from .. import files, plot, synth
 
     output_directory(args.out)
     _refuse_existing(args.out, args.force)  # before the work; again under the lock
@@ -98,7 +98,7 @@ def run(args) -> int:
     results = synth.facet_statistics(field, mus, bins=args.bins)
     command = f"brdfscale topography {args.file} {reading_command(args)} --scales {args.scales} --bins {args.bins}"
     doc = document(field, results, args.bins, command)
-    fig = figure(field, results)
+    fig = plot.facet_statistics(results, field=field)
     make_directory(args.out)
     with files.exclusive(args.out, what="output directory"):
         _refuse_existing(args.out, args.force)
@@ -154,14 +154,6 @@ def document(field, results, bins: int, command: str) -> dict:
     }
 
 
-def _display_unit(mus) -> tuple[str, float]:
-    top = max(mus)
-    for name, size in _DISPLAY_UNITS:
-        if top / size >= 1:
-            return name, size
-    return _DISPLAY_UNITS[-1]
-
-
 def _sigma(row) -> tuple[list[float], list[float]]:
     """σ_x, σ_y and their standard errors (from those of Σ_xx, Σ_yy: δσ = δΣ / 2σ)."""
     cov, err = row["covariance"], row["covariance_error"]
@@ -173,7 +165,7 @@ def _sigma(row) -> tuple[list[float], list[float]]:
 def summary_line(doc: dict) -> str:
     d, f = doc["topography"], doc["field"]
     (ny, nx), (dx, dy) = f["shape"], f["spacing_m"]
-    unit, size = _display_unit([dx])
+    unit, size = display_unit([dx])
     instrument = (d.get("instrument") or {}).get("name") if isinstance(d.get("instrument"), dict) else d.get("instrument")
     ch = d.get("channel") or {}
     trend = d.get("detrend") or "none"
@@ -183,7 +175,7 @@ def summary_line(doc: dict) -> str:
 
 
 def _rows(doc: dict) -> tuple[str, list[list[str]]]:
-    unit, size = _display_unit([r["mu_m"] for r in doc["scales"]])
+    unit, size = display_unit([r["mu_m"] for r in doc["scales"]])
     rows = []
     for r in doc["scales"]:
         (sx, sy), (ex, ey) = _sigma(r)
@@ -234,80 +226,3 @@ def markdown(doc: dict) -> str:
     return "\n".join(lines)
 
 
-def _cut(lobe, axis: int):
-    """The tabulated lobe along u_x (axis 0) or u_y (axis 1) through u = 0: (u, values)."""
-    import numpy as np
-
-    values, extent = np.asarray(lobe.values, dtype=float), np.asarray(lobe.extent, dtype=float)
-    if axis == 1:
-        values, extent = values.T, extent[::-1]
-    n_other, n = values.shape
-    pos = (n_other - 1) / 2  # the fractional row where the other coordinate is 0 (the grid is centred)
-    j = min(int(math.floor(pos)), n_other - 2)
-    w = pos - j
-    return np.linspace(-extent[0], extent[0], n), (1 - w) * values[j] + w * values[j + 1]
-
-
-def figure(field, results):
-    """statistics.png: σ_x(μ), σ_y(μ) log–log with standard errors and facet counts, beside cuts through
-    the within-facet lobes g_μ along u_x and u_y at up to four scales."""
-    import numpy as np
-
-    from .. import plot
-
-    mus = [r.mu for r in results]
-    unit, size = _display_unit(mus)
-    fig = plot.figure(13.0, 4.2)
-    ax, cx, cy = fig.subplots(1, 3)
-    x = np.array(mus) / size
-    for a, (marker, name) in enumerate((("o-", "σ_x"), ("s--", "σ_y"))):
-        sd = np.sqrt(np.maximum([r.covariance[a, a] for r in results], 0.0))
-        err = np.array([r.covariance_error[a, a] for r in results]) / np.where(sd > 0, 2 * sd, np.inf)
-        ax.errorbar(x, np.where(sd > 0, sd, np.nan), yerr=np.where(np.isfinite(err), err, np.nan), fmt=marker,
-                    ms=4, capsize=2, label=f"{name} = √Σ_{name[-1]}{name[-1]}")
-    top = np.sqrt(np.max([np.max(np.diag(r.covariance)) for r in results]))
-    for xi, r in zip(x, results):
-        peak = np.sqrt(max(np.max(np.diag(r.covariance)), 0.0))
-        if peak > 0:
-            ax.annotate(f"{r.count}", (xi, peak), textcoords="offset points", xytext=(3, 5), ha="left", fontsize=6)
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    if top > 0:
-        ax.set_ylim(None, top * 1.6)
-    dx = field.spacing[0] / size
-    pixels = ax.secondary_xaxis("top", functions=(lambda v: v / dx, lambda p: p * dx))
-    pixels.set_xlabel("μ (pixels)", fontsize=8)
-    pixels.tick_params(labelsize=7)
-    ax.set_xlabel(f"facet size μ ({unit})", fontsize=8)
-    ax.set_ylabel("facet-slope standard deviation", fontsize=8)
-    ax.set_title("Σ(μ) ± standard error (numbers: facets)", fontsize=9)
-    ax.legend(fontsize=7)
-    plot.small_ticks(ax)
-
-    shown = [k for k, r in enumerate(results) if r.block != (1, 1)]  # at one pixel g_μ is the micro lobe alone
-    if len(shown) > 4:
-        shown = [shown[k] for k in np.unique(np.rint(np.linspace(0, len(shown) - 1, 4)).astype(int))]
-    colours = plot.colormap("viridis")(np.linspace(0.0, 0.85, max(len(shown), 1)))
-    for axis, panel, name in ((0, cx, "u_x (u_y = 0)"), (1, cy, "u_y (u_x = 0)")):
-        reach, peak = 0.0, 0.0
-        for colour, k in zip(colours, shown):
-            u, g = _cut(results[k].lobe, axis)
-            if not g.max() > 0:
-                continue
-            inside = u[g > 1e-4 * g.max()]
-            reach, peak = max(reach, float(np.max(np.abs(inside)))), max(peak, float(g.max()))
-            panel.semilogy(u, np.where(g > 0, g, np.nan), color=colour, lw=1.2,
-                           label=f"μ = {results[k].mu / size:.3g} {unit}, {results[k].count} facets")
-        if peak > 0:
-            panel.set_xlim(-1.1 * reach, 1.1 * reach)
-            panel.set_ylim(peak * 1e-4, peak * 2)
-            panel.legend(fontsize=6)
-        else:
-            panel.text(0.5, 0.5, "no scale above one pixel", ha="center", va="center", transform=panel.transAxes,
-                       fontsize=8)
-        panel.set_xlabel(f"slope offset {name}", fontsize=8)
-        panel.set_ylabel(f"g_μ ({plot.SLOPE_DENSITY})", fontsize=8)
-        panel.set_title(f"within-facet lobe g_μ along {name[:3]}", fontsize=9)
-        plot.small_ticks(panel)
-    fig.suptitle(f"{field.description.get('file', 'topography')}: facet-slope statistics", fontsize=10)
-    return fig

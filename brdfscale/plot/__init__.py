@@ -8,6 +8,8 @@ inside the functions only, so importing this module does not import it.
 * :func:`lobe` — a lobe on the slope-offset plane, its slices, and (``incident=``) its BRDF;
 * :func:`statistics` — facet-slope densities and their transforms S(W), of one statistic, a
   list, or a scale law at several facet sizes μ;
+* :func:`facet_statistics` — Σ(μ) of a surface against the facet size with its standard errors
+  and facet counts, beside the within-facet lobes g_μ (measured or synthesised fields);
 * :func:`measurements` — every image of a :class:`brdfscale.MeasurementSet` with its σ;
 * :func:`plan` — what a :func:`brdfscale.scene.plan` computes where;
 * :func:`fit`, :func:`recovered_statistics`, :func:`corner` — a fit's data, model and
@@ -28,10 +30,12 @@ Tested in tests/test_show.py (axes, labels, pyplot's figure list unchanged).
 
 from ._common import SLOPE_DENSITY, colorbar, colormap, figure, small_ticks
 from ._data import chains, measurements
+from ._facets import facet_statistics
 from ._lobes import lobe, statistics
 from ._plan import plan
 
-__all__ = ["lobe", "statistics", "measurements", "plan", "fit", "recovered_statistics", "corner", "chains",
+__all__ = ["lobe", "statistics", "facet_statistics", "measurements", "plan", "fit", "recovered_statistics", "corner",
+           "chains",
            "figure", "colorbar", "colormap", "small_ticks", "SLOPE_DENSITY"]
 
 

@@ -1,0 +1,121 @@
+"""Facet statistics of a surface against the facet size: Σ(μ), its errors, the facet counts and g_μ."""
+
+import math
+
+import numpy as np
+
+from .._errors import InvalidInputError
+
+#: Metric units for lengths in metres, largest first (the axis shows the largest that fits).
+DISPLAY_UNITS = (("m", 1.0), ("mm", 1e-3), ("µm", 1e-6), ("nm", 1e-9), ("pm", 1e-12))
+
+
+def display_unit(mus) -> tuple[str, float]:
+    """The metric unit (name, size in metres) in which the largest of ``mus`` (metres) is ≥ 1."""
+    top = max(mus)
+    for name, size in DISPLAY_UNITS:
+        if top / size >= 1:
+            return name, size
+    return DISPLAY_UNITS[-1]
+
+
+def _cut(lobe, axis: int):
+    """The tabulated lobe along u_x (axis 0) or u_y (axis 1) through u = 0: (u, values)."""
+    values, extent = np.asarray(lobe.values, dtype=float), np.asarray(lobe.extent, dtype=float)
+    if axis == 1:
+        values, extent = values.T, extent[::-1]
+    n_other, n = values.shape
+    pos = (n_other - 1) / 2  # the fractional row where the other coordinate is 0 (the grid is centred)
+    j = min(int(math.floor(pos)), n_other - 2)
+    w = pos - j
+    return np.linspace(-extent[0], extent[0], n), (1 - w) * values[j] + w * values[j + 1]
+
+
+def facet_statistics(results, *, field=None):
+    """Σ(μ) against the facet size with its standard errors and facet counts, beside the
+    within-facet lobes ``g_μ`` — the figure of ``brdfscale topography``'s ``statistics.png``.
+
+    Left: σ_x(μ) = √Σ_xx, σ_y(μ) = √Σ_yy log–log, error bars from
+    :attr:`~brdfscale.synth.FacetStatistics.covariance_error` (δσ = δΣ/2σ), the number of facets
+    at each point. Middle and right: cuts through ``g_μ`` along u_x and u_y at up to four scales
+    above one pixel (at one pixel ``g_μ`` is the micro lobe alone).
+
+    Args:
+        results: the :class:`brdfscale.synth.FacetStatistics` of :func:`brdfscale.synth.facet_statistics`.
+        field: the :class:`brdfscale.synth.HeightField` they were measured on (optional): its
+            pixel pitch adds a pixel axis, its file name the title; lengths are shown in
+            metric units when ``field.unit == "m"``.
+
+    Returns a ``matplotlib.figure.Figure`` (made without pyplot). InvalidInputError for results
+    that are not a non-empty sequence of FacetStatistics.
+    """
+    import numpy as np
+
+    from .. import plot
+    from ..synth import FacetStatistics, HeightField
+
+    results = list(results) if isinstance(results, (list, tuple)) else [results]
+    if not results or not all(isinstance(r, FacetStatistics) for r in results):
+        raise InvalidInputError("results must be brdfscale.synth.FacetStatistics (a sequence of them, from "
+                                "synth.facet_statistics); got " + ", ".join(sorted({type(r).__name__ for r in results})))
+    if field is not None and not isinstance(field, HeightField):
+        raise InvalidInputError(f"field must be a brdfscale.synth.HeightField or None; got {type(field).__name__}.")
+    results = sorted(results, key=lambda r: r.mu)
+    mus = [r.mu for r in results]
+    unit, size = display_unit(mus) if field is None or field.unit == "m" else (field.unit or "length units", 1.0)
+    fig = plot.figure(13.0, 4.2)
+    ax, cx, cy = fig.subplots(1, 3)
+    x = np.array(mus) / size
+    for a, (marker, name) in enumerate((("o-", "σ_x"), ("s--", "σ_y"))):
+        sd = np.sqrt(np.maximum([r.covariance[a, a] for r in results], 0.0))
+        err = np.array([r.covariance_error[a, a] for r in results]) / np.where(sd > 0, 2 * sd, np.inf)
+        ax.errorbar(x, np.where(sd > 0, sd, np.nan), yerr=np.where(np.isfinite(err), err, np.nan), fmt=marker,
+                    ms=4, capsize=2, label=f"{name} = √Σ_{name[-1]}{name[-1]}")
+    top = np.sqrt(np.max([np.max(np.diag(r.covariance)) for r in results]))
+    for xi, r in zip(x, results):
+        peak = np.sqrt(max(np.max(np.diag(r.covariance)), 0.0))
+        if peak > 0:
+            ax.annotate(f"{r.count}", (xi, peak), textcoords="offset points", xytext=(3, 5), ha="left", fontsize=6)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    if top > 0:
+        ax.set_ylim(None, top * 1.6)
+    if field is not None:
+        dx = field.spacing[0] / size
+        pixels = ax.secondary_xaxis("top", functions=(lambda v: v / dx, lambda p: p * dx))
+        pixels.set_xlabel("μ (pixels)", fontsize=8)
+        pixels.tick_params(labelsize=7)
+    ax.set_xlabel(f"facet size μ ({unit})", fontsize=8)
+    ax.set_ylabel("facet-slope standard deviation", fontsize=8)
+    ax.set_title("Σ(μ) ± standard error (numbers: facets)", fontsize=9)
+    ax.legend(fontsize=7)
+    plot.small_ticks(ax)
+
+    shown = [k for k, r in enumerate(results) if r.block != (1, 1)]  # at one pixel g_μ is the micro lobe alone
+    if len(shown) > 4:
+        shown = [shown[k] for k in np.unique(np.rint(np.linspace(0, len(shown) - 1, 4)).astype(int))]
+    colours = plot.colormap("viridis")(np.linspace(0.0, 0.85, max(len(shown), 1)))
+    for axis, panel, name in ((0, cx, "u_x (u_y = 0)"), (1, cy, "u_y (u_x = 0)")):
+        reach, peak = 0.0, 0.0
+        for colour, k in zip(colours, shown):
+            u, g = _cut(results[k].lobe, axis)
+            if not g.max() > 0:
+                continue
+            inside = u[g > 1e-4 * g.max()]
+            reach, peak = max(reach, float(np.max(np.abs(inside)))), max(peak, float(g.max()))
+            panel.semilogy(u, np.where(g > 0, g, np.nan), color=colour, lw=1.2,
+                           label=f"μ = {results[k].mu / size:.3g} {unit}, {results[k].count} facets")
+        if peak > 0:
+            panel.set_xlim(-1.1 * reach, 1.1 * reach)
+            panel.set_ylim(peak * 1e-4, peak * 2)
+            panel.legend(fontsize=6)
+        else:
+            panel.text(0.5, 0.5, "no scale above one pixel", ha="center", va="center", transform=panel.transAxes,
+                       fontsize=8)
+        panel.set_xlabel(f"slope offset {name}", fontsize=8)
+        panel.set_ylabel(f"g_μ ({plot.SLOPE_DENSITY})", fontsize=8)
+        panel.set_title(f"within-facet lobe g_μ along {name[:3]}", fontsize=9)
+        plot.small_ticks(panel)
+    name = None if field is None else field.description.get("file") or field.description.get("name")
+    fig.suptitle(f"{name}: facet-slope statistics" if name else "facet-slope statistics", fontsize=10)
+    return fig
