@@ -164,3 +164,143 @@ def stability_figures(directory: Path | None = None) -> list:
     from experiments import stability
 
     return stability.plot(load("stability", "stability"), directory or RESULTS / "stability")
+
+
+LAW_PARAMETERS = {"rms_height_m": "σ_h [m]", "correlation_length_m": "ℓ [m]", "correlation_length_x_m": "ℓ_x [m]",
+                  "correlation_length_y_m": "ℓ_y [m]", "A_m4": "A [m⁴]", "B_m": "B [m]", "C": "C", "k_max_per_m": "k_max [1/m]"}
+
+
+def real_surfaces() -> str:
+    """Study 6 (experiments/real_surfaces.py): the seed's equations on the measured surfaces."""
+    d = load("real_surfaces", "real_surfaces")
+    surfaces = d["surfaces"]
+    primary = f"evolved_c{d['primary_lambda_factor']:g}"
+    cs = d["lambda_factors"]
+    out = [(f"{len(surfaces)} files, {d['detrend']} removed; lobes on {d['bins']}² nodes (grids: {d['grids']}), "
+            f"L1 error after a resolution of σ_r = {d['resolution_nodes']:g} nodes; λ rule: {d['lambda_rule']} "
+            f"(c = {', '.join(f'{c:g}' for c in cs)}; c = {d['primary_lambda_factor']:g} primary). Largest scale: "
+            f"the largest window leaving {d['min_facets_at_largest_scale']} measured facets. Non-Gaussian: "
+            f"{d['non_gaussian_rule']}. Run time {d['seconds']:.0f} s.\n")]
+
+    rows = []
+    for s in surfaces:
+        m, sh = s["pixel_slopes"], s["shadowing"]
+        rows.append([f"`{s['file']}`", f"{s['shape'][0]}×{s['shape'][1]}", f"{s['pixel_m'] * 1e6:.4g} µm",
+                     str(s["unmeasured_px"]), f"{m['x']['sd']:.3g}, {m['y']['sd']:.3g}",
+                     f"{m['x']['robust_sd']:.3g}, {m['y']['robust_sd']:.3g}",
+                     f"{m['x']['skewness']:+.2f}, {m['y']['skewness']:+.2f}",
+                     f"{m['x']['excess_kurtosis']:.3g}, {m['y']['excess_kurtosis']:.3g}",
+                     "no" if s["non_gaussian"] else "yes",
+                     "–" if s["height_quantum_m"] is None else
+                     f"{s['height_quantum_m'] * 1e9:.3g} nm ({s['slope_quantum_to_robust_sd']:.2f})",
+                     f"{sh['theta_deg_shadowing_1pct']:g}° / {sh['theta_deg_shadowing_10pct']:g}°"])
+    out.append("**The surfaces** (pixel slopes of the measured pixel facets; shadowing: Smith's Λ/(1+Λ) from the "
+               "measured slopes, worst of ±x, ±y, exceeds 1 % / 10 % beyond θi)\n\n" + table(
+                   ["file", "pixels (rows×cols)", "pixel", "unmeasured px", "rms slope x, y", "robust sd x, y",
+                    "skewness x, y", "excess kurtosis x, y", "Gaussian", "height quantum (÷Δ ÷ robust sd)",
+                    "shadowing > 1 % / 10 %"], rows))
+
+    rows = []
+    for s in surfaces:
+        for r in s["sigma"]:
+            cov, err = r["covariance"], r["covariance_error_used"]
+            z = r["split_half_z"]
+            kurt = r["facet_excess_kurtosis"]
+            rows.append([f"`{s['file']}`", str(r["mu_px"]), f"{r['mu'] * 1e6:.4g}",
+                         f"{r['count']} ({r['independent']:.1f})",
+                         f"{cov[0][0]:.3g} ± {err[0][0]:.2g}", f"{cov[1][1]:.3g} ± {err[1][1]:.2g}",
+                         f"{cov[0][1] / (cov[0][0] * cov[1][1]) ** 0.5:+.2f}",
+                         "–" if z is None else f"{z[0]:+.1f}, {z[1]:+.1f}",
+                         f"{r['trace_ratio_curvature_to_plane']:.3f}",
+                         "–" if kurt[0] is None else f"{kurt[0]:.3g}, {kurt[1]:.3g}"])
+    out.append("\n**Σ(μ)** (facets: count (effective independent); ± the standard error used in the fits: the "
+               "library's, floored at the Gaussian-theory error from N_eff; z: the two halves' Σ_xx, Σ_yy differ "
+               "by z standard errors; curvature/plane: tr Σ with a quadratic removed ÷ with a plane removed)\n\n"
+               + table(["file", "μ [px]", "μ [µm]", "facets", "Σ_xx", "Σ_yy", "ρ_xy", "split-half z (xx, yy)",
+                        "curvature/plane", "facet excess kurtosis x, y"], rows))
+
+    rows = []
+    for s in surfaces:
+        for law, fit in s["laws"].items():
+            if law == "measured_rms_height_m":
+                continue
+            if fit is None:
+                rows.append([f"`{s['file']}`", law, "no fit", "–", "–", "–"])
+                continue
+            p = fit["parameters"]
+            text = ", ".join(f"{LAW_PARAMETERS.get(k, k)} = {v:.3g}" for k, v in p.items())
+            rows.append([f"`{s['file']}`", law, text, f"{fit['chi2_per_dof']:.3g}", f"{fit['relative_rms_diagonal']:.2f}",
+                         f"{fit['largest_relative_deviation']:.2f}"])
+    out.append("\n**Scale laws fitted to Σ(μ)** (GaussianSurface, box window; χ² over Σ_xx, Σ_yy, Σ_xy at every "
+               "scale in the standard errors above; relative deviations of the diagonal)\n\n" + table(
+                   ["file", "law", "parameters", "χ²/dof", "relative rms", "largest relative deviation"], rows))
+
+    rows = []
+    for s in surfaces:
+        cells = []
+        for r in s["consistency"]:
+            flag = "*" if r["facet_slopes_off_lattice_origin"] < 0.1 else ""
+            cells.append(f"{r['mu_px']}: {r['violation']:.3f} / {r['floor']:.3f}{flag}")
+        quantum = [f"{r['mu_px']}: {q['violation']:.3f} / {q['floor']:.3f}" + ("*" if q["facet_slopes_off_lattice_origin"] < 0.1 else "")
+                   for r in s["consistency"] if (q := r.get("at_slope_quantum"))]
+        rows.append([f"`{s['file']}`", f"{s['lattice_step']:.3g}", "; ".join(cells),
+                     f"{s['slope_quantum']:.3g}: " + "; ".join(quantum) if quantum else "–"])
+    out.append("\n**Eq. 3.1** (μ [px]: violation V / permutation floor; `*`: fewer than 10 % of the facets off the "
+               "lattice origin, no resolution; last column: on a lattice of one slope quantum, where it is coarser)\n\n"
+               + table(["file", "lattice step", "V / floor per scale", "on the slope quantum's lattice"], rows))
+
+    rows = []
+    for key, e in d["summary"]["by_surface"].items():
+        def med(k):
+            v = e[f"median_error_{k}"]
+            return "–" if v is None else f"{v:.3f}"
+
+        rows.append([key, str(e["pairs"]), med("naive"), med("second_moment"), *[med(f"evolved_c{c:g}") for c in cs],
+                     *[f"{e[f'median_ratio_evolved_c{c:g}']:.2f}" if e[f"median_ratio_evolved_c{c:g}"] is not None else "–"
+                       for c in cs],
+                     *[f"{e[f'pairs_meeting_evolved_c{c:g}']}/{e[f'pairs_with_lobe_evolved_c{c:g}']}" for c in cs],
+                     f"{e['pairs_meeting_on_both_halves']}/{e['pairs_with_both_halves']}",
+                     f"{e['pairs_evolved_beats_naive']}/{e['pairs']}", f"{e['pairs_evolved_within_floor']}/{e['pairs']}",
+                     "–" if e["median_split_half_sigma_evolved"] is None else f"{e['median_split_half_sigma_evolved']:.2g}"])
+    out.append("\n**Eq. 4.4: median L1 error of the predicted lobe** (ordered pairs of the lobe scales and ∞; "
+               f"E_ev ≤ ½ E_2nd: pairs meeting the target / pairs with a lobe; halves: c = {d['primary_lambda_factor']:g} "
+               "on both halves; floor: the split-half reproducibility of the measured target lobe; σ: split-half "
+               "standard error of E_ev)\n\n" + table(
+                   ["surface / direction", "pairs", "naive", "second moment", *[f"evolved c={c:g}" for c in cs],
+                    *[f"median E_ev/E_2nd (c={c:g})" for c in cs], *[f"E_ev ≤ ½ E_2nd (c={c:g})" for c in cs],
+                    "… on both halves", "E_ev < E_naive", "E_ev ≤ floor", "median σ(E_ev)"], rows))
+
+    for s in surfaces:
+        names = [str(p) for p in s["lobe_scales_px"]] + ["∞"]
+        cells = {(r["mu_from_px"], r["mu_to_px"]): r for r in s["records"]}
+        rows = []
+        for a in names:
+            row = [a]
+            for b in names:
+                r = cells.get((a, b))
+                if r is None:
+                    row.append("–")
+                    continue
+                ev = r[f"error_{primary}"]
+                sig = r["split_half_sigma"][primary] if r["split_half_sigma"] and r["split_half_sigma"][primary] is not None else None
+                mark = " ✓" if ev is not None and ev <= 0.5 * r["error_second_moment"] else ""
+                evt = "no lobe" if ev is None else f"{ev:.3f}" + ("" if sig is None else f" ± {sig:.1g}")
+                row.append(f"{evt} / {r['error_second_moment']:.3f} / {r['error_naive']:.3f}{mark}")
+            rows.append(row)
+        facets = {r["mu_from_px"]: (r["facets_from"], r["independent_from"]) for r in s["records"] if r["facets_from"]}
+        counts = ", ".join(f"{p}: {facets[p][0]} ({facets[p][1]:.1f})" for p in names if p in facets)
+        out.append(f"\n**`{s['file']}`, every pair** (rows μ0, columns μ [px]; E_ev ± σ / E_2nd / E_naive; ✓: "
+                   f"E_ev ≤ ½ E_2nd; facets (independent) per scale {counts})\n\n" + table(["μ0 \\ μ", *names], rows))
+
+    t = d["summary"]["target"]
+
+    def frac(x):
+        return "–" if x is None or x["fraction"] is None else f"{x['met']}/{x['pairs']} ({x['fraction']:.0%})"
+
+    out.append(f"\n**Target** ({t['statement']}; non-Gaussian: {', '.join(t['non_gaussian_surfaces'])}): "
+               f"{'met' if t['met'] else '**not met**'} — all pairs {frac(t['all_pairs'])}, coarser {frac(t['coarser'])}, "
+               f"finer {frac(t['finer'])}; without the 1 px ↔ ∞ pairs {frac(t['without_harvey_pairs'])}; without those "
+               f"and pairs with a scale of fewer than {d['few_facets']} independent facets "
+               f"{frac(t['without_harvey_and_few_facet_pairs'])}; on both halves {frac(t['on_both_halves'])}"
+               + (f"; c = 3 {frac(t['c3_all_pairs'])}" if t.get("c3_all_pairs") else "") + ".")
+    return "\n".join(out)

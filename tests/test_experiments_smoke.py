@@ -240,6 +240,97 @@ def test_stability_figures_are_drawn_from_the_committed_json(tmp_path):
                                    err_msg=f"{path.name} is stale: run python -m experiments.benchmarks_page")
 
 
+# -- experiments/real_surfaces.py (issue 18 item 4) ----------------------------------------------
+
+def _grating_field(mask=None):
+    """A measured (non-periodic) blazed grating along x: 12 pixel facets at slope +0.03, 4 at
+    −0.09 per period of 16, 17 rows × 65 columns (16 × 64 pixel facets), pitch 1 µm."""
+    from brdfscale import topography
+
+    slopes = np.where(np.arange(64) % 16 < 12, 0.03, -0.09)
+    profile = np.concatenate([[0.0], -np.cumsum(slopes) * 1e-6])  # m = −dh/dx
+    return topography.from_array(np.tile(profile, (17, 1)), 1e-6, mask=mask, detrend=None)
+
+
+def test_real_surfaces_eq31_on_a_measured_grating_by_hand():
+    """The masked, rectangular Eq. 3.1 test of real_surfaces gives the hand-derived values of
+    test_consistency_smoke's grating: 8-px windows alternate between pure (+a) and mixed
+    (4 a, 4 −c) facets, so V = ½ exactly; 1-px facets are pure, V = 0; a window touching an
+    unmeasured pixel leaves the test as it leaves facet_statistics."""
+    from brdfscale import synth
+    from experiments import real_surfaces
+
+    rng = np.random.default_rng(0)
+    field = _grating_field()
+    step = 0.03 / 4  # a → 4, −c → −12 lattice steps: exact
+    eight = real_surfaces.consistency_test(field, 8e-6, step, 20, 1.0, 1.0, rng)
+    assert eight["violation"] == pytest.approx(0.5, abs=1e-12) and eight["facets"] == 16
+    assert real_surfaces.consistency_test(field, 1e-6, step, 20, 1.0, 1.0, rng)["violation"] == pytest.approx(0, abs=1e-12)
+    mask = np.ones((17, 65), bool)
+    mask[3, 3] = False
+    holed = _grating_field(mask)
+    rec = real_surfaces.consistency_test(holed, 8e-6, step, 20, 1.0, 1.0, rng)
+    assert rec["facets"] == synth.facet_statistics(holed, [8e-6], bins=9)[0].count == 15
+    # 13…16-px windows: 1 × 4 of them, one touching the hole; 12 px: 1 × 5, four measured
+    assert real_surfaces.largest_window(holed, 4) == 12
+    assert [synth.facet_statistics(holed, [b * 1e-6], bins=9)[0].count for b in (12, 13)] == [4, 3]
+
+
+def test_real_surfaces_smith_shadowing_matches_beckmann_closed_form():
+    """Smith's shadowed fraction from sampled Gaussian slopes against the closed form for a
+    Gaussian of per-axis sd σ: Λ = (e^{−ν²}/(ν√π) − erfc ν)/2, ν = cot θ/(σ√2)."""
+    from scipy.special import erfc
+
+    from experiments import real_surfaces
+
+    sigma = 0.2
+    slopes = np.random.default_rng(1).normal(scale=sigma, size=(400_000, 2))
+    out = real_surfaces.smith_shadowing(slopes)
+    for theta in (75, 85):
+        nu = 1 / np.tan(np.radians(theta)) / (sigma * np.sqrt(2))
+        lam = (np.exp(-nu**2) / (nu * np.sqrt(np.pi)) - erfc(nu)) / 2
+        assert out[f"shadowed_at_{theta}deg"] == pytest.approx(lam / (1 + lam), rel=0.03)
+    assert out["theta_deg_shadowing_1pct"] < out["theta_deg_shadowing_10pct"]
+
+
+def test_real_surfaces_fit_recovers_a_gaussian_correlated_law():
+    """The law fit of real_surfaces returns the parameters Σ(μ) was computed from (χ² ≈ 0)."""
+    from brdfscale import stats, topography
+    from experiments import real_surfaces
+
+    delta = 1e-7
+    field = topography.from_array(np.random.default_rng(0).normal(size=(64, 64)) * 5e-9, delta, detrend=None)
+    truth = stats.GaussianSurface(stats.GaussianCorrelation(5e-9, 8 * delta))
+    records = []
+    for k in (1, 2, 4, 8, 16, 32):
+        cov = np.asarray(truth.slope_covariance(k * delta))
+        records.append({"mu": k * delta, "covariance": cov.tolist(),
+                        "covariance_error_used": (0.02 * np.trace(cov) / 2 * np.ones((2, 2))).tolist()})
+    fit = real_surfaces.fit_laws(records, field, laws=("gaussian",))["gaussian"]
+    assert fit["parameters"]["rms_height_m"] == pytest.approx(5e-9, rel=1e-6)
+    assert fit["parameters"]["correlation_length_m"] == pytest.approx(8e-7, rel=1e-6)
+    assert fit["chi2"] < 1e-12
+
+
+@pytest.mark.slow  # ~1 min on 2 cores: 18 evolutions on one real file
+def test_real_surfaces_quick(tmp_path):
+    """The real-surface study in quick mode on mi-1.mi: every number finite where it exists, the
+    Harvey pairs (mirror pixel facets, 1 px ↔ ∞) nearly exact for the evolution, the figures."""
+    from experiments import real_surfaces
+
+    real_surfaces.main(["--quick", "--out", str(tmp_path)])
+    out = json.loads((tmp_path / "real_surfaces.json").read_text())
+    (s,) = out["surfaces"]
+    assert len(s["sigma"]) >= 6 and s["sigma"][-1]["mu_px"] / s["sigma"][0]["mu_px"] >= 100
+    rec = {(r["mu_from_px"], r["mu_to_px"]): r for r in s["records"]}
+    assert rec[("1", "∞")]["error_evolved_c1"] < 0.1 and rec[("1", "∞")]["harvey"]
+    for r in s["records"]:
+        assert all(math.isfinite(r[f"error_{m}"]) for m in ("naive", "second_moment", "evolved_c1"))
+    assert all(math.isfinite(f["chi2_per_dof"]) for k, f in s["laws"].items() if k != "measured_rms_height_m")
+    for name in ("sigma.png", "error_ratios.png", "consistency.png", "lobe_slices.png"):
+        assert (tmp_path / name).exists()
+
+
 def test_bench_topography_smoke(tmp_path):
     """experiments/bench_topography.py at a tiny size: the X3P round trip through
     SurfaceTopography and topography.read, every timing present, brdfscale's Σ(μ) equal to the
@@ -260,3 +351,13 @@ def test_bench_topography_smoke(tmp_path):
     c = cases["x3p-48"]
     n = c["facets"][0]
     assert c["sigma_xx"][0] == pytest.approx(n / (n - 1) * c["surface_topography_slope_variance_x"][0], rel=1e-9)
+
+
+def test_real_surfaces_section_of_results_md_is_generated_from_the_committed_json():
+    """docs/results.md §6's generated block is what results_page.real_surfaces makes of the
+    committed experiments/results/real_surfaces/real_surfaces.json."""
+    from experiments import benchmarks_page, results_page
+
+    page = (benchmarks_page.DOCS / "results.md").read_text()
+    block = benchmarks_page.splice(page, "Real surfaces (results_page)", results_page.real_surfaces(), "results.md")
+    assert block == page, "docs/results.md §6 is stale: regenerate its block from the JSON"
