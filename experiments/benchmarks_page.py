@@ -624,6 +624,7 @@ SECTIONS = [("benchmarks.md", "Core evolution (bench_evolve)", evolve),
             ("results.md", "Validity (results_page)", results_page.validity),
             ("results.md", "Render (results_page)", results_page.render),
             ("results.md", "Stability (results_page)", results_page.stability),
+            ("results.md", "Real surfaces (results_page)", results_page.real_surfaces),
             ("robustness.md", "Fuzzing (fuzz_robustness)", robustness)]
 
 
