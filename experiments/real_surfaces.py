@@ -84,12 +84,10 @@ from scipy import optimize
 from scipy import stats as scipy_stats
 
 import brdfscale as bs
-from brdfscale import lobes, stats, synth, topography
-from brdfscale.stats import SlopeHistogram
+from brdfscale import stats, synth, topography
 from experiments import evolution_accuracy as ea
 from experiments._studies import (
     convolve_masses,
-    evolve_accepted,
     l1_error,
     progress,
     save_figure,
@@ -392,30 +390,6 @@ def measure(field, scales, lobe_extent, slope_extents) -> list:
     return levels
 
 
-def evolved(source, target, factor: float) -> tuple[np.ndarray, float, int]:
-    """experiments/evolution_accuracy.py's ``evolved`` (same λ rule, grid size and cloud-in-cell
-    deposit onto the target's nodes), except that the deposit keeps the signed node sums.
-
-    A regularised deconvolution rings slightly below zero; evolution_accuracy's ``deposit``
-    reads them through :meth:`SlopeHistogram.node_counts`, which since commit bac057b refuses
-    negative counts beyond round-off (AssertionError), so it cannot be called as it is.
-    """
-    lam = 0.0 if target.facets is None else factor / math.sqrt(target.facets)
-    radius = float(source.lobe.support_radius(0.0) + source.slopes.support_radius(0.0))
-    step = 2 * target.extent / (ea.BINS - 1)
-    size = int(min(ea.MAX_GRID, 2 ** math.ceil(math.log2(2 * radius / step))))
-
-    def on_target_nodes(lobe):
-        nodes, values = (np.asarray(a) for a in lobe.shape.on_grid())
-        hist = SlopeHistogram(target.extent, ea.BINS)
-        ux, uy = np.meshgrid(nodes, nodes, indexing="xy")
-        hist.add(ux, uy, values * (nodes[1] - nodes[0]) ** 2)
-        return hist.counts.reshape(ea.BINS, ea.BINS) / hist.spacing**2
-
-    return evolve_accepted(lobes.Lobe(source.lobe), source.slopes, target.slopes, on_target_nodes,
-                           regularisation=lam, size=size)
-
-
 def pair_errors(source, target, factors) -> tuple[dict, dict]:
     """Errors of the naive, second-moment and evolved predictions of the target's lobe."""
     truth = ea.blur(target.values, ea.RESOLUTION_NODES)
@@ -429,7 +403,7 @@ def pair_errors(source, target, factors) -> tuple[dict, dict]:
             key = ea.evolved_key(c)
             t0 = time.perf_counter()
             try:
-                values[key], rec[f"lambda_{key}"], rec[f"refusals_{key}"] = evolved(source, target, c)
+                values[key], rec[f"lambda_{key}"], rec[f"refusals_{key}"] = ea.evolved(source, target, c)
             except bs.NoBRDFAtScaleError:
                 values[key], rec[f"lambda_{key}"], rec[f"refusals_{key}"] = None, None, None
             rec[f"seconds_{key}"] = round(time.perf_counter() - t0, 2)
