@@ -8,7 +8,10 @@ The chain, each step in its own module:
   :func:`brdfscale.evolve`;
 * :func:`fit` — optimistix least squares (Levenberg–Marquardt by default), multi-start,
   Laplace covariance, identifiability (names the combinations the data cannot determine);
-* :func:`sample` — emcee with chunked, resumable HDF5 checkpoints, τ and ESS;
+* :func:`sample` — emcee (:class:`Emcee`), BlackJAX NUTS (:class:`NUTS`) or HMC (:class:`HMC`)
+  on one posterior in smooth coordinates, ≥ 4 independent chains in one compiled program,
+  chunked HDF5 checkpoints resumable bit for bit, ArviZ's R̂/ESS/MCSE and a status that
+  names any failed criterion (:class:`SampleResult`, ``to_arviz()``);
 * :func:`write_report` — fit.json, figures, evolved lobe tables;
 * :func:`plot_fit`, :func:`plot_recovered_statistics`, :func:`plot_corner` — the report's figures
   as ``matplotlib.figure.Figure`` objects made without pyplot (a notebook shows them; also
@@ -36,7 +39,7 @@ from ._nonparametric import NonParametricModel, RelativeStatistics
 from ._parametric import ParametricModel
 from ._plot import plot_corner, plot_fit, plot_recovered_statistics
 from ._report import check_report_directory, report_files, summarise, summarise_ratios, truth_of, write_report
-from ._sample import SampleResult, log_posterior, sample
+from ._sample import HMC, NUTS, SAMPLERS, Emcee, SampleResult, log_posterior, sample
 from ._simulate import simulate
 
 __all__ = [
@@ -52,6 +55,10 @@ __all__ = [
     "SOLVERS",
     "SampleResult",
     "sample",
+    "SAMPLERS",
+    "Emcee",
+    "NUTS",
+    "HMC",
     "log_posterior",
     "summarise",
     "summarise_ratios",

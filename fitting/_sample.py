@@ -1,87 +1,87 @@
-"""Posterior sampling with emcee: vectorised jit log-probability, chunked HDF5 checkpoints.
+"""Posterior sampling: emcee, NUTS or HMC on one posterior, independent chains, resumable checkpoints, diagnostics.
 
-Posterior (in the unconstrained coordinates θ of the model):
+Every sampler draws from the same posterior, :func:`fitting.log_posterior` — ``−½χ²(θ)``
+uniform on the model's prior box, in the model's unconstrained coordinates θ — through the
+same smooth, unbounded coordinates z, ``θ = lo + (hi − lo)·σ(z)``, Jacobian included
+(:mod:`fitting._posterior` states it), preconditioned by the fit's Laplace approximation in z:
 
-    log p(θ | data) = −½ χ²(θ) + log π(θ),
+* :class:`fitting.Emcee` — emcee's affine-invariant ensembles (stretch, or differential
+  evolution), ``chains`` independent ensembles advanced together, one vectorised log-density
+  call per half-step (:mod:`fitting._sample_emcee`);
+* :class:`fitting.NUTS`, :class:`fitting.HMC` — BlackJAX's kernels with the Laplace covariance
+  as inverse mass matrix, step size tuned in a recorded warm-up, ``chains`` chains vmapped in
+  one compiled program (:mod:`fitting._sample_blackjax`).
 
-with ``r`` the whitened residuals of :class:`fitting.Problem` (Gaussian noise of the stated
-σ; smoothness rows of the non-parametric model are part of the prior) and ``π`` uniform on
-the model's prior box ``lo ≤ θ ≤ hi`` — for the parametric model that is a log-uniform
-(scale-invariant) prior on every positive parameter over the ranges listed in
-docs/fitting.md. Outside the box, and wherever the log-probability is not finite, it is
-−∞.
+Directions the data do not determine (the fit's ``undetermined`` combinations) are not
+sampled: every sampler moves in the determined subspace through the optimum, those
+combinations held at the fit's values (:mod:`fitting._posterior` says why and what it costs),
+and the result says so (``SampleResult.undetermined``, ``held``, ``prior``); the convergence
+status is decided on the quantities the fit determines.
 
-The affine-invariant ensemble (emcee's stretch move; DE moves selectable) runs in chunks of
-``chunk`` steps. With a checkpoint path, each chunk is appended to an HDF5 file (chunked
-float64 datasets ``chain`` (step, walker, θ) and ``log_prob`` (step, walker)) together with
-the random state of the sampler, and the step counter ``steps_done`` is written last: an
-interrupted run (Ctrl-C, crash, kill) resumes from the last completed chunk and yields the
-very same chain, bit for bit, as an uninterrupted one.
+Checkpoints (:mod:`fitting._checkpoint`): with ``checkpoint=PATH`` every ``chunk`` steps
+are appended to an HDF5 file together with the sampler's state; an interrupted run (Ctrl-C,
+crash, kill) resumes from the last completed chunk and yields the very same chain, bit for
+bit, for every sampler.
 
-Diagnostics: the integrated autocorrelation time τ per coordinate (emcee's estimator on
-the chain after burn-in), the effective sample size ``ESS = walkers · steps / τ``, and
-whether the chain is long enough (≥ 50 τ) for τ itself to be trusted — reported, never
-silenced. A coordinate in which no walker moved (a very short or stuck chain) has τ = ∞:
-ESS 0, τ not reliable, burn-in half the chain.
+Diagnostics (:mod:`fitting._diagnostics`): ArviZ's rank-normalised split R̂, bulk and tail
+ESS and MCSE of every coordinate and quantity (``SampleResult.summary()``), and emcee's
+integrated autocorrelation time τ with ``ESS = trajectories · steps / τ`` (the report's
+figures since the first version); ``SampleResult.status`` is ``"converged"`` only when every
+determined quantity has R̂ ≤ 1.01 and bulk ESS ≥ 400 and no post-warm-up transition
+diverged — otherwise it names what failed, never silently.
 """
 
 import contextlib
 import dataclasses
+import functools
 import hashlib
-import json
-import logging
 import os
-import warnings
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from brdfscale import InvalidInputError, MeasurementFileError
-from brdfscale.files import atomic_write, exclusive
-from brdfscale.show import Shown, Table, progress_bar, progress_mode
-
+from brdfscale import InvalidInputError
 from brdfscale.checks import flag, integer
+from brdfscale.files import exclusive
+from brdfscale.show import Shown, Table, progress_mode
+
+from . import _diagnostics as diag
+from ._checkpoint import Checkpoint
 from ._estimate import FitResult, Problem, check_fit
+from ._posterior import COORDINATES, PRIOR_TEXT, log_posterior, target, undetermined_directions
+from ._sample_blackjax import HMC, NUTS
+from ._sample_emcee import Emcee
 
+__all__ = ["SampleResult", "sample", "log_posterior", "Emcee", "NUTS", "HMC", "SAMPLERS"]
 
-def _emcee():
-    """emcee, imported on first use (``import fitting`` stays light: the command line's start-up)."""
-    import emcee
-
-    return emcee
-
-
-def _h5py():
-    """h5py, imported on first use (the checkpoints)."""
-    import h5py
-
-    return h5py
-
-__all__ = ["SampleResult", "sample", "log_posterior"]
-
-_MOVES = {
-    "stretch": lambda: _emcee().moves.StretchMove(),
-    "de": lambda: [(_emcee().moves.DEMove(), 0.8), (_emcee().moves.DESnookerMove(), 0.2)],
-}
-
-
-def log_posterior(theta, problem: Problem):
-    """``−½‖r(θ)‖²`` inside the prior box, −∞ outside or where not finite."""
-    lp = -0.5 * problem.chi2(theta)
-    inside = jnp.all((theta >= problem.lower) & (theta <= problem.upper))
-    return jnp.where(inside & jnp.isfinite(lp), lp, -jnp.inf)
-
-
-@eqx.filter_jit
-def _batched_log_posterior(thetas, problem):
-    return jax.vmap(log_posterior, in_axes=(0, None))(thetas, problem)
+SAMPLERS = {"emcee": Emcee, "nuts": NUTS, "hmc": HMC}
+"""The samplers by name: ``sample(..., sampler="nuts")`` is ``sampler=fitting.NUTS()``."""
 
 
 @dataclasses.dataclass(repr=False)
 class SampleResult(Shown):
-    """The chain and its diagnostics; ``samples`` is the flattened chain after burn-in."""
+    """The chain and its diagnostics.
+
+    Layout: ``chain`` (steps, W, d) holds θ of every trajectory after every step — W = the
+    walkers of all ``chains`` emcee ensembles (ensemble-major: walker w belongs to ensemble
+    ``w // (W / chains)``), or one trajectory per NUTS/HMC chain; warm-up (burn-in) steps
+    included. ``log_prob`` (steps, W) is log p(θ | data) = −½χ²(θ) + const (the θ-density, no
+    Jacobian), ``stats``
+    per-step sampler statistics (NUTS/HMC: ``acceptance_rate``, ``divergent``,
+    ``integration_steps``, ``step_size``), ``quantities`` the model's physical quantities
+    (name → (steps, W)). The first ``burn`` steps are discarded: NUTS/HMC's warm-up, or for
+    emcee 2 τ_max (at most half the chain). ``samples`` is the flattened chain after them
+    (n, d); ``draws`` the same as (W, steps − burn, d), ArviZ's (chain, draw) layout.
+    ``undetermined`` are the fit's undetermined combinations, ``held`` their values, at which
+    the chain holds them (it samples the determined subspace; ``prior`` says it in words).
+
+    ``tau``, ``ess``, ``tau_reliable``: emcee's integrated autocorrelation time per
+    coordinate after the burn-in, ``ESS = W·(steps − burn)/τ``, and whether the chain is
+    ≥ 50 τ long. :meth:`summary` gives ArviZ's figures (R̂, bulk/tail ESS, MCSE),
+    :attr:`status` the verdict.
+    """
 
     names: tuple[str, ...]
     chain: np.ndarray
@@ -91,24 +91,104 @@ class SampleResult(Shown):
     ess: np.ndarray
     tau_reliable: bool
     acceptance: float
+    sampler: str = "emcee"
+    chains: int = 1
+    settings: dict = dataclasses.field(default_factory=dict)
+    warmup: dict | None = None
+    stats: dict = dataclasses.field(default_factory=dict)
+    quantities: dict | None = None
+    determined: tuple[str, ...] | None = None
+    undetermined: list = dataclasses.field(default_factory=list)
+    held: list = dataclasses.field(default_factory=list)
+    prior: str = PRIOR_TEXT
+    coordinates: str = COORDINATES
 
     @property
     def samples(self) -> np.ndarray:
         return self.chain[self.burn:].reshape(-1, self.chain.shape[-1])
 
+    @property
+    def draws(self) -> np.ndarray:
+        """θ after the burn-in as (trajectory, draw, d): ArviZ's (chain, draw) layout."""
+        return np.swapaxes(self.chain[self.burn:], 0, 1)
+
+    @functools.cached_property
+    def _summary(self) -> dict:
+        rows = {}
+        kept = self.draws
+        for i, name in enumerate(self.names):
+            rows[name] = diag.summary_row(kept[:, :, i])
+        for name, values in (self.quantities or {}).items():
+            if name not in rows:
+                rows[name] = diag.summary_row(np.swapaxes(values[self.burn:], 0, 1))
+        return rows
+
+    def summary(self) -> dict:
+        """ArviZ's summary figures (``arviz.summary(..., kind="all")`` without the HDI) of every
+        coordinate θ and quantity after the burn-in: name → ``mean``, ``sd``, ``mcse_mean``,
+        ``mcse_sd``, ``ess_bulk``, ``ess_tail``, ``r_hat`` (computed by
+        :mod:`fitting._diagnostics`, equal to ArviZ's; no ArviZ needed)."""
+        return {name: dict(row) for name, row in self._summary.items()}
+
+    def _gated(self) -> list[str]:
+        """The names whose diagnostics decide the status: the determined quantities that vary
+        (fixed parameters are constant), else every coordinate θ."""
+        if self.quantities:
+            names = [n for n in self.quantities if self.determined is None or n in self.determined]
+        else:
+            names = list(self.names)
+        return [n for n in names if not self._summary[n]["sd"] == 0]
+
+    @property
+    def divergent(self) -> int:
+        """Divergent transitions after the warm-up (NUTS/HMC; 0 for emcee)."""
+        d = self.stats.get("divergent")
+        return 0 if d is None else int(np.sum(d[self.burn:]))
+
+    def problems(self) -> list[str]:
+        """What keeps the run from counting as converged (empty when it does): R̂ above
+        1.01 or bulk ESS below 400 on a determined quantity, divergent transitions."""
+        out = []
+        rows = self._summary
+        gated = self._gated()
+        high = [(n, rows[n]["r_hat"]) for n in gated if not rows[n]["r_hat"] <= diag.R_HAT_LIMIT]
+        low = [(n, rows[n]["ess_bulk"]) for n in gated if not rows[n]["ess_bulk"] >= diag.ESS_BULK_LIMIT]
+        if high:
+            out.append(f"R̂ > {diag.R_HAT_LIMIT} for " + ", ".join(f"{n} ({_fmt(v)})" for n, v in high))
+        if low:
+            out.append(f"ESS_bulk < {diag.ESS_BULK_LIMIT} for " + ", ".join(f"{n} ({_fmt(v, 0)})" for n, v in low))
+        if self.divergent:
+            out.append(f"{self.divergent} divergent transitions after warm-up")
+        return out
+
+    @property
+    def status(self) -> str:
+        """``"converged"``, or ``"not converged: …"`` naming each failed criterion (:meth:`problems`)."""
+        problems = self.problems()
+        return "converged" if not problems else "not converged: " + "; ".join(problems)
+
     def _show_items(self):
         n_steps, n_walkers, _ = self.chain.shape
-        return [("walkers", n_walkers), ("steps", n_steps), ("burn_in", self.burn),
-                ("draws", (n_steps - self.burn) * n_walkers), ("acceptance", self.acceptance),
-                ("tau_max", float(np.max(self.tau))), ("ess_min", float(np.min(self.ess))),
-                ("tau_reliable", self.tau_reliable), ("chain", self.chain)]
+        items = [("sampler", self.sampler), ("chains", self.chains), ("status", self.status)]
+        if self.sampler == "emcee":
+            items.append(("walkers", n_walkers))
+        items += [("steps", n_steps), ("burn_in", self.burn), ("draws", (n_steps - self.burn) * n_walkers),
+                  ("acceptance", self.acceptance), ("tau_max", float(np.max(self.tau))),
+                  ("ess_min", float(np.min(self.ess))), ("tau_reliable", self.tau_reliable), ("chain", self.chain)]
+        return items
 
     def _show_tables(self):
         flat = self.samples
         rows = [(name, float(np.mean(flat[:, i])), float(np.std(flat[:, i])), float(self.tau[i]), float(self.ess[i]))
                 for i, name in enumerate(self.names)]
-        return [Table("coordinates after burn-in (θ: the model's unconstrained coordinates)",
-                      ("coordinate", "mean", "std", "τ (steps)", "ESS"), rows)]
+        tables = [Table("coordinates after burn-in (θ: the model's unconstrained coordinates)",
+                        ("coordinate", "mean", "std", "τ (steps)", "ESS"), rows)]
+        summary = self._summary
+        tables.append(Table(f"diagnostics (ArviZ's; status: {self.status})",
+                            ("name", "mean", "sd", "mcse_mean", "ess_bulk", "ess_tail", "r_hat"),
+                            [(n, r["mean"], r["sd"], r["mcse_mean"], r["ess_bulk"], r["ess_tail"], r["r_hat"])
+                             for n, r in summary.items()]))
+        return tables
 
     def plot(self, **options):
         """The chains (trace plots, burn-in marked): :func:`brdfscale.plot.chains` (options as
@@ -117,10 +197,34 @@ class SampleResult(Shown):
 
         return plot.chains(self, **options)
 
+    def to_arviz(self):
+        """The run as ArviZ data — ``arviz.InferenceData`` (ArviZ 0.x; a DataTree with ArviZ ≥ 1):
+        ``posterior`` (``theta``, ``quantities``), ``sample_stats``, the warm-up groups, and
+        the sampler's record as attributes (:mod:`fitting._arviz`). ``arviz.summary`` of it
+        gives the figures of :meth:`summary`.
+
+        Raises:
+            MissingDependencyError: ArviZ is not installed (``pip install "brdfscale[mcmc]"``).
+        """
+        from ._arviz import to_arviz
+
+        return to_arviz(self)
+
     def diagnostics(self) -> dict:
+        """JSON-able record of the run: sizes, burn-in, τ and ESS (emcee's estimator), ArviZ's
+        summary, the status and what decided it, the warm-up, the prior."""
         n_steps, n_walkers, _ = self.chain.shape
+        warmup = None
+        if self.warmup is not None:
+            warmup = {k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v) for k, v in self.warmup.items()}
+        undetermined_quantities = [n for n in (self.quantities or {}) if self.determined is not None
+                                   and n not in self.determined]
         return {
+            "sampler": self.sampler,
+            "sampler_settings": self.settings,
+            "chains": self.chains,
             "walkers": n_walkers,
+            "trajectories": n_walkers,
             "steps": n_steps,
             "burn_in": self.burn,
             "acceptance_fraction": self.acceptance,
@@ -131,106 +235,27 @@ class SampleResult(Shown):
                 "chain ≥ 50 τ after burn-in: τ estimate reliable" if self.tau_reliable else
                 "chain shorter than 50 τ after burn-in: τ (and hence ESS) is a lower-bound estimate; run longer"
             ),
+            "status": self.status,
+            "problems": self.problems(),
+            "criteria": {"r_hat_max": diag.R_HAT_LIMIT, "ess_bulk_min": diag.ESS_BULK_LIMIT,
+                         "checked": self._gated()},
+            "divergent_transitions": self.divergent,
+            "summary": self.summary(),
+            "warmup": warmup,
+            "prior": self.prior,
+            "coordinates": self.coordinates,
+            "undetermined_combinations": [u.get("combination") for u in self.undetermined],
+            "held_combinations": self.held,
+            "undetermined_quantities": undetermined_quantities,
+            "undetermined_note": (
+                "the data do not determine these combinations: they are not sampled but held at the fit's values "
+                "(the chain samples the determined subspace), so the chain gives them no spread"
+                if self.undetermined else None),
         }
 
 
-class _Checkpoint:
-    """An HDF5 file holding the chain so far and the sampler's state after the last chunk."""
-
-    _EXPECTED = "an HDF5 checkpoint written by fitting.sample"
-
-    def __init__(self, path, names, n_walkers, chunk, run: dict):
-        self.path, self.names, self.n_walkers, self.chunk = os.fspath(path), tuple(names), n_walkers, chunk
-        # what else makes a chain this run's: the problem's digest, the seed, the moves (not the
-        # fit it started from: once resumed, the state comes from the file, and a refit of the
-        # same problem need not agree to the last bit)
-        self.run = run
-        if os.path.isdir(self.path):
-            raise MeasurementFileError(f"checkpoint {self.path} is a directory; expected the path of {self._EXPECTED} "
-                                       "(e.g. DIR/chain.h5).")
-        directory = os.path.dirname(os.path.abspath(self.path))
-        if not os.path.isdir(directory):
-            raise MeasurementFileError(f"checkpoint {self.path}: directory {directory} does not exist; create it "
-                                       "or choose another checkpoint path.")
-
-    def _signature(self, legacy: bool = False):
-        """The run's identity in the file: parameters and walkers, and (since checkpoints record
-        it) the problem's digest, the seed and the moves."""
-        identity = {"names": list(self.names), "walkers": self.n_walkers}
-        return json.dumps(identity if legacy else {**identity, **self.run})
-
-    def load(self):
-        """``(chain, log_prob, random_state)`` of the completed steps (``random_state`` None
-        when no chunk was completed), or None if there is no file."""
-        if not os.path.exists(self.path):
-            return None
-        retry = "use another path, or pass overwrite=True (CLI: --force) to start afresh."
-        try:
-            f = _h5py().File(self.path, "r")
-        except OSError as err:
-            raise MeasurementFileError(f"checkpoint {self.path} cannot be read as {self._EXPECTED} ({err}); {retry}") from None
-        with f:
-            signature = f.attrs.get("signature")
-            if signature is None or "steps_done" not in f.attrs or not {"chain", "log_prob", "rng_keys"} <= set(f):
-                raise MeasurementFileError(f"{self.path} is not {self._EXPECTED} (it lacks the signature, steps_done, "
-                                           f"chain, log_prob or rng_keys entries); {retry}")
-            if signature == self._signature(legacy=True):
-                warnings.warn(f"checkpoint {self.path} predates the recording of the problem, seed and moves; "
-                              "resuming it assumes they are the same as in this call.", stacklevel=3)
-            elif signature != self._signature():
-                raise InvalidInputError(
-                    f"checkpoint {self.path} belongs to a different run (its record: {signature}; this run: "
-                    f"{self._signature()}); use another path or pass overwrite=True."
-                )
-            try:
-                done = int(f.attrs["steps_done"])
-                chain, log_prob = f["chain"][:done], f["log_prob"][:done]
-                state = None
-                if done > 0:
-                    state = ("MT19937", f["rng_keys"][:], int(f.attrs["rng_pos"]), int(f.attrs["rng_has_gauss"]),
-                             float(f.attrs["rng_cached_gaussian"]))
-            except (OSError, KeyError, ValueError, TypeError) as err:
-                raise MeasurementFileError(f"checkpoint {self.path} is damaged ({err}); {retry}") from None
-        shape = (done, self.n_walkers, len(self.names))
-        if chain.shape != shape or log_prob.shape != shape[:2]:
-            raise MeasurementFileError(f"checkpoint {self.path} is damaged (steps_done = {done}, but chain has shape "
-                                       f"{chain.shape} and log_prob {log_prob.shape}); {retry}")
-        return chain, log_prob, state
-
-    def create(self, replace: bool):
-        """A checkpoint with no steps, written atomically (a hidden temporary file in the same
-        directory, moved into place); an existing file is replaced only when ``replace``."""
-        def write(tmp):
-            with _h5py().File(tmp, "w") as f:
-                d = len(self.names)
-                f.create_dataset("chain", (0, self.n_walkers, d), maxshape=(None, self.n_walkers, d),
-                                 chunks=(self.chunk, self.n_walkers, d), dtype="f8")
-                f.create_dataset("log_prob", (0, self.n_walkers), maxshape=(None, self.n_walkers),
-                                 chunks=(self.chunk, self.n_walkers), dtype="f8")
-                f.create_dataset("rng_keys", (624,), dtype="u4")
-                f.attrs["signature"] = self._signature()
-                f.attrs["steps_done"] = 0
-
-        try:
-            atomic_write(self.path, write, overwrite=replace, error=MeasurementFileError)
-        except OSError as err:
-            raise MeasurementFileError(f"checkpoint {self.path} cannot be written: {err}") from None
-
-    def append(self, chain, log_prob, random_state):
-        try:
-            with _h5py().File(self.path, "r+") as f:
-                done = int(f.attrs["steps_done"])
-                n = done + chain.shape[0]
-                for name, block in (("chain", chain), ("log_prob", log_prob)):
-                    f[name].resize(n, axis=0)
-                    f[name][done:n] = block
-                f["rng_keys"][:] = random_state[1]
-                f.attrs["rng_pos"], f.attrs["rng_has_gauss"] = int(random_state[2]), int(random_state[3])
-                f.attrs["rng_cached_gaussian"] = float(random_state[4])
-                f.flush()
-                f.attrs["steps_done"] = n  # the commit marker, written last
-        except OSError as err:
-            raise MeasurementFileError(f"checkpoint {self.path} cannot be updated: {err}") from None
+def _fmt(v, digits: int = 3) -> str:
+    return "nan" if not np.isfinite(v) else (f"{v:.{digits}f}" if digits else f"{v:.0f}")
 
 
 def _digest(tree) -> str:
@@ -244,62 +269,91 @@ def _digest(tree) -> str:
     return h.hexdigest()[:32]
 
 
-def _initial_walkers(fit: FitResult, lo, hi, n_walkers, rng):
-    """A small ball around the optimum: Laplace draws (×0.1) plus 1e-3 jitter in every direction."""
-    d = fit.theta.size
-    chol = np.linalg.cholesky(fit.covariance + 1e-12 * np.eye(d))
-    p0 = fit.theta + 0.1 * rng.standard_normal((n_walkers, d)) @ chol.T + 1e-3 * rng.standard_normal((n_walkers, d))
-    return np.clip(p0, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+@eqx.filter_jit
+def _quantity_draws(model, thetas):
+    return jax.vmap(model.quantities)(thetas)
+
+
+def _resolve_sampler(sampler, walkers, moves):
+    if isinstance(sampler, str):
+        if sampler not in SAMPLERS:
+            raise InvalidInputError(f"sampler must be one of {sorted(SAMPLERS)} or a sampler object "
+                                    f"(fitting.Emcee, fitting.NUTS, fitting.HMC); got {sampler!r}.")
+        if sampler == "emcee":
+            return Emcee(walkers=walkers, moves="stretch" if moves is None else moves)
+        sampler = SAMPLERS[sampler]()
+    if not isinstance(sampler, (Emcee, NUTS, HMC)):
+        raise InvalidInputError(f"sampler must be one of {sorted(SAMPLERS)} or a sampler object "
+                                f"(fitting.Emcee, fitting.NUTS, fitting.HMC); got {type(sampler).__name__}.")
+    if walkers is not None or moves is not None:
+        where = ("give them in fitting.Emcee(walkers=…, moves=…)" if isinstance(sampler, Emcee)
+                 else f"they apply to emcee only, not {sampler.name}")
+        raise InvalidInputError(f"walkers= and moves= with a sampler object: {where}.")
+    return sampler
 
 
 def sample(
     problem: Problem,
     fit: FitResult,
     *,
-    walkers: int | None = None,
+    sampler="emcee",
+    chains: int = 4,
     steps: int = 2000,
     chunk: int = 200,
     checkpoint: str | os.PathLike | None = None,
     overwrite: bool = False,
-    moves: str = "stretch",
     seed: int = 0,
     progress: bool = True,
+    walkers: int | None = None,
+    moves: str | None = None,
 ) -> SampleResult:
-    """Sample the posterior of ``problem`` starting near the optimum of ``fit``.
+    """Sample the posterior of ``problem`` starting from the Laplace approximation of ``fit``.
 
     Args:
         problem: the model and data (as used by :func:`fitting.fit`).
-        fit: its point estimate; walkers start in a small Laplace ball around it.
-        walkers: ensemble size (default ``max(32, 4·dim)``, even).
-        steps: total steps, at least 2 (a resumed run continues up to this count; of a
-            checkpoint that holds more, the first ``steps`` are returned).
-        chunk: steps between checkpoints.
-        checkpoint: HDF5 path; an existing compatible file is resumed.
+        fit: its point estimate; the starts and the preconditioning come from its Laplace
+            approximation (in the sampling coordinates z, :mod:`fitting._posterior`).
+        sampler: ``"emcee"`` (default), ``"nuts"``, ``"hmc"``, or a sampler object with its
+            settings: :class:`fitting.Emcee` ``(walkers=, moves=)``, :class:`fitting.NUTS`
+            ``(warmup=, target_acceptance=, max_doublings=, adapt_mass_matrix=)``,
+            :class:`fitting.HMC` ``(integration_steps=, warmup=, target_acceptance=, jitter=,
+            adapt_mass_matrix=)``.
+        chains: independent chains (default 4): emcee ensembles, or NUTS/HMC chains, each
+            started from its own Laplace draw; R̂ compares them.
+        steps: steps per trajectory after the warm-up, at least 2 (emcee: all steps, the
+            burn-in found afterwards among them; NUTS/HMC: draws after their ``warmup``
+            steps). A resumed run continues up to this count; of a checkpoint that holds
+            more, the first are returned.
+        chunk: steps between checkpoints (and NUTS/HMC's compiled block of steps).
+        checkpoint: HDF5 path; an existing checkpoint of the same run is resumed.
         overwrite: start afresh even if ``checkpoint`` exists (whatever it holds; it is
             replaced when the new, empty checkpoint is in place).
-        moves: ``"stretch"`` (default) or ``"de"`` (differential evolution + snooker).
-        seed: seed of the initial ball and of the sampler's random state.
-        progress: show a progress bar (:func:`brdfscale.show.progress_bar`: the notebook widget
-            in Jupyter with ipywidgets, else text on stderr; every bar is off with the
-            environment variable ``BRDFSCALE_PROGRESS=0``).
+        seed: seed of the starts and of the sampler's random numbers.
+        progress: show a progress bar (:func:`brdfscale.show.progress_bar`; every bar is off
+            with the environment variable ``BRDFSCALE_PROGRESS=0``).
+        walkers, moves: with ``sampler="emcee"``, the :class:`fitting.Emcee` settings
+            (walkers per ensemble, default ``max(32, 4·dim)``; ``"stretch"`` or ``"de"``).
+
+    Returns:
+        A :class:`SampleResult`; read its ``status`` before trusting the intervals.
 
     Raises:
         InvalidInputError: ``fit`` is not the :class:`~fitting.FitResult` of ``problem``'s
-            model; ``walkers`` not an integer ≥ 2·dim, ``steps`` not an integer ≥ 2,
-            ``chunk`` not an integer ≥ 1, ``seed`` not an integer ≥ 0, an unknown ``moves``,
-            ``progress`` not a bool, or ``BRDFSCALE_PROGRESS`` set to a value it does not accept;
-            ``checkpoint`` belongs to another run (other parameters, walkers, problem data,
-            seed or moves).
+            model; an unknown ``sampler``; ``walkers``/``moves`` with a sampler object or a
+            gradient sampler; ``walkers`` not an integer ≥ 2·dim, ``chains``, ``chunk`` not
+            integers ≥ 1, ``steps`` not an integer ≥ 2, ``seed`` not an integer ≥ 0, an unknown
+            ``moves``, ``progress`` not a bool, or ``BRDFSCALE_PROGRESS`` set to a value it does
+            not accept; ``checkpoint`` belongs to another run (other parameters, sampler or its
+            settings, chains, problem data or seed) or to an earlier version's layout.
         MeasurementFileError: ``checkpoint`` is a directory, lies in a directory that does
             not exist, is not a readable checkpoint of :func:`fitting.sample` (and
             ``overwrite`` is False), or cannot be written.
+        OutputInUseError: another run holds ``checkpoint``.
     """
     check_fit(problem, fit, "sample(problem, fit)")
     d = len(problem.model.names)
-    if walkers is None:
-        walkers = max(32, 4 * d)
-    walkers = integer(walkers, "walkers", 2 * d)
-    walkers += walkers % 2
+    sampler = _resolve_sampler(sampler, walkers, moves)
+    chains = integer(chains, "chains", 1)
     steps = integer(steps, "steps", 2)  # one step has no transition: no acceptance, no τ
     chunk = integer(chunk, "chunk", 1)
     seed = integer(seed, "seed", 0)
@@ -307,89 +361,67 @@ def sample(
     progress = flag(progress, "progress")
     if progress:
         progress_mode()  # a BRDFSCALE_PROGRESS it does not accept is refused before any work
-    if not isinstance(moves, str) or moves not in _MOVES:
-        raise InvalidInputError(f"moves must be one of {sorted(_MOVES)}; got {moves!r}.")
-    lo, hi = np.asarray(problem.lower), np.asarray(problem.upper)
-
-    def logp(thetas):
-        out = np.asarray(_batched_log_posterior(jnp.asarray(thetas), problem))
-        return np.where(np.isfinite(out), out, -np.inf)
+    m = d - len(fit.undetermined)  # the sampled subspace: what the data determine
+    if m < 1:
+        raise InvalidInputError(f"sample(problem, fit): the data determine none of the {d} coordinates (every "
+                                "Fisher eigen-direction is undetermined); there is nothing to sample.")
+    settings = sampler.settings(m)
+    W = sampler.trajectories(m, chains)
 
     # the checkpoint is this run's alone until the last chunk is in it: a second run on the same
     # file is refused at once (it would interleave its chunks with ours)
     store = None
     if checkpoint is not None:
-        store = _Checkpoint(checkpoint, problem.model.names, walkers, chunk,
-                            {"problem": _digest(problem), "seed": seed, "moves": moves})
+        # what makes a chain this run's: not the fit it started from (once resumed, the state
+        # comes from the file, and a refit of the same problem need not agree to the last bit)
+        signature = {"names": list(problem.model.names), "sampler": settings, "chains": chains, "trajectories": W,
+                     "problem": _digest(problem), "seed": seed, "coordinates": COORDINATES,
+                     "undetermined": len(fit.undetermined)}
+        store = Checkpoint(checkpoint, signature, W, d, chunk, sampler.stats, m)
     lock = contextlib.nullcontext() if store is None else exclusive(store.path, what="checkpoint")
     with lock:
-        chains, log_probs = _run_chain(fit, logp, d, lo, hi, walkers, steps, chunk, seed, moves, store,
-                                       overwrite, progress)
-    chain, log_prob = np.concatenate(chains), np.concatenate(log_probs)
-    return _diagnose(problem.model.names, chain, log_prob)
-
-
-
-def _run_chain(fit, logp, d, lo, hi, walkers, steps, chunk, seed, moves, store, overwrite, progress):
-    """The chunks of the chain: resumed from the checkpoint ``store`` where it holds some, each
-    new one appended to it as soon as it is sampled (the caller holds the checkpoint's lock)."""
-    rng = np.random.default_rng(seed)
-    chains, log_probs = [], []
-    # with overwrite the old file stays until the new, empty checkpoint replaces it (create)
-    resumed = store.load() if store is not None and not overwrite else None
-    sampler = _emcee().EnsembleSampler(walkers, d, logp, vectorize=True, moves=_MOVES[moves]())
-    if resumed is not None and resumed[0].shape[0] > 0:
-        chain, log_prob, random_state = resumed
-        # a checkpoint longer than asked: its first `steps` steps are the chain of a run of `steps`
-        chains, log_probs = [chain[:steps]], [log_prob[:steps]]
-        state = _emcee().State(chain[-1], log_prob=log_prob[-1], random_state=random_state)
-    else:
-        if store is not None:
+        # with overwrite the old file stays until the new, empty checkpoint replaces it (create)
+        resumed = store.load() if store is not None and not overwrite else None
+        posterior = target(problem, fit, None if resumed is None else resumed.subspace)
+        if store is not None and (resumed is None or resumed.steps == 0):
             # replaces only what the user asked to replace, or a checkpoint of this run with no chunk done
-            store.create(replace=overwrite or resumed is not None)
-        sampler.random_state = np.random.RandomState(seed).get_state()
-        p0 = _initial_walkers(fit, lo, hi, walkers, rng)
-        state = _emcee().State(p0, log_prob=logp(p0), random_state=sampler.random_state)
-    done = sum(c.shape[0] for c in chains)
-    with progress_bar(enabled=progress, total=steps, initial=done, desc="emcee", unit="step") as bar:
-        while done < steps:
-            n = min(chunk, steps - done)
-            block, block_lp = np.empty((n, walkers, d)), np.empty((n, walkers))
-            for j, state in enumerate(sampler.sample(state, iterations=n, store=False)):
-                block[j], block_lp[j] = state.coords, state.log_prob
-                bar.update(1)
-            state.random_state = sampler.random_state
-            if store is not None:
-                store.append(block, block_lp, state.random_state)
-            chains.append(block)
-            log_probs.append(block_lp)
-            done += n
-    return chains, log_probs
-
-def _integrated_time(chain):
-    # quiet=True logs a warning for short chains; the shortfall is reported in tau_reliable instead
-    logger = logging.getLogger("emcee.autocorr")
-    level = logger.level
-    logger.setLevel(logging.ERROR)
-    try:
-        return _emcee().autocorr.integrated_time(chain, quiet=True)
-    finally:
-        logger.setLevel(level)
+            store.create(replace=overwrite or resumed is not None, subspace=posterior.record())
+        chain, log_prob, stats, warmup = sampler.run(posterior, fit, chains=chains, steps=steps, seed=seed,
+                                                     store=store, resumed=resumed, progress=progress, chunk=chunk)
+    return _diagnose(posterior, fit, sampler, settings, chains, chain, log_prob, stats, warmup)
 
 
-def _diagnose(names, chain, log_prob) -> SampleResult:
+def _diagnose(posterior, fit, sampler, settings, chains, chain, log_prob, stats, warmup) -> SampleResult:
+    problem = posterior.problem
     # τ is NaN for a coordinate no walker moved in (zero variance; short chains, stuck
-    # ensembles): taken as ∞ — burn-in half the chain, ESS 0, τ not reliable (JSON: null)
-    n_steps, n_walkers, _ = chain.shape
+    # ensembles): taken as ∞ — burn-in half the chain (emcee), ESS 0, τ not reliable (JSON: null)
+    n_steps, n_walkers, d = chain.shape
+    if sampler.burn_fixed is None:
+        tau_all = diag.integrated_time(chain)
+        burn = (int(min(np.ceil(2 * np.max(tau_all)), n_steps // 2)) if np.all(np.isfinite(tau_all))
+                else n_steps // 2)
+        warmup = {"kind": "burn-in: the first 2 τ_max steps (at most half the chain), discarded", "steps": burn}
+    else:
+        burn = min(sampler.burn_fixed, n_steps)
+    kept = chain[burn:]
     with np.errstate(invalid="ignore", divide="ignore"):
-        tau_all = _integrated_time(chain)
-        burn = int(min(np.ceil(2 * np.max(tau_all)), n_steps // 2)) if np.all(np.isfinite(tau_all)) else n_steps // 2
-        kept = chain[burn:]
-        tau = _integrated_time(kept)
+        tau = diag.integrated_time(kept)
         tau = np.where(np.isfinite(tau), tau, np.inf)
         ess = n_walkers * kept.shape[0] / tau
-    moved = np.any(np.diff(chain, axis=0) != 0, axis=-1)
+    if "acceptance_rate" in stats:
+        acceptance = float(np.mean(stats["acceptance_rate"][burn:]))
+    else:
+        moved = np.any(np.diff(chain, axis=0) != 0, axis=-1)
+        acceptance = float(np.mean(moved))
+    q = _quantity_draws(problem.model, jnp.asarray(chain.reshape(-1, d)))
+    quantities = {name: np.asarray(v).reshape(n_steps, n_walkers) for name, v in q.items()}
+    determined = tuple(n for n in quantities if fit.std.get(n, 0.0) is not None)
+    V = undetermined_directions(fit)
+    held = [{"combination": u.get("combination"), "value": float(v @ np.asarray(fit.theta))}
+            for u, v in zip(fit.undetermined, V.T)]
     return SampleResult(
-        names=tuple(names), chain=chain, log_prob=log_prob, burn=burn, tau=tau, ess=ess,
-        tau_reliable=bool(kept.shape[0] >= 50 * np.max(tau)), acceptance=float(np.mean(moved)),
+        names=tuple(problem.model.names), chain=chain, log_prob=log_prob, burn=burn, tau=tau, ess=ess,
+        tau_reliable=bool(kept.shape[0] >= 50 * np.max(tau)), acceptance=acceptance, sampler=sampler.name,
+        chains=chains, settings=settings, warmup=warmup, stats=stats, quantities=quantities, determined=determined,
+        undetermined=list(fit.undetermined), held=held,
     )

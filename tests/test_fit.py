@@ -239,20 +239,21 @@ def test_interrupted_sampling_resumes_bit_identically(small_problem, tmp_path):
     full = fitting.sample(problem, res, walkers=16, steps=90, chunk=30, checkpoint=tmp_path / "a.h5", progress=False)
 
     calls = {"n": 0}
-    original = fitting._sample._batched_log_posterior
+    original = fitting._sample_emcee._batched_log_density
 
-    def interrupting(thetas, prob):
+    def interrupting(zs, prob):
         calls["n"] += 1
-        if calls["n"] == 1 + 2 * 45:  # initial ensemble + 45 steps (2 half-ensemble calls each): inside chunk 2
+        # initial walkers + 45 steps (2 calls each, one per half of every ensemble at once): inside chunk 2
+        if calls["n"] == 1 + 2 * 45:
             raise KeyboardInterrupt
-        return original(thetas, prob)
+        return original(zs, prob)
 
-    fitting._sample._batched_log_posterior = interrupting
+    fitting._sample_emcee._batched_log_density = interrupting
     try:
         with pytest.raises(KeyboardInterrupt):
             fitting.sample(problem, res, walkers=16, steps=90, chunk=30, checkpoint=tmp_path / "b.h5", progress=False)
     finally:
-        fitting._sample._batched_log_posterior = original
+        fitting._sample_emcee._batched_log_density = original
     import h5py
 
     with h5py.File(tmp_path / "b.h5") as f:
@@ -260,8 +261,8 @@ def test_interrupted_sampling_resumes_bit_identically(small_problem, tmp_path):
     resumed = fitting.sample(problem, res, walkers=16, steps=90, chunk=30, checkpoint=tmp_path / "b.h5", progress=False)
     assert np.array_equal(full.chain, resumed.chain) and np.array_equal(full.log_prob, resumed.log_prob)
     kw = dict(walkers=16, steps=90, chunk=30, checkpoint=tmp_path / "b.h5", progress=False)
-    # another run's checkpoint is not continued: other walkers, seed, moves or data
-    for other in ({"walkers": 18}, {"seed": 1}, {"moves": "de"}):
+    # another run's checkpoint is not continued: other walkers, seed, moves, chains, sampler or data
+    for other in ({"walkers": 18}, {"seed": 1}, {"moves": "de"}, {"chains": 2}):
         with pytest.raises(InvalidInputError, match="different run"):
             fitting.sample(problem, res, **{**kw, **other})
     other_data = fitting.Problem(problem.model, _dataset(problem.model, TRUTHS[1], 0.02, seed=5)[1])
@@ -270,12 +271,14 @@ def test_interrupted_sampling_resumes_bit_identically(small_problem, tmp_path):
     # a refit that differs in the last bits still resumes the run: the state comes from the file
     refit = dataclasses.replace(res, theta=res.theta * (1 + 1e-15))
     assert np.array_equal(fitting.sample(problem, refit, **kw).chain, full.chain)
-    # a checkpoint from before the run was recorded in full resumes, with a warning
+    with pytest.raises(InvalidInputError, match="different run"):
+        fitting.sample(problem, res, sampler="nuts", steps=90, chunk=30, checkpoint=tmp_path / "b.h5", progress=False)
+    # a checkpoint of the earlier layout (one ensemble sampled in θ) is refused, not continued
     with h5py.File(tmp_path / "b.h5", "r+") as f:
+        del f.attrs["format"]
         f.attrs["signature"] = json.dumps({"names": list(problem.model.names), "walkers": 16})
-    with pytest.warns(UserWarning, match="predates"):
-        legacy = fitting.sample(problem, res, **kw)
-    assert np.array_equal(full.chain, legacy.chain)
+    with pytest.raises(InvalidInputError, match="earlier version of fitting.sample"):
+        fitting.sample(problem, res, **kw)
 
 
 def test_posterior_matches_laplace_on_a_well_determined_problem(small_problem):
@@ -370,17 +373,17 @@ def test_sample_checkpoint_paths_and_first_chunk_resume(small_problem, tmp_path)
     assert (tmp_path / "text.h5").read_text() == "not HDF5"
     fitting.sample(problem, res, checkpoint=tmp_path / "text.h5", overwrite=True, **kw)  # asked: replaced
     # interrupted inside the first chunk: the checkpoint holds no step yet, and resumes
-    original = fitting._sample._batched_log_posterior
+    original = fitting._sample_emcee._batched_log_density
 
-    def interrupting(thetas, prob):
+    def interrupting(zs, prob):
         raise KeyboardInterrupt
 
-    fitting._sample._batched_log_posterior = interrupting
+    fitting._sample_emcee._batched_log_density = interrupting
     try:
         with pytest.raises(KeyboardInterrupt):
             fitting.sample(problem, res, checkpoint=tmp_path / "d.h5", **kw)
     finally:
-        fitting._sample._batched_log_posterior = original
+        fitting._sample_emcee._batched_log_density = original
     resumed = fitting.sample(problem, res, checkpoint=tmp_path / "d.h5", **kw)
     assert np.array_equal(resumed.chain, fitting.sample(problem, res, checkpoint=path, **kw).chain)
     # a checkpoint longer than asked gives the first `steps` steps: the chain of that shorter run

@@ -1,0 +1,386 @@
+"""The samplers of fitting.sample (emcee, NUTS, HMC): exact posteriors, diagnostics equal to
+ArviZ's, bit-identical resume, ArviZ export, undetermined directions, the status.
+
+The known answer is a linear-Gaussian model written in the library's own residual form (a
+fitting.AbstractModel whose prediction is linear in θ, through fitting.Problem): with the
+prior box far wider than the posterior, the posterior of θ is exactly Gaussian with mean the
+least-squares solution and covariance (JᵀJ)⁻¹ — what fitting.fit's Laplace approximation
+gives, without approximation. Each sampler's mean and covariance must agree within 4
+Monte-Carlo standard errors (from the run's own bulk ESS). With a duplicated basis function
+the model has a null direction θ2 − θ3; the samplers hold it at the fit's value and sample the determined subspace,
+where the posterior is again exactly Gaussian (mean θ̂, covariance (JᵀJ)⁺), and the status must
+be decided by the determined quantities only.
+"""
+
+import dataclasses
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import fitting
+from brdfscale import InvalidInputError, LobeImage, MeasurementSet
+from fitting import _diagnostics
+
+BOX = 5.0
+TRUE = (1.0, 0.5, -0.3)
+
+
+class Linear(fitting.AbstractModel):
+    """``f_k(u) = θ0 + θ1·10u_x + θ2·(10u_x + 5u_y + k)`` (+ θ3 times the last basis again when
+    ``duplicate``: a null direction θ2 − θ3); prior box [−5, 5] in every coordinate."""
+
+    duplicate: bool = eqx.field(static=True, default=False)
+
+    @property
+    def names(self):
+        return ("t0", "t1", "t2") + (("t3",) if self.duplicate else ())
+
+    @property
+    def radial(self):
+        return False
+
+    def _basis(self, points):
+        k = jnp.arange(points.shape[0], dtype=points.dtype)[:, None]
+        ux, uy = 10 * points[..., 0], 10 * points[..., 1]
+        basis = [jnp.ones_like(ux), ux, ux + 0.5 * uy + k]
+        return jnp.stack(basis + basis[-1:] * self.duplicate, axis=-1)
+
+    def predict_points(self, theta, scales, points):
+        return self._basis(points) @ theta
+
+    def quantities(self, theta):
+        out = {f"q{i}": theta[i] for i in range(3)}
+        if self.duplicate:
+            out["q3"] = theta[3]
+        return out
+
+    def initial(self, data):
+        return np.zeros(len(self.names))
+
+    def bounds(self, data):
+        n = len(self.names)
+        return np.full(n, -BOX), np.full(n, BOX)
+
+    def relative_statistics(self, theta, W, data):
+        return jnp.ones((data.scales.shape[0], jnp.asarray(W).shape[0]))
+
+    @property
+    def identifiability_notes(self):
+        return ()
+
+
+def _measurements(seed=0, size=6, sigma=0.1):
+    rng = np.random.default_rng(seed)
+    axis = np.linspace(-0.1, 0.1, size)
+    ux, uy = np.meshgrid(axis, axis)
+    images = []
+    for k, mu in enumerate((1.0, 2.0)):
+        f = TRUE[0] + TRUE[1] * 10 * ux + TRUE[2] * (10 * ux + 5 * uy + k)
+        images.append(LobeImage(mu=mu, incident=np.array([0.0, 0.0, 1.0]), extent=0.1,
+                                values=f + sigma * rng.standard_normal(f.shape), sigma=np.full(f.shape, sigma)))
+    return MeasurementSet(tuple(images))
+
+
+@pytest.fixture(scope="module")
+def linear():
+    """The linear-Gaussian problem, its fit, and the exact posterior (mean, covariance)."""
+    data = fitting.Dataset.from_measurements(_measurements())
+    model = Linear()
+    problem = fitting.Problem(model, data)
+    res = fitting.fit(model, data, starts=1)
+    J = np.asarray(jax.jacfwd(problem.residuals)(jnp.zeros(3)))
+    r0 = np.asarray(problem.residuals(jnp.zeros(3)))
+    mean = np.linalg.lstsq(J, -r0, rcond=None)[0]
+    cov = np.linalg.inv(J.T @ J)
+    assert res.determined and np.allclose(res.theta, mean, atol=1e-6) and np.allclose(res.covariance, cov, rtol=1e-6)
+    return problem, res, mean, cov
+
+
+SAMPLERS = {
+    "emcee": dict(sampler="emcee", walkers=8, steps=1000),
+    "nuts": dict(sampler=fitting.NUTS(warmup=150), steps=800),
+    "hmc": dict(sampler=fitting.HMC(warmup=150), steps=800),
+}
+CHUNK = 100  # one compiled block for every NUTS/HMC test (the compiled program is reused across tests)
+
+
+def _assert_gaussian(draws, result, mean, cov, names):
+    """Mean within 4 MCSE, variances and correlations within 4 of their Monte-Carlo standard errors."""
+    summary = result.summary()
+    ess = min(summary[n]["ess_bulk"] for n in names)
+    for i, name in enumerate(names):
+        assert abs(summary[name]["mean"] - mean[i]) < 4 * summary[name]["mcse_mean"], name
+    est = np.cov(draws, rowvar=False)
+    sd, sd_est = np.sqrt(np.diag(cov)), np.sqrt(np.diag(est))
+    np.testing.assert_allclose(sd_est, sd, rtol=4 * math.sqrt(0.5 / ess))
+    rho, rho_est = cov / np.outer(sd, sd), est / np.outer(sd_est, sd_est)
+    assert np.all(np.abs(rho_est - rho) <= 4 * (1 - rho**2) / math.sqrt(ess) + 1e-12)
+
+
+@pytest.mark.parametrize("name", list(SAMPLERS))
+def test_each_sampler_recovers_the_exact_linear_gaussian_posterior(linear, name):
+    problem, res, mean, cov = linear
+    s = fitting.sample(problem, res, chunk=CHUNK, progress=False, seed=3, **SAMPLERS[name])
+    assert s.sampler == name and s.chains == 4
+    _assert_gaussian(s.samples, s, mean, cov, problem.model.names)
+    assert s.samples.shape == (s.draws.shape[0] * s.draws.shape[1], 3) and s.draws.shape[0] == s.chain.shape[1]
+    d = s.diagnostics()
+    assert d["criteria"]["checked"] == ["q0", "q1", "q2"] and set(d["summary"]) == {"t0", "t1", "t2", "q0", "q1", "q2"}
+    if name == "emcee":
+        # each walker is one of ArviZ's chains (as arviz.from_emcee): R̂ ≤ 1.01 needs ~100 τ per walker,
+        # more than this short run has — and the status says so
+        assert s.chain.shape == (1000, 4 * 8, 3) and s.warmup["steps"] == s.burn
+        assert s.status.startswith("not converged: R̂ > 1.01 for q0")
+    else:
+        assert s.status == "converged", s.status
+        assert s.chain.shape == (950, 4, 3) and s.burn == 150 and s.divergent == 0
+        assert s.warmup["steps"] == 150 and len(s.warmup["step_size"]) == 4
+        eps = np.asarray(s.warmup["step_size"])
+        after = s.stats["step_size"][150:]
+        if name == "nuts":
+            assert np.all(after == eps)  # fixed after the warm-up
+        else:
+            assert np.all((after >= 0.8 * eps * (1 - 1e-12)) & (after <= 1.2 * eps * (1 + 1e-12)))  # jittered ±20 %
+        assert np.any(s.stats["step_size"][:150] != eps)  # adapted during it
+        assert 0.6 < s.acceptance < 0.95
+
+
+# -- resume -------------------------------------------------------------------------------
+
+RESUMABLE = {
+    "emcee": dict(sampler=fitting.Emcee(walkers=8), steps=60),
+    "nuts": dict(sampler=fitting.NUTS(warmup=150), steps=150),
+    "hmc": dict(sampler=fitting.HMC(warmup=150), steps=150),
+    "nuts-windows": dict(sampler=fitting.NUTS(warmup=40, adapt_mass_matrix=True), steps=150),
+}
+
+
+def _interrupt_after(monkeypatch, module, name, calls):
+    """Make ``module.name`` raise KeyboardInterrupt on its ``calls + 1``-th call."""
+    original, count = getattr(module, name), {"n": 0}
+
+    def interrupting(*args, **kwargs):
+        count["n"] += 1
+        if count["n"] > calls:
+            raise KeyboardInterrupt
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(module, name, interrupting)
+
+
+@pytest.mark.parametrize("name", list(RESUMABLE))
+def test_an_interrupted_run_resumes_bit_identically(linear, name, tmp_path, monkeypatch):
+    """Killed in the middle of the run (after some chunks were committed), the run resumes
+    from the checkpoint and gives the uninterrupted run's chain, log-probabilities and
+    statistics bit for bit; so does a file whose commit marker lags behind its newest state
+    slot (a kill between the state's write and the commit)."""
+    import h5py
+
+    problem, res, _, _ = linear
+    kw = dict(chunk=50 if name == "emcee" else CHUNK, progress=False, seed=5, **RESUMABLE[name])
+    full = fitting.sample(problem, res, **kw)
+    with monkeypatch.context() as patch:
+        if name == "emcee":  # 1 call for the start, 2 per step: stops inside the second chunk
+            _interrupt_after(patch, fitting._sample_emcee, "_batched_log_density", 1 + 2 * 55)
+        else:  # the warm-up (its block, for the windows) and one chunk are done
+            _interrupt_after(patch, fitting._sample_blackjax, "_advance", 1 if name == "nuts-windows" else 2)
+        with pytest.raises(KeyboardInterrupt):
+            fitting.sample(problem, res, checkpoint=tmp_path / "c.h5", **kw)
+    with h5py.File(tmp_path / "c.h5") as f:
+        committed = int(f.attrs["steps_done"])
+    assert committed == {"emcee": 50, "nuts": 200, "hmc": 200, "nuts-windows": 140}[name]
+    resumed = fitting.sample(problem, res, checkpoint=tmp_path / "c.h5", **kw)
+    for a, b in [(full.chain, resumed.chain), (full.log_prob, resumed.log_prob)] + [
+            (full.stats[k], resumed.stats[k]) for k in full.stats]:
+        assert a.dtype == b.dtype and np.array_equal(a, b)
+    assert resumed.summary() == full.summary() and resumed.warmup.keys() == full.warmup.keys()
+    with h5py.File(tmp_path / "c.h5", "r+") as f:
+        steps = sorted(int(f[s].attrs["step"]) for s in ("state_0", "state_1") if s in f)
+        f.attrs["steps_done"] = steps[0]  # the older slot's step: as if the last commit never happened
+    again = fitting.sample(problem, res, checkpoint=tmp_path / "c.h5", **kw)
+    assert np.array_equal(again.chain, full.chain) and np.array_equal(again.log_prob, full.log_prob)
+    with h5py.File(tmp_path / "c.h5", "r+") as f:
+        f.attrs["steps_done"] = steps[0] - 1  # no state for this step: reported as damaged, not guessed
+    with pytest.raises(fitting_errors().MeasurementFileError, match="damaged"):
+        fitting.sample(problem, res, checkpoint=tmp_path / "c.h5", **kw)
+
+
+def fitting_errors():
+    import brdfscale
+
+    return brdfscale
+
+
+# -- diagnostics --------------------------------------------------------------------------
+
+STORED = "tests/data/chains/linear_gaussian.npz"  # written by fitting.sample (NUTS 4 × 301 draws; emcee 16 walkers × 150)
+
+
+def test_rhat_ess_and_mcse_equal_arviz_on_stored_chains():
+    az = pytest.importorskip("arviz")
+    stored = np.load(STORED)
+    nuts, emcee_walkers = stored["nuts"], stored["emcee"]
+    cases = {"nuts": nuts, "emcee (burn-in included)": emcee_walkers,
+             "shifted chain": nuts + np.array([0.0, 0.0, 0.3, 0.0])[:, None, None] * nuts.std(axis=(0, 1)),
+             "ties": np.round(nuts * 20) / 20, "one chain": nuts[:1], "even draws": nuts[:, :300]}
+    for label, x in cases.items():
+        reference = az.summary(az.convert_to_dataset(x), kind="all", round_to="none")
+        for i in range(x.shape[-1]):
+            ours = _diagnostics.summary_row(x[:, :, i])
+            theirs = reference.loc[f"x[{i}]"]
+            for key in _diagnostics.STATISTICS:
+                if np.isnan(theirs[key]):
+                    assert np.isnan(ours[key]), (label, i, key)
+                else:
+                    assert ours[key] == pytest.approx(theirs[key], rel=1e-10, abs=1e-14), (label, i, key)
+    shifted = _diagnostics.summary_row(cases["shifted chain"][:, :, 0])
+    assert shifted["r_hat"] > 1.01
+
+
+def test_status_names_every_failed_criterion(linear):
+    problem, res, _, _ = linear
+    good = fitting.sample(problem, res, chunk=CHUNK, progress=False, seed=3, **SAMPLERS["nuts"])
+    assert good.status == "converged" and good.problems() == []
+    # too short: bulk ESS below 400, named per quantity
+    short = dataclasses.replace(good, chain=good.chain[:190], log_prob=good.log_prob[:190],
+                                stats={k: v[:190] for k, v in good.stats.items()},
+                                quantities={k: v[:190] for k, v in good.quantities.items()})
+    assert short.status.startswith("not converged: ") and "ESS_bulk < 400 for q0 (" in short.status
+    assert short.diagnostics()["problems"] == short.problems() and short.diagnostics()["status"] == short.status
+    # one chain stuck away from the others: R̂ names the coordinate (θ when no quantities are given)
+    chain = good.chain.copy()
+    chain[:, 0, 1] += 10 * good.draws[:, :, 1].std()
+    stuck = dataclasses.replace(good, chain=chain, quantities=None)
+    assert stuck.status.startswith("not converged: R̂ > 1.01 for t1 (") and "t0" not in stuck.status
+    # divergent transitions after the warm-up are named too
+    stats = {**good.stats, "divergent": good.stats["divergent"].copy()}
+    stats["divergent"][-3:, 0] = 1
+    assert dataclasses.replace(good, stats=stats).status == "not converged: 3 divergent transitions after warm-up"
+    assert "status=not converged" in repr(short)
+
+
+def test_to_arviz_round_trips_through_netcdf(linear, tmp_path):
+    az = pytest.importorskip("arviz")
+    problem, res, _, _ = linear
+    s = fitting.sample(problem, res, sampler=fitting.NUTS(warmup=150), steps=100, chunk=CHUNK, progress=False)
+    data = s.to_arviz()
+    assert isinstance(data, az.InferenceData)
+    assert set(data.groups()) >= {"posterior", "sample_stats", "warmup_posterior", "warmup_sample_stats"}
+    assert data.posterior["theta"].shape == (4, 100, 3) and list(data.posterior["coordinate"].values) == ["t0", "t1", "t2"]
+    assert data.warmup_posterior["theta"].shape == (4, 150, 3)
+    path = tmp_path / "run.nc"
+    data.to_netcdf(str(path))
+    back = az.from_netcdf(str(path))
+    for group in ("posterior", "sample_stats", "warmup_posterior", "warmup_sample_stats"):
+        assert getattr(back, group).equals(getattr(data, group)), group
+    assert back.posterior.attrs["sampler"] == "nuts" and back.posterior.attrs["independent_chains"] == 4
+    np.testing.assert_array_equal(back.posterior["theta"].values, s.draws)
+    np.testing.assert_array_equal(back.sample_stats["diverging"].values, s.stats["divergent"][150:].T.astype(bool))
+    table = az.summary(back, kind="all", round_to="none")
+    ours = s.summary()
+    for name in ("t0", "t1", "t2"):
+        for key in _diagnostics.STATISTICS:
+            assert table.loc[f"theta[{name}]", key] == pytest.approx(ours[name][key], rel=1e-10)
+    for name in ("q0", "q2"):
+        assert table.loc[f"quantities[{name}]", "r_hat"] == pytest.approx(ours[name]["r_hat"], rel=1e-10)
+
+
+def test_to_arviz_names_the_extra_when_arviz_is_missing(linear, monkeypatch):
+    import builtins
+
+    from brdfscale import MissingDependencyError
+
+    problem, res, _, _ = linear
+    s = fitting.sample(problem, res, walkers=8, steps=10, progress=False)
+    real_import = builtins.__import__
+
+    def no_arviz(name, *args, **kwargs):
+        if name == "arviz" or name.startswith("arviz."):
+            raise ImportError("No module named 'arviz'")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_arviz)
+    with pytest.raises(MissingDependencyError, match=r"brdfscale\[mcmc\]"):
+        s.to_arviz()
+    assert s.summary()["t0"]["ess_bulk"] > 0  # the diagnostics need no ArviZ
+
+
+# -- undetermined directions --------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def null_direction():
+    data = fitting.Dataset.from_measurements(_measurements())
+    model = Linear(duplicate=True)
+    return fitting.Problem(model, data), fitting.fit(model, data, starts=1)
+
+
+@pytest.mark.parametrize("sampler", [fitting.NUTS(warmup=200), fitting.HMC(warmup=200), fitting.Emcee(walkers=8)])
+def test_an_undetermined_direction_is_held_and_the_determined_subspace_sampled_exactly(null_direction, sampler):
+    """θ2 and θ3 multiply the same basis function: the data fix θ2 + θ3 only, and the fit
+    names θ2 − θ3 undetermined. The samplers hold it at the fit's value and sample the
+    determined subspace; there the posterior is exactly Gaussian with mean θ̂ and covariance
+    the fit's pseudo-inverse (JᵀJ)⁺ — the known answer, within Monte-Carlo error. The status
+    is decided on the determined quantities only, and the result states what was held."""
+    problem, res = null_direction
+    assert len(res.undetermined) == 1 and res.std["q2"] is None and res.std["q3"] is None
+    steps = 1500 if sampler.name == "emcee" else 800
+    s = fitting.sample(problem, res, sampler=sampler, steps=steps, chunk=CHUNK, progress=False, seed=2)
+    u = s.samples[:, 2] - s.samples[:, 3]
+    assert np.max(np.abs(u - (res.theta[2] - res.theta[3]))) < 1e-12  # held (the plane is exact in the box's middle)
+    # the determined coordinates: t0, t1 and s = t2 + t3, against the fit's exact (pseudo-inverse) covariance
+    A = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 1]], float)
+    reduced = dataclasses.replace(s, names=("t0", "t1", "s"), chain=s.chain @ A.T, quantities=None)
+    _assert_gaussian(reduced.samples, reduced, A @ res.theta, A @ res.covariance @ A.T, reduced.names)
+    d = s.diagnostics()
+    assert d["criteria"]["checked"] == ["q0", "q1"] and d["undetermined_quantities"] == ["q2", "q3"]
+    (held,) = d["held_combinations"]
+    assert held["combination"] == res.undetermined[0]["combination"]
+    assert "held at the fit's values" in d["undetermined_note"] and "not sampled but held" in d["prior"]
+    assert s.divergent == 0
+    if sampler.name != "emcee":
+        assert s.status == "converged", s.status
+
+
+# -- arguments ----------------------------------------------------------------------------
+
+def test_sampler_choices_and_arguments_are_checked(linear):
+    problem, res, _, _ = linear
+    assert fitting.SAMPLERS == {"emcee": fitting.Emcee, "nuts": fitting.NUTS, "hmc": fitting.HMC}
+    for kw, match in [(dict(sampler="metropolis"), "sampler must be one of"), (dict(sampler=3), "sampler must be one of"),
+                      (dict(sampler="nuts", walkers=8), "apply to emcee only"),
+                      (dict(sampler=fitting.Emcee(), moves="de"), "fitting.Emcee"),
+                      (dict(chains=0), "chains must be an integer ≥ 1"), (dict(sampler="hmc", steps=1), "steps")]:
+        with pytest.raises(InvalidInputError, match=match):
+            fitting.sample(problem, res, progress=False, **kw)
+    for make, match in [(lambda: fitting.NUTS(warmup=-1), "warmup"), (lambda: fitting.NUTS(max_doublings=0), "max_doublings"),
+                        (lambda: fitting.NUTS(target_acceptance=1.0), r"target_acceptance must lie in \(0, 1\)"),
+                        (lambda: fitting.HMC(jitter=1.0), "jitter"), (lambda: fitting.HMC(trajectory_length=0), "trajectory_length"),
+                        (lambda: fitting.NUTS(warmup=10, adapt_mass_matrix=True), "warmup ≥ 20"),
+                        (lambda: fitting.NUTS(adapt_mass_matrix="yes"), "adapt_mass_matrix"),
+                        (lambda: fitting.Emcee(moves="gibbs"), "moves must be one of")]:
+        with pytest.raises(InvalidInputError, match=match):
+            make()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sampler", ["nuts", "hmc"])
+def test_the_width_law_with_two_scales_converges_in_the_determined_subspace(sampler):
+    """A real model with undetermined directions (the width law from two scales: mu_c and
+    exponent undetermined, on a curved ridge the data leave flat): sampled in the determined
+    subspace, NUTS and HMC converge without a divergence, and the determined amplitude and
+    alpha_lobe get the fit's Laplace standard deviations (10 %)."""
+    from test_fit import TRUTHS, _dataset
+
+    model = fitting.ParametricModel()
+    _, data = _dataset(model, TRUTHS[0], 0.01, seed=3, scales=(0.5, 4.0))
+    res = fitting.fit(model, data, starts=2)
+    assert len(res.undetermined) == 2
+    s = fitting.sample(fitting.Problem(model, data), res, sampler=sampler, steps=1000, progress=False, seed=1)
+    assert s.status == "converged" and s.divergent == 0, s.status
+    summary = s.summary()
+    for name in ("amplitude", "alpha_lobe"):
+        assert summary[name]["sd"] == pytest.approx(res.std[name], rel=0.1)
