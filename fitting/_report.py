@@ -37,6 +37,7 @@ __all__ = ["summarise", "write_report", "truth_of", "report_files", "check_repor
 
 _FIGURES = ("data_vs_fit.png", "statistics.png", "corner.png")
 _TABLES = "evolved_lobes.exr"
+_POSTERIOR = "posterior.nc"  # the samples as ArviZ InferenceData in NetCDF (with the extra brdfscale[mcmc])
 
 
 def _atomic(path, write, overwrite: bool):
@@ -44,6 +45,22 @@ def _atomic(path, write, overwrite: bool):
     (write_report has checked up front; this also holds against a file created meanwhile:
     InvalidInputError, as from the check)."""
     atomic_write(path, write, overwrite=overwrite, error=InvalidInputError)
+
+
+def _arviz_available() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("arviz") is not None
+
+
+def _write_posterior(out_dir, samples, overwrite: bool) -> str:
+    """``posterior.nc``: :meth:`SampleResult.to_arviz` as NetCDF (``arviz.from_netcdf`` reads it)."""
+    if not _arviz_available():
+        return 'not written: ArviZ is not installed (pip install "brdfscale[mcmc]")'
+    data = samples.to_arviz()
+    path = os.path.join(out_dir, _POSTERIOR)
+    _atomic(path, lambda p: data.to_netcdf(p), overwrite)
+    return path
 
 
 def _exr_available() -> bool:
@@ -57,7 +74,8 @@ def _exr_available() -> bool:
 def report_files(out_dir) -> list[str]:
     """The paths :func:`write_report` writes into ``out_dir`` (fit.json last: it is written
     when everything else is in place)."""
-    names = list(_FIGURES) + ([_TABLES] if _exr_available() else []) + ["fit.json"]
+    names = (list(_FIGURES) + ([_TABLES] if _exr_available() else []) + ([_POSTERIOR] if _arviz_available() else [])
+             + ["fit.json"])
     return [os.path.join(os.fspath(out_dir), name) for name in names]
 
 
@@ -247,9 +265,11 @@ def _write_tables(out_dir, problem: Problem, fit: FitResult, overwrite: bool) ->
 
 def write_report(out_dir, problem: Problem, fit: FitResult, samples: SampleResult | None = None, *,
                  truth: dict | None = None, model_info: dict | None = None, overwrite: bool = False) -> dict:
-    """Write ``fit.json``, ``data_vs_fit.png``, ``statistics.png``, ``corner.png`` and the
-    evolved lobe tables (``evolved_lobes.exr``) into ``out_dir`` (created if missing); return
-    the JSON document.
+    """Write ``fit.json``, ``data_vs_fit.png``, ``statistics.png``, ``corner.png``, the
+    evolved lobe tables (``evolved_lobes.exr``) and, for a sampled fit with ArviZ installed,
+    the samples as ArviZ InferenceData in NetCDF (``posterior.nc``) into ``out_dir`` (created
+    if missing); return the JSON document. Its ``mcmc`` section holds the sampler's record, its
+    status and ArviZ's summary (ess_bulk, ess_tail, r_hat, MCSE) of every coordinate and quantity.
 
     Everything is checked before the first file is written: the arguments, and (without
     ``overwrite``) that none of those files exists. ``fit.json`` is written last.
@@ -293,10 +313,11 @@ def write_report(out_dir, problem: Problem, fit: FitResult, samples: SampleResul
     check_report_directory(out_dir, overwrite)
     out_dir = os.fspath(out_dir)
     with exclusive(out_dir, what="report directory"):  # re-entrant: `brdfscale fit` holds it for the whole run
-        return _write_files(out_dir, problem, fit, model, (draws, corner_draws), true_theta, truth, doc, overwrite)
+        return _write_files(out_dir, problem, fit, model, (draws, corner_draws), true_theta, truth, doc, overwrite,
+                            samples)
 
 
-def _write_files(out_dir, problem, fit, model, draws, true_theta, truth, doc, overwrite) -> dict:
+def _write_files(out_dir, problem, fit, model, draws, true_theta, truth, doc, overwrite, samples=None) -> dict:
     draws, corner_draws = draws
     check_report_directory(out_dir, overwrite)  # again, now that no other run can write here
     figures = {name: os.path.join(out_dir, name) for name in _FIGURES}
@@ -311,6 +332,8 @@ def _write_files(out_dir, problem, fit, model, draws, true_theta, truth, doc, ov
         except BrdfscaleError as err:
             tables = f"not written: {err}"
         doc.update(figures=list(figures.values()), tables=tables)
+        if samples is not None:
+            doc["posterior"] = _write_posterior(out_dir, samples, overwrite)
         doc = _finite(doc)
         text = json.dumps(doc, indent=2, allow_nan=False)
         _atomic(target, lambda p: Path(p).write_text(text), overwrite)

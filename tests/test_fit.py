@@ -302,7 +302,7 @@ def test_fit_command_writes_report_and_refuses_to_overwrite(tmp_path, capsys):
     path = tmp_path / "m.exr"
     exr.write_measurements(str(path), mset)
     out = tmp_path / "out"
-    argv = ["fit", str(path), "--out", str(out), "--steps", "200", "--walkers", "16", "--starts", "2", "--no-progress"]
+    argv = ["fit", str(path), "--out", str(out), "--steps", "200", "--sampler", "emcee", "--walkers", "16", "--starts", "2", "--no-progress"]
     assert main(argv) == 0
     doc = json.loads((out / "fit.json").read_text())
     for name in TRUTHS[1]:
@@ -312,6 +312,12 @@ def test_fit_command_writes_report_and_refuses_to_overwrite(tmp_path, capsys):
     for fig in ("data_vs_fit.png", "statistics.png", "corner.png"):
         assert (out / fig).read_bytes()[:4] == b"\x89PNG"
     assert exr.read_measurements(str(out / "evolved_lobes.exr")).scales.tolist() == list(SCALES)
+    # the chains as ArviZ InferenceData in NetCDF beside fit.json, and ArviZ's figures in fit.json
+    az = pytest.importorskip("arviz")
+    posterior = az.from_netcdf(str(out / "posterior.nc"))
+    assert doc["posterior"] == str(out / "posterior.nc") and posterior.posterior.sizes["draw"] == 200 - doc["mcmc"]["burn_in"]
+    assert {"ess_bulk", "ess_tail", "r_hat", "mcse_mean"} <= set(doc["mcmc"]["summary"]["amplitude"])
+    assert doc["mcmc"]["status"].startswith(("converged", "not converged"))
     assert main(argv) == 2
     assert "--force" in capsys.readouterr().err
 

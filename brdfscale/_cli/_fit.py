@@ -64,11 +64,18 @@ def add_fit_options(parser) -> None:
     parser.add_argument("--regularisation", type=_smoothness, default=None, metavar="auto|WEIGHT",
                         help="non-parametric model: weight of the smoothness prior, a number in [0, 1e6] (default "
                         "3) or auto (generalised cross-validation about a pilot fit; docs/fitting.md)")
+    parser.add_argument("--sampler", choices=("nuts", "hmc", "emcee"), default="nuts",
+                        help="posterior sampler: nuts (default; BlackJAX NUTS, Laplace-preconditioned), hmc (BlackJAX "
+                        "HMC of fixed trajectory length) or emcee (affine-invariant ensembles); docs/fitting.md")
+    parser.add_argument("--chains", type=integer(1, 64), default=4,
+                        help="independent chains (emcee: independent ensembles), 1–64 (default 4; R̂ needs ≥ 2)")
     parser.add_argument("--steps", type=integer(0, 1_000_000), default=2000,
-                        help="emcee steps, 0–1000000 (default 2000; 0: Laplace only); the chain is kept in memory: "
-                        f"walkers × steps × parameters × 8 bytes ≤ {CHAIN_BUDGET // 2**30} GiB")
+                        help="draws per chain after the warm-up (nuts, hmc) or emcee steps per walker, 0–1000000 "
+                        "(default 2000; 0: Laplace only); the chains are kept in memory: chains × walkers × steps × "
+                        f"parameters × 8 bytes ≤ {CHAIN_BUDGET // 2**30} GiB")
     parser.add_argument("--walkers", type=integer(2, 4096), default=None,
-                        help="emcee walkers, even, ≥ 2 × parameters, ≤ 4096 (default max(32, 4 × parameters))")
+                        help="emcee only: walkers per ensemble, even, ≥ 2 × parameters, ≤ 4096 (default max(32, 4 × "
+                        "parameters))")
     parser.add_argument("--seed", type=seed, default=0, help=f"seed of the starts and the sampler, 0–{MAX_SEED} (default 0)")
     parser.add_argument("--no-progress", action="store_true",
                         help="no progress bar (BRDFSCALE_PROGRESS=0 in the environment turns off every bar)")
@@ -88,17 +95,25 @@ def check_fit_options(args) -> None:
 
 
 def check_sampler_options(args, n_parameters: int) -> None:
-    """--walkers and --steps against the model's size, before the fit runs."""
+    """--sampler, --chains, --walkers and --steps against the model's size, before the fit runs."""
     if args.steps == 1:
         raise InvalidInputError("--steps 1 has no transition to measure (no acceptance rate, no τ); give 0 or ≥ 2.")
-    walkers = args.walkers if args.walkers is not None else max(32, 4 * n_parameters)
-    if walkers < 2 * n_parameters:
-        raise InvalidInputError(f"--walkers {walkers}: the model has {n_parameters} parameters, so emcee needs at "
-                                f"least {2 * n_parameters} walkers.")
-    size = (walkers + walkers % 2) * args.steps * n_parameters * 8
+    sampler = getattr(args, "sampler", "emcee")
+    chains = getattr(args, "chains", 1)
+    if sampler != "emcee" and args.walkers is not None:
+        raise InvalidInputError(f"--walkers applies to --sampler emcee only; {sampler} runs --chains {chains} chains.")
+    walkers = 1
+    if sampler == "emcee":
+        walkers = args.walkers if args.walkers is not None else max(32, 4 * n_parameters)
+        if walkers < 2 * n_parameters:
+            raise InvalidInputError(f"--walkers {walkers}: the model has {n_parameters} parameters, so emcee needs at "
+                                    f"least {2 * n_parameters} walkers.")
+        walkers += walkers % 2
+    size = chains * walkers * args.steps * n_parameters * 8
     if size > CHAIN_BUDGET:
-        raise InvalidInputError(f"--walkers {walkers} × --steps {args.steps} × {n_parameters} parameters is a chain of "
-                                f"{size / 2**30:.1f} GiB; at most {CHAIN_BUDGET // 2**30} GiB (fewer steps or walkers).")
+        raise InvalidInputError(f"--chains {chains} × {walkers} walkers × --steps {args.steps} × {n_parameters} parameters "
+                                f"is {size / 2**30:.1f} GiB of chains; at most {CHAIN_BUDGET // 2**30} GiB (fewer steps, "
+                                "chains or walkers).")
 
 
 def load_fitting():
@@ -175,13 +190,13 @@ def _fit_and_report(fitting, mset, data, model, info, truth, args, stream) -> di
     samples = None
     if args.steps > 0:
         problem = fitting.Problem(model, data)
-        samples = fitting.sample(problem, result, walkers=args.walkers, steps=args.steps, seed=args.seed,
-                                 checkpoint=os.path.join(args.out, "chain.h5"), overwrite=args.force,
+        sampler = getattr(args, "sampler", "emcee")
+        if sampler == "emcee":
+            sampler = fitting.Emcee(walkers=args.walkers)
+        samples = fitting.sample(problem, result, sampler=sampler, chains=getattr(args, "chains", 4), steps=args.steps,
+                                 seed=args.seed, checkpoint=os.path.join(args.out, "chain.h5"), overwrite=args.force,
                                  progress=not args.no_progress)
-        diag = samples.diagnostics()
-        stream(f"  emcee: {diag['walkers']} walkers × {diag['steps']} steps, burn-in {diag['burn_in']}, "
-               f"max τ = {max(diag['autocorrelation_time'].values()):.1f}, "
-               f"min ESS = {min(diag['effective_sample_size'].values()):.0f} ({diag['tau_note']})")
+        stream(sampling_line(samples.diagnostics()))
     return fitting.write_report(args.out, fitting.Problem(model, data), result, samples, truth=truth,
                                 model_info=info, overwrite=args.force)
 
@@ -198,15 +213,33 @@ def run(args) -> int:
     return 0
 
 
+def sampling_line(diag: dict) -> str:
+    """One line on a sampling run: sampler, chains, draws, the smallest ESS_bulk, the largest R̂, its status."""
+    summary = diag.get("summary") or {}
+    checked = set((diag.get("criteria") or {}).get("checked") or summary)
+    ess = [row["ess_bulk"] for name, row in summary.items() if name in checked and row.get("ess_bulk") is not None]
+    rhat = [row["r_hat"] for name, row in summary.items() if name in checked and row.get("r_hat") is not None]
+    sizes = (f"{diag['chains']} ensembles × {diag['walkers'] // max(diag['chains'], 1)} walkers"
+             if diag["sampler"] == "emcee" else f"{diag['chains']} chains")
+    figures = (f", min ESS_bulk = {min(ess):.0f}" if ess else "") + (f", max R̂ = {max(rhat):.3f}" if rhat else "")
+    return (f"  {diag['sampler']}: {sizes} × {diag['steps']} steps (warm-up/burn-in {diag['burn_in']}){figures}; "
+            f"{diag['status']}")
+
+
 def print_determined(doc: dict, stream=print) -> None:
     """The parameters (undetermined ones with their prior range, no interval), then the ratios
     S(W, μ0)/S(W, μk) the data determine, from a report document (fitting.write_report)."""
+    summary = (doc.get("mcmc") or {}).get("summary") or {}
     for name, row in doc["parameters"].items():
         if name.startswith("D["):
             continue
         value = row["median"] if row["median"] is not None else row["estimate_map"]
         if row["determined"] and row["std"] is not None:
-            stream(f"  {name:12s} {value:.5g} ± {row['std']:.4g}")
+            figures = summary.get(name) or {}
+            arviz = "".join(f", {label} {figures[key]:{fmt}}" for key, label, fmt in
+                            (("ess_bulk", "ESS_bulk", ".0f"), ("ess_tail", "ESS_tail", ".0f"), ("r_hat", "R̂", ".3f"),
+                             ("mcse_mean", "MCSE", ".2g")) if figures.get(key) is not None)
+            stream(f"  {name:12s} {value:.5g} ± {row['std']:.4g}{arviz}")
         else:
             lo, hi = row.get("prior_range") or (float("nan"), float("nan"))
             stream(f"  {name:12s} undetermined by the data (prior range {lo:.3g} … {hi:.3g}; best fit {value:.4g})")
