@@ -275,11 +275,11 @@ def bench_problem(options, truth):
     }
 
     walkers, steps = 32, 400
-    first_mcmc, _ = _wall(lambda: fitting.sample(problem, result, walkers=walkers, steps=20, chunk=20, progress=False))
-    t_mcmc, _ = _wall(lambda: fitting.sample(problem, result, walkers=walkers, steps=steps, chunk=steps,
+    first_mcmc, _ = _wall(lambda: fitting.sample(problem, result, sampler="emcee", chains=1, walkers=walkers, steps=20, chunk=20, progress=False))
+    t_mcmc, _ = _wall(lambda: fitting.sample(problem, result, sampler="emcee", chains=1, walkers=walkers, steps=steps, chunk=steps,
                                              progress=False))
     with tempfile.TemporaryDirectory() as tmp:
-        t_ckpt, _ = _wall(lambda: fitting.sample(problem, result, walkers=walkers, steps=steps, chunk=100,
+        t_ckpt, _ = _wall(lambda: fitting.sample(problem, result, sampler="emcee", chains=1, walkers=walkers, steps=steps, chunk=100,
                                                  checkpoint=os.path.join(tmp, "c.h5"), progress=False))
     record["emcee"] = {
         "walkers": walkers, "steps": steps, "first_20_steps_with_compile_s": first_mcmc,

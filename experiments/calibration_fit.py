@@ -49,7 +49,7 @@ def run_config(model, truth, noise, replicas, mcmc_replicas, steps, seed0):
         hits["laplace_68"].append((np.abs(z) <= Z68).tolist())
         hits["laplace_90"].append((np.abs(z) <= Z90).tolist())
         if r < mcmc_replicas:
-            s = fitting.sample(fitting.Problem(model, data), res, walkers=32, steps=steps, chunk=steps,
+            s = fitting.sample(fitting.Problem(model, data), res, sampler="emcee", chains=1, walkers=32, steps=steps, chunk=steps,
                                progress=False, seed=r)
             lo68, hi68, lo90, hi90 = np.percentile(s.samples, [15.865, 84.135, 5, 95], axis=0)
             hits["mcmc_68"].append(((lo68 <= theta_true) & (theta_true <= hi68)).tolist())
