@@ -543,6 +543,27 @@ def startup() -> str:
     ])
 
 
+def samplers() -> str:
+    d = load("bench_samplers")
+    if d is None:
+        return "(bench_samplers.json missing)"
+    labels = {"emcee": "`Emcee(walkers=16)` (4 × 16 walkers)", "emcee-long": "`Emcee(walkers=16)` (4 × 16 walkers)",
+              "nuts": "`NUTS()`", "hmc": "`HMC()`"}
+    rows = []
+    for name, r in d["results"].items():
+        steps = f"{r['steps']}" if name.startswith("emcee") else f"500 + {r['steps']}"
+        leap = "" if r["mean_leapfrog_steps"] is None else f" ({r['mean_leapfrog_steps']:.1f} leapfrog steps per draw)"
+        rows.append([labels.get(name, name) + leap, steps, f"{r['min_ess_bulk_warm']:.0f}", f"{r['first_call_s']:.2f}",
+                     f"{r['warm_call_s']:.2f}", f"{r['ess_per_s_first_call']:.0f}", f"{r['ess_per_s_warm']:.0f}",
+                     r["status"].replace("|", "\\|")])
+    return "\n\n".join([
+        machine_line(d),
+        table(["sampler", "steps", "min ESS_bulk (warm)", "first call s", "warm call s", "ESS/s first call",
+               "ESS/s warm", "status (warm call)"], rows),
+        load_line(d),
+    ])
+
+
 def queries() -> str:
     d = load("bench_queries")
     if d is None:
@@ -614,6 +635,7 @@ SECTIONS = [("benchmarks.md", "Core evolution (bench_evolve)", evolve),
             ("benchmarks.md", "Synthesis (bench_synth)", synth),
             ("benchmarks.md", "Measured surfaces (bench_topography)", topography),
             ("benchmarks.md", "Scene planner (bench_planner)", planner),
+            ("fitting.md", "Samplers (bench_samplers)", samplers),
             ("so3.md", "SO(3) benchmark (bench_so3)", so3_details),
             ("planner.md", "Planner against the Pareto front (bench_planner)", planner_pareto),
             ("planner.md", "Pareto fronts (bench_planner)", planner_fronts),

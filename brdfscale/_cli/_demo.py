@@ -2,7 +2,7 @@
 
 synthesise (brdfscale.synth: the built-in Gaussian-correlated surface, σ_h = 0.05 px,
 ℓ = 8 px, Beckmann pixel facets α = 0.01, Poisson noise) → write EXR → read it back → fit
-(Beckmann lobe, Gaussian-surface scale law) → sample (BlackJAX NUTS, 4 chains) → report, then print truth
+(Beckmann lobe, Gaussian-surface scale law) → sample (BlackJAX HMC, 4 chains) → report, then print truth
 versus estimate ± uncertainty. ``--source model`` replaces the synthesis by the fitting
 model's own forward map plus Gaussian noise (a pure check of the inverse machinery).
 """
@@ -43,8 +43,8 @@ def register(subparsers) -> None:
     parser.add_argument("--source", choices=("synth", "model"), default="synth",
                         help="synth: height-field simulation (default); model: the fit model plus noise")
     parser.add_argument("--steps", type=integer(0, 100_000), default=1000,
-                        help="NUTS draws per chain after 500 warm-up steps, 0–100000 (default 1000, 4 chains; 0: Laplace "
-                        "only); NUTS is the sampler that passes the diagnostics fastest (docs/fitting.md)")
+                        help="HMC draws per chain after 500 warm-up steps, 0–100000 (default 1000, 4 chains; 0: Laplace "
+                        "only); HMC is the sampler that passes the diagnostics fastest here (docs/fitting.md)")
     parser.add_argument("--seed", type=seed, default=1, help=f"seed of surface, noise and sampler, 0–{MAX_SEED} (default 1)")
     parser.add_argument("--no-progress", action="store_true",
                         help="no progress bar (BRDFSCALE_PROGRESS=0 in the environment turns off every bar)")
@@ -112,7 +112,7 @@ def _run(args, exr, start) -> int:
     parser = Parser()
     add_fit_options(parser)
     options = parser.parse_args(["--out", args.out, "--law", "gaussian_surface", "--starts", "4", "--steps",
-                                 str(args.steps), "--sampler", "nuts", "--chains", "4", "--seed", str(args.seed)]
+                                 str(args.steps), "--sampler", "hmc", "--chains", "4", "--seed", str(args.seed)]
                                 + ["--no-progress"] * args.no_progress + ["--force"] * args.force)
     doc = fit_measurements(mset, options)
     print(f"[4/4] report in {args.out}/ (fit.json, data_vs_fit.png, statistics.png, corner.png)")
