@@ -10,6 +10,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as hs
 
 from brdfscale import InvalidInputError, MeasurementFileError, MissingDependencyError, synth, topography
 
@@ -313,9 +315,6 @@ def test_sigma_of_mu_on_every_real_file_at_eight_scales_over_two_decades(st, nam
         assert np.all(np.abs(s.covariance - reference) <= 1e-6 * s.covariance_error), (mu, s.covariance, reference)
         assert np.all(s.covariance_error > 0) and s.independent <= s.count
 
-
-from hypothesis import given, settings  # noqa: E402
-from hypothesis import strategies as hs  # noqa: E402
 
 
 @settings(max_examples=40, deadline=None)

@@ -224,8 +224,7 @@ def covariance_error(samples: np.ndarray, valid: np.ndarray | None, lattice: tup
     rows, cols = lattice
     present = np.ones(lattice, bool) if valid is None else valid
     centred = samples - samples.mean(axis=0)
-    lag = min(rows, cols, 32) // 4
-    lag = min(lag, 8)
+    lag = min(rows, cols, 32) // 4  # at most 8
     errors, taus = np.zeros((2, 2)), []
     for a, b in ((0, 0), (0, 1), (1, 1)):
         z = centred[:, a] * centred[:, b]

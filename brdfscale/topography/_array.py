@@ -8,7 +8,8 @@ from jaxtyping import ArrayLike, Bool, Float
 from .._errors import InvalidInputError
 from .._measurement import _boolean_mask
 from .._validation import real_array
-from ..synth._surface import HeightField, check_micro, pitch
+from .. import stats
+from ..synth._surface import HeightField, pitch
 
 #: Length units accepted for heights and pitches, in metres (µ as U+00B5 or U+03BC, or "u").
 UNITS: dict[str, float] = {
@@ -168,11 +169,6 @@ def from_array(
         "unmeasured": int(np.count_nonzero(~valid)),
         **(dict(description) if description else {}),
     }
-    return HeightField(h, (dx * scale, dy * scale), micro=check_micro(micro) if micro is not None else _mirror(),
+    return HeightField(h, (dx * scale, dy * scale), micro=stats.Delta() if micro is None else micro,
                        description=provenance, mask=None if valid.all() else valid, periodic=bool(periodic), unit="m")
 
-
-def _mirror():
-    from .. import stats
-
-    return stats.Delta()

@@ -70,7 +70,6 @@ def read(path, *, channel: int | str | None = None, detrend: str | None = "plane
     if topo.dim != 2:
         raise MeasurementFileError(f"{name}: channel {index} ({info.name!r}) is a line scan, not an areal height map.")
     unit = topo.unit
-    unit = {"µm": "\u00b5m", "μm": "\u03bcm"}.get(unit, unit)
     if unit not in UNITS:
         raise MeasurementFileError(f"{name}: the heights' unit {topo.unit!r} is not a length unit brdfscale knows "
                                    f"({', '.join(UNITS)}).")
