@@ -4,11 +4,19 @@ JAX ships no K0/K1 and its ``bessel_jn`` recurrence is unusable here (NaNs for s
 arguments, O(1) errors beyond x ≈ 1e3), so these are evaluated from their classical
 integral representations with quadratures whose error is provably below float64 rounding:
 
-* ``J_n(x) = (1/2π) ∫_0^{2π} cos(n τ − x sin τ) dτ`` for ``|x| ≤ 25``: the trapezoidal rule
-  on a periodic analytic integrand; with N nodes its error is ``≈ |J_{N−n}(x)| ≤
-  (e x / 2(N−n))^{N−n}``, below 1e-17 for N = 96 at x = 25.
-* The Hankel asymptotic expansion (DLMF 10.17.3) for ``|x| > 25``: the terms decrease
-  until ``k ≈ 2x``, so 24 terms leave a truncation error below ``e^{−50}``.
+* ``J0``, ``J1`` for ``|x| ≤ 8``: one Chebyshev series in ``x/8`` each (degree 34, even;
+  degree 37, odd), fitted at import to the integral ``J_n(x) = (1/2π) ∫_0^{2π} cos(n τ − x
+  sin τ) dτ`` evaluated by the trapezoidal rule on 96 nodes (a periodic analytic integrand:
+  error ``≈ (e x / 2(96−n))^{96−n}``, below 1e-40 at x = 8).
+* For ``|x| > 8`` the modulus–phase form ``J_n(x) = √(2/πx) (P_n cos χ − Q_n sin χ)``, ``χ =
+  x − (n/2 + 1/4)π`` (DLMF 10.17.3), with ``P_n``, ``Q_n`` smooth in ``y = 8/x ∈ (0, 1]``: one
+  Chebyshev series (degree 20) each, fitted at import to the Hankel asymptotic expansion
+  where x ≥ 25 (24 terms: error below e^{−50}) and to SciPy's ``J_n``, ``Y_n`` for 8 ≤ x < 25;
+  ``cos χ``, ``sin χ`` are formed from ``cos x`` and ``sin x`` (no rounding of x − π/4).
+  Both branches are computed (as ``jnp.where`` does under ``vmap``): about 75 multiply–adds,
+  a cosine, a sine and a square root — about 15× cheaper than the trapezoidal rule on 96
+  nodes evaluated at run time (two trigonometric functions per node), which this replaced
+  (the radial path of :func:`brdfscale.evolve` spends its time here).
 * ``K0`` and ``x K1(x)``: the ascending series (DLMF 10.31.1–2) in ``q = x²/4`` for
   ``x ≤ 2``, where 13 terms reach 1e-17 (Horner's rule on precomputed coefficients); for
   ``x > 2`` one Chebyshev expansion (degree 24) of the smooth ``√x eˣ K_ν(x)`` in
@@ -24,16 +32,22 @@ Derivatives are supplied analytically (``J0' = −J1``, ``J1' = J0 − J1/x``, `
 Accuracy against SciPy/mpmath is tested in tests/test_special.py.
 """
 
+import functools
 import math
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-_SWITCH = 25.0
-_N_TRAPEZOID_J = 96
+_J_SWITCH = 8.0  # |x| ≤ 8: Chebyshev series in x/8; beyond: modulus–phase form in 8/x
+_J_TRAPEZOID_NODES = 96  # the trapezoidal rule the series are fitted to (error ≤ 1e-17 for |x| ≤ 8)
+_J_SMALL_DEGREE = {0: 34, 1: 37}
+_J_LARGE_DEGREE = 20
 _N_ASYMPTOTIC = 24
 _XK1_SMALL = 1e-12
+J_TEMPORARIES = 8
+"""Arrays of the argument's shape a J0/J1 evaluation holds at once (both branches, Clenshaw's
+two carries, cos and sin): what :mod:`brdfscale._evolve` budgets per value."""
 
 
 def _hankel_coefficients(nu: int, count: int) -> np.ndarray:
@@ -44,40 +58,103 @@ def _hankel_coefficients(nu: int, count: int) -> np.ndarray:
     return out
 
 
-_HANKEL = {0: _hankel_coefficients(0, _N_ASYMPTOTIC), 1: _hankel_coefficients(1, _N_ASYMPTOTIC)}
+def _j_trapezoid_numpy(n: int, x: np.ndarray) -> np.ndarray:
+    """``J_n(x) = (1/2π) ∫_0^{2π} cos(nτ − x sin τ) dτ`` by the trapezoidal rule (NumPy, for the fit only)."""
+    tau = np.arange(_J_TRAPEZOID_NODES) * (2 * np.pi / _J_TRAPEZOID_NODES)
+    return np.mean(np.cos(n * tau - x[:, None] * np.sin(tau)), axis=-1)
 
 
-def _j_trapezoid(n: int, x):
-    tau = jnp.arange(_N_TRAPEZOID_J, dtype=x.dtype) * (2 * np.pi / _N_TRAPEZOID_J)
-    return jnp.mean(jnp.cos(n * tau - x[..., None] * jnp.sin(tau)), axis=-1)
+def _modulus_phase_numpy(n: int, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """P_n, Q_n of ``J_n(x) = √(2/πx) (P cos χ − Q sin χ)``, ``χ = x − (n/2 + 1/4)π`` (DLMF
+    10.17.3): for x ≥ 25 the Hankel expansion (24 terms: error below e^{−50}); for 8 ≤ x < 25
+    from SciPy's J_n and Y_n (``P = √(πx/2)(J cos χ + Y sin χ)``, ``Q = √(πx/2)(Y cos χ − J sin χ)``)."""
+    import scipy.special
+
+    a = _hankel_coefficients(n, _N_ASYMPTOTIC)
+    far = x >= 25.0
+    xf = np.where(far, x, 25.0)
+    p = sum((-1) ** (k // 2) * a[k] / xf**k for k in range(0, _N_ASYMPTOTIC, 2))
+    q = sum((-1) ** ((k - 1) // 2) * a[k] / xf**k for k in range(1, _N_ASYMPTOTIC, 2))
+    xn = np.where(far, 25.0, x)
+    chi = xn - (n / 2 + 0.25) * np.pi
+    scale = np.sqrt(np.pi * xn / 2)
+    j, y = scipy.special.jv(n, xn), scipy.special.yv(n, xn)
+    return (np.where(far, p, scale * (j * np.cos(chi) + y * np.sin(chi))),
+            np.where(far, q, scale * (y * np.cos(chi) - j * np.sin(chi))))
 
 
-def _j_asymptotic(n: int, x):
-    # Only called on |x| > _SWITCH (elsewhere x is replaced by a safe dummy value).
-    a = _HANKEL[n]
-    ax = jnp.abs(x)
-    inv = 1.0 / ax
-    p = jnp.zeros_like(ax)
-    q = jnp.zeros_like(ax)
-    for k in range(_N_ASYMPTOTIC - 1, -1, -1):
-        term = float(a[k]) * inv**k  # a Python float keeps the argument's dtype
-        if k % 2 == 0:
-            p = p + (-1) ** (k // 2) * term
-        else:
-            q = q + (-1) ** ((k - 1) // 2) * term
-    chi = ax - (n / 2 + 0.25) * np.pi
-    value = jnp.sqrt(2.0 / (np.pi * ax)) * (p * jnp.cos(chi) - q * jnp.sin(chi))
-    return value * jnp.sign(x) ** n  # J_n(−x) = (−1)^n J_n(x)
+def _j_series() -> dict:
+    """The Chebyshev coefficients of both branches, least-squares fitted at import on 1000
+    Chebyshev points (the fit averages the data's rounding; tests/test_special.py checks the
+    result against SciPy and 30-digit mpmath). J0 is even and J1 odd in x/8: the other
+    parity's coefficients are set to exactly zero."""
+    from numpy.polynomial import chebyshev
+
+    t = np.cos(np.pi * (np.arange(1000) + 0.5) / 1000)
+    out = {}
+    for n in (0, 1):
+        small = chebyshev.chebfit(t, _j_trapezoid_numpy(n, _J_SWITCH * t), _J_SMALL_DEGREE[n])
+        small[(1 - n)::2] = 0.0
+        y = (t + 1) / 2  # 8/x ∈ (0, 1]; y = 0 is x = ∞, where P = 1 and Q = 0
+        P, Q = _modulus_phase_numpy(n, _J_SWITCH / y)
+        out[n] = (small, chebyshev.chebfit(t, P, _J_LARGE_DEGREE), chebyshev.chebfit(t, Q, _J_LARGE_DEGREE))
+    return out
+
+
+_J_SERIES = _j_series()
+_SQRT_HALF = math.sqrt(0.5)
 
 
 def _bessel_j(n: int, x):
     x = jnp.asarray(x)
     if not jnp.issubdtype(x.dtype, jnp.floating):
         x = x.astype(jnp.result_type(float))
-    large = jnp.abs(x) > _SWITCH
-    x_small = jnp.where(large, 0.0, x)
-    x_large = jnp.where(large, x, 2 * _SWITCH)
-    return jnp.where(large, _j_asymptotic(n, x_large), _j_trapezoid(n, x_small))
+    return _bessel_j_compiled(n, x)
+
+
+# π/2 in three parts for Cody–Waite reduction: C1 keeps the leading 27 significant bits of
+# fl(π/2) (k·C1 is exact for |k| < 2^26, i.e. x < 1e8), C2 = fl(π/2) − C1 exactly (26 bits: k·C2
+# exact too), C3 = π/2 − fl(π/2) = (π − fl(π))/2 (the classic 6.123233995736766e-17)
+_C1 = float(np.array([np.float64(math.pi / 2).view(np.int64) & ~np.int64((1 << 26) - 1)]).view(np.float64)[0])
+_C2 = math.pi / 2 - _C1
+_C3 = 6.123233995736766e-17
+_SIN_TAYLOR = [(-1) ** k / math.factorial(2 * k + 1) for k in range(9)]  # r … r^17: next term < 1e-19 at π/4
+_COS_TAYLOR = [(-1) ** k / math.factorial(2 * k) for k in range(10)]  # 1 … r^18
+
+
+def _cos_sin(x):
+    """``cos x``, ``sin x`` for 0 ≤ x < 1e8 by Cody–Waite reduction to |r| ≤ π/4 and Taylor
+    polynomials (error ≈ 1 ulp; tests/test_special.py checks them through J0 and J1 against
+    mpmath out to x = 1e4): about 4× cheaper than XLA's own cos and sin on the CPU, which
+    the modulus–phase branch needs for every argument."""
+    k = jnp.round(x * (2 / math.pi))
+    r = ((x - k * _C1) - k * _C2) - k * _C3
+    r2 = r * r
+    sin_r = r * _horner(np.asarray(_SIN_TAYLOR), r2)
+    cos_r = _horner(np.asarray(_COS_TAYLOR), r2)
+    q = jnp.mod(k, 4.0)
+    cos_x = jnp.where(q == 0, cos_r, jnp.where(q == 1, -sin_r, jnp.where(q == 2, -cos_r, sin_r)))
+    sin_x = jnp.where(q == 0, sin_r, jnp.where(q == 1, cos_r, jnp.where(q == 2, -sin_r, -cos_r)))
+    return cos_x, sin_x
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _bessel_j_compiled(n: int, x):
+    # compiled as one program even when called eagerly: XLA fuses the Clenshaw recurrence (and
+    # may contract its multiply–adds), so op-by-op evaluation would round differently from the
+    # same expression inside a caller's jax.jit
+    small_coef, p_coef, q_coef = _J_SERIES[n]
+    large = jnp.abs(x) > _J_SWITCH
+    near = _clenshaw(small_coef, jnp.where(large, 0.0, x), -_J_SWITCH, _J_SWITCH)
+    ax = jnp.where(large, jnp.abs(x), 2 * _J_SWITCH)
+    y = _J_SWITCH / ax
+    p, q = _clenshaw(p_coef, y, 0.0, 1.0), _clenshaw(q_coef, y, 0.0, 1.0)
+    # cos/sin of χ = x − π/4 (n = 0) or x − 3π/4 (n = 1) from cos x and sin x: forming χ would
+    # round x − π/4 to ~x·1e-16, an error of that size in the phase for large x
+    c, s = _cos_sin(ax)
+    cos_chi, sin_chi = ((c + s), (s - c)) if n == 0 else ((s - c), -(s + c))
+    far = jnp.sqrt(2.0 / (np.pi * ax)) * _SQRT_HALF * (p * cos_chi - q * sin_chi)
+    return jnp.where(large, far * jnp.sign(x) ** n, near)  # J_n(−x) = (−1)^n J_n(x)
 
 
 @jax.custom_jvp

@@ -86,7 +86,10 @@ def test_jit_with_the_selected_method_equals_the_eager_result_of_the_issues_case
     m = bs.select(*args, method="grid")
     eager = bs.evolve(*args, method="grid").density(u)
     jitted = jax.jit(lambda l, a, b: bs.evolve(l, a, b, method=m).density(u))(*args)
-    np.testing.assert_array_equal(np.asarray(eager), np.asarray(jitted))
+    # equal to rounding: XLA fuses (and, by CPU, vectorises and contracts multiply–adds in) the
+    # jitted program differently from op-by-op eager evaluation — one ulp apart on an AMD EPYC,
+    # bit-equal on the CI machine of 2026-12-02; the issue's defect was an O(1) difference
+    np.testing.assert_allclose(np.asarray(eager), np.asarray(jitted), rtol=4e-16, atol=0)
     # the reference: the radial path at its own tolerance (same lobe, radially symmetric)
     radial = bs.evolve(*args, method="radial").density(u)
     assert np.max(np.abs(np.asarray(eager) - np.asarray(radial))) <= m.tol * float(radial[0])

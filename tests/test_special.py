@@ -12,10 +12,22 @@ X_J = np.concatenate([-np.logspace(-8, 4, 400), [0.0], np.logspace(-8, 4, 2000)]
 X_K = np.logspace(-12, np.log10(700), 2000)
 
 
+@pytest.mark.parametrize("ours, order", [(j0, 0), (j1, 1)])
+def test_bessel_j_absolute_error(ours, order):
+    """Against 30-digit mpmath on both sides of the series/modulus–phase switch at |x| = 8 and
+    out to 1e4 (SciPy itself is off by up to 5e-15 near x = 1e4, where it rounds x − π/4)."""
+    mpmath = pytest.importorskip("mpmath")
+    mpmath.mp.dps = 30
+    x = np.concatenate([X_J[::5], np.linspace(7.9, 8.1, 41), -np.linspace(7.9, 8.1, 11), np.linspace(24, 26, 21)])
+    ref = np.array([float(mpmath.besselj(order, v)) for v in x])
+    assert np.max(np.abs(np.asarray(ours(jnp.asarray(x))) - ref)) < 2e-15
+
+
 @pytest.mark.parametrize("ours, ref", [(j0, sp.j0), (j1, sp.j1)])
-def test_bessel_j_absolute_error(ours, ref):
+def test_bessel_j_against_scipy(ours, ref):
+    """Every point of X_J against SciPy, within SciPy's own error (above)."""
     err = np.abs(np.asarray(ours(jnp.asarray(X_J))) - ref(X_J))
-    assert err.max() < 2e-15
+    assert err.max() < 6e-15
 
 
 @pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget

@@ -42,7 +42,7 @@ from .._existence import (NEGATIVE_LOBE, TRANSFORM_ABOVE_ONE, attach, negative_b
                           translated)
 from .._interpolate import interpolate
 from .._quadrature import gauss_legendre
-from .._special import _N_TRAPEZOID_J as J0_QUADRATURE_NODES, j0
+from .._special import J_TEMPORARIES, j0
 from .._validation import is_concrete
 from ..stats import AbstractSlopeDensity, Delta, FrequencyGrid, Gaussian
 from ..stats._base import check_slopes, safe_norm, shifted_cf
@@ -304,8 +304,8 @@ class EvolvedDensity(AbstractSlopeDensity):
             def direct(rows):
                 return jnp.sum(c * j0(rows[:, None] * k), axis=-1)
 
-            # J₀'s quadrature holds (rows × nodes × 96) values at once (brdfscale._special)
-            out = in_blocks(direct, r, k.shape[0] * (J0_QUADRATURE_NODES + 4) * size, d.budget)
+            # J₀ holds a few (rows × nodes) arrays at once (brdfscale._special.J_TEMPORARIES)
+            out = in_blocks(direct, r, k.shape[0] * (J_TEMPORARIES + 4) * size, d.budget)
             negative = negative_beyond(out, peak, self.tol) if self._sign_check else None
         return _checked(out, failed, negative)
 
