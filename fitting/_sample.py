@@ -77,6 +77,11 @@ class SampleResult(Shown):
     ``undetermined`` are the fit's undetermined combinations, ``held`` their values, at which
     the chain holds them (it samples the determined subspace; ``prior`` says it in words).
 
+    ``timing``: seconds this call spent computing steps (checkpoint writes and steps resumed
+    from a checkpoint not counted): ``warmup_s`` — NUTS/HMC's warm-up, or for emcee the
+    burn-in's share of its run (emcee has no warm-up phase; its burn-in is found afterwards);
+    ``sampling_s`` — the rest. The first call of a problem shape includes compilation in them.
+
     ``tau``, ``ess``, ``tau_reliable``: emcee's integrated autocorrelation time per
     coordinate after the burn-in, ``ESS = W·(steps − burn)/τ``, and whether the chain is
     ≥ 50 τ long. :meth:`summary` gives ArviZ's figures (R̂, bulk/tail ESS, MCSE),
@@ -102,6 +107,7 @@ class SampleResult(Shown):
     held: list = dataclasses.field(default_factory=list)
     prior: str = PRIOR_TEXT
     coordinates: str = COORDINATES
+    timing: dict | None = None
 
     @property
     def samples(self) -> np.ndarray:
@@ -240,6 +246,7 @@ class SampleResult(Shown):
             "criteria": {"r_hat_max": diag.R_HAT_LIMIT, "ess_bulk_min": diag.ESS_BULK_LIMIT,
                          "checked": self._gated()},
             "divergent_transitions": self.divergent,
+            "timing_s": self.timing,
             "summary": self.summary(),
             "warmup": warmup,
             "prior": self.prior,
@@ -386,12 +393,13 @@ def sample(
         if store is not None and (resumed is None or resumed.steps == 0):
             # replaces only what the user asked to replace, or a checkpoint of this run with no chunk done
             store.create(replace=overwrite or resumed is not None, subspace=posterior.record())
-        chain, log_prob, stats, warmup = sampler.run(posterior, fit, chains=chains, steps=steps, seed=seed,
-                                                     store=store, resumed=resumed, progress=progress, chunk=chunk)
-    return _diagnose(posterior, fit, sampler, settings, chains, chain, log_prob, stats, warmup)
+        chain, log_prob, stats, warmup, timing = sampler.run(posterior, fit, chains=chains, steps=steps, seed=seed,
+                                                             store=store, resumed=resumed, progress=progress,
+                                                             chunk=chunk)
+    return _diagnose(posterior, fit, sampler, settings, chains, chain, log_prob, stats, warmup, timing)
 
 
-def _diagnose(posterior, fit, sampler, settings, chains, chain, log_prob, stats, warmup) -> SampleResult:
+def _diagnose(posterior, fit, sampler, settings, chains, chain, log_prob, stats, warmup, timing) -> SampleResult:
     problem = posterior.problem
     # τ is NaN for a coordinate no walker moved in (zero variance; short chains, stuck
     # ensembles): taken as ∞ — burn-in half the chain (emcee), ESS 0, τ not reliable (JSON: null)
@@ -423,5 +431,14 @@ def _diagnose(posterior, fit, sampler, settings, chains, chain, log_prob, stats,
         names=tuple(problem.model.names), chain=chain, log_prob=log_prob, burn=burn, tau=tau, ess=ess,
         tau_reliable=bool(kept.shape[0] >= 50 * np.max(tau)), acceptance=acceptance, sampler=sampler.name,
         chains=chains, settings=settings, warmup=warmup, stats=stats, quantities=quantities, determined=determined,
-        undetermined=list(fit.undetermined), held=held,
+        undetermined=list(fit.undetermined), held=held, timing=_timing(timing, burn, n_steps),
     )
+
+
+def _timing(timing, burn, n_steps) -> dict:
+    """NUTS/HMC time their warm-up apart; emcee's burn-in gets its share of the run's steps."""
+    if "run_s" not in timing:
+        return dict(timing)
+    timed = timing["steps"]
+    warm = timing["run_s"] * max(burn - (n_steps - timed), 0) / timed if timed else 0.0
+    return {"warmup_s": warm, "sampling_s": timing["run_s"] - warm}

@@ -16,6 +16,7 @@ maximum itself): over-dispersed between ensembles, so R̂ compares ensembles tha
 """
 
 import dataclasses
+import time
 
 import equinox as eqx
 import jax
@@ -116,9 +117,11 @@ class Emcee:
             sampler.random_state = np.random.RandomState(seed).get_state()
             state = emcee.State(p0, log_prob=logp(p0), random_state=sampler.random_state)
         done = sum(c.shape[0] for c in chains_out)
+        timing = {"run_s": 0.0, "steps": steps - done}  # this call's computing (checkpoint writes excluded)
         with progress_bar(enabled=progress, total=steps, initial=min(done, steps), desc="emcee", unit="step") as bar:
             while done < steps:
                 k = min(chunk, steps - done)
+                started = time.perf_counter()
                 block, block_lp = np.empty((k, n, m)), np.empty((k, n))
                 for j, state in enumerate(sampler.sample(state, iterations=k, store=False)):
                     block[j], block_lp[j] = state.coords, state.log_prob
@@ -127,6 +130,7 @@ class Emcee:
                 z = subspace["origin"] + block @ subspace["basis"].T
                 theta = theta_of_z_np(z, lo, hi)
                 lp_theta = block_lp - log_jacobian_np(z, lo, hi)
+                timing["run_s"] += time.perf_counter() - started
                 if store is not None:
                     rs = state.random_state
                     store.append(theta, lp_theta, {}, {
@@ -136,7 +140,7 @@ class Emcee:
                 chains_out.append(theta)
                 log_probs.append(lp_theta)
                 done += k
-        return np.concatenate(chains_out), np.concatenate(log_probs), {}, None
+        return np.concatenate(chains_out), np.concatenate(log_probs), {}, None, timing
 
 
 class _IndependentEnsembles:
