@@ -362,3 +362,21 @@ def test_progress_bar_picks_text_outside_jupyter_and_honours_the_switches(monkey
         fitting.sample(problem, result, steps=2, progress="yes")
     with pytest.raises(InvalidInputError, match="progress must be True or False"):
         show.progress_bar(total=1, enabled=1)
+
+
+def test_chains_plot_names_the_samplers_trajectories():
+    """plot.chains' title says what the trajectories are: NUTS/HMC chains, or emcee's
+    ensembles of walkers (one colour per independent chain)."""
+    import fitting
+
+    rng = np.random.default_rng(0)
+    common = dict(names=("log a", "log b"), burn=5, tau=np.ones(2), ess=np.ones(2), tau_reliable=True, acceptance=0.8)
+    hmc = fitting.SampleResult(chain=rng.normal(size=(20, 4, 2)), log_prob=rng.normal(size=(20, 4)), sampler="hmc",
+                               chains=4, **common)
+    ens = fitting.SampleResult(chain=rng.normal(size=(20, 16, 2)), log_prob=rng.normal(size=(20, 16)), sampler="emcee",
+                               chains=4, **common)
+    assert plot.chains(hmc).axes[0].get_title().startswith("4 HMC chains, 20 steps; warm-up 5")
+    fig = plot.chains(ens)
+    assert fig.axes[0].get_title().startswith("4 × 4 walkers, 20 steps; burn-in 5")
+    assert len({tuple(line.get_color()) if not isinstance(line.get_color(), str) else line.get_color()
+                for line in fig.axes[1].get_lines()[:-1]}) == 4  # one colour per ensemble (the last line: burn-in)

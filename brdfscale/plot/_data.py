@@ -88,10 +88,12 @@ def measurements(mset, *, images=None):
 def chains(samples, *, coordinates: int = 8):
     """The MCMC chains of :func:`fitting.sample`: trace plots, burn-in marked.
 
-    Panels, one above the other: (1) the log-posterior of every walker against the step,
-    (2 …) each θ coordinate (the model's unconstrained coordinates, e.g. ``log amplitude``) of
-    every walker; the dotted line is the burn-in the diagnostics discard. Axes: 1 + the
-    number of coordinates drawn.
+    Panels, one above the other: (1) the log-posterior of every trajectory (emcee walker or
+    NUTS/HMC chain) against the step, (2 …) each θ coordinate (the model's unconstrained
+    coordinates, e.g. ``log amplitude``) of every trajectory, one colour per independent chain
+    (for emcee: per ensemble); the dotted line is the burn-in or warm-up the diagnostics
+    discard. The title names the sampler's trajectories ("4 × 32 walkers", "4 NUTS chains").
+    Axes: 1 + the number of coordinates drawn.
 
     Args:
         samples: a :class:`fitting.SampleResult`.
@@ -117,10 +119,20 @@ def chains(samples, *, coordinates: int = 8):
     finite = np.where(np.isfinite(log_prob), log_prob, np.nan)
     axes[0].plot(steps, finite, color="C0", lw=0.6, alpha=alpha)
     axes[0].set_ylabel("log posterior", fontsize=8)
-    axes[0].set_title(f"{n_walkers} walkers, {n_steps} steps; burn-in {samples.burn} (dotted), acceptance "
+    sampler, runs = getattr(samples, "sampler", "emcee"), int(getattr(samples, "chains", 1))
+    if sampler == "emcee":
+        what = f"{runs} × {n_walkers // max(runs, 1)} walkers" if runs > 1 else f"{n_walkers} walkers"
+        start = "burn-in"
+    else:
+        what = f"{n_walkers} {sampler.upper()} chains"
+        start = "warm-up"
+    axes[0].set_title(f"{what}, {n_steps} steps; {start} {samples.burn} (dotted), acceptance "
                       f"{samples.acceptance:.2f}", fontsize=9)
+    colours = [f"C{(i + 1) % 10}" for i in range(runs)] if runs > 1 else ["C1"]
+    per = max(n_walkers // max(runs, 1), 1)
     for j in range(shown):
-        axes[j + 1].plot(steps, chain[:, :, j], color="C1", lw=0.6, alpha=alpha)
+        for i, colour in enumerate(colours):  # one colour per independent chain (emcee: per ensemble)
+            axes[j + 1].plot(steps, chain[:, i * per:(i + 1) * per, j], color=colour, lw=0.6, alpha=alpha)
         axes[j + 1].set_ylabel(samples.names[j], fontsize=8)
     for ax in axes:
         ax.axvline(samples.burn, color="k", lw=0.8, ls=":")
