@@ -135,7 +135,7 @@ def test_benchmark_pages_are_generated_from_the_committed_json():
         assert benchmarks_page.rendered(name) == page, f"docs/{name} is stale: run python -m experiments.benchmarks_page"
 
 
-@pytest.mark.parametrize("result", ["bench_fit", "calibration_fit", "bench_cli_cache"])
+@pytest.mark.parametrize("result", ["bench_fit", "bench_cli_cache"])
 def test_hand_written_analyses_cite_the_committed_run(result):
     """docs/fitting.md analyses these runs in prose (figures checked against the JSON when
     written): it names each run by the timestamp in its JSON, so a rerun that is not followed
@@ -361,3 +361,22 @@ def test_real_surfaces_section_of_results_md_is_generated_from_the_committed_jso
     page = (benchmarks_page.DOCS / "results.md").read_text()
     block = benchmarks_page.splice(page, "Real surfaces (results_page)", results_page.real_surfaces(), "results.md")
     assert block == page, "docs/results.md §6 is stale: regenerate its block from the JSON"
+
+
+@pytest.mark.slow  # 20–60 s on 2 cores (one fit and three short emcee runs): run in .ci/run's second step
+def test_calibration_study_counts_hits_of_every_kind():
+    """experiments/calibration_fit.py on 3 replicas with short emcee runs: every kind of quantity
+    (θ, ratios, combinations) gets a coverage in [0, 1] per method, the undetermined θ left out."""
+    from experiments import calibration_fit
+
+    model = calibration_fit.fitting.ParametricModel()
+    truth, noise = calibration_fit.CONFIGS["truth_A_noise_1pct"]
+    runs = calibration_fit.samplers(["emcee"], {"emcee": 200, "gradient": 10}, 10)
+    out = calibration_fit.run_config(model, truth, noise, 3, runs, 2, seed0=7)
+    assert set(out["methods"]) == {"laplace", "emcee"}
+    for method in out["methods"].values():
+        for key, row in method["coverage"].items():
+            values = [v for v in row["per_quantity"].values() if v is not None]
+            assert values and all(0.0 <= v <= 1.0 for v in values), key
+            assert all(0 <= n <= 3 for n in row["n"].values())
+    assert len(out["methods"]["laplace"]["coverage"]["ratio_68"]["per_quantity"]) == 3 * (len(calibration_fit.SCALES) - 1)
