@@ -547,7 +547,6 @@ def samplers() -> str:
     d = load("bench_samplers")
     if d is None or "problems" not in d:
         return "(bench_samplers.json missing)"
-    ref = load("bench_samplers_reference") or {}
     labels = {"emcee": "`Emcee(walkers=16)`, 4 × 16 walkers", "nuts": "`NUTS()`", "hmc": "`HMC()`"}
     blocks = [machine_line(d)]
     for pname, p in d["problems"].items():
@@ -620,6 +619,21 @@ def calibration() -> str:
     ])
 
 
+def special() -> str:
+    d = load("bench_special")
+    if d is None:
+        return "(bench_special.json missing)"
+    r = d["results"]
+    rows = [["J0", f"{r['j0_ms']:.2f}", f"{r['j0_trapezoid_baseline_ms']:.2f}", f"{r['speedup_j0']:.1f}×"],
+            ["J1", f"{r['j1_ms']:.2f}", f"{r['j1_trapezoid_baseline_ms']:.2f}", f"{r['speedup_j1']:.1f}×"]]
+    return "\n\n".join([
+        machine_line(d),
+        table(["function", f"now ms ({r['arguments']} values)", "trapezoidal rule ms (baseline)", "faster"], rows),
+        f"Largest difference of the two J0 evaluations: {r['max_abs_difference_j0_vs_baseline']:.1e}. The GGX "
+        f"problem's χ²: {r['ggx_chi2_ms']:.2f} ms, its gradient {r['ggx_grad_ms']:.2f} ms (best of 10).",
+    ])
+
+
 def queries() -> str:
     d = load("bench_queries")
     if d is None:
@@ -684,7 +698,8 @@ def robustness() -> str:
 
 
 SECTIONS = [("benchmarks.md", "Core evolution (bench_evolve)", evolve),
-            ("benchmarks.md", "Queries (bench_queries)", queries), ("benchmarks.md", "SO(3) (bench_so3)", so3),
+            ("benchmarks.md", "Queries (bench_queries)", queries),
+            ("benchmarks.md", "Special functions (bench_special)", special), ("benchmarks.md", "SO(3) (bench_so3)", so3),
             ("benchmarks.md", "Fitting (bench_fit)", fit),
             ("benchmarks.md", "Command-line compilation cache (bench_cli_cache)", cli_cache),
             ("benchmarks.md", "Command-line start-up (bench_startup)", startup),
