@@ -567,10 +567,10 @@ def samplers() -> str:
                          f"{x['ess_tail_per_s']:.0f}", f"{x['ess_bulk_per_s_with_compile']:.0f}",
                          f"{x['r_hat_max']:.4f}", f"{max(x['mean_offset_in_ref_sigma'].values()):.3f}",
                          f"{max(abs(v) for v in x['sigma_ratio_minus_1'].values()) * 100:.1f} %",
-                         x["status"].replace("|", "\\|")])
+                         x["status"]])
         blocks.append(table(["sampler", "steps", "compile s", "warm-up s", "sampling s", "min ESS_bulk",
                              "ESS_bulk/s", "ESS_tail/s", "ESS_bulk/s with compile", "max R̂",
-                             "max \\|mean − ref\\| / σ_ref", "max \\|σ/σ_ref − 1\\|", "status"], rows))
+                             "max |mean − ref| / σ_ref", "max |σ/σ_ref − 1|", "status"], rows))
         t = p.get("targets")
         if t:
             blocks.append(f"Targets ({t['best_gradient_sampler']}, the fastest converged gradient sampler, against "
