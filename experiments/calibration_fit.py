@@ -28,6 +28,7 @@ import argparse
 import os
 import time
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -57,8 +58,12 @@ def samplers(names, steps, warmup):
 
 def _ratios(model, thetas, W, data):
     """Ratios S(μ0)/S(μk), k ≥ 1, flattened in FitResult.ratios' order, at every θ of ``thetas``."""
-    flat = jax.jit(jax.vmap(lambda t: model.relative_statistics(t, W, data)[1:].ravel()))
-    return np.asarray(flat(jnp.atleast_2d(jnp.asarray(thetas))))
+    return np.asarray(_ratios_compiled(model, jnp.atleast_2d(jnp.asarray(thetas)), W, data))
+
+
+@eqx.filter_jit  # one program per model and shape, reused across replicas (W and the data are arguments)
+def _ratios_compiled(model, thetas, W, data):
+    return jax.vmap(lambda t: model.relative_statistics(t, W, data)[1:].ravel())(thetas)
 
 
 def _inside(lo, hi, truth):

@@ -119,7 +119,7 @@ def chains(samples, *, coordinates: int = 8):
     finite = np.where(np.isfinite(log_prob), log_prob, np.nan)
     axes[0].plot(steps, finite, color="C0", lw=0.6, alpha=alpha)
     axes[0].set_ylabel("log posterior", fontsize=8)
-    sampler, runs = getattr(samples, "sampler", "emcee"), int(getattr(samples, "chains", 1))
+    sampler, runs = samples.sampler, int(samples.chains)
     if sampler == "emcee":
         what = f"{runs} × {n_walkers // max(runs, 1)} walkers" if runs > 1 else f"{n_walkers} walkers"
         start = "burn-in"
