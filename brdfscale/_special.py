@@ -14,9 +14,9 @@ integral representations with quadratures whose error is provably below float64 
   where x ≥ 25 (24 terms: error below e^{−50}) and to SciPy's ``J_n``, ``Y_n`` for 8 ≤ x < 25;
   ``cos χ``, ``sin χ`` are formed from ``cos x`` and ``sin x`` (no rounding of x − π/4).
   Both branches are computed (as ``jnp.where`` does under ``vmap``): about 75 multiply–adds,
-  a cosine, a sine and a square root — about 15× cheaper than the trapezoidal rule on 96
-  nodes evaluated at run time (two trigonometric functions per node), which this replaced
-  (the radial path of :func:`brdfscale.evolve` spends its time here).
+  a cosine, a sine and a square root, in place of the trapezoidal rule on 96 nodes evaluated
+  at run time (two trigonometric functions per node), which this replaced — the radial path
+  of :func:`brdfscale.evolve` spends its time here; experiments/bench_special.py measures both.
 * ``K0`` and ``x K1(x)``: the ascending series (DLMF 10.31.1–2) in ``q = x²/4`` for
   ``x ≤ 2``, where 13 terms reach 1e-17 (Horner's rule on precomputed coefficients); for
   ``x > 2`` one Chebyshev expansion (degree 24) of the smooth ``√x eˣ K_ν(x)`` in
@@ -124,9 +124,9 @@ _COS_TAYLOR = [(-1) ** k / math.factorial(2 * k) for k in range(10)]  # 1 … r^
 
 def _cos_sin(x):
     """``cos x``, ``sin x`` for 0 ≤ x < 1e8 by Cody–Waite reduction to |r| ≤ π/4 and Taylor
-    polynomials (error ≈ 1 ulp; tests/test_special.py checks them through J0 and J1 against
-    mpmath out to x = 1e4): about 4× cheaper than XLA's own cos and sin on the CPU, which
-    the modulus–phase branch needs for every argument."""
+    polynomials (tests/test_special.py checks them through J0 and J1 against mpmath out to
+    x = 1e4): cheaper on the CPU than XLA's own cos and sin, which the modulus–phase branch
+    would need for every argument."""
     k = jnp.round(x * (2 / math.pi))
     r = ((x - k * _C1) - k * _C2) - k * _C3
     r2 = r * r
