@@ -10,7 +10,7 @@ posterior. Three kinds of quantity are checked against the truth:
 * every parameter θ_i (log-parameter) the fit determines (a replica where the fit names θ_i
   undetermined does not count for it: the report gives it no interval);
 * every ratio ``S(W, μ0)/S(W, μ_k)`` of ``FitResult.ratios`` (what multi-scale data determine
-  whatever the parametrisation), its truth ``model.relative_statistics(θ_true, W, data)``;
+  whatever the parametrisation), its truth ``model.relative_statistics(θ_true, W, data.scales)``;
 * the determined eigen-combinations ``v_j·θ`` of the Fisher matrix (``FitResult.combinations``,
   best determined first), truth ``v_j·θ_true``.
 
@@ -63,7 +63,7 @@ def _ratios(model, thetas, W, data):
 
 @eqx.filter_jit  # one program per model and shape, reused across replicas (W and the data are arguments)
 def _ratios_compiled(model, thetas, W, data):
-    return jax.vmap(lambda t: model.relative_statistics(t, W, data)[1:].ravel())(thetas)
+    return jax.vmap(lambda t: model.relative_statistics(t, W, data.scales)[1:].ravel())(thetas)
 
 
 def _inside(lo, hi, truth):

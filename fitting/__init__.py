@@ -8,6 +8,8 @@ The chain, each step in its own module:
   :func:`brdfscale.evolve`;
 * :func:`fit` — optimistix least squares (Levenberg–Marquardt by default), multi-start,
   Laplace covariance, identifiability (names the combinations the data cannot determine);
+* :func:`fit_many` — many materials at once: padded, bucketed, vmapped and sharded over the
+  devices, one compiled program per bucket, results equal to :func:`fit`'s (:func:`explain_plan`);
 * :func:`sample` — emcee (:class:`Emcee`), BlackJAX NUTS (:class:`NUTS`) or HMC (:class:`HMC`)
   on one posterior in smooth coordinates, ≥ 4 independent chains in one compiled program,
   chunked HDF5 checkpoints resumable bit for bit, ArviZ's R̂/ESS/MCSE and a status that
@@ -32,6 +34,7 @@ local file named ``fitting.py`` in the working directory would silently take its
 
 __distribution__ = "brdfscale"  # how brdfscale.fitting recognises this package (not a local fitting.py)
 
+from ._batch import COMPILE_ROWS, BatchPlan, explain_plan, fit_many
 from ._data import Dataset, PointData
 from ._estimate import RATIO_FREQUENCIES, SOLVERS, FitResult, Problem, fit, ratio_frequencies
 from ._model import AbstractModel
@@ -52,6 +55,10 @@ __all__ = [
     "Problem",
     "FitResult",
     "fit",
+    "fit_many",
+    "explain_plan",
+    "BatchPlan",
+    "COMPILE_ROWS",
     "SOLVERS",
     "SampleResult",
     "sample",

@@ -92,10 +92,11 @@ class Problem(Shown, eqx.Module):
         return [("model", self.model), ("data", self.data), ("coordinates", len(self.model.names))]
 
     def residuals(self, theta: Float[Array, " n"]) -> Float[Array, " m"]:
-        theta = jnp.clip(theta, self.lower, self.upper)
-        p = self.points
-        fitted = self.model.predict_points(theta, self.data.scales, p.points)
-        return jnp.concatenate([((fitted - p.mean) * p.weight).ravel(), self.model.penalty(theta)])
+        return self.rows().residuals(theta)
+
+    def rows(self) -> "Rows":
+        """What the residuals depend on, without the dataset's layout (:class:`Rows`)."""
+        return Rows(self.model, self.data.scales, self.points, self.lower, self.upper)
 
     def chi2(self, theta: Float[Array, " n"]) -> Float[Array, ""]:
         """χ² over every valid pixel plus the prior rows."""
@@ -104,6 +105,27 @@ class Problem(Shown, eqx.Module):
     def chi2_of_residuals(self, r: Float[Array, " m"]) -> Float[Array, ""]:
         """χ² from the reduced residuals ``r`` (adds the within-group constant back)."""
         return r @ r + self.points.chi2_offset
+
+
+class Rows(eqx.Module):
+    """The whitened residual rows of a :class:`Problem` as a pure pytree of arrays: the model,
+    the scales, the distinct points and the prior box — not the dataset, whose layout (image
+    sizes, extents) is static and would make every dataset compile its own solve. One
+    material of :func:`fitting.fit_many` is one ``Rows``; stacked along a leading axis they
+    are a batch (``fitting._batch``)."""
+
+    model: AbstractModel
+    scales: jax.Array
+    points: PointData
+    lower: jax.Array
+    upper: jax.Array
+
+    def residuals(self, theta: Float[Array, " n"]) -> Float[Array, " m"]:
+        """``(√c_u (f_u(θ) − v̄_u), prior rows)`` with θ clipped to the prior box (:class:`Problem`)."""
+        theta = jnp.clip(theta, self.lower, self.upper)
+        p = self.points
+        fitted = self.model.predict_points(theta, self.scales, p.points)
+        return jnp.concatenate([((fitted - p.mean) * p.weight).ravel(), self.model.penalty(theta)])
 
 
 def check_fit(problem, fit, what: str) -> None:
@@ -124,9 +146,10 @@ def check_fit(problem, fit, what: str) -> None:
         )
 
 
-def _residuals(theta, problem: Problem):
-    # module-level, so optimistix sees the same function object on every call (no recompilation)
-    return problem.residuals(theta)
+def _residuals(theta, rows):
+    # module-level, so optimistix sees the same function object on every call (no recompilation);
+    # ``rows`` is a Problem or its Rows (fitting.fit_many)
+    return rows.residuals(theta)
 
 
 def _make_solver(name: str, rtol: float, atol: float):
@@ -147,19 +170,24 @@ def _make_solver(name: str, rtol: float, atol: float):
 @eqx.filter_jit
 def _solve(problem, y0, solver, max_steps):
     """One least-squares solve from ``y0``: θ̂, result code, steps, χ² and the Jacobian at θ̂."""
-    sol = optx.least_squares(_residuals, solver, y0, args=problem, max_steps=max_steps, throw=False)
-    residuals, jac = _residuals_and_jacobian_at_solution(sol, problem)
-    return sol.value, sol.result._value, sol.stats["num_steps"], problem.chi2_of_residuals(residuals), jac
+    value, code, steps, residuals, jac = solve_rows(problem, y0, solver, max_steps)
+    return value, code, steps, problem.chi2_of_residuals(residuals), jac
 
 
-def _residuals_and_jacobian_at_solution(sol, problem):
-    """``r(θ̂)`` and ``∂r/∂θ(θ̂)``. The Gauss–Newton family (LM, dogleg) carries them in its
-    state (``f_info``: the linearisation at the last accepted point, which is θ̂), so they
-    are read from there rather than evaluated once more; other solvers evaluate them."""
+def solve_rows(rows, y0, solver, max_steps):
+    """The solve itself (traced; :func:`fit` jits it per start, :func:`fitting.fit_many` vmaps
+    it over materials × starts): θ̂, result code, steps, ``r(θ̂)`` and ``∂r/∂θ(θ̂)``.
+
+    The Gauss–Newton family (LM, dogleg) carries ``r`` and ``J`` in its state (``f_info``: the
+    linearisation at the last accepted point, which is θ̂), so they are read from there
+    rather than evaluated once more; other solvers evaluate them."""
+    sol = optx.least_squares(_residuals, solver, y0, args=rows, max_steps=max_steps, throw=False)
     info = getattr(sol.state, "f_info", None)
     if isinstance(info, optx.FunctionInfo.ResidualJac):
-        return info.residual, info.jac.as_matrix()
-    return problem.residuals(sol.value), jax.jacfwd(problem.residuals)(sol.value)
+        residuals, jac = info.residual, info.jac.as_matrix()
+    else:
+        residuals, jac = rows.residuals(sol.value), jax.jacfwd(rows.residuals)(sol.value)
+    return sol.value, sol.result._value, sol.stats["num_steps"], residuals, jac
 
 
 @eqx.filter_jit
@@ -276,11 +304,12 @@ class FitResult(Shown):
         }
 
 
-def _starting_points(model, data, starts, spread, seed):
-    lo, hi = model.bounds(data)
-    theta0 = np.clip(model.initial(data), lo, hi)
-    rng = np.random.default_rng(seed)
-    jitter = rng.normal(0.0, spread, (starts - 1, theta0.size))
+def starting_points(problem, options) -> np.ndarray:
+    """The model's data-driven start and ``starts − 1`` jittered copies, clipped to the box."""
+    lo, hi = np.asarray(problem.lower), np.asarray(problem.upper)
+    theta0 = np.clip(problem.model.initial(problem.data), lo, hi)
+    rng = np.random.default_rng(options["seed"])
+    jitter = rng.normal(0.0, options["spread"], (options["starts"] - 1, theta0.size))
     return np.clip(np.vstack([theta0, theta0 + jitter]), lo, hi)
 
 
@@ -326,27 +355,44 @@ def fit(
             ≥ 0 (``rtol``, ``atol`` not both 0), ``undetermined_std`` not finite and > 0;
             every start ending with a non-finite χ².
     """
+    check_pair(model, data, "fit(model, data)")
+    options = fit_options(solver=solver, starts=starts, max_steps=max_steps, spread=spread, seed=seed, rtol=rtol,
+                          atol=atol, undetermined_std=undetermined_std)
+    problem = Problem(model, data)
+    optimiser = _make_solver(solver, options["rtol"], options["atol"])
+    y0 = jnp.asarray(starting_points(problem, options), dtype=jnp.float64)
+    # one compiled solve, called per start (vmapping the solve compiles ~2.5× longer here)
+    runs = [_solve(problem, y, optimiser, options["max_steps"]) for y in y0]
+    values, codes, steps, chi2s, jacobians = (np.stack([np.asarray(run[i]) for run in runs]) for i in range(5))
+    return result_of_starts(problem, values, codes, steps, chi2s, jacobians, options)
+
+
+def check_pair(model, data, what: str) -> None:
+    """InvalidInputError naming ``what`` unless ``model`` is a fitting model and ``data`` a Dataset."""
     if not isinstance(model, AbstractModel) or not isinstance(data, Dataset):
         raise InvalidInputError(
-            "fit(model, data) needs a fitting model (ParametricModel or NonParametricModel) and a fitting.Dataset "
+            f"{what} needs a fitting model (ParametricModel or NonParametricModel) and a fitting.Dataset "
             f"(fitting.Dataset.from_measurements); got {type(model).__name__} and {type(data).__name__}.")
+
+
+def fit_options(*, solver, starts, max_steps, spread, seed, rtol, atol, undetermined_std) -> dict:
+    """The options of :func:`fit` (and :func:`fitting.fit_many`) checked and normalised."""
     if not isinstance(solver, str) or solver not in SOLVERS:
         raise InvalidInputError(f"solver must be one of {SOLVERS}; got {solver!r}.")
-    starts = integer(starts, "starts", 1)
-    max_steps = integer(max_steps, "max_steps", 1)
-    spread = real(spread, "spread", minimum=0.0)
-    seed = integer(seed, "seed", 0)
-    rtol = real(rtol, "rtol", minimum=0.0)
-    atol = real(atol, "atol", minimum=0.0)
-    if rtol == 0 and atol == 0:
+    options = dict(solver=solver, starts=integer(starts, "starts", 1), max_steps=integer(max_steps, "max_steps", 1),
+                   spread=real(spread, "spread", minimum=0.0), seed=integer(seed, "seed", 0),
+                   rtol=real(rtol, "rtol", minimum=0.0), atol=real(atol, "atol", minimum=0.0),
+                   undetermined_std=real(undetermined_std, "undetermined_std", minimum=0.0, strict=True))
+    if options["rtol"] == 0 and options["atol"] == 0:
         raise InvalidInputError("rtol and atol must not both be 0: no step could ever meet the convergence test.")
-    undetermined_std = real(undetermined_std, "undetermined_std", minimum=0.0, strict=True)
-    problem = Problem(model, data)
-    optimiser = _make_solver(solver, rtol, atol)
-    y0 = jnp.asarray(_starting_points(model, data, starts, spread, seed), dtype=jnp.float64)
-    # one compiled solve, called per start (vmapping the solve compiles ~2.5× longer here)
-    runs = [_solve(problem, y, optimiser, max_steps) for y in y0]
-    values, codes, steps, chi2s, jacobians = (np.stack([np.asarray(run[i]) for run in runs]) for i in range(5))
+    return options
+
+
+def result_of_starts(problem, values, codes, steps, chi2s, jacobians, options) -> "FitResult":
+    """The :class:`FitResult` of the solves from every start (arrays with the start first): the
+    best start, the Laplace analysis at it, the quantities and ratios (module docstring)."""
+    model, data = problem.model, problem.data
+    solver, seed, undetermined_std = options["solver"], options["seed"], options["undetermined_std"]
     ok = (codes == optx.RESULTS.successful._value) & np.isfinite(chi2s)
     pool = np.flatnonzero(ok) if ok.any() else np.flatnonzero(np.isfinite(chi2s))
     if pool.size == 0:
@@ -377,7 +423,7 @@ def fit(
     # what the data determine whatever the parametrisation: the ratios S(μ0)/S(μ_k) and the
     # determined eigen-directions of the Fisher matrix (docs/fitting.md, "What the data determine")
     W = ratio_frequencies(data)
-    r_hat, r_grads, r_draws = map(np.asarray, _ratios(model, jnp.asarray(theta), jnp.asarray(draws), jnp.asarray(W), data))
+    r_hat, r_grads, r_draws = map(np.asarray, _ratios(model, jnp.asarray(theta), jnp.asarray(draws), jnp.asarray(W), data.scales))
     r_est, r_std, r_q = _summaries(analysis, ratio_names(data, W), r_hat, r_grads, r_draws)
     ratios = {name: {"estimate": r_est[name], "std": r_std[name], "quantiles_5_50_95": r_q[name], "mu0": float(data.scales[0]),
                      "mu": float(data.scales[1 + i // len(W)]), "W": float(W[i % len(W)])}
@@ -438,9 +484,9 @@ def ratio_names(data: Dataset, W) -> list[str]:
 
 
 @eqx.filter_jit
-def _ratios(model, theta, draws, W, data):
+def _ratios(model, theta, draws, W, scales):
     """The ratios ``S(W, μ0)/S(W, μ_k)``, k ≥ 1, flattened: at θ̂, their Jacobian, at every draw."""
     def flat(t):
-        return model.relative_statistics(t, W, data)[1:].ravel()
+        return model.relative_statistics(t, W, scales)[1:].ravel()
 
     return flat(theta), jax.jacfwd(flat)(theta), jax.vmap(flat)(draws)

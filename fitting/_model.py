@@ -122,8 +122,11 @@ class AbstractModel(Shown, eqx.Module):
         """The prior support ``lo ≤ θ ≤ hi`` (a uniform prior in θ; see docs/fitting.md)."""
 
     @abc.abstractmethod
-    def relative_statistics(self, theta: Float[Array, " n"], W: Float[Array, " w"], data: Dataset) -> Float[Array, "k w"]:
-        """``S(W, μ0)/S(W, μ_k)`` for every measured scale (row 0 is 1): the data-determined part."""
+    def relative_statistics(self, theta: Float[Array, " n"], W: Float[Array, " w"],
+                            scales: Float[Array, " k"]) -> Float[Array, "k w"]:
+        """``S(W, μ0)/S(W, μ_k)`` for every measured scale ``scales[k]`` (ascending, as
+        :attr:`Dataset.scales`; row 0 is 1): the data-determined part. It takes the scales, not
+        the dataset, so that one compiled program serves every dataset of a library."""
 
     @property
     @abc.abstractmethod

@@ -225,7 +225,7 @@ class NonParametricModel(AbstractModel):
         coarser = jax.vmap(at_scale)(self.decay(theta)[1:], points[1:])
         return jnp.concatenate([base.density(points[0])[None], coarser])
 
-    def relative_statistics(self, theta, W, data):
+    def relative_statistics(self, theta, W, scales):
         return jnp.stack([self.relative(theta, k).cf_radial(W) for k in range(self.n_scales)])
 
     def penalty(self, theta):

@@ -172,9 +172,9 @@ class ParametricModel(AbstractModel):
         coarser = jax.vmap(lambda s, u: self._evolve(base, s0, s, check=False).density(u))(coarser_statistics, points[1:])
         return jnp.concatenate([base.density(points[0])[None], coarser])
 
-    def relative_statistics(self, theta, W, data):
-        s0 = self.statistics_at(theta, data.scales[0]).cf_radial(W)
-        return jnp.stack([s0 / self.statistics_at(theta, mu).cf_radial(W) for mu in data.scales])
+    def relative_statistics(self, theta, W, scales):
+        s0 = self.statistics_at(theta, scales[0]).cf_radial(W)
+        return jax.vmap(lambda mu: s0 / self.statistics_at(theta, mu).cf_radial(W))(jnp.asarray(scales))
 
     def initial(self, data):
         amp, width2 = moments(data)

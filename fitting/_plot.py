@@ -51,7 +51,7 @@ def _quantities(model, thetas):
 
 @eqx.filter_jit
 def _relative(model, thetas, W, data):
-    return jax.vmap(lambda t: model.relative_statistics(t, W, data))(thetas)
+    return jax.vmap(lambda t: model.relative_statistics(t, W, data.scales))(thetas)
 
 
 @eqx.filter_jit
@@ -167,7 +167,7 @@ def statistics_figure(problem: Problem, fit: FitResult, draws, true_theta):
     for k in range(1, len(scales)):
         _band(axes[0], w, relative[:, k], colors[k], f"μ = {scales[k]:.3g}")
         if true_theta is not None:
-            axes[0].plot(w, np.asarray(model.relative_statistics(true_theta, W, data))[k], "k--", lw=0.8)
+            axes[0].plot(w, np.asarray(model.relative_statistics(true_theta, W, data.scales))[k], "k--", lw=0.8)
     axes[0].set_title(f"S(W, μ0)/S(W, μ), μ0 = {scales[0]:.3g}: determined by the data (5–95 % band)", fontsize=9)
     axes[0].set_ylabel("S(W, μ0)/S(W, μ)")
     if absolute:

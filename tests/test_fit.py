@@ -210,7 +210,7 @@ def test_two_scales_name_the_undetermined_law_combinations():
     # what the data do determine is reported with its uncertainty: the ratio S(W, μ0)/S(W, μ1)
     # at three frequencies (against the truth's ratio), and the determined Fisher directions
     W = fitting.ratio_frequencies(data)
-    true_ratios = np.asarray(model.relative_statistics(jnp.asarray(model.theta_from(TRUTHS[0])), jnp.asarray(W), data))[1]
+    true_ratios = np.asarray(model.relative_statistics(jnp.asarray(model.theta_from(TRUTHS[0])), jnp.asarray(W), data.scales))[1]
     assert len(res.ratios) == 3 and all(r["std"] is not None and r["mu"] == 4.0 for r in res.ratios.values())
     for (name, r), truth in zip(res.ratios.items(), true_ratios):
         assert f"@ |W|={r['W']:.4g}" in name and abs(r["estimate"] - truth) < 4 * r["std"], (name, r, truth)

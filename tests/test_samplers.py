@@ -65,8 +65,8 @@ class Linear(fitting.AbstractModel):
         n = len(self.names)
         return np.full(n, -BOX), np.full(n, BOX)
 
-    def relative_statistics(self, theta, W, data):
-        return jnp.ones((data.scales.shape[0], jnp.asarray(W).shape[0]))
+    def relative_statistics(self, theta, W, scales):
+        return jnp.ones((jnp.asarray(scales).shape[0], jnp.asarray(W).shape[0]))
 
     @property
     def identifiability_notes(self):

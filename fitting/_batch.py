@@ -1,0 +1,361 @@
+"""Many materials fitted at once: one compiled, vmapped and sharded least-squares program per bucket.
+
+A Python loop of :func:`fitting.fit` over a library compiles a new solve for nearly every
+material: the compiled program depends on the data's shapes (how many distinct points each
+scale has) and on its layout. :func:`fit_many` instead
+
+1. reduces every material to its residual rows (:class:`fitting._estimate.Rows`: the model, the
+   scales, the distinct points with their weights, the prior box — seed Eq. 4.4 evaluated at
+   the points of :meth:`Dataset.points`);
+2. **buckets** the materials by what the program's structure depends on — the model's static
+   structure (its kind, families, fixed values; a :class:`~fitting.NonParametricModel`'s knots
+   and grid), the number of scales and of θ coordinates — and by the number of distinct points
+   per scale, first rounded up to the ladder ``8·{1, 1.5, 2, 3, 4, 6, …}`` (:func:`bucket_points`:
+   at most 50 % padding), then adjacent rungs merged wherever computing their extra padding
+   costs less than compiling one more program (:func:`plan`, an exact dynamic programme over
+   the rungs with the exchange rate ``compile_rows``). Padded rows carry zero weight, which adds
+   exactly 0 to every residual, χ² and ``JᵀJ``; the plan (:func:`explain_plan`) states the
+   buckets and the padding fraction;
+3. stacks each bucket's materials × starts along one axis, pads that axis to a whole
+   ``batch`` (repeating the bucket's first material; the copies' results are dropped) rounded
+   up to a multiple of the device count, and runs Levenberg–Marquardt (or the chosen
+   optimistix solver) **vmapped** over it — a finished solve keeps its state while the others
+   iterate, so each material's path is the one it would take alone;
+4. **shards** that axis over the devices (``jax.devices()`` by default; a
+   :class:`jax.sharding.Mesh` of one axis ``"materials"``, the program under
+   ``jax.shard_map`` so that each device iterates its own materials without waiting for the
+   others' convergence);
+5. hands each material's starts to the same analysis as :func:`fitting.fit` (best start,
+   Laplace covariance and identifiability by :mod:`brdfscale.laplace`, quantities, ratios).
+
+The result of each material equals that of ``fitting.fit(model, data)`` with the same
+options to the solver's tolerance: the starts are the same (same seed), the solver is the
+same; only the convergence test's root-mean-square runs over the padded rows too (zeros), so a
+solve may stop one step earlier or later (tests/test_batch.py checks θ̂ to 1e-3 of the
+Laplace σ, χ² to 1e-6 relative, and every reported σ).
+"""
+
+import dataclasses
+import functools
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from brdfscale import InvalidInputError
+from brdfscale.checks import integer
+from brdfscale.show import progress_bar
+
+from ._data import Dataset, PointData
+from ._estimate import (FitResult, Problem, Rows, _make_solver, check_pair, fit_options, result_of_starts,
+                        solve_rows, starting_points)
+from ._model import AbstractModel
+
+__all__ = ["fit_many", "explain_plan", "bucket_points", "BatchPlan", "COMPILE_ROWS"]
+
+_AXIS = "materials"
+
+
+def _rung(n: int, smallest: int) -> int:
+    """The smallest of ``smallest·2^k`` and ``smallest·3·2^(k−1)`` (k ≥ 0; the rungs 1, 1.5, 2, 3, 4,
+    6, … times ``smallest``) that is ≥ ``n``: at most 1.5 × ``n`` for ``n`` above ``smallest``."""
+    size = smallest
+    while size < n:
+        if size * 3 % 2 == 0 and size * 3 // 2 >= n:
+            return size * 3 // 2
+        size *= 2
+    return size
+
+
+def bucket_points(n: int) -> int:
+    """The padded number of points per scale for a material with ``n``: the smallest rung of
+    ``8, 12, 16, 24, 32, 48, …`` (8·2^k and 12·2^k) that holds it — at most 1.5 × ``n``
+    (above 8)."""
+    return _rung(max(int(n), 1), 8)
+
+
+def bucket_batch(n: int, batch: int, devices: int) -> int:
+    """The padded number of materials of a program run holding ``n`` (≤ ``batch``): the rung
+    of ``1, 2, 3, 4, 6, 8, 12, …`` at or above ``n``, at most ``batch``, times whole devices —
+    so runs of different libraries and tasks share compiled programs."""
+    return min(_rung(n, 1), batch)
+
+
+@dataclasses.dataclass(frozen=True)
+class BatchPlan:
+    """How :func:`fit_many` divides a library: the buckets (one compiled program each), the
+    padded sizes and the padding's cost. ``buckets`` is a list of dicts with ``materials``
+    (their indices), ``points`` (padded points per scale), ``scales``, ``parameters``,
+    ``batch`` (the padded number of materials of the program run, :func:`bucket_batch`) and
+    ``solves`` (materials × starts, rounded up to a whole number per device)."""
+
+    buckets: list
+    devices: int
+    starts: int
+    rows_used: int
+    rows_padded: int
+
+    @property
+    def padding(self) -> float:
+        """The fraction of the computed rows that is padding (0 = none)."""
+        return 1.0 - self.rows_used / self.rows_padded if self.rows_padded else 0.0
+
+    def explain(self) -> str:
+        lines = [f"{sum(len(b['materials']) for b in self.buckets)} materials in {len(self.buckets)} bucket(s) on "
+                 f"{self.devices} device(s), {self.starts} start(s) each; padding {100 * self.padding:.0f} % of the rows"]
+        for b in self.buckets:
+            lines.append(f"  {len(b['materials'])} × ({b['scales']} scales × {b['points']} points, {b['parameters']} "
+                         f"parameters): a program of {b['solves']} solves ({b['batch']} materials × {self.starts} starts)")
+        return "\n".join(lines)
+
+
+def _key(rows: Rows, n_points: int) -> tuple:
+    # what a compiled program depends on: the model's static structure (its treedef holds the
+    # static fields), the dynamic leaves' shapes, the number of scales, the θ size, the padded points
+    dynamic, static = eqx.partition(rows.model, eqx.is_array)
+    shapes = tuple((x.shape, str(x.dtype)) for x in jax.tree.leaves(dynamic))
+    return (jax.tree.structure(static), jax.tree.structure(dynamic), shapes, int(rows.scales.shape[0]),
+            int(rows.lower.shape[0]), int(rows.model.penalty(rows.lower).shape[0]), bucket_points(n_points))
+
+
+def _pad_points(points: PointData, n: int) -> PointData:
+    extra = n - points.mean.shape[1]
+    return PointData(points=jnp.pad(points.points, ((0, 0), (0, extra), (0, 0))),
+                     mean=jnp.pad(points.mean, ((0, 0), (0, extra))),
+                     weight=jnp.pad(points.weight, ((0, 0), (0, extra))),
+                     chi2_offset=points.chi2_offset)
+
+
+def _stack(trees):
+    return jax.tree.map(lambda *xs: jnp.stack(xs), *trees)
+
+
+def _solve_all(rows, y0, solver, max_steps):
+    """vmap of :func:`fitting._estimate.solve_rows` over the leading axis of ``rows`` and ``y0``."""
+    return jax.vmap(lambda r, y: solve_rows(r, y, solver, max_steps))(rows, y0)
+
+
+def _shard_map(fn, mesh):
+    spec = PartitionSpec(_AXIS)
+    if hasattr(jax, "shard_map"):
+        return jax.shard_map(fn, mesh=mesh, in_specs=(spec, spec), out_specs=spec, check_vma=False)
+    from jax.experimental.shard_map import shard_map  # JAX < 0.6
+
+    return shard_map(fn, mesh=mesh, in_specs=(spec, spec), out_specs=spec, check_rep=False)
+
+
+@eqx.filter_jit
+def _solve_batch(rows, y0, solver, max_steps, mesh):
+    """One compiled program per bucket shape: every (material, start) of the batch, each
+    device solving its slice (``mesh`` None: one device, no sharding)."""
+    fn = functools.partial(_solve_all, solver=solver, max_steps=max_steps)
+    if mesh is None:
+        return fn(rows, y0)
+    return _shard_map(fn, mesh)(rows, y0)
+
+
+def _devices(devices):
+    if devices is None:
+        return jax.devices()
+    if isinstance(devices, int) and not isinstance(devices, bool):
+        available = jax.devices()
+        if not 1 <= devices <= len(available):
+            raise InvalidInputError(f"devices={devices}: this process has {len(available)} JAX device(s) "
+                                    f"({available[0].platform}); give 1 … {len(available)} or a list of devices.")
+        return available[:devices]
+    devices = list(devices)
+    if not devices or not all(isinstance(d, jax.Device) for d in devices):
+        raise InvalidInputError("devices must be None (all of jax.devices()), a count, or a non-empty list of "
+                                "jax.Device objects.")
+    return devices
+
+
+def _materials(models, datasets):
+    if isinstance(datasets, Dataset):
+        raise InvalidInputError("fit_many(models, datasets) takes a sequence of datasets; for one dataset use "
+                                "fitting.fit(model, data).")
+    try:
+        datasets = list(datasets)
+    except TypeError:
+        raise InvalidInputError(f"datasets must be a sequence of fitting.Dataset; got {type(datasets).__name__}.") from None
+    if not datasets:
+        raise InvalidInputError("fit_many needs at least one dataset.")
+    if isinstance(models, AbstractModel):
+        models = [models] * len(datasets)
+    else:
+        try:
+            models = list(models)
+        except TypeError:
+            raise InvalidInputError("models must be one fitting model (used for every dataset) or a sequence of "
+                                    f"models, one per dataset; got {type(models).__name__}.") from None
+        if len(models) != len(datasets):
+            raise InvalidInputError(f"models and datasets must pair up: got {len(models)} models for "
+                                    f"{len(datasets)} datasets (or pass one model for all).")
+    for i, (model, data) in enumerate(zip(models, datasets)):
+        check_pair(model, data, f"fit_many: material {i}")
+    return models, datasets
+
+
+#: Padded residual rows (summed over starts) whose solve costs about as much as compiling one
+#: more program: on the 2-core CPU of experiments/bench_library.py a bucket's program takes
+#: ≈ 6 s to trace and compile and a solve ≈ 12 µs per padded row (docs/library.md).
+COMPILE_ROWS = 400_000
+
+
+def plan(problems, starts: int, batch: int, n_devices: int, compile_rows: int = COMPILE_ROWS) -> BatchPlan:
+    """The buckets of :func:`fit_many` for these problems (module docstring, step 2).
+
+    Materials of one structure are first grouped by their rung of points per scale
+    (:func:`bucket_points`); adjacent rungs are then merged where computing the extra padding
+    costs less than compiling another program — the partition of the sorted rungs that
+    minimises ``compile_rows × (programs) + (padded rows)``, found exactly by dynamic
+    programming (``compile_rows = 0`` keeps every rung apart: padding ≤ 50 % of the rows)."""
+    groups: dict = {}
+    used = 0
+    for i, problem in enumerate(problems):
+        rows = problem.rows()
+        n = int(rows.points.mean.shape[1])
+        used += n * int(rows.scales.shape[0]) * starts
+        key = _key(rows, n)
+        groups.setdefault(key[:-1], {}).setdefault(key[-1], []).append(i)
+    buckets, padded = [], 0
+    for key, by_rung in groups.items():
+        scales = key[3]
+        rungs = sorted(by_rung)
+        count = [len(by_rung[r]) for r in rungs]
+        # best[j]: least cost of rungs[:j]; a group rungs[i:j] is padded to rungs[j − 1]
+        best, cut = [0.0] + [math.inf] * len(rungs), [0] * (len(rungs) + 1)
+        for j in range(1, len(rungs) + 1):
+            for i in range(j):
+                cost = best[i] + compile_rows + rungs[j - 1] * scales * starts * sum(count[i:j])
+                if cost < best[j]:
+                    best[j], cut[j] = cost, i
+        spans, j = [], len(rungs)
+        while j > 0:
+            spans.append((cut[j], j))
+            j = cut[j]
+        for i, j in reversed(spans):
+            members = [m for r in rungs[i:j] for m in by_rung[r]]
+            points = rungs[j - 1]
+            for k in range(0, len(members), batch):
+                chunk = members[k:k + batch]
+                size = bucket_batch(len(chunk), batch, n_devices)
+                solves = -(-size * starts // n_devices) * n_devices
+                buckets.append({"materials": chunk, "points": points, "scales": scales, "parameters": key[4],
+                                "batch": size, "solves": solves})
+                padded += solves * points * scales
+    return BatchPlan(buckets=buckets, devices=n_devices, starts=starts, rows_used=used, rows_padded=padded)
+
+
+def fit_many(
+    models,
+    datasets,
+    *,
+    batch: int = 64,
+    devices=None,
+    solver: str = "lm",
+    starts: int = 8,
+    spread: float = 0.5,
+    seed: int = 0,
+    max_steps: int = 256,
+    rtol: float = 1e-6,
+    atol: float = 1e-6,
+    undetermined_std: float = 1.0,
+    compile_rows: int = COMPILE_ROWS,
+    progress: bool = False,
+    errors: str = "raise",
+) -> list:
+    """Fit many materials at once: :func:`fitting.fit` for every ``(model, data)`` pair, in
+    one compiled, vmapped program per bucket, sharded over the devices (module docstring).
+
+    Args:
+        models: one fitting model for every dataset, or a sequence of models, one per dataset.
+        datasets: a sequence of :class:`~fitting.Dataset` (any sizes, masks, image counts).
+        batch: at most this many materials per compiled program run (≥ 1; default 64). A
+            bucket with more runs the same program several times; one with fewer is padded
+            only to a whole number of solves per device.
+        devices: ``None`` (every device of ``jax.devices()``), a count (the first ones), or a
+            list of ``jax.Device``; the batch axis is sharded over them.
+        solver, starts, spread, seed, max_steps, rtol, atol, undetermined_std: as for
+            :func:`fitting.fit`, for every material (the seed is each material's, so each
+            material gets the starts ``fit`` would give it).
+        compile_rows: the bucketing's exchange rate (:func:`plan`): padded rows worth one
+            more compiled program (default :data:`COMPILE_ROWS`, measured on a 2-core CPU; on an
+            accelerator a solve row is cheaper, so larger values merge more); 0 keeps every
+            rung of :func:`bucket_points` apart.
+        progress: a progress bar over the materials.
+        errors: ``"raise"`` (default): a material whose every start ends with a non-finite χ²
+            raises, as :func:`fitting.fit` does; ``"return"``: its entry in the result is the
+            :class:`~brdfscale.InvalidInputError` instead, and the others are kept.
+
+    Returns:
+        A list of :class:`FitResult`, in the order of ``datasets``.
+
+    Raises:
+        InvalidInputError: the arguments of :func:`fitting.fit` for any material (naming its
+            index), models and datasets that do not pair up, ``batch`` not an integer ≥ 1,
+            ``devices`` not as above, ``errors`` not ``"raise"``/``"return"``.
+    """
+    models, datasets = _materials(models, datasets)
+    options = fit_options(solver=solver, starts=starts, max_steps=max_steps, spread=spread, seed=seed, rtol=rtol,
+                          atol=atol, undetermined_std=undetermined_std)
+    batch = integer(batch, "batch", 1)
+    if errors not in ("raise", "return"):
+        raise InvalidInputError(f"errors must be 'raise' or 'return'; got {errors!r}.")
+    device_list = _devices(devices)
+    mesh = Mesh(np.asarray(device_list), (_AXIS,)) if len(device_list) > 1 else None
+    problems = []
+    for i, (model, data) in enumerate(zip(models, datasets)):
+        try:
+            problems.append(Problem(model, data))
+        except InvalidInputError as err:
+            raise InvalidInputError(f"fit_many: material {i}: {err}") from None
+    layout = plan(problems, options["starts"], batch, len(device_list), integer(compile_rows, "compile_rows", 0))
+    optimiser = _make_solver(options["solver"], options["rtol"], options["atol"])
+    results: list = [None] * len(problems)
+    S = options["starts"]
+    with progress_bar(enabled=progress, total=len(problems), desc="fit_many", unit="material") as bar:
+        for bucket in layout.buckets:
+            members = bucket["materials"]
+            rows = [problems[i].rows() for i in members]
+            rows = [dataclasses.replace(r, points=_pad_points(r.points, bucket["points"])) for r in rows]
+            y0 = [np.asarray(starting_points(problems[i], options)) for i in members]
+            # materials × starts along one axis, padded with copies of the first material
+            flat_rows = [r for r in rows for _ in range(S)]
+            flat_y0 = [y for ys in y0 for y in ys]
+            extra = bucket["solves"] - len(flat_rows)
+            flat_rows += [flat_rows[0]] * extra
+            flat_y0 += [flat_y0[0]] * extra
+            stacked, y = _stack(flat_rows), jnp.asarray(np.stack(flat_y0), dtype=jnp.float64)
+            if mesh is not None:
+                sharding = NamedSharding(mesh, PartitionSpec(_AXIS))
+                stacked, y = jax.device_put((stacked, y), sharding)
+            values, codes, steps, residuals, jacobians = map(
+                np.asarray, _solve_batch(stacked, y, optimiser, options["max_steps"], mesh))
+            for j, i in enumerate(members):
+                part = slice(j * S, (j + 1) * S)
+                problem = problems[i]
+                offset = float(problem.points.chi2_offset)
+                chi2s = np.einsum("sm,sm->s", residuals[part], residuals[part]) + offset
+                try:
+                    results[i] = result_of_starts(problem, values[part], codes[part], steps[part], chi2s,
+                                                  jacobians[part], options)
+                except InvalidInputError as err:
+                    if errors == "raise":
+                        raise InvalidInputError(f"fit_many: material {i}: {err}") from None
+                    results[i] = err
+                bar.update(1)
+    return results
+
+
+def explain_plan(models, datasets, *, batch: int = 64, devices=None, starts: int = 8,
+                 compile_rows: int = COMPILE_ROWS) -> BatchPlan:
+    """The :class:`BatchPlan` :func:`fit_many` would follow for these arguments (nothing is
+    fitted); ``plan.explain()`` says it in words."""
+    models, datasets = _materials(models, datasets)
+    problems = [Problem(m, d) for m, d in zip(models, datasets)]
+    return plan(problems, integer(starts, "starts", 1), integer(batch, "batch", 1), len(_devices(devices)),
+                integer(compile_rows, "compile_rows", 0))
