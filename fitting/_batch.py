@@ -21,10 +21,12 @@ scale has) and on its layout. :func:`fit_many` instead
    up to a multiple of the device count, and runs Levenberg–Marquardt (or the chosen
    optimistix solver) **vmapped** over it — a finished solve keeps its state while the others
    iterate, so each material's path is the one it would take alone;
-4. **shards** that axis over the devices (``jax.devices()`` by default; a
-   :class:`jax.sharding.Mesh` of one axis ``"materials"``, the program under
-   ``jax.shard_map`` so that each device iterates its own materials without waiting for the
-   others' convergence);
+4. **shards** that axis over the devices (``jax.devices()`` by default): the stacked inputs are
+   placed with a ``NamedSharding`` over a one-axis :class:`jax.sharding.Mesh` (``"materials"``)
+   and XLA's SPMD partitioner splits the jitted, vmapped solve, each device computing its
+   slice; the loop's stop test is one all-reduce per iteration, so all devices iterate until
+   the batch's slowest solve has converged (``jax.shard_map`` would let each device stop on its
+   own, but lineax's structure check refuses the solve's operators inside it in JAX 0.10);
 5. hands each material's starts to the same analysis as :func:`fitting.fit` (best start,
    Laplace covariance and identifiability by :mod:`brdfscale.laplace`, quantities, ratios).
 
@@ -138,23 +140,12 @@ def _solve_all(rows, y0, solver, max_steps):
     return jax.vmap(lambda r, y: solve_rows(r, y, solver, max_steps))(rows, y0)
 
 
-def _shard_map(fn, mesh):
-    spec = PartitionSpec(_AXIS)
-    if hasattr(jax, "shard_map"):
-        return jax.shard_map(fn, mesh=mesh, in_specs=(spec, spec), out_specs=spec, check_vma=False)
-    from jax.experimental.shard_map import shard_map  # JAX < 0.6
-
-    return shard_map(fn, mesh=mesh, in_specs=(spec, spec), out_specs=spec, check_rep=False)
-
-
 @eqx.filter_jit
-def _solve_batch(rows, y0, solver, max_steps, mesh):
-    """One compiled program per bucket shape: every (material, start) of the batch, each
-    device solving its slice (``mesh`` None: one device, no sharding)."""
-    fn = functools.partial(_solve_all, solver=solver, max_steps=max_steps)
-    if mesh is None:
-        return fn(rows, y0)
-    return _shard_map(fn, mesh)(rows, y0)
+def _solve_batch(rows, y0, solver, max_steps):
+    """One compiled program per bucket shape: every (material, start) of the batch. Given
+    inputs sharded along their leading axis (:func:`fit_many` places them with a
+    ``NamedSharding``), XLA's SPMD partitioner splits the vmapped solve over the devices."""
+    return _solve_all(rows, y0, solver, max_steps)
 
 
 def _devices(devices):
@@ -334,7 +325,7 @@ def fit_many(
                 sharding = NamedSharding(mesh, PartitionSpec(_AXIS))
                 stacked, y = jax.device_put((stacked, y), sharding)
             values, codes, steps, residuals, jacobians = map(
-                np.asarray, _solve_batch(stacked, y, optimiser, options["max_steps"], mesh))
+                np.asarray, _solve_batch(stacked, y, optimiser, options["max_steps"]))
             for j, i in enumerate(members):
                 part = slice(j * S, (j + 1) * S)
                 problem = problems[i]
