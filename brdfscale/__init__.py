@@ -49,7 +49,7 @@ from ._errors import (
 )
 
 _SUBMODULES = ("checks", "exr", "files", "fitting", "geometry", "lobes", "plot", "plus", "scene", "show", "so3",
-               "special", "stats", "synth", "topography", "laplace")
+               "special", "stats", "synth", "topography", "laplace", "library")
 _NAMES = {
     **dict.fromkeys(("AbstractMethod", "Auto", "ClosedForm", "Grid", "Radial", "RadialTable", "evolve", "select"),
                     "._evolve"),
@@ -57,8 +57,8 @@ _NAMES = {
 }
 
 if TYPE_CHECKING:  # what the lazy loader below provides, for type checkers and IDEs
-    from . import (checks, exr, files, fitting, geometry, laplace, lobes, plot, plus, scene, show, so3, special, stats,
-                   synth, topography)
+    from . import (checks, exr, files, fitting, geometry, laplace, library, lobes, plot, plus, scene, show, so3, special,
+                   stats, synth, topography)
     from ._evolve import AbstractMethod, Auto, ClosedForm, Grid, Radial, RadialTable, evolve, select
     from ._measurement import LobeImage, MeasurementSet
 
@@ -113,6 +113,7 @@ __all__ = [
     "plot",
     "show",
     "fitting",
+    "library",
     "BrdfscaleError",
     "InvalidInputError",
     "MeasurementFileError",

@@ -264,12 +264,16 @@ def _write_tables(out_dir, problem: Problem, fit: FitResult, overwrite: bool) ->
 
 
 def write_report(out_dir, problem: Problem, fit: FitResult, samples: SampleResult | None = None, *,
-                 truth: dict | None = None, model_info: dict | None = None, overwrite: bool = False) -> dict:
+                 truth: dict | None = None, model_info: dict | None = None, overwrite: bool = False,
+                 figures: bool = True) -> dict:
     """Write ``fit.json``, ``data_vs_fit.png``, ``statistics.png``, ``corner.png``, the
     evolved lobe tables (``evolved_lobes.exr``) and, for a sampled fit with ArviZ installed,
     the samples as ArviZ InferenceData in NetCDF (``posterior.nc``) into ``out_dir`` (created
     if missing); return the JSON document. Its ``mcmc`` section holds the sampler's record, its
     status and ArviZ's summary (ess_bulk, ess_tail, r_hat, MCSE) of every coordinate and quantity.
+
+    ``figures=False`` leaves the three PNG figures out (they take most of a report's time, ≈ 4 s
+    of its 6 s on a 2-core CPU; :mod:`brdfscale.library` writes them only when asked).
 
     Everything is checked before the first file is written: the arguments, and (without
     ``overwrite``) that none of those files exists. ``fit.json`` is written last.
@@ -291,8 +295,9 @@ def write_report(out_dir, problem: Problem, fit: FitResult, samples: SampleResul
     # everything that can fail on the arguments is computed before the first file is written
     model = problem.model
     true_theta = truth_theta(model, truth, fit)
+    figures = flag(figures, "figures")
     draws = posterior_draws(problem, fit, samples)  # those of plot_recovered_statistics
-    corner_draws = posterior_draws(problem, fit, samples, n=CORNER_DRAWS)  # those of plot_corner
+    corner_draws = posterior_draws(problem, fit, samples, n=CORNER_DRAWS) if figures else None  # those of plot_corner
     doc = {
         "brdfscale_version": brdfscale.__version__,
         "python": platform.python_version(),
@@ -314,19 +319,20 @@ def write_report(out_dir, problem: Problem, fit: FitResult, samples: SampleResul
     out_dir = os.fspath(out_dir)
     with exclusive(out_dir, what="report directory"):  # re-entrant: `brdfscale fit` holds it for the whole run
         return _write_files(out_dir, problem, fit, model, (draws, corner_draws), true_theta, truth, doc, overwrite,
-                            samples)
+                            samples, figures)
 
 
-def _write_files(out_dir, problem, fit, model, draws, true_theta, truth, doc, overwrite, samples=None) -> dict:
+def _write_files(out_dir, problem, fit, model, draws, true_theta, truth, doc, overwrite, samples=None,
+                 with_figures=True) -> dict:
     draws, corner_draws = draws
     check_report_directory(out_dir, overwrite)  # again, now that no other run can write here
-    figures = {name: os.path.join(out_dir, name) for name in _FIGURES}
+    figures = {name: os.path.join(out_dir, name) for name in _FIGURES} if with_figures else {}
     target = os.path.join(out_dir, "fit.json")
     try:
-        # the figures of fitting.plot_fit, plot_recovered_statistics and plot_corner (fitting._plot)
-        _save(figures["data_vs_fit.png"], plot_fit(problem, fit), 90, overwrite)
-        _save(figures["statistics.png"], statistics_figure(problem, fit, draws, true_theta), 90, overwrite)
-        _save(figures["corner.png"], corner_figure(model, corner_draws, truth, fit), 80, overwrite)
+        if with_figures:  # the figures of fitting.plot_fit, plot_recovered_statistics and plot_corner (fitting._plot)
+            _save(figures["data_vs_fit.png"], plot_fit(problem, fit), 90, overwrite)
+            _save(figures["statistics.png"], statistics_figure(problem, fit, draws, true_theta), 90, overwrite)
+            _save(figures["corner.png"], corner_figure(model, corner_draws, truth, fit), 80, overwrite)
         try:
             tables = _write_tables(out_dir, problem, fit, overwrite)
         except BrdfscaleError as err:

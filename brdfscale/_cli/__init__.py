@@ -10,7 +10,8 @@ persistent compilation cache and keeps its start-up free of JAX). Add new subcom
 Exit status (also in ``brdfscale --help``): 0 success; 1 an unexpected failure (a bug: the
 message says so and ``--debug`` shows the traceback); 2 a bad command line or input (an option
 outside its domain, a damaged file, no BRDF at a scale, an output that exists); 3 the output
-directory or checkpoint is in use by another run; 130 interrupted (Ctrl-C).
+directory or checkpoint is in use by another run; 4 ``fit-library`` finished with some materials failed
+(each named with its error in the library's index); 130 interrupted (Ctrl-C).
 """
 
 import importlib
@@ -19,13 +20,14 @@ import sys
 from .._errors import BrdfscaleError, OutputInUseError
 from ._options import Parser
 
-_SUBCOMMANDS = ("example", "synth", "topography", "info", "fit", "demo")
+_SUBCOMMANDS = ("example", "synth", "topography", "info", "fit", "fit-library", "demo")
 
 EXIT_OK, EXIT_FAILURE, EXIT_USAGE, EXIT_IN_USE, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
 
 _EPILOG = ("exit status: 0 success; 1 unexpected failure (rerun with --debug for the traceback); 2 bad command "
            "line or input (option outside its domain, damaged file, output exists, no BRDF at a scale); 3 output "
-           "directory or checkpoint in use by another run; 130 interrupted.")
+           "directory or checkpoint in use by another run; 4 fit-library finished with some materials failed (see its "
+           "index); 130 interrupted.")
 
 
 def build_parser() -> Parser:
@@ -45,7 +47,7 @@ def build_parser() -> Parser:
                         help="show the Python traceback of an unexpected failure instead of a one-line message")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in _SUBCOMMANDS:
-        importlib.import_module(f"{__name__}._{name}").register(sub)
+        importlib.import_module(f"{__name__}._{name.replace('-', '_')}").register(sub)
     parser.subcommands = sub.choices
     return parser
 

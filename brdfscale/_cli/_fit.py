@@ -9,6 +9,7 @@ import math
 import os
 
 from .._errors import InvalidInputError
+from ..library._spec import make_model
 from ._options import MAX_SEED, integer, output_directory, real, seed
 
 
@@ -150,27 +151,11 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
 
     check_fit_options(args)
     data = fitting.Dataset.from_measurements(mset, default_sigma=getattr(args, "default_sigma", None))
-    fixed = dict(args.fix)
-    if args.model == "parametric":
-        try:
-            model = fitting.ParametricModel(args.family, args.family, law=args.law, fixed=fixed)
-            fitting.Problem(model, data)  # fixed values inside their prior box for these data
-        except InvalidInputError as err:
-            if not fixed:
-                raise
-            raise InvalidInputError(f"--fix: {err}") from None
-        law = {"width": "WidthLaw alpha(mu) = alpha_max (1 + (mu/mu_c)^2)^(-exponent/2)",
-               "gaussian_surface": "GaussianSurface(GaussianCorrelation(rms_height, correlation_length), box window)"}
-        info = {"kind": "parametric", "lobe": args.family, "statistics": args.family,
-                "scale_law": law[args.law], "fixed": fixed}
-    else:
-        if args.regularisation in ("auto", "gcv"):
-            stream("choosing the smoothness weight by generalised cross-validation (one pilot fit) ...")
-        model = fitting.NonParametricModel(data, base_nodes=args.base_nodes, n_knots=args.knots,
-                                           regularisation=args.regularisation)
-        info = {"kind": "nonparametric", "base_nodes": model.base_nodes, "base_extent": model.base_extent,
-                "knots_W": list(model.knots), "smoothness": model.smoothness}
-    info["solver"] = args.solver
+    if args.model == "nonparametric" and args.regularisation in ("auto", "gcv"):
+        stream("choosing the smoothness weight by generalised cross-validation (one pilot fit) ...")
+    model, info = make_model(fitting, data, model=args.model, family=args.family, law=args.law, fixed=dict(args.fix),
+                             base_nodes=args.base_nodes, knots=args.knots, regularisation=args.regularisation,
+                             solver=args.solver)
     if args.steps > 0:
         check_sampler_options(args, len(model.names))
     truth = fitting.truth_of(model, mset.metadata)  # a damaged truth is refused before the work, not after

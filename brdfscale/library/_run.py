@@ -1,0 +1,318 @@
+"""The library driver: batches of materials to tasks, in-process or on Ray; the index; resume."""
+
+import dataclasses
+import datetime
+import json
+import os
+import re
+import time
+
+from .._errors import InvalidInputError, MissingDependencyError
+from .._files import atomic_write, exclusive
+from .._show import Shown, Table, progress_bar
+from ._spec import FitSpec
+from ._task import fit_batch, material_directory
+
+__all__ = ["fit_library", "LibraryResult", "find_materials", "INDEX"]
+
+INDEX = "library.json"
+_FORMAT = 1
+
+
+def find_materials(sources) -> list:
+    """``(name, path)`` of every measurement set among ``sources`` — files, and directories
+    searched recursively for ``*.exr`` — in a stable order, each named after its path (the
+    part below a given directory, ``/`` → ``__``, without ``.exr``), names unique.
+
+    Raises:
+        InvalidInputError: a source that does not exist, or no measurement file at all.
+    """
+    if isinstance(sources, (str, os.PathLike)):
+        sources = [sources]
+    found = []
+    for source in sources:
+        source = os.fspath(source)
+        if os.path.isdir(source):
+            for root, dirs, files in os.walk(source):
+                dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+                for f in sorted(files):
+                    if f.lower().endswith(".exr") and not f.startswith("."):
+                        path = os.path.join(root, f)
+                        found.append((os.path.relpath(path, source), path))
+        elif os.path.isfile(source):
+            found.append((os.path.basename(source), source))
+        else:
+            raise InvalidInputError(f"{source}: no such file or directory (give measurement files or directories "
+                                    "holding them).")
+    if not found:
+        raise InvalidInputError(f"no measurement files (*.exr) in {', '.join(map(os.fspath, sources))}.")
+    named, seen = [], {}
+    for rel, path in found:
+        name = re.sub(r"[^A-Za-z0-9._-]+", "_", re.sub(r"\.exr$", "", rel, flags=re.I).replace(os.sep, "__"))
+        name = name.lstrip(".") or "material"
+        base, k = name, 1
+        while name in seen:
+            k += 1
+            name = f"{base}-{k}"
+        seen[name] = path
+        named.append((name, os.path.abspath(path)))
+    return named
+
+
+@dataclasses.dataclass(repr=False)
+class LibraryResult(Shown):
+    """What a library run did: the index's materials (name → record), this run's counts and time."""
+
+    out: str
+    materials: dict
+    done: int
+    failed: int
+    skipped: int
+    seconds: float
+    executor: str
+
+    @property
+    def failures(self) -> dict:
+        return {n: r["error"] for n, r in self.materials.items() if r["status"] == "failed"}
+
+    def _show_items(self):
+        total = len(self.materials)
+        return [("out", self.out), ("materials", total), ("done", sum(r["status"] == "done" for r in self.materials.values())),
+                ("failed", self.failed), ("this run", f"{self.done} fitted, {self.skipped} already done, "
+                                                      f"{self.seconds:.1f} s on {self.executor}")]
+
+    def _show_tables(self):
+        return [Table("materials", ("material", "status", "χ²/dof", "fit", "error"),
+                      [(n, r["status"], r.get("reduced_chi2"), r.get("fit_status"), r.get("error"))
+                       for n, r in self.materials.items()])]
+
+    def table(self) -> str:
+        """The summary table the command prints."""
+        rows = [("materials", len(self.materials)),
+                ("done (all runs)", sum(r["status"] == "done" for r in self.materials.values())),
+                ("fitted this run", self.done), ("already done", self.skipped), ("failed", self.failed),
+                ("time", f"{self.seconds:.1f} s"),
+                ("materials/s", f"{self.done / self.seconds:.2f}" if self.seconds > 0 and self.done else "—"),
+                ("executor", self.executor)]
+        width = max(len(k) for k, _ in rows)
+        return "\n".join(f"  {k:<{width}}  {v}" for k, v in rows)
+
+
+def _now() -> str:
+    return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+
+
+class _Index:
+    """``OUT/library.json``: the options, and per material its source and last record. Written
+    atomically by the driver alone (after every batch); the material directories are the truth
+    it is reconciled with on every start (a directory without an index entry — a driver killed
+    after a task finished — counts as done)."""
+
+    def __init__(self, out: str, spec: FitSpec, materials: list, force: bool):
+        self.path = os.path.join(out, INDEX)
+        self.doc = None
+        if os.path.exists(self.path):
+            try:
+                with open(self.path) as f:
+                    doc = json.load(f)
+                if doc.get("format") != _FORMAT or not isinstance(doc.get("materials"), dict):
+                    raise ValueError("not a brdfscale library index")
+            except (OSError, ValueError) as err:
+                raise InvalidInputError(f"{self.path}: unreadable library index ({err}); move it away or choose "
+                                        "another --out.") from None
+            if doc["spec"] != spec.to_json() and not force:
+                earlier = doc["spec"]
+                changed = ", ".join(f"{k}={earlier.get(k)!r}" for k in sorted(spec.to_json())
+                                    if earlier.get(k) != spec.to_json()[k])
+                raise InvalidInputError(
+                    f"{out} holds a library fitted with other options (there {changed}); rerun with the same options "
+                    "to continue it, or choose another --out (--force refits every material with the new ones).")
+            self.doc = doc
+        if self.doc is None or force:
+            self.doc = {"format": _FORMAT, "created": _now(), "spec": spec.to_json(), "runs": [], "materials": {}}
+        for name, path in materials:
+            entry = self.doc["materials"].setdefault(name, {"source": path, "status": "pending", "attempts": 0})
+            if entry["source"] != path:
+                raise InvalidInputError(f"material {name!r} of {out} came from {entry['source']}, now from {path}; "
+                                        "one name, one source: rename the file or choose another --out.")
+            if os.path.isdir(material_directory(out, name)):
+                if entry["status"] != "done":
+                    entry.update(status="done", note="found complete on restart (the index had not recorded it)")
+            elif entry["status"] == "done":  # its directory was removed: fit it again
+                entry.update(status="pending")
+
+    def start_run(self, executor: str, todo: int) -> int:
+        self.doc["runs"].append({"started": _now(), "executor": executor, "materials": todo, "finished": None})
+        self.write()
+        return len(self.doc["runs"])
+
+    def update(self, record: dict, run: int):
+        entry = self.doc["materials"][record["name"]]
+        if record["status"] == "skipped":
+            if entry["status"] != "done":
+                entry.update(status="done", note="completed by another attempt")
+            return
+        entry["attempts"] = entry.get("attempts", 0) + 1
+        entry.update({k: v for k, v in record.items() if k != "name"}, run=run, finished=_now())
+        if record["status"] == "done":
+            entry.pop("error", None)
+
+    def finish_run(self, run: int, done: int, failed: int, seconds: float):
+        self.doc["runs"][run - 1].update(finished=_now(), done=done, failed=failed, seconds=round(seconds, 3))
+        self.write()
+
+    def write(self):
+        text = json.dumps(self.doc, indent=1, allow_nan=False, default=float)
+        atomic_write(self.path, lambda tmp: open(tmp, "w").write(text), overwrite=True)
+
+
+def _ray(address, workers):
+    try:
+        import ray
+    except ImportError:
+        raise MissingDependencyError("executor='ray' needs Ray: pip install 'brdfscale[cluster]' (or run the library "
+                                     "in-process, without --address/--workers).") from None
+    started = False
+    if not ray.is_initialized():
+        options = dict(include_dashboard=False, log_to_driver=False, configure_logging=False)
+        if address:
+            ray.init(address=address, **options)
+        else:
+            ray.init(num_cpus=workers, **options)
+            started = True
+    return ray, started
+
+
+def _batches(todo, batch):
+    return [todo[i:i + batch] for i in range(0, len(todo), batch)]
+
+
+def fit_library(sources, out, *, spec: FitSpec | None = None, batch: int = 16, executor: str = "auto",
+                address: str | None = None, workers: int | None = None, cpus_per_task: float = 1,
+                retries: int = 2, force: bool = False, progress: bool = True, stream=None) -> LibraryResult:
+    """Fit every material of a library into ``out``: one :func:`fitting.fit_many` per batch of
+    ``batch`` materials, each batch a task of its own, in this process or on a Ray cluster.
+
+    Args:
+        sources: measurement files and directories (searched recursively for ``*.exr``;
+            :func:`find_materials` names the materials).
+        out: the output directory (created): ``library.json`` (the index) and
+            ``materials/NAME/`` per material (``fit.json``, figures, tables; ``chain.h5`` and
+            ``posterior.nc`` when sampled). Held for the run (a second run into it raises
+            :class:`~brdfscale.OutputInUseError`).
+        spec: the model and fit options (:class:`FitSpec`), the same for every material.
+        batch: materials per task (≥ 1, default 16).
+        executor: ``"process"`` — batches one after another in this process (JAX must be in
+            float64, as for :func:`fitting.fit`); ``"ray"`` — batches as Ray tasks (a local
+            Ray instance with ``workers`` CPUs, or the cluster at ``address``), JAX imported
+            inside each task, float64 set there; ``"auto"`` (default) — Ray when ``address``
+            or ``workers`` is given, else in-process.
+        workers: CPUs of the local Ray instance (default: the machine's); tasks run ``cpus_per_task``
+            CPUs each.
+        retries: Ray's retries of a task whose worker died (default 2).
+        force: refit every material (a library in ``out`` with other options is otherwise refused).
+        progress: a progress bar over the materials.
+        stream: where the per-material failures are reported as they come (a callable taking a line).
+
+    Resumable: a material counts as done when its directory exists (moved into place whole
+    by :mod:`brdfscale.library._task`); a rerun after any interruption fits only the others,
+    each exactly once. A material that fails (unreadable file, no valid fit) is recorded
+    with its error in the index and retried by the next run; the library goes on.
+
+    Raises:
+        InvalidInputError: bad arguments, a source that does not exist, an index of another job.
+        OutputInUseError: another run holds ``out``.
+        MissingDependencyError: the Ray executor without Ray installed.
+    """
+    from ..checks import integer
+
+    spec = FitSpec() if spec is None else spec
+    if not isinstance(spec, FitSpec):
+        raise InvalidInputError(f"spec must be a brdfscale.library.FitSpec; got {type(spec).__name__}.")
+    batch = integer(batch, "batch", 1)
+    retries = integer(retries, "retries", 0)
+    if workers is not None:
+        workers = integer(workers, "workers", 1)
+    if executor not in ("auto", "process", "ray"):
+        raise InvalidInputError(f"executor must be 'auto', 'process' or 'ray'; got {executor!r}.")
+    if executor == "auto":
+        executor = "ray" if (address or workers) else "process"
+    if executor == "process" and (address or workers):
+        raise InvalidInputError("address and workers are Ray's: use executor='ray' (or 'auto').")
+    if executor == "process":
+        from ..checks import require_float64
+
+        require_float64("brdfscale.library.fit_library (in-process)")
+    materials = find_materials(sources)
+    out = os.path.abspath(os.fspath(out))
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise InvalidInputError(f"{out} exists and is not a directory.")
+    os.makedirs(os.path.join(out, "materials"), exist_ok=True)
+    say = stream or (lambda line: None)
+    with exclusive(out, what="library directory"):
+        if force:
+            _clear(out, materials)
+        index = _Index(out, spec, materials, force)
+        todo = [(n, p) for n, p in materials if index.doc["materials"][n]["status"] != "done"]
+        skipped = len(materials) - len(todo)
+        run = index.start_run(executor, len(todo))
+        t0 = time.perf_counter()
+        counts = {"done": 0, "failed": 0, "skipped": 0}
+        cache = _compilation_cache()
+
+        def absorb(records, bar):
+            for record in records:
+                index.update(record, run)
+                counts[record["status"]] += 1
+                if record["status"] == "failed":
+                    say(f"  failed: {record['name']}: {record['error']}")
+            index.write()
+            bar.update(len(records))
+
+        with progress_bar(enabled=progress, total=len(materials), initial=skipped, desc="library",
+                          unit="material") as bar:
+            if executor == "process":
+                for chunk in _batches(todo, batch):
+                    absorb(fit_batch(chunk, out, spec.to_json(), batch=batch, compilation_cache=cache,
+                                     float64=False), bar)
+            elif todo:
+                ray, started = _ray(address, workers)
+                try:
+                    task = ray.remote(num_cpus=cpus_per_task, max_retries=retries, retry_exceptions=False)(fit_batch)
+                    pending = {task.remote(chunk, out, spec.to_json(), batch=batch, compilation_cache=cache): chunk
+                               for chunk in _batches(todo, batch)}
+                    while pending:
+                        ready, _ = ray.wait(list(pending), num_returns=1)
+                        chunk = pending.pop(ready[0])
+                        try:
+                            records = ray.get(ready[0])
+                        except Exception as err:  # noqa: BLE001 — the task died past its retries
+                            text = f"{type(err).__name__}: {' '.join(str(err).split())[:300]}"
+                            records = [{"name": n, "status": "failed", "error": f"task failed: {text}"}
+                                       for n, _ in chunk]
+                        absorb(records, bar)
+                finally:
+                    if started:
+                        ray.shutdown()
+        seconds = time.perf_counter() - t0
+        index.finish_run(run, counts["done"], counts["failed"], seconds)
+        return LibraryResult(out=out, materials=index.doc["materials"], done=counts["done"], failed=counts["failed"],
+                             skipped=skipped + counts["skipped"], seconds=seconds, executor=executor)
+
+
+def _clear(out, materials):
+    """--force: the earlier results of these materials go (only the library's own files)."""
+    import shutil
+
+    for name, _ in materials:
+        for path in (material_directory(out, name),):
+            if os.path.isdir(path):
+                shutil.rmtree(path)
+
+
+def _compilation_cache():
+    """The persistent compilation cache directory this process uses (workers share it), if any."""
+    import sys
+
+    jax = sys.modules.get("jax")
+    return jax.config.jax_compilation_cache_dir if jax is not None else None

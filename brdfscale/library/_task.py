@@ -1,0 +1,127 @@
+"""One batch of a library: read, fit together (:func:`fitting.fit_many`), sample, report — the
+unit of work that runs in the driver's process or as a Ray task (JAX is imported inside it).
+
+Every material's report is written into ``materials/.NAME.partial/`` (held with
+:func:`brdfscale.files.exclusive`) and renamed to ``materials/NAME/`` when complete, so a
+material directory exists exactly when its report is whole: a task killed at any point
+leaves at most a ``.partial`` directory, which the next attempt takes over (a sampler's
+checkpoint there resumes its chain). The rename cannot replace a finished directory, so a
+material is never reported twice even if two attempts race.
+"""
+
+import os
+import shutil
+import time
+import traceback
+
+from .._errors import BrdfscaleError, OutputInUseError
+
+__all__ = ["fit_batch", "material_directory", "partial_directory"]
+
+
+def material_directory(out: str, name: str) -> str:
+    return os.path.join(out, "materials", name)
+
+
+def partial_directory(out: str, name: str) -> str:
+    return os.path.join(out, "materials", f".{name}.partial")
+
+
+def _record(name, status, started, **fields):
+    return {"name": name, "status": status, "seconds": round(time.perf_counter() - started, 3),
+            "pid": os.getpid(), "host": os.uname().nodename, **fields}
+
+
+def _failure(err) -> str:
+    if isinstance(err, BrdfscaleError):
+        return f"{type(err).__name__}: {' '.join(str(err).split())}"
+    frame = traceback.extract_tb(err.__traceback__)[-1] if err.__traceback__ else None
+    where = f" (at {os.path.basename(frame.filename)}:{frame.lineno})" if frame else ""
+    return f"unexpected {type(err).__name__}: {' '.join(str(err).split())[:300]}{where}"
+
+
+def fit_batch(materials: list, out: str, spec: dict, *, batch: int = 64, compilation_cache: str | None = None,
+              float64: bool = True) -> list:
+    """Fit ``materials`` (a list of ``(name, path)``) into ``out/materials/`` with the options
+    ``spec`` (:class:`FitSpec` as JSON); return one record per material: ``status`` ``"done"``
+    (with χ², status, seconds), ``"skipped"`` (already done: its directory exists) or
+    ``"failed"`` (with ``error``: the file could not be read, or its fit could not be made).
+
+    ``float64``: switch JAX to float64 (what a worker process does; the in-process runner
+    leaves the caller's setting alone and requires float64 like :func:`fitting.fit`).
+    ``compilation_cache``: JAX's persistent compilation cache directory for this process
+    (the one the command uses, shared by every worker of a host).
+    """
+    import jax
+
+    if float64:
+        jax.config.update("jax_enable_x64", True)
+    if compilation_cache and not jax.config.jax_compilation_cache_dir:
+        jax.config.update("jax_compilation_cache_dir", compilation_cache)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    from .. import exr, fitting
+    from ..files import exclusive
+    from ._spec import FitSpec
+
+    spec = FitSpec(**{**spec, "fixed": tuple(spec.get("fixed", {}).items())})
+    started = time.perf_counter()
+    records, todo = [], []
+    for name, path in materials:
+        if os.path.isdir(material_directory(out, name)):
+            records.append(_record(name, "skipped", started))
+            continue
+        t0 = time.perf_counter()
+        try:
+            mset = exr.read_measurements(path)
+            data = fitting.Dataset.from_measurements(mset, default_sigma=spec.default_sigma)
+            model, info = spec.model_for(fitting, data)
+            truth = fitting.truth_of(model, mset.metadata)
+        except Exception as err:  # noqa: BLE001 — one material's failure is recorded, the library goes on
+            records.append(_record(name, "failed", t0, error=_failure(err)))
+            continue
+        todo.append((name, data, model, info, truth))
+    if not todo:
+        return records
+    t0 = time.perf_counter()
+    fits = fitting.fit_many([m for _, _, m, _, _ in todo], [d for _, d, _, _, _ in todo], batch=batch,
+                            solver=spec.solver, starts=spec.starts, max_steps=spec.max_steps, seed=spec.seed,
+                            errors="return")
+    fit_seconds = (time.perf_counter() - t0) / len(todo)
+    for (name, data, model, info, truth), result in zip(todo, fits):
+        t1 = time.perf_counter()
+        if isinstance(result, Exception):
+            records.append(_record(name, "failed", t1, error=_failure(result)))
+            continue
+        partial, final = partial_directory(out, name), material_directory(out, name)
+        try:
+            os.makedirs(partial, exist_ok=True)
+            with exclusive(partial, what="material directory"):
+                samples = None
+                problem = fitting.Problem(model, data)
+                if spec.sampler is not None:
+                    sampler = fitting.Emcee() if spec.sampler == "emcee" else spec.sampler
+                    samples = fitting.sample(problem, result, sampler=sampler, chains=spec.chains, steps=spec.steps,
+                                             seed=spec.seed, checkpoint=os.path.join(partial, "chain.h5"),
+                                             progress=False)
+                doc = fitting.write_report(partial, problem, result, samples, truth=truth, model_info=info,
+                                           overwrite=True, figures=spec.figures)
+            try:
+                os.rename(partial, final)
+            except OSError:
+                if os.path.isdir(final):  # another attempt finished it first: ours is a duplicate
+                    shutil.rmtree(partial, ignore_errors=True)
+                    records.append(_record(name, "skipped", t1))
+                    continue
+                raise
+        except OutputInUseError as err:  # another live attempt holds this material
+            records.append(_record(name, "failed", t1, error=_failure(err)))
+            continue
+        except Exception as err:  # noqa: BLE001
+            records.append(_record(name, "failed", t1, error=_failure(err)))
+            continue
+        mcmc = doc.get("mcmc") or {}
+        records.append(_record(name, "done", t1, fit_seconds=round(fit_seconds, 4), chi2=result.chi2,
+                               reduced_chi2=result.chi2 / result.dof, fit_status=result.status,
+                               undetermined=[u["combination"] for u in result.undetermined],
+                               sampler_status=mcmc.get("status")))
+    return records
