@@ -1,0 +1,154 @@
+"""fitting.fit_many: batched fits equal one-at-a-time fits (ragged data, masks, replicates, mixed
+models), sharded over 4 virtual CPU devices equal to one device, the bucketing policy."""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import fitting
+from brdfscale import InvalidInputError, LobeImage, MeasurementSet
+from experiments.library_data import material
+from fitting._batch import bucket_points, plan
+
+
+def _masked(mset):
+    """The same measurement set with a quarter of every second image masked out."""
+    images = []
+    for k, img in enumerate(mset.images):
+        mask = np.ones(img.values.shape[:2], bool)
+        if k % 2:
+            mask[: img.size // 2, : img.size // 2] = False
+        images.append(LobeImage(mu=img.mu, incident=img.incident, extent=img.extent, values=img.values,
+                                sigma=img.sigma, mask=mask))
+    return MeasurementSet(tuple(images), metadata=mset.metadata)
+
+
+@pytest.fixture(scope="module")
+def ragged():
+    msets = [material(i) for i in range(4)] + [_masked(material(4))]
+    return [fitting.Dataset.from_measurements(m) for m in msets]
+
+
+def _assert_same_fit(a, b):
+    sd = np.sqrt(np.diag(a.covariance))
+    assert a.names == b.names and a.status == b.status
+    np.testing.assert_array_less(np.abs(a.theta - b.theta), 1e-3 * sd)
+    assert abs(a.chi2 - b.chi2) <= 1e-6 * a.chi2
+    for name, s in a.std.items():
+        assert (s is None) == (b.std[name] is None)
+        if s is not None:
+            assert abs(s - b.std[name]) <= 1e-3 * s, name
+    assert [u["combination"] for u in a.undetermined] == [u["combination"] for u in b.undetermined]
+    assert list(a.ratios) == list(b.ratios)
+
+
+def test_batched_fits_equal_one_at_a_time_fits_on_ragged_data(ragged):
+    sizes = {d.image_sizes for d in ragged}
+    assert len(sizes) > 2 and any(len(d.image_sizes) != len(ragged[0].image_sizes) for d in ragged)
+    model = fitting.ParametricModel()
+    one = [fitting.fit(model, d, starts=3) for d in ragged]
+    many = fitting.fit_many(model, ragged, starts=3)
+    for a, b in zip(one, many):
+        _assert_same_fit(a, b)
+    # every rung apart (no merging): the same results from three programs instead of one
+    apart = fitting.fit_many(model, ragged, starts=3, compile_rows=0)
+    assert len(fitting.explain_plan(model, ragged, starts=3, compile_rows=0).buckets) > 1
+    for a, b in zip(one, apart):
+        _assert_same_fit(a, b)
+
+
+def test_mixed_models_go_to_separate_buckets_and_keep_their_order(ragged):
+    models = [fitting.ParametricModel(), fitting.ParametricModel(fixed={"mu_c": 1.0})] * 2
+    data = ragged[:4]
+    layout = fitting.explain_plan(models, data, starts=2)
+    assert len(layout.buckets) == 2 and sorted(m for b in layout.buckets for m in b["materials"]) == [0, 1, 2, 3]
+    assert "2 bucket(s)" in layout.explain()
+    many = fitting.fit_many(models, data, starts=2)
+    for model, d, b in zip(models, data, many):
+        _assert_same_fit(fitting.fit(model, d, starts=2), b)
+
+
+def test_fit_many_refuses_what_it_cannot_pair(ragged):
+    model = fitting.ParametricModel()
+    with pytest.raises(InvalidInputError, match="pair up"):
+        fitting.fit_many([model, model], ragged[:3])
+    with pytest.raises(InvalidInputError, match="sequence of datasets"):
+        fitting.fit_many(model, ragged[0])
+    with pytest.raises(InvalidInputError, match="batch"):
+        fitting.fit_many(model, ragged, batch=0)
+    with pytest.raises(InvalidInputError, match="devices=9"):
+        fitting.fit_many(model, ragged, devices=9)
+    with pytest.raises(InvalidInputError, match="material 1"):
+        fitting.fit_many(model, [ragged[0], "data"])
+    with pytest.raises(InvalidInputError, match="errors"):
+        fitting.fit_many(model, ragged, errors="ignore")
+
+
+@given(st.integers(1, 100_000))
+@settings(max_examples=300, deadline=None)
+def test_bucket_points_bounds_the_padding(n):
+    size = bucket_points(n)
+    assert size >= n and size >= 8
+    assert size <= max(8, 1.5 * n)
+    assert size % 8 == 0 or size in (12,)
+
+
+def test_plan_merges_rungs_only_when_padding_is_cheaper_than_compiling(ragged):
+    problems = [fitting.Problem(fitting.ParametricModel(), d) for d in ragged]
+    apart, merged = plan(problems, 4, 64, 1, compile_rows=0), plan(problems, 4, 64, 1, compile_rows=10**9)
+    rungs = {bucket_points(p.points.mean.shape[1]) for p in problems}
+    assert len(apart.buckets) == len(rungs) and len(merged.buckets) == 1
+    assert merged.buckets[0]["points"] == max(rungs) and apart.padding <= merged.padding
+    # the padding fraction is what the rows say
+    used = sum(p.points.mean.shape[0] * p.points.mean.shape[1] * 4 for p in problems)
+    assert apart.rows_used == used and apart.padding == pytest.approx(1 - used / apart.rows_padded)
+    # batches: at most `batch` materials a program run, padded on the 1, 2, 3, 4, 6, 8 … ladder
+    small = plan(problems, 1, 2, 1, compile_rows=10**9)
+    assert [len(b["materials"]) for b in small.buckets] == [2, 2, 1]
+
+
+_SHARDED = textwrap.dedent("""
+    import json, sys
+    import jax
+    jax.config.update("jax_enable_x64", True)
+    import numpy as np
+    import fitting
+    from experiments.library_data import material
+    assert len(jax.devices()) == 4, jax.devices()
+    data = [fitting.Dataset.from_measurements(material(i)) for i in range(5)]
+    model = fitting.ParametricModel()
+    one = fitting.fit_many(model, data, devices=1, starts=2)
+    four = fitting.fit_many(model, data, devices=4, starts=2)
+    loop = [fitting.fit(model, d, starts=2) for d in data]
+    # the program really runs on 4 devices: its stacked inputs are split over them
+    from fitting._batch import _stack, _solve_batch, _AXIS
+    from jax.sharding import Mesh, NamedSharding, PartitionSpec
+    mesh = Mesh(np.asarray(jax.devices()), (_AXIS,))
+    rows = jax.device_put(_stack([fitting.Problem(model, data[0]).rows()] * 4), NamedSharding(mesh, PartitionSpec(_AXIS)))
+    y = jax.device_put(np.zeros((4, 5)) + np.asarray(model.initial(data[0])), NamedSharding(mesh, PartitionSpec(_AXIS)))
+    out = _solve_batch(rows, y, fitting._estimate._make_solver("lm", 1e-6, 1e-6), 64)
+    json.dump({"theta": [[r.theta.tolist() for r in res] for res in (one, four, loop)],
+               "chi2": [[r.chi2 for r in res] for res in (one, four, loop)],
+               "sd": [np.sqrt(np.diag(r.covariance)).tolist() for r in loop],
+               "devices_of_output": len(out[0].sharding.device_set)}, sys.stdout)
+""")
+
+
+def test_sharded_batched_fits_on_4_devices_equal_single_device_and_one_at_a_time_fits():
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=4", "JAX_PLATFORMS": "cpu"}
+    run = subprocess.run([sys.executable, "-c", _SHARDED], capture_output=True, text=True, env=env, timeout=600,
+                         cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    assert run.returncode == 0, run.stderr[-3000:]
+    got = json.loads(run.stdout.strip().splitlines()[-1])
+    one, four, loop = (np.asarray(t) for t in got["theta"])
+    assert got["devices_of_output"] == 4
+    np.testing.assert_array_equal(one, four)  # the same program, split: bit for bit on CPU
+    np.testing.assert_array_less(np.abs(four - loop), 1e-3 * np.asarray(got["sd"]))
+    np.testing.assert_allclose(got["chi2"][1], got["chi2"][2], rtol=1e-6)

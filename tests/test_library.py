@@ -1,0 +1,197 @@
+"""brdfscale.library and `brdfscale fit-library`: a library in-process and on a local Ray instance
+with 2 workers (equal results), a corrupt file reported and skipped, a driver killed mid-library
+and a worker killed mid-task, each material fitted exactly once, options and lock checks."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from brdfscale import InvalidInputError, OutputInUseError, library
+from brdfscale._cli import main
+from brdfscale.files import exclusive
+from experiments.library_data import write_library
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+@pytest.fixture(scope="module")
+def small_library(tmp_path_factory):
+    directory = tmp_path_factory.mktemp("library")
+    write_library(str(directory), 5)
+    with open(directory / "material_999.exr", "wb") as f:  # a damaged file among good ones
+        f.write(b"v/1\x01" + bytes(200))
+    return directory
+
+
+def _index(out):
+    with open(os.path.join(out, library.INDEX)) as f:
+        return json.load(f)
+
+
+def _fit_json(out, name):
+    with open(os.path.join(out, "materials", name, "fit.json")) as f:
+        return json.load(f)
+
+
+def _inodes(out):
+    base = os.path.join(out, "materials")
+    return {n: os.stat(os.path.join(base, n, "fit.json")).st_ino for n in os.listdir(base) if not n.startswith(".")}
+
+
+def test_library_in_process_reports_the_corrupt_file_and_resumes(small_library, tmp_path, capsys):
+    out = str(tmp_path / "out")
+    status = main(["fit-library", str(small_library), "--out", out, "--batch", "2", "--starts", "2", "--no-progress"])
+    text = capsys.readouterr().out
+    assert status == 4, text  # finished, one material failed
+    index = _index(out)
+    states = {n: m["status"] for n, m in index["materials"].items()}
+    assert states == {**{f"material_{i:03d}": "done" for i in range(5)}, "material_999": "failed"}
+    assert "MeasurementFileError" in index["materials"]["material_999"]["error"]
+    assert "failed: material_999" in text and "fitted this run  5" in text
+    assert index["spec"]["starts"] == 2 and index["runs"][0]["done"] == 5
+    fit = _fit_json(out, "material_000")
+    assert fit["optimisation"]["status"] == "converged" and 0.8 < fit["optimisation"]["reduced_chi2"] < 1.2
+    assert sorted(os.listdir(os.path.join(out, "materials", "material_000"))) == [".brdfscale.lock", "evolved_lobes.exr",
+                                                                                    "fit.json"]
+    before = _inodes(out)
+    # run again: nothing refitted, the damaged file tried again and still reported
+    assert main(["fit-library", str(small_library), "--out", out, "--batch", "2", "--starts", "2",
+                 "--no-progress"]) == 4
+    assert _inodes(out) == before
+    index = _index(out)
+    assert all(m["attempts"] == 1 for n, m in index["materials"].items() if n != "material_999")
+    assert index["materials"]["material_999"]["attempts"] == 2 and len(index["runs"]) == 2
+    # other options into the same library: refused, naming what differs
+    with pytest.raises(InvalidInputError, match="other options.*starts=2"):
+        library.fit_library(small_library, out, spec=library.FitSpec(starts=3), progress=False)
+    assert main(["fit-library", str(small_library), "--out", out, "--no-progress"]) == 2
+    # a second run while one holds the directory: refused at once
+    with exclusive(out, what="library directory"):
+        code = subprocess.run([sys.executable, "-m", "brdfscale", "fit-library", str(small_library), "--out", out,
+                               "--starts", "2", "--batch", "2", "--no-progress"], capture_output=True, text=True,
+                              cwd=ROOT, timeout=300)
+    assert code.returncode == 3 and "another run is writing this library directory" in code.stderr
+
+
+def test_fit_library_results_equal_fit_many(small_library, tmp_path):
+    import jax
+    import fitting
+    from brdfscale import exr
+
+    jax.config.update("jax_enable_x64", True)
+    result = library.fit_library([small_library / "material_001.exr", small_library / "material_003.exr"],
+                                 tmp_path / "out", spec=library.FitSpec(starts=2), progress=False)
+    assert (result.done, result.failed, result.executor) == (2, 0, "process") and "fitted" in repr(result)
+    data = [fitting.Dataset.from_measurements(exr.read_measurements(small_library / f"material_00{i}.exr"))
+            for i in (1, 3)]
+    direct = fitting.fit_many(fitting.ParametricModel(), data, starts=2)
+    for name, fit in zip(("material_001", "material_003"), direct):
+        np.testing.assert_allclose(_fit_json(tmp_path / "out", name)["optimisation"]["theta"], fit.theta, rtol=1e-12)
+
+
+def test_sources_are_named_uniquely_and_missing_ones_refused(tmp_path):
+    (tmp_path / "a" / "b").mkdir(parents=True)
+    for p in ("a/x.exr", "a/b/x.exr", "a/.hidden.exr", "a/readme.txt"):
+        (tmp_path / p).write_bytes(b"")
+    names = [n for n, _ in library.find_materials([tmp_path / "a", tmp_path / "a" / "x.exr"])]
+    assert names == ["x", "b__x", "x-2"]  # a directory's own files first, then its subdirectories
+    with pytest.raises(InvalidInputError, match="no such file"):
+        library.find_materials([tmp_path / "nothing"])
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(InvalidInputError, match="no measurement files"):
+        library.find_materials([tmp_path / "empty"])
+
+
+def _wait_for(condition, timeout, what):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return
+        time.sleep(0.02)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def _done(out):
+    base = os.path.join(out, "materials")
+    return [n for n in os.listdir(base) if not n.startswith(".")] if os.path.isdir(base) else []
+
+
+def test_a_driver_killed_mid_library_resumes_with_each_material_fitted_once(small_library, tmp_path):
+    out = str(tmp_path / "out")
+    command = [sys.executable, "-m", "brdfscale", "fit-library", str(small_library), "--out", out, "--batch", "1",
+               "--starts", "2", "--no-progress"]
+    driver = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                              start_new_session=True)
+    try:
+        _wait_for(lambda: len(_done(out)) >= 2, 300, "two materials")
+    finally:
+        os.killpg(driver.pid, signal.SIGKILL)
+        driver.wait()
+    first = _inodes(out)
+    assert 2 <= len(first) < 5
+    rerun = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert rerun.returncode == 4, rerun.stderr[-2000:]
+    assert {n: i for n, i in _inodes(out).items() if n in first} == first  # not refitted
+    index = _index(out)
+    assert sorted(_done(out)) == [f"material_{i:03d}" for i in range(5)]
+    assert not [n for n in os.listdir(os.path.join(out, "materials")) if n.endswith(".partial")]
+    # each material fitted exactly once: one attempt each (those the killed driver finished but had not
+    # yet indexed were found complete, not redone)
+    for name in _done(out):
+        entry = index["materials"][name]
+        assert entry["status"] == "done" and entry.get("attempts", 0) <= 1, (name, entry)
+    assert sum(index["materials"][n].get("attempts", 0) for n in _done(out)) == 5 - sum(
+        "found complete" in index["materials"][n].get("note", "") for n in _done(out))
+
+
+@pytest.mark.slow
+def test_ray_with_2_workers_equals_in_process_and_survives_a_killed_worker(small_library, tmp_path):
+    pytest.importorskip("ray")
+    local, ray_out = str(tmp_path / "local"), str(tmp_path / "ray")
+    assert main(["fit-library", str(small_library), "--out", local, "--batch", "2", "--starts", "2",
+                 "--no-progress"]) == 4
+    # Ray: 2 workers, figures on (so a material's report takes seconds: time to kill its worker mid-task)
+    command = [sys.executable, "-m", "brdfscale", "fit-library", str(small_library), "--out", ray_out, "--batch", "2",
+               "--starts", "2", "--workers", "2", "--figures", "--no-progress"]
+    driver = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    killed = None
+    try:
+        partial = os.path.join(ray_out, "materials")
+
+        def holder():
+            if not os.path.isdir(partial):
+                return None
+            for n in os.listdir(partial):
+                record = os.path.join(partial, n, ".brdfscale.lock.holder.json")
+                if n.endswith(".partial") and os.path.exists(record):
+                    try:
+                        with open(record) as f:
+                            return json.load(f)["pid"]
+                    except (OSError, ValueError):
+                        return None
+            return None
+
+        _wait_for(lambda: holder() is not None, 300, "a worker writing a material")
+        killed = holder()
+        os.kill(killed, signal.SIGKILL)  # the Ray worker in the middle of its task
+        stdout, stderr = driver.communicate(timeout=900)
+    finally:
+        if driver.poll() is None:
+            driver.kill()
+    assert driver.returncode == 4, stderr[-3000:]
+    assert killed != driver.pid
+    index = _index(ray_out)
+    assert sorted(_done(ray_out)) == [f"material_{i:03d}" for i in range(5)]
+    assert not [n for n in os.listdir(os.path.join(ray_out, "materials")) if n.endswith(".partial")]
+    assert index["runs"][0]["executor"] == "ray" and index["materials"]["material_999"]["status"] == "failed"
+    for i in range(5):
+        name = f"material_{i:03d}"
+        a, b = _fit_json(local, name), _fit_json(ray_out, name)
+        np.testing.assert_allclose(a["optimisation"]["theta"], b["optimisation"]["theta"], rtol=1e-9)
+        assert os.path.exists(os.path.join(ray_out, "materials", name, "corner.png"))
