@@ -190,9 +190,9 @@ def _materials(models, datasets):
     return models, datasets
 
 
-#: Padded residual rows (summed over starts) whose solve costs about as much as compiling one
-#: more program: on the 2-core CPU of experiments/bench_library.py a bucket's program takes
-#: ≈ 6 s to trace and compile and a solve ≈ 12 µs per padded row (docs/library.md).
+#: Padded residual rows (summed over starts) whose solve is taken to cost as much as compiling
+#: one more program: an estimate for a 2-core CPU (a bucket's program traced and compiled in
+#: seconds, a padded row solved in microseconds); no benchmark recomputes it yet.
 COMPILE_ROWS = 400_000
 
 

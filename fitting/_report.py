@@ -272,8 +272,8 @@ def write_report(out_dir, problem: Problem, fit: FitResult, samples: SampleResul
     if missing); return the JSON document. Its ``mcmc`` section holds the sampler's record, its
     status and ArviZ's summary (ess_bulk, ess_tail, r_hat, MCSE) of every coordinate and quantity.
 
-    ``figures=False`` leaves the three PNG figures out (they take most of a report's time, ≈ 4 s
-    of its 6 s on a 2-core CPU; :mod:`brdfscale.library` writes them only when asked).
+    ``figures=False`` leaves the three PNG figures out (matplotlib's drawing takes most of a
+    report's time; :mod:`brdfscale.library` writes them only when asked).
 
     Everything is checked before the first file is written: the arguments, and (without
     ``overwrite``) that none of those files exists. ``fit.json`` is written last.

@@ -34,7 +34,7 @@ def register(subparsers) -> None:
     parser.add_argument("--cpus-per-task", type=real(0.0, 4096.0, strict_lo=True), default=1.0,
                         help="CPUs Ray reserves for each task (default 1)")
     parser.add_argument("--figures", action="store_true",
-                        help="also write each material's three report figures (PNG; ≈ 4 s per material on 2 cores)")
+                        help="also write each material's three report figures (PNG; on a CPU they take longer than the fit)")
     parser.set_defaults(func=run)
     for action in parser._actions:  # the library's own wording of the shared options
         if action.dest == "steps":

@@ -51,8 +51,8 @@ class FitSpec:
     ``sampler`` None (default) gives the Laplace uncertainties of :func:`fitting.fit_many` only;
     ``"nuts"``, ``"hmc"`` or ``"emcee"`` also samples each material's posterior
     (:func:`fitting.sample`, ``chains`` × ``steps``, checkpointed in the material's directory).
-    ``figures`` adds the report's three PNG figures per material (≈ 4 s each on a 2-core CPU,
-    more than the fit; off by default).
+    ``figures`` adds the report's three PNG figures per material (on a CPU they take longer than
+    the fit; off by default).
     """
 
     model: str = "parametric"
