@@ -86,7 +86,7 @@ def _run(config: dict, devices: int = 1) -> dict:
     return out
 
 
-def run(quick: bool = False) -> dict:
+def run(quick: bool = False, device_counts=(2, 4)) -> dict:
     sizes = [4] if quick else [8, 64, 256]
     loop_sizes = [4] if quick else [8, 64]
     at = 4 if quick else 64
@@ -97,7 +97,7 @@ def run(quick: bool = False) -> dict:
         rows.append(_run({"kind": "batched", "materials": n, "starts": STARTS, "batch": 64}))
     for batch in ([2] if quick else [16]):
         rows.append(_run({"kind": "batched", "materials": at, "starts": STARTS, "batch": batch}))
-    for devices in ([2] if quick else [2, 4]):
+    for devices in ([2] if quick else device_counts):
         rows.append(_run({"kind": "batched", "materials": at, "starts": STARTS, "batch": 64}, devices=devices))
     library_rows = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -143,8 +143,10 @@ def run(quick: bool = False) -> dict:
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="4 materials, one of each configuration (a smoke run)")
+    parser.add_argument("--devices", default="2,4",
+                        help="virtual CPU device counts to shard over, comma-separated ('' for none; default 2,4)")
     args = parser.parse_args(argv)
-    payload = run(args.quick)
+    payload = run(args.quick, tuple(int(x) for x in args.devices.split(",") if x))
     print(json.dumps(payload["summary"], indent=1))
     print("wrote", write_json("bench_library_quick" if args.quick else "bench_library", payload))
 
