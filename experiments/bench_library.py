@@ -122,7 +122,7 @@ def run(quick: bool = False, device_counts=(2, 4)) -> dict:
                "target_speedup": 10.0}
     summary["speedup_met"] = summary["speedup_batched_vs_loop"] >= summary["target_speedup"]
     for r in library_rows[1:]:
-        if "failed" not in r and "failed" not in in_process:
+        if not isinstance(r.get("failed"), str) and not isinstance(in_process.get("failed"), str):
             r["overhead_vs_in_process"] = r["seconds"] / in_process["seconds"] - 1
     ray1 = library_rows[1]
     if "overhead_vs_in_process" in ray1:
