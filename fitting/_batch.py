@@ -79,10 +79,10 @@ def bucket_points(n: int) -> int:
     return _rung(max(int(n), 1), 8)
 
 
-def bucket_batch(n: int, batch: int, devices: int) -> int:
+def bucket_batch(n: int, batch: int) -> int:
     """The padded number of materials of a program run holding ``n`` (≤ ``batch``): the rung
-    of ``1, 2, 3, 4, 6, 8, 12, …`` at or above ``n``, at most ``batch``, times whole devices —
-    so runs of different libraries and tasks share compiled programs."""
+    of ``1, 2, 3, 4, 6, 8, 12, …`` at or above ``n``, at most ``batch`` — so runs of different
+    libraries and tasks share compiled programs (:func:`plan` rounds the solves up to whole devices)."""
     return min(_rung(n, 1), batch)
 
 
@@ -135,17 +135,13 @@ def _stack(trees):
     return jax.tree.map(lambda *xs: jnp.stack(xs), *trees)
 
 
-def _solve_all(rows, y0, solver, max_steps):
-    """vmap of :func:`fitting._estimate.solve_rows` over the leading axis of ``rows`` and ``y0``."""
-    return jax.vmap(lambda r, y: solve_rows(r, y, solver, max_steps))(rows, y0)
-
-
 @eqx.filter_jit
 def _solve_batch(rows, y0, solver, max_steps):
-    """One compiled program per bucket shape: every (material, start) of the batch. Given
-    inputs sharded along their leading axis (:func:`fit_many` places them with a
-    ``NamedSharding``), XLA's SPMD partitioner splits the vmapped solve over the devices."""
-    return _solve_all(rows, y0, solver, max_steps)
+    """:func:`fitting._estimate.solve_rows` vmapped over the leading axis of ``rows`` and ``y0``:
+    one compiled program per bucket shape, every (material, start) of the batch. Given inputs
+    sharded along that axis (:func:`fit_many` places them with a ``NamedSharding``), XLA's SPMD
+    partitioner splits the vmapped solve over the devices."""
+    return jax.vmap(lambda r, y: solve_rows(r, y, solver, max_steps))(rows, y0)
 
 
 def _devices(devices):
@@ -164,7 +160,8 @@ def _devices(devices):
     return devices
 
 
-def _materials(models, datasets):
+def _problems(models, datasets) -> list:
+    """The :class:`Problem` of every (model, dataset) pair; InvalidInputError naming the material."""
     if isinstance(datasets, Dataset):
         raise InvalidInputError("fit_many(models, datasets) takes a sequence of datasets; for one dataset use "
                                 "fitting.fit(model, data).")
@@ -185,9 +182,14 @@ def _materials(models, datasets):
         if len(models) != len(datasets):
             raise InvalidInputError(f"models and datasets must pair up: got {len(models)} models for "
                                     f"{len(datasets)} datasets (or pass one model for all).")
+    problems = []
     for i, (model, data) in enumerate(zip(models, datasets)):
         check_pair(model, data, f"fit_many: material {i}")
-    return models, datasets
+        try:
+            problems.append(Problem(model, data))
+        except InvalidInputError as err:
+            raise InvalidInputError(f"fit_many: material {i}: {err}") from None
+    return problems
 
 
 #: Padded residual rows (summed over starts) whose solve is taken to cost as much as compiling
@@ -233,7 +235,7 @@ def plan(problems, starts: int, batch: int, n_devices: int, compile_rows: int = 
             points = rungs[j - 1]
             for k in range(0, len(members), batch):
                 chunk = members[k:k + batch]
-                size = bucket_batch(len(chunk), batch, n_devices)
+                size = bucket_batch(len(chunk), batch)
                 solves = -(-size * starts // n_devices) * n_devices
                 buckets.append({"materials": chunk, "points": points, "scales": scales, "parameters": key[4],
                                 "batch": size, "solves": solves})
@@ -290,20 +292,15 @@ def fit_many(
             index), models and datasets that do not pair up, ``batch`` not an integer ≥ 1,
             ``devices`` not as above, ``errors`` not ``"raise"``/``"return"``.
     """
-    models, datasets = _materials(models, datasets)
+    problems = _problems(models, datasets)
     options = fit_options(solver=solver, starts=starts, max_steps=max_steps, spread=spread, seed=seed, rtol=rtol,
                           atol=atol, undetermined_std=undetermined_std)
     batch = integer(batch, "batch", 1)
     if errors not in ("raise", "return"):
         raise InvalidInputError(f"errors must be 'raise' or 'return'; got {errors!r}.")
     device_list = _devices(devices)
-    mesh = Mesh(np.asarray(device_list), (_AXIS,)) if len(device_list) > 1 else None
-    problems = []
-    for i, (model, data) in enumerate(zip(models, datasets)):
-        try:
-            problems.append(Problem(model, data))
-        except InvalidInputError as err:
-            raise InvalidInputError(f"fit_many: material {i}: {err}") from None
+    sharding = (NamedSharding(Mesh(np.asarray(device_list), (_AXIS,)), PartitionSpec(_AXIS))
+                if len(device_list) > 1 else None)
     layout = plan(problems, options["starts"], batch, len(device_list), integer(compile_rows, "compile_rows", 0))
     optimiser = _make_solver(options["solver"], options["rtol"], options["atol"])
     results: list = [None] * len(problems)
@@ -321,18 +318,14 @@ def fit_many(
             flat_rows += [flat_rows[0]] * extra
             flat_y0 += [flat_y0[0]] * extra
             stacked, y = _stack(flat_rows), jnp.asarray(np.stack(flat_y0), dtype=jnp.float64)
-            if mesh is not None:
-                sharding = NamedSharding(mesh, PartitionSpec(_AXIS))
+            if sharding is not None:
                 stacked, y = jax.device_put((stacked, y), sharding)
-            values, codes, steps, residuals, jacobians = map(
+            values, codes, steps, chi2s, jacobians = map(
                 np.asarray, _solve_batch(stacked, y, optimiser, options["max_steps"]))
             for j, i in enumerate(members):
                 part = slice(j * S, (j + 1) * S)
-                problem = problems[i]
-                offset = float(problem.points.chi2_offset)
-                chi2s = np.einsum("sm,sm->s", residuals[part], residuals[part]) + offset
                 try:
-                    results[i] = result_of_starts(problem, values[part], codes[part], steps[part], chi2s,
+                    results[i] = result_of_starts(problems[i], values[part], codes[part], steps[part], chi2s[part],
                                                   jacobians[part], options)
                 except InvalidInputError as err:
                     if errors == "raise":
@@ -346,7 +339,5 @@ def explain_plan(models, datasets, *, batch: int = 64, devices=None, starts: int
                  compile_rows: int = COMPILE_ROWS) -> BatchPlan:
     """The :class:`BatchPlan` :func:`fit_many` would follow for these arguments (nothing is
     fitted); ``plan.explain()`` says it in words."""
-    models, datasets = _materials(models, datasets)
-    problems = [Problem(m, d) for m, d in zip(models, datasets)]
-    return plan(problems, integer(starts, "starts", 1), integer(batch, "batch", 1), len(_devices(devices)),
-                integer(compile_rows, "compile_rows", 0))
+    return plan(_problems(models, datasets), integer(starts, "starts", 1), integer(batch, "batch", 1),
+                len(_devices(devices)), integer(compile_rows, "compile_rows", 0))

@@ -104,7 +104,7 @@ class Problem(Shown, eqx.Module):
 
     def chi2_of_residuals(self, r: Float[Array, " m"]) -> Float[Array, ""]:
         """χ² from the reduced residuals ``r`` (adds the within-group constant back)."""
-        return r @ r + self.points.chi2_offset
+        return self.rows().chi2_of_residuals(r)
 
 
 class Rows(eqx.Module):
@@ -126,6 +126,10 @@ class Rows(eqx.Module):
         p = self.points
         fitted = self.model.predict_points(theta, self.scales, p.points)
         return jnp.concatenate([((fitted - p.mean) * p.weight).ravel(), self.model.penalty(theta)])
+
+    def chi2_of_residuals(self, r: Float[Array, " m"]) -> Float[Array, ""]:
+        """χ² from the reduced residuals ``r`` (adds the within-group constant back)."""
+        return r @ r + self.points.chi2_offset
 
 
 def check_fit(problem, fit, what: str) -> None:
@@ -170,13 +174,12 @@ def _make_solver(name: str, rtol: float, atol: float):
 @eqx.filter_jit
 def _solve(problem, y0, solver, max_steps):
     """One least-squares solve from ``y0``: θ̂, result code, steps, χ² and the Jacobian at θ̂."""
-    value, code, steps, residuals, jac = solve_rows(problem, y0, solver, max_steps)
-    return value, code, steps, problem.chi2_of_residuals(residuals), jac
+    return solve_rows(problem, y0, solver, max_steps)
 
 
 def solve_rows(rows, y0, solver, max_steps):
     """The solve itself (traced; :func:`fit` jits it per start, :func:`fitting.fit_many` vmaps
-    it over materials × starts): θ̂, result code, steps, ``r(θ̂)`` and ``∂r/∂θ(θ̂)``.
+    it over materials × starts): θ̂, result code, steps, χ²(θ̂) and ``∂r/∂θ(θ̂)``.
 
     The Gauss–Newton family (LM, dogleg) carries ``r`` and ``J`` in its state (``f_info``: the
     linearisation at the last accepted point, which is θ̂), so they are read from there
@@ -187,7 +190,7 @@ def solve_rows(rows, y0, solver, max_steps):
         residuals, jac = info.residual, info.jac.as_matrix()
     else:
         residuals, jac = rows.residuals(sol.value), jax.jacfwd(rows.residuals)(sol.value)
-    return sol.value, sol.result._value, sol.stats["num_steps"], residuals, jac
+    return sol.value, sol.result._value, sol.stats["num_steps"], rows.chi2_of_residuals(residuals), jac
 
 
 @eqx.filter_jit

@@ -296,8 +296,9 @@ def write_report(out_dir, problem: Problem, fit: FitResult, samples: SampleResul
     model = problem.model
     true_theta = truth_theta(model, truth, fit)
     figures = flag(figures, "figures")
-    draws = posterior_draws(problem, fit, samples)  # those of plot_recovered_statistics
-    corner_draws = posterior_draws(problem, fit, samples, n=CORNER_DRAWS) if figures else None  # those of plot_corner
+    # the draws of plot_recovered_statistics and plot_corner, drawn only for the figures
+    draws = posterior_draws(problem, fit, samples) if figures else None
+    corner_draws = posterior_draws(problem, fit, samples, n=CORNER_DRAWS) if figures else None
     doc = {
         "brdfscale_version": brdfscale.__version__,
         "python": platform.python_version(),

@@ -305,9 +305,8 @@ def _clear(out, materials):
     import shutil
 
     for name, _ in materials:
-        for path in (material_directory(out, name),):
-            if os.path.isdir(path):
-                shutil.rmtree(path)
+        if os.path.isdir(material_directory(out, name)):
+            shutil.rmtree(material_directory(out, name))
 
 
 def _compilation_cache():
