@@ -79,6 +79,16 @@ def test_library_in_process_reports_the_corrupt_file_and_resumes(small_library, 
     assert code.returncode == 3 and "another run is writing this library directory" in code.stderr
 
 
+def test_a_damaged_index_is_refused_not_overwritten(small_library, tmp_path, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / library.INDEX).write_text('{"format": 1, "materials": ')  # a truncated index
+    assert main(["fit-library", str(small_library), "--out", str(out), "--no-progress"]) == 2
+    assert "unreadable library index" in capsys.readouterr().err
+    assert (out / library.INDEX).read_text() == '{"format": 1, "materials": '  # left as it was
+    assert not (out / "materials" / "material_000").exists()
+
+
 def test_fit_library_results_equal_fit_many(small_library, tmp_path):
     import jax
     import fitting
