@@ -14,6 +14,9 @@ The chain, each step in its own module:
   on one posterior in smooth coordinates, ≥ 4 independent chains in one compiled program,
   chunked HDF5 checkpoints resumable bit for bit, ArviZ's R̂/ESS/MCSE and a status that
   names any failed criterion (:class:`SampleResult`, ``to_arviz()``);
+* :func:`sample_many` — NUTS/HMC on many materials' posteriors at once: vmapped over the
+  materials and sharded over the devices, one compiled program per bucket, each result
+  :func:`sample`'s;
 * :func:`write_report` — fit.json, figures, evolved lobe tables;
 * :func:`plot_fit`, :func:`plot_recovered_statistics`, :func:`plot_corner` — the report's figures
   as ``matplotlib.figure.Figure`` objects made without pyplot (a notebook shows them; also
@@ -43,6 +46,7 @@ from ._parametric import ParametricModel
 from ._plot import plot_corner, plot_fit, plot_recovered_statistics
 from ._report import check_report_directory, report_files, summarise, summarise_ratios, truth_of, write_report
 from ._sample import HMC, NUTS, SAMPLERS, Emcee, SampleResult, log_posterior, sample
+from ._sample_many import sample_many
 from ._simulate import simulate
 
 __all__ = [
@@ -62,6 +66,7 @@ __all__ = [
     "SOLVERS",
     "SampleResult",
     "sample",
+    "sample_many",
     "SAMPLERS",
     "Emcee",
     "NUTS",

@@ -1,4 +1,4 @@
-"""Many materials fitted at once: one compiled, vmapped and sharded least-squares program per bucket.
+"""Many materials fitted at once: one compiled, vmapped least-squares program per bucket, divided over the devices.
 
 A Python loop of :func:`fitting.fit` over a library compiles a new solve for nearly every
 material: the compiled program depends on the data's shapes (how many distinct points each
@@ -21,12 +21,16 @@ scale has) and on its layout. :func:`fit_many` instead
    up to a multiple of the device count, and runs Levenberg–Marquardt (or the chosen
    optimistix solver) **vmapped** over it — a finished solve keeps its state while the others
    iterate, so each material's path is the one it would take alone;
-4. **shards** that axis over the devices (``jax.devices()`` by default): the stacked inputs are
-   placed with a ``NamedSharding`` over a one-axis :class:`jax.sharding.Mesh` (``"materials"``)
-   and XLA's SPMD partitioner splits the jitted, vmapped solve, each device computing its
-   slice; the loop's stop test is one all-reduce per iteration, so all devices iterate until
-   the batch's slowest solve has converged (``jax.shard_map`` would let each device stop on its
-   own, but lineax's structure check refuses the solve's operators inside it in JAX 0.10);
+4. **divides** that axis over the devices (``jax.devices()`` by default): each device gets a
+   contiguous, equal slice and runs the same vmapped solve on it by itself, all devices at
+   once (:func:`_on_devices`: one dispatch per device, from one thread each, so their
+   compilations overlap too). No collective is needed — each device stops when its own slice
+   has converged. (XLA's SPMD partitioning of the jitted solve over a ``NamedSharding`` was
+   the first design: on 2 virtual CPU devices its program deadlocked in a loop whose devices
+   disagreed on the trip count, from 24 solves up; ``jax.shard_map`` is refused by lineax's
+   structure check, which compares a vector without the manual mesh to an operator structure
+   with it, in JAX 0.10 and lineax 0.1.1.) JAX binds an executable to its device, so each
+   device compiles the bucket's program once per process;
 5. hands each material's starts to the same analysis as :func:`fitting.fit` (best start,
    Laplace covariance and identifiability by :mod:`brdfscale.laplace`, quantities, ratios).
 
@@ -37,29 +41,24 @@ solve may stop one step earlier or later (tests/test_batch.py checks θ̂ to 1e-
 Laplace σ, χ² to 1e-6 relative, and every reported σ).
 """
 
+import concurrent.futures
 import dataclasses
-import functools
 import math
 
 import equinox as eqx
 import jax
-import jax.numpy as jnp
 import numpy as np
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from brdfscale import InvalidInputError
 from brdfscale.checks import integer
 from brdfscale.show import progress_bar
 
 from ._data import Dataset, PointData
-from ._estimate import (FitResult, Problem, Rows, _make_solver, check_pair, fit_options, result_of_starts,
-                        solve_rows, starting_points)
+from ._estimate import (FitResult, Problem, Rows, _make_solver, _stack_trees, check_pair, fit_options,
+                        results_of_starts, solve_rows, starting_points)
 from ._model import AbstractModel
 
 __all__ = ["fit_many", "explain_plan", "bucket_points", "BatchPlan", "COMPILE_ROWS"]
-
-_AXIS = "materials"
-
 
 def _rung(n: int, smallest: int) -> int:
     """The smallest of ``smallest·2^k`` and ``smallest·3·2^(k−1)`` (k ≥ 0; the rungs 1, 1.5, 2, 3, 4,
@@ -125,23 +124,40 @@ def _key(rows: Rows, n_points: int) -> tuple:
 
 def _pad_points(points: PointData, n: int) -> PointData:
     extra = n - points.mean.shape[1]
-    return PointData(points=jnp.pad(points.points, ((0, 0), (0, extra), (0, 0))),
-                     mean=jnp.pad(points.mean, ((0, 0), (0, extra))),
-                     weight=jnp.pad(points.weight, ((0, 0), (0, extra))),
+    # NumPy: an eager jnp.pad would compile a program for every material's shape
+    return PointData(points=np.pad(np.asarray(points.points), ((0, 0), (0, extra), (0, 0))),
+                     mean=np.pad(np.asarray(points.mean), ((0, 0), (0, extra))),
+                     weight=np.pad(np.asarray(points.weight), ((0, 0), (0, extra))),
                      chi2_offset=points.chi2_offset)
 
 
-def _stack(trees):
-    return jax.tree.map(lambda *xs: jnp.stack(xs), *trees)
+_stack = _stack_trees  # NumPy on the host: jnp.stack would compile one program per leaf shape
 
 
 @eqx.filter_jit
 def _solve_batch(rows, y0, solver, max_steps):
     """:func:`fitting._estimate.solve_rows` vmapped over the leading axis of ``rows`` and ``y0``:
-    one compiled program per bucket shape, every (material, start) of the batch. Given inputs
-    sharded along that axis (:func:`fit_many` places them with a ``NamedSharding``), XLA's SPMD
-    partitioner splits the vmapped solve over the devices."""
+    one compiled program per bucket shape (and device), every (material, start) of the batch."""
     return jax.vmap(lambda r, y: solve_rows(r, y, solver, max_steps))(rows, y0)
+
+
+def _on_devices(fn, inputs, devices) -> tuple:
+    """``fn(*inputs)`` (a tuple of arrays out) with the leading axis of every input divided into
+    equal, contiguous slices, one per device, each computed on its device by itself; the
+    outputs joined on the host in order (NumPy). Each device's slice is placed and dispatched
+    from a thread of its own, so the devices' compilations (one each) and runs overlap."""
+    if len(devices) == 1:
+        return tuple(np.asarray(a) for a in fn(*inputs))
+    n = jax.tree.leaves(inputs)[0].shape[0]
+    per = n // len(devices)
+
+    def one(k):
+        part = jax.tree.map(lambda a: a[k * per:(k + 1) * per], inputs)
+        return tuple(np.asarray(a) for a in fn(*jax.device_put(part, devices[k])))
+
+    with concurrent.futures.ThreadPoolExecutor(len(devices), thread_name_prefix="fit_many") as pool:
+        parts = list(pool.map(one, range(len(devices))))
+    return tuple(np.concatenate(column) for column in zip(*parts))
 
 
 def _devices(devices):
@@ -262,7 +278,7 @@ def fit_many(
     errors: str = "raise",
 ) -> list:
     """Fit many materials at once: :func:`fitting.fit` for every ``(model, data)`` pair, in
-    one compiled, vmapped program per bucket, sharded over the devices (module docstring).
+    one compiled, vmapped program per bucket, divided over the devices (module docstring).
 
     Args:
         models: one fitting model for every dataset, or a sequence of models, one per dataset.
@@ -271,7 +287,7 @@ def fit_many(
             bucket with more runs the same program several times; one with fewer is padded
             only to a whole number of solves per device.
         devices: ``None`` (every device of ``jax.devices()``), a count (the first ones), or a
-            list of ``jax.Device``; the batch axis is sharded over them.
+            list of ``jax.Device``; the batch axis is divided over them (module docstring, step 4).
         solver, starts, spread, seed, max_steps, rtol, atol, undetermined_std: as for
             :func:`fitting.fit`, for every material (the seed is each material's, so each
             material gets the starts ``fit`` would give it).
@@ -299,8 +315,6 @@ def fit_many(
     if errors not in ("raise", "return"):
         raise InvalidInputError(f"errors must be 'raise' or 'return'; got {errors!r}.")
     device_list = _devices(devices)
-    sharding = (NamedSharding(Mesh(np.asarray(device_list), (_AXIS,)), PartitionSpec(_AXIS))
-                if len(device_list) > 1 else None)
     layout = plan(problems, options["starts"], batch, len(device_list), integer(compile_rows, "compile_rows", 0))
     optimiser = _make_solver(options["solver"], options["rtol"], options["atol"])
     results: list = [None] * len(problems)
@@ -317,20 +331,17 @@ def fit_many(
             extra = bucket["solves"] - len(flat_rows)
             flat_rows += [flat_rows[0]] * extra
             flat_y0 += [flat_y0[0]] * extra
-            stacked, y = _stack(flat_rows), jnp.asarray(np.stack(flat_y0), dtype=jnp.float64)
-            if sharding is not None:
-                stacked, y = jax.device_put((stacked, y), sharding)
-            values, codes, steps, chi2s, jacobians = map(
-                np.asarray, _solve_batch(stacked, y, optimiser, options["max_steps"]))
-            for j, i in enumerate(members):
-                part = slice(j * S, (j + 1) * S)
-                try:
-                    results[i] = result_of_starts(problems[i], values[part], codes[part], steps[part], chi2s[part],
-                                                  jacobians[part], options)
-                except InvalidInputError as err:
-                    if errors == "raise":
-                        raise InvalidInputError(f"fit_many: material {i}: {err}") from None
-                    results[i] = err
+            solved = _on_devices(lambda r, y: _solve_batch(r, y, optimiser, options["max_steps"]),
+                                 (_stack(flat_rows), np.stack(flat_y0).astype(np.float64)), device_list)
+            values, codes, steps, chi2s, jacobians = (  # (material, start, …), the padding dropped
+                a[:len(members) * S].reshape(len(members), S, *a.shape[1:]) for a in solved)
+            try:
+                done = results_of_starts([problems[i] for i in members], values, codes, steps, chi2s, jacobians,
+                                         options, errors)
+            except InvalidInputError as err:
+                raise InvalidInputError(f"fit_many: material {members[err.material]}: {err}") from None
+            for i, result in zip(members, done):
+                results[i] = result
                 bar.update(1)
     return results
 

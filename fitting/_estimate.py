@@ -131,6 +131,10 @@ class Rows(eqx.Module):
         """χ² from the reduced residuals ``r`` (adds the within-group constant back)."""
         return r @ r + self.points.chi2_offset
 
+    def chi2(self, theta: Float[Array, " n"]) -> Float[Array, ""]:
+        """χ² over every valid pixel plus the prior rows (:meth:`Problem.chi2`)."""
+        return self.chi2_of_residuals(self.residuals(theta))
+
 
 def check_fit(problem, fit, what: str) -> None:
     """Raise :class:`~brdfscale.InvalidInputError` unless ``fit`` is a :class:`FitResult` of
@@ -191,15 +195,6 @@ def solve_rows(rows, y0, solver, max_steps):
     else:
         residuals, jac = rows.residuals(sol.value), jax.jacfwd(rows.residuals)(sol.value)
     return sol.value, sol.result._value, sol.stats["num_steps"], rows.chi2_of_residuals(residuals), jac
-
-
-@eqx.filter_jit
-def _quantities(model, theta, draws):
-    """The quantities at θ̂, their Jacobian there, and at every Laplace draw."""
-    def stacked(t):
-        return jnp.stack(list(model.quantities(t).values()))
-
-    return stacked(theta), jax.jacfwd(stacked)(theta), jax.vmap(stacked)(draws)
 
 
 @dataclasses.dataclass(repr=False)
@@ -394,54 +389,120 @@ def fit_options(*, solver, starts, max_steps, spread, seed, rtol, atol, undeterm
 def result_of_starts(problem, values, codes, steps, chi2s, jacobians, options) -> "FitResult":
     """The :class:`FitResult` of the solves from every start (arrays with the start first): the
     best start, the Laplace analysis at it, the quantities and ratios (module docstring)."""
-    model, data = problem.model, problem.data
-    solver, seed, undetermined_std = options["solver"], options["seed"], options["undetermined_std"]
-    ok = (codes == optx.RESULTS.successful._value) & np.isfinite(chi2s)
-    pool = np.flatnonzero(ok) if ok.any() else np.flatnonzero(np.isfinite(chi2s))
-    if pool.size == 0:
-        raise InvalidInputError("every start produced a non-finite χ²; check the data (σ, masks) and the model choice.")
-    best = int(pool[np.argmin(chi2s[pool])])
-    theta = values[best]
-    start_info = [
-        {"chi2": float(c), "result": _RESULT_NAMES.get(int(k), str(int(k))), "steps": int(s),
-         "at_best": bool(np.isfinite(c) and abs(c - chi2s[best]) <= 1e-6 * max(1.0, chi2s[best]))}
-        for c, k, s in zip(chi2s, codes, steps)
-    ]
-    status = "converged" if ok[best] else _RESULT_NAMES.get(int(codes[best]), "failed")
-    lo, hi = np.asarray(problem.lower), np.asarray(problem.upper)
-    at_bounds = [n for n, t, a, b in zip(model.names, theta, lo, hi) if t <= a + 1e-6 * (b - a) or t >= b - 1e-6 * (b - a)]
+    stage = _Analysis(problem, values, codes, steps, chi2s, jacobians, options)
+    return stage.finish(*map(np.asarray, _evaluate(problem.model, *stage.inputs())))
 
-    names = model.names
-    analysis = laplace(jacobians[best], names, undetermined_std=undetermined_std)  # brdfscale.laplace: the one policy
-    lam, cov, undetermined = analysis.eigenvalues, analysis.covariance, analysis.undetermined
 
-    # quantities: Laplace draws along the determined directions only (module docstring); a
-    # quantity the undetermined directions move more than the determined ones gets no interval
-    rng = np.random.default_rng(seed + 1)
-    basis = analysis.determined_basis()
-    draws = theta + rng.standard_normal((_LAPLACE_DRAWS, basis.shape[1])) @ basis.T
-    q_hat, grads, q_draws = map(np.asarray, _quantities(model, jnp.asarray(theta), jnp.asarray(draws)))
-    q_names = list(model.quantities(jnp.asarray(theta)))
-    estimates, std, quantiles = _summaries(analysis, q_names, q_hat, grads, q_draws)
-    # what the data determine whatever the parametrisation: the ratios S(μ0)/S(μ_k) and the
-    # determined eigen-directions of the Fisher matrix (docs/fitting.md, "What the data determine")
-    W = ratio_frequencies(data)
-    r_hat, r_grads, r_draws = map(np.asarray, _ratios(model, jnp.asarray(theta), jnp.asarray(draws), jnp.asarray(W), data.scales))
-    r_est, r_std, r_q = _summaries(analysis, ratio_names(data, W), r_hat, r_grads, r_draws)
-    ratios = {name: {"estimate": r_est[name], "std": r_std[name], "quantiles_5_50_95": r_q[name], "mu0": float(data.scales[0]),
-                     "mu": float(data.scales[1 + i // len(W)]), "W": float(W[i % len(W)])}
-              for i, name in enumerate(r_est)}
-    keep = ~analysis.undetermined_mask
-    combinations = [{"combination": combination(analysis.eigenvectors[:, i], names),
-                     "value": float(_signed(analysis.eigenvectors[:, i]) @ theta),
-                     "std": float(1 / np.sqrt(analysis.eigenvalues[i]))}
-                    for i in np.flatnonzero(keep)[::-1]]
-    return FitResult(
-        names=names, theta=theta, covariance=cov, chi2=float(chi2s[best]), n_data=data.n_data, status=status,
-        starts=start_info, estimates=estimates, std=std, quantiles=quantiles, eigenvalues=lam,
-        undetermined=undetermined, notes=list(model.identifiability_notes), solver=solver, at_bounds=at_bounds,
-        eigenvectors=analysis.eigenvectors, ratios=ratios, combinations=combinations,
-    )
+def results_of_starts(problems, values, codes, steps, chi2s, jacobians, options, errors: str = "raise") -> list:
+    """:func:`result_of_starts` of many materials of one structure (arrays with the material
+    first, then the start): the host-side analysis of each, and the quantities and ratios of
+    all of them at their optima and Laplace draws in one vmapped program
+    (:func:`fitting.fit_many`'s buckets). A material whose every start is non-finite gets its
+    :class:`~brdfscale.InvalidInputError` in its slot with ``errors="return"``; with ``"raise"``
+    it is raised (its ``material`` attribute is its position)."""
+    stages = []
+    for i, problem in enumerate(problems):
+        try:
+            stages.append(_Analysis(problem, values[i], codes[i], steps[i], chi2s[i], jacobians[i], options))
+        except InvalidInputError as err:
+            if errors == "raise":
+                err.material = i
+                raise
+            stages.append(err)
+    live = [k for k, st in enumerate(stages) if isinstance(st, _Analysis)]
+    if live:
+        inputs = [stages[k].inputs() for k in live]
+        models = _stack_trees([problems[k].model for k in live])
+        evaluated = tuple(map(np.asarray, _evaluate_many(models, *(_stack_trees(list(x)) for x in zip(*inputs)))))
+        names = _quantity_names(problems[live[0]].model)  # one structure: the same quantities
+        for j, k in enumerate(live):
+            stages[k] = stages[k].finish(*(e[j] for e in evaluated), quantity_names=names)
+    return stages
+
+
+def _stack_trees(trees):
+    """Pytrees of one structure stacked leaf by leaf along a new leading axis (NumPy on the host)."""
+    return jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *trees)
+
+
+class _Analysis:
+    """:func:`result_of_starts` in three stages: the host-side analysis of the starts (best
+    start, Laplace analysis by :func:`brdfscale.laplace.laplace`, the draws), the arrays the
+    compiled evaluation needs (:meth:`inputs`, for :func:`_evaluate` of one material or
+    :func:`_evaluate_many` of a bucket), and the :class:`FitResult` from what it returns
+    (:meth:`finish`)."""
+
+    def __init__(self, problem, values, codes, steps, chi2s, jacobians, options):
+        model = problem.model
+        ok = (codes == optx.RESULTS.successful._value) & np.isfinite(chi2s)
+        pool = np.flatnonzero(ok) if ok.any() else np.flatnonzero(np.isfinite(chi2s))
+        if pool.size == 0:
+            raise InvalidInputError("every start produced a non-finite χ²; check the data (σ, masks) and the model choice.")
+        best = int(pool[np.argmin(chi2s[pool])])
+        self.problem, self.options, self.chi2 = problem, options, float(chi2s[best])
+        self.theta = theta = np.asarray(values[best])
+        self.start_info = [
+            {"chi2": float(c), "result": _RESULT_NAMES.get(int(k), str(int(k))), "steps": int(s),
+             "at_best": bool(np.isfinite(c) and abs(c - chi2s[best]) <= 1e-6 * max(1.0, chi2s[best]))}
+            for c, k, s in zip(chi2s, codes, steps)
+        ]
+        self.status = "converged" if ok[best] else _RESULT_NAMES.get(int(codes[best]), "failed")
+        lo, hi = np.asarray(problem.lower), np.asarray(problem.upper)
+        self.at_bounds = [n for n, t, a, b in zip(model.names, theta, lo, hi)
+                          if t <= a + 1e-6 * (b - a) or t >= b - 1e-6 * (b - a)]
+        # brdfscale.laplace: the one policy
+        self.analysis = laplace(np.asarray(jacobians[best]), model.names, undetermined_std=options["undetermined_std"])
+        # quantities: Laplace draws along the determined directions only (module docstring); a
+        # quantity the undetermined directions move more than the determined ones gets no interval
+        rng = np.random.default_rng(options["seed"] + 1)
+        basis = self.analysis.determined_basis()
+        self.draws = theta + rng.standard_normal((_LAPLACE_DRAWS, basis.shape[1])) @ basis.T
+        # what the data determine whatever the parametrisation: the ratios S(μ0)/S(μ_k) at these |W|
+        self.W = ratio_frequencies(problem.data)
+
+    def inputs(self) -> tuple:
+        """θ̂, the Laplace draws, the ratios' |W| and the scales: the arguments of :func:`_evaluate` after the model."""
+        return self.theta, self.draws, self.W, np.asarray(self.problem.data.scales)
+
+    def finish(self, q_hat, grads, q_draws, r_hat, r_grads, r_draws, quantity_names=None) -> "FitResult":
+        """The :class:`FitResult` from :func:`_evaluate`'s arrays; ``quantity_names``: those of
+        ``model.quantities`` where the caller knows them (a bucket's models share them)."""
+        problem, model, data, analysis = self.problem, self.problem.model, self.problem.data, self.analysis
+        names = model.names
+        quantity_names = _quantity_names(model) if quantity_names is None else quantity_names
+        estimates, std, quantiles = _summaries(analysis, quantity_names, q_hat, grads, q_draws)
+        W, scales = self.W, np.asarray(data.scales)
+        r_est, r_std, r_q = _summaries(analysis, ratio_names(data, W), r_hat, r_grads, r_draws)
+        ratios = {name: {"estimate": r_est[name], "std": r_std[name], "quantiles_5_50_95": r_q[name],
+                         "mu0": float(scales[0]), "mu": float(scales[1 + i // len(W)]),
+                         "W": float(W[i % len(W)])}
+                  for i, name in enumerate(r_est)}
+        keep = ~analysis.undetermined_mask
+        combinations = [{"combination": combination(analysis.eigenvectors[:, i], names),
+                         "value": float(_signed(analysis.eigenvectors[:, i]) @ self.theta),
+                         "std": float(1 / np.sqrt(analysis.eigenvalues[i]))}
+                        for i in np.flatnonzero(keep)[::-1]]
+        return FitResult(
+            names=names, theta=self.theta, covariance=analysis.covariance, chi2=self.chi2, n_data=data.n_data,
+            status=self.status, starts=self.start_info, estimates=estimates, std=std, quantiles=quantiles,
+            eigenvalues=analysis.eigenvalues, undetermined=analysis.undetermined, notes=list(model.identifiability_notes),
+            solver=self.options["solver"], at_bounds=self.at_bounds, eigenvectors=analysis.eigenvectors, ratios=ratios,
+            combinations=combinations,
+        )
+
+
+def _quantity_names(model) -> list:
+    """The names of ``model.quantities``, in its order (from an abstract evaluation: no
+    computation; not from ``eval_shape``'s output, a dict that comes back with sorted keys)."""
+    names = []
+
+    def capture(t):
+        quantities = model.quantities(t)
+        names.extend(quantities)
+        return jnp.stack(list(quantities.values()))
+
+    jax.eval_shape(capture, jax.ShapeDtypeStruct((len(model.names),), jnp.float64))
+    return names
 
 
 def _summaries(analysis, names, values, grads, draws):
@@ -486,10 +547,18 @@ def ratio_names(data: Dataset, W) -> list[str]:
     return [f"S(μ0)/S(μ{k}) @ |W|={w:.4g}" for k in range(1, len(data.scales)) for w in np.asarray(W)]
 
 
-@eqx.filter_jit
-def _ratios(model, theta, draws, W, scales):
-    """The ratios ``S(W, μ0)/S(W, μ_k)``, k ≥ 1, flattened: at θ̂, their Jacobian, at every draw."""
-    def flat(t):
+def _evaluation(model, theta, draws, W, scales):
+    """The quantities and the ratios ``S(W, μ0)/S(W, μ_k)``, k ≥ 1 (flattened), each at θ̂, their
+    Jacobian there, and at every Laplace draw: what :class:`_Analysis` summarises."""
+    def quantities(t):
+        return jnp.stack(list(model.quantities(t).values()))
+
+    def ratios(t):
         return model.relative_statistics(t, W, scales)[1:].ravel()
 
-    return flat(theta), jax.jacfwd(flat)(theta), jax.vmap(flat)(draws)
+    return (quantities(theta), jax.jacfwd(quantities)(theta), jax.vmap(quantities)(draws),
+            ratios(theta), jax.jacfwd(ratios)(theta), jax.vmap(ratios)(draws))
+
+
+_evaluate = eqx.filter_jit(_evaluation)
+_evaluate_many = eqx.filter_jit(jax.vmap(_evaluation))

@@ -53,10 +53,11 @@ def moments(data: Dataset) -> tuple[float, np.ndarray]:
     """
     n_scales = data.scales.shape[0]
     amp, width2, count = np.zeros(n_scales), np.zeros(n_scales), np.zeros(n_scales)
+    weights, values = np.asarray(data.weight), np.asarray(data.values)  # one copy each; slices on the host
     for i, k in enumerate(data.scale_of_image):
         n, a = data.image_sizes[i], data.extents[i]
-        valid = np.asarray(data.weight[i, : n * n]) > 0
-        v = np.where(valid, np.asarray(data.values[i, : n * n]), -np.inf)
+        valid = weights[i, : n * n] > 0
+        v = np.where(valid, values[i, : n * n], -np.inf)
         peak = v.max()
         if not peak > 0:
             raise InvalidInputError(

@@ -299,6 +299,17 @@ def _resolve_sampler(sampler, walkers, moves):
     return sampler
 
 
+def sampled_dimension(problem, fit, what: str) -> int:
+    """m = d − k: the dimension of the sampled (determined) subspace; InvalidInputError (``what``
+    naming the caller) when the data determine no coordinate at all."""
+    d = len(problem.model.names)
+    m = d - len(fit.undetermined)
+    if m < 1:
+        raise InvalidInputError(f"{what}: the data determine none of the {d} coordinates (every Fisher "
+                                "eigen-direction is undetermined); there is nothing to sample.")
+    return m
+
+
 def sample(
     problem: Problem,
     fit: FitResult,
@@ -368,10 +379,7 @@ def sample(
     progress = flag(progress, "progress")
     if progress:
         progress_mode()  # a BRDFSCALE_PROGRESS it does not accept is refused before any work
-    m = d - len(fit.undetermined)  # the sampled subspace: what the data determine
-    if m < 1:
-        raise InvalidInputError(f"sample(problem, fit): the data determine none of the {d} coordinates (every "
-                                "Fisher eigen-direction is undetermined); there is nothing to sample.")
+    m = sampled_dimension(problem, fit, "sample(problem, fit)")
     settings = sampler.settings(m)
     W = sampler.trajectories(m, chains)
 

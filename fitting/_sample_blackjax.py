@@ -28,6 +28,7 @@ dual-averaging states and mass matrices) draws exactly what the uninterrupted ru
 """
 
 import dataclasses
+import functools
 import math
 import time
 
@@ -104,49 +105,75 @@ class _Gradient:
             blocks.append((resumed.chain[:total], resumed.log_prob[:total], {k: v[:total] for k, v in resumed.stats.items()}))
             carry = {k: np.asarray(v) for k, v in resumed.state.items()}
         else:
-            mode, cov = laplace(target, fit)
-            z0 = initial_positions(mode, cov, chains, np.random.default_rng(seed))
+            z0, cov = starts(target, fit, chains, seed)
             carry = _host(_initial_carry(target, jnp.asarray(z0), jnp.asarray(cov)))
         done = blocks[0][0].shape[0] if blocks else 0
-        key = jax.random.PRNGKey(seed)
         timing = {"warmup_s": 0.0, "sampling_s": 0.0}  # this call's computing (checkpoint writes excluded)
+        commit = (lambda block, c: None) if store is None else (lambda block, c: store.append(*block, c))
         with progress_bar(enabled=progress, total=total, initial=min(done, total), desc=self.name, unit="step") as bar:
-            if self.adapt_mass_matrix and done < self.warmup:
-                started = time.perf_counter()
-                carry, block = _window_warmup(target, spec, carry, key, self.warmup)
-                carry, block = _host(carry), jax.tree_util.tree_map(np.asarray, block)
-                timing["warmup_s"] += time.perf_counter() - started
-                blocks.append(block)
-                if store is not None:
-                    store.append(*block, _host(carry))
-                done = self.warmup
-                bar.update(self.warmup)
-            while done < total:
-                # a chunk ends where the warm-up does (its time is reported apart); a step's key
-                # depends on its index only, so the chunking changes no draw
-                n = min(chunk, total - done, self.warmup - done if done < self.warmup else chunk)
-                started = time.perf_counter()
-                # NumPy in, NumPy out: the carry's dtypes never change (no weak types), so the one
-                # compiled program serves every chunk
-                carry, out = _advance(target, spec, carry, np.int64(done), np.int64(n), key, np.int64(self.warmup),
-                                      chunk)
-                carry = _host(carry)
-                theta, lp, stats = jax.tree_util.tree_map(lambda a: np.asarray(a)[:n], out)
-                timing["warmup_s" if done < self.warmup else "sampling_s"] += time.perf_counter() - started
-                if store is not None:
-                    store.append(theta, lp, stats, carry)
-                blocks.append((theta, lp, stats))
-                done += n
-                bar.update(n)
-        chain = np.concatenate([b[0] for b in blocks])
-        log_prob = np.concatenate([b[1] for b in blocks])
-        stats = {k: np.concatenate([b[2][k] for b in blocks]) for k in _STATS}
-        state = _host(carry)
-        record = {"kind": self.warmup_text(), "steps": self.warmup,
-                  "step_size": np.exp(state["log_step_size_avg"]).tolist(),
-                  "inverse_mass_matrix": state["inverse_mass_matrix"],
-                  "acceptance_rate": float(np.mean(stats["acceptance_rate"][:self.warmup])) if self.warmup else None}
-        return chain, log_prob, stats, record, timing
+            carry, more = self.drive(functools.partial(_window_warmup, target, spec),
+                                     functools.partial(_advance, target, spec), carry, done, total, chunk,
+                                     jax.random.PRNGKey(seed), timing, bar.update, commit)
+        chain, log_prob, stats = join(blocks + more)
+        return chain, log_prob, stats, self.warmup_record(carry, stats["acceptance_rate"]), timing
+
+    def drive(self, window, advance, carry, done, total, chunk, key, timing, update, commit, axis=0):
+        """Steps ``done … total − 1`` of the chains from ``carry``, chunk by chunk: the warm-up
+        (BlackJAX's window adaptation in one call, ``window(carry, key, warmup)``, where
+        ``adapt_mass_matrix``), then ``advance(carry, start, n, key, warmup, chunk)`` for
+        ``n ≤ chunk`` steps at a time — :func:`_advance` for one material's chains, or a
+        function of the same signature over a stack of materials (:func:`fitting.sample_many`,
+        whose outputs have the materials first: ``axis=1`` is then the steps' axis). A chunk
+        ends where the warm-up does (its time is reported apart); a step's key depends on its
+        index only, so the chunking changes no draw. After each call ``commit(block, carry)``
+        (the checkpoint) and ``update(steps)`` (the progress bar); the seconds computing are
+        added to ``timing``. Returns the host carry and the blocks (θ, log p(θ), statistics)."""
+        blocks = []
+        if self.adapt_mass_matrix and done < self.warmup:
+            started = time.perf_counter()
+            carry, block = window(carry, key, self.warmup)
+            carry, block = _host(carry), jax.tree_util.tree_map(np.asarray, block)
+            timing["warmup_s"] += time.perf_counter() - started
+            blocks.append(block)
+            commit(block, carry)
+            done = self.warmup
+            update(self.warmup)
+        while done < total:
+            n = min(chunk, total - done, self.warmup - done if done < self.warmup else chunk)
+            steps = (slice(None),) * axis + (slice(0, n),)
+            started = time.perf_counter()
+            # NumPy in, NumPy out: the carry's dtypes never change (no weak types), so the one
+            # compiled program serves every chunk
+            carry, out = advance(carry, np.int64(done), np.int64(n), key, np.int64(self.warmup), chunk)
+            carry = _host(carry)
+            block = jax.tree_util.tree_map(lambda a: np.asarray(a)[steps], out)
+            timing["warmup_s" if done < self.warmup else "sampling_s"] += time.perf_counter() - started
+            commit(block, carry)
+            blocks.append(block)
+            done += n
+            update(n)
+        return carry, blocks
+
+    def warmup_record(self, state, acceptance) -> dict:
+        """What the warm-up did, from the chains' host carry after it and their acceptance rates
+        (steps, chains): the adapted step sizes and inverse mass matrices."""
+        return {"kind": self.warmup_text(), "steps": self.warmup,
+                "step_size": np.exp(state["log_step_size_avg"]).tolist(),
+                "inverse_mass_matrix": state["inverse_mass_matrix"],
+                "acceptance_rate": float(np.mean(acceptance[:self.warmup])) if self.warmup else None}
+
+
+def starts(target, fit, chains, seed):
+    """The chains' starts ζ (chains, m) — draws of the Laplace approximation in ζ with
+    ``np.random.default_rng(seed)`` — and its covariance (the initial inverse mass matrix)."""
+    mode, cov = laplace(target, fit)
+    return initial_positions(mode, cov, chains, np.random.default_rng(seed)), cov
+
+
+def join(blocks, axis=0):
+    """The blocks (θ, log p(θ), statistics) of :meth:`_Gradient.drive` joined along the steps' ``axis``."""
+    return (np.concatenate([b[0] for b in blocks], axis=axis), np.concatenate([b[1] for b in blocks], axis=axis),
+            {k: np.concatenate([b[2][k] for b in blocks], axis=axis) for k in _STATS})
 
 
 @dataclasses.dataclass(frozen=True)

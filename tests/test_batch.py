@@ -1,5 +1,5 @@
 """fitting.fit_many: batched fits equal one-at-a-time fits (ragged data, masks, replicates, mixed
-models), sharded over 4 virtual CPU devices equal to one device, the bucketing policy."""
+models), divided over 4 virtual CPU devices equal to one device, the bucketing policy."""
 
 import json
 import os
@@ -126,11 +126,11 @@ _SHARDED = textwrap.dedent("""
     data = [fitting.Dataset.from_measurements(material(i)) for i in (0, 1, 5)]
     assert len({d.image_sizes for d in data}) == 3  # ragged: 32² × 1, 28² × 2, 24² × 2 images
     model = fitting.ParametricModel()
-    # record where the batched program's outputs live (the program itself is not changed)
+    # record the device each run of the batched program computes on (the program is not changed)
     placed, solve = [], batch._solve_batch
     def recording(*args):
         out = solve(*args)
-        placed.append(len(out[0].sharding.device_set))
+        placed.append([d.id for d in out[0].devices()])
         return out
     batch._solve_batch = recording
     one = fitting.fit_many(model, data, devices=1, starts=2)
@@ -143,14 +143,16 @@ _SHARDED = textwrap.dedent("""
 """)
 
 
-def test_sharded_batched_fits_on_4_devices_equal_single_device_and_one_at_a_time_fits():
+def test_batched_fits_divided_over_4_devices_equal_single_device_and_one_at_a_time_fits():
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=4", "JAX_PLATFORMS": "cpu"}
     run = subprocess.run([sys.executable, "-c", _SHARDED], capture_output=True, text=True, env=env, timeout=600,
                          cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     assert run.returncode == 0, run.stderr[-3000:]
     got = json.loads(run.stdout.strip().splitlines()[-1])
     one, four, loop = (np.asarray(t) for t in got["theta"])
-    assert got["devices_of_output"] == [1, 4]  # devices=1: one device; devices=4: split over all four
-    np.testing.assert_array_equal(one, four)  # the same program, split: bit for bit on CPU
+    # devices=1: one run on device 0; devices=4: one run on each device, each on its own slice
+    assert got["devices_of_output"][0] == [0]
+    assert sorted(got["devices_of_output"][1:]) == [[0], [1], [2], [3]]
+    np.testing.assert_array_equal(one, four)  # the same program on a quarter of the batch: bit for bit on CPU
     np.testing.assert_array_less(np.abs(four - loop), 1e-3 * np.asarray(got["sd"]))
     np.testing.assert_allclose(got["chi2"][1], got["chi2"][2], rtol=1e-6)

@@ -142,7 +142,10 @@ def test_each_sampler_recovers_the_exact_linear_gaussian_posterior(linear, name)
         eps = np.asarray(s.warmup["step_size"])
         after = s.stats["step_size"][150:]
         if name == "nuts":
-            assert np.all(after == eps)  # fixed after the warm-up
+            # fixed after the warm-up: the same ε every step, the record's (np.exp of the state's
+            # log ε on the host; XLA's exp inside the kernel may differ from it in the last bit)
+            assert np.all(after == after[0])
+            np.testing.assert_allclose(after[0], eps, rtol=1e-14)
         else:
             assert np.all((after >= 0.8 * eps * (1 - 1e-12)) & (after <= 1.2 * eps * (1 + 1e-12)))  # jittered ±20 %
         assert np.any(s.stats["step_size"][:150] != eps)  # adapted during it

@@ -45,10 +45,13 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    fitting = load_fitting()  # float64 in this process (the in-process batches); Ray tasks set it themselves
     from .. import library
 
     check_fit_options(args)
+    on_ray = bool(args.address or args.workers)
+    # in-process batches need float64 in this process; Ray tasks set it themselves, and a driver
+    # that only schedules them need not import the fitting stack (seconds of start-up)
+    fitting = load_fitting() if not on_ray or (args.steps > 0 and args.model == "parametric") else None
     if args.steps > 0 and args.model == "parametric":
         check_sampler_options(args, len(fitting.ParametricModel(args.family, args.family, law=args.law,
                                                                 fixed=dict(args.fix)).names))
