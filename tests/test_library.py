@@ -105,6 +105,30 @@ def test_fit_library_results_equal_fit_many(small_library, tmp_path):
         np.testing.assert_allclose(_fit_json(tmp_path / "out", name)["optimisation"]["theta"], fit.theta, rtol=1e-12)
 
 
+@pytest.mark.slow
+def test_library_samples_with_nuts_batched_equal_to_sample_per_material(small_library, tmp_path, capsys):
+    """--sampler nuts: the task's materials sampled together (fitting.sample_many), each report's
+    chain summary that of fitting.sample on the material alone."""
+    import jax
+    import fitting
+    from brdfscale import exr
+
+    jax.config.update("jax_enable_x64", True)
+    sources = [str(small_library / "material_001.exr"), str(small_library / "material_003.exr")]
+    out = tmp_path / "out"
+    assert main(["fit-library", *sources, "--out", str(out), "--starts", "2", "--steps", "30", "--sampler", "nuts",
+                 "--chains", "2", "--no-progress"]) == 0, capsys.readouterr().out
+    data = [fitting.Dataset.from_measurements(exr.read_measurements(path)) for path in sources]
+    model = fitting.ParametricModel()
+    fits = fitting.fit_many(model, data, starts=2)
+    for name, d, fit in zip(("material_001", "material_003"), data, fits):
+        alone = fitting.sample(fitting.Problem(model, d), fit, sampler="nuts", chains=2, steps=30, progress=False)
+        report = _fit_json(out, name)["mcmc"]
+        assert report["sampler"] == "nuts" and report["steps"] == alone.chain.shape[0]
+        for quantity, row in alone.summary().items():
+            assert report["summary"][quantity]["mean"] == row["mean"], quantity  # the same chain, bit for bit
+
+
 def test_sources_are_named_uniquely_and_missing_ones_refused(tmp_path):
     (tmp_path / "a" / "b").mkdir(parents=True)
     for p in ("a/x.exr", "a/b/x.exr", "a/.hidden.exr", "a/readme.txt"):

@@ -197,8 +197,8 @@ def fit_library(sources, out, *, spec: FitSpec | None = None, batch: int = 16, e
         sources: measurement files and directories (searched recursively for ``*.exr``;
             :func:`find_materials` names the materials).
         out: the output directory (created): ``library.json`` (the index) and
-            ``materials/NAME/`` per material (``fit.json``, figures, tables; ``chain.h5`` and
-            ``posterior.nc`` when sampled). Held for the run (a second run into it raises
+            ``materials/NAME/`` per material (``fit.json``, figures, tables; ``posterior.nc`` when
+            sampled, and emcee's checkpoint ``chain.h5``). Held for the run (a second run into it raises
             :class:`~brdfscale.OutputInUseError`).
         spec: the model and fit options (:class:`FitSpec`), the same for every material.
         batch: materials per task (≥ 1, default 16).

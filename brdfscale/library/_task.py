@@ -1,5 +1,6 @@
-"""One batch of a library: read, fit together (:func:`fitting.fit_many`), sample, report — the
-unit of work that runs in the driver's process or as a Ray task (JAX is imported inside it).
+"""One batch of a library: read, fit together (:func:`fitting.fit_many`), sample (NUTS and HMC
+together, :func:`fitting.sample_many`; emcee per material, checkpointed), report — the unit of
+work that runs in the driver's process or as a Ray task (JAX is imported inside it).
 
 Every material's report is written into ``materials/.NAME.partial/`` (held with
 :func:`brdfscale.files.exclusive`) and renamed to ``materials/NAME/`` when complete, so a
@@ -87,22 +88,29 @@ def fit_batch(materials: list, out: str, spec: dict, *, batch: int = 64, compila
                             solver=spec.solver, starts=spec.starts, max_steps=spec.max_steps, seed=spec.seed,
                             errors="return")
     fit_seconds = (time.perf_counter() - t0) / len(todo)
-    for (name, data, model, info, truth), result in zip(todo, fits):
+    draws = [None] * len(todo)
+    if spec.sampler in ("nuts", "hmc"):
+        # the gradient samplers vectorise: every material's chains in one program per bucket
+        # (fitting.sample_many, equal to fitting.sample per material); emcee samples per material below
+        draws = fitting.sample_many([fitting.Problem(m, d) for _, d, m, _, _ in todo], fits, sampler=spec.sampler,
+                                    chains=spec.chains, steps=spec.steps, seed=spec.seed, batch=batch,
+                                    errors="return")
+    for (name, data, model, info, truth), result, drawn in zip(todo, fits, draws):
         t1 = time.perf_counter()
-        if isinstance(result, Exception):
-            records.append(_record(name, "failed", t1, error=_failure(result)))
+        if isinstance(result, Exception) or isinstance(drawn, Exception):
+            records.append(_record(name, "failed", t1, error=_failure(result if isinstance(result, Exception)
+                                                                      else drawn)))
             continue
         partial, final = partial_directory(out, name), material_directory(out, name)
         try:
             os.makedirs(partial, exist_ok=True)
             with exclusive(partial, what="material directory"):
-                samples = None
+                samples = drawn
                 problem = fitting.Problem(model, data)
-                if spec.sampler is not None:
-                    sampler = fitting.Emcee() if spec.sampler == "emcee" else spec.sampler
-                    samples = fitting.sample(problem, result, sampler=sampler, chains=spec.chains, steps=spec.steps,
-                                             seed=spec.seed, checkpoint=os.path.join(partial, "chain.h5"),
-                                             progress=False)
+                if spec.sampler == "emcee":  # resumable within the material: its chain's checkpoint
+                    samples = fitting.sample(problem, result, sampler=fitting.Emcee(), chains=spec.chains,
+                                             steps=spec.steps, seed=spec.seed,
+                                             checkpoint=os.path.join(partial, "chain.h5"), progress=False)
                 doc = fitting.write_report(partial, problem, result, samples, truth=truth, model_info=info,
                                            overwrite=True, figures=spec.figures)
             try:
