@@ -22,17 +22,23 @@ scale has) and on its layout. :func:`fit_many` instead
    optimistix solver) **vmapped** over it — a finished solve keeps its state while the others
    iterate, so each material's path is the one it would take alone;
 4. **divides** that axis over the devices (``jax.devices()`` by default): each device gets a
-   contiguous, equal slice and runs the same vmapped solve on it by itself, all devices at
-   once (:func:`_on_devices`: one dispatch per device, from one thread each, so their
-   compilations overlap too). No collective is needed — each device stops when its own slice
+   contiguous, equal slice and runs the same vmapped solve on it by itself
+   (:func:`_on_devices`: one dispatch per device — where JAX dispatches asynchronously, as on
+   GPUs, the devices compute at once; JAX runs a CPU program like this solve in the calling
+   thread, so on (virtual) CPU devices the slices follow each other). No collective is needed — each device stops when its own slice
    has converged. (XLA's SPMD partitioning of the jitted solve over a ``NamedSharding`` was
    the first design: on 2 virtual CPU devices its program deadlocked in a loop whose devices
    disagreed on the trip count, from 24 solves up; ``jax.shard_map`` is refused by lineax's
    structure check, which compares a vector without the manual mesh to an operator structure
-   with it, in JAX 0.10 and lineax 0.1.1.) JAX binds an executable to its device, so each
-   device compiles the bucket's program once per process;
+   with it, in JAX 0.10 and lineax 0.1.1; dispatching from one thread per device, to overlap
+   the compilations too, hung on 2 virtual CPU devices.) JAX binds an executable to its
+   device, so each device compiles the bucket's program, once per process, one after another;
 5. hands each material's starts to the same analysis as :func:`fitting.fit` (best start,
-   Laplace covariance and identifiability by :mod:`brdfscale.laplace`, quantities, ratios).
+   Laplace covariance and identifiability by :mod:`brdfscale.laplace`), then evaluates the
+   quantities and ratios of the bucket's materials at their optima and Laplace draws in one
+   more vmapped program, whose compilation is started right after the solve's dispatch
+   (:func:`fitting._estimate.compile_evaluation`: where the dispatch is asynchronous it
+   overlaps the solve; on a CPU the two follow each other).
 
 The result of each material equals that of ``fitting.fit(model, data)`` with the same
 options to the solver's tolerance: the starts are the same (same seed), the solver is the
@@ -41,7 +47,6 @@ solve may stop one step earlier or later (tests/test_batch.py checks θ̂ to 1e-
 Laplace σ, χ² to 1e-6 relative, and every reported σ).
 """
 
-import concurrent.futures
 import dataclasses
 import math
 
@@ -54,8 +59,8 @@ from brdfscale.checks import integer
 from brdfscale.show import progress_bar
 
 from ._data import Dataset, PointData
-from ._estimate import (FitResult, Problem, Rows, _make_solver, _stack_trees, check_pair, fit_options,
-                        results_of_starts, solve_rows, starting_points)
+from ._estimate import (FitResult, Problem, Rows, _make_solver, _stack_trees, check_pair, compile_evaluation,
+                        fit_options, results_of_starts, solve_rows, starting_points)
 from ._model import AbstractModel
 
 __all__ = ["fit_many", "explain_plan", "bucket_points", "BatchPlan", "COMPILE_ROWS"]
@@ -141,23 +146,23 @@ def _solve_batch(rows, y0, solver, max_steps):
     return jax.vmap(lambda r, y: solve_rows(r, y, solver, max_steps))(rows, y0)
 
 
-def _on_devices(fn, inputs, devices) -> tuple:
-    """``fn(*inputs)`` (a tuple of arrays out) with the leading axis of every input divided into
-    equal, contiguous slices, one per device, each computed on its device by itself; the
-    outputs joined on the host in order (NumPy). Each device's slice is placed and dispatched
-    from a thread of its own, so the devices' compilations (one each) and runs overlap."""
+def _on_devices(fn, inputs, devices) -> list:
+    """Dispatch ``fn(*inputs)`` with the leading axis of every input divided into equal,
+    contiguous slices, one per device, each computed on its device by itself; returns the
+    runs (one output tuple per device; where JAX dispatches asynchronously they are still
+    computing, all devices at once, while the caller goes on — on a CPU JAX runs them in turn
+    before returning; a device's first call compiles its program). :func:`_joined` waits for them."""
     if len(devices) == 1:
-        return tuple(np.asarray(a) for a in fn(*inputs))
+        return [fn(*inputs)]
     n = jax.tree.leaves(inputs)[0].shape[0]
     per = n // len(devices)
+    return [fn(*jax.device_put(jax.tree.map(lambda a: a[k * per:(k + 1) * per], inputs), device))
+            for k, device in enumerate(devices)]
 
-    def one(k):
-        part = jax.tree.map(lambda a: a[k * per:(k + 1) * per], inputs)
-        return tuple(np.asarray(a) for a in fn(*jax.device_put(part, devices[k])))
 
-    with concurrent.futures.ThreadPoolExecutor(len(devices), thread_name_prefix="fit_many") as pool:
-        parts = list(pool.map(one, range(len(devices))))
-    return tuple(np.concatenate(column) for column in zip(*parts))
+def _joined(runs) -> tuple:
+    """The outputs of :func:`_on_devices`'s runs joined on the host in order (NumPy)."""
+    return tuple(np.concatenate([np.asarray(a) for a in column]) for column in zip(*runs))
 
 
 def _devices(devices):
@@ -331,8 +336,11 @@ def fit_many(
             extra = bucket["solves"] - len(flat_rows)
             flat_rows += [flat_rows[0]] * extra
             flat_y0 += [flat_y0[0]] * extra
-            solved = _on_devices(lambda r, y: _solve_batch(r, y, optimiser, options["max_steps"]),
-                                 (_stack(flat_rows), np.stack(flat_y0).astype(np.float64)), device_list)
+            runs = _on_devices(lambda r, y: _solve_batch(r, y, optimiser, options["max_steps"]),
+                               (_stack(flat_rows), np.stack(flat_y0).astype(np.float64)), device_list)
+            # while the devices solve: compile the analysis's program (step 5)
+            compile_evaluation([problems[i] for i in members], [ys[0] for ys in y0])
+            solved = _joined(runs)
             values, codes, steps, chi2s, jacobians = (  # (material, start, …), the padding dropped
                 a[:len(members) * S].reshape(len(members), S, *a.shape[1:]) for a in solved)
             try:

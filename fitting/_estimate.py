@@ -420,6 +420,17 @@ def results_of_starts(problems, values, codes, steps, chi2s, jacobians, options,
     return stages
 
 
+def compile_evaluation(problems, thetas) -> None:
+    """Compile (and dispatch, without waiting) the program :func:`results_of_starts` will run
+    for these materials when all of them have a finite optimum, by calling it at ``thetas`` (any
+    θ of each, e.g. its first start; the draws all at θ): :func:`fitting.fit_many` calls this
+    right after dispatching the bucket's solve, so where the dispatch is asynchronous (GPUs)
+    this compilation overlaps the solve (on a CPU, JAX runs the solve before returning)."""
+    inputs = [(np.asarray(t, np.float64), np.broadcast_to(np.asarray(t, np.float64), (_LAPLACE_DRAWS, len(t))),
+               ratio_frequencies(p.data), np.asarray(p.data.scales)) for p, t in zip(problems, thetas)]
+    _evaluate_many(_stack_trees([p.model for p in problems]), *(_stack_trees(list(x)) for x in zip(*inputs)))
+
+
 def _stack_trees(trees):
     """Pytrees of one structure stacked leaf by leaf along a new leading axis (NumPy on the host)."""
     return jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *trees)

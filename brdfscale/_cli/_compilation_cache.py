@@ -37,11 +37,16 @@ def cache_directory() -> Path:
 
 def enable() -> Path | None:
     """Point JAX's persistent compilation cache at :func:`cache_directory` unless JAX already
-    has one; returns the directory in use (None when none is)."""
-    import jax
+    has one; returns the directory in use (None when none is).
 
-    if jax.config.jax_compilation_cache_dir:  # the user's own JAX setting wins
-        return Path(jax.config.jax_compilation_cache_dir)
+    With JAX imported, through ``jax.config``; before it is, through the environment variables
+    JAX reads when it is imported (``JAX_COMPILATION_CACHE_DIR``, …), so a command that never
+    needs JAX in its own process (``fit-library`` driving Ray tasks) does not import it for
+    this, and the processes it starts inherit the setting."""
+    jax = sys.modules.get("jax")
+    configured = jax.config.jax_compilation_cache_dir if jax is not None else os.environ.get("JAX_COMPILATION_CACHE_DIR")
+    if configured:  # the user's own JAX setting wins
+        return Path(configured)
     path = cache_directory()
     try:
         path.mkdir(parents=True, exist_ok=True)
@@ -51,8 +56,11 @@ def enable() -> Path | None:
         print(f"brdfscale: compilation cache off ({err}); set BRDFSCALE_COMPILATION_CACHE to a writable "
               "directory or pass --no-compilation-cache", file=sys.stderr)
         return None
-    jax.config.update("jax_compilation_cache_dir", str(path))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
-    jax.config.update("jax_compilation_cache_max_size", MAX_BYTES)
+    settings = {"jax_compilation_cache_dir": str(path), "jax_persistent_cache_min_compile_time_secs": 0.0,
+                "jax_persistent_cache_min_entry_size_bytes": 0, "jax_compilation_cache_max_size": MAX_BYTES}
+    for name, value in settings.items():
+        if jax is not None:
+            jax.config.update(name, value)
+        else:
+            os.environ[name.upper()] = str(value)
     return path

@@ -314,4 +314,5 @@ def _compilation_cache():
     import sys
 
     jax = sys.modules.get("jax")
-    return jax.config.jax_compilation_cache_dir if jax is not None else None
+    # JAX not imported (a Ray driver): the environment it would read (brdfscale._cli._compilation_cache)
+    return jax.config.jax_compilation_cache_dir if jax is not None else os.environ.get("JAX_COMPILATION_CACHE_DIR")
