@@ -723,8 +723,15 @@ def library() -> str:
              f"Batched against the loop at 64 materials: {s['speedup_batched_vs_loop']:.1f}× (target ≥ 10×: "
              f"{met(s['speedup_met'])})."]
     if "compile_rows_measured" in s:
+        from fitting import COMPILE_ROWS
+
+        at = next(r for r in d["fits"] if r["kind"] == "batched" and r["xla_devices"] == 1 and r["batch"] == 64
+                  and r["materials"] == 64) if not d.get("quick") else None
+        if at is not None:
+            lines.append(f"One bucket's compilation (the first call less the warm rerun, 64 materials): "
+                         f"{at['compile_seconds_per_bucket']:.1f} s of the {at['seconds']:.1f} s.")
         lines.append(f"Measured exchange rate of the bucketing: one bucket's compilation costs as much as "
-                     f"{s['compile_rows_measured']:,.0f} padded rows' solves (`fitting.COMPILE_ROWS` = 400,000).")
+                     f"{s['compile_rows_measured']:,.0f} padded rows' solves (`fitting.COMPILE_ROWS` = {COMPILE_ROWS:,}).")
     batch = d["library"][0]["batch"]
     lines += ["", f"`brdfscale fit-library` on the same kind of library, batches of {batch}: the whole command's wall "
               "time (start-up, imports, reading, fitting, reports), each with a fresh compilation cache.", "",

@@ -214,8 +214,11 @@ def _problems(models, datasets) -> list:
 
 
 #: Padded residual rows (summed over starts) whose solve is taken to cost as much as compiling
-#: one more program: an estimate for a 2-core CPU (a bucket's program traced and compiled in
-#: seconds, a padded row solved in microseconds); no benchmark recomputes it yet.
+#: one more program. ``experiments/bench_library.py`` measures the rate on its machine
+#: (``compile_rows_measured``: one bucket's compilation over a warm rerun's seconds per padded
+#: row, docs/library.md); on its 2-core CPU the measurement is of the same order as this value,
+#: which is kept lower: a compilation is paid once per process (once ever with the command's
+#: persistent cache), padding on every run.
 COMPILE_ROWS = 400_000
 
 
@@ -297,8 +300,8 @@ def fit_many(
             :func:`fitting.fit`, for every material (the seed is each material's, so each
             material gets the starts ``fit`` would give it).
         compile_rows: the bucketing's exchange rate (:func:`plan`): padded rows worth one
-            more compiled program (default :data:`COMPILE_ROWS`, measured on a 2-core CPU; on an
-            accelerator a solve row is cheaper, so larger values merge more); 0 keeps every
+            more compiled program (default :data:`COMPILE_ROWS`, of the order measured on a 2-core
+            CPU; on an accelerator a solve row is cheaper, so larger values merge more); 0 keeps every
             rung of :func:`bucket_points` apart.
         progress: a progress bar over the materials.
         errors: ``"raise"`` (default): a material whose every start ends with a non-finite χ²
