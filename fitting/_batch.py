@@ -350,6 +350,8 @@ def fit_many(
                 done = results_of_starts([problems[i] for i in members], values, codes, steps, chi2s, jacobians,
                                          options, errors)
             except InvalidInputError as err:
+                if getattr(err, "material", None) is None:  # not one material's (results_of_starts tags those)
+                    raise
                 raise InvalidInputError(f"fit_many: material {members[err.material]}: {err}") from None
             for i, result in zip(members, done):
                 results[i] = result
