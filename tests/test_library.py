@@ -156,6 +156,7 @@ def _done(out):
     return [n for n in os.listdir(base) if not n.startswith(".")] if os.path.isdir(base) else []
 
 
+@pytest.mark.slow  # 27 s on 2 cores (a subprocess compiles its own programs): .ci/run's second step runs it
 def test_a_driver_killed_mid_library_resumes_with_each_material_fitted_once(small_library, tmp_path):
     out = str(tmp_path / "out")
     command = [sys.executable, "-m", "brdfscale", "fit-library", str(small_library), "--out", out, "--batch", "1",
