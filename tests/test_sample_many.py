@@ -186,7 +186,7 @@ _SHARDED = textwrap.dedent("""
 def test_sharded_over_two_devices_equals_sample_to_rounding():
     """Two virtual CPU devices, three materials (padded to four, two a device): the chains
     equal ``sample``'s to rounding — the per-device program is compiled apart and the
-    log-density's gradient differs in the last bits (measured ≤ 3.1e-13 over 60 steps; 1e-9
+    log-density's gradient differs in the last bits (at rounding level over 60 steps; 1e-9
     leaves room for other platforms' rounding, not for a parted chain, which differs by O(σ))."""
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu"}
     run = subprocess.run([sys.executable, "-c", _SHARDED], capture_output=True, text=True, env=env, timeout=600,
