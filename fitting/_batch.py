@@ -22,23 +22,22 @@ scale has) and on its layout. :func:`fit_many` instead
    optimistix solver) **vmapped** over it — a finished solve keeps its state while the others
    iterate, so each material's path is the one it would take alone;
 4. **divides** that axis over the devices (``jax.devices()`` by default): each device gets a
-   contiguous, equal slice and runs the same vmapped solve on it by itself
-   (:func:`_on_devices`: one dispatch per device — where JAX dispatches asynchronously, as on
-   GPUs, the devices compute at once; JAX runs a CPU program like this solve in the calling
-   thread, so on (virtual) CPU devices the slices follow each other). No collective is needed — each device stops when its own slice
-   has converged. (XLA's SPMD partitioning of the jitted solve over a ``NamedSharding`` was
-   the first design: on 2 virtual CPU devices its program deadlocked in a loop whose devices
-   disagreed on the trip count, from 24 solves up; ``jax.shard_map`` is refused by lineax's
-   structure check, which compares a vector without the manual mesh to an operator structure
-   with it, in JAX 0.10 and lineax 0.1.1; dispatching from one thread per device, to overlap
-   the compilations too, hung on 2 virtual CPU devices.) JAX binds an executable to its
-   device, so each device compiles the bucket's program, once per process, one after another;
+   contiguous, equal slice and runs the same vmapped solve on it by itself (:func:`_on_devices`:
+   one dispatch per device — where JAX dispatches asynchronously, as on GPUs, the devices
+   compute at once; JAX runs a CPU program like this solve in the calling thread, so on
+   (virtual) CPU devices the slices follow each other). No collective is needed: each device
+   stops when its own slice has converged. (XLA's SPMD partitioning of the jitted solve over a
+   ``NamedSharding`` was the first design: on 2 virtual CPU devices its program deadlocked in a
+   loop whose devices disagreed on the trip count, from 24 solves up; ``jax.shard_map`` is
+   refused by lineax's structure check, which compares a vector without the manual mesh to an
+   operator structure with it, in JAX 0.10 and lineax 0.1.1; dispatching from one thread per
+   device, to overlap the compilations too, hung on 2 virtual CPU devices.) JAX binds an
+   executable to its device, so each device compiles the bucket's program, once per process,
+   one after another;
 5. hands each material's starts to the same analysis as :func:`fitting.fit` (best start,
    Laplace covariance and identifiability by :mod:`brdfscale.laplace`), then evaluates the
    quantities and ratios of the bucket's materials at their optima and Laplace draws in one
-   more vmapped program, whose compilation is started right after the solve's dispatch
-   (:func:`fitting._estimate.compile_evaluation`: where the dispatch is asynchronous it
-   overlaps the solve; on a CPU the two follow each other).
+   more vmapped program (:func:`fitting._estimate.results_of_starts`).
 
 The result of each material equals that of ``fitting.fit(model, data)`` with the same
 options to the solver's tolerance: the starts are the same (same seed), the solver is the
@@ -59,8 +58,8 @@ from brdfscale.checks import integer
 from brdfscale.show import progress_bar
 
 from ._data import Dataset, PointData
-from ._estimate import (FitResult, Problem, Rows, _make_solver, _stack_trees, check_pair, compile_evaluation,
-                        fit_options, results_of_starts, solve_rows, starting_points)
+from ._estimate import (FitResult, Problem, Rows, _make_solver, _stack_trees, check_pair, fit_options,
+                        results_of_starts, solve_rows, starting_points)
 from ._model import AbstractModel
 
 __all__ = ["fit_many", "explain_plan", "bucket_points", "BatchPlan", "COMPILE_ROWS"]
@@ -134,9 +133,6 @@ def _pad_points(points: PointData, n: int) -> PointData:
                      mean=np.pad(np.asarray(points.mean), ((0, 0), (0, extra))),
                      weight=np.pad(np.asarray(points.weight), ((0, 0), (0, extra))),
                      chi2_offset=points.chi2_offset)
-
-
-_stack = _stack_trees  # NumPy on the host: jnp.stack would compile one program per leaf shape
 
 
 @eqx.filter_jit
@@ -339,21 +335,15 @@ def fit_many(
             extra = bucket["solves"] - len(flat_rows)
             flat_rows += [flat_rows[0]] * extra
             flat_y0 += [flat_y0[0]] * extra
-            runs = _on_devices(lambda r, y: _solve_batch(r, y, optimiser, options["max_steps"]),
-                               (_stack(flat_rows), np.stack(flat_y0).astype(np.float64)), device_list)
-            # while the devices solve: compile the analysis's program (step 5)
-            compile_evaluation([problems[i] for i in members], [ys[0] for ys in y0])
-            solved = _joined(runs)
+            solved = _joined(_on_devices(lambda r, y: _solve_batch(r, y, optimiser, options["max_steps"]),
+                                         (_stack_trees(flat_rows), np.stack(flat_y0).astype(np.float64)),
+                                         device_list))
             values, codes, steps, chi2s, jacobians = (  # (material, start, …), the padding dropped
                 a[:len(members) * S].reshape(len(members), S, *a.shape[1:]) for a in solved)
-            try:
-                done = results_of_starts([problems[i] for i in members], values, codes, steps, chi2s, jacobians,
-                                         options, errors)
-            except InvalidInputError as err:
-                if getattr(err, "material", None) is None:  # not one material's (results_of_starts tags those)
-                    raise
-                raise InvalidInputError(f"fit_many: material {members[err.material]}: {err}") from None
+            done = results_of_starts([problems[i] for i in members], values, codes, steps, chi2s, jacobians, options)
             for i, result in zip(members, done):
+                if isinstance(result, InvalidInputError) and errors == "raise":
+                    raise InvalidInputError(f"fit_many: material {i}: {result}") from None
                 results[i] = result
                 bar.update(1)
     return results

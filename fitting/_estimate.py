@@ -393,21 +393,17 @@ def result_of_starts(problem, values, codes, steps, chi2s, jacobians, options) -
     return stage.finish(*map(np.asarray, _evaluate(problem.model, *stage.inputs())))
 
 
-def results_of_starts(problems, values, codes, steps, chi2s, jacobians, options, errors: str = "raise") -> list:
+def results_of_starts(problems, values, codes, steps, chi2s, jacobians, options) -> list:
     """:func:`result_of_starts` of many materials of one structure (arrays with the material
     first, then the start): the host-side analysis of each, and the quantities and ratios of
     all of them at their optima and Laplace draws in one vmapped program
     (:func:`fitting.fit_many`'s buckets). A material whose every start is non-finite gets its
-    :class:`~brdfscale.InvalidInputError` in its slot with ``errors="return"``; with ``"raise"``
-    it is raised (its ``material`` attribute is its position)."""
+    :class:`~brdfscale.InvalidInputError` in its slot."""
     stages = []
     for i, problem in enumerate(problems):
         try:
             stages.append(_Analysis(problem, values[i], codes[i], steps[i], chi2s[i], jacobians[i], options))
         except InvalidInputError as err:
-            if errors == "raise":
-                err.material = i
-                raise
             stages.append(err)
     live = [k for k, st in enumerate(stages) if isinstance(st, _Analysis)]
     if live:
@@ -418,17 +414,6 @@ def results_of_starts(problems, values, codes, steps, chi2s, jacobians, options,
         for j, k in enumerate(live):
             stages[k] = stages[k].finish(*(e[j] for e in evaluated), quantity_names=names)
     return stages
-
-
-def compile_evaluation(problems, thetas) -> None:
-    """Compile (and dispatch, without waiting) the program :func:`results_of_starts` will run
-    for these materials when all of them have a finite optimum, by calling it at ``thetas`` (any
-    θ of each, e.g. its first start; the draws all at θ): :func:`fitting.fit_many` calls this
-    right after dispatching the bucket's solve, so where the dispatch is asynchronous (GPUs)
-    this compilation overlaps the solve (on a CPU, JAX runs the solve before returning)."""
-    inputs = [(np.asarray(t, np.float64), np.broadcast_to(np.asarray(t, np.float64), (_LAPLACE_DRAWS, len(t))),
-               ratio_frequencies(p.data), np.asarray(p.data.scales)) for p, t in zip(problems, thetas)]
-    _evaluate_many(_stack_trees([p.model for p in problems]), *(_stack_trees(list(x)) for x in zip(*inputs)))
 
 
 def _stack_trees(trees):

@@ -7,9 +7,9 @@ evaluate) on small datasets of different sizes: 7×7 and 8×8 pixels per scale, 
 (49 or 64 distinct points per scale, all padded to the rung of 64). ``fitting.sample`` evaluates
 its log-density on the same padded rows (fitting._posterior.padded_rows), so the draws,
 statistics, warm-up and diagnostics are equal exactly, not only to rounding: on the unpadded
-rows the padded material's chain differed by ~4e-13 (a longer χ² sum rounds differently),
-enough to move its rank-normalised R̂ by 0.004 (folded draws tie at the median in one run and
-not in the other) and with it the status text.
+rows the padded material's chain differed at rounding level (a longer χ² sum rounds
+differently), enough to move its rank-normalised R̂ (folded draws tie at the median in one run
+and not in the other) and with it the status text.
 """
 
 import json
@@ -22,32 +22,19 @@ import numpy as np
 import pytest
 
 import fitting
-from brdfscale import InvalidInputError, LobeImage, MeasurementSet
+from brdfscale import InvalidInputError
 from fitting import _sample_many
-from test_samplers import TRUE, Linear
+from test_samplers import Linear, _measurements
 
 SIGMA = 0.1
 SIZES = [(7, 7), (8, 8), (8, 7)]  # pixels per side at the two scales: 49, 64, 64 distinct points
 NUTS = dict(sampler=fitting.NUTS(warmup=30), chains=2, steps=30, chunk=25, seed=1)
 
 
-def _measurements(sizes, seed):
-    """The linear model's images at μ = 1 and 2, ``sizes`` pixels per side, noise σ = 0.1."""
-    rng = np.random.default_rng(seed)
-    images = []
-    for k, (mu, size) in enumerate(zip((1.0, 2.0), sizes)):
-        axis = np.linspace(-0.1, 0.1, size)
-        ux, uy = np.meshgrid(axis, axis)
-        f = TRUE[0] + TRUE[1] * 10 * ux + TRUE[2] * (10 * ux + 5 * uy + k)
-        images.append(LobeImage(mu=mu, incident=np.array([0.0, 0.0, 1.0]), extent=0.1,
-                                values=f + SIGMA * rng.standard_normal(f.shape), sigma=np.full(f.shape, SIGMA)))
-    return MeasurementSet(tuple(images))
-
-
 @pytest.fixture(scope="module")
 def ragged():
     model = Linear()
-    problems = [fitting.Problem(model, fitting.Dataset.from_measurements(_measurements(s, i)))
+    problems = [fitting.Problem(model, fitting.Dataset.from_measurements(_measurements(i, s, SIGMA)))
                 for i, s in enumerate(SIZES)]
     assert [p.points.mean.shape[1] for p in problems] == [49, 64, 64]
     return problems, [fitting.fit(model, p.data, starts=1) for p in problems]
@@ -112,8 +99,8 @@ def test_materials_of_another_sampled_dimension_go_to_their_own_bucket(ragged, m
     assert len(strict.undetermined) == 1
     problems, fits = problems + [problems[1]], fits + [strict]
     stacks = []
-    stack = _sample_many._stack
-    monkeypatch.setattr(_sample_many, "_stack", lambda trees: stacks.append(trees) or stack(trees))
+    stack = _sample_many._stack_trees
+    monkeypatch.setattr(_sample_many, "_stack_trees", lambda trees: stacks.append(trees) or stack(trees))
     traces = _count_traces(monkeypatch)
     many = fitting.sample_many(problems, fits, **NUTS)
     # two buckets: m = 3 (three materials, test 1's program) and m = 2 (one), a program each
@@ -162,10 +149,10 @@ _SHARDED = textwrap.dedent("""
     sys.path.insert(0, "tests")
     import fitting
     from fitting import _sample_many
-    from test_sample_many import NUTS, SIZES, _measurements
+    from test_sample_many import NUTS, SIGMA, SIZES, _measurements
     from test_samplers import Linear
     assert len(jax.devices()) == 2, jax.devices()
-    problems = [fitting.Problem(Linear(), fitting.Dataset.from_measurements(_measurements(s, i)))
+    problems = [fitting.Problem(Linear(), fitting.Dataset.from_measurements(_measurements(i, s, SIGMA)))
                 for i, s in enumerate(SIZES)]
     fits = [fitting.fit(Linear(), p.data, starts=1) for p in problems]
     placed, advance = [], _sample_many._advance_many

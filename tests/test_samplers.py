@@ -74,11 +74,13 @@ class Linear(fitting.AbstractModel):
 
 
 def _measurements(seed=0, size=6, sigma=0.1):
+    """The linear model's images at μ = 1 and 2, ``size`` pixels per side (or a pair: one per scale)."""
     rng = np.random.default_rng(seed)
-    axis = np.linspace(-0.1, 0.1, size)
-    ux, uy = np.meshgrid(axis, axis)
+    sizes = (size, size) if np.ndim(size) == 0 else size
     images = []
-    for k, mu in enumerate((1.0, 2.0)):
+    for k, (mu, n) in enumerate(zip((1.0, 2.0), sizes)):
+        axis = np.linspace(-0.1, 0.1, n)
+        ux, uy = np.meshgrid(axis, axis)
         f = TRUE[0] + TRUE[1] * 10 * ux + TRUE[2] * (10 * ux + 5 * uy + k)
         images.append(LobeImage(mu=mu, incident=np.array([0.0, 0.0, 1.0]), extent=0.1,
                                 values=f + sigma * rng.standard_normal(f.shape), sigma=np.full(f.shape, sigma)))
