@@ -11,6 +11,9 @@ five scales), made before the clock starts. Fits use 6 starts (the command's def
 the difference is the compilation, and the warm time per padded row gives the measured
 exchange rate of the bucketing (``compile_rows_measured``: padded rows whose solve costs one
 bucket's compilation; ``fitting.COMPILE_ROWS`` is the default).
+``fit_many`` runs with the platform's default ``lanes`` (1 on a CPU: each solve by itself)
+except in the two ``lanes`` rows: groups of 8 vmapped solves, and all of them vmapped in
+lock-step (the accelerators' default) — the measurement behind the CPU default.
 
 Library: the whole command, as a user runs it (Python start-up and imports included), each
 configuration with a fresh, empty compilation cache: in-process; a local Ray instance that the
@@ -45,6 +48,7 @@ STARTS = 6
 _CHILD = r"""
 import json, os, sys, time
 config = json.loads(sys.argv[1])
+lanes = {"all": sys.maxsize}.get(config.get("lanes"), config.get("lanes"))
 import jax
 jax.config.update("jax_enable_x64", True)
 import fitting
@@ -56,17 +60,17 @@ t0 = time.perf_counter()
 if kind == "loop":
     results = [fitting.fit(model, d, starts=config["starts"]) for d in data]
 else:
-    results = fitting.fit_many(model, data, starts=config["starts"], batch=config["batch"])
+    results = fitting.fit_many(model, data, starts=config["starts"], batch=config["batch"], lanes=lanes)
 seconds = time.perf_counter() - t0
 out = {"seconds": seconds, "converged": sum(r.status == "converged" for r in results),
        "theta": [r.theta.tolist() for r in results], "devices": len(jax.devices())}
 if kind == "batched":
     # the same call again, every program compiled: what compiling cost, and a padded row's solve
     t0 = time.perf_counter()
-    fitting.fit_many(model, data, starts=config["starts"], batch=config["batch"])
+    fitting.fit_many(model, data, starts=config["starts"], batch=config["batch"], lanes=lanes)
     warm = time.perf_counter() - t0
-    plan = fitting.explain_plan(model, data, starts=config["starts"], batch=config["batch"])
-    out.update(buckets=len(plan.buckets), padding=plan.padding, plan=plan.explain(), warm_seconds=warm,
+    plan = fitting.explain_plan(model, data, starts=config["starts"], batch=config["batch"], lanes=lanes)
+    out.update(buckets=len(plan.buckets), lanes_used=sorted({b["lanes"] for b in plan.buckets}), padding=plan.padding, plan=plan.explain(), warm_seconds=warm,
                rows_padded=plan.rows_padded, compile_seconds_per_bucket=(seconds - warm) / len(plan.buckets),
                seconds_per_padded_row=warm / plan.rows_padded)
 print("RESULT " + json.dumps(out))
@@ -88,6 +92,7 @@ def _run(config: dict, devices: int = 1) -> dict:
     out = json.loads(lines[-1][len("RESULT "):])
     out.update(config, process_wall_s=wall, materials_per_s=config["materials"] / out["seconds"], xla_devices=devices)
     print(f"{config['kind']:8s} n={config['materials']:4d} batch={config.get('batch', '-')!s:4s} "
+          f"lanes={config.get('lanes', 'default')!s:7s} "
           f"devices={devices} workers={config.get('workers', '-')}: {out['seconds']:.1f} s, "
           f"{out['materials_per_s']:.2f} materials/s", flush=True)
     return out
@@ -157,12 +162,15 @@ def run(quick: bool = False, device_counts=(2, 4)) -> dict:
         rows.append(_run({"kind": "batched", "materials": n, "starts": STARTS, "batch": 64}))
     for batch in ([2] if quick else [16]):
         rows.append(_run({"kind": "batched", "materials": at, "starts": STARTS, "batch": batch}))
+    # lanes: the CPU default (1, each solve by itself) against groups and the accelerators' default (all vmapped)
+    for lanes in ([2, "all"] if quick else [8, "all"]):
+        rows.append(_run({"kind": "batched", "materials": at, "starts": STARTS, "batch": 64, "lanes": lanes}))
     for devices in ([2] if quick else device_counts):
         rows.append(_run({"kind": "batched", "materials": at, "starts": STARTS, "batch": 64}, devices=devices))
     library_rows = _library_rows(at, 2 if quick else 16)
     loop = {r["materials"]: r for r in rows if r["kind"] == "loop"}
     batched = next(r for r in rows if r["kind"] == "batched" and r["materials"] == at and r["batch"] == 64
-                   and r["xla_devices"] == 1)
+                   and r["xla_devices"] == 1 and "lanes" not in r)
     summary = {"speedup_batched_vs_loop": loop[at]["seconds"] / batched["seconds"], "target_speedup": 10.0}
     summary["speedup_met"] = summary["speedup_batched_vs_loop"] >= summary["target_speedup"]
     in_process = library_rows[0]
@@ -176,7 +184,7 @@ def run(quick: bool = False, device_counts=(2, 4)) -> dict:
     if attached is not None and "overhead_vs_in_process" in attached:
         summary["ray_overhead_met"] = attached["overhead_vs_in_process"] <= 0.20
     measured = [r for r in rows if r["kind"] == "batched" and r["xla_devices"] == 1 and r["materials"] == at
-                and r["batch"] == 64]
+                and r["batch"] == 64 and "lanes" not in r]
     if measured:
         r = measured[0]
         summary["compile_rows_measured"] = r["compile_seconds_per_bucket"] / r["seconds_per_padded_row"]

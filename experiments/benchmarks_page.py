@@ -697,6 +697,8 @@ def library() -> str:
     rows = []
     for r in d["fits"]:
         what = "Python loop of fitting.fit" if r["kind"] == "loop" else f"fitting.fit_many, batch {r['batch']}"
+        if "lanes" in r:  # not the platform's default (lanes=1 on a CPU)
+            what += f", lanes={r['lanes']}" + (" (vmapped, as on accelerators)" if r["lanes"] == "all" else "")
         extra = "" if r["kind"] == "loop" else (f"{r['buckets']} bucket(s), {100 * r['padding']:.0f} % padding; "
                                                  f"warm rerun {r['warm_seconds']:.1f} s")
         diff = r.get("max_abs_theta_difference_vs_loop")
@@ -726,7 +728,7 @@ def library() -> str:
         from fitting import COMPILE_ROWS
 
         at = next(r for r in d["fits"] if r["kind"] == "batched" and r["xla_devices"] == 1 and r["batch"] == 64
-                  and r["materials"] == 64) if not d.get("quick") else None
+                  and r["materials"] == 64 and "lanes" not in r) if not d.get("quick") else None
         if at is not None:
             lines.append(f"One bucket's compilation (the first call less the warm rerun, 64 materials): "
                          f"{at['compile_seconds_per_bucket']:.1f} s of the {at['seconds']:.1f} s.")

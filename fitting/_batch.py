@@ -48,6 +48,7 @@ Laplace σ, χ² to 1e-6 relative, and every reported σ).
 
 import dataclasses
 import math
+import sys
 
 import equinox as eqx
 import jax
@@ -94,8 +95,9 @@ class BatchPlan:
     """How :func:`fit_many` divides a library: the buckets (one compiled program each), the
     padded sizes and the padding's cost. ``buckets`` is a list of dicts with ``materials``
     (their indices), ``points`` (padded points per scale), ``scales``, ``parameters``,
-    ``batch`` (the padded number of materials of the program run, :func:`bucket_batch`) and
-    ``solves`` (materials × starts, rounded up to a whole number per device)."""
+    ``batch`` (the padded number of materials of the program run, :func:`bucket_batch`),
+    ``solves`` (materials × starts, rounded up to whole groups of ``lanes`` per device) and
+    ``lanes`` (the solves advanced together on a device, :func:`select_lanes`)."""
 
     buckets: list
     devices: int
@@ -112,8 +114,12 @@ class BatchPlan:
         lines = [f"{sum(len(b['materials']) for b in self.buckets)} materials in {len(self.buckets)} bucket(s) on "
                  f"{self.devices} device(s), {self.starts} start(s) each; padding {100 * self.padding:.0f} % of the rows"]
         for b in self.buckets:
+            per_device = b["solves"] // self.devices
+            how = ("all in lock-step (vmapped)" if b["lanes"] >= per_device else
+                   "one solve at a time" if b["lanes"] == 1 else f"{b['lanes']} at a time")
             lines.append(f"  {len(b['materials'])} × ({b['scales']} scales × {b['points']} points, {b['parameters']} "
-                         f"parameters): a program of {b['solves']} solves ({b['batch']} materials × {self.starts} starts)")
+                         f"parameters): a program of {b['solves']} solves ({b['batch']} materials × {self.starts} starts)"
+                         f", {per_device} per device, {how}")
         return "\n".join(lines)
 
 
@@ -136,10 +142,33 @@ def _pad_points(points: PointData, n: int) -> PointData:
 
 
 @eqx.filter_jit
-def _solve_batch(rows, y0, solver, max_steps):
-    """:func:`fitting._estimate.solve_rows` vmapped over the leading axis of ``rows`` and ``y0``:
-    one compiled program per bucket shape (and device), every (material, start) of the batch."""
-    return jax.vmap(lambda r, y: solve_rows(r, y, solver, max_steps))(rows, y0)
+def _solve_batch(rows, y0, solver, max_steps, lanes):
+    """:func:`fitting._estimate.solve_rows` over the leading axis of ``rows`` and ``y0``, ``lanes``
+    solves at a time: one compiled program per bucket shape (and device) for every (material,
+    start) of the batch. ``lanes`` ≥ the axis: one ``jax.vmap`` of the solve (all in lock-step);
+    fewer: a ``jax.lax.map`` over groups of ``lanes`` (each group vmapped; ``lanes == 1``: each
+    solve by itself, its own iterations) — the axis is a whole number of groups (:func:`plan`)."""
+    def one(r, y):
+        return solve_rows(r, y, solver, max_steps)
+
+    if lanes >= y0.shape[0]:
+        return jax.vmap(one)(rows, y0)
+    arrays, static = eqx.partition(rows, eqx.is_array)  # lax.map carries arrays only
+    return jax.lax.map(lambda a: one(eqx.combine(a[0], static), a[1]), (arrays, y0),
+                       batch_size=None if lanes == 1 else lanes)
+
+
+def select_lanes(devices, lanes=None) -> int:
+    """How many solves :func:`fit_many` advances together on each device: ``lanes`` if given
+    (an integer ≥ 1), else by the devices' platform — **1 on CPUs** (each solve runs by itself,
+    its own iterations; XLA also compiles that program in about half the time of the vmapped
+    one — both measured by ``experiments/bench_library.py``: the ``lanes`` rows of
+    docs/library.md's table), **all** of a device's slice elsewhere (one ``jax.vmap``: the
+    solves fill the accelerator's parallel units; a finished solve waits for the slowest of its
+    group). ``sys.maxsize`` stands for "all"."""
+    if lanes is not None:
+        return integer(lanes, "lanes", 1)
+    return 1 if all(d.platform == "cpu" for d in devices) else sys.maxsize
 
 
 def _on_devices(fn, inputs, devices) -> list:
@@ -218,14 +247,17 @@ def _problems(models, datasets) -> list:
 COMPILE_ROWS = 400_000
 
 
-def plan(problems, starts: int, batch: int, n_devices: int, compile_rows: int = COMPILE_ROWS) -> BatchPlan:
+def plan(problems, starts: int, batch: int, n_devices: int, compile_rows: int = COMPILE_ROWS,
+         lanes: int = 1) -> BatchPlan:
     """The buckets of :func:`fit_many` for these problems (module docstring, step 2).
 
     Materials of one structure are first grouped by their rung of points per scale
     (:func:`bucket_points`); adjacent rungs are then merged where computing the extra padding
     costs less than compiling another program — the partition of the sorted rungs that
     minimises ``compile_rows × (programs) + (padded rows)``, found exactly by dynamic
-    programming (``compile_rows = 0`` keeps every rung apart: padding ≤ 50 % of the rows)."""
+    programming (``compile_rows = 0`` keeps every rung apart: padding ≤ 50 % of the rows).
+    Each program run's solves are rounded up to whole groups of ``lanes`` on every device
+    (:func:`select_lanes`; a bucket's ``lanes`` is at most its solves per device)."""
     groups: dict = {}
     used = 0
     for i, problem in enumerate(problems):
@@ -256,9 +288,11 @@ def plan(problems, starts: int, batch: int, n_devices: int, compile_rows: int = 
             for k in range(0, len(members), batch):
                 chunk = members[k:k + batch]
                 size = bucket_batch(len(chunk), batch)
-                solves = -(-size * starts // n_devices) * n_devices
+                per_device = -(-size * starts // n_devices)
+                group = min(lanes, per_device)
+                solves = -(-per_device // group) * group * n_devices
                 buckets.append({"materials": chunk, "points": points, "scales": scales, "parameters": key[4],
-                                "batch": size, "solves": solves})
+                                "batch": size, "solves": solves, "lanes": group})
                 padded += solves * points * scales
     return BatchPlan(buckets=buckets, devices=n_devices, starts=starts, rows_used=used, rows_padded=padded)
 
@@ -278,6 +312,7 @@ def fit_many(
     atol: float = 1e-6,
     undetermined_std: float = 1.0,
     compile_rows: int = COMPILE_ROWS,
+    lanes: int | None = None,
     progress: bool = False,
     errors: str = "raise",
 ) -> list:
@@ -299,6 +334,11 @@ def fit_many(
             more compiled program (default :data:`COMPILE_ROWS`, of the order measured on a 2-core
             CPU; on an accelerator a solve row is cheaper, so larger values merge more); 0 keeps every
             rung of :func:`bucket_points` apart.
+        lanes: how many solves each device advances together (:func:`select_lanes`): ``None``
+            (default) picks by platform — 1 on CPUs (a ``lax.map``: each solve its own
+            iterations), all of the device's slice on accelerators (one ``vmap``); an integer
+            ≥ 1 sets it (a group of ``lanes`` runs vmapped, the groups in turn). The results do
+            not depend on it beyond rounding.
         progress: a progress bar over the materials.
         errors: ``"raise"`` (default): a material whose every start ends with a non-finite χ²
             raises, as :func:`fitting.fit` does; ``"return"``: its entry in the result is the
@@ -310,7 +350,8 @@ def fit_many(
     Raises:
         InvalidInputError: the arguments of :func:`fitting.fit` for any material (naming its
             index), models and datasets that do not pair up, ``batch`` not an integer ≥ 1,
-            ``devices`` not as above, ``errors`` not ``"raise"``/``"return"``.
+            ``devices`` not as above, ``lanes`` not ``None`` or an integer ≥ 1, ``errors`` not
+            ``"raise"``/``"return"``.
     """
     problems = _problems(models, datasets)
     options = fit_options(solver=solver, starts=starts, max_steps=max_steps, spread=spread, seed=seed, rtol=rtol,
@@ -319,7 +360,8 @@ def fit_many(
     if errors not in ("raise", "return"):
         raise InvalidInputError(f"errors must be 'raise' or 'return'; got {errors!r}.")
     device_list = _devices(devices)
-    layout = plan(problems, options["starts"], batch, len(device_list), integer(compile_rows, "compile_rows", 0))
+    layout = plan(problems, options["starts"], batch, len(device_list), integer(compile_rows, "compile_rows", 0),
+                  select_lanes(device_list, lanes))
     optimiser = _make_solver(options["solver"], options["rtol"], options["atol"])
     results: list = [None] * len(problems)
     S = options["starts"]
@@ -335,7 +377,8 @@ def fit_many(
             extra = bucket["solves"] - len(flat_rows)
             flat_rows += [flat_rows[0]] * extra
             flat_y0 += [flat_y0[0]] * extra
-            solved = _joined(_on_devices(lambda r, y: _solve_batch(r, y, optimiser, options["max_steps"]),
+            solved = _joined(_on_devices(lambda r, y: _solve_batch(r, y, optimiser, options["max_steps"],
+                                                                   bucket["lanes"]),
                                          (_stack_trees(flat_rows), np.stack(flat_y0).astype(np.float64)),
                                          device_list))
             values, codes, steps, chi2s, jacobians = (  # (material, start, …), the padding dropped
@@ -350,8 +393,9 @@ def fit_many(
 
 
 def explain_plan(models, datasets, *, batch: int = 64, devices=None, starts: int = 8,
-                 compile_rows: int = COMPILE_ROWS) -> BatchPlan:
+                 compile_rows: int = COMPILE_ROWS, lanes: int | None = None) -> BatchPlan:
     """The :class:`BatchPlan` :func:`fit_many` would follow for these arguments (nothing is
     fitted); ``plan.explain()`` says it in words."""
+    device_list = _devices(devices)
     return plan(_problems(models, datasets), integer(starts, "starts", 1), integer(batch, "batch", 1),
-                len(_devices(devices)), integer(compile_rows, "compile_rows", 0))
+                len(device_list), integer(compile_rows, "compile_rows", 0), select_lanes(device_list, lanes))

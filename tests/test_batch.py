@@ -6,7 +6,9 @@ import os
 import subprocess
 import sys
 import textwrap
+import types
 
+import jax
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -15,7 +17,7 @@ from hypothesis import strategies as st
 import fitting
 from brdfscale import InvalidInputError, LobeImage, MeasurementSet
 from experiments.library_data import material
-from fitting._batch import bucket_points, plan
+from fitting._batch import bucket_points, plan, select_lanes
 
 
 def _masked(mset):
@@ -89,6 +91,28 @@ def test_fit_many_refuses_what_it_cannot_pair(ragged):
         fitting.fit_many(model, [ragged[0], "data"])
     with pytest.raises(InvalidInputError, match="errors"):
         fitting.fit_many(model, ragged, errors="ignore")
+
+
+def test_lanes_change_how_solves_run_not_the_fits(ragged):
+    """lanes=1 (the CPU default: a lax.map, each solve its own iterations), groups of 4 (a
+    lax.map of vmapped groups) and all (one vmap in lock-step, the accelerators' default) give
+    the same fits to the solver's tolerance."""
+    model = fitting.ParametricModel()
+    assert select_lanes(jax.devices()) == 1  # CPU
+    assert select_lanes([types.SimpleNamespace(platform="gpu")]) == sys.maxsize
+    assert select_lanes(jax.devices(), 4) == 4
+    default = fitting.fit_many(model, ragged, starts=3)
+    for lanes in (4, sys.maxsize):
+        layout = fitting.explain_plan(model, ragged, starts=3, lanes=lanes)
+        (bucket,) = layout.buckets
+        # 5 materials → a run of 6 (the ladder) × 3 starts = 18 solves, rounded up to whole groups
+        assert bucket["solves"] == (20 if lanes == 4 else 18) and bucket["lanes"] == min(lanes, 18)
+        assert ("4 at a time" if lanes == 4 else "all in lock-step") in layout.explain()
+        for a, b in zip(default, fitting.fit_many(model, ragged, starts=3, lanes=lanes)):
+            _assert_same_fit(a, b)
+    assert "one solve at a time" in fitting.explain_plan(model, ragged, starts=3).explain()
+    with pytest.raises(InvalidInputError, match="lanes"):
+        fitting.fit_many(model, ragged, lanes=0)
 
 
 @given(st.integers(1, 100_000))
