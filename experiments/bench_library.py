@@ -48,7 +48,7 @@ STARTS = 6
 _CHILD = r"""
 import json, os, sys, time
 config = json.loads(sys.argv[1])
-lanes = {"all": sys.maxsize}.get(config.get("lanes"), config.get("lanes"))
+lanes = config.get("lanes")
 import jax
 jax.config.update("jax_enable_x64", True)
 import fitting

@@ -8,8 +8,9 @@ The chain, each step in its own module:
   :func:`brdfscale.evolve`;
 * :func:`fit` — optimistix least squares (Levenberg–Marquardt by default), multi-start,
   Laplace covariance, identifiability (names the combinations the data cannot determine);
-* :func:`fit_many` — many materials at once: padded, bucketed, vmapped and divided over the
-  devices, one compiled program per bucket, results equal to :func:`fit`'s (:func:`explain_plan`);
+* :func:`fit_many` — many materials at once: padded, bucketed and divided over the devices,
+  one compiled program per bucket (solves one at a time on CPUs, vmapped on accelerators),
+  results equal to :func:`fit`'s (:func:`explain_plan`);
 * :func:`sample` — emcee (:class:`Emcee`), BlackJAX NUTS (:class:`NUTS`) or HMC (:class:`HMC`)
   on one posterior in smooth coordinates, ≥ 4 independent chains in one compiled program,
   chunked HDF5 checkpoints resumable bit for bit, ArviZ's R̂/ESS/MCSE and a status that

@@ -1,4 +1,4 @@
-"""Many materials fitted at once: one compiled, vmapped least-squares program per bucket, divided over the devices.
+"""Many materials fitted at once: one compiled least-squares program per bucket, divided over the devices.
 
 A Python loop of :func:`fitting.fit` over a library compiles a new solve for nearly every
 material: the compiled program depends on the data's shapes (how many distinct points each
@@ -18,11 +18,15 @@ scale has) and on its layout. :func:`fit_many` instead
    buckets and the padding fraction;
 3. stacks each bucket's materials × starts along one axis, pads that axis to a whole
    ``batch`` (repeating the bucket's first material; the copies' results are dropped) rounded
-   up to a multiple of the device count, and runs Levenberg–Marquardt (or the chosen
-   optimistix solver) **vmapped** over it — a finished solve keeps its state while the others
-   iterate, so each material's path is the one it would take alone;
+   up to whole groups of ``lanes`` on every device, and runs Levenberg–Marquardt (or the chosen
+   optimistix solver) over it in **one compiled program**, ``lanes`` solves at a time
+   (:func:`select_lanes`): on a CPU one solve at a time (a ``jax.lax.map``: each solve takes
+   its own iterations, and this program is traced and compiled in about half the time of the
+   vmapped one), on an accelerator all of them **vmapped** in lock-step (a finished solve keeps its
+   state while the others iterate) — either way each material's path is the one it would
+   take alone;
 4. **divides** that axis over the devices (``jax.devices()`` by default): each device gets a
-   contiguous, equal slice and runs the same vmapped solve on it by itself (:func:`_on_devices`:
+   contiguous, equal slice and runs the same program on it by itself (:func:`_on_devices`:
    one dispatch per device — where JAX dispatches asynchronously, as on GPUs, the devices
    compute at once; JAX runs a CPU program like this solve in the calling thread, so on
    (virtual) CPU devices the slices follow each other). No collective is needed: each device
@@ -37,7 +41,7 @@ scale has) and on its layout. :func:`fit_many` instead
 5. hands each material's starts to the same analysis as :func:`fitting.fit` (best start,
    Laplace covariance and identifiability by :mod:`brdfscale.laplace`), then evaluates the
    quantities and ratios of the bucket's materials at their optima and Laplace draws in one
-   more vmapped program (:func:`fitting._estimate.results_of_starts`).
+   more, vmapped program (:func:`fitting._estimate.results_of_starts`).
 
 The result of each material equals that of ``fitting.fit(model, data)`` with the same
 options to the solver's tolerance: the starts are the same (same seed), the solver is the
@@ -160,15 +164,21 @@ def _solve_batch(rows, y0, solver, max_steps, lanes):
 
 def select_lanes(devices, lanes=None) -> int:
     """How many solves :func:`fit_many` advances together on each device: ``lanes`` if given
-    (an integer ≥ 1), else by the devices' platform — **1 on CPUs** (each solve runs by itself,
-    its own iterations; XLA also compiles that program in about half the time of the vmapped
-    one — both measured by ``experiments/bench_library.py``: the ``lanes`` rows of
-    docs/library.md's table), **all** of a device's slice elsewhere (one ``jax.vmap``: the
-    solves fill the accelerator's parallel units; a finished solve waits for the slowest of its
-    group). ``sys.maxsize`` stands for "all"."""
-    if lanes is not None:
+    (an integer ≥ 1, or ``"all"``), else by the devices' platform — **1 on CPUs** (each solve
+    runs by itself, its own iterations; its program is also traced and compiled in about half
+    the time of the vmapped one — both measured by ``experiments/bench_library.py``: the
+    ``lanes`` rows of docs/library.md's table), **all** of a device's slice elsewhere (one
+    ``jax.vmap``: the solves fill the accelerator's parallel units; a finished solve waits for
+    the slowest of its group). ``sys.maxsize`` stands for "all"."""
+    if lanes is None:
+        return 1 if all(d.platform == "cpu" for d in devices) else sys.maxsize
+    if isinstance(lanes, str) and lanes == "all":
+        return sys.maxsize
+    try:
         return integer(lanes, "lanes", 1)
-    return 1 if all(d.platform == "cpu" for d in devices) else sys.maxsize
+    except InvalidInputError:
+        raise InvalidInputError(f"lanes must be None (by platform: 1 on CPUs, all on accelerators), an integer ≥ 1 "
+                                f"or 'all'; got {lanes!r}.") from None
 
 
 def _on_devices(fn, inputs, devices) -> list:
@@ -317,7 +327,7 @@ def fit_many(
     errors: str = "raise",
 ) -> list:
     """Fit many materials at once: :func:`fitting.fit` for every ``(model, data)`` pair, in
-    one compiled, vmapped program per bucket, divided over the devices (module docstring).
+    one compiled program per bucket, divided over the devices (module docstring).
 
     Args:
         models: one fitting model for every dataset, or a sequence of models, one per dataset.
@@ -337,8 +347,8 @@ def fit_many(
         lanes: how many solves each device advances together (:func:`select_lanes`): ``None``
             (default) picks by platform — 1 on CPUs (a ``lax.map``: each solve its own
             iterations), all of the device's slice on accelerators (one ``vmap``); an integer
-            ≥ 1 sets it (a group of ``lanes`` runs vmapped, the groups in turn). The results do
-            not depend on it beyond rounding.
+            ≥ 1 sets it (a group of ``lanes`` runs vmapped, the groups in turn), ``"all"``
+            vmaps the whole slice. The results do not depend on it beyond rounding.
         progress: a progress bar over the materials.
         errors: ``"raise"`` (default): a material whose every start ends with a non-finite χ²
             raises, as :func:`fitting.fit` does; ``"return"``: its entry in the result is the
@@ -350,7 +360,7 @@ def fit_many(
     Raises:
         InvalidInputError: the arguments of :func:`fitting.fit` for any material (naming its
             index), models and datasets that do not pair up, ``batch`` not an integer ≥ 1,
-            ``devices`` not as above, ``lanes`` not ``None`` or an integer ≥ 1, ``errors`` not
+            ``devices`` not as above, ``lanes`` not ``None``, an integer ≥ 1 or ``"all"``, ``errors`` not
             ``"raise"``/``"return"``.
     """
     problems = _problems(models, datasets)

@@ -102,17 +102,19 @@ def test_lanes_change_how_solves_run_not_the_fits(ragged):
     assert select_lanes([types.SimpleNamespace(platform="gpu")]) == sys.maxsize
     assert select_lanes(jax.devices(), 4) == 4
     default = fitting.fit_many(model, ragged, starts=3)
-    for lanes in (4, sys.maxsize):
+    assert select_lanes(jax.devices(), "all") == sys.maxsize
+    for lanes in (4, "all"):
         layout = fitting.explain_plan(model, ragged, starts=3, lanes=lanes)
         (bucket,) = layout.buckets
         # 5 materials → a run of 6 (the ladder) × 3 starts = 18 solves, rounded up to whole groups
-        assert bucket["solves"] == (20 if lanes == 4 else 18) and bucket["lanes"] == min(lanes, 18)
+        assert bucket["solves"] == (20 if lanes == 4 else 18) and bucket["lanes"] == (4 if lanes == 4 else 18)
         assert ("4 at a time" if lanes == 4 else "all in lock-step") in layout.explain()
         for a, b in zip(default, fitting.fit_many(model, ragged, starts=3, lanes=lanes)):
             _assert_same_fit(a, b)
     assert "one solve at a time" in fitting.explain_plan(model, ragged, starts=3).explain()
-    with pytest.raises(InvalidInputError, match="lanes"):
-        fitting.fit_many(model, ragged, lanes=0)
+    for bad in (0, "some", 2.5):
+        with pytest.raises(InvalidInputError, match="lanes must be"):
+            fitting.fit_many(model, ragged, lanes=bad)
 
 
 @given(st.integers(1, 100_000))

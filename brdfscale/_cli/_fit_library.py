@@ -13,8 +13,8 @@ def register(subparsers) -> None:
         "fit-library",
         help="fit many measurement sets (a material library) in batches, in-process or on a Ray cluster",
         description="Fit every measurement set (*.exr) among the given files and directories with the same model "
-        "and options: batches of materials fitted together (one compiled, vmapped program per batch, divided over "
-        "the devices), in this process or as Ray tasks (--workers N: a local Ray instance; --address: a cluster). "
+        "and options: batches of materials fitted together (one compiled program per bucket of a batch, divided "
+        "over the devices), in this process or as Ray tasks (--workers N: a local Ray instance; --address: a cluster). "
         "Writes DIR/library.json (the index: status, χ²/dof, errors) and DIR/materials/NAME/ (each material's "
         "report). Interrupted, it resumes: a rerun fits only the materials not yet done. docs/library.md",
     )
