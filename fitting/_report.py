@@ -273,7 +273,9 @@ def write_report(out_dir, problem: Problem, fit: FitResult, samples: SampleResul
     status and ArviZ's summary (ess_bulk, ess_tail, r_hat, MCSE) of every coordinate and quantity.
 
     ``figures=False`` leaves the three PNG figures out (matplotlib's drawing takes most of a
-    report's time; :mod:`brdfscale.library` writes them only when asked).
+    report's time; :mod:`brdfscale.library` writes them only when asked). With ``overwrite``,
+    the files of an earlier report in ``out_dir`` that this one does not write (figures,
+    tables, ``posterior.nc``) are removed, so the directory never mixes two reports.
 
     Everything is checked before the first file is written: the arguments, and (without
     ``overwrite``) that none of those files exists. ``fit.json`` is written last.
@@ -341,6 +343,13 @@ def _write_files(out_dir, problem, fit, model, draws, true_theta, truth, doc, ov
         doc.update(figures=list(figures.values()), tables=tables)
         if samples is not None:
             doc["posterior"] = _write_posterior(out_dir, samples, overwrite)
+        # overwriting: a file of an earlier report that this one does not write (figures left
+        # out, no samples, tables not written) goes, so the directory holds one report
+        written = set(figures.values()) | set(tables if isinstance(tables, list) else [])
+        written |= {doc["posterior"]} if isinstance(doc.get("posterior"), str) else set()
+        for stale in report_files(out_dir)[:-1]:
+            if stale not in written and os.path.lexists(stale):
+                os.remove(stale)
         doc = _finite(doc)
         text = json.dumps(doc, indent=2, allow_nan=False)
         _atomic(target, lambda p: Path(p).write_text(text), overwrite)

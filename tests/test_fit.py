@@ -349,6 +349,11 @@ def test_write_report_checks_every_file_before_writing(small_problem, tmp_path):
     assert (out / "corner.png").read_bytes()[:4] == b"\x89PNG" and doc["figures"][-1] == str(out / "corner.png")
     # no temporary file left; the run's lock file stays (removing it would race with a next run)
     assert [p.name for p in out.iterdir() if p.name.startswith(".")] == [".brdfscale.lock"]
+    # overwritten by a report without figures: the earlier figures go with it, a user's file stays
+    (out / "notes.txt").write_text("mine")
+    doc = fitting.write_report(out, problem, res, overwrite=True, figures=False)
+    assert doc["figures"] == [] and not list(out.glob("*.png")) and (out / "notes.txt").read_text() == "mine"
+    assert json.loads((out / "fit.json").read_text())["figures"] == []
 
 
 def test_sample_checkpoint_paths_and_first_chunk_resume(small_problem, tmp_path):
