@@ -345,9 +345,8 @@ def _write_files(out_dir, problem, fit, model, draws, true_theta, truth, doc, ov
             doc["posterior"] = _write_posterior(out_dir, samples, overwrite)
         # overwriting: a file of an earlier report that this one does not write (figures left
         # out, no samples, tables not written) goes, so the directory holds one report
-        written = set(figures.values()) | set(tables if isinstance(tables, list) else [])
-        written |= {doc["posterior"]} if isinstance(doc.get("posterior"), str) else set()
-        for stale in report_files(out_dir)[:-1]:
+        written = {target, doc.get("posterior"), *figures.values(), *(tables if isinstance(tables, list) else [])}
+        for stale in report_files(out_dir):
             if stale not in written and os.path.lexists(stale):
                 os.remove(stale)
         doc = _finite(doc)
