@@ -2,8 +2,9 @@
 process or across the hosts of a Ray cluster, resumable, with nothing lost (docs/library.md).
 
 * :func:`fit_library` — the driver: finds the materials (:func:`find_materials`), hands
-  batches to :func:`fitting.fit_many` (one compiled program per bucket of a batch) in this process or as Ray tasks (the optional extra ``brdfscale[cluster]``), keeps
-  the index ``OUT/library.json`` and returns a :class:`LibraryResult`;
+  batches to :func:`fitting.fit_many` (one compiled program per bucket of a batch) in this
+  process or as Ray tasks (the optional extra ``brdfscale[cluster]``), keeps the index
+  ``OUT/library.json`` and returns a :class:`LibraryResult`;
 * :class:`FitSpec` — the model and options every material is fitted with;
 * ``brdfscale fit-library DIR_OR_FILES... --out DIR`` — the same on the command line.
 
