@@ -21,13 +21,13 @@ The public API:
 * :mod:`brdfscale.special` — Bessel functions J0, J1, K0, x·K1 in pure JAX;
 * :mod:`brdfscale.plot` — one-call matplotlib figures of lobes, statistics, measurements, plans, fits;
 * :mod:`brdfscale.show` — the compact ``repr``/``_repr_html_`` of every object, and progress bars;
-* :mod:`brdfscale.fitting` — the ``fitting`` package under a name no local file can shadow;
+* :mod:`brdfscale.fitting` — inverse fitting of measurements (the repository's ``fitting/`` folder);
 * the exception classes, all derived from :class:`BrdfscaleError`.
 
 Importing brdfscale changes no global state (JAX's configuration, matplotlib's backend) and
 imports only the exception classes: every submodule and name below is loaded on first use
-(PEP 562), so ``brdfscale --help`` starts without JAX. Precision is the user's choice: the
-library computes in the dtype of its inputs, and code that needs float64 (the fits) says so
+(PEP 562) from the one table ``_TABLE``, so ``brdfscale --help`` starts without JAX. Precision
+is the user's choice: the library computes in the dtype of its inputs, and code that needs float64 (the fits) says so
 with :class:`InvalidInputError` naming the line to add,
 ``jax.config.update("jax_enable_x64", True)``.
 """
@@ -48,15 +48,19 @@ from ._errors import (
     UnresolvedMethodError,
 )
 
-_SUBMODULES = ("checks", "exr", "files", "fitting", "geometry", "lobes", "plot", "plus", "scene", "show", "so3",
-               "special", "stats", "synth", "topography", "laplace", "library")
-_NAMES = {
-    **dict.fromkeys(("AbstractMethod", "Auto", "ClosedForm", "Grid", "Radial", "RadialTable", "evolve", "select"),
-                    "._evolve"),
-    **dict.fromkeys(("LobeImage", "MeasurementSet"), "._measurement"),
-}
+_TABLE = (  # the one list of the public names: (module relative to brdfscale, names); None: the submodules themselves
+    ("._evolve", ("evolve", "select", "AbstractMethod", "Auto", "ClosedForm", "Radial", "Grid", "RadialTable")),
+    ("._measurement", ("LobeImage", "MeasurementSet")),
+    (None, ("geometry", "lobes", "stats", "synth", "topography", "plus", "so3", "scene", "exr", "files", "checks",
+            "laplace", "special", "plot", "show", "fitting", "library")),
+    ("._errors", ("BrdfscaleError", "InvalidInputError", "MeasurementFileError", "MethodNotApplicableError",
+                  "MissingDependencyError", "NoBRDFAtScaleError", "SingularDensityError", "OutputInUseError",
+                  "UnprotectedHeaderWarning", "UnresolvedMethodError")),
+)
+_LAZY = {name: where or f".{name}" for where, names in _TABLE for name in names}
+"""Public name → the module (relative to brdfscale) it is loaded from; a submodule maps to itself."""
 
-if TYPE_CHECKING:  # what the lazy loader below provides, for type checkers and IDEs
+if TYPE_CHECKING:  # what the lazy loader below provides, for type checkers and IDEs (tests/test_layers.py: = _TABLE)
     from . import (checks, exr, files, fitting, geometry, laplace, library, lobes, plot, plus, scene, show, so3, special,
                    stats, synth, topography)
     from ._evolve import AbstractMethod, Auto, ClosedForm, Grid, Radial, RadialTable, evolve, select
@@ -64,10 +68,11 @@ if TYPE_CHECKING:  # what the lazy loader below provides, for type checkers and 
 
 
 def __getattr__(name: str):
-    if name in _SUBMODULES:
-        value = importlib.import_module(f"{__name__}.{name}")
-    elif name in _NAMES:
-        value = getattr(importlib.import_module(_NAMES[name], __name__), name)
+    where = _LAZY.get(name)
+    if where == f".{name}":
+        value = importlib.import_module(where, __name__)
+    elif where is not None:
+        value = getattr(importlib.import_module(where, __name__), name)
     elif name == "__version__":
         from importlib.metadata import PackageNotFoundError, version
 
@@ -85,43 +90,4 @@ def __dir__():
     return sorted(set(globals()) | set(__all__))
 
 
-__all__ = [
-    "evolve",
-    "select",
-    "AbstractMethod",
-    "Auto",
-    "ClosedForm",
-    "Radial",
-    "Grid",
-    "RadialTable",
-    "UnresolvedMethodError",
-    "LobeImage",
-    "MeasurementSet",
-    "geometry",
-    "lobes",
-    "stats",
-    "synth",
-    "topography",
-    "plus",
-    "so3",
-    "scene",
-    "exr",
-    "files",
-    "checks",
-    "laplace",
-    "special",
-    "plot",
-    "show",
-    "fitting",
-    "library",
-    "BrdfscaleError",
-    "InvalidInputError",
-    "MeasurementFileError",
-    "MethodNotApplicableError",
-    "MissingDependencyError",
-    "NoBRDFAtScaleError",
-    "SingularDensityError",
-    "OutputInUseError",
-    "UnprotectedHeaderWarning",
-    "__version__",
-]
+__all__ = [*_LAZY, "__version__"]

@@ -51,7 +51,7 @@ config = json.loads(sys.argv[1])
 lanes = config.get("lanes")
 import jax
 jax.config.update("jax_enable_x64", True)
-import fitting
+from brdfscale import fitting
 from experiments.library_data import material
 kind, n = config["kind"], config["materials"]
 data = [fitting.Dataset.from_measurements(material(i)) for i in range(n)]

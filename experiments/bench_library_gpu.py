@@ -21,7 +21,7 @@ def run(max_materials: int, starts: int = 6) -> dict:
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    import fitting
+    from brdfscale import fitting
     from experiments.library_data import material
 
     devices = jax.devices()

@@ -90,7 +90,7 @@ def moments(result) -> dict:
 
 def reference(names) -> dict:
     jax.config.update("jax_enable_x64", True)
-    import fitting
+    from brdfscale import fitting
 
     out = {}
     for name in names:
@@ -114,7 +114,7 @@ def reference(names) -> dict:
 
 def run(problems, samplers) -> dict:
     jax.config.update("jax_enable_x64", True)
-    import fitting
+    from brdfscale import fitting
 
     table = configs(fitting)
     ref = json.loads((RESULTS / "bench_samplers_reference.json").read_text())["problems"]

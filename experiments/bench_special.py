@@ -40,7 +40,7 @@ def run() -> dict:
     jax.config.update("jax_enable_x64", True)
     from brdfscale._special import j0, j1
     from experiments import bench_samplers
-    import fitting
+    from brdfscale import fitting
 
     x = jnp.linspace(0.0, 60.0, 115_200)
     out = {"arguments": int(x.size)}

@@ -725,7 +725,7 @@ def library() -> str:
              f"Batched against the loop at 64 materials: {s['speedup_batched_vs_loop']:.1f}× (target ≥ 10×: "
              f"{met(s['speedup_met'])})."]
     if "compile_rows_measured" in s:
-        from fitting import COMPILE_ROWS
+        from brdfscale.fitting import COMPILE_ROWS
 
         at = next(r for r in d["fits"] if r["kind"] == "batched" and r["xla_devices"] == 1 and r["batch"] == 64
                   and r["materials"] == 64 and "lanes" not in r) if not d.get("quick") else None

@@ -33,7 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import fitting
+from brdfscale import fitting
 from brdfscale.laplace import combination
 
 jax.config.update("jax_enable_x64", True)  # the fits need float64; fitting changes no global setting

@@ -25,7 +25,7 @@ def truth(i: int, seed: int = 0) -> dict:
 
 def material(i: int, seed: int = 0, noise: float = 0.02):
     """The measurement set of material ``i`` (needs float64 JAX)."""
-    import fitting
+    from brdfscale import fitting
 
     rng = np.random.default_rng([seed, i, 1])
     model = fitting.ParametricModel()

@@ -14,10 +14,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import fitting
+from brdfscale import fitting
 from brdfscale import InvalidInputError, LobeImage, MeasurementSet
 from experiments.library_data import material
-from fitting._batch import bucket_points, plan, select_lanes
+from brdfscale.fitting._batch import bucket_points, plan, select_lanes
 
 
 def _masked(mset):
@@ -145,8 +145,8 @@ _SHARDED = textwrap.dedent("""
     import jax
     jax.config.update("jax_enable_x64", True)
     import numpy as np
-    import fitting
-    import fitting._batch as batch
+    from brdfscale import fitting
+    import brdfscale.fitting._batch as batch
     from experiments.library_data import material
     assert len(jax.devices()) == 4, jax.devices()
     data = [fitting.Dataset.from_measurements(material(i)) for i in (0, 1, 5)]

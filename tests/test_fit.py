@@ -20,7 +20,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 import scipy.optimize
 
-import fitting
+from brdfscale import fitting
 from brdfscale import InvalidInputError, LobeImage, MeasurementSet, stats
 from brdfscale._cli import main
 

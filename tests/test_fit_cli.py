@@ -10,7 +10,7 @@ import json
 import numpy as np
 import pytest
 
-import fitting
+from brdfscale import fitting
 from brdfscale import exr
 from brdfscale._cli import main
 

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import fitting
+from brdfscale import fitting
 from test_fit import TRUTHS, _dataset
 
 pytestmark = pytest.mark.slow

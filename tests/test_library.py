@@ -91,7 +91,7 @@ def test_a_damaged_index_is_refused_not_overwritten(small_library, tmp_path, cap
 
 def test_fit_library_results_equal_fit_many(small_library, tmp_path):
     import jax
-    import fitting
+    from brdfscale import fitting
     from brdfscale import exr
 
     jax.config.update("jax_enable_x64", True)
@@ -110,7 +110,7 @@ def test_library_samples_with_nuts_batched_equal_to_sample_per_material(small_li
     """--sampler nuts: the task's materials sampled together (fitting.sample_many), each report's
     chain summary that of fitting.sample on the material alone."""
     import jax
-    import fitting
+    from brdfscale import fitting
     from brdfscale import exr
 
     jax.config.update("jax_enable_x64", True)

@@ -254,7 +254,7 @@ def test_a_second_run_is_refused_naming_the_holder_and_a_killed_ones_lock_is_tak
 
 
 def test_sample_refuses_a_checkpoint_in_use(tmp_path):
-    import fitting
+    from brdfscale import fitting
 
     problem, result = _tiny_fit()
     checkpoint = tmp_path / "chain.h5"
@@ -269,7 +269,7 @@ def test_sample_refuses_a_checkpoint_in_use(tmp_path):
 
 
 def _tiny_fit():
-    import fitting
+    from brdfscale import fitting
 
     model = fitting.ParametricModel(fixed={"mu_c": 1.0, "exponent": 1.0, "alpha_max": 0.05})
     mset = fitting.simulate(model, {"amplitude": 1.0, "alpha_lobe": 0.02}, (1.0, 4.0), size=9, extent=0.1,

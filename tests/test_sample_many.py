@@ -21,9 +21,9 @@ import textwrap
 import numpy as np
 import pytest
 
-import fitting
+from brdfscale import fitting
 from brdfscale import InvalidInputError
-from fitting import _sample_many
+from brdfscale.fitting import _sample_many
 from test_samplers import Linear, _measurements
 
 SIGMA = 0.1
@@ -147,8 +147,8 @@ _SHARDED = textwrap.dedent("""
     jax.config.update("jax_enable_x64", True)
     import numpy as np
     sys.path.insert(0, "tests")
-    import fitting
-    from fitting import _sample_many
+    from brdfscale import fitting
+    from brdfscale.fitting import _sample_many
     from test_sample_many import NUTS, SIGMA, SIZES, _measurements
     from test_samplers import Linear
     assert len(jax.devices()) == 2, jax.devices()

@@ -21,9 +21,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import fitting
+from brdfscale import fitting
 from brdfscale import InvalidInputError, LobeImage, MeasurementSet
-from fitting import _diagnostics
+from brdfscale.fitting import _diagnostics
 
 BOX = 5.0
 TRUE = (1.0, 0.5, -0.3)

@@ -18,7 +18,7 @@ import pytest
 from matplotlib.figure import Figure
 
 import brdfscale as bs
-import fitting
+from brdfscale import fitting
 from brdfscale import InvalidInputError, lobes, plot, scene, show, stats, synth
 from brdfscale._evolve import EvolvedDensity
 
@@ -367,7 +367,7 @@ def test_progress_bar_picks_text_outside_jupyter_and_honours_the_switches(monkey
 def test_chains_plot_names_the_samplers_trajectories():
     """plot.chains' title says what the trajectories are: NUTS/HMC chains, or emcee's
     ensembles of walkers (one colour per independent chain)."""
-    import fitting
+    from brdfscale import fitting
 
     rng = np.random.default_rng(0)
     common = dict(names=("log a", "log b"), burn=5, tau=np.ones(2), ess=np.ones(2), tau_reliable=True, acceptance=0.8)

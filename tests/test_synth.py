@@ -270,7 +270,7 @@ def test_derived_base_lobe_width_is_the_second_moment_of_the_finest_image():
     """fitting.truth_of's alpha_lobe for a synthetic measurement (√tr of micro + within-facet +
     binning covariance, from the recorded slope covariances) equals the second moment of the
     image at μ0 computed directly from its pixels (quadrature over the grid)."""
-    import fitting
+    from brdfscale import fitting
 
     field = synth.spectral_field(stats.GaussianCorrelation(0.4, 6.0), size=256, seed=3, micro=stats.Beckmann(0.04))
     extent, pixels = 0.6, 121

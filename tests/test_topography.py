@@ -265,7 +265,7 @@ def test_a_fit_of_a_real_fields_measurements_recovers_its_slope_variance_differe
     from brdfscale import stats
 
     jax.config.update("jax_enable_x64", True)
-    import fitting
+    from brdfscale import fitting
 
     field = topography.read(DATA / "di-3.di", detrend="curvature", micro=stats.Beckmann(0.3))
     scales = [b * field.spacing[0] for b in (1, 2, 4, 8)]
