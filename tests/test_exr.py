@@ -9,6 +9,7 @@ import json
 import os
 import shutil
 import subprocess
+import sys
 import types
 import warnings
 
@@ -234,6 +235,39 @@ def test_truncated_files(written, tmp_path, fraction):
     bad.write_bytes(data[: int(len(data) * fraction)])
     with pytest.raises(MeasurementFileError, match=r"cut\.exr: (not a readable OpenEXR|no readable part|.*truncated)"):
         exr.read_measurements(bad)
+
+
+@pytest.mark.parametrize("fraction", [0.6, 0.9, 0.999])
+def test_damaged_file_prints_nothing_and_costs_one_line(written, tmp_path, capfd, fraction):
+    """A file cut inside its pixel data: OpenEXR's C++ layer prints on file descriptors 1 and 2
+    (four lines for two damaged parts); the reader captures them, so nothing reaches the
+    descriptors and the error is one line carrying OpenEXR's first diagnostic
+    (brdfscale/exr/_diagnostics.py)."""
+    data = written.read_bytes()
+    bad = tmp_path / "cut.exr"
+    bad.write_bytes(data[: int(len(data) * fraction)])
+    with pytest.raises(MeasurementFileError) as info:
+        exr.read_measurements(bad)
+    out, err = capfd.readouterr()
+    assert (out, err) == ("", "")
+    message = str(info.value)
+    assert "\n" not in message and "truncated" in message
+    assert "(OpenEXR: (EXR_ERR_" in message and str(bad) + ": (" not in message  # the path is said once
+    # and the descriptors work as before afterwards
+    os.write(1, b"after\n")
+    assert capfd.readouterr().out == "after\n"
+
+
+def test_a_command_on_a_damaged_file_prints_one_line(written, tmp_path):
+    """Through the ``brdfscale`` command in a fresh process: one line in all, on stderr."""
+    data = written.read_bytes()
+    bad = tmp_path / "cut.exr"
+    bad.write_bytes(data[: int(len(data) * 0.6)])
+    out = subprocess.run([sys.executable, "-c", "import sys; from brdfscale._cli import main; sys.exit(main(sys.argv[1:]))",
+                          "--no-compilation-cache", "info", str(bad)], capture_output=True, text=True, timeout=300,
+                         check=False)
+    assert out.returncode != 0 and out.stdout == ""
+    assert out.stderr.count("\n") == 1 and "cut.exr" in out.stderr, out.stderr
 
 
 @pytest.mark.parametrize("seed", range(6))

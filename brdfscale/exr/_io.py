@@ -8,6 +8,7 @@ import OpenEXR
 from .._errors import InvalidInputError, MeasurementFileError
 from .._files import atomic_write
 from .._validation import flag
+from ._diagnostics import captured, pass_on, summary
 from ._format import MAX_EXPANSION, MAX_SIDE, PREFIX
 
 
@@ -40,9 +41,11 @@ def write_parts(path, parts: list, overwrite: bool) -> None:
 
     def write(tmp):
         try:
-            OpenEXR.File(parts).write(tmp)
+            with captured() as said:
+                OpenEXR.File(parts).write(tmp)
         except (RuntimeError, TypeError, ValueError) as err:
-            raise MeasurementFileError(f"{path}: OpenEXR could not write the file: {err}") from err
+            raise MeasurementFileError(f"{path}: OpenEXR could not write the file: {err}{summary(said.text, tmp)}") from err
+        pass_on(said.text)
 
     try:
         atomic_write(path, write, overwrite=overwrite, error=MeasurementFileError)
@@ -69,32 +72,38 @@ def _check_readable(path: str) -> None:
         raise MeasurementFileError(f"{path}: permission denied: the file exists but this user may not read it.")
 
 
-def _open(path: str, header_only: bool):
-    """OpenEXR's parts; every failure of the bindings (RuntimeError, a bad ``type``
-    attribute's ValueError, a non-UTF-8 attribute's UnicodeDecodeError, …) as
+def _open(path: str, header_only: bool) -> tuple[list, str]:
+    """OpenEXR's parts and what its C++ layer printed meanwhile (captured:
+    :mod:`brdfscale.exr._diagnostics`); every failure of the bindings (RuntimeError, a bad
+    ``type`` attribute's ValueError, a non-UTF-8 attribute's UnicodeDecodeError, …) as
     MeasurementFileError."""
     try:
-        return list(OpenEXR.File(path, separate_channels=True, header_only=header_only).parts)
+        with captured() as said:
+            parts = list(OpenEXR.File(path, separate_channels=True, header_only=header_only).parts)
     except MemoryError:
         raise MeasurementFileError(f"{path}: not readable: decoding would need more memory than there is "
                                    "(a damaged header declaring huge images?).") from None
     except Exception as err:  # noqa: BLE001 — the bindings raise whatever their C++ and pybind11 layers give
-        raise MeasurementFileError(f"{path}: not a readable OpenEXR file ({type(err).__name__}: {err}).") from None
+        raise MeasurementFileError(f"{path}: not a readable OpenEXR file ({type(err).__name__}: {err})"
+                                   f"{summary(said.text, path)}.") from None
+    return parts, said.text
 
 
 def open_parts(path) -> list:
     """Open ``path`` and return its parts, checking that none is missing.
 
     OpenEXR 3.5 raises for a missing, non-EXR or header-truncated file but only prints a
-    warning (to stderr, from C++) and drops the damaged parts when the file is cut inside the
-    pixel data (docs/dependencies.md); every part records the part count, so a short file is
-    reported here. Headers are read first, and a part whose data window is larger than
+    warning (on descriptors 1 and 2, from C++) and drops the damaged parts when the file is cut
+    inside the pixel data (docs/dependencies.md); every part records the part count, so a short
+    file is reported here, in one line with OpenEXR's first diagnostic (the rest is captured,
+    :mod:`brdfscale.exr._diagnostics`; what a successful read printed goes to ``sys.stderr``).
+    Headers are read first, and a part whose data window is larger than
     :data:`MAX_SIDE` pixels a side, or whose pixels would decode to more than
     :data:`MAX_EXPANSION` times the file's size, is refused before any pixel is decoded.
     """
     path = file_path(path)
     _check_readable(path)
-    headers = _open(path, header_only=True)
+    headers, said = _open(path, header_only=True)
     budget = MAX_EXPANSION * os.path.getsize(path) + 2**20
     decoded = 0
     for index, part in enumerate(headers):
@@ -111,13 +120,16 @@ def open_parts(path) -> list:
     if decoded > budget:
         raise MeasurementFileError(f"{path}: its headers declare {decoded} bytes of pixels, more than {MAX_EXPANSION} "
                                    "times the file's size: the headers are damaged.")
-    parts = _open(path, header_only=False)
+    parts, said_too = _open(path, header_only=False)
+    said += said_too
     if not parts:
-        raise MeasurementFileError(f"{path}: no readable part: the file is truncated or its pixel data are damaged.")
+        raise MeasurementFileError(f"{path}: no readable part: the file is truncated or its pixel data are damaged"
+                                   f"{summary(said, path)}.")
     declared = parts[0].header.get(PREFIX + "part_count")
     if isinstance(declared, int) and not isinstance(declared, bool) and declared != len(parts):
         raise MeasurementFileError(
             f"{path}: attribute {PREFIX + 'part_count'!r} of part 0 declares {declared} parts but {len(parts)} "
-            "could be read: the file is truncated or damaged."
+            f"could be read: the file is truncated or damaged{summary(said, path)}."
         )
+    pass_on(said)
     return parts
