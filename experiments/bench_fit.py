@@ -64,7 +64,7 @@ from brdfscale import fitting
 
 jax.config.update("jax_enable_x64", True)  # the fits need float64; fitting changes no global setting
 from experiments._bench import best_time, interleaved_times, machine, median, rotated, write_json
-from brdfscale.fitting._estimate import _make_solver, _solve
+from brdfscale.fitting._solve import make_solver as _make_solver, solve as _solve
 
 SCALES = (0.5, 1.0, 2.0, 4.0, 8.0)
 PROBLEMS = {

@@ -40,7 +40,11 @@ __distribution__ = "brdfscale"  # how brdfscale.fitting recognises this package 
 
 from ._batch import COMPILE_ROWS, BatchPlan, explain_plan, fit_many
 from ._data import Dataset, PointData
-from ._estimate import RATIO_FREQUENCIES, SOLVERS, FitResult, Problem, fit, ratio_frequencies
+from ._derived import RATIO_FREQUENCIES, ratio_frequencies
+from ._fit import fit
+from ._problem import Problem
+from ._result import FitResult
+from ._solve import SOLVERS
 from ._model import AbstractModel
 from ._nonparametric import NonParametricModel, RelativeStatistics
 from ._parametric import ParametricModel

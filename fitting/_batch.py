@@ -4,7 +4,7 @@ A Python loop of :func:`fitting.fit` over a library compiles a new solve for nea
 material: the compiled program depends on the data's shapes (how many distinct points each
 scale has) and on its layout. :func:`fit_many` instead
 
-1. reduces every material to its residual rows (:class:`fitting._estimate.Rows`: the model, the
+1. reduces every material to its residual rows (:class:`fitting._problem.Rows`: the model, the
    scales, the distinct points with their weights, the prior box — seed Eq. 4.4 evaluated at
    the points of :meth:`Dataset.points`);
 2. **buckets** the materials by what the program's structure depends on — the model's static
@@ -41,7 +41,7 @@ scale has) and on its layout. :func:`fit_many` instead
 5. hands each material's starts to the same analysis as :func:`fitting.fit` (best start,
    Laplace covariance and identifiability by :mod:`brdfscale.laplace`), then evaluates the
    quantities and ratios of the bucket's materials at their optima and Laplace draws in one
-   more, vmapped program (:func:`fitting._estimate.results_of_starts`).
+   more, vmapped program (:func:`fitting._analysis.results_of_starts`).
 
 The result of each material equals that of ``fitting.fit(model, data)`` with the same
 options to the solver's tolerance: the starts are the same (same seed), the solver is the
@@ -63,8 +63,10 @@ from brdfscale.checks import integer
 from brdfscale.show import progress_bar
 
 from ._data import Dataset, PointData
-from ._estimate import (FitResult, Problem, Rows, _make_solver, _stack_trees, check_pair, fit_options,
-                        results_of_starts, solve_rows, starting_points)
+from ._analysis import results_of_starts
+from ._fit import FitOptions
+from ._problem import Problem, Rows, check_pair, stack_trees, starting_points
+from ._solve import solve_rows
 from ._model import AbstractModel
 
 __all__ = ["fit_many", "explain_plan", "bucket_points", "BatchPlan", "COMPILE_ROWS"]
@@ -147,7 +149,7 @@ def _pad_points(points: PointData, n: int) -> PointData:
 
 @eqx.filter_jit
 def _solve_batch(rows, y0, solver, max_steps, lanes):
-    """:func:`fitting._estimate.solve_rows` over the leading axis of ``rows`` and ``y0``, ``lanes``
+    """:func:`fitting._solve.solve_rows` over the leading axis of ``rows`` and ``y0``, ``lanes``
     solves at a time: one compiled program per bucket shape (and device) for every (material,
     start) of the batch. ``lanes`` ≥ the axis: one ``jax.vmap`` of the solve (all in lock-step);
     fewer: a ``jax.lax.map`` over groups of ``lanes`` (each group vmapped; ``lanes == 1``: each
@@ -313,7 +315,7 @@ def fit_many(
     *,
     batch: int = 64,
     devices=None,
-    solver: str = "lm",
+    solver="lm",
     starts: int = 8,
     spread: float = 0.5,
     seed: int = 0,
@@ -364,17 +366,17 @@ def fit_many(
             ``"raise"``/``"return"``.
     """
     problems = _problems(models, datasets)
-    options = fit_options(solver=solver, starts=starts, max_steps=max_steps, spread=spread, seed=seed, rtol=rtol,
-                          atol=atol, undetermined_std=undetermined_std)
+    options = FitOptions(solver=solver, starts=starts, max_steps=max_steps, spread=spread, seed=seed, rtol=rtol,
+                         atol=atol, undetermined_std=undetermined_std)
     batch = integer(batch, "batch", 1)
     if errors not in ("raise", "return"):
         raise InvalidInputError(f"errors must be 'raise' or 'return'; got {errors!r}.")
     device_list = _devices(devices)
-    layout = plan(problems, options["starts"], batch, len(device_list), integer(compile_rows, "compile_rows", 0),
+    layout = plan(problems, options.starts, batch, len(device_list), integer(compile_rows, "compile_rows", 0),
                   select_lanes(device_list, lanes))
-    optimiser = _make_solver(options["solver"], options["rtol"], options["atol"])
+    optimiser = options.optimiser()
     results: list = [None] * len(problems)
-    S = options["starts"]
+    S = options.starts
     with progress_bar(enabled=progress, total=len(problems), desc="fit_many", unit="material") as bar:
         for bucket in layout.buckets:
             members = bucket["materials"]
@@ -387,9 +389,9 @@ def fit_many(
             extra = bucket["solves"] - len(flat_rows)
             flat_rows += [flat_rows[0]] * extra
             flat_y0 += [flat_y0[0]] * extra
-            solved = _joined(_on_devices(lambda r, y: _solve_batch(r, y, optimiser, options["max_steps"],
+            solved = _joined(_on_devices(lambda r, y: _solve_batch(r, y, optimiser, options.max_steps,
                                                                    bucket["lanes"]),
-                                         (_stack_trees(flat_rows), np.stack(flat_y0).astype(np.float64)),
+                                         (stack_trees(flat_rows), np.stack(flat_y0).astype(np.float64)),
                                          device_list))
             values, codes, steps, chi2s, jacobians = (  # (material, start, …), the padding dropped
                 a[:len(members) * S].reshape(len(members), S, *a.shape[1:]) for a in solved)

@@ -28,7 +28,8 @@ from brdfscale import InvalidInputError
 from brdfscale import plot as _figures
 from brdfscale.checks import integer, real
 
-from ._estimate import FitResult, Problem, check_fit
+from ._problem import Problem, check_fit
+from ._result import FitResult
 from ._model import predict_images
 from ._parametric import ParametricModel
 from ._sample import SampleResult

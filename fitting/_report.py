@@ -26,7 +26,8 @@ from brdfscale import BrdfscaleError, InvalidInputError, MeasurementFileError
 from brdfscale.files import atomic_write, exclusive
 
 from brdfscale.checks import flag
-from ._estimate import FitResult, Problem, check_fit
+from ._problem import Problem, check_fit
+from ._result import FitResult
 from ._model import predict_images
 from ._parametric import ParametricModel
 from ._plot import (CORNER_DRAWS, _quantities, _relative, check_samples, check_truth, corner_figure, plot_fit,

@@ -49,7 +49,8 @@ from brdfscale.show import Shown, Table, progress_mode
 
 from . import _diagnostics as diag
 from ._checkpoint import Checkpoint
-from ._estimate import FitResult, Problem, check_fit
+from ._problem import Problem, check_fit
+from ._result import FitResult
 from ._posterior import COORDINATES, PRIOR_TEXT, log_posterior, target, undetermined_directions
 from ._sample_blackjax import HMC, NUTS
 from ._sample_emcee import Emcee

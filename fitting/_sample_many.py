@@ -62,7 +62,7 @@ from brdfscale.checks import flag, integer
 from brdfscale.show import progress_bar, progress_mode
 
 from ._batch import _devices, _key, bucket_batch
-from ._estimate import Problem, _stack_trees, check_fit
+from ._problem import Problem, check_fit, stack_trees
 from ._posterior import target
 from ._sample import _diagnose, _resolve_sampler, sampled_dimension
 from ._sample_blackjax import _advance, _blackjax, _host, _initial_carry, _window_warmup, join, starts
@@ -252,7 +252,7 @@ def sample_many(
             z0, cov = zip(*(starts(post, fits[i], chains, seed) for post, i in zip(posteriors, members)))
             size = -(-bucket_batch(len(members), batch) // n_dev) * n_dev
             extra = size - len(members)
-            targets = place(_stack_trees(posteriors + posteriors[:1] * extra))
+            targets = place(stack_trees(posteriors + posteriors[:1] * extra))
             z0 = place(np.stack(z0 + z0[:1] * extra))
             cov = place(np.stack(cov + cov[:1] * extra))
             carry = _host(_initial_many(targets, z0, cov, mesh))

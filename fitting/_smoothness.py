@@ -41,7 +41,8 @@ def choose_smoothness(model: "NonParametricModel", data: Dataset, *, candidates=
 
     Returns ``(s, record)``: the choice and ``(candidates, GCV values, s0)`` as tuples.
     """
-    from ._estimate import Problem, fit
+    from ._fit import fit
+    from ._problem import Problem
 
     problem = Problem(model, data)
     pilot = fit(model, data, starts=1, max_steps=max_steps)

@@ -11,4 +11,4 @@ def _no_persistent_compilation_cache(request, monkeypatch):
     rest of the session and write into the user's cache directory). Tests marked
     ``compilation_cache`` exercise it themselves."""
     if request.node.get_closest_marker("compilation_cache") is None:
-        monkeypatch.setattr("brdfscale._cli._compilation_cache.enable", lambda: None)
+        monkeypatch.setattr("brdfscale._compilation_cache.enable", lambda directory=None: None)

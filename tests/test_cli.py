@@ -79,7 +79,7 @@ def test_command_keeps_compiled_programs_between_runs_unless_told_not_to(tmp_pat
 def test_compilation_cache_directory_and_an_unusable_one(tmp_path, monkeypatch, capsys):
     import jax
 
-    from brdfscale._cli import _compilation_cache as cc
+    from brdfscale import _compilation_cache as cc
 
     monkeypatch.delenv("BRDFSCALE_COMPILATION_CACHE", raising=False)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))

@@ -136,13 +136,35 @@ def test_laplace_covariance_and_optimum_agree_with_scipy():
     _, data = _dataset(model, TRUTHS[0], 0.01, seed=5)
     res = fitting.fit(model, data, starts=2)
     problem = fitting.Problem(model, data)
-    residuals = eqx.filter_jit(fitting._estimate._residuals)
+    residuals = eqx.filter_jit(fitting._solve._residuals)
     f = lambda t: np.asarray(residuals(jnp.asarray(t), problem))  # noqa: E731
     ref = scipy.optimize.least_squares(f, model.initial(data), method="trf", x_scale="jac", xtol=1e-12, ftol=1e-12)
     assert ref.cost * 2 + float(problem.points.chi2_offset) == pytest.approx(res.chi2, rel=1e-7)
     np.testing.assert_allclose(ref.x, res.theta, atol=1e-4 * np.sqrt(np.diag(res.covariance)).max() * 100)
     cov_scipy = np.linalg.inv(ref.jac.T @ ref.jac)
     np.testing.assert_allclose(res.covariance, cov_scipy, rtol=2e-3)
+
+
+def test_an_optimistix_solver_object_is_accepted_where_a_name_is():
+    """``solver=optx.LevenbergMarquardt(...)`` is used as given: with the settings the name
+    "lm" stands for, the same optimum and covariance; the result records the class name; a
+    non-solver object is refused with a message naming both forms; fit_many takes it too."""
+    import optimistix as optx
+
+    model = fitting.ParametricModel()
+    _, data = _dataset(model, TRUTHS[0], 0.01, seed=5, size=12)
+    by_name = fitting.fit(model, data, starts=2)
+    by_object = fitting.fit(model, data, starts=2,
+                            solver=optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6, norm=optx.rms_norm))
+    assert by_name.solver == "lm" and by_object.solver == "LevenbergMarquardt"
+    assert by_object.status == "converged" and by_object.chi2 == pytest.approx(by_name.chi2, rel=1e-12)
+    np.testing.assert_allclose(by_object.theta, by_name.theta, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(by_object.covariance, by_name.covariance, rtol=1e-8)
+    (many,) = fitting.fit_many(model, [data], starts=2, solver=optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6,
+                                                                                     norm=optx.rms_norm))
+    assert many.solver == "LevenbergMarquardt" and many.chi2 == pytest.approx(by_name.chi2, rel=1e-6)
+    with pytest.raises(InvalidInputError, match="optimistix least-squares solver or minimiser object"):
+        fitting.fit(model, data, solver=object())
 
 
 @pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
@@ -155,8 +177,8 @@ def test_solve_returns_chi2_and_jacobian_at_the_optimum(solver, max_steps):
     _, data = _dataset(model, TRUTHS[0], 0.01, seed=5, size=12)
     problem = fitting.Problem(model, data)
     y0 = jnp.asarray(np.clip(model.initial(data), *model.bounds(data)))
-    theta, code, steps, chi2, jac = fitting._estimate._solve(
-        problem, y0, fitting._estimate._make_solver(solver, 1e-6, 1e-6), max_steps)
+    theta, code, steps, chi2, jac = fitting._solve.solve(
+        problem, y0, fitting._solve.make_solver(solver, 1e-6, 1e-6), max_steps)
     assert (int(code) == 0) == (max_steps > 2)
     assert float(chi2) == pytest.approx(float(problem.chi2(theta)), rel=1e-12)
     reference = jax.jacfwd(problem.residuals)(theta)

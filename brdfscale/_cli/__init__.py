@@ -63,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
     name = f"brdfscale {args.command}"
     try:
         if not args.no_compilation_cache and getattr(args, "compiles", True):
-            from ._compilation_cache import enable
+            from .._compilation_cache import enable
 
             enable()
         return int(args.func(args) or 0)
@@ -76,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"{name}: interrupted.", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except Exception as err:  # noqa: BLE001 — the last resort: a one-line message, never a traceback
+    except Exception as err:  # the last resort: a one-line message, never a traceback
         if args.debug:
             raise
         text = " ".join(str(err).split())[:300]

@@ -1,17 +1,20 @@
-"""``brdfscale fit MEASUREMENTS.exr --out DIR``: the main job (fitting package, issue 6).
+"""``brdfscale fit MEASUREMENTS.exr --out DIR``: the main job (the fitting package).
 
 Reads a measurement set, fits a model (optimistix, multi-start), samples its posterior
-(emcee, checkpointed to DIR/chain.h5 so an interrupted run resumes), and writes
+(NUTS by default, checkpointed to DIR/chain.h5 so an interrupted run resumes), and writes
 DIR/fit.json, the figures and the evolved lobe tables (:func:`fitting.write_report`).
+
+The options' names, choices and defaults come from :mod:`brdfscale.choices` (the library's
+own), and the parsed options become one :class:`brdfscale.library.FitSpec` (:func:`spec_of`),
+which hands them to fitting.
 """
 
 import math
 import os
 
+from .._choices import FAMILIES, FIT, LAWS, MODEL, MODELS, SAMPLE, SAMPLERS, SOLVERS
 from .._errors import InvalidInputError
-from ..library._spec import make_model
 from ._options import MAX_SEED, integer, output_directory, real, seed
-
 
 #: The chain is held in memory (and in chain.h5): walkers × steps × parameters × 8 bytes at most.
 CHAIN_BUDGET = 2 * 2**30
@@ -43,41 +46,44 @@ def add_fit_options(parser) -> None:
     """Options shared by ``fit`` and ``demo``."""
     parser.add_argument("--out", required=True, help="output directory (fit.json, figures, tables, chain.h5); "
                         "one run at a time: a second run into it is refused (exit 3)")
-    parser.add_argument("--model", choices=("parametric", "nonparametric"), default="parametric",
-                        help="parametric lobe + width law (default), or tabulated lobe + relative statistics")
-    parser.add_argument("--family", choices=("beckmann", "ggx"), default="beckmann",
-                        help="family of the base lobe and of the slope statistics (parametric model; default beckmann)")
-    parser.add_argument("--law", choices=("width", "gaussian_surface"), default="width",
-                        help="scale law of the parametric model: width (α(μ) power law, default) or gaussian_surface "
-                        "(Gaussian-correlated random surface: rms_height, correlation_length; beckmann only)")
+    parser.add_argument("--model", choices=MODELS.names, default=MODEL.model, help=f"the model — {MODELS.help()}")
+    parser.add_argument("--family", choices=FAMILIES.names, default=MODEL.family,
+                        help=f"family of the base lobe and of the slope statistics (parametric model) — {FAMILIES.help()}")
+    parser.add_argument("--law", choices=LAWS.names, default=MODEL.law,
+                        help=f"scale law of the parametric model — {LAWS.help()}")
     parser.add_argument("--fix", type=_fixed, action="append", default=[], metavar="NAME=VALUE",
                         help="hold a parametric quantity fixed (e.g. mu_c=1.0) at a value inside its prior box "
                         "(docs/fitting.md); repeatable, once per name")
-    parser.add_argument("--solver", choices=("lm", "gauss_newton", "dogleg", "bfgs"), default="lm",
-                        help="optimistix solver (default lm: Levenberg–Marquardt)")
-    parser.add_argument("--starts", type=integer(1, 256), default=6, help="multi-start count, 1–256 (default 6)")
-    parser.add_argument("--max-steps", type=integer(1, 100_000), default=256,
-                        help="solver steps per start, 1–100000 (default 256); a start that needs more is reported")
-    parser.add_argument("--base-nodes", type=integer(3, 41), default=13,
-                        help="non-parametric model: base lobe tabulated on N × N nodes, 3–41 (default 13)")
-    parser.add_argument("--knots", type=integer(2, 64), default=8,
-                        help="non-parametric model: W knots of the relative statistics, 2–64 (default 8)")
-    parser.add_argument("--regularisation", type=_smoothness, default=None, metavar="auto|WEIGHT",
+    parser.add_argument("--solver", choices=SOLVERS.names, default=FIT.solver,
+                        help=f"optimistix solver — {SOLVERS.help()}")
+    parser.add_argument("--starts", type=integer(1, 256), default=FIT.starts,
+                        help=f"multi-start count, 1–256 (default {FIT.starts}, fitting.fit's; earlier releases of the "
+                        "command defaulted to 6)")
+    parser.add_argument("--max-steps", type=integer(1, 100_000), default=FIT.max_steps,
+                        help=f"solver steps per start, 1–100000 (default {FIT.max_steps}); a start that needs more is "
+                        "reported")
+    parser.add_argument("--base-nodes", type=integer(3, 41), default=MODEL.base_nodes,
+                        help=f"non-parametric model: base lobe tabulated on N × N nodes, 3–41 (default {MODEL.base_nodes})")
+    parser.add_argument("--knots", type=integer(2, 64), default=MODEL.knots,
+                        help=f"non-parametric model: W knots of the relative statistics, 2–64 (default {MODEL.knots})")
+    parser.add_argument("--regularisation", type=_smoothness, default=MODEL.regularisation, metavar="auto|WEIGHT",
                         help="non-parametric model: weight of the smoothness prior, a number in [0, 1e6] (default "
                         "3) or auto (generalised cross-validation about a pilot fit; docs/fitting.md)")
-    parser.add_argument("--sampler", choices=("nuts", "hmc", "emcee"), default="nuts",
-                        help="posterior sampler: nuts (default; BlackJAX NUTS, Laplace-preconditioned), hmc (BlackJAX "
-                        "HMC of fixed trajectory length) or emcee (affine-invariant ensembles); docs/fitting.md")
-    parser.add_argument("--chains", type=integer(1, 64), default=4,
-                        help="independent chains (emcee: independent ensembles), 1–64 (default 4; R̂ needs ≥ 2)")
-    parser.add_argument("--steps", type=integer(0, 1_000_000), default=2000,
+    parser.add_argument("--sampler", choices=SAMPLERS.names, default=SAMPLE.sampler,
+                        help=f"posterior sampler — {SAMPLERS.help()}; docs/fitting.md (fitting.sample defaults to "
+                        f"{SAMPLE.sampler} too; in earlier releases it defaulted to emcee)")
+    parser.add_argument("--chains", type=integer(1, 64), default=SAMPLE.chains,
+                        help=f"independent chains (emcee: independent ensembles), 1–64 (default {SAMPLE.chains}; R̂ "
+                        "needs ≥ 2)")
+    parser.add_argument("--steps", type=integer(0, 1_000_000), default=SAMPLE.steps,
                         help="draws per chain after the warm-up (nuts, hmc) or emcee steps per walker, 0–1000000 "
-                        "(default 2000; 0: Laplace only); the chains are kept in memory: chains × walkers × steps × "
-                        f"parameters × 8 bytes ≤ {CHAIN_BUDGET // 2**30} GiB")
+                        f"(default {SAMPLE.steps}; 0: Laplace only); the chains are kept in memory: chains × walkers × "
+                        f"steps × parameters × 8 bytes ≤ {CHAIN_BUDGET // 2**30} GiB")
     parser.add_argument("--walkers", type=integer(2, 4096), default=None,
                         help="emcee only: walkers per ensemble, even, ≥ 2 × parameters, ≤ 4096 (default max(32, 4 × "
                         "parameters))")
-    parser.add_argument("--seed", type=seed, default=0, help=f"seed of the starts and the sampler, 0–{MAX_SEED} (default 0)")
+    parser.add_argument("--seed", type=seed, default=FIT.seed,
+                        help=f"seed of the starts and the sampler, 0–{MAX_SEED} (default {FIT.seed})")
     parser.add_argument("--no-progress", action="store_true",
                         help="no progress bar (BRDFSCALE_PROGRESS=0 in the environment turns off every bar)")
     parser.add_argument("--force", action="store_true", help="overwrite DIR/fit.json and restart DIR/chain.h5")
@@ -99,8 +105,7 @@ def check_sampler_options(args, n_parameters: int) -> None:
     """--sampler, --chains, --walkers and --steps against the model's size, before the fit runs."""
     if args.steps == 1:
         raise InvalidInputError("--steps 1 has no transition to measure (no acceptance rate, no τ); give 0 or ≥ 2.")
-    sampler = getattr(args, "sampler", "emcee")
-    chains = getattr(args, "chains", 1)
+    sampler, chains = args.sampler, args.chains
     if sampler != "emcee" and args.walkers is not None:
         raise InvalidInputError(f"--walkers applies to --sampler emcee only; {sampler} runs --chains {chains} chains.")
     walkers = 1
@@ -115,6 +120,19 @@ def check_sampler_options(args, n_parameters: int) -> None:
         raise InvalidInputError(f"--chains {chains} × {walkers} walkers × --steps {args.steps} × {n_parameters} parameters "
                                 f"is {size / 2**30:.1f} GiB of chains; at most {CHAIN_BUDGET // 2**30} GiB (fewer steps, "
                                 "chains or walkers).")
+
+
+def spec_of(args, *, sampler: bool = True):
+    """The :class:`brdfscale.library.FitSpec` of the parsed options (``sampler`` False or
+    ``--steps 0``: no sampling)."""
+    from ..library import FitSpec
+
+    return FitSpec(model=args.model, family=args.family, law=args.law, fixed=tuple(args.fix),
+                   base_nodes=args.base_nodes, knots=args.knots, regularisation=args.regularisation,
+                   solver=args.solver, starts=args.starts, max_steps=args.max_steps, seed=args.seed,
+                   sampler=args.sampler if sampler and args.steps > 0 else None, chains=args.chains,
+                   steps=args.steps, default_sigma=getattr(args, "default_sigma", None),
+                   figures=getattr(args, "figures", True))
 
 
 def load_fitting():
@@ -133,8 +151,9 @@ def register(subparsers) -> None:
         "fit",
         help="fit slope statistics and base lobe to a multi-scale measurement set (EXR)",
         description="Recover the facet-slope statistics S(W, μ) and the base lobe at the finest scale from "
-        "lobe images at several scales, with uncertainties (optimistix + emcee). Writes DIR/fit.json, "
-        "figures and the evolved lobe tables.",
+        f"lobe images at several scales, with uncertainties (optimistix, then {SAMPLE.sampler.upper()} by default: "
+        "--sampler). Writes DIR/fit.json, figures and the evolved lobe tables. Every default is the library's "
+        f"own (brdfscale.choices): --starts {FIT.starts} (6 in earlier releases of the command).",
     )
     parser.add_argument("measurements", help="multi-part OpenEXR measurement set (brdfscale.exr format)")
     add_fit_options(parser)
@@ -150,37 +169,32 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
     fitting = load_fitting()
 
     check_fit_options(args)
-    data = fitting.Dataset.from_measurements(mset, default_sigma=getattr(args, "default_sigma", None))
-    if args.model == "nonparametric" and args.regularisation in ("auto", "gcv"):
+    spec = spec_of(args)
+    data = spec.dataset(mset)
+    if spec.model == "nonparametric" and spec.regularisation in ("auto", "gcv"):
         stream("choosing the smoothness weight by generalised cross-validation (one pilot fit) ...")
-    model, info = make_model(fitting, data, model=args.model, family=args.family, law=args.law, fixed=dict(args.fix),
-                             base_nodes=args.base_nodes, knots=args.knots, regularisation=args.regularisation,
-                             solver=args.solver)
-    if args.steps > 0:
+    model, info = spec.model_for(data)
+    if spec.sampler is not None:
         check_sampler_options(args, len(model.names))
     truth = fitting.truth_of(model, mset.metadata)  # a damaged truth is refused before the work, not after
     fitting.check_report_directory(args.out, args.force)  # before the long work: every report file, not only fit.json
     with files.exclusive(args.out, what="output directory"):
-        return _fit_and_report(fitting, mset, data, model, info, truth, args, stream)
+        return _fit_and_report(fitting, spec, data, model, info, truth, args, stream)
 
 
-def _fit_and_report(fitting, mset, data, model, info, truth, args, stream) -> dict:
+def _fit_and_report(fitting, spec, data, model, info, truth, args, stream) -> dict:
     stream(f"fitting {len(data.scale_of_image)} images at scales μ = {[float(s) for s in data.scales]} "
-           f"({data.n_data} valid pixels), {len(model.names)} parameters, {args.starts} starts ...")
-    result = fitting.fit(model, data, solver=args.solver, starts=args.starts, seed=args.seed, max_steps=args.max_steps)
+           f"({data.n_data} valid pixels), {len(model.names)} parameters, {spec.starts} starts ...")
+    result = spec.fit(model, data)
     stream(f"  {result.status}: χ²/dof = {result.chi2 / result.dof:.3f}, "
            f"{sum(s['at_best'] for s in result.starts)}/{len(result.starts)} starts at the optimum")
     for item in result.undetermined:
         stream(f"  not determined by the data: {item['combination']}")
     samples = None
-    if args.steps > 0:
-        problem = fitting.Problem(model, data)
-        sampler = getattr(args, "sampler", "emcee")
-        if sampler == "emcee":
-            sampler = fitting.Emcee(walkers=args.walkers)
-        samples = fitting.sample(problem, result, sampler=sampler, chains=getattr(args, "chains", 4), steps=args.steps,
-                                 seed=args.seed, checkpoint=os.path.join(args.out, "chain.h5"), overwrite=args.force,
-                                 progress=not args.no_progress)
+    if spec.sampler is not None:
+        samples = spec.sample(fitting.Problem(model, data), result, walkers=args.walkers,
+                              checkpoint=os.path.join(args.out, "chain.h5"), overwrite=args.force,
+                              progress=not args.no_progress)
         stream(sampling_line(samples.diagnostics()))
     return fitting.write_report(args.out, fitting.Problem(model, data), result, samples, truth=truth,
                                 model_info=info, overwrite=args.force)

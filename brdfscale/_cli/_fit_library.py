@@ -4,7 +4,13 @@ batches (:func:`brdfscale.library.fit_library`), in this process or on Ray."""
 import os
 
 from .._errors import InvalidInputError
-from ._fit import add_fit_options, check_fit_options, check_sampler_options, load_fitting
+from ._fit import (
+    add_fit_options,
+    check_fit_options,
+    check_sampler_options,
+    load_fitting,
+    spec_of,
+)
 from ._options import integer, output_directory, real
 
 
@@ -39,7 +45,7 @@ def register(subparsers) -> None:
     for action in parser._actions:  # the library's own wording of the shared options
         if action.dest == "steps":
             action.help = ("draws per chain of each material's posterior sampling after its fit (default 0: Laplace "
-                           "uncertainties only; --sampler chooses the sampler)")
+                           "uncertainties only, as FitSpec(sampler=None); --sampler chooses the sampler)")
         elif action.dest == "force":
             action.help = "refit every material (also when DIR holds a library fitted with other options)"
 
@@ -59,11 +65,7 @@ def run(args) -> int:
         raise InvalidInputError("--walkers is not available for libraries: emcee runs max(32, 4 × parameters) walkers "
                                 "per ensemble there.")
     output_directory(args.out)
-    spec = library.FitSpec(model=args.model, family=args.family, law=args.law, fixed=tuple(args.fix),
-                           base_nodes=args.base_nodes, knots=args.knots, regularisation=args.regularisation,
-                           solver=args.solver, starts=args.starts, max_steps=args.max_steps, seed=args.seed,
-                           sampler=args.sampler if args.steps > 0 else None, chains=args.chains, steps=args.steps,
-                           default_sigma=args.default_sigma, figures=args.figures)
+    spec = spec_of(args)
     materials = library.find_materials(args.sources)
     where = (f"the Ray cluster at {args.address}" if args.address else
              f"a local Ray instance with {args.workers} CPU(s)" if args.workers else "this process")

@@ -4,7 +4,6 @@ import json
 import math
 
 
-
 def register(subparsers) -> None:
     parser = subparsers.add_parser(
         "info",

@@ -163,7 +163,9 @@ _SCALE_ITEM = re.compile(r"\s*([+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?)\s*
 
 
 def _length_units() -> dict[str, float]:
-    from ..topography import UNITS  # imports JAX: called only when a command's scales are parsed
+    from ..topography import (
+        UNITS,  # imports JAX: called only when a command's scales are parsed
+    )
 
     return UNITS
 

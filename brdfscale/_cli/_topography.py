@@ -190,7 +190,7 @@ def table(doc: dict) -> str:
     unit, rows = _rows(doc)
     head = [f"μ ({unit})", "px", "block", "facets", "indep.", "excl.", "σ_x ± err", "σ_y ± err", "Σ_xy", "rms slope"]
     widths = [max(len(h), *(len(r[k]) for r in rows)) for k, h in enumerate(head)]
-    line = lambda cells: "  " + "  ".join(c.rjust(w) for c, w in zip(cells, widths))  # noqa: E731
+    line = lambda cells: "  " + "  ".join(c.rjust(w) for c, w in zip(cells, widths))
     return "\n".join([line(head)] + [line(r) for r in rows])
 
 

@@ -1,28 +1,38 @@
-"""What a library fit does to every material: the model and the fit's options (one place for
-``brdfscale fit`` and ``brdfscale fit-library``)."""
+"""What a fit does to every material: the model and the fit's options (one place for
+``brdfscale fit`` and ``brdfscale fit-library``), their defaults read from :mod:`brdfscale.choices`."""
 
 import dataclasses
 import math
+import os
 
+from .._choices import FAMILIES, FIT, LAWS, MODEL, MODELS, SAMPLE, SAMPLERS, SOLVERS
 from .._errors import InvalidInputError
 
 __all__ = ["FitSpec", "make_model"]
 
-_LAWS = {"width": "WidthLaw alpha(mu) = alpha_max (1 + (mu/mu_c)^2)^(-exponent/2)",
-         "gaussian_surface": "GaussianSurface(GaussianCorrelation(rms_height, correlation_length), box window)"}
+
+def _fitting():
+    """The fitting package, imported on first use (a Ray driver that only schedules tasks never
+    imports the fitting stack)."""
+    from .. import fitting
+
+    return fitting
 
 
-def make_model(fitting, data, *, model="parametric", family="beckmann", law="width", fixed=None, base_nodes=13,
-               knots=8, regularisation=None, solver="lm"):
+def make_model(data, *, model=MODEL.model, family=MODEL.family, law=MODEL.law, fixed=None,
+               base_nodes=MODEL.base_nodes, knots=MODEL.knots, regularisation=MODEL.regularisation,
+               solver=FIT.solver):
     """The fitting model for ``data`` and the report's description of it (``fit.json``'s
     ``model``): a :class:`fitting.ParametricModel` (``family`` for lobe and statistics, scale
     ``law``, ``fixed`` values checked inside their prior box for these data) or a
     :class:`fitting.NonParametricModel` built from ``data``.
 
     Raises:
-        InvalidInputError: a fixed value outside its box (prefixed ``--fix:``), or the model's own refusals.
+        InvalidInputError: a fixed value outside its box (prefixed ``fixed:``), or the model's own refusals.
     """
+    fitting = _fitting()
     fixed = dict(fixed or {})
+    MODELS.check(model)
     if model == "parametric":
         try:
             built = fitting.ParametricModel(family, family, law=law, fixed=fixed)
@@ -30,53 +40,59 @@ def make_model(fitting, data, *, model="parametric", family="beckmann", law="wid
         except InvalidInputError as err:
             if not fixed:
                 raise
-            raise InvalidInputError(f"--fix: {err}") from None
-        info = {"kind": "parametric", "lobe": family, "statistics": family, "scale_law": _LAWS[law], "fixed": fixed}
-    elif model == "nonparametric":
+            raise InvalidInputError(f"fixed: {err}") from None
+        info = {"kind": "parametric", "lobe": family, "statistics": family, "scale_law": LAWS.summary(law),
+                "fixed": fixed}
+    else:
         built = fitting.NonParametricModel(data, base_nodes=base_nodes, n_knots=knots, regularisation=regularisation)
         info = {"kind": "nonparametric", "base_nodes": built.base_nodes, "base_extent": built.base_extent,
                 "knots_W": list(built.knots), "smoothness": built.smoothness}
-    else:
-        raise InvalidInputError(f"model must be 'parametric' or 'nonparametric'; got {model!r}.")
     info["solver"] = solver
     return built, info
 
 
 @dataclasses.dataclass(frozen=True)
 class FitSpec:
-    """The options of a library fit, the same for every material, recorded in the library's
-    index so that a rerun into the same directory continues the same job (a rerun with other
-    options is refused rather than mixing two fits in one library).
+    """The model and options of a fit, the same for every material of a library, recorded in the
+    library's index so that a rerun into the same directory continues the same job (a rerun with
+    other options is refused rather than mixing two fits in one library). The defaults are those
+    of :mod:`brdfscale.choices` (``fitting.fit``'s, ``fitting.sample``'s and the models').
 
     ``sampler`` None (default) gives the Laplace uncertainties of :func:`fitting.fit_many` only;
     ``"nuts"``, ``"hmc"`` or ``"emcee"`` also samples each material's posterior
     (:func:`fitting.sample`, ``chains`` × ``steps``, checkpointed in the material's directory).
     ``figures`` adds the report's three PNG figures per material (on a CPU they take longer than
     the fit; off by default).
+
+    :meth:`model_for`, :meth:`fit` and :meth:`sample` hand the options on to :mod:`fitting`:
+    the one place where a spec becomes arguments.
     """
 
-    model: str = "parametric"
-    family: str = "beckmann"
-    law: str = "width"
+    model: str = MODEL.model
+    family: str = MODEL.family
+    law: str = MODEL.law
     fixed: tuple = ()
-    base_nodes: int = 13
-    knots: int = 8
-    regularisation: object = None
-    solver: str = "lm"
-    starts: int = 6
-    max_steps: int = 256
-    seed: int = 0
+    base_nodes: int = MODEL.base_nodes
+    knots: int = MODEL.knots
+    regularisation: object = MODEL.regularisation
+    solver: str = FIT.solver
+    starts: int = FIT.starts
+    max_steps: int = FIT.max_steps
+    seed: int = FIT.seed
     sampler: str | None = None
-    chains: int = 4
-    steps: int = 1000
+    chains: int = SAMPLE.chains
+    steps: int = SAMPLE.steps
     default_sigma: float | None = None
     figures: bool = False
 
     def __post_init__(self):
-        if self.model not in ("parametric", "nonparametric"):
-            raise InvalidInputError(f"model must be 'parametric' or 'nonparametric'; got {self.model!r}.")
-        if self.sampler not in (None, "nuts", "hmc", "emcee"):
-            raise InvalidInputError(f"sampler must be None, 'nuts', 'hmc' or 'emcee'; got {self.sampler!r}.")
+        MODELS.check(self.model)
+        FAMILIES.check(self.family)
+        LAWS.check(self.law)
+        SOLVERS.check(self.solver)
+        if self.sampler is not None and self.sampler not in SAMPLERS:
+            raise InvalidInputError(f"sampler must be None or one of {', '.join(map(repr, SAMPLERS.names))}; "
+                                    f"got {self.sampler!r}.")
         if self.default_sigma is not None and not (math.isfinite(self.default_sigma) and self.default_sigma > 0):
             raise InvalidInputError(f"default_sigma must be a positive number; got {self.default_sigma!r}.")
         object.__setattr__(self, "fixed", tuple(sorted(dict(self.fixed).items())))
@@ -86,8 +102,44 @@ class FitSpec:
         doc["fixed"] = dict(self.fixed)
         return doc
 
-    def model_for(self, fitting, data):
-        """:func:`make_model` with these options."""
-        return make_model(fitting, data, model=self.model, family=self.family, law=self.law, fixed=dict(self.fixed),
+    @classmethod
+    def from_json(cls, doc: dict) -> "FitSpec":
+        """The spec of :meth:`to_json`'s document."""
+        return cls(**{**doc, "fixed": tuple(dict(doc.get("fixed") or {}).items())})
+
+    def model_for(self, data):
+        """:func:`make_model` with these options: ``(model, info)``."""
+        return make_model(data, model=self.model, family=self.family, law=self.law, fixed=dict(self.fixed),
                           base_nodes=self.base_nodes, knots=self.knots, regularisation=self.regularisation,
                           solver=self.solver)
+
+    def dataset(self, measurements):
+        """:meth:`fitting.Dataset.from_measurements` of a measurement set with ``default_sigma``."""
+        return _fitting().Dataset.from_measurements(measurements, default_sigma=self.default_sigma)
+
+    def fit(self, model, data):
+        """:func:`fitting.fit` of ``model`` to ``data`` with these options."""
+        return _fitting().fit(model, data, solver=self.solver, starts=self.starts, seed=self.seed,
+                              max_steps=self.max_steps)
+
+    def fit_many(self, models, datasets, *, batch: int, errors: str = "return"):
+        """:func:`fitting.fit_many` with these options."""
+        return _fitting().fit_many(models, datasets, batch=batch, solver=self.solver, starts=self.starts,
+                                   max_steps=self.max_steps, seed=self.seed, errors=errors)
+
+    def sample(self, problem, fit, *, walkers: int | None = None, checkpoint: str | os.PathLike | None = None,
+               overwrite: bool = False, progress: bool = True):
+        """:func:`fitting.sample` with these options (``sampler`` must be set); ``walkers``: emcee's
+        walkers per ensemble (default ``max(32, 4·dim)``)."""
+        fitting = _fitting()
+        if self.sampler is None:
+            raise InvalidInputError("this FitSpec samples nothing (sampler=None); give sampler='nuts', 'hmc' or "
+                                    "'emcee'.")
+        sampler = fitting.Emcee(walkers=walkers) if self.sampler == "emcee" else self.sampler
+        return fitting.sample(problem, fit, sampler=sampler, chains=self.chains, steps=self.steps, seed=self.seed,
+                              checkpoint=checkpoint, overwrite=overwrite, progress=progress)
+
+    def sample_many(self, problems, fits, *, batch: int, errors: str = "return"):
+        """:func:`fitting.sample_many` (NUTS or HMC) with these options."""
+        return _fitting().sample_many(problems, fits, sampler=self.sampler, chains=self.chains, steps=self.steps,
+                                      seed=self.seed, batch=batch, errors=errors)

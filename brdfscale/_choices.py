@@ -1,0 +1,159 @@
+"""The choices of a fit and the defaults of its options: one table read by :mod:`brdfscale.fitting`,
+:mod:`brdfscale.library` and the ``brdfscale`` command (its ``--help`` included).
+
+Importing it imports neither JAX nor NumPy, so the command's help starts without them.
+
+* :data:`SOLVERS`, :data:`SAMPLERS`, :data:`MODELS`, :data:`FAMILIES`, :data:`LAWS` — the names
+  a fit accepts, each with a one-line description and the default (:class:`Choices`);
+* :class:`FitDefaults`, :class:`SampleDefaults`, :class:`ModelDefaults` — the defaults of the
+  options of ``fitting.fit``/``fit_many``, ``fitting.sample``/``sample_many`` and of the models;
+  their instances :data:`FIT`, :data:`SAMPLE`, :data:`MODEL` are what the functions'
+  signatures, :class:`brdfscale.library.FitSpec` and the command's options read (the options
+  themselves are checked where they are used: ``fitting``'s own option classes).
+
+tests/test_choices.py checks that every name here is accepted by fitting and by the command,
+and that the command's defaults and the library's signatures equal these.
+"""
+
+import dataclasses
+
+from ._errors import InvalidInputError
+
+__all__ = [
+    "FAMILIES",
+    "FIT",
+    "LAWS",
+    "MODEL",
+    "MODELS",
+    "SAMPLE",
+    "SAMPLERS",
+    "SOLVERS",
+    "Choice",
+    "Choices",
+    "FitDefaults",
+    "ModelDefaults",
+    "SampleDefaults",
+]
+
+
+@dataclasses.dataclass(frozen=True)
+class Choice:
+    """One accepted name and what it selects, in one line."""
+
+    name: str
+    summary: str
+
+
+@dataclasses.dataclass(frozen=True)
+class Choices:
+    """The names one argument accepts (``what``: the argument's name), in the order the help lists
+    them, and the default among them."""
+
+    what: str
+    items: tuple[Choice, ...]
+    default: str
+
+    def __post_init__(self):
+        if len(set(self.names)) != len(self.items) or self.default not in self.names:
+            raise ValueError(f"{self.what}: names must be unique and include the default {self.default!r}")
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(item.name for item in self.items)
+
+    def __contains__(self, name) -> bool:
+        return isinstance(name, str) and name in self.names
+
+    def __iter__(self):
+        return iter(self.names)
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    def summary(self, name: str) -> str:
+        """The one-line description of ``name``."""
+        return {item.name: item.summary for item in self.items}[self.check(name)]
+
+    def check(self, name) -> str:
+        """``name`` if it is one of these; :class:`brdfscale.InvalidInputError` naming the argument otherwise."""
+        if name not in self:
+            raise InvalidInputError(f"{self.what} must be one of {', '.join(map(repr, self.names))}; got {name!r}.")
+        return name
+
+    def help(self) -> str:
+        """The choices in words: ``name (default): summary; name: summary; …``."""
+        return "; ".join(f"{item.name}{' (default)' if item.name == self.default else ''}: {item.summary}"
+                         for item in self.items)
+
+
+SOLVERS = Choices("solver", (
+    Choice("lm", "Levenberg–Marquardt (optimistix.LevenbergMarquardt)"),
+    Choice("gauss_newton", "Gauss–Newton (optimistix.GaussNewton)"),
+    Choice("dogleg", "Powell's dogleg (optimistix.Dogleg)"),
+    Choice("bfgs", "BFGS, a minimiser of ½‖r‖² (optimistix.BFGS)"),
+), default="lm")
+
+SAMPLERS = Choices("sampler", (
+    Choice("nuts", "BlackJAX NUTS, Laplace-preconditioned (fitting.NUTS)"),
+    Choice("hmc", "BlackJAX HMC of fixed trajectory length, Laplace-preconditioned (fitting.HMC)"),
+    Choice("emcee", "emcee's affine-invariant ensembles (fitting.Emcee)"),
+), default="nuts")
+
+MODELS = Choices("model", (
+    Choice("parametric", "a lobe family and a scale law of its slope statistics (fitting.ParametricModel)"),
+    Choice("nonparametric", "a tabulated base lobe and relative statistics (fitting.NonParametricModel)"),
+), default="parametric")
+
+FAMILIES = Choices("family", (
+    Choice("beckmann", "Beckmann (Gaussian slopes)"),
+    Choice("ggx", "GGX (Trowbridge–Reitz)"),
+), default="beckmann")
+
+LAWS = Choices("law", (
+    Choice("width", "WidthLaw alpha(mu) = alpha_max (1 + (mu/mu_c)^2)^(-exponent/2)"),
+    Choice("gaussian_surface", "GaussianSurface(GaussianCorrelation(rms_height, correlation_length), box window); "
+                               "Beckmann only"),
+), default="width")
+
+
+@dataclasses.dataclass(frozen=True)
+class FitDefaults:
+    """The defaults of ``fitting.fit`` and ``fitting.fit_many`` (their docstrings say what each option does)."""
+
+    solver: str = SOLVERS.default
+    starts: int = 8
+    spread: float = 0.5
+    seed: int = 0
+    max_steps: int = 256
+    rtol: float = 1e-6
+    atol: float = 1e-6
+    undetermined_std: float = 1.0
+
+
+@dataclasses.dataclass(frozen=True)
+class SampleDefaults:
+    """The defaults of ``fitting.sample`` and ``fitting.sample_many`` (their docstrings say what each option does)."""
+
+    sampler: str = SAMPLERS.default
+    chains: int = 4
+    steps: int = 2000
+    chunk: int = 200
+    seed: int = 0
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelDefaults:
+    """The defaults of the fitting models' options: ``fitting.ParametricModel(family, family, law=)`` and
+    ``fitting.NonParametricModel(base_nodes=, n_knots=, regularisation=)`` (``regularisation``
+    None: the model's weight 3 of the smoothness prior)."""
+
+    model: str = MODELS.default
+    family: str = FAMILIES.default
+    law: str = LAWS.default
+    base_nodes: int = 13
+    knots: int = 8
+    regularisation: float | str | None = None
+
+
+#: The defaults.
+FIT, SAMPLE, MODEL = FitDefaults(), SampleDefaults(), ModelDefaults()

@@ -1,0 +1,45 @@
+"""The names a fit accepts and the defaults of its options, in one table (JAX-free).
+
+* :data:`SOLVERS`, :data:`SAMPLERS`, :data:`MODELS`, :data:`FAMILIES`, :data:`LAWS` — each a
+  :class:`Choices`: the accepted names in order, a one-line description of each
+  (``SAMPLERS.summary("nuts")``, ``SAMPLERS.help()``) and the default (``SAMPLERS.default``);
+* :class:`FitDefaults`, :class:`SampleDefaults`, :class:`ModelDefaults` and their defaults
+  :data:`FIT`, :data:`SAMPLE`, :data:`MODEL` — what ``fitting.fit``/``fit_many``,
+  ``fitting.sample``/``sample_many``, the fitting models, :class:`brdfscale.library.FitSpec`
+  and the ``brdfscale fit``/``fit-library`` options default to (``FIT.starts`` is 8).
+
+Tested in tests/test_choices.py: every name is accepted by fitting and by the command, and
+the command's and the functions' defaults are these.
+"""
+
+from ._choices import (
+    FAMILIES,
+    FIT,
+    LAWS,
+    MODEL,
+    MODELS,
+    SAMPLE,
+    SAMPLERS,
+    SOLVERS,
+    Choice,
+    Choices,
+    FitDefaults,
+    ModelDefaults,
+    SampleDefaults,
+)
+
+__all__ = [
+    "FAMILIES",
+    "FIT",
+    "LAWS",
+    "MODEL",
+    "MODELS",
+    "SAMPLE",
+    "SAMPLERS",
+    "SOLVERS",
+    "Choice",
+    "Choices",
+    "FitDefaults",
+    "ModelDefaults",
+    "SampleDefaults",
+]

@@ -1,0 +1,116 @@
+"""The fit of one material: :func:`fit` and its checked options (:class:`FitOptions`).
+
+The chain, a module per job: the residual rows (:mod:`fitting._problem`), one optimistix solve
+per start (:mod:`fitting._solve`), the analysis of the starts — best start, Laplace covariance,
+identifiability (:mod:`fitting._analysis`) — with the quantities and ratios at θ̂ and the
+Laplace draws (:mod:`fitting._derived`), the :class:`~fitting.FitResult` (:mod:`fitting._result`).
+"""
+
+import dataclasses
+
+import jax.numpy as jnp
+import numpy as np
+
+from brdfscale import InvalidInputError
+from brdfscale.checks import integer, real
+
+from ._analysis import result_of_starts
+from ._data import Dataset
+from ._model import AbstractModel
+from ._problem import Problem, check_pair, starting_points
+from ._result import FitResult
+from ._solve import check_solver, make_solver, solve
+
+__all__ = ["FitOptions", "fit"]
+
+
+@dataclasses.dataclass(frozen=True)
+class FitOptions:
+    """The options of :func:`fit` (and :func:`fitting.fit_many`), checked when made.
+
+    ``solver`` a name of :data:`fitting.SOLVERS` or an optimistix solver object; ``starts``,
+    ``max_steps`` integers ≥ 1; ``spread`` finite ≥ 0; ``seed`` an integer ≥ 0; ``rtol``,
+    ``atol`` finite ≥ 0, not both 0; ``undetermined_std`` finite > 0 — else
+    :class:`~brdfscale.InvalidInputError` naming the option.
+    """
+
+    solver: object = "lm"
+    starts: int = 8
+    max_steps: int = 256
+    spread: float = 0.5
+    seed: int = 0
+    rtol: float = 1e-6
+    atol: float = 1e-6
+    undetermined_std: float = 1.0
+
+    def __post_init__(self):
+        checked = dict(solver=check_solver(self.solver), starts=integer(self.starts, "starts", 1),
+                       max_steps=integer(self.max_steps, "max_steps", 1),
+                       spread=real(self.spread, "spread", minimum=0.0), seed=integer(self.seed, "seed", 0),
+                       rtol=real(self.rtol, "rtol", minimum=0.0), atol=real(self.atol, "atol", minimum=0.0),
+                       undetermined_std=real(self.undetermined_std, "undetermined_std", minimum=0.0, strict=True))
+        if checked["rtol"] == 0 and checked["atol"] == 0:
+            raise InvalidInputError("rtol and atol must not both be 0: no step could ever meet the convergence test.")
+        for name, value in checked.items():
+            object.__setattr__(self, name, value)
+
+    def optimiser(self):
+        """The optimistix solver object of these options (:func:`fitting._solve.make_solver`)."""
+        return make_solver(self.solver, self.rtol, self.atol)
+
+
+def fit(
+    model: AbstractModel,
+    data: Dataset,
+    *,
+    solver="lm",
+    starts: int = 8,
+    spread: float = 0.5,
+    seed: int = 0,
+    max_steps: int = 256,
+    rtol: float = 1e-6,
+    atol: float = 1e-6,
+    undetermined_std: float = 1.0,
+) -> FitResult:
+    """Maximum-likelihood fit of ``model`` to ``data`` from several starting points.
+
+    Args:
+        model, data: what to fit to what.
+        solver: ``"lm"`` (Levenberg–Marquardt, default), ``"gauss_newton"``, ``"dogleg"`` or
+            ``"bfgs"`` (a minimiser of ½‖r‖²), or an optimistix least-squares solver or
+            minimiser object (e.g. ``optimistix.LevenbergMarquardt(rtol=1e-8, atol=1e-8)``),
+            used as it is: its own tolerances and norm apply, not ``rtol``/``atol``; the
+            result's ``solver`` is then its class name.
+        starts: number of starts: the model's data-driven start plus ``starts − 1`` jittered
+            copies (normal, standard deviation ``spread`` in θ), all clipped to the prior box.
+            They share one compiled solve.
+        seed: seed of the jitter.
+        max_steps, rtol, atol: optimistix settings: a start has converged when an accepted
+            step changes θ by less than ``atol + rtol·|θ_i|`` and the residuals by less than
+            ``atol + rtol·|r_i|``, both in the root-mean-square over components (residuals
+            are in units of σ, so 1e-6 is far below the noise; Levenberg–Marquardt
+            converges quadratically, so the last step bounds the error). Tighter settings
+            or a max-norm only add steps at the rounding level (experiments/bench_fit.py
+            checks the optimum against SciPy).
+        undetermined_std: threshold of the identifiability analysis (module docstring).
+
+    Returns:
+        A :class:`FitResult`; inspect ``status`` and ``undetermined`` before trusting it.
+
+    Raises:
+        InvalidInputError: ``model``/``data`` of the wrong type or not belonging together
+            (:class:`Problem`); an unknown ``solver``; ``starts``, ``max_steps`` not integers
+            ≥ 1, ``seed`` not an integer ≥ 0; ``spread``, ``rtol``, ``atol`` not finite and
+            ≥ 0 (``rtol``, ``atol`` not both 0), ``undetermined_std`` not finite and > 0;
+            every start ending with a non-finite χ².
+    """
+    check_pair(model, data, "fit(model, data)")
+    options = FitOptions(solver=solver, starts=starts, max_steps=max_steps, spread=spread, seed=seed, rtol=rtol,
+                         atol=atol, undetermined_std=undetermined_std)
+    problem = Problem(model, data)
+    optimiser = options.optimiser()
+    y0 = jnp.asarray(starting_points(problem, options), dtype=jnp.float64)
+    # one compiled solve, called per start (vmapping the solve compiles ~2.5× longer here)
+    runs = [solve(problem, y, optimiser, options.max_steps) for y in y0]
+    values, codes, steps, chi2s, jacobians = (np.stack([np.asarray(run[i]) for run in runs]) for i in range(5))
+    return result_of_starts(problem, values, codes, steps, chi2s, jacobians, options)
