@@ -12,7 +12,6 @@ directory, moved into place); before anything is written, every file the report 
 is checked, and none that exists is overwritten unless ``overwrite=True``.
 """
 
-import json
 import math
 import os
 import platform
@@ -23,7 +22,7 @@ import numpy as np
 
 import brdfscale
 from brdfscale import BrdfscaleError, InvalidInputError, MeasurementFileError
-from brdfscale.files import atomic_write, exclusive
+from brdfscale.files import atomic_write, exclusive, json_text, jsonable
 
 from brdfscale.checks import flag
 from ._problem import Problem, check_fit
@@ -315,7 +314,7 @@ def write_report(out_dir, problem: Problem, fit: FitResult, samples: SampleResul
         "mcmc": None if samples is None else samples.diagnostics(),
     }
     try:
-        json.dumps(_finite(doc), allow_nan=False)
+        json_text(doc)
     except (TypeError, ValueError) as err:
         raise InvalidInputError(f"model_info must hold JSON values only (str, numbers, lists, dicts): {err}.") from None
 
@@ -350,24 +349,9 @@ def _write_files(out_dir, problem, fit, model, draws, true_theta, truth, doc, ov
         for stale in report_files(out_dir):
             if stale not in written and os.path.lexists(stale):
                 os.remove(stale)
-        doc = _finite(doc)
-        text = json.dumps(doc, indent=2, allow_nan=False)
+        doc = jsonable(doc)
+        text = json_text(doc, indent=2)
         _atomic(target, lambda p: Path(p).write_text(text), overwrite)
     except OSError as err:
         raise MeasurementFileError(f"the report cannot be written into {out_dir}: {err}") from None
     return doc
-
-
-def _finite(x):
-    """JSON-safe copy: NumPy scalars to Python, non-finite floats to None."""
-    if isinstance(x, dict):
-        return {str(k): _finite(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_finite(v) for v in x]
-    if isinstance(x, (np.floating, float)):
-        return float(x) if np.isfinite(x) else None
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if isinstance(x, np.bool_):
-        return bool(x)
-    return x

@@ -1,7 +1,8 @@
 """``brdfscale info FILE.exr``: summarise a measurement set or lobe table."""
 
-import json
 import math
+
+from .._json import json_text
 
 
 def register(subparsers) -> None:
@@ -55,7 +56,7 @@ def summarise(path) -> dict:
 def run(args) -> int:
     summary = summarise(args.file)
     if args.json:
-        print(json.dumps(summary, indent=2))
+        print(json_text(summary, indent=2))
         return 0
     print(f"{summary['file']}: {summary['kind']}, {summary['parts']} parts")
     print(f"  scales μ: {', '.join(f'{m:g}' for m in summary['scales'])}")

@@ -9,11 +9,11 @@ topography (``--channel``, ``--detrend``) are shared with ``brdfscale synth --to
 (:func:`add_reading_options`, :func:`read_field`).
 """
 
-import json
 import math
 import os
 
 from .._errors import InvalidInputError
+from .._json import json_text, jsonable
 from ..plot._facets import display_unit
 from ._options import integer, make_directory, output_directory, scales
 
@@ -105,7 +105,7 @@ def run(args) -> int:
         png, md, js = (os.path.join(args.out, name) for name in OUTPUTS)
         files.atomic_write(png, lambda tmp: fig.savefig(tmp, dpi=120, format="png"), overwrite=args.force)
         files.atomic_write(md, lambda tmp: _write_text(tmp, markdown(doc)), overwrite=args.force)
-        files.atomic_write(js, lambda tmp: _write_text(tmp, json.dumps(doc, indent=2, ensure_ascii=False) + "\n"),
+        files.atomic_write(js, lambda tmp: _write_text(tmp, json_text(doc, indent=2, ensure_ascii=False) + "\n"),
                            overwrite=args.force)
     print(summary_line(doc))
     print(table(doc))
@@ -116,15 +116,6 @@ def run(args) -> int:
 def _write_text(path: str, text: str) -> None:
     with open(path, "w", encoding="utf-8") as f:
         f.write(text)
-
-
-def _finite(value):
-    """A JSON number, or None where it is not finite (e.g. the error of a single facet's Σ)."""
-    return float(value) if math.isfinite(value) else None
-
-
-def _matrix(a) -> list[list[float | None]]:
-    return [[_finite(v) for v in row] for row in a.tolist()]
 
 
 def document(field, results, bins: int, command: str) -> dict:
@@ -148,8 +139,9 @@ def document(field, results, bins: int, command: str) -> dict:
                        "over the facets",
         "scales": [{
             "mu_m": r.mu, "mu_px": r.block[1], "block": list(r.block), "count": r.count, "excluded": r.excluded,
-            "independent": r.independent, "mean": r.mean.tolist(), "covariance": _matrix(r.covariance),
-            "covariance_error": _matrix(r.covariance_error), "rms_slope": r.rms_slope,
+            # lists, None where not finite (e.g. the error of a single facet's Σ)
+            "independent": r.independent, "mean": r.mean.tolist(), "covariance": jsonable(r.covariance),
+            "covariance_error": jsonable(r.covariance_error), "rms_slope": r.rms_slope,
         } for r in results],
     }
 

@@ -7,8 +7,10 @@ import os
 import re
 import time
 
+from .._compilation_cache import directory_in_use
 from .._errors import InvalidInputError, MissingDependencyError
 from .._files import atomic_write, exclusive
+from .._json import json_text
 from .._show import Shown, Table, progress_bar
 from ._spec import FitSpec
 from ._task import fit_batch, material_directory
@@ -162,7 +164,7 @@ class _Index:
         self.write()
 
     def write(self):
-        text = json.dumps(self.doc, indent=1, allow_nan=False, default=float)
+        text = json_text(self.doc, indent=1)
         atomic_write(self.path, lambda tmp: open(tmp, "w").write(text), overwrite=True)
 
 
@@ -258,7 +260,7 @@ def fit_library(sources, out, *, spec: FitSpec | None = None, batch: int = 16, e
         run = index.start_run(executor, len(todo))
         t0 = time.perf_counter()
         counts = {"done": 0, "failed": 0, "skipped": 0}
-        cache = _compilation_cache()
+        cache = directory_in_use()  # the workers share it, with the same settings
 
         def absorb(records, bar):
             for record in records:
@@ -273,13 +275,13 @@ def fit_library(sources, out, *, spec: FitSpec | None = None, batch: int = 16, e
                           unit="material") as bar:
             if executor == "process":
                 for chunk in _batches(todo, batch):
-                    absorb(fit_batch(chunk, out, spec.to_json(), batch=batch, compilation_cache=cache,
+                    absorb(fit_batch(chunk, out, spec, batch=batch, compilation_cache=cache,
                                      float64=False), bar)
             elif todo:
                 ray, started = _ray(address, workers)
                 try:
                     task = ray.remote(num_cpus=cpus_per_task, max_retries=retries, retry_exceptions=False)(fit_batch)
-                    pending = {task.remote(chunk, out, spec.to_json(), batch=batch, compilation_cache=cache): chunk
+                    pending = {task.remote(chunk, out, spec, batch=batch, compilation_cache=cache): chunk
                                for chunk in _batches(todo, batch)}
                     while pending:
                         ready, _ = ray.wait(list(pending), num_returns=1)
@@ -307,12 +309,3 @@ def _clear(out, materials):
     for name, _ in materials:
         if os.path.isdir(material_directory(out, name)):
             shutil.rmtree(material_directory(out, name))
-
-
-def _compilation_cache():
-    """The persistent compilation cache directory this process uses (workers share it), if any."""
-    import sys
-
-    jax = sys.modules.get("jax")
-    # JAX not imported (a Ray driver): the environment it would read (brdfscale._cli._compilation_cache)
-    return jax.config.jax_compilation_cache_dir if jax is not None else os.environ.get("JAX_COMPILATION_CACHE_DIR")

@@ -102,11 +102,6 @@ class FitSpec:
         doc["fixed"] = dict(self.fixed)
         return doc
 
-    @classmethod
-    def from_json(cls, doc: dict) -> "FitSpec":
-        """The spec of :meth:`to_json`'s document."""
-        return cls(**{**doc, "fixed": tuple(dict(doc.get("fixed") or {}).items())})
-
     def model_for(self, data):
         """:func:`make_model` with these options: ``(model, info)``."""
         return make_model(data, model=self.model, family=self.family, law=self.law, fixed=dict(self.fixed),

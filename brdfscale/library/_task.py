@@ -15,7 +15,9 @@ import shutil
 import time
 import traceback
 
+from .. import _compilation_cache
 from .._errors import BrdfscaleError, OutputInUseError
+from ._spec import FitSpec
 
 __all__ = ["fit_batch", "material_directory", "partial_directory"]
 
@@ -41,30 +43,28 @@ def _failure(err) -> str:
     return f"unexpected {type(err).__name__}: {' '.join(str(err).split())[:300]}{where}"
 
 
-def fit_batch(materials: list, out: str, spec: dict, *, batch: int = 64, compilation_cache: str | None = None,
+def fit_batch(materials: list, out: str, spec: FitSpec, *, batch: int = 64, compilation_cache: str | None = None,
               float64: bool = True) -> list:
     """Fit ``materials`` (a list of ``(name, path)``) into ``out/materials/`` with the options
-    ``spec`` (:class:`FitSpec` as JSON); return one record per material: ``status`` ``"done"``
+    ``spec`` (a :class:`FitSpec`); return one record per material: ``status`` ``"done"``
     (with χ², status, seconds), ``"skipped"`` (already done: its directory exists) or
     ``"failed"`` (with ``error``: the file could not be read, or its fit could not be made).
 
     ``float64``: switch JAX to float64 (what a worker process does; the in-process runner
     leaves the caller's setting alone and requires float64 like :func:`fitting.fit`).
     ``compilation_cache``: JAX's persistent compilation cache directory for this process
-    (the one the command uses, shared by every worker of a host).
+    (the one the command uses, shared by every worker of a host), set up with every setting the
+    command uses (:func:`brdfscale._compilation_cache.enable`).
     """
     import jax
 
     if float64:
         jax.config.update("jax_enable_x64", True)
-    if compilation_cache and not jax.config.jax_compilation_cache_dir:
-        jax.config.update("jax_compilation_cache_dir", compilation_cache)
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    if compilation_cache:
+        _compilation_cache.enable(compilation_cache)
     from .. import exr, fitting
     from ..files import exclusive
-    from ._spec import FitSpec
 
-    spec = FitSpec(**{**spec, "fixed": tuple(spec.get("fixed", {}).items())})
     started = time.perf_counter()
     records, todo = [], []
     for name, path in materials:
@@ -74,8 +74,8 @@ def fit_batch(materials: list, out: str, spec: dict, *, batch: int = 64, compila
         t0 = time.perf_counter()
         try:
             mset = exr.read_measurements(path)
-            data = fitting.Dataset.from_measurements(mset, default_sigma=spec.default_sigma)
-            model, info = spec.model_for(fitting, data)
+            data = spec.dataset(mset)
+            model, info = spec.model_for(data)
             truth = fitting.truth_of(model, mset.metadata)
         except Exception as err:  # noqa: BLE001 — one material's failure is recorded, the library goes on
             records.append(_record(name, "failed", t0, error=_failure(err)))
@@ -84,17 +84,13 @@ def fit_batch(materials: list, out: str, spec: dict, *, batch: int = 64, compila
     if not todo:
         return records
     t0 = time.perf_counter()
-    fits = fitting.fit_many([m for _, _, m, _, _ in todo], [d for _, d, _, _, _ in todo], batch=batch,
-                            solver=spec.solver, starts=spec.starts, max_steps=spec.max_steps, seed=spec.seed,
-                            errors="return")
+    fits = spec.fit_many([m for _, _, m, _, _ in todo], [d for _, d, _, _, _ in todo], batch=batch)
     fit_seconds = (time.perf_counter() - t0) / len(todo)
     draws = [None] * len(todo)
     if spec.sampler in ("nuts", "hmc"):
         # the gradient samplers vectorise: every material's chains in one program per bucket
         # (fitting.sample_many, equal to fitting.sample per material); emcee samples per material below
-        draws = fitting.sample_many([fitting.Problem(m, d) for _, d, m, _, _ in todo], fits, sampler=spec.sampler,
-                                    chains=spec.chains, steps=spec.steps, seed=spec.seed, batch=batch,
-                                    errors="return")
+        draws = spec.sample_many([fitting.Problem(m, d) for _, d, m, _, _ in todo], fits, batch=batch)
     for (name, data, model, info, truth), result, drawn in zip(todo, fits, draws):
         t1 = time.perf_counter()
         if isinstance(result, Exception) or isinstance(drawn, Exception):
@@ -108,9 +104,8 @@ def fit_batch(materials: list, out: str, spec: dict, *, batch: int = 64, compila
                 samples = drawn
                 problem = fitting.Problem(model, data)
                 if spec.sampler == "emcee":  # resumable within the material: its chain's checkpoint
-                    samples = fitting.sample(problem, result, sampler=fitting.Emcee(), chains=spec.chains,
-                                             steps=spec.steps, seed=spec.seed,
-                                             checkpoint=os.path.join(partial, "chain.h5"), progress=False)
+                    samples = spec.sample(problem, result, checkpoint=os.path.join(partial, "chain.h5"),
+                                          progress=False)
                 doc = fitting.write_report(partial, problem, result, samples, truth=truth, model_info=info,
                                            overwrite=True, figures=spec.figures)
             try:

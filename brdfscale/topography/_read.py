@@ -6,6 +6,7 @@ import re
 import numpy as np
 
 from .._errors import InvalidInputError, MeasurementFileError, MissingDependencyError
+from .._json import jsonable
 from ._array import UNITS, from_array
 
 
@@ -84,10 +85,10 @@ def read(path, *, channel: int | str | None = None, detrend: str | None = "plane
         "path": os.path.abspath(name),
         "format": reader.format() if callable(getattr(reader, "format", None)) else type(reader).__name__,
         "reader": f"SurfaceTopography {st.__version__} {type(reader).__name__}",
-        "instrument": _plain(instrument),
+        "instrument": jsonable(instrument, other=str),  # JSON-ready: dates as ISO text, other objects as str
         "channel": {"index": index, "name": info.name},
         "file_unit": topo.unit,
-        "acquisition_time": _plain((topo.info or {}).get("acquisition_time")),
+        "acquisition_time": jsonable((topo.info or {}).get("acquisition_time"), other=str),
     }
     return from_array(heights.T, (lx / nx, ly / ny), unit=unit, mask=None if mask is None else mask.T,
                       detrend=detrend, micro=micro, description=description)
@@ -117,16 +118,3 @@ def _channel_index(name, reader, channels, channel) -> int:
         return int(channel)
     raise InvalidInputError(f"channel must be an index from 0 to {len(channels) - 1} or a name; {name} has {listing}; "
                             f"got {channel!r}.")
-
-
-def _plain(value):
-    """A JSON-serialisable copy of metadata (dates as ISO text, other objects as str)."""
-    if value is None or isinstance(value, (bool, int, float, str)):
-        return value
-    if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if hasattr(value, "isoformat"):
-        return value.isoformat()
-    return str(value)
