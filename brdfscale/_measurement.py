@@ -186,6 +186,6 @@ class MeasurementSet(Shown):
     def plot(self, **options):
         """A figure of every image (values and σ): :func:`brdfscale.plot.measurements`
         (options as there); returns a ``matplotlib.figure.Figure``."""
-        from . import plot
+        from ._figures import draw
 
-        return plot.measurements(self, **options)
+        return draw("measurements", self, **options)

@@ -1,4 +1,5 @@
-"""The Figure class of :mod:`brdfscale.plot` (imports matplotlib: loaded when a figure is drawn)."""
+"""The Figure class of brdfscale's figures (:mod:`brdfscale._figure_style`; imports matplotlib: loaded when a
+figure is drawn)."""
 
 import io
 

@@ -6,12 +6,12 @@
   (``statistics.png``);
 * :func:`plot_corner` — the posterior's one- and two-dimensional marginals (``corner.png``).
 
-They live here, not in :mod:`brdfscale.plot`, because they need the fitting models (the
-package ``fitting`` builds on brdfscale, not the other way round); :func:`brdfscale.plot.fit`,
-:func:`brdfscale.plot.recovered_statistics` and :func:`brdfscale.plot.corner` call them, importing
-:mod:`fitting` only then. Every figure is a ``matplotlib.figure.Figure`` made without pyplot
-(:func:`brdfscale.plot.figure`), so drawing one changes no global matplotlib state; matplotlib
-is imported when a figure is drawn. Draws of the posterior are reproducible: the first 400 of
+They live here, beside the fitting models they need, and :func:`brdfscale.plot.fit`,
+:func:`brdfscale.plot.recovered_statistics` and :func:`brdfscale.plot.corner` call them: the plot
+package sits above fitting (docs/architecture.md), so this module draws in its style through
+the core's :mod:`brdfscale._figure_style` and never imports :mod:`brdfscale.plot`. Every figure
+is a ``matplotlib.figure.Figure`` made without pyplot, so drawing one changes no global
+matplotlib state; matplotlib is imported when a figure is drawn. Draws of the posterior are reproducible: the first 400 of
 a seeded generator (``seed``, default 0, as in the report), from the MCMC samples when given,
 else from the Laplace approximation of the fit.
 """
@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from brdfscale import InvalidInputError
-from brdfscale import plot as _figures
+from brdfscale import _figure_style as _figures
 from brdfscale.checks import integer, real
 
 from ._problem import Problem, check_fit

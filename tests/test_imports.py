@@ -1,4 +1,4 @@
-"""Import hygiene (issue 17): importing brdfscale or fitting changes no global state, loads
+"""Import hygiene: importing brdfscale or brdfscale.fitting changes no global state, loads
 JAX and matplotlib only when used, and the command line starts without JAX where it needs none.
 
 Each check runs in a fresh interpreter (this test process has imported everything already).
@@ -27,7 +27,7 @@ def test_import_changes_no_global_state_and_is_lazy():
         import json, sys
         import brdfscale
         after_brdfscale = sorted(m for m in ("jax", "matplotlib", "numpy", "scipy", "equinox") if m in sys.modules)
-        import fitting, brdfscale.exr, brdfscale.stats, brdfscale.plot, brdfscale.show
+        import brdfscale.exr, brdfscale.fitting, brdfscale.stats, brdfscale.plot, brdfscale.show
         from brdfscale import lobes, stats
         repr(lobes.Beckmann(0.1)); repr(stats.GGX(0.2))  # showing objects needs no matplotlib either
         import jax
@@ -64,28 +64,66 @@ def test_unknown_attribute_is_an_attribute_error():
         brdfscale.nonexistent  # noqa: B018
 
 
-def test_brdfscale_fitting_is_the_fitting_package():
-    import fitting
-
+def test_brdfscale_fitting_is_the_fitting_folder_and_no_top_level_fitting_is_installed(tmp_path):
+    """The repository's ``fitting/`` folder is installed as ``brdfscale.fitting`` (pyproject's
+    package-dir): outside the checkout there is no module named ``fitting`` at all."""
     import brdfscale
-    import brdfscale.fitting
+    from brdfscale import fitting
 
     assert brdfscale.fitting is fitting and sys.modules["brdfscale.fitting"] is fitting
+    assert fitting.__name__ == "brdfscale.fitting" and fitting.fit.__module__.startswith("brdfscale.fitting.")
+    got = _run("""
+        import importlib.util, json
+        print(json.dumps({"fitting": importlib.util.find_spec("fitting") is not None}))
+    """, cwd=tmp_path)
+    assert got == {"fitting": False}
 
 
 def test_a_local_fitting_py_cannot_shadow_brdfscale_fitting(tmp_path):
+    """A file or folder named ``fitting`` in the working directory is another module: it cannot
+    take brdfscale.fitting's place, whether imported before or not at all."""
     (tmp_path / "fitting.py").write_text("x = 1\n")
+    (tmp_path / "brdfscale_fitting_probe.py").write_text("")
     code = """
-        import json
-        try:
-            from brdfscale import fitting
-        except ImportError as err:
-            print(json.dumps({"error": str(err)}))
+        import json, sys
+        from brdfscale import fitting
+        local = sys.modules.get("fitting")
+        print(json.dumps({"name": fitting.__name__, "fit": callable(fitting.fit),
+                          "local": getattr(local, "x", None)}))
     """
     got = _run(code, cwd=tmp_path)  # `python -c` puts the working directory first on sys.path
-    assert str(tmp_path / "fitting.py") in got["error"] and "shadows brdfscale's fitting package" in got["error"]
-    got = _run("import fitting\n" + textwrap.dedent(code), cwd=tmp_path)  # the impostor imported first
-    assert "is not brdfscale's fitting package" in got["error"]
+    assert got == {"name": "brdfscale.fitting", "fit": True, "local": None}
+    got = _run("import fitting\n" + textwrap.dedent(code), cwd=tmp_path)  # the local file imported first
+    assert got == {"name": "brdfscale.fitting", "fit": True, "local": 1}
+
+
+def test_the_lazy_table_lists_every_public_name_once_and_each_imports():
+    """brdfscale's public names come from one table (``_TABLE``): each listed once, each loads,
+    ``__all__`` is the table, and the TYPE_CHECKING imports (for type checkers) say the same."""
+    import ast
+    import importlib
+    from pathlib import Path
+
+    import brdfscale
+
+    names = [name for _, group in brdfscale._TABLE for name in group]
+    assert len(names) == len(set(names)), sorted(n for n in names if names.count(n) > 1)
+    assert brdfscale.__all__ == [*names, "__version__"]
+    for name in names:
+        value = getattr(brdfscale, name)
+        where = brdfscale._LAZY[name]
+        if where == f".{name}":
+            assert value is importlib.import_module(f"brdfscale.{name}")
+        else:
+            assert value is getattr(importlib.import_module(where, "brdfscale"), name)
+    # the TYPE_CHECKING block and the eager exception imports name the same modules for the same names
+    tree = ast.parse(Path(brdfscale.__file__).read_text())
+    declared = {}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.level == 1:
+            for alias in node.names:
+                declared[alias.name] = f".{alias.name}" if node.module is None else f".{node.module}"
+    assert declared == brdfscale._LAZY
 
 
 @pytest.mark.parametrize("argv", [["--help"], ["info", "{file}"]])

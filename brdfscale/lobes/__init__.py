@@ -37,9 +37,9 @@ class AbstractLobe(Shown, eqx.Module):
         """A figure of the lobe on the slope-offset plane with slices (and, given ``incident=``,
         the BRDF over outgoing directions): :func:`brdfscale.plot.lobe` (options as there);
         returns a ``matplotlib.figure.Figure``."""
-        from .. import plot
+        from .._figures import draw
 
-        return plot.lobe(self, **options)
+        return draw("lobe", self, **options)
 
     def density(self, u: Float[ArrayLike, "*batch 2"]) -> Float[Array, "*batch"]:
         """``A · g(u)``: the lobe per unit slope area at offsets ``u``."""

@@ -14,16 +14,20 @@ inside the functions only, so importing this module does not import it.
 * :func:`plan` — what a :func:`brdfscale.scene.plan` computes where;
 * :func:`fit`, :func:`recovered_statistics`, :func:`corner` — a fit's data, model and
   residuals; the recovered S(W, μ) with 5–95 % bands; the posterior's marginals (the figures
-  :func:`fitting.write_report` saves);
+  :func:`brdfscale.fitting.write_report` saves);
 * :func:`chains` — the MCMC chains of :func:`fitting.sample`;
 * :func:`figure`, :func:`colorbar`, :func:`colormap`, :func:`small_ticks` — the helpers
   behind them, for figures of one's own in the same style.
 
-The fitting figures are drawn by :mod:`fitting` (``fitting.plot_fit`` and its siblings, which
-need the fitting models); the functions here import :mod:`fitting` when called, so
-``brdfscale.plot`` does not depend on it at import time. The objects have the same figures as
-methods: ``lobe.plot()``, ``density.plot()``, ``law.plot(mu=…)``, ``mset.plot()``,
-``plan.plot()``, ``fit_result.plot(problem)``, ``samples.plot()``.
+This package is the top of the library's layers but for the applications (docs/architecture.md):
+it imports the objects it draws, and nothing in the library imports it. The objects have the
+same figures as methods — ``lobe.plot()``, ``density.plot()``, ``law.plot(mu=…)``,
+``mset.plot()``, ``plan.plot()``, ``samples.plot()`` — which reach this package through the one
+seam :func:`brdfscale._figures.draw`, by name and only when called. The fitting figures are
+drawn by :mod:`brdfscale.fitting` (``fitting.plot_fit`` and its siblings, beside the fitting
+models they need, in the style of :mod:`brdfscale._figure_style`); :func:`fit`,
+:func:`recovered_statistics` and :func:`corner` call them (``fit_result.plot(problem)`` too), and
+import :mod:`brdfscale.fitting` when called, so importing this package stays light.
 
 Tested in tests/test_show.py (axes, labels, pyplot's figure list unchanged).
 """

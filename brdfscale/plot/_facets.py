@@ -5,6 +5,7 @@ import math
 import numpy as np
 
 from .._errors import InvalidInputError
+from ._common import SLOPE_DENSITY, colormap, figure, small_ticks
 
 #: Metric units for lengths in metres, largest first (the axis shows the largest that fits).
 DISPLAY_UNITS = (("m", 1.0), ("mm", 1e-3), ("µm", 1e-6), ("nm", 1e-9), ("pm", 1e-12))
@@ -51,7 +52,6 @@ def facet_statistics(results, *, field=None):
     """
     import numpy as np
 
-    from .. import plot
     from ..synth import FacetStatistics, HeightField
 
     results = list(results) if isinstance(results, (list, tuple)) else [results]
@@ -63,7 +63,7 @@ def facet_statistics(results, *, field=None):
     results = sorted(results, key=lambda r: r.mu)
     mus = [r.mu for r in results]
     unit, size = display_unit(mus) if field is None or field.unit == "m" else (field.unit or "length units", 1.0)
-    fig = plot.figure(13.0, 4.2)
+    fig = figure(13.0, 4.2)
     ax, cx, cy = fig.subplots(1, 3)
     x = np.array(mus) / size
     for a, (marker, name) in enumerate((("o-", "σ_x"), ("s--", "σ_y"))):
@@ -89,12 +89,12 @@ def facet_statistics(results, *, field=None):
     ax.set_ylabel("facet-slope standard deviation", fontsize=8)
     ax.set_title("Σ(μ) ± standard error (numbers: facets)", fontsize=9)
     ax.legend(fontsize=7)
-    plot.small_ticks(ax)
+    small_ticks(ax)
 
     shown = [k for k, r in enumerate(results) if r.block != (1, 1)]  # at one pixel g_μ is the micro lobe alone
     if len(shown) > 4:
         shown = [shown[k] for k in np.unique(np.rint(np.linspace(0, len(shown) - 1, 4)).astype(int))]
-    colours = plot.colormap("viridis")(np.linspace(0.0, 0.85, max(len(shown), 1)))
+    colours = colormap("viridis")(np.linspace(0.0, 0.85, max(len(shown), 1)))
     for axis, panel, name in ((0, cx, "u_x (u_y = 0)"), (1, cy, "u_y (u_x = 0)")):
         reach, peak = 0.0, 0.0
         for colour, k in zip(colours, shown):
@@ -113,9 +113,9 @@ def facet_statistics(results, *, field=None):
             panel.text(0.5, 0.5, "no scale above one pixel", ha="center", va="center", transform=panel.transAxes,
                        fontsize=8)
         panel.set_xlabel(f"slope offset {name}", fontsize=8)
-        panel.set_ylabel(f"g_μ ({plot.SLOPE_DENSITY})", fontsize=8)
+        panel.set_ylabel(f"g_μ ({SLOPE_DENSITY})", fontsize=8)
         panel.set_title(f"within-facet lobe g_μ along {name[:3]}", fontsize=9)
-        plot.small_ticks(panel)
+        small_ticks(panel)
     name = None if field is None else field.description.get("file") or field.description.get("name")
     fig.suptitle(f"{name}: facet-slope statistics" if name else "facet-slope statistics", fontsize=10)
     return fig

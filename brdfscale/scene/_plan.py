@@ -90,9 +90,9 @@ class Plan(Shown, eqx.Module):
     def plot(self, **options):
         """A figure of what is computed where: :func:`brdfscale.plot.plan` (options as there);
         returns a ``matplotlib.figure.Figure``."""
-        from .. import plot
+        from .._figures import draw
 
-        return plot.plan(self, **options)
+        return draw("plan", self, **options)
 
     def explain(self) -> str:
         """What will be computed and why, with the predicted cost and error."""

@@ -39,9 +39,9 @@ class AbstractDistribution(Shown, eqx.Module):
     def plot(self, **options):
         """A figure of the density and its transform: :func:`brdfscale.plot.statistics` (options
         as there); returns a ``matplotlib.figure.Figure``."""
-        from .. import plot
+        from .._figures import draw
 
-        return plot.statistics(self, **options)
+        return draw("statistics", self, **options)
 
     @abc.abstractmethod
     def cf(self, W: Float[ArrayLike, "*batch 2"]) -> Complex[Array, "*batch"]:

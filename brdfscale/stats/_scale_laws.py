@@ -165,9 +165,9 @@ class AbstractScaleLaw(Shown, eqx.Module):
     def plot(self, mu, **options):
         """A figure of ``s(·, μ)`` and ``S(W, μ)`` at the facet sizes ``mu`` (a sequence):
         :func:`brdfscale.plot.statistics` (options as there); returns a ``matplotlib.figure.Figure``."""
-        from .. import plot
+        from .._figures import draw
 
-        return plot.statistics(self, mu=mu, **options)
+        return draw("statistics", self, mu=mu, **options)
 
 
 class GaussianSurface(AbstractScaleLaw):
