@@ -95,14 +95,8 @@ class Lobe(AbstractLobe):
         return super()._show_items()
 
     def __init__(self, shape: stats.AbstractSlopeDensity, amplitude: Float[ArrayLike, ""] = 1.0):
-        if isinstance(shape, stats.AbstractGeneralisedDensity):
-            raise InvalidInputError(
-                f"shape must be a probability density of facet slopes (mass 1); got {type(shape).__name__}, "
-                "a generalised function of mass 0 with no pointwise density (a plus-distribution h_n). Use "
-                "lobes.Lobe(plus.observe(plus.NearlySpecular(...), kernel)).")
-        if not isinstance(shape, stats.AbstractSlopeDensity):
-            raise InvalidInputError(f"shape must be a brdfscale.stats density; got {type(shape).__name__}.")
-        self.shape = shape
+        self.shape = stats.require_density(shape, "shape",
+                                           use="Use lobes.Lobe(plus.observe(plus.NearlySpecular(...), kernel)).")
         self.amplitude = _amplitude(amplitude)
 
 

@@ -12,7 +12,7 @@ from .._evolve import evolve
 from .._errors import InvalidInputError, NoBRDFAtScaleError, SingularDensityError
 from .._validation import as_float_array, is_concrete, positive, vector2
 from ..lobes import Lobe
-from ..stats import AbstractGeneralisedDensity, AbstractSlopeDensity, Delta, Gaussian
+from ..stats import AbstractSlopeDensity, Delta, Gaussian, require_density
 from ..stats._base import add_offset, check_slopes, offset_norm, phase
 from ._action import radial_action
 from ._transform import MAX_ORDER, transforms_radial, transforms_scaled
@@ -62,14 +62,9 @@ class NearlySpecular(AbstractSlopeDensity):
             raise InvalidInputError(
                 f"strengths must be a 1D array (c_0, …, c_{{N−1}}) with 1 ≤ N ≤ {MAX_ORDER + 1}; got shape {c.shape}."
             )
-        if isinstance(smooth, AbstractGeneralisedDensity):
-            raise InvalidInputError(
-                f"smooth must be a probability density of facet slopes (mass 1, e.g. stats.Beckmann(0.1)); got "
-                f"{type(smooth).__name__}, a generalised function of mass 0. Plus-distributions enter through "
-                "the strengths c_n."
-            )
-        if smooth is not None and not isinstance(smooth, AbstractSlopeDensity):
-            raise InvalidInputError(f"smooth must be a brdfscale.stats density or None; got {type(smooth).__name__}.")
+        if smooth is not None:
+            require_density(smooth, "smooth", other=" or None", use="Plus-distributions enter through the "
+                            "strengths c_n; give a density such as stats.Beckmann(0.1).")
         if is_concrete((a, w)):
             if float(a) < 0 or float(w) < 0 or float(a + w) <= 0:
                 raise InvalidInputError(

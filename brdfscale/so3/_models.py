@@ -169,14 +169,8 @@ class TiltTwist(AbstractOrientationDensity):
         *,
         resolution: int | None = None,
     ):
-        if isinstance(tilt, stats.AbstractGeneralisedDensity):
-            raise InvalidInputError(
-                f"tilt must be a probability density of facet slopes (mass 1); got {type(tilt).__name__}, a "
-                "generalised function of mass 0 with no pointwise density (a plus-distribution h_n), which has "
-                "no finite slope bandwidth either. Use a brdfscale.stats density such as stats.Beckmann(α).")
-        if not isinstance(tilt, stats.AbstractSlopeDensity):
-            raise InvalidInputError(f"tilt must be a brdfscale.stats slope density; got {type(tilt).__name__}.")
-        self.tilt = tilt
+        self.tilt = stats.require_density(tilt, "tilt", use="It has no finite slope bandwidth either; use a "
+                                          "brdfscale.stats density such as stats.Beckmann(α).")
         self.twist_mean = as_float_array(twist_mean, "twist_mean")
         if twist_std is not None and not is_concrete(twist_std):
             raise InvalidInputError("twist_std must be concrete (not traced) when a TiltTwist is built: it sets the "

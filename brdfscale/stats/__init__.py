@@ -15,6 +15,7 @@ from ._grid import FrequencyGrid
 from ._families import GGX, Beckmann, Delta, Disk, Gaussian
 from ._histogram import SlopeHistogram
 from ._mixture import Mixture
+from ._require import require_density
 from ._scale_laws import (
     AbstractPowerSpectrum,
     AbstractScaleLaw,
@@ -38,6 +39,7 @@ __all__ = [
     "GGX",
     "Disk",
     "Mixture",
+    "require_density",
     "Tabulated",
     "SlopeHistogram",
     "AbstractPowerSpectrum",

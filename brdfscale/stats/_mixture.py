@@ -7,7 +7,8 @@ from jaxtyping import Array, Float
 
 from .._errors import InvalidInputError
 from .._validation import as_float_array, is_concrete
-from ._base import AbstractGeneralisedDensity, AbstractSlopeDensity, check_slopes
+from ._base import AbstractSlopeDensity, check_slopes
+from ._require import require_density
 
 
 class Mixture(AbstractSlopeDensity):
@@ -26,19 +27,10 @@ class Mixture(AbstractSlopeDensity):
     isotropic: bool = eqx.field(static=True)
 
     def __init__(self, weights, components):
-        components = tuple(components)
-        generalised = [type(c).__name__ for c in components if isinstance(c, AbstractGeneralisedDensity)]
-        if generalised:
-            raise InvalidInputError(
-                f"components must be probability densities of facet slopes (mass 1); got {', '.join(generalised)}, "
-                "a generalised function of mass 0 with no pointwise density (a plus-distribution h_n), so the "
-                "mixture would not have mass 1. Use brdfscale.plus.NearlySpecular(a, [c_0, …], x0, smooth=..., "
-                "smooth_weight=w) for a δ + Σ c_n h_n + w s_smooth."
-            )
-        if not components or not all(isinstance(c, AbstractSlopeDensity) for c in components):
-            raise InvalidInputError(
-                "components must be a non-empty sequence of slope densities (brdfscale.stats objects)."
-            )
+        components = require_density(
+            tuple(components), "components", each=True, other=" (a non-empty sequence)",
+            use="The mixture would not have mass 1. Use brdfscale.plus.NearlySpecular(a, [c_0, …], x0, smooth=..., "
+                "smooth_weight=w) for a δ + Σ c_n h_n + w s_smooth.")
         w = as_float_array(weights, "weights")
         if w.shape != (len(components),):
             raise InvalidInputError(

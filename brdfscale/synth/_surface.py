@@ -39,16 +39,9 @@ def check_grid(side: float, what: str, advice: str) -> None:
 
 def check_micro(micro) -> stats.AbstractSlopeDensity:
     """The pixel facets' lobe: a :mod:`brdfscale.stats` probability density (not a plus-distribution)."""
-    if isinstance(micro, stats.AbstractGeneralisedDensity):
-        raise InvalidInputError(
-            f"micro must be a probability density of facet slopes (mass 1); got {type(micro).__name__}, "
-            "a generalised function of mass 0 with no pointwise density (a plus-distribution h_n). Use "
-            "plus.NearlySpecular(...) (mass 1) or plus.observe(plus.NearlySpecular(...), kernel).")
-    if not isinstance(micro, stats.AbstractSlopeDensity):
-        raise InvalidInputError(
-            f"micro must be a brdfscale.stats density (Delta() for mirror facets); got {type(micro).__name__}."
-        )
-    return micro
+    return stats.require_density(
+        micro, "micro", other=" (Delta() for mirror facets)",
+        use="Use plus.NearlySpecular(...) (mass 1) or plus.observe(plus.NearlySpecular(...), kernel).")
 
 
 @dataclasses.dataclass(frozen=True, eq=False, repr=False)
