@@ -31,12 +31,10 @@ well-measured lobes need the precision): start a script or notebook with
 :class:`Problem` raise :class:`brdfscale.InvalidInputError` naming that line. The ``brdfscale``
 command switches float64 on itself.
 
-Import it as ``from brdfscale import fitting``. Plain ``import fitting`` works too, but a
-local file named ``fitting.py`` in the working directory would silently take its place; the
-``brdfscale.fitting`` path checks, and raises an ImportError naming that file.
+Import it as ``from brdfscale import fitting``: the repository's ``fitting/`` folder is
+installed as ``brdfscale.fitting`` (pyproject's ``package-dir``), so no top-level package
+named ``fitting`` is installed and a local ``fitting.py`` cannot take its place.
 """
-
-__distribution__ = "brdfscale"  # how brdfscale.fitting recognises this package (not a local fitting.py)
 
 from ._batch import COMPILE_ROWS, BatchPlan, explain_plan, fit_many
 from ._data import Dataset, PointData

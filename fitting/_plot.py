@@ -7,11 +7,12 @@
 * :func:`plot_corner` — the posterior's one- and two-dimensional marginals (``corner.png``).
 
 They live here, beside the fitting models they need, and :func:`brdfscale.plot.fit`,
-:func:`brdfscale.plot.recovered_statistics` and :func:`brdfscale.plot.corner` call them: the plot
-package sits above fitting (docs/architecture.md), so this module draws in its style through
-the core's :mod:`brdfscale._figure_style` and never imports :mod:`brdfscale.plot`. Every figure
-is a ``matplotlib.figure.Figure`` made without pyplot, so drawing one changes no global
-matplotlib state; matplotlib is imported when a figure is drawn. Draws of the posterior are reproducible: the first 400 of
+:func:`brdfscale.plot.recovered_statistics` and :func:`brdfscale.plot.corner` call them: the
+plot package sits above fitting (docs/architecture.md), so this module draws in its style
+through the core's :mod:`brdfscale._figure_style` and never imports :mod:`brdfscale.plot`.
+Every figure is a ``matplotlib.figure.Figure`` made without pyplot, so drawing one changes no
+global matplotlib state; matplotlib is imported when a figure is drawn. Draws of the
+posterior are reproducible: the first 400 of
 a seeded generator (``seed``, default 0, as in the report), from the MCMC samples when given,
 else from the Laplace approximation of the fit.
 """
