@@ -320,3 +320,14 @@ def test_the_walk_sees_every_module(module):
     every brdfscale module it names (no import of a brdfscale module the walk cannot place)."""
     for target, line, text in imports(module):
         assert target in MODULES, f"{MODULES[module].relative_to(ROOT)}:{line}: {text}"
+
+
+def test_pyproject_installs_every_package_folder_and_fitting_under_brdfscale():
+    """pyproject lists the packages by hand (the fitting/ folder needs ``package-dir``): every
+    package folder is listed, so a new subpackage cannot be left out of the wheel."""
+    import tomllib
+
+    setuptools = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    assert setuptools["package-dir"] == {"brdfscale": "brdfscale", "brdfscale.fitting": "fitting"}
+    folders = sorted(m for m in MODULES if _is_package(m))
+    assert sorted(setuptools["packages"]) == folders
