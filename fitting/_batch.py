@@ -60,6 +60,7 @@ import numpy as np
 
 from brdfscale import InvalidInputError
 from brdfscale.checks import integer
+from brdfscale.choices import FIT
 from brdfscale.show import progress_bar
 
 from ._data import Dataset, PointData
@@ -315,14 +316,14 @@ def fit_many(
     *,
     batch: int = 64,
     devices=None,
-    solver="lm",
-    starts: int = 8,
-    spread: float = 0.5,
-    seed: int = 0,
-    max_steps: int = 256,
-    rtol: float = 1e-6,
-    atol: float = 1e-6,
-    undetermined_std: float = 1.0,
+    solver=FIT.solver,
+    starts: int = FIT.starts,
+    spread: float = FIT.spread,
+    seed: int = FIT.seed,
+    max_steps: int = FIT.max_steps,
+    rtol: float = FIT.rtol,
+    atol: float = FIT.atol,
+    undetermined_std: float = FIT.undetermined_std,
     compile_rows: int = COMPILE_ROWS,
     lanes: int | None = None,
     progress: bool = False,
@@ -404,7 +405,7 @@ def fit_many(
     return results
 
 
-def explain_plan(models, datasets, *, batch: int = 64, devices=None, starts: int = 8,
+def explain_plan(models, datasets, *, batch: int = 64, devices=None, starts: int = FIT.starts,
                  compile_rows: int = COMPILE_ROWS, lanes: int | None = None) -> BatchPlan:
     """The :class:`BatchPlan` :func:`fit_many` would follow for these arguments (nothing is
     fitted); ``plan.explain()`` says it in words."""

@@ -13,6 +13,7 @@ import numpy as np
 
 from brdfscale import InvalidInputError
 from brdfscale.checks import integer, real
+from brdfscale.choices import FIT
 
 from ._analysis import result_of_starts
 from ._data import Dataset
@@ -34,14 +35,14 @@ class FitOptions:
     :class:`~brdfscale.InvalidInputError` naming the option.
     """
 
-    solver: object = "lm"
-    starts: int = 8
-    max_steps: int = 256
-    spread: float = 0.5
-    seed: int = 0
-    rtol: float = 1e-6
-    atol: float = 1e-6
-    undetermined_std: float = 1.0
+    solver: object = FIT.solver
+    starts: int = FIT.starts
+    max_steps: int = FIT.max_steps
+    spread: float = FIT.spread
+    seed: int = FIT.seed
+    rtol: float = FIT.rtol
+    atol: float = FIT.atol
+    undetermined_std: float = FIT.undetermined_std
 
     def __post_init__(self):
         checked = dict(solver=check_solver(self.solver), starts=integer(self.starts, "starts", 1),
@@ -63,14 +64,14 @@ def fit(
     model: AbstractModel,
     data: Dataset,
     *,
-    solver="lm",
-    starts: int = 8,
-    spread: float = 0.5,
-    seed: int = 0,
-    max_steps: int = 256,
-    rtol: float = 1e-6,
-    atol: float = 1e-6,
-    undetermined_std: float = 1.0,
+    solver=FIT.solver,
+    starts: int = FIT.starts,
+    spread: float = FIT.spread,
+    seed: int = FIT.seed,
+    max_steps: int = FIT.max_steps,
+    rtol: float = FIT.rtol,
+    atol: float = FIT.atol,
+    undetermined_std: float = FIT.undetermined_std,
 ) -> FitResult:
     """Maximum-likelihood fit of ``model`` to ``data`` from several starting points.
 

@@ -44,6 +44,7 @@ import numpy as np
 
 from brdfscale import InvalidInputError
 from brdfscale.checks import flag, integer
+from brdfscale.choices import SAMPLE
 from brdfscale.files import exclusive
 from brdfscale.show import Shown, Table, progress_mode
 
@@ -54,6 +55,7 @@ from ._result import FitResult
 from ._posterior import COORDINATES, PRIOR_TEXT, log_posterior, target, undetermined_directions
 from ._sample_blackjax import HMC, NUTS
 from ._sample_emcee import Emcee
+from ._sampler import AbstractSampler
 
 __all__ = ["SampleResult", "sample", "log_posterior", "Emcee", "NUTS", "HMC", "SAMPLERS"]
 
@@ -74,7 +76,9 @@ class SampleResult(Shown):
     ``integration_steps``, ``step_size``), ``quantities`` the model's physical quantities
     (name → (steps, W)). The first ``burn`` steps are discarded: NUTS/HMC's warm-up, or for
     emcee 2 τ_max (at most half the chain). ``samples`` is the flattened chain after them
-    (n, d); ``draws`` the same as (W, steps − burn, d), ArviZ's (chain, draw) layout.
+    (n, d); ``draws`` the same as (W, steps − burn, d), one row per trajectory;
+    :meth:`by_chain` puts any per-trajectory array in ArviZ's (chain, draw) layout, one chain
+    per independent chain (an emcee ensemble's ``walkers`` trajectories one after another).
     ``undetermined`` are the fit's undetermined combinations, ``held`` their values, at which
     the chain holds them (it samples the determined subspace; ``prior`` says it in words).
 
@@ -116,18 +120,36 @@ class SampleResult(Shown):
 
     @property
     def draws(self) -> np.ndarray:
-        """θ after the burn-in as (trajectory, draw, d): ArviZ's (chain, draw) layout."""
+        """θ after the burn-in as (trajectory, draw, d): one row per trajectory (NUTS/HMC chain or emcee walker)."""
         return np.swapaxes(self.chain[self.burn:], 0, 1)
+
+    @property
+    def walkers(self) -> int:
+        """Trajectories per independent chain: the walkers of each emcee ensemble as given
+        (``Emcee(walkers=…)``, or its default), 1 for NUTS/HMC."""
+        return self.chain.shape[1] // max(self.chains, 1)
+
+    def by_chain(self, values) -> np.ndarray:
+        """``values`` (steps, W, …) — per step and trajectory — in ArviZ's (chain, draw, …)
+        layout with one chain per independent chain: a NUTS/HMC chain's steps, or an emcee
+        ensemble's walkers' trajectories one after another (walker-major: its draws are
+        ``walkers × steps``). R̂ then compares independent chains — ensembles that started
+        apart and never exchange information — not the walkers of one ensemble, which move
+        together; each walker's autocorrelation stays whole within its run of draws."""
+        values = np.asarray(values)
+        steps, W = values.shape[:2]
+        k = max(self.chains, 1)
+        per = values.reshape(steps, k, W // k, *values.shape[2:])
+        return np.moveaxis(per, 0, 2).reshape(k, (W // k) * steps, *values.shape[2:])
 
     @functools.cached_property
     def _summary(self) -> dict:
         rows = {}
-        kept = self.draws
         for i, name in enumerate(self.names):
-            rows[name] = diag.summary_row(kept[:, :, i])
+            rows[name] = diag.summary_row(self.by_chain(self.chain[self.burn:, :, i]))
         for name, values in (self.quantities or {}).items():
             if name not in rows:
-                rows[name] = diag.summary_row(np.swapaxes(values[self.burn:], 0, 1))
+                rows[name] = diag.summary_row(self.by_chain(values[self.burn:]))
         return rows
 
     def summary(self) -> dict:
@@ -178,7 +200,7 @@ class SampleResult(Shown):
         n_steps, n_walkers, _ = self.chain.shape
         items = [("sampler", self.sampler), ("chains", self.chains), ("status", self.status)]
         if self.sampler == "emcee":
-            items.append(("walkers", n_walkers))
+            items.append(("walkers", self.walkers))
         items += [("steps", n_steps), ("burn_in", self.burn), ("draws", (n_steps - self.burn) * n_walkers),
                   ("acceptance", self.acceptance), ("tau_max", float(np.max(self.tau))),
                   ("ess_min", float(np.min(self.ess))), ("tau_reliable", self.tau_reliable), ("chain", self.chain)]
@@ -200,15 +222,17 @@ class SampleResult(Shown):
     def plot(self, **options):
         """The chains (trace plots, burn-in marked): :func:`brdfscale.plot.chains` (options as
         there); returns a ``matplotlib.figure.Figure``."""
-        from brdfscale import plot
+        from brdfscale._figures import draw
 
-        return plot.chains(self, **options)
+        return draw("chains", self, **options)
 
     def to_arviz(self):
         """The run as ArviZ data — ``arviz.InferenceData`` (ArviZ 0.x; a DataTree with ArviZ ≥ 1):
-        ``posterior`` (``theta``, ``quantities``), ``sample_stats``, the warm-up groups, and
-        the sampler's record as attributes (:mod:`fitting._arviz`). ``arviz.summary`` of it
-        gives the figures of :meth:`summary`.
+        ``posterior`` with one variable per coordinate θ and per determined quantity, named
+        by the model (``arviz.summary(data, var_names=["amplitude"])``), one ArviZ chain per
+        independent chain (:meth:`by_chain`), ``sample_stats``, the warm-up groups, and the
+        sampler's record as attributes (:mod:`fitting._arviz`). ``arviz.summary`` of it gives
+        the figures of :meth:`summary`.
 
         Raises:
             MissingDependencyError: ArviZ is not installed (``pip install "brdfscale[mcmc]"``).
@@ -230,7 +254,7 @@ class SampleResult(Shown):
             "sampler": self.sampler,
             "sampler_settings": self.settings,
             "chains": self.chains,
-            "walkers": n_walkers,
+            "walkers": self.walkers,
             "trajectories": n_walkers,
             "steps": n_steps,
             "burn_in": self.burn,
@@ -282,21 +306,17 @@ def _quantity_draws(model, thetas):
     return jax.vmap(model.quantities)(thetas)
 
 
-def _resolve_sampler(sampler, walkers, moves):
-    if isinstance(sampler, str):
-        if sampler not in SAMPLERS:
-            raise InvalidInputError(f"sampler must be one of {sorted(SAMPLERS)} or a sampler object "
-                                    f"(fitting.Emcee, fitting.NUTS, fitting.HMC); got {sampler!r}.")
-        if sampler == "emcee":
-            return Emcee(walkers=walkers, moves="stretch" if moves is None else moves)
-        sampler = SAMPLERS[sampler]()
-    if not isinstance(sampler, (Emcee, NUTS, HMC)):
+def resolve_sampler(sampler, walkers=None, moves=None) -> AbstractSampler:
+    """The sampler object of ``sample``'s ``sampler`` (a name of :data:`SAMPLERS`, with
+    ``walkers``/``moves`` where it takes them, or an :class:`AbstractSampler` as it is)."""
+    if isinstance(sampler, str) and sampler in SAMPLERS:
+        return SAMPLERS[sampler].from_name(walkers, moves)
+    if not isinstance(sampler, AbstractSampler):
+        got = repr(sampler) if isinstance(sampler, str) else type(sampler).__name__
         raise InvalidInputError(f"sampler must be one of {sorted(SAMPLERS)} or a sampler object "
-                                f"(fitting.Emcee, fitting.NUTS, fitting.HMC); got {type(sampler).__name__}.")
+                                f"(fitting.Emcee, fitting.NUTS, fitting.HMC); got {got}.")
     if walkers is not None or moves is not None:
-        where = ("give them in fitting.Emcee(walkers=…, moves=…)" if isinstance(sampler, Emcee)
-                 else f"they apply to emcee only, not {sampler.name}")
-        raise InvalidInputError(f"walkers= and moves= with a sampler object: {where}.")
+        raise sampler.refuse_walkers()
     return sampler
 
 
@@ -315,13 +335,13 @@ def sample(
     problem: Problem,
     fit: FitResult,
     *,
-    sampler="emcee",
-    chains: int = 4,
-    steps: int = 2000,
-    chunk: int = 200,
+    sampler=SAMPLE.sampler,
+    chains: int = SAMPLE.chains,
+    steps: int = SAMPLE.steps,
+    chunk: int = SAMPLE.chunk,
     checkpoint: str | os.PathLike | None = None,
     overwrite: bool = False,
-    seed: int = 0,
+    seed: int = SAMPLE.seed,
     progress: bool = True,
     walkers: int | None = None,
     moves: str | None = None,
@@ -332,10 +352,11 @@ def sample(
         problem: the model and data (as used by :func:`fitting.fit`).
         fit: its point estimate; the starts and the preconditioning come from its Laplace
             approximation (in the sampling coordinates z, :mod:`fitting._posterior`).
-        sampler: ``"emcee"`` (default), ``"nuts"``, ``"hmc"``, or a sampler object with its
+        sampler: ``"nuts"`` (default, :data:`brdfscale.choices.SAMPLERS`; emcee in earlier
+            releases), ``"hmc"``, ``"emcee"``, or a sampler object with its
             settings: :class:`fitting.Emcee` ``(walkers=, moves=)``, :class:`fitting.NUTS`
             ``(warmup=, target_acceptance=, max_doublings=, adapt_mass_matrix=)``,
-            :class:`fitting.HMC` ``(integration_steps=, warmup=, target_acceptance=, jitter=,
+            :class:`fitting.HMC` ``(trajectory_length=, warmup=, target_acceptance=, jitter=,
             adapt_mass_matrix=)``.
         chains: independent chains (default 4): emcee ensembles, or NUTS/HMC chains, each
             started from its own Laplace draw; R̂ compares them.
@@ -371,7 +392,7 @@ def sample(
     """
     check_fit(problem, fit, "sample(problem, fit)")
     d = len(problem.model.names)
-    sampler = _resolve_sampler(sampler, walkers, moves)
+    sampler = resolve_sampler(sampler, walkers, moves)
     chains = integer(chains, "chains", 1)
     steps = integer(steps, "steps", 2)  # one step has no transition: no acceptance, no τ
     chunk = integer(chunk, "chunk", 1)
@@ -413,13 +434,7 @@ def _diagnose(posterior, fit, sampler, settings, chains, chain, log_prob, stats,
     # τ is NaN for a coordinate no walker moved in (zero variance; short chains, stuck
     # ensembles): taken as ∞ — burn-in half the chain (emcee), ESS 0, τ not reliable (JSON: null)
     n_steps, n_walkers, d = chain.shape
-    if sampler.burn_fixed is None:
-        tau_all = diag.integrated_time(chain)
-        burn = (int(min(np.ceil(2 * np.max(tau_all)), n_steps // 2)) if np.all(np.isfinite(tau_all))
-                else n_steps // 2)
-        warmup = {"kind": "burn-in: the first 2 τ_max steps (at most half the chain), discarded", "steps": burn}
-    else:
-        burn = min(sampler.burn_fixed, n_steps)
+    burn, warmup = sampler.burn_in(chain, warmup)
     kept = chain[burn:]
     with np.errstate(invalid="ignore", divide="ignore"):
         tau = diag.integrated_time(kept)

@@ -42,6 +42,7 @@ from brdfscale.checks import flag, integer, real
 from brdfscale.show import progress_bar
 
 from ._posterior import initial_positions, laplace
+from ._sampler import AbstractSampler
 
 __all__ = ["NUTS", "HMC"]
 
@@ -62,7 +63,7 @@ def _blackjax():
     return blackjax
 
 
-class _Gradient:
+class _Gradient(AbstractSampler):
     """What NUTS and HMC share: validation, the checkpoint's record, the run."""
 
     stats = _STATS
@@ -83,9 +84,9 @@ class _Gradient:
     def trajectories(self, d: int, chains: int) -> int:
         return chains
 
-    @property
-    def burn_fixed(self) -> int:
-        return self.warmup
+    def burn_in(self, chain, warmup):
+        """The warm-up steps (at most the chain's length); the warm-up record as :meth:`run` made it."""
+        return min(self.warmup, chain.shape[0]), warmup
 
     def warmup_text(self) -> str:
         if self.adapt_mass_matrix:

@@ -27,7 +27,9 @@ from brdfscale import InvalidInputError
 from brdfscale.checks import integer
 from brdfscale.show import progress_bar
 
+from . import _diagnostics as diag
 from ._posterior import initial_positions, laplace, log_jacobian_np, theta_of_z_np
+from ._sampler import AbstractSampler
 
 __all__ = ["Emcee"]
 
@@ -47,7 +49,7 @@ def _batched_log_density(zs, target):
 
 
 @dataclasses.dataclass(frozen=True)
-class Emcee:
+class Emcee(AbstractSampler):
     """emcee's affine-invariant ensemble sampler, ``chains`` independent ensembles (module docstring).
 
     Args:
@@ -82,7 +84,31 @@ class Emcee:
         return chains * self.walkers_for(d)
 
     stats = {}  # no per-step statistics beyond the chain
-    burn_fixed = None  # burn-in from τ after the run
+
+    @classmethod
+    def from_name(cls, walkers=None, moves=None) -> "Emcee":
+        """``sample(..., sampler="emcee", walkers=, moves=)``: the sampler with those settings."""
+        return cls(walkers=walkers, moves="stretch" if moves is None else moves)
+
+    def refuse_walkers(self) -> InvalidInputError:
+        return InvalidInputError("walkers= and moves= with a sampler object: give them in "
+                                 "fitting.Emcee(walkers=…, moves=…).")
+
+    def check_batched(self) -> None:
+        raise InvalidInputError("sample_many samples with NUTS or HMC only: emcee's ensembles step on the host "
+                                "(one vectorised log-density call per half-step, NumPy in between) and do not "
+                                "vectorise across materials; use fitting.sample(problem, fit, sampler='emcee') per "
+                                "material.")
+
+    def burn_in(self, chain, warmup):
+        """2 τ_max (emcee's integrated autocorrelation time of the whole chain), at most half
+        the chain; half the chain where τ is not finite (a coordinate no walker moved in:
+        short chains, stuck ensembles — τ taken as ∞)."""
+        n_steps = chain.shape[0]
+        tau_all = diag.integrated_time(chain)
+        burn = (int(min(np.ceil(2 * np.max(tau_all)), n_steps // 2)) if np.all(np.isfinite(tau_all))
+                else n_steps // 2)
+        return burn, {"kind": "burn-in: the first 2 τ_max steps (at most half the chain), discarded", "steps": burn}
 
     def run(self, target, fit, *, chains, steps, seed, store, resumed, progress, chunk):
         """The chain (steps, W, d) in θ and log_prob (steps, W); resumed from ``resumed`` (a

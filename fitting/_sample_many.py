@@ -59,14 +59,14 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from brdfscale import InvalidInputError
 from brdfscale.checks import flag, integer
+from brdfscale.choices import SAMPLE
 from brdfscale.show import progress_bar, progress_mode
 
 from ._batch import _devices, _key, bucket_batch
 from ._problem import Problem, check_fit, stack_trees
 from ._posterior import target
-from ._sample import _diagnose, _resolve_sampler, sampled_dimension
+from ._sample import _diagnose, resolve_sampler, sampled_dimension
 from ._sample_blackjax import _advance, _blackjax, _host, _initial_carry, _window_warmup, join, starts
-from ._sample_emcee import Emcee
 
 __all__ = ["sample_many"]
 
@@ -140,11 +140,11 @@ def sample_many(
     problems,
     fits,
     *,
-    sampler="nuts",
-    chains: int = 4,
-    steps: int = 2000,
-    chunk: int = 200,
-    seed: int = 0,
+    sampler=SAMPLE.sampler,
+    chains: int = SAMPLE.chains,
+    steps: int = SAMPLE.steps,
+    chunk: int = SAMPLE.chunk,
+    seed: int = SAMPLE.seed,
     batch: int = 64,
     devices=None,
     progress: bool = False,
@@ -196,12 +196,8 @@ def sample_many(
         MissingDependencyError: BlackJAX is not installed.
     """
     problems, fits = _pairs(problems, fits)
-    sampler = _resolve_sampler(sampler, None, None)
-    if isinstance(sampler, Emcee):
-        raise InvalidInputError("sample_many samples with NUTS or HMC only: emcee's ensembles step on the host "
-                                "(one vectorised log-density call per half-step, NumPy in between) and do not "
-                                "vectorise across materials; use fitting.sample(problem, fit, sampler='emcee') per "
-                                "material.")
+    sampler = resolve_sampler(sampler)
+    sampler.check_batched()
     chains = integer(chains, "chains", 1)
     steps = integer(steps, "steps", 2)
     chunk = integer(chunk, "chunk", 1)

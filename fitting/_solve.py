@@ -10,12 +10,13 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
-from brdfscale import InvalidInputError
+from brdfscale import InvalidInputError, choices
 
 __all__ = ["SOLVERS", "RESULT_NAMES", "make_solver", "solver_name", "solve", "solve_rows"]
 
-SOLVERS = ("lm", "gauss_newton", "dogleg", "bfgs")
-"""The solvers by name: Levenberg–Marquardt (default), Gauss–Newton, dogleg, BFGS (a minimiser of ½‖r‖²)."""
+SOLVERS = tuple(choices.SOLVERS)
+"""The solvers by name (:data:`brdfscale.choices.SOLVERS`): Levenberg–Marquardt (default),
+Gauss–Newton, dogleg, BFGS (a minimiser of ½‖r‖²)."""
 
 _SOLVER_CLASSES = {"lm": optx.LevenbergMarquardt, "gauss_newton": optx.GaussNewton, "dogleg": optx.Dogleg,
                    "bfgs": optx.BFGS}

@@ -1,0 +1,63 @@
+"""The abstract sampler of :func:`fitting.sample`: what :class:`fitting.Emcee`, :class:`fitting.NUTS`
+and :class:`fitting.HMC` implement, so that ``sample`` and ``sample_many`` ask the object
+instead of testing its type.
+
+A sampler is a frozen dataclass of its settings (checked when made) that
+
+* names itself (``name``: the key of :data:`fitting.SAMPLERS`) and the per-step statistics it
+  records (``stats``: name → HDF5 dtype);
+* says what a checkpoint records of it (:meth:`settings`) and how many trajectories ``chains``
+  independent chains have (:meth:`trajectories`);
+* runs the chains (:meth:`run`) and finds the burn-in of the run (:meth:`burn_in`);
+* answers for the arguments that belong to one sampler only (:meth:`from_name`,
+  :meth:`refuse_walkers`) and for being vectorised over materials (:meth:`check_batched`).
+"""
+
+import abc
+
+from brdfscale import InvalidInputError
+
+__all__ = ["AbstractSampler"]
+
+
+class AbstractSampler(abc.ABC):
+    """The interface every sampler of :func:`fitting.sample` implements (module docstring)."""
+
+    name: str = ""
+    stats: dict = {}
+
+    @classmethod
+    def from_name(cls, walkers=None, moves=None) -> "AbstractSampler":
+        """The sampler chosen by name (``sample(..., sampler="nuts")``), with ``sample``'s
+        ``walkers=``/``moves=`` where this sampler takes them; InvalidInputError otherwise."""
+        if walkers is not None or moves is not None:
+            raise InvalidInputError(f"walkers= and moves= with a sampler object: they apply to emcee only, not "
+                                    f"{cls.name}.")
+        return cls()
+
+    def refuse_walkers(self) -> InvalidInputError:
+        """The error for ``walkers=``/``moves=`` given beside this sampler object."""
+        return InvalidInputError(f"walkers= and moves= with a sampler object: they apply to emcee only, not {self.name}.")
+
+    def check_batched(self) -> None:
+        """InvalidInputError unless this sampler runs many materials' posteriors in one
+        program (:func:`fitting.sample_many`)."""
+
+    @abc.abstractmethod
+    def settings(self, d: int) -> dict:
+        """What the checkpoint records of this sampler for a sampled dimension ``d``."""
+
+    @abc.abstractmethod
+    def trajectories(self, d: int, chains: int) -> int:
+        """The trajectories of ``chains`` independent chains in dimension ``d``."""
+
+    @abc.abstractmethod
+    def run(self, target, fit, *, chains, steps, seed, store, resumed, progress, chunk):
+        """The chain (steps, W, d) in θ, log p(θ) (steps, W), per-step statistics, the warm-up
+        record (or None) and the timing; resumed from ``resumed`` where it holds steps, each
+        chunk appended to ``store``."""
+
+    @abc.abstractmethod
+    def burn_in(self, chain, warmup) -> tuple[int, dict | None]:
+        """The steps of ``chain`` (steps, W, d) discarded as burn-in, and the warm-up record
+        (``warmup``, :meth:`run`'s, or the burn-in's own when the sampler finds it afterwards)."""
