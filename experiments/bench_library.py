@@ -5,7 +5,7 @@ command ``brdfscale fit-library`` in-process and on Ray.
 Fits: every configuration runs in a fresh Python process with no persistent compilation cache,
 so its time includes every compilation (the figure a user meets on a new library); the clock
 runs from the first fit to the last result. The materials are the mixed-size synthetic library
-of ``experiments/library_data.py`` (image sizes 16–32 px, extents 0.4–0.6, 1–2 replicates,
+of ``tests/helpers.py`` (image sizes 16–32 px, extents 0.4–0.6, 1–2 replicates,
 five scales), made before the clock starts. Fits use 6 starts (the command's default). Each
 ``fit_many`` configuration is then run once more in the same process, every program compiled:
 the difference is the compilation, and the warm time per padded row gives the measured
@@ -52,7 +52,7 @@ lanes = config.get("lanes")
 import jax
 jax.config.update("jax_enable_x64", True)
 from brdfscale import fitting
-from experiments.library_data import material
+from tests.helpers import material
 kind, n = config["kind"], config["materials"]
 data = [fitting.Dataset.from_measurements(material(i)) for i in range(n)]
 model = fitting.ParametricModel()
@@ -120,7 +120,7 @@ def _library_rows(n: int, batch: int) -> list:
     with tempfile.TemporaryDirectory() as tmp:
         source = os.path.join(tmp, "library")
         make = ("import jax; jax.config.update('jax_enable_x64', True); "
-                f"from experiments.library_data import write_library; write_library({source!r}, {n})")
+                f"from tests.helpers import write_library; write_library({source!r}, {n})")
         subprocess.run([sys.executable, "-c", make], check=True, cwd=ROOT, capture_output=True)
         base = {k: v for k, v in os.environ.items() if not k.startswith(("JAX_COMPILATION_CACHE", "RAY_ADDRESS"))}
         base.update(JAX_PLATFORMS="cpu", BRDFSCALE_PROGRESS="0", RAY_USAGE_STATS_ENABLED="0")

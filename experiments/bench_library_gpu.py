@@ -22,7 +22,7 @@ def run(max_materials: int, starts: int = 6) -> dict:
 
     jax.config.update("jax_enable_x64", True)
     from brdfscale import fitting
-    from experiments.library_data import material
+    from tests.helpers import material
 
     devices = jax.devices()
     sizes = [n for n in (64, 256, 1024, 4096) if n <= max_materials]

@@ -32,7 +32,6 @@ mutants, 300 command lines) → experiments/results/fuzz_robustness/fuzz_robustn
 import argparse
 import collections
 import contextlib
-import io
 import json
 import os
 import sys
@@ -41,43 +40,19 @@ import time
 from pathlib import Path
 
 import numpy as np
-import OpenEXR
 
 import brdfscale as bs
 from brdfscale import exr
-from brdfscale._cli import main as cli_main
 from brdfscale.exr import _format
 from experiments._studies import study_dir, write_results
+from tests.helpers import HOSTILE, SYNTH_DOMAINS, rewrite_exr, run_command, same_set, sample_set
 
 
 # -- files -----------------------------------------------------------------------------------
 
-def sample_set() -> bs.MeasurementSet:
-    rng = np.random.default_rng(7)
-    images = []
-    for k, mu in enumerate((2.0, 8.0)):
-        v = rng.random((9, 9, 3)) + 0.1
-        images.append(bs.LobeImage(mu=mu, incident=np.array([0.1 * k, 0.0, np.sqrt(1 - 0.01 * k * k)]), extent=0.2,
-                                   values=v, sigma=0.05 + 0.1 * v, mask=v[..., 0] > 0.3))
-    return bs.MeasurementSet(tuple(images), {"surface": {"name": "fuzz"}, "truth": {"params": {"mu_c": 3.0}},
-                                             "note": "ünïcode"})
-
-
 def sample_table() -> exr.LobeTable:
     v = np.random.default_rng(8).random((2, 7, 7)) + 0.01
     return exr.LobeTable(np.array([1.0, 4.0]), 0.3, v, {"source": "fuzz"})
-
-
-def same_set(a: bs.MeasurementSet, b: bs.MeasurementSet) -> bool:
-    if len(a.images) != len(b.images) or a.metadata != b.metadata:
-        return False
-    for p, q in zip(a.images, b.images):
-        for x, y in ((p.values, q.values), (p.sigma, q.sigma), (p.mask, q.mask), (p.incident, q.incident)):
-            if (x is None) != (y is None) or (x is not None and not np.array_equal(x, y)):
-                return False
-        if p.mu != q.mu or p.extent != q.extent:
-            return False
-    return True
 
 
 def same_table(a: exr.LobeTable, b: exr.LobeTable) -> bool:
@@ -100,21 +75,6 @@ def quiet_stderr():
             for fd, copy in zip((1, 2), saved):
                 os.dup2(copy, fd)
                 os.close(copy)
-
-
-def _rewrite(src: str, dst: str, edit, reseal: bool = False) -> None:
-    """Copy ``src`` to ``dst`` through OpenEXR, applying ``edit(index, header, channels)``."""
-    parts = []
-    for index, part in enumerate(OpenEXR.File(src, separate_channels=True).parts):
-        header = dict(part.header)
-        channels = {name: c.pixels for name, c in part.channels.items()}
-        edit(index, header, channels)
-        for key in ("channels", "chunkCount", "dataWindow", "type"):
-            header.pop(key, None)
-        if reseal:
-            header[_format.PREFIX + _format.DIGEST] = _format.header_digest(header, channels)
-        parts.append(OpenEXR.Part(header, channels, name=part.header.get("name", f"p{index}")))
-    OpenEXR.File(parts).write(dst)
 
 
 def _attribute_edits(kind: str):
@@ -162,14 +122,14 @@ def mutate_file(kind_of_mutation: str, data: bytes, src: str, dst: str, rng, fil
         Path(dst).write_bytes(bytes(b))
     elif kind_of_mutation == "attribute":
         edits = _attribute_edits(file_kind)
-        _rewrite(src, dst, edits[int(rng.integers(len(edits)))])
+        rewrite_exr(src, dst, edits[int(rng.integers(len(edits)))])
     elif kind_of_mutation == "channel":
         edits = _channel_edits(file_kind)
         edit = edits[int(rng.integers(len(edits)))]
         part = int(rng.integers(2))
-        _rewrite(src, dst, lambda i, h, c: edit(i, h, c) if i == part else None)
+        rewrite_exr(src, dst, lambda i, h, c: edit(i, h, c) if i == part else None)
     elif kind_of_mutation == "crafted":
-        _rewrite(src, dst, _crafted(rng, file_kind), reseal=True)
+        rewrite_exr(src, dst, _crafted(rng, file_kind), reseal=True)
         if rng.random() < 0.4:  # a non-UTF-8 byte inside an attribute string, in place
             b = bytearray(Path(dst).read_bytes())
             at = b.find(b"half_slope")
@@ -221,34 +181,6 @@ def fuzz_files(n: int, seed: int = 0, directory: str | None = None) -> dict:
 
 
 # -- command lines -----------------------------------------------------------------------------
-
-HOSTILE = ["-1", "0", "1e300", "-1e300", "nan", "inf", "", "1180591620717411303424", "abc", "1e-30",
-           "100000", "0x10", "1.5", "2", "3", "-0", "1e9", "65", "∞"]
-
-
-def _number(text: str, lo, hi, *, strict: bool = False, integral: bool = False) -> bool:
-    import math
-
-    try:
-        x = int(text) if integral else float(text)
-    except ValueError:
-        return False
-    return math.isfinite(x) and (x > lo if strict else x >= lo) and x <= hi
-
-
-#: synth's options and their documented domains (``brdfscale synth --help``), for the
-#: template ``--size 16 --scales 2,4``: a scale must not exceed the size, the size not be
-#: below the largest scale.
-SYNTH_DOMAINS = {
-    "--pixels": lambda t: _number(t, 3, 1025, integral=True),
-    "--size": lambda t: _number(t, 16, 4096, integral=True),
-    "--seed": lambda t: _number(t, 0, 2**32 - 1, integral=True),
-    "--extent": lambda t: _number(t, 0, 1000, strict=True),
-    "--resolution": lambda t: _number(t, 0, 10),
-    "--micro-alpha": lambda t: _number(t, 0, 10, strict=True),
-    "--scales": lambda t: _number(t, 1, 16) and float(t) == round(float(t)),
-}
-
 
 def _invalid_for(option: str, text: str) -> bool:
     """Invalid values used for fit/demo lines (so that no fit runs)."""
@@ -310,22 +242,6 @@ def command_lines(n: int, rng, tmp: str, measurements: str) -> list[tuple[list[s
                     5: ["info", "/dev/null"]}[s]
             out.append((argv, False))
     return out
-
-
-def run_command(argv: list[str]) -> tuple[int, str]:
-    err = io.StringIO()
-    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
-        try:
-            code = cli_main(["--no-compilation-cache", *argv])
-        except SystemExit as exit_:  # argparse's usage errors
-            code = exit_.code if isinstance(exit_.code, int) else 1
-        except BaseException as exc:  # noqa: BLE001 — main() must never let one out
-            import traceback
-
-            traceback.print_exc(file=err)
-            code = -1
-            del exc
-    return code, err.getvalue()
 
 
 def fuzz_command_lines(n: int, seed: int = 0) -> dict:

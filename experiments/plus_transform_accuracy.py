@@ -1,6 +1,6 @@
 """Accuracy of the plus-distribution transforms H_n (n = 0…6) over z = |W| x0 ∈ [1e-6, 1e8].
 
-References (experiments/_plus_reference.py, mpmath): the power series summed with enough digits
+References (tests/references/plus_transform.py, mpmath): the power series summed with enough digits
 for z ≤ 3000, and beyond that mpmath's Taylor coefficients of the Gamma-function ratio minus
 mpmath's Hankel-function quadrature of the decaying part. Writes
 experiments/results/plus_transform_accuracy/accuracy.json with the maximum relative error
@@ -21,8 +21,8 @@ import numpy as np  # noqa: E402
 
 from brdfscale import plus  # noqa: E402
 from brdfscale.plus import _transform  # noqa: E402
-from experiments._plus_reference import reference  # noqa: E402
 from experiments._studies import progress, study_dir, write_results  # noqa: E402
+from tests.references.plus_transform import reference  # noqa: E402
 
 
 def grid(per_decade: int, large_per_decade: int) -> np.ndarray:

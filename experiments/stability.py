@@ -446,7 +446,7 @@ def heavy_tails(quick: bool) -> list:
 # -- A6 plus-distributions ----------------------------------------------------------------------
 
 def plus_transforms(quick: bool) -> list:
-    from experiments._plus_reference import decaying, polynomial, series
+    from tests.references.plus_transform import decaying, polynomial, series
 
     orders = [2] if quick else [0, 2, 6]
     zs = [1e-8, 1.0, 30.0, 1e20, 1e300] if quick else [1e-8, 1e-3, 1.0, 8.0, 30.0, 1e3, 1e5, 1e20, 1e100, 1e300]

@@ -16,8 +16,9 @@ from hypothesis import strategies as st
 
 from brdfscale import fitting
 from brdfscale import InvalidInputError, LobeImage, MeasurementSet
-from experiments.library_data import material
 from brdfscale.fitting._batch import bucket_points, plan, select_lanes
+
+from tests.helpers import material
 
 
 def _masked(mset):
@@ -147,7 +148,7 @@ _SHARDED = textwrap.dedent("""
     import numpy as np
     from brdfscale import fitting
     import brdfscale.fitting._batch as batch
-    from experiments.library_data import material
+    from tests.helpers import material
     assert len(jax.devices()) == 4, jax.devices()
     data = [fitting.Dataset.from_measurements(material(i)) for i in (0, 1, 5)]
     assert len({d.image_sizes for d in data}) == 3  # ragged: 32² × 1, 28² × 2, 24² × 2 images

@@ -1,5 +1,12 @@
 """Smoke versions of the studies in experiments/ at tiny sizes, plus checks of their parts
-against closed forms and the library's independent implementations."""
+against closed forms and the library's independent implementations.
+
+This is the one test module that imports experiments/ (``from experiments import …``; the
+allow-list of tests/test_layout.py::test_tests_import_no_experiment_and_no_other_test_module):
+it exercises the scripts' own functions in-process — their parts against closed forms, their
+smoke runs at tiny sizes, the committed pages they generate — which a subprocess running
+``python -m experiments.NAME --quick`` could not check piece by piece. Every other test takes
+its oracles and fixtures from tests/references/ and tests/helpers.py."""
 
 import json
 import math
@@ -380,3 +387,41 @@ def test_calibration_study_counts_hits_of_every_kind():
             assert values and all(0.0 <= v <= 1.0 for v in values), key
             assert all(0 <= n <= 3 for n in row["n"].values())
     assert len(out["methods"]["laplace"]["coverage"]["ratio_68"]["per_quantity"]) == 3 * (len(calibration_fit.SCALES) - 1)
+
+
+@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
+def test_bench_planner_smoke():
+    """A quick run of experiments/bench_planner.py's problem and workload code (no timing checks)."""
+    from experiments import bench_planner as bench
+
+    prob = bench.bench_problem("closed_form", quick=True)
+    assert prob["pareto"] and prob["planner"][0]["error"] <= 1e-4
+    assert prob["ranking"]["predicted_order"][-1] == "grid"  # the cost model's order (not timed here)
+    so3_prob = bench.bench_so3_problem(quick=True)
+    assert so3_prob["planner"][0]["path"] == "so3" and so3_prob["planner"][0]["error"] <= 1e-3
+    work, image, mu_image, err, _ = bench.bench_workload(16, 1, 1e-4)
+    assert image.shape == (16, 16) and work["mu_ratio"] > 10
+    assert work["max_error_rel_peak"] <= 1e-4 and np.all(np.isfinite(err))
+    summary = bench.cost_model_summary([prob, so3_prob], work)
+    assert summary["rankings"] == 1 and summary["plans"] == len(prob["ranking"]["forced"]) + 3
+
+
+def test_fuzz_robustness_quick_has_no_bad_outcome(tmp_path):
+    """experiments/fuzz_robustness.py's file fuzzing at 70 mutants: every damaged file is
+    refused with the library's error or read back unchanged."""
+    from experiments import fuzz_robustness as fz
+
+    result = fz.fuzz_files(70, seed=3, directory=str(tmp_path))
+    assert result["bad"] == 0, result["failures"]
+    assert {"bit_flip", "attribute", "channel", "crafted"} <= set(result["by_kind"])
+
+
+@pytest.mark.slow
+def test_fuzz_robustness_long_run():
+    """The robustness targets: ≥ 5 000 mutated files, ≥ 300 command lines, nothing bad."""
+    from experiments import fuzz_robustness as fz
+
+    files_result = fz.fuzz_files(5000, seed=11)
+    assert files_result["bad"] == 0, files_result["failures"]
+    cli = fz.fuzz_command_lines(300, seed=11)
+    assert cli["bad"] == 0, cli["failures"]

@@ -24,17 +24,7 @@ from brdfscale import fitting
 from brdfscale import InvalidInputError, LobeImage, MeasurementSet, stats
 from brdfscale._cli import main
 
-SCALES = (0.5, 1.0, 2.0, 4.0, 8.0)
-TRUTHS = [
-    dict(amplitude=0.8, alpha_lobe=0.05, alpha_max=0.2, mu_c=1.0, exponent=0.8),
-    dict(amplitude=2.5, alpha_lobe=0.08, alpha_max=0.15, mu_c=2.0, exponent=1.5),
-    dict(amplitude=0.3, alpha_lobe=0.03, alpha_max=0.25, mu_c=0.7, exponent=0.6),
-]
-
-
-def _dataset(model, truth, noise, seed, scales=SCALES, size=24):
-    mset = fitting.simulate(model, truth, scales, size=size, extent=0.5, noise=noise, floor=1e-3, seed=seed)
-    return mset, fitting.Dataset.from_measurements(mset)
+from tests.helpers import SCALES, TRUTHS, parametric_dataset
 
 
 # -- data ---------------------------------------------------------------------------------
@@ -121,7 +111,7 @@ def test_models_refuse_bad_configurations():
 @pytest.mark.parametrize("noise", [0.003, 0.03])
 def test_parametric_recovery_within_stated_uncertainty(truth, noise):
     model = fitting.ParametricModel()
-    _, data = _dataset(model, truth, noise, seed=hash((noise, truth["amplitude"])) % 1000)
+    _, data = parametric_dataset(model, truth, noise, seed=hash((noise, truth["amplitude"])) % 1000)
     res = fitting.fit(model, data, starts=3)
     assert res.status == "converged" and res.determined and not res.at_bounds
     assert 0.6 < res.chi2 / res.dof < 1.4
@@ -133,7 +123,7 @@ def test_laplace_covariance_and_optimum_agree_with_scipy():
     """SciPy's least_squares (finite-difference Jacobian) finds the same optimum; its
     Jacobian gives the same covariance (JᵀJ)⁻¹ as the jacfwd Laplace approximation."""
     model = fitting.ParametricModel()
-    _, data = _dataset(model, TRUTHS[0], 0.01, seed=5)
+    _, data = parametric_dataset(model, TRUTHS[0], 0.01, seed=5)
     res = fitting.fit(model, data, starts=2)
     problem = fitting.Problem(model, data)
     residuals = eqx.filter_jit(fitting._solve._residuals)
@@ -152,7 +142,7 @@ def test_an_optimistix_solver_object_is_accepted_where_a_name_is():
     import optimistix as optx
 
     model = fitting.ParametricModel()
-    _, data = _dataset(model, TRUTHS[0], 0.01, seed=5, size=12)
+    _, data = parametric_dataset(model, TRUTHS[0], 0.01, seed=5, size=12)
     by_name = fitting.fit(model, data, starts=2)
     by_object = fitting.fit(model, data, starts=2,
                             solver=optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6, norm=optx.rms_norm))
@@ -174,7 +164,7 @@ def test_solve_returns_chi2_and_jacobian_at_the_optimum(solver, max_steps):
     solvers evaluate it; either way they are r(θ̂) and jacfwd(r)(θ̂) — also when the solve
     stops at max_steps."""
     model = fitting.ParametricModel()
-    _, data = _dataset(model, TRUTHS[0], 0.01, seed=5, size=12)
+    _, data = parametric_dataset(model, TRUTHS[0], 0.01, seed=5, size=12)
     problem = fitting.Problem(model, data)
     y0 = jnp.asarray(np.clip(model.initial(data), *model.bounds(data)))
     theta, code, steps, chi2, jac = fitting._solve.solve(
@@ -203,7 +193,7 @@ def test_scale_laws_narrow_with_mu_so_coarser_lobes_exist(log_params, window):
 @pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_unchecked_predictions_are_the_checked_evolution():
     model = fitting.ParametricModel(law="gaussian_surface")
-    _, data = _dataset(model, dict(amplitude=0.8, alpha_lobe=0.05, rms_height=0.06, correlation_length=1.5),
+    _, data = parametric_dataset(model, dict(amplitude=0.8, alpha_lobe=0.05, rms_height=0.06, correlation_length=1.5),
                        0.01, seed=2, size=8)
     theta = jnp.asarray(model.initial(data))
     points = jnp.asarray(np.random.default_rng(0).normal(scale=0.1, size=(len(SCALES), 7, 2)))
@@ -219,7 +209,7 @@ def test_two_scales_name_the_undetermined_law_combinations():
     """Two scales fix the base lobe and one ratio S(μ0)/S(μ1): the three width-law
     parameters cannot all be determined; the fit must say so instead of quoting errors."""
     model = fitting.ParametricModel()
-    _, data = _dataset(model, TRUTHS[0], 0.01, seed=3, scales=(0.5, 4.0))
+    _, data = parametric_dataset(model, TRUTHS[0], 0.01, seed=3, scales=(0.5, 4.0))
     res = fitting.fit(model, data, starts=2)
     assert len(res.undetermined) >= 2
     assert all("log" in u["combination"] for u in res.undetermined)
@@ -252,13 +242,13 @@ def test_two_scales_name_the_undetermined_law_combinations():
 @pytest.fixture(scope="module")
 def small_problem():
     model = fitting.ParametricModel()  # the recovery tests' layout: their compiled solve is reused
-    _, data = _dataset(model, TRUTHS[1], 0.02, seed=4)
+    _, data = parametric_dataset(model, TRUTHS[1], 0.02, seed=4)
     return fitting.Problem(model, data), fitting.fit(model, data, starts=1)
 
 
 def test_interrupted_sampling_resumes_bit_identically(small_problem, tmp_path):
     problem, res = small_problem
-    full = fitting.sample(problem, res, walkers=16, steps=90, chunk=30, checkpoint=tmp_path / "a.h5", progress=False)
+    full = fitting.sample(problem, res, sampler="emcee", walkers=16, steps=90, chunk=30, checkpoint=tmp_path / "a.h5", progress=False)
 
     calls = {"n": 0}
     original = fitting._sample_emcee._batched_log_density
@@ -273,21 +263,21 @@ def test_interrupted_sampling_resumes_bit_identically(small_problem, tmp_path):
     fitting._sample_emcee._batched_log_density = interrupting
     try:
         with pytest.raises(KeyboardInterrupt):
-            fitting.sample(problem, res, walkers=16, steps=90, chunk=30, checkpoint=tmp_path / "b.h5", progress=False)
+            fitting.sample(problem, res, sampler="emcee", walkers=16, steps=90, chunk=30, checkpoint=tmp_path / "b.h5", progress=False)
     finally:
         fitting._sample_emcee._batched_log_density = original
     import h5py
 
     with h5py.File(tmp_path / "b.h5") as f:
         assert int(f.attrs["steps_done"]) == 30
-    resumed = fitting.sample(problem, res, walkers=16, steps=90, chunk=30, checkpoint=tmp_path / "b.h5", progress=False)
+    resumed = fitting.sample(problem, res, sampler="emcee", walkers=16, steps=90, chunk=30, checkpoint=tmp_path / "b.h5", progress=False)
     assert np.array_equal(full.chain, resumed.chain) and np.array_equal(full.log_prob, resumed.log_prob)
-    kw = dict(walkers=16, steps=90, chunk=30, checkpoint=tmp_path / "b.h5", progress=False)
+    kw = dict(sampler="emcee", walkers=16, steps=90, chunk=30, checkpoint=tmp_path / "b.h5", progress=False)
     # another run's checkpoint is not continued: other walkers, seed, moves, chains, sampler or data
     for other in ({"walkers": 18}, {"seed": 1}, {"moves": "de"}, {"chains": 2}):
         with pytest.raises(InvalidInputError, match="different run"):
             fitting.sample(problem, res, **{**kw, **other})
-    other_data = fitting.Problem(problem.model, _dataset(problem.model, TRUTHS[1], 0.02, seed=5)[1])
+    other_data = fitting.Problem(problem.model, parametric_dataset(problem.model, TRUTHS[1], 0.02, seed=5)[1])
     with pytest.raises(InvalidInputError, match="different run"):
         fitting.sample(other_data, res, **kw)
     # a refit that differs in the last bits still resumes the run: the state comes from the file
@@ -306,7 +296,7 @@ def test_interrupted_sampling_resumes_bit_identically(small_problem, tmp_path):
 def test_posterior_matches_laplace_on_a_well_determined_problem(small_problem):
     """Nearly linear problem: the emcee posterior std agrees with the Laplace std (15 %)."""
     problem, res = small_problem
-    s = fitting.sample(problem, res, walkers=16, steps=1500, chunk=1500, progress=False, seed=1)
+    s = fitting.sample(problem, res, sampler="emcee", walkers=16, steps=1500, chunk=1500, progress=False, seed=1)
     np.testing.assert_allclose(s.samples.std(axis=0), np.sqrt(np.diag(res.covariance)), rtol=0.15)
     d = s.diagnostics()
     assert set(d["autocorrelation_time"]) == set(problem.model.names)
@@ -320,7 +310,7 @@ def test_fit_command_writes_report_and_refuses_to_overwrite(tmp_path, capsys):
     from brdfscale import exr
 
     model = fitting.ParametricModel()
-    mset, _ = _dataset(model, TRUTHS[1], 0.02, seed=9)
+    mset, _ = parametric_dataset(model, TRUTHS[1], 0.02, seed=9)
     path = tmp_path / "m.exr"
     exr.write_measurements(str(path), mset)
     out = tmp_path / "out"
@@ -387,7 +377,7 @@ def test_sample_checkpoint_paths_and_first_chunk_resume(small_problem, tmp_path)
     from brdfscale import MeasurementFileError
 
     problem, res = small_problem
-    kw = dict(walkers=10, steps=3, chunk=1, progress=False)
+    kw = dict(sampler="emcee", walkers=10, steps=3, chunk=1, progress=False)
     path = tmp_path / "c.h5"
     (tmp_path / "c.h5.tmp").write_text("user's file")
     fitting.sample(problem, res, checkpoint=path, **kw)
@@ -451,7 +441,7 @@ def test_inconsistent_or_out_of_range_arguments_are_refused(small_problem, tmp_p
                       (dict(rtol=0, atol=0), "not both be 0"), (dict(undetermined_std=0), "undetermined_std")]:
         with pytest.raises(InvalidInputError, match=match):
             fitting.fit(model, two, **kw)
-    for kw, match in [(dict(walkers=4), "walkers must be an integer ≥ 10"), (dict(steps=1), "steps must be an integer ≥ 2"),
+    for kw, match in [(dict(sampler="emcee", walkers=4), "walkers must be an integer ≥ 10"), (dict(steps=1), "steps must be an integer ≥ 2"),
                       (dict(seed=-1), "seed"), (dict(chunk="10"), "chunk"), (dict(overwrite=1), "overwrite")]:
         with pytest.raises(InvalidInputError, match=match):
             fitting.sample(problem, res, progress=False, **kw)

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from brdfscale import fitting
-from test_fit import TRUTHS, _dataset
+
+from tests.helpers import TRUTHS, parametric_dataset
 
 pytestmark = pytest.mark.slow
 
@@ -21,7 +22,7 @@ def test_ggx_surface_recovery():
     """Non-Gaussian statistics and lobe (GGX, Student-t tails) through the radial path."""
     model = fitting.ParametricModel("ggx", "ggx", fixed={"mu_c": 1.0})
     truth = dict(amplitude=1.2, alpha_lobe=0.05, alpha_max=0.15, exponent=0.9)
-    _, data = _dataset(model, truth, 0.01, seed=11, scales=(0.5, 2.0, 8.0), size=20)
+    _, data = parametric_dataset(model, truth, 0.01, seed=11, scales=(0.5, 2.0, 8.0), size=20)
     res = fitting.fit(model, data, starts=2)
     assert res.status == "converged" and res.determined
     for name, value in truth.items():
@@ -34,7 +35,7 @@ def test_nonparametric_recovers_the_determined_ratios():
     (α_s(μ0)² − α_s(μ_k)²) W²/4 for Beckmann statistics (docs/conventions.md §1), within 4σ."""
     truth = TRUTHS[1]
     param = fitting.ParametricModel()
-    _, data = _dataset(param, truth, 0.01, seed=2, scales=(0.5, 2.0, 8.0), size=20)
+    _, data = parametric_dataset(param, truth, 0.01, seed=2, scales=(0.5, 2.0, 8.0), size=20)
     model = fitting.NonParametricModel(data, base_nodes=9, n_knots=6, grid_size=32)
     res = fitting.fit(model, data, starts=1, max_steps=1000, rtol=1e-6, atol=1e-6)
     assert res.status == "converged"
@@ -54,7 +55,7 @@ def test_nonparametric_recovers_the_determined_ratios():
 
 def test_solvers_reach_the_same_optimum():
     model = fitting.ParametricModel()
-    _, data = _dataset(model, TRUTHS[1], 0.01, seed=7)
+    _, data = parametric_dataset(model, TRUTHS[1], 0.01, seed=7)
     lm = fitting.fit(model, data, starts=1)
     for solver in ("gauss_newton", "dogleg", "bfgs"):
         other = fitting.fit(model, data, starts=1, solver=solver)
@@ -69,7 +70,7 @@ def test_nonparametric_auto_smoothness_is_within_a_factor_two_of_the_best_fixed(
     exp(−D_k(W)) at the knots, against the truth (Beckmann statistics: D = (α0² − α_k²) W²/4)."""
     truth = TRUTHS[1]
     param = fitting.ParametricModel()
-    _, data = _dataset(param, truth, 0.01, seed=2, scales=(0.5, 2.0, 8.0), size=16)
+    _, data = parametric_dataset(param, truth, 0.01, seed=2, scales=(0.5, 2.0, 8.0), size=16)
     law = param.law(jnp.asarray(param.theta_from(truth)))
     a0 = float(law.law(0.5))
 

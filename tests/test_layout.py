@@ -1,7 +1,10 @@
 """experiments/ is a folder of scripts run from the checkout (``python -m experiments.NAME``), not
 a package that ``pip install`` puts on every user's path, and none of its scripts edits
-``sys.path`` (issue 17)."""
+``sys.path``; the tests import no experiment and no other test module (shared fixtures in
+tests/helpers.py, independent references in tests/references/); ``requires-python`` is the
+Python the code and the tests need."""
 
+import ast
 import re
 import subprocess
 import sys
@@ -14,10 +17,10 @@ EXPERIMENTS = ROOT / "experiments"
 
 def test_pip_install_leaves_experiments_out():
     config = tomllib.loads((ROOT / "pyproject.toml").read_text())
-    find = config["tool"]["setuptools"]["packages"]["find"]
-    assert not any(pattern.startswith("experiments") for pattern in find.get("include", []))
-    assert set(find["include"]) == {"brdfscale*", "fitting*"}
-    # the tests import experiments from the checkout, not from an installed copy
+    packages = config["tool"]["setuptools"]["packages"]
+    # only brdfscale's packages are installed: no experiments, no tests, no generic top-level `fitting`
+    assert packages and all(name == "brdfscale" or name.startswith("brdfscale.") for name in packages)
+    # tests.helpers, tests.references and experiments/ are imported from the checkout, not installed
     assert "." in config["tool"]["pytest"]["ini_options"]["pythonpath"]
 
 
@@ -50,3 +53,64 @@ def test_a_script_runs_as_a_module_from_the_checkout():
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     assert out.stdout.startswith("usage:")
+
+
+#: the one test module that imports experiments/: it checks the scripts' own functions in-process
+#: (their parts against closed forms, smoke runs, the pages they generate; its docstring says why)
+EXPERIMENTS_ALLOWED = {"test_experiments_smoke.py"}
+
+
+def _imported_modules(source: str) -> list[str]:
+    """Every module ``source`` imports, at any depth (imports inside functions included);
+    relative imports as ``.name``."""
+    out = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            out += [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = "." * node.level + (node.module or "")
+            out.append(base)
+            if not node.module:  # from . import test_x
+                out += [base + alias.name for alias in node.names]
+    return out
+
+
+def test_tests_import_no_experiment_and_no_other_test_module():
+    """Test modules share fixtures through tests/helpers.py and oracles through
+    tests/references/, never by importing one another or an experiment script (a test would
+    then depend on a benchmark's code, and collecting one test file would run another's)."""
+    tests = ROOT / "tests"
+    offenders = []
+    for path in sorted(tests.rglob("*.py")):
+        name = str(path.relative_to(tests))
+        for module in _imported_modules(path.read_text()):
+            parts = module.lstrip(".").split(".")
+            if parts[0] == "tests":
+                parts = parts[1:]
+            if (parts and parts[0] == "experiments" and path.name not in EXPERIMENTS_ALLOWED) or (
+                    parts and (parts[0].startswith("test_") or parts[0] == "conftest")):
+                offenders.append(f"{name}: import {module}")
+    assert offenders == []
+
+
+def test_the_import_check_sees_what_it_should():
+    """The check above catches each form of the imports it forbids (so it cannot pass by
+    missing them)."""
+    source = ("import experiments.bench_fit\nfrom experiments import _bench\nfrom test_fit import X\n"
+              "def f():\n    from tests.test_samplers import Linear\n    from . import test_x\n"
+              "from tests.helpers import Linear\nfrom tests.references import planner\n")
+    assert sorted(_imported_modules(source)) == sorted(
+        ["experiments.bench_fit", "experiments", "test_fit", "tests.test_samplers", ".", ".test_x", "tests.helpers",
+         "tests.references"])
+
+
+def test_requires_python_is_what_the_code_and_tests_need():
+    """``tomllib`` (this file) and BlackJAX 1.7 (fitting.NUTS, fitting.HMC) need Python 3.11:
+    ``requires-python`` says so, no dependency carries a marker for an older Python, and the
+    README's quick start names the same version."""
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    assert config["project"]["requires-python"] == ">=3.11"
+    assert sys.version_info >= (3, 11)
+    markers = [d for d in config["project"]["dependencies"] if "python_version" in d]
+    assert markers == []
+    assert "Python ≥ 3.11" in (ROOT / "README.md").read_text()

@@ -15,7 +15,8 @@ import pytest
 from brdfscale import InvalidInputError, OutputInUseError, library
 from brdfscale._cli import main
 from brdfscale.files import exclusive
-from experiments.library_data import write_library
+
+from tests.helpers import write_library
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 

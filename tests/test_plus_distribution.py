@@ -253,7 +253,7 @@ def test_transform_depends_on_w_x0_only_against_mpmath(n):
     H_n depends on z = |W| x0 alone: against mpmath's series at the same z, wherever |W| and
     x0 sit in float64's range (and with |W| tiny, x0 huge), on the vector and radial paths and
     in the nearly-specular statistic."""
-    from experiments._plus_reference import polynomial, reference
+    from tests.references.plus_transform import polynomial, reference
 
     cases = []
     wanted = {z: reference(n, z) for z in (1e-3, 1.0, 7.5, 30.0, 400.0)}

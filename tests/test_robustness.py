@@ -22,7 +22,7 @@ from brdfscale import _files, exr, files
 from brdfscale._cli import main
 from brdfscale.exr import _format
 
-from experiments import fuzz_robustness as fz
+from tests.helpers import HOSTILE, SYNTH_DOMAINS, rewrite_exr, run_command, same_set, sample_set
 
 P = _format.PREFIX
 
@@ -30,13 +30,13 @@ P = _format.PREFIX
 @pytest.fixture(scope="module")
 def original(tmp_path_factory):
     path = tmp_path_factory.mktemp("robust") / "m.exr"
-    exr.write_measurements(path, fz.sample_set())
+    exr.write_measurements(path, sample_set())
     return str(path), Path(path).read_bytes(), exr.read_measurements(path)
 
 
 def _rewritten(original, tmp_path, edit, reseal=False):
     out = str(tmp_path / "edited.exr")
-    fz._rewrite(original[0], out, edit, reseal=reseal)
+    rewrite_exr(original[0], out, edit, reseal=reseal)
     return out
 
 
@@ -76,12 +76,12 @@ def test_files_of_layout_1_stay_readable_with_a_warning(original, tmp_path):
     path = _rewritten(original, tmp_path, _as_version_1)
     with pytest.warns(bs.UnprotectedHeaderWarning, match="not protected"):
         back = exr.read_measurements(path)
-    assert fz.same_set(back, original[2])
+    assert same_set(back, original[2])
     rewritten = tmp_path / "again.exr"
     exr.write_measurements(rewritten, back)  # read and write again: protected
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        assert fz.same_set(exr.read_measurements(rewritten), original[2])
+        assert same_set(exr.read_measurements(rewritten), original[2])
 
 
 def test_layout_1_with_a_digest_is_a_downgrade_and_refused(original, tmp_path):
@@ -118,7 +118,7 @@ def test_writers_refuse_metadata_the_reader_would_refuse(tmp_path):
     for _ in range(_format.MAX_JSON_DEPTH + 1):
         node["x"] = {}
         node = node["x"]
-    mset = bs.MeasurementSet(fz.sample_set().images, {"deep": deep})
+    mset = bs.MeasurementSet(sample_set().images, {"deep": deep})
     with pytest.raises(bs.InvalidInputError, match="nested"):
         exr.write_measurements(tmp_path / "deep.exr", mset)
 
@@ -167,27 +167,11 @@ def test_mutated_files_are_refused_or_read_identically(original, tmp_path, data)
         b = b[:data.draw(st.integers(0, len(b)))]
     mutant = tmp_path / "mutant.exr"
     mutant.write_bytes(bytes(b))
-    with fz.quiet_stderr():
-        try:
-            back = exr.read_measurements(mutant)
-        except bs.MeasurementFileError:
-            return
-    assert fz.same_set(back, reference)
-
-
-def test_fuzz_quick_has_no_bad_outcome(tmp_path):
-    result = fz.fuzz_files(70, seed=3, directory=str(tmp_path))
-    assert result["bad"] == 0, result["failures"]
-    assert {"bit_flip", "attribute", "channel", "crafted"} <= set(result["by_kind"])
-
-
-@pytest.mark.slow
-def test_fuzz_long_run():
-    """The issue's targets: ≥ 5 000 mutated files, ≥ 300 command lines, nothing bad."""
-    files_result = fz.fuzz_files(5000, seed=11)
-    assert files_result["bad"] == 0, files_result["failures"]
-    cli = fz.fuzz_command_lines(300, seed=11)
-    assert cli["bad"] == 0, cli["failures"]
+    try:  # OpenEXR's diagnostics are captured by the reader (brdfscale/exr/_diagnostics.py)
+        back = exr.read_measurements(mutant)
+    except bs.MeasurementFileError:
+        return
+    assert same_set(back, reference)
 
 
 # -- temporary files of killed writes ---------------------------------------------------------------
@@ -200,7 +184,7 @@ def test_a_stale_temporary_file_is_removed_by_the_next_write(tmp_path):
     stale.write_bytes(b"half")
     live = tmp_path / f".m.exr.brdfscale-{host}-{os.getppid()}-xyz.tmp.exr"  # a live process's: kept
     live.write_bytes(b"busy")
-    exr.write_measurements(tmp_path / "m.exr", fz.sample_set())
+    exr.write_measurements(tmp_path / "m.exr", sample_set())
     assert not stale.exists() and live.exists()
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["m.exr", live.name])
 
@@ -261,7 +245,7 @@ def test_sample_refuses_a_checkpoint_in_use(tmp_path):
     proc = _holder(checkpoint)
     try:
         with pytest.raises(bs.OutputInUseError, match="checkpoint"):
-            fitting.sample(problem, result, steps=4, walkers=8, checkpoint=checkpoint, progress=False)
+            fitting.sample(problem, result, sampler="emcee", steps=4, walkers=8, checkpoint=checkpoint, progress=False)
         assert not checkpoint.exists()
     finally:
         proc.kill()
@@ -354,7 +338,7 @@ def test_a_wrong_flag_shows_the_subcommands_usage(original, tmp_path, capsys):
 
 
 def test_damaged_truth_metadata_is_refused_before_the_fit(tmp_path, capsys):
-    mset = fz.sample_set()
+    mset = sample_set()
     bad = bs.MeasurementSet(mset.images, {"truth": {"params": {"alpha_lobe": "x"}}})
     path = tmp_path / "m.exr"
     exr.write_measurements(path, bad)
@@ -380,19 +364,19 @@ def test_an_unexpected_failure_is_one_line_and_status_1(monkeypatch, original, c
 
 
 @settings(max_examples=40, deadline=None)
-@given(option=st.sampled_from(sorted(fz.SYNTH_DOMAINS)), value=st.one_of(
-    st.sampled_from(fz.HOSTILE), st.text(max_size=8), st.integers(-10**25, 10**25).map(str),
+@given(option=st.sampled_from(sorted(SYNTH_DOMAINS)), value=st.one_of(
+    st.sampled_from(HOSTILE), st.text(max_size=8), st.integers(-10**25, 10**25).map(str),
     st.floats(allow_nan=True, allow_infinity=True).map(repr)))
 def test_synth_option_values_outside_their_domain_are_refused(option, value):
     """Property: a value outside an option's documented domain exits 2, before any work;
     (values inside it are the default test of test_cli_synth.py)."""
-    if fz.SYNTH_DOMAINS[option](value):
+    if SYNTH_DOMAINS[option](value):
         return
     argv = ["synth", "gaussian", "--size", "16", "--pixels", "5", "--scales", "2,4", "--out", "/nonexistent/x.exr"]
     if option in argv:
         i = argv.index(option)
         del argv[i:i + 2]
-    code, err = fz.run_command(argv + [option, value])
+    code, err = run_command(argv + [option, value])
     assert code == 2 and "Traceback" not in err, (option, value, err)
 
 

@@ -24,7 +24,8 @@ import pytest
 from brdfscale import fitting
 from brdfscale import InvalidInputError
 from brdfscale.fitting import _sample_many
-from test_samplers import Linear, _measurements
+
+from tests.helpers import Linear, linear_measurements
 
 SIGMA = 0.1
 SIZES = [(7, 7), (8, 8), (8, 7)]  # pixels per side at the two scales: 49, 64, 64 distinct points
@@ -34,7 +35,7 @@ NUTS = dict(sampler=fitting.NUTS(warmup=30), chains=2, steps=30, chunk=25, seed=
 @pytest.fixture(scope="module")
 def ragged():
     model = Linear()
-    problems = [fitting.Problem(model, fitting.Dataset.from_measurements(_measurements(i, s, SIGMA)))
+    problems = [fitting.Problem(model, fitting.Dataset.from_measurements(linear_measurements(i, s, SIGMA)))
                 for i, s in enumerate(SIZES)]
     assert [p.points.mean.shape[1] for p in problems] == [49, 64, 64]
     return problems, [fitting.fit(model, p.data, starts=1) for p in problems]
@@ -146,13 +147,12 @@ _SHARDED = textwrap.dedent("""
     import jax
     jax.config.update("jax_enable_x64", True)
     import numpy as np
-    sys.path.insert(0, "tests")
     from brdfscale import fitting
     from brdfscale.fitting import _sample_many
-    from test_sample_many import NUTS, SIGMA, SIZES, _measurements
-    from test_samplers import Linear
+    from tests.helpers import Linear, linear_measurements
+    from tests.test_sample_many import NUTS, SIGMA, SIZES
     assert len(jax.devices()) == 2, jax.devices()
-    problems = [fitting.Problem(Linear(), fitting.Dataset.from_measurements(_measurements(i, s, SIGMA)))
+    problems = [fitting.Problem(Linear(), fitting.Dataset.from_measurements(linear_measurements(i, s, SIGMA)))
                 for i, s in enumerate(SIZES)]
     fits = [fitting.fit(Linear(), p.data, starts=1) for p in problems]
     placed, advance = [], _sample_many._advance_many

@@ -15,82 +15,22 @@ be decided by the determined quantities only.
 import dataclasses
 import math
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from brdfscale import fitting
-from brdfscale import InvalidInputError, LobeImage, MeasurementSet
+from brdfscale import InvalidInputError
 from brdfscale.fitting import _diagnostics
 
-BOX = 5.0
-TRUE = (1.0, 0.5, -0.3)
-
-
-class Linear(fitting.AbstractModel):
-    """``f_k(u) = θ0 + θ1·10u_x + θ2·(10u_x + 5u_y + k)`` (+ θ3 times the last basis again when
-    ``duplicate``: a null direction θ2 − θ3); prior box [−5, 5] in every coordinate."""
-
-    duplicate: bool = eqx.field(static=True, default=False)
-
-    @property
-    def names(self):
-        return ("t0", "t1", "t2") + (("t3",) if self.duplicate else ())
-
-    @property
-    def radial(self):
-        return False
-
-    def _basis(self, points):
-        k = jnp.arange(points.shape[0], dtype=points.dtype)[:, None]
-        ux, uy = 10 * points[..., 0], 10 * points[..., 1]
-        basis = [jnp.ones_like(ux), ux, ux + 0.5 * uy + k]
-        return jnp.stack(basis + basis[-1:] * self.duplicate, axis=-1)
-
-    def predict_points(self, theta, scales, points):
-        return self._basis(points) @ theta
-
-    def quantities(self, theta):
-        out = {f"q{i}": theta[i] for i in range(3)}
-        if self.duplicate:
-            out["q3"] = theta[3]
-        return out
-
-    def initial(self, data):
-        return np.zeros(len(self.names))
-
-    def bounds(self, data):
-        n = len(self.names)
-        return np.full(n, -BOX), np.full(n, BOX)
-
-    def relative_statistics(self, theta, W, scales):
-        return jnp.ones((jnp.asarray(scales).shape[0], jnp.asarray(W).shape[0]))
-
-    @property
-    def identifiability_notes(self):
-        return ()
-
-
-def _measurements(seed=0, size=6, sigma=0.1):
-    """The linear model's images at μ = 1 and 2, ``size`` pixels per side (or a pair: one per scale)."""
-    rng = np.random.default_rng(seed)
-    sizes = (size, size) if np.ndim(size) == 0 else size
-    images = []
-    for k, (mu, n) in enumerate(zip((1.0, 2.0), sizes)):
-        axis = np.linspace(-0.1, 0.1, n)
-        ux, uy = np.meshgrid(axis, axis)
-        f = TRUE[0] + TRUE[1] * 10 * ux + TRUE[2] * (10 * ux + 5 * uy + k)
-        images.append(LobeImage(mu=mu, incident=np.array([0.0, 0.0, 1.0]), extent=0.1,
-                                values=f + sigma * rng.standard_normal(f.shape), sigma=np.full(f.shape, sigma)))
-    return MeasurementSet(tuple(images))
+from tests.helpers import TRUTHS, Linear, linear_measurements, parametric_dataset
 
 
 @pytest.fixture(scope="module")
 def linear():
     """The linear-Gaussian problem, its fit, and the exact posterior (mean, covariance)."""
-    data = fitting.Dataset.from_measurements(_measurements())
+    data = fitting.Dataset.from_measurements(linear_measurements())
     model = Linear()
     problem = fitting.Problem(model, data)
     res = fitting.fit(model, data, starts=1)
@@ -238,7 +178,7 @@ def test_rhat_ess_and_mcse_equal_arviz_on_stored_chains():
              "shifted chain": nuts + np.array([0.0, 0.0, 0.3, 0.0])[:, None, None] * nuts.std(axis=(0, 1)),
              "ties": np.round(nuts * 20) / 20, "one chain": nuts[:1], "even draws": nuts[:, :300]}
     for label, x in cases.items():
-        reference = az.summary(az.convert_to_dataset(x), kind="all", round_to="none")
+        reference = az.summary(az.convert_toparametric_dataset(x), kind="all", round_to="none")
         for i in range(x.shape[-1]):
             ours = _diagnostics.summary_row(x[:, :, i])
             theirs = reference.loc[f"x[{i}]"]
@@ -344,7 +284,7 @@ def test_to_arviz_names_the_extra_when_arviz_is_missing(linear, monkeypatch):
     from brdfscale import MissingDependencyError
 
     problem, res, _, _ = linear
-    s = fitting.sample(problem, res, walkers=8, steps=10, progress=False)
+    s = fitting.sample(problem, res, sampler="emcee", walkers=8, steps=10, progress=False)
     real_import = builtins.__import__
 
     def no_arviz(name, *args, **kwargs):
@@ -362,7 +302,7 @@ def test_to_arviz_names_the_extra_when_arviz_is_missing(linear, monkeypatch):
 
 @pytest.fixture(scope="module")
 def null_direction():
-    data = fitting.Dataset.from_measurements(_measurements())
+    data = fitting.Dataset.from_measurements(linear_measurements())
     model = Linear(duplicate=True)
     return fitting.Problem(model, data), fitting.fit(model, data, starts=1)
 
@@ -422,10 +362,8 @@ def test_the_width_law_with_two_scales_converges_in_the_determined_subspace(samp
     exponent undetermined, on a curved ridge the data leave flat): sampled in the determined
     subspace, NUTS and HMC converge without a divergence, and the determined amplitude and
     alpha_lobe get the fit's Laplace standard deviations (10 %)."""
-    from test_fit import TRUTHS, _dataset
-
     model = fitting.ParametricModel()
-    _, data = _dataset(model, TRUTHS[0], 0.01, seed=3, scales=(0.5, 4.0))
+    _, data = parametric_dataset(model, TRUTHS[0], 0.01, seed=3, scales=(0.5, 4.0))
     res = fitting.fit(model, data, starts=2)
     assert len(res.undetermined) == 2
     s = fitting.sample(fitting.Problem(model, data), res, sampler=sampler, steps=1000, progress=False, seed=1)

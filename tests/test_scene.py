@@ -1,7 +1,7 @@
 """Tests of brdfscale.scene: planner choices, accuracy against independent references
 (closed forms, SciPy Hankel quadrature, a NumPy 2D quadrature, a SciPy-rotation group
-integral for the SO(3) path), camera geometry, jit/differentiability, input validation, and a
-smoke run of experiments/bench_planner.py."""
+integral for the SO(3) path: tests/references/planner.py), camera geometry, jit/differentiability
+and input validation (the smoke run of experiments/bench_planner.py is in test_experiments_smoke.py)."""
 
 import math
 
@@ -16,7 +16,7 @@ import brdfscale as bs
 from brdfscale import lobes, scene, so3, stats
 from brdfscale.geometry import microfacet_factor, slope_to_direction
 from brdfscale._interpolate import interpolate
-from experiments import bench_planner as bench  # independent references live in the benchmark
+from tests.references import planner as oracle  # the independent references (shared with experiments/bench_planner.py)
 
 TOL = 1e-4
 
@@ -34,14 +34,14 @@ def spiral(n, reach=0.15):
 
 
 def test_closed_form_chosen_and_exact():
-    mat = bench.material("closed_form")
+    mat = oracle.material("closed_form")
     u = spiral(40)
     mu = np.geomspace(1e-3, 10, 40)
     q, F = queries_at(u, mu)
     plan = scene.plan(scene.Scene((mat,), q, TOL))
     assert plan.parts[0].path == "closed_form"
     got = np.asarray(plan.evaluate()) / F
-    want = np.array([bench.gaussian_reference(m, x[None])[0] for m, x in zip(mu, u)])
+    want = np.array([oracle.gaussian_reference(m, x[None])[0] for m, x in zip(mu, u)])
     np.testing.assert_allclose(got, want, rtol=1e-12)
 
 
@@ -49,7 +49,7 @@ def test_closed_form_chosen_and_exact():
 def test_radial_log_mu_binning_meets_target_against_scipy_hankel():
     """Many distinct scales over four decades: log-μ nodes with interpolation; max error
     relative to each scale's peak within the target (SciPy Hankel reference)."""
-    mat = bench.material("beckmann_ggx")
+    mat = oracle.material("beckmann_ggx")
     rng = np.random.default_rng(1)
     n = 200
     u = rng.uniform(-0.12, 0.12, (n, 2))
@@ -59,8 +59,8 @@ def test_radial_log_mu_binning_meets_target_against_scipy_hankel():
     part = plan.parts[0]
     assert part.path == "radial" and "log-μ nodes" in part.details
     got = np.asarray(plan.evaluate()) / F
-    want = bench._hankel_rows(mu, np.linalg.norm(u, axis=-1))
-    peak = bench._hankel_rows(mu, np.zeros(n))
+    want = oracle._hankel_rows(mu, np.linalg.norm(u, axis=-1))
+    peak = oracle._hankel_rows(mu, np.zeros(n))
     err = np.max(np.abs(got - want) / peak)
     assert err <= TOL
     assert err <= plan.predicted_error * 4  # the prediction is not wildly optimistic
@@ -69,14 +69,14 @@ def test_radial_log_mu_binning_meets_target_against_scipy_hankel():
 @pytest.mark.slow
 def test_scipy_hankel_reference_matches_mpmath():
     r = 0.05
-    assert bench.hankel_reference("beckmann_ggx", 0.01, [r])[0] == pytest.approx(
-        bench.mpmath_check("beckmann_ggx", 0.01, r), rel=1e-10
+    assert oracle.hankel_reference("beckmann_ggx", 0.01, [r])[0] == pytest.approx(
+        oracle.mpmath_check("beckmann_ggx", 0.01, r), rel=1e-10
     )
 
 
 @pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_grid_for_skewed_statistics_against_2d_quadrature():
-    mat = bench.material("skewed_mixture")
+    mat = oracle.material("skewed_mixture")
     g = np.linspace(-0.12, 0.12, 9)
     u = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
     mu = np.full(len(u), 0.01)
@@ -84,7 +84,7 @@ def test_grid_for_skewed_statistics_against_2d_quadrature():
     plan = scene.plan(scene.Scene((mat,), q, TOL))
     assert plan.parts[0].path == "grid"
     got = np.asarray(plan.evaluate()) / F
-    want = bench.skewed_reference(0.01, u)
+    want = oracle.skewed_reference(0.01, u)
     assert np.max(np.abs(got - want)) / np.max(want) <= TOL
     # the skew is resolved: the lobe is not symmetric under u_x → −u_x (the grid is)
     mirrored = want.reshape(9, 9)[:, ::-1].ravel()
@@ -94,22 +94,22 @@ def test_grid_for_skewed_statistics_against_2d_quadrature():
 def test_nearly_specular_statistics_against_series_reference():
     """Plus-distribution statistics (seed §6): radial path against SciPy quadrature with H_0
     from its power series, which itself matches mpmath."""
-    mat = bench.material("plus")
+    mat = oracle.material("plus")
     u = spiral(40)
     mu = np.full(40, 0.01)
     q, F = queries_at(u, mu)
     plan = scene.plan(scene.Scene((mat,), q, TOL))
     assert plan.parts[0].path == "radial"
-    want = bench.hankel_reference("plus", 0.01, np.linalg.norm(u, axis=-1))
+    want = oracle.hankel_reference("plus", 0.01, np.linalg.norm(u, axis=-1))
     got = np.asarray(plan.evaluate()) / F
     assert np.max(np.abs(got - want)) / np.max(want) <= TOL
-    np.testing.assert_allclose(bench.plus_h0(np.array([2.0])), [-0.44191940220810094], rtol=1e-12)  # mpmath value
+    np.testing.assert_allclose(oracle.plus_h0(np.array([2.0])), [-0.44191940220810094], rtol=1e-12)  # mpmath value
 
 
 @pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_grid_table_mode_matches_direct_mode():
     """Many queries → FFT tables + cubic interpolation; few → direct DFT sums. Same answer."""
-    mat = bench.material("skewed_mixture")
+    mat = oracle.material("skewed_mixture")
     rng = np.random.default_rng(2)
     u = rng.uniform(-0.1, 0.1, (2000, 2))
     mu = np.exp(rng.uniform(np.log(8e-3), np.log(1.2e-2), len(u)))
@@ -126,7 +126,7 @@ def test_grid_table_mode_matches_direct_mode():
 
 
 def test_duplicate_queries_are_computed_once():
-    mat = bench.material("beckmann_ggx")
+    mat = oracle.material("beckmann_ggx")
     u = np.repeat(spiral(5), 4, axis=0)
     q, F = queries_at(u, np.full(len(u), 0.05))
     plan = scene.plan(scene.Scene((mat,), q, TOL))
@@ -139,7 +139,7 @@ def test_duplicate_queries_are_computed_once():
 def test_camera_scene_geometry_and_image():
     cam = scene.Camera(height=2.0, pitch=0.3, fov=0.8, resolution=(20, 30))
     light = np.array([0.6, 0.0, 0.8])
-    sc = scene.camera_scene([bench.material("closed_form")], cam, light, TOL)
+    sc = scene.camera_scene([oracle.material("closed_form")], cam, light, TOL)
     rays = cam.rays().reshape(-1, 3)
     hit = rays[:, 2] < 0
     assert len(sc.queries) == hit.sum() < 600  # the sky above the horizon gives no queries
@@ -155,7 +155,7 @@ def test_camera_scene_geometry_and_image():
 
 
 def test_plan_is_jitted_and_differentiable():
-    mat = bench.material("beckmann_ggx")
+    mat = oracle.material("beckmann_ggx")
     u = spiral(12)
     mu = np.geomspace(5e-3, 0.5, 12)
     q, F = queries_at(u, mu)
@@ -173,7 +173,7 @@ def test_plan_is_jitted_and_differentiable():
 
 
 def test_explain_reports_choices_costs_and_errors():
-    mats = (bench.material("beckmann_ggx"), bench.material("closed_form"))
+    mats = (oracle.material("beckmann_ggx"), oracle.material("closed_form"))
     u = spiral(10)
     q, _ = queries_at(u, np.full(10, 0.02))
     q = scene.Queries(q.i, q.o, q.mu, material=np.arange(10) % 2)
@@ -183,7 +183,7 @@ def test_explain_reports_choices_costs_and_errors():
 
 
 def test_forced_method_that_does_not_apply():
-    mat = bench.material("skewed_mixture")
+    mat = oracle.material("skewed_mixture")
     q, _ = queries_at(spiral(4), np.full(4, 0.01))
     with pytest.raises(bs.MethodNotApplicableError):
         scene.plan(scene.Scene((mat,), q, TOL), method="radial")
@@ -192,14 +192,14 @@ def test_forced_method_that_does_not_apply():
 
 
 def test_no_brdf_at_a_finer_scale_is_reported_at_planning():
-    coarse = scene.Material(lobes.Beckmann(0.01), 10.0, stats.ScaledFamily(stats.Beckmann, bench.WIDTH))
+    coarse = scene.Material(lobes.Beckmann(0.01), 10.0, stats.ScaledFamily(stats.Beckmann, oracle.WIDTH))
     q, _ = queries_at(spiral(3), np.full(3, 1e-4))
     with pytest.raises(bs.NoBRDFAtScaleError):
         scene.plan(scene.Scene((coarse,), q, TOL))
 
 
 def test_bad_input():
-    mat = bench.material("closed_form")
+    mat = oracle.material("closed_form")
     q, _ = queries_at(spiral(3), np.full(3, 0.1))
     with pytest.raises(bs.InvalidInputError, match="tol"):
         scene.Scene((mat,), q, 2.0)
@@ -238,25 +238,25 @@ def test_cubic_interpolation_is_exact_for_cubics(cx, cy):
 def test_so3_reference_parts_are_sound():
     """The benchmark's independent pieces: its NumPy facet lobe is the library's model, and the
     heat kernel (character sum) times the Haar density integrates to 1 on its quadrature."""
-    i, o = bench._unit(0.3, 0.0), bench._unit(0.4, math.pi)
+    i, o = oracle._unit(0.3, 0.0), oracle._unit(0.4, math.pi)
     rot = np.asarray(so3.euler_to_matrix(np.array([0.1, 2.0, 4.0]), np.array([0.2, 0.3, 0.1]), np.array([0.0, 1.0, 5.0])))
-    np.testing.assert_allclose(bench.so3_lobe(i, o, rot), np.asarray(bench.so3_material().lobe.evaluate(i, o, rot)),
+    np.testing.assert_allclose(oracle.so3_lobe(i, o, rot), np.asarray(oracle.so3_material().lobe.evaluate(i, o, rot)),
                                rtol=1e-12)
-    _, total = bench.so3_reference(0.01, i, o, np.zeros((1, 3)), nodes=32)
+    _, total = oracle.so3_reference(0.01, i, o, np.zeros((1, 3)), nodes=32)
     assert total == pytest.approx(1.0, abs=1e-8)
 
 
 @pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_so3_material_is_planned_on_so3_and_meets_target_against_group_integral():
-    queries, ref, peak, _ = bench.so3_problem(np.array([0.01]), 6, nodes=32)
-    plan = scene.plan(scene.Scene((bench.so3_material(),), queries, 1e-3))
+    queries, ref, peak, _ = oracle.so3_problem(np.array([0.01]), 6, nodes=32)
+    plan = scene.plan(scene.Scene((oracle.so3_material(),), queries, 1e-3))
     part = plan.parts[0]
     assert part.path == "so3"
     B = int(part.details.split("band limit B = ")[1].split(" ")[0])
     # a priori from the lobe's width and the least damping (not the largest band limit allowed)
     assert B == so3.band_limit(
-        lambda J: np.asarray(bench.so3_material().lobe.spectrum(J))
-        * np.exp(-(bench.so3_material().tau(bench.MU0) - bench.so3_material().tau(0.01)) * J * (J + 1)), 2.5e-4)[0]
+        lambda J: np.asarray(oracle.so3_material().lobe.spectrum(J))
+        * np.exp(-(oracle.so3_material().tau(oracle.MU0) - oracle.so3_material().tau(0.01)) * J * (J + 1)), 2.5e-4)[0]
     assert part.step.rows == B - 1 and part.step.columns == B - 1  # tilted Γ∞, twist-dependent lobe
     err = np.max(np.abs(np.asarray(plan.evaluate()) - ref) / peak)
     assert err <= 1e-3
@@ -271,8 +271,8 @@ def test_so3_twist_free_lobe_on_a_flat_plane_needs_one_order():
     orientations D^J is diagonal, so only M = M' = 0 is computed — and the result is still
     right (group-integral reference), independent of the twist, and differentiable."""
     alpha = (0.2, 0.2)
-    mat = bench.so3_material(alpha)
-    i, o = bench._unit(0.3, 0.0), bench._unit(0.4, math.pi)
+    mat = oracle.so3_material(alpha)
+    i, o = oracle._unit(0.3, 0.0), oracle._unit(0.4, math.pi)
     # three twists at one scale, and 30 more scales: log-μ nodes with cubic interpolation
     twist = np.array([0.0, 0.7, 2.0] + [0.5] * 30)
     mu = np.concatenate([np.full(3, 0.01), np.geomspace(2e-3, 0.5, 30)])
@@ -286,7 +286,7 @@ def test_so3_twist_free_lobe_on_a_flat_plane_needs_one_order():
     np.testing.assert_allclose(got[:3], got[0], rtol=1e-12)
     check = np.arange(2, n, 4)  # one twist at 0.01 and every fourth further scale, between nodes or on them
     angles = np.asarray(q.euler_angles())
-    want = np.array([bench.so3_reference(mu[k], i, o, angles[k][None], nodes=32, alpha=alpha)[0][0] for k in check])
+    want = np.array([oracle.so3_reference(mu[k], i, o, angles[k][None], nodes=32, alpha=alpha)[0][0] for k in check])
     assert np.max(np.abs(got[check] - want) / want) <= 1e-3  # each query is at its (flat) peak orientation
 
     def loss(a):  # through the lobe's samples, the transform, the propagator and the synthesis
@@ -302,8 +302,8 @@ def test_so3_twist_free_lobe_on_a_flat_plane_needs_one_order():
 def test_so3_anisotropic_diffusion_matches_the_public_pipeline():
     """D_x ≠ D_y mixes twist orders: the plan keeps them all and agrees with so3.forward →
     so3.evolve_diffusion (matrix exponentials) → so3.synthesize at the same band limit."""
-    mat = bench.so3_material((0.5, 0.5), D=(1.0, 0.4, 0.2))
-    i, o = bench._unit(0.3, 0.0), bench._unit(0.4, math.pi)
+    mat = oracle.so3_material((0.5, 0.5), D=(1.0, 0.4, 0.2))
+    i, o = oracle._unit(0.3, 0.0), oracle._unit(0.4, math.pi)
     m = np.array([[0.15, 0.0], [0.1, 0.05], [0.2, -0.05]])
     twist = np.array([0.0, 1.0, 2.5])
     q = scene.Queries(np.tile(i, (3, 1)), np.tile(o, (3, 1)), np.full(3, 0.01), m_inf=m, twist=twist)
@@ -320,8 +320,8 @@ def test_so3_anisotropic_diffusion_matches_the_public_pipeline():
 
 
 def test_so3_bad_requests():
-    mat = bench.so3_material()
-    i, o = bench._unit(0.3, 0.0), bench._unit(0.4, math.pi)
+    mat = oracle.so3_material()
+    i, o = oracle._unit(0.3, 0.0), oracle._unit(0.4, math.pi)
     q = scene.Queries(i[None], o[None], [1e-5])  # finer than μ0 = 1e-4: a deconvolution
     with pytest.raises(bs.NoBRDFAtScaleError, match="finer"):
         scene.plan(scene.Scene((mat,), q, TOL))
@@ -329,28 +329,13 @@ def test_so3_bad_requests():
     with pytest.raises(bs.MethodNotApplicableError, match="so3"):
         scene.plan(scene.Scene((mat,), q, TOL), method="grid")
     with pytest.raises(bs.MethodNotApplicableError, match="AnisotropicMaterial"):
-        scene.plan(scene.Scene((bench.material("closed_form"),), q, TOL), method="so3")
+        scene.plan(scene.Scene((oracle.material("closed_form"),), q, TOL), method="so3")
     with pytest.raises(bs.InvalidInputError, match="AnisotropicMicrofacetLobe"):
         scene.AnisotropicMaterial(lobes.Beckmann(0.1), 1.0, mat.law)
     with pytest.raises(bs.InvalidInputError, match="DiffusionLaw"):
-        scene.AnisotropicMaterial(mat.lobe, 1.0, bench.WIDTH)
+        scene.AnisotropicMaterial(mat.lobe, 1.0, oracle.WIDTH)
     with pytest.raises(bs.InvalidInputError, match="twist"):
         scene.Queries(i[None], o[None], [0.01], twist=[0.0, 1.0])
-
-
-@pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
-def test_benchmark_smoke():
-    """A quick run of experiments/bench_planner.py's problem and workload code (no timing checks)."""
-    prob = bench.bench_problem("closed_form", quick=True)
-    assert prob["pareto"] and prob["planner"][0]["error"] <= 1e-4
-    assert prob["ranking"]["predicted_order"][-1] == "grid"  # the cost model's order (not timed here)
-    so3_prob = bench.bench_so3_problem(quick=True)
-    assert so3_prob["planner"][0]["path"] == "so3" and so3_prob["planner"][0]["error"] <= 1e-3
-    work, image, mu_image, err, _ = bench.bench_workload(16, 1, 1e-4)
-    assert image.shape == (16, 16) and work["mu_ratio"] > 10
-    assert work["max_error_rel_peak"] <= 1e-4 and np.all(np.isfinite(err))
-    summary = bench.cost_model_summary([prob, so3_prob], work)
-    assert summary["rankings"] == 1 and summary["plans"] == len(prob["ranking"]["forced"]) + 3
 
 
 def test_midpoint_error_uses_the_evaluations_interpolation():
@@ -370,7 +355,7 @@ def test_midpoint_error_uses_the_evaluations_interpolation():
 def test_no_brdf_from_a_spectral_path_reads_as_one_message():
     """The run-time check's equinox error is turned into NoBRDFAtScaleError with the library's
     message first, not JAX's traceback text around it."""
-    finer = scene.Material(lobes.GGX(0.05), 10.0, stats.ScaledFamily(stats.GGX, bench.WIDTH))
+    finer = scene.Material(lobes.GGX(0.05), 10.0, stats.ScaledFamily(stats.GGX, oracle.WIDTH))
     q, _ = queries_at(spiral(3), np.full(3, 1e-3))
     with pytest.raises(bs.NoBRDFAtScaleError) as err:
         scene.plan(scene.Scene((finer,), q, TOL))
@@ -379,7 +364,7 @@ def test_no_brdf_from_a_spectral_path_reads_as_one_message():
 
 def test_material_regularisation_must_be_non_negative():
     with pytest.raises(bs.InvalidInputError, match="regularisation must be ≥ 0"):
-        scene.Material(lobes.GGX(0.05), 10.0, stats.ScaledFamily(stats.GGX, bench.WIDTH), regularisation=-1.0)
+        scene.Material(lobes.GGX(0.05), 10.0, stats.ScaledFamily(stats.GGX, oracle.WIDTH), regularisation=-1.0)
 
 
 def test_no_queries_is_refused_by_name():
