@@ -79,7 +79,7 @@ def atomic_write(
     """
     path = os.fspath(path)
     if not overwrite and os.path.lexists(path):
-        raise error(f"{path}: file exists; pass overwrite=True (CLI: --force) to replace it.")
+        raise error(f"{path}: file exists; pass overwrite=True to replace it.")
     directory = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(directory):
         raise error(f"{path}: directory {directory} does not exist.")
@@ -98,7 +98,7 @@ def atomic_write(
             try:
                 os.link(tmp, path)
             except FileExistsError:
-                raise error(f"{path}: file exists; pass overwrite=True (CLI: --force) to replace it.") from None
+                raise error(f"{path}: file exists; pass overwrite=True to replace it.") from None
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)

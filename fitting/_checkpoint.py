@@ -86,7 +86,7 @@ class Checkpoint:
         """
         if not os.path.exists(self.path):
             return None
-        retry = "use another path, or pass overwrite=True (CLI: --force) to start afresh."
+        retry = "use another path, or pass overwrite=True to start afresh."
         try:
             f = _h5py().File(self.path, "r")
         except OSError as err:

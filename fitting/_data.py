@@ -99,8 +99,8 @@ class Dataset(Shown, eqx.Module):
             if s is None:
                 if default_sigma is None:
                     raise InvalidInputError(
-                        f"image {i} (μ = {img.mu}) has no per-pixel sigma; pass default_sigma= (CLI: "
-                        "--default-sigma; the noise standard deviation in lobe units) or store a 'sigma' channel."
+                        f"image {i} (μ = {img.mu}) has no per-pixel sigma; pass default_sigma= (the noise "
+                        "standard deviation in lobe units) or store a 'sigma' channel."
                     )
                 s = np.full_like(v, float(default_sigma))
             m = np.ones(v.shape, bool) if img.mask is None else img.mask

@@ -94,14 +94,14 @@ def check_report_directory(out_dir, overwrite: bool = False) -> list[str]:
         raise InvalidInputError(f"out_dir must be a path; got {type(out_dir).__name__} {out_dir!r}.") from None
     overwrite = flag(overwrite, "overwrite")
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
-        raise MeasurementFileError(f"report directory {out_dir} exists but is not a directory; give a directory "
-                                   "(existing or to be created) as out_dir (CLI: --out).")
+        raise MeasurementFileError(f"report directory {out_dir} exists but is not a directory; give out_dir= a "
+                                   "directory (existing or to be created).")
     targets = report_files(out_dir)
     existing = [os.path.basename(t) for t in targets if os.path.lexists(t)]
     if existing and not overwrite:
         raise InvalidInputError(
             f"{out_dir} already holds {', '.join(existing)}, which the report would overwrite; choose another "
-            "--out directory or pass --force (overwrite=True)."
+            "out_dir= or pass overwrite=True."
         )
     try:
         os.makedirs(out_dir, exist_ok=True)

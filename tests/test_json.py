@@ -34,7 +34,7 @@ def test_arrays_and_tuples_become_lists_with_null_where_not_finite():
 
 
 def test_dates_as_iso_text_other_objects_refused_or_given_to_other():
-    when = datetime.datetime(2024, 5, 1, 12, 30, tzinfo=datetime.timezone.utc)
+    when = datetime.datetime(2024, 5, 1, 12, 30, tzinfo=datetime.UTC)
     assert jsonable({"t": when, "d": when.date()}) == {"t": "2024-05-01T12:30:00+00:00", "d": "2024-05-01"}
 
     class Instrument:

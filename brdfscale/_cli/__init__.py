@@ -15,6 +15,7 @@ directory or checkpoint is in use by another run; 4 ``fit-library`` finished wit
 """
 
 import importlib
+import re
 import sys
 
 from .._errors import BrdfscaleError, OutputInUseError
@@ -28,6 +29,22 @@ _EPILOG = ("exit status: 0 success; 1 unexpected failure (rerun with --debug for
            "line or input (option outside its domain, damaged file, output exists, no BRDF at a scale); 3 output "
            "directory or checkpoint in use by another run; 4 fit-library finished with some materials failed (see its "
            "index); 130 interrupted.")
+
+
+#: The library's messages name Python arguments (``pass overwrite=True``, ``default_sigma=``, a
+#: message prefixed ``fixed:``); the command's errors name its flags instead — this mapping,
+#: applied by :func:`in_flags`, is the one place where an argument's name becomes a flag
+#: (tests/test_choices.py checks that every flag exists). A key ending in ``:`` is a prefix.
+FLAGS = {"overwrite=True": "--force", "force=True": "--force", "default_sigma=": "--default-sigma",
+         "out_dir=": "--out", "out=": "--out", "address=": "--address", "workers=": "--workers", "fixed:": "--fix:"}
+_PYTHON_ARGUMENT = re.compile("|".join(
+    f"^{re.escape(key)}" if key.endswith(":") else rf"(?<![\w.-]){re.escape(key)}"
+    for key in sorted(FLAGS, key=len, reverse=True)))
+
+
+def in_flags(message: str) -> str:
+    """A library message in the command's words: each Python argument of :data:`FLAGS` as its flag."""
+    return _PYTHON_ARGUMENT.sub(lambda match: FLAGS[match.group(0)], message)
 
 
 def build_parser() -> Parser:
@@ -68,10 +85,10 @@ def main(argv: list[str] | None = None) -> int:
             enable()
         return int(args.func(args) or 0)
     except OutputInUseError as err:
-        print(f"{name}: error: {err}", file=sys.stderr)
+        print(f"{name}: error: {in_flags(str(err))}", file=sys.stderr)
         return EXIT_IN_USE
     except BrdfscaleError as err:
-        print(f"{name}: error: {err}", file=sys.stderr)
+        print(f"{name}: error: {in_flags(str(err))}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
         print(f"{name}: interrupted.", file=sys.stderr)

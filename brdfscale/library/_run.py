@@ -120,15 +120,15 @@ class _Index:
                 if doc.get("format") != _FORMAT or not isinstance(doc.get("materials"), dict):
                     raise ValueError("not a brdfscale library index")
             except (OSError, ValueError) as err:
-                raise InvalidInputError(f"{self.path}: unreadable library index ({err}); move it away or choose "
-                                        "another --out.") from None
+                raise InvalidInputError(f"{self.path}: unreadable library index ({err}); move it away or give "
+                                        "another out= directory.") from None
             if doc["spec"] != spec.to_json() and not force:
                 earlier = doc["spec"]
                 changed = ", ".join(f"{k}={earlier.get(k)!r}" for k in sorted(spec.to_json())
                                     if earlier.get(k) != spec.to_json()[k])
                 raise InvalidInputError(
                     f"{out} holds a library fitted with other options (there {changed}); rerun with the same options "
-                    "to continue it, or choose another --out (--force refits every material with the new ones).")
+                    "to continue it, or give another out= directory (force=True refits every material with the new ones).")
             self.doc = doc
         if self.doc is None or force:
             self.doc = {"format": _FORMAT, "created": _now(), "spec": spec.to_json(), "runs": [], "materials": {}}
@@ -136,7 +136,7 @@ class _Index:
             entry = self.doc["materials"].setdefault(name, {"source": path, "status": "pending", "attempts": 0})
             if entry["source"] != path:
                 raise InvalidInputError(f"material {name!r} of {out} came from {entry['source']}, now from {path}; "
-                                        "one name, one source: rename the file or choose another --out.")
+                                        "one name, one source: rename the file or give another out= directory.")
             if os.path.isdir(material_directory(out, name)):
                 if entry["status"] != "done":
                     entry.update(status="done", note="found complete on restart (the index had not recorded it)")
@@ -173,7 +173,7 @@ def _ray(address, workers):
         import ray
     except ImportError:
         raise MissingDependencyError("executor='ray' needs Ray: pip install 'brdfscale[cluster]' (or run the library "
-                                     "in-process, without --address/--workers).") from None
+                                     "in-process, without address= and workers=).") from None
     started = False
     if not ray.is_initialized():
         options = dict(include_dashboard=False, log_to_driver=False, configure_logging=False)
@@ -303,7 +303,7 @@ def fit_library(sources, out, *, spec: FitSpec | None = None, batch: int = 16, e
 
 
 def _clear(out, materials):
-    """--force: the earlier results of these materials go (only the library's own files)."""
+    """force=True: the earlier results of these materials go (only the library's own files)."""
     import shutil
 
     for name, _ in materials:

@@ -1,0 +1,157 @@
+"""One source for every name and default (brdfscale.choices): the command line, the library's
+FitSpec and fitting's signatures agree with the table; every name in it is accepted by each;
+the table and the command's parser import without JAX; library messages name Python
+arguments, and the command translates them to its flags."""
+
+import ast
+import dataclasses
+import inspect
+import pathlib
+import re
+import subprocess
+import sys
+
+import pytest
+
+from brdfscale import InvalidInputError, choices, fitting, library
+from brdfscale._cli import FLAGS, build_parser, in_flags
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+
+def _parsed(command: str, *extra: str):
+    argv = {"fit": ["fit", "m.exr", "--out", "d"], "fit-library": ["fit-library", "lib", "--out", "d"]}[command]
+    return build_parser().parse_args([*argv, *extra])
+
+
+def _defaults(function) -> dict:
+    return {name: p.default for name, p in inspect.signature(function).parameters.items()
+            if p.default is not inspect.Parameter.empty}
+
+
+def test_the_table_and_the_command_line_parser_import_without_jax():
+    code = ("import sys; from brdfscale import choices; from brdfscale._cli import build_parser; build_parser(); "
+            "assert choices.SAMPLERS.default in choices.SAMPLERS; "
+            "print(sorted(m for m in ('jax', 'jaxlib', 'brdfscale.fitting') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT, check=False)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"
+
+
+def test_command_line_defaults_equal_the_library_defaults():
+    """Every option the command shares with fitting and FitSpec has the same default there, read
+    from the parser and from the functions' signatures."""
+    args = _parsed("fit")
+    fit, fit_many, sample, sample_many = (_defaults(f) for f in (fitting.fit, fitting.fit_many, fitting.sample,
+                                                                  fitting.sample_many))
+    spec = {f.name: f.default for f in dataclasses.fields(library.FitSpec)}
+    for option in ("solver", "starts", "max_steps", "seed"):
+        assert getattr(args, option) == fit[option] == fit_many[option] == spec[option] \
+            == getattr(choices.FIT, option), option
+    for option in ("sampler", "chains", "steps", "seed"):
+        assert getattr(args, option) == sample[option] == sample_many[option] == getattr(choices.SAMPLE, option), option
+    for option in ("chains", "steps"):
+        assert spec[option] == getattr(choices.SAMPLE, option), option
+    assert spec["sampler"] is None  # a library samples only when asked; then --steps > 0 passes --sampler's default
+    for option in ("model", "family", "law", "base_nodes", "knots", "regularisation"):
+        assert getattr(args, option) == spec[option] == getattr(choices.MODEL, option), option
+    parametric = _defaults(fitting.ParametricModel.__init__)
+    assert parametric["lobe"] == parametric["statistics"] == args.family and parametric["law"] == args.law
+    nonparametric = _defaults(fitting.NonParametricModel.__init__)
+    assert (nonparametric["base_nodes"], nonparametric["n_knots"], nonparametric["regularisation"]) == \
+        (args.base_nodes, args.knots, args.regularisation)
+    # fit-library: the same, but no sampling unless --steps is given (FitSpec's sampler None)
+    lib = _parsed("fit-library")
+    for option in ("solver", "starts", "max_steps", "seed", "model", "family", "law", "chains"):
+        assert getattr(lib, option) == getattr(args, option), option
+    assert lib.steps == 0 and lib.sampler == choices.SAMPLE.sampler
+
+
+def test_the_help_states_the_defaults_the_parser_uses(capsys):
+    """``brdfscale fit --help`` says each default, and names the default sampler (NUTS), not emcee."""
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["fit", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    for flag in ("--starts", "--max-steps", "--chains", "--steps", "--seed", "--base-nodes", "--knots"):
+        value = getattr(_parsed("fit"), flag[2:].replace("-", "_"))
+        section = text.split(f"{flag} {flag[2:].replace('-', '_').upper()} ", 1)[1]
+        assert section.split(" --", 1)[0].count(f"default {value}") == 1, flag
+    for flag, table in (("--solver", choices.SOLVERS), ("--sampler", choices.SAMPLERS), ("--model", choices.MODELS),
+                        ("--family", choices.FAMILIES), ("--law", choices.LAWS)):
+        assert f"{table.default} (default): {table.summary(table.default)}" in text, flag
+    assert "(optimistix, then NUTS by default: --sampler)" in text and "optimistix + emcee" not in text
+
+
+@pytest.mark.parametrize("table,option", [(choices.SOLVERS, "solver"), (choices.SAMPLERS, "sampler"),
+                                          (choices.MODELS, "model"), (choices.FAMILIES, "family"),
+                                          (choices.LAWS, "law")])
+def test_every_name_in_the_table_is_accepted_by_the_command_and_the_library(table, option):
+    for name in table:
+        assert getattr(_parsed("fit", f"--{option}", name), option) == name
+        assert getattr(library.FitSpec(**{option: name}), option) == name
+    with pytest.raises(SystemExit):
+        _parsed("fit", f"--{option}", "no-such-name")
+    with pytest.raises(InvalidInputError,
+                       match=f"{option} must be"):
+        library.FitSpec(**{option: "no-such-name"})
+
+
+def test_every_name_in_the_table_is_accepted_by_fitting():
+    assert tuple(fitting.SOLVERS) == choices.SOLVERS.names
+    assert set(fitting.SAMPLERS) == set(choices.SAMPLERS.names)
+    for name in choices.SAMPLERS:
+        assert fitting.SAMPLERS[name]().name == name
+    for family in choices.FAMILIES:
+        for law in choices.LAWS:
+            if law == "gaussian_surface" and family != "beckmann":  # the table says: Beckmann only
+                with pytest.raises(Exception, match="gaussian_surface"):
+                    fitting.ParametricModel(family, family, law=law)
+            else:
+                assert fitting.ParametricModel(family, family, law=law).names
+    assert {"parametric": fitting.ParametricModel, "nonparametric": fitting.NonParametricModel}.keys() \
+        == set(choices.MODELS)
+
+
+def test_the_table_refuses_unknown_names_naming_the_argument():
+    assert choices.SAMPLERS.check("hmc") == "hmc"
+    with pytest.raises(InvalidInputError,
+                       match="sampler must be one of 'nuts', 'hmc', 'emcee'; got 'gibbs'"):
+        choices.SAMPLERS.check("gibbs")
+    assert len(choices.SOLVERS) == len(set(choices.SOLVERS.names)) == 4
+
+
+def test_every_flag_the_translation_names_exists():
+    parser = build_parser()
+    flags = {s for sub in parser.subcommands.values() for a in sub._actions for s in a.option_strings}
+    for phrase, flag in FLAGS.items():
+        assert flag.rstrip(":") in flags, phrase
+
+
+def test_library_messages_in_the_command_s_words():
+    assert in_flags("m.exr: file exists; pass overwrite=True to replace it.") == \
+        "m.exr: file exists; pass --force to replace it."
+    assert in_flags("fixed: fixed alpha_lobe = 1e-30 lies outside") == "--fix: fixed alpha_lobe = 1e-30 lies outside"
+    assert in_flags("pass default_sigma= (σ) or store a 'sigma' channel; timeout=3, fixed: no") == \
+        "pass --default-sigma (σ) or store a 'sigma' channel; timeout=3, fixed: no"
+    assert in_flags("choose another out_dir= or pass overwrite=True") == "choose another --out or pass --force"
+
+
+def _raised_texts(path: pathlib.Path):
+    """The string literals of every ``raise`` statement of a module (f-strings' literal parts too)."""
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Raise) and node.exc is not None:
+            for inner in ast.walk(node.exc):
+                if isinstance(inner, ast.Constant) and isinstance(inner.value, str):
+                    yield node.lineno, inner.value
+
+
+def test_library_messages_name_python_arguments_not_flags():
+    """Outside the command (brdfscale/_cli), no error message names a command-line flag: a Python
+    user is told the argument (``overwrite=True``), and the command translates it (:data:`FLAGS`)."""
+    flag = re.compile(r"(?<![\w-])--[a-z][a-z-]+")
+    found = []
+    for path in sorted([*(ROOT / "brdfscale").rglob("*.py"), *(ROOT / "fitting").rglob("*.py")]):
+        if "_cli" in path.parts:
+            continue
+        found += [f"{path.relative_to(ROOT)}:{line}: {text!r}" for line, text in _raised_texts(path) if flag.search(text)]
+    assert not found, "\n".join(found)
