@@ -178,7 +178,7 @@ def test_rhat_ess_and_mcse_equal_arviz_on_stored_chains():
              "shifted chain": nuts + np.array([0.0, 0.0, 0.3, 0.0])[:, None, None] * nuts.std(axis=(0, 1)),
              "ties": np.round(nuts * 20) / 20, "one chain": nuts[:1], "even draws": nuts[:, :300]}
     for label, x in cases.items():
-        reference = az.summary(az.convert_toparametric_dataset(x), kind="all", round_to="none")
+        reference = az.summary(az.convert_to_dataset(x), kind="all", round_to="none")
         for i in range(x.shape[-1]):
             ours = _diagnostics.summary_row(x[:, :, i])
             theirs = reference.loc[f"x[{i}]"]
