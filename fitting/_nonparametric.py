@@ -11,6 +11,7 @@ from jaxtyping import Array, Float
 from brdfscale import InvalidInputError, MethodNotApplicableError, evolve, lobes, stats
 from brdfscale.special import j0
 from brdfscale.checks import integer, real
+from brdfscale.choices import MODEL
 from ._data import Dataset
 from ._model import AbstractModel, moments, require_dataset
 from ._smoothness import DEFAULT_SMOOTHNESS, SMOOTHNESS_RULES, choose_smoothness
@@ -119,9 +120,9 @@ class NonParametricModel(AbstractModel):
     grid_size: int = eqx.field(static=True)
     smoothness_choice: tuple | None = eqx.field(static=True)
 
-    def __init__(self, data: Dataset, *, base_nodes: int = 13, base_extent: float | None = None,
-                 n_knots: int = 8, w_max: float | None = None, smoothness: float | None = None,
-                 regularisation: float | str | None = None, grid_size: int = 48):
+    def __init__(self, data: Dataset, *, base_nodes: int = MODEL.base_nodes, base_extent: float | None = None,
+                 n_knots: int = MODEL.knots, w_max: float | None = None, smoothness: float | None = None,
+                 regularisation: float | str | None = MODEL.regularisation, grid_size: int = 48):
         require_dataset(data, "NonParametricModel(data)")
         base_nodes = integer(base_nodes, "base_nodes", 3)
         n_knots = integer(n_knots, "n_knots", 2)

@@ -10,6 +10,7 @@ import numpy as np
 
 from brdfscale import InvalidInputError, evolve, lobes, stats
 from brdfscale.checks import integer, real
+from brdfscale.choices import MODEL
 from ._data import Dataset
 from ._model import AbstractModel, moments
 
@@ -53,7 +54,7 @@ class ParametricModel(AbstractModel):
         "gaussian_surface": ("amplitude", "alpha_lobe", "rms_height", "correlation_length"),
     }
 
-    def __init__(self, lobe: str = "beckmann", statistics: str = "beckmann", *, law: str = "width",
+    def __init__(self, lobe: str = MODEL.family, statistics: str = MODEL.family, *, law: str = MODEL.law,
                  fixed: dict | None = None, window: str = "box", radial_nodes: int = 96):
         if lobe not in _LOBES:
             raise InvalidInputError(f"lobe must be one of {sorted(_LOBES)}; got {lobe!r}.")
