@@ -1,4 +1,4 @@
-"""The evolved lobe as a spectral quotient, and the two paths that invert its transform.
+"""The evolved lobe as a spectral quotient; the two paths that invert its transform own the inversion.
 
 Seed Eq. 4.4 in terms of the facet-slope densities (docs/conventions.md §2): the lobe at the target
 scale has the transform
@@ -8,15 +8,15 @@ scale has the transform
 :class:`EvolvedDensity` holds the three factors and evaluates ``G_to`` exactly; the density
 ``g_to(u) = (2π)⁻² ∫ G_to(W) e^{+iW·u} d²W`` is then obtained by
 
-* the radial (Hankel) path, when all three factors are radially symmetric:
-  ``g(r) = (2π)⁻¹ ∫_0^K G(k) J₀(k r) k dk``, Gauss–Legendre in k on [0, K] — at the query
-  radii, or (many queries) on a table of radii verified by :func:`brdfscale.select` and read
-  off by cubic interpolation; or
-* the grid path: ``G`` sampled on a regular frequency grid and summed directly at query
-  offsets (a non-uniform inverse DFT), or (many queries) inverted by one zero-padded real
-  FFT onto a finer slope grid read off by bicubic interpolation; offsets outside the grid's
-  half-width evaluate to 0 (the lobe is below the error target there), never to a periodic
-  image.
+* the radial (Hankel) path (:class:`~brdfscale.Radial`, ``_radial.py``), when all three
+  factors are radially symmetric: ``g(r) = (2π)⁻¹ ∫_0^K G(k) J₀(k r) k dk``, Gauss–Legendre
+  in k on [0, K] — at the query radii, or (many queries) on a table of radii verified by
+  :func:`brdfscale.select` and read off by 8-point Lagrange interpolation; or
+* the grid path (:class:`~brdfscale.Grid`, ``_grid.py``): ``G`` sampled on a regular
+  frequency grid and summed directly at query offsets (a non-uniform inverse DFT), or (many
+  queries) inverted by one zero-padded real FFT onto a finer slope grid read off by 6 × 6-point
+  Lagrange interpolation; offsets outside the grid's half-width evaluate to 0 (the lobe is
+  below the error target there), never to a periodic image.
 
 Queries are evaluated in blocks whose temporaries stay within the method's memory budget
 (:mod:`brdfscale._blocks`), so any number of offsets can be asked for.
@@ -28,7 +28,6 @@ tabulated or noisy input let the data choose it, ``evolve(..., regularisation="a
 """
 
 import math
-import warnings
 
 import equinox as eqx
 import jax
@@ -36,22 +35,22 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._blocks import in_blocks
 from .._errors import InvalidInputError, NoBRDFAtScaleError
-from .._existence import (NEGATIVE_LOBE, TRANSFORM_ABOVE_ONE, attach, negative_beyond, transform_exceeds_one,
-                          translated)
-from .._interpolate import interpolate
-from .._quadrature import gauss_legendre
-from .._special import J_TEMPORARIES, j0
+from .._existence import (
+    NEGATIVE_LOBE,
+    TRANSFORM_ABOVE_ONE,
+    attach,
+    transform_exceeds_one,
+    translated,
+)
 from .._validation import is_concrete
-from ..stats import AbstractSlopeDensity, Delta, FrequencyGrid, Gaussian
-from ..stats._base import check_slopes, safe_norm, shifted_cf
-from ._methods import Grid, Radial
+from ..stats import AbstractSlopeDensity, Delta, Gaussian
+from ..stats._base import check_slopes, shifted_cf
+from ._method import AbstractMethod
 
 _PROBE_DIRECTIONS = 8
 _PROBE_POINTS = 206  # 9 decades, ~23 per decade
 _PROBE_POINTS_BEYOND = 24  # 8 per decade: beyond the grid, |G| is only watched for growth
-GRID_POINTS = 6  # Lagrange points per axis of the grid table (its verification: brdfscale._evolve._select)
 CORE_TOL = 1e-3
 """The probe's frequency window is scaled to the lobe's extent at this level (of its peak)."""
 
@@ -59,8 +58,9 @@ CORE_TOL = 1e-3
 class EvolvedDensity(AbstractSlopeDensity):
     """``g_to`` of seed Eq. 4.4: transform ``G_from S_from / S_to`` (regularised by λ).
 
-    ``discretisation`` is a :class:`~brdfscale.Radial` or :class:`~brdfscale.Grid` method with
-    at least its node count or grid side fixed (:mod:`brdfscale._evolve._methods`); ``tol`` is
+    ``discretisation`` is a spectral method — :class:`~brdfscale.Radial` or
+    :class:`~brdfscale.Grid` — with at least its node count or grid side fixed; it owns the
+    inversion (``_radial.py``, ``_grid.py``), this class the exact transform; ``tol`` is
     the error relative to the peak that the evaluation honours: half of it for the spectral
     truncation (cut-off and extent), half for interpolation (tables), each verified by
     :func:`brdfscale.select` for concrete values.
@@ -75,7 +75,7 @@ class EvolvedDensity(AbstractSlopeDensity):
     s_from: AbstractSlopeDensity
     s_to: AbstractSlopeDensity
     regularisation: Float[Array, ""]
-    discretisation: Radial | Grid
+    discretisation: AbstractMethod | None  # None only for the probe's canonical copy
     tol: float = eqx.field(static=True)
     isotropic: bool = eqx.field(static=True)
     check: bool = eqx.field(static=True)
@@ -87,9 +87,7 @@ class EvolvedDensity(AbstractSlopeDensity):
     def _show_items(self):
         d = self.discretisation
         items = [("base", self.base), ("s_from", self.s_from), ("s_to", self.s_to), ("path", d.path),
-                 ("nodes" if isinstance(d, Radial) else "size", self.size)]
-        if isinstance(d, Grid) and d.extent is not None:
-            items.append(("extent", d.extent))
+                 *d.show_sizes()]
         return items + [("tol", self.tol), ("regularisation", self.regularisation)]
 
     def __init__(self, base, s_from, s_to, regularisation, discretisation, tol, check=True):
@@ -111,12 +109,12 @@ class EvolvedDensity(AbstractSlopeDensity):
     @property
     def size(self) -> int:
         """Gauss–Legendre nodes (radial) or grid side (grid)."""
-        d = self.discretisation
-        return d.nodes if isinstance(d, Radial) else d.size
+        return self.discretisation.resolution
 
     @property
     def extent(self) -> float | None:
-        return self.discretisation.extent if isinstance(self.discretisation, Grid) else None
+        """The grid path's slope half-width as given (None: from the support radius; radial)."""
+        return self.discretisation.half_width
 
     def with_discretisation(self, discretisation, tol=None) -> "EvolvedDensity":
         return EvolvedDensity(self.base, self.s_from, self.s_to, self.regularisation, discretisation,
@@ -226,27 +224,11 @@ class EvolvedDensity(AbstractSlopeDensity):
         (:mod:`brdfscale._blocks`); within ``tol`` of the peak wherever the discretisation
         covers (module docstring)."""
         m = check_slopes(m, "m")
-        d = self.discretisation
-        if isinstance(d, Radial) and d.cutoff is not None and m.size and is_concrete((self, m)):
-            # nodes enough for the largest queried radius (J₀(k r) oscillates over it, G over the lobe's extent)
-            r_max = float(np.max(np.linalg.norm(np.asarray(m), axis=-1)))
-            R = float(concrete_support(self, self.tol / 2))
-            reach = min(r_max, R) + R
-            n = radial_nodes(float(d.cutoff), reach, self.tol / 2)
-            if n > d.nodes:
-                warnings.warn(
-                    f"queries at offsets up to {r_max:.3g} need {n} Gauss–Legendre nodes for tol={self.tol:g}; "
-                    f"this lobe has {d.nodes} (evolve(..., size=...) raises it): errors there may exceed tol.",
-                    stacklevel=2)
+        self.discretisation.check_queries(self, m)  # warns where the discretisation does not reach them
         return _density(self, m)
 
     def _density(self, m):
-        flat = m.reshape(-1, 2)
-        if isinstance(self.discretisation, Radial):
-            values = self._radial_at(flat)
-        else:
-            values = self._grid_at(flat)
-        return values.reshape(m.shape[:-1])
+        return self.discretisation.values(self, m.reshape(-1, 2)).reshape(m.shape[:-1])
 
     @property
     def _sign_check(self) -> bool:
@@ -255,157 +237,28 @@ class EvolvedDensity(AbstractSlopeDensity):
         plain = isinstance(self.s_to, Delta) and self.s_to.mean is None
         return self.check and self.discretisation.sign_check and not plain
 
-    # radial ----------------------------------------------------------------------------------
+    # the spectral paths' inversions, as this density's own (the method owns each) ---------------
     def radial_coefficients(self):
-        """``(k, c, peak, failed)``: the Gauss–Legendre frequencies on [0, K], the weights
-        ``c_k = w_k k G(k)/2π`` (so ``g(r) = Σ c_k J₀(k r)``), the bound ``Σ|c_k| ≥ max g``,
-        and the existence predicate (None without the check)."""
-        d = self.discretisation
-        need_probe = d.cutoff is None or (self.check and not isinstance(self.s_to, Delta))
-        if need_probe:
-            k_probe, mag = self._probe()
-        dtype = jnp.result_type(*jax.tree_util.tree_leaves(self.base), float)
-        K = cutoff(k_probe, mag, self.tol / 2) if d.cutoff is None else jnp.asarray(d.cutoff, dtype)
-        x, w = gauss_legendre(d.nodes)
-        k = (0.5 * (jnp.asarray(x, dtype) + 1)) * K
-        G = self.cf_radial(k)
-        c = 0.5 * K * jnp.asarray(w, dtype) * k * G / (2 * jnp.pi)
-        failed = None
-        if self.check and not isinstance(self.s_to, Delta):
-            failed = transform_exceeds_one(jnp.maximum(jnp.max(mag), jnp.max(jnp.abs(jax.lax.stop_gradient(G)))))
-        return k, c, jnp.sum(jnp.abs(jax.lax.stop_gradient(c))), failed
+        """``(k, c, peak, failed)`` of the radial path (:meth:`brdfscale.Radial.coefficients`)."""
+        return self.discretisation.coefficients(self)
 
     def radial_table(self):
-        """The lobe at the radii of the method's table (:class:`~brdfscale.RadialTable`)."""
-        _, c, _, failed = self.radial_coefficients()
-        values = c @ self.discretisation.table.kernel.astype(c.dtype)
-        return values, failed
+        """The lobe at the radii of the radial method's table (:class:`~brdfscale.RadialTable`)."""
+        return self.discretisation.table_values(self)
 
-    def _radial_at(self, m):
-        d = self.discretisation
-        r = safe_norm(m)
-        q = r.shape[0]
-        size = jnp.dtype(r.dtype).itemsize
-        if d.table is not None and q > max(16, d.table.count // 64):
-            values, failed = self.radial_table()
-            t = d.table
-            negative = negative_beyond(values, jnp.max(values), self.tol) if self._sign_check else None
-
-            scale, step, radius = (jnp.asarray(x, r.dtype) for x in (t.scale, t.step, t.radius))
-
-            def read(rows):
-                pos = jnp.arcsinh(rows / scale) / step + 3
-                return jnp.where(rows <= radius, interpolate(values, pos[:, None], points=t.points), 0.0)
-
-            out = in_blocks(read, r, (4 + 3 * t.points) * size, d.budget)
-        else:
-            k, c, peak, failed = self.radial_coefficients()
-
-            def direct(rows):
-                return jnp.sum(c * j0(rows[:, None] * k), axis=-1)
-
-            # J₀ holds a few (rows × nodes) arrays at once (brdfscale._special.J_TEMPORARIES)
-            out = in_blocks(direct, r, k.shape[0] * (J_TEMPORARIES + 4) * size, d.budget)
-            negative = negative_beyond(out, peak, self.tol) if self._sign_check else None
-        return _checked(out, failed, negative)
-
-    # grid ------------------------------------------------------------------------------------
     def grid_spacing(self):
         """Slope-grid spacing h and half-width a = N h / 2 of the grid path."""
-        d = self.discretisation
-        dtype = jnp.result_type(*jax.tree_util.tree_leaves(self.base), float)
-        if d.extent is None:
-            a = jax.lax.stop_gradient(self.support_radius(self.tol / 2))  # a discretisation choice
-        else:
-            a = jax.lax.stop_gradient(jnp.asarray(d.extent, dtype))
-        return 2 * a / d.size, a
+        return self.discretisation.spacing(self)
 
-    def frequency_grid(self, h) -> FrequencyGrid:
-        """The real-FFT frequencies of the ``size × size`` slope grid of spacing ``h``."""
-        return FrequencyGrid(self.size, 2 * jnp.pi / (self.size * h))
-
-    def _grid_transform(self, grid: FrequencyGrid):
-        """``G`` on ``grid`` and the existence predicate from the largest ``|G|``: on the grid
-        itself, and on rays beyond its Nyquist frequency π/h (where the grid cannot see), 24
-        frequencies per ray over three decades. ``None`` when nothing is divided (``s_to`` a
-        point mass, |S_to| = 1): then G is a product of transforms of densities, |G| ≤ 1 holds
-        by construction and there is nothing to check; and when the check is switched off
-        (``check=False``)."""
-        G = self.cf_grid(grid)
-        if isinstance(self.s_to, Delta) or not self.check:
-            return G, None
-        G_fixed = jax.lax.stop_gradient(G)
-        on_grid = jnp.sqrt(jnp.max(G_fixed.real**2 + G_fixed.imag**2))  # no per-node hypot
-        beyond = jnp.max(self._probe(grid.step * (grid.size / 2))[1])  # from π/h
-        return G, transform_exceeds_one(jnp.maximum(on_grid, beyond))
+    def frequency_grid(self, h):
+        """The real-FFT frequencies of the grid path's ``size × size`` slope grid of spacing ``h``."""
+        return self.discretisation.frequency_grid(h)
 
     def on_grid(self, oversample: int = 1):
         """``(u, values)``: nodes ``u`` (pN,) from −a to a − h/p and ``g_to`` on the pN × pN
         slope grid (rows u_y, columns u_x) by one real inverse FFT of the N × N spectrum,
-        zero-padded by the factor ``p = oversample`` (the trigonometric interpolant of the
-        N-grid sampled p times as densely)."""
-        return _on_grid(self, oversample)
-
-    def _grid_table(self, h, p: int):
-        """``g`` on the (pN)² slope grid and its existence predicates (|G| ≤ 1; no value
-        below −tol of the grid's maximum)."""
-        G, failed = self._grid_transform(self.frequency_grid(h))
-        values = _inverse_fft(G, h, self.size, p)
-        negative = None
-        if self._sign_check:
-            fixed = jax.lax.stop_gradient(values)
-            negative = negative_beyond(fixed, jnp.max(fixed), self.tol)
-        return values, failed, negative
-
-    def _on_grid(self, p: int):
-        h, a = self.grid_spacing()
-        values, failed, negative = self._grid_table(h, p)
-        u = -a + (h / p) * jnp.arange(self.size * p, dtype=h.dtype)
-        return u, _checked(values, failed, negative)
-
-    def _grid_at(self, m):
-        """Offsets inside ``[−a, a]²``: bicubic interpolation on the oversampled slope grid
-        (many queries, a verified oversampling) or the inverse DFT summed at each offset;
-        outside: 0 (the lobe is below tol/2 of its peak there when a is its support radius)."""
-        d = self.discretisation
-        h, a = self.grid_spacing()
-        n = self.size
-        size = jnp.dtype(m.dtype).itemsize
-        inside = jnp.all(jnp.abs(m) <= a, axis=-1)
-        q = m.shape[0]
-        # direct sums cost ~4 N² per offset, the table ~5 (pN)² log₂(pN) once plus 36 reads per offset
-        if d.oversample is not None and q > 16 * d.oversample**2 + 64:
-            p = d.oversample
-            table, failed, negative = self._grid_table(h, p)
-            hp = h / p
-            # the table's period is 2a: append its first row and column (the images of −a) so
-            # that offsets up to +a interpolate without wrapping
-            table = jnp.concatenate([table, table[:1]], axis=0)
-            table = jnp.concatenate([table, table[:, :1]], axis=1)
-
-            def read(rows):
-                pos = (rows[:, ::-1] + a) / hp
-                return interpolate(table, pos, points=GRID_POINTS)
-
-            out = in_blocks(read, m, (8 + 4 * GRID_POINTS * (GRID_POINTS + 2)) * size, d.budget)
-        else:
-            grid = self.frequency_grid(h)
-            G, failed = self._grid_transform(grid)
-            fx, fy = grid.wx, grid.wy
-            weight = jnp.where((jnp.arange(fx.shape[0]) == 0) | (2 * jnp.arange(fx.shape[0]) == n), 1.0, 2.0)
-            Gw = G * weight * ((2 * jnp.pi / (n * h)) ** 2 / (2 * jnp.pi) ** 2)
-
-            def direct(rows):
-                ex = jnp.exp(1j * rows[:, 0, None] * fx[None, :])  # (q, nx)
-                ey = jnp.exp(1j * rows[:, 1, None] * fy[None, :])  # (q, ny)
-                return jnp.real(jnp.einsum("qy,yx,qx->q", ey, Gw, ex))
-
-            out = in_blocks(direct, m, 6 * n * 2 * size, d.budget)
-            negative = None
-            if self._sign_check:
-                peak = jnp.sum(jnp.abs(jax.lax.stop_gradient(Gw)))
-                negative = negative_beyond(out, peak, self.tol)
-        return _checked(jnp.where(inside, out, 0.0), failed, negative)
+        zero-padded by the factor ``p = oversample`` (grid path: :meth:`brdfscale.Grid.on_grid`)."""
+        return self.discretisation.on_grid(self, oversample)
 
 
 def _exp_capped(x):
@@ -416,37 +269,14 @@ def _exp_capped(x):
     return jnp.exp(jnp.minimum(x, cap))
 
 
-def _inverse_fft(G, h, n: int, p: int):
-    """``g`` on the (pN)² slope grid from ``−a`` with spacing ``h/p``: the N × N half-plane
-    spectrum ``G`` zero-padded (its Nyquist row and column dropped: |G| < tol there by the
-    grid's choice) and inverted by one real FFT. Nodes start at −a: the factor
-    ``e^{+iW·a} = (−1)^{kx+ky}`` for a = N h/2; the 1/h² of the inverse DFT (for the fine
-    spacing) is applied on the half-size frequency side."""
-    if p == 1:
-        sign = jnp.asarray(1.0 - 2.0 * ((np.arange(n)[:, None] + np.arange(n // 2 + 1)[None, :]) % 2), dtype=G.real.dtype)
-        return jnp.fft.irfft2(G * (sign / h**2), s=(n, n))
-    big = n * p
-    half = n // 2
-    fine = jnp.zeros((big, big // 2 + 1), G.dtype)
-    fine = fine.at[:half, :half].set(G[:half, :half])
-    fine = fine.at[big - half + 1:, :half].set(G[half + 1:, :half])
-    rows = np.concatenate([np.arange(half), np.arange(big - half + 1, big)])
-    # in G's precision: a float64 factor scattered into a complex64 spectrum is an unsafe cast
-    sign = jnp.asarray(1.0 - 2.0 * ((rows[:, None] + np.arange(half)[None, :]) % 2), dtype=G.real.dtype)
-    hp = h / p
-    fine = fine.at[:half, :half].multiply(sign[:half] / hp**2)
-    fine = fine.at[big - half + 1:, :half].multiply(sign[half:] / hp**2)
-    return jnp.fft.irfft2(fine, s=(big, big))
-
-
-def _checked(value, failed, negative):
+def checked(value, failed, negative):
     """Attach the existence checks: ``|G| ≤ 1`` (``failed``) and no values below −tol of the
     peak (``negative``); None: nothing to check."""
     value = attach(value, failed, TRANSFORM_ABOVE_ONE)
     return attach(value, negative, NEGATIVE_LOBE)
 
 
-_PROBE_METHOD = Radial(nodes=64)
+_PROBE_METHOD = None  # the probe's canonical copy: sizes and cut-offs do not recompile host-side choices
 _density = translated(eqx.filter_jit(lambda shape, m: shape._density(m)))
 # compiled once each for the host-side choices (eager dispatch would compile every operation)
 concrete_cutoff = eqx.filter_jit(lambda k, mag, tol: cutoff(k, mag, tol))
@@ -460,8 +290,9 @@ def concrete_support(shape, tol):
 
 def concrete_cf_radial(shape, k):
     return _concrete_cf_radial(shape.with_discretisation(_PROBE_METHOD), k)
+
+
 _probe = eqx.filter_jit(lambda shape, k_lo: shape._probe_values(k_lo))
-_on_grid = translated(eqx.filter_jit(lambda shape, p: shape._on_grid(p)))
 
 
 def cutoff(k, mag, tol):
@@ -509,9 +340,8 @@ def radial_reach(K: float, nodes: int, tol: float) -> float:
 def probe_checks(density: EvolvedDensity, k, mag) -> None:
     """For concrete values: no transform above 1 (whatever tol), and every probe ray decays
     below tol/2 within the window (a lobe narrow along one axis decays late along it)."""
-    if density.check and not isinstance(density.s_to, Delta):
-        if bool(transform_exceeds_one(jnp.max(mag))):
-            raise NoBRDFAtScaleError(TRANSFORM_ABOVE_ONE)
+    if density.check and not isinstance(density.s_to, Delta) and bool(transform_exceeds_one(jnp.max(mag))):
+        raise NoBRDFAtScaleError(TRANSFORM_ABOVE_ONE)
     if not bool(jnp.all(mag[-1] <= density.tol / 2)):
         raise InvalidInputError(
             f"tol={density.tol:g}: the evolved lobe's transform does not fall below tol/2 within nine decades "

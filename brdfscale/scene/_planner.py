@@ -2,16 +2,20 @@
 
 Per material, on the distinct (offset u = m_s − m∞, scale μ) pairs its queries present:
 
-1. **Path** — closed form (Gaussian/δ/mixture algebra; exact) when the lobe and statistics
-   allow it; otherwise the radial Hankel path when everything is radially symmetric;
-   otherwise the 2D-FFT grid path; the SO(3) path for an :class:`AnisotropicMaterial`, whose
-   BRDF depends on the facet's twist (planned in :mod:`._so3_planner`). ``method=`` forces one.
+1. **Path** — the method object's own choice, as :func:`brdfscale.evolve` makes it
+   (``as_method(method).choose(lobe, s_from, s_to)``, :mod:`brdfscale._evolve`): closed form
+   (Gaussian/δ/mixture algebra; exact) when the lobe and statistics allow it; otherwise the
+   radial Hankel path when everything is radially symmetric; otherwise the 2D-FFT grid path.
+   The SO(3) path for an :class:`AnisotropicMaterial`, whose BRDF depends on the facet's twist
+   (planned in :mod:`._so3_planner`). ``method=`` forces one; the chosen path's name selects
+   the planning procedure below.
 2. **Error budget** — the target ``tol`` (relative to the lobe's peak at each scale) is split
    into three quarters: spectral truncation (the frequency cut-off K or the grid's extent),
    interpolation in u (or r), interpolation in log μ. The last quarter is margin.
 3. **Sizes from a-priori bounds** — radial: K from the truncation bound
    ``(2π)⁻¹ ∫_K^∞ |G| k dk ≤ (tol/4) g(0)`` (the library's ``cutoff``, the one
-   :func:`brdfscale.select` uses, at each probed scale), Gauss–Legendre nodes from K and the largest queried radius,
+   :func:`brdfscale.select` uses, at each probed scale), Gauss–Legendre nodes from K and the largest queried radius
+   (``radial_nodes``, the radial path's) and the Hankel kernel of :meth:`brdfscale.Radial.kernel`,
    and the radius spacing from the cubic-interpolation bound
    ``|error| ≤ (9/16)/4! · h⁴ max|g⁗|`` with ``max|g⁗| ≤ (2π)⁻¹ ∫|G| k⁵ dk``; grid: the side
    from the bandwidth and support radius (``grid_size`` of :mod:`brdfscale._evolve`, as
@@ -36,22 +40,30 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.special
 
 from .._errors import InvalidInputError, MethodNotApplicableError, NoBRDFAtScaleError
-from .._evolve import CORE_TOL, MAX_GRID, Auto, ClosedForm, cutoff, evolve, grid_size, radial_nodes
+from .._evolve import (
+    CORE_TOL,
+    MAX_GRID,
+    Grid,
+    Radial,
+    as_method,
+    cutoff,
+    evolve,
+    grid_size,
+    radial_nodes,
+)
 from .._existence import message_of
-from .._quadrature import gauss_legendre
+from .._interpolate import interpolate
 from ..geometry import half_slope, microfacet_factor
 from . import _cost
 from ._description import AnisotropicMaterial, Material, Scene
 from ._plan import Plan
-from .._interpolate import interpolate
 from ._scales import in_chunks, scale_nodes
 from ._so3_planner import plan_so3
 from ._steps import ClosedFormStep, GridStep, MaterialPlan, RadialStep, evolved_density
 
-_METHODS = ("auto", "closed_form", "radial", "grid", "so3")
+_METHODS = ("auto", "closed_form", "radial", "grid", "so3")  # the evolution methods' names, and the SO(3) path
 _CUBIC_CONSTANT = 0.5625 / 24  # max |s(s−1)(s−2)(s−3)|/4! on the middle interval
 _MAX_GRID = MAX_GRID
 _DIRECT_MEMORY = 2e7  # largest (distinct queries × nodes) kernel kept for direct evaluation
@@ -114,31 +126,11 @@ def plan(scene: Scene, method: str = "auto") -> Plan:
 def _plan_material(material: Material, u, log_mu, tol, method):
     mus = np.exp(log_mu)
     s_from = material.statistics(material.mu0)
-    if method in ("auto", "closed_form"):
-        # the path as brdfscale.select decides it (structure only)
-        closed = isinstance(Auto().select_method(material.lobe, s_from, material.statistics(mus.min())), ClosedForm)
-        if closed:
-            for mu in (mus.min(), mus.max()):  # existence at the ends (NoBRDFAtScaleError)
-                evolve(material.lobe, s_from, material.statistics(mu), method="closed_form")
-        elif method == "closed_form":
-            evolve(material.lobe, s_from, material.statistics(mus.min()), method="closed_form")  # raises
-        if closed:
-            distinct, scale = np.unique(log_mu, return_inverse=True)
-            n = len(mus)
-            step = ClosedFormStep(jnp.asarray(u), jnp.asarray(scale.ravel()), jnp.asarray(np.exp(distinct)))
-            return (step, "closed_form", "the lobe and statistics have a closed-form evolution (exact)", 0.0,
-                    _cost.units(8 * (n + len(distinct)), 40 * n),
-                    f"{len(distinct)} distinct scales evolved exactly, {n} offsets evaluated")
-    isotropic = (material.lobe.shape.isotropic and s_from.isotropic
-                 and material.statistics(mus.min()).isotropic)
-    if method == "radial" and not isotropic:
-        raise MethodNotApplicableError(
-            "method='radial' needs radially symmetric lobe and statistics; use 'grid' or 'auto'."
-        )
+    # the path as brdfscale.evolve and select choose it (structure only; MethodNotApplicableError
+    # when a forced one does not apply)
+    path = as_method(method).choose(material.lobe, s_from, material.statistics(mus.min()))
     try:
-        if method == "radial" or (method == "auto" and isotropic):
-            return _plan_radial(material, u, log_mu, tol)
-        return _plan_grid(material, u, log_mu, tol)
+        return _PLANNERS[path.path](material, path, u, log_mu, tol)
     except (eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError) as err:  # the message inside JAX's traceback
         message = message_of(err)
         if message is None:
@@ -146,20 +138,32 @@ def _plan_material(material: Material, u, log_mu, tol, method):
         raise NoBRDFAtScaleError(f"{message} (scales μ in [{mus.min():.4g}, {mus.max():.4g}])") from None
 
 
+# -- closed form ----------------------------------------------------------------------------
+def _plan_closed_form(material, path, u, log_mu, tol):
+    mus = np.exp(log_mu)
+    s_from = material.statistics(material.mu0)
+    for mu in (mus.min(), mus.max()):  # existence at the ends (NoBRDFAtScaleError)
+        evolve(material.lobe, s_from, material.statistics(mu), method=path)
+    distinct, scale = np.unique(log_mu, return_inverse=True)
+    n = len(mus)
+    step = ClosedFormStep(jnp.asarray(u), jnp.asarray(scale.ravel()), jnp.asarray(np.exp(distinct)))
+    return (step, "closed_form", "the lobe and statistics have a closed-form evolution (exact)", 0.0,
+            _cost.units(8 * (n + len(distinct)), 40 * n),
+            f"{len(distinct)} distinct scales evolved exactly, {n} offsets evaluated")
+
+
 # -- radial ---------------------------------------------------------------------------------
 @functools.lru_cache(maxsize=32)
 def _hankel_kernel(K: float, n_k: int, radii: tuple | None, h_r: float, n_r: int):
-    """``w_k k J₀(k r)/2π`` for radii on the grid ``(j − 3) h_r`` (or given radii): cached."""
-    x, w = gauss_legendre(n_k)
-    k = 0.5 * (x + 1) * K
-    wk = 0.5 * K * w
+    """The radial path's Hankel kernel ``w_k k J₀(k r)/2π`` (:meth:`brdfscale.Radial.kernel`)
+    for radii on the grid ``(j − 3) h_r`` (or given radii): cached."""
     r = np.asarray(radii) if radii is not None else (np.arange(n_r) - 3) * h_r
-    kernel = (wk * k)[:, None] * scipy.special.j0(k[:, None] * r[None, :]) / (2 * np.pi)
+    k, kernel = Radial.kernel(K, n_k, r)
     kernel.setflags(write=False)
     return k, kernel
 
 
-def _plan_radial(material, u, log_mu, tol):
+def _plan_radial(material, path, u, log_mu, tol):
     budget = tol / 4
     radius = np.linalg.norm(u, axis=-1)
     r_max = float(radius.max())
@@ -170,7 +174,7 @@ def _plan_radial(material, u, log_mu, tol):
     # a heavy tail's reach at the budget would pull the window below the lobe's bandwidth),
     # all probe scales in one call
     core = max(budget, CORE_TOL)
-    density = evolved_density(material, np.exp(probe[0]), "radial", 64, budget)
+    density = evolved_density(material, np.exp(probe[0]), path.sized(64, None), budget)
     extent = float(density.support_radius(core))
     spread = float(density.support_radius(budget))  # G oscillates over the lobe's extent
     k_probe = np.logspace(-3, 5, 801) / max(extent, 1e-12)
@@ -184,9 +188,7 @@ def _plan_radial(material, u, log_mu, tol):
             "frequency above the lobe's width to meet it (or tol is below the rounding of its evaluation); "
             "choose a larger tol.")
     n_k = radial_nodes(K, r_max + spread, budget)
-    k, _ = _hankel_kernel(K, n_k, None, 1.0, 1)
-    _, w = gauss_legendre(n_k)
-    wk = 0.5 * K * w
+    k, wk = Radial.frequencies(K, n_k)
     G = _radial_transform_rows(material, probe, k, budget)
     peak = np.abs(G) @ (wk * k) / (2 * np.pi)
     fourth = np.abs(G) @ (wk * k**5) / (2 * np.pi)
@@ -217,13 +219,13 @@ def _plan_radial(material, u, log_mu, tol):
 
 
 # -- grid -----------------------------------------------------------------------------------
-def _plan_grid(material, u, log_mu, tol):
+def _plan_grid(material, path, u, log_mu, tol):
     budget = tol / 4
     distinct = np.unique(log_mu)
     probe = distinct if len(distinct) <= 16 else np.linspace(distinct[0], distinct[-1], 16)
     size, achieved = 0, budget
     for t in probe:
-        n, honoured = grid_size(evolved_density(material, np.exp(t), "grid", 256, budget), _MAX_GRID,
+        n, honoured = grid_size(evolved_density(material, np.exp(t), path.sized(256, None), budget), _MAX_GRID,
                                 truncation=budget)
         size, achieved = max(size, n), max(achieved, honoured)
     n_q, half = len(u), size // 2 + 1
@@ -268,7 +270,7 @@ def _plan_grid(material, u, log_mu, tol):
 def _plan_grid_direct(material, u, log_mu, size, achieved, cost):
     """Few queries: the inverse DFT summed at the queries, phases frozen (no interpolation)."""
     nodes = np.unique(log_mu)
-    h, _ = evolved_density(material, np.exp(nodes[0]), "grid", size, achieved).grid_spacing()
+    h, _ = evolved_density(material, np.exp(nodes[0]), Grid(size=size), achieved).grid_spacing()
     h = float(h)
     fy = np.fft.fftfreq(size) * (2 * np.pi / h)
     fx = np.fft.rfftfreq(size) * (2 * np.pi / h)
@@ -295,6 +297,8 @@ def _radial_transform_rows(material, nodes, k, tol):
     return in_chunks(rows, nodes, _CHUNK)
 
 
+_PLANNERS = {"closed_form": _plan_closed_form, "radial": _plan_radial, "grid": _plan_grid}
+"""The planning procedure of each evolution path, by the chosen method's own ``path`` name."""
 _radial_transforms = eqx.filter_jit(lambda step, material: step.transforms(material))
 _geometry = jax.jit(lambda i, o, m_inf: (half_slope(i, o) - m_inf, microfacet_factor(i, o)))
 _grid_tables = eqx.filter_jit(lambda step, material: step.table(material))

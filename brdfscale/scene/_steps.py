@@ -28,12 +28,12 @@ import jax.numpy as jnp
 from jaxtyping import Array, Complex, Float, Int
 
 from .. import so3
-from .._evolve import EvolvedDensity, Grid, Radial, evolve
-from .._existence import TRANSFORM_ABOVE_ONE, attach, transform_exceeds_one
-from ._description import AnisotropicMaterial, Material
 from .._blocks import in_blocks
-from .._show import Shown
+from .._evolve import AbstractMethod, ClosedForm, EvolvedDensity, Grid, Radial, evolve
+from .._existence import TRANSFORM_ABOVE_ONE, attach, transform_exceeds_one
 from .._interpolate import cubic_stencil, interpolate
+from .._show import Shown
+from ._description import AnisotropicMaterial, Material
 
 # temporaries per query of cubic interpolation in d dimensions (4^d gathered values, indices and
 # weights, float64): the blocks of brdfscale._blocks keep Plan.evaluate within its budget
@@ -51,7 +51,7 @@ class ClosedFormStep(Shown, eqx.Module):
     def __call__(self, material: Material) -> Float[Array, " n"]:
         s_from = material.statistics(material.mu0)
         evolved = jax.vmap(
-            lambda mu: evolve(material.lobe, s_from, material.statistics(mu), method="closed_form")
+            lambda mu: evolve(material.lobe, s_from, material.statistics(mu), method=ClosedForm())
         )(self.mu)
         per_query = jax.tree_util.tree_map(lambda leaf: leaf[self.scale], evolved)
         return jax.vmap(lambda lobe, u: lobe.density(u))(per_query, self.u)
@@ -66,9 +66,9 @@ def _scale_position(log_mu, nodes, exact):
     return (log_mu - nodes[0]) / (nodes[1] - nodes[0])
 
 
-def evolved_density(material: Material, mu, method: str, size: int, tol: float) -> EvolvedDensity:
-    """The material's lobe shape evolved from μ0 to μ (seed Eq. 4.4) on a spectral path."""
-    discretisation = Radial(nodes=size) if method == "radial" else Grid(size=size)
+def evolved_density(material: Material, mu, discretisation: AbstractMethod, tol: float) -> EvolvedDensity:
+    """The material's lobe shape evolved from μ0 to μ (seed Eq. 4.4) on a spectral path
+    (``discretisation``: a :class:`~brdfscale.Radial` or :class:`~brdfscale.Grid` with its size)."""
     return EvolvedDensity(
         material.lobe.shape, material.statistics(material.mu0), material.statistics(mu),
         material.regularisation, discretisation, tol,
@@ -96,7 +96,7 @@ class RadialStep(Shown, eqx.Module):
     def transforms(self, material: Material) -> Float[Array, "s K"]:
         """``G(k, μ_n)`` for every scale node, with the existence check |G| ≤ 1."""
         size = self.k.shape[0]
-        G = jax.vmap(lambda t: evolved_density(material, jnp.exp(t), "radial", size, self.tol).cf_radial(self.k))(self.nodes)
+        G = jax.vmap(lambda t: evolved_density(material, jnp.exp(t), Radial(nodes=size), self.tol).cf_radial(self.k))(self.nodes)
         return attach(G, transform_exceeds_one(jnp.max(jnp.abs(G))), TRANSFORM_ABOVE_ONE)
 
     def table(self, material: Material) -> Float[Array, "s r"]:
@@ -134,7 +134,7 @@ class GridStep(Shown, eqx.Module):
     tol: float = eqx.field(static=True)
 
     def densities(self, material: Material, mu):
-        return evolved_density(material, mu, "grid", self.size, self.tol)
+        return evolved_density(material, mu, Grid(size=self.size), self.tol)
 
     def table(self, material: Material) -> Float[Array, "s N N"]:
         """The lobe shape on (scale nodes × u_y × u_x) grids."""

@@ -1,0 +1,222 @@
+"""The one evolve/select flow: arguments checked, the path chosen by the method object, then
+resolved (:func:`select`) or evaluated (:func:`evolve`) by it.
+
+Both functions share every step — :func:`check_arguments`, :func:`as_method`, the method's
+:meth:`~AbstractMethod.choose` — and differ only in the last call: ``path.resolve(...)`` (the
+discretisation verified for concrete values) or ``path.evaluate(...)`` (the lobe at the target
+scale, resolved on the way when the values are concrete). Nothing here dispatches on the
+method's type: each path's behaviour lives in its own module (``_closed_form.py``,
+``_radial.py``, ``_grid.py``, ``_auto.py``).
+"""
+
+import numbers
+from typing import Literal
+
+from .._errors import InvalidInputError
+from .._validation import as_float_array, is_concrete
+from ..lobes import AbstractLobe
+from ..stats import AbstractSlopeDensity, require_density
+from ._auto import Auto
+from ._closed_form import ClosedForm
+from ._grid import Grid
+from ._method import MIN_TOL, AbstractMethod
+from ._radial import Radial
+from ._regularise import check_noise, rule_name
+
+MethodName = Literal["auto", "closed_form", "radial", "grid"]
+RegularisationName = Literal["auto", "gcv", "discrepancy", "l_curve"]
+
+_NAMES = {"auto": Auto, "closed_form": ClosedForm, "radial": Radial, "grid": Grid}
+
+
+def check_arguments(lobe, s_from, s_to, tol, regularisation, noise=None):
+    """The checks :func:`brdfscale.evolve` and :func:`select` share: ``(tol, λ, rule, noise)`` —
+    λ a float array (None when ``regularisation`` is None or a rule), the rule's name (None for a
+    number; ``"auto"`` is the default rule) and the discrepancy rule's noise level."""
+    if not isinstance(lobe, AbstractLobe):
+        raise InvalidInputError(f"lobe must be a brdfscale.lobes lobe; got {type(lobe).__name__}.")
+    for name, s in (("s_from", s_from), ("s_to", s_to)):
+        require_density(s, name, use="Use it through brdfscale.plus.NearlySpecular(a, [c_0, …], x0, ...) "
+                        "(a δ + Σ c_n h_n + w s_smooth, mass 1).")
+    if isinstance(tol, bool) or not isinstance(tol, numbers.Real) or not MIN_TOL <= tol < 1:
+        raise InvalidInputError(
+            f"tol must be a number in [{MIN_TOL:g}, 1) (an error relative to the lobe's peak; below "
+            f"{MIN_TOL:g} float64 rounding in the evaluation exceeds it); got {tol!r}.")
+    rule = rule_name(regularisation)
+    noise = check_noise(rule, noise)
+    if rule is not None or regularisation is None:
+        return float(tol), None, rule, noise
+    lam = as_float_array(regularisation, "regularisation")
+    if lam.ndim != 0:
+        raise InvalidInputError(f"regularisation must be one number λ ≥ 0 (or a rule's name); got shape {lam.shape}.")
+    if is_concrete(lam) and float(lam) < 0:
+        raise InvalidInputError(f"regularisation must be ≥ 0; got {float(lam)}.")
+    return float(tol), lam, rule, noise
+
+
+def as_method(method, size=None, extent=None) -> AbstractMethod:
+    """A method object from a method or its name (``size``/``extent``: the string API's
+    explicit discretisation, applied to whichever spectral path is taken)."""
+    if isinstance(method, AbstractMethod):
+        if size is not None or extent is not None:
+            raise InvalidInputError("size= and extent= go with a method name; with a method object put them in it: "
+                                    "Radial(nodes=...) or Grid(size=..., extent=...).")
+        return method
+    if not isinstance(method, str) or method not in _NAMES:
+        raise InvalidInputError(
+            f"method must be 'auto', 'closed_form', 'radial' or 'grid', or a method object (brdfscale.Auto(), "
+            f"ClosedForm(), Radial(...), Grid(...)); got {method!r}.")
+    return _NAMES[method]()
+
+
+def evolve(
+    lobe: AbstractLobe,
+    s_from: AbstractSlopeDensity,
+    s_to: AbstractSlopeDensity,
+    method: AbstractMethod | MethodName = "auto",
+    *,
+    regularisation: float | RegularisationName | None = None,
+    noise=None,
+    tol: float = 1e-10,
+    size: int | None = None,
+    extent: float | None = None,
+    check: bool = True,
+) -> AbstractLobe:
+    """Evolve a lobe measured at scale μ0 to scale μ (seed Eq. 4.4, docs/conventions.md §2).
+
+    With the facet-slope densities ``s_from = s(·, μ0)`` and ``s_to = s(·, μ)`` the lobe
+    transform evolves as
+
+        G(W, μ) = G(W, μ0) · S(W, μ0) / S(W, μ),
+
+    which is the seed's ``R(W, μ) = R(W, μ0) Q(W, μ0)/Q(W, μ)`` with ``Q(W) = S(−W)`` (the
+    seed's q is the reflection of s). Going coarser (μ > μ0, ``s_to`` narrower) is a stable
+    blur; going finer is a deconvolution. The amplitude is unchanged (energy is conserved).
+
+    Args:
+        lobe: the lobe at μ0 (:mod:`brdfscale.lobes`).
+        s_from, s_to: facet-slope statistics at μ0 and μ (:mod:`brdfscale.stats`), e.g.
+            ``law.at(mu0)`` and ``law.at(mu)`` of a scale law. ``s_to = Delta()`` is μ = ∞.
+        method: a method object — :class:`brdfscale.ClosedForm` (Gaussian/δ/mixture algebra:
+            exact), :class:`brdfscale.Radial` (Hankel quadrature; everything radially
+            symmetric), :class:`brdfscale.Grid` (2D FFT; general), :class:`brdfscale.Auto`
+            (the first that applies) — or its name ``"closed_form"``, ``"radial"``, ``"grid"``,
+            ``"auto"``. For concrete values the spectral paths are resolved here
+            (:func:`brdfscale.select`); under ``jax.jit``/``grad``/``vmap`` pass a resolved
+            method (from ``select`` outside the transformation) or an explicit size — an
+            unresolved spectral path raises :class:`brdfscale.UnresolvedMethodError`
+            instead of guessing a size.
+        regularisation: the Tikhonov λ ≥ 0 of the division, ``1/S_to → S_to*/(|S_to|² + λ²)``
+            (the Tikhonov solution of ``g_from ∗ s_from = g_to ∗ s_to``), or a rule that chooses
+            λ from a tabulated lobe (``lobes.Tabulated``; module ``brdfscale._evolve._regularise``):
+
+            * ``"auto"`` — generalised cross-validation (``"gcv"``): minimises
+              ``Σ|(1 − f)V|²/(Σ(1 − f))²`` over the table's own DFT frequencies, with the filter
+              factors ``f = |S_to|²/(|S_to|² + λ²)`` and ``V`` the transform of the node values.
+              Needs no noise level. In the stability study (docs/results.md) its error stayed
+              within 1.2× of the best fixed λ chosen in hindsight at every noise level and case;
+            * ``"discrepancy"`` — the largest λ whose residual does not exceed the expected noise
+              (Morozov); needs ``noise=σ`` (per node value, one number or an array of the table's
+              shape). Erratic where the residual is flat in λ (study: up to ×8e4 off);
+            * ``"l_curve"`` — the corner of the L-curve (study: up to ×38 off with disk statistics).
+
+            A lobe that is not tabulated is exact and every rule gives λ = 0 (Eq. 4.4 itself), as
+            when nothing is divided (``s_to`` a point mass); only the lobe's noise is modelled
+            (tabulated statistics are taken as exact). The choice needs concrete values: under
+            ``jax.jit``/``grad``/``vmap`` a rule raises :class:`brdfscale.UnresolvedMethodError` —
+            choose outside, ``m = select(lobe, s_from, s_to, regularisation="auto")``, and pass
+            ``method=m``, which carries λ (``m.regularisation``, reported by ``m.explain()``).
+            ``None`` (default): the λ a resolved method carries, else 0. Leave 0 for analytic
+            inputs. The chosen λ is ``result.shape.regularisation``. With noisy input the evolved
+            lobe has ripples of about the noise level: the sign check then needs a ``tol`` of
+            that order (or ``check=False``).
+        noise: the standard deviation of the table's node values, for ``"discrepancy"`` only.
+        tol: error target relative to the lobe's peak, in [1e-14, 1); sets the frequency
+            cut-off (beyond it |G| < tol and its k-weighted tail < tol of the whole), the
+            radial rule's nodes and the grid extent of the spectral paths.
+        size: with a method name: Gauss–Legendre nodes (radial) or grid side (grid), as
+            ``Radial(nodes=size)`` / ``Grid(size=size)``. Default: chosen from ``tol`` for
+            concrete parameters (capped at 16384 / 1024); required under tracing.
+            When a capped grid cannot meet ``tol`` (heavy-tailed statistics such as GGX
+            need grids of extent ∝ tol^{−1/4}), the grid path relaxes the target by decades
+            and records the tolerance it honours in ``result.shape.tol``.
+        extent: with a method name: half-width of the grid path's slope grid (a number).
+            Default: the radius beyond which the lobe stays below ``tol/2`` relative to its
+            peak; offsets outside the grid evaluate to 0 (never a periodic image).
+        check: verify that a BRDF exists at μ (see Raises). ``check=False`` leaves out the
+            run-time check (an ``equinox.error_if`` conditional, which costs a measurable
+            share of a small model's evaluation inside an optimiser's loop: ``python -m
+            experiments.bench_fit``); a closed form built from concrete values is still
+            checked when it is built. Only for callers that have established existence
+            otherwise, e.g. evolving towards coarser scales with a scale law whose slope
+            variances decrease with μ; where no BRDF exists the result is then undefined
+            (NaN for the closed form).
+
+    Returns:
+        The lobe at μ. Closed forms return a lobe whose shape is a :mod:`brdfscale.stats`
+        family; the spectral paths return a lobe whose shape evaluates the exact transform
+        and inverts it only where asked: ``.density(u)`` at any number of query offsets (in
+        blocks within the method's memory budget), or ``.shape.on_grid()`` on the FFT grid
+        (grid path). ``result.shape.discretisation`` is the resolved method
+        (``.explain()``), ``result.shape.tol`` the error it honours relative to the peak.
+
+    Raises:
+        NoBRDFAtScaleError: no non-negative lobe exists at μ (e.g. a Gaussian lobe would
+            need a negative variance, the quotient's transform exceeds 1 in modulus, or the
+            evolved values fall below −tol of the peak). Inside a user's ``jax.jit`` the check
+            runs with the program (``equinox.error_if``) and reaches the user as equinox's
+            runtime error carrying the same message (``brdfscale._existence``).
+        UnresolvedMethodError: traced parameters and a spectral path without a size, or a
+            regularisation rule with a traced tabulated lobe and no λ carried by ``method``.
+        MethodNotApplicableError: a forced ``method`` cannot handle the inputs.
+        InvalidInputError: wrong argument types or values.
+
+    Everything is differentiable in all continuous parameters (and in μ through a scale
+    law), works under ``jax.jit``/``jax.vmap`` and in float32 or float64.
+    """
+    tol, lam, rule, noise = check_arguments(lobe, s_from, s_to, tol, regularisation, noise)
+    named = isinstance(method, str)
+    path = as_method(method, None if named else size, None if named else extent).choose(lobe, s_from, s_to)
+    if named:
+        path = path.with_sizes(size, extent)
+    return path.evaluate(lobe, s_from, s_to, tol=tol, regularisation=lam, rule=rule, noise=noise, check=check)
+
+
+def select(
+    lobe: AbstractLobe,
+    s_from: AbstractSlopeDensity,
+    s_to: AbstractSlopeDensity,
+    *,
+    tol: float = 1e-10,
+    method: AbstractMethod | str = "auto",
+    regularisation: float | str = 0.0,
+    noise=None,
+    check: bool = True,
+) -> AbstractMethod:
+    """The resolved discretisation with which :func:`brdfscale.evolve` meets ``tol``.
+
+    Decides, from the concrete values given, the path (closed form, radial or grid — the
+    first that applies, or the one forced by ``method``) and everything it needs: the
+    Gauss–Legendre nodes, the cut-off K and a verified table of radii (radial); the grid side,
+    half-width and a verified oversampling (grid); and checks that a BRDF exists for these
+    values (module docstring). The result is a static object: pass it as
+    ``evolve(..., method=result)`` inside ``jax.jit``/``grad``/``vmap``, where it is used as
+    it is. ``result.explain()`` says what it chose; ``result.tol`` is the error relative to the
+    lobe's peak it honours (looser than asked only when a capped grid cannot do better).
+
+    ``regularisation``: the Tikhonov λ of the division as in :func:`brdfscale.evolve` — a
+    number, or a rule (``"auto"``, ``"gcv"``, ``"discrepancy"`` with ``noise=σ``, ``"l_curve"``)
+    that chooses λ from the concrete values here. A spectral result carries the λ (a rule's
+    choice, or a nonzero number) and the discretisation verified for it:
+    ``result.regularisation``, reported by ``result.explain()``; ``evolve(..., method=result)``
+    uses it, under ``jax.jit`` too.
+
+    Raises:
+        UnresolvedMethodError: the values are traced (call it outside the transformation).
+        NoBRDFAtScaleError: no non-negative lobe exists for these values.
+        MethodNotApplicableError: a forced method does not apply.
+        InvalidInputError: bad arguments.
+    """
+    tol, lam, rule, noise = check_arguments(lobe, s_from, s_to, tol, regularisation, noise)
+    path = as_method(method).choose(lobe, s_from, s_to)
+    return path.resolve(lobe, s_from, s_to, tol=tol, regularisation=lam, rule=rule, noise=noise, check=check)
