@@ -8,6 +8,7 @@ model's own forward map plus Gaussian noise (a pure check of the inverse machine
 """
 
 import os
+import pathlib
 import time
 
 from .._errors import InvalidInputError
@@ -87,8 +88,8 @@ def run(args) -> int:
                                     "demo); choose another --out directory or pass --force to replace them.")
         if not os.path.exists(marker) and not existing:
             # nothing of the demo's is here yet, so whatever it writes here from now on is its own
-            files.atomic_write(marker, lambda tmp: open(tmp, "w").write("written by `brdfscale demo`; a rerun "
-                                                                     "replaces the demo's files here\n"))
+            files.atomic_write(marker, lambda tmp: pathlib.Path(tmp).write_text(
+                "written by `brdfscale demo`; a rerun replaces the demo's files here\n"))
         return _run(args, exr, start)
 
 

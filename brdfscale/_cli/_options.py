@@ -219,7 +219,7 @@ class Scales:
             try:
                 rows, cols = field.block(mu)
             except InvalidInputError:
-                (ny, nx), (fy, fx) = field.shape, field.facet_grid
+                fy, fx = field.facet_grid
                 raise InvalidInputError(
                     f"{flag} {item}: {shown}; a scale must be a whole number of pixels along both axes, from 1 to "
                     f"{min(fx, round(fy * field.spacing[1] / dx))} (the field's {fy} × {fx} pixel facets); "

@@ -200,9 +200,9 @@ def markdown(doc: dict) -> str:
             if isinstance(value, dict):
                 value = ", ".join(f"{k}: {v}" for k, v in value.items())
             lines.append(f"* {label}: {value}")
-    lines += [f"* field: {f['shape'][0]} × {f['shape'][1]} pixels (rows y × columns x), pitch Δx = "
-              f"{f['spacing_m'][0]:.6g} m, Δy = {f['spacing_m'][1]:.6g} m; {f['unmeasured_pixels']} unmeasured pixels; "
-              f"steepest pixel slope component {f['steepest_pixel_slope']:.4g}",
+    lines += [(f"* field: {f['shape'][0]} × {f['shape'][1]} pixels (rows y × columns x), pitch Δx = "
+               f"{f['spacing_m'][0]:.6g} m, Δy = {f['spacing_m'][1]:.6g} m; {f['unmeasured_pixels']} unmeasured "
+               f"pixels; steepest pixel slope component {f['steepest_pixel_slope']:.4g}"),
               f"* detrend: {trend.get('mode') or 'none'}"
               + (f" (terms {', '.join(trend['terms'])}; coefficients {', '.join(f'{c:.6g}' for c in trend['coefficients'])}, "
                  "in metres)" if trend.get("coefficients") else ""),
@@ -211,10 +211,10 @@ def markdown(doc: dict) -> str:
             "σ_x ± error", "σ_y ± error", "Σ_xy", "rms slope"]
     lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
-    lines += ["", "σ_a = √Σ_aa (Σ(μ): the unbiased sample covariance of the facets' normal slopes m = −∇h); the "
-              "error is the standard error of Σ_aa carried to σ_a (δσ = δΣ/2σ), with the facets' correlation over "
-              "the facet lattice (the effective number of independent facets). Excluded: windows touching an "
-              "unmeasured pixel. The full covariances and their errors are in statistics.json.", ""]
+    lines += ["", ("σ_a = √Σ_aa (Σ(μ): the unbiased sample covariance of the facets' normal slopes m = −∇h); the "
+                   "error is the standard error of Σ_aa carried to σ_a (δσ = δΣ/2σ), with the facets' correlation "
+                   "over the facet lattice (the effective number of independent facets). Excluded: windows touching "
+                   "an unmeasured pixel. The full covariances and their errors are in statistics.json."), ""]
     return "\n".join(lines)
 
 
