@@ -32,7 +32,13 @@ import numpy as np
 from brdfscale import InvalidInputError
 from brdfscale.laplace import combination, laplace
 
-from ._derived import evaluate, evaluate_many, quantity_names, ratio_frequencies, ratio_names
+from ._derived import (
+    evaluate,
+    evaluate_many,
+    quantity_names,
+    ratio_frequencies,
+    ratio_names,
+)
 from ._problem import stack_trees
 from ._result import FitResult
 from ._solve import RESULT_NAMES, result_name, solver_name
@@ -115,7 +121,7 @@ class _Analysis:
         """The :class:`FitResult` from :func:`fitting._derived.evaluate`'s arrays;
         ``names_of_quantities``: those of ``model.quantities`` where the caller knows them (a
         bucket's models share them)."""
-        problem, model, data, analysis = self.problem, self.problem.model, self.problem.data, self.analysis
+        model, data, analysis = self.problem.model, self.problem.data, self.analysis
         names = model.names
         if names_of_quantities is None:
             names_of_quantities = quantity_names(model)

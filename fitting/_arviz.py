@@ -25,11 +25,10 @@ walkers as chains. ``arviz.summary`` of the data gives the figures of
 :meth:`fitting.SampleResult.summary`.
 """
 
-import json
-
 from brdfscale import MissingDependencyError
+from brdfscale.files import json_text
 
-__all__ = ["to_arviz", "arviz"]
+__all__ = ["arviz", "to_arviz"]
 
 _STAT_NAMES = {"acceptance_rate": "acceptance_rate", "divergent": "diverging", "integration_steps": "n_steps",
                "step_size": "step_size"}
@@ -65,7 +64,7 @@ def to_arviz(result):
     az = arviz()
     burn = result.burn
     posterior, stats = _groups(result, slice(burn, None))
-    attrs = {"sampler": result.sampler, "sampler_settings": json.dumps(result.settings, sort_keys=True, default=str),
+    attrs = {"sampler": result.sampler, "sampler_settings": json_text(result.settings, other=str, sort_keys=True),
              "independent_chains": int(result.chains), "walkers_per_chain": int(result.walkers),
              "burn_in": int(burn), "prior": result.prior,
              "sampling_coordinates": result.coordinates}  # not "coordinates": CF conventions reserve it

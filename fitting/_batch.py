@@ -63,14 +63,14 @@ from brdfscale.checks import integer
 from brdfscale.choices import FIT
 from brdfscale.show import progress_bar
 
-from ._data import Dataset, PointData
 from ._analysis import results_of_starts
+from ._data import Dataset, PointData
 from ._fit import FitOptions
+from ._model import AbstractModel
 from ._problem import Problem, Rows, check_pair, stack_trees, starting_points
 from ._solve import solve_rows
-from ._model import AbstractModel
 
-__all__ = ["fit_many", "explain_plan", "bucket_points", "BatchPlan", "COMPILE_ROWS"]
+__all__ = ["COMPILE_ROWS", "BatchPlan", "bucket_points", "explain_plan", "fit_many"]
 
 def _rung(n: int, smallest: int) -> int:
     """The smallest of ``smallest·2^k`` and ``smallest·3·2^(k−1)`` (k ≥ 0; the rungs 1, 1.5, 2, 3, 4,

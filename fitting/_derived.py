@@ -18,8 +18,16 @@ import numpy as np
 from ._data import Dataset
 from ._model import moments
 
-__all__ = ["quantity_names", "quantity_vector", "quantities_at", "RATIO_FREQUENCIES", "ratio_frequencies",
-           "ratio_names", "evaluate", "evaluate_many"]
+__all__ = [
+    "RATIO_FREQUENCIES",
+    "evaluate",
+    "evaluate_many",
+    "quantities_at",
+    "quantity_names",
+    "quantity_vector",
+    "ratio_frequencies",
+    "ratio_names",
+]
 
 
 def quantity_names(model) -> list:

@@ -45,11 +45,11 @@ class FitOptions:
     undetermined_std: float = FIT.undetermined_std
 
     def __post_init__(self):
-        checked = dict(solver=check_solver(self.solver), starts=integer(self.starts, "starts", 1),
-                       max_steps=integer(self.max_steps, "max_steps", 1),
-                       spread=real(self.spread, "spread", minimum=0.0), seed=integer(self.seed, "seed", 0),
-                       rtol=real(self.rtol, "rtol", minimum=0.0), atol=real(self.atol, "atol", minimum=0.0),
-                       undetermined_std=real(self.undetermined_std, "undetermined_std", minimum=0.0, strict=True))
+        checked = {"solver": check_solver(self.solver), "starts": integer(self.starts, "starts", 1),
+                   "max_steps": integer(self.max_steps, "max_steps", 1),
+                   "spread": real(self.spread, "spread", minimum=0.0), "seed": integer(self.seed, "seed", 0),
+                   "rtol": real(self.rtol, "rtol", minimum=0.0), "atol": real(self.atol, "atol", minimum=0.0),
+                   "undetermined_std": real(self.undetermined_std, "undetermined_std", minimum=0.0, strict=True)}
         if checked["rtol"] == 0 and checked["atol"] == 0:
             raise InvalidInputError("rtol and atol must not both be 0: no step could ever meet the convergence test.")
         for name, value in checked.items():

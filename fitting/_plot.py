@@ -29,6 +29,7 @@ from brdfscale import InvalidInputError
 from brdfscale import _figure_style as _figures
 from brdfscale.checks import integer, real
 
+from ._derived import quantities_at
 from ._problem import Problem, check_fit
 from ._result import FitResult
 from ._model import predict_images
@@ -46,9 +47,9 @@ CORNER_DRAWS = 4000
 _LOBE_UNIT = f"A·g(u) ({_figures.SLOPE_DENSITY})"
 
 
-@eqx.filter_jit
 def _quantities(model, thetas):
-    return jax.vmap(model.quantities)(thetas)
+    """The model's quantities at every θ of ``thetas`` (:func:`fitting._derived.quantities_at`)."""
+    return quantities_at(model, thetas)
 
 
 @eqx.filter_jit

@@ -19,7 +19,7 @@ from ._data import Dataset, PointData
 from ._model import AbstractModel, require_dataset
 from ._result import FitResult
 
-__all__ = ["Problem", "Rows", "check_pair", "check_fit", "starting_points", "stack_trees"]
+__all__ = ["Problem", "Rows", "check_fit", "check_pair", "stack_trees", "starting_points"]
 
 
 class Problem(Shown, eqx.Module):

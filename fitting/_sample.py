@@ -37,9 +37,7 @@ import functools
 import hashlib
 import os
 
-import equinox as eqx
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from brdfscale import InvalidInputError
@@ -50,14 +48,21 @@ from brdfscale.show import Shown, Table, progress_mode
 
 from . import _diagnostics as diag
 from ._checkpoint import Checkpoint
+from ._derived import quantities_at
+from ._posterior import (
+    COORDINATES,
+    PRIOR_TEXT,
+    log_posterior,
+    target,
+    undetermined_directions,
+)
 from ._problem import Problem, check_fit
 from ._result import FitResult
-from ._posterior import COORDINATES, PRIOR_TEXT, log_posterior, target, undetermined_directions
 from ._sample_blackjax import HMC, NUTS
 from ._sample_emcee import Emcee
 from ._sampler import AbstractSampler
 
-__all__ = ["SampleResult", "sample", "log_posterior", "Emcee", "NUTS", "HMC", "SAMPLERS"]
+__all__ = ["HMC", "NUTS", "SAMPLERS", "Emcee", "SampleResult", "log_posterior", "sample"]
 
 SAMPLERS = {"emcee": Emcee, "nuts": NUTS, "hmc": HMC}
 """The samplers by name: ``sample(..., sampler="nuts")`` is ``sampler=fitting.NUTS()``."""
@@ -166,7 +171,7 @@ class SampleResult(Shown):
             names = [n for n in self.quantities if self.determined is None or n in self.determined]
         else:
             names = list(self.names)
-        return [n for n in names if not self._summary[n]["sd"] == 0]
+        return [n for n in names if self._summary[n]["sd"] != 0]
 
     @property
     def divergent(self) -> int:
@@ -301,11 +306,6 @@ def _digest(tree) -> str:
     return h.hexdigest()[:32]
 
 
-@eqx.filter_jit
-def _quantity_draws(model, thetas):
-    return jax.vmap(model.quantities)(thetas)
-
-
 def resolve_sampler(sampler, walkers=None, moves=None) -> AbstractSampler:
     """The sampler object of ``sample``'s ``sampler`` (a name of :data:`SAMPLERS`, with
     ``walkers``/``moves`` where it takes them, or an :class:`AbstractSampler` as it is)."""
@@ -433,7 +433,7 @@ def _diagnose(posterior, fit, sampler, settings, chains, chain, log_prob, stats,
     problem = posterior.problem
     # τ is NaN for a coordinate no walker moved in (zero variance; short chains, stuck
     # ensembles): taken as ∞ — burn-in half the chain (emcee), ESS 0, τ not reliable (JSON: null)
-    n_steps, n_walkers, d = chain.shape
+    n_steps, n_walkers, _ = chain.shape
     burn, warmup = sampler.burn_in(chain, warmup)
     kept = chain[burn:]
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -445,8 +445,7 @@ def _diagnose(posterior, fit, sampler, settings, chains, chain, log_prob, stats,
     else:
         moved = np.any(np.diff(chain, axis=0) != 0, axis=-1)
         acceptance = float(np.mean(moved))
-    q = _quantity_draws(problem.model, jnp.asarray(chain.reshape(-1, d)))
-    quantities = {name: np.asarray(v).reshape(n_steps, n_walkers) for name, v in q.items()}
+    quantities = quantities_at(problem.model, chain)  # (steps, W) each, in the model's order
     determined = tuple(n for n in quantities if fit.std.get(n, 0.0) is not None)
     V = undetermined_directions(fit)
     held = [{"combination": u.get("combination"), "value": float(v @ np.asarray(fit.theta))}

@@ -44,7 +44,7 @@ from brdfscale.show import progress_bar
 from ._posterior import initial_positions, laplace
 from ._sampler import AbstractSampler
 
-__all__ = ["NUTS", "HMC"]
+__all__ = ["HMC", "NUTS"]
 
 _STATS = {"acceptance_rate": "f8", "divergent": "u1", "integration_steps": "i8", "step_size": "f8"}
 _INITIAL_STEP_SIZE = 1.0  # in the coordinates the Laplace mass matrix whitens: about right for a Gaussian

@@ -17,6 +17,7 @@ maximum itself): over-dispersed between ensembles, so R̂ compares ensembles tha
 
 import dataclasses
 import time
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -83,7 +84,7 @@ class Emcee(AbstractSampler):
     def trajectories(self, d: int, chains: int) -> int:
         return chains * self.walkers_for(d)
 
-    stats = {}  # no per-step statistics beyond the chain
+    stats: ClassVar[dict] = {}  # no per-step statistics beyond the chain
 
     @classmethod
     def from_name(cls, walkers=None, moves=None) -> "Emcee":
@@ -149,9 +150,10 @@ class Emcee(AbstractSampler):
                 k = min(chunk, steps - done)
                 started = time.perf_counter()
                 block, block_lp = np.empty((k, n, m)), np.empty((k, n))
-                for j, state in enumerate(sampler.sample(state, iterations=k, store=False)):
-                    block[j], block_lp[j] = state.coords, state.log_prob
+                for j, new in enumerate(sampler.sample(state, iterations=k, store=False)):
+                    block[j], block_lp[j] = new.coords, new.log_prob
                     bar.update(1)
+                state = new  # k ≥ 1 steps were taken
                 state.random_state = sampler.random_state
                 z = subspace["origin"] + block @ subspace["basis"].T
                 theta = theta_of_z_np(z, lo, hi)

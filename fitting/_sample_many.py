@@ -63,10 +63,18 @@ from brdfscale.choices import SAMPLE
 from brdfscale.show import progress_bar, progress_mode
 
 from ._batch import _devices, _key, bucket_batch
-from ._problem import Problem, check_fit, stack_trees
 from ._posterior import target
+from ._problem import Problem, check_fit, stack_trees
 from ._sample import _diagnose, resolve_sampler, sampled_dimension
-from ._sample_blackjax import _advance, _blackjax, _host, _initial_carry, _window_warmup, join, starts
+from ._sample_blackjax import (
+    _advance,
+    _blackjax,
+    _host,
+    _initial_carry,
+    _window_warmup,
+    join,
+    starts,
+)
 
 __all__ = ["sample_many"]
 

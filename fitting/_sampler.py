@@ -14,6 +14,7 @@ A sampler is a frozen dataclass of its settings (checked when made) that
 """
 
 import abc
+from typing import ClassVar
 
 from brdfscale import InvalidInputError
 
@@ -23,8 +24,8 @@ __all__ = ["AbstractSampler"]
 class AbstractSampler(abc.ABC):
     """The interface every sampler of :func:`fitting.sample` implements (module docstring)."""
 
-    name: str = ""
-    stats: dict = {}
+    name: ClassVar[str] = ""
+    stats: ClassVar[dict] = {}
 
     @classmethod
     def from_name(cls, walkers=None, moves=None) -> "AbstractSampler":

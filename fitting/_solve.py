@@ -12,7 +12,7 @@ import optimistix as optx
 
 from brdfscale import InvalidInputError, choices
 
-__all__ = ["SOLVERS", "RESULT_NAMES", "make_solver", "solver_name", "solve", "solve_rows"]
+__all__ = ["RESULT_NAMES", "SOLVERS", "make_solver", "solve", "solve_rows", "solver_name"]
 
 SOLVERS = tuple(choices.SOLVERS)
 """The solvers by name (:data:`brdfscale.choices.SOLVERS`): Levenberg–Marquardt (default),

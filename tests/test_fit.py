@@ -327,7 +327,11 @@ def test_fit_command_writes_report_and_refuses_to_overwrite(tmp_path, capsys):
     # the chains as ArviZ InferenceData in NetCDF beside fit.json, and ArviZ's figures in fit.json
     az = pytest.importorskip("arviz")
     posterior = az.from_netcdf(str(out / "posterior.nc"))
-    assert doc["posterior"] == str(out / "posterior.nc") and posterior.posterior.sizes["draw"] == 200 - doc["mcmc"]["burn_in"]
+    # one ArviZ chain per independent emcee ensemble, its draws the 16 walkers' kept steps one after another
+    assert doc["posterior"] == str(out / "posterior.nc") and doc["mcmc"]["walkers"] == 16
+    assert posterior.posterior.sizes["chain"] == doc["mcmc"]["chains"]
+    assert posterior.posterior.sizes["draw"] == 16 * (200 - doc["mcmc"]["burn_in"])
+    assert "amplitude" in posterior.posterior.data_vars
     assert {"ess_bulk", "ess_tail", "r_hat", "mcse_mean"} <= set(doc["mcmc"]["summary"]["amplitude"])
     assert doc["mcmc"]["status"].startswith(("converged", "not converged"))
     assert main(argv) == 2
