@@ -53,6 +53,25 @@ def test_select_returns_resolved_static_objects_that_explain_themselves():
     assert not bs.Radial().resolved and not bs.Grid().resolved
 
 
+def test_float32_explain_states_the_tolerance_float32_can_honour():
+    """explain() of a method resolved in float32 states what float32 can honour — the floor
+    ``1e-14 · eps(float32)/eps(float64)`` (float64's floor scaled by the epsilons) — and the tol
+    asked, where that was tighter; in float64, and in float32 with a looser tol, the tol as before."""
+    floor = 1e-14 * float(jnp.finfo(jnp.float32).eps) / float(jnp.finfo(jnp.float64).eps)
+
+    def resolved(dtype, tol):
+        args = (lobes.Beckmann(jnp.asarray(0.1, dtype)), stats.GGX(jnp.asarray(0.08, dtype)),
+                stats.GGX(jnp.asarray(0.03, dtype)))
+        return bs.evolve(*args, method="radial", size=256, tol=tol).shape.discretisation
+
+    said = resolved(jnp.float32, 1e-6).explain()
+    assert 1e-6 < floor < 1e-5
+    assert f"honours about {floor:.2g} of the peak in float32 (tol = 1e-06 was asked: below what float32" in said
+    assert "honours tol = 1e-06" not in said
+    assert resolved(jnp.float64, 1e-6).explain().endswith("honours tol = 1e-06 of the peak")
+    assert resolved(jnp.float32, 1e-4).explain().endswith("honours tol = 0.0001 of the peak")
+
+
 @pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_method_objects_names_and_the_selected_method_give_one_answer():
     args = (lobes.GGX(0.08), stats.GGX(0.1), stats.GGX(0.05))
