@@ -18,8 +18,9 @@ A module may import its own unit and lower layers, never a higher layer; within 
 units' imports form no cycle, and across all units there is no cycle either. Every import
 counts: at the top of a module or inside a function, relative ones resolved, and
 ``importlib.import_module("...")`` with a literal name; ``from brdfscale import NAME`` counts as
-an import of the module that the lazy table (``brdfscale._LAZY``) names for ``NAME``. Imports
-under ``if TYPE_CHECKING:`` do not run and do not count.
+an import of the module that the lazy table (``brdfscale._LAZY``) names for ``NAME``, and so
+does ``brdfscale.NAME`` after ``import brdfscale``. Imports under ``if TYPE_CHECKING:`` do not
+run and do not count.
 
 The one allowed exception is the figure seam: :mod:`brdfscale._figures` imports
 :mod:`brdfscale.plot` by name when a user calls an object's ``.plot()`` (``lobe.plot()``,
@@ -119,6 +120,7 @@ def imports(module: str) -> list[tuple[str, int, str]]:
         if target is not None and node.lineno not in skip and (target, node.lineno) not in {f[:2] for f in found}:
             found.append((target, node.lineno, ast.get_source_segment(path.read_text(), node) or ""))
 
+    facade = set()  # the names `import brdfscale` (as …) binds: `brdfscale.NAME` is an import of NAME's module
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             for alias in node.names:
@@ -126,6 +128,8 @@ def imports(module: str) -> list[tuple[str, int, str]]:
                     add(alias.name, node)  # flagged by test_nothing_imports_fitting_by_its_folder_name
                 elif alias.name.split(".")[0] == "brdfscale":
                     add(_known(alias.name), node)
+                    if alias.name == "brdfscale" or alias.asname is None:
+                        facade.add(alias.asname or "brdfscale")
         elif isinstance(node, ast.ImportFrom):
             base = importlib.util.resolve_name("." * node.level + (node.module or ""), package) if node.level else node.module
             if base == "fitting" or (base or "").startswith("fitting."):
@@ -147,6 +151,10 @@ def imports(module: str) -> list[tuple[str, int, str]]:
                 name = importlib.util.resolve_name(name, package)
             if name.split(".")[0] == "brdfscale":
                 add(_known(name), node)
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in facade
+                and node.attr in lazy):
+            add(_known(lazy[node.attr]), node)
     return found
 
 
