@@ -20,6 +20,11 @@ an explicit inverse, which a nearly singular F turns into noise):
   otherwise its variance is ``Σ_d (g·v_d)²/λ_d`` plus the undetermined directions'
   linearised share (at most a ninth).
 
+"Undetermined" has one representation in the project: ``None`` — for a standard deviation,
+an interval or quantiles the data do not determine, in Python results (:meth:`Laplace.std`,
+``fitting.FitResult.std``/``quantiles``, ``brdfscale.plus.StrengthFit``'s σ fields) and
+``null`` in JSON; never NaN, which arithmetic would carry on silently.
+
 Both fits of the project use it: :func:`fitting.fit` (the multi-scale lobe fits) and
 :func:`brdfscale.plus.fit_strengths` (nearly-specular strengths). Tested in
 tests/test_laplace.py against a linear-Gaussian model whose posterior is exact.
@@ -90,11 +95,12 @@ class Laplace(Shown):
         determined, undetermined = self.variances(gradients)
         return ~(undetermined > _MOVES_MORE * determined)
 
-    def std(self, gradients: Float[np.ndarray, "q d"]) -> np.ndarray:
-        """Linearised standard deviations of quantities (NaN where undetermined)."""
+    def std(self, gradients: Float[np.ndarray, "q d"]) -> list[float | None]:
+        """Linearised standard deviations of quantities, one per row of ``gradients``: a float,
+        or None where the quantity is undetermined (:meth:`quantity_is_determined`)."""
         determined, undetermined = self.variances(gradients)
         out = np.sqrt(determined + undetermined)
-        return np.where(undetermined > _MOVES_MORE * determined, np.nan, out)
+        return [None if u > _MOVES_MORE * d else float(s) for s, d, u in zip(out, determined, undetermined)]
 
     def _show_items(self):
         return [("coordinates", len(self.names)), ("undetermined", "; ".join(u["combination"] for u in self.undetermined)

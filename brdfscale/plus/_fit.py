@@ -42,19 +42,20 @@ class StrengthFit(eqx.Module):
     ``covariance`` is over the natural parameters in the order ``names`` (the pseudo-inverse
     over the determined directions, :mod:`brdfscale.laplace`). ``undetermined`` names the
     combinations of ``(ln A, ln x0, c_n[, logit f])`` the data do not determine; a parameter
-    they move has σ = NaN — no interval that would look like a measurement. Without a smooth
-    shape the specular fraction is 1 by construction (``specular_fraction_sigma`` = 0).
+    they move has σ = None — no interval that would look like a measurement (the project's one
+    representation of "undetermined", :mod:`brdfscale.laplace`); the σ fields are Python floats.
+    Without a smooth shape the specular fraction is 1 by construction (``specular_fraction_sigma`` = 0).
     ``chi2`` is the minimum of Σ((model − y)/σ)², ``dof`` the samples minus the parameters.
     """
 
     strengths: Float[Array, " N"]
-    strengths_sigma: Float[Array, " N"]
+    strengths_sigma: tuple[float | None, ...] = eqx.field(static=True)
     x0: Float[Array, ""]
-    x0_sigma: Float[Array, ""]
+    x0_sigma: float | None = eqx.field(static=True)
     amplitude: Float[Array, ""]
-    amplitude_sigma: Float[Array, ""]
+    amplitude_sigma: float | None = eqx.field(static=True)
     specular_fraction: Float[Array, ""]
-    specular_fraction_sigma: Float[Array, ""]
+    specular_fraction_sigma: float | None = eqx.field(static=True)
     covariance: Float[Array, "p p"]
     names: tuple[str, ...] = eqx.field(static=True)
     chi2: float = eqx.field(static=True)
@@ -200,18 +201,18 @@ def fit_strengths(
         f = 1 / (1 + np.exp(-theta_np[-1]))
         scale[-1] = f * (1 - f)
     covariance = scale[:, None] * analysis.covariance * scale[None, :]
-    sd = analysis.std(np.diag(scale)) # NaN for a parameter the undetermined directions move (never a fake precision)
+    sd = analysis.std(np.diag(scale))  # None for a parameter the undetermined directions move (never a fake precision)
     statistic = _statistic(theta, smooth, orders)
     residual = np.asarray(_residuals(theta, args))
     return StrengthFit(
         strengths=theta[2 : 2 + orders],
-        strengths_sigma=jnp.asarray(sd[2 : 2 + orders]),
+        strengths_sigma=tuple(sd[2 : 2 + orders]),
         x0=jnp.exp(theta[1]),
-        x0_sigma=jnp.asarray(sd[1]),
+        x0_sigma=sd[1],
         amplitude=jnp.exp(theta[0]),
-        amplitude_sigma=jnp.asarray(sd[0]),
+        amplitude_sigma=sd[0],
         specular_fraction=statistic.specular,
-        specular_fraction_sigma=jnp.asarray(sd[-1] if smooth is not None else 0.0),
+        specular_fraction_sigma=sd[-1] if smooth is not None else 0.0,
         covariance=jnp.asarray(covariance),
         names=names,
         chi2=float(residual @ residual),
