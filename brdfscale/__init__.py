@@ -35,18 +35,16 @@ with :class:`InvalidInputError` naming the line to add,
 import importlib
 from typing import TYPE_CHECKING
 
-from ._errors import (
-    BrdfscaleError,
-    InvalidInputError,
-    MeasurementFileError,
-    MethodNotApplicableError,
-    MissingDependencyError,
-    NoBRDFAtScaleError,
-    OutputInUseError,
-    SingularDensityError,
-    UnprotectedHeaderWarning,
-    UnresolvedMethodError,
-)
+from ._errors import BrdfscaleError as BrdfscaleError
+from ._errors import InvalidInputError as InvalidInputError
+from ._errors import MeasurementFileError as MeasurementFileError
+from ._errors import MethodNotApplicableError as MethodNotApplicableError
+from ._errors import MissingDependencyError as MissingDependencyError
+from ._errors import NoBRDFAtScaleError as NoBRDFAtScaleError
+from ._errors import OutputInUseError as OutputInUseError
+from ._errors import SingularDensityError as SingularDensityError
+from ._errors import UnprotectedHeaderWarning as UnprotectedHeaderWarning
+from ._errors import UnresolvedMethodError as UnresolvedMethodError
 
 _TABLE = (  # the one list of the public names: (module relative to brdfscale, names); None: the submodules themselves
     ("._evolve", ("evolve", "select", "AbstractMethod", "Auto", "ClosedForm", "Radial", "Grid", "RadialTable")),
@@ -60,19 +58,43 @@ _TABLE = (  # the one list of the public names: (module relative to brdfscale, n
 _LAZY = {name: where or f".{name}" for where, names in _TABLE for name in names}
 """Public name → the module (relative to brdfscale) it is loaded from; a submodule maps to itself."""
 
-if TYPE_CHECKING:  # what the lazy loader below provides, for type checkers and IDEs (tests/test_layers.py: = _TABLE)
-    from . import (checks, exr, files, fitting, geometry, laplace, library, lobes, plot, plus, scene, show, so3, special,
-                   stats, synth, topography)
-    from ._evolve import AbstractMethod, Auto, ClosedForm, Grid, Radial, RadialTable, evolve, select
-    from ._measurement import LobeImage, MeasurementSet
+if TYPE_CHECKING:  # what the lazy loader below provides, for type checkers and IDEs (tests/test_imports.py: = _TABLE)
+    from . import checks as checks
+    from . import exr as exr
+    from . import files as files
+    from . import fitting as fitting
+    from . import geometry as geometry
+    from . import laplace as laplace
+    from . import library as library
+    from . import lobes as lobes
+    from . import plot as plot
+    from . import plus as plus
+    from . import scene as scene
+    from . import show as show
+    from . import so3 as so3
+    from . import special as special
+    from . import stats as stats
+    from . import synth as synth
+    from . import topography as topography
+    from ._evolve import AbstractMethod as AbstractMethod
+    from ._evolve import Auto as Auto
+    from ._evolve import ClosedForm as ClosedForm
+    from ._evolve import Grid as Grid
+    from ._evolve import Radial as Radial
+    from ._evolve import RadialTable as RadialTable
+    from ._evolve import evolve as evolve
+    from ._evolve import select as select
+    from ._measurement import LobeImage as LobeImage
+    from ._measurement import MeasurementSet as MeasurementSet
+
+    __version__: str
 
 
 def __getattr__(name: str):
     where = _LAZY.get(name)
-    if where == f".{name}":
-        value = importlib.import_module(where, __name__)
-    elif where is not None:
-        value = getattr(importlib.import_module(where, __name__), name)
+    if where is not None:
+        module = importlib.import_module(where, __name__)
+        value = module if where == f".{name}" else getattr(module, name)
     elif name == "__version__":
         from importlib.metadata import PackageNotFoundError, version
 
@@ -81,7 +103,11 @@ def __getattr__(name: str):
         except PackageNotFoundError:  # running from a source tree that is not installed
             value = "0.0.0+unknown"
     else:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+        from ._shadow import (
+            hint,  # names the installed brdfscale when this copy shadows it
+        )
+
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}{hint(__file__)}")
     globals()[name] = value
     return value
 
@@ -90,4 +116,5 @@ def __dir__():
     return sorted(set(globals()) | set(__all__))
 
 
-__all__ = [*_LAZY, "__version__"]
+# built from _TABLE (tests/test_imports.py); type checkers read the TYPE_CHECKING imports above
+__all__ = [*_LAZY, "__version__"]  # noqa: PLE0604  # pyright: ignore[reportUnsupportedDunderAll]
