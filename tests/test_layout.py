@@ -6,10 +6,13 @@ Python the code and the tests need."""
 
 import ast
 import re
+import shutil
 import subprocess
 import sys
 import tomllib
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 EXPERIMENTS = ROOT / "experiments"
@@ -114,3 +117,28 @@ def test_requires_python_is_what_the_code_and_tests_need():
     markers = [d for d in config["project"]["dependencies"] if "python_version" in d]
     assert markers == []
     assert "Python ≥ 3.11" in (ROOT / "README.md").read_text()
+
+
+def test_a_shadowing_copy_of_the_package_names_the_installed_one(tmp_path):
+    """A copy of the package in a script's folder shadows the installed brdfscale; a name it
+    lacks raises AttributeError naming both locations and the way out (brdfscale/_shadow.py).
+    The installed package itself gives the plain message."""
+    from brdfscale._shadow import _installed_location
+
+    installed = _installed_location()
+    if installed is None or Path(installed[1]).resolve() != ROOT / "brdfscale":
+        pytest.skip("brdfscale is not installed from this checkout (pip install -e .)")
+    shutil.copytree(ROOT / "brdfscale", tmp_path / "brdfscale", ignore=shutil.ignore_patterns("__pycache__"))
+    script = ("import brdfscale\ntry:\n    brdfscale.not_a_name\nexcept AttributeError as err:\n    print(err)\n"
+              "print(brdfscale.__file__)\n")
+    (tmp_path / "script.py").write_text(script)
+    out = subprocess.run([sys.executable, "script.py"], cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                         check=True).stdout.splitlines()
+    assert out[1] == str(tmp_path / "brdfscale" / "__init__.py")  # the copy was imported
+    assert out[0].startswith("module 'brdfscale' has no attribute 'not_a_name' (this brdfscale is ")
+    assert str(ROOT / "brdfscale") in out[0] and "-P" in out[0]
+    # the installed package: no hint
+    plain = subprocess.run([sys.executable, "-P", "script.py"], cwd=tmp_path, capture_output=True, text=True,
+                           timeout=300, check=True).stdout.splitlines()
+    assert plain[0] == "module 'brdfscale' has no attribute 'not_a_name'"
+    assert plain[1] == str(ROOT / "brdfscale" / "__init__.py")
