@@ -375,3 +375,18 @@ def progress_bar(iterable=None, *, enabled: bool = True, **options):
     else:
         from tqdm.std import tqdm as bar
     return bar(iterable, disable=not enabled or mode == "off", **options)
+
+
+#: Metric units for lengths in metres, largest first (a figure's axis or a printed table shows the
+#: largest that fits).
+DISPLAY_UNITS = (("m", 1.0), ("mm", 1e-3), ("µm", 1e-6), ("nm", 1e-9), ("pm", 1e-12))
+
+
+def display_unit(mus) -> tuple[str, float]:
+    """The metric unit (name, size in metres) in which the largest of ``mus`` (metres) is ≥ 1
+    (``brdfscale topography``'s output and :func:`brdfscale.plot.facet_statistics`)."""
+    top = max(mus)
+    for name, size in DISPLAY_UNITS:
+        if top / size >= 1:
+            return name, size
+    return DISPLAY_UNITS[-1]

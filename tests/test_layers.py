@@ -257,7 +257,6 @@ def test_no_import_cycle_between_modules():
 KNOWN_PRIVATE_IMPORTS = {
     # (importing module, imported private module or name): still to be made public or moved; the
     # test fails on any import not listed here, and on an entry that no longer occurs (remove it)
-    ("brdfscale._cli._topography", "brdfscale.plot._facets"),
     ("brdfscale._evolve._algebra", "brdfscale.stats._families"),
     ("brdfscale._evolve._algebra", "brdfscale.stats._families._eig2"),
     ("brdfscale._evolve._radial", "brdfscale.stats._base"),

@@ -14,7 +14,7 @@ import os
 
 from .._errors import InvalidInputError
 from .._json import json_text, jsonable
-from ..plot._facets import display_unit
+from .._show import display_unit
 from ._options import integer, make_directory, output_directory, scales
 
 #: What the command writes into --out, in the order it writes them (the JSON last: it is

@@ -5,19 +5,8 @@ import math
 import numpy as np
 
 from .._errors import InvalidInputError
+from .._show import display_unit
 from ._common import SLOPE_DENSITY, colormap, figure, small_ticks
-
-#: Metric units for lengths in metres, largest first (the axis shows the largest that fits).
-DISPLAY_UNITS = (("m", 1.0), ("mm", 1e-3), ("µm", 1e-6), ("nm", 1e-9), ("pm", 1e-12))
-
-
-def display_unit(mus) -> tuple[str, float]:
-    """The metric unit (name, size in metres) in which the largest of ``mus`` (metres) is ≥ 1."""
-    top = max(mus)
-    for name, size in DISPLAY_UNITS:
-        if top / size >= 1:
-            return name, size
-    return DISPLAY_UNITS[-1]
 
 
 def _cut(lobe, axis: int):
