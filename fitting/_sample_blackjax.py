@@ -52,7 +52,7 @@ _MAX_HMC_STEPS = 1024  # NUTS's longest trajectory at max_doublings = 10
 
 
 def _blackjax():
-    """BlackJAX, imported on first use (``import fitting`` stays light); a
+    """BlackJAX, imported on first use (importing brdfscale.fitting stays light); a
     :class:`brdfscale.MissingDependencyError` where it is not installed."""
     try:
         import blackjax

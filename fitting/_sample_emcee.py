@@ -38,7 +38,7 @@ _MOVES = ("stretch", "de")
 
 
 def _emcee():
-    """emcee, imported on first use (``import fitting`` stays light)."""
+    """emcee, imported on first use (importing brdfscale.fitting stays light)."""
     import emcee
 
     return emcee
