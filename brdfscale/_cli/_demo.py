@@ -88,14 +88,17 @@ def run(args) -> int:
                                     "demo); choose another --out directory or pass --force to replace them.")
         if not os.path.exists(marker) and not existing:
             # nothing of the demo's is here yet, so whatever it writes here from now on is its own
-            files.atomic_write(marker, lambda tmp: pathlib.Path(tmp).write_text(
-                "written by `brdfscale demo`; a rerun replaces the demo's files here\n"))
+            files.atomic_write(marker, _write_marker)
         return _run(args, exr, start)
 
 
 #: Marks a directory as the demo's own: a rerun may replace what the demo wrote there; the
 #: files of a directory without it (a user's) are never replaced unless --force.
 _MARKER = ".brdfscale-demo"
+
+
+def _write_marker(path: str) -> None:
+    pathlib.Path(path).write_text("written by `brdfscale demo`; a rerun replaces the demo's files here\n")
 
 
 def _outputs(out: str) -> list[str]:

@@ -11,6 +11,7 @@ which hands them to fitting.
 
 import math
 import os
+import types
 
 from .._choices import FAMILIES, FIT, LAWS, MODEL, MODELS, SAMPLE, SAMPLERS, SOLVERS
 from .._errors import InvalidInputError
@@ -135,7 +136,7 @@ def spec_of(args, *, sampler: bool = True):
                    figures=getattr(args, "figures", True))
 
 
-def load_fitting():
+def load_fitting() -> types.ModuleType:
     """The fitting package, with JAX switched to float64 (the command owns its process; the
     library itself changes no global setting)."""
     import jax
@@ -218,7 +219,7 @@ def sampling_line(diag: dict) -> str:
     checked = set((diag.get("criteria") or {}).get("checked") or summary)
     ess = [row["ess_bulk"] for name, row in summary.items() if name in checked and row.get("ess_bulk") is not None]
     rhat = [row["r_hat"] for name, row in summary.items() if name in checked and row.get("r_hat") is not None]
-    sizes = (f"{diag['chains']} ensembles × {diag['walkers'] // max(diag['chains'], 1)} walkers"
+    sizes = (f"{diag['chains']} ensembles × {diag['walkers']} walkers"
              if diag["sampler"] == "emcee" else f"{diag['chains']} chains")
     figures = (f", min ESS_bulk = {min(ess):.0f}" if ess else "") + (f", max R̂ = {max(rhat):.3f}" if rhat else "")
     return (f"  {diag['sampler']}: {sizes} × {diag['steps']} steps (warm-up/burn-in {diag['burn_in']}){figures}; "

@@ -57,10 +57,11 @@ def run(args) -> int:
     on_ray = bool(args.address or args.workers)
     # in-process batches need float64 in this process; Ray tasks set it themselves, and a driver
     # that only schedules them need not import the fitting stack (seconds of start-up)
-    fitting = load_fitting() if not on_ray or (args.steps > 0 and args.model == "parametric") else None
+    if not on_ray:
+        load_fitting()
     if args.steps > 0 and args.model == "parametric":
-        check_sampler_options(args, len(fitting.ParametricModel(args.family, args.family, law=args.law,
-                                                                fixed=dict(args.fix)).names))
+        check_sampler_options(args, len(load_fitting().ParametricModel(args.family, args.family, law=args.law,
+                                                                       fixed=dict(args.fix)).names))
     if args.walkers is not None:
         raise InvalidInputError("--walkers is not available for libraries: emcee runs max(32, 4 × parameters) walkers "
                                 "per ensemble there.")

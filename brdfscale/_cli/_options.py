@@ -17,6 +17,7 @@ import dataclasses
 import math
 import os
 import re
+from collections.abc import Mapping
 
 from .._errors import InvalidInputError
 
@@ -57,6 +58,7 @@ class Parser(argparse.ArgumentParser):
     def __init__(self, *args, **kwargs):
         kwargs.setdefault("allow_abbrev", False)
         super().__init__(*args, **kwargs)
+        self.subcommands: Mapping[str, argparse.ArgumentParser] = {}  # name → parser, set by build_parser
         self.register("action", None, _Once)
         self.register("action", "store", _Once)
         self.register("action", "store_true", _OnceTrue)

@@ -4,6 +4,7 @@
 import dataclasses
 import math
 import os
+import types
 
 from .._choices import FAMILIES, FIT, LAWS, MODEL, MODELS, SAMPLE, SAMPLERS, SOLVERS
 from .._errors import InvalidInputError
@@ -11,7 +12,7 @@ from .._errors import InvalidInputError
 __all__ = ["FitSpec", "make_model"]
 
 
-def _fitting():
+def _fitting() -> types.ModuleType:
     """The fitting package, imported on first use (a Ray driver that only schedules tasks never
     imports the fitting stack)."""
     from .. import fitting
@@ -74,7 +75,7 @@ class FitSpec:
     fixed: tuple = ()
     base_nodes: int = MODEL.base_nodes
     knots: int = MODEL.knots
-    regularisation: object = MODEL.regularisation
+    regularisation: float | str | None = MODEL.regularisation
     solver: str = FIT.solver
     starts: int = FIT.starts
     max_steps: int = FIT.max_steps
