@@ -33,7 +33,7 @@ with :class:`InvalidInputError` naming the line to add,
 """
 
 import importlib
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from ._errors import BrdfscaleError as BrdfscaleError
 from ._errors import InvalidInputError as InvalidInputError
@@ -90,7 +90,7 @@ if TYPE_CHECKING:  # what the lazy loader below provides, for type checkers and 
     __version__: str
 
 
-def __getattr__(name: str):
+def __getattr__(name: str) -> Any:
     where = _LAZY.get(name)
     if where is not None:
         module = importlib.import_module(where, __name__)
