@@ -20,7 +20,7 @@ from ._validation import real, real_array
 __all__ = ["LobeImage", "MeasurementSet"]
 
 
-def _boolean_mask(x, name: str) -> np.ndarray:
+def boolean_mask(x, name: str) -> np.ndarray:
     """``x`` as a bool array; only True/False or the numbers 0 and 1 are accepted."""
     try:
         m = np.asarray(x)
@@ -84,7 +84,7 @@ class LobeImage(Shown):
                 )
         mask = None
         if self.mask is not None:
-            mask = _boolean_mask(self.mask, "mask")
+            mask = boolean_mask(self.mask, "mask")
             if mask.shape != values.shape[:2]:
                 raise InvalidInputError(f"mask must have shape {values.shape[:2]}; got {mask.shape}.")
         object.__setattr__(self, "mu", mu)

@@ -27,7 +27,7 @@ from .. import stats
 from .._errors import InvalidInputError
 from .._validation import integer, real, real_array
 from .._show import Shown
-from ..stats._histogram import SlopeHistogram
+from ..stats import SlopeHistogram
 from ._surface import HeightField, check_grid
 
 _PIXELS_PER_CHUNK = 1 << 21  # pixels per strip: ~16 MB per float64 work array

@@ -14,7 +14,7 @@ from .._measurement import LobeImage, MeasurementSet
 from .._validation import integer, real, real_array
 from ..geometry import validate_directions
 from ._facets import blur, check_field, check_scales, facet_samples, kernel_padding, offset_histogram
-from ..stats._histogram import SlopeHistogram
+from ..stats import SlopeHistogram
 from ._random import as_generator, seed_record
 from ._surface import HeightField, parameter_record
 

@@ -11,7 +11,7 @@ from jaxtyping import Bool, Float
 
 from .. import stats
 from .._errors import InvalidInputError
-from .._measurement import _boolean_mask as boolean_mask
+from .._measurement import boolean_mask
 from .._show import Shown
 from .._validation import flag, integer, real, real_array
 

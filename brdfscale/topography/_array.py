@@ -6,7 +6,7 @@ import numpy as np
 from jaxtyping import ArrayLike, Bool, Float
 
 from .._errors import InvalidInputError
-from .._measurement import _boolean_mask
+from .._measurement import boolean_mask
 from .._validation import real_array
 from .. import stats
 from ..synth._surface import HeightField, pitch
@@ -56,7 +56,7 @@ def detrend(heights: Float[ArrayLike, "ny nx"], mode: str | None = "plane", mask
     mask or mode, or fewer measured pixels than coefficients.
     """
     mode = _check_mode(mode)
-    valid = None if mask is None else _boolean_mask(mask, "mask")
+    valid = None if mask is None else boolean_mask(mask, "mask")
     h = np.asarray(heights)
     if valid is not None and h.shape != valid.shape:
         raise InvalidInputError(f"mask must have the shape of heights, {h.shape}; got {valid.shape}.")
@@ -140,7 +140,7 @@ def from_array(
                                 "unmeasured pixels with NaN or mask=False instead.")
     masks.append(~np.isnan(h))
     if mask is not None:
-        m = _boolean_mask(mask, "mask")
+        m = boolean_mask(mask, "mask")
         if m.shape != h.shape:
             raise InvalidInputError(f"mask must have the shape of heights, {h.shape}; got {m.shape}.")
         masks.append(m)
