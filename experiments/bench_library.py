@@ -6,7 +6,7 @@ Fits: every configuration runs in a fresh Python process with no persistent comp
 so its time includes every compilation (the figure a user meets on a new library); the clock
 runs from the first fit to the last result. The materials are the mixed-size synthetic library
 of ``tests/helpers.py`` (image sizes 16–32 px, extents 0.4–0.6, 1–2 replicates,
-five scales), made before the clock starts. Fits use 6 starts (the command's default). Each
+five scales), made before the clock starts. Fits use 6 starts (STARTS, given explicitly; the defaults are 8). Each
 ``fit_many`` configuration is then run once more in the same process, every program compiled:
 the difference is the compilation, and the warm time per padded row gives the measured
 exchange rate of the bucketing (``compile_rows_measured``: padded rows whose solve costs one
