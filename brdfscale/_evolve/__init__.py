@@ -2,9 +2,8 @@
 
 One module per job: :mod:`._flow` (``evolve``/``select``: the one flow, asking the method
 objects), :mod:`._method` (the abstract method), one module per path — :mod:`._closed_form`,
-:mod:`._radial`, :mod:`._grid`, :mod:`._auto` — with :mod:`._spectral_method` for what the two
-spectral paths share, :mod:`._spectral` (the evolved density's exact transform and the
-spectral bounds), :mod:`._algebra` (closed forms) and :mod:`._regularise` (Tikhonov λ rules).
+:mod:`._radial`, :mod:`._grid`, :mod:`._auto` — :mod:`._spectral` (the evolved density's exact
+transform, the spectral bounds and what the two spectral paths share), :mod:`._algebra` (closed forms) and :mod:`._regularise` (Tikhonov λ rules).
 """
 
 from .._errors import UnresolvedMethodError
@@ -27,6 +26,7 @@ from ._regularise import DEFAULT_RULE, RULES
 from ._regularise import choose as choose_regularisation
 from ._spectral import (
            CORE_TOL,
+           AbstractSpectralMethod,
            EvolvedDensity,
            cutoff,
            grid_size,
@@ -34,7 +34,6 @@ from ._spectral import (
            radial_nodes,
            radial_reach,
 )
-from ._spectral_method import AbstractSpectralMethod
 
 __all__ = [
            "CORE_TOL",

@@ -13,7 +13,7 @@ from .._errors import NoBRDFAtScaleError
 from .._existence import NEGATIVE_VARIANCE
 from .._validation import is_concrete
 from ..stats import AbstractSlopeDensity, Delta, Gaussian, Mixture
-from ..stats._families import _eig2
+from .._slopes import eig2
 
 
 def _neg(offset):
@@ -72,7 +72,7 @@ def deconvolve(a: AbstractSlopeDensity, b: AbstractSlopeDensity, check: bool = T
         return a if b.mean is None else a.shifted(_neg(b.mean))
     if isinstance(a, Gaussian) and isinstance(b, Gaussian):
         cov = a.cov - b.cov
-        lo, _ = _eig2(cov)
+        lo, _ = eig2(cov)
         if is_concrete(lo):
             if not np.all(np.asarray(lo) > 0):
                 raise NoBRDFAtScaleError(NEGATIVE_VARIANCE + f" (smallest eigenvalue {float(np.min(lo)):.6g})")

@@ -5,6 +5,7 @@ chooses one of them from the inputs' structure (families and isotropy, never val
 choice is the same under ``jax.jit``) and hands resolution and evaluation to it.
 """
 
+from ..lobes import AbstractLobe
 from ._closed_form import ClosedForm
 from ._grid import Grid
 from ._method import AbstractMethod
@@ -32,7 +33,7 @@ class Auto(AbstractMethod):
     def resolve(self, lobe, s_from, s_to, **arguments) -> AbstractMethod:
         return self.choose(lobe, s_from, s_to).resolve(lobe, s_from, s_to, **arguments)
 
-    def evaluate(self, lobe, s_from, s_to, **arguments):
+    def evaluate(self, lobe, s_from, s_to, **arguments) -> AbstractLobe:
         return self.choose(lobe, s_from, s_to).evaluate(lobe, s_from, s_to, **arguments)
 
     def explain(self) -> str:

@@ -8,7 +8,7 @@ negative variance: checked when built from concrete values, at run time otherwis
 """
 
 from .._errors import MethodNotApplicableError
-from ..lobes import Lobe
+from ..lobes import AbstractLobe, Lobe
 from ._algebra import convolve, deconvolve, has_closed_form
 from ._method import AbstractMethod
 
@@ -34,9 +34,11 @@ class ClosedForm(AbstractMethod):
     def resolve(self, lobe, s_from, s_to, *, tol, regularisation, rule, noise, check) -> AbstractMethod:
         return self.choose(lobe, s_from, s_to)
 
-    def evaluate(self, lobe, s_from, s_to, *, tol, regularisation, rule, noise, check):
+    def evaluate(self, lobe, s_from, s_to, *, tol, regularisation, rule, noise, check) -> AbstractLobe:
         """``lobe ∗ s_from`` deconvolved by ``s_to`` in closed form; ``regularisation`` is not
         used (nothing is divided numerically)."""
         self.choose(lobe, s_from, s_to)
-        shape = deconvolve(convolve(lobe.shape, s_from), s_to, check)
+        numerator = convolve(lobe.shape, s_from)
+        shape = None if numerator is None else deconvolve(numerator, s_to, check)
+        assert shape is not None  # has_closed_form holds exactly where the algebra answers
         return Lobe(shape, lobe.amplitude)

@@ -20,6 +20,7 @@ is its support radius), never to a periodic image.
 """
 
 import warnings
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -42,8 +43,13 @@ from ._method import (
     optional_array,
     tol_note,
 )
-from ._spectral import checked, concrete_support, grid_size, probe_checks
-from ._spectral_method import AbstractSpectralMethod
+from ._spectral import (
+    AbstractSpectralMethod,
+    checked,
+    concrete_support,
+    grid_size,
+    probe_checks,
+)
 
 MAX_GRID = 1024
 """The largest grid side chosen automatically."""
@@ -101,10 +107,10 @@ class Grid(AbstractSpectralMethod):
         return self.size
 
     @property
-    def half_width(self):
+    def half_width(self) -> Float[Array, ""] | None:
         return self.extent
 
-    def show_sizes(self) -> list[tuple[str, object]]:
+    def show_sizes(self) -> list[tuple[str, Any]]:
         return [("size", self.size)] + ([] if self.extent is None else [("extent", self.extent)])
 
     def explain(self) -> str:

@@ -43,6 +43,7 @@ import numpy as np
 from .._errors import InvalidInputError
 from .._show import Shown
 from .._validation import integer, is_concrete, real
+from ..lobes import AbstractLobe
 
 MIN_TOL = 1e-14
 """The smallest ``tol`` accepted: float64 rounding in the evaluation exceeds anything below."""
@@ -89,7 +90,7 @@ class AbstractMethod(Shown, eqx.Module):
         ``regularisation`` a λ array or None, ``rule`` a rule's name or None)."""
 
     @abc.abstractmethod
-    def evaluate(self, lobe, s_from, s_to, *, tol: float, regularisation, rule, noise, check: bool):
+    def evaluate(self, lobe, s_from, s_to, *, tol: float, regularisation, rule, noise, check: bool) -> AbstractLobe:
         """The lobe at the target scale (:func:`brdfscale.evolve`; arguments as for
         :meth:`resolve`)."""
 

@@ -40,7 +40,7 @@ from .._show import Shown
 from .._special import J_TEMPORARIES, j0
 from .._validation import is_concrete
 from ..stats import Delta
-from ..stats._base import safe_norm
+from .._slopes import safe_norm
 from ._method import (
     caller_stacklevel,
     check_budget,
@@ -52,6 +52,7 @@ from ._method import (
     tol_note,
 )
 from ._spectral import (
+    AbstractSpectralMethod,
     checked,
     concrete_cf_radial,
     concrete_cutoff,
@@ -61,7 +62,6 @@ from ._spectral import (
     radial_nodes,
     radial_reach,
 )
-from ._spectral_method import AbstractSpectralMethod
 
 MAX_RADIAL_NODES = 8192
 """The most Gauss–Legendre nodes chosen automatically (an explicit ``nodes`` may exceed it;

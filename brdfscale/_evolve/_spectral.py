@@ -18,6 +18,10 @@ scale has the transform
   Lagrange interpolation; offsets outside the grid's half-width evaluate to 0 (the lobe is
   below the error target there), never to a periodic image.
 
+:class:`AbstractSpectralMethod` is their abstract base: what both share (the Tikhonov λ of the
+division, resolution for :func:`brdfscale.select`, evaluation for :func:`brdfscale.evolve`) is
+written here once; each path's own inversion is in its module.
+
 Queries are evaluated in blocks whose temporaries stay within the method's memory budget
 (:mod:`brdfscale._blocks`), so any number of offsets can be asked for.
 
@@ -27,7 +31,10 @@ tabulated or noisy input let the data choose it, ``evolve(..., regularisation="a
 (generalised cross-validation, :mod:`brdfscale._evolve._regularise`); see :func:`brdfscale.evolve`.
 """
 
+import abc
+import dataclasses
 import math
+from typing import Any, ClassVar
 
 import equinox as eqx
 import jax
@@ -35,7 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .._errors import InvalidInputError, NoBRDFAtScaleError
+from .._errors import InvalidInputError, NoBRDFAtScaleError, UnresolvedMethodError
 from .._existence import (
     NEGATIVE_LOBE,
     TRANSFORM_ABOVE_ONE,
@@ -43,16 +50,143 @@ from .._existence import (
     transform_exceeds_one,
     translated,
 )
-from .._validation import is_concrete
+from .._validation import integer, is_concrete
+from ..lobes import AbstractLobe, Lobe
 from ..stats import AbstractSlopeDensity, Delta, Gaussian
-from ..stats._base import check_slopes, shifted_cf
+from .._slopes import check_slopes, shifted_cf
 from ._method import AbstractMethod
+from ._regularise import choose, needs_data, unresolved_regularisation
 
 _PROBE_DIRECTIONS = 8
 _PROBE_POINTS = 206  # 9 decades, ~23 per decade
 _PROBE_POINTS_BEYOND = 24  # 8 per decade: beyond the grid, |G| is only watched for growth
 CORE_TOL = 1e-3
 """The probe's frequency window is scaled to the lobe's extent at this level (of its peak)."""
+
+
+class AbstractSpectralMethod(AbstractMethod):
+    """A path that inverts the evolved transform numerically (module docstring)."""
+
+    size_argument: ClassVar[str]
+    """The constructor argument that fixes the discretisation's size (``"nodes"``, ``"size"``)."""
+    # fields every spectral path declares (in its own order: the constructors' positional arguments)
+    tol: eqx.AbstractVar[float | None]
+    budget: eqx.AbstractVar[int]
+    sign_check: eqx.AbstractVar[bool]
+    regularisation: eqx.AbstractVar[Float[Array, ""] | None]
+    regularisation_rule: eqx.AbstractVar[str | None]
+    regularisation_note: eqx.AbstractVar[str | None]
+
+    @property
+    @abc.abstractmethod
+    def resolution(self) -> int | None:
+        """Gauss–Legendre nodes (radial) or grid side (grid); None: not yet chosen."""
+
+    @property
+    def resolved(self) -> bool:
+        return self.resolution is not None
+
+    @property
+    def half_width(self) -> Float[Array, ""] | None:
+        """The slope half-width the discretisation covers as given (None: from the support radius)."""
+        return None
+
+    def show_sizes(self) -> list[tuple[str, Any]]:
+        """The items an evolved lobe shows for its discretisation."""
+        return [(self.size_argument, self.resolution)]
+
+    def check_queries(self, density: "EvolvedDensity", m) -> None:
+        """Warn where concrete queries ``m`` lie beyond what the discretisation serves within tol."""
+
+    @abc.abstractmethod
+    def values(self, density: "EvolvedDensity", m) -> Array:
+        """``density`` (whose discretisation this is) at the flat offsets ``m`` (q, 2)."""
+
+    @abc.abstractmethod
+    def discretise(self, density: "EvolvedDensity") -> "AbstractSpectralMethod":
+        """This method with every choice it leaves open made and verified for ``density``'s
+        concrete values (each path's own module)."""
+
+    @abc.abstractmethod
+    def sized(self, size, extent) -> "AbstractSpectralMethod":
+        """The method the string API's ``size=``/``extent=`` describe on this path."""
+
+    # -- shared behaviour -----------------------------------------------------------------------
+    def with_sizes(self, size, extent):
+        if size is not None:
+            integer(size, "size", 8)
+        return self.sized(size, extent)
+
+    def carried(self):
+        """``(λ, rule)`` this method carries, ``(None, None)`` when none."""
+        return self.regularisation, self.regularisation_rule
+
+    def carrying(self, lam, rule: str | None, note: str | None):
+        """This method carrying the Tikhonov λ chosen with it (None: none)."""
+        return dataclasses.replace(self, regularisation=lam, regularisation_rule=rule, regularisation_note=note)
+
+    def regularised(self, lobe, s_from, s_to, lam, rule, noise):
+        """``(λ, method)``: the λ of the division — a number as given; a rule's choice
+        (:mod:`._regularise`), reused from a method that carries one of that rule, else chosen
+        here from concrete values (UnresolvedMethodError when traced) and carried by the
+        returned method; None: the method's own λ, else 0."""
+        own, own_rule = self.carried()
+        if rule is None:
+            if lam is not None:
+                return lam, self
+            return (jnp.asarray(0.0) if own is None else own), self
+        if own is not None and own_rule == rule:
+            return own, self
+        if needs_data(lobe, s_to) and not is_concrete((lobe, s_from, s_to, noise)):
+            raise unresolved_regularisation(rule)
+        value, how = choose(lobe, s_from, s_to, rule, noise)
+        value = jnp.asarray(value)
+        return value, self.carrying(value, rule, how)
+
+    def unresolved(self) -> UnresolvedMethodError:
+        return UnresolvedMethodError(
+            f"the {self.path} path's discretisation depends on parameter values, which are traced here (inside "
+            "jax.jit, grad or vmap) and so unknown; brdfscale does not fall back to a default size. Resolve it "
+            "outside the transformation from concrete values, `method = brdfscale.select(lobe, s_from, s_to, "
+            "tol=...)`, and pass `method=method` inside (re-select when the parameters move far), or fix the "
+            f"size yourself with {type(self).__name__}({self.size_argument}=...).")
+
+    def _discretised(self, density: "EvolvedDensity", given=None) -> "AbstractSpectralMethod":
+        """:meth:`discretise`, carrying the λ this method carries — or ``given``, a nonzero λ
+        passed as a number (recorded by :func:`brdfscale.select` as ``"given"``)."""
+        chosen, how = self.carried()
+        if chosen is None and given is not None and float(given) != 0:
+            chosen, how = given, "given"
+        resolved = self.discretise(density)
+        return resolved if chosen is None else resolved.carrying(chosen, how, self.regularisation_note)
+
+    def _density(self, lobe, s_from, s_to, tol, regularisation, rule, noise, check):
+        lam, method = self.regularised(lobe, s_from, s_to, regularisation, rule, noise)
+        return EvolvedDensity(lobe.shape, s_from, s_to, lam, method, tol, check), method
+
+    def applicable(self, lobe, s_from, s_to) -> bool:
+        return True
+
+    def choose(self, lobe, s_from, s_to) -> AbstractMethod:
+        return self
+
+    def resolve(self, lobe, s_from, s_to, *, tol, regularisation, rule, noise, check):
+        if not is_concrete((lobe, s_from, s_to)):
+            raise self.unresolved()
+        density, method = self._density(lobe, s_from, s_to, tol, regularisation, rule, noise, check)
+        if not is_concrete(density):
+            raise method.unresolved()
+        return method._discretised(density, given=density.regularisation if rule is None else None)
+
+    def evaluate(self, lobe, s_from, s_to, *, tol, regularisation, rule, noise, check) -> AbstractLobe:
+        own = tol if self.tol is None else self.tol
+        density, method = self._density(lobe, s_from, s_to, own, regularisation, rule, noise, check)
+        if method.tol is None and is_concrete(density):
+            resolved = method._discretised(density)
+            density = density.with_discretisation(resolved, resolved.tol)
+        elif not method.resolved:
+            raise method.unresolved()
+        return Lobe(density, lobe.amplitude)
 
 
 class EvolvedDensity(AbstractSlopeDensity):
@@ -75,7 +209,7 @@ class EvolvedDensity(AbstractSlopeDensity):
     s_from: AbstractSlopeDensity
     s_to: AbstractSlopeDensity
     regularisation: Float[Array, ""]
-    discretisation: AbstractMethod | None  # None only for the probe's canonical copy
+    discretisation: AbstractSpectralMethod | None  # None only for the probe's canonical copy (never evaluated)
     tol: float = eqx.field(static=True)
     isotropic: bool = eqx.field(static=True)
     check: bool = eqx.field(static=True)
@@ -84,8 +218,14 @@ class EvolvedDensity(AbstractSlopeDensity):
 
     _show_in_lobe = True  # a Lobe of this shape lists these items itself
 
+    @property
+    def _path(self) -> AbstractSpectralMethod:
+        """The discretisation (set on every density that is evaluated; None only on the probe's copy)."""
+        assert self.discretisation is not None
+        return self.discretisation
+
     def _show_items(self):
-        d = self.discretisation
+        d = self._path
         items = [("base", self.base), ("s_from", self.s_from), ("s_to", self.s_to), ("path", d.path),
                  *d.show_sizes()]
         return items + [("tol", self.tol), ("regularisation", self.regularisation)]
@@ -104,17 +244,17 @@ class EvolvedDensity(AbstractSlopeDensity):
     @property
     def method(self) -> str:
         """``"radial"`` or ``"grid"``."""
-        return self.discretisation.path
+        return self._path.path
 
     @property
-    def size(self) -> int:
+    def size(self) -> int | None:
         """Gauss–Legendre nodes (radial) or grid side (grid)."""
-        return self.discretisation.resolution
+        return self._path.resolution
 
     @property
-    def extent(self) -> float | None:
+    def extent(self) -> Float[Array, ""] | None:
         """The grid path's slope half-width as given (None: from the support radius; radial)."""
-        return self.discretisation.half_width
+        return self._path.half_width
 
     def with_discretisation(self, discretisation, tol=None) -> "EvolvedDensity":
         return EvolvedDensity(self.base, self.s_from, self.s_to, self.regularisation, discretisation,
@@ -224,41 +364,41 @@ class EvolvedDensity(AbstractSlopeDensity):
         (:mod:`brdfscale._blocks`); within ``tol`` of the peak wherever the discretisation
         covers (module docstring)."""
         m = check_slopes(m, "m")
-        self.discretisation.check_queries(self, m)  # warns where the discretisation does not reach them
+        self._path.check_queries(self, m)  # warns where the discretisation does not reach them
         return _density(self, m)
 
     def _density(self, m):
-        return self.discretisation.values(self, m.reshape(-1, 2)).reshape(m.shape[:-1])
+        return self._path.values(self, m.reshape(-1, 2)).reshape(m.shape[:-1])
 
     @property
     def _sign_check(self) -> bool:
         """The check that no value lies below −tol of the peak (with ``check``; not for μ = ∞,
         where nothing is divided and the lobe is a convolution of densities)."""
         plain = isinstance(self.s_to, Delta) and self.s_to.mean is None
-        return self.check and self.discretisation.sign_check and not plain
+        return self.check and self._path.sign_check and not plain
 
     # the spectral paths' inversions, as this density's own (the method owns each) ---------------
     def radial_coefficients(self):
         """``(k, c, peak, failed)`` of the radial path (:meth:`brdfscale.Radial.coefficients`)."""
-        return self.discretisation.coefficients(self)
+        return self._path.coefficients(self)  # pyright: ignore[reportAttributeAccessIssue]
 
     def radial_table(self):
         """The lobe at the radii of the radial method's table (:class:`~brdfscale.RadialTable`)."""
-        return self.discretisation.table_values(self)
+        return self._path.table_values(self)  # pyright: ignore[reportAttributeAccessIssue]
 
     def grid_spacing(self):
         """Slope-grid spacing h and half-width a = N h / 2 of the grid path."""
-        return self.discretisation.spacing(self)
+        return self._path.spacing(self)  # pyright: ignore[reportAttributeAccessIssue]
 
     def frequency_grid(self, h):
         """The real-FFT frequencies of the grid path's ``size × size`` slope grid of spacing ``h``."""
-        return self.discretisation.frequency_grid(h)
+        return self._path.frequency_grid(h)  # pyright: ignore[reportAttributeAccessIssue]
 
     def on_grid(self, oversample: int = 1):
         """``(u, values)``: nodes ``u`` (pN,) from −a to a − h/p and ``g_to`` on the pN × pN
         slope grid (rows u_y, columns u_x) by one real inverse FFT of the N × N spectrum,
         zero-padded by the factor ``p = oversample`` (grid path: :meth:`brdfscale.Grid.on_grid`)."""
-        return self.discretisation.on_grid(self, oversample)
+        return self._path.on_grid(self, oversample)  # pyright: ignore[reportAttributeAccessIssue]
 
 
 def _exp_capped(x):
