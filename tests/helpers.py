@@ -155,6 +155,7 @@ def write_library(directory: str, n: int, seed: int = 0) -> list[str]:
 # -- measurement files and command lines for the robustness tests -----------------------------------
 
 def sample_set() -> bs.MeasurementSet:
+    """A small valid measurement set: two parts, RGB values, σ, mask, nested metadata with non-ASCII text."""
     rng = np.random.default_rng(7)
     images = []
     for k, mu in enumerate((2.0, 8.0)):
@@ -166,6 +167,7 @@ def sample_set() -> bs.MeasurementSet:
 
 
 def same_set(a: bs.MeasurementSet, b: bs.MeasurementSet) -> bool:
+    """Whether two measurement sets hold the same data bit for bit (values, σ, mask, geometry, metadata)."""
     if len(a.images) != len(b.images) or a.metadata != b.metadata:
         return False
     for p, q in zip(a.images, b.images):
@@ -192,8 +194,7 @@ def rewrite_exr(src: str, dst: str, edit, reseal: bool = False) -> None:
     OpenEXR.File(parts).write(dst)
 
 
-# -- command lines
-
+#: values tried for command-line options: negative, zero, huge, not finite, empty, text, hexadecimal, …
 HOSTILE = ["-1", "0", "1e300", "-1e300", "nan", "inf", "", "1180591620717411303424", "abc", "1e-30",
            "100000", "0x10", "1.5", "2", "3", "-0", "1e9", "65", "∞"]
 
@@ -221,6 +222,8 @@ SYNTH_DOMAINS = {
 
 
 def run_command(argv: list[str]) -> tuple[int, str]:
+    """``brdfscale ARGV`` in this process: (exit status, stderr); a traceback of an exception that
+    escaped ``main`` is in stderr with status −1."""
     err = io.StringIO()
     with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
         try:
