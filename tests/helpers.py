@@ -100,9 +100,9 @@ def linear_measurements(seed=0, size=6, sigma=0.1):
 
 SCALES = (0.5, 1.0, 2.0, 4.0, 8.0)
 TRUTHS = [
-    dict(amplitude=0.8, alpha_lobe=0.05, alpha_max=0.2, mu_c=1.0, exponent=0.8),
-    dict(amplitude=2.5, alpha_lobe=0.08, alpha_max=0.15, mu_c=2.0, exponent=1.5),
-    dict(amplitude=0.3, alpha_lobe=0.03, alpha_max=0.25, mu_c=0.7, exponent=0.6),
+    {"amplitude": 0.8, "alpha_lobe": 0.05, "alpha_max": 0.2, "mu_c": 1.0, "exponent": 0.8},
+    {"amplitude": 2.5, "alpha_lobe": 0.08, "alpha_max": 0.15, "mu_c": 2.0, "exponent": 1.5},
+    {"amplitude": 0.3, "alpha_lobe": 0.03, "alpha_max": 0.25, "mu_c": 0.7, "exponent": 0.6},
 ]
 
 
@@ -125,9 +125,9 @@ LIBRARY_EXTENTS = (0.4, 0.5, 0.6)
 
 def library_truth(i: int, seed: int = 0) -> dict:
     rng = np.random.default_rng([seed, i])
-    return dict(amplitude=float(rng.uniform(0.3, 2.5)), alpha_lobe=float(rng.uniform(0.04, 0.08)),
-                alpha_max=float(rng.uniform(0.15, 0.25)), mu_c=float(rng.uniform(0.7, 2.0)),
-                exponent=float(rng.uniform(0.6, 1.5)))
+    return {"amplitude": float(rng.uniform(0.3, 2.5)), "alpha_lobe": float(rng.uniform(0.04, 0.08)),
+                "alpha_max": float(rng.uniform(0.15, 0.25)), "mu_c": float(rng.uniform(0.7, 2.0)),
+                "exponent": float(rng.uniform(0.6, 1.5))}
 
 
 def material(i: int, seed: int = 0, noise: float = 0.02):

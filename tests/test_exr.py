@@ -111,7 +111,7 @@ def test_exrheader_reads_the_file(tmp_path):
     assert "brdfscale.incident (type v3d)" in out and "brdfscale.part_count (type int): 3" in out
     assert '"lobe0002"' in out and "sigma.G, 32-bit floating-point" in out and "mask, 32-bit unsigned integer" in out
     if shutil.which("exrmaketiled"):  # decodes every pixel of every part
-        result = subprocess.run(["exrmaketiled", str(path), str(tmp_path / "tiled.exr")], capture_output=True, text=True)
+        result = subprocess.run(["exrmaketiled", str(path), str(tmp_path / "tiled.exr")], capture_output=True, text=True, check=False)
         assert result.returncode == 0, result.stderr
 
 
