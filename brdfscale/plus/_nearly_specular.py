@@ -13,7 +13,7 @@ from .._errors import InvalidInputError, NoBRDFAtScaleError, SingularDensityErro
 from .._validation import as_float_array, is_concrete, positive, vector2
 from ..lobes import Lobe
 from ..stats import AbstractSlopeDensity, Delta, Gaussian, require_density
-from ..stats._base import add_offset, check_slopes, offset_norm, phase
+from .._slopes import add_offset, check_slopes, offset_norm, phase
 from ._action import radial_action
 from ._transform import MAX_ORDER, transforms_radial, transforms_scaled
 

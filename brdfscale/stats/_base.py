@@ -13,7 +13,6 @@ from jaxtyping import Array, ArrayLike, Complex, Float
 
 from .._errors import SingularDensityError
 from .._show import Shown
-from .._validation import last_axis
 from ._grid import FrequencyGrid
 
 
@@ -133,44 +132,3 @@ class AbstractGeneralisedDensity(AbstractDistribution):
             f"{type(self).__name__} is a generalised function of mass 0 with no pointwise density; use "
             ".apply(psi) for its action on a test function or .cf(W) for its transform."
         )
-
-
-def check_slopes(m, name: str = "m"):
-    return last_axis(m, 2, name)
-
-
-def safe_norm(v):
-    """``|v|`` over the last axis with a zero (not NaN) gradient at ``v = 0``."""
-    r2 = jnp.sum(v * v, axis=-1)
-    positive = r2 > 0
-    return jnp.where(positive, jnp.sqrt(jnp.where(positive, r2, 1.0)), 0.0)
-
-
-def centred(m, offset, name: str = "m"):
-    """Validated slopes ``m`` (..., 2) relative to ``offset`` (None: the origin)."""
-    d = check_slopes(m, name)
-    return d if offset is None else d - offset
-
-
-def phase(W, offset):
-    """``e^{−i W·offset}``, the transform of a shift by ``offset`` (1 when offset is None)."""
-    if offset is None:
-        return jnp.ones(jnp.shape(W)[:-1], dtype=jnp.result_type(W, 1j))
-    return jnp.exp(-1j * jnp.sum(W * offset, axis=-1))
-
-
-def shifted_cf(value, W, offset):
-    """``value · e^{−i W·offset}`` as a complex array; no multiplication for a centred density."""
-    if offset is None:
-        return value.astype(jnp.result_type(value, 1j))
-    return value * phase(W, offset)
-
-
-def offset_norm(offset):
-    return 0.0 if offset is None else jnp.linalg.norm(offset, axis=-1)
-
-
-def add_offset(a, b):
-    if a is None:
-        return jnp.asarray(b)
-    return a + jnp.asarray(b)

@@ -10,8 +10,9 @@ from jaxtyping import Array, ArrayLike, Float
 from .._errors import InvalidInputError, SingularDensityError
 from .._show import concrete, derived
 from .._special import jinc, xk1
+from .._slopes import add_offset, centred, check_slopes, eig2, offset_norm, phase, safe_norm, shifted_cf
 from .._validation import as_float_array, is_concrete, positive, vector2
-from ._base import AbstractSlopeDensity, add_offset, centred, check_slopes, offset_norm, phase, safe_norm, shifted_cf
+from ._base import AbstractSlopeDensity
 from ._grid import axis_phase
 
 
@@ -92,12 +93,6 @@ def _same_axes_alpha(alpha, isotropic: bool) -> bool:
     return bool(np.all(a[..., 0] == a[..., 1]))
 
 
-def _eig2(cov):
-    a, b, c = cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]
-    mid, rad = (a + c) / 2, jnp.sqrt(((a - c) / 2) ** 2 + b**2)
-    return mid - rad, mid + rad
-
-
 class Gaussian(AbstractSlopeDensity):
     """Gaussian slope density with covariance ``cov`` (2×2) and optional ``mean``.
 
@@ -137,7 +132,7 @@ class Gaussian(AbstractSlopeDensity):
                 c = np.asarray(cov)
                 if not np.allclose(c, np.swapaxes(c, -1, -2), rtol=0, atol=1e-12 * np.max(np.abs(c))):
                     raise InvalidInputError(f"cov must be symmetric; got {c!r}.")
-                lo, _ = _eig2(c)
+                lo, _ = eig2(c)
                 if not np.all(lo > 0):
                     raise InvalidInputError(
                         f"cov must be positive definite (a Gaussian of zero or negative variance is "
@@ -203,11 +198,11 @@ class Gaussian(AbstractSlopeDensity):
         return Gaussian(cov=self.cov, mean=add_offset(self.mean, offset))
 
     def support_radius(self, tol):
-        _, hi = _eig2(self.cov)
+        _, hi = eig2(self.cov)
         return jnp.max(jnp.sqrt(2 * hi * math.log(1 / tol)) + offset_norm(self.mean))
 
     def bandwidth(self, tol):
-        lo, _ = _eig2(self.cov)
+        lo, _ = eig2(self.cov)
         return jnp.max(jnp.sqrt(2 * math.log(1 / tol) / lo))
 
 

@@ -6,8 +6,9 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._errors import InvalidInputError
+from .._slopes import check_slopes
 from .._validation import as_float_array, is_concrete
-from ._base import AbstractSlopeDensity, check_slopes
+from ._base import AbstractSlopeDensity
 from ._require import require_density
 
 

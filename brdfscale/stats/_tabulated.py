@@ -8,8 +8,9 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._errors import InvalidInputError
+from .._slopes import add_offset, centred, check_slopes, offset_norm, phase
 from .._validation import as_float_array, is_concrete, positive, real_array, vector2
-from ._base import AbstractSlopeDensity, add_offset, centred, check_slopes, offset_norm, phase
+from ._base import AbstractSlopeDensity
 from ._grid import axis_phase
 from ._histogram import SlopeHistogram
 
