@@ -166,3 +166,13 @@ def require_float64(what: str) -> None:
             "at the start of the script or notebook, before any JAX array is made (brdfscale changes no global "
             "setting itself)."
         )
+
+
+def pitch(spacing) -> tuple[float, float]:
+    """The pixel pitch ``(Δx, Δy)`` from one positive number or a pair of them."""
+    if isinstance(spacing, (tuple, list, np.ndarray)) and np.ndim(spacing) == 1:
+        if len(spacing) != 2:
+            raise InvalidInputError(f"spacing must be one pixel pitch or a pair (dx, dy); got {len(spacing)} numbers.")
+        return (real(spacing[0], "spacing dx", minimum=0, strict=True), real(spacing[1], "spacing dy", minimum=0, strict=True))
+    d = real(spacing, "spacing", minimum=0, strict=True)
+    return (d, d)

@@ -259,7 +259,6 @@ KNOWN_PRIVATE_IMPORTS = {
     # test fails on any import not listed here, and on an entry that no longer occurs (remove it)
     ("brdfscale.lobes", "brdfscale.geometry._half_slope_of_valid"),
     ("brdfscale.lobes", "brdfscale.geometry._microfacet_factor_of_valid"),
-    ("brdfscale.topography._array", "brdfscale.synth._surface"),
 }
 
 

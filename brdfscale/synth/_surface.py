@@ -13,7 +13,7 @@ from .. import stats
 from .._errors import InvalidInputError
 from .._measurement import boolean_mask
 from .._show import Shown
-from .._validation import flag, integer, real, real_array
+from .._validation import flag, integer, pitch, real, real_array
 
 MAX_GRID_BYTES = 2**31
 """The largest float64 grid synthesis allocates, in bytes: 2 GiB, i.e. 16384 × 16384 nodes.
@@ -268,16 +268,6 @@ class HeightField(Shown):
             items.append(("detrend", self.description["detrend"]))
         items.append(("micro", type(self.micro).__name__))
         return items
-
-
-def pitch(spacing) -> tuple[float, float]:
-    """The pixel pitch ``(Δx, Δy)`` from one positive number or a pair of them."""
-    if isinstance(spacing, (tuple, list, np.ndarray)) and np.ndim(spacing) == 1:
-        if len(spacing) != 2:
-            raise InvalidInputError(f"spacing must be one pixel pitch or a pair (dx, dy); got {len(spacing)} numbers.")
-        return (real(spacing[0], "spacing dx", minimum=0, strict=True), real(spacing[1], "spacing dy", minimum=0, strict=True))
-    d = real(spacing, "spacing", minimum=0, strict=True)
-    return (d, d)
 
 
 def parameter_record(obj) -> dict:

@@ -7,9 +7,9 @@ from jaxtyping import ArrayLike, Bool, Float
 
 from .._errors import InvalidInputError
 from .._measurement import boolean_mask
-from .._validation import real_array
+from .._validation import pitch, real_array
 from .. import stats
-from ..synth._surface import HeightField, pitch
+from ..synth import HeightField
 
 #: Length units accepted for heights and pitches, in metres (µ as U+00B5 or U+03BC, or "u").
 UNITS: dict[str, float] = {
