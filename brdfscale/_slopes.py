@@ -1,11 +1,14 @@
 """Arithmetic on the slope plane shared by the densities (:mod:`brdfscale.stats`), the
 evolution operator and the plus-distributions: validated slopes, a norm with a finite gradient
-at zero, the phase of a shift, and the eigenvalues of 2×2 covariances. A private module of the
+at zero, the phase of a shift, the eigenvalues of 2×2 covariances, and the half-vector slope and
+microfacet factor of validated directions (:mod:`brdfscale.geometry` validates, the lobes
+evaluate many directions checked once). A private module of the
 core (docs/architecture.md), so the model packages share it without importing each other's
 private modules.
 """
 
 import jax.numpy as jnp
+from jaxtyping import Array
 
 from ._validation import last_axis
 
@@ -56,3 +59,16 @@ def eig2(cov):
     a, b, c = cov[..., 0, 0], cov[..., 0, 1], cov[..., 1, 1]
     mid, rad = (a + c) / 2, jnp.sqrt(((a - c) / 2) ** 2 + b**2)
     return mid - rad, mid + rad
+
+
+def half_slope_of_valid(i: Array, o: Array) -> Array:
+    """:func:`brdfscale.geometry.half_slope` of directions already validated (no second check)."""
+    s = i + o
+    return s[..., :2] / s[..., 2:3]
+
+
+def microfacet_factor_of_valid(i: Array, o: Array) -> Array:
+    """:func:`brdfscale.geometry.microfacet_factor` of directions already validated (no second check)."""
+    s = i + o
+    cos_h = s[..., 2] / jnp.linalg.norm(s, axis=-1)
+    return 1.0 / (4.0 * o[..., 2] * cos_h**4)

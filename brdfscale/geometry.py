@@ -16,12 +16,12 @@ dimensions. The ``validate_*`` helpers check concrete (non-traced) inputs and ra
 :class:`~brdfscale.InvalidInputError`; under ``jax.jit`` they pass values through.
 """
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from ._errors import InvalidInputError
+from ._slopes import half_slope_of_valid, microfacet_factor_of_valid
 from ._validation import is_concrete, last_axis
 
 __all__ = [
@@ -88,13 +88,7 @@ def half_vector(i: Float[ArrayLike, "*batch 3"], o: Float[ArrayLike, "*batch 3"]
 
 def half_slope(i: Float[ArrayLike, "*batch 3"], o: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch 2"]:
     """Half-vector slope ``m_s(i, o) = m(h)``; the normalisation of ``h`` cancels."""
-    return _half_slope_of_valid(validate_directions(i, "i"), validate_directions(o, "o"))
-
-
-def _half_slope_of_valid(i: Array, o: Array) -> Array:
-    """:func:`half_slope` of directions already validated (no second check)."""
-    s = i + o
-    return s[..., :2] / s[..., 2:3]
+    return half_slope_of_valid(validate_directions(i, "i"), validate_directions(o, "o"))
 
 
 def solid_angle_per_slope_area(m: Float[ArrayLike, "*batch 2"]) -> Float[Array, "*batch"]:
@@ -119,11 +113,4 @@ def microfacet_factor(i: Float[ArrayLike, "*batch 3"], o: Float[ArrayLike, "*bat
     ``dω_o = 4 (h·o) dω_h``, and ``i·h = h·o``. With the seed's ``ρ = β cosθ_i`` (§2) and
     ``D = P22 / cos⁴θ_h`` this is ``ρ(i, o) = P22(m_s) · microfacet_factor(i, o)``.
     """
-    return _microfacet_factor_of_valid(validate_directions(i, "i"), validate_directions(o, "o"))
-
-
-def _microfacet_factor_of_valid(i: Array, o: Array) -> Array:
-    """:func:`microfacet_factor` of directions already validated (no second check)."""
-    s = i + o
-    cos_h = s[..., 2] / jnp.linalg.norm(s, axis=-1)
-    return 1.0 / (4.0 * o[..., 2] * cos_h**4)
+    return microfacet_factor_of_valid(validate_directions(i, "i"), validate_directions(o, "o"))

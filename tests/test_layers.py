@@ -254,14 +254,6 @@ def test_no_import_cycle_between_modules():
     assert cycles(graph) == []
 
 
-KNOWN_PRIVATE_IMPORTS = {
-    # (importing module, imported private module or name): still to be made public or moved; the
-    # test fails on any import not listed here, and on an entry that no longer occurs (remove it)
-    ("brdfscale.lobes", "brdfscale.geometry._half_slope_of_valid"),
-    ("brdfscale.lobes", "brdfscale.geometry._microfacet_factor_of_valid"),
-}
-
-
 def private_imports() -> dict[tuple[str, str], str]:
     """(module, private target) → where, for every import of ``brdfscale.x._y`` from outside
     ``brdfscale.x``, and every private name (``_name``) imported from another unit."""
@@ -290,10 +282,8 @@ def private_imports() -> dict[tuple[str, str], str]:
 
 def test_no_private_import_across_packages():
     """``brdfscale.x._y`` (or a name from it) only from inside ``brdfscale.x``; no ``_name`` of
-    another unit. The remaining ones are listed in ``KNOWN_PRIVATE_IMPORTS`` (to be emptied)."""
-    found = private_imports()
-    assert sorted(v for k, v in found.items() if k not in KNOWN_PRIVATE_IMPORTS) == []
-    assert sorted(KNOWN_PRIVATE_IMPORTS - set(found)) == []  # fixed: remove it from the list
+    another unit."""
+    assert sorted(private_imports().values()) == []
 
 
 def test_nothing_imports_fitting_by_its_folder_name():

@@ -19,7 +19,8 @@ from .. import stats
 from .._errors import InvalidInputError
 from .._show import Shown, derived
 from .._validation import as_float_array, is_concrete
-from ..geometry import _half_slope_of_valid, _microfacet_factor_of_valid, validate_directions
+from .._slopes import half_slope_of_valid, microfacet_factor_of_valid
+from ..geometry import validate_directions
 
 __all__ = ["AbstractLobe", "Lobe", "Mirror", "Beckmann", "GGX", "Tabulated"]
 
@@ -68,10 +69,10 @@ class AbstractLobe(Shown, eqx.Module):
         """
         i = validate_directions(i, "i")
         o = validate_directions(o, "o")
-        u = _half_slope_of_valid(i, o)
+        u = half_slope_of_valid(i, o)
         if m_inf is not None:
             u = u - jnp.asarray(m_inf)
-        return self.density(u) * _microfacet_factor_of_valid(i, o)
+        return self.density(u) * microfacet_factor_of_valid(i, o)
 
 
 def _amplitude(a):
