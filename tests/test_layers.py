@@ -24,13 +24,16 @@ run and do not count.
 
 The one allowed exception is the figure seam: :mod:`brdfscale._figures` imports
 :mod:`brdfscale.plot` by name when a user calls an object's ``.plot()`` (``lobe.plot()``,
-``density.plot()``, ``mset.plot()``, ``plan.plot()``, ``samples.plot()``), so the objects keep
+``density.plot()``, ``mset.plot()``, ``plan.plot()``, ``fit_result.plot(problem)``,
+``samples.plot()``), so the objects keep
 their figures without the library depending on matplotlib or on the plot package.
 ``ALLOWED_UPWARD`` lists that edge and nothing else.
 
 Also checked: no module imports a private module of another package (``brdfscale.x._y`` from
 outside ``brdfscale.x``; the top-level private modules ``brdfscale._errors`` and the like are the
-package's shared internals), and nothing imports ``fitting`` under its folder's name.
+package's shared internals) or an underscored name of another unit; nothing imports ``fitting``
+under its folder's name; pyproject installs every package folder, ``fitting/`` as
+``brdfscale.fitting``.
 """
 
 import ast
