@@ -25,19 +25,12 @@ scale has) and on its layout. :func:`fit_many` instead
    vmapped one), on an accelerator all of them **vmapped** in lock-step (a finished solve keeps its
    state while the others iterate) — either way each material's path is the one it would
    take alone;
-4. **divides** that axis over the devices (``jax.devices()`` by default): each device gets a
-   contiguous, equal slice and runs the same program on it by itself (:func:`_on_devices`:
-   one dispatch per device — where JAX dispatches asynchronously, as on GPUs, the devices
-   compute at once; JAX runs a CPU program like this solve in the calling thread, so on
-   (virtual) CPU devices the slices follow each other). No collective is needed: each device
-   stops when its own slice has converged. (XLA's SPMD partitioning of the jitted solve over a
-   ``NamedSharding`` was the first design: on 2 virtual CPU devices its program deadlocked in a
-   loop whose devices disagreed on the trip count, from 24 solves up; ``jax.shard_map`` is
-   refused by lineax's structure check, which compares a vector without the manual mesh to an
-   operator structure with it, in JAX 0.10 and lineax 0.1.1; dispatching from one thread per
-   device, to overlap the compilations too, hung on 2 virtual CPU devices.) JAX binds an
-   executable to its device, so each device compiles the bucket's program, once per process,
-   one after another;
+4. **divides** that axis over the devices (``jax.devices()`` by default) by the one mechanism
+   of :mod:`fitting._devices`: each device gets a contiguous, equal slice and runs the same
+   program on it by itself, one dispatch per device (the devices compute at once where JAX
+   dispatches asynchronously, as on GPUs; in turn on CPU devices); no collective is needed:
+   each device stops when its own slice has converged (that module says why not XLA's SPMD
+   partitioning or ``shard_map``). Each device compiles the bucket's program, once per process;
 5. hands each material's starts to the same analysis as :func:`fitting.fit` (best start,
    Laplace covariance and identifiability by :mod:`brdfscale.laplace`), then evaluates the
    quantities and ratios of the bucket's materials at their optima and Laplace draws in one
@@ -65,6 +58,8 @@ from brdfscale.show import progress_bar
 
 from ._analysis import results_of_starts
 from ._data import Dataset, PointData
+from ._devices import device_list as _devices
+from ._devices import joined, on_devices, split
 from ._fit import FitOptions
 from ._model import AbstractModel
 from ._problem import Problem, Rows, check_pair, stack_trees, starting_points
@@ -98,15 +93,28 @@ def bucket_batch(n: int, batch: int) -> int:
 
 
 @dataclasses.dataclass(frozen=True)
-class BatchPlan:
-    """How :func:`fit_many` divides a library: the buckets (one compiled program each), the
-    padded sizes and the padding's cost. ``buckets`` is a list of dicts with ``materials``
-    (their indices), ``points`` (padded points per scale), ``scales``, ``parameters``,
-    ``batch`` (the padded number of materials of the program run, :func:`bucket_batch`),
-    ``solves`` (materials × starts, rounded up to whole groups of ``lanes`` per device) and
-    ``lanes`` (the solves advanced together on a device, :func:`select_lanes`)."""
+class Bucket:
+    """One compiled program of :func:`fit_many`: the ``materials`` (their indices), ``points``
+    (padded points per scale), ``scales``, ``parameters``, ``batch`` (the padded number of
+    materials of the program run, :func:`bucket_batch`), ``solves`` (materials × starts, rounded
+    up to whole groups of ``lanes`` per device) and ``lanes`` (the solves advanced together on a
+    device, :func:`select_lanes`)."""
 
-    buckets: list
+    materials: tuple
+    points: int
+    scales: int
+    parameters: int
+    batch: int
+    solves: int
+    lanes: int
+
+
+@dataclasses.dataclass(frozen=True)
+class BatchPlan:
+    """How :func:`fit_many` divides a library: the buckets (:class:`Bucket`, one compiled program
+    each), the padded sizes and the padding's cost."""
+
+    buckets: tuple
     devices: int
     starts: int
     rows_used: int
@@ -118,14 +126,14 @@ class BatchPlan:
         return 1.0 - self.rows_used / self.rows_padded if self.rows_padded else 0.0
 
     def explain(self) -> str:
-        lines = [f"{sum(len(b['materials']) for b in self.buckets)} materials in {len(self.buckets)} bucket(s) on "
-                 f"{self.devices} device(s), {self.starts} start(s) each; padding {100 * self.padding:.0f} % of the rows"]
+        lines = [(f"{sum(len(b.materials) for b in self.buckets)} materials in {len(self.buckets)} bucket(s) on "
+                  f"{self.devices} device(s), {self.starts} start(s) each; padding {100 * self.padding:.0f} % of the rows")]
         for b in self.buckets:
-            per_device = b["solves"] // self.devices
-            how = ("all in lock-step (vmapped)" if b["lanes"] >= per_device else
-                   "one solve at a time" if b["lanes"] == 1 else f"{b['lanes']} at a time")
-            lines.append(f"  {len(b['materials'])} × ({b['scales']} scales × {b['points']} points, {b['parameters']} "
-                         f"parameters): a program of {b['solves']} solves ({b['batch']} materials × {self.starts} starts)"
+            per_device = b.solves // self.devices
+            how = ("all in lock-step (vmapped)" if b.lanes >= per_device else
+                   "one solve at a time" if b.lanes == 1 else f"{b.lanes} at a time")
+            lines.append(f"  {len(b.materials)} × ({b.scales} scales × {b.points} points, {b.parameters} "
+                         f"parameters): a program of {b.solves} solves ({b.batch} materials × {self.starts} starts)"
                          f", {per_device} per device, {how}")
         return "\n".join(lines)
 
@@ -182,41 +190,6 @@ def select_lanes(devices, lanes=None) -> int:
     except InvalidInputError:
         raise InvalidInputError(f"lanes must be None (by platform: 1 on CPUs, all on accelerators), an integer ≥ 1 "
                                 f"or 'all'; got {lanes!r}.") from None
-
-
-def _on_devices(fn, inputs, devices) -> list:
-    """Dispatch ``fn(*inputs)`` with the leading axis of every input divided into equal,
-    contiguous slices, one per device, each computed on its device by itself; returns the
-    runs (one output tuple per device; where JAX dispatches asynchronously they are still
-    computing, all devices at once, while the caller goes on — on a CPU JAX runs them in turn
-    before returning; a device's first call compiles its program). :func:`_joined` waits for them."""
-    if len(devices) == 1:
-        return [fn(*inputs)]
-    n = jax.tree.leaves(inputs)[0].shape[0]
-    per = n // len(devices)
-    return [fn(*jax.device_put(jax.tree.map(lambda a: a[k * per:(k + 1) * per], inputs), device))
-            for k, device in enumerate(devices)]
-
-
-def _joined(runs) -> tuple:
-    """The outputs of :func:`_on_devices`'s runs joined on the host in order (NumPy)."""
-    return tuple(np.concatenate([np.asarray(a) for a in column]) for column in zip(*runs))
-
-
-def _devices(devices):
-    if devices is None:
-        return jax.devices()
-    if isinstance(devices, int) and not isinstance(devices, bool):
-        available = jax.devices()
-        if not 1 <= devices <= len(available):
-            raise InvalidInputError(f"devices={devices}: this process has {len(available)} JAX device(s) "
-                                    f"({available[0].platform}); give 1 … {len(available)} or a list of devices.")
-        return available[:devices]
-    devices = list(devices)
-    if not devices or not all(isinstance(d, jax.Device) for d in devices):
-        raise InvalidInputError("devices must be None (all of jax.devices()), a count, or a non-empty list of "
-                                "jax.Device objects.")
-    return devices
 
 
 def _problems(models, datasets) -> list:
@@ -304,10 +277,10 @@ def plan(problems, starts: int, batch: int, n_devices: int, compile_rows: int = 
                 per_device = -(-size * starts // n_devices)
                 group = min(lanes, per_device)
                 solves = -(-per_device // group) * group * n_devices
-                buckets.append({"materials": chunk, "points": points, "scales": scales, "parameters": key[4],
-                                "batch": size, "solves": solves, "lanes": group})
+                buckets.append(Bucket(materials=tuple(chunk), points=points, scales=scales, parameters=key[4],
+                                      batch=size, solves=solves, lanes=group))
                 padded += solves * points * scales
-    return BatchPlan(buckets=buckets, devices=n_devices, starts=starts, rows_used=used, rows_padded=padded)
+    return BatchPlan(buckets=tuple(buckets), devices=n_devices, starts=starts, rows_used=used, rows_padded=padded)
 
 
 def fit_many(
@@ -380,20 +353,21 @@ def fit_many(
     S = options.starts
     with progress_bar(enabled=progress, total=len(problems), desc="fit_many", unit="material") as bar:
         for bucket in layout.buckets:
-            members = bucket["materials"]
+            members = bucket.materials
             rows = [problems[i].rows() for i in members]
-            rows = [dataclasses.replace(r, points=_pad_points(r.points, bucket["points"])) for r in rows]
+            rows = [dataclasses.replace(r, points=_pad_points(r.points, bucket.points)) for r in rows]
             y0 = [np.asarray(starting_points(problems[i], options)) for i in members]
             # materials × starts along one axis, padded with copies of the first material
             flat_rows = [r for r in rows for _ in range(S)]
             flat_y0 = [y for ys in y0 for y in ys]
-            extra = bucket["solves"] - len(flat_rows)
+            extra = bucket.solves - len(flat_rows)
             flat_rows += [flat_rows[0]] * extra
             flat_y0 += [flat_y0[0]] * extra
-            solved = _joined(_on_devices(lambda r, y: _solve_batch(r, y, optimiser, options.max_steps,
-                                                                   bucket["lanes"]),
-                                         (stack_trees(flat_rows), np.stack(flat_y0).astype(np.float64)),
-                                         device_list))
+            # _solve_batch looked up at each call (tests/test_batch.py records the devices it runs on)
+            solved = joined(on_devices(lambda r, y, lanes=bucket.lanes: _solve_batch(r, y, optimiser,
+                                                                                         options.max_steps, lanes),
+                                       (split(stack_trees(flat_rows), device_list),
+                                        split(np.stack(flat_y0).astype(np.float64), device_list)), device_list))
             values, codes, steps, chi2s, jacobians = (  # (material, start, …), the padding dropped
                 a[:len(members) * S].reshape(len(members), S, *a.shape[1:]) for a in solved)
             done = results_of_starts([problems[i] for i in members], values, codes, steps, chi2s, jacobians, options)

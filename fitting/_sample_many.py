@@ -23,10 +23,10 @@
    :func:`fitting._sample_blackjax._advance` — and :func:`~fitting._sample_blackjax._window_warmup`
    with ``adapt_mass_matrix=True`` — ``jax.vmap``-ed over the materials inside one
    ``eqx.filter_jit``: one compiled program per bucket shape for the warm-up and every chunk.
-   Over several devices the stack is placed with a ``NamedSharding`` over a one-axis mesh
-   (``"materials"``) and the vmapped program runs under
-   ``jax.shard_map``: each device advances its own slice, its NUTS trees not waiting for
-   another device's;
+   Over several devices the stack is divided by the one mechanism of :func:`fitting.fit_many`
+   (:mod:`fitting._devices`): each device advances its own contiguous slice of the materials
+   with the same program, dispatched device by device, its NUTS trees not waiting for another
+   device's, and the outputs are one global array divided over the devices;
 4. each material's chain gets the diagnostics of :func:`fitting.sample`: the same
    :class:`~fitting.SampleResult` layout, R̂/ESS, status.
 
@@ -37,7 +37,7 @@ materials of different m): the same Target, starts, keys and kernels, and XLA co
 vmapped stack of materials as it computes one. (Padding is why ``sample`` evaluates on padded
 rows too: zero rows add exactly 0 to χ², but a longer sum rounds differently — on unpadded
 rows the chains differed at rounding level, and that was enough to change the rank-normalised
-R̂, whose folded draws tie at the median in one run and not in the other, in its third digit.) Sharded over several devices, the
+R̂, whose folded draws tie at the median in one run and not in the other, in its third digit.) Divided over several devices, the
 per-device program is compiled apart and the log-density's gradient differs in the last bits:
 the chains agree to rounding (within 1e-9 over 60 steps on 2 virtual CPU devices, the slow test
 of tests/test_sample_many.py), diagnostics to rounding except where R̂'s ranks tie; a long
@@ -55,14 +55,14 @@ No checkpoints: resumability in a library is per material (:func:`fitting.sample
 import equinox as eqx
 import jax
 import numpy as np
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from brdfscale import InvalidInputError
 from brdfscale.checks import flag, integer
 from brdfscale.choices import SAMPLE
 from brdfscale.show import progress_bar, progress_mode
 
-from ._batch import _devices, _key, bucket_batch
+from ._batch import _key, bucket_batch
+from ._devices import assembled, device_list, on_devices, split
 from ._posterior import target
 from ._problem import Problem, check_fit, stack_trees
 from ._sample import _diagnose, resolve_sampler, sampled_dimension
@@ -78,54 +78,48 @@ from ._sample_blackjax import (
 
 __all__ = ["sample_many"]
 
-_AXIS = "materials"
-
-
-def _per_device(local, mesh, sharded: int):
-    """``local`` run by every device on its own slice of the materials (``jax.shard_map`` over
-    ``mesh``): its first ``sharded`` arguments split along their leading axis, the others
-    replicated, the outputs joined along the leading axis (no communication between devices;
-    XLA's partitioning of the whole vmapped program would stop every device's NUTS loop only
-    when the slowest device's is done). Without a mesh, ``local``."""
-    if mesh is None:
-        return local
-    # check_vma=False: BlackJAX's conds mix replicated constants and per-device values, which
-    # the varying-axes type check refuses; every output is per device (split along the materials)
-    return lambda *args: jax.shard_map(local, mesh=mesh, out_specs=PartitionSpec(_AXIS), check_vma=False,
-                                       in_specs=(PartitionSpec(_AXIS),) * sharded
-                                       + (PartitionSpec(),) * (len(args) - sharded))(*args)
+@eqx.filter_jit
+def _initial_local(targets, z0, cov):
+    """:func:`fitting._sample_blackjax._initial_carry` of every material of a stack (one device's)."""
+    return jax.vmap(_initial_carry)(targets, z0, cov)
 
 
 @eqx.filter_jit
-def _initial_many(targets, z0, cov, mesh):
-    """:func:`fitting._sample_blackjax._initial_carry` of every material of a stack."""
-    return _per_device(jax.vmap(_initial_carry), mesh, 3)(targets, z0, cov)
-
-
-@eqx.filter_jit
-def _advance_many(targets, spec, carry, start, n, key, warmup, chunk, mesh):
+def _advance_local(targets, spec, carry, start, n, key, warmup, chunk):
     """:func:`fitting._sample_blackjax._advance` vmapped over the materials of a stack (its
     outputs with the materials first); every material uses ``key``, as :func:`fitting.sample`
     with the same seed does."""
-    def local(t, c, start, n, key, warmup):
-        return jax.vmap(lambda t1, c1: _advance(t1, spec, c1, start, n, key, warmup, chunk))(t, c)
-
-    return _per_device(local, mesh, 2)(targets, carry, start, n, key, warmup)
+    return jax.vmap(lambda t1, c1: _advance(t1, spec, c1, start, n, key, warmup, chunk))(targets, carry)
 
 
 @eqx.filter_jit
-def _window_many(targets, spec, carry, key, warmup, mesh):
+def _window_local(targets, spec, carry, key, warmup):
     """:func:`fitting._sample_blackjax._window_warmup` vmapped over the materials of a stack."""
-    def local(t, c, key):
-        return jax.vmap(lambda t1, c1: _window_warmup(t1, spec, c1, key, warmup))(t, c)
-
-    return _per_device(local, mesh, 2)(targets, carry, key)
+    return jax.vmap(lambda t1, c1: _window_warmup(t1, spec, c1, key, warmup))(targets, carry)
 
 
-def _bound(program, targets, spec, place, mesh):
+def _initial_many(targets, z0, cov, devices):
+    """:func:`_initial_local` on every device's slice of the stack (``targets`` a :class:`~fitting._devices.Split`)."""
+    return assembled(on_devices(_initial_local, (targets, split(z0, devices), split(cov, devices)), devices),
+                     devices)
+
+
+def _advance_many(targets, spec, carry, start, n, key, warmup, chunk, devices):
+    """:func:`_advance_local` on every device's slice of the stack, the outputs one array divided over them."""
+    return assembled(on_devices(lambda t, c: _advance_local(t, spec, c, start, n, key, warmup, chunk),
+                                (targets, split(carry, devices)), devices), devices)
+
+
+def _window_many(targets, spec, carry, key, warmup, devices):
+    """:func:`_window_local` on every device's slice of the stack."""
+    return assembled(on_devices(lambda t, c: _window_local(t, spec, c, key, warmup),
+                                (targets, split(carry, devices)), devices), devices)
+
+
+def _bound(program, targets, spec, devices):
     """``program`` (:func:`_advance_many`, :func:`_window_many`) with the signature :meth:`_Gradient.drive`
-    calls, the host carry placed as the materials are."""
-    return lambda carry, *args: program(targets, spec, place(carry), *args, mesh)
+    calls (the host carry divided over the devices as the materials are)."""
+    return lambda carry, *args: program(targets, spec, carry, *args, devices)
 
 
 def _pairs(problems, fits) -> tuple[list, list]:
@@ -160,12 +154,12 @@ def sample_many(
 ) -> list:
     """Sample many posteriors at once: :func:`fitting.sample` with NUTS or HMC for every
     ``(problem, fit)`` pair, vmapped over the materials in one compiled program per bucket and
-    sharded over the devices (module docstring).
+    divided over the devices (module docstring).
 
     Each material's :class:`~fitting.SampleResult` is that of ``fitting.sample(problem, fit,
     sampler=sampler, chains=chains, steps=steps, chunk=chunk, seed=seed)``: the same starts,
     keys, warm-up and draws — bit for bit on one device, so the same diagnostics and status; to
-    rounding when sharded over several (module docstring, "What is equal"; verified in
+    rounding when divided over several (module docstring, "What is equal"; verified in
     tests/test_sample_many.py) — in the same layout.
 
     There are no checkpoints: resumability in a library is per material (:func:`fitting.sample`
@@ -181,7 +175,7 @@ def sample_many(
             material's seed is ``seed``, so each gets the chains ``sample`` would give it).
         batch: at most this many materials per compiled program run (≥ 1; default 64).
         devices: ``None`` (every device of ``jax.devices()``), a count (the first ones), or a
-            list of ``jax.Device``; the material axis is sharded over them.
+            list of ``jax.Device``; the material axis is divided over them.
         progress: one progress bar over the steps of every bucket in turn.
         errors: ``"raise"`` (default): a material that cannot be sampled (the data determine
             none of its coordinates) raises, naming its index; ``"return"``: its entry is the
@@ -217,9 +211,7 @@ def sample_many(
     if errors not in ("raise", "return"):
         raise InvalidInputError(f"errors must be 'raise' or 'return'; got {errors!r}.")
     _blackjax()
-    device_list = _devices(devices)
-    mesh = Mesh(np.asarray(device_list), (_AXIS,)) if len(device_list) > 1 else None
-    sharding = None if mesh is None else NamedSharding(mesh, PartitionSpec(_AXIS))
+    devices = device_list(devices)
 
     results: list = [None] * len(problems)
     groups: dict = {}  # bucket key → (m, materials), in the order of first appearance
@@ -243,10 +235,7 @@ def sample_many(
 
     spec, total = sampler._spec(), sampler.warmup + steps
     key = jax.random.PRNGKey(seed)
-    n_dev = len(device_list)
-
-    def place(tree):
-        return tree if sharding is None else jax.device_put(tree, sharding)
+    n_dev = len(devices)
 
     with progress_bar(enabled=progress, total=total * len(buckets), desc=f"sample_many ({sampler.name})",
                       unit="step") as bar:
@@ -256,13 +245,13 @@ def sample_many(
             z0, cov = zip(*(starts(post, fits[i], chains, seed) for post, i in zip(posteriors, members)))
             size = -(-bucket_batch(len(members), batch) // n_dev) * n_dev
             extra = size - len(members)
-            targets = place(stack_trees(posteriors + posteriors[:1] * extra))
-            z0 = place(np.stack(z0 + z0[:1] * extra))
-            cov = place(np.stack(cov + cov[:1] * extra))
-            carry = _host(_initial_many(targets, z0, cov, mesh))
+            targets = split(stack_trees(posteriors + posteriors[:1] * extra), devices)
+            z0 = np.stack(z0 + z0[:1] * extra)
+            cov = np.stack(cov + cov[:1] * extra)
+            carry = _host(_initial_many(targets, z0, cov, devices))
             timing = {"warmup_s": 0.0, "sampling_s": 0.0}
-            carry, blocks = sampler.drive(_bound(_window_many, targets, spec, place, mesh),
-                                          _bound(_advance_many, targets, spec, place, mesh), carry, 0, total, chunk,
+            carry, blocks = sampler.drive(_bound(_window_many, targets, spec, devices),
+                                          _bound(_advance_many, targets, spec, devices), carry, 0, total, chunk,
                                           key, timing, bar.update, lambda block, c: None, axis=1)
             chain, log_prob, stats = join(blocks, axis=1)
             share = {k: v / len(members) for k, v in timing.items()}

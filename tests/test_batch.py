@@ -71,7 +71,7 @@ def test_mixed_models_go_to_separate_buckets_and_keep_their_order(ragged):
     models = [fitting.ParametricModel(), fitting.ParametricModel(fixed={"mu_c": 1.0})] * 2
     data = ragged[:4]
     layout = fitting.explain_plan(models, data, starts=2)
-    assert len(layout.buckets) == 2 and sorted(m for b in layout.buckets for m in b["materials"]) == [0, 1, 2, 3]
+    assert len(layout.buckets) == 2 and sorted(m for b in layout.buckets for m in b.materials) == [0, 1, 2, 3]
     assert "2 bucket(s)" in layout.explain()
     many = fitting.fit_many(models, data, starts=2)
     for model, d, b in zip(models, data, many):
@@ -108,7 +108,7 @@ def test_lanes_change_how_solves_run_not_the_fits(ragged):
         layout = fitting.explain_plan(model, ragged, starts=3, lanes=lanes)
         (bucket,) = layout.buckets
         # 5 materials → a run of 6 (the ladder) × 3 starts = 18 solves, rounded up to whole groups
-        assert bucket["solves"] == (20 if lanes == 4 else 18) and bucket["lanes"] == (4 if lanes == 4 else 18)
+        assert bucket.solves == (20 if lanes == 4 else 18) and bucket.lanes == (4 if lanes == 4 else 18)
         assert ("4 at a time" if lanes == 4 else "all in lock-step") in layout.explain()
         for a, b in zip(default, fitting.fit_many(model, ragged, starts=3, lanes=lanes)):
             _assert_same_fit(a, b)
@@ -132,13 +132,13 @@ def test_plan_merges_rungs_only_when_padding_is_cheaper_than_compiling(ragged):
     apart, merged = plan(problems, 4, 64, 1, compile_rows=0), plan(problems, 4, 64, 1, compile_rows=10**9)
     rungs = {bucket_points(p.points.mean.shape[1]) for p in problems}
     assert len(apart.buckets) == len(rungs) and len(merged.buckets) == 1
-    assert merged.buckets[0]["points"] == max(rungs) and apart.padding <= merged.padding
+    assert merged.buckets[0].points == max(rungs) and apart.padding <= merged.padding
     # the padding fraction is what the rows say
     used = sum(p.points.mean.shape[0] * p.points.mean.shape[1] * 4 for p in problems)
     assert apart.rows_used == used and apart.padding == pytest.approx(1 - used / apart.rows_padded)
     # batches: at most `batch` materials a program run, padded on the 1, 2, 3, 4, 6, 8 … ladder
     small = plan(problems, 1, 2, 1, compile_rows=10**9)
-    assert [len(b["materials"]) for b in small.buckets] == [2, 2, 1]
+    assert [len(b.materials) for b in small.buckets] == [2, 2, 1]
 
 
 _SHARDED = textwrap.dedent("""

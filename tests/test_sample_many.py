@@ -100,8 +100,8 @@ def test_materials_of_another_sampled_dimension_go_to_their_own_bucket(ragged, m
     assert len(strict.undetermined) == 1
     problems, fits = problems + [problems[1]], fits + [strict]
     stacks = []
-    stack = _sample_many._stack_trees
-    monkeypatch.setattr(_sample_many, "_stack_trees", lambda trees: stacks.append(trees) or stack(trees))
+    stack = _sample_many.stack_trees
+    monkeypatch.setattr(_sample_many, "stack_trees", lambda trees: stacks.append(trees) or stack(trees))
     traces = _count_traces(monkeypatch)
     many = fitting.sample_many(problems, fits, **NUTS)
     # two buckets: m = 3 (three materials, test 1's program) and m = 2 (one), a program each
