@@ -38,7 +38,7 @@ from jaxtyping import Float
 from ._errors import InvalidInputError
 from ._show import Shown, Table
 
-__all__ = ["Laplace", "laplace", "combination", "NULL"]
+__all__ = ["NULL", "Laplace", "combination", "laplace"]
 
 NULL = 1e-12
 """Eigenvalues of ``JᵀJ`` at or below ``NULL · λ_max`` are numerically zero (no information)."""

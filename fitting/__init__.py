@@ -40,51 +40,58 @@ from ._batch import COMPILE_ROWS, BatchPlan, explain_plan, fit_many
 from ._data import Dataset, PointData
 from ._derived import RATIO_FREQUENCIES, ratio_frequencies
 from ._fit import fit
-from ._problem import Problem
-from ._result import FitResult
-from ._solve import SOLVERS
 from ._model import AbstractModel
 from ._nonparametric import NonParametricModel, RelativeStatistics
 from ._parametric import ParametricModel
 from ._plot import plot_corner, plot_fit, plot_recovered_statistics
-from ._report import check_report_directory, report_files, summarise, summarise_ratios, truth_of, write_report
+from ._problem import Problem
+from ._report import (
+    check_report_directory,
+    report_files,
+    summarise,
+    summarise_ratios,
+    truth_of,
+    write_report,
+)
+from ._result import FitResult
 from ._sample import HMC, NUTS, SAMPLERS, Emcee, SampleResult, log_posterior, sample
 from ._sample_many import sample_many
 from ._simulate import simulate
+from ._solve import SOLVERS
 
 __all__ = [
-    "Dataset",
-    "PointData",
+    "COMPILE_ROWS",
+    "HMC",
+    "NUTS",
+    "RATIO_FREQUENCIES",
+    "SAMPLERS",
+    "SOLVERS",
     "AbstractModel",
-    "ParametricModel",
-    "NonParametricModel",
-    "RelativeStatistics",
-    "Problem",
+    "BatchPlan",
+    "Dataset",
+    "Emcee",
     "FitResult",
+    "NonParametricModel",
+    "ParametricModel",
+    "PointData",
+    "Problem",
+    "RelativeStatistics",
+    "SampleResult",
+    "check_report_directory",
+    "explain_plan",
     "fit",
     "fit_many",
-    "explain_plan",
-    "BatchPlan",
-    "COMPILE_ROWS",
-    "SOLVERS",
-    "SampleResult",
-    "sample",
-    "sample_many",
-    "SAMPLERS",
-    "Emcee",
-    "NUTS",
-    "HMC",
     "log_posterior",
-    "summarise",
-    "summarise_ratios",
-    "ratio_frequencies",
-    "RATIO_FREQUENCIES",
-    "write_report",
-    "report_files",
-    "check_report_directory",
-    "truth_of",
+    "plot_corner",
     "plot_fit",
     "plot_recovered_statistics",
-    "plot_corner",
+    "ratio_frequencies",
+    "report_files",
+    "sample",
+    "sample_many",
     "simulate",
+    "summarise",
+    "summarise_ratios",
+    "truth_of",
+    "write_report",
 ]

@@ -73,5 +73,5 @@ def to_arviz(result):
         warm_posterior, warm_stats = _groups(result, slice(0, burn))
         extra = {"warmup_posterior": warm_posterior, "warmup_sample_stats": warm_stats, "save_warmup": True}
     data = az.from_dict(posterior=posterior, sample_stats=stats, attrs=attrs, **extra)
-    data.posterior.attrs.update(attrs)  # the group's attributes travel with it (NetCDF, DataTree)
+    data["posterior"].attrs.update(attrs)  # the group's attributes travel with it (NetCDF, DataTree)
     return data

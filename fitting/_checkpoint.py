@@ -34,7 +34,7 @@ import numpy as np
 from brdfscale import InvalidInputError, MeasurementFileError
 from brdfscale.files import atomic_write
 
-__all__ = ["Checkpoint", "Stored", "FORMAT"]
+__all__ = ["FORMAT", "Checkpoint", "Stored"]
 
 FORMAT = "brdfscale.fitting.sample/2"
 _EXPECTED = "an HDF5 checkpoint written by fitting.sample"

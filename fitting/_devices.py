@@ -22,6 +22,8 @@ With one device nothing is moved or split: the program runs on the inputs as giv
 without this module (the bit-identity tests of tests/test_batch.py and tests/test_sample_many.py).
 """
 
+from collections.abc import Iterable
+
 import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
@@ -42,7 +44,7 @@ def device_list(devices) -> list:
             raise InvalidInputError(f"devices={devices}: this process has {len(available)} JAX device(s) "
                                     f"({available[0].platform}); give 1 … {len(available)} or a list of devices.")
         return available[:devices]
-    devices = list(devices)
+    devices = list(devices) if isinstance(devices, Iterable) else []
     if not devices or not all(isinstance(d, jax.Device) for d in devices):
         raise InvalidInputError("devices must be None (all of jax.devices()), a count, or a non-empty list of "
                                 "jax.Device objects.")

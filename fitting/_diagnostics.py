@@ -29,8 +29,19 @@ import logging
 import numpy as np
 from scipy import fft, stats
 
-__all__ = ["ess", "ess_bulk", "ess_tail", "r_hat", "mcse_mean", "mcse_sd", "summary_row", "integrated_time",
-           "R_HAT_LIMIT", "ESS_BULK_LIMIT", "STATISTICS"]
+__all__ = [
+    "ESS_BULK_LIMIT",
+    "R_HAT_LIMIT",
+    "STATISTICS",
+    "ess",
+    "ess_bulk",
+    "ess_tail",
+    "integrated_time",
+    "mcse_mean",
+    "mcse_sd",
+    "r_hat",
+    "summary_row",
+]
 
 R_HAT_LIMIT = 1.01
 """A run whose R̂ exceeds this on a determined quantity has not converged (Vehtari et al. 2021)."""

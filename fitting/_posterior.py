@@ -67,8 +67,18 @@ import numpy as np
 
 from ._batch import _pad_points, bucket_points
 
-__all__ = ["log_posterior", "Target", "target", "theta_of_z", "z_of_theta", "log_jacobian", "laplace",
-           "initial_positions", "PRIOR_TEXT", "COORDINATES"]
+__all__ = [
+    "COORDINATES",
+    "PRIOR_TEXT",
+    "Target",
+    "initial_positions",
+    "laplace",
+    "log_jacobian",
+    "log_posterior",
+    "target",
+    "theta_of_z",
+    "z_of_theta",
+]
 
 BEND = 50.0
 """The map θ(z) bends over a width w = (hi − lo)/BEND next to each wall, and is the identity elsewhere."""

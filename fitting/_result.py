@@ -58,8 +58,8 @@ class FitResult(Shown):
         std = self.std.get(name)
         return f"{self.estimates[name]:.4g} ± {std:.2g}" if std is not None else f"{self.estimates[name]:.4g} (undetermined)"
 
-    def _show_items(self):
-        items = [("status", self.status), ("solver", self.solver),
+    def _show_items(self) -> list[tuple[str, object]]:
+        items: list[tuple[str, object]] = [("status", self.status), ("solver", self.solver),
                  ("chi2/dof", f"{self.chi2:.4g}/{self.dof} = {self.chi2 / self.dof:.4g}")]
         items += [(name, self._estimate_text(name)) for name in self.estimates]
         if self.undetermined:

@@ -27,6 +27,7 @@ resumed from a checkpoint (which stores the chains' positions, log-densities, gr
 dual-averaging states and mass matrices) draws exactly what the uninterrupted run draws.
 """
 
+import abc
 import dataclasses
 import functools
 import math
@@ -65,6 +66,14 @@ def _blackjax():
 
 class _Gradient(AbstractSampler):
     """What NUTS and HMC share: validation, the checkpoint's record, the run."""
+
+    warmup: int
+    target_acceptance: float
+    adapt_mass_matrix: bool
+
+    @abc.abstractmethod
+    def _spec(self) -> tuple:
+        """The kernel's static description: (kind, max_doublings, trajectory_length, jitter, target acceptance)."""
 
     stats = _STATS
 
@@ -147,7 +156,7 @@ class _Gradient(AbstractSampler):
             # compiled program serves every chunk
             carry, out = advance(carry, np.int64(done), np.int64(n), key, np.int64(self.warmup), chunk)
             carry = _host(carry)
-            block = jax.tree_util.tree_map(lambda a: np.asarray(a)[steps], out)
+            block = jax.tree_util.tree_map(lambda a, steps=steps: np.asarray(a)[steps], out)
             timing["warmup_s" if done < self.warmup else "sampling_s"] += time.perf_counter() - started
             commit(block, carry)
             blocks.append(block)

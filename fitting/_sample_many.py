@@ -52,6 +52,8 @@ No checkpoints: resumability in a library is per material (:func:`fitting.sample
 ``checkpoint=``), and a rerun with the same seed draws the same chains.
 """
 
+from typing import cast
+
 import equinox as eqx
 import jax
 import numpy as np
@@ -69,6 +71,7 @@ from ._sample import _diagnose, resolve_sampler, sampled_dimension
 from ._sample_blackjax import (
     _advance,
     _blackjax,
+    _Gradient,
     _host,
     _initial_carry,
     _window_warmup,
@@ -198,8 +201,9 @@ def sample_many(
         MissingDependencyError: BlackJAX is not installed.
     """
     problems, fits = _pairs(problems, fits)
-    sampler = resolve_sampler(sampler)
-    sampler.check_batched()
+    chosen = resolve_sampler(sampler)
+    chosen.check_batched()  # emcee refuses, naming why
+    sampler = cast("_Gradient", chosen)  # NUTS or HMC: the samplers that run vmapped over materials
     chains = integer(chains, "chains", 1)
     steps = integer(steps, "steps", 2)
     chunk = integer(chunk, "chunk", 1)
