@@ -45,7 +45,6 @@ from .._errors import InvalidInputError, MethodNotApplicableError, NoBRDFAtScale
 from .._evolve import (
     CORE_TOL,
     MAX_GRID,
-    Grid,
     Radial,
     as_method,
     cutoff,
@@ -147,7 +146,7 @@ def _plan_closed_form(material, path, u, log_mu, tol):
     distinct, scale = np.unique(log_mu, return_inverse=True)
     n = len(mus)
     step = ClosedFormStep(jnp.asarray(u), jnp.asarray(scale.ravel()), jnp.asarray(np.exp(distinct)))
-    return (step, "closed_form", "the lobe and statistics have a closed-form evolution (exact)", 0.0,
+    return (step, path.path, "the lobe and statistics have a closed-form evolution (exact)", 0.0,
             _cost.units(8 * (n + len(distinct)), 40 * n),
             f"{len(distinct)} distinct scales evolved exactly, {n} offsets evaluated")
 
@@ -214,7 +213,7 @@ def _plan_radial(material, path, u, log_mu, tol):
     scales = f"{n_s} distinct scales" if exact else f"{n_s} log-μ nodes ({np.exp(nodes[0]):.3g}–{np.exp(nodes[-1]):.3g})"
     layout = f"at the {n_q} query radii" if direct else f"on {n_r} radii (h = {h_r:.3g}), cubic in (log μ, r)"
     details = f"K = {K:.4g}, {n_k} Gauss–Legendre nodes; {scales}; lobe {layout}"
-    return (step, "radial", "lobe and statistics are radially symmetric; no closed form",
+    return (step, path.path, "lobe and statistics are radially symmetric; no closed form",
             budget + r_error + mu_error, min(table_cost, direct_cost) if direct else table_cost, details)
 
 
@@ -235,7 +234,7 @@ def _plan_grid(material, path, u, log_mu, tol):
     table_cost_guess = _cost.units(3 * len(distinct) * big * (big // 2 + 1),
                                 len(distinct) * _cost.fft2_multiply_adds(big) + 128 * n_q)
     if len(distinct) <= 16 and n_q * size * 2 <= _DIRECT_MEMORY and direct_cost <= table_cost_guess:
-        return _plan_grid_direct(material, u, log_mu, size, achieved, direct_cost)
+        return _plan_grid_direct(material, path, u, log_mu, size, achieved, direct_cost)
 
     def tables(n, t):
         def chunk_tables(chunk):
@@ -263,14 +262,14 @@ def _plan_grid(material, path, u, log_mu, tol):
     scales = f"{n_s} distinct scales" if exact else f"{n_s} log-μ nodes ({np.exp(nodes[0]):.3g}–{np.exp(nodes[-1]):.3g})"
     relaxed = "" if achieved <= budget else f" (grid capped at {_MAX_GRID}: truncation {achieved:.1g})"
     details = f"{size}×{size} FFT grid per scale node{relaxed}; {scales}; cubic in (log μ, u_y, u_x)"
-    return (step, "grid", "lobe or statistics not radially symmetric; no closed form",
+    return (step, path.path, "lobe or statistics not radially symmetric; no closed form",
             achieved + u_error + mu_error, cost, details)
 
 
-def _plan_grid_direct(material, u, log_mu, size, achieved, cost):
+def _plan_grid_direct(material, path, u, log_mu, size, achieved, cost):
     """Few queries: the inverse DFT summed at the queries, phases frozen (no interpolation)."""
     nodes = np.unique(log_mu)
-    h, _ = evolved_density(material, np.exp(nodes[0]), Grid(size=size), achieved).grid_spacing()
+    h, _ = evolved_density(material, np.exp(nodes[0]), path.sized(size, None), achieved).grid_spacing()
     h = float(h)
     fy = np.fft.fftfreq(size) * (2 * np.pi / h)
     fx = np.fft.rfftfreq(size) * (2 * np.pi / h)
@@ -279,7 +278,7 @@ def _plan_grid_direct(material, u, log_mu, size, achieved, cost):
     step = GridStep(jnp.asarray(u), jnp.asarray(log_mu), jnp.asarray(nodes), phases, jnp.asarray(W), size, True, achieved)
     details = (f"{size}×{size} frequency grid per scale; {len(nodes)} distinct scales; inverse DFT summed at the "
                f"{len(u)} query offsets (no interpolation)")
-    return (step, "grid", "lobe or statistics not radially symmetric; no closed form; few queries", achieved, cost,
+    return (step, path.path, "lobe or statistics not radially symmetric; no closed form; few queries", achieved, cost,
             details)
 
 
