@@ -199,9 +199,9 @@ def select(
     first that applies, or the one forced by ``method``) and everything it needs: the
     Gauss–Legendre nodes, the cut-off K and a verified table of radii (radial); the grid side,
     half-width and a verified oversampling (grid); and checks that a BRDF exists for these
-    values (module docstring). The result is a static object: pass it as
-    ``evolve(..., method=result)`` inside ``jax.jit``/``grad``/``vmap``, where it is used as
-    it is. ``result.explain()`` says what it chose; ``result.tol`` is the error relative to the
+    values (the verifications: the docstrings of :mod:`._radial` and :mod:`._grid`). The
+    result is a static object: pass it as ``evolve(..., method=result)`` inside
+    ``jax.jit``/``grad``/``vmap``, where it is used as it is. ``result.explain()`` says what it chose; ``result.tol`` is the error relative to the
     lobe's peak it honours (looser than asked only when a capped grid cannot do better).
 
     ``regularisation``: the Tikhonov λ of the division as in :func:`brdfscale.evolve` — a
