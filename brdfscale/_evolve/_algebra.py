@@ -11,9 +11,9 @@ import numpy as np
 
 from .._errors import NoBRDFAtScaleError
 from .._existence import NEGATIVE_VARIANCE
+from .._slopes import eig2
 from .._validation import is_concrete
 from ..stats import AbstractSlopeDensity, Delta, Gaussian, Mixture
-from .._slopes import eig2
 
 
 def _neg(offset):

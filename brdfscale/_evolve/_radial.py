@@ -37,10 +37,10 @@ from .._existence import NEGATIVE_LOBE, negative_beyond, transform_exceeds_one
 from .._interpolate import interpolate, lagrange_stencil
 from .._quadrature import gauss_legendre
 from .._show import Shown
+from .._slopes import safe_norm
 from .._special import J_TEMPORARIES, j0
 from .._validation import is_concrete
 from ..stats import Delta
-from .._slopes import safe_norm
 from ._method import (
     caller_stacklevel,
     check_budget,

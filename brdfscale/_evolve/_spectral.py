@@ -50,10 +50,10 @@ from .._existence import (
     transform_exceeds_one,
     translated,
 )
+from .._slopes import check_slopes, shifted_cf
 from .._validation import integer, is_concrete
 from ..lobes import AbstractLobe, Lobe
 from ..stats import AbstractSlopeDensity, Delta, Gaussian
-from .._slopes import check_slopes, shifted_cf
 from ._method import AbstractMethod
 from ._regularise import choose, needs_data, unresolved_regularisation
 
