@@ -12,6 +12,7 @@ from pathlib import Path
 
 from mkdocs.structure.files import File
 
+
 FIGURES = Path(__file__).resolve().parent / "experiments" / "results"
 LINK = re.compile(r"\]\(\.\./experiments/results/")
 
@@ -36,6 +37,7 @@ def on_page_markdown(markdown, page, config, files):
 # handler's ``extensions``) renders each as the name in code; ``~`` keeps its last component.
 
 import griffe  # noqa: E402
+
 
 ROLE = re.compile(r":(?:py:)?(?:class|func|meth|mod|data|attr|exc|obj):`(~?)([^`]+)`")
 

@@ -33,59 +33,97 @@ with :class:`InvalidInputError` naming the line to add,
 """
 
 import importlib
-from typing import TYPE_CHECKING, Any
+from typing import Any, TYPE_CHECKING
 
-from ._errors import BrdfscaleError as BrdfscaleError
-from ._errors import InvalidInputError as InvalidInputError
-from ._errors import MeasurementFileError as MeasurementFileError
-from ._errors import MethodNotApplicableError as MethodNotApplicableError
-from ._errors import MissingDependencyError as MissingDependencyError
-from ._errors import NoBRDFAtScaleError as NoBRDFAtScaleError
-from ._errors import OutputInUseError as OutputInUseError
-from ._errors import SingularDensityError as SingularDensityError
-from ._errors import UnprotectedHeaderWarning as UnprotectedHeaderWarning
-from ._errors import UnresolvedMethodError as UnresolvedMethodError
+from ._errors import (
+    BrdfscaleError as BrdfscaleError,
+    InvalidInputError as InvalidInputError,
+    MeasurementFileError as MeasurementFileError,
+    MethodNotApplicableError as MethodNotApplicableError,
+    MissingDependencyError as MissingDependencyError,
+    NoBRDFAtScaleError as NoBRDFAtScaleError,
+    OutputInUseError as OutputInUseError,
+    SingularDensityError as SingularDensityError,
+    UnprotectedHeaderWarning as UnprotectedHeaderWarning,
+    UnresolvedMethodError as UnresolvedMethodError,
+)
+
 
 _TABLE = (  # the one list of the public names: (module relative to brdfscale, names); None: the submodules themselves
     ("._evolve", ("evolve", "select", "AbstractMethod", "Auto", "ClosedForm", "Radial", "Grid", "RadialTable")),
     ("._measurement", ("LobeImage", "MeasurementSet")),
-    (None, ("geometry", "lobes", "stats", "synth", "topography", "plus", "so3", "scene", "exr", "files", "checks",
-            "laplace", "special", "plot", "show", "fitting", "library")),
-    ("._errors", ("BrdfscaleError", "InvalidInputError", "MeasurementFileError", "MethodNotApplicableError",
-                  "MissingDependencyError", "NoBRDFAtScaleError", "SingularDensityError", "OutputInUseError",
-                  "UnprotectedHeaderWarning", "UnresolvedMethodError")),
+    (
+        None,
+        (
+            "geometry",
+            "lobes",
+            "stats",
+            "synth",
+            "topography",
+            "plus",
+            "so3",
+            "scene",
+            "exr",
+            "files",
+            "checks",
+            "laplace",
+            "special",
+            "plot",
+            "show",
+            "fitting",
+            "library",
+        ),
+    ),
+    (
+        "._errors",
+        (
+            "BrdfscaleError",
+            "InvalidInputError",
+            "MeasurementFileError",
+            "MethodNotApplicableError",
+            "MissingDependencyError",
+            "NoBRDFAtScaleError",
+            "SingularDensityError",
+            "OutputInUseError",
+            "UnprotectedHeaderWarning",
+            "UnresolvedMethodError",
+        ),
+    ),
 )
 _LAZY = {name: where or f".{name}" for where, names in _TABLE for name in names}
 """Public name → the module (relative to brdfscale) it is loaded from; a submodule maps to itself."""
 
 if TYPE_CHECKING:  # what the lazy loader below provides, for type checkers and IDEs (tests/test_imports.py: = _TABLE)
-    from . import checks as checks
-    from . import exr as exr
-    from . import files as files
-    from . import fitting as fitting
-    from . import geometry as geometry
-    from . import laplace as laplace
-    from . import library as library
-    from . import lobes as lobes
-    from . import plot as plot
-    from . import plus as plus
-    from . import scene as scene
-    from . import show as show
-    from . import so3 as so3
-    from . import special as special
-    from . import stats as stats
-    from . import synth as synth
-    from . import topography as topography
-    from ._evolve import AbstractMethod as AbstractMethod
-    from ._evolve import Auto as Auto
-    from ._evolve import ClosedForm as ClosedForm
-    from ._evolve import Grid as Grid
-    from ._evolve import Radial as Radial
-    from ._evolve import RadialTable as RadialTable
-    from ._evolve import evolve as evolve
-    from ._evolve import select as select
-    from ._measurement import LobeImage as LobeImage
-    from ._measurement import MeasurementSet as MeasurementSet
+    from . import (
+        checks as checks,
+        exr as exr,
+        files as files,
+        fitting as fitting,
+        geometry as geometry,
+        laplace as laplace,
+        library as library,
+        lobes as lobes,
+        plot as plot,
+        plus as plus,
+        scene as scene,
+        show as show,
+        so3 as so3,
+        special as special,
+        stats as stats,
+        synth as synth,
+        topography as topography,
+    )
+    from ._evolve import (
+        AbstractMethod as AbstractMethod,
+        Auto as Auto,
+        ClosedForm as ClosedForm,
+        evolve as evolve,
+        Grid as Grid,
+        Radial as Radial,
+        RadialTable as RadialTable,
+        select as select,
+    )
+    from ._measurement import LobeImage as LobeImage, MeasurementSet as MeasurementSet
 
     __version__: str
 

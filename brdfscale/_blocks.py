@@ -11,6 +11,7 @@ output themselves (tests/test_evaluation_contract.py checks the compiled program
 import jax
 import jax.numpy as jnp
 
+
 DEFAULT_BUDGET = 256 * 2**20
 """Bytes of temporaries an evaluation may hold at once (256 MiB)."""
 
@@ -44,4 +45,3 @@ def in_blocks(fn, rows, bytes_per_row: float, budget: int = DEFAULT_BUDGET):
 
 def itemsize(dtype) -> int:
     return jnp.dtype(dtype).itemsize
-

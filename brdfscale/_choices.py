@@ -19,6 +19,7 @@ import dataclasses
 
 from ._errors import InvalidInputError
 
+
 __all__ = [
     "FAMILIES",
     "FIT",
@@ -82,38 +83,61 @@ class Choices:
 
     def help(self) -> str:
         """The choices in words: ``name (default): summary; name: summary; …``."""
-        return "; ".join(f"{item.name}{' (default)' if item.name == self.default else ''}: {item.summary}"
-                         for item in self.items)
+        return "; ".join(
+            f"{item.name}{' (default)' if item.name == self.default else ''}: {item.summary}" for item in self.items
+        )
 
 
-SOLVERS = Choices("solver", (
-    Choice("lm", "Levenberg–Marquardt (optimistix.LevenbergMarquardt)"),
-    Choice("gauss_newton", "Gauss–Newton (optimistix.GaussNewton)"),
-    Choice("dogleg", "Powell's dogleg (optimistix.Dogleg)"),
-    Choice("bfgs", "BFGS, a minimiser of ½‖r‖² (optimistix.BFGS)"),
-), default="lm")
+SOLVERS = Choices(
+    "solver",
+    (
+        Choice("lm", "Levenberg–Marquardt (optimistix.LevenbergMarquardt)"),
+        Choice("gauss_newton", "Gauss–Newton (optimistix.GaussNewton)"),
+        Choice("dogleg", "Powell's dogleg (optimistix.Dogleg)"),
+        Choice("bfgs", "BFGS, a minimiser of ½‖r‖² (optimistix.BFGS)"),
+    ),
+    default="lm",
+)
 
-SAMPLERS = Choices("sampler", (
-    Choice("nuts", "BlackJAX NUTS, Laplace-preconditioned (fitting.NUTS)"),
-    Choice("hmc", "BlackJAX HMC of fixed trajectory length, Laplace-preconditioned (fitting.HMC)"),
-    Choice("emcee", "emcee's affine-invariant ensembles (fitting.Emcee)"),
-), default="nuts")
+SAMPLERS = Choices(
+    "sampler",
+    (
+        Choice("nuts", "BlackJAX NUTS, Laplace-preconditioned (fitting.NUTS)"),
+        Choice("hmc", "BlackJAX HMC of fixed trajectory length, Laplace-preconditioned (fitting.HMC)"),
+        Choice("emcee", "emcee's affine-invariant ensembles (fitting.Emcee)"),
+    ),
+    default="nuts",
+)
 
-MODELS = Choices("model", (
-    Choice("parametric", "a lobe family and a scale law of its slope statistics (fitting.ParametricModel)"),
-    Choice("nonparametric", "a tabulated base lobe and relative statistics (fitting.NonParametricModel)"),
-), default="parametric")
+MODELS = Choices(
+    "model",
+    (
+        Choice("parametric", "a lobe family and a scale law of its slope statistics (fitting.ParametricModel)"),
+        Choice("nonparametric", "a tabulated base lobe and relative statistics (fitting.NonParametricModel)"),
+    ),
+    default="parametric",
+)
 
-FAMILIES = Choices("family", (
-    Choice("beckmann", "Beckmann (Gaussian slopes)"),
-    Choice("ggx", "GGX (Trowbridge–Reitz)"),
-), default="beckmann")
+FAMILIES = Choices(
+    "family",
+    (
+        Choice("beckmann", "Beckmann (Gaussian slopes)"),
+        Choice("ggx", "GGX (Trowbridge–Reitz)"),
+    ),
+    default="beckmann",
+)
 
-LAWS = Choices("law", (
-    Choice("width", "WidthLaw alpha(mu) = alpha_max (1 + (mu/mu_c)^2)^(-exponent/2)"),
-    Choice("gaussian_surface", "GaussianSurface(GaussianCorrelation(rms_height, correlation_length), box window); "
-                               "Beckmann only"),
-), default="width")
+LAWS = Choices(
+    "law",
+    (
+        Choice("width", "WidthLaw alpha(mu) = alpha_max (1 + (mu/mu_c)^2)^(-exponent/2)"),
+        Choice(
+            "gaussian_surface",
+            "GaussianSurface(GaussianCorrelation(rms_height, correlation_length), box window); Beckmann only",
+        ),
+    ),
+    default="width",
+)
 
 
 @dataclasses.dataclass(frozen=True)

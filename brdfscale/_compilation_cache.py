@@ -26,6 +26,7 @@ import os
 import sys
 from pathlib import Path
 
+
 MAX_BYTES = 256 * 2**20
 
 
@@ -40,8 +41,12 @@ def cache_directory() -> Path:
 
 def settings(path: str | os.PathLike) -> dict:
     """JAX's settings of a cache in ``path``: the directory, every program kept, the size cap."""
-    return {"jax_compilation_cache_dir": str(path), "jax_persistent_cache_min_compile_time_secs": 0.0,
-            "jax_persistent_cache_min_entry_size_bytes": 0, "jax_compilation_cache_max_size": MAX_BYTES}
+    return {
+        "jax_compilation_cache_dir": str(path),
+        "jax_persistent_cache_min_compile_time_secs": 0.0,
+        "jax_persistent_cache_min_entry_size_bytes": 0,
+        "jax_compilation_cache_max_size": MAX_BYTES,
+    }
 
 
 def directory_in_use() -> str | None:
@@ -71,8 +76,11 @@ def enable(directory: str | os.PathLike | None = None) -> Path | None:
         if not os.access(path, os.W_OK | os.X_OK):
             raise PermissionError(f"no write permission on {path}")
     except OSError as err:
-        print(f"brdfscale: compilation cache off ({err}); set BRDFSCALE_COMPILATION_CACHE to a writable "
-              "directory or pass --no-compilation-cache", file=sys.stderr)
+        print(
+            f"brdfscale: compilation cache off ({err}); set BRDFSCALE_COMPILATION_CACHE to a writable "
+            "directory or pass --no-compilation-cache",
+            file=sys.stderr,
+        )
         return None
     for name, value in settings(path).items():
         if jax is not None:

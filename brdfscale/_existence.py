@@ -32,6 +32,7 @@ import numpy as np
 from ._errors import NoBRDFAtScaleError
 from ._validation import is_concrete
 
+
 CF_EXCESS = 1e-6
 """Slack of the test ``|G| ≤ 1``: float64 evaluation of a quotient of transforms that is
 exactly 1 at W = 0 can exceed 1 by rounding."""

@@ -13,6 +13,7 @@ from typing import Callable, Iterator
 
 from ._errors import InvalidInputError, OutputInUseError
 
+
 #: Temporary files are ``.<name>.brdfscale-<host>-<pid>-<random>.tmp<suffix>`` beside the target.
 _TMP_MARK = ".brdfscale-"
 
@@ -47,7 +48,7 @@ def _remove_stale_temporaries(directory: str, name: str) -> list[str]:
     removed = []
     host = _host()
     for tmp in glob.glob(os.path.join(glob.escape(directory), f".{glob.escape(name)}{_TMP_MARK}*")):
-        tag = os.path.basename(tmp)[len(name) + 1 + len(_TMP_MARK):].split("-")
+        tag = os.path.basename(tmp)[len(name) + 1 + len(_TMP_MARK) :].split("-")
         if len(tag) < 3 or tag[0] != host or not tag[1].isdigit():
             continue
         if int(tag[1]) != os.getpid() and not _alive(int(tag[1])):
@@ -86,8 +87,9 @@ def atomic_write(
     name = os.path.basename(path)
     _remove_stale_temporaries(directory, name)
     suffix = os.path.splitext(path)[1]
-    fd, tmp = tempfile.mkstemp(dir=directory, prefix=f".{name}{_TMP_MARK}{_host()}-{os.getpid()}-",
-                               suffix=".tmp" + suffix)
+    fd, tmp = tempfile.mkstemp(
+        dir=directory, prefix=f".{name}{_TMP_MARK}{_host()}-{os.getpid()}-", suffix=".tmp" + suffix
+    )
     os.close(fd)
     try:
         write(tmp)
@@ -119,8 +121,9 @@ def _holder_text(record: str) -> str:
     try:
         with open(record) as f:
             h = json.load(f)
-        return (f"process {int(h['pid'])} on {h['host']}, started {h['started']}"
-                + (f" ({h['command']})" if h.get("command") else ""))
+        return f"process {int(h['pid'])} on {h['host']}, started {h['started']}" + (
+            f" ({h['command']})" if h.get("command") else ""
+        )
     except (OSError, ValueError, KeyError, TypeError):
         return "another process (its record is missing or unreadable)"
 
@@ -157,9 +160,12 @@ def exclusive(target: str | os.PathLike, *, what: str = "output") -> Iterator[st
         raise OutputInUseError(f"{target}: cannot take the lock {lock_path}: {err.strerror or err}.") from err
     try:
         if lock.lock_counter == 1:
-            holder = {"pid": os.getpid(), "host": socket.gethostname(),
-                      "started": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
-                      "command": " ".join(sys.argv[:1] + sys.argv[1:])[:500]}
+            holder = {
+                "pid": os.getpid(),
+                "host": socket.gethostname(),
+                "started": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+                "command": " ".join(sys.argv[:1] + sys.argv[1:])[:500],
+            }
 
             def write(tmp):
                 with open(tmp, "w") as f:

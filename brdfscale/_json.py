@@ -17,6 +17,7 @@ import json
 import math
 import numbers
 
+
 __all__ = ["json_text", "jsonable"]
 
 

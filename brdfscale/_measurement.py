@@ -17,6 +17,7 @@ from ._errors import InvalidInputError
 from ._show import Shown, Table, Values
 from ._validation import real, real_array
 
+
 __all__ = ["LobeImage", "MeasurementSet"]
 
 
@@ -25,12 +26,16 @@ def boolean_mask(x, name: str) -> np.ndarray:
     try:
         m = np.asarray(x)
     except (TypeError, ValueError) as err:
-        raise InvalidInputError(f"{name} must be a boolean array (True/False or 0/1); got {type(x).__name__} ({err}).") from None
+        raise InvalidInputError(
+            f"{name} must be a boolean array (True/False or 0/1); got {type(x).__name__} ({err})."
+        ) from None
     if m.dtype.kind == "b":
         return m
     if m.dtype.kind in "iuf" and np.all((m == 0) | (m == 1)):
         return m.astype(bool)
-    bad = "" if m.dtype.kind not in "iuf" else f" with {np.count_nonzero((m != 0) & (m != 1))} entries other than 0 and 1"
+    bad = (
+        "" if m.dtype.kind not in "iuf" else f" with {np.count_nonzero((m != 0) & (m != 1))} entries other than 0 and 1"
+    )
     raise InvalidInputError(
         f"{name} must be boolean-valued, True (or 1) where the pixel is valid and False (or 0) where not; got dtype "
         f"{m.dtype}{bad}. Threshold it yourself (e.g. mask=weights > 0) if another rule is meant."
@@ -71,8 +76,11 @@ class LobeImage(Shown):
             raise InvalidInputError(f"incident must be a unit 3-vector with z > 0; got {inc!r}.")
         extent = real(self.extent, "extent", minimum=0, strict=True)
         values = real_array(self.values, "values")
-        if values.ndim not in (2, 3) or values.shape[0] != values.shape[1] or values.shape[0] < 2 or (
-            values.ndim == 3 and values.shape[2] != 3
+        if (
+            values.ndim not in (2, 3)
+            or values.shape[0] != values.shape[1]
+            or values.shape[0] < 2
+            or (values.ndim == 3 and values.shape[2] != 3)
         ):
             raise InvalidInputError(f"values must have shape (n, n) or (n, n, 3) with n ≥ 2; got {values.shape}.")
         sigma = None
@@ -106,8 +114,13 @@ class LobeImage(Shown):
 
     def _show_items(self):
         theta, phi = self.incident_angles
-        items = [("mu", self.mu), ("incident", f"(θ {theta:.4g}°, φ {phi:.4g}°)"), ("extent", self.extent),
-                 ("values", self.values), ("sigma", self.sigma)]
+        items = [
+            ("mu", self.mu),
+            ("incident", f"(θ {theta:.4g}°, φ {phi:.4g}°)"),
+            ("extent", self.extent),
+            ("values", self.values),
+            ("sigma", self.sigma),
+        ]
         if self.mask is not None:
             items.append(("mask", f"{int(np.count_nonzero(~self.mask))} of {self.mask.size} px masked"))
         return items
@@ -140,7 +153,8 @@ class MeasurementSet(Shown):
             images = tuple(self.images)
         except TypeError:
             raise InvalidInputError(
-                f"images must be a non-empty sequence of LobeImage; got {type(self.images).__name__}.") from None
+                f"images must be a non-empty sequence of LobeImage; got {type(self.images).__name__}."
+            ) from None
         if not images or not all(isinstance(p, LobeImage) for p in images):
             raise InvalidInputError("images must be a non-empty sequence of LobeImage.")
         object.__setattr__(self, "images", images)
@@ -161,11 +175,23 @@ class MeasurementSet(Shown):
         sizes = sorted({p.values.shape for p in images})
         angles = sorted({round(p.incident_angles[0], 2) for p in images})
         with_sigma = sum(p.sigma is not None for p in images)
-        items = [("images", len(images)), ("scales", Values(self.scales)),
-                 ("sizes", ", ".join("×".join(str(n) for n in shape) for shape in sizes[:3]) + (" …" if len(sizes) > 3 else "")),
-                 ("theta_i", "(" + ", ".join(f"{a:.4g}°" for a in angles[:6]) + (", …)" if len(angles) > 6 else ")")),
-                 ("sigma", "all" if with_sigma == len(images) else "none" if not with_sigma else
-                  f"{with_sigma} of {len(images)} images")]
+        items = [
+            ("images", len(images)),
+            ("scales", Values(self.scales)),
+            (
+                "sizes",
+                ", ".join("×".join(str(n) for n in shape) for shape in sizes[:3]) + (" …" if len(sizes) > 3 else ""),
+            ),
+            ("theta_i", "(" + ", ".join(f"{a:.4g}°" for a in angles[:6]) + (", …)" if len(angles) > 6 else ")")),
+            (
+                "sigma",
+                "all"
+                if with_sigma == len(images)
+                else "none"
+                if not with_sigma
+                else f"{with_sigma} of {len(images)} images",
+            ),
+        ]
         masked = sum(p.mask is not None for p in images)
         if masked:
             items.append(("masks", f"{masked} of {len(images)} images"))
@@ -178,9 +204,18 @@ class MeasurementSet(Shown):
         rows = []
         for i, p in enumerate(self.images):
             theta, phi = p.incident_angles
-            rows.append((i, p.mu, f"{theta:.4g}°", f"{phi:.4g}°", p.extent, "×".join(str(n) for n in p.values.shape),
-                         "yes" if p.sigma is not None else "no",
-                         "—" if p.mask is None else int(np.count_nonzero(~p.mask))))
+            rows.append(
+                (
+                    i,
+                    p.mu,
+                    f"{theta:.4g}°",
+                    f"{phi:.4g}°",
+                    p.extent,
+                    "×".join(str(n) for n in p.values.shape),
+                    "yes" if p.sigma is not None else "no",
+                    "—" if p.mask is None else int(np.count_nonzero(~p.mask)),
+                )
+            )
         return [Table("images", ("image", "μ", "θ_i", "φ_i", "extent", "values", "σ", "masked px"), rows)]
 
     def plot(self, **options):

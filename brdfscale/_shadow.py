@@ -27,7 +27,7 @@ import os
 def _installed_location() -> tuple[str, str] | None:
     """(version, directory of the installed ``brdfscale`` package), or None when brdfscale is
     not installed or its location cannot be told."""
-    from importlib.metadata import PackageNotFoundError, distribution
+    from importlib.metadata import distribution, PackageNotFoundError
 
     try:
         dist = distribution("brdfscale")
@@ -64,6 +64,8 @@ def hint(here: str) -> str:
     this = os.path.dirname(os.path.realpath(here))
     if os.path.realpath(location) == this:
         return ""
-    return (f" (this brdfscale is {this}, not the installed brdfscale {version} at {location}: a folder named "
-            "brdfscale in the current directory or next to the script shadows it; rename the folder, run from "
-            "another directory, or start Python with -P)")
+    return (
+        f" (this brdfscale is {this}, not the installed brdfscale {version} at {location}: a folder named "
+        "brdfscale in the current directory or next to the script shadows it; rename the folder, run from "
+        "another directory, or start Python with -P)"
+    )

@@ -30,8 +30,22 @@ from collections.abc import Callable, Mapping, Sequence
 
 from ._errors import InvalidInputError
 
-__all__ = ["Shown", "Table", "Values", "derived", "concrete", "summary", "summary_html", "describe", "progress_bar",
-           "progress_mode", "PROGRESS_VARIABLE", "MAX_LINES", "MAX_CHARS"]
+
+__all__ = [
+    "Shown",
+    "Table",
+    "Values",
+    "derived",
+    "concrete",
+    "summary",
+    "summary_html",
+    "describe",
+    "progress_bar",
+    "progress_mode",
+    "PROGRESS_VARIABLE",
+    "MAX_LINES",
+    "MAX_CHARS",
+]
 
 MAX_LINES = 6
 """The most lines a summary (``repr``) takes."""
@@ -46,12 +60,26 @@ PROGRESS_VARIABLE = "BRDFSCALE_PROGRESS"
 """The environment variable that switches every progress bar: ``0`` (or ``false``, ``off``, ``no``)
 off, ``text`` the text bar even in a notebook, ``1``/``auto``/unset the default."""
 
-_DTYPES = {"float64": "f64", "float32": "f32", "float16": "f16", "bfloat16": "bf16", "complex128": "c128",
-           "complex64": "c64", "int64": "i64", "int32": "i32", "int16": "i16", "int8": "i8", "uint64": "u64",
-           "uint32": "u32", "uint8": "u8", "bool": "bool"}
+_DTYPES = {
+    "float64": "f64",
+    "float32": "f32",
+    "float16": "f16",
+    "bfloat16": "bf16",
+    "complex128": "c128",
+    "complex64": "c64",
+    "int64": "i64",
+    "int32": "i32",
+    "int16": "i16",
+    "int8": "i8",
+    "uint64": "u64",
+    "uint32": "u32",
+    "uint8": "u8",
+    "bool": "bool",
+}
 
 
 # -- values -----------------------------------------------------------------------------------
+
 
 def _jax():
     """The jax module if it is imported (no value can be a JAX array otherwise), else None."""
@@ -189,6 +217,7 @@ def derived(x, fn: Callable):
 
 # -- what an object shows ----------------------------------------------------------------------
 
+
 @dataclasses.dataclass(frozen=True)
 class Table:
     """An extra table of an HTML summary (e.g. a fit's parameters): a caption, the column
@@ -274,10 +303,14 @@ def summary_html(obj) -> str:
     """``_repr_html_`` of an object that shows itself: a two-column table of its items, then
     its extra tables (each at most 40 rows, then a row saying how many more)."""
     name = html.escape(type(obj).__name__)
-    rows = "".join(f"<tr><th style=\"text-align:left\">{html.escape(k)}</th><td style=\"text-align:left\">{_cell(v)}"
-                   "</td></tr>" for k, v in _items(obj))
-    out = [f"<table class=\"brdfscale-summary\"><thead><tr><th colspan=\"2\" style=\"text-align:left\">{name}</th>"
-           f"</tr></thead><tbody>{rows}</tbody></table>"]
+    rows = "".join(
+        f'<tr><th style="text-align:left">{html.escape(k)}</th><td style="text-align:left">{_cell(v)}</td></tr>'
+        for k, v in _items(obj)
+    )
+    out = [
+        f'<table class="brdfscale-summary"><thead><tr><th colspan="2" style="text-align:left">{name}</th>'
+        f"</tr></thead><tbody>{rows}</tbody></table>"
+    ]
     try:
         tables = obj._show_tables() if isinstance(obj, Shown) else []
     except Exception as err:  # noqa: BLE001 — as in _items: named in the summary, not raised
@@ -288,9 +321,11 @@ def summary_html(obj) -> str:
         for row in list(table.rows)[:_TABLE_ROWS]:
             body.append("<tr>" + "".join(f"<td>{_cell(v)}</td>" for v in row) + "</tr>")
         if len(table.rows) > _TABLE_ROWS:
-            body.append(f"<tr><td colspan=\"{len(table.columns)}\">… {len(table.rows) - _TABLE_ROWS} more</td></tr>")
-        out.append(f"<table class=\"brdfscale-summary\"><caption style=\"text-align:left\">{html.escape(table.caption)}"
-                   f"</caption><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>")
+            body.append(f'<tr><td colspan="{len(table.columns)}">… {len(table.rows) - _TABLE_ROWS} more</td></tr>')
+        out.append(
+            f'<table class="brdfscale-summary"><caption style="text-align:left">{html.escape(table.caption)}'
+            f"</caption><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+        )
     return "\n".join(out)
 
 
@@ -344,7 +379,8 @@ def progress_mode() -> str:
     if setting not in _ON and setting != "text":
         raise InvalidInputError(
             f"the environment variable {PROGRESS_VARIABLE} is {os.environ[PROGRESS_VARIABLE]!r}; use 0 (no progress "
-            "bars), text (text bars even in a notebook) or 1/auto (the default), or unset it.")
+            "bars), text (text bars even in a notebook) or 1/auto (the default), or unset it."
+        )
     if setting != "text" and _in_jupyter_kernel() and _notebook_bar() is not None:
         return "notebook"
     return "text"

@@ -39,6 +39,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+
 _J_SWITCH = 8.0  # |x| ≤ 8: Chebyshev series in x/8; beyond: modulus–phase form in 8/x
 _J_TRAPEZOID_NODES = 96  # the trapezoidal rule the series are fitted to (error ≤ 1e-17 for |x| ≤ 8)
 _J_SMALL_DEGREE = {0: 34, 1: 37}
@@ -79,8 +80,10 @@ def _modulus_phase_numpy(n: int, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     chi = xn - (n / 2 + 0.25) * np.pi
     scale = np.sqrt(np.pi * xn / 2)
     j, y = scipy.special.jv(n, xn), scipy.special.yv(n, xn)
-    return (np.where(far, p, scale * (j * np.cos(chi) + y * np.sin(chi))),
-            np.where(far, q, scale * (y * np.cos(chi) - j * np.sin(chi))))
+    return (
+        np.where(far, p, scale * (j * np.cos(chi) + y * np.sin(chi))),
+        np.where(far, q, scale * (y * np.cos(chi) - j * np.sin(chi))),
+    )
 
 
 def _j_series() -> dict:
@@ -94,7 +97,7 @@ def _j_series() -> dict:
     out = {}
     for n in (0, 1):
         small = chebyshev.chebfit(t, _j_trapezoid_numpy(n, _J_SWITCH * t), _J_SMALL_DEGREE[n])
-        small[(1 - n)::2] = 0.0
+        small[(1 - n) :: 2] = 0.0
         y = (t + 1) / 2  # 8/x ∈ (0, 1]; y = 0 is x = ∞, where P = 1 and Q = 0
         P, Q = _modulus_phase_numpy(n, _J_SWITCH / y)
         out[n] = (small, chebyshev.chebfit(t, P, _J_LARGE_DEGREE), chebyshev.chebfit(t, Q, _J_LARGE_DEGREE))

@@ -68,14 +68,17 @@ def last_axis(x, size: int, name: str):
     try:
         a = jnp.asarray(x)
     except (TypeError, ValueError) as err:
-        raise InvalidInputError(f"{name} must be a real array of shape (..., {size}); got {type(x).__name__}: {err}") from None
+        raise InvalidInputError(
+            f"{name} must be a real array of shape (..., {size}); got {type(x).__name__}: {err}"
+        ) from None
     if a.ndim < 1 or a.shape[-1] != size:
         raise InvalidInputError(f"{name} must have shape (..., {size}); got shape {a.shape}.")
     if jnp.issubdtype(a.dtype, jnp.complexfloating) or a.dtype == bool:
         raise InvalidInputError(f"{name} must be real; got dtype {a.dtype}.")
     if is_concrete(a) and not np.all(np.isfinite(np.asarray(a))):
-        raise InvalidInputError(f"{name} must be finite; got {np.count_nonzero(~np.isfinite(np.asarray(a)))} "
-                                "NaN or infinite entries.")
+        raise InvalidInputError(
+            f"{name} must be finite; got {np.count_nonzero(~np.isfinite(np.asarray(a)))} NaN or infinite entries."
+        )
     return a
 
 
@@ -83,8 +86,9 @@ def facet_size(mu, name: str = "mu"):
     """A facet size μ: one positive number (map over scales with ``jax.vmap``)."""
     a = positive(mu, name, "a positive facet size")
     if a.ndim != 0:
-        raise InvalidInputError(f"{name} must be a single facet size (a scalar; map over scales with jax.vmap); "
-                                f"got shape {a.shape}.")
+        raise InvalidInputError(
+            f"{name} must be a single facet size (a scalar; map over scales with jax.vmap); got shape {a.shape}."
+        )
     return a
 
 
@@ -100,11 +104,17 @@ def real_array(x, name: str, ndim: int | None = None) -> np.ndarray:
     try:
         a = np.asarray(x)
     except (TypeError, ValueError) as err:  # a ragged nest
-        raise InvalidInputError(f"{name} must be an array of real numbers; got a {type(x).__name__} NumPy cannot "
-                                f"read as one ({err}).") from None
+        raise InvalidInputError(
+            f"{name} must be an array of real numbers; got a {type(x).__name__} NumPy cannot read as one ({err})."
+        ) from None
     if a.dtype.kind not in "fiu":
-        what = {"c": "complex values are not cast to real", "b": "booleans are not numbers here",
-                "O": "None or mixed objects", "U": "text", "S": "text"}.get(a.dtype.kind, "not numbers")
+        what = {
+            "c": "complex values are not cast to real",
+            "b": "booleans are not numbers here",
+            "O": "None or mixed objects",
+            "U": "text",
+            "S": "text",
+        }.get(a.dtype.kind, "not numbers")
         raise InvalidInputError(f"{name} must be real numbers (float or int); got dtype {a.dtype} ({what}).")
     a = a.astype(float, copy=False)
     if ndim is not None and a.ndim != ndim:
@@ -112,7 +122,6 @@ def real_array(x, name: str, ndim: int | None = None) -> np.ndarray:
     if not np.all(np.isfinite(a)):
         raise InvalidInputError(f"{name} contains non-finite values ({np.count_nonzero(~np.isfinite(a))} NaN or inf).")
     return a
-
 
 
 # -- plain Python arguments (counts, seeds, tolerances, switches) ---------------------------
@@ -123,7 +132,9 @@ def integer(value, name: str, minimum: int) -> int:
             raise TypeError
         number = operator.index(value)
     except TypeError:
-        raise InvalidInputError(f"{name} must be an integer ≥ {minimum}; got {type(value).__name__} {value!r}.") from None
+        raise InvalidInputError(
+            f"{name} must be an integer ≥ {minimum}; got {type(value).__name__} {value!r}."
+        ) from None
     if number < minimum:
         raise InvalidInputError(f"{name} must be an integer ≥ {minimum}; got {value!r}.")
     return number
@@ -138,7 +149,8 @@ def real(value, name: str, *, minimum: float = -math.inf, strict: bool = False) 
         x = float(value)
     except (TypeError, ValueError):
         raise InvalidInputError(
-            f"{name} must be a finite real number{bound}; got {type(value).__name__} {value!r}.") from None
+            f"{name} must be a finite real number{bound}; got {type(value).__name__} {value!r}."
+        ) from None
     if not math.isfinite(x) or x < minimum or (strict and x == minimum):
         raise InvalidInputError(f"{name} must be a finite number{bound}; got {value!r}.")
     return x
@@ -162,7 +174,7 @@ def require_float64(what: str) -> None:
 
     if not jax.config.jax_enable_x64:
         raise InvalidInputError(
-            f"{what} needs float64, and JAX is in float32 mode: add `jax.config.update(\"jax_enable_x64\", True)` "
+            f'{what} needs float64, and JAX is in float32 mode: add `jax.config.update("jax_enable_x64", True)` '
             "at the start of the script or notebook, before any JAX array is made (brdfscale changes no global "
             "setting itself)."
         )
@@ -173,6 +185,9 @@ def pitch(spacing) -> tuple[float, float]:
     if isinstance(spacing, (tuple, list, np.ndarray)) and np.ndim(spacing) == 1:
         if len(spacing) != 2:
             raise InvalidInputError(f"spacing must be one pixel pitch or a pair (dx, dy); got {len(spacing)} numbers.")
-        return (real(spacing[0], "spacing dx", minimum=0, strict=True), real(spacing[1], "spacing dy", minimum=0, strict=True))
+        return (
+            real(spacing[0], "spacing dx", minimum=0, strict=True),
+            real(spacing[1], "spacing dy", minimum=0, strict=True),
+        )
     d = real(spacing, "spacing", minimum=0, strict=True)
     return (d, d)

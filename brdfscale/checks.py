@@ -13,4 +13,5 @@ Tested in tests/test_robustness.py and through every constructor that uses them.
 
 from ._validation import flag, integer, real, require_float64
 
+
 __all__ = ["integer", "real", "flag", "require_float64"]

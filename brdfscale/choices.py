@@ -13,20 +13,21 @@ the command's and the functions' defaults are these.
 """
 
 from ._choices import (
-    FAMILIES,
-    FIT,
-    LAWS,
-    MODEL,
-    MODELS,
-    SAMPLE,
-    SAMPLERS,
-    SOLVERS,
     Choice,
     Choices,
+    FAMILIES,
+    FIT,
     FitDefaults,
+    LAWS,
+    MODEL,
     ModelDefaults,
+    MODELS,
+    SAMPLE,
     SampleDefaults,
+    SAMPLERS,
+    SOLVERS,
 )
+
 
 __all__ = [
     "FAMILIES",

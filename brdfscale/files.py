@@ -11,4 +11,5 @@
 from ._files import atomic_write, exclusive
 from ._json import json_text, jsonable
 
+
 __all__ = ["atomic_write", "exclusive", "json_text", "jsonable"]

@@ -24,6 +24,7 @@ from ._errors import InvalidInputError
 from ._slopes import half_slope_of_valid, microfacet_factor_of_valid
 from ._validation import is_concrete, last_axis
 
+
 __all__ = [
     "direction_to_slope",
     "slope_to_direction",
@@ -48,9 +49,7 @@ def validate_directions(v: ArrayLike, name: str = "direction", atol: float = 1e-
         a = np.asarray(v)
         norm = np.linalg.norm(a, axis=-1)
         if np.any(np.abs(norm - 1) > max(atol, 1e2 * np.finfo(a.dtype).eps if a.dtype.kind == "f" else atol)):
-            raise InvalidInputError(
-                f"{name} must be unit vectors; got norms in [{norm.min():.6g}, {norm.max():.6g}]."
-            )
+            raise InvalidInputError(f"{name} must be unit vectors; got norms in [{norm.min():.6g}, {norm.max():.6g}].")
         if np.any(a[..., 2] <= 0):
             raise InvalidInputError(
                 f"{name} must lie in the upper hemisphere (z > 0, z = macroscopic normal); "

@@ -38,6 +38,7 @@ from jaxtyping import Float
 from ._errors import InvalidInputError
 from ._show import Shown, Table
 
+
 __all__ = ["NULL", "Laplace", "combination", "laplace"]
 
 NULL = 1e-12
@@ -103,12 +104,18 @@ class Laplace(Shown):
         return [None if u > _MOVES_MORE * d else float(s) for s, d, u in zip(out, determined, undetermined)]
 
     def _show_items(self):
-        return [("coordinates", len(self.names)), ("undetermined", "; ".join(u["combination"] for u in self.undetermined)
-                                                    or "none")]
+        return [
+            ("coordinates", len(self.names)),
+            ("undetermined", "; ".join(u["combination"] for u in self.undetermined) or "none"),
+        ]
 
     def _show_tables(self):
         rows = [(u["combination"], u["fisher_eigenvalue"], u["std"]) for u in self.undetermined]
-        return [Table("combinations the data do not determine", ("combination", "Fisher eigenvalue", "std"), rows)] if rows else []
+        return (
+            [Table("combinations the data do not determine", ("combination", "Fisher eigenvalue", "std"), rows)]
+            if rows
+            else []
+        )
 
 
 def laplace(jacobian: Float[np.ndarray, "m d"], names, *, undetermined_std: float = 1.0) -> Laplace:
@@ -128,17 +135,24 @@ def laplace(jacobian: Float[np.ndarray, "m d"], names, *, undetermined_std: floa
     if J.ndim != 2 or J.shape[1] != len(names) or J.shape[1] == 0:
         raise InvalidInputError(f"jacobian must be (m, d) with d = len(names) = {len(names)} ≥ 1; got shape {J.shape}.")
     if not np.all(np.isfinite(J)):
-        raise InvalidInputError(f"jacobian has {int(np.count_nonzero(~np.isfinite(J)))} non-finite entries; the "
-                                "residuals are not differentiable at this point (check σ, masks and the model).")
+        raise InvalidInputError(
+            f"jacobian has {int(np.count_nonzero(~np.isfinite(J)))} non-finite entries; the "
+            "residuals are not differentiable at this point (check σ, masks and the model)."
+        )
     if not (isinstance(undetermined_std, (int, float)) and undetermined_std > 0):
-        raise InvalidInputError(f"undetermined_std must be a positive number (np.inf allowed); got {undetermined_std!r}.")
+        raise InvalidInputError(
+            f"undetermined_std must be a positive number (np.inf allowed); got {undetermined_std!r}."
+        )
     lam, V = np.linalg.eigh(J.T @ J)
     lam_max = max(float(lam[-1]), 1e-300)
     null = lam <= NULL * lam_max
     mask = null | (1.0 / np.sqrt(np.maximum(lam, 1e-300)) > undetermined_std)
     undetermined = [
-        {"combination": combination(V[:, i], names), "fisher_eigenvalue": float(lam[i]),
-         "std": None if null[i] else float(1 / np.sqrt(lam[i]))}
+        {
+            "combination": combination(V[:, i], names),
+            "fisher_eigenvalue": float(lam[i]),
+            "std": None if null[i] else float(1 / np.sqrt(lam[i])),
+        }
         for i in np.flatnonzero(mask)
     ]
     cov = (V[:, ~null] / lam[~null]) @ V[:, ~null].T

@@ -16,8 +16,35 @@
 Importing this module imports neither JAX nor matplotlib. Tested in tests/test_show.py.
 """
 
-from ._show import (MAX_CHARS, MAX_LINES, PROGRESS_VARIABLE, Shown, Table, Values, concrete, derived, describe,
-                    progress_bar, progress_mode, summary, summary_html)
+from ._show import (
+    concrete,
+    derived,
+    describe,
+    MAX_CHARS,
+    MAX_LINES,
+    progress_bar,
+    progress_mode,
+    PROGRESS_VARIABLE,
+    Shown,
+    summary,
+    summary_html,
+    Table,
+    Values,
+)
 
-__all__ = ["Shown", "Table", "Values", "derived", "concrete", "summary", "summary_html", "describe", "progress_bar",
-           "progress_mode", "PROGRESS_VARIABLE", "MAX_LINES", "MAX_CHARS"]
+
+__all__ = [
+    "Shown",
+    "Table",
+    "Values",
+    "derived",
+    "concrete",
+    "summary",
+    "summary_html",
+    "describe",
+    "progress_bar",
+    "progress_mode",
+    "PROGRESS_VARIABLE",
+    "MAX_LINES",
+    "MAX_CHARS",
+]

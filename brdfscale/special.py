@@ -10,4 +10,5 @@ accuracy against SciPy and mpmath is tested in tests/test_special.py.
 
 from ._special import j0, j1, jinc, k0, xk1
 
+
 __all__ = ["j0", "j1", "jinc", "k0", "xk1"]

@@ -7,6 +7,7 @@ import time
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
+
 RESULTS = Path(__file__).resolve().parent / "results"
 
 
@@ -53,7 +54,7 @@ def rotated(names, k: int) -> list:
     """``names`` (any iterable) rotated left by ``k``: round ``k``'s order, so that no
     candidate always runs in the same position."""
     names = list(names)
-    return names[k % len(names):] + names[: k % len(names)]
+    return names[k % len(names) :] + names[: k % len(names)]
 
 
 def interleaved_times(fns: dict, *, repeat: int = 15) -> dict:
@@ -103,6 +104,7 @@ def write_json(name: str, payload: dict) -> Path:
 def table(header: list[str], rows: list[list[str]]) -> str:
     """A Markdown table. A ``|`` inside a cell (``|M| ≤ 27``) is escaped, so that it does not end
     the cell; a row with more or fewer cells than the header is refused."""
+
     def line(cells):
         return "| " + " | ".join(str(c).replace("|", "\\|") for c in cells) + " |"
 

@@ -14,7 +14,8 @@ import numpy as np
 
 import brdfscale as bs
 from brdfscale import files
-from experiments._bench import RESULTS, machine
+from experiments._bench import machine, RESULTS
+
 
 WINDOWS = ("box", "gaussian", "spectral")
 """Facet windows: the b×b block mean (the library's), a Gaussian of the box's second moment
@@ -22,6 +23,7 @@ WINDOWS = ("box", "gaussian", "spectral")
 
 
 # -- files -----------------------------------------------------------------------------------
+
 
 def study_dir(study: str, out: str | os.PathLike | None = None) -> Path:
     """``experiments/results/<study>/`` (or ``out``), created."""
@@ -70,6 +72,7 @@ def progress(iterable, **kw):
 
 # -- surfaces and facet slopes -------------------------------------------------------------
 
+
 def pixel_slopes(heights: np.ndarray, spacing: float = 1.0) -> np.ndarray:
     """Normal slopes ``m = −∇h`` of the pixel facets (periodic forward differences), (n, n, 2)."""
     mx = -(np.roll(heights, -1, axis=1) - heights) / spacing
@@ -117,6 +120,7 @@ def expand(facets: np.ndarray, b: int) -> np.ndarray:
 
 # -- exact lattice histograms --------------------------------------------------------------
 
+
 def lattice_masses(samples: np.ndarray, radius: int, weights=None) -> np.ndarray:
     """Probability masses of integer lattice samples (…, 2) on ``[−radius, radius]²``.
 
@@ -147,6 +151,7 @@ def total_variation(p: np.ndarray, q: np.ndarray) -> float:
 
 
 # -- lobes on slope grids ------------------------------------------------------------------
+
 
 def node_grid(extent: float, bins: int) -> np.ndarray:
     """Nodes ``u`` (bins, bins, 2) over ``[−extent, extent]²`` (rows u_y, columns u_x)."""

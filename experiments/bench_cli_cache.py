@@ -22,9 +22,20 @@ from pathlib import Path
 
 from experiments._bench import machine, median, write_json
 
+
 ROUNDS = 3
-FIT_OPTIONS = ["--law", "gaussian_surface", "--starts", "4", "--steps", "1000", "--walkers", "16", "--no-progress",
-               "--force"]
+FIT_OPTIONS = [
+    "--law",
+    "gaussian_surface",
+    "--starts",
+    "4",
+    "--steps",
+    "1000",
+    "--walkers",
+    "16",
+    "--no-progress",
+    "--force",
+]
 
 
 def _command(*args, cache: Path) -> float:
@@ -40,8 +51,9 @@ def main():
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         cache = tmp / "cache"
-        _command("--no-compilation-cache", "demo", "--out", str(tmp / "demo"), "--steps", "0", "--no-progress",
-                 cache=cache)
+        _command(
+            "--no-compilation-cache", "demo", "--out", str(tmp / "demo"), "--steps", "0", "--no-progress", cache=cache
+        )
         measurements = tmp / "demo" / "measurements.exr"
 
         def fit(*flags):
@@ -69,8 +81,10 @@ def main():
             "cache_bytes": sum(p.stat().st_size for p in files),
         }
     path = write_json("bench_cli_cache", results)
-    print(f"cold cache {cold:.1f} s; warm cache median {results['warm_cache_median_s']:.1f} s; no cache median "
-          f"{results['no_cache_median_s']:.1f} s; {results['cache_entries']} entries, {results['cache_bytes'] / 2**20:.1f} MiB")
+    print(
+        f"cold cache {cold:.1f} s; warm cache median {results['warm_cache_median_s']:.1f} s; no cache median "
+        f"{results['no_cache_median_s']:.1f} s; {results['cache_entries']} entries, {results['cache_bytes'] / 2**20:.1f} MiB"
+    )
     print("wrote", path)
     return results
 

@@ -43,11 +43,13 @@ import sys
 import tempfile
 from pathlib import Path
 
+
 SINGLE_THREAD_FLAGS = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
 if "--single-thread" in sys.argv:  # must precede the first import of jax
     os.environ["XLA_FLAGS"] = (os.environ.get("XLA_FLAGS", "") + " " + SINGLE_THREAD_FLAGS).strip()
 
 import jax  # noqa: E402
+
 
 jax.config.update("jax_enable_x64", True)
 
@@ -59,6 +61,7 @@ import brdfscale as bs  # noqa: E402
 from brdfscale import lobes, stats  # noqa: E402
 from experiments._bench import best_time, interleaved_times, machine, median, write_json  # noqa: E402
 
+
 BATCH = 32
 ROUNDS = 41  # interleaved rounds of grid path, floor and control; the figures are medians
 EXTENT = 0.8  # half-width of the slope grid shared by all methods (lobe α0 = 0.1, statistics ≤ 0.18)
@@ -68,7 +71,10 @@ def statistics(kind: str, width):
     if kind == "gaussian_mixture":  # skewed, zero-mean two-component mixture
         return stats.Mixture(
             jnp.array([0.7, 0.3]),
-            [stats.Beckmann(width, mean=jnp.array([0.03, 0.0])), stats.Beckmann(1.5 * width, mean=jnp.array([-0.07, 0.0]))],
+            [
+                stats.Beckmann(width, mean=jnp.array([0.03, 0.0])),
+                stats.Beckmann(1.5 * width, mean=jnp.array([-0.07, 0.0])),
+            ],
         )
     return stats.GGX(width)
 
@@ -77,10 +83,12 @@ def _counting_page_faults(fn, counts: list):
     """``fn``, appending to ``counts`` the minor page faults of the process during each call
     (first touches of freshly mapped memory: the allocator handing out pages the kernel must
     map and zero; one ``getrusage`` on either side, about a microsecond)."""
+
     def counted():
         before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
         fn()
         counts.append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+
     return counted
 
 
@@ -106,14 +114,17 @@ def bench_grid(kind: str, n: int) -> dict:
     irfft_fn = jax.jit(lambda X: jnp.fft.irfft2(X, s=(n, n)))
     # the control: the floor timed a second time in every round; its ratio to the floor shows
     # how far each statistic of the timings moves by chance alone
-    candidates = {"grid": lambda: grid_fn(WIDTHS).block_until_ready(),
-                  "floor": lambda: floor_fn(x).block_until_ready(),
-                  "control": lambda: floor_fn(x).block_until_ready(),
-                  "multiply_irfft": lambda: multiply_fn(spectrum, multiplier).block_until_ready(),
-                  "irfft": lambda: irfft_fn(spectrum).block_until_ready()}
+    candidates = {
+        "grid": lambda: grid_fn(WIDTHS).block_until_ready(),
+        "floor": lambda: floor_fn(x).block_until_ready(),
+        "control": lambda: floor_fn(x).block_until_ready(),
+        "multiply_irfft": lambda: multiply_fn(spectrum, multiplier).block_until_ready(),
+        "irfft": lambda: irfft_fn(spectrum).block_until_ready(),
+    }
     faults = {name: [] for name in candidates}
-    times = interleaved_times({name: _counting_page_faults(fn, faults[name]) for name, fn in candidates.items()},
-                              repeat=ROUNDS)
+    times = interleaved_times(
+        {name: _counting_page_faults(fn, faults[name]) for name, fn in candidates.items()}, repeat=ROUNDS
+    )
     t_grid, t_floor = median(times["grid"]), median(times["floor"])
 
     # SciPy: sample g0 and s on the same grid and convolve (the straightforward implementation)
@@ -143,8 +154,10 @@ def bench_grid(kind: str, n: int) -> dict:
         "throughput_vs_floor": t_floor / t_grid,
         "throughput_vs_floor_best_of_rounds": times["floor"][0] / times["grid"][0],
         # throughput of the control (the floor again) relative to the floor, like throughput_vs_floor
-        "control_throughput_vs_floor": {"median": median(times["floor"]) / median(times["control"]),
-                                        "best_of_rounds": times["floor"][0] / times["control"][0]},
+        "control_throughput_vs_floor": {
+            "median": median(times["floor"]) / median(times["control"]),
+            "best_of_rounds": times["floor"][0] / times["control"][0],
+        },
         "round_times_s": times,
         # the first entry of each list is the warm-up call's
         "minor_page_faults_per_call_median": {name: median(sorted(c[1:])) for name, c in faults.items()},
@@ -175,7 +188,9 @@ def bench_queries(n: int) -> dict:
     grid_fn = jax.jit(jax.vmap(grid))
     t_closed = best_time(lambda: closed_fn(alphas, offsets).block_until_ready(), repeat=7)
     t_grid = best_time(lambda: grid_fn(alphas, offsets).block_until_ready(), repeat=3)
-    err = float(jnp.max(jnp.abs(grid_fn(alphas, offsets) - closed_fn(alphas, offsets))) / jnp.max(closed_fn(alphas, offsets)))
+    err = float(
+        jnp.max(jnp.abs(grid_fn(alphas, offsets) - closed_fn(alphas, offsets))) / jnp.max(closed_fn(alphas, offsets))
+    )
     return {
         "queries": q,
         "grid_size": n,
@@ -207,12 +222,22 @@ def fft_records(events: list) -> dict:
     for e in events:
         if e.get("ph") == "X" and e["name"].startswith("fft") and e["dur"] > 0:
             start, stop = e["ts"], e["ts"] + e["dur"]
-            helped = sum(max(0.0, min(stop, b) - max(start, a))
-                         for tid, spans in busy.items() if tid != e["tid"] for a, b in spans)
+            helped = sum(
+                max(0.0, min(stop, b) - max(start, a))
+                for tid, spans in busy.items()
+                if tid != e["tid"]
+                for a, b in spans
+            )
             pool = threads.get(e["tid"], "?").split("/")[0]
             by_pool.setdefault(pool, []).append((e["dur"] / 1e3, helped / e["dur"]))
-    return {pool: {"ffts": len(d), "median_ms": median(sorted(t for t, _ in d)),
-                   "helpers_median": median(sorted(w for _, w in d))} for pool, d in by_pool.items()}
+    return {
+        pool: {
+            "ffts": len(d),
+            "median_ms": median(sorted(t for t, _ in d)),
+            "helpers_median": median(sorted(w for _, w in d)),
+        }
+        for pool, d in by_pool.items()
+    }
 
 
 def fft_threads(kind: str, n: int, calls: int = 21) -> dict:
@@ -226,6 +251,7 @@ def fft_threads(kind: str, n: int, calls: int = 21) -> dict:
     its lines over the pool only when called from outside the pool — XLA's adapter
     (``ducc/google/threading.h``, ``adjust_nthreads``) gives a caller that is itself a pool
     thread one thread — so an FFT that lands on a pool thread runs on one thread. These figures show it as it happens (docs/benchmarks.md)."""
+
     def spectrum(w):
         shape = grid_shape(kind, w, n)
         h, _ = shape.grid_spacing()
@@ -237,9 +263,11 @@ def fft_threads(kind: str, n: int, calls: int = 21) -> dict:
     x = jnp.fft.irfft2(given, s=(n, n))
     floor_fn = jax.jit(lambda a: jnp.fft.irfft2(jnp.fft.rfft2(a), s=(n, n)))
     out = {"statistics": kind, "grid_size": n, "calls": calls}
-    for name, fn in (("grid_path", lambda: grid_fn(WIDTHS).block_until_ready()),
-                     ("irfft2_alone", lambda: irfft_fn(given).block_until_ready()),
-                     ("floor", lambda: floor_fn(x).block_until_ready())):
+    for name, fn in (
+        ("grid_path", lambda: grid_fn(WIDTHS).block_until_ready()),
+        ("irfft2_alone", lambda: irfft_fn(given).block_until_ready()),
+        ("floor", lambda: floor_fn(x).block_until_ready()),
+    ):
         fn()
         with tempfile.TemporaryDirectory() as tmp:
             with jax.profiler.trace(tmp):
@@ -261,8 +289,16 @@ def single_thread_rows(sizes) -> list:
     be set before jax starts): the work itself, free of the two-thread scheduling noise."""
     with tempfile.TemporaryDirectory() as tmp:
         rows = Path(tmp) / "rows.json"
-        cmd = [sys.executable, "-m", "experiments.bench_evolve", "--single-thread", "--rows", str(rows),
-               "--sizes", *map(str, sizes)]
+        cmd = [
+            sys.executable,
+            "-m",
+            "experiments.bench_evolve",
+            "--single-thread",
+            "--rows",
+            str(rows),
+            "--sizes",
+            *map(str, sizes),
+        ]
         subprocess.run(cmd, check=True, cwd=Path(__file__).resolve().parents[1])  # the checkout: experiments/'s parent
         return json.loads(rows.read_text())
 
@@ -271,8 +307,11 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--sizes", type=int, nargs="+", default=[128, 256])
     parser.add_argument("--quick", action="store_true", help="small sizes, for the smoke test")
-    parser.add_argument("--single-thread", action="store_true",
-                        help="(internal) time the grid rows with XLA on one thread and write them to --rows")
+    parser.add_argument(
+        "--single-thread",
+        action="store_true",
+        help="(internal) time the grid rows with XLA on one thread and write them to --rows",
+    )
     parser.add_argument("--rows", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     sizes = [64] if args.quick else args.sizes
@@ -291,7 +330,9 @@ def main(argv=None):
     }
     name = "bench_evolve_quick" if args.quick else "bench_evolve"
     path = write_json(name, results)
-    for threads, row in [("default", r) for r in results["grid"]] + [("1 thread", r) for r in results["grid_single_thread"]]:
+    for threads, row in [("default", r) for r in results["grid"]] + [
+        ("1 thread", r) for r in results["grid_single_thread"]
+    ]:
         print(
             f"{threads:>8} {row['statistics']:>17} N={row['grid_size']:4d}: grid {row['grid_path_s_per_lobe'] * 1e3:8.3f} ms/lobe, "
             f"floor {row['raw_fft_floor_s_per_grid'] * 1e3:8.3f} ms, scipy {row['scipy_fftconvolve_s_per_lobe'] * 1e3:8.3f} ms; "

@@ -62,16 +62,22 @@ import scipy.optimize
 
 from brdfscale import fitting
 
+
 jax.config.update("jax_enable_x64", True)  # the fits need float64; fitting changes no global setting
-from experiments._bench import best_time, interleaved_times, machine, median, rotated, write_json
 from brdfscale.fitting._solve import make_solver as _make_solver, solve as _solve
+from experiments._bench import best_time, interleaved_times, machine, median, rotated, write_json
+
 
 SCALES = (0.5, 1.0, 2.0, 4.0, 8.0)
 PROBLEMS = {
-    "beckmann_width_law": (dict(law="width"),
-                           dict(amplitude=0.8, alpha_lobe=0.05, alpha_max=0.2, mu_c=1.0, exponent=0.8)),
-    "beckmann_gaussian_surface": (dict(law="gaussian_surface"),
-                                  dict(amplitude=0.8, alpha_lobe=0.05, rms_height=0.06, correlation_length=1.5)),
+    "beckmann_width_law": (
+        dict(law="width"),
+        dict(amplitude=0.8, alpha_lobe=0.05, alpha_max=0.2, mu_c=1.0, exponent=0.8),
+    ),
+    "beckmann_gaussian_surface": (
+        dict(law="gaussian_surface"),
+        dict(amplitude=0.8, alpha_lobe=0.05, rms_height=0.06, correlation_length=1.5),
+    ),
 }
 FIT_DEFAULTS = dict(rtol=1e-6, atol=1e-6, max_steps=256)  # fitting.fit's defaults
 ROUNDS = 41  # rounds of SciPy solves and JAX solves (see _solve_times); medians are the figures
@@ -93,11 +99,16 @@ def _compile_breakdown(problem, y0, solver):
     lower_s, lowered = _wall(traced.lower)
     compile_s, compiled = _wall(lowered.compile)
     model_part = jax.jit(jax.jacfwd(problem.residuals)).lower(y0).compile()
-    return {"trace_s": trace_s, "lower_s": lower_s, "xla_compile_s": compile_s, "hlo_chars": len(lowered.as_text()),
-            # XLA:CPU runs each fusion as a kernel of its own: the solve's kernels, and those of
-            # the residuals with their forward-mode Jacobian (the model's share of every step)
-            "xla_fusions_in_solve": _fusions(compiled),
-            "xla_fusions_in_residuals_and_jacobian": _fusions(model_part)}
+    return {
+        "trace_s": trace_s,
+        "lower_s": lower_s,
+        "xla_compile_s": compile_s,
+        "hlo_chars": len(lowered.as_text()),
+        # XLA:CPU runs each fusion as a kernel of its own: the solve's kernels, and those of
+        # the residuals with their forward-mode Jacobian (the model's share of every step)
+        "xla_fusions_in_solve": _fusions(compiled),
+        "xla_fusions_in_residuals_and_jacobian": _fusions(model_part),
+    }
 
 
 def _fusions(compiled) -> int:
@@ -111,19 +122,33 @@ def optimistix_floor(rows=545, n=5):
 
     @eqx.filter_jit
     def solve(args, y0, solver):
-        sol = optx.least_squares(lambda y, a: jnp.tanh(a[0] @ y) - a[1], solver, y0, args=args,
-                                 max_steps=FIT_DEFAULTS["max_steps"], throw=False)
+        sol = optx.least_squares(
+            lambda y, a: jnp.tanh(a[0] @ y) - a[1],
+            solver,
+            y0,
+            args=args,
+            max_steps=FIT_DEFAULTS["max_steps"],
+            throw=False,
+        )
         return sol.value, sol.stats["num_steps"]
 
     y0 = jnp.zeros(n)
     record = {"rows": rows, "parameters": n}
-    solvers = {"fit_solver": _make_solver("lm", FIT_DEFAULTS["rtol"], FIT_DEFAULTS["atol"]),  # QR of [J; √λ I]
-               "normal_cholesky": optx.LevenbergMarquardt(rtol=FIT_DEFAULTS["rtol"], atol=FIT_DEFAULTS["atol"],
-                                                          norm=optx.rms_norm, linear_solver=lx.Normal(lx.Cholesky()))}
+    solvers = {
+        "fit_solver": _make_solver("lm", FIT_DEFAULTS["rtol"], FIT_DEFAULTS["atol"]),  # QR of [J; √λ I]
+        "normal_cholesky": optx.LevenbergMarquardt(
+            rtol=FIT_DEFAULTS["rtol"],
+            atol=FIT_DEFAULTS["atol"],
+            norm=optx.rms_norm,
+            linear_solver=lx.Normal(lx.Cholesky()),
+        ),
+    }
     # the two alternated in rounds (back-to-back phases differ measurably on this machine);
     # medians, like the problems' solves
-    times = interleaved_times({name: (lambda s=solver: jax.block_until_ready(solve(args, y0, s)))
-                               for name, solver in solvers.items()}, repeat=ROUNDS)
+    times = interleaved_times(
+        {name: (lambda s=solver: jax.block_until_ready(solve(args, y0, s))) for name, solver in solvers.items()},
+        repeat=ROUNDS,
+    )
     for name, solver in solvers.items():
         steps = int(solve(args, y0, solver)[1])
         record[name] = {"warm_solve_s": median(times[name]), "steps": steps, "per_step_s": median(times[name]) / steps}
@@ -165,7 +190,8 @@ def _equal_accuracy(points: list) -> dict:
         as_close = [q for q in jax_points if q["error_laplace_std"] <= p["error_laplace_std"]]
         best = min(as_close, key=lambda q: (q["evaluations"], -q["tolerance"])) if as_close else None
         out[f"{p['solver']}@{p['tolerance']:g}"] = {
-            "scipy_error_laplace_std": p["error_laplace_std"], "scipy_s": p["median_s"],
+            "scipy_error_laplace_std": p["error_laplace_std"],
+            "scipy_s": p["median_s"],
             "scipy_evaluations": p["evaluations"],
             "jax_tolerance": None if best is None else best["tolerance"],
             "jax_error_laplace_std": None if best is None else best["error_laplace_std"],
@@ -195,21 +221,26 @@ def bench_problem(options, truth):
         return np.asarray(compiled(t))
 
     def scipy_solver(method, tol):
-        return lambda: scipy.optimize.least_squares(f, np.asarray(y0), jac="2-point", method=method,
-                                                    ftol=tol, xtol=tol, gtol=tol)
+        return lambda: scipy.optimize.least_squares(
+            f, np.asarray(y0), jac="2-point", method=method, ftol=tol, xtol=tol, gtol=tol
+        )
 
     def jax_solver(tol):
         # compiled ahead of time with the problem's arrays as constants, exactly as the SciPy
         # baseline's residual function: both sides pay one dispatch of a one-argument call
-        solve = jax.jit(lambda y: _solve(problem, y, _make_solver("lm", tol, tol), FIT_DEFAULTS["max_steps"])
-                        ).lower(y0).compile()
+        solve = (
+            jax.jit(lambda y: _solve(problem, y, _make_solver("lm", tol, tol), FIT_DEFAULTS["max_steps"]))
+            .lower(y0)
+            .compile()
+        )
         return lambda: jax.block_until_ready(solve(y0))
 
     # the error-vs-time ladder; the first entries are the defaults of both sides
     jax_tols = (FIT_DEFAULTS["rtol"], *(t for t in JAX_TOLERANCES if t != FIT_DEFAULTS["rtol"]))
     jax_solves = {f"jax_lm@{tol:g}": jax_solver(tol) for tol in jax_tols}
-    scipy_solves = {f"scipy_{method}_fd@{tol:g}": scipy_solver(method, tol)
-                    for method in ("trf", "lm") for tol in SCIPY_TOLERANCES}
+    scipy_solves = {
+        f"scipy_{method}_fd@{tol:g}": scipy_solver(method, tol) for method in ("trf", "lm") for tol in SCIPY_TOLERANCES
+    }
     times = _solve_times(scipy_solves, jax_solves)
     default = f"jax_lm@{FIT_DEFAULTS['rtol']:g}"
     warm = median(times[default])
@@ -217,21 +248,29 @@ def bench_problem(options, truth):
     theta = np.asarray(theta)
     std = np.sqrt(np.diag(result.covariance))
     record = {
-        "parameters": len(model.names), "pixels": data.n_data,
+        "parameters": len(model.names),
+        "pixels": data.n_data,
         "residual_rows": int(problem.residuals(y0).size),
         "fit_4_starts": {"first_call_s": first_fit, "warm_s": warm_fit, "compile_s": first_fit - warm_fit},
         "compile_breakdown": record_compile,
         "dispatch_s": dispatch,
-        "jax_lm": {"warm_solve_s": warm, "solve_after_scipy_s": median(times["jax_after_scipy"]), "steps": int(steps),
-                   "per_step_s": warm / int(steps), "chi2": float(chi2), "result_code": int(code),
-                   "tolerances": FIT_DEFAULTS},
+        "jax_lm": {
+            "warm_solve_s": warm,
+            "solve_after_scipy_s": median(times["jax_after_scipy"]),
+            "steps": int(steps),
+            "per_step_s": warm / int(steps),
+            "chi2": float(chi2),
+            "result_code": int(code),
+            "tolerances": FIT_DEFAULTS,
+        },
         "rounds": ROUNDS,
     }
     record["residual_call_s"] = best_time(lambda: f(np.asarray(y0)), repeat=5, number=200)
 
     # errors: distance from θ* in the Fisher metric JᵀJ(θ*) (whitened residuals: Laplace σ)
-    reference = _solve(problem, y0, _make_solver("lm", REFERENCE_TOLERANCE, REFERENCE_TOLERANCE),
-                       FIT_DEFAULTS["max_steps"])
+    reference = _solve(
+        problem, y0, _make_solver("lm", REFERENCE_TOLERANCE, REFERENCE_TOLERANCE), FIT_DEFAULTS["max_steps"]
+    )
     theta_star, jac_star = np.asarray(reference[0]), np.asarray(reference[4])
 
     def error(x):
@@ -241,20 +280,37 @@ def bench_problem(options, truth):
     points = []
     for name, solve in jax_solves.items():
         out = solve()
-        points.append({"solver": "jax_lm", "tolerance": float(name.split("@")[1]), "evaluations": int(out[2]),
-                       "error_laplace_std": error(out[0]), "median_s": median(times[name])})
+        points.append(
+            {
+                "solver": "jax_lm",
+                "tolerance": float(name.split("@")[1]),
+                "evaluations": int(out[2]),
+                "error_laplace_std": error(out[0]),
+                "median_s": median(times[name]),
+            }
+        )
     offset = float(problem.points.chi2_offset)
     for name, solve in scipy_solves.items():
         out = solve()
         solver_name, tol = name.split("@")
-        points.append({"solver": solver_name, "tolerance": float(tol), "evaluations": int(out.nfev),
-                       "error_laplace_std": error(out.x), "median_s": median(times[name])})
+        points.append(
+            {
+                "solver": solver_name,
+                "tolerance": float(tol),
+                "evaluations": int(out.nfev),
+                "error_laplace_std": error(out.x),
+                "median_s": median(times[name]),
+            }
+        )
         if float(tol) == SCIPY_TOLERANCES[0]:  # SciPy's defaults: the baseline's own record
             t_scipy = median(times[name])
             chi2_ref = 2 * float(out.cost) + offset
             difference = np.abs(out.x - theta)
             record[solver_name] = {
-                "solve_s": t_scipy, "nfev": int(out.nfev), "chi2": chi2_ref, "success": bool(out.success),
+                "solve_s": t_scipy,
+                "nfev": int(out.nfev),
+                "chi2": chi2_ref,
+                "success": bool(out.success),
                 "max_abs_theta_difference": float(difference.max()),
                 "max_theta_difference_in_laplace_std": float((difference / std).max()),
                 "same_optimum": bool(abs(chi2_ref - float(chi2)) <= 1e-6 * float(chi2)),
@@ -271,19 +327,41 @@ def bench_problem(options, truth):
         "points": points,
         "equal_accuracy": equal,
         "target_10x_met_at_equal_accuracy_vs_scipy_defaults": {
-            method: speedup is not None and speedup >= 10 for method, speedup in at_defaults.items()},
+            method: speedup is not None and speedup >= 10 for method, speedup in at_defaults.items()
+        },
     }
 
     walkers, steps = 32, 400
-    first_mcmc, _ = _wall(lambda: fitting.sample(problem, result, sampler="emcee", chains=1, walkers=walkers, steps=20, chunk=20, progress=False))
-    t_mcmc, _ = _wall(lambda: fitting.sample(problem, result, sampler="emcee", chains=1, walkers=walkers, steps=steps, chunk=steps,
-                                             progress=False))
+    first_mcmc, _ = _wall(
+        lambda: fitting.sample(
+            problem, result, sampler="emcee", chains=1, walkers=walkers, steps=20, chunk=20, progress=False
+        )
+    )
+    t_mcmc, _ = _wall(
+        lambda: fitting.sample(
+            problem, result, sampler="emcee", chains=1, walkers=walkers, steps=steps, chunk=steps, progress=False
+        )
+    )
     with tempfile.TemporaryDirectory() as tmp:
-        t_ckpt, _ = _wall(lambda: fitting.sample(problem, result, sampler="emcee", chains=1, walkers=walkers, steps=steps, chunk=100,
-                                                 checkpoint=os.path.join(tmp, "c.h5"), progress=False))
+        t_ckpt, _ = _wall(
+            lambda: fitting.sample(
+                problem,
+                result,
+                sampler="emcee",
+                chains=1,
+                walkers=walkers,
+                steps=steps,
+                chunk=100,
+                checkpoint=os.path.join(tmp, "c.h5"),
+                progress=False,
+            )
+        )
     record["emcee"] = {
-        "walkers": walkers, "steps": steps, "first_20_steps_with_compile_s": first_mcmc,
-        "steps_per_s": steps / t_mcmc, "log_prob_evaluations_per_s": steps * walkers / t_mcmc,
+        "walkers": walkers,
+        "steps": steps,
+        "first_20_steps_with_compile_s": first_mcmc,
+        "steps_per_s": steps / t_mcmc,
+        "log_prob_evaluations_per_s": steps * walkers / t_mcmc,
         "steps_per_s_with_hdf5_checkpoints_every_100": steps / t_ckpt,
     }
     return record

@@ -42,6 +42,7 @@ import time
 
 from experiments._bench import machine, write_json
 
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 STARTS = 6
 
@@ -83,29 +84,36 @@ def _run(config: dict, devices: int = 1) -> dict:
     env["JAX_PLATFORMS"] = "cpu"
     env["BRDFSCALE_PROGRESS"] = "0"
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-c", _CHILD, json.dumps(config)], capture_output=True, text=True,
-                          env=env, cwd=ROOT)
+    proc = subprocess.run(
+        [sys.executable, "-c", _CHILD, json.dumps(config)], capture_output=True, text=True, env=env, cwd=ROOT
+    )
     wall = time.perf_counter() - t0
     lines = [line for line in proc.stdout.splitlines() if line.startswith("RESULT ")]
     if proc.returncode != 0 or not lines:
         raise RuntimeError(f"{config} failed:\n{proc.stderr[-3000:]}")
-    out = json.loads(lines[-1][len("RESULT "):])
+    out = json.loads(lines[-1][len("RESULT ") :])
     out.update(config, process_wall_s=wall, materials_per_s=config["materials"] / out["seconds"], xla_devices=devices)
-    print(f"{config['kind']:8s} n={config['materials']:4d} batch={config.get('batch', '-')!s:4s} "
-          f"lanes={config.get('lanes', 'default')!s:7s} "
-          f"devices={devices} workers={config.get('workers', '-')}: {out['seconds']:.1f} s, "
-          f"{out['materials_per_s']:.2f} materials/s", flush=True)
+    print(
+        f"{config['kind']:8s} n={config['materials']:4d} batch={config.get('batch', '-')!s:4s} "
+        f"lanes={config.get('lanes', 'default')!s:7s} "
+        f"devices={devices} workers={config.get('workers', '-')}: {out['seconds']:.1f} s, "
+        f"{out['materials_per_s']:.2f} materials/s",
+        flush=True,
+    )
     return out
 
 
 def _command(args, env, timeout=1800) -> float:
     """Wall seconds of ``python -m brdfscale ARGS`` (what a user waits: start-up and imports included)."""
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "brdfscale", *args], capture_output=True, text=True, env=env,
-                          cwd=ROOT, timeout=timeout)
+    proc = subprocess.run(
+        [sys.executable, "-m", "brdfscale", *args], capture_output=True, text=True, env=env, cwd=ROOT, timeout=timeout
+    )
     seconds = time.perf_counter() - t0
     if proc.returncode != 0:
-        raise RuntimeError(f"brdfscale {' '.join(args)} exited {proc.returncode}:\n{proc.stdout[-1500:]}\n{proc.stderr[-1500:]}")
+        raise RuntimeError(
+            f"brdfscale {' '.join(args)} exited {proc.returncode}:\n{proc.stdout[-1500:]}\n{proc.stderr[-1500:]}"
+        )
     return seconds
 
 
@@ -119,13 +127,19 @@ def _library_rows(n: int, batch: int) -> list:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         source = os.path.join(tmp, "library")
-        make = ("import jax; jax.config.update('jax_enable_x64', True); "
-                f"from tests.helpers import write_library; write_library({source!r}, {n})")
+        make = (
+            "import jax; jax.config.update('jax_enable_x64', True); "
+            f"from tests.helpers import write_library; write_library({source!r}, {n})"
+        )
         subprocess.run([sys.executable, "-c", make], check=True, cwd=ROOT, capture_output=True)
         base = {k: v for k, v in os.environ.items() if not k.startswith(("JAX_COMPILATION_CACHE", "RAY_ADDRESS"))}
         base.update(JAX_PLATFORMS="cpu", BRDFSCALE_PROGRESS="0", RAY_USAGE_STATS_ENABLED="0")
-        configs = [("in_process", []), ("ray_workers_1", ["--workers", "1"]), ("ray_workers_2", ["--workers", "2"]),
-                   ("ray_address_1", ["--address", "auto"])]
+        configs = [
+            ("in_process", []),
+            ("ray_workers_1", ["--workers", "1"]),
+            ("ray_workers_2", ["--workers", "2"]),
+            ("ray_address_1", ["--address", "auto"]),
+        ]
         for k, (how, extra) in enumerate(configs):
             env = {**base, "BRDFSCALE_COMPILATION_CACHE": os.path.join(tmp, f"cache{k}")}
             row = {"how": how, "materials": n, "batch": batch, "starts": STARTS}
@@ -133,12 +147,39 @@ def _library_rows(n: int, batch: int) -> list:
             try:
                 if how == "ray_address_1":
                     t0 = time.perf_counter()
-                    subprocess.run([ray_bin, "start", "--head", "--num-cpus", "1", "--include-dashboard", "false",
-                                    "--disable-usage-stats"], check=True, capture_output=True, env=env, timeout=300)
+                    subprocess.run(
+                        [
+                            ray_bin,
+                            "start",
+                            "--head",
+                            "--num-cpus",
+                            "1",
+                            "--include-dashboard",
+                            "false",
+                            "--disable-usage-stats",
+                        ],
+                        check=True,
+                        capture_output=True,
+                        env=env,
+                        timeout=300,
+                    )
                     row["ray_start_seconds"] = time.perf_counter() - t0
                 try:
-                    row["seconds"] = _command(["fit-library", source, "--out", os.path.join(tmp, f"out{k}"), "--batch",
-                                               str(batch), "--starts", str(STARTS), "--no-progress", *extra], env)
+                    row["seconds"] = _command(
+                        [
+                            "fit-library",
+                            source,
+                            "--out",
+                            os.path.join(tmp, f"out{k}"),
+                            "--batch",
+                            str(batch),
+                            "--starts",
+                            str(STARTS),
+                            "--no-progress",
+                            *extra,
+                        ],
+                        env,
+                    )
                 finally:
                     if how == "ray_address_1":
                         subprocess.run([ray_bin, "stop", "--force"], capture_output=True, env=env, timeout=300)
@@ -160,17 +201,24 @@ def run(quick: bool = False, device_counts=(2, 4)) -> dict:
         rows.append(_run({"kind": "loop", "materials": n, "starts": STARTS}))
     for n in sizes:
         rows.append(_run({"kind": "batched", "materials": n, "starts": STARTS, "batch": 64}))
-    for batch in ([2] if quick else [16]):
+    for batch in [2] if quick else [16]:
         rows.append(_run({"kind": "batched", "materials": at, "starts": STARTS, "batch": batch}))
     # lanes: the CPU default (1, each solve by itself) against groups and the accelerators' default (all vmapped)
-    for lanes in ([2, "all"] if quick else [8, "all"]):
+    for lanes in [2, "all"] if quick else [8, "all"]:
         rows.append(_run({"kind": "batched", "materials": at, "starts": STARTS, "batch": 64, "lanes": lanes}))
-    for devices in ([2] if quick else device_counts):
+    for devices in [2] if quick else device_counts:
         rows.append(_run({"kind": "batched", "materials": at, "starts": STARTS, "batch": 64}, devices=devices))
     library_rows = _library_rows(at, 2 if quick else 16)
     loop = {r["materials"]: r for r in rows if r["kind"] == "loop"}
-    batched = next(r for r in rows if r["kind"] == "batched" and r["materials"] == at and r["batch"] == 64
-                   and r["xla_devices"] == 1 and "lanes" not in r)
+    batched = next(
+        r
+        for r in rows
+        if r["kind"] == "batched"
+        and r["materials"] == at
+        and r["batch"] == 64
+        and r["xla_devices"] == 1
+        and "lanes" not in r
+    )
     summary = {"speedup_batched_vs_loop": loop[at]["seconds"] / batched["seconds"], "target_speedup": 10.0}
     summary["speedup_met"] = summary["speedup_batched_vs_loop"] >= summary["target_speedup"]
     in_process = library_rows[0]
@@ -183,8 +231,15 @@ def run(quick: bool = False, device_counts=(2, 4)) -> dict:
     attached = next((r for r in library_rows if r["how"] == "ray_address_1"), None)
     if attached is not None and "overhead_vs_in_process" in attached:
         summary["ray_overhead_met"] = attached["overhead_vs_in_process"] <= 0.20
-    measured = [r for r in rows if r["kind"] == "batched" and r["xla_devices"] == 1 and r["materials"] == at
-                and r["batch"] == 64 and "lanes" not in r]
+    measured = [
+        r
+        for r in rows
+        if r["kind"] == "batched"
+        and r["xla_devices"] == 1
+        and r["materials"] == at
+        and r["batch"] == 64
+        and "lanes" not in r
+    ]
     if measured:
         r = measured[0]
         summary["compile_rows_measured"] = r["compile_seconds_per_bucket"] / r["seconds_per_padded_row"]
@@ -196,15 +251,25 @@ def run(quick: bool = False, device_counts=(2, 4)) -> dict:
         if ref is not None and r["materials"] == at:
             r["max_abs_theta_difference_vs_loop"] = float(np.max(np.abs(np.asarray(r["theta"]) - ref)))
         r.pop("theta", None)
-    return {"benchmark": "bench_library", "machine": machine(), "quick": quick, "starts": STARTS, "fits": rows,
-            "library": library_rows, "summary": summary}
+    return {
+        "benchmark": "bench_library",
+        "machine": machine(),
+        "quick": quick,
+        "starts": STARTS,
+        "fits": rows,
+        "library": library_rows,
+        "summary": summary,
+    }
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="4 materials, one of each configuration (a smoke run)")
-    parser.add_argument("--devices", default="2,4",
-                        help="virtual CPU device counts to shard over, comma-separated ('' for none; default 2,4)")
+    parser.add_argument(
+        "--devices",
+        default="2,4",
+        help="virtual CPU device counts to shard over, comma-separated ('' for none; default 2,4)",
+    )
     args = parser.parse_args(argv)
     payload = run(args.quick, tuple(int(x) for x in args.devices.split(",") if x))
     print(json.dumps(payload["summary"], indent=1))

@@ -34,8 +34,12 @@ def run(max_materials: int, starts: int = 6) -> dict:
         thetas = {}
         configs = [(count, None) for count in sorted({1, len(devices)})] + ([(1, 1)] if n <= 256 else [])
         for count, lanes in configs:
-            row = {"materials": n, "devices": count, "platform": devices[0].platform,
-                   "lanes": "default" if lanes is None else lanes}
+            row = {
+                "materials": n,
+                "devices": count,
+                "platform": devices[0].platform,
+                "lanes": "default" if lanes is None else lanes,
+            }
             for call in ("first", "compiled"):
                 t0 = time.perf_counter()
                 results = fitting.fit_many(model, data, starts=starts, batch=n, devices=count, lanes=lanes)
@@ -49,8 +53,13 @@ def run(max_materials: int, starts: int = 6) -> dict:
                 row["max_abs_theta_difference_vs_one_device"] = float(np.max(np.abs(thetas[1] - theta)))
             rows.append(row)
             print(row, flush=True)
-    return {"benchmark": "bench_library_gpu", "machine": machine(), "devices": [str(d) for d in devices],
-            "starts": starts, "rows": rows}
+    return {
+        "benchmark": "bench_library_gpu",
+        "machine": machine(),
+        "devices": [str(d) for d in devices],
+        "starts": starts,
+        "rows": rows,
+    }
 
 
 def main(argv=None):

@@ -54,6 +54,7 @@ import time
 
 import jax
 
+
 jax.config.update("jax_enable_x64", True)
 
 import equinox as eqx  # noqa: E402
@@ -63,22 +64,22 @@ import numpy as np  # noqa: E402
 import brdfscale as bs  # noqa: E402
 from brdfscale import scene, so3  # noqa: E402
 from brdfscale.geometry import microfacet_factor, slope_to_direction  # noqa: E402
-from experiments._bench import RESULTS, best_time, machine, write_json  # noqa: E402
+from experiments._bench import best_time, machine, RESULTS, write_json  # noqa: E402
 from tests.references.planner import (  # noqa: E402 — the independent references, shared with tests/test_scene.py
-    LOBE_ALPHA,
-    MU0,
-    PLUS_X0,
-    WIDTH,
     _hankel_rows,
     alpha,
     hankel_reference,
+    LOBE_ALPHA,
     material,
     mpmath_check,
+    MU0,
     plus_h0,
+    PLUS_X0,
     reference,
     so3_material,
     so3_problem,
     so3_reference,
+    WIDTH,
 )
 
 
@@ -153,15 +154,22 @@ def planner_points(materials, queries, factor, ref, peak, sweep, targets, repeat
         t = best_time(lambda: p.evaluate().block_until_ready(), repeat=repeat, budget=TIMING_BUDGET)
         err = relative_error(values, ref, peak)
         adequate = [q["seconds"] for q in sweep if q["error"] <= err]
-        out.append({
-            "target": target, "error": err, "seconds": t, "plan_seconds": plan_seconds,
-            "predicted_error": p.predicted_error, "predicted_cost_units": p.predicted_cost,
-            "seconds_per_unit": t / p.predicted_cost,
-            "path": p.parts[0].path, "details": p.parts[0].details,
-            "pareto_seconds_at_error": min(adequate) if adequate else None,
-            "ratio_to_pareto": t / min(adequate) if adequate else None,
-            "explain": p.explain(),
-        })
+        out.append(
+            {
+                "target": target,
+                "error": err,
+                "seconds": t,
+                "plan_seconds": plan_seconds,
+                "predicted_error": p.predicted_error,
+                "predicted_cost_units": p.predicted_cost,
+                "seconds_per_unit": t / p.predicted_cost,
+                "path": p.parts[0].path,
+                "details": p.parts[0].details,
+                "pareto_seconds_at_error": min(adequate) if adequate else None,
+                "ratio_to_pareto": t / min(adequate) if adequate else None,
+                "explain": p.explain(),
+            }
+        )
     return out
 
 
@@ -172,15 +180,28 @@ def ranking(materials, queries, methods, target, repeat):
     for method in methods:
         p = scene.plan(scene.Scene(materials, queries, float(target)), method=method)
         t = best_time(lambda: p.evaluate().block_until_ready(), repeat=repeat, budget=TIMING_BUDGET)
-        forced.append({"method": method, "details": p.parts[0].details, "predicted_cost_units": p.predicted_cost,
-                       "seconds": t, "seconds_per_unit": t / p.predicted_cost})
+        forced.append(
+            {
+                "method": method,
+                "details": p.parts[0].details,
+                "predicted_cost_units": p.predicted_cost,
+                "seconds": t,
+                "seconds_per_unit": t / p.predicted_cost,
+            }
+        )
     predicted = [f["method"] for f in sorted(forced, key=lambda f: f["predicted_cost_units"])]
     measured = [f["method"] for f in sorted(forced, key=lambda f: f["seconds"])]
     # pairs the model separates clearly (predicted costs ≥ 2× apart): is the cheaper one faster?
     clear = [(a, b) for a in forced for b in forced if b["predicted_cost_units"] >= 2 * a["predicted_cost_units"]]
-    return {"target": target, "forced": forced, "predicted_order": predicted, "measured_order": measured,
-            "order_matches": predicted == measured, "clear_pairs": len(clear),
-            "clear_pairs_ordered_right": sum(a["seconds"] < b["seconds"] for a, b in clear)}
+    return {
+        "target": target,
+        "forced": forced,
+        "predicted_order": predicted,
+        "measured_order": measured,
+        "order_matches": predicted == measured,
+        "clear_pairs": len(clear),
+        "clear_pairs_ordered_right": sum(a["seconds"] < b["seconds"] for a, b in clear),
+    }
 
 
 def bench_problem(kind, quick):
@@ -220,11 +241,23 @@ def bench_problem(kind, quick):
         check = {"z": z, "series_H0": plus_h0(np.array(z)).tolist(), "mpmath_H0": exact}
     if not quick and kind in ("beckmann_ggx", "disk"):
         r = float(np.linalg.norm(U[3]))
-        check = {"radius": r, "mu": float(mus[0]), "scipy": float(hankel_reference(kind, mus[0], [r])[0]),
-                 "mpmath": mpmath_check(kind, mus[0], r)}
-    return {"problem": kind, "mus": mus.tolist(), "queries": len(U), "sweep": points, "pareto": pareto(ok),
-            "planner": planner, "ranking": ranked, "reference_check": check,
-            "wall_seconds": time.perf_counter() - started}
+        check = {
+            "radius": r,
+            "mu": float(mus[0]),
+            "scipy": float(hankel_reference(kind, mus[0], [r])[0]),
+            "mpmath": mpmath_check(kind, mus[0], r),
+        }
+    return {
+        "problem": kind,
+        "mus": mus.tolist(),
+        "queries": len(U),
+        "sweep": points,
+        "pareto": pareto(ok),
+        "planner": planner,
+        "ranking": ranked,
+        "reference_check": check,
+        "wall_seconds": time.perf_counter() - started,
+    }
 
 
 def so3_sweep_point(mat, problem, ref, peak, B, repeat):
@@ -259,18 +292,31 @@ def bench_so3_problem(quick):
     n = 6 if quick else 20
     repeat = 2 if quick else 3
     queries, ref, peak, problem = so3_problem(mus, n, nodes=32 if quick else 48)
-    points = [so3_sweep_point(mat, problem, ref, peak, B, repeat) for B in ([16] if quick else [16, 24, 32, 40, 48, 64])]
-    planner = planner_points((mat,), queries, np.ones(len(ref)), ref, peak, points,
-                             [1e-3] if quick else TARGETS[:3], repeat)
+    points = [
+        so3_sweep_point(mat, problem, ref, peak, B, repeat) for B in ([16] if quick else [16, 24, 32, 40, 48, 64])
+    ]
+    planner = planner_points(
+        (mat,), queries, np.ones(len(ref)), ref, peak, points, [1e-3] if quick else TARGETS[:3], repeat
+    )
     check = None
     if not quick:  # convergence of the reference quadrature at one orientation per scale
         i, o = problem["pairs"][0]
         a = problem["angles"][0][:1]
-        check = {"nodes": [48, 64], "values": [[float(so3_reference(mu, i, o, a, nodes)[0][0]) for nodes in (48, 64)]
-                                              for mu in mus]}
-    return {"problem": "so3", "mus": mus.tolist(), "queries": len(ref), "sweep": points, "pareto": pareto(points),
-            "planner": planner, "ranking": None, "reference_check": check,
-            "wall_seconds": time.perf_counter() - started}
+        check = {
+            "nodes": [48, 64],
+            "values": [[float(so3_reference(mu, i, o, a, nodes)[0][0]) for nodes in (48, 64)] for mu in mus],
+        }
+    return {
+        "problem": "so3",
+        "mus": mus.tolist(),
+        "queries": len(ref),
+        "sweep": points,
+        "pareto": pareto(points),
+        "planner": planner,
+        "ranking": None,
+        "reference_check": check,
+        "wall_seconds": time.perf_counter() - started,
+    }
 
 
 # -- workload ---------------------------------------------------------------------------------------
@@ -299,7 +345,6 @@ def workload_reference(sc):
                 g[chunk] = _hankel_rows(mu[chunk], np.linalg.norm(u[chunk], axis=-1))
                 peak[chunk] = _hankel_rows(mu[chunk], np.zeros(len(chunk)))
     return g, peak
-
 
 
 def bench_workload(resolution, naive_samples, tol):
@@ -342,21 +387,36 @@ def bench_workload(resolution, naive_samples, tol):
     image = np.asarray(p.image(jnp.asarray(values)))
     mu_image = np.zeros(resolution * resolution)
     mu_image[np.asarray(sc.pixels)] = np.asarray(q.mu)
-    return {
-        "resolution": resolution, "queries": len(q), "tol": tol,
-        "mu_min": float(q.mu.min()), "mu_max": float(q.mu.max()), "mu_ratio": float(q.mu.max() / q.mu.min()),
-        "plan_seconds": plan_seconds, "first_evaluate_seconds_with_compile": first_seconds,
-        "evaluate_seconds": t_eval, "predicted_cost_units": p.predicted_cost,
-        "seconds_per_unit": t_eval / p.predicted_cost,
-        "max_error_rel_peak": float(err_peak.max()), "predicted_error": p.predicted_error,
-        "max_pointwise_rel_error_where_above_1pct_of_peak": float(err_point.max()),
-        "naive_pixels_sampled": naive_samples, "naive_grid_sizes": sorted(set(int(s) for s in sizes)),
-        "naive_seconds_per_pixel": float(np.mean(naive_times)), "naive_seconds_extrapolated": naive_seconds,
-        "naive_max_error_rel_peak_on_sample": float(max(naive_err)),
-        "speedup_evaluate_vs_naive": naive_seconds / t_eval,
-        "speedup_plan_plus_evaluate_vs_naive": naive_seconds / (plan_seconds + first_seconds),
-        "explain": p.explain(),
-    }, image, mu_image.reshape(resolution, resolution), err_peak, sc
+    return (
+        {
+            "resolution": resolution,
+            "queries": len(q),
+            "tol": tol,
+            "mu_min": float(q.mu.min()),
+            "mu_max": float(q.mu.max()),
+            "mu_ratio": float(q.mu.max() / q.mu.min()),
+            "plan_seconds": plan_seconds,
+            "first_evaluate_seconds_with_compile": first_seconds,
+            "evaluate_seconds": t_eval,
+            "predicted_cost_units": p.predicted_cost,
+            "seconds_per_unit": t_eval / p.predicted_cost,
+            "max_error_rel_peak": float(err_peak.max()),
+            "predicted_error": p.predicted_error,
+            "max_pointwise_rel_error_where_above_1pct_of_peak": float(err_point.max()),
+            "naive_pixels_sampled": naive_samples,
+            "naive_grid_sizes": sorted(set(int(s) for s in sizes)),
+            "naive_seconds_per_pixel": float(np.mean(naive_times)),
+            "naive_seconds_extrapolated": naive_seconds,
+            "naive_max_error_rel_peak_on_sample": float(max(naive_err)),
+            "speedup_evaluate_vs_naive": naive_seconds / t_eval,
+            "speedup_plan_plus_evaluate_vs_naive": naive_seconds / (plan_seconds + first_seconds),
+            "explain": p.explain(),
+        },
+        image,
+        mu_image.reshape(resolution, resolution),
+        err_peak,
+        sc,
+    )
 
 
 def cost_model_summary(problems, work):
@@ -365,18 +425,27 @@ def cost_model_summary(problems, work):
     from scipy.stats import spearmanr
 
     plans = [(pl["predicted_cost_units"], pl["seconds"]) for prob in problems for pl in prob["planner"]]
-    plans += [(f["predicted_cost_units"], f["seconds"]) for prob in problems if prob["ranking"]
-              for f in prob["ranking"]["forced"]]
+    plans += [
+        (f["predicted_cost_units"], f["seconds"])
+        for prob in problems
+        if prob["ranking"]
+        for f in prob["ranking"]["forced"]
+    ]
     plans.append((work["predicted_cost_units"], work["evaluate_seconds"]))
     units, seconds = np.array(plans).T
     rankings = [prob["ranking"] for prob in problems if prob["ranking"]]
     per_unit = seconds / units
-    return {"rankings": len(rankings), "rankings_matching": sum(r["order_matches"] for r in rankings),
-            "clear_pairs": sum(r["clear_pairs"] for r in rankings),
-            "clear_pairs_ordered_right": sum(r["clear_pairs_ordered_right"] for r in rankings),
-            "plans": len(plans), "spearman": float(spearmanr(units, seconds).statistic) if len(plans) > 2 else None,
-            "seconds_per_unit_min": float(per_unit.min()), "seconds_per_unit_max": float(per_unit.max()),
-            "seconds_per_unit_median": float(np.median(per_unit))}
+    return {
+        "rankings": len(rankings),
+        "rankings_matching": sum(r["order_matches"] for r in rankings),
+        "clear_pairs": sum(r["clear_pairs"] for r in rankings),
+        "clear_pairs_ordered_right": sum(r["clear_pairs_ordered_right"] for r in rankings),
+        "plans": len(plans),
+        "spearman": float(spearmanr(units, seconds).statistic) if len(plans) > 2 else None,
+        "seconds_per_unit_min": float(per_unit.min()),
+        "seconds_per_unit_max": float(per_unit.max()),
+        "seconds_per_unit_median": float(np.median(per_unit)),
+    }
 
 
 def plots(results, image, mu_image, suffix):
@@ -392,13 +461,32 @@ def plots(results, image, mu_image, suffix):
         for method, c in colours.items():
             pts = [p for p in prob["sweep"] if p.get("method") == method and "error" in p]
             if pts:
-                ax.scatter([p["seconds"] for p in pts], [max(p["error"], 1e-17) for p in pts], s=12, c=c, label=method, alpha=0.6)
+                ax.scatter(
+                    [p["seconds"] for p in pts],
+                    [max(p["error"], 1e-17) for p in pts],
+                    s=12,
+                    c=c,
+                    label=method,
+                    alpha=0.6,
+                )
         front = prob["pareto"]
         ax.step([p["seconds"] for p in front], [max(p["error"], 1e-17) for p in front], where="post", c="grey", lw=1)
         for pl in prob["planner"]:
-            ax.scatter(pl["seconds"], max(pl["error"], 1e-17), marker="*", s=120, c="red",
-                       label="planner" if pl is prob["planner"][0] else None)
-        ax.set(xscale="log", yscale="log", xlabel="time per evaluation [s]", ylabel="max error / peak", title=prob["problem"])
+            ax.scatter(
+                pl["seconds"],
+                max(pl["error"], 1e-17),
+                marker="*",
+                s=120,
+                c="red",
+                label="planner" if pl is prob["planner"][0] else None,
+            )
+        ax.set(
+            xscale="log",
+            yscale="log",
+            xlabel="time per evaluation [s]",
+            ylabel="max error / peak",
+            title=prob["problem"],
+        )
         ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(RESULTS / f"bench_planner_pareto{suffix}.png", dpi=110)
@@ -428,7 +516,9 @@ def main(argv=None):
     load_before = os.getloadavg()
     # the workload first, in a fresh process: its planning time includes every compilation a
     # user's first plan of a scene pays (the reference problems below would warm them up)
-    work, image, mu_image, _, _ = bench_workload(24 if quick else args.resolution, 1 if quick else args.naive_samples, 1e-4)
+    work, image, mu_image, _, _ = bench_workload(
+        24 if quick else args.resolution, 1 if quick else args.naive_samples, 1e-4
+    )
     problems = []
     for kind in kinds + ["so3"]:
         problems.append(bench_so3_problem(quick) if kind == "so3" else bench_problem(kind, quick))
@@ -436,21 +526,39 @@ def main(argv=None):
     for prob in problems:
         for pl in prob["planner"]:
             ratio = pl["ratio_to_pareto"]
-            pareto_text = "none as accurate" if ratio is None else f"{pl['pareto_seconds_at_error'] * 1e3:8.3f} ms, ratio {ratio:.2f}"
-            print(f"{prob['problem']:>15} target {pl['target']:.0e}: {pl['path']:>11} error {pl['error']:.2e} "
-                  f"time {pl['seconds'] * 1e3:8.3f} ms; Pareto time at that error {pareto_text}")
-    print(f"workload {work['resolution']}²: μ ratio {work['mu_ratio']:.0f}; planner {work['evaluate_seconds'] * 1e3:.1f} ms "
-          f"(plan {work['plan_seconds']:.1f} s), max error {work['max_error_rel_peak']:.2e}; naive "
-          f"{work['naive_seconds_extrapolated']:.1f} s (extrapolated), speedup {work['speedup_evaluate_vs_naive']:.0f}×")
+            pareto_text = (
+                "none as accurate"
+                if ratio is None
+                else f"{pl['pareto_seconds_at_error'] * 1e3:8.3f} ms, ratio {ratio:.2f}"
+            )
+            print(
+                f"{prob['problem']:>15} target {pl['target']:.0e}: {pl['path']:>11} error {pl['error']:.2e} "
+                f"time {pl['seconds'] * 1e3:8.3f} ms; Pareto time at that error {pareto_text}"
+            )
+    print(
+        f"workload {work['resolution']}²: μ ratio {work['mu_ratio']:.0f}; planner {work['evaluate_seconds'] * 1e3:.1f} ms "
+        f"(plan {work['plan_seconds']:.1f} s), max error {work['max_error_rel_peak']:.2e}; naive "
+        f"{work['naive_seconds_extrapolated']:.1f} s (extrapolated), speedup {work['speedup_evaluate_vs_naive']:.0f}×"
+    )
     cost_model = cost_model_summary(problems, work)
-    print(f"cost model: predicted order of forced paths matches the measured order on "
-          f"{cost_model['rankings_matching']}/{cost_model['rankings']} problems (pairs ≥ 2× apart in prediction "
-          f"ordered right: {cost_model['clear_pairs_ordered_right']}/{cost_model['clear_pairs']}); Spearman ρ(predicted units, "
-          f"measured s) over {cost_model['plans']} plans = {cost_model['spearman']:.2f}; seconds per unit "
-          f"{cost_model['seconds_per_unit_min']:.2g}–{cost_model['seconds_per_unit_max']:.2g}")
-    results = {"benchmark": "bench_planner", "machine": machine(), "dtype": "float64", "quick": quick,
-               "load_average_before": load_before, "load_average_after": os.getloadavg(),
-               "problems": problems, "workload": work, "cost_model": cost_model}
+    print(
+        f"cost model: predicted order of forced paths matches the measured order on "
+        f"{cost_model['rankings_matching']}/{cost_model['rankings']} problems (pairs ≥ 2× apart in prediction "
+        f"ordered right: {cost_model['clear_pairs_ordered_right']}/{cost_model['clear_pairs']}); Spearman ρ(predicted units, "
+        f"measured s) over {cost_model['plans']} plans = {cost_model['spearman']:.2f}; seconds per unit "
+        f"{cost_model['seconds_per_unit_min']:.2g}–{cost_model['seconds_per_unit_max']:.2g}"
+    )
+    results = {
+        "benchmark": "bench_planner",
+        "machine": machine(),
+        "dtype": "float64",
+        "quick": quick,
+        "load_average_before": load_before,
+        "load_average_after": os.getloadavg(),
+        "problems": problems,
+        "workload": work,
+        "cost_model": cost_model,
+    }
     name = "bench_planner_quick" if quick else "bench_planner"
     path = write_json(name, results)
     if not args.no_plots:

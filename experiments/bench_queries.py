@@ -24,6 +24,7 @@ import tempfile
 import time
 from pathlib import Path
 
+
 ROOT = Path(__file__).resolve().parents[1]  # the checkout (experiments/'s parent)
 CASES = ("closed_form", "radial", "grid", "tabulated")
 TOL = {"closed_form": 1e-10, "radial": 1e-10, "grid": 1e-8, "tabulated": 1e-8}
@@ -52,8 +53,9 @@ def _make(case: str, dtype):
     x = np.linspace(-0.3, 0.3, 65)
     X, Y = np.meshgrid(x, x)
     values = np.exp(-(X**2 / 0.006 + Y**2 / 0.01))
-    return bs.evolve(lobes.Tabulated(f(values), extent=0.3), stats.Beckmann(alpha_x=f(0.05), alpha_y=f(0.08)),
-                     stats.Delta(), tol=tol)
+    return bs.evolve(
+        lobes.Tabulated(f(values), extent=0.3), stats.Beckmann(alpha_x=f(0.05), alpha_y=f(0.08)), stats.Delta(), tol=tol
+    )
 
 
 def _offsets(q: int, dtype):
@@ -103,9 +105,20 @@ def point(case: str, dtype_name: str, q: int) -> dict:
     shape = lobe.shape
     method = getattr(shape, "discretisation", None)
     label = method.explain() if method is not None else getattr(shape, "method", "closed form")
-    return {"brdfscale_file": brdfscale.__file__, "case": case, "dtype": dtype_name, "queries": q, "evolve_s": evolve_s, "first_s": first, "warm_s": warm,
-            "per_query_warm_s": warm / q, "rss_before_bytes": rss_before, "rss_peak_bytes": rss_peak,
-            "error_vs_direct": error, "method": label}
+    return {
+        "brdfscale_file": brdfscale.__file__,
+        "case": case,
+        "dtype": dtype_name,
+        "queries": q,
+        "evolve_s": evolve_s,
+        "first_s": first,
+        "warm_s": warm,
+        "per_query_warm_s": warm / q,
+        "rss_before_bytes": rss_before,
+        "rss_peak_bytes": rss_peak,
+        "error_vs_direct": error,
+        "method": label,
+    }
 
 
 def _run_point(case, dtype, q, baseline=None) -> dict:
@@ -148,26 +161,40 @@ def main():
         print(f"{case:12s} {dtype} Q={q:>9d}", end=" ", flush=True)
         points.append(_run_point(case, dtype, q))
         r = points[-1]
-        print(r.get("failed") or f"warm {r['warm_s']:.4f} s, peak RSS {r['rss_peak_bytes'] / 2**20:.0f} MiB, "
-                                   f"error {r['error_vs_direct']:.2g}")
+        print(
+            r.get("failed")
+            or f"warm {r['warm_s']:.4f} s, peak RSS {r['rss_peak_bytes'] / 2**20:.0f} MiB, "
+            f"error {r['error_vs_direct']:.2g}"
+        )
     baseline = None
     if args.baseline_rev:
         root = ROOT
         with tempfile.TemporaryDirectory() as tmp:
-            subprocess.run(f"git -C '{root}' archive {args.baseline_rev} brdfscale | tar -x -C '{tmp}'", shell=True,
-                           check=True)
-            rev = subprocess.run(["git", "-C", str(root), "rev-parse", args.baseline_rev], check=True,
-                                 capture_output=True, text=True).stdout.strip()
+            subprocess.run(
+                f"git -C '{root}' archive {args.baseline_rev} brdfscale | tar -x -C '{tmp}'", shell=True, check=True
+            )
+            rev = subprocess.run(
+                ["git", "-C", str(root), "rev-parse", args.baseline_rev], check=True, capture_output=True, text=True
+            ).stdout.strip()
             baseline = {"revision": rev, "points": []}
             for case in CASES:
                 for q in (100, 1000):
                     print(f"baseline {case:12s} Q={q}", end=" ", flush=True)
                     baseline["points"].append(_run_point(case, "float64", q, baseline=tmp))
                     r = baseline["points"][-1]
-                    print(r.get("failed") or f"warm {r['warm_s']:.4f} s, peak RSS {r['rss_peak_bytes'] / 2**20:.0f} MiB")
+                    print(
+                        r.get("failed") or f"warm {r['warm_s']:.4f} s, peak RSS {r['rss_peak_bytes'] / 2**20:.0f} MiB"
+                    )
     readme = _run_point("radial", "float64", 512 * 512)
-    payload = {"benchmark": "bench_queries", "machine": machine(), "tol": TOL, "tol_float32": TOL32,
-               "points": points, "baseline": baseline, "readme_512": readme}
+    payload = {
+        "benchmark": "bench_queries",
+        "machine": machine(),
+        "tol": TOL,
+        "tol_float32": TOL32,
+        "points": points,
+        "baseline": baseline,
+        "readme_512": readme,
+    }
     path = write_json("bench_queries_quick" if args.quick else "bench_queries", payload)
     print(f"wrote {path}")
 

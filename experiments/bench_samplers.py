@@ -45,15 +45,28 @@ import time
 import jax
 import numpy as np
 
-from experiments._bench import RESULTS, machine, write_json
+from experiments._bench import machine, RESULTS, write_json
+
 
 PROBLEMS = {
-    "demo": dict(model=dict(law="gaussian_surface"),
-                 truth={"amplitude": 0.9, "alpha_lobe": 0.01, "rms_height": 0.05, "correlation_length": 8.0},
-                 scales=(2.0, 4.0, 8.0, 16.0, 32.0), size=33, extent=0.05, noise=0.01, floor=0.05),
-    "ggx": dict(model=dict(lobe="ggx", statistics="ggx", law="width"),
-                truth={"amplitude": 0.9, "alpha_lobe": 0.05, "alpha_max": 0.2, "mu_c": 4.0, "exponent": 1.0},
-                scales=(1.0, 2.0, 4.0, 8.0), size=64, extent=0.5, noise=0.01, floor=1e-3),
+    "demo": dict(
+        model=dict(law="gaussian_surface"),
+        truth={"amplitude": 0.9, "alpha_lobe": 0.01, "rms_height": 0.05, "correlation_length": 8.0},
+        scales=(2.0, 4.0, 8.0, 16.0, 32.0),
+        size=33,
+        extent=0.05,
+        noise=0.01,
+        floor=0.05,
+    ),
+    "ggx": dict(
+        model=dict(lobe="ggx", statistics="ggx", law="width"),
+        truth={"amplitude": 0.9, "alpha_lobe": 0.05, "alpha_max": 0.2, "mu_c": 4.0, "exponent": 1.0},
+        scales=(1.0, 2.0, 4.0, 8.0),
+        size=64,
+        extent=0.5,
+        noise=0.01,
+        floor=1e-3,
+    ),
 }
 STEPS = {"emcee": 1000, "nuts": 1000, "hmc": 1000}
 REFERENCE_DRAWS = 1_000_000
@@ -71,8 +84,9 @@ def configs(fitting) -> dict:
 def problem(fitting, name):
     p = PROBLEMS[name]
     model = fitting.ParametricModel(**p["model"])
-    mset = fitting.simulate(model, p["truth"], p["scales"], size=p["size"], extent=p["extent"], noise=p["noise"],
-                            floor=p["floor"], seed=1)
+    mset = fitting.simulate(
+        model, p["truth"], p["scales"], size=p["size"], extent=p["extent"], noise=p["noise"], floor=p["floor"], seed=1
+    )
     data = fitting.Dataset.from_measurements(mset)
     t = time.perf_counter()
     fit = fitting.fit(model, data, starts=4, seed=1)
@@ -83,7 +97,7 @@ def moments(result) -> dict:
     """Posterior mean and σ of every determined quantity (the physical quantities' draws after the burn-in)."""
     out = {}
     for q in result.determined:
-        v = np.asarray(result.quantities[q])[result.burn:].ravel()
+        v = np.asarray(result.quantities[q])[result.burn :].ravel()
         out[q] = {"mean": float(np.mean(v)), "std": float(np.std(v, ddof=1))}
     return out
 
@@ -99,15 +113,31 @@ def reference(names) -> dict:
         steps = math.ceil(REFERENCE_DRAWS / trajectories)
         t = time.perf_counter()
         while True:  # the burn-in (2 τ) is found afterwards: lengthen until ≥ 10⁶ draws remain after it
-            r = fitting.sample(prob, fit, sampler=fitting.Emcee(walkers=REFERENCE_WALKERS), chains=4, steps=steps,
-                               chunk=1000, seed=12345, progress=False)
+            r = fitting.sample(
+                prob,
+                fit,
+                sampler=fitting.Emcee(walkers=REFERENCE_WALKERS),
+                chains=4,
+                steps=steps,
+                chunk=1000,
+                seed=12345,
+                progress=False,
+            )
             if (steps - r.burn) * trajectories >= REFERENCE_DRAWS:
                 break
             steps = r.burn + math.ceil(REFERENCE_DRAWS / trajectories)
-        out[name] = {"steps": steps, "burn": int(r.burn), "draws": int((steps - r.burn) * trajectories),
-                     "walkers": REFERENCE_WALKERS, "chains": 4, "status": r.status, "wall_s": time.perf_counter() - t,
-                     "r_hat_max": max(r.summary()[q]["r_hat"] for q in r.determined),
-                     "min_ess_bulk": min(r.summary()[q]["ess_bulk"] for q in r.determined), "moments": moments(r)}
+        out[name] = {
+            "steps": steps,
+            "burn": int(r.burn),
+            "draws": int((steps - r.burn) * trajectories),
+            "walkers": REFERENCE_WALKERS,
+            "chains": 4,
+            "status": r.status,
+            "wall_s": time.perf_counter() - t,
+            "r_hat_max": max(r.summary()[q]["r_hat"] for q in r.determined),
+            "min_ess_bulk": min(r.summary()[q]["ess_bulk"] for q in r.determined),
+            "moments": moments(r),
+        }
         print(name, out[name], flush=True)
     return out
 
@@ -136,15 +166,25 @@ def run(problems, samplers) -> dict:
             run_s = warm.timing["warmup_s"] + warm.timing["sampling_s"]
             m, r = moments(warm), ref[pname]["moments"]
             rows[name] = {
-                "steps": table[name]["steps"], "first_call_s": times[0], "warm_call_s": times[1],
-                "compile_s": max(times[0] - times[1], 0.0), "warmup_s": warm.timing["warmup_s"],
-                "sampling_s": warm.timing["sampling_s"], "min_ess_bulk": ess_bulk, "min_ess_tail": ess_tail,
-                "ess_bulk_per_s": ess_bulk / run_s, "ess_tail_per_s": ess_tail / run_s,
+                "steps": table[name]["steps"],
+                "first_call_s": times[0],
+                "warm_call_s": times[1],
+                "compile_s": max(times[0] - times[1], 0.0),
+                "warmup_s": warm.timing["warmup_s"],
+                "sampling_s": warm.timing["sampling_s"],
+                "min_ess_bulk": ess_bulk,
+                "min_ess_tail": ess_tail,
+                "ess_bulk_per_s": ess_bulk / run_s,
+                "ess_tail_per_s": ess_tail / run_s,
                 "ess_bulk_per_s_with_compile": ess_bulk_first / times[0],
-                "r_hat_max": max(s[q]["r_hat"] for q in warm.determined), "status": warm.status,
+                "r_hat_max": max(s[q]["r_hat"] for q in warm.determined),
+                "status": warm.status,
                 "divergent": int(warm.divergent),
-                "mean_leapfrog_steps": (float(np.mean(warm.stats["integration_steps"][warm.burn:]))
-                                        if warm.stats and "integration_steps" in warm.stats else None),
+                "mean_leapfrog_steps": (
+                    float(np.mean(warm.stats["integration_steps"][warm.burn :]))
+                    if warm.stats and "integration_steps" in warm.stats
+                    else None
+                ),
                 "mean_offset_in_ref_sigma": {q: abs(m[q]["mean"] - r[q]["mean"]) / r[q]["std"] for q in m},
                 "sigma_ratio_minus_1": {q: m[q]["std"] / r[q]["std"] - 1 for q in m},
             }
@@ -154,18 +194,28 @@ def run(problems, samplers) -> dict:
         targets = None
         if best and "emcee" in rows:
             e, b = rows["emcee"], rows[best]
-            targets = {"best_gradient_sampler": best,
-                       "speedup_compile_excluded": b["ess_bulk_per_s"] / e["ess_bulk_per_s"],
-                       "speedup_compile_included": b["ess_bulk_per_s_with_compile"] / e["ess_bulk_per_s_with_compile"],
-                       "max_mean_offset_in_ref_sigma": max(b["mean_offset_in_ref_sigma"].values()),
-                       "max_abs_sigma_ratio_minus_1": max(abs(v) for v in b["sigma_ratio_minus_1"].values())}
-            targets["met"] = (targets["speedup_compile_excluded"] >= 10 and targets["speedup_compile_included"] >= 2
-                              and targets["max_mean_offset_in_ref_sigma"] <= 0.1
-                              and targets["max_abs_sigma_ratio_minus_1"] <= 0.1)
-        out[pname] = {"settings": {k: v for k, v in PROBLEMS[pname].items()}, "fit_s": fit_s,
-                      "parameters": len(prob.model.names), "distinct_points": int(np.prod(prob.points.mean.shape)),
-                      "reference": {k: v for k, v in ref[pname].items() if k != "moments"},
-                      "samplers": rows, "targets": targets}
+            targets = {
+                "best_gradient_sampler": best,
+                "speedup_compile_excluded": b["ess_bulk_per_s"] / e["ess_bulk_per_s"],
+                "speedup_compile_included": b["ess_bulk_per_s_with_compile"] / e["ess_bulk_per_s_with_compile"],
+                "max_mean_offset_in_ref_sigma": max(b["mean_offset_in_ref_sigma"].values()),
+                "max_abs_sigma_ratio_minus_1": max(abs(v) for v in b["sigma_ratio_minus_1"].values()),
+            }
+            targets["met"] = (
+                targets["speedup_compile_excluded"] >= 10
+                and targets["speedup_compile_included"] >= 2
+                and targets["max_mean_offset_in_ref_sigma"] <= 0.1
+                and targets["max_abs_sigma_ratio_minus_1"] <= 0.1
+            )
+        out[pname] = {
+            "settings": {k: v for k, v in PROBLEMS[pname].items()},
+            "fit_s": fit_s,
+            "parameters": len(prob.model.names),
+            "distinct_points": int(np.prod(prob.points.mean.shape)),
+            "reference": {k: v for k, v in ref[pname].items() if k != "moments"},
+            "samplers": rows,
+            "targets": targets,
+        }
     return out
 
 
@@ -180,11 +230,15 @@ def main():
         parser.error(f"unknown problems {unknown}; choose from {list(PROBLEMS)}")
     names = args.problems or list(PROBLEMS)
     if args.reference:
-        path = write_json("bench_samplers_reference", {"benchmark": "bench_samplers_reference", "machine": machine(),
-                                                       "problems": reference(names)})
+        path = write_json(
+            "bench_samplers_reference",
+            {"benchmark": "bench_samplers_reference", "machine": machine(), "problems": reference(names)},
+        )
     else:
-        path = write_json("bench_samplers", {"benchmark": "bench_samplers", "machine": machine(), "chains": 4,
-                                             "problems": run(names, args.samplers)})
+        path = write_json(
+            "bench_samplers",
+            {"benchmark": "bench_samplers", "machine": machine(), "chains": 4, "problems": run(names, args.samplers)},
+        )
     print(f"wrote {path}")
 
 

@@ -35,6 +35,7 @@ from pathlib import Path
 
 import jax
 
+
 jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
@@ -42,6 +43,7 @@ import numpy as np  # noqa: E402
 
 import brdfscale.so3 as so3  # noqa: E402
 from experiments._bench import best_time, best_times_interleaved, machine, write_json  # noqa: E402
+
 
 SWEEP_BUDGET_S = 240.0
 
@@ -77,10 +79,17 @@ def time_ours(B, rng, repeat):
     t_inv = best_time(lambda: so3.inverse(c).block_until_ready(), repeat=repeat)
     t_fwd = best_time(lambda: so3.forward(f).block_until_ready(), repeat=repeat)
     cpu = best_cpu_time(lambda: (so3.inverse(c).block_until_ready(), so3.forward(f).block_until_ready()), repeat)
-    return {"B": B, "inverse_s": t_inv, "forward_s": t_fwd, "total_s": t_inv + t_fwd, "total_cpu_s": cpu,
-            "first_call_with_compile_s": first, "round_trip_max_abs_error": err,
-            "max_abs_coefficient": float(jnp.max(jnp.abs(c))),
-            "load_average_1min": [load_before, os.getloadavg()[0]]}
+    return {
+        "B": B,
+        "inverse_s": t_inv,
+        "forward_s": t_fwd,
+        "total_s": t_inv + t_fwd,
+        "total_cpu_s": cpu,
+        "first_call_with_compile_s": first,
+        "round_trip_max_abs_error": err,
+        "max_abs_coefficient": float(jnp.max(jnp.abs(c))),
+        "load_average_1min": [load_before, os.getloadavg()[0]],
+    }
 
 
 def exponent(rows, key, B_min=0):
@@ -97,8 +106,10 @@ def scaling(rows, key):
     return {
         "fit_B_ge_32": {"B": [b for b in Bs if b >= 32], "exponent": exponent(rows, key, 32)},
         "fit_all": {"B": Bs, "exponent": exponent(rows, key)},
-        "local": [{"B": [a["B"], b["B"]], "exponent": float(math.log(b[key] / a[key]) / math.log(b["B"] / a["B"]))}
-                  for a, b in zip(rows[:-1], rows[1:])],
+        "local": [
+            {"B": [a["B"], b["B"]], "exponent": float(math.log(b[key] / a[key]) / math.log(b["B"] / a["B"]))}
+            for a, b in zip(rows[:-1], rows[1:])
+        ],
     }
 
 
@@ -142,7 +153,9 @@ def time_s2fft(B, rng, repeat, methods):
         inv = lambda: wigner.inverse(flmn, B, B, k_inv, sampling="mw", method="jax").block_until_ready()
         f = inv()
         fwd = lambda: wigner.forward(f, B, B, k_fwd, sampling="mw", method="jax").block_until_ready()
-        out["precompute_round_trip_max_abs_error"] = float(jnp.max(jnp.abs(fwd() - flmn)) * (2 * B - 1) / (8 * np.pi**2))
+        out["precompute_round_trip_max_abs_error"] = float(
+            jnp.max(jnp.abs(fwd() - flmn)) * (2 * B - 1) / (8 * np.pi**2)
+        )
         out["precompute_inverse_s"] = best_time(inv, repeat=repeat)
         out["precompute_forward_s"] = best_time(fwd, repeat=repeat)
         out["precompute_total_s"] = out["precompute_inverse_s"] + out["precompute_forward_s"]
@@ -156,7 +169,8 @@ def baseline_so3(rev: str):
     tmp = Path(tempfile.mkdtemp(prefix="so3_baseline_"))
     subprocess.run(f"git -C '{root}' archive {rev} brdfscale | tar -x -C '{tmp}'", shell=True, check=True)
     spec = importlib.util.spec_from_file_location(
-        "brdfscale_baseline", tmp / "brdfscale" / "__init__.py", submodule_search_locations=[str(tmp / "brdfscale")])
+        "brdfscale_baseline", tmp / "brdfscale" / "__init__.py", submodule_search_locations=[str(tmp / "brdfscale")]
+    )
     package = importlib.util.module_from_spec(spec)
     sys.modules["brdfscale_baseline"] = package
     spec.loader.exec_module(package)
@@ -172,11 +186,22 @@ def before_after(old, sizes, rng, rounds=5):
         for name, mod in (("before", old), ("after", so3)):
             f = mod.inverse(c).block_until_ready()
             err = float(jnp.max(jnp.abs(mod.forward(f) - c)))
-            calls[name] = (lambda mod=mod, f=f: (mod.inverse(c).block_until_ready(), mod.forward(f).block_until_ready()), err)
+            calls[name] = (
+                lambda mod=mod, f=f: (mod.inverse(c).block_until_ready(), mod.forward(f).block_until_ready()),
+                err,
+            )
         best = best_times_interleaved({name: fn for name, (fn, _) in calls.items()}, repeat=rounds)
-        rows.append({"B": B, "before_s": best["before"], "after_s": best["after"], "speedup": best["before"] / best["after"],
-                     "before_round_trip_max_abs_error": calls["before"][1], "after_round_trip_max_abs_error": calls["after"][1],
-                     "load_average_1min": os.getloadavg()[0]})
+        rows.append(
+            {
+                "B": B,
+                "before_s": best["before"],
+                "after_s": best["after"],
+                "speedup": best["before"] / best["after"],
+                "before_round_trip_max_abs_error": calls["before"][1],
+                "after_round_trip_max_abs_error": calls["after"][1],
+                "load_average_1min": os.getloadavg()[0],
+            }
+        )
         print(rows[-1], flush=True)
     return rows
 
@@ -195,8 +220,13 @@ def time_evolution(B, rng, repeat):
         "solve_s": best_time(lambda: solve(R, op0, op1).block_until_ready(), repeat=repeat),
         "regularised_solve_s": best_time(lambda: reg(R, op0, op1).block_until_ready(), repeat=repeat),
         "diffusion_expm_s": best_time(lambda: expm(R, D, t0, t1).block_until_ready(), repeat=repeat),
-        "consistency_max_abs_error": float(jnp.max(jnp.abs(
-            solve(R, op0, op1) @ jnp.conj(jnp.swapaxes(op1, -1, -2)) - R @ jnp.conj(jnp.swapaxes(op0, -1, -2))))),
+        "consistency_max_abs_error": float(
+            jnp.max(
+                jnp.abs(
+                    solve(R, op0, op1) @ jnp.conj(jnp.swapaxes(op1, -1, -2)) - R @ jnp.conj(jnp.swapaxes(op0, -1, -2))
+                )
+            )
+        ),
     }
 
 
@@ -213,9 +243,16 @@ def band_limit_study():
             chi = np.where(theta == 0, 2 * Jc + 1, np.sin((2 * Jc + 1) * theta / 2) / np.sin(theta / 2))
         exact = np.sum((2 * Jc + 1) / (8 * np.pi**2) * np.exp(-tau * Jc * (Jc + 1)) * chi, axis=0)
         ours = np.asarray(so3.synthesize(coeffs, theta, 0.0, 0.0)).real
-        out.append({"lobe": "SO(3) heat kernel (Gaussian)", "width_rad": width, "tol": tol, "B": B,
-                    "predicted_relative_error": bound,
-                    "measured_max_relative_error": float(np.max(np.abs(ours - exact)) / exact[0])})
+        out.append(
+            {
+                "lobe": "SO(3) heat kernel (Gaussian)",
+                "width_rad": width,
+                "tol": tol,
+                "B": B,
+                "predicted_relative_error": bound,
+                "measured_max_relative_error": float(np.max(np.abs(ours - exact)) / exact[0]),
+            }
+        )
     # an anisotropic Beckmann lobe, reference: the same lobe at 1.5 B
     lobe = so3.AnisotropicMicrofacetLobe(0.3, 0.2)
     tol = 1e-4
@@ -227,18 +264,28 @@ def band_limit_study():
     ours = np.asarray(so3.synthesize(lobe.coefficients(z, z, B), a, b, g)).real
     ref = np.asarray(so3.synthesize(lobe.coefficients(z, z, Bref), a, b, g)).real
     direct = np.asarray(lobe.evaluate(z, z, so3.euler_to_matrix(a, b, g)))
-    out.append({"lobe": "AnisotropicMicrofacetLobe Beckmann alpha=(0.3, 0.2), i = o = z", "tol": tol, "B": B,
-                "predicted_relative_error": bound, "reference_B": Bref,
-                "measured_max_relative_error_vs_reference": float(np.max(np.abs(ours - ref)) / direct.max()),
-                "measured_max_relative_error_vs_direct": float(np.max(np.abs(ours - direct)) / direct.max())})
+    out.append(
+        {
+            "lobe": "AnisotropicMicrofacetLobe Beckmann alpha=(0.3, 0.2), i = o = z",
+            "tol": tol,
+            "B": B,
+            "predicted_relative_error": bound,
+            "reference_B": Bref,
+            "measured_max_relative_error_vs_reference": float(np.max(np.abs(ours - ref)) / direct.max()),
+            "measured_max_relative_error_vs_direct": float(np.max(np.abs(ours - direct)) / direct.max()),
+        }
+    )
     return out
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="B ≤ 32 only")
-    parser.add_argument("--baseline-rev", default=None,
-                        help="also time brdfscale.so3 as of this git revision against the current one (before/after)")
+    parser.add_argument(
+        "--baseline-rev",
+        default=None,
+        help="also time brdfscale.so3 as of this git revision against the current one (before/after)",
+    )
     args = parser.parse_args()
     rng = np.random.default_rng(0)
     load_start = os.getloadavg()[0]
@@ -252,7 +299,13 @@ def main():
             calls = 3 * repeat + 4  # wall (each direction), CPU (both), warm-ups
             predicted = calls * ours[-1]["total_s"] * (B / ours[-1]["B"]) ** max(p, 3.0)
             if spent + predicted > SWEEP_BUDGET_S:
-                skipped.extend({"B": b, "reason": f"predicted {calls * ours[-1]['total_s'] * (b / ours[-1]['B']) ** max(p, 3.0):.0f} s would exceed the {SWEEP_BUDGET_S:.0f} s sweep budget"} for b in sizes[i:])
+                skipped.extend(
+                    {
+                        "B": b,
+                        "reason": f"predicted {calls * ours[-1]['total_s'] * (b / ours[-1]['B']) ** max(p, 3.0):.0f} s would exceed the {SWEEP_BUDGET_S:.0f} s sweep budget",
+                    }
+                    for b in sizes[i:]
+                )
                 break
         t0 = time.perf_counter()
         ours.append(time_ours(B, rng, repeat))
@@ -261,7 +314,7 @@ def main():
 
     s2, ratio = [], {}
     ref_B = 32 if args.quick else 64
-    for B in ([16, 32] if args.quick else [16, 32, 64]):
+    for B in [16, 32] if args.quick else [16, 32, 64]:
         result, calls = time_s2fft(B, rng, repeat, ("fourier", "precompute"))
         s2.append(result)
         print(s2[-1], flush=True)
@@ -270,16 +323,24 @@ def main():
             f = so3.inverse(c)
             calls["brdfscale_so3"] = lambda: (so3.inverse(c).block_until_ready(), so3.forward(f).block_until_ready())
             best = best_times_interleaved(calls, repeat=5)
-            fastest = min(("fourier", best["s2fft_fourier"]), ("precompute", best["s2fft_precompute"]), key=lambda x: x[1])
-            ratio = {"B": B, "method": "interleaved rounds (5), best forward+inverse of each",
-                     "load_average_1min": os.getloadavg()[0],
-                     "times_s": best, "s2fft_fastest_exact_mode": fastest[0], "s2fft_total_s": fastest[1],
-                     "brdfscale_total_s": best["brdfscale_so3"], "speedup": fastest[1] / best["brdfscale_so3"]}
+            fastest = min(
+                ("fourier", best["s2fft_fourier"]), ("precompute", best["s2fft_precompute"]), key=lambda x: x[1]
+            )
+            ratio = {
+                "B": B,
+                "method": "interleaved rounds (5), best forward+inverse of each",
+                "load_average_1min": os.getloadavg()[0],
+                "times_s": best,
+                "s2fft_fastest_exact_mode": fastest[0],
+                "s2fft_total_s": fastest[1],
+                "brdfscale_total_s": best["brdfscale_so3"],
+                "speedup": fastest[1] / best["brdfscale_so3"],
+            }
             print(ratio, flush=True)
         del calls
 
     evo = []
-    for B in ([8, 16, 32] if args.quick else [8, 16, 32, 64]):
+    for B in [8, 16, 32] if args.quick else [8, 16, 32, 64]:
         evo.append(time_evolution(B, rng, 5))
         print(evo[-1], flush=True)
     evo_fit = [r for r in evo if r["B"] >= 16]
@@ -287,23 +348,27 @@ def main():
 
     comparison = None
     if args.baseline_rev:
-        comparison = {"revision": args.baseline_rev,
-                      "method": "interleaved rounds (5), best forward+inverse of each version",
-                      "rows": before_after(baseline_so3(args.baseline_rev), sizes, rng)}
+        comparison = {
+            "revision": args.baseline_rev,
+            "method": "interleaved rounds (5), best forward+inverse of each version",
+            "rows": before_after(baseline_so3(args.baseline_rev), sizes, rng),
+        }
         comparison["before_exponent_B_ge_32"] = exponent(comparison["rows"], "before_s", 32)
         comparison["after_exponent_B_ge_32"] = exponent(comparison["rows"], "after_s", 32)
 
     payload = {
         "machine": machine(),
-        "notes": ("Times are the best of 5 calls after a warm-up (compilation excluded), float64, "
-                  "complex random band-limited coefficients; forward+inverse = one call of each. Our grid is "
-                  "the Kostelec–Rockmore (2B)^3 grid; s2fft uses its MW grid (L x (2L-1) x (2N-1)) at L = N = B. "
-                  "s2fft errors are on coefficients rescaled to this library's normalisation. Exponents: "
-                  "least-squares slope of log time against log B, over B >= 32 (below that the O(B^3 log B) "
-                  "FFTs and fixed per-call costs dominate the O(B^4) terms) and over all sizes; 'local' between "
-                  "neighbouring sizes. Both wall time and process CPU time (all threads) are fitted; the 1-minute "
-                  "load average before and after each size is recorded: on a loaded machine the larger sizes "
-                  "(whose data leave the caches) suffer most, which inflates the exponents."),
+        "notes": (
+            "Times are the best of 5 calls after a warm-up (compilation excluded), float64, "
+            "complex random band-limited coefficients; forward+inverse = one call of each. Our grid is "
+            "the Kostelec–Rockmore (2B)^3 grid; s2fft uses its MW grid (L x (2L-1) x (2N-1)) at L = N = B. "
+            "s2fft errors are on coefficients rescaled to this library's normalisation. Exponents: "
+            "least-squares slope of log time against log B, over B >= 32 (below that the O(B^3 log B) "
+            "FFTs and fixed per-call costs dominate the O(B^4) terms) and over all sizes; 'local' between "
+            "neighbouring sizes. Both wall time and process CPU time (all threads) are fitted; the 1-minute "
+            "load average before and after each size is recorded: on a loaded machine the larger sizes "
+            "(whose data leave the caches) suffer most, which inflates the exponents."
+        ),
         "load_average_1min_at_start_and_end": [load_start, os.getloadavg()[0]],
         "transforms": ours,
         "skipped_sizes": skipped,

@@ -38,14 +38,18 @@ def trapezoid_j(n: int, x):
 
 def run() -> dict:
     jax.config.update("jax_enable_x64", True)
+    from brdfscale import fitting
     from brdfscale._special import j0, j1
     from experiments import bench_samplers
-    from brdfscale import fitting
 
     x = jnp.linspace(0.0, 60.0, 115_200)
     out = {"arguments": int(x.size)}
-    for name, f in (("j0", j0), ("j1", j1), ("j0_trapezoid_baseline", lambda v: trapezoid_j(0, v)),
-                    ("j1_trapezoid_baseline", lambda v: trapezoid_j(1, v))):
+    for name, f in (
+        ("j0", j0),
+        ("j1", j1),
+        ("j0_trapezoid_baseline", lambda v: trapezoid_j(0, v)),
+        ("j1_trapezoid_baseline", lambda v: trapezoid_j(1, v)),
+    ):
         g = jax.jit(f)
         out[f"{name}_ms"] = 1e3 * best_time(lambda: g(x).block_until_ready(), repeat=20)
     ref = np.asarray(trapezoid_j(0, x))
@@ -65,7 +69,9 @@ def run() -> dict:
 def main():
     results = run()
     print(results)
-    print("wrote", write_json("bench_special", {"benchmark": "bench_special", "machine": machine(), "results": results}))
+    print(
+        "wrote", write_json("bench_special", {"benchmark": "bench_special", "machine": machine(), "results": results})
+    )
 
 
 if __name__ == "__main__":

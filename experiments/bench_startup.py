@@ -20,6 +20,7 @@ from pathlib import Path
 
 from experiments._bench import interleaved_times, machine, median, write_json
 
+
 ROOT = Path(__file__).resolve().parent.parent
 
 CASES = {
@@ -43,11 +44,15 @@ def _export(rev: str, into: Path) -> Path:
 def _measurement_file(into: Path) -> Path:
     import numpy as np
 
-    from brdfscale import LobeImage, MeasurementSet, exr
+    from brdfscale import exr, LobeImage, MeasurementSet
 
     path = into / "m.exr"
-    images = tuple(LobeImage(mu=mu, incident=np.array([0.0, 0.0, 1.0]), extent=0.5, values=np.ones((16, 16)),
-                             sigma=np.ones((16, 16))) for mu in (1.0, 2.0))
+    images = tuple(
+        LobeImage(
+            mu=mu, incident=np.array([0.0, 0.0, 1.0]), extent=0.5, values=np.ones((16, 16)), sigma=np.ones((16, 16))
+        )
+        for mu in (1.0, 2.0)
+    )
     exr.write_measurements(path, MeasurementSet(images))
     return path
 
@@ -57,6 +62,7 @@ def _runner(tree: Path, argv: list[str]):
         out = subprocess.run([sys.executable, *argv], cwd=tree, capture_output=True, text=True)
         if out.returncode != 0:
             raise RuntimeError(f"{argv} in {tree} failed: {out.stderr[-500:]}")
+
     return run
 
 
@@ -79,14 +85,31 @@ def main(argv=None) -> None:
     rows = []
     for case in CASES:
         now, before = times[(case, "current")], times[(case, "baseline")]
-        rows.append({"case": case, "baseline_median_s": median(before), "current_median_s": median(now),
-                     "baseline_min_s": before[0], "current_min_s": now[0],
-                     "speedup_median": median(before) / median(now)})
-        print(f"{case:22s} baseline {median(before):6.3f} s   now {median(now):6.3f} s   "
-              f"({median(before) / median(now):.1f}× faster)")
-    path = write_json("bench_startup", {"benchmark": "bench_startup", "machine": machine(), "repeat": args.repeat,
-                                        "baseline_rev": args.baseline_rev, "load_average_at_start": load,
-                                        "cases": rows})
+        rows.append(
+            {
+                "case": case,
+                "baseline_median_s": median(before),
+                "current_median_s": median(now),
+                "baseline_min_s": before[0],
+                "current_min_s": now[0],
+                "speedup_median": median(before) / median(now),
+            }
+        )
+        print(
+            f"{case:22s} baseline {median(before):6.3f} s   now {median(now):6.3f} s   "
+            f"({median(before) / median(now):.1f}× faster)"
+        )
+    path = write_json(
+        "bench_startup",
+        {
+            "benchmark": "bench_startup",
+            "machine": machine(),
+            "repeat": args.repeat,
+            "baseline_rev": args.baseline_rev,
+            "load_average_at_start": load,
+            "cases": rows,
+        },
+    )
     print(f"wrote {path}")
 
 

@@ -24,8 +24,8 @@ import jax
 import numpy as np
 
 from brdfscale import exr, stats, synth
-from brdfscale.stats import SlopeHistogram, Tabulated
 from brdfscale.files import atomic_write
+from brdfscale.stats import SlopeHistogram, Tabulated
 
 
 def _stage(fn, *args, **kw):
@@ -54,7 +54,11 @@ def main():
     synth.facet_statistics(small, scales)
     synth.gonioreflectometer(small, scales, incident, extent=0.04, pixels=65, noise=synth.PoissonNoise(1e4), seed=1)
 
-    record = {"size": n, "spectrum": "GaussianCorrelation(rms_height=0.05, correlation_length=8 px)", "scales_px": scales}
+    record = {
+        "size": n,
+        "spectrum": "GaussianCorrelation(rms_height=0.05, correlation_length=8 px)",
+        "scales_px": scales,
+    }
     field, record["spectral_field"] = _stage(synth.spectral_field, spectrum, size=n, seed=0)
     record["height_field_MiB"] = round(field.heights.nbytes / 2**20, 1)
     _, record["facet_slopes_3_scales"] = _stage(lambda: [synth.facet_slopes(field, mu) for mu in scales])
@@ -64,8 +68,8 @@ def main():
     record["analytic_variance_x"] = {str(mu): float(law.slope_covariance(mu)[0, 0]) for mu in scales}
     _, record["global_slopes"] = _stage(synth.global_slopes, field)
     mset, record["gonioreflectometer_3_scales_2_incident_poisson"] = _stage(
-        synth.gonioreflectometer, field, scales, incident, extent=0.04, pixels=65,
-        noise=synth.PoissonNoise(1e4), seed=1)
+        synth.gonioreflectometer, field, scales, incident, extent=0.04, pixels=65, noise=synth.PoissonNoise(1e4), seed=1
+    )
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "set.exr")
         _, record["write_measurements"] = _stage(exr.write_measurements, path, mset)
@@ -85,8 +89,12 @@ def main():
 
     _, record["slope_histogram_N2_over_4"] = _stage(streaming)
     record["max_rss_MiB"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
-    record["machine"] = {"platform": platform.platform(), "python": platform.python_version(),
-                         "cpus": os.cpu_count(), "processor": platform.processor()}
+    record["machine"] = {
+        "platform": platform.platform(),
+        "python": platform.python_version(),
+        "cpus": os.cpu_count(),
+        "processor": platform.processor(),
+    }
     record["versions"] = {p: version(p) for p in ("numpy", "jax", "jaxlib", "equinox", "OpenEXR")}
     os.makedirs(os.path.dirname(os.path.abspath(args.out)), exist_ok=True)
     text = json.dumps(record, indent=2)

@@ -52,6 +52,7 @@ import numpy as np
 
 from experiments._bench import interleaved_times, machine, median, write_json
 
+
 ROOT = Path(__file__).resolve().parent.parent
 DATA = ROOT / "tests" / "data" / "topographies"
 FILES = {  # file → instrument / kind (tests/data/topographies/README.md)
@@ -224,7 +225,9 @@ def fresh_process(path: Path, repeats: int) -> dict:
     runs, walls = [], []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        out = subprocess.run([sys.executable, "-c", FRESH, str(path)], cwd=ROOT, capture_output=True, text=True, check=True)
+        out = subprocess.run(
+            [sys.executable, "-c", FRESH, str(path)], cwd=ROOT, capture_output=True, text=True, check=True
+        )
         walls.append(time.perf_counter() - t0)
         runs.append(json.loads(out.stdout.strip().splitlines()[-1]))
     result = {key: median(sorted(r[key] for r in runs)) for key in runs[0]}
@@ -241,8 +244,9 @@ def measure(name: str, source, repeats: int, spacing_um=None) -> dict:
     return info
 
 
-def run(*, files=tuple(FILES), size: int = 1000, repeats: int = 5, fresh: bool = True,
-        out: str | os.PathLike | None = None) -> dict:
+def run(
+    *, files=tuple(FILES), size: int = 1000, repeats: int = 5, fresh: bool = True, out: str | os.PathLike | None = None
+) -> dict:
     """Measure every case and write the JSON (``out``: a path; default experiments/results/bench_topography.json);
     ``fresh=False`` leaves out the fresh-interpreter runs."""
     import jax
@@ -259,16 +263,28 @@ def run(*, files=tuple(FILES), size: int = 1000, repeats: int = 5, fresh: bool =
     heights = synthetic_heights(size)
     with tempfile.TemporaryDirectory(prefix="brdfscale-bench-") as tmp:
         path = Path(tmp) / f"synthetic-{size}.x3p"
-        st.Topography(heights.T, (size * 0.1, size * 0.1), unit="µm", periodic=False,
-                      info={"instrument": {"name": "synthetic (brdfscale.synth.spectral_field)"}}).to_x3p(str(path))
+        st.Topography(
+            heights.T,
+            (size * 0.1, size * 0.1),
+            unit="µm",
+            periodic=False,
+            info={"instrument": {"name": "synthetic (brdfscale.synth.spectral_field)"}},
+        ).to_x3p(str(path))
         record = measure(f"x3p-{size}", path, repeats)
-        record.update(kind="synthetic fractal heights in an X3P file (ISO 25178-72) written by SurfaceTopography",
-                      source="file", format="x3p", file_bytes=path.stat().st_size,
-                      **({"fresh_process": fresh_process(path, max(1, min(repeats, 3)))} if fresh else {}))
+        record.update(
+            kind="synthetic fractal heights in an X3P file (ISO 25178-72) written by SurfaceTopography",
+            source="file",
+            format="x3p",
+            file_bytes=path.stat().st_size,
+            **({"fresh_process": fresh_process(path, max(1, min(repeats, 3)))} if fresh else {}),
+        )
         cases.append(record)
     record = measure(f"array-{size}-masked", with_dropouts(heights), repeats, spacing_um=(0.1, 0.1))
-    record.update(kind="the same heights as a NumPy array, 5 % unmeasured (NaN: a disc, two lines)", source="from_array",
-                  format=None)
+    record.update(
+        kind="the same heights as a NumPy array, 5 % unmeasured (NaN: a disc, two lines)",
+        source="from_array",
+        format=None,
+    )
     cases.append(record)
     info = machine()
     for pkg in ("SurfaceTopography", "muFFT"):
@@ -278,10 +294,13 @@ def run(*, files=tuple(FILES), size: int = 1000, repeats: int = 5, fresh: bool =
             info["versions"][pkg] = None
     payload = {
         "benchmark": "reading, detrending and facet statistics at 8 scales of measured surfaces (issue 18)",
-        "target": {"case": f"x3p-{size}", "seconds": TARGET_SECONDS,
-                   "what": "topography.read(path, detrend='curvature') + synth.facet_statistics(field, field.scales(8))"},
+        "target": {
+            "case": f"x3p-{size}",
+            "seconds": TARGET_SECONDS,
+            "what": "topography.read(path, detrend='curvature') + synth.facet_statistics(field, field.scales(8))",
+        },
         "command": f"python -m experiments.bench_topography --repeats {repeats}"
-                   + (f" --size {size}" if size != 1000 else ""),
+        + (f" --size {size}" if size != 1000 else ""),
         "repeats": repeats,
         "bins": 129,
         "machine": info,
@@ -305,9 +324,11 @@ def main(argv=None):
     payload = run(size=args.size, repeats=args.repeats)
     for c in payload["cases"]:
         m = c["median_s"]
-        print(f"{c['case']:>20} {c['shape'][0]:4d}×{c['shape'][1]:<4d} total {m['total']:6.2f} s "
-              f"(read {m['read']:.2f}, detrend {m['detrend']:.2f}, statistics {m['statistics']:.2f}); "
-              f"SurfaceTopography {m['baseline_surface_topography']:.2f} s, NumPy Σ only {m['baseline_numpy']:.2f} s")
+        print(
+            f"{c['case']:>20} {c['shape'][0]:4d}×{c['shape'][1]:<4d} total {m['total']:6.2f} s "
+            f"(read {m['read']:.2f}, detrend {m['detrend']:.2f}, statistics {m['statistics']:.2f}); "
+            f"SurfaceTopography {m['baseline_surface_topography']:.2f} s, NumPy Σ only {m['baseline_numpy']:.2f} s"
+        )
 
 
 if __name__ == "__main__":

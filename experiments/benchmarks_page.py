@@ -41,8 +41,10 @@ def load_line(d: dict) -> str:
 def machine_line(d: dict) -> str:
     m = d.get("machine", {})
     v = m.get("versions", {})
-    return (f"*Machine: {m.get('processor', '?')}, {m.get('cpu_count', '?')} CPUs, {m.get('platform', '?')}; "
-            f"jax {v.get('jax', '?')}; measured {m.get('date_utc', '?')}.*")
+    return (
+        f"*Machine: {m.get('processor', '?')}, {m.get('cpu_count', '?')} CPUs, {m.get('platform', '?')}; "
+        f"jax {v.get('jax', '?')}; measured {m.get('date_utc', '?')}.*"
+    )
 
 
 def evolve() -> str:
@@ -51,23 +53,57 @@ def evolve() -> str:
         return "(bench_evolve.json missing)"
 
     def grid_table(rows):
-        return table(["threads", "statistics", "N", "grid path ms/lobe", "rfft2+irfft2 floor ms", "irfft2 alone ms",
-                      "product + irfft2 ms", "SciPy fftconvolve ms", "throughput ÷ floor (median)", "(best round)",
-                      "control's throughput ÷ floor (median)", "page faults per call: grid / floor / control / irfft2 / product + irfft2",
-                      "speed-up vs SciPy", "grid path error", "SciPy error"], rows)
+        return table(
+            [
+                "threads",
+                "statistics",
+                "N",
+                "grid path ms/lobe",
+                "rfft2+irfft2 floor ms",
+                "irfft2 alone ms",
+                "product + irfft2 ms",
+                "SciPy fftconvolve ms",
+                "throughput ÷ floor (median)",
+                "(best round)",
+                "control's throughput ÷ floor (median)",
+                "page faults per call: grid / floor / control / irfft2 / product + irfft2",
+                "speed-up vs SciPy",
+                "grid path error",
+                "SciPy error",
+            ],
+            rows,
+        )
 
     def faults(r):
         f = r.get("minor_page_faults_per_call_median")
-        return "–" if f is None else " / ".join(f"{f[k]:.0f}" for k in ("grid", "floor", "control", "irfft", "multiply_irfft"))
+        return (
+            "–"
+            if f is None
+            else " / ".join(f"{f[k]:.0f}" for k in ("grid", "floor", "control", "irfft", "multiply_irfft"))
+        )
 
     configurations = [("default", d["grid"]), ("1", d.get("grid_single_thread", []))]
-    rows = [[threads, r["statistics"], str(r["grid_size"]), f"{r['grid_path_s_per_lobe'] * 1e3:.2f}",
-             f"{r['raw_fft_floor_s_per_grid'] * 1e3:.2f}", f"{r['irfft2_alone_s_per_grid'] * 1e3:.2f}",
-             f"{r['multiply_then_irfft2_s_per_grid'] * 1e3:.2f}", f"{r['scipy_fftconvolve_s_per_lobe'] * 1e3:.2f}",
-             f"{r['throughput_vs_floor']:.2f}", f"{r['throughput_vs_floor_best_of_rounds']:.2f}",
-             f"{r['control_throughput_vs_floor']['median']:.2f}", faults(r), f"{r['speedup_vs_scipy']:.2f}",
-             f"{r['grid_path_max_error_rel_peak']:.1e}", f"{r['scipy_max_error_rel_peak']:.1e}"]
-            for threads, group in configurations for r in group]
+    rows = [
+        [
+            threads,
+            r["statistics"],
+            str(r["grid_size"]),
+            f"{r['grid_path_s_per_lobe'] * 1e3:.2f}",
+            f"{r['raw_fft_floor_s_per_grid'] * 1e3:.2f}",
+            f"{r['irfft2_alone_s_per_grid'] * 1e3:.2f}",
+            f"{r['multiply_then_irfft2_s_per_grid'] * 1e3:.2f}",
+            f"{r['scipy_fftconvolve_s_per_lobe'] * 1e3:.2f}",
+            f"{r['throughput_vs_floor']:.2f}",
+            f"{r['throughput_vs_floor_best_of_rounds']:.2f}",
+            f"{r['control_throughput_vs_floor']['median']:.2f}",
+            faults(r),
+            f"{r['speedup_vs_scipy']:.2f}",
+            f"{r['grid_path_max_error_rel_peak']:.1e}",
+            f"{r['scipy_max_error_rel_peak']:.1e}",
+        ]
+        for threads, group in configurations
+        for r in group
+    ]
     q = d["queries"]
 
     def floor_verdict(group, label):
@@ -77,39 +113,72 @@ def evolve() -> str:
         noise = max(abs(c - 1) for c in control)
         margin = abs(min(floor) / 0.8 - 1)
         within = f"; the worst row's margin ({margin:.0%}) is within the run's noise" if margin < noise else ""
-        return (f"{label}: {met(min(floor) >= 0.8)} ({min(floor):.2f}–{max(floor):.2f}×; the control, the floor "
-                f"against itself, {min(control):.2f}–{max(control):.2f}×{within})")
+        return (
+            f"{label}: {met(min(floor) >= 0.8)} ({min(floor):.2f}–{max(floor):.2f}×; the control, the floor "
+            f"against itself, {min(control):.2f}–{max(control):.2f}×{within})"
+        )
 
     scipy = [r["speedup_vs_scipy"] for r in d["grid"]]
     verdict = (
         "Targets: grid path ≥ 0.8× the floor's throughput (medians of interleaved rounds) — "
-        + "; ".join(floor_verdict(group, f"{threads} threads" if threads == "default" else "one thread")
-                    for threads, group in configurations if group)
+        + "; ".join(
+            floor_verdict(group, f"{threads} threads" if threads == "default" else "one thread")
+            for threads, group in configurations
+            if group
+        )
         + f". ≥ 2× SciPy — {met(min(scipy) >= 2)} ({min(scipy):.1f}–{max(scipy):.1f}×, default threads); "
         f"closed form ≥ 1000× the grid path per query — {met(q['closed_form_speedup_per_query'] >= 1000)} "
         f"({q['closed_form_speedup_per_query']:.2g}×). {load_line(d)}"
     )
     threads = d.get("fft_threads")
     if threads and "grid_path" in threads:
+
         def where(record):
-            return ", ".join(f"{v['ffts']} in `{pool}` (median {v['median_ms']:.1f} ms"
-                             + (f", other pool threads working alongside {v['helpers_median']:.2f} of the time"
-                                if "helpers_median" in v else "") + ")"
-                             for pool, v in record.items())
-        verdict += (f"\n\nThe inverse FFT itself (profiler, {threads['statistics']} at N = {threads['grid_size']}, "
-                    f"{threads['calls']} calls each): inside the grid path's program {where(threads['grid_path'])}; "
-                    f"alone on the same spectra {where(threads['irfft2_alone'])}"
-                    + (f"; the floor's (two per call) {where(threads['floor'])}" if "floor" in threads else "")
-                    + ".")
-    return "\n\n".join([
-        machine_line(d),
-        grid_table(rows),
-        table(["queries", "grid N", "closed form ns/query", "grid path µs/query", "closed form ÷ grid", "grid error vs closed form"],
-              [[str(q["queries"]), str(q["grid_size"]), f"{q['closed_form_s_per_query'] * 1e9:.1f}",
-                f"{q['grid_path_s_per_query'] * 1e6:.1f}", f"{q['closed_form_speedup_per_query']:.0f}",
-                f"{q['grid_vs_closed_max_rel_error']:.1e}"]]),
-        verdict,
-    ])
+            return ", ".join(
+                f"{v['ffts']} in `{pool}` (median {v['median_ms']:.1f} ms"
+                + (
+                    f", other pool threads working alongside {v['helpers_median']:.2f} of the time"
+                    if "helpers_median" in v
+                    else ""
+                )
+                + ")"
+                for pool, v in record.items()
+            )
+
+        verdict += (
+            f"\n\nThe inverse FFT itself (profiler, {threads['statistics']} at N = {threads['grid_size']}, "
+            f"{threads['calls']} calls each): inside the grid path's program {where(threads['grid_path'])}; "
+            f"alone on the same spectra {where(threads['irfft2_alone'])}"
+            + (f"; the floor's (two per call) {where(threads['floor'])}" if "floor" in threads else "")
+            + "."
+        )
+    return "\n\n".join(
+        [
+            machine_line(d),
+            grid_table(rows),
+            table(
+                [
+                    "queries",
+                    "grid N",
+                    "closed form ns/query",
+                    "grid path µs/query",
+                    "closed form ÷ grid",
+                    "grid error vs closed form",
+                ],
+                [
+                    [
+                        str(q["queries"]),
+                        str(q["grid_size"]),
+                        f"{q['closed_form_s_per_query'] * 1e9:.1f}",
+                        f"{q['grid_path_s_per_query'] * 1e6:.1f}",
+                        f"{q['closed_form_speedup_per_query']:.0f}",
+                        f"{q['grid_vs_closed_max_rel_error']:.1e}",
+                    ]
+                ],
+            ),
+            verdict,
+        ]
+    )
 
 
 def so3() -> str:
@@ -129,11 +198,18 @@ def so3() -> str:
     ]
     before = d.get("before_after")
     if before:
-        parts.append(f"Before/after in the same run (so3 at {before['revision']} against this version, "
-                     f"{before['method']}):")
-        parts.append(table(["B", "before s", "after s", "speed-up"],
-                           [[str(x["B"]), f"{x['before_s']:.4g}", f"{x['after_s']:.4g}", f"{x['speedup']:.2f}"]
-                            for x in before["rows"]]))
+        parts.append(
+            f"Before/after in the same run (so3 at {before['revision']} against this version, {before['method']}):"
+        )
+        parts.append(
+            table(
+                ["B", "before s", "after s", "speed-up"],
+                [
+                    [str(x["B"]), f"{x['before_s']:.4g}", f"{x['after_s']:.4g}", f"{x['speedup']:.2f}"]
+                    for x in before["rows"]
+                ],
+            )
+        )
     return "\n\n".join(parts)
 
 
@@ -151,16 +227,39 @@ def so3_details() -> str:
         x = s2.get(b)
         if x is None:
             return ["—", "—", "—"]
-        return [f"{x['fourier_total_s']:.3g}", f"{x['precompute_total_s']:.3g}",
-                f"{x['fourier_round_trip_max_abs_error']:.1e} / {x['precompute_round_trip_max_abs_error']:.1e}"]
+        return [
+            f"{x['fourier_total_s']:.3g}",
+            f"{x['precompute_total_s']:.3g}",
+            f"{x['fourier_round_trip_max_abs_error']:.1e} / {x['precompute_round_trip_max_abs_error']:.1e}",
+        ]
 
     transforms = table(
-        ["B", "so3 inverse (s)", "so3 forward (s)", "so3 total (s)", "total CPU, all threads (s)", "load avg before/after",
-         "round-trip max error", "s2fft Fourier total (s)", "s2fft precompute total (s)",
-         "s2fft round-trip error (Fourier / precompute)"],
-        [[str(t["B"]), f"{t['inverse_s']:.3g}", f"{t['forward_s']:.3g}", f"{t['total_s']:.3g}", f"{t['total_cpu_s']:.3g}",
-          f"{t['load_average_1min'][0]:.2f} / {t['load_average_1min'][1]:.2f}", f"{t['round_trip_max_abs_error']:.1e}",
-          *s2fft_cells(t["B"])] for t in d["transforms"]])
+        [
+            "B",
+            "so3 inverse (s)",
+            "so3 forward (s)",
+            "so3 total (s)",
+            "total CPU, all threads (s)",
+            "load avg before/after",
+            "round-trip max error",
+            "s2fft Fourier total (s)",
+            "s2fft precompute total (s)",
+            "s2fft round-trip error (Fourier / precompute)",
+        ],
+        [
+            [
+                str(t["B"]),
+                f"{t['inverse_s']:.3g}",
+                f"{t['forward_s']:.3g}",
+                f"{t['total_s']:.3g}",
+                f"{t['total_cpu_s']:.3g}",
+                f"{t['load_average_1min'][0]:.2f} / {t['load_average_1min'][1]:.2f}",
+                f"{t['round_trip_max_abs_error']:.1e}",
+                *s2fft_cells(t["B"]),
+            ]
+            for t in d["transforms"]
+        ],
+    )
     wall, cpu = d["time_scaling"]["wall"], d["time_scaling"]["cpu"]
     local = wall["local"]
     steepest = max(local, key=lambda x: x["exponent"])
@@ -172,24 +271,39 @@ def so3_details() -> str:
         + ", ".join(f"{a}→{b}: {x['exponent']:.2f}" for x in local for a, b in [x["B"]])
         + f"; the steepest step is {steepest['B'][0]} → {steepest['B'][1]}. The working set is the (2B)³ complex "
         f"samples and intermediates of the same size: "
-        + ", ".join(f"{(2 * b) ** 3 * 16 / 2**20:.0f} MiB at B = {b}" for b in (32, 48, 64)) + ".")
+        + ", ".join(f"{(2 * b) ** 3 * 16 / 2**20:.0f} MiB at B = {b}" for b in (32, 48, 64))
+        + "."
+    )
     parts = [
         f"Command: `python -m experiments.bench_so3 --baseline-rev {d['before_after']['revision']}` → "
         f"`experiments/results/bench_so3.json` ({m.get('date_utc', '?')}, {m.get('cpu_count', '?')} CPU cores, "
         f"jax {v.get('jax', '?')}, s2fft {v.get('s2fft', '?')}; float64; best of 5 after a warm-up; 1-minute load "
         f"average {load_start:.2f} at the start and {load_end:.2f} at the end, per size in the table).",
-        transforms, scaling]
+        transforms,
+        scaling,
+    ]
     before = d.get("before_after")
     if before:
         parts += [
             f"Before/after, measured in the same run: brdfscale.so3 as of commit {before['revision']} against this "
             f"version, forward + inverse, {before['method']}:",
-            table(["B", "before (s)", "after (s)", "speed-up", "round-trip error before / after", "load avg"],
-                  [[str(x["B"]), f"{x['before_s']:.3g}", f"{x['after_s']:.3g}", f"{x['speedup']:.2f}",
-                    f"{x['before_round_trip_max_abs_error']:.1e} / {x['after_round_trip_max_abs_error']:.1e}",
-                    f"{x['load_average_1min']:.2f}"] for x in before["rows"]]),
+            table(
+                ["B", "before (s)", "after (s)", "speed-up", "round-trip error before / after", "load avg"],
+                [
+                    [
+                        str(x["B"]),
+                        f"{x['before_s']:.3g}",
+                        f"{x['after_s']:.3g}",
+                        f"{x['speedup']:.2f}",
+                        f"{x['before_round_trip_max_abs_error']:.1e} / {x['after_round_trip_max_abs_error']:.1e}",
+                        f"{x['load_average_1min']:.2f}",
+                    ]
+                    for x in before["rows"]
+                ],
+            ),
             f"Fitted exponents over B ≥ 32 in this comparison: before B^{before['before_exponent_B_ge_32']:.2f}, "
-            f"after B^{before['after_exponent_B_ge_32']:.2f}."]
+            f"after B^{before['after_exponent_B_ge_32']:.2f}.",
+        ]
     r = d["ratio"]
     times = r["times_s"]
     parts.append(
@@ -197,17 +311,37 @@ def so3_details() -> str:
         f"{r['load_average_1min']:.2f}): s2fft Fourier {times['s2fft_fourier']:.3g} s, s2fft precompute "
         f"{times['s2fft_precompute']:.3g} s, brdfscale.so3 {times['brdfscale_so3']:.3g} s: **{r['speedup']:.1f}× faster "
         f"than s2fft's fastest exact mode ({r['s2fft_fastest_exact_mode']})**. s2fft's precomputed kernels also cost "
-        + ", ".join(f"{x['precompute_kernel_build_s']:.0f} s to build at B = {x['B']} "
-                    f"({x['precompute_kernel_bytes'] / 2**20:.0f} MiB)" for x in d["s2fft"]) + ".")
+        + ", ".join(
+            f"{x['precompute_kernel_build_s']:.0f} s to build at B = {x['B']} "
+            f"({x['precompute_kernel_bytes'] / 2**20:.0f} MiB)"
+            for x in d["s2fft"]
+        )
+        + "."
+    )
     evolution = d["evolution"]
     largest = evolution[-1]
     parts += [
         "Block evolution (one BRDF, all blocks J < B, operators precomputed; expm path includes building G and the "
         "exponentials):",
-        table(["B", "solve (s)", "regularised solve (s)", "diffusion expm path (s)",
-               "consistency error ‖R(μ)Q̃(μ) − R(μ0)Q̃(μ0)‖∞"],
-              [[str(x["B"]), f"{x['solve_s']:.3g}", f"{x['regularised_solve_s']:.3g}", f"{x['diffusion_expm_s']:.3g}",
-                f"{x['consistency_max_abs_error']:.1e}"] for x in evolution]),
+        table(
+            [
+                "B",
+                "solve (s)",
+                "regularised solve (s)",
+                "diffusion expm path (s)",
+                "consistency error ‖R(μ)Q̃(μ) − R(μ0)Q̃(μ0)‖∞",
+            ],
+            [
+                [
+                    str(x["B"]),
+                    f"{x['solve_s']:.3g}",
+                    f"{x['regularised_solve_s']:.3g}",
+                    f"{x['diffusion_expm_s']:.3g}",
+                    f"{x['consistency_max_abs_error']:.1e}",
+                ]
+                for x in evolution
+            ],
+        ),
         f"Fitted solve-time exponent for B ≥ 16: B^{d['evolution_solve_scaling_exponent_B_ge_16']:.2f}. At "
         f"B = {largest['B']} the regularised solve (Cholesky of the normal matrix) costs "
         f"{largest['regularised_solve_s'] / largest['solve_s']:.1f}× the plain LU solve.",
@@ -219,12 +353,17 @@ def so3_details() -> str:
         if "measured_max_relative_error" in x:
             measured = f"{x['measured_max_relative_error']:.2e} (vs closed form)"
         else:
-            measured = (f"{x['measured_max_relative_error_vs_direct']:.2e} (vs direct evaluation; "
-                        f"{x['measured_max_relative_error_vs_reference']:.2e} vs B = {x['reference_B']})")
+            measured = (
+                f"{x['measured_max_relative_error_vs_direct']:.2e} (vs direct evaluation; "
+                f"{x['measured_max_relative_error_vs_reference']:.2e} vs B = {x['reference_B']})"
+            )
         return [x["lobe"] + width, f"{x['tol']:.0e}", str(x["B"]), f"{x['predicted_relative_error']:.2e}", measured]
 
-    parts.append(table(["lobe", "tol", "B", "predicted ε(B)", "measured max error / peak"],
-                       [band_row(x) for x in d["band_limits"]]))
+    parts.append(
+        table(
+            ["lobe", "tol", "B", "predicted ε(B)", "measured max error / peak"], [band_row(x) for x in d["band_limits"]]
+        )
+    )
     return "\n\n".join(parts)
 
 
@@ -239,13 +378,21 @@ def fit() -> str:
         for method, s in (("trf", trf), ("lm", lm)):
             warm[method].append(s["speedup_of_jax_warm_solve"])
             cold[method].append(s["speedup_of_jax_solve_after_scipy"])
-        rows.append([name, str(p["parameters"]), str(p["residual_rows"]), f"{p['fit_4_starts']['compile_s']:.1f}",
-                     f"{p['fit_4_starts']['warm_s'] * 1e3:.0f}",
-                     f"{j['warm_solve_s'] * 1e3:.2f} / {j['solve_after_scipy_s'] * 1e3:.2f} ({j['steps']})",
-                     f"{trf['solve_s'] * 1e3:.2f} / {lm['solve_s'] * 1e3:.2f}",
-                     f"{trf['speedup_of_jax_warm_solve']:.1f}× / {lm['speedup_of_jax_warm_solve']:.1f}×",
-                     f"{trf['speedup_of_jax_solve_after_scipy']:.1f}× / {lm['speedup_of_jax_solve_after_scipy']:.1f}×",
-                     str(trf["same_optimum"] and lm["same_optimum"]), f"{p['emcee']['log_prob_evaluations_per_s']:.0f}"])
+        rows.append(
+            [
+                name,
+                str(p["parameters"]),
+                str(p["residual_rows"]),
+                f"{p['fit_4_starts']['compile_s']:.1f}",
+                f"{p['fit_4_starts']['warm_s'] * 1e3:.0f}",
+                f"{j['warm_solve_s'] * 1e3:.2f} / {j['solve_after_scipy_s'] * 1e3:.2f} ({j['steps']})",
+                f"{trf['solve_s'] * 1e3:.2f} / {lm['solve_s'] * 1e3:.2f}",
+                f"{trf['speedup_of_jax_warm_solve']:.1f}× / {lm['speedup_of_jax_warm_solve']:.1f}×",
+                f"{trf['speedup_of_jax_solve_after_scipy']:.1f}× / {lm['speedup_of_jax_solve_after_scipy']:.1f}×",
+                str(trf["same_optimum"] and lm["same_optimum"]),
+                f"{p['emcee']['log_prob_evaluations_per_s']:.0f}",
+            ]
+        )
 
     def verdict(ratios: list) -> str:
         """≥ 10× in every entry; a missing ratio (None) is not met."""
@@ -253,7 +400,8 @@ def fit() -> str:
         missing = len(ratios) - len(known)
         span = f"{min(known):.2f}–{max(known):.2f}×" if known else "no ratio"
         return f"{met(bool(known) and not missing and min(known) >= 10)} ({span}" + (
-            f"; {missing} without a JAX solve as close)" if missing else ")")
+            f"; {missing} without a JAX solve as close)" if missing else ")"
+        )
 
     accuracy_rows, at_defaults = [], {"scipy_trf_fd": [], "scipy_lm_fd": []}
     for name, p in d["problems"].items():
@@ -266,44 +414,86 @@ def fit() -> str:
             if default:
                 at_defaults[solver].append(e["speedup"])
             fit_default = e["jax_tolerance"] == evt["jax_default_tolerance"]
-            accuracy_rows.append([
-                name, f"{solver} ({'SciPy default' if default else 'tighter'}, tol {tol})",
-                f"{e['scipy_evaluations']}", f"{e['scipy_error_laplace_std']:.1e}", f"{e['scipy_s'] * 1e3:.2f}",
-                "–" if e["jax_tolerance"] is None else f"{e['jax_tolerance']:g}{' (fit default)' if fit_default else ''}",
-                "–" if e["jax_steps"] is None else str(e["jax_steps"]),
-                "–" if e["jax_error_laplace_std"] is None else f"{e['jax_error_laplace_std']:.1e}",
-                "–" if e["jax_s"] is None else f"{e['jax_s'] * 1e3:.3f}",
-                "–" if e["speedup"] is None else f"{e['speedup']:.1f}×"])
+            accuracy_rows.append(
+                [
+                    name,
+                    f"{solver} ({'SciPy default' if default else 'tighter'}, tol {tol})",
+                    f"{e['scipy_evaluations']}",
+                    f"{e['scipy_error_laplace_std']:.1e}",
+                    f"{e['scipy_s'] * 1e3:.2f}",
+                    "–"
+                    if e["jax_tolerance"] is None
+                    else f"{e['jax_tolerance']:g}{' (fit default)' if fit_default else ''}",
+                    "–" if e["jax_steps"] is None else str(e["jax_steps"]),
+                    "–" if e["jax_error_laplace_std"] is None else f"{e['jax_error_laplace_std']:.1e}",
+                    "–" if e["jax_s"] is None else f"{e['jax_s'] * 1e3:.3f}",
+                    "–" if e["speedup"] is None else f"{e['speedup']:.1f}×",
+                ]
+            )
     accuracy_block = ""
     if accuracy_rows:
-        accuracy_block = "\n\n".join([
-            "At equal accuracy (error = distance from the least-squares optimum θ* in Laplace standard "
-            "deviations; each SciPy solve against the JAX tolerance of fewest steps, then loosest tolerance, "
-            "that lands at least as close to θ*):",
-            table(["problem", "SciPy (FD Jacobian)", "evaluations", "error σ", "ms", "JAX LM tolerance", "steps",
-                   "error σ", "ms", "speed-up"], accuracy_rows),
-            f"Target ≥ 10× `scipy.optimize.least_squares` to the same optimum, at equal accuracy, SciPy at its "
-            f"default tolerances — its default method `trf`: {verdict(at_defaults['scipy_trf_fd'])}; its `lm` "
-            f"method: {verdict(at_defaults['scipy_lm_fd'])}.",
-        ])
+        accuracy_block = "\n\n".join(
+            [
+                "At equal accuracy (error = distance from the least-squares optimum θ* in Laplace standard "
+                "deviations; each SciPy solve against the JAX tolerance of fewest steps, then loosest tolerance, "
+                "that lands at least as close to θ*):",
+                table(
+                    [
+                        "problem",
+                        "SciPy (FD Jacobian)",
+                        "evaluations",
+                        "error σ",
+                        "ms",
+                        "JAX LM tolerance",
+                        "steps",
+                        "error σ",
+                        "ms",
+                        "speed-up",
+                    ],
+                    accuracy_rows,
+                ),
+                f"Target ≥ 10× `scipy.optimize.least_squares` to the same optimum, at equal accuracy, SciPy at its "
+                f"default tolerances — its default method `trf`: {verdict(at_defaults['scipy_trf_fd'])}; its `lm` "
+                f"method: {verdict(at_defaults['scipy_lm_fd'])}.",
+            ]
+        )
     floor = d.get("optimistix_floor", {})
     floor_line = ""
     if "fit_solver" in floor:
-        floor_line = (f" Optimistix's own cost per LM step on a trivial {floor['rows']} × {floor['parameters']} "
-                      f"problem: {floor['fit_solver']['per_step_s'] * 1e6:.0f} µs with fit's (optimistix's default QR) step, "
-                      f"{floor['normal_cholesky']['per_step_s'] * 1e6:.0f} µs with Cholesky of the normal equations.")
-    return "\n\n".join([
-        machine_line(d),
-        table(["problem", "params", "rows", "fit compile s", "warm fit (4 starts) ms",
-               "LM solve ms: warm / after SciPy (steps)", "SciPy trf / lm + FD ms", "SciPy ÷ warm JAX (trf / lm)",
-               "SciPy ÷ JAX after SciPy (trf / lm)", "same optimum", "emcee log-p/s"], rows),
-        f"Both sides at their default tolerances (the JAX solve then ends closer to the optimum, see below), "
-        f"≥ 10× the SciPy baseline — warm solves (as in a loop of fits) against `trf`: {verdict(warm['trf'])}, "
-        f"against `lm`: {verdict(warm['lm'])}; the first solve after a SciPy solve (caches filled by SciPy's "
-        f"Python) against `trf`: {verdict(cold['trf'])}, against `lm`: {verdict(cold['lm'])}. Medians of "
-        f"single calls over {next(iter(d['problems'].values())).get('rounds', '?')} rounds."
-        + floor_line + f" {load_line(d)}",
-    ] + ([accuracy_block] if accuracy_block else []))
+        floor_line = (
+            f" Optimistix's own cost per LM step on a trivial {floor['rows']} × {floor['parameters']} "
+            f"problem: {floor['fit_solver']['per_step_s'] * 1e6:.0f} µs with fit's (optimistix's default QR) step, "
+            f"{floor['normal_cholesky']['per_step_s'] * 1e6:.0f} µs with Cholesky of the normal equations."
+        )
+    return "\n\n".join(
+        [
+            machine_line(d),
+            table(
+                [
+                    "problem",
+                    "params",
+                    "rows",
+                    "fit compile s",
+                    "warm fit (4 starts) ms",
+                    "LM solve ms: warm / after SciPy (steps)",
+                    "SciPy trf / lm + FD ms",
+                    "SciPy ÷ warm JAX (trf / lm)",
+                    "SciPy ÷ JAX after SciPy (trf / lm)",
+                    "same optimum",
+                    "emcee log-p/s",
+                ],
+                rows,
+            ),
+            f"Both sides at their default tolerances (the JAX solve then ends closer to the optimum, see below), "
+            f"≥ 10× the SciPy baseline — warm solves (as in a loop of fits) against `trf`: {verdict(warm['trf'])}, "
+            f"against `lm`: {verdict(warm['lm'])}; the first solve after a SciPy solve (caches filled by SciPy's "
+            f"Python) against `trf`: {verdict(cold['trf'])}, against `lm`: {verdict(cold['lm'])}. Medians of "
+            f"single calls over {next(iter(d['problems'].values())).get('rounds', '?')} rounds."
+            + floor_line
+            + f" {load_line(d)}",
+        ]
+        + ([accuracy_block] if accuracy_block else [])
+    )
 
 
 def planner() -> str:
@@ -316,27 +506,63 @@ def planner() -> str:
             ratio = pl["ratio_to_pareto"]
             if ratio is not None:
                 ratios.append(ratio)
-            rows.append([prob["problem"], f"{pl['target']:.0e}", pl["path"], f"{pl['error']:.1e}",
-                         f"{pl['seconds'] * 1e3:.3f}",
-                         "none as accurate" if ratio is None else f"{pl['pareto_seconds_at_error'] * 1e3:.3f}",
-                         "—" if ratio is None else f"{ratio:.2f}"])
+            rows.append(
+                [
+                    prob["problem"],
+                    f"{pl['target']:.0e}",
+                    pl["path"],
+                    f"{pl['error']:.1e}",
+                    f"{pl['seconds'] * 1e3:.3f}",
+                    "none as accurate" if ratio is None else f"{pl['pareto_seconds_at_error'] * 1e3:.3f}",
+                    "—" if ratio is None else f"{ratio:.2f}",
+                ]
+            )
     w = d["workload"]
-    work = table(["image", "queries", "μ ratio", "plan s (fresh process)", "first evaluation s (compile)",
-                  "evaluation ms", "max error ÷ peak", "naive s (extrapolated)", "speed-up: evaluation",
-                  "speed-up: plan + first evaluation"],
-                 [[f"{w['resolution']}²", str(w["queries"]), f"{w['mu_ratio']:.0f}", f"{w['plan_seconds']:.2f}",
-                   f"{w['first_evaluate_seconds_with_compile']:.2f}", f"{w['evaluate_seconds'] * 1e3:.1f}",
-                   f"{w['max_error_rel_peak']:.1e}", f"{w['naive_seconds_extrapolated']:.1f}",
-                   f"{w['speedup_evaluate_vs_naive']:.0f}×", f"{w['speedup_plan_plus_evaluate_vs_naive']:.1f}×"]])
+    work = table(
+        [
+            "image",
+            "queries",
+            "μ ratio",
+            "plan s (fresh process)",
+            "first evaluation s (compile)",
+            "evaluation ms",
+            "max error ÷ peak",
+            "naive s (extrapolated)",
+            "speed-up: evaluation",
+            "speed-up: plan + first evaluation",
+        ],
+        [
+            [
+                f"{w['resolution']}²",
+                str(w["queries"]),
+                f"{w['mu_ratio']:.0f}",
+                f"{w['plan_seconds']:.2f}",
+                f"{w['first_evaluate_seconds_with_compile']:.2f}",
+                f"{w['evaluate_seconds'] * 1e3:.1f}",
+                f"{w['max_error_rel_peak']:.1e}",
+                f"{w['naive_seconds_extrapolated']:.1f}",
+                f"{w['speedup_evaluate_vs_naive']:.0f}×",
+                f"{w['speedup_plan_plus_evaluate_vs_naive']:.1f}×",
+            ]
+        ],
+    )
     pareto = f"{met(max(ratios) <= 2)} (worst {max(ratios):.2f}×)" if ratios else "no comparable sweep point"
-    verdict = (f"Targets: the planner's choice within 2× of the Pareto-optimal time at its error on every reference "
-               f"problem — {pareto}; the receding plane ≥ 20× faster than "
-               f"naive per-pixel grid evaluation at max error ≤ 1e-4 — "
-               f"{met(w['speedup_plan_plus_evaluate_vs_naive'] >= 20 and w['max_error_rel_peak'] <= 1e-4)} "
-               f"({w['speedup_plan_plus_evaluate_vs_naive']:.1f}× counting planning and compilation, "
-               f"{w['speedup_evaluate_vs_naive']:.0f}× per evaluation; error {w['max_error_rel_peak']:.1e}).")
-    return "\n\n".join([machine_line(d), table(["problem", "target", "path", "error", "planner ms", "Pareto ms at that error",
-                                                "ratio"], rows), work, verdict])
+    verdict = (
+        f"Targets: the planner's choice within 2× of the Pareto-optimal time at its error on every reference "
+        f"problem — {pareto}; the receding plane ≥ 20× faster than "
+        f"naive per-pixel grid evaluation at max error ≤ 1e-4 — "
+        f"{met(w['speedup_plan_plus_evaluate_vs_naive'] >= 20 and w['max_error_rel_peak'] <= 1e-4)} "
+        f"({w['speedup_plan_plus_evaluate_vs_naive']:.1f}× counting planning and compilation, "
+        f"{w['speedup_evaluate_vs_naive']:.0f}× per evaluation; error {w['max_error_rel_peak']:.1e})."
+    )
+    return "\n\n".join(
+        [
+            machine_line(d),
+            table(["problem", "target", "path", "error", "planner ms", "Pareto ms at that error", "ratio"], rows),
+            work,
+            verdict,
+        ]
+    )
 
 
 def _ms(seconds: float) -> str:
@@ -361,21 +587,45 @@ def planner_pareto() -> str:
             if ratio is not None:
                 ratios.append((ratio, prob["problem"], pl["seconds"]))
             margins.setdefault(prob["problem"], []).append(pl["target"] / max(pl["error"], 1e-300))
-            rows.append([prob["problem"], f"{pl['target']:.0e}", f"{pl['path']} ({pl['details']})", f"{pl['error']:.1e}",
-                         _ms(pl["seconds"]),
-                         "none as accurate" if ratio is None else _ms(pl["pareto_seconds_at_error"]),
-                         "—" if ratio is None else f"{ratio:.2f}"])
+            rows.append(
+                [
+                    prob["problem"],
+                    f"{pl['target']:.0e}",
+                    f"{pl['path']} ({pl['details']})",
+                    f"{pl['error']:.1e}",
+                    _ms(pl["seconds"]),
+                    "none as accurate" if ratio is None else _ms(pl["pareto_seconds_at_error"]),
+                    "—" if ratio is None else f"{ratio:.2f}",
+                ]
+            )
     worst = max(ratios)
     below = all(pl["error"] <= pl["target"] for prob in d["problems"] for pl in prob["planner"])
     verdict = (
-        f"Target \"within 2× of the Pareto-optimal time\": {met(worst[0] <= 2)} (worst ratio {worst[0]:.2f}, "
+        f'Target "within 2× of the Pareto-optimal time": {met(worst[0] <= 2)} (worst ratio {worst[0]:.2f}, '
         f"{worst[1]}, whose planned evaluation takes {_ms(worst[2])}). The planner's own error is "
         f"{'below the target in every row' if below else '**above the target in some row**'}; target ÷ error, "
-        f"per problem: " + "; ".join(f"{name} {min(v):.3g}–{max(v):.3g}" for name, v in margins.items())
+        f"per problem: "
+        + "; ".join(f"{name} {min(v):.3g}–{max(v):.3g}" for name, v in margins.items())
         + f". Run of {d['machine'].get('date_utc', '?')}, load average (1 min) {d['load_average_before'][0]:.2f} at "
-        f"the start, {d['load_average_after'][0]:.2f} at the end.")
-    return "\n\n".join([table(["problem", "target", "planner path (sizes)", "planner error", "planner time",
-                               "Pareto-optimal time at that error", "ratio"], rows), verdict])
+        f"the start, {d['load_average_after'][0]:.2f} at the end."
+    )
+    return "\n\n".join(
+        [
+            table(
+                [
+                    "problem",
+                    "target",
+                    "planner path (sizes)",
+                    "planner error",
+                    "planner time",
+                    "Pareto-optimal time at that error",
+                    "ratio",
+                ],
+                rows,
+            ),
+            verdict,
+        ]
+    )
 
 
 def planner_fronts() -> str:
@@ -388,8 +638,10 @@ def planner_fronts() -> str:
         knobs = " ".join(str(k) for k in (x["size"], x["tol"]) if k is not None)
         return f"{x['method']}{' ' + knobs if knobs else ''} → {_ms(x['seconds'])}, {x['error']:.1e}"
 
-    return table(["problem", "Pareto front (path, size, tol → time, error)"],
-                 [[prob["problem"], "; ".join(point(x) for x in prob["pareto"])] for prob in d["problems"]])
+    return table(
+        ["problem", "Pareto front (path, size, tol → time, error)"],
+        [[prob["problem"], "; ".join(point(x) for x in prob["pareto"])] for prob in d["problems"]],
+    )
 
 
 def planner_workload() -> str:
@@ -407,24 +659,38 @@ def planner_workload() -> str:
         ["first evaluation (includes jit compilation)", f"{w['first_evaluate_seconds_with_compile']:.2f} s"],
         ["evaluation, jit-compiled", f"{w['evaluate_seconds'] * 1e3:.1f} ms"],
         ["planner's choice", choice],
-        ["predicted cost", f"{_units(w['predicted_cost_units'])} units ({w['seconds_per_unit']:.2g} s per unit measured)"],
-        ["max error relative to each pixel's lobe peak", f"{w['max_error_rel_peak']:.1e} (predicted ≤ {w['predicted_error']:.1e})"],
-        ["max pointwise relative error where ρ > 1 % of the peak", f"{w['max_pointwise_rel_error_where_above_1pct_of_peak']:.1e}"],
-        [f"naive per-pixel grid evaluation (`evolve(..., method=\"grid\", tol={w['tol']:g})` at each pixel's μ, `density` "
-         f"at its offset; sizes {'/'.join(map(str, w['naive_grid_sizes']))} chosen by the library)",
-         f"{w['naive_seconds_per_pixel'] * 1e3:.2f} ms per pixel → {w['naive_seconds_extrapolated']:.0f} s for the image "
-         f"(timed on {w['naive_pixels_sampled']} random pixels, extrapolated)"],
+        [
+            "predicted cost",
+            f"{_units(w['predicted_cost_units'])} units ({w['seconds_per_unit']:.2g} s per unit measured)",
+        ],
+        [
+            "max error relative to each pixel's lobe peak",
+            f"{w['max_error_rel_peak']:.1e} (predicted ≤ {w['predicted_error']:.1e})",
+        ],
+        [
+            "max pointwise relative error where ρ > 1 % of the peak",
+            f"{w['max_pointwise_rel_error_where_above_1pct_of_peak']:.1e}",
+        ],
+        [
+            f'naive per-pixel grid evaluation (`evolve(..., method="grid", tol={w["tol"]:g})` at each pixel\'s μ, `density` '
+            f"at its offset; sizes {'/'.join(map(str, w['naive_grid_sizes']))} chosen by the library)",
+            f"{w['naive_seconds_per_pixel'] * 1e3:.2f} ms per pixel → {w['naive_seconds_extrapolated']:.0f} s for the image "
+            f"(timed on {w['naive_pixels_sampled']} random pixels, extrapolated)",
+        ],
         ["naive max error on its sample", f"{w['naive_max_error_rel_peak_on_sample']:.1e}"],
         ["speed-up, evaluation", f"{w['speedup_evaluate_vs_naive']:,.0f}×"],
         ["speed-up, plan + first evaluation", f"{w['speedup_plan_plus_evaluate_vs_naive']:.1f}×"],
     ]
     ok = w["speedup_plan_plus_evaluate_vs_naive"] >= 20 and w["max_error_rel_peak"] <= 1e-4
-    return "\n\n".join([
-        f"Run of {d['machine'].get('date_utc', '?')}, load average (1 min) {d['load_average_before'][0]:.2f} at the start.",
-        table(["quantity", "value"], rows),
-        f"Target \"≥ 20× faster than naive at max relative error ≤ 1e-4\": {met(ok)}, at max error "
-        f"{w['max_error_rel_peak']:.1e} relative to the lobe peak — {w['speedup_evaluate_vs_naive']:,.0f}× per evaluation "
-        f"and {w['speedup_plan_plus_evaluate_vs_naive']:.1f}× counting planning and the first compilation once."])
+    return "\n\n".join(
+        [
+            f"Run of {d['machine'].get('date_utc', '?')}, load average (1 min) {d['load_average_before'][0]:.2f} at the start.",
+            table(["quantity", "value"], rows),
+            f'Target "≥ 20× faster than naive at max relative error ≤ 1e-4": {met(ok)}, at max error '
+            f"{w['max_error_rel_peak']:.1e} relative to the lobe peak — {w['speedup_evaluate_vs_naive']:,.0f}× per evaluation "
+            f"and {w['speedup_plan_plus_evaluate_vs_naive']:.1f}× counting planning and the first compilation once.",
+        ]
+    )
 
 
 def planner_cost_model() -> str:
@@ -437,42 +703,75 @@ def planner_cost_model() -> str:
         r = prob.get("ranking")
         if not r:
             continue
-        forced = "; ".join(f"{x['method']} {_units(x['predicted_cost_units'])} units, {_ms(x['seconds'])}" for x in r["forced"])
-        rows.append([prob["problem"], forced, " < ".join(r["predicted_order"]), " < ".join(r["measured_order"]),
-                     f"{r['clear_pairs_ordered_right']}/{r['clear_pairs']}"])
+        forced = "; ".join(
+            f"{x['method']} {_units(x['predicted_cost_units'])} units, {_ms(x['seconds'])}" for x in r["forced"]
+        )
+        rows.append(
+            [
+                prob["problem"],
+                forced,
+                " < ".join(r["predicted_order"]),
+                " < ".join(r["measured_order"]),
+                f"{r['clear_pairs_ordered_right']}/{r['clear_pairs']}",
+            ]
+        )
         if not r["order_matches"]:
             by = {x["method"]: x for x in r["forced"]}
             a, b = r["predicted_order"][:2]
-            misses.append(f"on {prob['problem']} the model puts {a} ({_units(by[a]['predicted_cost_units'])} units) "
-                          f"below {b} ({_units(by[b]['predicted_cost_units'])}), and {b} measures "
-                          f"{by[a]['seconds'] / by[b]['seconds']:.2f}× faster")
+            misses.append(
+                f"on {prob['problem']} the model puts {a} ({_units(by[a]['predicted_cost_units'])} units) "
+                f"below {b} ({_units(by[b]['predicted_cost_units'])}), and {b} measures "
+                f"{by[a]['seconds'] / by[b]['seconds']:.2f}× faster"
+            )
     c = d["cost_model"]
     summary = (
         f"The predicted order matches the measured one on {c['rankings_matching']} of {c['rankings']} problems; "
         f"{c['clear_pairs_ordered_right']} of {c['clear_pairs']} pairs of paths whose predicted costs differ by 2× or "
-        f"more are ordered right" + (f" ({'; '.join(misses)})" if misses else "")
+        f"more are ordered right"
+        + (f" ({'; '.join(misses)})" if misses else "")
         + f". Over all {c['plans']} plans timed in the run the Spearman rank correlation between predicted units and "
         f"measured time is {c['spearman']:.2f}, and a unit costs {c['seconds_per_unit_min']:.2g} to "
-        f"{c['seconds_per_unit_max']:.2g} s (median {c['seconds_per_unit_median']:.2g} s).")
-    return "\n\n".join([table(["problem", "forced paths: predicted cost, measured time", "predicted order",
-                               "measured order", "pairs ≥ 2× apart in prediction, ordered right"], rows), summary])
+        f"{c['seconds_per_unit_max']:.2g} s (median {c['seconds_per_unit_median']:.2g} s)."
+    )
+    return "\n\n".join(
+        [
+            table(
+                [
+                    "problem",
+                    "forced paths: predicted cost, measured time",
+                    "predicted order",
+                    "measured order",
+                    "pairs ≥ 2× apart in prediction, ordered right",
+                ],
+                rows,
+            ),
+            summary,
+        ]
+    )
 
 
 def synth() -> str:
     d = load("bench_synth")
     if d is None:
         return "(bench_synth.json missing)"
-    keys = [("spectral_field", "height field"), ("facet_statistics_3_scales", "facet statistics, 3 scales"),
-            ("global_slopes", "global slopes"),
-            ("gonioreflectometer_3_scales_2_incident_poisson", "measurement: 3 scales × 2 directions"),
-            ("slope_histogram_N2_over_4", "histogram of N²/4 samples"),
-            ("baseline_fft_floor_rfft2_irfft2", "baseline: rfft2 + irfft2")]
+    keys = [
+        ("spectral_field", "height field"),
+        ("facet_statistics_3_scales", "facet statistics, 3 scales"),
+        ("global_slopes", "global slopes"),
+        ("gonioreflectometer_3_scales_2_incident_poisson", "measurement: 3 scales × 2 directions"),
+        ("slope_histogram_N2_over_4", "histogram of N²/4 samples"),
+        ("baseline_fft_floor_rfft2_irfft2", "baseline: rfft2 + irfft2"),
+    ]
     rows = []
     for k, label in keys:
         v = d.get(k)
         if isinstance(v, dict):
-            rows.append([label, f"{v.get('seconds', float('nan')):.2f}", f"{v.get('numpy_peak_MiB', float('nan')):.0f}"])
-    return f"{d['size']}² field; max RSS {d['max_rss_MiB']} MiB.\n\n" + table(["stage", "seconds", "NumPy peak MiB"], rows)
+            rows.append(
+                [label, f"{v.get('seconds', float('nan')):.2f}", f"{v.get('numpy_peak_MiB', float('nan')):.0f}"]
+            )
+    return f"{d['size']}² field; max RSS {d['max_rss_MiB']} MiB.\n\n" + table(
+        ["stage", "seconds", "NumPy peak MiB"], rows
+    )
 
 
 def topography() -> str:
@@ -484,63 +783,128 @@ def topography() -> str:
     for c in d["cases"]:
         m = c["median_s"]
         ny, nx = c["shape"]
-        rows.append([f"`{c['case']}`", c["kind"], f"{ny} × {nx}", f"{c['unmeasured']:,}",
-                     ", ".join(map(str, c["scales_px"])), f"{m['read']:.3f}", f"{m['detrend']:.3f}",
-                     f"{m['statistics']:.2f}", f"**{m['total']:.2f}**", f"{m['baseline_surface_topography']:.2f}",
-                     f"{m['baseline_numpy']:.3f}", f"{c['numpy_sigma_max_rel_diff']:.0e}"])
+        rows.append(
+            [
+                f"`{c['case']}`",
+                c["kind"],
+                f"{ny} × {nx}",
+                f"{c['unmeasured']:,}",
+                ", ".join(map(str, c["scales_px"])),
+                f"{m['read']:.3f}",
+                f"{m['detrend']:.3f}",
+                f"{m['statistics']:.2f}",
+                f"**{m['total']:.2f}**",
+                f"{m['baseline_surface_topography']:.2f}",
+                f"{m['baseline_numpy']:.3f}",
+                f"{c['numpy_sigma_max_rel_diff']:.0e}",
+            ]
+        )
     target = d["target"]
     case = next(c for c in d["cases"] if c["case"] == target["case"])
     total = case["times_s"]["total"]
     fresh = case.get("fresh_process")
-    ok = case["median_s"]["total"] < target["seconds"] and (fresh is None or fresh["process_wall_s"] < target["seconds"])
+    ok = case["median_s"]["total"] < target["seconds"] and (
+        fresh is None or fresh["process_wall_s"] < target["seconds"]
+    )
     m = d["machine"]
     v = m.get("versions", {})
     load_start, load_end = d["load_average_1min_at_start_and_end"]
-    return "\n\n".join([
-        f"*Machine: {m.get('processor', '?')}, {m.get('cpu_count', '?')} CPUs, {m.get('platform', '?')}; jax "
-        f"{v.get('jax', '?')}, numpy {v.get('numpy', '?')}, SurfaceTopography {v.get('SurfaceTopography', '?')}; "
-        f"measured {m.get('date_utc', '?')}. Command: `{d['command']}`; medians of {d['repeats']} interleaved rounds, "
-        f"seconds.*",
-        table(["case", "what", "pixels (y × x)", "unmeasured", "scales (px)", "read", "detrend", "statistics, 8 scales",
-               "total", "SurfaceTopography", "NumPy Σ only", "Σ vs NumPy (max rel. diff.)"], rows),
-        f"Target: read, detrend and the statistics at 8 scales of a {case['shape'][0]} × {case['shape'][1]} measurement "
-        f"in under {target['seconds']:g} s on 2 cores — {met(ok)} ({case['median_s']['total']:.2f} s for `{case['case']}` "
-        f"in a warm process, rounds {total[0]:.2f}–{total[-1]:.2f} s"
-        + ("" if fresh is None else
-           f"; in a fresh interpreter, as a script or the command line runs it, {fresh['process_wall_s']:.2f} s for the "
-           f"whole process: imports of jax, brdfscale and SurfaceTopography {fresh['imports_s']:.2f} s, the first read "
-           f"and detrend {fresh['read_and_detrend_s']:.2f} s, the first statistics {fresh['statistics_s']:.2f} s, median "
-           f"of {fresh['processes']} processes")
-        + f"). Load average (1 min) {load_start:.2f} at the start of the run, {load_end:.2f} at the end.",
-    ])
+    return "\n\n".join(
+        [
+            f"*Machine: {m.get('processor', '?')}, {m.get('cpu_count', '?')} CPUs, {m.get('platform', '?')}; jax "
+            f"{v.get('jax', '?')}, numpy {v.get('numpy', '?')}, SurfaceTopography {v.get('SurfaceTopography', '?')}; "
+            f"measured {m.get('date_utc', '?')}. Command: `{d['command']}`; medians of {d['repeats']} interleaved rounds, "
+            f"seconds.*",
+            table(
+                [
+                    "case",
+                    "what",
+                    "pixels (y × x)",
+                    "unmeasured",
+                    "scales (px)",
+                    "read",
+                    "detrend",
+                    "statistics, 8 scales",
+                    "total",
+                    "SurfaceTopography",
+                    "NumPy Σ only",
+                    "Σ vs NumPy (max rel. diff.)",
+                ],
+                rows,
+            ),
+            f"Target: read, detrend and the statistics at 8 scales of a {case['shape'][0]} × {case['shape'][1]} measurement "
+            f"in under {target['seconds']:g} s on 2 cores — {met(ok)} ({case['median_s']['total']:.2f} s for `{case['case']}` "
+            f"in a warm process, rounds {total[0]:.2f}–{total[-1]:.2f} s"
+            + (
+                ""
+                if fresh is None
+                else f"; in a fresh interpreter, as a script or the command line runs it, {fresh['process_wall_s']:.2f} s for the "
+                f"whole process: imports of jax, brdfscale and SurfaceTopography {fresh['imports_s']:.2f} s, the first read "
+                f"and detrend {fresh['read_and_detrend_s']:.2f} s, the first statistics {fresh['statistics_s']:.2f} s, median "
+                f"of {fresh['processes']} processes"
+            )
+            + f"). Load average (1 min) {load_start:.2f} at the start of the run, {load_end:.2f} at the end.",
+        ]
+    )
 
 
 def cli_cache() -> str:
     d = load("bench_cli_cache")
     if d is None:
         return "(bench_cli_cache.json missing)"
-    return "\n\n".join([
-        machine_line(d),
-        table(["runs", "first run (empty cache) s", "cache warm s (median)", "--no-compilation-cache s (median)",
-               "saving per run s", "cache entries", "cache MiB"],
-              [[f"1 + {d['rounds']} + {d['rounds']}", f"{d['cold_cache_s']:.1f}", f"{d['warm_cache_median_s']:.1f}",
-                f"{d['no_cache_median_s']:.1f}", f"{d['saving_per_run_s']:.1f}", str(d["cache_entries"]),
-                f"{d['cache_bytes'] / 2**20:.1f}"]]),
-        f"Command: `{' '.join(d['command'])}`, each run a fresh process. {load_line(d)}",
-    ])
+    return "\n\n".join(
+        [
+            machine_line(d),
+            table(
+                [
+                    "runs",
+                    "first run (empty cache) s",
+                    "cache warm s (median)",
+                    "--no-compilation-cache s (median)",
+                    "saving per run s",
+                    "cache entries",
+                    "cache MiB",
+                ],
+                [
+                    [
+                        f"1 + {d['rounds']} + {d['rounds']}",
+                        f"{d['cold_cache_s']:.1f}",
+                        f"{d['warm_cache_median_s']:.1f}",
+                        f"{d['no_cache_median_s']:.1f}",
+                        f"{d['saving_per_run_s']:.1f}",
+                        str(d["cache_entries"]),
+                        f"{d['cache_bytes'] / 2**20:.1f}",
+                    ]
+                ],
+            ),
+            f"Command: `{' '.join(d['command'])}`, each run a fresh process. {load_line(d)}",
+        ]
+    )
 
 
 def startup() -> str:
     d = load("bench_startup")
     if d is None:
         return "(bench_startup.json missing)"
-    rows = [[f"`{r['case']}`", f"{r['baseline_median_s']:.2f}", f"{r['current_median_s']:.2f}",
-             f"{r['speedup_median']:.1f}×"] for r in d["cases"]]
-    return "\n\n".join([
-        machine_line(d),
-        table(["command (fresh process)", f"baseline {d['baseline_rev']} s (median)", "now s (median)", "faster"], rows),
-        f"{d['repeat']} runs of each, the two trees alternated. {load_line(d)}",
-    ])
+    rows = [
+        [
+            f"`{r['case']}`",
+            f"{r['baseline_median_s']:.2f}",
+            f"{r['current_median_s']:.2f}",
+            f"{r['speedup_median']:.1f}×",
+        ]
+        for r in d["cases"]
+    ]
+    return "\n\n".join(
+        [
+            machine_line(d),
+            table(
+                ["command (fresh process)", f"baseline {d['baseline_rev']} s (median)", "now s (median)", "faster"],
+                rows,
+            ),
+            f"{d['repeat']} runs of each, the two trees alternated. {load_line(d)}",
+        ]
+    )
 
 
 def samplers() -> str:
@@ -552,32 +916,66 @@ def samplers() -> str:
     for pname, p in d["problems"].items():
         s = p["settings"]
         r = p["reference"]
-        blocks.append(f"**{pname}** — `ParametricModel({', '.join(f'{k}={v!r}' for k, v in s['model'].items())})`, "
-                      f"{p['parameters']} parameters, {len(s['scales'])} scales μ = {list(s['scales'])} of {s['size']}² "
-                      f"pixels ({p['distinct_points']} distinct points), noise {s['noise']}; fit {p['fit_s']:.1f} s. "
-                      f"Reference: emcee, {r['chains']} × {r['walkers']} walkers × {r['steps']} steps, {r['draws']} draws "
-                      f"after a burn-in of {r['burn']} steps, {r['wall_s']:.0f} s, max R̂ {r['r_hat_max']:.4f}, "
-                      f"min ESS_bulk {r['min_ess_bulk']:.0f} ({r['status']}).")
+        blocks.append(
+            f"**{pname}** — `ParametricModel({', '.join(f'{k}={v!r}' for k, v in s['model'].items())})`, "
+            f"{p['parameters']} parameters, {len(s['scales'])} scales μ = {list(s['scales'])} of {s['size']}² "
+            f"pixels ({p['distinct_points']} distinct points), noise {s['noise']}; fit {p['fit_s']:.1f} s. "
+            f"Reference: emcee, {r['chains']} × {r['walkers']} walkers × {r['steps']} steps, {r['draws']} draws "
+            f"after a burn-in of {r['burn']} steps, {r['wall_s']:.0f} s, max R̂ {r['r_hat_max']:.4f}, "
+            f"min ESS_bulk {r['min_ess_bulk']:.0f} ({r['status']})."
+        )
         rows = []
         for name, x in p["samplers"].items():
             steps = f"{x['steps']}" if name == "emcee" else f"500 + {x['steps']}"
-            leap = "" if x["mean_leapfrog_steps"] is None else f" ({x['mean_leapfrog_steps']:.1f} leapfrog steps per draw)"
-            rows.append([labels.get(name, name) + leap, steps, f"{x['compile_s']:.1f}", f"{x['warmup_s']:.2f}",
-                         f"{x['sampling_s']:.2f}", f"{x['min_ess_bulk']:.0f}", f"{x['ess_bulk_per_s']:.0f}",
-                         f"{x['ess_tail_per_s']:.0f}", f"{x['ess_bulk_per_s_with_compile']:.0f}",
-                         f"{x['r_hat_max']:.4f}", f"{max(x['mean_offset_in_ref_sigma'].values()):.3f}",
-                         f"{max(abs(v) for v in x['sigma_ratio_minus_1'].values()) * 100:.1f} %",
-                         x["status"]])
-        blocks.append(table(["sampler", "steps", "compile s", "warm-up s", "sampling s", "min ESS_bulk",
-                             "ESS_bulk/s", "ESS_tail/s", "ESS_bulk/s with compile", "max R̂",
-                             "max |mean − ref| / σ_ref", "max |σ/σ_ref − 1|", "status"], rows))
+            leap = (
+                "" if x["mean_leapfrog_steps"] is None else f" ({x['mean_leapfrog_steps']:.1f} leapfrog steps per draw)"
+            )
+            rows.append(
+                [
+                    labels.get(name, name) + leap,
+                    steps,
+                    f"{x['compile_s']:.1f}",
+                    f"{x['warmup_s']:.2f}",
+                    f"{x['sampling_s']:.2f}",
+                    f"{x['min_ess_bulk']:.0f}",
+                    f"{x['ess_bulk_per_s']:.0f}",
+                    f"{x['ess_tail_per_s']:.0f}",
+                    f"{x['ess_bulk_per_s_with_compile']:.0f}",
+                    f"{x['r_hat_max']:.4f}",
+                    f"{max(x['mean_offset_in_ref_sigma'].values()):.3f}",
+                    f"{max(abs(v) for v in x['sigma_ratio_minus_1'].values()) * 100:.1f} %",
+                    x["status"],
+                ]
+            )
+        blocks.append(
+            table(
+                [
+                    "sampler",
+                    "steps",
+                    "compile s",
+                    "warm-up s",
+                    "sampling s",
+                    "min ESS_bulk",
+                    "ESS_bulk/s",
+                    "ESS_tail/s",
+                    "ESS_bulk/s with compile",
+                    "max R̂",
+                    "max |mean − ref| / σ_ref",
+                    "max |σ/σ_ref − 1|",
+                    "status",
+                ],
+                rows,
+            )
+        )
         t = p.get("targets")
         if t:
-            blocks.append(f"Targets ({t['best_gradient_sampler']}, the fastest converged gradient sampler, against "
-                          f"emcee): {t['speedup_compile_excluded']:.0f}× emcee's ESS_bulk/s with compilation excluded "
-                          f"(target ≥ 10×), {t['speedup_compile_included']:.1f}× with it included (≥ 2×), means within "
-                          f"{t['max_mean_offset_in_ref_sigma']:.3f} σ (≤ 0.1) and σ within "
-                          f"{t['max_abs_sigma_ratio_minus_1'] * 100:.1f} % (≤ 10 %) of the reference: {met(t['met'])}.")
+            blocks.append(
+                f"Targets ({t['best_gradient_sampler']}, the fastest converged gradient sampler, against "
+                f"emcee): {t['speedup_compile_excluded']:.0f}× emcee's ESS_bulk/s with compilation excluded "
+                f"(target ≥ 10×), {t['speedup_compile_included']:.1f}× with it included (≥ 2×), means within "
+                f"{t['max_mean_offset_in_ref_sigma']:.3f} σ (≤ 0.1) and σ within "
+                f"{t['max_abs_sigma_ratio_minus_1'] * 100:.1f} % (≤ 10 %) of the reference: {met(t['met'])}."
+            )
         else:
             blocks.append("Targets: no converged gradient sampler to compare — **not met**.")
     blocks.append(load_line(d))
@@ -603,20 +1001,23 @@ def calibration() -> str:
             statuses = c["sampler_statuses"].get(method)
             converged = "—" if statuses is None else f"{statuses.get('converged', 0)}/{c['replicas']}"
             rows.append([cname.replace("_", " "), method, converged, *cells])
-    header = ["configuration", "intervals", "runs converged"] + [f"{label} {level} %" for level in ("68", "90")
-                                                                  for _, label in kinds]
+    header = ["configuration", "intervals", "runs converged"] + [
+        f"{label} {level} %" for level in ("68", "90") for _, label in kinds
+    ]
     s = d["settings"]
-    return "\n\n".join([
-        machine_line(d),
-        f"{s['replicas']} replicas per configuration; samplers with {s['chains']} chains (emcee: 32 walkers each, "
-        f"{s['emcee_steps']} steps; NUTS/HMC: {s['warmup']} + {s['steps']} steps); {d['wall_s'] / 60:.0f} min in all. "
-        "Each cell: the coverage pooled over the quantities of its kind (θ: the determined log-parameters; "
-        "ratios: S(μ0)/S(μk) at the reported frequencies; combinations: the Fisher eigen-combinations the fit "
-        "determines), and in brackets the lowest and highest coverage of a single quantity (binomial standard "
-        "error ±0.047 at 68 %, ±0.030 at 90 %, for 100 replicas).",
-        table(header, rows),
-        f"Pooled coverage within ±0.05 of nominal for every method and configuration: {met(verdict)}.",
-    ])
+    return "\n\n".join(
+        [
+            machine_line(d),
+            f"{s['replicas']} replicas per configuration; samplers with {s['chains']} chains (emcee: 32 walkers each, "
+            f"{s['emcee_steps']} steps; NUTS/HMC: {s['warmup']} + {s['steps']} steps); {d['wall_s'] / 60:.0f} min in all. "
+            "Each cell: the coverage pooled over the quantities of its kind (θ: the determined log-parameters; "
+            "ratios: S(μ0)/S(μk) at the reported frequencies; combinations: the Fisher eigen-combinations the fit "
+            "determines), and in brackets the lowest and highest coverage of a single quantity (binomial standard "
+            "error ±0.047 at 68 %, ±0.030 at 90 %, for 100 replicas).",
+            table(header, rows),
+            f"Pooled coverage within ±0.05 of nominal for every method and configuration: {met(verdict)}.",
+        ]
+    )
 
 
 def special() -> str:
@@ -624,14 +1025,18 @@ def special() -> str:
     if d is None:
         return "(bench_special.json missing)"
     r = d["results"]
-    rows = [["J0", f"{r['j0_ms']:.2f}", f"{r['j0_trapezoid_baseline_ms']:.2f}", f"{r['speedup_j0']:.1f}×"],
-            ["J1", f"{r['j1_ms']:.2f}", f"{r['j1_trapezoid_baseline_ms']:.2f}", f"{r['speedup_j1']:.1f}×"]]
-    return "\n\n".join([
-        machine_line(d),
-        table(["function", f"now ms ({r['arguments']} values)", "trapezoidal rule ms (baseline)", "faster"], rows),
-        f"Largest difference of the two J0 evaluations: {r['max_abs_difference_j0_vs_baseline']:.1e}. The GGX "
-        f"problem's χ²: {r['ggx_chi2_ms']:.2f} ms, its gradient {r['ggx_grad_ms']:.2f} ms (best of 10).",
-    ])
+    rows = [
+        ["J0", f"{r['j0_ms']:.2f}", f"{r['j0_trapezoid_baseline_ms']:.2f}", f"{r['speedup_j0']:.1f}×"],
+        ["J1", f"{r['j1_ms']:.2f}", f"{r['j1_trapezoid_baseline_ms']:.2f}", f"{r['speedup_j1']:.1f}×"],
+    ]
+    return "\n\n".join(
+        [
+            machine_line(d),
+            table(["function", f"now ms ({r['arguments']} values)", "trapezoidal rule ms (baseline)", "faster"], rows),
+            f"Largest difference of the two J0 evaluations: {r['max_abs_difference_j0_vs_baseline']:.1e}. The GGX "
+            f"problem's χ²: {r['ggx_chi2_ms']:.2f} ms, its gradient {r['ggx_grad_ms']:.2f} ms (best of 10).",
+        ]
+    )
 
 
 def queries() -> str:
@@ -642,50 +1047,115 @@ def queries() -> str:
     rows = []
     for r in d["points"]:
         if "failed" in r:
-            rows.append([r["case"], r["dtype"], f"{r['queries']:.0e}", "failed: " + r["failed"][:60], "", "", "", "", ""])
+            rows.append(
+                [r["case"], r["dtype"], f"{r['queries']:.0e}", "failed: " + r["failed"][:60], "", "", "", "", ""]
+            )
             continue
-        rows.append([r["case"], r["dtype"], f"{r['queries']:.0e}", f"{r['first_s']:.3g}", f"{r['warm_s']:.3g}",
-                     f"{r['per_query_warm_s'] * 1e6:.3g}", mib(r["rss_before_bytes"]), mib(r["rss_peak_bytes"] - r["rss_before_bytes"]),
-                     f"{r['error_vs_direct']:.1e}"])
-    out = ["Wall time of `lobe.density(u)` against the number of offsets Q (first call — compiling — and warm, "
-           "best of 3); the process's RSS high-water mark once the lobe and the offsets exist (a fresh process per "
-           "point) and how much the evaluation raised it (the result itself is 8 B per offset in float64, 4 in "
-           "float32); the error against the same lobe evaluated at 64 sampled offsets on their own, relative to "
-           f"the peak (tol {d['tol']}; float32 at {d['tol_float32']:g}).", "",
-           table(["case", "dtype", "Q", "first call (s)", "warm (s)", "warm per offset (µs)", "RSS before (MiB)",
-                  "evaluation's RSS rise (MiB)", "error vs direct"], rows)]
+        rows.append(
+            [
+                r["case"],
+                r["dtype"],
+                f"{r['queries']:.0e}",
+                f"{r['first_s']:.3g}",
+                f"{r['warm_s']:.3g}",
+                f"{r['per_query_warm_s'] * 1e6:.3g}",
+                mib(r["rss_before_bytes"]),
+                mib(r["rss_peak_bytes"] - r["rss_before_bytes"]),
+                f"{r['error_vs_direct']:.1e}",
+            ]
+        )
+    out = [
+        "Wall time of `lobe.density(u)` against the number of offsets Q (first call — compiling — and warm, "
+        "best of 3); the process's RSS high-water mark once the lobe and the offsets exist (a fresh process per "
+        "point) and how much the evaluation raised it (the result itself is 8 B per offset in float64, 4 in "
+        "float32); the error against the same lobe evaluated at 64 sampled offsets on their own, relative to "
+        f"the peak (tol {d['tol']}; float32 at {d['tol_float32']:g}).",
+        "",
+        table(
+            [
+                "case",
+                "dtype",
+                "Q",
+                "first call (s)",
+                "warm (s)",
+                "warm per offset (µs)",
+                "RSS before (MiB)",
+                "evaluation's RSS rise (MiB)",
+                "error vs direct",
+            ],
+            rows,
+        ),
+    ]
     rises = []
     for case in sorted({r["case"] for r in d["points"] if "failed" not in r}):
-        pts = sorted((r for r in d["points"] if r.get("case") == case and r.get("dtype") == "float64" and "failed" not in r),
-                     key=lambda r: r["queries"])
+        pts = sorted(
+            (r for r in d["points"] if r.get("case") == case and r.get("dtype") == "float64" and "failed" not in r),
+            key=lambda r: r["queries"],
+        )
         if len(pts) >= 2:
             top = pts[-1]
             rises.append(f"{case} {(top['rss_peak_bytes'] - top['rss_before_bytes']) / top['queries']:.1f} B")
     if rises:
-        out += ["", f"The evaluation's RSS rise per offset at the largest Q (float64; the result alone is 8 B): "
-                + ", ".join(rises) + "."]
+        out += [
+            "",
+            "The evaluation's RSS rise per offset at the largest Q (float64; the result alone is 8 B): "
+            + ", ".join(rises)
+            + ".",
+        ]
     b = d.get("baseline")
     if b:
         brows = []
         for base in b["points"]:
-            new = next((r for r in d["points"] if r.get("case") == base["case"] and r.get("dtype") == "float64"
-                        and r.get("queries") == base["queries"]), None)
+            new = next(
+                (
+                    r
+                    for r in d["points"]
+                    if r.get("case") == base["case"]
+                    and r.get("dtype") == "float64"
+                    and r.get("queries") == base["queries"]
+                ),
+                None,
+            )
             if "failed" in base or new is None or "failed" in new:
                 brows.append([base["case"], f"{base['queries']:.0e}", base.get("failed", "—")[:60], "", "", "", ""])
                 continue
-            brows.append([base["case"], f"{base['queries']:.0e}", f"{base['warm_s']:.3g}", f"{new['warm_s']:.3g}",
-                          f"{base['warm_s'] / new['warm_s']:.3g}×",
-                          f"{mib(base['rss_peak_bytes'] - base['rss_before_bytes'])} → {mib(new['rss_peak_bytes'] - new['rss_before_bytes'])}",
-                          f"{base['error_vs_direct']:.1e} → {new['error_vs_direct']:.1e}"])
-        out += ["", f"Against the code before the evaluation contract (revision {b['revision'][:10]}, same run, float64; "
-                "the baseline's error is against its own evaluation at the sampled offsets):",
-                "", table(["case", "Q", "before: warm (s)", "now: warm (s)", "speed-up", "evaluation's RSS rise (MiB)",
-                           "error vs direct"], brows)]
+            brows.append(
+                [
+                    base["case"],
+                    f"{base['queries']:.0e}",
+                    f"{base['warm_s']:.3g}",
+                    f"{new['warm_s']:.3g}",
+                    f"{base['warm_s'] / new['warm_s']:.3g}×",
+                    f"{mib(base['rss_peak_bytes'] - base['rss_before_bytes'])} → {mib(new['rss_peak_bytes'] - new['rss_before_bytes'])}",
+                    f"{base['error_vs_direct']:.1e} → {new['error_vs_direct']:.1e}",
+                ]
+            )
+        out += [
+            "",
+            f"Against the code before the evaluation contract (revision {b['revision'][:10]}, same run, float64; "
+            "the baseline's error is against its own evaluation at the sampled offsets):",
+            "",
+            table(
+                [
+                    "case",
+                    "Q",
+                    "before: warm (s)",
+                    "now: warm (s)",
+                    "speed-up",
+                    "evaluation's RSS rise (MiB)",
+                    "error vs direct",
+                ],
+                brows,
+            ),
+        ]
     r = d.get("readme_512")
     if r and "failed" not in r:
-        out += ["", f"README's lobe on a 512 × 512 image of offsets: warm {r['warm_s']:.3g} s, first call "
-                f"{r['first_s']:.3g} s (target: under 2 s warm, {met(r['warm_s'] < 2)}), error vs direct "
-                f"{r['error_vs_direct']:.1e}."]
+        out += [
+            "",
+            f"README's lobe on a 512 × 512 image of offsets: warm {r['warm_s']:.3g} s, first call "
+            f"{r['first_s']:.3g} s (target: under 2 s warm, {met(r['warm_s'] < 2)}), error vs direct "
+            f"{r['error_vs_direct']:.1e}.",
+        ]
     out += ["", machine_line(d)]
     return "\n".join(out)
 
@@ -699,13 +1169,29 @@ def library() -> str:
         what = "Python loop of fitting.fit" if r["kind"] == "loop" else f"fitting.fit_many, batch {r['batch']}"
         if "lanes" in r:  # not the platform's default (lanes=1 on a CPU)
             what += f", lanes={r['lanes']}" + (" (vmapped, as on accelerators)" if r["lanes"] == "all" else "")
-        extra = "" if r["kind"] == "loop" else (f"{r['buckets']} bucket(s), {100 * r['padding']:.0f} % padding; "
-                                                 f"warm rerun {r['warm_seconds']:.1f} s")
+        extra = (
+            ""
+            if r["kind"] == "loop"
+            else (f"{r['buckets']} bucket(s), {100 * r['padding']:.0f} % padding; warm rerun {r['warm_seconds']:.1f} s")
+        )
         diff = r.get("max_abs_theta_difference_vs_loop")
-        rows.append([what, r["materials"], r["xla_devices"], f"{r['seconds']:.1f}", f"{r['materials_per_s']:.2f}", extra,
-                     "—" if diff is None else f"{diff:.1e}"])
-    names = {"in_process": "in-process", "ray_workers_1": "Ray, local instance, --workers 1",
-             "ray_workers_2": "Ray, local instance, --workers 2", "ray_address_1": "Ray, --address (running, 1 CPU)"}
+        rows.append(
+            [
+                what,
+                r["materials"],
+                r["xla_devices"],
+                f"{r['seconds']:.1f}",
+                f"{r['materials_per_s']:.2f}",
+                extra,
+                "—" if diff is None else f"{diff:.1e}",
+            ]
+        )
+    names = {
+        "in_process": "in-process",
+        "ray_workers_1": "Ray, local instance, --workers 1",
+        "ray_workers_2": "Ray, local instance, --workers 2",
+        "ray_address_1": "Ray, --address (running, 1 CPU)",
+    }
     lib = []
     for r in d["library"]:
         where = names.get(r["how"], r["how"])
@@ -717,34 +1203,64 @@ def library() -> str:
             note += f" (ray start took {r['ray_start_seconds']:.1f} s before)"
         lib.append([where, r["materials"], f"{r['seconds']:.1f}", f"{r['materials_per_s']:.2f}", note])
     s = d["summary"]
-    lines = [machine_line(d), "",
-             f"Wall time from the first fit to the last result, in a fresh process without a compilation cache "
-             f"(every compilation counted), {d['starts']} starts per material; max |Δθ| against the loop's optima at "
-             "the same materials (θ = log parameters).", "",
-             table(["how", "materials", "XLA devices", "seconds", "materials/s", "", "max |Δθ| vs loop"], rows), "",
-             f"Batched against the loop at 64 materials: {s['speedup_batched_vs_loop']:.1f}× (target ≥ 10×: "
-             f"{met(s['speedup_met'])})."]
+    lines = [
+        machine_line(d),
+        "",
+        f"Wall time from the first fit to the last result, in a fresh process without a compilation cache "
+        f"(every compilation counted), {d['starts']} starts per material; max |Δθ| against the loop's optima at "
+        "the same materials (θ = log parameters).",
+        "",
+        table(["how", "materials", "XLA devices", "seconds", "materials/s", "", "max |Δθ| vs loop"], rows),
+        "",
+        f"Batched against the loop at 64 materials: {s['speedup_batched_vs_loop']:.1f}× (target ≥ 10×: "
+        f"{met(s['speedup_met'])}).",
+    ]
     if "compile_rows_measured" in s:
         from brdfscale.fitting import COMPILE_ROWS
 
-        at = next(r for r in d["fits"] if r["kind"] == "batched" and r["xla_devices"] == 1 and r["batch"] == 64
-                  and r["materials"] == 64 and "lanes" not in r) if not d.get("quick") else None
+        at = (
+            next(
+                r
+                for r in d["fits"]
+                if r["kind"] == "batched"
+                and r["xla_devices"] == 1
+                and r["batch"] == 64
+                and r["materials"] == 64
+                and "lanes" not in r
+            )
+            if not d.get("quick")
+            else None
+        )
         if at is not None:
-            lines.append(f"One bucket's compilation (the first call less the warm rerun, 64 materials): "
-                         f"{at['compile_seconds_per_bucket']:.1f} s of the {at['seconds']:.1f} s.")
-        lines.append(f"Measured exchange rate of the bucketing: one bucket's compilation costs as much as "
-                     f"{s['compile_rows_measured']:,.0f} padded rows' solves (`fitting.COMPILE_ROWS` = {COMPILE_ROWS:,}).")
+            lines.append(
+                f"One bucket's compilation (the first call less the warm rerun, 64 materials): "
+                f"{at['compile_seconds_per_bucket']:.1f} s of the {at['seconds']:.1f} s."
+            )
+        lines.append(
+            f"Measured exchange rate of the bucketing: one bucket's compilation costs as much as "
+            f"{s['compile_rows_measured']:,.0f} padded rows' solves (`fitting.COMPILE_ROWS` = {COMPILE_ROWS:,})."
+        )
     batch = d["library"][0]["batch"]
-    lines += ["", f"`brdfscale fit-library` on the same kind of library, batches of {batch}: the whole command's wall "
-              "time (start-up, imports, reading, fitting, reports), each with a fresh compilation cache.", "",
-              table(["how", "materials", "seconds", "materials/s", ""], lib)]
+    lines += [
+        "",
+        f"`brdfscale fit-library` on the same kind of library, batches of {batch}: the whole command's wall "
+        "time (start-up, imports, reading, fitting, reports), each with a fresh compilation cache.",
+        "",
+        table(["how", "materials", "seconds", "materials/s", ""], lib),
+    ]
     if "ray_overhead_met" in s:
-        lines += ["", f"Ray's overhead on a running instance (`--address`): "
-                  f"{100 * s['ray_overhead_ray_address_1']:+.0f} % (target ≤ +20 %: {met(s['ray_overhead_met'])}); "
-                  "a local instance started and stopped by the command adds its start and stop to that."]
+        lines += [
+            "",
+            f"Ray's overhead on a running instance (`--address`): "
+            f"{100 * s['ray_overhead_ray_address_1']:+.0f} % (target ≤ +20 %: {met(s['ray_overhead_met'])}); "
+            "a local instance started and stopped by the command adds its start and stop to that.",
+        ]
     return "\n".join(lines)
 
+
 DOCS = Path(__file__).resolve().parent.parent / "docs"
+
+
 def robustness() -> str:
     """The fuzzing tables of docs/robustness.md (experiments/results/fuzz_robustness/)."""
     from experiments import fuzz_robustness
@@ -752,30 +1268,33 @@ def robustness() -> str:
     return fuzz_robustness.page(json.loads((RESULTS / "fuzz_robustness" / "fuzz_robustness.json").read_text()))
 
 
-SECTIONS = [("benchmarks.md", "Core evolution (bench_evolve)", evolve),
-            ("benchmarks.md", "Queries (bench_queries)", queries),
-            ("benchmarks.md", "Special functions (bench_special)", special), ("benchmarks.md", "SO(3) (bench_so3)", so3),
-            ("benchmarks.md", "Fitting (bench_fit)", fit),
-            ("benchmarks.md", "Command-line compilation cache (bench_cli_cache)", cli_cache),
-            ("benchmarks.md", "Command-line start-up (bench_startup)", startup),
-            ("benchmarks.md", "Synthesis (bench_synth)", synth),
-            ("benchmarks.md", "Measured surfaces (bench_topography)", topography),
-            ("benchmarks.md", "Scene planner (bench_planner)", planner),
-            ("fitting.md", "Samplers (bench_samplers)", samplers),
-            ("fitting.md", "Calibration (calibration_fit)", calibration),
-            ("library.md", "Throughput (bench_library)", library),
-            ("so3.md", "SO(3) benchmark (bench_so3)", so3_details),
-            ("planner.md", "Planner against the Pareto front (bench_planner)", planner_pareto),
-            ("planner.md", "Pareto fronts (bench_planner)", planner_fronts),
-            ("planner.md", "Receding plane (bench_planner)", planner_workload),
-            ("planner.md", "Cost model (bench_planner)", planner_cost_model),
-            ("results.md", "Consistency (results_page)", results_page.consistency),
-            ("results.md", "Evolution accuracy (results_page)", results_page.evolution),
-            ("results.md", "Validity (results_page)", results_page.validity),
-            ("results.md", "Render (results_page)", results_page.render),
-            ("results.md", "Stability (results_page)", results_page.stability),
-            ("results.md", "Real surfaces (results_page)", results_page.real_surfaces),
-            ("robustness.md", "Fuzzing (fuzz_robustness)", robustness)]
+SECTIONS = [
+    ("benchmarks.md", "Core evolution (bench_evolve)", evolve),
+    ("benchmarks.md", "Queries (bench_queries)", queries),
+    ("benchmarks.md", "Special functions (bench_special)", special),
+    ("benchmarks.md", "SO(3) (bench_so3)", so3),
+    ("benchmarks.md", "Fitting (bench_fit)", fit),
+    ("benchmarks.md", "Command-line compilation cache (bench_cli_cache)", cli_cache),
+    ("benchmarks.md", "Command-line start-up (bench_startup)", startup),
+    ("benchmarks.md", "Synthesis (bench_synth)", synth),
+    ("benchmarks.md", "Measured surfaces (bench_topography)", topography),
+    ("benchmarks.md", "Scene planner (bench_planner)", planner),
+    ("fitting.md", "Samplers (bench_samplers)", samplers),
+    ("fitting.md", "Calibration (calibration_fit)", calibration),
+    ("library.md", "Throughput (bench_library)", library),
+    ("so3.md", "SO(3) benchmark (bench_so3)", so3_details),
+    ("planner.md", "Planner against the Pareto front (bench_planner)", planner_pareto),
+    ("planner.md", "Pareto fronts (bench_planner)", planner_fronts),
+    ("planner.md", "Receding plane (bench_planner)", planner_workload),
+    ("planner.md", "Cost model (bench_planner)", planner_cost_model),
+    ("results.md", "Consistency (results_page)", results_page.consistency),
+    ("results.md", "Evolution accuracy (results_page)", results_page.evolution),
+    ("results.md", "Validity (results_page)", results_page.validity),
+    ("results.md", "Render (results_page)", results_page.render),
+    ("results.md", "Stability (results_page)", results_page.stability),
+    ("results.md", "Real surfaces (results_page)", results_page.real_surfaces),
+    ("robustness.md", "Fuzzing (fuzz_robustness)", robustness),
+]
 
 
 def splice(page: str, title: str, body: str, name: str) -> str:
@@ -816,6 +1335,7 @@ def main(argv=None):
         print(f"rewrote {path}")
     for path in results_page.stability_figures():  # figures drawn from JSON, like the tables
         print(f"redrew {path}")
+
 
 if __name__ == "__main__":
     main()

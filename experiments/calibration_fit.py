@@ -36,8 +36,10 @@ import numpy as np
 from brdfscale import fitting
 from brdfscale.laplace import combination
 
+
 jax.config.update("jax_enable_x64", True)  # the fits need float64; fitting changes no global setting
 from experiments._bench import machine, write_json
+
 
 SCALES = (0.5, 1.0, 2.0, 4.0, 8.0)
 CONFIGS = {
@@ -50,9 +52,11 @@ NOMINAL = {"68": 0.6827, "90": 0.90}
 
 
 def samplers(names, steps, warmup):
-    table = {"emcee": (fitting.Emcee(walkers=32), steps["emcee"]),
-             "nuts": (fitting.NUTS(warmup=warmup), steps["gradient"]),
-             "hmc": (fitting.HMC(warmup=warmup), steps["gradient"])}
+    table = {
+        "emcee": (fitting.Emcee(walkers=32), steps["emcee"]),
+        "nuts": (fitting.NUTS(warmup=warmup), steps["gradient"]),
+        "hmc": (fitting.HMC(warmup=warmup), steps["gradient"]),
+    }
     return {n: table[n] for n in names}
 
 
@@ -93,7 +97,8 @@ def replica(model, truth, noise, seed, runs, chains):
     c_est = np.array([c["value"] for c in fit.combinations])
     c_std = np.array([c["std"] for c in fit.combinations])
     out["hits"]["laplace"] = {
-        "theta_68": (np.abs(z) <= Z68).astype(float).tolist(), "theta_90": (np.abs(z) <= Z90).astype(float).tolist(),
+        "theta_68": (np.abs(z) <= Z68).astype(float).tolist(),
+        "theta_90": (np.abs(z) <= Z90).astype(float).tolist(),
         "ratio_68": _inside(r_est - r_std, r_est + r_std, r_true).tolist(),
         "ratio_90": _inside(r_q[:, 0], r_q[:, 2], r_true).tolist(),
         "combination_68": (np.abs(c_est - c_true) <= Z68 * c_std).astype(float).tolist(),
@@ -103,8 +108,9 @@ def replica(model, truth, noise, seed, runs, chains):
     out["samplers"] = {}
     problem = fitting.Problem(model, data)
     for name, (sampler, steps) in runs.items():
-        s = fitting.sample(problem, fit, sampler=sampler, chains=chains, steps=steps, chunk=steps, progress=False,
-                           seed=seed)
+        s = fitting.sample(
+            problem, fit, sampler=sampler, chains=chains, steps=steps, chunk=steps, progress=False, seed=seed
+        )
         draws = s.samples
         p = np.percentile(draws, [15.865, 84.135, 5, 95], axis=0)
         rd = _ratios(model, draws, W, data)
@@ -113,8 +119,10 @@ def replica(model, truth, noise, seed, runs, chains):
         cp = np.percentile(cd, [15.865, 84.135, 5, 95], axis=0) if len(basis) else np.zeros((4, 0))
         out["samplers"][name] = s.status
         out["hits"][name] = {
-            "theta_68": _inside(p[0], p[1], theta_true).tolist(), "theta_90": _inside(p[2], p[3], theta_true).tolist(),
-            "ratio_68": _inside(rp[0], rp[1], r_true).tolist(), "ratio_90": _inside(rp[2], rp[3], r_true).tolist(),
+            "theta_68": _inside(p[0], p[1], theta_true).tolist(),
+            "theta_90": _inside(p[2], p[3], theta_true).tolist(),
+            "ratio_68": _inside(rp[0], rp[1], r_true).tolist(),
+            "ratio_90": _inside(rp[2], rp[3], r_true).tolist(),
             "combination_68": _inside(cp[0], cp[1], c_true).tolist(),
             "combination_90": _inside(cp[2], cp[3], c_true).tolist(),
         }
@@ -149,16 +157,29 @@ def summarise(model, replicas, methods):
     for method in methods:
         rows = {}
         for level in ("68", "90"):
-            for kind, names, mask in (("theta", list(model.names), determined), ("ratio", ratio_names, None),
-                                      ("combination", comb_names, None)):
+            for kind, names, mask in (
+                ("theta", list(model.names), determined),
+                ("ratio", ratio_names, None),
+                ("combination", comb_names, None),
+            ):
                 key = f"{kind}_{level}"
-                hits = [{"hits": {key: r["hits"][method][key][:len(names)]}} for r in replicas]
+                hits = [{"hits": {key: r["hits"][method][key][: len(names)]}} for r in replicas]
                 per, n = coverage(hits, key, names, mask)
                 rows[key] = {"per_quantity": per, "n": n}
         values = [v for key, row in rows.items() for v in row["per_quantity"].values() if v is not None]
-        worst = {level: max((abs(v - NOMINAL[level]) for key, row in rows.items() if key.endswith(level)
-                             for v in row["per_quantity"].values() if v is not None), default=None)
-                 for level in NOMINAL}
+        worst = {
+            level: max(
+                (
+                    abs(v - NOMINAL[level])
+                    for key, row in rows.items()
+                    if key.endswith(level)
+                    for v in row["per_quantity"].values()
+                    if v is not None
+                ),
+                default=None,
+            )
+            for level in NOMINAL
+        }
         out[method] = {"coverage": rows, "worst_deviation_from_nominal": worst, "quantities": len(values) // 2}
     return out
 
@@ -166,11 +187,17 @@ def summarise(model, replicas, methods):
 def run_config(model, truth, noise, replicas, runs, chains, seed0):
     results = [replica(model, truth, noise, seed0 + r, runs, chains) for r in range(replicas)]
     methods = ["laplace", *runs]
-    out = {"noise": noise, "truth": truth, "replicas": replicas,
-           "fit_statuses": {s: [r["status"] for r in results].count(s) for s in {r["status"] for r in results}},
-           "sampler_statuses": {m: {s: [r["samplers"][m] for r in results].count(s)
-                                    for s in {r["samplers"][m] for r in results}} for m in runs},
-           "methods": summarise(model, results, methods)}
+    out = {
+        "noise": noise,
+        "truth": truth,
+        "replicas": replicas,
+        "fit_statuses": {s: [r["status"] for r in results].count(s) for s in {r["status"] for r in results}},
+        "sampler_statuses": {
+            m: {s: [r["samplers"][m] for r in results].count(s) for s in {r["samplers"][m] for r in results}}
+            for m in runs
+        },
+        "methods": summarise(model, results, methods),
+    }
     p = np.asarray([r["pull"] for r in results])
     out["pull_mean"] = dict(zip(model.names, p.mean(axis=0).tolist()))
     out["pull_std"] = dict(zip(model.names, p.std(axis=0).tolist()))
@@ -182,7 +209,9 @@ def main():
     parser.add_argument("--replicas", type=int, default=100)
     parser.add_argument("--samplers", nargs="*", default=["emcee", "nuts", "hmc"], choices=["emcee", "nuts", "hmc"])
     parser.add_argument("--chains", type=int, default=4)
-    parser.add_argument("--emcee-steps", type=int, default=1500, help="emcee steps per walker (32 walkers per ensemble)")
+    parser.add_argument(
+        "--emcee-steps", type=int, default=1500, help="emcee steps per walker (32 walkers per ensemble)"
+    )
     parser.add_argument("--steps", type=int, default=1000, help="NUTS/HMC draws per chain after the warm-up")
     parser.add_argument("--warmup", type=int, default=500)
     parser.add_argument("--configs", nargs="*", default=list(CONFIGS), choices=list(CONFIGS))
@@ -193,10 +222,15 @@ def main():
     results = {"machine": machine(), "settings": vars(args), "scales": SCALES, "nominal": NOMINAL, "configs": {}}
     for i, name in enumerate(args.configs):
         truth, noise = CONFIGS[name]
-        results["configs"][name] = run_config(model, truth, noise, args.replicas, runs, args.chains,
-                                              seed0=10_000 * (list(CONFIGS).index(name) + 1))
-        print(name, {m: v["worst_deviation_from_nominal"] for m, v in results["configs"][name]["methods"].items()},
-              f"{time.perf_counter() - t0:.0f} s", flush=True)
+        results["configs"][name] = run_config(
+            model, truth, noise, args.replicas, runs, args.chains, seed0=10_000 * (list(CONFIGS).index(name) + 1)
+        )
+        print(
+            name,
+            {m: v["worst_deviation_from_nominal"] for m, v in results["configs"][name]["methods"].items()},
+            f"{time.perf_counter() - t0:.0f} s",
+            flush=True,
+        )
     results["wall_s"] = time.perf_counter() - t0
     results["load_average"] = os.getloadavg()
     print("wrote", write_json("calibration_fit", results))

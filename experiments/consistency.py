@@ -28,7 +28,6 @@ import numpy as np
 
 from brdfscale import synth
 from experiments._studies import (
-    WINDOWS,
     convolve_masses,
     expand,
     lattice_masses,
@@ -38,6 +37,7 @@ from experiments._studies import (
     study_dir,
     total_variation,
     window_slopes,
+    WINDOWS,
     write_results,
 )
 
@@ -89,7 +89,7 @@ def run(*, size: int, scales: list[int], surfaces: list[str], seed: int, out=Non
         "surfaces": {name: synth.SURFACES[name][0] for name in surfaces},
         "windows": list(WINDOWS),
         "metric": "total variation ½Σ|p_∞ − p_g∗p_s| on lattice histograms (step h = per-axis rms slope / 4); "
-                  "floor: same for residuals re-paired with permuted facet slopes",
+        "floor: same for residuals re-paired with permuted facet slopes",
         "records": records,
     }
     write_results(directory, "consistency", payload)

@@ -36,6 +36,7 @@ from pathlib import Path
 
 import jax
 
+
 jax.config.update("jax_enable_x64", True)
 
 import numpy as np
@@ -54,6 +55,7 @@ from experiments._studies import (
     tabulated_moments,
     write_results,
 )
+
 
 BINS = 65
 MAX_GRID = 512
@@ -108,8 +110,9 @@ def evolved(source: Scale, target: Scale, factor: float) -> tuple[np.ndarray, fl
         nodes, values = (np.asarray(a) for a in lobe.shape.on_grid())
         return deposit(nodes, values, target.extent)
 
-    return evolve_accepted(lobes.Lobe(source.lobe), source.slopes, target.slopes, on_target_nodes,
-                           regularisation=lam, size=size)
+    return evolve_accepted(
+        lobes.Lobe(source.lobe), source.slopes, target.slopes, on_target_nodes, regularisation=lam, size=size
+    )
 
 
 def deposit(nodes: np.ndarray, values: np.ndarray, extent: float) -> np.ndarray:
@@ -128,8 +131,7 @@ def predictions(source: Scale, target: Scale, factors=LAMBDA_FACTORS) -> dict:
     naive = np.asarray(source.lobe.density(u))
     cov, clipped = second_moment_covariance(source.lobe_cov, source.s_cov, target.s_cov, h / 2)
     mean = source.lobe_mean + source.s_mean - target.s_mean
-    out = {"naive": naive, "second_moment": gaussian_density(u, mean, cov),
-           "info": {"second_moment_clipped": clipped}}
+    out = {"naive": naive, "second_moment": gaussian_density(u, mean, cov), "info": {"second_moment_clipped": clipped}}
     for c in factors:
         t0 = time.perf_counter()
         out[evolved_key(c)], lam, refusals = evolved(source, target, c)
@@ -143,7 +145,6 @@ def evolved_key(c: float) -> str:
     return f"evolved_c{c:g}"
 
 
-
 def run(*, size: int, scales: list[int], surfaces: list[str], seed: int, factors=LAMBDA_FACTORS, out=None) -> dict:
     directory = study_dir("evolution_accuracy", out)
     methods = ("naive", "second_moment", *map(evolved_key, factors))
@@ -154,22 +155,36 @@ def run(*, size: int, scales: list[int], surfaces: list[str], seed: int, factors
         for source, target in progress(list(itertools.permutations(measured, 2)), desc=name, leave=False):
             pred = predictions(source, target, factors)
             truth = target.values
-            rec = {"surface": name, "mu_from": source.label, "mu_to": target.label,
-                   "direction": "coarser" if (target.mu is None or (source.mu is not None and target.mu > source.mu)) else "finer",
-                   **pred["info"]}
+            rec = {
+                "surface": name,
+                "mu_from": source.label,
+                "mu_to": target.label,
+                "direction": "coarser"
+                if (target.mu is None or (source.mu is not None and target.mu > source.mu))
+                else "finer",
+                **pred["info"],
+            }
             for method in methods:
-                rec[f"error_{method}"] = l1_error(blur(pred[method], RESOLUTION_NODES), blur(truth, RESOLUTION_NODES), target.extent)
+                rec[f"error_{method}"] = l1_error(
+                    blur(pred[method], RESOLUTION_NODES), blur(truth, RESOLUTION_NODES), target.extent
+                )
                 rec[f"raw_error_{method}"] = l1_error(pred[method], truth, target.extent)
             records.append(rec)
             if source.mu == scales[0] and target.mu is None:
                 mid = BINS // 2
-                slices[name] = {"u": np.linspace(-target.extent, target.extent, BINS).tolist(),
-                                "measured": truth[mid].tolist(),
-                                **{m: pred[m][mid].tolist() for m in methods}}
+                slices[name] = {
+                    "u": np.linspace(-target.extent, target.extent, BINS).tolist(),
+                    "measured": truth[mid].tolist(),
+                    **{m: pred[m][mid].tolist() for m in methods},
+                }
     summary = summarise(records, factors)
     payload = {
         "study": "evolution accuracy (seed Eq. 4.4)",
-        "size": size, "seed": seed, "scales_px": scales, "bins": BINS, "max_grid": MAX_GRID,
+        "size": size,
+        "seed": seed,
+        "scales_px": scales,
+        "bins": BINS,
+        "max_grid": MAX_GRID,
         "resolution_nodes": RESOLUTION_NODES,
         "surfaces": {name: synth.SURFACES[name][0] for name in surfaces},
         "lambda_rule": "λ0 = c/sqrt(facets at the target scale) (0 at μ = ∞), ×3 until evolve finds a non-negative lobe",

@@ -45,10 +45,11 @@ import brdfscale as bs
 from brdfscale import exr
 from brdfscale.exr import _format
 from experiments._studies import study_dir, write_results
-from tests.helpers import HOSTILE, SYNTH_DOMAINS, rewrite_exr, run_command, same_set, sample_set
+from tests.helpers import HOSTILE, rewrite_exr, run_command, same_set, sample_set, SYNTH_DOMAINS
 
 
 # -- files -----------------------------------------------------------------------------------
+
 
 def sample_table() -> exr.LobeTable:
     v = np.random.default_rng(8).random((2, 7, 7)) + 0.01
@@ -56,8 +57,12 @@ def sample_table() -> exr.LobeTable:
 
 
 def same_table(a: exr.LobeTable, b: exr.LobeTable) -> bool:
-    return (np.array_equal(a.scales, b.scales) and a.extent == b.extent and np.array_equal(a.values, b.values)
-            and a.metadata == b.metadata)
+    return (
+        np.array_equal(a.scales, b.scales)
+        and a.extent == b.extent
+        and np.array_equal(a.values, b.values)
+        and a.metadata == b.metadata
+    )
 
 
 @contextlib.contextmanager
@@ -82,8 +87,11 @@ def _attribute_edits(kind: str):
     edits = [
         lambda i, h, c: h.__setitem__(P + "mu", h[P + "mu"] * 2),
         lambda i, h, c: h.__setitem__(P + "extent", h[P + "extent"] * 1.5),
-        lambda i, h, c: h.__setitem__(P + "checksums", h[P + "checksums"]) if i else h.__setitem__(
-            P + "metadata", json.dumps({**json.loads(h[P + "metadata"]), "extra": 1})),
+        lambda i, h, c: (
+            h.__setitem__(P + "checksums", h[P + "checksums"])
+            if i
+            else h.__setitem__(P + "metadata", json.dumps({**json.loads(h[P + "metadata"]), "extra": 1}))
+        ),
         lambda i, h, c: h.__setitem__(P + "domain", h[P + "domain"]),  # no change: must read identically
     ]
     if kind == "measurement_set":
@@ -101,8 +109,13 @@ def _channel_edits(kind: str):
 def _crafted(rng, kind: str):
     P = _format.PREFIX
     deep = "[" * 10_000 + "]" * 10_000
-    bad_json = [f'{{"a": {deep}}}', '{"n": ' + "7" * 5000 + "}", '{"x": NaN}', '[1, 2]',
-                '{"big": "' + "x" * (17 * 2**20) + '"}']
+    bad_json = [
+        f'{{"a": {deep}}}',
+        '{"n": ' + "7" * 5000 + "}",
+        '{"x": NaN}',
+        "[1, 2]",
+        '{"big": "' + "x" * (17 * 2**20) + '"}',
+    ]
     choice = rng.integers(len(bad_json))
     return lambda i, h, c: h.__setitem__(P + "metadata", bad_json[choice]) if i == 0 else None
 
@@ -174,18 +187,38 @@ def fuzz_files(n: int, seed: int = 0, directory: str | None = None) -> dict:
         if outcome == "changed":
             failures.append({"kind": kind, "file": file_kind, "error": "data changed silently"})
         tally[kind][outcome] += 1
-    rows = {k: {"tried": sum(c.values()), "refused": c["refused"], "same": c["same"],
-                "changed": c["changed"], "foreign": c["foreign"]} for k, c in tally.items()}
-    return {"mutants": n, "by_kind": rows, "failures": failures[:50],
-            "bad": sum(r["changed"] + r["foreign"] for r in rows.values())}
+    rows = {
+        k: {
+            "tried": sum(c.values()),
+            "refused": c["refused"],
+            "same": c["same"],
+            "changed": c["changed"],
+            "foreign": c["foreign"],
+        }
+        for k, c in tally.items()
+    }
+    return {
+        "mutants": n,
+        "by_kind": rows,
+        "failures": failures[:50],
+        "bad": sum(r["changed"] + r["foreign"] for r in rows.values()),
+    }
 
 
 # -- command lines -----------------------------------------------------------------------------
 
+
 def _invalid_for(option: str, text: str) -> bool:
     """Invalid values used for fit/demo lines (so that no fit runs)."""
-    domain = {"--steps": (0, 10**6), "--starts": (1, 256), "--walkers": (2, 4096), "--seed": (0, 2**32 - 1),
-              "--base-nodes": (3, 41), "--knots": (2, 64), "--max-steps": (1, 10**5)}.get(option)
+    domain = {
+        "--steps": (0, 10**6),
+        "--starts": (1, 256),
+        "--walkers": (2, 4096),
+        "--seed": (0, 2**32 - 1),
+        "--base-nodes": (3, 41),
+        "--knots": (2, 64),
+        "--max-steps": (1, 10**5),
+    }.get(option)
     try:
         if domain is None:  # --default-sigma: positive finite ≤ 1e30
             x = float(text)
@@ -200,8 +233,16 @@ def command_lines(n: int, rng, tmp: str, measurements: str) -> list[tuple[list[s
     """``n`` (argv, valid) pairs."""
     out = []
     synth_base = ["synth", "gaussian", "--size", "16", "--pixels", "5", "--scales", "2,4"]
-    fit_options = ["--steps", "--starts", "--walkers", "--seed", "--base-nodes", "--knots", "--max-steps",
-                   "--default-sigma"]
+    fit_options = [
+        "--steps",
+        "--starts",
+        "--walkers",
+        "--seed",
+        "--base-nodes",
+        "--knots",
+        "--max-steps",
+        "--default-sigma",
+    ]
     k = 0
     while len(out) < n:
         k += 1
@@ -213,7 +254,7 @@ def command_lines(n: int, rng, tmp: str, measurements: str) -> list[tuple[list[s
             argv = list(synth_base)
             if option in argv:
                 i = argv.index(option)
-                del argv[i:i + 2]
+                del argv[i : i + 2]
             argv += ["--out", target, option, value]
             out.append((argv, SYNTH_DOMAINS[option](value)))
         elif r < 0.7:  # fit / demo with an invalid value
@@ -222,24 +263,35 @@ def command_lines(n: int, rng, tmp: str, measurements: str) -> list[tuple[list[s
             option = options[int(rng.integers(len(options)))]
             candidates = [v for v in HOSTILE if _invalid_for(option, v)]
             value = candidates[int(rng.integers(len(candidates)))]
-            argv = ([cmd, measurements] if cmd == "fit" else [cmd]) + ["--out", os.path.join(tmp, f"d{k}"), option, value]
+            argv = ([cmd, measurements] if cmd == "fit" else [cmd]) + [
+                "--out",
+                os.path.join(tmp, f"d{k}"),
+                option,
+                value,
+            ]
             out.append((argv, False))
         elif r < 0.85:  # structural: repeated, abbreviated, unknown option, missing argument
             s = int(rng.integers(5))
-            argv = {0: ["fit", measurements, "--out", os.path.join(tmp, f"d{k}"), "--force", "--force"],
-                    1: ["fit", measurements, "--out", os.path.join(tmp, f"d{k}"), "--walker", "8"],
-                    2: ["synth", "gaussian", "--out", target, "--pix", "5"],
-                    3: ["fit", "--out", os.path.join(tmp, f"d{k}")],
-                    4: ["fit", measurements, "--out", os.path.join(tmp, f"d{k}"), "--fix", "mu_c=1", "--fix",
-                        "mu_c=2"]}[s]
+            argv = {
+                0: ["fit", measurements, "--out", os.path.join(tmp, f"d{k}"), "--force", "--force"],
+                1: ["fit", measurements, "--out", os.path.join(tmp, f"d{k}"), "--walker", "8"],
+                2: ["synth", "gaussian", "--out", target, "--pix", "5"],
+                3: ["fit", "--out", os.path.join(tmp, f"d{k}")],
+                4: ["fit", measurements, "--out", os.path.join(tmp, f"d{k}"), "--fix", "mu_c=1", "--fix", "mu_c=2"],
+            }[s]
             out.append((argv, False))
         else:  # paths: empty, existing file, directory as a file, missing input, a device
             s = int(rng.integers(6))
             existing = os.path.join(tmp, "existing_file")
             Path(existing).touch()
-            argv = {0: ["demo", "--out", ""], 1: ["demo", "--out", existing], 2: ["example", "--out", ""],
-                    3: ["synth", "gaussian", "--out", tmp], 4: ["info", os.path.join(tmp, "missing.exr")],
-                    5: ["info", "/dev/null"]}[s]
+            argv = {
+                0: ["demo", "--out", ""],
+                1: ["demo", "--out", existing],
+                2: ["example", "--out", ""],
+                3: ["synth", "gaussian", "--out", tmp],
+                4: ["info", os.path.join(tmp, "missing.exr")],
+                5: ["info", "/dev/null"],
+            }[s]
             out.append((argv, False))
     return out
 
@@ -267,9 +319,13 @@ def fuzz_command_lines(n: int, seed: int = 0) -> dict:
         tally[kind][outcome] += 1
         if outcome not in ("ok", "refused"):
             failures.append({"argv": argv, "status": code, "stderr": err[-400:]})
-    rows = {k: {"tried": sum(c.values()), **{o: c[o] for o in ("ok", "refused", "traceback", "accepted_nonsense",
-                                                               "refused_valid", "wrong_status")}}
-            for k, c in sorted(tally.items())}
+    rows = {
+        k: {
+            "tried": sum(c.values()),
+            **{o: c[o] for o in ("ok", "refused", "traceback", "accepted_nonsense", "refused_valid", "wrong_status")},
+        }
+        for k, c in sorted(tally.items())
+    }
     bad = sum(r["traceback"] + r["accepted_nonsense"] + r["refused_valid"] + r["wrong_status"] for r in rows.values())
     return {"command_lines": n, "by_command": rows, "failures": failures[:50], "bad": bad}
 
@@ -279,19 +335,28 @@ def page(payload: dict) -> str:
     from experiments._bench import table
 
     f, c = payload["files"], payload["cli"]
-    rows = [[k, str(r["tried"]), str(r["refused"]), str(r["same"]), str(r["changed"]), str(r["foreign"])]
-            for k, r in f["by_kind"].items()]
+    rows = [
+        [k, str(r["tried"]), str(r["refused"]), str(r["same"]), str(r["changed"]), str(r["foreign"])]
+        for k, r in f["by_kind"].items()
+    ]
     total = {x: sum(r[x] for r in f["by_kind"].values()) for x in ("tried", "refused", "same", "changed", "foreign")}
     rows.append(["**all**", *(f"**{total[x]}**" for x in ("tried", "refused", "same", "changed", "foreign"))])
-    out = [f"{f['mutants']} mutated files (seed 0), {payload['machine']['date_utc']}: refused = the library's "
-           "`MeasurementFileError`; same = read back identical (the bytes hit carry no data, e.g. a part name); "
-           "changed and foreign are the failures.",
-           "", table(["mutation", "tried", "refused", "same", "changed", "foreign"], rows), ""]
+    out = [
+        f"{f['mutants']} mutated files (seed 0), {payload['machine']['date_utc']}: refused = the library's "
+        "`MeasurementFileError`; same = read back identical (the bytes hit carry no data, e.g. a part name); "
+        "changed and foreign are the failures.",
+        "",
+        table(["mutation", "tried", "refused", "same", "changed", "foreign"], rows),
+        "",
+    ]
     keys = ("ok", "refused", "traceback", "accepted_nonsense", "refused_valid", "wrong_status")
     rows = [[k, str(r["tried"]), *(str(r[x]) for x in keys)] for k, r in c["by_command"].items()]
-    out += [f"{c['command_lines']} command lines (seed 0): ok = valid and exit 0, refused = invalid and exit 2 "
-            "with one message; the other columns are failures.", "",
-            table(["command", "tried", *keys], rows)]
+    out += [
+        f"{c['command_lines']} command lines (seed 0): ok = valid and exit 0, refused = invalid and exit 2 "
+        "with one message; the other columns are failures.",
+        "",
+        table(["command", "tried", *keys], rows),
+    ]
     return "\n".join(out)
 
 
@@ -308,8 +373,13 @@ def main(argv=None) -> int:
     print(f"files: {n_files} mutants, bad {files_result['bad']}: " + json.dumps(files_result["by_kind"]))
     cli_result = fuzz_command_lines(n_commands)
     print(f"command lines: {n_commands}, bad {cli_result['bad']}: " + json.dumps(cli_result["by_command"]))
-    payload = {"study": "fuzz_robustness", "quick": args.quick, "files": files_result, "cli": cli_result,
-               "wall_seconds": time.perf_counter() - start}
+    payload = {
+        "study": "fuzz_robustness",
+        "quick": args.quick,
+        "files": files_result,
+        "cli": cli_result,
+        "wall_seconds": time.perf_counter() - start,
+    }
     path = write_results(study_dir("fuzz_robustness", args.out), "fuzz_robustness", payload)
     print(f"wrote {path}")
     return 0 if files_result["bad"] == 0 and cli_result["bad"] == 0 else 1

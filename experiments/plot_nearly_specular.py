@@ -15,10 +15,12 @@ import math
 
 import jax
 
+
 jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
 import matplotlib  # noqa: E402
+
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -26,6 +28,7 @@ import numpy as np  # noqa: E402
 
 from brdfscale import evolve, lobes, plus, stats  # noqa: E402
 from experiments._studies import save_figure, study_dir, write_results  # noqa: E402
+
 
 X0 = 0.05
 SIGMAS = {"fine": X0 / 30, "coarse": X0 / 3}
@@ -61,8 +64,11 @@ def main():
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), sharey=True)
     for ax, (name, sigma) in zip(axes, SIGMAS.items()):
         for label, values in curves[name].items():
-            style = {"color": "k", "lw": 2} if label.startswith("specular") else (
-                {"color": "0.5", "ls": "--"} if label.startswith("Beckmann") else {})
+            style = (
+                {"color": "k", "lw": 2}
+                if label.startswith("specular")
+                else ({"color": "0.5", "ls": "--"} if label.startswith("Beckmann") else {})
+            )
             ax.semilogy(r / X0, np.maximum(values, 1e-3), label=label, **style)
         ax.set_title(f"{name} instrument: Gaussian σ = x0/{X0 / sigma:.0f}")
         ax.set_xlabel("|u| / x0 (half-vector slope offset)")
@@ -72,11 +78,17 @@ def main():
     axes[1].legend(fontsize=8)
     fig.suptitle(f"Nearly-specular lobes δ + c_n h_n (x0 = {X0}), c_n = (−1)ⁿ·0.3(n+1)/ln(x0/σ_fine)^(n+1)")
     png = save_figure(fig, out / "lobes.png")
-    write_results(out, "lobes", {
-        "x0": X0, "sigmas": SIGMAS, "strengths": {f"c_{n}": strength(n) for n in ORDERS},
-        "minimum_seen": minima,
-        "peak": {name: {k: float(v.max()) for k, v in c.items()} for name, c in curves.items()},
-    })
+    write_results(
+        out,
+        "lobes",
+        {
+            "x0": X0,
+            "sigmas": SIGMAS,
+            "strengths": {f"c_{n}": strength(n) for n in ORDERS},
+            "minimum_seen": minima,
+            "peak": {name: {k: float(v.max()) for k, v in c.items()} for name, c in curves.items()},
+        },
+    )
     print(png)
 
 

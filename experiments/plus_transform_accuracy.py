@@ -13,6 +13,7 @@ import argparse
 
 import jax
 
+
 jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
@@ -57,16 +58,26 @@ def main():
             "float32_max_relative_error": float(err32[:, n].max()),
         }
     out = study_dir("plus_transform_accuracy", args.out)
-    path = write_results(out, "accuracy", {
-        "z_range": [float(z.min()), float(z.max())],
-        "points": int(z.size),
-        "switch": _transform.SWITCH,
-        "summary": summary,
-        "table": {"z": z.tolist(), "float64_relative_error": err64.tolist(), "float32_relative_error": err32.tolist()},
-    })
+    path = write_results(
+        out,
+        "accuracy",
+        {
+            "z_range": [float(z.min()), float(z.max())],
+            "points": int(z.size),
+            "switch": _transform.SWITCH,
+            "summary": summary,
+            "table": {
+                "z": z.tolist(),
+                "float64_relative_error": err64.tolist(),
+                "float32_relative_error": err32.tolist(),
+            },
+        },
+    )
     for name, row in summary.items():
-        print(f"{name}: float64 max {row['float64_max_relative_error']:.2e} (series {row['float64_max_relative_error_series_branch']:.2e},"
-              f" expansion {row['float64_max_relative_error_expansion_branch']:.2e}); float32 max {row['float32_max_relative_error']:.2e}")
+        print(
+            f"{name}: float64 max {row['float64_max_relative_error']:.2e} (series {row['float64_max_relative_error_series_branch']:.2e},"
+            f" expansion {row['float64_max_relative_error_expansion_branch']:.2e}); float32 max {row['float32_max_relative_error']:.2e}"
+        )
     print(path)
 
 

@@ -77,11 +77,11 @@ from pathlib import Path
 
 import jax
 
+
 jax.config.update("jax_enable_x64", True)
 
 import numpy as np
-from scipy import optimize
-from scipy import stats as scipy_stats
+from scipy import optimize, stats as scipy_stats
 
 import brdfscale as bs
 from brdfscale import stats, synth, topography
@@ -95,6 +95,7 @@ from experiments._studies import (
     total_variation,
     write_results,
 )
+
 
 DATA = Path(__file__).resolve().parent.parent / "tests" / "data" / "topographies"
 FILES = {
@@ -122,6 +123,7 @@ METHODS = ("naive", "second_moment")
 
 # -- slopes, scales and grids -----------------------------------------------------------------
 
+
 def square_pitch(field) -> float:
     dx, dy = field.spacing
     if not math.isclose(dx, dy, rel_tol=1e-9):
@@ -147,10 +149,15 @@ def moments(samples: np.ndarray) -> dict:
     for axis, name in enumerate("xy"):
         a = samples[:, axis]
         med = np.median(a)
-        out[name] = {"mean": float(a.mean()), "sd": float(a.std()), "skewness": float(scipy_stats.skew(a)),
-                     "excess_kurtosis": float(scipy_stats.kurtosis(a)),
-                     "robust_sd": float(1.4826 * np.median(np.abs(a - med))),
-                     "q99_abs": float(np.quantile(np.abs(a), 0.99)), "max_abs": float(np.abs(a).max())}
+        out[name] = {
+            "mean": float(a.mean()),
+            "sd": float(a.std()),
+            "skewness": float(scipy_stats.skew(a)),
+            "excess_kurtosis": float(scipy_stats.kurtosis(a)),
+            "robust_sd": float(1.4826 * np.median(np.abs(a - med))),
+            "q99_abs": float(np.quantile(np.abs(a), 0.99)),
+            "max_abs": float(np.abs(a).max()),
+        }
     return out
 
 
@@ -186,17 +193,27 @@ def px(field, mu) -> int:
 
 # -- Σ(μ) and the scale laws ------------------------------------------------------------------
 
+
 def covariance_records(field, scales) -> list[dict]:
     out = []
     for fs in synth.facet_statistics(field, scales, bins=9):
         m = window_slopes(field, fs.mu)
         kurt = [float(scipy_stats.kurtosis(m[:, a])) if len(m) >= 20 else None for a in (0, 1)]
         skew = [float(scipy_stats.skew(m[:, a])) if len(m) >= 20 else None for a in (0, 1)]
-        out.append({"mu": fs.mu, "mu_px": fs.block[1], "count": fs.count, "independent": fs.independent,
-                    "excluded": fs.excluded, "covariance": np.asarray(fs.covariance).tolist(),
-                    "covariance_error": np.asarray(fs.covariance_error).tolist(),
-                    "covariance_error_used": floored_error(fs.covariance, fs.covariance_error, fs.independent).tolist(),
-                    "facet_skewness": skew, "facet_excess_kurtosis": kurt})
+        out.append(
+            {
+                "mu": fs.mu,
+                "mu_px": fs.block[1],
+                "count": fs.count,
+                "independent": fs.independent,
+                "excluded": fs.excluded,
+                "covariance": np.asarray(fs.covariance).tolist(),
+                "covariance_error": np.asarray(fs.covariance_error).tolist(),
+                "covariance_error_used": floored_error(fs.covariance, fs.covariance_error, fs.independent).tolist(),
+                "facet_skewness": skew,
+                "facet_excess_kurtosis": kurt,
+            }
+        )
     return out
 
 
@@ -256,9 +273,11 @@ def fit_laws(records: list[dict], field, laws=LAWS) -> dict:
         return p
 
     lengths = np.geomspace(2 * delta, size / 4, 4)
-    starts = {"gaussian": [[math.log(sigma_h), math.log(l)] for l in lengths],
-              "gaussian_anisotropic": [[math.log(sigma_h), math.log(l), math.log(l)] for l in lengths],
-              "k_correlation": [[0.0, math.log(l), math.log(c - 2)] for l in lengths for c in (3.0, 6.0)]}
+    starts = {
+        "gaussian": [[math.log(sigma_h), math.log(l)] for l in lengths],
+        "gaussian_anisotropic": [[math.log(sigma_h), math.log(l), math.log(l)] for l in lengths],
+        "k_correlation": [[0.0, math.log(l), math.log(c - 2)] for l in lengths for c in (3.0, 6.0)],
+    }
     out = {}
     for name in laws:
         best = None
@@ -278,19 +297,28 @@ def fit_laws(records: list[dict], field, laws=LAWS) -> dict:
         model = law_covariances(name, best.x, mus, k_max)
         rel = np.concatenate([model[:, a, a] / data[:, a, a] - 1 for a in (0, 1)])
         e = np.exp(best.x)
-        params = ({"rms_height_m": e[0], "correlation_length_m": e[1]} if name == "gaussian" else
-                  {"rms_height_m": e[0], "correlation_length_x_m": e[1], "correlation_length_y_m": e[2]}
-                  if name == "gaussian_anisotropic" else
-                  {"A_m4": e[0], "B_m": e[1], "C": 2 + e[2], "k_max_per_m": k_max})
-        out[name] = {"parameters": {k: float(v) for k, v in params.items()}, "chi2": chi2, "dof": dof,
-                     "chi2_per_dof": chi2 / dof, "relative_rms_diagonal": float(np.sqrt(np.mean(rel**2))),
-                     "largest_relative_deviation": float(np.max(np.abs(rel))),
-                     "model_covariance": model.tolist()}
+        params = (
+            {"rms_height_m": e[0], "correlation_length_m": e[1]}
+            if name == "gaussian"
+            else {"rms_height_m": e[0], "correlation_length_x_m": e[1], "correlation_length_y_m": e[2]}
+            if name == "gaussian_anisotropic"
+            else {"A_m4": e[0], "B_m": e[1], "C": 2 + e[2], "k_max_per_m": k_max}
+        )
+        out[name] = {
+            "parameters": {k: float(v) for k, v in params.items()},
+            "chi2": chi2,
+            "dof": dof,
+            "chi2_per_dof": chi2 / dof,
+            "relative_rms_diagonal": float(np.sqrt(np.mean(rel**2))),
+            "largest_relative_deviation": float(np.max(np.abs(rel))),
+            "model_covariance": model.tolist(),
+        }
     out["measured_rms_height_m"] = sigma_h
     return out
 
 
 # -- Eq. 3.1 on lattice histograms --------------------------------------------------------------
+
 
 def lattice(samples: np.ndarray, radius: int) -> tuple[np.ndarray, float]:
     """Masses of integer samples (N, 2) on [−radius, radius]² (rows y) per sample, and the mass outside."""
@@ -301,8 +329,9 @@ def lattice(samples: np.ndarray, radius: int) -> tuple[np.ndarray, float]:
     return counts.reshape(side, side) / len(samples), float(1 - inside.mean())
 
 
-def consistency_test(field, mu, step: float, radius: int, lobe_extent: float, slope_extent: float,
-                     rng: np.random.Generator) -> dict:
+def consistency_test(
+    field, mu, step: float, radius: int, lobe_extent: float, slope_extent: float, rng: np.random.Generator
+) -> dict:
     """Eq. 3.1's violation V and its permutation floor at μ, on the measured windows."""
     by, bx = field.block(mu)
     M = synth.facet_slopes(field, mu)
@@ -326,13 +355,16 @@ def consistency_test(field, mu, step: float, radius: int, lobe_extent: float, sl
     shuffled[valid] = Mq[valid][rng.permutation(int(valid.sum()))]
     p_perm, o_perm = lattice(rq + expand(shuffled)[pixels], radius)
     r = m[pixels] - expand(M)[pixels]
-    return {"mu_px": bx, "violation": total_variation(np.append(p_inf, o_inf), predicted),
-            "floor": total_variation(np.append(p_perm, o_perm), predicted),
-            "outside_lattice": {"pixels": o_inf, "within": o_g, "facets": o_s},
-            "facet_slopes_off_lattice_origin": float(np.mean(np.any(Mq[valid] != 0, axis=1))),
-            "facets": int(valid.sum()),
-            "cut_from_lobe_grid": float(np.mean(np.any(np.abs(r) > lobe_extent, axis=1))),
-            "cut_from_slope_grid": float(np.mean(np.any(np.abs(M[valid]) > slope_extent, axis=1)))}
+    return {
+        "mu_px": bx,
+        "violation": total_variation(np.append(p_inf, o_inf), predicted),
+        "floor": total_variation(np.append(p_perm, o_perm), predicted),
+        "outside_lattice": {"pixels": o_inf, "within": o_g, "facets": o_s},
+        "facet_slopes_off_lattice_origin": float(np.mean(np.any(Mq[valid] != 0, axis=1))),
+        "facets": int(valid.sum()),
+        "cut_from_lobe_grid": float(np.mean(np.any(np.abs(r) > lobe_extent, axis=1))),
+        "cut_from_slope_grid": float(np.mean(np.any(np.abs(M[valid]) > slope_extent, axis=1))),
+    }
 
 
 def height_quantum(path) -> float | None:
@@ -348,6 +380,7 @@ def height_quantum(path) -> float | None:
 
 
 # -- masking and shadowing ----------------------------------------------------------------------
+
 
 def smith_shadowing(slopes: np.ndarray) -> dict:
     """Smith's shadowed fraction Λ/(1 + Λ) from the measured slopes, light from ±x, ±y."""
@@ -365,11 +398,15 @@ def smith_shadowing(slopes: np.ndarray) -> dict:
         above = np.nonzero(worst > level)[0]
         return float(thetas[above[0]] - 0.5) if above.size else 89.5
 
-    return {"theta_deg_shadowing_1pct": onset(0.01), "theta_deg_shadowing_10pct": onset(0.1),
-            **{f"shadowed_at_{t}deg": float(worst[np.searchsorted(thetas, t)]) for t in (60, 75, 85)}}
+    return {
+        "theta_deg_shadowing_1pct": onset(0.01),
+        "theta_deg_shadowing_10pct": onset(0.1),
+        **{f"shadowed_at_{t}deg": float(worst[np.searchsorted(thetas, t)]) for t in (60, 75, 85)},
+    }
 
 
 # -- lobes and their predictions ----------------------------------------------------------------
+
 
 def measure(field, scales, lobe_extent, slope_extents) -> list:
     """[ea.Scale or None per scale] + [the μ = ∞ level], on the given grids."""
@@ -422,8 +459,16 @@ def halves(field) -> list:
     out = []
     for c in cut:
         mask = None if field.mask is None else field.mask[c]
-        out.append(topography.from_array(field.heights[c], field.spacing, unit="m", mask=mask, detrend=None,
-                                         description={"half_of": field.description.get("file")}))
+        out.append(
+            topography.from_array(
+                field.heights[c],
+                field.spacing,
+                unit="m",
+                mask=mask,
+                detrend=None,
+                description={"half_of": field.description.get("file")},
+            )
+        )
     return out
 
 
@@ -432,6 +477,7 @@ def label(level) -> str:
 
 
 # -- one surface ------------------------------------------------------------------------------
+
 
 def study_file(name: str, *, sigma_count: int, lobe_count: int, factors, rng) -> dict:
     t0 = time.perf_counter()
@@ -463,8 +509,9 @@ def study_file(name: str, *, sigma_count: int, lobe_count: int, factors, rng) ->
         if all(fs is not None and fs.count >= 2 for fs in z):
             a, b = z
             ea_, eb = (floored_error(f.covariance, f.covariance_error, f.independent) for f in z)
-            r["split_half_z"] = [float((a.covariance[i, j] - b.covariance[i, j]) / math.hypot(ea_[i, j], eb[i, j]))
-                                 for i, j in ENTRIES]
+            r["split_half_z"] = [
+                float((a.covariance[i, j] - b.covariance[i, j]) / math.hypot(ea_[i, j], eb[i, j])) for i, j in ENTRIES
+            ]
             r["split_half_counts"] = [a.count, b.count]
         else:
             r["split_half_z"], r["split_half_counts"] = None, [None if f is None else f.count for f in z]
@@ -499,8 +546,12 @@ def study_file(name: str, *, sigma_count: int, lobe_count: int, factors, rng) ->
     floors = []
     for k, level in enumerate(levels):
         a, b = (hl[k] for hl in half_levels)
-        floors.append(None if a is None or b is None else 0.5 * l1_error(
-            ea.blur(a.values, ea.RESOLUTION_NODES), ea.blur(b.values, ea.RESOLUTION_NODES), level.extent))
+        floors.append(
+            None
+            if a is None or b is None
+            else 0.5
+            * l1_error(ea.blur(a.values, ea.RESOLUTION_NODES), ea.blur(b.values, ea.RESOLUTION_NODES), level.extent)
+        )
 
     # Eq. 4.4 on every ordered pair
     keys = (*METHODS, *map(ea.evolved_key, factors))
@@ -512,11 +563,17 @@ def study_file(name: str, *, sigma_count: int, lobe_count: int, factors, rng) ->
         source, target = levels[i], levels[j]
         rec, values = pair_errors(source, target, factors)
         coarser = target.mu is None or (source.mu is not None and target.mu > source.mu)
-        record = {"mu_from_px": label(source), "mu_to_px": label(target), "direction": "coarser" if coarser else "finer",
-                  "facets_from": source.facets, "facets_to": target.facets,
-                  "independent_from": getattr(source, "independent", None),
-                  "independent_to": getattr(target, "independent", None),
-                  "floor_to": floors[j], **rec}
+        record = {
+            "mu_from_px": label(source),
+            "mu_to_px": label(target),
+            "direction": "coarser" if coarser else "finer",
+            "facets_from": source.facets,
+            "facets_to": target.facets,
+            "independent_from": getattr(source, "independent", None),
+            "independent_to": getattr(target, "independent", None),
+            "floor_to": floors[j],
+            **rec,
+        }
         few = [x for x in (record["independent_from"], record["independent_to"]) if x is not None]
         record["few_facets"] = bool(few and min(few) < FEW_FACETS)
         record["harvey"] = {label(source), label(target)} == {"1", "∞"}
@@ -530,8 +587,12 @@ def study_file(name: str, *, sigma_count: int, lobe_count: int, factors, rng) ->
             half_errors.append({k: hrec[f"error_{k}"] for k in half_keys})
         record["half_errors"] = half_errors
         if all(h is not None for h in half_errors):
-            record["split_half_sigma"] = {k: None if None in (half_errors[0][k], half_errors[1][k]) else
-                                          abs(half_errors[0][k] - half_errors[1][k]) / 2 for k in half_keys}
+            record["split_half_sigma"] = {
+                k: None
+                if None in (half_errors[0][k], half_errors[1][k])
+                else abs(half_errors[0][k] - half_errors[1][k]) / 2
+                for k in half_keys
+            }
         else:
             record["split_half_sigma"] = None
         records.append(record)
@@ -540,29 +601,46 @@ def study_file(name: str, *, sigma_count: int, lobe_count: int, factors, rng) ->
             slices[f"{label(source)}→{label(target)}"] = {
                 "u": np.linspace(-target.extent, target.extent, ea.BINS).tolist(),
                 "measured": target.values[mid].tolist(),
-                **{k: (None if v is None else np.asarray(v)[mid].tolist()) for k, v in values.items()}}
+                **{k: (None if v is None else np.asarray(v)[mid].tolist()) for k, v in values.items()},
+            }
 
     return {
-        "file": name, "what": FILES.get(name, ""), "shape": list(field.shape), "pixel_m": delta,
+        "file": name,
+        "what": FILES.get(name, ""),
+        "shape": list(field.shape),
+        "pixel_m": delta,
         "unmeasured_px": 0 if field.mask is None else int(np.count_nonzero(~field.mask)),
-        "detrend": DETREND, "description": {k: field.description.get(k) for k in ("format", "instrument", "reader")},
-        "pixel_slopes": mom, "non_gaussian": is_non_gaussian(mom),
-        "largest_window_px": top, "sigma_scales_px": [px(field, mu) for mu in sigma_scales],
+        "detrend": DETREND,
+        "description": {k: field.description.get(k) for k in ("format", "instrument", "reader")},
+        "pixel_slopes": mom,
+        "non_gaussian": is_non_gaussian(mom),
+        "largest_window_px": top,
+        "sigma_scales_px": [px(field, mu) for mu in sigma_scales],
         "lobe_scales_px": [px(field, mu) for mu in lobe_scales],
-        "sigma": sigma, "laws": fits, "shadowing": smith_shadowing(pix),
+        "sigma": sigma,
+        "laws": fits,
+        "shadowing": smith_shadowing(pix),
         "lobe_extent": lobe_extent,
         "cut_from_global_lobe": float(np.mean(np.any(np.abs(pix) > lobe_extent, axis=1))),
         "slope_extents": [slope_extents[mu] for mu in lobe_scales],
-        "lattice_step": step, "lattice_radius": radius, "consistency": consistency,
-        "height_quantum_m": quantum, "slope_quantum": slope_quantum,
-        "slope_quantum_to_robust_sd": None if slope_quantum is None else
-        slope_quantum / float(np.mean([mom[a]["robust_sd"] for a in "xy"])),
-        "lobe_floors": floors, "halves": [list(p.shape) for p in parts],
-        "records": records, "slices": slices, "seconds": round(time.perf_counter() - t0, 1),
+        "lattice_step": step,
+        "lattice_radius": radius,
+        "consistency": consistency,
+        "height_quantum_m": quantum,
+        "slope_quantum": slope_quantum,
+        "slope_quantum_to_robust_sd": None
+        if slope_quantum is None
+        else slope_quantum / float(np.mean([mom[a]["robust_sd"] for a in "xy"])),
+        "lobe_floors": floors,
+        "halves": [list(p.shape) for p in parts],
+        "records": records,
+        "slices": slices,
+        "seconds": round(time.perf_counter() - t0, 1),
     }
 
 
 # -- summaries --------------------------------------------------------------------------------
+
 
 def meets(record, key) -> bool | None:
     e, s = record.get(f"error_{key}"), record["error_second_moment"]
@@ -597,13 +675,20 @@ def summarise(surfaces: list[dict], factors) -> dict:
             robust = [meets_halves(r) for r in rows]
             entry["pairs_meeting_on_both_halves"] = sum(bool(x) for x in robust)
             entry["pairs_with_both_halves"] = sum(x is not None for x in robust)
-            entry["pairs_evolved_beats_naive"] = sum(r[f"error_{primary}"] is not None and
-                                                     r[f"error_{primary}"] < r["error_naive"] for r in rows)
+            entry["pairs_evolved_beats_naive"] = sum(
+                r[f"error_{primary}"] is not None and r[f"error_{primary}"] < r["error_naive"] for r in rows
+            )
             entry["pairs_evolved_within_floor"] = sum(
-                r[f"error_{primary}"] is not None and r["floor_to"] is not None
-                and r[f"error_{primary}"] <= r["floor_to"] for r in rows)
-            sig = [r["split_half_sigma"][primary] for r in rows if r["split_half_sigma"]
-                   and r["split_half_sigma"][primary] is not None]
+                r[f"error_{primary}"] is not None
+                and r["floor_to"] is not None
+                and r[f"error_{primary}"] <= r["floor_to"]
+                for r in rows
+            )
+            sig = [
+                r["split_half_sigma"][primary]
+                for r in rows
+                if r["split_half_sigma"] and r["split_half_sigma"][primary] is not None
+            ]
             entry["median_split_half_sigma_evolved"] = float(np.median(sig)) if sig else None
             by[f"{s['file']}/{direction}"] = entry
 
@@ -622,8 +707,7 @@ def summarise(surfaces: list[dict], factors) -> dict:
         "without_harvey_pairs": fraction(lambda r: not r["harvey"]),
         "without_harvey_and_few_facet_pairs": fraction(lambda r: not r["few_facets"] and not r["harvey"]),
         "on_both_halves": fraction(lambda r: True, meets_halves),
-        "c3_all_pairs": fraction(lambda r: True, lambda r: meets(r, ea.evolved_key(3.0)))
-        if 3.0 in factors else None,
+        "c3_all_pairs": fraction(lambda r: True, lambda r: meets(r, ea.evolved_key(3.0))) if 3.0 in factors else None,
     }
     target["met"] = bool(target["all_pairs"]["fraction"] is not None and target["all_pairs"]["fraction"] == 1.0)
     return {"by_surface": by, "target": target}
@@ -631,22 +715,39 @@ def summarise(surfaces: list[dict], factors) -> dict:
 
 # -- the study --------------------------------------------------------------------------------
 
-def run(*, files=tuple(FILES), sigma_count: int = SIGMA_SCALES, lobe_count: int = LOBE_SCALES, factors=FACTORS,
-        seed: int = 0, out=None, quick: bool = False) -> dict:
+
+def run(
+    *,
+    files=tuple(FILES),
+    sigma_count: int = SIGMA_SCALES,
+    lobe_count: int = LOBE_SCALES,
+    factors=FACTORS,
+    seed: int = 0,
+    out=None,
+    quick: bool = False,
+) -> dict:
     directory = study_dir("real_surfaces", out)
     rng = np.random.default_rng(seed)
     t0 = time.perf_counter()
-    surfaces = [study_file(name, sigma_count=sigma_count, lobe_count=lobe_count, factors=factors, rng=rng)
-                for name in progress(list(files), desc="surfaces")]
+    surfaces = [
+        study_file(name, sigma_count=sigma_count, lobe_count=lobe_count, factors=factors, rng=rng)
+        for name in progress(list(files), desc="surfaces")
+    ]
     payload = {
         "study": "seed Eqs. 3.1 and 4.4 on measured surfaces (issue 18 item 4)",
-        "quick": quick, "files": list(files), "detrend": DETREND, "seed": seed,
-        "bins": ea.BINS, "resolution_nodes": ea.RESOLUTION_NODES, "lambda_factors": list(factors),
+        "quick": quick,
+        "files": list(files),
+        "detrend": DETREND,
+        "seed": seed,
+        "bins": ea.BINS,
+        "resolution_nodes": ea.RESOLUTION_NODES,
+        "lambda_factors": list(factors),
         "primary_lambda_factor": PRIMARY,
         "lambda_rule": "λ0 = c/sqrt(facets at the target scale) (0 at μ = ∞), ×3 until evolve finds a non-negative lobe",
         "grids": f"lobes ±{EXTENT_FACTOR:g} × q{100 * TAIL_QUANTILE:g}(|pixel slope|), s_μ ±{EXTENT_FACTOR:g} × "
-                 f"q{100 * TAIL_QUANTILE:g}(|facet slope|) (all facets below 100)",
-        "min_facets_at_largest_scale": MIN_FACETS, "few_facets": FEW_FACETS,
+        f"q{100 * TAIL_QUANTILE:g}(|facet slope|) (all facets below 100)",
+        "min_facets_at_largest_scale": MIN_FACETS,
+        "few_facets": FEW_FACETS,
         "non_gaussian_rule": f"|skewness| > {SKEW_LIMIT:g} or |excess kurtosis| > {KURTOSIS_LIMIT:g} on some axis",
         "surfaces": surfaces,
         "summary": summarise(surfaces, factors),
@@ -658,6 +759,7 @@ def run(*, files=tuple(FILES), sigma_count: int = SIGMA_SCALES, lobe_count: int 
 
 
 # -- figures ----------------------------------------------------------------------------------
+
 
 def plot(payload: dict, directory: Path) -> list[Path]:
     import matplotlib
@@ -681,8 +783,14 @@ def plot(payload: dict, directory: Path) -> list[Path]:
                 continue
             model = np.array(s["laws"][lawname]["model_covariance"])
             for a, color in enumerate(("C0", "C1")):
-                ax.plot(mu, model[:, a, a], style, color=color, lw=1,
-                        label=f"{lawname} χ²/dof {s['laws'][lawname]['chi2_per_dof']:.3g}" if a == 0 else None)
+                ax.plot(
+                    mu,
+                    model[:, a, a],
+                    style,
+                    color=color,
+                    lw=1,
+                    label=f"{lawname} χ²/dof {s['laws'][lawname]['chi2_per_dof']:.3g}" if a == 0 else None,
+                )
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_xlabel("μ [µm]")
@@ -699,12 +807,15 @@ def plot(payload: dict, directory: Path) -> list[Path]:
         for r in s["records"]:
             e = r[f"error_{primary}"]
             if e is not None:
-                grid[names.index(r["mu_from_px"]), names.index(r["mu_to_px"])] = math.log2(max(e, 1e-6) / r["error_second_moment"])
+                grid[names.index(r["mu_from_px"]), names.index(r["mu_to_px"])] = math.log2(
+                    max(e, 1e-6) / r["error_second_moment"]
+                )
         im = ax.imshow(grid, cmap="RdBu_r", vmin=-4, vmax=4)
         for (a, b), v in np.ndenumerate(grid):
             if np.isfinite(v):
-                ax.text(b, a, f"{2 ** v:.2g}", ha="center", va="center", fontsize=6,
-                        weight="bold" if v <= -1 else "normal")
+                ax.text(
+                    b, a, f"{2**v:.2g}", ha="center", va="center", fontsize=6, weight="bold" if v <= -1 else "normal"
+                )
         ax.set_xticks(range(len(names)), names, fontsize=7)
         ax.set_yticks(range(len(names)), names, fontsize=7)
         ax.set_xlabel("target μ [px]")
@@ -738,7 +849,7 @@ def plot(payload: dict, directory: Path) -> list[Path]:
                     ax.plot(sl["u"], sl[m], "-", color=f"C{k}", lw=1, label=m)
             ax.set_title(f"{name}: μ {key} px", fontsize=8)
             ax.set_xlabel("u_x (u_y = 0)", fontsize=7)
-        for ax in axes.ravel()[len(rows):]:
+        for ax in axes.ravel()[len(rows) :]:
             ax.axis("off")
         axes[0][0].legend(fontsize=6)
         paths.append(save_figure(fig, directory / "lobe_slices.png"))
@@ -747,8 +858,11 @@ def plot(payload: dict, directory: Path) -> list[Path]:
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true",
-                        help="mi-1.mi only, 6 scales of Σ, 2 lobe scales, c = 1 (into a temporary folder unless --out)")
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="mi-1.mi only, 6 scales of Σ, 2 lobe scales, c = 1 (into a temporary folder unless --out)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="seed of the permutation floor of Eq. 3.1")
     parser.add_argument("--out", default=None, help="output folder (default experiments/results/real_surfaces)")
     args = parser.parse_args(argv)

@@ -39,6 +39,7 @@ from pathlib import Path
 import equinox as eqx
 import jax
 
+
 jax.config.update("jax_enable_x64", True)
 
 import numpy as np
@@ -59,6 +60,7 @@ from experiments._studies import (
     tabulated_moments,
     write_results,
 )
+
 
 TEXEL = 0.01
 CAMERA_HEIGHT = 1.0
@@ -153,8 +155,12 @@ def render_truth(camera, slopes, mu, incident, beckmann, seed) -> tuple[np.ndarr
             points, view = camera.hit(col, row)
             m = texel_slopes(slopes, points)
             flat_view = view.reshape(-1, 3)
-            values = padded(lambda i, o, mm: _texel_rho(beckmann, i, o, mm),
-                            np.broadcast_to(incident, flat_view.shape), -flat_view, m.reshape(-1, 2))
+            values = padded(
+                lambda i, o, mm: _texel_rho(beckmann, i, o, mm),
+                np.broadcast_to(incident, flat_view.shape),
+                -flat_view,
+                m.reshape(-1, 2),
+            )
             truth[r, cols] = values.reshape(m.shape[:-1]).mean(axis=(1, 2))
             mean_slope[r, cols] = m.mean(axis=(1, 2))
     return truth, mean_slope
@@ -175,24 +181,43 @@ def level_lobes(field, alpha0: float, levels: list[int]) -> dict:
         _, covb = tabulated_moments(np.asarray(sb.slopes.values), float(sb.slopes.extent[0]))
         cov, _ = second_moment_covariance(np.eye(2) * alpha0**2 / 2, cov1, covb, h / 4)
         lam = 0.0 if b == 1 else LAMBDA_FACTOR / math.sqrt(sb.count)
-        values, lam, _ = evolve_accepted(lobes.Beckmann(alpha0), s1, sb.slopes, lambda lobe: np.asarray(lobe.density(u)),
-                                         regularisation=lam, size=EVOLVE_GRID)
+        values, lam, _ = evolve_accepted(
+            lobes.Beckmann(alpha0),
+            s1,
+            sb.slopes,
+            lambda lobe: np.asarray(lobe.density(u)),
+            regularisation=lam,
+            size=EVOLVE_GRID,
+        )
         tables.append(values)
-        records.append({"level_px": b, "lambda": lam, "evolved_min_over_peak": float(values.min() / values.max()),
-                        "second_moment_cov": cov.tolist(), "facets": sb.count})
+        records.append(
+            {
+                "level_px": b,
+                "lambda": lam,
+                "evolved_min_over_peak": float(values.min() / values.max()),
+                "second_moment_cov": cov.tolist(),
+                "facets": sb.count,
+            }
+        )
         funcs["naive"].append(lambda q: gaussian_density(q, np.zeros(2), np.eye(2) * alpha0**2 / 2))
         funcs["second_moment"].append(lambda q, c=cov: gaussian_density(q, np.zeros(2), c))
         clipped = np.maximum(values, 0.0)
         funcs["evolved"].append(lambda q, v=clipped: _bilinear(v, extent, q))
-    table = exr.LobeTable(np.asarray(levels, float), extent, np.stack(tables),
-                          {"what": "evolved lobes g_b of a Beckmann micro lobe", "alpha0": alpha0})
+    table = exr.LobeTable(
+        np.asarray(levels, float),
+        extent,
+        np.stack(tables),
+        {"what": "evolved lobes g_b of a Beckmann micro lobe", "alpha0": alpha0},
+    )
     return {"funcs": funcs, "records": records, "table": table, "beckmann": beckmann}
 
 
 def _bilinear(values: np.ndarray, extent: float, q: np.ndarray) -> np.ndarray:
     n = values.shape[0]
     g = (q + extent) / (2 * extent) * (n - 1)
-    return ndimage.map_coordinates(values, [g[..., 1].ravel(), g[..., 0].ravel()], order=1, cval=0.0).reshape(q.shape[:-1])
+    return ndimage.map_coordinates(values, [g[..., 1].ravel(), g[..., 0].ravel()], order=1, cval=0.0).reshape(
+        q.shape[:-1]
+    )
 
 
 def render_filtered(camera, mu, mean_slope, incident, funcs, levels) -> np.ndarray:
@@ -222,12 +247,19 @@ def errors(images: dict, mu: np.ndarray) -> dict:
         banded = []
         for b in np.unique(bands):
             sel = bands == b
-            banded.append({"mu_band_px": [2.0**b, 2.0 ** (b + 1)], "pixels": int(sel.sum()),
-                           "relative_bias": float(abs(images[m][sel].mean() - truth[sel].mean()) / scale),
-                           "relative_mean_abs": float(np.abs(diff[sel]).mean() / scale)})
-        out[m] = {"relative_mean_abs": float(np.abs(diff).mean() / scale),
-                  "relative_rms": float(np.sqrt(np.mean(diff**2)) / scale),
-                  "bands": banded}
+            banded.append(
+                {
+                    "mu_band_px": [2.0**b, 2.0 ** (b + 1)],
+                    "pixels": int(sel.sum()),
+                    "relative_bias": float(abs(images[m][sel].mean() - truth[sel].mean()) / scale),
+                    "relative_mean_abs": float(np.abs(diff[sel]).mean() / scale),
+                }
+            )
+        out[m] = {
+            "relative_mean_abs": float(np.abs(diff).mean() / scale),
+            "relative_rms": float(np.sqrt(np.mean(diff**2)) / scale),
+            "bands": banded,
+        }
     return out
 
 
@@ -238,12 +270,14 @@ def write_exr(path: Path, images: dict) -> None:
     atomic_write(path, lambda tmp: OpenEXR.File(header, channels).write(tmp))
 
 
-def run(*, surface: str, size: int, width: int, height: int, alpha0: float, slope_scale: float, seed: int,
-        out=None) -> dict:
+def run(
+    *, surface: str, size: int, width: int, height: int, alpha0: float, slope_scale: float, seed: int, out=None
+) -> dict:
     directory = study_dir("render_plane", out)
     base = synth.named_surface(surface, size=size, seed=seed)
-    field = synth.HeightField(base.heights * slope_scale, base.spacing,
-                              description={**base.description, "slope_scale": slope_scale})
+    field = synth.HeightField(
+        base.heights * slope_scale, base.spacing, description={**base.description, "slope_scale": slope_scale}
+    )
     slopes = pixel_slopes(field.heights)
     camera = Camera(width, height)
     mu = footprints(camera)
@@ -261,12 +295,24 @@ def run(*, surface: str, size: int, width: int, height: int, alpha0: float, slop
     exr.write_lobe_table(directory / f"{surface}_lobes.exr", lobes_["table"], overwrite=True)
     payload = {
         "study": "render: plane receding from near to far",
-        "surface": surface, "surface_description": synth.SURFACES[surface][0], "texture_size": size, "seed": seed,
-        "image": [width, height], "alpha0": alpha0, "slope_scale": slope_scale, "texel": TEXEL, "camera_height": CAMERA_HEIGHT,
-        "pitch_deg": PITCH_DEG, "vfov_deg": VFOV_DEG, "light_elevation_deg": LIGHT_ELEVATION_DEG,
-        "mu_range_px": [float(mu.min()), float(mu.max())], "levels_px": levels,
-        "max_supersampling": MAX_SUPERSAMPLING, "lambda_factor": LAMBDA_FACTOR,
-        "levels": lobes_["records"], "errors": err,
+        "surface": surface,
+        "surface_description": synth.SURFACES[surface][0],
+        "texture_size": size,
+        "seed": seed,
+        "image": [width, height],
+        "alpha0": alpha0,
+        "slope_scale": slope_scale,
+        "texel": TEXEL,
+        "camera_height": CAMERA_HEIGHT,
+        "pitch_deg": PITCH_DEG,
+        "vfov_deg": VFOV_DEG,
+        "light_elevation_deg": LIGHT_ELEVATION_DEG,
+        "mu_range_px": [float(mu.min()), float(mu.max())],
+        "levels_px": levels,
+        "max_supersampling": MAX_SUPERSAMPLING,
+        "lambda_factor": LAMBDA_FACTOR,
+        "levels": lobes_["records"],
+        "errors": err,
     }
     write_results(directory, surface, payload)
     plot(images, mu, err, directory / f"{surface}.png", surface)
@@ -309,8 +355,16 @@ def main():
     parser.add_argument("--out", default=None, help="output folder (default experiments/results/render_plane)")
     args = parser.parse_args()
     for surface in args.surfaces:
-        run(surface=surface, size=args.size, width=args.width, height=args.height, alpha0=args.alpha0,
-            slope_scale=args.slope_scale, seed=args.seed, out=args.out)
+        run(
+            surface=surface,
+            size=args.size,
+            width=args.width,
+            height=args.height,
+            alpha0=args.alpha0,
+            slope_scale=args.slope_scale,
+            seed=args.seed,
+            out=args.out,
+        )
 
 
 if __name__ == "__main__":

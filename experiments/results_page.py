@@ -17,9 +17,13 @@ def load(study: str, name: str) -> dict:
 def consistency() -> str:
     d = load("consistency", "consistency")
     scales = d["scales_px"]
-    out = [(f"Field {d['size']}² px, seed {d['seed']}. Entries: violation V / permutation floor "
-           "(V ≈ floor: consistent within sampling noise); `*`: fewer than 10 % of the facets off the "
-           "lattice origin (the test has lost its resolution there).")]
+    out = [
+        (
+            f"Field {d['size']}² px, seed {d['seed']}. Entries: violation V / permutation floor "
+            "(V ≈ floor: consistent within sampling noise); `*`: fewer than 10 % of the facets off the "
+            "lattice origin (the test has lost its resolution there)."
+        )
+    ]
     for window in d["windows"]:
         rows = []
         for name in d["surfaces"]:
@@ -33,13 +37,25 @@ def consistency() -> str:
     rows = []
     for name in d["surfaces"]:
         for mu in (4, 16):
-            r = next((r for r in d["records"] if r["surface"] == name and r["window"] == "gaussian" and r["mu_px"] == mu), None)
+            r = next(
+                (r for r in d["records"] if r["surface"] == name and r["window"] == "gaussian" and r["mu_px"] == mu),
+                None,
+            )
             if r is not None:
                 cross = r["total_variance"] - r["within_variance"] - r["between_variance"]
-                rows.append([name, str(mu), f"{r['within_variance']:.3g}", f"{r['between_variance']:.3g}",
-                             f"{cross / r['total_variance']:+.3f}"])
-    out.append("\n**Second moments, Gaussian window** (box windows: cross term 0 by construction)\n\n"
-               + table(["surface", "μ", "Var r (within)", "Var M (between)", "cross term / Var m"], rows))
+                rows.append(
+                    [
+                        name,
+                        str(mu),
+                        f"{r['within_variance']:.3g}",
+                        f"{r['between_variance']:.3g}",
+                        f"{cross / r['total_variance']:+.3f}",
+                    ]
+                )
+    out.append(
+        "\n**Second moments, Gaussian window** (box windows: cross term 0 by construction)\n\n"
+        + table(["surface", "μ", "Var r (within)", "Var M (between)", "cross term / Var m"], rows)
+    )
     return "\n".join(out)
 
 
@@ -47,40 +63,80 @@ def evolution() -> str:
     d = load("evolution_accuracy", "evolution_accuracy")
     cs = d["lambda_factors"]
     ev = [f"evolved_c{c:g}" for c in cs]
-    header = ["surface / direction", "naive", "second moment", *[f"evolved c={c:g}" for c in cs],
-              *[f"median E_ev/E_2nd (c={c:g})" for c in cs], *[f"pairs with E_ev ≤ ½ E_2nd (c={c:g})" for c in cs]]
+    header = [
+        "surface / direction",
+        "naive",
+        "second moment",
+        *[f"evolved c={c:g}" for c in cs],
+        *[f"median E_ev/E_2nd (c={c:g})" for c in cs],
+        *[f"pairs with E_ev ≤ ½ E_2nd (c={c:g})" for c in cs],
+    ]
     rows = []
     for key, s in d["summary"].items():
-        rows.append([key, f"{s['median_error_naive']:.3f}", f"{s['median_error_second_moment']:.3f}",
-                     *[f"{s[f'median_error_{e}']:.3f}" for e in ev],
-                     *[f"{s[f'median_ratio_{e}_to_second_moment']:.2f}" for e in ev],
-                     *[f"{s[f'pairs_{e}_meeting_target_ratio_le_0.5']}/{s['pairs']}" for e in ev]])
-    out = [(f"Field {d['size']}² px, scales {d['scales_px']} px and ∞, {d['bins']}² nodes, resolution "
-           f"σ_r = {d['resolution_nodes']:g} nodes. Median L1 error over the pairs of each direction:\n"),
-           table(header, rows)]
+        rows.append(
+            [
+                key,
+                f"{s['median_error_naive']:.3f}",
+                f"{s['median_error_second_moment']:.3f}",
+                *[f"{s[f'median_error_{e}']:.3f}" for e in ev],
+                *[f"{s[f'median_ratio_{e}_to_second_moment']:.2f}" for e in ev],
+                *[f"{s[f'pairs_{e}_meeting_target_ratio_le_0.5']}/{s['pairs']}" for e in ev],
+            ]
+        )
+    out = [
+        (
+            f"Field {d['size']}² px, scales {d['scales_px']} px and ∞, {d['bins']}² nodes, resolution "
+            f"σ_r = {d['resolution_nodes']:g} nodes. Median L1 error over the pairs of each direction:\n"
+        ),
+        table(header, rows),
+    ]
     rows = []
     for r in d["records"]:
         if r["surface"] in ("scratched", "blazed"):
-            rows.append([r["surface"], f"{r['mu_from']}→{r['mu_to']}", f"{r['error_naive']:.3f}",
-                         f"{r['error_second_moment']:.3f}", *[f"{r[f'error_{e}']:.3f}" for e in ev],
-                         *[f"{r[f'lambda_{e}']:.3g}" for e in ev]])
-    out.append("\n**Non-Gaussian surfaces, every pair** (λ: the regularisation evolve accepted)\n\n" + table(
-        ["surface", "μ0→μ", "naive", "second moment", *[f"evolved c={c:g}" for c in cs], *[f"λ (c={c:g})" for c in cs]],
-        rows))
+            rows.append(
+                [
+                    r["surface"],
+                    f"{r['mu_from']}→{r['mu_to']}",
+                    f"{r['error_naive']:.3f}",
+                    f"{r['error_second_moment']:.3f}",
+                    *[f"{r[f'error_{e}']:.3f}" for e in ev],
+                    *[f"{r[f'lambda_{e}']:.3g}" for e in ev],
+                ]
+            )
+    out.append(
+        "\n**Non-Gaussian surfaces, every pair** (λ: the regularisation evolve accepted)\n\n"
+        + table(
+            [
+                "surface",
+                "μ0→μ",
+                "naive",
+                "second moment",
+                *[f"evolved c={c:g}" for c in cs],
+                *[f"λ (c={c:g})" for c in cs],
+            ],
+            rows,
+        )
+    )
     return "\n".join(out)
 
 
 def validity() -> str:
     d = load("validity", "validity")
     thetas = d["theta_i_deg"]
-    out = [(f"Field {d['size']}² px, correlation length {d['correlation_length_px']:g} px. Entries: E without "
-           "masking / E with shadowing+masking / albedo ratio model ÷ brute (masked).")]
+    out = [
+        (
+            f"Field {d['size']}² px, correlation length {d['correlation_length_px']:g} px. Entries: E without "
+            "masking / E with shadowing+masking / albedo ratio model ÷ brute (masked)."
+        )
+    ]
     rows = []
     for s in d["rms_slopes_per_axis"]:
         cells = []
         for t in thetas:
             r = next(r for r in d["records"] if r["rms_slope_per_axis"] == s and r["theta_i_deg"] == t)
-            cells.append(f"{r['error_vs_brute']:.3f} / {r['error_vs_brute_masked']:.3f} / {r['albedo_ratio_vs_brute_masked']:.2f}")
+            cells.append(
+                f"{r['error_vs_brute']:.3f} / {r['error_vs_brute_masked']:.3f} / {r['albedo_ratio_vs_brute_masked']:.2f}"
+            )
         rows.append([f"{s:g}", *cells])
     out.append(table(["rms slope", *[f"θi = {t:g}°" for t in thetas]], rows))
     return "\n".join(out)
@@ -93,42 +149,86 @@ def render() -> str:
         bands = [b["mu_band_px"][0] for b in d["errors"]["naive"]["bands"]]
         rows = []
         for m, e in d["errors"].items():
-            rows.append([m, f"{e['relative_mean_abs']:.3f}", f"{e['relative_rms']:.2f}",
-                         *[f"{b['relative_bias']:.3f}" for b in e["bands"]]])
+            rows.append(
+                [
+                    m,
+                    f"{e['relative_mean_abs']:.3f}",
+                    f"{e['relative_rms']:.2f}",
+                    *[f"{b['relative_bias']:.3f}" for b in e["bands"]],
+                ]
+            )
         lam = ", ".join(f"{lv['level_px']}: {lv['lambda']:.3g}" for lv in d["levels"])
-        out.append(f"**{d['surface']}** (heights × {d['slope_scale']:g}, α0 = {d['alpha0']:g}, image "
-                   f"{d['image'][0]}×{d['image'][1]}, texture {d['texture_size']}², μ from {d['mu_range_px'][0]:.2f} "
-                   f"to {d['mu_range_px'][1]:.1f} texels; λ per level {lam})\n\n" + table(
-                       ["method", "mean abs error", "RMS error", *[f"bias μ∈[{b:g},{2 * b:g})" for b in bands]], rows))
+        out.append(
+            f"**{d['surface']}** (heights × {d['slope_scale']:g}, α0 = {d['alpha0']:g}, image "
+            f"{d['image'][0]}×{d['image'][1]}, texture {d['texture_size']}², μ from {d['mu_range_px'][0]:.2f} "
+            f"to {d['mu_range_px'][1]:.1f} texels; λ per level {lam})\n\n"
+            + table(["method", "mean abs error", "RMS error", *[f"bias μ∈[{b:g},{2 * b:g})" for b in bands]], rows)
+        )
     return "\n\n".join(out)
 
 
-
 def _param_text(params: dict) -> str:
-    return ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in params.items()
-                     if k not in ("alpha_from", "alpha_to", "alpha_lobe", "x0", "honoured_tol"))
+    return ", ".join(
+        f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}"
+        for k, v in params.items()
+        if k not in ("alpha_from", "alpha_to", "alpha_lobe", "x0", "honoured_tol")
+    )
 
 
 def stability() -> str:
     d = load("stability", "stability")
     s = d["summary"]
     t = s["totals"]
-    out = [(f"{t['tried']} cases: {t['good']} good (accurate, or refused with the library's error where no result "
+    out = [
+        (
+            f"{t['tried']} cases: {t['good']} good (accurate, or refused with the library's error where no result "
             f"exists), {t['limit']} at a documented limit, {t['bad']} bad; NaN {t['nan']}, Inf {t['inf']} in the "
             f"returned values; non-finite results on valid input: {t['nonfinite_on_valid_input']} (target 0 — "
             f"{'met' if t['nonfinite_on_valid_input'] == 0 else '**not met**'}). Evolution targets: tol "
-            f"{d['evolve_tol']['float64']:g} (float64), {d['float32_target']:g} of the peak (float32).\n")]
+            f"{d['evolve_tol']['float64']:g} (float64), {d['float32_target']:g} of the peak (float32).\n"
+        )
+    ]
     rows = []
     for p in s["by_path"]:
-        where = "; ".join(f"{_param_text(f['params'])}: {f['status']}"
-                          + ("" if f["error"] is None else f" ({f['error']:.1e})") for f in p["failing"][:4])
+        where = "; ".join(
+            f"{_param_text(f['params'])}: {f['status']}" + ("" if f["error"] is None else f" ({f['error']:.1e})")
+            for f in p["failing"][:4]
+        )
         if len(p["failing"]) > 4:
             where += f"; … ({len(p['failing'])} in all)"
-        rows.append([p["kind"], p["path"], p["dtype"], str(p["tried"]), str(p["good"]), str(p["limit"]), str(p["bad"]),
-                     str(p["nan"]), str(p["inf"]), "–" if p["max_error"] is None else f"{p['max_error']:.1e}",
-                     where or "–"])
-    out.append(table(["kind", "path", "dtype", "tried", "good", "limit", "bad", "NaN", "Inf", "largest error (accurate)",
-                      "not accurate at"], rows))
+        rows.append(
+            [
+                p["kind"],
+                p["path"],
+                p["dtype"],
+                str(p["tried"]),
+                str(p["good"]),
+                str(p["limit"]),
+                str(p["bad"]),
+                str(p["nan"]),
+                str(p["inf"]),
+                "–" if p["max_error"] is None else f"{p['max_error']:.1e}",
+                where or "–",
+            ]
+        )
+    out.append(
+        table(
+            [
+                "kind",
+                "path",
+                "dtype",
+                "tried",
+                "good",
+                "limit",
+                "bad",
+                "NaN",
+                "Inf",
+                "largest error (accurate)",
+                "not accurate at",
+            ],
+            rows,
+        )
+    )
     n = d.get("noise")
     if n:
         rules = list(n["summary"])
@@ -142,18 +242,44 @@ def stability() -> str:
                 ratios = [r["rules"][rule]["ratio_to_best_fixed"] for r in runs]
                 lam = runs[0]["rules"][rule]["lambda"]
                 cells.append(f"{max(ratios):.2f} (λ {lam:.2g})")
-            rows.append([case, f"{count:.0e}", f"{1 / count ** 0.5:.2g}", f"{best:.3f}",
-                         f"{runs[0]['best_fixed_lambda']:.2g}", *cells])
+            rows.append(
+                [
+                    case,
+                    f"{count:.0e}",
+                    f"{1 / count**0.5:.2g}",
+                    f"{best:.3f}",
+                    f"{runs[0]['best_fixed_lambda']:.2g}",
+                    *cells,
+                ]
+            )
         seeds = len({r["seed"] for r in n["runs"]})
-        out.append(f"\n**Coarse → fine under noise** ({n['nodes']}² nodes, Poisson noise, {seeds} seed(s) per level; error: "
-                   f"{n['error']}; entries: the largest ratio over the seeds of a rule's error to the best fixed λ's, "
-                   "and the λ it chose for seed 0)\n")
-        out.append(table(["case", "counts at peak", "noise at peak", "best fixed λ error (median)", "best fixed λ (seed 0)",
-                          *[f"{r} ratio" for r in rules]], rows))
-        summary = "; ".join(f"{r}: largest ratio {v['max_ratio']:.2f}, median {v['median_ratio']:.2f}, "
-                            f"{v['runs_within_2']}/{v['runs']} runs within 2×" for r, v in n["summary"].items())
-        out.append(f"\n{summary}. Default rule `{n['default_rule']}`; target ({n['target']}): "
-                   f"{'met' if n['target_met'] else '**not met**'}.")
+        out.append(
+            f"\n**Coarse → fine under noise** ({n['nodes']}² nodes, Poisson noise, {seeds} seed(s) per level; error: "
+            f"{n['error']}; entries: the largest ratio over the seeds of a rule's error to the best fixed λ's, "
+            "and the λ it chose for seed 0)\n"
+        )
+        out.append(
+            table(
+                [
+                    "case",
+                    "counts at peak",
+                    "noise at peak",
+                    "best fixed λ error (median)",
+                    "best fixed λ (seed 0)",
+                    *[f"{r} ratio" for r in rules],
+                ],
+                rows,
+            )
+        )
+        summary = "; ".join(
+            f"{r}: largest ratio {v['max_ratio']:.2f}, median {v['median_ratio']:.2f}, "
+            f"{v['runs_within_2']}/{v['runs']} runs within 2×"
+            for r, v in n["summary"].items()
+        )
+        out.append(
+            f"\n{summary}. Default rule `{n['default_rule']}`; target ({n['target']}): "
+            f"{'met' if n['target_met'] else '**not met**'}."
+        )
     return "\n".join(out)
 
 
@@ -166,8 +292,16 @@ def stability_figures(directory: Path | None = None) -> list:
     return stability.plot(load("stability", "stability"), directory or RESULTS / "stability")
 
 
-LAW_PARAMETERS = {"rms_height_m": "σ_h [m]", "correlation_length_m": "ℓ [m]", "correlation_length_x_m": "ℓ_x [m]",
-                  "correlation_length_y_m": "ℓ_y [m]", "A_m4": "A [m⁴]", "B_m": "B [m]", "C": "C", "k_max_per_m": "k_max [1/m]"}
+LAW_PARAMETERS = {
+    "rms_height_m": "σ_h [m]",
+    "correlation_length_m": "ℓ [m]",
+    "correlation_length_x_m": "ℓ_x [m]",
+    "correlation_length_y_m": "ℓ_y [m]",
+    "A_m4": "A [m⁴]",
+    "B_m": "B [m]",
+    "C": "C",
+    "k_max_per_m": "k_max [1/m]",
+}
 
 
 def real_surfaces() -> str:
@@ -176,29 +310,56 @@ def real_surfaces() -> str:
     surfaces = d["surfaces"]
     primary = f"evolved_c{d['primary_lambda_factor']:g}"
     cs = d["lambda_factors"]
-    out = [(f"{len(surfaces)} files, {d['detrend']} removed; lobes on {d['bins']}² nodes (grids: {d['grids']}), "
+    out = [
+        (
+            f"{len(surfaces)} files, {d['detrend']} removed; lobes on {d['bins']}² nodes (grids: {d['grids']}), "
             f"L1 error after a resolution of σ_r = {d['resolution_nodes']:g} nodes; λ rule: {d['lambda_rule']} "
             f"(c = {', '.join(f'{c:g}' for c in cs)}; c = {d['primary_lambda_factor']:g} primary). Largest scale: "
             f"the largest window leaving {d['min_facets_at_largest_scale']} measured facets. Non-Gaussian: "
-            f"{d['non_gaussian_rule']}. Run time {d['seconds']:.0f} s.\n")]
+            f"{d['non_gaussian_rule']}. Run time {d['seconds']:.0f} s.\n"
+        )
+    ]
 
     rows = []
     for s in surfaces:
         m, sh = s["pixel_slopes"], s["shadowing"]
-        rows.append([f"`{s['file']}`", f"{s['shape'][0]}×{s['shape'][1]}", f"{s['pixel_m'] * 1e6:.4g} µm",
-                     str(s["unmeasured_px"]), f"{m['x']['sd']:.3g}, {m['y']['sd']:.3g}",
-                     f"{m['x']['robust_sd']:.3g}, {m['y']['robust_sd']:.3g}",
-                     f"{m['x']['skewness']:+.2f}, {m['y']['skewness']:+.2f}",
-                     f"{m['x']['excess_kurtosis']:.3g}, {m['y']['excess_kurtosis']:.3g}",
-                     "no" if s["non_gaussian"] else "yes",
-                     "–" if s["height_quantum_m"] is None else
-                     f"{s['height_quantum_m'] * 1e9:.3g} nm ({s['slope_quantum_to_robust_sd']:.2f})",
-                     f"{sh['theta_deg_shadowing_1pct']:g}° / {sh['theta_deg_shadowing_10pct']:g}°"])
-    out.append("**The surfaces** (pixel slopes of the measured pixel facets; shadowing: Smith's Λ/(1+Λ) from the "
-               "measured slopes, worst of ±x, ±y, exceeds 1 % / 10 % beyond θi)\n\n" + table(
-                   ["file", "pixels (rows×cols)", "pixel", "unmeasured px", "rms slope x, y", "robust sd x, y",
-                    "skewness x, y", "excess kurtosis x, y", "Gaussian", "height quantum (÷Δ ÷ robust sd)",
-                    "shadowing > 1 % / 10 %"], rows))
+        rows.append(
+            [
+                f"`{s['file']}`",
+                f"{s['shape'][0]}×{s['shape'][1]}",
+                f"{s['pixel_m'] * 1e6:.4g} µm",
+                str(s["unmeasured_px"]),
+                f"{m['x']['sd']:.3g}, {m['y']['sd']:.3g}",
+                f"{m['x']['robust_sd']:.3g}, {m['y']['robust_sd']:.3g}",
+                f"{m['x']['skewness']:+.2f}, {m['y']['skewness']:+.2f}",
+                f"{m['x']['excess_kurtosis']:.3g}, {m['y']['excess_kurtosis']:.3g}",
+                "no" if s["non_gaussian"] else "yes",
+                "–"
+                if s["height_quantum_m"] is None
+                else f"{s['height_quantum_m'] * 1e9:.3g} nm ({s['slope_quantum_to_robust_sd']:.2f})",
+                f"{sh['theta_deg_shadowing_1pct']:g}° / {sh['theta_deg_shadowing_10pct']:g}°",
+            ]
+        )
+    out.append(
+        "**The surfaces** (pixel slopes of the measured pixel facets; shadowing: Smith's Λ/(1+Λ) from the "
+        "measured slopes, worst of ±x, ±y, exceeds 1 % / 10 % beyond θi)\n\n"
+        + table(
+            [
+                "file",
+                "pixels (rows×cols)",
+                "pixel",
+                "unmeasured px",
+                "rms slope x, y",
+                "robust sd x, y",
+                "skewness x, y",
+                "excess kurtosis x, y",
+                "Gaussian",
+                "height quantum (÷Δ ÷ robust sd)",
+                "shadowing > 1 % / 10 %",
+            ],
+            rows,
+        )
+    )
 
     rows = []
     for s in surfaces:
@@ -206,18 +367,40 @@ def real_surfaces() -> str:
             cov, err = r["covariance"], r["covariance_error_used"]
             z = r["split_half_z"]
             kurt = r["facet_excess_kurtosis"]
-            rows.append([f"`{s['file']}`", str(r["mu_px"]), f"{r['mu'] * 1e6:.4g}",
-                         f"{r['count']} ({r['independent']:.1f})",
-                         f"{cov[0][0]:.3g} ± {err[0][0]:.2g}", f"{cov[1][1]:.3g} ± {err[1][1]:.2g}",
-                         f"{cov[0][1] / (cov[0][0] * cov[1][1]) ** 0.5:+.2f}",
-                         "–" if z is None else f"{z[0]:+.1f}, {z[1]:+.1f}",
-                         f"{r['trace_ratio_curvature_to_plane']:.3f}",
-                         "–" if kurt[0] is None else f"{kurt[0]:.3g}, {kurt[1]:.3g}"])
-    out.append("\n**Σ(μ)** (facets: count (effective independent); ± the standard error used in the fits: the "
-               "library's, floored at the Gaussian-theory error from N_eff; z: the two halves' Σ_xx, Σ_yy differ "
-               "by z standard errors; curvature/plane: tr Σ with a quadratic removed ÷ with a plane removed)\n\n"
-               + table(["file", "μ [px]", "μ [µm]", "facets", "Σ_xx", "Σ_yy", "ρ_xy", "split-half z (xx, yy)",
-                        "curvature/plane", "facet excess kurtosis x, y"], rows))
+            rows.append(
+                [
+                    f"`{s['file']}`",
+                    str(r["mu_px"]),
+                    f"{r['mu'] * 1e6:.4g}",
+                    f"{r['count']} ({r['independent']:.1f})",
+                    f"{cov[0][0]:.3g} ± {err[0][0]:.2g}",
+                    f"{cov[1][1]:.3g} ± {err[1][1]:.2g}",
+                    f"{cov[0][1] / (cov[0][0] * cov[1][1]) ** 0.5:+.2f}",
+                    "–" if z is None else f"{z[0]:+.1f}, {z[1]:+.1f}",
+                    f"{r['trace_ratio_curvature_to_plane']:.3f}",
+                    "–" if kurt[0] is None else f"{kurt[0]:.3g}, {kurt[1]:.3g}",
+                ]
+            )
+    out.append(
+        "\n**Σ(μ)** (facets: count (effective independent); ± the standard error used in the fits: the "
+        "library's, floored at the Gaussian-theory error from N_eff; z: the two halves' Σ_xx, Σ_yy differ "
+        "by z standard errors; curvature/plane: tr Σ with a quadratic removed ÷ with a plane removed)\n\n"
+        + table(
+            [
+                "file",
+                "μ [px]",
+                "μ [µm]",
+                "facets",
+                "Σ_xx",
+                "Σ_yy",
+                "ρ_xy",
+                "split-half z (xx, yy)",
+                "curvature/plane",
+                "facet excess kurtosis x, y",
+            ],
+            rows,
+        )
+    )
 
     rows = []
     for s in surfaces:
@@ -229,11 +412,21 @@ def real_surfaces() -> str:
                 continue
             p = fit["parameters"]
             text = ", ".join(f"{LAW_PARAMETERS.get(k, k)} = {v:.3g}" for k, v in p.items())
-            rows.append([f"`{s['file']}`", law, text, f"{fit['chi2_per_dof']:.3g}", f"{fit['relative_rms_diagonal']:.2f}",
-                         f"{fit['largest_relative_deviation']:.2f}"])
-    out.append("\n**Scale laws fitted to Σ(μ)** (GaussianSurface, box window; χ² over Σ_xx, Σ_yy, Σ_xy at every "
-               "scale in the standard errors above; relative deviations of the diagonal)\n\n" + table(
-                   ["file", "law", "parameters", "χ²/dof", "relative rms", "largest relative deviation"], rows))
+            rows.append(
+                [
+                    f"`{s['file']}`",
+                    law,
+                    text,
+                    f"{fit['chi2_per_dof']:.3g}",
+                    f"{fit['relative_rms_diagonal']:.2f}",
+                    f"{fit['largest_relative_deviation']:.2f}",
+                ]
+            )
+    out.append(
+        "\n**Scale laws fitted to Σ(μ)** (GaussianSurface, box window; χ² over Σ_xx, Σ_yy, Σ_xy at every "
+        "scale in the standard errors above; relative deviations of the diagonal)\n\n"
+        + table(["file", "law", "parameters", "χ²/dof", "relative rms", "largest relative deviation"], rows)
+    )
 
     rows = []
     for s in surfaces:
@@ -241,34 +434,73 @@ def real_surfaces() -> str:
         for r in s["consistency"]:
             flag = "*" if r["facet_slopes_off_lattice_origin"] < 0.1 else ""
             cells.append(f"{r['mu_px']}: {r['violation']:.3f} / {r['floor']:.3f}{flag}")
-        quantum = [f"{r['mu_px']}: {q['violation']:.3f} / {q['floor']:.3f}" + ("*" if q["facet_slopes_off_lattice_origin"] < 0.1 else "")
-                   for r in s["consistency"] if (q := r.get("at_slope_quantum"))]
-        rows.append([f"`{s['file']}`", f"{s['lattice_step']:.3g}", "; ".join(cells),
-                     f"{s['slope_quantum']:.3g}: " + "; ".join(quantum) if quantum else "–"])
-    out.append("\n**Eq. 3.1** (μ [px]: violation V / permutation floor; `*`: fewer than 10 % of the facets off the "
-               "lattice origin, no resolution; last column: on a lattice of one slope quantum, where it is coarser)\n\n"
-               + table(["file", "lattice step", "V / floor per scale", "on the slope quantum's lattice"], rows))
+        quantum = [
+            f"{r['mu_px']}: {q['violation']:.3f} / {q['floor']:.3f}"
+            + ("*" if q["facet_slopes_off_lattice_origin"] < 0.1 else "")
+            for r in s["consistency"]
+            if (q := r.get("at_slope_quantum"))
+        ]
+        rows.append(
+            [
+                f"`{s['file']}`",
+                f"{s['lattice_step']:.3g}",
+                "; ".join(cells),
+                f"{s['slope_quantum']:.3g}: " + "; ".join(quantum) if quantum else "–",
+            ]
+        )
+    out.append(
+        "\n**Eq. 3.1** (μ [px]: violation V / permutation floor; `*`: fewer than 10 % of the facets off the "
+        "lattice origin, no resolution; last column: on a lattice of one slope quantum, where it is coarser)\n\n"
+        + table(["file", "lattice step", "V / floor per scale", "on the slope quantum's lattice"], rows)
+    )
 
     rows = []
     for key, e in d["summary"]["by_surface"].items():
+
         def med(k):
             v = e[f"median_error_{k}"]
             return "–" if v is None else f"{v:.3f}"
 
-        rows.append([key, str(e["pairs"]), med("naive"), med("second_moment"), *[med(f"evolved_c{c:g}") for c in cs],
-                     *[f"{e[f'median_ratio_evolved_c{c:g}']:.2f}" if e[f"median_ratio_evolved_c{c:g}"] is not None else "–"
-                       for c in cs],
-                     *[f"{e[f'pairs_meeting_evolved_c{c:g}']}/{e[f'pairs_with_lobe_evolved_c{c:g}']}" for c in cs],
-                     f"{e['pairs_meeting_on_both_halves']}/{e['pairs_with_both_halves']}",
-                     f"{e['pairs_evolved_beats_naive']}/{e['pairs']}", f"{e['pairs_evolved_within_floor']}/{e['pairs']}",
-                     "–" if e["median_split_half_sigma_evolved"] is None else f"{e['median_split_half_sigma_evolved']:.2g}"])
-    out.append("\n**Eq. 4.4: median L1 error of the predicted lobe** (ordered pairs of the lobe scales and ∞; "
-               f"E_ev ≤ ½ E_2nd: pairs meeting the target / pairs with a lobe; halves: c = {d['primary_lambda_factor']:g} "
-               "on both halves; floor: the split-half reproducibility of the measured target lobe; σ: split-half "
-               "standard error of E_ev)\n\n" + table(
-                   ["surface / direction", "pairs", "naive", "second moment", *[f"evolved c={c:g}" for c in cs],
-                    *[f"median E_ev/E_2nd (c={c:g})" for c in cs], *[f"E_ev ≤ ½ E_2nd (c={c:g})" for c in cs],
-                    "… on both halves", "E_ev < E_naive", "E_ev ≤ floor", "median σ(E_ev)"], rows))
+        rows.append(
+            [
+                key,
+                str(e["pairs"]),
+                med("naive"),
+                med("second_moment"),
+                *[med(f"evolved_c{c:g}") for c in cs],
+                *[
+                    f"{e[f'median_ratio_evolved_c{c:g}']:.2f}" if e[f"median_ratio_evolved_c{c:g}"] is not None else "–"
+                    for c in cs
+                ],
+                *[f"{e[f'pairs_meeting_evolved_c{c:g}']}/{e[f'pairs_with_lobe_evolved_c{c:g}']}" for c in cs],
+                f"{e['pairs_meeting_on_both_halves']}/{e['pairs_with_both_halves']}",
+                f"{e['pairs_evolved_beats_naive']}/{e['pairs']}",
+                f"{e['pairs_evolved_within_floor']}/{e['pairs']}",
+                "–" if e["median_split_half_sigma_evolved"] is None else f"{e['median_split_half_sigma_evolved']:.2g}",
+            ]
+        )
+    out.append(
+        "\n**Eq. 4.4: median L1 error of the predicted lobe** (ordered pairs of the lobe scales and ∞; "
+        f"E_ev ≤ ½ E_2nd: pairs meeting the target / pairs with a lobe; halves: c = {d['primary_lambda_factor']:g} "
+        "on both halves; floor: the split-half reproducibility of the measured target lobe; σ: split-half "
+        "standard error of E_ev)\n\n"
+        + table(
+            [
+                "surface / direction",
+                "pairs",
+                "naive",
+                "second moment",
+                *[f"evolved c={c:g}" for c in cs],
+                *[f"median E_ev/E_2nd (c={c:g})" for c in cs],
+                *[f"E_ev ≤ ½ E_2nd (c={c:g})" for c in cs],
+                "… on both halves",
+                "E_ev < E_naive",
+                "E_ev ≤ floor",
+                "median σ(E_ev)",
+            ],
+            rows,
+        )
+    )
 
     for s in surfaces:
         names = [str(p) for p in s["lobe_scales_px"]] + ["∞"]
@@ -282,25 +514,34 @@ def real_surfaces() -> str:
                     row.append("–")
                     continue
                 ev = r[f"error_{primary}"]
-                sig = r["split_half_sigma"][primary] if r["split_half_sigma"] and r["split_half_sigma"][primary] is not None else None
+                sig = (
+                    r["split_half_sigma"][primary]
+                    if r["split_half_sigma"] and r["split_half_sigma"][primary] is not None
+                    else None
+                )
                 mark = " ✓" if ev is not None and ev <= 0.5 * r["error_second_moment"] else ""
                 evt = "no lobe" if ev is None else f"{ev:.3f}" + ("" if sig is None else f" ± {sig:.1g}")
                 row.append(f"{evt} / {r['error_second_moment']:.3f} / {r['error_naive']:.3f}{mark}")
             rows.append(row)
         facets = {r["mu_from_px"]: (r["facets_from"], r["independent_from"]) for r in s["records"] if r["facets_from"]}
         counts = ", ".join(f"{p}: {facets[p][0]} ({facets[p][1]:.1f})" for p in names if p in facets)
-        out.append(f"\n**`{s['file']}`, every pair** (rows μ0, columns μ [px]; E_ev ± σ / E_2nd / E_naive; ✓: "
-                   f"E_ev ≤ ½ E_2nd; facets (independent) per scale {counts})\n\n" + table(["μ0 \\ μ", *names], rows))
+        out.append(
+            f"\n**`{s['file']}`, every pair** (rows μ0, columns μ [px]; E_ev ± σ / E_2nd / E_naive; ✓: "
+            f"E_ev ≤ ½ E_2nd; facets (independent) per scale {counts})\n\n" + table(["μ0 \\ μ", *names], rows)
+        )
 
     t = d["summary"]["target"]
 
     def frac(x):
         return "–" if x is None or x["fraction"] is None else f"{x['met']}/{x['pairs']} ({x['fraction']:.0%})"
 
-    out.append(f"\n**Target** ({t['statement']}; non-Gaussian: {', '.join(t['non_gaussian_surfaces'])}): "
-               f"{'met' if t['met'] else '**not met**'} — all pairs {frac(t['all_pairs'])}, coarser {frac(t['coarser'])}, "
-               f"finer {frac(t['finer'])}; without the 1 px ↔ ∞ pairs {frac(t['without_harvey_pairs'])}; without those "
-               f"and pairs with a scale of fewer than {d['few_facets']} independent facets "
-               f"{frac(t['without_harvey_and_few_facet_pairs'])}; on both halves {frac(t['on_both_halves'])}"
-               + (f"; c = 3 {frac(t['c3_all_pairs'])}" if t.get("c3_all_pairs") else "") + ".")
+    out.append(
+        f"\n**Target** ({t['statement']}; non-Gaussian: {', '.join(t['non_gaussian_surfaces'])}): "
+        f"{'met' if t['met'] else '**not met**'} — all pairs {frac(t['all_pairs'])}, coarser {frac(t['coarser'])}, "
+        f"finer {frac(t['finer'])}; without the 1 px ↔ ∞ pairs {frac(t['without_harvey_pairs'])}; without those "
+        f"and pairs with a scale of fewer than {d['few_facets']} independent facets "
+        f"{frac(t['without_harvey_and_few_facet_pairs'])}; on both halves {frac(t['on_both_halves'])}"
+        + (f"; c = 3 {frac(t['c3_all_pairs'])}" if t.get("c3_all_pairs") else "")
+        + "."
+    )
     return "\n".join(out)

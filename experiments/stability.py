@@ -53,6 +53,7 @@ from pathlib import Path
 
 import jax
 
+
 jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp
@@ -65,6 +66,7 @@ import brdfscale as bs
 from brdfscale import geometry, lobes, plus, so3, stats
 from brdfscale._evolve import _regularise
 from experiments._studies import save_figure, study_dir, write_results
+
 
 KINDS = ("roughness", "scale_ratio", "incidence", "disk", "heavy_tails", "plus", "wigner", "so3", "noise")
 DTYPES = ("float64", "float32")
@@ -81,6 +83,7 @@ NOISE_GRID = bs.Grid(size=128, extent=0.6)
 
 # -- records -----------------------------------------------------------------------------------
 
+
 def _finite_counts(values) -> tuple[int, int]:
     a = np.asarray(values)
     if np.iscomplexobj(a):
@@ -88,8 +91,9 @@ def _finite_counts(values) -> tuple[int, int]:
     return int(np.count_nonzero(np.isnan(a))), int(np.count_nonzero(np.isinf(a)))
 
 
-def record(kind, path, dtype, params, *, error=None, target=None, values=None, exists=True, failure=None,
-           bound=None, note=None):
+def record(
+    kind, path, dtype, params, *, error=None, target=None, values=None, exists=True, failure=None, bound=None, note=None
+):
     """One case: its status from the error, the target, the values' finiteness and whether a
     result exists (``exists=False``: the reference says no BRDF / not representable, so a
     library refusal is correct)."""
@@ -117,9 +121,20 @@ def record(kind, path, dtype, params, *, error=None, target=None, values=None, e
         status = "limit"  # within the documented error bound of this regime
     else:
         status = "inaccurate"
-    return {"kind": kind, "path": path, "dtype": dtype, "params": params,
-            "error": None if error is None else float(error), "target": target, "bound": bound,
-            "nan": nan, "inf": inf, "status": status, "message": message, "note": note}
+    return {
+        "kind": kind,
+        "path": path,
+        "dtype": dtype,
+        "params": params,
+        "error": None if error is None else float(error),
+        "target": target,
+        "bound": bound,
+        "nan": nan,
+        "inf": inf,
+        "status": status,
+        "message": message,
+        "note": note,
+    }
 
 
 def attempt(fn):
@@ -167,6 +182,7 @@ def rounded(x, dtype) -> float:
 
 # -- references ------------------------------------------------------------------------------
 
+
 def hankel(G, r: float, K: float) -> float:
     """``(2π)⁻¹ ∫_0^K G(k) J₀(kr) k dk`` by SciPy's adaptive quadrature on panels of about one
     J₀ oscillation (relative accuracy ~1e-13 of the peak)."""
@@ -176,8 +192,9 @@ def hankel(G, r: float, K: float) -> float:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         for a, b in zip(edges[:-1], edges[1:]):
-            total += scipy.integrate.quad(lambda k: G(k) * scipy.special.j0(k * r) * k, a, b,
-                                          epsabs=0.0, epsrel=1e-13, limit=200)[0]
+            total += scipy.integrate.quad(
+                lambda k: G(k) * scipy.special.j0(k * r) * k, a, b, epsabs=0.0, epsrel=1e-13, limit=200
+            )[0]
     return total / (2 * math.pi)
 
 
@@ -191,6 +208,7 @@ def log_xk1(x: float) -> float:
 
 
 # -- A1 roughness ----------------------------------------------------------------------------------
+
 
 def roughness(quick: bool) -> list:
     alphas = [1e-4, 2.0] if quick else list(np.logspace(-4, math.log10(2.0), 9))
@@ -207,13 +225,31 @@ def roughness(quick: bool) -> list:
             for path in ("radial", "grid"):
                 tol = EVOLVE_TOL[dtype]
                 u = cast(np.stack([radii, 0 * radii], -1), dtype)
-                fn = lambda: evolved(lambda: bs.evolve(lobes.GGX(cast(a, dtype)), stats.Beckmann(cast(a, dtype)),
-                                                       stats.Beckmann(cast(b, dtype)), method=path, tol=tol), u)
+                fn = lambda: evolved(
+                    lambda: bs.evolve(
+                        lobes.GGX(cast(a, dtype)),
+                        stats.Beckmann(cast(a, dtype)),
+                        stats.Beckmann(cast(b, dtype)),
+                        method=path,
+                        tol=tol,
+                    ),
+                    u,
+                )
                 (values, honoured), failure = _split(attempt(fn))
                 target = target_for(dtype, honoured)
                 err = None if values is None else float(np.max(np.abs(values - ref)) / ref[0])
-                out.append(record("roughness", f"evolve {path}", dtype, {"alpha": alpha}, error=err, target=target,
-                                  values=values, failure=failure))
+                out.append(
+                    record(
+                        "roughness",
+                        f"evolve {path}",
+                        dtype,
+                        {"alpha": alpha},
+                        error=err,
+                        target=target,
+                        values=values,
+                        failure=failure,
+                    )
+                )
     return out
 
 
@@ -229,18 +265,27 @@ def _family_records(alpha: float, dtype: str) -> list:
     with mp.workdps(30):
         A = mp.mpf(alpha)
         families = {
-            "Beckmann": (stats.Beckmann(cast(alpha, dtype)),
-                         [mp.exp(-(A * w) ** 2 / 4) for w in Wr], [mp.exp(-(x / A) ** 2) / (mp.pi * A * A) for x in mr]),
-            "GGX": (stats.GGX(cast(alpha, dtype)),
-                    [mp.mpf(1) if w == 0 else A * w * mp.besselk(1, A * w) for w in Wr],
-                    [1 / (mp.pi * A * A * (1 + (x / A) ** 2) ** 2) for x in mr]),
-            "Disk": (stats.Disk(cast(alpha, dtype)),
-                     [mp.mpf(1) if w == 0 else 2 * mp.besselj(1, A * w) / (A * w) for w in Wr],
-                     [1 / (mp.pi * A * A) if x < A else mp.mpf(0) for x in mr]),
+            "Beckmann": (
+                stats.Beckmann(cast(alpha, dtype)),
+                [mp.exp(-((A * w) ** 2) / 4) for w in Wr],
+                [mp.exp(-((x / A) ** 2)) / (mp.pi * A * A) for x in mr],
+            ),
+            "GGX": (
+                stats.GGX(cast(alpha, dtype)),
+                [mp.mpf(1) if w == 0 else A * w * mp.besselk(1, A * w) for w in Wr],
+                [1 / (mp.pi * A * A * (1 + (x / A) ** 2) ** 2) for x in mr],
+            ),
+            "Disk": (
+                stats.Disk(cast(alpha, dtype)),
+                [mp.mpf(1) if w == 0 else 2 * mp.besselj(1, A * w) / (A * w) for w in Wr],
+                [1 / (mp.pi * A * A) if x < A else mp.mpf(0) for x in mr],
+            ),
         }
     for name, (s, cf_ref, density_ref) in families.items():
-        for what, fn, ref in (("cf", lambda: np.asarray(s.cf(Wd)).real, cf_ref),
-                              ("density", lambda: np.asarray(s.density(md)), density_ref)):
+        for what, fn, ref in (
+            ("cf", lambda: np.asarray(s.cf(Wd)).real, cf_ref),
+            ("density", lambda: np.asarray(s.density(md)), density_ref),
+        ):
             values, failure = attempt(fn)
             ref = np.array([float(x) for x in ref])
             err = None
@@ -249,12 +294,23 @@ def _family_records(alpha: float, dtype: str) -> list:
                 scale = np.maximum(np.abs(ref), np.max(np.abs(ref)) * 1e-3)
                 err = float(np.max(np.abs(values - ref) / scale))
             target = 1e-12 if dtype == "float64" else 1e-5
-            out.append(record("roughness", f"stats.{name}.{what}", dtype, {"alpha": alpha}, error=err, target=target,
-                              values=values, failure=failure))
+            out.append(
+                record(
+                    "roughness",
+                    f"stats.{name}.{what}",
+                    dtype,
+                    {"alpha": alpha},
+                    error=err,
+                    target=target,
+                    values=values,
+                    failure=failure,
+                )
+            )
     return out
 
 
 # -- A2 scale ratios --------------------------------------------------------------------------
+
 
 def scale_ratio(quick: bool) -> list:
     ratios = [1e-4, 2.0, 1e4] if quick else [1e-4, 1e-3, 1e-2, 1e-1, 0.5, 2.0, 10.0, 1e2, 1e3, 1e4]
@@ -273,16 +329,35 @@ def scale_ratio(quick: bool) -> list:
             if width2 > 0:
                 w = math.sqrt(width2)
                 radii = np.array([0.0, 0.5, 2.0]) * w
-                ref = np.exp(-(radii / w) ** 2) / (math.pi * w * w)
+                ref = np.exp(-((radii / w) ** 2)) / (math.pi * w * w)
             u = cast(np.stack([radii, 0 * radii], -1), dtype)
             for path in ("closed_form", "radial", "grid"):
-                fn = lambda: evolved(lambda: bs.evolve(lobes.Beckmann(cast(aL, dtype)), stats.Beckmann(cast(a0, dtype)),
-                                                       stats.Beckmann(cast(a1, dtype)), method=path, tol=tol), u)
+                fn = lambda: evolved(
+                    lambda: bs.evolve(
+                        lobes.Beckmann(cast(aL, dtype)),
+                        stats.Beckmann(cast(a0, dtype)),
+                        stats.Beckmann(cast(a1, dtype)),
+                        method=path,
+                        tol=tol,
+                    ),
+                    u,
+                )
                 (values, honoured), failure = _split(attempt(fn))
                 target = target_for(dtype, honoured)
                 err = None if values is None or width2 <= 0 else float(np.max(np.abs(values - ref)) / ref[0])
-                out.append(record("scale_ratio", f"Beckmann stats, {path}", dtype, params, error=err, target=target,
-                                  values=values, failure=failure, exists=width2 > 0))
+                out.append(
+                    record(
+                        "scale_ratio",
+                        f"Beckmann stats, {path}",
+                        dtype,
+                        params,
+                        error=err,
+                        target=target,
+                        values=values,
+                        failure=failure,
+                        exists=width2 > 0,
+                    )
+                )
             out += _ggx_ratio(rho, dtype, params)
     return out
 
@@ -313,17 +388,37 @@ def _ggx_ratio(rho, dtype, params) -> list:
     u = cast(np.stack([radii, 0 * radii], -1), dtype)
     out = []
     for path in ("radial", "grid"):
-        fn = lambda: evolved(lambda: bs.evolve(lobes.Beckmann(cast(aL, dtype)), stats.GGX(cast(a0, dtype)),
-                                               stats.GGX(cast(a1, dtype)), method=path, tol=tol), u)
+        fn = lambda: evolved(
+            lambda: bs.evolve(
+                lobes.Beckmann(cast(aL, dtype)),
+                stats.GGX(cast(a0, dtype)),
+                stats.GGX(cast(a1, dtype)),
+                method=path,
+                tol=tol,
+            ),
+            u,
+        )
         (values, honoured), failure = _split(attempt(fn))
         target = target_for(dtype, honoured)
         err = None if values is None or ref is None else float(np.max(np.abs(values - ref)) / ref[0])
-        out.append(record("scale_ratio", f"GGX stats, {path}", dtype, {**params, "alpha_lobe": aL}, error=err,
-                          target=target, values=values, failure=failure, exists=bool(exists)))
+        out.append(
+            record(
+                "scale_ratio",
+                f"GGX stats, {path}",
+                dtype,
+                {**params, "alpha_lobe": aL},
+                error=err,
+                target=target,
+                values=values,
+                failure=failure,
+                exists=bool(exists),
+            )
+        )
     return out
 
 
 # -- A3 incidence ------------------------------------------------------------------------------
+
 
 def _direction(theta_deg, phi_deg, dtype):
     t, p = math.radians(theta_deg), math.radians(phi_deg)
@@ -338,8 +433,12 @@ def incidence(quick: bool) -> list:
     for theta in thetas:
         for dtype in DTYPES:
             i = _direction(theta, 0.0, dtype)
-            configurations = {"mirror": _direction(theta, 180.0, dtype), "perpendicular": _direction(theta, 90.0, dtype),
-                              "back-scatter": i.copy(), "grazing detector": _direction(89.9, 135.0, dtype)}
+            configurations = {
+                "mirror": _direction(theta, 180.0, dtype),
+                "perpendicular": _direction(theta, 90.0, dtype),
+                "back-scatter": i.copy(),
+                "grazing detector": _direction(89.9, 135.0, dtype),
+            }
             for config, o in configurations.items():
                 with mp.workdps(40):
                     I = [mp.mpf(float(x)) for x in i]
@@ -349,13 +448,22 @@ def incidence(quick: bool) -> list:
                     cos_h = s[2] / mp.sqrt(sum(x * x for x in s))
                     factor = 1 / (4 * O[2] * cos_h**4)
                     r2 = slope[0] ** 2 + slope[1] ** 2
-                    refs = {"half_slope": [float(x) for x in slope], "microfacet_factor": [float(factor)],
-                            "Beckmann(0.1).evaluate": [float(mp.exp(-r2 / mp.mpf("0.01")) / (mp.pi * mp.mpf("0.01")) * factor)],
-                            "GGX(0.1).evaluate": [float(1 / (mp.pi * mp.mpf("0.01") * (1 + r2 / mp.mpf("0.01")) ** 2) * factor)]}
-                fns = {"half_slope": lambda: np.asarray(geometry.half_slope(i, o)),
-                       "microfacet_factor": lambda: np.asarray(geometry.microfacet_factor(i, o))[None],
-                       "Beckmann(0.1).evaluate": lambda: np.asarray(lobes.Beckmann(cast(0.1, dtype)).evaluate(i, o))[None],
-                       "GGX(0.1).evaluate": lambda: np.asarray(lobes.GGX(cast(0.1, dtype)).evaluate(i, o))[None]}
+                    refs = {
+                        "half_slope": [float(x) for x in slope],
+                        "microfacet_factor": [float(factor)],
+                        "Beckmann(0.1).evaluate": [
+                            float(mp.exp(-r2 / mp.mpf("0.01")) / (mp.pi * mp.mpf("0.01")) * factor)
+                        ],
+                        "GGX(0.1).evaluate": [
+                            float(1 / (mp.pi * mp.mpf("0.01") * (1 + r2 / mp.mpf("0.01")) ** 2) * factor)
+                        ],
+                    }
+                fns = {
+                    "half_slope": lambda: np.asarray(geometry.half_slope(i, o)),
+                    "microfacet_factor": lambda: np.asarray(geometry.microfacet_factor(i, o))[None],
+                    "Beckmann(0.1).evaluate": lambda: np.asarray(lobes.Beckmann(cast(0.1, dtype)).evaluate(i, o))[None],
+                    "GGX(0.1).evaluate": lambda: np.asarray(lobes.GGX(cast(0.1, dtype)).evaluate(i, o))[None],
+                }
                 for what, fn in fns.items():
                     values, failure = attempt(fn)
                     ref = np.array(refs[what])
@@ -366,17 +474,33 @@ def incidence(quick: bool) -> list:
                     target = 1e-13 if dtype == "float64" else 1e-5
                     # the lobes' |m_s|² enters an exponential (Beckmann) or a square: relative error ∝ |m_s|²·ε
                     r2 = float(sum(x * x for x in refs["half_slope"]))
-                    bound = None if what in ("half_slope", "microfacet_factor") else \
-                        4 * np.finfo(dtype).eps * (1 + r2 / 0.01)
+                    bound = (
+                        None
+                        if what in ("half_slope", "microfacet_factor")
+                        else 4 * np.finfo(dtype).eps * (1 + r2 / 0.01)
+                    )
                     note = None
                     if what != "half_slope" and 0 < abs(ref[0]) < np.finfo(dtype).tiny:
                         bound, note = 1.0, "the value is below the dtype's smallest normal number (underflow)"
-                    out.append(record("incidence", what, dtype, {"theta_i_deg": theta, "detector": config}, error=err,
-                                      target=target, bound=bound, values=values, failure=failure, note=note))
+                    out.append(
+                        record(
+                            "incidence",
+                            what,
+                            dtype,
+                            {"theta_i_deg": theta, "detector": config},
+                            error=err,
+                            target=target,
+                            bound=bound,
+                            values=values,
+                            failure=failure,
+                            note=note,
+                        )
+                    )
     return out
 
 
 # -- A4 disk statistics ----------------------------------------------------------------------------
+
 
 def disk(quick: bool) -> list:
     radii_disk = [1e-4, 2.0] if quick else list(np.logspace(-4, math.log10(2.0), 5))
@@ -386,39 +510,81 @@ def disk(quick: bool) -> list:
             rr = rounded(r0, dtype)
             aL = rounded(r0 / 2, dtype)
             sigma2 = aL * aL / 2
+
             # Beckmann lobe r0/2 convolved with a disk of radius r0 (evolve to μ = ∞ from s_from = Disk)
             def conv(u):
-                f = lambda rho: rho * math.exp(-(u - rho) ** 2 / (2 * sigma2)) * scipy.special.i0e(u * rho / sigma2) / sigma2
+                f = lambda rho: (
+                    rho * math.exp(-((u - rho) ** 2) / (2 * sigma2)) * scipy.special.i0e(u * rho / sigma2) / sigma2
+                )
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")
-                    return scipy.integrate.quad(f, 0, rr, points=[min(u, rr)] if 0 < u < rr else None, epsabs=0,
-                                                epsrel=1e-13, limit=400)[0] / (math.pi * rr * rr)
+                    return scipy.integrate.quad(
+                        f, 0, rr, points=[min(u, rr)] if 0 < u < rr else None, epsabs=0, epsrel=1e-13, limit=400
+                    )[0] / (math.pi * rr * rr)
+
             radii = np.array([0.0, 0.5, 1.0, 1.5]) * rr
             ref = np.array([conv(x) for x in radii])
             u = cast(np.stack([radii, 0 * radii], -1), dtype)
             tol = EVOLVE_TOL[dtype]
             for path in ("radial", "grid"):
-                fn = lambda: evolved(lambda: bs.evolve(lobes.Beckmann(cast(r0 / 2, dtype)), stats.Disk(cast(r0, dtype)),
-                                                       stats.Delta(), method=path, tol=tol), u)
+                fn = lambda: evolved(
+                    lambda: bs.evolve(
+                        lobes.Beckmann(cast(r0 / 2, dtype)),
+                        stats.Disk(cast(r0, dtype)),
+                        stats.Delta(),
+                        method=path,
+                        tol=tol,
+                    ),
+                    u,
+                )
                 (values, honoured), failure = _split(attempt(fn))
                 target = target_for(dtype, honoured)
                 err = None if values is None else float(np.max(np.abs(values - ref)) / np.max(ref))
-                out.append(record("disk", f"convolution, {path}", dtype, {"radius": r0}, error=err, target=target,
-                                  values=values, failure=failure))
+                out.append(
+                    record(
+                        "disk",
+                        f"convolution, {path}",
+                        dtype,
+                        {"radius": r0},
+                        error=err,
+                        target=target,
+                        values=values,
+                        failure=failure,
+                    )
+                )
             # towards a disk (its transform has zeros): no BRDF without λ; finite with λ
             for lam in (0.0, 1e-3):
-                fn = lambda: np.asarray(bs.evolve(lobes.Beckmann(cast(r0 / 2, dtype)), stats.Delta(),
-                                                  stats.Disk(cast(r0, dtype)), method="radial", tol=max(tol, 1e-6),
-                                                  regularisation=lam, check=lam == 0).density(u))
+                fn = lambda: np.asarray(
+                    bs.evolve(
+                        lobes.Beckmann(cast(r0 / 2, dtype)),
+                        stats.Delta(),
+                        stats.Disk(cast(r0, dtype)),
+                        method="radial",
+                        tol=max(tol, 1e-6),
+                        regularisation=lam,
+                        check=lam == 0,
+                    ).density(u)
+                )
                 values, failure = attempt(fn)
-                out.append(record("disk", f"deconvolution, λ = {lam:g}", dtype, {"radius": r0}, values=values,
-                                  failure=failure, exists=lam > 0,
-                                  note="λ = 0: the quotient is infinite at the zeros of S_to, no BRDF"
-                                  if lam == 0 else "regularised: finite values expected (no reference)"))
+                out.append(
+                    record(
+                        "disk",
+                        f"deconvolution, λ = {lam:g}",
+                        dtype,
+                        {"radius": r0},
+                        values=values,
+                        failure=failure,
+                        exists=lam > 0,
+                        note="λ = 0: the quotient is infinite at the zeros of S_to, no BRDF"
+                        if lam == 0
+                        else "regularised: finite values expected (no reference)",
+                    )
+                )
     return out
 
 
 # -- A5 heavy tails --------------------------------------------------------------------------
+
 
 def heavy_tails(quick: bool) -> list:
     tols = [1e-4, 1e-10] if quick else [1e-4, 1e-6, 1e-8, 1e-10, 1e-12]
@@ -431,19 +597,31 @@ def heavy_tails(quick: bool) -> list:
     for tol in tols:
         for path in ("radial", "grid"):
             u = jnp.asarray(np.stack([radii, 0 * radii], -1))
-            result, failure = attempt(lambda: bs.evolve(lobes.GGX(aL), stats.GGX(a0), stats.GGX(a1), method=path, tol=tol))
+            result, failure = attempt(
+                lambda: bs.evolve(lobes.GGX(aL), stats.GGX(a0), stats.GGX(a1), method=path, tol=tol)
+            )
             values = None
             if result is not None:
                 values, failure = attempt(lambda: np.asarray(result.density(u)))
             honoured = None if result is None else float(result.shape.tol)
             err = None if values is None else float(np.max(np.abs(values - ref)) / ref[0])
-            out.append(record("heavy_tails", f"GGX stats, {path}", "float64", {"tol": tol, "honoured_tol": honoured},
-                              error=err, target=honoured if honoured is not None else tol, values=values,
-                              failure=failure))
+            out.append(
+                record(
+                    "heavy_tails",
+                    f"GGX stats, {path}",
+                    "float64",
+                    {"tol": tol, "honoured_tol": honoured},
+                    error=err,
+                    target=honoured if honoured is not None else tol,
+                    values=values,
+                    failure=failure,
+                )
+            )
     return out
 
 
 # -- A6 plus-distributions ----------------------------------------------------------------------
+
 
 def plus_transforms(quick: bool) -> list:
     from tests.references.plus_transform import decaying, polynomial, series
@@ -470,7 +648,12 @@ def plus_transforms(quick: bool) -> list:
                 limit = float(np.finfo(dtype).max)
                 for w in (1.0, 1e-30, 1e30) if dtype == "float32" else (1.0, 1e-200, 1e200):
                     x0 = z / w
-                    if not (1e-300 < x0 < 1e300) or x0 > limit / 10 or x0 < float(np.finfo(dtype).tiny) * 10 or z > limit:
+                    if (
+                        not (1e-300 < x0 < 1e300)
+                        or x0 > limit / 10
+                        or x0 < float(np.finfo(dtype).tiny) * 10
+                        or z > limit
+                    ):
                         continue
                     wr, xr = rounded(w, dtype), rounded(x0, dtype)
                     want = reference(n, float(mp.mpf(wr) * mp.mpf(xr)) if z < 1e15 else z)
@@ -478,12 +661,23 @@ def plus_transforms(quick: bool) -> list:
                     values, failure = attempt(lambda: np.asarray(h.cf(cast([[wr, 0.0]], dtype))).real)
                     err = None if values is None else float(abs(values[0] - want) / abs(want))
                     target = 1e-13 if dtype == "float64" else 1e-5
-                    out.append(record("plus", f"PlusDistribution({n}).cf", dtype, {"z": z, "abs_W": w, "x0": x0},
-                                      error=err, target=target, values=values, failure=failure))
+                    out.append(
+                        record(
+                            "plus",
+                            f"PlusDistribution({n}).cf",
+                            dtype,
+                            {"z": z, "abs_W": w, "x0": x0},
+                            error=err,
+                            target=target,
+                            values=values,
+                            failure=failure,
+                        )
+                    )
     return out
 
 
 # -- A7 Wigner d ------------------------------------------------------------------------------
+
 
 def wigner(quick: bool) -> list:
     from test_so3_wigner import d_mpmath
@@ -509,7 +703,9 @@ def wigner(quick: bool) -> list:
                 rows = np.arange(0, 2 * J + 1, max(1, (2 * J + 1) // 64))
                 orthogonality = float(np.max(np.abs(d[rows] @ d.T - np.eye(2 * J + 1)[rows])))
                 target = 1e-12 if dtype == "float64" else 1e-5
-                rec = record("wigner", "wigner_d", dtype, params, error=max(err, orthogonality), target=target, values=d)
+                rec = record(
+                    "wigner", "wigner_d", dtype, params, error=max(err, orthogonality), target=target, values=d
+                )
                 rec.update(entry_error=err, orthogonality_error=orthogonality, seconds=seconds)
                 out.append(rec)
                 del d
@@ -517,6 +713,7 @@ def wigner(quick: bool) -> list:
 
 
 # -- A8 SO(3) blocks ----------------------------------------------------------------------------
+
 
 def so3_blocks(quick: bool) -> list:
     B = 6 if quick else 12
@@ -526,7 +723,7 @@ def so3_blocks(quick: bool) -> list:
     R = rng.normal(size=(B, n, n)) + 1j * rng.normal(size=(B, n, n))
     for J in range(B):  # zero outside each degree's orders
         keep = np.zeros((n, n), bool)
-        keep[B - 1 - J:B + J, B - 1 - J:B + J] = True
+        keep[B - 1 - J : B + J, B - 1 - J : B + J] = True
         R[J][~keep] = 0
     D = np.array([1.0, 1.0, 0.5])
     G = np.asarray(so3._generators.diffusion_generator(B, D))
@@ -539,14 +736,28 @@ def so3_blocks(quick: bool) -> list:
             cond = max(float(np.exp(tau * (w.max() - w.min()))) for w, _ in eig)
         for dtype in DTYPES:
             cdtype = np.complex128 if dtype == "float64" else np.complex64
-            representable = bool(np.all(np.isfinite(ref)) and np.max(np.abs(ref)) < np.finfo(dtype).max / 1e3 and
-                                 cond < np.finfo(dtype).max / 1e3)
+            representable = bool(
+                np.all(np.isfinite(ref))
+                and np.max(np.abs(ref)) < np.finfo(dtype).max / 1e3
+                and cond < np.finfo(dtype).max / 1e3
+            )
             Rd, Dd = jnp.asarray(R, cdtype), cast(D, dtype)
             for path, fn in (
-                    ("evolve (block solve)", lambda: np.asarray(so3.evolve(
-                        Rd, so3.RotationalDiffusion(cast(tau0, dtype), Dd), so3.RotationalDiffusion(cast(tau, dtype), Dd)))),
-                    ("evolve_diffusion (expm)", lambda: np.asarray(so3.evolve_diffusion(Rd, Dd, cast(tau0, dtype),
-                                                                                      cast(tau, dtype))))):
+                (
+                    "evolve (block solve)",
+                    lambda: np.asarray(
+                        so3.evolve(
+                            Rd,
+                            so3.RotationalDiffusion(cast(tau0, dtype), Dd),
+                            so3.RotationalDiffusion(cast(tau, dtype), Dd),
+                        )
+                    ),
+                ),
+                (
+                    "evolve_diffusion (expm)",
+                    lambda: np.asarray(so3.evolve_diffusion(Rd, Dd, cast(tau0, dtype), cast(tau, dtype))),
+                ),
+            ):
                 values, failure = attempt(fn)
                 err = None
                 if values is not None and representable:
@@ -554,21 +765,42 @@ def so3_blocks(quick: bool) -> list:
                     err = max(float(np.linalg.norm(v[J] - ref[J]) / np.linalg.norm(ref[J])) for J in range(B))
                 target = 1e-6 if dtype == "float64" else 1e-4
                 eps = float(np.finfo(dtype).eps)
-                out.append(record("so3", path, dtype, {"B": B, "tau_to": tau, "condition": cond}, error=err,
-                                  target=target, bound=10 * cond * eps, values=values, failure=failure,
-                                  exists=representable,
-                                  note=None if representable else "exact result not representable in the dtype"))
+                out.append(
+                    record(
+                        "so3",
+                        path,
+                        dtype,
+                        {"B": B, "tau_to": tau, "condition": cond},
+                        error=err,
+                        target=target,
+                        bound=10 * cond * eps,
+                        values=values,
+                        failure=failure,
+                        exists=representable,
+                        note=None if representable else "exact result not representable in the dtype",
+                    )
+                )
     # a singular block: the statistics' operator with one vanishing degree
     for dtype in DTYPES:
         cdtype = np.complex128 if dtype == "float64" else np.complex64
         op = np.asarray(so3.RotationalDiffusion(0.05).operator(B)).astype(cdtype)
         op[2] = np.asarray(so3._models.operator_padding(B))[2]  # degree 2 vanishes (identity on its padding)
         for lam in (0.0, 1e-3):
-            fn = lambda: np.asarray(so3.evolve(jnp.asarray(R, cdtype), so3.Identity(), jnp.asarray(op),
-                                               regularisation=lam))
+            fn = lambda: np.asarray(
+                so3.evolve(jnp.asarray(R, cdtype), so3.Identity(), jnp.asarray(op), regularisation=lam)
+            )
             values, failure = attempt(fn)
-            out.append(record("so3", f"singular block, λ = {lam:g}", dtype, {"B": B}, values=values, failure=failure,
-                              exists=lam > 0))
+            out.append(
+                record(
+                    "so3",
+                    f"singular block, λ = {lam:g}",
+                    dtype,
+                    {"B": B},
+                    values=values,
+                    failure=failure,
+                    exists=lam > 0,
+                )
+            )
     return out
 
 
@@ -614,8 +846,9 @@ def noise(quick: bool) -> dict:
                 def error(lam):
                     with warnings.catch_warnings():
                         warnings.simplefilter("ignore")
-                        r = bs.evolve(table, s_from, s_to, method=NOISE_GRID, regularisation=float(lam), check=False,
-                                      tol=1e-4)
+                        r = bs.evolve(
+                            table, s_from, s_to, method=NOISE_GRID, regularisation=float(lam), check=False, tol=1e-4
+                        )
                         return float(np.linalg.norm(np.asarray(r.density(u)) - truth) / np.linalg.norm(truth))
 
                 errors = [error(lam) for lam in fixed]
@@ -625,23 +858,45 @@ def noise(quick: bool) -> dict:
                     lam, _ = _regularise.choose(table, s_from, s_to, rule, sigma if rule == "discrepancy" else None)
                     e = error(lam)
                     rules[rule] = {"lambda": lam, "error": e, "ratio_to_best_fixed": e / errors[best]}
-                runs.append({"case": name, "counts_at_peak": count, "relative_noise_at_peak": 1 / math.sqrt(count),
-                             "seed": seed, "fixed_lambda": fixed, "fixed_error": errors,
-                             "best_fixed_lambda": fixed[best], "best_fixed_error": errors[best], "rules": rules})
+                runs.append(
+                    {
+                        "case": name,
+                        "counts_at_peak": count,
+                        "relative_noise_at_peak": 1 / math.sqrt(count),
+                        "seed": seed,
+                        "fixed_lambda": fixed,
+                        "fixed_error": errors,
+                        "best_fixed_lambda": fixed[best],
+                        "best_fixed_error": errors[best],
+                        "rules": rules,
+                    }
+                )
     summary = {}
     for rule in _regularise.RULES:
         ratios = [r["rules"][rule]["ratio_to_best_fixed"] for r in runs]
-        summary[rule] = {"max_ratio": max(ratios), "median_ratio": float(np.median(ratios)),
-                         "runs_within_2": sum(x <= 2 for x in ratios), "runs": len(ratios)}
+        summary[rule] = {
+            "max_ratio": max(ratios),
+            "median_ratio": float(np.median(ratios)),
+            "runs_within_2": sum(x <= 2 for x in ratios),
+            "runs": len(ratios),
+        }
     default = _regularise.DEFAULT_RULE
-    return {"nodes": nodes, "extent": extent, "grid": {"size": NOISE_GRID.size, "extent": float(NOISE_GRID.extent)},
-            "noise_model": "Poisson counts, `counts_at_peak` at the peak (relative noise 1/√counts there)",
-            "error": "relative L2 on the 65² nodes against the true fine lobe", "default_rule": default,
-            "target": "auto λ within a factor 2 of the best fixed λ in hindsight",
-            "target_met": summary[default]["max_ratio"] <= 2, "summary": summary, "runs": runs}
+    return {
+        "nodes": nodes,
+        "extent": extent,
+        "grid": {"size": NOISE_GRID.size, "extent": float(NOISE_GRID.extent)},
+        "noise_model": "Poisson counts, `counts_at_peak` at the peak (relative noise 1/√counts there)",
+        "error": "relative L2 on the 65² nodes against the true fine lobe",
+        "default_rule": default,
+        "target": "auto λ within a factor 2 of the best fixed λ in hindsight",
+        "target_met": summary[default]["max_ratio"] <= 2,
+        "summary": summary,
+        "runs": runs,
+    }
 
 
 # -- summary ----------------------------------------------------------------------------------
+
 
 def jsonable(x):
     """Nested dicts/lists with NumPy scalars as Python numbers (JSON has no float32); NaN and
@@ -663,8 +918,22 @@ def summarise(records: list) -> dict:
     by = {}
     for r in records:
         key = f"{r['kind']} | {r['path']} | {r['dtype']}"
-        s = by.setdefault(key, {"kind": r["kind"], "path": r["path"], "dtype": r["dtype"], "tried": 0, "good": 0,
-                                "limit": 0, "bad": 0, "nan": 0, "inf": 0, "max_error": None, "failing": []})
+        s = by.setdefault(
+            key,
+            {
+                "kind": r["kind"],
+                "path": r["path"],
+                "dtype": r["dtype"],
+                "tried": 0,
+                "good": 0,
+                "limit": 0,
+                "bad": 0,
+                "nan": 0,
+                "inf": 0,
+                "max_error": None,
+                "failing": [],
+            },
+        )
         s["tried"] += 1
         s["nan"] += r["nan"]
         s["inf"] += r["inf"]
@@ -678,15 +947,28 @@ def summarise(records: list) -> dict:
             s["failing"].append({"params": r["params"], "status": r["status"], "error": r["error"]})
         if r["error"] is not None and r["status"] == "accurate":
             s["max_error"] = r["error"] if s["max_error"] is None else max(s["max_error"], r["error"])
-    totals = {"tried": len(records), "good": sum(r["status"] in GOOD for r in records),
-              "limit": sum(r["status"] == "limit" for r in records), "bad": sum(r["status"] in BAD for r in records),
-              "nan": sum(r["nan"] for r in records), "inf": sum(r["inf"] for r in records),
-              "nonfinite_on_valid_input": sum(r["status"] == "nonfinite" for r in records)}
+    totals = {
+        "tried": len(records),
+        "good": sum(r["status"] in GOOD for r in records),
+        "limit": sum(r["status"] == "limit" for r in records),
+        "bad": sum(r["status"] in BAD for r in records),
+        "nan": sum(r["nan"] for r in records),
+        "inf": sum(r["inf"] for r in records),
+        "nonfinite_on_valid_input": sum(r["status"] == "nonfinite" for r in records),
+    }
     return {"by_path": list(by.values()), "totals": totals}
 
 
-STUDIES = {"roughness": roughness, "scale_ratio": scale_ratio, "incidence": incidence, "disk": disk,
-           "heavy_tails": heavy_tails, "plus": plus_transforms, "wigner": wigner, "so3": so3_blocks}
+STUDIES = {
+    "roughness": roughness,
+    "scale_ratio": scale_ratio,
+    "incidence": incidence,
+    "disk": disk,
+    "heavy_tails": heavy_tails,
+    "plus": plus_transforms,
+    "wigner": wigner,
+    "so3": so3_blocks,
+}
 
 
 def run(*, quick: bool = False, kinds=KINDS, out=None) -> dict:
@@ -699,10 +981,16 @@ def run(*, quick: bool = False, kinds=KINDS, out=None) -> dict:
         records += STUDIES[kind](quick)
         timings[kind] = time.perf_counter() - started
         print(f"{kind}: {timings[kind]:.0f} s", file=sys.stderr)
-    payload = {"study": "stability sweep and automatic regularisation", "quick": quick, "kinds": list(kinds),
-               "statuses": {"good": list(GOOD), "limit": ["limit"], "bad": list(BAD)},
-               "float32_target": FLOAT32_TARGET, "evolve_tol": EVOLVE_TOL, "summary": summarise(records),
-               "records": records}
+    payload = {
+        "study": "stability sweep and automatic regularisation",
+        "quick": quick,
+        "kinds": list(kinds),
+        "statuses": {"good": list(GOOD), "limit": ["limit"], "bad": list(BAD)},
+        "float32_target": FLOAT32_TARGET,
+        "evolve_tol": EVOLVE_TOL,
+        "summary": summarise(records),
+        "records": records,
+    }
     if "noise" in kinds:
         started = time.perf_counter()
         payload["noise"] = noise(quick)
@@ -716,6 +1004,7 @@ def run(*, quick: bool = False, kinds=KINDS, out=None) -> dict:
 
 # -- figures (from the payload alone: tests redraw them from the committed JSON) ---------------
 
+
 def plot(payload: dict, directory: Path) -> list:
     import matplotlib
 
@@ -723,14 +1012,21 @@ def plot(payload: dict, directory: Path) -> list:
     import matplotlib.pyplot as plt
 
     written = []
-    sweeps = [("roughness", "alpha", "roughness α"), ("scale_ratio", "ratio", "α_to / α_from"),
-              ("incidence", "theta_i_deg", "θ_i (degrees)"), ("plus", "z", "z = |W| x0"),
-              ("wigner", "J", "J"), ("so3", "condition", "condition of Q̃(μ)")]
+    sweeps = [
+        ("roughness", "alpha", "roughness α"),
+        ("scale_ratio", "ratio", "α_to / α_from"),
+        ("incidence", "theta_i_deg", "θ_i (degrees)"),
+        ("plus", "z", "z = |W| x0"),
+        ("wigner", "J", "J"),
+        ("so3", "condition", "condition of Q̃(μ)"),
+    ]
     present = [s for s in sweeps if any(r["kind"] == s[0] and r["error"] is not None for r in payload["records"])]
     if present:
         fig, axes = plt.subplots(1, len(present), figsize=(4.2 * len(present), 3.6), squeeze=False)
         for ax, (kind, key, label) in zip(axes[0], present):
-            rows = [r for r in payload["records"] if r["kind"] == kind and r["error"] is not None and key in r["params"]]
+            rows = [
+                r for r in payload["records"] if r["kind"] == kind and r["error"] is not None and key in r["params"]
+            ]
             paths = sorted({(r["path"], r["dtype"]) for r in rows})
             for j, (path, dtype) in enumerate(paths):
                 worst = {}  # the largest error at each value of the swept parameter
@@ -740,8 +1036,14 @@ def plot(payload: dict, directory: Path) -> list:
                         x = x if kind == "incidence" else math.log10(x)  # ranges to 1e300: plot the exponent
                         worst[x] = max(worst.get(x, 0.0), max(r["error"], 1e-17))
                 pts = sorted(worst.items())
-                ax.plot(*zip(*pts), "o-" if dtype == "float64" else "s--", ms=3, lw=0.8, color=f"C{j % 10}",
-                        label=f"{path} ({dtype})")
+                ax.plot(
+                    *zip(*pts),
+                    "o-" if dtype == "float64" else "s--",
+                    ms=3,
+                    lw=0.8,
+                    color=f"C{j % 10}",
+                    label=f"{path} ({dtype})",
+                )
             ax.set_yscale("log")
             ax.set_xlabel(label if kind == "incidence" else f"log₁₀ {label}")
             ax.set_title(kind)

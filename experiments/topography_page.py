@@ -23,6 +23,7 @@ import re
 import sys
 from pathlib import Path
 
+
 ROOT = Path(__file__).resolve().parent.parent
 PAGE = ROOT / "docs" / "topography.md"
 FIGURES = ROOT / "experiments" / "results" / "topography_page"

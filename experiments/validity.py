@@ -32,12 +32,14 @@ from pathlib import Path
 
 import jax
 
+
 jax.config.update("jax_enable_x64", True)
 
 import numpy as np
 
 from brdfscale import geometry, stats, synth
 from experiments._studies import pixel_slopes, progress, save_figure, study_dir, write_results
+
 
 CORRELATION_PX = 8.0
 HIST_BINS = 48
@@ -50,8 +52,12 @@ def bilinear(heights: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     fx, fy = x - x0, y - y0
     i0, j0 = x0.astype(np.int64) % n, y0.astype(np.int64) % n
     i1, j1 = (i0 + 1) % n, (j0 + 1) % n
-    return (heights[j0, i0] * (1 - fx) * (1 - fy) + heights[j0, i1] * fx * (1 - fy)
-            + heights[j1, i0] * (1 - fx) * fy + heights[j1, i1] * fx * fy)
+    return (
+        heights[j0, i0] * (1 - fx) * (1 - fy)
+        + heights[j0, i1] * fx * (1 - fy)
+        + heights[j1, i0] * (1 - fx) * fy
+        + heights[j1, i1] * fx * fy
+    )
 
 
 def escapes(heights: np.ndarray, x, y, z, d: np.ndarray) -> np.ndarray:
@@ -88,8 +94,12 @@ def reflected_flux(heights: np.ndarray, incident: np.ndarray) -> dict:
     o_safe = np.where(up[:, None], o, np.array([0.0, 0.0, 1.0]))
     model = np.where(
         up,
-        np.asarray(geometry.microfacet_factor(i, o_safe)) * o[:, 2] * 4 * np.sum(n * o_safe, -1)
-        * np.asarray(geometry.solid_angle_per_slope_area(m)) / incident[2],
+        np.asarray(geometry.microfacet_factor(i, o_safe))
+        * o[:, 2]
+        * 4
+        * np.sum(n * o_safe, -1)
+        * np.asarray(geometry.solid_angle_per_slope_area(m))
+        / incident[2],
         0.0,
     )
     size = heights.shape[0]
@@ -134,14 +144,17 @@ def run(*, size: int, rms_slopes: list[float], angles_deg: list[float], seed: in
             t = np.radians(theta)
             incident = np.array([np.sin(t), 0.0, np.cos(t)])
             flux = reflected_flux(heights, incident)
-            records.append({"rms_slope_per_axis": sigma, "theta_i_deg": theta,
-                             **compare(flux, 4 * sigma * np.sqrt(2))})
+            records.append({"rms_slope_per_axis": sigma, "theta_i_deg": theta, **compare(flux, 4 * sigma * np.sqrt(2))})
     payload = {
         "study": "validity of the nearly-flat approximation",
-        "size": size, "seed": seed, "correlation_length_px": CORRELATION_PX,
-        "rms_slopes_per_axis": rms_slopes, "theta_i_deg": angles_deg, "hist_bins": HIST_BINS,
+        "size": size,
+        "seed": seed,
+        "correlation_length_px": CORRELATION_PX,
+        "rms_slopes_per_axis": rms_slopes,
+        "theta_i_deg": angles_deg,
+        "hist_bins": HIST_BINS,
         "masking": "shadowing and masking by ray marching over the periodic height field (1 px steps, "
-                   "bilinear heights); multiple scattering not followed",
+        "bilinear heights); multiple scattering not followed",
         "records": records,
     }
     write_results(directory, "validity", payload)
@@ -162,8 +175,9 @@ def plot(payload: dict, path: Path) -> None:
         axes[0].plot(s, [r["error_vs_brute"] for r in rows], "o-", color=f"C{k}", label=f"θi = {theta:g}°")
         axes[1].plot(s, [r["error_vs_brute_masked"] for r in rows], "o-", color=f"C{k}")
         axes[2].plot(s, [r["albedo_ratio_vs_brute_masked"] for r in rows], "o-", color=f"C{k}")
-    for ax, title in zip(axes, ("lobe error, no masking", "lobe error, with shadowing/masking",
-                                "albedo model / brute (masked)")):
+    for ax, title in zip(
+        axes, ("lobe error, no masking", "lobe error, with shadowing/masking", "albedo model / brute (masked)")
+    ):
         ax.set_xscale("log")
         ax.set_xlabel("rms slope per axis")
         ax.set_title(title)
@@ -180,8 +194,13 @@ def main():
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default=None, help="output folder (default experiments/results/validity)")
     args = parser.parse_args()
-    run(size=args.size, rms_slopes=[0.01, 0.03, 0.1, 0.2, 0.35, 0.5], angles_deg=[0.0, 30.0, 60.0, 75.0, 85.0],
-        seed=args.seed, out=args.out)
+    run(
+        size=args.size,
+        rms_slopes=[0.01, 0.03, 0.1, 0.2, 0.35, 0.5],
+        angles_deg=[0.0, 30.0, 60.0, 75.0, 85.0],
+        seed=args.seed,
+        out=args.out,
+    )
 
 
 if __name__ == "__main__":

@@ -36,7 +36,7 @@ installed as ``brdfscale.fitting`` (pyproject's ``package-dir``), so no top-leve
 named ``fitting`` is installed and a local ``fitting.py`` cannot take its place.
 """
 
-from ._batch import COMPILE_ROWS, BatchPlan, explain_plan, fit_many
+from ._batch import BatchPlan, COMPILE_ROWS, explain_plan, fit_many
 from ._data import Dataset, PointData
 from ._derived import RATIO_FREQUENCIES, ratio_frequencies
 from ._fit import fit
@@ -54,10 +54,11 @@ from ._report import (
     write_report,
 )
 from ._result import FitResult
-from ._sample import HMC, NUTS, SAMPLERS, Emcee, SampleResult, log_posterior, sample
+from ._sample import Emcee, HMC, log_posterior, NUTS, sample, SampleResult, SAMPLERS
 from ._sample_many import sample_many
 from ._simulate import simulate
 from ._solve import SOLVERS
+
 
 __all__ = [
     "COMPILE_ROWS",

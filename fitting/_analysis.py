@@ -41,7 +41,8 @@ from ._derived import (
 )
 from ._problem import stack_trees
 from ._result import FitResult
-from ._solve import RESULT_NAMES, result_name, solver_name
+from ._solve import result_name, RESULT_NAMES, solver_name
+
 
 __all__ = ["result_of_starts", "results_of_starts"]
 
@@ -90,19 +91,26 @@ class _Analysis:
         ok = (codes == RESULT_NAMES.index("successful")) & np.isfinite(chi2s)
         pool = np.flatnonzero(ok) if ok.any() else np.flatnonzero(np.isfinite(chi2s))
         if pool.size == 0:
-            raise InvalidInputError("every start produced a non-finite χ²; check the data (σ, masks) and the model choice.")
+            raise InvalidInputError(
+                "every start produced a non-finite χ²; check the data (σ, masks) and the model choice."
+            )
         best = int(pool[np.argmin(chi2s[pool])])
         self.problem, self.options, self.chi2 = problem, options, float(chi2s[best])
         self.theta = theta = np.asarray(values[best])
         self.start_info = [
-            {"chi2": float(c), "result": result_name(int(k)), "steps": int(s),
-             "at_best": bool(np.isfinite(c) and abs(c - chi2s[best]) <= 1e-6 * max(1.0, chi2s[best]))}
+            {
+                "chi2": float(c),
+                "result": result_name(int(k)),
+                "steps": int(s),
+                "at_best": bool(np.isfinite(c) and abs(c - chi2s[best]) <= 1e-6 * max(1.0, chi2s[best])),
+            }
             for c, k, s in zip(chi2s, codes, steps)
         ]
         self.status = "converged" if ok[best] else result_name(int(codes[best]))
         lo, hi = np.asarray(problem.lower), np.asarray(problem.upper)
-        self.at_bounds = [n for n, t, a, b in zip(model.names, theta, lo, hi)
-                          if t <= a + 1e-6 * (b - a) or t >= b - 1e-6 * (b - a)]
+        self.at_bounds = [
+            n for n, t, a, b in zip(model.names, theta, lo, hi) if t <= a + 1e-6 * (b - a) or t >= b - 1e-6 * (b - a)
+        ]
         # brdfscale.laplace: the one policy
         self.analysis = laplace(np.asarray(jacobians[best]), model.names, undetermined_std=options.undetermined_std)
         # quantities: Laplace draws along the determined directions only (module docstring); a
@@ -128,20 +136,44 @@ class _Analysis:
         estimates, std, quantiles = _summaries(analysis, names_of_quantities, q_hat, grads, q_draws)
         W, scales = self.W, np.asarray(data.scales)
         r_est, r_std, r_q = _summaries(analysis, ratio_names(data, W), r_hat, r_grads, r_draws)
-        ratios = {name: {"estimate": r_est[name], "std": r_std[name], "quantiles_5_50_95": r_q[name],
-                         "mu0": float(scales[0]), "mu": float(scales[1 + i // len(W)]),
-                         "W": float(W[i % len(W)])}
-                  for i, name in enumerate(r_est)}
+        ratios = {
+            name: {
+                "estimate": r_est[name],
+                "std": r_std[name],
+                "quantiles_5_50_95": r_q[name],
+                "mu0": float(scales[0]),
+                "mu": float(scales[1 + i // len(W)]),
+                "W": float(W[i % len(W)]),
+            }
+            for i, name in enumerate(r_est)
+        }
         keep = ~analysis.undetermined_mask
-        combinations = [{"combination": combination(analysis.eigenvectors[:, i], names),
-                         "value": float(_signed(analysis.eigenvectors[:, i]) @ self.theta),
-                         "std": float(1 / np.sqrt(analysis.eigenvalues[i]))}
-                        for i in np.flatnonzero(keep)[::-1]]
+        combinations = [
+            {
+                "combination": combination(analysis.eigenvectors[:, i], names),
+                "value": float(_signed(analysis.eigenvectors[:, i]) @ self.theta),
+                "std": float(1 / np.sqrt(analysis.eigenvalues[i])),
+            }
+            for i in np.flatnonzero(keep)[::-1]
+        ]
         return FitResult(
-            names=names, theta=self.theta, covariance=analysis.covariance, chi2=self.chi2, n_data=data.n_data,
-            status=self.status, starts=self.start_info, estimates=estimates, std=std, quantiles=quantiles,
-            eigenvalues=analysis.eigenvalues, undetermined=analysis.undetermined, notes=list(model.identifiability_notes),
-            solver=solver_name(self.options.solver), at_bounds=self.at_bounds, eigenvectors=analysis.eigenvectors, ratios=ratios,
+            names=names,
+            theta=self.theta,
+            covariance=analysis.covariance,
+            chi2=self.chi2,
+            n_data=data.n_data,
+            status=self.status,
+            starts=self.start_info,
+            estimates=estimates,
+            std=std,
+            quantiles=quantiles,
+            eigenvalues=analysis.eigenvalues,
+            undetermined=analysis.undetermined,
+            notes=list(model.identifiability_notes),
+            solver=solver_name(self.options.solver),
+            at_bounds=self.at_bounds,
+            eigenvectors=analysis.eigenvectors,
+            ratios=ratios,
             combinations=combinations,
         )
 

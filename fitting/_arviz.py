@@ -28,10 +28,15 @@ walkers as chains. ``arviz.summary`` of the data gives the figures of
 from brdfscale import MissingDependencyError
 from brdfscale.files import json_text
 
+
 __all__ = ["arviz", "to_arviz"]
 
-_STAT_NAMES = {"acceptance_rate": "acceptance_rate", "divergent": "diverging", "integration_steps": "n_steps",
-               "step_size": "step_size"}
+_STAT_NAMES = {
+    "acceptance_rate": "acceptance_rate",
+    "divergent": "diverging",
+    "integration_steps": "n_steps",
+    "step_size": "step_size",
+}
 
 
 def arviz():
@@ -40,9 +45,10 @@ def arviz():
         import arviz as az
     except ImportError as err:
         raise MissingDependencyError(
-            "SampleResult.to_arviz needs ArviZ, the optional extra brdfscale[mcmc]: pip install \"brdfscale[mcmc]\" "
+            'SampleResult.to_arviz needs ArviZ, the optional extra brdfscale[mcmc]: pip install "brdfscale[mcmc]" '
             "(the diagnostics of SampleResult.summary() and its status need no ArviZ); the import failed: "
-            f"{err}") from None
+            f"{err}"
+        ) from None
     return az
 
 
@@ -64,10 +70,15 @@ def to_arviz(result):
     az = arviz()
     burn = result.burn
     posterior, stats = _groups(result, slice(burn, None))
-    attrs = {"sampler": result.sampler, "sampler_settings": json_text(result.settings, other=str, sort_keys=True),
-             "independent_chains": int(result.chains), "walkers_per_chain": int(result.walkers),
-             "burn_in": int(burn), "prior": result.prior,
-             "sampling_coordinates": result.coordinates}  # not "coordinates": CF conventions reserve it
+    attrs = {
+        "sampler": result.sampler,
+        "sampler_settings": json_text(result.settings, other=str, sort_keys=True),
+        "independent_chains": int(result.chains),
+        "walkers_per_chain": int(result.walkers),
+        "burn_in": int(burn),
+        "prior": result.prior,
+        "sampling_coordinates": result.coordinates,
+    }  # not "coordinates": CF conventions reserve it
     extra = {}
     if burn > 0:
         warm_posterior, warm_stats = _groups(result, slice(0, burn))

@@ -58,14 +58,15 @@ from brdfscale.show import progress_bar
 
 from ._analysis import results_of_starts
 from ._data import Dataset, PointData
-from ._devices import device_list as _devices
-from ._devices import joined, on_devices, split
+from ._devices import device_list as _devices, joined, on_devices, split
 from ._fit import FitOptions
 from ._model import AbstractModel
-from ._problem import Problem, Rows, check_pair, stack_trees, starting_points
+from ._problem import check_pair, Problem, Rows, stack_trees, starting_points
 from ._solve import solve_rows
 
+
 __all__ = ["COMPILE_ROWS", "BatchPlan", "bucket_points", "explain_plan", "fit_many"]
+
 
 def _rung(n: int, smallest: int) -> int:
     """The smallest of ``smallest·2^k`` and ``smallest·3·2^(k−1)`` (k ≥ 0; the rungs 1, 1.5, 2, 3, 4,
@@ -126,15 +127,26 @@ class BatchPlan:
         return 1.0 - self.rows_used / self.rows_padded if self.rows_padded else 0.0
 
     def explain(self) -> str:
-        lines = [(f"{sum(len(b.materials) for b in self.buckets)} materials in {len(self.buckets)} bucket(s) on "
-                  f"{self.devices} device(s), {self.starts} start(s) each; padding {100 * self.padding:.0f} % of the rows")]
+        lines = [
+            (
+                f"{sum(len(b.materials) for b in self.buckets)} materials in {len(self.buckets)} bucket(s) on "
+                f"{self.devices} device(s), {self.starts} start(s) each; padding {100 * self.padding:.0f} % of the rows"
+            )
+        ]
         for b in self.buckets:
             per_device = b.solves // self.devices
-            how = ("all in lock-step (vmapped)" if b.lanes >= per_device else
-                   "one solve at a time" if b.lanes == 1 else f"{b.lanes} at a time")
-            lines.append(f"  {len(b.materials)} × ({b.scales} scales × {b.points} points, {b.parameters} "
-                         f"parameters): a program of {b.solves} solves ({b.batch} materials × {self.starts} starts)"
-                         f", {per_device} per device, {how}")
+            how = (
+                "all in lock-step (vmapped)"
+                if b.lanes >= per_device
+                else "one solve at a time"
+                if b.lanes == 1
+                else f"{b.lanes} at a time"
+            )
+            lines.append(
+                f"  {len(b.materials)} × ({b.scales} scales × {b.points} points, {b.parameters} "
+                f"parameters): a program of {b.solves} solves ({b.batch} materials × {self.starts} starts)"
+                f", {per_device} per device, {how}"
+            )
         return "\n".join(lines)
 
 
@@ -143,17 +155,26 @@ def _key(rows: Rows, n_points: int) -> tuple:
     # static fields), the dynamic leaves' shapes, the number of scales, the θ size, the padded points
     dynamic, static = eqx.partition(rows.model, eqx.is_array)
     shapes = tuple((x.shape, str(x.dtype)) for x in jax.tree.leaves(dynamic))
-    return (jax.tree.structure(static), jax.tree.structure(dynamic), shapes, int(rows.scales.shape[0]),
-            int(rows.lower.shape[0]), int(rows.model.penalty(rows.lower).shape[0]), bucket_points(n_points))
+    return (
+        jax.tree.structure(static),
+        jax.tree.structure(dynamic),
+        shapes,
+        int(rows.scales.shape[0]),
+        int(rows.lower.shape[0]),
+        int(rows.model.penalty(rows.lower).shape[0]),
+        bucket_points(n_points),
+    )
 
 
 def _pad_points(points: PointData, n: int) -> PointData:
     extra = n - points.mean.shape[1]
     # NumPy: an eager jnp.pad would compile a program for every material's shape
-    return PointData(points=np.pad(np.asarray(points.points), ((0, 0), (0, extra), (0, 0))),
-                     mean=np.pad(np.asarray(points.mean), ((0, 0), (0, extra))),
-                     weight=np.pad(np.asarray(points.weight), ((0, 0), (0, extra))),
-                     chi2_offset=points.chi2_offset)
+    return PointData(
+        points=np.pad(np.asarray(points.points), ((0, 0), (0, extra), (0, 0))),
+        mean=np.pad(np.asarray(points.mean), ((0, 0), (0, extra))),
+        weight=np.pad(np.asarray(points.weight), ((0, 0), (0, extra))),
+        chi2_offset=points.chi2_offset,
+    )
 
 
 @eqx.filter_jit
@@ -163,14 +184,16 @@ def _solve_batch(rows, y0, solver, max_steps, lanes):
     start) of the batch. ``lanes`` ≥ the axis: one ``jax.vmap`` of the solve (all in lock-step);
     fewer: a ``jax.lax.map`` over groups of ``lanes`` (each group vmapped; ``lanes == 1``: each
     solve by itself, its own iterations) — the axis is a whole number of groups (:func:`plan`)."""
+
     def one(r, y):
         return solve_rows(r, y, solver, max_steps)
 
     if lanes >= y0.shape[0]:
         return jax.vmap(one)(rows, y0)
     arrays, static = eqx.partition(rows, eqx.is_array)  # lax.map carries arrays only
-    return jax.lax.map(lambda a: one(eqx.combine(a[0], static), a[1]), (arrays, y0),
-                       batch_size=None if lanes == 1 else lanes)
+    return jax.lax.map(
+        lambda a: one(eqx.combine(a[0], static), a[1]), (arrays, y0), batch_size=None if lanes == 1 else lanes
+    )
 
 
 def select_lanes(devices, lanes=None) -> int:
@@ -188,19 +211,23 @@ def select_lanes(devices, lanes=None) -> int:
     try:
         return integer(lanes, "lanes", 1)
     except InvalidInputError:
-        raise InvalidInputError(f"lanes must be None (by platform: 1 on CPUs, all on accelerators), an integer ≥ 1 "
-                                f"or 'all'; got {lanes!r}.") from None
+        raise InvalidInputError(
+            f"lanes must be None (by platform: 1 on CPUs, all on accelerators), an integer ≥ 1 or 'all'; got {lanes!r}."
+        ) from None
 
 
 def _problems(models, datasets) -> list:
     """The :class:`Problem` of every (model, dataset) pair; InvalidInputError naming the material."""
     if isinstance(datasets, Dataset):
-        raise InvalidInputError("fit_many(models, datasets) takes a sequence of datasets; for one dataset use "
-                                "fitting.fit(model, data).")
+        raise InvalidInputError(
+            "fit_many(models, datasets) takes a sequence of datasets; for one dataset use fitting.fit(model, data)."
+        )
     try:
         datasets = list(datasets)
     except TypeError:
-        raise InvalidInputError(f"datasets must be a sequence of fitting.Dataset; got {type(datasets).__name__}.") from None
+        raise InvalidInputError(
+            f"datasets must be a sequence of fitting.Dataset; got {type(datasets).__name__}."
+        ) from None
     if not datasets:
         raise InvalidInputError("fit_many needs at least one dataset.")
     if isinstance(models, AbstractModel):
@@ -209,11 +236,15 @@ def _problems(models, datasets) -> list:
         try:
             models = list(models)
         except TypeError:
-            raise InvalidInputError("models must be one fitting model (used for every dataset) or a sequence of "
-                                    f"models, one per dataset; got {type(models).__name__}.") from None
+            raise InvalidInputError(
+                "models must be one fitting model (used for every dataset) or a sequence of "
+                f"models, one per dataset; got {type(models).__name__}."
+            ) from None
         if len(models) != len(datasets):
-            raise InvalidInputError(f"models and datasets must pair up: got {len(models)} models for "
-                                    f"{len(datasets)} datasets (or pass one model for all).")
+            raise InvalidInputError(
+                f"models and datasets must pair up: got {len(models)} models for "
+                f"{len(datasets)} datasets (or pass one model for all)."
+            )
     problems = []
     for i, (model, data) in enumerate(zip(models, datasets)):
         check_pair(model, data, f"fit_many: material {i}")
@@ -233,8 +264,9 @@ def _problems(models, datasets) -> list:
 COMPILE_ROWS = 400_000
 
 
-def plan(problems, starts: int, batch: int, n_devices: int, compile_rows: int = COMPILE_ROWS,
-         lanes: int = 1) -> BatchPlan:
+def plan(
+    problems, starts: int, batch: int, n_devices: int, compile_rows: int = COMPILE_ROWS, lanes: int = 1
+) -> BatchPlan:
     """The buckets of :func:`fit_many` for these problems (module docstring, step 2).
 
     Materials of one structure are first grouped by their rung of points per scale
@@ -272,13 +304,22 @@ def plan(problems, starts: int, batch: int, n_devices: int, compile_rows: int = 
             members = [m for r in rungs[i:j] for m in by_rung[r]]
             points = rungs[j - 1]
             for k in range(0, len(members), batch):
-                chunk = members[k:k + batch]
+                chunk = members[k : k + batch]
                 size = bucket_batch(len(chunk), batch)
                 per_device = -(-size * starts // n_devices)
                 group = min(lanes, per_device)
                 solves = -(-per_device // group) * group * n_devices
-                buckets.append(Bucket(materials=tuple(chunk), points=points, scales=scales, parameters=key[4],
-                                      batch=size, solves=solves, lanes=group))
+                buckets.append(
+                    Bucket(
+                        materials=tuple(chunk),
+                        points=points,
+                        scales=scales,
+                        parameters=key[4],
+                        batch=size,
+                        solves=solves,
+                        lanes=group,
+                    )
+                )
                 padded += solves * points * scales
     return BatchPlan(buckets=tuple(buckets), devices=n_devices, starts=starts, rows_used=used, rows_padded=padded)
 
@@ -340,14 +381,28 @@ def fit_many(
             ``"raise"``/``"return"``.
     """
     problems = _problems(models, datasets)
-    options = FitOptions(solver=solver, starts=starts, max_steps=max_steps, spread=spread, seed=seed, rtol=rtol,
-                         atol=atol, undetermined_std=undetermined_std)
+    options = FitOptions(
+        solver=solver,
+        starts=starts,
+        max_steps=max_steps,
+        spread=spread,
+        seed=seed,
+        rtol=rtol,
+        atol=atol,
+        undetermined_std=undetermined_std,
+    )
     batch = integer(batch, "batch", 1)
     if errors not in ("raise", "return"):
         raise InvalidInputError(f"errors must be 'raise' or 'return'; got {errors!r}.")
     device_list = _devices(devices)
-    layout = plan(problems, options.starts, batch, len(device_list), integer(compile_rows, "compile_rows", 0),
-                  select_lanes(device_list, lanes))
+    layout = plan(
+        problems,
+        options.starts,
+        batch,
+        len(device_list),
+        integer(compile_rows, "compile_rows", 0),
+        select_lanes(device_list, lanes),
+    )
     optimiser = options.optimiser()
     results: list = [None] * len(problems)
     S = options.starts
@@ -364,12 +419,19 @@ def fit_many(
             flat_rows += [flat_rows[0]] * extra
             flat_y0 += [flat_y0[0]] * extra
             # _solve_batch looked up at each call (tests/test_batch.py records the devices it runs on)
-            solved = joined(on_devices(lambda r, y, lanes=bucket.lanes: _solve_batch(r, y, optimiser,
-                                                                                         options.max_steps, lanes),
-                                       (split(stack_trees(flat_rows), device_list),
-                                        split(np.stack(flat_y0).astype(np.float64), device_list)), device_list))
+            solved = joined(
+                on_devices(
+                    lambda r, y, lanes=bucket.lanes: _solve_batch(r, y, optimiser, options.max_steps, lanes),
+                    (
+                        split(stack_trees(flat_rows), device_list),
+                        split(np.stack(flat_y0).astype(np.float64), device_list),
+                    ),
+                    device_list,
+                )
+            )
             values, codes, steps, chi2s, jacobians = (  # (material, start, …), the padding dropped
-                a[:len(members) * S].reshape(len(members), S, *a.shape[1:]) for a in solved)
+                a[: len(members) * S].reshape(len(members), S, *a.shape[1:]) for a in solved
+            )
             done = results_of_starts([problems[i] for i in members], values, codes, steps, chi2s, jacobians, options)
             for i, result in zip(members, done):
                 if isinstance(result, InvalidInputError) and errors == "raise":
@@ -379,10 +441,24 @@ def fit_many(
     return results
 
 
-def explain_plan(models, datasets, *, batch: int = 64, devices=None, starts: int = FIT.starts,
-                 compile_rows: int = COMPILE_ROWS, lanes: int | None = None) -> BatchPlan:
+def explain_plan(
+    models,
+    datasets,
+    *,
+    batch: int = 64,
+    devices=None,
+    starts: int = FIT.starts,
+    compile_rows: int = COMPILE_ROWS,
+    lanes: int | None = None,
+) -> BatchPlan:
     """The :class:`BatchPlan` :func:`fit_many` would follow for these arguments (nothing is
     fitted); ``plan.explain()`` says it in words."""
     device_list = _devices(devices)
-    return plan(_problems(models, datasets), integer(starts, "starts", 1), integer(batch, "batch", 1),
-                len(device_list), integer(compile_rows, "compile_rows", 0), select_lanes(device_list, lanes))
+    return plan(
+        _problems(models, datasets),
+        integer(starts, "starts", 1),
+        integer(batch, "batch", 1),
+        len(device_list),
+        integer(compile_rows, "compile_rows", 0),
+        select_lanes(device_list, lanes),
+    )

@@ -34,6 +34,7 @@ import numpy as np
 from brdfscale import InvalidInputError, MeasurementFileError
 from brdfscale.files import atomic_write
 
+
 __all__ = ["FORMAT", "Checkpoint", "Stored"]
 
 FORMAT = "brdfscale.fitting.sample/2"
@@ -70,12 +71,15 @@ class Checkpoint:
         self.path, self.walkers, self.d, self.chunk, self.m = os.fspath(path), walkers, d, chunk, m
         self.signature, self.stats = json.dumps(signature, sort_keys=True), dict(stats)
         if os.path.isdir(self.path):
-            raise MeasurementFileError(f"checkpoint {self.path} is a directory; expected the path of {_EXPECTED} "
-                                       "(e.g. DIR/chain.h5).")
+            raise MeasurementFileError(
+                f"checkpoint {self.path} is a directory; expected the path of {_EXPECTED} (e.g. DIR/chain.h5)."
+            )
         directory = os.path.dirname(os.path.abspath(self.path))
         if not os.path.isdir(directory):
-            raise MeasurementFileError(f"checkpoint {self.path}: directory {directory} does not exist; create it "
-                                       "or choose another checkpoint path.")
+            raise MeasurementFileError(
+                f"checkpoint {self.path}: directory {directory} does not exist; create it "
+                "or choose another checkpoint path."
+            )
 
     def load(self) -> Stored | None:
         """The completed steps, or None if there is no file.
@@ -90,17 +94,22 @@ class Checkpoint:
         try:
             f = _h5py().File(self.path, "r")
         except OSError as err:
-            raise MeasurementFileError(f"checkpoint {self.path} cannot be read as {_EXPECTED} ({err}); {retry}") from None
+            raise MeasurementFileError(
+                f"checkpoint {self.path} cannot be read as {_EXPECTED} ({err}); {retry}"
+            ) from None
         with f:
             signature = f.attrs.get("signature")
             if signature is None or "steps_done" not in f.attrs or not {"chain", "log_prob"} <= set(f):
-                raise MeasurementFileError(f"{self.path} is not {_EXPECTED} (it lacks the signature, steps_done, "
-                                           f"chain or log_prob entries); {retry}")
+                raise MeasurementFileError(
+                    f"{self.path} is not {_EXPECTED} (it lacks the signature, steps_done, "
+                    f"chain or log_prob entries); {retry}"
+                )
             if f.attrs.get("format") != FORMAT:
                 raise InvalidInputError(
                     f"checkpoint {self.path} was written by an earlier version of fitting.sample (one emcee ensemble "
                     "sampled in θ, without the samplers' common layout) and cannot be continued by this one; "
-                    f"{retry}")
+                    f"{retry}"
+                )
             if signature != self.signature:
                 raise InvalidInputError(
                     f"checkpoint {self.path} belongs to a different run (its record: {signature}; this run: "
@@ -121,11 +130,15 @@ class Checkpoint:
                 raise MeasurementFileError(f"checkpoint {self.path} is damaged ({err}); {retry}") from None
         shape = (done, self.walkers, self.d)
         if chain.shape != shape or log_prob.shape != shape[:2] or any(s.shape != shape[:2] for s in stats.values()):
-            raise MeasurementFileError(f"checkpoint {self.path} is damaged (steps_done = {done}, but chain has shape "
-                                       f"{chain.shape} and log_prob {log_prob.shape}); {retry}")
+            raise MeasurementFileError(
+                f"checkpoint {self.path} is damaged (steps_done = {done}, but chain has shape "
+                f"{chain.shape} and log_prob {log_prob.shape}); {retry}"
+            )
         if subspace["origin"].shape != (self.d,) or subspace["basis"].shape != (self.d, self.m):
-            raise MeasurementFileError(f"checkpoint {self.path} is damaged (its subspace has shapes "
-                                       f"{subspace['origin'].shape}, {subspace['basis'].shape}); {retry}")
+            raise MeasurementFileError(
+                f"checkpoint {self.path} is damaged (its subspace has shapes "
+                f"{subspace['origin'].shape}, {subspace['basis'].shape}); {retry}"
+            )
         return Stored(done, chain, log_prob, stats, state, subspace)
 
     def create(self, replace: bool, subspace: dict):
@@ -159,8 +172,9 @@ class Checkpoint:
             with _h5py().File(self.path, "r+") as f:
                 done = int(f.attrs["steps_done"])
                 n = done + chain.shape[0]
-                free = next((s for s in ("state_0", "state_1")
-                             if s not in f or int(f[s].attrs["step"]) != done), "state_1")
+                free = next(
+                    (s for s in ("state_0", "state_1") if s not in f or int(f[s].attrs["step"]) != done), "state_1"
+                )
                 if free in f:
                     del f[free]
                 slot = f.create_group(free)

@@ -35,7 +35,8 @@ from jaxtyping import Array, Float
 
 from brdfscale import InvalidInputError, MeasurementSet
 from brdfscale.checks import require_float64
-from brdfscale.show import Shown, Values, concrete
+from brdfscale.show import concrete, Shown, Values
+
 
 __all__ = ["Dataset", "PointData"]
 
@@ -128,13 +129,21 @@ class Dataset(Shown, eqx.Module):
 
     def _show_items(self):
         sizes = sorted(set(self.image_sizes))
-        items = [("images", len(self.scale_of_image)), ("scales", Values(self.scales)),
-                 ("sizes", ", ".join(f"{n}×{n}" for n in sizes[:3]) + (" …" if len(sizes) > 3 else ""))]
+        items = [
+            ("images", len(self.scale_of_image)),
+            ("scales", Values(self.scales)),
+            ("sizes", ", ".join(f"{n}×{n}" for n in sizes[:3]) + (" …" if len(sizes) > 3 else "")),
+        ]
         if concrete(self.weight):  # not under jax.jit
             items.append(("valid_pixels", self.n_data))
         extents = sorted(set(self.extents))
-        shown = extents[0] if len(extents) == 1 else Values(np.asarray(extents), 3) if len(extents) <= 3 else \
-            f"{len(extents)} values from {extents[0]:.4g} to {extents[-1]:.4g}"
+        shown = (
+            extents[0]
+            if len(extents) == 1
+            else Values(np.asarray(extents), 3)
+            if len(extents) <= 3
+            else f"{len(extents)} values from {extents[0]:.4g} to {extents[-1]:.4g}"
+        )
         return items + [("extents" if len(extents) > 1 else "extent", shown)]
 
     def images_of_scale(self, k: int) -> list[int]:
@@ -168,7 +177,9 @@ class Dataset(Shown, eqx.Module):
         n = max(len(g[1]) for g in groups)
 
         def padded(i):  # zero rows up to n points (zero weight: no contribution)
-            return jnp.asarray(np.stack([np.pad(g[i], [(0, n - len(g[i]))] + [(0, 0)] * (g[i].ndim - 1)) for g in groups]))
+            return jnp.asarray(
+                np.stack([np.pad(g[i], [(0, n - len(g[i]))] + [(0, 0)] * (g[i].ndim - 1)) for g in groups])
+            )
 
         return PointData(
             points=padded(0),

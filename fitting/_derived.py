@@ -18,6 +18,7 @@ import numpy as np
 from ._data import Dataset
 from ._model import moments
 
+
 __all__ = [
     "RATIO_FREQUENCIES",
     "evaluate",
@@ -83,14 +84,21 @@ def ratio_names(data: Dataset, W) -> list[str]:
 def _evaluation(model, theta, draws, W, scales):
     """The quantities and the ratios ``S(W, μ0)/S(W, μ_k)``, k ≥ 1 (flattened), each at θ̂, their
     Jacobian there, and at every Laplace draw."""
+
     def quantities(t):
         return quantity_vector(model, t)
 
     def ratios(t):
         return model.relative_statistics(t, W, scales)[1:].ravel()
 
-    return (quantities(theta), jax.jacfwd(quantities)(theta), jax.vmap(quantities)(draws),
-            ratios(theta), jax.jacfwd(ratios)(theta), jax.vmap(ratios)(draws))
+    return (
+        quantities(theta),
+        jax.jacfwd(quantities)(theta),
+        jax.vmap(quantities)(draws),
+        ratios(theta),
+        jax.jacfwd(ratios)(theta),
+        jax.vmap(ratios)(draws),
+    )
 
 
 evaluate = eqx.filter_jit(_evaluation)

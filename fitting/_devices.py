@@ -30,6 +30,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from brdfscale import InvalidInputError
 
+
 __all__ = ["Split", "assembled", "device_list", "joined", "on_devices", "split"]
 
 
@@ -41,13 +42,16 @@ def device_list(devices) -> list:
     if isinstance(devices, int) and not isinstance(devices, bool):
         available = jax.devices()
         if not 1 <= devices <= len(available):
-            raise InvalidInputError(f"devices={devices}: this process has {len(available)} JAX device(s) "
-                                    f"({available[0].platform}); give 1 … {len(available)} or a list of devices.")
+            raise InvalidInputError(
+                f"devices={devices}: this process has {len(available)} JAX device(s) "
+                f"({available[0].platform}); give 1 … {len(available)} or a list of devices."
+            )
         return available[:devices]
     devices = list(devices) if isinstance(devices, Iterable) else []
     if not devices or not all(isinstance(d, jax.Device) for d in devices):
-        raise InvalidInputError("devices must be None (all of jax.devices()), a count, or a non-empty list of "
-                                "jax.Device objects.")
+        raise InvalidInputError(
+            "devices must be None (all of jax.devices()), a count, or a non-empty list of jax.Device objects."
+        )
     return devices
 
 

@@ -29,6 +29,7 @@ import logging
 import numpy as np
 from scipy import fft, stats
 
+
 __all__ = [
     "ESS_BULK_LIMIT",
     "R_HAT_LIMIT",
@@ -61,7 +62,7 @@ def _valid(x, min_chains: int = 1) -> bool:
 
 def _split(x) -> np.ndarray:
     half = x.shape[1] // 2
-    return np.vstack((x[:, :half], x[:, x.shape[1] - half:]))
+    return np.vstack((x[:, :half], x[:, x.shape[1] - half :]))
 
 
 def _z_scale(x) -> np.ndarray:
@@ -110,7 +111,7 @@ def ess(x) -> float:
             rho[t + 1] = rho[t + 2] = (rho[t - 1] + rho[t]) / 2.0
         t += 2
     total = n_chain * n_draw
-    tau = -1.0 + 2.0 * np.sum(rho[:max_t + 1]) + np.sum(rho[max_t + 1:max_t + 2])
+    tau = -1.0 + 2.0 * np.sum(rho[: max_t + 1]) + np.sum(rho[max_t + 1 : max_t + 2])
     tau = max(tau, 1 / np.log10(total))
     return np.nan if np.isnan(rho).any() else float(total / tau)
 
@@ -167,9 +168,15 @@ def summary_row(x) -> dict:
     """``mean``, ``sd`` (ddof 1, as ArviZ) and the diagnostics of ``STATISTICS`` for (chains, draws) draws."""
     x = _two_d(x)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return {"mean": float(np.mean(x)), "sd": float(np.std(x, ddof=1)) if x.size > 1 else np.nan,
-                "mcse_mean": mcse_mean(x), "mcse_sd": mcse_sd(x), "ess_bulk": ess_bulk(x), "ess_tail": ess_tail(x),
-                "r_hat": r_hat(x)}
+        return {
+            "mean": float(np.mean(x)),
+            "sd": float(np.std(x, ddof=1)) if x.size > 1 else np.nan,
+            "mcse_mean": mcse_mean(x),
+            "mcse_sd": mcse_sd(x),
+            "ess_bulk": ess_bulk(x),
+            "ess_tail": ess_tail(x),
+            "r_hat": r_hat(x),
+        }
 
 
 def integrated_time(chain) -> np.ndarray:

@@ -18,9 +18,10 @@ from brdfscale.choices import FIT
 from ._analysis import result_of_starts
 from ._data import Dataset
 from ._model import AbstractModel
-from ._problem import Problem, check_pair, starting_points
+from ._problem import check_pair, Problem, starting_points
 from ._result import FitResult
 from ._solve import check_solver, make_solver, solve
+
 
 __all__ = ["FitOptions", "fit"]
 
@@ -45,11 +46,16 @@ class FitOptions:
     undetermined_std: float = FIT.undetermined_std
 
     def __post_init__(self):
-        checked = {"solver": check_solver(self.solver), "starts": integer(self.starts, "starts", 1),
-                   "max_steps": integer(self.max_steps, "max_steps", 1),
-                   "spread": real(self.spread, "spread", minimum=0.0), "seed": integer(self.seed, "seed", 0),
-                   "rtol": real(self.rtol, "rtol", minimum=0.0), "atol": real(self.atol, "atol", minimum=0.0),
-                   "undetermined_std": real(self.undetermined_std, "undetermined_std", minimum=0.0, strict=True)}
+        checked = {
+            "solver": check_solver(self.solver),
+            "starts": integer(self.starts, "starts", 1),
+            "max_steps": integer(self.max_steps, "max_steps", 1),
+            "spread": real(self.spread, "spread", minimum=0.0),
+            "seed": integer(self.seed, "seed", 0),
+            "rtol": real(self.rtol, "rtol", minimum=0.0),
+            "atol": real(self.atol, "atol", minimum=0.0),
+            "undetermined_std": real(self.undetermined_std, "undetermined_std", minimum=0.0, strict=True),
+        }
         if checked["rtol"] == 0 and checked["atol"] == 0:
             raise InvalidInputError("rtol and atol must not both be 0: no step could ever meet the convergence test.")
         for name, value in checked.items():
@@ -106,8 +112,16 @@ def fit(
             every start ending with a non-finite χ².
     """
     check_pair(model, data, "fit(model, data)")
-    options = FitOptions(solver=solver, starts=starts, max_steps=max_steps, spread=spread, seed=seed, rtol=rtol,
-                         atol=atol, undetermined_std=undetermined_std)
+    options = FitOptions(
+        solver=solver,
+        starts=starts,
+        max_steps=max_steps,
+        spread=spread,
+        seed=seed,
+        rtol=rtol,
+        atol=atol,
+        undetermined_std=undetermined_std,
+    )
     problem = Problem(model, data)
     optimiser = options.optimiser()
     y0 = jnp.asarray(starting_points(problem, options), dtype=jnp.float64)

@@ -36,7 +36,9 @@ from jaxtyping import Array, Float
 
 from brdfscale import InvalidInputError, MeasurementSet
 from brdfscale.show import Shown
+
 from ._data import Dataset
+
 
 __all__ = ["AbstractModel", "require_dataset", "predict_images", "moments"]
 
@@ -102,12 +104,13 @@ class AbstractModel(Shown, eqx.Module):
         n_scales, n_pix = data.scales.shape[0], data.values.shape[1]
         groups = [data.images_of_scale(k) for k in range(n_scales)]
         n = max(len(g) for g in groups) * n_pix
-        points = jnp.stack([jnp.pad(data.offsets[jnp.asarray(g)].reshape(-1, 2), ((0, n - len(g) * n_pix), (0, 0)))
-                            for g in groups])
+        points = jnp.stack(
+            [jnp.pad(data.offsets[jnp.asarray(g)].reshape(-1, 2), ((0, n - len(g) * n_pix), (0, 0))) for g in groups]
+        )
         if self.radial:
             points = jnp.stack([jnp.linalg.norm(points, axis=-1), jnp.zeros(points.shape[:-1])], axis=-1)
         values = self.predict_points(theta, data.scales, points)
-        rows = {i: values[k, j * n_pix:(j + 1) * n_pix] for k, g in enumerate(groups) for j, i in enumerate(g)}
+        rows = {i: values[k, j * n_pix : (j + 1) * n_pix] for k, g in enumerate(groups) for j, i in enumerate(g)}
         return jnp.stack([rows[i] for i in range(len(data.scale_of_image))])
 
     @abc.abstractmethod
@@ -123,8 +126,9 @@ class AbstractModel(Shown, eqx.Module):
         """The prior support ``lo ≤ θ ≤ hi`` (a uniform prior in θ; see docs/fitting.md)."""
 
     @abc.abstractmethod
-    def relative_statistics(self, theta: Float[Array, " n"], W: Float[Array, " w"],
-                            scales: Float[Array, " k"]) -> Float[Array, "k w"]:
+    def relative_statistics(
+        self, theta: Float[Array, " n"], W: Float[Array, " w"], scales: Float[Array, " k"]
+    ) -> Float[Array, "k w"]:
         """``S(W, μ0)/S(W, μ_k)`` for every measured scale ``scales[k]`` (ascending, as
         :attr:`Dataset.scales`; row 0 is 1): the data-determined part. It takes the scales, not
         the dataset, so that one compiled program serves every dataset of a library."""
@@ -147,8 +151,11 @@ class AbstractModel(Shown, eqx.Module):
 def require_dataset(data, where: str) -> None:
     """InvalidInputError naming ``where`` unless ``data`` is a :class:`~fitting.Dataset`."""
     if not isinstance(data, Dataset):
-        hint = (" (build one with fitting.Dataset.from_measurements(measurement_set))"
-                if isinstance(data, MeasurementSet) else "")
+        hint = (
+            " (build one with fitting.Dataset.from_measurements(measurement_set))"
+            if isinstance(data, MeasurementSet)
+            else ""
+        )
         raise InvalidInputError(f"{where}: data must be a fitting.Dataset{hint}; got {type(data).__name__}.")
 
 

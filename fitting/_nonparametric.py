@@ -8,13 +8,15 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from brdfscale import InvalidInputError, MethodNotApplicableError, evolve, lobes, stats
-from brdfscale.special import j0
+from brdfscale import evolve, InvalidInputError, lobes, MethodNotApplicableError, stats
 from brdfscale.checks import integer, real
 from brdfscale.choices import MODEL
+from brdfscale.special import j0
+
 from ._data import Dataset
 from ._model import AbstractModel, moments, require_dataset
-from ._smoothness import DEFAULT_SMOOTHNESS, SMOOTHNESS_RULES, choose_smoothness
+from ._smoothness import choose_smoothness, DEFAULT_SMOOTHNESS, SMOOTHNESS_RULES
+
 
 __all__ = ["NonParametricModel", "RelativeStatistics"]
 
@@ -72,7 +74,9 @@ class RelativeStatistics(stats.AbstractSlopeDensity):
     def bandwidth(self, tol):
         level, tk = math.log(1 / tol), self.knots**2
         slope = jnp.maximum(self._slopes()[-1], 1e-30)
-        t = jnp.where(self.decay[-1] >= level, jnp.interp(level, self.decay, tk), tk[-1] + (level - self.decay[-1]) / slope)
+        t = jnp.where(
+            self.decay[-1] >= level, jnp.interp(level, self.decay, tk), tk[-1] + (level - self.decay[-1]) / slope
+        )
         return jnp.sqrt(t)
 
 
@@ -120,23 +124,39 @@ class NonParametricModel(AbstractModel):
     grid_size: int = eqx.field(static=True)
     smoothness_choice: tuple | None = eqx.field(static=True)
 
-    def __init__(self, data: Dataset, *, base_nodes: int = MODEL.base_nodes, base_extent: float | None = None,
-                 n_knots: int = MODEL.knots, w_max: float | None = None, smoothness: float | None = None,
-                 regularisation: float | str | None = MODEL.regularisation, grid_size: int = 48):
+    def __init__(
+        self,
+        data: Dataset,
+        *,
+        base_nodes: int = MODEL.base_nodes,
+        base_extent: float | None = None,
+        n_knots: int = MODEL.knots,
+        w_max: float | None = None,
+        smoothness: float | None = None,
+        regularisation: float | str | None = MODEL.regularisation,
+        grid_size: int = 48,
+    ):
         require_dataset(data, "NonParametricModel(data)")
         base_nodes = integer(base_nodes, "base_nodes", 3)
         n_knots = integer(n_knots, "n_knots", 2)
         grid_size = integer(grid_size, "grid_size", 8)
         if smoothness is not None and regularisation is not None:
-            raise InvalidInputError("give the smoothness prior's weight once: regularisation= (a number or 'auto') or "
-                                    "smoothness= (its earlier name), not both.")
+            raise InvalidInputError(
+                "give the smoothness prior's weight once: regularisation= (a number or 'auto') or "
+                "smoothness= (its earlier name), not both."
+            )
         weight = regularisation if regularisation is not None else (3.0 if smoothness is None else smoothness)
         auto = isinstance(weight, str)
         if auto and weight not in SMOOTHNESS_RULES:
-            raise InvalidInputError(f"regularisation must be a number ≥ 0 or one of {SMOOTHNESS_RULES} (generalised "
-                                    f"cross-validation); got {weight!r}.")
-        smoothness = DEFAULT_SMOOTHNESS if auto else real(weight, "regularisation" if regularisation is not None
-                                                          else "smoothness", minimum=0.0)
+            raise InvalidInputError(
+                f"regularisation must be a number ≥ 0 or one of {SMOOTHNESS_RULES} (generalised "
+                f"cross-validation); got {weight!r}."
+            )
+        smoothness = (
+            DEFAULT_SMOOTHNESS
+            if auto
+            else real(weight, "regularisation" if regularisation is not None else "smoothness", minimum=0.0)
+        )
         if base_extent is not None:
             base_extent = real(base_extent, "base_extent", minimum=0.0, strict=True)
         if w_max is not None:
@@ -153,8 +173,15 @@ class NonParametricModel(AbstractModel):
         self.grid_size = grid_size
         self.smoothness_choice = None
         if auto:  # a pilot model, complete, at the default weight (this one is still being built)
-            pilot = NonParametricModel(data, base_nodes=base_nodes, base_extent=self.base_extent, n_knots=n_knots,
-                                       w_max=w_max, regularisation=DEFAULT_SMOOTHNESS, grid_size=grid_size)
+            pilot = NonParametricModel(
+                data,
+                base_nodes=base_nodes,
+                base_extent=self.base_extent,
+                n_knots=n_knots,
+                w_max=w_max,
+                regularisation=DEFAULT_SMOOTHNESS,
+                grid_size=grid_size,
+            )
             self.smoothness, self.smoothness_choice = choose_smoothness(pilot, data)
 
     def check_data(self, data: Dataset) -> None:
@@ -195,7 +222,7 @@ class NonParametricModel(AbstractModel):
     def decay(self, theta) -> Float[Array, "k J+1"]:
         """``D_k(W_j)`` for k = 0..K−1 (row 0 is zero), j = 0..J."""
         J = len(self.knots) - 1
-        inc = jax.nn.softplus(theta[self._n_base:].reshape(self.n_scales - 1, J))
+        inc = jax.nn.softplus(theta[self._n_base :].reshape(self.n_scales - 1, J))
         d = jnp.cumsum(jnp.cumsum(inc, axis=0), axis=1)
         d = jnp.concatenate([jnp.zeros((self.n_scales - 1, 1), d.dtype), d], axis=1)
         return jnp.concatenate([jnp.zeros((1, J + 1), d.dtype), d], axis=0)

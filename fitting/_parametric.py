@@ -8,11 +8,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from brdfscale import InvalidInputError, evolve, lobes, stats
+from brdfscale import evolve, InvalidInputError, lobes, stats
 from brdfscale.checks import integer, real
 from brdfscale.choices import MODEL
+
 from ._data import Dataset
 from ._model import AbstractModel, moments
+
 
 __all__ = ["ParametricModel"]
 
@@ -54,8 +56,16 @@ class ParametricModel(AbstractModel):
         "gaussian_surface": ("amplitude", "alpha_lobe", "rms_height", "correlation_length"),
     }
 
-    def __init__(self, lobe: str = MODEL.family, statistics: str = MODEL.family, *, law: str = MODEL.law,
-                 fixed: dict | None = None, window: str = "box", radial_nodes: int = 96):
+    def __init__(
+        self,
+        lobe: str = MODEL.family,
+        statistics: str = MODEL.family,
+        *,
+        law: str = MODEL.law,
+        fixed: dict | None = None,
+        window: str = "box",
+        radial_nodes: int = 96,
+    ):
         if lobe not in _LOBES:
             raise InvalidInputError(f"lobe must be one of {sorted(_LOBES)}; got {lobe!r}.")
         if statistics not in _STATISTICS:
@@ -123,10 +133,13 @@ class ParametricModel(AbstractModel):
             try:
                 value = float(params[p])
             except (TypeError, ValueError):
-                raise InvalidInputError(f"parameter {p} must be a positive, finite number; got {params[p]!r}.") from None
+                raise InvalidInputError(
+                    f"parameter {p} must be a positive, finite number; got {params[p]!r}."
+                ) from None
             if not (math.isfinite(value) and value > 0):
-                raise InvalidInputError(f"parameter {p} must be a positive, finite number (θ holds its "
-                                        f"logarithm); got {params[p]!r}.")
+                raise InvalidInputError(
+                    f"parameter {p} must be a positive, finite number (θ holds its logarithm); got {params[p]!r}."
+                )
             values.append(value)
         return np.log(values)
 
@@ -136,7 +149,9 @@ class ParametricModel(AbstractModel):
         if self.law_kind == "gaussian_surface":
             spectrum = stats.GaussianCorrelation(q["rms_height"], q["correlation_length"])
             return stats.GaussianSurface(spectrum, window=self.window)
-        return stats.ScaledFamily(_STATISTICS[self.statistics], stats.WidthLaw(q["alpha_max"], q["mu_c"], q["exponent"]))
+        return stats.ScaledFamily(
+            _STATISTICS[self.statistics], stats.WidthLaw(q["alpha_max"], q["mu_c"], q["exponent"])
+        )
 
     def statistics_at(self, theta, mu) -> stats.AbstractSlopeDensity:
         """The facet-slope density ``s(·, μ)``."""
@@ -170,7 +185,9 @@ class ParametricModel(AbstractModel):
         statistics = jax.vmap(lambda mu: self.statistics_at(theta, mu))(scales)
         s0 = jax.tree.map(lambda leaf: leaf[0], statistics)
         coarser_statistics = jax.tree.map(lambda leaf: leaf[1:], statistics)
-        coarser = jax.vmap(lambda s, u: self._evolve(base, s0, s, check=False).density(u))(coarser_statistics, points[1:])
+        coarser = jax.vmap(lambda s, u: self._evolve(base, s0, s, check=False).density(u))(
+            coarser_statistics, points[1:]
+        )
         return jnp.concatenate([base.density(points[0])[None], coarser])
 
     def relative_statistics(self, theta, W, scales):
@@ -186,8 +203,15 @@ class ParametricModel(AbstractModel):
         alpha_s = 1.5 * math.sqrt(spread)
         mid = math.sqrt(float(data.scales[0]) * float(data.scales[-1]))
         # Gaussian correlation: α_s² = 2·(2σ_h²/ℓ²) unwindowed, so σ_h = ℓ α_s / 2
-        start = {"amplitude": amp, "alpha_lobe": alpha_lobe, "alpha_max": alpha_s, "mu_c": mid, "exponent": 1.0,
-                 "correlation_length": mid, "rms_height": mid * alpha_s / 2}
+        start = {
+            "amplitude": amp,
+            "alpha_lobe": alpha_lobe,
+            "alpha_max": alpha_s,
+            "mu_c": mid,
+            "exponent": 1.0,
+            "correlation_length": mid,
+            "rms_height": mid * alpha_s / 2,
+        }
         return self.theta_from(start)
 
     def box(self, data) -> dict[str, tuple[float, float]]:
@@ -212,8 +236,10 @@ class ParametricModel(AbstractModel):
         for name, value in self.fixed:
             lo, hi = box[name]
             if not lo <= value <= hi:
-                raise InvalidInputError(f"fixed {name} = {value:g} lies outside its prior box [{lo:g}, {hi:g}] for "
-                                        f"these data (scales μ = {np.asarray(data.scales).tolist()}); fix it inside.")
+                raise InvalidInputError(
+                    f"fixed {name} = {value:g} lies outside its prior box [{lo:g}, {hi:g}] for "
+                    f"these data (scales μ = {np.asarray(data.scales).tolist()}); fix it inside."
+                )
 
     def bounds(self, data):
         box = self.box(data)

@@ -25,16 +25,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from brdfscale import InvalidInputError
-from brdfscale import _figure_style as _figures
+from brdfscale import _figure_style as _figures, InvalidInputError
 from brdfscale.checks import integer, real
 
 from ._derived import quantities_at
-from ._problem import Problem, check_fit
-from ._result import FitResult
 from ._model import predict_images
 from ._parametric import ParametricModel
+from ._problem import check_fit, Problem
+from ._result import FitResult
 from ._sample import SampleResult
+
 
 __all__ = ["plot_fit", "plot_recovered_statistics", "plot_corner"]
 
@@ -60,17 +60,25 @@ def _relative(model, thetas, W, data):
 @eqx.filter_jit
 def _absolute(model, thetas, W, data):
     """``S(W, μ_k)`` for every draw and measured scale (parametric models)."""
+
     def one(t):
         return jnp.stack([model.statistics_at(t, data.scales[k]).cf_radial(W) for k in range(data.scales.shape[0])])
+
     return jax.vmap(one)(thetas)
 
 
 def check_samples(fit: FitResult, samples, what: str) -> None:
     """InvalidInputError unless ``samples`` is None or the SampleResult of ``fit``'s coordinates."""
     if samples is not None and (not isinstance(samples, SampleResult) or tuple(samples.names) != tuple(fit.names)):
-        got = type(samples).__name__ if not isinstance(samples, SampleResult) else f"a chain of {len(samples.names)} coordinates"
-        raise InvalidInputError(f"{what}: samples must be None or the SampleResult of fitting.sample for this problem's "
-                                f"{len(fit.names)} coordinates; got {got}.")
+        got = (
+            type(samples).__name__
+            if not isinstance(samples, SampleResult)
+            else f"a chain of {len(samples.names)} coordinates"
+        )
+        raise InvalidInputError(
+            f"{what}: samples must be None or the SampleResult of fitting.sample for this problem's "
+            f"{len(fit.names)} coordinates; got {got}."
+        )
 
 
 def check_truth(truth):
@@ -134,11 +142,13 @@ def plot_fit(problem: Problem, fit: FitResult):
         w = data.image(i, data.weight[i])
         e = data.extents[i]
         vmax = max(obs.max(), fitted.max())
-        for col, (img, title, label, kw) in enumerate((
-            (obs, "data", _LOBE_UNIT, dict(vmin=0, vmax=vmax)),
-            (fitted, "fit", _LOBE_UNIT, dict(vmin=0, vmax=vmax)),
-            ((fitted - obs) * w, "(fit − data)/σ", "(fit − data)/σ", dict(vmin=-4, vmax=4, cmap="RdBu_r")),
-        )):
+        for col, (img, title, label, kw) in enumerate(
+            (
+                (obs, "data", _LOBE_UNIT, dict(vmin=0, vmax=vmax)),
+                (fitted, "fit", _LOBE_UNIT, dict(vmin=0, vmax=vmax)),
+                ((fitted - obs) * w, "(fit − data)/σ", "(fit − data)/σ", dict(vmin=-4, vmax=4, cmap="RdBu_r")),
+            )
+        ):
             ax = axes[row, col]
             im = ax.imshow(img, origin="lower", extent=(-e, e, -e, e), **kw)
             ax.set_title(f"μ = {float(data.scales[data.scale_of_image[i]]):.4g}: {title}", fontsize=9)
@@ -190,8 +200,9 @@ def statistics_figure(problem: Problem, fit: FitResult, draws, true_theta):
     return fig
 
 
-def plot_recovered_statistics(problem: Problem, fit: FitResult, samples: SampleResult | None = None, *,
-                              truth: dict | None = None, seed: int = 0):
+def plot_recovered_statistics(
+    problem: Problem, fit: FitResult, samples: SampleResult | None = None, *, truth: dict | None = None, seed: int = 0
+):
     """The recovered facet-slope statistics with 5–95 % bands (the report's ``statistics.png``).
 
     Panels: (1) the ratios ``S(W, μ0)/S(W, μ)`` for every coarser measured scale — what
@@ -233,10 +244,25 @@ def corner_figure(model, draws, truth: dict | None, fit: FitResult | None = None
     fig = _figures.figure(side, side, layout=None)  # corner places the panels itself (subplots_adjust)
     fig.subplots(d, d, squeeze=False)
     truths = [None if truth is None else truth.get(n) for n in names]
-    corner.corner(np.stack([q[n] for n in names], axis=1), bins=30, labels=names, truths=truths, truth_color="C3",
-                  quantiles=[0.05, 0.5, 0.95], show_titles=True, title_fmt=".3g", title_kwargs={"fontsize": 9},
-                  label_kwargs={"fontsize": 10}, smooth=1.0, smooth1d=1.0, max_n_ticks=3, fig=fig,
-                  plot_datapoints=False, fill_contours=True, levels=(0.393, 0.865))
+    corner.corner(
+        np.stack([q[n] for n in names], axis=1),
+        bins=30,
+        labels=names,
+        truths=truths,
+        truth_color="C3",
+        quantiles=[0.05, 0.5, 0.95],
+        show_titles=True,
+        title_fmt=".3g",
+        title_kwargs={"fontsize": 9},
+        label_kwargs={"fontsize": 10},
+        smooth=1.0,
+        smooth1d=1.0,
+        max_n_ticks=3,
+        fig=fig,
+        plot_datapoints=False,
+        fill_contours=True,
+        levels=(0.393, 0.865),
+    )
     for k, ax in enumerate(fig.axes):
         ax.tick_params(labelsize=8)
         if k % d > k // d:  # above the diagonal: empty (corner only hides the frame)
@@ -250,8 +276,9 @@ def corner_figure(model, draws, truth: dict | None, fit: FitResult | None = None
     return fig
 
 
-def plot_corner(problem: Problem, fit: FitResult, samples: SampleResult | None = None, *, truth: dict | None = None,
-                seed: int = 0):
+def plot_corner(
+    problem: Problem, fit: FitResult, samples: SampleResult | None = None, *, truth: dict | None = None, seed: int = 0
+):
     """The posterior's marginals (the report's ``corner.png``).
 
     Drawn by the ``corner`` package for the first six quantities the data determine, in the

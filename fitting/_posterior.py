@@ -67,6 +67,7 @@ import numpy as np
 
 from ._batch import _pad_points, bucket_points
 
+
 __all__ = [
     "COORDINATES",
     "PRIOR_TEXT",
@@ -85,10 +86,12 @@ BEND = 50.0
 #: The sampling coordinates, as recorded in checkpoints (a change of the map changes this).
 COORDINATES = "z: theta = lo + w (softplus((z - lo)/w) - softplus((z - hi)/w)), w = (hi - lo)/50"
 #: What the prior is, in words (SampleResult and the report state it).
-PRIOR_TEXT = ("uniform on the prior box lo ≤ θ ≤ hi of the model's coordinates θ (log-uniform on each positive "
-              "parameter); sampled in z with θ = lo + w·[softplus((z − lo)/w) − softplus((z − hi)/w)], "
-              "w = (hi − lo)/50, the Jacobian Σ log|dθ/dz| included; the combinations the fit does not determine are "
-              "not sampled but held at the fit's values (the chain samples the determined subspace)")
+PRIOR_TEXT = (
+    "uniform on the prior box lo ≤ θ ≤ hi of the model's coordinates θ (log-uniform on each positive "
+    "parameter); sampled in z with θ = lo + w·[softplus((z − lo)/w) − softplus((z − hi)/w)], "
+    "w = (hi − lo)/50, the Jacobian Σ log|dθ/dz| included; the combinations the fit does not determine are "
+    "not sampled but held at the fit's values (the chain samples the determined subspace)"
+)
 
 
 def log_posterior(theta, problem):
@@ -218,8 +221,9 @@ def target(problem, fit, record: dict | None = None) -> Target:
             q = np.linalg.qr(held, mode="complete")[0]
             basis = q[:, k:]
         record = {"origin": z0, "basis": basis}
-    return Target(padded_rows(problem), jnp.asarray(record["origin"], jnp.float64),
-                  jnp.asarray(record["basis"], jnp.float64))
+    return Target(
+        padded_rows(problem), jnp.asarray(record["origin"], jnp.float64), jnp.asarray(record["basis"], jnp.float64)
+    )
 
 
 def padded_rows(problem):

@@ -19,6 +19,7 @@ from ._data import Dataset, PointData
 from ._model import AbstractModel, require_dataset
 from ._result import FitResult
 
+
 __all__ = ["Problem", "Rows", "check_fit", "check_pair", "stack_trees", "starting_points"]
 
 
@@ -50,8 +51,10 @@ class Problem(Shown, eqx.Module):
     def __init__(self, model: AbstractModel, data: Dataset):
         require_float64("fitting.Problem")
         if not isinstance(model, AbstractModel):
-            raise InvalidInputError(f"Problem(model, data) needs a fitting model (ParametricModel or "
-                                    f"NonParametricModel) as model; got {type(model).__name__}.")
+            raise InvalidInputError(
+                f"Problem(model, data) needs a fitting model (ParametricModel or "
+                f"NonParametricModel) as model; got {type(model).__name__}."
+            )
         require_dataset(data, "Problem(model, data)")
         model.check_data(data)
         self.model, self.data = model, data
@@ -112,7 +115,8 @@ def check_pair(model, data, what: str) -> None:
     if not isinstance(model, AbstractModel) or not isinstance(data, Dataset):
         raise InvalidInputError(
             f"{what} needs a fitting model (ParametricModel or NonParametricModel) and a fitting.Dataset "
-            f"(fitting.Dataset.from_measurements); got {type(model).__name__} and {type(data).__name__}.")
+            f"(fitting.Dataset.from_measurements); got {type(model).__name__} and {type(data).__name__}."
+        )
 
 
 def check_fit(problem, fit, what: str) -> None:
@@ -125,8 +129,10 @@ def check_fit(problem, fit, what: str) -> None:
     names = tuple(problem.model.names)
     theta, cov = np.asarray(fit.theta), np.asarray(fit.covariance)
     if tuple(fit.names) != names or theta.shape != (len(names),) or cov.shape != (len(names), len(names)):
+
         def brief(n):
             return f"{len(n)} coordinates ({', '.join(n[:3])}{', …' if len(n) > 3 else ''})"
+
         raise InvalidInputError(
             f"{what}: fit is the result for {brief(tuple(fit.names))}, but the problem's model has "
             f"{brief(names)}; pass the fit of this model and data (fitting.fit(problem.model, problem.data))."

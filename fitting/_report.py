@@ -22,16 +22,27 @@ import numpy as np
 
 import brdfscale
 from brdfscale import BrdfscaleError, InvalidInputError, MeasurementFileError
+from brdfscale.checks import flag
 from brdfscale.files import atomic_write, exclusive, json_text, jsonable
 
-from brdfscale.checks import flag
-from ._problem import Problem, check_fit
-from ._result import FitResult
 from ._model import predict_images
 from ._parametric import ParametricModel
-from ._plot import (CORNER_DRAWS, _quantities, _relative, check_samples, check_truth, corner_figure, plot_fit,
-                    posterior_draws, statistics_figure, truth_theta)
+from ._plot import (
+    _quantities,
+    _relative,
+    check_samples,
+    check_truth,
+    CORNER_DRAWS,
+    corner_figure,
+    plot_fit,
+    posterior_draws,
+    statistics_figure,
+    truth_theta,
+)
+from ._problem import check_fit, Problem
+from ._result import FitResult
 from ._sample import SampleResult
+
 
 __all__ = ["summarise", "write_report", "truth_of", "report_files", "check_report_directory"]
 
@@ -74,8 +85,12 @@ def _exr_available() -> bool:
 def report_files(out_dir) -> list[str]:
     """The paths :func:`write_report` writes into ``out_dir`` (fit.json last: it is written
     when everything else is in place)."""
-    names = (list(_FIGURES) + ([_TABLES] if _exr_available() else []) + ([_POSTERIOR] if _arviz_available() else [])
-             + ["fit.json"])
+    names = (
+        list(_FIGURES)
+        + ([_TABLES] if _exr_available() else [])
+        + ([_POSTERIOR] if _arviz_available() else [])
+        + ["fit.json"]
+    )
     return [os.path.join(os.fspath(out_dir), name) for name in names]
 
 
@@ -94,8 +109,10 @@ def check_report_directory(out_dir, overwrite: bool = False) -> list[str]:
         raise InvalidInputError(f"out_dir must be a path; got {type(out_dir).__name__} {out_dir!r}.") from None
     overwrite = flag(overwrite, "overwrite")
     if os.path.exists(out_dir) and not os.path.isdir(out_dir):
-        raise MeasurementFileError(f"report directory {out_dir} exists but is not a directory; give out_dir= a "
-                                   "directory (existing or to be created).")
+        raise MeasurementFileError(
+            f"report directory {out_dir} exists but is not a directory; give out_dir= a "
+            "directory (existing or to be created)."
+        )
     targets = report_files(out_dir)
     existing = [os.path.basename(t) for t in targets if os.path.lexists(t)]
     if existing and not overwrite:
@@ -127,12 +144,20 @@ def truth_of(model, metadata: dict) -> dict | None:
     if isinstance(params, dict):
         truth = {p: _truth_value(params[p], f"truth.params.{p}") for p in model.parameters if p in params}
     spectrum = metadata.get("surface", {}).get("spectrum") if isinstance(metadata.get("surface"), dict) else None
-    if model.law_kind == "gaussian_surface" and isinstance(spectrum, dict) and spectrum.get("type") == "GaussianCorrelation":
+    if (
+        model.law_kind == "gaussian_surface"
+        and isinstance(spectrum, dict)
+        and spectrum.get("type") == "GaussianCorrelation"
+    ):
         raw = spectrum.get("correlation_length")
-        ell = [_truth_value(v, "surface.spectrum.correlation_length") for v in (raw if isinstance(raw, list) else [raw])]
+        ell = [
+            _truth_value(v, "surface.spectrum.correlation_length") for v in (raw if isinstance(raw, list) else [raw])
+        ]
         if np.allclose(ell, ell[0]):
-            truth.update(rms_height=_truth_value(spectrum.get("rms_height"), "surface.spectrum.rms_height"),
-                         correlation_length=ell[0])
+            truth.update(
+                rms_height=_truth_value(spectrum.get("rms_height"), "surface.spectrum.rms_height"),
+                correlation_length=ell[0],
+            )
         if metadata.get("albedo") is not None:
             truth["amplitude"] = _truth_value(metadata["albedo"], "albedo")
     if model.lobe == "beckmann" and "alpha_lobe" not in truth:
@@ -173,8 +198,7 @@ def _synth_base_width(metadata: dict) -> float | None:
         else:
             return None
         pitch = 2.0 * float(metadata["extent"]) / (int(metadata["pixels"]) - 1)
-        second = (micro_trace + float(np.trace(pixel - facets[first])) + 2.0 * float(resolution) ** 2
-                  + pitch**2 / 3.0)
+        second = micro_trace + float(np.trace(pixel - facets[first])) + 2.0 * float(resolution) ** 2 + pitch**2 / 3.0
     except (KeyError, TypeError, ValueError, IndexError, AttributeError):
         return None
     return math.sqrt(second) if math.isfinite(second) and second > 0 else None
@@ -184,8 +208,10 @@ def _truth_value(value, key: str) -> float:
     """A known-truth number from metadata: positive and finite (every parameter is), or
     InvalidInputError naming the metadata key."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
-        raise InvalidInputError(f"metadata {key} must be a positive finite number (a known true value); got "
-                                f"{value!r:.80}. Correct or remove it from the measurement set's metadata.")
+        raise InvalidInputError(
+            f"metadata {key} must be a positive finite number (a known true value); got "
+            f"{value!r:.80}. Correct or remove it from the measurement set's metadata."
+        )
     return float(value)
 
 
@@ -202,21 +228,36 @@ def summarise(problem: Problem, fit: FitResult, samples: SampleResult | None, tr
     table = {}
     if samples is not None:
         q = {k: np.asarray(v) for k, v in _quantities(model, jnp.asarray(samples.samples)).items()}
-    corners = [{k: float(v) for k, v in model.quantities(jnp.asarray(b)).items()} for b in (problem.lower, problem.upper)]
+    corners = [
+        {k: float(v) for k, v in model.quantities(jnp.asarray(b)).items()} for b in (problem.lower, problem.upper)
+    ]
     for name, value in fit.estimates.items():
         determined = fit.std[name] is not None
         row = {"estimate_map": value, "determined": determined}
         if not determined:
-            row.update(source="prior", std=None, quantiles_5_50_95=None, median=None,
-                       prior_range=sorted([corners[0][name], corners[1][name]]),
-                       note="not determined by the data (identifiability); no interval is reported — the data determine "
-                            "the combinations and ratios in identifiability.determined_combinations and ratios")
+            row.update(
+                source="prior",
+                std=None,
+                quantiles_5_50_95=None,
+                median=None,
+                prior_range=sorted([corners[0][name], corners[1][name]]),
+                note="not determined by the data (identifiability); no interval is reported — the data determine "
+                "the combinations and ratios in identifiability.determined_combinations and ratios",
+            )
         elif samples is not None:
-            row.update(source="mcmc", median=float(np.median(q[name])), std=float(np.std(q[name])),
-                       quantiles_5_50_95=np.percentile(q[name], [5, 50, 95]).tolist())
+            row.update(
+                source="mcmc",
+                median=float(np.median(q[name])),
+                std=float(np.std(q[name])),
+                quantiles_5_50_95=np.percentile(q[name], [5, 50, 95]).tolist(),
+            )
         else:
-            row.update(source="laplace", std=fit.std[name], quantiles_5_50_95=fit.quantiles[name],
-                       median=None if fit.quantiles[name] is None else fit.quantiles[name][1])
+            row.update(
+                source="laplace",
+                std=fit.std[name],
+                quantiles_5_50_95=fit.quantiles[name],
+                median=None if fit.quantiles[name] is None else fit.quantiles[name][1],
+            )
         if truth is not None and name in truth:
             row["truth"] = truth[name]
         table[name] = row
@@ -234,8 +275,13 @@ def summarise_ratios(problem: Problem, fit: FitResult, samples: SampleResult | N
     out = {}
     for i, (name, r) in enumerate(fit.ratios.items()):
         v = values[:, i]
-        out[name] = {**r, "source": "mcmc", "median": float(np.median(v)), "std": float(np.std(v)),
-                     "quantiles_5_50_95": np.percentile(v, [5, 50, 95]).tolist()}
+        out[name] = {
+            **r,
+            "source": "mcmc",
+            "median": float(np.median(v)),
+            "std": float(np.std(v)),
+            "quantiles_5_50_95": np.percentile(v, [5, 50, 95]).tolist(),
+        }
     return out
 
 
@@ -255,17 +301,32 @@ def _write_tables(out_dir, problem: Problem, fit: FitResult, overwrite: bool) ->
     images = []
     for k, mu in enumerate(np.asarray(data.scales)):
         i = data.scale_of_image.index(k)
-        images.append(brdfscale.LobeImage(mu=float(mu), incident=np.array([0.0, 0.0, 1.0]), extent=data.extents[i],
-                                          values=np.clip(data.image(i, pred[i]), 0, None)))
+        images.append(
+            brdfscale.LobeImage(
+                mu=float(mu),
+                incident=np.array([0.0, 0.0, 1.0]),
+                extent=data.extents[i],
+                values=np.clip(data.image(i, pred[i]), 0, None),
+            )
+        )
     path = os.path.join(out_dir, "evolved_lobes.exr")
-    exr.write_measurements(path, brdfscale.MeasurementSet(tuple(images), metadata={"source": "brdfscale fit"}),
-                           overwrite=overwrite)
+    exr.write_measurements(
+        path, brdfscale.MeasurementSet(tuple(images), metadata={"source": "brdfscale fit"}), overwrite=overwrite
+    )
     return [path]
 
 
-def write_report(out_dir, problem: Problem, fit: FitResult, samples: SampleResult | None = None, *,
-                 truth: dict | None = None, model_info: dict | None = None, overwrite: bool = False,
-                 figures: bool = True) -> dict:
+def write_report(
+    out_dir,
+    problem: Problem,
+    fit: FitResult,
+    samples: SampleResult | None = None,
+    *,
+    truth: dict | None = None,
+    model_info: dict | None = None,
+    overwrite: bool = False,
+    figures: bool = True,
+) -> dict:
     """Write ``fit.json``, ``data_vs_fit.png``, ``statistics.png``, ``corner.png``, the
     evolved lobe tables (``evolved_lobes.exr``) and, for a sampled fit with ArviZ installed,
     the samples as ArviZ InferenceData in NetCDF (``posterior.nc``) into ``out_dir`` (created
@@ -305,8 +366,11 @@ def write_report(out_dir, problem: Problem, fit: FitResult, samples: SampleResul
         "brdfscale_version": brdfscale.__version__,
         "python": platform.python_version(),
         "model": model_info or {"kind": type(model).__name__},
-        "data": {"scales": np.asarray(problem.data.scales).tolist(), "images": len(problem.data.scale_of_image),
-                 "valid_pixels": problem.data.n_data},
+        "data": {
+            "scales": np.asarray(problem.data.scales).tolist(),
+            "images": len(problem.data.scale_of_image),
+            "valid_pixels": problem.data.n_data,
+        },
         "parameters": summarise(problem, fit, samples, truth),
         "ratios": summarise_ratios(problem, fit, samples),
         "identifiability": fit.to_json()["identifiability"],
@@ -321,12 +385,14 @@ def write_report(out_dir, problem: Problem, fit: FitResult, samples: SampleResul
     check_report_directory(out_dir, overwrite)
     out_dir = os.fspath(out_dir)
     with exclusive(out_dir, what="report directory"):  # re-entrant: `brdfscale fit` holds it for the whole run
-        return _write_files(out_dir, problem, fit, model, (draws, corner_draws), true_theta, truth, doc, overwrite,
-                            samples, figures)
+        return _write_files(
+            out_dir, problem, fit, model, (draws, corner_draws), true_theta, truth, doc, overwrite, samples, figures
+        )
 
 
-def _write_files(out_dir, problem, fit, model, draws, true_theta, truth, doc, overwrite, samples=None,
-                 with_figures=True) -> dict:
+def _write_files(
+    out_dir, problem, fit, model, draws, true_theta, truth, doc, overwrite, samples=None, with_figures=True
+) -> dict:
     draws, corner_draws = draws
     check_report_directory(out_dir, overwrite)  # again, now that no other run can write here
     figures = {name: os.path.join(out_dir, name) for name in _FIGURES} if with_figures else {}

@@ -12,6 +12,7 @@ import numpy as np
 
 from brdfscale.show import Shown, Table
 
+
 __all__ = ["FitResult"]
 
 
@@ -56,11 +57,18 @@ class FitResult(Shown):
 
     def _estimate_text(self, name: str) -> str:
         std = self.std.get(name)
-        return f"{self.estimates[name]:.4g} ± {std:.2g}" if std is not None else f"{self.estimates[name]:.4g} (undetermined)"
+        return (
+            f"{self.estimates[name]:.4g} ± {std:.2g}"
+            if std is not None
+            else f"{self.estimates[name]:.4g} (undetermined)"
+        )
 
     def _show_items(self) -> list[tuple[str, object]]:
-        items: list[tuple[str, object]] = [("status", self.status), ("solver", self.solver),
-                 ("chi2/dof", f"{self.chi2:.4g}/{self.dof} = {self.chi2 / self.dof:.4g}")]
+        items: list[tuple[str, object]] = [
+            ("status", self.status),
+            ("solver", self.solver),
+            ("chi2/dof", f"{self.chi2:.4g}/{self.dof} = {self.chi2 / self.dof:.4g}"),
+        ]
         items += [(name, self._estimate_text(name)) for name in self.estimates]
         if self.undetermined:
             items.append(("undetermined", "; ".join(u["combination"] for u in self.undetermined)))
@@ -73,19 +81,41 @@ class FitResult(Shown):
         for name, value in self.estimates.items():
             q = self.quantiles.get(name) or (None, None, None)
             rows.append((name, value, self.std.get(name), *q))
-        tables = [Table("parameters (Laplace: estimate, standard deviation, 5/50/95 % quantiles; — where the data "
-                        "do not determine it)", ("quantity", "estimate", "std", "5 %", "50 %", "95 %"), rows)]
+        tables = [
+            Table(
+                "parameters (Laplace: estimate, standard deviation, 5/50/95 % quantiles; — where the data "
+                "do not determine it)",
+                ("quantity", "estimate", "std", "5 %", "50 %", "95 %"),
+                rows,
+            )
+        ]
         if self.ratios:
-            tables.append(Table("what the data determine: ratios S(W, μ0)/S(W, μk) (Laplace)",
-                                ("ratio", "estimate", "std", "5 %", "95 %"),
-                                [(n, r["estimate"], r["std"], *((r["quantiles_5_50_95"] or [None] * 3)[::2]))
-                                 for n, r in self.ratios.items()]))
+            tables.append(
+                Table(
+                    "what the data determine: ratios S(W, μ0)/S(W, μk) (Laplace)",
+                    ("ratio", "estimate", "std", "5 %", "95 %"),
+                    [
+                        (n, r["estimate"], r["std"], *((r["quantiles_5_50_95"] or [None] * 3)[::2]))
+                        for n, r in self.ratios.items()
+                    ],
+                )
+            )
         if self.combinations:
-            tables.append(Table("determined combinations of θ (Fisher eigen-directions)", ("combination", "value", "std"),
-                                [(c["combination"], c["value"], c["std"]) for c in self.combinations]))
+            tables.append(
+                Table(
+                    "determined combinations of θ (Fisher eigen-directions)",
+                    ("combination", "value", "std"),
+                    [(c["combination"], c["value"], c["std"]) for c in self.combinations],
+                )
+            )
         if self.undetermined:
-            tables.append(Table("combinations the data do not determine", ("combination", "Fisher eigenvalue", "std"),
-                                [(u["combination"], u["fisher_eigenvalue"], u["std"]) for u in self.undetermined]))
+            tables.append(
+                Table(
+                    "combinations the data do not determine",
+                    ("combination", "Fisher eigenvalue", "std"),
+                    [(u["combination"], u["fisher_eigenvalue"], u["std"]) for u in self.undetermined],
+                )
+            )
         return tables
 
     def plot(self, problem, **options):

@@ -44,23 +44,24 @@ from brdfscale import InvalidInputError
 from brdfscale.checks import flag, integer
 from brdfscale.choices import SAMPLE
 from brdfscale.files import exclusive
-from brdfscale.show import Shown, Table, progress_mode
+from brdfscale.show import progress_mode, Shown, Table
 
 from . import _diagnostics as diag
 from ._checkpoint import Checkpoint
 from ._derived import quantities_at
 from ._posterior import (
     COORDINATES,
-    PRIOR_TEXT,
     log_posterior,
+    PRIOR_TEXT,
     target,
     undetermined_directions,
 )
-from ._problem import Problem, check_fit
+from ._problem import check_fit, Problem
 from ._result import FitResult
 from ._sample_blackjax import HMC, NUTS
 from ._sample_emcee import Emcee
 from ._sampler import AbstractSampler
+
 
 __all__ = ["HMC", "NUTS", "SAMPLERS", "Emcee", "SampleResult", "log_posterior", "sample"]
 
@@ -121,12 +122,12 @@ class SampleResult(Shown):
 
     @property
     def samples(self) -> np.ndarray:
-        return self.chain[self.burn:].reshape(-1, self.chain.shape[-1])
+        return self.chain[self.burn :].reshape(-1, self.chain.shape[-1])
 
     @property
     def draws(self) -> np.ndarray:
         """θ after the burn-in as (trajectory, draw, d): one row per trajectory (NUTS/HMC chain or emcee walker)."""
-        return np.swapaxes(self.chain[self.burn:], 0, 1)
+        return np.swapaxes(self.chain[self.burn :], 0, 1)
 
     @property
     def walkers(self) -> int:
@@ -151,10 +152,10 @@ class SampleResult(Shown):
     def _summary(self) -> dict:
         rows = {}
         for i, name in enumerate(self.names):
-            rows[name] = diag.summary_row(self.by_chain(self.chain[self.burn:, :, i]))
+            rows[name] = diag.summary_row(self.by_chain(self.chain[self.burn :, :, i]))
         for name, values in (self.quantities or {}).items():
             if name not in rows:
-                rows[name] = diag.summary_row(self.by_chain(values[self.burn:]))
+                rows[name] = diag.summary_row(self.by_chain(values[self.burn :]))
         return rows
 
     def summary(self) -> dict:
@@ -177,7 +178,7 @@ class SampleResult(Shown):
     def divergent(self) -> int:
         """Divergent transitions after the warm-up (NUTS/HMC; 0 for emcee)."""
         d = self.stats.get("divergent")
-        return 0 if d is None else int(np.sum(d[self.burn:]))
+        return 0 if d is None else int(np.sum(d[self.burn :]))
 
     def problems(self) -> list[str]:
         """What keeps the run from counting as converged (empty when it does): R̂ above
@@ -206,22 +207,42 @@ class SampleResult(Shown):
         items = [("sampler", self.sampler), ("chains", self.chains), ("status", self.status)]
         if self.sampler == "emcee":
             items.append(("walkers", self.walkers))
-        items += [("steps", n_steps), ("burn_in", self.burn), ("draws", (n_steps - self.burn) * n_walkers),
-                  ("acceptance", self.acceptance), ("tau_max", float(np.max(self.tau))),
-                  ("ess_min", float(np.min(self.ess))), ("tau_reliable", self.tau_reliable), ("chain", self.chain)]
+        items += [
+            ("steps", n_steps),
+            ("burn_in", self.burn),
+            ("draws", (n_steps - self.burn) * n_walkers),
+            ("acceptance", self.acceptance),
+            ("tau_max", float(np.max(self.tau))),
+            ("ess_min", float(np.min(self.ess))),
+            ("tau_reliable", self.tau_reliable),
+            ("chain", self.chain),
+        ]
         return items
 
     def _show_tables(self):
         flat = self.samples
-        rows = [(name, float(np.mean(flat[:, i])), float(np.std(flat[:, i])), float(self.tau[i]), float(self.ess[i]))
-                for i, name in enumerate(self.names)]
-        tables = [Table("coordinates after burn-in (θ: the model's unconstrained coordinates)",
-                        ("coordinate", "mean", "std", "τ (steps)", "ESS"), rows)]
+        rows = [
+            (name, float(np.mean(flat[:, i])), float(np.std(flat[:, i])), float(self.tau[i]), float(self.ess[i]))
+            for i, name in enumerate(self.names)
+        ]
+        tables = [
+            Table(
+                "coordinates after burn-in (θ: the model's unconstrained coordinates)",
+                ("coordinate", "mean", "std", "τ (steps)", "ESS"),
+                rows,
+            )
+        ]
         summary = self._summary
-        tables.append(Table(f"diagnostics (ArviZ's; status: {self.status})",
-                            ("name", "mean", "sd", "mcse_mean", "ess_bulk", "ess_tail", "r_hat"),
-                            [(n, r["mean"], r["sd"], r["mcse_mean"], r["ess_bulk"], r["ess_tail"], r["r_hat"])
-                             for n, r in summary.items()]))
+        tables.append(
+            Table(
+                f"diagnostics (ArviZ's; status: {self.status})",
+                ("name", "mean", "sd", "mcse_mean", "ess_bulk", "ess_tail", "r_hat"),
+                [
+                    (n, r["mean"], r["sd"], r["mcse_mean"], r["ess_bulk"], r["ess_tail"], r["r_hat"])
+                    for n, r in summary.items()
+                ],
+            )
+        )
         return tables
 
     def plot(self, **options):
@@ -253,8 +274,9 @@ class SampleResult(Shown):
         warmup = None
         if self.warmup is not None:
             warmup = {k: (np.asarray(v).tolist() if isinstance(v, np.ndarray) else v) for k, v in self.warmup.items()}
-        undetermined_quantities = [n for n in (self.quantities or {}) if self.determined is not None
-                                   and n not in self.determined]
+        undetermined_quantities = [
+            n for n in (self.quantities or {}) if self.determined is not None and n not in self.determined
+        ]
         return {
             "sampler": self.sampler,
             "sampler_settings": self.settings,
@@ -268,13 +290,13 @@ class SampleResult(Shown):
             "effective_sample_size": dict(zip(self.names, self.ess.tolist())),
             "tau_reliable": self.tau_reliable,
             "tau_note": (
-                "chain ≥ 50 τ after burn-in: τ estimate reliable" if self.tau_reliable else
-                "chain shorter than 50 τ after burn-in: τ (and hence ESS) is a lower-bound estimate; run longer"
+                "chain ≥ 50 τ after burn-in: τ estimate reliable"
+                if self.tau_reliable
+                else "chain shorter than 50 τ after burn-in: τ (and hence ESS) is a lower-bound estimate; run longer"
             ),
             "status": self.status,
             "problems": self.problems(),
-            "criteria": {"r_hat_max": diag.R_HAT_LIMIT, "ess_bulk_min": diag.ESS_BULK_LIMIT,
-                         "checked": self._gated()},
+            "criteria": {"r_hat_max": diag.R_HAT_LIMIT, "ess_bulk_min": diag.ESS_BULK_LIMIT, "checked": self._gated()},
             "divergent_transitions": self.divergent,
             "timing_s": self.timing,
             "summary": self.summary(),
@@ -287,7 +309,9 @@ class SampleResult(Shown):
             "undetermined_note": (
                 "the data do not determine these combinations: they are not sampled but held at the fit's values "
                 "(the chain samples the determined subspace), so the chain gives them no spread"
-                if self.undetermined else None),
+                if self.undetermined
+                else None
+            ),
         }
 
 
@@ -313,8 +337,10 @@ def resolve_sampler(sampler, walkers=None, moves=None) -> AbstractSampler:
         return SAMPLERS[sampler].from_name(walkers, moves)
     if not isinstance(sampler, AbstractSampler):
         got = repr(sampler) if isinstance(sampler, str) else type(sampler).__name__
-        raise InvalidInputError(f"sampler must be one of {sorted(SAMPLERS)} or a sampler object "
-                                f"(fitting.Emcee, fitting.NUTS, fitting.HMC); got {got}.")
+        raise InvalidInputError(
+            f"sampler must be one of {sorted(SAMPLERS)} or a sampler object "
+            f"(fitting.Emcee, fitting.NUTS, fitting.HMC); got {got}."
+        )
     if walkers is not None or moves is not None:
         raise sampler.refuse_walkers()
     return sampler
@@ -326,8 +352,10 @@ def sampled_dimension(problem, fit, what: str) -> int:
     d = len(problem.model.names)
     m = d - len(fit.undetermined)
     if m < 1:
-        raise InvalidInputError(f"{what}: the data determine none of the {d} coordinates (every Fisher "
-                                "eigen-direction is undetermined); there is nothing to sample.")
+        raise InvalidInputError(
+            f"{what}: the data determine none of the {d} coordinates (every Fisher "
+            "eigen-direction is undetermined); there is nothing to sample."
+        )
     return m
 
 
@@ -411,9 +439,16 @@ def sample(
     if checkpoint is not None:
         # what makes a chain this run's: not the fit it started from (once resumed, the state
         # comes from the file, and a refit of the same problem need not agree to the last bit)
-        signature = {"names": list(problem.model.names), "sampler": settings, "chains": chains, "trajectories": W,
-                     "problem": _digest(problem), "seed": seed, "coordinates": COORDINATES,
-                     "undetermined": len(fit.undetermined)}
+        signature = {
+            "names": list(problem.model.names),
+            "sampler": settings,
+            "chains": chains,
+            "trajectories": W,
+            "problem": _digest(problem),
+            "seed": seed,
+            "coordinates": COORDINATES,
+            "undetermined": len(fit.undetermined),
+        }
         store = Checkpoint(checkpoint, signature, W, d, chunk, sampler.stats, m)
     lock = contextlib.nullcontext() if store is None else exclusive(store.path, what="checkpoint")
     with lock:
@@ -423,9 +458,17 @@ def sample(
         if store is not None and (resumed is None or resumed.steps == 0):
             # replaces only what the user asked to replace, or a checkpoint of this run with no chunk done
             store.create(replace=overwrite or resumed is not None, subspace=posterior.record())
-        chain, log_prob, stats, warmup, timing = sampler.run(posterior, fit, chains=chains, steps=steps, seed=seed,
-                                                             store=store, resumed=resumed, progress=progress,
-                                                             chunk=chunk)
+        chain, log_prob, stats, warmup, timing = sampler.run(
+            posterior,
+            fit,
+            chains=chains,
+            steps=steps,
+            seed=seed,
+            store=store,
+            resumed=resumed,
+            progress=progress,
+            chunk=chunk,
+        )
     return _diagnose(posterior, fit, sampler, settings, chains, chain, log_prob, stats, warmup, timing)
 
 
@@ -448,13 +491,29 @@ def _diagnose(posterior, fit, sampler, settings, chains, chain, log_prob, stats,
     quantities = quantities_at(problem.model, chain)  # (steps, W) each, in the model's order
     determined = tuple(n for n in quantities if fit.std.get(n, 0.0) is not None)
     V = undetermined_directions(fit)
-    held = [{"combination": u.get("combination"), "value": float(v @ np.asarray(fit.theta))}
-            for u, v in zip(fit.undetermined, V.T)]
+    held = [
+        {"combination": u.get("combination"), "value": float(v @ np.asarray(fit.theta))}
+        for u, v in zip(fit.undetermined, V.T)
+    ]
     return SampleResult(
-        names=tuple(problem.model.names), chain=chain, log_prob=log_prob, burn=burn, tau=tau, ess=ess,
-        tau_reliable=bool(kept.shape[0] >= 50 * np.max(tau)), acceptance=acceptance, sampler=sampler.name,
-        chains=chains, settings=settings, warmup=warmup, stats=stats, quantities=quantities, determined=determined,
-        undetermined=list(fit.undetermined), held=held, timing=_timing(timing, burn, n_steps),
+        names=tuple(problem.model.names),
+        chain=chain,
+        log_prob=log_prob,
+        burn=burn,
+        tau=tau,
+        ess=ess,
+        tau_reliable=bool(kept.shape[0] >= 50 * np.max(tau)),
+        acceptance=acceptance,
+        sampler=sampler.name,
+        chains=chains,
+        settings=settings,
+        warmup=warmup,
+        stats=stats,
+        quantities=quantities,
+        determined=determined,
+        undetermined=list(fit.undetermined),
+        held=held,
+        timing=_timing(timing, burn, n_steps),
     )
 
 

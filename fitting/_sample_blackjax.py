@@ -45,6 +45,7 @@ from brdfscale.show import progress_bar
 from ._posterior import initial_positions, laplace
 from ._sampler import AbstractSampler
 
+
 __all__ = ["HMC", "NUTS"]
 
 _STATS = {"acceptance_rate": "f8", "divergent": "u1", "integration_steps": "i8", "step_size": "f8"}
@@ -60,7 +61,8 @@ def _blackjax():
     except ImportError as err:
         raise MissingDependencyError(
             "fitting.NUTS and fitting.HMC need BlackJAX (a dependency of brdfscale on Python ≥ 3.11: pip install "
-            f"\"blackjax>=1.7.1\"); sampler=\"emcee\" needs no BlackJAX. The import failed: {err}") from None
+            f'"blackjax>=1.7.1"); sampler="emcee" needs no BlackJAX. The import failed: {err}'
+        ) from None
     return blackjax
 
 
@@ -79,13 +81,16 @@ class _Gradient(AbstractSampler):
 
     def _check_common(self):
         object.__setattr__(self, "warmup", integer(self.warmup, "warmup", 0))
-        object.__setattr__(self, "target_acceptance", real(self.target_acceptance, "target_acceptance",
-                                                            minimum=0.0, strict=True))
+        object.__setattr__(
+            self, "target_acceptance", real(self.target_acceptance, "target_acceptance", minimum=0.0, strict=True)
+        )
         if not self.target_acceptance < 1:
             raise InvalidInputError(f"target_acceptance must lie in (0, 1); got {self.target_acceptance}.")
         object.__setattr__(self, "adapt_mass_matrix", flag(self.adapt_mass_matrix, "adapt_mass_matrix"))
         if self.adapt_mass_matrix and self.warmup < 20:
-            raise InvalidInputError(f"adapt_mass_matrix=True needs warmup ≥ 20 steps (Stan's windows); got {self.warmup}.")
+            raise InvalidInputError(
+                f"adapt_mass_matrix=True needs warmup ≥ 20 steps (Stan's windows); got {self.warmup}."
+            )
 
     def settings(self, d: int) -> dict:
         return {"name": self.name, **dataclasses.asdict(self)}
@@ -99,10 +104,14 @@ class _Gradient(AbstractSampler):
 
     def warmup_text(self) -> str:
         if self.adapt_mass_matrix:
-            return ("BlackJAX window_adaptation per chain (Stan's windows: step size and dense inverse mass matrix, "
-                    "seeded with the Laplace covariance)")
-        return (f"dual averaging of each chain's step size (target acceptance {self.target_acceptance:g}); inverse "
-                "mass matrix fixed at the Laplace covariance")
+            return (
+                "BlackJAX window_adaptation per chain (Stan's windows: step size and dense inverse mass matrix, "
+                "seeded with the Laplace covariance)"
+            )
+        return (
+            f"dual averaging of each chain's step size (target acceptance {self.target_acceptance:g}); inverse "
+            "mass matrix fixed at the Laplace covariance"
+        )
 
     def run(self, target, fit, *, chains, steps, seed, store, resumed, progress, chunk):
         """The chain (warmup + steps, chains, d) in θ, log_prob, per-step statistics and the
@@ -112,7 +121,9 @@ class _Gradient(AbstractSampler):
         spec = self._spec()
         blocks = []
         if resumed is not None and resumed.steps > 0:
-            blocks.append((resumed.chain[:total], resumed.log_prob[:total], {k: v[:total] for k, v in resumed.stats.items()}))
+            blocks.append(
+                (resumed.chain[:total], resumed.log_prob[:total], {k: v[:total] for k, v in resumed.stats.items()})
+            )
             carry = {k: np.asarray(v) for k, v in resumed.state.items()}
         else:
             z0, cov = starts(target, fit, chains, seed)
@@ -121,9 +132,18 @@ class _Gradient(AbstractSampler):
         timing = {"warmup_s": 0.0, "sampling_s": 0.0}  # this call's computing (checkpoint writes excluded)
         commit = (lambda block, c: None) if store is None else (lambda block, c: store.append(*block, c))
         with progress_bar(enabled=progress, total=total, initial=min(done, total), desc=self.name, unit="step") as bar:
-            carry, more = self.drive(functools.partial(_window_warmup, target, spec),
-                                     functools.partial(_advance, target, spec), carry, done, total, chunk,
-                                     jax.random.PRNGKey(seed), timing, bar.update, commit)
+            carry, more = self.drive(
+                functools.partial(_window_warmup, target, spec),
+                functools.partial(_advance, target, spec),
+                carry,
+                done,
+                total,
+                chunk,
+                jax.random.PRNGKey(seed),
+                timing,
+                bar.update,
+                commit,
+            )
         chain, log_prob, stats = join(blocks + more)
         return chain, log_prob, stats, self.warmup_record(carry, stats["acceptance_rate"]), timing
 
@@ -167,10 +187,13 @@ class _Gradient(AbstractSampler):
     def warmup_record(self, state, acceptance) -> dict:
         """What the warm-up did, from the chains' host carry after it and their acceptance rates
         (steps, chains): the adapted step sizes and inverse mass matrices."""
-        return {"kind": self.warmup_text(), "steps": self.warmup,
-                "step_size": np.exp(state["log_step_size_avg"]).tolist(),
-                "inverse_mass_matrix": state["inverse_mass_matrix"],
-                "acceptance_rate": float(np.mean(acceptance[:self.warmup])) if self.warmup else None}
+        return {
+            "kind": self.warmup_text(),
+            "steps": self.warmup,
+            "step_size": np.exp(state["log_step_size_avg"]).tolist(),
+            "inverse_mass_matrix": state["inverse_mass_matrix"],
+            "acceptance_rate": float(np.mean(acceptance[: self.warmup])) if self.warmup else None,
+        }
 
 
 def starts(target, fit, chains, seed):
@@ -182,8 +205,11 @@ def starts(target, fit, chains, seed):
 
 def join(blocks, axis=0):
     """The blocks (θ, log p(θ), statistics) of :meth:`_Gradient.drive` joined along the steps' ``axis``."""
-    return (np.concatenate([b[0] for b in blocks], axis=axis), np.concatenate([b[1] for b in blocks], axis=axis),
-            {k: np.concatenate([b[2][k] for b in blocks], axis=axis) for k in _STATS})
+    return (
+        np.concatenate([b[0] for b in blocks], axis=axis),
+        np.concatenate([b[1] for b in blocks], axis=axis),
+        {k: np.concatenate([b[2][k] for b in blocks], axis=axis) for k in _STATS},
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -241,8 +267,9 @@ class HMC(_Gradient):
 
     def __post_init__(self):
         self._check_common()
-        object.__setattr__(self, "trajectory_length", real(self.trajectory_length, "trajectory_length", minimum=0.0,
-                                                            strict=True))
+        object.__setattr__(
+            self, "trajectory_length", real(self.trajectory_length, "trajectory_length", minimum=0.0, strict=True)
+        )
         jitter = real(self.jitter, "jitter", minimum=0.0)
         if not jitter < 1:
             raise InvalidInputError(f"jitter must lie in [0, 1); got {jitter}.")
@@ -254,8 +281,10 @@ class HMC(_Gradient):
 
 def _host(carry) -> dict:
     """The carry as NumPy arrays of fixed dtypes (float64 positions and densities, int64 counters)."""
-    return {k: np.asarray(v, dtype=np.int64 if np.issubdtype(np.asarray(v).dtype, np.integer) else np.float64)
-            for k, v in carry.items()}
+    return {
+        k: np.asarray(v, dtype=np.int64 if np.issubdtype(np.asarray(v).dtype, np.integer) else np.float64)
+        for k, v in carry.items()
+    }
 
 
 @eqx.filter_jit
@@ -265,10 +294,17 @@ def _initial_carry(target, z0, cov):
     value, grad = jax.vmap(jax.value_and_grad(target.log_density))(z0)
     da = jax.vmap(lambda _: da_init(jnp.asarray(_INITIAL_STEP_SIZE, z0.dtype)))(jnp.arange(z0.shape[0]))
     chains = z0.shape[0]
-    return {"position": z0, "logdensity": value, "logdensity_grad": grad,
-            "log_step_size": da.log_step_size, "log_step_size_avg": da.log_step_size_avg, "da_step": da.step,
-            "avg_error": da.avg_error, "mu": da.mu,
-            "inverse_mass_matrix": jnp.broadcast_to(cov, (chains,) + cov.shape)}
+    return {
+        "position": z0,
+        "logdensity": value,
+        "logdensity_grad": grad,
+        "log_step_size": da.log_step_size,
+        "log_step_size_avg": da.log_step_size_avg,
+        "da_step": da.step,
+        "avg_error": da.avg_error,
+        "mu": da.mu,
+        "inverse_mass_matrix": jnp.broadcast_to(cov, (chains,) + cov.shape),
+    }
 
 
 def _transition(spec, logdensity):
@@ -294,9 +330,17 @@ def _transition(spec, logdensity):
         acceptance = jnp.where(jnp.isfinite(info.acceptance_rate), info.acceptance_rate, 0.0)
         updated = da_update(da, acceptance)
         da = jax.tree_util.tree_map(lambda a, b: jnp.where(adapt, a, b), updated, da)
-        out = {**c, "position": new.position, "logdensity": new.logdensity, "logdensity_grad": new.logdensity_grad,
-               "log_step_size": da.log_step_size, "log_step_size_avg": da.log_step_size_avg, "da_step": da.step,
-               "avg_error": da.avg_error, "mu": da.mu}
+        out = {
+            **c,
+            "position": new.position,
+            "logdensity": new.logdensity,
+            "logdensity_grad": new.logdensity_grad,
+            "log_step_size": da.log_step_size,
+            "log_step_size_avg": da.log_step_size_avg,
+            "da_step": da.step,
+            "avg_error": da.avg_error,
+            "mu": da.mu,
+        }
         return out, (new.position, new.logdensity, acceptance, info.is_divergent, info.num_integration_steps, eps)
 
     return one
@@ -314,10 +358,16 @@ def _advance(target, spec, carry, start, n, key, warmup, chunk):
     chains = carry["position"].shape[0]
     d = target.origin.shape[0]  # θ has every coordinate; the positions ζ only the sampled subspace's
     dtype = carry["position"].dtype
-    buffers = (jnp.zeros((chunk, chains, d), dtype), jnp.zeros((chunk, chains), dtype),
-               {"acceptance_rate": jnp.zeros((chunk, chains), dtype), "divergent": jnp.zeros((chunk, chains), jnp.uint8),
-                "integration_steps": jnp.zeros((chunk, chains), jnp.int64 if dtype == jnp.float64 else jnp.int32),
-                "step_size": jnp.zeros((chunk, chains), dtype)})
+    buffers = (
+        jnp.zeros((chunk, chains, d), dtype),
+        jnp.zeros((chunk, chains), dtype),
+        {
+            "acceptance_rate": jnp.zeros((chunk, chains), dtype),
+            "divergent": jnp.zeros((chunk, chains), jnp.uint8),
+            "integration_steps": jnp.zeros((chunk, chains), jnp.int64 if dtype == jnp.float64 else jnp.int32),
+            "step_size": jnp.zeros((chunk, chains), dtype),
+        },
+    )
 
     def body(j, state):
         c, (theta_buf, lp_buf, stats_buf) = state
@@ -327,11 +377,14 @@ def _advance(target, spec, carry, start, n, key, warmup, chunk):
         theta, lp = _record(target, z, ld)
         theta_buf = theta_buf.at[j].set(theta)
         lp_buf = lp_buf.at[j].set(lp)
-        stats_buf = {"acceptance_rate": stats_buf["acceptance_rate"].at[j].set(acc),
-                     "divergent": stats_buf["divergent"].at[j].set(div.astype(jnp.uint8)),
-                     "integration_steps": stats_buf["integration_steps"].at[j].set(
-                         steps.astype(stats_buf["integration_steps"].dtype)),
-                     "step_size": stats_buf["step_size"].at[j].set(eps)}
+        stats_buf = {
+            "acceptance_rate": stats_buf["acceptance_rate"].at[j].set(acc),
+            "divergent": stats_buf["divergent"].at[j].set(div.astype(jnp.uint8)),
+            "integration_steps": stats_buf["integration_steps"]
+            .at[j]
+            .set(steps.astype(stats_buf["integration_steps"].dtype)),
+            "step_size": stats_buf["step_size"].at[j].set(eps),
+        }
         return c, (theta_buf, lp_buf, stats_buf)
 
     return jax.lax.fori_loop(0, n, body, (carry, buffers))
@@ -348,13 +401,22 @@ def _window_warmup(target, spec, carry, key, warmup):
     kind, max_doublings, trajectory_length, _, acceptance = spec
     logdensity = target.log_density
     steps = math.ceil(trajectory_length / _INITIAL_STEP_SIZE)
-    algorithm, extra = ((blackjax.nuts, {"max_num_doublings": max_doublings}) if kind == "nuts"
-                        else (blackjax.hmc, {"num_integration_steps": steps}))
+    algorithm, extra = (
+        (blackjax.nuts, {"max_num_doublings": max_doublings})
+        if kind == "nuts"
+        else (blackjax.hmc, {"num_integration_steps": steps})
+    )
 
     def one(k, z, imm):
-        adaptation = blackjax.window_adaptation(algorithm, logdensity, is_mass_matrix_diagonal=False,
-                                                initial_inverse_mass_matrix=imm, initial_step_size=_INITIAL_STEP_SIZE,
-                                                target_acceptance_rate=acceptance, **extra)
+        adaptation = blackjax.window_adaptation(
+            algorithm,
+            logdensity,
+            is_mass_matrix_diagonal=False,
+            initial_inverse_mass_matrix=imm,
+            initial_step_size=_INITIAL_STEP_SIZE,
+            target_acceptance_rate=acceptance,
+            **extra,
+        )
         (state, parameters), info = adaptation.run(k, z, num_steps=warmup)
         return state, parameters["step_size"], parameters["inverse_mass_matrix"], info
 
@@ -362,16 +424,28 @@ def _window_warmup(target, spec, carry, key, warmup):
     keys = jax.random.split(jax.random.fold_in(key, _WINDOW_KEY), chains)
     state, step_size, imm, info = jax.vmap(one)(keys, carry["position"], carry["inverse_mass_matrix"])
     log_eps = jnp.log(step_size)
-    carry = {**carry, "position": state.position, "logdensity": state.logdensity,
-             "logdensity_grad": state.logdensity_grad, "log_step_size": log_eps, "log_step_size_avg": log_eps,
-             "inverse_mass_matrix": imm}
+    carry = {
+        **carry,
+        "position": state.position,
+        "logdensity": state.logdensity,
+        "logdensity_grad": state.logdensity_grad,
+        "log_step_size": log_eps,
+        "log_step_size_avg": log_eps,
+        "inverse_mass_matrix": imm,
+    }
     z = jnp.swapaxes(info.state.position, 0, 1)
     theta, lp = _record(target, z, jnp.swapaxes(info.state.logdensity, 0, 1))
     acceptance = jnp.swapaxes(info.info.acceptance_rate, 0, 1)
-    stats = {"acceptance_rate": jnp.where(jnp.isfinite(acceptance), acceptance, 0.0),
-             "divergent": jnp.swapaxes(info.info.is_divergent, 0, 1).astype(jnp.uint8),
-             "integration_steps": jnp.swapaxes(info.info.num_integration_steps, 0, 1).astype(jnp.int64),
-             "step_size": jnp.swapaxes(jnp.exp(info.adaptation_state.log_step_size)
-                                       if hasattr(info.adaptation_state, "log_step_size")
-                                       else jnp.broadcast_to(step_size[:, None], acceptance.T.shape), 0, 1)}
+    stats = {
+        "acceptance_rate": jnp.where(jnp.isfinite(acceptance), acceptance, 0.0),
+        "divergent": jnp.swapaxes(info.info.is_divergent, 0, 1).astype(jnp.uint8),
+        "integration_steps": jnp.swapaxes(info.info.num_integration_steps, 0, 1).astype(jnp.int64),
+        "step_size": jnp.swapaxes(
+            jnp.exp(info.adaptation_state.log_step_size)
+            if hasattr(info.adaptation_state, "log_step_size")
+            else jnp.broadcast_to(step_size[:, None], acceptance.T.shape),
+            0,
+            1,
+        ),
+    }
     return carry, (theta, lp, stats)

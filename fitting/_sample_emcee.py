@@ -32,6 +32,7 @@ from . import _diagnostics as diag
 from ._posterior import initial_positions, laplace, log_jacobian_np, theta_of_z_np
 from ._sampler import AbstractSampler
 
+
 __all__ = ["Emcee"]
 
 _MOVES = ("stretch", "de")
@@ -92,14 +93,17 @@ class Emcee(AbstractSampler):
         return cls(walkers=walkers, moves="stretch" if moves is None else moves)
 
     def refuse_walkers(self) -> InvalidInputError:
-        return InvalidInputError("walkers= and moves= with a sampler object: give them in "
-                                 "fitting.Emcee(walkers=…, moves=…).")
+        return InvalidInputError(
+            "walkers= and moves= with a sampler object: give them in fitting.Emcee(walkers=…, moves=…)."
+        )
 
     def check_batched(self) -> None:
-        raise InvalidInputError("sample_many samples with NUTS or HMC only: emcee's ensembles step on the host "
-                                "(one vectorised log-density call per half-step, NumPy in between) and do not "
-                                "vectorise across materials; use fitting.sample(problem, fit, sampler='emcee') per "
-                                "material.")
+        raise InvalidInputError(
+            "sample_many samples with NUTS or HMC only: emcee's ensembles step on the host "
+            "(one vectorised log-density call per half-step, NumPy in between) and do not "
+            "vectorise across materials; use fitting.sample(problem, fit, sampler='emcee') per "
+            "material."
+        )
 
     def burn_in(self, chain, warmup):
         """2 τ_max (emcee's integrated autocorrelation time of the whole chain), at most half
@@ -107,8 +111,7 @@ class Emcee(AbstractSampler):
         short chains, stuck ensembles — τ taken as ∞)."""
         n_steps = chain.shape[0]
         tau_all = diag.integrated_time(chain)
-        burn = (int(min(np.ceil(2 * np.max(tau_all)), n_steps // 2)) if np.all(np.isfinite(tau_all))
-                else n_steps // 2)
+        burn = int(min(np.ceil(2 * np.max(tau_all)), n_steps // 2)) if np.all(np.isfinite(tau_all)) else n_steps // 2
         return burn, {"kind": "burn-in: the first 2 τ_max steps (at most half the chain), discarded", "steps": burn}
 
     def run(self, target, fit, *, chains, steps, seed, store, resumed, progress, chunk):
@@ -125,16 +128,26 @@ class Emcee(AbstractSampler):
             out = np.asarray(_batched_log_density(jnp.asarray(zetas), target))
             return np.where(np.isfinite(out), out, -np.inf)
 
-        moves = ([(_IndependentEnsembles(emcee.moves.StretchMove(), chains, walkers), 1.0)] if self.moves == "stretch"
-                 else [(_IndependentEnsembles(emcee.moves.DEMove(), chains, walkers), 0.8),
-                       (_IndependentEnsembles(emcee.moves.DESnookerMove(), chains, walkers), 0.2)])
+        moves = (
+            [(_IndependentEnsembles(emcee.moves.StretchMove(), chains, walkers), 1.0)]
+            if self.moves == "stretch"
+            else [
+                (_IndependentEnsembles(emcee.moves.DEMove(), chains, walkers), 0.8),
+                (_IndependentEnsembles(emcee.moves.DESnookerMove(), chains, walkers), 0.2),
+            ]
+        )
         sampler = emcee.EnsembleSampler(n, m, logp, vectorize=True, moves=moves)
         chains_out, log_probs = [], []
         if resumed is not None and resumed.steps > 0:
             chains_out, log_probs = [resumed.chain[:steps]], [resumed.log_prob[:steps]]
             s = resumed.state
-            random_state = ("MT19937", s["rng_keys"], int(s["rng_pos"]), int(s["rng_has_gauss"]),
-                            float(s["rng_cached_gaussian"]))
+            random_state = (
+                "MT19937",
+                s["rng_keys"],
+                int(s["rng_pos"]),
+                int(s["rng_has_gauss"]),
+                float(s["rng_cached_gaussian"]),
+            )
             state = emcee.State(np.array(s["position"]), log_prob=np.array(s["log_density"]), random_state=random_state)
         else:
             rng = np.random.default_rng(seed)
@@ -161,10 +174,19 @@ class Emcee(AbstractSampler):
                 timing["run_s"] += time.perf_counter() - started
                 if store is not None:
                     rs = state.random_state
-                    store.append(theta, lp_theta, {}, {
-                        "position": state.coords, "log_density": state.log_prob, "rng_keys": rs[1],
-                        "rng_pos": np.int64(rs[2]), "rng_has_gauss": np.int64(rs[3]),
-                        "rng_cached_gaussian": np.float64(rs[4])})
+                    store.append(
+                        theta,
+                        lp_theta,
+                        {},
+                        {
+                            "position": state.coords,
+                            "log_density": state.log_prob,
+                            "rng_keys": rs[1],
+                            "rng_pos": np.int64(rs[2]),
+                            "rng_has_gauss": np.int64(rs[3]),
+                            "rng_cached_gaussian": np.float64(rs[4]),
+                        },
+                    )
                 chains_out.append(theta)
                 log_probs.append(lp_theta)
                 done += k
@@ -188,14 +210,14 @@ class _IndependentEnsembles:
         inds = np.tile(np.arange(w) % inner.nsplits, self.chains)
         if inner.randomize_split:
             for e in range(self.chains):
-                model.random.shuffle(inds[e * w:(e + 1) * w])
+                model.random.shuffle(inds[e * w : (e + 1) * w])
         for split in range(inner.nsplits):
             subset = inds == split
             proposals, factors = [], []
             for e in range(self.chains):
-                coords, labels = state.coords[e * w:(e + 1) * w], inds[e * w:(e + 1) * w]
+                coords, labels = state.coords[e * w : (e + 1) * w], inds[e * w : (e + 1) * w]
                 sets = [coords[labels == j] for j in range(inner.nsplits)]
-                q, f = inner.get_proposal(sets[split], sets[:split] + sets[split + 1:], model.random)
+                q, f = inner.get_proposal(sets[split], sets[:split] + sets[split + 1 :], model.random)
                 proposals.append(q)
                 factors.append(f)
             q, f = np.concatenate(proposals), np.concatenate(factors)

@@ -66,7 +66,7 @@ from brdfscale.show import progress_bar, progress_mode
 from ._batch import _key, bucket_batch
 from ._devices import assembled, device_list, on_devices, split
 from ._posterior import target
-from ._problem import Problem, check_fit, stack_trees
+from ._problem import check_fit, Problem, stack_trees
 from ._sample import _diagnose, resolve_sampler, sampled_dimension
 from ._sample_blackjax import (
     _advance,
@@ -79,7 +79,9 @@ from ._sample_blackjax import (
     starts,
 )
 
+
 __all__ = ["sample_many"]
+
 
 @eqx.filter_jit
 def _initial_local(targets, z0, cov):
@@ -103,20 +105,27 @@ def _window_local(targets, spec, carry, key, warmup):
 
 def _initial_many(targets, z0, cov, devices):
     """:func:`_initial_local` on every device's slice of the stack (``targets`` a :class:`~fitting._devices.Split`)."""
-    return assembled(on_devices(_initial_local, (targets, split(z0, devices), split(cov, devices)), devices),
-                     devices)
+    return assembled(on_devices(_initial_local, (targets, split(z0, devices), split(cov, devices)), devices), devices)
 
 
 def _advance_many(targets, spec, carry, start, n, key, warmup, chunk, devices):
     """:func:`_advance_local` on every device's slice of the stack, the outputs one array divided over them."""
-    return assembled(on_devices(lambda t, c: _advance_local(t, spec, c, start, n, key, warmup, chunk),
-                                (targets, split(carry, devices)), devices), devices)
+    return assembled(
+        on_devices(
+            lambda t, c: _advance_local(t, spec, c, start, n, key, warmup, chunk),
+            (targets, split(carry, devices)),
+            devices,
+        ),
+        devices,
+    )
 
 
 def _window_many(targets, spec, carry, key, warmup, devices):
     """:func:`_window_local` on every device's slice of the stack."""
-    return assembled(on_devices(lambda t, c: _window_local(t, spec, c, key, warmup),
-                                (targets, split(carry, devices)), devices), devices)
+    return assembled(
+        on_devices(lambda t, c: _window_local(t, spec, c, key, warmup), (targets, split(carry, devices)), devices),
+        devices,
+    )
 
 
 def _bound(program, targets, spec, devices):
@@ -127,13 +136,17 @@ def _bound(program, targets, spec, devices):
 
 def _pairs(problems, fits) -> tuple[list, list]:
     if isinstance(problems, Problem):
-        raise InvalidInputError("sample_many(problems, fits) takes a sequence of problems; for one problem use "
-                                "fitting.sample(problem, fit).")
+        raise InvalidInputError(
+            "sample_many(problems, fits) takes a sequence of problems; for one problem use "
+            "fitting.sample(problem, fit)."
+        )
     try:
         problems, fits = list(problems), list(fits)
     except TypeError:
-        raise InvalidInputError("sample_many needs a sequence of fitting.Problem and a sequence of their "
-                                "FitResults (e.g. from fitting.fit_many).") from None
+        raise InvalidInputError(
+            "sample_many needs a sequence of fitting.Problem and a sequence of their "
+            "FitResults (e.g. from fitting.fit_many)."
+        ) from None
     if not problems:
         raise InvalidInputError("sample_many needs at least one problem.")
     if len(problems) != len(fits):
@@ -235,14 +248,15 @@ def sample_many(
         rows = problem.rows()
         shape = _key(rows, int(rows.points.mean.shape[1])) + (m,)
         groups.setdefault(shape, (m, []))[1].append(i)
-    buckets = [(m, members[k:k + batch]) for m, members in groups.values() for k in range(0, len(members), batch)]
+    buckets = [(m, members[k : k + batch]) for m, members in groups.values() for k in range(0, len(members), batch)]
 
     spec, total = sampler._spec(), sampler.warmup + steps
     key = jax.random.PRNGKey(seed)
     n_dev = len(devices)
 
-    with progress_bar(enabled=progress, total=total * len(buckets), desc=f"sample_many ({sampler.name})",
-                      unit="step") as bar:
+    with progress_bar(
+        enabled=progress, total=total * len(buckets), desc=f"sample_many ({sampler.name})", unit="step"
+    ) as bar:
         for m, members in buckets:
             # each material's Target is sample's: its rows padded to the bucket's points (padded_rows)
             posteriors = [target(problems[i], fits[i]) for i in members]
@@ -254,17 +268,37 @@ def sample_many(
             cov = np.stack(cov + cov[:1] * extra)
             carry = _host(_initial_many(targets, z0, cov, devices))
             timing = {"warmup_s": 0.0, "sampling_s": 0.0}
-            carry, blocks = sampler.drive(_bound(_window_many, targets, spec, devices),
-                                          _bound(_advance_many, targets, spec, devices), carry, 0, total, chunk,
-                                          key, timing, bar.update, lambda block, c: None, axis=1)
+            carry, blocks = sampler.drive(
+                _bound(_window_many, targets, spec, devices),
+                _bound(_advance_many, targets, spec, devices),
+                carry,
+                0,
+                total,
+                chunk,
+                key,
+                timing,
+                bar.update,
+                lambda block, c: None,
+                axis=1,
+            )
             chain, log_prob, stats = join(blocks, axis=1)
             share = {k: v / len(members) for k, v in timing.items()}
             for j, (i, post) in enumerate(zip(members, posteriors)):
                 own = {k: v[j].copy() for k, v in stats.items()}
                 record = sampler.warmup_record({k: v[j].copy() for k, v in carry.items()}, own["acceptance_rate"])
                 try:
-                    results[i] = _diagnose(post, fits[i], sampler, sampler.settings(m), chains, chain[j].copy(),
-                                           log_prob[j].copy(), own, record, dict(share))
+                    results[i] = _diagnose(
+                        post,
+                        fits[i],
+                        sampler,
+                        sampler.settings(m),
+                        chains,
+                        chain[j].copy(),
+                        log_prob[j].copy(),
+                        own,
+                        record,
+                        dict(share),
+                    )
                 except InvalidInputError as err:
                     if errors == "raise":
                         raise InvalidInputError(f"sample_many: material {i}: {err}") from None

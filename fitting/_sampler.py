@@ -18,6 +18,7 @@ from typing import ClassVar
 
 from brdfscale import InvalidInputError
 
+
 __all__ = ["AbstractSampler"]
 
 
@@ -32,13 +33,16 @@ class AbstractSampler(abc.ABC):
         """The sampler chosen by name (``sample(..., sampler="nuts")``), with ``sample``'s
         ``walkers=``/``moves=`` where this sampler takes them; InvalidInputError otherwise."""
         if walkers is not None or moves is not None:
-            raise InvalidInputError(f"walkers= and moves= with a sampler object: they apply to emcee only, not "
-                                    f"{cls.name}.")
+            raise InvalidInputError(
+                f"walkers= and moves= with a sampler object: they apply to emcee only, not {cls.name}."
+            )
         return cls()
 
     def refuse_walkers(self) -> InvalidInputError:
         """The error for ``walkers=``/``moves=`` given beside this sampler object."""
-        return InvalidInputError(f"walkers= and moves= with a sampler object: they apply to emcee only, not {self.name}.")
+        return InvalidInputError(
+            f"walkers= and moves= with a sampler object: they apply to emcee only, not {self.name}."
+        )
 
     def check_batched(self) -> None:
         """InvalidInputError unless this sampler runs many materials' posteriors in one

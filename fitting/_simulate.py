@@ -17,6 +17,7 @@ from ._data import Dataset
 from ._model import predict_images
 from ._parametric import ParametricModel
 
+
 __all__ = ["simulate"]
 
 
@@ -53,7 +54,8 @@ def simulate(
     incidents = [np.array([np.sin(t), 0.0, np.cos(t)]) for t in np.linspace(0.0, 0.5, replicates)]
     blank = [
         LobeImage(mu=mu, incident=inc, extent=extent, values=np.zeros((size, size)), sigma=np.ones((size, size)))
-        for mu in scales for inc in incidents
+        for mu in scales
+        for inc in incidents
     ]
     data = Dataset.from_measurements(MeasurementSet(tuple(blank)))
     clean = np.asarray(predict_images(model, jnp.asarray(model.theta_from(params)), data))
@@ -61,8 +63,17 @@ def simulate(
     for i, img in enumerate(blank):
         v = clean[i, : size * size].reshape(size, size)
         sigma = np.full_like(v, noise * v.max() + floor)
-        images.append(LobeImage(mu=img.mu, incident=img.incident, extent=extent,
-                                values=v + sigma * rng.standard_normal(v.shape), sigma=sigma))
-    truth = {"model": {"kind": "parametric", "lobe": model.lobe, "statistics": model.statistics},
-             "params": {k: float(v) for k, v in params.items()}}
+        images.append(
+            LobeImage(
+                mu=img.mu,
+                incident=img.incident,
+                extent=extent,
+                values=v + sigma * rng.standard_normal(v.shape),
+                sigma=sigma,
+            )
+        )
+    truth = {
+        "model": {"kind": "parametric", "lobe": model.lobe, "statistics": model.statistics},
+        "params": {k: float(v) for k, v in params.items()},
+    }
     return MeasurementSet(tuple(images), metadata={"truth": truth})

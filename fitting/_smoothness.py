@@ -5,7 +5,9 @@ from typing import TYPE_CHECKING
 import jax
 import jax.numpy as jnp
 import numpy as np
+
 from ._data import Dataset
+
 
 if TYPE_CHECKING:
     from ._nonparametric import NonParametricModel
@@ -18,8 +20,9 @@ SMOOTHNESS_CANDIDATES = tuple(np.logspace(-2.0, 3.0, 31).tolist())
 """The smoothness weights :func:`choose_smoothness` compares (6 per decade)."""
 
 
-def choose_smoothness(model: "NonParametricModel", data: Dataset, *, candidates=SMOOTHNESS_CANDIDATES,
-                      max_steps: int = 300) -> tuple[float, tuple]:
+def choose_smoothness(
+    model: "NonParametricModel", data: Dataset, *, candidates=SMOOTHNESS_CANDIDATES, max_steps: int = 300
+) -> tuple[float, tuple]:
     """The smoothness weight s of ``model`` chosen by generalised cross-validation.
 
     The fit minimises ``‖r(θ)‖² + s² ‖Δ²D(θ)‖²`` (whitened data residuals r, second
@@ -54,7 +57,7 @@ def choose_smoothness(model: "NonParametricModel", data: Dataset, *, candidates=
     J, r0 = jac[: len(res) - n_pen], res[: len(res) - n_pen]
     if n_pen == 0 or s0 == 0:
         return s0, (tuple(candidates), tuple(float("nan") for _ in candidates), s0)
-    L, p0 = jac[len(res) - n_pen:] / s0, res[len(res) - n_pen:] / s0
+    L, p0 = jac[len(res) - n_pen :] / s0, res[len(res) - n_pen :] / s0
     n = data.n_data
     offset = float(problem.points.chi2_offset)
     JtJ, LtL, Jtr, Ltp = J.T @ J, L.T @ L, J.T @ r0, L.T @ p0

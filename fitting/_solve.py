@@ -10,7 +10,8 @@ import jax
 import jax.numpy as jnp
 import optimistix as optx
 
-from brdfscale import InvalidInputError, choices
+from brdfscale import choices, InvalidInputError
+
 
 __all__ = ["RESULT_NAMES", "SOLVERS", "make_solver", "solve", "solve_rows", "solver_name"]
 
@@ -18,14 +19,28 @@ SOLVERS = tuple(choices.SOLVERS)
 """The solvers by name (:data:`brdfscale.choices.SOLVERS`): Levenberg–Marquardt (default),
 Gauss–Newton, dogleg, BFGS (a minimiser of ½‖r‖²)."""
 
-_SOLVER_CLASSES = {"lm": optx.LevenbergMarquardt, "gauss_newton": optx.GaussNewton, "dogleg": optx.Dogleg,
-                   "bfgs": optx.BFGS}
+_SOLVER_CLASSES = {
+    "lm": optx.LevenbergMarquardt,
+    "gauss_newton": optx.GaussNewton,
+    "dogleg": optx.Dogleg,
+    "bfgs": optx.BFGS,
+}
 
 # optimistix's result names, in the order of the codes a solve returns (index = code); through the
 # public API only: ``getattr(optx.RESULTS, name)`` and ``==`` (a name the installed optimistix
 # lacks is left out). Code −1: a result not among them.
-_KNOWN_RESULTS = ("successful", "max_steps_reached", "singular", "breakdown", "stagnation", "conlim",
-                  "nonfinite_input", "nonlinear_max_steps_reached", "nonlinear_divergence", "nonfinite")
+_KNOWN_RESULTS = (
+    "successful",
+    "max_steps_reached",
+    "singular",
+    "breakdown",
+    "stagnation",
+    "conlim",
+    "nonfinite_input",
+    "nonlinear_max_steps_reached",
+    "nonlinear_divergence",
+    "nonfinite",
+)
 
 
 def _result_items() -> tuple:
@@ -59,8 +74,10 @@ def check_solver(solver):
     if (isinstance(solver, str) and solver in SOLVERS) or is_solver(solver):
         return solver
     got = repr(solver) if isinstance(solver, str) else type(solver).__name__
-    raise InvalidInputError(f"solver must be one of {SOLVERS} or an optimistix least-squares solver or minimiser "
-                            f"object (e.g. optimistix.LevenbergMarquardt(rtol=1e-6, atol=1e-6)); got {got}.")
+    raise InvalidInputError(
+        f"solver must be one of {SOLVERS} or an optimistix least-squares solver or minimiser "
+        f"object (e.g. optimistix.LevenbergMarquardt(rtol=1e-6, atol=1e-6)); got {got}."
+    )
 
 
 def solver_name(solver) -> str:

@@ -28,9 +28,10 @@ import numpy as np
 import OpenEXR
 
 import brdfscale as bs
-from brdfscale import LobeImage, MeasurementSet, exr, fitting
+from brdfscale import exr, fitting, LobeImage, MeasurementSet
 from brdfscale._cli import main as cli_main
 from brdfscale.exr import _format
+
 
 # -- the linear-Gaussian model ----------------------------------------------------------------------
 
@@ -91,8 +92,15 @@ def linear_measurements(seed=0, size=6, sigma=0.1):
         axis = np.linspace(-0.1, 0.1, n)
         ux, uy = np.meshgrid(axis, axis)
         f = TRUE[0] + TRUE[1] * 10 * ux + TRUE[2] * (10 * ux + 5 * uy + k)
-        images.append(LobeImage(mu=mu, incident=np.array([0.0, 0.0, 1.0]), extent=0.1,
-                                values=f + sigma * rng.standard_normal(f.shape), sigma=np.full(f.shape, sigma)))
+        images.append(
+            LobeImage(
+                mu=mu,
+                incident=np.array([0.0, 0.0, 1.0]),
+                extent=0.1,
+                values=f + sigma * rng.standard_normal(f.shape),
+                sigma=np.full(f.shape, sigma),
+            )
+        )
     return MeasurementSet(tuple(images))
 
 
@@ -125,9 +133,13 @@ LIBRARY_EXTENTS = (0.4, 0.5, 0.6)
 
 def library_truth(i: int, seed: int = 0) -> dict:
     rng = np.random.default_rng([seed, i])
-    return {"amplitude": float(rng.uniform(0.3, 2.5)), "alpha_lobe": float(rng.uniform(0.04, 0.08)),
-                "alpha_max": float(rng.uniform(0.15, 0.25)), "mu_c": float(rng.uniform(0.7, 2.0)),
-                "exponent": float(rng.uniform(0.6, 1.5))}
+    return {
+        "amplitude": float(rng.uniform(0.3, 2.5)),
+        "alpha_lobe": float(rng.uniform(0.04, 0.08)),
+        "alpha_max": float(rng.uniform(0.15, 0.25)),
+        "mu_c": float(rng.uniform(0.7, 2.0)),
+        "exponent": float(rng.uniform(0.6, 1.5)),
+    }
 
 
 def material(i: int, seed: int = 0, noise: float = 0.02):
@@ -136,9 +148,17 @@ def material(i: int, seed: int = 0, noise: float = 0.02):
 
     rng = np.random.default_rng([seed, i, 1])
     model = fitting.ParametricModel()
-    return fitting.simulate(model, library_truth(i, seed), SCALES, size=int(rng.choice(LIBRARY_SIZES)),
-                            extent=float(rng.choice(LIBRARY_EXTENTS)), noise=noise, floor=1e-3,
-                            replicates=int(rng.integers(1, 3)), seed=int(rng.integers(2**31)))
+    return fitting.simulate(
+        model,
+        library_truth(i, seed),
+        SCALES,
+        size=int(rng.choice(LIBRARY_SIZES)),
+        extent=float(rng.choice(LIBRARY_EXTENTS)),
+        noise=noise,
+        floor=1e-3,
+        replicates=int(rng.integers(1, 3)),
+        seed=int(rng.integers(2**31)),
+    )
 
 
 def write_library(directory: str, n: int, seed: int = 0) -> list[str]:
@@ -154,16 +174,26 @@ def write_library(directory: str, n: int, seed: int = 0) -> list[str]:
 
 # -- measurement files and command lines for the robustness tests -----------------------------------
 
+
 def sample_set() -> bs.MeasurementSet:
     """A small valid measurement set: two parts, RGB values, σ, mask, nested metadata with non-ASCII text."""
     rng = np.random.default_rng(7)
     images = []
     for k, mu in enumerate((2.0, 8.0)):
         v = rng.random((9, 9, 3)) + 0.1
-        images.append(bs.LobeImage(mu=mu, incident=np.array([0.1 * k, 0.0, np.sqrt(1 - 0.01 * k * k)]), extent=0.2,
-                                   values=v, sigma=0.05 + 0.1 * v, mask=v[..., 0] > 0.3))
-    return bs.MeasurementSet(tuple(images), {"surface": {"name": "fuzz"}, "truth": {"params": {"mu_c": 3.0}},
-                                             "note": "ünïcode"})
+        images.append(
+            bs.LobeImage(
+                mu=mu,
+                incident=np.array([0.1 * k, 0.0, np.sqrt(1 - 0.01 * k * k)]),
+                extent=0.2,
+                values=v,
+                sigma=0.05 + 0.1 * v,
+                mask=v[..., 0] > 0.3,
+            )
+        )
+    return bs.MeasurementSet(
+        tuple(images), {"surface": {"name": "fuzz"}, "truth": {"params": {"mu_c": 3.0}}, "note": "ünïcode"}
+    )
 
 
 def same_set(a: bs.MeasurementSet, b: bs.MeasurementSet) -> bool:
@@ -195,8 +225,27 @@ def rewrite_exr(src: str, dst: str, edit, reseal: bool = False) -> None:
 
 
 #: values tried for command-line options: negative, zero, huge, not finite, empty, text, hexadecimal, …
-HOSTILE = ["-1", "0", "1e300", "-1e300", "nan", "inf", "", "1180591620717411303424", "abc", "1e-30",
-           "100000", "0x10", "1.5", "2", "3", "-0", "1e9", "65", "∞"]
+HOSTILE = [
+    "-1",
+    "0",
+    "1e300",
+    "-1e300",
+    "nan",
+    "inf",
+    "",
+    "1180591620717411303424",
+    "abc",
+    "1e-30",
+    "100000",
+    "0x10",
+    "1.5",
+    "2",
+    "3",
+    "-0",
+    "1e9",
+    "65",
+    "∞",
+]
 
 
 def _number(text: str, lo, hi, *, strict: bool = False, integral: bool = False) -> bool:

@@ -11,13 +11,10 @@ import types
 import jax
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from hypothesis import given, settings, strategies as st
 
-from brdfscale import fitting
-from brdfscale import InvalidInputError, LobeImage, MeasurementSet
+from brdfscale import fitting, InvalidInputError, LobeImage, MeasurementSet
 from brdfscale.fitting._batch import bucket_points, plan, select_lanes
-
 from tests.helpers import material
 
 
@@ -28,8 +25,11 @@ def _masked(mset):
         mask = np.ones(img.values.shape[:2], bool)
         if k % 2:
             mask[: img.size // 2, : img.size // 2] = False
-        images.append(LobeImage(mu=img.mu, incident=img.incident, extent=img.extent, values=img.values,
-                                sigma=img.sigma, mask=mask))
+        images.append(
+            LobeImage(
+                mu=img.mu, incident=img.incident, extent=img.extent, values=img.values, sigma=img.sigma, mask=mask
+            )
+        )
     return MeasurementSet(tuple(images), metadata=mset.metadata)
 
 
@@ -170,8 +170,14 @@ _SHARDED = textwrap.dedent("""
 
 def test_batched_fits_divided_over_4_devices_equal_one_device_bit_for_bit():
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=4", "JAX_PLATFORMS": "cpu"}
-    run = subprocess.run([sys.executable, "-c", _SHARDED], capture_output=True, text=True, env=env, timeout=600,
-                         cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    run = subprocess.run(
+        [sys.executable, "-c", _SHARDED],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+        cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+    )
     assert run.returncode == 0, run.stderr[-3000:]
     got = json.loads(run.stdout.strip().splitlines()[-1])
     one, four = (np.asarray(t) for t in got["theta"])

@@ -13,8 +13,9 @@ import sys
 
 import pytest
 
-from brdfscale import InvalidInputError, choices, fitting, library
-from brdfscale._cli import FLAGS, build_parser, in_flags
+from brdfscale import choices, fitting, InvalidInputError, library
+from brdfscale._cli import build_parser, FLAGS, in_flags
+
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -25,15 +26,22 @@ def _parsed(command: str, *extra: str):
 
 
 def _defaults(function) -> dict:
-    return {name: p.default for name, p in inspect.signature(function).parameters.items()
-            if p.default is not inspect.Parameter.empty}
+    return {
+        name: p.default
+        for name, p in inspect.signature(function).parameters.items()
+        if p.default is not inspect.Parameter.empty
+    }
 
 
 def test_the_table_and_the_command_line_parser_import_without_jax():
-    code = ("import sys; from brdfscale import choices; from brdfscale._cli import build_parser; build_parser(); "
-            "assert choices.SAMPLERS.default in choices.SAMPLERS; "
-            "print(sorted(m for m in ('jax', 'jaxlib', 'brdfscale.fitting') if m in sys.modules))")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT, check=False)
+    code = (
+        "import sys; from brdfscale import choices; from brdfscale._cli import build_parser; build_parser(); "
+        "assert choices.SAMPLERS.default in choices.SAMPLERS; "
+        "print(sorted(m for m in ('jax', 'jaxlib', 'brdfscale.fitting') if m in sys.modules))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT, check=False
+    )
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]"
 
@@ -42,12 +50,14 @@ def test_command_line_defaults_equal_the_library_defaults():
     """Every option the command shares with fitting and FitSpec has the same default there, read
     from the parser and from the functions' signatures."""
     args = _parsed("fit")
-    fit, fit_many, sample, sample_many = (_defaults(f) for f in (fitting.fit, fitting.fit_many, fitting.sample,
-                                                                  fitting.sample_many))
+    fit, fit_many, sample, sample_many = (
+        _defaults(f) for f in (fitting.fit, fitting.fit_many, fitting.sample, fitting.sample_many)
+    )
     spec = {f.name: f.default for f in dataclasses.fields(library.FitSpec)}
     for option in ("solver", "starts", "max_steps", "seed"):
-        assert getattr(args, option) == fit[option] == fit_many[option] == spec[option] \
-            == getattr(choices.FIT, option), option
+        assert (
+            getattr(args, option) == fit[option] == fit_many[option] == spec[option] == getattr(choices.FIT, option)
+        ), option
     for option in ("sampler", "chains", "steps", "seed"):
         assert getattr(args, option) == sample[option] == sample_many[option] == getattr(choices.SAMPLE, option), option
     for option in ("chains", "steps"):
@@ -58,8 +68,11 @@ def test_command_line_defaults_equal_the_library_defaults():
     parametric = _defaults(fitting.ParametricModel.__init__)
     assert parametric["lobe"] == parametric["statistics"] == args.family and parametric["law"] == args.law
     nonparametric = _defaults(fitting.NonParametricModel.__init__)
-    assert (nonparametric["base_nodes"], nonparametric["n_knots"], nonparametric["regularisation"]) == \
-        (args.base_nodes, args.knots, args.regularisation)
+    assert (nonparametric["base_nodes"], nonparametric["n_knots"], nonparametric["regularisation"]) == (
+        args.base_nodes,
+        args.knots,
+        args.regularisation,
+    )
     # fit-library: the same, but no sampling unless --steps is given (FitSpec's sampler None)
     lib = _parsed("fit-library")
     for option in ("solver", "starts", "max_steps", "seed", "model", "family", "law", "chains"):
@@ -76,23 +89,34 @@ def test_the_help_states_the_defaults_the_parser_uses(capsys):
         value = getattr(_parsed("fit"), flag[2:].replace("-", "_"))
         section = text.split(f"{flag} {flag[2:].replace('-', '_').upper()} ", 1)[1]
         assert section.split(" --", 1)[0].count(f"default {value}") == 1, flag
-    for flag, table in (("--solver", choices.SOLVERS), ("--sampler", choices.SAMPLERS), ("--model", choices.MODELS),
-                        ("--family", choices.FAMILIES), ("--law", choices.LAWS)):
+    for flag, table in (
+        ("--solver", choices.SOLVERS),
+        ("--sampler", choices.SAMPLERS),
+        ("--model", choices.MODELS),
+        ("--family", choices.FAMILIES),
+        ("--law", choices.LAWS),
+    ):
         assert f"{table.default} (default): {table.summary(table.default)}" in text, flag
     assert "(optimistix, then NUTS by default: --sampler)" in text and "optimistix + emcee" not in text
 
 
-@pytest.mark.parametrize("table,option", [(choices.SOLVERS, "solver"), (choices.SAMPLERS, "sampler"),
-                                          (choices.MODELS, "model"), (choices.FAMILIES, "family"),
-                                          (choices.LAWS, "law")])
+@pytest.mark.parametrize(
+    "table,option",
+    [
+        (choices.SOLVERS, "solver"),
+        (choices.SAMPLERS, "sampler"),
+        (choices.MODELS, "model"),
+        (choices.FAMILIES, "family"),
+        (choices.LAWS, "law"),
+    ],
+)
 def test_every_name_in_the_table_is_accepted_by_the_command_and_the_library(table, option):
     for name in table:
         assert getattr(_parsed("fit", f"--{option}", name), option) == name
         assert getattr(library.FitSpec(**{option: name}), option) == name
     with pytest.raises(SystemExit):
         _parsed("fit", f"--{option}", "no-such-name")
-    with pytest.raises(InvalidInputError,
-                       match=f"{option} must be"):
+    with pytest.raises(InvalidInputError, match=f"{option} must be"):
         library.FitSpec(**{option: "no-such-name"})
 
 
@@ -108,14 +132,14 @@ def test_every_name_in_the_table_is_accepted_by_fitting():
                     fitting.ParametricModel(family, family, law=law)
             else:
                 assert fitting.ParametricModel(family, family, law=law).names
-    assert {"parametric": fitting.ParametricModel, "nonparametric": fitting.NonParametricModel}.keys() \
-        == set(choices.MODELS)
+    assert {"parametric": fitting.ParametricModel, "nonparametric": fitting.NonParametricModel}.keys() == set(
+        choices.MODELS
+    )
 
 
 def test_the_table_refuses_unknown_names_naming_the_argument():
     assert choices.SAMPLERS.check("hmc") == "hmc"
-    with pytest.raises(InvalidInputError,
-                       match="sampler must be one of 'nuts', 'hmc', 'emcee'; got 'gibbs'"):
+    with pytest.raises(InvalidInputError, match="sampler must be one of 'nuts', 'hmc', 'emcee'; got 'gibbs'"):
         choices.SAMPLERS.check("gibbs")
     assert len(choices.SOLVERS) == len(set(choices.SOLVERS.names)) == 4
 
@@ -128,11 +152,15 @@ def test_every_flag_the_translation_names_exists():
 
 
 def test_library_messages_in_the_command_s_words():
-    assert in_flags("m.exr: file exists; pass overwrite=True to replace it.") == \
-        "m.exr: file exists; pass --force to replace it."
+    assert (
+        in_flags("m.exr: file exists; pass overwrite=True to replace it.")
+        == "m.exr: file exists; pass --force to replace it."
+    )
     assert in_flags("fixed: fixed alpha_lobe = 1e-30 lies outside") == "--fix: fixed alpha_lobe = 1e-30 lies outside"
-    assert in_flags("pass default_sigma= (σ) or store a 'sigma' channel; timeout=3, fixed: no") == \
-        "pass --default-sigma (σ) or store a 'sigma' channel; timeout=3, fixed: no"
+    assert (
+        in_flags("pass default_sigma= (σ) or store a 'sigma' channel; timeout=3, fixed: no")
+        == "pass --default-sigma (σ) or store a 'sigma' channel; timeout=3, fixed: no"
+    )
     assert in_flags("choose another out_dir= or pass overwrite=True") == "choose another --out or pass --force"
 
 
@@ -153,5 +181,7 @@ def test_library_messages_name_python_arguments_not_flags():
     for path in sorted([*(ROOT / "brdfscale").rglob("*.py"), *(ROOT / "fitting").rglob("*.py")]):
         if "_cli" in path.parts:
             continue
-        found += [f"{path.relative_to(ROOT)}:{line}: {text!r}" for line, text in _raised_texts(path) if flag.search(text)]
+        found += [
+            f"{path.relative_to(ROOT)}:{line}: {text!r}" for line, text in _raised_texts(path) if flag.search(text)
+        ]
     assert not found, "\n".join(found)

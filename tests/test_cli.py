@@ -37,40 +37,59 @@ def test_console_entry_point_runs():
 def _run_command(*args, env_extra, cwd):
     import os
 
-    env = {k: v for k, v in os.environ.items() if not k.startswith(("JAX_COMPILATION_CACHE", "JAX_PERSISTENT_CACHE",
-                                                                    "BRDFSCALE_"))}
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if not k.startswith(("JAX_COMPILATION_CACHE", "JAX_PERSISTENT_CACHE", "BRDFSCALE_"))
+    }
     env.update(env_extra)
-    return subprocess.run([sys.executable, "-m", "brdfscale", *args], capture_output=True, text=True, timeout=300,
-                          env=env, cwd=cwd)
+    return subprocess.run(
+        [sys.executable, "-m", "brdfscale", *args], capture_output=True, text=True, timeout=300, env=env, cwd=cwd
+    )
 
 
 @pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 @pytest.mark.compilation_cache
 def test_command_keeps_compiled_programs_between_runs_unless_told_not_to(tmp_path):
     cache = tmp_path / "cache"
-    first = _run_command("example", "--out", str(tmp_path / "a"), env_extra={"BRDFSCALE_COMPILATION_CACHE": str(cache)},
-                         cwd=tmp_path)
+    first = _run_command(
+        "example", "--out", str(tmp_path / "a"), env_extra={"BRDFSCALE_COMPILATION_CACHE": str(cache)}, cwd=tmp_path
+    )
     assert first.returncode == 0, first.stderr
     assert "Error reading persistent compilation cache" not in first.stderr
     entries = {p.name for p in cache.iterdir()}
     assert entries  # the example's programs were written
     # a second run reads them: nothing new to write
-    second = _run_command("example", "--out", str(tmp_path / "b"), env_extra={"BRDFSCALE_COMPILATION_CACHE": str(cache)},
-                          cwd=tmp_path)
+    second = _run_command(
+        "example", "--out", str(tmp_path / "b"), env_extra={"BRDFSCALE_COMPILATION_CACHE": str(cache)}, cwd=tmp_path
+    )
     assert second.returncode == 0, second.stderr
     assert {p.name for p in cache.iterdir() if not p.name.endswith("-atime")} <= entries
     # switched off: the directory is not even created
     off = tmp_path / "off"
-    res = _run_command("--no-compilation-cache", "example", "--out", str(tmp_path / "c"),
-                       env_extra={"BRDFSCALE_COMPILATION_CACHE": str(off)}, cwd=tmp_path)
+    res = _run_command(
+        "--no-compilation-cache",
+        "example",
+        "--out",
+        str(tmp_path / "c"),
+        env_extra={"BRDFSCALE_COMPILATION_CACHE": str(off)},
+        cwd=tmp_path,
+    )
     assert res.returncode == 0, res.stderr
     assert not off.exists()
     # a cache the user configured for JAX wins over the command's own
     own, ours = tmp_path / "own", tmp_path / "ours"
-    res = _run_command("example", "--out", str(tmp_path / "d"),
-                       env_extra={"JAX_COMPILATION_CACHE_DIR": str(own), "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
-                                  "BRDFSCALE_COMPILATION_CACHE": str(ours)},
-                       cwd=tmp_path)
+    res = _run_command(
+        "example",
+        "--out",
+        str(tmp_path / "d"),
+        env_extra={
+            "JAX_COMPILATION_CACHE_DIR": str(own),
+            "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
+            "BRDFSCALE_COMPILATION_CACHE": str(ours),
+        },
+        cwd=tmp_path,
+    )
     assert res.returncode == 0, res.stderr
     assert any(own.iterdir()) and not ours.exists()
 

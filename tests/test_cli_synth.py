@@ -19,13 +19,35 @@ def _only_existing_subcommands(monkeypatch):
 
 def test_synth_then_info(tmp_path, capsys):
     out = tmp_path / "set.exr"
-    argv = ["synth", "blazed", "--out", str(out), "--size", "160", "--scales", "1,16,32", "--incident", "0",
-            "--incident", "30:90", "--noise", "poisson:1000", "--seed", "4", "--pixels", "17"]
+    argv = [
+        "synth",
+        "blazed",
+        "--out",
+        str(out),
+        "--size",
+        "160",
+        "--scales",
+        "1,16,32",
+        "--incident",
+        "0",
+        "--incident",
+        "30:90",
+        "--noise",
+        "poisson:1000",
+        "--seed",
+        "4",
+        "--pixels",
+        "17",
+    ]
     assert cli.main(argv) == 0
     mset = exr.read_measurements(out)
     assert len(mset.images) == 6 and sorted(set(p.mu for p in mset.images)) == [1.0, 16.0, 32.0]
     np.testing.assert_allclose(mset.images[1].incident, [0.0, 0.5, np.sqrt(0.75)], atol=1e-15)
-    assert mset.metadata["seed"] == 4 and mset.metadata["noise"] == {"type": "poisson", "exposure": 1000.0, "read_noise": 0.0}
+    assert mset.metadata["seed"] == 4 and mset.metadata["noise"] == {
+        "type": "poisson",
+        "exposure": 1000.0,
+        "read_noise": 0.0,
+    }
     assert mset.images[0].sigma is not None
     capsys.readouterr()
     assert cli.main(["info", str(out)]) == 0
@@ -84,8 +106,27 @@ def test_bad_arguments_exit_with_usage_error(argv, tmp_path, monkeypatch):
 
 def test_rough_micro_facets(tmp_path):
     out = tmp_path / "rough.exr"
-    assert cli.main(["synth", "gaussian", "--out", str(out), "--size", "64", "--scales", "64", "--micro-alpha", "0.02",
-                     "--pixels", "33", "--extent", "0.1"]) == 0
+    assert (
+        cli.main(
+            [
+                "synth",
+                "gaussian",
+                "--out",
+                str(out),
+                "--size",
+                "64",
+                "--scales",
+                "64",
+                "--micro-alpha",
+                "0.02",
+                "--pixels",
+                "33",
+                "--extent",
+                "0.1",
+            ]
+        )
+        == 0
+    )
     mset = exr.read_measurements(out)
     assert mset.metadata["micro"]["type"] == "Gaussian"
     image = mset.images[0]

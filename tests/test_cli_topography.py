@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 
 import brdfscale._cli as cli
-from brdfscale import InvalidInputError, exr, synth, topography
+from brdfscale import exr, InvalidInputError, synth, topography
 from brdfscale._cli._options import scales
+
 
 pytest.importorskip("SurfaceTopography")
 
@@ -76,7 +77,9 @@ def test_outputs_agree_with_facet_statistics(tmp_path, capsys, di_field):
 
 def test_unmeasured_pixels_are_counted_as_excluded_windows(tmp_path):
     out = tmp_path / "frt"
-    assert _status(["topography", FRT, "--scales", "auto:2", "--bins", "17", "--detrend", "none", "--out", str(out)]) == 0
+    assert (
+        _status(["topography", FRT, "--scales", "auto:2", "--bins", "17", "--detrend", "none", "--out", str(out)]) == 0
+    )
     doc = json.loads((out / "statistics.json").read_text(encoding="utf-8"))
     field = doc["field"]
     assert field["unmeasured_pixels"] > 0.2 * 500 * 500 and doc["topography"]["detrend"] is None
@@ -102,13 +105,22 @@ def test_refuses_to_overwrite_unless_forced(tmp_path, capsys):
 def test_a_second_run_into_a_directory_in_use_is_refused(tmp_path, capsys):
     out = tmp_path / "busy"
     out.mkdir()
-    holder = subprocess.Popen([sys.executable, "-c", textwrap.dedent(f"""
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            textwrap.dedent(f"""
         import sys
         from brdfscale import files
         with files.exclusive({str(out)!r}):
             print("held", flush=True)
             sys.stdin.read()
-    """)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    """),
+        ],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert holder.stdout.readline().strip() == "held"
         assert _status(["topography", DI, "--scales", "8px", "--bins", "17", "--out", str(out)]) == 3
@@ -118,21 +130,24 @@ def test_a_second_run_into_a_directory_in_use_is_refused(tmp_path, capsys):
         holder.communicate("", timeout=30)
 
 
-@pytest.mark.parametrize("extra, message", [
-    (["--scales", "0.1um"], "--scales 0.1um: 1e-07 m = 2.56 pixels"),
-    (["--scales", "300px"], "a scale must be a whole number of pixels along both axes, from 1 to 255"),
-    (["--scales", "4"], "a bare number is ambiguous for a field measured in m"),
-    (["--scales", "4px,0.15625um"], "4px and 0.15625um are the same scale (4 pixels)"),
-    (["--scales", "3furlong"], "argument --scales: unknown unit 'furlong'"),
-    (["--scales", "2.5px"], "argument --scales: pixel counts must be whole numbers of pixels"),
-    (["--scales=-1um"], "argument --scales: expected 1–64 comma-separated scales"),
-    (["--scales", "0um"], "argument --scales: expected 1–64 comma-separated scales"),
-    (["--scales", "auto:0"], "auto:COUNT needs a whole COUNT from 1 to 64"),
-    (["--channel", "9"], "channel must be an index from 0 to 3 or a name"),
-    (["--channel", "Topo"], "has no channel named 'Topo'; its channels are 0: 'ZSensor'"),
-    (["--detrend", "cubic"], "argument --detrend: invalid choice"),
-    (["--bins", "1"], "argument --bins: must be an integer in [2, 4097]"),
-])
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--scales", "0.1um"], "--scales 0.1um: 1e-07 m = 2.56 pixels"),
+        (["--scales", "300px"], "a scale must be a whole number of pixels along both axes, from 1 to 255"),
+        (["--scales", "4"], "a bare number is ambiguous for a field measured in m"),
+        (["--scales", "4px,0.15625um"], "4px and 0.15625um are the same scale (4 pixels)"),
+        (["--scales", "3furlong"], "argument --scales: unknown unit 'furlong'"),
+        (["--scales", "2.5px"], "argument --scales: pixel counts must be whole numbers of pixels"),
+        (["--scales=-1um"], "argument --scales: expected 1–64 comma-separated scales"),
+        (["--scales", "0um"], "argument --scales: expected 1–64 comma-separated scales"),
+        (["--scales", "auto:0"], "auto:COUNT needs a whole COUNT from 1 to 64"),
+        (["--channel", "9"], "channel must be an index from 0 to 3 or a name"),
+        (["--channel", "Topo"], "has no channel named 'Topo'; its channels are 0: 'ZSensor'"),
+        (["--detrend", "cubic"], "argument --detrend: invalid choice"),
+        (["--bins", "1"], "argument --bins: must be an integer in [2, 4097]"),
+    ],
+)
 def test_bad_options_exit_2_with_one_line(tmp_path, capsys, extra, message):
     out = tmp_path / "o"
     assert _status(["topography", DI, *extra, "--out", str(out)]) == 2
@@ -144,9 +159,11 @@ def test_bad_options_exit_2_with_one_line(tmp_path, capsys, extra, message):
 def test_bad_files_and_a_missing_extra_exit_2(tmp_path, capsys, monkeypatch):
     out = tmp_path / "o"
     (tmp_path / "notes.txt").write_text("not a height map\n")
-    for path, message in ((tmp_path / "absent.di", "absent.di: does not exist"),
-                          (tmp_path / "notes.txt", "cannot read it as a topography"),
-                          (tmp_path, "is a directory")):
+    for path, message in (
+        (tmp_path / "absent.di", "absent.di: does not exist"),
+        (tmp_path / "notes.txt", "cannot read it as a topography"),
+        (tmp_path, "is a directory"),
+    ):
         assert _status(["topography", str(path), "--out", str(out)]) == 2
         err = capsys.readouterr().err
         assert message in err and err.count("\n") == 1 and "Traceback" not in err
@@ -161,8 +178,10 @@ def test_bad_files_and_a_missing_extra_exit_2(tmp_path, capsys, monkeypatch):
 
 
 def test_scales_parser_resolves_units_pixels_and_auto(di_field):
-    same = [scales(t).resolve(di_field) for t in
-            ("4px", "0.15625um", "0.15625µm", "0.15625\u03bcm", "1.5625e-7m", "156.25nm", "1.5625e-4mm", "1562.5A")]
+    same = [
+        scales(t).resolve(di_field)
+        for t in ("4px", "0.15625um", "0.15625µm", "0.15625\u03bcm", "1.5625e-7m", "156.25nm", "1.5625e-4mm", "1562.5A")
+    ]
     assert all(s == [4 * PX] for s in same)
     assert scales("auto:3").resolve(di_field) == di_field.scales(3)
     assert scales("auto").resolve(di_field) == di_field.scales(8)
@@ -178,8 +197,25 @@ def test_scales_parser_resolves_units_pixels_and_auto(di_field):
 
 def test_synth_from_a_topography_writes_a_measurement_set(tmp_path, capsys, di_field):
     out = tmp_path / "di.exr"
-    argv = ["synth", "--topography", DI, "--scales", "2px,0.3125um", "--incident", "0", "--incident", "20:90",
-            "--pixels", "17", "--noise", "poisson:1000", "--seed", "5", "--out", str(out)]
+    argv = [
+        "synth",
+        "--topography",
+        DI,
+        "--scales",
+        "2px,0.3125um",
+        "--incident",
+        "0",
+        "--incident",
+        "20:90",
+        "--pixels",
+        "17",
+        "--noise",
+        "poisson:1000",
+        "--seed",
+        "5",
+        "--out",
+        str(out),
+    ]
     assert _status(argv) == 0
     assert "4 lobe images (di-3.di, 256 × 256 measured field" in capsys.readouterr().out
     mset = exr.read_measurements(out)
@@ -197,16 +233,22 @@ def test_synth_from_a_topography_writes_a_measurement_set(tmp_path, capsys, di_f
     assert "surface: di-3.di (measured, Dimension Icon, detrend plane)" in capsys.readouterr().out
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["synth", "gaussian", "--topography", DI], "give either a built-in SURFACE or --topography FILE"),
-    (["synth"], "give either a built-in SURFACE or --topography FILE"),
-    (["synth", "--topography", DI, "--size", "64"], "--size sets the size of a built-in SURFACE"),
-    (["synth", "--topography", DI, "--seed", "3"], "the seed only seeds the noise; give --noise too"),
-    (["synth", "gaussian", "--channel", "0", "--detrend", "none"], "--channel and --detrend: how a topography file is read"),
-    (["synth", "gaussian", "--scales", "4um"], "this surface's lengths are in pixels"),
-    (["synth", "--topography", DI, "--scales", "4,16"], "a bare number is ambiguous"),
-    (["synth", "--topography", str(DATA / "missing.mi")], "missing.mi: does not exist"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["synth", "gaussian", "--topography", DI], "give either a built-in SURFACE or --topography FILE"),
+        (["synth"], "give either a built-in SURFACE or --topography FILE"),
+        (["synth", "--topography", DI, "--size", "64"], "--size sets the size of a built-in SURFACE"),
+        (["synth", "--topography", DI, "--seed", "3"], "the seed only seeds the noise; give --noise too"),
+        (
+            ["synth", "gaussian", "--channel", "0", "--detrend", "none"],
+            "--channel and --detrend: how a topography file is read",
+        ),
+        (["synth", "gaussian", "--scales", "4um"], "this surface's lengths are in pixels"),
+        (["synth", "--topography", DI, "--scales", "4,16"], "a bare number is ambiguous"),
+        (["synth", "--topography", str(DATA / "missing.mi")], "missing.mi: does not exist"),
+    ],
+)
 def test_synth_refuses_options_that_do_not_apply(tmp_path, capsys, argv, message):
     out = tmp_path / "x.exr"
     assert _status([*argv, "--pixels", "9", "--out", str(out)]) == 2
@@ -218,8 +260,24 @@ def test_synth_refuses_options_that_do_not_apply(tmp_path, capsys, argv, message
 @pytest.mark.slow  # ≈ 8 s on 2 cores (the fit's first compilation)
 def test_fit_runs_on_a_topography_measurement_set(tmp_path, capsys):
     data = tmp_path / "di.exr"
-    assert _status(["synth", "--topography", DI, "--scales", "2px,8px,32px", "--pixels", "33", "--noise",
-                    "poisson:1000", "--out", str(data)]) == 0
+    assert (
+        _status(
+            [
+                "synth",
+                "--topography",
+                DI,
+                "--scales",
+                "2px,8px,32px",
+                "--pixels",
+                "33",
+                "--noise",
+                "poisson:1000",
+                "--out",
+                str(data),
+            ]
+        )
+        == 0
+    )
     assert _status(["fit", str(data), "--out", str(tmp_path / "fit"), "--steps", "0", "--starts", "2"]) == 0
     doc = json.loads((tmp_path / "fit" / "fit.json").read_text())
     assert doc["optimisation"]["reduced_chi2"] > 0 and "alpha_lobe" in doc["parameters"]

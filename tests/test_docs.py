@@ -17,6 +17,7 @@ from pathlib import Path
 import jax
 import pytest
 
+
 ROOT = Path(__file__).resolve().parent.parent
 DOCS = ROOT / "docs"
 PAGES = sorted(DOCS.rglob("*.md")) + [ROOT / "README.md"]
@@ -39,11 +40,19 @@ CHECKED = ("brdfscale/", "fitting/", "experiments/", "tests/", "docs/", "README.
 def _tracked_files() -> list[str]:
     """The files git tracks, or would track (new and not ignored), under CHECKED."""
     try:
-        out = subprocess.run(["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard", "--", *CHECKED],
-                             cwd=ROOT, capture_output=True, check=True)
+        out = subprocess.run(
+            ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard", "--", *CHECKED],
+            cwd=ROOT,
+            capture_output=True,
+            check=True,
+        )
     except (OSError, subprocess.CalledProcessError):  # not a git checkout: every file there
-        return sorted(_rel(p) for c in CHECKED for p in ([ROOT / c] if c.endswith(".md") else (ROOT / c).rglob("*"))
-                      if p.is_file() and "__pycache__" not in p.parts)
+        return sorted(
+            _rel(p)
+            for c in CHECKED
+            for p in ([ROOT / c] if c.endswith(".md") else (ROOT / c).rglob("*"))
+            if p.is_file() and "__pycache__" not in p.parts
+        )
     return sorted(name for name in out.stdout.decode().split("\0") if name)
 
 
@@ -58,8 +67,10 @@ def test_no_file_cites_notes_outside_the_repository():
         for number, line in enumerate(path.read_bytes().splitlines(), 1):
             if OUTSIDE.search(line):
                 hits.append(f"{name}:{number}: {line.decode(errors='replace').strip()[:120]}")
-    assert not hits, ("cite docs/conventions.md §n or docs/dependencies.md instead of notes outside the "
-                      "repository:\n" + "\n".join(hits))
+    assert not hits, (
+        "cite docs/conventions.md §n or docs/dependencies.md instead of notes outside the "
+        "repository:\n" + "\n".join(hits)
+    )
 
 
 # -- Markdown: the parts outside code ---------------------------------------------------------------
@@ -134,8 +145,9 @@ def test_relative_links_lead_to_files_and_anchors_that_exist():
             if not destination.exists():
                 problems.append(f"{where}: no such file")
             elif anchor and destination.suffix == ".md" and anchor not in _anchors(destination):
-                problems.append(f"{where}: no heading of {destination.name} has the anchor #{anchor} "
-                                f"(on both GitHub and the site)")
+                problems.append(
+                    f"{where}: no heading of {destination.name} has the anchor #{anchor} (on both GitHub and the site)"
+                )
     assert checked > 20, checked  # the pages do link to each other
     assert not problems, "\n".join(problems)
 
@@ -222,7 +234,7 @@ def test_core_examples_run(tmp_path, monkeypatch):
 
 def _core_table() -> list[list[str]]:
     text = CORE.read_text(encoding="utf-8")
-    section = text[text.index("## From the seed's equations to the code"):]
+    section = text[text.index("## From the seed's equations to the code") :]
     rows = [line for line in section.splitlines() if line.startswith("|")]
     header = [c.strip() for c in _cells(rows[0])]
     assert header == ["seed", "what it says", "implemented by", "checked by"], header
@@ -251,8 +263,11 @@ def _test_ids(path: Path) -> set[str]:
         if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and node.name.startswith("test"):
             ids.add(node.name)
         elif isinstance(node, ast.ClassDef) and node.name.startswith("Test"):
-            ids |= {f"{node.name}::{f.name}" for f in node.body
-                    if isinstance(f, (ast.FunctionDef, ast.AsyncFunctionDef)) and f.name.startswith("test")}
+            ids |= {
+                f"{node.name}::{f.name}"
+                for f in node.body
+                if isinstance(f, (ast.FunctionDef, ast.AsyncFunctionDef)) and f.name.startswith("test")
+            }
     return ids
 
 
@@ -286,11 +301,13 @@ def test_core_table_names_functions_that_import_and_tests_that_exist(row):
 
 def test_every_page_is_in_the_sites_navigation_and_every_entry_exists():
     config = (ROOT / "mkdocs.yml").read_text(encoding="utf-8")
-    nav = config[config.index("\nnav:"):config.index("\nmarkdown_extensions:")]
+    nav = config[config.index("\nnav:") : config.index("\nmarkdown_extensions:")]
     entries = set(re.findall(r":\s*(\S+\.md)\s*$", nav, re.M))
     pages = {p.relative_to(DOCS).as_posix() for p in DOCS.rglob("*.md")}
-    assert entries == pages, {"not in the navigation": sorted(pages - entries),
-                              "in the navigation, missing": sorted(entries - pages)}
+    assert entries == pages, {
+        "not in the navigation": sorted(pages - entries),
+        "in the navigation, missing": sorted(entries - pages),
+    }
 
 
 # -- docs/topography.md ("Your own surface") --------------------------------------------------------
@@ -311,14 +328,19 @@ def _python_blocks_and_output(path: Path) -> list[tuple[int, str, str | None]]:
             while k < len(lines) and not lines[k].startswith("```"):
                 k += 1
             assert k < len(lines), f"{_rel(path)}:{opening + 1}: a {m.group(1)} block is not closed"
-            fenced.append((m.group(1), opening + 2, opening, k, "\n".join(lines[opening + 1:k]) + "\n"))
+            fenced.append((m.group(1), opening + 2, opening, k, "\n".join(lines[opening + 1 : k]) + "\n"))
         k += 1
     out = []
     for n, (language, first, _, closing, body) in enumerate(fenced):
         if language == "python":
             following = fenced[n + 1] if n + 1 < len(fenced) else None
-            shown = (following[4] if following and following[0] == "text"
-                     and not any(line.strip() for line in lines[closing + 1:following[2]]) else None)
+            shown = (
+                following[4]
+                if following
+                and following[0] == "text"
+                and not any(line.strip() for line in lines[closing + 1 : following[2]])
+                else None
+            )
             out.append((first, body, shown))
     return out
 
@@ -378,18 +400,24 @@ def test_facet_slopes_are_row_means_of_surface_topographys_difference_quotients(
     below its slope variance at ℓ = μ — on the AFM file, and on a simulated isotropic surface,
     where Σ also matches the stationary formula b⁻² Σ_{|k|<b} (b − |k|) C_ℓ(kΔ) built from
     SurfaceTopography's quotients within the stated standard errors."""
-    st = pytest.importorskip("SurfaceTopography", reason="the comparison needs SurfaceTopography (brdfscale[topography])")
+    st = pytest.importorskip(
+        "SurfaceTopography", reason="the comparison needs SurfaceTopography (brdfscale[topography])"
+    )
     import numpy as np
 
     from brdfscale import stats, synth, topography
 
     # the real AFM file, square pixels
     field = topography.read(ROOT / "tests" / "data" / "topographies" / "di-3.di", detrend="curvature")
-    theirs = st.open_topography(str(ROOT / "tests" / "data" / "topographies" / "di-3.di")).topography().detrend("curvature")
+    theirs = (
+        st.open_topography(str(ROOT / "tests" / "data" / "topographies" / "di-3.di")).topography().detrend("curvature")
+    )
     steps = [1, 2, 3, 4, 8, 16, 25, 32, 64]
     qx, qy = _difference_quotients(theirs, [(b, b) for b in steps])
     ux, uy = _difference_quotients(theirs, [(b, b) for b in steps], untrimmed=True)
-    for k, (b, s) in enumerate(zip(steps, synth.facet_statistics(field, [b * field.spacing[0] for b in steps], bins=9))):
+    for k, (b, s) in enumerate(
+        zip(steps, synth.facet_statistics(field, [b * field.spacing[0] for b in steps], bins=9))
+    ):
         dx, dy = qx[k], qy[k]
         m = synth.facet_slopes(field, s.mu)
         mx, my = _row_means(ux[k], uy[k], (b, b), m.shape[:2])
@@ -398,7 +426,9 @@ def test_facet_slopes_are_row_means_of_surface_topographys_difference_quotients(
         if b == 1:
             n = s.count
             assert n == dx.size == dy.size
-            np.testing.assert_allclose(np.diag(s.covariance), n / (n - 1) * np.array([np.var(dx), np.var(dy)]), rtol=1e-12)
+            np.testing.assert_allclose(
+                np.diag(s.covariance), n / (n - 1) * np.array([np.var(dx), np.var(dy)]), rtol=1e-12
+            )
         else:
             assert s.covariance[0, 0] < np.var(dx) and s.covariance[1, 1] < np.var(dy), b
 

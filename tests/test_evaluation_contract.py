@@ -19,6 +19,7 @@ import brdfscale as bs
 from brdfscale import lobes, stats
 from brdfscale._blocks import DEFAULT_BUDGET
 
+
 LAW = stats.ScaledFamily(stats.GGX, stats.WidthLaw(alpha_max=0.15, mu_c=1.0, exponent=0.8))
 
 
@@ -60,8 +61,11 @@ def test_float32_explain_states_the_tolerance_float32_can_honour():
     floor = 1e-14 * float(jnp.finfo(jnp.float32).eps) / float(jnp.finfo(jnp.float64).eps)
 
     def resolved(dtype, tol):
-        args = (lobes.Beckmann(jnp.asarray(0.1, dtype)), stats.GGX(jnp.asarray(0.08, dtype)),
-                stats.GGX(jnp.asarray(0.03, dtype)))
+        args = (
+            lobes.Beckmann(jnp.asarray(0.1, dtype)),
+            stats.GGX(jnp.asarray(0.08, dtype)),
+            stats.GGX(jnp.asarray(0.03, dtype)),
+        )
         return bs.evolve(*args, method="radial", size=256, tol=tol).shape.discretisation
 
     said = resolved(jnp.float32, 1e-6).explain()
@@ -116,8 +120,9 @@ def test_jit_with_the_selected_method_equals_the_eager_result_of_the_issues_case
 
 
 @settings(max_examples=4, deadline=None)
-@given(a=st.floats(0.03, 0.2), f=st.floats(0.03, 0.2), frac=st.floats(0.2, 0.9),
-       path=st.sampled_from(["radial", "grid"]))
+@given(
+    a=st.floats(0.03, 0.2), f=st.floats(0.03, 0.2), frac=st.floats(0.2, 0.9), path=st.sampled_from(["radial", "grid"])
+)
 @pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_jit_grad_vmap_equal_eager_on_the_spectral_paths(a, f, frac, path):
     """GGX lobe and statistics (no closed form): jit, grad and vmap of the evolution with the
@@ -147,7 +152,7 @@ def test_gradient_with_respect_to_the_target_statistics_on_every_path():
 
     def closed(t):
         a2 = 0.05**2 + 0.08**2 - t**2
-        return math.exp(-0.01**2 / a2) / (math.pi * a2)
+        return math.exp(-(0.01**2) / a2) / (math.pi * a2)
 
     exact = (closed(0.05 + 1e-7) - closed(0.05 - 1e-7)) / 2e-7
     for method in ("closed_form", "radial", "grid"):
@@ -166,8 +171,10 @@ def test_no_brdf_under_jit_reaches_the_user_with_the_librarys_message():
     assert np.isfinite(float(f(0.01)[0]))
     # the type is JAX's (equinox's runtime error, JaxRuntimeError, or a ValueError from the CPU
     # callback when the error surfaces at block_until_ready on this JAX); the message is the library's
-    with pytest.raises((eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError, ValueError),
-                       match="no BRDF exists at the requested scale: the evolved lobe's transform exceeds 1"):
+    with pytest.raises(
+        (eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError, ValueError),
+        match="no BRDF exists at the requested scale: the evolved lobe's transform exceeds 1",
+    ):
         f(0.2).block_until_ready()
     with pytest.raises(bs.NoBRDFAtScaleError, match="^no BRDF exists at the requested scale: the evolved lobe"):
         bs.evolve(lobe, s0, stats.GGX(0.2), method=m).density(jnp.zeros((1, 2)))
@@ -189,10 +196,14 @@ def test_narrow_lobe_between_close_scales_against_quadrature():
 
     def G(k):
         x = alpha * k
-        return (x * sp.k1e(x) * np.exp(-x) if x > 0 else 1.0) * np.exp(-k**2 * (af**2 - at**2) / 4)
+        return (x * sp.k1e(x) * np.exp(-x) if x > 0 else 1.0) * np.exp(-(k**2) * (af**2 - at**2) / 4)
 
-    exact = np.array([si.quad(lambda k: G(k) * sp.j0(k * r) * k, 0, 3000, limit=2000, epsabs=1e-9, epsrel=1e-13)[0]
-                      / (2 * np.pi) for r in (0.0, 0.05)])
+    exact = np.array(
+        [
+            si.quad(lambda k: G(k) * sp.j0(k * r) * k, 0, 3000, limit=2000, epsabs=1e-9, epsrel=1e-13)[0] / (2 * np.pi)
+            for r in (0.0, 0.05)
+        ]
+    )
     assert np.max(np.abs(values - exact)) <= out.shape.tol * exact[0], (values, exact)
     np.testing.assert_allclose(exact, [3870.73, 0.05457], rtol=1e-4)
 
@@ -279,8 +290,16 @@ def test_compiled_temporaries_at_a_million_offsets_stay_within_the_budget(case):
     assert temporaries <= DEFAULT_BUDGET + 64 * q, temporaries
 
 
-@pytest.mark.parametrize("lobe", [lobes.Beckmann(0.1), lobes.GGX(alpha_x=0.1, alpha_y=0.2), lobes.Lobe(stats.Disk(0.1)),
-                                  lobes.Tabulated(np.ones((9, 7)), extent=(0.2, 0.3))], ids=["beckmann", "ggx", "disk", "table"])
+@pytest.mark.parametrize(
+    "lobe",
+    [
+        lobes.Beckmann(0.1),
+        lobes.GGX(alpha_x=0.1, alpha_y=0.2),
+        lobes.Lobe(stats.Disk(0.1)),
+        lobes.Tabulated(np.ones((9, 7)), extent=(0.2, 0.3)),
+    ],
+    ids=["beckmann", "ggx", "disk", "table"],
+)
 def test_closed_forms_and_tables_hold_no_temporaries_per_offset(lobe):
     """Densities of the families (and closed-form evolutions) are elementwise: XLA fuses them
     into the output, whatever the number of offsets."""

@@ -14,6 +14,7 @@ from hypothesis import given, settings, strategies as st
 import brdfscale as bs
 from brdfscale import geometry, lobes, stats
 
+
 RNG = np.random.default_rng(42)
 U = jnp.asarray(RNG.normal(scale=0.12, size=(40, 2)))
 
@@ -107,6 +108,7 @@ def test_grid_extent_and_size_can_be_forced():
 def _direct_convolution(g0, s, u, s_radius=1.2):
     """∫ g0(u − m) s(m) d²m by adaptive 2D quadrature (SciPy) in polar coordinates about the
     origin of s, with g0 and s written out independently of the library (plain math)."""
+
     def integrand(phi, rho):
         mx, my = rho * math.cos(phi), rho * math.sin(phi)
         return rho * g0(u[0] - mx, u[1] - my) * s(mx, my)
@@ -213,8 +215,9 @@ def test_check_false_leaves_out_only_the_run_time_check(method):
     lobe = lobes.Beckmann(0.1)
 
     def evaluate(alpha_to, check):
-        return bs.evolve(lobe, stats.Beckmann(0.05), stats.Beckmann(alpha_to), method=method, size=64,
-                         check=check).density(U)
+        return bs.evolve(
+            lobe, stats.Beckmann(0.05), stats.Beckmann(alpha_to), method=method, size=64, check=check
+        ).density(U)
 
     checked = jax.jit(lambda a: evaluate(a, True))
     unchecked = jax.jit(lambda a: evaluate(a, False))
@@ -298,7 +301,14 @@ def test_batched_over_scales_with_vmap():
 def test_float32_matches_float64(method):
     def run(dtype):
         lobe = lobes.Beckmann(jnp.asarray(0.1, dtype))
-        out = bs.evolve(lobe, stats.GGX(jnp.asarray(0.08, dtype)), stats.GGX(jnp.asarray(0.03, dtype)), method=method, size=256, tol=1e-6)
+        out = bs.evolve(
+            lobe,
+            stats.GGX(jnp.asarray(0.08, dtype)),
+            stats.GGX(jnp.asarray(0.03, dtype)),
+            method=method,
+            size=256,
+            tol=1e-6,
+        )
         return out.density(jnp.asarray(U, dtype))
 
     v32, v64 = run(jnp.float32), run(jnp.float64)
@@ -325,6 +335,7 @@ def test_tight_tolerances_resolve_heavy_tailed_lobes_against_scipy_quadrature():
     SciPy's exponentially scaled K1. The error stays within tol: the cut-off bounds the
     k-weighted tail of a transform that decays only like e^{−0.13 k} (a pointwise |G| < tol
     cut-off had left up to 14 tol), and the rule's nodes grow as tol tightens."""
+
     def xk1e(x):  # x K1(x) eˣ, finite where K1 underflows
         return x * sp.k1e(x) if x > 0 else 1.0
 

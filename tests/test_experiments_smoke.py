@@ -116,8 +116,9 @@ def test_camera_centre_ray_hits_the_plane_where_trigonometry_says():
 def test_render_plane_smoke(tmp_path, monkeypatch):
     monkeypatch.setattr(render_plane, "LOBE_NODES", 33)
     monkeypatch.setattr(render_plane, "EVOLVE_GRID", 64)
-    out = render_plane.run(surface="scratched", size=64, width=24, height=16, alpha0=0.04, slope_scale=4.0,
-                           seed=0, out=tmp_path)
+    out = render_plane.run(
+        surface="scratched", size=64, width=24, height=16, alpha0=0.04, slope_scale=4.0, seed=0, out=tmp_path
+    )
     f = OpenEXR.File(str(tmp_path / "scratched.exr"))
     channels = f.channels()
     truth = channels["truth.Y"].pixels
@@ -139,7 +140,9 @@ def test_benchmark_pages_are_generated_from_the_committed_json():
         page = (benchmarks_page.DOCS / name).read_text()
         for _, title, fn in (x for x in benchmarks_page.SECTIONS if x[0] == name):
             assert "missing)" not in fn()
-        assert benchmarks_page.rendered(name) == page, f"docs/{name} is stale: run python -m experiments.benchmarks_page"
+        assert benchmarks_page.rendered(name) == page, (
+            f"docs/{name} is stale: run python -m experiments.benchmarks_page"
+        )
 
 
 @pytest.mark.parametrize("result", ["bench_fit", "bench_cli_cache"])
@@ -147,22 +150,36 @@ def test_hand_written_analyses_cite_the_committed_run(result):
     """docs/fitting.md analyses these runs in prose (figures checked against the JSON when
     written): it names each run by the timestamp in its JSON, so a rerun that is not followed
     by a new analysis fails here instead of leaving the prose describing other numbers."""
-    stamp = json.loads((Path(__file__).resolve().parent.parent / "experiments" / "results" / f"{result}.json")
-                       .read_text())["machine"]["date_utc"]
-    assert f"run of {stamp}" in (Path(__file__).resolve().parent.parent / "docs" / "fitting.md").read_text().replace("\n", " ")
+    stamp = json.loads(
+        (Path(__file__).resolve().parent.parent / "experiments" / "results" / f"{result}.json").read_text()
+    )["machine"]["date_utc"]
+    assert f"run of {stamp}" in (Path(__file__).resolve().parent.parent / "docs" / "fitting.md").read_text().replace(
+        "\n", " "
+    )
 
 
 def test_equal_accuracy_pairs_each_scipy_solve_with_the_least_work_as_close():
     from experiments import bench_fit
 
     def point(solver, tol, steps, error, seconds):
-        return {"solver": solver, "tolerance": tol, "evaluations": steps, "error_laplace_std": error,
-                "median_s": seconds}
+        return {
+            "solver": solver,
+            "tolerance": tol,
+            "evaluations": steps,
+            "error_laplace_std": error,
+            "median_s": seconds,
+        }
 
-    points = [point("jax_lm", 1e-4, 6, 5e-6, 1.1), point("jax_lm", 1e-5, 7, 1e-7, 1.0),
-              point("jax_lm", 1e-6, 7, 1e-7, 1.3), point("jax_lm", 1e-8, 8, 1e-9, 0.9),
-              point("scipy_trf_fd", 1e-8, 6, 8e-6, 12.0), point("scipy_trf_fd", 1e-10, 7, 5e-6, 18.0),
-              point("scipy_lm_fd", 1e-8, 6, 1e-7, 5.0), point("scipy_lm_fd", 1e-10, 7, 1e-12, 6.0)]
+    points = [
+        point("jax_lm", 1e-4, 6, 5e-6, 1.1),
+        point("jax_lm", 1e-5, 7, 1e-7, 1.0),
+        point("jax_lm", 1e-6, 7, 1e-7, 1.3),
+        point("jax_lm", 1e-8, 8, 1e-9, 0.9),
+        point("scipy_trf_fd", 1e-8, 6, 8e-6, 12.0),
+        point("scipy_trf_fd", 1e-10, 7, 5e-6, 18.0),
+        point("scipy_lm_fd", 1e-8, 6, 1e-7, 5.0),
+        point("scipy_lm_fd", 1e-10, 7, 1e-12, 6.0),
+    ]
     out = bench_fit._equal_accuracy(points)
     # every JAX point is as close as 8e-6 σ: the fewest steps (6, at 1e-4) is taken, not the fastest timing
     assert out["scipy_trf_fd@1e-08"]["jax_tolerance"] == 1e-4 and out["scipy_trf_fd@1e-08"]["speedup"] == 12.0 / 1.1
@@ -185,19 +202,30 @@ def test_fft_records_reads_threads_durations_and_pool_help_from_a_trace():
         return {"ph": "X", "tid": tid, "name": name, "ts": ts, "dur": dur}
 
     client, pool_a, pool_b = 1, 2, 3
-    events = [meta(client, "tf_XLAPjRtCpuClient/1"), meta(pool_a, "tf_XLAEigen/2"), meta(pool_b, "tf_XLAEigen/3"),
-              # an FFT on the client thread, pool thread b busy for the middle half of it; the
-              # client's own region (it waits for the program) is not help
-              span(client, "ThreadpoolListener::StartRegion", 0.0), span(client, "fft.0", 0.0, 400.0),
-              span(pool_b, "ThreadpoolListener::StartRegion", 100.0), span(pool_b, "ThreadpoolListener::StopRegion", 300.0),
-              span(client, "ThreadpoolListener::StopRegion", 400.0),
-              # an FFT on pool thread a inside a's own region, nobody else working; b's region ends before
-              span(pool_b, "ThreadpoolListener::StartRegion", 500.0), span(pool_b, "ThreadpoolListener::StopRegion", 900.0),
-              span(pool_a, "ThreadpoolListener::StartRegion", 800.0), span(pool_a, "fft.3", 1000.0, 2000.0),
-              span(pool_a, "ThreadpoolListener::StopRegion", 3000.0), span(pool_a, "end: fft.3", 3000.0)]
+    events = [
+        meta(client, "tf_XLAPjRtCpuClient/1"),
+        meta(pool_a, "tf_XLAEigen/2"),
+        meta(pool_b, "tf_XLAEigen/3"),
+        # an FFT on the client thread, pool thread b busy for the middle half of it; the
+        # client's own region (it waits for the program) is not help
+        span(client, "ThreadpoolListener::StartRegion", 0.0),
+        span(client, "fft.0", 0.0, 400.0),
+        span(pool_b, "ThreadpoolListener::StartRegion", 100.0),
+        span(pool_b, "ThreadpoolListener::StopRegion", 300.0),
+        span(client, "ThreadpoolListener::StopRegion", 400.0),
+        # an FFT on pool thread a inside a's own region, nobody else working; b's region ends before
+        span(pool_b, "ThreadpoolListener::StartRegion", 500.0),
+        span(pool_b, "ThreadpoolListener::StopRegion", 900.0),
+        span(pool_a, "ThreadpoolListener::StartRegion", 800.0),
+        span(pool_a, "fft.3", 1000.0, 2000.0),
+        span(pool_a, "ThreadpoolListener::StopRegion", 3000.0),
+        span(pool_a, "end: fft.3", 3000.0),
+    ]
     out = bench_evolve.fft_records(events)
-    assert out == {"tf_XLAPjRtCpuClient": {"ffts": 1, "median_ms": 0.4, "helpers_median": 0.5},
-                   "tf_XLAEigen": {"ffts": 1, "median_ms": 2.0, "helpers_median": 0.0}}
+    assert out == {
+        "tf_XLAPjRtCpuClient": {"ffts": 1, "median_ms": 0.4, "helpers_median": 0.5},
+        "tf_XLAEigen": {"ffts": 1, "median_ms": 2.0, "helpers_median": 0.0},
+    }
 
 
 @pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
@@ -218,7 +246,11 @@ def test_stability_smoke(tmp_path):
     wrong = stability.record("k", "p", "float64", {}, failure=bs.NoBRDFAtScaleError("none"), exists=True)
     nan = stability.record("k", "p", "float64", {}, error=0.0, target=1.0, values=np.array([np.nan, 1.0]))
     assert (ok["status"], crash["status"], wrong["status"], nan["status"]) == (
-        "refused_correctly", "crash", "false_refusal", "nonfinite") and nan["nan"] == 1
+        "refused_correctly",
+        "crash",
+        "false_refusal",
+        "nonfinite",
+    ) and nan["nan"] == 1
 
 
 @pytest.mark.slow
@@ -243,11 +275,16 @@ def test_stability_figures_are_drawn_from_the_committed_json(tmp_path):
 
     for path in results_page.stability_figures(tmp_path):
         committed = Path(__file__).resolve().parent.parent / "experiments" / "results" / "stability" / path.name
-        np.testing.assert_allclose(matplotlib.image.imread(path), matplotlib.image.imread(committed), atol=1e-6,
-                                   err_msg=f"{path.name} is stale: run python -m experiments.benchmarks_page")
+        np.testing.assert_allclose(
+            matplotlib.image.imread(path),
+            matplotlib.image.imread(committed),
+            atol=1e-6,
+            err_msg=f"{path.name} is stale: run python -m experiments.benchmarks_page",
+        )
 
 
 # -- experiments/real_surfaces.py (issue 18 item 4) ----------------------------------------------
+
 
 def _grating_field(mask=None):
     """A measured (non-periodic) blazed grating along x: 12 pixel facets at slope +0.03, 4 at
@@ -272,7 +309,9 @@ def test_real_surfaces_eq31_on_a_measured_grating_by_hand():
     step = 0.03 / 4  # a → 4, −c → −12 lattice steps: exact
     eight = real_surfaces.consistency_test(field, 8e-6, step, 20, 1.0, 1.0, rng)
     assert eight["violation"] == pytest.approx(0.5, abs=1e-12) and eight["facets"] == 16
-    assert real_surfaces.consistency_test(field, 1e-6, step, 20, 1.0, 1.0, rng)["violation"] == pytest.approx(0, abs=1e-12)
+    assert real_surfaces.consistency_test(field, 1e-6, step, 20, 1.0, 1.0, rng)["violation"] == pytest.approx(
+        0, abs=1e-12
+    )
     mask = np.ones((17, 65), bool)
     mask[3, 3] = False
     holed = _grating_field(mask)
@@ -295,7 +334,7 @@ def test_real_surfaces_smith_shadowing_matches_beckmann_closed_form():
     out = real_surfaces.smith_shadowing(slopes)
     for theta in (75, 85):
         nu = 1 / np.tan(np.radians(theta)) / (sigma * np.sqrt(2))
-        lam = (np.exp(-nu**2) / (nu * np.sqrt(np.pi)) - erfc(nu)) / 2
+        lam = (np.exp(-(nu**2)) / (nu * np.sqrt(np.pi)) - erfc(nu)) / 2
         assert out[f"shadowed_at_{theta}deg"] == pytest.approx(lam / (1 + lam), rel=0.03)
     assert out["theta_deg_shadowing_1pct"] < out["theta_deg_shadowing_10pct"]
 
@@ -311,8 +350,13 @@ def test_real_surfaces_fit_recovers_a_gaussian_correlated_law():
     records = []
     for k in (1, 2, 4, 8, 16, 32):
         cov = np.asarray(truth.slope_covariance(k * delta))
-        records.append({"mu": k * delta, "covariance": cov.tolist(),
-                        "covariance_error_used": (0.02 * np.trace(cov) / 2 * np.ones((2, 2))).tolist()})
+        records.append(
+            {
+                "mu": k * delta,
+                "covariance": cov.tolist(),
+                "covariance_error_used": (0.02 * np.trace(cov) / 2 * np.ones((2, 2))).tolist(),
+            }
+        )
     fit = real_surfaces.fit_laws(records, field, laws=("gaussian",))["gaussian"]
     assert fit["parameters"]["rms_height_m"] == pytest.approx(5e-9, rel=1e-6)
     assert fit["parameters"]["correlation_length_m"] == pytest.approx(8e-7, rel=1e-6)
@@ -353,7 +397,14 @@ def test_bench_topography_smoke(tmp_path):
     assert cases["x3p-48"]["shape"] == [48, 48] and cases["x3p-48"]["unmeasured"] == 0
     assert 0.03 * 48 * 48 < cases["array-48-masked"]["unmeasured"] < 0.07 * 48 * 48
     for c in cases.values():
-        assert set(c["median_s"]) == {"total", "read", "detrend", "statistics", "baseline_surface_topography", "baseline_numpy"}
+        assert set(c["median_s"]) == {
+            "total",
+            "read",
+            "detrend",
+            "statistics",
+            "baseline_surface_topography",
+            "baseline_numpy",
+        }
         assert c["numpy_sigma_max_rel_diff"] < 1e-10 and c["scales_px"][0] == 1
     c = cases["x3p-48"]
     n = c["facets"][0]
@@ -386,7 +437,9 @@ def test_calibration_study_counts_hits_of_every_kind():
             values = [v for v in row["per_quantity"].values() if v is not None]
             assert values and all(0.0 <= v <= 1.0 for v in values), key
             assert all(0 <= n <= 3 for n in row["n"].values())
-    assert len(out["methods"]["laplace"]["coverage"]["ratio_68"]["per_quantity"]) == 3 * (len(calibration_fit.SCALES) - 1)
+    assert len(out["methods"]["laplace"]["coverage"]["ratio_68"]["per_quantity"]) == 3 * (
+        len(calibration_fit.SCALES) - 1
+    )
 
 
 @pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget

@@ -17,10 +17,11 @@ import hypothesis.strategies as st
 import numpy as np
 import OpenEXR
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given, HealthCheck, settings
 
-from brdfscale import InvalidInputError, LobeImage, MeasurementSet, exr, lobes
+from brdfscale import exr, InvalidInputError, LobeImage, lobes, MeasurementSet
 from brdfscale._errors import MeasurementFileError
+
 
 MU = 0.1 + 1e-12  # not representable in float32: must come back exactly
 
@@ -80,8 +81,12 @@ def test_round_trip_property(tmp_path, n, mu, extent, theta, phi, seed):
     rng = np.random.default_rng(seed)
     incident = np.array([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)])
     values = rng.standard_normal((n, n)) * 10.0 ** rng.uniform(-20, 20)
-    image = LobeImage(mu=mu, incident=incident / np.linalg.norm(incident), extent=extent,
-                      values=values.astype(np.float32).astype(float))
+    image = LobeImage(
+        mu=mu,
+        incident=incident / np.linalg.norm(incident),
+        extent=extent,
+        values=values.astype(np.float32).astype(float),
+    )
     mset = MeasurementSet((image,), {"seed": seed})
     path = tmp_path / f"p{seed}.exr"
     exr.write_measurements(path, mset, overwrite=True)
@@ -111,7 +116,9 @@ def test_exrheader_reads_the_file(tmp_path):
     assert "brdfscale.incident (type v3d)" in out and "brdfscale.part_count (type int): 3" in out
     assert '"lobe0002"' in out and "sigma.G, 32-bit floating-point" in out and "mask, 32-bit unsigned integer" in out
     if shutil.which("exrmaketiled"):  # decodes every pixel of every part
-        result = subprocess.run(["exrmaketiled", str(path), str(tmp_path / "tiled.exr")], capture_output=True, text=True, check=False)
+        result = subprocess.run(
+            ["exrmaketiled", str(path), str(tmp_path / "tiled.exr")], capture_output=True, text=True, check=False
+        )
         assert result.returncode == 0, result.stderr
 
 
@@ -156,6 +163,7 @@ def _set(key, value, part=1):
                 del header[key]
             else:
                 header[key] = value
+
     return edit
 
 
@@ -196,6 +204,7 @@ def _drop(channel, part=0):
     def edit(k, header, channels):
         if k == part:
             del channels[channel]
+
     return edit
 
 
@@ -224,7 +233,9 @@ def test_silently_changed_pixels_fail_the_checksum(written, tmp_path):
             channels["R"][4, 4] = np.nextafter(channels["R"][4, 4], np.float32(np.inf))
 
     _rewrite(written, bad, edit)
-    with pytest.raises(MeasurementFileError, match=r"part 2 .*channel 'R': pixel data do not match the stored checksum"):
+    with pytest.raises(
+        MeasurementFileError, match=r"part 2 .*channel 'R': pixel data do not match the stored checksum"
+    ):
         exr.read_measurements(bad)
 
 
@@ -263,9 +274,20 @@ def test_a_command_on_a_damaged_file_prints_one_line(written, tmp_path):
     data = written.read_bytes()
     bad = tmp_path / "cut.exr"
     bad.write_bytes(data[: int(len(data) * 0.6)])
-    out = subprocess.run([sys.executable, "-c", "import sys; from brdfscale._cli import main; sys.exit(main(sys.argv[1:]))",
-                          "--no-compilation-cache", "info", str(bad)], capture_output=True, text=True, timeout=300,
-                         check=False)
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "import sys; from brdfscale._cli import main; sys.exit(main(sys.argv[1:]))",
+            "--no-compilation-cache",
+            "info",
+            str(bad),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
     assert out.returncode != 0 and out.stdout == ""
     assert out.stderr.count("\n") == 1 and "cut.exr" in out.stderr, out.stderr
 
@@ -314,11 +336,18 @@ def test_write_rejects_bad_input(tmp_path):
 
 def test_lobe_table_round_trip(tmp_path):
     scales = [0.5, 2.0 + 1e-13, 8.0]
-    table = exr.LobeTable.from_lobes(scales, [lobes.Beckmann(a, amplitude=0.9) for a in (0.05, 0.03, 0.02)],
-                                     extent=0.2, size=33, metadata={"law": "test"})
+    table = exr.LobeTable.from_lobes(
+        scales,
+        [lobes.Beckmann(a, amplitude=0.9) for a in (0.05, 0.03, 0.02)],
+        extent=0.2,
+        size=33,
+        metadata={"law": "test"},
+    )
     x = np.linspace(-0.2, 0.2, 33)
     u = np.stack(np.meshgrid(x, x, indexing="xy"), axis=-1)
-    np.testing.assert_allclose(table.values[1], 0.9 * np.exp(-np.sum(u**2, -1) / 0.03**2) / (np.pi * 0.03**2), rtol=1e-12)
+    np.testing.assert_allclose(
+        table.values[1], 0.9 * np.exp(-np.sum(u**2, -1) / 0.03**2) / (np.pi * 0.03**2), rtol=1e-12
+    )
     path = tmp_path / "table.exr"
     exr.write_lobe_table(path, table)
     read = exr.read_lobe_table(path)
@@ -340,10 +369,14 @@ def test_lobe_table_round_trip(tmp_path):
 
 
 def test_images_of_different_sizes(tmp_path):
-    mset = MeasurementSet((
-        LobeImage(mu=1.0, incident=[0, 0, 1.0], extent=0.1, values=np.arange(25.0).reshape(5, 5)),
-        LobeImage(mu=2.0, incident=[0, 0, 1.0], extent=0.2, values=np.arange(81.0).reshape(9, 9), sigma=np.ones((9, 9))),
-    ))
+    mset = MeasurementSet(
+        (
+            LobeImage(mu=1.0, incident=[0, 0, 1.0], extent=0.1, values=np.arange(25.0).reshape(5, 5)),
+            LobeImage(
+                mu=2.0, incident=[0, 0, 1.0], extent=0.2, values=np.arange(81.0).reshape(9, 9), sigma=np.ones((9, 9))
+            ),
+        )
+    )
     path = tmp_path / "mixed.exr"
     exr.write_measurements(path, mset)
     _assert_same(exr.read_measurements(path), mset, np.float32)
@@ -362,7 +395,9 @@ def test_values_beyond_the_stored_range_are_refused(tmp_path, dtype, big):
     values[1, 2] = -big
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no numpy overflow warning either
-        with pytest.raises(InvalidInputError, match=rf"image 0 values \(channel Y\): 1 entries .*exceed the {dtype} range"):
+        with pytest.raises(
+            InvalidInputError, match=rf"image 0 values \(channel Y\): 1 entries .*exceed the {dtype} range"
+        ):
             exr.write_measurements(path, _one(values), dtype=dtype)
         with pytest.raises(InvalidInputError, match=rf"image 0 sigma .*exceed the {dtype} range"):
             exr.write_measurements(path, _one(np.ones((3, 3)), sigma=np.full((3, 3), big)), dtype=dtype)
@@ -378,7 +413,9 @@ def test_values_underflowing_to_zero_are_refused(tmp_path):
     """Nonzero values that the cast turns into 0 are refused as σ's are, unless negligible
     against the channel's largest value (a lobe's far tail)."""
     path = tmp_path / "small.exr"
-    with pytest.raises(InvalidInputError, match=r"image 0 values \(channel Y\): 9 nonzero entries .*underflow to 0 in float16"):
+    with pytest.raises(
+        InvalidInputError, match=r"image 0 values \(channel Y\): 9 nonzero entries .*underflow to 0 in float16"
+    ):
         exr.write_measurements(path, _one(np.full((3, 3), 1e-9)), dtype="float16")
     rgb = np.ones((3, 3, 3))
     rgb[..., 2] = 1e-9  # one channel lost entirely
@@ -473,7 +510,9 @@ def test_lobe_table_from_lobes_refuses_tables_above_the_cap(monkeypatch):
     from brdfscale.exr import _tables
 
     beckmann = [lobes.Beckmann(0.1)]
-    with pytest.raises(InvalidInputError, match=r"size=1000000 needs about .* GiB.*MAX_TABLE_BYTES = 2147483648.*smaller size"):
+    with pytest.raises(
+        InvalidInputError, match=r"size=1000000 needs about .* GiB.*MAX_TABLE_BYTES = 2147483648.*smaller size"
+    ):
         exr.LobeTable.from_lobes([1.0], beckmann, extent=0.1, size=10**6)
     for size in (1e6, 33.0, "33", None):
         with pytest.raises(InvalidInputError, match="size must be an integer ≥ 2"):
@@ -491,8 +530,11 @@ def test_complex_input_and_non_boolean_masks_are_refused():
     ok = {"mu": 1.0, "incident": [0, 0, 1.0], "extent": 1.0, "values": np.ones((3, 3))}
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no ComplexWarning on the way to the error
-        for field, bad in (("values", np.ones((3, 3)) + 0j), ("incident", np.array([0, 0, 1.0]) + 0j),
-                           ("sigma", np.ones((3, 3), complex))):
+        for field, bad in (
+            ("values", np.ones((3, 3)) + 0j),
+            ("incident", np.array([0, 0, 1.0]) + 0j),
+            ("sigma", np.ones((3, 3), complex)),
+        ):
             with pytest.raises(InvalidInputError, match=rf"{field} must be real numbers.*complex"):
                 LobeImage(**{**ok, field: bad})
         with pytest.raises(InvalidInputError, match=r"values must be real numbers.*complex"):
@@ -508,30 +550,37 @@ def test_complex_input_and_non_boolean_masks_are_refused():
         LobeImage(**{**ok, "values": np.ones((3, 3), bool)})
 
 
-@pytest.mark.parametrize("call, match", [
-    (lambda ok: LobeImage(**{**ok, "mu": "a"}), "mu must be a finite real number > 0; got str"),
-    (lambda ok: LobeImage(**{**ok, "mu": "1"}), "mu"),  # was silently converted
-    (lambda ok: LobeImage(**{**ok, "mu": None}), "mu"),
-    (lambda ok: LobeImage(**{**ok, "mu": True}), "mu"),
-    (lambda ok: LobeImage(**{**ok, "mu": np.array([1.0, 2.0])}), "mu"),
-    (lambda ok: LobeImage(**{**ok, "extent": None}), "extent"),
-    (lambda ok: LobeImage(**{**ok, "incident": "abc"}), "incident must be real numbers"),
-    (lambda ok: LobeImage(**{**ok, "incident": None}), "incident"),
-    (lambda ok: LobeImage(**{**ok, "values": "x"}), "values"),
-    (lambda ok: LobeImage(**{**ok, "values": [[1.0, 2.0], [3.0]]}), "values must be an array of real numbers"),
-    (lambda ok: LobeImage(**{**ok, "sigma": "x"}), "sigma"),
-    (lambda ok: MeasurementSet(None), "images must be a non-empty sequence of LobeImage; got NoneType"),
-    (lambda ok: MeasurementSet(LobeImage(**ok)), "images must be a non-empty sequence"),
-    (lambda ok: exr.LobeTable("a", 0.1, np.ones((1, 3, 3))), "scales"),
-    (lambda ok: exr.LobeTable(None, 0.1, np.ones((1, 3, 3))), "scales"),
-    (lambda ok: exr.LobeTable([1.0], "a", np.ones((1, 3, 3))), "extent"),
-    (lambda ok: exr.LobeTable([1.0], 0.1, None), "values"),
-    (lambda ok: exr.LobeTable.from_lobes([1.0], [lobes.Beckmann(0.1)], extent="a"), "extent"),
-    (lambda ok: exr.LobeTable.from_lobes([1.0], [lobes.Beckmann(0.1)], extent=float("nan")), "extent"),
-    (lambda ok: exr.LobeTable.from_lobes([1.0], None, extent=0.1), "lobes must be a sequence"),
-    (lambda ok: exr.LobeTable.from_lobes(None, [lobes.Beckmann(0.1)], extent=0.1), "scales"),
-    (lambda ok: exr.LobeTable.from_lobes([1.0], [lobes.Beckmann(0.1)], extent=0.1, metadata=[]), "metadata must be a dict"),
-], ids=lambda x: x if isinstance(x, str) else "")
+@pytest.mark.parametrize(
+    "call, match",
+    [
+        (lambda ok: LobeImage(**{**ok, "mu": "a"}), "mu must be a finite real number > 0; got str"),
+        (lambda ok: LobeImage(**{**ok, "mu": "1"}), "mu"),  # was silently converted
+        (lambda ok: LobeImage(**{**ok, "mu": None}), "mu"),
+        (lambda ok: LobeImage(**{**ok, "mu": True}), "mu"),
+        (lambda ok: LobeImage(**{**ok, "mu": np.array([1.0, 2.0])}), "mu"),
+        (lambda ok: LobeImage(**{**ok, "extent": None}), "extent"),
+        (lambda ok: LobeImage(**{**ok, "incident": "abc"}), "incident must be real numbers"),
+        (lambda ok: LobeImage(**{**ok, "incident": None}), "incident"),
+        (lambda ok: LobeImage(**{**ok, "values": "x"}), "values"),
+        (lambda ok: LobeImage(**{**ok, "values": [[1.0, 2.0], [3.0]]}), "values must be an array of real numbers"),
+        (lambda ok: LobeImage(**{**ok, "sigma": "x"}), "sigma"),
+        (lambda ok: MeasurementSet(None), "images must be a non-empty sequence of LobeImage; got NoneType"),
+        (lambda ok: MeasurementSet(LobeImage(**ok)), "images must be a non-empty sequence"),
+        (lambda ok: exr.LobeTable("a", 0.1, np.ones((1, 3, 3))), "scales"),
+        (lambda ok: exr.LobeTable(None, 0.1, np.ones((1, 3, 3))), "scales"),
+        (lambda ok: exr.LobeTable([1.0], "a", np.ones((1, 3, 3))), "extent"),
+        (lambda ok: exr.LobeTable([1.0], 0.1, None), "values"),
+        (lambda ok: exr.LobeTable.from_lobes([1.0], [lobes.Beckmann(0.1)], extent="a"), "extent"),
+        (lambda ok: exr.LobeTable.from_lobes([1.0], [lobes.Beckmann(0.1)], extent=float("nan")), "extent"),
+        (lambda ok: exr.LobeTable.from_lobes([1.0], None, extent=0.1), "lobes must be a sequence"),
+        (lambda ok: exr.LobeTable.from_lobes(None, [lobes.Beckmann(0.1)], extent=0.1), "scales"),
+        (
+            lambda ok: exr.LobeTable.from_lobes([1.0], [lobes.Beckmann(0.1)], extent=0.1, metadata=[]),
+            "metadata must be a dict",
+        ),
+    ],
+    ids=lambda x: x if isinstance(x, str) else "",
+)
 def test_constructor_arguments_of_the_wrong_type(call, match):
     """Was: bare TypeError/ValueError from float()/numpy, or a silent conversion."""
     ok = {"mu": 1.0, "incident": [0, 0, 1.0], "extent": 1.0, "values": np.ones((3, 3))}

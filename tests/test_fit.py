@@ -16,23 +16,27 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
 import scipy.optimize
+from hypothesis import given, settings, strategies as st
 
-from brdfscale import fitting
-from brdfscale import InvalidInputError, LobeImage, MeasurementSet, stats
+from brdfscale import fitting, InvalidInputError, LobeImage, MeasurementSet, stats
 from brdfscale._cli import main
-
-from tests.helpers import SCALES, TRUTHS, parametric_dataset
+from tests.helpers import parametric_dataset, SCALES, TRUTHS
 
 
 # -- data ---------------------------------------------------------------------------------
 
+
 def _image(mu, sigma=True, mask=None, values=None):
     v = np.ones((4, 4)) if values is None else values
-    return LobeImage(mu=mu, incident=np.array([0.0, 0.0, 1.0]), extent=0.1, values=v,
-                     sigma=np.full(v.shape, 0.1) if sigma else None, mask=mask)
+    return LobeImage(
+        mu=mu,
+        incident=np.array([0.0, 0.0, 1.0]),
+        extent=0.1,
+        values=v,
+        sigma=np.full(v.shape, 0.1) if sigma else None,
+        mask=mask,
+    )
 
 
 def test_dataset_refuses_what_cannot_be_fitted():
@@ -51,8 +55,15 @@ def test_dataset_whitening_masks_and_luminance():
     mask = np.ones((4, 4), bool)
     mask[0, 0] = False
     d = fitting.Dataset.from_measurements(
-        MeasurementSet((_image(1.0, mask=mask), LobeImage(mu=2.0, incident=np.array([0.0, 0.0, 1.0]), extent=0.1,
-                                                          values=rgb, sigma=np.full(rgb.shape, 0.1)))))
+        MeasurementSet(
+            (
+                _image(1.0, mask=mask),
+                LobeImage(
+                    mu=2.0, incident=np.array([0.0, 0.0, 1.0]), extent=0.1, values=rgb, sigma=np.full(rgb.shape, 0.1)
+                ),
+            )
+        )
+    )
     assert d.n_data == 31
     np.testing.assert_allclose(d.values[1], 0.2126 + 2 * 0.7152 + 3 * 0.0722)  # Rec. 709 luminance
     np.testing.assert_allclose(d.weight[1], 1 / (0.1 * np.sqrt(0.2126**2 + 0.7152**2 + 0.0722**2)))
@@ -69,8 +80,14 @@ def test_reduced_residuals_give_the_per_pixel_chi2_and_fisher_matrix(radial):
     mset = fitting.simulate(model, TRUTHS[0], (0.5, 2.0, 8.0), size=9, extent=0.3, noise=0.05, replicates=2, seed=1)
     images = list(mset.images)
     mask = rng.random((9, 9)) > 0.2
-    images[1] = LobeImage(mu=images[1].mu, incident=images[1].incident, extent=0.3, values=images[1].values,
-                          sigma=images[1].sigma * rng.uniform(0.5, 2.0, (9, 9)), mask=mask)
+    images[1] = LobeImage(
+        mu=images[1].mu,
+        incident=images[1].incident,
+        extent=0.3,
+        values=images[1].values,
+        sigma=images[1].sigma * rng.uniform(0.5, 2.0, (9, 9)),
+        mask=mask,
+    )
     data = fitting.Dataset.from_measurements(MeasurementSet(tuple(images)))
     reduced = data.points(radial)
     # replicates merge (81 offsets per scale); radially also mirror pixels (15 radii on a 9 × 9 grid)
@@ -83,8 +100,12 @@ def test_reduced_residuals_give_the_per_pixel_chi2_and_fisher_matrix(radial):
         def per_pixel(t):
             return data.whitened(model.predict(t, data))
 
-        return (per_pixel(theta), jax.jacfwd(per_pixel)(theta), problem.chi2(theta),
-                jax.jacfwd(problem.residuals)(theta))
+        return (
+            per_pixel(theta),
+            jax.jacfwd(per_pixel)(theta),
+            problem.chi2(theta),
+            jax.jacfwd(problem.residuals)(theta),
+        )
 
     for _ in range(3):
         full, J_full, chi2, J = both(jnp.asarray(model.initial(data) + rng.normal(0, 0.3, 5)))
@@ -105,6 +126,7 @@ def test_models_refuse_bad_configurations():
 
 
 # -- recovery ------------------------------------------------------------------------------
+
 
 @pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 @pytest.mark.parametrize("truth", TRUTHS)
@@ -144,14 +166,16 @@ def test_an_optimistix_solver_object_is_accepted_where_a_name_is():
     model = fitting.ParametricModel()
     _, data = parametric_dataset(model, TRUTHS[0], 0.01, seed=5, size=12)
     by_name = fitting.fit(model, data, starts=2)
-    by_object = fitting.fit(model, data, starts=2,
-                            solver=optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6, norm=optx.rms_norm))
+    by_object = fitting.fit(
+        model, data, starts=2, solver=optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6, norm=optx.rms_norm)
+    )
     assert by_name.solver == "lm" and by_object.solver == "LevenbergMarquardt"
     assert by_object.status == "converged" and by_object.chi2 == pytest.approx(by_name.chi2, rel=1e-12)
     np.testing.assert_allclose(by_object.theta, by_name.theta, rtol=0, atol=1e-10)
     np.testing.assert_allclose(by_object.covariance, by_name.covariance, rtol=1e-8)
-    (many,) = fitting.fit_many(model, [data], starts=2, solver=optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6,
-                                                                                     norm=optx.rms_norm))
+    (many,) = fitting.fit_many(
+        model, [data], starts=2, solver=optx.LevenbergMarquardt(rtol=1e-6, atol=1e-6, norm=optx.rms_norm)
+    )
     assert many.solver == "LevenbergMarquardt" and many.chi2 == pytest.approx(by_name.chi2, rel=1e-6)
     with pytest.raises(InvalidInputError, match="optimistix least-squares solver or minimiser object"):
         fitting.fit(model, data, solver=object())
@@ -168,11 +192,14 @@ def test_solve_returns_chi2_and_jacobian_at_the_optimum(solver, max_steps):
     problem = fitting.Problem(model, data)
     y0 = jnp.asarray(np.clip(model.initial(data), *model.bounds(data)))
     theta, code, steps, chi2, jac = fitting._solve.solve(
-        problem, y0, fitting._solve.make_solver(solver, 1e-6, 1e-6), max_steps)
+        problem, y0, fitting._solve.make_solver(solver, 1e-6, 1e-6), max_steps
+    )
     assert (int(code) == 0) == (max_steps > 2)
     assert float(chi2) == pytest.approx(float(problem.chi2(theta)), rel=1e-12)
     reference = jax.jacfwd(problem.residuals)(theta)
-    np.testing.assert_allclose(np.asarray(jac), np.asarray(reference), rtol=0, atol=1e-12 * float(jnp.max(jnp.abs(reference))))
+    np.testing.assert_allclose(
+        np.asarray(jac), np.asarray(reference), rtol=0, atol=1e-12 * float(jnp.max(jnp.abs(reference)))
+    )
 
 
 @settings(max_examples=25, deadline=None)
@@ -193,8 +220,9 @@ def test_scale_laws_narrow_with_mu_so_coarser_lobes_exist(log_params, window):
 @pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_unchecked_predictions_are_the_checked_evolution():
     model = fitting.ParametricModel(law="gaussian_surface")
-    _, data = parametric_dataset(model, dict(amplitude=0.8, alpha_lobe=0.05, rms_height=0.06, correlation_length=1.5),
-                       0.01, seed=2, size=8)
+    _, data = parametric_dataset(
+        model, dict(amplitude=0.8, alpha_lobe=0.05, rms_height=0.06, correlation_length=1.5), 0.01, seed=2, size=8
+    )
     theta = jnp.asarray(model.initial(data))
     points = jnp.asarray(np.random.default_rng(0).normal(scale=0.1, size=(len(SCALES), 7, 2)))
     predicted = model.predict_points(theta, data.scales, points)
@@ -204,6 +232,7 @@ def test_unchecked_predictions_are_the_checked_evolution():
 
 
 # -- identifiability -----------------------------------------------------------------------
+
 
 def test_two_scales_name_the_undetermined_law_combinations():
     """Two scales fix the base lobe and one ratio S(μ0)/S(μ1): the three width-law
@@ -222,7 +251,9 @@ def test_two_scales_name_the_undetermined_law_combinations():
     # what the data do determine is reported with its uncertainty: the ratio S(W, μ0)/S(W, μ1)
     # at three frequencies (against the truth's ratio), and the determined Fisher directions
     W = fitting.ratio_frequencies(data)
-    true_ratios = np.asarray(model.relative_statistics(jnp.asarray(model.theta_from(TRUTHS[0])), jnp.asarray(W), data.scales))[1]
+    true_ratios = np.asarray(
+        model.relative_statistics(jnp.asarray(model.theta_from(TRUTHS[0])), jnp.asarray(W), data.scales)
+    )[1]
     assert len(res.ratios) == 3 and all(r["std"] is not None and r["mu"] == 4.0 for r in res.ratios.values())
     for (name, r), truth in zip(res.ratios.items(), true_ratios):
         assert f"@ |W|={r['W']:.4g}" in name and abs(r["estimate"] - truth) < 4 * r["std"], (name, r, truth)
@@ -239,6 +270,7 @@ def test_two_scales_name_the_undetermined_law_combinations():
 
 # -- sampling ------------------------------------------------------------------------------
 
+
 @pytest.fixture(scope="module")
 def small_problem():
     model = fitting.ParametricModel()  # the recovery tests' layout: their compiled solve is reused
@@ -248,7 +280,9 @@ def small_problem():
 
 def test_interrupted_sampling_resumes_bit_identically(small_problem, tmp_path):
     problem, res = small_problem
-    full = fitting.sample(problem, res, sampler="emcee", walkers=16, steps=90, chunk=30, checkpoint=tmp_path / "a.h5", progress=False)
+    full = fitting.sample(
+        problem, res, sampler="emcee", walkers=16, steps=90, chunk=30, checkpoint=tmp_path / "a.h5", progress=False
+    )
 
     calls = {"n": 0}
     original = fitting._sample_emcee._batched_log_density
@@ -263,14 +297,25 @@ def test_interrupted_sampling_resumes_bit_identically(small_problem, tmp_path):
     fitting._sample_emcee._batched_log_density = interrupting
     try:
         with pytest.raises(KeyboardInterrupt):
-            fitting.sample(problem, res, sampler="emcee", walkers=16, steps=90, chunk=30, checkpoint=tmp_path / "b.h5", progress=False)
+            fitting.sample(
+                problem,
+                res,
+                sampler="emcee",
+                walkers=16,
+                steps=90,
+                chunk=30,
+                checkpoint=tmp_path / "b.h5",
+                progress=False,
+            )
     finally:
         fitting._sample_emcee._batched_log_density = original
     import h5py
 
     with h5py.File(tmp_path / "b.h5") as f:
         assert int(f.attrs["steps_done"]) == 30
-    resumed = fitting.sample(problem, res, sampler="emcee", walkers=16, steps=90, chunk=30, checkpoint=tmp_path / "b.h5", progress=False)
+    resumed = fitting.sample(
+        problem, res, sampler="emcee", walkers=16, steps=90, chunk=30, checkpoint=tmp_path / "b.h5", progress=False
+    )
     assert np.array_equal(full.chain, resumed.chain) and np.array_equal(full.log_prob, resumed.log_prob)
     kw = dict(sampler="emcee", walkers=16, steps=90, chunk=30, checkpoint=tmp_path / "b.h5", progress=False)
     # another run's checkpoint is not continued: other walkers, seed, moves, chains, sampler or data
@@ -306,6 +351,7 @@ def test_posterior_matches_laplace_on_a_well_determined_problem(small_problem):
 
 # -- command line --------------------------------------------------------------------------
 
+
 def test_fit_command_writes_report_and_refuses_to_overwrite(tmp_path, capsys):
     from brdfscale import exr
 
@@ -314,7 +360,21 @@ def test_fit_command_writes_report_and_refuses_to_overwrite(tmp_path, capsys):
     path = tmp_path / "m.exr"
     exr.write_measurements(str(path), mset)
     out = tmp_path / "out"
-    argv = ["fit", str(path), "--out", str(out), "--steps", "200", "--sampler", "emcee", "--walkers", "16", "--starts", "2", "--no-progress"]
+    argv = [
+        "fit",
+        str(path),
+        "--out",
+        str(out),
+        "--steps",
+        "200",
+        "--sampler",
+        "emcee",
+        "--walkers",
+        "16",
+        "--starts",
+        "2",
+        "--no-progress",
+    ]
     assert main(argv) == 0
     doc = json.loads((out / "fit.json").read_text())
     for name in TRUTHS[1]:
@@ -339,6 +399,7 @@ def test_fit_command_writes_report_and_refuses_to_overwrite(tmp_path, capsys):
 
 
 # -- bad input: clear errors, nothing of the user's overwritten ------------------------------
+
 
 def test_write_report_checks_every_file_before_writing(small_problem, tmp_path):
     """A user's figure in out_dir is not overwritten even without a fit.json there: every file
@@ -390,10 +451,12 @@ def test_sample_checkpoint_paths_and_first_chunk_resume(small_problem, tmp_path)
     (tmp_path / "text.h5").write_text("not HDF5")
     with h5py.File(tmp_path / "other.h5", "w") as f:
         f["x"] = 1
-    for bad, match in [(tmp_path / "text.h5", "cannot be read as an HDF5 checkpoint"),
-                       (tmp_path / "other.h5", "is not an HDF5 checkpoint"),
-                       (tmp_path / "missing" / "c.h5", "does not exist"),
-                       (tmp_path, "is a directory")]:
+    for bad, match in [
+        (tmp_path / "text.h5", "cannot be read as an HDF5 checkpoint"),
+        (tmp_path / "other.h5", "is not an HDF5 checkpoint"),
+        (tmp_path / "missing" / "c.h5", "does not exist"),
+        (tmp_path, "is a directory"),
+    ]:
         with pytest.raises(MeasurementFileError, match=match) as err:
             fitting.sample(problem, res, checkpoint=bad, **kw)
         assert str(bad) in str(err.value)
@@ -438,15 +501,25 @@ def test_inconsistent_or_out_of_range_arguments_are_refused(small_problem, tmp_p
     with pytest.raises(InvalidInputError, match="grid_size must be an integer ≥ 8"):
         fitting.NonParametricModel(three, grid_size=4)
     model = fitting.ParametricModel()
-    for kw, match in [(dict(spread=-1), "spread must be a finite number ≥ 0"),
-                      (dict(seed=-1), "seed must be an integer ≥ 0"),
-                      (dict(starts="a"), "starts must be an integer ≥ 1"), (dict(starts=True), "starts"),
-                      (dict(max_steps=2.5), "max_steps"), (dict(rtol=float("nan")), "rtol must be a finite"),
-                      (dict(rtol=0, atol=0), "not both be 0"), (dict(undetermined_std=0), "undetermined_std")]:
+    for kw, match in [
+        (dict(spread=-1), "spread must be a finite number ≥ 0"),
+        (dict(seed=-1), "seed must be an integer ≥ 0"),
+        (dict(starts="a"), "starts must be an integer ≥ 1"),
+        (dict(starts=True), "starts"),
+        (dict(max_steps=2.5), "max_steps"),
+        (dict(rtol=float("nan")), "rtol must be a finite"),
+        (dict(rtol=0, atol=0), "not both be 0"),
+        (dict(undetermined_std=0), "undetermined_std"),
+    ]:
         with pytest.raises(InvalidInputError, match=match):
             fitting.fit(model, two, **kw)
-    for kw, match in [(dict(sampler="emcee", walkers=4), "walkers must be an integer ≥ 10"), (dict(steps=1), "steps must be an integer ≥ 2"),
-                      (dict(seed=-1), "seed"), (dict(chunk="10"), "chunk"), (dict(overwrite=1), "overwrite")]:
+    for kw, match in [
+        (dict(sampler="emcee", walkers=4), "walkers must be an integer ≥ 10"),
+        (dict(steps=1), "steps must be an integer ≥ 2"),
+        (dict(seed=-1), "seed"),
+        (dict(chunk="10"), "chunk"),
+        (dict(overwrite=1), "overwrite"),
+    ]:
         with pytest.raises(InvalidInputError, match=match):
             fitting.sample(problem, res, progress=False, **kw)
 

@@ -10,9 +10,9 @@ import json
 import numpy as np
 import pytest
 
-from brdfscale import fitting
-from brdfscale import exr
+from brdfscale import exr, fitting
 from brdfscale._cli import main
+
 
 TRUTH = dict(amplitude=0.8, alpha_lobe=0.06, alpha_max=0.2, mu_c=1.0, exponent=0.8)
 SCALES = (0.5, 2.0, 8.0)
@@ -20,13 +20,33 @@ SCALES = (0.5, 2.0, 8.0)
 
 @pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 def test_nonparametric_fit_command(tmp_path, capsys):
-    mset = fitting.simulate(fitting.ParametricModel(), TRUTH, SCALES, size=12, extent=0.35, noise=0.01, floor=1e-3,
-                            seed=2)
+    mset = fitting.simulate(
+        fitting.ParametricModel(), TRUTH, SCALES, size=12, extent=0.35, noise=0.01, floor=1e-3, seed=2
+    )
     path = tmp_path / "m.exr"
     exr.write_measurements(str(path), mset)
     out = tmp_path / "out"
-    argv = ["fit", str(path), "--model", "nonparametric", "--base-nodes", "7", "--knots", "3", "--max-steps", "40",
-            "--starts", "1", "--steps", "0", "--out", str(out), "--no-progress", "--regularisation", "2.5"]
+    argv = [
+        "fit",
+        str(path),
+        "--model",
+        "nonparametric",
+        "--base-nodes",
+        "7",
+        "--knots",
+        "3",
+        "--max-steps",
+        "40",
+        "--starts",
+        "1",
+        "--steps",
+        "0",
+        "--out",
+        str(out),
+        "--no-progress",
+        "--regularisation",
+        "2.5",
+    ]
     assert main(argv) == 0
     printed = capsys.readouterr().out
     doc = json.loads((out / "fit.json").read_text())

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from brdfscale import fitting
+from tests.helpers import parametric_dataset, TRUTHS
 
-from tests.helpers import TRUTHS, parametric_dataset
 
 pytestmark = pytest.mark.slow
 
@@ -27,7 +27,6 @@ def test_ggx_surface_recovery():
     assert res.status == "converged" and res.determined
     for name, value in truth.items():
         assert abs(res.estimates[name] - value) < 4 * res.std[name], name
-
 
 
 def test_nonparametric_recovers_the_determined_ratios():
@@ -76,8 +75,11 @@ def test_nonparametric_auto_smoothness_is_within_a_factor_two_of_the_best_fixed(
 
     def ratio_error(model):
         res = fitting.fit(model, data, starts=1, max_steps=500)
-        e = [np.exp(-res.estimates[f"D[{k}](W={W:.4g})"]) - np.exp(-(a0**2 - float(law.law(mu)) ** 2) * W**2 / 4)
-             for k, mu in ((1, 2.0), (2, 8.0)) for W in model.knots[1:]]
+        e = [
+            np.exp(-res.estimates[f"D[{k}](W={W:.4g})"]) - np.exp(-(a0**2 - float(law.law(mu)) ** 2) * W**2 / 4)
+            for k, mu in ((1, 2.0), (2, 8.0))
+            for W in model.knots[1:]
+        ]
         return float(np.sqrt(np.mean(np.square(e))))
 
     options = dict(base_nodes=7, n_knots=4, grid_size=32)
@@ -85,7 +87,9 @@ def test_nonparametric_auto_smoothness_is_within_a_factor_two_of_the_best_fixed(
     candidates, gcv, pilot = auto.smoothness_choice
     assert auto.smoothness in candidates and pilot == 3.0 and np.all(np.isfinite(gcv))
     assert gcv[candidates.index(auto.smoothness)] == min(gcv)
-    best = min(ratio_error(fitting.NonParametricModel(data, regularisation=s, **options)) for s in (0.01, 0.1, 1.0, 10.0))
+    best = min(
+        ratio_error(fitting.NonParametricModel(data, regularisation=s, **options)) for s in (0.01, 0.1, 1.0, 10.0)
+    )
     assert ratio_error(auto) <= 2 * best
 
 

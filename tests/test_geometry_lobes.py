@@ -94,15 +94,25 @@ def test_mirror_lobe_has_no_pointwise_value():
         lobes.Mirror().density(jnp.zeros(2))
 
 
-@pytest.mark.parametrize("call", [
-    lambda: lobes.GGX(0.1, amplitude=-1.0),
-    lambda: lobes.Mirror(-2.0),
-    lambda: geometry.direction_to_slope(jnp.array([0.0, 0.6, -0.8])),
-    lambda: geometry.slope_to_direction(jnp.array([1.0, 0.0, 0.0])),
-    lambda: geometry.half_vector(jnp.array([0.0, 0.0, 1.0]), jnp.array([0.0, 0.6, -0.8])),
-    lambda: geometry.half_slope(jnp.array([0.0, 0.0, 1.0 + 0j]), jnp.array([0.0, 0.0, 1.0])),
-], ids=["negative amplitude", "negative mirror amplitude", "lower-hemisphere direction", "3-vector slope",
-        "lower-hemisphere o", "complex i"])
+@pytest.mark.parametrize(
+    "call",
+    [
+        lambda: lobes.GGX(0.1, amplitude=-1.0),
+        lambda: lobes.Mirror(-2.0),
+        lambda: geometry.direction_to_slope(jnp.array([0.0, 0.6, -0.8])),
+        lambda: geometry.slope_to_direction(jnp.array([1.0, 0.0, 0.0])),
+        lambda: geometry.half_vector(jnp.array([0.0, 0.0, 1.0]), jnp.array([0.0, 0.6, -0.8])),
+        lambda: geometry.half_slope(jnp.array([0.0, 0.0, 1.0 + 0j]), jnp.array([0.0, 0.0, 1.0])),
+    ],
+    ids=[
+        "negative amplitude",
+        "negative mirror amplitude",
+        "lower-hemisphere direction",
+        "3-vector slope",
+        "lower-hemisphere o",
+        "complex i",
+    ],
+)
 def test_geometry_and_lobes_refuse_what_has_no_meaning(call):
     with pytest.raises(bs.InvalidInputError):
         call()

@@ -16,8 +16,9 @@ import pytest
 def _run(code: str, cwd=None) -> dict:
     """Run ``code`` in a fresh interpreter; it prints one JSON line, returned parsed."""
     env = {k: v for k, v in os.environ.items() if k not in ("JAX_ENABLE_X64", "MPLBACKEND")}
-    out = subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True, cwd=cwd,
-                         env=env, timeout=300)
+    out = subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(code)], capture_output=True, text=True, cwd=cwd, env=env, timeout=300
+    )
     assert out.returncode == 0, out.stderr
     return json.loads(out.stdout.strip().splitlines()[-1])
 
@@ -72,10 +73,13 @@ def test_brdfscale_fitting_is_the_fitting_folder_and_no_top_level_fitting_is_ins
 
     assert brdfscale.fitting is fitting and sys.modules["brdfscale.fitting"] is fitting
     assert fitting.__name__ == "brdfscale.fitting" and fitting.fit.__module__.startswith("brdfscale.fitting.")
-    got = _run("""
+    got = _run(
+        """
         import importlib.util, json
         print(json.dumps({"fitting": importlib.util.find_spec("fitting") is not None}))
-    """, cwd=tmp_path)
+    """,
+        cwd=tmp_path,
+    )
     assert got == {"fitting": False}
 
 
@@ -131,11 +135,18 @@ def test_the_lazy_table_lists_every_public_name_once_and_each_imports():
 def test_command_line_starts_without_jax(tmp_path, argv):
     import numpy as np
 
-    from brdfscale import LobeImage, MeasurementSet, exr
+    from brdfscale import exr, LobeImage, MeasurementSet
 
     path = tmp_path / "m.exr"
-    exr.write_measurements(path, MeasurementSet(tuple(
-        LobeImage(mu=mu, incident=np.array([0.0, 0.0, 1.0]), extent=0.5, values=np.ones((8, 8))) for mu in (1.0, 2.0))))
+    exr.write_measurements(
+        path,
+        MeasurementSet(
+            tuple(
+                LobeImage(mu=mu, incident=np.array([0.0, 0.0, 1.0]), extent=0.5, values=np.ones((8, 8)))
+                for mu in (1.0, 2.0)
+            )
+        ),
+    )
     argv = [a.format(file=path) for a in argv]
     got = _run(f"""
         import contextlib, io, json, sys

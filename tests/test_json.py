@@ -14,12 +14,35 @@ from brdfscale.files import json_text, jsonable
 
 
 def test_non_finite_numbers_become_null_and_numpy_scalars_python_numbers():
-    doc = {"nan": math.nan, "inf": math.inf, "-inf": -math.inf, "np_nan": np.float64("nan"),
-           "np_inf": np.float32("inf"), "f64": np.float64(0.25), "f32": np.float32(1.5), "i64": np.int64(-3),
-           "u8": np.uint8(7), "bool": np.bool_(True), "plain": [1, 2.5, True, None, "text"], 3: "key"}
+    doc = {
+        "nan": math.nan,
+        "inf": math.inf,
+        "-inf": -math.inf,
+        "np_nan": np.float64("nan"),
+        "np_inf": np.float32("inf"),
+        "f64": np.float64(0.25),
+        "f32": np.float32(1.5),
+        "i64": np.int64(-3),
+        "u8": np.uint8(7),
+        "bool": np.bool_(True),
+        "plain": [1, 2.5, True, None, "text"],
+        3: "key",
+    }
     out = jsonable(doc)
-    assert out == {"nan": None, "inf": None, "-inf": None, "np_nan": None, "np_inf": None, "f64": 0.25, "f32": 1.5,
-                   "i64": -3, "u8": 7, "bool": True, "plain": [1, 2.5, True, None, "text"], "3": "key"}
+    assert out == {
+        "nan": None,
+        "inf": None,
+        "-inf": None,
+        "np_nan": None,
+        "np_inf": None,
+        "f64": 0.25,
+        "f32": 1.5,
+        "i64": -3,
+        "u8": 7,
+        "bool": True,
+        "plain": [1, 2.5, True, None, "text"],
+        "3": "key",
+    }
     for key, kind in (("f64", float), ("f32", float), ("i64", int), ("u8", int), ("bool", bool)):
         assert type(out[key]) is kind, key
     assert json.loads(json_text(doc)) == out  # the text reads back as the same values

@@ -9,6 +9,7 @@ import pytest
 from brdfscale import InvalidInputError, plus, stats
 from brdfscale.laplace import laplace
 
+
 jax.config.update("jax_enable_x64", True)
 
 
@@ -18,8 +19,13 @@ def test_linear_gaussian_posterior_is_exact():
     A = rng.standard_normal((50, 3)) * [1.0, 10.0, 0.1]
     analysis = laplace(A, ("a", "b", "c"))
     assert np.allclose(analysis.covariance, np.linalg.inv(A.T @ A), rtol=1e-10)
-    assert analysis.undetermined == [{"combination": "1.00·c", "fisher_eigenvalue": pytest.approx(np.linalg.eigvalsh(A.T @ A)[0]),
-                                      "std": pytest.approx(np.linalg.eigvalsh(A.T @ A)[0] ** -0.5)}]  # σ_c > 1
+    assert analysis.undetermined == [
+        {
+            "combination": "1.00·c",
+            "fisher_eigenvalue": pytest.approx(np.linalg.eigvalsh(A.T @ A)[0]),
+            "std": pytest.approx(np.linalg.eigvalsh(A.T @ A)[0] ** -0.5),
+        }
+    ]  # σ_c > 1
     exact = laplace(A, ("a", "b", "c"), undetermined_std=np.inf)
     assert exact.determined
     g = rng.standard_normal((4, 3))
@@ -31,18 +37,22 @@ def test_a_null_direction_is_named_and_quantities_along_it_get_no_error():
     A = rng.standard_normal((40, 2))
     A = np.column_stack([A, A[:, 0]])  # a and c enter only as a + c
     analysis = laplace(A, ("a", "b", "c"))
-    assert [u["combination"] for u in analysis.undetermined] == ["0.71·a − 0.71·c"] or \
-        [u["combination"] for u in analysis.undetermined] == ["0.71·c − 0.71·a"]
+    assert [u["combination"] for u in analysis.undetermined] == ["0.71·a − 0.71·c"] or [
+        u["combination"] for u in analysis.undetermined
+    ] == ["0.71·c − 0.71·a"]
     assert analysis.undetermined[0]["std"] is None
     assert np.allclose(analysis.covariance, np.linalg.pinv(A.T @ A), atol=1e-10)
     std = analysis.std(np.array([[1.0, 0.0, 1.0], [1.0, 0.0, -1.0], [0.0, 1.0, 0.0]]))
     assert np.isfinite(std[0]) and std[1] is None and np.isfinite(std[2])  # a + c and b are determined, a − c not
 
 
-@pytest.mark.parametrize("jacobian, names, match", [
-    (np.ones((3, 2)), ("a",), "len\\(names\\)"),
-    (np.array([[np.nan, 1.0]]), ("a", "b"), "non-finite"),
-])
+@pytest.mark.parametrize(
+    "jacobian, names, match",
+    [
+        (np.ones((3, 2)), ("a",), "len\\(names\\)"),
+        (np.array([[np.nan, 1.0]]), ("a", "b"), "non-finite"),
+    ],
+)
 def test_bad_jacobians_are_refused(jacobian, names, match):
     with pytest.raises(InvalidInputError, match=match):
         laplace(jacobian, names)

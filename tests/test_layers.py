@@ -45,18 +45,48 @@ from pathlib import Path
 
 import pytest
 
+
 ROOT = Path(__file__).resolve().parents[1]
 
 LAYERS = {
-    0: ("brdfscale", "brdfscale._errors", "brdfscale._validation", "brdfscale.checks", "brdfscale._special",
-        "brdfscale.special", "brdfscale.geometry", "brdfscale._show", "brdfscale.show", "brdfscale._files",
-        "brdfscale.files", "brdfscale._quadrature", "brdfscale._interpolate", "brdfscale.laplace",
-        "brdfscale._figures", "brdfscale._figure_style", "brdfscale._choices", "brdfscale.choices",
-        "brdfscale._shown_figure", "brdfscale._compilation_cache", "brdfscale._json",
-        "brdfscale._shadow", "brdfscale._slopes"),
-    1: ("brdfscale.stats", "brdfscale.lobes", "brdfscale._evolve", "brdfscale._existence", "brdfscale._blocks",
-        "brdfscale._surfaces", "brdfscale.plus", "brdfscale.so3", "brdfscale.scene", "brdfscale.synth",
-        "brdfscale._measurement"),
+    0: (
+        "brdfscale",
+        "brdfscale._errors",
+        "brdfscale._validation",
+        "brdfscale.checks",
+        "brdfscale._special",
+        "brdfscale.special",
+        "brdfscale.geometry",
+        "brdfscale._show",
+        "brdfscale.show",
+        "brdfscale._files",
+        "brdfscale.files",
+        "brdfscale._quadrature",
+        "brdfscale._interpolate",
+        "brdfscale.laplace",
+        "brdfscale._figures",
+        "brdfscale._figure_style",
+        "brdfscale._choices",
+        "brdfscale.choices",
+        "brdfscale._shown_figure",
+        "brdfscale._compilation_cache",
+        "brdfscale._json",
+        "brdfscale._shadow",
+        "brdfscale._slopes",
+    ),
+    1: (
+        "brdfscale.stats",
+        "brdfscale.lobes",
+        "brdfscale._evolve",
+        "brdfscale._existence",
+        "brdfscale._blocks",
+        "brdfscale._surfaces",
+        "brdfscale.plus",
+        "brdfscale.so3",
+        "brdfscale.scene",
+        "brdfscale.synth",
+        "brdfscale._measurement",
+    ),
     2: ("brdfscale.exr", "brdfscale.topography"),
     3: ("brdfscale.fitting",),
     4: ("brdfscale.plot",),
@@ -135,7 +165,11 @@ def imports(module: str) -> list[tuple[str, int, str]]:
                     if alias.name == "brdfscale" or alias.asname is None:
                         facade.add(alias.asname or "brdfscale")
         elif isinstance(node, ast.ImportFrom):
-            base = importlib.util.resolve_name("." * node.level + (node.module or ""), package) if node.level else node.module
+            base = (
+                importlib.util.resolve_name("." * node.level + (node.module or ""), package)
+                if node.level
+                else node.module
+            )
             if base == "fitting" or (base or "").startswith("fitting."):
                 add(base, node)
                 continue
@@ -148,16 +182,25 @@ def imports(module: str) -> list[tuple[str, int, str]]:
                     add(f"{base}.{alias.name}", node)
                 else:
                     add(_known(base), node)
-        elif (isinstance(node, ast.Call) and ast.unparse(node.func) in ("importlib.import_module", "import_module")
-              and node.args and isinstance(node.args[0], ast.Constant) and isinstance(node.args[0].value, str)):
+        elif (
+            isinstance(node, ast.Call)
+            and ast.unparse(node.func) in ("importlib.import_module", "import_module")
+            and node.args
+            and isinstance(node.args[0], ast.Constant)
+            and isinstance(node.args[0].value, str)
+        ):
             name = node.args[0].value
             if name.startswith("."):
                 name = importlib.util.resolve_name(name, package)
             if name.split(".")[0] == "brdfscale":
                 add(_known(name), node)
     for node in ast.walk(tree):
-        if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in facade
-                and node.attr in lazy):
+        if (
+            isinstance(node, ast.Attribute)
+            and isinstance(node.value, ast.Name)
+            and node.value.id in facade
+            and node.attr in lazy
+        ):
             add(_known(lazy[node.attr]), node)
     return found
 
@@ -222,9 +265,14 @@ def test_every_unit_has_a_layer():
 
 
 def test_no_module_imports_a_higher_layer():
-    upward = [_where(e) + f"  ({e[0]}, layer {LAYER[e[0]]} → {e[1]}, layer {LAYER[e[1]]})"
-              for e in edges() if e[0] in LAYER and e[1] in LAYER  # a unit without a layer: the test above
-              and LAYER[e[1]] > LAYER[e[0]] and (e[0], e[1]) not in ALLOWED_UPWARD]
+    upward = [
+        _where(e) + f"  ({e[0]}, layer {LAYER[e[0]]} → {e[1]}, layer {LAYER[e[1]]})"
+        for e in edges()
+        if e[0] in LAYER
+        and e[1] in LAYER  # a unit without a layer: the test above
+        and LAYER[e[1]] > LAYER[e[0]]
+        and (e[0], e[1]) not in ALLOWED_UPWARD
+    ]
     assert upward == []
 
 
@@ -232,7 +280,9 @@ def test_the_figure_seam_is_the_only_upward_edge_and_it_exists():
     """The allow-list is not dead: the seam imports the plot package, and nothing else does from below."""
     seam = [e for e in edges() if (e[0], e[1]) in ALLOWED_UPWARD]
     assert seam and {e[2] for e in seam} == {"brdfscale._figures"}
-    into_plot = sorted({e[0] for e in edges() if e[1] == "brdfscale.plot" and LAYER.get(e[0], 0) < LAYER["brdfscale.plot"]})
+    into_plot = sorted(
+        {e[0] for e in edges() if e[1] == "brdfscale.plot" and LAYER.get(e[0], 0) < LAYER["brdfscale.plot"]}
+    )
     assert into_plot == ["brdfscale._figures"]  # plot is a leaf of the library: only the applications import it
 
 
@@ -265,20 +315,28 @@ def private_imports() -> dict[tuple[str, str], str]:
         for target, line, text in imports(module):
             parts = target.split(".")
             private = [i for i, p in enumerate(parts) if p.startswith("_") and i >= 2]
-            owner = ".".join(parts[:private[0]]) if private else module
+            owner = ".".join(parts[: private[0]]) if private else module
             if module != owner and not module.startswith(owner + "."):
                 found[(module, target)] = f"{MODULES[module].relative_to(ROOT)}:{line}: {text.splitlines()[0]}"
         path = MODULES[module]
         package = module if _is_package(module) else module.rpartition(".")[0]
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.ImportFrom):
-                base = (importlib.util.resolve_name("." * node.level + (node.module or ""), package) if node.level
-                        else node.module) or ""
+                base = (
+                    importlib.util.resolve_name("." * node.level + (node.module or ""), package)
+                    if node.level
+                    else node.module
+                ) or ""
                 source = _known(base)
                 for alias in node.names:
                     name = alias.name
-                    if (source is not None and name.startswith("_") and not name.startswith("__")
-                            and f"{base}.{name}" not in MODULES and unit(source) != unit(module)):
+                    if (
+                        source is not None
+                        and name.startswith("_")
+                        and not name.startswith("__")
+                        and f"{base}.{name}" not in MODULES
+                        and unit(source) != unit(module)
+                    ):
                         found[(module, f"{base}.{name}")] = f"{path.relative_to(ROOT)}:{node.lineno}: {name}"
     return found
 
@@ -296,15 +354,25 @@ def test_nothing_imports_fitting_by_its_folder_name():
     import re
 
     pattern = re.compile(r"^\s*(import fitting\b|from fitting\b)", re.MULTILINE)
-    texts = [*ROOT.glob("brdfscale/**/*.py"), *ROOT.glob("fitting/**/*.py"), *ROOT.glob("tests/**/*.py"),
-             *ROOT.glob("experiments/**/*.py"), *ROOT.glob("docs/**/*.md"), ROOT / "README.md"]
+    texts = [
+        *ROOT.glob("brdfscale/**/*.py"),
+        *ROOT.glob("fitting/**/*.py"),
+        *ROOT.glob("tests/**/*.py"),
+        *ROOT.glob("experiments/**/*.py"),
+        *ROOT.glob("docs/**/*.md"),
+        ROOT / "README.md",
+    ]
     offenders = [str(p.relative_to(ROOT)) for p in texts if pattern.search(p.read_text())]
     for notebook in ROOT.glob("docs/**/*.ipynb"):
         cells = json.loads(notebook.read_text())["cells"]
         code = "\n".join("".join(c["source"]) for c in cells if c["cell_type"] == "code")
         offenders += [str(notebook.relative_to(ROOT))] if pattern.search(code) else []
-    offenders += [f"{MODULES[m].relative_to(ROOT)}:{line}" for m in MODULES for t, line, _ in imports(m)
-                  if t.split(".")[0] == "fitting"]
+    offenders += [
+        f"{MODULES[m].relative_to(ROOT)}:{line}"
+        for m in MODULES
+        for t, line, _ in imports(m)
+        if t.split(".")[0] == "fitting"
+    ]
     assert offenders == []
 
 

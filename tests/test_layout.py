@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+
 ROOT = Path(__file__).resolve().parents[1]
 EXPERIMENTS = ROOT / "experiments"
 
@@ -44,16 +45,28 @@ def test_experiments_import_their_helpers_through_the_package():
 def test_commands_name_the_module_not_the_file():
     """Docs, README and docstrings give ``python -m experiments.NAME``; ``python experiments/<name>.py``
     would fail to import the helpers."""
-    texts = [ROOT / "README.md", *(ROOT / "docs").glob("*.md"), *EXPERIMENTS.glob("*.py"), *(ROOT / "tests").glob("*.py"),
-             *(ROOT / "brdfscale").rglob("*.py"), *(ROOT / "fitting").rglob("*.py")]
+    texts = [
+        ROOT / "README.md",
+        *(ROOT / "docs").glob("*.md"),
+        *EXPERIMENTS.glob("*.py"),
+        *(ROOT / "tests").glob("*.py"),
+        *(ROOT / "brdfscale").rglob("*.py"),
+        *(ROOT / "fitting").rglob("*.py"),
+    ]
     old = re.compile(r"python3?\s+experiments/\w+\.py")
     offenders = [str(p.relative_to(ROOT)) for p in texts if old.search(p.read_text())]
     assert offenders == []
 
 
 def test_a_script_runs_as_a_module_from_the_checkout():
-    out = subprocess.run([sys.executable, "-m", "experiments.benchmarks_page", "--help"], cwd=ROOT,
-                         capture_output=True, text=True, timeout=300, check=False)
+    out = subprocess.run(
+        [sys.executable, "-m", "experiments.benchmarks_page", "--help"],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
     assert out.returncode == 0, out.stderr
     assert out.stdout.startswith("usage:")
 
@@ -91,7 +104,8 @@ def test_tests_import_no_experiment_and_no_other_test_module():
             if parts[0] == "tests":
                 parts = parts[1:]
             if (parts and parts[0] == "experiments" and path.name not in EXPERIMENTS_ALLOWED) or (
-                    parts and (parts[0].startswith("test_") or parts[0] == "conftest")):
+                parts and (parts[0].startswith("test_") or parts[0] == "conftest")
+            ):
                 offenders.append(f"{name}: import {module}")
     assert offenders == []
 
@@ -99,12 +113,23 @@ def test_tests_import_no_experiment_and_no_other_test_module():
 def test_the_import_check_sees_what_it_should():
     """The check above catches each form of the imports it forbids (so it cannot pass by
     missing them)."""
-    source = ("import experiments.bench_fit\nfrom experiments import _bench\nfrom test_fit import X\n"
-              "def f():\n    from tests.test_samplers import Linear\n    from . import test_x\n"
-              "from tests.helpers import Linear\nfrom tests.references import planner\n")
+    source = (
+        "import experiments.bench_fit\nfrom experiments import _bench\nfrom test_fit import X\n"
+        "def f():\n    from tests.test_samplers import Linear\n    from . import test_x\n"
+        "from tests.helpers import Linear\nfrom tests.references import planner\n"
+    )
     assert sorted(_imported_modules(source)) == sorted(
-        ["experiments.bench_fit", "experiments", "test_fit", "tests.test_samplers", ".", ".test_x", "tests.helpers",
-         "tests.references"])
+        [
+            "experiments.bench_fit",
+            "experiments",
+            "test_fit",
+            "tests.test_samplers",
+            ".",
+            ".test_x",
+            "tests.helpers",
+            "tests.references",
+        ]
+    )
 
 
 def test_requires_python_is_what_the_code_and_tests_need():
@@ -129,16 +154,20 @@ def test_a_shadowing_copy_of_the_package_names_the_installed_one(tmp_path):
     if installed is None or Path(installed[1]).resolve() != ROOT / "brdfscale":
         pytest.skip("brdfscale is not installed from this checkout (pip install -e .)")
     shutil.copytree(ROOT / "brdfscale", tmp_path / "brdfscale", ignore=shutil.ignore_patterns("__pycache__"))
-    script = ("import brdfscale\ntry:\n    brdfscale.not_a_name\nexcept AttributeError as err:\n    print(err)\n"
-              "print(brdfscale.__file__)\n")
+    script = (
+        "import brdfscale\ntry:\n    brdfscale.not_a_name\nexcept AttributeError as err:\n    print(err)\n"
+        "print(brdfscale.__file__)\n"
+    )
     (tmp_path / "script.py").write_text(script)
-    out = subprocess.run([sys.executable, "script.py"], cwd=tmp_path, capture_output=True, text=True, timeout=300,
-                         check=True).stdout.splitlines()
+    out = subprocess.run(
+        [sys.executable, "script.py"], cwd=tmp_path, capture_output=True, text=True, timeout=300, check=True
+    ).stdout.splitlines()
     assert out[1] == str(tmp_path / "brdfscale" / "__init__.py")  # the copy was imported
     assert out[0].startswith("module 'brdfscale' has no attribute 'not_a_name' (this brdfscale is ")
     assert str(ROOT / "brdfscale") in out[0] and "-P" in out[0]
     # the installed package: no hint
-    plain = subprocess.run([sys.executable, "-P", "script.py"], cwd=tmp_path, capture_output=True, text=True,
-                           timeout=300, check=True).stdout.splitlines()
+    plain = subprocess.run(
+        [sys.executable, "-P", "script.py"], cwd=tmp_path, capture_output=True, text=True, timeout=300, check=True
+    ).stdout.splitlines()
     assert plain[0] == "module 'brdfscale' has no attribute 'not_a_name'"
     assert plain[1] == str(ROOT / "brdfscale" / "__init__.py")

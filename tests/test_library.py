@@ -12,11 +12,11 @@ import time
 import numpy as np
 import pytest
 
-from brdfscale import InvalidInputError, OutputInUseError, library
+from brdfscale import InvalidInputError, library
 from brdfscale._cli import main
 from brdfscale.files import exclusive
-
 from tests.helpers import write_library
+
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -58,12 +58,16 @@ def test_library_in_process_reports_the_corrupt_file_and_resumes(small_library, 
     assert index["spec"]["starts"] == 2 and index["runs"][0]["done"] == 5
     fit = _fit_json(out, "material_000")
     assert fit["optimisation"]["status"] == "converged" and 0.8 < fit["optimisation"]["reduced_chi2"] < 1.2
-    assert sorted(os.listdir(os.path.join(out, "materials", "material_000"))) == [".brdfscale.lock", "evolved_lobes.exr",
-                                                                                    "fit.json"]
+    assert sorted(os.listdir(os.path.join(out, "materials", "material_000"))) == [
+        ".brdfscale.lock",
+        "evolved_lobes.exr",
+        "fit.json",
+    ]
     before = _inodes(out)
     # run again: nothing refitted, the damaged file tried again and still reported
-    assert main(["fit-library", str(small_library), "--out", out, "--batch", "2", "--starts", "2",
-                 "--no-progress"]) == 4
+    assert (
+        main(["fit-library", str(small_library), "--out", out, "--batch", "2", "--starts", "2", "--no-progress"]) == 4
+    )
     assert _inodes(out) == before
     index = _index(out)
     assert all(m["attempts"] == 1 for n, m in index["materials"].items() if n != "material_999")
@@ -74,9 +78,26 @@ def test_library_in_process_reports_the_corrupt_file_and_resumes(small_library, 
     assert main(["fit-library", str(small_library), "--out", out, "--no-progress"]) == 2
     # a second run while one holds the directory: refused at once
     with exclusive(out, what="library directory"):
-        code = subprocess.run([sys.executable, "-m", "brdfscale", "fit-library", str(small_library), "--out", out,
-                               "--starts", "2", "--batch", "2", "--no-progress"], capture_output=True, text=True,
-                              cwd=ROOT, timeout=300)
+        code = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "brdfscale",
+                "fit-library",
+                str(small_library),
+                "--out",
+                out,
+                "--starts",
+                "2",
+                "--batch",
+                "2",
+                "--no-progress",
+            ],
+            capture_output=True,
+            text=True,
+            cwd=ROOT,
+            timeout=300,
+        )
     assert code.returncode == 3 and "another run is writing this library directory" in code.stderr
 
 
@@ -92,15 +113,20 @@ def test_a_damaged_index_is_refused_not_overwritten(small_library, tmp_path, cap
 
 def test_fit_library_results_equal_fit_many(small_library, tmp_path):
     import jax
-    from brdfscale import fitting
-    from brdfscale import exr
+
+    from brdfscale import exr, fitting
 
     jax.config.update("jax_enable_x64", True)
-    result = library.fit_library([small_library / "material_001.exr", small_library / "material_003.exr"],
-                                 tmp_path / "out", spec=library.FitSpec(starts=2), progress=False)
+    result = library.fit_library(
+        [small_library / "material_001.exr", small_library / "material_003.exr"],
+        tmp_path / "out",
+        spec=library.FitSpec(starts=2),
+        progress=False,
+    )
     assert (result.done, result.failed, result.executor) == (2, 0, "process") and "fitted" in repr(result)
-    data = [fitting.Dataset.from_measurements(exr.read_measurements(small_library / f"material_00{i}.exr"))
-            for i in (1, 3)]
+    data = [
+        fitting.Dataset.from_measurements(exr.read_measurements(small_library / f"material_00{i}.exr")) for i in (1, 3)
+    ]
     direct = fitting.fit_many(fitting.ParametricModel(), data, starts=2)
     for name, fit in zip(("material_001", "material_003"), direct):
         np.testing.assert_allclose(_fit_json(tmp_path / "out", name)["optimisation"]["theta"], fit.theta, rtol=1e-12)
@@ -111,14 +137,32 @@ def test_library_samples_with_nuts_batched_equal_to_sample_per_material(small_li
     """--sampler nuts: the task's materials sampled together (fitting.sample_many), each report's
     chain summary that of fitting.sample on the material alone."""
     import jax
-    from brdfscale import fitting
-    from brdfscale import exr
+
+    from brdfscale import exr, fitting
 
     jax.config.update("jax_enable_x64", True)
     sources = [str(small_library / "material_001.exr"), str(small_library / "material_003.exr")]
     out = tmp_path / "out"
-    assert main(["fit-library", *sources, "--out", str(out), "--starts", "2", "--steps", "30", "--sampler", "nuts",
-                 "--chains", "2", "--no-progress"]) == 0, capsys.readouterr().out
+    assert (
+        main(
+            [
+                "fit-library",
+                *sources,
+                "--out",
+                str(out),
+                "--starts",
+                "2",
+                "--steps",
+                "30",
+                "--sampler",
+                "nuts",
+                "--chains",
+                "2",
+                "--no-progress",
+            ]
+        )
+        == 0
+    ), capsys.readouterr().out
     data = [fitting.Dataset.from_measurements(exr.read_measurements(path)) for path in sources]
     model = fitting.ParametricModel()
     fits = fitting.fit_many(model, data, starts=2)
@@ -160,10 +204,23 @@ def _done(out):
 @pytest.mark.slow  # 27 s on 2 cores (a subprocess compiles its own programs): .ci/run's second step runs it
 def test_a_driver_killed_mid_library_resumes_with_each_material_fitted_once(small_library, tmp_path):
     out = str(tmp_path / "out")
-    command = [sys.executable, "-m", "brdfscale", "fit-library", str(small_library), "--out", out, "--batch", "1",
-               "--starts", "2", "--no-progress"]
-    driver = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                              start_new_session=True)
+    command = [
+        sys.executable,
+        "-m",
+        "brdfscale",
+        "fit-library",
+        str(small_library),
+        "--out",
+        out,
+        "--batch",
+        "1",
+        "--starts",
+        "2",
+        "--no-progress",
+    ]
+    driver = subprocess.Popen(
+        command, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+    )
     try:
         _wait_for(lambda: len(_done(out)) >= 2, 300, "two materials")
     finally:
@@ -183,18 +240,35 @@ def test_a_driver_killed_mid_library_resumes_with_each_material_fitted_once(smal
         entry = index["materials"][name]
         assert entry["status"] == "done" and entry.get("attempts", 0) <= 1, (name, entry)
     assert sum(index["materials"][n].get("attempts", 0) for n in _done(out)) == 5 - sum(
-        "found complete" in index["materials"][n].get("note", "") for n in _done(out))
+        "found complete" in index["materials"][n].get("note", "") for n in _done(out)
+    )
 
 
 @pytest.mark.slow
 def test_ray_with_2_workers_equals_in_process_and_survives_a_killed_worker(small_library, tmp_path):
     pytest.importorskip("ray")
     local, ray_out = str(tmp_path / "local"), str(tmp_path / "ray")
-    assert main(["fit-library", str(small_library), "--out", local, "--batch", "2", "--starts", "2",
-                 "--no-progress"]) == 4
+    assert (
+        main(["fit-library", str(small_library), "--out", local, "--batch", "2", "--starts", "2", "--no-progress"]) == 4
+    )
     # Ray: 2 workers, figures on (so a material's report takes seconds: time to kill its worker mid-task)
-    command = [sys.executable, "-m", "brdfscale", "fit-library", str(small_library), "--out", ray_out, "--batch", "2",
-               "--starts", "2", "--workers", "2", "--figures", "--no-progress"]
+    command = [
+        sys.executable,
+        "-m",
+        "brdfscale",
+        "fit-library",
+        str(small_library),
+        "--out",
+        ray_out,
+        "--batch",
+        "2",
+        "--starts",
+        "2",
+        "--workers",
+        "2",
+        "--figures",
+        "--no-progress",
+    ]
     driver = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     killed = None
     try:

@@ -7,7 +7,7 @@ import mpmath as mp
 import numpy as np
 import pytest
 
-from brdfscale import InvalidInputError, NoBRDFAtScaleError, SingularDensityError, evolve, lobes, plus, stats
+from brdfscale import evolve, InvalidInputError, lobes, NoBRDFAtScaleError, plus, SingularDensityError, stats
 
 
 def _action_reference(n, x0, angular_mean, points):
@@ -68,8 +68,9 @@ def test_distribution_interface():
     assert float(h.cf(jnp.zeros(2)).real) == 0.0  # no mass
     W = jnp.array([[30.0, -40.0]])
     offset = jnp.array([0.01, 0.02])
-    np.testing.assert_allclose(np.asarray(h.shifted(offset).cf(W)),
-                               np.asarray(h.cf(W) * jnp.exp(-1j * W @ offset)), rtol=1e-15)
+    np.testing.assert_allclose(
+        np.asarray(h.shifted(offset).cf(W)), np.asarray(h.cf(W) * jnp.exp(-1j * W @ offset)), rtol=1e-15
+    )
     assert float(h.support_radius(1e-9)) == pytest.approx(0.05)
     with pytest.raises(InvalidInputError, match="x0"):
         plus.PlusDistribution(1, -0.1)
@@ -89,7 +90,9 @@ def test_nearly_specular_is_the_sum_of_its_terms_and_mixture_refuses_h_n():
     np.testing.assert_allclose(np.asarray(nearly.cf(W)), np.asarray(terms) / 0.9, rtol=1e-14)
     with pytest.raises(SingularDensityError):
         nearly.density(jnp.zeros(2))
-    with pytest.raises(InvalidInputError, match=r"components must be probability densities.*PlusDistribution.*NearlySpecular"):
+    with pytest.raises(
+        InvalidInputError, match=r"components must be probability densities.*PlusDistribution.*NearlySpecular"
+    ):
         stats.Mixture([0.6, 0.1, 0.3], [stats.Delta(), h1, smooth])
 
 
@@ -132,8 +135,11 @@ def test_evolve_agrees_with_slope_space_view(method):
     kernel = stats.Gaussian(sigma=0.006)
     u = jnp.array([[0.0, 0.0], [0.004, 0.003], [0.02, 0.0], [0.0, -0.045], [0.07, 0.02]])
     direct = np.asarray(plus.observe(s, kernel).density(u))
-    spectral = np.asarray(evolve(lobes.Lobe(kernel), s, stats.Delta(), method=method,
-                                 **({"size": 256} if method == "grid" else {})).density(u))
+    spectral = np.asarray(
+        evolve(
+            lobes.Lobe(kernel), s, stats.Delta(), method=method, **({"size": 256} if method == "grid" else {})
+        ).density(u)
+    )
     tol = 1e-8 if method == "radial" else 1e-6
     np.testing.assert_allclose(spectral, direct, rtol=0, atol=tol * direct.max())
 
@@ -235,8 +241,12 @@ def test_plus_distribution_is_a_generalised_density_not_a_probability_density():
     assert complex(h.cf(jnp.zeros(2))) == 0  # mass 0
     with pytest.raises(SingularDensityError, match="no pointwise density"):
         h.density(jnp.zeros(2))
-    for density in (stats.Beckmann(0.1), stats.Delta(), plus.NearlySpecular(0.5, [0.1], 0.1),
-                    stats.Tabulated(np.ones((3, 3)), extent=0.1)):
+    for density in (
+        stats.Beckmann(0.1),
+        stats.Delta(),
+        plus.NearlySpecular(0.5, [0.1], 0.1),
+        stats.Tabulated(np.ones((3, 3)), extent=0.1),
+    ):
         assert isinstance(density, stats.AbstractSlopeDensity) and isinstance(density, stats.AbstractDistribution)
         assert not isinstance(density, stats.AbstractGeneralisedDensity)
     assert not issubclass(stats.AbstractSlopeDensity, stats.AbstractGeneralisedDensity)

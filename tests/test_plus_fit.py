@@ -6,6 +6,7 @@ import pytest
 
 from brdfscale import BrdfscaleError, InvalidInputError, plus, stats
 
+
 TRUTH = {"amplitude": 2.0, "x0": 0.05, "c": (0.12, 0.03)}
 KERNEL = stats.Gaussian(sigma=0.004)
 

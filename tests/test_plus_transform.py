@@ -7,13 +7,12 @@ import jax.numpy as jnp
 import mpmath as mp
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from hypothesis import given, settings, strategies as st
 
 from brdfscale import InvalidInputError, plus, stats
 from brdfscale.plus import _transform
-
 from tests.references.plus_transform import decaying, polynomial, reference
+
 
 ORDERS = range(plus.MAX_ORDER + 1)
 Z_SERIES_REF = [1e-6, 3e-4, 0.05, 0.7, 2.0, 5.0, 7.9, 8.1, 11.0, 19.0, 47.0, 150.0, 999.0]

@@ -14,6 +14,7 @@ import brdfscale as bs
 from brdfscale import lobes, stats
 from brdfscale._evolve import _regularise
 
+
 ALPHA_LOBE, ALPHA_FINE = 0.05, 0.08
 EXTENT, NODES = 0.5, 33
 
@@ -41,8 +42,9 @@ METHOD = bs.Grid(size=64, extent=0.6)
 def _error(lobe, lam, truth, u):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the fixed grid is below what tol asks for small λ
-        r = bs.evolve(lobe, stats.Delta(), stats.Beckmann(ALPHA_FINE), method=METHOD, regularisation=lam,
-                      check=False, tol=1e-4)
+        r = bs.evolve(
+            lobe, stats.Delta(), stats.Beckmann(ALPHA_FINE), method=METHOD, regularisation=lam, check=False, tol=1e-4
+        )
         return float(np.linalg.norm(np.asarray(r.density(u)) - truth) / np.linalg.norm(truth))
 
 
@@ -124,11 +126,14 @@ def test_auto_under_jit_uses_the_lambda_select_carries():
     values = lobe.shape.values * lobe.amplitude
 
     def density(v, reg="auto"):
-        return bs.evolve(lobes.Tabulated(v, extent=EXTENT), s_from, s_to, method=m, regularisation=reg, tol=1e-4,
-                         check=False).density(u)
+        return bs.evolve(
+            lobes.Tabulated(v, extent=EXTENT), s_from, s_to, method=m, regularisation=reg, tol=1e-4, check=False
+        ).density(u)
 
     jitted = jax.jit(density)(values)
-    np.testing.assert_allclose(np.asarray(jitted), np.asarray(eager.density(u)), rtol=1e-10, atol=1e-10 * float(jnp.max(jitted)))
+    np.testing.assert_allclose(
+        np.asarray(jitted), np.asarray(eager.density(u)), rtol=1e-10, atol=1e-10 * float(jnp.max(jitted))
+    )
     # the default (None) takes the method's λ too; a number given explicitly replaces it
     np.testing.assert_allclose(np.asarray(jax.jit(lambda v: density(v, None))(values)), np.asarray(jitted), rtol=1e-12)
     other = np.asarray(density(values, 10 * lam))
@@ -143,8 +148,17 @@ def test_auto_under_jit_uses_the_lambda_select_carries():
     assert float(jnp.sum(g_eager * direction)) == pytest.approx(float(numeric), rel=1e-6)
     # without a carried λ the rule needs the values: refused with the fix
     with pytest.raises(bs.UnresolvedMethodError, match="select\\(lobe, s_from, s_to, regularisation='gcv'\\)"):
-        jax.jit(lambda v: bs.evolve(lobes.Tabulated(v, extent=EXTENT), s_from, s_to, method=bs.Grid(size=64),
-                                    regularisation="gcv", tol=1e-4, check=False).density(u))(values)
+        jax.jit(
+            lambda v: bs.evolve(
+                lobes.Tabulated(v, extent=EXTENT),
+                s_from,
+                s_to,
+                method=bs.Grid(size=64),
+                regularisation="gcv",
+                tol=1e-4,
+                check=False,
+            ).density(u)
+        )(values)
 
 
 def test_exact_inputs_need_no_lambda_and_bad_arguments_are_named():
@@ -152,8 +166,11 @@ def test_exact_inputs_need_no_lambda_and_bad_arguments_are_named():
     ggx = lobes.GGX(0.1)
     m = bs.select(ggx, stats.Beckmann(0.2), stats.Beckmann(0.1), regularisation="auto")
     assert float(m.regularisation) == 0 and "not tabulated" in m.explain()
-    f = jax.jit(lambda a: bs.evolve(lobes.GGX(a), stats.Beckmann(0.2), stats.Beckmann(0.1), method=bs.Radial(nodes=512),
-                                    regularisation="auto").density(jnp.zeros((1, 2))))
+    f = jax.jit(
+        lambda a: bs.evolve(
+            lobes.GGX(a), stats.Beckmann(0.2), stats.Beckmann(0.1), method=bs.Radial(nodes=512), regularisation="auto"
+        ).density(jnp.zeros((1, 2)))
+    )
     assert np.isfinite(float(f(0.1)[0]))
     lobe, _, sigma, _ = _noisy_case(1e3)
     assert _regularise.choose(lobe, stats.Beckmann(0.1), stats.Delta(), "gcv")[0] == 0  # nothing divided

@@ -8,9 +8,12 @@ import pytest
 import brdfscale as bs
 from brdfscale import InvalidInputError, lobes, plus, so3, stats, synth
 
+
 H0 = plus.PlusDistribution(0, 0.1)
-COMMON = (r"must be (a probability density|probability densities) of facet slopes \(mass 1\); got PlusDistribution, "
-          r"a generalised function of mass 0 with no pointwise density \(a plus-distribution h_n\)")
+COMMON = (
+    r"must be (a probability density|probability densities) of facet slopes \(mass 1\); got PlusDistribution, "
+    r"a generalised function of mass 0 with no pointwise density \(a plus-distribution h_n\)"
+)
 
 CALLS = {
     "shape": lambda h: lobes.Lobe(h),

@@ -12,17 +12,15 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-import OpenEXR
 import pytest
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
+from hypothesis import given, HealthCheck, settings, strategies as st
 
 import brdfscale as bs
 from brdfscale import _files, exr, files
 from brdfscale._cli import main
 from brdfscale.exr import _format
+from tests.helpers import HOSTILE, rewrite_exr, run_command, same_set, sample_set, SYNTH_DOMAINS
 
-from tests.helpers import HOSTILE, SYNTH_DOMAINS, rewrite_exr, run_command, same_set, sample_set
 
 P = _format.PREFIX
 
@@ -42,25 +40,42 @@ def _rewritten(original, tmp_path, edit, reseal=False):
 
 # -- 1. integrity -----------------------------------------------------------------------------
 
-@pytest.mark.parametrize("edit", [
-    lambda i, h, c: h.__setitem__(P + "mu", h[P + "mu"] * 2) if i == 0 else None,  # μ = 2 → 4
-    lambda i, h, c: h.__setitem__(P + "extent", h[P + "extent"] * 1.5) if i == 1 else None,
-    lambda i, h, c: h.__setitem__(P + "incident", np.array([0.0, 0.6, 0.8])) if i == 0 else None,
-    lambda i, h, c: h.__setitem__(P + "metadata", json.dumps({"surface": {"name": "other"}})) if i == 0 else None,
-], ids=["mu", "extent", "incident", "metadata"])
+
+@pytest.mark.parametrize(
+    "edit",
+    [
+        lambda i, h, c: h.__setitem__(P + "mu", h[P + "mu"] * 2) if i == 0 else None,  # μ = 2 → 4
+        lambda i, h, c: h.__setitem__(P + "extent", h[P + "extent"] * 1.5) if i == 1 else None,
+        lambda i, h, c: h.__setitem__(P + "incident", np.array([0.0, 0.6, 0.8])) if i == 0 else None,
+        lambda i, h, c: h.__setitem__(P + "metadata", json.dumps({"surface": {"name": "other"}})) if i == 0 else None,
+    ],
+    ids=["mu", "extent", "incident", "metadata"],
+)
 def test_a_changed_header_attribute_is_refused(original, tmp_path, edit):
     with pytest.raises(bs.MeasurementFileError, match=r"part \d .*'brdfscale.header_digest': does not match"):
         exr.read_measurements(_rewritten(original, tmp_path, edit))
 
 
-@pytest.mark.parametrize("edit, match", [
-    (lambda i, h, c: c.pop("mask") if i == 1 else None, r"\['mask'\] listed in 'brdfscale.checksums' but missing"),
-    (lambda i, h, c: [c.pop(k) for k in ("sigma.R", "sigma.G", "sigma.B")] if i == 0 else None, "but missing"),
-    (lambda i, h, c: h.__setitem__(P + "checksums", json.dumps(
-        {k: v for k, v in json.loads(h[P + "checksums"]).items() if k != "mask"})) if i == 0 else None,
-     r"no checksum for channel 'mask'"),
-    (lambda i, h, c: c.__setitem__("Z", c["R"].copy()) if i == 0 else None, r"unexpected channel\(s\) \['Z'\]"),
-], ids=["mask removed", "sigma removed", "mask unlisted", "channel added"])
+@pytest.mark.parametrize(
+    "edit, match",
+    [
+        (lambda i, h, c: c.pop("mask") if i == 1 else None, r"\['mask'\] listed in 'brdfscale.checksums' but missing"),
+        (lambda i, h, c: [c.pop(k) for k in ("sigma.R", "sigma.G", "sigma.B")] if i == 0 else None, "but missing"),
+        (
+            lambda i, h, c: (
+                h.__setitem__(
+                    P + "checksums",
+                    json.dumps({k: v for k, v in json.loads(h[P + "checksums"]).items() if k != "mask"}),
+                )
+                if i == 0
+                else None
+            ),
+            r"no checksum for channel 'mask'",
+        ),
+        (lambda i, h, c: c.__setitem__("Z", c["R"].copy()) if i == 0 else None, r"unexpected channel\(s\) \['Z'\]"),
+    ],
+    ids=["mask removed", "sigma removed", "mask unlisted", "channel added"],
+)
 def test_channels_must_match_their_checksums(original, tmp_path, edit, match):
     # re-sealed: even a writer that recomputes the digest cannot drop or add a channel
     with pytest.raises(bs.MeasurementFileError, match=match):
@@ -100,12 +115,15 @@ def test_non_utf8_attribute_is_the_librarys_error(original, tmp_path):
         exr.read_measurements(path)
 
 
-@pytest.mark.parametrize("text, match", [
-    ('{"a": ' + "[" * 5000 + "]" * 5000 + "}", "nested"),
-    ('{"a": ' + "[" * 70 + "]" * 70 + "}", "nested 71 deep"),
-    ('{"n": ' + "7" * 5000 + "}", "not valid JSON"),
-    ('{"x": NaN}', "not valid JSON"),
-])
+@pytest.mark.parametrize(
+    "text, match",
+    [
+        ('{"a": ' + "[" * 5000 + "]" * 5000 + "}", "nested"),
+        ('{"a": ' + "[" * 70 + "]" * 70 + "}", "nested 71 deep"),
+        ('{"n": ' + "7" * 5000 + "}", "not valid JSON"),
+        ('{"x": NaN}', "not valid JSON"),
+    ],
+)
 def test_hostile_metadata_json_is_refused(original, tmp_path, text, match):
     edit = lambda i, h, c: h.__setitem__(P + "metadata", text) if i == 0 else None  # noqa: E731
     with pytest.raises(bs.MeasurementFileError, match=match):
@@ -127,7 +145,7 @@ def test_a_header_declaring_huge_images_is_refused_before_decoding(original, tmp
     data = bytearray(original[1])
     at = data.find(b"dataWindow")  # name\0 type\0 size(4) then xMin yMin xMax yMax (int32)
     value = at + len(b"dataWindow\0box2i\0") + 4
-    data[value + 8:value + 12] = (2**30).to_bytes(4, "little")
+    data[value + 8 : value + 12] = (2**30).to_bytes(4, "little")
     path = tmp_path / "huge.exr"
     path.write_bytes(bytes(data))
     with pytest.raises(bs.MeasurementFileError):
@@ -139,8 +157,7 @@ def test_info_names_what_a_path_is(tmp_path, capsys):
     os.mkfifo(fifo)
     link = tmp_path / "link.exr"
     link.symlink_to(tmp_path / "gone.exr")
-    for path, match in ((os.devnull, "not a regular file"), (fifo, "not a regular file"),
-                        (link, "symbolic link to")):
+    for path, match in ((os.devnull, "not a regular file"), (fifo, "not a regular file"), (link, "symbolic link to")):
         assert main(["--no-compilation-cache", "info", str(path)]) == 2
         assert match in capsys.readouterr().err
 
@@ -164,7 +181,7 @@ def test_mutated_files_are_refused_or_read_identically(original, tmp_path, data)
         i = data.draw(st.integers(0, len(b) - 1))
         b[i] = data.draw(st.integers(0, 255))
     if data.draw(st.booleans()):
-        b = b[:data.draw(st.integers(0, len(b)))]
+        b = b[: data.draw(st.integers(0, len(b)))]
     mutant = tmp_path / "mutant.exr"
     mutant.write_bytes(bytes(b))
     try:  # OpenEXR's diagnostics are captured by the reader (brdfscale/exr/_diagnostics.py)
@@ -175,6 +192,7 @@ def test_mutated_files_are_refused_or_read_identically(original, tmp_path, data)
 
 
 # -- temporary files of killed writes ---------------------------------------------------------------
+
 
 def test_a_stale_temporary_file_is_removed_by_the_next_write(tmp_path):
     dead = subprocess.Popen([sys.executable, "-c", "pass"])
@@ -196,7 +214,7 @@ def test_sigkill_during_writes_leaves_nothing_after_the_next_write(tmp_path):
         big = np.random.default_rng(0).random(4_000_000).tobytes()
         print("ready", flush=True)
         while True:
-            files.atomic_write({str(tmp_path / 'out.bin')!r}, lambda t: open(t, 'wb').write(big * 4), overwrite=True)
+            files.atomic_write({str(tmp_path / "out.bin")!r}, lambda t: open(t, 'wb').write(big * 4), overwrite=True)
     """)
     proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
     assert proc.stdout.readline().strip() == "ready"
@@ -212,10 +230,13 @@ def test_sigkill_during_writes_leaves_nothing_after_the_next_write(tmp_path):
 
 # -- 2. exclusive runs ---------------------------------------------------------------------------
 
+
 def _holder(target):
     """A subprocess holding the lock on ``target`` until its stdin closes."""
-    script = (f"import sys\nfrom brdfscale import files\nwith files.exclusive({str(target)!r}):\n"
-              "    print('held', flush=True)\n    sys.stdin.read()\n")
+    script = (
+        f"import sys\nfrom brdfscale import files\nwith files.exclusive({str(target)!r}):\n"
+        "    print('held', flush=True)\n    sys.stdin.read()\n"
+    )
     proc = subprocess.Popen([sys.executable, "-c", script], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     assert proc.stdout.readline().strip() == "held"
     return proc
@@ -256,8 +277,9 @@ def _tiny_fit():
     from brdfscale import fitting
 
     model = fitting.ParametricModel(fixed={"mu_c": 1.0, "exponent": 1.0, "alpha_max": 0.05})
-    mset = fitting.simulate(model, {"amplitude": 1.0, "alpha_lobe": 0.02}, (1.0, 4.0), size=9, extent=0.1,
-                            noise=0.01, seed=0)
+    mset = fitting.simulate(
+        model, {"amplitude": 1.0, "alpha_lobe": 0.02}, (1.0, 4.0), size=9, extent=0.1, noise=0.01, seed=0
+    )
     data = fitting.Dataset.from_measurements(mset)
     result = fitting.fit(model, data, starts=1, seed=0)
     return fitting.Problem(model, data), result
@@ -268,8 +290,9 @@ def test_fit_command_refuses_an_output_directory_in_use(original, tmp_path, caps
     out.mkdir()
     proc = _holder(out)
     try:
-        status = main(["--no-compilation-cache", "fit", original[0], "--out", str(out), "--steps", "0",
-                       "--starts", "1"])
+        status = main(
+            ["--no-compilation-cache", "fit", original[0], "--out", str(out), "--steps", "0", "--starts", "1"]
+        )
     finally:
         proc.kill()
         proc.wait()
@@ -280,6 +303,7 @@ def test_fit_command_refuses_an_output_directory_in_use(original, tmp_path, caps
 
 
 # -- 3. the command line ---------------------------------------------------------------------------
+
 
 def _bad_lines(measurements, tmp):
     existing = tmp / "existing"
@@ -295,7 +319,10 @@ def _bad_lines(measurements, tmp):
         (fit + ["--starts", "1000000000"], "argument --starts"),
         (fit + ["--walkers", "100000000"], "argument --walkers"),
         (fit + ["--default-sigma", "nan"], "argument --default-sigma: must be a finite number"),
-        (fit + ["--fix", "alpha_lobe=1e-30", "--steps", "0"], "--fix: fixed alpha_lobe = 1e-30 lies outside its prior box"),
+        (
+            fit + ["--fix", "alpha_lobe=1e-30", "--steps", "0"],
+            "--fix: fixed alpha_lobe = 1e-30 lies outside its prior box",
+        ),
         (fit + ["--force", "--force"], "--force: given more than once"),
         (fit + ["--regularisation", "auto"], "--regularisation applies to the non-parametric model only"),
         (fit + ["--model", "nonparametric", "--regularisation", "-1"], "argument --regularisation"),
@@ -364,9 +391,15 @@ def test_an_unexpected_failure_is_one_line_and_status_1(monkeypatch, original, c
 
 
 @settings(max_examples=40, deadline=None)
-@given(option=st.sampled_from(sorted(SYNTH_DOMAINS)), value=st.one_of(
-    st.sampled_from(HOSTILE), st.text(max_size=8), st.integers(-10**25, 10**25).map(str),
-    st.floats(allow_nan=True, allow_infinity=True).map(repr)))
+@given(
+    option=st.sampled_from(sorted(SYNTH_DOMAINS)),
+    value=st.one_of(
+        st.sampled_from(HOSTILE),
+        st.text(max_size=8),
+        st.integers(-(10**25), 10**25).map(str),
+        st.floats(allow_nan=True, allow_infinity=True).map(repr),
+    ),
+)
 def test_synth_option_values_outside_their_domain_are_refused(option, value):
     """Property: a value outside an option's documented domain exits 2, before any work;
     (values inside it are the default test of test_cli_synth.py)."""
@@ -375,7 +408,7 @@ def test_synth_option_values_outside_their_domain_are_refused(option, value):
     argv = ["synth", "gaussian", "--size", "16", "--pixels", "5", "--scales", "2,4", "--out", "/nonexistent/x.exr"]
     if option in argv:
         i = argv.index(option)
-        del argv[i:i + 2]
+        del argv[i : i + 2]
     code, err = run_command(argv + [option, value])
     assert code == 2 and "Traceback" not in err, (option, value, err)
 

@@ -21,11 +21,10 @@ import textwrap
 import numpy as np
 import pytest
 
-from brdfscale import fitting
-from brdfscale import InvalidInputError
+from brdfscale import fitting, InvalidInputError
 from brdfscale.fitting import _sample_many
-
 from tests.helpers import Linear, linear_measurements
+
 
 SIGMA = 0.1
 SIZES = [(7, 7), (8, 8), (8, 7)]  # pixels per side at the two scales: 49, 64, 64 distinct points
@@ -35,8 +34,10 @@ NUTS = dict(sampler=fitting.NUTS(warmup=30), chains=2, steps=30, chunk=25, seed=
 @pytest.fixture(scope="module")
 def ragged():
     model = Linear()
-    problems = [fitting.Problem(model, fitting.Dataset.from_measurements(linear_measurements(i, s, SIGMA)))
-                for i, s in enumerate(SIZES)]
+    problems = [
+        fitting.Problem(model, fitting.Dataset.from_measurements(linear_measurements(i, s, SIGMA)))
+        for i, s in enumerate(SIZES)
+    ]
     assert [p.points.mean.shape[1] for p in problems] == [49, 64, 64]
     return problems, [fitting.fit(model, p.data, starts=1) for p in problems]
 
@@ -45,7 +46,12 @@ def _assert_same(one, many):
     """``many`` is ``one``: chain, densities, statistics and warm-up bit for bit, the same diagnostics."""
     assert isinstance(many, fitting.SampleResult)
     assert (many.names, many.burn, many.sampler, many.chains, many.status) == (
-        one.names, one.burn, one.sampler, one.chains, one.status)
+        one.names,
+        one.burn,
+        one.sampler,
+        one.chains,
+        one.status,
+    )
     np.testing.assert_array_equal(many.chain, one.chain)
     np.testing.assert_array_equal(many.log_prob, one.log_prob)
     assert many.stats.keys() == one.stats.keys()
@@ -117,15 +123,24 @@ def test_what_sample_many_refuses(ragged):
     for sampler in ("emcee", fitting.Emcee(walkers=8)):
         with pytest.raises(InvalidInputError, match="do not vectorise across materials"):
             fitting.sample_many(problems, fits, sampler=sampler)
-    for args, match in [((problems, fits[:2]), "pair up"), ((problems[0], fits[0]), "sequence of problems"),
-                        ((problems, [fits[0], fits[1], "fit"]), "material 2"), (([], []), "at least one")]:
+    for args, match in [
+        ((problems, fits[:2]), "pair up"),
+        ((problems[0], fits[0]), "sequence of problems"),
+        ((problems, [fits[0], fits[1], "fit"]), "material 2"),
+        (([], []), "at least one"),
+    ]:
         with pytest.raises(InvalidInputError, match=match):
             fitting.sample_many(*args)
     other = fitting.Problem(Linear(duplicate=True), problems[0].data)
     with pytest.raises(InvalidInputError, match="material 1: fit is the result for 3 coordinates"):
         fitting.sample_many([problems[0], other], fits[:2], errors="return")  # a wrong pairing is always refused
-    for kw, match in [(dict(errors="ignore"), "errors"), (dict(batch=0), "batch"), (dict(steps=1), "steps"),
-                      (dict(devices=9), "devices=9"), (dict(sampler="metropolis"), "sampler must be one of")]:
+    for kw, match in [
+        (dict(errors="ignore"), "errors"),
+        (dict(batch=0), "batch"),
+        (dict(steps=1), "steps"),
+        (dict(devices=9), "devices=9"),
+        (dict(sampler="metropolis"), "sampler must be one of"),
+    ]:
         with pytest.raises(InvalidInputError, match=match):
             fitting.sample_many(problems, fits, **kw)
 
@@ -176,8 +191,14 @@ def test_sharded_over_two_devices_equals_sample_to_rounding():
     log-density's gradient differs in the last bits (at rounding level over 60 steps; 1e-9
     leaves room for other platforms' rounding, not for a parted chain, which differs by O(σ))."""
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu"}
-    run = subprocess.run([sys.executable, "-c", _SHARDED], capture_output=True, text=True, env=env, timeout=600,
-                         cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    run = subprocess.run(
+        [sys.executable, "-c", _SHARDED],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+        cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+    )
     assert run.returncode == 0, run.stderr[-3000:]
     got = json.loads(run.stdout.strip().splitlines()[-1])
     assert got["devices_of_output"] == [2] and all(got["same"])

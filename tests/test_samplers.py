@@ -20,11 +20,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from brdfscale import fitting
-from brdfscale import InvalidInputError
+from brdfscale import fitting, InvalidInputError
 from brdfscale.fitting import _diagnostics
-
-from tests.helpers import TRUTHS, Linear, linear_measurements, parametric_dataset
+from tests.helpers import Linear, linear_measurements, parametric_dataset, TRUTHS
 
 
 @pytest.fixture(scope="module")
@@ -77,7 +75,7 @@ def test_each_sampler_recovers_the_exact_linear_gaussian_posterior(linear, name)
         # one after another (R̂ across ensembles, not walkers, as issue 30 asks); on 4 ensembles × 8
         # walkers × ~930 kept steps (≈ 28 τ per walker) R̂ and bulk ESS pass, and the status says so
         assert s.chain.shape == (1000, 4 * 8, 3) and s.warmup["steps"] == s.burn
-        by_chain = s.by_chain(s.quantities["q0"][s.burn:])
+        by_chain = s.by_chain(s.quantities["q0"][s.burn :])
         assert by_chain.shape == (4, 8 * (1000 - s.burn))
         assert s.summary()["q0"] == _diagnostics.summary_row(by_chain)
         assert s.status == "converged", s.status
@@ -145,7 +143,8 @@ def test_an_interrupted_run_resumes_bit_identically(linear, name, tmp_path, monk
     assert committed == {"emcee": 50, "nuts": 150, "hmc": 150, "nuts-windows": 140}[name]
     resumed = fitting.sample(problem, res, checkpoint=tmp_path / "c.h5", **kw)
     for a, b in [(full.chain, resumed.chain), (full.log_prob, resumed.log_prob)] + [
-            (full.stats[k], resumed.stats[k]) for k in full.stats]:
+        (full.stats[k], resumed.stats[k]) for k in full.stats
+    ]:
         assert a.dtype == b.dtype and np.array_equal(a, b)
     assert resumed.summary() == full.summary() and resumed.warmup.keys() == full.warmup.keys()
     with h5py.File(tmp_path / "c.h5", "r+") as f:
@@ -167,16 +166,23 @@ def fitting_errors():
 
 # -- diagnostics --------------------------------------------------------------------------
 
-STORED = "tests/data/chains/linear_gaussian.npz"  # written by fitting.sample (NUTS 4 × 301 draws; emcee 16 walkers × 150)
+STORED = (
+    "tests/data/chains/linear_gaussian.npz"  # written by fitting.sample (NUTS 4 × 301 draws; emcee 16 walkers × 150)
+)
 
 
 def test_rhat_ess_and_mcse_equal_arviz_on_stored_chains():
     az = pytest.importorskip("arviz")
     stored = np.load(STORED)
     nuts, emcee_walkers = stored["nuts"], stored["emcee"]
-    cases = {"nuts": nuts, "emcee (burn-in included)": emcee_walkers,
-             "shifted chain": nuts + np.array([0.0, 0.0, 0.3, 0.0])[:, None, None] * nuts.std(axis=(0, 1)),
-             "ties": np.round(nuts * 20) / 20, "one chain": nuts[:1], "even draws": nuts[:, :300]}
+    cases = {
+        "nuts": nuts,
+        "emcee (burn-in included)": emcee_walkers,
+        "shifted chain": nuts + np.array([0.0, 0.0, 0.3, 0.0])[:, None, None] * nuts.std(axis=(0, 1)),
+        "ties": np.round(nuts * 20) / 20,
+        "one chain": nuts[:1],
+        "even draws": nuts[:, :300],
+    }
     for label, x in cases.items():
         reference = az.summary(az.convert_to_dataset(x), kind="all", round_to="none")
         for i in range(x.shape[-1]):
@@ -196,9 +202,13 @@ def test_status_names_every_failed_criterion(linear):
     good = fitting.sample(problem, res, chunk=CHUNK, progress=False, seed=3, **SAMPLERS["nuts"])
     assert good.status == "converged" and good.problems() == []
     # too short: bulk ESS below 400, named per quantity
-    short = dataclasses.replace(good, chain=good.chain[:190], log_prob=good.log_prob[:190],
-                                stats={k: v[:190] for k, v in good.stats.items()},
-                                quantities={k: v[:190] for k, v in good.quantities.items()})
+    short = dataclasses.replace(
+        good,
+        chain=good.chain[:190],
+        log_prob=good.log_prob[:190],
+        stats={k: v[:190] for k, v in good.stats.items()},
+        quantities={k: v[:190] for k, v in good.quantities.items()},
+    )
     assert short.status.startswith("not converged: ") and "ESS_bulk < 400 for q0 (" in short.status
     assert short.diagnostics()["problems"] == short.problems() and short.diagnostics()["status"] == short.status
     # one chain stuck away from the others: R̂ names the coordinate (θ when no quantities are given)
@@ -250,8 +260,7 @@ def test_arviz_summary_and_trace_by_variable_name_on_every_sampler(linear, name)
     the walkers reported per ensemble as given."""
     az = pytest.importorskip("arviz")
     problem, res, _, _ = linear
-    sampler = {"emcee": fitting.Emcee(walkers=8), "nuts": fitting.NUTS(warmup=50),
-               "hmc": fitting.HMC(warmup=50)}[name]
+    sampler = {"emcee": fitting.Emcee(walkers=8), "nuts": fitting.NUTS(warmup=50), "hmc": fitting.HMC(warmup=50)}[name]
     s = fitting.sample(problem, res, sampler=sampler, chains=3, steps=60, chunk=CHUNK, progress=False, seed=2)
     import warnings
 
@@ -259,8 +268,14 @@ def test_arviz_summary_and_trace_by_variable_name_on_every_sampler(linear, name)
         warnings.simplefilter("error", UserWarning)  # no "More chains than draws"
         data = s.to_arviz()
     walkers = 8 if name == "emcee" else 1
-    assert s.walkers == walkers and s.diagnostics()["walkers"] == walkers and data.posterior.attrs["walkers_per_chain"] == walkers
-    assert data.posterior.sizes["chain"] == 3 and data.posterior.sizes["draw"] == walkers * (60 + (50 if name != "emcee" else 0) - s.burn)
+    assert (
+        s.walkers == walkers
+        and s.diagnostics()["walkers"] == walkers
+        and data.posterior.attrs["walkers_per_chain"] == walkers
+    )
+    assert data.posterior.sizes["chain"] == 3 and data.posterior.sizes["draw"] == walkers * (
+        60 + (50 if name != "emcee" else 0) - s.burn
+    )
     table = az.summary(data, var_names=["t1", "q2"], kind="all", round_to="none")
     assert list(table.index) == ["t1", "q2"]
     ours = s.summary()
@@ -268,8 +283,9 @@ def test_arviz_summary_and_trace_by_variable_name_on_every_sampler(linear, name)
         for key in _diagnostics.STATISTICS:
             assert table.loc[var, key] == pytest.approx(ours[var][key], rel=1e-10, nan_ok=True), (var, key)
     if name == "emcee":  # ensemble e's draws are walkers 8e … 8e + 7, each over the kept steps
-        np.testing.assert_array_equal(data.posterior["t0"].values[1, :s.chain.shape[0] - s.burn],
-                                      s.chain[s.burn:, 8, 0])
+        np.testing.assert_array_equal(
+            data.posterior["t0"].values[1, : s.chain.shape[0] - s.burn], s.chain[s.burn :, 8, 0]
+        )
     pytest.importorskip("matplotlib")
     axes = az.plot_trace(data, var_names=["q0"])
     assert np.asarray(axes).shape == (1, 2)
@@ -299,6 +315,7 @@ def test_to_arviz_names_the_extra_when_arviz_is_missing(linear, monkeypatch):
 
 
 # -- undetermined directions --------------------------------------------------------------
+
 
 @pytest.fixture(scope="module")
 def null_direction():
@@ -336,21 +353,30 @@ def test_an_undetermined_direction_is_held_and_the_determined_subspace_sampled_e
 
 # -- arguments ----------------------------------------------------------------------------
 
+
 def test_sampler_choices_and_arguments_are_checked(linear):
     problem, res, _, _ = linear
     assert fitting.SAMPLERS == {"emcee": fitting.Emcee, "nuts": fitting.NUTS, "hmc": fitting.HMC}
-    for kw, match in [(dict(sampler="metropolis"), "sampler must be one of"), (dict(sampler=3), "sampler must be one of"),
-                      (dict(sampler="nuts", walkers=8), "apply to emcee only"),
-                      (dict(sampler=fitting.Emcee(), moves="de"), "fitting.Emcee"),
-                      (dict(chains=0), "chains must be an integer ≥ 1"), (dict(sampler="hmc", steps=1), "steps")]:
+    for kw, match in [
+        (dict(sampler="metropolis"), "sampler must be one of"),
+        (dict(sampler=3), "sampler must be one of"),
+        (dict(sampler="nuts", walkers=8), "apply to emcee only"),
+        (dict(sampler=fitting.Emcee(), moves="de"), "fitting.Emcee"),
+        (dict(chains=0), "chains must be an integer ≥ 1"),
+        (dict(sampler="hmc", steps=1), "steps"),
+    ]:
         with pytest.raises(InvalidInputError, match=match):
             fitting.sample(problem, res, progress=False, **kw)
-    for make, match in [(lambda: fitting.NUTS(warmup=-1), "warmup"), (lambda: fitting.NUTS(max_doublings=0), "max_doublings"),
-                        (lambda: fitting.NUTS(target_acceptance=1.0), r"target_acceptance must lie in \(0, 1\)"),
-                        (lambda: fitting.HMC(jitter=1.0), "jitter"), (lambda: fitting.HMC(trajectory_length=0), "trajectory_length"),
-                        (lambda: fitting.NUTS(warmup=10, adapt_mass_matrix=True), "warmup ≥ 20"),
-                        (lambda: fitting.NUTS(adapt_mass_matrix="yes"), "adapt_mass_matrix"),
-                        (lambda: fitting.Emcee(moves="gibbs"), "moves must be one of")]:
+    for make, match in [
+        (lambda: fitting.NUTS(warmup=-1), "warmup"),
+        (lambda: fitting.NUTS(max_doublings=0), "max_doublings"),
+        (lambda: fitting.NUTS(target_acceptance=1.0), r"target_acceptance must lie in \(0, 1\)"),
+        (lambda: fitting.HMC(jitter=1.0), "jitter"),
+        (lambda: fitting.HMC(trajectory_length=0), "trajectory_length"),
+        (lambda: fitting.NUTS(warmup=10, adapt_mass_matrix=True), "warmup ≥ 20"),
+        (lambda: fitting.NUTS(adapt_mass_matrix="yes"), "adapt_mass_matrix"),
+        (lambda: fitting.Emcee(moves="gibbs"), "moves must be one of"),
+    ]:
         with pytest.raises(InvalidInputError, match=match):
             make()
 

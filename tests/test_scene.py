@@ -14,9 +14,10 @@ from hypothesis import given, settings, strategies as st
 
 import brdfscale as bs
 from brdfscale import lobes, scene, so3, stats
-from brdfscale.geometry import microfacet_factor, slope_to_direction
 from brdfscale._interpolate import interpolate
+from brdfscale.geometry import microfacet_factor, slope_to_direction
 from tests.references import planner as oracle  # the independent references (shared with experiments/bench_planner.py)
+
 
 TOL = 1e-4
 
@@ -239,9 +240,12 @@ def test_so3_reference_parts_are_sound():
     """The benchmark's independent pieces: its NumPy facet lobe is the library's model, and the
     heat kernel (character sum) times the Haar density integrates to 1 on its quadrature."""
     i, o = oracle._unit(0.3, 0.0), oracle._unit(0.4, math.pi)
-    rot = np.asarray(so3.euler_to_matrix(np.array([0.1, 2.0, 4.0]), np.array([0.2, 0.3, 0.1]), np.array([0.0, 1.0, 5.0])))
-    np.testing.assert_allclose(oracle.so3_lobe(i, o, rot), np.asarray(oracle.so3_material().lobe.evaluate(i, o, rot)),
-                               rtol=1e-12)
+    rot = np.asarray(
+        so3.euler_to_matrix(np.array([0.1, 2.0, 4.0]), np.array([0.2, 0.3, 0.1]), np.array([0.0, 1.0, 5.0]))
+    )
+    np.testing.assert_allclose(
+        oracle.so3_lobe(i, o, rot), np.asarray(oracle.so3_material().lobe.evaluate(i, o, rot)), rtol=1e-12
+    )
     _, total = oracle.so3_reference(0.01, i, o, np.zeros((1, 3)), nodes=32)
     assert total == pytest.approx(1.0, abs=1e-8)
 
@@ -254,9 +258,16 @@ def test_so3_material_is_planned_on_so3_and_meets_target_against_group_integral(
     assert part.path == "so3"
     B = int(part.details.split("band limit B = ")[1].split(" ")[0])
     # a priori from the lobe's width and the least damping (not the largest band limit allowed)
-    assert B == so3.band_limit(
-        lambda J: np.asarray(oracle.so3_material().lobe.spectrum(J))
-        * np.exp(-(oracle.so3_material().tau(oracle.MU0) - oracle.so3_material().tau(0.01)) * J * (J + 1)), 2.5e-4)[0]
+    assert (
+        B
+        == so3.band_limit(
+            lambda J: (
+                np.asarray(oracle.so3_material().lobe.spectrum(J))
+                * np.exp(-(oracle.so3_material().tau(oracle.MU0) - oracle.so3_material().tau(0.01)) * J * (J + 1))
+            ),
+            2.5e-4,
+        )[0]
+    )
     assert part.step.rows == B - 1 and part.step.columns == B - 1  # tilted Γ∞, twist-dependent lobe
     err = np.max(np.abs(np.asarray(plan.evaluate()) - ref) / peak)
     assert err <= 1e-3
@@ -349,7 +360,9 @@ def test_midpoint_error_uses_the_evaluations_interpolation():
     assert midpoint_error(at_nodes, exact) < 1e-15
     perturbed = exact.copy()
     perturbed[0, 0] += 1e-3 * np.max(np.abs(exact[0]))
-    assert midpoint_error(at_nodes, perturbed) == pytest.approx(1e-3 * np.max(np.abs(exact[0])) / np.max(np.abs(perturbed[0])))
+    assert midpoint_error(at_nodes, perturbed) == pytest.approx(
+        1e-3 * np.max(np.abs(exact[0])) / np.max(np.abs(perturbed[0]))
+    )
 
 
 def test_no_brdf_from_a_spectral_path_reads_as_one_message():

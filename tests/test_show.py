@@ -18,9 +18,9 @@ import pytest
 from matplotlib.figure import Figure
 
 import brdfscale as bs
-from brdfscale import fitting
-from brdfscale import InvalidInputError, lobes, plot, scene, show, stats, synth
+from brdfscale import fitting, InvalidInputError, lobes, plot, scene, show, stats, synth
 from brdfscale._evolve import EvolvedDensity
+
 
 TRUTH = dict(amplitude=0.8, alpha_lobe=0.05, alpha_max=0.2, mu_c=1.0, exponent=0.8)
 LAW = stats.ScaledFamily(stats.Beckmann, stats.WidthLaw(0.2, 1.0, 0.8))
@@ -29,6 +29,7 @@ FACETS = synth.facet_statistics(FIELD, [1.0, 4.0, 16.0], bins=33)
 
 
 # -- fixtures: one of everything, built without fits or compiled solves where possible -------
+
 
 @pytest.fixture(scope="module")
 def fitted():
@@ -45,19 +46,45 @@ def fitted():
     std = {"amplitude": 0.008, "alpha_lobe": 0.0007, "alpha_max": 0.0035, "mu_c": None, "exponent": None}
     quantiles = {k: (None if v is None else [TRUTH[k] - 1.6 * v, TRUTH[k], TRUTH[k] + 1.6 * v]) for k, v in std.items()}
     result = fitting.FitResult(
-        names=names, theta=theta, covariance=cov, chi2=231.5, n_data=243, status="converged",
-        starts=[{"chi2": 231.5, "result": "successful", "steps": 7, "at_best": True}], estimates=dict(TRUTH), std=std,
-        quantiles=quantiles, eigenvalues=np.array([1e-13, 3e2, 1e3, 3e3, 1e4]),
+        names=names,
+        theta=theta,
+        covariance=cov,
+        chi2=231.5,
+        n_data=243,
+        status="converged",
+        starts=[{"chi2": 231.5, "result": "successful", "steps": 7, "at_best": True}],
+        estimates=dict(TRUTH),
+        std=std,
+        quantiles=quantiles,
+        eigenvalues=np.array([1e-13, 3e2, 1e3, 3e3, 1e4]),
         undetermined=[{"combination": "0.77·log exponent + 0.64·log mu_c", "fisher_eigenvalue": 1e-13, "std": None}],
-        notes=list(model.identifiability_notes), solver="lm", at_bounds=[],
-        ratios={"S(μ0)/S(μ1) @ |W|=4.2": {"estimate": 0.913, "std": 0.004, "quantiles_5_50_95": [0.906, 0.913, 0.92],
-                                          "mu0": 0.5, "mu": 2.0, "W": 4.2}},
-        combinations=[{"combination": "0.84·log alpha_max + 0.52·log alpha_lobe", "value": -4.1, "std": 0.01}])
+        notes=list(model.identifiability_notes),
+        solver="lm",
+        at_bounds=[],
+        ratios={
+            "S(μ0)/S(μ1) @ |W|=4.2": {
+                "estimate": 0.913,
+                "std": 0.004,
+                "quantiles_5_50_95": [0.906, 0.913, 0.92],
+                "mu0": 0.5,
+                "mu": 2.0,
+                "W": 4.2,
+            }
+        },
+        combinations=[{"combination": "0.84·log alpha_max + 0.52·log alpha_lobe", "value": -4.1, "std": 0.01}],
+    )
     rng = np.random.default_rng(0)
     chain = theta + 0.01 * rng.standard_normal((300, 16, len(names)))
-    samples = fitting.SampleResult(names=names, chain=chain, log_prob=-0.5 * rng.chisquare(5, (300, 16)), burn=50,
-                                   tau=np.full(len(names), 12.0), ess=np.full(len(names), 330.0), tau_reliable=False,
-                                   acceptance=0.41)
+    samples = fitting.SampleResult(
+        names=names,
+        chain=chain,
+        log_prob=-0.5 * rng.chisquare(5, (300, 16)),
+        burn=50,
+        tau=np.full(len(names), 12.0),
+        ess=np.full(len(names), 330.0),
+        tau_reliable=False,
+        acceptance=0.41,
+    )
     assert samples.samples.shape == (4000, len(names))
     return mset, problem, result, samples
 
@@ -69,7 +96,9 @@ def plans():
     other = scene.Material(lobes.Beckmann(0.08, amplitude=0.5), 0.1, LAW)
     cam = scene.Camera(height=2.0, pitch=0.3, fov=0.8, resolution=(8, 12))
     light = np.array([0.3, 0.0, np.sqrt(1 - 0.09)])
-    camera = scene.plan(scene.camera_scene([mat, other], cam, light, 1e-3, texture=lambda xy: (xy[:, 1] > 0).astype(int)))
+    camera = scene.plan(
+        scene.camera_scene([mat, other], cam, light, 1e-3, texture=lambda xy: (xy[:, 1] > 0).astype(int))
+    )
     return camera, dataclasses.replace(camera, pixels=None, resolution=None)  # the same queries, no camera
 
 
@@ -78,8 +107,12 @@ def _big_measurement_set(n=512):
     values = rng.random((n, n))
     mask = np.ones((n, n), bool)
     mask[:3] = False
-    images = tuple(bs.LobeImage(mu=mu, incident=np.array([0.0, 0.0, 1.0]), extent=0.4, values=values,
-                                sigma=np.full((n, n), 0.1), mask=mask) for mu in (1.0, 2.0, 4.0))
+    images = tuple(
+        bs.LobeImage(
+            mu=mu, incident=np.array([0.0, 0.0, 1.0]), extent=0.4, values=values, sigma=np.full((n, n), 0.1), mask=mask
+        )
+        for mu in (1.0, 2.0, 4.0)
+    )
     return bs.MeasurementSet(images, metadata={"truth": {"params": TRUTH}, "source": "test"})
 
 
@@ -92,8 +125,9 @@ def objects(fitted, plans):
 def _everything(fitted, plans):
     mset, problem, result, samples = fitted
     s0, s1 = LAW.at(1.0), LAW.at(4.0)
-    spectral = lobes.Lobe(EvolvedDensity(stats.GGX(0.05), stats.GGX(0.2), stats.GGX(0.1), 0.0,
-                                         bs.Radial(nodes=64, cutoff=100.0), 1e-6))
+    spectral = lobes.Lobe(
+        EvolvedDensity(stats.GGX(0.05), stats.GGX(0.2), stats.GGX(0.1), 0.0, bs.Radial(nodes=64, cutoff=100.0), 1e-6)
+    )
     big = _big_measurement_set()
     hist = stats.SlopeHistogram(0.3, 17)
     hist.add(np.zeros(5), np.zeros(5))
@@ -119,8 +153,9 @@ def _everything(fitted, plans):
         "MeasurementSet": big,
         "camera plan": plans[0],
         "plan": plans[1],
-        "Scene": scene.Scene((scene.Material(lobes.Beckmann(0.05), 0.1, LAW),), scene.Queries([0, 0, 1.0], [0, 0, 1.0], 1.0),
-                             1e-3),
+        "Scene": scene.Scene(
+            (scene.Material(lobes.Beckmann(0.05), 0.1, LAW),), scene.Queries([0, 0, 1.0], [0, 0, 1.0], 1.0), 1e-3
+        ),
         "Dataset": problem.data,
         "Problem": problem,
         "FitResult": result,
@@ -136,6 +171,7 @@ def _compact(text: str, what: str) -> None:
 
 # -- reprs --------------------------------------------------------------------------------
 
+
 def test_every_repr_is_a_few_lines_and_no_array_dump(objects):
     for what, obj in objects.items():
         text = repr(obj)
@@ -143,7 +179,9 @@ def test_every_repr_is_a_few_lines_and_no_array_dump(objects):
         assert text.startswith(type(obj).__name__ + "("), (what, text)
     assert repr(objects["Beckmann lobe"]) == "Beckmann(alpha=0.1, amplitude=1)"
     assert repr(objects["GGX lobe"]) == "GGX(alpha=(0.1, 0.2), amplitude=2)"
-    assert "values=f64[512,512]" in repr(objects["LobeImage"]) and "1536 of 262144 px masked" in repr(objects["LobeImage"])
+    assert "values=f64[512,512]" in repr(objects["LobeImage"]) and "1536 of 262144 px masked" in repr(
+        objects["LobeImage"]
+    )
     assert "scales=(1, 2, 4)" in repr(objects["MeasurementSet"]) and "512×512" in repr(objects["MeasurementSet"])
     assert "chain=f64[300,16,5]" in repr(objects["SampleResult"]) and "draws=4000" in repr(objects["SampleResult"])
     fit_text = repr(objects["FitResult"])
@@ -164,7 +202,9 @@ def test_reprs_under_jit_eval_shape_and_vmap(fitted, plans):
         seen["lobe"] = repr(lobes.GGX(alpha_x=a, alpha_y=2 * a, amplitude=a))
         seen["gaussian"] = repr(stats.Gaussian(cov=jnp.eye(2) * a))
         seen["mixture"] = repr(stats.Mixture(jnp.stack([a, 1 - a]), [stats.Beckmann(a), stats.Delta()]))
-        seen["evolved"] = repr(bs.evolve(lobes.Beckmann(a), stats.Beckmann(2 * a), stats.Beckmann(a), method="closed_form"))
+        seen["evolved"] = repr(
+            bs.evolve(lobes.Beckmann(a), stats.Beckmann(2 * a), stats.Beckmann(a), method="closed_form")
+        )
         print(lobes.Beckmann(a))  # printing inside jit must not fail either
         return a
 
@@ -223,8 +263,18 @@ def test_html_summaries_parse_and_hold_the_key_numbers(objects):
     fit_html = _parse(objects["FitResult"]._repr_html_())
     assert fit_html.tables == 5  # summary, parameters, ratios, determined and undetermined combinations
     text = " ".join(fit_html.text)
-    for token in ("estimate", "std", "5 %", "95 %", "0.8", "0.0007", "0.77·log exponent", "S(μ0)/S(μ1) @ |W|=4.2",
-                  "0.913", "0.84·log alpha_max"):
+    for token in (
+        "estimate",
+        "std",
+        "5 %",
+        "95 %",
+        "0.8",
+        "0.0007",
+        "0.77·log exponent",
+        "S(μ0)/S(μ1) @ |W|=4.2",
+        "0.913",
+        "0.84·log alpha_max",
+    ):
         assert token in text, token
     mset_html = _parse(objects["MeasurementSet"]._repr_html_())
     assert mset_html.tables == 2 and "512×512" in " ".join(mset_html.text)
@@ -235,6 +285,7 @@ def test_html_summaries_parse_and_hold_the_key_numbers(objects):
 
 
 # -- figures ------------------------------------------------------------------------------
+
 
 def _check_figure(fig, axes: int, what: str, unlabelled: int = 0, draw: bool = False):
     """``axes`` axes, every visible one labelled (``unlabelled``: inner panels of a grid whose
@@ -260,8 +311,13 @@ def test_plot_functions_return_figures_outside_pyplot(fitted, plans):
         (plot.lobe(lobes.Beckmann(0.1), incident=incident, size=17, log=True), 5, "lobe + BRDF"),
         (lobes.Beckmann(alpha_x=0.1, alpha_y=0.05).plot(size=17), 3, "lobe.plot (anisotropic)"),
         (plot.statistics(LAW, mu=[0.5, 2.0], size=33), 2, "statistics of a law"),
-        (plot.statistics([stats.Delta(), stats.Beckmann(alpha_x=0.1, alpha_y=0.2)], labels=["flat", "rough"], size=33),
-         2, "list"),
+        (
+            plot.statistics(
+                [stats.Delta(), stats.Beckmann(alpha_x=0.1, alpha_y=0.2)], labels=["flat", "rough"], size=33
+            ),
+            2,
+            "list",
+        ),
         (LAW.plot(mu=[1.0], size=33), 2, "law.plot"),
         (stats.Beckmann(0.1).plot(size=33), 2, "density.plot"),
         (plot.measurements(mset), 12, "measurements"),
@@ -320,6 +376,7 @@ def test_plot_functions_refuse_what_they_cannot_draw(fitted):
 
 # -- progress bars -------------------------------------------------------------------------
 
+
 def test_progress_bar_picks_text_outside_jupyter_and_honours_the_switches(monkeypatch, fitted):
     import tqdm.std
 
@@ -371,12 +428,21 @@ def test_chains_plot_names_the_samplers_trajectories():
 
     rng = np.random.default_rng(0)
     common = dict(names=("log a", "log b"), burn=5, tau=np.ones(2), ess=np.ones(2), tau_reliable=True, acceptance=0.8)
-    hmc = fitting.SampleResult(chain=rng.normal(size=(20, 4, 2)), log_prob=rng.normal(size=(20, 4)), sampler="hmc",
-                               chains=4, **common)
-    ens = fitting.SampleResult(chain=rng.normal(size=(20, 16, 2)), log_prob=rng.normal(size=(20, 16)), sampler="emcee",
-                               chains=4, **common)
+    hmc = fitting.SampleResult(
+        chain=rng.normal(size=(20, 4, 2)), log_prob=rng.normal(size=(20, 4)), sampler="hmc", chains=4, **common
+    )
+    ens = fitting.SampleResult(
+        chain=rng.normal(size=(20, 16, 2)), log_prob=rng.normal(size=(20, 16)), sampler="emcee", chains=4, **common
+    )
     assert plot.chains(hmc).axes[0].get_title().startswith("4 HMC chains, 20 steps; warm-up 5")
     fig = plot.chains(ens)
     assert fig.axes[0].get_title().startswith("4 × 4 walkers, 20 steps; burn-in 5")
-    assert len({tuple(line.get_color()) if not isinstance(line.get_color(), str) else line.get_color()
-                for line in fig.axes[1].get_lines()[:-1]}) == 4  # one colour per ensemble (the last line: burn-in)
+    assert (
+        len(
+            {
+                tuple(line.get_color()) if not isinstance(line.get_color(), str) else line.get_color()
+                for line in fig.axes[1].get_lines()[:-1]
+            }
+        )
+        == 4
+    )  # one colour per ensemble (the last line: burn-in)

@@ -76,8 +76,9 @@ def test_reflection_q_is_s_dagger_on_a_skewed_density():
     wrong = jnp.asarray(rho) @ s.operator(B)  # Q̃ = S̃ (no reflection)
     assert np.max(np.abs(np.asarray(so3.synthesize(wrong, *targets)) - truth)) > 0.05 * np.abs(truth).max()
     # the coefficient-level statement q^J = (s^J)†
-    np.testing.assert_allclose(np.asarray(so3.reflect(s.coefficients(B))),
-                               np.conj(np.swapaxes(np.asarray(s.coefficients(B)), -1, -2)), atol=0)
+    np.testing.assert_allclose(
+        np.asarray(so3.reflect(s.coefficients(B))), np.conj(np.swapaxes(np.asarray(s.coefficients(B)), -1, -2)), atol=0
+    )
 
 
 def test_evolution_solves_and_regularisation():
@@ -93,16 +94,24 @@ def test_evolution_solves_and_regularisation():
     np.testing.assert_allclose(np.asarray(R1) @ Q1, R @ Q0, atol=1e-12)
     np.testing.assert_allclose(np.asarray(so3.evolve(R1, s1, s0)), R, atol=1e-10)
     # the generator path is the same evolution
-    np.testing.assert_allclose(np.asarray(so3.evolve_diffusion(R, [1.0, 0.5, 2.0], 0.05, 0.02)), np.asarray(R1), atol=1e-12)
+    np.testing.assert_allclose(
+        np.asarray(so3.evolve_diffusion(R, [1.0, 0.5, 2.0], 0.05, 0.02)), np.asarray(R1), atol=1e-12
+    )
     # Tikhonov: A Q̃†(Q̃Q̃† + λ²)⁻¹ (explicit inverse only here, as the reference)
     lam = 0.3
     A = R @ Q0
-    ref = A @ np.conj(np.swapaxes(Q1, -1, -2)) @ np.linalg.inv(Q1 @ np.conj(np.swapaxes(Q1, -1, -2)) + lam**2 * np.eye(2 * B - 1))
+    ref = (
+        A
+        @ np.conj(np.swapaxes(Q1, -1, -2))
+        @ np.linalg.inv(Q1 @ np.conj(np.swapaxes(Q1, -1, -2)) + lam**2 * np.eye(2 * B - 1))
+    )
     np.testing.assert_allclose(np.asarray(so3.evolve(R, s0, s1, regularisation=lam)), ref, atol=1e-12)
-    np.testing.assert_allclose(np.asarray(so3.evolve_diffusion(R, [1.0, 0.5, 2.0], 0.05, 0.02, regularisation=lam)), ref, atol=1e-12)
+    np.testing.assert_allclose(
+        np.asarray(so3.evolve_diffusion(R, [1.0, 0.5, 2.0], 0.05, 0.02, regularisation=lam)), ref, atol=1e-12
+    )
     # only the rows a query needs: evolving a row subset gives those rows of the full result
-    rows = R[:, B - 2:B + 1, :]
-    np.testing.assert_allclose(np.asarray(so3.evolve(rows, s0, s1)), np.asarray(R1)[:, B - 2:B + 1, :], atol=1e-12)
+    rows = R[:, B - 2 : B + 1, :]
+    np.testing.assert_allclose(np.asarray(so3.evolve(rows, s0, s1)), np.asarray(R1)[:, B - 2 : B + 1, :], atol=1e-12)
 
 
 @pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
@@ -120,7 +129,14 @@ def test_isotropic_diffusion_is_the_heat_kernel():
     g = -a + rng.uniform(-0.5, 0.5, 5)  # rotations by up to ~1 rad, where the kernel lives
     theta = np.arccos(np.clip((np.trace(np.asarray(so3.euler_to_matrix(a, b, g)), axis1=-2, axis2=-1) - 1) / 2, -1, 1))
     Jc = np.arange(400)[:, None]
-    closed = np.sum((2 * Jc + 1) / (8 * np.pi**2) * np.exp(-tau * Jc * (Jc + 1)) * np.sin((2 * Jc + 1) * theta / 2) / np.sin(theta / 2), axis=0)
+    closed = np.sum(
+        (2 * Jc + 1)
+        / (8 * np.pi**2)
+        * np.exp(-tau * Jc * (Jc + 1))
+        * np.sin((2 * Jc + 1) * theta / 2)
+        / np.sin(theta / 2),
+        axis=0,
+    )
     ours = np.asarray(so3.synthesize(s.coefficients(B), a, b, g)).real
     np.testing.assert_allclose(ours, closed, atol=1e-9 * closed.max())
 
@@ -158,10 +174,13 @@ def test_generator_blocks_and_expm():
     G = np.asarray(so3.diffusion_generator(B, D))
     for J in range(B):
         Jx, Jy, Jz = so3.angular_momentum(J)
-        block = G[J, B - 1 - J:B + J, B - 1 - J:B + J]
+        block = G[J, B - 1 - J : B + J, B - 1 - J : B + J]
         np.testing.assert_allclose(block, (D[0] * Jx @ Jx + D[1] * Jy @ Jy + D[2] * Jz @ Jz).real, atol=1e-13)
-        np.testing.assert_allclose(np.asarray(so3.diffusion_operator(B, D, 0.7))[J, B - 1 - J:B + J, B - 1 - J:B + J],
-                                   scipy.linalg.expm(-0.7 * block), atol=1e-13)
+        np.testing.assert_allclose(
+            np.asarray(so3.diffusion_operator(B, D, 0.7))[J, B - 1 - J : B + J, B - 1 - J : B + J],
+            scipy.linalg.expm(-0.7 * block),
+            atol=1e-13,
+        )
     with pytest.raises(InvalidInputError, match="≥ 0"):
         so3.diffusion_generator(B, [1.0, -1.0, 1.0])
 
@@ -173,8 +192,11 @@ def test_diffusion_law():
     assert float(law.tau(1e6)) < 1e-12  # δ at μ → ∞
     B = 4
     R = band_limited(B, np.random.default_rng(5))
-    np.testing.assert_allclose(np.asarray(so3.evolve(R, law.at(0.5), law.at(3.0))),
-                               np.asarray(so3.evolve_diffusion(R, law.D, law.tau(0.5), law.tau(3.0))), atol=1e-12)
+    np.testing.assert_allclose(
+        np.asarray(so3.evolve(R, law.at(0.5), law.at(3.0))),
+        np.asarray(so3.evolve_diffusion(R, law.D, law.tau(0.5), law.tau(3.0))),
+        atol=1e-12,
+    )
 
 
 @pytest.mark.slow  # 15–160 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
@@ -195,7 +217,7 @@ def test_tilt_twist_against_sampled_frames():
     normal = frames[:, :, 2]
     np.testing.assert_allclose(normal[:, :2] / normal[:, 2:], m, atol=1e-12)  # the frames' normals have slope m
     mc = np.asarray(so3.EmpiricalOrientations(frames).operator(3))
-    assert np.max(np.abs(mc - op[:3, B - 3:B + 2, B - 3:B + 2])) < 0.03
+    assert np.max(np.abs(mc - op[:3, B - 3 : B + 2, B - 3 : B + 2])) < 0.03
 
 
 def test_tilt_twist_is_jittable_and_differentiable():
@@ -205,8 +227,9 @@ def test_tilt_twist_is_jittable_and_differentiable():
     B = 6
 
     def make(alpha, resolution=None):
-        return so3.TiltTwist(stats.Beckmann(alpha_x=alpha, alpha_y=0.7 * alpha), twist_mean=0.3, twist_std=0.6,
-                             resolution=resolution)
+        return so3.TiltTwist(
+            stats.Beckmann(alpha_x=alpha, alpha_y=0.7 * alpha), twist_mean=0.3, twist_std=0.6, resolution=resolution
+        )
 
     s = make(0.4)
     np.testing.assert_allclose(np.asarray(jax.jit(lambda s: s.operator(B))(s)), np.asarray(s.operator(B)), atol=1e-13)
@@ -377,7 +400,9 @@ def test_tilt_twist_resolution_is_capped_and_the_twist_exact():
     coarse = so3.TiltTwist(tilt, twist_mean=0.4, twist_std=0.02)  # the old rule wanted N ≈ 340
     assert coarse.resolution <= 30
     fine = so3.TiltTwist(tilt, twist_mean=0.4, twist_std=0.02, resolution=coarse.resolution + 16)
-    np.testing.assert_allclose(np.asarray(coarse.operator(5)), np.asarray(fine.operator(5)), atol=1e-10)  # the tilt's 1e-10
+    np.testing.assert_allclose(
+        np.asarray(coarse.operator(5)), np.asarray(fine.operator(5)), atol=1e-10
+    )  # the tilt's 1e-10
     delta_like = np.asarray(so3.TiltTwist(stats.Beckmann(0.3), twist_std=1e-9).operator(2))
     assert np.all(np.isfinite(delta_like)) and abs(delta_like[0, 1, 1] - 1) < 1e-12
     # the pointwise twist density of a narrow twist is resolved (no truncated Fourier series):

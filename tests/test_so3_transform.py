@@ -25,7 +25,7 @@ def direct_sum(c, alpha, beta, gamma):
     for J in range(B):
         D = np.asarray(so3.wigner_D(J, alpha, beta, gamma))
         l, n = min(J, L), min(J, N)
-        total = total + np.sum(c[J, L - l:L + l + 1, N - n:N + n + 1] * D[J - l:J + l + 1, J - n:J + n + 1])
+        total = total + np.sum(c[J, L - l : L + l + 1, N - n : N + n + 1] * D[J - l : J + l + 1, J - n : J + n + 1])
     return total
 
 
@@ -112,7 +112,9 @@ def test_synthesis_matches_s2fft_inverse():
     for J in range(B):
         for M in range(-J, J + 1):
             for Mp in range(-J, J + 1):
-                flmn[N - 1 - Mp, J, L - 1 - M] = c[J, B - 1 + M, B - 1 + Mp] * 8 * np.pi**2 / (2 * J + 1) * (-1) ** (M - Mp)
+                flmn[N - 1 - Mp, J, L - 1 - M] = (
+                    c[J, B - 1 + M, B - 1 + Mp] * 8 * np.pi**2 / (2 * J + 1) * (-1) ** (M - Mp)
+                )
     kernel = construct.wigner_kernel_jax(L, N, sampling="mw", forward=False)
     theirs = np.asarray(wigner.inverse(flmn, L, N, kernel, sampling="mw", method="jax"))  # [γ, β, α]
     gam = 2 * np.pi * np.arange(2 * N - 1) / (2 * N - 1)
@@ -132,7 +134,9 @@ def test_synthesis_at_arbitrary_rotations_and_on_the_grid():
     np.testing.assert_allclose(ours, ref, atol=1e-12)
     ga, gb, gg = so3.grid(B)
     on_grid = np.asarray(so3.inverse(c))
-    np.testing.assert_allclose(np.asarray(so3.synthesize(c, ga[3], gb[[0, 7]], gg[5])), on_grid[3, [0, 7], 5], atol=1e-12)
+    np.testing.assert_allclose(
+        np.asarray(so3.synthesize(c, ga[3], gb[[0, 7]], gg[5])), on_grid[3, [0, 7], 5], atol=1e-12
+    )
 
 
 def test_orders_restricted_to_what_a_query_needs():
@@ -142,7 +146,7 @@ def test_orders_restricted_to_what_a_query_needs():
     full = np.asarray(so3.forward(f))
     part = np.asarray(so3.forward(f, m_max=2, n_max=0))
     np.testing.assert_allclose(part, c, atol=1e-12)
-    np.testing.assert_allclose(full[:, B - 3:B + 2, B - 1:B], c, atol=1e-12)
+    np.testing.assert_allclose(full[:, B - 3 : B + 2, B - 1 : B], c, atol=1e-12)
     assert np.max(np.abs(np.delete(full, B - 1, axis=2))) < 1e-12
 
 
@@ -191,8 +195,12 @@ def test_analyse_points_is_the_adjoint_of_synthesis():
     B = 4
     c = np.asarray(so3.analyse_points(a, b, g, B, weights=w))
     for J in range(B):
-        ref = (2 * J + 1) / (8 * np.pi**2) * sum(wk * np.conj(np.asarray(so3.wigner_D(J, *x))) for wk, x in zip(w, zip(a, b, g)))
-        np.testing.assert_allclose(c[J, B - 1 - J:B + J, B - 1 - J:B + J], ref, atol=1e-13)
+        ref = (
+            (2 * J + 1)
+            / (8 * np.pi**2)
+            * sum(wk * np.conj(np.asarray(so3.wigner_D(J, *x))) for wk, x in zip(w, zip(a, b, g)))
+        )
+        np.testing.assert_allclose(c[J, B - 1 - J : B + J, B - 1 - J : B + J], ref, atol=1e-13)
 
 
 @pytest.mark.parametrize(

@@ -88,8 +88,11 @@ def test_seed_formula_agrees_at_high_precision_and_fails_in_float64():
     errors = {}
     for J in (5, 20, 40, 60):
         ours = np.asarray(so3.wigner_d(J, beta))
-        errors[J] = max(abs(d_seed_formula(J, M, Mp, beta, FLOAT64) - ours[M + J, Mp + J])
-                        for M in range(-J, J + 1, max(1, J // 6)) for Mp in range(-J, J + 1, max(1, J // 6)))
+        errors[J] = max(
+            abs(d_seed_formula(J, M, Mp, beta, FLOAT64) - ours[M + J, Mp + J])
+            for M in range(-J, J + 1, max(1, J // 6))
+            for Mp in range(-J, J + 1, max(1, J // 6))
+        )
     assert errors[5] < 1e-13
     assert errors[40] > 1e-6 and errors[60] > errors[20] * 1e3
     # while ours stays at rounding level against mpmath
@@ -137,7 +140,9 @@ def test_generator_convention():
         Jx, Jy, Jz = so3.angular_momentum(J)
         np.testing.assert_allclose(scipy.linalg.expm(-1j * 0.8 * Jy), np.asarray(so3.wigner_d(J, 0.8)), atol=1e-14)
         # a rotation by θ about x is exp(−iθ J_x)
-        a, b, g = so3.matrix_to_euler(np.array([[1, 0, 0], [0, np.cos(0.6), -np.sin(0.6)], [0, np.sin(0.6), np.cos(0.6)]]))
+        a, b, g = so3.matrix_to_euler(
+            np.array([[1, 0, 0], [0, np.cos(0.6), -np.sin(0.6)], [0, np.sin(0.6), np.cos(0.6)]])
+        )
         np.testing.assert_allclose(scipy.linalg.expm(-1j * 0.6 * Jx), np.asarray(so3.wigner_D(J, a, b, g)), atol=1e-13)
         np.testing.assert_allclose(Jx @ Jy - Jy @ Jx, 1j * Jz, atol=1e-13)
 

@@ -8,6 +8,7 @@ import scipy.special as sp
 
 from brdfscale._special import j0, j1, jinc, k0, xk1
 
+
 X_J = np.concatenate([-np.logspace(-8, 4, 400), [0.0], np.logspace(-8, 4, 2000)])
 X_K = np.logspace(-12, np.log10(700), 2000)
 

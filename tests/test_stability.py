@@ -22,9 +22,10 @@ def test_gaussian_lobe_between_gaussian_statistics_towards_finer_is_one_exponent
     width = np.sqrt(aL**2 + a0**2 - a1**2)
     r = np.array([0.0, 0.5, 2.0]) * width
     u = jnp.asarray(np.stack([r, 0 * r], -1))
-    got = np.asarray(bs.evolve(lobes.Beckmann(aL), stats.Beckmann(a0), stats.Beckmann(a1), method=method,
-                               tol=1e-8).density(u))
-    want = np.exp(-(r / width) ** 2) / (np.pi * width**2)
+    got = np.asarray(
+        bs.evolve(lobes.Beckmann(aL), stats.Beckmann(a0), stats.Beckmann(a1), method=method, tol=1e-8).density(u)
+    )
+    want = np.exp(-((r / width) ** 2)) / (np.pi * width**2)
     assert np.max(np.abs(got - want)) <= 1e-8 * want[0]
 
 

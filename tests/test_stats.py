@@ -129,7 +129,10 @@ def _tent_sum_quadrature(f, xb, yb, gl_nodes=16):
 def _bordered_node_lines(values, extent, center):
     """Node coordinates of the table bordered by a ring of zero nodes: (x lines, y lines, spacing)."""
     ny, nx = np.shape(values)
-    e, c = np.broadcast_to(np.asarray(extent, float), (2,)), np.zeros(2) if center is None else np.asarray(center, float)
+    e, c = (
+        np.broadcast_to(np.asarray(extent, float), (2,)),
+        np.zeros(2) if center is None else np.asarray(center, float),
+    )
     h = np.array([2 * e[0] / (nx - 1), 2 * e[1] / (ny - 1)])
     xb = c[0] + np.linspace(-e[0] - h[0], e[0] + h[0], nx + 2)
     yb = c[1] + np.linspace(-e[1] - h[1], e[1] + h[1], ny + 2)
@@ -153,16 +156,19 @@ def test_tabulated_is_one_sum_of_tents_whose_density_integrates_to_its_cf():
     xb, yb, h = _bordered_node_lines(V, extent, center)
     np.testing.assert_allclose(np.asarray(t.spacing), h, rtol=1e-15)
     reference = scipy.interpolate.RegularGridInterpolator(
-        (yb, xb), np.pad(V, 1) / (h[0] * h[1] * V.sum()), method="linear", bounds_error=False, fill_value=0.0)
+        (yb, xb), np.pad(V, 1) / (h[0] * h[1] * V.sum()), method="linear", bounds_error=False, fill_value=0.0
+    )
     R = float(t.support_radius(1e-6))
     assert R == pytest.approx(np.hypot(*(extent + h)) + np.hypot(*center), rel=1e-14)
     phi = np.linspace(0, 2 * np.pi, 64, endpoint=False)
-    m = np.concatenate([
-        center + rng.uniform(-1.3, 1.3, (4000, 2)) * (extent + h),  # inside, in the ring and beyond
-        [center + extent + 0.5 * h],  # half a spacing beyond the corner node: a quarter of its value
-        center + (extent + h) * np.array([[1, 1], [-1, 1], [1, -1], [-1, -1]]) * 1.0001,  # beyond the ring
-        R * (1 + 1e-9) * np.stack([np.cos(phi), np.sin(phi)], -1),  # beyond the support radius
-    ])
+    m = np.concatenate(
+        [
+            center + rng.uniform(-1.3, 1.3, (4000, 2)) * (extent + h),  # inside, in the ring and beyond
+            [center + extent + 0.5 * h],  # half a spacing beyond the corner node: a quarter of its value
+            center + (extent + h) * np.array([[1, 1], [-1, 1], [1, -1], [-1, -1]]) * 1.0001,  # beyond the ring
+            R * (1 + 1e-9) * np.stack([np.cos(phi), np.sin(phi)], -1),  # beyond the support radius
+        ]
+    )
     ours = np.asarray(_density_of(t, jnp.asarray(m)))
     np.testing.assert_allclose(ours, reference(m[:, ::-1]), rtol=1e-12, atol=1e-13)
     assert ours[4000] == pytest.approx(np.asarray(t.values)[-1, -1] / 4, rel=1e-12) and ours[4000] > 0
@@ -171,7 +177,8 @@ def test_tabulated_is_one_sum_of_tents_whose_density_integrates_to_its_cf():
     assert _tent_sum_quadrature(lambda m: _density_of(t, jnp.asarray(m)), xb, yb) == pytest.approx(1.0, abs=1e-12)
     W = np.array([[0.0, 0.0], [7.0, -3.0], [-20.0, 15.0], [35.0, 28.0]])
     quad = _tent_sum_quadrature(
-        lambda m: np.asarray(_density_of(t, jnp.asarray(m)))[:, None] * np.exp(-1j * m @ W.T), xb, yb, gl_nodes=24)
+        lambda m: np.asarray(_density_of(t, jnp.asarray(m)))[:, None] * np.exp(-1j * m @ W.T), xb, yb, gl_nodes=24
+    )
     np.testing.assert_allclose(np.asarray(t.cf(jnp.asarray(W))), quad, rtol=0, atol=1e-10)
     # a shift keeps the one meaning (cf_grid is checked against cf in test_cf_grid_equals_cf_at_the_nodes)
     moved = np.asarray(_density_of(t.shifted([0.02, 0.03]), jnp.asarray(m + [0.02, 0.03])))
@@ -204,14 +211,18 @@ def test_tabulated_ones_integrate_to_one_not_to_the_grid_fraction():
     mass = _tent_sum_quadrature(lambda m: _density_of(t, jnp.asarray(m)), xb, yb)
     assert mass == pytest.approx(1.0, abs=1e-12)
     inner = np.array([-1.0, 1.0])
-    assert _tent_sum_quadrature(lambda m: _density_of(t, jnp.asarray(m)), inner, inner) == pytest.approx(0.64, abs=1e-12)
+    assert _tent_sum_quadrature(lambda m: _density_of(t, jnp.asarray(m)), inner, inner) == pytest.approx(
+        0.64, abs=1e-12
+    )
     assert float(lobe.amplitude) == 6.25
     lobe_integral = _tent_sum_quadrature(lambda m: _density_of(lobe, jnp.asarray(m)), xb, yb)
     assert lobe_integral == pytest.approx(6.25, rel=1e-12)
     # inside the grid the density is 1/6.25; half of that half a spacing beyond; zero one spacing beyond
     np.testing.assert_allclose(
         np.asarray(_density_of(t, jnp.array([[0.3, -0.7], [1.25, 0.0], [1.25, 1.25], [1.5, 0.2], [0.0, -1.6]]))),
-        [0.16, 0.08, 0.04, 0.0, 0.0], atol=1e-15)
+        [0.16, 0.08, 0.04, 0.0, 0.0],
+        atol=1e-15,
+    )
     assert float(t.support_radius(1e-6)) == pytest.approx(1.5 * math.sqrt(2), rel=1e-15)
 
 
@@ -256,15 +267,15 @@ def _stats_imports(source: str) -> set[str]:
             if node.level == 1:
                 target(module or None, names)
             elif node.level == 2 and (module == "stats" or module.startswith("stats.")):
-                target(module[len("stats."):] or None, names)
+                target(module[len("stats.") :] or None, names)
             elif node.level == 2 and not module and "stats" in names:
                 found.add("__init__")
             elif node.level == 0 and (module == "brdfscale.stats" or module.startswith("brdfscale.stats.")):
-                target(module[len("brdfscale.stats."):] or None, names)
+                target(module[len("brdfscale.stats.") :] or None, names)
         elif isinstance(node, ast.Import):
             for alias in node.names:
                 if alias.name == "brdfscale.stats" or alias.name.startswith("brdfscale.stats."):
-                    target(alias.name[len("brdfscale.stats."):] or None, [])
+                    target(alias.name[len("brdfscale.stats.") :] or None, [])
     return found
 
 
@@ -325,9 +336,14 @@ def test_each_stats_module_imports_alone_in_a_fresh_interpreter():
         "        result[module] = 'failed: ' + traceback.format_exc().strip().splitlines()[-1]\n"
         "print(json.dumps(result))\n"
     )
-    env = dict(os.environ, JAX_PLATFORMS="cpu", PYTHONPATH=os.pathsep.join([str(root.parent), os.environ.get("PYTHONPATH", "")]))
-    run = lambda code: subprocess.Popen([sys.executable, "-c", code], env=env, stdout=subprocess.PIPE,
-                                        stderr=subprocess.PIPE, text=True)
+    env = dict(
+        os.environ,
+        JAX_PLATFORMS="cpu",
+        PYTHONPATH=os.pathsep.join([str(root.parent), os.environ.get("PYTHONPATH", "")]),
+    )
+    run = lambda code: subprocess.Popen(
+        [sys.executable, "-c", code], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
     first, plain = run(alone), run("import brdfscale.stats._histogram, brdfscale.stats._tabulated")
     out, err = first.communicate(timeout=300)
     assert first.returncode == 0, err
@@ -373,7 +389,9 @@ def test_gaussian_surface_box_window_against_scipy(mu):
     cov = np.asarray(law.slope_covariance(mu))
 
     def one_d(ell, power):
-        f = lambda k: k**power * math.sqrt(math.pi) * ell * math.exp(-(k * ell) ** 2 / 4) * np.sinc(k * mu / 2 / math.pi) ** 2
+        f = lambda k: (
+            k**power * math.sqrt(math.pi) * ell * math.exp(-((k * ell) ** 2) / 4) * np.sinc(k * mu / 2 / math.pi) ** 2
+        )
         return 2 * si.quad(f, 0, 40 / ell, limit=2000, epsabs=1e-15, epsrel=1e-13)[0] / (2 * math.pi)
 
     ref_xx = sigma_h**2 * one_d(lx, 2) * one_d(ly, 0)
@@ -390,7 +408,9 @@ def test_gaussian_surface_quadrature_agrees_with_its_closed_form(window):
     law = stats.GaussianSurface(stats.GaussianCorrelation(0.5, [2.0, 5.0]), window=window, n_k=1024, n_phi=64)
     for mu in [1e-3, 0.5, 8.0]:
         closed = np.asarray(law.slope_covariance(mu))
-        np.testing.assert_allclose(np.asarray(law._quadrature_covariance(jnp.asarray(mu))), closed, rtol=5e-14, atol=1e-16)
+        np.testing.assert_allclose(
+            np.asarray(law._quadrature_covariance(jnp.asarray(mu))), closed, rtol=5e-14, atol=1e-16
+        )
 
 
 @pytest.mark.parametrize("window", ["box", "gaussian"])
@@ -454,8 +474,10 @@ def test_gradients_at_zero_frequency_are_zero_not_nan(make):
 
 @settings(max_examples=25, deadline=None)
 @given(
-    ax=st.floats(0.01, 1.0), ay=st.floats(0.01, 1.0),
-    wx=st.floats(-50, 50), wy=st.floats(-50, 50),
+    ax=st.floats(0.01, 1.0),
+    ay=st.floats(0.01, 1.0),
+    wx=st.floats(-50, 50),
+    wy=st.floats(-50, 50),
 )
 def test_cf_is_hermitian_and_bounded(ax, ay, wx, wy):
     W = jnp.array([wx, wy])
@@ -508,8 +530,12 @@ def test_frequency_grid_is_numpys_rfft2_grid():
     n, h = 12, 0.05
     grid = stats.FrequencyGrid(n, 2 * np.pi / (n * h))
     W = np.asarray(grid.nodes())
-    np.testing.assert_allclose(W[..., 0], np.broadcast_to(2 * np.pi * np.fft.rfftfreq(n, h), (n, n // 2 + 1)), rtol=1e-15)
-    np.testing.assert_allclose(W[..., 1], np.broadcast_to(2 * np.pi * np.fft.fftfreq(n, h)[:, None], (n, n // 2 + 1)), rtol=1e-15)
+    np.testing.assert_allclose(
+        W[..., 0], np.broadcast_to(2 * np.pi * np.fft.rfftfreq(n, h), (n, n // 2 + 1)), rtol=1e-15
+    )
+    np.testing.assert_allclose(
+        W[..., 1], np.broadcast_to(2 * np.pi * np.fft.fftfreq(n, h)[:, None], (n, n // 2 + 1)), rtol=1e-15
+    )
 
 
 _cf_grid_and_pointwise = eqx.filter_jit(lambda dens, grid: (dens.cf_grid(grid), dens.cf(grid.nodes())))
@@ -517,8 +543,11 @@ _cf_grid_and_pointwise = eqx.filter_jit(lambda dens, grid: (dens.cf_grid(grid), 
 
 @settings(max_examples=10, deadline=None)
 @given(
-    a=st.floats(0.02, 0.5), b=st.floats(0.02, 0.5), c=st.floats(-0.2, 0.2),
-    n=st.sampled_from([7, 16]), step=st.floats(0.5, 20.0),
+    a=st.floats(0.02, 0.5),
+    b=st.floats(0.02, 0.5),
+    c=st.floats(-0.2, 0.2),
+    n=st.sampled_from([7, 16]),
+    step=st.floats(0.5, 20.0),
 )
 @pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 @example(a=0.5, b=0.5, c=0.0, n=16, step=20.0)  # exp(−3200) · exp(+1920) if factorised
@@ -529,8 +558,9 @@ def test_cf_grid_equals_cf_at_the_nodes(a, b, c, n, step):
     grid = stats.FrequencyGrid(n, step)
     for dens in _all_families(a, b, c):
         structured, pointwise = _cf_grid_and_pointwise(dens, grid)
-        np.testing.assert_allclose(np.asarray(structured), np.asarray(pointwise), rtol=0, atol=2e-14,
-                                   err_msg=type(dens).__name__)
+        np.testing.assert_allclose(
+            np.asarray(structured), np.asarray(pointwise), rtol=0, atol=2e-14, err_msg=type(dens).__name__
+        )
 
 
 @pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
@@ -546,8 +576,13 @@ def test_cf_radial_is_cf_on_a_ray_for_every_isotropic_family(a, b, c):
     isotropic = [d for d in _all_families(a, b, c) if d.isotropic]
     assert {type(d).__name__ for d in isotropic} >= {"GGX", "Disk", "Gaussian", "Delta"}
     for dens in isotropic:
-        np.testing.assert_allclose(np.asarray(dens.cf_radial(k)), np.asarray(jnp.real(dens.cf(W))),
-                                   rtol=1e-13, atol=1e-15, err_msg=type(dens).__name__)
+        np.testing.assert_allclose(
+            np.asarray(dens.cf_radial(k)),
+            np.asarray(jnp.real(dens.cf(W))),
+            rtol=1e-13,
+            atol=1e-15,
+            err_msg=type(dens).__name__,
+        )
     for family in (stats.GGX, stats.Disk):
         radial = jax.grad(lambda w: jnp.sum(family(w).cf_radial(k)))(a)
         pointwise = jax.grad(lambda w: jnp.sum(jnp.real(family(w).cf(W))))(a)
@@ -569,26 +604,49 @@ def test_cf_grid_is_differentiable_like_cf():
     np.testing.assert_allclose(gradient(params, True), gradient(params, False), rtol=1e-12)
 
 
-@pytest.mark.parametrize("make, match", [
-    (lambda: stats.GaussianSurface(stats.GaussianCorrelation(1.0, 1.0)).at(jnp.array([1.0, 2.0])), "single facet size"),
-    (lambda: stats.GaussianSurface(stats.GaussianCorrelation(1.0, 1.0)).slope_covariance(jnp.array([1.0, 2.0])),
-     "single facet size"),
-    (lambda: stats.ScaledFamily(stats.GGX, stats.WidthLaw(0.1, 1.0, 1.0)).at(-1.0), "positive facet size"),
-    (lambda: stats.ScaledFamily(stats.Disk, stats.WidthLaw(0.1, 1.0, 1.0)), "taking alpha="),
-    (lambda: stats.ScaledFamily(stats.GGX, None), "law must map"),
-    (lambda: stats.GGX(0.1).cf(jnp.array([jnp.nan, 0.0])), "W must be finite"),
-    (lambda: stats.Disk(radius=0.1).cf(jnp.array([jnp.inf, 0.0])), "W must be finite"),
-    (lambda: stats.Beckmann(0.1).density(jnp.array([0.1, 0.2j])), "m must be real"),
-    (lambda: stats.FrequencyGrid(4.7, 1.0), "size must be an integer"),
-    (lambda: stats.FrequencyGrid(4, -1.0), "step must be a positive"),
-    (lambda: stats.FrequencyGrid(4, float("nan")), "step must be finite"),
-    (lambda: stats.Beckmann(1e-77), "normal float64"),
-    (lambda: stats.Beckmann(1e160), "normal float64"),
-    (lambda: stats.Gaussian(cov=1e-300 * jnp.eye(2)), "normal float64"),
-    (lambda: stats.GGX("0.1"), "string"),
-], ids=["vector mu", "vector mu covariance", "negative mu", "family without alpha", "no law", "NaN frequency",
-        "infinite frequency", "complex slopes", "fractional grid size", "negative step", "NaN step",
-        "variance underflows", "variance overflows", "determinant underflows", "string width"])
+@pytest.mark.parametrize(
+    "make, match",
+    [
+        (
+            lambda: stats.GaussianSurface(stats.GaussianCorrelation(1.0, 1.0)).at(jnp.array([1.0, 2.0])),
+            "single facet size",
+        ),
+        (
+            lambda: stats.GaussianSurface(stats.GaussianCorrelation(1.0, 1.0)).slope_covariance(jnp.array([1.0, 2.0])),
+            "single facet size",
+        ),
+        (lambda: stats.ScaledFamily(stats.GGX, stats.WidthLaw(0.1, 1.0, 1.0)).at(-1.0), "positive facet size"),
+        (lambda: stats.ScaledFamily(stats.Disk, stats.WidthLaw(0.1, 1.0, 1.0)), "taking alpha="),
+        (lambda: stats.ScaledFamily(stats.GGX, None), "law must map"),
+        (lambda: stats.GGX(0.1).cf(jnp.array([jnp.nan, 0.0])), "W must be finite"),
+        (lambda: stats.Disk(radius=0.1).cf(jnp.array([jnp.inf, 0.0])), "W must be finite"),
+        (lambda: stats.Beckmann(0.1).density(jnp.array([0.1, 0.2j])), "m must be real"),
+        (lambda: stats.FrequencyGrid(4.7, 1.0), "size must be an integer"),
+        (lambda: stats.FrequencyGrid(4, -1.0), "step must be a positive"),
+        (lambda: stats.FrequencyGrid(4, float("nan")), "step must be finite"),
+        (lambda: stats.Beckmann(1e-77), "normal float64"),
+        (lambda: stats.Beckmann(1e160), "normal float64"),
+        (lambda: stats.Gaussian(cov=1e-300 * jnp.eye(2)), "normal float64"),
+        (lambda: stats.GGX("0.1"), "string"),
+    ],
+    ids=[
+        "vector mu",
+        "vector mu covariance",
+        "negative mu",
+        "family without alpha",
+        "no law",
+        "NaN frequency",
+        "infinite frequency",
+        "complex slopes",
+        "fractional grid size",
+        "negative step",
+        "NaN step",
+        "variance underflows",
+        "variance overflows",
+        "determinant underflows",
+        "string width",
+    ],
+)
 def test_bad_arguments_are_named(make, match):
     """Each of these once returned a value (a wrong one, or a NaN turned finite) or failed deep
     inside; each is now an InvalidInputError that says what was wrong."""
@@ -599,7 +657,9 @@ def test_bad_arguments_are_named(make, match):
 def test_integer_frequency_step_gives_real_radii():
     """FrequencyGrid(4, 1): an integer step once truncated the radii to integers."""
     grid = stats.FrequencyGrid(4, 1)
-    assert complex(stats.GGX(0.1).cf_grid(grid)[1, 1]) == pytest.approx(complex(stats.GGX(0.1).cf(jnp.array([1.0, 1.0]))), rel=1e-14)
+    assert complex(stats.GGX(0.1).cf_grid(grid)[1, 1]) == pytest.approx(
+        complex(stats.GGX(0.1).cf(jnp.array([1.0, 1.0]))), rel=1e-14
+    )
 
 
 @pytest.mark.parametrize("scale", [1e-320, 1.0, 1e308])
@@ -611,13 +671,17 @@ def test_mixture_weights_normalise_at_any_scale(scale):
     assert np.isfinite(float(mixture.density(jnp.zeros(2))))
 
 
-@pytest.mark.parametrize("call", [
-    lambda: stats.Tabulated.from_samples(np.array([[0.1, 0.2j]]), extent=0.5),
-    lambda: stats.Tabulated.from_samples(np.zeros((4, 2)), extent=0.5, weights=np.ones(3)),
-    lambda: stats.Tabulated.from_samples(np.zeros((4, 2)), extent=0.5, weights=np.full(4, np.nan)),
-    lambda: stats.Tabulated.from_samples([["a", "b"]], extent=0.5),
-    lambda: stats.Tabulated.from_samples(np.zeros((4, 2)), extent=0.5, bins=10**6),
-], ids=["complex samples", "weights per sample", "NaN weights", "text samples", "bins beyond the memory cap"])
+@pytest.mark.parametrize(
+    "call",
+    [
+        lambda: stats.Tabulated.from_samples(np.array([[0.1, 0.2j]]), extent=0.5),
+        lambda: stats.Tabulated.from_samples(np.zeros((4, 2)), extent=0.5, weights=np.ones(3)),
+        lambda: stats.Tabulated.from_samples(np.zeros((4, 2)), extent=0.5, weights=np.full(4, np.nan)),
+        lambda: stats.Tabulated.from_samples([["a", "b"]], extent=0.5),
+        lambda: stats.Tabulated.from_samples(np.zeros((4, 2)), extent=0.5, bins=10**6),
+    ],
+    ids=["complex samples", "weights per sample", "NaN weights", "text samples", "bins beyond the memory cap"],
+)
 def test_histogram_input_is_checked_before_binning(call):
     with pytest.raises(bs.InvalidInputError):
         call()

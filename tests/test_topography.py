@@ -10,10 +10,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as hs
+from hypothesis import given, settings, strategies as hs
 
 from brdfscale import InvalidInputError, MeasurementFileError, MissingDependencyError, synth, topography
+
 
 DATA = Path(__file__).parent / "data" / "topographies"
 #: file → (pixels nx × ny, physical size in metres, unmeasured pixels) from tests/data/topographies/README.md
@@ -27,8 +27,10 @@ FILES = {
 
 
 def _surface_topography():
-    return pytest.importorskip("SurfaceTopography", reason="the topography extra (pip install 'brdfscale[topography]') "
-                               "is not installed; CI installs it")
+    return pytest.importorskip(
+        "SurfaceTopography",
+        reason="the topography extra (pip install 'brdfscale[topography]') is not installed; CI installs it",
+    )
 
 
 @pytest.fixture(scope="module")
@@ -37,7 +39,9 @@ def st():
 
 
 def _st_detrended(st, name, mode):
-    return st.open_topography(str(DATA / name)).topography().detrend({"plane": "height", "curvature": "curvature"}[mode])
+    return (
+        st.open_topography(str(DATA / name)).topography().detrend({"plane": "height", "curvature": "curvature"}[mode])
+    )
 
 
 # -- reading ----------------------------------------------------------------------------------
@@ -67,8 +71,12 @@ def test_detrending_equals_surface_topographys_polyfit(st, name, mode):
     scale = topography.UNITS[ref.unit]
     rms = np.std(field.heights[valid])
     assert np.max(np.abs(np.ma.getdata(h)[valid] * scale - field.heights[valid])) < 1e-10 * rms
-    assert np.allclose(np.array(field.description["trend"]["coefficients"]), np.asarray(ref.coeffs) * scale, rtol=1e-8,
-                       atol=1e-10 * rms)
+    assert np.allclose(
+        np.array(field.description["trend"]["coefficients"]),
+        np.asarray(ref.coeffs) * scale,
+        rtol=1e-8,
+        atol=1e-10 * rms,
+    )
 
 
 def test_from_array_equals_read_on_the_same_heights(st):
@@ -124,8 +132,9 @@ def test_a_tilted_plane_on_non_square_pixels_has_the_exact_slope_and_detrends_to
     assert s.count == (11 // 2) * (19 // 5) and np.allclose(s.mean, [-a, -b], rtol=1e-12)
     assert np.allclose(s.covariance, 0, atol=1e-20)
     flat = topography.from_array(a * x + b * y, (dx, dy), detrend="plane")
-    assert np.max(np.abs(flat.heights)) < 1e-18 and np.allclose(flat.description["trend"]["coefficients"][1:],
-                                                               [a * nx * dx, b * ny * dy], rtol=1e-10)
+    assert np.max(np.abs(flat.heights)) < 1e-18 and np.allclose(
+        flat.description["trend"]["coefficients"][1:], [a * nx * dx, b * ny * dy], rtol=1e-10
+    )
     with pytest.raises(InvalidInputError, match="whole number of pixels along both axes"):
         raw.block(3e-6)
     assert all(abs(mu / dx - round(mu / dx)) < 1e-9 and abs(mu / dy - round(mu / dy)) < 1e-9 for mu in raw.scales(4))
@@ -141,8 +150,14 @@ def test_one_unmeasured_pixel_excludes_exactly_the_windows_that_touch_it():
     assert bad == {(4, 4), (4, 3), (3, 4)}
     s1, s2 = synth.facet_statistics(field, [1.0, 2.0])
     assert (s1.count, s1.excluded) == (61, 3)
-    assert (s2.count, s2.excluded) == (16 - 3, 3)  # 2×2 windows (J, K) hold facets 2J…2J+1, 2K…2K+1: (2, 2), (2, 1), (1, 2)
-    assert np.isnan(synth.facet_slopes(field, 2.0)[2, 2]).all() and not np.isnan(synth.facet_slopes(field, 2.0)[0, 0]).any()
+    assert (s2.count, s2.excluded) == (
+        16 - 3,
+        3,
+    )  # 2×2 windows (J, K) hold facets 2J…2J+1, 2K…2K+1: (2, 2), (2, 1), (1, 2)
+    assert (
+        np.isnan(synth.facet_slopes(field, 2.0)[2, 2]).all()
+        and not np.isnan(synth.facet_slopes(field, 2.0)[0, 0]).any()
+    )
 
 
 def test_facet_covariance_equals_an_explicit_window_average_on_a_real_masked_file(st):
@@ -184,18 +199,27 @@ def test_stated_covariance_errors_match_the_spread_over_independent_surfaces():
 
 
 # -- errors ---------------------------------------------------------------------------------------
-@pytest.mark.parametrize("call, match", [
-    (lambda: topography.from_array(np.zeros((3, 8)), 1.0), "at least 4 × 4"),
-    (lambda: topography.from_array(np.zeros((8, 8)), 1.0, unit="furlong"), "unit must be one of"),
-    (lambda: topography.from_array(np.zeros((8, 8)), (1.0, 0.0)), "spacing dy"),
-    (lambda: topography.from_array(np.zeros((8, 8)), 1.0, detrend="quartic"), "detrend must be None, 'plane' or 'curvature'"),
-    (lambda: topography.from_array(np.full((8, 8), np.inf), 1.0), "infinite"),
-    (lambda: topography.from_array(np.full((8, 8), np.nan), 1.0), "no height is measured"),
-    (lambda: topography.from_array(np.zeros((8, 8)), 1.0, mask=np.zeros((8, 7), bool)), "mask must have the shape"),
-    (lambda: topography.from_array(np.zeros((8, 8)), 1.0, periodic=True), "periodic=True needs detrend=None"),
-    (lambda: topography.from_array(np.zeros((8, 8), complex), 1.0), "real numbers"),
-    (lambda: topography.from_array(np.eye(8), 1.0, mask=np.eye(8, dtype=bool), detrend=None), "no measured pixel facet"),
-])
+@pytest.mark.parametrize(
+    "call, match",
+    [
+        (lambda: topography.from_array(np.zeros((3, 8)), 1.0), "at least 4 × 4"),
+        (lambda: topography.from_array(np.zeros((8, 8)), 1.0, unit="furlong"), "unit must be one of"),
+        (lambda: topography.from_array(np.zeros((8, 8)), (1.0, 0.0)), "spacing dy"),
+        (
+            lambda: topography.from_array(np.zeros((8, 8)), 1.0, detrend="quartic"),
+            "detrend must be None, 'plane' or 'curvature'",
+        ),
+        (lambda: topography.from_array(np.full((8, 8), np.inf), 1.0), "infinite"),
+        (lambda: topography.from_array(np.full((8, 8), np.nan), 1.0), "no height is measured"),
+        (lambda: topography.from_array(np.zeros((8, 8)), 1.0, mask=np.zeros((8, 7), bool)), "mask must have the shape"),
+        (lambda: topography.from_array(np.zeros((8, 8)), 1.0, periodic=True), "periodic=True needs detrend=None"),
+        (lambda: topography.from_array(np.zeros((8, 8), complex), 1.0), "real numbers"),
+        (
+            lambda: topography.from_array(np.eye(8), 1.0, mask=np.eye(8, dtype=bool), detrend=None),
+            "no measured pixel facet",
+        ),
+    ],
+)
 def test_bad_arrays_are_refused_naming_what_is_accepted(call, match):
     with pytest.raises(InvalidInputError, match=match):
         call()
@@ -270,8 +294,9 @@ def test_a_fit_of_a_real_fields_measurements_recovers_its_slope_variance_differe
     field = topography.read(DATA / "di-3.di", detrend="curvature", micro=stats.Beckmann(0.3))
     scales = [b * field.spacing[0] for b in (1, 2, 4, 8)]
     measured = synth.facet_statistics(field, scales, bins=33)
-    mset = synth.gonioreflectometer(field, scales, [0.0, 0.0, 1.0], extent=1.0, pixels=33,
-                                    noise=synth.PoissonNoise(20.0, 1.0), seed=1)
+    mset = synth.gonioreflectometer(
+        field, scales, [0.0, 0.0, 1.0], extent=1.0, pixels=33, noise=synth.PoissonNoise(20.0, 1.0), seed=1
+    )
     model = fitting.ParametricModel("beckmann", "beckmann", law="width")
     result = fitting.fit(model, fitting.Dataset.from_measurements(mset))
 
@@ -316,10 +341,14 @@ def test_sigma_of_mu_on_every_real_file_at_eight_scales_over_two_decades(st, nam
         assert np.all(s.covariance_error > 0) and s.independent <= s.count
 
 
-
 @settings(max_examples=40, deadline=None)
-@given(ny=hs.integers(4, 30), nx=hs.integers(4, 30), pitch=hs.sampled_from([(1.0, 1.0), (1.0, 2.0), (3.0, 2.0), (0.5, 1.5)]),
-       missing=hs.floats(0.0, 0.3), seed=hs.integers(0, 2**16))
+@given(
+    ny=hs.integers(4, 30),
+    nx=hs.integers(4, 30),
+    pitch=hs.sampled_from([(1.0, 1.0), (1.0, 2.0), (3.0, 2.0), (0.5, 1.5)]),
+    missing=hs.floats(0.0, 0.3),
+    seed=hs.integers(0, 2**16),
+)
 def test_facet_windows_on_arbitrary_masked_rectangles(ny, nx, pitch, missing, seed):
     """Any shape, pitch ratio and mask: every admissible scale's windows are counted once (used
     or excluded), the used ones are exactly those with all pixel facets measured, and Σ(μ)
@@ -340,8 +369,10 @@ def test_facet_windows_on_arbitrary_masked_rectangles(ny, nx, pitch, missing, se
         by, bx = field.block(mu)
         assert by * dy == pytest.approx(mu) and bx * dx == pytest.approx(mu)
         rows, cols = mx.shape[0] // by, mx.shape[1] // bx
-        windows = np.stack([m[: rows * by, : cols * bx].reshape(rows, by, cols, bx).mean(axis=(1, 3)).ravel()
-                            for m in (mx, my)], axis=-1)
+        windows = np.stack(
+            [m[: rows * by, : cols * bx].reshape(rows, by, cols, bx).mean(axis=(1, 3)).ravel() for m in (mx, my)],
+            axis=-1,
+        )
         windows = windows[np.all(np.isfinite(windows), axis=1)]
         if len(windows) == 0:
             with pytest.raises(InvalidInputError, match="no facet window"):

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+
 TUTORIALS = sorted((Path(__file__).resolve().parent.parent / "docs" / "tutorials").glob("*.ipynb"))
 
 
@@ -35,8 +36,9 @@ def test_tutorial_runs(path, tmp_path, monkeypatch):
     nbclient = pytest.importorskip("nbclient")
     monkeypatch.delenv("MPLBACKEND", raising=False)  # the kernel's own choice, as in a reader's Jupyter
     nb = nbformat.read(path, as_version=4)
-    nbclient.NotebookClient(nb, timeout=900, kernel_name="python3",
-                            resources={"metadata": {"path": str(tmp_path)}}).execute()
+    nbclient.NotebookClient(
+        nb, timeout=900, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}
+    ).execute()
     figures = 0
     for cell in nb.cells:
         for output in cell.get("outputs", []):

@@ -21,25 +21,39 @@ import sys
 from .._errors import BrdfscaleError, OutputInUseError
 from ._options import Parser
 
+
 _SUBCOMMANDS = ("example", "synth", "topography", "info", "fit", "fit-library", "demo")
 
 EXIT_OK, EXIT_FAILURE, EXIT_USAGE, EXIT_IN_USE, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
 
-_EPILOG = ("exit status: 0 success; 1 unexpected failure (rerun with --debug for the traceback); 2 bad command "
-           "line or input (option outside its domain, damaged file, output exists, no BRDF at a scale); 3 output "
-           "directory or checkpoint in use by another run; 4 fit-library finished with some materials failed (see its "
-           "index); 130 interrupted.")
+_EPILOG = (
+    "exit status: 0 success; 1 unexpected failure (rerun with --debug for the traceback); 2 bad command "
+    "line or input (option outside its domain, damaged file, output exists, no BRDF at a scale); 3 output "
+    "directory or checkpoint in use by another run; 4 fit-library finished with some materials failed (see its "
+    "index); 130 interrupted."
+)
 
 
 #: The library's messages name Python arguments (``pass overwrite=True``, ``default_sigma=``, a
 #: message prefixed ``fixed:``); the command's errors name its flags instead — this mapping,
 #: applied by :func:`in_flags`, is the one place where an argument's name becomes a flag
 #: (tests/test_choices.py checks that every flag exists). A key ending in ``:`` is a prefix.
-FLAGS = {"overwrite=True": "--force", "force=True": "--force", "default_sigma=": "--default-sigma",
-         "out_dir=": "--out", "out=": "--out", "address=": "--address", "workers=": "--workers", "fixed:": "--fix:"}
-_PYTHON_ARGUMENT = re.compile("|".join(
-    f"^{re.escape(key)}" if key.endswith(":") else rf"(?<![\w.-]){re.escape(key)}"
-    for key in sorted(FLAGS, key=len, reverse=True)))
+FLAGS = {
+    "overwrite=True": "--force",
+    "force=True": "--force",
+    "default_sigma=": "--default-sigma",
+    "out_dir=": "--out",
+    "out=": "--out",
+    "address=": "--address",
+    "workers=": "--workers",
+    "fixed:": "--fix:",
+}
+_PYTHON_ARGUMENT = re.compile(
+    "|".join(
+        f"^{re.escape(key)}" if key.endswith(":") else rf"(?<![\w.-]){re.escape(key)}"
+        for key in sorted(FLAGS, key=len, reverse=True)
+    )
+)
 
 
 def in_flags(message: str) -> str:
@@ -56,12 +70,18 @@ def build_parser() -> Parser:
         epilog=_EPILOG,
     )
     parser.add_argument("--version", action="version", version=f"brdfscale {__version__}")
-    parser.add_argument("--no-compilation-cache", action="store_true",
-                        help="compile every XLA program afresh instead of keeping compiled programs between "
-                        "runs (kept by default in $BRDFSCALE_COMPILATION_CACHE, else "
-                        "$XDG_CACHE_HOME/brdfscale/jax, by default ~/.cache/brdfscale/jax)")
-    parser.add_argument("--debug", action="store_true",
-                        help="show the Python traceback of an unexpected failure instead of a one-line message")
+    parser.add_argument(
+        "--no-compilation-cache",
+        action="store_true",
+        help="compile every XLA program afresh instead of keeping compiled programs between "
+        "runs (kept by default in $BRDFSCALE_COMPILATION_CACHE, else "
+        "$XDG_CACHE_HOME/brdfscale/jax, by default ~/.cache/brdfscale/jax)",
+    )
+    parser.add_argument(
+        "--debug",
+        action="store_true",
+        help="show the Python traceback of an unexpected failure instead of a one-line message",
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in _SUBCOMMANDS:
         importlib.import_module(f"{__name__}._{name.replace('-', '_')}").register(sub)
@@ -97,9 +117,11 @@ def main(argv: list[str] | None = None) -> int:
         if args.debug:
             raise
         text = " ".join(str(err).split())[:300]
-        print(f"{name}: unexpected failure ({type(err).__name__}: {text}); rerun as `brdfscale --debug "
-              f"{args.command} ...` for the traceback, and report it if it is not the machine's (memory, disk).",
-              file=sys.stderr)
+        print(
+            f"{name}: unexpected failure ({type(err).__name__}: {text}); rerun as `brdfscale --debug "
+            f"{args.command} ...` for the traceback, and report it if it is not the machine's (memory, disk).",
+            file=sys.stderr,
+        )
         return EXIT_FAILURE
 
 

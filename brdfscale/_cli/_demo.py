@@ -13,7 +13,8 @@ import time
 
 from .._errors import InvalidInputError
 from ._fit import add_fit_options, fit_measurements, load_fitting, sampling_line
-from ._options import MAX_SEED, Parser, integer, make_directory, seed
+from ._options import integer, make_directory, MAX_SEED, Parser, seed
+
 
 _SCALES = (2.0, 4.0, 8.0, 16.0, 32.0)
 #: Where each printed truth comes from (the table's "truth" column).
@@ -21,13 +22,17 @@ _TRUTH_SOURCES = {
     "synth": {
         "amplitude": "the surface's albedo",
         "alpha_lobe": "derived, the width of a Beckmann lobe with the second moment of the μ0 image (micro lobe, "
-                      "slopes within the μ0 facets of this surface, the instrument's bilinear binning); the fitted "
-                      "Beckmann shape only approximates that lobe, so a few σ between the two is model error",
+        "slopes within the μ0 facets of this surface, the instrument's bilinear binning); the fitted "
+        "Beckmann shape only approximates that lobe, so a few σ between the two is model error",
         "rms_height": "the spectrum's (the ensemble; this 512² realisation differs by a few %)",
         "correlation_length": "the spectrum's (the ensemble)",
     },
-    "model": {"amplitude": "simulated", "alpha_lobe": "simulated", "rms_height": "simulated",
-              "correlation_length": "simulated"},
+    "model": {
+        "amplitude": "simulated",
+        "alpha_lobe": "simulated",
+        "rms_height": "simulated",
+        "correlation_length": "simulated",
+    },
 }
 _MODEL_TRUTH = {"amplitude": 0.9, "alpha_lobe": 0.01, "rms_height": 0.05, "correlation_length": 8.0}
 
@@ -41,17 +46,32 @@ def register(subparsers) -> None:
         "posterior and write the report.",
     )
     parser.add_argument("--out", default="brdfscale-demo", help="output directory (default ./brdfscale-demo)")
-    parser.add_argument("--source", choices=("synth", "model"), default="synth",
-                        help="synth: height-field simulation (default); model: the fit model plus noise")
-    parser.add_argument("--steps", type=integer(0, 100_000), default=1000,
-                        help="HMC draws per chain after 500 warm-up steps, 0–100000 (default 1000, 4 chains; 0: Laplace "
-                        "only); HMC is the sampler that passes the diagnostics fastest here (docs/fitting.md)")
-    parser.add_argument("--seed", type=seed, default=1, help=f"seed of surface, noise and sampler, 0–{MAX_SEED} (default 1)")
-    parser.add_argument("--no-progress", action="store_true",
-                        help="no progress bar (BRDFSCALE_PROGRESS=0 in the environment turns off every bar)")
-    parser.add_argument("--force", action="store_true",
-                        help="overwrite existing files in --out (a directory an earlier demo made is replaced "
-                        "without it)")
+    parser.add_argument(
+        "--source",
+        choices=("synth", "model"),
+        default="synth",
+        help="synth: height-field simulation (default); model: the fit model plus noise",
+    )
+    parser.add_argument(
+        "--steps",
+        type=integer(0, 100_000),
+        default=1000,
+        help="HMC draws per chain after 500 warm-up steps, 0–100000 (default 1000, 4 chains; 0: Laplace "
+        "only); HMC is the sampler that passes the diagnostics fastest here (docs/fitting.md)",
+    )
+    parser.add_argument(
+        "--seed", type=seed, default=1, help=f"seed of surface, noise and sampler, 0–{MAX_SEED} (default 1)"
+    )
+    parser.add_argument(
+        "--no-progress",
+        action="store_true",
+        help="no progress bar (BRDFSCALE_PROGRESS=0 in the environment turns off every bar)",
+    )
+    parser.add_argument(
+        "--force",
+        action="store_true",
+        help="overwrite existing files in --out (a directory an earlier demo made is replaced without it)",
+    )
     parser.set_defaults(func=run)
 
 
@@ -62,8 +82,15 @@ def _measurements(source: str, seed: int):
         from .. import stats, synth
 
         field = synth.named_surface("gaussian", size=512, seed=seed, micro=stats.Beckmann(0.01))
-        return synth.gonioreflectometer(field, _SCALES, np.array([0.0, 0.0, 1.0]), extent=0.05, pixels=33,
-                                        noise=synth.PoissonNoise(0.05, read_noise=1.0), seed=seed + 1)
+        return synth.gonioreflectometer(
+            field,
+            _SCALES,
+            np.array([0.0, 0.0, 1.0]),
+            extent=0.05,
+            pixels=33,
+            noise=synth.PoissonNoise(0.05, read_noise=1.0),
+            seed=seed + 1,
+        )
     fitting = load_fitting()
     model = fitting.ParametricModel(law="gaussian_surface")
     return fitting.simulate(model, _MODEL_TRUTH, _SCALES, size=33, extent=0.05, noise=0.01, floor=0.05, seed=seed)
@@ -84,8 +111,10 @@ def run(args) -> int:
             args.force = True
         existing = [os.path.basename(p) for p in _outputs(args.out) if os.path.lexists(p)]
         if existing and not args.force:
-            raise InvalidInputError(f"--out {args.out} already holds {', '.join(existing)} (not written by an earlier "
-                                    "demo); choose another --out directory or pass --force to replace them.")
+            raise InvalidInputError(
+                f"--out {args.out} already holds {', '.join(existing)} (not written by an earlier "
+                "demo); choose another --out directory or pass --force to replace them."
+            )
         if not os.path.exists(marker) and not existing:
             # nothing of the demo's is here yet, so whatever it writes here from now on is its own
             files.atomic_write(marker, _write_marker)
@@ -115,13 +144,32 @@ def _run(args, exr, start) -> int:
     print("[3/4] fitting and sampling")
     parser = Parser()
     add_fit_options(parser)
-    options = parser.parse_args(["--out", args.out, "--law", "gaussian_surface", "--starts", "4", "--steps",
-                                 str(args.steps), "--sampler", "hmc", "--chains", "4", "--seed", str(args.seed)]
-                                + ["--no-progress"] * args.no_progress + ["--force"] * args.force)
+    options = parser.parse_args(
+        [
+            "--out",
+            args.out,
+            "--law",
+            "gaussian_surface",
+            "--starts",
+            "4",
+            "--steps",
+            str(args.steps),
+            "--sampler",
+            "hmc",
+            "--chains",
+            "4",
+            "--seed",
+            str(args.seed),
+        ]
+        + ["--no-progress"] * args.no_progress
+        + ["--force"] * args.force
+    )
     doc = fit_measurements(mset, options)
     print(f"[4/4] report in {args.out}/ (fit.json, data_vs_fit.png, statistics.png, corner.png)")
     print()
-    print(f"{'quantity':20s} {'truth':>10s} {'estimate':>10s} {'± std':>10s} {'5 %':>10s} {'95 %':>10s}  |est−truth|/std")
+    print(
+        f"{'quantity':20s} {'truth':>10s} {'estimate':>10s} {'± std':>10s} {'5 %':>10s} {'95 %':>10s}  |est−truth|/std"
+    )
     for name, row in doc["parameters"].items():
         truth = row.get("truth")
         q = row["quantiles_5_50_95"] or [float("nan")] * 3
@@ -129,8 +177,7 @@ def _run(args, exr, start) -> int:
         est = row["median"] if row["median"] is not None else row["estimate_map"]
         pull = f"{abs(est - truth) / std:.2f}" if truth is not None and std > 0 else "—"
         truth_text = f"{truth:10.4g}" if truth is not None else f"{'unknown':>10s}"
-        print(f"{name:20s} {truth_text} {est:10.4g} {std:10.3g} "
-              f"{q[0]:10.4g} {q[2]:10.4g}  {pull}")
+        print(f"{name:20s} {truth_text} {est:10.4g} {std:10.3g} {q[0]:10.4g} {q[2]:10.4g}  {pull}")
     print("\nthe truth column:")
     for name, text in _TRUTH_SOURCES[args.source].items():
         if name in doc["parameters"]:

@@ -15,7 +15,8 @@ import types
 
 from .._choices import FAMILIES, FIT, LAWS, MODEL, MODELS, SAMPLE, SAMPLERS, SOLVERS
 from .._errors import InvalidInputError
-from ._options import MAX_SEED, integer, output_directory, real, seed
+from ._options import integer, MAX_SEED, output_directory, real, seed
+
 
 #: The chain is held in memory (and in chain.h5): walkers × steps × parameters × 8 bytes at most.
 CHAIN_BUDGET = 2 * 2**30
@@ -32,7 +33,9 @@ def _fixed(text: str) -> tuple[str, float]:
     if not sep or not name.strip() or number is None:
         raise argparse.ArgumentTypeError(f"expected NAME=VALUE (e.g. mu_c=1.0); got {text!r:.60}")
     if not (math.isfinite(number) and number > 0):
-        raise argparse.ArgumentTypeError(f"the value must be a positive finite number (every parameter is); got {text!r:.60}")
+        raise argparse.ArgumentTypeError(
+            f"the value must be a positive finite number (every parameter is); got {text!r:.60}"
+        )
     return name.strip(), number
 
 
@@ -45,48 +48,105 @@ def _smoothness(text: str):
 
 def add_fit_options(parser) -> None:
     """Options shared by ``fit`` and ``demo``."""
-    parser.add_argument("--out", required=True, help="output directory (fit.json, figures, tables, chain.h5); "
-                        "one run at a time: a second run into it is refused (exit 3)")
+    parser.add_argument(
+        "--out",
+        required=True,
+        help="output directory (fit.json, figures, tables, chain.h5); "
+        "one run at a time: a second run into it is refused (exit 3)",
+    )
     parser.add_argument("--model", choices=MODELS.names, default=MODEL.model, help=f"the model — {MODELS.help()}")
-    parser.add_argument("--family", choices=FAMILIES.names, default=MODEL.family,
-                        help=f"family of the base lobe and of the slope statistics (parametric model) — {FAMILIES.help()}")
-    parser.add_argument("--law", choices=LAWS.names, default=MODEL.law,
-                        help=f"scale law of the parametric model — {LAWS.help()}")
-    parser.add_argument("--fix", type=_fixed, action="append", default=[], metavar="NAME=VALUE",
-                        help="hold a parametric quantity fixed (e.g. mu_c=1.0) at a value inside its prior box "
-                        "(docs/fitting.md); repeatable, once per name")
-    parser.add_argument("--solver", choices=SOLVERS.names, default=FIT.solver,
-                        help=f"optimistix solver — {SOLVERS.help()}")
-    parser.add_argument("--starts", type=integer(1, 256), default=FIT.starts,
-                        help=f"multi-start count, 1–256 (default {FIT.starts}, fitting.fit's; earlier releases of the "
-                        "command defaulted to 6)")
-    parser.add_argument("--max-steps", type=integer(1, 100_000), default=FIT.max_steps,
-                        help=f"solver steps per start, 1–100000 (default {FIT.max_steps}); a start that needs more is "
-                        "reported")
-    parser.add_argument("--base-nodes", type=integer(3, 41), default=MODEL.base_nodes,
-                        help=f"non-parametric model: base lobe tabulated on N × N nodes, 3–41 (default {MODEL.base_nodes})")
-    parser.add_argument("--knots", type=integer(2, 64), default=MODEL.knots,
-                        help=f"non-parametric model: W knots of the relative statistics, 2–64 (default {MODEL.knots})")
-    parser.add_argument("--regularisation", type=_smoothness, default=MODEL.regularisation, metavar="auto|WEIGHT",
-                        help="non-parametric model: weight of the smoothness prior, a number in [0, 1e6] (default "
-                        "3) or auto (generalised cross-validation about a pilot fit; docs/fitting.md)")
-    parser.add_argument("--sampler", choices=SAMPLERS.names, default=SAMPLE.sampler,
-                        help=f"posterior sampler — {SAMPLERS.help()}; docs/fitting.md (fitting.sample defaults to "
-                        f"{SAMPLE.sampler} too; in earlier releases it defaulted to emcee)")
-    parser.add_argument("--chains", type=integer(1, 64), default=SAMPLE.chains,
-                        help=f"independent chains (emcee: independent ensembles), 1–64 (default {SAMPLE.chains}; R̂ "
-                        "needs ≥ 2)")
-    parser.add_argument("--steps", type=integer(0, 1_000_000), default=SAMPLE.steps,
-                        help="draws per chain after the warm-up (nuts, hmc) or emcee steps per walker, 0–1000000 "
-                        f"(default {SAMPLE.steps}; 0: Laplace only); the chains are kept in memory: chains × walkers × "
-                        f"steps × parameters × 8 bytes ≤ {CHAIN_BUDGET // 2**30} GiB")
-    parser.add_argument("--walkers", type=integer(2, 4096), default=None,
-                        help="emcee only: walkers per ensemble, even, ≥ 2 × parameters, ≤ 4096 (default max(32, 4 × "
-                        "parameters))")
-    parser.add_argument("--seed", type=seed, default=FIT.seed,
-                        help=f"seed of the starts and the sampler, 0–{MAX_SEED} (default {FIT.seed})")
-    parser.add_argument("--no-progress", action="store_true",
-                        help="no progress bar (BRDFSCALE_PROGRESS=0 in the environment turns off every bar)")
+    parser.add_argument(
+        "--family",
+        choices=FAMILIES.names,
+        default=MODEL.family,
+        help=f"family of the base lobe and of the slope statistics (parametric model) — {FAMILIES.help()}",
+    )
+    parser.add_argument(
+        "--law", choices=LAWS.names, default=MODEL.law, help=f"scale law of the parametric model — {LAWS.help()}"
+    )
+    parser.add_argument(
+        "--fix",
+        type=_fixed,
+        action="append",
+        default=[],
+        metavar="NAME=VALUE",
+        help="hold a parametric quantity fixed (e.g. mu_c=1.0) at a value inside its prior box "
+        "(docs/fitting.md); repeatable, once per name",
+    )
+    parser.add_argument(
+        "--solver", choices=SOLVERS.names, default=FIT.solver, help=f"optimistix solver — {SOLVERS.help()}"
+    )
+    parser.add_argument(
+        "--starts",
+        type=integer(1, 256),
+        default=FIT.starts,
+        help=f"multi-start count, 1–256 (default {FIT.starts}, fitting.fit's; earlier releases of the "
+        "command defaulted to 6)",
+    )
+    parser.add_argument(
+        "--max-steps",
+        type=integer(1, 100_000),
+        default=FIT.max_steps,
+        help=f"solver steps per start, 1–100000 (default {FIT.max_steps}); a start that needs more is reported",
+    )
+    parser.add_argument(
+        "--base-nodes",
+        type=integer(3, 41),
+        default=MODEL.base_nodes,
+        help=f"non-parametric model: base lobe tabulated on N × N nodes, 3–41 (default {MODEL.base_nodes})",
+    )
+    parser.add_argument(
+        "--knots",
+        type=integer(2, 64),
+        default=MODEL.knots,
+        help=f"non-parametric model: W knots of the relative statistics, 2–64 (default {MODEL.knots})",
+    )
+    parser.add_argument(
+        "--regularisation",
+        type=_smoothness,
+        default=MODEL.regularisation,
+        metavar="auto|WEIGHT",
+        help="non-parametric model: weight of the smoothness prior, a number in [0, 1e6] (default "
+        "3) or auto (generalised cross-validation about a pilot fit; docs/fitting.md)",
+    )
+    parser.add_argument(
+        "--sampler",
+        choices=SAMPLERS.names,
+        default=SAMPLE.sampler,
+        help=f"posterior sampler — {SAMPLERS.help()}; docs/fitting.md (fitting.sample defaults to "
+        f"{SAMPLE.sampler} too; in earlier releases it defaulted to emcee)",
+    )
+    parser.add_argument(
+        "--chains",
+        type=integer(1, 64),
+        default=SAMPLE.chains,
+        help=f"independent chains (emcee: independent ensembles), 1–64 (default {SAMPLE.chains}; R̂ needs ≥ 2)",
+    )
+    parser.add_argument(
+        "--steps",
+        type=integer(0, 1_000_000),
+        default=SAMPLE.steps,
+        help="draws per chain after the warm-up (nuts, hmc) or emcee steps per walker, 0–1000000 "
+        f"(default {SAMPLE.steps}; 0: Laplace only); the chains are kept in memory: chains × walkers × "
+        f"steps × parameters × 8 bytes ≤ {CHAIN_BUDGET // 2**30} GiB",
+    )
+    parser.add_argument(
+        "--walkers",
+        type=integer(2, 4096),
+        default=None,
+        help="emcee only: walkers per ensemble, even, ≥ 2 × parameters, ≤ 4096 (default max(32, 4 × parameters))",
+    )
+    parser.add_argument(
+        "--seed",
+        type=seed,
+        default=FIT.seed,
+        help=f"seed of the starts and the sampler, 0–{MAX_SEED} (default {FIT.seed})",
+    )
+    parser.add_argument(
+        "--no-progress",
+        action="store_true",
+        help="no progress bar (BRDFSCALE_PROGRESS=0 in the environment turns off every bar)",
+    )
     parser.add_argument("--force", action="store_true", help="overwrite DIR/fit.json and restart DIR/chain.h5")
 
 
@@ -113,14 +173,18 @@ def check_sampler_options(args, n_parameters: int) -> None:
     if sampler == "emcee":
         walkers = args.walkers if args.walkers is not None else max(32, 4 * n_parameters)
         if walkers < 2 * n_parameters:
-            raise InvalidInputError(f"--walkers {walkers}: the model has {n_parameters} parameters, so emcee needs at "
-                                    f"least {2 * n_parameters} walkers.")
+            raise InvalidInputError(
+                f"--walkers {walkers}: the model has {n_parameters} parameters, so emcee needs at "
+                f"least {2 * n_parameters} walkers."
+            )
         walkers += walkers % 2
     size = chains * walkers * args.steps * n_parameters * 8
     if size > CHAIN_BUDGET:
-        raise InvalidInputError(f"--chains {chains} × {walkers} walkers × --steps {args.steps} × {n_parameters} parameters "
-                                f"is {size / 2**30:.1f} GiB of chains; at most {CHAIN_BUDGET // 2**30} GiB (fewer steps, "
-                                "chains or walkers).")
+        raise InvalidInputError(
+            f"--chains {chains} × {walkers} walkers × --steps {args.steps} × {n_parameters} parameters "
+            f"is {size / 2**30:.1f} GiB of chains; at most {CHAIN_BUDGET // 2**30} GiB (fewer steps, "
+            "chains or walkers)."
+        )
 
 
 def spec_of(args, *, sampler: bool = True):
@@ -128,12 +192,24 @@ def spec_of(args, *, sampler: bool = True):
     ``--steps 0``: no sampling)."""
     from ..library import FitSpec
 
-    return FitSpec(model=args.model, family=args.family, law=args.law, fixed=tuple(args.fix),
-                   base_nodes=args.base_nodes, knots=args.knots, regularisation=args.regularisation,
-                   solver=args.solver, starts=args.starts, max_steps=args.max_steps, seed=args.seed,
-                   sampler=args.sampler if sampler and args.steps > 0 else None, chains=args.chains,
-                   steps=args.steps, default_sigma=getattr(args, "default_sigma", None),
-                   figures=getattr(args, "figures", True))
+    return FitSpec(
+        model=args.model,
+        family=args.family,
+        law=args.law,
+        fixed=tuple(args.fix),
+        base_nodes=args.base_nodes,
+        knots=args.knots,
+        regularisation=args.regularisation,
+        solver=args.solver,
+        starts=args.starts,
+        max_steps=args.max_steps,
+        seed=args.seed,
+        sampler=args.sampler if sampler and args.steps > 0 else None,
+        chains=args.chains,
+        steps=args.steps,
+        default_sigma=getattr(args, "default_sigma", None),
+        figures=getattr(args, "figures", True),
+    )
 
 
 def load_fitting() -> types.ModuleType:
@@ -158,8 +234,12 @@ def register(subparsers) -> None:
     )
     parser.add_argument("measurements", help="multi-part OpenEXR measurement set (brdfscale.exr format)")
     add_fit_options(parser)
-    parser.add_argument("--default-sigma", type=real(0.0, 1e30, strict_lo=True), default=None,
-                        help="noise σ > 0 for images without a sigma channel (lobe units)")
+    parser.add_argument(
+        "--default-sigma",
+        type=real(0.0, 1e30, strict_lo=True),
+        default=None,
+        help="noise σ > 0 for images without a sigma channel (lobe units)",
+    )
     parser.set_defaults(func=run)
 
 
@@ -184,21 +264,31 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
 
 
 def _fit_and_report(fitting, spec, data, model, info, truth, args, stream) -> dict:
-    stream(f"fitting {len(data.scale_of_image)} images at scales μ = {[float(s) for s in data.scales]} "
-           f"({data.n_data} valid pixels), {len(model.names)} parameters, {spec.starts} starts ...")
+    stream(
+        f"fitting {len(data.scale_of_image)} images at scales μ = {[float(s) for s in data.scales]} "
+        f"({data.n_data} valid pixels), {len(model.names)} parameters, {spec.starts} starts ..."
+    )
     result = spec.fit(model, data)
-    stream(f"  {result.status}: χ²/dof = {result.chi2 / result.dof:.3f}, "
-           f"{sum(s['at_best'] for s in result.starts)}/{len(result.starts)} starts at the optimum")
+    stream(
+        f"  {result.status}: χ²/dof = {result.chi2 / result.dof:.3f}, "
+        f"{sum(s['at_best'] for s in result.starts)}/{len(result.starts)} starts at the optimum"
+    )
     for item in result.undetermined:
         stream(f"  not determined by the data: {item['combination']}")
     samples = None
     if spec.sampler is not None:
-        samples = spec.sample(fitting.Problem(model, data), result, walkers=args.walkers,
-                              checkpoint=os.path.join(args.out, "chain.h5"), overwrite=args.force,
-                              progress=not args.no_progress)
+        samples = spec.sample(
+            fitting.Problem(model, data),
+            result,
+            walkers=args.walkers,
+            checkpoint=os.path.join(args.out, "chain.h5"),
+            overwrite=args.force,
+            progress=not args.no_progress,
+        )
         stream(sampling_line(samples.diagnostics()))
-    return fitting.write_report(args.out, fitting.Problem(model, data), result, samples, truth=truth,
-                                model_info=info, overwrite=args.force)
+    return fitting.write_report(
+        args.out, fitting.Problem(model, data), result, samples, truth=truth, model_info=info, overwrite=args.force
+    )
 
 
 def run(args) -> int:
@@ -219,11 +309,16 @@ def sampling_line(diag: dict) -> str:
     checked = set((diag.get("criteria") or {}).get("checked") or summary)
     ess = [row["ess_bulk"] for name, row in summary.items() if name in checked and row.get("ess_bulk") is not None]
     rhat = [row["r_hat"] for name, row in summary.items() if name in checked and row.get("r_hat") is not None]
-    sizes = (f"{diag['chains']} ensembles × {diag['walkers']} walkers"
-             if diag["sampler"] == "emcee" else f"{diag['chains']} chains")
+    sizes = (
+        f"{diag['chains']} ensembles × {diag['walkers']} walkers"
+        if diag["sampler"] == "emcee"
+        else f"{diag['chains']} chains"
+    )
     figures = (f", min ESS_bulk = {min(ess):.0f}" if ess else "") + (f", max R̂ = {max(rhat):.3f}" if rhat else "")
-    return (f"  {diag['sampler']}: {sizes} × {diag['steps']} steps (warm-up/burn-in {diag['burn_in']}){figures}; "
-            f"{diag['status']}")
+    return (
+        f"  {diag['sampler']}: {sizes} × {diag['steps']} steps (warm-up/burn-in {diag['burn_in']}){figures}; "
+        f"{diag['status']}"
+    )
 
 
 def print_determined(doc: dict, stream=print) -> None:
@@ -236,9 +331,16 @@ def print_determined(doc: dict, stream=print) -> None:
         value = row["median"] if row["median"] is not None else row["estimate_map"]
         if row["determined"] and row["std"] is not None:
             figures = summary.get(name) or {}
-            arviz = "".join(f", {label} {figures[key]:{fmt}}" for key, label, fmt in
-                            (("ess_bulk", "ESS_bulk", ".0f"), ("ess_tail", "ESS_tail", ".0f"), ("r_hat", "R̂", ".3f"),
-                             ("mcse_mean", "MCSE", ".2g")) if figures.get(key) is not None)
+            arviz = "".join(
+                f", {label} {figures[key]:{fmt}}"
+                for key, label, fmt in (
+                    ("ess_bulk", "ESS_bulk", ".0f"),
+                    ("ess_tail", "ESS_tail", ".0f"),
+                    ("r_hat", "R̂", ".3f"),
+                    ("mcse_mean", "MCSE", ".2g"),
+                )
+                if figures.get(key) is not None
+            )
             stream(f"  {name:12s} {value:.5g} ± {row['std']:.4g}{arviz}")
         else:
             lo, hi = row.get("prior_range") or (float("nan"), float("nan"))

@@ -29,8 +29,12 @@ def summarise(path) -> dict:
     if kind == "lobe_table":
         table = exr.read_lobe_table(path)
         return {
-            "file": str(path), "kind": kind, "parts": len(table.scales), "scales": table.scales.tolist(),
-            "extent": table.extent, "pixels": table.values.shape[1],
+            "file": str(path),
+            "kind": kind,
+            "parts": len(table.scales),
+            "scales": table.scales.tolist(),
+            "extent": table.extent,
+            "pixels": table.values.shape[1],
             "channels": "RGB" if table.values.ndim == 4 else "Y",
             "value_range": [float(table.values.min()), float(table.values.max())],
             "metadata_keys": sorted(table.metadata),
@@ -39,17 +43,29 @@ def summarise(path) -> dict:
     images = []
     for p in mset.images:
         theta, phi = _angles(p.incident)
-        images.append({
-            "mu": p.mu, "theta_deg": theta, "phi_deg": phi, "extent": p.extent, "pixels": p.size,
-            "channels": "RGB" if p.values.ndim == 3 else "Y", "sigma": p.sigma is not None,
-            "mask": p.mask is not None, "value_range": [float(p.values.min()), float(p.values.max())],
-        })
+        images.append(
+            {
+                "mu": p.mu,
+                "theta_deg": theta,
+                "phi_deg": phi,
+                "extent": p.extent,
+                "pixels": p.size,
+                "channels": "RGB" if p.values.ndim == 3 else "Y",
+                "sigma": p.sigma is not None,
+                "mask": p.mask is not None,
+                "value_range": [float(p.values.min()), float(p.values.max())],
+            }
+        )
     meta = mset.metadata
     return {
-        "file": str(path), "kind": kind, "parts": len(mset.images), "scales": mset.scales.tolist(),
+        "file": str(path),
+        "kind": kind,
+        "parts": len(mset.images),
+        "scales": mset.scales.tolist(),
         "incident_deg": sorted({(round(i["theta_deg"], 6), round(i["phi_deg"], 6)) for i in images}),
         "surface": _surface(meta.get("surface")),
-        "metadata_keys": sorted(meta), "images": images,
+        "metadata_keys": sorted(meta),
+        "images": images,
     }
 
 
@@ -69,9 +85,11 @@ def run(args) -> int:
         print("  incident (θ, φ) in degrees: " + ", ".join(f"({t:g}, {p:g})" for t, p in summary["incident_deg"]))
         print("  part  mu        theta   phi     extent     pixels ch   sigma mask  max value")
         for k, im in enumerate(summary["images"]):
-            print(f"  {k:<5d} {im['mu']:<9.4g} {im['theta_deg']:<7.3g} {im['phi_deg']:<7.3g} {im['extent']:<10.4g} "
-                  f"{im['pixels']:<6d} {im['channels']:<4} {'yes' if im['sigma'] else 'no':<5} "
-                  f"{'yes' if im['mask'] else 'no':<5} {im['value_range'][1]:.4g}")
+            print(
+                f"  {k:<5d} {im['mu']:<9.4g} {im['theta_deg']:<7.3g} {im['phi_deg']:<7.3g} {im['extent']:<10.4g} "
+                f"{im['pixels']:<6d} {im['channels']:<4} {'yes' if im['sigma'] else 'no':<5} "
+                f"{'yes' if im['mask'] else 'no':<5} {im['value_range'][1]:.4g}"
+            )
     if summary["metadata_keys"]:
         print(f"  metadata: {', '.join(summary['metadata_keys'])}")
     return 0

@@ -21,6 +21,7 @@ from collections.abc import Mapping
 
 from .._errors import InvalidInputError
 
+
 #: Seeds are 32-bit (numpy's and JAX's generators take them without loss or folding).
 MAX_SEED = 2**32 - 1
 
@@ -47,7 +48,9 @@ class _OnceTrue(argparse.Action):
 def _once(parser, namespace, action, option_string):
     seen = namespace.__dict__.setdefault("_given", set())
     if action.dest in seen:
-        parser.error(f"argument {'/'.join(action.option_strings)}: given more than once ({option_string}); give it once.")
+        parser.error(
+            f"argument {'/'.join(action.option_strings)}: given more than once ({option_string}); give it once."
+        )
     seen.add(action.dest)
 
 
@@ -68,7 +71,9 @@ def _number(text: str, kind):
     try:
         return kind(text)
     except (TypeError, ValueError):
-        raise argparse.ArgumentTypeError(f"expected {'an integer' if kind is int else 'a number'}; got {text!r}") from None
+        raise argparse.ArgumentTypeError(
+            f"expected {'an integer' if kind is int else 'a number'}; got {text!r}"
+        ) from None
 
 
 def integer(lo: int, hi: int):
@@ -96,7 +101,8 @@ def real(lo: float, hi: float, *, strict_lo: bool = False):
         value = _number(text, float)
         if not (math.isfinite(value) and (value > lo if strict_lo else value >= lo) and value <= hi):
             raise argparse.ArgumentTypeError(
-                f"must be a finite number in {'(' if strict_lo else '['}{lo:g}, {hi:g}]; got {text!r:.40}")
+                f"must be a finite number in {'(' if strict_lo else '['}{lo:g}, {hi:g}]; got {text!r:.40}"
+            )
         return value
 
     parse.__name__ = "number"
@@ -159,8 +165,10 @@ def make_directory(path: str, flag: str = "--out") -> str:
 #: At most this many scales on one command line (each is a pass over the height field).
 MAX_SCALES = 64
 
-_SCALES_SYNTAX = ("1–64 comma-separated scales — lengths with a unit (0.5um, 1e-6m, 0.1mm), whole numbers of "
-                  "pixels (4px; a bare 4 for a built-in surface) — or auto[:COUNT]")
+_SCALES_SYNTAX = (
+    "1–64 comma-separated scales — lengths with a unit (0.5um, 1e-6m, 0.1mm), whole numbers of "
+    "pixels (4px; a bare 4 for a built-in surface) — or auto[:COUNT]"
+)
 _SCALE_ITEM = re.compile(r"\s*([+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?)\s*(\S*)\s*", re.ASCII)
 
 
@@ -207,14 +215,18 @@ class Scales:
             elif unit == "":
                 raise InvalidInputError(
                     f"{flag} {item}: a bare number is ambiguous for a field measured in {field.unit}; give each scale "
-                    f"with its unit (e.g. 0.5um, 2e-6m) or in pixels (e.g. 4px), or auto[:COUNT].")
+                    f"with its unit (e.g. 0.5um, 2e-6m) or in pixels (e.g. 4px), or auto[:COUNT]."
+                )
             elif field.unit is None:
                 raise InvalidInputError(
                     f"{flag} {item}: this surface's lengths are in pixels (it has no length unit); give whole numbers "
-                    "of pixels (e.g. 4,16,64 or 4px,16px,64px).")
+                    "of pixels (e.g. 4,16,64 or 4px,16px,64px)."
+                )
             elif field.unit not in units:
-                raise InvalidInputError(f"{flag} {item}: the field's unit {field.unit!r} is not one of "
-                                        f"{', '.join(units)}; give the scales in pixels (e.g. 4px).")
+                raise InvalidInputError(
+                    f"{flag} {item}: the field's unit {field.unit!r} is not one of "
+                    f"{', '.join(units)}; give the scales in pixels (e.g. 4px)."
+                )
             else:
                 mu = value * units[unit] / units[field.unit]
                 shown = f"{mu:.6g} {field.unit} = {mu / dx:.6g} pixels of Δx = {dx:.6g} {field.unit}"
@@ -225,11 +237,14 @@ class Scales:
                 raise InvalidInputError(
                     f"{flag} {item}: {shown}; a scale must be a whole number of pixels along both axes, from 1 to "
                     f"{min(fx, round(fy * field.spacing[1] / dx))} (the field's {fy} × {fx} pixel facets); "
-                    "--scales auto lists admissible ones.") from None
+                    "--scales auto lists admissible ones."
+                ) from None
             mu = cols * dx
             if (rows, cols) in seen:
-                raise InvalidInputError(f"{flag}: {seen[rows, cols]} and {item} are the same scale "
-                                        f"({cols} pixel{'s' if cols > 1 else ''}); give each scale once.")
+                raise InvalidInputError(
+                    f"{flag}: {seen[rows, cols]} and {item} are the same scale "
+                    f"({cols} pixel{'s' if cols > 1 else ''}); give each scale once."
+                )
             seen[rows, cols] = item
             resolved.append(mu)
         return resolved
@@ -262,11 +277,14 @@ def scales(text: str) -> Scales:
             raise argparse.ArgumentTypeError(f"expected {_SCALES_SYNTAX}; got {text!r:.60}")
         if unit in ("", "px"):
             if not (value >= 1 and value == round(value)):
-                raise argparse.ArgumentTypeError(f"pixel counts must be whole numbers of pixels ≥ 1; got {part.strip()!r:.40} "
-                                                 f"in {text!r:.60}")
+                raise argparse.ArgumentTypeError(
+                    f"pixel counts must be whole numbers of pixels ≥ 1; got {part.strip()!r:.40} in {text!r:.60}"
+                )
         elif unit not in _length_units():
-            raise argparse.ArgumentTypeError(f"unknown unit {unit!r:.20} in {part.strip()!r:.40}: lengths take one of "
-                                             f"{', '.join(_length_units())}, pixel counts px; got {text!r:.60}")
+            raise argparse.ArgumentTypeError(
+                f"unknown unit {unit!r:.20} in {part.strip()!r:.40}: lengths take one of "
+                f"{', '.join(_length_units())}, pixel counts px; got {text!r:.60}"
+            )
         items.append((value, unit))
     if not 1 <= len(items) <= MAX_SCALES:
         raise argparse.ArgumentTypeError(f"expected {_SCALES_SYNTAX}; got {text!r:.60}")

@@ -5,8 +5,9 @@ import argparse
 import math
 
 from .._errors import InvalidInputError
-from ._options import MAX_SEED, integer, output_file, real, scales, seed
+from ._options import integer, MAX_SEED, output_file, real, scales, seed
 from ._topography import add_reading_options, read_field, reading_command
+
 
 _SIZE, _SEED = 512, 0  # the defaults of --size and --seed (None in the namespace: given or not)
 
@@ -18,7 +19,9 @@ def _incident(text: str) -> tuple[float, float, float]:
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected THETA or THETA:PHI in degrees; got {text!r:.60}") from None
     if len(angles) not in (1, 2) or not 0 <= angles[0] < 90 or not all(math.isfinite(a) for a in angles):
-        raise argparse.ArgumentTypeError(f"expected THETA (0 ≤ θ < 90) or THETA:PHI in degrees (finite); got {text!r:.60}")
+        raise argparse.ArgumentTypeError(
+            f"expected THETA (0 ≤ θ < 90) or THETA:PHI in degrees (finite); got {text!r:.60}"
+        )
     theta, phi = math.radians(angles[0]), math.radians(angles[1] if len(angles) == 2 else 0.0)
     return (math.sin(theta) * math.cos(phi), math.sin(theta) * math.sin(phi), math.cos(theta))
 
@@ -42,9 +45,11 @@ def _noise(text: str):
             return synth.PoissonNoise(number, read_noise) if kind == "poisson" else synth.GaussianNoise(floor=number)
         except InvalidInputError as err:
             raise argparse.ArgumentTypeError(f"bad noise {text!r:.60}: {err}") from None
-    raise argparse.ArgumentTypeError(f"noise must be none, poisson:EXPOSURE[:READ_NOISE] (EXPOSURE in [{_EXPOSURE[0]:g}, "
-                                     f"{_EXPOSURE[1]:g}], READ_NOISE in counts in [0, {_READ[1]:g}]) or gaussian:SIGMA (SIGMA in [{_SIGMA[0]:g}, {_SIGMA[1]:g}]); "
-                                     f"got {text!r:.60}")
+    raise argparse.ArgumentTypeError(
+        f"noise must be none, poisson:EXPOSURE[:READ_NOISE] (EXPOSURE in [{_EXPOSURE[0]:g}, "
+        f"{_EXPOSURE[1]:g}], READ_NOISE in counts in [0, {_READ[1]:g}]) or gaussian:SIGMA (SIGMA in [{_SIGMA[0]:g}, {_SIGMA[1]:g}]); "
+        f"got {text!r:.60}"
+    )
 
 
 def register(subparsers) -> None:
@@ -58,37 +63,86 @@ def register(subparsers) -> None:
         "set. A built-in surface's lengths and scales are in pixels; a topography's in metres.",
         epilog="surfaces: " + "; ".join(f"{name}: {desc}" for name, desc in SURFACES.items()),
     )
-    parser.add_argument("surface", nargs="?", choices=sorted(SURFACES), metavar="SURFACE",
-                        help="one of: " + ", ".join(SURFACES) + " (or --topography FILE instead)")
-    parser.add_argument("--topography", metavar="FILE", default=None,
-                        help="instead of SURFACE: an instrument height map (brdfscale topography reads the same "
-                        "files; needs the extra brdfscale[topography])")
+    parser.add_argument(
+        "surface",
+        nargs="?",
+        choices=sorted(SURFACES),
+        metavar="SURFACE",
+        help="one of: " + ", ".join(SURFACES) + " (or --topography FILE instead)",
+    )
+    parser.add_argument(
+        "--topography",
+        metavar="FILE",
+        default=None,
+        help="instead of SURFACE: an instrument height map (brdfscale topography reads the same "
+        "files; needs the extra brdfscale[topography])",
+    )
     add_reading_options(parser)
     parser.add_argument("--out", required=True, help="output .exr file")
-    parser.add_argument("--scales", type=scales, default=None, metavar="SCALES",
-                        help="facet sizes μ, comma-separated, each a whole number of pixels: for SURFACE pixel counts "
-                        "from 1 to --size (4,16,64, the default, or 4px,16px,64px); for --topography lengths with a "
-                        "unit (0.5um, 1e-6m, 0.1mm) or pixel counts (4px); or auto[:COUNT] (COUNT log-spaced pixel "
-                        "counts up to half the field; the default for --topography is auto:8)")
-    parser.add_argument("--incident", type=_incident, action="append", metavar="THETA[:PHI]",
-                        help="incident direction in degrees; repeat for several (default 0)")
-    parser.add_argument("--noise", type=_noise, default=None, metavar="MODEL",
-                        help="none (default), poisson:EXPOSURE[:READ_NOISE] (counts per unit lobe value; optional Gaussian "
-                        "read noise in counts, which makes σ exact in dark pixels) or gaussian:SIGMA")
-    parser.add_argument("--resolution", type=real(0.0, 10.0), default=0.0, help="instrument blur, slope std, 0–10 (default 0)")
-    parser.add_argument("--micro-alpha", type=real(0.0, 10.0, strict_lo=True), default=None, metavar="ALPHA",
-                        help="Beckmann roughness of the pixel facets, in (0, 10] (default: mirror facets)")
-    parser.add_argument("--extent", type=real(0.0, 1000.0, strict_lo=True), default=None,
-                        help="image half-width in slope units, in (0, 1000] (default: 1.05 × steepest pixel slope)")
+    parser.add_argument(
+        "--scales",
+        type=scales,
+        default=None,
+        metavar="SCALES",
+        help="facet sizes μ, comma-separated, each a whole number of pixels: for SURFACE pixel counts "
+        "from 1 to --size (4,16,64, the default, or 4px,16px,64px); for --topography lengths with a "
+        "unit (0.5um, 1e-6m, 0.1mm) or pixel counts (4px); or auto[:COUNT] (COUNT log-spaced pixel "
+        "counts up to half the field; the default for --topography is auto:8)",
+    )
+    parser.add_argument(
+        "--incident",
+        type=_incident,
+        action="append",
+        metavar="THETA[:PHI]",
+        help="incident direction in degrees; repeat for several (default 0)",
+    )
+    parser.add_argument(
+        "--noise",
+        type=_noise,
+        default=None,
+        metavar="MODEL",
+        help="none (default), poisson:EXPOSURE[:READ_NOISE] (counts per unit lobe value; optional Gaussian "
+        "read noise in counts, which makes σ exact in dark pixels) or gaussian:SIGMA",
+    )
+    parser.add_argument(
+        "--resolution", type=real(0.0, 10.0), default=0.0, help="instrument blur, slope std, 0–10 (default 0)"
+    )
+    parser.add_argument(
+        "--micro-alpha",
+        type=real(0.0, 10.0, strict_lo=True),
+        default=None,
+        metavar="ALPHA",
+        help="Beckmann roughness of the pixel facets, in (0, 10] (default: mirror facets)",
+    )
+    parser.add_argument(
+        "--extent",
+        type=real(0.0, 1000.0, strict_lo=True),
+        default=None,
+        help="image half-width in slope units, in (0, 1000] (default: 1.05 × steepest pixel slope)",
+    )
     parser.add_argument("--pixels", type=integer(3, 1025), default=65, help="image nodes per axis, 3–1025 (default 65)")
-    parser.add_argument("--size", type=integer(16, 4096), default=None,
-                        help=f"height field pixels per side of SURFACE, 16–4096 (default {_SIZE}; not with --topography)")
-    parser.add_argument("--seed", type=seed, default=None,
-                        help=f"random seed of surface and noise, 0–{MAX_SEED} (default {_SEED}; with --topography it "
-                        "seeds the noise, so it needs --noise)")
-    parser.add_argument("--weighting", choices=("nearly_flat", "projected_area"), default="nearly_flat",
-                        help="pixel-facet weighting (default nearly_flat, the seed's approximation)")
-    parser.add_argument("--dtype", choices=("float32", "float16"), default="float32", help="pixel type (default float32)")
+    parser.add_argument(
+        "--size",
+        type=integer(16, 4096),
+        default=None,
+        help=f"height field pixels per side of SURFACE, 16–4096 (default {_SIZE}; not with --topography)",
+    )
+    parser.add_argument(
+        "--seed",
+        type=seed,
+        default=None,
+        help=f"random seed of surface and noise, 0–{MAX_SEED} (default {_SEED}; with --topography it "
+        "seeds the noise, so it needs --noise)",
+    )
+    parser.add_argument(
+        "--weighting",
+        choices=("nearly_flat", "projected_area"),
+        default="nearly_flat",
+        help="pixel-facet weighting (default nearly_flat, the seed's approximation)",
+    )
+    parser.add_argument(
+        "--dtype", choices=("float32", "float16"), default="float32", help="pixel type (default float32)"
+    )
     parser.add_argument("--force", action="store_true", help="overwrite an existing output file")
     parser.set_defaults(func=run)
 
@@ -98,17 +152,25 @@ def _check_source(args) -> None:
     if (args.surface is None) == (args.topography is None):
         raise InvalidInputError("give either a built-in SURFACE or --topography FILE (exactly one of the two).")
     if args.topography is None:
-        given = [flag for flag, value in (("--channel", args.channel), ("--detrend", args.detrend)) if value is not None]
+        given = [
+            flag for flag, value in (("--channel", args.channel), ("--detrend", args.detrend)) if value is not None
+        ]
         if given:
-            raise InvalidInputError(f"{' and '.join(given)}: how a topography file is read; give "
-                                    f"{'them' if len(given) > 1 else 'it'} with --topography only.")
+            raise InvalidInputError(
+                f"{' and '.join(given)}: how a topography file is read; give "
+                f"{'them' if len(given) > 1 else 'it'} with --topography only."
+            )
         return
     if args.size is not None:
-        raise InvalidInputError("--size sets the size of a built-in SURFACE; a topography has its own "
-                                "(brdfscale topography FILE prints it): leave --size out with --topography.")
+        raise InvalidInputError(
+            "--size sets the size of a built-in SURFACE; a topography has its own "
+            "(brdfscale topography FILE prints it): leave --size out with --topography."
+        )
     if args.seed is not None and args.noise is None:
-        raise InvalidInputError("--seed: a topography is not random, so with --topography the seed only seeds the "
-                                "noise; give --noise too, or leave --seed out.")
+        raise InvalidInputError(
+            "--seed: a topography is not random, so with --topography the seed only seeds the "
+            "noise; give --noise too, or leave --seed out."
+        )
 
 
 def run(args) -> int:
@@ -126,11 +188,18 @@ def run(args) -> int:
         chosen = args.scales if args.scales is not None else scales("4,16,64")
         pixels = chosen.pixels()
         if pixels is not None and max(pixels) > size:
-            raise InvalidInputError(f"--scales {max(pixels):g} exceeds the field's --size {size}: a facet cannot "
-                                    "be larger than the surface.")
+            raise InvalidInputError(
+                f"--scales {max(pixels):g} exceeds the field's --size {size}: a facet cannot "
+                "be larger than the surface."
+            )
         field = synth.named_surface(args.surface, size=size, seed=np.random.default_rng(surface_seed), micro=micro)
-        field = synth.HeightField(field.heights, field.spacing, micro=field.micro, spectrum=field.spectrum,
-                                  description={**field.description, "seed": seed_value})
+        field = synth.HeightField(
+            field.heights,
+            field.spacing,
+            micro=field.micro,
+            spectrum=field.spectrum,
+            description={**field.description, "seed": seed_value},
+        )
         source, command = f"{args.surface}, {size}² field", f"brdfscale synth {args.surface}"
     else:
         chosen = args.scales if args.scales is not None else scales("auto:8")
@@ -142,8 +211,14 @@ def run(args) -> int:
     extent = args.extent if args.extent is not None else 1.05 * synth.steepest_slope(field)
     incident = np.array(args.incident) if args.incident else np.array([[0.0, 0.0, 1.0]])
     mset = synth.gonioreflectometer(
-        field, mus, incident, extent=extent, pixels=args.pixels, noise=args.noise,
-        resolution=args.resolution, weighting=args.weighting,
+        field,
+        mus,
+        incident,
+        extent=extent,
+        pixels=args.pixels,
+        noise=args.noise,
+        resolution=args.resolution,
+        weighting=args.weighting,
         seed=np.random.default_rng(noise_seed) if args.noise is not None else None,
     )
     mset.metadata["seed"] = seed_value

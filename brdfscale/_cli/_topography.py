@@ -17,6 +17,7 @@ from .._json import json_text, jsonable
 from .._show import display_unit
 from ._options import integer, make_directory, output_directory, scales
 
+
 #: What the command writes into --out, in the order it writes them (the JSON last: it is
 #: written when everything else is in place).
 OUTPUTS = ("statistics.png", "statistics.md", "statistics.json")
@@ -31,12 +32,21 @@ def channel(text: str):
 
 def add_reading_options(parser) -> None:
     """``--channel`` and ``--detrend``: how a topography file is read (``topography``, ``synth``)."""
-    parser.add_argument("--channel", type=channel, default=None, metavar="C",
-                        help="data channel of the file, by index or name (default: the file's height channel; a wrong "
-                        "one is refused with the file's channels listed)")
-    parser.add_argument("--detrend", choices=DETRENDS, default=None,
-                        help="trend removed from the heights by least squares over the measured pixels before the "
-                        "statistics: plane (default: tilt), curvature (a quadratic) or none; recorded in the provenance")
+    parser.add_argument(
+        "--channel",
+        type=channel,
+        default=None,
+        metavar="C",
+        help="data channel of the file, by index or name (default: the file's height channel; a wrong "
+        "one is refused with the file's channels listed)",
+    )
+    parser.add_argument(
+        "--detrend",
+        choices=DETRENDS,
+        default=None,
+        help="trend removed from the heights by least squares over the measured pixels before the "
+        "statistics: plane (default: tilt), curvature (a quadratic) or none; recorded in the provenance",
+    )
 
 
 def _detrend(args) -> str:
@@ -69,14 +79,27 @@ def register(subparsers) -> None:
     )
     parser.add_argument("file", metavar="FILE", help="instrument height map (e.g. .di, .mi, .opd, .plu, .frt)")
     add_reading_options(parser)
-    parser.add_argument("--scales", type=scales, default=scales("auto:8"), metavar="SCALES",
-                        help="facet sizes μ, comma-separated: lengths with a unit (0.5um, 1e-6m, 0.1mm; units m, mm, "
-                        "um or µm, nm, Å, …) or pixel counts (1px,4px,16px), each a whole number of pixels; or "
-                        "auto[:COUNT]: COUNT log-spaced whole pixel counts up to half the field (default auto:8)")
-    parser.add_argument("--bins", type=integer(2, 4097), default=129,
-                        help="nodes per axis of the tabulated lobes g_μ, 2–4097 (default 129)")
-    parser.add_argument("--out", required=True, help="output directory (created; statistics.json, .md, .png); one "
-                        "run at a time: a second run into it is refused (exit 3)")
+    parser.add_argument(
+        "--scales",
+        type=scales,
+        default=scales("auto:8"),
+        metavar="SCALES",
+        help="facet sizes μ, comma-separated: lengths with a unit (0.5um, 1e-6m, 0.1mm; units m, mm, "
+        "um or µm, nm, Å, …) or pixel counts (1px,4px,16px), each a whole number of pixels; or "
+        "auto[:COUNT]: COUNT log-spaced whole pixel counts up to half the field (default auto:8)",
+    )
+    parser.add_argument(
+        "--bins",
+        type=integer(2, 4097),
+        default=129,
+        help="nodes per axis of the tabulated lobes g_μ, 2–4097 (default 129)",
+    )
+    parser.add_argument(
+        "--out",
+        required=True,
+        help="output directory (created; statistics.json, .md, .png); one "
+        "run at a time: a second run into it is refused (exit 3)",
+    )
     parser.add_argument("--force", action="store_true", help="overwrite the statistics files in --out")
     parser.set_defaults(func=run)
 
@@ -84,8 +107,10 @@ def register(subparsers) -> None:
 def _refuse_existing(out: str, force: bool) -> None:
     existing = [name for name in OUTPUTS if os.path.lexists(os.path.join(out, name))]
     if existing and not force:
-        raise InvalidInputError(f"--out {out} already holds {', '.join(existing)}; choose another --out directory or "
-                                "pass --force to replace them.")
+        raise InvalidInputError(
+            f"--out {out} already holds {', '.join(existing)}; choose another --out directory or "
+            "pass --force to replace them."
+        )
 
 
 def run(args) -> int:
@@ -105,8 +130,9 @@ def run(args) -> int:
         png, md, js = (os.path.join(args.out, name) for name in OUTPUTS)
         files.atomic_write(png, lambda tmp: fig.savefig(tmp, dpi=120, format="png"), overwrite=args.force)
         files.atomic_write(md, lambda tmp: _write_text(tmp, markdown(doc)), overwrite=args.force)
-        files.atomic_write(js, lambda tmp: _write_text(tmp, json_text(doc, indent=2, ensure_ascii=False) + "\n"),
-                           overwrite=args.force)
+        files.atomic_write(
+            js, lambda tmp: _write_text(tmp, json_text(doc, indent=2, ensure_ascii=False) + "\n"), overwrite=args.force
+        )
     print(summary_line(doc))
     print(table(doc))
     print(f"wrote {js}, {os.path.basename(md)} and {os.path.basename(png)}")
@@ -125,24 +151,43 @@ def document(field, results, bins: int, command: str) -> dict:
     dx, dy = field.spacing
     measured = field.heights.size if field.mask is None else int(field.mask.sum())
     return {
-        "format": "brdfscale topography statistics", "version": 1, "brdfscale": __version__, "command": command,
+        "format": "brdfscale topography statistics",
+        "version": 1,
+        "brdfscale": __version__,
+        "command": command,
         "topography": field.description,
-        "field": {"shape": list(field.shape), "spacing_m": [dx, dy], "unit": field.unit, "periodic": field.periodic,
-                  "measured_pixels": measured, "unmeasured_pixels": field.heights.size - measured,
-                  "steepest_pixel_slope": synth.steepest_slope(field)},
+        "field": {
+            "shape": list(field.shape),
+            "spacing_m": [dx, dy],
+            "unit": field.unit,
+            "periodic": field.periodic,
+            "measured_pixels": measured,
+            "unmeasured_pixels": field.heights.size - measured,
+            "steepest_pixel_slope": synth.steepest_slope(field),
+        },
         "bins": bins,
         "conventions": "slopes are normal slopes m = −∇h (dimensionless); a facet at scale μ is a window of block = "
-                       "(rows, cols) = (μ/Δy, μ/Δx) pixel facets placed without wrap-around; mean and covariance are "
-                       "those of the facet slopes (covariance: the unbiased sample covariance Σ(μ)), covariance_error "
-                       "the standard error of each entry (null where undefined), independent the effective number of "
-                       "independent facets, excluded the windows touching an unmeasured pixel, rms_slope √⟨|m|²⟩ "
-                       "over the facets",
-        "scales": [{
-            "mu_m": r.mu, "mu_px": r.block[1], "block": list(r.block), "count": r.count, "excluded": r.excluded,
-            # lists, None where not finite (e.g. the error of a single facet's Σ)
-            "independent": r.independent, "mean": r.mean.tolist(), "covariance": jsonable(r.covariance),
-            "covariance_error": jsonable(r.covariance_error), "rms_slope": r.rms_slope,
-        } for r in results],
+        "(rows, cols) = (μ/Δy, μ/Δx) pixel facets placed without wrap-around; mean and covariance are "
+        "those of the facet slopes (covariance: the unbiased sample covariance Σ(μ)), covariance_error "
+        "the standard error of each entry (null where undefined), independent the effective number of "
+        "independent facets, excluded the windows touching an unmeasured pixel, rms_slope √⟨|m|²⟩ "
+        "over the facets",
+        "scales": [
+            {
+                "mu_m": r.mu,
+                "mu_px": r.block[1],
+                "block": list(r.block),
+                "count": r.count,
+                "excluded": r.excluded,
+                # lists, None where not finite (e.g. the error of a single facet's Σ)
+                "independent": r.independent,
+                "mean": r.mean.tolist(),
+                "covariance": jsonable(r.covariance),
+                "covariance_error": jsonable(r.covariance_error),
+                "rms_slope": r.rms_slope,
+            }
+            for r in results
+        ],
     }
 
 
@@ -158,12 +203,17 @@ def summary_line(doc: dict) -> str:
     d, f = doc["topography"], doc["field"]
     (ny, nx), (dx, dy) = f["shape"], f["spacing_m"]
     unit, size = display_unit([dx])
-    instrument = (d.get("instrument") or {}).get("name") if isinstance(d.get("instrument"), dict) else d.get("instrument")
+    instrument = (
+        (d.get("instrument") or {}).get("name") if isinstance(d.get("instrument"), dict) else d.get("instrument")
+    )
     ch = d.get("channel") or {}
     trend = d.get("detrend") or "none"
-    return (f"{d.get('file', '?')}: {ny} × {nx} pixels of {dx / size:.4g} × {dy / size:.4g} {unit}"
-            + (f", {instrument}" if instrument else "") + f", channel {ch.get('index')} {ch.get('name')!r}"
-            + f", detrend {trend}, {f['unmeasured_pixels']} unmeasured pixels")
+    return (
+        f"{d.get('file', '?')}: {ny} × {nx} pixels of {dx / size:.4g} × {dy / size:.4g} {unit}"
+        + (f", {instrument}" if instrument else "")
+        + f", channel {ch.get('index')} {ch.get('name')!r}"
+        + f", detrend {trend}, {f['unmeasured_pixels']} unmeasured pixels"
+    )
 
 
 def _rows(doc: dict) -> tuple[str, list[list[str]]]:
@@ -171,9 +221,20 @@ def _rows(doc: dict) -> tuple[str, list[list[str]]]:
     rows = []
     for r in doc["scales"]:
         (sx, sy), (ex, ey) = _sigma(r)
-        rows.append([f"{r['mu_m'] / size:.4g}", str(r["mu_px"]), "×".join(map(str, r["block"])), str(r["count"]),
-                     f"{r['independent']:.1f}", str(r["excluded"]), f"{sx:.4g} ± {ex:.2g}", f"{sy:.4g} ± {ey:.2g}",
-                     f"{r['covariance'][0][1]:.3g}", f"{r['rms_slope']:.4g}"])
+        rows.append(
+            [
+                f"{r['mu_m'] / size:.4g}",
+                str(r["mu_px"]),
+                "×".join(map(str, r["block"])),
+                str(r["count"]),
+                f"{r['independent']:.1f}",
+                str(r["excluded"]),
+                f"{sx:.4g} ± {ex:.2g}",
+                f"{sy:.4g} ± {ey:.2g}",
+                f"{r['covariance'][0][1]:.3g}",
+                f"{r['rms_slope']:.4g}",
+            ]
+        )
     return unit, rows
 
 
@@ -191,30 +252,64 @@ def markdown(doc: dict) -> str:
     d, f = doc["topography"], doc["field"]
     unit, rows = _rows(doc)
     trend = d.get("trend") or {}
-    lines = [f"# Facet-slope statistics of {d.get('file', 'a topography')}", "",
-             f"Written by `{doc['command']}` (brdfscale {doc['brdfscale']}).", ""]
-    for key, label in (("path", "file"), ("format", "format"), ("reader", "reader"), ("instrument", "instrument"),
-                       ("channel", "channel"), ("file_unit", "unit of the file"), ("acquisition_time", "acquired")):
+    lines = [
+        f"# Facet-slope statistics of {d.get('file', 'a topography')}",
+        "",
+        f"Written by `{doc['command']}` (brdfscale {doc['brdfscale']}).",
+        "",
+    ]
+    for key, label in (
+        ("path", "file"),
+        ("format", "format"),
+        ("reader", "reader"),
+        ("instrument", "instrument"),
+        ("channel", "channel"),
+        ("file_unit", "unit of the file"),
+        ("acquisition_time", "acquired"),
+    ):
         if d.get(key) not in (None, "", {}):
             value = d[key]
             if isinstance(value, dict):
                 value = ", ".join(f"{k}: {v}" for k, v in value.items())
             lines.append(f"* {label}: {value}")
-    lines += [(f"* field: {f['shape'][0]} × {f['shape'][1]} pixels (rows y × columns x), pitch Δx = "
-               f"{f['spacing_m'][0]:.6g} m, Δy = {f['spacing_m'][1]:.6g} m; {f['unmeasured_pixels']} unmeasured "
-               f"pixels; steepest pixel slope component {f['steepest_pixel_slope']:.4g}"),
-              f"* detrend: {trend.get('mode') or 'none'}"
-              + (f" (terms {', '.join(trend['terms'])}; coefficients {', '.join(f'{c:.6g}' for c in trend['coefficients'])}, "
-                 "in metres)" if trend.get("coefficients") else ""),
-              f"* lobes g_μ tabulated on {doc['bins']} × {doc['bins']} nodes", ""]
-    head = [f"μ ({unit})", "μ (px)", "block (rows×cols)", "facets", "independent", "excluded",
-            "σ_x ± error", "σ_y ± error", "Σ_xy", "rms slope"]
+    lines += [
+        (
+            f"* field: {f['shape'][0]} × {f['shape'][1]} pixels (rows y × columns x), pitch Δx = "
+            f"{f['spacing_m'][0]:.6g} m, Δy = {f['spacing_m'][1]:.6g} m; {f['unmeasured_pixels']} unmeasured "
+            f"pixels; steepest pixel slope component {f['steepest_pixel_slope']:.4g}"
+        ),
+        f"* detrend: {trend.get('mode') or 'none'}"
+        + (
+            f" (terms {', '.join(trend['terms'])}; coefficients {', '.join(f'{c:.6g}' for c in trend['coefficients'])}, "
+            "in metres)"
+            if trend.get("coefficients")
+            else ""
+        ),
+        f"* lobes g_μ tabulated on {doc['bins']} × {doc['bins']} nodes",
+        "",
+    ]
+    head = [
+        f"μ ({unit})",
+        "μ (px)",
+        "block (rows×cols)",
+        "facets",
+        "independent",
+        "excluded",
+        "σ_x ± error",
+        "σ_y ± error",
+        "Σ_xy",
+        "rms slope",
+    ]
     lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     lines += ["| " + " | ".join(r) + " |" for r in rows]
-    lines += ["", ("σ_a = √Σ_aa (Σ(μ): the unbiased sample covariance of the facets' normal slopes m = −∇h); the "
-                   "error is the standard error of Σ_aa carried to σ_a (δσ = δΣ/2σ), with the facets' correlation "
-                   "over the facet lattice (the effective number of independent facets). Excluded: windows touching "
-                   "an unmeasured pixel. The full covariances and their errors are in statistics.json."), ""]
+    lines += [
+        "",
+        (
+            "σ_a = √Σ_aa (Σ(μ): the unbiased sample covariance of the facets' normal slopes m = −∇h); the "
+            "error is the standard error of Σ_aa carried to σ_a (δσ = δΣ/2σ), with the facets' correlation "
+            "over the facet lattice (the effective number of independent facets). Excluded: windows touching "
+            "an unmeasured pixel. The full covariances and their errors are in statistics.json."
+        ),
+        "",
+    ]
     return "\n".join(lines)
-
-

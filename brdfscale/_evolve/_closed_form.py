@@ -28,7 +28,8 @@ class ClosedForm(AbstractMethod):
             raise MethodNotApplicableError(
                 f"no closed form for a {type(lobe.shape).__name__} lobe with {type(s_from).__name__} → "
                 f"{type(s_to).__name__} statistics; closed forms exist for Gaussian/Beckmann lobes and "
-                "statistics (and mixtures of them), δ (Mirror) lobes, and δ statistics. Use method='grid'.")
+                "statistics (and mixtures of them), δ (Mirror) lobes, and δ statistics. Use method='grid'."
+            )
         return self
 
     def resolve(self, lobe, s_from, s_to, *, tol, regularisation, rule, noise, check) -> AbstractMethod:

@@ -19,9 +19,10 @@ from ..stats import AbstractSlopeDensity, require_density
 from ._auto import Auto
 from ._closed_form import ClosedForm
 from ._grid import Grid
-from ._method import MIN_TOL, AbstractMethod
+from ._method import AbstractMethod, MIN_TOL
 from ._radial import Radial
 from ._regularise import check_noise, rule_name
+
 
 MethodName = Literal["auto", "closed_form", "radial", "grid"]
 RegularisationName = Literal["auto", "gcv", "discrepancy", "l_curve"]
@@ -36,12 +37,17 @@ def check_arguments(lobe, s_from, s_to, tol, regularisation, noise=None):
     if not isinstance(lobe, AbstractLobe):
         raise InvalidInputError(f"lobe must be a brdfscale.lobes lobe; got {type(lobe).__name__}.")
     for name, s in (("s_from", s_from), ("s_to", s_to)):
-        require_density(s, name, use="Use it through brdfscale.plus.NearlySpecular(a, [c_0, …], x0, ...) "
-                        "(a δ + Σ c_n h_n + w s_smooth, mass 1).")
+        require_density(
+            s,
+            name,
+            use="Use it through brdfscale.plus.NearlySpecular(a, [c_0, …], x0, ...) "
+            "(a δ + Σ c_n h_n + w s_smooth, mass 1).",
+        )
     if isinstance(tol, bool) or not isinstance(tol, numbers.Real) or not MIN_TOL <= tol < 1:
         raise InvalidInputError(
             f"tol must be a number in [{MIN_TOL:g}, 1) (an error relative to the lobe's peak; below "
-            f"{MIN_TOL:g} float64 rounding in the evaluation exceeds it); got {tol!r}.")
+            f"{MIN_TOL:g} float64 rounding in the evaluation exceeds it); got {tol!r}."
+        )
     rule = rule_name(regularisation)
     noise = check_noise(rule, noise)
     if rule is not None or regularisation is None:
@@ -59,13 +65,16 @@ def as_method(method, size=None, extent=None) -> AbstractMethod:
     explicit discretisation, applied to whichever spectral path is taken)."""
     if isinstance(method, AbstractMethod):
         if size is not None or extent is not None:
-            raise InvalidInputError("size= and extent= go with a method name; with a method object put them in it: "
-                                    "Radial(nodes=...) or Grid(size=..., extent=...).")
+            raise InvalidInputError(
+                "size= and extent= go with a method name; with a method object put them in it: "
+                "Radial(nodes=...) or Grid(size=..., extent=...)."
+            )
         return method
     if not isinstance(method, str) or method not in _NAMES:
         raise InvalidInputError(
             f"method must be 'auto', 'closed_form', 'radial' or 'grid', or a method object (brdfscale.Auto(), "
-            f"ClosedForm(), Radial(...), Grid(...)); got {method!r}.")
+            f"ClosedForm(), Radial(...), Grid(...)); got {method!r}."
+        )
     return _NAMES[method]()
 
 

@@ -51,6 +51,7 @@ from ._spectral import (
     probe_checks,
 )
 
+
 MAX_GRID = 1024
 """The largest grid side chosen automatically."""
 MAX_FINE_SIDE = 4096
@@ -116,23 +117,33 @@ class Grid(AbstractSpectralMethod):
     def explain(self) -> str:
         if self.size is None:
             return "grid (2D FFT) path, not yet resolved"
-        a = "a from the support radius at run time" if self.extent is None else f"half-width a = {number(self.extent):.4g}"
+        a = (
+            "a from the support radius at run time"
+            if self.extent is None
+            else f"half-width a = {number(self.extent):.4g}"
+        )
         if self.oversample is None:
             layout = "inverse DFT summed at the queries"
         else:
             verified = "not verified" if self.error is None else f"verified error {number(self.error):.2g} of the peak"
-            layout = (f"zero-padded inverse FFT onto {self.size * self.oversample}² slope nodes, 6×6-point Lagrange "
-                      f"({verified}), direct at the queries when they are few")
-        return (f"grid (2D FFT) path: {self.size}×{self.size} frequencies, {a}; {layout}"
-                f"{tol_note(self.tol, self.dtype)}{lambda_note(self)}")
+            layout = (
+                f"zero-padded inverse FFT onto {self.size * self.oversample}² slope nodes, 6×6-point Lagrange "
+                f"({verified}), direct at the queries when they are few"
+            )
+        return (
+            f"grid (2D FFT) path: {self.size}×{self.size} frequencies, {a}; {layout}"
+            f"{tol_note(self.tol, self.dtype)}{lambda_note(self)}"
+        )
 
     def sized(self, size, extent):
         if extent is not None:
             try:
                 extent = float(extent)
             except TypeError:
-                raise InvalidInputError("extent must be a concrete positive number (a discretisation choice), "
-                                        f"not a traced value; got {type(extent).__name__}.") from None
+                raise InvalidInputError(
+                    "extent must be a concrete positive number (a discretisation choice), "
+                    f"not a traced value; got {type(extent).__name__}."
+                ) from None
             if not (np.isfinite(extent) and extent > 0):
                 raise InvalidInputError(f"extent must be a positive slope half-width; got {extent}.")
         return Grid(size=None if size is None else int(size), extent=extent)
@@ -247,13 +258,18 @@ class Grid(AbstractSpectralMethod):
             try:
                 needed, _ = grid_size(density, max(MAX_GRID, size), k, mag)
             except InvalidInputError as err:  # no automatic size resolves it: the caller's own size stands
-                warnings.warn(f"{err} Evaluating with size={size} as given: expect errors well above tol.", stacklevel=caller_stacklevel())
+                warnings.warn(
+                    f"{err} Evaluating with size={size} as given: expect errors well above tol.",
+                    stacklevel=caller_stacklevel(),
+                )
                 sign_check = False
             else:
                 if size < needed:
                     warnings.warn(
                         f"size={size} is below the {needed} nodes per side that tol={density.tol:g} needs on this "
-                        f"grid; expect errors well above tol (leave size=None to choose it).", stacklevel=caller_stacklevel())
+                        f"grid; expect errors well above tol (leave size=None to choose it).",
+                        stacklevel=caller_stacklevel(),
+                    )
                     sign_check = False
         support = float(concrete_support(density, honoured / 2))
         if self.extent is None:
@@ -264,18 +280,29 @@ class Grid(AbstractSpectralMethod):
                 warnings.warn(
                     f"extent={extent:g} is inside the radius {support:.3g} beyond which the lobe is below tol/2 of its "
                     "peak: offsets outside the grid evaluate to 0 and the lobe's tail aliases into it; expect errors "
-                    "above tol (leave extent=None to choose it).", stacklevel=caller_stacklevel())
+                    "above tol (leave extent=None to choose it).",
+                    stacklevel=caller_stacklevel(),
+                )
                 sign_check = False
-        d = density.with_discretisation(Grid(size=size, extent=extent, budget=self.budget, sign_check=sign_check),
-                                        honoured)
+        d = density.with_discretisation(
+            Grid(size=size, extent=extent, budget=self.budget, sign_check=sign_check), honoured
+        )
         oversample, error = self.oversample, None
         if oversample is None:
             oversample, error = _oversampling(d, size, honoured / 2)
         values = d.on_grid(1)[1]  # the existence check on the grid (raises NoBRDFAtScaleError)
         del values
         dtype = jnp.dtype(jnp.result_type(*jax.tree_util.tree_leaves(density.base), float)).name
-        return Grid(size=size, extent=extent, oversample=oversample, tol=honoured, error=error, budget=self.budget,
-                    sign_check=sign_check, dtype=dtype)
+        return Grid(
+            size=size,
+            extent=extent,
+            oversample=oversample,
+            tol=honoured,
+            error=error,
+            budget=self.budget,
+            sign_check=sign_check,
+            dtype=dtype,
+        )
 
 
 def _oversampling(density, size, half):
@@ -307,19 +334,21 @@ def _inverse_fft(G, h, n: int, p: int):
     ``e^{+iW·a} = (−1)^{kx+ky}`` for a = N h/2; the 1/h² of the inverse DFT (for the fine
     spacing) is applied on the half-size frequency side."""
     if p == 1:
-        sign = jnp.asarray(1.0 - 2.0 * ((np.arange(n)[:, None] + np.arange(n // 2 + 1)[None, :]) % 2), dtype=G.real.dtype)
+        sign = jnp.asarray(
+            1.0 - 2.0 * ((np.arange(n)[:, None] + np.arange(n // 2 + 1)[None, :]) % 2), dtype=G.real.dtype
+        )
         return jnp.fft.irfft2(G * (sign / h**2), s=(n, n))
     big = n * p
     half = n // 2
     fine = jnp.zeros((big, big // 2 + 1), G.dtype)
     fine = fine.at[:half, :half].set(G[:half, :half])
-    fine = fine.at[big - half + 1:, :half].set(G[half + 1:, :half])
+    fine = fine.at[big - half + 1 :, :half].set(G[half + 1 :, :half])
     rows = np.concatenate([np.arange(half), np.arange(big - half + 1, big)])
     # in G's precision: a float64 factor scattered into a complex64 spectrum is an unsafe cast
     sign = jnp.asarray(1.0 - 2.0 * ((rows[:, None] + np.arange(half)[None, :]) % 2), dtype=G.real.dtype)
     hp = h / p
     fine = fine.at[:half, :half].multiply(sign[:half] / hp**2)
-    fine = fine.at[big - half + 1:, :half].multiply(sign[half:] / hp**2)
+    fine = fine.at[big - half + 1 :, :half].multiply(sign[half:] / hp**2)
     return jnp.fft.irfft2(fine, s=(big, big))
 
 

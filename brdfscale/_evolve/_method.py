@@ -45,6 +45,7 @@ from .._show import Shown
 from .._validation import integer, is_concrete, real
 from ..lobes import AbstractLobe
 
+
 MIN_TOL = 1e-14
 """The smallest ``tol`` accepted: float64 rounding in the evaluation exceeds anything below."""
 
@@ -136,8 +137,10 @@ def tol_note(tol: float | None, dtype: str | None) -> str:
     if dtype is not None:
         floor = achievable_tol(dtype)
         if tol < floor:
-            return (f"; honours about {floor:.2g} of the peak in {dtype} (tol = {tol:.3g} was asked: "
-                    f"below what {dtype} rounding can give)")
+            return (
+                f"; honours about {floor:.2g} of the peak in {dtype} (tol = {tol:.3g} was asked: "
+                f"below what {dtype} rounding can give)"
+            )
     return f"; honours tol = {tol:.3g} of the peak"
 
 

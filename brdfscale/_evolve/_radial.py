@@ -33,12 +33,12 @@ from jaxtyping import Array, Float
 
 from .._blocks import DEFAULT_BUDGET, in_blocks
 from .._errors import MethodNotApplicableError, NoBRDFAtScaleError
-from .._existence import NEGATIVE_LOBE, negative_beyond, transform_exceeds_one
+from .._existence import negative_beyond, NEGATIVE_LOBE, transform_exceeds_one
 from .._interpolate import interpolate, lagrange_stencil
 from .._quadrature import gauss_legendre
 from .._show import Shown
 from .._slopes import safe_norm
-from .._special import J_TEMPORARIES, j0
+from .._special import j0, J_TEMPORARIES
 from .._validation import is_concrete
 from ..stats import Delta
 from ._method import (
@@ -63,6 +63,7 @@ from ._spectral import (
     radial_reach,
 )
 
+
 MAX_RADIAL_NODES = 8192
 """The most Gauss–Legendre nodes chosen automatically (an explicit ``nodes`` may exceed it;
 SciPy builds the rule in O(n²): 1.9 s at 8192, 7.5 s at 16384, once per size)."""
@@ -86,7 +87,9 @@ class RadialTable(Shown, eqx.Module):
     kernel: Float[Array, "nodes radii"]
     scale: Float[Array, ""] = eqx.field(converter=jnp.asarray)  # c
     step: Float[Array, ""] = eqx.field(converter=jnp.asarray)  # h
-    radius: Float[Array, ""] = eqx.field(converter=jnp.asarray)  # the last radius served; beyond it g < tol/2 of its peak
+    radius: Float[Array, ""] = eqx.field(
+        converter=jnp.asarray
+    )  # the last radius served; beyond it g < tol/2 of its peak
     error: Float[Array, ""] = eqx.field(converter=jnp.asarray)  # verified interpolation error, relative to the peak
     points: int = eqx.field(static=True, default=8)
 
@@ -147,11 +150,15 @@ class Radial(AbstractSpectralMethod):
             layout = "evaluated at the query radii"
         else:
             t = self.table
-            layout = (f"table of {t.count} radii to r = {number(t.radius):.3g} (uniform in asinh(r/{number(t.scale):.3g}), "
-                      f"{t.points}-point Lagrange; verified error {number(t.error):.2g} of the peak), direct at the queries "
-                      "when they are few")
-        return (f"radial (Hankel) path: {self.nodes} Gauss–Legendre nodes, {cut}; {layout}"
-                f"{tol_note(self.tol, self.dtype)}{lambda_note(self)}")
+            layout = (
+                f"table of {t.count} radii to r = {number(t.radius):.3g} (uniform in asinh(r/{number(t.scale):.3g}), "
+                f"{t.points}-point Lagrange; verified error {number(t.error):.2g} of the peak), direct at the queries "
+                "when they are few"
+            )
+        return (
+            f"radial (Hankel) path: {self.nodes} Gauss–Legendre nodes, {cut}; {layout}"
+            f"{tol_note(self.tol, self.dtype)}{lambda_note(self)}"
+        )
 
     # -- which inputs -----------------------------------------------------------------------------
     def applicable(self, lobe, s_from, s_to) -> bool:
@@ -161,7 +168,8 @@ class Radial(AbstractSpectralMethod):
         if not self.applicable(lobe, s_from, s_to):
             raise MethodNotApplicableError(
                 "method='radial' needs a radially symmetric lobe and statistics (isotropic, centred); "
-                "use method='grid' for anisotropic, shifted, skewed or tabulated inputs.")
+                "use method='grid' for anisotropic, shifted, skewed or tabulated inputs."
+            )
         return self
 
     def sized(self, size, extent):
@@ -244,7 +252,8 @@ class Radial(AbstractSpectralMethod):
                 warnings.warn(
                     f"queries at offsets up to {r_max:.3g} need {n} Gauss–Legendre nodes for tol={density.tol:g}; "
                     f"this lobe has {self.nodes} (evolve(..., size=...) raises it): errors there may exceed tol.",
-                    stacklevel=caller_stacklevel())
+                    stacklevel=caller_stacklevel(),
+                )
 
     # -- resolution (module docstring) ------------------------------------------------------------
     def discretise(self, density) -> "Radial":
@@ -261,8 +270,9 @@ class Radial(AbstractSpectralMethod):
             _sign_check(density, needed, K, R)  # the existence check with the nodes it needs
         table = _table(density, nodes, K, R, half)
         dtype = jnp.dtype(jnp.result_type(*jax.tree_util.tree_leaves(density.base), float)).name
-        return Radial(nodes=nodes, cutoff=K, table=table, tol=density.tol, budget=self.budget, sign_check=sign_check,
-                      dtype=dtype)
+        return Radial(
+            nodes=nodes, cutoff=K, table=table, tol=density.tol, budget=self.budget, sign_check=sign_check, dtype=dtype
+        )
 
 
 def _sign_check(density, nodes, K, R, radii=128):
@@ -286,7 +296,7 @@ def _sign_check(density, nodes, K, R, radii=128):
 def _j0_rows(c, k, r, chunk=1 << 22):
     """``Σ_i c_i J₀(k_i r_j)`` for every r_j, in chunks of radii (NumPy, SciPy's J₀)."""
     per = max(1, chunk // len(k))
-    return np.concatenate([c @ scipy.special.j0(np.outer(k, r[i:i + per])) for i in range(0, len(r), per)])
+    return np.concatenate([c @ scipy.special.j0(np.outer(k, r[i : i + per])) for i in range(0, len(r), per)])
 
 
 def _table(density, nodes, K, R, half) -> RadialTable | None:

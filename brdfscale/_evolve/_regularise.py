@@ -43,6 +43,7 @@ from .._errors import InvalidInputError, UnresolvedMethodError
 from .._validation import is_concrete
 from ..stats import Delta, Tabulated
 
+
 RULES = ("gcv", "discrepancy", "l_curve")
 DEFAULT_RULE = "gcv"
 """The rule of ``regularisation="auto"``: in every run of the stability study (45 noisy
@@ -54,8 +55,11 @@ NAMES = ("auto",) + RULES
 CANDIDATES = np.logspace(-10.0, 1.0, 221)
 """λ candidates (20 per decade) over which each rule is evaluated."""
 
-_DESCRIPTION = {"gcv": "generalised cross-validation", "discrepancy": "discrepancy principle",
-                "l_curve": "L-curve corner"}
+_DESCRIPTION = {
+    "gcv": "generalised cross-validation",
+    "discrepancy": "discrepancy principle",
+    "l_curve": "L-curve corner",
+}
 
 
 def rule_name(value) -> str | None:
@@ -66,7 +70,8 @@ def rule_name(value) -> str | None:
     if value not in NAMES:
         raise InvalidInputError(
             f"regularisation must be a number λ ≥ 0 or one of {', '.join(repr(n) for n in NAMES)} (a rule that "
-            f"chooses λ from a tabulated lobe; 'auto' is {DEFAULT_RULE!r}); got {value!r}.")
+            f"chooses λ from a tabulated lobe; 'auto' is {DEFAULT_RULE!r}); got {value!r}."
+        )
     return DEFAULT_RULE if value == "auto" else value
 
 
@@ -77,19 +82,22 @@ def check_noise(rule: str | None, noise):
             raise InvalidInputError(
                 "regularisation='discrepancy' needs the noise level of the lobe's table: pass noise=σ (the standard "
                 "deviation of each node value, in the units of the values; one number or an array of the table's "
-                "shape), or use regularisation='gcv' (or 'auto'), which needs none.")
+                "shape), or use regularisation='gcv' (or 'auto'), which needs none."
+            )
         return None
     if rule != "discrepancy":
         raise InvalidInputError(
             f"noise= is used by regularisation='discrepancy' only; got it with regularisation={rule!r}"
-            " (GCV and the L-curve estimate the noise from the data).")
+            " (GCV and the L-curve estimate the noise from the data)."
+        )
     if isinstance(noise, (str, bytes)):
         raise InvalidInputError(f"noise must be a standard deviation σ ≥ 0 (or an array of them); got {noise!r}.")
     try:
         sigma = jnp.asarray(noise, dtype=jnp.result_type(float))
     except (TypeError, ValueError):
-        raise InvalidInputError(f"noise must be a standard deviation σ ≥ 0 (or an array of them); got "
-                                f"{type(noise).__name__}.") from None
+        raise InvalidInputError(
+            f"noise must be a standard deviation σ ≥ 0 (or an array of them); got {type(noise).__name__}."
+        ) from None
     if is_concrete(sigma):
         s = np.asarray(sigma)
         if not (np.all(np.isfinite(s)) and np.all(s >= 0)) or not np.any(s > 0):
@@ -117,7 +125,8 @@ def unresolved_regularisation(rule: str) -> UnresolvedMethodError:
         f"regularisation={rule!r} chooses λ from the tabulated lobe's values, which are traced here (inside jax.jit, "
         "grad or vmap) and so unknown. Choose it outside the transformation from concrete values, `method = "
         f"brdfscale.select(lobe, s_from, s_to, regularisation={rule!r})` (the resolved method carries λ; "
-        "method.explain() reports it), and pass `method=method` inside, or pass λ as a number.")
+        "method.explain() reports it), and pass `method=method` inside, or pass λ as a number."
+    )
 
 
 def choose(lobe, s_from, s_to, rule: str, noise=None) -> tuple[float, str]:
@@ -145,8 +154,9 @@ def choose(lobe, s_from, s_to, rule: str, noise=None) -> tuple[float, str]:
     elif rule == "discrepancy":
         sigma = np.asarray(noise, dtype=float)
         if sigma.ndim and sigma.shape != v.shape:
-            raise InvalidInputError(f"noise must be one σ or an array of the table's shape {v.shape}; got shape "
-                                    f"{sigma.shape}.")
+            raise InvalidInputError(
+                f"noise must be one σ or an array of the table's shape {v.shape}; got shape {sigma.shape}."
+            )
         sigma = np.broadcast_to(sigma, v.shape)
         target = v.size * (hx * hy) ** 2 * float(np.sum(sigma**2))
         lam = _discrepancy(V2, s2, target)

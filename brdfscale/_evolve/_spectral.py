@@ -44,9 +44,9 @@ from jaxtyping import Array, Float
 
 from .._errors import InvalidInputError, NoBRDFAtScaleError, UnresolvedMethodError
 from .._existence import (
+    attach,
     NEGATIVE_LOBE,
     TRANSFORM_ABOVE_ONE,
-    attach,
     transform_exceeds_one,
     translated,
 )
@@ -56,6 +56,7 @@ from ..lobes import AbstractLobe, Lobe
 from ..stats import AbstractSlopeDensity, Delta, Gaussian
 from ._method import AbstractMethod
 from ._regularise import choose, needs_data, unresolved_regularisation
+
 
 _PROBE_DIRECTIONS = 8
 _PROBE_POINTS = 206  # 9 decades, ~23 per decade
@@ -149,7 +150,8 @@ class AbstractSpectralMethod(AbstractMethod):
             "jax.jit, grad or vmap) and so unknown; brdfscale does not fall back to a default size. Resolve it "
             "outside the transformation from concrete values, `method = brdfscale.select(lobe, s_from, s_to, "
             "tol=...)`, and pass `method=method` inside (re-select when the parameters move far), or fix the "
-            f"size yourself with {type(self).__name__}({self.size_argument}=...).")
+            f"size yourself with {type(self).__name__}({self.size_argument}=...)."
+        )
 
     def _discretised(self, density: "EvolvedDensity", given=None) -> "AbstractSpectralMethod":
         """:meth:`discretise`, carrying the λ this method carries — or ``given``, a nonzero λ
@@ -226,8 +228,7 @@ class EvolvedDensity(AbstractSlopeDensity):
 
     def _show_items(self):
         d = self._path
-        items = [("base", self.base), ("s_from", self.s_from), ("s_to", self.s_to), ("path", d.path),
-                 *d.show_sizes()]
+        items = [("base", self.base), ("s_from", self.s_from), ("s_to", self.s_to), ("path", d.path), *d.show_sizes()]
         return items + [("tol", self.tol), ("regularisation", self.regularisation)]
 
     def __init__(self, base, s_from, s_to, regularisation, discretisation, tol, check=True):
@@ -238,8 +239,12 @@ class EvolvedDensity(AbstractSlopeDensity):
         self.isotropic = base.isotropic and s_from.isotropic and s_to.isotropic
         self.check = bool(check)
         lam = self.regularisation
-        self.gaussian_ratio = (isinstance(s_from, Gaussian) and isinstance(s_to, Gaussian) and is_concrete(lam)
-                               and bool(np.all(np.asarray(lam) == 0)))
+        self.gaussian_ratio = (
+            isinstance(s_from, Gaussian)
+            and isinstance(s_to, Gaussian)
+            and is_concrete(lam)
+            and bool(np.all(np.asarray(lam) == 0))
+        )
 
     @property
     def method(self) -> str:
@@ -257,8 +262,15 @@ class EvolvedDensity(AbstractSlopeDensity):
         return self._path.half_width
 
     def with_discretisation(self, discretisation, tol=None) -> "EvolvedDensity":
-        return EvolvedDensity(self.base, self.s_from, self.s_to, self.regularisation, discretisation,
-                              self.tol if tol is None else tol, self.check)
+        return EvolvedDensity(
+            self.base,
+            self.s_from,
+            self.s_to,
+            self.regularisation,
+            discretisation,
+            self.tol if tol is None else tol,
+            self.check,
+        )
 
     # -- the exact transform -------------------------------------------------------------
     def _divide(self, numerator, denominator):
@@ -322,8 +334,15 @@ class EvolvedDensity(AbstractSlopeDensity):
         return jnp.real(self._divide(self.base.cf_radial(k) * self.s_from.cf_radial(k), self.s_to.cf_radial(k)))
 
     def shifted(self, offset):
-        return EvolvedDensity(self.base.shifted(offset), self.s_from, self.s_to, self.regularisation,
-                              self.discretisation, self.tol, self.check)
+        return EvolvedDensity(
+            self.base.shifted(offset),
+            self.s_from,
+            self.s_to,
+            self.regularisation,
+            self.discretisation,
+            self.tol,
+            self.check,
+        )
 
     def support_radius(self, tol):
         return self.base.support_radius(tol) + self.s_from.support_radius(tol)
@@ -487,7 +506,8 @@ def probe_checks(density: EvolvedDensity, k, mag) -> None:
             f"tol={density.tol:g}: the evolved lobe's transform does not fall below tol/2 within nine decades "
             "of frequency above the lobe's width (a transform that decays this slowly, or a tol below the "
             "rounding of its evaluation); choose a larger tol. Towards a finer scale with tabulated or noisy input "
-            "the unregularised quotient grows with frequency instead: pass regularisation='auto' (or a λ > 0).")
+            "the unregularised quotient grows with frequency instead: pass regularisation='auto' (or a λ > 0)."
+        )
 
 
 def grid_size(density: EvolvedDensity, max_size: int, k=None, mag=None, truncation=None) -> tuple[int, float]:
@@ -515,5 +535,6 @@ def grid_size(density: EvolvedDensity, max_size: int, k=None, mag=None, truncati
             raise InvalidInputError(
                 f"the grid path cannot resolve this lobe even to 1e-2: it needs {need:.3g} nodes per side (extent "
                 f"{R:.3g}, bandwidth {K:.3g}), more than {max_size}. Pass a larger size= (memory ∝ size²), use "
-                "method='radial' for radially symmetric inputs, or evolve the narrow and wide parts separately.")
+                "method='radial' for radially symmetric inputs, or evolve the narrow and wide parts separately."
+            )
         tol *= 10

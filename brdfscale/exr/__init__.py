@@ -14,6 +14,7 @@ and docs/synth_exr.md. Every reader validates every attribute and checksum and r
 from ._format import FORMAT_VERSION
 from ._measurements import file_kind, read_measurements, write_measurements
 
+
 _TABLES = ("LobeTable", "read_lobe_table", "write_lobe_table")
 
 
@@ -29,6 +30,7 @@ def __getattr__(name: str):  # the lobe tables need JAX; measurement files do no
 
 def __dir__():
     return sorted(set(globals()) | set(__all__))
+
 
 __all__ = [
     "write_measurements",

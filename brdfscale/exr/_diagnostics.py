@@ -27,6 +27,7 @@ import sys
 import tempfile
 import threading
 
+
 _LOCK = threading.Lock()
 
 
@@ -86,7 +87,7 @@ def summary(text: str, path: str) -> str:
     for line in text.splitlines():
         line = line.strip()
         if line.startswith(path + ": "):
-            line = line[len(path) + 2:]
+            line = line[len(path) + 2 :]
         if line:
             return f" (OpenEXR: {line.rstrip('.')})"
     return ""

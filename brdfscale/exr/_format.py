@@ -52,6 +52,7 @@ import numpy as np
 
 from .._errors import MeasurementFileError, UnprotectedHeaderWarning
 
+
 FORMAT = "brdfscale"
 FORMAT_VERSION = 2
 #: Layout versions this reader accepts (1: no header digest, read with a warning).
@@ -96,7 +97,9 @@ def header_digest(header: dict, channels: dict) -> str:
         elif isinstance(value, np.ndarray) and value.dtype == np.float64:
             item(key, "f8", value.shape, value.astype("<f8").tobytes())
         else:
-            raise MeasurementFileError(f"attribute {key!r} has type {type(value).__name__}, which brdfscale never writes.")
+            raise MeasurementFileError(
+                f"attribute {key!r} has type {type(value).__name__}, which brdfscale never writes."
+            )
     for name in sorted(channels):
         a = channels[name]
         item("channel", name, np.dtype(a.dtype).str, tuple(a.shape))
@@ -228,15 +231,23 @@ class PartReader:
         self.string("format", FORMAT)
         version = self.integer("version")
         if version not in READABLE_VERSIONS:
-            self.fail(f"attribute {PREFIX + 'version'!r}",
-                      f"layout version {version} is not supported (this reader: {', '.join(map(str, READABLE_VERSIONS))}).")
+            self.fail(
+                f"attribute {PREFIX + 'version'!r}",
+                f"layout version {version} is not supported (this reader: {', '.join(map(str, READABLE_VERSIONS))}).",
+            )
         self.version = version
         self.string("kind", kind)
         if self.integer("part_index") != self.index:
-            self.fail(f"attribute {PREFIX + 'part_index'!r}", f"is {self.header[PREFIX + 'part_index']}, expected {self.index} (parts out of order).")
+            self.fail(
+                f"attribute {PREFIX + 'part_index'!r}",
+                f"is {self.header[PREFIX + 'part_index']}, expected {self.index} (parts out of order).",
+            )
         declared = self.integer("part_count")
         if declared != count:
-            self.fail(f"attribute {PREFIX + 'part_count'!r}", f"declares {declared} parts but the file has {count} (truncated or damaged).")
+            self.fail(
+                f"attribute {PREFIX + 'part_count'!r}",
+                f"declares {declared} parts but the file has {count} (truncated or damaged).",
+            )
         self.string("domain", DOMAIN)
 
     def verify_header(self) -> None:
@@ -247,12 +258,18 @@ class PartReader:
         key = PREFIX + DIGEST
         if version == 1:
             if key in self.header:
-                self.fail(f"attribute {PREFIX + 'version'!r}", "is 1, but the part carries a header digest, which "
-                          "layout 1 never had (the file is corrupted).")
+                self.fail(
+                    f"attribute {PREFIX + 'version'!r}",
+                    "is 1, but the part carries a header digest, which layout 1 never had (the file is corrupted).",
+                )
             if self.index == 0:
-                warnings.warn(f"{self.path}: layout version 1: its pixels are checked, but its header attributes (μ, "
-                              "extent, incident direction, metadata) are not protected by a digest; read and write it "
-                              "again to protect them.", UnprotectedHeaderWarning, stacklevel=4)
+                warnings.warn(
+                    f"{self.path}: layout version 1: its pixels are checked, but its header attributes (μ, "
+                    "extent, incident direction, metadata) are not protected by a digest; read and write it "
+                    "again to protect them.",
+                    UnprotectedHeaderWarning,
+                    stacklevel=4,
+                )
         else:
             stored = self.string(DIGEST)
             try:
@@ -260,8 +277,11 @@ class PartReader:
             except MeasurementFileError as err:
                 self.fail("header", str(err))
             if computed != stored:
-                self.fail(f"attribute {key!r}", "does not match the header (an attribute, the channel list or a "
-                          "channel's type was changed after writing: the file is corrupted).")
+                self.fail(
+                    f"attribute {key!r}",
+                    "does not match the header (an attribute, the channel list or a "
+                    "channel's type was changed after writing: the file is corrupted).",
+                )
         listed = set(self.json_object("checksums"))
         present = set(self.channels)
         if listed - present:
@@ -275,7 +295,10 @@ class PartReader:
             self.fail(f"channel {channel!r}", f"missing (channels present: {sorted(self.channels)}).")
         a = np.asarray(self.channels[channel].pixels)
         if a.dtype not in dtypes:
-            self.fail(f"channel {channel!r}", f"has pixel type {a.dtype}; expected {' or '.join(str(np.dtype(d)) for d in dtypes)}.")
+            self.fail(
+                f"channel {channel!r}",
+                f"has pixel type {a.dtype}; expected {' or '.join(str(np.dtype(d)) for d in dtypes)}.",
+            )
         if a.ndim != 2 or a.shape[0] != a.shape[1] or a.shape[0] < 2:
             self.fail(f"channel {channel!r}", f"must be square, at least 2×2; got {a.shape}.")
         sums = self.json_object("checksums")

@@ -44,7 +44,9 @@ def write_parts(path, parts: list, overwrite: bool) -> None:
             with captured() as said:
                 OpenEXR.File(parts).write(tmp)
         except (RuntimeError, TypeError, ValueError) as err:
-            raise MeasurementFileError(f"{path}: OpenEXR could not write the file: {err}{summary(said.text, tmp)}") from err
+            raise MeasurementFileError(
+                f"{path}: OpenEXR could not write the file: {err}{summary(said.text, tmp)}"
+            ) from err
         pass_on(said.text)
 
     try:
@@ -60,7 +62,9 @@ def _check_readable(path: str) -> None:
         st = os.stat(path)
     except FileNotFoundError:
         if os.path.lexists(path):
-            raise MeasurementFileError(f"{path}: is a symbolic link to {os.readlink(path)!r}, which does not exist.") from None
+            raise MeasurementFileError(
+                f"{path}: is a symbolic link to {os.readlink(path)!r}, which does not exist."
+            ) from None
         raise MeasurementFileError(f"{path}: no such file.") from None
     except OSError as err:
         raise MeasurementFileError(f"{path}: cannot be examined: {err.strerror or err}.") from err
@@ -81,11 +85,14 @@ def _open(path: str, header_only: bool) -> tuple[list, str]:
         with captured() as said:
             parts = list(OpenEXR.File(path, separate_channels=True, header_only=header_only).parts)
     except MemoryError:
-        raise MeasurementFileError(f"{path}: not readable: decoding would need more memory than there is "
-                                   "(a damaged header declaring huge images?).") from None
+        raise MeasurementFileError(
+            f"{path}: not readable: decoding would need more memory than there is "
+            "(a damaged header declaring huge images?)."
+        ) from None
     except Exception as err:  # noqa: BLE001 — the bindings raise whatever their C++ and pybind11 layers give
-        raise MeasurementFileError(f"{path}: not a readable OpenEXR file ({type(err).__name__}: {err})"
-                                   f"{summary(said.text, path)}.") from None
+        raise MeasurementFileError(
+            f"{path}: not a readable OpenEXR file ({type(err).__name__}: {err}){summary(said.text, path)}."
+        ) from None
     return parts, said.text
 
 
@@ -114,17 +121,22 @@ def open_parts(path) -> list:
         except (KeyError, TypeError, ValueError):
             raise MeasurementFileError(f"{path}: part {index}: no valid data window or channel list.") from None
         if not (0 < width <= MAX_SIDE and 0 < height <= MAX_SIDE):
-            raise MeasurementFileError(f"{path}: part {index}: data window {width} × {height} pixels; brdfscale reads "
-                                       f"at most {MAX_SIDE} a side (the header is damaged, or not a brdfscale file).")
+            raise MeasurementFileError(
+                f"{path}: part {index}: data window {width} × {height} pixels; brdfscale reads "
+                f"at most {MAX_SIDE} a side (the header is damaged, or not a brdfscale file)."
+            )
         decoded += 4 * width * height * n_channels
     if decoded > budget:
-        raise MeasurementFileError(f"{path}: its headers declare {decoded} bytes of pixels, more than {MAX_EXPANSION} "
-                                   "times the file's size: the headers are damaged.")
+        raise MeasurementFileError(
+            f"{path}: its headers declare {decoded} bytes of pixels, more than {MAX_EXPANSION} "
+            "times the file's size: the headers are damaged."
+        )
     parts, said_too = _open(path, header_only=False)
     said += said_too
     if not parts:
-        raise MeasurementFileError(f"{path}: no readable part: the file is truncated or its pixel data are damaged"
-                                   f"{summary(said, path)}.")
+        raise MeasurementFileError(
+            f"{path}: no readable part: the file is truncated or its pixel data are damaged{summary(said, path)}."
+        )
     declared = parts[0].header.get(PREFIX + "part_count")
     if isinstance(declared, int) and not isinstance(declared, bool) and declared != len(parts):
         raise MeasurementFileError(

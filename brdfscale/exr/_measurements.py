@@ -4,10 +4,11 @@ import numpy as np
 
 from .._errors import BrdfscaleError, InvalidInputError, MeasurementFileError
 from .._measurement import LobeImage, MeasurementSet
-from ._format import FORMAT, PREFIX, PartReader
 from .._validation import flag
+from ._format import FORMAT, PartReader, PREFIX
 from ._io import file_path, open_parts, write_parts
 from ._parts import check_dtype, image_channels, metadata_json, part_header, read_image_part, sealed_part
+
 
 KIND = "measurement_set"
 

@@ -7,18 +7,18 @@ import OpenEXR
 
 from .._errors import InvalidInputError
 from ._format import (
-    DIGEST,
-    DOMAIN,
-    FORMAT,
-    FORMAT_VERSION,
-    PREFIX,
-    VALUE_DTYPES,
-    PartReader,
     channel_names,
     checksum,
+    DIGEST,
+    DOMAIN,
     double,
+    FORMAT,
+    FORMAT_VERSION,
     header_digest,
     json_limit_problem,
+    PartReader,
+    PREFIX,
+    VALUE_DTYPES,
 )
 
 
@@ -38,8 +38,11 @@ def store(a: np.ndarray, dtype, what: str, *, positive: bool = False) -> np.ndar
     info = np.finfo(dtype)
     with np.errstate(over="ignore", under="ignore"):
         stored = np.ascontiguousarray(a, dtype=dtype)
-    wider = ("write with dtype='float32'" if name == "float16" else
-             "rescale the data (other units) to fit: float32 is the widest float pixel type of OpenEXR")
+    wider = (
+        "write with dtype='float32'"
+        if name == "float16"
+        else "rescale the data (other units) to fit: float32 is the widest float pixel type of OpenEXR"
+    )
     over = np.isfinite(a) & ~np.isfinite(stored)
     if np.any(over):
         raise InvalidInputError(
@@ -129,7 +132,9 @@ def metadata_json(metadata) -> str:
             _string_keys(metadata, "metadata")  # the clearer message when mixed keys made sorting fail
         except RecursionError:
             pass
-        raise InvalidInputError(f"metadata must be JSON-serialisable (finite numbers, str, lists, dicts): {err}") from err
+        raise InvalidInputError(
+            f"metadata must be JSON-serialisable (finite numbers, str, lists, dicts): {err}"
+        ) from err
     _string_keys(metadata, "metadata")  # no cycles: json.dumps would have refused them
     problem = json_limit_problem(text, metadata)
     if problem:

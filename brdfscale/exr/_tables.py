@@ -8,11 +8,12 @@ import numpy as np
 from jaxtyping import Float
 
 from .._errors import BrdfscaleError, InvalidInputError, MeasurementFileError
-from ..lobes import AbstractLobe
-from ._format import PREFIX, PartReader
 from .._validation import flag, integer, real, real_array
+from ..lobes import AbstractLobe
+from ._format import PartReader, PREFIX
 from ._io import file_path, open_parts, write_parts
 from ._parts import check_dtype, image_channels, metadata_json, part_header, read_image_part, sealed_part
+
 
 KIND = "lobe_table"
 
@@ -88,12 +89,15 @@ class LobeTable:
         try:
             lobes = list(lobes)
         except TypeError:
-            raise InvalidInputError(f"lobes must be a sequence of brdfscale.lobes lobes (one per scale); "
-                                    f"got {type(lobes).__name__}.") from None
+            raise InvalidInputError(
+                f"lobes must be a sequence of brdfscale.lobes lobes (one per scale); got {type(lobes).__name__}."
+            ) from None
         if not all(isinstance(lobe, AbstractLobe) for lobe in lobes):
             raise InvalidInputError("lobes must be brdfscale.lobes lobes (one per scale).")
         if scales.ndim != 1 or len(lobes) != len(scales):
-            raise InvalidInputError(f"give one lobe per scale; got {len(lobes)} lobes for scales of shape {scales.shape}.")
+            raise InvalidInputError(
+                f"give one lobe per scale; got {len(lobes)} lobes for scales of shape {scales.shape}."
+            )
         extent = real(extent, "extent", minimum=0, strict=True)
         size = integer(size, "size", 2)
         needed = 8 * size * size * (len(lobes) + 2)

@@ -13,7 +13,8 @@ What is where in ``OUT``: ``library.json`` (options, runs, per material its sour
 ``fit.json``, figures, ``evolved_lobes.exr``; ``posterior.nc`` when sampled, and emcee's checkpoint ``chain.h5``).
 """
 
-from ._run import INDEX, LibraryResult, find_materials, fit_library
+from ._run import find_materials, fit_library, INDEX, LibraryResult
 from ._spec import FitSpec, make_model
+
 
 __all__ = ["fit_library", "FitSpec", "LibraryResult", "find_materials", "make_model", "INDEX"]

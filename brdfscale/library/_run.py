@@ -11,9 +11,10 @@ from .._compilation_cache import directory_in_use
 from .._errors import InvalidInputError, MissingDependencyError
 from .._files import atomic_write, exclusive
 from .._json import json_text
-from .._show import Shown, Table, progress_bar
+from .._show import progress_bar, Shown, Table
 from ._spec import FitSpec
 from ._task import fit_batch, material_directory
+
 
 __all__ = ["fit_library", "LibraryResult", "find_materials", "INDEX"]
 
@@ -44,8 +45,9 @@ def find_materials(sources) -> list:
         elif os.path.isfile(source):
             found.append((os.path.basename(source), source))
         else:
-            raise InvalidInputError(f"{source}: no such file or directory (give measurement files or directories "
-                                    "holding them).")
+            raise InvalidInputError(
+                f"{source}: no such file or directory (give measurement files or directories holding them)."
+            )
     if not found:
         raise InvalidInputError(f"no measurement files (*.exr) in {', '.join(map(os.fspath, sources))}.")
     named, seen = [], {}
@@ -79,23 +81,38 @@ class LibraryResult(Shown):
 
     def _show_items(self):
         total = len(self.materials)
-        return [("out", self.out), ("materials", total), ("done", sum(r["status"] == "done" for r in self.materials.values())),
-                ("failed", self.failed), ("this run", f"{self.done} fitted, {self.skipped} already done, "
-                                                      f"{self.seconds:.1f} s on {self.executor}")]
+        return [
+            ("out", self.out),
+            ("materials", total),
+            ("done", sum(r["status"] == "done" for r in self.materials.values())),
+            ("failed", self.failed),
+            ("this run", f"{self.done} fitted, {self.skipped} already done, {self.seconds:.1f} s on {self.executor}"),
+        ]
 
     def _show_tables(self):
-        return [Table("materials", ("material", "status", "χ²/dof", "fit", "error"),
-                      [(n, r["status"], r.get("reduced_chi2"), r.get("fit_status"), r.get("error"))
-                       for n, r in self.materials.items()])]
+        return [
+            Table(
+                "materials",
+                ("material", "status", "χ²/dof", "fit", "error"),
+                [
+                    (n, r["status"], r.get("reduced_chi2"), r.get("fit_status"), r.get("error"))
+                    for n, r in self.materials.items()
+                ],
+            )
+        ]
 
     def table(self) -> str:
         """The summary table the command prints."""
-        rows = [("materials", len(self.materials)),
-                ("done (all runs)", sum(r["status"] == "done" for r in self.materials.values())),
-                ("fitted this run", self.done), ("already done", self.skipped), ("failed", self.failed),
-                ("time", f"{self.seconds:.1f} s"),
-                ("materials/s", f"{self.done / self.seconds:.2f}" if self.seconds > 0 and self.done else "—"),
-                ("executor", self.executor)]
+        rows = [
+            ("materials", len(self.materials)),
+            ("done (all runs)", sum(r["status"] == "done" for r in self.materials.values())),
+            ("fitted this run", self.done),
+            ("already done", self.skipped),
+            ("failed", self.failed),
+            ("time", f"{self.seconds:.1f} s"),
+            ("materials/s", f"{self.done / self.seconds:.2f}" if self.seconds > 0 and self.done else "—"),
+            ("executor", self.executor),
+        ]
         width = max(len(k) for k, _ in rows)
         return "\n".join(f"  {k:<{width}}  {v}" for k, v in rows)
 
@@ -120,23 +137,28 @@ class _Index:
                 if doc.get("format") != _FORMAT or not isinstance(doc.get("materials"), dict):
                     raise ValueError("not a brdfscale library index")
             except (OSError, ValueError) as err:
-                raise InvalidInputError(f"{self.path}: unreadable library index ({err}); move it away or give "
-                                        "another out= directory.") from None
+                raise InvalidInputError(
+                    f"{self.path}: unreadable library index ({err}); move it away or give another out= directory."
+                ) from None
             if doc["spec"] != spec.to_json() and not force:
                 earlier = doc["spec"]
-                changed = ", ".join(f"{k}={earlier.get(k)!r}" for k in sorted(spec.to_json())
-                                    if earlier.get(k) != spec.to_json()[k])
+                changed = ", ".join(
+                    f"{k}={earlier.get(k)!r}" for k in sorted(spec.to_json()) if earlier.get(k) != spec.to_json()[k]
+                )
                 raise InvalidInputError(
                     f"{out} holds a library fitted with other options (there {changed}); rerun with the same options "
-                    "to continue it, or give another out= directory (force=True refits every material with the new ones).")
+                    "to continue it, or give another out= directory (force=True refits every material with the new ones)."
+                )
             self.doc = doc
         if self.doc is None or force:
             self.doc = {"format": _FORMAT, "created": _now(), "spec": spec.to_json(), "runs": [], "materials": {}}
         for name, path in materials:
             entry = self.doc["materials"].setdefault(name, {"source": path, "status": "pending", "attempts": 0})
             if entry["source"] != path:
-                raise InvalidInputError(f"material {name!r} of {out} came from {entry['source']}, now from {path}; "
-                                        "one name, one source: rename the file or give another out= directory.")
+                raise InvalidInputError(
+                    f"material {name!r} of {out} came from {entry['source']}, now from {path}; "
+                    "one name, one source: rename the file or give another out= directory."
+                )
             if os.path.isdir(material_directory(out, name)):
                 if entry["status"] != "done":
                     entry.update(status="done", note="found complete on restart (the index had not recorded it)")
@@ -172,8 +194,10 @@ def _ray(address, workers):
     try:
         import ray
     except ImportError:
-        raise MissingDependencyError("executor='ray' needs Ray: pip install 'brdfscale[cluster]' (or run the library "
-                                     "in-process, without address= and workers=).") from None
+        raise MissingDependencyError(
+            "executor='ray' needs Ray: pip install 'brdfscale[cluster]' (or run the library "
+            "in-process, without address= and workers=)."
+        ) from None
     started = False
     if not ray.is_initialized():
         options = dict(include_dashboard=False, log_to_driver=False, configure_logging=False)
@@ -186,12 +210,24 @@ def _ray(address, workers):
 
 
 def _batches(todo, batch):
-    return [todo[i:i + batch] for i in range(0, len(todo), batch)]
+    return [todo[i : i + batch] for i in range(0, len(todo), batch)]
 
 
-def fit_library(sources, out, *, spec: FitSpec | None = None, batch: int = 16, executor: str = "auto",
-                address: str | None = None, workers: int | None = None, cpus_per_task: float = 1,
-                retries: int = 2, force: bool = False, progress: bool = True, stream=None) -> LibraryResult:
+def fit_library(
+    sources,
+    out,
+    *,
+    spec: FitSpec | None = None,
+    batch: int = 16,
+    executor: str = "auto",
+    address: str | None = None,
+    workers: int | None = None,
+    cpus_per_task: float = 1,
+    retries: int = 2,
+    force: bool = False,
+    progress: bool = True,
+    stream=None,
+) -> LibraryResult:
     """Fit every material of a library into ``out``: one :func:`fitting.fit_many` per batch of
     ``batch`` materials, each batch a task of its own, in this process or on a Ray cluster.
 
@@ -271,18 +307,20 @@ def fit_library(sources, out, *, spec: FitSpec | None = None, batch: int = 16, e
             index.write()
             bar.update(len(records))
 
-        with progress_bar(enabled=progress, total=len(materials), initial=skipped, desc="library",
-                          unit="material") as bar:
+        with progress_bar(
+            enabled=progress, total=len(materials), initial=skipped, desc="library", unit="material"
+        ) as bar:
             if executor == "process":
                 for chunk in _batches(todo, batch):
-                    absorb(fit_batch(chunk, out, spec, batch=batch, compilation_cache=cache,
-                                     float64=False), bar)
+                    absorb(fit_batch(chunk, out, spec, batch=batch, compilation_cache=cache, float64=False), bar)
             elif todo:
                 ray, started = _ray(address, workers)
                 try:
                     task = ray.remote(num_cpus=cpus_per_task, max_retries=retries, retry_exceptions=False)(fit_batch)
-                    pending = {task.remote(chunk, out, spec, batch=batch, compilation_cache=cache): chunk
-                               for chunk in _batches(todo, batch)}
+                    pending = {
+                        task.remote(chunk, out, spec, batch=batch, compilation_cache=cache): chunk
+                        for chunk in _batches(todo, batch)
+                    }
                     while pending:
                         ready, _ = ray.wait(list(pending), num_returns=1)
                         chunk = pending.pop(ready[0])
@@ -290,16 +328,24 @@ def fit_library(sources, out, *, spec: FitSpec | None = None, batch: int = 16, e
                             records = ray.get(ready[0])
                         except Exception as err:  # noqa: BLE001 — the task died past its retries
                             text = f"{type(err).__name__}: {' '.join(str(err).split())[:300]}"
-                            records = [{"name": n, "status": "failed", "error": f"task failed: {text}"}
-                                       for n, _ in chunk]
+                            records = [
+                                {"name": n, "status": "failed", "error": f"task failed: {text}"} for n, _ in chunk
+                            ]
                         absorb(records, bar)
                 finally:
                     if started:
                         ray.shutdown()
         seconds = time.perf_counter() - t0
         index.finish_run(run, counts["done"], counts["failed"], seconds)
-        return LibraryResult(out=out, materials=index.doc["materials"], done=counts["done"], failed=counts["failed"],
-                             skipped=skipped + counts["skipped"], seconds=seconds, executor=executor)
+        return LibraryResult(
+            out=out,
+            materials=index.doc["materials"],
+            done=counts["done"],
+            failed=counts["failed"],
+            skipped=skipped + counts["skipped"],
+            seconds=seconds,
+            executor=executor,
+        )
 
 
 def _clear(out, materials):

@@ -9,6 +9,7 @@ import types
 from .._choices import FAMILIES, FIT, LAWS, MODEL, MODELS, SAMPLE, SAMPLERS, SOLVERS
 from .._errors import InvalidInputError
 
+
 __all__ = ["FitSpec", "make_model"]
 
 
@@ -20,9 +21,18 @@ def _fitting() -> types.ModuleType:
     return fitting
 
 
-def make_model(data, *, model=MODEL.model, family=MODEL.family, law=MODEL.law, fixed=None,
-               base_nodes=MODEL.base_nodes, knots=MODEL.knots, regularisation=MODEL.regularisation,
-               solver=FIT.solver):
+def make_model(
+    data,
+    *,
+    model=MODEL.model,
+    family=MODEL.family,
+    law=MODEL.law,
+    fixed=None,
+    base_nodes=MODEL.base_nodes,
+    knots=MODEL.knots,
+    regularisation=MODEL.regularisation,
+    solver=FIT.solver,
+):
     """The fitting model for ``data`` and the report's description of it (``fit.json``'s
     ``model``): a :class:`fitting.ParametricModel` (``family`` for lobe and statistics, scale
     ``law``, ``fixed`` values checked inside their prior box for these data) or a
@@ -42,12 +52,22 @@ def make_model(data, *, model=MODEL.model, family=MODEL.family, law=MODEL.law, f
             if not fixed:
                 raise
             raise InvalidInputError(f"fixed: {err}") from None
-        info = {"kind": "parametric", "lobe": family, "statistics": family, "scale_law": LAWS.summary(law),
-                "fixed": fixed}
+        info = {
+            "kind": "parametric",
+            "lobe": family,
+            "statistics": family,
+            "scale_law": LAWS.summary(law),
+            "fixed": fixed,
+        }
     else:
         built = fitting.NonParametricModel(data, base_nodes=base_nodes, n_knots=knots, regularisation=regularisation)
-        info = {"kind": "nonparametric", "base_nodes": built.base_nodes, "base_extent": built.base_extent,
-                "knots_W": list(built.knots), "smoothness": built.smoothness}
+        info = {
+            "kind": "nonparametric",
+            "base_nodes": built.base_nodes,
+            "base_extent": built.base_extent,
+            "knots_W": list(built.knots),
+            "smoothness": built.smoothness,
+        }
     info["solver"] = solver
     return built, info
 
@@ -92,8 +112,9 @@ class FitSpec:
         LAWS.check(self.law)
         SOLVERS.check(self.solver)
         if self.sampler is not None and self.sampler not in SAMPLERS:
-            raise InvalidInputError(f"sampler must be None or one of {', '.join(map(repr, SAMPLERS.names))}; "
-                                    f"got {self.sampler!r}.")
+            raise InvalidInputError(
+                f"sampler must be None or one of {', '.join(map(repr, SAMPLERS.names))}; got {self.sampler!r}."
+            )
         if self.default_sigma is not None and not (math.isfinite(self.default_sigma) and self.default_sigma > 0):
             raise InvalidInputError(f"default_sigma must be a positive number; got {self.default_sigma!r}.")
         object.__setattr__(self, "fixed", tuple(sorted(dict(self.fixed).items())))
@@ -105,9 +126,17 @@ class FitSpec:
 
     def model_for(self, data):
         """:func:`make_model` with these options: ``(model, info)``."""
-        return make_model(data, model=self.model, family=self.family, law=self.law, fixed=dict(self.fixed),
-                          base_nodes=self.base_nodes, knots=self.knots, regularisation=self.regularisation,
-                          solver=self.solver)
+        return make_model(
+            data,
+            model=self.model,
+            family=self.family,
+            law=self.law,
+            fixed=dict(self.fixed),
+            base_nodes=self.base_nodes,
+            knots=self.knots,
+            regularisation=self.regularisation,
+            solver=self.solver,
+        )
 
     def dataset(self, measurements):
         """:meth:`fitting.Dataset.from_measurements` of a measurement set with ``default_sigma``."""
@@ -115,27 +144,62 @@ class FitSpec:
 
     def fit(self, model, data):
         """:func:`fitting.fit` of ``model`` to ``data`` with these options."""
-        return _fitting().fit(model, data, solver=self.solver, starts=self.starts, seed=self.seed,
-                              max_steps=self.max_steps)
+        return _fitting().fit(
+            model, data, solver=self.solver, starts=self.starts, seed=self.seed, max_steps=self.max_steps
+        )
 
     def fit_many(self, models, datasets, *, batch: int, errors: str = "return"):
         """:func:`fitting.fit_many` with these options."""
-        return _fitting().fit_many(models, datasets, batch=batch, solver=self.solver, starts=self.starts,
-                                   max_steps=self.max_steps, seed=self.seed, errors=errors)
+        return _fitting().fit_many(
+            models,
+            datasets,
+            batch=batch,
+            solver=self.solver,
+            starts=self.starts,
+            max_steps=self.max_steps,
+            seed=self.seed,
+            errors=errors,
+        )
 
-    def sample(self, problem, fit, *, walkers: int | None = None, checkpoint: str | os.PathLike | None = None,
-               overwrite: bool = False, progress: bool = True):
+    def sample(
+        self,
+        problem,
+        fit,
+        *,
+        walkers: int | None = None,
+        checkpoint: str | os.PathLike | None = None,
+        overwrite: bool = False,
+        progress: bool = True,
+    ):
         """:func:`fitting.sample` with these options (``sampler`` must be set); ``walkers``: emcee's
         walkers per ensemble (default ``max(32, 4·dim)``)."""
         fitting = _fitting()
         if self.sampler is None:
-            raise InvalidInputError("this FitSpec samples nothing (sampler=None); give sampler='nuts', 'hmc' or "
-                                    "'emcee'.")
+            raise InvalidInputError(
+                "this FitSpec samples nothing (sampler=None); give sampler='nuts', 'hmc' or 'emcee'."
+            )
         sampler = fitting.Emcee(walkers=walkers) if self.sampler == "emcee" else self.sampler
-        return fitting.sample(problem, fit, sampler=sampler, chains=self.chains, steps=self.steps, seed=self.seed,
-                              checkpoint=checkpoint, overwrite=overwrite, progress=progress)
+        return fitting.sample(
+            problem,
+            fit,
+            sampler=sampler,
+            chains=self.chains,
+            steps=self.steps,
+            seed=self.seed,
+            checkpoint=checkpoint,
+            overwrite=overwrite,
+            progress=progress,
+        )
 
     def sample_many(self, problems, fits, *, batch: int, errors: str = "return"):
         """:func:`fitting.sample_many` (NUTS or HMC) with these options."""
-        return _fitting().sample_many(problems, fits, sampler=self.sampler, chains=self.chains, steps=self.steps,
-                                      seed=self.seed, batch=batch, errors=errors)
+        return _fitting().sample_many(
+            problems,
+            fits,
+            sampler=self.sampler,
+            chains=self.chains,
+            steps=self.steps,
+            seed=self.seed,
+            batch=batch,
+            errors=errors,
+        )

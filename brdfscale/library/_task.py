@@ -19,6 +19,7 @@ from .. import _compilation_cache
 from .._errors import BrdfscaleError, OutputInUseError
 from ._spec import FitSpec
 
+
 __all__ = ["fit_batch", "material_directory", "partial_directory"]
 
 
@@ -31,8 +32,14 @@ def partial_directory(out: str, name: str) -> str:
 
 
 def _record(name, status, started, **fields):
-    return {"name": name, "status": status, "seconds": round(time.perf_counter() - started, 3),
-            "pid": os.getpid(), "host": os.uname().nodename, **fields}
+    return {
+        "name": name,
+        "status": status,
+        "seconds": round(time.perf_counter() - started, 3),
+        "pid": os.getpid(),
+        "host": os.uname().nodename,
+        **fields,
+    }
 
 
 def _failure(err) -> str:
@@ -43,8 +50,15 @@ def _failure(err) -> str:
     return f"unexpected {type(err).__name__}: {' '.join(str(err).split())[:300]}{where}"
 
 
-def fit_batch(materials: list, out: str, spec: FitSpec, *, batch: int = 64, compilation_cache: str | None = None,
-              float64: bool = True) -> list:
+def fit_batch(
+    materials: list,
+    out: str,
+    spec: FitSpec,
+    *,
+    batch: int = 64,
+    compilation_cache: str | None = None,
+    float64: bool = True,
+) -> list:
     """Fit ``materials`` (a list of ``(name, path)``) into ``out/materials/`` with the options
     ``spec`` (a :class:`FitSpec`); return one record per material: ``status`` ``"done"``
     (with χ², status, seconds), ``"skipped"`` (already done: its directory exists) or
@@ -94,8 +108,9 @@ def fit_batch(materials: list, out: str, spec: FitSpec, *, batch: int = 64, comp
     for (name, data, model, info, truth), result, drawn in zip(todo, fits, draws):
         t1 = time.perf_counter()
         if isinstance(result, Exception) or isinstance(drawn, Exception):
-            records.append(_record(name, "failed", t1, error=_failure(result if isinstance(result, Exception)
-                                                                      else drawn)))
+            records.append(
+                _record(name, "failed", t1, error=_failure(result if isinstance(result, Exception) else drawn))
+            )
             continue
         partial, final = partial_directory(out, name), material_directory(out, name)
         try:
@@ -104,10 +119,17 @@ def fit_batch(materials: list, out: str, spec: FitSpec, *, batch: int = 64, comp
                 samples = drawn
                 problem = fitting.Problem(model, data)
                 if spec.sampler == "emcee":  # resumable within the material: its chain's checkpoint
-                    samples = spec.sample(problem, result, checkpoint=os.path.join(partial, "chain.h5"),
-                                          progress=False)
-                doc = fitting.write_report(partial, problem, result, samples, truth=truth, model_info=info,
-                                           overwrite=True, figures=spec.figures)
+                    samples = spec.sample(problem, result, checkpoint=os.path.join(partial, "chain.h5"), progress=False)
+                doc = fitting.write_report(
+                    partial,
+                    problem,
+                    result,
+                    samples,
+                    truth=truth,
+                    model_info=info,
+                    overwrite=True,
+                    figures=spec.figures,
+                )
             try:
                 os.rename(partial, final)
             except OSError:
@@ -123,8 +145,17 @@ def fit_batch(materials: list, out: str, spec: FitSpec, *, batch: int = 64, comp
             records.append(_record(name, "failed", t1, error=_failure(err)))
             continue
         mcmc = doc.get("mcmc") or {}
-        records.append(_record(name, "done", t1, fit_seconds=round(fit_seconds, 4), chi2=result.chi2,
-                               reduced_chi2=result.chi2 / result.dof, fit_status=result.status,
-                               undetermined=[u["combination"] for u in result.undetermined],
-                               sampler_status=mcmc.get("status")))
+        records.append(
+            _record(
+                name,
+                "done",
+                t1,
+                fit_seconds=round(fit_seconds, 4),
+                chi2=result.chi2,
+                reduced_chi2=result.chi2 / result.dof,
+                fit_status=result.status,
+                undetermined=[u["combination"] for u in result.undetermined],
+                sampler_status=mcmc.get("status"),
+            )
+        )
     return records

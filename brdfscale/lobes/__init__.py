@@ -17,10 +17,11 @@ from jaxtyping import Array, ArrayLike, Complex, Float
 
 from .. import stats
 from .._errors import InvalidInputError
-from .._show import Shown, derived
-from .._validation import as_float_array, is_concrete
+from .._show import derived, Shown
 from .._slopes import half_slope_of_valid, microfacet_factor_of_valid
+from .._validation import as_float_array, is_concrete
 from ..geometry import validate_directions
+
 
 __all__ = ["AbstractLobe", "Lobe", "Mirror", "Beckmann", "GGX", "Tabulated"]
 
@@ -96,8 +97,9 @@ class Lobe(AbstractLobe):
         return super()._show_items()
 
     def __init__(self, shape: stats.AbstractSlopeDensity, amplitude: Float[ArrayLike, ""] = 1.0):
-        self.shape = stats.require_density(shape, "shape",
-                                           use="Use lobes.Lobe(plus.observe(plus.NearlySpecular(...), kernel)).")
+        self.shape = stats.require_density(
+            shape, "shape", use="Use lobes.Lobe(plus.observe(plus.NearlySpecular(...), kernel))."
+        )
         self.amplitude = _amplitude(amplitude)
 
 
@@ -131,7 +133,8 @@ class Beckmann(AbstractLobe):
         if alpha is None:
             alpha = derived(self.shape.cov, lambda c: (2 * c[..., (0, 1), (0, 1)]) ** 0.5)
         return [("alpha", alpha), ("amplitude", self.amplitude)] + (
-            [("mean", self.shape.mean)] if self.shape.mean is not None else [])
+            [("mean", self.shape.mean)] if self.shape.mean is not None else []
+        )
 
 
 class GGX(AbstractLobe):

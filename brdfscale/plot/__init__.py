@@ -32,15 +32,29 @@ import :mod:`brdfscale.fitting` when called, so importing this package stays lig
 Tested in tests/test_show.py (axes, labels, pyplot's figure list unchanged).
 """
 
-from ._common import SLOPE_DENSITY, colorbar, colormap, figure, small_ticks
+from ._common import colorbar, colormap, figure, SLOPE_DENSITY, small_ticks
 from ._data import chains, measurements
 from ._facets import facet_statistics
 from ._lobes import lobe, statistics
 from ._plan import plan
 
-__all__ = ["lobe", "statistics", "facet_statistics", "measurements", "plan", "fit", "recovered_statistics", "corner",
-           "chains",
-           "figure", "colorbar", "colormap", "small_ticks", "SLOPE_DENSITY"]
+
+__all__ = [
+    "lobe",
+    "statistics",
+    "facet_statistics",
+    "measurements",
+    "plan",
+    "fit",
+    "recovered_statistics",
+    "corner",
+    "chains",
+    "figure",
+    "colorbar",
+    "colormap",
+    "small_ticks",
+    "SLOPE_DENSITY",
+]
 
 
 def fit(problem, fit, **options):

@@ -5,25 +5,42 @@ imported inside the functions only."""
 import numpy as np
 
 from .._errors import InvalidInputError
-from .._figure_style import SLOPE_DENSITY, colorbar, colormap, figure, small_ticks
+from .._figure_style import colorbar, colormap, figure, SLOPE_DENSITY, small_ticks
 from .._show import concrete
 
-__all__ = ["SLOPE_DENSITY", "colorbar", "colormap", "figure", "small_ticks", "require_concrete", "require_one",
-           "positive_number", "grid_points", "luminance", "luminance_sigma"]
+
+__all__ = [
+    "SLOPE_DENSITY",
+    "colorbar",
+    "colormap",
+    "figure",
+    "small_ticks",
+    "require_concrete",
+    "require_one",
+    "positive_number",
+    "grid_points",
+    "luminance",
+    "luminance_sigma",
+]
+
 
 def require_concrete(value, what: str) -> None:
     """InvalidInputError unless every array of ``value`` holds values (a figure needs numbers:
     not inside ``jax.jit``/``vmap``/``grad``, not ``jax.eval_shape`` output)."""
     if not concrete(value):
-        raise InvalidInputError(f"{what} has traced or abstract values (inside jax.jit/vmap/grad or from "
-                                "jax.eval_shape); a figure needs concrete numbers: draw it outside the transformation.")
+        raise InvalidInputError(
+            f"{what} has traced or abstract values (inside jax.jit/vmap/grad or from "
+            "jax.eval_shape); a figure needs concrete numbers: draw it outside the transformation."
+        )
 
 
 def require_one(shape: tuple, what: str) -> None:
     """InvalidInputError for a batch (e.g. a vmapped module): one object per figure."""
     if shape != ():
-        raise InvalidInputError(f"{what} is a batch of shape {shape} (e.g. from jax.vmap); a figure draws one: "
-                                f"select one with jax.tree.map(lambda leaf: leaf[k], {what.split()[0]}).")
+        raise InvalidInputError(
+            f"{what} is a batch of shape {shape} (e.g. from jax.vmap); a figure draws one: "
+            f"select one with jax.tree.map(lambda leaf: leaf[k], {what.split()[0]})."
+        )
 
 
 def positive_number(value, name: str) -> float:

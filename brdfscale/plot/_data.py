@@ -3,7 +3,7 @@
 import numpy as np
 
 from .._errors import InvalidInputError
-from ._common import SLOPE_DENSITY, colorbar, colormap, figure, luminance, luminance_sigma, small_ticks
+from ._common import colorbar, colormap, figure, luminance, luminance_sigma, SLOPE_DENSITY, small_ticks
 
 
 def _selection(images, count: int) -> list[int]:
@@ -14,8 +14,9 @@ def _selection(images, count: int) -> list[int]:
     except (TypeError, ValueError):
         chosen = None
     if not chosen or any(isinstance(k, bool) for k in images) or any(not 0 <= k < count for k in chosen):
-        raise InvalidInputError(f"images must be a non-empty sequence of image indices in [0, {count - 1}]; "
-                                f"got {images!r}.")
+        raise InvalidInputError(
+            f"images must be a non-empty sequence of image indices in [0, {count - 1}]; got {images!r}."
+        )
     return chosen
 
 
@@ -61,8 +62,9 @@ def measurements(mset, *, images=None):
         ax = axes[row, 0]
         shown = ax.imshow(values, origin="lower", extent=(-e, e, -e, e), cmap=cmap)
         colorbar(fig, shown, ax, f"{quantity} ({SLOPE_DENSITY})")
-        ax.set_title(f"image {k}: μ = {image.mu:.4g}, θ_i = {theta:.3g}°" + (" (RGB → luminance Y)" if rgb else ""),
-                     fontsize=9)
+        ax.set_title(
+            f"image {k}: μ = {image.mu:.4g}, θ_i = {theta:.3g}°" + (" (RGB → luminance Y)" if rgb else ""), fontsize=9
+        )
         ax.set_xlabel("u_x (slope)")
         ax.set_ylabel("u_y (slope)")
         small_ticks(ax)
@@ -76,7 +78,9 @@ def measurements(mset, *, images=None):
         sigma = luminance_sigma(image.sigma).astype(float)
         if image.mask is not None:
             sigma = np.where(image.mask, sigma, np.nan)
-        shown = ax.imshow(sigma, origin="lower", extent=(-e, e, -e, e), cmap=colormap("viridis").with_extremes(bad="0.8"))
+        shown = ax.imshow(
+            sigma, origin="lower", extent=(-e, e, -e, e), cmap=colormap("viridis").with_extremes(bad="0.8")
+        )
         colorbar(fig, shown, ax, f"σ of {'Y' if rgb else 'A·g(u)'} ({SLOPE_DENSITY})")
         ax.set_title(f"image {k}: σ per pixel", fontsize=9)
         ax.set_xlabel("u_x (slope)")
@@ -126,13 +130,14 @@ def chains(samples, *, coordinates: int = 8):
     else:
         what = f"{n_walkers} {sampler.upper()} chains"
         start = "warm-up"
-    axes[0].set_title(f"{what}, {n_steps} steps; {start} {samples.burn} (dotted), acceptance "
-                      f"{samples.acceptance:.2f}", fontsize=9)
+    axes[0].set_title(
+        f"{what}, {n_steps} steps; {start} {samples.burn} (dotted), acceptance {samples.acceptance:.2f}", fontsize=9
+    )
     colours = [f"C{(i + 1) % 10}" for i in range(runs)] if runs > 1 else ["C1"]
     per = max(n_walkers // max(runs, 1), 1)
     for j in range(shown):
         for i, colour in enumerate(colours):  # one colour per independent chain (emcee: per ensemble)
-            axes[j + 1].plot(steps, chain[:, i * per:(i + 1) * per, j], color=colour, lw=0.6, alpha=alpha)
+            axes[j + 1].plot(steps, chain[:, i * per : (i + 1) * per, j], color=colour, lw=0.6, alpha=alpha)
         axes[j + 1].set_ylabel(samples.names[j], fontsize=8)
     for ax in axes:
         ax.axvline(samples.burn, color="k", lw=0.8, ls=":")

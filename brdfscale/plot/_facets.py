@@ -6,7 +6,7 @@ import numpy as np
 
 from .._errors import InvalidInputError
 from .._show import display_unit
-from ._common import SLOPE_DENSITY, colormap, figure, small_ticks
+from ._common import colormap, figure, SLOPE_DENSITY, small_ticks
 
 
 def _cut(lobe, axis: int):
@@ -45,8 +45,10 @@ def facet_statistics(results, *, field=None):
 
     results = list(results) if isinstance(results, (list, tuple)) else [results]
     if not results or not all(isinstance(r, FacetStatistics) for r in results):
-        raise InvalidInputError("results must be brdfscale.synth.FacetStatistics (a sequence of them, from "
-                                "synth.facet_statistics); got " + ", ".join(sorted({type(r).__name__ for r in results})))
+        raise InvalidInputError(
+            "results must be brdfscale.synth.FacetStatistics (a sequence of them, from "
+            "synth.facet_statistics); got " + ", ".join(sorted({type(r).__name__ for r in results}))
+        )
     if field is not None and not isinstance(field, HeightField):
         raise InvalidInputError(f"field must be a brdfscale.synth.HeightField or None; got {type(field).__name__}.")
     results = sorted(results, key=lambda r: r.mu)
@@ -58,8 +60,15 @@ def facet_statistics(results, *, field=None):
     for a, (marker, name) in enumerate((("o-", "σ_x"), ("s--", "σ_y"))):
         sd = np.sqrt(np.maximum([r.covariance[a, a] for r in results], 0.0))
         err = np.array([r.covariance_error[a, a] for r in results]) / np.where(sd > 0, 2 * sd, np.inf)
-        ax.errorbar(x, np.where(sd > 0, sd, np.nan), yerr=np.where(np.isfinite(err), err, np.nan), fmt=marker,
-                    ms=4, capsize=2, label=f"{name} = √Σ_{name[-1]}{name[-1]}")
+        ax.errorbar(
+            x,
+            np.where(sd > 0, sd, np.nan),
+            yerr=np.where(np.isfinite(err), err, np.nan),
+            fmt=marker,
+            ms=4,
+            capsize=2,
+            label=f"{name} = √Σ_{name[-1]}{name[-1]}",
+        )
     top = np.sqrt(np.max([np.max(np.diag(r.covariance)) for r in results]))
     for xi, r in zip(x, results):
         peak = np.sqrt(max(np.max(np.diag(r.covariance)), 0.0))
@@ -92,15 +101,21 @@ def facet_statistics(results, *, field=None):
                 continue
             inside = u[g > 1e-4 * g.max()]
             reach, peak = max(reach, float(np.max(np.abs(inside)))), max(peak, float(g.max()))
-            panel.semilogy(u, np.where(g > 0, g, np.nan), color=colour, lw=1.2,
-                           label=f"μ = {results[k].mu / size:.3g} {unit}, {results[k].count} facets")
+            panel.semilogy(
+                u,
+                np.where(g > 0, g, np.nan),
+                color=colour,
+                lw=1.2,
+                label=f"μ = {results[k].mu / size:.3g} {unit}, {results[k].count} facets",
+            )
         if peak > 0:
             panel.set_xlim(-1.1 * reach, 1.1 * reach)
             panel.set_ylim(peak * 1e-4, peak * 2)
             panel.legend(fontsize=6)
         else:
-            panel.text(0.5, 0.5, "no scale above one pixel", ha="center", va="center", transform=panel.transAxes,
-                       fontsize=8)
+            panel.text(
+                0.5, 0.5, "no scale above one pixel", ha="center", va="center", transform=panel.transAxes, fontsize=8
+            )
         panel.set_xlabel(f"slope offset {name}", fontsize=8)
         panel.set_ylabel(f"g_μ ({SLOPE_DENSITY})", fontsize=8)
         panel.set_title(f"within-facet lobe g_μ along {name[:3]}", fontsize=9)

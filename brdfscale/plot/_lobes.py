@@ -6,8 +6,17 @@ from collections.abc import Sequence
 import numpy as np
 
 from .._errors import BrdfscaleError, InvalidInputError, SingularDensityError
-from ._common import (SLOPE_DENSITY, colorbar, colormap, figure, grid_points, positive_number, require_concrete,
-                      require_one, small_ticks)
+from ._common import (
+    colorbar,
+    colormap,
+    figure,
+    grid_points,
+    positive_number,
+    require_concrete,
+    require_one,
+    SLOPE_DENSITY,
+    small_ticks,
+)
 
 
 def _support(density, tol: float = 1e-3) -> float:
@@ -70,8 +79,13 @@ def lobe(lobe, incident=None, *, extent=None, size: int = 129, log: bool = False
     fig = figure(3.9 * panels, 3.4)
     axes = fig.subplots(1, panels, squeeze=False)[0]
     norm = _norm(log, peak)
-    image = axes[0].imshow(np.maximum(values, norm.vmin) if log else values, origin="lower",
-                           extent=(-extent, extent, -extent, extent), cmap="magma", norm=norm)
+    image = axes[0].imshow(
+        np.maximum(values, norm.vmin) if log else values,
+        origin="lower",
+        extent=(-extent, extent, -extent, extent),
+        cmap="magma",
+        norm=norm,
+    )
     colorbar(fig, image, axes[0], f"A·g(u) ({SLOPE_DENSITY})")
     axes[0].set_xlabel("u_x (slope)")
     axes[0].set_ylabel("u_y (slope)")
@@ -125,7 +139,8 @@ def _density_of(lobe, dtype, reach: float, size: int):
         except SingularDensityError:
             raise InvalidInputError(
                 f"the lobe's shape ({type(lobe.shape).__name__}) has a point mass and no pointwise density to draw "
-                "(a mirror: δ); plot.statistics(lobe.shape) draws its transform.") from None
+                "(a mirror: δ); plot.statistics(lobe.shape) draws its transform."
+            ) from None
 
     probe = direct(np.zeros(2))
     require_one(probe.shape, "lobe")
@@ -174,8 +189,13 @@ def _brdf_panel(fig, ax, lobe, density, directions, log):
     peak = float(np.nanmax(rho)) if np.any(visible) else 1.0
     norm = _norm(log, peak)
     cmap = colormap("magma").with_extremes(bad="0.85")
-    image = ax.imshow(np.maximum(rho, norm.vmin) if log else rho, origin="lower", cmap=cmap, norm=norm,
-                      extent=(ox[0], ox[-1], oy[0], oy[-1]))
+    image = ax.imshow(
+        np.maximum(rho, norm.vmin) if log else rho,
+        origin="lower",
+        cmap=cmap,
+        norm=norm,
+        extent=(ox[0], ox[-1], oy[0], oy[-1]),
+    )
     colorbar(fig, image, ax, "ρ(i, o) (1/sr)")
     mirror = (-i[0], -i[1])
     ax.plot([mirror[0]], [mirror[1]], "+", color="C2", ms=9, mew=1.5, label="mirror direction")
@@ -211,13 +231,16 @@ def _entries(statistics, mu, labels):
         entries = [(f"μ = {m:.4g}", statistics.at(float(m))) for m in scales]
     else:
         if mu is not None:
-            raise InvalidInputError("mu= applies to a scale law (stats.ScaledFamily, GaussianSurface, …); the "
-                                    f"statistics given are {type(statistics).__name__}.")
+            raise InvalidInputError(
+                "mu= applies to a scale law (stats.ScaledFamily, GaussianSurface, …); the "
+                f"statistics given are {type(statistics).__name__}."
+            )
         items = [statistics] if isinstance(statistics, AbstractDistribution) else statistics
         if not isinstance(items, Sequence) or not items or not all(isinstance(s, AbstractDistribution) for s in items):
             raise InvalidInputError(
                 "plot.statistics needs a brdfscale.stats distribution, a non-empty sequence of them, or a scale law with "
-                f"mu=; got {type(statistics).__name__}.")
+                f"mu=; got {type(statistics).__name__}."
+            )
         entries = [(type(s).__name__, s) for s in items]
     if labels is not None:
         labels = [labels] if isinstance(labels, str) else list(labels)
@@ -283,13 +306,28 @@ def statistics(statistics, *, mu=None, labels=None, extent=None, w_max=None, siz
         else:
             ax_s.plot(m, along_x, color=color, lw=1.2, label=label)
             if both:
-                ax_s.plot(m, np.asarray(s.density(jnp.asarray(np.stack([zeros, m], -1), dtype=dtype))), color=color,
-                          lw=1.0, ls="--")
-        ax_S.plot(w, np.real(np.asarray(s.cf(jnp.asarray(np.stack([w, np.zeros_like(w)], -1), dtype=dtype)))),
-                  color=color, lw=1.2, label=label)
+                ax_s.plot(
+                    m,
+                    np.asarray(s.density(jnp.asarray(np.stack([zeros, m], -1), dtype=dtype))),
+                    color=color,
+                    lw=1.0,
+                    ls="--",
+                )
+        ax_S.plot(
+            w,
+            np.real(np.asarray(s.cf(jnp.asarray(np.stack([w, np.zeros_like(w)], -1), dtype=dtype)))),
+            color=color,
+            lw=1.2,
+            label=label,
+        )
         if both:
-            ax_S.plot(w, np.real(np.asarray(s.cf(jnp.asarray(np.stack([np.zeros_like(w), w], -1), dtype=dtype)))),
-                      color=color, lw=1.0, ls="--")
+            ax_S.plot(
+                w,
+                np.real(np.asarray(s.cf(jnp.asarray(np.stack([np.zeros_like(w), w], -1), dtype=dtype)))),
+                color=color,
+                lw=1.0,
+                ls="--",
+            )
     anisotropic = any(not s.isotropic for _, s in entries)
     ax_s.set_xlabel("slope m_x" + (" (solid), m_y (dashed)" if anisotropic else " (through m = 0)"))
     ax_s.set_ylabel(f"s(m) ({SLOPE_DENSITY})")
@@ -307,5 +345,8 @@ def statistics(statistics, *, mu=None, labels=None, extent=None, w_max=None, siz
 def _leaves(tree):
     import jax
 
-    return [leaf for leaf in jax.tree_util.tree_leaves(tree) if hasattr(leaf, "dtype")
-            and np.issubdtype(np.dtype(leaf.dtype), np.floating)]
+    return [
+        leaf
+        for leaf in jax.tree_util.tree_leaves(tree)
+        if hasattr(leaf, "dtype") and np.issubdtype(np.dtype(leaf.dtype), np.floating)
+    ]

@@ -24,8 +24,10 @@ def _queries_of(part):
 
 def _label(plan, p) -> str:
     material = plan.materials[p.material]
-    return (f"material {p.material} ({type(material.lobe).__name__}): {p.path}, {p.queries} queries, "
-            f"error ≤ {p.predicted_error:.2g}")
+    return (
+        f"material {p.material} ({type(material.lobe).__name__}): {p.path}, {p.queries} queries, "
+        f"error ≤ {p.predicted_error:.2g}"
+    )
 
 
 def plan(plan):
@@ -71,11 +73,16 @@ def plan(plan):
             which[pixels[queries]] = k
             log_mu[pixels[queries]] = np.log10(mu)
         cmap = ListedColormap(colors).with_extremes(bad="0.85")
-        axes[0].imshow(which.reshape(rows, cols), cmap=cmap, norm=BoundaryNorm(np.arange(len(parts) + 1) - 0.5, len(parts)),
-                       interpolation="nearest")
+        axes[0].imshow(
+            which.reshape(rows, cols),
+            cmap=cmap,
+            norm=BoundaryNorm(np.arange(len(parts) + 1) - 0.5, len(parts)),
+            interpolation="nearest",
+        )
         axes[0].set_title("part evaluating each pixel (colours: legend right; grey: no query)", fontsize=9)
-        image = axes[1].imshow(log_mu.reshape(rows, cols), cmap=colormap("viridis").with_extremes(bad="0.85"),
-                               interpolation="nearest")
+        image = axes[1].imshow(
+            log_mu.reshape(rows, cols), cmap=colormap("viridis").with_extremes(bad="0.85"), interpolation="nearest"
+        )
         colorbar(fig, image, axes[1], "log₁₀ μ (facet size, scene length units)")
         axes[1].set_title("facet size each pixel resolves", fontsize=9)
         for ax in axes[:2]:
@@ -99,11 +106,24 @@ def plan(plan):
     lo, hi = float(mus.min()), float(mus.max())
     bins = np.geomspace(lo / 1.05, hi * 1.05, 40) if hi > lo else np.array([lo / 1.1, hi * 1.1])
     for (p, _, mu, _, nodes), color in zip(parts, colors):
-        histogram.hist(mu, bins=bins, color=color, histtype="step", lw=1.4,
-                       label=_label(plan, p) if camera else f"material {p.material}: {p.path}")
+        histogram.hist(
+            mu,
+            bins=bins,
+            color=color,
+            histtype="step",
+            lw=1.4,
+            label=_label(plan, p) if camera else f"material {p.material}: {p.path}",
+        )
         if p.path != "closed_form":  # the closed form is exact at every query's own μ: no nodes
-            histogram.plot(nodes, np.full_like(nodes, 0.98), "|", color=color, ms=10, mew=1.2,
-                           transform=histogram.get_xaxis_transform())
+            histogram.plot(
+                nodes,
+                np.full_like(nodes, 0.98),
+                "|",
+                color=color,
+                ms=10,
+                mew=1.2,
+                transform=histogram.get_xaxis_transform(),
+            )
     histogram.set_xscale("log")
     histogram.set_xlabel("μ (facet size, scene length units)")
     histogram.set_ylabel("queries")

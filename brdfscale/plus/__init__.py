@@ -10,9 +10,10 @@
 """
 
 from ._distribution import PlusDistribution
-from ._fit import StrengthFit, fit_strengths
-from ._nearly_specular import MAX_POINTS, NearlySpecular, ObservedDensity, observe
+from ._fit import fit_strengths, StrengthFit
+from ._nearly_specular import MAX_POINTS, NearlySpecular, observe, ObservedDensity
 from ._transform import MAX_ORDER, plus_transform
+
 
 __all__ = [
     "MAX_ORDER",

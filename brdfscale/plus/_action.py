@@ -22,6 +22,7 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
+
 _PANELS = 48
 _NODES = 16
 _POLYNOMIAL_BELOW = 1e-2
@@ -54,9 +55,16 @@ def radial_action(excess, x0, max_order: int, scale, breaks=None):
         breaks = jnp.asarray(breaks, dtype)
         v_breaks = jnp.clip(jnp.log(x0 / jnp.maximum(breaks, jnp.finfo(dtype).tiny)), 0.0, v1[..., None])
         lead = jnp.broadcast_shapes(edges.shape[:-1], v_breaks.shape[:-1])
-        edges = jnp.sort(jnp.concatenate([jnp.broadcast_to(edges, lead + edges.shape[-1:]),
-                                          jnp.broadcast_to(v_breaks, lead + v_breaks.shape[-1:])], axis=-1),
-                         axis=-1)
+        edges = jnp.sort(
+            jnp.concatenate(
+                [
+                    jnp.broadcast_to(edges, lead + edges.shape[-1:]),
+                    jnp.broadcast_to(v_breaks, lead + v_breaks.shape[-1:]),
+                ],
+                axis=-1,
+            ),
+            axis=-1,
+        )
     lo, hi = edges[..., :-1, None], edges[..., 1:, None]
     half = (hi - lo) / 2
     v = (lo + half * (1 + jnp.asarray(_GL_X, dtype))).reshape(edges.shape[:-1] + (-1,))

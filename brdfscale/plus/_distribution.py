@@ -7,11 +7,12 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Complex, Float
 
 from .._errors import InvalidInputError, SingularDensityError
+from .._slopes import add_offset, check_slopes, offset_norm, phase
 from .._validation import positive, vector2
 from ..stats import AbstractGeneralisedDensity
-from .._slopes import add_offset, check_slopes, offset_norm, phase
 from ._action import radial_action
 from ._transform import check_order, transforms_radial, transforms_scaled
+
 
 _ANGLES = 64
 

@@ -33,6 +33,7 @@ from ..stats import AbstractSlopeDensity, Gaussian
 from ._nearly_specular import NearlySpecular, ObservedDensity
 from ._transform import MAX_ORDER
 
+
 _SOLVER = optx.LevenbergMarquardt(rtol=1e-10, atol=1e-12)
 
 
@@ -96,13 +97,17 @@ def _linear_start(u, y, sigma, kernel, smooth, orders, x0):
     basis = []
     for n in range(orders):
         c = jnp.zeros(orders, y.dtype).at[n].set(1.0)
-        basis.append(ObservedDensity(NearlySpecular(1.0, c, x0), kernel).singular_part(u)
-                     - ObservedDensity(NearlySpecular(1.0, jnp.zeros(orders, y.dtype), x0), kernel).singular_part(u))
+        basis.append(
+            ObservedDensity(NearlySpecular(1.0, c, x0), kernel).singular_part(u)
+            - ObservedDensity(NearlySpecular(1.0, jnp.zeros(orders, y.dtype), x0), kernel).singular_part(u)
+        )
     specular = ObservedDensity(NearlySpecular(1.0, jnp.zeros(orders, y.dtype), x0), kernel).singular_part(u)
     columns = [specular] + basis
     if smooth is not None:
         zero = jnp.zeros(orders, y.dtype)
-        columns.append(ObservedDensity(NearlySpecular(0.0, zero, x0, smooth=smooth, smooth_weight=1.0), kernel).density(u))
+        columns.append(
+            ObservedDensity(NearlySpecular(0.0, zero, x0, smooth=smooth, smooth_weight=1.0), kernel).density(u)
+        )
     design = np.stack([np.asarray(col).reshape(-1) for col in columns], axis=-1) / np.asarray(sigma).reshape(-1, 1)
     names = ["A·a"] + [f"A·c_{n}" for n in range(orders)] + (["A·w"] if smooth is not None else [])
     start = laplace(design, names, undetermined_std=np.inf)  # the linear model's Jacobian is its design matrix
@@ -189,7 +194,11 @@ def fit_strengths(
         )
     theta = solution.value
     J = np.asarray(jax.jacfwd(_residuals)(theta, args))
-    names = ("amplitude", "x0") + tuple(f"c_{n}" for n in range(orders)) + (("specular_fraction",) if smooth is not None else ())
+    names = (
+        ("amplitude", "x0")
+        + tuple(f"c_{n}" for n in range(orders))
+        + (("specular_fraction",) if smooth is not None else ())
+    )
     internal = ("ln A", "ln x0") + names[2 : 2 + orders] + (("logit f",) if smooth is not None else ())
     # brdfscale.laplace, the one policy of every fit: only numerically null directions are
     # undetermined here (θ mixes logarithms, strengths and a logit: no common unit for a threshold)

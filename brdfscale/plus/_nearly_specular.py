@@ -8,12 +8,12 @@ import jax.scipy.special as jss
 import numpy as np
 from jaxtyping import Array, ArrayLike, Complex, Float
 
-from .._evolve import evolve
 from .._errors import InvalidInputError, NoBRDFAtScaleError, SingularDensityError
+from .._evolve import evolve
+from .._slopes import add_offset, check_slopes, offset_norm, phase
 from .._validation import as_float_array, is_concrete, positive, vector2
 from ..lobes import Lobe
 from ..stats import AbstractSlopeDensity, Delta, Gaussian, require_density
-from .._slopes import add_offset, check_slopes, offset_norm, phase
 from ._action import radial_action
 from ._transform import MAX_ORDER, transforms_radial, transforms_scaled
 
@@ -63,8 +63,12 @@ class NearlySpecular(AbstractSlopeDensity):
                 f"strengths must be a 1D array (c_0, …, c_{{N−1}}) with 1 ≤ N ≤ {MAX_ORDER + 1}; got shape {c.shape}."
             )
         if smooth is not None:
-            require_density(smooth, "smooth", other=" or None", use="Plus-distributions enter through the "
-                            "strengths c_n; give a density such as stats.Beckmann(0.1).")
+            require_density(
+                smooth,
+                "smooth",
+                other=" or None",
+                use="Plus-distributions enter through the strengths c_n; give a density such as stats.Beckmann(0.1).",
+            )
         if is_concrete((a, w)):
             if float(a) < 0 or float(w) < 0 or float(a + w) <= 0:
                 raise InvalidInputError(
@@ -116,9 +120,12 @@ class NearlySpecular(AbstractSlopeDensity):
 
     def shifted(self, offset):
         return NearlySpecular(
-            self.specular, self.strengths, self.x0,
+            self.specular,
+            self.strengths,
+            self.x0,
             smooth=None if self.smooth is None else self.smooth.shifted(offset),
-            smooth_weight=self.smooth_weight, mean=add_offset(self.mean, offset),
+            smooth_weight=self.smooth_weight,
+            mean=add_offset(self.mean, offset),
         )
 
     def support_radius(self, tol):
@@ -306,8 +313,12 @@ def observe(statistic: NearlySpecular, kernel: Gaussian, *, rtol: float = 1e-9, 
         InvalidInputError: a wrong statistic or kernel, ``rtol`` negative or not finite,
             ``points`` outside [16, MAX_POINTS].
     """
-    if isinstance(rtol, bool) or not isinstance(rtol, (int, float, np.floating, np.integer)) \
-            or not math.isfinite(rtol) or rtol < 0:
+    if (
+        isinstance(rtol, bool)
+        or not isinstance(rtol, (int, float, np.floating, np.integer))
+        or not math.isfinite(rtol)
+        or rtol < 0
+    ):
         raise InvalidInputError(
             f"rtol must be a finite number ≥ 0 (the negative fraction of the peak tolerated as rounding); got {rtol!r}."
         )

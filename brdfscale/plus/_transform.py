@@ -57,6 +57,7 @@ from jaxtyping import Array, ArrayLike, Float
 from .._errors import InvalidInputError
 from .._validation import as_float_array
 
+
 MAX_ORDER = 6
 """The highest order ``n`` of ``[logⁿ(|m|/x0)/|m|²]₊`` supported."""
 
@@ -101,8 +102,11 @@ def _polynomial_coefficients(n: int) -> np.ndarray:
 def _gauss_laguerre(count: int, alpha: float) -> tuple[np.ndarray, np.ndarray]:
     """Nodes and weights for ∫_0^∞ x^α e^{−x} f(x) dx (Golub–Welsch)."""
     k = np.arange(1, count)
-    jacobi = np.diag(2 * np.arange(count) + 1 + alpha) + np.diag(np.sqrt(k * (k + alpha)), 1) \
+    jacobi = (
+        np.diag(2 * np.arange(count) + 1 + alpha)
+        + np.diag(np.sqrt(k * (k + alpha)), 1)
         + np.diag(np.sqrt(k * (k + alpha)), -1)
+    )
     nodes, vectors = np.linalg.eigh(jacobi)
     return nodes, vectors[0] ** 2 * math.gamma(1 + alpha)
 
@@ -142,7 +146,7 @@ def _decaying(z, max_order: int):
     zz = z[..., None, None]
     t = 1 + 1j * x[:, None] / zz  # (..., x, 1)
     root = jnp.sqrt((2 * zz + 2j * x[:, None]) / (2 * zz + 2j * x[:, None] + 1j * u[None, :]))
-    base = (weights * t ** -1.5 * root).astype(cdtype)  # (..., x, u)
+    base = (weights * t**-1.5 * root).astype(cdtype)  # (..., x, u)
     log_t = jnp.log(t).astype(cdtype)
     integrals = []
     power = jnp.ones_like(log_t)

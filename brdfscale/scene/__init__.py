@@ -11,8 +11,9 @@
 * :class:`Plan` — ``evaluate()`` (jit-compiled, differentiable), ``image()``, ``explain()``.
 """
 
-from ._description import AnisotropicMaterial, Camera, Material, Queries, Scene, camera_scene
+from ._description import AnisotropicMaterial, Camera, camera_scene, Material, Queries, Scene
 from ._plan import Plan
 from ._planner import plan
+
 
 __all__ = ["Material", "AnisotropicMaterial", "Queries", "Scene", "Camera", "camera_scene", "plan", "Plan"]

@@ -17,6 +17,7 @@ matches their measured ranking — instead of assuming it.
 
 import math
 
+
 EVALUATION_UNITS = 20.0
 CALL_UNITS = 5e4
 """The fixed cost of one call of a jit-compiled plan (dispatch, argument flattening)."""

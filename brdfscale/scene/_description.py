@@ -26,7 +26,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
 from .._errors import InvalidInputError
-from .._show import Shown, concrete
+from .._show import concrete, Shown
 from .._validation import as_float_array, is_concrete, positive
 from ..geometry import validate_directions
 from ..lobes import AbstractLobe
@@ -64,7 +64,9 @@ class Material(Shown, eqx.Module):
         self.law = law
         self.regularisation = as_float_array(regularisation, "regularisation")
         if is_concrete(self.regularisation) and not float(self.regularisation) >= 0:
-            raise InvalidInputError(f"regularisation must be ≥ 0 (see brdfscale.evolve); got {float(self.regularisation)}.")
+            raise InvalidInputError(
+                f"regularisation must be ≥ 0 (see brdfscale.evolve); got {float(self.regularisation)}."
+            )
 
     def statistics(self, mu) -> AbstractSlopeDensity:
         """``s(·, μ)``."""
@@ -138,8 +140,10 @@ class Queries(Shown, eqx.Module):
         self.mu = jnp.atleast_1d(positive(mu, "mu", "a positive facet size"))
         n = self.mu.shape[0]
         if n == 0:
-            raise InvalidInputError("Queries needs at least one (i, o, μ) query; got none (e.g. a camera that sees "
-                                    "only sky: plan the pixels that see the surface).")
+            raise InvalidInputError(
+                "Queries needs at least one (i, o, μ) query; got none (e.g. a camera that sees "
+                "only sky: plan the pixels that see the surface)."
+            )
         if self.mu.ndim != 1 or self.i.shape != (n, 3) or self.o.shape != (n, 3):
             raise InvalidInputError(
                 f"i and o must have shape (Q, 3) and mu shape (Q,) with the same Q; got {self.i.shape}, "
@@ -189,8 +193,11 @@ class Scene(Shown, eqx.Module):
     resolution: tuple[int, int] | None = eqx.field(static=True, default=None)
 
     def _show_items(self):
-        materials = self.materials[0] if len(self.materials) == 1 else "; ".join(
-            f"{type(m.lobe).__name__} lobe, {type(m.law).__name__}" for m in self.materials)
+        materials = (
+            self.materials[0]
+            if len(self.materials) == 1
+            else "; ".join(f"{type(m.lobe).__name__} lobe, {type(m.law).__name__}" for m in self.materials)
+        )
         items = [("materials", materials), ("queries", len(self.queries)), ("tol", self.tol)]
         return items + ([("camera", f"{self.resolution[0]}×{self.resolution[1]} px")] if self.resolution else [])
 
@@ -204,7 +211,11 @@ class Scene(Shown, eqx.Module):
         if not (isinstance(self.tol, float) and 0 < self.tol < 1):
             raise InvalidInputError(f"tol must be a float in (0, 1); got {self.tol!r}.")
         index = self.queries.material
-        if is_concrete(index) and len(self.queries) and (int(index.min()) < 0 or int(index.max()) >= len(self.materials)):
+        if (
+            is_concrete(index)
+            and len(self.queries)
+            and (int(index.min()) < 0 or int(index.max()) >= len(self.materials))
+        ):
             raise InvalidInputError(
                 f"query material indices must lie in [0, {len(self.materials) - 1}]; got [{int(index.min())}, {int(index.max())}]."
             )

@@ -82,10 +82,25 @@ class Plan(Shown, eqx.Module):
         return items + [("parts" if len(self.parts) > 1 else "part", parts)]
 
     def _show_tables(self):
-        rows = [(p.material, type(self.materials[p.material]).__name__, p.path, p.queries, p.predicted_error,
-                 p.predicted_cost, p.reason) for p in self.parts]
-        return [Table("parts (one per material)", ("material", "kind", "path", "queries", "predicted error",
-                                                    "predicted cost", "why"), rows)]
+        rows = [
+            (
+                p.material,
+                type(self.materials[p.material]).__name__,
+                p.path,
+                p.queries,
+                p.predicted_error,
+                p.predicted_cost,
+                p.reason,
+            )
+            for p in self.parts
+        ]
+        return [
+            Table(
+                "parts (one per material)",
+                ("material", "kind", "path", "queries", "predicted error", "predicted cost", "why"),
+                rows,
+            )
+        ]
 
     def plot(self, **options):
         """A figure of what is computed where: :func:`brdfscale.plot.plan` (options as there);

@@ -43,13 +43,13 @@ import numpy as np
 
 from .._errors import InvalidInputError, MethodNotApplicableError, NoBRDFAtScaleError
 from .._evolve import (
-    CORE_TOL,
-    MAX_GRID,
-    Radial,
     as_method,
+    CORE_TOL,
     cutoff,
     evolve,
     grid_size,
+    MAX_GRID,
+    Radial,
     radial_nodes,
 )
 from .._existence import message_of
@@ -60,7 +60,8 @@ from ._description import AnisotropicMaterial, Material, Scene
 from ._plan import Plan
 from ._scales import in_chunks, scale_nodes
 from ._so3_planner import plan_so3
-from ._steps import ClosedFormStep, GridStep, MaterialPlan, RadialStep, evolved_density
+from ._steps import ClosedFormStep, evolved_density, GridStep, MaterialPlan, RadialStep
+
 
 _METHODS = ("auto", "closed_form", "radial", "grid", "so3")  # the evolution methods' names, and the SO(3) path
 _CUBIC_CONSTANT = 0.5625 / 24  # max |s(s−1)(s−2)(s−3)|/4! on the middle interval
@@ -105,8 +106,14 @@ def plan(scene: Scene, method: str = "auto") -> Plan:
                     f"material {m} is an AnisotropicMaterial (a BRDF of the facet's orientation on SO(3)): only "
                     f"method='so3' or 'auto' applies; got {method!r}."
                 )
-            inverse, planned = plan_so3(material, np.asarray(q.i)[rows], np.asarray(q.o)[rows],
-                                        np.asarray(q.euler_angles())[rows], log_mu[rows], scene.tol)
+            inverse, planned = plan_so3(
+                material,
+                np.asarray(q.i)[rows],
+                np.asarray(q.o)[rows],
+                np.asarray(q.euler_angles())[rows],
+                log_mu[rows],
+                scene.tol,
+            )
             factor_rows = np.ones(len(rows))
         else:
             if method == "so3":
@@ -117,8 +124,9 @@ def plan(scene: Scene, method: str = "auto") -> Plan:
             keys, inverse = np.unique(np.column_stack([u[rows], log_mu[rows]]), axis=0, return_inverse=True)
             planned = _plan_material(material, keys[:, :2], keys[:, 2], scene.tol, method)
             factor_rows = factor[rows]
-        parts.append(MaterialPlan(int(m), jnp.asarray(rows), jnp.asarray(inverse.ravel()), jnp.asarray(factor_rows),
-                                  *planned))
+        parts.append(
+            MaterialPlan(int(m), jnp.asarray(rows), jnp.asarray(inverse.ravel()), jnp.asarray(factor_rows), *planned)
+        )
     return Plan(scene.materials, tuple(parts), len(q), scene.tol, scene.pixels, scene.resolution)
 
 
@@ -146,9 +154,14 @@ def _plan_closed_form(material, path, u, log_mu, tol):
     distinct, scale = np.unique(log_mu, return_inverse=True)
     n = len(mus)
     step = ClosedFormStep(jnp.asarray(u), jnp.asarray(scale.ravel()), jnp.asarray(np.exp(distinct)))
-    return (step, path.path, "the lobe and statistics have a closed-form evolution (exact)", 0.0,
-            _cost.units(8 * (n + len(distinct)), 40 * n),
-            f"{len(distinct)} distinct scales evolved exactly, {n} offsets evaluated")
+    return (
+        step,
+        path.path,
+        "the lobe and statistics have a closed-form evolution (exact)",
+        0.0,
+        _cost.units(8 * (n + len(distinct)), 40 * n),
+        f"{len(distinct)} distinct scales evolved exactly, {n} offsets evaluated",
+    )
 
 
 # -- radial ---------------------------------------------------------------------------------
@@ -185,7 +198,8 @@ def _plan_radial(material, path, u, log_mu, tol):
         raise InvalidInputError(
             f"tol={tol:g}: the evolved lobe's transform does not decay enough within eight decades of "
             "frequency above the lobe's width to meet it (or tol is below the rounding of its evaluation); "
-            "choose a larger tol.")
+            "choose a larger tol."
+        )
     n_k = radial_nodes(K, r_max + spread, budget)
     k, wk = Radial.frequencies(K, n_k)
     G = _radial_transform_rows(material, probe, k, budget)
@@ -208,13 +222,22 @@ def _plan_radial(material, path, u, log_mu, tol):
         kernel_j, r_error = jnp.asarray(kernel), 0.0
     else:
         r_error = budget
-    step = RadialStep(jnp.asarray(u), jnp.asarray(log_mu), jnp.asarray(nodes), jnp.asarray(k), kernel_j,
-                      h_r, exact, direct, budget)
-    scales = f"{n_s} distinct scales" if exact else f"{n_s} log-μ nodes ({np.exp(nodes[0]):.3g}–{np.exp(nodes[-1]):.3g})"
+    step = RadialStep(
+        jnp.asarray(u), jnp.asarray(log_mu), jnp.asarray(nodes), jnp.asarray(k), kernel_j, h_r, exact, direct, budget
+    )
+    scales = (
+        f"{n_s} distinct scales" if exact else f"{n_s} log-μ nodes ({np.exp(nodes[0]):.3g}–{np.exp(nodes[-1]):.3g})"
+    )
     layout = f"at the {n_q} query radii" if direct else f"on {n_r} radii (h = {h_r:.3g}), cubic in (log μ, r)"
     details = f"K = {K:.4g}, {n_k} Gauss–Legendre nodes; {scales}; lobe {layout}"
-    return (step, path.path, "lobe and statistics are radially symmetric; no closed form",
-            budget + r_error + mu_error, min(table_cost, direct_cost) if direct else table_cost, details)
+    return (
+        step,
+        path.path,
+        "lobe and statistics are radially symmetric; no closed form",
+        budget + r_error + mu_error,
+        min(table_cost, direct_cost) if direct else table_cost,
+        details,
+    )
 
 
 # -- grid -----------------------------------------------------------------------------------
@@ -224,21 +247,26 @@ def _plan_grid(material, path, u, log_mu, tol):
     probe = distinct if len(distinct) <= 16 else np.linspace(distinct[0], distinct[-1], 16)
     size, achieved = 0, budget
     for t in probe:
-        n, honoured = grid_size(evolved_density(material, np.exp(t), path.sized(256, None), budget), _MAX_GRID,
-                                truncation=budget)
+        n, honoured = grid_size(
+            evolved_density(material, np.exp(t), path.sized(256, None), budget), _MAX_GRID, truncation=budget
+        )
         size, achieved = max(size, n), max(achieved, honoured)
     n_q, half = len(u), size // 2 + 1
     direct_cost = _cost.units(3 * len(distinct) * size * half, 4 * n_q * len(distinct) * size * half)
     # a table needs cubic interpolation between its nodes: typically 4× the Nyquist grid
     big = _TABLE_OVERSAMPLING * size
-    table_cost_guess = _cost.units(3 * len(distinct) * big * (big // 2 + 1),
-                                len(distinct) * _cost.fft2_multiply_adds(big) + 128 * n_q)
+    table_cost_guess = _cost.units(
+        3 * len(distinct) * big * (big // 2 + 1), len(distinct) * _cost.fft2_multiply_adds(big) + 128 * n_q
+    )
     if len(distinct) <= 16 and n_q * size * 2 <= _DIRECT_MEMORY and direct_cost <= table_cost_guess:
         return _plan_grid_direct(material, path, u, log_mu, size, achieved, direct_cost)
 
     def tables(n, t):
         def chunk_tables(chunk):
-            return _grid_tables(GridStep(jnp.zeros((1, 2)), jnp.zeros(1), chunk, None, None, n, True, achieved), material)
+            return _grid_tables(
+                GridStep(jnp.zeros((1, 2)), jnp.zeros(1), chunk, None, None, n, True, achieved), material
+            )
+
         return in_chunks(chunk_tables, t, max(1, min(_CHUNK, _GRID_CHUNK_NODES // (n * n))))
 
     ends = np.array([distinct[0], distinct[-1]]) if len(distinct) > 1 else distinct
@@ -259,11 +287,19 @@ def _plan_grid(material, path, u, log_mu, tol):
     n_s = len(nodes)
     cost = _cost.units(3 * n_s * size * (size // 2 + 1), n_s * _cost.fft2_multiply_adds(size) + 128 * n_q)
     step = GridStep(jnp.asarray(u), jnp.asarray(log_mu), jnp.asarray(nodes), None, None, size, exact, achieved)
-    scales = f"{n_s} distinct scales" if exact else f"{n_s} log-μ nodes ({np.exp(nodes[0]):.3g}–{np.exp(nodes[-1]):.3g})"
+    scales = (
+        f"{n_s} distinct scales" if exact else f"{n_s} log-μ nodes ({np.exp(nodes[0]):.3g}–{np.exp(nodes[-1]):.3g})"
+    )
     relaxed = "" if achieved <= budget else f" (grid capped at {_MAX_GRID}: truncation {achieved:.1g})"
     details = f"{size}×{size} FFT grid per scale node{relaxed}; {scales}; cubic in (log μ, u_y, u_x)"
-    return (step, path.path, "lobe or statistics not radially symmetric; no closed form",
-            achieved + u_error + mu_error, cost, details)
+    return (
+        step,
+        path.path,
+        "lobe or statistics not radially symmetric; no closed form",
+        achieved + u_error + mu_error,
+        cost,
+        details,
+    )
 
 
 def _plan_grid_direct(material, path, u, log_mu, size, achieved, cost):
@@ -274,20 +310,43 @@ def _plan_grid_direct(material, path, u, log_mu, size, achieved, cost):
     fy = np.fft.fftfreq(size) * (2 * np.pi / h)
     fx = np.fft.rfftfreq(size) * (2 * np.pi / h)
     W = np.stack(np.broadcast_arrays(fx[None, :], fy[:, None]), -1)
-    phases = (jnp.asarray(np.exp(1j * u[:, 1, None] * fy[None, :])), jnp.asarray(np.exp(1j * u[:, 0, None] * fx[None, :])))
-    step = GridStep(jnp.asarray(u), jnp.asarray(log_mu), jnp.asarray(nodes), phases, jnp.asarray(W), size, True, achieved)
-    details = (f"{size}×{size} frequency grid per scale; {len(nodes)} distinct scales; inverse DFT summed at the "
-               f"{len(u)} query offsets (no interpolation)")
-    return (step, path.path, "lobe or statistics not radially symmetric; no closed form; few queries", achieved, cost,
-            details)
+    phases = (
+        jnp.asarray(np.exp(1j * u[:, 1, None] * fy[None, :])),
+        jnp.asarray(np.exp(1j * u[:, 0, None] * fx[None, :])),
+    )
+    step = GridStep(
+        jnp.asarray(u), jnp.asarray(log_mu), jnp.asarray(nodes), phases, jnp.asarray(W), size, True, achieved
+    )
+    details = (
+        f"{size}×{size} frequency grid per scale; {len(nodes)} distinct scales; inverse DFT summed at the "
+        f"{len(u)} query offsets (no interpolation)"
+    )
+    return (
+        step,
+        path.path,
+        "lobe or statistics not radially symmetric; no closed form; few queries",
+        achieved,
+        cost,
+        details,
+    )
 
 
 def _radial_transform_rows(material, nodes, k, tol):
     """Concrete ``G(k, μ)`` (len(nodes), len(k)) of the radial path, evaluated in fixed-size
     blocks of scales × frequencies (one compilation for every probe of the planner)."""
+
     def block(node_chunk, k_chunk):
-        step = RadialStep(jnp.zeros((1, 2)), jnp.zeros(1), node_chunk, k_chunk, jnp.zeros((k_chunk.shape[0], 1)),
-                          1.0, True, False, tol)
+        step = RadialStep(
+            jnp.zeros((1, 2)),
+            jnp.zeros(1),
+            node_chunk,
+            k_chunk,
+            jnp.zeros((k_chunk.shape[0], 1)),
+            1.0,
+            True,
+            False,
+            tol,
+        )
         return _radial_transforms(step, material)
 
     def rows(node_chunk):  # (chunk nodes, len(k)): frequencies in chunks along the second axis

@@ -13,10 +13,10 @@ import numpy as np
 
 from .._interpolate import interpolate
 
+
 NODES_PER_DECADE = 8
 MAX_SCALE_NODES = 2049
 EXACT_SCALES = 4  # at most this many distinct μ are always evaluated exactly
-
 
 
 def midpoint_error(at_nodes, at_midpoints) -> float:

@@ -37,6 +37,7 @@ from ._description import AnisotropicMaterial
 from ._scales import in_chunks, scale_nodes
 from ._steps import SO3Step
 
+
 _MAX_COEFFICIENTS = 5e7  # (i, o) pairs × scale nodes × kept coefficients held at once
 
 
@@ -94,9 +95,21 @@ def plan_so3(material: AnisotropicMaterial, i, o, angles, log_mu, tol):
     n_pairs = len(pair_keys)
 
     def step_at(nodes, exact):
-        return SO3Step(jnp.asarray(pair_keys.reshape(-1, 2, 3)), jnp.asarray(padded), jnp.asarray(key_pair),
-                       jnp.asarray(slot), jnp.asarray(key_log_mu), jnp.asarray(nodes), B, B_s, rows, lobe_columns,
-                       columns, diagonal, exact)
+        return SO3Step(
+            jnp.asarray(pair_keys.reshape(-1, 2, 3)),
+            jnp.asarray(padded),
+            jnp.asarray(key_pair),
+            jnp.asarray(slot),
+            jnp.asarray(key_log_mu),
+            jnp.asarray(nodes),
+            B,
+            B_s,
+            rows,
+            lobe_columns,
+            columns,
+            diagonal,
+            exact,
+        )
 
     kept = B * (2 * rows + 1) * (2 * columns + 1)
     if n_pairs * min(len(distinct), 64) * kept > _MAX_COEFFICIENTS:
@@ -116,12 +129,20 @@ def plan_so3(material: AnisotropicMaterial, i, o, angles, log_mu, tol):
     cost = _predicted_cost(n_pairs, len(nodes), q_max, B, B_s, rows, lobe_columns, columns, diagonal)
 
     n_s = len(nodes)
-    scales = f"{n_s} distinct scales" if exact else f"{n_s} log-μ nodes ({np.exp(nodes[0]):.3g}–{np.exp(nodes[-1]):.3g})"
-    row_reason = ("all queries at a flat global orientation: D^J diagonal, rows |M| ≤ columns" if flat
-                  else "tilted global orientations need every row")
-    column_reason = ("the lobe depends on the facet normal only" if twist_free else "the lobe depends on the twist")
-    column_reason += (", D_x = D_y: the propagator does not mix twist orders" if diagonal
-                      else ", D_x ≠ D_y: the propagator mixes twist orders, all kept")
+    scales = (
+        f"{n_s} distinct scales" if exact else f"{n_s} log-μ nodes ({np.exp(nodes[0]):.3g}–{np.exp(nodes[-1]):.3g})"
+    )
+    row_reason = (
+        "all queries at a flat global orientation: D^J diagonal, rows |M| ≤ columns"
+        if flat
+        else "tilted global orientations need every row"
+    )
+    column_reason = "the lobe depends on the facet normal only" if twist_free else "the lobe depends on the twist"
+    column_reason += (
+        ", D_x = D_y: the propagator does not mix twist orders"
+        if diagonal
+        else ", D_x ≠ D_y: the propagator mixes twist orders, all kept"
+    )
     details = (
         f"band limit B = {B} (degrees J < B; a-priori truncation ε(B) = {truncation:.1g} from the lobe's width and the "
         f"least damping Δτ = {tau0 - tau.max():.3g}); lobe sampled at band limit {B_s} (its own band limit {B0}: "

@@ -29,16 +29,16 @@ from jaxtyping import Array, Complex, Float, Int
 
 from .. import so3
 from .._blocks import in_blocks
-from .._evolve import AbstractMethod, ClosedForm, EvolvedDensity, Grid, Radial, evolve
-from .._existence import TRANSFORM_ABOVE_ONE, attach, transform_exceeds_one
+from .._evolve import AbstractMethod, ClosedForm, evolve, EvolvedDensity, Grid, Radial
+from .._existence import attach, TRANSFORM_ABOVE_ONE, transform_exceeds_one
 from .._interpolate import cubic_stencil, interpolate
 from .._show import Shown
 from ._description import AnisotropicMaterial, Material
 
+
 # temporaries per query of cubic interpolation in d dimensions (4^d gathered values, indices and
 # weights, float64): the blocks of brdfscale._blocks keep Plan.evaluate within its budget
 _INTERPOLATION_BYTES = {d: 8 * (3 * 4**d + 8 * d) for d in (1, 2, 3)}
-
 
 
 class ClosedFormStep(Shown, eqx.Module):
@@ -50,9 +50,9 @@ class ClosedFormStep(Shown, eqx.Module):
 
     def __call__(self, material: Material) -> Float[Array, " n"]:
         s_from = material.statistics(material.mu0)
-        evolved = jax.vmap(
-            lambda mu: evolve(material.lobe, s_from, material.statistics(mu), method=ClosedForm())
-        )(self.mu)
+        evolved = jax.vmap(lambda mu: evolve(material.lobe, s_from, material.statistics(mu), method=ClosedForm()))(
+            self.mu
+        )
         per_query = jax.tree_util.tree_map(lambda leaf: leaf[self.scale], evolved)
         return jax.vmap(lambda lobe, u: lobe.density(u))(per_query, self.u)
 
@@ -70,8 +70,12 @@ def evolved_density(material: Material, mu, discretisation: AbstractMethod, tol:
     """The material's lobe shape evolved from μ0 to μ (seed Eq. 4.4) on a spectral path
     (``discretisation``: a :class:`~brdfscale.Radial` or :class:`~brdfscale.Grid` with its size)."""
     return EvolvedDensity(
-        material.lobe.shape, material.statistics(material.mu0), material.statistics(mu),
-        material.regularisation, discretisation, tol,
+        material.lobe.shape,
+        material.statistics(material.mu0),
+        material.statistics(mu),
+        material.regularisation,
+        discretisation,
+        tol,
     )
 
 
@@ -96,7 +100,9 @@ class RadialStep(Shown, eqx.Module):
     def transforms(self, material: Material) -> Float[Array, "s K"]:
         """``G(k, μ_n)`` for every scale node, with the existence check |G| ≤ 1."""
         size = self.k.shape[0]
-        G = jax.vmap(lambda t: evolved_density(material, jnp.exp(t), Radial(nodes=size), self.tol).cf_radial(self.k))(self.nodes)
+        G = jax.vmap(lambda t: evolved_density(material, jnp.exp(t), Radial(nodes=size), self.tol).cf_radial(self.k))(
+            self.nodes
+        )
         return attach(G, transform_exceeds_one(jnp.max(jnp.abs(G))), TRANSFORM_ABOVE_ONE)
 
     def table(self, material: Material) -> Float[Array, "s r"]:
@@ -148,8 +154,9 @@ class GridStep(Shown, eqx.Module):
         pos = (self.u[:, ::-1] + a) / h  # (y, x) index positions
         inside = jnp.all((pos >= 0) & (pos <= self.size - 1), axis=-1)
         table = self.table(material)
-        values = in_blocks(lambda p: interpolate(table, p), jnp.concatenate([s[:, None], pos], -1),
-                           _INTERPOLATION_BYTES[3])
+        values = in_blocks(
+            lambda p: interpolate(table, p), jnp.concatenate([s[:, None], pos], -1), _INTERPOLATION_BYTES[3]
+        )
         return jnp.where(inside, values, 0.0) * material.lobe.amplitude
 
     def _direct(self, material, s):
@@ -254,8 +261,13 @@ class MaterialPlan(Shown, eqx.Module):
         return self.rows.shape[0]
 
     def _show_items(self):
-        return [("material", self.material), ("path", self.path), ("queries", self.queries),
-                ("predicted_error", self.predicted_error), ("predicted_cost", self.predicted_cost)]
+        return [
+            ("material", self.material),
+            ("path", self.path),
+            ("queries", self.queries),
+            ("predicted_error", self.predicted_error),
+            ("predicted_cost", self.predicted_cost),
+        ]
 
     def __call__(self, material: Material | AnisotropicMaterial) -> Float[Array, " q"]:
         return self.step(material)[self.inverse] * self.factor

@@ -23,19 +23,20 @@ from ._bandlimit import band_limit, gaussian_spectrum, truncation_error
 from ._convolution import convolve, from_operator, reflect, to_operator
 from ._evolution import DiffusionLaw, evolve, evolve_diffusion
 from ._generators import angular_momentum, diffusion_generator, diffusion_operator
-from ._grid import MAX_BAND_LIMIT, grid, quadrature_weights
+from ._grid import grid, MAX_BAND_LIMIT, quadrature_weights
 from ._models import (
-    MAX_AUTO_RESOLUTION,
     AbstractOrientationDensity,
     AnisotropicMicrofacetLobe,
     EmpiricalOrientations,
     Identity,
+    MAX_AUTO_RESOLUTION,
     RotationalDiffusion,
     TiltTwist,
 )
 from ._rotations import euler_to_matrix, matrix_to_euler
 from ._transform import analyse_points, forward, inverse, synthesize
-from ._wigner import MAX_DEGREE, wigner_d, wigner_D
+from ._wigner import MAX_DEGREE, wigner_D, wigner_d
+
 
 __all__ = [
     "euler_to_matrix",

@@ -19,6 +19,7 @@ import numpy as np
 from .._errors import InvalidInputError
 from ._grid import MAX_BAND_LIMIT
 
+
 __all__ = ["band_limit", "truncation_error", "gaussian_spectrum"]
 
 _J_MAX = 100_000

@@ -30,6 +30,7 @@ import numpy as np
 
 from ._wigner import fourier_rows
 
+
 __all__ = ["Plan", "plan", "kernel_tables", "degree_to_frequency", "frequency_to_degree", "QUADRANTS", "MIXED"]
 
 QUADRANTS = ((1, 1), (-1, -1), (1, -1), (-1, 1))

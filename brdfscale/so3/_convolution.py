@@ -20,6 +20,7 @@ from jaxtyping import Array, ArrayLike, Complex
 from .._errors import InvalidInputError
 from ._transform import _coefficients
 
+
 __all__ = ["convolve", "to_operator", "from_operator", "reflect"]
 
 

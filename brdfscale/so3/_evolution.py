@@ -38,6 +38,7 @@ from ._generators import block_expm, check_diffusion, diffusion_generator
 from ._models import AbstractOrientationDensity, RotationalDiffusion
 from ._transform import _coefficients
 
+
 __all__ = ["evolve", "evolve_diffusion", "DiffusionLaw"]
 
 
@@ -66,7 +67,8 @@ def _operator(s, B, name):
     except TypeError:
         raise InvalidInputError(f"{expected}; got {type(s).__name__}.") from None
     if op.shape != (B, 2 * B - 1, 2 * B - 1) or not (
-        jnp.issubdtype(op.dtype, jnp.floating) or jnp.issubdtype(op.dtype, jnp.complexfloating)
+        jnp.issubdtype(op.dtype, jnp.floating)
+        or jnp.issubdtype(op.dtype, jnp.complexfloating)
         or jnp.issubdtype(op.dtype, jnp.integer)
     ):
         raise InvalidInputError(f"{expected}; got {type(s).__name__} of shape {op.shape}, dtype {op.dtype}.")
@@ -149,11 +151,14 @@ def evolve(
         # Hermitian positive definite for λ > 0: a Cholesky factorisation (half the work of LU)
         Xh = cho_solve(cho_factor(normal, lower=True), Q1 @ jnp.conj(jnp.swapaxes(A, -1, -2)))
         X = jnp.conj(jnp.swapaxes(Xh, -1, -2))
-    return _finite_or_no_brdf(X, (
-        " (solving X Q̃^J(μ) = R^J(μ0) Q̃^J(μ0) block by block): a block Q̃^J(μ) is singular or too small to divide by in floating point "
-        "(statistics with vanishing coefficients, or a deconvolution towards a much finer scale). Pass "
-        "regularisation > 0 (about the relative noise level of R(μ0)) for the regularised solve."
-    ))
+    return _finite_or_no_brdf(
+        X,
+        (
+            " (solving X Q̃^J(μ) = R^J(μ0) Q̃^J(μ0) block by block): a block Q̃^J(μ) is singular or too small to divide by in floating point "
+            "(statistics with vanishing coefficients, or a deconvolution towards a much finer scale). Pass "
+            "regularisation > 0 (about the relative noise level of R(μ0)) for the regularised solve."
+        ),
+    )
 
 
 def evolve_diffusion(
@@ -185,12 +190,15 @@ def evolve_diffusion(
     if not exact:
         return evolve(R, RotationalDiffusion(t0, D), RotationalDiffusion(t1, D), regularisation=lam)
     G = diffusion_generator(B, check_diffusion(D))
-    return _finite_or_no_brdf(R @ block_expm(-(t0 - t1) * G).astype(R.dtype), (
-        ": evolving towards a finer scale (tau_to > tau_from) multiplies degree J by up to "
-        "exp((tau_to − tau_from) D_max J(J+1)), which overflows here. Pass "
-        "regularisation > 0 (about the relative noise level of R(μ0)) for the regularised solve of "
-        "brdfscale.so3.evolve, or a smaller band limit."
-    ))
+    return _finite_or_no_brdf(
+        R @ block_expm(-(t0 - t1) * G).astype(R.dtype),
+        (
+            ": evolving towards a finer scale (tau_to > tau_from) multiplies degree J by up to "
+            "exp((tau_to − tau_from) D_max J(J+1)), which overflows here. Pass "
+            "regularisation > 0 (about the relative noise level of R(μ0)) for the regularised solve of "
+            "brdfscale.so3.evolve, or a smaller band limit."
+        ),
+    )
 
 
 def _diffusion_time(tau, name: str):

@@ -28,6 +28,7 @@ from .._validation import as_float_array, is_concrete
 from ._grid import check_band_limit
 from ._wigner import check_degree
 
+
 __all__ = ["angular_momentum", "diffusion_generator", "diffusion_operator"]
 
 

@@ -20,6 +20,7 @@ from jaxtyping import Float
 
 from .._errors import InvalidInputError
 
+
 __all__ = ["grid", "quadrature_weights", "MAX_BAND_LIMIT"]
 
 MAX_BAND_LIMIT = 512

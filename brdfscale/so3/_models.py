@@ -23,9 +23,10 @@ from .._validation import as_float_array, is_concrete, positive
 from ..geometry import microfacet_factor, validate_directions
 from ._convolution import to_operator
 from ._generators import check_diffusion, diffusion_operator
-from ._grid import MAX_BAND_LIMIT, check_band_limit, grid
+from ._grid import check_band_limit, grid, MAX_BAND_LIMIT
 from ._rotations import check_rotation, euler_to_matrix, matrix_to_euler
 from ._transform import analyse_points, forward
+
 
 __all__ = [
     "AbstractOrientationDensity",
@@ -169,18 +170,25 @@ class TiltTwist(AbstractOrientationDensity):
         *,
         resolution: int | None = None,
     ):
-        self.tilt = stats.require_density(tilt, "tilt", use="It has no finite slope bandwidth either; use a "
-                                          "brdfscale.stats density such as stats.Beckmann(α).")
+        self.tilt = stats.require_density(
+            tilt,
+            "tilt",
+            use="It has no finite slope bandwidth either; use a brdfscale.stats density such as stats.Beckmann(α).",
+        )
         self.twist_mean = as_float_array(twist_mean, "twist_mean")
         if twist_std is not None and not is_concrete(twist_std):
-            raise InvalidInputError("twist_std must be concrete (not traced) when a TiltTwist is built: it sets the "
-                                    "number of twist Fourier terms. Build the density outside jit and pass it in.")
+            raise InvalidInputError(
+                "twist_std must be concrete (not traced) when a TiltTwist is built: it sets the "
+                "number of twist Fourier terms. Build the density outside jit and pass it in."
+            )
         self.twist_std = None if twist_std is None else positive(twist_std, "twist_std")
         self.twist_terms = 0 if twist_std is None else _twist_terms(np.asarray(twist_std))
         if resolution is None:
             if not is_concrete(tilt.bandwidth(1e-10)):
-                raise InvalidInputError("TiltTwist built from traced parameters needs an explicit resolution= "
-                                        "(the sampling grid's band limit); or build it outside jit.")
+                raise InvalidInputError(
+                    "TiltTwist built from traced parameters needs an explicit resolution= "
+                    "(the sampling grid's band limit); or build it outside jit."
+                )
             need = self._tilt_band_limit(1e-10)
             if need > MAX_AUTO_RESOLUTION:
                 raise InvalidInputError(
@@ -196,8 +204,9 @@ class TiltTwist(AbstractOrientationDensity):
 
     def density(self, alpha, beta, gamma) -> Float[Array, "..."]:
         """``s(α, β, γ)`` per unit Haar measure."""
-        alpha, beta, gamma = jnp.broadcast_arrays(*(as_float_array(x, n) for x, n in
-                                                    ((alpha, "alpha"), (beta, "beta"), (gamma, "gamma"))))
+        alpha, beta, gamma = jnp.broadcast_arrays(
+            *(as_float_array(x, n) for x, n in ((alpha, "alpha"), (beta, "beta"), (gamma, "gamma")))
+        )
         return self._tilt(alpha, beta) * self._twist(alpha + gamma)
 
     def _tilt(self, alpha, beta):
@@ -331,8 +340,9 @@ class AnisotropicMicrofacetLobe(eqx.Module):
         Concrete ``rotation`` must be proper rotation matrices (finite, ``max |ΓᵀΓ − I| ≤ 1e-6``,
         det +1; :func:`brdfscale.so3._rotations.check_rotation`), else :class:`InvalidInputError`.
         """
-        return self._evaluate(validate_directions(i, "i"), validate_directions(o, "o"),
-                              check_rotation(rotation, "rotation"))
+        return self._evaluate(
+            validate_directions(i, "i"), validate_directions(o, "o"), check_rotation(rotation, "rotation")
+        )
 
     @eqx.filter_jit
     def _evaluate(self, i, o, rot):

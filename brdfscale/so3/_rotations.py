@@ -17,6 +17,7 @@ from jaxtyping import Array, ArrayLike, Float
 from .._errors import InvalidInputError
 from .._validation import as_float_array, is_concrete
 
+
 __all__ = ["euler_to_matrix", "matrix_to_euler", "check_rotation", "ROTATION_TOLERANCE"]
 
 
@@ -90,8 +91,9 @@ def matrix_to_euler(
     alpha_gen = jnp.arctan2(r[..., 1, 2], r[..., 0, 2] + safe)  # + safe: no 0/0 (nor NaN gradient) at a pole
     gamma_gen = jnp.arctan2(r[..., 2, 1], -r[..., 2, 0] + safe)
     # at a pole Γ = U(α ± γ) (β = 0) or U(α) A(π) U(γ) = U(α − γ) A(π): put everything into α, γ = 0
-    alpha_pole = jnp.where(r[..., 2, 2] > 0, jnp.arctan2(r[..., 1, 0], r[..., 0, 0]),
-                           jnp.arctan2(-r[..., 1, 0], -r[..., 0, 0]))
+    alpha_pole = jnp.where(
+        r[..., 2, 2] > 0, jnp.arctan2(r[..., 1, 0], r[..., 0, 0]), jnp.arctan2(-r[..., 1, 0], -r[..., 0, 0])
+    )
     alpha = jnp.where(pole, alpha_pole, alpha_gen)
     gamma = jnp.where(pole, 0.0, gamma_gen)
     return jnp.mod(alpha, two_pi), beta, jnp.mod(gamma, two_pi)

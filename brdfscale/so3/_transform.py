@@ -36,9 +36,10 @@ from jaxtyping import Array, ArrayLike, Complex, Float, Shaped
 
 from .._errors import InvalidInputError
 from .._validation import as_float_array
-from ._contraction import MIXED, QUADRANTS, Plan, degree_to_frequency, frequency_to_degree, kernel_tables, plan
+from ._contraction import degree_to_frequency, frequency_to_degree, kernel_tables, MIXED, Plan, plan, QUADRANTS
 from ._grid import check_band_limit, grid, quadrature_weights
 from ._wigner import euler_angles, fourier_weights, parity_sign
+
 
 __all__ = ["forward", "inverse", "synthesize", "analyse_points", "band_orders"]
 
@@ -305,8 +306,9 @@ def _synthesize(coefficients, tables, alpha, beta, gamma, *, p: Plan, chunk):
         ca, sa = eps * jnp.cos(b[:, None] * m), eps * jnp.sin(b[:, None] * m)
         ea = jnp.exp(-1j * a[:, None] * M)
         eg = jnp.exp(-1j * g[:, None] * Mp)
-        return (jnp.einsum("...mab,qm,qa,qb->...q", even_part, ca, ea, eg, optimize="optimal")
-                + jnp.einsum("...mab,qm,qa,qb->...q", odd_part, sa, ea, eg, optimize="optimal"))
+        return jnp.einsum("...mab,qm,qa,qb->...q", even_part, ca, ea, eg, optimize="optimal") + jnp.einsum(
+            "...mab,qm,qa,qb->...q", odd_part, sa, ea, eg, optimize="optimal"
+        )
 
     n = alpha.shape[0]
     pad = (-n) % chunk
@@ -380,7 +382,11 @@ def analyse_points(
     if a.shape[0] == 0:
         raise InvalidInputError("analyse_points needs at least one rotation.")
     rdt = _real_dtype(a)
-    w = jnp.full(a.shape, 1.0 / a.shape[0], rdt) if weights is None else as_float_array(weights, "weights").reshape(-1).astype(rdt)
+    w = (
+        jnp.full(a.shape, 1.0 / a.shape[0], rdt)
+        if weights is None
+        else as_float_array(weights, "weights").reshape(-1).astype(rdt)
+    )
     if w.shape != a.shape:
         raise InvalidInputError(f"weights must have one entry per rotation ({a.shape[0]}); got {w.shape[0]}.")
     p, tables = _tables(B, L, N, rdt)

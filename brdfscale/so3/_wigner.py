@@ -35,6 +35,7 @@ from jaxtyping import Array, ArrayLike, Complex, Float
 from .._errors import InvalidInputError
 from .._validation import as_float_array
 
+
 __all__ = ["wigner_d", "wigner_D", "fourier_rows", "MAX_DEGREE"]
 
 MAX_DEGREE = 4096
@@ -60,9 +61,7 @@ def fourier_rows(J: int) -> np.ndarray:
     else:
         M = np.arange(-J, J)
         off = -0.5 * np.sqrt(J * (J + 1) - M * (M + 1.0))
-        _, vectors = scipy.linalg.eigh_tridiagonal(
-            np.zeros(2 * J + 1), off, select="i", select_range=(J, 2 * J)
-        )
+        _, vectors = scipy.linalg.eigh_tridiagonal(np.zeros(2 * J + 1), off, select="i", select_range=(J, 2 * J))
         rows = np.ascontiguousarray(vectors.T)
     rows.setflags(write=False)
     return rows
@@ -110,8 +109,12 @@ def _wigner_d(J, beta, X):
     even, odd = np.nonzero(order % 2 == 0)[0], np.nonzero(order % 2 == 1)[0]
     Xe, Xo = X[:, even], X[:, odd]
     d = jnp.zeros(beta.shape + (2 * J + 1, 2 * J + 1), beta.dtype)
-    for rows, cols, Xr, Xc, w in ((even, even, Xe, Xe, cos_w), (odd, odd, Xo, Xo, cos_w),
-                                  (even, odd, Xe, Xo, sin_w), (odd, even, Xo, Xe, sin_w)):
+    for rows, cols, Xr, Xc, w in (
+        (even, even, Xe, Xe, cos_w),
+        (odd, odd, Xo, Xo, cos_w),
+        (even, odd, Xe, Xo, sin_w),
+        (odd, even, Xo, Xe, sin_w),
+    ):
         d = d.at[..., rows[:, None], cols[None, :]].set((Xr.T * w) @ Xc)
     return jnp.asarray(sigma, beta.dtype) * d
 
@@ -123,8 +126,10 @@ def euler_angles(alpha, beta, gamma):
     try:
         return jnp.broadcast_arrays(a, b, g)
     except ValueError:
-        raise InvalidInputError(f"alpha, beta and gamma must broadcast to one shape (one rotation per entry); got "
-                                f"shapes {a.shape}, {b.shape} and {g.shape}.") from None
+        raise InvalidInputError(
+            f"alpha, beta and gamma must broadcast to one shape (one rotation per entry); got "
+            f"shapes {a.shape}, {b.shape} and {g.shape}."
+        ) from None
 
 
 def wigner_D(

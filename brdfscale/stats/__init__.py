@@ -11,8 +11,8 @@ of a statistic, not statistics. The seed's ``q`` in Eq. 4.2 is the reflection of
 """
 
 from ._base import AbstractDistribution, AbstractGeneralisedDensity, AbstractSlopeDensity
+from ._families import Beckmann, Delta, Disk, Gaussian, GGX
 from ._grid import FrequencyGrid
-from ._families import GGX, Beckmann, Delta, Disk, Gaussian
 from ._histogram import SlopeHistogram
 from ._mixture import Mixture
 from ._require import require_density
@@ -27,6 +27,7 @@ from ._scale_laws import (
     window_power,
 )
 from ._tabulated import Tabulated
+
 
 __all__ = [
     "AbstractDistribution",

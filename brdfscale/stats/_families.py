@@ -9,8 +9,8 @@ from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import InvalidInputError, SingularDensityError
 from .._show import concrete, derived
-from .._special import jinc, xk1
 from .._slopes import add_offset, centred, check_slopes, eig2, offset_norm, phase, safe_norm, shifted_cf
+from .._special import jinc, xk1
 from .._validation import as_float_array, is_concrete, positive, vector2
 from ._base import AbstractSlopeDensity
 from ._grid import axis_phase
@@ -121,9 +121,7 @@ class Gaussian(AbstractSlopeDensity):
                 var = jnp.stack([s**2, s**2], axis=-1)
                 isotropic = True
             zero = jnp.zeros_like(var[..., 0])
-            cov = jnp.stack(
-                [jnp.stack([var[..., 0], zero], -1), jnp.stack([zero, var[..., 1]], -1)], axis=-2
-            )
+            cov = jnp.stack([jnp.stack([var[..., 0], zero], -1), jnp.stack([zero, var[..., 1]], -1)], axis=-2)
         else:
             cov = as_float_array(cov, "cov")
             if cov.ndim < 2 or cov.shape[-2:] != (2, 2):
@@ -145,7 +143,8 @@ class Gaussian(AbstractSlopeDensity):
                 raise InvalidInputError(
                     f"the covariance's variances and determinant must be finite normal {c.dtype} numbers "
                     f"(standard deviations between about 1e-76 and 1e76 in float64); got variances "
-                    f"{c[..., 0, 0]!r}, {c[..., 1, 1]!r} and determinant {det!r}.")
+                    f"{c[..., 0, 0]!r}, {c[..., 1, 1]!r} and determinant {det!r}."
+                )
         self.cov = cov
         self.mean = vector2(mean, "mean")
         self.isotropic = isotropic and mean is None
@@ -194,7 +193,9 @@ class Gaussian(AbstractSlopeDensity):
 
     def shifted(self, offset):
         if self.diagonal:
-            return Gaussian(sigma=jnp.sqrt(jnp.diagonal(self.cov, axis1=-2, axis2=-1)), mean=add_offset(self.mean, offset))
+            return Gaussian(
+                sigma=jnp.sqrt(jnp.diagonal(self.cov, axis1=-2, axis2=-1)), mean=add_offset(self.mean, offset)
+            )
         return Gaussian(cov=self.cov, mean=add_offset(self.mean, offset))
 
     def support_radius(self, tol):

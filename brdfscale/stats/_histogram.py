@@ -7,6 +7,7 @@ import numpy as np
 from .._errors import InvalidInputError
 from .._show import Shown
 
+
 MAX_HISTOGRAM_BYTES = 2**31
 """The largest ``bins × bins`` float64 count grid a :class:`SlopeHistogram` allocates (2 GiB)."""
 
@@ -34,7 +35,8 @@ class SlopeHistogram(Shown):
         if 8 * int(bins) ** 2 > MAX_HISTOGRAM_BYTES:
             raise InvalidInputError(
                 f"bins = {bins} needs {8 * int(bins) ** 2 / 2**30:.3g} GiB of counts, more than MAX_HISTOGRAM_BYTES "
-                f"({MAX_HISTOGRAM_BYTES / 2**30:g} GiB); use fewer bins (at most {math.isqrt(MAX_HISTOGRAM_BYTES // 8)}).")
+                f"({MAX_HISTOGRAM_BYTES / 2**30:g} GiB); use fewer bins (at most {math.isqrt(MAX_HISTOGRAM_BYTES // 8)})."
+            )
         self.extent = float(extent)
         self.bins = int(bins)
         self.spacing = 2 * self.extent / (self.bins - 1)
@@ -43,8 +45,12 @@ class SlopeHistogram(Shown):
         self._signed = False  # whether any negative weight was added
 
     def _show_items(self):
-        return [("extent", self.extent), ("bins", self.bins), ("samples", self.samples),
-                ("inside", float(self.counts.sum()))]
+        return [
+            ("extent", self.extent),
+            ("bins", self.bins),
+            ("samples", self.samples),
+            ("inside", float(self.counts.sum())),
+        ]
 
     def add(self, mx: np.ndarray, my: np.ndarray, weights: np.ndarray | None = None) -> None:
         """Add samples with slope components ``mx``, ``my`` (equal shapes) and optional weights."""

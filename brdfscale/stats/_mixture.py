@@ -29,14 +29,16 @@ class Mixture(AbstractSlopeDensity):
 
     def __init__(self, weights, components):
         components = require_density(
-            tuple(components), "components", each=True, other=" (a non-empty sequence)",
+            tuple(components),
+            "components",
+            each=True,
+            other=" (a non-empty sequence)",
             use="The mixture would not have mass 1. Use brdfscale.plus.NearlySpecular(a, [c_0, …], x0, smooth=..., "
-                "smooth_weight=w) for a δ + Σ c_n h_n + w s_smooth.")
+            "smooth_weight=w) for a δ + Σ c_n h_n + w s_smooth.",
+        )
         w = as_float_array(weights, "weights")
         if w.shape != (len(components),):
-            raise InvalidInputError(
-                f"weights must have shape ({len(components)},), one per component; got {w.shape}."
-            )
+            raise InvalidInputError(f"weights must have shape ({len(components)},), one per component; got {w.shape}.")
         if is_concrete(w):
             wn = np.asarray(weights, dtype=np.result_type(np.asarray(weights), np.float64))
             if np.any(wn < 0) or not np.any(wn > 0):

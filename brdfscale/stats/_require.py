@@ -5,6 +5,7 @@ micro lobe, a mixture component, a smooth part or a tilt is taken."""
 from .._errors import InvalidInputError
 from ._base import AbstractGeneralisedDensity, AbstractSlopeDensity
 
+
 __all__ = ["require_density"]
 
 
@@ -26,9 +27,12 @@ def require_density(value, name: str, *, use: str = "", other: str = "", each: b
         what = "probability densities" if each else "a probability density"
         raise InvalidInputError(
             f"{name} must be {what} of facet slopes (mass 1); got {', '.join(generalised)}, a generalised function "
-            f"of mass 0 with no pointwise density (a plus-distribution h_n){'. ' + use if use else '.'}")
+            f"of mass 0 with no pointwise density (a plus-distribution h_n){'. ' + use if use else '.'}"
+        )
     wrong = [type(v).__name__ for v in items if not isinstance(v, AbstractSlopeDensity)]
     if wrong or not items:
-        raise InvalidInputError(f"{name} must be {'brdfscale.stats densities' if each else 'a brdfscale.stats density'}"
-                                f"{other}; got {', '.join(wrong) or 'none'}.")
+        raise InvalidInputError(
+            f"{name} must be {'brdfscale.stats densities' if each else 'a brdfscale.stats density'}"
+            f"{other}; got {', '.join(wrong) or 'none'}."
+        )
     return value

@@ -188,7 +188,9 @@ class GaussianSurface(AbstractScaleLaw):
 
     def __init__(self, spectrum: AbstractPowerSpectrum, window: FacetWindow = "box", n_k: int = 256, n_phi: int = 32):
         if not isinstance(spectrum, AbstractPowerSpectrum):
-            raise InvalidInputError("spectrum must be a brdfscale.stats power spectrum (GaussianCorrelation, KCorrelation).")
+            raise InvalidInputError(
+                "spectrum must be a brdfscale.stats power spectrum (GaussianCorrelation, KCorrelation)."
+            )
         window_power(jnp.zeros(2), 1.0, window)  # validates the name
         self.spectrum, self.window, self.n_k, self.n_phi = spectrum, window, n_k, n_phi
 
@@ -278,7 +280,8 @@ class ScaledFamily(AbstractScaleLaw):
         except TypeError as err:
             raise InvalidInputError(
                 f"family must be a constructor taking alpha= (e.g. stats.Beckmann, stats.GGX); {family!r} does "
-                f"not: {err}") from None
+                f"not: {err}"
+            ) from None
         except ValueError:  # no signature to read (a builtin): left to the first call
             pass
         self.family, self.law = family, law
@@ -286,5 +289,7 @@ class ScaledFamily(AbstractScaleLaw):
     def at(self, mu):
         density = self.family(alpha=self.law(facet_size(mu)))
         if not isinstance(density, AbstractSlopeDensity):
-            raise InvalidInputError(f"family(alpha=...) must build a brdfscale.stats density; got {type(density).__name__}.")
+            raise InvalidInputError(
+                f"family(alpha=...) must build a brdfscale.stats density; got {type(density).__name__}."
+            )
         return density

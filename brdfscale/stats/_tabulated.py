@@ -83,7 +83,9 @@ class Tabulated(AbstractSlopeDensity):
             raise InvalidInputError(f"samples must have shape (n, 2); got {s.shape}.")
         w = None if weights is None else real_array(weights, "weights")
         if w is not None and w.shape != (len(s),):
-            raise InvalidInputError(f"weights must be {len(s)} finite real numbers, one per sample; got shape {w.shape}.")
+            raise InvalidInputError(
+                f"weights must be {len(s)} finite real numbers, one per sample; got shape {w.shape}."
+            )
         c = np.zeros(2) if center is None else real_array(center, "center", 1)
         if c.shape != (2,):
             raise InvalidInputError(f"center must have shape (2,); got {c.shape}.")
@@ -129,8 +131,12 @@ class Tabulated(AbstractSlopeDensity):
         f = g - i0
         ix, iy = i0[..., 0], i0[..., 1]
         fx, fy = f[..., 0], f[..., 1]
-        val = (v[iy, ix] * (1 - fx) * (1 - fy) + v[iy, ix + 1] * fx * (1 - fy)
-               + v[iy + 1, ix] * (1 - fx) * fy + v[iy + 1, ix + 1] * fx * fy)
+        val = (
+            v[iy, ix] * (1 - fx) * (1 - fy)
+            + v[iy, ix + 1] * fx * (1 - fy)
+            + v[iy + 1, ix] * (1 - fx) * fy
+            + v[iy + 1, ix + 1] * fx * fy
+        )
         return jnp.where(inside, val, 0.0)
 
     def cf(self, W):

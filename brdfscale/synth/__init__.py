@@ -20,13 +20,14 @@ bounded by :data:`MAX_GRID_BYTES` (2**31 bytes of float64 nodes, 16384² — use
 coarser grids beyond), Poisson counts by :data:`MAX_EXPECTED_COUNT` (1e18).
 """
 
-from ._facets import FacetStatistics, facet_slopes, facet_statistics, global_slopes, steepest_slope
-from ._gonio import MAX_EXPECTED_COUNT, GaussianNoise, PoissonNoise, gonioreflectometer
-from ._named import SURFACES, named_surface
+from ._facets import facet_slopes, facet_statistics, FacetStatistics, global_slopes, steepest_slope
+from ._gonio import GaussianNoise, gonioreflectometer, MAX_EXPECTED_COUNT, PoissonNoise
+from ._named import named_surface, SURFACES
 from ._profiles import blazed, scratches
 from ._random import as_generator
 from ._spectral import spectral_field
-from ._surface import MAX_GRID_BYTES, HeightField
+from ._surface import HeightField, MAX_GRID_BYTES
+
 
 __all__ = [
     "HeightField",

@@ -25,10 +25,11 @@ from jaxtyping import Float
 
 from .. import stats
 from .._errors import InvalidInputError
-from .._validation import integer, real, real_array
 from .._show import Shown
+from .._validation import integer, real, real_array
 from ..stats import SlopeHistogram
-from ._surface import HeightField, check_grid
+from ._surface import check_grid, HeightField
+
 
 _PIXELS_PER_CHUNK = 1 << 21  # pixels per strip: ~16 MB per float64 work array
 _TAIL = 1e-6  # kernel tails below this fraction of their peak may be cut or wrapped
@@ -76,16 +77,23 @@ class FacetStatistics(Shown):
 
     def _show_items(self):
         sd = np.sqrt(np.diag(self.covariance))
-        return [("mu", self.mu), ("block", "×".join(map(str, self.block))), ("facets", self.count),
-                ("independent", round(self.independent, 1)), ("excluded", self.excluded),
-                ("σ_x, σ_y", f"{sd[0]:.4g}, {sd[1]:.4g}"),
-                ("Σ error", f"{self.covariance_error[0, 0]:.2g}, {self.covariance_error[1, 1]:.2g}")]
+        return [
+            ("mu", self.mu),
+            ("block", "×".join(map(str, self.block))),
+            ("facets", self.count),
+            ("independent", round(self.independent, 1)),
+            ("excluded", self.excluded),
+            ("σ_x, σ_y", f"{sd[0]:.4g}, {sd[1]:.4g}"),
+            ("Σ error", f"{self.covariance_error[0, 0]:.2g}, {self.covariance_error[1, 1]:.2g}"),
+        ]
 
 
 def check_field(field) -> HeightField:
     if not isinstance(field, HeightField):
-        raise InvalidInputError(f"field must be a brdfscale.synth.HeightField (brdfscale.topography.read or "
-                                f"from_array make one of a measured surface); got {type(field).__name__}.")
+        raise InvalidInputError(
+            f"field must be a brdfscale.synth.HeightField (brdfscale.topography.read or "
+            f"from_array make one of a measured surface); got {type(field).__name__}."
+        )
     return field
 
 
@@ -206,7 +214,9 @@ def offset_histogram(field: HeightField, mu: float | None, hist: SlopeHistogram,
     return hist
 
 
-def covariance_error(samples: np.ndarray, valid: np.ndarray | None, lattice: tuple[int, int]) -> tuple[np.ndarray, float]:
+def covariance_error(
+    samples: np.ndarray, valid: np.ndarray | None, lattice: tuple[int, int]
+) -> tuple[np.ndarray, float]:
     """Standard errors of the sample covariance of facet slopes and the effective facet count.
 
     For each entry ab the centred products ``z = (m_a − m̄_a)(m_b − m̄_b)`` of the N facets
@@ -268,8 +278,14 @@ def steepest_slope(field: HeightField) -> float:
     return top
 
 
-def kernel_padding(micro: stats.AbstractSlopeDensity, resolution: float, spacing: float, nodes: int = 0,
-                   what: str = "the slope grid", advice: str = "use fewer nodes or a coarser grid") -> int:
+def kernel_padding(
+    micro: stats.AbstractSlopeDensity,
+    resolution: float,
+    spacing: float,
+    nodes: int = 0,
+    what: str = "the slope grid",
+    advice: str = "use fewer nodes or a coarser grid",
+) -> int:
     """Grid nodes to add on each side so a blur by ``micro`` ⊛ N(0, resolution²) is not cut.
 
     The padded grid, ``nodes + 2·pad`` per side, is checked against :data:`MAX_GRID_BYTES`
@@ -281,8 +297,11 @@ def kernel_padding(micro: stats.AbstractSlopeDensity, resolution: float, spacing
     if resolution > 0:
         radius += resolution * math.sqrt(2 * math.log(1 / _TAIL))
     pad = 0.0 if radius == 0 else radius / spacing if spacing > 0 else math.inf
-    check_grid(nodes + 2.0 * math.ceil(pad) if math.isfinite(pad) else math.inf, what,
-               f"{advice} (the grid is padded by {pad:.6g} nodes per side for the micro lobe's support and the blur)")
+    check_grid(
+        nodes + 2.0 * math.ceil(pad) if math.isfinite(pad) else math.inf,
+        what,
+        f"{advice} (the grid is padded by {pad:.6g} nodes per side for the micro lobe's support and the blur)",
+    )
     return math.ceil(pad)
 
 
@@ -319,7 +338,9 @@ def blur(values: np.ndarray, spacing: float, micro: stats.AbstractSlopeDensity, 
     return np.maximum(out, 0.0)
 
 
-def facet_statistics(field: HeightField, scales, *, bins: int = 129, extent: float | None = None) -> tuple[FacetStatistics, ...]:
+def facet_statistics(
+    field: HeightField, scales, *, bins: int = 129, extent: float | None = None
+) -> tuple[FacetStatistics, ...]:
     """Between-facet statistics ``s(·, μ)`` and within-facet lobes ``g_μ`` at each scale.
 
     Args:
@@ -363,7 +384,8 @@ def facet_statistics(field: HeightField, scales, *, bins: int = 129, extent: flo
         if len(samples) == 0:
             raise InvalidInputError(
                 f"no facet window of mu={mu:g} ({block[0]} × {block[1]} pixel facets) lies wholly on measured pixels; "
-                "use a smaller scale (field.scales lists admissible ones).")
+                "use a smaller scale (field.scales lists admissible ones)."
+            )
         top = float(np.max(np.abs(samples)))
         s_extent = extent if extent is not None else max(top, 1e-12) * (1 + 1e-9) + 1e-12
         s_hist = SlopeHistogram(s_extent, bins)
@@ -371,17 +393,28 @@ def facet_statistics(field: HeightField, scales, *, bins: int = 129, extent: flo
         slopes = stats.Tabulated.from_histogram(s_hist)
         g_extent = extent if extent is not None else (steepest + top) * (1 + 1e-9) + 1e-12
         h = 2 * g_extent / (bins - 1)
-        pad = kernel_padding(field.micro, 0.0, h, bins, f"the within-facet lobe grid at mu={mu}",
-                             "use fewer bins or a larger extent")
+        pad = kernel_padding(
+            field.micro, 0.0, h, bins, f"the within-facet lobe grid at mu={mu}", "use fewer bins or a larger extent"
+        )
         hist = offset_histogram(field, mu, SlopeHistogram(g_extent + pad * h, bins + 2 * pad))
         lobe = stats.Tabulated(blur(hist.node_counts(), h, field.micro), extent=g_extent + pad * h)
         cov = np.cov(samples.T, bias=False) if len(samples) > 1 else np.zeros((2, 2))
         error, independent = covariance_error(samples, valid, lattice)
-        results.append(FacetStatistics(
-            mu, block, slopes, lobe, samples.mean(axis=0), cov, len(samples),
-            covariance_error=error, independent=independent,
-            excluded=lattice[0] * lattice[1] - len(samples),
-            rms_slope=float(np.sqrt(np.mean(np.sum(samples**2, axis=1))))))
+        results.append(
+            FacetStatistics(
+                mu,
+                block,
+                slopes,
+                lobe,
+                samples.mean(axis=0),
+                cov,
+                len(samples),
+                covariance_error=error,
+                independent=independent,
+                excluded=lattice[0] * lattice[1] - len(samples),
+                rms_slope=float(np.sqrt(np.mean(np.sum(samples**2, axis=1)))),
+            )
+        )
     return tuple(results)
 
 

@@ -13,8 +13,8 @@ from .._errors import InvalidInputError
 from .._measurement import LobeImage, MeasurementSet
 from .._validation import integer, real, real_array
 from ..geometry import validate_directions
-from ._facets import blur, check_field, check_scales, facet_samples, kernel_padding, offset_histogram
 from ..stats import SlopeHistogram
+from ._facets import blur, check_field, check_scales, facet_samples, kernel_padding, offset_histogram
 from ._random import as_generator, seed_record
 from ._surface import HeightField, parameter_record
 
@@ -67,7 +67,9 @@ class PoissonNoise:
     def sample(self, values: Float[np.ndarray, "..."], rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         expected = real_array(values, "values") * self.exposure
         if np.any(expected < 0):
-            raise InvalidInputError(f"Poisson noise needs values ≥ 0; the smallest is {np.min(expected) / self.exposure:.6g}.")
+            raise InvalidInputError(
+                f"Poisson noise needs values ≥ 0; the smallest is {np.min(expected) / self.exposure:.6g}."
+            )
         peak = float(np.max(expected, initial=0.0))
         if not peak <= MAX_EXPECTED_COUNT:
             raise InvalidInputError(
@@ -208,8 +210,14 @@ def gonioreflectometer(
     rng = None if noise is None else as_generator(seed)
 
     h = 2 * extent / (pixels - 1)
-    pad = kernel_padding(field.micro, resolution, h, pixels, f"the image grid (pixels={pixels}, resolution={resolution:g})",
-                         "use fewer pixels, a smaller resolution or a larger extent (a coarser pitch)")
+    pad = kernel_padding(
+        field.micro,
+        resolution,
+        h,
+        pixels,
+        f"the image grid (pixels={pixels}, resolution={resolution:g})",
+        "use fewer pixels, a smaller resolution or a larger extent (a coarser pitch)",
+    )
     crop = slice(pad, pad + pixels)
     images, truth = [], {"facet_slope_mean": [], "facet_slope_covariance": []}
     law = None if field.spectrum is None else stats.GaussianSurface(field.spectrum, window="box", n_k=256)
@@ -220,9 +228,13 @@ def gonioreflectometer(
     for mu in scales:
         samples, _ = facet_samples(field, field.block(mu))
         if len(samples) == 0:
-            raise InvalidInputError(f"no facet window of mu={mu:g} lies wholly on measured pixels; use a smaller scale.")
+            raise InvalidInputError(
+                f"no facet window of mu={mu:g} lies wholly on measured pixels; use a smaller scale."
+            )
         truth["facet_slope_mean"].append(samples.mean(axis=0).tolist())
-        truth["facet_slope_covariance"].append(np.cov(samples.T).tolist() if len(samples) > 1 else [[0.0, 0.0], [0.0, 0.0]])
+        truth["facet_slope_covariance"].append(
+            np.cov(samples.T).tolist() if len(samples) > 1 else [[0.0, 0.0], [0.0, 0.0]]
+        )
         if law is not None:
             truth["analytic_facet_slope_covariance"].append(np.asarray(_box_covariance(law, jnp.asarray(mu))).tolist())
         lobe = None

@@ -8,7 +8,7 @@ from .._surfaces import DESCRIPTIONS
 from ._profiles import blazed, scratches
 from ._random import as_generator
 from ._spectral import _check_size, spectral_field
-from ._surface import HeightField, check_micro
+from ._surface import check_micro, HeightField
 
 
 def _gaussian(size, seed):
@@ -36,15 +36,22 @@ def _blazed(size, seed):
     return blazed(size=size, period=16, slopes=(0.03, -0.09))
 
 
-_BUILDERS = {"gaussian": _gaussian, "anisotropic": _anisotropic, "fractal": _fractal, "scratched": _scratched,
-             "blazed": _blazed}
+_BUILDERS = {
+    "gaussian": _gaussian,
+    "anisotropic": _anisotropic,
+    "fractal": _fractal,
+    "scratched": _scratched,
+    "blazed": _blazed,
+}
 SURFACES: dict[str, tuple[str, Callable[[int, object], HeightField]]] = {
     name: (DESCRIPTIONS[name], _BUILDERS[name]) for name in DESCRIPTIONS
 }
 """name → (description, builder(size, seed))."""
 
 
-def named_surface(name: str, *, size: int = 512, seed=0, micro: stats.AbstractSlopeDensity | None = None) -> HeightField:
+def named_surface(
+    name: str, *, size: int = 512, seed=0, micro: stats.AbstractSlopeDensity | None = None
+) -> HeightField:
     """A built-in surface by name (keys of :data:`SURFACES`), pixel pitch 1.
 
     ``micro`` replaces the pixel facets' lobe (default: mirror facets).
@@ -60,5 +67,10 @@ def named_surface(name: str, *, size: int = 512, seed=0, micro: stats.AbstractSl
     if micro is not None:
         check_micro(micro)
     field = SURFACES[name][1](size, seed)
-    return HeightField(field.heights, field.spacing, micro=field.micro if micro is None else micro,
-                       spectrum=field.spectrum, description={**field.description, "name": name})
+    return HeightField(
+        field.heights,
+        field.spacing,
+        micro=field.micro if micro is None else micro,
+        spectrum=field.spectrum,
+        description={**field.description, "name": name},
+    )

@@ -9,7 +9,7 @@ from .._errors import InvalidInputError
 from .._validation import integer, real
 from ._random import as_generator, seed_record
 from ._spectral import _check_size
-from ._surface import HeightField, check_micro
+from ._surface import check_micro, HeightField
 
 
 def _positive(value, name: str) -> float:
@@ -70,8 +70,15 @@ def blazed(
         heights,
         spacing,
         micro=micro,
-        description={"generator": "blazed", "size": n, "spacing": spacing, "period": int(period),
-                     "slopes": [s0, s1], "fraction": f, "angle": float(angle)},
+        description={
+            "generator": "blazed",
+            "size": n,
+            "spacing": spacing,
+            "period": int(period),
+            "slopes": [s0, s1],
+            "fraction": f,
+            "angle": float(angle),
+        },
     )
 
 
@@ -132,6 +139,14 @@ def scratches(
         heights,
         spacing,
         micro=micro,
-        description={"generator": "scratches", "size": n, "spacing": spacing, "count": count,
-                     "depth": depth, "width": width, "length": length, "seed": seed_record(seed)},
+        description={
+            "generator": "scratches",
+            "size": n,
+            "spacing": spacing,
+            "count": count,
+            "depth": depth,
+            "width": width,
+            "length": length,
+            "seed": seed_record(seed),
+        },
     )

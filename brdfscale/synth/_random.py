@@ -27,7 +27,9 @@ def as_generator(seed) -> np.random.Generator:
         data = jax.random.key_data(seed) if jax.dtypes.issubdtype(seed.dtype, jax.dtypes.prng_key) else seed
         words = np.asarray(data)
         if words.dtype != np.uint32 or words.ndim != 1:
-            raise InvalidInputError(f"a JAX seed must be a single PRNG key; got an array of shape {words.shape}, dtype {words.dtype}.")
+            raise InvalidInputError(
+                f"a JAX seed must be a single PRNG key; got an array of shape {words.shape}, dtype {words.dtype}."
+            )
         return np.random.default_rng([int(w) for w in words])
     raise InvalidInputError(
         f"seed must be an int ≥ 0, a numpy.random.Generator or a JAX PRNG key; got {type(seed).__name__}."

@@ -7,7 +7,8 @@ from .. import stats
 from .._errors import InvalidInputError
 from .._validation import integer, real
 from ._random import as_generator, seed_record
-from ._surface import HeightField, check_grid, check_micro, parameter_record
+from ._surface import check_grid, check_micro, HeightField, parameter_record
+
 
 _ROWS_PER_CHUNK = 256
 
@@ -89,5 +90,4 @@ def spectral_field(
         "spacing": float(spacing),
         "seed": seed_record(seed),
     }
-    return HeightField(heights, spacing, micro=micro, spectrum=spectrum,
-                       description=description)
+    return HeightField(heights, spacing, micro=micro, spectrum=spectrum, description=description)

@@ -15,6 +15,7 @@ from .._measurement import boolean_mask
 from .._show import Shown
 from .._validation import flag, integer, pitch, real, real_array
 
+
 MAX_GRID_BYTES = 2**31
 """The largest float64 grid synthesis allocates, in bytes: 2 GiB, i.e. 16384 × 16384 nodes.
 
@@ -40,8 +41,11 @@ def check_grid(side: float, what: str, advice: str) -> None:
 def check_micro(micro) -> stats.AbstractSlopeDensity:
     """The pixel facets' lobe: a :mod:`brdfscale.stats` probability density (not a plus-distribution)."""
     return stats.require_density(
-        micro, "micro", other=" (Delta() for mirror facets)",
-        use="Use plus.NearlySpecular(...) (mass 1) or plus.observe(plus.NearlySpecular(...), kernel).")
+        micro,
+        "micro",
+        other=" (Delta() for mirror facets)",
+        use="Use plus.NearlySpecular(...) (mass 1) or plus.observe(plus.NearlySpecular(...), kernel).",
+    )
 
 
 @dataclasses.dataclass(frozen=True, eq=False, repr=False)
@@ -109,16 +113,24 @@ class HeightField(Shown):
                 raw = np.where(mask, raw, 0.0)
         h = real_array(raw, "heights")
         if h.ndim != 2 or min(h.shape) < 4:
-            raise InvalidInputError(f"heights must be a 2-D (ny, nx) array with ny, nx ≥ 4 (rows y, columns x); got shape {h.shape}.")
+            raise InvalidInputError(
+                f"heights must be a 2-D (ny, nx) array with ny, nx ≥ 4 (rows y, columns x); got shape {h.shape}."
+            )
         spacing = pitch(self.spacing)
         check_micro(self.micro)
         if self.spectrum is not None and not isinstance(self.spectrum, stats.AbstractPowerSpectrum):
-            raise InvalidInputError(f"spectrum must be a brdfscale.stats power spectrum; got {type(self.spectrum).__name__}.")
+            raise InvalidInputError(
+                f"spectrum must be a brdfscale.stats power spectrum; got {type(self.spectrum).__name__}."
+            )
         if not isinstance(self.description, Mapping):
-            raise InvalidInputError(f"description must be a dict (JSON-serialisable provenance); got {type(self.description).__name__}.")
+            raise InvalidInputError(
+                f"description must be a dict (JSON-serialisable provenance); got {type(self.description).__name__}."
+            )
         periodic = flag(self.periodic, "periodic")
         if self.unit is not None and not isinstance(self.unit, str):
-            raise InvalidInputError(f"unit must be the name of a length unit (a string) or None; got {type(self.unit).__name__}.")
+            raise InvalidInputError(
+                f"unit must be the name of a length unit (a string) or None; got {type(self.unit).__name__}."
+            )
         if mask is not None and mask.all():
             mask = None
         object.__setattr__(self, "heights", h)
@@ -129,7 +141,8 @@ class HeightField(Shown):
         if mask is not None and not self.pixel_facets.any():
             raise InvalidInputError(
                 f"the mask leaves no measured pixel facet (a pixel facet needs its node and its right and lower "
-                f"neighbours measured); {int(mask.sum())} of {mask.size} pixels are measured.")
+                f"neighbours measured); {int(mask.sum())} of {mask.size} pixels are measured."
+            )
 
     # -- geometry ------------------------------------------------------------------------
     @property
@@ -177,12 +190,16 @@ class HeightField(Shown):
             if not (abs(b - nb) <= 1e-9 * max(1.0, b) and 1 <= nb <= top):
                 unit = f" {self.unit}" if self.unit else ""
                 square = math.isclose(dx, dy, rel_tol=1e-12)
-                whole = ("a whole number of pixels" if square else
-                         f"a whole number of pixels along both axes (Δx = {dx:.6g}{unit}, Δy = {dy:.6g}{unit})")
+                whole = (
+                    "a whole number of pixels"
+                    if square
+                    else f"a whole number of pixels along both axes (Δx = {dx:.6g}{unit}, Δy = {dy:.6g}{unit})"
+                )
                 raise InvalidInputError(
                     f"scale mu={mu!r} must be {whole} between {max(dx, dy):.6g}{unit} and "
                     f"{min(fx * dx, fy * dy):.6g}{unit} (the field's {fy} × {fx} pixel facets); "
-                    f"field.scales(count) lists admissible ones.")
+                    f"field.scales(count) lists admissible ones."
+                )
             counts.append(int(nb))
         return counts[0], counts[1]
 
@@ -202,8 +219,10 @@ class HeightField(Shown):
         while not abs(k * ratio - round(k * ratio)) <= 1e-9 * k * ratio and k < 1000:
             k += 1
         if k == 1000:
-            raise InvalidInputError(f"the pixel pitches Δx = {dx:.6g} and Δy = {dy:.6g} have no common multiple of "
-                                    "under 1000 pixels; resample the field onto square pixels.")
+            raise InvalidInputError(
+                f"the pixel pitches Δx = {dx:.6g} and Δy = {dy:.6g} have no common multiple of "
+                "under 1000 pixels; resample the field onto square pixels."
+            )
         unit_px = (round(k * ratio), k)  # the unit window in (x, y) pixels: k Δy = round(k Δy/Δx) Δx
         fy, fx = self.facet_grid
         top = min(fx // unit_px[0], fy // unit_px[1])
@@ -214,7 +233,9 @@ class HeightField(Shown):
         else:
             largest = min(integer(largest, "largest", smallest), top)
         if smallest > largest:
-            raise InvalidInputError(f"smallest={smallest} exceeds the largest admissible window, {largest} unit windows.")
+            raise InvalidInputError(
+                f"smallest={smallest} exceeds the largest admissible window, {largest} unit windows."
+            )
         multiples = np.unique(np.rint(np.geomspace(smallest, largest, count)).astype(int))
         return [float(m * unit_px[0] * dx) for m in multiples]
 
@@ -232,13 +253,17 @@ class HeightField(Shown):
         ``spectrum`` is dropped."""
         if not isinstance(other, HeightField):
             return NotImplemented
-        same = (other.shape == self.shape and other.periodic == self.periodic
-                and all(math.isclose(a, b, rel_tol=1e-12) for a, b in zip(other.spacing, self.spacing)))
+        same = (
+            other.shape == self.shape
+            and other.periodic == self.periodic
+            and all(math.isclose(a, b, rel_tol=1e-12) for a, b in zip(other.spacing, self.spacing))
+        )
         if not same or other.unit != self.unit:
             raise InvalidInputError(
                 f"can only add fields of equal shape, spacing, periodicity and unit; got {self.shape}@{self.spacing} "
                 f"(periodic={self.periodic}, unit={self.unit}) and {other.shape}@{other.spacing} "
-                f"(periodic={other.periodic}, unit={other.unit}).")
+                f"(periodic={other.periodic}, unit={other.unit})."
+            )
         if self.mask is None or other.mask is None:
             mask = self.mask if other.mask is None else other.mask
         else:
@@ -257,8 +282,11 @@ class HeightField(Shown):
         ny, nx = self.shape
         dx, dy = self.spacing
         unit = f" {self.unit}" if self.unit else ""
-        items = [("shape", f"{ny} × {nx}"), ("spacing", f"{dx:.4g} × {dy:.4g}{unit}" if dx != dy else f"{dx:.4g}{unit}"),
-                 ("periodic", self.periodic)]
+        items = [
+            ("shape", f"{ny} × {nx}"),
+            ("spacing", f"{dx:.4g} × {dy:.4g}{unit}" if dx != dy else f"{dx:.4g}{unit}"),
+            ("periodic", self.periodic),
+        ]
         if self.mask is not None:
             items.append(("unmeasured", f"{int(np.count_nonzero(~self.mask))} of {self.mask.size} px"))
         source = self.description.get("file") or self.description.get("generator") or self.description.get("name")

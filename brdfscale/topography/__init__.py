@@ -20,7 +20,8 @@ are excluded. Provenance — file, format, instrument, channel, units, the detre
 coefficients — is in ``field.description``.
 """
 
-from ._array import DETRENDS, UNITS, detrend, from_array
+from ._array import detrend, DETRENDS, from_array, UNITS
 from ._read import read
+
 
 __all__ = ["read", "from_array", "detrend", "DETRENDS", "UNITS"]

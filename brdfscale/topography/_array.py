@@ -5,16 +5,26 @@ from collections.abc import Mapping
 import numpy as np
 from jaxtyping import ArrayLike, Bool, Float
 
+from .. import stats
 from .._errors import InvalidInputError
 from .._measurement import boolean_mask
 from .._validation import pitch, real_array
-from .. import stats
 from ..synth import HeightField
+
 
 #: Length units accepted for heights and pitches, in metres (µ as U+00B5 or U+03BC, or "u").
 UNITS: dict[str, float] = {
-    "km": 1e3, "m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6, "\u00b5m": 1e-6, "\u03bcm": 1e-6,
-    "nm": 1e-9, "\u00c5": 1e-10, "A": 1e-10, "pm": 1e-12,
+    "km": 1e3,
+    "m": 1.0,
+    "cm": 1e-2,
+    "mm": 1e-3,
+    "um": 1e-6,
+    "\u00b5m": 1e-6,
+    "\u03bcm": 1e-6,
+    "nm": 1e-9,
+    "\u00c5": 1e-10,
+    "A": 1e-10,
+    "pm": 1e-12,
 }
 
 #: The detrending modes: the polynomial in ``ξ = x/L_x, η = y/L_y`` removed by least squares
@@ -39,8 +49,9 @@ def _check_mode(mode) -> str | None:
     return mode
 
 
-def detrend(heights: Float[ArrayLike, "ny nx"], mode: str | None = "plane", mask: Bool[ArrayLike, "ny nx"] | None = None
-            ) -> tuple[Float[np.ndarray, "ny nx"], dict]:
+def detrend(
+    heights: Float[ArrayLike, "ny nx"], mode: str | None = "plane", mask: Bool[ArrayLike, "ny nx"] | None = None
+) -> tuple[Float[np.ndarray, "ny nx"], dict]:
     """Remove a plane or a quadratic from ``heights`` by least squares over the measured pixels.
 
     The trend is ``p(ξ, η) = Σ_t c_t t(ξ, η)`` over the terms of :data:`DETRENDS` in the
@@ -78,8 +89,9 @@ def _fit_trend(h: np.ndarray, mode: str | None, valid: np.ndarray) -> tuple[np.n
         columns += [np.broadcast_to(xi**2, h.shape), np.broadcast_to(eta**2, h.shape), xi * eta]
     design = np.stack([c[valid] for c in columns], axis=-1)
     if design.shape[0] < design.shape[1]:
-        raise InvalidInputError(f"detrend={mode!r} fits {design.shape[1]} coefficients but only {design.shape[0]} "
-                                "pixels are measured.")
+        raise InvalidInputError(
+            f"detrend={mode!r} fits {design.shape[1]} coefficients but only {design.shape[0]} pixels are measured."
+        )
     coefficients, *_ = np.linalg.lstsq(design, h[valid], rcond=None)
     trend = sum(c * t for c, t in zip(coefficients, columns))
     record["coefficients"] = [float(c) for c in coefficients]
@@ -128,16 +140,20 @@ def from_array(
     try:
         h = np.array(raw, copy=True)
     except (TypeError, ValueError) as err:
-        raise InvalidInputError(f"heights must be an array of real numbers; got a {type(heights).__name__} NumPy "
-                                f"cannot read as one ({err}).") from None
+        raise InvalidInputError(
+            f"heights must be an array of real numbers; got a {type(heights).__name__} NumPy "
+            f"cannot read as one ({err})."
+        ) from None
     if h.dtype.kind not in "fiu":
         raise InvalidInputError(f"heights must be real numbers (float or int); got dtype {h.dtype}.")
     h = h.astype(float)
     if h.ndim != 2:
         raise InvalidInputError(f"heights must be a 2-D (ny, nx) array, rows y and columns x; got shape {h.shape}.")
     if np.any(np.isinf(h)):
-        raise InvalidInputError(f"heights contain {int(np.count_nonzero(np.isinf(h)))} infinite values; mark "
-                                "unmeasured pixels with NaN or mask=False instead.")
+        raise InvalidInputError(
+            f"heights contain {int(np.count_nonzero(np.isinf(h)))} infinite values; mark "
+            "unmeasured pixels with NaN or mask=False instead."
+        )
     masks.append(~np.isnan(h))
     if mask is not None:
         m = boolean_mask(mask, "mask")
@@ -151,7 +167,9 @@ def from_array(
     if not isinstance(periodic, (bool, np.bool_)):
         raise InvalidInputError(f"periodic must be True or False; got {type(periodic).__name__} {periodic!r}.")
     if periodic and mode is not None:
-        raise InvalidInputError(f"periodic=True needs detrend=None: a removed {mode} is not periodic; got detrend={mode!r}.")
+        raise InvalidInputError(
+            f"periodic=True needs detrend=None: a removed {mode} is not periodic; got detrend={mode!r}."
+        )
     if description is not None and not isinstance(description, Mapping):
         raise InvalidInputError(f"description must be a dict of provenance; got {type(description).__name__}.")
     if not valid.any():
@@ -169,6 +187,12 @@ def from_array(
         "unmeasured": int(np.count_nonzero(~valid)),
         **(dict(description) if description else {}),
     }
-    return HeightField(h, (dx * scale, dy * scale), micro=stats.Delta() if micro is None else micro,
-                       description=provenance, mask=None if valid.all() else valid, periodic=bool(periodic), unit="m")
-
+    return HeightField(
+        h,
+        (dx * scale, dy * scale),
+        micro=stats.Delta() if micro is None else micro,
+        description=provenance,
+        mask=None if valid.all() else valid,
+        periodic=bool(periodic),
+        unit="m",
+    )

@@ -7,7 +7,7 @@ import numpy as np
 
 from .._errors import InvalidInputError, MeasurementFileError, MissingDependencyError
 from .._json import jsonable
-from ._array import UNITS, from_array
+from ._array import from_array, UNITS
 
 
 def _surface_topography():
@@ -17,7 +17,8 @@ def _surface_topography():
         raise MissingDependencyError(
             "reading instrument files needs SurfaceTopography, the optional extra brdfscale[topography]: "
             'pip install "brdfscale[topography]" (or build the field from your own array with '
-            f"brdfscale.topography.from_array); the import failed: {err}") from None
+            f"brdfscale.topography.from_array); the import failed: {err}"
+        ) from None
     return SurfaceTopography
 
 
@@ -52,28 +53,38 @@ def read(path, *, channel: int | str | None = None, detrend: str | None = "plane
     if name is None:
         raise InvalidInputError(f"path must be a file name (str or os.PathLike); got {type(path).__name__}.")
     if not os.path.isfile(name):
-        what = "is a directory" if os.path.isdir(name) else "does not exist" if not os.path.lexists(name) else "is not a regular file"
+        what = (
+            "is a directory"
+            if os.path.isdir(name)
+            else "does not exist"
+            if not os.path.lexists(name)
+            else "is not a regular file"
+        )
         raise MeasurementFileError(f"{name}: {what}; expected an instrument height map (e.g. .di, .opd, .plu, .frt).")
     try:
         reader = st.open_topography(name)
     except Exception as err:  # SurfaceTopography reports every reader it tried in one message
         raise MeasurementFileError(
             f"{name}: SurfaceTopography {st.__version__} cannot read it as a topography ({_reason(err)}); check the "
-            "file is an instrument height map of a format it supports.") from None
+            "file is an instrument height map of a format it supports."
+        ) from None
     channels = list(reader.channels)
     index = _channel_index(name, reader, channels, channel)
     info = channels[index]
     try:
         topo = reader.topography(channel_index=index)
     except Exception as err:
-        raise MeasurementFileError(f"{name}: channel {index} ({info.name!r}) cannot be read as a topography "
-                                   f"({type(err).__name__}: {str(err)[:300]}).") from None
+        raise MeasurementFileError(
+            f"{name}: channel {index} ({info.name!r}) cannot be read as a topography "
+            f"({type(err).__name__}: {str(err)[:300]})."
+        ) from None
     if topo.dim != 2:
         raise MeasurementFileError(f"{name}: channel {index} ({info.name!r}) is a line scan, not an areal height map.")
     unit = topo.unit
     if unit not in UNITS:
-        raise MeasurementFileError(f"{name}: the heights' unit {topo.unit!r} is not a length unit brdfscale knows "
-                                   f"({', '.join(UNITS)}).")
+        raise MeasurementFileError(
+            f"{name}: the heights' unit {topo.unit!r} is not a length unit brdfscale knows ({', '.join(UNITS)})."
+        )
     heights = topo.heights()
     mask = ~np.ma.getmaskarray(heights) if np.ma.isMaskedArray(heights) else None
     heights = np.ma.getdata(heights)
@@ -90,8 +101,15 @@ def read(path, *, channel: int | str | None = None, detrend: str | None = "plane
         "file_unit": topo.unit,
         "acquisition_time": jsonable((topo.info or {}).get("acquisition_time"), other=str),
     }
-    return from_array(heights.T, (lx / nx, ly / ny), unit=unit, mask=None if mask is None else mask.T,
-                      detrend=detrend, micro=micro, description=description)
+    return from_array(
+        heights.T,
+        (lx / nx, ly / ny),
+        unit=unit,
+        mask=None if mask is None else mask.T,
+        detrend=detrend,
+        micro=micro,
+        description=description,
+    )
 
 
 def _reason(err: Exception) -> str:
@@ -116,5 +134,6 @@ def _channel_index(name, reader, channels, channel) -> int:
         raise InvalidInputError(f"{name} has no channel named {channel!r}; its channels are {listing}.")
     if isinstance(channel, (int, np.integer)) and not isinstance(channel, bool) and 0 <= channel < len(channels):
         return int(channel)
-    raise InvalidInputError(f"channel must be an index from 0 to {len(channels) - 1} or a name; {name} has {listing}; "
-                            f"got {channel!r}.")
+    raise InvalidInputError(
+        f"channel must be an index from 0 to {len(channels) - 1} or a name; {name} has {listing}; got {channel!r}."
+    )

@@ -29,6 +29,7 @@ import scipy.special as sp
 
 from brdfscale import lobes, plus, scene, so3, stats
 
+
 LOBE_ALPHA = 0.05
 MU0 = 1e-4
 WIDTH = stats.WidthLaw(0.2, 1e-3, 0.5)  # α(μ) of the statistics
@@ -65,7 +66,9 @@ def nearly_specular(alpha):
     """``(1 − w) δ + 0.05 w h_0 + w Beckmann(α)`` with w = α/α_max and the plus-distribution
     h_0 of cut-off 0.02 (seed §6): mirror-like at coarse scales, rough and glinting at fine."""
     w = jnp.asarray(alpha) / WIDTH.alpha_max
-    return plus.NearlySpecular(1 - w, jnp.stack([PLUS_STRENGTH * w]), PLUS_X0, smooth=stats.Beckmann(alpha), smooth_weight=w)
+    return plus.NearlySpecular(
+        1 - w, jnp.stack([PLUS_STRENGTH * w]), PLUS_X0, smooth=stats.Beckmann(alpha), smooth_weight=w
+    )
 
 
 def plus_h0(z):
@@ -78,8 +81,13 @@ def plus_h0(z):
 
 
 def material(kind):
-    family = {"closed_form": stats.Beckmann, "beckmann_ggx": stats.GGX, "skewed_mixture": skewed,
-              "disk": diluted_disk, "plus": nearly_specular}[kind]
+    family = {
+        "closed_form": stats.Beckmann,
+        "beckmann_ggx": stats.GGX,
+        "skewed_mixture": skewed,
+        "disk": diluted_disk,
+        "plus": nearly_specular,
+    }[kind]
     return scene.Material(lobes.Beckmann(LOBE_ALPHA), MU0, stats.ScaledFamily(family, WIDTH))
 
 
@@ -97,7 +105,7 @@ def _xk1(x):
 
 def _radial_transform(kind, mu, k):
     a0, a1 = alpha(MU0), alpha(mu)
-    lobe = np.exp(-(LOBE_ALPHA * k) ** 2 / 4)
+    lobe = np.exp(-((LOBE_ALPHA * k) ** 2) / 4)
     if kind == "beckmann_ggx":
         # ratio x0 K1(x0) / (x1 K1(x1)) with the exponentials combined (no underflow)
         x0, x1 = a0 * k, a1 * k
@@ -105,16 +113,20 @@ def _radial_transform(kind, mu, k):
         s1 = np.where(x1 > 0, x1 * sp.k1e(np.where(x1 > 0, x1, 1)), 1.0)
         return lobe * s0 / s1 * np.exp(-(x0 - x1))
     if kind == "disk":
+
         def S(a):
             f = (a / float(WIDTH.alpha_max)) ** 2
             x = 0.1 * k
             jinc = np.where(x > 0, 2 * sp.j1(np.where(x > 0, x, 1)) / np.where(x > 0, x, 1), 1.0)
             return f * jinc + (1 - f)
+
         return lobe * S(a0) / S(a1)
     if kind == "plus":
+
         def S(a):
             w = a / float(WIDTH.alpha_max)
-            return (1 - w) + PLUS_STRENGTH * w * plus_h0(k * PLUS_X0) + w * np.exp(-(a * k) ** 2 / 4)
+            return (1 - w) + PLUS_STRENGTH * w * plus_h0(k * PLUS_X0) + w * np.exp(-((a * k) ** 2) / 4)
+
         return lobe * S(a0) / S(a1)
     raise ValueError(kind)
 
@@ -145,7 +157,7 @@ def mpmath_check(kind, mu, r):
         return f * (2 * mpmath.besselj(1, x) / x if x > 0 else 1) + (1 - f)
 
     def G(k):
-        return mpmath.exp(-(LOBE_ALPHA * k) ** 2 / 4) * S(a0, k) / S(a1, k)
+        return mpmath.exp(-((LOBE_ALPHA * k) ** 2) / 4) * S(a0, k) / S(a1, k)
 
     K = math.sqrt(4 * math.log(1e17)) / LOBE_ALPHA
     edges = list(np.linspace(0, K, 9))
@@ -161,6 +173,7 @@ def gaussian_reference(mu, u):
 
 def skewed_reference(mu, u, nodes=600):
     """2D inverse transform of ``G = G_lobe S(μ0)/S(μ)`` by a tensor Gauss–Legendre rule."""
+
     def S(a, Wx, Wy):
         out = 0
         for w, scale, shift in ((SKEW[0], 1.0, 0.3), (SKEW[1], 1.5, -0.7)):
@@ -286,5 +299,5 @@ def _hankel_rows(mu, r, nodes=2048):
     k, wk = 0.5 * K * (x + 1), 0.5 * K * w
     a0, a1 = alpha(MU0), np.asarray(WIDTH(mu))[:, None]
     x0, x1 = a0 * k[None, :], a1 * k[None, :]
-    G = np.exp(-(LOBE_ALPHA * k) ** 2 / 4) * x0 * sp.k1e(x0) / (x1 * sp.k1e(x1)) * np.exp(-(x0 - x1))
+    G = np.exp(-((LOBE_ALPHA * k) ** 2) / 4) * x0 * sp.k1e(x0) / (x1 * sp.k1e(x1)) * np.exp(-(x0 - x1))
     return np.sum(G * (wk * k) * sp.j0(r[:, None] * k[None, :]), axis=1) / (2 * np.pi)

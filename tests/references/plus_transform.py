@@ -14,7 +14,7 @@ import mpmath as mp
 def series(n: int, z) -> mp.mpf:
     z = mp.mpf(z)
     with mp.workdps(int(30 + z / 2.3)):
-        q = -(z / 2) ** 2
+        q = -((z / 2) ** 2)
         term, total, k = mp.mpf(1), mp.mpf(0), 0
         while True:
             k += 1
