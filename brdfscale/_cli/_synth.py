@@ -47,7 +47,8 @@ def _noise(text: str):
             raise argparse.ArgumentTypeError(f"bad noise {text!r:.60}: {err}") from None
     raise argparse.ArgumentTypeError(
         f"noise must be none, poisson:EXPOSURE[:READ_NOISE] (EXPOSURE in [{_EXPOSURE[0]:g}, "
-        f"{_EXPOSURE[1]:g}], READ_NOISE in counts in [0, {_READ[1]:g}]) or gaussian:SIGMA (SIGMA in [{_SIGMA[0]:g}, {_SIGMA[1]:g}]); "
+        f"{_EXPOSURE[1]:g}], READ_NOISE in counts in [0, {_READ[1]:g}]) "
+        f"or gaussian:SIGMA (SIGMA in [{_SIGMA[0]:g}, {_SIGMA[1]:g}]); "
         f"got {text!r:.60}"
     )
 

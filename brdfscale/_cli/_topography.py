@@ -280,7 +280,8 @@ def markdown(doc: dict) -> str:
         ),
         f"* detrend: {trend.get('mode') or 'none'}"
         + (
-            f" (terms {', '.join(trend['terms'])}; coefficients {', '.join(f'{c:.6g}' for c in trend['coefficients'])}, "
+            f" (terms {', '.join(trend['terms'])}; coefficients "
+            f"{', '.join(f'{c:.6g}' for c in trend['coefficients'])}, "
             "in metres)"
             if trend.get("coefficients")
             else ""

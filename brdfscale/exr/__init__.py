@@ -11,8 +11,14 @@ and docs/synth_exr.md. Every reader validates every attribute and checksum and r
 :class:`brdfscale.MeasurementFileError` naming the file, the part and the attribute.
 """
 
+from typing import TYPE_CHECKING
+
 from ._format import FORMAT_VERSION
 from ._measurements import file_kind, read_measurements, write_measurements
+
+
+if TYPE_CHECKING:  # for static tools; at run time __getattr__ imports them on first use
+    from ._tables import LobeTable, read_lobe_table, write_lobe_table
 
 
 _TABLES = ("LobeTable", "read_lobe_table", "write_lobe_table")

@@ -55,7 +55,8 @@ class LobeTable:
         ok = values.ndim in (3, 4) and values.shape[0] == len(scales) and values.shape[1] == values.shape[2] >= 2
         if not ok or (values.ndim == 4 and values.shape[3] != 3):
             raise InvalidInputError(
-                f"values must have shape (k, n, n) or (k, n, n, 3) with k = {len(scales)} scales, n ≥ 2; got {values.shape}."
+                f"values must have shape (k, n, n) or (k, n, n, 3) with k = {len(scales)} scales, n ≥ 2; "
+                f"got {values.shape}."
             )
         object.__setattr__(self, "scales", scales)
         object.__setattr__(self, "extent", extent)
@@ -94,7 +95,7 @@ class LobeTable:
             ) from None
         if not all(isinstance(lobe, AbstractLobe) for lobe in lobes):
             raise InvalidInputError("lobes must be brdfscale.lobes lobes (one per scale).")
-        if scales.ndim != 1 or len(lobes) != len(scales):
+        if scales.ndim != 1 or not lobes or len(lobes) != len(scales):
             raise InvalidInputError(
                 f"give one lobe per scale; got {len(lobes)} lobes for scales of shape {scales.shape}."
             )
@@ -120,6 +121,7 @@ class LobeTable:
             elif plane.shape != values.shape[1:]:
                 raise InvalidInputError(f"lobe {k} tabulates to shape {plane.shape}, lobe 0 to {values.shape[1:]}.")
             values[k] = plane
+        assert values is not None  # lobes is not empty
         return cls(scales, extent, values, metadata)
 
 
@@ -174,6 +176,7 @@ def read_lobe_table(path) -> LobeTable:
         part.verify_header()
         scales.append(mu)
         planes.append(values)
+    assert extent is not None  # open_parts returns at least one part
     try:
         return LobeTable(np.array(scales), extent, np.stack(planes), metadata)
     except BrdfscaleError as err:

@@ -6,6 +6,7 @@ import json
 import os
 import re
 import time
+from typing import Any
 
 from .._compilation_cache import directory_in_use
 from .._errors import InvalidInputError, MissingDependencyError
@@ -49,7 +50,7 @@ def find_materials(sources) -> list:
                 f"{source}: no such file or directory (give measurement files or directories holding them)."
             )
     if not found:
-        raise InvalidInputError(f"no measurement files (*.exr) in {', '.join(map(os.fspath, sources))}.")
+        raise InvalidInputError(f"no measurement files (*.exr) in {', '.join(os.fspath(s) for s in sources)}.")
     named, seen = [], {}
     for rel, path in found:
         name = re.sub(r"[^A-Za-z0-9._-]+", "_", re.sub(r"\.exr$", "", rel, flags=re.I).replace(os.sep, "__"))
@@ -129,12 +130,16 @@ class _Index:
 
     def __init__(self, out: str, spec: FitSpec, materials: list, force: bool):
         self.path = os.path.join(out, INDEX)
-        self.doc = None
+        kept = None
         if os.path.exists(self.path):
             try:
                 with open(self.path) as f:
                     doc = json.load(f)
-                if doc.get("format") != _FORMAT or not isinstance(doc.get("materials"), dict):
+                if (
+                    not isinstance(doc, dict)
+                    or doc.get("format") != _FORMAT
+                    or not isinstance(doc.get("materials"), dict)
+                ):
                     raise ValueError("not a brdfscale library index")
             except (OSError, ValueError) as err:
                 raise InvalidInputError(
@@ -147,11 +152,13 @@ class _Index:
                 )
                 raise InvalidInputError(
                     f"{out} holds a library fitted with other options (there {changed}); rerun with the same options "
-                    "to continue it, or give another out= directory (force=True refits every material with the new ones)."
+                    "to continue it, or give another out= directory "
+                    "(force=True refits every material with the new ones)."
                 )
-            self.doc = doc
-        if self.doc is None or force:
-            self.doc = {"format": _FORMAT, "created": _now(), "spec": spec.to_json(), "runs": [], "materials": {}}
+            kept = doc
+        if kept is None or force:
+            kept = {"format": _FORMAT, "created": _now(), "spec": spec.to_json(), "runs": [], "materials": {}}
+        self.doc: dict = kept
         for name, path in materials:
             entry = self.doc["materials"].setdefault(name, {"source": path, "status": "pending", "attempts": 0})
             if entry["source"] != path:
@@ -187,7 +194,12 @@ class _Index:
 
     def write(self):
         text = json_text(self.doc, indent=1)
-        atomic_write(self.path, lambda tmp: open(tmp, "w").write(text), overwrite=True)
+
+        def write(tmp: str) -> None:
+            with open(tmp, "w") as f:
+                f.write(text)
+
+        atomic_write(self.path, write, overwrite=True)
 
 
 def _ray(address, workers):
@@ -200,7 +212,7 @@ def _ray(address, workers):
         ) from None
     started = False
     if not ray.is_initialized():
-        options = dict(include_dashboard=False, log_to_driver=False, configure_logging=False)
+        options: dict[str, Any] = dict(include_dashboard=False, log_to_driver=False, configure_logging=False)
         if address:
             ray.init(address=address, **options)
         else:

@@ -78,9 +78,9 @@ def lobe(lobe, incident=None, *, extent=None, size: int = 129, log: bool = False
     panels = 2 if incident is None else 3
     fig = figure(3.9 * panels, 3.4)
     axes = fig.subplots(1, panels, squeeze=False)[0]
-    norm = _norm(log, peak)
+    norm, shown = _norm(log, peak, values)
     image = axes[0].imshow(
-        np.maximum(values, norm.vmin) if log else values,
+        shown,
         origin="lower",
         extent=(-extent, extent, -extent, extent),
         cmap="magma",
@@ -117,13 +117,30 @@ def _lobe_name(lobe) -> str:
     return f"{type(lobe.shape).__name__} lobe" if name == "Lobe" else f"{name} lobe"
 
 
-def _norm(log: bool, peak: float):
+def _norm(log: bool, peak: float, values):
+    """The colour scale and the values to draw with it: on a log scale from 10⁻⁴ of the peak up,
+    the values raised to that floor (zeros and negatives have no place on it)."""
     from matplotlib.colors import LogNorm, Normalize
 
     if log:
         top = peak if peak > 0 else 1.0
-        return LogNorm(vmin=top * 1e-4, vmax=top)
-    return Normalize()
+        return LogNorm(vmin=top * 1e-4, vmax=top), np.maximum(values, top * 1e-4)
+    return Normalize(), values
+
+
+def _pointwise(s, m, dtype):
+    """``s(m)`` as a NumPy array, or None where ``s`` has no pointwise density: a generalised
+    function (a plus-distribution), or a point mass (its density raises SingularDensityError)."""
+    import jax.numpy as jnp
+
+    from ..stats import AbstractSlopeDensity
+
+    if not isinstance(s, AbstractSlopeDensity):
+        return None
+    try:
+        return np.asarray(s.density(jnp.asarray(m, dtype=dtype)))
+    except SingularDensityError:
+        return None
 
 
 def _density_of(lobe, dtype, reach: float, size: int):
@@ -187,10 +204,10 @@ def _brdf_panel(fig, ax, lobe, density, directions, log):
     factor = np.asarray(microfacet_factor(jnp.asarray(np.broadcast_to(i, o.shape)), jnp.asarray(o)))
     rho = np.where(visible, density(u) * factor, np.nan)
     peak = float(np.nanmax(rho)) if np.any(visible) else 1.0
-    norm = _norm(log, peak)
+    norm, shown = _norm(log, peak, rho)
     cmap = colormap("magma").with_extremes(bad="0.85")
     image = ax.imshow(
-        np.maximum(rho, norm.vmin) if log else rho,
+        shown,
         origin="lower",
         cmap=cmap,
         norm=norm,
@@ -238,8 +255,8 @@ def _entries(statistics, mu, labels):
         items = [statistics] if isinstance(statistics, AbstractDistribution) else statistics
         if not isinstance(items, Sequence) or not items or not all(isinstance(s, AbstractDistribution) for s in items):
             raise InvalidInputError(
-                "plot.statistics needs a brdfscale.stats distribution, a non-empty sequence of them, or a scale law with "
-                f"mu=; got {type(statistics).__name__}."
+                "plot.statistics needs a brdfscale.stats distribution, a non-empty sequence of them, or a scale law "
+                f"with mu=; got {type(statistics).__name__}."
             )
         entries = [(type(s).__name__, s) for s in items]
     if labels is not None:
@@ -299,20 +316,13 @@ def statistics(statistics, *, mu=None, labels=None, extent=None, w_max=None, siz
     for (label, s), color in zip(entries, colors):
         dtype = jnp.result_type(*[leaf for leaf in _leaves(s)] or [float], float)
         both = not s.isotropic
-        try:
-            along_x = np.asarray(s.density(jnp.asarray(np.stack([m, zeros], -1), dtype=dtype)))
-        except SingularDensityError:
+        along_x = _pointwise(s, np.stack([m, zeros], -1), dtype)
+        if along_x is None:
             ax_s.plot([], [], color=color, label=f"{label}: no pointwise density (point mass)")
         else:
             ax_s.plot(m, along_x, color=color, lw=1.2, label=label)
             if both:
-                ax_s.plot(
-                    m,
-                    np.asarray(s.density(jnp.asarray(np.stack([zeros, m], -1), dtype=dtype))),
-                    color=color,
-                    lw=1.0,
-                    ls="--",
-                )
+                ax_s.plot(m, _pointwise(s, np.stack([zeros, m], -1), dtype), color=color, lw=1.0, ls="--")
         ax_S.plot(
             w,
             np.real(np.asarray(s.cf(jnp.asarray(np.stack([w, np.zeros_like(w)], -1), dtype=dtype)))),

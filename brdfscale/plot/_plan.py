@@ -59,13 +59,14 @@ def plan(plan):
     require_concrete(plan, "plan")
     parts = [(p, *_queries_of(p)) for p in plan.parts]
     colors = [colormap("tab10")(k % 10) for k in range(len(parts))]
-    camera = plan.pixels is not None and plan.resolution is not None
+    resolution = None if plan.pixels is None else plan.resolution  # (rows, columns) of a camera scene
+    camera = resolution is not None
     fig = figure(13.5 if camera else 9.5, 3.9)
     axes = fig.subplots(1, 3 if camera else 2)
-    if camera:
+    if resolution is not None:
         from matplotlib.colors import BoundaryNorm, ListedColormap
 
-        rows, cols = plan.resolution
+        rows, cols = resolution
         pixels = np.asarray(plan.pixels)
         which = np.full(rows * cols, np.nan)
         log_mu = np.full(rows * cols, np.nan)

@@ -50,7 +50,7 @@ SURFACES: dict[str, tuple[str, Callable[[int, object], HeightField]]] = {
 
 
 def named_surface(
-    name: str, *, size: int = 512, seed=0, micro: stats.AbstractSlopeDensity | None = None
+    name: str, *, size: int = 512, seed: object = 0, micro: stats.AbstractSlopeDensity | None = None
 ) -> HeightField:
     """A built-in surface by name (keys of :data:`SURFACES`), pixel pitch 1.
 
