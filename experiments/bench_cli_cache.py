@@ -83,7 +83,8 @@ def main():
     path = write_json("bench_cli_cache", results)
     print(
         f"cold cache {cold:.1f} s; warm cache median {results['warm_cache_median_s']:.1f} s; no cache median "
-        f"{results['no_cache_median_s']:.1f} s; {results['cache_entries']} entries, {results['cache_bytes'] / 2**20:.1f} MiB"
+        f"{results['no_cache_median_s']:.1f} s; {results['cache_entries']} entries, "
+        f"{results['cache_bytes'] / 2**20:.1f} MiB"
     )
     print("wrote", path)
     return results

@@ -250,7 +250,8 @@ def fft_threads(kind: str, n: int, calls: int = 21) -> dict:
     after a kernel split over the intra-op pool, often a pool thread. Its FFT (DUCC) splits
     its lines over the pool only when called from outside the pool — XLA's adapter
     (``ducc/google/threading.h``, ``adjust_nthreads``) gives a caller that is itself a pool
-    thread one thread — so an FFT that lands on a pool thread runs on one thread. These figures show it as it happens (docs/benchmarks.md)."""
+    thread one thread — so an FFT that lands on a pool thread runs on one thread. These figures
+    show it as it happens (docs/benchmarks.md)."""
 
     def spectrum(w):
         shape = grid_shape(kind, w, n)
@@ -334,13 +335,16 @@ def main(argv=None):
         ("1 thread", r) for r in results["grid_single_thread"]
     ]:
         print(
-            f"{threads:>8} {row['statistics']:>17} N={row['grid_size']:4d}: grid {row['grid_path_s_per_lobe'] * 1e3:8.3f} ms/lobe, "
-            f"floor {row['raw_fft_floor_s_per_grid'] * 1e3:8.3f} ms, scipy {row['scipy_fftconvolve_s_per_lobe'] * 1e3:8.3f} ms; "
+            f"{threads:>8} {row['statistics']:>17} N={row['grid_size']:4d}: "
+            f"grid {row['grid_path_s_per_lobe'] * 1e3:8.3f} ms/lobe, "
+            f"floor {row['raw_fft_floor_s_per_grid'] * 1e3:8.3f} ms, scipy "
+            f"{row['scipy_fftconvolve_s_per_lobe'] * 1e3:8.3f} ms; "
             f"throughput/floor {row['throughput_vs_floor']:.2f}, speedup vs scipy {row['speedup_vs_scipy']:.1f}"
         )
     qr = results["queries"]
     print(
-        f"queries: closed form {qr['closed_form_s_per_query'] * 1e9:.1f} ns/query, grid {qr['grid_path_s_per_query'] * 1e6:.1f} µs/query, "
+        f"queries: closed form {qr['closed_form_s_per_query'] * 1e9:.1f} ns/query, "
+        f"grid {qr['grid_path_s_per_query'] * 1e6:.1f} µs/query, "
         f"ratio {qr['closed_form_speedup_per_query']:.0f}"
     )
     print(f"wrote {path}")

@@ -71,8 +71,9 @@ if kind == "batched":
     fitting.fit_many(model, data, starts=config["starts"], batch=config["batch"], lanes=lanes)
     warm = time.perf_counter() - t0
     plan = fitting.explain_plan(model, data, starts=config["starts"], batch=config["batch"], lanes=lanes)
-    out.update(buckets=len(plan.buckets), lanes_used=sorted({b.lanes for b in plan.buckets}), padding=plan.padding, plan=plan.explain(), warm_seconds=warm,
-               rows_padded=plan.rows_padded, compile_seconds_per_bucket=(seconds - warm) / len(plan.buckets),
+    out.update(buckets=len(plan.buckets), lanes_used=sorted({b.lanes for b in plan.buckets}),
+               padding=plan.padding, plan=plan.explain(), warm_seconds=warm, rows_padded=plan.rows_padded,
+               compile_seconds_per_bucket=(seconds - warm) / len(plan.buckets),
                seconds_per_padded_row=warm / plan.rows_padded)
 print("RESULT " + json.dumps(out))
 """

@@ -536,7 +536,8 @@ def main(argv=None):
                 f"time {pl['seconds'] * 1e3:8.3f} ms; Pareto time at that error {pareto_text}"
             )
     print(
-        f"workload {work['resolution']}²: μ ratio {work['mu_ratio']:.0f}; planner {work['evaluate_seconds'] * 1e3:.1f} ms "
+        f"workload {work['resolution']}²: μ ratio {work['mu_ratio']:.0f}; planner "
+        f"{work['evaluate_seconds'] * 1e3:.1f} ms "
         f"(plan {work['plan_seconds']:.1f} s), max error {work['max_error_rel_peak']:.2e}; naive "
         f"{work['naive_seconds_extrapolated']:.1f} s (extrapolated), speedup {work['speedup_evaluate_vs_naive']:.0f}×"
     )
@@ -544,7 +545,8 @@ def main(argv=None):
     print(
         f"cost model: predicted order of forced paths matches the measured order on "
         f"{cost_model['rankings_matching']}/{cost_model['rankings']} problems (pairs ≥ 2× apart in prediction "
-        f"ordered right: {cost_model['clear_pairs_ordered_right']}/{cost_model['clear_pairs']}); Spearman ρ(predicted units, "
+        f"ordered right: {cost_model['clear_pairs_ordered_right']}/{cost_model['clear_pairs']}); "
+        "Spearman ρ(predicted units, "
         f"measured s) over {cost_model['plans']} plans = {cost_model['spearman']:.2f}; seconds per unit "
         f"{cost_model['seconds_per_unit_min']:.2g}–{cost_model['seconds_per_unit_max']:.2g}"
     )

@@ -302,7 +302,8 @@ def main():
                 skipped.extend(
                     {
                         "B": b,
-                        "reason": f"predicted {calls * ours[-1]['total_s'] * (b / ours[-1]['B']) ** max(p, 3.0):.0f} s would exceed the {SWEEP_BUDGET_S:.0f} s sweep budget",
+                        "reason": f"predicted {calls * ours[-1]['total_s'] * (b / ours[-1]['B']) ** max(p, 3.0):.0f} s "
+                        f"would exceed the {SWEEP_BUDGET_S:.0f} s sweep budget",
                     }
                     for b in sizes[i:]
                 )

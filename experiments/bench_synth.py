@@ -5,8 +5,9 @@ Run:  python -m experiments.bench_synth [--size 4096] [--out experiments/results
 
 Baseline measured in the same run: the FFT floor of the synthesis (one rfft2 + irfft2 of
 an N² float64 array, which any spectral synthesis must pay); and the cost of histogramming
-N²/4 slope samples in chunks with ``stats.SlopeHistogram`` (cloud in cell). Peak memory: ``tracemalloc`` (NumPy allocations of each stage)
-and the process's maximum resident set size (everything, JAX included).
+N²/4 slope samples in chunks with ``stats.SlopeHistogram`` (cloud in cell). Peak memory:
+``tracemalloc`` (NumPy allocations of each stage) and the process's maximum resident set size
+(everything, JAX included).
 """
 
 import argparse

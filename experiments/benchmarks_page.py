@@ -309,7 +309,8 @@ def so3_details() -> str:
     parts.append(
         f"Ratio at B = {r['B']}, the three contenders' calls in {r['method']} (load average "
         f"{r['load_average_1min']:.2f}): s2fft Fourier {times['s2fft_fourier']:.3g} s, s2fft precompute "
-        f"{times['s2fft_precompute']:.3g} s, brdfscale.so3 {times['brdfscale_so3']:.3g} s: **{r['speedup']:.1f}× faster "
+        f"{times['s2fft_precompute']:.3g} s, brdfscale.so3 {times['brdfscale_so3']:.3g} s: "
+        f"**{r['speedup']:.1f}× faster "
         f"than s2fft's fastest exact mode ({r['s2fft_fastest_exact_mode']})**. s2fft's precomputed kernels also cost "
         + ", ".join(
             f"{x['precompute_kernel_build_s']:.0f} s to build at B = {x['B']} "
@@ -672,10 +673,10 @@ def planner_workload() -> str:
             f"{w['max_pointwise_rel_error_where_above_1pct_of_peak']:.1e}",
         ],
         [
-            f'naive per-pixel grid evaluation (`evolve(..., method="grid", tol={w["tol"]:g})` at each pixel\'s μ, `density` '
-            f"at its offset; sizes {'/'.join(map(str, w['naive_grid_sizes']))} chosen by the library)",
-            f"{w['naive_seconds_per_pixel'] * 1e3:.2f} ms per pixel → {w['naive_seconds_extrapolated']:.0f} s for the image "
-            f"(timed on {w['naive_pixels_sampled']} random pixels, extrapolated)",
+            f'naive per-pixel grid evaluation (`evolve(..., method="grid", tol={w["tol"]:g})` at each pixel\'s μ, '
+            f"`density` at its offset; sizes {'/'.join(map(str, w['naive_grid_sizes']))} chosen by the library)",
+            f"{w['naive_seconds_per_pixel'] * 1e3:.2f} ms per pixel → {w['naive_seconds_extrapolated']:.0f} s "
+            f"for the image (timed on {w['naive_pixels_sampled']} random pixels, extrapolated)",
         ],
         ["naive max error on its sample", f"{w['naive_max_error_rel_peak_on_sample']:.1e}"],
         ["speed-up, evaluation", f"{w['speedup_evaluate_vs_naive']:,.0f}×"],
@@ -684,10 +685,12 @@ def planner_workload() -> str:
     ok = w["speedup_plan_plus_evaluate_vs_naive"] >= 20 and w["max_error_rel_peak"] <= 1e-4
     return "\n\n".join(
         [
-            f"Run of {d['machine'].get('date_utc', '?')}, load average (1 min) {d['load_average_before'][0]:.2f} at the start.",
+            f"Run of {d['machine'].get('date_utc', '?')}, load average (1 min) "
+            f"{d['load_average_before'][0]:.2f} at the start.",
             table(["quantity", "value"], rows),
             f'Target "≥ 20× faster than naive at max relative error ≤ 1e-4": {met(ok)}, at max error '
-            f"{w['max_error_rel_peak']:.1e} relative to the lobe peak — {w['speedup_evaluate_vs_naive']:,.0f}× per evaluation "
+            f"{w['max_error_rel_peak']:.1e} relative to the lobe peak — "
+            f"{w['speedup_evaluate_vs_naive']:,.0f}× per evaluation "
             f"and {w['speedup_plan_plus_evaluate_vs_naive']:.1f}× counting planning and the first compilation once.",
         ]
     )
@@ -813,7 +816,8 @@ def topography() -> str:
         [
             f"*Machine: {m.get('processor', '?')}, {m.get('cpu_count', '?')} CPUs, {m.get('platform', '?')}; jax "
             f"{v.get('jax', '?')}, numpy {v.get('numpy', '?')}, SurfaceTopography {v.get('SurfaceTopography', '?')}; "
-            f"measured {m.get('date_utc', '?')}. Command: `{d['command']}`; medians of {d['repeats']} interleaved rounds, "
+            f"measured {m.get('date_utc', '?')}. Command: `{d['command']}`; "
+            f"medians of {d['repeats']} interleaved rounds, "
             f"seconds.*",
             table(
                 [
@@ -832,16 +836,18 @@ def topography() -> str:
                 ],
                 rows,
             ),
-            f"Target: read, detrend and the statistics at 8 scales of a {case['shape'][0]} × {case['shape'][1]} measurement "
-            f"in under {target['seconds']:g} s on 2 cores — {met(ok)} ({case['median_s']['total']:.2f} s for `{case['case']}` "
-            f"in a warm process, rounds {total[0]:.2f}–{total[-1]:.2f} s"
+            f"Target: read, detrend and the statistics at 8 scales of a {case['shape'][0]} × {case['shape'][1]} "
+            f"measurement in under {target['seconds']:g} s on 2 cores — {met(ok)} "
+            f"({case['median_s']['total']:.2f} s for `{case['case']}` in a warm process, "
+            f"rounds {total[0]:.2f}–{total[-1]:.2f} s"
             + (
                 ""
                 if fresh is None
-                else f"; in a fresh interpreter, as a script or the command line runs it, {fresh['process_wall_s']:.2f} s for the "
-                f"whole process: imports of jax, brdfscale and SurfaceTopography {fresh['imports_s']:.2f} s, the first read "
-                f"and detrend {fresh['read_and_detrend_s']:.2f} s, the first statistics {fresh['statistics_s']:.2f} s, median "
-                f"of {fresh['processes']} processes"
+                else "; in a fresh interpreter, as a script or the command line runs it, "
+                f"{fresh['process_wall_s']:.2f} s for the whole process: "
+                f"imports of jax, brdfscale and SurfaceTopography {fresh['imports_s']:.2f} s, "
+                f"the first read and detrend {fresh['read_and_detrend_s']:.2f} s, "
+                f"the first statistics {fresh['statistics_s']:.2f} s, median of {fresh['processes']} processes"
             )
             + f"). Load average (1 min) {load_start:.2f} at the start of the run, {load_end:.2f} at the end.",
         ]
@@ -1009,7 +1015,8 @@ def calibration() -> str:
         [
             machine_line(d),
             f"{s['replicas']} replicas per configuration; samplers with {s['chains']} chains (emcee: 32 walkers each, "
-            f"{s['emcee_steps']} steps; NUTS/HMC: {s['warmup']} + {s['steps']} steps); {d['wall_s'] / 60:.0f} min in all. "
+            f"{s['emcee_steps']} steps; NUTS/HMC: {s['warmup']} + {s['steps']} steps); "
+            f"{d['wall_s'] / 60:.0f} min in all. "
             "Each cell: the coverage pooled over the quantities of its kind (θ: the determined log-parameters; "
             "ratios: S(μ0)/S(μk) at the reported frequencies; combinations: the Fisher eigen-combinations the fit "
             "determines), and in brackets the lowest and highest coverage of a single quantity (binomial standard "
@@ -1126,7 +1133,8 @@ def queries() -> str:
                     f"{base['warm_s']:.3g}",
                     f"{new['warm_s']:.3g}",
                     f"{base['warm_s'] / new['warm_s']:.3g}×",
-                    f"{mib(base['rss_peak_bytes'] - base['rss_before_bytes'])} → {mib(new['rss_peak_bytes'] - new['rss_before_bytes'])}",
+                    f"{mib(base['rss_peak_bytes'] - base['rss_before_bytes'])} → "
+                    f"{mib(new['rss_peak_bytes'] - new['rss_before_bytes'])}",
                     f"{base['error_vs_direct']:.1e} → {new['error_vs_direct']:.1e}",
                 ]
             )

@@ -12,8 +12,9 @@ pixel facets, 65² tabulated nodes; μ = ∞: the global slope density and s = �
 * evolved — ``brdfscale.evolve(g_μ0, s_μ0, s_μ, method="grid", size=N,
   regularisation=λ)``, inverted on its FFT grid (``shape.on_grid()``) and deposited onto
   the target's nodes by cloud in cell (mass-conserving, like the measured histograms);
-  N (a power of two ≤ 512) makes the grid step at most the target's node step. The tabulated statistics are noisy: the empirical transform of s_μ
-  has noise of about 1/√(facets at μ), which the division amplifies in both directions.
+  N (a power of two ≤ 512) makes the grid step at most the target's node step. The tabulated
+  statistics are noisy: the empirical transform of s_μ has noise of about 1/√(facets at μ),
+  which the division amplifies in both directions.
   λ starts at c/√(facets at μ) for c = 1 and 3 (c = 1 is Wiener's level for the noise of
   S_μ alone; 0 at μ = ∞, where s = δ is exact) and is multiplied by 3 while the library
   refuses the quotient (NoBRDFAtScaleError: |G| > 1, no non-negative lobe); the λ used
@@ -187,7 +188,8 @@ def run(*, size: int, scales: list[int], surfaces: list[str], seed: int, factors
         "max_grid": MAX_GRID,
         "resolution_nodes": RESOLUTION_NODES,
         "surfaces": {name: synth.SURFACES[name][0] for name in surfaces},
-        "lambda_rule": "λ0 = c/sqrt(facets at the target scale) (0 at μ = ∞), ×3 until evolve finds a non-negative lobe",
+        "lambda_rule": "λ0 = c/sqrt(facets at the target scale) (0 at μ = ∞), "
+        "×3 until evolve finds a non-negative lobe",
         "lambda_factors": list(factors),
         "records": records,
         "summary": summary,

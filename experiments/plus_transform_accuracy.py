@@ -75,8 +75,10 @@ def main():
     )
     for name, row in summary.items():
         print(
-            f"{name}: float64 max {row['float64_max_relative_error']:.2e} (series {row['float64_max_relative_error_series_branch']:.2e},"
-            f" expansion {row['float64_max_relative_error_expansion_branch']:.2e}); float32 max {row['float32_max_relative_error']:.2e}"
+            f"{name}: float64 max {row['float64_max_relative_error']:.2e} (series "
+            f"{row['float64_max_relative_error_series_branch']:.2e},"
+            f" expansion {row['float64_max_relative_error_expansion_branch']:.2e}); "
+            f"float32 max {row['float32_max_relative_error']:.2e}"
         )
     print(path)
 

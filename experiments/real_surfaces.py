@@ -499,7 +499,7 @@ def study_file(name: str, *, sigma_count: int, lobe_count: int, factors, rng) ->
     for r, f in zip(sigma, form):
         r["trace_ratio_curvature_to_plane"] = f / float(np.trace(np.asarray(r["covariance"])))
     for r in sigma:
-        z, ratio = [], []
+        z = []
         for part in parts:
             try:
                 (fs,) = synth.facet_statistics(part, [r["mu"]], bins=9)
@@ -554,7 +554,6 @@ def study_file(name: str, *, sigma_count: int, lobe_count: int, factors, rng) ->
         )
 
     # Eq. 4.4 on every ordered pair
-    keys = (*METHODS, *map(ea.evolved_key, factors))
     half_keys = (*METHODS, ea.evolved_key(PRIMARY))
     records, slices = [], {}
     pairs = list(itertools.permutations(range(len(levels)), 2))
@@ -743,7 +742,8 @@ def run(
         "resolution_nodes": ea.RESOLUTION_NODES,
         "lambda_factors": list(factors),
         "primary_lambda_factor": PRIMARY,
-        "lambda_rule": "λ0 = c/sqrt(facets at the target scale) (0 at μ = ∞), ×3 until evolve finds a non-negative lobe",
+        "lambda_rule": "λ0 = c/sqrt(facets at the target scale) (0 at μ = ∞), "
+        "×3 until evolve finds a non-negative lobe",
         "grids": f"lobes ±{EXTENT_FACTOR:g} × q{100 * TAIL_QUANTILE:g}(|pixel slope|), s_μ ±{EXTENT_FACTOR:g} × "
         f"q{100 * TAIL_QUANTILE:g}(|facet slope|) (all facets below 100)",
         "min_facets_at_largest_scale": MIN_FACETS,

@@ -135,7 +135,8 @@ def validity() -> str:
         for t in thetas:
             r = next(r for r in d["records"] if r["rms_slope_per_axis"] == s and r["theta_i_deg"] == t)
             cells.append(
-                f"{r['error_vs_brute']:.3f} / {r['error_vs_brute_masked']:.3f} / {r['albedo_ratio_vs_brute_masked']:.2f}"
+                f"{r['error_vs_brute']:.3f} / {r['error_vs_brute_masked']:.3f} / "
+                f"{r['albedo_ratio_vs_brute_masked']:.2f}"
             )
         rows.append([f"{s:g}", *cells])
     out.append(table(["rms slope", *[f"θi = {t:g}°" for t in thetas]], rows))

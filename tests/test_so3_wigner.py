@@ -118,7 +118,9 @@ def test_euler_round_trip(e):
     assert np.max(np.abs(R - back)) < 1e-12
 
 
-@pytest.mark.slow  # ~70 s in a fresh environment (spherical's numba compile): run in .ci/run's second step, outside the default suite's 6-minute budget
+# ~70 s in a fresh environment (spherical's numba compile): run in .ci/run's second step, outside the default
+# suite's 6-minute budget
+@pytest.mark.slow
 def test_against_spherical_package():
     import quaternionic
     import spherical
