@@ -122,7 +122,8 @@ class _Analysis:
         self.W = ratio_frequencies(problem.data)
 
     def inputs(self) -> tuple:
-        """θ̂, the Laplace draws, the ratios' |W| and the scales: the arguments of :func:`fitting._derived.evaluate` after the model."""
+        """θ̂, the Laplace draws, the ratios' |W| and the scales: the arguments of
+        :func:`fitting._derived.evaluate` after the model."""
         return self.theta, self.draws, self.W, np.asarray(self.problem.data.scales)
 
     def finish(self, q_hat, grads, q_draws, r_hat, r_grads, r_draws, names_of_quantities=None) -> FitResult:

@@ -1,4 +1,5 @@
-"""A :class:`fitting.SampleResult` as ArviZ data (``SampleResult.to_arviz``; ArviZ is the optional extra ``brdfscale[mcmc]``).
+"""A :class:`fitting.SampleResult` as ArviZ data (``SampleResult.to_arviz``; ArviZ is the optional
+extra ``brdfscale[mcmc]``).
 
 The installed ArviZ (0.x) holds runs as ``arviz.InferenceData``; ArviZ ≥ 1.0 replaced it by
 an ``xarray.DataTree`` with the same groups, which this converter returns there. Layout, as

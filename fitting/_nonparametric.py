@@ -1,4 +1,5 @@
-"""The non-parametric model: a tabulated base lobe and the relative statistics ``R_k(W) = S(W, μ0)/S(W, μ_k) = exp(−D_k(|W|))`` (docs/fitting.md)."""
+"""The non-parametric model: a tabulated base lobe and the relative statistics
+``R_k(W) = S(W, μ0)/S(W, μ_k) = exp(−D_k(|W|))`` (docs/fitting.md)."""
 
 import math
 

@@ -37,12 +37,12 @@ materials of different m): the same Target, starts, keys and kernels, and XLA co
 vmapped stack of materials as it computes one. (Padding is why ``sample`` evaluates on padded
 rows too: zero rows add exactly 0 to χ², but a longer sum rounds differently — on unpadded
 rows the chains differed at rounding level, and that was enough to change the rank-normalised
-R̂, whose folded draws tie at the median in one run and not in the other, in its third digit.) Divided over several devices, the
-per-device program is compiled apart and the log-density's gradient differs in the last bits:
-the chains agree to rounding (within 1e-9 over 60 steps on 2 virtual CPU devices, the slow test
-of tests/test_sample_many.py), diagnostics to rounding except where R̂'s ranks tie; a long
-chain can part from ``sample``'s where a rounding difference flips an accept or U-turn
-decision, each still a chain of the same posterior.
+R̂, whose folded draws tie at the median in one run and not in the other, in its third digit.)
+Divided over several devices, the per-device program is compiled apart and the log-density's
+gradient differs in the last bits: the chains agree to rounding (within 1e-9 over 60 steps on 2
+virtual CPU devices, the slow test of tests/test_sample_many.py), diagnostics to rounding except
+where R̂'s ranks tie; a long chain can part from ``sample``'s where a rounding difference flips an
+accept or U-turn decision, each still a chain of the same posterior.
 
 **Vmapped NUTS.** Within a device the materials' trees are built together: a material whose
 trajectory has ended waits (masked) for the longest one, as NUTS's chains already do;

@@ -3,7 +3,8 @@
 One module per job: :mod:`._flow` (``evolve``/``select``: the one flow, asking the method
 objects), :mod:`._method` (the abstract method), one module per path — :mod:`._closed_form`,
 :mod:`._radial`, :mod:`._grid`, :mod:`._auto` — :mod:`._spectral` (the evolved density's exact
-transform, the spectral bounds and what the two spectral paths share), :mod:`._algebra` (closed forms) and :mod:`._regularise` (Tikhonov λ rules).
+transform, the spectral bounds and what the two spectral paths share), :mod:`._algebra` (closed
+forms) and :mod:`._regularise` (Tikhonov λ rules).
 """
 
 from .._errors import UnresolvedMethodError

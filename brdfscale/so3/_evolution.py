@@ -154,7 +154,8 @@ def evolve(
     return _finite_or_no_brdf(
         X,
         (
-            " (solving X Q̃^J(μ) = R^J(μ0) Q̃^J(μ0) block by block): a block Q̃^J(μ) is singular or too small to divide by in floating point "
+            " (solving X Q̃^J(μ) = R^J(μ0) Q̃^J(μ0) block by block): "
+            "a block Q̃^J(μ) is singular or too small to divide by in floating point "
             "(statistics with vanishing coefficients, or a deconvolution towards a much finer scale). Pass "
             "regularisation > 0 (about the relative noise level of R(μ0)) for the regularised solve."
         ),

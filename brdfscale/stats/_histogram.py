@@ -35,7 +35,8 @@ class SlopeHistogram(Shown):
         if 8 * int(bins) ** 2 > MAX_HISTOGRAM_BYTES:
             raise InvalidInputError(
                 f"bins = {bins} needs {8 * int(bins) ** 2 / 2**30:.3g} GiB of counts, more than MAX_HISTOGRAM_BYTES "
-                f"({MAX_HISTOGRAM_BYTES / 2**30:g} GiB); use fewer bins (at most {math.isqrt(MAX_HISTOGRAM_BYTES // 8)})."
+                f"({MAX_HISTOGRAM_BYTES / 2**30:g} GiB); use fewer bins (at most "
+                f"{math.isqrt(MAX_HISTOGRAM_BYTES // 8)})."
             )
         self.extent = float(extent)
         self.bins = int(bins)

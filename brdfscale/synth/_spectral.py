@@ -65,7 +65,8 @@ def spectral_field(
     """
     if not isinstance(spectrum, stats.AbstractPowerSpectrum):
         raise InvalidInputError(
-            f"spectrum must be a brdfscale.stats power spectrum (GaussianCorrelation, KCorrelation); got {type(spectrum).__name__}."
+            "spectrum must be a brdfscale.stats power spectrum (GaussianCorrelation, KCorrelation); "
+            f"got {type(spectrum).__name__}."
         )
     n = _check_size(size)
     spacing = real(spacing, "spacing (the pixel pitch)", minimum=0, strict=True)
