@@ -339,7 +339,7 @@ def fit_many(
     atol: float = FIT.atol,
     undetermined_std: float = FIT.undetermined_std,
     compile_rows: int = COMPILE_ROWS,
-    lanes: int | None = None,
+    lanes=None,
     progress: bool = False,
     errors: str = "raise",
 ) -> list:
@@ -449,7 +449,7 @@ def explain_plan(
     devices=None,
     starts: int = FIT.starts,
     compile_rows: int = COMPILE_ROWS,
-    lanes: int | None = None,
+    lanes=None,
 ) -> BatchPlan:
     """The :class:`BatchPlan` :func:`fit_many` would follow for these arguments (nothing is
     fitted); ``plan.explain()`` says it in words."""

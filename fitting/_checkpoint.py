@@ -28,6 +28,7 @@ files are written beside the checkpoint and moved into place (:func:`brdfscale.f
 
 import json
 import os
+from typing import TypeVar
 
 import numpy as np
 
@@ -46,6 +47,27 @@ def _h5py():
     import h5py
 
     return h5py
+
+
+_Node = TypeVar("_Node")
+
+
+def _child(parent, name, kind: type[_Node]) -> _Node:
+    """``parent[name]``, a dataset or a group as ``kind`` says: KeyError where it is absent,
+    TypeError where it is the other kind of object (a damaged file)."""
+    node = parent[name]
+    if not isinstance(node, kind):
+        raise TypeError(f"{name} is a {type(node).__name__}, not a {kind.__name__}")
+    return node
+
+
+def _count(node, name: str) -> int:
+    """The integer attribute ``name`` of an HDF5 object: KeyError where it is absent, TypeError
+    where it is not an integer (a damaged file)."""
+    value = node.attrs[name]
+    if not isinstance(value, (int, np.integer)):
+        raise TypeError(f"attribute {name} is {value!r}, not an integer")
+    return int(value)
 
 
 class Stored:
@@ -116,16 +138,21 @@ class Checkpoint:
                     f"{self.signature}); use another path or pass overwrite=True."
                 )
             try:
-                done = int(f.attrs["steps_done"])
-                chain, log_prob = f["chain"][:done], f["log_prob"][:done]
-                stats = {name: f["stats"][name][:done] for name in self.stats}
-                subspace = {name: f["subspace"][name][()] for name in ("origin", "basis")}
+                h5 = _h5py()
+                done = _count(f, "steps_done")
+                chain, log_prob = _child(f, "chain", h5.Dataset)[:done], _child(f, "log_prob", h5.Dataset)[:done]
+                stats = {name: _child(f, f"stats/{name}", h5.Dataset)[:done] for name in self.stats}
+                subspace = {name: _child(f, f"subspace/{name}", h5.Dataset)[()] for name in ("origin", "basis")}
                 state = None
                 if done > 0:
-                    slots = [f[s] for s in ("state_0", "state_1") if s in f and int(f[s].attrs["step"]) == done]
+                    slots = [
+                        _child(f, s, h5.Group)
+                        for s in ("state_0", "state_1")
+                        if s in f and _count(f[s], "step") == done
+                    ]
                     if not slots:
                         raise ValueError(f"no sampler state for step {done}")
-                    state = {name: slots[0][name][()] for name in slots[0]}
+                    state = {name: _child(slots[0], name, h5.Dataset)[()] for name in slots[0]}
             except (OSError, KeyError, ValueError, TypeError) as err:
                 raise MeasurementFileError(f"checkpoint {self.path} is damaged ({err}); {retry}") from None
         shape = (done, self.walkers, self.d)
@@ -169,11 +196,12 @@ class Checkpoint:
     def append(self, chain, log_prob, stats: dict, state: dict):
         """Add a block of steps and the state after its last one (the commit marker last)."""
         try:
-            with _h5py().File(self.path, "r+") as f:
-                done = int(f.attrs["steps_done"])
+            h5 = _h5py()
+            with h5.File(self.path, "r+") as f:
+                done = _count(f, "steps_done")
                 n = done + chain.shape[0]
                 free = next(
-                    (s for s in ("state_0", "state_1") if s not in f or int(f[s].attrs["step"]) != done), "state_1"
+                    (s for s in ("state_0", "state_1") if s not in f or _count(f[s], "step") != done), "state_1"
                 )
                 if free in f:
                     del f[free]
@@ -183,8 +211,9 @@ class Checkpoint:
                 slot.attrs["step"] = n
                 blocks = [("chain", chain), ("log_prob", log_prob)] + [(f"stats/{k}", v) for k, v in stats.items()]
                 for name, block in blocks:
-                    f[name].resize(n, axis=0)
-                    f[name][done:n] = block
+                    dataset = _child(f, name, h5.Dataset)
+                    dataset.resize(n, axis=0)
+                    dataset[done:n] = block
                 f.flush()
                 f.attrs["steps_done"] = n  # the commit marker, written last
         except OSError as err:

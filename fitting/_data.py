@@ -204,10 +204,11 @@ class PointData(eqx.Module):
     ``points[k, j]`` is a measured offset (for radial grouping ``(|u|, 0)``) at ``scales[k]``,
     ``mean[k, j]`` the σ-weighted mean of its pixels and ``weight[k, j] = √c`` (0 for padding
     and fully masked points); ``chi2_offset`` is the within-group scatter, the constant that
-    turns the reduced χ² into the per-pixel χ².
+    turns the reduced χ² into the per-pixel χ². The arrays are JAX arrays, or NumPy arrays where
+    :func:`fitting.fit_many` pads them on the host.
     """
 
-    points: Float[Array, "n_scales n_points 2"]
-    mean: Float[Array, "n_scales n_points"]
-    weight: Float[Array, "n_scales n_points"]
+    points: Float[Array | np.ndarray, "n_scales n_points 2"]
+    mean: Float[Array | np.ndarray, "n_scales n_points"]
+    weight: Float[Array | np.ndarray, "n_scales n_points"]
     chi2_offset: Float[Array, ""]

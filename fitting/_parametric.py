@@ -3,6 +3,7 @@
 import math
 from collections.abc import Mapping
 
+from typing import Literal
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -47,7 +48,7 @@ class ParametricModel(AbstractModel):
     lobe: str = eqx.field(static=True)
     statistics: str = eqx.field(static=True)
     law_kind: str = eqx.field(static=True)
-    window: str = eqx.field(static=True)
+    window: Literal["box", "gaussian"] = eqx.field(static=True)
     fixed: tuple[tuple[str, float], ...] = eqx.field(static=True)
     radial_nodes: int = eqx.field(static=True)
 

@@ -19,6 +19,7 @@ else from the Laplace approximation of the fit.
 
 import textwrap
 from collections.abc import Mapping
+from typing import cast
 
 import equinox as eqx
 import jax
@@ -30,6 +31,7 @@ from brdfscale.checks import integer, real
 
 from ._derived import quantities_at
 from ._model import predict_images
+from ._nonparametric import NonParametricModel
 from ._parametric import ParametricModel
 from ._problem import check_fit, Problem
 from ._result import FitResult
@@ -170,7 +172,12 @@ def statistics_figure(problem: Problem, fit: FitResult, draws, true_theta):
     data, model = problem.data, problem.model
     scales = np.asarray(data.scales)
     absolute = isinstance(model, ParametricModel)
-    w_max = 8.0 / float(model.quantities(jnp.asarray(fit.theta))["alpha_lobe"]) if absolute else model.knots[-1]
+    # the two models of fitting: a parametric model's W range from its base lobe, the non-parametric one's knots
+    w_max = (
+        8.0 / float(model.quantities(jnp.asarray(fit.theta))["alpha_lobe"])
+        if absolute
+        else cast(NonParametricModel, model).knots[-1]
+    )
     W = jnp.linspace(0.0, w_max, 200)
     relative = np.asarray(_relative(model, jnp.asarray(draws), W, data))
     w = np.asarray(W)  # matplotlib iterates over what it is given: a JAX array costs a dispatch per element

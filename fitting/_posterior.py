@@ -66,6 +66,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._batch import _pad_points, bucket_points
+from ._problem import Rows
 
 
 __all__ = [
@@ -157,7 +158,7 @@ class Target(eqx.Module):
     ``z = origin + basis @ ζ`` (``basis`` (d, m) with orthonormal columns, m = d − k; with no
     undetermined direction the identity, and ζ = z − origin)."""
 
-    problem: object
+    problem: Rows
     origin: jax.Array
     basis: jax.Array
 

@@ -98,7 +98,8 @@ class Rows(eqx.Module):
         """``(√c_u (f_u(θ) − v̄_u), prior rows)`` with θ clipped to the prior box (:class:`Problem`)."""
         theta = jnp.clip(theta, self.lower, self.upper)
         p = self.points
-        fitted = self.model.predict_points(theta, self.scales, p.points)
+        # jnp.asarray: fit_many and sample pad the points in NumPy (fitting._batch); traced, they pass as they are
+        fitted = self.model.predict_points(theta, self.scales, jnp.asarray(p.points))
         return jnp.concatenate([((fitted - p.mean) * p.weight).ravel(), self.model.penalty(theta)])
 
     def chi2_of_residuals(self, r: Float[Array, " m"]) -> Float[Array, ""]:

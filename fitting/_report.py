@@ -16,6 +16,7 @@ import math
 import os
 import platform
 from pathlib import Path
+from typing import cast
 
 import jax.numpy as jnp
 import numpy as np
@@ -185,7 +186,11 @@ def _synth_base_width(metadata: dict) -> float | None:
     """
     record, micro = metadata.get("truth"), metadata.get("micro")
     scales, resolution = metadata.get("scales"), metadata.get("resolution", 0.0)
-    if metadata.get("generator") != "brdfscale.synth.gonioreflectometer" or not isinstance(record, dict):
+    if (
+        metadata.get("generator") != "brdfscale.synth.gonioreflectometer"
+        or not isinstance(record, dict)
+        or not isinstance(micro, dict)
+    ):
         return None
     try:
         pixel = np.asarray(record["pixel_slope_covariance"], dtype=float)
@@ -252,11 +257,12 @@ def summarise(problem: Problem, fit: FitResult, samples: SampleResult | None, tr
                 quantiles_5_50_95=np.percentile(q[name], [5, 50, 95]).tolist(),
             )
         else:
+            quantiles = fit.quantiles[name]
             row.update(
                 source="laplace",
                 std=fit.std[name],
-                quantiles_5_50_95=fit.quantiles[name],
-                median=None if fit.quantiles[name] is None else fit.quantiles[name][1],
+                quantiles_5_50_95=quantiles,
+                median=None if quantiles is None else quantiles[1],
             )
         if truth is not None and name in truth:
             row["truth"] = truth[name]
@@ -415,7 +421,7 @@ def _write_files(
         for stale in report_files(out_dir):
             if stale not in written and os.path.lexists(stale):
                 os.remove(stale)
-        doc = jsonable(doc)
+        doc = cast(dict, jsonable(doc))  # jsonable returns a dict's JSON-ready copy as a dict
         text = json_text(doc, indent=2)
         _atomic(target, lambda p: Path(p).write_text(text), overwrite)
     except OSError as err:

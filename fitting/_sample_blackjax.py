@@ -32,6 +32,7 @@ import dataclasses
 import functools
 import math
 import time
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -58,6 +59,7 @@ def _blackjax():
     :class:`brdfscale.MissingDependencyError` where it is not installed."""
     try:
         import blackjax
+        import blackjax.adaptation.step_size  # loaded by blackjax's own imports; named for the type checker
     except ImportError as err:
         raise MissingDependencyError(
             "fitting.NUTS and fitting.HMC need BlackJAX (a dependency of brdfscale on Python ≥ 3.11: pip install "
@@ -72,6 +74,8 @@ class _Gradient(AbstractSampler):
     warmup: int
     target_acceptance: float
     adapt_mass_matrix: bool
+    # NUTS and HMC are (frozen) dataclasses, as every sampler is (fitting._sampler): settings() lists their fields
+    __dataclass_fields__: ClassVar[dict[str, dataclasses.Field]]
 
     @abc.abstractmethod
     def _spec(self) -> tuple:
@@ -417,7 +421,8 @@ def _window_warmup(target, spec, carry, key, warmup):
             target_acceptance_rate=acceptance,
             **extra,
         )
-        (state, parameters), info = adaptation.run(k, z, num_steps=warmup)
+        # BlackJAX's RunFn protocol leaves out num_steps, which window_adaptation's run takes
+        (state, parameters), info = adaptation.run(k, z, num_steps=warmup)  # pyright: ignore[reportCallIssue]
         return state, parameters["step_size"], parameters["inverse_mass_matrix"], info
 
     chains = carry["position"].shape[0]
@@ -435,15 +440,15 @@ def _window_warmup(target, spec, carry, key, warmup):
     }
     z = jnp.swapaxes(info.state.position, 0, 1)
     theta, lp = _record(target, z, jnp.swapaxes(info.state.logdensity, 0, 1))
-    acceptance = jnp.swapaxes(info.info.acceptance_rate, 0, 1)
+    rate = jnp.swapaxes(info.info.acceptance_rate, 0, 1)
     stats = {
-        "acceptance_rate": jnp.where(jnp.isfinite(acceptance), acceptance, 0.0),
+        "acceptance_rate": jnp.where(jnp.isfinite(rate), rate, 0.0),
         "divergent": jnp.swapaxes(info.info.is_divergent, 0, 1).astype(jnp.uint8),
         "integration_steps": jnp.swapaxes(info.info.num_integration_steps, 0, 1).astype(jnp.int64),
         "step_size": jnp.swapaxes(
             jnp.exp(info.adaptation_state.log_step_size)
             if hasattr(info.adaptation_state, "log_step_size")
-            else jnp.broadcast_to(step_size[:, None], acceptance.T.shape),
+            else jnp.broadcast_to(step_size[:, None], rate.T.shape),
             0,
             1,
         ),

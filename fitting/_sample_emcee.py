@@ -17,7 +17,7 @@ maximum itself): over-dispersed between ensembles, so R̂ compares ensembles tha
 
 import dataclasses
 import time
-from typing import ClassVar
+from typing import cast, ClassVar
 
 import equinox as eqx
 import jax
@@ -173,7 +173,9 @@ class Emcee(AbstractSampler):
                 lp_theta = block_lp - log_jacobian_np(z, lo, hi)
                 timing["run_s"] += time.perf_counter() - started
                 if store is not None:
-                    rs = state.random_state
+                    # emcee's random_state is RandomState.get_state(), legacy by default: the tuple (name, keys,
+                    # pos, has_gauss, cached_gaussian); NumPy's stubs give that call the dict of legacy=False
+                    rs = cast(tuple, state.random_state)
                     store.append(
                         theta,
                         lp_theta,

@@ -16,6 +16,8 @@ A sampler is a frozen dataclass of its settings (checked when made) that
 import abc
 from typing import ClassVar
 
+import numpy as np
+
 from brdfscale import InvalidInputError
 
 
@@ -57,7 +59,9 @@ class AbstractSampler(abc.ABC):
         """The trajectories of ``chains`` independent chains in dimension ``d``."""
 
     @abc.abstractmethod
-    def run(self, target, fit, *, chains, steps, seed, store, resumed, progress, chunk):
+    def run(
+        self, target, fit, *, chains, steps, seed, store, resumed, progress, chunk
+    ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray], dict | None, dict[str, float]]:
         """The chain (steps, W, d) in θ, log p(θ) (steps, W), per-step statistics, the warm-up
         record (or None) and the timing; resumed from ``resumed`` where it holds steps, each
         chunk appended to ``store``."""
