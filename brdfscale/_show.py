@@ -209,6 +209,7 @@ def derived(x, fn: Callable):
         return None
     if _is_abstract(x):
         jax = _jax()
+        assert jax is not None  # an abstract value is a JAX one: jax is imported
         return jax.eval_shape(fn, jax.ShapeDtypeStruct(x.shape, x.dtype))
     import numpy as np
 
@@ -406,9 +407,8 @@ def progress_bar(iterable=None, *, enabled: bool = True, **options):
     if not isinstance(enabled, bool) and type(enabled).__name__ != "bool_":
         raise InvalidInputError(f"progress must be True or False; got {type(enabled).__name__} {enabled!r}.")
     mode = progress_mode()
-    if mode == "notebook":
-        bar = _notebook_bar()
-    else:
+    bar = _notebook_bar() if mode == "notebook" else None  # not None in a notebook (progress_mode checked it)
+    if bar is None:
         from tqdm.std import tqdm as bar
     return bar(iterable, disable=not enabled or mode == "off", **options)
 

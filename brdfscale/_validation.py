@@ -18,7 +18,7 @@ from ._errors import InvalidInputError
 
 def is_concrete(x) -> bool:
     """True when ``x`` (and every leaf of it) holds actual values, not tracers."""
-    import jax
+    import jax.core
 
     return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(x))
 
@@ -172,7 +172,8 @@ def require_float64(what: str) -> None:
     """
     import jax
 
-    if not jax.config.jax_enable_x64:
+    # jax.config's options are dynamic attributes, invisible to the type checker
+    if not jax.config.jax_enable_x64:  # pyright: ignore[reportAttributeAccessIssue]
         raise InvalidInputError(
             f'{what} needs float64, and JAX is in float32 mode: add `jax.config.update("jax_enable_x64", True)` '
             "at the start of the script or notebook, before any JAX array is made (brdfscale changes no global "

@@ -69,7 +69,7 @@ def deconvolve(a: AbstractSlopeDensity, b: AbstractSlopeDensity, check: bool = T
     """``c`` with ``c ∗ b = a`` in closed form, or None; raises when no density ``c`` exists
     (``check=False``: traced values are not checked; see :func:`brdfscale.evolve`)."""
     if isinstance(b, Delta):
-        return a if b.mean is None else a.shifted(_neg(b.mean))
+        return a if b.mean is None else a.shifted(-b.mean)
     if isinstance(a, Gaussian) and isinstance(b, Gaussian):
         cov = a.cov - b.cov
         lo, _ = eig2(cov)

@@ -43,7 +43,7 @@ def check_arguments(lobe, s_from, s_to, tol, regularisation, noise=None):
             use="Use it through brdfscale.plus.NearlySpecular(a, [c_0, …], x0, ...) "
             "(a δ + Σ c_n h_n + w s_smooth, mass 1).",
         )
-    if isinstance(tol, bool) or not isinstance(tol, numbers.Real) or not MIN_TOL <= tol < 1:
+    if isinstance(tol, bool) or not isinstance(tol, numbers.Real) or not MIN_TOL <= float(tol) < 1:
         raise InvalidInputError(
             f"tol must be a number in [{MIN_TOL:g}, 1) (an error relative to the lobe's peak; below "
             f"{MIN_TOL:g} float64 rounding in the evaluation exceeds it); got {tol!r}."
@@ -210,8 +210,9 @@ def select(
     half-width and a verified oversampling (grid); and checks that a BRDF exists for these
     values (the verifications: the docstrings of :mod:`._radial` and :mod:`._grid`). The
     result is a static object: pass it as ``evolve(..., method=result)`` inside
-    ``jax.jit``/``grad``/``vmap``, where it is used as it is. ``result.explain()`` says what it chose; ``result.tol`` is the error relative to the
-    lobe's peak it honours (looser than asked only when a capped grid cannot do better).
+    ``jax.jit``/``grad``/``vmap``, where it is used as it is. ``result.explain()`` says what it
+    chose; ``result.tol`` is the error relative to the lobe's peak it honours (looser than asked
+    only when a capped grid cannot do better).
 
     ``regularisation``: the Tikhonov λ of the division as in :func:`brdfscale.evolve` — a
     number, or a rule (``"auto"``, ``"gcv"``, ``"discrepancy"`` with ``noise=σ``, ``"l_curve"``)

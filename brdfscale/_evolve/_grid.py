@@ -111,6 +111,13 @@ class Grid(AbstractSpectralMethod):
     def half_width(self) -> Float[Array, ""] | None:
         return self.extent
 
+    @property
+    def _resolved_size(self) -> int:
+        """The side of a grid that evaluates: always resolved (``evaluate`` raises :meth:`unresolved`
+        first; the planner's steps fix it)."""
+        assert self.size is not None
+        return self.size
+
     def show_sizes(self) -> list[tuple[str, Any]]:
         return [("size", self.size)] + ([] if self.extent is None else [("extent", self.extent)])
 
@@ -156,11 +163,12 @@ class Grid(AbstractSpectralMethod):
             a = jax.lax.stop_gradient(density.support_radius(density.tol / 2))  # a discretisation choice
         else:
             a = jax.lax.stop_gradient(jnp.asarray(self.extent, dtype))
-        return 2 * a / self.size, a
+        return 2 * a / self._resolved_size, a
 
     def frequency_grid(self, h) -> FrequencyGrid:
         """The real-FFT frequencies of the ``size × size`` slope grid of spacing ``h``."""
-        return FrequencyGrid(self.size, 2 * jnp.pi / (self.size * h))
+        n = self._resolved_size
+        return FrequencyGrid(n, 2 * jnp.pi / (n * h))
 
     def transform(self, density, grid: FrequencyGrid):
         """``G`` on ``grid`` and the existence predicate from the largest ``|G|``: on the grid
@@ -188,7 +196,7 @@ class Grid(AbstractSpectralMethod):
         """``g`` on the (pN)² slope grid and its existence predicates (|G| ≤ 1; no value
         below −tol of the grid's maximum)."""
         G, failed = self.transform(density, self.frequency_grid(h))
-        values = _inverse_fft(G, h, self.size, p)
+        values = _inverse_fft(G, h, self._resolved_size, p)
         negative = None
         if density._sign_check:
             fixed = jax.lax.stop_gradient(values)
@@ -198,7 +206,7 @@ class Grid(AbstractSpectralMethod):
     def _on_grid(self, density, p: int):
         h, a = self.spacing(density)
         values, failed, negative = self.slope_table(density, h, p)
-        u = -a + (h / p) * jnp.arange(self.size * p, dtype=h.dtype)
+        u = -a + (h / p) * jnp.arange(self._resolved_size * p, dtype=h.dtype)
         return u, checked(values, failed, negative)
 
     def values(self, density, m):
@@ -207,7 +215,7 @@ class Grid(AbstractSpectralMethod):
         offset; outside: 0 (the lobe is below tol/2 of its peak there when a is its support
         radius)."""
         h, a = self.spacing(density)
-        n = self.size
+        n = self._resolved_size
         size = jnp.dtype(m.dtype).itemsize
         inside = jnp.all(jnp.abs(m) <= a, axis=-1)
         q = m.shape[0]

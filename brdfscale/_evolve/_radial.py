@@ -142,6 +142,13 @@ class Radial(AbstractSpectralMethod):
     def resolution(self) -> int | None:
         return self.nodes
 
+    @property
+    def _resolved_nodes(self) -> int:
+        """The node count of a method that evaluates: always resolved (``evaluate`` raises
+        :meth:`unresolved` first; the planner's steps fix it)."""
+        assert self.nodes is not None
+        return self.nodes
+
     def explain(self) -> str:
         if self.nodes is None:
             return "radial (Hankel) path, not yet resolved"
@@ -199,7 +206,7 @@ class Radial(AbstractSpectralMethod):
             k_probe, mag = density._probe()
         dtype = jnp.result_type(*jax.tree_util.tree_leaves(density.base), float)
         K = cutoff(k_probe, mag, density.tol / 2) if self.cutoff is None else jnp.asarray(self.cutoff, dtype)
-        x, w = gauss_legendre(self.nodes)
+        x, w = gauss_legendre(self._resolved_nodes)
         k = (0.5 * (jnp.asarray(x, dtype) + 1)) * K
         G = density.cf_radial(k)
         c = 0.5 * K * jnp.asarray(w, dtype) * k * G / (2 * jnp.pi)
@@ -210,8 +217,10 @@ class Radial(AbstractSpectralMethod):
 
     def table_values(self, density):
         """The lobe at the radii of the method's table (:class:`RadialTable`)."""
+        table = self.table
+        assert table is not None  # called where the method carries its verified table
         _, c, _, failed = self.coefficients(density)
-        values = c @ self.table.kernel.astype(c.dtype)
+        values = c @ table.kernel.astype(c.dtype)
         return values, failed
 
     def values(self, density, m):
@@ -248,7 +257,7 @@ class Radial(AbstractSpectralMethod):
             R = float(concrete_support(density, density.tol / 2))
             reach = min(r_max, R) + R
             n = radial_nodes(float(self.cutoff), reach, density.tol / 2)
-            if n > self.nodes:
+            if n > self._resolved_nodes:
                 warnings.warn(
                     f"queries at offsets up to {r_max:.3g} need {n} Gauss–Legendre nodes for tol={density.tol:g}; "
                     f"this lobe has {self.nodes} (evolve(..., size=...) raises it): errors there may exceed tol.",

@@ -139,7 +139,9 @@ def choose(lobe, s_from, s_to, rule: str, noise=None) -> tuple[float, str]:
         return 0.0, f"{_DESCRIPTION[rule]}: nothing is divided, s_to is a point mass"
     if not is_concrete((lobe, s_from, s_to, noise)):
         raise unresolved_regularisation(rule)
-    values, h = table_of(lobe)
+    table = table_of(lobe)
+    assert table is not None  # the lobe is tabulated (checked above)
+    values, h = table
     v = np.asarray(values, dtype=float)
     hx, hy = (float(x) for x in np.asarray(h))
     ny, nx = v.shape

@@ -284,17 +284,26 @@ class EvolvedDensity(AbstractSlopeDensity):
         at_zero = jnp.where((numerator == 0) | (lam2 > 0), 0.0, jnp.inf)
         return jnp.where(zero, at_zero, ratio)
 
+    def _gaussians(self) -> tuple[Gaussian, Gaussian]:
+        """``(s_from, s_to)`` where :attr:`gaussian_ratio` holds: both Gaussian by construction."""
+        s_from, s_to = self.s_from, self.s_to
+        assert isinstance(s_from, Gaussian) and isinstance(s_to, Gaussian)
+        return s_from, s_to
+
     def _ratio(self, W, with_base=False):
         """``S_from/S_to`` of two Gaussians at W (..., 2), as one exponential (``with_base``: times
         the Gaussian lobe's transform, in the same exponent)."""
-        C = self.s_from.cov - self.s_to.cov
-        mean = self.s_from.mean
-        if self.s_to.mean is not None:
-            mean = -self.s_to.mean if mean is None else mean - self.s_to.mean
+        s_from, s_to = self._gaussians()
+        C = s_from.cov - s_to.cov
+        mean = s_from.mean
+        if s_to.mean is not None:
+            mean = -s_to.mean if mean is None else mean - s_to.mean
         if with_base:
-            C = C + self.base.cov
-            if self.base.mean is not None:
-                mean = self.base.mean if mean is None else mean + self.base.mean
+            base = self.base
+            assert isinstance(base, Gaussian)  # with_base only where _gaussian_base holds
+            C = C + base.cov
+            if base.mean is not None:
+                mean = base.mean if mean is None else mean + base.mean
         quad = jnp.einsum("...i,ij,...j->...", W, C, W)
         return shifted_cf(_exp_capped(-0.5 * quad), W, mean)
 
@@ -328,9 +337,13 @@ class EvolvedDensity(AbstractSlopeDensity):
     def cf_radial(self, k):
         k = jnp.asarray(k)
         if self._gaussian_base:
-            return _exp_capped(-0.5 * k**2 * (self.base.cov[0, 0] + self.s_from.cov[0, 0] - self.s_to.cov[0, 0]))
+            s_from, s_to = self._gaussians()
+            base = self.base
+            assert isinstance(base, Gaussian)  # _gaussian_base
+            return _exp_capped(-0.5 * k**2 * (base.cov[0, 0] + s_from.cov[0, 0] - s_to.cov[0, 0]))
         if self.gaussian_ratio:
-            return self.base.cf_radial(k) * _exp_capped(-0.5 * k**2 * (self.s_from.cov[0, 0] - self.s_to.cov[0, 0]))
+            s_from, s_to = self._gaussians()
+            return self.base.cf_radial(k) * _exp_capped(-0.5 * k**2 * (s_from.cov[0, 0] - s_to.cov[0, 0]))
         return jnp.real(self._divide(self.base.cf_radial(k) * self.s_from.cf_radial(k), self.s_to.cf_radial(k)))
 
     def shifted(self, offset):
@@ -375,7 +388,8 @@ class EvolvedDensity(AbstractSlopeDensity):
         """The frequency beyond which |G| stays below ``tol`` (the largest probe frequency
         when it does not fall that low in the probed window: :func:`brdfscale.select` reports
         that for concrete inputs)."""
-        return cutoff(*self._probe(), tol)
+        k, mag = self._probe()
+        return cutoff(k, mag, tol)
 
     # -- inversion ------------------------------------------------------------------------
     def density(self, m):

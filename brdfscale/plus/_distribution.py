@@ -1,4 +1,5 @@
-"""The regularised plus-distributions ``h_n``: generalised functions of mass 0 on slope space (seed §6, docs/conventions.md §4)."""
+"""The regularised plus-distributions ``h_n``: generalised functions of mass 0 on slope space
+(seed §6, docs/conventions.md §4)."""
 
 import math
 
@@ -91,7 +92,7 @@ class PlusDistribution(AbstractGeneralisedDensity):
         at_centre = jnp.asarray(psi(centre))
 
         def excess(x):
-            values = psi(centre + x[..., None, None] * ring)  # (..., nodes, angles)
+            values = jnp.asarray(psi(centre + x[..., None, None] * ring))  # (..., nodes, angles)
             return jnp.mean(values, axis=-1) - at_centre
 
         return radial_action(excess, self.x0, self.order, scale)[..., self.order]

@@ -52,7 +52,7 @@ class NearlySpecular(AbstractSlopeDensity):
     mean: Float[Array, "2"] | None
     isotropic: bool = eqx.field(static=True)
 
-    def __init__(self, specular, strengths, x0, *, smooth=None, smooth_weight=0.0, mean=None):
+    def __init__(self, specular, strengths, x0, *, smooth=None, smooth_weight: ArrayLike = 0.0, mean=None):
         a = as_float_array(specular, "specular")
         c = as_float_array(strengths, "strengths")
         w = as_float_array(smooth_weight, "smooth_weight")
@@ -205,8 +205,8 @@ class ObservedDensity(AbstractSlopeDensity):
         """``a K(d) + Σ c_n ⟨h_n, K(u − ·)⟩``: the δ and plus parts seen by the instrument."""
         return _singular_part(self, check_slopes(u, "u"))
 
-    def density(self, u: Float[ArrayLike, "*batch 2"]) -> Float[Array, "*batch"]:
-        u = check_slopes(u, "u")
+    def density(self, m: Float[ArrayLike, "*batch 2"]) -> Float[Array, "*batch"]:
+        u = check_slopes(m, "m")
         value = self.singular_part(u)
         s = self.statistic
         if s.smooth is not None:

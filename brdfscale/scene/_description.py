@@ -57,7 +57,8 @@ class Material(Shown, eqx.Module):
             raise InvalidInputError(f"lobe must be a brdfscale.lobes lobe; got {type(lobe).__name__}.")
         if not isinstance(law, AbstractScaleLaw):
             raise InvalidInputError(
-                f"law must be a brdfscale.stats scale law (ScaledFamily, GaussianSurface, ...); got {type(law).__name__}."
+                "law must be a brdfscale.stats scale law (ScaledFamily, GaussianSurface, ...); "
+                f"got {type(law).__name__}."
             )
         self.lobe = lobe
         self.mu0 = positive(mu0, "mu0", "a positive facet size")
@@ -162,8 +163,8 @@ class Queries(Shown, eqx.Module):
     def __len__(self):
         return self.mu.shape[0]
 
-    def _show_items(self):
-        items = [("n", len(self))]
+    def _show_items(self) -> list[tuple[str, object]]:
+        items: list[tuple[str, object]] = [("n", len(self))]
         if concrete(self.mu):
             mu = np.asarray(self.mu)
             items.append(("mu", f"{mu.min():.4g} … {mu.max():.4g}" if mu.min() < mu.max() else mu[0]))
@@ -217,7 +218,8 @@ class Scene(Shown, eqx.Module):
             and (int(index.min()) < 0 or int(index.max()) >= len(self.materials))
         ):
             raise InvalidInputError(
-                f"query material indices must lie in [0, {len(self.materials) - 1}]; got [{int(index.min())}, {int(index.max())}]."
+                f"query material indices must lie in [0, {len(self.materials) - 1}]; "
+                f"got [{int(index.min())}, {int(index.max())}]."
             )
 
 

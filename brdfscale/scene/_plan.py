@@ -20,7 +20,8 @@ class _plain_method:
 
     def __init__(self, fn):
         self.fn = fn
-        functools.update_wrapper(self, fn)
+        # typeshed types the wrapper as a callable; update_wrapper copies the metadata onto any object
+        functools.update_wrapper(self, fn)  # pyright: ignore[reportArgumentType]
 
     def __get__(self, obj, owner=None):
         return self.fn if obj is None else functools.partial(self.fn, obj)
@@ -54,7 +55,7 @@ class Plan(Shown, eqx.Module):
 
     def image(self, values: Float[Array, " Q"] | None = None) -> Float[Array, "rows cols"]:
         """The values scattered into the camera image (pixels without a query are 0)."""
-        if self.pixels is None:
+        if self.pixels is None or self.resolution is None:
             raise InvalidInputError("this plan has no camera; image() needs a scene from camera_scene().")
         values = self.evaluate() if values is None else values
         rows, cols = self.resolution
@@ -69,8 +70,8 @@ class Plan(Shown, eqx.Module):
     def predicted_cost(self) -> float:
         """Predicted work of :meth:`evaluate` in relative cost units, not seconds
         (:mod:`brdfscale.scene._cost`: one unit per multiply-add, 20 per transcendental
-        evaluation, plus the fixed cost of a call). It ranks alternatives; experiments/bench_planner.py measures the seconds
-        per unit on its machine."""
+        evaluation, plus the fixed cost of a call). It ranks alternatives;
+        experiments/bench_planner.py measures the seconds per unit on its machine."""
         return _cost.CALL_UNITS + sum(p.predicted_cost for p in self.parts)
 
     def _show_items(self):

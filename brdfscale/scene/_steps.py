@@ -160,12 +160,13 @@ class GridStep(Shown, eqx.Module):
         return jnp.where(inside, values, 0.0) * material.lobe.amplitude
 
     def _direct(self, material, s):
-        W = self.frequencies
+        W, phases = self.frequencies, self.phases
+        assert W is not None and phases is not None  # direct mode: both frozen at planning time
         G = jax.vmap(lambda t: self.densities(material, jnp.exp(t)).cf(W))(self.nodes)  # (s, N, N/2+1)
         G = attach(G, transform_exceeds_one(jnp.max(jnp.abs(G))), TRANSFORM_ABOVE_ONE)
         nx = W.shape[1]
         half = jnp.where((jnp.arange(nx) == 0) | (2 * jnp.arange(nx) == self.size), 1.0, 2.0)
-        ey, ex = self.phases
+        ey, ex = phases
         total = jnp.einsum("qy,syx,qx->qs", ey, G * half, ex)
         dW = W[0, 1, 0] - W[0, 0, 0]
         return jnp.real(jnp.take_along_axis(total, s[:, None], axis=1)[:, 0]) * dW**2 / (2 * jnp.pi) ** 2
@@ -270,4 +271,5 @@ class MaterialPlan(Shown, eqx.Module):
         ]
 
     def __call__(self, material: Material | AnisotropicMaterial) -> Float[Array, " q"]:
-        return self.step(material)[self.inverse] * self.factor
+        # the planner pairs SO3Step with an AnisotropicMaterial and the other steps with a Material
+        return self.step(material)[self.inverse] * self.factor  # pyright: ignore[reportArgumentType]

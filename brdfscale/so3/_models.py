@@ -105,8 +105,8 @@ def _twist_terms(std) -> int:
 def _wrapped_normal(psi, mean, std, terms: int):
     """Wrapped normal density on the circle, by its Fourier series (1/2π) Σ_{k≤terms} e^{−σ²k²/2} cos k(ψ − ψ0)."""
     k = jnp.arange(1, terms + 1)
-    terms = jnp.exp(-0.5 * (std * k) ** 2) * jnp.cos(k * (psi[..., None] - mean))
-    return (1 + 2 * jnp.sum(terms, axis=-1)) / (2 * jnp.pi)
+    series = jnp.exp(-0.5 * (std * k) ** 2) * jnp.cos(k * (psi[..., None] - mean))
+    return (1 + 2 * jnp.sum(series, axis=-1)) / (2 * jnp.pi)
 
 
 def _wrapped_gaussian(psi, mean, std):
@@ -309,7 +309,7 @@ class AnisotropicMicrofacetLobe(eqx.Module):
     with the statistics (:func:`evolve`). ``amplitude`` A ≥ 0 (checked when concrete).
     """
 
-    shape: stats.AbstractSlopeDensity
+    shape: stats.Gaussian | stats.GGX  # Beckmann (a Gaussian) or GGX, as ``family`` says
     amplitude: Float[Array, ""]
     family: str = eqx.field(static=True)
 
@@ -328,7 +328,7 @@ class AnisotropicMicrofacetLobe(eqx.Module):
             )
 
     def _alpha_min(self):
-        if self.family == "ggx":
+        if isinstance(self.shape, stats.GGX):  # family "ggx"
             return jnp.min(self.shape.alpha)
         return jnp.sqrt(2 * jnp.min(jnp.diagonal(self.shape.cov)))
 

@@ -103,8 +103,8 @@ def _merge(r, n: int, N: int, layout: str, size_r: int, size_c: int):
     r = r[:, :, : N + 1].reshape(r.shape[:2] + (N + 1, 4, 2, n))
     z = r[..., 0, :] + 1j * r[..., 1, :]  # (X, L+1, N+1, 4, n)
     q = dict(zip(QUADRANTS, jnp.transpose(z, (3, 0, 4, 1, 2))))  # each (X, n, L+1, N+1)
-    rows = [_unsigned(q[sr, 1], q[sr, -1], 3, layout, size_c) for sr in (1, -1)]
-    return _unsigned(*rows, 2, layout, size_r)
+    plus, minus = (_unsigned(q[sr, 1], q[sr, -1], 3, layout, size_c) for sr in (1, -1))
+    return _unsigned(plus, minus, 2, layout, size_r)
 
 
 def _mixed_sign(size: int, channels: int, dtype):

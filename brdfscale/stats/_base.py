@@ -117,8 +117,9 @@ class AbstractGeneralisedDensity(AbstractDistribution):
     """
 
     @abc.abstractmethod
-    def apply(self, psi, **options) -> Float[Array, ""]:
-        """``⟨h, ψ⟩`` for a test function ``psi`` mapping slopes (..., 2) to values (...)."""
+    def apply(self, psi) -> Float[Array, ""]:
+        """``⟨h, ψ⟩`` for a test function ``psi`` mapping slopes (..., 2) to values (...)
+        (implementations may add keyword options, e.g. their quadrature's settings)."""
 
     @abc.abstractmethod
     def support_radius(self, tol: float) -> Float[Array, ""]:

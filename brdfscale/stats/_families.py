@@ -46,7 +46,7 @@ class Delta(AbstractSlopeDensity):
         self.mean = vector2(mean, "mean")
         self.isotropic = mean is None
 
-    def _show_items(self):
+    def _show_items(self) -> list[tuple[str, object]]:
         return [("mean", self.mean)] if self.mean is not None else [("", "point mass at the origin")]
 
     def density(self, m):
@@ -150,9 +150,10 @@ class Gaussian(AbstractSlopeDensity):
         self.isotropic = isotropic and mean is None
         self.diagonal = sigma is not None
 
-    def _show_items(self):
+    def _show_items(self) -> list[tuple[str, object]]:
         # per-axis standard deviations (and the Beckmann width α = σ√2 of each axis), the
         # correlation where Σ has a cross term
+        items: list[tuple[str, object]]
         if self.diagonal and _same_axes(self.cov, self.isotropic):
             sigma = derived(self.cov, lambda c: c[..., 0, 0] ** 0.5)
             items = [("sigma", sigma), ("alpha", derived(self.cov, lambda c: (2 * c[..., 0, 0]) ** 0.5))]
@@ -243,9 +244,10 @@ class GGX(AbstractSlopeDensity):
         self.mean = vector2(mean, "mean")
         self.isotropic = isotropic and mean is None
 
-    def _show_items(self):
+    def _show_items(self) -> list[tuple[str, object]]:
         alpha = derived(self.alpha, lambda a: a[..., 0]) if _same_axes_alpha(self.alpha, self.isotropic) else self.alpha
-        return [("alpha", alpha)] + ([("mean", self.mean)] if self.mean is not None else [])
+        items: list[tuple[str, object]] = [("alpha", alpha)]
+        return items + ([("mean", self.mean)] if self.mean is not None else [])
 
     def density(self, m):
         d = centred(m, self.mean)

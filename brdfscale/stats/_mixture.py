@@ -1,5 +1,7 @@
 """Finite mixtures of slope densities."""
 
+from typing import cast
+
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
@@ -10,6 +12,11 @@ from .._slopes import check_slopes
 from .._validation import as_float_array, is_concrete
 from ._base import AbstractSlopeDensity
 from ._require import require_density
+
+
+def _weighted_sum(weights, values) -> Array:
+    """``Σ_k w_k v_k`` over a mixture's components (never empty: ``sum``'s start 0 is never the result)."""
+    return cast(Array, sum(w * v for w, v in zip(weights, values)))
 
 
 class Mixture(AbstractSlopeDensity):
@@ -52,14 +59,14 @@ class Mixture(AbstractSlopeDensity):
 
     def density(self, m):
         m = check_slopes(m, "m")
-        return sum(w * c.density(m) for w, c in zip(self.weights, self.components))
+        return _weighted_sum(self.weights, (c.density(m) for c in self.components))
 
     def cf(self, W):
         W = check_slopes(W, "W")
-        return sum(w * c.cf(W) for w, c in zip(self.weights, self.components))
+        return _weighted_sum(self.weights, (c.cf(W) for c in self.components))
 
     def cf_grid(self, grid):
-        return sum(w * c.cf_grid(grid) for w, c in zip(self.weights, self.components))
+        return _weighted_sum(self.weights, (c.cf_grid(grid) for c in self.components))
 
     def shifted(self, offset):
         return Mixture(self.weights, [c.shifted(offset) for c in self.components])

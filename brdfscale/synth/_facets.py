@@ -146,7 +146,7 @@ def _window_validity(field: HeightField, block: tuple[int, int]) -> np.ndarray |
         return None
     (fy, fx), (by, bx) = field.facet_grid, block
     nby, nbx = fy // by, fx // bx
-    return valid[: nby * by, : nbx * bx].reshape(nby, by, nbx, bx).all(axis=(1, 3))
+    return np.asarray(valid[: nby * by, : nbx * bx].reshape(nby, by, nbx, bx).all(axis=(1, 3)))
 
 
 def facet_samples(field: HeightField, block: tuple[int, int]) -> tuple[np.ndarray, np.ndarray | None]:
@@ -195,12 +195,12 @@ def offset_histogram(field: HeightField, mu: float | None, hist: SlopeHistogram,
     approximation (docs/conventions.md §2, seed footnote 1).
     """
     block = None if mu is None else field.block(mu)
-    facets = None if mu is None else _facet_slope_components(field, block)
+    facets = None if block is None else _facet_slope_components(field, block)
     for start, stop, mx, my, valid in _pixel_strips(field, block):
         weights = None
         if incident is not None:
             weights = np.maximum(0.0, 1 + (mx * incident[0] + my * incident[1]) / incident[2])
-        if facets is not None:
+        if block is not None and facets is not None:  # both set when μ is
             by, bx = block
             fx, fy = (f[start // by : stop // by, :, None] for f in facets)  # (r, nb, 1)
             r, nb = fx.shape[:2]
@@ -375,12 +375,13 @@ def facet_statistics(
     check_grid(bins, f"bins={bins}", "use fewer bins")
     for mu in scales:
         field.block(mu)
-    steepest = steepest_slope(field) if extent is None else None
+    steepest = steepest_slope(field) if extent is None else 0.0  # only an automatic extent uses it
     results = []
     for mu in scales:
         block = field.block(mu)
         samples, valid = facet_samples(field, block)
-        lattice = tuple(g // b for g, b in zip(field.facet_grid, block))
+        (fy, fx), (by, bx) = field.facet_grid, block
+        lattice = (fy // by, fx // bx)
         if len(samples) == 0:
             raise InvalidInputError(
                 f"no facet window of mu={mu:g} ({block[0]} × {block[1]} pixel facets) lies wholly on measured pixels; "

@@ -1,6 +1,7 @@
 """A synthetic gonioreflectometer: lobe images of a height field at several scales."""
 
 import dataclasses
+import functools
 from typing import Literal
 
 import equinox as eqx
@@ -75,7 +76,8 @@ class PoissonNoise:
             raise InvalidInputError(
                 f"the largest expected count, {peak:.4g} (value {peak / self.exposure:.4g} × exposure "
                 f"{self.exposure:g}), exceeds MAX_EXPECTED_COUNT = {MAX_EXPECTED_COUNT:g}, beyond NumPy's Poisson "
-                f"sampler; use exposure ≤ {MAX_EXPECTED_COUNT / peak * self.exposure:.4g}, or noise=None or GaussianNoise."
+                f"sampler; use exposure ≤ {MAX_EXPECTED_COUNT / peak * self.exposure:.4g}, "
+                "or noise=None or GaussianNoise."
             )
         counts = rng.poisson(expected).astype(np.float64)
         if self.read_noise == 0:
@@ -207,7 +209,7 @@ def gonioreflectometer(
         raise InvalidInputError(f"noise must be PoissonNoise, GaussianNoise or None; got {type(noise).__name__}.")
     if noise is not None and seed is None:
         raise InvalidInputError("a noisy measurement needs an explicit seed= (int, NumPy Generator or JAX key).")
-    rng = None if noise is None else as_generator(seed)
+    sample = None if noise is None else functools.partial(noise.sample, rng=as_generator(seed))  # None: noiseless
 
     h = 2 * extent / (pixels - 1)
     pad = kernel_padding(
@@ -244,7 +246,7 @@ def gonioreflectometer(
                 offset_histogram(field, mu, hist, incident=i if weighting == "projected_area" else None)
                 lobe = blur(hist.density(), h, field.micro, resolution)[crop, crop]
             clean = lobe[..., None] * albedo if albedo.ndim else lobe * albedo
-            values, sigma = (clean, None) if noise is None else noise.sample(clean, rng)
+            values, sigma = (clean, None) if sample is None else sample(clean)
             images.append(LobeImage(mu=mu, incident=i, extent=extent, values=values, sigma=sigma))
     metadata = {
         "generator": "brdfscale.synth.gonioreflectometer",

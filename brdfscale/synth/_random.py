@@ -1,6 +1,7 @@
 """Explicit random seeds: every generator of this package takes ``seed=`` and nothing else."""
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from .._errors import InvalidInputError
@@ -24,7 +25,7 @@ def as_generator(seed) -> np.random.Generator:
             raise InvalidInputError(f"seed must be ≥ 0; got {seed}.")
         return np.random.default_rng(int(seed))
     if isinstance(seed, jax.Array):
-        data = jax.random.key_data(seed) if jax.dtypes.issubdtype(seed.dtype, jax.dtypes.prng_key) else seed
+        data = jax.random.key_data(seed) if jnp.issubdtype(seed.dtype, jax.dtypes.prng_key) else seed
         words = np.asarray(data)
         if words.dtype != np.uint32 or words.ndim != 1:
             raise InvalidInputError(
@@ -41,6 +42,6 @@ def seed_record(seed):
     if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
         return int(seed)
     if isinstance(seed, jax.Array):
-        data = jax.random.key_data(seed) if jax.dtypes.issubdtype(seed.dtype, jax.dtypes.prng_key) else seed
+        data = jax.random.key_data(seed) if jnp.issubdtype(seed.dtype, jax.dtypes.prng_key) else seed
         return {"jax_key": [int(w) for w in np.asarray(data)]}
     return None

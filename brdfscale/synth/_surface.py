@@ -34,7 +34,8 @@ def check_grid(side: float, what: str, advice: str) -> None:
     if not needed <= MAX_GRID_BYTES:  # also NaN
         raise InvalidInputError(
             f"{what} would be a {side:.6g} × {side:.6g} float64 grid ({needed / 2**30:.3g} GiB), above "
-            f"brdfscale.synth.MAX_GRID_BYTES = {MAX_GRID_BYTES} bytes ({math.isqrt(MAX_GRID_BYTES // 8)}² nodes); {advice}."
+            f"brdfscale.synth.MAX_GRID_BYTES = {MAX_GRID_BYTES} bytes ({math.isqrt(MAX_GRID_BYTES // 8)}² nodes); "
+            f"{advice}."
         )
 
 
@@ -138,11 +139,14 @@ class HeightField(Shown):
         object.__setattr__(self, "description", dict(self.description))
         object.__setattr__(self, "mask", mask)
         object.__setattr__(self, "periodic", periodic)
-        if mask is not None and not self.pixel_facets.any():
-            raise InvalidInputError(
-                f"the mask leaves no measured pixel facet (a pixel facet needs its node and its right and lower "
-                f"neighbours measured); {int(mask.sum())} of {mask.size} pixels are measured."
-            )
+        if mask is not None:
+            facets = self.pixel_facets
+            assert facets is not None  # set whenever the mask is
+            if not facets.any():
+                raise InvalidInputError(
+                    f"the mask leaves no measured pixel facet (a pixel facet needs its node and its right and lower "
+                    f"neighbours measured); {int(mask.sum())} of {mask.size} pixels are measured."
+                )
 
     # -- geometry ------------------------------------------------------------------------
     @property
