@@ -192,7 +192,7 @@ class Dataset(Shown, eqx.Module):
         """``(prediction − values)/σ`` over all pixels (0 where masked), flattened."""
         return ((prediction - self.values) * self.weight).ravel()
 
-    def image(self, i: int, flat: Float[Array, " n_pix"]) -> np.ndarray:
+    def image(self, i: int, flat: Float[Array | np.ndarray, " n_pix"]) -> np.ndarray:
         """Pixel row ``flat`` of image ``i`` reshaped to its (n, n) grid."""
         n = self.image_sizes[i]
         return np.asarray(flat[: n * n]).reshape(n, n)
