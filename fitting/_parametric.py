@@ -1,9 +1,10 @@
-"""The parametric model: base lobe family and statistics family with a width law or a Gaussian surface (docs/fitting.md)."""
+"""The parametric model: base lobe family and statistics family with a width law or a Gaussian
+surface (docs/fitting.md)."""
 
 import math
 from collections.abc import Mapping
-
 from typing import Literal
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp

@@ -180,8 +180,8 @@ def _synth_base_width(metadata: dict) -> float | None:
     the recorded covariances of the pixel and μ0-facet slopes of this very surface (a facet's
     slope is the mean of its pixels' slopes); a Beckmann lobe of width α has ``tr Σ = α²``. So
     ``α_lobe`` is the square root of that trace — the width of a Beckmann lobe with the measured
-    lobe's second moment, for this realisation (the spectrum's ``rms_height`` and ``correlation_length`` are those of the
-    ensemble). None when the record lacks any of these (e.g. a file from elsewhere) or the
+    lobe's second moment, for this realisation (the spectrum's ``rms_height`` and ``correlation_length``
+    are those of the ensemble). None when the record lacks any of these (e.g. a file from elsewhere) or the
     micro lobe is not Gaussian (Beckmann) or a mirror.
     """
     record, micro = metadata.get("truth"), metadata.get("micro")

@@ -312,7 +312,8 @@ def _initial_carry(target, z0, cov):
 
 
 def _transition(spec, logdensity):
-    """One transition of one chain: ``(key, carry, adapt) → (carry, (z, log-density, acceptance, divergent, steps, ε))``."""
+    """One transition of one chain:
+    ``(key, carry, adapt) → (carry, (z, log-density, acceptance, divergent, steps, ε))``."""
     blackjax = _blackjax()
     kind, max_doublings, trajectory_length, jitter, target = spec
     nuts_kernel, hmc_kernel = blackjax.nuts.build_kernel(), blackjax.hmc.build_kernel()
