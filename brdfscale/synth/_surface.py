@@ -3,6 +3,7 @@
 import dataclasses
 import functools
 import math
+import types
 from collections.abc import Mapping
 
 import equinox as eqx
@@ -49,7 +50,11 @@ def check_micro(micro) -> stats.AbstractSlopeDensity:
     )
 
 
-@dataclasses.dataclass(frozen=True, eq=False, repr=False)
+_MIRROR = stats.Delta()  # the default micro lobe: mirror pixel facets
+_NO_DESCRIPTION = types.MappingProxyType({})
+
+
+@dataclasses.dataclass(frozen=True, eq=False, repr=False, init=False)
 class HeightField(Shown):
     """A sampled height field — synthesised or measured — with the micro-facets' own lobe.
 
@@ -94,18 +99,31 @@ class HeightField(Shown):
     that is not a string or None.
     """
 
+    # the fields hold the validated values; the constructor takes more (a single spacing, integer heights, any
+    # mapping) and refuses the rest with InvalidInputError, so its arguments are unannotated (``object`` where a
+    # default would otherwise make the type checker narrow what callers may pass to the default's type)
     heights: Float[np.ndarray, "ny nx"]
     spacing: tuple[float, float]
-    micro: stats.AbstractSlopeDensity = dataclasses.field(default_factory=stats.Delta)
-    spectrum: stats.AbstractPowerSpectrum | None = None
-    description: dict = dataclasses.field(default_factory=dict)
-    mask: Bool[np.ndarray, "ny nx"] | None = None
-    periodic: bool = True
-    unit: str | None = None
+    micro: stats.AbstractSlopeDensity
+    spectrum: stats.AbstractPowerSpectrum | None
+    description: dict
+    mask: Bool[np.ndarray, "ny nx"] | None
+    periodic: bool
+    unit: str | None
 
-    def __post_init__(self):
-        mask = None if self.mask is None else boolean_mask(self.mask, "mask")
-        raw = self.heights
+    def __init__(
+        self,
+        heights,
+        spacing,
+        micro: object = _MIRROR,
+        spectrum=None,
+        description: object = _NO_DESCRIPTION,
+        mask=None,
+        periodic=True,
+        unit=None,
+    ):
+        mask = None if mask is None else boolean_mask(mask, "mask")
+        raw = heights
         if mask is not None:
             raw = np.asarray(raw)
             if raw.shape != mask.shape:
@@ -117,28 +135,31 @@ class HeightField(Shown):
             raise InvalidInputError(
                 f"heights must be a 2-D (ny, nx) array with ny, nx ≥ 4 (rows y, columns x); got shape {h.shape}."
             )
-        spacing = pitch(self.spacing)
-        check_micro(self.micro)
-        if self.spectrum is not None and not isinstance(self.spectrum, stats.AbstractPowerSpectrum):
+        spacing = pitch(spacing)
+        check_micro(micro)
+        if spectrum is not None and not isinstance(spectrum, stats.AbstractPowerSpectrum):
             raise InvalidInputError(
-                f"spectrum must be a brdfscale.stats power spectrum; got {type(self.spectrum).__name__}."
+                f"spectrum must be a brdfscale.stats power spectrum; got {type(spectrum).__name__}."
             )
-        if not isinstance(self.description, Mapping):
+        if not isinstance(description, Mapping):
             raise InvalidInputError(
-                f"description must be a dict (JSON-serialisable provenance); got {type(self.description).__name__}."
+                f"description must be a dict (JSON-serialisable provenance); got {type(description).__name__}."
             )
-        periodic = flag(self.periodic, "periodic")
-        if self.unit is not None and not isinstance(self.unit, str):
+        periodic = flag(periodic, "periodic")
+        if unit is not None and not isinstance(unit, str):
             raise InvalidInputError(
-                f"unit must be the name of a length unit (a string) or None; got {type(self.unit).__name__}."
+                f"unit must be the name of a length unit (a string) or None; got {type(unit).__name__}."
             )
         if mask is not None and mask.all():
             mask = None
         object.__setattr__(self, "heights", h)
         object.__setattr__(self, "spacing", spacing)
-        object.__setattr__(self, "description", dict(self.description))
+        object.__setattr__(self, "micro", micro)
+        object.__setattr__(self, "spectrum", spectrum)
+        object.__setattr__(self, "description", dict(description))
         object.__setattr__(self, "mask", mask)
         object.__setattr__(self, "periodic", periodic)
+        object.__setattr__(self, "unit", unit)
         if mask is not None:
             facets = self.pixel_facets
             assert facets is not None  # set whenever the mask is
