@@ -320,9 +320,14 @@ def test_not_an_exr_and_missing(tmp_path):
         exr.read_measurements(foreign)
 
 
-def test_write_rejects_bad_input(tmp_path):
+@pytest.mark.wrong_types
+def test_write_names_what_is_not_a_measurement_set(tmp_path):
     with pytest.raises(InvalidInputError, match="MeasurementSet"):
         exr.write_measurements(tmp_path / "a.exr", {"images": []})
+    assert not (tmp_path / "a.exr").exists()
+
+
+def test_write_rejects_bad_input(tmp_path):
     bad_meta = MeasurementSet(_mset().images, {"x": np.float32(1.0)})
     with pytest.raises(InvalidInputError, match="JSON"):
         exr.write_measurements(tmp_path / "a.exr", bad_meta)
@@ -435,13 +440,17 @@ def test_values_underflowing_to_zero_are_refused(tmp_path):
     assert np.all(exr.read_measurements(path).images[0].values > 0)
 
 
-def test_metadata_must_be_a_json_object(tmp_path):
+@pytest.mark.wrong_types
+def test_metadata_must_be_a_mapping():
     with pytest.raises(InvalidInputError, match="metadata must be a dict.*got list"):
         _one(np.ones((3, 3)), metadata=[1, 2])
     with pytest.raises(InvalidInputError, match="metadata must be a dict.*got NoneType"):
         MeasurementSet(_mset().images, None)
     with pytest.raises(InvalidInputError, match="metadata must be a dict.*got list"):
         exr.LobeTable([1.0], 0.1, np.ones((1, 3, 3)), [1, 2])
+
+
+def test_metadata_must_be_a_json_object(tmp_path):
     path = tmp_path / "m.exr"
     with pytest.raises(InvalidInputError, match=r"keys must be strings.*int key 2 in metadata\['a'\]"):
         exr.write_measurements(path, _one(np.ones((3, 3)), metadata={"a": {2: "two"}}))
@@ -473,16 +482,20 @@ def test_bad_paths_are_named(tmp_path):
             exr.write_measurements(bad, _mset())
         with pytest.raises(InvalidInputError, match="path must be"):
             exr.read_measurements(bad)
-    path = tmp_path / "set.exr"
-    path.write_bytes(b"precious")
-    with pytest.raises(InvalidInputError, match="overwrite must be True or False"):
-        exr.write_measurements(path, _mset(), overwrite="no")
-    assert path.read_bytes() == b"precious"
     if os.geteuid() != 0:  # root writes anywhere
         locked = tmp_path / "locked"
         locked.mkdir(mode=0o500)
         with pytest.raises(MeasurementFileError, match=rf"{locked / 'x.exr'}: cannot write the file"):
             exr.write_measurements(locked / "x.exr", _mset())
+
+
+@pytest.mark.wrong_types
+def test_overwrite_must_be_a_bool(tmp_path):
+    path = tmp_path / "set.exr"
+    path.write_bytes(b"precious")
+    with pytest.raises(InvalidInputError, match="overwrite must be True or False"):
+        exr.write_measurements(path, _mset(), overwrite="no")
+    assert path.read_bytes() == b"precious"
 
 
 def test_lobe_table_writer_has_the_same_checks(tmp_path):
@@ -500,8 +513,14 @@ def test_lobe_table_writer_has_the_same_checks(tmp_path):
         exr.write_lobe_table(None, table)
     with pytest.raises(InvalidInputError, match="path must be"):
         exr.read_lobe_table(None)
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.wrong_types
+def test_lobe_table_writer_names_a_dtype_that_is_not_a_name(tmp_path):
+    table = exr.LobeTable([1.0], 0.1, np.ones((1, 3, 3)))
     with pytest.raises(InvalidInputError, match="dtype must be"):
-        exr.write_lobe_table(path, table, dtype=["float32"])
+        exr.write_lobe_table(tmp_path / "t.exr", table, dtype=["float32"])
     assert os.listdir(tmp_path) == []
 
 
@@ -514,15 +533,19 @@ def test_lobe_table_from_lobes_refuses_tables_above_the_cap(monkeypatch):
         InvalidInputError, match=r"size=1000000 needs about .* GiB.*MAX_TABLE_BYTES = 2147483648.*smaller size"
     ):
         exr.LobeTable.from_lobes([1.0], beckmann, extent=0.1, size=10**6)
-    for size in (1e6, 33.0, "33", None):
-        with pytest.raises(InvalidInputError, match="size must be an integer ≥ 2"):
-            exr.LobeTable.from_lobes([1.0], beckmann, extent=0.1, size=size)
     monkeypatch.setattr(_tables, "MAX_TABLE_BYTES", 8 * 3 * 33 * 33)  # one scale: table + grid = 3 planes
     assert exr.LobeTable.from_lobes([1.0], beckmann, extent=0.1, size=33).values.shape == (1, 33, 33)
     with pytest.raises(InvalidInputError, match="MAX_TABLE_BYTES"):
         exr.LobeTable.from_lobes([1.0], beckmann, extent=0.1, size=34)
     with pytest.raises(InvalidInputError, match=r"2 scale\(s\)"):
         exr.LobeTable.from_lobes([1.0, 2.0], beckmann * 2, extent=0.1, size=33)
+
+
+@pytest.mark.wrong_types
+def test_lobe_table_size_must_be_an_integer():
+    for size in (1e6, 33.0, "33", None):
+        with pytest.raises(InvalidInputError, match="size must be an integer ≥ 2"):
+            exr.LobeTable.from_lobes([1.0], [lobes.Beckmann(0.1)], extent=0.1, size=size)
 
 
 def test_complex_input_and_non_boolean_masks_are_refused():
@@ -567,16 +590,25 @@ def test_complex_input_and_non_boolean_masks_are_refused():
         (lambda ok: MeasurementSet(None), "images must be a non-empty sequence of LobeImage; got NoneType"),
         (lambda ok: MeasurementSet(LobeImage(**ok)), "images must be a non-empty sequence"),
         (lambda ok: exr.LobeTable("a", 0.1, np.ones((1, 3, 3))), "scales"),
-        (lambda ok: exr.LobeTable(None, 0.1, np.ones((1, 3, 3))), "scales"),
-        (lambda ok: exr.LobeTable([1.0], "a", np.ones((1, 3, 3))), "extent"),
-        (lambda ok: exr.LobeTable([1.0], 0.1, None), "values"),
-        (lambda ok: exr.LobeTable.from_lobes([1.0], [lobes.Beckmann(0.1)], extent="a"), "extent"),
+        pytest.param(lambda ok: exr.LobeTable(None, 0.1, np.ones((1, 3, 3))), "scales", marks=pytest.mark.wrong_types),
+        pytest.param(lambda ok: exr.LobeTable([1.0], "a", np.ones((1, 3, 3))), "extent", marks=pytest.mark.wrong_types),
+        pytest.param(lambda ok: exr.LobeTable([1.0], 0.1, None), "values", marks=pytest.mark.wrong_types),
+        pytest.param(
+            lambda ok: exr.LobeTable.from_lobes([1.0], [lobes.Beckmann(0.1)], extent="a"),
+            "extent",
+            marks=pytest.mark.wrong_types,
+        ),
         (lambda ok: exr.LobeTable.from_lobes([1.0], [lobes.Beckmann(0.1)], extent=float("nan")), "extent"),
         (lambda ok: exr.LobeTable.from_lobes([1.0], None, extent=0.1), "lobes must be a sequence"),
-        (lambda ok: exr.LobeTable.from_lobes(None, [lobes.Beckmann(0.1)], extent=0.1), "scales"),
-        (
+        pytest.param(
+            lambda ok: exr.LobeTable.from_lobes(None, [lobes.Beckmann(0.1)], extent=0.1),
+            "scales",
+            marks=pytest.mark.wrong_types,
+        ),
+        pytest.param(
             lambda ok: exr.LobeTable.from_lobes([1.0], [lobes.Beckmann(0.1)], extent=0.1, metadata=[]),
             "metadata must be a dict",
+            marks=pytest.mark.wrong_types,
         ),
     ],
     ids=lambda x: x if isinstance(x, str) else "",

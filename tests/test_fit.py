@@ -46,6 +46,10 @@ def test_dataset_refuses_what_cannot_be_fitted():
         fitting.Dataset.from_measurements(MeasurementSet((_image(1.0), _image(2.0, sigma=False))))
     with pytest.raises(InvalidInputError, match="no valid pixel"):
         fitting.Dataset.from_measurements(MeasurementSet((_image(1.0), _image(2.0, mask=np.zeros((4, 4), bool)))))
+
+
+@pytest.mark.wrong_types
+def test_dataset_names_what_is_not_a_measurement_set():
     with pytest.raises(InvalidInputError, match="MeasurementSet"):
         fitting.Dataset.from_measurements([_image(1.0)])
 
@@ -494,19 +498,13 @@ def test_inconsistent_or_out_of_range_arguments_are_refused(small_problem, tmp_p
     with pytest.raises(InvalidInputError, match="fit is the result for 5 coordinates"):
         fitting.write_report(tmp_path / "r", fitting.Problem(npm, three), res)
     assert not (tmp_path / "r").exists()
-    with pytest.raises(InvalidInputError, match="Dataset.from_measurements"):
-        fitting.Problem(fitting.ParametricModel(), mset3)
-    with pytest.raises(InvalidInputError, match="Dataset.from_measurements"):
-        fitting.NonParametricModel(mset3)
     with pytest.raises(InvalidInputError, match="grid_size must be an integer ≥ 8"):
         fitting.NonParametricModel(three, grid_size=4)
     model = fitting.ParametricModel()
     for kw, match in [
         (dict(spread=-1), "spread must be a finite number ≥ 0"),
         (dict(seed=-1), "seed must be an integer ≥ 0"),
-        (dict(starts="a"), "starts must be an integer ≥ 1"),
         (dict(starts=True), "starts"),
-        (dict(max_steps=2.5), "max_steps"),
         (dict(rtol=float("nan")), "rtol must be a finite"),
         (dict(rtol=0, atol=0), "not both be 0"),
         (dict(undetermined_std=0), "undetermined_std"),
@@ -517,6 +515,27 @@ def test_inconsistent_or_out_of_range_arguments_are_refused(small_problem, tmp_p
         (dict(sampler="emcee", walkers=4), "walkers must be an integer ≥ 10"),
         (dict(steps=1), "steps must be an integer ≥ 2"),
         (dict(seed=-1), "seed"),
+    ]:
+        with pytest.raises(InvalidInputError, match=match):
+            fitting.sample(problem, res, progress=False, **kw)
+
+
+@pytest.mark.wrong_types
+def test_arguments_of_the_wrong_type_are_named(small_problem):
+    problem, res = small_problem
+    mset3 = MeasurementSet((_image(1.0), _image(2.0), _image(4.0)))
+    with pytest.raises(InvalidInputError, match="Dataset.from_measurements"):
+        fitting.Problem(fitting.ParametricModel(), mset3)
+    with pytest.raises(InvalidInputError, match="Dataset.from_measurements"):
+        fitting.NonParametricModel(mset3)
+    two = fitting.Dataset.from_measurements(MeasurementSet((_image(1.0), _image(2.0))))
+    for kw, match in [
+        (dict(starts="a"), "starts must be an integer ≥ 1"),
+        (dict(max_steps=2.5), "max_steps"),
+    ]:
+        with pytest.raises(InvalidInputError, match=match):
+            fitting.fit(fitting.ParametricModel(), two, **kw)
+    for kw, match in [
         (dict(chunk="10"), "chunk"),
         (dict(overwrite=1), "overwrite"),
     ]:

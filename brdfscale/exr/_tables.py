@@ -2,9 +2,12 @@
 
 import dataclasses
 from collections.abc import Mapping
+from types import MappingProxyType
+from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
+import numpy.typing as npt
 from jaxtyping import Float
 
 from .._errors import BrdfscaleError, InvalidInputError, MeasurementFileError
@@ -23,7 +26,7 @@ MAX_TABLE_BYTES = 2**31
 scale or 4096 for 14 scales. Larger requests are refused before anything is allocated."""
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, init=False)
 class LobeTable:
     """Lobes ``A·g(u, μ)`` at several scales on one grid of offsets ``u = m_s − m∞``.
 
@@ -36,6 +39,11 @@ class LobeTable:
         metadata: a dict of extras (how the table was made), str keys and JSON-serialisable
             values (a mapping is copied into a dict; JSON is checked when written).
 
+    The constructor takes any array-like scales and values (lists, NumPy or JAX arrays) and
+    any mapping as metadata, and stores them converted as the attributes above (an explicit
+    ``__init__``: the attributes' annotations are what is stored, its parameters' what is
+    accepted).
+
     Raises InvalidInputError for scales, extent or values that are not finite real numbers
     (complex, bool, text, None or ragged input is refused, not cast), wrong shapes, or
     scales that are not distinct and positive.
@@ -44,31 +52,45 @@ class LobeTable:
     scales: Float[np.ndarray, " k"]
     extent: float
     values: Float[np.ndarray, "k n n"] | Float[np.ndarray, "k n n 3"]
-    metadata: dict = dataclasses.field(default_factory=dict)
+    metadata: dict
 
-    def __post_init__(self):
-        scales = np.atleast_1d(real_array(self.scales, "scales"))
+    def __init__(
+        self,
+        scales: npt.ArrayLike,
+        extent: float,
+        values: npt.ArrayLike,
+        metadata: Mapping[Any, Any] = MappingProxyType({}),  # read-only: a shared default cannot be changed
+    ):
+        scales = np.atleast_1d(real_array(scales, "scales"))
         if scales.ndim != 1 or not np.all(scales > 0) or len(np.unique(scales)) != len(scales):
             raise InvalidInputError(f"scales must be distinct positive numbers; got {scales!r}.")
-        extent = real(self.extent, "extent", minimum=0, strict=True)
-        values = real_array(self.values, "values")
+        extent = real(extent, "extent", minimum=0, strict=True)
+        values = real_array(values, "values")
         ok = values.ndim in (3, 4) and values.shape[0] == len(scales) and values.shape[1] == values.shape[2] >= 2
         if not ok or (values.ndim == 4 and values.shape[3] != 3):
             raise InvalidInputError(
                 f"values must have shape (k, n, n) or (k, n, n, 3) with k = {len(scales)} scales, n ≥ 2; "
                 f"got {values.shape}."
             )
+        if not isinstance(metadata, Mapping):
+            raise InvalidInputError(
+                f"metadata must be a dict (str keys, JSON-serialisable values); got {type(metadata).__name__}."
+            )
         object.__setattr__(self, "scales", scales)
         object.__setattr__(self, "extent", extent)
         object.__setattr__(self, "values", values)
-        if not isinstance(self.metadata, Mapping):
-            raise InvalidInputError(
-                f"metadata must be a dict (str keys, JSON-serialisable values); got {type(self.metadata).__name__}."
-            )
-        object.__setattr__(self, "metadata", dict(self.metadata))
+        object.__setattr__(self, "metadata", dict(metadata))
 
     @classmethod
-    def from_lobes(cls, scales, lobes, *, extent: float, size: int = 128, metadata: dict | None = None) -> "LobeTable":
+    def from_lobes(
+        cls,
+        scales: npt.ArrayLike,
+        lobes,
+        *,
+        extent: float,
+        size: int = 128,
+        metadata: Mapping[Any, Any] | None = None,
+    ) -> "LobeTable":
         """Tabulate :mod:`brdfscale.lobes` lobes (e.g. results of :func:`brdfscale.evolve`).
 
         ``lobes[k].density(u)`` is evaluated on the ``size × size`` grid over
