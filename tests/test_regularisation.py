@@ -161,6 +161,16 @@ def test_auto_under_jit_uses_the_lambda_select_carries():
         )(values)
 
 
+@pytest.mark.wrong_types
+def test_a_rule_name_that_is_not_one_of_the_rules_is_named():
+    """evolve's regularisation is annotated with the rules' names (a Literal): a misspelled one is
+    outside it; without the runtime checks the library's own message lists the rules."""
+    lobe = _noisy_case(1e3)[0]
+    for bad in ("gvc", "Auto", ""):
+        with pytest.raises(bs.InvalidInputError, match="'auto', 'gcv', 'discrepancy', 'l_curve'"):
+            bs.evolve(lobe, stats.Delta(), stats.Beckmann(0.08), regularisation=bad)
+
+
 def test_exact_inputs_need_no_lambda_and_bad_arguments_are_named():
     # an analytic lobe is exact: λ = 0 by every rule, decided by structure (so also under jit)
     ggx = lobes.GGX(0.1)
@@ -174,9 +184,6 @@ def test_exact_inputs_need_no_lambda_and_bad_arguments_are_named():
     assert np.isfinite(float(f(0.1)[0]))
     lobe, _, sigma, _ = _noisy_case(1e3)
     assert _regularise.choose(lobe, stats.Beckmann(0.1), stats.Delta(), "gcv")[0] == 0  # nothing divided
-    for bad in ("gvc", "Auto", ""):
-        with pytest.raises(bs.InvalidInputError, match="'auto', 'gcv', 'discrepancy', 'l_curve'"):
-            bs.evolve(lobe, stats.Delta(), stats.Beckmann(0.08), regularisation=bad)
     with pytest.raises(bs.InvalidInputError, match="needs the noise level"):
         bs.evolve(lobe, stats.Delta(), stats.Beckmann(0.08), regularisation="discrepancy")
     with pytest.raises(bs.InvalidInputError, match="used by regularisation='discrepancy' only"):

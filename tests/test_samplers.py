@@ -374,11 +374,16 @@ def test_sampler_choices_and_arguments_are_checked(linear):
         (lambda: fitting.HMC(jitter=1.0), "jitter"),
         (lambda: fitting.HMC(trajectory_length=0), "trajectory_length"),
         (lambda: fitting.NUTS(warmup=10, adapt_mass_matrix=True), "warmup ≥ 20"),
-        (lambda: fitting.NUTS(adapt_mass_matrix="yes"), "adapt_mass_matrix"),
         (lambda: fitting.Emcee(moves="gibbs"), "moves must be one of"),
     ]:
         with pytest.raises(InvalidInputError, match=match):
             make()
+
+
+@pytest.mark.wrong_types
+def test_a_sampler_flag_that_is_not_a_bool_is_named():
+    with pytest.raises(InvalidInputError, match="adapt_mass_matrix"):
+        fitting.NUTS(adapt_mass_matrix="yes")
 
 
 @pytest.mark.slow
