@@ -9,13 +9,15 @@ nodes span ``[−extent, extent]`` on both axes (rows u_y, columns u_x, as
 """
 
 import dataclasses
-from collections.abc import Mapping
+import types
+from collections.abc import Iterable, Mapping, Sequence
 
 import numpy as np
+from jaxtyping import Real
 
 from ._errors import InvalidInputError
 from ._show import Shown, Table, Values
-from ._validation import real, real_array
+from ._validation import real, real_array, RealNumber
 
 
 __all__ = ["LobeImage", "MeasurementSet"]
@@ -42,7 +44,7 @@ def boolean_mask(x, name: str) -> np.ndarray:
     )
 
 
-@dataclasses.dataclass(frozen=True, repr=False)
+@dataclasses.dataclass(frozen=True, repr=False, init=False)
 class LobeImage(Shown):
     """One lobe image.
 
@@ -62,43 +64,51 @@ class LobeImage(Shown):
     not cast), wrong shapes, a σ ≤ 0, or a mask with entries other than True/False/0/1.
     """
 
+    # the fields hold the validated values; the constructor takes what it converts (a Python or NumPy
+    # number for mu/extent, any real 3-sequence for incident) and refuses the rest with InvalidInputError
     mu: float
     incident: np.ndarray
     extent: float
     values: np.ndarray
-    sigma: np.ndarray | None = None
-    mask: np.ndarray | None = None
+    sigma: np.ndarray | None
+    mask: np.ndarray | None
 
-    def __post_init__(self):
-        mu = real(self.mu, "mu", minimum=0, strict=True)
-        inc = real_array(self.incident, "incident", 1)
+    def __init__(
+        self,
+        mu: RealNumber,
+        incident: Real[np.ndarray, "3"] | Sequence[float],
+        extent: RealNumber,
+        values: np.ndarray,
+        sigma: np.ndarray | None = None,
+        mask: np.ndarray | None = None,
+    ):
+        scale = real(mu, "mu", minimum=0, strict=True)
+        inc = real_array(incident, "incident", 1)
         if inc.shape != (3,) or abs(np.linalg.norm(inc) - 1) > 1e-6 or inc[2] <= 0:
             raise InvalidInputError(f"incident must be a unit 3-vector with z > 0; got {inc!r}.")
-        extent = real(self.extent, "extent", minimum=0, strict=True)
-        values = real_array(self.values, "values")
+        half_width = real(extent, "extent", minimum=0, strict=True)
+        image = real_array(values, "values")
         if (
-            values.ndim not in (2, 3)
-            or values.shape[0] != values.shape[1]
-            or values.shape[0] < 2
-            or (values.ndim == 3 and values.shape[2] != 3)
+            image.ndim not in (2, 3)
+            or image.shape[0] != image.shape[1]
+            or image.shape[0] < 2
+            or (image.ndim == 3 and image.shape[2] != 3)
         ):
-            raise InvalidInputError(f"values must have shape (n, n) or (n, n, 3) with n ≥ 2; got {values.shape}.")
-        sigma = None
-        if self.sigma is not None:
-            sigma = real_array(self.sigma, "sigma")
-            if sigma.shape != values.shape or np.any(sigma <= 0):
+            raise InvalidInputError(f"values must have shape (n, n) or (n, n, 3) with n ≥ 2; got {image.shape}.")
+        if sigma is not None:
+            sigma = real_array(sigma, "sigma")
+            if sigma.shape != image.shape or np.any(sigma <= 0):
                 raise InvalidInputError(
-                    f"sigma must be positive and finite with the shape of values {values.shape}; got {sigma.shape}."
+                    f"sigma must be positive and finite with the shape of values {image.shape}; got {sigma.shape}."
                 )
-        mask = None
-        if self.mask is not None:
-            mask = boolean_mask(self.mask, "mask")
-            if mask.shape != values.shape[:2]:
-                raise InvalidInputError(f"mask must have shape {values.shape[:2]}; got {mask.shape}.")
-        object.__setattr__(self, "mu", mu)
+        if mask is not None:
+            mask = boolean_mask(mask, "mask")
+            if mask.shape != image.shape[:2]:
+                raise InvalidInputError(f"mask must have shape {image.shape[:2]}; got {mask.shape}.")
+        object.__setattr__(self, "mu", scale)
         object.__setattr__(self, "incident", inc)
-        object.__setattr__(self, "extent", extent)
-        object.__setattr__(self, "values", values)
+        object.__setattr__(self, "extent", half_width)
+        object.__setattr__(self, "values", image)
         object.__setattr__(self, "sigma", sigma)
         object.__setattr__(self, "mask", mask)
 
@@ -136,7 +146,10 @@ class LobeImage(Shown):
         return np.stack(np.meshgrid(x, x, indexing="xy"), axis=-1)
 
 
-@dataclasses.dataclass(frozen=True, repr=False)
+_NO_METADATA = types.MappingProxyType({})
+
+
+@dataclasses.dataclass(frozen=True, repr=False, init=False)
 class MeasurementSet(Shown):
     """Lobe images of one material at several scales and incident directions.
 
@@ -145,25 +158,25 @@ class MeasurementSet(Shown):
     dict), its JSON when :func:`brdfscale.exr.write_measurements` stores it.
     """
 
+    # the fields hold the validated values; the constructor takes any sequence of images and any mapping
     images: tuple[LobeImage, ...]
-    metadata: dict = dataclasses.field(default_factory=dict)
+    metadata: dict
 
-    def __post_init__(self):
+    def __init__(self, images: Iterable[LobeImage], metadata: Mapping = _NO_METADATA):
         try:
-            images = tuple(self.images)
+            kept = tuple(images)
         except TypeError:
             raise InvalidInputError(
-                f"images must be a non-empty sequence of LobeImage; got {type(self.images).__name__}."
+                f"images must be a non-empty sequence of LobeImage; got {type(images).__name__}."
             ) from None
-        if not images or not all(isinstance(p, LobeImage) for p in images):
+        if not kept or not all(isinstance(p, LobeImage) for p in kept):
             raise InvalidInputError("images must be a non-empty sequence of LobeImage.")
-        object.__setattr__(self, "images", images)
-        if not isinstance(self.metadata, Mapping):
+        object.__setattr__(self, "images", kept)
+        if not isinstance(metadata, Mapping):
             raise InvalidInputError(
-                f"metadata must be a dict (str keys, JSON-serialisable values); got {type(self.metadata).__name__}."
+                f"metadata must be a dict (str keys, JSON-serialisable values); got {type(metadata).__name__}."
             )
-        if not isinstance(self.metadata, dict):
-            object.__setattr__(self, "metadata", dict(self.metadata))
+        object.__setattr__(self, "metadata", metadata if isinstance(metadata, dict) else dict(metadata))
 
     @property
     def scales(self) -> np.ndarray:

@@ -125,6 +125,11 @@ def real_array(x, name: str, ndim: int | None = None) -> np.ndarray:
 
 
 # -- plain Python arguments (counts, seeds, tolerances, switches) ---------------------------
+RealNumber = float | np.floating | np.integer
+"""The annotation of a real scalar argument that :func:`real` converts: a Python or NumPy real number
+(Python ints included, by the numeric tower; NumPy's float32 or int64 are no Python floats)."""
+
+
 def integer(value, name: str, minimum: int) -> int:
     """``value`` as an int ≥ ``minimum`` (Python or NumPy integers; not bool, not float)."""
     try:

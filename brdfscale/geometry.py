@@ -78,14 +78,14 @@ def slope_to_direction(m: Float[ArrayLike, "*batch 2"]) -> Float[Array, "*batch 
     return v / jnp.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def half_vector(i: Float[ArrayLike, "*batch 3"], o: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch 3"]:
+def half_vector(i: Float[ArrayLike, "#*batch 3"], o: Float[ArrayLike, "#*batch 3"]) -> Float[Array, "*batch 3"]:
     """``h = (i + o)/|i + o|``, the normal of the mirror facet reflecting ``i`` into ``o``
     (unit directions in the upper hemisphere)."""
     s = validate_directions(i, "i") + validate_directions(o, "o")
     return s / jnp.linalg.norm(s, axis=-1, keepdims=True)
 
 
-def half_slope(i: Float[ArrayLike, "*batch 3"], o: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch 2"]:
+def half_slope(i: Float[ArrayLike, "#*batch 3"], o: Float[ArrayLike, "#*batch 3"]) -> Float[Array, "*batch 2"]:
     """Half-vector slope ``m_s(i, o) = m(h)``; the normalisation of ``h`` cancels."""
     return half_slope_of_valid(validate_directions(i, "i"), validate_directions(o, "o"))
 
@@ -96,14 +96,14 @@ def solid_angle_per_slope_area(m: Float[ArrayLike, "*batch 2"]) -> Float[Array, 
     return (1.0 + jnp.sum(m**2, axis=-1)) ** -1.5
 
 
-def reflect(i: Float[ArrayLike, "*batch 3"], n: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch 3"]:
+def reflect(i: Float[ArrayLike, "#*batch 3"], n: Float[ArrayLike, "#*batch 3"]) -> Float[Array, "*batch 3"]:
     """Mirror reflection of ``i`` (pointing away from the surface) about the normal ``n``."""
     i = jnp.asarray(i)
     n = jnp.asarray(n)
     return 2 * jnp.sum(i * n, axis=-1, keepdims=True) * n - i
 
 
-def microfacet_factor(i: Float[ArrayLike, "*batch 3"], o: Float[ArrayLike, "*batch 3"]) -> Float[Array, "*batch"]:
+def microfacet_factor(i: Float[ArrayLike, "#*batch 3"], o: Float[ArrayLike, "#*batch 3"]) -> Float[Array, "*batch"]:
     """Geometric factor ``1 / (4 cosθ_o cos⁴θ_h)`` that turns a slope-space lobe into ``ρ``.
 
     Mirror microfacets with normal distribution D (``∫ D cosθ dω = 1``), no masking and

@@ -370,8 +370,6 @@ def test_invalid_arguments():
     field = synth.spectral_field(GAUSS_ISO, size=16, seed=0)
     with pytest.raises(InvalidInputError, match="size"):
         synth.spectral_field(GAUSS_ISO, size=3, seed=0)
-    with pytest.raises(InvalidInputError, match="spectrum"):
-        synth.spectral_field("gaussian", size=16, seed=0)
     with pytest.raises(InvalidInputError, match="seed"):
         synth.gonioreflectometer(field, [4.0], [0, 0, 1.0], extent=0.1, noise=synth.PoissonNoise(10.0))
     with pytest.raises(InvalidInputError, match="albedo"):
@@ -454,7 +452,15 @@ def test_grids_above_the_memory_cap_are_refused_before_allocating(monkeypatch):
         )  # padded beyond 64
 
 
-@pytest.mark.parametrize("size", [1e6, 64.0, "64", None, True])
+@pytest.mark.wrong_types
+def test_a_spectrum_by_name_is_refused():
+    with pytest.raises(InvalidInputError, match="spectrum"):
+        synth.spectral_field("gaussian", size=16, seed=0)  # pyright: ignore[reportArgumentType]
+
+
+@pytest.mark.parametrize(
+    "size", [*(pytest.param(size, marks=pytest.mark.wrong_types) for size in (1e6, 64.0, "64", None)), True]
+)
 def test_size_must_be_an_integer(size):
     """Documented as int: an integral float is refused as well (no silent conversion)."""
     with pytest.raises(InvalidInputError, match=r"size \(pixels per side\) must be an integer ≥ 4"):
@@ -488,46 +494,92 @@ def test_complex_heights_are_refused():
     for bad in (np.zeros((8, 8), bool), None, "flat", [[0.0] * 8] * 7 + [[0.0]]):
         with pytest.raises(InvalidInputError, match="heights"):
             synth.HeightField(bad, 1.0)
-    with pytest.raises(InvalidInputError, match="incident must be real"):
-        synth.gonioreflectometer(_flat(), [4.0], np.array([0, 0, 1.0]) + 0j, extent=0.1)
     with pytest.raises(InvalidInputError, match="scales must be real"):
         synth.gonioreflectometer(_flat(), [4.0 + 0j], [0, 0, 1.0], extent=0.1)
     assert synth.HeightField(np.zeros((8, 8), np.int32), 2).heights.dtype == np.float64  # ints are widened
 
 
+@pytest.mark.wrong_types
+def test_complex_incident_directions_are_refused():
+    with pytest.raises(InvalidInputError, match="incident must be real"):
+        synth.gonioreflectometer(_flat(), [4.0], np.array([0, 0, 1.0]) + 0j, extent=0.1)
+
+
 @pytest.mark.parametrize(
     "call, match",
     [
-        (lambda: synth.PoissonNoise("a"), "exposure must be a finite real number; got str"),
-        (lambda: synth.PoissonNoise(None), "exposure"),
-        (lambda: synth.GaussianNoise(None), "floor"),
-        (lambda: synth.GaussianNoise(0.1, relative="x"), "relative"),
+        pytest.param(
+            lambda: synth.PoissonNoise("a"),
+            "exposure must be a finite real number; got str",
+            marks=pytest.mark.wrong_types,
+        ),
+        pytest.param(lambda: synth.PoissonNoise(None), "exposure", marks=pytest.mark.wrong_types),
+        pytest.param(lambda: synth.GaussianNoise(None), "floor", marks=pytest.mark.wrong_types),
+        pytest.param(lambda: synth.GaussianNoise(0.1, relative="x"), "relative", marks=pytest.mark.wrong_types),
         (lambda: synth.HeightField(np.zeros((8, 8)), "a"), "spacing must be a finite real number"),
         (lambda: synth.HeightField(np.zeros((8, 8)), None), "spacing"),
         (lambda: synth.HeightField(np.zeros((8, 8)), 1 + 0j), "spacing"),
         (lambda: synth.HeightField(np.zeros((8, 8)), 1.0, description=None), "description must be a dict"),
         (lambda: synth.spectral_field(GAUSS_ISO, size=16, spacing=True, seed=0), "spacing"),
-        (lambda: synth.blazed(size=16, period=4, slopes=None), "slopes"),
-        (lambda: synth.blazed(size=16, period=4, slopes=("a", -1.0)), r"slopes\[0\]"),
-        (lambda: synth.blazed(size=16, period=4, spacing="a"), "spacing"),
-        (lambda: synth.blazed(size=16, period=4, angle=np.zeros(2)), "angle"),
-        (lambda: synth.scratches(size=16, count=1, depth="a", width=2.0, length=4.0, seed=0), "depth"),
-        (lambda: synth.scratches(size=16, count=1.0, depth=1.0, width=2.0, length=4.0, seed=0), "count"),
-        (lambda: synth.named_surface(["gaussian"]), "unknown surface"),
-        (lambda: synth.named_surface("blazed", size="64"), "size"),
-        (lambda: synth.gonioreflectometer(_flat(), [4.0], [0, 0, 1.0], extent="a"), "extent"),
-        (lambda: synth.gonioreflectometer(_flat(), [4.0], [0, 0, 1.0], extent=None), "extent"),
-        (lambda: synth.gonioreflectometer(_flat(), [4.0], [0, 0, 1.0], extent=0.1, resolution=None), "resolution"),
-        (lambda: synth.gonioreflectometer(_flat(), [4.0], [0, 0, 1.0], extent=0.1, pixels=33.0), "pixels"),
+        pytest.param(lambda: synth.blazed(size=16, period=4, slopes=None), "slopes", marks=pytest.mark.wrong_types),
+        pytest.param(
+            lambda: synth.blazed(size=16, period=4, slopes=("a", -1.0)), r"slopes\[0\]", marks=pytest.mark.wrong_types
+        ),
+        pytest.param(lambda: synth.blazed(size=16, period=4, spacing="a"), "spacing", marks=pytest.mark.wrong_types),
+        pytest.param(
+            lambda: synth.blazed(size=16, period=4, angle=np.zeros(2)), "angle", marks=pytest.mark.wrong_types
+        ),
+        pytest.param(
+            lambda: synth.scratches(size=16, count=1, depth="a", width=2.0, length=4.0, seed=0),
+            "depth",
+            marks=pytest.mark.wrong_types,
+        ),
+        pytest.param(
+            lambda: synth.scratches(size=16, count=1.0, depth=1.0, width=2.0, length=4.0, seed=0),
+            "count",
+            marks=pytest.mark.wrong_types,
+        ),
+        pytest.param(lambda: synth.named_surface(["gaussian"]), "unknown surface", marks=pytest.mark.wrong_types),
+        pytest.param(lambda: synth.named_surface("blazed", size="64"), "size", marks=pytest.mark.wrong_types),
+        pytest.param(
+            lambda: synth.gonioreflectometer(_flat(), [4.0], [0, 0, 1.0], extent="a"),
+            "extent",
+            marks=pytest.mark.wrong_types,
+        ),
+        pytest.param(
+            lambda: synth.gonioreflectometer(_flat(), [4.0], [0, 0, 1.0], extent=None),
+            "extent",
+            marks=pytest.mark.wrong_types,
+        ),
+        pytest.param(
+            lambda: synth.gonioreflectometer(_flat(), [4.0], [0, 0, 1.0], extent=0.1, resolution=None),
+            "resolution",
+            marks=pytest.mark.wrong_types,
+        ),
+        pytest.param(
+            lambda: synth.gonioreflectometer(_flat(), [4.0], [0, 0, 1.0], extent=0.1, pixels=33.0),
+            "pixels",
+            marks=pytest.mark.wrong_types,
+        ),
         (lambda: synth.gonioreflectometer(_flat(), None, [0, 0, 1.0], extent=0.1), "scales"),
-        (lambda: synth.gonioreflectometer(_flat(), [4.0], "up", extent=0.1), "incident"),
+        pytest.param(
+            lambda: synth.gonioreflectometer(_flat(), [4.0], "up", extent=0.1),
+            "incident",
+            marks=pytest.mark.wrong_types,
+        ),
         (lambda: synth.gonioreflectometer(_flat(), [4.0], [0, 0, 1.0], extent=0.1, albedo="white"), "albedo"),
         (lambda: synth.facet_statistics(_flat(), "a"), "scales"),
-        (lambda: synth.facet_statistics(_flat(), [4.0], extent="a"), "extent"),
-        (lambda: synth.facet_slopes(None, 4.0), "field must be a brdfscale.synth.HeightField"),
-        (lambda: synth.facet_slopes(_flat(), "a"), "mu"),
+        pytest.param(
+            lambda: synth.facet_statistics(_flat(), [4.0], extent="a"), "extent", marks=pytest.mark.wrong_types
+        ),
+        pytest.param(
+            lambda: synth.facet_slopes(None, 4.0),
+            "field must be a brdfscale.synth.HeightField",
+            marks=pytest.mark.wrong_types,
+        ),
+        pytest.param(lambda: synth.facet_slopes(_flat(), "a"), "mu", marks=pytest.mark.wrong_types),
         (lambda: synth.facet_slopes(_flat(), float("nan")), "mu"),
-        (lambda: synth.steepest_slope(np.zeros((8, 8))), "field"),
+        pytest.param(lambda: synth.steepest_slope(np.zeros((8, 8))), "field", marks=pytest.mark.wrong_types),
     ],
     ids=lambda x: x if isinstance(x, str) else "",
 )
@@ -537,6 +589,7 @@ def test_arguments_of_the_wrong_type_are_named(call, match):
         call()
 
 
+@pytest.mark.wrong_types
 def test_plus_distribution_is_not_a_micro_lobe():
     """A plus-distribution has mass 0: refused wherever a micro lobe is taken, in Lobe's words."""
     from brdfscale import plus

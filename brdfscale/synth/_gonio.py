@@ -2,6 +2,7 @@
 
 import dataclasses
 import functools
+from collections.abc import Sequence
 from typing import Literal
 
 import equinox as eqx
@@ -12,7 +13,7 @@ from jaxtyping import ArrayLike, Float
 from .. import stats
 from .._errors import InvalidInputError
 from .._measurement import LobeImage, MeasurementSet
-from .._validation import integer, real, real_array
+from .._validation import integer, real, real_array, RealNumber
 from ..geometry import validate_directions
 from ..stats import SlopeHistogram
 from ._facets import blur, check_field, check_scales, facet_samples, kernel_padding, offset_histogram
@@ -28,7 +29,7 @@ photons per pixel; at such counts the noise is negligible (relative σ ≤ 1e-9)
 without noise (``noise=None``) or with :class:`GaussianNoise` instead."""
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, init=False)
 class PoissonNoise:
     """Photon-counting noise: ``exposure`` counts per unit lobe value, plus optional read noise.
 
@@ -52,18 +53,19 @@ class PoissonNoise:
     tests/test_synth.py.
     """
 
+    # the fields hold Python floats (JSON-ready in the metadata); the constructor takes NumPy numbers too
     exposure: float
-    read_noise: float = 0.0
+    read_noise: float
 
-    def __post_init__(self):
-        exposure = real(self.exposure, "exposure")
-        if not 0 < exposure <= MAX_EXPECTED_COUNT:
+    def __init__(self, exposure: RealNumber, read_noise: RealNumber = 0.0):
+        counts = real(exposure, "exposure")
+        if not 0 < counts <= MAX_EXPECTED_COUNT:
             raise InvalidInputError(
                 f"exposure must be a positive number of counts per unit value, at most MAX_EXPECTED_COUNT = "
-                f"{MAX_EXPECTED_COUNT:g} (NumPy's Poisson sampler cannot draw larger counts); got {self.exposure!r}."
+                f"{MAX_EXPECTED_COUNT:g} (NumPy's Poisson sampler cannot draw larger counts); got {exposure!r}."
             )
-        object.__setattr__(self, "exposure", exposure)
-        object.__setattr__(self, "read_noise", real(self.read_noise, "read_noise", minimum=0))
+        object.__setattr__(self, "exposure", counts)
+        object.__setattr__(self, "read_noise", real(read_noise, "read_noise", minimum=0))
 
     def sample(self, values: Float[np.ndarray, "..."], rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         expected = real_array(values, "values") * self.exposure
@@ -89,7 +91,7 @@ class PoissonNoise:
         return {"type": "poisson", "exposure": self.exposure, "read_noise": self.read_noise}
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, init=False)
 class GaussianNoise:
     """Additive Gaussian noise with per-pixel ``σ = √((relative · v)² + floor²)`` for true value v.
 
@@ -97,16 +99,16 @@ class GaussianNoise:
     otherwise, also for a string, None, bool or complex).
     """
 
+    # the fields hold Python floats (JSON-ready in the metadata); the constructor takes NumPy numbers too
     floor: float
-    relative: float = 0.0
+    relative: float
 
-    def __post_init__(self):
-        floor = real(self.floor, "floor")
-        if not floor > 0:
-            raise InvalidInputError(f"floor must be a positive standard deviation; got {self.floor!r}.")
-        relative = real(self.relative, "relative", minimum=0)
-        object.__setattr__(self, "floor", floor)
-        object.__setattr__(self, "relative", relative)
+    def __init__(self, floor: RealNumber, relative: RealNumber = 0.0):
+        sigma = real(floor, "floor")
+        if not sigma > 0:
+            raise InvalidInputError(f"floor must be a positive standard deviation; got {floor!r}.")
+        object.__setattr__(self, "floor", sigma)
+        object.__setattr__(self, "relative", real(relative, "relative", minimum=0))
 
     def sample(self, values: Float[np.ndarray, "..."], rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         sigma = np.sqrt((self.relative * values) ** 2 + self.floor**2)
@@ -127,7 +129,7 @@ Weighting = Literal["nearly_flat", "projected_area"]
 def gonioreflectometer(
     field: HeightField,
     scales,
-    incident: Float[ArrayLike, "*k 3"],
+    incident: Float[ArrayLike, "*k 3"] | Sequence[float] | Sequence[Sequence[float]],
     *,
     extent: float,
     pixels: int = 64,
