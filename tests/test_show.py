@@ -363,8 +363,6 @@ def test_plot_functions_refuse_what_they_cannot_draw(fitted):
         (lambda: plot.chains(result), "SampleResult"),
         (lambda: plot.facet_statistics([1, 2]), "FacetStatistics"),
         (lambda: plot.facet_statistics(FACETS, field="f"), "HeightField"),
-        (lambda: plot.fit(problem, "fit"), "FitResult"),
-        (lambda: plot.corner(problem, result, truth="x"), "truth"),
     ]
     for call, match in bad:
         with pytest.raises(InvalidInputError, match=match):
@@ -375,6 +373,20 @@ def test_plot_functions_refuse_what_they_cannot_draw(fitted):
 
 
 # -- progress bars -------------------------------------------------------------------------
+
+
+@pytest.mark.wrong_types
+def test_plot_fit_refuses_what_is_no_fit_result(fitted):
+    _, problem, _, _ = fitted
+    with pytest.raises(InvalidInputError, match="FitResult"):
+        plot.fit(problem, "fit")
+
+
+@pytest.mark.wrong_types
+def test_plot_corner_refuses_a_truth_that_is_no_dict(fitted):
+    _, problem, result, _ = fitted
+    with pytest.raises(InvalidInputError, match="truth"):
+        plot.corner(problem, result, truth="x")
 
 
 def test_progress_bar_picks_text_outside_jupyter_and_honours_the_switches(monkeypatch, fitted):
@@ -414,7 +426,12 @@ def test_progress_bar_picks_text_outside_jupyter_and_honours_the_switches(monkey
     _, problem, result, _ = fitted
     with pytest.raises(InvalidInputError, match="BRDFSCALE_PROGRESS"):
         fitting.sample(problem, result, steps=2)
-    monkeypatch.delenv(show.PROGRESS_VARIABLE)
+
+
+@pytest.mark.wrong_types
+def test_progress_switches_that_are_not_booleans_are_refused(monkeypatch, fitted):
+    _, problem, result, _ = fitted
+    monkeypatch.delenv(show.PROGRESS_VARIABLE, raising=False)
     with pytest.raises(InvalidInputError, match="progress"):
         fitting.sample(problem, result, steps=2, progress="yes")
     with pytest.raises(InvalidInputError, match="progress must be True or False"):

@@ -53,9 +53,9 @@ class AbstractLobe(Shown, eqx.Module):
 
     def evaluate(
         self,
-        i: Float[ArrayLike, "*batch 3"],
-        o: Float[ArrayLike, "*batch 3"],
-        m_inf: Float[ArrayLike, "*batch 2"] | None = None,
+        i: Float[ArrayLike, "#*batch 3"],
+        o: Float[ArrayLike, "#*batch 3"],
+        m_inf: Float[ArrayLike, "#*batch 2"] | None = None,
     ) -> Float[Array, "*batch"]:
         """``ρ(i, o, m∞) = A · F(i, o) · g(m_s(i, o) − m∞)`` (seed §2: ρ = β cosθ_i).
 

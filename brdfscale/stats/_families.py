@@ -1,6 +1,7 @@
 """Parametric slope densities: Delta, Gaussian (Beckmann), GGX, Disk."""
 
 import math
+from collections.abc import Sequence
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -42,7 +43,7 @@ class Delta(AbstractSlopeDensity):
     mean: Float[Array, "*batch 2"] | None
     isotropic: bool = eqx.field(static=True)
 
-    def __init__(self, mean: Float[ArrayLike, "*batch 2"] | None = None):
+    def __init__(self, mean: Float[ArrayLike, "*batch 2"] | Sequence[float] | None = None):
         self.mean = vector2(mean, "mean")
         self.isotropic = mean is None
 
