@@ -555,7 +555,6 @@ def test_complex_input_and_non_boolean_masks_are_refused():
         warnings.simplefilter("error")  # no ComplexWarning on the way to the error
         for field, bad in (
             ("values", np.ones((3, 3)) + 0j),
-            ("incident", np.array([0, 0, 1.0]) + 0j),
             ("sigma", np.ones((3, 3), complex)),
         ):
             with pytest.raises(InvalidInputError, match=rf"{field} must be real numbers.*complex"):
@@ -573,22 +572,56 @@ def test_complex_input_and_non_boolean_masks_are_refused():
         LobeImage(**{**ok, "values": np.ones((3, 3), bool)})
 
 
+@pytest.mark.wrong_types
+def test_a_complex_incident_direction_is_refused():
+    """LobeImage's incident is annotated real (a real array or a sequence of floats)."""
+    ok = {"mu": 1.0, "incident": [0, 0, 1.0], "extent": 1.0, "values": np.ones((3, 3))}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no ComplexWarning on the way to the error
+        with pytest.raises(InvalidInputError, match=r"incident must be real numbers.*complex"):
+            LobeImage(**{**ok, "incident": np.array([0, 0, 1.0]) + 0j})
+
+
 @pytest.mark.parametrize(
     "call, match",
     [
-        (lambda ok: LobeImage(**{**ok, "mu": "a"}), "mu must be a finite real number > 0; got str"),
-        (lambda ok: LobeImage(**{**ok, "mu": "1"}), "mu"),  # was silently converted
-        (lambda ok: LobeImage(**{**ok, "mu": None}), "mu"),
+        pytest.param(
+            lambda ok: LobeImage(**{**ok, "mu": "a"}),
+            "mu must be a finite real number > 0; got str",
+            marks=pytest.mark.wrong_types,
+        ),
+        pytest.param(
+            lambda ok: LobeImage(**{**ok, "mu": "1"}),  # was silently converted
+            "mu",
+            marks=pytest.mark.wrong_types,
+        ),
+        pytest.param(lambda ok: LobeImage(**{**ok, "mu": None}), "mu", marks=pytest.mark.wrong_types),
         (lambda ok: LobeImage(**{**ok, "mu": True}), "mu"),
-        (lambda ok: LobeImage(**{**ok, "mu": np.array([1.0, 2.0])}), "mu"),
-        (lambda ok: LobeImage(**{**ok, "extent": None}), "extent"),
-        (lambda ok: LobeImage(**{**ok, "incident": "abc"}), "incident must be real numbers"),
-        (lambda ok: LobeImage(**{**ok, "incident": None}), "incident"),
-        (lambda ok: LobeImage(**{**ok, "values": "x"}), "values"),
-        (lambda ok: LobeImage(**{**ok, "values": [[1.0, 2.0], [3.0]]}), "values must be an array of real numbers"),
-        (lambda ok: LobeImage(**{**ok, "sigma": "x"}), "sigma"),
-        (lambda ok: MeasurementSet(None), "images must be a non-empty sequence of LobeImage; got NoneType"),
-        (lambda ok: MeasurementSet(LobeImage(**ok)), "images must be a non-empty sequence"),
+        pytest.param(lambda ok: LobeImage(**{**ok, "mu": np.array([1.0, 2.0])}), "mu", marks=pytest.mark.wrong_types),
+        pytest.param(lambda ok: LobeImage(**{**ok, "extent": None}), "extent", marks=pytest.mark.wrong_types),
+        pytest.param(
+            lambda ok: LobeImage(**{**ok, "incident": "abc"}),
+            "incident must be real numbers",
+            marks=pytest.mark.wrong_types,
+        ),
+        pytest.param(lambda ok: LobeImage(**{**ok, "incident": None}), "incident", marks=pytest.mark.wrong_types),
+        pytest.param(lambda ok: LobeImage(**{**ok, "values": "x"}), "values", marks=pytest.mark.wrong_types),
+        pytest.param(
+            lambda ok: LobeImage(**{**ok, "values": [[1.0, 2.0], [3.0]]}),
+            "values must be an array of real numbers",
+            marks=pytest.mark.wrong_types,
+        ),
+        pytest.param(lambda ok: LobeImage(**{**ok, "sigma": "x"}), "sigma", marks=pytest.mark.wrong_types),
+        pytest.param(
+            lambda ok: MeasurementSet(None),
+            "images must be a non-empty sequence of LobeImage; got NoneType",
+            marks=pytest.mark.wrong_types,
+        ),
+        pytest.param(
+            lambda ok: MeasurementSet(LobeImage(**ok)),
+            "images must be a non-empty sequence",
+            marks=pytest.mark.wrong_types,
+        ),
         (lambda ok: exr.LobeTable("a", 0.1, np.ones((1, 3, 3))), "scales"),
         pytest.param(lambda ok: exr.LobeTable(None, 0.1, np.ones((1, 3, 3))), "scales", marks=pytest.mark.wrong_types),
         pytest.param(lambda ok: exr.LobeTable([1.0], "a", np.ones((1, 3, 3))), "extent", marks=pytest.mark.wrong_types),
