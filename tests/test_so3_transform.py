@@ -206,14 +206,18 @@ def test_analyse_points_is_the_adjoint_of_synthesis():
 @pytest.mark.parametrize(
     "call, match",
     [
-        (lambda: so3.forward(np.zeros((4, 4, 6))), "2B, 2B, 2B"),
+        pytest.param(  # samples are annotated as a cube of grid samples ("*batch n n n")
+            lambda: so3.forward(np.zeros((4, 4, 6))), "2B, 2B, 2B", marks=pytest.mark.wrong_types
+        ),
         (lambda: so3.forward(np.zeros((3, 3, 3))), "2B, 2B, 2B"),
         (lambda: so3.forward(np.zeros((4, 4, 4)), m_max=2), "m_max"),
         (lambda: so3.inverse(np.zeros((3, 4, 5))), "2L\\+1"),
         (lambda: so3.inverse(np.zeros((2, 5, 5))), "L, N ≤ B − 1"),
         (lambda: so3.synthesize(np.zeros((2, 3, 3)), np.nan, 0.0, 0.0), "finite"),
         (lambda: so3.grid(0), "band limit"),
-        (lambda: so3.analyse_points([], [], [], 3), "at least one"),
+        pytest.param(  # lists: the angles are annotated as arrays (ArrayLike)
+            lambda: so3.analyse_points([], [], [], 3), "at least one", marks=pytest.mark.wrong_types
+        ),
     ],
 )
 def test_bad_inputs(call, match):

@@ -161,7 +161,9 @@ def test_vectorised_differentiable_and_float32():
     assert np.max(np.abs(np.asarray(d32, float) - np.asarray(so3.wigner_d(40, 1.3)))) < 2e-6
 
 
-@pytest.mark.parametrize("bad", [-1, 1.5, True, so3.MAX_DEGREE + 1])
+@pytest.mark.parametrize(
+    "bad", [-1, pytest.param(1.5, marks=pytest.mark.wrong_types), True, so3.MAX_DEGREE + 1]
+)  # 1.5: J is annotated int (True is one)
 def test_bad_degree(bad):
     with pytest.raises(InvalidInputError, match="J must be an integer"):
         so3.wigner_d(bad, 0.3)
@@ -190,6 +192,7 @@ def test_flip_symmetry_of_the_fourier_rows(J):
     np.testing.assert_allclose(d[:, ::-1], ((-1.0) ** (J + M))[:, None] * d_reflected, atol=1e-12)
 
 
+@pytest.mark.wrong_types  # the angles are annotated as broadcasting to one shape ("*#batch")
 def test_euler_angles_that_do_not_broadcast_are_named():
     with pytest.raises(InvalidInputError, match="broadcast"):
         so3.wigner_D(2, jnp.zeros(3), jnp.zeros(2), jnp.zeros(3))

@@ -15,7 +15,7 @@ orientation Δ = Γ∞⁻¹Γ relative to the global one (what users histogram) 
 
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Complex
+from jaxtyping import Array, ArrayLike, Complex, Shaped
 
 from .._errors import InvalidInputError
 from ._transform import _coefficients
@@ -28,21 +28,21 @@ def _scale(B, dtype):
     return jnp.asarray(8 * np.pi**2 / (2 * np.arange(B) + 1), dtype)
 
 
-def to_operator(coefficients: Complex[ArrayLike, "*batch B 2L+1 2N+1"]) -> Complex[Array, "*batch B 2L+1 2N+1"]:
+def to_operator(coefficients: Shaped[ArrayLike, "*batch B rows cols"]) -> Complex[Array, "*batch B rows cols"]:
     """``f̃^J = (8π²/(2J+1)) f^J`` (δ at the identity ↦ identity blocks). Pads stay zero."""
     c, B, _, _ = _coefficients(coefficients)
     return c * _scale(B, jnp.finfo(c.dtype).dtype)[:, None, None]
 
 
-def from_operator(operator: Complex[ArrayLike, "*batch B 2L+1 2N+1"]) -> Complex[Array, "*batch B 2L+1 2N+1"]:
+def from_operator(operator: Shaped[ArrayLike, "*batch B rows cols"]) -> Complex[Array, "*batch B rows cols"]:
     """The inverse of :func:`to_operator`: ``f^J = ((2J+1)/(8π²)) f̃^J``."""
     c, B, _, _ = _coefficients(operator)
     return c / _scale(B, jnp.finfo(c.dtype).dtype)[:, None, None]
 
 
 def convolve(
-    f: Complex[ArrayLike, "*batch B 2L+1 2K+1"], g: Complex[ArrayLike, "*batch B 2K+1 2N+1"]
-) -> Complex[Array, "*batch B 2L+1 2N+1"]:
+    f: Shaped[ArrayLike, "*#batch B rows inner"], g: Shaped[ArrayLike, "*#batch B inner cols"]
+) -> Complex[Array, "*batch B rows cols"]:
     """Coefficients of ``(f ⋆ g)(Γ∞) = ∫ f(Γ) g(Γ⁻¹Γ∞) dΓ``: ``(8π²/(2J+1)) f^J g^J`` per block.
 
     The inner orders must match (f's column bound = g's row bound = K); the product is
@@ -58,7 +58,7 @@ def convolve(
     return (f @ g) * _scale(B, jnp.finfo(f.dtype).dtype)[:, None, None]
 
 
-def reflect(coefficients: Complex[ArrayLike, "*batch B 2N+1 2N+1"]) -> Complex[Array, "*batch B 2N+1 2N+1"]:
+def reflect(coefficients: Shaped[ArrayLike, "*batch B n n"]) -> Complex[Array, "*batch B n n"]:
     """Coefficients of ``Γ ↦ s(Γ⁻¹)`` for a real function s: ``(s^J)†`` per block.
 
     Turns a facet-orientation density s into the seed's q (and back).

@@ -28,13 +28,13 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jax.scipy.linalg import cho_factor, cho_solve
-from jaxtyping import Array, ArrayLike, Complex, Float
+from jaxtyping import Array, ArrayLike, Complex, Float, Shaped
 
 from .. import stats
 from .._errors import InvalidInputError
 from .._existence import NOT_FINITE, not_finite, require
 from .._validation import as_float_array, is_concrete, positive
-from ._generators import block_expm, check_diffusion, diffusion_generator
+from ._generators import block_expm, check_diffusion, diffusion_generator, DiffusionCoefficients
 from ._models import AbstractOrientationDensity, RotationalDiffusion
 from ._transform import _coefficients
 
@@ -108,17 +108,18 @@ def _regularisation(lam):
 
 
 def evolve(
-    R: Complex[ArrayLike, "*batch B 2L+1 2B-1"],
+    R: Shaped[ArrayLike, "*batch B rows 2*B-1"],
     s_from,
     s_to,
     *,
     regularisation: Float[ArrayLike, ""] = 0.0,
-) -> Complex[Array, "*batch B 2L+1 2B-1"]:
+) -> Complex[Array, "*batch B rows 2*B-1"]:
     """``R^J(μ) = R^J(μ0) Q̃^J(μ0) Q̃^J(μ)⁻¹`` block by block, by (regularised) solves.
 
     Args:
         R: SO(3) coefficients of the BRDF at μ0 (seed normalisation, :func:`forward`), a
-            function of the facet orientation Γ for each direction pair in the batch.
+            function of the facet orientation Γ for each direction pair in the batch: shape
+            ``(..., B, 2L+1, 2B−1)``, all twist orders kept (real ones taken as complex).
         s_from, s_to: facet-orientation statistics at μ0 and μ: :mod:`brdfscale.so3` densities
             (``Identity()`` for μ = ∞) or their operator blocks ``S̃`` (``.operator(B)``).
         regularisation: Tikhonov λ ≥ 0 (module docstring); 0 solves exactly.
@@ -163,13 +164,13 @@ def evolve(
 
 
 def evolve_diffusion(
-    R: Complex[ArrayLike, "*batch B 2L+1 2B-1"],
-    D: Float[ArrayLike, "3"],
+    R: Shaped[ArrayLike, "*batch B rows 2*B-1"],
+    D: DiffusionCoefficients,
     tau_from: Float[ArrayLike, ""],
     tau_to: Float[ArrayLike, ""],
     *,
     regularisation: Float[ArrayLike, ""] = 0.0,
-) -> Complex[Array, "*batch B 2L+1 2B-1"]:
+) -> Complex[Array, "*batch B rows 2*B-1"]:
     """Evolution under rotational-diffusion statistics: ``R(μ0) exp(−(τ0 − τ) G)`` per block.
 
     ``G = D_x J_x² + D_y J_y² + D_z J_z²``; ``tau_from = τ(μ0)``, ``tau_to = τ(μ)``. With
@@ -221,7 +222,7 @@ class DiffusionLaw(eqx.Module):
     width: stats.WidthLaw
     D: Float[Array, "3"]
 
-    def __init__(self, width: stats.WidthLaw, D: Float[ArrayLike, "3"] = 1.0):
+    def __init__(self, width: stats.WidthLaw, D: DiffusionCoefficients = 1.0):
         if not callable(width):
             raise InvalidInputError("width must map the scale μ to a roughness α(μ), e.g. brdfscale.stats.WidthLaw.")
         self.width = width

@@ -16,6 +16,7 @@ axis then has, for small τD, angular variance 2Dτ. ``G`` is pentadiagonal:
 """
 
 import functools
+from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp
@@ -31,9 +32,13 @@ from ._wigner import check_degree
 
 __all__ = ["angular_momentum", "diffusion_generator", "diffusion_operator"]
 
+DiffusionCoefficients = Float[ArrayLike, ""] | Float[ArrayLike, "3"] | Sequence[Float[ArrayLike, ""]]
+"""What a diffusion argument ``D`` may be (:func:`check_diffusion`): a real scalar (isotropic
+diffusion) or the three coefficients (D_x, D_y, D_z), as an array or a sequence of reals."""
 
-def angular_momentum(J: int) -> tuple[Complex[np.ndarray, "2J+1 2J+1"], ...]:
-    """``(J_x, J_y, J_z)`` for degree J as complex NumPy matrices (rows/cols M = −J … J)."""
+
+def angular_momentum(J: int) -> tuple[Complex[np.ndarray, "n n"], ...]:
+    """``(J_x, J_y, J_z)`` for degree J as complex NumPy matrices (rows/cols M = −J … J: n = 2J+1)."""
     J = check_degree(J)
     M = np.arange(-J, J + 1)
     raise_op = np.diag(np.sqrt(J * (J + 1) - M[:-1] * (M[:-1] + 1.0)), -1).astype(complex)
@@ -41,7 +46,7 @@ def angular_momentum(J: int) -> tuple[Complex[np.ndarray, "2J+1 2J+1"], ...]:
     return (raise_op + lower) / 2, (raise_op - lower) / 2j, np.diag(M).astype(complex)
 
 
-def check_diffusion(D) -> Float[Array, "3"]:
+def check_diffusion(D: DiffusionCoefficients) -> Float[Array, "3"]:
     d = as_float_array(D, "D")
     d = jnp.broadcast_to(d, (3,)) if d.ndim == 0 else d
     if d.shape != (3,):
@@ -63,7 +68,7 @@ def _generator_bands(B: int):
     return tilt, twist, off
 
 
-def diffusion_generator(B: int, D: Float[ArrayLike, "3"]) -> Float[Array, "B 2B-1 2B-1"]:
+def diffusion_generator(B: int, D: DiffusionCoefficients) -> Float[Array, "B 2*B-1 2*B-1"]:
     """Blocks ``G^J = D_x J_x² + D_y J_y² + D_z J_z²`` for J < B, zero-padded to (2B−1)².
 
     ``D``: a scalar (isotropic) or (D_x, D_y, D_z), ≥ 0; differentiable in D.
@@ -79,7 +84,7 @@ def diffusion_generator(B: int, D: Float[ArrayLike, "3"]) -> Float[Array, "B 2B-
     return G
 
 
-def diffusion_operator(B: int, D: Float[ArrayLike, "3"], tau: Float[ArrayLike, ""]) -> Float[Array, "B 2B-1 2B-1"]:
+def diffusion_operator(B: int, D: DiffusionCoefficients, tau: Float[ArrayLike, ""]) -> Float[Array, "B 2*B-1 2*B-1"]:
     """``exp(−τ G^J)`` per degree (identity on the padding), by ``jax.scipy.linalg.expm``.
 
     The operator-normalised coefficients of the rotational-diffusion density after time τ
@@ -91,7 +96,7 @@ def diffusion_operator(B: int, D: Float[ArrayLike, "3"], tau: Float[ArrayLike, "
     return block_expm(-t * diffusion_generator(B, D))
 
 
-def block_expm(A: Float[ArrayLike, "B 2B-1 2B-1"]) -> Float[Array, "B 2B-1 2B-1"]:
+def block_expm(A: Float[ArrayLike, "B 2*B-1 2*B-1"]) -> Float[Array, "B 2*B-1 2*B-1"]:
     """``exp(A^J)`` per degree by ``jax.scipy.linalg.expm`` (Padé with scaling and squaring;
     absolute accuracy ~1e-11 on the blocks met here). Zero padding maps to the identity.
 

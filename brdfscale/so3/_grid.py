@@ -33,8 +33,8 @@ def check_band_limit(B, name: str = "B") -> int:
     return int(B)
 
 
-def grid(B: int) -> tuple[Float[np.ndarray, " 2B"], Float[np.ndarray, " 2B"], Float[np.ndarray, " 2B"]]:
-    """The grid's Euler angles ``(α_j, β_k, γ_j)``, each of length 2B (float64, radians).
+def grid(B: int) -> tuple[Float[np.ndarray, " n"], Float[np.ndarray, " n"], Float[np.ndarray, " n"]]:
+    """The grid's Euler angles ``(α_j, β_k, γ_j)``, each of length ``n = 2B`` (float64, radians).
 
     Samples for :func:`forward` are ``f(α_a, β_k, γ_g)`` in an array indexed ``[..., a, k, g]``.
     """
@@ -53,6 +53,6 @@ def _weights(B: int) -> np.ndarray:
     return w
 
 
-def quadrature_weights(B: int) -> Float[np.ndarray, " 2B"]:
-    """The exact β weights ``w_B(k)`` of the Kostelec–Rockmore grid (float64; they sum to 2)."""
+def quadrature_weights(B: int) -> Float[np.ndarray, " n"]:
+    """The exact β weights ``w_B(k)``, k < n = 2B, of the Kostelec–Rockmore grid (float64; they sum to 2)."""
     return _weights(check_band_limit(B)).copy()

@@ -22,7 +22,7 @@ from .._special import xk1
 from .._validation import as_float_array, is_concrete, positive
 from ..geometry import microfacet_factor, validate_directions
 from ._convolution import to_operator
-from ._generators import check_diffusion, diffusion_operator
+from ._generators import check_diffusion, diffusion_operator, DiffusionCoefficients
 from ._grid import check_band_limit, grid, MAX_BAND_LIMIT
 from ._rotations import check_rotation, euler_to_matrix, matrix_to_euler
 from ._transform import analyse_points, forward
@@ -50,10 +50,10 @@ class AbstractOrientationDensity(eqx.Module):
     """A density ``s(Δ)`` of facet orientations relative to the global one (module docstring)."""
 
     @abc.abstractmethod
-    def operator(self, B: int) -> Complex[Array, "B 2B-1 2B-1"]:
+    def operator(self, B: int) -> Complex[Array, "B 2*B-1 2*B-1"]:
         """``S̃^J = (8π²/(2J+1)) s^J`` for J < B, identity on the padding."""
 
-    def coefficients(self, B: int) -> Complex[Array, "B 2B-1 2B-1"]:
+    def coefficients(self, B: int) -> Complex[Array, "B 2*B-1 2*B-1"]:
         """``s^J = (2J+1)/(8π²) ∫ s D^{J*} dΓ`` for J < B (zeros on the padding)."""
         B = check_band_limit(B)
         op = self.operator(B) - operator_padding(B)
@@ -83,7 +83,7 @@ class RotationalDiffusion(AbstractOrientationDensity):
     tau: Float[Array, ""]
     D: Float[Array, "3"]
 
-    def __init__(self, tau: Float[ArrayLike, ""], D: Float[ArrayLike, "3"] = 1.0):
+    def __init__(self, tau: Float[ArrayLike, ""], D: DiffusionCoefficients = 1.0):
         self.tau = as_float_array(tau, "tau")
         if is_concrete(self.tau) and float(self.tau) < 0:
             raise InvalidInputError(f"tau must be ≥ 0; got {float(self.tau)}.")
@@ -165,8 +165,8 @@ class TiltTwist(AbstractOrientationDensity):
     def __init__(
         self,
         tilt: stats.AbstractSlopeDensity,
-        twist_mean: float = 0.0,
-        twist_std: float | None = None,
+        twist_mean: Float[ArrayLike, ""] = 0.0,
+        twist_std: Float[ArrayLike, ""] | None = None,
         *,
         resolution: int | None = None,
     ):
@@ -277,7 +277,7 @@ class EmpiricalOrientations(AbstractOrientationDensity):
     frames: Float[Array, "n 3 3"]
     smoothing: Float[Array, ""]
 
-    def __init__(self, frames: Float[ArrayLike, "n 3 3"], smoothing: float = 0.0):
+    def __init__(self, frames: Float[ArrayLike, "n 3 3"], smoothing: Float[ArrayLike, ""] = 0.0):
         f = as_float_array(frames, "frames")
         if f.ndim != 3 or f.shape[1:] != (3, 3) or f.shape[0] == 0:
             raise InvalidInputError(f"frames must have shape (n, 3, 3) with n ≥ 1; got {f.shape}.")
@@ -333,9 +333,13 @@ class AnisotropicMicrofacetLobe(eqx.Module):
         return jnp.sqrt(2 * jnp.min(jnp.diagonal(self.shape.cov)))
 
     def evaluate(
-        self, i: Float[ArrayLike, "*batch 3"], o: Float[ArrayLike, "*batch 3"], rotation: Float[ArrayLike, "*batch 3 3"]
+        self,
+        i: Float[ArrayLike, "*#batch 3"],
+        o: Float[ArrayLike, "*#batch 3"],
+        rotation: Float[ArrayLike, "*#batch 3 3"],
     ) -> Float[Array, "*batch"]:
-        """``ρ(i, o, Γ)`` for global directions i, o (z > 0) and facet orientations Γ (3×3).
+        """``ρ(i, o, Γ)`` for global directions i, o (z > 0) and facet orientations Γ (3×3), their
+        batch shapes broadcast together.
 
         Concrete ``rotation`` must be proper rotation matrices (finite, ``max |ΓᵀΓ − I| ≤ 1e-6``,
         det +1; :func:`brdfscale.so3._rotations.check_rotation`), else :class:`InvalidInputError`.
@@ -357,8 +361,8 @@ class AnisotropicMicrofacetLobe(eqx.Module):
         value = self.amplitude * self.shape.density(m) * microfacet_factor(ip, op)
         return jnp.where(visible, value, 0.0)
 
-    def samples(self, i: Float[ArrayLike, "3"], o: Float[ArrayLike, "3"], B: int) -> Float[Array, "2B 2B 2B"]:
-        """``ρ(i, o, Γ)`` on the Kostelec–Rockmore grid of band limit B (axes α, β, γ)."""
+    def samples(self, i: Float[ArrayLike, "3"], o: Float[ArrayLike, "3"], B: int) -> Float[Array, "n n n"]:
+        """``ρ(i, o, Γ)`` on the Kostelec–Rockmore grid of band limit B (axes α, β, γ, n = 2B each)."""
         B = check_band_limit(B)
         a, b, g = (jnp.asarray(x) for x in grid(B))
         return self._on_grid(validate_directions(i, "i"), validate_directions(o, "o"), a, b, g)
@@ -367,7 +371,7 @@ class AnisotropicMicrofacetLobe(eqx.Module):
     def _on_grid(self, i, o, a, b, g):
         return self._evaluate(i, o, euler_to_matrix(a[:, None, None], b[None, :, None], g[None, None, :]))
 
-    def coefficients(self, i, o, B: int) -> Complex[Array, "B 2B-1 2B-1"]:
+    def coefficients(self, i, o, B: int) -> Complex[Array, "B 2*B-1 2*B-1"]:
         """SO(3) coefficients of ``Γ ↦ ρ(i, o, Γ)`` at band limit B (:func:`forward` of :meth:`samples`)."""
         return forward(self.samples(i, o, B))
 

@@ -34,7 +34,7 @@ def _rot_y(t):
 
 
 def euler_to_matrix(
-    alpha: Float[ArrayLike, "*batch"], beta: Float[ArrayLike, "*batch"], gamma: Float[ArrayLike, "*batch"]
+    alpha: Float[ArrayLike, "*#batch"], beta: Float[ArrayLike, "*#batch"], gamma: Float[ArrayLike, "*#batch"]
 ) -> Float[Array, "*batch 3 3"]:
     """``Γ(α, β, γ) = U(α) A(β) U(γ)`` (seed Eq. 5.1–5.2); angles in radians, broadcast."""
     alpha = as_float_array(alpha, "alpha")

@@ -237,19 +237,21 @@ def _orders(B, m_max, n_max):
 
 
 def forward(
-    samples: Shaped[ArrayLike, "*batch 2B 2B 2B"], *, m_max: int | None = None, n_max: int | None = None
-) -> Complex[Array, "*batch B 2L+1 2N+1"]:
+    samples: Shaped[ArrayLike, "*batch n n n"], *, m_max: int | None = None, n_max: int | None = None
+) -> Complex[Array, "*batch n//2 rows cols"]:
     """SO(3) Fourier coefficients ``f^J_{MM'} = (2J+1)/(8π²) ∫ f D^{J*} dΓ`` from grid samples.
 
     Args:
         samples: ``f(α_a, β_k, γ_g)`` on the Kostelec–Rockmore grid of band limit B
-            (:func:`grid`), axes ``[..., a, k, g]``; real or complex; float32 or float64.
+            (:func:`grid`), axes ``[..., a, k, g]`` of ``n = 2B`` entries each; real or complex;
+            float32 or float64 (other dtypes are converted to float).
         m_max, n_max: compute only orders ``|M| ≤ m_max`` and ``|M'| ≤ n_max`` (default
             B − 1: all). A function independent of γ (e.g. of the facet normal only) has
             ``n_max = 0``.
 
     Returns:
-        Complex coefficients of shape ``(..., B, 2L+1, 2N+1)`` (module docstring). Exact
+        Complex coefficients of shape ``(..., B, rows, cols)``, ``B = n/2``, ``rows = 2L+1``,
+        ``cols = 2N+1`` with L = m_max and N = n_max (module docstring). Exact
         (to rounding) when f is band-limited to J < B.
     """
     s = jnp.asarray(samples)
@@ -275,11 +277,12 @@ def _coefficients(coefficients):
     return c.astype(jnp.result_type(c.dtype, 1j)), B, L, N
 
 
-def inverse(coefficients: Complex[ArrayLike, "*batch B 2L+1 2N+1"]) -> Complex[Array, "*batch 2B 2B 2B"]:
+def inverse(coefficients: Shaped[ArrayLike, "*batch B rows cols"]) -> Complex[Array, "*batch 2*B 2*B 2*B"]:
     """``f(α_a, β_k, γ_g) = Σ_J Σ_{MM'} f^J_{MM'} D^J_{MM'}`` on the Kostelec–Rockmore grid.
 
-    The inverse of :func:`forward`; returns complex samples with axes ``[..., a, k, g]``
-    (take ``.real`` for a real function).
+    The inverse of :func:`forward`; ``coefficients`` of shape ``(..., B, 2L+1, 2N+1)`` (module
+    docstring), complex (real ones are taken as complex, other dtypes converted). Returns complex
+    samples with axes ``[..., a, k, g]`` (take ``.real`` for a real function).
     """
     c, B, L, N = _coefficients(coefficients)
     rdt = _real_dtype(c)
@@ -319,14 +322,17 @@ def _synthesize(coefficients, tables, alpha, beta, gamma, *, p: Plan, chunk):
 
 
 def synthesize(
-    coefficients: Complex[ArrayLike, "*batch B 2L+1 2N+1"],
-    alpha: Float[ArrayLike, "*query"],
-    beta: Float[ArrayLike, "*query"],
-    gamma: Float[ArrayLike, "*query"],
+    coefficients: Shaped[ArrayLike, "*batch B rows cols"],
+    alpha: Float[ArrayLike, "*#query"],
+    beta: Float[ArrayLike, "*#query"],
+    gamma: Float[ArrayLike, "*#query"],
     *,
     chunk: int = 256,
 ) -> Complex[Array, "..."]:
     """``f(Γ) = Σ_J Σ_{MM'} f^J_{MM'} D^J_{MM'}(α, β, γ)`` at arbitrary rotations, no grid.
+
+    ``coefficients`` as for :func:`inverse`; the angles broadcast to one query shape. The result
+    has shape ``batch + query`` (two variadic parts, which one jaxtyping shape cannot name).
 
     Cost: one O(B⁴) contraction shared by all queries, then O(B (2L+1)(2N+1)) per query;
     queries are processed ``chunk`` at a time (memory O(chunk · B · (2L+1))). Use
@@ -361,16 +367,19 @@ def _analyse_points(tables, alpha, beta, gamma, weights, *, p: Plan):
 
 
 def analyse_points(
-    alpha: Float[ArrayLike, " n"],
-    beta: Float[ArrayLike, " n"],
-    gamma: Float[ArrayLike, " n"],
+    alpha: Float[ArrayLike, "*#query"],
+    beta: Float[ArrayLike, "*#query"],
+    gamma: Float[ArrayLike, "*#query"],
     B: int,
     *,
-    weights: Float[ArrayLike, " n"] | None = None,
+    weights: Float[ArrayLike, "*query"] | None = None,
     m_max: int | None = None,
     n_max: int | None = None,
-) -> Complex[Array, "B 2L+1 2N+1"]:
+) -> Complex[Array, "B rows cols"]:
     """Coefficients of the weighted point set ``Σ_q w_q δ(Γ_q)``: ``(2J+1)/(8π²) Σ_q w_q D^J(Γ_q)*``.
+
+    The angles broadcast to one shape, one rotation per entry, and ``weights`` has one entry per
+    rotation. The result has shape ``(B, 2L+1, 2N+1)`` with L = m_max and N = n_max.
 
     The adjoint of :func:`synthesize`. With weights 1/n this is the exact SO(3) transform
     of the empirical distribution of n rotations (e.g. facet frames) — no binning; default

@@ -79,7 +79,7 @@ def fourier_weights(m_max: int) -> np.ndarray:
     return np.where(np.arange(m_max + 1) == 0, 1.0, 2.0)
 
 
-def wigner_d(J: int, beta: Float[ArrayLike, "*batch"]) -> Float[Array, "*batch 2J+1 2J+1"]:
+def wigner_d(J: int, beta: Float[ArrayLike, "*batch"]) -> Float[Array, "*batch n n"]:
     """Wigner's small-d matrix ``d^J_{MM'}(β)``, rows and columns M, M' = −J … J.
 
     ``d^J(β) = exp(−iβ J_y)`` (Condon–Shortley; ``d¹₁₀(β) = −sin β/√2``), real and orthogonal.
@@ -89,8 +89,8 @@ def wigner_d(J: int, beta: Float[ArrayLike, "*batch"]) -> Float[Array, "*batch 2
 
     Args:
         J: the degree, an integer in [0, MAX_DEGREE].
-        beta: angles in radians, any shape; the result has shape ``beta.shape + (2J+1, 2J+1)``
-            in beta's floating dtype. Differentiable in β, jit/vmap compatible (J static).
+        beta: angles in radians, any shape; the result has shape ``beta.shape + (n, n)``,
+            ``n = 2J+1``, in beta's floating dtype. Differentiable in β, jit/vmap compatible (J static).
     """
     J = check_degree(J)
     beta = as_float_array(beta, "beta")
@@ -134,11 +134,14 @@ def euler_angles(alpha, beta, gamma):
 
 def wigner_D(
     J: int,
-    alpha: Float[ArrayLike, "*batch"],
-    beta: Float[ArrayLike, "*batch"],
-    gamma: Float[ArrayLike, "*batch"],
-) -> Complex[Array, "*batch 2J+1 2J+1"]:
+    alpha: Float[ArrayLike, "*#batch"],
+    beta: Float[ArrayLike, "*#batch"],
+    gamma: Float[ArrayLike, "*#batch"],
+) -> Complex[Array, "*batch n n"]:
     """``D^J_{MM'}(α, β, γ) = e^{−iMα} d^J_{MM'}(β) e^{−iM'γ}`` (seed §5), rows/cols M = −J … J.
+
+    The angles broadcast to one shape (one rotation per entry); the result has that shape
+    followed by ``(n, n)``, ``n = 2J+1``.
 
     With Γ = U(α) A(β) U(γ) (active z-y-z, :func:`euler_to_matrix`), D^J is a unitary
     representation: ``D^J(Γ₁Γ₂) = D^J(Γ₁) D^J(Γ₂)`` and ``D^J(Γ⁻¹) = D^J(Γ)†``.
