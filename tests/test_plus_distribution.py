@@ -175,20 +175,33 @@ def test_negative_observation_is_reported():
         plus.observe(negative, stats.Gaussian(sigma=0.005))
     low, high, where = plus.ObservedDensity(negative, stats.Gaussian(sigma=0.005)).minimum()
     assert float(low) < 0 < float(high) and 0 < float(jnp.linalg.norm(where)) < 0.2
+
+
+@pytest.mark.wrong_types
+def test_observe_refuses_a_kernel_that_is_no_gaussian():
     with pytest.raises(InvalidInputError, match="kernel"):
-        plus.observe(too_strong, stats.Disk(0.01))
+        plus.observe(plus.NearlySpecular(1.0, [0.5], 0.2), stats.Disk(0.01))
 
 
 # --- input handling -------------------------------------------------------------------------------
 
 
+@pytest.mark.wrong_types
+def test_observe_refuses_a_string_rtol_and_fractional_points():
+    s, kernel = plus.NearlySpecular(1.0, [0.1], 0.1), stats.Gaussian(sigma=0.01)
+    with pytest.raises(InvalidInputError, match="rtol must be a finite number ≥ 0"):
+        plus.observe(s, kernel, rtol="1e-9")
+    with pytest.raises(InvalidInputError, match=r"points must be an integer in \[16, 65536\]"):
+        plus.observe(s, kernel, points=100.5)
+
+
 def test_observe_validates_rtol_and_points():
     s, kernel = plus.NearlySpecular(1.0, [0.1], 0.1), stats.Gaussian(sigma=0.01)
-    for bad in (-1, float("nan"), float("inf"), "1e-9"):
+    for bad in (-1, float("nan"), float("inf")):
         with pytest.raises(InvalidInputError, match="rtol must be a finite number ≥ 0"):
             plus.observe(s, kernel, rtol=bad)
     plus.observe(s, kernel, rtol=0)
-    for bad in (10**9, 8, 100.5):
+    for bad in (10**9, 8):
         with pytest.raises(InvalidInputError, match=r"points must be an integer in \[16, 65536\]"):
             plus.observe(s, kernel, points=bad)
     # above one batch of samples the minimum is found batch by batch, same values

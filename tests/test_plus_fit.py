@@ -60,11 +60,16 @@ def test_undetermined_parameters_are_named():
         plus.fit_strengths(u2, y2, sigma2, kernel=KERNEL, orders=2, x0=0.03)
 
 
-def test_bad_arguments():
+@pytest.mark.wrong_types
+def test_fit_strengths_refuses_a_kernel_that_is_no_gaussian_and_offsets_that_are_no_2_vectors():
     u, clean, sigma, _ = _synthetic(seed=3, count=20)
-    with pytest.raises(InvalidInputError, match="orders"):
-        plus.fit_strengths(u, clean, sigma, kernel=KERNEL, orders=0, x0=0.03)
     with pytest.raises(InvalidInputError, match="kernel"):
         plus.fit_strengths(u, clean, sigma, kernel=stats.Disk(0.01), orders=1, x0=0.03)
     with pytest.raises(InvalidInputError, match="shape"):
         plus.fit_strengths(u[:, :1], clean, sigma, kernel=KERNEL, orders=1, x0=0.03)
+
+
+def test_bad_arguments():
+    u, clean, sigma, _ = _synthetic(seed=3, count=20)
+    with pytest.raises(InvalidInputError, match="orders"):
+        plus.fit_strengths(u, clean, sigma, kernel=KERNEL, orders=0, x0=0.03)

@@ -210,12 +210,16 @@ def test_bad_input():
         scene.Queries(q.i, q.o[:2], q.mu)
     with pytest.raises(bs.InvalidInputError, match="positive"):
         scene.Queries(q.i, q.o, [0.1, -1.0, 0.1])
-    with pytest.raises(bs.InvalidInputError, match="scale law"):
-        scene.Material(lobes.Beckmann(0.1), 1.0, stats.Beckmann(0.1))
     with pytest.raises(bs.InvalidInputError, match="method"):
         scene.plan(scene.Scene((mat,), q, TOL), method="fast")
     with pytest.raises(bs.InvalidInputError, match="fov"):
         scene.Camera(height=1.0, pitch=0.1, fov=4.0, resolution=(4, 4))
+
+
+@pytest.mark.wrong_types
+def test_a_density_is_no_scale_law():
+    with pytest.raises(bs.InvalidInputError, match="scale law"):
+        scene.Material(lobes.Beckmann(0.1), 1.0, stats.Beckmann(0.1))
 
 
 @settings(max_examples=15, deadline=None)
@@ -341,12 +345,17 @@ def test_so3_bad_requests():
         scene.plan(scene.Scene((mat,), q, TOL), method="grid")
     with pytest.raises(bs.MethodNotApplicableError, match="AnisotropicMaterial"):
         scene.plan(scene.Scene((oracle.material("closed_form"),), q, TOL), method="so3")
+    with pytest.raises(bs.InvalidInputError, match="twist"):
+        scene.Queries(i[None], o[None], [0.01], twist=[0.0, 1.0])
+
+
+@pytest.mark.wrong_types
+def test_an_anisotropic_material_refuses_an_isotropic_lobe_or_law():
+    mat = oracle.so3_material()
     with pytest.raises(bs.InvalidInputError, match="AnisotropicMicrofacetLobe"):
         scene.AnisotropicMaterial(lobes.Beckmann(0.1), 1.0, mat.law)
     with pytest.raises(bs.InvalidInputError, match="DiffusionLaw"):
         scene.AnisotropicMaterial(mat.lobe, 1.0, oracle.WIDTH)
-    with pytest.raises(bs.InvalidInputError, match="twist"):
-        scene.Queries(i[None], o[None], [0.01], twist=[0.0, 1.0])
 
 
 def test_midpoint_error_uses_the_evaluations_interpolation():

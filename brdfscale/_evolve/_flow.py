@@ -12,8 +12,10 @@ method's type: each path's behaviour lives in its own module (``_closed_form.py`
 import numbers
 from typing import Literal
 
+from jaxtyping import Array, Real
+
 from .._errors import InvalidInputError
-from .._validation import as_float_array, is_concrete
+from .._validation import as_float_array, is_concrete, RealNumber
 from ..lobes import AbstractLobe
 from ..stats import AbstractSlopeDensity, require_density
 from ._auto import Auto
@@ -84,9 +86,9 @@ def evolve(
     s_to: AbstractSlopeDensity,
     method: AbstractMethod | MethodName = "auto",
     *,
-    regularisation: float | RegularisationName | None = None,
+    regularisation: RealNumber | Real[Array, ""] | RegularisationName | None = None,  # λ may be traced
     noise=None,
-    tol: float = 1e-10,
+    tol: RealNumber = 1e-10,
     size: int | None = None,
     extent: float | None = None,
     check: bool = True,
@@ -196,7 +198,7 @@ def select(
     s_from: AbstractSlopeDensity,
     s_to: AbstractSlopeDensity,
     *,
-    tol: float = 1e-10,
+    tol: RealNumber = 1e-10,
     method: AbstractMethod | str = "auto",
     regularisation: float | str = 0.0,
     noise=None,

@@ -3,7 +3,7 @@
 from collections.abc import Mapping
 
 import numpy as np
-from jaxtyping import ArrayLike, Bool, Float
+from jaxtyping import ArrayLike, Bool, Float, Real
 
 from .. import stats
 from .._errors import InvalidInputError
@@ -50,7 +50,7 @@ def _check_mode(mode) -> str | None:
 
 
 def detrend(
-    heights: Float[ArrayLike, "ny nx"], mode: str | None = "plane", mask: Bool[ArrayLike, "ny nx"] | None = None
+    heights: Real[ArrayLike, "ny nx"], mode: str | None = "plane", mask: Bool[ArrayLike, "ny nx"] | None = None
 ) -> tuple[Float[np.ndarray, "ny nx"], dict]:
     """Remove a plane or a quadratic from ``heights`` by least squares over the measured pixels.
 
@@ -99,7 +99,7 @@ def _fit_trend(h: np.ndarray, mode: str | None, valid: np.ndarray) -> tuple[np.n
 
 
 def from_array(
-    heights: Float[ArrayLike, "ny nx"],
+    heights: Real[ArrayLike, "ny nx"],
     spacing,
     *,
     unit: str = "m",
