@@ -455,7 +455,7 @@ def test_grids_above_the_memory_cap_are_refused_before_allocating(monkeypatch):
 @pytest.mark.wrong_types
 def test_a_spectrum_by_name_is_refused():
     with pytest.raises(InvalidInputError, match="spectrum"):
-        synth.spectral_field("gaussian", size=16, seed=0)  # pyright: ignore[reportArgumentType]
+        synth.spectral_field("gaussian", size=16, seed=0)
 
 
 @pytest.mark.parametrize(
