@@ -201,8 +201,9 @@ class SO3Step(Shown, eqx.Module):
     diagonal: bool = eqx.field(static=True)
     exact_scales: bool = eqx.field(static=True)
 
-    def lobe_coefficients(self, material: AnisotropicMaterial) -> Complex[Array, "P B 2L+1 2N0+1"]:
-        """SO(3) coefficients of ``Γ ↦ ρ(i, o, Γ)`` at μ0 for every pair (degrees J < band limit)."""
+    def lobe_coefficients(self, material: AnisotropicMaterial) -> Complex[Array, "P B rows lobe_columns"]:
+        """SO(3) coefficients of ``Γ ↦ ρ(i, o, Γ)`` at μ0 for every pair (degrees J < band limit B; ``rows``
+        = 2L+1 orders M, ``lobe_columns`` = 2N0+1 orders M')."""
 
         def one(io):
             samples = material.lobe.samples(io[0], io[1], self.sample_band_limit)
@@ -210,7 +211,7 @@ class SO3Step(Shown, eqx.Module):
 
         return jax.lax.map(one, self.pairs)
 
-    def evolved(self, material: AnisotropicMaterial, R0) -> Complex[Array, "P s B 2L+1 2N+1"]:
+    def evolved(self, material: AnisotropicMaterial, R0) -> Complex[Array, "P s B rows columns"]:
         """``R^J(μ_n) = R^J(μ0) exp(−(τ(μ0) − τ(μ_n)) G^J)`` for every pair and scale node, from
         the lobe's coefficients ``R0`` (:meth:`lobe_coefficients`)."""
         B, n0, n1 = self.band_limit, self.lobe_columns, self.columns
