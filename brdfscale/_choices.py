@@ -169,7 +169,7 @@ class SampleDefaults:
 class ModelDefaults:
     """The defaults of the fitting models' options: ``fitting.ParametricModel(family, family, law=)`` and
     ``fitting.NonParametricModel(base_nodes=, n_knots=, regularisation=)`` (``regularisation``
-    None: the model's weight 3 of the smoothness prior)."""
+    None: the weight ``smoothness`` of the smoothness prior)."""
 
     model: str = MODELS.default
     family: str = FAMILIES.default
@@ -177,6 +177,7 @@ class ModelDefaults:
     base_nodes: int = 13
     knots: int = 8
     regularisation: float | str | None = None
+    smoothness: float = 3.0
 
 
 #: The defaults.

@@ -146,7 +146,9 @@ class NonParametricModel(AbstractModel):
                 "give the smoothness prior's weight once: regularisation= (a number or 'auto') or "
                 "smoothness= (its earlier name), not both."
             )
-        weight = regularisation if regularisation is not None else (3.0 if smoothness is None else smoothness)
+        weight = (
+            regularisation if regularisation is not None else (DEFAULT_SMOOTHNESS if smoothness is None else smoothness)
+        )
         auto = isinstance(weight, str)
         if auto and weight not in SMOOTHNESS_RULES:
             raise InvalidInputError(

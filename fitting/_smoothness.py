@@ -6,6 +6,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from brdfscale.choices import MODEL
+
 from ._data import Dataset
 
 
@@ -15,7 +17,7 @@ if TYPE_CHECKING:
 __all__ = ["choose_smoothness", "SMOOTHNESS_RULES", "DEFAULT_SMOOTHNESS", "SMOOTHNESS_CANDIDATES"]
 
 SMOOTHNESS_RULES = ("auto", "gcv")
-DEFAULT_SMOOTHNESS = 3.0
+DEFAULT_SMOOTHNESS = MODEL.smoothness  # brdfscale.choices: the one source of defaults
 SMOOTHNESS_CANDIDATES = tuple(np.logspace(-2.0, 3.0, 31).tolist())
 """The smoothness weights :func:`choose_smoothness` compares (6 per decade)."""
 

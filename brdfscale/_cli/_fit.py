@@ -107,7 +107,7 @@ def add_fit_options(parser) -> None:
         default=MODEL.regularisation,
         metavar="auto|WEIGHT",
         help="non-parametric model: weight of the smoothness prior, a number in [0, 1e6] (default "
-        "3) or auto (generalised cross-validation about a pilot fit; docs/fitting.md)",
+        f"{MODEL.smoothness:g}) or auto (generalised cross-validation about a pilot fit; docs/fitting.md)",
     )
     parser.add_argument(
         "--sampler",
