@@ -11,7 +11,12 @@ Exit status (also in ``brdfscale --help``): 0 success; 1 an unexpected failure (
 message says so and ``--debug`` shows the traceback); 2 a bad command line or input (an option
 outside its domain, a damaged file, no BRDF at a scale, an output that exists); 3 the output
 directory or checkpoint is in use by another run; 4 ``fit-library`` finished with some materials failed
-(each named with its error in the library's index); 130 interrupted (Ctrl-C).
+(each named with its error in the library's index); 5 the fit ran but the model is inadequate for the
+data (χ²/dof or residual structure; the line names the scale and the figure); 6 a sampler's chains have not
+converged (the line names the failed criterion); 7 the data cannot determine what was asked (e.g. a lobe narrower
+than a few pixels per axis, so the statistics' change with scale is unmeasurable); 8 an output could not be
+written (disk full or an I/O error: the line names the file and the free space); 130 interrupted (Ctrl-C).
+Statuses 5–7 come after a complete report is written: the report holds the details.
 """
 
 import importlib
@@ -25,12 +30,14 @@ from ._options import Parser
 _SUBCOMMANDS = ("example", "synth", "topography", "info", "fit", "fit-library", "demo")
 
 EXIT_OK, EXIT_FAILURE, EXIT_USAGE, EXIT_IN_USE, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
+EXIT_SOME_FAILED, EXIT_INADEQUATE, EXIT_NOT_CONVERGED, EXIT_UNDETERMINED, EXIT_NOT_WRITTEN = 4, 5, 6, 7, 8
 
 _EPILOG = (
     "exit status: 0 success; 1 unexpected failure (rerun with --debug for the traceback); 2 bad command "
     "line or input (option outside its domain, damaged file, output exists, no BRDF at a scale); 3 output "
     "directory or checkpoint in use by another run; 4 fit-library finished with some materials failed (see its "
-    "index); 130 interrupted."
+    "index); 5 model inadequate for the data; 6 sampler not converged; 7 data cannot determine what was asked; "
+    "8 an output could not be written (disk full, I/O error); 130 interrupted."
 )
 
 

@@ -4,6 +4,7 @@ batches (:func:`brdfscale.library.fit_library`), in this process or on Ray."""
 import os
 
 from .._errors import InvalidInputError
+from . import EXIT_OK, EXIT_SOME_FAILED
 from ._fit import (
     add_fit_options,
     check_fit_options,
@@ -117,4 +118,4 @@ def run(args) -> int:
     )
     print(result.table())
     print(f"wrote {os.path.join(result.out, library.INDEX)}")
-    return 0 if not result.failures else 4
+    return EXIT_OK if not result.failures else EXIT_SOME_FAILED
