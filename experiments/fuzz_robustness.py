@@ -24,14 +24,25 @@ invalid ones exit 2 with a one-line message; fit/demo/example lines are generate
 only (a valid one would run a fit). Failures: ``traceback`` (stderr holds a Python traceback),
 ``accepted_nonsense`` (invalid but exit 0), ``refused_valid``, ``wrong_status``.
 
+Families (issue 34), each in its own module ``experiments/_fuzz_<family>.py`` exposing
+``run(quick, seed, directory) -> {"kinds": {kind: {tried, refused, same, bad}}, "bad_examples": [...]}``
+(:data:`FAMILIES`): damaged instrument files and hostile heights (``topography``), corrupted
+checkpoints and SIGKILLed fits (``checkpoints``), full disks for every command (``disk``),
+damaged library indices and SIGKILLed ``fit-library`` runs (``library``), hostile σ and the
+σ-scale invariance of the optimum (``numbers``). "bad" is any outcome that is neither the
+library's own refusal nor the undamaged result.
+
 Run: ``flock /tmp/brdfscale-bench.lock python -m experiments.fuzz_robustness`` (5 000 file
-mutants, 300 command lines) → experiments/results/fuzz_robustness/fuzz_robustness.json;
-``--quick`` for the smoke version (tests/test_experiments_smoke.py).
+mutants, 300 command lines, every family at its full size) →
+experiments/results/fuzz_robustness/fuzz_robustness.json; ``--quick`` for the smoke version
+(tests/test_experiments_smoke.py); ``--families checkpoints,disk`` runs only those families
+and keeps the other parts of the committed JSON.
 """
 
 import argparse
 import collections
 import contextlib
+import importlib
 import json
 import os
 import sys
@@ -330,6 +341,23 @@ def fuzz_command_lines(n: int, seed: int = 0) -> dict:
     return {"command_lines": n, "by_command": rows, "failures": failures[:50], "bad": bad}
 
 
+# -- families (issue 34) ---------------------------------------------------------------------
+
+#: The families' modules, ``experiments/_fuzz_<family>.py``, in the order of the table.
+FAMILIES = ("topography", "checkpoints", "disk", "library", "numbers")
+
+
+def fuzz_family(family: str, quick: bool, seed: int = 0, directory: str | None = None) -> dict:
+    """One family's tallies: ``{"kinds": {kind: {tried, refused, same, bad}}, "bad_examples", "bad",
+    "wall_seconds"}``."""
+    module = importlib.import_module(f"experiments._fuzz_{family}")
+    start = time.perf_counter()
+    result = dict(module.run(quick, seed=seed, directory=directory))
+    result["bad"] = sum(int(r["bad"]) for r in result["kinds"].values())
+    result["wall_seconds"] = time.perf_counter() - start
+    return result
+
+
 def page(payload: dict) -> str:
     """The tables of docs/robustness.md (generated block) from the study's JSON."""
     from experiments._bench import table
@@ -357,6 +385,21 @@ def page(payload: dict) -> str:
         "",
         table(["command", "tried", *keys], rows),
     ]
+    families = payload.get("families") or {}
+    if families:
+        keys = ("tried", "refused", "same", "bad")
+        rows = [
+            [family, kind, *(str(r[x]) for x in keys)]
+            for family, result in families.items()
+            for kind, r in result["kinds"].items()
+        ]
+        out += [
+            "",
+            "Families of issue 34 (seed 0): refused = the library's own error or documented exit status with "
+            "one line; same = the undamaged result (or the command completed correctly); bad = anything else.",
+            "",
+            table(["family", "kind", *keys], rows),
+        ]
     return "\n".join(out)
 
 
@@ -366,23 +409,46 @@ def main(argv=None) -> int:
     parser.add_argument("--files", type=int, default=5000)
     parser.add_argument("--commands", type=int, default=300)
     parser.add_argument("--out", default=None, help="results directory (default experiments/results/fuzz_robustness)")
+    parser.add_argument(
+        "--families",
+        default=None,
+        help=f"comma-separated families to run ({', '.join(FAMILIES)}); the file and command-line parts and the "
+        "other families are then kept from the committed JSON",
+    )
     args = parser.parse_args(argv)
     n_files, n_commands = (140, 40) if args.quick else (args.files, args.commands)
+    directory = study_dir("fuzz_robustness", args.out)
     start = time.perf_counter()
-    files_result = fuzz_files(n_files)
-    print(f"files: {n_files} mutants, bad {files_result['bad']}: " + json.dumps(files_result["by_kind"]))
-    cli_result = fuzz_command_lines(n_commands)
-    print(f"command lines: {n_commands}, bad {cli_result['bad']}: " + json.dumps(cli_result["by_command"]))
+    if args.families is None:
+        chosen = FAMILIES
+        files_result = fuzz_files(n_files)
+        print(f"files: {n_files} mutants, bad {files_result['bad']}: " + json.dumps(files_result["by_kind"]))
+        cli_result = fuzz_command_lines(n_commands)
+        print(f"command lines: {n_commands}, bad {cli_result['bad']}: " + json.dumps(cli_result["by_command"]))
+        families = {}
+    else:
+        chosen = tuple(f.strip() for f in args.families.split(",") if f.strip())
+        unknown = sorted(set(chosen) - set(FAMILIES))
+        if unknown:
+            parser.error(f"unknown families {unknown}; the families are {', '.join(FAMILIES)}")
+        committed = json.loads((Path(directory) / "fuzz_robustness.json").read_text())
+        files_result, cli_result = committed["files"], committed["cli"]
+        families = dict(committed.get("families") or {})
+    for family in chosen:
+        families[family] = fuzz_family(family, args.quick)
+        print(f"{family}: bad {families[family]['bad']}: " + json.dumps(families[family]["kinds"]))
     payload = {
         "study": "fuzz_robustness",
         "quick": args.quick,
         "files": files_result,
         "cli": cli_result,
+        "families": {f: families[f] for f in FAMILIES if f in families},
         "wall_seconds": time.perf_counter() - start,
     }
-    path = write_results(study_dir("fuzz_robustness", args.out), "fuzz_robustness", payload)
+    path = write_results(directory, "fuzz_robustness", payload)
     print(f"wrote {path}")
-    return 0 if files_result["bad"] == 0 and cli_result["bad"] == 0 else 1
+    bad = files_result["bad"] + cli_result["bad"] + sum(r["bad"] for r in payload["families"].values())
+    return 0 if bad == 0 else 1
 
 
 if __name__ == "__main__":
