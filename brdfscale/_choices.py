@@ -31,6 +31,8 @@ __all__ = [
     "SOLVERS",
     "Choice",
     "Choices",
+    "AdequacyDefaults",
+    "ADEQUACY",
     "FitDefaults",
     "ModelDefaults",
     "SampleDefaults",
@@ -180,5 +182,31 @@ class ModelDefaults:
     smoothness: float = 3.0
 
 
+@dataclasses.dataclass(frozen=True)
+class AdequacyDefaults:
+    """The thresholds of ``fitting.assess`` — whether a fit's outcome can be trusted (docs/fitting.md,
+    "The outcome and the exit status"; tested in tests/test_adequacy.py).
+
+    * ``max_reduced_chi2``, ``p_value``: a scale whose χ²/dof exceeds ``max_reduced_chi2`` with a χ²
+      tail probability below ``p_value`` makes the model inadequate;
+    * ``max_lag1``: a lag-1 autocorrelation of the whitened residuals along an image's rows or
+      columns above ``max_lag1``, one-sided p below ``p_value`` after a Bonferroni correction over the
+      fit's tests, is residual structure: the model inadequate;
+    * ``min_lobe_pixels``: a lobe whose rms width along its narrower principal axis is below this many
+      image pixel pitches is unresolved — its change with scale cannot be measured;
+    * ``significance``, ``peak_fraction``: the pixels whose second moments measure a lobe's width —
+      above ``significance`` σ and above ``peak_fraction`` of the image's peak (noise far from the lobe
+      would otherwise dominate the moments).
+    """
+
+    max_reduced_chi2: float = 1.5
+    max_lag1: float = 0.1
+    p_value: float = 1e-3
+    min_lobe_pixels: float = 1.5
+    significance: float = 3.0
+    peak_fraction: float = 0.05
+
+
 #: The defaults.
 FIT, SAMPLE, MODEL = FitDefaults(), SampleDefaults(), ModelDefaults()
+ADEQUACY = AdequacyDefaults()

@@ -6,13 +6,17 @@
 * :class:`FitDefaults`, :class:`SampleDefaults`, :class:`ModelDefaults` and their defaults
   :data:`FIT`, :data:`SAMPLE`, :data:`MODEL` — what ``fitting.fit``/``fit_many``,
   ``fitting.sample``/``sample_many``, the fitting models, :class:`brdfscale.library.FitSpec`
-  and the ``brdfscale fit``/``fit-library`` options default to (``FIT.starts`` is 8).
+  and the ``brdfscale fit``/``fit-library`` options default to (``FIT.starts`` is 8);
+* :class:`AdequacyDefaults` and :data:`ADEQUACY` — the thresholds of ``fitting.assess`` (the
+  outcome of a fit and the command's exit statuses 5–7).
 
 Tested in tests/test_choices.py: every name is accepted by fitting and by the command, and
 the command's and the functions' defaults are these.
 """
 
 from ._choices import (
+    ADEQUACY,
+    AdequacyDefaults,
     Choice,
     Choices,
     FAMILIES,
@@ -30,6 +34,7 @@ from ._choices import (
 
 
 __all__ = [
+    "ADEQUACY",
     "FAMILIES",
     "FIT",
     "LAWS",
@@ -40,6 +45,7 @@ __all__ = [
     "SOLVERS",
     "Choice",
     "Choices",
+    "AdequacyDefaults",
     "FitDefaults",
     "ModelDefaults",
     "SampleDefaults",
