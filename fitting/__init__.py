@@ -18,6 +18,9 @@ The chain, each step in its own module:
 * :func:`sample_many` — NUTS/HMC on many materials' posteriors at once: vmapped over the
   materials and sharded over the devices, one compiled program per bucket, each result
   :func:`sample`'s;
+* :func:`assess` — can the outcome be trusted: the lobes resolved, the model adequate (χ²/dof
+  per scale, residual structure), the optimiser and sampler converged (:class:`Outcome`, the
+  ``brdfscale fit`` exit status);
 * :func:`write_report` — fit.json, figures, evolved lobe tables;
 * :func:`plot_fit`, :func:`plot_recovered_statistics`, :func:`plot_corner` — the report's figures
   as ``matplotlib.figure.Figure`` objects made without pyplot (a notebook shows them; also
@@ -36,6 +39,7 @@ installed as ``brdfscale.fitting`` (pyproject's ``package-dir``), so no top-leve
 named ``fitting`` is installed and a local ``fitting.py`` cannot take its place.
 """
 
+from ._adequacy import assess, lobe_widths, Outcome, resolution
 from ._batch import BatchPlan, COMPILE_ROWS, explain_plan, fit_many
 from ._data import Dataset, PointData
 from ._derived import RATIO_FREQUENCIES, ratio_frequencies
@@ -73,21 +77,25 @@ __all__ = [
     "Emcee",
     "FitResult",
     "NonParametricModel",
+    "Outcome",
     "ParametricModel",
     "PointData",
     "Problem",
     "RelativeStatistics",
     "SampleResult",
+    "assess",
     "check_report_directory",
     "explain_plan",
     "fit",
     "fit_many",
+    "lobe_widths",
     "log_posterior",
     "plot_corner",
     "plot_fit",
     "plot_recovered_statistics",
     "ratio_frequencies",
     "report_files",
+    "resolution",
     "sample",
     "sample_many",
     "simulate",

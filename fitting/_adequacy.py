@@ -1,0 +1,242 @@
+"""Can a fit's outcome be trusted? The one place that decides: :func:`assess` and :class:`Outcome`.
+
+Three questions, in this order (the first that fails decides the status; every problem found
+is listed in :attr:`Outcome.problems`):
+
+1. **Resolved** (:func:`lobe_widths`, :func:`resolution`): can the data determine how the lobe
+   changes with scale at all? A lobe's width is measured from the data's own second moments:
+   the pixels above ``significance`` σ and above ``peak_fraction`` of the image's peak (noise
+   far from the lobe would otherwise dominate the moments; the cut truncates a Gaussian lobe at
+   2.45 standard deviations, which underestimates its rms width by about 8 %) give a 2 × 2
+   covariance C of the offsets u; the lobe's width is ``√λ_min(C)`` (its narrower principal
+   axis) in image pixel pitches ``h = 2·extent/(n − 1)``. Below ``min_lobe_pixels`` (1.5: a
+   full width at half maximum of about 3.5 pixels) at any scale, the lobe lies within a pixel
+   or two and its change with scale is unmeasurable — a fit of such data reports ratios of 1 ±
+   1e-14 that say nothing about the surface. Status ``"undetermined"``.
+2. **Adequate** (:func:`assess`): is the model consistent with the data? With the whitened
+   residuals ``r = (prediction − data)/σ`` at the estimate (masked pixels left out):
+
+   * χ²/dof per scale: ``χ²_k = Σ r²`` over the images of scale k, ``dof_k = n_k − p·n_k/N``
+     (the model's p parameters shared in proportion to the scale's share of the N valid
+     pixels); the scale fails when ``χ²_k/dof_k > max_reduced_chi2`` (1.5) and its χ² tail
+     probability ``P(χ²_{dof_k} ≥ χ²_k) < p_value`` (1e-3);
+   * residual structure: the lag-1 autocorrelation of the residuals along the rows and along
+     the columns of every image, ``ρ = Σ r_j r_{j+1} / Σ r_j²`` over neighbouring valid pairs.
+     For a correct model with independent noise, ``ρ·√n_pairs`` is standard normal; a misfit
+     that is smooth over the image (a wrong lobe shape, an anisotropic lobe fitted by an
+     isotropic model, a cross-shaped residual) makes neighbours agree and ρ large. The test
+     fails when ``ρ > max_lag1`` (0.1) and its one-sided p-value, Bonferroni-corrected over the
+     fit's 2 × images tests, is below ``p_value``. False-alarm rate and power are measured in
+     tests/test_adequacy.py (model-generated data over seeds; GGX data fitted by a Beckmann model).
+
+   Status ``"inadequate"``, naming the worst scale and its figure.
+3. **Converged**: the optimiser's best start reported success (:attr:`FitResult.status`) and,
+   when sampled, the chains passed R̂ and ESS (:attr:`SampleResult.status`, which names the
+   failed criterion). Status ``"not_converged"``.
+
+The thresholds are :data:`brdfscale.choices.ADEQUACY` (:class:`brdfscale.choices.AdequacyDefaults`).
+``brdfscale fit`` maps the status to its exit status (0, 5, 6, 7; brdfscale._cli).
+"""
+
+import dataclasses
+from typing import Literal
+
+import jax.numpy as jnp
+import numpy as np
+from scipy import stats
+
+from brdfscale._choices import ADEQUACY, AdequacyDefaults
+
+from ._data import Dataset
+from ._model import predict_images
+from ._problem import check_fit, Problem
+from ._result import FitResult
+
+
+__all__ = ["Outcome", "assess", "lobe_widths", "resolution"]
+
+Status = Literal["ok", "undetermined", "inadequate", "not_converged"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Outcome:
+    """What :func:`assess` (or :func:`resolution`) decided.
+
+    ``status``: ``"ok"``, ``"undetermined"``, ``"inadequate"`` or ``"not_converged"`` (the first
+    failed check, module docstring); ``reason``: one line saying why and what to do ("" when
+    ok); ``problems``: every failed check's line; ``scales``: one dict per measured scale
+    (``mu``, ``width_px`` — the lobe's narrower principal rms width in image pixels —, and after
+    a fit ``chi2``, ``dof``, ``reduced_chi2``, ``chi2_p``, ``lag1_rows``, ``lag1_cols``,
+    ``lag1_p``, the largest autocorrelations over the scale's images and the Bonferroni-corrected
+    p-value of the larger); ``thresholds``: those used.
+    """
+
+    status: Status
+    reason: str
+    problems: tuple[str, ...]
+    scales: tuple[dict, ...]
+    thresholds: AdequacyDefaults = ADEQUACY
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    def to_json(self) -> dict:
+        return {
+            "status": self.status,
+            "reason": self.reason,
+            "problems": list(self.problems),
+            "scales": [dict(s) for s in self.scales],
+            "thresholds": dataclasses.asdict(self.thresholds),
+        }
+
+
+def _mu_text(mu: float, unit: str | None) -> str:
+    return f"μ = {mu:.4g} {unit or 'px'}"
+
+
+def lobe_widths(data: Dataset, thresholds: AdequacyDefaults = ADEQUACY) -> list[float]:
+    """Per scale of ``data``: the lobe's rms width along its narrower principal axis, in image
+    pixel pitches (the smallest over the scale's images; module docstring, point 1)."""
+    offsets, values, weight = (np.asarray(a) for a in (data.offsets, data.values, data.weight))
+    widths = []
+    for k in range(len(np.asarray(data.scales))):
+        narrowest = np.inf
+        for i in data.images_of_scale(k):
+            n = data.image_sizes[i]
+            pitch = 2.0 * data.extents[i] / (n - 1)
+            v, w, u = values[i, : n * n], weight[i, : n * n], offsets[i, : n * n]
+            valid = w > 0
+            peak = float(np.max(np.where(valid, v, -np.inf)))
+            keep = valid & (v * w > thresholds.significance) & (v > thresholds.peak_fraction * peak)
+            if np.count_nonzero(keep) < 2:
+                narrowest = 0.0
+                continue
+            mass = v[keep] / v[keep].sum()
+            centred = u[keep] - mass @ u[keep]
+            cov = (centred * mass[:, None]).T @ centred
+            narrowest = min(narrowest, float(np.sqrt(max(np.linalg.eigvalsh(cov)[0], 0.0))) / pitch)
+        widths.append(float(narrowest))
+    return widths
+
+
+def resolution(data: Dataset, *, unit: str | None = None, thresholds: AdequacyDefaults = ADEQUACY) -> Outcome:
+    """The resolution check alone (before a fit: a lobe narrower than ``min_lobe_pixels`` image
+    pixels at any scale makes the outcome ``"undetermined"``); ``unit`` names μ's length unit
+    in the reason (None: pixels of the height field)."""
+    scales = np.asarray(data.scales)
+    widths = lobe_widths(data, thresholds)
+    rows = tuple({"mu": float(mu), "width_px": w} for mu, w in zip(scales, widths))
+    worst = int(np.argmin(widths))
+    if widths[worst] >= thresholds.min_lobe_pixels:
+        return Outcome("ok", "", (), rows, thresholds)
+    count = sum(w < thresholds.min_lobe_pixels for w in widths)
+    reason = (
+        f"the lobe at {_mu_text(float(scales[worst]), unit)} is {widths[worst]:.2g} image pixels wide (rms, "
+        f"narrower axis; {count} of {len(widths)} scales below {thresholds.min_lobe_pixels:g}): its change with "
+        "scale cannot be measured — synthesise with a smaller --extent or more --pixels (brdfscale synth), or "
+        "measure with a finer angular resolution (more pixels across the lobe)"
+    )
+    return Outcome("undetermined", reason, (reason,), rows, thresholds)
+
+
+def _lag1(r: np.ndarray, valid: np.ndarray, axis: int) -> tuple[float, int]:
+    """Lag-1 autocorrelation of ``r`` along ``axis`` over neighbouring valid pairs, and the pair count."""
+    a, b = (np.moveaxis(x, axis, -1) for x in (r, valid))
+    pairs = b[..., :-1] & b[..., 1:]
+    n = int(np.count_nonzero(pairs))
+    if n == 0:
+        return 0.0, 0
+    x, y = a[..., :-1][pairs], a[..., 1:][pairs]
+    scale = np.sqrt(np.sum(x * x) * np.sum(y * y))
+    return (float(np.sum(x * y) / scale) if scale > 0 else 0.0), n
+
+
+def assess(
+    problem: Problem,
+    fit: FitResult,
+    samples=None,
+    *,
+    unit: str | None = None,
+    thresholds: AdequacyDefaults = ADEQUACY,
+) -> Outcome:
+    """Resolution, model adequacy and convergence of a fit (module docstring); returns the :class:`Outcome`.
+
+    Args:
+        problem: the fit's problem.
+        fit: its :class:`FitResult`.
+        samples: its :class:`SampleResult` when sampled (None: the optimiser's status only).
+        unit: μ's length unit for the reason (None: pixels of the height field).
+        thresholds: :class:`brdfscale.choices.AdequacyDefaults` (default ``ADEQUACY``).
+
+    Raises:
+        InvalidInputError: ``fit`` does not belong to ``problem``.
+    """
+    check_fit(problem, fit, "assess(problem, fit)")
+    data, model = problem.data, problem.model
+    theta = jnp.clip(jnp.asarray(fit.theta), problem.lower, problem.upper)
+    whitened = (np.asarray(predict_images(model, theta, data)) - np.asarray(data.values)) * np.asarray(data.weight)
+    weight = np.asarray(data.weight)
+    scales = np.asarray(data.scales)
+    resolved = resolution(data, unit=unit, thresholds=thresholds)
+    n_total, p = max(data.n_data, 1), len(fit.names)
+    n_tests = 2 * len(data.scale_of_image)
+    rows, inadequate = [], []
+    for k, mu in enumerate(scales):
+        images = data.images_of_scale(k)
+        n_k = int(np.count_nonzero(weight[images]))
+        chi2 = float(np.sum(whitened[images] ** 2))
+        dof = max(n_k - p * n_k / n_total, 1.0)
+        lag = {0: 0.0, 1: 0.0}
+        p_lag = 1.0
+        for i in images:
+            n = data.image_sizes[i]
+            r, valid = whitened[i, : n * n].reshape(n, n), weight[i, : n * n].reshape(n, n) > 0
+            for axis in (0, 1):
+                rho, pairs = _lag1(r, valid, axis)
+                lag[axis] = max(lag[axis], rho)
+                if pairs:
+                    p_lag = min(p_lag, float(stats.norm.sf(rho * np.sqrt(pairs))) * n_tests)
+        row = {
+            **resolved.scales[k],
+            "chi2": chi2,
+            "dof": dof,
+            "reduced_chi2": chi2 / dof,
+            "chi2_p": float(stats.chi2.sf(chi2, dof)),
+            "lag1_rows": lag[1],
+            "lag1_cols": lag[0],
+            "lag1_p": min(p_lag, 1.0),
+        }
+        rows.append(row)
+        where = _mu_text(float(mu), unit)
+        if row["reduced_chi2"] > thresholds.max_reduced_chi2 and row["chi2_p"] < thresholds.p_value:
+            inadequate.append(
+                (
+                    row["reduced_chi2"] / thresholds.max_reduced_chi2,
+                    f"model inadequate at {where}: χ²/dof = {row['reduced_chi2']:.3g} "
+                    f"(> {thresholds.max_reduced_chi2:g}, p = {row['chi2_p']:.2g})",
+                )
+            )
+        largest = max(lag.values())
+        if largest > thresholds.max_lag1 and row["lag1_p"] < thresholds.p_value:
+            direction = "rows" if lag[1] >= lag[0] else "columns"
+            inadequate.append(
+                (
+                    largest / thresholds.max_lag1,
+                    f"model inadequate at {where}: residual structure, lag-1 autocorrelation of the whitened "
+                    f"residuals along the {direction} {largest:.2f} "
+                    f"(> {thresholds.max_lag1:g}, p = {row['lag1_p']:.2g})",
+                )
+            )
+    problems = list(resolved.problems)
+    inadequate.sort(key=lambda item: -item[0])
+    problems += [text + " — try another --family, --law or --model" for _, text in inadequate[:1]]
+    problems += [text for _, text in inadequate[1:]]
+    if fit.status != "converged":
+        problems.append(f"not converged: the optimiser's best start ended with {fit.status} (try more --max-steps)")
+    if samples is not None and samples.status != "converged":
+        problems.append(f"sampler {samples.status} (try more --steps)")
+    status: Status = (
+        "ok" if not problems else "undetermined" if not resolved.ok else "inadequate" if inadequate else "not_converged"
+    )
+    return Outcome(status, problems[0] if problems else "", tuple(problems), tuple(rows), thresholds)
