@@ -1,12 +1,14 @@
-"""The HDF5 checkpoint of :func:`fitting.sample`: one layout for every sampler, resumable bit for bit.
+"""The HDF5 checkpoint of :func:`fitting.sample`: one layout for every sampler, resumable bit for bit, checked.
 
 Layout (format ``FORMAT``; every array float64 unless stated, ``W`` trajectories — the
 walkers of all emcee ensembles, or one per chain of NUTS/HMC — and ``d`` coordinates θ):
 
 * attribute ``format``; attribute ``signature``: JSON of what makes a chain this run's (the
   coordinates' names, the sampler and its settings, the chains, the trajectories, a digest
-  of the problem, the seed, the sampling coordinates); attribute ``steps_done``: the number
-  of completed steps, written last — the commit marker;
+  of the problem, the seed, the sampling coordinates); attribute ``header``: the SHA-256 of
+  the format, the signature, the layout (W, d, the chunk length, the statistics' names and
+  dtypes) and the subspace's arrays; attribute ``steps_done``: the number of completed
+  steps, written last — the commit marker;
 * ``chain`` (step, W, d): θ of every trajectory after every step (warm-up steps included);
 * ``log_prob`` (step, W): log p(θ | data) = −½χ²(θ) + const (the θ-density, without the Jacobian);
 * ``stats/NAME`` (step, W): per-step statistics of the sampler (NUTS/HMC: acceptance_rate,
@@ -14,21 +16,42 @@ walkers of all emcee ensembles, or one per chain of NUTS/HMC — and ``d`` coord
 * ``subspace/``: the sampled subspace of z (``origin`` (d,), ``basis`` (d, m);
   :class:`fitting._posterior.Target`), written when the file is created: a resumed run samples
   that very posterior, even from a refit that differs in the last bits;
-* ``state_0``, ``state_1``: two slots for the sampler's state after a step (the positions ζ
-  in the sampled subspace, their log-density and gradient, the random state or PRNG key data, the adaptation
-  state), each with an attribute ``step``. An append writes the slot that does *not* hold
-  the committed state, then the chain's block, then ``steps_done``: a kill at any moment
-  before the commit leaves the committed state intact, and the resumed run continues from
-  it. A kill during the write of the datasets themselves can still damage the file (reported
-  as such on the next load; HDF5 writes in place).
+* ``state/NAME`` (chunk, …): the sampler's state after each committed chunk (the positions ζ
+  in the sampled subspace, their log-density and gradient, the random state or PRNG key data,
+  the adaptation state) — one row per chunk, so that a run can restart after any good chunk;
+* ``chunks/end`` (chunk,) int64: the step after each chunk's last; ``chunks/digest`` (chunk,)
+  64-byte ASCII: the chunk's SHA-256 (:func:`_chunk_digest`) over its steps' bytes in
+  ``chain``, ``log_prob`` and every ``stats/NAME``, its state row, its end, and the digest
+  before it (the header's for the first chunk): a hash chain, so a chunk cannot be altered,
+  dropped or reordered without the check failing.
 
-HDF5 datasets are chunked along the step axis with ``chunk`` steps per chunk. Temporary
-files are written beside the checkpoint and moved into place (:func:`brdfscale.files.atomic_write`).
+An append writes the chunk's state row, its block of steps, its end and digest, flushes, and
+only then moves ``steps_done`` to the chunk's end: a kill at any moment before the commit
+leaves the committed chunks intact (rows beyond the commit are ignored and overwritten), and
+the resumed run continues from the last of them.
+
+Verification (:meth:`Checkpoint.load`, on every resume and every read of a finished chain):
+the header digest, then each committed chunk's digest recomputed from the bytes read back,
+then NaN or infinity in the chain, the statistics or the state (−∞ is a log-density's
+legitimate value; NaN and +∞ are not). The first chunk that fails is named with its steps, and
+the message says what to do: keep the chunks before it and continue with
+:func:`rewind_checkpoint` (they verify, and the continued run yields the undamaged run's chain
+bit for bit), or start again with ``overwrite=True``. A file HDF5 cannot open or whose header
+fails has no good chunk. Nothing that fails a check is ever resumed into a result.
+
+Writes: every h5py call that writes is checked at the h5py boundary (:func:`_h5_write`): its
+errors — a full disk, an I/O error — become :class:`brdfscale.MeasurementFileError` naming the
+file and the free space, and the free space is checked before each chunk (the chunk's bytes,
+HDF5's whole chunks, plus a margin, :func:`_need`), so that HDF5 is not driven into a full disk
+at all. Temporary files are written beside the checkpoint and moved into place
+(:func:`brdfscale.files.atomic_write`).
 """
 
+import contextlib
+import hashlib
 import json
 import os
-from typing import TypeVar
+import shutil
 
 import numpy as np
 
@@ -36,10 +59,16 @@ from brdfscale import InvalidInputError, MeasurementFileError
 from brdfscale.files import atomic_write
 
 
-__all__ = ["FORMAT", "Checkpoint", "Stored"]
+__all__ = ["FORMAT", "Checkpoint", "Stored", "rewind_checkpoint"]
 
-FORMAT = "brdfscale.fitting.sample/2"
+FORMAT = "brdfscale.fitting.sample/3"
+_EARLIER = {
+    "brdfscale.fitting.sample/2": "its chunks carry no checksums, so what it holds cannot be verified",
+    None: "one emcee ensemble sampled in θ, without the samplers' common layout",
+}
 _EXPECTED = "an HDF5 checkpoint written by fitting.sample"
+_MARGIN = 1 << 20  # bytes beyond a chunk's own that must be free before it is written (HDF5's metadata)
+_LOG_DENSITIES = ("log_prob", "log_density", "logdensity")  # where −∞ (zero density) is a legitimate value
 
 
 def _h5py():
@@ -49,25 +78,87 @@ def _h5py():
     return h5py
 
 
-_Node = TypeVar("_Node")
+def _free(path: str) -> int | None:
+    """Free bytes on the file system of ``path`` (None where it cannot be asked)."""
+    try:
+        return shutil.disk_usage(os.path.dirname(os.path.abspath(path))).free
+    except OSError:
+        return None
 
 
-def _child(parent, name, kind: type[_Node]) -> _Node:
-    """``parent[name]``, a dataset or a group as ``kind`` says: KeyError where it is absent,
-    TypeError where it is the other kind of object (a damaged file)."""
-    node = parent[name]
-    if not isinstance(node, kind):
-        raise TypeError(f"{name} is a {type(node).__name__}, not a {kind.__name__}")
-    return node
+def _space(path: str) -> str:
+    free = _free(path)
+    return "free space unknown" if free is None else f"{free / 2**20:.1f} MiB free"
 
 
-def _count(node, name: str) -> int:
-    """The integer attribute ``name`` of an HDF5 object: KeyError where it is absent, TypeError
-    where it is not an integer (a damaged file)."""
-    value = node.attrs[name]
-    if not isinstance(value, (int, np.integer)):
-        raise TypeError(f"attribute {name} is {value!r}, not an integer")
-    return int(value)
+def _not_written(path: str, what: str, err: BaseException | str) -> MeasurementFileError:
+    """The error of a checkpoint write that failed: the file, the free space, what to do."""
+    return MeasurementFileError(
+        f"checkpoint {path} cannot be {what}: {err} ({_space(path)} on its file system); free some space "
+        "(the chunks committed so far are kept) and run again."
+    )
+
+
+@contextlib.contextmanager
+def _h5_write(path: str, what: str):
+    """The h5py boundary of a write: any exception h5py raises becomes :func:`_not_written`'s error."""
+    try:
+        yield
+    except MeasurementFileError:
+        raise
+    except (OSError, RuntimeError, ValueError, KeyError, TypeError) as err:
+        raise _not_written(path, what, err) from None
+
+
+def _need(chunk: int, rows: int, arrays) -> int:
+    """Bytes a chunk of ``rows`` steps may need: HDF5 allocates whole chunks of ``chunk`` steps,
+    and a block may straddle two of them, plus the state row and a margin."""
+    per_step = sum(a.nbytes // max(a.shape[0], 1) for a in arrays[:-1])
+    return 2 * max(chunk, rows) * per_step + arrays[-1] + _MARGIN
+
+
+def _check_space(path: str, need: int) -> None:
+    free = _free(path)
+    if free is not None and free < need:
+        raise _not_written(path, "written", f"the next chunk needs about {need / 2**20:.1f} MiB")
+
+
+def _update(h, name: str, a: np.ndarray) -> None:
+    a = np.ascontiguousarray(a)
+    h.update(f"{name}|{a.dtype.str}|{a.shape}|".encode())
+    h.update(a.tobytes())
+
+
+def _header_digest(signature: str, W: int, d: int, chunk: int, stats: dict, subspace: dict) -> str:
+    """SHA-256 of what a checkpoint is before its first chunk (module docstring)."""
+    h = hashlib.sha256(FORMAT.encode())
+    h.update(signature.encode())
+    h.update(json.dumps([W, d, chunk, sorted((k, np.dtype(v).str) for k, v in stats.items())]).encode())
+    for name in ("origin", "basis"):
+        _update(h, name, np.asarray(subspace[name], dtype="f8"))
+    return h.hexdigest()
+
+
+def _chunk_digest(previous: str, end: int, blocks: list, state: dict) -> str:
+    """SHA-256 of one chunk: the digest before it, its end, its steps' ``blocks`` ((name, array)
+    in the datasets' dtypes) and its ``state`` row (name → array, in the datasets' dtypes)."""
+    h = hashlib.sha256(previous.encode())
+    h.update(str(int(end)).encode())
+    for name, block in blocks:
+        _update(h, name, block)
+    for name in sorted(state):
+        _update(h, "state/" + name, state[name])
+    return h.hexdigest()
+
+
+def _non_finite(name: str, a: np.ndarray) -> bool:
+    """NaN anywhere, or infinity other than a log-density's −∞, in a float array."""
+    if not np.issubdtype(a.dtype, np.floating):
+        return False
+    bad = ~np.isfinite(a)
+    if name.split("/")[-1] in _LOG_DENSITIES:
+        bad &= a != -np.inf
+    return bool(np.any(bad))
 
 
 class Stored:
@@ -79,8 +170,181 @@ class Stored:
         self.subspace = subspace
 
 
+class _Damaged(Exception):
+    """A check failed: ``reason``; ``good`` steps (whole chunks before the failure) verify."""
+
+    def __init__(self, reason: str, good: int | None):
+        super().__init__(reason)
+        self.reason, self.good = reason, good
+
+
+def _read(f, path: str, stats_names, signature: str | None = None):
+    """Everything a checkpoint's committed chunks hold, verified (module docstring): (Stored, ends,
+    digests, state rows, layout). Raises _Damaged naming the first failure and the good steps,
+    InvalidInputError for another run's or an earlier layout's file."""
+    h5 = _h5py()
+    attrs = f.attrs
+    if attrs.get("signature") is None or "steps_done" not in attrs or not {"chain", "log_prob"} <= set(f):
+        raise MeasurementFileError(
+            f"{path} is not {_EXPECTED} (it lacks the signature, steps_done, chain or log_prob entries); use "
+            "another path, or pass overwrite=True to start afresh."
+        )
+    fmt = attrs.get("format")
+    if fmt != FORMAT:
+        if fmt in _EARLIER or not isinstance(fmt, str):
+            what = _EARLIER.get(fmt if isinstance(fmt, str) else None, _EARLIER[None])
+            raise InvalidInputError(
+                f"checkpoint {path} was written by an earlier version of fitting.sample ({what}) and cannot be "
+                "continued by this one; use another path, or pass overwrite=True to start afresh."
+            )
+        raise _Damaged(f"its format attribute reads {fmt!r}, not {FORMAT!r}", None)
+    stored_signature = attrs["signature"]
+    if signature is not None and stored_signature != signature:
+        raise InvalidInputError(
+            f"checkpoint {path} belongs to a different run (its record: {stored_signature}; this run: "
+            f"{signature}); use another path or pass overwrite=True."
+        )
+    try:
+        chain_ds = f["chain"]
+        if not isinstance(chain_ds, h5.Dataset) or chain_ds.ndim != 3 or chain_ds.chunks is None:
+            raise TypeError("chain is not a chunked (step, W, d) dataset")
+        _, W, d = chain_ds.shape
+        chunk = chain_ds.chunks[0]
+        names = sorted(f["stats"]) if stats_names is None else list(stats_names)
+        stats_ds = {name: f[f"stats/{name}"] for name in names}
+        subspace = {name: f[f"subspace/{name}"][()] for name in ("origin", "basis")}
+        header = attrs.get("header")
+        dtypes = {name: ds.dtype for name, ds in stats_ds.items()}
+        if not isinstance(header, str) or not isinstance(stored_signature, str):
+            raise TypeError("the header digest or the signature is not a string")
+        expected = _header_digest(stored_signature, W, d, chunk, dtypes, subspace)
+        if header != expected:
+            raise ValueError("the header (signature, layout, subspace) fails its SHA-256 check")
+        done = attrs["steps_done"]
+        if not isinstance(done, (int, np.integer)) or done < 0:
+            raise TypeError(f"steps_done is {done!r}, not a count")
+        done = int(done)
+    except (OSError, KeyError, ValueError, TypeError, AttributeError, IndexError) as err:
+        raise _Damaged(str(err), None) from None
+    if done == 0:
+        stored = Stored(
+            0,
+            np.empty((0, W, d)),
+            np.empty((0, W)),
+            {k: np.empty((0, W), dtype=v) for k, v in dtypes.items()},
+            None,
+            subspace,
+        )
+        return stored, np.empty(0, np.int64), [], {}, (W, d, chunk, dtypes, stored_signature, header)
+    try:
+        ends = np.asarray(f["chunks/end"][()], dtype=np.int64)
+        digests = [bytes(x).decode("ascii") for x in f["chunks/digest"][()]]
+        committed = np.flatnonzero(ends == done)
+        if committed.size == 0:
+            raise ValueError(f"no chunk ends at steps_done = {done}")
+        rows = int(committed[0]) + 1
+        ends, digests = ends[:rows], digests[:rows]
+        state_rows = {name: ds[:rows] for name, ds in f["state"].items()}
+    except (OSError, KeyError, ValueError, TypeError, AttributeError, IndexError, UnicodeDecodeError) as err:
+        raise _Damaged(f"its table of chunks cannot be read ({err})", 0) from None
+    if not state_rows:
+        raise _Damaged("it holds no sampler state", 0)
+    previous, start, good = header, 0, 0
+    arrays = {"chain": chain_ds, "log_prob": f["log_prob"], **{f"stats/{k}": v for k, v in stats_ds.items()}}
+    data = {name: [] for name in arrays}
+    for j in range(rows):
+        end = int(ends[j])
+        where = f"chunk {j} (steps {start}–{end - 1})"
+        if not start < end <= done:
+            raise _Damaged(f"{where}: its end is out of order", good)
+        try:
+            blocks = [(name, ds[start:end]) for name, ds in arrays.items()]
+            state = {name: rows_[j] for name, rows_ in state_rows.items()}
+        except (OSError, ValueError, TypeError, IndexError) as err:
+            raise _Damaged(f"{where} cannot be read ({err})", good) from None
+        if any(b.shape[0] != end - start for _, b in blocks):
+            raise _Damaged(f"{where}: its datasets are shorter than steps_done = {done}", good)
+        digest = _chunk_digest(previous, end, blocks, state)
+        if digest != digests[j]:
+            raise _Damaged(f"{where} fails its SHA-256 check (its bytes changed after they were written)", good)
+        bad = [name for name, b in blocks + [("state/" + k, v) for k, v in state.items()] if _non_finite(name, b)]
+        if bad:
+            raise _Damaged(f"{where} holds NaN or infinite values in {', '.join(bad)}", good)
+        for name, b in blocks:
+            data[name].append(b)
+        previous, start, good = digest, end, end
+    chain = np.concatenate(data["chain"])
+    log_prob = np.concatenate(data["log_prob"])
+    stats = {k: np.concatenate(data[f"stats/{k}"]) for k in stats_ds}
+    state = {name: rows_[rows - 1] for name, rows_ in state_rows.items()}
+    stored = Stored(done, chain, log_prob, stats, state, subspace)
+    return stored, ends, digests, state_rows, (W, d, chunk, dtypes, stored_signature, header)
+
+
+def _initialise(f, signature: str, W: int, d: int, chunk: int, stats: dict, subspace: dict) -> None:
+    """The datasets and attributes of a checkpoint with no steps, in an open, empty HDF5 file."""
+    f.create_dataset("chain", (0, W, d), maxshape=(None, W, d), chunks=(chunk, W, d), dtype="f8")
+    f.create_dataset("log_prob", (0, W), maxshape=(None, W), chunks=(chunk, W), dtype="f8")
+    group = f.create_group("stats")
+    for name, dtype in stats.items():
+        group.create_dataset(name, (0, W), maxshape=(None, W), chunks=(chunk, W), dtype=dtype)
+    group = f.create_group("subspace")
+    for name, value in subspace.items():
+        group.create_dataset(name, data=np.asarray(value, dtype="f8"))
+    group = f.create_group("chunks")
+    group.create_dataset("end", (0,), maxshape=(None,), chunks=(64,), dtype="i8")
+    group.create_dataset("digest", (0,), maxshape=(None,), chunks=(64,), dtype="S64")
+    f.create_group("state")
+    f.attrs["format"] = FORMAT
+    f.attrs["signature"] = signature
+    f.attrs["header"] = _header_digest(signature, W, d, chunk, stats, subspace)
+    f.attrs["steps_done"] = 0
+
+
+def _commit(f, blocks: list, state: dict) -> None:
+    """Append one chunk — ``blocks`` ((dataset name, steps), the chain's first) and the ``state``
+    after its last step — to an open checkpoint, its digest chained to the last committed
+    chunk's, and commit it (steps_done last)."""
+    h5 = _h5py()
+    done = int(f.attrs["steps_done"])
+    ends = f["chunks/end"]
+    row = 0 if done == 0 else int(np.flatnonzero(ends[()] == done)[0]) + 1
+    previous = f.attrs["header"] if row == 0 else bytes(f["chunks/digest"][row - 1]).decode("ascii")
+    n = done + blocks[0][1].shape[0]
+    stored_blocks = []
+    for name, block in blocks:
+        dataset = f[name]
+        block = np.asarray(block, dtype=dataset.dtype)
+        dataset.resize(n, axis=0)
+        dataset[done:n] = block
+        stored_blocks.append((name, block))
+    group = f["state"]
+    stored_state = {}
+    for name, value in state.items():
+        value = np.asarray(value)
+        if name not in group:
+            group.create_dataset(
+                name, (0, *value.shape), maxshape=(None, *value.shape), chunks=(1, *value.shape), dtype=value.dtype
+            )
+        dataset = group[name]
+        if not isinstance(dataset, h5.Dataset):
+            raise TypeError(f"state/{name} is not a dataset")
+        value = np.asarray(value, dtype=dataset.dtype)
+        dataset.resize(row + 1, axis=0)
+        dataset[row] = value
+        stored_state[name] = value
+    digest = _chunk_digest(previous, n, stored_blocks, stored_state)
+    for name, value in (("end", n), ("digest", digest.encode("ascii"))):
+        dataset = f["chunks/" + name]
+        dataset.resize(row + 1, axis=0)
+        dataset[row] = value
+    f.flush()
+    f.attrs["steps_done"] = n  # the commit marker, written last
+    f.flush()
+
+
 class Checkpoint:
-    """An HDF5 file holding the chain so far and the sampler's state after the last chunk (module docstring).
+    """An HDF5 file holding the chain so far and the sampler's state after each chunk (module docstring).
 
     Args:
         path: the file.
@@ -104,117 +368,152 @@ class Checkpoint:
             )
 
     def load(self) -> Stored | None:
-        """The completed steps, or None if there is no file.
+        """The completed steps, verified (module docstring), or None if there is no file.
 
         Raises:
-            MeasurementFileError: the file is not a readable checkpoint of this layout, or damaged.
+            MeasurementFileError: the file is not a readable checkpoint of this layout, or damaged
+                (the message names the first chunk that fails and how to continue).
             InvalidInputError: it belongs to another run, or to an earlier layout.
         """
         if not os.path.exists(self.path):
             return None
-        retry = "use another path, or pass overwrite=True to start afresh."
-        try:
-            f = _h5py().File(self.path, "r")
-        except OSError as err:
+        stored, _ = verify(self.path, self.signature, self.stats)
+        if stored.chain.shape[1:] != (self.walkers, self.d) or stored.subspace["basis"].shape != (self.d, self.m):
             raise MeasurementFileError(
-                f"checkpoint {self.path} cannot be read as {_EXPECTED} ({err}); {retry}"
-            ) from None
-        with f:
-            signature = f.attrs.get("signature")
-            if signature is None or "steps_done" not in f.attrs or not {"chain", "log_prob"} <= set(f):
-                raise MeasurementFileError(
-                    f"{self.path} is not {_EXPECTED} (it lacks the signature, steps_done, "
-                    f"chain or log_prob entries); {retry}"
-                )
-            if f.attrs.get("format") != FORMAT:
-                raise InvalidInputError(
-                    f"checkpoint {self.path} was written by an earlier version of fitting.sample (one emcee ensemble "
-                    "sampled in θ, without the samplers' common layout) and cannot be continued by this one; "
-                    f"{retry}"
-                )
-            if signature != self.signature:
-                raise InvalidInputError(
-                    f"checkpoint {self.path} belongs to a different run (its record: {signature}; this run: "
-                    f"{self.signature}); use another path or pass overwrite=True."
-                )
-            try:
-                h5 = _h5py()
-                done = _count(f, "steps_done")
-                chain, log_prob = _child(f, "chain", h5.Dataset)[:done], _child(f, "log_prob", h5.Dataset)[:done]
-                stats = {name: _child(f, f"stats/{name}", h5.Dataset)[:done] for name in self.stats}
-                subspace = {name: _child(f, f"subspace/{name}", h5.Dataset)[()] for name in ("origin", "basis")}
-                state = None
-                if done > 0:
-                    slots = [
-                        _child(f, s, h5.Group)
-                        for s in ("state_0", "state_1")
-                        if s in f and _count(f[s], "step") == done
-                    ]
-                    if not slots:
-                        raise ValueError(f"no sampler state for step {done}")
-                    state = {name: _child(slots[0], name, h5.Dataset)[()] for name in slots[0]}
-            except (OSError, KeyError, ValueError, TypeError) as err:
-                raise MeasurementFileError(f"checkpoint {self.path} is damaged ({err}); {retry}") from None
-        shape = (done, self.walkers, self.d)
-        if chain.shape != shape or log_prob.shape != shape[:2] or any(s.shape != shape[:2] for s in stats.values()):
-            raise MeasurementFileError(
-                f"checkpoint {self.path} is damaged (steps_done = {done}, but chain has shape "
-                f"{chain.shape} and log_prob {log_prob.shape}); {retry}"
+                f"checkpoint {self.path} is damaged (its chain has shape {stored.chain.shape} and its subspace "
+                f"{stored.subspace['basis'].shape}, where this run has {self.walkers} trajectories, {self.d} "
+                f"coordinates and {self.m} sampled); use another path, or pass overwrite=True to start afresh."
             )
-        if subspace["origin"].shape != (self.d,) or subspace["basis"].shape != (self.d, self.m):
-            raise MeasurementFileError(
-                f"checkpoint {self.path} is damaged (its subspace has shapes "
-                f"{subspace['origin'].shape}, {subspace['basis'].shape}); {retry}"
-            )
-        return Stored(done, chain, log_prob, stats, state, subspace)
+        return stored
 
     def create(self, replace: bool, subspace: dict):
         """A checkpoint with no steps and the run's ``subspace`` arrays, written atomically (a hidden
         temporary file in the same directory, moved into place); an existing file is replaced
         only when ``replace``."""
-        W, d, chunk = self.walkers, self.d, self.chunk
 
         def write(tmp):
             with _h5py().File(tmp, "w") as f:
-                f.create_dataset("chain", (0, W, d), maxshape=(None, W, d), chunks=(chunk, W, d), dtype="f8")
-                f.create_dataset("log_prob", (0, W), maxshape=(None, W), chunks=(chunk, W), dtype="f8")
-                group = f.create_group("stats")
-                for name, dtype in self.stats.items():
-                    group.create_dataset(name, (0, W), maxshape=(None, W), chunks=(chunk, W), dtype=dtype)
-                group = f.create_group("subspace")
-                for name, value in subspace.items():
-                    group.create_dataset(name, data=np.asarray(value, dtype="f8"))
-                f.attrs["format"] = FORMAT
-                f.attrs["signature"] = self.signature
-                f.attrs["steps_done"] = 0
+                _initialise(f, self.signature, self.walkers, self.d, self.chunk, self.stats, subspace)
 
-        try:
+        _check_space(self.path, _MARGIN)
+        with _h5_write(self.path, "written"):
             atomic_write(self.path, write, overwrite=replace, error=MeasurementFileError)
-        except OSError as err:
-            raise MeasurementFileError(f"checkpoint {self.path} cannot be written: {err}") from None
 
     def append(self, chain, log_prob, stats: dict, state: dict):
-        """Add a block of steps and the state after its last one (the commit marker last)."""
+        """Add a block of steps and the state after its last one (module docstring: the commit marker last)."""
+        blocks = [("chain", np.asarray(chain)), ("log_prob", np.asarray(log_prob))]
+        blocks += [(f"stats/{k}", np.asarray(stats[k])) for k in self.stats]
+        state_bytes = sum(np.asarray(v).nbytes for v in state.values())
+        _check_space(self.path, _need(self.chunk, blocks[0][1].shape[0], [b for _, b in blocks] + [state_bytes]))
+        f = None
         try:
-            h5 = _h5py()
-            with h5.File(self.path, "r+") as f:
-                done = _count(f, "steps_done")
-                n = done + chain.shape[0]
-                free = next(
-                    (s for s in ("state_0", "state_1") if s not in f or _count(f[s], "step") != done), "state_1"
+            with _h5_write(self.path, "updated"):
+                f = _h5py().File(self.path, "r+")
+                _commit(f, blocks, state)
+                f.close()
+                f = None
+        finally:
+            if f is not None:  # after a failed write: close without letting HDF5's own errors out
+                with contextlib.suppress(Exception):
+                    f.close()
+
+
+def verify(path, signature: str | None = None, stats=None) -> tuple[Stored, dict]:
+    """The verified contents of the checkpoint ``path`` (module docstring) and its record
+    (``signature``: the run's JSON record; ``steps``: steps committed).
+
+    Raises:
+        MeasurementFileError: it cannot be read, or it is damaged: the message names the first
+            chunk that fails, the steps before it that verify, and what to do.
+        InvalidInputError: it belongs to another run than ``signature`` (when given), or to an
+            earlier layout.
+    """
+    path = os.fspath(path)
+    retry = "pass overwrite=True to start afresh"
+    try:
+        f = _h5py().File(path, "r")
+    except OSError as err:
+        raise MeasurementFileError(
+            f"checkpoint {path} cannot be read as {_EXPECTED} ({err}); use another path, or {retry}."
+        ) from None
+    try:
+        with f:
+            stored, _, _, _, layout = _read(f, path, stats, signature)
+    except _Damaged as err:
+        if err.good:
+            remedy = (
+                f"the steps before it (0–{err.good - 1}) verify: keep them and continue from step {err.good} with "
+                f"fitting.rewind_checkpoint({path!r}) and run again, or {retry}"
+            )
+        else:
+            remedy = f"no chunk of it can be kept; {retry}"
+        raise MeasurementFileError(f"checkpoint {path} is damaged: {err.reason}; {remedy}.") from None
+    except OSError as err:  # closing a damaged file
+        raise MeasurementFileError(f"checkpoint {path} is damaged ({err}); use another path, or {retry}.") from None
+    return stored, {"signature": json.loads(layout[4]), "steps": stored.steps}
+
+
+def rewind_checkpoint(path) -> int:
+    """Keep the chunks of a damaged checkpoint that verify, drop the rest: a run of
+    :func:`fitting.sample` on it then continues from the last good chunk, and yields the chain
+    of an undamaged run bit for bit (its state after that chunk is in the file, and every
+    step's randomness depends on the step only). The file is replaced atomically; a checkpoint
+    that verifies whole is left as it is. Returns the steps kept.
+
+    Raises:
+        MeasurementFileError: no part of it can be kept (HDF5 cannot open it, or its header —
+            signature, layout, sampled subspace — fails its check: start afresh with
+            ``overwrite=True``), or it cannot be rewritten (the message names the free space).
+        InvalidInputError: it is an earlier layout's checkpoint (it carries no checksums).
+    """
+    path = os.fspath(path)
+    h5 = _h5py()
+    try:
+        f = h5.File(path, "r")
+    except OSError as err:
+        raise MeasurementFileError(
+            f"checkpoint {path} cannot be read as {_EXPECTED} ({err}); nothing of it can be kept: pass "
+            "overwrite=True to fitting.sample (--force on the command line) to start afresh."
+        ) from None
+    with f:
+        try:
+            stored = _read(f, path, None)[0]
+            return stored.steps  # whole: nothing to drop
+        except _Damaged as err:
+            if err.good is None:
+                raise MeasurementFileError(
+                    f"checkpoint {path} is damaged beyond its chunks ({err.reason}); nothing of it can be kept: "
+                    "pass overwrite=True to fitting.sample (--force on the command line) to start afresh."
+                ) from None
+            good = err.good
+        # the layout and the good chunks, read again (the header verified; the chunks up to `good` too)
+        chain_ds = f["chain"]
+        _, W, d = chain_ds.shape
+        chunk = chain_ds.chunks[0]
+        dtypes = {name: ds.dtype for name, ds in sorted(f["stats"].items())}
+        subspace = {name: f[f"subspace/{name}"][()] for name in ("origin", "basis")}
+        signature = f.attrs["signature"]
+        keep = []
+        if good:  # the good chunks' ends: the table's rows up to the one that ends at `good`
+            ends = np.asarray(f["chunks/end"][()], dtype=np.int64)
+            keep = [int(e) for e in ends[: int(np.flatnonzero(ends == good)[0]) + 1]]
+        names = ["chain", "log_prob"] + [f"stats/{k}" for k in dtypes]
+        data = {name: f[name][:good] for name in names}
+        states = {name: ds[: len(keep)] for name, ds in f["state"].items()} if keep else {}
+
+    def write(tmp):
+        with h5.File(tmp, "w") as out:
+            _initialise(out, signature, W, d, chunk, dtypes, subspace)
+            start = 0
+            for row, end in enumerate(keep):
+                _commit(
+                    out,
+                    [(name, data[name][start:end]) for name in names],
+                    {name: rows[row] for name, rows in states.items()},
                 )
-                if free in f:
-                    del f[free]
-                slot = f.create_group(free)
-                for name, value in state.items():
-                    slot.create_dataset(name, data=np.asarray(value))
-                slot.attrs["step"] = n
-                blocks = [("chain", chain), ("log_prob", log_prob)] + [(f"stats/{k}", v) for k, v in stats.items()]
-                for name, block in blocks:
-                    dataset = _child(f, name, h5.Dataset)
-                    dataset.resize(n, axis=0)
-                    dataset[done:n] = block
-                f.flush()
-                f.attrs["steps_done"] = n  # the commit marker, written last
-        except OSError as err:
-            raise MeasurementFileError(f"checkpoint {self.path} cannot be updated: {err}") from None
+                start = end
+
+    _check_space(path, sum(a.nbytes for a in data.values()) * 2 + _MARGIN)
+    with _h5_write(path, "rewritten"):
+        atomic_write(path, write, overwrite=True, error=MeasurementFileError)
+    return good
