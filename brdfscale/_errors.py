@@ -54,6 +54,30 @@ class OutputInUseError(BrdfscaleError):
     """
 
 
+class OutputWriteError(BrdfscaleError):
+    """A file could not be written: the disk is full (``ENOSPC``/``EDQUOT``), the quota is
+    spent, or the operating system reported another I/O error at one step of the write.
+
+    Raised by every writer of brdfscale (:func:`brdfscale.files.atomic_write` and the
+    writers built on it: EXR files, JSON indices and reports, figures, checkpoints). The
+    one-line message names the file, the operating system's error (a full disk as "disk
+    full") and the free space left on that file system. Nothing is left in the file's
+    place: an existing file is unchanged and the temporary file is removed. The command
+    line exits with status 8. ``path``, ``errno`` (or None), ``free`` (bytes, or None when
+    unknown) and ``disk_full`` are attributes.
+    """
+
+    def __init__(self, message: str, *, path: str = "", errno: int | None = None, free: int | None = None):
+        super().__init__(message)
+        self.path, self.errno, self.free = path, errno, free
+
+    @property
+    def disk_full(self) -> bool:
+        import errno as _errno
+
+        return self.errno in (_errno.ENOSPC, getattr(_errno, "EDQUOT", _errno.ENOSPC))
+
+
 class UnprotectedHeaderWarning(UserWarning):
     """A file of an earlier layout version whose header attributes carry no digest: its
     pixels are checked against their checksums, its μ, extent, incident direction and

@@ -3,15 +3,17 @@ brdfscale creates files and takes locks (public as :mod:`brdfscale.files`)."""
 
 import contextlib
 import datetime
+import errno
 import glob
 import json
 import os
+import shutil
 import socket
 import sys
 import tempfile
 from typing import Callable, Iterator
 
-from ._errors import InvalidInputError, OutputInUseError
+from ._errors import BrdfscaleError, InvalidInputError, OutputInUseError, OutputWriteError
 
 
 #: Temporary files are ``.<name>.brdfscale-<host>-<pid>-<random>.tmp<suffix>`` beside the target.
@@ -58,26 +60,177 @@ def _remove_stale_temporaries(directory: str, name: str) -> list[str]:
     return removed
 
 
+#: The steps of a write, in order, as :func:`_fault` names them.
+STEPS = ("write", "flush", "fsync", "close", "rename")
+
+#: Errors that mean the file system has no room left (a full disk, a spent quota).
+_FULL = frozenset(e for e in (errno.ENOSPC, getattr(errno, "EDQUOT", None)) if e is not None)
+
+
+def _fault(step: str, tmp: str) -> None:
+    """The test seam of every write: called just before each step of :data:`STEPS` with the
+    temporary file's path (for a writer given as a callback — ``write(tmp)`` — after the
+    callback returned: its own writes and flushes happened inside it). It does nothing;
+    tests monkeypatch it (``monkeypatch.setattr(brdfscale._files, "_fault", ...)``) to raise
+    ``OSError(errno.ENOSPC, ...)`` at a chosen step, as a full disk would. Not for other use."""
+
+
+def _size(n: int | None) -> str:
+    if n is None:
+        return "unknown space"
+    for unit, scale in (("GiB", 1 << 30), ("MiB", 1 << 20), ("KiB", 1 << 10)):
+        if n >= scale:
+            return f"{n / scale:.1f} {unit}"
+    return f"{n} B"
+
+
+def free_space(path: str | os.PathLike) -> int | None:
+    """Bytes free to this user on the file system holding ``path`` (a file or directory, which
+    need not exist yet: its nearest existing parent is asked), or None when unknowable."""
+    p = os.path.abspath(os.fspath(path))
+    while not os.path.exists(p) and os.path.dirname(p) != p:
+        p = os.path.dirname(p)
+    try:
+        return shutil.disk_usage(p).free
+    except OSError:
+        return None
+
+
+def _mentions_full(err: BaseException) -> bool:
+    text = str(err)
+    return any(os.strerror(e) in text for e in _FULL) or "ENOSPC" in text or "EDQUOT" in text
+
+
+def write_failed(
+    path: str | os.PathLike, err: BaseException, *, step: str = "writing", kept: str | None = None
+) -> OutputWriteError:
+    """The library's error for a failed write of ``path``: one line naming the file, the
+    operating system's error (ENOSPC/EDQUOT — or a foreign writer's message quoting them — as
+    "disk full") and the free space on that file system. ``kept`` says what was left in the
+    file's place (default: an existing file is unchanged, else nothing was written there).
+    Raise it ``from err``. For writers outside :func:`atomic_write` (the h5py boundary)."""
+    path = os.fspath(path)
+    code = getattr(err, "errno", None)
+    code = code if isinstance(code, int) else None
+    if code is None and _mentions_full(err):
+        code = errno.ENOSPC
+    free = free_space(path)
+    reason = getattr(err, "strerror", None) or " ".join(str(err).split())[:200] or type(err).__name__
+    what = f"disk full ({reason})" if code in _FULL else f"{reason}"
+    if kept is None:
+        kept = "the existing file is unchanged" if os.path.lexists(path) else "nothing was left in its place"
+    return OutputWriteError(
+        f"{path}: not written: {what} while {step}; {_size(free)} free on its file system; {kept}. "
+        + ("Free some space and run again." if code in _FULL else "Check the file system and run again."),
+        path=path,
+        errno=code,
+        free=free,
+    )
+
+
+def require_free_space(path: str | os.PathLike, needed: int, *, what: str = "output") -> int | None:
+    """Preflight before a large write: :class:`OutputWriteError` ("disk full") when the file
+    system holding ``path`` has fewer than ``needed`` bytes free, else the free bytes (None
+    when the file system cannot say, which passes). Call it before writers whose own state a
+    full disk would poison (HDF5), with ``needed`` at least the bytes about to be written."""
+    free = free_space(path)
+    if free is not None and free < needed:
+        raise OutputWriteError(
+            f"{os.fspath(path)}: not written: disk full ({_size(free)} free on its file system, "
+            f"the {what} needs about {_size(int(needed))}); nothing was changed. Free some space and run again.",
+            path=os.fspath(path),
+            errno=errno.ENOSPC,
+            free=free,
+        )
+    return free
+
+
+def _sync_directory(directory: str) -> None:
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return  # a directory that cannot be opened (Windows, permissions): nothing to sync
+    try:
+        os.fsync(fd)
+    except OSError as err:
+        if err.errno not in (errno.EINVAL, errno.ENOTSUP, errno.EBADF, errno.EACCES):
+            raise
+    finally:
+        os.close(fd)
+
+
 def atomic_write(
     path: str | os.PathLike,
-    write: Callable[[str], None],
+    write: Callable[[str], object],
     *,
     overwrite: bool = False,
     error: type[Exception] = InvalidInputError,
+    foreign: tuple[type[BaseException], ...] = (),
 ) -> str:
     """Write ``path`` through ``write(tmp)`` on a temporary file in the same directory.
 
-    Readers never see a half-written file: the temporary file is moved into place only after
-    ``write`` returned. Without ``overwrite`` an existing file is never replaced: the
-    temporary file is hard-linked to ``path``, which fails if ``path`` exists, even when
-    another process creates it meanwhile. The file gets the mode a plain ``open`` would give
-    (0666 less the umask). Errors are raised as ``error`` naming the path.
+    The one write path of brdfscale. Readers never see a half-written file: ``write`` fills
+    the temporary file, which is then fsynced, checked (it must not be empty), closed and
+    only then moved into place, and the directory fsynced. Without ``overwrite`` an existing
+    file is never replaced: the temporary file is hard-linked to ``path``, which fails if
+    ``path`` exists, even when another process creates it meanwhile. The file gets the mode
+    a plain ``open`` would give (0666 less the umask). A ``path`` that exists without
+    ``overwrite``, or whose directory is missing, is refused as ``error``.
+
+    An operating-system error at any step (``OSError`` — or an exception of a ``foreign``
+    type, for writers such as OpenEXR that report I/O failures in their own exceptions) is
+    raised as :class:`OutputWriteError` naming the file, the error ("disk full" for
+    ENOSPC/EDQUOT) and the free space; the temporary file is removed and ``path`` is left
+    as it was (tests/test_disk_full.py, at every step and on a real full tmpfs). Other
+    exceptions from ``write`` pass unchanged, the temporary file removed likewise. For
+    bytes or text in hand use :func:`write_bytes`/:func:`write_text`, which also check that
+    every byte was written.
 
     The temporary file is ``.<name>.brdfscale-<host>-<pid>-<random>.tmp<suffix>``: a process
     killed mid-write (SIGKILL: no ``finally`` runs) leaves it behind, visibly named after its
     target, and the next write to the same ``path`` removes it (tested in
     tests/test_robustness.py).
     """
+
+    def fill(tmp: str) -> None:
+        write(tmp)
+        _fault("write", tmp)
+        _fault("flush", tmp)
+
+    return _write(path, fill, None, overwrite, error, foreign)
+
+
+def write_bytes(
+    path: str | os.PathLike, data: bytes, *, overwrite: bool = False, error: type[Exception] = InvalidInputError
+) -> str:
+    """Write ``data`` to ``path`` through :func:`atomic_write`'s steps, checking that every
+    byte reached the file (a short write is an :class:`OutputWriteError`)."""
+    data = bytes(data)
+
+    def fill(tmp: str) -> None:
+        with open(tmp, "wb") as f:
+            _fault("write", tmp)
+            if f.write(data) != len(data):
+                raise OSError(errno.EIO, f"short write to {tmp}")
+            _fault("flush", tmp)
+            f.flush()
+
+    return _write(path, fill, len(data), overwrite, error, ())
+
+
+def write_text(
+    path: str | os.PathLike,
+    text: str,
+    *,
+    overwrite: bool = False,
+    error: type[Exception] = InvalidInputError,
+    encoding: str = "utf-8",
+) -> str:
+    """Write ``text`` (encoded as ``encoding``) to ``path``: :func:`write_bytes`."""
+    return write_bytes(path, text.encode(encoding), overwrite=overwrite, error=error)
+
+
+def _write(path, fill, expected: int | None, overwrite: bool, error, foreign) -> str:
     path = os.fspath(path)
     if not overwrite and os.path.lexists(path):
         raise error(f"{path}: file exists; pass overwrite=True to replace it.")
@@ -87,13 +240,38 @@ def atomic_write(
     name = os.path.basename(path)
     _remove_stale_temporaries(directory, name)
     suffix = os.path.splitext(path)[1]
-    fd, tmp = tempfile.mkstemp(
-        dir=directory, prefix=f".{name}{_TMP_MARK}{_host()}-{os.getpid()}-", suffix=".tmp" + suffix
-    )
-    os.close(fd)
+    step = "creating a temporary file"
+    tmp = None
     try:
-        write(tmp)
+        fd, tmp = tempfile.mkstemp(
+            dir=directory, prefix=f".{name}{_TMP_MARK}{_host()}-{os.getpid()}-", suffix=".tmp" + suffix
+        )
+        os.close(fd)
+        step = "writing"
+        fill(tmp)
+        step = "syncing to disk"
+        fd = os.open(tmp, os.O_RDONLY)
+        try:
+            _fault("fsync", tmp)
+            os.fsync(fd)
+            size = os.fstat(fd).st_size
+        except BaseException:
+            os.close(fd)
+            raise
+        step = "closing"
+        _fault("close", tmp)
+        os.close(fd)
+        step = "checking"
+        if size == 0 or (expected is not None and size != expected):
+            raise OSError(
+                errno.EIO,
+                f"the file holds {size} bytes after writing"
+                + (f" {expected}" if expected is not None else "")
+                + " (a writer that lost its data)",
+            )
         os.chmod(tmp, 0o666 & ~_umask())
+        step = "moving it into place"
+        _fault("rename", tmp)
         if overwrite:
             os.replace(tmp, path)
         else:
@@ -101,10 +279,26 @@ def atomic_write(
                 os.link(tmp, path)
             except FileExistsError:
                 raise error(f"{path}: file exists; pass overwrite=True to replace it.") from None
+        step = "syncing its directory"
+        _sync_directory(directory)
+    except BrdfscaleError:
+        raise
+    except OSError as err:
+        _remove(tmp)
+        kept = "the file is in place but may not survive a crash" if step == "syncing its directory" else None
+        raise write_failed(path, err, step=step, kept=kept) from err
+    except foreign as err:  # type: ignore[misc]  # a tuple of exception types
+        _remove(tmp)
+        raise write_failed(path, err, step=step) from err
     finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+        _remove(tmp)
     return path
+
+
+def _remove(tmp: str | None) -> None:
+    if tmp is not None and os.path.lexists(tmp):
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
 
 
 def _lock_paths(target: str) -> tuple[str, str]:
@@ -167,12 +361,8 @@ def exclusive(target: str | os.PathLike, *, what: str = "output") -> Iterator[st
                 "command": " ".join(sys.argv[:1] + sys.argv[1:])[:500],
             }
 
-            def write(tmp):
-                with open(tmp, "w") as f:
-                    json.dump(holder, f)
-
-            with contextlib.suppress(OSError):  # the record only informs; the lock is the OS's
-                atomic_write(record, write, overwrite=True, error=OutputInUseError)
+            with contextlib.suppress(OSError, OutputWriteError):  # the record only informs; the lock is the OS's
+                write_text(record, json.dumps(holder), overwrite=True, error=OutputInUseError)
         yield target
     finally:
         if lock.lock_counter == 1:  # the outermost holder: the record goes with the lock
