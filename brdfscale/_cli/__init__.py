@@ -19,11 +19,12 @@ written (disk full or an I/O error: the line names the file and the free space);
 Statuses 5–7 come after a complete report is written: the report holds the details.
 """
 
+import errno
 import importlib
 import re
 import sys
 
-from .._errors import BrdfscaleError, OutputInUseError
+from .._errors import BrdfscaleError, OutputInUseError, OutputWriteError
 from ._options import Parser
 
 
@@ -114,6 +115,9 @@ def main(argv: list[str] | None = None) -> int:
     except OutputInUseError as err:
         print(f"{name}: error: {in_flags(str(err))}", file=sys.stderr)
         return EXIT_IN_USE
+    except OutputWriteError as err:
+        print(f"{name}: error: {in_flags(str(err))}", file=sys.stderr)
+        return EXIT_NOT_WRITTEN
     except BrdfscaleError as err:
         print(f"{name}: error: {in_flags(str(err))}", file=sys.stderr)
         return EXIT_USAGE
@@ -123,6 +127,15 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as err:  # the last resort: a one-line message, never a traceback
         if args.debug:
             raise
+        if isinstance(err, OSError) and err.errno in (errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC)):
+            # a full disk met outside brdfscale's writers (a library's scratch file): still no bug
+            from .._files import write_failed
+
+            print(
+                f"{name}: error: {write_failed(err.filename or '(a file)', err, kept='it may be incomplete')}",
+                file=sys.stderr,
+            )
+            return EXIT_NOT_WRITTEN
         text = " ".join(str(err).split())[:300]
         print(
             f"{name}: unexpected failure ({type(err).__name__}: {text}); rerun as `brdfscale --debug "
