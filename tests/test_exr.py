@@ -20,7 +20,7 @@ import pytest
 from hypothesis import given, HealthCheck, settings
 
 from brdfscale import exr, InvalidInputError, LobeImage, lobes, MeasurementSet
-from brdfscale._errors import MeasurementFileError
+from brdfscale._errors import MeasurementFileError, OutputWriteError
 
 
 MU = 0.1 + 1e-12  # not representable in float32: must come back exactly
@@ -485,7 +485,7 @@ def test_bad_paths_are_named(tmp_path):
     if os.geteuid() != 0:  # root writes anywhere
         locked = tmp_path / "locked"
         locked.mkdir(mode=0o500)
-        with pytest.raises(MeasurementFileError, match=rf"{locked / 'x.exr'}: cannot write the file"):
+        with pytest.raises(OutputWriteError, match=rf"{locked / 'x.exr'}: not written: Permission denied"):
             exr.write_measurements(locked / "x.exr", _mset())
 
 

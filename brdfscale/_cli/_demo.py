@@ -8,7 +8,6 @@ model's own forward map plus Gaussian noise (a pure check of the inverse machine
 """
 
 import os
-import pathlib
 import time
 
 from .._errors import InvalidInputError
@@ -117,7 +116,7 @@ def run(args) -> int:
             )
         if not os.path.exists(marker) and not existing:
             # nothing of the demo's is here yet, so whatever it writes here from now on is its own
-            files.atomic_write(marker, _write_marker)
+            files.write_text(marker, _MARKER_TEXT)
         return _run(args, exr, start)
 
 
@@ -126,8 +125,7 @@ def run(args) -> int:
 _MARKER = ".brdfscale-demo"
 
 
-def _write_marker(path: str) -> None:
-    pathlib.Path(path).write_text("written by `brdfscale demo`; a rerun replaces the demo's files here\n")
+_MARKER_TEXT = "written by `brdfscale demo`; a rerun replaces the demo's files here\n"
 
 
 def _outputs(out: str) -> list[str]:

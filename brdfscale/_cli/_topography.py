@@ -129,19 +129,12 @@ def run(args) -> int:
         _refuse_existing(args.out, args.force)
         png, md, js = (os.path.join(args.out, name) for name in OUTPUTS)
         files.atomic_write(png, lambda tmp: fig.savefig(tmp, dpi=120, format="png"), overwrite=args.force)
-        files.atomic_write(md, lambda tmp: _write_text(tmp, markdown(doc)), overwrite=args.force)
-        files.atomic_write(
-            js, lambda tmp: _write_text(tmp, json_text(doc, indent=2, ensure_ascii=False) + "\n"), overwrite=args.force
-        )
+        files.write_text(md, markdown(doc), overwrite=args.force)
+        files.write_text(js, json_text(doc, indent=2, ensure_ascii=False) + "\n", overwrite=args.force)
     print(summary_line(doc))
     print(table(doc))
     print(f"wrote {js}, {os.path.basename(md)} and {os.path.basename(png)}")
     return 0
-
-
-def _write_text(path: str, text: str) -> None:
-    with open(path, "w", encoding="utf-8") as f:
-        f.write(text)
 
 
 def document(field, results, bins: int, command: str) -> dict:

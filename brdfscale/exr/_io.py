@@ -32,7 +32,9 @@ def write_parts(path, parts: list, overwrite: bool) -> None:
     ``overwrite`` (see :func:`brdfscale._files.atomic_write`).
 
     Raises InvalidInputError for a ``path`` that is no file name, MeasurementFileError
-    naming the path when it is a directory or cannot be written (permissions, full disk, …).
+    naming the path when it is a directory or OpenEXR refuses the parts, and
+    OutputWriteError naming the path and the free space when it cannot be written
+    (permissions, full disk, an I/O error — OpenEXR reports these as RuntimeError).
     """
     path = file_path(path)
     overwrite = flag(overwrite, "overwrite")
@@ -43,16 +45,14 @@ def write_parts(path, parts: list, overwrite: bool) -> None:
         try:
             with captured() as said:
                 OpenEXR.File(parts).write(tmp)
-        except (RuntimeError, TypeError, ValueError) as err:
+        except (TypeError, ValueError) as err:
             raise MeasurementFileError(
                 f"{path}: OpenEXR could not write the file: {err}{summary(said.text, tmp)}"
             ) from err
         pass_on(said.text)
 
-    try:
-        atomic_write(path, write, overwrite=overwrite, error=MeasurementFileError)
-    except OSError as err:
-        raise MeasurementFileError(f"{path}: cannot write the file: {err.strerror or err}.") from err
+    # OpenEXR's RuntimeError is its I/O failure ("Failed to write pixel data … No space left on device")
+    atomic_write(path, write, overwrite=overwrite, error=MeasurementFileError, foreign=(RuntimeError,))
 
 
 def _check_readable(path: str) -> None:
