@@ -53,7 +53,7 @@ from ._problem import check_fit, Problem
 from ._result import FitResult
 
 
-__all__ = ["Outcome", "assess", "lobe_widths", "resolution"]
+__all__ = ["Outcome", "assess", "lobe_moments", "lobe_widths", "resolution"]
 
 Status = Literal["ok", "undetermined", "inadequate", "not_converged"]
 
@@ -95,27 +95,38 @@ def _mu_text(mu: float, unit: str | None) -> str:
     return f"μ = {mu:.4g} {unit or 'px'}"
 
 
+def lobe_moments(
+    data: Dataset, i: int, thresholds: AdequacyDefaults = ADEQUACY
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The centre (2,) and covariance (2, 2) of image ``i``'s lobe over the offsets u, from its
+    significant pixels (above ``significance`` σ and ``peak_fraction`` of the peak; module
+    docstring, point 1); None when fewer than two pixels are significant."""
+    n = data.image_sizes[i]
+    v, w = np.asarray(data.values[i, : n * n]), np.asarray(data.weight[i, : n * n])
+    u = np.asarray(data.offsets[i, : n * n])
+    valid = w > 0
+    peak = float(np.max(np.where(valid, v, -np.inf)))
+    keep = valid & (v * w > thresholds.significance) & (v > thresholds.peak_fraction * peak)
+    if np.count_nonzero(keep) < 2:
+        return None
+    mass = v[keep] / v[keep].sum()
+    centre = mass @ u[keep]
+    centred = u[keep] - centre
+    return centre, (centred * mass[:, None]).T @ centred
+
+
 def lobe_widths(data: Dataset, thresholds: AdequacyDefaults = ADEQUACY) -> list[float]:
     """Per scale of ``data``: the lobe's rms width along its narrower principal axis, in image
-    pixel pitches (the smallest over the scale's images; module docstring, point 1)."""
-    offsets, values, weight = (np.asarray(a) for a in (data.offsets, data.values, data.weight))
+    pixel pitches ``2·extent/(n − 1)`` (the smallest over the scale's images; 0 where fewer than
+    two pixels are significant; module docstring, point 1)."""
     widths = []
     for k in range(len(np.asarray(data.scales))):
         narrowest = np.inf
         for i in data.images_of_scale(k):
-            n = data.image_sizes[i]
-            pitch = 2.0 * data.extents[i] / (n - 1)
-            v, w, u = values[i, : n * n], weight[i, : n * n], offsets[i, : n * n]
-            valid = w > 0
-            peak = float(np.max(np.where(valid, v, -np.inf)))
-            keep = valid & (v * w > thresholds.significance) & (v > thresholds.peak_fraction * peak)
-            if np.count_nonzero(keep) < 2:
-                narrowest = 0.0
-                continue
-            mass = v[keep] / v[keep].sum()
-            centred = u[keep] - mass @ u[keep]
-            cov = (centred * mass[:, None]).T @ centred
-            narrowest = min(narrowest, float(np.sqrt(max(np.linalg.eigvalsh(cov)[0], 0.0))) / pitch)
+            moments = lobe_moments(data, i, thresholds)
+            pitch = 2.0 * data.extents[i] / (data.image_sizes[i] - 1)
+            smallest = 0.0 if moments is None else max(float(np.linalg.eigvalsh(moments[1])[0]), 0.0)
+            narrowest = min(narrowest, float(np.sqrt(smallest)) / pitch)
         widths.append(float(narrowest))
     return widths
 

@@ -111,6 +111,9 @@ class _Analysis:
         self.at_bounds = [
             n for n, t, a, b in zip(model.names, theta, lo, hi) if t <= a + 1e-6 * (b - a) or t >= b - 1e-6 * (b - a)
         ]
+        # the optimum reported is θ clipped to the prior box: Problem clips θ before every prediction, so the
+        # residuals and χ² are the clipped point's, and every estimate lies inside the prior range printed beside it
+        self.theta = theta = np.clip(theta, lo, hi)
         # brdfscale.laplace: the one policy
         self.analysis = laplace(np.asarray(jacobians[best]), model.names, undetermined_std=options.undetermined_std)
         # quantities: Laplace draws along the determined directions only (module docstring); a

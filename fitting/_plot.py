@@ -29,6 +29,7 @@ import numpy as np
 from brdfscale import _figure_style as _figures, InvalidInputError
 from brdfscale.checks import integer, real
 
+from ._adequacy import lobe_moments
 from ._derived import quantities_at
 from ._model import predict_images
 from ._nonparametric import NonParametricModel
@@ -119,13 +120,38 @@ def posterior_draws(problem: Problem, fit: FitResult, samples: SampleResult | No
     return np.clip(fit.theta + rng.standard_normal((n, fit.theta.size)) @ root.T, *bounds)
 
 
-def plot_fit(problem: Problem, fit: FitResult):
+def _mu_title(mu: float, unit: str | None) -> str:
+    """``μ = 3.906e-08 m`` — μ with its length unit (None: pixels of the height field)."""
+    return f"μ = {mu:.4g} {unit or 'px'}"
+
+
+def _zoom(data, i: int) -> tuple[float, float, float, float]:
+    """The part of image ``i``'s offset grid the figure shows: a square about the lobe's centre of
+    half-width ``max(5·rms width along the wider axis, 8 pixel pitches)`` from the data's second
+    moments (:func:`fitting._adequacy.lobe_moments`), within the image; the whole image when no
+    pixel is significant."""
+    e = data.extents[i]
+    moments = lobe_moments(data, i)
+    if moments is None:
+        return (-e, e, -e, e)
+    centre, cov = moments
+    pitch = 2.0 * e / (data.image_sizes[i] - 1)
+    half = min(max(5.0 * float(np.sqrt(max(np.linalg.eigvalsh(cov)[-1], 0.0))), 8.0 * pitch), e)
+    cx, cy = (float(np.clip(c, -e + half, e - half)) for c in centre)
+    return (cx - half, cx + half, cy - half, cy + half)
+
+
+def plot_fit(problem: Problem, fit: FitResult, *, unit: str | None = None):
     """Data, fit and whitened residuals at every measured scale (the report's ``data_vs_fit.png``).
 
     One row per scale (its first image): (1) the data ``A·g(u)`` over the slope offsets
     ``u`` (per unit slope²), (2) the model at the estimate on the same colour scale, (3) the
     whitened residual ``(fit − data)/σ`` on [−4, 4] (0 where masked); each with its colour
-    bar. Axes: 6 per scale.
+    bar. Each row is zoomed to where its lobe is — a square about the lobe's centre, five rms
+    widths (at least eight pixels) from it, from the data's second moments
+    (:func:`fitting.lobe_widths`' pixels) — so that a narrow lobe on a wide image is not a dot;
+    the title says when a row is zoomed. ``unit``: the length unit of μ in the titles (None:
+    pixels of the height field). Axes: 6 per scale.
 
     Returns a ``matplotlib.figure.Figure`` (made without pyplot).
 
@@ -134,6 +160,8 @@ def plot_fit(problem: Problem, fit: FitResult):
             :class:`fitting.FitResult`.
     """
     check_fit(problem, fit, "plot_fit(problem, fit)")
+    if unit is not None and not isinstance(unit, str):
+        raise InvalidInputError(f"unit must be a length unit's name (str) or None; got {type(unit).__name__}.")
     data, model = problem.data, problem.model
     pred = np.asarray(predict_images(model, jnp.clip(jnp.asarray(fit.theta), problem.lower, problem.upper), data))
     first = [data.scale_of_image.index(k) for k in range(len(np.asarray(data.scales)))]
@@ -143,6 +171,8 @@ def plot_fit(problem: Problem, fit: FitResult):
         obs, fitted = data.image(i, data.values[i]), data.image(i, pred[i])
         w = data.image(i, data.weight[i])
         e = data.extents[i]
+        window = _zoom(data, i)
+        zoomed = window != (-e, e, -e, e)
         vmax = max(obs.max(), fitted.max())
         for col, (img, title, label, kw) in enumerate(
             (
@@ -153,7 +183,10 @@ def plot_fit(problem: Problem, fit: FitResult):
         ):
             ax = axes[row, col]
             im = ax.imshow(img, origin="lower", extent=(-e, e, -e, e), **kw)
-            ax.set_title(f"μ = {float(data.scales[data.scale_of_image[i]]):.4g}: {title}", fontsize=9)
+            mu = _mu_title(float(data.scales[data.scale_of_image[i]]), unit)
+            ax.set_title(f"{mu}: {title}" + (" (zoomed)" if zoomed else ""), fontsize=9)
+            ax.set_xlim(*window[:2])
+            ax.set_ylim(*window[2:])
             _figures.colorbar(fig, im, ax, label)
             ax.set_ylabel("u_y (slope)", fontsize=8)
             ax.set_xlabel("u_x (slope)", fontsize=8)
@@ -167,8 +200,9 @@ def _band(ax, W, curves, color, label):
     ax.plot(W, mid, color=color, lw=1.2, label=label)
 
 
-def statistics_figure(problem: Problem, fit: FitResult, draws, true_theta):
-    """The figure of :func:`plot_recovered_statistics` from given draws and true θ (or None)."""
+def statistics_figure(problem: Problem, fit: FitResult, draws, true_theta, *, unit: str | None = None):
+    """The figure of :func:`plot_recovered_statistics` from given draws and true θ (or None);
+    ``unit``: μ's length unit in the titles and legends (None: pixels of the height field)."""
     data, model = problem.data, problem.model
     scales = np.asarray(data.scales)
     absolute = isinstance(model, ParametricModel)
@@ -185,15 +219,17 @@ def statistics_figure(problem: Problem, fit: FitResult, draws, true_theta):
     axes = fig.subplots(1, 2 if absolute else 1, squeeze=False)[0]
     colors = _figures.colormap("viridis")(np.linspace(0, 0.9, len(scales)))
     for k in range(1, len(scales)):
-        _band(axes[0], w, relative[:, k], colors[k], f"μ = {scales[k]:.3g}")
+        _band(axes[0], w, relative[:, k], colors[k], _mu_title(scales[k], unit))
         if true_theta is not None:
             axes[0].plot(w, np.asarray(model.relative_statistics(true_theta, W, data.scales))[k], "k--", lw=0.8)
-    axes[0].set_title(f"S(W, μ0)/S(W, μ), μ0 = {scales[0]:.3g}: determined by the data (5–95 % band)", fontsize=9)
+    axes[0].set_title(
+        f"S(W, μ0)/S(W, μ), μ0 = {scales[0]:.4g} {unit or 'px'}: determined by the data (5–95 % band)", fontsize=9
+    )
     axes[0].set_ylabel("S(W, μ0)/S(W, μ)")
     if absolute:
         curves = np.asarray(_absolute(model, jnp.asarray(draws), W, data))
         for k, mu in enumerate(scales):
-            _band(axes[1], w, curves[:, k], colors[k], f"μ = {mu:.3g}")
+            _band(axes[1], w, curves[:, k], colors[k], _mu_title(mu, unit))
             if true_theta is not None:
                 axes[1].plot(w, np.asarray(model.statistics_at(true_theta, mu).cf_radial(W)), "k--", lw=0.8)
         axes[1].set_title("S(W, μ): absolute via the scale law's S(W, ∞) = 1", fontsize=9)
@@ -208,7 +244,13 @@ def statistics_figure(problem: Problem, fit: FitResult, draws, true_theta):
 
 
 def plot_recovered_statistics(
-    problem: Problem, fit: FitResult, samples: SampleResult | None = None, *, truth: dict | None = None, seed: int = 0
+    problem: Problem,
+    fit: FitResult,
+    samples: SampleResult | None = None,
+    *,
+    truth: dict | None = None,
+    seed: int = 0,
+    unit: str | None = None,
 ):
     """The recovered facet-slope statistics with 5–95 % bands (the report's ``statistics.png``).
 
@@ -217,7 +259,8 @@ def plot_recovered_statistics(
     ``samples`` when given, else the fit's Laplace approximation); (2, parametric models) the
     absolute ``S(W, μ)`` at every measured scale, which rests on the scale law's boundary
     condition ``S(W, ∞) = 1``. Known truth (``truth``: parameter values, e.g. from
-    :func:`fitting.truth_of`) is drawn dashed. W in radians per unit slope. Axes: 2 for a
+    :func:`fitting.truth_of`) is drawn dashed. W in radians per unit slope; ``unit``: the length
+    unit of μ in the titles and legends (None: pixels of the height field). Axes: 2 for a
     parametric model, 1 for the non-parametric one.
 
     Returns a ``matplotlib.figure.Figure`` (made without pyplot).
@@ -231,7 +274,9 @@ def plot_recovered_statistics(
     truth = check_truth(truth)
     seed = integer(seed, "seed", 0)
     true_theta = truth_theta(problem.model, truth, fit)
-    return statistics_figure(problem, fit, posterior_draws(problem, fit, samples, seed), true_theta)
+    if unit is not None and not isinstance(unit, str):
+        raise InvalidInputError(f"unit must be a length unit's name (str) or None; got {type(unit).__name__}.")
+    return statistics_figure(problem, fit, posterior_draws(problem, fit, samples, seed), true_theta, unit=unit)
 
 
 def corner_figure(model, draws, truth: dict | None, fit: FitResult | None = None):

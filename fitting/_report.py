@@ -26,6 +26,7 @@ from brdfscale import BrdfscaleError, InvalidInputError, MeasurementFileError
 from brdfscale.checks import flag
 from brdfscale.files import atomic_write, exclusive, json_text, jsonable
 
+from ._adequacy import assess
 from ._model import predict_images
 from ._parametric import ParametricModel
 from ._plot import (
@@ -332,6 +333,7 @@ def write_report(
     model_info: dict | None = None,
     overwrite: bool = False,
     figures: bool = True,
+    unit: str | None = None,
 ) -> dict:
     """Write ``fit.json``, ``data_vs_fit.png``, ``statistics.png``, ``corner.png``, the
     evolved lobe tables (``evolved_lobes.exr``) and, for a sampled fit with ArviZ installed,
@@ -344,6 +346,12 @@ def write_report(
     the files of an earlier report in ``out_dir`` that this one does not write (figures,
     tables, ``posterior.nc``) are removed, so the directory never mixes two reports.
 
+    ``outcome`` holds :func:`fitting.assess`'s verdict — lobes resolved, the model adequate
+    (χ²/dof per scale, residual structure), optimiser and sampler converged — with its one-line
+    reason and the per-scale figures (``brdfscale fit`` maps its status to the exit status).
+    ``unit``: the length unit of the scales μ (the measurement set's ``metadata["unit"]``; None:
+    pixels of the height field), in ``data.unit``, the figures' titles and the outcome's reason.
+
     Everything is checked before the first file is written: the arguments, and (without
     ``overwrite``) that none of those files exists. ``fit.json`` is written last.
 
@@ -351,7 +359,8 @@ def write_report(
         InvalidInputError: without ``overwrite``, any of the report's files exists in
             ``out_dir`` (the message lists them); ``fit`` or ``samples`` do not belong to
             ``problem``'s model; ``truth`` is not a dict of finite numbers (for a parametric
-            model, positive ones); ``model_info`` is not a JSON-serialisable dict.
+            model, positive ones); ``model_info`` is not a JSON-serialisable dict; ``unit`` is
+            neither a string nor None.
         MeasurementFileError: ``out_dir`` exists but is not a directory, or it or a report
             file cannot be created or written.
     """
@@ -360,6 +369,8 @@ def write_report(
     truth = check_truth(truth)
     if model_info is not None and not isinstance(model_info, dict):
         raise InvalidInputError(f"model_info must be a dict or None; got {type(model_info).__name__}.")
+    if unit is not None and not isinstance(unit, str):
+        raise InvalidInputError(f"unit must be a length unit's name (str) or None; got {type(unit).__name__}.")
     overwrite = flag(overwrite, "overwrite")
     # everything that can fail on the arguments is computed before the first file is written
     model = problem.model
@@ -376,7 +387,9 @@ def write_report(
             "scales": np.asarray(problem.data.scales).tolist(),
             "images": len(problem.data.scale_of_image),
             "valid_pixels": problem.data.n_data,
+            "unit": unit,
         },
+        "outcome": assess(problem, fit, samples, unit=unit).to_json(),
         "parameters": summarise(problem, fit, samples, truth),
         "ratios": summarise_ratios(problem, fit, samples),
         "identifiability": fit.to_json()["identifiability"],
@@ -405,8 +418,11 @@ def _write_files(
     target = os.path.join(out_dir, "fit.json")
     try:
         if with_figures:  # the figures of fitting.plot_fit, plot_recovered_statistics and plot_corner (fitting._plot)
-            _save(figures["data_vs_fit.png"], plot_fit(problem, fit), 90, overwrite)
-            _save(figures["statistics.png"], statistics_figure(problem, fit, draws, true_theta), 90, overwrite)
+            unit = doc["data"]["unit"]
+            _save(figures["data_vs_fit.png"], plot_fit(problem, fit, unit=unit), 90, overwrite)
+            _save(
+                figures["statistics.png"], statistics_figure(problem, fit, draws, true_theta, unit=unit), 90, overwrite
+            )
             _save(figures["corner.png"], corner_figure(model, corner_draws, truth, fit), 80, overwrite)
         try:
             tables = _write_tables(out_dir, problem, fit, overwrite)

@@ -1,5 +1,13 @@
 """``brdfscale synth SURFACE --out FILE.exr``: a synthetic measurement set from a built-in surface;
-``brdfscale synth --topography FILE --out FILE.exr``: the same of a measured height map."""
+``brdfscale synth --topography FILE --out FILE.exr``: the same of a measured height map.
+
+Defaults made for ``brdfscale fit`` (README's measured-surface chain): the image half-width from
+robust slope quantiles (:func:`brdfscale.synth.robust_extent`, never the steepest pixel); with
+--topography, Poisson noise with read noise (:data:`TOPOGRAPHY_NOISE`: every image stores σ) and
+an instrument resolution of :data:`TOPOGRAPHY_RESOLUTION` image pixels (a mirror pixel facet's lobe
+at the finest scale is then a resolved spot). Each choice is recorded in the file's metadata
+(``defaults``).
+"""
 
 import argparse
 import math
@@ -10,6 +18,10 @@ from ._topography import add_reading_options, read_field, reading_command
 
 
 _SIZE, _SEED = 512, 0  # the defaults of --size and --seed (None in the namespace: given or not)
+TOPOGRAPHY_NOISE = "poisson:200:1"
+"""--noise's default with --topography: 200 counts per unit lobe value and 1 count of Gaussian read noise."""
+TOPOGRAPHY_RESOLUTION = 2.0
+"""--resolution's default with --topography, in image pixel pitches ``2·extent/(pixels − 1)``."""
 
 
 def _incident(text: str) -> tuple[float, float, float]:
@@ -35,7 +47,7 @@ def _noise(text: str):
 
     kind, _, value = text.partition(":")
     if kind == "none" and not value:
-        return None
+        return "none"  # given: distinct from None, --noise left out
     if kind in ("poisson", "gaussian"):
         lo, hi = _EXPOSURE if kind == "poisson" else _SIGMA
         value, _, read = value.partition(":") if kind == "poisson" else (value, "", "")
@@ -102,11 +114,17 @@ def register(subparsers) -> None:
         type=_noise,
         default=None,
         metavar="MODEL",
-        help="none (default), poisson:EXPOSURE[:READ_NOISE] (counts per unit lobe value; optional Gaussian "
-        "read noise in counts, which makes σ exact in dark pixels) or gaussian:SIGMA",
+        help="none, poisson:EXPOSURE[:READ_NOISE] (counts per unit lobe value; optional Gaussian "
+        "read noise in counts, which makes σ exact in dark pixels) or gaussian:SIGMA; default none for SURFACE, "
+        f"{TOPOGRAPHY_NOISE} for --topography (σ stored in every image, so brdfscale fit runs on the file)",
     )
     parser.add_argument(
-        "--resolution", type=real(0.0, 10.0), default=0.0, help="instrument blur, slope std, 0–10 (default 0)"
+        "--resolution",
+        type=real(0.0, 10.0),
+        default=None,
+        help="instrument blur, slope std, 0–10; default 0 for SURFACE, for --topography "
+        f"{TOPOGRAPHY_RESOLUTION:g} image pixels (2·extent/(pixels − 1) each): an instrument resolves no finer "
+        "than its pixels, and the finest scale's lobe of mirror pixel facets is then a resolved spot, not one pixel",
     )
     parser.add_argument(
         "--micro-alpha",
@@ -119,7 +137,8 @@ def register(subparsers) -> None:
         "--extent",
         type=real(0.0, 1000.0, strict_lo=True),
         default=None,
-        help="image half-width in slope units, in (0, 1000] (default: 1.05 × steepest pixel slope)",
+        help="image half-width in slope units, in (0, 1000] (default: 1.5 × the 99th percentile of the pixel "
+        "slopes' deviation |m − m̄| from their mean — robust to outlier pixels, brdfscale.synth.robust_extent)",
     )
     parser.add_argument("--pixels", type=integer(3, 1025), default=65, help="image nodes per axis, 3–1025 (default 65)")
     parser.add_argument(
@@ -167,10 +186,10 @@ def _check_source(args) -> None:
             "--size sets the size of a built-in SURFACE; a topography has its own "
             "(brdfscale topography FILE prints it): leave --size out with --topography."
         )
-    if args.seed is not None and args.noise is None:
+    if args.seed is not None and args.noise == "none":
         raise InvalidInputError(
             "--seed: a topography is not random, so with --topography the seed only seeds the "
-            "noise; give --noise too, or leave --seed out."
+            "noise; leave --noise none out, or leave --seed out."
         )
 
 
@@ -209,7 +228,22 @@ def run(args) -> int:
         source = f"{field.description.get('file', args.topography)}, {ny} × {nx} measured field"
         command = f"brdfscale synth --topography {args.topography} {reading_command(args)} --scales {chosen}"
     mus = chosen.resolve(field)
-    extent = args.extent if args.extent is not None else 1.05 * synth.steepest_slope(field)
+    topography = args.topography is not None
+    extent = args.extent if args.extent is not None else synth.robust_extent(field)
+    noise = args.noise if args.noise is not None else _noise(TOPOGRAPHY_NOISE) if topography else "none"
+    noise = None if noise == "none" else noise
+    resolution = args.resolution
+    if resolution is None:
+        resolution = TOPOGRAPHY_RESOLUTION * 2 * extent / (args.pixels - 1) if topography else 0.0
+    defaults = {
+        "extent": None
+        if args.extent is not None
+        else f"robust_extent: 1.5 × the 99th percentile of the pixel slopes' |m − m̄|: {extent:.6g}",
+        "noise": None if args.noise is not None else (TOPOGRAPHY_NOISE if topography else "none"),
+        "resolution": None
+        if args.resolution is not None
+        else (f"{TOPOGRAPHY_RESOLUTION:g} image pixels: {resolution:.6g}" if topography else "0"),
+    }
     incident = np.array(args.incident) if args.incident else np.array([[0.0, 0.0, 1.0]])
     mset = synth.gonioreflectometer(
         field,
@@ -217,13 +251,14 @@ def run(args) -> int:
         incident,
         extent=extent,
         pixels=args.pixels,
-        noise=args.noise,
-        resolution=args.resolution,
+        noise=noise,
+        resolution=resolution,
         weighting=args.weighting,
-        seed=np.random.default_rng(noise_seed) if args.noise is not None else None,
+        seed=np.random.default_rng(noise_seed) if noise is not None else None,
     )
     mset.metadata["seed"] = seed_value
     mset.metadata["command"] = command
+    mset.metadata["defaults"] = {k: v for k, v in defaults.items() if v is not None}  # the options left out
     exr.write_measurements(args.out, mset, overwrite=args.force, dtype=args.dtype)
     shown = ", ".join(f"{mu:.6g}" for mu in mus) + ("" if field.unit is None else f" {field.unit}")
     print(f"wrote {args.out}: {len(mset.images)} lobe images ({source}, scales {shown})")

@@ -12,7 +12,7 @@
   :func:`steepest_slope`.
 * Measurements: :func:`gonioreflectometer` turns a surface into a
   :class:`brdfscale.MeasurementSet` with :class:`PoissonNoise` or :class:`GaussianNoise`
-  and an optional angular resolution.
+  and an optional angular resolution; :func:`robust_extent` sizes its images from robust slope quantiles.
 
 Every random generator takes an explicit ``seed`` (int, NumPy Generator or JAX key).
 Bad arguments raise :class:`brdfscale.InvalidInputError` before any work; every grid is
@@ -21,7 +21,7 @@ coarser grids beyond), Poisson counts by :data:`MAX_EXPECTED_COUNT` (1e18).
 """
 
 from ._facets import facet_slopes, facet_statistics, FacetStatistics, global_slopes, steepest_slope
-from ._gonio import GaussianNoise, gonioreflectometer, MAX_EXPECTED_COUNT, PoissonNoise
+from ._gonio import GaussianNoise, gonioreflectometer, MAX_EXPECTED_COUNT, PoissonNoise, robust_extent
 from ._named import named_surface, SURFACES
 from ._profiles import blazed, scratches
 from ._random import as_generator
@@ -44,6 +44,7 @@ __all__ = [
     "GaussianNoise",
     "PoissonNoise",
     "gonioreflectometer",
+    "robust_extent",
     "as_generator",
     "MAX_GRID_BYTES",
     "MAX_EXPECTED_COUNT",
