@@ -41,6 +41,7 @@ named ``fitting`` is installed and a local ``fitting.py`` cannot take its place.
 
 from ._adequacy import assess, lobe_widths, Outcome, resolution
 from ._batch import BatchPlan, COMPILE_ROWS, explain_plan, fit_many
+from ._checkpoint import rewind_checkpoint
 from ._data import Dataset, PointData
 from ._derived import RATIO_FREQUENCIES, ratio_frequencies
 from ._fit import fit
@@ -58,6 +59,7 @@ from ._report import (
     write_report,
 )
 from ._result import FitResult
+from ._resume import resume_report
 from ._sample import Emcee, HMC, log_posterior, NUTS, sample, SampleResult, SAMPLERS
 from ._sample_many import sample_many
 from ._simulate import simulate
@@ -95,6 +97,8 @@ __all__ = [
     "plot_recovered_statistics",
     "ratio_frequencies",
     "report_files",
+    "resume_report",
+    "rewind_checkpoint",
     "resolution",
     "sample",
     "sample_many",

@@ -258,12 +258,18 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
     if spec.sampler is not None:
         check_sampler_options(args, len(model.names))
     truth = fitting.truth_of(model, mset.metadata)  # a damaged truth is refused before the work, not after
-    fitting.check_report_directory(args.out, args.force)  # before the long work: every report file, not only fit.json
+    # before the long work: a complete report refused, an incomplete one beside a complete chain resumed
+    checkpoint = os.path.join(args.out, "chain.h5")
+    resuming = fitting.resume_report(
+        args.out, args.force, checkpoint=checkpoint, steps=args.steps if spec.sampler else 0
+    )
+    if resuming:
+        stream(resuming)
     with files.exclusive(args.out, what="output directory"):
-        return _fit_and_report(fitting, spec, data, model, info, truth, args, stream)
+        return _fit_and_report(fitting, spec, data, model, info, truth, args, stream, resume=resuming is not None)
 
 
-def _fit_and_report(fitting, spec, data, model, info, truth, args, stream) -> dict:
+def _fit_and_report(fitting, spec, data, model, info, truth, args, stream, resume=False) -> dict:
     stream(
         f"fitting {len(data.scale_of_image)} images at scales μ = {[float(s) for s in data.scales]} "
         f"({data.n_data} valid pixels), {len(model.names)} parameters, {spec.starts} starts ..."
@@ -287,7 +293,13 @@ def _fit_and_report(fitting, spec, data, model, info, truth, args, stream) -> di
         )
         stream(sampling_line(samples.diagnostics()))
     return fitting.write_report(
-        args.out, fitting.Problem(model, data), result, samples, truth=truth, model_info=info, overwrite=args.force
+        args.out,
+        fitting.Problem(model, data),
+        result,
+        samples,
+        truth=truth,
+        model_info=info,
+        overwrite=args.force or resume,  # resumed: the partial report's files are written anew
     )
 
 

@@ -1,0 +1,109 @@
+"""Whether a report is written afresh, refused, or resumed: the one decision of ``brdfscale fit``'s report phase.
+
+A run of ``brdfscale fit --out DIR`` fits, samples into ``DIR/chain.h5`` (a checkpoint, resumed
+by :func:`fitting.sample` after a kill) and then writes the report (:func:`fitting.write_report`:
+the figures, tables and ``posterior.nc`` first, ``fit.json`` last, each file atomically). A run
+killed — or stopped by a full disk — while writing the report leaves some of those files and
+no ``fit.json``. :func:`resume_report` tells that state from a finished report:
+
+* no report file in ``DIR``, or ``overwrite``: a fresh report (``DIR`` checked and created by
+  :func:`fitting.check_report_directory`);
+* ``fit.json`` present and a readable JSON object: the report is complete — refused, as
+  :func:`fitting.check_report_directory` refuses it (an ``overwrite`` is needed);
+* some report files but no readable ``fit.json``, and — when the run samples — a checkpoint
+  that verifies whole (:func:`fitting._checkpoint.verify`: every chunk's SHA-256, no NaN) and
+  holds every step the run asks for: the report phase is resumed. The chain is not sampled
+  again (``fitting.sample`` finds it complete and only reads it; the same fit, the same chain,
+  so the same report), and the report's files are written anew over the partial ones;
+* some report files and no complete chain where the run samples: refused (those files are not
+  this run's report in progress).
+
+Verified in tests/test_checkpoint_integrity.py (report files deleted or truncated after a
+complete run, and a real SIGKILL of the command during its report).
+"""
+
+import json
+import os
+
+from brdfscale import InvalidInputError
+from brdfscale.checks import flag
+
+from ._checkpoint import verify
+from ._report import check_report_directory, report_files
+
+
+__all__ = ["resume_report"]
+
+
+def _complete(path: str) -> bool:
+    """Whether ``path`` (a report's fit.json) is there and reads as a JSON object."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            return isinstance(json.load(f), dict)
+    except FileNotFoundError:
+        return False
+    except (OSError, ValueError):
+        return False  # cut short or damaged: written anew
+
+
+def resume_report(out_dir, overwrite: bool = False, *, checkpoint=None, steps: int = 0) -> str | None:
+    """Decide, before the long work, whether a report into ``out_dir`` is fresh or resumed (module docstring).
+
+    Args:
+        out_dir: the report's directory.
+        overwrite: replace whatever is there (no resume: a fresh report; the checkpoint is the
+            sampler's to restart).
+        checkpoint: the run's checkpoint path (``DIR/chain.h5`` for ``brdfscale fit``); needed
+            when ``steps`` > 0.
+        steps: the draws per chain the run asks for (after a NUTS/HMC warm-up; all steps for
+            emcee); 0 when it does not sample.
+
+    Returns:
+        None for a fresh report, or one line saying that the report phase is resumed and why.
+
+    Raises:
+        InvalidInputError: ``out_dir`` holds a complete report (or report files beside no
+            complete chain) and ``overwrite`` is False — the message lists the files; the
+            checkpoint belongs to an earlier layout.
+        MeasurementFileError: ``out_dir`` is not a directory or cannot be created; the checkpoint
+            is damaged (the message names the chunk and what to do).
+    """
+    overwrite = flag(overwrite, "overwrite")
+    if overwrite:
+        check_report_directory(out_dir, True)
+        return None
+    if not os.path.isdir(out_dir) or not any(os.path.lexists(p) for p in report_files(out_dir)):
+        check_report_directory(out_dir, False)  # nothing there: creates the directory (or names what is wrong)
+        return None
+    report = os.path.join(os.fspath(out_dir), "fit.json")
+    if _complete(report):
+        return _refuse(out_dir, "")  # a finished report: refused, its files listed
+    if steps == 0:
+        return (
+            f"resuming the report in {out_dir}: fit.json is missing or incomplete and the run samples nothing; "
+            "the fit is made again and the report's files are written anew"
+        )
+    if checkpoint is None or not os.path.isfile(checkpoint):
+        return _refuse(out_dir, " There is no chain beside them, so they are not a report in progress of this run.")
+    stored, record = verify(checkpoint)
+    warmup = int(record["signature"].get("sampler", {}).get("warmup", 0))  # NUTS/HMC keep it in the chain
+    if stored.steps < warmup + steps:
+        return _refuse(
+            out_dir,
+            f" Its chain {checkpoint} holds {stored.steps} of the {warmup + steps} steps asked, so they are not a "
+            "report in progress of this run.",
+        )
+    return (
+        f"resuming the report in {out_dir}: fit.json is missing or incomplete, the chain {checkpoint} is complete "
+        f"({stored.steps} steps, every chunk verified) and is not sampled again; the report's files are written anew"
+    )
+
+
+def _refuse(out_dir, why: str) -> None:
+    """:func:`fitting.check_report_directory`'s refusal of the report files in ``out_dir``, ``why``
+    added; None (a fresh report) where they have gone meanwhile."""
+    try:
+        check_report_directory(out_dir, False)
+    except InvalidInputError as err:
+        raise InvalidInputError(f"{err}{why}") from None
+    return None
