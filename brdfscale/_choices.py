@@ -116,6 +116,11 @@ MODELS = Choices(
     (
         Choice("parametric", "a lobe family and a scale law of its slope statistics (fitting.ParametricModel)"),
         Choice("nonparametric", "a tabulated base lobe and relative statistics (fitting.NonParametricModel)"),
+        Choice(
+            "anisotropic",
+            "a Gaussian base lobe of full covariance and free centre, and monotone covariance differences "
+            "ΔΣ(μ0, μk) (fitting.AnisotropicModel)",
+        ),
     ),
     default="parametric",
 )

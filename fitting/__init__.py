@@ -4,8 +4,10 @@ multi-scale lobe measurements, with uncertainties (seed Eq. 4.4; docs/convention
 The chain, each step in its own module:
 
 * :class:`Dataset` — images of a :class:`brdfscale.MeasurementSet` with σ and masks;
-* :class:`ParametricModel`, :class:`NonParametricModel` — forward maps θ ↦ images built on
-  :func:`brdfscale.evolve`;
+* :class:`ParametricModel`, :class:`NonParametricModel`, :class:`AnisotropicModel` — forward maps
+  θ ↦ images built on :func:`brdfscale.evolve` (the last: full-covariance Gaussian lobe and
+  ΔΣ(μ0, μk)); :func:`compare` — which model the data prefer (AIC, BIC);
+* :class:`TopographyData` — a topography's Σ(μ) as a joint data term (``Dataset.with_topography``);
 * :func:`fit` — optimistix least squares (Levenberg–Marquardt by default), multi-start,
   Laplace covariance, identifiability (names the combinations the data cannot determine);
 * :func:`fit_many` — many materials at once: padded, bucketed and divided over the devices,
@@ -40,11 +42,14 @@ named ``fitting`` is installed and a local ``fitting.py`` cannot take its place.
 """
 
 from ._adequacy import assess, lobe_widths, Outcome, resolution
+from ._anisotropic import AnisotropicModel
 from ._batch import BatchPlan, COMPILE_ROWS, explain_plan, fit_many
 from ._checkpoint import rewind_checkpoint
+from ._compare import compare, Comparison
 from ._data import Dataset, PointData
 from ._derived import RATIO_FREQUENCIES, ratio_frequencies
 from ._fit import fit
+from ._joint import TopographyData
 from ._model import AbstractModel
 from ._nonparametric import NonParametricModel, RelativeStatistics
 from ._parametric import ParametricModel
@@ -74,7 +79,9 @@ __all__ = [
     "SAMPLERS",
     "SOLVERS",
     "AbstractModel",
+    "AnisotropicModel",
     "BatchPlan",
+    "Comparison",
     "Dataset",
     "Emcee",
     "FitResult",
@@ -85,8 +92,10 @@ __all__ = [
     "Problem",
     "RelativeStatistics",
     "SampleResult",
+    "TopographyData",
     "assess",
     "check_report_directory",
+    "compare",
     "explain_plan",
     "fit",
     "fit_many",

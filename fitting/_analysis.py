@@ -38,6 +38,7 @@ from ._derived import (
     quantity_names,
     ratio_frequencies,
     ratio_names,
+    summarise_covariance_differences,
 )
 from ._problem import stack_trees
 from ._result import FitResult
@@ -179,6 +180,7 @@ class _Analysis:
             eigenvectors=analysis.eigenvectors,
             ratios=ratios,
             combinations=combinations,
+            covariance_differences=summarise_covariance_differences(model, self.theta, scales, analysis),
         )
 
 

@@ -28,6 +28,8 @@ RGB images are reduced to luminance ``Y = 0.2126 R + 0.7152 G + 0.0722 B`` (Rec.
 ``σ_Y² = Σ_c w_c² σ_c²`` (independent channel noise).
 """
 
+import dataclasses
+
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
@@ -36,6 +38,8 @@ from jaxtyping import Array, Float
 from brdfscale import InvalidInputError, MeasurementSet
 from brdfscale.checks import require_float64
 from brdfscale.show import concrete, Shown, Values
+
+from ._joint import TopographyData
 
 
 __all__ = ["Dataset", "PointData"]
@@ -67,6 +71,8 @@ class Dataset(Shown, eqx.Module):
     scale_of_image: tuple[int, ...] = eqx.field(static=True)
     image_sizes: tuple[int, ...] = eqx.field(static=True)
     extents: tuple[float, ...] = eqx.field(static=True)
+    topography: TopographyData | None = None
+    """A joint fit's topography term (:meth:`with_topography`; fitting._joint), else None."""
 
     @classmethod
     def from_measurements(cls, mset: MeasurementSet, *, default_sigma: float | None = None) -> "Dataset":
@@ -124,8 +130,17 @@ class Dataset(Shown, eqx.Module):
 
     @property
     def n_data(self) -> int:
-        """Number of valid (unmasked) pixels."""
-        return int(np.count_nonzero(np.asarray(self.weight)))
+        """Number of valid (unmasked) pixels, plus the topography's rows in a joint fit."""
+        extra = 0 if self.topography is None else self.topography.n_rows
+        return int(np.count_nonzero(np.asarray(self.weight))) + extra
+
+    def with_topography(self, topography: TopographyData) -> "Dataset":
+        """This dataset with a topography's ``Σ(μ)`` as a joint data term (:class:`fitting.TopographyData`
+        at these scales); InvalidInputError otherwise."""
+        if not isinstance(topography, TopographyData):
+            raise InvalidInputError(f"topography must be a fitting.TopographyData; got {type(topography).__name__}.")
+        topography.check_scales(self.scales)
+        return dataclasses.replace(self, topography=topography)
 
     def _show_items(self):
         sizes = sorted(set(self.image_sizes))

@@ -7,7 +7,9 @@ at θ and at draws of θ — the one place every result, report, figure and samp
 * :func:`ratio_frequencies`, :func:`ratio_names` — where the ratios are reported;
 * :func:`evaluate`, :func:`evaluate_many` — quantities and ratios at θ̂, their Jacobians there
   and their values at the Laplace draws, for one material or a stack (what
-  :mod:`fitting._analysis` summarises).
+  :mod:`fitting._analysis` summarises);
+* :func:`covariance_differences`, :func:`summarise_covariance_differences` — ΔΣ(μ0, μ_k) =
+  Σ(μ0) − Σ(μ_k) of any model at θ and with its Laplace standard errors.
 """
 
 import equinox as eqx
@@ -17,10 +19,12 @@ import numpy as np
 
 from ._data import Dataset
 from ._model import moments
+from ._parametric import ParametricModel
 
 
 __all__ = [
     "RATIO_FREQUENCIES",
+    "covariance_differences",
     "evaluate",
     "evaluate_many",
     "quantities_at",
@@ -28,6 +32,7 @@ __all__ = [
     "quantity_vector",
     "ratio_frequencies",
     "ratio_names",
+    "summarise_covariance_differences",
 ]
 
 
@@ -107,3 +112,75 @@ draws, W, scales) → (q, ∂q/∂θ, q(draws), r, ∂r/∂θ, r(draws))``."""
 
 evaluate_many = eqx.filter_jit(jax.vmap(_evaluation))
 """:func:`evaluate` of a stack of materials of one structure (every argument stacked)."""
+
+
+def covariance_differences(model, theta, scales) -> jax.Array:
+    """ΔΣ(μ0, μ_k) = Σ(μ0) − Σ(μ_k) (K, 2, 2) of ``model`` at θ (row 0 is 0), in slope units².
+
+    ΔΣ_k is the difference of the second moments of the lobes, ``C(μ_k) − C(μ0)`` (seed Eq. 4.4:
+    ``G(W, μ_k) = G(W, μ0) R_k(W)`` with ``R_k = S(μ0)/S(μ_k)``, and cumulants add), i.e.
+
+        ΔΣ_k = −∇²_W log R_k(W) at W = 0.
+
+    A model with a ``covariance_differences(θ, scales)`` method (:class:`fitting.AnisotropicModel`:
+    exact) gives its own; for the radially symmetric models (``R_k`` a function of |W|) the
+    Hessian is ``−(d²/dk²) log R_k(k)|₀ · I``, taken by ``jax.jacfwd`` twice of
+    ``model.relative_statistics`` (tests/test_anisotropic.py checks it against the Gaussian closed
+    form ``(α(μ0)² − α(μ_k)²)/2 · I`` of Beckmann statistics and the non-parametric model's
+    ``2 D_k(W_1)/W_1²``). Statistics without finite second moments (GGX: ``R_k`` is not twice
+    differentiable at 0; autodiff at 0 would return a finite 0) give NaN, which :func:`summarise_covariance_differences`
+    reports as undetermined (None)."""
+    own = getattr(model, "covariance_differences", None)
+    if own is not None:
+        return own(theta, scales)
+    if isinstance(model, ParametricModel) and model.statistics != "beckmann":
+        # GGX slopes have no finite variance (brdfscale.stats.GGX): ΔΣ is not defined; the
+        # Hessian of log(xK₁(x)) at 0 diverges like log|W| (autodiff would give a finite 0)
+        return jnp.full((len(scales), 2, 2), jnp.nan, dtype=jnp.result_type(theta, float))
+
+    def log_ratio(k):
+        return jnp.log(model.relative_statistics(theta, k[None], scales)[:, 0])
+
+    curvature = jax.jacfwd(jax.jacfwd(log_ratio))(jnp.zeros((), jnp.result_type(theta, float)))
+    return -curvature[:, None, None] * jnp.eye(2, dtype=curvature.dtype)
+
+
+@eqx.filter_jit
+def _covariance_differences_and_jacobian(model, theta, scales):
+    def flat(t):
+        return covariance_differences(model, t, scales)[1:].reshape(-1)
+
+    return flat(theta), jax.jacfwd(flat)(theta)
+
+
+def summarise_covariance_differences(model, theta, scales, analysis) -> list[dict]:
+    """ΔΣ(μ0, μ_k) for every coarser measured scale with standard errors: ``{"mu0", "mu", "value":
+    [[xx, xy], [xy, yy]], "std": [[…], […]]}`` (slope units², fit.json's
+    ``covariance_differences``).
+
+    The standard errors propagate the Laplace covariance of θ linearly, ``Var ΔΣ_ab = g_abᵀ Cov(θ)
+    g_ab`` with ``g_ab = ∂ΔΣ_ab/∂θ`` (``jax.jacfwd``), through ``analysis``
+    (:class:`brdfscale.laplace.Laplace`: the determined directions' variance plus the undetermined
+    ones' linearised contribution, the policy of every other quantity of a fit). An entry the
+    undetermined directions move more than the determined ones, or a non-finite one, has std
+    None; a non-finite value is None too."""
+    scales = np.asarray(scales)
+    values, jac = (np.asarray(x) for x in _covariance_differences_and_jacobian(model, jnp.asarray(theta), scales))
+    finite = np.isfinite(values) & np.all(np.isfinite(jac), axis=1)
+    safe = np.where(finite[:, None], jac, 0.0)
+    var_d, var_u = analysis.variances(safe)
+    determined = analysis.quantity_is_determined(safe) & finite
+    std = np.where(determined, np.sqrt(np.maximum(var_d + var_u, 0.0)), np.nan)
+    out = []
+    for k in range(1, len(scales)):
+        block = slice(4 * (k - 1), 4 * k)
+        v, s, ok = values[block].reshape(2, 2), std[block].reshape(2, 2), finite[block].reshape(2, 2)
+        out.append(
+            {
+                "mu0": float(scales[0]),
+                "mu": float(scales[k]),
+                "value": [[float(v[a, b]) if ok[a, b] else None for b in range(2)] for a in range(2)],
+                "std": [[float(s[a, b]) if np.isfinite(s[a, b]) else None for b in range(2)] for a in range(2)],
+            }
+        )
+    return out

@@ -206,11 +206,15 @@ def statistics_figure(problem: Problem, fit: FitResult, draws, true_theta, *, un
     data, model = problem.data, problem.model
     scales = np.asarray(data.scales)
     absolute = isinstance(model, ParametricModel)
-    # the two models of fitting: a parametric model's W range from its base lobe, the non-parametric one's knots
+    # a parametric model's W range from its base lobe, the non-parametric one's knots, the anisotropic
+    # one's from its base lobe's width α = √(tr C0) (α² = 2σ² per axis)
+    q = model.quantities(jnp.asarray(fit.theta))
     w_max = (
-        8.0 / float(model.quantities(jnp.asarray(fit.theta))["alpha_lobe"])
+        8.0 / float(q["alpha_lobe"])
         if absolute
         else cast(NonParametricModel, model).knots[-1]
+        if isinstance(model, NonParametricModel)
+        else 8.0 / float(np.sqrt(q["C0_xx"] + q["C0_yy"]))
     )
     W = jnp.linspace(0.0, w_max, 200)
     relative = np.asarray(_relative(model, jnp.asarray(draws), W, data))

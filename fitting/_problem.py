@@ -16,6 +16,8 @@ from brdfscale.checks import require_float64
 from brdfscale.show import Shown
 
 from ._data import Dataset, PointData
+from ._derived import covariance_differences
+from ._joint import TopographyData
 from ._model import AbstractModel, require_dataset
 from ._result import FitResult
 
@@ -70,7 +72,7 @@ class Problem(Shown, eqx.Module):
 
     def rows(self) -> "Rows":
         """What the residuals depend on, without the dataset's layout (:class:`Rows`)."""
-        return Rows(self.model, self.data.scales, self.points, self.lower, self.upper)
+        return Rows(self.model, self.data.scales, self.points, self.lower, self.upper, self.data.topography)
 
     def chi2(self, theta: Float[Array, " n"]) -> Float[Array, ""]:
         """χ² over every valid pixel plus the prior rows."""
@@ -93,14 +95,19 @@ class Rows(eqx.Module):
     points: PointData
     lower: jax.Array
     upper: jax.Array
+    topography: TopographyData | None = None  # a joint fit's ΔΣ rows (fitting._joint)
 
     def residuals(self, theta: Float[Array, " n"]) -> Float[Array, " m"]:
-        """``(√c_u (f_u(θ) − v̄_u), prior rows)`` with θ clipped to the prior box (:class:`Problem`)."""
+        """``(√c_u (f_u(θ) − v̄_u), prior rows[, topography rows])`` with θ clipped to the prior box
+        (:class:`Problem`); a joint fit appends the whitened ΔΣ rows of :class:`fitting.TopographyData`."""
         theta = jnp.clip(theta, self.lower, self.upper)
         p = self.points
         # jnp.asarray: fit_many and sample pad the points in NumPy (fitting._batch); traced, they pass as they are
         fitted = self.model.predict_points(theta, self.scales, jnp.asarray(p.points))
-        return jnp.concatenate([((fitted - p.mean) * p.weight).ravel(), self.model.penalty(theta)])
+        rows = [((fitted - p.mean) * p.weight).ravel(), self.model.penalty(theta)]
+        if self.topography is not None:
+            rows.append(self.topography.residuals(covariance_differences(self.model, theta, self.scales)))
+        return jnp.concatenate(rows)
 
     def chi2_of_residuals(self, r: Float[Array, " m"]) -> Float[Array, ""]:
         """χ² from the reduced residuals ``r`` (adds the within-group constant back)."""

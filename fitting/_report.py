@@ -392,8 +392,11 @@ def write_report(
         "outcome": assess(problem, fit, samples, unit=unit).to_json(),
         "parameters": summarise(problem, fit, samples, truth),
         "ratios": summarise_ratios(problem, fit, samples),
+        "covariance_differences": fit.covariance_differences,  # ΔΣ(μ0, μk) ± Laplace std (fitting._derived)
         "identifiability": fit.to_json()["identifiability"],
-        "optimisation": {k: v for k, v in fit.to_json().items() if k not in ("identifiability", "ratios")},
+        "optimisation": {
+            k: v for k, v in fit.to_json().items() if k not in ("identifiability", "ratios", "covariance_differences")
+        },
         "mcmc": None if samples is None else samples.diagnostics(),
     }
     try:

@@ -46,6 +46,8 @@ class FitResult(Shown):
     eigenvectors: np.ndarray | None = None  # V of the Fisher matrix's eigen-decomposition, columns by eigenvalue
     ratios: dict = dataclasses.field(default_factory=dict)  # S(μ0)/S(μk) at reference |W| (ratio_frequencies)
     combinations: list = dataclasses.field(default_factory=list)  # determined Fisher eigen-directions: value ± std
+    # ΔΣ(μ0, μk) = Σ(μ0) − Σ(μk) per coarser scale: {"mu0", "mu", "value" 2×2, "std" 2×2} (fitting._derived)
+    covariance_differences: list = dataclasses.field(default_factory=list)
 
     @property
     def dof(self) -> int:
@@ -100,6 +102,17 @@ class FitResult(Shown):
                     ],
                 )
             )
+        if self.covariance_differences:
+            tables.append(
+                Table(
+                    "what the data determine: ΔΣ(μ0, μk) = Σ(μ0) − Σ(μk) (slope units², Laplace std)",
+                    ("μ0", "μk", "xx", "xy", "yy"),
+                    [
+                        (d["mu0"], d["mu"], *(_entry(d, a, b) for a, b in ((0, 0), (0, 1), (1, 1))))
+                        for d in self.covariance_differences
+                    ],
+                )
+            )
         if self.combinations:
             tables.append(
                 Table(
@@ -148,4 +161,13 @@ class FitResult(Shown):
                 "notes": self.notes,
             },
             "ratios": self.ratios,
+            "covariance_differences": self.covariance_differences,
         }
+
+
+def _entry(difference: dict, a: int, b: int) -> str:
+    """``value ± std`` of one entry of a ΔΣ record (``undetermined`` where its std is None)."""
+    value, std = difference["value"][a][b], difference["std"][a][b]
+    if value is None:
+        return "undetermined"
+    return f"{value:.4g} ± {std:.2g}" if std is not None else f"{value:.4g} (undetermined)"

@@ -240,6 +240,14 @@ def register(subparsers) -> None:
         default=None,
         help="noise σ > 0 for images without a sigma channel (lobe units)",
     )
+    parser.add_argument(
+        "--topography",
+        default=None,
+        metavar="FILE",
+        help="joint fit: a height map of the same surface (read as brdfscale topography reads it); its facet "
+        "statistics Σ(μ) with standard errors at the measured scales enter the likelihood as ΔΣ(μ0, μk) "
+        "(the scales μ in the file's length unit, metres)",
+    )
     parser.set_defaults(func=run)
 
 
@@ -252,6 +260,12 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
     check_fit_options(args)
     spec = spec_of(args)
     data = spec.dataset(mset)
+    if getattr(args, "topography", None) is not None:
+        from .. import topography
+
+        field = topography.read(args.topography)
+        data = data.with_topography(fitting.TopographyData.from_field(field, data.scales))
+        stream(f"joint fit with the facet statistics of {args.topography} at the {len(data.scales)} measured scales")
     if spec.model == "nonparametric" and spec.regularisation in ("auto", "gcv"):
         stream("choosing the smoothness weight by generalised cross-validation (one pilot fit) ...")
     model, info = spec.model_for(data)
@@ -357,6 +371,16 @@ def print_determined(doc: dict, stream=print) -> None:
         else:
             lo, hi = row.get("prior_range") or (float("nan"), float("nan"))
             stream(f"  {name:12s} undetermined by the data (prior range {lo:.3g} … {hi:.3g}; best fit {value:.4g})")
+    if doc.get("covariance_differences"):
+        stream("  what the data determine — ΔΣ(μ0, μk) = Σ(μ0) − Σ(μk), [xx, xy, yy] ± std (slope²):")
+        for d in doc["covariance_differences"]:
+            entries = ", ".join(
+                "undetermined"
+                if d["value"][a][b] is None
+                else f"{d['value'][a][b]:.4g}" + (f" ± {d['std'][a][b]:.2g}" if d["std"][a][b] is not None else " (±?)")
+                for a, b in ((0, 0), (0, 1), (1, 1))
+            )
+            stream(f"    μ0 = {d['mu0']:g}, μk = {d['mu']:g}: [{entries}]")
     if doc.get("ratios"):
         stream("  what the data determine — S(W, μ0)/S(W, μk):")
         for name, r in doc["ratios"].items():

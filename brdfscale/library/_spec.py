@@ -59,6 +59,9 @@ def make_model(
             "scale_law": LAWS.summary(law),
             "fixed": fixed,
         }
+    elif model == "anisotropic":
+        built = fitting.AnisotropicModel(len(data.scales))
+        info = {"kind": "anisotropic", "lobe": "gaussian (full covariance, free centre)", "scale_law": "ΔΣ per scale"}
     else:
         built = fitting.NonParametricModel(data, base_nodes=base_nodes, n_knots=knots, regularisation=regularisation)
         info = {

@@ -1,0 +1,238 @@
+"""The anisotropic second-moment model: a Gaussian (Beckmann) base lobe of full covariance and
+free mean at μ0, and per coarser scale the covariance difference ΔΣ_k = Σ(μ0) − Σ(μ_k)
+(docs/fitting.md, "Anisotropic lobes, ΔΣ and joint fits").
+
+The evolution of seed Eq. 4.4, ``G(W, μ_k) = G(W, μ0) S(W, μ0)/S(W, μ_k)``, needs of the
+statistics only the relative statistics ``R_k = S(μ0)/S(μ_k)``. For Gaussian statistics
+``R_k(W) = exp(−½ Wᵀ ΔΣ_k W)`` whatever Σ(μ0) and Σ(μ_k) are, and a Gaussian lobe of
+covariance ``C0`` and mean ``m0`` at μ0 evolves to the Gaussian of covariance ``C0 + ΔΣ_k`` and
+the same mean (covariances add, ``brdfscale.evolve``'s closed form, ``brdfscale._evolve._algebra``).
+ΔΣ_k is the model-independent second-moment description: what a topography measures too
+(``Σ(μ)`` of :func:`brdfscale.synth.facet_statistics`), and no absolute Σ(μ) is claimed.
+
+θ (every value valid, no bounds needed by the parameterisation itself):
+
+* ``log amplitude`` — A, the lobe's integral over slope offsets;
+* the base covariance ``C0 = L Lᵀ`` by its Cholesky factor ``L = [[e^a, 0], [b, e^c]]``
+  (``log L0_xx``, ``L0_yx``, ``log L0_yy``): every θ gives a positive-definite C0 of any
+  orientation;
+* ``mean_x``, ``mean_y`` — the lobe's centre (slope units; left out with ``centred=True``);
+* per coarser scale k = 1 … K−1 the increment ``ΔΣ_k − ΔΣ_{k−1} = M_k M_kᵀ`` by its Cholesky
+  factor (``log M{k}_xx``, ``M{k}_yx``, ``log M{k}_yy``), so ``ΔΣ_k = Σ_{j≤k} M_j M_jᵀ`` is
+  positive definite and monotone in k (``ΔΣ_{k+1} − ΔΣ_k`` positive definite) by construction.
+
+``isotropic=True`` is the special case ``C0 = v0 I``, ``M_k M_kᵀ = d_k I``, centred (θ: ``log
+amplitude``, ``log v0``, ``log d_k``): it is :class:`fitting.ParametricModel`'s Beckmann lobe with
+Beckmann statistics and any scale law, with ``v0 = alpha_lobe²/2`` and ``ΔΣ_k = (α(μ0)² −
+α(μ_k)²)/2 · I`` (tests/test_anisotropic.py checks the predictions equal).
+"""
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from brdfscale import evolve, InvalidInputError, lobes, stats
+from brdfscale.checks import integer
+
+from ._data import Dataset
+from ._model import AbstractModel, moments
+
+
+__all__ = ["AnisotropicModel", "image_moments"]
+
+_HALF_MAX_FACTOR = 2 / math.log(2)
+"""A Gaussian of covariance C exceeds half its peak on the ellipse ``dᵀC⁻¹d ≤ 2 ln 2``; the uniform
+distribution on an ellipse ``dᵀC⁻¹d ≤ r²`` has covariance ``C r²/4``, so ``C = (2/ln 2) ·
+(covariance of the pixel offsets above half the peak)``."""
+
+
+def image_moments(data: Dataset) -> tuple[np.ndarray, np.ndarray]:
+    """Centre (K, 2) and covariance (K, 2, 2) of the measured lobe at each scale, from the pixels
+    above half the peak (:data:`_HALF_MAX_FACTOR`), averaged over a scale's images: the
+    anisotropic starting point. A covariance smaller than one pixel² is floored at it."""
+    n_scales = data.scales.shape[0]
+    centre, cov, count = np.zeros((n_scales, 2)), np.zeros((n_scales, 2, 2)), np.zeros(n_scales)
+    weights, values, offsets = (np.asarray(x) for x in (data.weight, data.values, data.offsets))
+    moments(data)  # the same refusal of an image without a positive valid pixel
+    for i, k in enumerate(data.scale_of_image):
+        n, a = data.image_sizes[i], data.extents[i]
+        v = np.where(weights[i, : n * n] > 0, values[i, : n * n], -np.inf)
+        above = v > v.max() / 2
+        u = offsets[i, : n * n][above]
+        pixel2 = (2 * a / (n - 1)) ** 2
+        c = np.atleast_2d(np.cov(u.T, bias=True)) if len(u) > 1 else np.zeros((2, 2))
+        centre[k] += u.mean(axis=0)
+        cov[k] += _HALF_MAX_FACTOR * c + pixel2 / 12 * np.eye(2)
+        count[k] += 1
+    return centre / count[:, None], cov / count[:, None, None]
+
+
+def _cholesky_coordinates(matrix: np.ndarray, floor: float) -> tuple[float, float, float]:
+    """``(log L_xx, L_yx, log L_yy)`` of a symmetric matrix with its eigenvalues floored at ``floor``."""
+    w, v = np.linalg.eigh(0.5 * (matrix + matrix.T))
+    L = np.linalg.cholesky((v * np.maximum(w, floor)) @ v.T)
+    return math.log(L[0, 0]), float(L[1, 0]), math.log(L[1, 1])
+
+
+def _from_cholesky(log_xx, yx, log_yy) -> Float[Array, "2 2"]:
+    """``L Lᵀ`` with ``L = [[e^{log_xx}, 0], [yx, e^{log_yy}]]``."""
+    a, c = jnp.exp(log_xx), jnp.exp(log_yy)
+    return jnp.stack([jnp.stack([a * a, a * yx]), jnp.stack([a * yx, yx * yx + c * c])])
+
+
+class AnisotropicModel(AbstractModel):
+    """Gaussian base lobe of full covariance and free mean at μ0 with monotone covariance
+    differences ΔΣ_k (module docstring).
+
+    Args:
+        n_scales: the number of measured scales K (≥ 2; the model has K − 1 increments).
+        isotropic: the isotropic, centred special case (module docstring).
+        centred: hold the lobe's centre at the origin (no ``mean_x``, ``mean_y`` in θ).
+
+    Raises:
+        InvalidInputError: ``n_scales`` not an integer ≥ 2.
+    """
+
+    n_scales: int = eqx.field(static=True)
+    isotropic: bool = eqx.field(static=True)
+    centred: bool = eqx.field(static=True)
+
+    def __init__(self, n_scales: int, *, isotropic: bool = False, centred: bool = False):
+        self.n_scales = integer(n_scales, "n_scales", 2)
+        if not isinstance(isotropic, bool) or not isinstance(centred, bool):
+            raise InvalidInputError(f"isotropic and centred must be True or False; got {isotropic!r} and {centred!r}.")
+        self.isotropic, self.centred = isotropic, centred or isotropic
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        if self.isotropic:
+            return ("log amplitude", "log v0", *(f"log d{k}" for k in range(1, self.n_scales)))
+        base = ("log amplitude", "log L0_xx", "L0_yx", "log L0_yy")
+        mean = () if self.centred else ("mean_x", "mean_y")
+        steps = tuple(n for k in range(1, self.n_scales) for n in (f"log M{k}_xx", f"M{k}_yx", f"log M{k}_yy"))
+        return base + mean + steps
+
+    @property
+    def radial(self) -> bool:
+        return self.isotropic
+
+    @property
+    def identifiability_notes(self) -> tuple[str, ...]:
+        return (
+            "The data determine the base lobe at μ0 (amplitude, covariance, centre) and the covariance "
+            "differences ΔΣ(μ0, μk) = Σ(μ0) − Σ(μk) only; no absolute Σ(μ) is claimed (it would need the "
+            "boundary condition S(W, ∞) = 1 of a scale law).",
+        )
+
+    def parts(self, theta: Float[Array, " n"]) -> tuple:
+        """``(A, C0 (2, 2), m0 (2,), ΔΣ (K, 2, 2))`` of θ, ``ΔΣ[0] = 0``."""
+        theta = jnp.asarray(theta)
+        amplitude = jnp.exp(theta[0])
+        if self.isotropic:
+            eye = jnp.eye(2, dtype=theta.dtype)
+            c0 = jnp.exp(theta[1]) * eye
+            steps = jnp.exp(theta[2:])[:, None, None] * eye
+            mean = jnp.zeros(2, theta.dtype)
+        else:
+            c0 = _from_cholesky(theta[1], theta[2], theta[3])
+            start = 4 if self.centred else 6
+            mean = jnp.zeros(2, theta.dtype) if self.centred else theta[4:6]
+            m = theta[start:].reshape(self.n_scales - 1, 3)
+            steps = jax.vmap(_from_cholesky)(m[:, 0], m[:, 1], m[:, 2])
+        zero = jnp.zeros((1, 2, 2), theta.dtype)
+        return amplitude, c0, mean, jnp.concatenate([zero, jnp.cumsum(steps, axis=0)])
+
+    def covariance_differences(self, theta: Float[Array, " n"], scales: Float[Array, " k"]) -> Float[Array, "k 2 2"]:
+        """ΔΣ(μ0, μ_k) for every measured scale (row 0 is 0): exact, from θ."""
+        del scales  # one increment per measured scale: the layout fixes them
+        return self.parts(theta)[3]
+
+    def base_lobe(self, theta) -> lobes.AbstractLobe:
+        """The lobe at μ0: ``A · N(m0, C0)``."""
+        amplitude, c0, mean, _ = self.parts(theta)
+        return lobes.Lobe(stats.Gaussian(cov=c0, mean=None if self.centred else mean), amplitude)
+
+    def quantities(self, theta):
+        amplitude, c0, mean, _ = self.parts(theta)
+        values = {"amplitude": amplitude, "C0_xx": c0[0, 0], "C0_xy": c0[0, 1], "C0_yy": c0[1, 1]}
+        if not self.centred:
+            values.update(mean_x=mean[0], mean_y=mean[1])
+        return values
+
+    def predict_points(self, theta, scales, points):
+        # the base lobe at μ0; at μ_k the closed-form evolution by the relative statistics
+        # R_k = exp(−½ Wᵀ ΔΣ_k W): brdfscale.evolve(lobe, N(0, ΔΣ_k), δ), i.e. covariance C0 + ΔΣ_k
+        base = self.base_lobe(theta)
+        differences = self.parts(theta)[3]
+        coarser = jax.vmap(
+            lambda d, u: evolve(base, stats.Gaussian(cov=d), stats.Delta(), method="closed_form", check=False).density(
+                u
+            )
+        )(differences[1:], points[1:])
+        return jnp.concatenate([base.density(points[0])[None], coarser])
+
+    def relative_statistics(self, theta, W, scales):
+        """``R_k`` at radii ``|W|`` (W of shape (w,)): for an anisotropic ΔΣ_k the geometric mean of
+        ``R_k`` over the directions of the circle |W|, ``exp(−¼ |W|² tr ΔΣ_k)`` (the mean of
+        ``Wᵀ ΔΣ W`` over directions is ``½ |W|² tr ΔΣ``); for an isotropic ΔΣ it is ``R_k`` itself.
+        :meth:`relative_statistics_plane` gives ``R_k`` over the W plane."""
+        d = self.covariance_differences(theta, scales)
+        trace = d[:, 0, 0] + d[:, 1, 1]
+        return jnp.exp(-0.25 * trace[:, None] * jnp.asarray(W)[None, :] ** 2)
+
+    def relative_statistics_plane(
+        self, theta: Float[Array, " n"], W: Float[Array, "w 2"], scales: Float[Array, " k"]
+    ) -> Float[Array, "k w"]:
+        """``R_k(W) = S(W, μ0)/S(W, μ_k) = exp(−½ Wᵀ ΔΣ_k W)`` at points ``W`` of the plane."""
+        d = self.covariance_differences(theta, scales)
+        W = jnp.asarray(W)
+        return jnp.exp(-0.5 * jnp.einsum("wi,kij,wj->kw", W, d, W))
+
+    def initial(self, data):
+        centre, cov = image_moments(data)
+        pixel2 = min((2 * a / (n - 1)) ** 2 for a, n in zip(data.extents, data.image_sizes))
+        amp, _ = moments(data)
+        if self.isotropic:
+            var = np.trace(cov, axis1=1, axis2=2) / 2
+            steps = np.maximum(np.diff(var), 0.05 * var[0] / self.n_scales)
+            return np.log(np.concatenate([[amp, var[0]], steps]))
+        floor = 0.05 * float(np.trace(cov[0])) / 2
+        theta = [math.log(amp), *_cholesky_coordinates(cov[0], max(pixel2 / 12, 1e-30))]
+        if not self.centred:
+            theta += list(centre[0])
+        for k in range(1, self.n_scales):
+            theta += _cholesky_coordinates(cov[k] - cov[k - 1], floor / self.n_scales)
+        return np.asarray(theta)
+
+    def bounds(self, data):
+        """A uniform prior in θ: amplitude 1e-8 … 1e8; the Cholesky diagonals (standard deviations
+        along an axis) 1e-6 … 10 in slope units, their off-diagonals ±10; the centre inside the
+        largest image; (isotropic) variances 1e-12 … 100."""
+        extent = max(data.extents)
+        amp, sd = (math.log(1e-8), math.log(1e8)), (math.log(1e-6), math.log(10.0))
+        if self.isotropic:
+            var = (2 * sd[0], 2 * sd[1])
+            lo = [amp[0]] + [var[0]] * self.n_scales
+            hi = [amp[1]] + [var[1]] * self.n_scales
+            return np.asarray(lo), np.asarray(hi)
+        chol_lo, chol_hi = [sd[0], -10.0, sd[0]], [sd[1], 10.0, sd[1]]
+        lo, hi = [amp[0], *chol_lo], [amp[1], *chol_hi]
+        if not self.centred:
+            lo += [-extent, -extent]
+            hi += [extent, extent]
+        lo += chol_lo * (self.n_scales - 1)
+        hi += chol_hi * (self.n_scales - 1)
+        return np.asarray(lo), np.asarray(hi)
+
+    def check_data(self, data: Dataset) -> None:
+        """Also: the dataset has this model's number of scales."""
+        super().check_data(data)
+        if data.scales.shape[0] != self.n_scales:
+            raise InvalidInputError(
+                f"the model was built for {self.n_scales} scales but the data have {data.scales.shape[0]} "
+                f"(μ = {np.asarray(data.scales).tolist()}); build it with AnisotropicModel(len(data.scales))."
+            )
