@@ -39,24 +39,24 @@ the message says what to do: keep the chunks before it and continue with
 bit for bit), or start again with ``overwrite=True``. A file HDF5 cannot open or whose header
 fails has no good chunk. Nothing that fails a check is ever resumed into a result.
 
-Writes: every h5py call that writes is checked at the h5py boundary (:func:`_h5_write`): its
-errors — a full disk, an I/O error — become :class:`brdfscale.MeasurementFileError` naming the
-file and the free space, and the free space is checked before each chunk (the chunk's bytes,
-HDF5's whole chunks, plus a margin, :func:`_need`), so that HDF5 is not driven into a full disk
-at all. Temporary files are written beside the checkpoint and moved into place
-(:func:`brdfscale.files.atomic_write`).
+Writes: every h5py write is checked at the h5py boundary (:func:`_h5_write`; the file's
+creation and :func:`rewind_checkpoint` go through :func:`brdfscale.files.atomic_write`): its
+errors — a full disk, an I/O error — become :class:`brdfscale.OutputWriteError` naming the file
+and the free space (``brdfscale fit`` exits 8), and the committed chunks are kept. The free
+space is checked before each chunk (the chunk's bytes as HDF5's whole chunks, plus a margin,
+:func:`_need`; :func:`brdfscale.files.require_free_space`), so that HDF5 is not driven into a
+full disk, whose failures can leave its library state unusable. Temporary files are written
+beside the checkpoint and moved into place.
 """
 
 import contextlib
 import hashlib
 import json
 import os
-import shutil
 
 import numpy as np
 
-from brdfscale import InvalidInputError, MeasurementFileError
-from brdfscale.files import atomic_write
+from brdfscale import BrdfscaleError, files, InvalidInputError, MeasurementFileError
 
 
 __all__ = ["FORMAT", "Checkpoint", "Stored", "rewind_checkpoint"]
@@ -68,6 +68,8 @@ _EARLIER = {
 }
 _EXPECTED = "an HDF5 checkpoint written by fitting.sample"
 _MARGIN = 1 << 20  # bytes beyond a chunk's own that must be free before it is written (HDF5's metadata)
+_FOREIGN = (RuntimeError, ValueError, KeyError, TypeError)  # h5py's failures that are not OSError
+_KEPT = "the chunks committed before this write are kept (a rerun continues from them)"
 _LOG_DENSITIES = ("log_prob", "log_density", "logdensity")  # where −∞ (zero density) is a legitimate value
 
 
@@ -78,36 +80,17 @@ def _h5py():
     return h5py
 
 
-def _free(path: str) -> int | None:
-    """Free bytes on the file system of ``path`` (None where it cannot be asked)."""
-    try:
-        return shutil.disk_usage(os.path.dirname(os.path.abspath(path))).free
-    except OSError:
-        return None
-
-
-def _space(path: str) -> str:
-    free = _free(path)
-    return "free space unknown" if free is None else f"{free / 2**20:.1f} MiB free"
-
-
-def _not_written(path: str, what: str, err: BaseException | str) -> MeasurementFileError:
-    """The error of a checkpoint write that failed: the file, the free space, what to do."""
-    return MeasurementFileError(
-        f"checkpoint {path} cannot be {what}: {err} ({_space(path)} on its file system); free some space "
-        "(the chunks committed so far are kept) and run again."
-    )
-
-
 @contextlib.contextmanager
-def _h5_write(path: str, what: str):
-    """The h5py boundary of a write: any exception h5py raises becomes :func:`_not_written`'s error."""
+def _h5_write(path: str, step: str):
+    """The h5py boundary of a write: any exception h5py raises (OSError; RuntimeError, ValueError,
+    KeyError or TypeError from HDF5's state after a failure) becomes the library's
+    :class:`brdfscale.OutputWriteError` naming the file and the free space."""
     try:
         yield
-    except MeasurementFileError:
+    except BrdfscaleError:
         raise
     except (OSError, RuntimeError, ValueError, KeyError, TypeError) as err:
-        raise _not_written(path, what, err) from None
+        raise files.write_failed(path, err, step=step, kept=_KEPT) from None
 
 
 def _need(chunk: int, rows: int, arrays) -> int:
@@ -118,9 +101,7 @@ def _need(chunk: int, rows: int, arrays) -> int:
 
 
 def _check_space(path: str, need: int) -> None:
-    free = _free(path)
-    if free is not None and free < need:
-        raise _not_written(path, "written", f"the next chunk needs about {need / 2**20:.1f} MiB")
+    files.require_free_space(path, need, what="next chunk of the checkpoint")
 
 
 def _update(h, name: str, a: np.ndarray) -> None:
@@ -396,8 +377,7 @@ class Checkpoint:
                 _initialise(f, self.signature, self.walkers, self.d, self.chunk, self.stats, subspace)
 
         _check_space(self.path, _MARGIN)
-        with _h5_write(self.path, "written"):
-            atomic_write(self.path, write, overwrite=replace, error=MeasurementFileError)
+        files.atomic_write(self.path, write, overwrite=replace, error=MeasurementFileError, foreign=_FOREIGN)
 
     def append(self, chain, log_prob, stats: dict, state: dict):
         """Add a block of steps and the state after its last one (module docstring: the commit marker last)."""
@@ -407,7 +387,7 @@ class Checkpoint:
         _check_space(self.path, _need(self.chunk, blocks[0][1].shape[0], [b for _, b in blocks] + [state_bytes]))
         f = None
         try:
-            with _h5_write(self.path, "updated"):
+            with _h5_write(self.path, "appending a chunk"):
                 f = _h5py().File(self.path, "r+")
                 _commit(f, blocks, state)
                 f.close()
@@ -514,6 +494,5 @@ def rewind_checkpoint(path) -> int:
                 start = end
 
     _check_space(path, sum(a.nbytes for a in data.values()) * 2 + _MARGIN)
-    with _h5_write(path, "rewritten"):
-        atomic_write(path, write, overwrite=True, error=MeasurementFileError)
+    files.atomic_write(path, write, overwrite=True, error=MeasurementFileError, foreign=_FOREIGN)
     return good

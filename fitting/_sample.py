@@ -19,9 +19,12 @@ and the result says so (``SampleResult.undetermined``, ``held``, ``prior``); the
 status is decided on the quantities the fit determines.
 
 Checkpoints (:mod:`fitting._checkpoint`): with ``checkpoint=PATH`` every ``chunk`` steps
-are appended to an HDF5 file together with the sampler's state; an interrupted run (Ctrl-C,
-crash, kill) resumes from the last completed chunk and yields the very same chain, bit for
-bit, for every sampler.
+are appended to an HDF5 file together with the sampler's state and the chunk's SHA-256; an
+interrupted run (Ctrl-C, crash, kill) resumes from the last completed chunk and yields the very
+same chain, bit for bit, for every sampler. Every chunk is verified before it is resumed (or
+read as a finished chain): a damaged one — changed bytes, NaN — is refused, naming the chunk;
+:func:`fitting.rewind_checkpoint` keeps the chunks before it, from which the run continues to
+the undamaged run's chain (tests/test_checkpoint_integrity.py).
 
 Diagnostics (:mod:`fitting._diagnostics`): ArviZ's rank-normalised split R̂, bulk and tail
 ESS and MCSE of every coordinate and quantity (``SampleResult.summary()``), and emcee's
@@ -414,8 +417,11 @@ def sample(
             not accept; ``checkpoint`` belongs to another run (other parameters, sampler or its
             settings, chains, problem data or seed) or to an earlier version's layout.
         MeasurementFileError: ``checkpoint`` is a directory, lies in a directory that does
-            not exist, is not a readable checkpoint of :func:`fitting.sample` (and
-            ``overwrite`` is False), or cannot be written.
+            not exist, is not a readable checkpoint of :func:`fitting.sample`, or is damaged (a
+            chunk fails its SHA-256 check or holds NaN: the message names it and the remedy,
+            :func:`fitting.rewind_checkpoint` or ``overwrite=True``), and ``overwrite`` is False.
+        OutputWriteError: ``checkpoint`` cannot be written (a full disk — checked before each
+            chunk — or an I/O error; the chunks committed before are kept).
         OutputInUseError: another run holds ``checkpoint``.
     """
     check_fit(problem, fit, "sample(problem, fit)")
