@@ -61,6 +61,8 @@ class FacetStatistics(Shown):
         independent: the effective number of independent facets, ``N / max_ab τ_ab`` (≤ count).
         rms_slope: ``√⟨|m|²⟩`` over the facets (not centred); at the pixel scale of a measured
             field it is SurfaceTopography's ``rms_gradient()`` of the same heights.
+        window: the window's physical sides ``(cols·Δx, rows·Δy)``: μ and, with rectangular
+            pixels, a side along y equal to μ within :attr:`HeightField.LENGTH_TOLERANCE`.
     """
 
     mu: float
@@ -74,6 +76,7 @@ class FacetStatistics(Shown):
     independent: float = 0.0
     excluded: int = 0
     rms_slope: float = 0.0
+    window: tuple[float, float] = (0.0, 0.0)
 
     def _show_items(self):
         sd = np.sqrt(np.diag(self.covariance))
@@ -268,14 +271,10 @@ def _lattice_tau(grid: np.ndarray, present: np.ndarray, lag: int, var: float) ->
 
 
 def steepest_slope(field: HeightField) -> float:
-    """The largest |component| of any measured pixel facet's normal slope (sizes slope grids)."""
-    check_field(field)
-    top = 0.0
-    for _, _, mx, my, valid in _pixel_strips(field, None):
-        if valid is not None:
-            mx, my = mx[valid], my[valid]
-        top = max(top, float(np.max(np.abs(mx), initial=0.0)), float(np.max(np.abs(my), initial=0.0)))
-    return top
+    """The largest |component| of any measured pixel facet's normal slope (sizes slope grids);
+    0 for a flat field. :class:`HeightField` computes it once, when it is made, and refuses a
+    field whose steepest slope lies outside ``SLOPE_RANGE`` (a dropout, denormal heights)."""
+    return check_field(field).steepest_slope
 
 
 def kernel_padding(
@@ -414,6 +413,7 @@ def facet_statistics(
                 independent=independent,
                 excluded=lattice[0] * lattice[1] - len(samples),
                 rms_slope=float(np.sqrt(np.mean(np.sum(samples**2, axis=1)))),
+                window=(block[1] * field.spacing[0], block[0] * field.spacing[1]),
             )
         )
     return tuple(results)

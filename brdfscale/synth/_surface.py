@@ -5,6 +5,7 @@ import functools
 import math
 import types
 from collections.abc import Mapping
+from typing import ClassVar
 
 import equinox as eqx
 import numpy as np
@@ -38,6 +39,21 @@ def check_grid(side: float, what: str, advice: str) -> None:
             f"brdfscale.synth.MAX_GRID_BYTES = {MAX_GRID_BYTES} bytes ({math.isqrt(MAX_GRID_BYTES // 8)}² nodes); "
             f"{advice}."
         )
+
+
+SLOPE_RANGE = (1e-30, 1e6)
+"""The magnitudes a field's steepest pixel slope may have (dimensionless), unless it is 0 (a flat field).
+
+Above 1e6 (a facet within 6e-5° of vertical) the heights are not a surface but a dropout,
+a sentinel value or a wrong unit; below 1e-30 (a height change of 1e-30 m per metre, far
+below any length a surface has) the second and fourth moments of the slopes that the facet
+statistics and their standard errors are made of underflow float64 (heights in denormal
+numbers). Either is refused by :class:`HeightField` with the steepest slope and where it is.
+"""
+
+MAX_PITCH_RATIO = 1e4
+"""The largest ratio of a field's two pixel pitches: a facet window needs at least one pixel
+along the coarser axis, so at this ratio its side along the finer one is 10 000 pixels."""
 
 
 def check_micro(micro) -> stats.AbstractSlopeDensity:
@@ -102,6 +118,12 @@ class HeightField(Shown):
     # the fields hold the validated values; the constructor takes more (a single spacing, integer heights, any
     # mapping) and refuses the rest with InvalidInputError, so its arguments are unannotated (``object`` where a
     # default would otherwise make the type checker narrow what callers may pass to the default's type)
+    LENGTH_TOLERANCE: ClassVar[float] = 1e-3
+    """The relative tolerance within which two lengths of a field count as equal: the sides of
+    a facet window (:meth:`block`; the window's side along y may differ from μ by this much when
+    the pixels are not square) and, in :func:`brdfscale.topography.from_array`, two pitches
+    that make square pixels."""
+
     heights: Float[np.ndarray, "ny nx"]
     spacing: tuple[float, float]
     micro: stats.AbstractSlopeDensity
@@ -136,6 +158,12 @@ class HeightField(Shown):
                 f"heights must be a 2-D (ny, nx) array with ny, nx ≥ 4 (rows y, columns x); got shape {h.shape}."
             )
         spacing = pitch(spacing)
+        if not max(spacing) <= MAX_PITCH_RATIO * min(spacing):  # also an overflowing ratio
+            raise InvalidInputError(
+                f"the pixel pitches Δx = {spacing[0]:.6g} and Δy = {spacing[1]:.6g} differ by more than a factor "
+                f"{MAX_PITCH_RATIO:g} (brdfscale.synth._surface.MAX_PITCH_RATIO): no facet window holds whole "
+                "pixels along both axes; check the pitches (and their units)."
+            )
         check_micro(micro)
         if spectrum is not None and not isinstance(spectrum, stats.AbstractPowerSpectrum):
             raise InvalidInputError(
@@ -168,6 +196,58 @@ class HeightField(Shown):
                     f"the mask leaves no measured pixel facet (a pixel facet needs its node and its right and lower "
                     f"neighbours measured); {int(mask.sum())} of {mask.size} pixels are measured."
                 )
+        self._check_slopes()
+
+    def _check_slopes(self) -> None:
+        """Refuse a steepest pixel slope outside :data:`SLOPE_RANGE` (0, a flat field, is measured)."""
+        top, where = self._steepest
+        low, high = SLOPE_RANGE
+        if top == 0 or low <= top <= high:
+            return
+        unit = f" {self.unit}" if self.unit else ""
+        j, k, axis = where
+        what = (
+            f"the steepest pixel slope is {top:.3g} (along {axis} at row {j}, column {k}), above {high:g}: "
+            "a dropout or sentinel value that is not masked, or heights in another unit than the pitch; mask "
+            "unmeasured pixels (NaN or mask=False) or give the heights' unit"
+            if not top < low
+            else f"the steepest pixel slope is {top:.3g}, below {low:g}: the slopes' second and fourth moments would "
+            "underflow float64 (heights in denormal numbers, or in another unit than the pitch); give the heights' unit"
+        )
+        raise InvalidInputError(
+            f"{what} (pitch {self.spacing[0]:.6g} × {self.spacing[1]:.6g}{unit}; accepted: a flat field or a steepest "
+            f"slope from {low:g} to {high:g}, brdfscale.synth._surface.SLOPE_RANGE)."
+        )
+
+    @functools.cached_property
+    def _steepest(self) -> tuple[float, tuple[int, int, str]]:
+        """The largest |component| of a measured pixel facet's normal slope, and where: (row, column, axis)."""
+        (ny, nx), (fy, fx), h = self.shape, self.facet_grid, self.heights
+        dx, dy = self.spacing
+        valid = self.pixel_facets
+        top, where = 0.0, (0, 0, "x")
+        step = max(1, (1 << 21) // nx)  # rows per strip: ~16 MB per float64 work array
+        for start in range(0, fy, step):
+            stop = min(start + step, fy)
+            strip = h[start:stop, :fx]
+            right = np.roll(h[start:stop], -1, axis=1)[:, :fx]
+            below = h[(np.arange(start, stop) + 1) % ny, :fx]
+            for axis, d, other in (("x", dx, right), ("y", dy, below)):
+                with np.errstate(over="ignore"):
+                    m = np.abs(other - strip) / d
+                if valid is not None:
+                    m = np.where(valid[start:stop], m, 0.0)
+                if not np.isfinite(m).all():
+                    m = np.where(np.isfinite(m), m, np.inf)
+                index = np.unravel_index(int(np.argmax(m)), m.shape)
+                if m[index] > top:
+                    top, where = float(m[index]), (start + int(index[0]), int(index[1]), axis)
+        return top, where
+
+    @property
+    def steepest_slope(self) -> float:
+        """The largest |component| of any measured pixel facet's normal slope (0 for a flat field)."""
+        return self._steepest[0]
 
     # -- geometry ------------------------------------------------------------------------
     @property
@@ -200,19 +280,24 @@ class HeightField(Shown):
         return m[:fy, :fx] & right & below
 
     def block(self, mu: float) -> tuple[int, int]:
-        """The facet window at scale μ, ``(rows, cols) = (μ/Δy, μ/Δx)`` pixel facets.
+        """The facet window at scale μ, ``(rows, cols) = (round(μ/Δy), round(μ/Δx))`` pixel facets.
 
-        μ must be a whole number of pixels along both axes, at least one pixel and at most
-        :attr:`facet_grid` (InvalidInputError otherwise, naming the admissible scales).
+        Each side of the window, ``rows·Δy`` and ``cols·Δx``, must equal μ to
+        :attr:`LENGTH_TOLERANCE` (relative), hold at least one pixel and at most
+        :attr:`facet_grid` (InvalidInputError otherwise, naming the admissible scales). With
+        square pixels that is a whole number of pixels; with rectangular ones a window whose
+        two sides are equal to 0.1 % (``field.scales`` lists the admissible ones: every
+        window whose side along y is within the tolerance of its side along x).
         """
         mu = real(mu, "mu")
         dx, dy = self.spacing
         fy, fx = self.facet_grid
+        tol = self.LENGTH_TOLERANCE
         counts = []
         for d, top in ((dy, fy), (dx, fx)):
             b = mu / d
             nb = round(b) if math.isfinite(b) else 0
-            if not (abs(b - nb) <= 1e-9 * max(1.0, b) and 1 <= nb <= top):
+            if not (abs(nb * d - mu) <= tol * abs(mu) and 1 <= nb <= top):
                 unit = f" {self.unit}" if self.unit else ""
                 square = math.isclose(dx, dy, rel_tol=1e-12)
                 whole = (
@@ -221,48 +306,72 @@ class HeightField(Shown):
                     else f"a whole number of pixels along both axes (Δx = {dx:.6g}{unit}, Δy = {dy:.6g}{unit})"
                 )
                 raise InvalidInputError(
-                    f"scale mu={mu!r} must be {whole} between {max(dx, dy):.6g}{unit} and "
+                    f"scale mu={mu!r} must be {whole}, to a relative {tol:g}, between {max(dx, dy):.6g}{unit} and "
                     f"{min(fx * dx, fy * dy):.6g}{unit} (the field's {fy} × {fx} pixel facets); "
                     f"field.scales(count) lists admissible ones."
                 )
             counts.append(int(nb))
         return counts[0], counts[1]
 
-    def scales(self, count: int = 8, *, smallest: int = 1, largest: int | None = None) -> list[float]:
-        """Up to ``count`` admissible facet sizes μ, log-spaced whole multiples of the pixel.
+    @functools.cached_property
+    def _windows(self) -> tuple[np.ndarray, np.ndarray]:
+        """Every admissible window: its x side μ = cols·Δx (ascending) and ``(rows, cols)``."""
+        dx, dy = self.spacing
+        fy, fx = self.facet_grid
+        cols = np.arange(1, fx + 1)
+        rows = np.rint(cols * dx / dy).astype(int)
+        ok = (rows >= 1) & (rows <= fy) & (np.abs(rows * dy - cols * dx) <= self.LENGTH_TOLERANCE * cols * dx)
+        return cols[ok] * dx, np.stack((rows[ok], cols[ok]), axis=-1)
 
-        ``smallest`` and ``largest`` count the *unit window* — one pixel for square pixels,
-        the smallest window that is whole along both axes otherwise. The default largest is
-        half the shorter side, reduced until at least 4 windows lie wholly on measured pixels
-        (at most 2 × 2 fit at half the side). Repeated whole numbers are dropped, so fewer than
-        ``count`` may come back at small ranges.
+    def scales(self, count: int = 8, *, smallest: int = 1, largest: int | None = None) -> list[float]:
+        """Up to ``count`` admissible facet sizes μ, log-spaced, from the admissible windows.
+
+        A window is admissible when its sides are equal to :attr:`LENGTH_TOLERANCE` (every
+        whole number of pixels for square pixels; for rectangular ones also windows that are
+        not exact common multiples of the two pitches, e.g. 37 × 15 pixels of 127.7 × 314.6 nm);
+        μ is its side along x. ``smallest`` and ``largest`` count the *unit window* — the
+        smallest admissible one (one pixel for square pixels) — and bound μ to
+        ``[smallest, largest] ×`` its size. The default largest is half the shorter side,
+        reduced until at least 4 windows lie wholly on measured pixels (at most 2 × 2 fit at
+        half the side). Each of ``count`` log-spaced sizes is replaced by the admissible size
+        nearest to it and repeats are dropped, so fewer than ``count`` may come back at small
+        ranges.
         """
         count = integer(count, "count", 1)
         smallest = integer(smallest, "smallest", 1)
-        dx, dy = self.spacing
-        ratio, k = dy / dx, 1
-        while not abs(k * ratio - round(k * ratio)) <= 1e-9 * k * ratio and k < 1000:
-            k += 1
-        if k == 1000:
+        sizes, blocks = self._windows
+        if len(sizes) == 0:
+            dx, dy = self.spacing
             raise InvalidInputError(
-                f"the pixel pitches Δx = {dx:.6g} and Δy = {dy:.6g} have no common multiple of "
-                "under 1000 pixels; resample the field onto square pixels."
+                f"no facet window of this {self.facet_grid[0]} × {self.facet_grid[1]} field has sides equal to a "
+                f"relative {self.LENGTH_TOLERANCE:g} with pitches Δx = {dx:.6g} and Δy = {dy:.6g}; resample the field "
+                "onto square pixels (brdfscale.topography.resample)."
             )
-        unit_px = (round(k * ratio), k)  # the unit window in (x, y) pixels: k Δy = round(k Δy/Δx) Δx
+        unit = float(sizes[0])
         fy, fx = self.facet_grid
-        top = min(fx // unit_px[0], fy // unit_px[1])
+        top = int(min(fx * self.spacing[0], fy * self.spacing[1]) / unit * (1 + 1e-12))
         if largest is None:
             largest = max(1, top // 2)
-            while largest > 1 and self._measured_windows((largest * unit_px[1], largest * unit_px[0])) < 4:
+            while largest > 1 and self._measured_windows(self._window_at(largest * unit)) < 4:
                 largest -= max(1, largest // 16)
         else:
-            largest = min(integer(largest, "largest", smallest), top)
+            largest = min(integer(largest, "largest", smallest), max(top, 1))
         if smallest > largest:
             raise InvalidInputError(
                 f"smallest={smallest} exceeds the largest admissible window, {largest} unit windows."
             )
-        multiples = np.unique(np.rint(np.geomspace(smallest, largest, count)).astype(int))
-        return [float(m * unit_px[0] * dx) for m in multiples]
+        inside = sizes[(sizes >= smallest * unit * (1 - 1e-12)) & (sizes <= largest * unit * (1 + 1e-12))]
+        if len(inside) == 0:
+            raise InvalidInputError(f"no admissible window lies between {smallest} and {largest} unit windows.")
+        targets = np.geomspace(smallest, largest, count) * unit
+        picked = np.unique(inside[np.argmin(np.abs(inside[None, :] - targets[:, None]), axis=1)])
+        return [float(mu) for mu in picked]
+
+    def _window_at(self, mu: float) -> tuple[int, int]:
+        """The admissible window whose x side is nearest ``mu``, ``(rows, cols)``."""
+        sizes, blocks = self._windows
+        k = int(np.argmin(np.abs(sizes - mu)))
+        return int(blocks[k][0]), int(blocks[k][1])
 
     def _measured_windows(self, block: tuple[int, int]) -> int:
         """How many whole windows of ``block`` (rows, cols) pixel facets are measured throughout."""

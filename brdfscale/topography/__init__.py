@@ -10,7 +10,14 @@ measurement set of it, and ``brdfscale fit`` fits that.
 * :func:`read` — an instrument file through SurfaceTopography (some thirty formats; the
   optional extra ``pip install "brdfscale[topography]"``);
 * :func:`from_array` — your own array of heights, with its pixel pitch, unit and mask;
-* :func:`detrend` — the explicit, recorded removal of a plane or a quadratic.
+* :func:`detrend` — the explicit, recorded removal of a plane or a quadratic;
+* :func:`resample` — a field onto square pixels (separable cubic convolution, recorded).
+
+Damaged files: every failure of SurfaceTopography's readers becomes a
+:class:`brdfscale.MeasurementFileError` naming the file and the reason, and so does a height
+map whose pitch lies outside :data:`PITCH_RANGE_M` or whose steepest slope lies outside the
+range a surface has (docs/robustness.md, "Instrument files"). Pitches equal to a relative
+1e-3 are made square and the difference recorded (:func:`square_pitch`).
 
 Conventions (docs/topography.md): heights and lengths in **metres**; rows are y, columns
 are x (SurfaceTopography's ``heights()`` is indexed ``[x, y]``; :func:`read` transposes);
@@ -20,8 +27,19 @@ are excluded. Provenance — file, format, instrument, channel, units, the detre
 coefficients — is in ``field.description``.
 """
 
-from ._array import detrend, DETRENDS, from_array, UNITS
+from ._array import detrend, DETRENDS, from_array, PITCH_RANGE_M, square_pitch, UNITS
 from ._read import read
+from ._resample import INTERPOLATION, resample
 
 
-__all__ = ["read", "from_array", "detrend", "DETRENDS", "UNITS"]
+__all__ = [
+    "read",
+    "from_array",
+    "detrend",
+    "resample",
+    "square_pitch",
+    "DETRENDS",
+    "UNITS",
+    "PITCH_RANGE_M",
+    "INTERPOLATION",
+]

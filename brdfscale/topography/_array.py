@@ -1,5 +1,6 @@
 """Height maps from arrays: units, masks and detrending (one place for each)."""
 
+import math
 from collections.abc import Mapping
 
 import numpy as np
@@ -27,6 +28,11 @@ UNITS: dict[str, float] = {
     "pm": 1e-12,
 }
 
+#: The physical range of a pixel pitch, in metres: from 1 pm (below the spacing of atoms) to
+#: 10 km. A pitch outside it is refused by :func:`from_array` (and so by :func:`read`):
+#: a damaged header or a wrong unit, not a measurement.
+PITCH_RANGE_M = (1e-12, 1e4)
+
 #: The detrending modes: the polynomial in ``ξ = x/L_x, η = y/L_y`` removed by least squares
 #: over the measured pixels (SurfaceTopography's ``detrend("height")`` and ``detrend("curvature")``).
 DETRENDS: dict[str | None, tuple[str, ...]] = {
@@ -43,7 +49,7 @@ def metres_per(unit) -> float:
     return UNITS[unit]
 
 
-def _check_mode(mode) -> str | None:
+def check_mode(mode) -> str | None:
     if mode is not None and (not isinstance(mode, str) or mode not in DETRENDS):
         raise InvalidInputError(f"detrend must be None, 'plane' or 'curvature'; got {mode!r}.")
     return mode
@@ -66,7 +72,7 @@ def detrend(
     InvalidInputError for heights that are not a finite real 2-D array where measured, a bad
     mask or mode, or fewer measured pixels than coefficients.
     """
-    mode = _check_mode(mode)
+    mode = check_mode(mode)
     valid = None if mask is None else boolean_mask(mask, "mask")
     h = np.asarray(heights)
     if valid is not None and h.shape != valid.shape:
@@ -92,10 +98,34 @@ def _fit_trend(h: np.ndarray, mode: str | None, valid: np.ndarray) -> tuple[np.n
         raise InvalidInputError(
             f"detrend={mode!r} fits {design.shape[1]} coefficients but only {design.shape[0]} pixels are measured."
         )
-    coefficients, *_ = np.linalg.lstsq(design, h[valid], rcond=None)
+    # fitted to the heights less one measured height, which is exact: a flat field detrends to exactly 0
+    reference = float(h[valid][0])
+    coefficients, *_ = np.linalg.lstsq(design, h[valid] - reference, rcond=None)
     trend = sum(c * t for c, t in zip(coefficients, columns))
-    record["coefficients"] = [float(c) for c in coefficients]
-    return np.where(valid, h - trend, 0.0), record
+    record["coefficients"] = [float(c) + (reference if k == 0 else 0.0) for k, c in enumerate(coefficients)]
+    return np.where(valid, (h - reference) - trend, 0.0), record
+
+
+def square_pitch(dx: float, dy: float) -> tuple[tuple[float, float], dict | None]:
+    """Pitches equal to :attr:`HeightField.LENGTH_TOLERANCE` (relative) made square, with the record.
+
+    Two pitches with ``|Δx − Δy| ≤ 1e-3 max(Δx, Δy)`` become their geometric mean
+    ``Δ = √(Δx Δy)`` along both axes (the pixel's area kept; each slope component changes by
+    the factor ``Δ_a/Δ``, at most 0.05 %), and the record ``{"pitch_as_given": [Δx, Δy],
+    "pitch": Δ, "relative_difference": |Δx − Δy|/max, "tolerance": 1e-3}`` goes into the
+    field's provenance. Exactly square or farther apart: unchanged, record None.
+    """
+    difference = abs(dx - dy) / max(dx, dy)
+    if difference == 0 or difference > HeightField.LENGTH_TOLERANCE:
+        return (dx, dy), None
+    d = math.sqrt(dx) * math.sqrt(dy)
+    record = {
+        "pitch_as_given": [dx, dy],
+        "pitch": d,
+        "relative_difference": difference,
+        "tolerance": HeightField.LENGTH_TOLERANCE,
+    }
+    return (d, d), record
 
 
 def from_array(
@@ -115,7 +145,12 @@ def from_array(
         heights: ``h[j, k]`` at ``(x, y) = (k Δx, j Δy)`` — rows y, columns x — in ``unit``.
             NaN entries and the masked entries of a :class:`numpy.ma.MaskedArray` are
             unmeasured.
-        spacing: the pixel pitch, ``(Δx, Δy)`` or one number for square pixels, in ``unit``.
+        spacing: the pixel pitch, ``(Δx, Δy)`` or one number for square pixels, in ``unit``;
+            each from 1 pm to 10 km (:data:`PITCH_RANGE_M`). Two pitches equal to a relative
+            1e-3 (:attr:`HeightField.LENGTH_TOLERANCE`) are made square, their geometric mean,
+            and the difference is recorded as ``description["square_pixels"]``
+            (:func:`square_pitch`); :func:`resample` puts pixels farther from square onto a
+            square grid.
         unit: the length unit of heights and spacing, one of :data:`UNITS`; the field is
             stored in metres.
         mask: boolean (ny, nx), True where measured (combined with NaN and a masked array's
@@ -129,8 +164,11 @@ def from_array(
         description: extra provenance to record (merged into ``field.description``).
 
     Raises InvalidInputError for heights that are not a real 2-D array of at least 4 × 4
-    (infinite values are refused; NaN means unmeasured), a bad spacing, unit, mask or
-    detrend, ``periodic=True`` with detrending, or a mask that leaves no measured pixel facet.
+    (infinite values are refused; NaN means unmeasured), a bad spacing (or one outside
+    :data:`PITCH_RANGE_M`), unit, mask or detrend, ``periodic=True`` with detrending, a mask
+    that leaves no measured pixel facet, or a steepest pixel slope outside
+    ``brdfscale.synth``'s ``SLOPE_RANGE`` (a dropout or a wrong unit above 1e6, denormal heights
+    below 1e-30; a flat field is accepted).
     """
     raw = heights
     masks = []
@@ -163,7 +201,14 @@ def from_array(
     valid = np.logical_and.reduce(masks)
     scale = metres_per(unit)
     dx, dy = pitch(spacing)
-    mode = _check_mode(detrend)
+    low, high = PITCH_RANGE_M
+    for axis, d in (("x", dx), ("y", dy)):
+        if not low <= d * scale <= high:
+            raise InvalidInputError(
+                f"the pixel pitch Δ{axis} = {d:.6g} {unit} ({d * scale:.6g} m) is outside the physical range "
+                f"{low:g} m to {high:g} m (topography.PITCH_RANGE_M): a damaged size or a wrong unit."
+            )
+    mode = check_mode(detrend)
     if not isinstance(periodic, (bool, np.bool_)):
         raise InvalidInputError(f"periodic must be True or False; got {type(periodic).__name__} {periodic!r}.")
     if periodic and mode is not None:
@@ -176,20 +221,27 @@ def from_array(
         raise InvalidInputError("no height is measured: every entry is NaN or masked.")
     if min(h.shape) < 4:
         raise InvalidInputError(f"heights must be at least 4 × 4 pixels (rows y, columns x); got shape {h.shape}.")
-    h, trend = _fit_trend(np.where(valid, h, 0.0) * scale, mode, valid)
+    with np.errstate(over="ignore"):  # heights beyond float64 in metres are refused by HeightField
+        h, trend = _fit_trend(np.where(valid, h, 0.0) * scale, mode, valid)
+    if not np.all(np.isfinite(h)):
+        raise InvalidInputError(
+            f"heights in {unit} overflow float64 when converted to metres or detrended; they are not a surface's."
+        )
+    spacing_m, square = square_pitch(dx * scale, dy * scale)
     provenance = {
         "generator": "brdfscale.topography.from_array",
         "input_unit": unit,  # the unit of the arrays given; the field, its spacing and the trend are in metres
         "detrend": mode,
         "trend": trend,
         "shape": list(h.shape),
-        "spacing": [dx * scale, dy * scale],
+        "spacing": list(spacing_m),
+        **({"square_pixels": square} if square else {}),
         "unmeasured": int(np.count_nonzero(~valid)),
         **(dict(description) if description else {}),
     }
     return HeightField(
         h,
-        (dx * scale, dy * scale),
+        spacing_m,
         micro=stats.Delta() if micro is None else micro,
         description=provenance,
         mask=None if valid.all() else valid,

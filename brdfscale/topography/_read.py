@@ -1,13 +1,16 @@
 """Instrument files through SurfaceTopography (the optional extra ``brdfscale[topography]``)."""
 
+import contextlib
+import dataclasses
+import math
 import os
 import re
 
 import numpy as np
 
-from .._errors import InvalidInputError, MeasurementFileError, MissingDependencyError
+from .._errors import BrdfscaleError, InvalidInputError, MeasurementFileError, MissingDependencyError
 from .._json import jsonable
-from ._array import from_array, UNITS
+from ._array import check_mode, from_array, UNITS
 
 
 def _surface_topography():
@@ -52,6 +55,7 @@ def read(path, *, channel: int | str | None = None, detrend: str | None = "plane
     name = os.fspath(path) if isinstance(path, (str, os.PathLike)) else None
     if name is None:
         raise InvalidInputError(f"path must be a file name (str or os.PathLike); got {type(path).__name__}.")
+    mode = check_mode(detrend)  # the caller's arguments are checked before the file is opened
     if not os.path.isfile(name):
         what = (
             "is a directory"
@@ -61,23 +65,41 @@ def read(path, *, channel: int | str | None = None, detrend: str | None = "plane
             else "is not a regular file"
         )
         raise MeasurementFileError(f"{name}: {what}; expected an instrument height map (e.g. .di, .opd, .plu, .frt).")
+    with _file_errors(name, st):
+        heights, mask, spacing, unit, description = _decode(st, name, channel)
     try:
-        reader = st.open_topography(name)
-    except Exception as err:  # SurfaceTopography reports every reader it tried in one message
-        raise MeasurementFileError(
-            f"{name}: SurfaceTopography {st.__version__} cannot read it as a topography ({_reason(err)}); check the "
-            "file is an instrument height map of a format it supports."
-        ) from None
-    channels = list(reader.channels)
-    index = _channel_index(name, reader, channels, channel)
-    info = channels[index]
+        field = from_array(heights, spacing, unit=unit, mask=mask, detrend=mode, description=description)
+    except InvalidInputError as err:  # the file's heights or pitch, not the caller's arguments
+        raise MeasurementFileError(f"{name}: the height map it holds cannot be used: {err}") from None
+    return field if micro is None else dataclasses.replace(field, micro=micro)
+
+
+@contextlib.contextmanager
+def _file_errors(name: str, st):
+    """The one boundary around SurfaceTopography: any exception of its readers (KeyError,
+    dateutil's ParserError, IndexError, struct and zlib errors, MemoryError, …) becomes a
+    MeasurementFileError naming the file and the reason; brdfscale's own errors pass."""
     try:
-        topo = reader.topography(channel_index=index)
+        yield
+    except BrdfscaleError:
+        raise
     except Exception as err:
         raise MeasurementFileError(
-            f"{name}: channel {index} ({info.name!r}) cannot be read as a topography "
-            f"({type(err).__name__}: {str(err)[:300]})."
+            f"{name}: SurfaceTopography {st.__version__} cannot read it as a topography ({_reason(err)}); check the "
+            "file is an undamaged instrument height map of a format it supports."
         ) from None
+
+
+def _decode(st, name: str, channel):
+    """The height map of ``name`` through SurfaceTopography: heights and mask rows-y (or None),
+    the pitch, the unit and the provenance (every call to SurfaceTopography is here)."""
+    reader = st.open_topography(name)
+    channels = list(reader.channels)
+    if not channels:
+        raise MeasurementFileError(f"{name}: the file holds no data channel.")
+    index = _channel_index(name, reader, channels, channel)
+    info = channels[index]
+    topo = reader.topography(channel_index=index)
     if topo.dim != 2:
         raise MeasurementFileError(f"{name}: channel {index} ({info.name!r}) is a line scan, not an areal height map.")
     unit = topo.unit
@@ -89,6 +111,11 @@ def read(path, *, channel: int | str | None = None, detrend: str | None = "plane
     mask = ~np.ma.getmaskarray(heights) if np.ma.isMaskedArray(heights) else None
     heights = np.ma.getdata(heights)
     (nx, ny), (lx, ly) = topo.nb_grid_pts, topo.physical_sizes
+    if np.shape(heights) != (nx, ny):
+        raise MeasurementFileError(
+            f"{name}: the file declares {nx} × {ny} pixels but holds heights of shape {np.shape(heights)}."
+        )
+    spacing = _pitch(name, lx, nx, ly, ny, unit)
     instrument = (topo.info or {}).get("instrument")
     description = {
         "generator": "brdfscale.topography.read",
@@ -101,15 +128,22 @@ def read(path, *, channel: int | str | None = None, detrend: str | None = "plane
         "file_unit": topo.unit,
         "acquisition_time": jsonable((topo.info or {}).get("acquisition_time"), other=str),
     }
-    return from_array(
-        heights.T,
-        (lx / nx, ly / ny),
-        unit=unit,
-        mask=None if mask is None else mask.T,
-        detrend=detrend,
-        micro=micro,
-        description=description,
-    )
+    return heights.T, None if mask is None else mask.T, spacing, unit, description
+
+
+def _pitch(name: str, lx, nx, ly, ny, unit: str) -> tuple[float, float]:
+    """The pitch ``(lx/nx, ly/ny)`` in ``unit``; MeasurementFileError for sizes that are not
+    positive finite numbers (the range of a physical pitch is checked by :func:`from_array`)."""
+    pitches = []
+    for axis, length, count in (("x", lx, nx), ("y", ly, ny)):
+        value = float(length) / float(count) if float(count) > 0 else math.nan
+        if not (math.isfinite(value) and value > 0):
+            raise MeasurementFileError(
+                f"{name}: the physical size along {axis}, {length!r} {unit} over {count!r} pixels, is not a positive "
+                "finite pitch."
+            )
+        pitches.append(value)
+    return pitches[0], pitches[1]
 
 
 def _reason(err: Exception) -> str:
