@@ -11,7 +11,15 @@ import os
 import time
 
 from .._errors import InvalidInputError
-from ._fit import add_fit_options, fit_measurements, load_fitting, sampling_line
+from ._fit import (
+    add_fit_options,
+    fit_measurements,
+    load_fitting,
+    outcome_status,
+    print_outcome,
+    print_truth,
+    sampling_line,
+)
 from ._options import integer, make_directory, MAX_SEED, Parser, seed
 
 
@@ -163,19 +171,11 @@ def _run(args, exr, start) -> int:
         + ["--force"] * args.force
     )
     doc = fit_measurements(mset, options)
+    if "parameters" not in doc:  # refused before the fit (a lobe narrower than a few pixels): no report
+        return outcome_status(doc["outcome"])
     print(f"[4/4] report in {args.out}/ (fit.json, data_vs_fit.png, statistics.png, corner.png)")
     print()
-    print(
-        f"{'quantity':20s} {'truth':>10s} {'estimate':>10s} {'± std':>10s} {'5 %':>10s} {'95 %':>10s}  |est−truth|/std"
-    )
-    for name, row in doc["parameters"].items():
-        truth = row.get("truth")
-        q = row["quantiles_5_50_95"] or [float("nan")] * 3
-        std = row["std"] if row["std"] is not None else float("nan")
-        est = row["median"] if row["median"] is not None else row["estimate_map"]
-        pull = f"{abs(est - truth) / std:.2f}" if truth is not None and std > 0 else "—"
-        truth_text = f"{truth:10.4g}" if truth is not None else f"{'unknown':>10s}"
-        print(f"{name:20s} {truth_text} {est:10.4g} {std:10.3g} {q[0]:10.4g} {q[2]:10.4g}  {pull}")
+    print_truth(doc)
     print("\nthe truth column:")
     for name, text in _TRUTH_SOURCES[args.source].items():
         if name in doc["parameters"]:
@@ -183,4 +183,5 @@ def _run(args, exr, start) -> int:
     if doc["mcmc"]:
         print(sampling_line(doc["mcmc"]).strip())
     print(f"reduced χ² = {doc['optimisation']['reduced_chi2']:.3f}; finished in {time.perf_counter() - start:.0f} s")
-    return 0
+    print_outcome(doc)
+    return outcome_status(doc["outcome"])  # the exit status tells the truth: 5, 6 or 7 as brdfscale fit

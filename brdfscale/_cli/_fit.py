@@ -11,6 +11,7 @@ which hands them to fitting.
 
 import math
 import os
+import sys
 import types
 
 from .._choices import FAMILIES, FIT, LAWS, MODEL, MODELS, SAMPLE, SAMPLERS, SOLVERS
@@ -266,6 +267,10 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
         field = topography.read(args.topography)
         data = data.with_topography(fitting.TopographyData.from_field(field, data.scales))
         stream(f"joint fit with the facet statistics of {args.topography} at the {len(data.scales)} measured scales")
+    unit = mu_unit(mset.metadata)
+    resolved = fitting.resolution(data, unit=unit)  # a lobe narrower than a few pixels is refused before the work
+    if not resolved.ok:  # the caller prints the one-line reason with the exit status (outcome_status)
+        return {"outcome": resolved.to_json(), "data": {"unit": unit}}
     if spec.model == "nonparametric" and spec.regularisation in ("auto", "gcv"):
         stream("choosing the smoothness weight by generalised cross-validation (one pilot fit) ...")
     model, info = spec.model_for(data)
@@ -280,10 +285,12 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
     if resuming:
         stream(resuming)
     with files.exclusive(args.out, what="output directory"):
-        return _fit_and_report(fitting, spec, data, model, info, truth, args, stream, resume=resuming is not None)
+        return _fit_and_report(
+            fitting, spec, data, model, info, truth, args, stream, resume=resuming is not None, unit=unit
+        )
 
 
-def _fit_and_report(fitting, spec, data, model, info, truth, args, stream, resume=False) -> dict:
+def _fit_and_report(fitting, spec, data, model, info, truth, args, stream, resume=False, unit=None) -> dict:
     stream(
         f"fitting {len(data.scale_of_image)} images at scales μ = {[float(s) for s in data.scales]} "
         f"({data.n_data} valid pixels), {len(model.names)} parameters, {spec.starts} starts ..."
@@ -314,6 +321,7 @@ def _fit_and_report(fitting, spec, data, model, info, truth, args, stream, resum
         truth=truth,
         model_info=info,
         overwrite=args.force or resume,  # resumed: the partial report's files are written anew
+        unit=unit,
     )
 
 
@@ -324,9 +332,75 @@ def run(args) -> int:
     output_directory(args.out)
     mset = exr.read_measurements(args.measurements)
     doc = fit_measurements(mset, args)
-    print(f"wrote {os.path.join(args.out, 'fit.json')}")
-    print_determined(doc)
-    return 0
+    if "parameters" in doc:  # a report was written (a refused fit writes none)
+        print(f"wrote {os.path.join(args.out, 'fit.json')}")
+        print_determined(doc)
+        print_truth(doc)
+        print_outcome(doc)
+    return outcome_status(doc["outcome"])
+
+
+def mu_unit(metadata) -> str | None:
+    """The length unit of the scales μ from a measurement set's metadata (``unit``, written by
+    brdfscale synth for a topography); None: pixels of a built-in surface."""
+    unit = metadata.get("unit") if isinstance(metadata, dict) else None
+    return unit if isinstance(unit, str) and unit else None
+
+
+def outcome_status(outcome: dict) -> int:
+    """The exit status of :func:`fitting.assess`'s verdict (brdfscale._cli's table: 0, 5, 6, 7),
+    after its one-line reason on stderr."""
+    from . import EXIT_INADEQUATE, EXIT_NOT_CONVERGED, EXIT_OK, EXIT_UNDETERMINED
+
+    status = outcome["status"]
+    if status != "ok":
+        print(f"brdfscale fit: {status.replace('_', ' ')}: {outcome['reason']}", file=sys.stderr)
+    return {
+        "ok": EXIT_OK,
+        "inadequate": EXIT_INADEQUATE,
+        "not_converged": EXIT_NOT_CONVERGED,
+        "undetermined": EXIT_UNDETERMINED,
+    }[status]
+
+
+def print_outcome(doc: dict, stream=print) -> None:
+    """The per-scale adequacy table of a report's ``outcome`` (fitting.assess) and its verdict."""
+    outcome, unit = doc["outcome"], (doc.get("data") or {}).get("unit") or "px"
+    t = outcome["thresholds"]
+    stream(
+        f"  model adequacy per scale — inadequate where χ²/dof > {t['max_reduced_chi2']:g} or the lag-1 "
+        f"autocorrelation of the whitened residuals > {t['max_lag1']:g} (each at p < {t['p_value']:g}); "
+        f"lobe width: rms along its narrower axis in image pixels (≥ {t['min_lobe_pixels']:g} needed):"
+    )
+    stream(
+        f"    {'μ (' + unit + ')':>14s} {'χ²/dof':>8s} {'p':>8s} {'lag-1 rows':>10s} {'lag-1 cols':>10s} "
+        f"{'p':>8s} {'width':>6s}"
+    )
+    for row in outcome["scales"]:
+        stream(
+            f"    {row['mu']:14.4g} {row['reduced_chi2']:8.3f} {row['chi2_p']:8.2g} {row['lag1_rows']:10.3f} "
+            f"{row['lag1_cols']:10.3f} {row['lag1_p']:8.2g} {row['width_px']:6.2f}"
+        )
+    stream(f"  outcome: {outcome['status']}" + (f" — {outcome['reason']}" if outcome["reason"] else ""))
+
+
+def print_truth(doc: dict, stream=print) -> None:
+    """Truth against estimate for every quantity with a known truth in the measurement set's
+    metadata (:func:`fitting.truth_of`), with the pull |estimate − truth|/std; nothing without truth."""
+    rows = {name: row for name, row in doc["parameters"].items() if row.get("truth") is not None}
+    if not rows:
+        return
+    stream(
+        f"{'quantity':20s} {'truth':>10s} {'estimate':>10s} {'± std':>10s} {'5 %':>10s} {'95 %':>10s}  |est−truth|/std"
+    )
+    for name, row in doc["parameters"].items():
+        truth = row.get("truth")
+        q = row["quantiles_5_50_95"] or [float("nan")] * 3
+        std = row["std"] if row["std"] is not None else float("nan")
+        est = row["median"] if row["median"] is not None else row["estimate_map"]
+        pull = f"{abs(est - truth) / std:.2f}" if truth is not None and std > 0 else "—"
+        truth_text = f"{truth:10.4g}" if truth is not None else f"{'unknown':>10s}"
+        stream(f"{name:20s} {truth_text} {est:10.4g} {std:10.3g} {q[0]:10.4g} {q[2]:10.4g}  {pull}")
 
 
 def sampling_line(diag: dict) -> str:
@@ -351,6 +425,7 @@ def print_determined(doc: dict, stream=print) -> None:
     """The parameters (undetermined ones with their prior range, no interval), then the ratios
     S(W, μ0)/S(W, μk) the data determine, from a report document (fitting.write_report)."""
     summary = (doc.get("mcmc") or {}).get("summary") or {}
+    at_bounds = set((doc.get("optimisation") or {}).get("at_prior_bounds") or ())
     for name, row in doc["parameters"].items():
         if name.startswith("D["):
             continue
@@ -367,7 +442,8 @@ def print_determined(doc: dict, stream=print) -> None:
                 )
                 if figures.get(key) is not None
             )
-            stream(f"  {name:12s} {value:.5g} ± {row['std']:.4g}{arviz}")
+            bound = " — its estimate is at a bound of its prior range" if f"log {name}" in at_bounds else ""
+            stream(f"  {name:12s} {value:.5g} ± {row['std']:.4g}{arviz}{bound}")
         else:
             lo, hi = row.get("prior_range") or (float("nan"), float("nan"))
             stream(f"  {name:12s} undetermined by the data (prior range {lo:.3g} … {hi:.3g}; best fit {value:.4g})")
