@@ -176,10 +176,13 @@ def test_library_samples_with_nuts_batched_equal_to_sample_per_material(small_li
 
 def test_sources_are_named_uniquely_and_missing_ones_refused(tmp_path):
     (tmp_path / "a" / "b").mkdir(parents=True)
-    for p in ("a/x.exr", "a/b/x.exr", "a/.hidden.exr", "a/readme.txt"):
+    (tmp_path / "c").mkdir()
+    for p in ("a/x.exr", "a/b/x.exr", "a/.hidden.exr", "a/readme.txt", "c/x.exr"):
         (tmp_path / p).write_bytes(b"")
-    names = [n for n, _ in library.find_materials([tmp_path / "a", tmp_path / "a" / "x.exr"])]
+    names = [n for n, _ in library.find_materials([tmp_path / "a", tmp_path / "c" / "x.exr"])]
     assert names == ["x", "b__x", "x-2"]  # a directory's own files first, then its subdirectories
+    with pytest.raises(InvalidInputError, match="named twice"):  # one file twice: tests/test_library_robustness.py
+        library.find_materials([tmp_path / "a", tmp_path / "a" / "x.exr"])
     with pytest.raises(InvalidInputError, match="no such file"):
         library.find_materials([tmp_path / "nothing"])
     (tmp_path / "empty").mkdir()

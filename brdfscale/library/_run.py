@@ -1,20 +1,23 @@
 """The library driver: batches of materials to tasks, in-process or on Ray; the index; resume."""
 
+import contextlib
 import dataclasses
 import datetime
 import json
 import os
 import re
+import subprocess
+import sys
 import time
 from typing import Any
 
 from .._compilation_cache import directory_in_use
-from .._errors import InvalidInputError, MissingDependencyError
-from .._files import atomic_write, exclusive
+from .._errors import InvalidInputError, MissingDependencyError, OutputWriteError
+from .._files import exclusive, write_text
 from .._json import json_text
 from .._show import progress_bar, Shown, Table
 from ._spec import FitSpec
-from ._task import fit_batch, material_directory
+from ._task import fit_batch, material_directory, report_problem, take_over
 
 
 __all__ = ["fit_library", "LibraryResult", "find_materials", "INDEX"]
@@ -26,23 +29,36 @@ _FORMAT = 1
 def find_materials(sources) -> list:
     """``(name, path)`` of every measurement set among ``sources`` — files, and directories
     searched recursively for ``*.exr`` — in a stable order, each named after its path (the
-    part below a given directory, ``/`` → ``__``, without ``.exr``), names unique.
+    part below a given directory, ``/`` → ``__``, without ``.exr``), names unique. Hidden
+    entries of a directory (names starting with ``.``) are left out: :func:`fit_library`
+    lists them.
 
     Raises:
-        InvalidInputError: a source that does not exist, or no measurement file at all.
+        InvalidInputError: a source that does not exist, one measurement file named twice (the
+            same file after resolving links, e.g. a directory and a file inside it), or no
+            measurement file at all.
     """
+    return _find(sources)[0]
+
+
+def _find(sources) -> tuple[list, list]:
+    """:func:`find_materials`, and the hidden entries it left out (paths; directories end in ``/``)."""
     if isinstance(sources, (str, os.PathLike)):
         sources = [sources]
-    found = []
+    found, hidden = [], []
     for source in sources:
         source = os.fspath(source)
         if os.path.isdir(source):
             for root, dirs, files in os.walk(source):
+                hidden.extend(os.path.join(root, d) + os.sep for d in sorted(dirs) if d.startswith("."))
                 dirs[:] = sorted(d for d in dirs if not d.startswith("."))
                 for f in sorted(files):
-                    if f.lower().endswith(".exr") and not f.startswith("."):
+                    if f.lower().endswith(".exr"):
                         path = os.path.join(root, f)
-                        found.append((os.path.relpath(path, source), path))
+                        if f.startswith("."):
+                            hidden.append(path)
+                        else:
+                            found.append((os.path.relpath(path, source), path))
         elif os.path.isfile(source):
             found.append((os.path.basename(source), source))
         else:
@@ -51,8 +67,15 @@ def find_materials(sources) -> list:
             )
     if not found:
         raise InvalidInputError(f"no measurement files (*.exr) in {', '.join(os.fspath(s) for s in sources)}.")
-    named, seen = [], {}
+    named, seen, files = [], {}, {}
     for rel, path in found:
+        real = os.path.realpath(path)
+        if real in files:
+            raise InvalidInputError(
+                f"{path}: this measurement file is named twice (also as {files[real]}); give each file once "
+                "(a directory counts every file below it)."
+            )
+        files[real] = path
         name = re.sub(r"[^A-Za-z0-9._-]+", "_", re.sub(r"\.exr$", "", rel, flags=re.I).replace(os.sep, "__"))
         name = name.lstrip(".") or "material"
         base, k = name, 1
@@ -61,7 +84,7 @@ def find_materials(sources) -> list:
             name = f"{base}-{k}"
         seen[name] = path
         named.append((name, os.path.abspath(path)))
-    return named
+    return named, hidden
 
 
 @dataclasses.dataclass(repr=False)
@@ -122,29 +145,68 @@ def _now() -> str:
     return datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
 
 
+_STATUSES = ("done", "failed", "pending")
+
+
+def _schema_problem(doc) -> str | None:
+    """What makes ``doc`` (a parsed ``library.json``) not an index of this version, or None.
+
+    The schema: an object with ``format`` 1, ``spec`` an object (the :class:`FitSpec`), ``runs`` a
+    list of objects, and ``materials`` an object of name → object with ``source`` (a string),
+    ``status`` (``done``, ``failed`` or ``pending``), ``attempts`` (an integer ≥ 0) and, when
+    failed, ``error`` (a string)."""
+    if not isinstance(doc, dict):
+        return f"a JSON {type(doc).__name__} where an object is expected"
+    if doc.get("format") != _FORMAT:
+        return f"format {doc.get('format')!r} where {_FORMAT} is expected"
+    for key, kind, what in (("spec", dict, "an object"), ("runs", list, "a list"), ("materials", dict, "an object")):
+        if key not in doc:
+            return f"no {key!r}"
+        if not isinstance(doc[key], kind):
+            return f"{key!r} is a JSON {type(doc[key]).__name__}, not {what}"
+    for k, run in enumerate(doc["runs"]):
+        if not isinstance(run, dict):
+            return f"runs[{k}] is not an object"
+    for name, entry in doc["materials"].items():
+        where = f"materials[{name!r}]"
+        if not isinstance(entry, dict):
+            return f"{where} is not an object"
+        if not isinstance(entry.get("source"), str):
+            return f"{where} has no source path" if "source" not in entry else f"{where}'s source is not a string"
+        if entry.get("status") not in _STATUSES:
+            return f"{where}'s status is {entry.get('status')!r}, not one of {', '.join(_STATUSES)}"
+        attempts = entry.get("attempts")
+        if isinstance(attempts, bool) or not isinstance(attempts, int) or attempts < 0:
+            return f"{where}'s attempts is {attempts!r}, not an integer ≥ 0"
+        if entry["status"] == "failed" and not isinstance(entry.get("error"), str):
+            return f"{where} failed without an error message"
+    return None
+
+
 class _Index:
     """``OUT/library.json``: the options, and per material its source and last record. Written
-    atomically by the driver alone (after every batch); the material directories are the truth
-    it is reconciled with on every start (a directory without an index entry — a driver killed
-    after a task finished — counts as done)."""
+    atomically by the driver alone (after every batch), its schema checked on every start
+    (:func:`_schema_problem`); the material directories are the truth it is reconciled with: a
+    directory whose report verifies (:func:`report_problem`) counts as done, also without an
+    index entry (a driver killed after a task finished); one whose report does not is fitted
+    again, resuming from what it holds."""
 
-    def __init__(self, out: str, spec: FitSpec, materials: list, force: bool):
+    def __init__(self, out: str, spec: FitSpec, materials: list, force: bool, say):
         self.path = os.path.join(out, INDEX)
         kept = None
-        if os.path.exists(self.path):
+        if os.path.lexists(self.path):
             try:
-                with open(self.path) as f:
+                with open(self.path, encoding="utf-8") as f:
                     doc = json.load(f)
-                if (
-                    not isinstance(doc, dict)
-                    or doc.get("format") != _FORMAT
-                    or not isinstance(doc.get("materials"), dict)
-                ):
-                    raise ValueError("not a brdfscale library index")
-            except (OSError, ValueError) as err:
+            except (OSError, ValueError, RecursionError) as err:
+                problem = f"unreadable: {' '.join(str(err).split())[:200] or type(err).__name__}"
+            else:
+                problem = _schema_problem(doc)
+            if problem:
                 raise InvalidInputError(
-                    f"{self.path}: unreadable library index ({err}); move it away or give another out= directory."
-                ) from None
+                    f"{self.path}: unreadable library index ({problem}); move it away (the reports in "
+                    f"{os.path.join(out, 'materials')} are verified and kept) or give another out= directory."
+                )
             if doc["spec"] != spec.to_json() and not force:
                 earlier = doc["spec"]
                 changed = ", ".join(
@@ -166,11 +228,24 @@ class _Index:
                     f"material {name!r} of {out} came from {entry['source']}, now from {path}; "
                     "one name, one source: rename the file or give another out= directory."
                 )
-            if os.path.isdir(material_directory(out, name)):
+            final = material_directory(out, name)
+            if not os.path.lexists(final):
+                if entry["status"] == "done":
+                    say(f"  {final} is missing: fitting {name} again")
+                    entry.update(status="pending", note="its directory was missing: fitted again")
+                continue
+            if os.path.islink(final) or not os.path.isdir(final):
+                raise InvalidInputError(
+                    f"{final} is not a directory: the library keeps material {name}'s report there; move it away "
+                    "or give another out= directory."
+                )
+            problem = report_problem(final)
+            if problem is None:
                 if entry["status"] != "done":
                     entry.update(status="done", note="found complete on restart (the index had not recorded it)")
-            elif entry["status"] == "done":  # its directory was removed: fit it again
-                entry.update(status="pending")
+                continue
+            say(f"  {final}: {problem}; fitting {name} again{take_over(out, name)}")
+            entry.update(status="pending", note=f"its report was damaged ({problem}): fitted again")
 
     def start_run(self, executor: str, todo: int) -> int:
         self.doc["runs"].append({"started": _now(), "executor": executor, "materials": todo, "finished": None})
@@ -193,16 +268,16 @@ class _Index:
         self.write()
 
     def write(self):
-        text = json_text(self.doc, indent=1)
-
-        def write(tmp: str) -> None:
-            with open(tmp, "w") as f:
-                f.write(text)
-
-        atomic_write(self.path, write, overwrite=True)
+        """Replace the index whole (the checked write path: a full disk is
+        :class:`~brdfscale.OutputWriteError` and leaves the previous index in place)."""
+        write_text(self.path, json_text(self.doc, indent=1), overwrite=True)
 
 
+@contextlib.contextmanager
 def _ray(address, workers):
+    """Ray, initialised for the run: connected to the cluster at ``address``, or a local instance
+    with ``workers`` CPUs started here and stopped at the end — by ``ray.shutdown()``, and, should
+    this process die first (even by SIGKILL), by the watchdog (:mod:`._watchdog`)."""
     try:
         import ray
     except ImportError:
@@ -210,15 +285,36 @@ def _ray(address, workers):
             "executor='ray' needs Ray: pip install 'brdfscale[cluster]' (or run the library "
             "in-process, without address= and workers=)."
         ) from None
-    started = False
-    if not ray.is_initialized():
-        options: dict[str, Any] = dict(include_dashboard=False, log_to_driver=False, configure_logging=False)
-        if address:
-            ray.init(address=address, **options)
-        else:
-            ray.init(num_cpus=workers, **options)
-            started = True
-    return ray, started
+    if ray.is_initialized():  # the caller's own Ray: used as it is, left running
+        yield ray
+        return
+    options: dict[str, Any] = dict(include_dashboard=False, log_to_driver=False, configure_logging=False)
+    if address:
+        ray.init(address=address, **options)
+        try:
+            yield ray
+        finally:
+            ray.shutdown()  # disconnects; the cluster's processes are not this run's
+        return
+    watchdog = subprocess.Popen(
+        [sys.executable, "-I", "-S", os.path.join(os.path.dirname(os.path.abspath(__file__)), "_watchdog.py")]
+        + [str(os.getpid())],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,  # outlives this process, and a kill of its process group
+        close_fds=True,
+    )
+    try:
+        ray.init(num_cpus=workers, **options)
+        try:
+            yield ray
+        finally:
+            ray.shutdown()
+    finally:
+        assert watchdog.stdin is not None
+        watchdog.stdin.close()  # end of file: the watchdog stops what is left of the instance, and exits
+        watchdog.wait()
 
 
 def _batches(todo, batch):
@@ -293,16 +389,25 @@ def fit_library(
         from ..checks import require_float64
 
         require_float64("brdfscale.library.fit_library (in-process)")
-    materials = find_materials(sources)
-    out = os.path.abspath(os.fspath(out))
-    if os.path.exists(out) and not os.path.isdir(out):
-        raise InvalidInputError(f"{out} exists and is not a directory.")
-    os.makedirs(os.path.join(out, "materials"), exist_ok=True)
+    materials, hidden = _find(sources)
     say = stream or (lambda line: None)
+    if hidden:
+        shown = ", ".join(hidden[:10]) + (f" and {len(hidden) - 10} more" if len(hidden) > 10 else "")
+        entries = "entry" if len(hidden) == 1 else "entries"
+        say(f"  skipped {len(hidden)} hidden {entries} (names starting with '.'; rename to include): {shown}")
+    out = os.path.abspath(os.fspath(out))
+    for directory in (out, os.path.join(out, "materials")):
+        if os.path.lexists(directory) and not os.path.isdir(directory):
+            raise InvalidInputError(
+                f"{directory} exists and is not a directory (the library's "
+                f"{'output' if directory == out else 'material reports'} go there); move it away or give another "
+                "out= directory."
+            )
+    os.makedirs(os.path.join(out, "materials"), exist_ok=True)
     with exclusive(out, what="library directory"):
         if force:
             _clear(out, materials)
-        index = _Index(out, spec, materials, force)
+        index = _Index(out, spec, materials, force, say)
         todo = [(n, p) for n, p in materials if index.doc["materials"][n]["status"] != "done"]
         skipped = len(materials) - len(todo)
         run = index.start_run(executor, len(todo))
@@ -326,8 +431,7 @@ def fit_library(
                 for chunk in _batches(todo, batch):
                     absorb(fit_batch(chunk, out, spec, batch=batch, compilation_cache=cache, float64=False), bar)
             elif todo:
-                ray, started = _ray(address, workers)
-                try:
+                with _ray(address, workers) as ray:
                     task = ray.remote(num_cpus=cpus_per_task, max_retries=retries, retry_exceptions=False)(fit_batch)
                     pending = {
                         task.remote(chunk, out, spec, batch=batch, compilation_cache=cache): chunk
@@ -339,14 +443,13 @@ def fit_library(
                         try:
                             records = ray.get(ready[0])
                         except Exception as err:  # noqa: BLE001 — the task died past its retries
+                            if isinstance(getattr(err, "cause", None), OutputWriteError):
+                                raise err.cause from None  # type: ignore[attr-defined] — a full disk stops the run
                             text = f"{type(err).__name__}: {' '.join(str(err).split())[:300]}"
                             records = [
                                 {"name": n, "status": "failed", "error": f"task failed: {text}"} for n, _ in chunk
                             ]
                         absorb(records, bar)
-                finally:
-                    if started:
-                        ray.shutdown()
         seconds = time.perf_counter() - t0
         index.finish_run(run, counts["done"], counts["failed"], seconds)
         return LibraryResult(
@@ -365,5 +468,5 @@ def _clear(out, materials):
     import shutil
 
     for name, _ in materials:
-        if os.path.isdir(material_directory(out, name)):
+        if os.path.isdir(material_directory(out, name)) and not os.path.islink(material_directory(out, name)):
             shutil.rmtree(material_directory(out, name))

@@ -4,23 +4,27 @@ work that runs in the driver's process or as a Ray task (JAX is imported inside 
 
 Every material's report is written into ``materials/.NAME.partial/`` (held with
 :func:`brdfscale.files.exclusive`) and renamed to ``materials/NAME/`` when complete, so a
-material directory exists exactly when its report is whole: a task killed at any point
-leaves at most a ``.partial`` directory, which the next attempt takes over (a sampler's
-checkpoint there resumes its chain). The rename cannot replace a finished directory, so a
-material is never reported twice even if two attempts race.
+task killed at any point leaves at most a ``.partial`` directory, which the next attempt
+takes over (a sampler's checkpoint there resumes its chain). The rename cannot replace a
+finished directory, so a material is never reported twice even if two attempts race. A
+material counts as done when its directory's report verifies (:func:`report_problem`); one
+damaged afterwards (``fit.json`` deleted, truncated, a listed file gone) is taken over
+(:func:`take_over`) and fitted again.
 """
 
+import json
 import os
 import shutil
 import time
 import traceback
 
 from .. import _compilation_cache
-from .._errors import BrdfscaleError, OutputInUseError
+from .._errors import BrdfscaleError, InvalidInputError, OutputInUseError, OutputWriteError
+from .._files import write_failed
 from ._spec import FitSpec
 
 
-__all__ = ["fit_batch", "material_directory", "partial_directory"]
+__all__ = ["fit_batch", "material_directory", "partial_directory", "report_problem", "take_over"]
 
 
 def material_directory(out: str, name: str) -> str:
@@ -29,6 +33,64 @@ def material_directory(out: str, name: str) -> str:
 
 def partial_directory(out: str, name: str) -> str:
     return os.path.join(out, "materials", f".{name}.partial")
+
+
+#: What every complete report's fit.json holds (fitting.write_report writes it last, when every
+#: file it lists is in place).
+_REPORT_KEYS = ("model", "data", "parameters", "ratios", "identifiability", "optimisation", "mcmc", "figures", "tables")
+
+
+def report_problem(directory: str) -> str | None:
+    """Why the material report in ``directory`` is not complete, or None when it is: its
+    ``fit.json`` (written last by :func:`fitting.write_report`) present, a JSON object with
+    every section of a report, and every file it lists (figures, tables, posterior) present
+    beside it. The one check of a finished material, for the driver and the tasks alike."""
+    path = os.path.join(directory, "fit.json")
+    try:
+        with open(path, encoding="utf-8") as f:
+            doc = json.load(f)
+    except FileNotFoundError:
+        return "no fit.json (the report is incomplete)"
+    except (OSError, ValueError, RecursionError) as err:
+        return f"fit.json is unreadable ({' '.join(str(err).split())[:160]})"
+    if not isinstance(doc, dict):
+        return "fit.json is not a report"
+    missing = [key for key in _REPORT_KEYS if key not in doc]
+    if missing:
+        return f"fit.json is incomplete (no {', '.join(missing)})"
+    if not isinstance(doc["figures"], list) or not isinstance(doc["tables"], (list, str)):
+        return "fit.json's list of figures or tables is damaged"
+    listed = [*doc["figures"], *(doc["tables"] if isinstance(doc["tables"], list) else [])]
+    if isinstance(doc.get("posterior"), str) and not doc["posterior"].startswith("not written"):
+        listed.append(doc["posterior"])
+    for file in listed:
+        if not isinstance(file, str):
+            return "fit.json lists a file that is not a path"
+        if not os.path.isfile(os.path.join(directory, os.path.basename(file))):
+            return f"{os.path.basename(file)}, listed in fit.json, is missing"
+    return None
+
+
+def take_over(out: str, name: str) -> str:
+    """Clear the way for material ``name`` to be fitted again when its directory holds a damaged
+    report: the directory becomes the material's partial one (where a sampler's checkpoint
+    resumes its chain) or, when an earlier attempt left a partial directory, goes. Returns how, in
+    words for the run's message.
+
+    Raises:
+        InvalidInputError: the directory cannot be moved or removed (naming it and why).
+    """
+    final, partial = material_directory(out, name), partial_directory(out, name)
+    try:
+        if not os.path.lexists(partial):
+            os.rename(final, partial)
+            return " (resuming from what its directory holds)"
+        shutil.rmtree(final)
+        return f" (resuming from {partial})"
+    except OSError as err:
+        raise InvalidInputError(
+            f"{final}: its damaged report cannot be cleared away ({err.strerror or err}); move it away by hand."
+        ) from None
 
 
 def _record(name, status, started, **fields):
@@ -82,7 +144,7 @@ def fit_batch(
     started = time.perf_counter()
     records, todo = [], []
     for name, path in materials:
-        if os.path.isdir(material_directory(out, name)):
+        if os.path.isdir(material_directory(out, name)) and report_problem(material_directory(out, name)) is None:
             records.append(_record(name, "skipped", started))
             continue
         t0 = time.perf_counter()
@@ -133,12 +195,20 @@ def fit_batch(
             try:
                 os.rename(partial, final)
             except OSError:
-                if os.path.isdir(final):  # another attempt finished it first: ours is a duplicate
+                if os.path.isdir(final) and report_problem(final) is None:  # another attempt finished it first
                     shutil.rmtree(partial, ignore_errors=True)
                     records.append(_record(name, "skipped", t1))
                     continue
                 raise
+        except OutputWriteError:  # a full disk is not this material's failure: the run stops, saying so
+            raise
         except OutputInUseError as err:  # another live attempt holds this material
+            records.append(_record(name, "failed", t1, error=_failure(err)))
+            continue
+        except OSError as err:  # creating or renaming the material's directory
+            failure = write_failed(partial, err, step="moving the material's report into place")
+            if failure.disk_full:
+                raise failure from err
             records.append(_record(name, "failed", t1, error=_failure(err)))
             continue
         except Exception as err:  # noqa: BLE001
