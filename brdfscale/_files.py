@@ -115,8 +115,10 @@ def write_failed(
     if code is None and _mentions_full(err):
         code = errno.ENOSPC
     free = free_space(path)
-    reason = getattr(err, "strerror", None) or " ".join(str(err).split())[:200] or type(err).__name__
-    what = f"disk full ({reason})" if code in _FULL else f"{reason}"
+    if code is not None and code in _FULL:
+        what = f"disk full ({os.strerror(code)})"
+    else:
+        what = " ".join(str(getattr(err, "strerror", None) or err).split())[:200] or type(err).__name__
     if kept is None:
         kept = "the existing file is unchanged" if os.path.lexists(path) else "nothing was left in its place"
     return OutputWriteError(
@@ -193,11 +195,39 @@ def atomic_write(
     """
 
     def fill(tmp: str) -> None:
-        write(tmp)
+        with _lost_errors() as lost:
+            write(tmp)
+        if lost:  # the writer returned, but a write failed where only a destructor saw it
+            first = lost[0]
+            if isinstance(first, OSError):
+                raise first
+            raise OSError(errno.ENOSPC if _mentions_full(first) else errno.EIO, " ".join(str(first).split()))
         _fault("write", tmp)
         _fault("flush", tmp)
 
     return _write(path, fill, None, overwrite, error, foreign)
+
+
+@contextlib.contextmanager
+def _lost_errors() -> Iterator[list[BaseException]]:
+    """Collect the OSErrors raised where Python can only print them while a writer runs (a C
+    library's destructor: h5py's "Exception ignored in ... __dealloc__" on a full disk).
+    A write that lost one failed even when the writer returned; and when the writer raised
+    its own error they are the same failure, not printed a second time."""
+    lost: list[BaseException] = []
+    previous = sys.unraisablehook
+
+    def hook(unraisable):
+        if isinstance(unraisable.exc_value, (OSError, RuntimeError)):  # h5py's destructors raise both
+            lost.append(unraisable.exc_value)
+        else:
+            previous(unraisable)
+
+    sys.unraisablehook = hook
+    try:
+        yield lost
+    finally:
+        sys.unraisablehook = previous
 
 
 def write_bytes(

@@ -15,16 +15,15 @@ is checked, and none that exists is overwritten unless ``overwrite=True``.
 import math
 import os
 import platform
-from pathlib import Path
 from typing import cast
 
 import jax.numpy as jnp
 import numpy as np
 
 import brdfscale
-from brdfscale import BrdfscaleError, InvalidInputError, MeasurementFileError
+from brdfscale import BrdfscaleError, InvalidInputError, MeasurementFileError, OutputWriteError
 from brdfscale.checks import flag
-from brdfscale.files import atomic_write, exclusive, json_text, jsonable
+from brdfscale.files import atomic_write, exclusive, json_text, jsonable, write_bytes, write_text
 
 from ._adequacy import assess
 from ._model import predict_images
@@ -72,8 +71,29 @@ def _write_posterior(out_dir, samples, overwrite: bool) -> str:
         return 'not written: ArviZ is not installed (pip install "brdfscale[mcmc]")'
     data = samples.to_arviz()
     path = os.path.join(out_dir, _POSTERIOR)
-    _atomic(path, lambda p: data.to_netcdf(p), overwrite)
+    # HDF5 that meets a full disk cannot recover (tracebacks from its destructors, then a segfault):
+    # the file is made in memory and written through the checked write path (OutputWriteError)
+    write_bytes(path, _netcdf_bytes(data), overwrite=overwrite, error=InvalidInputError)
     return path
+
+
+def _netcdf_bytes(data) -> bytes:
+    """``data.to_netcdf(path)``'s file (ArviZ's layout: attributes at the root, one group per
+    InferenceData group, zlib on numeric variables) made in memory with h5netcdf."""
+    import io
+
+    import xarray as xr
+
+    buffer, mode = io.BytesIO(), "w"
+    if data.attrs:
+        xr.Dataset(attrs=data.attrs).to_netcdf(buffer, mode=mode, engine="h5netcdf", group="/")
+        mode = "a"
+    for group in data.groups():
+        ds = getattr(data, group)
+        encoding = {name: {"zlib": True} for name, v in ds.variables.items() if v.dtype.kind in "biufc"}
+        ds.to_netcdf(buffer, mode=mode, engine="h5netcdf", group=group, encoding=encoding)
+        mode = "a"
+    return buffer.getvalue()
 
 
 def _exr_available() -> bool:
@@ -429,6 +449,8 @@ def _write_files(
             _save(figures["corner.png"], corner_figure(model, corner_draws, truth, fit), 80, overwrite)
         try:
             tables = _write_tables(out_dir, problem, fit, overwrite)
+        except OutputWriteError:
+            raise  # a full disk is no reason to report a fit without its tables as written
         except BrdfscaleError as err:
             tables = f"not written: {err}"
         doc.update(figures=list(figures.values()), tables=tables)
@@ -442,7 +464,7 @@ def _write_files(
                 os.remove(stale)
         doc = cast(dict, jsonable(doc))  # jsonable returns a dict's JSON-ready copy as a dict
         text = json_text(doc, indent=2)
-        _atomic(target, lambda p: Path(p).write_text(text), overwrite)
+        write_text(target, text, overwrite=overwrite, error=InvalidInputError)
     except OSError as err:
         raise MeasurementFileError(f"the report cannot be written into {out_dir}: {err}") from None
     return doc
