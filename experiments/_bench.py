@@ -92,12 +92,7 @@ def write_json(name: str, payload: dict) -> Path:
     RESULTS.mkdir(parents=True, exist_ok=True)
     path = RESULTS / f"{name}.json"
 
-    def write(tmp):
-        with open(tmp, "w") as f:
-            json.dump(payload, f, indent=2, sort_keys=False)
-            f.write("\n")
-
-    _files.atomic_write(path, write, overwrite=True)
+    _files.write_text(path, json.dumps(payload, indent=2, sort_keys=False) + "\n", overwrite=True)
     return path
 
 

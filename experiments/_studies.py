@@ -42,12 +42,9 @@ def write_results(directory: Path, name: str, payload: dict) -> Path:
     """``directory/<name>.json`` written atomically, with the machine description added."""
     payload = {"machine": machine(), **payload}
 
-    def write(tmp):
-        with open(tmp, "w") as f:
-            json.dump(payload, f, indent=2)
-            f.write("\n")
-
-    return atomic_write(directory / f"{name}.json", write)
+    path = directory / f"{name}.json"
+    files.write_text(path, json.dumps(payload, indent=2) + "\n", overwrite=True)
+    return path
 
 
 def save_figure(fig, path: Path) -> Path:
