@@ -45,6 +45,7 @@ from ._errors import (
     OutputInUseError as OutputInUseError,
     OutputWriteError as OutputWriteError,
     SingularDensityError as SingularDensityError,
+    ToleranceRelaxedWarning as ToleranceRelaxedWarning,
     UnprotectedHeaderWarning as UnprotectedHeaderWarning,
     UnresolvedMethodError as UnresolvedMethodError,
 )
@@ -87,6 +88,7 @@ _TABLE = (  # the one list of the public names: (module relative to brdfscale, n
             "SingularDensityError",
             "OutputInUseError",
             "OutputWriteError",
+            "ToleranceRelaxedWarning",
             "UnprotectedHeaderWarning",
             "UnresolvedMethodError",
         ),

@@ -84,6 +84,12 @@ class UnprotectedHeaderWarning(UserWarning):
     metadata are not. Rewrite it (read and write again) to protect them."""
 
 
+class ToleranceRelaxedWarning(UserWarning):
+    """An evaluation honours a looser error than the ``tol`` asked (e.g. a capped FFT grid that
+    cannot resolve a heavy-tailed or very narrow lobe to it). The tolerance honoured is recorded
+    where the result is explained (``result.shape.tol``, ``...discretisation.explain()``)."""
+
+
 class UnresolvedMethodError(BrdfscaleError, ValueError):
     """A spectral path's discretisation depends on parameter values that are traced.
 

@@ -195,3 +195,77 @@ def test_exact_inputs_need_no_lambda_and_bad_arguments_are_named():
         _regularise.choose(lobe, stats.Delta(), stats.Beckmann(0.08), "discrepancy", sigma[:3])
     with pytest.raises(bs.InvalidInputError, match="regularisation must be ≥ 0"):
         bs.evolve(lobe, stats.Delta(), stats.Beckmann(0.08), regularisation=-1.0)
+
+
+# -- issue 31, item 7: evolve on measured statistics ----------------------------------------------
+def _table():
+    x = np.linspace(-0.5, 0.5, 33)
+    return lobes.Tabulated(np.asarray(lobes.Beckmann(0.05).density(np.stack(np.meshgrid(x, x), -1))), extent=0.5)
+
+
+def test_the_existence_error_names_the_true_direction_and_the_regularisation_in_force():
+    from brdfscale._existence import direction
+
+    # the direction from the statistics themselves: Beckmann widths in closed form
+    assert direction(stats.Beckmann(0.05), stats.Beckmann(0.3)) == "finer"
+    assert direction(stats.Beckmann(0.3), stats.Beckmann(0.05)) == "coarser"
+    assert direction(stats.GGX(0.2), stats.GGX(0.1)) == "coarser"  # heavy tails: no variance, still ordered
+    assert direction(stats.Beckmann(0.1), stats.Beckmann(0.1)) == "same"
+    # towards a finer scale, unregularised: a deconvolution whose transform exceeds 1
+    with pytest.raises(bs.NoBRDFAtScaleError) as finer:
+        bs.evolve(_table(), stats.Beckmann(0.05), stats.Beckmann(0.3), tol=1e-2)
+    text = str(finer.value)
+    assert text.startswith("no BRDF exists at the requested scale: the evolved lobe's transform exceeds 1")
+    assert "towards a finer scale" in text and "coarser scale" not in text.split("Choose")[0]
+    assert "Regularisation in force: none (λ = 0)" in text
+    # towards a coarser scale with statistics that do not nest (a disk is not a Gaussian blurred):
+    # the coarser diagnosis, never "a finer scale", and the λ given
+    with pytest.raises(bs.NoBRDFAtScaleError) as coarser:
+        bs.evolve(_table(), stats.Disk(0.2), stats.Disk(0.1), tol=1e-2, regularisation=1e-3)
+    text = str(coarser.value)
+    assert "towards a coarser scale" in text and "finer" not in text
+    assert "Regularisation in force: Tikhonov λ = 0.001 (given)" in text
+
+
+def test_ranked_candidates_start_with_the_rule_and_follow_the_gcv_score():
+    lobe = _noisy_case(1e4)[0]
+    s_to = stats.Beckmann(ALPHA_FINE)
+    order = _regularise.ranked(lobe, stats.Delta(), s_to, "gcv")
+    assert order[0] == _regularise.choose(lobe, stats.Delta(), s_to, "gcv")
+    V2, s2 = _regularise._spectra(_regularise.table_of(lobe), s_to)
+    scores = [_regularise._gcv_value(V2, s2, lam) for lam, _ in order[1:]]
+    assert scores == sorted(scores) and len(order) == len(_regularise.SEARCH_CANDIDATES) + 1
+    # an exact lobe: λ = 0 and nothing to search
+    assert _regularise.ranked(lobes.GGX(0.1), stats.Delta(), s_to, "gcv")[0][0] == 0
+
+
+@pytest.mark.slow  # ~15 s on 2 cores
+def test_auto_finds_a_lambda_at_which_the_measured_lobe_exists():
+    """docs/topography.md §3 on the AFM file mi-1 (issue 31): the GCV λ gives negative values
+    going coarser; "auto" now takes the best-scoring λ for which the lobe exists, and says so."""
+    from pathlib import Path
+
+    from brdfscale import synth, topography
+
+    field = topography.read(Path(__file__).parent / "data" / "topographies" / "mi-1.mi", detrend="curvature")
+    dx = field.spacing[0]
+    at0, at1 = synth.facet_statistics(field, [2 * dx, 16 * dx], bins=65, extent=1.2)
+    g0 = lobes.Tabulated(at0.lobe.values, extent=1.2)
+    gcv, _ = _regularise.choose(g0, at0.slopes, at1.slopes, "gcv")
+    with pytest.raises(bs.NoBRDFAtScaleError, match="towards a coarser scale.*Tikhonov λ = "):
+        bs.evolve(g0, at0.slopes, at1.slopes, regularisation=gcv, tol=1e-3)  # the rule's own λ: refused
+    evolved = bs.evolve(g0, at0.slopes, at1.slopes, regularisation="auto", tol=1e-3)
+    lam = float(evolved.shape.regularisation)
+    assert lam != pytest.approx(gcv) and lam in [pytest.approx(c) for c in _regularise.SEARCH_CANDIDATES]
+    explained = evolved.shape.discretisation.explain()
+    assert f"Tikhonov λ = {lam:.3g}" in explained and "the rule's own λ" in explained and "refused" in explained
+    x = np.linspace(-1.2, 1.2, 65)
+    values = np.asarray(evolved.density(np.stack(np.meshgrid(x, x), -1)))
+    assert evolved.shape.tol == 1e-3 and values.min() >= -1e-3 * values.max()  # it exists: no value below −tol of the peak
+
+
+@pytest.mark.slow  # ~10 s on 2 cores
+def test_a_relaxed_tol_is_warned_and_stated():
+    with pytest.warns(bs.ToleranceRelaxedWarning, match="tol=1e-09 was asked"):
+        m = bs.select(lobes.GGX(0.1), stats.Beckmann(0.1), stats.Beckmann(0.05), method="grid", tol=1e-9)
+    assert m.tol > 1e-9 and f"honours tol = {m.tol:.3g} of the peak (tol = 1e-09 was asked" in m.explain()

@@ -10,11 +10,14 @@ method's type: each path's behaviour lives in its own module (``_closed_form.py`
 """
 
 import numbers
+import warnings
 from typing import Literal
 
+import jax.numpy as jnp
 from jaxtyping import Array, Real
 
-from .._errors import InvalidInputError
+from .._errors import InvalidInputError, NoBRDFAtScaleError
+from .._existence import advice, direction, GENERIC_ADVICE, NO_BRDF, regularisation_text
 from .._validation import as_float_array, is_concrete, RealNumber
 from ..lobes import AbstractLobe
 from ..stats import AbstractSlopeDensity, require_density
@@ -23,7 +26,8 @@ from ._closed_form import ClosedForm
 from ._grid import Grid
 from ._method import AbstractMethod, MIN_TOL
 from ._radial import Radial
-from ._regularise import check_noise, rule_name
+from ._regularise import check_noise, needs_data, ranked, rule_name
+from ._spectral import AbstractSpectralMethod
 
 
 MethodName = Literal["auto", "closed_form", "radial", "grid"]
@@ -190,7 +194,10 @@ def evolve(
     path = as_method(method, None if named else size, None if named else extent).choose(lobe, s_from, s_to)
     if named:
         path = path.with_sizes(size, extent)
-    return path.evaluate(lobe, s_from, s_to, tol=tol, regularisation=lam, rule=rule, noise=noise, check=check)
+    with _in_context(path, lam, s_from, s_to):
+        if _searches(path, lobe, s_from, s_to, rule, noise):
+            path = searched(path, lobe, s_from, s_to, tol, rule, noise, check)
+        return path.evaluate(lobe, s_from, s_to, tol=tol, regularisation=lam, rule=rule, noise=noise, check=check)
 
 
 def select(
@@ -231,4 +238,76 @@ def select(
     """
     tol, lam, rule, noise = check_arguments(lobe, s_from, s_to, tol, regularisation, noise)
     path = as_method(method).choose(lobe, s_from, s_to)
-    return path.resolve(lobe, s_from, s_to, tol=tol, regularisation=lam, rule=rule, noise=noise, check=check)
+    with _in_context(path, lam, s_from, s_to):
+        if _searches(path, lobe, s_from, s_to, rule, noise):
+            return searched(path, lobe, s_from, s_to, tol, rule, noise, check)
+        return path.resolve(lobe, s_from, s_to, tol=tol, regularisation=lam, rule=rule, noise=noise, check=check)
+
+
+def _searches(path, lobe, s_from, s_to, rule, noise) -> bool:
+    """Whether a rule's λ is chosen here by :func:`searched`: a spectral path, a tabulated lobe
+    and a division, concrete values, and no λ of that rule carried by the method already."""
+    if rule is None or not isinstance(path, AbstractSpectralMethod) or not needs_data(lobe, s_to):
+        return False
+    if path.carried()[1] == rule:
+        return False
+    return is_concrete((lobe, s_from, s_to, noise))
+
+
+def searched(path, lobe, s_from, s_to, tol, rule, noise, check):
+    """``path`` resolved with the first λ of :func:`._regularise.ranked` (the rule's choice, then
+    the search candidates by GCV score) for which the evolved lobe exists — the existence check of
+    ``resolve`` (:mod:`brdfscale._existence`) passes and the grid resolves the lobe at all. It
+    carries λ, the rule and how λ was found (``explain()``). The warnings of the λ taken are
+    re-issued, those of the λ refused are not. NoBRDFAtScaleError when no candidate gives a lobe,
+    naming the direction and the λ tried."""
+    refused: list[tuple[float, str]] = []
+    for lam, how in ranked(lobe, s_from, s_to, rule, noise):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                resolved = path.resolve(
+                    lobe, s_from, s_to, tol=tol, regularisation=jnp.asarray(lam), rule=None, noise=None, check=check
+                )
+            except (NoBRDFAtScaleError, InvalidInputError) as err:
+                refused.append((lam, str(err).split(". ", 1)[0].replace(NO_BRDF + ": ", "")))
+                continue
+        for warning in caught:
+            warnings.warn(warning.message, stacklevel=4)
+        if refused:
+            first, reason = refused[0]
+            how = (
+                f"{how}, the first of the λ tried for which the lobe exists: the rule's own λ = {first:.3g} was "
+                f"refused ({reason})" + (f", and {len(refused) - 1} more" if len(refused) > 1 else "")
+            )
+        return resolved.carrying(jnp.asarray(lam), rule, how)
+    tried = ", ".join(f"{lam:.3g}" for lam, _ in refused)
+    raise NoBRDFAtScaleError(
+        advice(
+            NO_BRDF + f": no λ tried by regularisation={rule!r} gives a lobe that exists (first refusal: "
+            f"{refused[0][1]})." + GENERIC_ADVICE,
+            direction(s_from, s_to),
+            f"every λ in {{{tried}}} tried",
+        )
+    )
+
+
+class _in_context:
+    """Re-raise a concrete :class:`NoBRDFAtScaleError` with the advice for the evolution's
+    direction and the regularisation in force (:func:`brdfscale._existence.advice`)."""
+
+    def __init__(self, path, lam, s_from, s_to):
+        self.path, self.lam, self.s_from, self.s_to = path, lam, s_from, s_to
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, kind, err, tb):
+        if not isinstance(err, NoBRDFAtScaleError) or GENERIC_ADVICE not in str(err):
+            return False
+        lam, note = self.lam, "given"
+        if lam is None and isinstance(self.path, AbstractSpectralMethod):
+            lam, note = self.path.carried()[0], self.path.regularisation_note
+        raise NoBRDFAtScaleError(
+            advice(str(err), direction(self.s_from, self.s_to), regularisation_text(lam, note))
+        ) from None

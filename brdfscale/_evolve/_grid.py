@@ -29,7 +29,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .._blocks import DEFAULT_BUDGET, in_blocks
-from .._errors import InvalidInputError
+from .._errors import InvalidInputError, ToleranceRelaxedWarning
 from .._existence import negative_beyond, transform_exceeds_one, translated
 from .._interpolate import interpolate, lagrange_stencil
 from ..stats import Delta, FrequencyGrid
@@ -94,6 +94,8 @@ class Grid(AbstractSpectralMethod):
     regularisation_note: str | None = eqx.field(static=True, default=None)
     dtype: str | None = eqx.field(static=True, default=None)
     """The floating dtype of the evaluation it was resolved for (as :class:`~brdfscale.Radial`'s)."""
+    asked: float | None = eqx.field(static=True, default=None)
+    """The ``tol`` asked when the capped grid honours a looser one (``tol``); None otherwise."""
 
     size_argument = "size"
 
@@ -139,7 +141,7 @@ class Grid(AbstractSpectralMethod):
             )
         return (
             f"grid (2D FFT) path: {self.size}×{self.size} frequencies, {a}; {layout}"
-            f"{tol_note(self.tol, self.dtype)}{lambda_note(self)}"
+            f"{tol_note(self.tol, self.dtype, self.asked)}{lambda_note(self)}"
         )
 
     def sized(self, size, extent):
@@ -261,6 +263,15 @@ class Grid(AbstractSpectralMethod):
         if self.size is None:
             size, truncation = grid_size(density, MAX_GRID, k, mag)
             honoured = max(density.tol, 2 * truncation)
+            if honoured > density.tol:  # never silently (issue 31): warned here, stated by explain()
+                warnings.warn(
+                    f"tol={density.tol:g} was asked, but a {MAX_GRID}² grid (the largest chosen automatically) "
+                    f"resolves this lobe to {honoured:g} of its peak only; evaluating to {honoured:g} (recorded in "
+                    "result.shape.tol and its discretisation's explain()). Pass a larger size= (memory ∝ size²) "
+                    "for the tol asked.",
+                    ToleranceRelaxedWarning,
+                    stacklevel=caller_stacklevel(),
+                )
         else:
             size, honoured = self.size, density.tol
             try:
@@ -310,6 +321,7 @@ class Grid(AbstractSpectralMethod):
             budget=self.budget,
             sign_check=sign_check,
             dtype=dtype,
+            asked=density.tol if honoured > density.tol else None,
         )
 
 

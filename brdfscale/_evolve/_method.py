@@ -128,12 +128,15 @@ def lambda_note(method) -> str:
     return f"; Tikhonov λ = {text}{detail}"
 
 
-def tol_note(tol: float | None, dtype: str | None) -> str:
+def tol_note(tol: float | None, dtype: str | None, asked: float | None = None) -> str:
     """``explain()``'s statement of the error honoured: ``tol`` as resolved, or — when the
     evaluation's floating ``dtype`` cannot honour it — the floor that dtype can
-    (:func:`achievable_tol`) and that ``tol`` was asked."""
+    (:func:`achievable_tol`) and that ``tol`` was asked; ``asked``: the tighter ``tol`` asked
+    when the discretisation could honour only ``tol`` (a capped grid)."""
     if tol is None:
         return ""
+    if asked is not None and asked < tol:
+        return f"; honours tol = {tol:.3g} of the peak (tol = {asked:.3g} was asked: the capped grid cannot resolve it)"
     if dtype is not None:
         floor = achievable_tol(dtype)
         if tol < floor:

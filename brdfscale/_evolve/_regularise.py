@@ -171,6 +171,43 @@ def choose(lobe, s_from, s_to, rule: str, noise=None) -> tuple[float, str]:
     return lam, detail
 
 
+SEARCH_CANDIDATES = np.logspace(-10.0, 1.0, 23)
+"""The λ (2 per decade) that ``regularisation="auto"`` (any rule) tries, best by GCV first, when
+its rule's λ gives no lobe that exists (:func:`ranked`)."""
+
+
+def ranked(lobe, s_from, s_to, rule: str, noise=None) -> list[tuple[float, str]]:
+    """The λ to try in turn, each with how it was chosen: the rule's own choice (:func:`choose`),
+    then :data:`SEARCH_CANDIDATES` in increasing generalised cross-validation score (the score
+    needs nothing but the data). :func:`brdfscale.evolve` takes the first for which the evolved
+    lobe exists (``_flow.searched``): existence is not monotone in λ on measured data (issue 31:
+    λ = 0.01 exists, 0.1 does not, 1.0 does on one file)."""
+    first = choose(lobe, s_from, s_to, rule, noise)
+    if not needs_data(lobe, s_to):
+        return [first]
+    table = table_of(lobe)
+    assert table is not None
+    V2, s2 = _spectra(table, s_to)
+    scores = [_gcv_value(V2, s2, float(lam)) for lam in SEARCH_CANDIDATES]
+    order = np.argsort(scores, kind="stable")
+    rest = [(float(SEARCH_CANDIDATES[i]), f"{_DESCRIPTION['gcv']} score rank {r + 1} of {len(order)}") for r, i in enumerate(order)]
+    return [first] + [c for c in rest if not math.isclose(c[0], first[0], rel_tol=1e-9)]
+
+
+def _spectra(table, s_to):
+    """``(|V|², |S_to|²)`` on the table's own DFT frequencies (module docstring)."""
+    values, h = table
+    v = np.asarray(values, dtype=float)
+    hx, hy = (float(x) for x in np.asarray(h))
+    ny, nx = v.shape
+    wx = 2 * np.pi * np.fft.fftfreq(nx, hx)
+    wy = 2 * np.pi * np.fft.fftfreq(ny, hy)
+    W = np.stack(np.meshgrid(wx, wy), axis=-1)
+    V2 = np.abs(hx * hy * np.fft.fft2(v)) ** 2
+    s2 = np.abs(np.asarray(s_to.cf(jnp.asarray(W)))) ** 2
+    return V2, s2
+
+
 def _residual(V2, s2, t):
     return float(np.sum(V2 * (t / (s2 + t)) ** 2))
 
