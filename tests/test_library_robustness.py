@@ -1,0 +1,296 @@
+"""`brdfscale fit-library` in a careless world (issue 34): damaged indices and output directories
+refused in one line (exit 2) and left as they were; a material whose report was damaged after
+the fact fitted again, equal to its first fit, and said so; a measurement file named twice
+refused; hidden entries listed; a full disk while writing the index stops the run with the
+previous index in place; a `kill -9` of a driver running Ray workers leaves no Ray process of its
+run behind (slow); the fuzz family of experiments/_fuzz_library.py (slow)."""
+
+import contextlib
+import errno
+import io
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+import brdfscale._files
+from brdfscale import library, OutputWriteError
+from brdfscale._cli import main
+from tests.helpers import write_library
+
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+ARGS = ["--starts", "1", "--batch", "1", "--no-progress"]
+
+
+def _run(argv) -> tuple[int, str, str]:
+    """``brdfscale ARGV`` in this process, without the persistent compilation cache: (status, stdout, stderr)."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(["--no-compilation-cache", *argv])
+    return code, out.getvalue(), err.getvalue()
+
+
+def _one_line(err: str) -> str:
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("brdfscale fit-library: error: "), err
+    return lines[0]
+
+
+def _fit(out, name) -> dict:
+    with open(os.path.join(out, "materials", name, "fit.json")) as f:
+        return json.load(f)
+
+
+def _inodes(out) -> dict:
+    base = os.path.join(out, "materials")
+    return {
+        n: os.stat(os.path.join(base, n, "fit.json")).st_ino
+        for n in os.listdir(base)
+        if not n.startswith(".") and os.path.exists(os.path.join(base, n, "fit.json"))
+    }
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    """A library of two materials and its complete, uninterrupted fit (the reference)."""
+    base = tmp_path_factory.mktemp("library")
+    write_library(str(base / "lib"), 2)
+    code, out, err = _run(["fit-library", str(base / "lib"), "--out", str(base / "reference"), *ARGS])
+    assert code == 0, out + err
+    return base
+
+
+@pytest.fixture
+def copy(fitted, tmp_path):
+    """A fresh copy of the reference output, and the command that continues it."""
+    out = tmp_path / "out"
+    shutil.copytree(fitted / "reference", out)
+    return out, ["fit-library", str(fitted / "lib"), "--out", str(out), *ARGS]
+
+
+def _edit(out, change):
+    path = out / library.INDEX
+    doc = json.loads(path.read_text())
+    change(doc)
+    path.write_text(json.dumps(doc))
+
+
+DAMAGED = {
+    "a list": lambda out: (out / library.INDEX).write_text("[]"),
+    "null": lambda out: (out / library.INDEX).write_text("null"),
+    "empty": lambda out: (out / library.INDEX).write_text(""),
+    "truncated": lambda out: (out / library.INDEX).write_text((out / library.INDEX).read_text()[:57]),
+    "not UTF-8": lambda out: (out / library.INDEX).write_bytes(b'{"format": 1, "spec": "\xff\xfe"}'),
+    "nested 100 000 deep": lambda out: (out / library.INDEX).write_text("[" * 100_000 + "]" * 100_000),
+    "no spec": lambda out: _edit(out, lambda d: d.pop("spec")),
+    "spec a list": lambda out: _edit(out, lambda d: d.update(spec=[1])),
+    "no runs": lambda out: _edit(out, lambda d: d.pop("runs")),
+    "a run not an object": lambda out: _edit(out, lambda d: d["runs"].append(3)),
+    "materials a list": lambda out: _edit(out, lambda d: d.update(materials=[])),
+    "format 2": lambda out: _edit(out, lambda d: d.update(format=2)),
+    "a material without source": lambda out: _edit(out, lambda d: d["materials"]["material_001"].pop("source")),
+    "a source not a string": lambda out: _edit(out, lambda d: d["materials"]["material_000"].update(source=7)),
+    "an unknown status": lambda out: _edit(out, lambda d: d["materials"]["material_000"].update(status="fine")),
+    "attempts negative": lambda out: _edit(out, lambda d: d["materials"]["material_000"].update(attempts=-1)),
+    "attempts true": lambda out: _edit(out, lambda d: d["materials"]["material_000"].update(attempts=True)),
+    "failed without error": lambda out: _edit(out, lambda d: d["materials"]["material_000"].update(status="failed")),
+    "a material not an object": lambda out: _edit(out, lambda d: d["materials"].update(other="x")),
+}
+
+
+@pytest.mark.parametrize("damage", sorted(DAMAGED))
+def test_a_damaged_index_is_refused_in_one_line_and_left_as_it_was(copy, damage):
+    out, command = copy
+    DAMAGED[damage](out)
+    before, inodes = (out / library.INDEX).read_bytes(), _inodes(out)
+    code, _, err = _run(command)
+    assert code == 2
+    line = _one_line(err)
+    assert str(out / library.INDEX) in line and "unreadable library index" in line and "move it away" in line
+    assert (out / library.INDEX).read_bytes() == before and _inodes(out) == inodes
+
+
+@pytest.mark.parametrize("where", ["materials", "materials/material_001", "out"])
+def test_an_output_path_that_is_not_a_directory_is_refused_in_one_line(copy, where):
+    out, command = copy
+    target = out if where == "out" else out / where
+    shutil.rmtree(target)
+    target.write_text("not a directory")
+    code, _, err = _run(command)
+    assert code == 2
+    line = _one_line(err)
+    assert str(target) in line and "not a directory" in line
+    assert target.read_text() == "not a directory"
+
+
+def _drop_listed_table(directory):
+    tables = _fit_doc(directory)["tables"]
+    assert isinstance(tables, list) and tables  # evolved_lobes.exr: a file the report lists
+    os.remove(os.path.join(directory, os.path.basename(tables[0])))
+
+
+def _fit_doc(directory):
+    with open(os.path.join(directory, "fit.json")) as f:
+        return json.load(f)
+
+
+REPORT_DAMAGE = {
+    "deleted": (lambda d: os.remove(d / "fit.json"), "no fit.json"),
+    "truncated": (lambda d: (d / "fit.json").write_text((d / "fit.json").read_text()[:100]), "fit.json is unreadable"),
+    "a list": (lambda d: (d / "fit.json").write_text("[]"), "fit.json is not a report"),
+    "a listed file gone": (_drop_listed_table, "evolved_lobes.exr, listed in fit.json, is missing"),
+}
+
+
+@pytest.mark.parametrize("damage", sorted(REPORT_DAMAGE))
+def test_a_material_whose_report_was_damaged_is_fitted_again_and_the_run_says_so(fitted, copy, damage):
+    out, command = copy
+    spoil, said = REPORT_DAMAGE[damage]
+    untouched = _inodes(out)["material_000"]
+    spoil(out / "materials" / "material_001")
+    code, text, err = _run(command)
+    assert code == 0, text + err
+    assert f"{out / 'materials' / 'material_001'}: {said}" in text and "fitting material_001 again" in text
+    assert "fitted this run  1" in text and _inodes(out)["material_000"] == untouched
+    again, first = _fit(out, "material_001"), _fit(fitted / "reference", "material_001")
+    np.testing.assert_allclose(again["optimisation"]["theta"], first["optimisation"]["theta"], rtol=1e-12)
+    assert again["optimisation"]["chi2"] == pytest.approx(first["optimisation"]["chi2"], rel=1e-12)
+    with open(out / library.INDEX) as f:
+        entry = json.load(f)["materials"]["material_001"]
+    assert entry["status"] == "done" and entry["attempts"] == 2 and "damaged" in entry["note"]
+    assert not [n for n in os.listdir(out / "materials") if n.endswith(".partial")]
+
+
+def test_a_measurement_file_named_twice_is_refused_in_one_line(fitted, tmp_path):
+    one = str(fitted / "lib" / "material_000.exr")
+    os.symlink(one, tmp_path / "link.exr")
+    for sources in ([one, one], [str(fitted / "lib"), one], [one, str(tmp_path / "link.exr")]):
+        code, _, err = _run(["fit-library", *sources, "--out", str(tmp_path / "out"), *ARGS])
+        assert code == 2
+        line = _one_line(err)
+        assert "named twice" in line and one in line
+        assert not (tmp_path / "out" / library.INDEX).exists()
+
+
+def test_hidden_entries_are_listed_in_one_line(tmp_path):
+    (tmp_path / "lib" / ".cache").mkdir(parents=True)
+    (tmp_path / "lib" / "damaged.exr").write_bytes(b"v/1\x01" + bytes(200))  # fails at once: no fit needed
+    (tmp_path / "lib" / ".draft.exr").write_bytes(b"")
+    (tmp_path / "lib" / ".cache" / "old.exr").write_bytes(b"")
+    (tmp_path / "lib" / ".notes").write_bytes(b"")  # not a measurement file: not listed
+    code, text, _ = _run(["fit-library", str(tmp_path / "lib"), "--out", str(tmp_path / "out"), *ARGS])
+    assert code == 4  # the damaged file failed; the library ran
+    lines = [line for line in text.splitlines() if line.startswith("  skipped")]
+    cache, draft = os.path.join(tmp_path, "lib", ".cache") + os.sep, os.path.join(tmp_path, "lib", ".draft.exr")
+    assert lines == [f"  skipped 2 hidden entries (names starting with '.'; rename to include): {cache}, {draft}"]
+
+
+def test_a_full_disk_while_writing_the_index_leaves_the_previous_index(copy, monkeypatch):
+    out, command = copy
+    before = (out / library.INDEX).read_bytes()
+
+    def full(step, tmp):
+        if step == "fsync" and os.path.basename(tmp).startswith(f".{library.INDEX}"):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(brdfscale._files, "_fault", full)
+    spec = library.FitSpec(**json.loads(before)["spec"])  # the command's options
+    with pytest.raises(OutputWriteError, match="disk full") as raised:
+        library.fit_library(command[1], out, spec=spec, batch=1, progress=False)
+    assert raised.value.path == str(out / library.INDEX) and raised.value.disk_full
+    code, _, err = _run(command)
+    assert code == 8 and "disk full" in _one_line(err)
+    assert (out / library.INDEX).read_bytes() == before
+    assert [n for n in os.listdir(out) if n.startswith(f".{library.INDEX}")] == []  # no temporary left
+    monkeypatch.undo()
+    code, text, err = _run(command)  # with space again: the library is complete, nothing refitted
+    assert code == 0 and "fitted this run  0" in text, text + err
+
+
+# -- a driver killed with Ray workers ---------------------------------------------------------------
+
+
+def _stat(pid):
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            text = f.read()
+    except OSError:
+        return None
+    fields = text[text.rfind(b")") + 2 :].split()
+    return None if fields[0] in (b"Z", b"X") else (int(fields[1]), int(fields[19]))
+
+
+def descendants(pid) -> dict:
+    """The live descendants of ``pid``: PID → start time (clock ticks since boot)."""
+    tree = {}
+    for name in os.listdir("/proc"):
+        if name.isdigit() and (stat := _stat(int(name))):
+            tree.setdefault(stat[0], []).append(int(name))
+    found, stack = {}, [pid]
+    while stack:
+        for child in tree.get(stack.pop(), []):
+            if child not in found and (stat := _stat(child)):
+                found[child] = stat[1]
+                stack.append(child)
+    return found
+
+
+def alive(processes: dict) -> list:
+    return [pid for pid, start in processes.items() if (_stat(pid) or (0, None))[1] == start]
+
+
+@pytest.mark.slow  # a Ray instance and worker processes importing JAX: tens of seconds on 2 cores
+def test_sigkill_of_a_driver_with_ray_workers_leaves_no_ray_process(fitted, tmp_path):
+    pytest.importorskip("ray")
+    out = tmp_path / "out"
+    command = [sys.executable, "-m", "brdfscale", "fit-library", str(fitted / "lib"), "--out", str(out)]
+    driver = subprocess.Popen(
+        [*command, *ARGS, "--workers", "2"], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
+    seen: dict = {}
+    try:
+        deadline = time.monotonic() + 300
+        # until a worker is in its task (its material's partial directory or report exists)
+        while not (out / "materials").is_dir() or not os.listdir(out / "materials"):
+            assert time.monotonic() < deadline and driver.poll() is None, "the library did not start"
+            seen.update(descendants(driver.pid))
+            time.sleep(0.05)
+        seen.update(descendants(driver.pid))
+        assert any(b"raylet" in open(f"/proc/{p}/cmdline", "rb").read() for p in alive(seen))
+    finally:
+        os.kill(driver.pid, signal.SIGKILL)
+        driver.wait()
+    deadline = time.monotonic() + 10
+    while alive(seen) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    left = alive(seen)
+    for pid in left:  # clean up before failing
+        os.kill(pid, signal.SIGKILL)
+    assert not left, f"{len(left)} process(es) of the killed run still running after 10 s"
+    rerun = subprocess.run([*command, *ARGS], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert rerun.returncode == 0, rerun.stderr[-2000:]
+    for name in ("material_000", "material_001"):
+        np.testing.assert_allclose(
+            _fit(out, name)["optimisation"]["theta"],
+            _fit(fitted / "reference", name)["optimisation"]["theta"],
+            rtol=1e-9,
+        )
+
+
+@pytest.mark.slow  # subprocesses importing JAX: ~20 s
+def test_the_fuzz_family_quick_run_finds_nothing_bad(tmp_path):
+    from experiments import _fuzz_library
+
+    result = _fuzz_library.run(quick=True, seed=0, directory=str(tmp_path))
+    assert set(result["kinds"]) == {"damaged_index", "sigkill_fit_library"}
+    for kind, counts in result["kinds"].items():
+        assert counts["tried"] > 0 and counts["bad"] == 0, (kind, counts, result["bad_examples"])
+        assert counts["tried"] == counts["refused"] + counts["same"] + counts["bad"]
+    assert result["bad_examples"] == []
