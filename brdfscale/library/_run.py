@@ -183,6 +183,15 @@ def _schema_problem(doc) -> str | None:
     return None
 
 
+def _unwritable(doc) -> str | None:
+    """Why ``doc`` could not be written back (e.g. nested too deep for the encoder), or None."""
+    try:
+        json_text(doc)
+    except (TypeError, ValueError, RecursionError) as err:
+        return f"cannot be written back: {type(err).__name__}"
+    return None
+
+
 class _Index:
     """``OUT/library.json``: the options, and per material its source and last record. Written
     atomically by the driver alone (after every batch), its schema checked on every start
@@ -201,7 +210,7 @@ class _Index:
             except (OSError, ValueError, RecursionError) as err:
                 problem = f"unreadable: {' '.join(str(err).split())[:200] or type(err).__name__}"
             else:
-                problem = _schema_problem(doc)
+                problem = _schema_problem(doc) or _unwritable(doc)
             if problem:
                 raise InvalidInputError(
                     f"{self.path}: unreadable library index ({problem}); move it away (the reports in "
@@ -221,6 +230,7 @@ class _Index:
         if kept is None or force:
             kept = {"format": _FORMAT, "created": _now(), "spec": spec.to_json(), "runs": [], "materials": {}}
         self.doc: dict = kept
+        damaged = []
         for name, path in materials:
             entry = self.doc["materials"].setdefault(name, {"source": path, "status": "pending", "attempts": 0})
             if entry["source"] != path:
@@ -243,9 +253,12 @@ class _Index:
             if problem is None:
                 if entry["status"] != "done":
                     entry.update(status="done", note="found complete on restart (the index had not recorded it)")
-                continue
+            else:
+                damaged.append((name, final, problem))
+        for name, final, problem in damaged:  # everything checked: now the damaged reports make way
             say(f"  {final}: {problem}; fitting {name} again{take_over(out, name)}")
-            entry.update(status="pending", note=f"its report was damaged ({problem}): fitted again")
+            note = f"its report was damaged ({problem}): fitted again"
+            self.doc["materials"][name].update(status="pending", note=note)
 
     def start_run(self, executor: str, todo: int) -> int:
         self.doc["runs"].append({"started": _now(), "executor": executor, "materials": todo, "finished": None})
@@ -360,14 +373,23 @@ def fit_library(
         progress: a progress bar over the materials.
         stream: where the per-material failures are reported as they come (a callable taking a line).
 
-    Resumable: a material counts as done when its directory exists (moved into place whole
-    by :mod:`brdfscale.library._task`); a rerun after any interruption fits only the others,
-    each exactly once. A material that fails (unreadable file, no valid fit) is recorded
-    with its error in the index and retried by the next run; the library goes on.
+    Resumable: a material counts as done when its directory (moved into place whole by
+    :mod:`brdfscale.library._task`) holds a report that verifies (``fit.json`` complete, every
+    file it lists present); a rerun after any interruption fits only the others, each exactly
+    once, and fits again — saying so through ``stream`` — a material whose report was damaged
+    since. A material that fails (unreadable file, no valid fit) is recorded with its error in
+    the index and retried by the next run; the library goes on. Hidden entries of a directory
+    (names starting with ``.``) are listed through ``stream``. A local Ray instance started
+    here is stopped when this process ends, however it ends (a watchdog process,
+    :mod:`brdfscale.library._watchdog`). docs/library.md states the guarantees.
 
     Raises:
-        InvalidInputError: bad arguments, a source that does not exist, an index of another job.
+        InvalidInputError: bad arguments, a source that does not exist or named twice, an index
+            of another job, a damaged index (its schema is checked), ``out/materials`` or a
+            material's directory that is not a directory.
         OutputInUseError: another run holds ``out``.
+        OutputWriteError: the index or a report could not be written (a full disk): the
+            previous index stays in place.
         MissingDependencyError: the Ray executor without Ray installed.
     """
     from ..checks import integer

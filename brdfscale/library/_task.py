@@ -123,7 +123,7 @@ def fit_batch(
 ) -> list:
     """Fit ``materials`` (a list of ``(name, path)``) into ``out/materials/`` with the options
     ``spec`` (a :class:`FitSpec`); return one record per material: ``status`` ``"done"``
-    (with χ², status, seconds), ``"skipped"`` (already done: its directory exists) or
+    (with χ², status, seconds), ``"skipped"`` (already done: its report verifies, :func:`report_problem`) or
     ``"failed"`` (with ``error``: the file could not be read, or its fit could not be made).
 
     ``float64``: switch JAX to float64 (what a worker process does; the in-process runner
