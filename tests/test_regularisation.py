@@ -261,7 +261,9 @@ def test_auto_finds_a_lambda_at_which_the_measured_lobe_exists():
     assert f"Tikhonov λ = {lam:.3g}" in explained and "the rule's own λ" in explained and "refused" in explained
     x = np.linspace(-1.2, 1.2, 65)
     values = np.asarray(evolved.density(np.stack(np.meshgrid(x, x), -1)))
-    assert evolved.shape.tol == 1e-3 and values.min() >= -1e-3 * values.max()  # it exists: no value below −tol of the peak
+    assert (
+        evolved.shape.tol == 1e-3 and values.min() >= -1e-3 * values.max()
+    )  # it exists: no value below −tol of the peak
 
 
 @pytest.mark.slow  # ~10 s on 2 cores

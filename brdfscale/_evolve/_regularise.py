@@ -190,7 +190,10 @@ def ranked(lobe, s_from, s_to, rule: str, noise=None) -> list[tuple[float, str]]
     V2, s2 = _spectra(table, s_to)
     scores = [_gcv_value(V2, s2, float(lam)) for lam in SEARCH_CANDIDATES]
     order = np.argsort(scores, kind="stable")
-    rest = [(float(SEARCH_CANDIDATES[i]), f"{_DESCRIPTION['gcv']} score rank {r + 1} of {len(order)}") for r, i in enumerate(order)]
+    rest = [
+        (float(SEARCH_CANDIDATES[i]), f"{_DESCRIPTION['gcv']} score rank {r + 1} of {len(order)}")
+        for r, i in enumerate(order)
+    ]
     return [first] + [c for c in rest if not math.isclose(c[0], first[0], rel_tol=1e-9)]
 
 

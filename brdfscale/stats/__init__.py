@@ -14,6 +14,7 @@ from ._base import AbstractDistribution, AbstractGeneralisedDensity, AbstractSlo
 from ._families import Beckmann, Delta, Disk, Gaussian, GGX
 from ._grid import FrequencyGrid
 from ._histogram import SlopeHistogram
+from ._measured import MeasuredScaleLaw
 from ._mixture import Mixture
 from ._require import require_density
 from ._scale_laws import (
@@ -50,5 +51,6 @@ __all__ = [
     "GaussianSurface",
     "WidthLaw",
     "ScaledFamily",
+    "MeasuredScaleLaw",
     "window_power",
 ]
