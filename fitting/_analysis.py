@@ -180,7 +180,9 @@ class _Analysis:
             eigenvectors=analysis.eigenvectors,
             ratios=ratios,
             combinations=combinations,
-            covariance_differences=summarise_covariance_differences(model, self.theta, scales, analysis),
+            covariance_differences=summarise_covariance_differences(
+                model, np.clip(self.theta, self.problem.lower, self.problem.upper), scales, analysis
+            ),
         )
 
 

@@ -1,0 +1,271 @@
+"""fitting.AnisotropicModel, ΔΣ(μ0, μk) and fitting.compare (issue 31, items 1 and 2).
+
+The oracles are hand-written NumPy Gaussians (not brdfscale's), the closed forms of Beckmann
+statistics and of the non-parametric model's piecewise-linear D(W²)."""
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from brdfscale import InvalidInputError, LobeImage, MeasurementSet
+
+
+jax.config.update("jax_enable_x64", True)
+
+from brdfscale import fitting  # noqa: E402
+from brdfscale.fitting._derived import covariance_differences  # noqa: E402
+
+
+SCALES = (1.0, 2.0, 4.0)
+SIZE, EXTENT = 17, 0.5
+
+
+def rotation(phi):
+    c, s = math.cos(phi), math.sin(phi)
+    return np.array([[c, -s], [s, c]])
+
+
+def gaussian(u, mean, cov, amplitude):
+    """``A exp(−½ dᵀC⁻¹d)/(2π √det C)``, by hand."""
+    d = u - mean
+    q = np.einsum("...i,ij,...j->...", d, np.linalg.inv(cov), d)
+    return amplitude * np.exp(-q / 2) / (2 * np.pi * np.sqrt(np.linalg.det(cov)))
+
+
+def grid():
+    x = np.linspace(-EXTENT, EXTENT, SIZE)
+    return np.stack(np.meshgrid(x, x), axis=-1)  # rows u_y, columns u_x (brdfscale.LobeImage)
+
+
+TRUTH = {
+    "amplitude": 2.0,
+    "mean": np.array([0.03, -0.02]),
+    "C0": rotation(0.4) @ np.diag([0.01, 0.002]) @ rotation(0.4).T,
+    "steps": [
+        rotation(0.3) @ np.diag([0.006, 0.001]) @ rotation(0.3).T,
+        rotation(-0.2) @ np.diag([0.004, 0.002]) @ rotation(-0.2).T,
+    ],
+}
+
+
+def true_differences():
+    return np.cumsum([np.zeros((2, 2)), *TRUTH["steps"]], axis=0)
+
+
+def synthetic(seed, noise=0.01, floor=1e-3):
+    """Images of the true anisotropic Gaussian lobe at the three scales with Gaussian noise."""
+    rng, u = np.random.default_rng(seed), grid()
+    images = []
+    for mu, d in zip(SCALES, true_differences()):
+        v = gaussian(u, TRUTH["mean"], TRUTH["C0"] + d, TRUTH["amplitude"])
+        sigma = noise * v.max() + floor
+        images.append(
+            LobeImage(
+                mu=mu,
+                incident=[0.0, 0.0, 1.0],
+                extent=EXTENT,
+                values=v + sigma * rng.standard_normal(v.shape),
+                sigma=np.full(v.shape, sigma),
+            )
+        )
+    return fitting.Dataset.from_measurements(MeasurementSet(tuple(images)))
+
+
+def theta_of(model, amplitude, c0, mean, differences):
+    """θ of AnisotropicModel for given physical values (inverse of its parameterisation)."""
+
+    def chol(m):
+        L = np.linalg.cholesky(m)
+        return [math.log(L[0, 0]), L[1, 0], math.log(L[1, 1])]
+
+    theta = [math.log(amplitude), *chol(c0)]
+    if not model.centred:
+        theta += list(mean)
+    steps = np.diff(np.asarray(differences), axis=0)
+    for s in steps:
+        theta += chol(s)
+    return jnp.asarray(theta)
+
+
+@pytest.fixture(scope="module")
+def data():
+    return synthetic(0)
+
+
+@pytest.fixture(scope="module")
+def fitted(data):
+    return fitting.fit(fitting.AnisotropicModel(3), data, starts=2)
+
+
+def test_recovers_known_covariance_differences_within_three_standard_errors(fitted):
+    assert fitted.status == "converged"
+    assert 0.8 < fitted.chi2 / fitted.dof < 1.2
+    truth = true_differences()
+    assert [d["mu"] for d in fitted.covariance_differences] == [2.0, 4.0]
+    for d, t in zip(fitted.covariance_differences, truth[1:]):
+        value, std = np.array(d["value"]), np.array(d["std"])
+        assert np.all(std > 0)
+        assert np.all(np.abs(value - t) < 3 * std), (value, t, std)
+        assert np.all(std < 0.1 * np.abs(t).max())  # not an error bar that hides everything
+
+
+def test_covariance_differences_in_the_json_document(fitted):
+    doc = fitted.to_json()["covariance_differences"]
+    assert [set(d) for d in doc] == [{"mu0", "mu", "value", "std"}] * 2
+    for d in doc:
+        assert d["mu0"] == 1.0 and np.allclose(d["value"], np.transpose(d["value"]))
+        assert np.asarray(d["std"]).shape == (2, 2)
+    assert "ΔΣ" in fitted._repr_html_()
+
+
+@settings(max_examples=15, deadline=None)
+@given(
+    phi=st.floats(0.0, math.pi),
+    ratio=st.floats(1.0, 30.0),
+    step_phi=st.floats(0.0, math.pi),
+    step_ratio=st.floats(1.0, 30.0),
+    mean=st.tuples(st.floats(-0.1, 0.1), st.floats(-0.1, 0.1)),
+)
+def test_prediction_equals_a_hand_written_gaussian(phi, ratio, step_phi, step_ratio, mean):
+    model = fitting.AnisotropicModel(3)
+    c0 = rotation(phi) @ np.diag([0.01, 0.01 / ratio]) @ rotation(phi).T
+    step = rotation(step_phi) @ np.diag([0.005, 0.005 / step_ratio]) @ rotation(step_phi).T
+    differences = [np.zeros((2, 2)), step, 2.5 * step]
+    theta = theta_of(model, 1.5, c0, mean, differences)
+    u = grid().reshape(-1, 2)
+    points = jnp.asarray(np.stack([u, u, u]))
+    got = np.asarray(model.predict_points(theta, jnp.asarray(SCALES), points))
+    for k in range(3):
+        expected = gaussian(u, np.asarray(mean), c0 + differences[k], 1.5)
+        np.testing.assert_allclose(got[k], expected, rtol=1e-10, atol=1e-12 * expected.max())
+    np.testing.assert_allclose(
+        np.asarray(model.covariance_differences(theta, jnp.asarray(SCALES))), differences, atol=1e-15
+    )
+
+
+def test_every_theta_is_valid_and_the_differences_monotone():
+    model = fitting.AnisotropicModel(4)
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        theta = jnp.asarray(rng.normal(0, 2, len(model.names)))
+        _, c0, _, d = model.parts(theta)
+        assert np.all(np.linalg.eigvalsh(np.asarray(c0)) > 0)
+        steps = np.diff(np.asarray(d), axis=0)
+        assert np.all(np.linalg.eigvalsh(steps) > 0)
+
+
+def test_jit_grad_vmap_equal_eager(data):
+    model = fitting.AnisotropicModel(3)
+    problem = fitting.Problem(model, data)
+    theta = jnp.asarray(model.initial(data))
+    eager = problem.residuals(theta)
+    np.testing.assert_allclose(jax.jit(lambda t: problem.residuals(t))(theta), eager, rtol=1e-12, atol=1e-12)
+    thetas = jnp.stack([theta, theta + 0.01])
+    batched = jax.vmap(lambda t: problem.residuals(t))(thetas)
+    np.testing.assert_allclose(batched[1], problem.residuals(thetas[1]), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(batched[0], eager, rtol=1e-12, atol=1e-12)
+    grad = jax.grad(lambda t: problem.chi2(t))(theta)
+    chi2 = jax.jit(lambda t: problem.chi2(t))
+    step = 1e-6
+    for i in (0, 1, 4, 7):
+        e = jnp.zeros_like(theta).at[i].set(step)
+        numeric = (chi2(theta + e) - chi2(theta - e)) / (2 * step)
+        assert abs(float(grad[i]) - float(numeric)) <= 1e-5 * max(1.0, abs(float(numeric)))
+    np.testing.assert_allclose(jax.jit(jax.grad(lambda t: problem.chi2(t)))(theta), grad, rtol=1e-10)
+    predict = fitting._model.predict_images(model, theta, data)
+    np.testing.assert_allclose(predict, model.predict(theta, data), rtol=1e-12, atol=1e-14)
+
+
+def test_isotropic_special_case_equals_the_parametric_beckmann_model(data):
+    parametric = fitting.ParametricModel("beckmann", "beckmann")
+    params = {"amplitude": 1.3, "alpha_lobe": 0.12, "alpha_max": 0.2, "mu_c": 1.5, "exponent": 1.2}
+    pt = jnp.asarray(parametric.theta_from(params))
+    stats_widths = [float(parametric.statistics_at(pt, mu).cov[0, 0]) for mu in SCALES]  # σ² = α²/2
+    iso = fitting.AnisotropicModel(3, isotropic=True)
+    v0 = params["alpha_lobe"] ** 2 / 2
+    increments = -np.diff(stats_widths)
+    theta = jnp.log(jnp.asarray([params["amplitude"], v0, *increments]))
+    np.testing.assert_allclose(
+        fitting._model.predict_images(iso, theta, data),
+        fitting._model.predict_images(parametric, pt, data),
+        rtol=1e-10,
+        atol=1e-12,
+    )
+    assert iso.radial and len(iso.names) == 4
+    # and their ΔΣ agree: exact for the isotropic model, the Hessian of log R for the parametric one
+    np.testing.assert_allclose(
+        covariance_differences(parametric, pt, data.scales), covariance_differences(iso, theta, data.scales), rtol=1e-10
+    )
+
+
+def test_covariance_differences_of_the_radial_models_against_closed_forms(data):
+    parametric = fitting.ParametricModel()
+    theta = jnp.asarray(parametric.initial(data))
+    alpha = [float(parametric.law(theta).at(mu).cov[0, 0] * 2) ** 0.5 for mu in SCALES]
+    expected = [(alpha[0] ** 2 - a**2) / 2 * np.eye(2) for a in alpha]  # Beckmann: σ² = α²/2
+    np.testing.assert_allclose(covariance_differences(parametric, theta, data.scales), expected, rtol=1e-9, atol=1e-15)
+    nonparametric = fitting.NonParametricModel(data, n_knots=4)
+    t = jnp.asarray(nonparametric.initial(data))
+    D = np.asarray(nonparametric.relative_statistics(t, jnp.asarray(nonparametric.knots[:2]), data.scales))
+    w1 = float(nonparametric.knots[1])
+    slope = -np.log(D[:, 1]) / w1**2  # D linear in W² on the first segment: log R = −slope W²
+    got = np.asarray(covariance_differences(nonparametric, t, data.scales))
+    np.testing.assert_allclose(got, 2 * slope[:, None, None] * np.eye(2), rtol=1e-9, atol=1e-15)
+    ggx = fitting.ParametricModel("ggx", "ggx")
+    assert np.all(np.isnan(np.asarray(covariance_differences(ggx, jnp.asarray(ggx.initial(data)), data.scales))[1:]))
+
+
+@pytest.mark.slow
+def test_ggx_reports_covariance_differences_as_undetermined(data):
+    result = fitting.fit(fitting.ParametricModel("ggx", "ggx"), data, starts=1)
+    for d in result.covariance_differences:
+        assert d["value"] == [[None, None], [None, None]] and d["std"] == [[None, None], [None, None]]
+
+
+def test_compare_prefers_the_anisotropic_model_on_anisotropic_data(data, fitted):
+    iso = fitting.fit(fitting.AnisotropicModel(3, isotropic=True), data, starts=1)
+    table = fitting.compare({"anisotropic": fitted, "isotropic": iso})
+    assert table.preferred == {"bic": "anisotropic", "aic": "anisotropic"}
+    rows = {r["model"]: r for r in table.rows}
+    n = fitted.n_data
+    assert rows["isotropic"]["aic"] == pytest.approx(iso.chi2 + 2 * 4)
+    assert rows["anisotropic"]["bic"] == pytest.approx(fitted.chi2 + len(fitted.names) * math.log(n))
+    assert rows["anisotropic"]["delta_bic"] == 0 and rows["isotropic"]["delta_bic"] > 10
+    assert "preferred" in "\n".join(table.lines())
+
+
+def test_compare_refuses_what_it_cannot_compare(fitted):
+    with pytest.raises(InvalidInputError, match="at least two"):
+        fitting.compare({"one": fitted})
+    with pytest.raises(InvalidInputError, match="FitResult"):
+        fitting.compare({"a": fitted, "b": 3})
+    other = fitting.FitResult(**{**fitted.__dict__, "n_data": fitted.n_data + 1})
+    with pytest.raises(InvalidInputError, match="same data"):
+        fitting.compare({"a": fitted, "b": other})
+
+
+def test_bad_arguments_are_refused(data):
+    with pytest.raises(InvalidInputError, match="n_scales"):
+        fitting.AnisotropicModel(1)
+    with pytest.raises(InvalidInputError, match="built for 4 scales"):
+        fitting.Problem(fitting.AnisotropicModel(4), data)
+
+
+@pytest.mark.slow
+def test_standard_errors_are_calibrated_over_seeds():
+    pulls = []
+    truth = true_differences()
+    model = fitting.AnisotropicModel(3)
+    for seed in range(1, 25):
+        result = fitting.fit(model, synthetic(seed), starts=1)
+        assert result.status == "converged"
+        for d, t in zip(result.covariance_differences, truth[1:]):
+            v, s = np.array(d["value"]), np.array(d["std"])
+            pulls += list(((v - t) / s)[[0, 0, 1], [0, 1, 1]])
+    pulls = np.asarray(pulls)
+    assert abs(pulls.mean()) < 0.3
+    assert 0.75 < pulls.std() < 1.25
