@@ -66,6 +66,7 @@ def test_joint_chi2_equals_a_hand_written_one():
     np.testing.assert_allclose(jax.vmap(lambda t: problem.residuals(t))(theta[None])[0], eager, rtol=1e-12, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_joint_fit_is_consistent_and_sharper_than_images_alone():
     data = synthetic(0, noise=0.05, floor=5e-3)
     topo = topography_for(true_differences(), error=1e-4)
@@ -93,6 +94,7 @@ def test_bad_topography_terms_are_refused():
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="issue 31: real lobes are far from Gaussian; see the docstring")
 @pytest.mark.parametrize("name", ["mi-1.mi", "plu-1.plu"])
 def test_real_topography_covariance_differences_recovered(name):
     """A measurement set synthesised from a real topography (synth.gonioreflectometer, the python API of
@@ -112,8 +114,5 @@ def test_real_topography_covariance_differences_recovered(name):
     for d, s in zip(result.covariance_differences, stats[1:]):
         topo = stats[0].covariance - s.covariance
         err = np.hypot(stats[0].covariance_error, s.covariance_error)
-        z = (np.array(d["value"]) - topo) / np.hypot(np.array(d["std"]), err)
-        if not np.all(np.abs(z) < 3):
-            pytest.xfail(
-                f"{name}: ΔΣ z-scores {np.round(z.ravel()[[0, 1, 3]], 1)} at μ = {d['mu']:.3g} (non-Gaussian lobes)"
-            )
+        z = (np.array(d["value"], float) - topo) / np.hypot(np.array(d["std"], float), err)
+        assert np.all(np.abs(z) < 3), (name, d["mu"], z)
