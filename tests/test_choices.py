@@ -132,9 +132,11 @@ def test_every_name_in_the_table_is_accepted_by_fitting():
                     fitting.ParametricModel(family, family, law=law)
             else:
                 assert fitting.ParametricModel(family, family, law=law).names
-    assert {"parametric": fitting.ParametricModel, "nonparametric": fitting.NonParametricModel}.keys() == set(
-        choices.MODELS
-    )
+    assert {
+        "parametric": fitting.ParametricModel,
+        "nonparametric": fitting.NonParametricModel,
+        "anisotropic": fitting.AnisotropicModel,
+    }.keys() == set(choices.MODELS)
 
 
 def test_the_table_refuses_unknown_names_naming_the_argument():
