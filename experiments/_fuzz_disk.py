@@ -16,8 +16,8 @@ demo) runs, in its own process, with its outputs on a tmpfs filled until 0, 4 Ki
 Where ``mount -t tmpfs`` cannot be used (not root, not Linux), the test seam
 ``brdfscale._files._fault`` raises ENOSPC instead, at each step of
 ``brdfscale._files.STEPS`` of the command's first write (five trials per command like the five
-levels); the JSON says which (``"mode"``). ``quick`` runs synth and topography only, in the
-injected mode at two steps (fast enough for tests/test_experiments_smoke.py).
+levels); the JSON says which (``"mode"``). ``quick`` runs synth (at two steps) and topography
+(at one) only, injected, in this process (fast enough for the default test suite).
 
     python experiments/_fuzz_disk.py [--quick] [--out results.json]
 """
@@ -38,6 +38,7 @@ TOPOGRAPHY = ROOT / "tests" / "data" / "topographies" / "di-3.di"
 LEVELS = {"0": 0, "4KiB": 4 << 10, "64KiB": 64 << 10, "1MiB": 1 << 20, "ample": None}
 STEPS = ("write", "flush", "fsync", "close", "rename")  # brdfscale._files.STEPS (checked in the test)
 _TMPFS_SIZE = "192m"
+_QUICK = {"synth": ("write", "fsync"), "topography": ("rename",)}  # quick mode's injected steps
 _SYNTH = ("--size", "64", "--scales", "4,16", "--pixels", "9")
 
 #: The child process: ``brdfscale ARGV`` with, when BRDFSCALE_FUZZ_FAULT=STEP, ENOSPC raised by
@@ -349,7 +350,7 @@ def run(quick: bool, seed: int = 0, directory: str | None = None) -> dict:
             trials = (
                 [{"leave": v} for v in LEVELS.values()]
                 if mounted
-                else [{"fault": s} for s in (("write", "rename") if quick else STEPS)]
+                else [{"fault": s} for s in (_QUICK[kind] if quick else STEPS)]
             )
             for t in trials:
                 outcome, why = _trial(kind, argv, disk, out, env, baseline, **t)
