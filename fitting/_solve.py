@@ -1,8 +1,41 @@
 """One least-squares solve with optimistix: the solver by name or as an optimistix object, the
-solve from one start, its result code by name through optimistix's public ``RESULTS``.
+solve from one start, its result code by name through optimistix's public ``RESULTS`` and the
+two outcomes this module adds.
 
 The solve minimises ``½‖r(θ)‖²`` over the unconstrained coordinates θ of a model, ``r`` the
 whitened residual rows of :class:`fitting.Problem` (or its :class:`~fitting._problem.Rows`).
+
+**Scale invariance.** Scaling every σ by one factor c scales ``r`` by 1/c and cannot move the
+optimum, but an optimiser's own numbers are absolute: optimistix's convergence test compares
+the change of ``r`` with ``atol + rtol·|r|`` (its first step compares ``r(θ₀)`` itself, so any
+problem whose residuals are all below ``atol`` "converges" at its start), and
+Levenberg–Marquardt's damping starts at λ = 1 against ``JᵀJ ∝ 1/c²``. With σ × 1e10 the default
+fit stopped at its start with χ² 14 × worse, reported as converged. So the solver sees the rows
+normalised by the root-mean-square of the non-zero rows at the start,
+
+    r̃(θ) = ν r(θ),   ν = √m₀ / ‖r(θ₀)‖   (m₀: rows ≠ 0 at θ₀; ν = 1 if ‖r(θ₀)‖ is 0 or not finite),
+
+one constant per solve, the same for data rows, prior rows (the non-parametric model's
+smoothness rows) and any appended rows, so their relative weights and the optimum are those of
+``½‖r‖²``; ``r̃`` does not change when σ is scaled (ν → cν), nor when values and σ change units
+together, and its rows are of order 1 at the start, as whitened rows of a sensible start are. χ²
+and the Jacobian are returned for ``r`` (``J = J̃/ν``), so the Laplace covariance, the samplers'
+posterior and every reported χ² are those of the problem itself. Padding rows (zero weight,
+:func:`fitting.fit_many`) are zero and do not count in m₀, so a batched solve is normalised as
+the single one. tests/test_scale_invariance.py checks the optimum under σ × c for c = 1e-30 …
+1e30 (60 decades) to 1e-8, χ² · c² and the covariance / c² to 1e-8 relative.
+
+**Outcomes.** Beyond optimistix's results (:data:`RESULT_NAMES`), a solve that optimistix
+calls successful is reported as
+
+* ``"nonfinite"`` when θ̂, χ²(θ̂) or the Jacobian there is not finite (any result, in fact: a
+  non-finite estimate never passes as converged);
+* ``"stopped_at_start"`` when θ̂ is the start itself and the start is not stationary: some
+  coordinate strictly inside the prior box has a Jacobian column ``J_i`` at more than
+  :data:`STATIONARY_COSINE` of a right angle to the residual, ``|J_iᵀ r| > 1e-4 ‖J_i‖ ‖r‖`` —
+  moving along it alone would lower χ² by more than 1e-8 of itself (a cosine: the same for
+  every σ scale and every unit of θ). A loose solver object (``atol`` above the residuals)
+  stops there; the named solvers, normalised as above, do not.
 """
 
 import equinox as eqx
@@ -13,7 +46,7 @@ import optimistix as optx
 from brdfscale import choices, InvalidInputError
 
 
-__all__ = ["RESULT_NAMES", "SOLVERS", "make_solver", "solve", "solve_rows", "solver_name"]
+__all__ = ["RESULT_NAMES", "SOLVERS", "STATIONARY_COSINE", "make_solver", "solve", "solve_rows", "solver_name"]
 
 SOLVERS = tuple(choices.SOLVERS)
 """The solvers by name (:data:`brdfscale.choices.SOLVERS`): Levenberg–Marquardt (default),
@@ -54,12 +87,21 @@ def _result_items() -> tuple:
 
 
 _RESULT_ITEMS = _result_items()
-RESULT_NAMES = tuple(name for name, _ in _RESULT_ITEMS)
-"""The name of every code :func:`solve_rows` returns (``RESULT_NAMES[0] == "successful"``)."""
+_OWN_RESULTS = ("nonfinite", "stopped_at_start")  # this module's outcomes (module docstring)
+RESULT_NAMES = tuple(name for name, _ in _RESULT_ITEMS) + tuple(
+    name for name in _OWN_RESULTS if name not in dict(_RESULT_ITEMS)
+)
+"""The name of every code :func:`solve_rows` returns (``RESULT_NAMES[0] == "successful"``):
+optimistix's results, then ``"nonfinite"`` (where the installed optimistix lacks it) and
+``"stopped_at_start"`` (module docstring)."""
+
+STATIONARY_COSINE = 1e-4
+"""The largest ``|J_iᵀ r|/(‖J_i‖ ‖r‖)`` at which a solve that never left its start still counts
+as converged (module docstring)."""
 
 
 def result_name(code: int) -> str:
-    """The optimistix result name of a code of :func:`solve_rows` (``"unknown"`` for −1)."""
+    """The name of a code of :func:`solve_rows` (``"unknown"`` for −1)."""
     return RESULT_NAMES[code] if 0 <= code < len(RESULT_NAMES) else "unknown"
 
 
@@ -97,15 +139,40 @@ def make_solver(solver, rtol: float, atol: float):
 
 
 def _residuals(theta, rows):
-    # module-level, so optimistix sees the same function object on every call (no recompilation);
     # ``rows`` is a Problem or its Rows (fitting.fit_many)
     return rows.residuals(theta)
+
+
+def _normalised_residuals(theta, args):
+    # module-level, so optimistix sees the same function object on every call (no recompilation);
+    # ``args``: the rows (as _residuals) and the normalisation ν (module docstring)
+    rows, scale = args
+    return _residuals(theta, rows) * scale
 
 
 def _code(result) -> jax.Array:
     """The index in :data:`RESULT_NAMES` of an optimistix result (traced; −1 if none matches)."""
     matches = jnp.stack([result == item for _, item in _RESULT_ITEMS])
     return jnp.where(jnp.any(matches), jnp.argmax(matches), -1).astype(jnp.int32)
+
+
+def normalisation(r0: jax.Array) -> jax.Array:
+    """``ν = √m₀/‖r₀‖`` of the residuals ``r₀`` at the start, 1 where ``‖r₀‖`` is 0 or not finite
+    (module docstring; traced)."""
+    norm = jnp.sqrt(jnp.sum(r0 * r0))
+    count = jnp.count_nonzero(r0).astype(r0.dtype)
+    usable = (norm > 0) & jnp.isfinite(norm)
+    return jnp.where(usable, jnp.sqrt(count) / jnp.where(usable, norm, 1.0), 1.0)
+
+
+def _stationary(rows, theta, residuals, jac) -> jax.Array:
+    """Whether no coordinate strictly inside the prior box has a Jacobian column at a cosine above
+    :data:`STATIONARY_COSINE` with the residual (module docstring; traced)."""
+    lo, hi = jnp.asarray(rows.lower), jnp.asarray(rows.upper)
+    inside = (theta > lo + 1e-6 * (hi - lo)) & (theta < hi - 1e-6 * (hi - lo))
+    column = jnp.sqrt(jnp.sum(jac * jac, axis=0))
+    cosine = jnp.abs(residuals @ jac) / jnp.maximum(column * jnp.sqrt(residuals @ residuals), jnp.finfo(jac.dtype).tiny)
+    return ~jnp.any(inside & (cosine > STATIONARY_COSINE))
 
 
 @eqx.filter_jit
@@ -119,13 +186,26 @@ def solve_rows(rows, y0, solver, max_steps):
     vmaps it over materials × starts): θ̂, result code (:data:`RESULT_NAMES`), steps,
     χ²(θ̂) and ``∂r/∂θ(θ̂)``.
 
-    The Gauss–Newton family (LM, dogleg) carries ``r`` and ``J`` in its state (``f_info``: the
-    linearisation at the last accepted point, which is θ̂), so they are read from there
-    rather than evaluated once more; other solvers evaluate them."""
-    sol = optx.least_squares(_residuals, solver, y0, args=rows, max_steps=max_steps, throw=False)
+    The solver works on the normalised rows ``r̃ = ν r`` (module docstring); χ² and the Jacobian
+    returned are those of ``r``. The Gauss–Newton family (LM, dogleg) carries ``r̃`` and ``J̃`` in
+    its state (``f_info``: the linearisation at the last accepted point, which is θ̂), so they are
+    read from there rather than evaluated once more; other solvers evaluate them."""
+    scale = normalisation(rows.residuals(y0))
+    sol = optx.least_squares(_normalised_residuals, solver, y0, args=(rows, scale), max_steps=max_steps, throw=False)
     info = getattr(sol.state, "f_info", None)
     if isinstance(info, optx.FunctionInfo.ResidualJac):
-        residuals, jac = info.residual, info.jac.as_matrix()
+        residuals, jac = info.residual / scale, info.jac.as_matrix() / scale
     else:
         residuals, jac = rows.residuals(sol.value), jax.jacfwd(rows.residuals)(sol.value)
-    return sol.value, _code(sol.result), sol.stats["num_steps"], rows.chi2_of_residuals(residuals), jac
+    chi2 = rows.chi2_of_residuals(residuals)
+    code = _code(sol.result)
+    successful = code == RESULT_NAMES.index("successful")
+    at_start = jnp.all(sol.value == y0)
+    code = jnp.where(
+        successful & at_start & ~_stationary(rows, sol.value, residuals, jac),
+        RESULT_NAMES.index("stopped_at_start"),
+        code,
+    )
+    finite = jnp.all(jnp.isfinite(sol.value)) & jnp.isfinite(chi2) & jnp.all(jnp.isfinite(jac))
+    code = jnp.where(finite, code, RESULT_NAMES.index("nonfinite")).astype(jnp.int32)
+    return sol.value, code, sol.stats["num_steps"], chi2, jac
