@@ -45,11 +45,16 @@ errors — a full disk, an I/O error — become :class:`brdfscale.OutputWriteErr
 and the free space (``brdfscale fit`` exits 8), and the committed chunks are kept. The free
 space is checked before each chunk (the chunk's bytes as HDF5's whole chunks, plus a margin,
 :func:`_need`; :func:`brdfscale.files.require_free_space`), so that HDF5 is not driven into a
-full disk, whose failures can leave its library state unusable. Temporary files are written
-beside the checkpoint and moved into place.
+full disk, whose failures can leave its library state unusable. HDF5's chunk cache is off for
+these writes (``rdcc_nbytes=0``): a chunk that cannot be written fails where it is written, not
+later when HDF5 releases its objects, where h5py could only print the error (tested on a real,
+full tmpfs with the free-space check switched off: the library's error, no HDF5 dump, no crash).
+A new file (:meth:`Checkpoint.create`, :func:`rewind_checkpoint`) is written to a temporary
+beside the checkpoint, read back and verified, and only then moved into place.
 """
 
 import contextlib
+import errno
 import hashlib
 import json
 import os
@@ -140,6 +145,15 @@ def _non_finite(name: str, a: np.ndarray) -> bool:
     if name.split("/")[-1] in _LOG_DENSITIES:
         bad &= a != -np.inf
     return bool(np.any(bad))
+
+
+def _reads_back(tmp: str) -> None:
+    """A checkpoint just written to the temporary ``tmp`` verifies, before it is moved into place:
+    HDF5 reports some failed writes only when its objects are released, not to the caller."""
+    try:
+        verify(tmp)
+    except (MeasurementFileError, InvalidInputError) as err:
+        raise OSError(errno.EIO, f"the file written does not read back ({err})") from None
 
 
 class Stored:
@@ -373,8 +387,9 @@ class Checkpoint:
         only when ``replace``."""
 
         def write(tmp):
-            with _h5py().File(tmp, "w") as f:
+            with _h5py().File(tmp, "w", rdcc_nbytes=0) as f:
                 _initialise(f, self.signature, self.walkers, self.d, self.chunk, self.stats, subspace)
+            _reads_back(tmp)
 
         _check_space(self.path, _MARGIN)
         files.atomic_write(self.path, write, overwrite=replace, error=MeasurementFileError, foreign=_FOREIGN)
@@ -388,7 +403,7 @@ class Checkpoint:
         f = None
         try:
             with _h5_write(self.path, "appending a chunk"):
-                f = _h5py().File(self.path, "r+")
+                f = _h5py().File(self.path, "r+", rdcc_nbytes=0)  # chunks written at once: errors here, not later
                 _commit(f, blocks, state)
                 f.close()
                 f = None
@@ -482,7 +497,7 @@ def rewind_checkpoint(path) -> int:
         states = {name: ds[: len(keep)] for name, ds in f["state"].items()} if keep else {}
 
     def write(tmp):
-        with h5.File(tmp, "w") as out:
+        with h5.File(tmp, "w", rdcc_nbytes=0) as out:
             _initialise(out, signature, W, d, chunk, dtypes, subspace)
             start = 0
             for row, end in enumerate(keep):
@@ -492,6 +507,7 @@ def rewind_checkpoint(path) -> int:
                     {name: rows[row] for name, rows in states.items()},
                 )
                 start = end
+        _reads_back(tmp)
 
     _check_space(path, sum(a.nbytes for a in data.values()) * 2 + _MARGIN)
     files.atomic_write(path, write, overwrite=True, error=MeasurementFileError, foreign=_FOREIGN)
