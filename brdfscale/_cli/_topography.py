@@ -120,9 +120,10 @@ def run(args) -> int:
     _refuse_existing(args.out, args.force)  # before the work; again under the lock
     field = read_field(args.file, args)
     mus = sorted(args.scales.resolve(field))
-    results = synth.facet_statistics(field, mus, bins=args.bins)
+    extent = lobe_extent(field)
+    results = synth.facet_statistics(field, mus, bins=args.bins, extent=extent)
     command = f"brdfscale topography {args.file} {reading_command(args)} --scales {args.scales} --bins {args.bins}"
-    doc = document(field, results, args.bins, command)
+    doc = document(field, results, args.bins, command, extent)
     fig = plot.facet_statistics(results, field=field)
     make_directory(args.out)
     with files.exclusive(args.out, what="output directory"):
@@ -137,9 +138,24 @@ def run(args) -> int:
     return 0
 
 
-def document(field, results, bins: int, command: str) -> dict:
+def lobe_extent(field) -> float | None:
+    """The half-width of the lobes' grids g_μ (the figure's cuts): :func:`brdfscale.synth.robust_extent`,
+    from quantiles of the pixel slopes, so that a few outlier pixels do not squeeze every lobe into a
+    node; None (the full range of :func:`brdfscale.synth.facet_statistics`) for a field whose slopes do
+    not vary at that quantile (a flat one). Σ(μ) does not depend on it: it is computed from the facets."""
+    from .. import synth
+
+    if field.steepest_slope == 0:
+        return None
+    try:
+        return synth.robust_extent(field)
+    except InvalidInputError:  # fewer than 1 % of the pixel facets deviate from the mean slope
+        return None
+
+
+def document(field, results, bins: int, command: str, extent: float | None = None) -> dict:
     """statistics.json's content: provenance, the field's geometry and per scale the statistics."""
-    from .. import __version__, synth
+    from .. import __version__
 
     dx, dy = field.spacing
     measured = field.heights.size if field.mask is None else int(field.mask.sum())
@@ -156,11 +172,16 @@ def document(field, results, bins: int, command: str) -> dict:
             "periodic": field.periodic,
             "measured_pixels": measured,
             "unmeasured_pixels": field.heights.size - measured,
-            "steepest_pixel_slope": synth.steepest_slope(field),
+            "steepest_pixel_slope": field.steepest_slope,
+            "flat": field.steepest_slope == 0,
+            # pitches equal to a relative 1e-3 made square: the pitches as given and their difference
+            "square_pixels": field.description.get("square_pixels"),
         },
         "bins": bins,
+        "lobe_extent": extent,  # the half-width of the g_μ grids (null: the full range of the slopes)
         "conventions": "slopes are normal slopes m = −∇h (dimensionless); a facet at scale μ is a window of block = "
-        "(rows, cols) = (μ/Δy, μ/Δx) pixel facets placed without wrap-around; mean and covariance are "
+        "(rows, cols) = (μ/Δy, μ/Δx) pixel facets placed without wrap-around, window_m its sides along x and "
+        "y (equal to μ within 1e-3 when the pixels are not square); mean and covariance are "
         "those of the facet slopes (covariance: the unbiased sample covariance Σ(μ)), covariance_error "
         "the standard error of each entry (null where undefined), independent the effective number of "
         "independent facets, excluded the windows touching an unmeasured pixel, rms_slope √⟨|m|²⟩ "
@@ -170,6 +191,7 @@ def document(field, results, bins: int, command: str) -> dict:
                 "mu_m": r.mu,
                 "mu_px": r.block[1],
                 "block": list(r.block),
+                "window_m": list(r.window),
                 "count": r.count,
                 "excluded": r.excluded,
                 # lists, None where not finite (e.g. the error of a single facet's Σ)
@@ -188,7 +210,10 @@ def _sigma(row) -> tuple[list[float], list[float]]:
     """σ_x, σ_y and their standard errors (from those of Σ_xx, Σ_yy: δσ = δΣ / 2σ)."""
     cov, err = row["covariance"], row["covariance_error"]
     sd = [math.sqrt(max(cov[a][a], 0.0)) for a in (0, 1)]
-    de = [err[a][a] / (2 * s) if err[a][a] is not None and s > 0 else math.nan for a, s in zip((0, 1), sd)]
+    de = [
+        err[a][a] / (2 * s) if err[a][a] is not None and s > 0 else 0.0 if err[a][a] == 0 else math.nan
+        for a, s in zip((0, 1), sd)
+    ]
     return sd, de
 
 
@@ -201,11 +226,25 @@ def summary_line(doc: dict) -> str:
     )
     ch = d.get("channel") or {}
     trend = d.get("detrend") or "none"
+    square, flat = f.get("square_pixels"), f.get("flat")
     return (
         f"{d.get('file', '?')}: {ny} × {nx} pixels of {dx / size:.4g} × {dy / size:.4g} {unit}"
         + (f", {instrument}" if instrument else "")
         + f", channel {ch.get('index')} {ch.get('name')!r}"
         + f", detrend {trend}, {f['unmeasured_pixels']} unmeasured pixels"
+        + (f"\n{square_note(square)}" if square else "")
+        + ("\nnote: the surface is flat (every measured pixel slope is 0): Σ(μ) = 0 at every scale" if flat else "")
+    )
+
+
+def square_note(record: dict) -> str:
+    """One line: pitches equal to the tolerance, treated as square, with their difference."""
+    unit, size = display_unit([record["pitch"]])
+    dx, dy = record["pitch_as_given"]
+    return (
+        f"note: pixels square to {100 * record['relative_difference']:.2g} % (Δx = {dx / size:.6g}, Δy = "
+        f"{dy / size:.6g} {unit} in the file), within the tolerance {100 * record['tolerance']:g} %: treated as "
+        f"square, Δ = {record['pitch'] / size:.6g} {unit} (√(Δx Δy); recorded in statistics.json)"
     )
 
 
@@ -279,7 +318,10 @@ def markdown(doc: dict) -> str:
             if trend.get("coefficients")
             else ""
         ),
-        f"* lobes g_μ tabulated on {doc['bins']} × {doc['bins']} nodes",
+        *([f"* {square_note(f['square_pixels'])[6:]}"] if f.get("square_pixels") else []),
+        *(["* the surface is flat: every measured pixel slope is 0"] if f.get("flat") else []),
+        f"* lobes g_μ tabulated on {doc['bins']} × {doc['bins']} nodes"
+        + (f" over ±{doc['lobe_extent']:.4g} (synth.robust_extent)" if doc.get("lobe_extent") else ""),
         "",
     ]
     head = [

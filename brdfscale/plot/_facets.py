@@ -27,8 +27,11 @@ def facet_statistics(results, *, field=None):
 
     Left: σ_x(μ) = √Σ_xx, σ_y(μ) = √Σ_yy log–log, error bars from
     :attr:`~brdfscale.synth.FacetStatistics.covariance_error` (δσ = δΣ/2σ), the number of facets
-    at each point. Middle and right: cuts through ``g_μ`` along u_x and u_y at up to four scales
-    above one pixel (at one pixel ``g_μ`` is the micro lobe alone).
+    at each point (a flat surface, Σ = 0 at every scale, is drawn on a linear axis and said so).
+    Middle and right: cuts through ``g_μ`` along u_x and u_y at up to four scales above one
+    pixel (at one pixel ``g_μ`` is the micro lobe alone), over the central interval that holds
+    :data:`CUT_MASS` of each cut (widened by a quarter) — quantiles, so that the few outlier
+    pixels of a measured file do not set the range. Every title names μ's unit.
 
     Args:
         results: the :class:`brdfscale.synth.FacetStatistics` of :func:`brdfscale.synth.facet_statistics`.
@@ -57,12 +60,13 @@ def facet_statistics(results, *, field=None):
     fig = figure(13.0, 4.2)
     ax, cx, cy = fig.subplots(1, 3)
     x = np.array(mus) / size
+    flat = all(not np.any(np.diag(r.covariance) > 0) for r in results)
     for a, (marker, name) in enumerate((("o-", "σ_x"), ("s--", "σ_y"))):
         sd = np.sqrt(np.maximum([r.covariance[a, a] for r in results], 0.0))
         err = np.array([r.covariance_error[a, a] for r in results]) / np.where(sd > 0, 2 * sd, np.inf)
         ax.errorbar(
             x,
-            np.where(sd > 0, sd, np.nan),
+            sd if flat else np.where(sd > 0, sd, np.nan),  # on the log axis a zero has no place
             yerr=np.where(np.isfinite(err), err, np.nan),
             fmt=marker,
             ms=4,
@@ -72,11 +76,14 @@ def facet_statistics(results, *, field=None):
     top = np.sqrt(np.max([np.max(np.diag(r.covariance)) for r in results]))
     for xi, r in zip(x, results):
         peak = np.sqrt(max(np.max(np.diag(r.covariance)), 0.0))
-        if peak > 0:
+        if peak > 0 or flat:
             ax.annotate(f"{r.count}", (xi, peak), textcoords="offset points", xytext=(3, 5), ha="left", fontsize=6)
     ax.set_xscale("log")
-    ax.set_yscale("log")
-    if top > 0:
+    if flat:  # a flat surface: Σ(μ) = 0 at every scale, on a linear axis
+        ax.set_ylim(-1.0, 1.0)
+        ax.text(0.5, 0.6, "flat surface: Σ(μ) = 0 at every scale", ha="center", transform=ax.transAxes, fontsize=8)
+    else:
+        ax.set_yscale("log")
         ax.set_ylim(None, top * 1.6)
     if field is not None:
         dx = field.spacing[0] / size
@@ -85,7 +92,7 @@ def facet_statistics(results, *, field=None):
         pixels.tick_params(labelsize=7)
     ax.set_xlabel(f"facet size μ ({unit})", fontsize=8)
     ax.set_ylabel("facet-slope standard deviation", fontsize=8)
-    ax.set_title("Σ(μ) ± standard error (numbers: facets)", fontsize=9)
+    ax.set_title(f"Σ(μ) ± standard error, μ in {unit} (numbers: facets)", fontsize=9)
     ax.legend(fontsize=7)
     small_ticks(ax)
 
@@ -93,14 +100,15 @@ def facet_statistics(results, *, field=None):
     if len(shown) > 4:
         shown = [shown[k] for k in np.unique(np.rint(np.linspace(0, len(shown) - 1, 4)).astype(int))]
     colours = colormap("viridis")(np.linspace(0.0, 0.85, max(len(shown), 1)))
+    span = f"{results[shown[0]].mu / size:.3g}–{results[shown[-1]].mu / size:.3g} {unit}" if shown else ""
     for axis, panel, name in ((0, cx, "u_x (u_y = 0)"), (1, cy, "u_y (u_x = 0)")):
-        reach, peak = 0.0, 0.0
+        reach, peak, edge = 0.0, 0.0, 0.0
         for colour, k in zip(colours, shown):
             u, g = _cut(results[k].lobe, axis)
             if not g.max() > 0:
                 continue
-            inside = u[g > 1e-4 * g.max()]
-            reach, peak = max(reach, float(np.max(np.abs(inside)))), max(peak, float(g.max()))
+            reach, peak = max(reach, _mass_reach(u, g, CUT_MASS)), max(peak, float(g.max()))
+            edge = max(edge, float(u[-1]))
             panel.semilogy(
                 u,
                 np.where(g > 0, g, np.nan),
@@ -108,8 +116,12 @@ def facet_statistics(results, *, field=None):
                 lw=1.2,
                 label=f"μ = {results[k].mu / size:.3g} {unit}, {results[k].count} facets",
             )
-        if peak > 0:
-            panel.set_xlim(-1.1 * reach, 1.1 * reach)
+        if flat and shown:  # every pixel facet parallel to its facet
+            panel.cla()
+            panel.text(0.5, 0.5, "flat surface: g_μ = δ(u) at every scale", ha="center", transform=panel.transAxes)
+        elif peak > 0:
+            reach = 1.25 * reach if reach > 0 else edge  # a lobe in one node: the whole grid
+            panel.set_xlim(-reach, reach)
             panel.set_ylim(peak * 1e-4, peak * 2)
             panel.legend(fontsize=6)
         else:
@@ -118,8 +130,27 @@ def facet_statistics(results, *, field=None):
             )
         panel.set_xlabel(f"slope offset {name}", fontsize=8)
         panel.set_ylabel(f"g_μ ({SLOPE_DENSITY})", fontsize=8)
-        panel.set_title(f"within-facet lobe g_μ along {name[:3]}", fontsize=9)
+        panel.set_title(f"within-facet lobe g_μ along {name[:3]}" + (f", μ = {span}" if span else ""), fontsize=9)
         small_ticks(panel)
     name = None if field is None else field.description.get("file") or field.description.get("name")
-    fig.suptitle(f"{name}: facet-slope statistics" if name else "facet-slope statistics", fontsize=10)
+    what = f"facet-slope statistics at μ = {mus[0] / size:.3g}–{mus[-1] / size:.3g} {unit}"
+    fig.suptitle(f"{name}: {what}" if name else what, fontsize=10)
     return fig
+
+
+CUT_MASS = 0.998
+"""The share of each cut's mass the lobe panels show: their range is the central interval
+holding it (quantiles of the cut, widened by a quarter), not the farthest non-zero node, so
+one outlier pixel does not shrink the lobe to a spike."""
+
+
+def _mass_reach(u: np.ndarray, g: np.ndarray, mass: float) -> float:
+    """The half-width of the central interval of ``u`` holding ``mass`` of the cut ``g`` (≥ 0)."""
+    weight = np.maximum(g, 0.0)
+    total = float(weight.sum())
+    if not total > 0:
+        return 0.0
+    order = np.argsort(np.abs(u), kind="stable")
+    inside = np.cumsum(weight[order]) / total
+    k = min(int(np.searchsorted(inside, mass)), len(u) - 1)
+    return float(np.abs(u[order[k]]))

@@ -273,7 +273,7 @@ def _lattice_tau(grid: np.ndarray, present: np.ndarray, lag: int, var: float) ->
 def steepest_slope(field: HeightField) -> float:
     """The largest |component| of any measured pixel facet's normal slope (sizes slope grids);
     0 for a flat field. :class:`HeightField` computes it once, when it is made, and refuses a
-    field whose steepest slope lies outside ``SLOPE_RANGE`` (a dropout, denormal heights)."""
+    field whose steepest slope lies outside ``HeightField.SLOPE_RANGE`` (a dropout, denormal heights)."""
     return check_field(field).steepest_slope
 
 

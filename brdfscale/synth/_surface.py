@@ -118,6 +118,10 @@ class HeightField(Shown):
     # the fields hold the validated values; the constructor takes more (a single spacing, integer heights, any
     # mapping) and refuses the rest with InvalidInputError, so its arguments are unannotated (``object`` where a
     # default would otherwise make the type checker narrow what callers may pass to the default's type)
+    SLOPE_RANGE: ClassVar[tuple[float, float]] = SLOPE_RANGE
+    """The magnitudes the steepest pixel slope may have unless it is 0 (:data:`SLOPE_RANGE`)."""
+    MAX_PITCH_RATIO: ClassVar[float] = MAX_PITCH_RATIO
+    """The largest ratio of the two pitches (:data:`MAX_PITCH_RATIO`)."""
     LENGTH_TOLERANCE: ClassVar[float] = 1e-3
     """The relative tolerance within which two lengths of a field count as equal: the sides of
     a facet window (:meth:`block`; the window's side along y may differ from μ by this much when
@@ -161,7 +165,7 @@ class HeightField(Shown):
         if not max(spacing) <= MAX_PITCH_RATIO * min(spacing):  # also an overflowing ratio
             raise InvalidInputError(
                 f"the pixel pitches Δx = {spacing[0]:.6g} and Δy = {spacing[1]:.6g} differ by more than a factor "
-                f"{MAX_PITCH_RATIO:g} (brdfscale.synth._surface.MAX_PITCH_RATIO): no facet window holds whole "
+                f"{MAX_PITCH_RATIO:g} (HeightField.MAX_PITCH_RATIO): no facet window holds whole "
                 "pixels along both axes; check the pitches (and their units)."
             )
         check_micro(micro)
@@ -216,7 +220,7 @@ class HeightField(Shown):
         )
         raise InvalidInputError(
             f"{what} (pitch {self.spacing[0]:.6g} × {self.spacing[1]:.6g}{unit}; accepted: a flat field or a steepest "
-            f"slope from {low:g} to {high:g}, brdfscale.synth._surface.SLOPE_RANGE)."
+            f"slope from {low:g} to {high:g}, HeightField.SLOPE_RANGE)."
         )
 
     @functools.cached_property

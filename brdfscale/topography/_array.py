@@ -167,7 +167,7 @@ def from_array(
     (infinite values are refused; NaN means unmeasured), a bad spacing (or one outside
     :data:`PITCH_RANGE_M`), unit, mask or detrend, ``periodic=True`` with detrending, a mask
     that leaves no measured pixel facet, or a steepest pixel slope outside
-    ``brdfscale.synth``'s ``SLOPE_RANGE`` (a dropout or a wrong unit above 1e6, denormal heights
+    ``HeightField.SLOPE_RANGE`` (a dropout or a wrong unit above 1e6, denormal heights
     below 1e-30; a flat field is accepted).
     """
     raw = heights

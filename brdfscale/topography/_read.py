@@ -2,6 +2,7 @@
 
 import contextlib
 import dataclasses
+import logging
 import math
 import os
 import re
@@ -74,20 +75,46 @@ def read(path, *, channel: int | str | None = None, detrend: str | None = "plane
     return field if micro is None else dataclasses.replace(field, micro=micro)
 
 
+#: The loggers of SurfaceTopography and the libraries its readers use: what they log while a
+#: file is read (e.g. igor2's dump of a damaged header) is kept out of the terminal and, when the
+#: file cannot be read, its first line is added to the reason.
+_READER_LOGGERS = ("SurfaceTopography", "igor2", "netCDF4", "h5py", "PIL", "tifffile")
+
+
+class _Kept(logging.Handler):
+    def __init__(self):
+        super().__init__(logging.DEBUG)
+        self.lines: list[str] = []
+
+    def emit(self, record):
+        with contextlib.suppress(Exception):
+            self.lines.append(" ".join(record.getMessage().split())[:200])
+
+
 @contextlib.contextmanager
 def _file_errors(name: str, st):
     """The one boundary around SurfaceTopography: any exception of its readers (KeyError,
     dateutil's ParserError, IndexError, struct and zlib errors, MemoryError, …) becomes a
-    MeasurementFileError naming the file and the reason; brdfscale's own errors pass."""
+    MeasurementFileError naming the file and the reason; brdfscale's own errors pass. What the
+    readers log meanwhile is kept (:data:`_READER_LOGGERS`)."""
+    kept = _Kept()
+    loggers = [logging.getLogger(n) for n in _READER_LOGGERS]
+    saved = [(lg.handlers[:], lg.propagate) for lg in loggers]
+    for lg in loggers:
+        lg.handlers, lg.propagate = [kept], False
     try:
         yield
     except BrdfscaleError:
         raise
     except Exception as err:
+        logged = f"; it logged: {kept.lines[0]}" if kept.lines else ""
         raise MeasurementFileError(
-            f"{name}: SurfaceTopography {st.__version__} cannot read it as a topography ({_reason(err)}); check the "
-            "file is an undamaged instrument height map of a format it supports."
+            f"{name}: SurfaceTopography {st.__version__} cannot read it as a topography ({_reason(err)}{logged}); "
+            "check the file is an undamaged instrument height map of a format it supports."
         ) from None
+    finally:
+        for lg, (handlers, propagate) in zip(loggers, saved):
+            lg.handlers, lg.propagate = handlers, propagate
 
 
 def _decode(st, name: str, channel):

@@ -79,8 +79,8 @@ def resample(field: HeightField, pitch: float | None = None) -> HeightField:
     sizes = [(n - 3) * d / new + 1 if d != new else n for n, d in ((ny, dy), (nx, dx))]
     if not (min(sizes) >= 4 and 8.0 * sizes[0] * sizes[1] <= MAX_GRID_BYTES):
         raise InvalidInputError(
-            f"pitch={new:.6g}{unit} would resample the {ny} × {nx} field of {dx:.6g} × {dy:.6g}{unit} pixels onto about "
-            f"{sizes[0]:.6g} × {sizes[1]:.6g} pixels; a field needs at least 4 × 4 and at most "
+            f"pitch={new:.6g}{unit} would resample the {ny} × {nx} field of {dx:.6g} × {dy:.6g}{unit} pixels onto "
+            f"about {sizes[0]:.6g} × {sizes[1]:.6g} pixels; a field needs at least 4 × 4 and at most "
             f"brdfscale.synth.MAX_GRID_BYTES = {MAX_GRID_BYTES} bytes of float64 nodes."
         )
     (iy, wy, y0), (ix, wx, x0) = _axis(ny, dy, new), _axis(nx, dx, new)
