@@ -1,6 +1,7 @@
 """Fuzz family ``library`` (issue 34): damaged library indices and SIGKILLed ``brdfscale fit-library`` runs.
 
-A small library (2 materials quick, 3 full; ``tests.helpers.write_library``) is fitted once,
+A small library (2 materials quick, 3 full: truths of ``tests.helpers``' synthetic library, all
+16 px at five scales) is fitted once,
 uninterrupted, in this process: the reference (``--starts 1 --batch 1``, solver only, no
 figures). Then:
 
@@ -16,9 +17,9 @@ figures). Then:
   left byte for byte as it was; ``same``: exit 0 and the library complete — every material
   done in the index, its report's θ and χ² those of the reference (relative 1e-9), no
   ``.partial`` directory or temporary file left. Anything else is ``bad``.
-* ``sigkill_fit_library`` — the command as a subprocess (two thirds of the trials with
+* ``sigkill_fit_library`` — the command as a subprocess (every other trial with
   ``--workers 2``, a local Ray instance; the others in-process), SIGKILLed (the driver's PID
-  alone) at a time drawn uniformly over 90 % of an uninterrupted run's duration; then every process it
+  alone) at a time drawn uniformly over 90 % of an uninterrupted run's duration (quick: of 2.2 s); then every process it
   started must be gone within 10 s (``stray``: bad), and the same command run again must exit
   0 with the library complete and equal to the reference as above (``same``), again leaving
   no process behind.
@@ -305,8 +306,8 @@ def _sigkills(n, quick, rng, tmp, lib, reference, counts, bad):
     env["PYTHONPATH"] = os.pathsep.join(filter(None, (ROOT, env.get("PYTHONPATH"))))
     command = [sys.executable, "-m", "brdfscale", "fit-library", lib, *ARGS]
     executors = [("process", [])] + ([("ray", ["--workers", "2"])] if has_ray and not quick else [])
-    duration = {}
-    for name, extra in executors:  # an uninterrupted run of each: its duration, its results, nothing left
+    duration = {"process": 2.2}  # quick: killed early (start-up, index), the rerun then does all the work
+    for name, extra in executors if not quick else ():  # an uninterrupted run of each: its duration, results
         out = os.path.join(tmp, f"uninterrupted-{name}")
         t0 = time.monotonic()
         code, line, left = _drive([*command, "--out", out, *extra], env)
@@ -316,7 +317,7 @@ def _sigkills(n, quick, rng, tmp, lib, reference, counts, bad):
             raise RuntimeError(f"the uninterrupted {name} run is not the reference: {problem or f'{left} left'}")
         shutil.rmtree(out, ignore_errors=True)
     for k in range(n):
-        name, extra = executors[0] if k % 3 == 2 or len(executors) == 1 else executors[1]
+        name, extra = executors[k % len(executors)]
         out = os.path.join(tmp, f"killed-{k}")
         when = rng.uniform(0.0, 0.9 * duration[name])
         counts["tried"] += 1
@@ -338,19 +339,31 @@ def _sigkills(n, quick, rng, tmp, lib, reference, counts, bad):
         shutil.rmtree(out, ignore_errors=True)
 
 
+def _write_library(directory: str, n: int, seed: int) -> None:
+    """Materials 0 … n−1 of tests/helpers.py's synthetic library (their truths), all of one small
+    layout (16 px, one image per scale) so that one compiled fit serves them all."""
+    from brdfscale import exr, fitting
+    from tests.helpers import library_truth, SCALES
+
+    os.makedirs(directory)
+    for i in range(n):
+        mset = fitting.simulate(
+            fitting.ParametricModel(), library_truth(i, seed), SCALES, size=16, extent=0.5, noise=0.02, seed=i
+        )
+        exr.write_measurements(os.path.join(directory, f"material_{i:03d}.exr"), mset)
+
+
 def run(quick: bool, seed: int = 0, directory: str | None = None) -> dict:
     """The family's trials (module docstring): ``{"kinds": {kind: counts}, "bad_examples": [...]}``."""
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    from tests.helpers import write_library
-
     rng = random.Random(seed)
     counts = {kind: {"tried": 0, "refused": 0, "same": 0, "bad": 0} for kind in KINDS}
     bad: list = []
     with tempfile.TemporaryDirectory(dir=directory, prefix="fuzz-library-") as tmp:
         lib, ref = os.path.join(tmp, "lib"), os.path.join(tmp, "reference")
-        write_library(lib, 2 if quick else 3, seed=seed)
+        _write_library(lib, 2 if quick else 3, seed)
         code, out, err = _main(["fit-library", lib, "--out", ref, *ARGS])
         if code != 0:
             raise RuntimeError(f"the reference library fit failed (exit {code}): {out}{err}")
