@@ -331,6 +331,24 @@ def _remove(tmp: str | None) -> None:
             os.unlink(tmp)
 
 
+@contextlib.contextmanager
+def all_or_none(*paths: str | os.PathLike) -> Iterator[None]:
+    """Outputs written together (a command's files): when the block raises — a full disk met
+    by the third of three files — each of ``paths`` that did not exist when the block began
+    is removed, so that a rerun finds none of this run's files and need not ``--force``.
+    Files that existed before are left as the block left them (replaced whole, or not)."""
+    paths = tuple(os.fspath(p) for p in paths)
+    existed = {p for p in paths if os.path.lexists(p)}
+    try:
+        yield
+    except BaseException:
+        for p in paths:
+            if p not in existed:
+                with contextlib.suppress(OSError):
+                    os.unlink(p)
+        raise
+
+
 def _lock_paths(target: str) -> tuple[str, str]:
     """(lock file, holder record) of ``target``: inside a directory, beside a file."""
     if os.path.isdir(target):

@@ -119,14 +119,21 @@ def _commands(inputs: Path, out: Path, quick: bool) -> dict[str, list[str]]:
     return commands
 
 
-def _prepare(inputs: Path, env: dict) -> None:
-    """The inputs (outside the tmpfs): a small measurement set and a library of two materials."""
-    synth = ["synth", "gaussian", *_SYNTH]
+def _prepare(inputs: Path) -> None:
+    """The inputs (outside the tmpfs): lobes a parametric Beckmann model fits adequately
+    (tests/test_fit_cli.py's) as ``data.exr`` and a library of two such materials."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)  # fitting.simulate's precision (as the commands set it)
+    from brdfscale import exr, fitting
+
+    truth = dict(amplitude=1.0, alpha_lobe=0.1, alpha_max=0.3, mu_c=4.0, exponent=1.0)
     (inputs / "library").mkdir()
-    for seed, path in ((1, inputs / "data.exr"), (2, inputs / "library" / "a.exr"), (3, inputs / "library" / "b.exr")):
-        code, err = _run([*synth, "--seed", str(seed), "--out", str(path)], env)
-        if code != 0:
-            raise RuntimeError(f"preparing {path} failed ({code}): {err.strip()[-300:]}")
+    for seed, path in ((3, inputs / "data.exr"), (4, inputs / "library" / "a.exr"), (5, inputs / "library" / "b.exr")):
+        mset = fitting.simulate(
+            fitting.ParametricModel(), truth, (1.0, 4.0, 16.0), size=25, extent=0.5, noise=0.02, floor=1e-3, seed=seed
+        )
+        exr.write_measurements(path, mset)
 
 
 def _run(argv: list[str], env: dict, fault: str | None = None, timeout: float = 900) -> tuple[int, str]:
@@ -334,7 +341,7 @@ def run(quick: bool, seed: int = 0, directory: str | None = None) -> dict:
         out = disk / "out"
         commands = _commands(inputs, out, quick)
         if not quick:
-            _prepare(inputs, env)
+            _prepare(inputs)
         for kind, argv in commands.items():
             counts = {"tried": 0, "refused": 0, "same": 0, "bad": 0}
             result["kinds"][kind] = counts

@@ -25,6 +25,7 @@ from brdfscale import _files, exr, files, OutputWriteError
 
 
 STEPS = _files.STEPS
+TOPOGRAPHY = os.path.join(os.path.dirname(__file__), "data", "topographies", "di-3.di")
 _FULL = os.strerror(errno.ENOSPC)
 
 
@@ -239,6 +240,54 @@ def test_the_command_exits_8_with_one_line_and_a_rerun_completes(tmp_path, monke
     code, err = run_command(argv)
     assert code == 0, err
     exr.read_measurements(out)
+
+
+def test_all_or_none_removes_only_the_new_files_of_a_failed_group(tmp_path, monkeypatch):
+    a, b, c = (tmp_path / n for n in ("a.txt", "b.txt", "c.txt"))
+    c.write_text("the user's")
+    written = []
+
+    def fault(step, tmp):
+        if step == "rename":
+            written.append(tmp)
+            if len(written) == 2:
+                raise OSError(errno.ENOSPC, _FULL)
+
+    monkeypatch.setattr(_files, "_fault", fault)
+    with pytest.raises(OutputWriteError, match="b.txt: not written: disk full"):
+        with files.all_or_none(a, b, c):
+            files.write_text(a, "first")
+            files.write_text(b, "second")
+    assert sorted(os.listdir(tmp_path)) == ["c.txt"] and c.read_text() == "the user's"
+    with files.all_or_none(a, b):  # without an error: both stay
+        files.write_text(a, "1")
+        files.write_text(b, "2")
+    assert a.read_text() + b.read_text() == "12"
+
+
+def test_topography_full_at_its_second_file_leaves_none_and_reruns_without_force(tmp_path, monkeypatch):
+    out = tmp_path / "t"
+    argv = ["topography", TOPOGRAPHY, "--scales", "1px,4px", "--bins", "17", "--out", str(out)]
+    written = []
+
+    def fault(step, tmp):
+        if step == "write" and ".holder.json" not in tmp:
+            written.append(tmp)
+            if len(written) == 2:
+                raise OSError(errno.ENOSPC, _FULL)
+
+    monkeypatch.setattr(_files, "_fault", fault)
+    code, err = run_command(argv)
+    assert code == 8 and len(err.strip().splitlines()) == 1 and "statistics.md: not written: disk full" in err, err
+    assert [p for p in os.listdir(out) if not p.startswith(".brdfscale.lock")] == []
+    monkeypatch.setattr(_files, "_fault", lambda step, tmp: None)
+    code, err = run_command(argv)
+    assert code == 0, err
+    assert sorted(p for p in os.listdir(out) if not p.startswith(".")) == [
+        "statistics.json",
+        "statistics.md",
+        "statistics.png",
+    ]
 
 
 def test_a_full_disk_met_outside_the_writers_is_no_unexpected_failure(monkeypatch, capsys):

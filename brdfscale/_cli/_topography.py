@@ -129,9 +129,10 @@ def run(args) -> int:
     with files.exclusive(args.out, what="output directory"):
         _refuse_existing(args.out, args.force)
         png, md, js = (os.path.join(args.out, name) for name in OUTPUTS)
-        files.atomic_write(png, lambda tmp: fig.savefig(tmp, dpi=120, format="png"), overwrite=args.force)
-        files.write_text(md, markdown(doc), overwrite=args.force)
-        files.write_text(js, json_text(doc, indent=2, ensure_ascii=False) + "\n", overwrite=args.force)
+        with files.all_or_none(png, md, js):  # a full disk at the last file: none left, a rerun needs no --force
+            files.atomic_write(png, lambda tmp: fig.savefig(tmp, dpi=120, format="png"), overwrite=args.force)
+            files.write_text(md, markdown(doc), overwrite=args.force)
+            files.write_text(js, json_text(doc, indent=2, ensure_ascii=False) + "\n", overwrite=args.force)
     print(summary_line(doc))
     print(table(doc))
     print(f"wrote {js}, {os.path.basename(md)} and {os.path.basename(png)}")
