@@ -6,6 +6,8 @@ must then say so. Recovery by the non-parametric model is tests/test_fit_slow.py
 """
 
 import json
+import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -70,3 +72,103 @@ def test_nonparametric_fit_command(tmp_path, capsys):
     for fig in ("data_vs_fit.png", "statistics.png"):
         assert (out / fig).read_bytes()[:4] == b"\x89PNG"
     assert exr.read_measurements(str(out / "evolved_lobes.exr")).scales.tolist() == list(SCALES)
+
+
+# -- the outcome and the exit status (issue 31: fitting.assess through the command) ---------------------------
+
+DI = str(Path(__file__).parent / "data" / "topographies" / "di-3.di")
+ADEQUATE = dict(amplitude=1.0, alpha_lobe=0.1, alpha_max=0.3, mu_c=4.0, exponent=1.0)
+
+
+def _simulated_file(tmp_path, family: str, seed: int) -> str:
+    mset = fitting.simulate(
+        fitting.ParametricModel(family, family),
+        ADEQUATE,
+        (1.0, 4.0, 16.0),
+        size=25,
+        extent=0.5,
+        noise=0.02,
+        floor=1e-3,
+        seed=seed,
+    )
+    path = tmp_path / f"{family}-{seed}.exr"
+    exr.write_measurements(str(path), mset)
+    return str(path)
+
+
+@pytest.mark.slow  # two fits compiled afresh: 20–80 s on 2 shared cores (fitting.assess itself: tests/test_adequacy.py)
+def test_a_correct_model_exits_0_with_pulls_and_a_wrong_one_exits_5(tmp_path, capsys):
+    """Beckmann lobes fitted by the Beckmann model: exit 0, the truth/pull table printed as the demo
+    prints it; GGX lobes fitted by the same model: exit 5 after the complete report, one line on
+    stderr naming the worst scale and its figure."""
+    fit = ["--no-compilation-cache", "fit", "--steps", "0", "--starts", "2", "--no-progress", "--out"]
+    assert main([*fit, str(tmp_path / "ok"), _simulated_file(tmp_path, "beckmann", 3)]) == 0
+    printed = capsys.readouterr()
+    assert "|est−truth|/std" in printed.out and "outcome: ok" in printed.out and printed.err == ""
+    doc = json.loads((tmp_path / "ok" / "fit.json").read_text())
+    assert doc["outcome"]["status"] == "ok" and len(doc["outcome"]["scales"]) == 3
+    for name, value in ADEQUATE.items():  # the pulls printed are those of the report's rows
+        row = doc["parameters"][name]
+        assert row["truth"] == value
+        estimate = row["median"] if row["median"] is not None else row["estimate_map"]
+        pull = "—" if row["std"] is None else f"{abs(estimate - value) / row['std']:.2f}"  # — : undetermined
+        assert printed.out.split(f"\n{name} ")[1].splitlines()[0].endswith(f"  {pull}")
+
+    assert main([*fit, str(tmp_path / "wrong"), _simulated_file(tmp_path, "ggx", 3)]) == 5
+    printed = capsys.readouterr()
+    (line,) = printed.err.splitlines()
+    assert line.startswith("brdfscale fit: inadequate: model inadequate at μ = ") and " px: " in line
+    doc = json.loads((tmp_path / "wrong" / "fit.json").read_text())
+    assert doc["outcome"]["status"] == "inadequate" and doc["outcome"]["reason"] in line
+    assert (tmp_path / "wrong" / "data_vs_fit.png").exists()  # the complete report, then the status
+
+
+def test_an_unresolved_lobe_is_refused_with_7_before_the_fit(tmp_path, capsys):
+    """An extent of 50 slope units puts every lobe of di-3 (rms slope 0.19) into a pixel or two: the
+    fit is refused before any work, one line saying why and what to do, exit 7, no report."""
+    data = tmp_path / "wide.exr"
+    argv = ["synth", "--topography", DI, "--pixels", "33", "--scales", "auto:3", "--extent", "50"]
+    assert main([*argv, "--out", str(data)]) == 0
+    capsys.readouterr()
+    assert main(["fit", str(data), "--out", str(tmp_path / "F"), "--no-progress"]) == 7
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith("brdfscale fit: undetermined: the lobe at μ = ") and " m is " in line
+    assert "--extent" in line and "finer angular resolution" in line
+    assert not (tmp_path / "F" / "fit.json").exists()
+
+
+def test_synth_topography_defaults_make_a_file_fit_can_use(tmp_path, capsys):
+    """README's chain, its first half: synth --topography stores σ (poisson:200:1), an extent from
+    robust slope quantiles and an instrument resolution of 2 image pixels, each recorded in the
+    metadata; the lobes are resolved (the check fit runs first)."""
+    from brdfscale import synth, topography
+
+    jax_free = tmp_path / "m.exr"
+    assert main(["synth", "--topography", DI, "--pixels", "33", "--scales", "auto:3", "--out", str(jax_free)]) == 0
+    mset = exr.read_measurements(str(jax_free))
+    assert all(image.sigma is not None for image in mset.images)
+    assert mset.metadata["noise"] == {"type": "poisson", "exposure": 200.0, "read_noise": 1.0}
+    field = topography.read(DI)
+    assert mset.metadata["extent"] == pytest.approx(synth.robust_extent(field))
+    assert mset.metadata["resolution"] == pytest.approx(2 * 2 * mset.metadata["extent"] / 32)
+    assert set(mset.metadata["defaults"]) == {"extent", "noise", "resolution"}
+    assert fitting.resolution(fitting.Dataset.from_measurements(mset)).status == "ok"
+
+
+@pytest.mark.slow  # ≈ 40 s on 2 cores: a fit of a measured surface at README's defaults but for small images
+def test_readme_measured_surface_chain_runs_as_written(tmp_path, capsys):
+    """README: brdfscale topography FILE; brdfscale synth --topography FILE; brdfscale fit — on di-3 the
+    isotropic default model leaves structured residuals: exit 5 after the complete report, its
+    reason naming the scale in metres; every printed estimate inside its printed prior range."""
+    assert main(["topography", DI, "--out", str(tmp_path / "D")]) == 0
+    data = tmp_path / "m.exr"
+    assert main(["synth", "--topography", DI, "--pixels", "33", "--scales", "auto:4", "--out", str(data)]) == 0
+    code = main(["fit", str(data), "--out", str(tmp_path / "F"), "--no-progress", "--steps", "0"])
+    printed = capsys.readouterr()
+    doc = json.loads((tmp_path / "F" / "fit.json").read_text())
+    assert (code, doc["outcome"]["status"]) == (5, "inadequate")
+    assert printed.err.strip().endswith(doc["outcome"]["reason"]) and " m: " in doc["outcome"]["reason"]
+    for line in printed.out.splitlines():
+        if "prior range" in line:
+            lo, hi, best = (float(x) for x in re.findall(r"range (\S+) … (\S+); best fit (\S+)\)", line)[0])
+            assert lo * (1 - 1e-3) <= best <= hi * (1 + 1e-3), line

@@ -1,0 +1,168 @@
+"""fitting.assess: the outcome of a fit — lobes resolved, the model adequate, the fit converged.
+
+The checks against what nobody here wrote: the lobe width of a sampled Gaussian against the
+closed-form second moment of a Gaussian truncated where it falls below 5 % of its peak; the
+residual tests' false-alarm rate on data the model itself generated (several seeds) and their
+power on GGX data fitted by a Beckmann model; the robust extent on a field with one slope spike
+(the MetroPro case of issue 31) against the steepest-slope rule it replaces.
+"""
+
+import dataclasses
+import functools
+import math
+
+import numpy as np
+import pytest
+
+from brdfscale import fitting, synth
+from brdfscale.choices import ADEQUACY
+
+
+TRUTH = {"amplitude": 1.0, "alpha_lobe": 0.1, "alpha_max": 0.3, "mu_c": 4.0, "exponent": 1.0}
+SCALES = (1.0, 2.0, 4.0, 8.0)
+
+
+def _simulated(family: str, seed: int, extent: float = 0.5):
+    model = fitting.ParametricModel(family, family)
+    return fitting.simulate(model, TRUTH, SCALES, size=33, extent=extent, noise=0.02, floor=1e-3, seed=seed)
+
+
+@functools.cache  # (model, data, fit, outcome) of each case once per session: the fits are the time
+def _assessed(generated: str, fitted: str, seed: int):
+    data = fitting.Dataset.from_measurements(_simulated(generated, seed))
+    model = fitting.ParametricModel(fitted, fitted)
+    result = fitting.fit(model, data, starts=4, seed=seed)
+    problem = fitting.Problem(model, data)
+    return problem, result, fitting.assess(problem, result)
+
+
+def test_lobe_width_of_a_gaussian_is_the_truncated_closed_form():
+    """An isotropic Gaussian lobe of rms width s per axis, sampled on a fine grid: the pixels above
+    5 % of the peak are those within r ≤ R = s·√(2 ln 20), whose per-axis second moment is
+    s²·(1 − (R²/2s²)·e^(−R²/2s²)/(1 − e^(−R²/2s²))) — the closed form of a truncated 2-D Gaussian."""
+    from brdfscale import LobeImage, MeasurementSet
+
+    n, extent, s = 257, 1.0, 0.08
+    u = np.linspace(-extent, extent, n)
+    x, y = np.meshgrid(u, u)
+    images = []
+    for mu, width in ((1.0, s), (2.0, 2 * s)):
+        values = np.exp(-(x**2 + y**2) / (2 * width**2)) / (2 * np.pi * width**2)
+        images.append(LobeImage(mu=mu, incident=[0, 0, 1], extent=extent, values=values, sigma=1e-6 + 0 * values))
+    data = fitting.Dataset.from_measurements(MeasurementSet(tuple(images)))
+    half = math.log(1 / ADEQUACY.peak_fraction)  # R²/2s²
+    factor = math.sqrt(1 - half * math.exp(-half) / (1 - math.exp(-half)))
+    pitch = 2 * extent / (n - 1)
+    widths = fitting.lobe_widths(data)
+    assert widths == pytest.approx([factor * s / pitch, factor * 2 * s / pitch], rel=0.01)
+
+
+def _false_alarms(seeds) -> list:
+    flagged = []
+    for seed in seeds:
+        _, result, outcome = _assessed("beckmann", "beckmann", seed)
+        assert result.status == "converged"
+        assert all(row["width_px"] >= ADEQUACY.min_lobe_pixels for row in outcome.scales)
+        if outcome.status != "ok":
+            flagged.append((seed, outcome.reason))
+        else:
+            assert outcome.reason == "" and not outcome.problems
+    return flagged
+
+
+def test_a_correct_model_is_not_flagged():
+    """False alarms: data the model generated, fitted by the same model, pass every check (seeds 0–2)."""
+    assert _false_alarms(range(3)) == []
+
+
+@pytest.mark.slow  # ≈ 30 s on 2 cores
+def test_false_alarm_rate_over_twenty_seeds():
+    """Each test at p < 1e-3 and above an effect size: at most 1 false alarm in 20 seeds."""
+    flagged = _false_alarms(range(20))
+    assert len(flagged) <= 1, flagged
+
+
+def test_a_wrong_model_is_flagged_inadequate():
+    """Power: GGX lobes fitted by the Beckmann model leave structured residuals at every seed."""
+    for seed in range(2):
+        _, _, outcome = _assessed("ggx", "beckmann", seed)
+        assert outcome.status == "inadequate", outcome
+        assert outcome.reason.startswith("model inadequate at μ = ") and " px: " in outcome.reason
+        worst = max(outcome.scales, key=lambda row: max(row["lag1_rows"], row["lag1_cols"]))
+        assert max(worst["lag1_rows"], worst["lag1_cols"]) > 3 * ADEQUACY.max_lag1
+
+
+def test_an_unresolved_lobe_is_undetermined_before_and_after_a_fit():
+    """A lobe of rms width 0.07 on an image of pitch 0.125 (extent 2, 33 pixels) is under a pixel:
+    refused by the resolution check, and assess says so first whatever the fit did."""
+    data = fitting.Dataset.from_measurements(_simulated("beckmann", 0, extent=2.0))
+    outcome = fitting.resolution(data, unit="m")
+    assert outcome.status == "undetermined" and "μ = 1 m" in outcome.reason and "--extent" in outcome.reason
+    assert outcome.scales[0]["width_px"] < ADEQUACY.min_lobe_pixels
+    problem, result, _ = _assessed("beckmann", "beckmann", 0)  # a fit of this model; whatever it did:
+    assert fitting.assess(fitting.Problem(problem.model, data), result).status == "undetermined"
+
+
+def test_an_optimiser_that_stopped_early_is_not_converged():
+    problem, result, _ = _assessed("beckmann", "beckmann", 0)
+    stopped = dataclasses.replace(result, status="nonlinear_max_steps_reached")
+    outcome = fitting.assess(problem, stopped)
+    assert outcome.status == "not_converged" and "nonlinear_max_steps_reached" in outcome.reason
+    assert outcome.to_json()["status"] == "not_converged"
+
+
+def test_estimates_lie_inside_the_prior_box():
+    """The reported optimum is θ clipped to the prior box (the predictions' own θ), so every estimate
+    lies inside the prior range printed beside it — also where the solver's θ left the box."""
+    for seed in range(2):
+        problem, result, _ = _assessed("beckmann", "beckmann", seed)
+        lo, hi = np.asarray(problem.lower), np.asarray(problem.upper)
+        assert np.all((lo <= result.theta) & (result.theta <= hi))
+
+
+def _spiked_field(seed: int = 0):
+    """A Gaussian random surface (rms slope ≈ 0.01 per axis) with one pixel raised: a slope spike ≈ 200
+    times the rms slope, as the MetroPro file of issue 31 (0.84 against 0.0037)."""
+    field = synth.named_surface("gaussian", size=128, seed=seed)
+    heights = np.array(field.heights, dtype=float)
+    heights *= 0.01 / np.std(np.diff(heights, axis=1))
+    heights[64, 64] += 2.0
+    return synth.HeightField(heights, 1.0)
+
+
+def test_one_slope_spike_leaves_the_default_extent_and_the_lobes_resolved():
+    field = _spiked_field()
+    robust, steepest = synth.robust_extent(field), synth.steepest_slope(field)
+    assert steepest > 30 * robust  # the steepest-slope rule (1.05 × steepest) would be set by the spike
+    unspiked = np.array(field.heights)
+    unspiked[64, 64] -= 2.0
+    assert robust == pytest.approx(synth.robust_extent(synth.HeightField(unspiked, 1.0)), rel=0.02)
+    pixels = 33
+    mset = synth.gonioreflectometer(
+        field,
+        [1, 4, 16],
+        [0, 0, 1],
+        extent=robust,
+        pixels=pixels,
+        resolution=2 * 2 * robust / (pixels - 1),
+        noise=synth.PoissonNoise(200, 1),
+        seed=1,
+    )
+    data = fitting.Dataset.from_measurements(mset)
+    assert fitting.resolution(data).status == "ok"
+    widths = fitting.lobe_widths(data)
+    assert min(widths) >= ADEQUACY.min_lobe_pixels and widths[-1] > 3
+    spiked = synth.gonioreflectometer(field, [1, 4, 16], [0, 0, 1], extent=1.05 * steepest, pixels=pixels)
+    sigma = {"default_sigma": 1e-3}
+    assert fitting.resolution(fitting.Dataset.from_measurements(spiked, **sigma)).status == "undetermined"
+
+
+def test_robust_extent_refuses_bad_arguments():
+    from brdfscale import InvalidInputError
+
+    field = _spiked_field()
+    for kwargs in ({"quantile": 0.0}, {"quantile": 1.5}, {"factor": -1.0}):
+        with pytest.raises(InvalidInputError, match="quantile must lie in"):
+            synth.robust_extent(field, **kwargs)
+    with pytest.raises(InvalidInputError, match="flat field"):
+        synth.robust_extent(synth.HeightField(np.zeros((16, 16)), 1.0))
