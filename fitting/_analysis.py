@@ -143,7 +143,7 @@ class _Analysis:
         r_est, r_std, r_q = _summaries(analysis, ratio_names(data, W), r_hat, r_grads, r_draws)
         ratios = {
             name: {
-                "estimate": r_est[name],
+                "estimate": r_est[name] if np.isfinite(r_est[name]) else None,  # 0/0: undefined (_summaries)
                 "std": r_std[name],
                 "quantiles_5_50_95": r_q[name],
                 "mu0": float(scales[0]),
@@ -194,7 +194,8 @@ def _summaries(analysis, names, values, grads, draws):
     estimates, std, quantiles = {}, {}, {}
     for idx, name in enumerate(names):
         estimates[name] = float(values[idx])
-        if not determined[idx]:
+        # not a number at θ̂ or at a draw (a ratio S(W, μ0)/S(W, μk) = 0/0 in float64): no std, no quantiles
+        if not determined[idx] or not (np.isfinite(values[idx]) and np.all(np.isfinite(draws[:, idx]))):
             std[name], quantiles[name] = None, None
             continue
         spread = float(np.var(draws[:, idx]))

@@ -293,7 +293,13 @@ def summarise(problem: Problem, fit: FitResult, samples: SampleResult | None, tr
 
 def summarise_ratios(problem: Problem, fit: FitResult, samples: SampleResult | None) -> dict:
     """The ratios ``S(W, μ0)/S(W, μ_k)`` the data determine (:attr:`FitResult.ratios`), with the
-    chain's median, std and 5/50/95 % quantiles when sampled (else the fit's Laplace values)."""
+    chain's median, std and 5/50/95 % quantiles when sampled (else the fit's Laplace values).
+
+    A ratio that is not a number where it is evaluated (``S(W, μ0)`` and ``S(W, μ_k)`` both 0 in
+    float64: ``0/0``, e.g. a scale law at the edge of its prior box at the largest |W|) is
+    undefined there: the fit holds None for it (fitting._analysis), and sampled, its median, std
+    and quantiles are None (JSON null, "undetermined" everywhere in fitting) unless every draw
+    has a finite value (tests/test_scale_invariance.py)."""
     if samples is None or not fit.ratios:
         return {name: {**r, "source": "laplace"} for name, r in fit.ratios.items()}
     W = jnp.asarray(sorted({r["W"] for r in fit.ratios.values()}))
@@ -302,12 +308,13 @@ def summarise_ratios(problem: Problem, fit: FitResult, samples: SampleResult | N
     out = {}
     for i, (name, r) in enumerate(fit.ratios.items()):
         v = values[:, i]
+        defined = bool(np.all(np.isfinite(v)))
         out[name] = {
             **r,
             "source": "mcmc",
-            "median": float(np.median(v)),
-            "std": float(np.std(v)),
-            "quantiles_5_50_95": np.percentile(v, [5, 50, 95]).tolist(),
+            "median": float(np.median(v)) if defined else None,
+            "std": float(np.std(v)) if defined else None,
+            "quantiles_5_50_95": np.percentile(v, [5, 50, 95]).tolist() if defined else None,
         }
     return out
 

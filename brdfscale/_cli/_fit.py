@@ -462,4 +462,6 @@ def print_determined(doc: dict, stream=print) -> None:
         for name, r in doc["ratios"].items():
             value = r["median"] if r.get("median") is not None else r["estimate"]
             std = f"± {r['std']:.3g}" if r["std"] is not None else "(undetermined)"
-            stream(f"    {name:28s} {value:.4g} {std}   (μ0 = {r['mu0']:g}, μk = {r['mu']:g})")
+            # None: no finite value at the estimate (fitting.summarise_ratios), "undetermined" as a std of None
+            shown = f"{value:.4g} {std}" if value is not None else "undetermined (no finite value at the estimate)"
+            stream(f"    {name:28s} {shown}   (μ0 = {r['mu0']:g}, μk = {r['mu']:g})")
