@@ -45,7 +45,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy import stats
 
-from brdfscale._choices import ADEQUACY, AdequacyDefaults
+from brdfscale.choices import ADEQUACY, AdequacyDefaults
 
 from ._data import Dataset
 from ._model import predict_images

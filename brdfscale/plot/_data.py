@@ -23,7 +23,8 @@ def _selection(images, count: int) -> list[int]:
 def measurements(mset, *, images=None):
     """Every image of a measurement set: the values and, where stored, their σ.
 
-    One row per image (its index, μ and incident angle θ_i in the title), columns: (1) the
+    One row per image (its index, μ with its length unit — the set's ``metadata["unit"]``, px
+    when it has none — and incident angle θ_i in the title), columns: (1) the
     lobe ``A·g(u)`` over the slope offsets ``u`` (per unit slope²; masked pixels grey), (2) its
     per-pixel σ (same unit) where any image stores one (an image without σ leaves that panel
     blank). RGB images are shown as Rec. 709 luminance Y (σ combined for independent channel
@@ -45,6 +46,7 @@ def measurements(mset, *, images=None):
     if not isinstance(mset, MeasurementSet):
         raise InvalidInputError(f"plot.measurements needs a brdfscale.MeasurementSet; got {type(mset).__name__}.")
     chosen = _selection(images, len(mset.images))
+    unit = mset.metadata.get("unit") if isinstance(mset.metadata.get("unit"), str) else None
     with_sigma = any(mset.images[k].sigma is not None for k in chosen)
     columns = 2 if with_sigma else 1
     fig = figure(3.7 * columns, 3.0 * len(chosen))
@@ -63,7 +65,9 @@ def measurements(mset, *, images=None):
         shown = ax.imshow(values, origin="lower", extent=(-e, e, -e, e), cmap=cmap)
         colorbar(fig, shown, ax, f"{quantity} ({SLOPE_DENSITY})")
         ax.set_title(
-            f"image {k}: μ = {image.mu:.4g}, θ_i = {theta:.3g}°" + (" (RGB → luminance Y)" if rgb else ""), fontsize=9
+            f"image {k}: μ = {image.mu:.4g} {unit or 'px'}, θ_i = {theta:.3g}°"
+            + (" (RGB → luminance Y)" if rgb else ""),
+            fontsize=9,
         )
         ax.set_xlabel("u_x (slope)")
         ax.set_ylabel("u_y (slope)")
@@ -82,7 +86,7 @@ def measurements(mset, *, images=None):
             sigma, origin="lower", extent=(-e, e, -e, e), cmap=colormap("viridis").with_extremes(bad="0.8")
         )
         colorbar(fig, shown, ax, f"σ of {'Y' if rgb else 'A·g(u)'} ({SLOPE_DENSITY})")
-        ax.set_title(f"image {k}: σ per pixel", fontsize=9)
+        ax.set_title(f"image {k}: σ per pixel (μ = {image.mu:.4g} {unit or 'px'})", fontsize=9)
         ax.set_xlabel("u_x (slope)")
         ax.set_ylabel("u_y (slope)")
         small_ticks(ax)
