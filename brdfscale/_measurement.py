@@ -97,9 +97,15 @@ class LobeImage(Shown):
             raise InvalidInputError(f"values must have shape (n, n) or (n, n, 3) with n ≥ 2; got {image.shape}.")
         if sigma is not None:
             sigma = real_array(sigma, "sigma")
-            if sigma.shape != image.shape or np.any(sigma <= 0):
+            if sigma.shape != image.shape:
+                raise InvalidInputError(f"sigma must have the shape of values {image.shape}; got {sigma.shape}.")
+            if np.any(sigma <= 0):
+                bad = np.argwhere(sigma <= 0)
+                first = tuple(int(i) for i in bad[np.argmin(sigma[tuple(bad.T)])])
                 raise InvalidInputError(
-                    f"sigma must be positive and finite with the shape of values {image.shape}; got {sigma.shape}."
+                    f"sigma of the image at μ = {scale:g}: {len(bad)} of {sigma.size} values ≤ 0 (smallest "
+                    f"{float(sigma[first]):g} at index {first}); σ is each pixel's noise standard deviation, a "
+                    "positive finite number — where it is unknown, mask the pixel (mask=False) instead."
                 )
         if mask is not None:
             mask = boolean_mask(mask, "mask")
