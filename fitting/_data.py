@@ -26,6 +26,12 @@ has about 8× fewer radii than pixels).
 
 RGB images are reduced to luminance ``Y = 0.2126 R + 0.7152 G + 0.0722 B`` (Rec. 709) with
 ``σ_Y² = Σ_c w_c² σ_c²`` (independent channel noise).
+
+σ of a valid pixel must lie in :data:`SIGMA_RANGE` ``= [1e-100, 1e100]`` (lobe units): outside
+it ``1/σ²`` leaves float64's normal numbers (a denormal σ makes the weight infinite, a σ of
+1e300 makes ``1/σ² = 0``, which would drop the pixel as if masked) or χ² overflows. Inside it
+the fit does not depend on σ's overall scale (fitting._solve: σ × c for c in [1e-30, 1e30]
+gives the same optimum, tests/test_scale_invariance.py).
 """
 
 import dataclasses
@@ -36,15 +42,43 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from brdfscale import InvalidInputError, MeasurementSet
-from brdfscale.checks import require_float64
+from brdfscale.checks import real, require_float64
 from brdfscale.show import concrete, Shown, Values
 
 from ._joint import TopographyData
 
 
-__all__ = ["Dataset", "PointData"]
+__all__ = ["Dataset", "PointData", "SIGMA_RANGE"]
 
 _LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+
+SIGMA_RANGE = (1e-100, 1e100)
+"""The σ (lobe units) a valid pixel may have: ``1/σ²`` and χ² stay float64 numbers (module docstring)."""
+
+_SIGMA_ACCEPTED = (
+    f"σ is the noise standard deviation in lobe units: a number in [{SIGMA_RANGE[0]:g}, {SIGMA_RANGE[1]:g}] "
+    "(1/σ² and χ² must be float64 numbers; the fit does not depend on σ's overall scale)"
+)
+
+
+def _check_sigma(sigma: np.ndarray, valid: np.ndarray, where: str) -> None:
+    """InvalidInputError naming ``where``, how many valid pixels have σ outside
+    :data:`SIGMA_RANGE`, the worst value and its pixel, and what is accepted."""
+    lo, hi = SIGMA_RANGE
+    if sigma.ndim == 3:
+        valid = np.broadcast_to(valid[..., None], sigma.shape)
+    bad = valid & ~((sigma >= lo) & (sigma <= hi))  # NaN fails both
+    if not bad.any():
+        return
+    index = np.argwhere(bad)
+    values = sigma[tuple(index.T)]
+    distance = np.where(np.isnan(values), np.inf, np.abs(np.log10(np.maximum(values, 1e-320) / np.sqrt(lo * hi))))
+    worst = tuple(int(i) for i in index[np.argmax(distance)])
+    raise InvalidInputError(
+        f"{where}: {len(index)} of the {int(np.count_nonzero(valid))} σ values of its valid pixels lie outside "
+        f"[{lo:g}, {hi:g}] (e.g. {float(sigma[worst]):g} at index {worst}); {_SIGMA_ACCEPTED} — mask the pixels "
+        "whose σ is unknown instead."
+    )
 
 
 def _luminance(values, sigma):
@@ -86,7 +120,8 @@ class Dataset(Shown, eqx.Module):
 
         Raises:
             InvalidInputError: fewer than two scales, an image without σ and no
-                ``default_sigma``, or an image with no valid pixel.
+                ``default_sigma``, a valid pixel's σ (or ``default_sigma``) outside
+                :data:`SIGMA_RANGE`, or an image with no valid pixel.
         """
         require_float64("fitting.Dataset.from_measurements")
         if not isinstance(mset, MeasurementSet):
@@ -97,11 +132,19 @@ class Dataset(Shown, eqx.Module):
                 f"a fit needs images at two or more distinct scales μ; got only μ = {scales}. The evolution "
                 "between scales is what carries the information about the slope statistics."
             )
-        if default_sigma is not None and not (np.isfinite(default_sigma) and default_sigma > 0):
-            raise InvalidInputError(f"default_sigma must be a positive number; got {default_sigma!r}.")
+        if default_sigma is not None:
+            default_sigma = real(default_sigma, "default_sigma", minimum=0.0, strict=True)
+            if not SIGMA_RANGE[0] <= default_sigma <= SIGMA_RANGE[1]:
+                raise InvalidInputError(
+                    f"default_sigma= ({default_sigma:g}) lies outside [{SIGMA_RANGE[0]:g}, {SIGMA_RANGE[1]:g}]; "
+                    f"{_SIGMA_ACCEPTED}."
+                )
         n_pix = max(img.size**2 for img in mset.images)
         offsets, values, weight, which = [], [], [], []
         for i, img in enumerate(mset.images):
+            m = np.ones(img.values.shape[:2], bool) if img.mask is None else img.mask
+            if img.sigma is not None:  # as given (R, G, B each), before the luminance
+                _check_sigma(img.sigma, m, f"image {i} (μ = {img.mu:g})")
             v, s = _luminance(img.values, img.sigma)
             if s is None:
                 if default_sigma is None:
@@ -110,13 +153,12 @@ class Dataset(Shown, eqx.Module):
                         "standard deviation in lobe units) or store a 'sigma' channel."
                     )
                 s = np.full_like(v, float(default_sigma))
-            m = np.ones(v.shape, bool) if img.mask is None else img.mask
             if not m.any():
                 raise InvalidInputError(f"image {i} (μ = {img.mu}) has no valid pixel (its mask is all False).")
             pad = n_pix - v.size
             offsets.append(np.pad(img.offsets().reshape(-1, 2), ((0, pad), (0, 0))))
             values.append(np.pad(v.ravel(), (0, pad)))
-            weight.append(np.pad(np.where(m, 1.0 / s, 0.0).ravel(), (0, pad)))
+            weight.append(np.pad(np.divide(1.0, s, out=np.zeros_like(s), where=m).ravel(), (0, pad)))
             which.append(scales.index(img.mu))
         return cls(
             offsets=jnp.asarray(np.stack(offsets), dtype=jnp.float64),

@@ -159,7 +159,9 @@ def _code(result) -> jax.Array:
 def normalisation(r0: jax.Array) -> jax.Array:
     """``ν = √m₀/‖r₀‖`` of the residuals ``r₀`` at the start, 1 where ``‖r₀‖`` is 0 or not finite
     (module docstring; traced)."""
-    norm = jnp.sqrt(jnp.sum(r0 * r0))
+    big = jnp.max(jnp.abs(r0), initial=0.0)
+    safe = jnp.where((big > 0) & jnp.isfinite(big), big, 1.0)
+    norm = big * jnp.sqrt(jnp.sum((r0 / safe) ** 2))  # ‖r0‖ without overflowing where ‖r0‖² would
     count = jnp.count_nonzero(r0).astype(r0.dtype)
     usable = (norm > 0) & jnp.isfinite(norm)
     return jnp.where(usable, jnp.sqrt(count) / jnp.where(usable, norm, 1.0), 1.0)
