@@ -454,7 +454,8 @@ def fit_library(
                     absorb(fit_batch(chunk, out, spec, batch=batch, compilation_cache=cache, float64=False), bar)
             elif todo:
                 with _ray(address, workers) as ray:
-                    task = ray.remote(num_cpus=cpus_per_task, max_retries=retries, retry_exceptions=False)(fit_batch)
+                    remote: Any = ray.remote  # Any: Ray's stubs type a task's .remote() without its keywords
+                    task = remote(num_cpus=cpus_per_task, max_retries=retries, retry_exceptions=False)(fit_batch)
                     pending = {
                         task.remote(chunk, out, spec, batch=batch, compilation_cache=cache): chunk
                         for chunk in _batches(todo, batch)
