@@ -145,8 +145,8 @@ def resolution(data: Dataset, *, unit: str | None = None, thresholds: AdequacyDe
     reason = (
         f"the lobe at {_mu_text(float(scales[worst]), unit)} is {widths[worst]:.2g} image pixels wide (rms, "
         f"narrower axis; {count} of {len(widths)} scales below {thresholds.min_lobe_pixels:g}): its change with "
-        "scale cannot be measured — synthesise with a smaller --extent or more --pixels (brdfscale synth), or "
-        "measure with a finer angular resolution (more pixels across the lobe)"
+        "scale cannot be measured — synthesise with a smaller image extent or more pixels per image (brdfscale "
+        "synth), or measure with a finer angular resolution (more pixels across the lobe)"
     )
     return Outcome("undetermined", reason, (reason,), rows, thresholds)
 
@@ -241,12 +241,14 @@ def assess(
             )
     problems = list(resolved.problems)
     inadequate.sort(key=lambda item: -item[0])
-    problems += [text + " — try another --family, --law or --model" for _, text in inadequate[:1]]
+    problems += [text + " — try another lobe family, scale law or model" for _, text in inadequate[:1]]
     problems += [text for _, text in inadequate[1:]]
     if fit.status != "converged":
-        problems.append(f"not converged: the optimiser's best start ended with {fit.status} (try more --max-steps)")
+        problems.append(
+            f"not converged: the optimiser's best start ended with {fit.status} (allow the solver more steps)"
+        )
     if samples is not None and samples.status != "converged":
-        problems.append(f"sampler {samples.status} (try more --steps)")
+        problems.append(f"sampler {samples.status} (sample longer)")
     status: Status = (
         "ok" if not problems else "undetermined" if not resolved.ok else "inadequate" if inadequate else "not_converged"
     )

@@ -133,7 +133,7 @@ def test_an_unresolved_lobe_is_refused_with_7_before_the_fit(tmp_path, capsys):
     assert main(["fit", str(data), "--out", str(tmp_path / "F"), "--no-progress"]) == 7
     (line,) = capsys.readouterr().err.splitlines()
     assert line.startswith("brdfscale fit: undetermined: the lobe at μ = ") and " m is " in line
-    assert "--extent" in line and "finer angular resolution" in line
+    assert "smaller image extent" in line and "finer angular resolution" in line
     assert not (tmp_path / "F" / "fit.json").exists()
 
 
