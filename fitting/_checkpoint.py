@@ -448,6 +448,25 @@ def verify(path, signature: str | None = None, stats=None) -> tuple[Stored, dict
     return stored, {"signature": json.loads(layout[4]), "steps": stored.steps}
 
 
+def _good_chunks(f, good: int):
+    """The layout of an open checkpoint whose header verified, and its chunks up to step ``good``
+    (verified): ((signature, W, d, chunk, statistics' dtypes, subspace), the datasets' names, the
+    kept chunks' ends, their steps per dataset, their state rows)."""
+    chain_ds = f["chain"]
+    _, W, d = chain_ds.shape
+    dtypes = {name: ds.dtype for name, ds in sorted(f["stats"].items())}
+    subspace = {name: f[f"subspace/{name}"][()] for name in ("origin", "basis")}
+    keep = []
+    if good:  # the good chunks' ends: the table's rows up to the one that ends at `good`
+        ends = np.asarray(f["chunks/end"][()], dtype=np.int64)
+        keep = [int(e) for e in ends[: int(np.flatnonzero(ends == good)[0]) + 1]]
+    names = ["chain", "log_prob"] + [f"stats/{k}" for k in dtypes]
+    data = {name: np.asarray(f[name][:good]) for name in names}
+    states = {name: np.asarray(ds[: len(keep)]) for name, ds in f["state"].items()} if keep else {}
+    layout = (str(f.attrs["signature"]), W, d, chain_ds.chunks[0], dtypes, subspace)
+    return layout, names, keep, data, states
+
+
 def rewind_checkpoint(path) -> int:
     """Keep the chunks of a damaged checkpoint that verify, drop the rest: a run of
     :func:`fitting.sample` on it then continues from the last good chunk, and yields the chain
@@ -481,20 +500,8 @@ def rewind_checkpoint(path) -> int:
                     "pass overwrite=True to fitting.sample (--force on the command line) to start afresh."
                 ) from None
             good = err.good
-        # the layout and the good chunks, read again (the header verified; the chunks up to `good` too)
-        chain_ds = f["chain"]
-        _, W, d = chain_ds.shape
-        chunk = chain_ds.chunks[0]
-        dtypes = {name: ds.dtype for name, ds in sorted(f["stats"].items())}
-        subspace = {name: f[f"subspace/{name}"][()] for name in ("origin", "basis")}
-        signature = f.attrs["signature"]
-        keep = []
-        if good:  # the good chunks' ends: the table's rows up to the one that ends at `good`
-            ends = np.asarray(f["chunks/end"][()], dtype=np.int64)
-            keep = [int(e) for e in ends[: int(np.flatnonzero(ends == good)[0]) + 1]]
-        names = ["chain", "log_prob"] + [f"stats/{k}" for k in dtypes]
-        data = {name: f[name][:good] for name in names}
-        states = {name: ds[: len(keep)] for name, ds in f["state"].items()} if keep else {}
+        layout, names, keep, data, states = _good_chunks(f, good)
+    signature, W, d, chunk, dtypes, subspace = layout
 
     def write(tmp):
         with h5.File(tmp, "w", rdcc_nbytes=0) as out:
