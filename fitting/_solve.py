@@ -10,7 +10,7 @@ optimum, but an optimiser's own numbers are absolute: optimistix's convergence t
 the change of ``r`` with ``atol + rtol·|r|`` (its first step compares ``r(θ₀)`` itself, so any
 problem whose residuals are all below ``atol`` "converges" at its start), and
 Levenberg–Marquardt's damping starts at λ = 1 against ``JᵀJ ∝ 1/c²``. With σ × 1e10 the default
-fit stopped at its start with χ² 14 × worse, reported as converged. So the solver sees the rows
+fit stopped at its start, far from the optimum, and reported that as converged. So the solver sees the rows
 normalised by the root-mean-square of the non-zero rows at the start,
 
     r̃(θ) = ν r(θ),   ν = √m₀ / ‖r(θ₀)‖   (m₀: rows ≠ 0 at θ₀; ν = 1 if ‖r(θ₀)‖ is 0 or not finite),
@@ -28,11 +28,11 @@ the single one. tests/test_scale_invariance.py checks the optimum under σ × c 
 **Outcomes.** Beyond optimistix's results (:data:`RESULT_NAMES`), a solve that optimistix
 calls successful is reported as
 
-* ``"nonfinite"`` when θ̂, χ²(θ̂) or the Jacobian there is not finite (any result, in fact: a
-  non-finite estimate never passes as converged);
+* ``"nonfinite"`` when θ̂, χ²(θ̂) or the Jacobian there is not finite (whatever optimistix
+  said: a non-finite estimate never passes as converged);
 * ``"stopped_at_start"`` when θ̂ is the start itself and the start is not stationary: some
-  coordinate strictly inside the prior box has a Jacobian column ``J_i`` at more than
-  :data:`STATIONARY_COSINE` of a right angle to the residual, ``|J_iᵀ r| > 1e-4 ‖J_i‖ ‖r‖`` —
+  coordinate strictly inside the prior box has a Jacobian column ``J_i`` whose cosine with the
+  residual exceeds :data:`STATIONARY_COSINE`, ``|J_iᵀ r| > 1e-4 ‖J_i‖ ‖r‖`` —
   moving along it alone would lower χ² by more than 1e-8 of itself (a cosine: the same for
   every σ scale and every unit of θ). A loose solver object (``atol`` above the residuals)
   stops there; the named solvers, normalised as above, do not.
