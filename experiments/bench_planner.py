@@ -448,6 +448,13 @@ def cost_model_summary(problems, work):
     }
 
 
+def _save(fig, path) -> None:
+    """``fig`` as PNG through brdfscale's checked write path (brdfscale.files.atomic_write)."""
+    from brdfscale import files
+
+    files.atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=110, format="png"), overwrite=True)
+
+
 def plots(results, image, mu_image, suffix):
     import matplotlib
 
@@ -489,7 +496,7 @@ def plots(results, image, mu_image, suffix):
         )
         ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(RESULTS / f"bench_planner_pareto{suffix}.png", dpi=110)
+    _save(fig, RESULTS / f"bench_planner_pareto{suffix}.png")
     plt.close(fig)
     fig, axes = plt.subplots(1, 2, figsize=(9, 4))
     axes[0].imshow(np.log10(np.maximum(image, 1e-6 * image.max())), cmap="magma")
@@ -500,7 +507,7 @@ def plots(results, image, mu_image, suffix):
     for ax in axes:
         ax.axis("off")
     fig.tight_layout()
-    fig.savefig(RESULTS / f"bench_planner_workload{suffix}.png", dpi=110)
+    _save(fig, RESULTS / f"bench_planner_workload{suffix}.png")
     plt.close(fig)
 
 

@@ -312,7 +312,9 @@ def run(
     else:
         import json
 
-        Path(out).write_text(json.dumps(payload, indent=2) + "\n")
+        from brdfscale import files
+
+        files.write_text(out, json.dumps(payload, indent=2) + "\n", overwrite=True)
     return payload
 
 

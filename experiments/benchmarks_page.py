@@ -16,6 +16,7 @@ import json
 import re
 from pathlib import Path
 
+from brdfscale import files
 from experiments import results_page
 from experiments._bench import RESULTS, table
 
@@ -1337,9 +1338,7 @@ def main(argv=None):
         return
     for name in PAGES:
         path = DOCS / name
-        tmp = path.with_suffix(".md.tmp")
-        tmp.write_text(rendered(name))
-        tmp.replace(path)
+        files.write_text(path, rendered(name), overwrite=True)
         print(f"rewrote {path}")
     for path in results_page.stability_figures():  # figures drawn from JSON, like the tables
         print(f"redrew {path}")

@@ -113,7 +113,9 @@ def update_text(outputs, path: Path = PAGE) -> int:
         lines[k + 1 : end] = printed.rstrip("\n").split("\n")
         changed += 1
     if changed:
-        path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+        from brdfscale import files
+
+        files.write_text(path, "\n".join(lines) + "\n", overwrite=True)
     return changed
 
 
