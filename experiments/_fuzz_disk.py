@@ -336,6 +336,7 @@ def run(quick: bool, seed: int = 0, directory: str | None = None) -> dict:
         ),
         "kinds": {},
         "bad_examples": [],
+        "trials": [],
     }
     try:
         out = disk / "out"
@@ -347,15 +348,18 @@ def run(quick: bool, seed: int = 0, directory: str | None = None) -> dict:
             result["kinds"][kind] = counts
             _clear(disk)
             out.mkdir()
-            code, err = _run(argv, env)  # ample space: what completing looks like
+            code, err = _run(argv, env)  # ample space (the tmpfs empty): what completing looks like
             baseline = {"code": code, "outputs": _outputs(out)}
             if code not in (0, 5, 6, 7) or _damage(out) or not baseline["outputs"]:
                 counts["tried"] += 1
                 counts["bad"] += 1
                 result["bad_examples"].append(f"{kind}: fails with ample space: exit {code}: {err.strip()[-200:]}")
                 continue
+            if mounted:  # the ample level is the baseline run itself: it completed, leaving complete files
+                counts["tried"] += 1
+                counts["same"] += 1
             trials = (
-                [{"leave": v} for v in LEVELS.values()]
+                [{"leave": v} for v in LEVELS.values() if v is not None]
                 if mounted
                 else [{"fault": s} for s in (_QUICK[kind] if quick else STEPS)]
             )
@@ -363,8 +367,9 @@ def run(quick: bool, seed: int = 0, directory: str | None = None) -> dict:
                 outcome, why = _trial(kind, argv, disk, out, env, baseline, **t)
                 counts["tried"] += 1
                 counts[outcome] += 1
+                level = t.get("fault") or next(k for k, v in LEVELS.items() if v == t["leave"])
+                result["trials"].append({"kind": kind, "level": level, "outcome": outcome})
                 if outcome == "bad" and len(result["bad_examples"]) < 20:
-                    level = t.get("fault") or next(k for k, v in LEVELS.items() if v == t["leave"])
                     result["bad_examples"].append(f"{kind} at {level}: {why}")
     finally:
         if mounted:
