@@ -16,7 +16,8 @@ data (χ²/dof or residual structure; the line names the scale and the figure); 
 converged (the line names the failed criterion); 7 the data cannot determine what was asked (e.g. a lobe narrower
 than a few pixels per axis, so the statistics' change with scale is unmeasurable); 8 an output could not be
 written (disk full or an I/O error: the line names the file and the free space); 130 interrupted (Ctrl-C).
-Statuses 5–7 come after a complete report is written: the report holds the details.
+Statuses 5 and 6 come after a complete report is written: the report holds the details; 7 is a
+refusal before the work (``fit``: no report; the line holds the details — fitting.resolution).
 """
 
 import errno
