@@ -201,7 +201,8 @@ def test_a_full_disk_while_writing_the_index_leaves_the_previous_index(copy, mon
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
     monkeypatch.setattr(brdfscale._files, "_fault", full)
-    spec = library.FitSpec(**json.loads(before)["spec"])  # the command's options
+    options = json.loads(before)["spec"]  # the command's options
+    spec = library.FitSpec(**{**options, "fixed": tuple(options["fixed"].items())})
     with pytest.raises(OutputWriteError, match="disk full") as raised:
         library.fit_library(command[1], out, spec=spec, batch=1, progress=False)
     assert raised.value.path == str(out / library.INDEX) and raised.value.disk_full
