@@ -83,14 +83,18 @@ def test_bad_topography_terms_are_refused():
     data = synthetic(0)
     with pytest.raises(InvalidInputError, match="not the measurements'"):
         data.with_topography(fitting.TopographyData([1.0, 2.0, 5.0], np.tile(np.eye(2), (3, 1, 1)), np.ones((3, 2, 2))))
-    with pytest.raises(InvalidInputError, match="TopographyData"):
-        data.with_topography({"scales": [1, 2, 4]})
     with pytest.raises(InvalidInputError, match="finite and > 0"):
         fitting.TopographyData(
             [1.0, 2.0], np.tile(np.eye(2), (2, 1, 1)), np.array([np.ones((2, 2)), np.full((2, 2), np.inf)])
         )
     with pytest.raises(InvalidInputError, match="ascending"):
         fitting.TopographyData([2.0, 1.0], np.tile(np.eye(2), (2, 1, 1)), np.ones((2, 2, 2)))
+
+
+@pytest.mark.wrong_types
+def test_a_topography_of_the_wrong_type_is_refused():
+    with pytest.raises(InvalidInputError, match="TopographyData"):
+        synthetic(0).with_topography({"scales": [1, 2, 4]})
 
 
 @pytest.mark.slow
