@@ -109,10 +109,12 @@ def _check_space(path: str, need: int) -> None:
     files.require_free_space(path, need, what="next chunk of the checkpoint")
 
 
-def _update(h, name: str, a: np.ndarray) -> None:
-    a = np.ascontiguousarray(a)
+def _update(h, name: str, a: np.ndarray | np.generic) -> None:
+    """Feed ``name``, the dtype, the shape and the bytes of ``a`` (an array, or a NumPy scalar as
+    h5py reads one row of a one-dimensional dataset) to the hash ``h``."""
+    a = np.asarray(a)
     h.update(f"{name}|{a.dtype.str}|{a.shape}|".encode())
-    h.update(a.tobytes())
+    h.update(np.ascontiguousarray(a).tobytes())
 
 
 def _header_digest(signature: str, W: int, d: int, chunk: int, stats: dict, subspace: dict) -> str:
@@ -137,7 +139,7 @@ def _chunk_digest(previous: str, end: int, blocks: list, state: dict) -> str:
     return h.hexdigest()
 
 
-def _non_finite(name: str, a: np.ndarray) -> bool:
+def _non_finite(name: str, a: np.ndarray | np.generic) -> bool:
     """NaN anywhere, or infinity other than a log-density's −∞, in a float array."""
     if not np.issubdtype(a.dtype, np.floating):
         return False
