@@ -285,6 +285,8 @@ def test_rectangular_windows_are_equal_to_the_tolerance_and_more_than_exact_mult
         rows, cols = field.block(mu)
         assert cols * dx == pytest.approx(mu, rel=1e-12) and abs(rows * dy - mu) <= 1e-3 * mu
     assert field.block(scales[0]) == (15, 37) and scales[0] < 69 * dx
+    assert (37 * dx, 15 * dy) == (pytest.approx(4723.3e-9, abs=0.05e-9), pytest.approx(4718.7e-9, abs=0.05e-9))
+    assert len(field._windows[0]) == 176 and min(649 // 69, 399 // 28) == 9  # docs/topography.md §4
     with pytest.raises(InvalidInputError, match="to a relative 0.001"):
         field.block(28 * dx)  # its y side, 11 Δy = 3460.4 nm, is 3 % from 3574.4 nm
 
