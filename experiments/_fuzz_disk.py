@@ -7,7 +7,8 @@ demo) runs, in its own process, with its outputs on a tmpfs filled until 0, 4 Ki
 * ``same``: the command completed as it does with ample space (its exit status) and every file
   it left is complete (JSON parses, EXR reads back, PNG ends with its IEND chunk, NetCDF and
   HDF5 open);
-* ``refused``: exit 8 with exactly one line on stderr naming the file and "not written",
+* ``refused``: exit 8 with one error line on stderr naming the file and "not written" (its last
+  line; no traceback, no other error),
   nothing corrupt left (every file present complete, no temporary file), and the same command
   rerun with the space freed completes (the ample run's status, every output complete);
 * ``bad``: anything else (a traceback, a segfault, exit 1, a corrupt or empty file left, a
@@ -273,9 +274,17 @@ def _clear(disk: Path) -> None:
 
 
 def _one_line(err: str) -> str | None:
+    """The error line when stderr ends with exactly one ``brdfscale CMD: error: … not written …``
+    line and holds no other error and no traceback (a command's progress lines may precede it)."""
     lines = [line for line in err.strip().splitlines() if line.strip()]
-    if len(lines) == 1 and " not written" in lines[0] and lines[0].startswith("brdfscale "):
-        return lines[0]
+    errors = [line for line in lines if line.startswith("brdfscale ") and ": error: " in line]
+    if (
+        lines
+        and errors == [lines[-1]]
+        and " not written" in lines[-1]
+        and not any("Traceback" in line or "Exception ignored" in line for line in lines)
+    ):
+        return lines[-1]
     return None
 
 
