@@ -168,6 +168,16 @@ def test_a_material_whose_report_was_damaged_is_fitted_again_and_the_run_says_so
     assert not [n for n in os.listdir(out / "materials") if n.endswith(".partial")]
 
 
+def test_a_partial_directory_left_beside_a_complete_report_goes(copy):
+    out, command = copy
+    (out / "materials" / ".material_001.partial").mkdir()
+    (out / "materials" / ".material_001.partial" / "fit.json").write_text("{")  # a killed attempt's remains
+    inodes = _inodes(out)
+    code, text, err = _run(command)
+    assert code == 0 and "fitted this run  0" in text, text + err
+    assert not (out / "materials" / ".material_001.partial").exists() and _inodes(out) == inodes
+
+
 def test_a_measurement_file_named_twice_is_refused_in_one_line(fitted, tmp_path):
     one = str(fitted / "lib" / "material_000.exr")
     os.symlink(one, tmp_path / "link.exr")

@@ -17,7 +17,7 @@ from .._files import exclusive, write_text
 from .._json import json_text
 from .._show import progress_bar, Shown, Table
 from ._spec import FitSpec
-from ._task import fit_batch, material_directory, report_problem, take_over
+from ._task import clear_partial, fit_batch, material_directory, report_problem, take_over
 
 
 __all__ = ["fit_library", "LibraryResult", "find_materials", "INDEX"]
@@ -230,7 +230,7 @@ class _Index:
         if kept is None or force:
             kept = {"format": _FORMAT, "created": _now(), "spec": spec.to_json(), "runs": [], "materials": {}}
         self.doc: dict = kept
-        damaged = []
+        complete, damaged = [], []
         for name, path in materials:
             entry = self.doc["materials"].setdefault(name, {"source": path, "status": "pending", "attempts": 0})
             if entry["source"] != path:
@@ -253,9 +253,14 @@ class _Index:
             if problem is None:
                 if entry["status"] != "done":
                     entry.update(status="done", note="found complete on restart (the index had not recorded it)")
+                complete.append(name)
             else:
                 damaged.append((name, final, problem))
-        for name, final, problem in damaged:  # everything checked: now the damaged reports make way
+        # everything checked: now what a killed or beaten attempt left beside a complete report
+        # goes, and the damaged reports make way
+        for name in complete:
+            clear_partial(out, name)
+        for name, final, problem in damaged:
             say(f"  {final}: {problem}; fitting {name} again{take_over(out, name)}")
             note = f"its report was damaged ({problem}): fitted again"
             self.doc["materials"][name].update(status="pending", note=note)

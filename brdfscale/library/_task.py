@@ -12,6 +12,7 @@ damaged afterwards (``fit.json`` deleted, truncated, a listed file gone) is take
 (:func:`take_over`) and fitted again.
 """
 
+import contextlib
 import json
 import os
 import shutil
@@ -20,11 +21,11 @@ import traceback
 
 from .. import _compilation_cache
 from .._errors import BrdfscaleError, InvalidInputError, OutputInUseError, OutputWriteError
-from .._files import write_failed
+from .._files import exclusive, write_failed
 from ._spec import FitSpec
 
 
-__all__ = ["fit_batch", "material_directory", "partial_directory", "report_problem", "take_over"]
+__all__ = ["clear_partial", "fit_batch", "material_directory", "partial_directory", "report_problem", "take_over"]
 
 
 def material_directory(out: str, name: str) -> str:
@@ -93,6 +94,15 @@ def take_over(out: str, name: str) -> str:
         ) from None
 
 
+def clear_partial(out: str, name: str) -> None:
+    """Remove material ``name``'s partial directory, left beside its complete report by an attempt
+    that lost a race or was killed, unless a live attempt holds it."""
+    partial = partial_directory(out, name)
+    if os.path.isdir(partial) and not os.path.islink(partial):
+        with contextlib.suppress(OutputInUseError), exclusive(partial, what="material directory"):
+            shutil.rmtree(partial, ignore_errors=True)
+
+
 def _record(name, status, started, **fields):
     return {
         "name": name,
@@ -139,7 +149,6 @@ def fit_batch(
     if compilation_cache:
         _compilation_cache.enable(compilation_cache)
     from .. import exr, fitting
-    from ..files import exclusive
 
     started = time.perf_counter()
     records, todo = [], []
