@@ -76,6 +76,7 @@ import warnings
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 
 
 jax.config.update("jax_enable_x64", True)
@@ -84,7 +85,7 @@ import numpy as np
 from scipy import optimize, stats as scipy_stats
 
 import brdfscale as bs
-from brdfscale import stats, synth, topography
+from brdfscale import files as bs_files, stats, synth, topography
 from experiments import evolution_accuracy as ea
 from experiments._studies import (
     convolve_masses,
@@ -117,7 +118,10 @@ FEW_FACETS = 10
 SKEW_LIMIT, KURTOSIS_LIMIT = 0.5, 1.0
 LATTICE_QUANTILE = 0.999
 MAX_LATTICE_RADIUS = 1500
-LAWS = ("gaussian", "gaussian_anisotropic", "k_correlation")
+LAWS = ("gaussian", "gaussian_anisotropic", "k_correlation", "monotone_spline")
+SPLINE_KNOTS = 4
+"""Knots (equally spaced in ln μ over the measured scales) of the learned law
+:class:`brdfscale.stats.MonotoneSplineLaw` fitted to Σ(μ) (issue 31, item 3)."""
 METHODS = ("naive", "second_moment")
 
 
@@ -238,9 +242,43 @@ def law(name: str, p: np.ndarray, k_max: float) -> stats.GaussianSurface:
     return stats.GaussianSurface(spectrum, window="box")
 
 
+def spline_law(p, mus) -> stats.MonotoneSplineLaw:
+    """The learned law from unconstrained parameters: ln σ_1, ln σ_2 at the smallest scale, the
+    rates' inverse softplus (2 × SPLINE_KNOTS), the principal axis' angle."""
+    p = jnp.asarray(p)
+    rates = jax.nn.softplus(p[2 : 2 + 2 * SPLINE_KNOTS]).reshape(2, SPLINE_KNOTS)
+    return stats.MonotoneSplineLaw(mus[0], mus[-1], jnp.exp(p[:2]), rates, angle=p[-1])
+
+
+@jax.jit
+def _spline_covariances(p, mus):
+    return jax.vmap(lambda mu: spline_law(p, mus).slope_covariance(mu))(mus)
+
+
 def law_covariances(name, p, mus, k_max) -> np.ndarray:
+    if name == "monotone_spline":
+        return np.asarray(_spline_covariances(jnp.asarray(p, float), jnp.asarray(mus, float)))
     model = law(name, p, k_max)
     return np.array([np.asarray(model.slope_covariance(mu)) for mu in mus])
+
+
+def measured_law_cross_validation(records: list[dict]) -> dict:
+    """The measured law (:class:`brdfscale.stats.MeasuredScaleLaw`) predicting each interior scale
+    from the others (leave one out): χ² of Σ_xx, Σ_yy, Σ_xy in the quadrature sum of the data's
+    error and the law's stated error there, per entry (χ²/N: ~1 when the stated error is right)."""
+    mus = np.array([r["mu"] for r in records])
+    data = np.array([r["covariance"] for r in records])
+    err = np.array([r["covariance_error_used"] for r in records])
+    chi2, n = 0.0, 0
+    for i in range(1, len(mus) - 1):
+        keep = np.arange(len(mus)) != i
+        held = stats.MeasuredScaleLaw(mus[keep], data[keep], err[keep])
+        model = np.asarray(held.slope_covariance(mus[i]))
+        stated = np.asarray(held.slope_covariance_error(mus[i]))
+        for a, b in ENTRIES:
+            chi2 += float((model[a, b] - data[i, a, b]) ** 2 / (err[i, a, b] ** 2 + stated[a, b] ** 2))
+            n += 1
+    return {"chi2": chi2, "n": n, "chi2_per_n": chi2 / max(n, 1)}
 
 
 ENTRIES = ((0, 0), (1, 1), (0, 1))
@@ -273,7 +311,16 @@ def fit_laws(records: list[dict], field, laws=LAWS) -> dict:
         return p
 
     lengths = np.geomspace(2 * delta, size / 4, 4)
+    first = np.asarray(data[0])
+    values, vectors = np.linalg.eigh(first)
+    spline_start = [
+        [0.5 * math.log(values[1]), 0.5 * math.log(values[0])]
+        + [math.log(math.expm1(r))] * (2 * SPLINE_KNOTS)
+        + [math.atan2(vectors[1, 1], vectors[0, 1])]
+        for r in (0.1, 0.5, 1.0)
+    ]
     starts = {
+        "monotone_spline": spline_start,
         "gaussian": [[math.log(sigma_h), math.log(l)] for l in lengths],
         "gaussian_anisotropic": [[math.log(sigma_h), math.log(l), math.log(l)] for l in lengths],
         "k_correlation": [[0.0, math.log(l), math.log(c - 2)] for l in lengths for c in (3.0, 6.0)],
@@ -282,7 +329,8 @@ def fit_laws(records: list[dict], field, laws=LAWS) -> dict:
     for name in laws:
         best = None
         for p0 in starts[name]:
-            p0 = amplitude_start(name, p0, 0)
+            if name != "monotone_spline":
+                p0 = amplitude_start(name, p0, 0)
             try:
                 res = optimize.least_squares(lambda p: residual(name, p), p0, method="trf", x_scale=1.0, max_nfev=400)
             except (bs.InvalidInputError, ValueError, FloatingPointError):
@@ -300,6 +348,17 @@ def fit_laws(records: list[dict], field, laws=LAWS) -> dict:
         params = (
             {"rms_height_m": e[0], "correlation_length_m": e[1]}
             if name == "gaussian"
+            else {
+                "sigma_1_at_smallest_scale": e[0],
+                "sigma_2_at_smallest_scale": e[1],
+                **{
+                    f"rate_{a + 1}_knot_{k}": float(r)
+                    for a, row in enumerate(np.asarray(spline_law(best.x, mus).rates))
+                    for k, r in enumerate(row)
+                },
+                "angle_rad": float(best.x[-1]),
+            }
+            if name == "monotone_spline"
             else {"rms_height_m": e[0], "correlation_length_x_m": e[1], "correlation_length_y_m": e[2]}
             if name == "gaussian_anisotropic"
             else {"A_m4": e[0], "B_m": e[1], "C": 2 + e[2], "k_max_per_m": k_max}
@@ -758,6 +817,71 @@ def run(
     return payload
 
 
+def run_laws(*, files=tuple(FILES), sigma_count: int = SIGMA_SCALES, out=None) -> dict:
+    """Σ(μ) and the scale laws only (issue 31, item 3): χ²/dof of every law of :data:`LAWS` on
+    every file, the measured law's leave-one-out χ²/N, and the pixel slopes' excess kurtosis
+    (minutes; the full study's lobes are not recomputed). Writes ``real_surfaces_laws.json`` and
+    its markdown table ``real_surfaces_laws.md``."""
+    directory = study_dir("real_surfaces", out)
+    t0 = time.perf_counter()
+    rows = []
+    for name in progress(list(files), desc="surfaces"):
+        field = topography.read(DATA / name, detrend=DETREND)
+        mom = moments(pixel_slopes(field))
+        records = covariance_records(field, field.scales(sigma_count, largest=largest_window(field)))
+        fits = fit_laws(records, field)
+        rows.append(
+            {
+                "file": name,
+                "scales": len(records),
+                "pixel_excess_kurtosis": [mom[a]["excess_kurtosis"] for a in "xy"],
+                "laws": {
+                    law_name: None
+                    if fits[law_name] is None
+                    else {k: fits[law_name][k] for k in ("chi2", "dof", "chi2_per_dof", "parameters")}
+                    for law_name in LAWS
+                },
+                "measured_leave_one_out": measured_law_cross_validation(records),
+            }
+        )
+    payload = {
+        "study": "scale laws fitted to Σ(μ) of measured surfaces (issue 31, item 3)",
+        "files": list(files),
+        "detrend": DETREND,
+        "laws": list(LAWS),
+        "spline_knots": SPLINE_KNOTS,
+        "surfaces": rows,
+        "seconds": round(time.perf_counter() - t0, 1),
+    }
+    write_results(directory, "real_surfaces_laws", payload)
+    files_module_write(directory / "real_surfaces_laws.md", laws_table(payload))
+    return payload
+
+
+def laws_table(payload: dict) -> str:
+    """The markdown table of :func:`run_laws`: χ²/dof per law and file."""
+    head = [
+        "file",
+        *(f"{law_name} χ²/dof" for law_name in payload["laws"]),
+        "measured (leave one out) χ²/N",
+        "pixel excess kurtosis x, y",
+    ]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for row in payload["surfaces"]:
+        cells = [f"`{row['file']}`"]
+        for law_name in payload["laws"]:
+            fit = row["laws"][law_name]
+            cells.append("–" if fit is None else f"{fit['chi2_per_dof']:.3g} ({fit['dof']})")
+        cells.append(f"{row['measured_leave_one_out']['chi2_per_n']:.3g} ({row['measured_leave_one_out']['n']})")
+        cells.append(", ".join(f"{k:.3g}" for k in row["pixel_excess_kurtosis"]))
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def files_module_write(path: Path, text: str) -> None:
+    bs_files.write_text(path, text, overwrite=True)
+
+
 # -- figures ----------------------------------------------------------------------------------
 
 
@@ -865,8 +989,14 @@ def main(argv=None):
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the permutation floor of Eq. 3.1")
     parser.add_argument("--out", default=None, help="output folder (default experiments/results/real_surfaces)")
+    parser.add_argument(
+        "--laws", action="store_true", help="Σ(μ) and the scale laws only (χ²/dof per law and file; minutes)"
+    )
     args = parser.parse_args(argv)
-    if args.quick:
+    if args.laws:
+        payload = run_laws(out=args.out)
+        print(laws_table(payload), end="")
+    elif args.quick:
         out = args.out or tempfile.mkdtemp(prefix="real_surfaces_quick_")
         run(files=("mi-1.mi",), sigma_count=6, lobe_count=2, factors=(PRIMARY,), seed=args.seed, out=out, quick=True)
         print(f"wrote {out}")

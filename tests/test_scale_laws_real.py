@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+import scipy.integrate
 import scipy.special
 from hypothesis import given, settings, strategies as st
 
@@ -118,6 +119,7 @@ def test_s_at_mu_is_a_density_of_mass_one():
     np.testing.assert_allclose([xx, xy], [c[0, 0], c[0, 1]], rtol=1e-9, atol=1e-12 * c[0, 0])
 
 
+@pytest.mark.slow  # ~13 s on 2 cores
 def test_jit_grad_vmap_equal_eager():
     surface = _surface()
     law = _sampled(surface, np.geomspace(0.5, 50.0, 8))
@@ -164,3 +166,119 @@ def test_bad_measurements_are_refused_by_name():
         stats.MeasuredScaleLaw(mus, cov[:1])
     with pytest.raises(bs.InvalidInputError, match="standard errors"):
         stats.MeasuredScaleLaw(mus, cov, -cov)
+
+
+# -- heavy tails: StudentT and StudentTLaw; a learned law: MonotoneSplineLaw -------------------------
+@pytest.mark.slow  # ~14 s on 2 cores
+def test_student_t_transform_matches_scipys_bessel_k_and_nu_2_is_ggx():
+    import scipy.special as sp
+
+    cov = np.array([[0.02, 0.006], [0.006, 0.01]])
+    W = np.array([[0.0, 0.0], [3.0, -1.0], [20.0, 7.0], [60.0, 45.0], [-200.0, 10.0]])
+    q = np.einsum("...i,ij,...j->...", W, cov, W)
+    for nu in (0.7, 2.0, 3.3, 9.0, 60.0):
+        s = stats.StudentT(cov, nu=nu)
+        a, x = nu / 2, np.sqrt(nu * q)
+        with np.errstate(invalid="ignore"):
+            ref = np.where(x > 0, x**a * sp.kv(a, x) / (sp.gamma(a) * 2 ** (a - 1)), 1.0)
+        np.testing.assert_allclose(np.asarray(s.cf(jnp.asarray(W))).real, ref, rtol=1e-11, atol=1e-14)
+    # ν = 2 is GGX with α = √2 σ (its own closed form, x K₁(x))
+    t, g = stats.StudentT(sigma=(0.05, 0.08), nu=2.0), stats.GGX(alpha_x=0.05 * np.sqrt(2), alpha_y=0.08 * np.sqrt(2))
+    m = jnp.array([[0.0, 0.0], [0.1, -0.3], [1.0, 2.0]])
+    np.testing.assert_allclose(np.asarray(t.density(m)), np.asarray(g.density(m)), rtol=1e-13)
+    np.testing.assert_allclose(
+        np.asarray(t.cf(jnp.asarray(W))), np.asarray(g.cf(jnp.asarray(W))), rtol=1e-11, atol=1e-14
+    )
+
+
+@pytest.mark.slow  # ~10 s on 2 cores
+@settings(max_examples=8, deadline=None)
+@given(st.floats(0.8, 30.0), st.floats(0.01, 0.3), st.floats(0.2, 5.0), st.floats(0.0, np.pi))
+def test_student_t_is_a_density_of_mass_one_and_its_transform_is_the_gaussian_scale_mixture(nu, sigma, ratio, angle):
+    rot = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+    cov = rot @ np.diag([sigma**2, (ratio * sigma) ** 2]) @ rot.T
+    s = stats.StudentT(cov, nu=nu)
+    # mass: in whitened coordinates m = L z (Σ = L Lᵀ) the density is radial; SciPy quadrature
+    # of 2π r s(L r e) det L to r = ∞ along two directions e (equal: the level sets are ellipses)
+    L = np.linalg.cholesky(cov)
+    f = jax.jit(lambda r, e: s.density(jnp.asarray(L) @ (r * e)))
+    for e in (np.array([1.0, 0.0]), np.array([0.6, 0.8])):
+        mass = scipy.integrate.quad(
+            lambda r: 2 * np.pi * r * float(f(r, e)) * np.linalg.det(L),
+            0,
+            np.inf,
+            epsabs=1e-13,
+            epsrel=1e-11,
+            limit=200,
+        )[0]
+        assert mass == pytest.approx(1.0, abs=1e-8)
+    # the transform is E_τ[exp(−WᵀΣW/(2τ))], τ ~ Gamma(ν/2, rate ν/2): SciPy quadrature of that definition
+    import scipy.stats as sps
+
+    for w in (np.array([0.7, -0.4]) / sigma, np.array([5.0, 2.0]) / sigma):
+        q = float(w @ cov @ w)
+        value = scipy.integrate.quad(
+            lambda t: sps.gamma.pdf(t, nu / 2, scale=2 / nu) * np.exp(-q / (2 * t)), 0, np.inf, epsabs=1e-14, limit=200
+        )[0]
+        assert float(s.cf(jnp.asarray(w)).real) == pytest.approx(value, rel=1e-9, abs=1e-13)
+
+
+@pytest.mark.slow  # ~10 s on 2 cores
+@settings(max_examples=20, deadline=None)
+@given(
+    st.tuples(st.floats(0.01, 1.0), st.floats(0.01, 1.0)),
+    st.lists(st.tuples(st.floats(0.0, 2.0), st.floats(0.0, 2.0)), min_size=2, max_size=6),
+    st.floats(-np.pi, np.pi),
+)
+def test_monotone_spline_laws_are_positive_definite_monotone_and_have_the_stated_slopes(sigma, rates, angle):
+    r = np.array(rates).T
+    law = stats.MonotoneSplineLaw(0.1, 100.0, sigma, r, angle=angle)
+    grid = np.geomspace(0.01, 1e3, 60)
+    sigmas = np.stack([np.asarray(law.slope_covariance(m)) for m in grid])
+    assert np.all(np.linalg.eigvalsh(sigmas)[:, 0] > 0)
+    steps = np.linalg.eigvalsh(sigmas[:-1] - sigmas[1:])
+    assert np.all(steps >= -1e-12 * np.abs(sigmas).max(axis=(1, 2))[:-1, None])
+    # d ln σ_a / d ln μ = −r_{a,k} at the knots (forward-mode derivative of the closed form)
+    f = lambda x: jnp.log(law.principal_sigmas(jnp.exp(x)))
+    for k, x in enumerate(np.asarray(law.knots)):
+        np.testing.assert_allclose(np.asarray(jax.jacfwd(f)(x)), -r[:, k], atol=1e-12)
+
+
+@pytest.mark.slow  # ~60 s on 2 cores (compilations)
+def test_heavy_tailed_and_learned_laws_under_jit_grad_vmap_equal_eager():
+    spline = stats.MonotoneSplineLaw(0.5, 50.0, (0.2, 0.1), [[0.1, 0.6, 1.0], [0.3, 0.4, 1.2]], angle=0.3, nu=3.0)
+    heavy = stats.StudentTLaw(stats.WidthLaw(0.2, 1.0, 0.8), 2.5, nu_exponent=0.3)
+    mus = jnp.array([0.3, 1.0, 7.0, 80.0])
+    W = jnp.array([[5.0, -2.0], [30.0, 11.0]])
+    for law in (spline, heavy):
+        cf = lambda mu: law.at(mu).cf(W).real
+        eager = np.stack([np.asarray(cf(m)) for m in mus])
+        np.testing.assert_allclose(np.asarray(jax.vmap(cf)(mus)), eager, rtol=1e-13)
+        np.testing.assert_allclose(np.asarray(jax.jit(jax.vmap(cf))(mus)), eager, rtol=1e-13)
+        g = lambda mu: law.at(mu).cf(W).real.sum()
+        for m in mus:
+            h = 1e-6 * float(m)
+            numeric = (float(g(m + h)) - float(g(m - h))) / (2 * h)
+            assert float(jax.grad(g)(m)) == pytest.approx(float(jax.jit(jax.grad(g))(m)), rel=1e-12)
+            assert float(jax.grad(g)(m)) == pytest.approx(numeric, rel=1e-5, abs=1e-10)
+    # the tail index is a differentiable parameter: d S/d ν against central differences
+    s_of = lambda nu: stats.StudentT(jnp.eye(2) * 0.01, nu=nu).cf(W).real.sum()
+    numeric = (float(s_of(3.0 + 1e-6)) - float(s_of(3.0 - 1e-6))) / 2e-6
+    assert float(jax.grad(s_of)(3.0)) == pytest.approx(numeric, rel=1e-6)
+
+
+@pytest.mark.slow  # ~15 s on 2 cores
+def test_evolve_with_a_heavy_tailed_law():
+    heavy = stats.StudentTLaw(stats.WidthLaw(0.2, 1.0, 0.8), 2.5)
+    s0, s1 = heavy.at(1.0), heavy.at(10.0)
+    lobe = lobes.GGX(0.1)
+    evolved = bs.evolve(lobe, s0, s1, tol=1e-6)  # towards coarser facets: the radial path
+    assert evolved.shape.discretisation.path == "radial"
+    k = jnp.array([0.0, 3.0, 15.0, 40.0])
+    W = jnp.stack([k, jnp.zeros_like(k)], -1)
+    # seed Eq. 4.3: G(W, μ) S(W, μ) = G(W, μ0) S(W, μ0)
+    np.testing.assert_allclose(
+        np.asarray(evolved.cf(W) * s1.cf(W)).real, np.asarray(lobe.cf(W) * s0.cf(W)).real, rtol=1e-10, atol=1e-14
+    )
+    values = np.asarray(evolved.density(jnp.array([[0.0, 0.0], [0.05, 0.0], [0.3, 0.1]])))
+    assert np.all(values > 0)

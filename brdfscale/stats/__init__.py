@@ -14,6 +14,7 @@ from ._base import AbstractDistribution, AbstractGeneralisedDensity, AbstractSlo
 from ._families import Beckmann, Delta, Disk, Gaussian, GGX
 from ._grid import FrequencyGrid
 from ._histogram import SlopeHistogram
+from ._learned_laws import MonotoneSplineLaw, StudentTLaw
 from ._measured import MeasuredScaleLaw
 from ._mixture import Mixture
 from ._require import require_density
@@ -27,6 +28,7 @@ from ._scale_laws import (
     WidthLaw,
     window_power,
 )
+from ._student import StudentT
 from ._tabulated import Tabulated
 
 
@@ -40,6 +42,7 @@ __all__ = [
     "Beckmann",
     "GGX",
     "Disk",
+    "StudentT",
     "Mixture",
     "require_density",
     "Tabulated",
@@ -52,5 +55,7 @@ __all__ = [
     "WidthLaw",
     "ScaledFamily",
     "MeasuredScaleLaw",
+    "MonotoneSplineLaw",
+    "StudentTLaw",
     "window_power",
 ]

@@ -27,7 +27,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .._errors import InvalidInputError
-from .._validation import as_float_array, is_concrete
+from .._validation import as_float_array, facet_size, is_concrete
 from ._families import Gaussian
 from ._scale_laws import AbstractScaleLaw
 
@@ -102,7 +102,7 @@ class MeasuredScaleLaw(AbstractScaleLaw):
     # -- interpolation (module docstring) ----------------------------------------------------------
     def _where(self, mu):
         """``(i, t)``: the interval ``[μ_i, μ_{i+1}]`` holding μ and the weight of its right end."""
-        mu = as_float_array(mu, "mu")
+        mu = facet_size(mu)
         lo, hi = self.mu[0], self.mu[-1]
         message = "μ outside the measured scales of this MeasuredScaleLaw"
         if is_concrete((mu, self.mu)):
