@@ -225,6 +225,30 @@ def test_a_full_disk_while_writing_the_index_leaves_the_previous_index(copy, mon
     assert code == 0 and "fitted this run  0" in text, text + err
 
 
+def test_a_full_disk_while_a_report_is_written_stops_the_run_and_the_rerun_completes(fitted, copy, monkeypatch):
+    out, command = copy
+    os.remove(out / "materials" / "material_001" / "fit.json")
+    before = (out / library.INDEX).read_bytes()
+
+    def full(step, tmp):
+        if step == "fsync" and os.path.basename(tmp).startswith(".fit.json"):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(brdfscale._files, "_fault", full)
+    code, _, err = _run(command)
+    line = _one_line(err)
+    assert code == 8 and "disk full" in line and "fit.json" in line
+    index = json.loads((out / library.INDEX).read_bytes())  # whole: the run's start, recorded before the fit
+    assert len(index["runs"]) == len(json.loads(before)["runs"]) + 1
+    assert index["materials"]["material_001"]["status"] == "pending"
+    assert not (out / "materials" / "material_001" / "fit.json").exists()  # no report pretends to be whole
+    monkeypatch.undo()
+    code, text, err = _run(command)
+    assert code == 0 and "fitted this run  1" in text, text + err
+    again, first = _fit(out, "material_001"), _fit(fitted / "reference", "material_001")
+    np.testing.assert_allclose(again["optimisation"]["theta"], first["optimisation"]["theta"], rtol=1e-12)
+
+
 # -- a driver killed with Ray workers ---------------------------------------------------------------
 
 
