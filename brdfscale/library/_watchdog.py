@@ -113,6 +113,8 @@ def _stop(tracked: dict[int, int]) -> None:
 
 
 def main(driver: int) -> None:
+    if not os.path.isdir("/proc"):  # Linux's process table is what it reads; elsewhere Ray's own clean-up only
+        return
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # a Ctrl-C of the terminal is the driver's to handle
     tracked: dict[int, int] = {}
     while True:
