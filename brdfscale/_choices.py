@@ -197,8 +197,10 @@ class AdequacyDefaults:
     * ``max_lag1``: a lag-1 autocorrelation of the whitened residuals along an image's rows or
       columns above ``max_lag1``, one-sided p below ``p_value`` after a Bonferroni correction over the
       fit's tests, is residual structure: the model inadequate;
-    * ``min_lobe_pixels``: a lobe whose rms width along its narrower principal axis is below this many
-      image pixel pitches is unresolved — its change with scale cannot be measured;
+    * ``min_lobe_pixels``: a lobe whose rms width along its narrower principal axis (as measured: 0.92
+      of a Gaussian's) is below this many image pixel pitches is unresolved — its change with scale cannot
+      be measured (a Gaussian of rms width one pitch keeps 0.7 % of its spectrum's peak at the Nyquist
+      frequency: sampled without loss; narrower ones alias, and within a pixel nothing is measured);
     * ``significance``, ``peak_fraction``: the pixels whose second moments measure a lobe's width —
       above ``significance`` σ and above ``peak_fraction`` of the image's peak (noise far from the lobe
       would otherwise dominate the moments).
@@ -207,7 +209,7 @@ class AdequacyDefaults:
     max_reduced_chi2: float = 1.5
     max_lag1: float = 0.1
     p_value: float = 1e-3
-    min_lobe_pixels: float = 1.5
+    min_lobe_pixels: float = 1.0
     significance: float = 3.0
     peak_fraction: float = 0.05
 

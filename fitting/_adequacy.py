@@ -9,10 +9,11 @@ is listed in :attr:`Outcome.problems`):
    far from the lobe would otherwise dominate the moments; the cut truncates a Gaussian lobe at
    2.45 standard deviations, which underestimates its rms width by about 8 %) give a 2 × 2
    covariance C of the offsets u; the lobe's width is ``√λ_min(C)`` (its narrower principal
-   axis) in image pixel pitches ``h = 2·extent/(n − 1)``. Below ``min_lobe_pixels`` (1.5: a
-   full width at half maximum of about 3.5 pixels) at any scale, the lobe lies within a pixel
-   or two and its change with scale is unmeasurable — a fit of such data reports ratios of 1 ±
-   1e-14 that say nothing about the surface. Status ``"undetermined"``.
+   axis) in image pixel pitches ``h = 2·extent/(n − 1)``. Below ``min_lobe_pixels`` (1: a
+   Gaussian lobe of rms width one pitch has ``e^(−π²/2)`` = 0.7 % of its spectrum's peak at the
+   Nyquist frequency, so it is sampled without loss; a narrower one aliases, and a lobe within a
+   pixel or two says nothing) at any scale, the lobe's change with scale is unmeasurable — a fit
+   of such data reports ratios of 1 ± 1e-14 that say nothing about the surface. Status ``"undetermined"``.
 2. **Adequate** (:func:`assess`): is the model consistent with the data? With the whitened
    residuals ``r = (prediction − data)/σ`` at the estimate (masked pixels left out):
 
