@@ -194,8 +194,9 @@ def _summaries(analysis, names, values, grads, draws):
     estimates, std, quantiles = {}, {}, {}
     for idx, name in enumerate(names):
         estimates[name] = float(values[idx])
-        # not a number at θ̂ or at a draw (a ratio S(W, μ0)/S(W, μk) = 0/0 in float64): no std, no quantiles
-        if not determined[idx] or not (np.isfinite(values[idx]) and np.all(np.isfinite(draws[:, idx]))):
+        # not a number at θ̂, in its gradient or at a draw (a ratio S(W, μ0)/S(W, μk) = 0/0 in float64): no std
+        finite = np.isfinite(values[idx]) and np.all(np.isfinite(grads[idx])) and np.all(np.isfinite(draws[:, idx]))
+        if not determined[idx] or not finite:
             std[name], quantiles[name] = None, None
             continue
         spread = float(np.var(draws[:, idx]))
