@@ -75,6 +75,8 @@ _EXPECTED = "an HDF5 checkpoint written by fitting.sample"
 _MARGIN = 1 << 20  # bytes beyond a chunk's own that must be free before it is written (HDF5's metadata)
 _FOREIGN = (RuntimeError, ValueError, KeyError, TypeError)  # h5py's failures that are not OSError
 _KEPT = "the chunks committed before this write are kept (a rerun continues from them)"
+#: What h5py raises on a damaged file (HDF5's errors surface as any of these).
+_READ_ERRORS = (OSError, KeyError, ValueError, TypeError, RuntimeError, AttributeError, IndexError, UnicodeDecodeError)
 _LOG_DENSITIES = ("log_prob", "log_density", "logdensity")  # where −∞ (zero density) is a legitimate value
 
 
@@ -221,7 +223,7 @@ def _read(f, path: str, stats_names, signature: str | None = None):
         if not isinstance(done, (int, np.integer)) or done < 0:
             raise TypeError(f"steps_done is {done!r}, not a count")
         done = int(done)
-    except (OSError, KeyError, ValueError, TypeError, AttributeError, IndexError) as err:
+    except _READ_ERRORS as err:
         raise _Damaged(str(err), None) from None
     if done == 0:
         stored = Stored(
@@ -242,12 +244,15 @@ def _read(f, path: str, stats_names, signature: str | None = None):
         rows = int(committed[0]) + 1
         ends, digests = ends[:rows], digests[:rows]
         state_rows = {name: ds[:rows] for name, ds in f["state"].items()}
-    except (OSError, KeyError, ValueError, TypeError, AttributeError, IndexError, UnicodeDecodeError) as err:
+    except _READ_ERRORS as err:
         raise _Damaged(f"its table of chunks cannot be read ({err})", 0) from None
     if not state_rows:
         raise _Damaged("it holds no sampler state", 0)
     previous, start, good = header, 0, 0
-    arrays = {"chain": chain_ds, "log_prob": f["log_prob"], **{f"stats/{k}": v for k, v in stats_ds.items()}}
+    try:
+        arrays = {"chain": chain_ds, "log_prob": f["log_prob"], **{f"stats/{k}": v for k, v in stats_ds.items()}}
+    except _READ_ERRORS as err:
+        raise _Damaged(f"its datasets cannot be read ({err})", 0) from None
     data = {name: [] for name in arrays}
     for j in range(rows):
         end = int(ends[j])
@@ -257,7 +262,7 @@ def _read(f, path: str, stats_names, signature: str | None = None):
         try:
             blocks = [(name, ds[start:end]) for name, ds in arrays.items()]
             state = {name: rows_[j] for name, rows_ in state_rows.items()}
-        except (OSError, ValueError, TypeError, IndexError) as err:
+        except _READ_ERRORS as err:
             raise _Damaged(f"{where} cannot be read ({err})", good) from None
         if any(b.shape[0] != end - start for _, b in blocks):
             raise _Damaged(f"{where}: its datasets are shorter than steps_done = {done}", good)
@@ -445,8 +450,12 @@ def verify(path, signature: str | None = None, stats=None) -> tuple[Stored, dict
         else:
             remedy = f"no chunk of it can be kept; {retry}"
         raise MeasurementFileError(f"checkpoint {path} is damaged: {err.reason}; {remedy}.") from None
-    except OSError as err:  # closing a damaged file
-        raise MeasurementFileError(f"checkpoint {path} is damaged ({err}); use another path, or {retry}.") from None
+    except BrdfscaleError:
+        raise  # another run's, an earlier layout's, not a checkpoint: said as such
+    except _READ_ERRORS as err:  # HDF5's own structures damaged (or the file's closing failed)
+        raise MeasurementFileError(
+            f"checkpoint {path} is damaged ({err}); no chunk of it can be kept; {retry}."
+        ) from None
     return stored, {"signature": json.loads(layout[4]), "steps": stored.steps}
 
 
@@ -491,18 +500,26 @@ def rewind_checkpoint(path) -> int:
             f"checkpoint {path} cannot be read as {_EXPECTED} ({err}); nothing of it can be kept: pass "
             "overwrite=True to fitting.sample (--force on the command line) to start afresh."
         ) from None
-    with f:
-        try:
-            stored = _read(f, path, None)[0]
-            return stored.steps  # whole: nothing to drop
-        except _Damaged as err:
-            if err.good is None:
-                raise MeasurementFileError(
-                    f"checkpoint {path} is damaged beyond its chunks ({err.reason}); nothing of it can be kept: "
-                    "pass overwrite=True to fitting.sample (--force on the command line) to start afresh."
-                ) from None
-            good = err.good
-        layout, names, keep, data, states = _good_chunks(f, good)
+    nothing = (
+        "nothing of it can be kept: pass overwrite=True to fitting.sample (--force on the command line) to start "
+        "afresh."
+    )
+    try:
+        with f:
+            try:
+                stored = _read(f, path, None)[0]
+                return stored.steps  # whole: nothing to drop
+            except _Damaged as err:
+                if err.good is None:
+                    raise MeasurementFileError(
+                        f"checkpoint {path} is damaged beyond its chunks ({err.reason}); {nothing}"
+                    ) from None
+                good = err.good
+            layout, names, keep, data, states = _good_chunks(f, good)
+    except BrdfscaleError:
+        raise
+    except _READ_ERRORS as err:
+        raise MeasurementFileError(f"checkpoint {path} is damaged beyond its chunks ({err}); {nothing}") from None
     signature, W, d, chunk, dtypes, subspace = layout
 
     def write(tmp):

@@ -121,6 +121,25 @@ def test_damaged_chunks_are_refused_for_every_sampler(linear, runs, name, tmp_pa
         fitting.sample(problem, res, checkpoint=path, **kw)
 
 
+@pytest.mark.parametrize("name", ["emcee", "nuts"])
+def test_every_zeroed_4k_block_is_refused_or_harmless(linear, runs, name, tmp_path):
+    """Each 4 KiB block of the file zeroed in turn — HDF5's superblock, object headers, B-trees,
+    heaps, the chunks: the library's own error, or (free space, padding) the undamaged chain."""
+    problem, res = linear
+    kw, full, src = runs[name]
+    data = open(src, "rb").read()
+    outcomes = []
+    for start in range(0, len(data), 4096):
+        path = tmp_path / f"z{start}.h5"
+        path.write_bytes(data[:start] + bytes(len(data[start : start + 4096])) + data[start + 4096 :])
+        try:
+            outcomes.append("same" if _same(fitting.sample(problem, res, checkpoint=path, **kw), full) else "changed")
+        except (MeasurementFileError, InvalidInputError) as err:
+            assert "\n" not in str(err) and str(path) in str(err)
+            outcomes.append("refused")
+    assert "changed" not in outcomes and outcomes.count("refused") >= len(outcomes) // 2, outcomes
+
+
 @pytest.mark.parametrize("where", ["chain", "log_prob", "state"])
 def test_a_consistently_sealed_nan_is_refused(linear, runs, where, tmp_path):
     """NaN written with the chunk's SHA-256 recomputed (a writer's bug, not a disk's) is refused
