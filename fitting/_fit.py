@@ -94,15 +94,18 @@ def fit(
         seed: seed of the jitter.
         max_steps, rtol, atol: optimistix settings: a start has converged when an accepted
             step changes θ by less than ``atol + rtol·|θ_i|`` and the residuals by less than
-            ``atol + rtol·|r_i|``, both in the root-mean-square over components (residuals
-            are in units of σ, so 1e-6 is far below the noise; Levenberg–Marquardt
-            converges quadratically, so the last step bounds the error). Tighter settings
+            ``atol + rtol·|r_i|``, both in the root-mean-square over components (the
+            residuals normalised to a root-mean-square of 1 at the start, which makes the fit
+            independent of σ's overall scale — fitting._solve — and 1e-6 far below the noise;
+            Levenberg–Marquardt converges quadratically, so the last step bounds the error). Tighter settings
             or a max-norm only add steps at the rounding level (experiments/bench_fit.py
             checks the optimum against SciPy).
         undetermined_std: threshold of the identifiability analysis (module docstring).
 
     Returns:
-        A :class:`FitResult`; inspect ``status`` and ``undetermined`` before trusting it.
+        A :class:`FitResult`; inspect ``status`` and ``undetermined`` before trusting it
+        (``"converged"`` only at a finite θ̂ that is not an unmoved, non-stationary start:
+        fitting._solve names the other outcomes).
 
     Raises:
         InvalidInputError: ``model``/``data`` of the wrong type or not belonging together

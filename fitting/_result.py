@@ -21,7 +21,9 @@ class FitResult(Shown):
     """Outcome of :func:`fit` (all NumPy / Python values; ``to_json()`` for reports).
 
     ``status`` is ``"converged"`` when the best start's solver reported success, else the
-    optimistix result name of the best start (e.g. ``"nonlinear_max_steps_reached"``).
+    optimistix result name of the best start (e.g. ``"nonlinear_max_steps_reached"``), or
+    ``"nonfinite"`` (θ̂, χ² or the Jacobian not finite) or ``"stopped_at_start"`` (the solve
+    never left a start that is not stationary; fitting._solve).
     ``estimates``/``std``/``quantiles`` are keyed by quantity name; ``std`` and
     ``quantiles`` hold None for quantities that the data do not determine. ``at_bounds``
     lists coordinates that ended on the prior box's edge (there the residuals are flat in
