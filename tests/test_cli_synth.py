@@ -2,6 +2,7 @@
 
 import importlib.util
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -142,3 +143,37 @@ def test_library_errors_exit_2(tmp_path, capsys):
     (tmp_path / "x.exr").write_bytes(b"not an exr")
     assert cli.main(["info", str(tmp_path / "x.exr")]) == 2
     assert "not a readable OpenEXR file" in capsys.readouterr().err
+
+
+DI = str(Path(__file__).parent / "data" / "topographies" / "di-3.di")
+
+
+def test_synth_help_states_the_topography_defaults(capsys):
+    from brdfscale._cli._synth import TOPOGRAPHY_NOISE, TOPOGRAPHY_RESOLUTION
+
+    with pytest.raises(SystemExit):
+        cli.main(["synth", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert f"{TOPOGRAPHY_NOISE} for --topography" in text
+    assert f"{TOPOGRAPHY_RESOLUTION:g} image pixels" in text
+    assert "99th percentile of the pixel slopes' deviation |m − m̄|" in text and "steepest" not in text
+
+
+def test_synth_topography_records_only_the_defaults_it_used(tmp_path):
+    """Options given are not defaults: --noise none, --extent and --resolution leave `defaults` empty
+    and the images without σ; --noise given but no --extent records the extent rule alone."""
+    from brdfscale import synth, topography
+
+    out = tmp_path / "given.exr"
+    given = ["--noise", "none", "--extent", "0.5", "--resolution", "0", "--pixels", "17", "--scales", "auto:2"]
+    assert cli.main(["synth", "--topography", DI, *given, "--out", str(out)]) == 0
+    mset = exr.read_measurements(str(out))
+    assert mset.metadata["defaults"] == {} and all(image.sigma is None for image in mset.images)
+    assert mset.metadata["extent"] == 0.5 and mset.metadata["resolution"] == 0.0
+    out = tmp_path / "extent.exr"
+    args = ["--noise", "gaussian:0.1", "--seed", "4", "--pixels", "17", "--scales", "auto:2"]
+    assert cli.main(["synth", "--topography", DI, *args, "--out", str(out)]) == 0
+    mset = exr.read_measurements(str(out))
+    assert set(mset.metadata["defaults"]) == {"extent", "resolution"}
+    assert mset.metadata["extent"] == pytest.approx(synth.robust_extent(topography.read(DI)))
+    assert mset.metadata["noise"]["type"] == "gaussian" and all(image.sigma is not None for image in mset.images)
