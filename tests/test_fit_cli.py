@@ -172,3 +172,14 @@ def test_readme_measured_surface_chain_runs_as_written(tmp_path, capsys):
         if "prior range" in line:
             lo, hi, best = (float(x) for x in re.findall(r"range (\S+) … (\S+); best fit (\S+)\)", line)[0])
             assert lo * (1 - 1e-3) <= best <= hi * (1 + 1e-3), line
+
+
+def test_an_estimate_on_a_prior_bound_is_said_to_be_there():
+    from brdfscale._cli._fit import print_determined
+
+    row = {"median": 0.05, "estimate_map": 0.05, "determined": True, "std": 0.01, "quantiles_5_50_95": None}
+    doc = {"parameters": {"exponent": row, "alpha_max": row}, "optimisation": {"at_prior_bounds": ["log exponent"]}}
+    lines = []
+    print_determined(doc, stream=lines.append)
+    assert lines[0].startswith("  exponent") and lines[0].endswith("its estimate is at a bound of its prior range")
+    assert lines[1].startswith("  alpha_max") and "bound" not in lines[1]
