@@ -122,6 +122,20 @@ def test_covariance_differences_in_the_json_document(fitted):
     assert "ΔΣ" in fitted._repr_html_()
 
 
+def test_fit_json_holds_the_covariance_differences(data, fitted, tmp_path):
+    import json
+
+    doc = fitting.write_report(
+        tmp_path / "r", fitting.Problem(fitting.AnisotropicModel(3), data), fitted, figures=False
+    )
+    on_disk = json.loads((tmp_path / "r" / "fit.json").read_text())
+    assert on_disk["covariance_differences"] == doc["covariance_differences"]
+    np.testing.assert_allclose(
+        [d["value"] for d in on_disk["covariance_differences"]], [d["value"] for d in fitted.covariance_differences]
+    )
+    assert "covariance_differences" not in on_disk["optimisation"]
+
+
 @settings(max_examples=15, deadline=None)
 @given(
     phi=st.floats(0.0, math.pi),
@@ -241,11 +255,15 @@ def test_compare_prefers_the_anisotropic_model_on_anisotropic_data(data, fitted)
 def test_compare_refuses_what_it_cannot_compare(fitted):
     with pytest.raises(InvalidInputError, match="at least two"):
         fitting.compare({"one": fitted})
-    with pytest.raises(InvalidInputError, match="FitResult"):
-        fitting.compare({"a": fitted, "b": 3})
     other = fitting.FitResult(**{**fitted.__dict__, "n_data": fitted.n_data + 1})
     with pytest.raises(InvalidInputError, match="same data"):
         fitting.compare({"a": fitted, "b": other})
+
+
+@pytest.mark.wrong_types
+def test_compare_refuses_a_result_that_is_not_a_fit_result(fitted):
+    with pytest.raises(InvalidInputError, match="FitResult"):
+        fitting.compare({"a": fitted, "b": 3})
 
 
 def test_bad_arguments_are_refused(data):
