@@ -493,17 +493,11 @@ def rewind_checkpoint(path) -> int:
     """
     path = os.fspath(path)
     h5 = _h5py()
+    nothing = "nothing of it can be kept: pass overwrite=True to fitting.sample to start afresh."
     try:
         f = h5.File(path, "r")
     except OSError as err:
-        raise MeasurementFileError(
-            f"checkpoint {path} cannot be read as {_EXPECTED} ({err}); nothing of it can be kept: pass "
-            "overwrite=True to fitting.sample (--force on the command line) to start afresh."
-        ) from None
-    nothing = (
-        "nothing of it can be kept: pass overwrite=True to fitting.sample (--force on the command line) to start "
-        "afresh."
-    )
+        raise MeasurementFileError(f"checkpoint {path} cannot be read as {_EXPECTED} ({err}); {nothing}") from None
     try:
         with f:
             try:
