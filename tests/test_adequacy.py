@@ -166,3 +166,20 @@ def test_robust_extent_refuses_bad_arguments():
             synth.robust_extent(field, **kwargs)
     with pytest.raises(InvalidInputError, match="flat field"):
         synth.robust_extent(synth.HeightField(np.zeros((16, 16)), 1.0))
+
+
+def test_robust_extent_of_gaussian_slopes_is_their_rayleigh_quantile():
+    """docs/fitting.md: for Gaussian slopes of standard deviation σ per axis (independent axes) the 99th
+    percentile of |m − m̄| is σ·√(2 ln 100) = 3.03 σ, so the default extent is 4.55 σ and a coarse lobe's
+    rms width about (pixels − 1)/9.1 image pixels — as measured (0.92 of it, the 5 % cut), 6.5 at 65."""
+    field = synth.named_surface("gaussian", size=256, seed=0)
+    slopes = synth.facet_slopes(field, 1.0).reshape(-1, 2)
+    sigma = float(np.mean(np.std(slopes, axis=0)))
+    assert synth.robust_extent(field) == pytest.approx(1.5 * math.sqrt(2 * math.log(100)) * sigma, rel=0.03)
+    extent = synth.robust_extent(field)
+    mset = synth.gonioreflectometer(
+        field, [1, 64], [0, 0, 1], extent=extent, pixels=65, noise=synth.PoissonNoise(200, 1), seed=1
+    )
+    coarse = fitting.lobe_widths(fitting.Dataset.from_measurements(mset))[1]
+    truncation = math.sqrt(1 - math.log(20) / 19)  # 0.92: the 5 % cut of the closed-form test above
+    assert coarse == pytest.approx(truncation * 64 / (2 * 1.5 * math.sqrt(2 * math.log(100))), rel=0.1)

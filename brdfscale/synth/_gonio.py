@@ -136,7 +136,7 @@ def robust_extent(field: HeightField, *, quantile: float = EXTENT_QUANTILE, fact
     ``(pixels − 1)/9.1`` image pixels (7 at 65 pixels). A quantile ignores the few outliers of a
     measured file — a spike of one steep pixel (slope 0.84 on a surface of rms slope 0.0037)
     would otherwise set the extent (``1.05 ×`` :func:`steepest_slope`, the rule of earlier
-    releases) and put every lobe into one image pixel (tests/test_synth.py).
+    releases) and put every lobe into one image pixel (both tested in tests/test_adequacy.py).
 
     Raises:
         InvalidInputError: ``field`` is not a :class:`HeightField`, ``quantile`` not in (0, 1],
