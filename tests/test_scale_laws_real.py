@@ -296,3 +296,22 @@ def test_the_results_page_shows_the_committed_scale_law_table():
     table = real_surfaces.laws_table(payload)
     assert table in (root / "docs" / "results.md").read_text()
     assert set(payload["laws"]) == set(real_surfaces.LAWS) and len(payload["surfaces"]) == 5
+
+
+def test_the_planner_takes_a_measured_law():
+    """brdfscale.scene accepts any AbstractScaleLaw: a material whose statistics are measured
+    evaluates, at every query's scale, what evolve gives with the law's statistics there."""
+    from brdfscale import scene
+    from brdfscale.geometry import microfacet_factor, slope_to_direction
+
+    law = _sampled(_surface(), np.geomspace(0.5, 50.0, 8))
+    lobe = lobes.Lobe(stats.Gaussian(cov=jnp.array([[0.01, 0.002], [0.002, 0.02]])), amplitude=0.8)
+    mu0 = 1.0
+    material = scene.Material(lobe, mu0, law)
+    u = np.array([[0.0, 0.0], [0.05, -0.02], [-0.1, 0.07], [0.02, 0.15]])
+    mu = np.array([1.0, 3.0, 12.0, 45.0])
+    d = np.asarray(slope_to_direction(jnp.asarray(u)))
+    plan = scene.plan(scene.Scene((material,), scene.Queries(d, d, mu), 1e-6))
+    got = np.asarray(plan.evaluate()) / np.asarray(microfacet_factor(jnp.asarray(d), jnp.asarray(d)))
+    want = [float(bs.evolve(lobe, law.at(mu0), law.at(m)).density(jnp.asarray(x)[None])[0]) for x, m in zip(u, mu)]
+    np.testing.assert_allclose(got, want, rtol=1e-10)  # both A·g (the amplitude 0.8 included)
