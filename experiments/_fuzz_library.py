@@ -25,7 +25,7 @@ figures). Then:
   no process behind.
 
 The subprocesses share a compilation cache private to the study's temporary directory. Quick:
-6 damaged indices and one in-process kill; full: 90 damaged indices and 24 kills.
+6 damaged indices and one in-process kill; full: 64 damaged indices and 22 kills.
 """
 
 import contextlib
@@ -368,8 +368,8 @@ def run(quick: bool, seed: int = 0, directory: str | None = None) -> dict:
         if code != 0:
             raise RuntimeError(f"the reference library fit failed (exit {code}): {out}{err}")
         reference = _results(ref, sorted(n for n in os.listdir(os.path.join(ref, "materials")) if n[0] != "."))
-        _damaged_indices(6 if quick else 90, rng, tmp, lib, ref, reference, counts["damaged_index"], bad)
-        _sigkills(1 if quick else 24, quick, rng, tmp, lib, reference, counts["sigkill_fit_library"], bad)
+        _damaged_indices(6 if quick else 64, rng, tmp, lib, ref, reference, counts["damaged_index"], bad)
+        _sigkills(1 if quick else 22, quick, rng, tmp, lib, reference, counts["sigkill_fit_library"], bad)
     return {"kinds": counts, "bad_examples": bad[:20]}
 
 
