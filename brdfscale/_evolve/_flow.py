@@ -141,6 +141,11 @@ def evolve(
             ``jax.jit``/``grad``/``vmap`` a rule raises :class:`brdfscale.UnresolvedMethodError` —
             choose outside, ``m = select(lobe, s_from, s_to, regularisation="auto")``, and pass
             ``method=m``, which carries λ (``m.regularisation``, reported by ``m.explain()``).
+            On measured data a lobe need not exist at the rule's λ (even going coarser: measured
+            statistics do not nest exactly), so with concrete values every rule checks existence
+            and, where its λ fails, takes the first of the search candidates (2 per decade, best
+            GCV score first) for which the lobe exists (:func:`searched`; ``explain()`` names the
+            λ refused); NoBRDFAtScaleError when none does.
             ``None`` (default): the λ a resolved method carries, else 0. Leave 0 for analytic
             inputs. The chosen λ is ``result.shape.regularisation``. With noisy input the evolved
             lobe has ripples of about the noise level: the sign check then needs a ``tol`` of
@@ -153,8 +158,9 @@ def evolve(
             ``Radial(nodes=size)`` / ``Grid(size=size)``. Default: chosen from ``tol`` for
             concrete parameters (capped at 16384 / 1024); required under tracing.
             When a capped grid cannot meet ``tol`` (heavy-tailed statistics such as GGX
-            need grids of extent ∝ tol^{−1/4}), the grid path relaxes the target by decades
-            and records the tolerance it honours in ``result.shape.tol``.
+            need grids of extent ∝ tol^{−1/4}), the grid path relaxes the target by decades,
+            warns (:class:`brdfscale.ToleranceRelaxedWarning`) and records the tolerance it
+            honours in ``result.shape.tol`` and the tol asked in ``explain()``.
         extent: with a method name: half-width of the grid path's slope grid (a number).
             Default: the radius beyond which the lobe stays below ``tol/2`` relative to its
             peak; offsets outside the grid evaluate to 0 (never a periodic image).
@@ -178,8 +184,10 @@ def evolve(
     Raises:
         NoBRDFAtScaleError: no non-negative lobe exists at μ (e.g. a Gaussian lobe would
             need a negative variance, the quotient's transform exceeds 1 in modulus, or the
-            evolved values fall below −tol of the peak). Inside a user's ``jax.jit`` the check
-            runs with the program (``equinox.error_if``) and reaches the user as equinox's
+            evolved values fall below −tol of the peak). For concrete values the message names
+            the direction of the evolution (finer or coarser, from the two statistics:
+            :func:`brdfscale._existence.direction`) and the regularisation in force. Inside a
+            user's ``jax.jit`` the check runs with the program (``equinox.error_if``) and reaches the user as equinox's
             runtime error carrying the same message (``brdfscale._existence``).
         UnresolvedMethodError: traced parameters and a spectral path without a size, or a
             regularisation rule with a traced tabulated lobe and no λ carried by ``method``.

@@ -29,6 +29,10 @@ the best candidate):
 * ``"l_curve"`` — the corner of the L-curve (Hansen): the λ of largest curvature of
   ``(ln ‖residual‖, ln ‖G_to‖)`` on the table's frequencies.
 
+Whatever the rule, :func:`brdfscale.evolve` then checks that the lobe exists at the λ chosen and,
+where it does not, tries :data:`SEARCH_CANDIDATES` best GCV score first (:func:`ranked`,
+``_flow.searched``).
+
 Lobes that are not tabulated are exact (closed forms, analytic families): every rule gives
 λ = 0, which is Eq. 4.4 itself. When nothing is divided (``s_to`` a point mass, ``|S_to| = 1``)
 λ = 0 as well. Only the lobe's noise is modelled: tabulated *statistics* are taken as exact.
