@@ -39,7 +39,6 @@ import argparse
 import json
 import math
 import sys
-from pathlib import Path
 
 import numpy as np
 
@@ -255,9 +254,6 @@ def run(quick: bool, seed: int = 0, directory: str | None = None) -> dict:
 
 
 def main(argv=None) -> int:
-    root = str(Path(__file__).resolve().parent.parent)  # tests.helpers: from the checkout
-    if root not in sys.path:
-        sys.path.insert(0, root)
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--seed", type=int, default=0)

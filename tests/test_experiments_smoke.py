@@ -478,3 +478,17 @@ def test_fuzz_robustness_long_run():
     assert files_result["bad"] == 0, files_result["failures"]
     cli = fz.fuzz_command_lines(300, seed=11)
     assert cli["bad"] == 0, cli["failures"]
+
+
+def test_fuzz_numbers_quick_has_no_bad_outcome():
+    """The fuzz family "numbers" (experiments/_fuzz_numbers.py, issue 34) at its quick size: σ
+    scaled over 60 decades gives the same optimum, hostile σ is refused by name or fitted
+    correctly; nothing bad."""
+    from experiments import _fuzz_numbers
+
+    result = _fuzz_numbers.run(quick=True, seed=0)
+    assert result["bad_examples"] == []
+    for kind in _fuzz_numbers.KINDS:
+        tally = result["kinds"][kind]
+        assert tally["tried"] > 0 and tally["bad"] == 0, (kind, tally)
+        assert tally["tried"] == tally["refused"] + tally["same"] + tally["bad"]
