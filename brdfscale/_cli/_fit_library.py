@@ -23,7 +23,9 @@ def register(subparsers) -> None:
         "and options: batches of materials fitted together (one compiled program per bucket of a batch, divided "
         "over the devices), in this process or as Ray tasks (--workers N: a local Ray instance; --address: a cluster). "
         "Writes DIR/library.json (the index: status, χ²/dof, errors) and DIR/materials/NAME/ (each material's "
-        "report). Interrupted, it resumes: a rerun fits only the materials not yet done. docs/library.md",
+        "report). Interrupted, it resumes: a rerun fits only the materials whose report is not there and whole "
+        "(a damaged one is fitted again, and said); a local Ray instance it started stops with it, even after kill -9. "
+        "docs/library.md",
     )
     parser.add_argument(
         "sources",
