@@ -59,6 +59,13 @@ class Problem(Shown, eqx.Module):
             )
         require_dataset(data, "Problem(model, data)")
         model.check_data(data)
+        if data.topography is not None:  # a joint fit compares ΔΣ: the model must have finite second moments
+            zero = jnp.zeros(len(model.names), jnp.float64)
+            if not np.all(np.isfinite(np.asarray(covariance_differences(model, zero, data.scales)[1:]))):
+                raise InvalidInputError(
+                    f"a joint fit with a topography compares ΔΣ(μ0, μk), which {type(model).__name__} does not "
+                    "define (GGX slopes have no finite variance); use Beckmann statistics or AnisotropicModel."
+                )
         self.model, self.data = model, data
         self.points = data.points(model.radial)
         lo, hi = model.bounds(data)

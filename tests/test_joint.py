@@ -91,6 +91,15 @@ def test_bad_topography_terms_are_refused():
         fitting.TopographyData([2.0, 1.0], np.tile(np.eye(2), (2, 1, 1)), np.ones((2, 2, 2)))
 
 
+def test_a_joint_fit_needs_finite_covariance_differences():
+    data = synthetic(0).with_topography(topography_for(true_differences()))
+    with pytest.raises(InvalidInputError, match="GGX"):
+        fitting.Problem(fitting.ParametricModel("ggx", "ggx"), data)
+    problem = fitting.Problem(fitting.ParametricModel(), data)  # Beckmann: ΔΣ from the Hessian of log R
+    r = np.asarray(problem.residuals(jax.numpy.zeros(5)))
+    assert np.all(np.isfinite(r)) and len(r) == problem.points.weight.size + 6
+
+
 @pytest.mark.wrong_types
 def test_a_topography_of_the_wrong_type_is_refused():
     with pytest.raises(InvalidInputError, match="TopographyData"):
