@@ -11,7 +11,7 @@ import shutil
 import socket
 import sys
 import tempfile
-from typing import Callable, Iterator
+from collections.abc import Callable, Iterator
 
 from ._errors import BrdfscaleError, InvalidInputError, OutputInUseError, OutputWriteError
 
