@@ -24,7 +24,10 @@ changed:
     no optimum);
   - ``same``: a fit reported ``"converged"`` with finite θ̂, χ² and estimates, at an optimum:
     SciPy's ``least_squares`` (trust-region reflective, finite differences: nobody here wrote
-    it) started at θ̂ lowers χ² by less than 1e-8 of itself;
+    it) started at θ̂ lowers χ² by less than 1e-8 of itself, or ends within the fit's own
+    tolerance of θ̂ (``atol + rtol·|θ̂_i|`` in each coordinate, the defaults 1e-6: with one
+    pixel 1e30 × more precise than the rest, θ̂ within 1e-10 of SciPy's optimum still leaves
+    that pixel's residual, and χ², many orders above SciPy's);
   - ``bad``: anything else (a foreign exception, a message about something else, "converged"
     with a non-finite value or away from an optimum).
 
@@ -177,17 +180,22 @@ def _residual_function():
 
 def _at_optimum(problem, result, residuals) -> str | None:
     """None when SciPy's least_squares from θ̂ cannot lower χ² by more than OPTIMUM_TOLERANCE of
-    it, else why not."""
+    it or ends within the fit's tolerance of θ̂ (module docstring), else why not."""
     import jax.numpy as jnp
     import scipy.optimize
+
+    from brdfscale.choices import FIT
 
     def f(t):
         return np.asarray(residuals(jnp.asarray(t), problem))
 
-    ref = scipy.optimize.least_squares(f, result.theta, method="trf", x_scale="jac", xtol=1e-12, ftol=1e-12)
+    tight = {"xtol": 1e-15, "ftol": 1e-15, "gtol": 1e-15}
+    ref = scipy.optimize.least_squares(f, result.theta, method="trf", x_scale="jac", **tight)
     chi2 = 2 * ref.cost + float(problem.points.chi2_offset)
-    if chi2 < result.chi2 * (1 - OPTIMUM_TOLERANCE):
-        return f"SciPy lowers χ² from {result.chi2:.6g} to {chi2:.6g}"
+    near = np.all(np.abs(ref.x - result.theta) <= FIT.atol + FIT.rtol * np.abs(result.theta))
+    if chi2 < result.chi2 * (1 - OPTIMUM_TOLERANCE) and not near:
+        far = float(np.max(np.abs(ref.x - result.theta)))
+        return f"SciPy lowers χ² from {result.chi2:.6g} to {chi2:.6g}, moving θ by up to {far:.3g}"
     return None
 
 
