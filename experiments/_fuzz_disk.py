@@ -20,7 +20,7 @@ Where ``mount -t tmpfs`` cannot be used (not root, not Linux), the test seam
 levels); the JSON says which (``"mode"``). ``quick`` runs synth (at two steps) and topography
 (at one) only, injected, in this process (fast enough for the default test suite).
 
-    python experiments/_fuzz_disk.py [--quick] [--out results.json]
+    python -m experiments._fuzz_disk [--quick] [--out results.json]
 """
 
 import argparse
@@ -44,15 +44,17 @@ _SYNTH = ("--size", "64", "--scales", "4,16", "--pixels", "9")
 
 #: The child process: ``brdfscale ARGV`` with, when BRDFSCALE_FUZZ_FAULT=STEP, ENOSPC raised by
 #: the test seam at STEP of the first write. Its exit status is the command's (a signal: −N).
-_CHILD = """
-import os, sys
-sys.path.insert(0, {here!r})
-from _fuzz_disk import _faulty
-with _faulty(os.environ.get("BRDFSCALE_FUZZ_FAULT")):
-    from brdfscale._cli import main
-    code = main(sys.argv[1:])
-sys.exit(code)
-""".format(here=str(Path(__file__).resolve().parent))
+#: The child process: ``brdfscale ARGV`` (through :func:`_child`) with, when
+#: BRDFSCALE_FUZZ_FAULT=STEP, ENOSPC raised by the test seam at STEP of the first write. Its exit
+#: status is the command's (a signal: −N).
+_CHILD = ("-m", "experiments._fuzz_disk", "--child")
+
+
+def _child(argv: list[str]) -> int:
+    with _faulty(os.environ.get("BRDFSCALE_FUZZ_FAULT")):
+        from brdfscale._cli import main
+
+        return main(argv)
 
 
 @contextlib.contextmanager
@@ -147,7 +149,7 @@ def _run(argv: list[str], env: dict, fault: str | None = None, timeout: float = 
         child_env["BRDFSCALE_FUZZ_FAULT"] = fault
     try:
         r = subprocess.run(
-            [sys.executable, "-c", _CHILD, *argv],
+            [sys.executable, *_CHILD, *argv],
             env=child_env,
             capture_output=True,
             text=True,
@@ -388,6 +390,9 @@ def run(quick: bool, seed: int = 0, directory: str | None = None) -> dict:
 
 
 def main(argv=None) -> None:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["--child"]:
+        sys.exit(_child(argv[1:]))
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--out", help="write the JSON here too")

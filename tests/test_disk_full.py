@@ -371,17 +371,3 @@ def test_a_real_full_tmpfs(kind, write, check, leave):
         write(path, True)
         assert check(path) and _leftovers(where) == []
         assert not glob.glob(os.path.join(where, ".*"))
-
-
-def test_the_fuzz_familys_quick_run_has_no_bad_outcome(tmp_path):
-    """experiments/_fuzz_disk.py's quick run (ENOSPC injected into synth and topography): every
-    trial refused with exit 8 and one line, nothing corrupt left, the rerun complete."""
-    from experiments import _fuzz_disk
-
-    assert _fuzz_disk.STEPS == _files.STEPS
-    result = _fuzz_disk.run(True, directory=str(tmp_path))
-    assert result["mode"] == "injected" and set(result["kinds"]) == {"synth", "topography"}
-    for kind, counts in result["kinds"].items():
-        assert counts["bad"] == 0, result["bad_examples"]
-        assert counts["tried"] > 0 and counts["refused"] == counts["tried"], (kind, counts)  # the fault fired
-    assert os.listdir(tmp_path) == []

@@ -492,3 +492,19 @@ def test_fuzz_numbers_quick_has_no_bad_outcome():
         tally = result["kinds"][kind]
         assert tally["tried"] > 0 and tally["bad"] == 0, (kind, tally)
         assert tally["tried"] == tally["refused"] + tally["same"] + tally["bad"]
+
+
+def test_fuzz_disk_quick_has_no_bad_outcome(tmp_path):
+    """experiments/_fuzz_disk.py's quick run (ENOSPC injected into synth and topography through
+    brdfscale._files' seam): every trial refused with exit 8 and one line, nothing corrupt left,
+    the rerun complete."""
+    from brdfscale import _files
+    from experiments import _fuzz_disk
+
+    assert _fuzz_disk.STEPS == _files.STEPS
+    result = _fuzz_disk.run(True, directory=str(tmp_path))
+    assert result["mode"] == "injected" and set(result["kinds"]) == {"synth", "topography"}
+    for kind, counts in result["kinds"].items():
+        assert counts["bad"] == 0, result["bad_examples"]
+        assert counts["tried"] > 0 and counts["refused"] == counts["tried"], (kind, counts)  # the fault fired
+    assert list(tmp_path.iterdir()) == []
