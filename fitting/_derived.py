@@ -123,8 +123,8 @@ def covariance_differences(model, theta, scales) -> jax.Array:
         ΔΣ_k = −∇²_W log R_k(W) at W = 0.
 
     A model with a ``covariance_differences(θ, scales)`` method (:class:`fitting.AnisotropicModel`:
-    exact) gives its own (a model that is not radially symmetric must: without it, NaN); for the
-    radially symmetric models (``R_k`` a function of |W|) the
+    exact) gives its own — and a model whose ``R_k`` depends on the direction of W must; for the
+    models whose ``R_k`` is a function of |W| (``model.relative_statistics`` over radii) (``R_k`` a function of |W|) the
     Hessian is ``−(d²/dk²) log R_k(k)|₀ · I``, taken by ``jax.jacfwd`` twice of
     ``model.relative_statistics`` (tests/test_anisotropic.py checks it against the Gaussian closed
     form ``(α(μ0)² − α(μ_k)²)/2 · I`` of Beckmann statistics and the non-parametric model's
@@ -134,8 +134,7 @@ def covariance_differences(model, theta, scales) -> jax.Array:
     own = getattr(model, "covariance_differences", None)
     if own is not None:
         return own(theta, scales)
-    if not model.radial or (isinstance(model, ParametricModel) and model.statistics != "beckmann"):
-        # a model that is not radially symmetric gives its own ΔΣ (its R_k is not a function of |W|);
+    if isinstance(model, ParametricModel) and model.statistics != "beckmann":
         # GGX slopes have no finite variance (brdfscale.stats.GGX): ΔΣ is not defined; the
         # Hessian of log(xK₁(x)) at 0 diverges like log|W| (autodiff would give a finite 0)
         return jnp.full((len(scales), 2, 2), jnp.nan, dtype=jnp.result_type(theta, float))
