@@ -1,0 +1,415 @@
+"""The anisotropic non-parametric model: a tabulated base lobe at μ0 of any shape and centre, and
+per coarser scale the relative statistics ``R_k(W) = S(W, μ0)/S(W, μ_k)`` over the W plane
+(docs/fitting.md, "The anisotropic non-parametric model").
+
+Seed Eq. 4.4, ``G(W, μ_k) = G(W, μ0) R_k(W)``, needs of the statistics only ``R_k``. This model
+writes its logarithm in polar W = ρ(cos φ, sin φ) as
+
+    D_k(W) = −log R_k(W) = ρ² Σ_f P_{k,f}(ρ) A_f(φ),
+    A_f ∈ {1, cos 2φ, sin 2φ, cos 4φ, sin 4φ, …, cos 2Nφ, sin 2Nφ}   (N = ``harmonics``),
+
+each radial profile ``P_{k,f}`` piecewise linear in ρ on the knots ``ρ_j = j W_max/J``
+(j = 0 … J) and constant beyond ``W_max``; the profiles of the harmonics n ≥ 2 vanish at ρ = 0,
+so that ``D_k`` is twice differentiable at W = 0 (their terms are O(ρ³)).
+
+What is imposed, and why:
+
+* ``R_k(0) = 1`` (``D_k(0) = 0``: the ρ² factor) — the relative density ``r_k`` integrates to 1;
+* ``R_k > 0`` (``exp(−D_k)``);
+* ``R_k(−W) = R_k(W)`` (even harmonics only) — ``R_k`` real: the relative density is
+  centro-symmetric, i.e. the statistics change scale without moving their mean (the mean facet
+  slope of a stationary surface is the mean of its gradient at every scale) and without odd
+  cumulants (skewness changes are neglected). The base lobe carries any centre and skew;
+* a smoothness prior: second differences of every profile across the knots, times
+  ``regularisation`` (in units of the reference variance v = the finest lobe's half-maximum
+  variance, so the weight is dimensionless), appended as residual rows.
+
+Not imposed: ``R_k ≤ 1``, a positive density ``r_k``, ordering in μ (``D_{k+1} ≥ D_k``). They
+hold when coarse-graining is a convolution by a density, as for Gaussian statistics, but not for
+every measured pair of slope densities, and the data judge them.
+
+The covariance difference is exact from θ: near 0, ``D_k ≈ ρ²(a + b cos 2φ + c sin 2φ) =
+a(W_x² + W_y²) + b(W_x² − W_y²) + 2c W_x W_y = ½ Wᵀ ΔΣ_k W`` with a, b, c the profiles at ρ = 0, so
+
+    ΔΣ_k = −∇² log R_k(0) = 2 [[a + b, c], [c, a − b]]
+
+(:meth:`covariance_differences`; Gaussian statistics are the special case of constant profiles and
+no higher harmonics, ``R_k = exp(−½ Wᵀ ΔΣ_k W)``; ``harmonics=0`` is the isotropic case
+``R_k = exp(−ρ² P_{k,0}(ρ))``).
+
+**Base lobe.** ``log g0`` is tabulated on ``base_nodes × base_nodes`` nodes, per axis dense near the
+μ0 lobe's centre and stretched (sinh) out to the edge of the largest image, and interpolated to
+the model grid by a not-a-knot cubic spline in each axis (one matrix product each way; a Gaussian's
+log is a quadratic, which that spline reproduces exactly). ``g0 = exp(·) > 0``.
+
+**Discretisation.** The model grid is the pixel grid of the finest-pitched image (pitch h,
+aligned with its pixels) extended over the largest image; the evolved lobe at scale k is
+
+    g_k = IDFT[ DFT[g0] · R_k(W_q) ],   W_q = 2π q/(N h)   (q the DFT indices, |q| ≤ N/2),
+
+on an N × N periodic grid, N ≥ (1 + ``padding``) × the model grid's side g (zero padding, default
+½): the samples of the continuous convolution ``g0 ∗ r_k`` up to the band limit π/h of the
+samples and the periodisation (what the evolved lobe puts more than ``padding`` · g pixels beyond
+the grid's edge re-enters at the opposite edge); the base lobe is zero beyond the largest image (its
+mass there is not modelled). tests/test_nonparametric_aniso.py checks it against the closed-form
+Gaussian evolution, covariances adding, to 1e-6 of the peak (the FFT alone) and 1e-7 (the whole
+forward map at the pixels). ``R_k`` even makes ``g_k`` real, the Nyquist frequency included, so a
+real FFT (half the plane) suffices. The images are then read at their pixels by
+bilinear interpolation: exact where the pixels are the model grid's nodes (images of one pitch and
+centring, as ``brdfscale synth`` writes them).
+"""
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.fft
+import scipy.interpolate
+from jaxtyping import Array, Float
+
+from brdfscale import InvalidInputError, lobes
+from brdfscale.checks import integer, real
+from brdfscale.choices import MODEL
+
+from ._anisotropic import image_moments
+from ._data import Dataset
+from ._model import AbstractModel, moments, require_dataset
+
+
+__all__ = ["AnisotropicNonParametricModel", "evolve_on_grid"]
+
+_CENTRE_SPACING = 0.5
+"""The base-lobe nodes' spacing at the lobe's centre, in units of the μ0 lobe's standard deviation
+along that axis (where the stretched node placement allows it)."""
+
+
+def _stretched_nodes(centre: float, sd: float, lo: float, hi: float, n: int) -> np.ndarray:
+    """``n`` (odd) nodes from ``lo`` to ``hi`` with ``centre`` the middle one, spaced about
+    ``_CENTRE_SPACING · sd`` near it and growing like sinh towards the ends (uniform where that
+    spacing is already coarser than uniform)."""
+    half = (n - 1) // 2
+    u = np.arange(1, half + 1) / half
+    target = _CENTRE_SPACING * sd
+
+    def side(length):
+        if length <= 0:
+            return np.zeros(half)
+        ratio = target * half / length  # s/sinh(s) = ratio at the wanted first spacing
+        if ratio >= 1:
+            return length * u
+        a, b = 1e-9, 50.0
+        for _ in range(200):
+            s = 0.5 * (a + b)
+            a, b = (s, b) if s / math.sinh(s) > ratio else (a, s)
+        s = 0.5 * (a + b)
+        return length * np.sinh(s * u) / math.sinh(s)
+
+    centre = min(max(centre, lo + 1e-9 * (hi - lo)), hi - 1e-9 * (hi - lo))
+    return np.concatenate([centre - side(centre - lo)[::-1], [centre], centre + side(hi - centre)])
+
+
+def _spline_matrix(nodes: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """(len(x), len(nodes)): the not-a-knot cubic spline through values at ``nodes`` evaluated at ``x``
+    (clipped into the nodes' range), as a linear map of the values."""
+    spline = scipy.interpolate.CubicSpline(nodes, np.eye(len(nodes)), bc_type="not-a-knot", axis=0)
+    return spline(np.clip(x, nodes[0], nodes[-1]))
+
+
+def evolve_on_grid(base: Float[Array, "g g"], log_ratio, pitch: float, size: int) -> Float[Array, "k g g"]:
+    """``IDFT[DFT[g0] · R(W_q)]`` on a ``size × size`` periodic grid holding ``base`` (rows: y) in its
+    first rows and columns, zeros elsewhere (module docstring): ``log_ratio`` maps W (…, 2) to
+    ``log R_k(W)`` (k, …); the result is cut back to the base's grid."""
+    g = base.shape[0]
+    padded = jnp.zeros((size, size), base.dtype).at[:g, :g].set(base)
+    qx = 2 * jnp.pi * jnp.fft.rfftfreq(size, d=pitch)  # real input: the half plane q_x ≥ 0 suffices
+    qy = 2 * jnp.pi * jnp.fft.fftfreq(size, d=pitch)
+    W = jnp.stack(jnp.meshgrid(qx, qy, indexing="xy"), axis=-1)  # W[iy, ix] = (q_x, q_y)
+    ratio = jnp.exp(log_ratio(W))
+    return jnp.fft.irfft2(jnp.fft.rfft2(padded)[None] * ratio, s=(size, size))[:, :g, :g]
+
+
+class AnisotropicNonParametricModel(AbstractModel):
+    """Tabulated base lobe + anisotropic relative statistics ``R_k(W)`` in polar W with radial
+    knots × even angular harmonics (module docstring).
+
+    Args:
+        data: the dataset (fixes the number of scales, the model grid and the nodes).
+        base_nodes: the base lobe's ``log g0`` on ``base_nodes × base_nodes`` nodes (odd, ≥ 5).
+        n_knots: J, the radial knots after ρ = 0 (≥ 1).
+        harmonics: N, the highest angular harmonic ``cos 2Nφ``/``sin 2Nφ`` (0: isotropic ``R_k``).
+        w_max: the last knot (default: ``6/σ_min``, σ_min the μ0 lobe's smallest standard
+            deviation, where a Gaussian lobe's transform has fallen to e⁻¹⁸, capped at the model
+            grid's Nyquist frequency π/h).
+        regularisation: the smoothness prior's weight (≥ 0; module docstring).
+        padding: the zero padding of the FFT grid, a fraction (> 0) of the model grid's side:
+            ``N = next_fast_len((1 + padding) · g)``.
+
+    θ = (``log base[r,c]`` row-major (row: y), then per coarser scale k and function f the
+    profile values ``P_{k,f}(ρ_j)/v`` (j from 0, from 1 for the harmonics n ≥ 2)).
+
+    Raises:
+        InvalidInputError: ``data`` not a :class:`~fitting.Dataset`, an image without a positive
+            valid pixel, or an option out of range.
+    """
+
+    n_scales: int = eqx.field(static=True)
+    base_nodes: int = eqx.field(static=True)
+    knots: tuple[float, ...] = eqx.field(static=True)
+    harmonics: int = eqx.field(static=True)
+    smoothness: float = eqx.field(static=True)
+    reference_variance: float = eqx.field(static=True)
+    pitch: float = eqx.field(static=True)
+    origin: float = eqx.field(static=True)
+    grid_points: int = eqx.field(static=True)
+    fft_size: int = eqx.field(static=True)
+    interpolation: Float[Array, "2 g b"]
+    node_x: tuple[float, ...] = eqx.field(static=True)
+    node_y: tuple[float, ...] = eqx.field(static=True)
+
+    def __init__(
+        self,
+        data: Dataset,
+        *,
+        base_nodes: int = 17,
+        n_knots: int = 6,
+        harmonics: int = 2,
+        w_max: float | None = None,
+        regularisation: float = MODEL.smoothness,
+        padding: float = 0.5,
+    ):
+        require_dataset(data, "AnisotropicNonParametricModel(data)")
+        base_nodes = integer(base_nodes, "base_nodes", 5)
+        if base_nodes % 2 == 0:
+            raise InvalidInputError(f"base_nodes must be an odd integer ≥ 5 (a node at the centre); got {base_nodes}.")
+        self.n_scales = int(data.scales.shape[0])
+        self.base_nodes = base_nodes
+        self.harmonics = integer(harmonics, "harmonics", 0)
+        n_knots = integer(n_knots, "n_knots", 1)
+        padding = real(padding, "padding", minimum=0.0, strict=True)
+        self.smoothness = real(regularisation, "regularisation", minimum=0.0)
+        pitches = [2 * a / (n - 1) for a, n in zip(data.extents, data.image_sizes)]
+        finest = int(np.argmin(pitches))
+        h, half = pitches[finest], max(data.extents)
+        x0 = -data.extents[finest]
+        m_lo, m_hi = math.floor((-half - x0) / h + 1e-9), math.ceil((half - x0) / h - 1e-9)
+        self.pitch, self.origin, self.grid_points = h, x0 + m_lo * h, m_hi - m_lo + 1
+        self.fft_size = scipy.fft.next_fast_len(self.grid_points + max(math.ceil(padding * self.grid_points), 1))
+        centre, cov = image_moments(data)
+        sd = np.sqrt(np.maximum(np.diag(cov[0]), h * h / 12))
+        self.reference_variance = float(np.trace(cov[0]) / 2)
+        if w_max is None:
+            eig = np.linalg.eigvalsh(cov[0])
+            w_max = min(6.0 / math.sqrt(max(eig[0], h * h / 12)), math.pi / h)
+        w_max = real(w_max, "w_max", minimum=0.0, strict=True)
+        self.knots = tuple(np.linspace(0.0, w_max, n_knots + 1).tolist())
+        ends = (self.origin, self.origin + (self.grid_points - 1) * h)
+        nx = _stretched_nodes(float(centre[0, 0]), float(sd[0]), *ends, base_nodes)
+        ny = _stretched_nodes(float(centre[0, 1]), float(sd[1]), *ends, base_nodes)
+        self.node_x, self.node_y = tuple(nx.tolist()), tuple(ny.tolist())
+        grid = self.origin + h * np.arange(self.grid_points)
+        self.interpolation = jnp.asarray(np.stack([_spline_matrix(nx, grid), _spline_matrix(ny, grid)]))
+
+    # --- layout -------------------------------------------------------------------------------
+
+    @property
+    def _n_base(self) -> int:
+        return self.base_nodes**2
+
+    @property
+    def _functions(self) -> tuple[str, ...]:
+        """The angular functions' names: ``1``, ``cos2φ``, ``sin2φ``, ``cos4φ``, …"""
+        return ("1", *(f"{t}{2 * n}φ" for n in range(1, self.harmonics + 1) for t in ("cos", "sin")))
+
+    def _first_knot(self, f: int) -> int:
+        """The first free knot of function f: 0 for the harmonics n ≤ 1, 1 above (zero at ρ = 0)."""
+        return 0 if f < 3 else 1
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        nb = self.base_nodes
+        base = tuple(f"log base[{r},{c}]" for r in range(nb) for c in range(nb))
+        profiles = tuple(
+            f"P{k}[{name}](W={self.knots[j]:.4g})/v"
+            for k in range(1, self.n_scales)
+            for f, name in enumerate(self._functions)
+            for j in range(self._first_knot(f), len(self.knots))
+        )
+        return base + profiles
+
+    @property
+    def radial(self) -> bool:
+        return False
+
+    @property
+    def identifiability_notes(self) -> tuple[str, ...]:
+        return (
+            "Reported: the base lobe at μ0, R_k(W) = S(W, μ0)/S(W, μ_k) over the W plane and ΔΣ(μ0, μk) = "
+            "−∇² log R_k(0), the combinations the data determine; the absolute S(W, μ_k) is not (it needs the "
+            "boundary condition S(W, ∞) = 1 of a scale law).",
+        )
+
+    def check_data(self, data: Dataset) -> None:
+        """Also: the dataset has this model's number of scales (its θ layout and grid come from it)."""
+        super().check_data(data)
+        if data.scales.shape[0] != self.n_scales:
+            raise InvalidInputError(
+                f"this AnisotropicNonParametricModel was built for {self.n_scales} scales but the data have "
+                f"{data.scales.shape[0]} (μ = {np.asarray(data.scales).tolist()}); build the model from the dataset "
+                "it is fitted to: AnisotropicNonParametricModel(data)."
+            )
+
+    # --- the parts of θ -------------------------------------------------------------------------
+
+    def profiles(self, theta: Float[Array, " n"]) -> Float[Array, "k f j"]:
+        """``P_{k,f}(ρ_j)`` (slope units²) for k = 0 … K−1 (row 0 zero), every function f, j = 0 … J."""
+        theta = jnp.asarray(theta)
+        J1, F = len(self.knots), len(self._functions)
+        per_scale = 3 * J1 + (F - 3) * (J1 - 1) if F > 1 else J1
+        rows = theta[self._n_base :].reshape(self.n_scales - 1, per_scale) * self.reference_variance
+        low = rows[:, : min(F, 3) * J1].reshape(self.n_scales - 1, min(F, 3), J1)
+        if F > 3:
+            high = rows[:, 3 * J1 :].reshape(self.n_scales - 1, F - 3, J1 - 1)
+            high = jnp.concatenate([jnp.zeros_like(high[..., :1]), high], axis=-1)
+            low = jnp.concatenate([low, high], axis=1)
+        return jnp.concatenate([jnp.zeros((1, F, J1), low.dtype), low])
+
+    def log_relative(self, theta: Float[Array, " n"], W: Float[Array, "*w 2"]) -> Float[Array, "k *w"]:
+        """``log R_k(W) = −D_k(W)`` for every measured scale at points ``W`` of the plane."""
+        W = jnp.asarray(W)
+        P = self.profiles(theta)
+        rho2 = jnp.sum(W * W, axis=-1)
+        rho = jnp.sqrt(jnp.where(rho2 > 0, rho2, 1.0)) * (rho2 > 0)
+        phi = jnp.arctan2(W[..., 1], W[..., 0])
+        angular = [jnp.ones_like(phi)]
+        for n in range(1, self.harmonics + 1):
+            angular += [jnp.cos(2 * n * phi), jnp.sin(2 * n * phi)]
+        knots = jnp.asarray(self.knots, dtype=P.dtype)
+        t = jnp.clip(rho, knots[0], knots[-1])
+        radial = jax.vmap(jax.vmap(lambda p: jnp.interp(t, knots, p)))(P)  # (k, f, *w)
+        total = sum(radial[:, f] * a[None] for f, a in enumerate(angular))
+        return -rho2[None] * total
+
+    def covariance_differences(self, theta: Float[Array, " n"], scales: Float[Array, " k"]) -> Float[Array, "k 2 2"]:
+        """ΔΣ(μ0, μ_k) = 2 [[a + b, c], [c, a − b]] (module docstring), exact from θ; row 0 is 0."""
+        del scales  # one set of profiles per measured scale: the layout fixes them
+        P = self.profiles(theta)[:, :, 0]
+        a = P[:, 0]
+        b, c = (P[:, 1], P[:, 2]) if self.harmonics else (jnp.zeros_like(a), jnp.zeros_like(a))
+        return 2 * jnp.stack([jnp.stack([a + b, c], -1), jnp.stack([c, a - b], -1)], -2)
+
+    def base_grid(self, theta: Float[Array, " n"]) -> Float[Array, "g g"]:
+        """``g0`` on the model grid (rows: y), positive."""
+        nb = self.base_nodes
+        log_nodes = jnp.asarray(theta)[: self._n_base].reshape(nb, nb)
+        sx, sy = (jnp.asarray(m) for m in self.interpolation)
+        return jnp.exp(sy @ log_nodes @ sx.T)
+
+    def base_lobe(self, theta) -> lobes.Tabulated:
+        """The lobe at μ0 on the model grid (for plots): :class:`brdfscale.lobes.Tabulated`, cut to the
+        square the grid spans symmetrically about 0."""
+        g = self.base_grid(theta)
+        lo, hi = self.origin, self.origin + (self.grid_points - 1) * self.pitch
+        i0 = int(round((max(lo, -hi) - lo) / self.pitch))
+        m = int(round(2 * min(-lo, hi) / self.pitch)) + 1
+        return lobes.Tabulated(g[i0 : i0 + m, i0 : i0 + m], extent=min(-lo, hi))
+
+    def evolved_grids(self, theta: Float[Array, " n"]) -> Float[Array, "k g g"]:
+        """``g_k`` on the model grid for every measured scale (module docstring: zero-padded FFT)."""
+        return evolve_on_grid(
+            self.base_grid(theta), lambda W: self.log_relative(theta, W), self.pitch, self.fft_size
+        )
+
+    def predict_points(self, theta, scales, points):
+        grids = self.evolved_grids(theta)
+        g = self.grid_points
+
+        def read(grid, u):
+            fx, fy = (u[:, 0] - self.origin) / self.pitch, (u[:, 1] - self.origin) / self.pitch
+            ix = jnp.clip(jnp.floor(fx), 0, g - 2).astype(int)
+            iy = jnp.clip(jnp.floor(fy), 0, g - 2).astype(int)
+            tx, ty = jnp.clip(fx - ix, 0.0, 1.0), jnp.clip(fy - iy, 0.0, 1.0)
+            return (
+                (1 - ty) * ((1 - tx) * grid[iy, ix] + tx * grid[iy, ix + 1])
+                + ty * ((1 - tx) * grid[iy + 1, ix] + tx * grid[iy + 1, ix + 1])
+            )
+
+        return jax.vmap(read)(grids, points)
+
+    def quantities(self, theta):
+        out = {"amplitude": jnp.sum(self.base_grid(theta)) * self.pitch**2}
+        d = self.covariance_differences(theta, jnp.zeros(self.n_scales))
+        for k in range(1, self.n_scales):
+            out.update({f"ΔΣ{k}_xx": d[k, 0, 0], f"ΔΣ{k}_xy": d[k, 0, 1], f"ΔΣ{k}_yy": d[k, 1, 1]})
+        return out
+
+    def relative_statistics(self, theta, W, scales):
+        """``R_k`` at radii ``|W|``: the geometric mean over the directions of the circle,
+        ``exp(−ρ² P_{k,0}(ρ))`` (the harmonics average to 0); :meth:`relative_statistics_plane`
+        gives ``R_k`` over the plane."""
+        del scales
+        W = jnp.asarray(W)
+        P = self.profiles(theta)[:, 0]
+        knots = jnp.asarray(self.knots, dtype=P.dtype)
+        t = jnp.clip(jnp.abs(W), knots[0], knots[-1])
+        return jnp.exp(-(W**2)[None] * jax.vmap(lambda p: jnp.interp(t, knots, p))(P))
+
+    def relative_statistics_plane(
+        self, theta: Float[Array, " n"], W: Float[Array, "w 2"], scales: Float[Array, " k"]
+    ) -> Float[Array, "k w"]:
+        """``R_k(W) = S(W, μ0)/S(W, μ_k)`` at points ``W`` of the plane."""
+        del scales
+        return jnp.exp(self.log_relative(theta, W))
+
+    def penalty(self, theta):
+        P = self.profiles(theta)[1:] / self.reference_variance
+        return self.smoothness * (P[..., 2:] - 2 * P[..., 1:-1] + P[..., :-2]).ravel()
+
+    # --- starting point and prior box -----------------------------------------------------------
+
+    def initial(self, data):
+        """The μ0 images (averaged) read at the base nodes, floored at 1e-6 of their peak; the
+        profiles of the measured lobes' half-maximum covariance differences (constant in ρ, no
+        higher harmonics: Gaussian statistics)."""
+        amp, _ = moments(data)
+        _, cov = image_moments(data)
+        nx, ny = np.asarray(self.node_x), np.asarray(self.node_y)
+        stacked = []
+        for i in data.images_of_scale(0):
+            n, a = data.image_sizes[i], data.extents[i]
+            valid = data.image(i, np.asarray(data.weight[i])) > 0
+            img = np.where(valid, data.image(i, np.asarray(data.values[i])), 0.0)
+            if data.image(i, np.asarray(data.offsets[i, :, 0]))[0, 0] != data.image(i, np.asarray(data.offsets[i, :, 0]))[0, 1]:
+                pass  # rows are y, columns x
+            else:
+                img = img.T
+            x = np.linspace(-a, a, n)
+            read = scipy.interpolate.RegularGridInterpolator((x, x), img, bounds_error=False, fill_value=0.0)
+            yy, xx = np.meshgrid(ny, nx, indexing="ij")
+            stacked.append(read(np.stack([yy, xx], -1)))
+        base = np.mean(stacked, axis=0)
+        base = np.log(np.maximum(base, max(base.max(), 1e-300) * 1e-6)).ravel()
+        v = self.reference_variance
+        J1 = len(self.knots)
+        rows = []
+        for k in range(1, self.n_scales):
+            d = (cov[k] - cov[0]) / v
+            a, b, c = (d[0, 0] + d[1, 1]) / 4, (d[0, 0] - d[1, 1]) / 4, d[0, 1] / 2
+            row = [np.full(J1, a)]
+            if self.harmonics:
+                row += [np.full(J1, b), np.full(J1, c)]
+                row += [np.zeros(J1 - 1)] * (2 * (self.harmonics - 1))
+            rows.append(np.concatenate(row))
+        del amp
+        return np.concatenate([base, *rows])
+
+    def bounds(self, data):
+        """log base values within log(peak) − 40 … log(peak) + 10 (peak: the μ0 lobe's estimated
+        peak); the profiles within ±1e4 reference variances."""
+        amp, width2 = moments(data)
+        peak = amp / (math.pi * max(width2[0], 1e-300))
+        n_p = len(self.names) - self._n_base
+        lo = np.concatenate([np.full(self._n_base, math.log(peak) - 40), np.full(n_p, -1e4)])
+        hi = np.concatenate([np.full(self._n_base, math.log(peak) + 10), np.full(n_p, 1e4)])
+        return lo, hi
