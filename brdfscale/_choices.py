@@ -121,6 +121,11 @@ MODELS = Choices(
             "a Gaussian base lobe of full covariance and free centre, and monotone covariance differences "
             "ΔΣ(μ0, μk) (fitting.AnisotropicModel)",
         ),
+        Choice(
+            "nonparametric_anisotropic",
+            "a tabulated base lobe of any shape and centre, and relative statistics R_k(W) over the W plane: "
+            "radial knots × even angular harmonics (fitting.AnisotropicNonParametricModel)",
+        ),
     ),
     default="parametric",
 )

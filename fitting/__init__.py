@@ -6,7 +6,8 @@ The chain, each step in its own module:
 * :class:`Dataset` — images of a :class:`brdfscale.MeasurementSet` with σ and masks;
 * :class:`ParametricModel`, :class:`NonParametricModel`, :class:`AnisotropicModel` — forward maps
   θ ↦ images built on :func:`brdfscale.evolve` (the last: full-covariance Gaussian lobe and
-  ΔΣ(μ0, μk)); :func:`compare` — which model the data prefer (AIC, BIC);
+  ΔΣ(μ0, μk)), :class:`AnisotropicNonParametricModel` (tabulated base lobe, ``R_k(W)`` over the W
+  plane); :func:`compare` — which model the data prefer (AIC, BIC);
 * :class:`TopographyData` — a topography's Σ(μ) as a joint data term (``Dataset.with_topography``);
 * :func:`fit` — optimistix least squares (Levenberg–Marquardt by default), multi-start,
   Laplace covariance, identifiability (names the combinations the data cannot determine);
@@ -52,6 +53,7 @@ from ._fit import fit
 from ._joint import TopographyData
 from ._model import AbstractModel
 from ._nonparametric import NonParametricModel, RelativeStatistics
+from ._nonparametric_aniso import AnisotropicNonParametricModel
 from ._parametric import ParametricModel
 from ._plot import plot_corner, plot_fit, plot_recovered_statistics
 from ._problem import Problem
@@ -80,6 +82,7 @@ __all__ = [
     "SOLVERS",
     "AbstractModel",
     "AnisotropicModel",
+    "AnisotropicNonParametricModel",
     "BatchPlan",
     "Comparison",
     "Dataset",

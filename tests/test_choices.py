@@ -136,6 +136,7 @@ def test_every_name_in_the_table_is_accepted_by_fitting():
         "parametric": fitting.ParametricModel,
         "nonparametric": fitting.NonParametricModel,
         "anisotropic": fitting.AnisotropicModel,
+        "nonparametric_anisotropic": fitting.AnisotropicNonParametricModel,
     }.keys() == set(choices.MODELS)
 
 

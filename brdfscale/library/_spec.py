@@ -62,6 +62,23 @@ def make_model(
     elif model == "anisotropic":
         built = fitting.AnisotropicModel(len(data.scales))
         info = {"kind": "anisotropic", "lobe": "gaussian (full covariance, free centre)", "scale_law": "ΔΣ per scale"}
+    elif model == "nonparametric_anisotropic":
+        if isinstance(regularisation, str):
+            raise InvalidInputError(
+                f"the anisotropic non-parametric model takes a number as regularisation; got {regularisation!r} "
+                "(the automatic choice is the isotropic non-parametric model's)."
+            )
+        weight = MODEL.smoothness if regularisation is None else regularisation
+        built = fitting.AnisotropicNonParametricModel(
+            data, base_nodes=base_nodes, n_knots=knots, regularisation=weight
+        )
+        info = {
+            "kind": "nonparametric_anisotropic",
+            "base_nodes": built.base_nodes,
+            "knots_W": list(built.knots),
+            "harmonics": built.harmonics,
+            "smoothness": built.smoothness,
+        }
     else:
         built = fitting.NonParametricModel(data, base_nodes=base_nodes, n_knots=knots, regularisation=regularisation)
         info = {
