@@ -85,8 +85,8 @@ def _session_processes(driver: int, tracked: dict[int, int]) -> None:
     in the last instants before the driver died, between two of :func:`_track`'s polls."""
     mark = re.compile(rf"{re.escape(os.sep)}session_[0-9_-]+_{driver}{re.escape(os.sep)}")
     for name in os.listdir("/proc"):
-        if not name.isdigit() or int(name) in tracked or int(name) == os.getpid():
-            continue
+        if not name.isdigit() or int(name) in tracked or int(name) in (os.getpid(), driver):
+            continue  # the driver holds its own log there: after ray.shutdown() it is waiting for this process
         try:
             links = [os.readlink(f"/proc/{name}/fd/{fd}") for fd in os.listdir(f"/proc/{name}/fd")]
         except OSError:
