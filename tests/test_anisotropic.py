@@ -11,84 +11,23 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from brdfscale import InvalidInputError, LobeImage, MeasurementSet
+from brdfscale import InvalidInputError
 
 
 jax.config.update("jax_enable_x64", True)
 
+from helpers import (  # noqa: E402
+    ANISO_SCALES as SCALES,
+    anisotropic_dataset as synthetic,
+    anisotropic_differences as true_differences,
+    anisotropic_grid as grid,
+    anisotropic_theta as theta_of,
+    gaussian,
+    rotation,
+)
+
 from brdfscale import fitting  # noqa: E402
 from brdfscale.fitting._derived import covariance_differences  # noqa: E402
-
-
-SCALES = (1.0, 2.0, 4.0)
-SIZE, EXTENT = 17, 0.5
-
-
-def rotation(phi):
-    c, s = math.cos(phi), math.sin(phi)
-    return np.array([[c, -s], [s, c]])
-
-
-def gaussian(u, mean, cov, amplitude):
-    """``A exp(−½ dᵀC⁻¹d)/(2π √det C)``, by hand."""
-    d = u - mean
-    q = np.einsum("...i,ij,...j->...", d, np.linalg.inv(cov), d)
-    return amplitude * np.exp(-q / 2) / (2 * np.pi * np.sqrt(np.linalg.det(cov)))
-
-
-def grid():
-    x = np.linspace(-EXTENT, EXTENT, SIZE)
-    return np.stack(np.meshgrid(x, x), axis=-1)  # rows u_y, columns u_x (brdfscale.LobeImage)
-
-
-TRUTH = {
-    "amplitude": 2.0,
-    "mean": np.array([0.03, -0.02]),
-    "C0": rotation(0.4) @ np.diag([0.01, 0.002]) @ rotation(0.4).T,
-    "steps": [
-        rotation(0.3) @ np.diag([0.006, 0.001]) @ rotation(0.3).T,
-        rotation(-0.2) @ np.diag([0.004, 0.002]) @ rotation(-0.2).T,
-    ],
-}
-
-
-def true_differences():
-    return np.cumsum([np.zeros((2, 2)), *TRUTH["steps"]], axis=0)
-
-
-def synthetic(seed, noise=0.01, floor=1e-3):
-    """Images of the true anisotropic Gaussian lobe at the three scales with Gaussian noise."""
-    rng, u = np.random.default_rng(seed), grid()
-    images = []
-    for mu, d in zip(SCALES, true_differences()):
-        v = gaussian(u, TRUTH["mean"], TRUTH["C0"] + d, TRUTH["amplitude"])
-        sigma = noise * v.max() + floor
-        images.append(
-            LobeImage(
-                mu=mu,
-                incident=[0.0, 0.0, 1.0],
-                extent=EXTENT,
-                values=v + sigma * rng.standard_normal(v.shape),
-                sigma=np.full(v.shape, sigma),
-            )
-        )
-    return fitting.Dataset.from_measurements(MeasurementSet(tuple(images)))
-
-
-def theta_of(model, amplitude, c0, mean, differences):
-    """θ of AnisotropicModel for given physical values (inverse of its parameterisation)."""
-
-    def chol(m):
-        L = np.linalg.cholesky(m)
-        return [math.log(L[0, 0]), L[1, 0], math.log(L[1, 1])]
-
-    theta = [math.log(amplitude), *chol(c0)]
-    if not model.centred:
-        theta += list(mean)
-    steps = np.diff(np.asarray(differences), axis=0)
-    for s in steps:
-        theta += chol(s)
-    return jnp.asarray(theta)
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,13 @@ from brdfscale import InvalidInputError
 
 jax.config.update("jax_enable_x64", True)
 
-from test_anisotropic import gaussian, synthetic, theta_of, true_differences, TRUTH  # noqa: E402
+from helpers import (  # noqa: E402
+    ANISO_TRUTH as TRUTH,
+    anisotropic_dataset as synthetic,
+    anisotropic_differences as true_differences,
+    anisotropic_theta as theta_of,
+    gaussian,
+)
 
 from brdfscale import fitting  # noqa: E402
 
