@@ -275,7 +275,7 @@ class AnisotropicNonParametricModel(AbstractModel):
             low = jnp.concatenate([low, high], axis=1)
         return jnp.concatenate([jnp.zeros((1, F, J1), low.dtype), low])
 
-    def log_relative(self, theta: Float[Array, " n"], W: Float[Array, "*w 2"]) -> Float[Array, "k *w"]:
+    def log_relative(self, theta: Float[Array, " n"], W: Float[Array, "... 2"]) -> Float[Array, "k ..."]:
         """``log R_k(W) = −D_k(W)`` for every measured scale at points ``W`` of the plane."""
         W = jnp.asarray(W)
         P = self.profiles(theta)
@@ -317,9 +317,7 @@ class AnisotropicNonParametricModel(AbstractModel):
 
     def evolved_grids(self, theta: Float[Array, " n"]) -> Float[Array, "k g g"]:
         """``g_k`` on the model grid for every measured scale (module docstring: zero-padded FFT)."""
-        return evolve_on_grid(
-            self.base_grid(theta), lambda W: self.log_relative(theta, W), self.pitch, self.fft_size
-        )
+        return evolve_on_grid(self.base_grid(theta), lambda W: self.log_relative(theta, W), self.pitch, self.fft_size)
 
     def predict_points(self, theta, scales, points):
         grids = self.evolved_grids(theta)
@@ -330,9 +328,8 @@ class AnisotropicNonParametricModel(AbstractModel):
             ix = jnp.clip(jnp.floor(fx), 0, g - 2).astype(int)
             iy = jnp.clip(jnp.floor(fy), 0, g - 2).astype(int)
             tx, ty = jnp.clip(fx - ix, 0.0, 1.0), jnp.clip(fy - iy, 0.0, 1.0)
-            return (
-                (1 - ty) * ((1 - tx) * grid[iy, ix] + tx * grid[iy, ix + 1])
-                + ty * ((1 - tx) * grid[iy + 1, ix] + tx * grid[iy + 1, ix + 1])
+            return (1 - ty) * ((1 - tx) * grid[iy, ix] + tx * grid[iy, ix + 1]) + ty * (
+                (1 - tx) * grid[iy + 1, ix] + tx * grid[iy + 1, ix + 1]
             )
 
         return jax.vmap(read)(grids, points)
@@ -380,9 +377,8 @@ class AnisotropicNonParametricModel(AbstractModel):
             n, a = data.image_sizes[i], data.extents[i]
             valid = data.image(i, np.asarray(data.weight[i])) > 0
             img = np.where(valid, data.image(i, np.asarray(data.values[i])), 0.0)
-            if data.image(i, np.asarray(data.offsets[i, :, 0]))[0, 0] != data.image(i, np.asarray(data.offsets[i, :, 0]))[0, 1]:
-                pass  # rows are y, columns x
-            else:
+            ux = data.image(i, np.asarray(data.offsets[i, :, 0]))
+            if ux[0, 0] == ux[0, 1]:  # u_x constant along a row: rows are x; make them y
                 img = img.T
             x = np.linspace(-a, a, n)
             read = scipy.interpolate.RegularGridInterpolator((x, x), img, bounds_error=False, fill_value=0.0)

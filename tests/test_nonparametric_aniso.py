@@ -255,6 +255,10 @@ def test_bad_options_are_refused(data):
         fitting.AnisotropicNonParametricModel(data, harmonics=-1)
     with pytest.raises(InvalidInputError, match="regularisation"):
         fitting.AnisotropicNonParametricModel(data, regularisation=-1.0)
+
+
+@pytest.mark.wrong_types
+def test_not_a_dataset_is_refused():
     with pytest.raises(InvalidInputError, match="Dataset"):
         fitting.AnisotropicNonParametricModel("data")  # type: ignore[arg-type]
 
@@ -268,8 +272,10 @@ def test_other_number_of_scales_refused(model):
 # --- fits ----------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_gaussian_fit_recovers_delta_sigma(data, model):
-    """Synthetic anisotropic Gaussian data: every ΔΣ component within 3 standard errors."""
+    """Synthetic anisotropic Gaussian data: every ΔΣ component within 3 standard errors (about 3
+    minutes on 2 cores: the solve runs its 256 steps)."""
     result = fitting.fit(model, data, starts=1)
     assert result.chi2 / result.dof < 1.5
     for entry, truth in zip(result.covariance_differences, DIFFERENCES[1:]):

@@ -69,9 +69,7 @@ def make_model(
                 "(the automatic choice is the isotropic non-parametric model's)."
             )
         weight = MODEL.smoothness if regularisation is None else regularisation
-        built = fitting.AnisotropicNonParametricModel(
-            data, base_nodes=base_nodes, n_knots=knots, regularisation=weight
-        )
+        built = fitting.AnisotropicNonParametricModel(data, base_nodes=base_nodes, n_knots=knots, regularisation=weight)
         info = {
             "kind": "nonparametric_anisotropic",
             "base_nodes": built.base_nodes,
