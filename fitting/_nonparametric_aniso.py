@@ -195,7 +195,7 @@ class AnisotropicNonParametricModel(AbstractModel):
         x0 = -data.extents[finest]
         m_lo, m_hi = math.floor((-half - x0) / h + 1e-9), math.ceil((half - x0) / h - 1e-9)
         self.pitch, self.origin, self.grid_points = h, x0 + m_lo * h, m_hi - m_lo + 1
-        self.fft_size = scipy.fft.next_fast_len(self.grid_points + max(math.ceil(padding * self.grid_points), 1))
+        self.fft_size = int(scipy.fft.next_fast_len(self.grid_points + max(math.ceil(padding * self.grid_points), 1)))
         centre, cov = image_moments(data)
         sd = np.sqrt(np.maximum(np.diag(cov[0]), h * h / 12))
         self.reference_variance = float(np.trace(cov[0]) / 2)
