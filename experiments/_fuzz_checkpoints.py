@@ -211,7 +211,7 @@ def _chain(out: str):
         return f["chain"][()]
 
 
-def _sigkills(n: int, tmp: str, seed: int, tally, bad, warm: bool = True) -> None:
+def _sigkills(n: int, tmp: str, seed: int, tally, bad, refused, warm: bool = True) -> None:
     rng = random.Random(seed + 1)
     measurements = os.path.join(tmp, "m.exr")
     _measurements(measurements)
@@ -246,6 +246,7 @@ def _sigkills(n: int, tmp: str, seed: int, tally, bad, warm: bool = True) -> Non
             why = f"{what}: the rerun's report differs from the uninterrupted run's"
         elif code in (2, 3) and len(lines) == 1 and "Traceback" not in err_text:
             outcome, why = "refused", ""
+            refused.append(f"{what}: exit {code}: {lines[0][:250]}")
         else:
             outcome = "bad"
             why = f"{what}: rerun exit {code}: {' | '.join(lines)[-250:]}"
@@ -261,13 +262,14 @@ def run(quick: bool, seed: int = 0, directory: str | None = None) -> dict:
     checkpoint and 1 SIGKILL; else 15 per kind and sampler (120 corruptions) and 20 SIGKILLs."""
     tally = {kind: {"tried": 0, "refused": 0, "same": 0, "bad": 0} for kind in KINDS + ("sigkill_fit",)}
     bad: list[str] = []
+    refused: list[str] = []  # what the refused reruns said (not part of the family's interface; kept for reading)
     tmp = tempfile.mkdtemp(prefix="fuzz-checkpoints-", dir=directory)
     try:
         _corruptions(3 if quick else 15, ("emcee",) if quick else _SAMPLERS, tmp, seed, tally, bad)
-        _sigkills(1 if quick else 20, tmp, seed, tally, bad, warm=not quick)
+        _sigkills(1 if quick else 20, tmp, seed, tally, bad, refused, warm=not quick)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    return {"kinds": tally, "bad_examples": bad[:20]}
+    return {"kinds": tally, "bad_examples": bad[:20], "refused_examples": refused[:20]}
 
 
 def main(argv=None) -> int:
