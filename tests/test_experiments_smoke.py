@@ -10,6 +10,7 @@ its oracles and fixtures from tests/references/ and tests/helpers.py."""
 
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -421,6 +422,18 @@ def test_real_surfaces_section_of_results_md_is_generated_from_the_committed_jso
     assert block == page, "docs/results.md §6 is stale: regenerate its block from the JSON"
 
 
+def test_the_results_page_shows_the_committed_scale_law_table():
+    """docs/results.md's table of χ²/dof per law and file is the one experiments/real_surfaces.py
+    --laws wrote from its JSON (regenerated from the committed JSON here)."""
+    from experiments import real_surfaces
+
+    root = Path(__file__).parent.parent
+    payload = json.loads((root / "experiments" / "results" / "real_surfaces" / "real_surfaces_laws.json").read_text())
+    table = real_surfaces.laws_table(payload)
+    assert table in (root / "docs" / "results.md").read_text()
+    assert set(payload["laws"]) == set(real_surfaces.LAWS) and len(payload["surfaces"]) == 5
+
+
 @pytest.mark.slow  # 20–60 s on 2 cores (one fit and three short emcee runs): run in .ci/run's second step
 def test_calibration_study_counts_hits_of_every_kind():
     """experiments/calibration_fit.py on 3 replicas with short emcee runs: every kind of quantity
@@ -508,3 +521,31 @@ def test_fuzz_disk_quick_has_no_bad_outcome(tmp_path):
         assert counts["bad"] == 0, result["bad_examples"]
         assert counts["tried"] > 0 and counts["refused"] == counts["tried"], (kind, counts)  # the fault fired
     assert list(tmp_path.iterdir()) == []
+
+
+def test_fuzz_topography_quick_run_has_no_bad_outcome(tmp_path):
+    """The fuzz family "topography" (experiments/_fuzz_topography.py, issue 34) at its quick size:
+    damaged instrument files and hostile height maps; nothing bad, nothing left behind."""
+    pytest.importorskip("SurfaceTopography")
+    from experiments import _fuzz_topography as fuzz
+
+    result = fuzz.run(True, seed=1, directory=str(tmp_path))
+    assert set(result["kinds"]) == set(fuzz.KINDS)
+    for kind, r in result["kinds"].items():
+        assert r["tried"] > 0 and r["bad"] == 0, (kind, result["bad_examples"])
+        assert r["tried"] == r["refused"] + r["same"] + r["bad"]
+    assert os.listdir(tmp_path) == []
+
+
+@pytest.mark.slow  # subprocesses importing JAX: ~20 s
+def test_the_fuzz_family_library_quick_run_finds_nothing_bad(tmp_path):
+    """The fuzz family "library" (experiments/_fuzz_library.py, issue 34) at its quick size:
+    damaged indices and kill -9 of fit-library; nothing bad."""
+    from experiments import _fuzz_library
+
+    result = _fuzz_library.run(quick=True, seed=0, directory=str(tmp_path))
+    assert set(result["kinds"]) == {"damaged_index", "sigkill_fit_library"}
+    for kind, counts in result["kinds"].items():
+        assert counts["tried"] > 0 and counts["bad"] == 0, (kind, counts, result["bad_examples"])
+        assert counts["tried"] == counts["refused"] + counts["same"] + counts["bad"]
+    assert result["bad_examples"] == []

@@ -3,7 +3,8 @@ refused in one line (exit 2) and left as they were; a material whose report was 
 the fact fitted again, equal to its first fit, and said so; a measurement file named twice
 refused; hidden entries listed; a full disk while writing the index stops the run with the
 previous index in place; a `kill -9` of a driver running Ray workers leaves no Ray process of its
-run behind (slow); the fuzz family of experiments/_fuzz_library.py (slow)."""
+run behind (slow). The fuzz family of experiments/_fuzz_library.py is run by
+tests/test_experiments_smoke.py (slow)."""
 
 import contextlib
 import errno
@@ -329,15 +330,3 @@ def test_sigkill_of_a_driver_with_ray_workers_leaves_no_ray_process(fitted, tmp_
             _fit(fitted / "reference", name)["optimisation"]["theta"],
             rtol=1e-9,
         )
-
-
-@pytest.mark.slow  # subprocesses importing JAX: ~20 s
-def test_the_fuzz_family_quick_run_finds_nothing_bad(tmp_path):
-    from experiments import _fuzz_library
-
-    result = _fuzz_library.run(quick=True, seed=0, directory=str(tmp_path))
-    assert set(result["kinds"]) == {"damaged_index", "sigkill_fit_library"}
-    for kind, counts in result["kinds"].items():
-        assert counts["tried"] > 0 and counts["bad"] == 0, (kind, counts, result["bad_examples"])
-        assert counts["tried"] == counts["refused"] + counts["same"] + counts["bad"]
-    assert result["bad_examples"] == []

@@ -284,20 +284,6 @@ def test_evolve_with_a_heavy_tailed_law():
     assert np.all(values > 0)
 
 
-def test_the_results_page_shows_the_committed_scale_law_table():
-    """docs/results.md's table of χ²/dof per law and file is the one experiments/real_surfaces.py
-    --laws wrote from its JSON (regenerated from the committed JSON here)."""
-    import json
-
-    from experiments import real_surfaces
-
-    root = Path(__file__).parent.parent
-    payload = json.loads((root / "experiments" / "results" / "real_surfaces" / "real_surfaces_laws.json").read_text())
-    table = real_surfaces.laws_table(payload)
-    assert table in (root / "docs" / "results.md").read_text()
-    assert set(payload["laws"]) == set(real_surfaces.LAWS) and len(payload["surfaces"]) == 5
-
-
 def test_the_planner_takes_a_measured_law():
     """brdfscale.scene accepts any AbstractScaleLaw: a material whose statistics are measured
     evaluates, at every query's scale, what evolve gives with the law's statistics there."""

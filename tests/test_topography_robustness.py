@@ -10,7 +10,6 @@ averaged over a rectangular window (Dirichlet sums, written below).
 import io
 import json
 import math
-import os
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +21,7 @@ from brdfscale import _cli as cli, InvalidInputError, MeasurementFileError, plot
 
 st_module = pytest.importorskip("SurfaceTopography")
 
-from experiments import _fuzz_topography as fuzz  # noqa: E402 — needs SurfaceTopography
+from tests.references import topography_mutation as mutation  # noqa: E402 — needs SurfaceTopography
 
 
 DATA = Path(__file__).parent / "data" / "topographies"
@@ -41,21 +40,21 @@ def _main(argv, capsys) -> tuple[int, str, str]:
 
 @pytest.fixture(scope="module")
 def references():
-    return {name: topography.read(str(DATA / name), detrend=None) for name in fuzz.FILES}
+    return {name: topography.read(str(DATA / name), detrend=None) for name in mutation.FILES}
 
 
 # -- damaged files -----------------------------------------------------------------------------------
 
 
 @settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(name=hs.sampled_from(fuzz.FILES), kind=hs.sampled_from(fuzz.BYTE_KINDS), seed=hs.integers(0, 2**32 - 1))
+@given(name=hs.sampled_from(mutation.FILES), kind=hs.sampled_from(mutation.BYTE_KINDS), seed=hs.integers(0, 2**32 - 1))
 def test_a_damaged_instrument_file_gives_the_librarys_error_or_what_it_holds(tmp_path, references, name, kind, seed):
     """Any byte mutation: MeasurementFileError naming the file in one line, the undamaged field, or
     exactly what SurfaceTopography decodes from the damaged file with finite Σ(μ) (a byte of
     heights hit is a different measurement: the formats carry no checksum); nothing printed."""
     path = tmp_path / f"mutant{Path(name).suffix}"
-    path.write_bytes(fuzz.mutate((DATA / name).read_bytes(), kind, np.random.default_rng(seed)))
-    verdict, why = fuzz.read_outcome(str(path), references[name])
+    path.write_bytes(mutation.mutate((DATA / name).read_bytes(), kind, np.random.default_rng(seed)))
+    verdict, why = mutation.read_outcome(str(path), references[name])
     assert verdict in ("refused", "same", "faithful"), why
 
 
@@ -128,7 +127,7 @@ def test_a_date_the_reader_cannot_parse_is_a_measurement_file_error(tmp_path):
     except MeasurementFileError as err:
         assert str(err).startswith(f"{path}: ")
     else:  # the bytes were not the date after all: then the field is what the file holds
-        assert fuzz.faithful(str(path), field)
+        assert mutation.faithful(str(path), field)
 
 
 def test_reader_logging_stays_off_the_terminal(tmp_path, capfd):
@@ -192,11 +191,11 @@ def test_nan_patches_are_unmeasured_pixels():
     h[3:5, 7:10] = np.nan
     field = topography.from_array(h, 1e-7)
     explicit = topography.from_array(np.nan_to_num(h), 1e-7, mask=~np.isnan(h))
-    assert fuzz.same_field(field, explicit) and int((~field.mask).sum()) == 6
+    assert mutation.same_field(field, explicit) and int((~field.mask).sum()) == 6
 
 
 def _text_file(path: Path, heights: np.ndarray, pitch: float = 1e-7) -> str:
-    fuzz.write_ascii(str(path), heights, pitch, pitch)
+    mutation.write_ascii(str(path), heights, pitch, pitch)
     return str(path)
 
 
@@ -251,7 +250,7 @@ def test_the_command_prints_and_records_pixels_made_square(tmp_path, capsys):
     dx, dy = 1.853393117831074e-06, 1.8545542570951588e-06
     heights = np.random.default_rng(7).standard_normal((24, 32)) * 1e-8
     path = tmp_path / "nearly-square.txt"
-    fuzz.write_ascii(str(path), heights, dx, dy)
+    mutation.write_ascii(str(path), heights, dx, dy)
     code, out, err = _main(["topography", str(path), "--scales", "1px,4px", "--out", str(tmp_path / "t")], capsys)
     assert code == 0, err
     assert "note: pixels square to 0.063 % (Δx = 1.85339, Δy = 1.85455 µm in the file)" in out
@@ -415,15 +414,3 @@ def test_the_figures_lobe_cuts_are_readable_on_an_outlier_dominated_surface():
         assert 0.01 < high < 0.05 and np.count_nonzero((nodes > low) & (nodes < high)) >= 20
     titles = [ax.get_title() for ax in fig.axes if "μ" in ax.get_title()] + [fig._suptitle.get_text()]
     assert len(titles) >= 4 and all("µm" in t for t in titles), titles
-
-
-# -- the fuzz family -----------------------------------------------------------------------------------
-
-
-def test_fuzz_family_quick_run_has_no_bad_outcome(tmp_path):
-    result = fuzz.run(True, seed=1, directory=str(tmp_path))
-    assert set(result["kinds"]) == set(fuzz.KINDS)
-    for kind, r in result["kinds"].items():
-        assert r["tried"] > 0 and r["bad"] == 0, (kind, result["bad_examples"])
-        assert r["tried"] == r["refused"] + r["same"] + r["bad"]
-    assert os.listdir(tmp_path) == []
