@@ -335,7 +335,21 @@ class AnisotropicNonParametricModel(AbstractModel):
         return jax.vmap(read)(grids, points)
 
     def quantities(self, theta):
-        out = {"amplitude": jnp.sum(self.base_grid(theta)) * self.pitch**2}
+        """The base lobe's integral, centre and covariance on the model grid (``amplitude``,
+        ``mean_x/y``, ``C0_xx/xy/yy``: the μ0 lobe's moments) and ΔΣ_k's entries."""
+        g = self.base_grid(theta)
+        x = self.origin + self.pitch * jnp.arange(self.grid_points, dtype=g.dtype)
+        mass = jnp.sum(g)
+        mx, my = jnp.sum(g * x[None, :]) / mass, jnp.sum(g * x[:, None]) / mass
+        dx, dy = x[None, :] - mx, x[:, None] - my
+        out = {
+            "amplitude": mass * self.pitch**2,
+            "mean_x": mx,
+            "mean_y": my,
+            "C0_xx": jnp.sum(g * dx * dx) / mass,
+            "C0_xy": jnp.sum(g * dx * dy) / mass,
+            "C0_yy": jnp.sum(g * dy * dy) / mass,
+        }
         d = self.covariance_differences(theta, jnp.zeros(self.n_scales))
         for k in range(1, self.n_scales):
             out.update({f"ΔΣ{k}_xx": d[k, 0, 0], f"ΔΣ{k}_xy": d[k, 0, 1], f"ΔΣ{k}_yy": d[k, 1, 1]})
