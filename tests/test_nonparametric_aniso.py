@@ -223,7 +223,11 @@ def test_isotropic_special_case(data):
 # --- transformations ---------------------------------------------------------------------------
 
 
-def test_jit_grad_vmap_equal_eager(data, model):
+@pytest.mark.slow
+def test_jit_grad_vmap_equal_eager():
+    """About 20 s on 2 cores: eager JAX dispatches every operation separately."""
+    data = gaussian_set(size=9)  # small: eager JAX dispatches op by op
+    model = fitting.AnisotropicNonParametricModel(data, base_nodes=5, n_knots=2, harmonics=2)
     theta = jnp.asarray(model.initial(data))
     eager = model.predict(theta, data)
     np.testing.assert_allclose(eqx.filter_jit(model.predict)(theta, data), eager, rtol=1e-12, atol=1e-14)
@@ -231,18 +235,16 @@ def test_jit_grad_vmap_equal_eager(data, model):
     def loss(t):
         return jnp.sum(model.predict(t, data) ** 2)
 
-    g = jax.grad(loss)(theta)
-    g_jit = eqx.filter_jit(jax.grad(loss))(theta)
-    np.testing.assert_allclose(g_jit, g, rtol=1e-10, atol=1e-14 * float(jnp.abs(g).max()))
-    # the gradient against central differences along a random direction
+    g = eqx.filter_jit(jax.grad(loss))(theta)
+    # the gradient against central differences along a random direction (the eager gradient: the slow test below)
     v = jnp.asarray(np.random.default_rng(0).normal(size=theta.shape))
-    eps = 1e-6
-    fd = (loss(theta + eps * v) - loss(theta - eps * v)) / (2 * eps)
+    eps, jitted_loss = 1e-6, eqx.filter_jit(loss)
+    fd = (jitted_loss(theta + eps * v) - jitted_loss(theta - eps * v)) / (2 * eps)
     np.testing.assert_allclose(float(g @ v), float(fd), rtol=1e-5)
     stack = jnp.stack([theta, theta + 0.01 * v])
     batched = jax.vmap(lambda t: model.predict(t, data))(stack)
-    for b, t in zip(batched, stack):
-        np.testing.assert_allclose(b, model.predict(t, data), rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(batched[0], eager, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(batched[1], eqx.filter_jit(model.predict)(stack[1], data), rtol=1e-12, atol=1e-14)
 
 
 # --- options and refusals -------------------------------------------------------------------------
@@ -317,3 +319,18 @@ def test_heavy_tailed_set_is_fitted_where_the_gaussian_model_is_not():
     gaussian_fit = fitting.fit(fitting.AnisotropicModel(3), data, starts=2)
     assert result.chi2 / result.dof <= 1.5, result.chi2 / result.dof
     assert gaussian_fit.chi2 / gaussian_fit.dof > 3.0, gaussian_fit.chi2 / gaussian_fit.dof
+
+
+@pytest.mark.slow
+def test_eager_gradient_equals_jitted():
+    """About 20 s: the eager gradient dispatches every operation separately."""
+    data = gaussian_set(size=9)
+    model = fitting.AnisotropicNonParametricModel(data, base_nodes=5, n_knots=2, harmonics=2)
+    theta = jnp.asarray(model.initial(data))
+
+    def loss(t):
+        return jnp.sum(model.predict(t, data) ** 2)
+
+    g = jax.grad(loss)(theta)
+    g_jit = eqx.filter_jit(jax.grad(loss))(theta)
+    np.testing.assert_allclose(g_jit, g, rtol=1e-10, atol=1e-14 * float(jnp.abs(g).max()))
