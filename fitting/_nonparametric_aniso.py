@@ -65,7 +65,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.fft
 import scipy.interpolate
 from jaxtyping import Array, Float
 
@@ -108,6 +107,17 @@ def _stretched_nodes(centre: float, sd: float, lo: float, hi: float, n: int) -> 
 
     centre = min(max(centre, lo + 1e-9 * (hi - lo)), hi - 1e-9 * (hi - lo))
     return np.concatenate([centre - side(centre - lo)[::-1], [centre], centre + side(hi - centre)])
+
+
+def _fast_length(n: int) -> int:
+    """The smallest 2^a 3^b 5^c ≥ n (an FFT length without large prime factors)."""
+    best = 2 ** math.ceil(math.log2(max(n, 1)))
+    for p3 in range(0, 1 + math.ceil(math.log(n, 3))):
+        for p5 in range(0, 1 + math.ceil(math.log(n, 5))):
+            m = 3**p3 * 5**p5
+            if m <= 2 * n:
+                best = min(best, m * 2 ** max(0, math.ceil(math.log2(n / m))))
+    return best
 
 
 def _spline_matrix(nodes: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -195,7 +205,7 @@ class AnisotropicNonParametricModel(AbstractModel):
         x0 = -data.extents[finest]
         m_lo, m_hi = math.floor((-half - x0) / h + 1e-9), math.ceil((half - x0) / h - 1e-9)
         self.pitch, self.origin, self.grid_points = h, x0 + m_lo * h, m_hi - m_lo + 1
-        self.fft_size = int(scipy.fft.next_fast_len(self.grid_points + max(math.ceil(padding * self.grid_points), 1)))
+        self.fft_size = _fast_length(self.grid_points + max(math.ceil(padding * self.grid_points), 1))
         centre, cov = image_moments(data)
         sd = np.sqrt(np.maximum(np.diag(cov[0]), h * h / 12))
         self.reference_variance = float(np.trace(cov[0]) / 2)

@@ -20,7 +20,7 @@ jax.config.update("jax_enable_x64", True)
 
 from brdfscale import fitting  # noqa: E402
 from brdfscale.fitting._derived import covariance_differences  # noqa: E402
-from brdfscale.fitting._nonparametric_aniso import evolve_on_grid  # noqa: E402
+from brdfscale.fitting._nonparametric_aniso import _fast_length, evolve_on_grid  # noqa: E402
 
 
 SCALES = (1.0, 2.0, 4.0)
@@ -334,3 +334,14 @@ def test_eager_gradient_equals_jitted():
     g = jax.grad(loss)(theta)
     g_jit = eqx.filter_jit(jax.grad(loss))(theta)
     np.testing.assert_allclose(g_jit, g, rtol=1e-10, atol=1e-14 * float(jnp.abs(g).max()))
+
+
+def test_fft_length_is_the_smallest_5_smooth_number():
+    def smooth(m):
+        for p in (2, 3, 5):
+            while m % p == 0:
+                m //= p
+        return m == 1
+
+    for n in range(1, 600):
+        assert _fast_length(n) == next(m for m in range(n, 4 * n) if smooth(m))
