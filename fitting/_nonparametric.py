@@ -222,8 +222,8 @@ class NonParametricModel(AbstractModel):
         nb = self.base_nodes
         return lobes.Tabulated(jnp.exp(theta[: self._n_base]).reshape(nb, nb), extent=self.base_extent)
 
-    def decay(self, theta) -> Float[Array, "k J+1"]:
-        """``D_k(W_j)`` for k = 0..K−1 (row 0 is zero), j = 0..J."""
+    def decay(self, theta) -> Float[Array, "n_scales n_knots"]:
+        """``D_k(W_j)`` for k = 0..K−1 (row 0 is zero), j = 0..J (J + 1 = the number of knots)."""
         J = len(self.knots) - 1
         inc = jax.nn.softplus(theta[self._n_base :].reshape(self.n_scales - 1, J))
         d = jnp.cumsum(jnp.cumsum(inc, axis=0), axis=1)
