@@ -83,8 +83,9 @@ def fit(
 
     Args:
         model, data: what to fit to what.
-        solver: ``"lm"`` (Levenberg–Marquardt, default), ``"gauss_newton"``, ``"dogleg"`` or
-            ``"bfgs"`` (a minimiser of ½‖r‖²), or an optimistix least-squares solver or
+        solver: ``"lm"`` (Levenberg–Marquardt, default), ``"lm_normal"`` (its steps by the
+            normal equations: faster for many rows, e.g. the anisotropic models),
+            ``"gauss_newton"``, ``"dogleg"`` or ``"bfgs"`` (a minimiser of ½‖r‖²), or an optimistix least-squares solver or
             minimiser object (e.g. ``optimistix.LevenbergMarquardt(rtol=1e-8, atol=1e-8)``),
             used as it is: its own tolerances and norm apply, not ``rtol``/``atol``; the
             result's ``solver`` is then its class name.

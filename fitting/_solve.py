@@ -38,9 +38,12 @@ calls successful is reported as
   stops there; the named solvers, normalised as above, do not.
 """
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import lineax as lx
 import optimistix as optx
 
 from brdfscale import choices, InvalidInputError
@@ -49,11 +52,16 @@ from brdfscale import choices, InvalidInputError
 __all__ = ["RESULT_NAMES", "SOLVERS", "STATIONARY_COSINE", "make_solver", "solve", "solve_rows", "solver_name"]
 
 SOLVERS = tuple(choices.SOLVERS)
-"""The solvers by name (:data:`brdfscale.choices.SOLVERS`): Levenberg–Marquardt (default),
-Gauss–Newton, dogleg, BFGS (a minimiser of ½‖r‖²)."""
+"""The solvers by name (:data:`brdfscale.choices.SOLVERS`): Levenberg–Marquardt (default; its
+damped steps solved by QR), Levenberg–Marquardt with normal-equation steps (``lm_normal``:
+``JᵀJ + λI`` by Cholesky — one n × n system per step instead of a QR of the m × n Jacobian, the
+difference experiments/bench_anisotropic.py ``--normal`` measures on the anisotropic model's
+8-scale, 65² px fit; it squares the condition number, so it suits well-conditioned problems with
+many rows), Gauss–Newton, dogleg, BFGS (a minimiser of ½‖r‖²)."""
 
 _SOLVER_CLASSES = {
     "lm": optx.LevenbergMarquardt,
+    "lm_normal": functools.partial(optx.LevenbergMarquardt, linear_solver=lx.Normal(lx.Cholesky())),
     "gauss_newton": optx.GaussNewton,
     "dogleg": optx.Dogleg,
     "bfgs": optx.BFGS,

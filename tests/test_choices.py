@@ -144,7 +144,7 @@ def test_the_table_refuses_unknown_names_naming_the_argument():
     assert choices.SAMPLERS.check("hmc") == "hmc"
     with pytest.raises(InvalidInputError, match="sampler must be one of 'nuts', 'hmc', 'emcee'; got 'gibbs'"):
         choices.SAMPLERS.check("gibbs")
-    assert len(choices.SOLVERS) == len(set(choices.SOLVERS.names)) == 4
+    assert len(choices.SOLVERS) == len(set(choices.SOLVERS.names)) == 5
 
 
 def test_every_flag_the_translation_names_exists():

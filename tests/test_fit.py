@@ -185,6 +185,20 @@ def test_an_optimistix_solver_object_is_accepted_where_a_name_is():
         fitting.fit(model, data, solver=object())
 
 
+def test_normal_equation_steps_reach_the_optimum_of_qr_steps():
+    """``solver="lm_normal"`` (Levenberg–Marquardt whose steps solve the normal equations by
+    Cholesky) ends at the optimum and covariance of the default QR steps on a well-conditioned
+    problem, and records its name."""
+    model = fitting.ParametricModel()
+    _, data = parametric_dataset(model, TRUTHS[0], 0.01, seed=5, size=12)
+    qr = fitting.fit(model, data, starts=2)
+    normal = fitting.fit(model, data, starts=2, solver="lm_normal")
+    assert normal.solver == "lm_normal" and normal.status == "converged"
+    assert normal.chi2 == pytest.approx(qr.chi2, rel=1e-9)
+    np.testing.assert_allclose(normal.theta, qr.theta, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(normal.covariance, qr.covariance, rtol=1e-5)
+
+
 @pytest.mark.slow  # 5–30 s on 2 cores: run in .ci/run's second step, outside the default suite's 6-minute budget
 @pytest.mark.parametrize("solver, max_steps", [("lm", 512), ("lm", 2), ("bfgs", 512)])
 def test_solve_returns_chi2_and_jacobian_at_the_optimum(solver, max_steps):
