@@ -85,8 +85,9 @@ def fit(
         model, data: what to fit to what.
         solver: ``"lm"`` (Levenberg–Marquardt, default), ``"lm_normal"`` (its steps by the
             normal equations: faster for many rows, e.g. the anisotropic models),
-            ``"gauss_newton"``, ``"dogleg"`` or ``"bfgs"`` (a minimiser of ½‖r‖²), or an optimistix least-squares solver or
-            minimiser object (e.g. ``optimistix.LevenbergMarquardt(rtol=1e-8, atol=1e-8)``),
+            ``"gauss_newton"``, ``"dogleg"`` or ``"bfgs"`` (a minimiser of ½‖r‖²), or an
+            optimistix least-squares solver or minimiser object (e.g.
+            ``optimistix.LevenbergMarquardt(rtol=1e-8, atol=1e-8)``),
             used as it is: its own tolerances and norm apply, not ``rtol``/``atol``; the
             result's ``solver`` is then its class name.
         starts: number of starts: the model's data-driven start plus ``starts − 1`` jittered
