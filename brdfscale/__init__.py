@@ -22,6 +22,8 @@ The public API:
 * :mod:`brdfscale.plot` — one-call matplotlib figures of lobes, statistics, measurements, plans, fits;
 * :mod:`brdfscale.show` — the compact ``repr``/``_repr_html_`` of every object, and progress bars;
 * :mod:`brdfscale.fitting` — inverse fitting of measurements (the repository's ``fitting/`` folder);
+* :mod:`brdfscale.instrument` — a ray-traced multi-scale gonioreflectometer on Mitsuba 3 (extra ``[render]``);
+* :mod:`brdfscale.render` — a scale-aware Mitsuba 3 BSDF and engine roughness export (extra ``[render]``);
 * the exception classes, all derived from :class:`BrdfscaleError`.
 
 Importing brdfscale changes no global state (JAX's configuration, matplotlib's backend) and
@@ -74,6 +76,8 @@ _TABLE = (  # the one list of the public names: (module relative to brdfscale, n
             "show",
             "fitting",
             "library",
+            "instrument",
+            "render",
         ),
     ),
     (
@@ -104,11 +108,13 @@ if TYPE_CHECKING:  # what the lazy loader below provides, for type checkers and 
         files as files,
         fitting as fitting,
         geometry as geometry,
+        instrument as instrument,
         laplace as laplace,
         library as library,
         lobes as lobes,
         plot as plot,
         plus as plus,
+        render as render,
         scene as scene,
         show as show,
         so3 as so3,

@@ -87,8 +87,8 @@ LAYERS = {
         "brdfscale.synth",
         "brdfscale._measurement",
     ),
-    2: ("brdfscale.exr", "brdfscale.topography"),
-    3: ("brdfscale.fitting",),
+    2: ("brdfscale.exr", "brdfscale.topography", "brdfscale.instrument"),
+    3: ("brdfscale.fitting", "brdfscale.render"),
     4: ("brdfscale.plot",),
     5: ("brdfscale._cli", "brdfscale.__main__", "brdfscale.library"),
 }
