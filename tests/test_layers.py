@@ -73,6 +73,7 @@ LAYERS = {
         "brdfscale._json",
         "brdfscale._shadow",
         "brdfscale._slopes",
+        "brdfscale._mitsuba",
     ),
     1: (
         "brdfscale.stats",
