@@ -1,6 +1,12 @@
 """``brdfscale synth SURFACE --out FILE.exr``: a synthetic measurement set from a built-in surface;
 ``brdfscale synth --topography FILE --out FILE.exr``: the same of a measured height map.
 
+Two instruments: ``--instrument facets`` (the default) builds the lobes from facet statistics
+(:func:`brdfscale.synth.gonioreflectometer`, the seed's nearly-flat assumptions); ``--instrument raytraced``
+ray-traces the height field in Mitsuba 3 (:func:`brdfscale.instrument.measure`: masking, shadowing and
+interreflection by visibility rays; σ is the Monte Carlo standard error; needs the extra ``brdfscale[render]``, a
+missing Mitsuba or LLVM named in one line with exit status 2 before any work).
+
 Defaults made for ``brdfscale fit`` (README's measured-surface chain): the image half-width from
 robust slope quantiles (:func:`brdfscale.synth.robust_extent`, never the steepest pixel); with
 --topography, Poisson noise with read noise (:data:`TOPOGRAPHY_NOISE`: every image stores σ) and
@@ -63,6 +69,13 @@ def _noise(text: str):
         f"or gaussian:SIGMA (SIGMA in [{_SIGMA[0]:g}, {_SIGMA[1]:g}]); "
         f"got {text!r:.60}"
     )
+
+
+INSTRUMENTS = ("facets", "raytraced")
+"""--instrument's names, the default first: facet statistics (synth.gonioreflectometer) or the ray tracer."""
+_RAYTRACED_ONLY = ("--rays", "--bounces", "--variant", "--micro")
+_FACETS_ONLY = ("--noise", "--resolution", "--weighting")
+_RAYTRACED_WHY = " (the ray tracer's σ is its Monte Carlo error, its resolution its detector's)."
 
 
 def register(subparsers) -> None:
@@ -157,8 +170,45 @@ def register(subparsers) -> None:
     parser.add_argument(
         "--weighting",
         choices=("nearly_flat", "projected_area"),
-        default="nearly_flat",
-        help="pixel-facet weighting (default nearly_flat, the seed's approximation)",
+        default=None,
+        help="pixel-facet weighting of --instrument facets (default nearly_flat, the seed's approximation)",
+    )
+    parser.add_argument(
+        "--instrument",
+        choices=INSTRUMENTS,
+        default=INSTRUMENTS[0],
+        help="facets (default): lobes from facet statistics under the seed's nearly-flat assumptions; raytraced: "
+        "the virtual gonioreflectometer of brdfscale.instrument, which ray-traces the height field in Mitsuba 3 "
+        "(masking, shadowing, interreflection; σ = the Monte Carlo error; needs brdfscale[render])",
+    )
+    parser.add_argument(
+        "--rays",
+        type=integer(1, 10**10),
+        default=None,
+        metavar="N",
+        help="with --instrument raytraced: rays per measurement configuration (default: brdfscale.instrument's)",
+    )
+    parser.add_argument(
+        "--bounces",
+        type=integer(1, 64),
+        default=None,
+        metavar="N",
+        help="with --instrument raytraced: the most reflections a path may take, 1 (single scattering) to 64 "
+        "(default: brdfscale.instrument's)",
+    )
+    parser.add_argument(
+        "--micro",
+        choices=("beckmann", "ggx"),
+        default=None,
+        help="with --instrument raytraced and --micro-alpha: the pixel facets' microfacet distribution "
+        "(default beckmann)",
+    )
+    parser.add_argument(
+        "--variant",
+        default=None,
+        metavar="NAME",
+        help="with --instrument raytraced: Mitsuba's variant (llvm_ad_rgb, scalar_rgb, cuda_ad_rgb; default: the "
+        "first of these that runs here)",
     )
     parser.add_argument(
         "--dtype", choices=("float32", "float16"), default="float32", help="pixel type (default float32)"
@@ -193,16 +243,43 @@ def _check_source(args) -> None:
         )
 
 
+def _check_instrument(args) -> None:
+    """The options of the other instrument refused, by name."""
+    raytraced = args.instrument == "raytraced"
+    names = _FACETS_ONLY if raytraced else _RAYTRACED_ONLY
+    given = [flag for flag in names if getattr(args, flag[2:]) is not None]
+    if given:
+        what = "--instrument facets" if raytraced else "--instrument raytraced"
+        raise InvalidInputError(
+            f"{' and '.join(given)}: {'options' if len(given) > 1 else 'an option'} of {what} only; leave "
+            f"{'them' if len(given) > 1 else 'it'} out with --instrument {args.instrument}"
+            + (
+                " (the ray tracer's σ is its Monte Carlo error; its resolution is its detector's)."
+                if raytraced
+                else "."
+            )
+        )
+    if args.micro is not None and args.micro_alpha is None:
+        raise InvalidInputError("--micro names the pixel facets' distribution of roughness --micro-alpha: give both.")
+
+
 def run(args) -> int:
     import numpy as np
 
-    from .. import exr, stats, synth
+    from .. import stats, synth
 
     _check_source(args)
+    _check_instrument(args)
     output_file(args.out, args.force)
+    raytraced = args.instrument == "raytraced"
+    if raytraced:  # a missing Mitsuba or LLVM named in one line before any work (exit status 2)
+        from .. import _mitsuba
+
+        _mitsuba.mitsuba(args.variant)
     seed_value = _SEED if args.seed is None else args.seed
     surface_seed, noise_seed = np.random.SeedSequence(seed_value).spawn(2)
-    micro = None if args.micro_alpha is None else stats.Beckmann(args.micro_alpha)
+    micro_kind = stats.GGX if args.micro == "ggx" else stats.Beckmann
+    micro = None if args.micro_alpha is None else micro_kind(args.micro_alpha)
     if args.topography is None:
         size = _SIZE if args.size is None else args.size
         chosen = args.scales if args.scales is not None else scales("4,16,64")
@@ -230,6 +307,9 @@ def run(args) -> int:
     mus = chosen.resolve(field)
     topography = args.topography is not None
     extent = args.extent if args.extent is not None else synth.robust_extent(field)
+    incident = np.array(args.incident) if args.incident else np.array([[0.0, 0.0, 1.0]])
+    if raytraced:
+        return _raytraced(args, field, mus, incident, extent, seed_value, noise_seed, command, source)
     noise = args.noise if args.noise is not None else _noise(TOPOGRAPHY_NOISE) if topography else "none"
     noise = None if noise == "none" else noise
     resolution = args.resolution
@@ -244,7 +324,6 @@ def run(args) -> int:
         if args.resolution is not None
         else (f"{TOPOGRAPHY_RESOLUTION:g} image pixels: {resolution:.6g}" if topography else "0"),
     }
-    incident = np.array(args.incident) if args.incident else np.array([[0.0, 0.0, 1.0]])
     mset = synth.gonioreflectometer(
         field,
         mus,
@@ -253,13 +332,46 @@ def run(args) -> int:
         pixels=args.pixels,
         noise=noise,
         resolution=resolution,
-        weighting=args.weighting,
+        weighting=args.weighting or "nearly_flat",
         seed=np.random.default_rng(noise_seed) if noise is not None else None,
     )
     mset.metadata["seed"] = seed_value
     mset.metadata["command"] = command
     mset.metadata["defaults"] = {k: v for k, v in defaults.items() if v is not None}  # the options left out
+    return _write(args, mset, field, mus, source)
+
+
+def _write(args, mset, field, mus, source) -> int:
+    from .. import exr
+
     exr.write_measurements(args.out, mset, overwrite=args.force, dtype=args.dtype)
     shown = ", ".join(f"{mu:.6g}" for mu in mus) + ("" if field.unit is None else f" {field.unit}")
     print(f"wrote {args.out}: {len(mset.images)} lobe images ({source}, scales {shown})")
     return 0
+
+
+def _raytraced(args, field, mus, incident, extent, seed_value, trace_seed, command, source) -> int:
+    """The measurement by the ray tracer: :func:`brdfscale.instrument.measure` with the options given (its own
+    defaults for the others, recorded by it in the file's provenance)."""
+    from .. import instrument
+
+    given = {name: getattr(args, name) for name in ("rays", "bounces", "variant") if getattr(args, name) is not None}
+    mset = instrument.measure(
+        field,
+        mus,
+        incident,
+        extent=extent,
+        pixels=args.pixels,
+        micro=field.micro,
+        seed=int(trace_seed.generate_state(1)[0]),
+        **given,
+    )
+    mset.metadata["seed"] = seed_value
+    mset.metadata["command"] = f"{command} --instrument raytraced" + "".join(
+        f" --{name} {value}" for name, value in given.items()
+    )
+    if args.extent is None:
+        mset.metadata["defaults"] = {
+            "extent": f"robust_extent: 1.5 × the 99th percentile of the pixel slopes' |m − m̄|: {extent:.6g}"
+        }
+    return _write(args, mset, field, mus, source)
