@@ -18,7 +18,8 @@ an explicit inverse, which a nearly singular F turns into noise):
   that would look like a measurement — when the undetermined directions would move it more
   than the determined ones, ``Σ_u (g·v_u)²/λ_u > 9 Σ_d (g·v_d)²/λ_d`` (λ floored at 1e-12 λ_max);
   otherwise its variance is ``Σ_d (g·v_d)²/λ_d`` plus the undetermined directions'
-  linearised share (at most a ninth).
+  linearised share (at most a ninth). A quantity whose gradient is not finite (NaN or ±∞) is
+  undetermined.
 
 "Undetermined" has one representation in the project: ``None`` — for a standard deviation,
 an interval or quantiles the data do not determine, in Python results (:meth:`Laplace.std`,
@@ -88,20 +89,28 @@ class Laplace(Shown):
         """The linearised variances of quantities with these gradients: (determined part, undetermined part)."""
         g = np.atleast_2d(np.asarray(gradients, dtype=float))
         floor = np.maximum(self.eigenvalues, NULL * max(float(self.eigenvalues[-1]), 1e-300))
-        projected = (g @ self.eigenvectors) ** 2 / floor
+        with np.errstate(invalid="ignore", over="ignore"):  # a non-finite gradient: NaN, not determined
+            projected = (g @ self.eigenvectors) ** 2 / floor
         return projected[:, ~self.undetermined_mask].sum(axis=1), projected[:, self.undetermined_mask].sum(axis=1)
 
     def quantity_is_determined(self, gradients: Float[np.ndarray, "q d"]) -> np.ndarray:
-        """True for each quantity the undetermined directions move less than the rule's bound."""
-        determined, undetermined = self.variances(gradients)
-        return ~(undetermined > _MOVES_MORE * determined)
+        """True for each quantity whose gradient is finite and whose variance is finite and at most
+        a tenth from the undetermined directions (module docstring). A gradient holding NaN or ±∞
+        (a quantity not differentiable at θ̂) is not determined: no comparison with it is made."""
+        g = np.atleast_2d(np.asarray(gradients, dtype=float))
+        determined, undetermined = self.variances(g)
+        return (
+            np.all(np.isfinite(g), axis=1)
+            & np.isfinite(determined + undetermined)
+            & (undetermined <= _MOVES_MORE * determined)
+        )
 
     def std(self, gradients: Float[np.ndarray, "q d"]) -> list[float | None]:
         """Linearised standard deviations of quantities, one per row of ``gradients``: a float,
         or None where the quantity is undetermined (:meth:`quantity_is_determined`)."""
         determined, undetermined = self.variances(gradients)
         out = np.sqrt(determined + undetermined)
-        return [None if u > _MOVES_MORE * d else float(s) for s, d, u in zip(out, determined, undetermined)]
+        return [float(s) if ok else None for s, ok in zip(out, self.quantity_is_determined(gradients))]
 
     def _show_items(self):
         return [

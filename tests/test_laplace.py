@@ -71,3 +71,16 @@ def test_fit_strengths_names_an_undetermined_cut_off_instead_of_raising():
     assert not fit.determined and any("ln x0" in c for c in fit.undetermined)
     assert fit.x0_sigma is None  # undetermined: None (brdfscale.laplace), not NaN
     assert float(fit.amplitude) == pytest.approx(2.0, rel=1e-6) and np.isfinite(float(fit.amplitude_sigma))
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_a_quantity_with_a_non_finite_gradient_is_undetermined(bad):
+    """A gradient holding NaN or ±∞ (a quantity not differentiable at θ̂) gives no comparison of
+    variances to trust: the quantity is undetermined (std None, never NaN), whatever the other
+    quantities' gradients."""
+    rng = np.random.default_rng(2)
+    analysis = laplace(rng.standard_normal((30, 3)), ("a", "b", "c"), undetermined_std=np.inf)
+    g = np.array([[1.0, 0.0, 0.0], [bad, 0.0, 0.0], [0.0, bad, 1.0]])
+    assert analysis.quantity_is_determined(g).tolist() == [True, False, False]
+    std = analysis.std(g)
+    assert np.isfinite(std[0]) and std[1] is None and std[2] is None
