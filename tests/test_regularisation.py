@@ -232,7 +232,7 @@ def test_ranked_candidates_start_with_the_rule_and_follow_the_gcv_score():
     s_to = stats.Beckmann(ALPHA_FINE)
     order = _regularise.ranked(lobe, stats.Delta(), s_to, "gcv")
     assert order[0] == _regularise.choose(lobe, stats.Delta(), s_to, "gcv")
-    V2, s2 = _regularise._spectra(_regularise.table_of(lobe), s_to)
+    V2, s2, _, _ = _regularise._spectra(_regularise.table_of(lobe), s_to)
     scores = [_regularise._gcv_value(V2, s2, lam) for lam, _ in order[1:]]
     assert scores == sorted(scores) and len(order) == len(_regularise.SEARCH_CANDIDATES) + 1
     # an exact lobe: λ = 0 and nothing to search

@@ -145,26 +145,19 @@ def choose(lobe, s_from, s_to, rule: str, noise=None) -> tuple[float, str]:
         raise unresolved_regularisation(rule)
     table = table_of(lobe)
     assert table is not None  # the lobe is tabulated (checked above)
-    values, h = table
-    v = np.asarray(values, dtype=float)
-    hx, hy = (float(x) for x in np.asarray(h))
-    ny, nx = v.shape
-    wx = 2 * np.pi * np.fft.fftfreq(nx, hx)
-    wy = 2 * np.pi * np.fft.fftfreq(ny, hy)
-    W = np.stack(np.meshgrid(wx, wy), axis=-1)
-    V2 = np.abs(hx * hy * np.fft.fft2(v)) ** 2
-    s2 = np.abs(np.asarray(s_to.cf(jnp.asarray(W)))) ** 2
+    V2, s2, W, (hx, hy) = _spectra(table, s_to)
+    ny, nx = V2.shape
     if rule == "gcv":
         lam = _gcv(V2, s2)
         detail = f"generalised cross-validation on the lobe table's {ny}×{nx} frequencies"
     elif rule == "discrepancy":
         sigma = np.asarray(noise, dtype=float)
-        if sigma.ndim and sigma.shape != v.shape:
+        if sigma.ndim and sigma.shape != V2.shape:
             raise InvalidInputError(
-                f"noise must be one σ or an array of the table's shape {v.shape}; got shape {sigma.shape}."
+                f"noise must be one σ or an array of the table's shape {V2.shape}; got shape {sigma.shape}."
             )
-        sigma = np.broadcast_to(sigma, v.shape)
-        target = v.size * (hx * hy) ** 2 * float(np.sum(sigma**2))
+        sigma = np.broadcast_to(sigma, V2.shape)
+        target = V2.size * (hx * hy) ** 2 * float(np.sum(sigma**2))
         lam = _discrepancy(V2, s2, target)
         detail = f"discrepancy principle (residual ≤ expected noise, {ny}×{nx} frequencies)"
     else:
@@ -191,9 +184,8 @@ def ranked(lobe, s_from, s_to, rule: str, noise=None) -> list[tuple[float, str]]
         return [first]
     table = table_of(lobe)
     assert table is not None
-    V2, s2 = _spectra(table, s_to)
-    scores = [_gcv_value(V2, s2, float(lam)) for lam in SEARCH_CANDIDATES]
-    order = np.argsort(scores, kind="stable")
+    V2, s2, _, _ = _spectra(table, s_to)
+    order = np.argsort(_gcv_values(V2, s2, SEARCH_CANDIDATES), kind="stable")
     rest = [
         (float(SEARCH_CANDIDATES[i]), f"{_DESCRIPTION['gcv']} score rank {r + 1} of {len(order)}")
         for r, i in enumerate(order)
@@ -202,7 +194,9 @@ def ranked(lobe, s_from, s_to, rule: str, noise=None) -> list[tuple[float, str]]
 
 
 def _spectra(table, s_to):
-    """``(|V|², |S_to|²)`` on the table's own DFT frequencies (module docstring)."""
+    """``(|V|², |S_to|², W, (h_x, h_y))``: the data's and the division's spectra on the table's own
+    DFT frequencies ``W`` (n_y, n_x, 2) (module docstring), the one place every rule and the
+    existence search take them from."""
     values, h = table
     v = np.asarray(values, dtype=float)
     hx, hy = (float(x) for x in np.asarray(h))
@@ -212,7 +206,7 @@ def _spectra(table, s_to):
     W = np.stack(np.meshgrid(wx, wy), axis=-1)
     V2 = np.abs(hx * hy * np.fft.fft2(v)) ** 2
     s2 = np.abs(np.asarray(s_to.cf(jnp.asarray(W)))) ** 2
-    return V2, s2
+    return V2, s2, W, (hx, hy)
 
 
 def _residual(V2, s2, t):
@@ -225,8 +219,14 @@ def _gcv_value(V2, s2, lam):
     return float(np.sum(V2 * one_minus**2)) / float(np.sum(one_minus)) ** 2
 
 
+def _gcv_values(V2, s2, lams) -> np.ndarray:
+    """``GCV(λ)`` at each of ``lams``: the one scan of the GCV score, for the rule (:func:`_gcv`) and
+    the existence search (:func:`ranked`)."""
+    return np.array([_gcv_value(V2, s2, float(lam)) for lam in lams])
+
+
 def _gcv(V2, s2) -> float:
-    values = np.array([_gcv_value(V2, s2, lam) for lam in CANDIDATES])
+    values = _gcv_values(V2, s2, CANDIDATES)
     best = int(np.argmin(values))
     # golden-section refinement in ln λ between the neighbours of the best candidate
     lo = math.log(CANDIDATES[max(best - 1, 0)])
