@@ -1267,6 +1267,67 @@ def library() -> str:
     return "\n".join(lines)
 
 
+def instrument() -> str:
+    """docs/benchmarks.md: the ray-traced gonioreflectometer (experiments/bench_instrument.py)."""
+    d = load("bench_instrument")
+    if d is None:
+        return "(bench_instrument.json missing)"
+    rows = []
+    for r in d["speed"]:
+        if "rays_per_second" not in r:
+            rows.append(
+                [f"`{r.get('variant', r.get('speed', '?'))}`", "–", "–", "–", r.get("skipped") or r.get("failed")]
+            )
+            continue
+        rows.append(
+            [
+                f"`{r['variant']}`",
+                f"{r['rays_per_second']:,.0f}",
+                f"{r['best_s']:.2f}",
+                f"{r['first_run_s']:.2f}",
+                f"{r['rays']:,} rays, {r['field']}, {r['threads']} threads",
+            ]
+        )
+    out = [load_line(d), "", table(["variant", "rays/s", "best s", "first run s (compiles)", "measurement"], rows)]
+    f = d["full"]
+    if "seconds" in f:
+        out.append(
+            f"\nThe issue's measurement — {f['field']}, {len(f['scales_px'])} scales, {f['pixels']}² px, incidences "
+            f"{', '.join(f'{t:g}°' for t in f['incidence_deg'])}, {f['threads']} threads: **{f['seconds']:.0f} s** "
+            f"(target ≤ {f['target_seconds']:.0f} s: {met(f['seconds'] <= f['target_seconds'])}); peak RSS "
+            f"{f['max_rss_MiB']:.0f} MiB."
+        )
+    else:
+        out.append(f"\nThe issue's measurement failed: {f.get('failed')}")
+    a = d["accuracy"]
+    rows = [
+        [
+            f"{r['rms_slope']:g}",
+            f"{r['theta_i_deg']:g}°",
+            f"{r['seed_energy_ratio']:.3f}",
+            f"{r['masking_energy_ratio']:.3f}",
+            f"{r['mc_energy']:.4f}",
+            f"{r['seed_l1']:.3f}",
+            f"{r['masking_l1']:.3f}",
+        ]
+        for r in a["rows"]
+    ]
+    v = a["verdict"]
+    out.append(
+        f"\nModel ÷ instrument ({a['rays']:,} rays, bounces {a['bounces']}, the largest scale):\n\n"
+        + table(
+            ["rms slope", "θi", "energy: seed", "energy: masking-aware", "MC error", "L1: seed", "L1: masking-aware"],
+            rows,
+        )
+        + f"\n\nTarget (masking-aware within 2 % or 2 MC errors wherever the seed-only model is off by > 10 %): "
+        f"{met(v['met'])} — the seed-only model off by > 10 % in {v['seed_off_by_more_than_10pc']} of {v['rows']} "
+        f"cases, the masking-aware model within in {v['masking_within_where_seed_off']} of them "
+        f"({v['masking_within']} of {v['rows']} overall)."
+    )
+    out.append("\n" + machine_line(d))
+    return "\n".join(out)
+
+
 DOCS = Path(__file__).resolve().parent.parent / "docs"
 
 
@@ -1288,6 +1349,7 @@ SECTIONS = [
     ("benchmarks.md", "Synthesis (bench_synth)", synth),
     ("benchmarks.md", "Measured surfaces (bench_topography)", topography),
     ("benchmarks.md", "Scene planner (bench_planner)", planner),
+    ("benchmarks.md", "Ray-traced instrument (bench_instrument)", instrument),
     ("fitting.md", "Samplers (bench_samplers)", samplers),
     ("fitting.md", "Calibration (calibration_fit)", calibration),
     ("library.md", "Throughput (bench_library)", library),
@@ -1302,6 +1364,7 @@ SECTIONS = [
     ("results.md", "Render (results_page)", results_page.render),
     ("results.md", "Stability (results_page)", results_page.stability),
     ("results.md", "Real surfaces (results_page)", results_page.real_surfaces),
+    ("results.md", "Instrument (results_page)", results_page.instrument),
     ("robustness.md", "Fuzzing (fuzz_robustness)", robustness),
 ]
 

@@ -66,7 +66,7 @@ from ._report import (
     write_report,
 )
 from ._result import FitResult
-from ._resume import resume_report
+from ._resume import report_problem, resume_report
 from ._sample import Emcee, HMC, log_posterior, NUTS, sample, SampleResult, SAMPLERS
 from ._sample_many import sample_many
 from ._simulate import simulate
@@ -109,6 +109,7 @@ __all__ = [
     "plot_recovered_statistics",
     "ratio_frequencies",
     "report_files",
+    "report_problem",
     "resume_report",
     "rewind_checkpoint",
     "resolution",

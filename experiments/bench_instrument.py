@@ -1,0 +1,197 @@
+"""Benchmark of the ray-traced gonioreflectometer (issue 32): speed by Mitsuba variant, a full measurement's wall
+time, and the masking-aware model against the instrument.
+
+1. **Rays per second** of :func:`brdfscale.instrument.measure` on a 512² Gaussian field (rms slope 0.2, one scale,
+   one incidence, 65² px), by variant (``scalar_rgb``, ``llvm_ad_rgb``, and ``cuda_ad_rgb`` where a GPU is found),
+   each in its own process (Mitsuba's variant is process-wide) with Dr.Jit limited to ``--threads`` threads (2:
+   the issue's "2 cores"); the best of ``REPEAT`` runs after a warm-up run (compilation), and the first run's
+   time with compilation.
+2. **The issue's measurement**: 8 scales (log-spaced 4 … 512 px), 65² px images, three incidences (0°, 40°, 70°)
+   of a 512² field at the default variant and the instrument's default rays and bounces: wall time (target
+   ≤ 10 minutes on 2 cores) and peak resident memory.
+3. **Masking-aware model against the instrument**: Gaussian fields (256² px, ℓ = 8 px) of rms slope 0.1, 0.2 and
+   0.3, incidences 0°, 40°, 60°, 70°, 80°, the largest scale (the whole roughness in the spot), bounces 3: the
+   energy ratio model ÷ instrument of the seed's nearly-flat model and of the masking-aware model (× Smith G₂),
+   from experiments/instrument_study.py's predictions. Target: the masking-aware model within 2 % or twice the
+   Monte Carlo error wherever the seed-only model is off by more than 10 %.
+
+Run:  flock /tmp/brdfscale-bench.lock python -m experiments.bench_instrument [--threads 2] [--quick]
+Writes experiments/results/bench_instrument.json (the table of docs/benchmarks.md: experiments/benchmarks_page.py).
+"""
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+from experiments._bench import machine, write_json
+
+
+VARIANTS = ("scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb")
+SPEED_SIZE, SPEED_RAYS = 512, 200_000
+REPEAT = 3
+FULL_SIZE, FULL_SCALES, FULL_INCIDENCE = 512, 8, (0.0, 40.0, 70.0)
+ACCURACY_SIZE, ACCURACY_SLOPES, ACCURACY_INCIDENCE = 256, (0.1, 0.2, 0.3), (0.0, 40.0, 60.0, 70.0, 80.0)
+ACCURACY_RAYS, ACCURACY_BOUNCES = 400_000, 3
+TARGET_SECONDS = 600.0
+
+
+def _limit_threads(threads: int) -> None:
+    import drjit as dr
+
+    dr.set_thread_count(threads)
+
+
+def speed(variant: str, *, size: int, rays: int, threads: int) -> dict:
+    """Rays per second of one variant (run in a process of its own: ``--speed VARIANT``)."""
+    from brdfscale import _mitsuba, instrument
+    from experiments.instrument_study import gaussian_surface, incident_directions
+
+    problem = _mitsuba.available(variant)
+    if problem is not None:
+        return {"variant": variant, "skipped": problem}
+    _limit_threads(threads)
+    field = gaussian_surface(0.2, size=size)
+    incident = incident_directions([30.0])
+
+    def once():
+        t0 = time.perf_counter()
+        instrument.measure(field, [float(size)], incident, extent=0.6, pixels=65, rays=rays, seed=0, variant=variant)
+        return time.perf_counter() - t0
+
+    first = once()
+    times = sorted(once() for _ in range(REPEAT))
+    return {
+        "variant": variant,
+        "threads": threads,
+        "field": f"{size}² Gaussian, rms slope 0.2",
+        "rays": rays,
+        "first_run_s": round(first, 3),
+        "best_s": round(times[0], 3),
+        "median_s": round(times[len(times) // 2], 3),
+        "rays_per_second": rays / times[0],
+    }
+
+
+def _in_process(flag: str, value: str, threads: int, quick: bool) -> dict:
+    argv = [sys.executable, "-m", "experiments.bench_instrument", flag, value, "--threads", str(threads)]
+    run = subprocess.run([*argv, *(["--quick"] if quick else [])], capture_output=True, text=True, timeout=3600)
+    if run.returncode != 0:
+        return {flag.strip("-"): value, "failed": (run.stderr.strip().splitlines() or ["(no message)"])[-1][:300]}
+    return json.loads(run.stdout.strip().splitlines()[-1])
+
+
+def full(*, size: int, scales: int, threads: int) -> dict:
+    """The issue's measurement: ``scales`` log-spaced scales, 65² px, three incidences of a ``size``² field."""
+    from brdfscale import instrument
+    from experiments.instrument_study import gaussian_surface, incident_directions
+
+    _limit_threads(threads)
+    field = gaussian_surface(0.2, size=size)
+    mus = [float(m) for m in np.unique(np.geomspace(4, size, scales).round())]
+    t0 = time.perf_counter()
+    mset = instrument.measure(field, mus, incident_directions(FULL_INCIDENCE), extent=0.6, pixels=65, seed=0)
+    seconds = time.perf_counter() - t0
+    return {
+        "field": f"{size}² Gaussian, rms slope 0.2",
+        "scales_px": mus,
+        "incidence_deg": list(FULL_INCIDENCE),
+        "pixels": 65,
+        "images": len(mset.images),
+        "instrument": mset.metadata.get("instrument"),
+        "threads": threads,
+        "seconds": round(seconds, 1),
+        "max_rss_MiB": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+        "target_seconds": TARGET_SECONDS,
+    }
+
+
+def accuracy(*, size: int, slopes, thetas, rays: int, bounces: int) -> list:
+    """Energy ratios model ÷ instrument of the seed-only and masking-aware models at the largest scale."""
+    from brdfscale import instrument, synth
+    from experiments.instrument_study import gaussian_surface, incident_directions, predictions, scores
+
+    rows = []
+    for rms in slopes:
+        field = gaussian_surface(rms, size=size)
+        extent = synth.robust_extent(field)
+        incident = incident_directions(thetas)
+        mus = [float(size)]
+        mset = instrument.measure(field, mus, incident, extent=extent, pixels=65, rays=rays, bounces=bounces, seed=0)
+        model = predictions(field, mus, incident, extent, 65)
+        for k, image in enumerate(mset.images):
+            seed, masking = scores(model["seed"][k], image), scores(model["masking"][k], image)
+            rows.append(
+                {
+                    "rms_slope": rms,
+                    "theta_i_deg": thetas[k],
+                    "seed_energy_ratio": seed["energy_ratio"],
+                    "masking_energy_ratio": masking["energy_ratio"],
+                    "mc_energy": seed["mc_energy"],
+                    "seed_l1": seed["l1"],
+                    "masking_l1": masking["l1"],
+                }
+            )
+    return rows
+
+
+def verdict(rows: list) -> dict:
+    def within(r):
+        return abs(r["masking_energy_ratio"] - 1) <= max(0.02, 2 * r["mc_energy"])
+
+    seed_off = [r for r in rows if abs(r["seed_energy_ratio"] - 1) > 0.10]
+    return {
+        "rows": len(rows),
+        "masking_within": sum(within(r) for r in rows),
+        "seed_off_by_more_than_10pc": len(seed_off),
+        "masking_within_where_seed_off": sum(within(r) for r in seed_off),
+        "met": bool(seed_off) and all(within(r) for r in seed_off),
+    }
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--threads", type=int, default=2, help="Dr.Jit threads (default 2: the issue's 2 cores)")
+    parser.add_argument("--quick", action="store_true", help="small sizes (a smoke run; not the committed JSON)")
+    parser.add_argument("--speed", metavar="VARIANT", help=argparse.SUPPRESS)  # one variant, in its own process
+    parser.add_argument("--full", metavar="SIZE", help=argparse.SUPPRESS)
+    parser.add_argument("--out", default=None, help="write the JSON here instead of experiments/results/")
+    args = parser.parse_args(argv)
+    quick = args.quick
+    if args.speed:
+        size, rays = (64, 2_000) if quick else (SPEED_SIZE, SPEED_RAYS)
+        print(json.dumps(speed(args.speed, size=size, rays=rays, threads=args.threads)))
+        return
+    if args.full:
+        print(json.dumps(full(size=int(args.full), scales=3 if quick else FULL_SCALES, threads=args.threads)))
+        return
+    started = time.perf_counter()
+    record = {"machine": machine(), "load_average_at_start": list(os.getloadavg())}
+    record["speed"] = [_in_process("--speed", v, args.threads, quick) for v in VARIANTS]
+    record["full"] = _in_process("--full", str(64 if quick else FULL_SIZE), args.threads, quick)
+    rows = accuracy(
+        size=32 if quick else ACCURACY_SIZE,
+        slopes=ACCURACY_SLOPES[-1:] if quick else ACCURACY_SLOPES,
+        thetas=(0.0, 80.0) if quick else ACCURACY_INCIDENCE,
+        rays=2_000 if quick else ACCURACY_RAYS,
+        bounces=ACCURACY_BOUNCES,
+    )
+    record["accuracy"] = {"rows": rows, "verdict": verdict(rows), "rays": ACCURACY_RAYS, "bounces": ACCURACY_BOUNCES}
+    record["seconds"] = round(time.perf_counter() - started, 1)
+    if args.out or quick:
+        path = args.out or os.devnull
+        with open(path, "w") as f:
+            json.dump(record, f, indent=2, default=str)
+    else:
+        path = write_json("bench_instrument", record)
+    print(json.dumps({k: v for k, v in record.items() if k != "machine"}, indent=2, default=str))
+    print(f"written to {path}")
+
+
+if __name__ == "__main__":
+    main()
