@@ -3,7 +3,7 @@
 
 Importing it imports neither JAX nor NumPy, so the command's help starts without them.
 
-* :data:`SOLVERS`, :data:`SAMPLERS`, :data:`MODELS`, :data:`FAMILIES`, :data:`LAWS` — the names
+* :data:`SOLVERS`, :data:`SAMPLERS`, :data:`MODELS`, :data:`FAMILIES`, :data:`LAWS`, :data:`SHAPES` — the names
   a fit accepts, each with a one-line description and the default (:class:`Choices`);
 * :class:`FitDefaults`, :class:`SampleDefaults`, :class:`ModelDefaults` — the defaults of the
   options of ``fitting.fit``/``fit_many``, ``fitting.sample``/``sample_many`` and of the models;
@@ -24,10 +24,12 @@ __all__ = [
     "FAMILIES",
     "FIT",
     "LAWS",
+    "MASKING",
     "MODEL",
     "MODELS",
     "SAMPLE",
     "SAMPLERS",
+    "SHAPES",
     "SOLVERS",
     "Choice",
     "Choices",
@@ -93,6 +95,11 @@ class Choices:
 SOLVERS = Choices(
     "solver",
     (
+        Choice(
+            "auto",
+            "the model's own choice: lm_normal for the anisotropic models (many rows per parameter), "
+            "lm for the others (the model's preferred_solver)",
+        ),
         Choice("lm", "Levenberg–Marquardt (optimistix.LevenbergMarquardt)"),
         Choice(
             "lm_normal",
@@ -104,7 +111,7 @@ SOLVERS = Choices(
         Choice("dogleg", "Powell's dogleg (optimistix.Dogleg)"),
         Choice("bfgs", "BFGS, a minimiser of ½‖r‖² (optimistix.BFGS)"),
     ),
-    default="lm",
+    default="auto",
 )
 
 SAMPLERS = Choices(
@@ -120,20 +127,36 @@ SAMPLERS = Choices(
 MODELS = Choices(
     "model",
     (
-        Choice("parametric", "a lobe family and a scale law of its slope statistics (fitting.ParametricModel)"),
-        Choice("nonparametric", "a tabulated base lobe and relative statistics (fitting.NonParametricModel)"),
         Choice(
             "anisotropic",
-            "a Gaussian base lobe of full covariance and free centre, and monotone covariance differences "
-            "ΔΣ(μ0, μk) (fitting.AnisotropicModel)",
+            "a base lobe of full covariance (any orientation, --shape gaussian, ggx or student_t) and free "
+            "centre, and monotone covariance differences ΔΣ(μ0, μk), a full 2 × 2 matrix per scale "
+            "(fitting.AnisotropicModel)",
         ),
+        Choice(
+            "isotropic",
+            "the anisotropic model's isotropic, centred special case: ΔΣ(μ0, μk) = d_k I "
+            "(fitting.AnisotropicModel(isotropic=True))",
+        ),
+        Choice("parametric", "a lobe family and a scale law of its slope statistics (fitting.ParametricModel)"),
+        Choice("nonparametric", "a tabulated base lobe and relative statistics (fitting.NonParametricModel)"),
         Choice(
             "nonparametric_anisotropic",
             "a tabulated base lobe of any shape and centre, and relative statistics R_k(W) over the W plane: "
             "radial knots × even angular harmonics (fitting.AnisotropicNonParametricModel)",
         ),
     ),
-    default="parametric",
+    default="anisotropic",
+)
+
+SHAPES = Choices(
+    "shape",
+    (
+        Choice("gaussian", "Gaussian (Beckmann) base lobe"),
+        Choice("ggx", "GGX base lobe (bivariate Student-t of tail index 2)"),
+        Choice("student_t", "bivariate Student-t base lobe with a free tail index ν (heavy tails)"),
+    ),
+    default="gaussian",
 )
 
 FAMILIES = Choices(
@@ -156,6 +179,22 @@ LAWS = Choices(
     ),
     default="width",
 )
+
+
+MASKING = Choices(
+    "masking",
+    (
+        Choice("none", "no masking or shadowing, G = 1: the seed's assumption (brdfscale.lobes.NoMasking)"),
+        Choice(
+            "smith",
+            "Smith's height-correlated masking-shadowing G2 = 1/(1 + Λ(i) + Λ(o)) of the lobe's own slope density "
+            "(brdfscale.lobes.SmithMasking)",
+        ),
+    ),
+    default="none",
+)
+"""Masking and shadowing in a lobe's ρ, the measurement-set forward model and the fits (docs/masking.md);
+the default stays the seed's (none) until the instrument study (issue 32 item 5) decides."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -185,11 +224,13 @@ class SampleDefaults:
 
 @dataclasses.dataclass(frozen=True)
 class ModelDefaults:
-    """The defaults of the fitting models' options: ``fitting.ParametricModel(family, family, law=)`` and
+    """The defaults of the fitting models' options: ``fitting.AnisotropicModel(shape=)``,
+    ``fitting.ParametricModel(family, family, law=)`` and
     ``fitting.NonParametricModel(base_nodes=, n_knots=, regularisation=)`` (``regularisation``
     None: the weight ``smoothness`` of the smoothness prior)."""
 
     model: str = MODELS.default
+    shape: str = SHAPES.default
     family: str = FAMILIES.default
     law: str = LAWS.default
     base_nodes: int = 13

@@ -1,6 +1,6 @@
 """The names a fit accepts and the defaults of its options, in one table (JAX-free).
 
-* :data:`SOLVERS`, :data:`SAMPLERS`, :data:`MODELS`, :data:`FAMILIES`, :data:`LAWS` — each a
+* :data:`SOLVERS`, :data:`SAMPLERS`, :data:`MODELS`, :data:`SHAPES`, :data:`FAMILIES`, :data:`LAWS`, :data:`MASKING` — each a
   :class:`Choices`: the accepted names in order, a one-line description of each
   (``SAMPLERS.summary("nuts")``, ``SAMPLERS.help()``) and the default (``SAMPLERS.default``);
 * :class:`FitDefaults`, :class:`SampleDefaults`, :class:`ModelDefaults` and their defaults
@@ -23,12 +23,14 @@ from ._choices import (
     FIT,
     FitDefaults,
     LAWS,
+    MASKING,
     MODEL,
     ModelDefaults,
     MODELS,
     SAMPLE,
     SampleDefaults,
     SAMPLERS,
+    SHAPES,
     SOLVERS,
 )
 
@@ -38,10 +40,12 @@ __all__ = [
     "FAMILIES",
     "FIT",
     "LAWS",
+    "MASKING",
     "MODEL",
     "MODELS",
     "SAMPLE",
     "SAMPLERS",
+    "SHAPES",
     "SOLVERS",
     "Choice",
     "Choices",

@@ -70,7 +70,7 @@ from ._resume import report_problem, resume_report
 from ._sample import Emcee, HMC, log_posterior, NUTS, sample, SampleResult, SAMPLERS
 from ._sample_many import sample_many
 from ._simulate import simulate
-from ._solve import SOLVERS
+from ._solve import resolve_solver, SOLVERS
 
 
 __all__ = [
@@ -109,6 +109,7 @@ __all__ = [
     "plot_recovered_statistics",
     "ratio_frequencies",
     "report_files",
+    "resolve_solver",
     "report_problem",
     "resume_report",
     "rewind_checkpoint",

@@ -62,7 +62,7 @@ from ._devices import device_list as _devices, joined, on_devices, split
 from ._fit import FitOptions
 from ._model import AbstractModel
 from ._problem import check_pair, Problem, Rows, stack_trees, starting_points
-from ._solve import solve_rows
+from ._solve import resolve_solver, solve_rows
 
 
 __all__ = ["COMPILE_ROWS", "BatchPlan", "bucket_points", "explain_plan", "fit_many"]
@@ -382,7 +382,7 @@ def fit_many(
     """
     problems = _problems(models, datasets)
     options = FitOptions(
-        solver=solver,
+        solver=resolve_solver(solver, [p.model for p in problems]),
         starts=starts,
         max_steps=max_steps,
         spread=spread,

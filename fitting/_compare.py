@@ -45,10 +45,11 @@ class Comparison(Shown):
 
     def lines(self) -> list[str]:
         """The table as text lines (the command prints them)."""
-        out = [f"  {'model':14s} {'χ²':>12s} {'p':>4s} {'AIC':>12s} {'BIC':>12s} {'ΔBIC':>9s}"]
+        width = max(14, *(len(r["model"]) for r in self.rows))
+        out = [f"  {'model':{width}s} {'χ²':>12s} {'p':>4s} {'AIC':>12s} {'BIC':>12s} {'ΔBIC':>9s}"]
         for r in self.rows:
             out.append(
-                f"  {r['model']:14s} {r['chi2']:12.2f} {r['parameters']:4d} {r['aic']:12.2f} "
+                f"  {r['model']:{width}s} {r['chi2']:12.2f} {r['parameters']:4d} {r['aic']:12.2f} "
                 f"{r['bic']:12.2f} {r['delta_bic']:9.2f}"
             )
         out.append(f"  preferred: {self.preferred['bic']} (BIC), {self.preferred['aic']} (AIC)")

@@ -20,7 +20,7 @@ from ._data import Dataset
 from ._model import AbstractModel
 from ._problem import check_pair, Problem, starting_points
 from ._result import FitResult
-from ._solve import check_solver, make_solver, solve
+from ._solve import check_solver, make_solver, resolve_solver, solve
 
 
 __all__ = ["FitOptions", "fit"]
@@ -83,7 +83,9 @@ def fit(
 
     Args:
         model, data: what to fit to what.
-        solver: ``"lm"`` (Levenberg–Marquardt, default), ``"lm_normal"`` (its steps by the
+        solver: ``"auto"`` (default: the model's ``preferred_solver`` — ``"lm_normal"`` for the
+            anisotropic models, ``"lm"`` for the others; the result records which),
+            ``"lm"`` (Levenberg–Marquardt), ``"lm_normal"`` (its steps by the
             normal equations: faster for many rows, e.g. the anisotropic models),
             ``"gauss_newton"``, ``"dogleg"`` or ``"bfgs"`` (a minimiser of ½‖r‖²), or an
             optimistix least-squares solver or minimiser object (e.g.
@@ -118,7 +120,7 @@ def fit(
     """
     check_pair(model, data, "fit(model, data)")
     options = FitOptions(
-        solver=solver,
+        solver=resolve_solver(solver, [model]),
         starts=starts,
         max_steps=max_steps,
         spread=spread,

@@ -28,6 +28,7 @@ non-parametric one in :mod:`fitting._smoothness`.
 
 import abc
 import math
+from typing import ClassVar
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -78,6 +79,11 @@ class AbstractModel(Shown, eqx.Module):
     """A forward map θ ↦ predicted images, with names, a prior box and starting points."""
 
     _show_hidden = ("smoothness_choice", "knots")
+
+    #: The solver that ``solver="auto"`` (the default of :func:`fitting.fit`) uses for this model:
+    #: Levenberg–Marquardt with QR steps; the anisotropic models, whose rows far outnumber their
+    #: parameters, take its normal-equation steps ("lm_normal", :mod:`fitting._solve`).
+    preferred_solver: ClassVar[str] = "lm"
 
     @property
     @abc.abstractmethod

@@ -60,6 +60,7 @@ centring, as ``brdfscale synth`` writes them).
 """
 
 import math
+from typing import ClassVar
 
 import equinox as eqx
 import jax
@@ -170,6 +171,7 @@ class AnisotropicNonParametricModel(AbstractModel):
     harmonics: int = eqx.field(static=True)
     smoothness: float = eqx.field(static=True)
     reference_variance: float = eqx.field(static=True)
+    preferred_solver: ClassVar[str] = "lm_normal"
     pitch: float = eqx.field(static=True)
     origin: float = eqx.field(static=True)
     grid_points: int = eqx.field(static=True)

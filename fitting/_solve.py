@@ -49,11 +49,21 @@ import optimistix as optx
 from brdfscale import choices, InvalidInputError
 
 
-__all__ = ["RESULT_NAMES", "SOLVERS", "STATIONARY_COSINE", "make_solver", "solve", "solve_rows", "solver_name"]
+__all__ = [
+    "RESULT_NAMES",
+    "SOLVERS",
+    "STATIONARY_COSINE",
+    "make_solver",
+    "resolve_solver",
+    "solve",
+    "solve_rows",
+    "solver_name",
+]
 
 SOLVERS = tuple(choices.SOLVERS)
-"""The solvers by name (:data:`brdfscale.choices.SOLVERS`): Levenberg–Marquardt (default; its
-damped steps solved by QR), Levenberg–Marquardt with normal-equation steps (``lm_normal``:
+"""The solvers by name (:data:`brdfscale.choices.SOLVERS`): ``auto`` (default: the model's
+``preferred_solver``, :func:`resolve_solver`), Levenberg–Marquardt (its damped steps solved by
+QR), Levenberg–Marquardt with normal-equation steps (``lm_normal``:
 ``JᵀJ + λI`` by Cholesky — one n × n system per step instead of a QR of the m × n Jacobian, the
 difference experiments/bench_anisotropic.py ``--normal`` measures on the anisotropic model's
 8-scale, 65² px fit; it squares the condition number, so it suits well-conditioned problems with
@@ -130,6 +140,15 @@ def check_solver(solver):
     )
 
 
+def resolve_solver(solver, models):
+    """``solver`` itself, or for ``"auto"`` the models' ``preferred_solver`` (``"lm"`` unless every
+    model prefers the same other one: one solver serves a batch)."""
+    if solver != "auto":
+        return solver
+    preferred = {getattr(m, "preferred_solver", "lm") for m in models}
+    return preferred.pop() if len(preferred) == 1 else "lm"
+
+
 def solver_name(solver) -> str:
     """The name a result records: the name given, or the optimistix object's class name."""
     return solver if isinstance(solver, str) else type(solver).__name__
@@ -143,7 +162,8 @@ def make_solver(solver, rtol: float, atol: float):
     solver = check_solver(solver)
     if is_solver(solver):
         return solver
-    return _SOLVER_CLASSES[solver](rtol=rtol, atol=atol, norm=optx.rms_norm)
+    name = "lm" if solver == "auto" else solver  # "auto" without a model to ask (resolve_solver): lm
+    return _SOLVER_CLASSES[name](rtol=rtol, atol=atol, norm=optx.rms_norm)
 
 
 def _residuals(theta, rows):

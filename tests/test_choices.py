@@ -95,6 +95,7 @@ def test_the_help_states_the_defaults_the_parser_uses(capsys):
         ("--model", choices.MODELS),
         ("--family", choices.FAMILIES),
         ("--law", choices.LAWS),
+        ("--shape", choices.SHAPES),
     ):
         assert f"{table.default} (default): {table.summary(table.default)}" in text, flag
     assert "(optimistix, then NUTS by default: --sampler)" in text and "optimistix + emcee" not in text
@@ -108,6 +109,7 @@ def test_the_help_states_the_defaults_the_parser_uses(capsys):
         (choices.MODELS, "model"),
         (choices.FAMILIES, "family"),
         (choices.LAWS, "law"),
+        (choices.SHAPES, "shape"),
     ],
 )
 def test_every_name_in_the_table_is_accepted_by_the_command_and_the_library(table, option):
@@ -136,15 +138,18 @@ def test_every_name_in_the_table_is_accepted_by_fitting():
         "parametric": fitting.ParametricModel,
         "nonparametric": fitting.NonParametricModel,
         "anisotropic": fitting.AnisotropicModel,
+        "isotropic": fitting.AnisotropicModel,
         "nonparametric_anisotropic": fitting.AnisotropicNonParametricModel,
     }.keys() == set(choices.MODELS)
+    for shape in choices.SHAPES:
+        assert fitting.AnisotropicModel(2, shape=shape).shape == shape
 
 
 def test_the_table_refuses_unknown_names_naming_the_argument():
     assert choices.SAMPLERS.check("hmc") == "hmc"
     with pytest.raises(InvalidInputError, match="sampler must be one of 'nuts', 'hmc', 'emcee'; got 'gibbs'"):
         choices.SAMPLERS.check("gibbs")
-    assert len(choices.SOLVERS) == len(set(choices.SOLVERS.names)) == 5
+    assert len(choices.SOLVERS) == len(set(choices.SOLVERS.names)) == 6
 
 
 def test_every_flag_the_translation_names_exists():

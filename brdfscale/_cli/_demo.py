@@ -154,6 +154,8 @@ def _run(args, exr, start) -> int:
         [
             "--out",
             args.out,
+            "--model",  # the demo's truth is a parametric law's (fit's default is the anisotropic model)
+            "parametric",
             "--law",
             "gaussian_surface",
             "--starts",

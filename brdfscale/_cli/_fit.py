@@ -14,7 +14,7 @@ import os
 import sys
 import types
 
-from .._choices import FAMILIES, FIT, LAWS, MODEL, MODELS, SAMPLE, SAMPLERS, SOLVERS
+from .._choices import FAMILIES, FIT, LAWS, MODEL, MODELS, SAMPLE, SAMPLERS, SHAPES, SOLVERS
 from .._errors import InvalidInputError
 from ._options import integer, MAX_SEED, output_directory, real, seed
 
@@ -56,6 +56,12 @@ def add_fit_options(parser) -> None:
         "one run at a time: a second run into it is refused (exit 3)",
     )
     parser.add_argument("--model", choices=MODELS.names, default=MODEL.model, help=f"the model — {MODELS.help()}")
+    parser.add_argument(
+        "--shape",
+        choices=SHAPES.names,
+        default=MODEL.shape,
+        help=f"base lobe shape of the anisotropic and isotropic models — {SHAPES.help()}",
+    )
     parser.add_argument(
         "--family",
         choices=FAMILIES.names,
@@ -158,7 +164,9 @@ def check_fit_options(args) -> None:
     if repeated:
         raise InvalidInputError(f"--fix {', '.join(repeated)} given more than once; fix each quantity once.")
     if args.fix and args.model != "parametric":
-        raise InvalidInputError("--fix applies to the parametric model only.")
+        raise InvalidInputError("--fix applies to the parametric model only (--model parametric).")
+    if args.shape != MODEL.shape and args.model not in ("anisotropic", "isotropic"):
+        raise InvalidInputError("--shape applies to the anisotropic and isotropic models only (--model anisotropic).")
     if args.regularisation is not None and args.model != "nonparametric":
         raise InvalidInputError("--regularisation applies to the non-parametric model only (--model nonparametric).")
 
@@ -195,6 +203,7 @@ def spec_of(args, *, sampler: bool = True):
 
     return FitSpec(
         model=args.model,
+        shape=args.shape,
         family=args.family,
         law=args.law,
         fixed=tuple(args.fix),
@@ -249,7 +258,56 @@ def register(subparsers) -> None:
         "statistics Σ(μ) with standard errors at the measured scales enter the likelihood as ΔΣ(μ0, μk) "
         "(the scales μ in the file's length unit, metres)",
     )
+    parser.add_argument(
+        "--compare",
+        action="store_true",
+        help="fit the candidate models (" + ", ".join(name for name, _ in COMPARED) + ", and --model's if "
+        "another) to the data, print their AIC and BIC (fitting.compare) and report — sample, write, exit status — "
+        "the one of smallest BIC; the table in fit.json's model.comparison",
+    )
     parser.set_defaults(func=run)
+
+
+#: The candidates of ``--compare``: (name in the table, FitSpec fields); the anisotropic
+#: non-parametric model is left out (minutes per fit; name it with --model to include it).
+COMPARED = (
+    ("isotropic", {"model": "isotropic", "shape": "gaussian"}),
+    ("anisotropic", {"model": "anisotropic", "shape": "gaussian"}),
+    ("anisotropic:student_t", {"model": "anisotropic", "shape": "student_t"}),
+)
+
+
+def _candidates(spec) -> list[tuple[str, object]]:
+    """``--compare``'s specs by name: :data:`COMPARED`, and ``spec``'s own model if it is another."""
+    import dataclasses
+
+    specs = [(name, dataclasses.replace(spec, **fields)) for name, fields in COMPARED]
+    if all((s.model, s.shape) != (spec.model, spec.shape) for _, s in specs):
+        own = spec.model if spec.model not in ("anisotropic", "isotropic") else f"{spec.model}:{spec.shape}"
+        specs.append((own, spec))
+    return specs
+
+
+def _compare(fitting, spec, data, stream):
+    """Fit every candidate of ``--compare``; returns the preferred (smallest BIC) model's
+    ``(spec, model, info, result)`` with the comparison table in ``info["comparison"]``."""
+    stream(
+        f"comparing models on {len(data.scale_of_image)} images at scales μ = {[float(s) for s in data.scales]} "
+        f"({data.n_data} valid pixels), {spec.starts} starts each ..."
+    )
+    fitted = {}
+    for name, candidate in _candidates(spec):
+        model, info = candidate.model_for(data)
+        stream(f"  comparing: fitting {name} ({len(model.names)} parameters) ...")
+        fitted[name] = (candidate, model, info, candidate.fit(model, data))
+    table = fitting.compare({name: entry[3] for name, entry in fitted.items()})
+    stream("  which model the data prefer (AIC = χ² + 2p, BIC = χ² + p ln n; the smaller the better):")
+    for line in table.lines():
+        stream(line)
+    chosen, model, info, result = fitted[table.preferred["bic"]]
+    stream(f"  reporting {table.preferred['bic']}, the model of smallest BIC")
+    info = {**info, "comparison": {**table.to_json(), "reported": table.preferred["bic"]}}
+    return chosen, model, info, result
 
 
 def fit_measurements(mset, args, *, stream=print) -> dict:
@@ -273,7 +331,11 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
         return {"outcome": resolved.to_json(), "data": {"unit": unit}}
     if spec.model == "nonparametric" and spec.regularisation in ("auto", "gcv"):
         stream("choosing the smoothness weight by generalised cross-validation (one pilot fit) ...")
-    model, info = spec.model_for(data)
+    result = None
+    if getattr(args, "compare", False):
+        spec, model, info, result = _compare(fitting, spec, data, stream)
+    else:
+        model, info = spec.model_for(data)
     if spec.sampler is not None:
         check_sampler_options(args, len(model.names))
     truth = fitting.truth_of(model, mset.metadata)  # a damaged truth is refused before the work, not after
@@ -286,16 +348,20 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
         stream(resuming)
     with files.exclusive(args.out, what="output directory"):
         return _fit_and_report(
-            fitting, spec, data, model, info, truth, args, stream, resume=resuming is not None, unit=unit
+            fitting, spec, data, model, info, truth, args, stream, resume=resuming is not None, unit=unit, result=result
         )
 
 
-def _fit_and_report(fitting, spec, data, model, info, truth, args, stream, resume=False, unit=None) -> dict:
-    stream(
-        f"fitting {len(data.scale_of_image)} images at scales μ = {[float(s) for s in data.scales]} "
-        f"({data.n_data} valid pixels), {len(model.names)} parameters, {spec.starts} starts ..."
-    )
-    result = spec.fit(model, data)
+def _fit_and_report(
+    fitting, spec, data, model, info, truth, args, stream, resume=False, unit=None, result=None
+) -> dict:
+    """Fit (unless ``result``, --compare's fit of this model, is given), sample and write the report."""
+    if result is None:
+        stream(
+            f"fitting {len(data.scale_of_image)} images at scales μ = {[float(s) for s in data.scales]} "
+            f"({data.n_data} valid pixels), {len(model.names)} parameters, {spec.starts} starts ..."
+        )
+        result = spec.fit(model, data)
     stream(
         f"  {result.status}: χ²/dof = {result.chi2 / result.dof:.3f}, "
         f"{sum(s['at_best'] for s in result.starts)}/{len(result.starts)} starts at the optimum"

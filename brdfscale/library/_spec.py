@@ -6,7 +6,7 @@ import math
 import os
 import types
 
-from .._choices import FAMILIES, FIT, LAWS, MODEL, MODELS, SAMPLE, SAMPLERS, SOLVERS
+from .._choices import FAMILIES, FIT, LAWS, MODEL, MODELS, SAMPLE, SAMPLERS, SHAPES, SOLVERS
 from .._errors import InvalidInputError
 
 
@@ -25,6 +25,7 @@ def make_model(
     data,
     *,
     model=MODEL.model,
+    shape=MODEL.shape,
     family=MODEL.family,
     law=MODEL.law,
     fixed=None,
@@ -34,9 +35,11 @@ def make_model(
     solver=FIT.solver,
 ):
     """The fitting model for ``data`` and the report's description of it (``fit.json``'s
-    ``model``): a :class:`fitting.ParametricModel` (``family`` for lobe and statistics, scale
-    ``law``, ``fixed`` values checked inside their prior box for these data) or a
-    :class:`fitting.NonParametricModel` built from ``data``.
+    ``model``): a :class:`fitting.AnisotropicModel` (default; base lobe ``shape``; ``"isotropic"``
+    its isotropic special case), a :class:`fitting.ParametricModel` (``family`` for lobe and
+    statistics, scale ``law``, ``fixed`` values checked inside their prior box for these data) or a
+    non-parametric model built from ``data``. The report's ``solver`` is the one ``solver`` stands
+    for with this model (``"auto"`` resolved).
 
     Raises:
         InvalidInputError: a fixed value outside its box (prefixed ``fixed:``), or the model's own refusals.
@@ -59,9 +62,14 @@ def make_model(
             "scale_law": LAWS.summary(law),
             "fixed": fixed,
         }
-    elif model == "anisotropic":
-        built = fitting.AnisotropicModel(len(data.scales))
-        info = {"kind": "anisotropic", "lobe": "gaussian (full covariance, free centre)", "scale_law": "ΔΣ per scale"}
+    elif model in ("anisotropic", "isotropic"):
+        isotropic = model == "isotropic"
+        built = fitting.AnisotropicModel(len(data.scales), isotropic=isotropic, shape=shape)
+        info = {
+            "kind": model,
+            "lobe": f"{shape} ({'isotropic, centred' if isotropic else 'full covariance, free centre'})",
+            "scale_law": "ΔΣ per scale" + (" (d_k I)" if isotropic else " (full 2 × 2)"),
+        }
     elif model == "nonparametric_anisotropic":
         if isinstance(regularisation, str):
             raise InvalidInputError(
@@ -86,7 +94,7 @@ def make_model(
             "knots_W": list(built.knots),
             "smoothness": built.smoothness,
         }
-    info["solver"] = solver
+    info["solver"] = fitting.resolve_solver(solver, [built])
     return built, info
 
 
@@ -108,6 +116,7 @@ class FitSpec:
     """
 
     model: str = MODEL.model
+    shape: str = MODEL.shape
     family: str = MODEL.family
     law: str = MODEL.law
     fixed: tuple = ()
@@ -126,6 +135,7 @@ class FitSpec:
 
     def __post_init__(self):
         MODELS.check(self.model)
+        SHAPES.check(self.shape)
         FAMILIES.check(self.family)
         LAWS.check(self.law)
         SOLVERS.check(self.solver)
@@ -147,6 +157,7 @@ class FitSpec:
         return make_model(
             data,
             model=self.model,
+            shape=self.shape,
             family=self.family,
             law=self.law,
             fixed=dict(self.fixed),
