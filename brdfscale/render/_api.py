@@ -1,0 +1,130 @@
+"""``register`` and ``bsdf``: the public entry points of the Mitsuba plugin (issue 33 item 1)."""
+
+import sys
+import threading
+
+from .. import _mitsuba
+from .._errors import InvalidInputError
+from ..lobes import AbstractLobe
+from ._masking import masking_choice
+from ._material import DEFAULT_LEVELS, lobe_table
+from ._plugin import bsdf_class, check_positive, PLUGIN, Tables
+
+
+_REGISTERED: set[tuple[str, str]] = set()
+_LOCK = threading.Lock()
+
+
+def mitsuba(variant=None):
+    """Mitsuba with ``variant``; without one, the variant already selected in this process, else
+    :func:`brdfscale._mitsuba.mitsuba`'s default (Mitsuba's variant is process-wide: a scene built in one variant
+    cannot hold objects of another)."""
+    if variant is None:
+        loaded = sys.modules.get("mitsuba")
+        current = loaded.variant() if loaded is not None else None
+        variant = current or None
+    return _mitsuba.mitsuba(variant)
+
+
+def register(variant: str | None = None) -> str:
+    """Register the BSDF ``"brdfscale"`` and the integrator ``"brdfscale_footprint"`` with Mitsuba (for
+    ``mi.load_dict``); idempotent, per variant. Returns the variant.
+
+    In a scene dictionary: ``{"type": "brdfscale", "filename": "lobes.exr", "mu": 4.0, "masking": True,
+    "texel": 0.01}`` — ``filename`` an evolved lobe table (:func:`brdfscale.exr.write_lobe_table`, e.g. of
+    :func:`lobe_table`), ``mu`` a fixed scale (omit it to take the footprint), ``texel`` the scene length of one
+    unit of μ.
+    """
+    from ._integrator import INTEGRATOR, integrator_class
+
+    mi = mitsuba(variant)
+    key = mi.variant()
+    with _LOCK:
+        if (key, PLUGIN) not in _REGISTERED:
+            cls = bsdf_class(mi)
+            mi.register_bsdf(PLUGIN, lambda props: cls(props))
+            _REGISTERED.add((key, PLUGIN))
+        if (key, INTEGRATOR) not in _REGISTERED:
+            icls = integrator_class(mi)
+            mi.register_integrator(INTEGRATOR, lambda props: icls(props))
+            _REGISTERED.add((key, INTEGRATOR))
+    return key
+
+
+def bsdf(
+    base_lobe: AbstractLobe | None,
+    statistics,
+    *,
+    mu0: float | None = None,
+    mu: float | None = None,
+    masking=True,
+    variant: str | None = None,
+    texel: float = 1.0,
+    scales=None,
+    levels: int = DEFAULT_LEVELS,
+    size: int = 128,
+    extent: float | None = None,
+    method="auto",
+):
+    """A Mitsuba BSDF rendering ``base_lobe`` (the BRDF at μ0) evolved with ``statistics`` to each interaction's scale.
+
+    The lobe is evolved in JAX once, to every scale of a ladder (:func:`lobe_table`: ``scales``, or ``levels``
+    scales ``μ0·2^k``), and tabulated; Mitsuba interpolates the table (bilinear in the slope offset, linear in ln μ,
+    clamped to the ladder's ends), so rendering never calls JAX. The object goes into ``mi.load_dict`` scenes as
+    any BSDF (``{"type": "rectangle", "bsdf": bsdf(...)}``).
+
+    Args:
+        base_lobe: a :mod:`brdfscale.lobes` lobe at μ0 (None with an evolved LobeTable).
+        statistics: a scale law (anything with ``.at(μ)``: :class:`brdfscale.stats.GaussianSurface`,
+            :class:`~brdfscale.stats.ScaledFamily`, :class:`~brdfscale.stats.MeasuredScaleLaw`, …), a
+            :class:`fitting.FitResult` (its covariance differences), or an evolved
+            :class:`brdfscale.exr.LobeTable` (e.g. read from EXR).
+        mu0: the scale of ``base_lobe`` (same length unit as the law's μ).
+        mu: a fixed observation scale for every interaction (the fallback for any integrator); None: the
+            interaction's footprint, which :func:`FootprintIntegrator` provides (Mitsuba's stock integrators do not:
+            there the footprint is 0 and the ladder's finest scale is used).
+        masking: True (Smith, height-correlated ``G₂ = 1/(1 + Λ_i + Λ_o)``), False, or a
+            :class:`brdfscale.lobes.SmithMasking` / :class:`~brdfscale.lobes.NoMasking` choice.
+        variant: a Mitsuba variant; default the one already selected, else the first that runs here.
+        texel: the scene length of one unit of μ (footprint lengths are divided by it).
+        scales, levels, size, extent, method: the ladder and grid of :func:`lobe_table`.
+
+    Raises InvalidInputError for statistics of another kind or bad options (naming what is accepted),
+    :class:`brdfscale.NoBRDFAtScaleError` where the lobe has no BRDF at a scale of the ladder,
+    :class:`brdfscale.MissingDependencyError` without Mitsuba.
+    """
+    if mu is not None:
+        mu = check_positive(mu, "mu", "a fixed observation scale, in the law's length unit")
+    texel = check_positive(texel, "texel", "the scene length of one unit of μ")
+    choice = masking_choice(masking)
+    if scales is None and mu is not None and base_lobe is not None:
+        scales = [mu]  # one scale is all a fixed-μ material needs
+    table = lobe_table(
+        base_lobe, statistics, mu0=mu0, scales=scales, levels=levels, size=size, extent=extent, method=method
+    )
+    mi = mitsuba(variant)
+    cls = bsdf_class(mi)
+    obj = cls(mi.Properties(PLUGIN))
+    obj.load(Tables(table, choice, mu=mu, texel=texel))
+    return obj
+
+
+def FootprintIntegrator(  # noqa: N802 (it builds a Mitsuba object of the current variant's class)
+    *, max_depth: int = 3, output: str = "radiance", footprint: str = "pixel", variant: str | None = None
+):
+    """The path tracer ``"brdfscale_footprint"`` (brdfscale/render/_integrator.py), as a Mitsuba integrator object.
+
+    It fills the uv partials of every first hit from the camera ray's differentials, so a :func:`bsdf` without a
+    fixed ``mu`` renders each pixel at its footprint ``μ = √(pixel's area on the surface) / texel``. ``max_depth``:
+    path segments (2: direct lighting); ``output="footprint"``: the footprint length (scene units) instead of
+    radiance; ``footprint="sample"``: Mitsuba's per-sample differentials (``1/√spp`` of the pixel's).
+    Use it as ``mi.render(scene, integrator=FootprintIntegrator())`` or, after :func:`register`, as
+    ``{"type": "brdfscale_footprint"}`` in a scene dictionary.
+    """
+    from ._integrator import INTEGRATOR
+
+    if isinstance(max_depth, bool) or not isinstance(max_depth, int):
+        raise InvalidInputError(f"max_depth must be an integer ≥ 1 (path segments); got {max_depth!r}.")
+    mi = mitsuba(variant)
+    register(mi.variant())
+    return mi.load_dict({"type": INTEGRATOR, "max_depth": max_depth, "output": output, "footprint": footprint})

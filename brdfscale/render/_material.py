@@ -1,0 +1,164 @@
+"""A material as tables: the evolved lobe on a log-μ ladder, computed once in JAX (issue 33 item 1).
+
+A brdfscale material is a base lobe at the scale μ0 plus the statistics of its facets across scales. The renderer
+needs the lobe at the observation scale μ of every interaction; calling JAX per ray would be far too slow, so the
+lobe is evolved here (seed Eq. 4.4, :func:`brdfscale.evolve`) to every scale of a ladder ``μ_0 < … < μ_{L−1}``
+evenly spaced in ln μ and tabulated on one grid of half-vector slope offsets — an :class:`brdfscale.exr.LobeTable`,
+the same object an evolved table read from EXR is — and the Mitsuba plugin (:mod:`._plugin`) interpolates it
+bilinearly in the offset and linearly in ln μ.
+
+Statistics accepted (:func:`as_scale_law`): anything with ``.at(μ)`` returning a :mod:`brdfscale.stats` density (the
+scale laws, :class:`brdfscale.stats.MeasuredScaleLaw`); a :class:`fitting.FitResult` with its covariance differences
+``ΔΣ(μ0, μ_k)`` (fit.json's ``covariance_differences``); a :class:`brdfscale.exr.LobeTable` (already tabulated).
+"""
+
+import math
+
+import jax.numpy as jnp
+import numpy as np
+
+from .. import stats
+from .._errors import InvalidInputError
+from .._evolve import evolve
+from .._validation import integer, real
+from ..exr import LobeTable
+from ..lobes import AbstractLobe
+
+
+ACCEPTED = (
+    "a scale law (anything with .at(μ) returning a brdfscale.stats density: stats.GaussianSurface, "
+    "stats.ScaledFamily, stats.MeasuredScaleLaw, …), a fitting.FitResult with covariance_differences, "
+    "or an evolved brdfscale.exr.LobeTable (e.g. exr.read_lobe_table(path))"
+)
+
+DEFAULT_LEVELS = 9
+"""Scales on the default ladder: ``μ0 · 2^k``, k = 0 … 8 (or the measured range of a MeasuredScaleLaw)."""
+
+SUPPORT_TOL = 1e-4
+"""The lobe tables reach where every level's lobe has fallen below this fraction of its peak (``support_radius``)."""
+
+
+def _fit_law(fit, mu0):
+    """A :class:`stats.MeasuredScaleLaw` with the fit's ``ΔΣ(μ0, μ_k) = Σ(μ0) − Σ(μ_k)``.
+
+    Evolution needs only ``S(W, μ0)/S(W, μ_k)``, which for Gaussian statistics is ``exp(−WᵀΔΣ_k W/2)`` whatever
+    ``Σ(μ0)`` is; the law takes ``Σ(μ0) = K`` with K the smallest multiple of the identity that keeps every
+    ``K − ΔΣ_k`` positive definite (plus 1e-6), and ``Σ(μ_k) = K − ΔΣ_k``.
+    """
+    diffs = fit.covariance_differences
+    if not diffs:
+        raise InvalidInputError(
+            "the FitResult has no covariance_differences (a model without finite second moments, e.g. GGX "
+            f"statistics, or one scale only); give instead {ACCEPTED}."
+        )
+    fit_mu0 = float(diffs[0]["mu0"])
+    if mu0 is not None and not math.isclose(float(mu0), fit_mu0, rel_tol=1e-9):
+        raise InvalidInputError(f"mu0 = {mu0} differs from the fit's reference scale μ0 = {fit_mu0}; omit mu0.")
+    values = [d["value"] for d in diffs]
+    if any(v is None or any(x is None for row in v for x in row) for v in values):
+        raise InvalidInputError(
+            "the FitResult's covariance_differences are not all determined (None entries); a material needs "
+            f"every ΔΣ(μ0, μ_k). Give instead {ACCEPTED}."
+        )
+    delta = np.array([np.zeros((2, 2))] + [np.asarray(v, float) for v in values])
+    mus = np.array([fit_mu0] + [float(d["mu"]) for d in diffs])
+    order = np.argsort(mus)
+    k = max(0.0, float(np.max(np.linalg.eigvalsh(delta)[:, -1]))) + 1e-6
+    cov = k * np.eye(2) - delta
+    return stats.MeasuredScaleLaw(mus[order], cov[order]), fit_mu0
+
+
+def as_scale_law(statistics, mu0):
+    """``(law, μ0)`` from the statistics accepted by :func:`brdfscale.render.bsdf` (a LobeTable is not a law)."""
+    if callable(getattr(statistics, "at", None)):
+        if mu0 is None:
+            raise InvalidInputError("mu0 is required with a scale law: the scale at which base_lobe holds.")
+        return statistics, real(mu0, "mu0", minimum=0, strict=True)
+    from brdfscale import fitting
+
+    if isinstance(statistics, fitting.FitResult):
+        return _fit_law(statistics, mu0)
+    raise InvalidInputError(f"statistics must be {ACCEPTED}; got {type(statistics).__name__}.")
+
+
+def default_scales(law, mu0: float, levels: int) -> np.ndarray:
+    """The ladder ``μ0 · 2^k`` (k < levels); for a law measured over ``[μ_1, μ_n]`` (``.mu``), ``levels`` scales
+    evenly spaced in ln μ over ``[max(μ0, μ_1), μ_n]``."""
+    measured = getattr(law, "mu", None)
+    if measured is not None:
+        lo, hi = max(mu0, float(np.min(measured))), float(np.max(measured))
+        if hi > lo:
+            return np.geomspace(lo, hi, levels)
+    return mu0 * 2.0 ** np.arange(levels)
+
+
+def check_scales(scales) -> np.ndarray:
+    s = np.atleast_1d(np.asarray(scales, dtype=float))
+    if s.ndim != 1 or not np.all(np.isfinite(s)) or not np.all(s > 0) or not np.all(np.diff(s) > 0):
+        raise InvalidInputError(f"scales must be finite positive increasing facet sizes μ; got {scales!r}.")
+    return s
+
+
+def lobe_table(
+    base_lobe: AbstractLobe,
+    statistics,
+    *,
+    mu0: float | None = None,
+    scales=None,
+    levels: int = DEFAULT_LEVELS,
+    size: int = 128,
+    extent: float | None = None,
+    method="auto",
+) -> LobeTable:
+    """The evolved lobe ``A·g(u, μ_k)`` tabulated at every scale of a ladder (what :func:`bsdf` renders).
+
+    For each ``μ_k``: ``brdfscale.evolve(base_lobe, law.at(μ0), law.at(μ_k), method)`` (seed Eq. 4.4), its
+    ``density(u)`` on ``size × size`` nodes over ``[−extent, extent]²`` (:meth:`brdfscale.exr.LobeTable.from_lobes`).
+
+    Args:
+        base_lobe: the lobe at μ0 (:mod:`brdfscale.lobes`).
+        statistics: a scale law or a FitResult (see the module docstring; a LobeTable is returned as it is
+            when base_lobe is None).
+        mu0: the scale of ``base_lobe`` (a FitResult brings its own).
+        scales: the ladder, increasing (default :func:`default_scales` with ``levels`` scales).
+        size: nodes per axis. extent: the grid's half-width in slope units (default: the largest
+            ``support_radius(1e-4)`` of the evolved lobes, so the tails beyond it hold < 1e-4 of each peak).
+
+    Raises InvalidInputError for statistics of another kind (naming those accepted), a missing ``mu0``, a bad ladder
+    or grid; :class:`brdfscale.NoBRDFAtScaleError` where no lobe exists at a scale of the ladder (finer than the
+    statistics allow).
+    """
+    if isinstance(statistics, LobeTable):
+        if base_lobe is not None:
+            raise InvalidInputError("a LobeTable is already evolved: pass base_lobe=None with it.")
+        return statistics
+    if not isinstance(base_lobe, AbstractLobe):
+        raise InvalidInputError(
+            f"base_lobe must be a brdfscale.lobes lobe (the BRDF at μ0); got {type(base_lobe).__name__}."
+        )
+    law, mu0 = as_scale_law(statistics, mu0)
+    levels = integer(levels, "levels", 1)
+    ladder = default_scales(law, mu0, levels) if scales is None else check_scales(scales)
+    size = integer(size, "size", 4)
+    s0 = law.at(mu0)
+    evolved = [evolve(base_lobe, s0, law.at(float(mu)), method) for mu in ladder]
+    if extent is None:
+        extent = max(float(jnp.max(lobe.shape.support_radius(SUPPORT_TOL))) for lobe in evolved)
+    extent = real(extent, "extent", minimum=0, strict=True)
+    meta = {
+        "what": "brdfscale.render.lobe_table: base lobe evolved from mu0 to each scale",
+        "mu0": float(mu0),
+        "base_lobe": type(base_lobe).__name__,
+        "statistics": type(statistics).__name__,
+    }
+    return LobeTable.from_lobes(ladder, evolved, extent=extent, size=size, metadata=meta)
+
+
+def scalar_table(table: LobeTable) -> np.ndarray:
+    """The table's values (k, n, n), refusing RGB tables (the plugin renders one channel)."""
+    if table.values.ndim != 3:
+        raise InvalidInputError(
+            "the Mitsuba plugin renders one-channel lobe tables (k, n, n); this one is RGB (k, n, n, 3) — "
+            "render each channel's table as its own material, or average them."
+        )
+    return np.asarray(table.values, dtype=float)
