@@ -1,1 +1,31 @@
-"""A ray-traced multi-scale gonioreflectometer on Mitsuba 3 (issue 32; extra ``brdfscale[render]``)."""
+"""A ray-traced multi-scale gonioreflectometer on Mitsuba 3 (issue 32; extra ``brdfscale[render]``).
+
+* :func:`measure` — lobe images of a :class:`brdfscale.synth.HeightField` at several spot sizes μ and incident
+  directions, as a :class:`brdfscale.MeasurementSet` in the layout of :func:`brdfscale.synth.gonioreflectometer`
+  (half-slope offsets, ``ρ = A·g(u)/(4 cosθ_o cos⁴θ_h)``), with the Monte Carlo standard error as σ: spots aligned to
+  their own mean planes, mirror/Beckmann/GGX facets with optional Fresnel, shadowing and masking by ray
+  intersection, interreflection up to ``bounces``;
+* :class:`Measurement` — the same measurement split into :class:`Task` s that give the same result, bit for bit,
+  whatever the split (run in this process or on any cluster that can pickle them);
+* :func:`mesh` — a height field as a Mitsuba triangle mesh (unmeasured pixels left out; bounded by
+  :data:`MAX_MESH_BYTES`), :func:`mesh_bytes` its size.
+
+Nothing here imports Mitsuba until called (:mod:`brdfscale._mitsuba` picks the variant). Guide: docs/instrument.md.
+"""
+
+from ._measure import DEFAULT_BATCHES, DEFAULT_RAYS, MAX_BOUNCES, measure, Measurement, Task, TaskResult
+from ._mesh import MAX_MESH_BYTES, mesh, mesh_bytes
+
+
+__all__ = [
+    "measure",
+    "Measurement",
+    "Task",
+    "TaskResult",
+    "mesh",
+    "mesh_bytes",
+    "MAX_MESH_BYTES",
+    "DEFAULT_RAYS",
+    "DEFAULT_BATCHES",
+    "MAX_BOUNCES",
+]
