@@ -8,9 +8,11 @@ no ``fit.json``. :func:`resume_report` tells that state from a finished report:
 
 * no report file in ``DIR``, or ``overwrite``: a fresh report (``DIR`` checked and created by
   :func:`fitting.check_report_directory`);
-* ``fit.json`` present and a readable JSON object: the report is complete — refused, as
-  :func:`fitting.check_report_directory` refuses it (an ``overwrite`` is needed);
-* some report files but no readable ``fit.json``, and — when the run samples — a checkpoint
+* the report complete (:func:`report_problem`: ``fit.json`` a JSON object with every section of
+  a report, and every file it lists present): refused, as :func:`fitting.check_report_directory`
+  refuses it (an ``overwrite`` is needed);
+* some report files but no complete report (``fit.json`` missing, cut short, or a file it lists
+  gone), and — when the run samples — a checkpoint
   that verifies whole (:func:`fitting._checkpoint.verify`: every chunk's SHA-256, no NaN) and
   holds every step the run asks for: the report phase is resumed. The chain is not sampled
   again (``fitting.sample`` finds it complete and only reads it; the same fit, the same chain,
@@ -32,18 +34,45 @@ from ._checkpoint import verify
 from ._report import check_report_directory, report_files
 
 
-__all__ = ["resume_report"]
+__all__ = ["REPORT_KEYS", "report_problem", "resume_report"]
 
 
-def _complete(path: str) -> bool:
-    """Whether ``path`` (a report's fit.json) is there and reads as a JSON object."""
+#: What every complete report's fit.json holds (:func:`fitting.write_report` writes it last, when
+#: every file it lists is in place).
+REPORT_KEYS = ("model", "data", "parameters", "ratios", "identifiability", "optimisation", "mcmc", "figures", "tables")
+
+
+def report_problem(directory) -> str | None:
+    """Why the report of :func:`fitting.write_report` in ``directory`` is not complete, or None
+    when it is: its ``fit.json`` (written last) present, a JSON object with every section of a
+    report (:data:`REPORT_KEYS`), and every file it lists (figures, tables, posterior) present
+    beside it. The one check of a finished report, for ``brdfscale fit`` (:func:`resume_report`)
+    and for each material of a library (``brdfscale.library``). Verified in
+    tests/test_checkpoint_integrity.py and tests/test_library_robustness.py."""
+    directory = os.fspath(directory)
     try:
-        with open(path, encoding="utf-8") as f:
-            return isinstance(json.load(f), dict)
+        with open(os.path.join(directory, "fit.json"), encoding="utf-8") as f:
+            doc = json.load(f)
     except FileNotFoundError:
-        return False
-    except (OSError, ValueError):
-        return False  # cut short or damaged: written anew
+        return "no fit.json (the report is incomplete)"
+    except (OSError, ValueError, RecursionError) as err:
+        return f"fit.json is unreadable ({' '.join(str(err).split())[:160]})"
+    if not isinstance(doc, dict):
+        return "fit.json is not a report"
+    missing = [key for key in REPORT_KEYS if key not in doc]
+    if missing:
+        return f"fit.json is incomplete (no {', '.join(missing)})"
+    if not isinstance(doc["figures"], list) or not isinstance(doc["tables"], (list, str)):
+        return "fit.json's list of figures or tables is damaged"
+    listed = [*doc["figures"], *(doc["tables"] if isinstance(doc["tables"], list) else [])]
+    if isinstance(doc.get("posterior"), str) and not doc["posterior"].startswith("not written"):
+        listed.append(doc["posterior"])
+    for file in listed:
+        if not isinstance(file, str):
+            return "fit.json lists a file that is not a path"
+        if not os.path.isfile(os.path.join(directory, os.path.basename(file))):
+            return f"{os.path.basename(file)}, listed in fit.json, is missing"
+    return None
 
 
 def resume_report(out_dir, overwrite: bool = False, *, checkpoint=None, steps: int = 0) -> str | None:
@@ -75,12 +104,12 @@ def resume_report(out_dir, overwrite: bool = False, *, checkpoint=None, steps: i
     if not os.path.isdir(out_dir) or not any(os.path.lexists(p) for p in report_files(out_dir)):
         check_report_directory(out_dir, False)  # nothing there: creates the directory (or names what is wrong)
         return None
-    report = os.path.join(os.fspath(out_dir), "fit.json")
-    if _complete(report):
+    problem = report_problem(out_dir)
+    if problem is None:
         return _refuse(out_dir, "")  # a finished report: refused, its files listed
     if steps == 0:
         return (
-            f"resuming the report in {out_dir}: fit.json is missing or incomplete and the run samples nothing; "
+            f"resuming the report in {out_dir}: {problem} and the run samples nothing; "
             "the fit is made again and the report's files are written anew"
         )
     if checkpoint is None or not os.path.isfile(checkpoint):
@@ -94,7 +123,7 @@ def resume_report(out_dir, overwrite: bool = False, *, checkpoint=None, steps: i
             "report in progress of this run.",
         )
     return (
-        f"resuming the report in {out_dir}: fit.json is missing or incomplete, the chain {checkpoint} is complete "
+        f"resuming the report in {out_dir}: {problem}; the chain {checkpoint} is complete "
         f"({stored.steps} steps, every chunk verified) and is not sampled again; the report's files are written anew"
     )
 

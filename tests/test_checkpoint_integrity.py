@@ -28,7 +28,7 @@ import pytest
 
 import brdfscale
 from brdfscale import exr, fitting, InvalidInputError, MeasurementFileError, OutputWriteError
-from brdfscale.fitting import _checkpoint
+from brdfscale.fitting import _checkpoint, _resume
 from tests.helpers import Linear, linear_measurements, run_command
 
 
@@ -304,9 +304,17 @@ def test_resume_report_decides_from_the_report_and_the_verified_chain(runs, tmp_
         fitting.resume_report(out, checkpoint=out / "chain.h5", steps=30)
     (out / "fit.json").write_text('{"parameters": {}')  # cut short: not a finished report
     assert fitting.resume_report(out, checkpoint=out / "chain.h5", steps=20) is not None
-    (out / "fit.json").write_text("{}")  # a finished report: refused as before
-    with pytest.raises(InvalidInputError, match="already holds corner.png, fit.json"):
+    (out / "fit.json").write_text("{}")  # a JSON object without a report's sections: not a finished report
+    assert "fit.json is incomplete (no model, data" in fitting.resume_report(out, checkpoint=out / "chain.h5", steps=20)
+    finished = {key: {} for key in _resume.REPORT_KEYS} | {"figures": ["corner.png", "fit.png"], "tables": []}
+    (out / "fit.json").write_text(json.dumps(finished))  # lists a figure that is not there: not finished either
+    line = fitting.resume_report(out, checkpoint=out / "chain.h5", steps=20)
+    assert line is not None and "fit.png, listed in fit.json, is missing" in line
+    (out / "fit.png").write_bytes(b"\x89PNG")  # every section, every file it lists: a finished report, refused
+    assert fitting.report_problem(out) is None
+    with pytest.raises(InvalidInputError, match="already holds corner.png, .*fit.json"):
         fitting.resume_report(out, checkpoint=out / "chain.h5", steps=20)
+    os.remove(out / "fit.png")
     assert fitting.resume_report(out, True, checkpoint=out / "chain.h5", steps=20) is None  # overwrite
     os.remove(out / "fit.json")
     offset, _ = _chunk_bytes(out / "chain.h5", "chain", 3)

@@ -13,7 +13,6 @@ damaged afterwards (``fit.json`` deleted, truncated, a listed file gone) is take
 """
 
 import contextlib
-import json
 import os
 import shutil
 import time
@@ -36,40 +35,14 @@ def partial_directory(out: str, name: str) -> str:
     return os.path.join(out, "materials", f".{name}.partial")
 
 
-#: What every complete report's fit.json holds (fitting.write_report writes it last, when every
-#: file it lists is in place).
-_REPORT_KEYS = ("model", "data", "parameters", "ratios", "identifiability", "optimisation", "mcmc", "figures", "tables")
-
-
 def report_problem(directory: str) -> str | None:
-    """Why the material report in ``directory`` is not complete, or None when it is: its
-    ``fit.json`` (written last by :func:`fitting.write_report`) present, a JSON object with
-    every section of a report, and every file it lists (figures, tables, posterior) present
-    beside it. The one check of a finished material, for the driver and the tasks alike."""
-    path = os.path.join(directory, "fit.json")
-    try:
-        with open(path, encoding="utf-8") as f:
-            doc = json.load(f)
-    except FileNotFoundError:
-        return "no fit.json (the report is incomplete)"
-    except (OSError, ValueError, RecursionError) as err:
-        return f"fit.json is unreadable ({' '.join(str(err).split())[:160]})"
-    if not isinstance(doc, dict):
-        return "fit.json is not a report"
-    missing = [key for key in _REPORT_KEYS if key not in doc]
-    if missing:
-        return f"fit.json is incomplete (no {', '.join(missing)})"
-    if not isinstance(doc["figures"], list) or not isinstance(doc["tables"], (list, str)):
-        return "fit.json's list of figures or tables is damaged"
-    listed = [*doc["figures"], *(doc["tables"] if isinstance(doc["tables"], list) else [])]
-    if isinstance(doc.get("posterior"), str) and not doc["posterior"].startswith("not written"):
-        listed.append(doc["posterior"])
-    for file in listed:
-        if not isinstance(file, str):
-            return "fit.json lists a file that is not a path"
-        if not os.path.isfile(os.path.join(directory, os.path.basename(file))):
-            return f"{os.path.basename(file)}, listed in fit.json, is missing"
-    return None
+    """Why the material report in ``directory`` is not complete, or None when it is:
+    :func:`fitting.report_problem`, the one check of a finished report, for the driver and the
+    tasks alike (imported here on first use: a driver that only schedules Ray tasks imports the
+    fitting stack only when it meets a report to check)."""
+    from .. import fitting
+
+    return fitting.report_problem(directory)
 
 
 def take_over(out: str, name: str) -> str:
