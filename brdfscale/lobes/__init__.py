@@ -8,6 +8,11 @@ the mirror-microfacet factor ``F = 1/(4 cosθ_o cos⁴θ_h)`` of
 (``∫ g d²u = 1``), so every :mod:`brdfscale.stats` family can serve as a lobe, and the
 amplitude ``A`` is the lobe's integral over half-vector slope offsets ``u = m_s − m∞``.
 A mirror gives ``g = δ``.
+
+Masking and shadowing (beyond the seed; docs/masking.md): :meth:`AbstractLobe.evaluate` takes
+``masking=`` — :class:`NoMasking` (the seed's ``G = 1``, the default ``brdfscale.choices.MASKING``)
+or :class:`SmithMasking`, whose ``G₂(i, o)`` uses the lobe's own shape as the facet-slope density
+(:func:`brdfscale.stats.smith_lambda`), so an evolved lobe is masked by its shape at its scale.
 """
 
 import equinox as eqx
@@ -21,9 +26,21 @@ from .._show import derived, Shown
 from .._slopes import half_slope_of_valid, microfacet_factor_of_valid
 from .._validation import as_float_array, is_concrete
 from ..geometry import validate_directions
+from ._masking import AbstractMasking, as_masking, NoMasking, SmithMasking
 
 
-__all__ = ["AbstractLobe", "Lobe", "Mirror", "Beckmann", "GGX", "Tabulated"]
+__all__ = [
+    "AbstractLobe",
+    "Lobe",
+    "Mirror",
+    "Beckmann",
+    "GGX",
+    "Tabulated",
+    "AbstractMasking",
+    "NoMasking",
+    "SmithMasking",
+    "as_masking",
+]
 
 
 class AbstractLobe(Shown, eqx.Module):
@@ -56,11 +73,17 @@ class AbstractLobe(Shown, eqx.Module):
         i: Float[ArrayLike, "#*batch 3"],
         o: Float[ArrayLike, "#*batch 3"],
         m_inf: Float[ArrayLike, "#*batch 2"] | None = None,
+        *,
+        masking: "AbstractMasking | str | None" = None,
     ) -> Float[Array, "*batch"]:
-        """``ρ(i, o, m∞) = A · F(i, o) · g(m_s(i, o) − m∞)`` (seed §2: ρ = β cosθ_i).
+        """``ρ(i, o, m∞) = A · F(i, o) · g(m_s(i, o) − m∞)`` (seed §2: ρ = β cosθ_i), times ``G₂``.
 
         ``i``, ``o``: unit directions (..., 3) towards light and detector, z > 0.
         ``m_inf``: global facet slope (..., 2), default flat. Units: 1/sr.
+        ``masking``: None (the library default, ``brdfscale.choices.MASKING``: ``"none"``), a
+        name of ``choices.MASKING`` or a :class:`AbstractMasking`; the masked ρ is the unmasked
+        one times ``masking.g2(self.shape, i, o, m_inf)`` (docs/masking.md). :class:`NoMasking`
+        returns the unmasked ρ itself.
 
         Accurate to grazing angles (θ = 89.9°: relative error ≤ 1e-13 in float64 against
         mpmath, experiments/stability.py). The lobe's relative error grows with the half-vector
@@ -68,12 +91,16 @@ class AbstractLobe(Shown, eqx.Module):
         values below its smallest normal number (1.2e-38, e.g. a Beckmann lobe far from its peak)
         are subnormal or 0.
         """
+        masking = as_masking(masking)
         i = validate_directions(i, "i")
         o = validate_directions(o, "o")
         u = half_slope_of_valid(i, o)
         if m_inf is not None:
             u = u - jnp.asarray(m_inf)
-        return self.density(u) * microfacet_factor_of_valid(i, o)
+        rho = self.density(u) * microfacet_factor_of_valid(i, o)
+        if isinstance(masking, NoMasking):
+            return rho
+        return rho * masking.g2(self.shape, i, o, m_inf)
 
 
 def _amplitude(a):

@@ -15,6 +15,7 @@ from ._families import Beckmann, Delta, Disk, Gaussian, GGX
 from ._grid import FrequencyGrid
 from ._histogram import SlopeHistogram
 from ._learned_laws import MonotoneSplineLaw, StudentTLaw
+from ._masking import smith_lambda
 from ._measured import MeasuredScaleLaw
 from ._mixture import Mixture
 from ._require import require_density
@@ -58,4 +59,5 @@ __all__ = [
     "MonotoneSplineLaw",
     "StudentTLaw",
     "window_power",
+    "smith_lambda",
 ]
