@@ -1,5 +1,5 @@
-"""`brdfscale fit-library` in a careless world (issue 34): damaged indices and output directories
-refused in one line (exit 2) and left as they were; a material whose report was damaged after
+"""`brdfscale fit-library` in a careless world (issue 34): damaged indices (MeasurementFileError)
+and output directories refused in one line (exit 2) and left as they were; a material whose report was damaged after
 the fact fitted again, equal to its first fit, and said so; a measurement file named twice
 refused; hidden entries listed; a full disk while writing the index stops the run with the
 previous index in place; a `kill -9` of a driver running Ray workers leaves no Ray process of its
@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 import brdfscale._files
-from brdfscale import library, OutputWriteError
+from brdfscale import InvalidInputError, library, MeasurementFileError, OutputWriteError
 from brdfscale._cli import main
 from tests.helpers import write_library
 
@@ -116,6 +116,20 @@ def test_a_damaged_index_is_refused_in_one_line_and_left_as_it_was(copy, damage)
     line = _one_line(err)
     assert str(out / library.INDEX) in line and "unreadable library index" in line and "move it away" in line
     assert (out / library.INDEX).read_bytes() == before and _inodes(out) == inodes
+
+
+@pytest.mark.parametrize("damage", ["truncated", "a list", "an unknown status"])
+def test_a_damaged_index_is_a_damaged_file_not_a_bad_argument(fitted, copy, damage):
+    """``fit_library`` raises MeasurementFileError for a damaged index (the class of a file that
+    cannot be read as asked), not InvalidInputError (a bad argument); the command's status stays 2."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    out, _ = copy
+    DAMAGED[damage](out)
+    with pytest.raises(MeasurementFileError, match="unreadable library index") as caught:
+        library.fit_library(fitted / "lib", out, spec=library.FitSpec(starts=1), batch=1, progress=False)
+    assert not isinstance(caught.value, InvalidInputError)
 
 
 @pytest.mark.parametrize("where", ["materials", "materials/material_001", "out"])

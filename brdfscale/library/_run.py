@@ -12,7 +12,7 @@ import time
 from typing import Any
 
 from .._compilation_cache import directory_in_use
-from .._errors import InvalidInputError, MissingDependencyError, OutputWriteError
+from .._errors import InvalidInputError, MeasurementFileError, MissingDependencyError, OutputWriteError
 from .._files import exclusive, write_text
 from .._json import json_text
 from .._show import progress_bar, Shown, Table
@@ -211,8 +211,8 @@ class _Index:
                 problem = f"unreadable: {' '.join(str(err).split())[:200] or type(err).__name__}"
             else:
                 problem = _schema_problem(doc) or _unwritable(doc)
-            if problem:
-                raise InvalidInputError(
+            if problem:  # a damaged file, not a bad argument
+                raise MeasurementFileError(
                     f"{self.path}: unreadable library index ({problem}); move it away (the reports in "
                     f"{os.path.join(out, 'materials')} are verified and kept) or give another out= directory."
                 )
@@ -390,8 +390,9 @@ def fit_library(
 
     Raises:
         InvalidInputError: bad arguments, a source that does not exist or named twice, an index
-            of another job, a damaged index (its schema is checked), ``out/materials`` or a
-            material's directory that is not a directory.
+            of another job, ``out/materials`` or a material's directory that is not a directory.
+        MeasurementFileError: a damaged index (not JSON, cut short, or failing its schema,
+            which is checked on every start); it is left as it was.
         OutputInUseError: another run holds ``out``.
         OutputWriteError: the index or a report could not be written (a full disk): the
             previous index stays in place.
