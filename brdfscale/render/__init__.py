@@ -11,7 +11,8 @@ Nothing here imports Mitsuba until called (brdfscale._mitsuba picks the variant)
 """
 
 from ._api import bsdf, FootprintIntegrator, register
+from ._export import CONVENTIONS, export_roughness
 from ._material import lobe_table
 
 
-__all__ = ["bsdf", "register", "lobe_table", "FootprintIntegrator"]
+__all__ = ["bsdf", "register", "lobe_table", "FootprintIntegrator", "export_roughness", "CONVENTIONS"]

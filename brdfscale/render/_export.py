@@ -1,0 +1,210 @@
+"""Engine export: per-texel, per-mip anisotropic roughness as an EXR mip chain (issue 33 item 2).
+
+Rasterisers take a normal (mean slope) and a roughness per texel and mip level, not a BRDF of the scale. What every
+texel of level ℓ (``2^ℓ × 2^ℓ`` texels of level 0) needs is its lobe's first and second moments:
+
+* from a height field (:class:`brdfscale.synth.HeightField`; level 0 = one pixel facet): the mean slope
+  ``B = E[m]`` and the raw second moments ``M = E[m mᵀ] + C_micro`` of the pixel facets it covers (``m = −∇h``,
+  :func:`brdfscale.synth.facet_slopes`; ``C_micro`` the covariance of the field's micro lobe) — linear in the
+  pixels, so each level is the 2×2 mean of the one below (LEAN mapping, Olano & Baker 2010);
+* from statistics (a scale law or a FitResult, with ``base_lobe`` and ``mu0``): the lobe at ``μ_ℓ = μ0 · 2^ℓ``
+  evolved as :func:`brdfscale.render.lobe_table` does, its moments exact for the tabulated tent sum — the same at
+  every texel (``resolution`` texels on a side at level 0).
+
+The texel lobe's covariance ``Σ = M − B Bᵀ`` becomes the engine's numbers in the convention named in the file
+(:data:`CONVENTIONS`, stated word for word in each part's header).
+"""
+
+import math
+
+import numpy as np
+import OpenEXR
+
+from .. import stats
+from .._errors import InvalidInputError
+from .._validation import flag, integer
+from ..files import atomic_write
+from ._material import lobe_table, scalar_table
+
+
+_ALPHA = (
+    "alpha_x = sqrt(2 S_xx), alpha_y = sqrt(2 S_yy) — alpha itself, not alpha squared — and rho = S_xy / "
+    "sqrt(S_xx S_yy), where S is the covariance of the texel lobe's normal slopes (n_x/n_z, n_y/n_z); the lobe's "
+    "principal axes need not be x and y: rho carries the tilt. Axes: x along the texture's u (columns), y along v "
+    "(rows; row 0 of the file is v = 0). slope_x, slope_y: the texel's mean normal slope E[m] (a normal map: "
+    "n proportional to (slope_x, slope_y, 1))."
+)
+
+CONVENTIONS = {
+    "beckmann_alpha": "Beckmann roughness: the lobe exp(-(m/alpha)^2)/(pi alpha^2) per axis has variance alpha^2/2; "
+    + _ALPHA,
+    "ggx_alpha": "GGX / Trowbridge-Reitz roughness alpha given the Beckmann alpha of the same second moments (the "
+    "same peak density 1/(pi alpha_x alpha_y)); GGX slopes have no finite variance, so any GGX alpha from moments "
+    "is a convention — this one. Engines whose 'roughness' r has alpha = r^2 (Disney, Unreal, Filament) take "
+    "r = sqrt(alpha). " + _ALPHA,
+    "lean_moments": "LEAN mapping moments (Olano & Baker 2010): B_x, B_y = E[m] and M_xx, M_yy, M_xy = E[m m^T] "
+    "(the micro lobe's covariance included) of the normal slopes m = (n_x/n_z, n_y/n_z); the lobe covariance is "
+    "M - B B^T; all five are linear in the texels (a coarser level is the mean of the finer). Axes: x along u "
+    "(columns), y along v (rows; row 0 is v = 0).",
+}
+"""The conventions :func:`export_roughness` writes, as stated in each file."""
+
+CHANNELS = {
+    "beckmann_alpha": ("alpha_x", "alpha_y", "rho", "slope_x", "slope_y"),
+    "ggx_alpha": ("alpha_x", "alpha_y", "rho", "slope_x", "slope_y"),
+    "lean_moments": ("B_x", "B_y", "M_xx", "M_yy", "M_xy"),
+}
+
+KIND = "roughness_mip_chain"
+
+
+def _micro_covariance(micro) -> np.ndarray:
+    if isinstance(micro, stats.Delta):
+        return np.zeros((2, 2))
+    cov = getattr(micro, "cov", None)
+    if cov is None:
+        raise InvalidInputError(
+            f"the field's micro lobe {type(micro).__name__} has no finite second moments (a Gaussian/Beckmann or a "
+            "mirror, stats.Delta, has); engines' roughness comes from second moments."
+        )
+    return np.broadcast_to(np.asarray(cov, float), (2, 2))
+
+
+def field_moments(field, levels: int | None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``[(B, M), …]`` per level: B (h, w, 2), M (h, w, 2, 2) (module docstring; the field cropped to whole
+    level-(levels−1) blocks)."""
+    from .. import synth
+
+    slopes = synth.facet_slopes(field, float(min(field.spacing)))
+    if not np.all(np.isfinite(slopes)):
+        raise InvalidInputError("the field has unmeasured pixels (mask); export needs a fully measured field.")
+    h, w = slopes.shape[:2]
+    top = int(math.floor(math.log2(min(h, w))))
+    levels = top + 1 if levels is None else integer(levels, "levels", 1)
+    if levels > top + 1:
+        raise InvalidInputError(f"levels must be at most {top + 1} for a {h}×{w} field (down to one texel).")
+    block = 2 ** (levels - 1)
+    slopes = slopes[: h // block * block, : w // block * block]
+    b = slopes
+    m = slopes[..., :, None] * slopes[..., None, :] + _micro_covariance(field.micro)
+    out = [(b, m)]
+    for _ in range(levels - 1):
+        b = 0.25 * (b[0::2, 0::2] + b[1::2, 0::2] + b[0::2, 1::2] + b[1::2, 1::2])
+        m = 0.25 * (m[0::2, 0::2] + m[1::2, 0::2] + m[0::2, 1::2] + m[1::2, 1::2])
+        out.append((b, m))
+    return out
+
+
+def table_moments(table) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``(B, M)`` of each scale's tabulated lobe, exact for the tent sum (a tent of pitch h adds h²/6 per axis)."""
+    values = np.maximum(scalar_table(table), 0.0)
+    n = values.shape[-1]
+    x = np.linspace(-table.extent, table.extent, n)
+    h = x[1] - x[0]
+    out = []
+    for v in values:
+        p = v / v.sum()
+        bx, by = (p.sum(axis=0) * x).sum(), (p.sum(axis=1) * x).sum()
+        mxx = (p.sum(axis=0) * x**2).sum() + h * h / 6
+        myy = (p.sum(axis=1) * x**2).sum() + h * h / 6
+        mxy = (p * x[None, :] * x[:, None]).sum()
+        out.append((np.array([bx, by]), np.array([[mxx, mxy], [mxy, myy]])))
+    return out
+
+
+def convert(b: np.ndarray, m: np.ndarray, convention: str) -> dict[str, np.ndarray]:
+    """The channels of ``convention`` from the moments ``B`` (..., 2) and ``M`` (..., 2, 2)."""
+    if convention == "lean_moments":
+        return {"B_x": b[..., 0], "B_y": b[..., 1], "M_xx": m[..., 0, 0], "M_yy": m[..., 1, 1], "M_xy": m[..., 0, 1]}
+    cov = m - b[..., :, None] * b[..., None, :]
+    sxx, syy = np.maximum(cov[..., 0, 0], 0.0), np.maximum(cov[..., 1, 1], 0.0)
+    denominator = np.sqrt(sxx * syy)
+    rho = np.where(denominator > 0, cov[..., 0, 1] / np.where(denominator > 0, denominator, 1.0), 0.0)
+    return {
+        "alpha_x": np.sqrt(2 * sxx),
+        "alpha_y": np.sqrt(2 * syy),
+        "rho": np.clip(rho, -1.0, 1.0),
+        "slope_x": b[..., 0],
+        "slope_y": b[..., 1],
+    }
+
+
+def export_roughness(
+    source,
+    path,
+    *,
+    convention: str = "ggx_alpha",
+    levels: int | None = None,
+    base_lobe=None,
+    mu0: float | None = None,
+    resolution: int = 1,
+    size: int = 128,
+    overwrite: bool = False,
+) -> list[dict[str, np.ndarray]]:
+    """Write per-texel, per-mip anisotropic roughness as a multi-part OpenEXR file (part ℓ = mip level ℓ).
+
+    Args:
+        source: a :class:`brdfscale.synth.HeightField` (per-texel moments of its pixel facets; level 0 = one pixel
+            facet), or statistics as for :func:`brdfscale.render.bsdf` (a scale law or a FitResult, with
+            ``base_lobe`` and ``mu0``: level ℓ is the lobe at ``μ0 · 2^ℓ``, uniform over ``resolution >> ℓ``
+            texels), or an evolved :class:`brdfscale.exr.LobeTable` (level ℓ its ℓ-th scale).
+        path: the .exr file (written atomically; an existing file only with ``overwrite``).
+        convention: ``"ggx_alpha"``, ``"beckmann_alpha"`` or ``"lean_moments"`` (:data:`CONVENTIONS`; the text is
+            each part's ``brdfscale.convention_text`` attribute, the name ``brdfscale.convention``).
+        levels: mip levels (default: a field down to one texel, statistics 9).
+
+    Each part: float32 channels (:data:`CHANNELS`), ``brdfscale.kind = "roughness_mip_chain"``,
+    ``brdfscale.mip_level``, ``brdfscale.mu`` (the level's scale, double; for a field ``2^ℓ`` pixel pitches in its
+    length unit). Returns the channels per level. Raises InvalidInputError for a convention or source of another kind
+    (naming those accepted), :class:`brdfscale.OutputWriteError` when the file cannot be written.
+    """
+    if convention not in CONVENTIONS:
+        raise InvalidInputError(f"convention must be one of {', '.join(map(repr, CONVENTIONS))}; got {convention!r}.")
+    overwrite = flag(overwrite, "overwrite")
+    from .. import synth
+    from ..exr import LobeTable
+
+    if isinstance(source, synth.HeightField):
+        moments = field_moments(source, levels)
+        pitch = float(min(source.spacing))
+        mus = [pitch * 2**k for k in range(len(moments))]
+    else:
+        resolution = integer(resolution, "resolution", 1)
+        n_levels = 9 if levels is None else integer(levels, "levels", 1)
+        if isinstance(source, LobeTable):
+            table = lobe_table(None, source)
+        else:
+            if mu0 is None and not hasattr(source, "covariance_differences"):
+                raise InvalidInputError("mu0 is required with a scale law: the scale at which base_lobe holds.")
+            scales = None if mu0 is None else float(mu0) * 2.0 ** np.arange(n_levels)
+            table = lobe_table(base_lobe, source, mu0=mu0, scales=scales, levels=n_levels, size=size)
+        mus = [float(s) for s in table.scales]
+        moments = []
+        for k, (b, m) in enumerate(table_moments(table)):
+            side = max(1, resolution >> k)
+            moments.append((np.broadcast_to(b, (side, side, 2)), np.broadcast_to(m, (side, side, 2, 2))))
+    images = [convert(b, m, convention) for b, m in moments]
+    _write(path, images, mus, convention, overwrite)
+    return images
+
+
+def _write(path, images, mus, convention, overwrite):
+    height, width = images[0][next(iter(images[0]))].shape
+    parts = []
+    for level, (image, mu) in enumerate(zip(images, mus)):
+        h, w = image[next(iter(image))].shape
+        header = {
+            "compression": OpenEXR.ZIP_COMPRESSION,
+            "type": OpenEXR.scanlineimage,
+            "displayWindow": (np.array([0, 0], np.int32), np.array([width - 1, height - 1], np.int32)),
+            "dataWindow": (np.array([0, 0], np.int32), np.array([w - 1, h - 1], np.int32)),
+            "brdfscale.kind": KIND,
+            "brdfscale.convention": convention,
+            "brdfscale.convention_text": CONVENTIONS[convention],
+            "brdfscale.mip_level": level,
+            "brdfscale.mip_levels": len(images),
+            "brdfscale.mu": np.array([mu], dtype=np.float64),
+        }
+        channels = {name: np.ascontiguousarray(a, dtype=np.float32) for name, a in image.items()}
+        parts.append(OpenEXR.Part(header, channels, name=f"mip{level}"))
+    atomic_write(path, lambda tmp: OpenEXR.File(parts).write(tmp), overwrite=overwrite, foreign=(RuntimeError,))
