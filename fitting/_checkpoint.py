@@ -72,6 +72,10 @@ _EARLIER = {
     None: "one emcee ensemble sampled in θ, without the samplers' common layout",
 }
 _EXPECTED = "an HDF5 checkpoint written by fitting.sample"
+_REWIND = "fitting.rewind_checkpoint(path)"
+"""How a refusal names the remedy that keeps a damaged checkpoint's verified chunks (the path is
+named at the start of the message); the command line says ``--rewind-checkpoint`` instead
+(``brdfscale._cli.FLAGS``)."""
 _MARGIN = 1 << 20  # bytes beyond a chunk's own that must be free before it is written (HDF5's metadata)
 _FOREIGN = (RuntimeError, ValueError, KeyError, TypeError)  # h5py's failures that are not OSError
 _KEPT = "the chunks committed before this write are kept (a rerun continues from them)"
@@ -445,7 +449,7 @@ def verify(path, signature: str | None = None, stats=None) -> tuple[Stored, dict
         if err.good:
             remedy = (
                 f"the steps before it (0–{err.good - 1}) verify: keep them and continue from step {err.good} with "
-                f"fitting.rewind_checkpoint({path!r}) and run again, or {retry}"
+                f"{_REWIND} and run again, or {retry}"
             )
         else:
             remedy = f"no chunk of it can be kept; {retry}"
@@ -485,13 +489,23 @@ def rewind_checkpoint(path) -> int:
     step's randomness depends on the step only). The file is replaced atomically; a checkpoint
     that verifies whole is left as it is. Returns the steps kept.
 
+    The command line's ``brdfscale fit … --rewind-checkpoint`` calls it on ``DIR/chain.h5``
+    before sampling (tests/test_cli_rewind.py). It holds the checkpoint's lock
+    (:func:`brdfscale.files.exclusive`), the one a sampling run holds.
+
     Raises:
         MeasurementFileError: no part of it can be kept (HDF5 cannot open it, or its header —
             signature, layout, sampled subspace — fails its check: start afresh with
             ``overwrite=True``), or it cannot be rewritten (the message names the free space).
         InvalidInputError: it is an earlier layout's checkpoint (it carries no checksums).
+        OutputInUseError: a run is sampling into it.
     """
     path = os.fspath(path)
+    with files.exclusive(path, what="checkpoint") if os.path.isfile(path) else contextlib.nullcontext():
+        return _rewind(path)
+
+
+def _rewind(path: str) -> int:
     h5 = _h5py()
     nothing = "nothing of it can be kept: pass overwrite=True to fitting.sample to start afresh."
     try:

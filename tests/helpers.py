@@ -270,11 +270,12 @@ SYNTH_DOMAINS = {
 }
 
 
-def run_command(argv: list[str]) -> tuple[int, str]:
-    """``brdfscale ARGV`` in this process: (exit status, stderr); a traceback of an exception that
-    escaped ``main`` is in stderr with status −1."""
-    err = io.StringIO()
-    with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(err):
+def run_cli(argv: list[str]) -> tuple[int, str, str]:
+    """``brdfscale ARGV`` in this process, without the persistent compilation cache: (exit
+    status, stdout, stderr); a traceback of an exception that escaped ``main`` is in stderr with
+    status −1."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         try:
             code = cli_main(["--no-compilation-cache", *argv])
         except SystemExit as exit_:  # argparse's usage errors
@@ -283,7 +284,13 @@ def run_command(argv: list[str]) -> tuple[int, str]:
             traceback.print_exc(file=err)
             code = -1
             del exc
-    return code, err.getvalue()
+    return code, out.getvalue(), err.getvalue()
+
+
+def run_command(argv: list[str]) -> tuple[int, str]:
+    """:func:`run_cli` without its stdout: (exit status, stderr)."""
+    code, _, err = run_cli(argv)
+    return code, err
 
 
 # --- anisotropic Gaussian lobes: a hand-written NumPy oracle (tests/test_anisotropic.py, tests/test_joint.py)

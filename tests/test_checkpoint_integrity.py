@@ -342,6 +342,8 @@ def _fit_argv(measurements, out) -> list[str]:
         measurements,
         "--out",
         str(out),
+        "--model",
+        "parametric",
         "--sampler",
         "emcee",
         "--walkers",

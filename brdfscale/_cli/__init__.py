@@ -56,6 +56,7 @@ FLAGS = {
     "address=": "--address",
     "workers=": "--workers",
     "fixed:": "--fix:",
+    "fitting.rewind_checkpoint(path)": "--rewind-checkpoint",
 }
 _PYTHON_ARGUMENT = re.compile(
     "|".join(

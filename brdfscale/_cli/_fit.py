@@ -17,6 +17,7 @@ import types
 from .._choices import FAMILIES, FIT, LAWS, MODEL, MODELS, SAMPLE, SAMPLERS, SHAPES, SOLVERS
 from .._errors import InvalidInputError
 from ._options import integer, MAX_SEED, output_directory, real, seed
+from ._rewind import add_rewind_option, rewind
 
 
 #: The chain is held in memory (and in chain.h5): walkers × steps × parameters × 8 bytes at most.
@@ -244,6 +245,7 @@ def register(subparsers) -> None:
     )
     parser.add_argument("measurements", help="multi-part OpenEXR measurement set (brdfscale.exr format)")
     add_fit_options(parser)
+    add_rewind_option(parser)
     parser.add_argument(
         "--default-sigma",
         type=real(0.0, 1e30, strict_lo=True),
@@ -341,6 +343,8 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
     truth = fitting.truth_of(model, mset.metadata)  # a damaged truth is refused before the work, not after
     # before the long work: a complete report refused, an incomplete one beside a complete chain resumed
     checkpoint = os.path.join(args.out, "chain.h5")
+    if getattr(args, "rewind_checkpoint", False):  # a damaged chain's verified chunks kept first
+        stream(rewind(fitting, checkpoint, args.force))
     resuming = fitting.resume_report(
         args.out, args.force, checkpoint=checkpoint, steps=args.steps if spec.sampler else 0
     )
