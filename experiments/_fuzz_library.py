@@ -40,6 +40,8 @@ import sys
 import tempfile
 import time
 
+from brdfscale.library._watchdog import alive, descendants
+
 
 KINDS = ("damaged_index", "sigkill_fit_library")
 ARGS = ["--starts", "1", "--batch", "1", "--no-progress"]
@@ -236,33 +238,6 @@ def _damaged_indices(n, rng, tmp, lib, ref, reference, counts, bad):
 # -- SIGKILLed runs ----------------------------------------------------------------------------------
 
 
-def _stat(pid):
-    try:
-        with open(f"/proc/{pid}/stat", "rb") as f:
-            text = f.read()
-    except OSError:
-        return None
-    fields = text[text.rfind(b")") + 2 :].split()
-    return None if fields[0] in (b"Z", b"X") else (int(fields[1]), int(fields[19]))
-
-
-def _descendants(pid, found: dict) -> None:
-    tree = {}
-    for name in os.listdir("/proc"):
-        if name.isdigit() and (stat := _stat(int(name))):
-            tree.setdefault(stat[0], []).append(int(name))
-    stack = [pid]
-    while stack:
-        for child in tree.get(stack.pop(), []):
-            if child not in found and (stat := _stat(child)):
-                found[child] = stat[1]
-                stack.append(child)
-
-
-def _alive(processes: dict) -> list:
-    return [pid for pid, start in processes.items() if (_stat(pid) or (0, None))[1] == start]
-
-
 def _drive(command, env, kill_at=None, timeout=600.0) -> tuple[int | None, str, list]:
     """Run ``command``; SIGKILL its process (alone) after ``kill_at`` seconds if it is still running.
     Returns (exit status or None when killed, stderr's last line, PIDs of its descendants still
@@ -272,7 +247,7 @@ def _drive(command, env, kill_at=None, timeout=600.0) -> tuple[int | None, str, 
         driver = subprocess.Popen(command, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=err)
         start, killed = time.monotonic(), False
         while driver.poll() is None:
-            _descendants(driver.pid, seen)
+            seen.update(descendants(driver.pid))
             elapsed = time.monotonic() - start
             if kill_at is not None and elapsed >= kill_at:
                 os.kill(driver.pid, signal.SIGKILL)
@@ -286,9 +261,9 @@ def _drive(command, env, kill_at=None, timeout=600.0) -> tuple[int | None, str, 
         err.seek(0)
         lines = err.read().decode(errors="replace").strip().splitlines()
     deadline = time.monotonic() + 10
-    while _alive(seen) and time.monotonic() < deadline:
+    while alive(seen) and time.monotonic() < deadline:
         time.sleep(0.05)
-    left = _alive(seen)
+    left = alive(seen)
     for pid in left:
         with contextlib.suppress(OSError):
             os.kill(pid, signal.SIGKILL)

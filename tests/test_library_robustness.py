@@ -23,6 +23,7 @@ import pytest
 import brdfscale._files
 from brdfscale import InvalidInputError, library, MeasurementFileError, OutputWriteError
 from brdfscale._cli import main
+from brdfscale.library._watchdog import alive, descendants
 from tests.helpers import write_library
 
 
@@ -265,35 +266,6 @@ def test_a_full_disk_while_a_report_is_written_stops_the_run_and_the_rerun_compl
 
 
 # -- a driver killed with Ray workers ---------------------------------------------------------------
-
-
-def _stat(pid):
-    try:
-        with open(f"/proc/{pid}/stat", "rb") as f:
-            text = f.read()
-    except OSError:
-        return None
-    fields = text[text.rfind(b")") + 2 :].split()
-    return None if fields[0] in (b"Z", b"X") else (int(fields[1]), int(fields[19]))
-
-
-def descendants(pid) -> dict:
-    """The live descendants of ``pid``: PID → start time (clock ticks since boot)."""
-    tree = {}
-    for name in os.listdir("/proc"):
-        if name.isdigit() and (stat := _stat(int(name))):
-            tree.setdefault(stat[0], []).append(int(name))
-    found, stack = {}, [pid]
-    while stack:
-        for child in tree.get(stack.pop(), []):
-            if child not in found and (stat := _stat(child)):
-                found[child] = stat[1]
-                stack.append(child)
-    return found
-
-
-def alive(processes: dict) -> list:
-    return [pid for pid, start in processes.items() if (_stat(pid) or (0, None))[1] == start]
 
 
 @pytest.mark.slow  # a Ray instance and worker processes importing JAX: tens of seconds on 2 cores

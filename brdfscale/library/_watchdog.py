@@ -30,8 +30,10 @@ import sys
 import time
 
 
-def _stat(pid: int) -> tuple[int, int] | None:
-    """(parent PID, start time in clock ticks) of ``pid``, or None when it is gone or a zombie."""
+def process_stat(pid: int) -> tuple[int, int] | None:
+    """(parent PID, start time in clock ticks since boot) of ``pid`` from ``/proc/PID/stat``, or
+    None when it is gone or a zombie. The one reader of the process table for the watchdog and
+    for the tests and the fuzz study that check a killed run leaves no process behind."""
     try:
         with open(f"/proc/{pid}/stat", "rb") as f:
             text = f.read()
@@ -56,10 +58,29 @@ def _children() -> dict[int, list[int]]:
     tree: dict[int, list[int]] = {}
     for name in os.listdir("/proc"):
         if name.isdigit():
-            stat = _stat(int(name))
+            stat = process_stat(int(name))
             if stat is not None:
                 tree.setdefault(stat[0], []).append(int(name))
     return tree
+
+
+def descendants(pid: int) -> dict[int, int]:
+    """The live descendants of ``pid``, at any depth: PID → start time (clock ticks since boot)."""
+    tree = _children()
+    found: dict[int, int] = {}
+    stack = [pid]
+    while stack:
+        for child in tree.get(stack.pop(), []):
+            if child not in found and (start := process_stat(child)) is not None:
+                found[child] = start[1]
+                stack.append(child)
+    return found
+
+
+def alive(processes: dict[int, int]) -> list[int]:
+    """Those of ``processes`` (PID → start time) still running: the same PID with the same start
+    time (a PID reused by an unrelated process is not theirs)."""
+    return [pid for pid, start in processes.items() if (process_stat(pid) or (0, None))[1] == start]
 
 
 def _track(driver: int, tracked: dict[int, int]) -> None:
@@ -72,7 +93,7 @@ def _track(driver: int, tracked: dict[int, int]) -> None:
             continue
         ours = below_ray or pid in tracked or _is_ray(pid)
         if ours and pid not in tracked:
-            stat = _stat(pid)
+            stat = process_stat(pid)
             if stat is None:
                 continue
             tracked[pid] = stat[1]
@@ -92,23 +113,20 @@ def _session_processes(driver: int, tracked: dict[int, int]) -> None:
         except OSError:
             continue
         if any(mark.search(link) for link in links):
-            stat = _stat(int(name))
+            stat = process_stat(int(name))
             if stat is not None:
                 tracked[int(name)] = stat[1]
 
 
 def _stop(tracked: dict[int, int]) -> None:
-    def alive():
-        return [pid for pid, start in tracked.items() if (_stat(pid) or (0, None))[1] == start]
-
     for sig, wait in ((signal.SIGTERM, 2.0), (signal.SIGKILL, 1.0)):
-        for pid in alive():
+        for pid in alive(tracked):
             try:
                 os.kill(pid, sig)
             except OSError:
                 pass
         deadline = time.monotonic() + wait
-        while alive() and time.monotonic() < deadline:
+        while alive(tracked) and time.monotonic() < deadline:
             time.sleep(0.05)
 
 
