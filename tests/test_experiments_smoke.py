@@ -549,3 +549,64 @@ def test_the_fuzz_family_library_quick_run_finds_nothing_bad(tmp_path):
         assert counts["tried"] > 0 and counts["bad"] == 0, (kind, counts, result["bad_examples"])
         assert counts["tried"] == counts["refused"] + counts["same"] + counts["bad"]
     assert result["bad_examples"] == []
+
+
+# -- bench_real_fits (issue 31): README's measured-surface chain on the real files ---------------------------
+
+
+def test_bench_real_fits_z_scores_and_targets_by_hand():
+    """z of ΔΣ = (fit − (Σ0 − Σk))/√(std² + e0² + ek²) per component, written out for one scale; the
+    targets count an explicit "inadequate" as meeting the χ²/dof target, and flag an exit 0 whose
+    scales show χ²/dof > 1.5, |z| > 3 or an unresolved lobe."""
+    from types import SimpleNamespace
+
+    from experiments import bench_real_fits as brf
+
+    s0 = SimpleNamespace(covariance=np.array([[4.0, 1.0], [1.0, 3.0]]), covariance_error=np.full((2, 2), 0.3))
+    s1 = SimpleNamespace(covariance=np.array([[1.0, 0.5], [0.5, 2.0]]), covariance_error=np.full((2, 2), 0.4))
+    fitted = [{"mu": 2.0, "value": [[3.5, 0.0], [0.0, 2.0]], "std": [[0.0, 0.0], [0.0, 1.2]]}]
+    (row,) = brf.z_scores(fitted, [s0, s1])
+    assert row["z"]["xx"] == pytest.approx((3.5 - 3.0) / 0.5)
+    assert row["z"]["xy"] == pytest.approx((0.0 - 0.5) / 0.5)
+    assert row["z"]["yy"] == pytest.approx((2.0 - 1.0) / math.sqrt(1.44 + 0.25))
+    ok_scale = {"mu": 1.0, "width_px": 2.0, "reduced_chi2": 1.1, "lag1_rows": 0.0, "lag1_cols": 0.0}
+    bad_scale = {**ok_scale, "reduced_chi2": 3.0}
+
+    def record(exit_, status, scales, z, reason="model inadequate at μ = 1 m: χ²/dof = 3"):
+        return {
+            "file": "f",
+            "noise": f"n{exit_}{status}",
+            "fit": {"exit": exit_},
+            "outcome": {"status": status, "reason": reason if status != "ok" else ""},
+            "reduced_chi2": max(s["reduced_chi2"] for s in scales),
+            "scales": scales,
+            "max_abs_z": z,
+            "topography_anisotropy": 1.0,
+        }
+
+    honest = record(5, "inadequate", [ok_scale, bad_scale], 5.0)
+    hidden = record(0, "ok", [ok_scale, bad_scale], 5.0)
+    assert brf.unflagged(honest) == [] and len(brf.unflagged(hidden)) == 2
+    targets = brf.targets([honest, record(0, "ok", [ok_scale], 1.0)])
+    assert targets["chi2_or_inadequate"]["met"] and targets["no_exit_0_with_unflagged_problem"]["met"]
+    assert targets["delta_sigma_within_3_std"] == {"met": False, "passed": 1, "of": 2}
+    assert targets["held_out_half_of_isotropic_on_anisotropic_files"]["met"] is None  # no anisotropic file
+    assert not brf.targets([hidden])["no_exit_0_with_unflagged_problem"]["met"]
+
+
+@pytest.mark.slow  # ≈ 1 min on 2 cores: synth (twice) and a cold fit in subprocesses, two held-out fits
+def test_bench_real_fits_quick(tmp_path):
+    from experiments import bench_real_fits as brf
+
+    payload = brf.main(["--quick", "--out", str(tmp_path)])
+    assert (tmp_path / "bench_real_fits.json").exists()
+    (r,) = payload["records"]
+    assert r["synth"]["exit"] == 0 and r["fit"]["exit"] in (0, 5, 6, 7)
+    if r["fit"]["exit"] != 0:
+        assert r["fit"]["line"].startswith("brdfscale fit: ") and r["outcome"]["status"] != "ok"
+    assert len(r["covariance_differences"]) == len(r["scales"]) - 1
+    h = r["held_out"]
+    assert len(h["train_scales"]) == brf.TRAIN_SCALES and len(h["held_out_scales"]) == len(r["scales"]) - 5
+    for name in ("isotropic", "second_moment"):
+        assert 0 < h[name]["l1"] < 2
+    assert 0 < h["noise_floor_l1"] < 1
