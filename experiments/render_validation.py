@@ -1,0 +1,595 @@
+"""Render validation on micro-geometry (issue 33 item 3): three plane materials against the displaced surface.
+
+Scene: study 4's (experiments/render_plane.py) — a pinhole camera 1 unit above the plane, pitched 18° down, vertical
+field of view 32°, a directional light (irradiance 1) straight ahead at 8° elevation — in the length unit of one
+texel (the camera at 100 texels; a texel is 0.01 of study 4's unit). The surface is a periodic height field tiled over
+the visible plane (one shared mesh, :func:`brdfscale.instrument.mesh`, placed by Mitsuba instances):
+
+* ``di-3`` — the measured AFM topography tests/data/topographies/di-3.di (256², pitch 39 nm, rms slope 0.19), its
+  central ``size/2`` square mirrored into a periodic ``size``² tile (even reflections: continuous heights, slope
+  statistics symmetrised), heights in pixel units (slopes unchanged);
+* ``anisotropic`` — :func:`brdfscale.synth.named_surface` ``"anisotropic"`` (Gaussian-correlated, ℓ = 6 × 24 px) with
+  heights × :data:`ANISOTROPIC_SLOPE_SCALE` (rms slopes ≈ 0.13 along x, 0.03 along y).
+
+Ground truth: the height field displaced as geometry, each triangle a Beckmann micro-facet BRDF of roughness α0 (the
+base lobe at μ0 = 1 texel; Mitsuba's ``roughconductor``, ``material="none"``: Fresnel 1), rendered by a direct-lighting
+tracer (camera rays jittered uniformly over each pixel = box pixel filter, one shadow ray each; no interreflection,
+as none of the plane models has it) at ``reference_spp`` samples per pixel. The three plane materials shade each pixel
+once, at the pixel centre's view direction, on a plane whose normal is the footprint's mean texel slope M (the ideal
+mip-mapped normal: texel slopes averaged over S × S jittered points of the pixel's footprint, S = clamp(⌈μ⌉, 1, 16)),
+with the lobe for the footprint μ (texels, √area of the pixel's footprint):
+
+* ``naive`` — (a) ``roughconductor`` Beckmann α0 unchanged;
+* ``lean`` — (b) ``roughconductor`` Beckmann with the LEAN/Toksvig roughness of Σ(μ): slope covariance
+  ``C(μ) = α0²/2·I + Σ(1) − Σ(μ)`` (Σ: covariance of the facet slopes at scale μ,
+  :func:`brdfscale.synth.facet_statistics`), ``alpha_u, alpha_v = √(2 λ₁), √(2 λ₂)`` with λ the eigenvalues of C
+  and the tangent frame turned to its eigenvectors. Convention: Mitsuba's Beckmann α satisfies α² = 2σ² for a slope
+  variance σ² per axis — its microfacet.h evaluates ``D(m) = exp(−(m_x²/α_u² + m_y²/α_v²)/cos²θ)/(π α_u α_v cos⁴θ)``,
+  i.e. the slope density ``exp(−s_x²/α_u² − s_y²/α_v²)/(π α_u α_v)``; :func:`alpha_convention_error` checks it on the
+  plugin itself. C is blended linearly in log₂ μ between the levels b = 1, 2, 4, … texels (the renders of the two
+  neighbouring levels are blended);
+* ``brdfscale`` — (c) :func:`brdfscale.render.bsdf` of the evolved lobe table: ``brdfscale.evolve(Beckmann(α0),
+  s(1), s(b), "grid", regularisation=λ)`` with the measured (tabulated) facet statistics s(b) at each level
+  (λ = c/√facets, ×3 until the library accepts it, as study 4), the plugin interpolating linearly in ln μ and reading
+  μ from the interaction's uv partials (filled here with the pixel's footprint); Smith masking of the plugin.
+
+Errors (relative to the truth's mean radiance, per μ band a factor 2 wide): ``bias`` — |band mean − truth band mean|
+(the part a statistical model can remove; sparkle averages out) and ``mean_abs`` — per-pixel mean |Δ| (includes the
+sparkle of individual facets that no plane material reproduces). Time to equal error: the micro-geometry rendered at
+1, 2, 4, … spp (fresh seeds) against the reference; the spp (log-log interpolated) at which its band error equals a
+plane material's, its time, and the plane material's shading time.
+
+Run:  python -m experiments.render_validation [--width 192 --height 128 --size 512 --reference-spp 256]
+Writes experiments/results/render_validation/<surface>.{json,png,exr}.
+"""
+
+import argparse
+import math
+import time
+from pathlib import Path
+
+import jax
+
+
+jax.config.update("jax_enable_x64", True)
+
+import numpy as np
+
+import brdfscale as bs
+from brdfscale import lobes, stats, synth, topography
+from experiments import render_plane
+from experiments._studies import pixel_slopes, save_figure, second_moment_covariance, study_dir, write_results
+
+
+VARIANT = "llvm_ad_rgb"
+ALPHA0 = 0.04
+CAMERA_HEIGHT = render_plane.CAMERA_HEIGHT / render_plane.TEXEL  # texels
+ANISOTROPIC_SLOPE_SCALE = 12.0
+REAL_FILE = Path(__file__).resolve().parent.parent / "tests" / "data" / "topographies" / "di-3.di"
+SURFACES = ("di-3", "anisotropic")
+METHODS = ("naive", "lean", "brdfscale")
+LOBE_NODES = 256
+EVOLVE_GRID = 256
+MEAN_SLOPE_SAMPLES = 16
+RAYS_PER_PASS = 1 << 21
+
+
+def mitsuba():
+    from brdfscale import _mitsuba
+
+    return _mitsuba.mitsuba(VARIANT)
+
+
+# -- surfaces ---------------------------------------------------------------------------------------------------
+
+
+def height_field(name: str, size: int, seed: int = 0) -> synth.HeightField:
+    """The periodic ``size``² tile of surface ``name`` in pixel units (spacing 1)."""
+    if name == "di-3":
+        measured = topography.read(REAL_FILE)
+        h = np.asarray(measured.heights) / float(measured.spacing[0])
+        half = size // 2
+        if half > min(h.shape):
+            raise ValueError(f"di-3 has {h.shape} pixels; size {size} needs {half}² of them")
+        j0, k0 = (h.shape[0] - half) // 2, (h.shape[1] - half) // 2
+        c = h[j0 : j0 + half, k0 : k0 + half]
+        tile = np.block([[c, c[:, ::-1]], [c[::-1], c[::-1, ::-1]]])
+        desc = {**dict(measured.description), "mirrored_tile": size, "crop": [j0, k0, half]}
+        desc.pop("path", None)
+        return synth.HeightField(tile - tile.mean(), 1.0, description=desc)
+    if name == "anisotropic":
+        base = synth.named_surface("anisotropic", size=size, seed=seed)
+        return synth.HeightField(
+            np.asarray(base.heights) * ANISOTROPIC_SLOPE_SCALE,
+            1.0,
+            description={**dict(base.description), "slope_scale": ANISOTROPIC_SLOPE_SCALE},
+        )
+    raise ValueError(f"unknown surface {name!r}; choose from {SURFACES}")
+
+
+# -- the plane materials per level ----------------------------------------------------------------------------
+
+
+def level_statistics(field: synth.HeightField, alpha0: float, levels: list[int]) -> dict:
+    """Per level b: the facet statistics, the LEAN covariance C(b) and records; the measured scale law (Gaussian
+    ``Σ(μ)`` between the levels, :class:`brdfscale.stats.MeasuredScaleLaw`) that the brdfscale material evolves with."""
+    facets = synth.facet_statistics(field, levels, bins=129)
+    cov1 = np.asarray(facets[0].covariance)
+    covs, records = [], []
+    for fs in facets:
+        covb = np.asarray(fs.covariance)
+        cov, clipped = second_moment_covariance(np.eye(2) * alpha0**2 / 2, cov1, covb, alpha0 / 64)
+        covs.append(cov)
+        w = np.linalg.eigvalsh(cov)
+        records.append(
+            {
+                "level_px": fs.block[1],
+                "facets": fs.count,
+                "facet_slope_cov": covb.tolist(),
+                "lean_cov": cov.tolist(),
+                "lean_alpha_uv": [float(math.sqrt(2 * w[1])), float(math.sqrt(2 * w[0]))],
+                "lean_clipped": clipped,
+            }
+        )
+    return {"law": stats.MeasuredScaleLaw.from_facets(facets), "covs": covs, "records": records, "facets": facets}
+
+
+def tabulated_evolution(facets, alpha0: float) -> list[dict]:
+    """Whether the Beckmann(α0) lobe evolves with the *tabulated* (measured histogram) statistics from level 1 to
+    each level (``brdfscale.evolve(..., regularisation="auto")``): the non-Gaussian material one would want; where
+    the measured histograms do not nest (seed Eq. 3.1 violated) the library refuses, and the study records it."""
+    out = []
+    for fs in facets[1:]:
+        try:
+            lobe = bs.evolve(
+                lobes.Beckmann(alpha0),
+                facets[0].slopes,
+                fs.slopes,
+                method="grid",
+                size=EVOLVE_GRID,
+                regularisation="auto",
+            )
+            lobe.density(np.zeros((1, 2)))
+            out.append({"level_px": fs.block[1], "exists": True, "why": None})
+        except bs.NoBRDFAtScaleError as err:
+            out.append({"level_px": fs.block[1], "exists": False, "why": str(err).split(". ")[0]})
+    return out
+
+
+def frame(normals: np.ndarray, angle: np.ndarray | float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Tangent frames (s, t, n) of unit normals (n, 3): s is x projected on the plane ⊥ n, turned by ``angle`` about
+    n (radians; the LEAN covariance's eigenvector direction in the slope plane)."""
+    ex = np.array([1.0, 0.0, 0.0])
+    s = ex - normals[:, :1] * normals
+    s /= np.linalg.norm(s, axis=1, keepdims=True)
+    t = np.cross(normals, s)
+    c, sn = np.cos(angle), np.sin(angle)
+    c, sn = np.broadcast_to(c, (len(normals),))[:, None], np.broadcast_to(sn, (len(normals),))[:, None]
+    return c * s + sn * t, -sn * s + c * t, normals
+
+
+def local(vectors: np.ndarray, basis) -> np.ndarray:
+    s, t, n = basis
+    return np.stack([(vectors * s).sum(1), (vectors * t).sum(1), (vectors * n).sum(1)], axis=1)
+
+
+def shade(mi, bsdf, wi: np.ndarray, wo: np.ndarray, mu: np.ndarray | None = None) -> np.ndarray:
+    """Mitsuba's ``bsdf.eval`` (f·cosθ_wo) at local directions wi (towards the camera) and wo (towards the light),
+    both (n, 3); ``mu``: the footprint in texels, given to the BSDF as the uv partials of a unit-texel plane."""
+    import drjit as dr
+
+    n = len(wi)
+    si = dr.zeros(mi.SurfaceInteraction3f, n)
+    si.sh_frame = mi.Frame3f(mi.Vector3f(0.0, 0.0, 1.0))
+    si.wi = mi.Vector3f(*[mi.Float(np.ascontiguousarray(wi[:, k], np.float32)) for k in range(3)])
+    if mu is not None:
+        m = mi.Float(np.ascontiguousarray(mu, np.float32))
+        si.dp_du, si.dp_dv = mi.Vector3f(1.0, 0.0, 0.0), mi.Vector3f(0.0, 1.0, 0.0)
+        si.duv_dx, si.duv_dy = mi.Vector2f(m, 0.0), mi.Vector2f(0.0, m)
+    out = bsdf.eval(
+        mi.BSDFContext(), si, mi.Vector3f(*[mi.Float(np.ascontiguousarray(wo[:, k], np.float32)) for k in range(3)])
+    )
+    value = out[0]
+    dr.eval(value)
+    return np.asarray(value, dtype=float)
+
+
+def roughconductor(mi, alpha_u: float, alpha_v: float | None = None):
+    d = {"type": "roughconductor", "distribution": "beckmann", "material": "none"}
+    if alpha_v is None:
+        d["alpha"] = float(alpha_u)
+    else:
+        d["alpha_u"], d["alpha_v"] = float(alpha_u), float(alpha_v)
+    return mi.load_dict(d)
+
+
+def alpha_convention_error(mi, alpha_u: float = 0.3, alpha_v: float = 0.1, n: int = 2000, seed: int = 0) -> float:
+    """Largest relative difference between Mitsuba's ``roughconductor`` (Beckmann α_u, α_v, no Fresnel, masking
+    removed by dividing by Smith's G₁G₁ computed independently) and the Gaussian slope density of per-axis variances
+    σ² = α²/2 in brdfscale's ρ = g(m_s)/(4 cosθ_o cos⁴θ_h) — the α² = 2σ² convention the LEAN material relies on.
+    Directions: random, both within 60° of the normal, half vectors within 2α of it."""
+    rng = np.random.default_rng(seed)
+    m = rng.normal(size=(n, 2)) * np.array([alpha_u, alpha_v]) / math.sqrt(2) * 1.5
+    hv = np.concatenate([m, np.ones((n, 1))], 1)
+    hv /= np.linalg.norm(hv, axis=1, keepdims=True)
+    th, ph = np.arccos(rng.uniform(0.5, 1.0, n)), rng.uniform(0, 2 * np.pi, n)
+    wi = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], 1)
+    wo = 2 * (wi * hv).sum(1, keepdims=True) * hv - wi
+    keep = wo[:, 2] > 0.3
+    wi, wo, hv, m = wi[keep], wo[keep], hv[keep], m[keep]
+    value = shade(mi, roughconductor(mi, alpha_u, alpha_v), wi, wo)
+    from scipy.special import erf
+
+    def g1(v):  # Smith G1 of a Beckmann surface, exact (Mitsuba uses a < 0.35 % rational fit)
+        a = v[:, 2] / np.sqrt((alpha_u * v[:, 0]) ** 2 + (alpha_v * v[:, 1]) ** 2)
+        lam = (erf(a) - 1) / 2 + np.exp(-(a**2)) / (2 * a * math.sqrt(math.pi))
+        return 1 / (1 + lam)
+
+    g = np.exp(-(m[:, 0] ** 2) / alpha_u**2 - m[:, 1] ** 2 / alpha_v**2) / (math.pi * alpha_u * alpha_v)
+    rho = g / (4 * wi[:, 2] * hv[:, 2] ** 4) * g1(wi) * g1(wo)
+    return float(np.max(np.abs(value / rho - 1)))
+
+
+# -- the micro-geometry ground truth ---------------------------------------------------------------------------
+
+
+class MicroGeometry:
+    """The tiled height-field mesh, a Beckmann-α0 roughconductor on every triangle, study 4's camera and light."""
+
+    def __init__(self, field: synth.HeightField, camera: render_plane.Camera, alpha0: float):
+        from brdfscale import instrument
+
+        mi = self.mi = mitsuba()
+        n = field.heights.shape[0]
+        row, col = np.mgrid[0 : camera.height + 1 : camera.height, 0 : camera.width + 1 : camera.width]
+        corners, _ = camera.hit(col.astype(float), row.astype(float))
+        xy = corners.reshape(-1, 2) / render_plane.TEXEL
+        x0, x1 = math.floor(xy[:, 0].min() / n) - 1, math.ceil(xy[:, 0].max() / n) + 1
+        y0, y1 = max(math.floor(xy[:, 1].min() / n) - 1, -1), math.ceil(xy[:, 1].max() / n) + 1
+        scene = {"type": "scene", "tile": {"type": "shapegroup", "surface": instrument.mesh(field, variant=VARIANT)}}
+        for a in range(x0, x1):
+            for b in range(y0, y1):
+                scene[f"at_{a}_{b}"] = {
+                    "type": "instance",
+                    "shapegroup": {"type": "ref", "id": "tile"},
+                    "to_world": mi.ScalarTransform4f().translate([a * n, b * n, 0.0]),
+                }
+        self.instances = (x1 - x0) * (y1 - y0)
+        self.scene = mi.load_dict(scene)
+        self.bsdf = roughconductor(mi, alpha0)
+        self.camera = camera
+        self.light = np.array(
+            [
+                0.0,
+                math.cos(math.radians(render_plane.LIGHT_ELEVATION_DEG)),
+                math.sin(math.radians(render_plane.LIGHT_ELEVATION_DEG)),
+            ]
+        )
+
+    def render(self, spp: int, seed: int) -> tuple[np.ndarray, float]:
+        """The mean radiance per pixel over ``spp`` jittered rays, and the wall time (seconds)."""
+        import drjit as dr
+
+        mi, cam = self.mi, self.camera
+        pixels = cam.width * cam.height
+        per_pass = max(1, min(spp, RAYS_PER_PASS // pixels))
+        total = np.zeros(pixels)
+        started = time.perf_counter()
+        done, k = 0, 0
+        while done < spp:
+            m = min(per_pass, spp - done)
+            idx = dr.arange(mi.UInt32, pixels * m)
+            pix = idx // m
+            sampler = mi.load_dict({"type": "independent"})
+            sampler.seed(seed * 1_000_003 + k, pixels * m)
+            jitter = sampler.next_2d()
+            col = mi.Float(pix % cam.width) + jitter.x
+            row = mi.Float(pix // cam.width) + jitter.y
+            x = (2 * col / cam.width - 1) * cam.half * cam.width / cam.height
+            y = (1 - 2 * row / cam.height) * cam.half
+            f, r, u = (mi.Vector3f(*map(float, v)) for v in (cam.forward, cam.right, cam.up))
+            d = dr.normalize(f + x * r + y * u)
+            ray = mi.Ray3f(mi.Point3f(0.0, 0.0, CAMERA_HEIGHT), d)
+            si = self.scene.ray_intersect(ray)
+            light = mi.Vector3f(*map(float, self.light))
+            lit = si.is_valid() & ~self.scene.ray_test(si.spawn_ray(light), si.is_valid())
+            value = self.bsdf.eval(mi.BSDFContext(), si, si.to_local(light), lit)[0]
+            value = dr.select(lit, value, 0.0)
+            sums = dr.block_sum(value, m)
+            dr.eval(sums)
+            total += np.asarray(sums, dtype=float)
+            done += m
+            k += 1
+        return (total / spp).reshape(cam.height, cam.width), time.perf_counter() - started
+
+
+# -- the plane renders -------------------------------------------------------------------------------------------
+
+
+def mean_slopes(field: synth.HeightField, camera, mu: np.ndarray, seed: int) -> np.ndarray:
+    """The footprint's mean texel slope per pixel (the ideal mip-mapped normal), (H, W, 2)."""
+    slopes = pixel_slopes(np.asarray(field.heights))
+    rng = np.random.default_rng(seed)
+    out = np.zeros((camera.height, camera.width, 2))
+    samples = np.clip(np.ceil(mu), 1, MEAN_SLOPE_SAMPLES).astype(int)
+    for r in range(camera.height):
+        for s_val in np.unique(samples[r]):
+            cols = np.nonzero(samples[r] == s_val)[0]
+            grid = (np.arange(s_val)[:, None] + rng.random((cols.size, s_val, s_val, 2))) / s_val
+            points, _ = camera.hit(cols[:, None, None] + grid[..., 0], r + np.swapaxes(grid[..., 1], 1, 2))
+            out[r, cols] = render_plane.texel_slopes(slopes, points).mean(axis=(1, 2))
+    return out
+
+
+def level_weights(mu: np.ndarray, levels: list[int]) -> np.ndarray:
+    """Weights (len(levels), …) of linear interpolation in log₂ μ between the levels (clamped at the ends)."""
+    pos = np.clip(np.log2(np.maximum(mu, 1.0)), 0, len(levels) - 1)
+    lo = np.minimum(np.floor(pos).astype(int), max(len(levels) - 2, 0))
+    w = pos - lo
+    return np.stack([np.where(lo == k, 1 - w, 0.0) + np.where(lo + 1 == k, w, 0.0) for k in range(len(levels))])
+
+
+def render_planes(mi, camera, mu, mean_slope, light, level_stats, levels, alpha0, masking=True) -> tuple[dict, dict]:
+    """The three plane materials shaded once per pixel centre; images and shading seconds per method."""
+    from brdfscale import render
+
+    row, col = np.mgrid[0 : camera.height, 0 : camera.width] + 0.5
+    _, view = camera.hit(col, row)
+    view = view.reshape(-1, 3)
+    m = mean_slope.reshape(-1, 2)
+    normals = np.concatenate([m, np.ones((len(m), 1))], 1)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    lights = np.broadcast_to(light, view.shape)
+    mus = mu.ravel()
+    weights = level_weights(mus, levels)
+    images, seconds = {}, {}
+
+    basis = frame(normals)
+    wi, wo = local(-view, basis), local(lights, basis)
+    naive = roughconductor(mi, alpha0)
+    shade(mi, naive, wi[:8], wo[:8])  # compile
+    t0 = time.perf_counter()
+    images["naive"] = shade(mi, naive, wi, wo)
+    seconds["naive"] = time.perf_counter() - t0
+
+    lean = []
+    for cov in level_stats["covs"]:
+        w, v = np.linalg.eigh(cov)
+        lean.append((roughconductor(mi, math.sqrt(2 * w[1]), math.sqrt(2 * w[0])), math.atan2(v[1, 1], v[0, 1])))
+    t0 = time.perf_counter()
+    out = np.zeros(len(view))
+    for k, (material, angle) in enumerate(lean):
+        sel = weights[k] > 0
+        if np.any(sel):
+            b = frame(normals[sel], angle)
+            out[sel] += weights[k][sel] * shade(mi, material, local(-view[sel], b), local(lights[sel], b))
+    images["lean"] = out
+    seconds["lean"] = time.perf_counter() - t0
+
+    material = render.bsdf(
+        lobes.Beckmann(alpha0),
+        level_stats["law"],
+        mu0=1.0,
+        texel=1.0,
+        size=LOBE_NODES,
+        masking=masking,
+        variant=VARIANT,
+    )
+    shade(mi, material, wi[:8], wo[:8], np.ones(8))  # compile
+    t0 = time.perf_counter()
+    images["brdfscale"] = shade(mi, material, wi, wo, mus)
+    seconds["brdfscale"] = time.perf_counter() - t0
+    return {k: v.reshape(mu.shape) for k, v in images.items()}, seconds
+
+
+# -- errors ----------------------------------------------------------------------------------------------------
+
+
+def bands_of(mu: np.ndarray) -> np.ndarray:
+    return np.floor(np.log2(np.maximum(mu, 1.0))).astype(int)
+
+
+def band_errors(image: np.ndarray, truth: np.ndarray, mu: np.ndarray) -> list[dict]:
+    scale = truth.mean()
+    bands = bands_of(mu)
+    out = []
+    for b in np.unique(bands):
+        sel = bands == b
+        out.append(
+            {
+                "mu_band_px": [2.0**b, 2.0 ** (b + 1)],
+                "pixels": int(sel.sum()),
+                "bias": float(abs(image[sel].mean() - truth[sel].mean()) / scale),
+                "mean_abs": float(np.abs(image[sel] - truth[sel]).mean() / scale),
+            }
+        )
+    return out
+
+
+def summary_errors(image, truth, mu, threshold: float = 8.0) -> dict:
+    """Errors over all pixels and over those with μ ≥ ``threshold`` texels (the target's region)."""
+    scale = truth.mean()
+    sel = mu >= threshold
+    far = {}
+    if np.any(sel):
+        bands = bands_of(mu)
+        far = {
+            "bias_mean_over_bands": float(
+                np.mean(
+                    [
+                        abs(image[sel & (bands == b)].mean() - truth[sel & (bands == b)].mean())
+                        for b in np.unique(bands[sel])
+                    ]
+                )
+                / scale
+            ),
+            "mean_abs": float(np.abs(image[sel] - truth[sel]).mean() / scale),
+        }
+    return {
+        "mean_abs": float(np.abs(image - truth).mean() / scale),
+        "rms": float(np.sqrt(np.mean((image - truth) ** 2)) / scale),
+        "mu_ge_threshold": far,
+        "bands": band_errors(image, truth, mu),
+    }
+
+
+def equal_error_spp(ladder: list[dict], target: float, key: str) -> float | None:
+    """The spp at which the micro-geometry's error ``key`` falls to ``target`` (log-log interpolation along the
+    ladder; None when even the largest spp is above it; the smallest spp when already below)."""
+    spp = np.array([x["spp"] for x in ladder], float)
+    err = np.array([x[key] for x in ladder], float)
+    if err[0] <= target:
+        return float(spp[0])
+    for k in range(1, len(spp)):
+        if err[k] <= target:
+            a = (math.log(target) - math.log(err[k - 1])) / (math.log(err[k]) - math.log(err[k - 1]))
+            return float(math.exp(math.log(spp[k - 1]) + a * (math.log(spp[k]) - math.log(spp[k - 1]))))
+    return None
+
+
+# -- the study -------------------------------------------------------------------------------------------------
+
+
+def run(
+    *,
+    surface: str,
+    size: int,
+    width: int,
+    height: int,
+    alpha0: float = ALPHA0,
+    reference_spp: int,
+    ladder_spp: list[int],
+    seed: int = 0,
+    out=None,
+    figures: bool = True,
+    check_tabulated: bool = True,
+    masking: bool = True,
+) -> dict:
+    directory = study_dir("render_validation", out)
+    mi = mitsuba()
+    field = height_field(surface, size, seed)
+    camera = render_plane.Camera(width, height)
+    mu = render_plane.footprints(camera)
+    levels = [2**k for k in range(math.ceil(math.log2(max(mu.max(), 2))) + 1) if 2**k <= size // 8]
+    level_stats = level_statistics(field, alpha0, levels)
+    tabulated = tabulated_evolution(level_stats["facets"], alpha0) if check_tabulated else None
+    geometry = MicroGeometry(field, camera, alpha0)
+    geometry.render(1, seed + 99)  # compile
+    truth, truth_seconds = geometry.render(reference_spp, seed + 1)
+    ladder = []
+    for k, spp in enumerate(ladder_spp):
+        image, seconds = geometry.render(spp, seed + 1000 + k)
+        e = summary_errors(image, truth, mu)
+        ladder.append(
+            {
+                "spp": spp,
+                "seconds": seconds,
+                "mean_abs": e["mean_abs"],
+                "far_mean_abs": e["mu_ge_threshold"].get("mean_abs"),
+                "far_bias": e["mu_ge_threshold"].get("bias_mean_over_bands"),
+            }
+        )
+    slopes = mean_slopes(field, camera, mu, seed + 2)
+    images, seconds = render_planes(mi, camera, mu, slopes, geometry.light, level_stats, levels, alpha0, masking)
+    errors = {m: summary_errors(images[m], truth, mu) for m in METHODS}
+    equal = {}
+    per_spp = truth_seconds / reference_spp
+    for m in METHODS:
+        entry = {"shading_seconds": seconds[m]}
+        for key, name in (("mean_abs", "mean_abs"), ("far_mean_abs", "mean_abs"), ("far_bias", "bias_mean_over_bands")):
+            target = errors[m]["mean_abs"] if key == "mean_abs" else errors[m]["mu_ge_threshold"].get(name)
+            spp_eq = None if target is None else equal_error_spp(ladder, target, key)
+            entry[key] = {
+                "error": target,
+                "micro_geometry_spp": spp_eq,
+                "micro_geometry_seconds": None if spp_eq is None else spp_eq * per_spp,
+                "speedup": None if spp_eq is None else spp_eq * per_spp / seconds[m],
+            }
+        equal[m] = entry
+    all_images = {"truth": truth, **images, "mu": mu}
+    render_plane.write_exr(directory / f"{surface}.exr", all_images)
+    payload = {
+        "study": "render validation on micro-geometry: plane receding from near to far",
+        "surface": surface,
+        "surface_description": {k: v for k, v in dict(field.description).items() if k != "trend"},
+        "tile_size": size,
+        "image": [width, height],
+        "alpha0": alpha0,
+        "variant": VARIANT,
+        "brdfscale_masking": masking,
+        "camera_height_texels": CAMERA_HEIGHT,
+        "pitch_deg": render_plane.PITCH_DEG,
+        "vfov_deg": render_plane.VFOV_DEG,
+        "light_elevation_deg": render_plane.LIGHT_ELEVATION_DEG,
+        "mu_range_px": [float(mu.min()), float(mu.max())],
+        "levels_px": levels,
+        "levels": level_stats["records"],
+        "tabulated_evolution": tabulated,
+        "instances": geometry.instances,
+        "triangles_per_tile": 2 * size * size,
+        "reference_spp": reference_spp,
+        "reference_seconds": truth_seconds,
+        "micro_geometry_ladder": ladder,
+        "errors": errors,
+        "equal_error": equal,
+        "alpha_convention_max_relative_error": alpha_convention_error(mi),
+    }
+    write_results(directory, surface, payload)
+    if figures:
+        plot(all_images, errors, directory / f"{surface}.png", surface)
+    return payload
+
+
+def plot(images: dict, errors: dict, path: Path, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    top = np.percentile(images["truth"], 99.5)
+    names = ("truth", *METHODS)
+    fig, axes = plt.subplots(2, 4, figsize=(16, 6.2))
+    for ax, name in zip(axes[0], names):
+        ax.imshow(np.clip(images[name] / top, 0, 1) ** (1 / 2.2), cmap="gray", vmin=0, vmax=1)
+        label = "micro-geometry (truth)" if name == "truth" else f"{name} (mean |Δ| {errors[name]['mean_abs']:.2f})"
+        ax.set_title(label)
+    axes[1, 0].imshow(np.log2(np.maximum(images["mu"], 0.5)), cmap="viridis")
+    axes[1, 0].set_title("log₂ footprint μ [texels]")
+    for ax, name in zip(axes[1, 1:], METHODS):
+        ax.imshow(np.abs(images[name] - images["truth"]) / top, cmap="magma", vmin=0, vmax=0.5)
+        ax.set_title(f"|{name} − truth|")
+    for ax in axes.ravel():
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.suptitle(title)
+    save_figure(fig, path)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--width", type=int, default=192)
+    parser.add_argument("--height", type=int, default=128)
+    parser.add_argument("--size", type=int, default=512, help="periodic tile size (texels)")
+    parser.add_argument("--alpha0", type=float, default=ALPHA0, help="Beckmann roughness of one texel")
+    parser.add_argument("--reference-spp", type=int, default=256)
+    parser.add_argument("--ladder-spp", type=int, nargs="+", default=[1, 2, 4, 8, 16, 32, 64])
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--surfaces", nargs="+", default=list(SURFACES), choices=SURFACES)
+    parser.add_argument("--out", default=None, help="output folder (default experiments/results/render_validation)")
+    args = parser.parse_args(argv)
+    for surface in args.surfaces:
+        run(
+            surface=surface,
+            size=args.size,
+            width=args.width,
+            height=args.height,
+            alpha0=args.alpha0,
+            reference_spp=args.reference_spp,
+            ladder_spp=args.ladder_spp,
+            seed=args.seed,
+            out=args.out,
+        )
+
+
+if __name__ == "__main__":
+    main()
