@@ -12,12 +12,16 @@ SciPy quadrature) live in tests/references/. experiments/ imports these too (fro
 * synthetic material libraries of mixed sizes (:func:`material`, :func:`write_library`;
   tests/test_library.py, tests/test_batch.py, experiments/bench_library.py);
 * measurement files and command lines for the robustness tests (:func:`sample_set`,
-  :func:`same_set`, :func:`rewrite_exr`, :data:`SYNTH_DOMAINS`, :func:`run_command`;
-  tests/test_robustness.py, experiments/fuzz_robustness.py).
+  :func:`same_set`, :func:`rewrite_exr`, :data:`SYNTH_DOMAINS`, :func:`run_cli`,
+  :func:`run_command`; tests/test_robustness.py, experiments/fuzz_robustness.py);
+* a sampled fit through the command and its report (:func:`write_sampled_set`,
+  :func:`comparable_report`; tests/test_checkpoint_integrity.py, tests/test_cli_rewind.py,
+  experiments/_fuzz_checkpoints.py).
 """
 
 import contextlib
 import io
+import json
 import math
 import os
 import traceback
@@ -126,6 +130,31 @@ def parametric_dataset(model, truth, noise, seed, scales=SCALES, size=24):
 # size (16–32 px), extent (0.4–0.6) and number of replicate images (1 or 2) — a lab whose set-up
 # changes from sample to sample, so that no two materials need share a compiled fit unless the
 # fits are bucketed (``fitting.fit_many``).
+
+
+def write_sampled_set(path) -> str:
+    """A small measurement set of the parametric model (scales 1, 2, 8; 16 × 16 pixels; noise
+    0.01) that ``brdfscale fit --model parametric --sampler emcee`` fits and samples in seconds:
+    the command's checkpoint and report tests (tests/test_checkpoint_integrity.py,
+    tests/test_cli_rewind.py) and the checkpoints fuzz family. Returns ``path``."""
+    truth = dict(amplitude=0.8, alpha_lobe=0.08, alpha_max=0.2, mu_c=1.0, exponent=0.8)
+    mset = fitting.simulate(
+        fitting.ParametricModel(), truth, (1.0, 2.0, 8.0), size=16, extent=0.15, noise=0.01, floor=1e-3, seed=2
+    )
+    exr.write_measurements(path, mset)
+    return os.fspath(path)
+
+
+def comparable_report(out) -> dict:
+    """``out/fit.json`` without what differs between two runs of one fit into two directories: the
+    paths into their own directory (figures, posterior, tables) and the sampler's timing."""
+    with open(os.path.join(out, "fit.json"), encoding="utf-8") as f:
+        doc = json.load(f)
+    for key in ("figures", "posterior", "tables"):
+        doc.pop(key, None)
+    (doc.get("mcmc") or {}).pop("timing_s", None)
+    return doc
+
 
 LIBRARY_SIZES = (16, 20, 24, 28, 32)
 LIBRARY_EXTENTS = (0.4, 0.5, 0.6)

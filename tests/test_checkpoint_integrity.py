@@ -27,9 +27,10 @@ import numpy as np
 import pytest
 
 import brdfscale
-from brdfscale import exr, fitting, InvalidInputError, MeasurementFileError, OutputWriteError
+from brdfscale import fitting, InvalidInputError, MeasurementFileError, OutputWriteError
 from brdfscale.fitting import _checkpoint, _resume
-from tests.helpers import Linear, linear_measurements, run_command
+from tests.helpers import comparable_report, Linear, linear_measurements, run_command, write_sampled_set
+from tests.references.damage import chunk_extents, flip_bit, overwrite, same_samples
 
 
 CHUNK = 10
@@ -60,26 +61,9 @@ def runs(linear, tmp_path_factory):
     return out
 
 
-def _same(a, b) -> bool:
-    return (
-        np.array_equal(a.chain, b.chain)
-        and np.array_equal(a.log_prob, b.log_prob)
-        and a.stats.keys() == b.stats.keys()
-        and all(np.array_equal(a.stats[k], b.stats[k]) for k in a.stats)
-    )
-
-
 def _chunk_bytes(path, dataset: str, k: int) -> tuple[int, int]:
     """(offset, size) in the file of HDF5 chunk ``k`` of ``dataset``."""
-    with h5py.File(path, "r") as f:
-        info = f[dataset].id.get_chunk_info(k)
-        return info.byte_offset, info.size
-
-
-def _edit(path, offset: int, data: bytes) -> None:
-    with open(path, "r+b") as f:
-        f.seek(offset)
-        f.write(data)
+    return chunk_extents(path)[dataset][k]
 
 
 def _copy(src, tmp_path, name="c.h5"):
@@ -99,9 +83,9 @@ def test_damaged_chunks_are_refused_for_every_sampler(linear, runs, name, tmp_pa
     for k in range(4):
         offset, size = _chunk_bytes(src, "chain", k)
         for what, damage in [
-            ("bit flip", lambda p: _edit(p, offset + size // 2, bytes([open(p, "rb").read()[offset + size // 2] ^ 8]))),
-            ("NaN step", lambda p: _edit(p, offset + 8 * W * d, struct.pack("<d", float("nan")))),
-            ("zeroed 4 KiB", lambda p: _edit(p, (offset + size // 2) // 4096 * 4096, bytes(4096))),
+            ("bit flip", lambda p: flip_bit(p, offset + size // 2)),
+            ("NaN step", lambda p: overwrite(p, offset + 8 * W * d, struct.pack("<d", float("nan")))),
+            ("zeroed 4 KiB", lambda p: overwrite(p, (offset + size // 2) // 4096 * 4096, bytes(4096))),
         ]:
             path = _copy(src, tmp_path)
             damage(path)
@@ -116,7 +100,7 @@ def test_damaged_chunks_are_refused_for_every_sampler(linear, runs, name, tmp_pa
     # log_prob and statistics are covered too
     offset, size = _chunk_bytes(src, "log_prob", 1)
     path = _copy(src, tmp_path)
-    _edit(path, offset + 8, struct.pack("<d", float("nan")))
+    overwrite(path, offset + 8, struct.pack("<d", float("nan")))
     with pytest.raises(MeasurementFileError, match=r"chunk 1 \(steps 10–19\) fails its SHA-256 check"):
         fitting.sample(problem, res, checkpoint=path, **kw)
 
@@ -133,7 +117,9 @@ def test_every_zeroed_4k_block_is_refused_or_harmless(linear, runs, name, tmp_pa
         path = tmp_path / f"z{start}.h5"
         path.write_bytes(data[:start] + bytes(len(data[start : start + 4096])) + data[start + 4096 :])
         try:
-            outcomes.append("same" if _same(fitting.sample(problem, res, checkpoint=path, **kw), full) else "changed")
+            outcomes.append(
+                "same" if same_samples(fitting.sample(problem, res, checkpoint=path, **kw), full) else "changed"
+            )
         except (MeasurementFileError, InvalidInputError) as err:
             assert "\n" not in str(err) and str(path) in str(err)
             outcomes.append("refused")
@@ -206,16 +192,16 @@ def test_rewind_then_resume_gives_the_undamaged_chain(linear, runs, name, tmp_pa
     path = _copy(src, tmp_path)
     assert fitting.rewind_checkpoint(path) == 40 and open(path, "rb").read() == open(src, "rb").read()  # whole: kept
     offset, size = _chunk_bytes(src, "chain", 2)
-    _edit(path, offset + 100, b"\x00\x01\x02")
+    overwrite(path, offset + 100, b"\x00\x01\x02")
     with pytest.raises(MeasurementFileError, match=r"steps before it \(0–19\) verify.*rewind_checkpoint"):
         fitting.sample(problem, res, checkpoint=path, **kw)
     assert fitting.rewind_checkpoint(path) == 20
     with h5py.File(path, "r") as f:
         assert int(f.attrs["steps_done"]) == 20 and list(f["chunks/end"][()]) == [10, 20]
     resumed = fitting.sample(problem, res, checkpoint=path, **kw)
-    assert _same(resumed, full)
+    assert same_samples(resumed, full)
     again = fitting.sample(problem, res, checkpoint=path, **kw)  # the finished chain, read and verified
-    assert _same(again, full)
+    assert same_samples(again, full)
 
 
 # -- a full disk ----------------------------------------------------------------------------
@@ -242,7 +228,7 @@ def test_full_disk_before_a_chunk_is_the_librarys_error(linear, runs, tmp_path, 
     assert str(path) in str(err.value) and "\n" not in str(err.value)
     with h5py.File(path, "r") as f:
         assert int(f.attrs["steps_done"]) == 20
-    assert _same(fitting.sample(problem, res, checkpoint=path, **kw), full)
+    assert same_samples(fitting.sample(problem, res, checkpoint=path, **kw), full)
 
 
 def test_full_disk_inside_hdf5_is_the_librarys_error(linear, runs, tmp_path, monkeypatch):
@@ -275,7 +261,7 @@ def test_full_disk_inside_hdf5_is_the_librarys_error(linear, runs, tmp_path, mon
     assert str(path) in str(err.value) and "committed before this write are kept" in str(err.value)
     with h5py.File(path, "r") as f:
         assert int(f.attrs["steps_done"]) == 20
-    assert _same(fitting.sample(problem, res, checkpoint=path, **kw), full)
+    assert same_samples(fitting.sample(problem, res, checkpoint=path, **kw), full)
 
 
 # -- fit's report phase ---------------------------------------------------------------------
@@ -318,7 +304,7 @@ def test_resume_report_decides_from_the_report_and_the_verified_chain(runs, tmp_
     assert fitting.resume_report(out, True, checkpoint=out / "chain.h5", steps=20) is None  # overwrite
     os.remove(out / "fit.json")
     offset, _ = _chunk_bytes(out / "chain.h5", "chain", 3)
-    _edit(out / "chain.h5", offset, b"\xff")
+    overwrite(out / "chain.h5", offset, b"\xff")
     with pytest.raises(MeasurementFileError, match="chunk 3 .* fails its SHA-256"):
         fitting.resume_report(out, checkpoint=out / "chain.h5", steps=20)
     os.remove(out / "chain.h5")
@@ -328,12 +314,7 @@ def test_resume_report_decides_from_the_report_and_the_verified_chain(runs, tmp_
 
 
 def _measurements(tmp_path) -> str:
-    model = fitting.ParametricModel()
-    truth = dict(amplitude=0.8, alpha_lobe=0.08, alpha_max=0.2, mu_c=1.0, exponent=0.8)
-    mset = fitting.simulate(model, truth, (1.0, 2.0, 8.0), size=16, extent=0.15, noise=0.01, floor=1e-3, seed=2)
-    path = str(tmp_path / "m.exr")
-    exr.write_measurements(path, mset)
-    return path
+    return write_sampled_set(tmp_path / "m.exr")
 
 
 def _fit_argv(measurements, out) -> list[str]:
@@ -414,12 +395,7 @@ def test_fit_command_sigkilled_during_its_report_resumes(tmp_path):
     rerun = subprocess.run(command + _fit_argv(measurements, out), env=env, capture_output=True, text=True)
     assert rerun.returncode == first.returncode, rerun.stderr
     assert "resuming the report" in rerun.stdout
-    a = json.loads((reference / "fit.json").read_text())
-    b = json.loads((out / "fit.json").read_text())
-    for doc in (a, b):  # the paths name their directories
-        for key in ("figures", "posterior", "tables"):
-            doc.pop(key, None)
-    assert _without_timing(a) == _without_timing(b)
+    assert comparable_report(reference) == comparable_report(out)
     with h5py.File(reference / "chain.h5") as f, h5py.File(out / "chain.h5") as g:
         assert np.array_equal(f["chain"][()], g["chain"][()])
 

@@ -4,7 +4,6 @@ one — the remedy a refused damaged checkpoint names, in the command's words (`
 never the Python call). End to end (slow): the rewound run's chain and report are the
 undamaged run's, bit for bit where the chain is concerned."""
 
-import json
 import shutil
 import subprocess
 import sys
@@ -13,20 +12,16 @@ import h5py
 import numpy as np
 import pytest
 
-from brdfscale import exr, fitting, MeasurementFileError
+from brdfscale import fitting, MeasurementFileError
 from brdfscale._cli import in_flags
-from tests.helpers import Linear, linear_measurements, run_cli
+from tests.helpers import comparable_report, Linear, linear_measurements, run_cli, write_sampled_set
+from tests.references.damage import chunk_extents, flip_bit
 
 
 def _edit_chunk(path, dataset: str, k: int) -> None:
     """Flip one bit in the middle of HDF5 chunk ``k`` of ``dataset``."""
-    with h5py.File(path, "r") as f:
-        info = f[dataset].id.get_chunk_info(k)
-    with open(path, "r+b") as f:
-        f.seek(info.byte_offset + info.size // 2)
-        byte = f.read(1)[0]
-        f.seek(info.byte_offset + info.size // 2)
-        f.write(bytes([byte ^ 8]))
+    offset, size = chunk_extents(path)[dataset][k]
+    flip_bit(path, offset + size // 2)
 
 
 def _one_error_line(err: str) -> str:
@@ -58,12 +53,7 @@ def test_the_refusal_of_a_damaged_checkpoint_names_the_flag(tmp_path):
 
 
 def _measurements(tmp_path) -> str:
-    model = fitting.ParametricModel()
-    truth = dict(amplitude=0.8, alpha_lobe=0.08, alpha_max=0.2, mu_c=1.0, exponent=0.8)
-    mset = fitting.simulate(model, truth, (1.0, 2.0, 8.0), size=16, extent=0.15, noise=0.01, floor=1e-3, seed=2)
-    path = str(tmp_path / "m.exr")
-    exr.write_measurements(path, mset)
-    return path
+    return write_sampled_set(tmp_path / "m.exr")
 
 
 def _argv(measurements, out, *extra) -> list[str]:
@@ -157,9 +147,4 @@ def test_a_rewound_run_gives_the_undamaged_run_s_chain_and_report(tmp_path):
         assert int(b.attrs["steps_done"]) == 400
         for name in ("chain", "log_prob"):
             assert np.array_equal(a[name][()], b[name][()]), name
-    docs = [json.loads((d / "fit.json").read_text()) for d in (reference, out)]
-    for doc in docs:  # the paths name their directories; the timing is the run's
-        for key in ("figures", "posterior", "tables"):
-            doc.pop(key, None)
-        (doc.get("mcmc") or {}).pop("timing_s", None)
-    assert docs[0] == docs[1]
+    assert comparable_report(reference) == comparable_report(out)

@@ -22,6 +22,7 @@ from helpers import run_command, same_set, sample_set
 
 import brdfscale
 from brdfscale import _files, exr, files, OutputWriteError
+from tests.references.damage import fill, mount_tmpfs
 
 
 STEPS = _files.STEPS
@@ -313,13 +314,11 @@ def _with(parser, func):
 
 @contextlib.contextmanager
 def _tmpfs(size: str):
-    if sys.platform != "linux" or os.geteuid() != 0:
-        pytest.skip("a real full disk needs root on Linux (mount -t tmpfs); the injected ENOSPC covers the steps")
     where = tempfile.mkdtemp(prefix="brdfscale-tmpfs-")
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", where], capture_output=True)
-    if r.returncode != 0:
+    why_not = mount_tmpfs(where, size)
+    if why_not is not None:
         os.rmdir(where)
-        pytest.skip(f"mount -t tmpfs failed here: {r.stderr.decode().strip()}")
+        pytest.skip(f"{why_not}; the injected ENOSPC covers the steps")
     try:
         yield where
     finally:
@@ -328,20 +327,9 @@ def _tmpfs(size: str):
 
 
 def _fill(directory: str, leave: int) -> str:
-    """Fill ``directory``'s file system until ``leave`` bytes are free (0: until ENOSPC)."""
-    filler = os.path.join(directory, "filler")
-    fd = os.open(filler, os.O_WRONLY | os.O_CREAT, 0o600)
-    try:
-        free = files.free_space(directory)
-        assert free is not None
-        with contextlib.suppress(OSError):
-            left = free - leave
-            while left > 0:
-                left -= os.write(fd, b"\0" * min(left, 1 << 20))
-            while leave == 0:
-                os.write(fd, b"\0" * 4096)
-    finally:
-        os.close(fd)
+    """Fill ``directory``'s file system until ``leave`` bytes are free (0: until ENOSPC); the
+    library's measure of the free space agrees."""
+    filler = fill(directory, leave)
     assert files.free_space(directory) == leave
     return filler
 

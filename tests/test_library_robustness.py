@@ -6,9 +6,7 @@ previous index in place; a `kill -9` of a driver running Ray workers leaves no R
 run behind (slow). The fuzz family of experiments/_fuzz_library.py is run by
 tests/test_experiments_smoke.py (slow)."""
 
-import contextlib
 import errno
-import io
 import json
 import os
 import shutil
@@ -22,21 +20,12 @@ import pytest
 
 import brdfscale._files
 from brdfscale import InvalidInputError, library, MeasurementFileError, OutputWriteError
-from brdfscale._cli import main
 from brdfscale.library._watchdog import alive, descendants
-from tests.helpers import write_library
+from tests.helpers import run_cli, write_library
 
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 ARGS = ["--starts", "1", "--batch", "1", "--no-progress"]
-
-
-def _run(argv) -> tuple[int, str, str]:
-    """``brdfscale ARGV`` in this process, without the persistent compilation cache: (status, stdout, stderr)."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = main(["--no-compilation-cache", *argv])
-    return code, out.getvalue(), err.getvalue()
 
 
 def _one_line(err: str) -> str:
@@ -64,7 +53,7 @@ def fitted(tmp_path_factory):
     """A library of two materials and its complete, uninterrupted fit (the reference)."""
     base = tmp_path_factory.mktemp("library")
     write_library(str(base / "lib"), 2)
-    code, out, err = _run(["fit-library", str(base / "lib"), "--out", str(base / "reference"), *ARGS])
+    code, out, err = run_cli(["fit-library", str(base / "lib"), "--out", str(base / "reference"), *ARGS])
     assert code == 0, out + err
     return base
 
@@ -112,7 +101,7 @@ def test_a_damaged_index_is_refused_in_one_line_and_left_as_it_was(copy, damage)
     out, command = copy
     DAMAGED[damage](out)
     before, inodes = (out / library.INDEX).read_bytes(), _inodes(out)
-    code, _, err = _run(command)
+    code, _, err = run_cli(command)
     assert code == 2
     line = _one_line(err)
     assert str(out / library.INDEX) in line and "unreadable library index" in line and "move it away" in line
@@ -139,7 +128,7 @@ def test_an_output_path_that_is_not_a_directory_is_refused_in_one_line(copy, whe
     target = out if where == "out" else out / where
     shutil.rmtree(target)
     target.write_text("not a directory")
-    code, _, err = _run(command)
+    code, _, err = run_cli(command)
     assert code == 2
     line = _one_line(err)
     assert str(target) in line and "not a directory" in line
@@ -171,7 +160,7 @@ def test_a_material_whose_report_was_damaged_is_fitted_again_and_the_run_says_so
     spoil, said = REPORT_DAMAGE[damage]
     untouched = _inodes(out)["material_000"]
     spoil(out / "materials" / "material_001")
-    code, text, err = _run(command)
+    code, text, err = run_cli(command)
     assert code == 0, text + err
     assert f"{out / 'materials' / 'material_001'}: {said}" in text and "fitting material_001 again" in text
     assert "fitted this run  1" in text and _inodes(out)["material_000"] == untouched
@@ -189,7 +178,7 @@ def test_a_partial_directory_left_beside_a_complete_report_goes(copy):
     (out / "materials" / ".material_001.partial").mkdir()
     (out / "materials" / ".material_001.partial" / "fit.json").write_text("{")  # a killed attempt's remains
     inodes = _inodes(out)
-    code, text, err = _run(command)
+    code, text, err = run_cli(command)
     assert code == 0 and "fitted this run  0" in text, text + err
     assert not (out / "materials" / ".material_001.partial").exists() and _inodes(out) == inodes
 
@@ -198,7 +187,7 @@ def test_a_measurement_file_named_twice_is_refused_in_one_line(fitted, tmp_path)
     one = str(fitted / "lib" / "material_000.exr")
     os.symlink(one, tmp_path / "link.exr")
     for sources in ([one, one], [str(fitted / "lib"), one], [one, str(tmp_path / "link.exr")]):
-        code, _, err = _run(["fit-library", *sources, "--out", str(tmp_path / "out"), *ARGS])
+        code, _, err = run_cli(["fit-library", *sources, "--out", str(tmp_path / "out"), *ARGS])
         assert code == 2
         line = _one_line(err)
         assert "named twice" in line and one in line
@@ -211,7 +200,7 @@ def test_hidden_entries_are_listed_in_one_line(tmp_path):
     (tmp_path / "lib" / ".draft.exr").write_bytes(b"")
     (tmp_path / "lib" / ".cache" / "old.exr").write_bytes(b"")
     (tmp_path / "lib" / ".notes").write_bytes(b"")  # not a measurement file: not listed
-    code, text, _ = _run(["fit-library", str(tmp_path / "lib"), "--out", str(tmp_path / "out"), *ARGS])
+    code, text, _ = run_cli(["fit-library", str(tmp_path / "lib"), "--out", str(tmp_path / "out"), *ARGS])
     assert code == 4  # the damaged file failed; the library ran
     lines = [line for line in text.splitlines() if line.startswith("  skipped")]
     cache, draft = os.path.join(tmp_path, "lib", ".cache") + os.sep, os.path.join(tmp_path, "lib", ".draft.exr")
@@ -232,12 +221,12 @@ def test_a_full_disk_while_writing_the_index_leaves_the_previous_index(copy, mon
     with pytest.raises(OutputWriteError, match="disk full") as raised:
         library.fit_library(command[1], out, spec=spec, batch=1, progress=False)
     assert raised.value.path == str(out / library.INDEX) and raised.value.disk_full
-    code, _, err = _run(command)
+    code, _, err = run_cli(command)
     assert code == 8 and "disk full" in _one_line(err)
     assert (out / library.INDEX).read_bytes() == before
     assert [n for n in os.listdir(out) if n.startswith(f".{library.INDEX}")] == []  # no temporary left
     monkeypatch.undo()
-    code, text, err = _run(command)  # with space again: the library is complete, nothing refitted
+    code, text, err = run_cli(command)  # with space again: the library is complete, nothing refitted
     assert code == 0 and "fitted this run  0" in text, text + err
 
 
@@ -251,7 +240,7 @@ def test_a_full_disk_while_a_report_is_written_stops_the_run_and_the_rerun_compl
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
     monkeypatch.setattr(brdfscale._files, "_fault", full)
-    code, _, err = _run(command)
+    code, _, err = run_cli(command)
     line = _one_line(err)
     assert code == 8 and "disk full" in line and "fit.json" in line
     index = json.loads((out / library.INDEX).read_bytes())  # whole: the run's start, recorded before the fit
@@ -259,7 +248,7 @@ def test_a_full_disk_while_a_report_is_written_stops_the_run_and_the_rerun_compl
     assert index["materials"]["material_001"]["status"] == "pending"
     assert not (out / "materials" / "material_001" / "fit.json").exists()  # no report pretends to be whole
     monkeypatch.undo()
-    code, text, err = _run(command)
+    code, text, err = run_cli(command)
     assert code == 0 and "fitted this run  1" in text, text + err
     again, first = _fit(out, "material_001"), _fit(fitted / "reference", "material_001")
     np.testing.assert_allclose(again["optimisation"]["theta"], first["optimisation"]["theta"], rtol=1e-12)
