@@ -1,8 +1,10 @@
-"""The non-parametric model through the ``brdfscale fit`` command on a small synthetic file.
+"""The ``brdfscale fit`` command on small synthetic files: its default model (anisotropic),
+``--shape``, ``--compare``, the non-parametric model, the outcome and the exit status.
 
-This is a test of the command's path (options, model, fit, report, tables), kept fast with a
-coarse model (7 × 7 base nodes, 3 knots, 40 solver steps) that need not converge: the report
-must then say so. Recovery by the non-parametric model is tests/test_fit_slow.py's job.
+These are tests of the command's path (options, model, fit, report, tables), kept fast with
+coarse models (the non-parametric one: 7 × 7 base nodes, 3 knots, 40 solver steps) that need not
+converge: the report must then say so. Recovery is tests/test_anisotropic.py's and
+tests/test_fit_slow.py's job.
 """
 
 import json
@@ -105,7 +107,8 @@ def test_a_correct_model_exits_0_with_pulls_and_a_wrong_one_exits_5(tmp_path, ca
     """Beckmann lobes fitted by the Beckmann model: exit 0, the truth/pull table printed as the demo
     prints it; GGX lobes fitted by the same model: exit 5 after the complete report, one line on
     stderr naming the worst scale and its figure."""
-    fit = ["--no-compilation-cache", "fit", "--steps", "0", "--starts", "2", "--no-progress", "--out"]
+    fit = ["--no-compilation-cache", "fit", "--model", "parametric", "--steps", "0", "--starts", "2"]
+    fit += ["--no-progress", "--out"]
     assert main([*fit, str(tmp_path / "ok"), _simulated_file(tmp_path, "beckmann", 3)]) == 0
     printed = capsys.readouterr()
     assert "|est−truth|/std" in printed.out and "outcome: ok" in printed.out and printed.err == ""
@@ -162,16 +165,18 @@ def test_synth_topography_defaults_make_a_file_fit_can_use(tmp_path, capsys):
 @pytest.mark.slow  # ≈ 40 s on 2 cores: a fit of a measured surface at README's defaults but for small images
 def test_readme_measured_surface_chain_runs_as_written(tmp_path, capsys):
     """README: brdfscale topography FILE; brdfscale synth --topography FILE; brdfscale fit — on di-3 the
-    isotropic default model leaves structured residuals: exit 5 after the complete report, its
-    reason naming the scale in metres; every printed estimate inside its printed prior range."""
+    default (anisotropic) model's report, its exit status the report's verdict (5 with its reason on
+    stderr naming the scale in metres); every printed estimate inside its printed prior range."""
     assert main(["topography", DI, "--out", str(tmp_path / "D")]) == 0
     data = tmp_path / "m.exr"
     assert main(["synth", "--topography", DI, "--pixels", "33", "--scales", "auto:4", "--out", str(data)]) == 0
     code = main(["fit", str(data), "--out", str(tmp_path / "F"), "--no-progress", "--steps", "0"])
     printed = capsys.readouterr()
     doc = json.loads((tmp_path / "F" / "fit.json").read_text())
-    assert (code, doc["outcome"]["status"]) == (5, "inadequate")
-    assert printed.err.strip().endswith(doc["outcome"]["reason"]) and " m: " in doc["outcome"]["reason"]
+    assert doc["model"]["kind"] == "anisotropic" and doc["model"]["solver"] == "lm_normal"
+    assert code == {"ok": 0, "inadequate": 5, "not_converged": 6}[doc["outcome"]["status"]]
+    if code == 5:
+        assert printed.err.strip().endswith(doc["outcome"]["reason"]) and " m: " in doc["outcome"]["reason"]
     for line in printed.out.splitlines():
         if "prior range" in line:
             lo, hi, best = (float(x) for x in re.findall(r"range (\S+) … (\S+); best fit (\S+)\)", line)[0])
@@ -187,3 +192,77 @@ def test_an_estimate_on_a_prior_bound_is_said_to_be_there():
     print_determined(doc, stream=lines.append)
     assert lines[0].startswith("  exponent") and lines[0].endswith("its estimate is at a bound of its prior range")
     assert lines[1].startswith("  alpha_max") and "bound" not in lines[1]
+
+
+# -- the default model, --shape and --compare (issue 31 items 1 and 8) -------------------------------------
+
+
+def test_the_default_model_is_the_anisotropic_one_with_normal_equation_steps():
+    """No --model: fitting.AnisotropicModel with a Gaussian base lobe, solver "auto" resolved to
+    lm_normal in the report's model description; --model isotropic is its isotropic special case;
+    --shape reaches the model, and is refused where it does not apply."""
+    from brdfscale import InvalidInputError
+    from brdfscale._cli import build_parser
+    from brdfscale._cli._fit import check_fit_options, spec_of
+
+    data = fitting.Dataset.from_measurements(
+        fitting.simulate(fitting.ParametricModel(), TRUTH, SCALES, size=9, extent=0.35, noise=0.01, seed=0)
+    )
+
+    def parsed(*extra):
+        args = build_parser().parse_args(["fit", "m.exr", "--out", "d", *extra])
+        check_fit_options(args)
+        return args
+
+    model, info = spec_of(parsed()).model_for(data)
+    assert isinstance(model, fitting.AnisotropicModel) and not model.isotropic and model.shape == "gaussian"
+    assert info["kind"] == "anisotropic" and info["solver"] == "lm_normal"
+    model, info = spec_of(parsed("--model", "isotropic", "--shape", "student_t")).model_for(data)
+    assert model.isotropic and model.shape == "student_t" and model.names[-1] == "log nu"
+    assert spec_of(parsed("--model", "parametric")).model_for(data)[1]["solver"] == "lm"
+    with pytest.raises(InvalidInputError, match="--shape applies to the anisotropic and isotropic models"):
+        parsed("--model", "parametric", "--shape", "ggx")
+    with pytest.raises(InvalidInputError, match=r"--fix applies to the parametric model only \(--model parametric\)"):
+        parsed("--fix", "mu_c=1")
+
+
+def _anisotropic_file(tmp_path) -> str:
+    """An anisotropic Gaussian lobe (tests/helpers ANISO_TRUTH) at three scales, 25² px over ±0.3."""
+    from helpers import ANISO_SCALES, ANISO_TRUTH, anisotropic_differences, gaussian
+
+    import brdfscale as bs
+
+    x = np.linspace(-0.3, 0.3, 25)
+    u = np.stack(np.meshgrid(x, x), axis=-1)
+    rng, images = np.random.default_rng(0), []
+    for mu, d in zip(ANISO_SCALES, anisotropic_differences()):
+        v = gaussian(u, ANISO_TRUTH["mean"], ANISO_TRUTH["C0"] + d, ANISO_TRUTH["amplitude"])
+        s = 0.01 * v.max() + 1e-3
+        values = v + s * rng.standard_normal(v.shape)
+        images.append(bs.LobeImage(mu=mu, incident=[0, 0, 1.0], extent=0.3, values=values, sigma=np.full(v.shape, s)))
+    path = tmp_path / "aniso.exr"
+    exr.write_measurements(str(path), bs.MeasurementSet(tuple(images)))
+    return str(path)
+
+
+@pytest.mark.slow  # three fits compiled afresh: ≈ 50 s on 2 cores
+def test_compare_reports_the_model_the_data_prefer(tmp_path, capsys):
+    """--compare on anisotropic Gaussian lobes: the table (AIC, BIC) printed and in fit.json's
+    model.comparison; the report is the anisotropic model's (smallest BIC), its exit status its
+    verdict (ok: exit 0)."""
+    out = tmp_path / "F"
+    argv = ["--no-compilation-cache", "fit", _anisotropic_file(tmp_path), "--out", str(out), "--compare"]
+    code = main([*argv, "--steps", "0", "--starts", "2", "--no-progress"])
+    printed = capsys.readouterr().out
+    doc = json.loads((out / "fit.json").read_text())
+    comparison = doc["model"]["comparison"]
+    assert comparison["preferred"] == {"bic": "anisotropic", "aic": "anisotropic"}
+    assert comparison["reported"] == "anisotropic" and doc["model"]["kind"] == "anisotropic"
+    rows = {r["model"]: r for r in comparison["rows"]}
+    assert set(rows) == {"isotropic", "anisotropic", "anisotropic:student_t"}
+    assert rows["isotropic"]["delta_bic"] > 10 and rows["anisotropic"]["delta_bic"] == 0
+    assert doc["optimisation"]["reduced_chi2"] * (rows["anisotropic"]["n"] - 12) == pytest.approx(
+        rows["anisotropic"]["chi2"], rel=1e-9
+    )
+    assert "preferred: anisotropic (BIC), anisotropic (AIC)" in printed
+    assert code == {"ok": 0, "inadequate": 5, "not_converged": 6}[doc["outcome"]["status"]] == 0

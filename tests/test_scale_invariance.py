@@ -265,7 +265,8 @@ def test_undefined_ratios_through_sampling_and_the_fit_command(undefined_ratios,
     mset = fitting.simulate(model, TRUTHS[0], (0.5, 1.0, 2.0, 4.0, 8.0), size=16, extent=0.1, noise=0.02, seed=0)
     path = tmp_path / "m.exr"
     exr.write_measurements(str(path), mset)
-    argv = ["fit", str(path), "--out", str(tmp_path / "out"), "--fix", "alpha_max=9", "--steps", "0"]
+    argv = ["fit", str(path), "--out", str(tmp_path / "out"), "--model", "parametric", "--fix", "alpha_max=9"]
+    argv += ["--steps", "0"]
     code = main(argv + ["--starts", "1", "--no-progress"])
     out, err = capsys.readouterr()
     assert code not in (1, 2) and "TypeError" not in err and "unexpected failure" not in err
