@@ -7,14 +7,15 @@
   intersection, interreflection up to ``bounces``;
 * :class:`Measurement` — the same measurement split into :class:`Task` s that give the same result, bit for bit,
   whatever the split (run in this process or on any cluster that can pickle them);
-* :func:`mesh` — a height field as a Mitsuba triangle mesh (unmeasured pixels left out; bounded by
-  :data:`MAX_MESH_BYTES`), :func:`mesh_bytes` its size.
+* :func:`mesh` — a height field as a Mitsuba triangle mesh, its pixel facets (default) or the continuous
+  triangulation (:data:`SURFACES`), unmeasured pixels left out, bounded by :data:`MAX_MESH_BYTES`;
+  :func:`mesh_arrays` the same as NumPy arrays, :func:`mesh_bytes` its size.
 
 Nothing here imports Mitsuba until called (:mod:`brdfscale._mitsuba` picks the variant). Guide: docs/instrument.md.
 """
 
 from ._measure import DEFAULT_BATCHES, DEFAULT_RAYS, MAX_BOUNCES, measure, Measurement, Task, TaskResult
-from ._mesh import MAX_MESH_BYTES, mesh, mesh_bytes
+from ._mesh import MAX_MESH_BYTES, mesh, mesh_arrays, mesh_bytes, SURFACES
 
 
 __all__ = [
@@ -23,7 +24,9 @@ __all__ = [
     "Task",
     "TaskResult",
     "mesh",
+    "mesh_arrays",
     "mesh_bytes",
+    "SURFACES",
     "MAX_MESH_BYTES",
     "DEFAULT_RAYS",
     "DEFAULT_BATCHES",

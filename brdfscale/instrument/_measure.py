@@ -80,12 +80,14 @@ class Task:
 @dataclasses.dataclass(frozen=True)
 class TaskResult:
     """A task's partial sums, one entry per batch (in the task's order): node sums ``counts`` (n, n) of ``w·c``,
-    the rays ``hit`` whose light met the surface, and tallies (escaped, detected and lost weight, rays)."""
+    the rays ``hit`` whose light met the surface, and tallies (escaped, detected and lost weight, rays); with
+    ``Measurement.run(task, quads=True)`` also ``quads``, the pixel quad ``(row, col)`` of every surface hit (M, 2)."""
 
     batches: tuple[tuple[int, int, int], ...]
     counts: tuple[np.ndarray, ...]
     hit: tuple[int, ...]
     tallies: tuple[dict, ...]
+    quads: np.ndarray | None = None
 
 
 def _check_seed(seed) -> int:
@@ -129,6 +131,7 @@ class Measurement:
         spots: int | None = None,
         batches: int = DEFAULT_BATCHES,
         fresnel=None,
+        surface: str = "pixel_facets",
         pad: int | None = None,
         seed: int = 0,
         variant: str | None = None,
@@ -161,8 +164,9 @@ class Measurement:
         if self.rays < self.batches:
             raise InvalidInputError(f"rays must be at least batches = {self.batches}; got rays={self.rays}.")
         self.spots = None if spots is None else integer(spots, "spots", 1)
-        self.pad = _mesh.default_pad(field) if pad is None else _mesh.check_pad(field, pad)
-        _mesh.check_mesh_size(field, self.pad)
+        self.surface = _mesh.check_surface(surface)
+        self.pad = _mesh.default_pad(field, self.surface) if pad is None else _mesh.check_pad(field, pad)
+        _mesh.check_mesh_size(field, self.surface, self.pad)
         self.seed = _check_seed(seed)
         self.variant = _check_variant(variant)
         self._spots = [self._spot_set(s) for s in range(len(self.scales))]
@@ -193,10 +197,11 @@ class Measurement:
             blocks = h[: nby * by, : nbx * bx].reshape(nby, by, nbx, bx).mean(axis=(1, 3))
             height = blocks[J, K]
         m = slopes[J, K].astype(np.float64)
+        shift = np.array(_mesh.centre(field))
         return {
-            "origin": np.stack((K * bx, J * by * ratio), axis=-1).astype(np.float64),
+            "origin": np.stack((K * bx, J * by * ratio), axis=-1) - shift,
             "size": np.array([bx, by * ratio], np.float64),
-            "centre": np.stack((K * bx + (bx - 1) / 2, (J * by + (by - 1) / 2) * ratio), axis=-1),
+            "centre": np.stack((K * bx + (bx - 1) / 2, (J * by + (by - 1) / 2) * ratio), axis=-1) - shift,
             "height": height,
             "slope": m,
             "rotation": _rotations(m),
@@ -237,7 +242,7 @@ class Measurement:
         scene = self.__dict__.get("_scene_cache")
         if scene is None:
             mi = _mitsuba.mitsuba(self.variant)
-            shape = _mesh.mesh(self.field, pad=self.pad, variant=mi.variant())
+            shape = _mesh.mesh(self.field, surface=self.surface, pad=self.pad, variant=mi.variant())
             scene = (
                 mi,
                 mi.load_dict({"type": "scene", "surface": shape}),
@@ -267,25 +272,41 @@ class Measurement:
         low, high = self._relief
         ny, nx = self.field.shape
         reach = math.hypot(nx + 2 * self.pad, (ny + 2 * self.pad) * self.field.spacing[1] / self.field.spacing[0])
-        distance = reach + 2 * (high - low) + 4.0  # beyond the mesh's bounding box from any aim point
+        # start where the line of light crosses the level 1 px above the highest node: the light meets the surface
+        # from above only (a ray entering the mesh's side below its edge would reach undersides)
+        distance = np.minimum((high + 1.0 - z) / np.maximum(light[:, 2], 1e-12), reach + 2 * (high - low) + 4.0)
+        distance = distance[:, None]
         return spot, aim + distance * light, -light, samples
 
-    def run(self, task: Task) -> TaskResult:
-        """Trace the batches of ``task`` (in this process) and return their partial sums."""
+    def run(self, task: Task, *, quads: bool = False) -> TaskResult:
+        """Trace the batches of ``task`` (in this process) and return their partial sums (with ``quads=True`` also
+        the pixel quad of every surface hit, for diagnostics)."""
         if not isinstance(task, Task):
             raise InvalidInputError(f"task must be a Task from Measurement.tasks(); got {type(task).__name__}.")
+        if not isinstance(quads, bool):
+            raise InvalidInputError(f"quads must be True or False; got {type(quads).__name__}.")
         mi, scene, bsdf = self._scene()
-        counts, hits, tallies = [], [], []
+        faces = self._faces() if quads else None
+        counts, hits, tallies, where = [], [], [], []
         for s, k, b in task.batches:
             spot, origins, directions, samples = self._launch(s, k, b)
             paths = _trace.trace(mi, scene, bsdf, origins, directions, samples, self.bounces)
-            c, tally = self._deposit(s, k, spot, paths)
+            c, tally = self._deposit(s, k, spot, paths, directions[:, 2] >= 0)
             counts.append(c)
-            hits.append(int(paths.hit.sum()))
+            hits.append(tally["hit"] + tally["from_below"])
             tallies.append(tally)
-        return TaskResult(task.batches, tuple(counts), tuple(hits), tuple(tallies))
+            if faces is not None:
+                where.append(faces[paths.faces])
+        found = None if faces is None else np.concatenate(where) if where else np.zeros((0, 2), np.int64)
+        return TaskResult(task.batches, tuple(counts), tuple(hits), tuple(tallies), found)
 
-    def _deposit(self, s: int, k: int, spot: np.ndarray, paths: _trace.Paths) -> tuple[np.ndarray, dict]:
+    def _faces(self) -> np.ndarray:
+        """The pixel quad of every face of the mesh, in Mitsuba's face order (:func:`._mesh.mesh_arrays`)."""
+        return _mesh.mesh_arrays(self.field, self.surface, self.pad)[2]
+
+    def _deposit(
+        self, s: int, k: int, spot: np.ndarray, paths: _trace.Paths, from_below: np.ndarray
+    ) -> tuple[np.ndarray, dict]:
         i = self.incident[k]
         rotation = self._spots[s]["rotation"][spot[paths.ray]]
         o = np.einsum("nij,nj->ni", rotation, paths.direction)  # world to the spot frame
@@ -304,6 +325,8 @@ class Measurement:
             "detected": float(paths.weight[up].sum()),
             "bounce_limit": int(paths.limited.sum()),
             "underside": int(paths.underside.sum()),
+            "from_below": int(np.count_nonzero(from_below & ~paths.hit)),
+            "unmeasured": int(np.count_nonzero(~from_below & ~paths.hit)),
             "orders": np.bincount(paths.order, minlength=self.bounces + 1)[1:].tolist(),
         }
         return hist.counts.reshape(self.pixels, self.pixels).copy(), tally
@@ -364,8 +387,7 @@ class Measurement:
             m = self._spots[s]["slope"]
             truth["facet_slope_mean"].append(m.mean(axis=0).tolist())
             truth["facet_slope_covariance"].append(np.cov(m.T).tolist() if len(m) > 1 else [[0.0, 0.0], [0.0, 0.0]])
-        ny, nx = field.shape
-        rows, cols = (ny + 1 + 2 * self.pad, nx + 1 + 2 * self.pad) if field.periodic else (ny, nx)
+        vertices, triangles = _mesh.mesh_counts(field, self.surface, self.pad)
         return {
             "generator": "brdfscale.instrument.measure",
             "surface": field.description,
@@ -397,7 +419,8 @@ class Measurement:
                 "micro": self.micro.record(),
                 "seed": self.seed,
                 "margin_px": self.pad,
-                "mesh": {"vertices": rows * cols, "triangles_max": 2 * (rows - 1) * (cols - 1)},
+                "surface": self.surface,
+                "mesh": {"vertices_max": vertices, "triangles_max": triangles},
                 "detector": {
                     "domain": "half_slope",
                     "node_pitch": h,
@@ -411,16 +434,19 @@ class Measurement:
 
 
 def _image_record(mu: float, i: np.ndarray, tallies: list[dict], h: float) -> dict:
-    hit = sum(t["hit"] for t in tallies)
-    total = {key: sum(t[key] for t in tallies) for key in ("rays", "escaped", "detected", "bounce_limit", "underside")}
+    keys = ("rays", "hit", "escaped", "detected", "bounce_limit", "underside", "from_below", "unmeasured")
+    total = {key: sum(t[key] for t in tallies) for key in keys}
+    lit = max(total["hit"] + total["from_below"], 1)
     orders = np.sum([t["orders"] for t in tallies], axis=0)
     return {
         "mu": mu,
         "incident": i.tolist(),
         "rays": total["rays"],
-        "hit": hit,
-        "escaped_fraction": total["escaped"] / max(hit, 1),
-        "detected_fraction": total["detected"] / max(hit, 1),
+        "hit": total["hit"],
+        "from_below": total["from_below"],
+        "unmeasured": total["unmeasured"],
+        "escaped_fraction": total["escaped"] / lit,
+        "detected_fraction": total["detected"] / lit,
         "bounce_limit": total["bounce_limit"],
         "underside": total["underside"],
         "escaped_by_order": orders.tolist(),
@@ -454,6 +480,7 @@ def measure(
     spots: int | None = None,
     batches: int = DEFAULT_BATCHES,
     fresnel: complex | float | None = None,
+    surface: str = "pixel_facets",
     pad: int | None = None,
     seed: int = 0,
     variant: str | None = None,
@@ -478,6 +505,8 @@ def measure(
         spots: spots per scale, drawn without replacement from the whole windows by the seed; None: every window.
         batches: independent batches per image σ is estimated from (≥ 2).
         fresnel: None (F = 1) or the facets' refractive index ``n + ik``.
+        surface: ``"pixel_facets"`` (the HeightField's pixel facets, the surface synth takes statistics of) or
+            ``"triangles"`` (the continuous piecewise-linear surface): :mod:`._mesh`.
         pad: the periodic margin in pixels of a periodic field's mesh (default :func:`._mesh.default_pad`; 0 for a
             measured field).
         seed: an integer ≥ 0; the same seed gives the same measurement bit for bit (on one variant).
@@ -508,6 +537,7 @@ def measure(
         spots=spots,
         batches=batches,
         fresnel=fresnel,
+        surface=surface,
         pad=pad,
         seed=seed,
         variant=variant,

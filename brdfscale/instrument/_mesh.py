@@ -1,23 +1,36 @@
-"""A height field as a triangle mesh for Mitsuba 3: two triangles per pixel quad, unmeasured pixels left out.
+"""A height field as a triangle mesh for Mitsuba 3, in one of two surfaces (:data:`SURFACES`); unmeasured pixels
+left out.
 
-Lengths are in pixel units of x (``Δx = 1``; ``Δy/Δx`` and the heights divided by ``Δx``), so float32 keeps the same
-relative precision whatever the field's unit; slopes are ratios of lengths and do not change. Node ``(j, k)`` (row j,
-column k) is the vertex ``(k, j·Δy/Δx, h[j, k]/Δx)``. The quad of nodes ``(j, k)`` … ``(j + 1, k + 1)`` is split into
+Lengths are in pixel units of x (``Δx = 1``; ``Δy/Δx`` and the heights divided by ``Δx``, less their mean), so
+float32 keeps the same relative precision whatever the field's unit; slopes are ratios of lengths and do not change.
+Node ``(j, k)`` (row j, column k) is the vertex ``(k − nx/2, (j − ny/2)·Δy/Δx, h[j, k]/Δx)`` (centred:
+:func:`centre`). The *pixel facet* of quad ``(j, k)`` is
+the plane through nodes ``00 = (j, k)``, ``01 = (j, k+1)`` and ``10 = (j+1, k)`` — the facet of
+:class:`brdfscale.synth.HeightField`, whose normal slope is the forward difference ``m = −∇h``
+(docs/conventions.md §1). The surfaces:
 
-* triangle A = ``(j, k), (j, k+1), (j+1, k)`` — exactly :mod:`brdfscale.synth`'s *pixel facet* (its normal slope is the
-  forward difference, ``m = −∇h``), and
-* triangle B = ``(j, k+1), (j+1, k+1), (j+1, k)``,
+* ``"pixel_facets"`` (default) — the library's own surface model, the one :mod:`brdfscale.synth` takes statistics
+  of: each pixel facet over its whole pixel (triangles ``00, 01, 10`` and ``01, P, 10`` with the fourth corner
+  ``P = 01 + 10 − 00``), joined to its right and lower neighbours by vertical slivers ``01, 11, P`` and ``10, P, 11``
+  that close the gap ``h₁₁ − P_z`` (the mixed second difference; slivers of height 0 are left out). Watertight; the
+  slivers' area relative to the pixel's is about ``|∂²h/∂x∂y|·Δ``, small on a field sampled finer than its
+  correlation length. 4 triangles and one extra vertex per quad.
+* ``"triangles"`` — the continuous piecewise-linear surface through the nodes: triangle A = ``00, 01, 10`` (the pixel
+  facet) and triangle B = ``01, 11, 10``, whose slope is not a pixel facet's (its x slope is the forward difference
+  of row j+1, its y slope that of column k+1). 2 triangles per quad.
 
-both wound so that their geometric normals point up (+z). A triangle with an unmeasured node (``field.mask`` False) is
-not in the mesh, so no ray can hit it (tests/test_instrument.py::test_masked_pixels_are_never_hit).
+Every triangle is wound so that its normal points to the open side (up for the facets; for a sliver towards the
+lower of the two facets it joins). A triangle with an unmeasured node (``field.mask`` False) is not in the mesh, so
+no ray can hit it (tests/test_instrument.py::test_masked_pixels_are_never_hit).
 
 A periodic field is meshed with a periodic margin of ``pad`` pixels on every side (the heights wrapped), so that spots
 near its edges are shadowed and masked by the surface beyond them; a measured field is meshed as it is (no
 margin: beyond its edges there is no surface).
 
 Memory: the mesh's buffers take :func:`mesh_bytes` = ``12·V + 12·F`` bytes (V float32 vertex triples, F uint32 index
-triples); a mesh above :data:`MAX_MESH_BYTES` is refused before anything is allocated. A 2048² field without margin
-needs 4.2 M vertices and 8.4 M triangles, 151 MB (tests/test_instrument.py::test_mesh_memory_bound).
+triples); a mesh above :data:`MAX_MESH_BYTES` is refused before anything is allocated. A 2048² measured field needs
+8.4 M vertices and 16.8 M triangles as pixel facets (302 MB), 4.2 M and 8.4 M as triangles (151 MB)
+(tests/test_instrument.py::test_mesh_memory_bound).
 """
 
 from __future__ import annotations
@@ -32,9 +45,24 @@ from ..synth import HeightField
 
 
 MAX_MESH_BYTES = 2**29
-"""The largest mesh the instrument builds, in bytes of vertex and index buffers (512 MiB: a 2048² field with a
-periodic margin of up to 2 × 1024 pixels more per axis, 26 M triangles at most). Mitsuba's acceleration structure
-comes on top (a small multiple of the buffers)."""
+"""The largest mesh the instrument builds, in bytes of vertex and index buffers (512 MiB: a 2048² field as pixel
+facets with a periodic margin of up to 300 pixels per side, 22 M triangles). Mitsuba's acceleration structure comes on
+top (a small multiple of the buffers)."""
+
+
+SURFACES = ("pixel_facets", "triangles")
+"""The two meshes of a height field, the default first: ``"pixel_facets"`` — the library's own surface model, each
+pixel facet over its whole pixel, joined by vertical slivers; ``"triangles"`` — the continuous piecewise-linear
+surface through the nodes (triangles A and B)."""
+
+
+def check_surface(surface) -> str:
+    if not isinstance(surface, str) or surface not in SURFACES:
+        raise InvalidInputError(
+            f"surface must be 'pixel_facets' (the HeightField's pixel facets, as brdfscale.synth measures them) or "
+            f"'triangles' (the continuous piecewise-linear surface through the heights); got {surface!r}."
+        )
+    return surface
 
 
 def _nodes(field: HeightField, pad: int) -> tuple[int, int]:
@@ -45,11 +73,20 @@ def _nodes(field: HeightField, pad: int) -> tuple[int, int]:
     return ny, nx
 
 
-def mesh_bytes(field: HeightField, pad: int = 0) -> int:
-    """The bytes of the vertex and index buffers of :func:`mesh` for ``field`` with margin ``pad`` (an upper bound
-    with a mask: every node is a vertex, every quad two triangles)."""
+def mesh_counts(field: HeightField, surface: str = "pixel_facets", pad: int = 0) -> tuple[int, int]:
+    """``(vertices, triangles)`` of :func:`mesh` at most (every quad measured, no sliver degenerate)."""
     rows, cols = _nodes(field, pad)
-    return 12 * rows * cols + 12 * 2 * (rows - 1) * (cols - 1)
+    quads = (rows - 1) * (cols - 1)
+    if check_surface(surface) == "triangles":
+        return rows * cols, 2 * quads
+    return rows * cols + quads, 4 * quads
+
+
+def mesh_bytes(field: HeightField, surface: str = "pixel_facets", pad: int = 0) -> int:
+    """The bytes of the vertex and index buffers of :func:`mesh` for ``field`` (``12·V + 12·F``: float32 vertex
+    triples, uint32 index triples; an upper bound with a mask or flat quads)."""
+    vertices, triangles = mesh_counts(field, surface, pad)
+    return 12 * vertices + 12 * triangles
 
 
 def check_pad(field: HeightField, pad) -> int:
@@ -64,69 +101,107 @@ def check_pad(field: HeightField, pad) -> int:
     return pad
 
 
-def check_mesh_size(field: HeightField, pad: int) -> None:
-    size = mesh_bytes(field, pad)
+def check_mesh_size(field: HeightField, surface: str, pad: int) -> None:
+    """Refuse a mesh above :data:`MAX_MESH_BYTES` before anything is allocated."""
+    size = mesh_bytes(field, surface, pad)
     if size > MAX_MESH_BYTES:
-        rows, cols = _nodes(field, pad)
+        vertices, triangles = mesh_counts(field, surface, pad)
         raise InvalidInputError(
-            f"the mesh of this {field.shape[0]} × {field.shape[1]} field (margin {pad} px) would take "
-            f"{size / 2**20:.4g} MiB of buffers ({rows * cols} vertices, {2 * (rows - 1) * (cols - 1)} triangles), "
-            "above "
+            f"the {surface} mesh of this {field.shape[0]} × {field.shape[1]} field (margin {pad} px) would take "
+            f"{size / 2**20:.4g} MiB of buffers ({vertices} vertices, {triangles} triangles), above "
             f"brdfscale.instrument.MAX_MESH_BYTES = {MAX_MESH_BYTES} bytes; use a smaller margin or a smaller field "
             "(a part of its heights, or brdfscale.topography.resample onto coarser pixels)."
         )
 
 
-def mesh_arrays(field: HeightField, pad: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The mesh as NumPy arrays: vertices ``(V, 3)`` float32 (pixel units), faces ``(F, 3)`` uint32 and, per face,
-    the pixel quad it lies on ``(F, 2)`` int64 ``(row, col)`` in the field's own indices (wrapped for the margin)."""
+def centre(field: HeightField) -> tuple[float, float]:
+    """Where node ``(0, 0)`` would lie were the field's centre the origin, negated: the mesh's x, y are
+    ``(k − nx/2, (j − ny/2)·Δy/Δx)`` — centred, because Mitsuba offsets a reflected ray's origin by
+    ``(1 + max|p|)·8.9e-5`` (its float32 ``RayEpsilon``), which grows with the coordinates."""
+    ny, nx = field.shape
+    return nx / 2, ny / 2 * field.spacing[1] / field.spacing[0]
+
+
+def _check_field(field) -> HeightField:
     if not isinstance(field, HeightField):
         raise InvalidInputError(
             f"field must be a brdfscale.synth.HeightField (brdfscale.topography.read or from_array make one of a "
             f"measured surface); got {type(field).__name__}."
         )
+    return field
+
+
+def mesh_arrays(
+    field: HeightField, surface: str = "pixel_facets", pad: int = 0
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The mesh as NumPy arrays: vertices ``(V, 3)`` float32 (pixel units), faces ``(F, 3)`` uint32 and, per face,
+    the pixel quad it belongs to ``(F, 2)`` int64 ``(row, col)`` in the field's own indices (wrapped in the margin)."""
+    _check_field(field)
+    surface = check_surface(surface)
     pad = check_pad(field, pad)
-    check_mesh_size(field, pad)
+    check_mesh_size(field, surface, pad)
     ny, nx = field.shape
     dx, dy = field.spacing
     rows, cols = _nodes(field, pad)
-    j = np.arange(rows) - (pad if field.periodic else 0)
-    k = np.arange(cols) - (pad if field.periodic else 0)
-    jw, kw = j % ny, k % nx
-    heights = field.heights[np.ix_(jw, kw)] - float(
-        np.mean(field.heights if field.mask is None else field.heights[field.mask])
-    )
-    x, y = np.meshgrid(k.astype(np.float64), j * (dy / dx), indexing="xy")
-    vertices = np.stack((x, y, heights / dx), axis=-1).reshape(-1, 3).astype(np.float32)
+    shift = pad if field.periodic else 0
+    jw, kw = (np.arange(rows) - shift) % ny, (np.arange(cols) - shift) % nx
+    level = float(np.mean(field.heights if field.mask is None else field.heights[field.mask]))
+    z = (field.heights[np.ix_(jw, kw)] - level) / dx
+    cx, cy = centre(field)
+    x, y = np.meshgrid(np.arange(cols, dtype=np.float64) - shift - cx, (np.arange(rows) - shift) * (dy / dx) - cy)
+    nodes = np.stack((x, y, z), axis=-1).reshape(-1, 3)
     q = (np.arange(rows - 1)[:, None] * cols + np.arange(cols - 1)[None, :]).ravel()
     v00, v01, v10, v11 = q, q + 1, q + cols, q + cols + 1
-    faces = np.concatenate((np.stack((v00, v01, v10), -1), np.stack((v01, v11, v10), -1)))
-    qj = np.repeat(jw[:-1], cols - 1)
-    qk = np.tile(kw[:-1], rows - 1)
-    quads = np.concatenate((np.stack((qj, qk), -1),) * 2)
-    if field.mask is not None:
-        measured = field.mask[np.ix_(jw, kw)].ravel()
-        keep = measured[faces].all(axis=1)
-        faces, quads = faces[keep], quads[keep]
+    quad = np.stack((np.repeat(jw[:-1], cols - 1), np.tile(kw[:-1], rows - 1)), axis=-1)
+    measured = None if field.mask is None else field.mask[np.ix_(jw, kw)].ravel()
+    if surface == "triangles":
+        faces = np.concatenate((np.stack((v00, v01, v10), -1), np.stack((v01, v11, v10), -1)))
+        quads = np.concatenate((quad, quad))
+        if measured is not None:
+            keep = measured[faces].all(axis=1)
+            faces, quads = faces[keep], quads[keep]
+        return nodes.astype(np.float32), faces.astype(np.uint32), quads
+    # pixel facets: the quad's plane through nodes 00, 01, 10; its fourth corner P = 01 + 10 − 00
+    flat = z.ravel()
+    corner = nodes[v01] + nodes[v10] - nodes[v00]
+    p = len(nodes) + np.arange(len(q))
+    step = flat[v11] - corner[:, 2]  # the mixed difference: how far node 11 lies above P
+    present = np.ones(len(q), bool) if measured is None else measured[np.stack((v00, v01, v10), -1)].all(axis=1)
+    grid = present.reshape(rows - 1, cols - 1)
+    right = np.zeros_like(grid)
+    right[:, :-1] = grid[:, :-1] & grid[:, 1:]
+    below = np.zeros_like(grid)
+    below[:-1] = grid[:-1] & grid[1:]
+    wall = step != 0
+    pieces = [
+        (np.stack((v00, v01, v10), -1), present),
+        (np.stack((v01, p, v10), -1), present),
+        (np.stack((v01, v11, p), -1), right.ravel() & wall),  # x = k + 1: faces −x where node 11 is above P
+        (np.stack((v10, p, v11), -1), below.ravel() & wall),  # y = j + 1: faces −y where node 11 is above P
+    ]
+    faces = np.concatenate([f[keep] for f, keep in pieces])
+    quads = np.concatenate([quad[keep] for _, keep in pieces])
+    vertices = np.concatenate((nodes, corner)).astype(np.float32)
     return vertices, faces.astype(np.uint32), quads
 
 
-def mesh(field: HeightField, *, pad: int = 0, variant: str | None = None):
+def mesh(field: HeightField, *, surface: str = "pixel_facets", pad: int = 0, variant: str | None = None):
     """The height field as a Mitsuba 3 triangle mesh (``mi.Mesh``, face normals only, no BSDF of its own).
 
-    Geometry and conventions: module docstring (pixel units of x, two triangles per quad, unmeasured pixels left
-    out, a periodic margin of ``pad`` pixels). Mitsuba comes from :func:`brdfscale._mitsuba.mitsuba` (``variant``:
-    the default picks the first that runs here). Put it in a scene with ``mi.load_dict({"type": "scene", "surface":
-    mesh(field)})``. The render helpers reuse it.
+    Geometry and conventions: module docstring (pixel units of x; ``surface`` ``"pixel_facets"`` or
+    ``"triangles"``; unmeasured pixels left out; a periodic margin of ``pad`` pixels). Mitsuba comes from
+    :func:`brdfscale._mitsuba.mitsuba` (``variant``: the default picks the first that runs here). Put it in a scene
+    with ``mi.load_dict({"type": "scene", "surface": mesh(field)})``. :func:`mesh_arrays` gives the same mesh as
+    NumPy arrays.
 
     Raises:
-        InvalidInputError: ``field`` not a HeightField, ``pad`` not an integer ≥ 0 (0 for a measured field), a mesh
-            above :data:`MAX_MESH_BYTES`, an unknown variant.
+        InvalidInputError: ``field`` not a HeightField, an unknown ``surface``, ``pad`` not an integer ≥ 0 (0 for a
+            measured field), a mesh above :data:`MAX_MESH_BYTES`, an unknown variant.
         MissingDependencyError: Mitsuba is not installed or the variant cannot run here.
     """
     from .. import _mitsuba
 
-    vertices, faces, _ = mesh_arrays(field, pad)
+    vertices, faces, _ = mesh_arrays(field, surface, pad)
     mi = _mitsuba.mitsuba(variant)
     if len(faces) == 0:
         raise InvalidInputError("the field has no measured pixel quad to mesh.")
@@ -138,7 +213,7 @@ def mesh(field: HeightField, *, pad: int = 0, variant: str | None = None):
     return shape
 
 
-def default_pad(field: HeightField, grazing_deg: float = 5.0) -> int:
+def default_pad(field: HeightField, surface: str = "pixel_facets", grazing_deg: float = 5.0) -> int:
     """The periodic margin the instrument uses: the horizontal distance, in pixels, over which a ray 5° above the
     horizon falls through the field's height range, plus one, capped by the field's size and :data:`MAX_MESH_BYTES`
     (0 for a measured field)."""
@@ -147,6 +222,6 @@ def default_pad(field: HeightField, grazing_deg: float = 5.0) -> int:
     h = field.heights
     relief = float(h.max() - h.min()) / field.spacing[0]
     pad = min(math.ceil(relief / math.tan(math.radians(grazing_deg))) + 1, max(field.shape))
-    while pad > 0 and mesh_bytes(field, pad) > MAX_MESH_BYTES:
+    while pad > 0 and mesh_bytes(field, surface, pad) > MAX_MESH_BYTES:
         pad //= 2
     return pad

@@ -5,8 +5,9 @@ and is followed through up to ``bounces`` reflections. At each hit the facet's m
 ``BSDF.sample``, whose weight is ``f·cosθ_o/pdf``); the reflected ray is intersected with the scene (masking, and the
 next reflection) or, after the last allowed reflection, tested for visibility (``Scene.ray_test``): a path that
 leaves the surface unobstructed escapes with its direction and throughput, one that hits the surface again after
-its last allowed reflection is lost (recorded). A hit on a triangle's underside (a ray through an unmeasured hole)
-ends the path as lost. Shadowing needs no extra ray: the light reaches only the first surface on its line.
+its last allowed reflection is lost (recorded). A hit on a triangle's underside ends the path: as light that never
+met the measured surface when it is the first hit (light through an unmeasured hole, or from below the surface), as
+lost light after a reflection. Shadowing needs no extra ray: the light reaches only the first surface on its line.
 
 The batch runs as a few vectorised Mitsuba calls in a JIT variant (``llvm_*``, ``cuda_*``) and ray by ray in a
 scalar variant (much slower; for machines without LLVM ≥ 19).
@@ -23,7 +24,8 @@ import numpy as np
 class Paths:
     """What a batch's paths did: ``hit`` (N,) bool — the light met the surface from above; per escaped path its
     index ``ray``, world direction ``direction`` (E, 3) and throughput ``weight`` (E,) and the reflections it took
-    ``order`` (E,); ``limited`` (N,) bool — lost at the bounce limit; ``underside`` (N,) bool — lost on an underside;
+    ``order`` (E,); ``limited`` (N,) bool — lost at the bounce limit; ``below`` (N,) bool — the light's first hit
+    was an underside; ``underside`` (N,) bool — lost on an underside after a reflection;
     ``faces`` — the triangles hit (every hit of every path; for tests)."""
 
     hit: np.ndarray
@@ -32,6 +34,7 @@ class Paths:
     weight: np.ndarray
     order: np.ndarray
     limited: np.ndarray
+    below: np.ndarray
     underside: np.ndarray
     faces: np.ndarray
 
@@ -50,7 +53,8 @@ def trace(mi, scene, bsdf, origins: np.ndarray, directions: np.ndarray, samples:
     ray = mi.Ray3f(_vector(mi, mi.Point3f, origins), _vector(mi, mi.Vector3f, directions))
     si = scene.ray_intersect(ray)
     front = si.is_valid() & (dr.dot(ray.d, si.n) < 0)
-    underside = np.array(si.is_valid() & ~front)
+    below = np.array(si.is_valid() & ~front)
+    underside = np.zeros(n, bool)
     hit = np.array(front)
     faces = [np.array(si.prim_index)[np.array(si.is_valid())]]
     active = mi.Bool(front)
@@ -91,10 +95,10 @@ def trace(mi, scene, bsdf, origins: np.ndarray, directions: np.ndarray, samples:
             orders.append(np.full(int(e.sum()), b + 1))
         if not np.array(active).any():
             break
-    return _paths(hit, rays, dirs, weights, orders, limited, underside, faces)
+    return _paths(hit, rays, dirs, weights, orders, limited, below, underside, faces)
 
 
-def _paths(hit, rays, dirs, weights, orders, limited, underside, faces) -> Paths:
+def _paths(hit, rays, dirs, weights, orders, limited, below, underside, faces) -> Paths:
     return Paths(
         hit=hit,
         ray=np.concatenate(rays) if rays else np.zeros(0, np.int64),
@@ -102,6 +106,7 @@ def _paths(hit, rays, dirs, weights, orders, limited, underside, faces) -> Paths
         weight=np.concatenate(weights).astype(np.float64) if weights else np.zeros(0),
         order=np.concatenate(orders) if orders else np.zeros(0, np.int64),
         limited=limited,
+        below=below,
         underside=underside,
         faces=np.concatenate(faces).astype(np.int64) if faces else np.zeros(0, np.int64),
     )
@@ -112,7 +117,7 @@ def _trace_scalar(mi, scene, bsdf, origins, directions, samples, bounces) -> Pat
     import drjit as dr
 
     n = len(origins)
-    hit, limited, underside = np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool)
+    hit, limited, below, underside = (np.zeros(n, bool) for _ in range(4))
     rays, dirs, weights, orders, faces = [], [], [], [], []
     ctx = mi.BSDFContext()
     for r in range(n):
@@ -122,7 +127,7 @@ def _trace_scalar(mi, scene, bsdf, origins, directions, samples, bounces) -> Pat
             continue
         faces.append(int(si.prim_index))
         if not dr.dot(ray.d, si.n) < 0:
-            underside[r] = True
+            below[r] = True
             continue
         hit[r] = True
         throughput = 1.0
@@ -149,4 +154,4 @@ def _trace_scalar(mi, scene, bsdf, origins, directions, samples, bounces) -> Pat
             weights.append(np.array([throughput]))
             orders.append(np.array([b + 1]))
             break
-    return _paths(hit, rays, dirs, weights, orders, limited, underside, [np.array(faces, np.int64)])
+    return _paths(hit, rays, dirs, weights, orders, limited, below, underside, [np.array(faces, np.int64)])
