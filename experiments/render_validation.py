@@ -28,10 +28,15 @@ with the lobe for the footprint μ (texels, √area of the pixel's footprint):
   i.e. the slope density ``exp(−s_x²/α_u² − s_y²/α_v²)/(π α_u α_v)``; :func:`alpha_convention_error` checks it on the
   plugin itself. C is blended linearly in log₂ μ between the levels b = 1, 2, 4, … texels (the renders of the two
   neighbouring levels are blended);
-* ``brdfscale`` — (c) :func:`brdfscale.render.bsdf` of the evolved lobe table: ``brdfscale.evolve(Beckmann(α0),
-  s(1), s(b), "grid", regularisation=λ)`` with the measured (tabulated) facet statistics s(b) at each level
-  (λ = c/√facets, ×3 until the library accepts it, as study 4), the plugin interpolating linearly in ln μ and reading
-  μ from the interaction's uv partials (filled here with the pixel's footprint); Smith masking of the plugin.
+* ``brdfscale`` — (c) :func:`brdfscale.render.bsdf` of ``Beckmann(α0)`` at μ0 = 1 texel with the surface's measured
+  scale law (:class:`brdfscale.stats.MeasuredScaleLaw` of the facet statistics at the levels: Gaussian ``Σ(μ)``,
+  linear in ln μ between them), Smith masking (height-correlated) of the plugin; the plugin reads μ from the
+  interaction's uv partials, filled here with the pixel's footprint. For a Gaussian law the evolved lobe is the
+  Gaussian of covariance C(μ) — LEAN's — so (b) and (c) differ by the masking term, the lobe's orientation (a shear
+  of the slope plane here, a rotated frame in (b)) and Mitsuba's α-clamping, not by the lobe's shape. The material
+  one would want for a non-Gaussian surface, the evolution with the *measured histograms*, is attempted at every
+  level and recorded (``tabulated_evolution``): where the histograms do not nest (seed Eq. 3.1 violated, as study 1
+  finds on real surfaces) the library refuses it.
 
 Errors (relative to the truth's mean radiance, per μ band a factor 2 wide): ``bias`` — |band mean − truth band mean|
 (the part a statistical model can remove; sparkle averages out) and ``mean_abs`` — per-pixel mean |Δ| (includes the
