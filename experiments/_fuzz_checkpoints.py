@@ -31,8 +31,6 @@ one line; ``bad`` = anything else.
 (experiments/fuzz_robustness.py runs it with the others).
 """
 
-import argparse
-import json
 import os
 import random
 import shutil
@@ -44,6 +42,9 @@ import tempfile
 import time
 
 import numpy as np
+
+from experiments import _fuzz_common
+from tests.references.damage import chunk_extents, same_samples
 
 
 KINDS = ("bit_flip", "zero_block", "nan_step", "truncate")
@@ -70,30 +71,10 @@ def _linear():
     return fitting.Problem(Linear(), data), fitting.fit(Linear(), data, starts=1)
 
 
-def _same(a, b) -> bool:
-    return (
-        np.array_equal(a.chain, b.chain)
-        and np.array_equal(a.log_prob, b.log_prob)
-        and a.stats.keys() == b.stats.keys()
-        and all(np.array_equal(a.stats[k], b.stats[k]) for k in a.stats)
-    )
-
-
 def _regions(path) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
     """(offset, size) of every stored HDF5 chunk of the data and state datasets; and of chain/log_prob only."""
-    import h5py
-
-    every, values = [], []
-    with h5py.File(path, "r") as f:
-        names = ["chain", "log_prob"] + [f"stats/{k}" for k in f["stats"]] + [f"state/{k}" for k in f["state"]]
-        for name in names:
-            ds = f[name]
-            for i in range(ds.id.get_num_chunks()):
-                info = ds.id.get_chunk_info(i)
-                every.append((info.byte_offset, info.size))
-                if name in ("chain", "log_prob"):
-                    values.append((info.byte_offset, info.size))
-    return every, values
+    extents = chunk_extents(path)
+    return [r for rows in extents.values() for r in rows], extents["chain"] + extents["log_prob"]
 
 
 def _mutate(kind: str, data: bytes, regions, values, rng: random.Random) -> bytes:
@@ -147,14 +128,14 @@ def _corruptions(n_per_kind: int, samplers, tmp: str, seed: int, tally, bad) -> 
                         try:
                             fitting.rewind_checkpoint(mutant)
                             again = fitting.sample(problem, res, checkpoint=mutant, **kw)
-                            if not _same(again, reference):
+                            if not same_samples(again, reference):
                                 outcome, why = "bad", f"{what}: rewound and resumed, the chain differs"
                         except Exception as exc:  # noqa: BLE001 — the study records what escaped
                             outcome, why = "bad", f"{what}: rewind failed: {type(exc).__name__}: {exc}"[:300]
                 except Exception as exc:  # noqa: BLE001
                     outcome, why = "bad", f"{what}: foreign {type(exc).__name__}: {exc}"[:300]
                 else:
-                    outcome = "same" if _same(result, reference) else "bad"
+                    outcome = "same" if same_samples(result, reference) else "bad"
                     why = f"{what}: resumed into a different chain, silently"
                 tally[kind]["tried"] += 1
                 tally[kind][outcome] += 1
@@ -167,20 +148,17 @@ def _measurements(path: str) -> None:
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    from brdfscale import exr, fitting
+    from tests.helpers import write_sampled_set
 
-    truth = dict(amplitude=0.8, alpha_lobe=0.08, alpha_max=0.2, mu_c=1.0, exponent=0.8)
-    mset = fitting.simulate(
-        fitting.ParametricModel(), truth, (1.0, 2.0, 8.0), size=16, extent=0.15, noise=0.01, floor=1e-3, seed=2
-    )
-    exr.write_measurements(path, mset)
+    write_sampled_set(path)
 
 
 def _fit(measurements: str, out: str, env: dict, kill_after: float | None = None):
     """``brdfscale fit`` (emcee, tiny) into ``out``: (exit status, stdout, stderr, wall seconds);
     SIGKILLed after ``kill_after`` seconds when given (exit status then None)."""
-    argv = [sys.executable, "-m", "brdfscale", "fit", measurements, "--out", out, "--sampler", "emcee"]
-    argv += ["--walkers", "16", "--chains", "2", "--steps", "60", "--starts", "1", "--no-progress"]
+    from tests.helpers import sampled_fit_argv
+
+    argv = [sys.executable, "-m", "brdfscale", *sampled_fit_argv(measurements, out, steps=60)]
     start = time.perf_counter()
     proc = subprocess.Popen(argv, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     if kill_after is None:
@@ -193,15 +171,6 @@ def _fit(measurements: str, out: str, env: dict, kill_after: float | None = None
         proc.send_signal(signal.SIGKILL)
         out_text, err_text = proc.communicate()
         return None, out_text, err_text, time.perf_counter() - start
-
-
-def _report(out: str) -> dict:
-    with open(os.path.join(out, "fit.json")) as f:
-        doc = json.load(f)
-    for key in ("figures", "posterior", "tables"):  # paths into their own directory
-        doc.pop(key, None)
-    (doc.get("mcmc") or {}).pop("timing_s", None)
-    return doc
 
 
 def _chain(out: str):
@@ -230,7 +199,9 @@ def _sigkills(n: int, tmp: str, seed: int, tally, bad, refused, warm: bool = Tru
         tally["sigkill_fit"]["tried"] += 1
         tally["sigkill_fit"]["bad"] += 1
         return
-    reference, reference_chain = _report(reference_dir), _chain(reference_dir)
+    from tests.helpers import comparable_report
+
+    reference, reference_chain = comparable_report(reference_dir), _chain(reference_dir)
     for trial in range(n):
         out = os.path.join(tmp, f"killed-{trial}")
         after = rng.uniform(0.05, 1.0) * wall
@@ -241,7 +212,7 @@ def _sigkills(n: int, tmp: str, seed: int, tally, bad, refused, warm: bool = Tru
         if killed is not None:
             what += " (it finished before the kill)"
         if code == status and os.path.exists(os.path.join(out, "fit.json")):
-            same = _report(out) == reference and np.array_equal(_chain(out), reference_chain)
+            same = comparable_report(out) == reference and np.array_equal(_chain(out), reference_chain)
             outcome = "same" if same else "bad"
             why = f"{what}: the rerun's report differs from the uninterrupted run's"
         elif code in (2, 3) and len(lines) == 1 and "Traceback" not in err_text:
@@ -260,7 +231,7 @@ def _sigkills(n: int, tmp: str, seed: int, tally, bad, refused, warm: bool = Tru
 def run(quick: bool, seed: int = 0, directory: str | None = None) -> dict:
     """The family's tallies (module docstring): ``quick`` — 3 mutants per kind on emcee's
     checkpoint and 1 SIGKILL; else 15 per kind and sampler (120 corruptions) and 20 SIGKILLs."""
-    tally = {kind: {"tried": 0, "refused": 0, "same": 0, "bad": 0} for kind in KINDS + ("sigkill_fit",)}
+    tally = _fuzz_common.tally(KINDS + ("sigkill_fit",))
     bad: list[str] = []
     refused: list[str] = []  # what the refused reruns said (not part of the family's interface; kept for reading)
     tmp = tempfile.mkdtemp(prefix="fuzz-checkpoints-", dir=directory)
@@ -272,20 +243,5 @@ def run(quick: bool, seed: int = 0, directory: str | None = None) -> dict:
     return {"kinds": tally, "bad_examples": bad[:20], "refused_examples": refused[:20]}
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--json", default=None, help="write the result here as JSON")
-    args = parser.parse_args(argv)
-    result = run(args.quick, seed=args.seed)
-    text = json.dumps(result, indent=1)
-    print(text)
-    if args.json:
-        with open(args.json, "w") as f:
-            f.write(text)
-    return 0 if all(r["bad"] == 0 for r in result["kinds"].values()) else 1
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(_fuzz_common.main(run, __doc__))

@@ -20,10 +20,9 @@ Where ``mount -t tmpfs`` cannot be used (not root, not Linux), the test seam
 levels); the JSON says which (``"mode"``). ``quick`` runs synth (at two steps) and topography
 (at one) only, injected, in this process (fast enough for the default test suite).
 
-    python -m experiments._fuzz_disk [--quick] [--out results.json]
+    python -m experiments._fuzz_disk [--quick] [--json results.json]
 """
 
-import argparse
 import contextlib
 import json
 import os
@@ -32,6 +31,9 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+from experiments import _fuzz_common
+from tests.references.damage import fill, mount_tmpfs
 
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -103,7 +105,7 @@ def _commands(inputs: Path, out: Path, quick: bool) -> dict[str, list[str]]:
     if quick:
         return commands
     data = str(inputs / "data.exr")
-    fit = ["fit", data, "--starts", "2", "--no-progress", "--seed", "1"]
+    fit = ["fit", data, "--model", "parametric", "--starts", "2", "--no-progress", "--seed", "1"]
     commands.update(
         {
             "fit": [*fit, "--steps", "0", "--out", str(out / "f")],
@@ -235,33 +237,9 @@ def _outputs(out: Path) -> set[str]:
 # -- the disk ---------------------------------------------------------------------------------------
 
 
-def _mount(where: Path) -> str | None:
-    """Mount a tmpfs at ``where``: None when done, else why not."""
-    if sys.platform != "linux" or not hasattr(os, "geteuid") or os.geteuid() != 0:
-        return "not root on Linux"
-    r = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={_TMPFS_SIZE}", "tmpfs", str(where)], capture_output=True)
-    return None if r.returncode == 0 else f"mount -t tmpfs failed: {r.stderr.decode(errors='replace').strip()}"
-
-
-def _free(path: Path) -> int:
-    return shutil.disk_usage(path).free
-
-
 def _fill(disk: Path, leave: int | None) -> Path:
-    filler = disk / "filler"
-    if leave is None:
-        return filler
-    fd = os.open(filler, os.O_WRONLY | os.O_CREAT, 0o600)
-    try:
-        with contextlib.suppress(OSError):
-            left = _free(disk) - leave
-            while left > 0:
-                left -= os.write(fd, b"\0" * min(left, 1 << 20))
-            while leave == 0:
-                os.write(fd, b"\0" * 4096)
-    finally:
-        os.close(fd)
-    return filler
+    """``disk`` filled until ``leave`` bytes are free (None: left as it is); the filler's path."""
+    return disk / "filler" if leave is None else Path(fill(disk, leave))
 
 
 def _clear(disk: Path) -> None:
@@ -335,7 +313,7 @@ def run(quick: bool, seed: int = 0, directory: str | None = None) -> dict:
         "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
         **({"BRDFSCALE_FUZZ_INPROCESS": "1"} if quick else {}),
     }
-    why_not = "quick mode injects" if quick else _mount(disk)
+    why_not = "quick mode injects" if quick else mount_tmpfs(disk, _TMPFS_SIZE)
     mounted = why_not is None
     mode = "tmpfs" if mounted else "injected"
     result: dict = {
@@ -355,7 +333,7 @@ def run(quick: bool, seed: int = 0, directory: str | None = None) -> dict:
         if not quick:
             _prepare(inputs)
         for kind, argv in commands.items():
-            counts = {"tried": 0, "refused": 0, "same": 0, "bad": 0}
+            counts = _fuzz_common.tally([kind])[kind]
             result["kinds"][kind] = counts
             _clear(disk)
             out.mkdir()
@@ -389,22 +367,12 @@ def run(quick: bool, seed: int = 0, directory: str | None = None) -> dict:
     return result
 
 
-def main(argv=None) -> None:
+def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["--child"]:
-        sys.exit(_child(argv[1:]))
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--out", help="write the JSON here too")
-    args = parser.parse_args(argv)
-    result = run(args.quick)
-    text = json.dumps(result, indent=2)
-    print(text)
-    if args.out:
-        from brdfscale import files
-
-        files.write_text(args.out, text + "\n", overwrite=True)
+        return _child(argv[1:])
+    return _fuzz_common.main(run, __doc__, argv)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -29,7 +29,6 @@ The subprocesses share a compilation cache private to the study's temporary dire
 """
 
 import contextlib
-import io
 import json
 import os
 import random
@@ -41,25 +40,13 @@ import tempfile
 import time
 
 from brdfscale.library._watchdog import alive, descendants
+from experiments import _fuzz_common
 
 
 KINDS = ("damaged_index", "sigkill_fit_library")
 ARGS = ["--starts", "1", "--batch", "1", "--no-progress"]
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 INDEX = "library.json"
-
-
-def _main(argv) -> tuple[int, str, str]:
-    """``brdfscale ARGV`` in this process: (status, stdout, stderr); an escaped exception is status −1."""
-    from brdfscale._cli import main
-
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            code = main(["--no-compilation-cache", *argv])
-        except BaseException as exc:  # noqa: BLE001 — main must never let one out: recorded as bad
-            return -1, out.getvalue(), f"{type(exc).__name__}: {exc}"
-    return code, out.getvalue(), err.getvalue()
 
 
 def _results(out: str, names) -> dict:
@@ -216,7 +203,7 @@ def _damaged_indices(n, rng, tmp, lib, ref, reference, counts, bad):
         shutil.copytree(ref, out, symlinks=True)
         what = _damage(rng, out, sorted(reference))
         before = _snapshot(os.path.join(out, INDEX))
-        code, _, err = _main(["fit-library", lib, "--out", out, *ARGS])
+        code, _, err = _fuzz_common.in_process(["fit-library", lib, "--out", out, *ARGS])
         lines = err.strip().splitlines()
         counts["tried"] += 1
         if code == 2 and len(lines) == 1 and lines[0].startswith("brdfscale fit-library: error: "):
@@ -334,12 +321,12 @@ def run(quick: bool, seed: int = 0, directory: str | None = None) -> dict:
 
     jax.config.update("jax_enable_x64", True)
     rng = random.Random(seed)
-    counts = {kind: {"tried": 0, "refused": 0, "same": 0, "bad": 0} for kind in KINDS}
+    counts = _fuzz_common.tally(KINDS)
     bad: list = []
     with tempfile.TemporaryDirectory(dir=directory, prefix="fuzz-library-") as tmp:
         lib, ref = os.path.join(tmp, "lib"), os.path.join(tmp, "reference")
         _write_library(lib, 2 if quick else 3, seed)
-        code, out, err = _main(["fit-library", lib, "--out", ref, *ARGS])
+        code, out, err = _fuzz_common.in_process(["fit-library", lib, "--out", ref, *ARGS])
         if code != 0:
             raise RuntimeError(f"the reference library fit failed (exit {code}): {out}{err}")
         reference = _results(ref, sorted(n for n in os.listdir(os.path.join(ref, "materials")) if n[0] != "."))
@@ -349,10 +336,4 @@ def run(quick: bool, seed: int = 0, directory: str | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    import argparse
-
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--seed", type=int, default=0)
-    options = parser.parse_args()
-    print(json.dumps(run(options.quick, options.seed), indent=1))
+    sys.exit(_fuzz_common.main(run, __doc__))

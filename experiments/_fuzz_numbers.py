@@ -38,12 +38,12 @@ on two images chosen by the seed.
     python -m experiments._fuzz_numbers [--quick] [--seed N] [--json out.json]
 """
 
-import argparse
-import json
 import math
 import sys
 
 import numpy as np
+
+from experiments import _fuzz_common
 
 
 KINDS = ("sigma_scale", "hostile_sigma")
@@ -254,27 +254,12 @@ def run(quick: bool, seed: int = 0, directory: str | None = None) -> dict:
     """The family's tallies (module docstring); ``directory`` is unused: every trial runs in
     memory, no file is written."""
     _setup()
-    tally = {kind: {"tried": 0, "refused": 0, "same": 0, "bad": 0} for kind in KINDS}
+    tally = _fuzz_common.tally(KINDS)
     bad: list[str] = []
     _sigma_scale(quick, tally, bad)
     _hostile(quick, seed, tally, bad)
     return {"kinds": tally, "bad_examples": bad[:20]}
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--json", default=None, help="write the result here as JSON")
-    args = parser.parse_args(argv)
-    result = run(args.quick, seed=args.seed)
-    text = json.dumps(result, indent=1)
-    print(text)
-    if args.json:
-        with open(args.json, "w") as f:
-            f.write(text)
-    return 0 if all(r["bad"] == 0 for r in result["kinds"].values()) else 1
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(_fuzz_common.main(run, __doc__))

@@ -38,8 +38,6 @@ Sizes: quick 3 mutants per byte kind and 7 hostile trials (≈ 10 s); full 250 p
 (1 250 mutated files) and every hostile case through both paths with 4 seeds.
 """
 
-import contextlib
-import io
 import json
 import os
 import shutil
@@ -49,6 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
+from experiments import _fuzz_common
 from tests.references.topography_mutation import (
     BYTE_KINDS,
     DATA,
@@ -65,19 +64,6 @@ KINDS = (*BYTE_KINDS, "hostile_heights")
 
 
 # -- hostile heights -------------------------------------------------------------------------
-
-
-def _main(argv) -> tuple[int, str, str]:
-    from brdfscale._cli import main
-
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        try:
-            code = main(["--no-compilation-cache", *argv])
-        except BaseException as exc:  # noqa: BLE001 — main must never let one out
-            return -1, out.getvalue(), f"{type(exc).__name__}: {exc}"
-    return code, out.getvalue(), err.getvalue()
 
 
 #: The hostile cases: name → (heights from a generator, (Δx, Δy) in metres, detrend, expected).
@@ -134,7 +120,9 @@ def _command_trial(directory: str, name: str, heights, pitch, detrend, expected)
     out = os.path.join(directory, f"{name}-out")
     shutil.rmtree(out, ignore_errors=True)
     write_ascii(path, heights, *pitch)
-    code, stdout, stderr = _main(["topography", path, "--detrend", detrend, "--out", out])
+    code, stdout, stderr = _fuzz_common.in_process(
+        quiet=True, argv=["topography", path, "--detrend", detrend, "--out", out]
+    )
     lines = [line for line in stderr.splitlines() if line.strip()]
     if expected == "refused":
         one_line = len(lines) == 1 and lines[0].startswith("brdfscale topography: error:") and path in lines[0]
@@ -157,7 +145,7 @@ def run(quick: bool, seed: int = 0, directory: str | None = None) -> dict:
     """The family's tallies (module docstring); deterministic for a seed."""
     from brdfscale import topography
 
-    kinds = {k: {"tried": 0, "refused": 0, "same": 0, "bad": 0} for k in KINDS}
+    kinds = _fuzz_common.tally(KINDS)
     faithful_counts = {k: 0 for k in BYTE_KINDS}
     bad_examples: list[str] = []
     work = tempfile.mkdtemp(prefix="fuzz-topography-", dir=directory)
@@ -205,4 +193,4 @@ def run(quick: bool, seed: int = 0, directory: str | None = None) -> dict:
 if __name__ == "__main__":
     import sys
 
-    print(json.dumps(run("--quick" in sys.argv), indent=1))
+    sys.exit(_fuzz_common.main(run, __doc__))

@@ -26,11 +26,12 @@ only (a valid one would run a fit). Failures: ``traceback`` (stderr holds a Pyth
 
 Families (issue 34), each in its own module ``experiments/_fuzz_<family>.py`` exposing
 ``run(quick, seed, directory) -> {"kinds": {kind: {tried, refused, same, bad}}, "bad_examples": [...]}``
-(:data:`FAMILIES`): damaged instrument files and hostile heights (``topography``), corrupted
-checkpoints and SIGKILLed fits (``checkpoints``), full disks for every command (``disk``),
-damaged library indices and SIGKILLed ``fit-library`` runs (``library``), hostile σ and the
-σ-scale invariance of the optimum (``numbers``). "bad" is any outcome that is neither the
-library's own refusal nor the undamaged result.
+and one command line (experiments/_fuzz_common.py: the tallies, the in-process runs of
+``brdfscale``, ``--quick --seed --json``) (:data:`FAMILIES`): damaged instrument files and
+hostile heights (``topography``), corrupted checkpoints and SIGKILLed fits (``checkpoints``),
+full disks for every command (``disk``), damaged library indices and SIGKILLed ``fit-library``
+runs (``library``), hostile σ and the σ-scale invariance of the optimum (``numbers``). "bad" is
+any outcome that is neither the library's own refusal nor the undamaged result.
 
 Run: ``flock /tmp/brdfscale-bench.lock python -m experiments.fuzz_robustness`` (5 000 file
 mutants, 300 command lines, every family at its full size) →

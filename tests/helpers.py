@@ -145,6 +145,16 @@ def write_sampled_set(path) -> str:
     return os.fspath(path)
 
 
+def sampled_fit_argv(measurements, out, *, steps: int, chains: int = 2) -> list[str]:
+    """``brdfscale fit`` of :func:`write_sampled_set`'s file into ``out``: the parametric model,
+    one start, emcee with 16 walkers × ``chains`` for ``steps`` steps (checkpointed in
+    ``out/chain.h5`` every ``choices.SAMPLE.chunk`` steps), no progress bar."""
+    return [
+        *("fit", os.fspath(measurements), "--out", os.fspath(out), "--model", "parametric", "--starts", "1"),
+        *("--sampler", "emcee", "--walkers", "16", "--chains", str(chains), "--steps", str(steps), "--no-progress"),
+    ]
+
+
 def comparable_report(out) -> dict:
     """``out/fit.json`` without what differs between two runs of one fit into two directories: the
     paths into their own directory (figures, posterior, tables) and the sampler's timing."""

@@ -29,7 +29,14 @@ import pytest
 import brdfscale
 from brdfscale import fitting, InvalidInputError, MeasurementFileError, OutputWriteError
 from brdfscale.fitting import _checkpoint, _resume
-from tests.helpers import comparable_report, Linear, linear_measurements, run_command, write_sampled_set
+from tests.helpers import (
+    comparable_report,
+    Linear,
+    linear_measurements,
+    run_command,
+    sampled_fit_argv,
+    write_sampled_set,
+)
 from tests.references.damage import chunk_extents, flip_bit, overwrite, same_samples
 
 
@@ -318,25 +325,7 @@ def _measurements(tmp_path) -> str:
 
 
 def _fit_argv(measurements, out) -> list[str]:
-    return [
-        "fit",
-        measurements,
-        "--out",
-        str(out),
-        "--model",
-        "parametric",
-        "--sampler",
-        "emcee",
-        "--walkers",
-        "16",
-        "--chains",
-        "2",
-        "--steps",
-        "30",
-        "--starts",
-        "1",
-        "--no-progress",
-    ]
+    return sampled_fit_argv(measurements, out, steps=30)
 
 
 def _without_timing(doc: dict) -> dict:

@@ -14,7 +14,7 @@ import pytest
 
 from brdfscale import fitting, MeasurementFileError
 from brdfscale._cli import in_flags
-from tests.helpers import comparable_report, Linear, linear_measurements, run_cli, write_sampled_set
+from tests.helpers import comparable_report, Linear, linear_measurements, run_cli, sampled_fit_argv, write_sampled_set
 from tests.references.damage import chunk_extents, flip_bit
 
 
@@ -58,26 +58,7 @@ def _measurements(tmp_path) -> str:
 
 def _argv(measurements, out, *extra) -> list[str]:
     # 400 steps: two chunks of fitting's default 200 (choices.SAMPLE.chunk)
-    return [
-        "fit",
-        measurements,
-        "--out",
-        str(out),
-        "--model",
-        "parametric",
-        "--sampler",
-        "emcee",
-        "--walkers",
-        "16",
-        "--chains",
-        "1",
-        "--steps",
-        "400",
-        "--starts",
-        "1",
-        "--no-progress",
-        *extra,
-    ]
+    return [*sampled_fit_argv(measurements, out, steps=400, chains=1), *extra]
 
 
 @pytest.mark.parametrize(
