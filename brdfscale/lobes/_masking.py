@@ -108,7 +108,7 @@ class SmithMasking(AbstractMasking):
             above = (i[..., 2] > 0) & (o[..., 2] > 0)
         lam_i = stats.smith_lambda(density, _above_or_normal(i, above))
         lam_o = stats.smith_lambda(density, _above_or_normal(o, above))
-        g = 1.0 / (1.0 + lam_i + lam_o) if self.correlated else 1.0 / ((1.0 + lam_i) * (1.0 + lam_o))
+        g = 1.0 / (1.0 + (lam_i + lam_o)) if self.correlated else 1.0 / ((1.0 + lam_i) * (1.0 + lam_o))
         return jnp.where(above, g, 0.0)
 
 

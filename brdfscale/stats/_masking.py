@@ -137,15 +137,24 @@ def expected_hinge(density: AbstractSlopeDensity, v: Float[ArrayLike, "*batch 2"
     return _hinge(density, v, _mean(density))
 
 
+def _minus(mean, c):
+    """``mean − c`` where None stands for the origin (no constant of another precision enters)."""
+    if c is None:
+        return mean
+    return -c if mean is None else mean - c
+
+
 # -- the mean ---------------------------------------------------------------------------------
 
 
-def _mean(density: AbstractSlopeDensity) -> Array:
-    """The density's mean slope (2,) or (..., 2) (module docstring)."""
+def _mean(density: AbstractSlopeDensity) -> Array | None:
+    """The density's mean slope (2,) or (..., 2), None for the origin (module docstring)."""
     if isinstance(density, (Delta, Gaussian, GGX)):
-        return jnp.zeros(2) if density.mean is None else density.mean
+        return density.mean
     if isinstance(density, Mixture):
-        return sum((w * _mean(c) for w, c in zip(density.weights, density.components)), jnp.zeros(2))
+        means = [_mean(c) for c in density.components]
+        terms = [w * m for w, m in zip(density.weights, means) if m is not None]
+        return sum(terms[1:], terms[0]) if terms else None
     if isinstance(density, StudentT):
         _require_first_moment(density)
     return _transform_mean(density)
@@ -156,7 +165,7 @@ def _transform_mean(density: AbstractSlopeDensity) -> Array:
     combined as ``(4 f(h) − f(2h))/3`` (error O(h⁴) for densities with five moments), h = 10⁻²/R."""
     R = jax.lax.stop_gradient(jnp.asarray(density.support_radius(TOL)))
     h = 1e-2 / jnp.maximum(R, jnp.finfo(jnp.result_type(R, float)).tiny)
-    W = jnp.stack([jnp.eye(2) * h, jnp.eye(2) * 2 * h])  # (2 steps, 2 axes, 2)
+    W = jnp.stack([jnp.eye(2, dtype=h.dtype) * h, jnp.eye(2, dtype=h.dtype) * 2 * h])  # (2 steps, 2 axes, 2)
     f = -jnp.imag(density.cf(W)) / jnp.stack([h, 2 * h])[:, None]
     return (4 * f[0] - f[1]) / 3
 
@@ -172,21 +181,24 @@ def _require_first_moment(density: StudentT) -> None:
 # -- the expectation of the hinge ---------------------------------------------------------------
 
 
-def _hinge(density: AbstractSlopeDensity, v: Array, c: Array) -> Array:
-    """``E[(v·(m − c) − 1)₊]`` for the density's slopes m and a given centre c."""
+def _along(v: Array, offset) -> Array:
+    """``v·offset`` (0 for None)."""
+    return jnp.zeros(v.shape[:-1], v.dtype) if offset is None else jnp.sum(v * offset, axis=-1)
+
+
+def _hinge(density: AbstractSlopeDensity, v: Array, c: Array | None) -> Array:
+    """``E[(v·(m − c) − 1)₊]`` for the density's slopes m and a given centre c (None: the origin)."""
     if isinstance(density, Delta):
-        mean = jnp.zeros(2) if density.mean is None else density.mean
-        return jnp.maximum(jnp.sum(v * (mean - c), axis=-1) - 1.0, 0.0)
+        return jnp.maximum(_along(v, _minus(density.mean, c)) - 1.0, 0.0)
     if isinstance(density, Gaussian):
-        offset = (0.0 if density.mean is None else density.mean) - c
         s2 = jnp.einsum("...i,...ij,...j->...", v, density.cov, v)  # projected variance vᵀΣv
-        return _normal_hinge(jnp.sum(v * offset, axis=-1), s2)
+        return _normal_hinge(_along(v, _minus(density.mean, c)), s2)
     if isinstance(density, GGX):
-        offset = (0.0 if density.mean is None else density.mean) - c
         alpha_v2 = jnp.sum((v * density.alpha) ** 2, axis=-1)  # projected α²: |A v|²
-        return _t2_hinge(jnp.sum(v * offset, axis=-1), alpha_v2)
+        return _t2_hinge(_along(v, _minus(density.mean, c)), alpha_v2)
     if isinstance(density, Mixture):
-        return sum((w * _hinge(comp, v, c) for w, comp in zip(density.weights, density.components)), jnp.zeros(()))
+        terms = [w * _hinge(comp, v, c) for w, comp in zip(density.weights, density.components)]
+        return sum(terms[1:], terms[0])
     if isinstance(density, StudentT):
         _require_first_moment(density)
     return _generic_hinge(density, v, c)
@@ -228,7 +240,7 @@ def _generic_hinge(density: AbstractSlopeDensity, v: Array, c: Array, nodes: int
             "stats.Mixture, and a nearly-specular statistic has a Λ once observed through an instrument's kernel "
             "(plus.observe)."
         )
-    c = jnp.asarray(c)
+    c = jnp.zeros(2, v.dtype) if c is None else jnp.asarray(c)
     dtype = jnp.result_type(v.dtype, c.dtype)
     R = jax.lax.stop_gradient(jnp.asarray(density.support_radius(TOL), dtype) + jnp.linalg.norm(c))
     R = jnp.maximum(R, jnp.finfo(dtype).tiny ** 0.25)
