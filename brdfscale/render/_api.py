@@ -5,9 +5,10 @@ import threading
 
 from .. import _mitsuba
 from .._errors import InvalidInputError
+from ..exr import LobeTable
 from ..lobes import AbstractLobe
 from ._masking import masking_choice
-from ._material import DEFAULT_LEVELS, lobe_table
+from ._material import DEFAULT_LEVELS, evolved_lobes, lobe_table, tabulate
 from ._plugin import bsdf_class, check_positive, PLUGIN, Tables
 
 
@@ -99,13 +100,17 @@ def bsdf(
     choice = masking_choice(masking)
     if scales is None and mu is not None and base_lobe is not None:
         scales = [mu]  # one scale is all a fixed-μ material needs
-    table = lobe_table(
-        base_lobe, statistics, mu0=mu0, scales=scales, levels=levels, size=size, extent=extent, method=method
-    )
+    if isinstance(statistics, LobeTable):
+        table, shapes = lobe_table(base_lobe, statistics), None
+    else:
+        ladder, evolved, mu0 = evolved_lobes(
+            base_lobe, statistics, mu0=mu0, scales=scales, levels=levels, method=method
+        )
+        table, shapes = tabulate(ladder, evolved, mu0=mu0, size=size, extent=extent), [lobe.shape for lobe in evolved]
     mi = mitsuba(variant)
     cls = bsdf_class(mi)
     obj = cls(mi.Properties(PLUGIN))
-    obj.load(Tables(table, choice, mu=mu, texel=texel))
+    obj.load(Tables(table, choice, mu=mu, texel=texel, shapes=shapes))
     return obj
 
 

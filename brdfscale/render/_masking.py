@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import lobes, stats
-from .._errors import InvalidInputError, MissingDependencyError
+from .._errors import InvalidInputError
 from ..exr import LobeTable
 from ._material import scalar_table
 
@@ -26,30 +26,34 @@ N_PHI = 49
 
 
 def masking_choice(masking):
-    """``None`` (no masking) or a :class:`brdfscale.lobes.SmithMasking` from ``masking`` (True, False or a masking
-    choice object)."""
-    if masking is False or masking is None:
-        return None
-    smith, none = getattr(lobes, "SmithMasking", None), getattr(lobes, "NoMasking", None)
-    if smith is None or none is None:  # until issue 32 item 4 (MASKING-API) is on main
-        raise MissingDependencyError(
-            "masking needs brdfscale.lobes.SmithMasking and stats.smith_lambda (issue 32 item 4), which this "
-            "checkout does not have yet; pass masking=False."
-        )
+    """``None`` (no masking) or the :class:`brdfscale.lobes.SmithMasking` that ``masking`` asks for: True (Smith,
+    height-correlated), False (none), or what :func:`brdfscale.lobes.as_masking` accepts (a masking choice object,
+    ``"smith"``, ``"none"``, None for the library default ``brdfscale.choices.MASKING``)."""
     if masking is True:
-        return smith()
-    if isinstance(masking, none):
+        return lobes.SmithMasking()
+    if masking is False:
         return None
-    if isinstance(masking, smith):
-        return masking
+    try:
+        choice = lobes.as_masking(masking)
+    except InvalidInputError:
+        raise InvalidInputError(
+            "masking must be True (Smith, height-correlated), False (none), lobes.SmithMasking(correlated=...), "
+            f"lobes.NoMasking(), 'smith', 'none' or None (the library default); got {masking!r}."
+        ) from None
+    if isinstance(choice, lobes.NoMasking):
+        return None
+    if isinstance(choice, lobes.SmithMasking):
+        return choice
     raise InvalidInputError(
-        "masking must be True (Smith, height-correlated), False (none), lobes.NoMasking() or "
-        f"lobes.SmithMasking(correlated=...); got {masking!r}."
+        f"the Mitsuba plugin tabulates Smith masking only (lobes.SmithMasking, lobes.NoMasking); got {masking!r}."
     )
 
 
-def shapes(table: LobeTable) -> list:
-    """The table's lobe shapes, one :class:`brdfscale.stats.Tabulated` per scale (negative values clipped to 0)."""
+def table_shapes(table: LobeTable) -> list:
+    """A LobeTable's lobe shapes, one :class:`brdfscale.stats.Tabulated` per scale (negative values clipped to 0).
+    Their Λ goes through :func:`brdfscale.stats.smith_lambda`'s generic quadrature, whose cost grows with the
+    table's nodes (about a minute per scale for 64² nodes here): the evolved shapes themselves, where
+    :func:`brdfscale.render.bsdf` has them, are much cheaper (closed forms for Gaussian evolutions)."""
     return [stats.Tabulated(np.maximum(v, 0.0), extent=table.extent) for v in scalar_table(table)]
 
 
@@ -62,12 +66,12 @@ def directions(n_s: int = N_S, n_phi: int = N_PHI) -> np.ndarray:
     return np.stack([sin * np.cos(phi), sin * np.sin(phi), cos], axis=-1)
 
 
-def g1_table(table: LobeTable, n_s: int = N_S, n_phi: int = N_PHI) -> np.ndarray:
-    """``G₁(w)`` (k, n_s, n_phi) of every scale's lobe shape at :func:`directions` (0 at the horizon)."""
+def g1_table(shapes, n_s: int = N_S, n_phi: int = N_PHI) -> np.ndarray:
+    """``G₁(w) = 1/(1 + Λ(w))`` (k, n_s, n_phi) of every scale's lobe shape at :func:`directions` (0 at the
+    horizon)."""
     w = directions(n_s, n_phi)
-    above = w[1:]  # cosθ > 0
-    out = np.zeros((len(table.scales), n_s, n_phi))
-    for k, shape in enumerate(shapes(table)):
-        lam = np.asarray(stats.smith_lambda(shape, jnp.asarray(above)))
-        out[k, 1:] = 1.0 / (1.0 + lam)
+    above = jnp.asarray(w[1:])  # cosθ > 0
+    out = np.zeros((len(shapes), n_s, n_phi))
+    for k, shape in enumerate(shapes):
+        out[k, 1:] = 1.0 / (1.0 + np.asarray(stats.smith_lambda(shape, above)))
     return out

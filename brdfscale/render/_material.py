@@ -99,8 +99,33 @@ def check_scales(scales) -> np.ndarray:
     return s
 
 
+def evolved_lobes(base_lobe, statistics, *, mu0=None, scales=None, levels: int = DEFAULT_LEVELS, method="auto"):
+    """``(ladder, lobes, μ0)``: ``brdfscale.evolve(base_lobe, law.at(μ0), law.at(μ_k), method)`` (seed Eq. 4.4) at
+    every scale ``μ_k`` of the ladder (``scales``, or :func:`default_scales` with ``levels`` scales)."""
+    if not isinstance(base_lobe, AbstractLobe):
+        raise InvalidInputError(
+            f"base_lobe must be a brdfscale.lobes lobe (the BRDF at μ0); got {type(base_lobe).__name__}."
+        )
+    law, mu0 = as_scale_law(statistics, mu0)
+    levels = integer(levels, "levels", 1)
+    ladder = default_scales(law, mu0, levels) if scales is None else check_scales(scales)
+    s0 = law.at(mu0)
+    return ladder, [evolve(base_lobe, s0, law.at(float(mu)), method) for mu in ladder], mu0
+
+
+def tabulate(ladder, evolved, *, mu0, size: int = 128, extent: float | None = None, metadata=None) -> LobeTable:
+    """The lobes ``evolved`` (one per scale of ``ladder``) on ``size × size`` nodes over ``[−extent, extent]²``
+    (default extent: the largest ``support_radius(1e-4)`` of their shapes)."""
+    size = integer(size, "size", 4)
+    if extent is None:
+        extent = max(float(jnp.max(lobe.shape.support_radius(SUPPORT_TOL))) for lobe in evolved)
+    extent = real(extent, "extent", minimum=0, strict=True)
+    meta = {"what": "brdfscale.render.lobe_table: base lobe evolved from mu0 to each scale", "mu0": float(mu0)}
+    return LobeTable.from_lobes(ladder, evolved, extent=extent, size=size, metadata={**meta, **(metadata or {})})
+
+
 def lobe_table(
-    base_lobe: AbstractLobe,
+    base_lobe: AbstractLobe | None,
     statistics,
     *,
     mu0: float | None = None,
@@ -116,13 +141,13 @@ def lobe_table(
     ``density(u)`` on ``size × size`` nodes over ``[−extent, extent]²`` (:meth:`brdfscale.exr.LobeTable.from_lobes`).
 
     Args:
-        base_lobe: the lobe at μ0 (:mod:`brdfscale.lobes`).
-        statistics: a scale law or a FitResult (see the module docstring; a LobeTable is returned as it is
-            when base_lobe is None).
+        base_lobe: the lobe at μ0 (:mod:`brdfscale.lobes`); None with a LobeTable, which is returned as it is.
+        statistics: a scale law or a FitResult (module docstring), or a LobeTable.
         mu0: the scale of ``base_lobe`` (a FitResult brings its own).
         scales: the ladder, increasing (default :func:`default_scales` with ``levels`` scales).
         size: nodes per axis. extent: the grid's half-width in slope units (default: the largest
             ``support_radius(1e-4)`` of the evolved lobes, so the tails beyond it hold < 1e-4 of each peak).
+        method: the evolution's path (:func:`brdfscale.evolve`).
 
     Raises InvalidInputError for statistics of another kind (naming those accepted), a missing ``mu0``, a bad ladder
     or grid; :class:`brdfscale.NoBRDFAtScaleError` where no lobe exists at a scale of the ladder (finer than the
@@ -132,26 +157,9 @@ def lobe_table(
         if base_lobe is not None:
             raise InvalidInputError("a LobeTable is already evolved: pass base_lobe=None with it.")
         return statistics
-    if not isinstance(base_lobe, AbstractLobe):
-        raise InvalidInputError(
-            f"base_lobe must be a brdfscale.lobes lobe (the BRDF at μ0); got {type(base_lobe).__name__}."
-        )
-    law, mu0 = as_scale_law(statistics, mu0)
-    levels = integer(levels, "levels", 1)
-    ladder = default_scales(law, mu0, levels) if scales is None else check_scales(scales)
-    size = integer(size, "size", 4)
-    s0 = law.at(mu0)
-    evolved = [evolve(base_lobe, s0, law.at(float(mu)), method) for mu in ladder]
-    if extent is None:
-        extent = max(float(jnp.max(lobe.shape.support_radius(SUPPORT_TOL))) for lobe in evolved)
-    extent = real(extent, "extent", minimum=0, strict=True)
-    meta = {
-        "what": "brdfscale.render.lobe_table: base lobe evolved from mu0 to each scale",
-        "mu0": float(mu0),
-        "base_lobe": type(base_lobe).__name__,
-        "statistics": type(statistics).__name__,
-    }
-    return LobeTable.from_lobes(ladder, evolved, extent=extent, size=size, metadata=meta)
+    ladder, evolved, mu0 = evolved_lobes(base_lobe, statistics, mu0=mu0, scales=scales, levels=levels, method=method)
+    meta = {"base_lobe": type(base_lobe).__name__, "statistics": type(statistics).__name__}
+    return tabulate(ladder, evolved, mu0=mu0, size=size, extent=extent, metadata=meta)
 
 
 def scalar_table(table: LobeTable) -> np.ndarray:

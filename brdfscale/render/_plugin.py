@@ -31,7 +31,7 @@ import numpy as np
 
 from .._errors import InvalidInputError
 from ..exr import read_lobe_table
-from ._masking import g1_table
+from ._masking import g1_table, table_shapes
 from ._material import scalar_table
 
 
@@ -43,9 +43,12 @@ _LOCK = threading.Lock()
 
 
 class Tables:
-    """What the plugin renders, host-side: the padded lobe values, the ladder and the masking tables."""
+    """What the plugin renders, host-side: the padded lobe values, the ladder and the masking tables.
 
-    def __init__(self, table, masking, *, mu=None, texel=1.0):
+    ``shapes``: the lobe shapes whose Smith Λ makes the masking tables (default the table's own, tabulated).
+    """
+
+    def __init__(self, table, masking, *, mu=None, texel=1.0, shapes=None):
         values = scalar_table(table)
         k, n, _ = values.shape
         h = 2 * table.extent / (n - 1)
@@ -60,7 +63,7 @@ class Tables:
         self.masking = masking
         self.g1 = None
         if masking is not None:
-            g1 = g1_table(table)
+            g1 = g1_table(table_shapes(table) if shapes is None else shapes)
             self.g1 = np.concatenate([g1, g1]) if k == 1 else g1  # (L, n_s, n_phi)
         self.mu = None if mu is None else float(mu)
         self.texel = float(texel)
@@ -89,7 +92,7 @@ def _build(mi):
             self.m_components = [flags]
             self.m_flags = flags
             self._ready = False
-            if props.has_property("filename"):
+            if "filename" in props:
                 mu = props.get("mu", 0.0)
                 masking = props.get("masking", True)
                 from ._masking import masking_choice
