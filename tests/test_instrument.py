@@ -41,30 +41,43 @@ def chi2_per_pixel(values, reference, sigma):
 
 
 # -- the cross-check against facet statistics (item 3) -----------------------------------------------------------
-def test_pixel_facets_near_normal_incidence_equal_synth_gonioreflectometer(smooth):
-    """Near normal incidence on a smooth surface there is no shadowing or masking, so the ray-traced lobe of the
-    field's pixel facets is the nearly-flat facet-statistics lobe of synth.gonioreflectometer (the light a facet
-    intercepts is divided out by the convention's c = i_z/(i_z + u·i_xy); the spot's rotation onto its mean plane
-    differs from synth's slope translation by 0.3 % of the peak). With σ from 32 batches,
-    E[((x − ref)/σ)²] = 31/29; 1.5 is > 3 standard deviations of the mean over the ~600 lit pixels (neighbours
-    correlated by the bilinear binning). The continuous triangulation is another surface (its second triangle per
-    pixel is no pixel facet) and must fail the same check: the test can tell."""
-    scales, incident = [4, 16], [direction(0), direction(10, 30)]
-    kw = dict(extent=0.12, pixels=33, rays=50_000, seed=0, progress=False)
-    ray = instrument.measure(smooth, scales, incident, **kw)
-    facets = synth.gonioreflectometer(smooth, scales, incident, extent=0.12, pixels=33)
+def compare_with_facet_statistics(field, scales, incident, rays):
+    """χ²/pixel of the instrument's pixel-facet and triangulated images against synth.gonioreflectometer's."""
+    kw = dict(extent=0.12, pixels=33, rays=rays, seed=0, progress=False)
+    ray = instrument.measure(field, scales, incident, **kw)
+    facets = synth.gonioreflectometer(field, scales, incident, extent=0.12, pixels=33)
     chi2 = [chi2_per_pixel(a.values, b.values, a.sigma) for a, b in zip(ray.images, facets.images)]
+    other = instrument.measure(field, scales, incident[:1], surface="triangles", **kw)
+    step = len(incident)
+    wrong = [chi2_per_pixel(a.values, b.values, a.sigma) for a, b in zip(other.images, facets.images[::step])]
+    return chi2, wrong
+
+
+def test_pixel_facets_near_normal_incidence_equal_synth_gonioreflectometer(smooth):
+    """Near normal incidence on a smooth surface (rms slope 0.05) there is no shadowing or masking, so the
+    ray-traced lobe of the field's pixel facets is the nearly-flat facet-statistics lobe of
+    synth.gonioreflectometer (the light a facet intercepts is divided out by the convention's
+    c = i_z/(i_z + u·i_xy); the spot's rotation onto its mean plane differs from synth's slope translation by 0.3 %
+    of the peak). With σ from 32 batches E[((x − ref)/σ)²] = 31/29; 1.5 is > 3 standard deviations of the mean over
+    the ~300 lit pixels (neighbours correlated by the bilinear binning). The continuous triangulation is another
+    surface (its second triangle per pixel is no pixel facet) and must fail the same check: the test can tell."""
+    chi2, wrong = compare_with_facet_statistics(smooth, [8], [direction(0), direction(10, 30)], 30_000)
     assert max(chi2) < 1.5, chi2
-    other = instrument.measure(smooth, scales, incident[:1], surface="triangles", **kw)
-    wrong = [chi2_per_pixel(a.values, b.values, a.sigma) for a, b in zip(other.images, facets.images[::2])]
     assert min(wrong) > 2.5, wrong
 
 
-def test_layout_and_provenance(smooth):
-    m = instrument.measure(
-        smooth, [4, 8], [direction(0), direction(20)], extent=0.12, pixels=17, rays=640, progress=False
-    )
-    g = synth.gonioreflectometer(smooth, [4, 8], [direction(0), direction(20)], extent=0.12, pixels=17)
+@pytest.mark.slow
+def test_pixel_facets_equal_synth_gonioreflectometer_at_every_scale(smooth):
+    """The same at four scales and 2·10⁵ rays per image (σ four times smaller than in the default test)."""
+    chi2, wrong = compare_with_facet_statistics(smooth, [2, 4, 16, 32], [direction(0), direction(10, 30)], 200_000)
+    assert max(chi2) < 1.5, chi2
+    assert min(wrong) > 2.5, wrong
+
+
+def test_layout_provenance_and_exr_round_trip(smooth, tmp_path):
+    incident = [direction(20, 10)]
+    m = instrument.measure(smooth, [4, 8], incident, extent=0.12, pixels=17, rays=640, progress=False)
+    g = synth.gonioreflectometer(smooth, [4, 8], incident, extent=0.12, pixels=17)
     assert isinstance(m, brdfscale.MeasurementSet)
     assert [(p.mu, tuple(p.incident)) for p in m.images] == [(p.mu, tuple(p.incident)) for p in g.images]
     assert all(p.values.shape == (17, 17) and p.sigma is not None and np.all(p.sigma > 0) for p in m.images)
@@ -73,16 +86,20 @@ def test_layout_and_provenance(smooth):
     assert record["rays"] == 640 and record["bounces"] == 1 and record["batches"] == instrument.DEFAULT_BATCHES
     assert record["variant"] and record["mitsuba"] and record["brdfscale"] == brdfscale.__version__
     assert record["spots"] == [256, 64] and record["surface"] == "pixel_facets"
-    assert record["images"][0]["detector_solid_angle_at_specular"] == pytest.approx(4 * (0.24 / 16) ** 2)
-
-
-def test_written_and_read_back(smooth, tmp_path):
-    m = instrument.measure(smooth, 8, direction(30), extent=0.12, pixels=9, rays=256, progress=False)
+    assert record["images"][0]["detector_solid_angle_at_specular"] == pytest.approx(
+        4 * math.cos(math.radians(20)) * (0.24 / 16) ** 2
+    )
     path = tmp_path / "ray.exr"
     brdfscale.exr.write_measurements(path, m)
     back = brdfscale.exr.read_measurements(path)
-    assert np.allclose(back.images[0].values, m.images[0].values, rtol=1e-6)
-    assert back.metadata["instrument"]["rays"] == 256
+    assert all(np.allclose(a.values, b.values, rtol=1e-6) for a, b in zip(back.images, m.images))
+    assert back.metadata["instrument"] == json_round_trip(record)
+
+
+def json_round_trip(x):
+    import json
+
+    return json.loads(json.dumps(x))
 
 
 # -- closed forms ----------------------------------------------------------------------------------------------
@@ -99,12 +116,12 @@ def conductor_reflectance(cos_i, n):
     return float((abs(rs) ** 2 + abs(rp) ** 2) / 2)
 
 
-@settings(max_examples=8, deadline=None)
+@settings(max_examples=6, deadline=None)
 @given(
     theta=st.floats(0, 85),
     phi=st.floats(-180, 180),
     eta=st.floats(0.1, 3),
-    kappa=st.floats(0, 5),
+    kappa=st.floats(0.5, 5),  # R ≥ 0.05: Mitsuba's float32 Fresnel has no relative accuracy near R = 0 (n → 1)
     seed=st.integers(0, 2**31),
 )
 def test_flat_mirror_is_a_point_at_the_specular_node_with_fresnel(theta, phi, eta, kappa, seed):
@@ -134,7 +151,7 @@ def smith_g1(tan_theta, alpha, family):
     return np.where(np.isfinite(t), 1 / (1 + lam), 0.0)
 
 
-@pytest.mark.parametrize("family", ["beckmann", "ggx"])
+@pytest.mark.parametrize("family", ["beckmann", pytest.param("ggx", marks=pytest.mark.slow)])
 def test_rough_facets_on_a_flat_field_are_the_microfacet_brdf(family):
     """Beckmann or GGX facets on a flat field: the image is 4 cosθ_o cos⁴θ_h ρ = P22(u)·G1(i)·G1(o) (Mitsuba's
     separable Smith masking) — the library's slope density times Smith's G1 in closed form, binned with the
@@ -143,26 +160,26 @@ def test_rough_facets_on_a_flat_field_are_the_microfacet_brdf(family):
     alpha, theta, pixels, extent = 0.3, 40.0, 15, 0.7
     lobe = lobes.Beckmann(alpha) if family == "beckmann" else lobes.GGX(alpha)
     i = np.array(direction(theta))
-    m = instrument.measure(flat(), 2, i, extent=extent, pixels=pixels, micro=lobe, rays=20_000, progress=False)
+    m = instrument.measure(
+        flat(), 2, i, extent=extent, pixels=pixels, micro=lobe, rays=20_000, batches=16, progress=False
+    )
     image, sigma = m.images[0].values, m.images[0].sigma
     pitch = 2 * extent / (pixels - 1)
     sub = (np.arange(16) + 0.5) / 16 * 2 - 1  # midpoints across the tent's support, in pitches
     tent = np.outer(1 - abs(sub), 1 - abs(sub)) * (2 / 16) ** 2
-    nodes = np.linspace(-extent, extent, pixels)
+    nodes = np.linspace(-extent, extent, pixels)[::2]  # every other node (8 × 8), each with 16 × 16 sub-points
     g1_i = smith_g1(math.tan(math.radians(theta)), alpha, family)
+    ux = (nodes[:, None] + sub[None, :] * pitch).ravel()
+    u = np.stack(np.meshgrid(ux, ux), -1)  # (128, 128, 2): rows u_y, columns u_x
+    h = np.concatenate((u, np.ones(u.shape[:2] + (1,))), -1)
+    h /= np.linalg.norm(h, axis=-1, keepdims=True)
+    o = 2 * (h @ i)[..., None] * h - i
+    tan_o = np.where(o[..., 2] > 0, np.hypot(o[..., 0], o[..., 1]) / np.maximum(o[..., 2], 1e-300), np.inf)
+    inside = np.all(np.abs(u) <= extent, axis=-1)  # light beyond the grid is not binned
+    integrand = np.where(inside, np.asarray(lobe.density(u)) * g1_i * smith_g1(tan_o, alpha, family), 0.0)
+    cells = integrand.reshape(8, 16, 8, 16) * tent[None, :, None, :]
     expected = np.zeros_like(image)
-    for j in range(0, pixels, 2):
-        for k in range(0, pixels, 2):
-            ux, uy = np.meshgrid(nodes[k] + sub * pitch, nodes[j] + sub * pitch)
-            u = np.stack((ux, uy), -1)
-            h = np.concatenate((u, np.ones(ux.shape + (1,))), -1)
-            h /= np.linalg.norm(h, axis=-1, keepdims=True)
-            o = 2 * (h @ i)[..., None] * h - i
-            density = np.asarray(lobe.density(u))
-            tan_o = np.where(o[..., 2] > 0, np.hypot(o[..., 0], o[..., 1]) / np.maximum(o[..., 2], 1e-300), np.inf)
-            g1_o = smith_g1(tan_o, alpha, family)
-            inside = (np.abs(ux) <= extent) & (np.abs(uy) <= extent)  # light beyond the grid is not binned
-            expected[j, k] = np.sum((tent * density * g1_i * g1_o)[inside])
+    expected[::2, ::2] = cells.sum(axis=(1, 3))
     sel = np.zeros_like(image, bool)
     sel[::2, ::2] = True
     assert np.all(np.abs(image - expected)[sel] <= 4 * sigma[sel] + 0.01 * expected[sel])
@@ -170,7 +187,7 @@ def test_rough_facets_on_a_flat_field_are_the_microfacet_brdf(family):
 
 
 # -- energy (item 3) -------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("surface", ["triangles", "pixel_facets"])
+@pytest.mark.parametrize("surface", ["triangles", pytest.param("pixel_facets", marks=pytest.mark.slow)])
 def test_a_lossless_mirror_surface_returns_every_ray(surface):
     """Mirror facets without absorption (F = 1) on a rough surface (rms slope 0.75) at 60°: with enough reflections
     every ray that met the surface leaves it (none is left at the bounce limit; on the pixel facets' mesh a path
@@ -180,7 +197,7 @@ def test_a_lossless_mirror_surface_returns_every_ray(surface):
     fraction (all of it on this wide grid). With one reflection the masked light is lost: the check can fail."""
     rough = synth.spectral_field(stats.GaussianCorrelation(rms_height=1.5, correlation_length=4.0), size=32, seed=2)
     i = np.array(direction(60, 20))
-    kw = dict(extent=6.0, pixels=65, rays=4000, seed=1, surface=surface, progress=False)
+    kw = dict(extent=6.0, pixels=65, rays=4000, batches=8, seed=1, surface=surface, progress=False)
     m = instrument.measure(rough, [8], i, bounces=16, **kw)
     record = m.metadata["instrument"]["images"][0]
     lit = record["hit"] + record["from_below"]  # light from below a steep spot's mean plane: shadowed by the body
@@ -215,11 +232,9 @@ def test_same_seed_identical_two_seeds_agree_within_sigma(smooth):
 
 
 def test_any_split_into_tasks_gives_the_same_result(smooth):
-    plan = instrument.Measurement(
-        smooth, [4, 8], [direction(0), direction(30)], extent=0.12, pixels=9, rays=96, batches=6, seed=5
-    )
+    plan = instrument.Measurement(smooth, [4, 8], [direction(30)], extent=0.12, pixels=9, rays=96, batches=4, seed=5)
     whole = plan.measure(progress=False)
-    for size in (1, 5, 24):
+    for size in (1, 3, 8):
         tasks = list(plan.tasks(size))
         results = [plan.run(t) for t in reversed(tasks)]  # any order
         split = plan.combine(results)
@@ -228,7 +243,7 @@ def test_any_split_into_tasks_gives_the_same_result(smooth):
             for x, y in zip(whole.images, split.images)
         )
     again = pickle.loads(pickle.dumps(plan))  # a cluster worker gets a pickled plan and builds its own scene
-    results = [again.run(t) for t in pickle.loads(pickle.dumps(plan.tasks(7)))]
+    results = [again.run(t) for t in pickle.loads(pickle.dumps(plan.tasks(3)))]
     assert all(np.array_equal(x.values, y.values) for x, y in zip(whole.images, plan.combine(results).images))
     with pytest.raises(brdfscale.InvalidInputError, match="no result"):
         plan.combine(results[1:])
