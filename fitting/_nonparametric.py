@@ -16,7 +16,7 @@ from brdfscale.special import j0
 
 from ._data import Dataset
 from ._model import AbstractModel, moments, require_dataset
-from ._smoothness import choose_smoothness, DEFAULT_SMOOTHNESS, SMOOTHNESS_RULES
+from ._smoothness import choose_smoothness, DEFAULT_SMOOTHNESS, smoothness_rows, SMOOTHNESS_RULES
 
 
 __all__ = ["NonParametricModel", "RelativeStatistics"]
@@ -260,8 +260,7 @@ class NonParametricModel(AbstractModel):
         return jnp.stack([self.relative(theta, k).cf_radial(W) for k in range(self.n_scales)])
 
     def penalty(self, theta):
-        d = self.decay(theta)[1:]
-        return self.smoothness * (d[:, 2:] - 2 * d[:, 1:-1] + d[:, :-2]).ravel()
+        return smoothness_rows(self.decay(theta)[1:], self.smoothness)
 
     def initial(self, data):
         amp, width2 = moments(data)

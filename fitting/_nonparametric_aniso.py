@@ -76,6 +76,7 @@ from brdfscale.choices import MODEL
 from ._anisotropic import image_moments
 from ._data import Dataset
 from ._model import AbstractModel, moments, require_dataset
+from ._smoothness import smoothness_rows
 
 
 __all__ = ["AnisotropicNonParametricModel", "evolve_on_grid"]
@@ -386,8 +387,7 @@ class AnisotropicNonParametricModel(AbstractModel):
         return jnp.exp(self.log_relative(theta, W))
 
     def penalty(self, theta):
-        P = self.profiles(theta)[1:] / self.reference_variance
-        return self.smoothness * (P[..., 2:] - 2 * P[..., 1:-1] + P[..., :-2]).ravel()
+        return smoothness_rows(self.profiles(theta)[1:] / self.reference_variance, self.smoothness)
 
     # --- starting point and prior box -----------------------------------------------------------
 

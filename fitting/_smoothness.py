@@ -1,4 +1,7 @@
-"""The smoothness weight of the non-parametric model from the data: generalised cross-validation (docs/fitting.md)."""
+"""The smoothness prior of the non-parametric models: its residual rows (:func:`smoothness_rows`,
+shared by :class:`fitting.NonParametricModel` and :class:`fitting.AnisotropicNonParametricModel`)
+and its weight from the data by generalised cross-validation (:func:`choose_smoothness`;
+docs/fitting.md)."""
 
 from typing import TYPE_CHECKING
 
@@ -14,12 +17,19 @@ from ._data import Dataset
 if TYPE_CHECKING:
     from ._nonparametric import NonParametricModel
 
-__all__ = ["choose_smoothness", "SMOOTHNESS_RULES", "DEFAULT_SMOOTHNESS", "SMOOTHNESS_CANDIDATES"]
+__all__ = ["choose_smoothness", "smoothness_rows", "SMOOTHNESS_RULES", "DEFAULT_SMOOTHNESS", "SMOOTHNESS_CANDIDATES"]
 
 SMOOTHNESS_RULES = ("auto", "gcv")
 DEFAULT_SMOOTHNESS = MODEL.smoothness  # brdfscale.choices: the one source of defaults
 SMOOTHNESS_CANDIDATES = tuple(np.logspace(-2.0, 3.0, 31).tolist())
 """The smoothness weights :func:`choose_smoothness` compares (6 per decade)."""
+
+
+def smoothness_rows(profiles: jax.Array, weight: float) -> jax.Array:
+    """The whitened rows of the smoothness prior: ``weight`` times the second differences of
+    ``profiles`` along their last axis (the knots), ``s (P_{j+1} − 2 P_j + P_{j−1})``, flattened —
+    a Gaussian prior of standard deviation 1/s on every second difference."""
+    return weight * (profiles[..., 2:] - 2 * profiles[..., 1:-1] + profiles[..., :-2]).ravel()
 
 
 def choose_smoothness(

@@ -120,7 +120,7 @@ def test_fit_library_results_equal_fit_many(small_library, tmp_path):
     result = library.fit_library(
         [small_library / "material_001.exr", small_library / "material_003.exr"],
         tmp_path / "out",
-        spec=library.FitSpec(starts=2),
+        spec=library.FitSpec(model="parametric", starts=2),
         progress=False,
     )
     assert (result.done, result.failed, result.executor) == (2, 0, "process") and "fitted" in repr(result)
