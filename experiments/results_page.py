@@ -668,3 +668,73 @@ def instrument() -> str:
             )
         )
     return "\n".join(out)
+
+
+def render_validation() -> str:
+    """Study 8 (experiments/render_validation.py): three plane materials against the micro-geometry truth."""
+    paths = sorted((RESULTS / "render_validation").glob("*.json"))
+    if not paths:
+        return "(render_validation/*.json missing: run the study)"
+    out = []
+    for path in paths:
+        d = json.loads(path.read_text())
+        methods = list(d["errors"])
+        bands = [b["mu_band_px"][0] for b in d["errors"][methods[0]]["bands"]]
+        rows = []
+        for m in methods:
+            e = d["errors"][m]
+            far = e["mu_ge_threshold"]
+            rows.append(
+                [
+                    m,
+                    f"{e['mean_abs']:.3f}",
+                    f"{far['mean_abs']:.3f}",
+                    f"{far['bias_mean_over_bands']:.3f}",
+                    *[f"{b['bias']:.3f}" for b in e["bands"]],
+                ]
+            )
+        speed = []
+        for m in methods:
+            q = d["equal_error"][m]
+
+            def cell(key):
+                x = q[key]
+                if x["micro_geometry_spp"] is None:
+                    return f"> {d['micro_geometry_ladder'][-1]['spp']} spp"
+                return f"{x['micro_geometry_spp']:.3g} spp, {x['speedup']:.3g}×"
+
+            speed.append(
+                [m, f"{1e3 * q['shading_seconds']:.0f}", cell("mean_abs"), cell("far_mean_abs"), cell("far_bias")]
+            )
+        tab = d.get("tabulated_evolution") or []
+        refused = [str(t["level_px"]) for t in tab if not t["exists"]]
+        tab_line = (
+            ""
+            if not tab
+            else (
+                " Evolution with the measured histograms: "
+                + ("exists at every level." if not refused else f"refused at levels {', '.join(refused)} texels.")
+            )
+        )
+        ladder = ", ".join(f"{x['spp']}: {x['mean_abs']:.3f}" for x in d["micro_geometry_ladder"])
+        out.append(
+            f"**{d['surface']}** (tile {d['tile_size']}², α0 = {d['alpha0']:g}, image {d['image'][0]}×{d['image'][1]}, "
+            f"μ from {d['mu_range_px'][0]:.2f} to {d['mu_range_px'][1]:.1f} texels, {d['instances']} instances of "
+            f"{d['triangles_per_tile']:,} triangles; truth {d['reference_spp']} spp in {d['reference_seconds']:.0f} s; "
+            f"brdfscale masking {'Smith' if d.get('brdfscale_masking', True) else 'off'}; Mitsuba α convention "
+            f"checked to {d['alpha_convention_max_relative_error']:.2%}.{tab_line})\n\n"
+            + table(
+                [
+                    "material",
+                    "mean abs error",
+                    "mean abs, μ ≥ 8",
+                    "bias, μ ≥ 8",
+                    *[f"bias μ∈[{b:g},{2 * b:g})" for b in bands],
+                ],
+                rows,
+            )
+            + "\n\nTime to equal error (micro-geometry spp at which its error equals the material's, and the ratio of "
+            f"its render time to the material's shading time; micro-geometry mean abs error by spp: {ladder})\n\n"
+            + table(["material", "shading ms", "mean abs", "mean abs, μ ≥ 8", "bias, μ ≥ 8"], speed)
+        )
+    return "\n\n".join(out)

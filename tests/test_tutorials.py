@@ -17,7 +17,12 @@ TUTORIALS = sorted((Path(__file__).resolve().parent.parent / "docs" / "tutorials
 
 
 def test_there_are_tutorials():
-    assert [p.name for p in TUTORIALS] == ["01_tour.ipynb", "02_your_own_arrays.ipynb", "03_your_own_surface.ipynb"]
+    assert [p.name for p in TUTORIALS] == [
+        "01_tour.ipynb",
+        "02_your_own_arrays.ipynb",
+        "03_your_own_surface.ipynb",
+        "05_render.ipynb",
+    ]
 
 
 @pytest.mark.parametrize("path", TUTORIALS, ids=lambda p: p.stem)

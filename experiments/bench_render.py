@@ -1,0 +1,199 @@
+"""Benchmark of the brdfscale Mitsuba BSDF (issue 33): renders per second, error per footprint band, eval accuracy.
+
+Three parts, one JSON (experiments/results/bench_render.json):
+
+* ``speed`` — frames per second at study 4's 192 × 128 view of a receding plane (experiments/render_validation.py):
+  the micro-geometry ground truth at 1 sample per pixel (the measured di-3 surface as a 512² mesh tiled by instances,
+  direct lighting with a shadow ray), and each plane material shading every pixel once (``naive`` and ``lean``:
+  Mitsuba's ``roughconductor``; ``brdfscale``: :func:`brdfscale.render.bsdf`, μ from each pixel's footprint). The
+  plane timings are the BSDF evaluation of the whole frame (the footprint's mean normal, a mip-map fetch in a
+  renderer, is computed beforehand and not timed). Best of ``--repeat`` rounds, after a compiling round.
+* ``bands`` — the errors against the micro-geometry truth per footprint band and the time to equal error, read from
+  the study's committed results (experiments/results/render_validation/<surface>.json; rerun the study to change
+  them), with the target verdicts.
+* ``eval_accuracy`` — the plugin's ``eval`` against brdfscale's own lobe: ``brdfscale.evolve(Beckmann(α0), law.at(1),
+  law.at(μ))`` evaluated with Smith masking (:meth:`brdfscale.lobes.AbstractLobe.evaluate`, height-correlated
+  ``G₂``), the law the di-3 surface's measured one; μ at ladder nodes and between them; directions whose half-vector
+  slope is drawn from the lobe itself (values that matter), both within 72.5° of the normal. Relative errors where
+  the reference exceeds 1e-3 of the largest value.
+
+Targets (issue 33): the brdfscale material's error ≤ ½ of the LEAN material's where the footprint covers ≥ 8 facets
+(μ ≥ 8 texels) on the real surface; ≥ 100× faster than the micro-geometry truth at equal error; eval within 1e-4
+relative of brdfscale's lobe.
+
+Run:  python -m experiments.bench_render [--repeat 3]
+"""
+
+import argparse
+import json
+import math
+import os
+import time
+from pathlib import Path
+
+import jax
+
+
+jax.config.update("jax_enable_x64", True)
+
+import numpy as np
+
+import brdfscale as bs
+from brdfscale import files, lobes
+from experiments import render_plane, render_validation
+from experiments._bench import machine, RESULTS, write_json
+
+
+SURFACE = "di-3"
+TARGET_RATIO = 0.5
+TARGET_SPEEDUP = 100.0
+TARGET_EVAL = 1e-4
+LADDER = 9
+
+
+def speed(*, width: int, height: int, size: int, repeat: int) -> dict:
+    rv = render_validation
+    mi = rv.mitsuba()
+    field = rv.height_field(SURFACE, size)
+    camera = render_plane.Camera(width, height)
+    mu = render_plane.footprints(camera)
+    levels = [2**k for k in range(math.ceil(math.log2(max(mu.max(), 2))) + 1) if 2**k <= size // 8]
+    level_stats = rv.level_statistics(field, rv.ALPHA0, levels)
+    geometry = rv.MicroGeometry(field, camera, rv.ALPHA0)
+    slopes = rv.mean_slopes(field, camera, mu, 0)
+    micro, planes = [], {m: [] for m in rv.METHODS}
+    geometry.render(1, 0)  # compile
+    for k in range(repeat):
+        micro.append(geometry.render(1, k + 1)[1])
+        _, seconds = rv.render_planes(mi, camera, mu, slopes, geometry.light, level_stats, levels, rv.ALPHA0)
+        for m in rv.METHODS:
+            planes[m].append(seconds[m])
+    best = {"micro_geometry_1spp": min(micro), **{m: min(t) for m, t in planes.items()}}
+    return {
+        "image": [width, height],
+        "tile_size": size,
+        "instances": geometry.instances,
+        "triangles_per_tile": 2 * size * size,
+        "seconds_best": best,
+        "frames_per_second": {k: 1.0 / v for k, v in best.items()},
+        "all_seconds": {"micro_geometry_1spp": micro, **planes},
+    }
+
+
+def eval_accuracy(*, size: int, n: int, seed: int) -> dict:
+    rv = render_validation
+    mi = rv.mitsuba()
+    from brdfscale import render
+
+    field = rv.height_field(SURFACE, size)
+    levels = [1, 2, 4, 8, 16, 32]
+    law = rv.level_statistics(field, rv.ALPHA0, levels)["law"]
+    base = lobes.Beckmann(rv.ALPHA0)
+    ladder = [float(x) for x in np.geomspace(1.0, levels[-1], LADDER)]  # render.bsdf's default ladder for this law
+    material = render.bsdf(base, law, mu0=1.0, scales=ladder, texel=1.0, size=rv.LOBE_NODES, variant=rv.VARIANT)
+    between = [math.sqrt(a * b) for a, b in zip(ladder[:-1], ladder[1:])]
+    rng = np.random.default_rng(seed)
+    records = []
+    for where, mus in (("ladder node", ladder[::2]), ("between nodes", between[::2])):
+        for mu in mus:
+            lobe = bs.evolve(base, law.at(1.0), law.at(mu))
+            cov = (
+                np.asarray(law.slope_covariance(1.0))
+                - np.asarray(law.slope_covariance(mu))
+                + np.eye(2) * rv.ALPHA0**2 / 2
+            )
+            m = rng.multivariate_normal(np.zeros(2), cov, size=n)
+            h = np.concatenate([m, np.ones((n, 1))], 1)
+            h /= np.linalg.norm(h, axis=1, keepdims=True)
+            th, ph = np.arccos(rng.uniform(0.3, 1.0, n)), rng.uniform(0, 2 * np.pi, n)
+            o = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], 1)
+            i = 2 * (o * h).sum(1, keepdims=True) * h - o
+            keep = i[:, 2] > 0.3
+            i, o = i[keep], o[keep]
+            reference = np.asarray(lobe.evaluate(i, o, masking=lobes.SmithMasking()))
+            value = rv.shade(mi, material, o, i, np.full(len(o), mu))  # Mitsuba: wi = o (detector), wo = i (light)
+            sel = reference > 1e-3 * reference.max()
+            rel = np.abs(value[sel] / reference[sel] - 1)
+            records.append(
+                {
+                    "mu": mu,
+                    "where": where,
+                    "directions": int(sel.sum()),
+                    "median_relative": float(np.median(rel)),
+                    "p99_relative": float(np.quantile(rel, 0.99)),
+                    "max_relative": float(rel.max()),
+                }
+            )
+    return {"surface": SURFACE, "tile_size": size, "table_nodes": rv.LOBE_NODES, "ladder": ladder, "records": records}
+
+
+def bands() -> dict:
+    out = {}
+    for path in sorted((RESULTS / "render_validation").glob("*.json")):
+        d = json.loads(path.read_text())
+        out[d["surface"]] = {
+            "source": f"experiments/results/render_validation/{path.name}",
+            "measured": d["machine"]["date_utc"],
+            "bands": {m: d["errors"][m]["bands"] for m in d["errors"]},
+            "mu_ge_8": {m: d["errors"][m]["mu_ge_threshold"] for m in d["errors"]},
+            "equal_error": d["equal_error"],
+        }
+    return out
+
+
+def targets(payload: dict) -> dict:
+    out = {}
+    real = payload["bands"].get(SURFACE)
+    if real is not None:
+        lean = real["mu_ge_8"]["lean"]["bias_mean_over_bands"]
+        ours = real["mu_ge_8"]["brdfscale"]["bias_mean_over_bands"]
+        out["error_half_of_lean_mu_ge_8"] = {
+            "brdfscale_bias": ours,
+            "lean_bias": lean,
+            "ratio": ours / lean,
+            "met": ours <= TARGET_RATIO * lean,
+        }
+        speedups = {k: v["speedup"] for k, v in real["equal_error"]["brdfscale"].items() if isinstance(v, dict)}
+        out["speedup_at_equal_error"] = {
+            "speedups": speedups,
+            "met": all(s is not None and s >= TARGET_SPEEDUP for s in speedups.values()),
+        }
+    worst = max(r["max_relative"] for r in payload["eval_accuracy"]["records"])
+    worst_median = max(r["median_relative"] for r in payload["eval_accuracy"]["records"])
+    out["eval_within_1e-4"] = {
+        "max_relative": worst,
+        "worst_median_relative": worst_median,
+        "met": worst <= TARGET_EVAL,
+    }
+    return out
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--width", type=int, default=192)
+    parser.add_argument("--height", type=int, default=128)
+    parser.add_argument("--size", type=int, default=512)
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--directions", type=int, default=400)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", default=None, help="output folder (default experiments/results)")
+    args = parser.parse_args(argv)
+    started = time.perf_counter()
+    payload = {
+        "machine": machine(),
+        "load_average_at_start": list(os.getloadavg()),
+        "speed": speed(width=args.width, height=args.height, size=args.size, repeat=args.repeat),
+        "eval_accuracy": eval_accuracy(size=min(args.size, 256), n=args.directions, seed=args.seed),
+        "bands": bands(),
+    }
+    payload["targets"] = targets(payload)
+    payload["seconds"] = time.perf_counter() - started
+    if args.out is None:
+        write_json("bench_render", payload)
+    else:
+        files.write_text(Path(args.out) / "bench_render.json", json.dumps(payload, indent=2) + "\n", overwrite=True)
+    return payload
+
+
+if __name__ == "__main__":
+    main()
