@@ -559,3 +559,20 @@ def test_export_of_a_height_field_is_lean_mip_mapping(tmp_path):
         cov_xx = blocks[..., 0].var(axis=(1, 3))
         np.testing.assert_allclose(alphas[level][0]["alpha_x"], np.sqrt(2 * cov_xx), rtol=1e-4, atol=1e-5)
         assert alphas[level][1]["brdfscale.convention"] == "ggx_alpha"
+
+
+# -- docs/render.md ----------------------------------------------------------------------------------------------------
+
+
+def test_the_guides_example_runs(monkeypatch, tmp_path):
+    """The python block of docs/render.md, as a user would run it (LLVM variant; its image is finite and lit)."""
+    llvm()
+    page = Path(__file__).resolve().parents[1] / "docs" / "render.md"
+    text = page.read_text(encoding="utf-8")
+    blocks = [b.split("```", 1)[0] for b in text.split("```python\n")[1:]]
+    assert len(blocks) == 1
+    monkeypatch.chdir(tmp_path)
+    namespace = {"__name__": "__render_guide__"}
+    exec(compile(blocks[0], str(page), "exec"), namespace)  # noqa: S102 — the page's own example
+    image = np.asarray(namespace["image"])
+    assert image.shape == (32, 32, 3) and np.all(np.isfinite(image)) and image.max() > 0

@@ -141,7 +141,8 @@ def _build(mi):
             px = ((m.x + half) / (2 * half) * (n - 1) + 0.5) / n
             py = ((m.y + half) / (2 * half) * (n - 1) + 0.5) / n
             inside = (dr.abs(m.x) < half) & (dr.abs(m.y) < half)
-            return dr.select(inside, self._tex.eval(mi.Point3f(px, py, z))[0], 0.0)
+            # an evolved lobe may dip below 0 (regularisation ringing): shaded as 0, as it is sampled
+            return dr.select(inside, dr.maximum(self._tex.eval(mi.Point3f(px, py, z))[0], 0.0), 0.0)
 
         def _g1_at(self, w, z):
             s = dr.sqrt(dr.clip(mi.Frame3f.cos_theta(w), 0.0, 1.0))
