@@ -1338,6 +1338,60 @@ def robustness() -> str:
     return fuzz_robustness.page(json.loads((RESULTS / "fuzz_robustness" / "fuzz_robustness.json").read_text()))
 
 
+def render_bench() -> str:
+    """docs/benchmarks.md: the brdfscale Mitsuba BSDF (experiments/bench_render.py)."""
+    d = load("bench_render")
+    if d is None:
+        return "(bench_render.json missing)"
+    sp = d["speed"]
+    fps = sp["frames_per_second"]
+    rows = [[name, f"{1e3 * sp['seconds_best'][name]:.1f}", f"{fps[name]:.3g}"] for name in fps]
+    out = [
+        f"Frames of {sp['image'][0]}×{sp['image'][1]} px (best of {len(sp['all_seconds']['naive'])}; "
+        "the micro-geometry: "
+        f"{sp['instances']} instances of a {sp['triangles_per_tile']:,}-triangle tile, 1 spp with a shadow ray; the "
+        "plane materials: one BSDF evaluation per pixel)\n\n" + table(["render", "ms", "frames/s"], rows)
+    ]
+    acc = d["eval_accuracy"]
+    rows = [
+        [
+            f"{r['mu']:.3g}",
+            r["where"],
+            str(r["directions"]),
+            f"{r['median_relative']:.2g}",
+            f"{r['p99_relative']:.2g}",
+            f"{r['max_relative']:.2g}",
+        ]
+        for r in acc["records"]
+    ]
+    out.append(
+        f"\nThe plugin's eval against brdfscale's evolved, masked lobe ({acc['surface']} law, {acc['table_nodes']}² "
+        "table nodes; relative error where the lobe exceeds 1e-3 of its largest value)\n\n"
+        + table(["μ", "where", "directions", "median", "99 %", "max"], rows)
+    )
+    t = d["targets"]
+    lines = []
+    if "error_half_of_lean_mu_ge_8" in t:
+        x = t["error_half_of_lean_mu_ge_8"]
+        lines.append(
+            f"* brdfscale's band bias ≤ ½ LEAN's at μ ≥ 8 texels on the real surface: {x['brdfscale_bias']:.3f} vs "
+            f"{x['lean_bias']:.3f} (ratio {x['ratio']:.2f}) — {met(x['met'])}"
+        )
+        y = t["speedup_at_equal_error"]
+        cells = ", ".join(
+            f"{k}: {'no equal error reached' if v is None else f'{v:.3g}×'}" for k, v in y["speedups"].items()
+        )
+        lines.append(f"* ≥ 100× faster than the micro-geometry at equal error ({cells}) — {met(y['met'])}")
+    z = t["eval_within_1e-4"]
+    lines.append(
+        f"* eval within 1e-4 relative of the lobe: max {z['max_relative']:.2g}, worst median "
+        f"{z['worst_median_relative']:.2g} — {met(z['met'])}"
+    )
+    out.append("\nTargets (issue 33):\n\n" + "\n".join(lines))
+    out.append("\n" + machine_line(d) + " " + load_line(d))
+    return "\n".join(out)
+
+
 SECTIONS = [
     ("benchmarks.md", "Core evolution (bench_evolve)", evolve),
     ("benchmarks.md", "Queries (bench_queries)", queries),
@@ -1350,6 +1404,7 @@ SECTIONS = [
     ("benchmarks.md", "Measured surfaces (bench_topography)", topography),
     ("benchmarks.md", "Scene planner (bench_planner)", planner),
     ("benchmarks.md", "Ray-traced instrument (bench_instrument)", instrument),
+    ("benchmarks.md", "Rendering (bench_render)", render_bench),
     ("fitting.md", "Samplers (bench_samplers)", samplers),
     ("fitting.md", "Calibration (calibration_fit)", calibration),
     ("library.md", "Throughput (bench_library)", library),
@@ -1365,6 +1420,7 @@ SECTIONS = [
     ("results.md", "Stability (results_page)", results_page.stability),
     ("results.md", "Real surfaces (results_page)", results_page.real_surfaces),
     ("results.md", "Instrument (results_page)", results_page.instrument),
+    ("results.md", "Render validation (results_page)", results_page.render_validation),
     ("robustness.md", "Fuzzing (fuzz_robustness)", robustness),
 ]
 
