@@ -246,7 +246,8 @@ class AnisotropicModel(AbstractModel):
                 ).density(u)
             )(differences[1:], points[1:])
         else:  # the scale mixture of the module docstring, every component's covariance + ΔΣ_k
-            factor, weight = base.shape.gaussian_mixture(MIXTURE_NODES, MIXTURE_CUTOFF)
+            nu = self.tail_index(theta)
+            factor, weight = stats.StudentT(cov=c0, nu=nu).gaussian_mixture(MIXTURE_NODES, MIXTURE_CUTOFF)
             coarser = jax.vmap(lambda d, u: amplitude * _mixture_density(u - mean, factor, weight, c0, d))(
                 differences[1:], points[1:]
             )

@@ -13,10 +13,15 @@ import math
 import os
 import sys
 import types
+from typing import TYPE_CHECKING
 
-from .._choices import FAMILIES, FIT, LAWS, MODEL, MODELS, SAMPLE, SAMPLERS, SHAPES, SOLVERS
+from .._choices import FAMILIES, FIT, LAWS, MASKING, MODEL, MODELS, SAMPLE, SAMPLERS, SHAPES, SOLVERS
 from .._errors import InvalidInputError
 from ._options import integer, MAX_SEED, output_directory, real, seed
+
+
+if TYPE_CHECKING:
+    from ..library import FitSpec
 from ._rewind import add_rewind_option, rewind
 
 
@@ -71,6 +76,12 @@ def add_fit_options(parser) -> None:
     )
     parser.add_argument(
         "--law", choices=LAWS.names, default=MODEL.law, help=f"scale law of the parametric model — {LAWS.help()}"
+    )
+    parser.add_argument(
+        "--masking",
+        choices=MASKING.names,
+        default=MASKING.default,
+        help=f"masking and shadowing in the forward model (docs/masking.md) — {MASKING.help()}",
     )
     parser.add_argument(
         "--fix",
@@ -219,6 +230,7 @@ def spec_of(args, *, sampler: bool = True):
         chains=args.chains,
         steps=args.steps,
         default_sigma=getattr(args, "default_sigma", None),
+        masking=args.masking,
         figures=getattr(args, "figures", True),
     )
 
@@ -279,7 +291,7 @@ COMPARED = (
 )
 
 
-def _candidates(spec) -> list[tuple[str, object]]:
+def _candidates(spec: "FitSpec") -> "list[tuple[str, FitSpec]]":
     """``--compare``'s specs by name: :data:`COMPARED`, and ``spec``'s own model if it is another."""
     import dataclasses
 
