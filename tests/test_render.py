@@ -310,6 +310,61 @@ def test_bad_statistics_and_options_are_refused_naming_what_is_accepted():
         render.export_roughness(LAW, "/nonexistent/x.exr", convention="alpha_squared")
 
 
+def fit_result_of_the_law(scales):
+    """A fitting.FitResult whose covariance differences are the Beckmann law's, ΔΣ_k = (α(μ0)² − α(μ_k)²)/2 · I."""
+    from brdfscale import fitting
+
+    diffs = []
+    for mu in scales[1:]:
+        d = (float(LAW.law(scales[0])) ** 2 - float(LAW.law(mu)) ** 2) / 2
+        diffs.append({"mu0": scales[0], "mu": mu, "value": [[d, 0.0], [0.0, d]], "std": [[1e-4, None], [None, 1e-4]]})
+    return fitting.FitResult(
+        names=("a",),
+        theta=np.zeros(1),
+        covariance=np.eye(1),
+        chi2=1.0,
+        n_data=10,
+        status="converged",
+        starts=[],
+        estimates={"a": 0.0},
+        std={"a": 0.1},
+        quantiles={"a": None},
+        eigenvalues=np.ones(1),
+        undetermined=[],
+        notes=[],
+        solver="lm",
+        at_bounds=[],
+        covariance_differences=diffs,
+    )
+
+
+def test_a_fit_result_renders_like_its_law_at_the_fitted_scales():
+    """Evolution needs only S(μ0)/S(μ_k): a FitResult's ΔΣ give the law's lobes at the fitted scales."""
+    fit = fit_result_of_the_law(LADDER)
+    from_fit = render.lobe_table(base_lobe(), fit, scales=LADDER, size=32, extent=0.6)
+    from_law = render.lobe_table(base_lobe(), LAW, mu0=MU0, scales=LADDER, size=32, extent=0.6)
+    np.testing.assert_allclose(from_fit.values, from_law.values, rtol=1e-9, atol=1e-9 * from_law.values.max())
+    with pytest.raises(brdfscale.InvalidInputError, match="differs from the fit's reference scale"):
+        render.lobe_table(base_lobe(), fit, mu0=2.0)
+    undetermined = fit_result_of_the_law(LADDER)
+    undetermined.covariance_differences[0]["value"][0][1] = None
+    with pytest.raises(brdfscale.InvalidInputError, match="not all determined"):
+        render.lobe_table(base_lobe(), undetermined)
+
+
+def test_tables_are_deterministic_and_rgb_tables_are_refused(material):
+    mi, _, table, _ = material
+    again = render.lobe_table(base_lobe(), LAW, mu0=MU0, scales=LADDER, size=48)
+    assert np.array_equal(again.values, table.values)
+    rgb = brdfscale.exr.LobeTable(table.scales, table.extent, np.repeat(table.values[..., None], 3, axis=-1))
+    with pytest.raises(brdfscale.InvalidInputError, match="one-channel lobe tables"):
+        render.bsdf(None, rgb, masking=False, variant="llvm_ad_rgb")
+    with pytest.raises(brdfscale.InvalidInputError, match="already evolved"):
+        render.bsdf(base_lobe(), table, masking=False)
+    with pytest.raises(brdfscale.InvalidInputError, match="output must be one of"):
+        render.FootprintIntegrator(output="mu")
+
+
 # -- the footprint integrator --------------------------------------------------------------------------------------
 
 

@@ -4,7 +4,6 @@ import sys
 import threading
 
 from .. import _mitsuba
-from .._errors import InvalidInputError
 from ..exr import LobeTable
 from ..lobes import AbstractLobe
 from ._masking import masking_choice
@@ -126,10 +125,9 @@ def FootprintIntegrator(  # noqa: N802 (it builds a Mitsuba object of the curren
     Use it as ``mi.render(scene, integrator=FootprintIntegrator())`` or, after :func:`register`, as
     ``{"type": "brdfscale_footprint"}`` in a scene dictionary.
     """
-    from ._integrator import INTEGRATOR
+    from ._integrator import check_options, INTEGRATOR
 
-    if isinstance(max_depth, bool) or not isinstance(max_depth, int):
-        raise InvalidInputError(f"max_depth must be an integer ≥ 1 (path segments); got {max_depth!r}.")
+    check_options(max_depth, output, footprint)  # here: Mitsuba would turn the plugin's exception into RuntimeError
     mi = mitsuba(variant)
     register(mi.variant())
     return mi.load_dict({"type": INTEGRATOR, "max_depth": max_depth, "output": output, "footprint": footprint})

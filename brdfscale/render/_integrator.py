@@ -30,6 +30,17 @@ _CLASSES: dict[str, type] = {}
 _LOCK = threading.Lock()
 
 
+def check_options(max_depth, output, footprint) -> tuple[int, str, str]:
+    """The integrator's options, or InvalidInputError naming what is accepted."""
+    if isinstance(max_depth, bool) or not isinstance(max_depth, int) or max_depth < 1:
+        raise InvalidInputError(f"max_depth must be an integer ≥ 1 (path segments); got {max_depth!r}.")
+    if output not in OUTPUTS:
+        raise InvalidInputError(f"output must be one of {OUTPUTS}; got {output!r}.")
+    if footprint not in FOOTPRINTS:
+        raise InvalidInputError(f"footprint must be one of {FOOTPRINTS}; got {footprint!r}.")
+    return max_depth, output, footprint
+
+
 def _mis(a, b):
     """The power heuristic ``a²/(a² + b²)`` (0 where both vanish)."""
     import drjit as dr
@@ -46,15 +57,9 @@ def _build(mi):
 
         def __init__(self, props):
             mi.SamplingIntegrator.__init__(self, props)
-            self.max_depth = int(props.get("max_depth", 3))
-            self.output = str(props.get("output", "radiance"))
-            self.footprint = str(props.get("footprint", "pixel"))
-            if self.max_depth < 1:
-                raise InvalidInputError(f"max_depth must be an integer ≥ 1 (path segments); got {self.max_depth}.")
-            if self.output not in OUTPUTS:
-                raise InvalidInputError(f"output must be one of {OUTPUTS}; got {self.output!r}.")
-            if self.footprint not in FOOTPRINTS:
-                raise InvalidInputError(f"footprint must be one of {FOOTPRINTS}; got {self.footprint!r}.")
+            self.max_depth, self.output, self.footprint = check_options(
+                props.get("max_depth", 3), props.get("output", "radiance"), props.get("footprint", "pixel")
+            )
 
         def sample(self, scene, sampler, ray, medium=None, active=True):
             ray = mi.RayDifferential3f(ray) if not isinstance(ray, mi.RayDifferential3f) else ray
