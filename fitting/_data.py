@@ -41,11 +41,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from brdfscale import InvalidInputError, MeasurementSet
+from brdfscale import InvalidInputError, lobes, MeasurementSet
 from brdfscale.checks import real, require_float64
 from brdfscale.show import concrete, Shown, Values
 
 from ._joint import TopographyData
+from ._masking import masking_factors
 
 
 __all__ = ["Dataset", "PointData", "SIGMA_RANGE"]
@@ -107,9 +108,11 @@ class Dataset(Shown, eqx.Module):
     extents: tuple[float, ...] = eqx.field(static=True)
     topography: TopographyData | None = None
     """A joint fit's topography term (:meth:`with_topography`; fitting._joint), else None."""
+    masking: str = eqx.field(static=True, default="none")
+    """The masking removed from the images (:meth:`from_measurements`; ``brdfscale.choices.MASKING``)."""
 
     @classmethod
-    def from_measurements(cls, mset: MeasurementSet, *, default_sigma: float | None = None) -> "Dataset":
+    def from_measurements(cls, mset: MeasurementSet, *, default_sigma: float | None = None, masking=None) -> "Dataset":
         """Build a dataset from a measurement set.
 
         Args:
@@ -117,6 +120,13 @@ class Dataset(Shown, eqx.Module):
                 information about the evolution).
             default_sigma: standard deviation (lobe units) used for images that carry no
                 ``sigma``; without it such images are refused.
+            masking: the masking and shadowing in the forward model — None (the library default,
+                ``brdfscale.choices.MASKING``), a name of it (``"none"``, ``"smith"``) or a
+                :class:`brdfscale.lobes.AbstractMasking`. Other than none, each valid pixel's value
+                and σ are divided by the fixed factor ``G₂(i, o(u))`` of fitting._masking (the image's
+                own lobe as the slope density), so the models' unmasked lobe times that factor is
+                the forward model; pixels with no light towards their detector are masked out
+                (docs/masking.md).
 
         Raises:
             InvalidInputError: fewer than two scales, an image without σ and no
@@ -139,6 +149,12 @@ class Dataset(Shown, eqx.Module):
                     f"default_sigma= ({default_sigma:g}) lies outside [{SIGMA_RANGE[0]:g}, {SIGMA_RANGE[1]:g}]; "
                     f"{_SIGMA_ACCEPTED}."
                 )
+        masking = lobes.as_masking(masking)
+        factors = None
+        if not isinstance(masking, lobes.NoMasking):  # G₂ per pixel from each scale's lobe (fitting._masking)
+            lum = [_luminance(img.values, None)[0] for img in mset.images]
+            valid = [np.ones(v.shape, bool) if img.mask is None else img.mask for v, img in zip(lum, mset.images)]
+            factors = masking_factors(masking, mset.images, lum, valid)
         n_pix = max(img.size**2 for img in mset.images)
         offsets, values, weight, which = [], [], [], []
         for i, img in enumerate(mset.images):
@@ -155,6 +171,10 @@ class Dataset(Shown, eqx.Module):
                 s = np.full_like(v, float(default_sigma))
             if not m.any():
                 raise InvalidInputError(f"image {i} (μ = {img.mu}) has no valid pixel (its mask is all False).")
+            if factors is not None:  # the fixed masking factor out of value and σ
+                g = factors[i]
+                m = m & (g > 0)
+                v, s = np.divide(v, g, out=np.zeros_like(v), where=m), np.divide(s, g, out=np.ones_like(s), where=m)
             pad = n_pix - v.size
             offsets.append(np.pad(img.offsets().reshape(-1, 2), ((0, pad), (0, 0))))
             values.append(np.pad(v.ravel(), (0, pad)))
@@ -168,6 +188,7 @@ class Dataset(Shown, eqx.Module):
             scale_of_image=tuple(which),
             image_sizes=tuple(img.size for img in mset.images),
             extents=tuple(img.extent for img in mset.images),
+            masking=masking.name,
         )
 
     @property

@@ -51,6 +51,7 @@ FLAGS = {
     "overwrite=True": "--force",
     "force=True": "--force",
     "default_sigma=": "--default-sigma",
+    "masking=": "--masking",
     "out_dir=": "--out",
     "out=": "--out",
     "address=": "--address",

@@ -6,7 +6,7 @@ import math
 import os
 import types
 
-from .._choices import FAMILIES, FIT, LAWS, MODEL, MODELS, SAMPLE, SAMPLERS, SHAPES, SOLVERS
+from .._choices import FAMILIES, FIT, LAWS, MASKING, MODEL, MODELS, SAMPLE, SAMPLERS, SHAPES, SOLVERS
 from .._errors import InvalidInputError
 
 
@@ -131,6 +131,7 @@ class FitSpec:
     chains: int = SAMPLE.chains
     steps: int = SAMPLE.steps
     default_sigma: float | None = None
+    masking: str = MASKING.default
     figures: bool = False
 
     def __post_init__(self):
@@ -138,6 +139,7 @@ class FitSpec:
         SHAPES.check(self.shape)
         FAMILIES.check(self.family)
         LAWS.check(self.law)
+        MASKING.check(self.masking)
         SOLVERS.check(self.solver)
         if self.sampler is not None and self.sampler not in SAMPLERS:
             raise InvalidInputError(
@@ -168,8 +170,10 @@ class FitSpec:
         )
 
     def dataset(self, measurements):
-        """:meth:`fitting.Dataset.from_measurements` of a measurement set with ``default_sigma``."""
-        return _fitting().Dataset.from_measurements(measurements, default_sigma=self.default_sigma)
+        """:meth:`fitting.Dataset.from_measurements` of a measurement set with ``default_sigma`` and ``masking``."""
+        return _fitting().Dataset.from_measurements(
+            measurements, default_sigma=self.default_sigma, masking=self.masking
+        )
 
     def fit(self, model, data):
         """:func:`fitting.fit` of ``model`` to ``data`` with these options."""

@@ -106,8 +106,7 @@ class SmithMasking(AbstractMasking):
             m = validate_slopes(m_inf, "m_inf")
             i, o = _in_plane_frame(i, m), _in_plane_frame(o, m)
             above = (i[..., 2] > 0) & (o[..., 2] > 0)
-        lam_i = stats.smith_lambda(density, _above_or_normal(i, above))
-        lam_o = stats.smith_lambda(density, _above_or_normal(o, above))
+        lam_i, lam_o = stats.smith_lambda(density, jnp.stack([_above_or_normal(w, above) for w in (i, o)]))
         g = 1.0 / (1.0 + (lam_i + lam_o)) if self.correlated else 1.0 / ((1.0 + lam_i) * (1.0 + lam_o))
         return jnp.where(above, g, 0.0)
 

@@ -18,6 +18,7 @@ from ._learned_laws import MonotoneSplineLaw, StudentTLaw
 from ._masking import smith_lambda
 from ._measured import MeasuredScaleLaw
 from ._mixture import Mixture
+from ._pixels import PixelGaussians
 from ._require import require_density
 from ._scale_laws import (
     AbstractPowerSpectrum,
@@ -45,6 +46,7 @@ __all__ = [
     "Disk",
     "StudentT",
     "Mixture",
+    "PixelGaussians",
     "require_density",
     "Tabulated",
     "SlopeHistogram",

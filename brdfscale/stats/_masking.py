@@ -70,6 +70,7 @@ the generic path), jit/grad/vmap against eager, float32 against float64.
 
 import math
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -79,10 +80,11 @@ from jaxtyping import Array, ArrayLike, Float
 from .._blocks import in_blocks
 from .._errors import InvalidInputError
 from .._slopes import safe_norm
-from .._validation import is_concrete, last_axis
+from .._validation import is_concrete
 from ._base import AbstractSlopeDensity
 from ._families import Delta, Gaussian, GGX
 from ._mixture import Mixture
+from ._pixels import PixelGaussians
 from ._require import require_density
 from ._student import StudentT
 
@@ -126,15 +128,38 @@ def smith_lambda(density: AbstractSlopeDensity, w: Float[ArrayLike, "*batch 3"])
 
     density = require_density(density, "density")
     w = validate_directions(w, "w")
+    _check(density)
+    return _smith_lambda(density, w)
+
+
+@eqx.filter_jit
+def _smith_lambda(density: AbstractSlopeDensity, w: Array) -> Array:
+    """Λ of validated directions (compiled once per density structure and batch shape)."""
     v = w[..., :2] / w[..., 2:3]
-    return expected_hinge(density, v)
-
-
-def expected_hinge(density: AbstractSlopeDensity, v: Float[ArrayLike, "*batch 2"]) -> Float[Array, "*batch"]:
-    """``E_s[(v·(m − c) − 1)₊]`` with ``c`` the density's mean: Λ of the direction whose slope
-    vector is ``v = w_xy/w_z`` (``v = 0``: normal incidence)."""
-    v = last_axis(v, 2, "v")
     return _hinge(density, v, _mean(density))
+
+
+def _check(density: AbstractSlopeDensity) -> None:
+    """The refusals of :func:`smith_lambda`, for concrete parameters (module docstring): a Student-t
+    without a first moment; a density outside the closed forms whose transform does not decay."""
+    if isinstance(density, Mixture):
+        for component in density.components:
+            _check(component)
+    elif isinstance(density, StudentT):
+        if is_concrete(density.nu) and not float(density.nu) > 1:
+            raise InvalidInputError(
+                f"a Student-t slope density with ν = {float(density.nu):g} ≤ 1 has no first moment: its slopes' "
+                "tails make Smith's Λ infinite (every direction fully masked). Λ is finite for ν > 1."
+            )
+    elif not isinstance(density, (Delta, Gaussian, GGX, PixelGaussians)):
+        band = density.bandwidth(TOL)
+        if is_concrete(band) and not np.isfinite(float(band)):
+            raise InvalidInputError(
+                f"Smith's Λ of a {type(density).__name__} whose transform does not decay (it has a point mass) "
+                "cannot be computed by the transform's quadrature; a point mass is exact as stats.Delta or as a "
+                "component of a stats.Mixture, and a nearly-specular statistic has a Λ once observed through an "
+                "instrument's kernel (plus.observe)."
+            )
 
 
 def _minus(mean, c):
@@ -151,12 +176,12 @@ def _mean(density: AbstractSlopeDensity) -> Array | None:
     """The density's mean slope (2,) or (..., 2), None for the origin (module docstring)."""
     if isinstance(density, (Delta, Gaussian, GGX)):
         return density.mean
+    if isinstance(density, PixelGaussians):
+        return density.centroid()
     if isinstance(density, Mixture):
         means = [_mean(c) for c in density.components]
         terms = [w * m for w, m in zip(density.weights, means) if m is not None]
         return sum(terms[1:], terms[0]) if terms else None
-    if isinstance(density, StudentT):
-        _require_first_moment(density)
     return _transform_mean(density)
 
 
@@ -168,14 +193,6 @@ def _transform_mean(density: AbstractSlopeDensity) -> Array:
     W = jnp.stack([jnp.eye(2, dtype=h.dtype) * h, jnp.eye(2, dtype=h.dtype) * 2 * h])  # (2 steps, 2 axes, 2)
     f = -jnp.imag(density.cf(W)) / jnp.stack([h, 2 * h])[:, None]
     return (4 * f[0] - f[1]) / 3
-
-
-def _require_first_moment(density: StudentT) -> None:
-    if is_concrete(density.nu) and not float(density.nu) > 1:
-        raise InvalidInputError(
-            f"a Student-t slope density with ν = {float(density.nu):g} ≤ 1 has no first moment: its slopes' "
-            "tails make Smith's Λ infinite (every direction fully masked). Λ is finite for ν > 1."
-        )
 
 
 # -- the expectation of the hinge ---------------------------------------------------------------
@@ -199,8 +216,8 @@ def _hinge(density: AbstractSlopeDensity, v: Array, c: Array | None) -> Array:
     if isinstance(density, Mixture):
         terms = [w * _hinge(comp, v, c) for w, comp in zip(density.weights, density.components)]
         return sum(terms[1:], terms[0])
-    if isinstance(density, StudentT):
-        _require_first_moment(density)
+    if isinstance(density, PixelGaussians):
+        return _pixel_hinge(density, v, c)
     return _generic_hinge(density, v, c)
 
 
@@ -230,16 +247,28 @@ def _t2_hinge(d, alpha_v2):
     return jnp.where(g > 0, stable, jnp.where(r2 > 0, (r - g) / 2, 0.0))
 
 
+def _pixel_hinge(density: PixelGaussians, v: Array, c: Array | None) -> Array:
+    """The mixture rule over the pixel Gaussians, ``Σ_p w_p E[(X_p − 1)₊]`` with X_p normal of mean
+    ``v·(node_p + center − c)`` and variance ``s²|v|²``, in blocks of directions."""
+    nodes = density.nodes().reshape(-1, 2)
+    offset = _minus(density.center, c)
+    if offset is not None:
+        nodes = nodes + offset
+    weights = density.values.reshape(-1)
+    shape = v.shape[:-1]
+
+    def rows(block):
+        d = block @ nodes.T  # (rows, pixels)
+        s2 = density.variance * jnp.sum(block**2, axis=-1, keepdims=True)
+        return _normal_hinge(d, s2) @ weights
+
+    flat = jnp.reshape(v, (-1, 2))
+    return jnp.reshape(in_blocks(rows, flat, 8 * 8 * nodes.shape[0]), shape)
+
+
 def _generic_hinge(density: AbstractSlopeDensity, v: Array, c: Array, nodes: int = NODES) -> Array:
     """The Fourier quadrature of the module docstring, for an unbatched density."""
     K_band = jax.lax.stop_gradient(jnp.asarray(density.bandwidth(TOL)))
-    if is_concrete(K_band) and not np.isfinite(float(K_band)):
-        raise InvalidInputError(
-            f"Smith's Λ of a {type(density).__name__} whose transform does not decay (it has a point mass) cannot be "
-            "computed by the transform's quadrature; a point mass is exact as stats.Delta or as a component of a "
-            "stats.Mixture, and a nearly-specular statistic has a Λ once observed through an instrument's kernel "
-            "(plus.observe)."
-        )
     c = jnp.zeros(2, v.dtype) if c is None else jnp.asarray(c)
     dtype = jnp.result_type(v.dtype, c.dtype)
     R = jax.lax.stop_gradient(jnp.asarray(density.support_radius(TOL), dtype) + jnp.linalg.norm(c))
@@ -264,4 +293,5 @@ def _generic_hinge(density: AbstractSlopeDensity, v: Array, c: Array, nodes: int
     shape = r.shape
     flat = (jnp.reshape(e, (-1, 2)).astype(dtype), jnp.reshape(x, (-1,)).astype(dtype))
     difference = jnp.reshape(in_blocks(integral, flat, _BYTES_PER_NODE * nodes), shape)
-    return _normal_hinge(jnp.zeros_like(r), (r * sigma_ref) ** 2) + r * difference
+    # Λ ≥ 0: the sum's rounding (~1e-16) must not make it negative where Λ vanishes
+    return jnp.maximum(_normal_hinge(jnp.zeros_like(r), (r * sigma_ref) ** 2) + r * difference, 0.0)
