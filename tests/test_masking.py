@@ -22,7 +22,7 @@ def _direction(theta, phi=0.0):
 
 
 def _beckmann_lambda(mu, alpha):
-    """FIELD-NOTES: a = μ/α, Λ = (erf a − 1)/2 + e^(−a²)/(2a√π), in mpmath with erf a − 1 = −erfc a (50
+    """Beckmann (Walter et al. 2007): a = μ/α, Λ = (erf a − 1)/2 + e^(−a²)/(2a√π), in mpmath with erf a − 1 = −erfc a (50
     digits; the two terms cancel to about 1/(2a²) of each)."""
     with mpmath.workdps(50):
         a = mpmath.mpf(mu) / mpmath.mpf(alpha)
@@ -30,7 +30,7 @@ def _beckmann_lambda(mu, alpha):
 
 
 def _ggx_lambda(mu, alpha):
-    """FIELD-NOTES: a = μ/α, Λ = (−1 + √(1 + 1/a²))/2, in mpmath."""
+    """GGX (Walter et al. 2007): a = μ/α, Λ = (−1 + √(1 + 1/a²))/2, in mpmath."""
     with mpmath.workdps(50):
         a = mpmath.mpf(mu) / mpmath.mpf(alpha)
         return float((-1 + mpmath.sqrt(1 + 1 / a**2)) / 2)
@@ -368,7 +368,7 @@ def test_bad_input_is_refused_with_the_library_error():
 
 @pytest.mark.parametrize("kind", ["Beckmann", "GGX"])
 def test_separable_g2_against_mitsuba_roughconductor(kind):
-    """Mitsuba's microfacet G is G₁(i)G₁(o) (FIELD-NOTES): GGX's Λ exact (float32 rounding); Beckmann's
+    """Mitsuba's microfacet G is G₁(i)G₁(o) (its roughconductor): GGX's Λ exact (float32 rounding); Beckmann's
     G₁ a rational approximation within 0.35 %."""
     from brdfscale import _mitsuba
 

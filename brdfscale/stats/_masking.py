@@ -6,7 +6,7 @@ direction ``w`` (``w_z > 0``) of polar angle θ and azimuth φ, Smith's Λ is
     Λ(w) = (1/μ) ∫_μ^∞ (q − μ) P₂(q) dq,     μ = cot θ,
 
 ``P₂`` the 1-D marginal of ``s`` along the azimuth, ``q = e·m`` with ``e = (cos φ, sin φ)``
-(FIELD-NOTES; Heitz 2014, eq. 72 in slope form). With ``v = (w_x, w_y)/w_z = e/μ`` (the direction's
+(Smith 1967; Heitz 2014, "Understanding the masking-shadowing function", in slope form). With ``v = (w_x, w_y)/w_z = e/μ`` (the direction's
 own slope vector, ``|v| = tan θ``) the same number is one expectation of a hinge,
 
     Λ(w) = E_s[(v·(m − c) − 1)₊],
