@@ -35,7 +35,8 @@ counts per unit lobe value, read noise in counts):
    (same command with ``--noise none``) against the noisy one.
 
 Targets of the issue, evaluated in :func:`targets`: χ²/dof ≤ 1.5 on every file or an explicit
-"inadequate" status naming why; every ΔΣ component within 3 standard errors; held-out error
+verdict naming why (exit 5 "inadequate", or 7 "undetermined": lobes that cannot show their
+change with scale, refused before a fit; :func:`explicit`); every ΔΣ component within 3 standard errors; held-out error
 ≤ ½ of today's isotropic default on the anisotropic files (Σ_yy/Σ_xx or its inverse > 2 at μ0,
 from the topography); no run ends with exit 0 and an unflagged problem (a χ²/dof > 1.5 on some
 scale, a |z| > 3, or an unresolved lobe).
@@ -93,6 +94,11 @@ def command(*args: str, env: dict | None = None, timeout: float = 900) -> dict:
     }
 
 
+def _finite(x) -> float | None:
+    """``x`` as a float, None where it is not finite (a standard error the fit did not give: JSON null)."""
+    return float(x) if x is not None and math.isfinite(float(x)) else None
+
+
 def z_scores(fitted: list[dict], statistics) -> list[dict]:
     """Per coarser scale: ΔΣ of the fit against the topography's, as z per component (module docstring, 2)."""
     rows = []
@@ -105,13 +111,21 @@ def z_scores(fitted: list[dict], statistics) -> list[dict]:
             {
                 "mu": d["mu"],
                 "fit": {n: float(value[a, b]) for n, a, b in ENTRIES},
-                "fit_std": {n: float(std[a, b]) for n, a, b in ENTRIES},
+                "fit_std": {n: _finite(std[a, b]) for n, a, b in ENTRIES},
                 "topography": {n: float(topo[a, b]) for n, a, b in ENTRIES},
                 "topography_std": {n: float(err[a, b]) for n, a, b in ENTRIES},
-                "z": {n: float(z[a, b]) for n, a, b in ENTRIES},
+                "z": {n: _finite(z[a, b]) for n, a, b in ENTRIES},
             }
         )
     return rows
+
+
+def z_summary(rows: list[dict]) -> dict:
+    """``max_abs_z``: the largest finite |z| of :func:`z_scores`' rows (None when there is none);
+    ``undefined_z``: how many components have no z (the fit gave that ΔΣ no standard error)."""
+    values = [_finite(v) for r in rows for v in r["z"].values()]
+    finite = [abs(v) for v in values if v is not None]
+    return {"max_abs_z": max(finite, default=None), "undefined_z": len(values) - len(finite)}
 
 
 def l1(prediction: np.ndarray, data, images) -> float:
@@ -229,7 +243,7 @@ def study(name: str, noise: str, workdir: Path, *, warm: bool) -> dict:
     eig = np.linalg.eigvalsh(c0)
     record["topography_anisotropy"] = float(eig[1] / eig[0])
     record["covariance_differences"] = z_scores(doc.get("covariance_differences", []), statistics)
-    record["max_abs_z"] = max((abs(v) for r in record["covariance_differences"] for v in r["z"].values()), default=None)
+    record.update(z_summary(record["covariance_differences"]))
 
     clean = fitting.Dataset.from_measurements(exr.read_measurements(clean_exr), default_sigma=1.0)
     noisy = fitting.Dataset.from_measurements(mset)
@@ -249,19 +263,27 @@ def unflagged(record: dict) -> list[str]:
         found.append(f"χ²/dof {worst:.3g} on a scale")
     if (record.get("max_abs_z") or 0.0) > MAX_Z:
         found.append(f"ΔΣ |z| {record['max_abs_z']:.3g}")
+    if record.get("undefined_z"):
+        found.append(f"{record['undefined_z']} ΔΣ components without a standard error")
     if any((s["width_px"] or 0.0) < 1.0 for s in record.get("scales", [])):
         found.append("a lobe narrower than 1 image pixel")
     return found
 
 
+def explicit(record: dict) -> bool:
+    """The run ended with an explicit verdict naming why: exit 5 (inadequate) or 7 (undetermined: the
+    lobes cannot show their change with scale, refused before any fit), and a last line saying so."""
+    fit = record.get("fit", {})
+    return (fit.get("exit"), fit.get("line", "").split(":")[0:2]) in (
+        (5, ["brdfscale fit", " inadequate"]),
+        (7, ["brdfscale fit", " undetermined"]),
+    )
+
+
 def targets(records: list[dict]) -> dict:
     """The issue's four targets over all records (module docstring)."""
-    chi2 = [
-        (r.get("reduced_chi2") or math.inf) <= MAX_REDUCED_CHI2
-        or (r.get("outcome", {}).get("status") == "inadequate" and bool(r["outcome"]["reason"]))
-        for r in records
-    ]
-    z = [r.get("max_abs_z") is not None and r["max_abs_z"] <= MAX_Z for r in records]
+    chi2 = [(r.get("reduced_chi2") or math.inf) <= MAX_REDUCED_CHI2 or explicit(r) for r in records]
+    z = [r.get("max_abs_z") is not None and r["max_abs_z"] <= MAX_Z and not r.get("undefined_z") for r in records]
     held = []
     for r in records:
         h = r.get("held_out")
@@ -333,11 +355,35 @@ def run(*, files=FILES, noises=NOISES, warm: bool = True, out: Path | None = Non
     return payload
 
 
+def rescore(payload: dict) -> dict:
+    """``payload`` with every record's :func:`z_summary` and the :func:`targets` recomputed from the records."""
+    for record in payload["records"]:
+        for row in record.get("covariance_differences", []):
+            row["fit_std"] = {k: _finite(v) for k, v in row["fit_std"].items()}
+            row["z"] = {k: _finite(v) for k, v in row["z"].items()}
+        if "covariance_differences" in record:
+            record.update(z_summary(record["covariance_differences"]))
+    payload["targets"] = targets(payload["records"])
+    return payload
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="di-3 at the first noise level, no warm run")
     parser.add_argument("--out", type=Path, default=None, help="write the JSON here instead of experiments/results")
+    parser.add_argument(
+        "--rescore",
+        type=Path,
+        default=None,
+        metavar="JSON",
+        help="recompute the derived fields (z summaries, targets) of a run's JSON from its records, no rerun",
+    )
     args = parser.parse_args(argv)
+    if args.rescore is not None:
+        payload = rescore(json.loads(args.rescore.read_text()))
+        args.rescore.write_text(json.dumps(payload, indent=2) + "\n")
+        print(json.dumps(payload["targets"], indent=1))
+        return payload
     if args.quick:
         out = args.out or Path(tempfile.mkdtemp(prefix="bench_real_fits_"))
         payload = run(files=FILES[:1], noises=NOISES[:1], warm=False, out=out)

@@ -855,6 +855,112 @@ def topography() -> str:
     )
 
 
+def _real_fit_rows(d: dict, noises=None) -> list[list[str]]:
+    def num(x, spec):
+        return "—" if x is None else format(x, spec)
+
+    rows = []
+    for r in d["records"]:
+        if noises is not None and r["noise"] not in noises:
+            continue
+        fit = r.get("fit", r["synth"])
+        h = r.get("held_out", {})
+        default_l1 = h.get("default", {}).get("l1")
+        rows.append(
+            [
+                f"`{r['file']}`",
+                f"`{r['noise']}`",
+                num(r.get("topography_anisotropy"), ".3g"),
+                str(fit["exit"]),
+                r.get("outcome", {}).get("status", "—"),
+                num(r.get("reduced_chi2"), ".3g"),
+                num(max((s["reduced_chi2"] for s in r.get("scales", [])), default=None), ".3g"),
+                num(r.get("max_abs_z"), ".3g") + (f" ({r['undefined_z']} without std)" if r.get("undefined_z") else ""),
+                num(default_l1, ".3f"),
+                num(h.get("isotropic", {}).get("l1"), ".3f"),
+                num(h.get("second_moment", {}).get("l1"), ".3f"),
+                num(h.get("noise_floor_l1"), ".3f"),
+                num(r.get("wall_cold_s"), ".1f"),
+                num(r.get("wall_warm_s"), ".1f"),
+            ]
+        )
+    return rows
+
+
+_REAL_FIT_HEADER = [
+    "file",
+    "noise",
+    "anisotropy of Σ(μ0)",
+    "exit",
+    "outcome",
+    "χ²/dof",
+    "worst scale's χ²/dof",
+    "max ΔΣ |z|",
+    "held-out L1, default",
+    "isotropic",
+    "second moment",
+    "noise floor",
+    "cold s",
+    "warm s",
+]
+
+
+def real_fits() -> str:
+    """docs/benchmarks.md: README's measured-surface chain on every file of tests/data/topographies (issue 31)."""
+    d = load("bench_real_fits")
+    if d is None:
+        return "(bench_real_fits.json missing)"
+    t = d["targets"]
+    held = t["held_out_half_of_isotropic_on_anisotropic_files"]
+    problems = t["no_exit_0_with_unflagged_problem"]["problems"]
+    models = sorted({r["model"]["kind"] for r in d["records"] if "model" in r})
+    return "\n\n".join(
+        [
+            machine_line(d) + f" Command: `{d['command']}` (code at commit `{(d.get('code_commit') or '?')[:7]}`; "
+            f"{d['total_s']:.0f} s in all). " + load_line(d),
+            f"The default fit of `brdfscale fit` on that commit: model {', '.join(models)}. Held-out: the "
+            f"{d['train_scales']} finest scales fitted, the coarser ones predicted; relative L1 against the "
+            "synthesised measurement (noise floor: the noise-free lobe against the noisy one). Anisotropy: the "
+            "eigenvalue ratio of the file's Σ(μ0).",
+            table(_REAL_FIT_HEADER, _real_fit_rows(d)),
+            "Targets (issue 31):\n\n"
+            f"- χ²/dof ≤ 1.5, or an explicit verdict naming why (exit 5 inadequate, 7 undetermined): "
+            f"{met(t['chi2_or_inadequate']['met'])} "
+            f"({t['chi2_or_inadequate']['passed']} of {t['chi2_or_inadequate']['of']} runs);\n"
+            f"- every ΔΣ component within 3 standard errors of the topography's: "
+            f"{met(t['delta_sigma_within_3_std']['met'])} ({t['delta_sigma_within_3_std']['passed']} of "
+            f"{t['delta_sigma_within_3_std']['of']} runs);\n"
+            f"- held-out error ≤ ½ of the isotropic default's on the anisotropic files: "
+            + ("not evaluated (no anisotropic file)" if held["met"] is None else met(held["met"]))
+            + f" ({held['passed']} of {held['of']} runs);\n"
+            f"- no run ends with exit 0 and an unflagged problem: {met(t['no_exit_0_with_unflagged_problem']['met'])}"
+            + ("" if not problems else " — " + "; ".join(f"{k}: {', '.join(v)}" for k, v in problems.items()))
+            + ".",
+        ]
+    )
+
+
+def real_fits_summary() -> str:
+    """docs/topography.md: what the chain ends with on the files of tests/data/topographies (README's default noise)."""
+    d = load("bench_real_fits")
+    if d is None:
+        return "(bench_real_fits.json missing)"
+    rows = []
+    for r in d["records"]:
+        if r["noise"] != d["noises"][0]:
+            continue
+        fit = r.get("fit", r["synth"])
+        rows.append([f"`{r['file']}`", str(fit["exit"]), fit["line"].removeprefix("brdfscale fit: ")])
+    return "\n\n".join(
+        [
+            f"*From `experiments/results/bench_real_fits.json` ({d['machine'].get('date_utc', '?')}, code at "
+            f"commit `{(d.get('code_commit') or '?')[:7]}`), noise `{d['noises'][0]}`; the full table, with "
+            "held-out predictions and wall times, is in [Benchmarks](benchmarks.md).*",
+            table(["file", "exit", "the line `brdfscale fit` ends with"], rows),
+        ]
+    )
+
+
 def cli_cache() -> str:
     d = load("bench_cli_cache")
     if d is None:
@@ -1402,9 +1508,11 @@ SECTIONS = [
     ("benchmarks.md", "Command-line start-up (bench_startup)", startup),
     ("benchmarks.md", "Synthesis (bench_synth)", synth),
     ("benchmarks.md", "Measured surfaces (bench_topography)", topography),
+    ("benchmarks.md", "Fits of measured surfaces (bench_real_fits)", real_fits),
     ("benchmarks.md", "Scene planner (bench_planner)", planner),
     ("benchmarks.md", "Ray-traced instrument (bench_instrument)", instrument),
     ("benchmarks.md", "Rendering (bench_render)", render_bench),
+    ("topography.md", "Fits of measured surfaces (bench_real_fits)", real_fits_summary),
     ("fitting.md", "Samplers (bench_samplers)", samplers),
     ("fitting.md", "Calibration (calibration_fit)", calibration),
     ("library.md", "Throughput (bench_library)", library),
