@@ -383,6 +383,8 @@ def test_fit_command_writes_report_and_refuses_to_overwrite(tmp_path, capsys):
         str(path),
         "--out",
         str(out),
+        "--model",  # the simulated truth is the parametric model's
+        "parametric",
         "--steps",
         "200",
         "--sampler",
