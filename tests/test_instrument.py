@@ -143,7 +143,7 @@ def smith_g1(tan_theta, alpha, family):
     from scipy.special import erf
 
     t = np.asarray(tan_theta, dtype=float)
-    a = 1 / (alpha * np.maximum(t, 1e-300))
+    a = 1 / (alpha * np.clip(t, 1e-300, 1e300))  # below the horizon (t = ∞) G1 = 0, set at the end
     if family == "beckmann":
         lam = (erf(a) - 1) / 2 + np.exp(-(a**2)) / (2 * a * math.sqrt(math.pi))
     else:
@@ -343,6 +343,11 @@ def test_pad_on_a_measured_field_and_bad_tasks_are_refused():
     plan = instrument.Measurement(field, 2, direction(0), extent=0.1, rays=64, batches=4)
     with pytest.raises(brdfscale.InvalidInputError, match="batches_per_task"):
         plan.tasks(0)
+
+
+@pytest.mark.wrong_types
+def test_a_task_that_is_not_a_task_is_refused():
+    plan = instrument.Measurement(flat(), 2, direction(0), extent=0.1, rays=64, batches=4)
     with pytest.raises(brdfscale.InvalidInputError, match="Task"):
         plan.run((0, 0, 0))  # pyright: ignore[reportArgumentType]
 
