@@ -300,8 +300,6 @@ def test_bad_statistics_and_options_are_refused_naming_what_is_accepted():
         render.bsdf(base_lobe(), {"alpha": 0.1}, mu0=1.0)
     with pytest.raises(brdfscale.InvalidInputError, match="mu0 is required"):
         render.bsdf(base_lobe(), LAW)
-    with pytest.raises(brdfscale.InvalidInputError, match="base_lobe must be a brdfscale.lobes lobe"):
-        render.bsdf("beckmann", LAW, mu0=1.0)
     with pytest.raises(brdfscale.InvalidInputError, match="mu must be a positive number"):
         render.bsdf(base_lobe(), LAW, mu0=1.0, mu=-1.0)
     with pytest.raises(brdfscale.InvalidInputError, match="masking must be True"):
@@ -363,6 +361,12 @@ def test_tables_are_deterministic_and_rgb_tables_are_refused(material):
         render.bsdf(base_lobe(), table, masking=False)
     with pytest.raises(brdfscale.InvalidInputError, match="output must be one of"):
         render.FootprintIntegrator(output="mu")
+
+
+@pytest.mark.wrong_types
+def test_a_base_lobe_of_another_type_is_refused():
+    with pytest.raises(brdfscale.InvalidInputError, match="base_lobe must be a brdfscale.lobes lobe"):
+        render.bsdf("beckmann", LAW, mu0=1.0)  # pyright: ignore[reportArgumentType]
 
 
 # -- the footprint integrator --------------------------------------------------------------------------------------

@@ -4,6 +4,7 @@ import sys
 import threading
 
 from .. import _mitsuba
+from .._evolve import AbstractMethod, MethodName
 from ..exr import LobeTable
 from ..lobes import AbstractLobe
 from ._masking import masking_choice
@@ -64,7 +65,7 @@ def bsdf(
     levels: int = DEFAULT_LEVELS,
     size: int = 128,
     extent: float | None = None,
-    method="auto",
+    method: MethodName | AbstractMethod = "auto",
 ):
     """A Mitsuba BSDF rendering ``base_lobe`` (the BRDF at μ0) evolved with ``statistics`` to each interaction's scale.
 

@@ -30,7 +30,7 @@ def masking_choice(masking):
     height-correlated), False (none), or what :func:`brdfscale.lobes.as_masking` accepts (a masking choice object,
     ``"smith"``, ``"none"``, None for the library default ``brdfscale.choices.MASKING``)."""
     if masking is True:
-        return lobes.SmithMasking()
+        masking = "smith"  # height-correlated
     if masking is False:
         return None
     try:

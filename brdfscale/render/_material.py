@@ -19,7 +19,7 @@ import numpy as np
 
 from .. import stats
 from .._errors import InvalidInputError
-from .._evolve import evolve
+from .._evolve import AbstractMethod, evolve, MethodName
 from .._validation import integer, real
 from ..exr import LobeTable
 from ..lobes import AbstractLobe
@@ -99,7 +99,15 @@ def check_scales(scales) -> np.ndarray:
     return s
 
 
-def evolved_lobes(base_lobe, statistics, *, mu0=None, scales=None, levels: int = DEFAULT_LEVELS, method="auto"):
+def evolved_lobes(
+    base_lobe,
+    statistics,
+    *,
+    mu0=None,
+    scales=None,
+    levels: int = DEFAULT_LEVELS,
+    method: MethodName | AbstractMethod = "auto",
+):
     """``(ladder, lobes, μ0)``: ``brdfscale.evolve(base_lobe, law.at(μ0), law.at(μ_k), method)`` (seed Eq. 4.4) at
     every scale ``μ_k`` of the ladder (``scales``, or :func:`default_scales` with ``levels`` scales)."""
     if not isinstance(base_lobe, AbstractLobe):
@@ -133,7 +141,7 @@ def lobe_table(
     levels: int = DEFAULT_LEVELS,
     size: int = 128,
     extent: float | None = None,
-    method="auto",
+    method: MethodName | AbstractMethod = "auto",
 ) -> LobeTable:
     """The evolved lobe ``A·g(u, μ_k)`` tabulated at every scale of a ladder (what :func:`bsdf` renders).
 

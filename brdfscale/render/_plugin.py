@@ -148,6 +148,7 @@ def _build(mi):
             s = dr.sqrt(dr.clip(mi.Frame3f.cos_theta(w), 0.0, 1.0))
             phi = dr.atan2(w.y, w.x)
             phi = dr.select(phi < 0, phi + 2 * math.pi, phi)
+            assert self._host.g1 is not None and self._g1 is not None  # _masking asks only when there are tables
             ns, nphi = self._host.g1.shape[1:]
             ps = (s * (ns - 1) + 0.5) / ns
             pphi = (phi / (2 * math.pi) * (nphi - 1) + 0.5) / nphi
