@@ -366,3 +366,16 @@ def test_missing_mitsuba_is_named_in_one_line(monkeypatch):
     monkeypatch.setattr(brdfscale._mitsuba.importlib, "import_module", lambda n: no_mitsuba(n))
     with pytest.raises(brdfscale.MissingDependencyError, match=r"pip install \"brdfscale\[render\]\""):
         instrument.measure(flat(), 2, direction(0), extent=0.1, rays=64, batches=4, progress=False)
+
+
+@pytest.mark.slow
+def test_the_scalar_variant_measures_the_same():
+    """Without LLVM the instrument runs ray by ray in Mitsuba's scalar variant: the same random numbers, the same
+    paths, the same image to float32 rounding (far below σ)."""
+    kw = dict(extent=0.12, pixels=9, rays=1000, batches=8, bounces=2, micro=lobes.Beckmann(0.02), progress=False)
+    field = synth.spectral_field(SMOOTH, size=32, seed=1)
+    scalar = instrument.measure(field, [4], direction(20), variant="scalar_rgb", **kw)
+    llvm = instrument.measure(field, [4], direction(20), variant="llvm_ad_rgb", **kw)
+    assert scalar.metadata["instrument"]["variant"] == "scalar_rgb"
+    a, b = scalar.images[0], llvm.images[0]
+    assert np.all(np.abs(a.values - b.values) <= 1e-3 * a.sigma)

@@ -19,9 +19,12 @@ reflected power per unit solid angle per unit power falling on the spots, ``ρ =
     w · c / (N h²),     c = cosθ_i cosθ_h / (i·h) = i_z / (i_z + u·i_xy),
 
 on the image nodes around ``u`` with bilinear (cloud-in-cell) shares (:class:`brdfscale.stats.SlopeHistogram`, the
-binning of :func:`brdfscale.synth.gonioreflectometer`), ``N`` the rays whose light met the surface and ``h`` the node
-pitch. For mirror facets without masking and shadowing this is exactly the density of the facets' slope offsets per
-unit area, the ``"nearly_flat"`` image of :func:`brdfscale.synth.gonioreflectometer` (the light a facet intercepts,
+binning of :func:`brdfscale.synth.gonioreflectometer`), ``h`` the node pitch and ``N`` the *lit* rays: those whose
+light met the surface, and those that would have to come from below the global plane (a spot tilted further than
+the incidence allows), which the sample's body blocks (lit and lost, ``from_below``). Light that meets no surface —
+through an unmeasured hole, past a measured field's edge — is left out (``unmeasured``). For mirror facets
+without masking and shadowing this is exactly the density of the facets' slope offsets per unit area, the
+``"nearly_flat"`` image of :func:`brdfscale.synth.gonioreflectometer` (the light a facet intercepts,
 ``∝ 1 + m·i_xy/i_z``, is divided out by ``c``); tests/test_instrument.py compares the two.
 
 **The detector.** Node ``(j, k)`` is the half-slope offset ``u = (x_k, y_j)``, ``x, y = linspace(−a, a, n)``; its cell
@@ -31,7 +34,7 @@ recorded in the metadata at ``u = 0`` for each incident direction.
 **σ.** The rays of an image are split into ``batches`` batches with independent random numbers; each batch is an
 unbiased estimate of the same image, and σ is the standard error of their ratio estimate,
 ``σ² = B/(B−1) · Σ_b (C_b − image·N_b)² / (Σ_b N_b)²`` (``C_b`` the batch's node sums per unit slope area, ``N_b``
-its rays that met the surface), floored at ``1/(N h²)`` — what one ray of unit weight deposits on a node (a node no
+its lit rays), floored at ``1/(N h²)`` — what one ray of unit weight deposits on a node (a node no
 ray reached reads 0 ± that, the one-count floor of Poisson statistics). It is the Monte Carlo error of the average
 over the spots (the random choice of spot per ray included), not the spread of the surface's realisations.
 

@@ -207,8 +207,9 @@ def mesh(field: HeightField, *, surface: str = "pixel_facets", pad: int = 0, var
         raise InvalidInputError("the field has no measured pixel quad to mesh.")
     shape = mi.Mesh("heightfield", len(vertices), len(faces), has_vertex_normals=False, has_vertex_texcoords=False)
     params = mi.traverse(shape)
-    params["vertex_positions"] = mi.Float(vertices.ravel())
-    params["faces"] = mi.UInt32(faces.ravel())
+    # the buffers' own array types: mi.Float / mi.UInt32 in a JIT variant, Dr.Jit's dynamic arrays in a scalar one
+    params["vertex_positions"] = type(params["vertex_positions"])(vertices.ravel())
+    params["faces"] = type(params["faces"])(faces.ravel())
     params.update()
     return shape
 
