@@ -6,8 +6,9 @@ direction ``w`` (``w_z > 0``) of polar angle θ and azimuth φ, Smith's Λ is
     Λ(w) = (1/μ) ∫_μ^∞ (q − μ) P₂(q) dq,     μ = cot θ,
 
 ``P₂`` the 1-D marginal of ``s`` along the azimuth, ``q = e·m`` with ``e = (cos φ, sin φ)``
-(Smith 1967; Heitz 2014, "Understanding the masking-shadowing function", in slope form). With ``v = (w_x, w_y)/w_z = e/μ`` (the direction's
-own slope vector, ``|v| = tan θ``) the same number is one expectation of a hinge,
+(Smith 1967; Heitz 2014, "Understanding the masking-shadowing function", in slope form).
+With ``v = (w_x, w_y)/w_z = e/μ`` (the direction's own slope vector, ``|v| = tan θ``) the
+same number is one expectation of a hinge,
 
     Λ(w) = E_s[(v·(m − c) − 1)₊],
 
@@ -36,6 +37,8 @@ a :class:`Mixture`, and otherwise read from the transform,
 * :class:`Mixture`: Λ is linear in the density for a common centre, ``Λ = Σ w_k E_k[(X − 1)₊]``
   with the mixture's mean removed from every component (so a blazed mixture of point masses
   is exact).
+* :class:`PixelGaussians` (a lobe image's pixels, equal Gaussians on the nodes): the same mixture
+  rule over its nodes, vectorised (one normal closed form per pixel and direction).
 
 **The generic path** (every other density: :class:`Tabulated`, :class:`StudentT`, evolved
 shapes of :func:`brdfscale.evolve`, observed nearly-specular statistics, …) needs only the
@@ -68,6 +71,7 @@ marginalised numerically) and against the closed forms (Gaussian and GGX evaluat
 the generic path), jit/grad/vmap against eager, float32 against float64.
 """
 
+import functools
 import math
 
 import equinox as eqx
@@ -181,7 +185,7 @@ def _mean(density: AbstractSlopeDensity) -> Array | None:
     if isinstance(density, Mixture):
         means = [_mean(c) for c in density.components]
         terms = [w * m for w, m in zip(density.weights, means) if m is not None]
-        return sum(terms[1:], terms[0]) if terms else None
+        return functools.reduce(jnp.add, terms) if terms else None
     return _transform_mean(density)
 
 
@@ -214,8 +218,9 @@ def _hinge(density: AbstractSlopeDensity, v: Array, c: Array | None) -> Array:
         alpha_v2 = jnp.sum((v * density.alpha) ** 2, axis=-1)  # projected α²: |A v|²
         return _t2_hinge(_along(v, _minus(density.mean, c)), alpha_v2)
     if isinstance(density, Mixture):
-        terms = [w * _hinge(comp, v, c) for w, comp in zip(density.weights, density.components)]
-        return sum(terms[1:], terms[0])
+        return functools.reduce(
+            jnp.add, [w * _hinge(comp, v, c) for w, comp in zip(density.weights, density.components)]
+        )
     if isinstance(density, PixelGaussians):
         return _pixel_hinge(density, v, c)
     return _generic_hinge(density, v, c)
@@ -266,7 +271,7 @@ def _pixel_hinge(density: PixelGaussians, v: Array, c: Array | None) -> Array:
     return jnp.reshape(in_blocks(rows, flat, 8 * 8 * nodes.shape[0]), shape)
 
 
-def _generic_hinge(density: AbstractSlopeDensity, v: Array, c: Array, nodes: int = NODES) -> Array:
+def _generic_hinge(density: AbstractSlopeDensity, v: Array, c: Array | None, nodes: int = NODES) -> Array:
     """The Fourier quadrature of the module docstring, for an unbatched density."""
     K_band = jax.lax.stop_gradient(jnp.asarray(density.bandwidth(TOL)))
     c = jnp.zeros(2, v.dtype) if c is None else jnp.asarray(c)
