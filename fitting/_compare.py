@@ -7,7 +7,8 @@ constant ``c`` the same for every model fitted to the same pixels, so (Akaike 19
 
 with ``p`` the number of fitted coordinates θ and ``n`` the number of data rows (valid pixels,
 plus a joint fit's topography rows). The smaller value is preferred; a difference above about 10
-is strong (Burnham & Anderson 2002, for AIC; Kass & Raftery 1995, for BIC).
+is strong (Burnham & Anderson 2002, for AIC; Kass & Raftery 1995, for BIC). ``brdfscale fit
+--compare`` fits its candidate models and reports the one of smallest BIC (docs/fitting.md).
 """
 
 import math
