@@ -85,7 +85,7 @@ def test_layout_provenance_and_exr_round_trip(smooth, tmp_path):
     record = m.metadata["instrument"]
     assert record["rays"] == 640 and record["bounces"] == 1 and record["batches"] == instrument.DEFAULT_BATCHES
     assert record["variant"] and record["mitsuba"] and record["brdfscale"] == brdfscale.__version__
-    assert record["spots"] == [256, 64] and record["surface"] == "pixel_facets"
+    assert record["spots"] == record["windows"] == [256, 64] and record["surface"] == "pixel_facets"
     assert record["images"][0]["detector_solid_angle_at_specular"] == pytest.approx(
         4 * math.cos(math.radians(20)) * (0.24 / 16) ** 2
     )
@@ -94,6 +94,10 @@ def test_layout_provenance_and_exr_round_trip(smooth, tmp_path):
     back = brdfscale.exr.read_measurements(path)
     assert all(np.allclose(a.values, b.values, rtol=1e-6) for a, b in zip(back.images, m.images))
     assert back.metadata["instrument"] == json_round_trip(record)
+    drawn = instrument.measure(
+        smooth, [4, 8], incident, extent=0.12, pixels=9, rays=64, batches=4, spots=10, progress=False
+    )
+    assert drawn.metadata["instrument"]["spots"] == [10, 10]
 
 
 def json_round_trip(x):
@@ -310,6 +314,8 @@ BAD = [
     ({"pixels": 1}, "pixels"),
     ({"micro": stats.Disk(0.1)}, "micro must be"),
     ({"micro": lobes.Beckmann(0.1, amplitude=2.0)}, "reflectance"),
+    ({"micro": lobes.GGX(alpha_x=0.1, alpha_y=0.2)}, "isotropic"),
+    ({"micro": stats.Gaussian([[0.01, 0.0], [0.0, 0.01]], mean=[0.01, 0.0])}, "micro must be"),
     ({"fresnel": "gold"}, "refractive index"),
     ({"fresnel": -1.0}, "n > 0"),
     ({"rays": 3}, "at least batches"),

@@ -5,8 +5,10 @@ Accepted ``micro`` objects (the choice carries its behaviour: :func:`micro_bsdf`
 * :class:`brdfscale.lobes.Mirror`, :class:`~brdfscale.lobes.Beckmann`, :class:`~brdfscale.lobes.GGX` — the lobe's
   shape is the facets' micro-normal slope density and its amplitude A their reflectance (A ≤ 1);
 * the :mod:`brdfscale.stats` densities a :class:`brdfscale.synth.HeightField` carries as ``micro``:
-  ``stats.Delta()`` (mirror), a centred axis-aligned ``stats.Gaussian``/``stats.Beckmann`` and a centred
-  ``stats.GGX`` (reflectance 1).
+  ``stats.Delta()`` (mirror), a centred ``stats.Gaussian``/``stats.Beckmann`` and a centred ``stats.GGX``
+  (reflectance 1).
+
+Rough micro-facets must be isotropic: the mesh's triangles have no tangent frame aligned with the field's axes.
 
 Mitsuba's microfacet distributions use the same slope densities as the library (Beckmann: per-axis slope variance
 α²/2; GGX: bivariate Student-t with ν = 2; checked in
@@ -29,8 +31,8 @@ from .._errors import InvalidInputError
 
 
 ACCEPTED = (
-    "lobes.Mirror(), lobes.Beckmann(alpha) or lobes.GGX(alpha) (amplitude ≤ 1: the facets' reflectance), "
-    "stats.Delta(), a centred axis-aligned stats.Beckmann/Gaussian or a centred stats.GGX, or None (the field's micro)"
+    "lobes.Mirror(), lobes.Beckmann(alpha) or lobes.GGX(alpha) (isotropic; amplitude ≤ 1: the facets' reflectance), "
+    "stats.Delta(), a centred isotropic stats.Beckmann/Gaussian or stats.GGX, or None (the field's micro)"
 )
 
 
@@ -101,6 +103,12 @@ def resolve(micro, fresnel) -> Micro:
         raise InvalidInputError(f"micro must be {ACCEPTED}; got {type(micro).__name__} {micro!r:.200}.")
     if kind != "mirror" and not all(0 < a < np.inf for a in alpha):
         raise InvalidInputError(f"micro's roughness must be positive and finite; got alpha={alpha} ({ACCEPTED}).")
+    if alpha[0] != alpha[1]:
+        raise InvalidInputError(
+            f"micro must be isotropic (alpha_x = alpha_y); got alpha={alpha}: the mesh's triangles carry no tangent "
+            "frame aligned with the field's x axis, so an anisotropic micro-BRDF would be oriented at random. "
+            f"Accepted: {ACCEPTED}."
+        )
     if fresnel is not None:
         if isinstance(fresnel, (bool, np.bool_)) or not isinstance(
             fresnel, (int, float, complex, np.integer, np.floating, np.complexfloating)
