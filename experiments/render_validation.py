@@ -77,6 +77,7 @@ LOBE_NODES = 256
 EVOLVE_GRID = 256
 MEAN_SLOPE_SAMPLES = 16
 RAYS_PER_PASS = 1 << 21
+MIN_TILE = 512
 
 
 def mitsuba():
@@ -245,6 +246,9 @@ class MicroGeometry:
         from brdfscale import instrument
 
         mi = self.mi = mitsuba()
+        repeat = max(1, math.ceil(MIN_TILE / field.heights.shape[0]))
+        if repeat > 1:  # a small periodic field repeated into one tile: few instances (their count slows tracing)
+            field = synth.HeightField(np.tile(np.asarray(field.heights), (repeat, repeat)), 1.0)
         n = field.heights.shape[0]
         row, col = np.mgrid[0 : camera.height + 1 : camera.height, 0 : camera.width + 1 : camera.width]
         corners, _ = camera.hit(col.astype(float), row.astype(float))
@@ -260,6 +264,7 @@ class MicroGeometry:
                     "to_world": mi.ScalarTransform4f().translate([a * n, b * n, 0.0]),
                 }
         self.instances = (x1 - x0) * (y1 - y0)
+        self.triangles = 2 * n * n
         self.scene = mi.load_dict(scene)
         self.bsdf = roughconductor(mi, alpha0)
         self.camera = camera
@@ -531,7 +536,7 @@ def run(
         "levels": level_stats["records"],
         "tabulated_evolution": tabulated,
         "instances": geometry.instances,
-        "triangles_per_tile": 2 * size * size,
+        "triangles_per_tile": geometry.triangles,
         "reference_spp": reference_spp,
         "reference_seconds": truth_seconds,
         "micro_geometry_ladder": ladder,
