@@ -24,7 +24,7 @@ from .. import stats
 from .._errors import InvalidInputError
 from .._validation import flag, integer
 from ..files import atomic_write
-from ._material import lobe_table, scalar_table
+from ._material import ACCEPTED, lobe_table, scalar_table
 
 
 _ALPHA = (
@@ -173,6 +173,11 @@ def export_roughness(
         n_levels = 9 if levels is None else integer(levels, "levels", 1)
         if isinstance(source, LobeTable):
             table = lobe_table(None, source)
+        elif base_lobe is None:
+            raise InvalidInputError(
+                f"source must be a synth.HeightField, or {ACCEPTED} (statistics with base_lobe= and mu0=); got "
+                f"{type(source).__name__}" + (" without base_lobe." if callable(getattr(source, "at", None)) else ".")
+            )
         else:
             if mu0 is None and not hasattr(source, "covariance_differences"):
                 raise InvalidInputError("mu0 is required with a scale law: the scale at which base_lobe holds.")
