@@ -340,6 +340,7 @@ def fit_result_of_the_law(scales):
     )
 
 
+@pytest.mark.slow
 def test_a_fit_result_renders_like_its_law_at_the_fitted_scales():
     """Evolution needs only S(μ0)/S(μ_k): a FitResult's ΔΣ give the law's lobes at the fitted scales."""
     fit = fit_result_of_the_law(LADDER)
