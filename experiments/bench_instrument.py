@@ -33,11 +33,11 @@ from experiments._bench import machine, write_json
 
 
 VARIANTS = ("scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb")
-SPEED_SIZE, SPEED_RAYS = 512, 200_000
-REPEAT = 3
+SPEED_SIZE, SPEED_RAYS = 512, 100_000
+REPEAT = 2
 FULL_SIZE, FULL_SCALES, FULL_INCIDENCE = 512, 8, (0.0, 40.0, 70.0)
 ACCURACY_SIZE, ACCURACY_SLOPES, ACCURACY_INCIDENCE = 256, (0.1, 0.2, 0.3), (0.0, 40.0, 60.0, 70.0, 80.0)
-ACCURACY_RAYS, ACCURACY_BOUNCES = 400_000, 3
+ACCURACY_RAYS, ACCURACY_BOUNCES = 100_000, 3
 TARGET_SECONDS = 600.0
 
 
@@ -61,7 +61,9 @@ def speed(variant: str, *, size: int, rays: int, threads: int) -> dict:
 
     def once():
         t0 = time.perf_counter()
-        instrument.measure(field, [float(size)], incident, extent=0.6, pixels=65, rays=rays, seed=0, variant=variant)
+        instrument.measure(
+            field, [float(size)], incident, extent=0.6, pixels=65, rays=rays, seed=0, variant=variant, progress=False
+        )
         return time.perf_counter() - t0
 
     first = once()
@@ -95,7 +97,9 @@ def full(*, size: int, scales: int, threads: int) -> dict:
     field = gaussian_surface(0.2, size=size)
     mus = [float(m) for m in np.unique(np.geomspace(4, size, scales).round())]
     t0 = time.perf_counter()
-    mset = instrument.measure(field, mus, incident_directions(FULL_INCIDENCE), extent=0.6, pixels=65, seed=0)
+    mset = instrument.measure(
+        field, mus, incident_directions(FULL_INCIDENCE), extent=0.6, pixels=65, seed=0, progress=False
+    )
     seconds = time.perf_counter() - t0
     return {
         "field": f"{size}² Gaussian, rms slope 0.2",
@@ -103,7 +107,9 @@ def full(*, size: int, scales: int, threads: int) -> dict:
         "incidence_deg": list(FULL_INCIDENCE),
         "pixels": 65,
         "images": len(mset.images),
-        "instrument": mset.metadata.get("instrument"),
+        "instrument": {
+            k: mset.metadata["instrument"].get(k) for k in ("variant", "mitsuba", "rays", "batches", "bounces")
+        },
         "threads": threads,
         "seconds": round(seconds, 1),
         "max_rss_MiB": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
@@ -122,7 +128,9 @@ def accuracy(*, size: int, slopes, thetas, rays: int, bounces: int) -> list:
         extent = synth.robust_extent(field)
         incident = incident_directions(thetas)
         mus = [float(size)]
-        mset = instrument.measure(field, mus, incident, extent=extent, pixels=65, rays=rays, bounces=bounces, seed=0)
+        mset = instrument.measure(
+            field, mus, incident, extent=extent, pixels=65, rays=rays, bounces=bounces, seed=0, progress=False
+        )
         model = predictions(field, mus, incident, extent, 65)
         for k, image in enumerate(mset.images):
             seed, masking = scores(model["seed"][k], image), scores(model["masking"][k], image)

@@ -560,9 +560,8 @@ def instrument() -> str:
             f"Ray-traced instrument: {c['rays']:,} rays per measurement, bounces {c['bounces']}, {c['pixels']}² px "
             f"images, synthetic fields {c['size']}² px (scales {c['scales_px']} px), seed {c['seed']}; run time "
             f"{d['seconds']:.0f} s. Entries at each surface's largest scale: energy ratio model ÷ instrument "
-            f"(bounces {most}) of the seed's model / the masking-aware model (× Smith G₂) / masking-aware with "
-            "projected-area weighting; ± the instrument's relative MC error; the effect that dominates the error "
-            "(nearly flat, masking, interreflection: see the text).\n"
+            f"(bounces {most}) of the seed's model / the masking-aware model (× Smith G₂) ± the instrument's relative "
+            "MC error; in brackets the effect that dominates the error (see the text).\n"
         )
     ]
     largest = {}
@@ -584,12 +583,9 @@ def instrument() -> str:
             if r is None:
                 cells.append("–")
                 continue
-            e = {k: r[f"{k}_bounces{most}"]["energy_ratio"] for k in ("seed", "masking", "masking_projected")}
+            e = {k: r[f"{k}_bounces{most}"]["energy_ratio"] for k in ("seed", "masking")}
             mc = r[f"seed_bounces{most}"]["mc_energy"]
-            cells.append(
-                f"{e['seed']:.3f} / {e['masking']:.3f} / {e['masking_projected']:.3f} ± {mc:.3f} "
-                f"({r['dominant'].replace('_', ' ')})"
-            )
+            cells.append(f"{e['seed']:.3f} / {e['masking']:.3f} ± {mc:.3f} ({r['dominant'].replace('_', ' ')})")
         rows.append([label, *cells])
     out.append(table(["surface", *[f"θi = {t:g}°" for t in thetas]], rows))
     rows = []
@@ -602,8 +598,8 @@ def instrument() -> str:
     )
     out.append(
         f"\n**Targets** (Gaussian surfaces, rms slope ≤ 0.3, θi ≤ 80°, largest scale; {s['target_rows']} cases): "
-        f"the masking-aware model within 2 % (or 2 MC errors) in {s['masking_within_target']}, with projected-area "
-        f"weighting in {s['masking_projected_within_target']}, the seed's in {s['seed_within_target']}; the seed's "
+        f"the masking-aware model within 2 % (or 2 MC errors) in {s['masking_within_target']}, the seed's in "
+        f"{s['seed_within_target']}; the seed's "
         f"model off by more than 10 % in {len(s['seed_off_by_more_than_10pc'])} cases, of which the masking-aware "
         f"model is within 2 % in {s['masking_within_where_seed_off']}."
     )
@@ -630,39 +626,27 @@ def instrument() -> str:
         for f in d["fits"]:
             cells = []
             for fit in f["fits"]:
-                if "amplitude" not in fit:
+                if fit.get("amplitude") is None:
                     cells += [f"exit {fit['exit_status']}", "–", "–"]
                     continue
-                cells += [
-                    f"{fit['amplitude']:.3f}",
-                    f"{fit.get('alpha_max', float('nan')):.3f}",
-                    f"{fit['reduced_chi2']:.2g}",
-                ]
-            rows.append(
-                [
-                    f["surface"],
-                    f"{f['theta_i_deg']:g}°",
-                    f"{f['instrument_energy_in_grid']:.3f}",
-                    f"{f['rms_pixel_slope']:.3f}",
-                    *cells,
-                ]
-            )
+                cells += [f"{fit['amplitude']:.3f}", f"{fit['reduced_chi2']:.3g}", str(fit["outcome"])]
+            rows.append([f["surface"], f"{f['theta_i_deg']:g}°", f"{f['instrument_energy_in_grid']:.3f}", *cells])
+        model = next((fit["model"] for f in d["fits"] for fit in f["fits"] if fit.get("model")), "?")
         out.append(
-            "\n**The fits on instrument data** (`brdfscale fit --steps 0`, the default model; amplitude, α_max and "
-            "χ²/dof without / with `--masking smith`; truth: the instrument's energy in the image grid and the "
-            "pixel slopes' rms)\n\n"
+            f"\n**The fits on instrument data** (`brdfscale fit --steps 0`: the default model, {model}; amplitude, "
+            "χ²/dof and outcome without / with `--masking smith`; the amplitude's truth: the instrument's energy in "
+            "the image grid)\n\n"
             + table(
                 [
                     "surface",
                     "θi",
                     "energy in grid",
-                    "rms pixel slope",
                     "A (none)",
-                    "α_max (none)",
                     "χ²/dof (none)",
+                    "outcome (none)",
                     "A (smith)",
-                    "α_max (smith)",
                     "χ²/dof (smith)",
+                    "outcome (smith)",
                 ],
                 rows,
             )

@@ -650,7 +650,7 @@ def test_instrument_study_quick(tmp_path):
         for name in st.PREDICTIONS:
             s = r[f"{name}_bounces2"]
             assert s["energy_ratio"] > 0 and 0 <= s["mc_energy"] < 0.2
-        assert r["dominant"] in ("nearly_flat", "masking", "interreflection")
+        assert r["dominant"] in ("masking", "interreflection", "nearly_flat_and_rest")
     # at normal incidence G₂ removes little; at 75° on rms slope 0.2 it removes light the seed's model keeps
     normal = next(r for r in records if r["theta_i_deg"] == 0 and r["mu"] == 64)
     grazing = next(r for r in records if r["theta_i_deg"] == 75 and r["mu"] == 64)
