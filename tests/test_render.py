@@ -292,6 +292,40 @@ def test_gradients_reach_the_table_entries(material):
     np.testing.assert_allclose(np.dot(grad, tab), float(np.asarray(total).ravel()[0]), rtol=1e-4)
 
 
+def test_gradients_of_a_render_reach_the_table(material):
+    """mi.render with the scene's parameters: d(mean image)/d(table) through FootprintIntegrator. Lit by a delta light
+    alone (reached by emitter sampling only), two segments and no masking, the image is linear in the table, so
+    Σ_j table_j ∂mean/∂table_j = mean (Euler)."""
+    import drjit as dr
+
+    mi, _, table, _ = material
+    obj = render.bsdf(None, table, masking=False, mu=2.0, variant="llvm_ad_rgb")
+    scene = mi.load_dict(
+        {
+            "type": "scene",
+            "sensor": {  # straight down, orthographic: every sample sees the same directions (the backward pass
+                # re-renders with its own samples; here they cannot differ)
+                "type": "orthographic",
+                "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 1], target=[0, 0, 0], up=[0, 1, 0]),
+                "film": {"type": "hdrfilm", "width": 8, "height": 8},
+                "sampler": {"type": "independent", "sample_count": 2},
+            },
+            "plane": {"type": "rectangle", "to_world": mi.ScalarTransform4f().scale(5), "bsdf": obj},
+            "light": {"type": "directional", "direction": [0.2, -0.1, -1.0], "irradiance": 1.0},
+        }
+    )
+    params = mi.traverse(scene)
+    dr.enable_grad(params["plane.bsdf.table"])
+    params.update()
+    image = mi.render(scene, params, integrator=render.FootprintIntegrator(max_depth=2), seed=0)
+    mean = dr.mean(image, axis=None)
+    dr.backward(mean)
+    grad = np.asarray(dr.grad(params["plane.bsdf.table"])).ravel()
+    tab = np.asarray(params["plane.bsdf.table"]).ravel()
+    assert float(np.asarray(mean).ravel()[0]) > 0 and np.count_nonzero(grad) > 0
+    np.testing.assert_allclose(np.dot(grad, tab), float(np.asarray(mean).ravel()[0]), rtol=1e-4)
+
+
 # -- bad input -------------------------------------------------------------------------------------------------------
 
 
