@@ -145,9 +145,10 @@ def export_roughness(
 
     Args:
         source: a :class:`brdfscale.synth.HeightField` (per-texel moments of its pixel facets; level 0 = one pixel
-            facet), or statistics as for :func:`brdfscale.render.bsdf` (a scale law or a FitResult, with
-            ``base_lobe`` and ``mu0``: level ℓ is the lobe at ``μ0 · 2^ℓ``, uniform over ``resolution >> ℓ``
-            texels), or an evolved :class:`brdfscale.exr.LobeTable` (level ℓ its ℓ-th scale).
+            facet), or statistics as for :func:`brdfscale.render.bsdf` (a scale law with ``base_lobe`` and
+            ``mu0``: level ℓ is the lobe at ``μ0 · 2^ℓ``; a FitResult with ``base_lobe``: ``levels`` scales evenly
+            spaced in ln μ over its fitted scales; uniform over ``resolution >> ℓ`` texels), or an evolved
+            :class:`brdfscale.exr.LobeTable` (level ℓ its ℓ-th scale).
         path: the .exr file (written atomically; an existing file only with ``overwrite``).
         convention: ``"ggx_alpha"``, ``"beckmann_alpha"`` or ``"lean_moments"`` (:data:`CONVENTIONS`; the text is
             each part's ``brdfscale.convention_text`` attribute, the name ``brdfscale.convention``).
