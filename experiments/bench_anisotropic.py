@@ -93,13 +93,10 @@ def run(args: list[str], cache: Path, out: Path) -> dict:
 
 
 def main(quick: bool = False) -> dict:
-    runs = {
-        "default": [],
-        "default_no_sampling": ["--steps", "0"],
-        "student_t_no_sampling": ["--shape", "student_t", "--steps", "0"],
-    }
+    runs = {"default": [], "default_no_sampling": ["--steps", "0"]}
     if not quick:
         runs["nonparametric_anisotropic"] = ["--model", "nonparametric_anisotropic", "--steps", "0"]
+    runs["student_t_no_sampling"] = ["--shape", "student_t", "--steps", "0"]
     results: dict = {"machine": machine(), "command": "python -m brdfscale fit M.exr --out D --no-progress [ARGS]"}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -112,6 +109,8 @@ def main(quick: bool = False) -> dict:
             if name != "nonparametric_anisotropic":
                 entry["warm"] = run([str(tmp / "m.exr"), *extra], cache, tmp / f"{name}-warm")
             results["runs"][name] = entry
+            write_json("bench_anisotropic", {**results, "complete": False})  # what has run, if stopped
+    results["complete"] = True
     r = results["runs"]
     results["profile"] = {
         "compilation_s (default: cold − warm)": round(
