@@ -306,7 +306,9 @@ class Measurement:
 
     def _faces(self) -> np.ndarray:
         """The pixel quad of every face of the mesh, in Mitsuba's face order (:func:`._mesh.mesh_arrays`)."""
-        return _mesh.mesh_arrays(self.field, self.surface, self.pad)[2]
+        found = _mesh.mesh_arrays(self.field, self.surface, self.pad)[2]
+        assert found is not None  # quads=True
+        return found
 
     def _deposit(
         self, s: int, k: int, spot: np.ndarray, paths: _trace.Paths, from_below: np.ndarray

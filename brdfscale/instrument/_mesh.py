@@ -132,10 +132,11 @@ def _check_field(field) -> HeightField:
 
 
 def mesh_arrays(
-    field: HeightField, surface: str = "pixel_facets", pad: int = 0
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    field: HeightField, surface: str = "pixel_facets", pad: int = 0, *, quads: bool = True
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """The mesh as NumPy arrays: vertices ``(V, 3)`` float32 (pixel units), faces ``(F, 3)`` uint32 and, per face,
-    the pixel quad it belongs to ``(F, 2)`` int64 ``(row, col)`` in the field's own indices (wrapped in the margin)."""
+    the pixel quad it belongs to ``(F, 2)`` int64 ``(row, col)`` in the field's own indices (wrapped in the margin;
+    None with ``quads=False``). Built in uint32 and float32 throughout: peak memory about three times the buffers."""
     _check_field(field)
     surface = check_surface(surface)
     pad = check_pad(field, pad)
@@ -146,43 +147,50 @@ def mesh_arrays(
     shift = pad if field.periodic else 0
     jw, kw = (np.arange(rows) - shift) % ny, (np.arange(cols) - shift) % nx
     level = float(np.mean(field.heights if field.mask is None else field.heights[field.mask]))
-    z = (field.heights[np.ix_(jw, kw)] - level) / dx
+    z = (field.heights[np.ix_(jw, kw)] - level) / dx  # float64 (rows, cols)
     cx, cy = centre(field)
-    x, y = np.meshgrid(np.arange(cols, dtype=np.float64) - shift - cx, (np.arange(rows) - shift) * (dy / dx) - cy)
-    nodes = np.stack((x, y, z), axis=-1).reshape(-1, 3)
-    q = (np.arange(rows - 1)[:, None] * cols + np.arange(cols - 1)[None, :]).ravel()
+    x = (np.arange(cols) - shift - cx).astype(np.float32)
+    y = ((np.arange(rows) - shift) * (dy / dx) - cy).astype(np.float32)
+    extra = (rows - 1) * (cols - 1) if surface == "pixel_facets" else 0
+    vertices = np.empty((rows * cols + extra, 3), np.float32)
+    grid = vertices[: rows * cols].reshape(rows, cols, 3)
+    grid[..., 0], grid[..., 1], grid[..., 2] = x[None, :], y[:, None], z
+    q = (np.arange(rows - 1, dtype=np.uint32)[:, None] * cols + np.arange(cols - 1, dtype=np.uint32)[None, :]).ravel()
     v00, v01, v10, v11 = q, q + 1, q + cols, q + cols + 1
-    quad = np.stack((np.repeat(jw[:-1], cols - 1), np.tile(kw[:-1], rows - 1)), axis=-1)
     measured = None if field.mask is None else field.mask[np.ix_(jw, kw)].ravel()
     if surface == "triangles":
-        faces = np.concatenate((np.stack((v00, v01, v10), -1), np.stack((v01, v11, v10), -1)))
-        quads = np.concatenate((quad, quad))
+        pieces = [np.stack((v00, v01, v10), -1), np.stack((v01, v11, v10), -1)]
+        keeps = [None, None] if measured is None else [measured[f].all(axis=1) for f in pieces]
+    else:
+        # pixel facets: the quad's plane through nodes 00, 01, 10; its fourth corner P = 01 + 10 − 00
+        corner = vertices[rows * cols :].reshape(rows - 1, cols - 1, 3)
+        corner[..., 0], corner[..., 1] = x[None, 1:], y[1:, None]
+        pz = z[:-1, 1:] + z[1:, :-1] - z[:-1, :-1]
+        corner[..., 2] = pz
+        wall = (z[1:, 1:] - pz != 0).ravel()  # the mixed difference: node 11 is not on the facet's plane
+        present = np.ones((rows - 1, cols - 1), bool)
         if measured is not None:
-            keep = measured[faces].all(axis=1)
-            faces, quads = faces[keep], quads[keep]
-        return nodes.astype(np.float32), faces.astype(np.uint32), quads
-    # pixel facets: the quad's plane through nodes 00, 01, 10; its fourth corner P = 01 + 10 − 00
-    flat = z.ravel()
-    corner = nodes[v01] + nodes[v10] - nodes[v00]
-    p = len(nodes) + np.arange(len(q))
-    step = flat[v11] - corner[:, 2]  # the mixed difference: how far node 11 lies above P
-    present = np.ones(len(q), bool) if measured is None else measured[np.stack((v00, v01, v10), -1)].all(axis=1)
-    grid = present.reshape(rows - 1, cols - 1)
-    right = np.zeros_like(grid)
-    right[:, :-1] = grid[:, :-1] & grid[:, 1:]
-    below = np.zeros_like(grid)
-    below[:-1] = grid[:-1] & grid[1:]
-    wall = step != 0
-    pieces = [
-        (np.stack((v00, v01, v10), -1), present),
-        (np.stack((v01, p, v10), -1), present),
-        (np.stack((v01, v11, p), -1), right.ravel() & wall),  # x = k + 1: faces −x where node 11 is above P
-        (np.stack((v10, p, v11), -1), below.ravel() & wall),  # y = j + 1: faces −y where node 11 is above P
-    ]
-    faces = np.concatenate([f[keep] for f, keep in pieces])
-    quads = np.concatenate([quad[keep] for _, keep in pieces])
-    vertices = np.concatenate((nodes, corner)).astype(np.float32)
-    return vertices, faces.astype(np.uint32), quads
+            m = measured.reshape(rows, cols)
+            present = m[:-1, :-1] & m[:-1, 1:] & m[1:, :-1]
+        right = np.zeros_like(present)
+        right[:, :-1] = present[:, :-1] & present[:, 1:]
+        below = np.zeros_like(present)
+        below[:-1] = present[:-1] & present[1:]
+        p = np.uint32(rows * cols) + np.arange(len(q), dtype=np.uint32)
+        pieces = [
+            np.stack((v00, v01, v10), -1),
+            np.stack((v01, p, v10), -1),
+            np.stack((v01, v11, p), -1),  # x = k + 1: faces −x where node 11 lies above P
+            np.stack((v10, p, v11), -1),  # y = j + 1: faces −y where node 11 lies above P
+        ]
+        keeps = [present.ravel(), present.ravel(), right.ravel() & wall, below.ravel() & wall]
+    faces = np.concatenate([f if keep is None else f[keep] for f, keep in zip(pieces, keeps)])
+    if not quads:
+        return vertices, faces, None
+    index = np.arange(len(q))
+    which = np.concatenate([index if keep is None else index[keep] for keep in keeps])
+    found = np.stack((jw[:-1][which // (cols - 1)], kw[:-1][which % (cols - 1)]), axis=-1)
+    return vertices, faces, found
 
 
 def mesh(field: HeightField, *, surface: str = "pixel_facets", pad: int = 0, variant: str | None = None):
@@ -201,7 +209,7 @@ def mesh(field: HeightField, *, surface: str = "pixel_facets", pad: int = 0, var
     """
     from .. import _mitsuba
 
-    vertices, faces, _ = mesh_arrays(field, surface, pad)
+    vertices, faces, _ = mesh_arrays(field, surface, pad, quads=False)
     mi = _mitsuba.mitsuba(variant)
     if len(faces) == 0:
         raise InvalidInputError("the field has no measured pixel quad to mesh.")
