@@ -1,7 +1,7 @@
 """The names a fit accepts and the defaults of its options, in one table (JAX-free).
 
-* :data:`SOLVERS`, :data:`SAMPLERS`, :data:`MODELS`, :data:`SHAPES`, :data:`FAMILIES`, :data:`LAWS`, :data:`MASKING` — each a
-  :class:`Choices`: the accepted names in order, a one-line description of each
+* :data:`SOLVERS`, :data:`SAMPLERS`, :data:`MODELS`, :data:`SHAPES`, :data:`FAMILIES`, :data:`LAWS`,
+  :data:`MASKING` — each a :class:`Choices`: the accepted names in order, a one-line description of each
   (``SAMPLERS.summary("nuts")``, ``SAMPLERS.help()``) and the default (``SAMPLERS.default``);
 * :class:`FitDefaults`, :class:`SampleDefaults`, :class:`ModelDefaults` and their defaults
   :data:`FIT`, :data:`SAMPLE`, :data:`MODEL` — what ``fitting.fit``/``fit_many``,

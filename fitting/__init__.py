@@ -6,8 +6,8 @@ The chain, each step in its own module:
 * :class:`Dataset` — images of a :class:`brdfscale.MeasurementSet` with σ and masks;
 * :class:`ParametricModel`, :class:`NonParametricModel`, :class:`AnisotropicModel` — forward maps
   θ ↦ images built on :func:`brdfscale.evolve` (the last, the command's default: a lobe of full
-  covariance — Gaussian, GGX or Student-t — and ΔΣ(μ0, μk)), :class:`AnisotropicNonParametricModel` (tabulated base lobe, ``R_k(W)`` over the W
-  plane); :func:`compare` — which model the data prefer (AIC, BIC);
+  covariance — Gaussian, GGX or Student-t — and ΔΣ(μ0, μk)), :class:`AnisotropicNonParametricModel`
+  (tabulated base lobe, ``R_k(W)`` over the W plane); :func:`compare` — which model the data prefer (AIC, BIC);
 * :class:`TopographyData` — a topography's Σ(μ) as a joint data term (``Dataset.with_topography``);
 * :func:`fit` — optimistix least squares (Levenberg–Marquardt by default), multi-start,
   Laplace covariance, identifiability (names the combinations the data cannot determine);
