@@ -2,7 +2,7 @@
 
 :mod:`brdfscale.instrument` and :mod:`brdfscale.render` call :func:`mitsuba` when they need the ray tracer; nothing
 imports Mitsuba at import time and nothing selects a variant before a call asks for one (Mitsuba's variant is
-process-wide state). Facts behind the choices (../FIELD-NOTES.md, "Mitsuba 3.9.1 / Dr.Jit 1.5.0 on this CPU"):
+process-wide state). Facts behind the choices (docs/dependencies.md, "Mitsuba 3.9.1 with Dr.Jit 1.5.0"):
 
 * the LLVM variants (``llvm_ad_rgb``) abort the process — not an exception — with Debian 12's default LLVM 15
   (``LLVM ERROR: Cannot select: f32 = fminimum``, even on the stock Cornell box); Debian's ``libllvm19`` fixes it
