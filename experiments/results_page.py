@@ -560,14 +560,17 @@ def instrument() -> str:
             f"Ray-traced instrument: {c['rays']:,} rays per measurement, bounces {c['bounces']}, {c['pixels']}² px "
             f"images, synthetic fields {c['size']}² px (scales {c['scales_px']} px), seed {c['seed']}; run time "
             f"{d['seconds']:.0f} s. Entries at each surface's largest scale: energy ratio model ÷ instrument "
-            f"(bounces {most}) of the seed's model / the masking-aware model (× Smith G₂) ± the instrument's relative "
-            "MC error; in brackets the effect that dominates the error (see the text).\n"
+            f"(bounces {most}) of the seed's model / the masking-aware model (× Smith G₂), in brackets the "
+            "masking-aware model ÷ the single-scattering instrument (bounces 1), ± the instrument's relative MC "
+            "error; then the effect that dominates the error (the largest of masking, interreflection and the "
+            "rest, each a relative L1 change; 'MC' where none exceeds the image's MC floor of the L1).\n"
         )
     ]
     largest = {}
     for r in d["records"]:
         largest[r["surface"]] = max(largest.get(r["surface"], 0.0), r["mu"])
-    thetas = c["theta_i_deg"]
+    thetas = sorted({r["theta_i_deg"] for r in d["records"]})
+    least = min(c["bounces"])
     rows = []
     for label in d["surfaces"]:
         cells = []
@@ -584,8 +587,13 @@ def instrument() -> str:
                 cells.append("–")
                 continue
             e = {k: r[f"{k}_bounces{most}"]["energy_ratio"] for k in ("seed", "masking")}
+            single = r[f"masking_bounces{least}"]["energy_ratio"]
             mc = r[f"seed_bounces{most}"]["mc_energy"]
-            cells.append(f"{e['seed']:.3f} / {e['masking']:.3f} ± {mc:.3f} ({r['dominant'].replace('_', ' ')})")
+            top = max(r["effects"], key=r["effects"].get)
+            dominant = (
+                top.replace("_", " ") if r["effects"][top] > r[f"masking_bounces{least}"]["mc_l1_floor"] else "MC"
+            )
+            cells.append(f"{e['seed']:.3f} / {e['masking']:.3f} ({single:.3f}) ± {mc:.3f}: {dominant}")
         rows.append([label, *cells])
     out.append(table(["surface", *[f"θi = {t:g}°" for t in thetas]], rows))
     rows = []
