@@ -21,6 +21,7 @@ def test_there_are_tutorials():
         "01_tour.ipynb",
         "02_your_own_arrays.ipynb",
         "03_your_own_surface.ipynb",
+        "04_instrument.ipynb",
         "05_render.ipynb",
     ]
 
