@@ -41,10 +41,10 @@ with the lobe for the footprint μ (texels, √area of the pixel's footprint):
 Errors (relative to the truth's mean radiance, per μ band a factor 2 wide): ``bias`` — |band mean − truth band mean|
 (the part a statistical model can remove; sparkle averages out) and ``mean_abs`` — per-pixel mean |Δ| (includes the
 sparkle of individual facets that no plane material reproduces). Time to equal error: the micro-geometry rendered at
-1, 2, 4, … spp (fresh seeds) against the reference; the spp (log-log interpolated) at which its band error equals a
-plane material's, its time, and the plane material's shading time.
+1, 2, 4, … spp (fresh seeds, kernels compiled beforehand) against the reference; the spp (log-log interpolated) at
+which its error equals a plane material's, its time, and the plane material's shading time.
 
-Run:  python -m experiments.render_validation [--width 192 --height 128 --size 512 --reference-spp 256]
+Run:  python -m experiments.render_validation [--width 192 --height 128 --size 512 --reference-spp 1024]
 Writes experiments/results/render_validation/<surface>.{json,png,exr}.
 """
 
@@ -484,7 +484,8 @@ def run(
     level_stats = level_statistics(field, alpha0, levels)
     tabulated = tabulated_evolution(level_stats["facets"], alpha0) if check_tabulated else None
     geometry = MicroGeometry(field, camera, alpha0)
-    geometry.render(1, seed + 99)  # compile
+    for spp in (reference_spp, *ladder_spp):  # compile every kernel first (Dr.Jit compiles one per pass size)
+        geometry.render(spp, seed + 99)
     truth, truth_seconds = geometry.render(reference_spp, seed + 1)
     ladder = []
     for k, spp in enumerate(ladder_spp):
@@ -581,8 +582,8 @@ def main(argv=None):
     parser.add_argument("--height", type=int, default=128)
     parser.add_argument("--size", type=int, default=512, help="periodic tile size (texels)")
     parser.add_argument("--alpha0", type=float, default=ALPHA0, help="Beckmann roughness of one texel")
-    parser.add_argument("--reference-spp", type=int, default=256)
-    parser.add_argument("--ladder-spp", type=int, nargs="+", default=[1, 2, 4, 8, 16, 32, 64])
+    parser.add_argument("--reference-spp", type=int, default=1024)
+    parser.add_argument("--ladder-spp", type=int, nargs="+", default=[1, 2, 4, 8, 16, 32, 64, 128, 256])
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--surfaces", nargs="+", default=list(SURFACES), choices=SURFACES)
     parser.add_argument("--out", default=None, help="output folder (default experiments/results/render_validation)")
