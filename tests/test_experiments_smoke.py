@@ -823,3 +823,32 @@ def test_render_validation_smoke(tmp_path):
     assert [x["spp"] for x in out["micro_geometry_ladder"]] == [1, 2]
     assert json.loads((tmp_path / "di-3.json").read_text())["surface"] == "di-3"
     assert (tmp_path / "di-3.png").exists()
+
+
+@pytest.mark.slow  # ≈ 30 s on 2 cores (JAX evolutions of the accuracy check, Mitsuba compilation)
+def test_bench_render_quick(tmp_path):
+    _render_validation()
+    from experiments import bench_render
+
+    payload = bench_render.main(
+        [
+            "--width",
+            "24",
+            "--height",
+            "16",
+            "--size",
+            "128",
+            "--repeat",
+            "1",
+            "--directions",
+            "30",
+            "--out",
+            str(tmp_path),
+        ]
+    )
+    assert json.loads((tmp_path / "bench_render.json").read_text())["speed"]["image"] == [24, 16]
+    assert set(payload["speed"]["frames_per_second"]) == {"micro_geometry_1spp", "naive", "lean", "brdfscale"}
+    records = payload["eval_accuracy"]["records"]
+    assert {r["where"] for r in records} == {"ladder node", "between nodes"}
+    assert all(r["directions"] > 0 and r["max_relative"] >= r["median_relative"] >= 0 for r in records)
+    assert isinstance(payload["targets"]["eval_within_1e-4"]["met"], bool)
