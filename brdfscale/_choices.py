@@ -217,9 +217,28 @@ class SampleDefaults:
 
     sampler: str = SAMPLERS.default
     chains: int = 4
-    steps: int = 2000
+    steps: int | None = None
     chunk: int = 200
     seed: int = 0
+    # steps None: the sampler's own (its ``default_steps``, fitting._sampler). Emcee's ensembles need
+    # long chains (τ of tens of steps); NUTS/HMC, Laplace-preconditioned, draw nearly independent
+    # samples each step, so far fewer give the ESS the convergence check asks (docs/fitting.md,
+    # "Speed of the default fit", measures the margin)
+    emcee_steps: int = 2000
+    gradient_steps: int = 500
+    gradient_warmup: int = 250
+
+    def steps_for(self, sampler: str) -> int:
+        """The steps a sampler runs when none are given (``steps=None``): ``emcee_steps`` for
+        emcee, ``gradient_steps`` draws for NUTS and HMC (their ``default_steps``)."""
+        return self.emcee_steps if sampler == "emcee" else self.gradient_steps
+
+    def steps_text(self) -> str:
+        """What ``steps=None`` means, in words (the command's help)."""
+        return (
+            f"the sampler's own: nuts and hmc {self.gradient_steps} draws after {self.gradient_warmup} "
+            f"warm-up steps, emcee {self.emcee_steps} steps"
+        )
 
 
 @dataclasses.dataclass(frozen=True)

@@ -368,7 +368,7 @@ def sample(
     *,
     sampler=SAMPLE.sampler,
     chains: int = SAMPLE.chains,
-    steps: int = SAMPLE.steps,
+    steps: int | None = SAMPLE.steps,
     chunk: int = SAMPLE.chunk,
     checkpoint: str | os.PathLike | None = None,
     overwrite: bool = False,
@@ -393,8 +393,9 @@ def sample(
             started from its own Laplace draw; R̂ compares them.
         steps: steps per trajectory after the warm-up, at least 2 (emcee: all steps, the
             burn-in found afterwards among them; NUTS/HMC: draws after their ``warmup``
-            steps). A resumed run continues up to this count; of a checkpoint that holds
-            more, the first are returned.
+            steps); None (default): the sampler's own ``default_steps`` — NUTS/HMC 500
+            draws, emcee 2000 steps (:data:`brdfscale.choices.SAMPLE`). A resumed run
+            continues up to this count; of a checkpoint that holds more, the first are returned.
         chunk: steps between checkpoints (and NUTS/HMC's compiled block of steps).
         checkpoint: HDF5 path; an existing checkpoint of the same run is resumed.
         overwrite: start afresh even if ``checkpoint`` exists (whatever it holds; it is
@@ -428,7 +429,7 @@ def sample(
     d = len(problem.model.names)
     sampler = resolve_sampler(sampler, walkers, moves)
     chains = integer(chains, "chains", 1)
-    steps = integer(steps, "steps", 2)  # one step has no transition: no acceptance, no τ
+    steps = integer(sampler.steps_of(steps), "steps", 2)  # one step has no transition: no acceptance, no τ
     chunk = integer(chunk, "chunk", 1)
     seed = integer(seed, "seed", 0)
     overwrite = flag(overwrite, "overwrite")

@@ -41,6 +41,7 @@ import numpy as np
 
 from brdfscale import InvalidInputError, MissingDependencyError
 from brdfscale.checks import flag, integer, real
+from brdfscale.choices import SAMPLE
 from brdfscale.show import progress_bar
 
 from ._posterior import initial_positions, laplace
@@ -82,6 +83,9 @@ class _Gradient(AbstractSampler):
         """The kernel's static description: (kind, max_doublings, trajectory_length, jitter, target acceptance)."""
 
     stats = _STATS
+    # Laplace-preconditioned on a near-Gaussian posterior, a transition is nearly an independent draw:
+    # a few hundred draws per chain give the ESS the convergence check asks, with margin (docs/fitting.md)
+    default_steps = SAMPLE.steps_for("nuts")  # and HMC
 
     def _check_common(self):
         object.__setattr__(self, "warmup", integer(self.warmup, "warmup", 0))
@@ -221,14 +225,15 @@ class NUTS(_Gradient):
     """BlackJAX's NUTS (multinomial, iterative; Laplace-preconditioned), ``chains`` chains vmapped (module docstring).
 
     Args:
-        warmup: warm-up steps per chain (default 500; kept in the chain, discarded as burn-in).
+        warmup: warm-up steps per chain (default 250, ``brdfscale.choices.SAMPLE.gradient_warmup``;
+            kept in the chain, discarded as burn-in).
         target_acceptance: the dual averaging's target mean acceptance (default 0.8).
         max_doublings: the most trajectory doublings (default 10: at most 1023 leapfrog steps).
         adapt_mass_matrix: False (default) — the Laplace covariance as inverse mass
             matrix throughout; True — Stan's windowed adaptation of a dense one (BlackJAX).
     """
 
-    warmup: int = 500
+    warmup: int = SAMPLE.gradient_warmup
     target_acceptance: float = 0.8
     max_doublings: int = 10
     adapt_mass_matrix: bool = False
@@ -255,7 +260,7 @@ class HMC(_Gradient):
         trajectory_length: T (default π/2: for a Gaussian the Laplace mass matrix whitens, a
             quarter period, after which a draw is independent of its start; the jitter keeps
             T away from the half and full periods, where fixed-length HMC returns to its start).
-        warmup: warm-up steps per chain (default 500).
+        warmup: warm-up steps per chain (default 250, as for :class:`NUTS`).
         target_acceptance: the dual averaging's target acceptance (default 0.8).
         jitter: the step size's relative jitter per transition (default 0.2).
         adapt_mass_matrix: as for :class:`NUTS` (BlackJAX's window adaptation then runs
@@ -263,7 +268,7 @@ class HMC(_Gradient):
     """
 
     trajectory_length: float = math.pi / 2
-    warmup: int = 500
+    warmup: int = SAMPLE.gradient_warmup
     target_acceptance: float = 0.8
     jitter: float = 0.2
     adapt_mass_matrix: bool = False

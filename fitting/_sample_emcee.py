@@ -26,6 +26,7 @@ import numpy as np
 
 from brdfscale import InvalidInputError
 from brdfscale.checks import integer
+from brdfscale.choices import SAMPLE
 from brdfscale.show import progress_bar
 
 from . import _diagnostics as diag
@@ -66,6 +67,7 @@ class Emcee(AbstractSampler):
     walkers: int | None = None
     moves: str = "stretch"
     name = "emcee"
+    default_steps = SAMPLE.steps_for("emcee")  # τ is tens of steps: long chains for ESS ≥ 400
 
     def __post_init__(self):
         if self.walkers is not None:

@@ -160,7 +160,7 @@ def sample_many(
     *,
     sampler=SAMPLE.sampler,
     chains: int = SAMPLE.chains,
-    steps: int = SAMPLE.steps,
+    steps: int | None = SAMPLE.steps,
     chunk: int = SAMPLE.chunk,
     seed: int = SAMPLE.seed,
     batch: int = 64,
@@ -218,7 +218,7 @@ def sample_many(
     chosen.check_batched()  # emcee refuses, naming why
     sampler = cast("_Gradient", chosen)  # NUTS or HMC: the samplers that run vmapped over materials
     chains = integer(chains, "chains", 1)
-    steps = integer(steps, "steps", 2)
+    steps = integer(sampler.steps_of(steps), "steps", 2)
     chunk = integer(chunk, "chunk", 1)
     seed = integer(seed, "seed", 0)
     batch = integer(batch, "batch", 1)

@@ -6,6 +6,9 @@ A sampler is a frozen dataclass of its settings (checked when made) that
 
 * names itself (``name``: the key of :data:`fitting.SAMPLERS`) and the per-step statistics it
   records (``stats``: name → HDF5 dtype);
+* says how many steps it runs when ``sample`` is given none (``default_steps``: emcee's
+  ensembles need long chains, the Laplace-preconditioned gradient samplers far fewer draws for
+  the same effective sample size — :data:`brdfscale.choices.SAMPLE`; :meth:`steps_of`);
 * says what a checkpoint records of it (:meth:`settings`) and how many trajectories ``chains``
   independent chains have (:meth:`trajectories`);
 * runs the chains (:meth:`run`) and finds the burn-in of the run (:meth:`burn_in`);
@@ -29,6 +32,12 @@ class AbstractSampler(abc.ABC):
 
     name: ClassVar[str] = ""
     stats: ClassVar[dict] = {}
+    default_steps: ClassVar[int] = 0
+
+    def steps_of(self, steps) -> int:
+        """``steps`` as given, or this sampler's :attr:`default_steps` where it is None (the
+        default of :func:`fitting.sample`, :func:`fitting.sample_many` and ``brdfscale fit``)."""
+        return self.default_steps if steps is None else steps
 
     @classmethod
     def from_name(cls, walkers=None, moves=None) -> "AbstractSampler":

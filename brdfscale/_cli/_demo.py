@@ -10,6 +10,7 @@ model's own forward map plus Gaussian noise (a pure check of the inverse machine
 import os
 import time
 
+from .._choices import SAMPLE
 from .._errors import InvalidInputError
 from ._fit import (
     add_fit_options,
@@ -63,8 +64,8 @@ def register(subparsers) -> None:
         "--steps",
         type=integer(0, 100_000),
         default=1000,
-        help="HMC draws per chain after 500 warm-up steps, 0–100000 (default 1000, 4 chains; 0: Laplace "
-        "only); HMC is the sampler that passes the diagnostics fastest here (docs/fitting.md)",
+        help=f"HMC draws per chain after {SAMPLE.gradient_warmup} warm-up steps, 0–100000 (default 1000, 4 chains; "
+        "0: Laplace only); HMC is the sampler that passes the diagnostics fastest here (docs/fitting.md)",
     )
     parser.add_argument(
         "--seed", type=seed, default=1, help=f"seed of surface, noise and sampler, 0–{MAX_SEED} (default 1)"

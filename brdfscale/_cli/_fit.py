@@ -146,7 +146,7 @@ def add_fit_options(parser) -> None:
         type=integer(0, 1_000_000),
         default=SAMPLE.steps,
         help="draws per chain after the warm-up (nuts, hmc) or emcee steps per walker, 0–1000000 "
-        f"(default {SAMPLE.steps}; 0: Laplace only); the chains are kept in memory: chains × walkers × "
+        f"(default: {SAMPLE.steps_text()}; 0: Laplace only); the chains are kept in memory: chains × walkers × "
         f"steps × parameters × 8 bytes ≤ {CHAIN_BUDGET // 2**30} GiB",
     )
     parser.add_argument(
@@ -170,7 +170,10 @@ def add_fit_options(parser) -> None:
 
 
 def check_fit_options(args) -> None:
-    """Cross-option checks that need no data: each --fix name once."""
+    """Cross-option checks that need no data: each --fix name once; --steps not given is
+    --sampler's own default (:meth:`brdfscale.choices.SampleDefaults.steps_for`)."""
+    if args.steps is None:
+        args.steps = SAMPLE.steps_for(args.sampler)
     names = [name for name, _ in args.fix]
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
