@@ -711,7 +711,7 @@ def test_bench_real_fits_z_scores_and_targets_by_hand():
     assert brf.z_summary([{**row, "z": {"xx": 1.0, "xy": None, "yy": -4.0}}]) == {"max_abs_z": 4.0, "undefined_z": 1}
 
 
-@pytest.mark.slow  # 1–4 min on 2 loaded cores: synth (twice), a cold fit without sampling in subprocesses, two held-out fits
+@pytest.mark.slow  # 1–4 min on 2 loaded cores: synth twice, a cold fit without sampling, two held-out fits
 def test_bench_real_fits_quick(tmp_path):
     from experiments import bench_real_fits as brf
 
