@@ -13,9 +13,11 @@ Three parts, one JSON (experiments/results/bench_render.json):
   them), with the target verdicts.
 * ``eval_accuracy`` — the plugin's ``eval`` against brdfscale's own lobe: ``brdfscale.evolve(Beckmann(α0), law.at(1),
   law.at(μ))`` evaluated with Smith masking (:meth:`brdfscale.lobes.AbstractLobe.evaluate`, height-correlated
-  ``G₂``), the law the di-3 surface's measured one; μ at ladder nodes and between them; directions whose half-vector
-  slope is drawn from the lobe itself (values that matter), both within 72.5° of the normal. Relative errors where
-  the reference exceeds 1e-3 of the largest value.
+  ``G₂``), the law the di-3 surface's measured one; the material built with ``tolerance=1e-2`` (the ladder refined
+  in ln μ and the slope grid refined until their interpolation is within 1e-2 of the evolved lobe: docs/render.md);
+  μ at three ladder nodes, at the midpoints of the two finest intervals and at four random scales in [1, 32];
+  directions whose half-vector slope is drawn from the lobe itself (values that matter), both within 72.5° of the
+  normal. Relative errors where the reference exceeds 1e-3 of the largest value.
 
 Targets (issue 33): the brdfscale material's error ≤ ½ of the LEAN material's where the footprint covers ≥ 8 facets
 (μ ≥ 8 texels) on the real surface; ≥ 100× faster than the micro-geometry truth at equal error; eval within 1e-4
@@ -49,6 +51,8 @@ TARGET_RATIO = 0.5
 TARGET_SPEEDUP = 100.0
 TARGET_EVAL = 1e-4
 LADDER = 9
+EVAL_TOLERANCE = 1e-2  # render.bsdf(tolerance=…): the ladder refined until its ln-μ interpolation is within it
+EVAL_NODES = 257  # slope nodes per axis to start from; tolerance refines the grid (nested) where bilinear needs more
 
 
 def speed(*, width: int, height: int, size: int, repeat: int) -> dict:
@@ -90,11 +94,18 @@ def eval_accuracy(*, size: int, n: int, seed: int) -> dict:
     law = rv.level_statistics(field, rv.ALPHA0, levels)["law"]
     base = lobes.Beckmann(rv.ALPHA0)
     ladder = [float(x) for x in np.geomspace(1.0, levels[-1], LADDER)]  # render.bsdf's default ladder for this law
-    material = render.bsdf(base, law, mu0=1.0, scales=ladder, texel=1.0, size=rv.LOBE_NODES, variant=rv.VARIANT)
-    between = [math.sqrt(a * b) for a, b in zip(ladder[:-1], ladder[1:])]
+    started = time.perf_counter()
+    material = render.bsdf(
+        base, law, mu0=1.0, scales=ladder, texel=1.0, size=EVAL_NODES, tolerance=EVAL_TOLERANCE, variant=rv.VARIANT
+    )
+    build_seconds = time.perf_counter() - started
+    refined = [float(x) for x in np.exp(material._host.log_mu)]
     rng = np.random.default_rng(seed)
+    nodes = [refined[0], refined[len(refined) // 2], refined[-1]]
+    between = [math.sqrt(a * b) for a, b in zip(refined[:2], refined[1:3])]  # near μ0, where the lobe changes fastest
+    between += [float(x) for x in np.exp(rng.uniform(0.0, math.log(levels[-1]), 4))]  # random μ in [1, 32]
     records = []
-    for where, mus in (("ladder node", ladder[::2]), ("between nodes", between[::2])):
+    for where, mus in (("ladder node", nodes), ("between nodes", between)):
         for mu in mus:
             lobe = bs.evolve(base, law.at(1.0), law.at(mu))
             cov = (
@@ -124,7 +135,17 @@ def eval_accuracy(*, size: int, n: int, seed: int) -> dict:
                     "max_relative": float(rel.max()),
                 }
             )
-    return {"surface": SURFACE, "tile_size": size, "table_nodes": rv.LOBE_NODES, "ladder": ladder, "records": records}
+    return {
+        "surface": SURFACE,
+        "tile_size": size,
+        "table_nodes": int(material._host.values.shape[1] - 2),  # the refined grid, without the zero ring
+        "tolerance": EVAL_TOLERANCE,
+        "ladder": ladder,
+        "refined_levels": len(refined),
+        "table_bytes_float32": int(material._host.values.nbytes // 2),
+        "build_seconds": build_seconds,
+        "records": records,
+    }
 
 
 def bands() -> dict:

@@ -164,6 +164,70 @@ def test_eval_without_masking_is_the_tabulated_lobe_to_float32(material):
         assert np.max(np.abs(got[big] - ref[big]) / ref[big]) < 1e-4, mu  # the issue's target: 1e-4 relative
 
 
+def eval_error_against_the_evolved_lobe(mi, obj, mus, rng, n=400, masking=False):
+    """The largest relative error of the BSDF's eval against ``brdfscale.evolve(base, LAW.at(μ0), LAW.at(μ))``
+    evaluated by :meth:`brdfscale.lobes.AbstractLobe.evaluate` (the exactly evolved lobe, not the tables), at each
+    μ of ``mus``, where the lobe exceeds 1e-3 of its largest value."""
+    smith = lobes.SmithMasking() if masking else lobes.NoMasking()
+    worst = []
+    for mu in mus:
+        lobe = brdfscale.evolve(base_lobe(), LAW.at(MU0), LAW.at(float(mu)))
+        i, o = directions_near_lobe(rng, n)
+        got = np.asarray(obj.eval(mi.BSDFContext(), interactions(mi, o, float(mu)), vec(mi, i))[0])
+        ref = np.asarray(lobe.evaluate(i, o, masking=smith))
+        big = ref > 1e-3 * ref.max()
+        worst.append(float(np.max(np.abs(got[big] / ref[big] - 1))))
+    return np.array(worst)
+
+
+# refined ladders and grids (render.bsdf(tolerance=…)): [1, 4] to 2e-2 (25 scales, 257² nodes, ~3 s) in the default
+# suite, [1, 9] to 1e-2 (40 scales, 513² nodes) in the slow one; the bound is the tolerance asked for
+FAST = dict(scales=[1.0, 4.0], size=65, tolerance=2e-2)
+DENSE = dict(scales=[1.0, 9.0], size=65, tolerance=1e-2)
+
+
+def test_a_refined_ladder_holds_eval_within_its_tolerance_between_the_nodes(tables):
+    mi = tables[0]
+    obj = render.bsdf(base_lobe(), LAW, mu0=MU0, masking=False, variant="llvm_ad_rgb", **FAST)
+    ladder = np.exp(obj._host.log_mu)
+    np.testing.assert_allclose(ladder[[0, -1]], [1.0, 4.0], rtol=1e-12)
+    assert np.all(np.diff(ladder) > 0)
+    steps = np.diff(np.log(ladder))
+    assert steps[0] < steps[-1] / 4  # finest near μ0, where the lobe widens fastest
+    rng = np.random.default_rng(4)
+    mus = [math.sqrt(ladder[0] * ladder[1]), *np.exp(rng.uniform(0.0, math.log(4.0), 2))]
+    assert np.all(eval_error_against_the_evolved_lobe(mi, obj, mus, rng) < FAST["tolerance"])
+    # the unrefined two-scale ladder is a mixture of its ends at √4 = 2: far off (the refinement is what holds it)
+    coarse = render.bsdf(base_lobe(), LAW, mu0=MU0, masking=False, variant="llvm_ad_rgb", scales=[1.0, 4.0], size=65)
+    assert eval_error_against_the_evolved_lobe(mi, coarse, [2.0], rng)[0] > 10 * FAST["tolerance"]
+
+
+@pytest.mark.slow
+def test_a_refined_ladder_holds_eval_within_its_tolerance_at_dense_random_scales(tables):
+    mi = tables[0]
+    obj = render.bsdf(base_lobe(), LAW, mu0=MU0, variant="llvm_ad_rgb", **DENSE)  # with Smith masking
+    rng = np.random.default_rng(5)
+    mus = np.exp(rng.uniform(0.0, math.log(9.0), 24))
+    errors = eval_error_against_the_evolved_lobe(mi, obj, mus, rng, masking=True)
+    # the G₁ tables' direction interpolation (≤ 1 %, docs/render.md "Masking tables") adds to the tables' error
+    assert np.all(errors < 2 * DENSE["tolerance"]), errors
+    unmasked = render.bsdf(base_lobe(), LAW, mu0=MU0, masking=False, variant="llvm_ad_rgb", **DENSE)
+    assert np.all(eval_error_against_the_evolved_lobe(mi, unmasked, mus, rng) < DENSE["tolerance"])
+
+
+def test_the_ladder_refinement_refuses_bad_tolerances(monkeypatch):
+    from brdfscale.render import _material
+
+    with pytest.raises(brdfscale.InvalidInputError, match="tolerance must be"):
+        render.lobe_table(base_lobe(), LAW, mu0=MU0, scales=[1.0, 9.0], tolerance=-1.0)
+    monkeypatch.setattr(_material, "MAX_LEVELS", 4)
+    with pytest.raises(brdfscale.InvalidInputError, match="needs more than 4 scales"):
+        render.lobe_table(base_lobe(), LAW, mu0=MU0, scales=[1.0, 9.0], size=8, tolerance=1e-9)
+    monkeypatch.setattr(_material, "MAX_NODES", 16)
+    with pytest.raises(brdfscale.InvalidInputError, match="needs more than 16 slope nodes"):
+        render.lobe_table(base_lobe(), LAW, mu0=MU0, scales=[1.0], size=8, tolerance=1e-9)
+
+
 @pytest.mark.slow
 def test_masking_at_the_nodes_of_its_direction_grid_is_smiths(masked):
     """Directions on the G₁ grid's nodes: no interpolation in direction, so G₂ equals SmithMasking's to float32."""

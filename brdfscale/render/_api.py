@@ -66,6 +66,7 @@ def bsdf(
     size: int = 128,
     extent: float | None = None,
     method: MethodName | AbstractMethod = "auto",
+    tolerance: float | None = None,
 ):
     """A Mitsuba BSDF rendering ``base_lobe`` (the BRDF at μ0) evolved with ``statistics`` to each interaction's scale.
 
@@ -88,7 +89,9 @@ def bsdf(
             :class:`brdfscale.lobes.SmithMasking` / :class:`~brdfscale.lobes.NoMasking` choice.
         variant: a Mitsuba variant; default the one already selected, else the first that runs here.
         texel: the scene length of one unit of μ (footprint lengths are divided by it).
-        scales, levels, size, extent, method: the ladder and grid of :func:`lobe_table`.
+        scales, levels, size, extent, method, tolerance: the ladder and grid of :func:`lobe_table` (``tolerance``
+            refines the ladder in ln μ and the slope grid until their interpolation is within it of the evolved
+            lobe; docs/render.md).
 
     Raises InvalidInputError for statistics of another kind or bad options (naming what is accepted),
     :class:`brdfscale.NoBRDFAtScaleError` where the lobe has no BRDF at a scale of the ladder,
@@ -104,9 +107,10 @@ def bsdf(
         table, shapes = lobe_table(base_lobe, statistics), None
     else:
         ladder, evolved, mu0 = evolved_lobes(
-            base_lobe, statistics, mu0=mu0, scales=scales, levels=levels, method=method
+            base_lobe, statistics, mu0=mu0, scales=scales, levels=levels, method=method, tolerance=tolerance
         )
-        table, shapes = tabulate(ladder, evolved, mu0=mu0, size=size, extent=extent), [lobe.shape for lobe in evolved]
+        table = tabulate(ladder, evolved, mu0=mu0, size=size, extent=extent, tolerance=tolerance)
+        shapes = [lobe.shape for lobe in evolved]
     mi = mitsuba(variant)
     cls = bsdf_class(mi)
     obj = cls(mi.Properties(PLUGIN))

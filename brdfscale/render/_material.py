@@ -37,6 +37,90 @@ DEFAULT_LEVELS = 9
 SUPPORT_TOL = 1e-4
 """The lobe tables reach where every level's lobe has fallen below this fraction of its peak (``support_radius``)."""
 
+RELEVANT = 1e-3
+"""Interpolation errors are measured where the exact lobe exceeds this fraction of its peak (:func:`refine_ladder`)."""
+
+MAX_LEVELS = 128
+"""The most scales :func:`refine_ladder` puts on a ladder (it refuses to go further)."""
+
+MAX_NODES = 1024
+"""The most slope nodes per axis :func:`refine_grid` chooses (it refuses to go further)."""
+
+
+def grid_error(lobe, extent: float, size: int) -> float:
+    """The largest relative error of bilinear interpolation on ``size²`` nodes over ``[−extent, extent]²``: at every
+    cell centre (where a tent sum's error peaks), the mean of the cell's four corners against the lobe's density,
+    where it exceeds :data:`RELEVANT` of its largest value."""
+    u = np.linspace(-extent, extent, size)
+    c = 0.5 * (u[:-1] + u[1:])
+    nodes = np.asarray(lobe.density(jnp.asarray(np.stack(np.meshgrid(u, u), -1).reshape(-1, 2)))).reshape(size, size)
+    exact = np.asarray(lobe.density(jnp.asarray(np.stack(np.meshgrid(c, c), -1).reshape(-1, 2))))
+    exact = exact.reshape(size - 1, size - 1)
+    corners = 0.25 * (nodes[:-1, :-1] + nodes[1:, :-1] + nodes[:-1, 1:] + nodes[1:, 1:])
+    big = exact > RELEVANT * max(exact.max(), nodes.max())
+    return float(np.max(np.abs(corners[big] / exact[big] - 1))) if big.any() else 0.0
+
+
+def refine_grid(evolved, extent: float, size: int, tolerance: float) -> int:
+    """The smallest ``size, 2·size − 1, 4·size − 3, …`` (nested grids) whose bilinear interpolation of every lobe is
+    within ``tolerance`` (:func:`grid_error`); InvalidInputError beyond :data:`MAX_NODES` nodes per axis."""
+    for lobe in sorted(evolved, key=lambda lobe: float(jnp.max(lobe.shape.support_radius(SUPPORT_TOL)))):
+        while (error := grid_error(lobe, extent, size)) > tolerance:
+            size = 2 * size - 1
+            if size > MAX_NODES:
+                raise InvalidInputError(
+                    f"tolerance = {tolerance:g} needs more than {MAX_NODES} slope nodes per axis (bilinear error "
+                    f"{error:.2g} on {(size + 1) // 2}); give a larger tolerance or a smaller extent."
+                )
+    return size
+
+
+def _probe(lobes_, extent: float, nodes: int = 65):
+    """The densities of ``lobes_`` on ``nodes²`` offsets over ``[−extent, extent]²`` (rows: lobes)."""
+    u = np.linspace(-extent, extent, nodes)
+    grid = jnp.asarray(np.stack(np.meshgrid(u, u), -1).reshape(-1, 2))
+    return np.stack([np.asarray(lobe.density(grid)) for lobe in lobes_])
+
+
+def midpoint_error(lower, upper, middle, extent: float) -> float:
+    """The largest relative error of the ladder's interpolation at the geometric midpoint of an interval: the mean
+    of the lobes at its ends (linear in ln μ, weight ½ each) against ``middle``, the lobe evolved exactly to
+    ``√(μ_a μ_b)``, on 65² offsets over the table's extent where ``middle`` exceeds :data:`RELEVANT` of its peak."""
+    a, b, c = _probe([lower, upper, middle], extent)
+    big = c > RELEVANT * c.max()
+    return float(np.max(np.abs(0.5 * (a[big] + b[big]) / c[big] - 1)))
+
+
+def refine_ladder(base_lobe, law, mu0: float, ladder, evolved, tolerance: float, method, extent=None):
+    """Bisect (in ln μ) every interval of ``ladder`` whose midpoint error (:func:`midpoint_error`) exceeds
+    ``tolerance``, until none does; returns the refined ``(ladder, evolved)``.
+
+    Linear interpolation in ln μ of two lobes of different widths is a mixture, not the lobe between them; its
+    error falls as the square of the interval, and is largest where the lobe changes fastest (near μ0, where the
+    law's ``Σ(μ0) − Σ(μ)`` grows fastest). Raises InvalidInputError beyond :data:`MAX_LEVELS` scales."""
+    s0 = law.at(mu0)
+    if extent is None:
+        extent = max(float(jnp.max(lobe.shape.support_radius(SUPPORT_TOL))) for lobe in evolved)
+    mus, out = [float(ladder[0])], [evolved[0]]
+    stack = [(float(a), float(b), la, lb) for a, b, la, lb in zip(ladder[:-1], ladder[1:], evolved[:-1], evolved[1:])]
+    stack.reverse()
+    while stack:
+        a, b, la, lb = stack.pop()
+        mid = math.sqrt(a * b)
+        lm = evolve(base_lobe, s0, law.at(mid), method)
+        if midpoint_error(la, lb, lm, extent) > tolerance:
+            if len(mus) + len(stack) + 2 > MAX_LEVELS:
+                raise InvalidInputError(
+                    f"tolerance = {tolerance:g} needs more than {MAX_LEVELS} scales on the ladder "
+                    f"(interval [{a:g}, {b:g}] still off); give a larger tolerance or a shorter ladder."
+                )
+            stack.append((mid, b, lm, lb))
+            stack.append((a, mid, la, lm))
+            continue
+        mus.append(b)
+        out.append(lb)
+    return np.asarray(mus), out
+
 
 def _fit_law(fit, mu0):
     """A :class:`stats.MeasuredScaleLaw` with the fit's ``ΔΣ(μ0, μ_k) = Σ(μ0) − Σ(μ_k)``.
@@ -107,9 +191,11 @@ def evolved_lobes(
     scales=None,
     levels: int = DEFAULT_LEVELS,
     method: MethodName | AbstractMethod = "auto",
+    tolerance: float | None = None,
 ):
     """``(ladder, lobes, μ0)``: ``brdfscale.evolve(base_lobe, law.at(μ0), law.at(μ_k), method)`` (seed Eq. 4.4) at
-    every scale ``μ_k`` of the ladder (``scales``, or :func:`default_scales` with ``levels`` scales)."""
+    every scale ``μ_k`` of the ladder (``scales``, or :func:`default_scales` with ``levels`` scales), refined by
+    :func:`refine_ladder` where ``tolerance`` is given."""
     if not isinstance(base_lobe, AbstractLobe):
         raise InvalidInputError(
             f"base_lobe must be a brdfscale.lobes lobe (the BRDF at μ0); got {type(base_lobe).__name__}."
@@ -118,16 +204,25 @@ def evolved_lobes(
     levels = integer(levels, "levels", 1)
     ladder = default_scales(law, mu0, levels) if scales is None else check_scales(scales)
     s0 = law.at(mu0)
-    return ladder, [evolve(base_lobe, s0, law.at(float(mu)), method) for mu in ladder], mu0
+    evolved = [evolve(base_lobe, s0, law.at(float(mu)), method) for mu in ladder]
+    if tolerance is not None and len(ladder) > 1:
+        tolerance = real(tolerance, "tolerance", minimum=0, strict=True)
+        ladder, evolved = refine_ladder(base_lobe, law, mu0, ladder, evolved, tolerance, method)
+    return ladder, evolved, mu0
 
 
-def tabulate(ladder, evolved, *, mu0, size: int = 128, extent: float | None = None, metadata=None) -> LobeTable:
+def tabulate(
+    ladder, evolved, *, mu0, size: int = 128, extent: float | None = None, metadata=None, tolerance=None
+) -> LobeTable:
     """The lobes ``evolved`` (one per scale of ``ladder``) on ``size × size`` nodes over ``[−extent, extent]²``
-    (default extent: the largest ``support_radius(1e-4)`` of their shapes)."""
+    (default extent: the largest ``support_radius(1e-4)`` of their shapes); with ``tolerance``, on more nodes where
+    bilinear interpolation needs them (:func:`refine_grid`)."""
     size = integer(size, "size", 4)
     if extent is None:
         extent = max(float(jnp.max(lobe.shape.support_radius(SUPPORT_TOL))) for lobe in evolved)
     extent = real(extent, "extent", minimum=0, strict=True)
+    if tolerance is not None:
+        size = refine_grid(evolved, extent, size, real(tolerance, "tolerance", minimum=0, strict=True))
     meta = {"what": "brdfscale.render.lobe_table: base lobe evolved from mu0 to each scale", "mu0": float(mu0)}
     return LobeTable.from_lobes(ladder, evolved, extent=extent, size=size, metadata={**meta, **(metadata or {})})
 
@@ -142,6 +237,7 @@ def lobe_table(
     size: int = 128,
     extent: float | None = None,
     method: MethodName | AbstractMethod = "auto",
+    tolerance: float | None = None,
 ) -> LobeTable:
     """The evolved lobe ``A·g(u, μ_k)`` tabulated at every scale of a ladder (what :func:`bsdf` renders).
 
@@ -156,6 +252,10 @@ def lobe_table(
         size: nodes per axis. extent: the grid's half-width in slope units (default: the largest
             ``support_radius(1e-4)`` of the evolved lobes, so the tails beyond it hold < 1e-4 of each peak).
         method: the evolution's path (:func:`brdfscale.evolve`).
+        tolerance: refine the ladder (:func:`refine_ladder`) until linear interpolation in ln μ is within this
+            relative error of the exactly evolved lobe at every interval's midpoint, and the slope grid
+            (:func:`refine_grid`) until bilinear interpolation is within it at every cell centre (None: the ladder
+            and grid as given).
 
     Raises InvalidInputError for statistics of another kind (naming those accepted), a missing ``mu0``, a bad ladder
     or grid; :class:`brdfscale.NoBRDFAtScaleError` where no lobe exists at a scale of the ladder (finer than the
@@ -165,9 +265,11 @@ def lobe_table(
         if base_lobe is not None:
             raise InvalidInputError("a LobeTable is already evolved: pass base_lobe=None with it.")
         return statistics
-    ladder, evolved, mu0 = evolved_lobes(base_lobe, statistics, mu0=mu0, scales=scales, levels=levels, method=method)
+    ladder, evolved, mu0 = evolved_lobes(
+        base_lobe, statistics, mu0=mu0, scales=scales, levels=levels, method=method, tolerance=tolerance
+    )
     meta = {"base_lobe": type(base_lobe).__name__, "statistics": type(statistics).__name__}
-    return tabulate(ladder, evolved, mu0=mu0, size=size, extent=extent, metadata=meta)
+    return tabulate(ladder, evolved, mu0=mu0, size=size, extent=extent, metadata=meta, tolerance=tolerance)
 
 
 def scalar_table(table: LobeTable) -> np.ndarray:
