@@ -42,6 +42,87 @@ def test_import_changes_no_global_state_and_is_lazy():
     assert got["evolve"] and got["dir"]
 
 
+def _third_party_imports() -> list[str]:
+    """The modules outside brdfscale that its modules import at module level (not inside functions)."""
+    import ast
+    from pathlib import Path
+
+    import brdfscale
+
+    root = Path(brdfscale.__file__).parent
+    names = set()
+    for path in [*root.rglob("*.py"), *(root.parent / "fitting").rglob("*.py")]:
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        body = [*tree.body, *(n for node in tree.body if isinstance(node, (ast.If, ast.Try)) for n in ast.walk(node))]
+        for node in body:
+            if isinstance(node, ast.Import):
+                names.update(alias.name for alias in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names.add(node.module)
+    return sorted(n for n in names if n.split(".")[0] not in ("brdfscale", "fitting", "__future__"))
+
+
+def test_importing_every_public_module_changes_no_global_state():
+    """A notebook's state is the same before and after importing every public module of brdfscale
+    (brdfscale.instrument and brdfscale.render included) and every public name: JAX's configuration,
+    matplotlib's settings (no backend picked, pyplot not loaded), warnings filters, logging's loggers,
+    the environment, NumPy's print and error settings, the SIGINT handler and the excepthook; Mitsuba
+    and Dr.Jit are not even loaded (so no variant is selected). The third-party modules brdfscale
+    imports at module level are imported before the first snapshot: what they do on import is theirs."""
+    got = _run(f"""
+        import importlib, json, logging, os, signal, sys, warnings
+        for name in {_third_party_imports()!r}:
+            if name.split(".")[0] not in ("mitsuba", "drjit"):
+                try:
+                    importlib.import_module(name)
+                except ImportError:  # an optional extra that is not installed
+                    pass
+        import jax, matplotlib, numpy as np
+
+        def state():
+            loggers = {{name: [lg.level, [type(h).__name__ for h in lg.handlers], lg.propagate, lg.disabled]
+                       for name, lg in [("", logging.getLogger()), *logging.Logger.manager.loggerDict.items()]
+                       if isinstance(lg, logging.Logger) and (lg.handlers or lg.level or name == "")}}
+            return {{"jax": {{k: repr(v) for k, v in jax.config.values.items()}},
+                    "matplotlib": {{k: repr(dict.__getitem__(matplotlib.rcParams, k)) for k in matplotlib.rcParams}},
+                    "pyplot": "matplotlib.pyplot" in sys.modules, "warnings": [repr(f) for f in warnings.filters],
+                    "showwarning": repr(warnings.showwarning), "loggers": loggers,
+                    "logging.disable": logging.root.manager.disable, "environ": dict(os.environ),
+                    "numpy": [repr(np.get_printoptions()), repr(np.geterr())],
+                    "sigint": repr(signal.getsignal(signal.SIGINT)), "excepthook": repr(sys.excepthook)}}
+
+        before = state()
+        import brdfscale
+        modules = ["choices", *(n for n, where in brdfscale._LAZY.items() if where == "." + n)]
+        for name in modules:
+            importlib.import_module("brdfscale." + name)
+        for name in brdfscale.__all__:
+            getattr(brdfscale, name)
+        after = state()
+        changed = {{k: [before[k], after[k]] for k in before if before[k] != after[k]}}
+        print(json.dumps({{"changed": changed, "modules": modules,
+                          "mitsuba": [m for m in ("mitsuba", "drjit") if m in sys.modules]}}))
+    """)
+    assert {"instrument", "render", "fitting", "plot", "library"} <= set(got["modules"])
+    assert got["changed"] == {}
+    assert got["mitsuba"] == []
+
+
+def test_importing_instrument_and_render_keeps_the_users_mitsuba_variant():
+    """A user who picked a Mitsuba variant before importing brdfscale keeps it: the variant is
+    process-wide and only a call that needs the ray tracer asks brdfscale._mitsuba for one."""
+    pytest.importorskip("mitsuba")
+    got = _run("""
+        import json
+        import mitsuba as mi
+        mi.set_variant("scalar_rgb")
+        import brdfscale.instrument, brdfscale.render
+        from brdfscale.render import bsdf, export_roughness, register
+        print(json.dumps({"variant": mi.variant()}))
+    """)
+    assert got == {"variant": "scalar_rgb"}
+
+
 def test_fitting_in_float32_mode_says_which_line_to_add():
     got = _run("""
         import json
