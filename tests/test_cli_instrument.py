@@ -80,9 +80,9 @@ def test_bad_numbers_are_refused_by_argparse(tmp_path, capsys):
 
 
 def test_raytraced_measurement_is_written_and_deterministic(tmp_path, capsys):
-    """A tiny measurement (32² field, 2 scales, 1e4 rays): an EXR set whose σ is the MC error, the same for a seed."""
+    """A tiny measurement (32² field, 2 scales, 4000 rays): an EXR set whose σ is the MC error, the same for a seed."""
     pytest.importorskip("mitsuba")
-    argv = ["--instrument", "raytraced", "--rays", "10000", "--bounces", "2", "--seed", "3", "--incident", "30"]
+    argv = ["--instrument", "raytraced", "--rays", "4000", "--bounces", "2", "--seed", "3", "--incident", "30"]
     first, second = tmp_path / "a.exr", tmp_path / "b.exr"
     assert cli.main(_argv(first, *argv)) == 0
     assert cli.main(_argv(second, *argv)) == 0
@@ -93,5 +93,5 @@ def test_raytraced_measurement_is_written_and_deterministic(tmp_path, capsys):
     for pa, pb in zip(a.images, b.images, strict=True):
         assert pa.sigma is not None and np.all(np.asarray(pa.sigma) >= 0)
         np.testing.assert_array_equal(np.asarray(pa.values), np.asarray(pb.values))
-    assert a.metadata["command"].endswith("--instrument raytraced --rays 10000 --bounces 2")
+    assert a.metadata["command"].endswith("--instrument raytraced --rays 4000 --bounces 2")
     assert a.metadata["seed"] == 3
