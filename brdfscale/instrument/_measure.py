@@ -83,7 +83,8 @@ class Task:
 @dataclasses.dataclass(frozen=True)
 class TaskResult:
     """A task's partial sums, one entry per batch (in the task's order): node sums ``counts`` (n, n) of ``w·c``,
-    the rays ``hit`` whose light met the surface, and tallies (escaped, detected and lost weight, rays); with
+    the ``hit`` (lit) rays each batch's image is normalised by, and tallies (escaped, detected and lost weight, rays
+    by fate); with
     ``Measurement.run(task, quads=True)`` also ``quads``, the pixel quad ``(row, col)`` of every surface hit (M, 2)."""
 
     batches: tuple[tuple[int, int, int], ...]
@@ -139,12 +140,7 @@ class Measurement:
         seed: int = 0,
         variant: str | None = None,
     ):
-        if not isinstance(field, HeightField):
-            raise InvalidInputError(
-                f"field must be a brdfscale.synth.HeightField (brdfscale.topography.read or from_array make one of a "
-                f"measured surface); got {type(field).__name__}."
-            )
-        self.field = field
+        self.field = _mesh.check_field(field)
         a = real_array(scales, "scales")
         if a.ndim > 1 or a.size == 0:
             raise InvalidInputError(f"scales must be a facet size or a 1-D sequence of them; got shape {a.shape}.")
@@ -176,7 +172,7 @@ class Measurement:
 
     # -- geometry of the spots -----------------------------------------------------------------
     def _spot_set(self, s: int) -> dict:
-        """The spots of scale ``s``: window origins (pixel units), mean-plane slopes and heights, rotations."""
+        """The spots of scale ``s``: their windows ``(J, K)``, mean-plane slopes and heights (pixel units)."""
         field, mu, (by, bx) = self.field, self.scales[s], self.blocks[s]
         slopes = synth.facet_slopes(field, mu)  # (R, C, 2), NaN where a window touches an unmeasured pixel
         valid = np.isfinite(slopes).all(axis=-1)

@@ -122,7 +122,7 @@ def centre(field: HeightField) -> tuple[float, float]:
     return nx / 2, ny / 2 * field.spacing[1] / field.spacing[0]
 
 
-def _check_field(field) -> HeightField:
+def check_field(field) -> HeightField:
     if not isinstance(field, HeightField):
         raise InvalidInputError(
             f"field must be a brdfscale.synth.HeightField (brdfscale.topography.read or from_array make one of a "
@@ -137,7 +137,7 @@ def mesh_arrays(
     """The mesh as NumPy arrays: vertices ``(V, 3)`` float32 (pixel units), faces ``(F, 3)`` uint32 and, per face,
     the pixel quad it belongs to ``(F, 2)`` int64 ``(row, col)`` in the field's own indices (wrapped in the margin;
     None with ``quads=False``). Built in uint32 and float32 throughout: peak memory about three times the buffers."""
-    _check_field(field)
+    check_field(field)
     surface = check_surface(surface)
     pad = check_pad(field, pad)
     check_mesh_size(field, surface, pad)
