@@ -1473,7 +1473,13 @@ def render_bench() -> str:
     ]
     out.append(
         f"\nThe plugin's eval against brdfscale's evolved, masked lobe ({acc['surface']} law, {acc['table_nodes']}² "
-        "table nodes; relative error where the lobe exceeds 1e-3 of its largest value)\n\n"
+        + (
+            f"table nodes on {acc['refined_levels']} scales — tolerance {acc['tolerance']:g}, "
+            f"{acc['table_bytes_float32'] / 2**20:.0f} MiB of float32, built in {acc['build_seconds']:.0f} s; "
+            if "tolerance" in acc
+            else "table nodes; "
+        )
+        + "relative error where the lobe exceeds 1e-3 of its largest value)\n\n"
         + table(["μ", "where", "directions", "median", "99 %", "max"], rows)
     )
     t = d["targets"]
