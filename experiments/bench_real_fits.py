@@ -109,7 +109,8 @@ def z_scores(fitted: list[dict], statistics) -> list[dict]:
         topo = statistics[0].covariance - s.covariance
         err = np.hypot(statistics[0].covariance_error, s.covariance_error)
         value, std = np.array(d["value"], float), np.array(d["std"], float)
-        z = (value - topo) / np.hypot(std, err)
+        fixed = np.array(d.get("fixed", [[False, False], [False, False]]), bool)  # by the model: no z
+        z = np.where(fixed, np.nan, (value - topo) / np.hypot(std, err))
         rows.append(
             {
                 "mu": d["mu"],
@@ -118,6 +119,7 @@ def z_scores(fitted: list[dict], statistics) -> list[dict]:
                 "topography": {n: float(topo[a, b]) for n, a, b in ENTRIES},
                 "topography_std": {n: float(err[a, b]) for n, a, b in ENTRIES},
                 "z": {n: _finite(z[a, b]) for n, a, b in ENTRIES},
+                "fixed": [n for n, a, b in ENTRIES if fixed[a, b]],
             }
         )
     return rows
@@ -125,8 +127,9 @@ def z_scores(fitted: list[dict], statistics) -> list[dict]:
 
 def z_summary(rows: list[dict]) -> dict:
     """``max_abs_z``: the largest finite |z| of :func:`z_scores`' rows (None when there is none);
-    ``undefined_z``: how many components have no z (the fit gave that ΔΣ no standard error)."""
-    values = [_finite(v) for r in rows for v in r["z"].values()]
+    ``undefined_z``: how many components have no z (the fit gave that ΔΣ no standard error; a
+    component the model fixes by construction, a row's ``fixed``, is left out, not counted)."""
+    values = [_finite(v) for r in rows for n, v in r["z"].items() if n not in r.get("fixed", ())]
     finite = [abs(v) for v in values if v is not None]
     return {"max_abs_z": max(finite, default=None), "undefined_z": len(values) - len(finite)}
 

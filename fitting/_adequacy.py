@@ -1,6 +1,6 @@
 """Can a fit's outcome be trusted? The one place that decides: :func:`assess` and :class:`Outcome`.
 
-Three questions, in this order (the first that fails decides the status; every problem found
+Four questions, in this order (the first that fails decides the status; every problem found
 is listed in :attr:`Outcome.problems`):
 
 1. **Resolved** (:func:`lobe_widths`, :func:`resolution`): can the data determine how the lobe
@@ -14,6 +14,10 @@ is listed in :attr:`Outcome.problems`):
    Nyquist frequency, so it is sampled without loss; a narrower one aliases, and a lobe within a
    pixel or two says nothing) at any scale, the lobe's change with scale is unmeasurable — a fit
    of such data reports ratios of 1 ± 1e-14 that say nothing about the surface. Status ``"undetermined"``.
+   A scale whose images have fewer than two significant pixels is *faint* (too few counts above
+   the noise: the remedy is more counts — a longer exposure —, not a smaller extent), told apart
+   from a *narrow* lobe (resolved signal, but under ``min_lobe_pixels`` wide) in the reason.
+
 2. **Adequate** (:func:`assess`): is the model consistent with the data? With the whitened
    residuals ``r = (prediction − data)/σ`` at the estimate (masked pixels left out):
 
@@ -34,6 +38,17 @@ is listed in :attr:`Outcome.problems`):
 3. **Converged**: the optimiser's best start reported success (:attr:`FitResult.status`) and,
    when sampled, the chains passed R̂ and ESS (:attr:`SampleResult.status`, which names the
    failed criterion). Status ``"not_converged"``.
+
+4. **Identified** (:func:`undetermined_statistics`; asked last: the standard errors mean something
+   only at a converged optimum of an adequate model): every statistic the fit reports as what the
+   data determine — each ΔΣ(μ0, μ_k) component (``FitResult.covariance_differences``) and each
+   ratio ``S(W, μ0)/S(W, μ_k)`` (``FitResult.ratios``) — has a standard error. One whose std is
+   None (the Laplace analysis, :meth:`brdfscale.laplace.Laplace.quantity_is_determined`: the
+   undetermined directions move it more than the determined ones, or it is not finite) makes the
+   outcome ``"undetermined"``, and the reason names them: a fit never ends "ok" with a reported
+   statistic the data cannot determine. Left out: an entry the model fixes by construction
+   (``ΔΣ_xy`` of an isotropic model, ``"fixed"``: fitting._derived) and a ΔΣ that is not defined
+   for the statistics (value None: GGX slopes have no second moment).
 
 The thresholds are :data:`brdfscale.choices.ADEQUACY` (:class:`brdfscale.choices.AdequacyDefaults`).
 ``brdfscale fit`` maps the status to its exit status (0, 5, 6, 7; brdfscale._cli).
@@ -116,40 +131,94 @@ def lobe_moments(
     return centre, (centred * mass[:, None]).T @ centred
 
 
+def _widths_and_faint(data: Dataset, thresholds: AdequacyDefaults) -> tuple[list[float], list[bool]]:
+    """Per scale: :func:`lobe_widths`' width, and whether an image of the scale is faint (fewer
+    than two significant pixels: :func:`lobe_moments` None)."""
+    widths, faint = [], []
+    for k in range(len(np.asarray(data.scales))):
+        narrowest, dim = np.inf, False
+        for i in data.images_of_scale(k):
+            moments = lobe_moments(data, i, thresholds)
+            pitch = 2.0 * data.extents[i] / (data.image_sizes[i] - 1)
+            dim |= moments is None
+            smallest = 0.0 if moments is None else max(float(np.linalg.eigvalsh(moments[1])[0]), 0.0)
+            narrowest = min(narrowest, float(np.sqrt(smallest)) / pitch)
+        widths.append(float(narrowest))
+        faint.append(dim)
+    return widths, faint
+
+
 def lobe_widths(data: Dataset, thresholds: AdequacyDefaults = ADEQUACY) -> list[float]:
     """Per scale of ``data``: the lobe's rms width along its narrower principal axis, in image
     pixel pitches ``2·extent/(n − 1)`` (the smallest over the scale's images; 0 where fewer than
     two pixels are significant; module docstring, point 1)."""
-    widths = []
-    for k in range(len(np.asarray(data.scales))):
-        narrowest = np.inf
-        for i in data.images_of_scale(k):
-            moments = lobe_moments(data, i, thresholds)
-            pitch = 2.0 * data.extents[i] / (data.image_sizes[i] - 1)
-            smallest = 0.0 if moments is None else max(float(np.linalg.eigvalsh(moments[1])[0]), 0.0)
-            narrowest = min(narrowest, float(np.sqrt(smallest)) / pitch)
-        widths.append(float(narrowest))
-    return widths
+    return _widths_and_faint(data, thresholds)[0]
 
 
 def resolution(data: Dataset, *, unit: str | None = None, thresholds: AdequacyDefaults = ADEQUACY) -> Outcome:
     """The resolution check alone (before a fit: a lobe narrower than ``min_lobe_pixels`` image
-    pixels at any scale makes the outcome ``"undetermined"``); ``unit`` names μ's length unit
-    in the reason (None: pixels of the height field)."""
+    pixels at any scale, or too faint to measure, makes the outcome ``"undetermined"``); ``unit``
+    names μ's length unit in the reason (None: pixels of the height field). Each scale's row has
+    ``faint``: fewer than two pixels above the noise (module docstring, point 1)."""
     scales = np.asarray(data.scales)
-    widths = lobe_widths(data, thresholds)
-    rows = tuple({"mu": float(mu), "width_px": w} for mu, w in zip(scales, widths))
-    worst = int(np.argmin(widths))
-    if widths[worst] >= thresholds.min_lobe_pixels:
+    widths, faint = _widths_and_faint(data, thresholds)
+    rows = tuple({"mu": float(mu), "width_px": w, "faint": f} for mu, w, f in zip(scales, widths, faint))
+    problems = []
+    if any(faint):
+        first = faint.index(True)
+        problems.append(
+            f"the lobe at {_mu_text(float(scales[first]), unit)} is too faint to measure ({sum(faint)} of "
+            f"{len(faint)} scales have fewer than two pixels above {thresholds.significance:g} σ and "
+            f"{thresholds.peak_fraction:g} of the peak): too few counts above the noise — measure with more "
+            "counts (a longer exposure; for brdfscale synth, a larger count scale in --noise)"
+        )
+    narrow = [k for k, w in enumerate(widths) if not faint[k] and w < thresholds.min_lobe_pixels]
+    if narrow:
+        worst = min(narrow, key=lambda k: widths[k])
+        problems.append(
+            f"the lobe at {_mu_text(float(scales[worst]), unit)} is {widths[worst]:.2g} image pixels wide (rms, "
+            f"narrower axis; {len(narrow)} of {len(widths)} scales below {thresholds.min_lobe_pixels:g}): its "
+            "change with scale cannot be measured — synthesise with a smaller image extent or more pixels per "
+            "image (brdfscale synth), or measure with a finer angular resolution (more pixels across the lobe)"
+        )
+    if not problems:
         return Outcome("ok", "", (), rows, thresholds)
-    count = sum(w < thresholds.min_lobe_pixels for w in widths)
-    reason = (
-        f"the lobe at {_mu_text(float(scales[worst]), unit)} is {widths[worst]:.2g} image pixels wide (rms, "
-        f"narrower axis; {count} of {len(widths)} scales below {thresholds.min_lobe_pixels:g}): its change with "
-        "scale cannot be measured — synthesise with a smaller image extent or more pixels per image (brdfscale "
-        "synth), or measure with a finer angular resolution (more pixels across the lobe)"
+    return Outcome("undetermined", problems[0], tuple(problems), rows, thresholds)
+
+
+_ENTRIES = (("xx", 0, 0), ("xy", 0, 1), ("yy", 1, 1))
+
+
+def undetermined_statistics(fit: FitResult, unit: str | None = None) -> str | None:
+    """The line naming the reported statistics without a standard error (module docstring,
+    **Identified**), or None when every one has one."""
+    unit = unit or "px"
+    missing: dict[str, list[str]] = {}
+    total = 0
+    for d in fit.covariance_differences:
+        fixed = d.get("fixed") or [[False] * 2] * 2
+        for name, a, b in _ENTRIES:
+            if fixed[a][b] or d["value"][a][b] is None:
+                continue
+            total += 1
+            if d["std"][a][b] is None:
+                missing.setdefault(f"ΔΣ_{name}", []).append(f"{d['mu']:.4g}")
+    n_ratios = len(fit.ratios)
+    ratios = [name for name, r in fit.ratios.items() if r["std"] is None]
+    if not missing and not ratios:
+        return None
+    parts = [f"{key} at μ = {', '.join(mus)} {unit}" for key, mus in missing.items()]
+    count = sum(len(mus) for mus in missing.values())
+    text = f"the data do not determine {count} of {total} ΔΣ(μ0, μk) components" if missing else ""
+    if missing:
+        text += f" ({'; '.join(parts)})"
+    if ratios:
+        text += (" and " if text else "the data do not determine ") + f"{len(ratios)} of {n_ratios} ratios"
+        text += f" ({', '.join(ratios[:3])}{', …' if len(ratios) > 3 else ''})"
+    return (
+        text + ": no standard error (Laplace; std null in fit.json) — measure more scales or more counts, "
+        "or fit a model with fewer parameters"
     )
-    return Outcome("undetermined", reason, (reason,), rows, thresholds)
 
 
 def _lag1(r: np.ndarray, valid: np.ndarray, axis: int) -> tuple[float, int]:
@@ -250,7 +319,18 @@ def assess(
         )
     if samples is not None and samples.status != "converged":
         problems.append(f"sampler {samples.status} (sample longer)")
+    stalled = fit.status != "converged" or (samples is not None and samples.status != "converged")
+    unidentified = undetermined_statistics(fit, unit)
+    problems += [unidentified] if unidentified else []
     status: Status = (
-        "ok" if not problems else "undetermined" if not resolved.ok else "inadequate" if inadequate else "not_converged"
+        "ok"
+        if not problems
+        else "undetermined"
+        if not resolved.ok
+        else "inadequate"
+        if inadequate
+        else "not_converged"
+        if stalled
+        else "undetermined"
     )
     return Outcome(status, problems[0] if problems else "", tuple(problems), tuple(rows), thresholds)

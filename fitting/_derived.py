@@ -24,9 +24,11 @@ from ._parametric import ParametricModel
 
 __all__ = [
     "RATIO_FREQUENCIES",
+    "FIXED_NOTE",
     "covariance_differences",
     "evaluate",
     "evaluate_many",
+    "is_isotropic",
     "quantities_at",
     "quantity_names",
     "quantity_vector",
@@ -164,8 +166,16 @@ def summarise_covariance_differences(model, theta, scales, analysis) -> list[dic
     (:class:`brdfscale.laplace.Laplace`: the determined directions' variance plus the undetermined
     ones' linearised contribution, the policy of every other quantity of a fit). An entry the
     undetermined directions move more than the determined ones, or a non-finite one, has std
-    None; a non-finite value is None too."""
+    None; a non-finite value is None too.
+
+    An isotropic model (:func:`is_isotropic`) has ``ΔΣ_xy = 0`` by construction, not by
+    measurement: that entry's value is 0, its std None and ``"fixed"`` marks it (``[[False,
+    True], [True, False]]``, with ``"note"`` saying why); a model that measures every entry
+    gives ``"fixed"`` all False. Consumers of the std (z-scores, :func:`fitting.assess`) leave a
+    fixed entry out instead of treating it as known to within 0 (tests/test_adequacy.py)."""
     scales = np.asarray(scales)
+    isotropic = is_isotropic(model)
+    fixed = [[False, isotropic], [isotropic, False]]
     values, jac = (np.asarray(x) for x in _covariance_differences_and_jacobian(model, jnp.asarray(theta), scales))
     finite = np.isfinite(values) & np.all(np.isfinite(jac), axis=1)
     safe = np.where(finite[:, None], jac, 0.0)
@@ -181,7 +191,28 @@ def summarise_covariance_differences(model, theta, scales, analysis) -> list[dic
                 "mu0": float(scales[0]),
                 "mu": float(scales[k]),
                 "value": [[float(v[a, b]) if ok[a, b] else None for b in range(2)] for a in range(2)],
-                "std": [[float(s[a, b]) if np.isfinite(s[a, b]) else None for b in range(2)] for a in range(2)],
+                "std": [
+                    [float(s[a, b]) if np.isfinite(s[a, b]) and not fixed[a][b] else None for b in range(2)]
+                    for a in range(2)
+                ],
+                "fixed": [list(row) for row in fixed],
+                **({"note": FIXED_NOTE} if isotropic else {}),
             }
         )
     return out
+
+
+FIXED_NOTE = "ΔΣ_xy = 0 fixed by the isotropic model (not measured; no standard error)"
+"""fit.json's ``note`` on the ΔΣ entries of an isotropic model (:func:`summarise_covariance_differences`)."""
+
+
+def is_isotropic(model) -> bool:
+    """True when ``model``'s ΔΣ is a multiple of the identity by construction: it has no
+    ``covariance_differences`` of its own (``R_k`` a function of |W|: :func:`covariance_differences`)
+    or it is built isotropic (:class:`fitting.AnisotropicModel` ``isotropic=True``,
+    :class:`fitting.AnisotropicNonParametricModel` ``harmonics=0``)."""
+    return (
+        getattr(model, "covariance_differences", None) is None
+        or bool(getattr(model, "isotropic", False))
+        or getattr(model, "harmonics", None) == 0
+    )

@@ -193,8 +193,13 @@ class ParametricModel(AbstractModel):
         return jnp.concatenate([base.density(points[0])[None], coarser])
 
     def relative_statistics(self, theta, W, scales):
-        s0 = self.statistics_at(theta, scales[0]).cf_radial(W)
-        return jax.vmap(lambda mu: s0 / self.statistics_at(theta, mu).cf_radial(W))(jnp.asarray(scales))
+        """``R_k(|W|) = S(W, μ0)/S(W, μ_k)`` (seed Eq. 4.4) as ``exp(log R_k)``: far out in |W| both
+        transforms underflow to 0 and a direct division would give 0/0 (:func:`_log_ratio`;
+        tests/test_adequacy.py checks it against mpmath at large |W|)."""
+        W = jnp.asarray(W)
+        statistics = jax.vmap(lambda mu: self.statistics_at(theta, mu))(jnp.asarray(scales))  # one evaluation:
+        s0 = jax.tree.map(lambda leaf: leaf[0], statistics)  # R_0 = 1 exactly, eager and jitted
+        return jax.vmap(lambda s: jnp.exp(_log_ratio(s0, s, W)))(statistics)
 
     def initial(self, data):
         amp, width2 = moments(data)
@@ -248,3 +253,29 @@ class ParametricModel(AbstractModel):
         lo = np.log([box[p][0] for p in self.free])
         hi = np.log([box[p][1] for p in self.free])
         return lo, hi
+
+
+_XK1_FAR = 600.0  # beyond: x K1(x) by its asymptotic series (relative error of the dropped term < 1e-12)
+
+
+def _log_ratio(s0, s, k):
+    """``log(S(k; s0)/S(k; s))`` of two isotropic, centred slope densities of one family, without
+    underflow (Gaussian: without the cancellation of two large logarithms either).
+
+    Gaussian (Beckmann, Gaussian surface): ``−½ (Σ0_xx − Σ_xx) k²``. GGX: ``S = x K1(x)``, ``x = α k``;
+    ``log S(x0) − log S(x)`` by :func:`_log_xk1`. Otherwise the logarithm of the direct ratio."""
+    if isinstance(s0, stats.Gaussian) and isinstance(s, stats.Gaussian):
+        return -0.5 * (s0.cov[..., 0, 0] - s.cov[..., 0, 0]) * k**2
+    if isinstance(s0, stats.GGX) and isinstance(s, stats.GGX):
+        return _log_xk1(s0.alpha[..., 0] * jnp.abs(k)) - _log_xk1(s.alpha[..., 0] * jnp.abs(k))
+    return jnp.log(s0.cf_radial(k) / s.cf_radial(k))
+
+
+def _log_xk1(x):
+    """``log(x K1(x))``, x ≥ 0: for ``x > 600`` (where ``x K1(x)`` underflows near ``e^−745``) by the
+    asymptotic series ``K1(x) ≈ √(π/2x) e^−x (1 + 3/(8x) − 15/(128x²) + 105/(1024x³))`` (DLMF 10.40.2;
+    the first dropped term is below 1e-12 there), else of GGX's own ``cf_radial``."""
+    far = x > _XK1_FAR
+    near, xf = jnp.where(far, 0.0, x), jnp.where(far, x, _XK1_FAR)
+    series = 0.5 * jnp.log(0.5 * jnp.pi * xf) - xf + jnp.log1p(3 / (8 * xf) - 15 / (128 * xf**2) + 105 / (1024 * xf**3))
+    return jnp.where(far, series, jnp.log(stats.GGX(alpha_x=1.0, alpha_y=1.0).cf_radial(near)))

@@ -48,7 +48,8 @@ class FitResult(Shown):
     eigenvectors: np.ndarray | None = None  # V of the Fisher matrix's eigen-decomposition, columns by eigenvalue
     ratios: dict = dataclasses.field(default_factory=dict)  # S(μ0)/S(μk) at reference |W| (ratio_frequencies)
     combinations: list = dataclasses.field(default_factory=list)  # determined Fisher eigen-directions: value ± std
-    # ΔΣ(μ0, μk) = Σ(μ0) − Σ(μk) per coarser scale: {"mu0", "mu", "value" 2×2, "std" 2×2} (fitting._derived)
+    # ΔΣ(μ0, μk) = Σ(μ0) − Σ(μk) per coarser scale: {"mu0", "mu", "value" 2×2, "std" 2×2, "fixed" 2×2,
+    # "note" when the model fixes an entry} (fitting._derived.summarise_covariance_differences)
     covariance_differences: list = dataclasses.field(default_factory=list)
 
     @property
@@ -168,8 +169,11 @@ class FitResult(Shown):
 
 
 def _entry(difference: dict, a: int, b: int) -> str:
-    """``value ± std`` of one entry of a ΔΣ record (``undetermined`` where its std is None)."""
+    """``value ± std`` of one entry of a ΔΣ record (``undetermined`` where its std is None;
+    ``fixed by the isotropic model`` where the model sets it: fitting._derived.is_isotropic)."""
     value, std = difference["value"][a][b], difference["std"][a][b]
+    if (difference.get("fixed") or [[False] * 2] * 2)[a][b]:
+        return f"{value:.4g} (fixed by the isotropic model)"
     if value is None:
         return "undetermined"
     return f"{value:.4g} ± {std:.2g}" if std is not None else f"{value:.4g} (undetermined)"

@@ -4,7 +4,8 @@ The checks against what nobody here wrote: the lobe width of a sampled Gaussian 
 closed-form second moment of a Gaussian truncated where it falls below 5 % of its peak; the
 residual tests' false-alarm rate on data the model itself generated (several seeds) and their
 power on GGX data fitted by a Beckmann model; the robust extent on a field with one slope spike
-(the MetroPro case of issue 31) against the steepest-slope rule it replaces.
+(the MetroPro case of issue 31) against the steepest-slope rule it replaces; the parametric
+model's ratios far out in |W| against mpmath's Bessel function and the Gaussian closed form.
 """
 
 import dataclasses
@@ -183,3 +184,93 @@ def test_robust_extent_of_gaussian_slopes_is_their_rayleigh_quantile():
     coarse = fitting.lobe_widths(fitting.Dataset.from_measurements(mset))[1]
     truncation = math.sqrt(1 - math.log(20) / 19)  # 0.92: the 5 % cut of the closed-form test above
     assert coarse == pytest.approx(truncation * 64 / (2 * 1.5 * math.sqrt(2 * math.log(100))), rel=0.1)
+
+
+def test_a_reported_statistic_without_standard_error_is_undetermined():
+    """A fit whose ΔΣ components have no standard error (the Laplace analysis: std None; seen on
+    mnt-1.mnt at poisson:0.05:1) never ends "ok": "undetermined", the reason naming them."""
+    problem, result, outcome = _assessed("beckmann", "beckmann", 0)
+    assert outcome.status == "ok"
+    blind = [{**d, "std": [[None, None], [None, None]]} for d in result.covariance_differences]
+    told = fitting.assess(problem, dataclasses.replace(result, covariance_differences=blind))
+    assert told.status == "undetermined", told
+    mus = ", ".join(f"{mu:.4g}" for mu in SCALES[1:])
+    assert told.reason.startswith(f"the data do not determine 6 of 6 ΔΣ(μ0, μk) components (ΔΣ_xx at μ = {mus} px")
+    assert "ΔΣ_xy" not in told.reason  # fixed by the isotropic model, not a measurement the data lack
+    name = next(iter(result.ratios))
+    ratios = {**result.ratios, name: {**result.ratios[name], "std": None}}
+    told = fitting.assess(problem, dataclasses.replace(result, ratios=ratios))
+    assert told.status == "undetermined" and f"1 of {len(ratios)} ratios ({name})" in told.reason
+
+
+def test_the_isotropic_models_covariance_is_fixed_not_measured():
+    """ΔΣ_xy of an isotropic model is 0 by construction: no standard error (not "± 0"), marked
+    fixed in fit.json's entries and in the printed table."""
+    _, result, _ = _assessed("beckmann", "beckmann", 0)
+    for d in result.covariance_differences:
+        assert d["fixed"] == [[False, True], [True, False]] and "isotropic" in d["note"]
+        assert d["value"][0][1] == 0.0 and d["std"][0][1] is None and d["std"][1][0] is None
+        assert d["std"][0][0] is not None and d["std"][0][0] > 0
+    assert "(fixed by the isotropic model)" in result._repr_html_()  # the printed ΔΣ table
+    from brdfscale._cli._fit import print_determined
+
+    lines = []
+    print_determined({"parameters": {}, "covariance_differences": result.covariance_differences}, lines.append)
+    assert any("0 (fixed by the isotropic model)" in line and "(±?)" not in line for line in lines)
+    assert fitting.AnisotropicModel(len(SCALES)).covariance_differences is not None
+    from brdfscale.fitting._derived import is_isotropic
+
+    assert is_isotropic(fitting.AnisotropicModel(len(SCALES), isotropic=True))
+    assert not is_isotropic(fitting.AnisotropicModel(len(SCALES)))
+
+
+def test_a_faint_lobe_asks_for_more_counts_not_a_smaller_extent():
+    """Fewer than two pixels above the noise at a scale: the lobe is faint — the remedy is more
+    counts — not narrow (which asks for a smaller extent)."""
+    from brdfscale import LobeImage, MeasurementSet
+
+    n, extent, s = 33, 1.0, 0.2
+    u = np.linspace(-extent, extent, n)
+    x, y = np.meshgrid(u, u)
+    images = []
+    for mu, height in ((1.0, 1.0), (2.0, 1e-4)):  # the coarser lobe's peak at 1e-4 of σ = 1e-2: noise only
+        values = height * np.exp(-(x**2 + y**2) / (2 * s**2))
+        images.append(LobeImage(mu=mu, incident=[0, 0, 1], extent=extent, values=values, sigma=1e-2 + 0 * values))
+    outcome = fitting.resolution(fitting.Dataset.from_measurements(MeasurementSet(tuple(images))))
+    assert outcome.status == "undetermined"
+    assert [row["faint"] for row in outcome.scales] == [False, True]
+    assert "too faint" in outcome.reason and "more counts" in outcome.reason and "μ = 2 px" in outcome.reason
+    assert "smaller image extent" not in outcome.reason
+
+
+@pytest.mark.parametrize("family", ["beckmann", "ggx"])
+def test_relative_statistics_far_out_in_w_are_finite(family):
+    """R_k(|W|) = S(μ0)/S(μ_k) where both transforms underflow (direct division: 0/0): in log space,
+    against mpmath (GGX: x K1(x)) and the Gaussian closed form (Beckmann: exp(−α²k²/4)); equal to the
+    direct division where that is finite; jit equal to eager."""
+    import jax
+    import mpmath
+
+    model = fitting.ParametricModel(family, family)
+    theta = model.theta_from(TRUTH)
+    W = np.array([1.0, 30.0, 300.0, 3e3, 1e6])  # S(μ0) underflows beyond |W| ≈ 190 (Beckmann), 2600 (GGX)
+    scales = np.asarray(SCALES)
+    at = [model.statistics_at(theta, mu) for mu in SCALES]  # Beckmann: variance α²/2 per axis
+    alpha = [float(t.alpha[0]) if family == "ggx" else math.sqrt(2 * float(t.cov[0, 0])) for t in at]
+    with np.errstate(invalid="ignore"):
+        direct = np.array([np.asarray(at[0].cf_radial(W)) / np.asarray(t.cf_radial(W)) for t in at])
+    assert np.isnan(direct[0, -1])  # 0/0: what the direct division gave
+    got = np.asarray(model.relative_statistics(theta, W, scales))
+    assert np.all(np.isfinite(got)) and np.all(got[0] == 1.0)
+    for k, a in enumerate(alpha):
+        for j, w in enumerate(W):
+            if family == "ggx":
+                x0, x = mpmath.mpf(alpha[0]) * w, mpmath.mpf(a) * w
+                expected = x0 * mpmath.besselk(1, x0) / (x * mpmath.besselk(1, x))
+            else:
+                expected = mpmath.exp(-(mpmath.mpf(alpha[0]) ** 2 - mpmath.mpf(a) ** 2) * w**2 / 4)
+            assert got[k, j] == pytest.approx(float(expected), rel=1e-9, abs=1e-300), (k, w)
+    assert got[1, 2 if family == "beckmann" else 3] > 1e-300  # a representable ratio where both S underflow
+    np.testing.assert_allclose(got[:, :2], direct[:, :2], rtol=1e-12)
+    # jit against eager: an ulp of α moves log R_k by up to ~αk·1e-16 (≤ 1e-12 for these |W|)
+    np.testing.assert_allclose(np.asarray(jax.jit(model.relative_statistics)(theta, W, scales)), got, rtol=1e-11)

@@ -535,9 +535,12 @@ def print_determined(doc: dict, stream=print) -> None:
     if doc.get("covariance_differences"):
         stream("  what the data determine — ΔΣ(μ0, μk) = Σ(μ0) − Σ(μk), [xx, xy, yy] ± std (slope²):")
         for d in doc["covariance_differences"]:
+            fixed = d.get("fixed") or [[False] * 2] * 2  # by an isotropic model (fitting._derived)
             entries = ", ".join(
                 "undetermined"
                 if d["value"][a][b] is None
+                else f"{d['value'][a][b]:.4g} (fixed by the isotropic model)"
+                if fixed[a][b]
                 else f"{d['value'][a][b]:.4g}" + (f" ± {d['std'][a][b]:.2g}" if d["std"][a][b] is not None else " (±?)")
                 for a, b in ((0, 0), (0, 1), (1, 1))
             )
