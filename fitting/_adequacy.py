@@ -14,9 +14,13 @@ is listed in :attr:`Outcome.problems`):
    Nyquist frequency, so it is sampled without loss; a narrower one aliases, and a lobe within a
    pixel or two says nothing) at any scale, the lobe's change with scale is unmeasurable — a fit
    of such data reports ratios of 1 ± 1e-14 that say nothing about the surface. Status ``"undetermined"``.
-   A scale whose images have fewer than two significant pixels is *faint* (too few counts above
-   the noise: the remedy is more counts — a longer exposure —, not a smaller extent), told apart
-   from a *narrow* lobe (resolved signal, but under ``min_lobe_pixels`` wide) in the reason.
+   A scale with an image of fewer than two significant pixels whose peak is below
+   ``significance/peak_fraction`` σ (60 σ) is *faint*: there the noise, not the lobe's shape,
+   hides its neighbours (any pixel at 5 % of a ≥ 60 σ peak would be above 3 σ), so the first
+   remedy is more counts — a longer exposure —; the reason adds the smaller extent as the second,
+   since a faint lobe may also lie within a pixel. A single pixel above 60 σ is a *narrow* lobe
+   (width 0), as is a resolved lobe under ``min_lobe_pixels`` wide: the reason asks for a
+   smaller extent or more pixels.
 
 2. **Adequate** (:func:`assess`): is the model consistent with the data? With the whitened
    residuals ``r = (prediction − data)/σ`` at the estimate (masked pixels left out):
@@ -133,14 +137,18 @@ def lobe_moments(
 
 def _widths_and_faint(data: Dataset, thresholds: AdequacyDefaults) -> tuple[list[float], list[bool]]:
     """Per scale: :func:`lobe_widths`' width, and whether an image of the scale is faint (fewer
-    than two significant pixels: :func:`lobe_moments` None)."""
+    than two significant pixels, :func:`lobe_moments` None, and a peak under
+    ``significance/peak_fraction`` σ: module docstring, point 1)."""
     widths, faint = [], []
     for k in range(len(np.asarray(data.scales))):
         narrowest, dim = np.inf, False
         for i in data.images_of_scale(k):
             moments = lobe_moments(data, i, thresholds)
             pitch = 2.0 * data.extents[i] / (data.image_sizes[i] - 1)
-            dim |= moments is None
+            if moments is None:
+                n = data.image_sizes[i]
+                snr = np.asarray(data.values[i, : n * n]) * np.asarray(data.weight[i, : n * n])
+                dim |= float(np.max(snr)) < thresholds.significance / thresholds.peak_fraction
             smallest = 0.0 if moments is None else max(float(np.linalg.eigvalsh(moments[1])[0]), 0.0)
             narrowest = min(narrowest, float(np.sqrt(smallest)) / pitch)
         widths.append(float(narrowest))
@@ -169,8 +177,10 @@ def resolution(data: Dataset, *, unit: str | None = None, thresholds: AdequacyDe
         problems.append(
             f"the lobe at {_mu_text(float(scales[first]), unit)} is too faint to measure ({sum(faint)} of "
             f"{len(faint)} scales have fewer than two pixels above {thresholds.significance:g} σ and "
-            f"{thresholds.peak_fraction:g} of the peak): too few counts above the noise — measure with more "
-            "counts (a longer exposure; for brdfscale synth, a larger count scale in --noise)"
+            f"{thresholds.peak_fraction:g} of the peak, the peak under "
+            f"{thresholds.significance / thresholds.peak_fraction:g} σ): too few counts above the noise — measure "
+            "with more counts (a longer exposure; for brdfscale synth, a larger count scale in --noise); if the "
+            "lobe also lies within a pixel, a smaller image extent or a finer angular resolution"
         )
     narrow = [k for k, w in enumerate(widths) if not faint[k] and w < thresholds.min_lobe_pixels]
     if narrow:

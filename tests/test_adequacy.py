@@ -225,8 +225,8 @@ def test_the_isotropic_models_covariance_is_fixed_not_measured():
 
 
 def test_a_faint_lobe_asks_for_more_counts_not_a_smaller_extent():
-    """Fewer than two pixels above the noise at a scale: the lobe is faint — the remedy is more
-    counts — not narrow (which asks for a smaller extent)."""
+    """Fewer than two pixels above the noise at a scale and the peak under 60 σ: the lobe is faint —
+    the first remedy is more counts —; a single pixel far above the noise is a narrow lobe."""
     from brdfscale import LobeImage, MeasurementSet
 
     n, extent, s = 33, 1.0, 0.2
@@ -240,7 +240,11 @@ def test_a_faint_lobe_asks_for_more_counts_not_a_smaller_extent():
     assert outcome.status == "undetermined"
     assert [row["faint"] for row in outcome.scales] == [False, True]
     assert "too faint" in outcome.reason and "more counts" in outcome.reason and "μ = 2 px" in outcome.reason
-    assert "smaller image extent" not in outcome.reason
+    assert outcome.reason.index("more counts") < outcome.reason.index("smaller image extent")  # counts first
+    images[1] = dataclasses.replace(images[1], values=1e4 * (values == values.max()))  # one pixel at 1e6 σ
+    outcome = fitting.resolution(fitting.Dataset.from_measurements(MeasurementSet(tuple(images))))
+    assert [row["faint"] for row in outcome.scales] == [False, False] and outcome.scales[1]["width_px"] == 0
+    assert "0 image pixels wide" in outcome.reason and "too faint" not in outcome.reason
 
 
 @pytest.mark.parametrize("family", ["beckmann", "ggx"])
