@@ -63,7 +63,14 @@ import numpy as np
 import brdfscale as bs
 from brdfscale import lobes, stats, synth, topography
 from experiments import render_plane
-from experiments._studies import pixel_slopes, save_figure, second_moment_covariance, study_dir, write_results
+from experiments._studies import (
+    pixel_slopes,
+    save_figure,
+    second_moment_covariance,
+    study_dir,
+    window_slopes,
+    write_results,
+)
 
 
 VARIANT = "llvm_ad_rgb"
@@ -72,7 +79,10 @@ CAMERA_HEIGHT = render_plane.CAMERA_HEIGHT / render_plane.TEXEL  # texels
 ANISOTROPIC_SLOPE_SCALE = 12.0
 REAL_FILE = Path(__file__).resolve().parent.parent / "tests" / "data" / "topographies" / "di-3.di"
 SURFACES = ("di-3", "anisotropic")
-METHODS = ("naive", "lean", "brdfscale")
+METHODS = ("naive", "lean", "brdfscale", "brdfscale_t")
+NU_MAX = 1000.0
+T_LADDER = 17  # scales of the Student-t material's ladder (evolved numerically: no refinement)
+TOLERANCE = 1e-2  # render.bsdf(tolerance=…) of the Gaussian material (closed forms: cheap)
 LOBE_NODES = 256
 EVOLVE_GRID = 256
 MEAN_SLOPE_SAMPLES = 16
@@ -137,7 +147,48 @@ def level_statistics(field: synth.HeightField, alpha0: float, levels: list[int])
                 "lean_clipped": clipped,
             }
         )
-    return {"law": stats.MeasuredScaleLaw.from_facets(facets), "covs": covs, "records": records, "facets": facets}
+    law = stats.MeasuredScaleLaw.from_facets(facets)
+    kurtosis, nus = tail_indices(field, levels)
+    for record, k, nu in zip(records, kurtosis, nus):
+        record.update(excess_kurtosis=k, student_t_nu=nu)
+    t_law = MomentStudentTLaw(law, levels, nus)
+    return {"law": law, "t_law": t_law, "covs": covs, "records": records, "facets": facets}
+
+
+class MomentStudentTLaw:
+    """A non-Gaussian scale law fitted to the facets by moments: at level b, the bivariate Student t
+    (:class:`brdfscale.stats.StudentT`) whose covariance ``cov·ν/(ν − 2)`` is the facets' Σ(b) and whose tail index
+    ``ν(b) = 4 + 6/κ(b)`` gives the facets' excess kurtosis κ (the mean over Σ's principal axes; ν ≤ NU_MAX). Between
+    the levels Σ(μ) is the MeasuredScaleLaw's and 1/ν is linear in ln μ."""
+
+    def __init__(self, gaussian, levels, nus):
+        self.gaussian = gaussian
+        self.mu = np.asarray(gaussian.mu, float)
+        self.levels = np.log(np.asarray(levels, float))
+        self.inverse_nu = 1.0 / np.asarray(nus, float)
+
+    def tail_index(self, mu: float) -> float:
+        return 1.0 / float(np.interp(math.log(mu), self.levels, self.inverse_nu))
+
+    def at(self, mu):
+        nu = self.tail_index(float(mu))
+        return stats.StudentT(cov=np.asarray(self.gaussian.slope_covariance(mu)) * (nu - 2) / nu, nu=nu)
+
+
+def tail_indices(field: synth.HeightField, levels: list[int]) -> tuple[list[float], list[float]]:
+    """Excess kurtosis κ(b) of the block-mean facet slopes (mean over their covariance's principal axes) and the
+    Student-t tail index ``4 + 6/κ`` of each level (NU_MAX where κ ≤ 6/(NU_MAX − 4))."""
+    m = pixel_slopes(np.asarray(field.heights))  # the study's fields are in pixel units (spacing 1)
+    kurtosis, nus = [], []
+    for b in levels:
+        s = window_slopes(m, b, "box").reshape(-1, 2)
+        s = s - s.mean(0)
+        w, v = np.linalg.eigh(np.cov(s.T))
+        z = s @ v / np.sqrt(w)
+        k = float(np.mean(np.mean(z**4, axis=0) - 3))
+        kurtosis.append(k)
+        nus.append(NU_MAX if k <= 6 / (NU_MAX - 4) else 4 + 6 / k)
+    return kurtosis, nus
 
 
 def tabulated_evolution(facets, alpha0: float) -> list[dict]:
@@ -384,11 +435,42 @@ def render_planes(mi, camera, mu, mean_slope, light, level_stats, levels, alpha0
         size=LOBE_NODES,
         masking=masking,
         variant=VARIANT,
+        tolerance=TOLERANCE,
     )
     shade(mi, material, wi[:8], wo[:8], np.ones(8))  # compile
     t0 = time.perf_counter()
     images["brdfscale"] = shade(mi, material, wi, wo, mus)
     seconds["brdfscale"] = time.perf_counter() - t0
+
+    # the non-Gaussian material: Beckmann(α0) evolved with the moment-matched Student-t law; its masking tables from
+    # Gaussians of the same covariance (LEAN's), as Smith Λ of an evolved Student-t shape is a slow quadrature
+    law = level_stats["law"]
+    ladder = [float(x) for x in np.geomspace(1.0, levels[-1], T_LADDER)]
+    gaussians = [
+        stats.Gaussian(
+            cov=np.eye(2) * alpha0**2 / 2 + np.asarray(law.slope_covariance(1.0)) - np.asarray(law.slope_covariance(m))
+        )
+        for m in ladder
+    ]
+    try:
+        material_t = render.bsdf(
+            lobes.Beckmann(alpha0),
+            level_stats["t_law"],
+            mu0=1.0,
+            texel=1.0,
+            size=LOBE_NODES,
+            masking=masking,
+            variant=VARIANT,
+            scales=ladder,
+            masking_shapes=gaussians,
+        )
+    except bs.NoBRDFAtScaleError as err:
+        level_stats["t_refused"] = str(err).split(". ")[0]
+    else:
+        shade(mi, material_t, wi[:8], wo[:8], np.ones(8))  # compile
+        t0 = time.perf_counter()
+        images["brdfscale_t"] = shade(mi, material_t, wi, wo, mus)
+        seconds["brdfscale_t"] = time.perf_counter() - t0
     return {k: v.reshape(mu.shape) for k, v in images.items()}, seconds
 
 
@@ -502,10 +584,11 @@ def run(
         )
     slopes = mean_slopes(field, camera, mu, seed + 2)
     images, seconds = render_planes(mi, camera, mu, slopes, geometry.light, level_stats, levels, alpha0, masking)
-    errors = {m: summary_errors(images[m], truth, mu) for m in METHODS}
+    methods = [m for m in METHODS if m in images]
+    errors = {m: summary_errors(images[m], truth, mu) for m in methods}
     equal = {}
     per_spp = truth_seconds / reference_spp
-    for m in METHODS:
+    for m in methods:
         entry = {"shading_seconds": seconds[m]}
         for key, name in (("mean_abs", "mean_abs"), ("far_mean_abs", "mean_abs"), ("far_bias", "bias_mean_over_bands")):
             target = errors[m]["mean_abs"] if key == "mean_abs" else errors[m]["mu_ge_threshold"].get(name)
@@ -536,6 +619,7 @@ def run(
         "levels_px": levels,
         "levels": level_stats["records"],
         "tabulated_evolution": tabulated,
+        "student_t_material": level_stats.get("t_refused", "rendered"),
         "instances": geometry.instances,
         "triangles_per_tile": geometry.triangles,
         "reference_spp": reference_spp,
@@ -558,15 +642,16 @@ def plot(images: dict, errors: dict, path: Path, title: str) -> None:
     import matplotlib.pyplot as plt
 
     top = np.percentile(images["truth"], 99.5)
-    names = ("truth", *METHODS)
-    fig, axes = plt.subplots(2, 4, figsize=(16, 6.2))
+    methods = [m for m in METHODS if m in images]
+    names = ("truth", *methods)
+    fig, axes = plt.subplots(2, len(names), figsize=(4 * len(names), 6.2))
     for ax, name in zip(axes[0], names):
         ax.imshow(np.clip(images[name] / top, 0, 1) ** (1 / 2.2), cmap="gray", vmin=0, vmax=1)
         label = "micro-geometry (truth)" if name == "truth" else f"{name} (mean |Δ| {errors[name]['mean_abs']:.2f})"
         ax.set_title(label)
     axes[1, 0].imshow(np.log2(np.maximum(images["mu"], 0.5)), cmap="viridis")
     axes[1, 0].set_title("log₂ footprint μ [texels]")
-    for ax, name in zip(axes[1, 1:], METHODS):
+    for ax, name in zip(axes[1, 1:], methods):
         ax.imshow(np.abs(images[name] - images["truth"]) / top, cmap="magma", vmin=0, vmax=0.5)
         ax.set_title(f"|{name} − truth|")
     for ax in axes.ravel():

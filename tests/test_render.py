@@ -220,12 +220,31 @@ def test_the_ladder_refinement_refuses_bad_tolerances(monkeypatch):
 
     with pytest.raises(brdfscale.InvalidInputError, match="tolerance must be"):
         render.lobe_table(base_lobe(), LAW, mu0=MU0, scales=[1.0, 9.0], tolerance=-1.0)
+    with pytest.raises(brdfscale.InvalidInputError, match="masking_shapes needs scales="):
+        render.bsdf(base_lobe(), LAW, mu0=MU0, masking_shapes=[stats.Gaussian(cov=np.eye(2) * 0.01)])
     monkeypatch.setattr(_material, "MAX_LEVELS", 4)
     with pytest.raises(brdfscale.InvalidInputError, match="needs more than 4 scales"):
         render.lobe_table(base_lobe(), LAW, mu0=MU0, scales=[1.0, 9.0], size=8, tolerance=1e-9)
     monkeypatch.setattr(_material, "MAX_NODES", 16)
     with pytest.raises(brdfscale.InvalidInputError, match="needs more than 16 slope nodes"):
         render.lobe_table(base_lobe(), LAW, mu0=MU0, scales=[1.0], size=8, tolerance=1e-9)
+
+
+@pytest.mark.slow
+def test_masking_shapes_make_the_masking_tables(tables):
+    """masking_shapes replace the evolved shapes in G₂: eval is the tabulated lobe times G₂ of the shapes given."""
+    mi, table, evolved = tables
+    wider = [stats.Gaussian(cov=8 * np.asarray(lobe.shape.cov)) for lobe in evolved]
+    obj = render.bsdf(base_lobe(), LAW, mu0=MU0, scales=LADDER, size=48, variant="llvm_ad_rgb", masking_shapes=wider)
+    rng = np.random.default_rng(6)
+    for mu in (1.0, 3.0):
+        i, o = directions_near_lobe(rng, 400)
+        got = np.asarray(obj.eval(mi.BSDFContext(), interactions(mi, o, mu), vec(mi, i))[0])
+        ref = reference_rho(table, [lobes.Lobe(w) for w in wider], mu, i, o)
+        own = reference_rho(table, evolved, mu, i, o)
+        big = ref > 1e-3 * ref.max()
+        assert np.median(np.abs(got[big] / ref[big] - 1)) < 1e-3, mu
+        assert np.max(np.abs(got[big] / own[big] - 1)) > 5e-2, mu  # the wider shapes do change the masking
 
 
 @pytest.mark.slow

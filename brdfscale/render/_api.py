@@ -4,6 +4,7 @@ import sys
 import threading
 
 from .. import _mitsuba
+from .._errors import InvalidInputError
 from .._evolve import AbstractMethod, MethodName
 from ..exr import LobeTable
 from ..lobes import AbstractLobe
@@ -67,6 +68,7 @@ def bsdf(
     extent: float | None = None,
     method: MethodName | AbstractMethod = "auto",
     tolerance: float | None = None,
+    masking_shapes=None,
 ):
     """A Mitsuba BSDF rendering ``base_lobe`` (the BRDF at μ0) evolved with ``statistics`` to each interaction's scale.
 
@@ -92,6 +94,9 @@ def bsdf(
         scales, levels, size, extent, method, tolerance: the ladder and grid of :func:`lobe_table` (``tolerance``
             refines the ladder in ln μ and the slope grid until their interpolation is within it of the evolved
             lobe; docs/render.md).
+        masking_shapes: one :mod:`brdfscale.stats` slope density per scale of the ladder whose Smith Λ makes the
+            masking tables instead of the evolved shapes' (e.g. Gaussians of the same covariance where the generic
+            quadrature of an evolved non-Gaussian shape is too slow); requires ``scales``.
 
     Raises InvalidInputError for statistics of another kind or bad options (naming what is accepted),
     :class:`brdfscale.NoBRDFAtScaleError` where the lobe has no BRDF at a scale of the ladder,
@@ -111,6 +116,13 @@ def bsdf(
         )
         table = tabulate(ladder, evolved, mu0=mu0, size=size, extent=extent, tolerance=tolerance)
         shapes = [lobe.shape for lobe in evolved]
+        if masking_shapes is not None:
+            if scales is None or tolerance is not None or len(list(masking_shapes)) != len(ladder):
+                raise InvalidInputError(
+                    "masking_shapes needs scales= (and no tolerance, which changes the ladder): one slope density "
+                    f"per scale; got {len(list(masking_shapes))} for {len(ladder)} scales."
+                )
+            shapes = list(masking_shapes)
     mi = mitsuba(variant)
     cls = bsdf_class(mi)
     obj = cls(mi.Properties(PLUGIN))
