@@ -278,3 +278,28 @@ def test_relative_statistics_far_out_in_w_are_finite(family):
     np.testing.assert_allclose(got[:, :2], direct[:, :2], rtol=1e-12)
     # jit against eager: an ulp of α moves log R_k by up to ~αk·1e-16 (≤ 1e-12 for these |W|)
     np.testing.assert_allclose(np.asarray(jax.jit(model.relative_statistics)(theta, W, scales)), got, rtol=1e-11)
+
+
+@pytest.mark.slow  # synth of a 600 × 960 field and one fit without sampling: ≈ 1 min on 2 shared cores
+def test_a_real_surface_at_low_counts_ends_undetermined_not_ok(tmp_path, capsys):
+    """mnt-1.mnt (tests/data) synthesised at poisson:0.05:1 and fitted by the parametric model: the
+    data determine none of its diagonal ΔΣ — exit 7 with one line naming them, never a silent 0;
+    fit.json gives ΔΣ_xy as fixed by the isotropic model."""
+    import json
+    from pathlib import Path
+
+    from brdfscale._cli import main
+
+    topography = Path(__file__).parent / "data" / "topographies" / "mnt-1.mnt"
+    data, out = tmp_path / "X.exr", tmp_path / "F"
+    assert main(["synth", "--topography", str(topography), "--noise", "poisson:0.05:1", "--out", str(data)]) == 0
+    capsys.readouterr()
+    fit = ["fit", str(data), "--out", str(out), "--model", "parametric", "--steps", "0", "--no-progress"]
+    assert main(fit) == 7
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith("brdfscale fit: undetermined: the data do not determine ") and "ΔΣ_xx at μ = " in line
+    doc = json.loads((out / "fit.json").read_text())
+    assert doc["outcome"]["status"] == "undetermined"
+    for d in doc["covariance_differences"]:
+        assert d["std"][0][0] is None and d["std"][1][1] is None and d["value"][0][0] is not None
+        assert d["fixed"] == [[False, True], [True, False]] and d["std"][0][1] is None
