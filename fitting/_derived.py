@@ -171,7 +171,7 @@ def summarise_covariance_differences(model, theta, scales, analysis) -> list[dic
     An isotropic model (:func:`is_isotropic`) has ``ΔΣ_xy = 0`` by construction, not by
     measurement: that entry's value is 0, its std None and ``"fixed"`` marks it (``[[False,
     True], [True, False]]``, with ``"note"`` saying why); a model that measures every entry
-    gives ``"fixed"`` all False. Consumers of the std (z-scores, :func:`fitting.assess`) leave a
+    gives neither key. Consumers of the std (z-scores, :func:`fitting.assess`) leave a
     fixed entry out instead of treating it as known to within 0 (tests/test_adequacy.py)."""
     scales = np.asarray(scales)
     isotropic = is_isotropic(model)
@@ -195,8 +195,7 @@ def summarise_covariance_differences(model, theta, scales, analysis) -> list[dic
                     [float(s[a, b]) if np.isfinite(s[a, b]) and not fixed[a][b] else None for b in range(2)]
                     for a in range(2)
                 ],
-                "fixed": [list(row) for row in fixed],
-                **({"note": FIXED_NOTE} if isotropic else {}),
+                **({"fixed": [list(row) for row in fixed], "note": FIXED_NOTE} if isotropic else {}),
             }
         )
     return out

@@ -49,7 +49,7 @@ class FitResult(Shown):
     ratios: dict = dataclasses.field(default_factory=dict)  # S(μ0)/S(μk) at reference |W| (ratio_frequencies)
     combinations: list = dataclasses.field(default_factory=list)  # determined Fisher eigen-directions: value ± std
     # ΔΣ(μ0, μk) = Σ(μ0) − Σ(μk) per coarser scale: {"mu0", "mu", "value" 2×2, "std" 2×2, "fixed" 2×2,
-    # "note" when the model fixes an entry} (fitting._derived.summarise_covariance_differences)
+    # "note" only when the model fixes an entry} (fitting._derived.summarise_covariance_differences)
     covariance_differences: list = dataclasses.field(default_factory=list)
 
     @property
