@@ -222,10 +222,10 @@ class SampleDefaults:
     seed: int = 0
     # steps None: the sampler's own (its ``default_steps``, fitting._sampler). Emcee's ensembles need
     # long chains (τ of tens of steps); NUTS/HMC, Laplace-preconditioned, draw nearly independent
-    # samples each step, so far fewer give the ESS the convergence check asks (docs/fitting.md,
+    # samples each step, so far fewer pass the convergence check (ESS_bulk ≥ 400, R̂ ≤ 1.01; docs/fitting.md,
     # "Speed of the default fit", measures the margin)
     emcee_steps: int = 2000
-    gradient_steps: int = 500
+    gradient_steps: int = 1000
     gradient_warmup: int = 250
 
     def steps_for(self, sampler: str) -> int:

@@ -393,7 +393,7 @@ def sample(
             started from its own Laplace draw; R̂ compares them.
         steps: steps per trajectory after the warm-up, at least 2 (emcee: all steps, the
             burn-in found afterwards among them; NUTS/HMC: draws after their ``warmup``
-            steps); None (default): the sampler's own ``default_steps`` — NUTS/HMC 500
+            steps); None (default): the sampler's own ``default_steps`` — NUTS/HMC 1000
             draws, emcee 2000 steps (:data:`brdfscale.choices.SAMPLE`). A resumed run
             continues up to this count; of a checkpoint that holds more, the first are returned.
         chunk: steps between checkpoints (and NUTS/HMC's compiled block of steps).

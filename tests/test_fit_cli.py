@@ -282,5 +282,5 @@ def test_a_chain_too_short_to_converge_exits_6_and_the_default_draws_exit_0(tmp_
     assert doc["outcome"]["status"] == "not_converged" and doc["mcmc"]["steps"] == 250 + 5
     assert main([*fit, str(tmp_path / "default")]) == 0
     doc = json.loads((tmp_path / "default" / "fit.json").read_text())
-    assert doc["mcmc"]["sampler"] == "nuts" and doc["mcmc"]["steps"] == 250 + 500
+    assert doc["mcmc"]["sampler"] == "nuts" and doc["mcmc"]["steps"] == 250 + 1000
     assert doc["mcmc"]["status"] == "converged" and doc["outcome"]["status"] == "ok"

@@ -129,7 +129,7 @@ class FitSpec:
     seed: int = FIT.seed
     sampler: str | None = None
     chains: int = SAMPLE.chains
-    steps: int = SAMPLE.steps
+    steps: int | None = SAMPLE.steps  # None: the sampler's own default_steps
     default_sigma: float | None = None
     masking: str = MASKING.default
     figures: bool = False
