@@ -36,7 +36,13 @@ with the lobe for the footprint μ (texels, √area of the pixel's footprint):
   of the slope plane here, a rotated frame in (b)) and Mitsuba's α-clamping, not by the lobe's shape. The material
   one would want for a non-Gaussian surface, the evolution with the *measured histograms*, is attempted at every
   level and recorded (``tabulated_evolution``): where the histograms do not nest (seed Eq. 3.1 violated, as study 1
-  finds on real surfaces) the library refuses it.
+  finds on real surfaces) the library refuses it. The material is built with ``tolerance=TOLERANCE`` (its ladder and
+  slope grid refined: docs/render.md, "Accuracy of the tables");
+* ``brdfscale_t`` — (d) a non-Gaussian material: ``Beckmann(α0)`` evolved with :class:`MomentStudentTLaw`, per level
+  the bivariate Student t with the facets' covariance and the tail index ``ν = 4 + 6/κ`` of their excess kurtosis κ
+  (:func:`tail_indices`), on ``T_LADDER`` scales; its Smith masking from Gaussians of LEAN's covariance C(μ)
+  (``render.bsdf(masking_shapes=…)``: Λ of an evolved Student-t shape is a slow quadrature). Where its evolution is
+  refused at a scale, the study records why (``student_t_material``) and renders the other three.
 
 Errors (relative to the truth's mean radiance, per μ band a factor 2 wide): ``bias`` — |band mean − truth band mean|
 (the part a statistical model can remove; sparkle averages out) and ``mean_abs`` — per-pixel mean |Δ| (includes the
