@@ -1489,6 +1489,12 @@ def render_bench() -> str:
             f"* brdfscale's band bias ≤ ½ LEAN's at μ ≥ 8 texels on the real surface: {x['brdfscale_bias']:.3f} vs "
             f"{x['lean_bias']:.3f} (ratio {x['ratio']:.2f}) — {met(x['met'])}"
         )
+        if "error_half_of_lean_mu_ge_8_student_t" in t:
+            x = t["error_half_of_lean_mu_ge_8_student_t"]
+            lines.append(
+                f"* the same for the Student-t material (moment-matched, non-Gaussian): {x['brdfscale_bias']:.3f} vs "
+                f"{x['lean_bias']:.3f} (ratio {x['ratio']:.2f}) — {met(x['met'])}"
+            )
         y = t["speedup_at_equal_error"]
         cells = ", ".join(
             f"{k}: {'no equal error reached' if v is None else f'{v:.3g}×'}" for k, v in y["speedups"].items()
