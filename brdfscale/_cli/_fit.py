@@ -216,6 +216,7 @@ def spec_of(args, *, sampler: bool = True):
     ``--steps 0``: no sampling)."""
     from ..library import FitSpec
 
+    steps = SAMPLE.steps_for(args.sampler) if args.steps is None else args.steps  # check_fit_options may not have run
     return FitSpec(
         model=args.model,
         shape=args.shape,
@@ -229,9 +230,9 @@ def spec_of(args, *, sampler: bool = True):
         starts=args.starts,
         max_steps=args.max_steps,
         seed=args.seed,
-        sampler=args.sampler if sampler and args.steps > 0 else None,
+        sampler=args.sampler if sampler and steps > 0 else None,
         chains=args.chains,
-        steps=args.steps,
+        steps=steps,
         default_sigma=getattr(args, "default_sigma", None),
         masking=args.masking,
         figures=getattr(args, "figures", True),
