@@ -115,6 +115,7 @@ def test_every_theta_is_valid_and_the_differences_monotone():
         assert np.all(np.linalg.eigvalsh(steps) > 0)
 
 
+@pytest.mark.slow  # eager grads of the Student-t scale mixture: ~15 s; the default suite keeps under 6 minutes
 def test_jit_grad_vmap_equal_eager(data):
     model = fitting.AnisotropicModel(3)
     problem = fitting.Problem(model, data)

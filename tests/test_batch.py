@@ -52,6 +52,7 @@ def _assert_same_fit(a, b):
     assert list(a.ratios) == list(b.ratios)
 
 
+@pytest.mark.slow  # ~25 s (three fit_many programs); the mixed-models and 4-device tests keep batched = one at a time
 def test_batched_fits_equal_one_at_a_time_fits_on_ragged_data(ragged):
     sizes = {d.image_sizes for d in ragged}
     assert len(sizes) > 2 and any(len(d.image_sizes) != len(ragged[0].image_sizes) for d in ragged)
