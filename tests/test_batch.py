@@ -95,6 +95,7 @@ def test_fit_many_refuses_what_it_cannot_pair(ragged):
         fitting.fit_many(model, ragged, errors="ignore")
 
 
+@pytest.mark.slow  # ~17 s of compilation; the default suite keeps under 6 minutes
 def test_lanes_change_how_solves_run_not_the_fits(ragged):
     """lanes=1 (the CPU default: a lax.map, each solve its own iterations), groups of 4 (a
     lax.map of vmapped groups) and all (one vmap in lock-step, the accelerators' default) give

@@ -45,6 +45,7 @@ def _inodes(out):
     return {n: os.stat(os.path.join(base, n, "fit.json")).st_ino for n in os.listdir(base) if not n.startswith(".")}
 
 
+@pytest.mark.slow  # ~16 s; tests/test_library_robustness.py keeps damaged inputs and resuming in the default suite
 def test_library_in_process_reports_the_corrupt_file_and_resumes(small_library, tmp_path, capsys):
     out = str(tmp_path / "out")
     status = main(["fit-library", str(small_library), "--out", out, "--batch", "2", "--starts", "2", "--no-progress"])

@@ -75,6 +75,7 @@ def _count_traces(monkeypatch):
     return calls
 
 
+@pytest.mark.slow  # ~11 s; test_hmc_with_window_adaptation_equals_sample keeps sample_many = sample by default
 def test_nuts_on_ragged_materials_equals_sample_one_at_a_time(ragged, monkeypatch):
     problems, fits = ragged
     traces = _count_traces(monkeypatch)
