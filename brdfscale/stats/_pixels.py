@@ -13,8 +13,9 @@ from jaxtyping import Array, Float
 
 from .._errors import InvalidInputError
 from .._slopes import add_offset, centred, check_slopes, offset_norm, phase
-from .._validation import as_float_array, is_concrete, positive, vector2
+from .._validation import is_concrete, vector2
 from ._base import AbstractSlopeDensity
+from ._tabulated import grid_arguments
 
 
 __all__ = ["PixelGaussians"]
@@ -39,13 +40,7 @@ class PixelGaussians(AbstractSlopeDensity):
     isotropic: bool = eqx.field(static=True)
 
     def __init__(self, values, *, extent, center=None):
-        v = as_float_array(values, "values")
-        if v.ndim != 2 or min(v.shape) < 2:
-            raise InvalidInputError(f"values must be a 2D array of at least 2×2 (rows: m_y); got shape {v.shape}.")
-        e = positive(extent, "extent", "positive (the grid's half-width in slope units)")
-        e = jnp.broadcast_to(e, (2,)) if e.ndim == 0 else e
-        if e.shape != (2,):
-            raise InvalidInputError(f"extent must be a scalar or a pair (x, y); got shape {e.shape}.")
+        v, e = grid_arguments(values, extent)
         v = jnp.maximum(v, 0.0)
         total = jnp.sum(v)
         if is_concrete(total) and not float(total) > 0:

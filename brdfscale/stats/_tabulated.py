@@ -21,6 +21,22 @@ def _sinc(x):
     return jnp.where(jnp.abs(x) < 1e-4, 1 - x**2 / 6 + x**4 / 120, jnp.sin(safe) / safe)
 
 
+def grid_arguments(values, extent):
+    """``values`` as a 2-D array of at least 2 × 2 nodes (rows m_y, columns m_x) and ``extent`` as the pair of the
+    grid's half-widths (x, y): the checks of every density tabulated on nodes (:class:`Tabulated`,
+    :class:`brdfscale.stats.PixelGaussians`)."""
+    v = as_float_array(values, "values")
+    if v.ndim != 2 or min(v.shape) < 2:
+        raise InvalidInputError(
+            f"values must be a 2D array (rows: m_y, columns: m_x) of at least 2×2; got shape {v.shape}."
+        )
+    e = positive(extent, "extent", "positive (the grid's half-width in slope units)")
+    e = jnp.broadcast_to(e, (2,)) if e.ndim == 0 else e
+    if e.shape != (2,):
+        raise InvalidInputError(f"extent must be a scalar or a pair (x, y); got shape {e.shape}.")
+    return v, e
+
+
 class Tabulated(AbstractSlopeDensity):
     """A density given by its values on a regular slope grid: a sum of tent functions on the nodes.
 
@@ -48,17 +64,9 @@ class Tabulated(AbstractSlopeDensity):
     isotropic: bool = eqx.field(static=True)
 
     def __init__(self, values, *, extent, center=None):
-        v = as_float_array(values, "values")
-        if v.ndim != 2 or min(v.shape) < 2:
-            raise InvalidInputError(
-                f"values must be a 2D array (rows: m_y, columns: m_x) of at least 2×2; got shape {v.shape}."
-            )
+        v, e = grid_arguments(values, extent)
         if is_concrete(v) and np.any(np.asarray(v) < 0):
             raise InvalidInputError("values must be non-negative (a density); found negative entries.")
-        e = positive(extent, "extent", "positive (the grid's half-width in slope units)")
-        e = jnp.broadcast_to(e, (2,)) if e.ndim == 0 else e
-        if e.shape != (2,):
-            raise InvalidInputError(f"extent must be a scalar or a pair (x, y); got shape {e.shape}.")
         hx, hy = 2 * e[0] / (v.shape[1] - 1), 2 * e[1] / (v.shape[0] - 1)
         total = hx * hy * jnp.sum(v)
         if is_concrete(total) and not float(total) > 0:
