@@ -41,15 +41,61 @@ def chi2_per_pixel(values, reference, sigma):
 
 
 # -- the cross-check against facet statistics (item 3) -----------------------------------------------------------
-def compare_with_facet_statistics(field, scales, incident, rays):
-    """χ²/pixel of the instrument's pixel-facet and triangulated images against synth.gonioreflectometer's."""
-    kw = dict(extent=0.12, pixels=33, rays=rays, seed=0, progress=False)
+def facet_offsets(field, mu, *, aligned=False):
+    """The pixel facets' normal slopes relative to their window's facet slope at scale μ (synth.facet_slopes at 1 px
+    and at μ), (P, 2): ``m − m_f``, the offsets synth.gonioreflectometer's nearly-flat image is the density of; with
+    ``aligned`` the slopes of the pixel normals ``(m, 1)`` after the smallest rotation that takes the window's normal
+    ``(m_f, 1)`` to z (SciPy's rotation vectors: axis ``n_f × z``, angle ``∠(n_f, z)``), the offsets of a spot the
+    instrument aligns to its mean plane (they differ from ``m − m_f`` by O(|m|·|m_f|²))."""
+    from scipy.spatial.transform import Rotation
+
+    b = int(mu)
+    pixel = synth.facet_slopes(field, 1)
+    window = synth.facet_slopes(field, mu)
+    r, c = window.shape[:2]
+    blocks = np.moveaxis(pixel[: r * b, : c * b].reshape(r, b, c, b, 2), 2, 1).reshape(r * c, b * b, 2)
+    window = window.reshape(r * c, 1, 2)
+    if not aligned:
+        return (blocks - window).reshape(-1, 2)
+    nf = np.concatenate([window[:, 0], np.ones((r * c, 1))], axis=-1)
+    nf /= np.linalg.norm(nf, axis=-1, keepdims=True)
+    axis = np.cross(nf, [0.0, 0.0, 1.0])
+    sine = np.linalg.norm(axis, axis=-1, keepdims=True)
+    rotvec = axis / np.where(sine > 0, sine, 1.0) * np.arctan2(sine, nf[:, 2:])
+    n = np.concatenate([blocks, np.ones(blocks.shape[:2] + (1,))], axis=-1)
+    turned = np.einsum("wij,wpj->wpi", Rotation.from_rotvec(rotvec).as_matrix(), n)
+    return (turned[..., :2] / turned[..., 2:]).reshape(-1, 2)
+
+
+def nearest_node_image(offsets, extent, pixels):
+    """The density of ``offsets`` averaged over each node's h × h cell (np.histogram2d over the cells' edges)."""
+    h = 2 * extent / (pixels - 1)
+    edges = np.linspace(-extent - h / 2, extent + h / 2, pixels + 1)
+    counts, _, _ = np.histogram2d(offsets[:, 1], offsets[:, 0], bins=(edges, edges))  # rows u_y
+    return counts / (len(offsets) * h**2)
+
+
+def compare_with_facet_statistics(field, scales, incident, rays, binning="nearest"):
+    """χ²/pixel of the instrument's pixel-facet and triangulated images against the facet statistics binned like
+    the detector: synth.gonioreflectometer's image (bilinear), or the offsets' histogram over the nodes' cells
+    (nearest; the same offsets give synth's image when binned bilinearly: checked here)."""
+    kw = dict(extent=0.12, pixels=33, rays=rays, seed=0, binning=binning, progress=False)
     ray = instrument.measure(field, scales, incident, **kw)
     facets = synth.gonioreflectometer(field, scales, incident, extent=0.12, pixels=33)
-    chi2 = [chi2_per_pixel(a.values, b.values, a.sigma) for a, b in zip(ray.images, facets.images)]
+    reference = []
+    for mu, image in zip(np.repeat(scales, len(incident)), facets.images, strict=True):
+        offsets = facet_offsets(field, mu)
+        tent = stats.SlopeHistogram(0.12, 33)
+        tent.add(offsets[:, 0], offsets[:, 1])
+        assert np.allclose(tent.counts.reshape(33, 33) / (len(offsets) * (0.24 / 32) ** 2), image.values)
+        if binning == "nearest":  # a mirror facet's light lands on a point: the offsets of the aligned spot
+            reference.append(nearest_node_image(facet_offsets(field, mu, aligned=True), 0.12, 33))
+        else:
+            reference.append(image.values)
+    chi2 = [chi2_per_pixel(a.values, b, a.sigma) for a, b in zip(ray.images, reference)]
     other = instrument.measure(field, scales, incident[:1], surface="triangles", **kw)
     step = len(incident)
-    wrong = [chi2_per_pixel(a.values, b.values, a.sigma) for a, b in zip(other.images, facets.images[::step])]
+    wrong = [chi2_per_pixel(a.values, b, a.sigma) for a, b in zip(other.images, reference[::step])]
     return chi2, wrong
 
 
@@ -58,18 +104,26 @@ def test_pixel_facets_near_normal_incidence_equal_synth_gonioreflectometer(smoot
     ray-traced lobe of the field's pixel facets is the nearly-flat facet-statistics lobe of
     synth.gonioreflectometer (the light a facet intercepts is divided out by the convention's
     c = i_z/(i_z + u·i_xy); the spot's rotation onto its mean plane differs from synth's slope translation by 0.3 %
-    of the peak). With σ from 32 batches E[((x − ref)/σ)²] = 31/29; 1.5 is > 3 standard deviations of the mean over
-    the ~300 lit pixels (neighbours correlated by the bilinear binning). The continuous triangulation is another
-    surface (its second triangle per pixel is no pixel facet) and must fail the same check: the test can tell."""
+    of the peak), binned into the nodes' cells as the detector bins. Each mirror facet's light lands on one point,
+    which the rotation moves by O(|m|·|m_f|²) — enough to move a point into the next cell, 10 σ in the nodes that
+    hold one facet at 1.2·10⁵ rays — so the reference for nearest-node binning is the histogram of the aligned
+    spots' facet offsets (bilinear shares move smoothly with the point: synth's own image). With σ from 32 batches
+    E[((x − ref)/σ)²] = 31/29; 1.5 is > 3 standard deviations of the mean over the ~300 lit pixels. The continuous
+    triangulation is another surface (its second triangle per pixel is no pixel facet) and must fail the same
+    check: the test can tell."""
     chi2, wrong = compare_with_facet_statistics(smooth, [8], [direction(0), direction(10, 30)], 30_000)
     assert max(chi2) < 1.5, chi2
     assert min(wrong) > 2.5, wrong
 
 
 @pytest.mark.slow
-def test_pixel_facets_equal_synth_gonioreflectometer_at_every_scale(smooth):
-    """The same at four scales and 2·10⁵ rays per image (σ four times smaller than in the default test)."""
-    chi2, wrong = compare_with_facet_statistics(smooth, [2, 4, 16, 32], [direction(0), direction(10, 30)], 200_000)
+@pytest.mark.parametrize("binning", ["nearest", "bilinear"])
+def test_pixel_facets_equal_synth_gonioreflectometer_at_every_scale(smooth, binning):
+    """The same at four scales and 2·10⁵ rays per image (σ four times smaller than in the default test); with
+    bilinear binning against synth.gonioreflectometer's own image."""
+    chi2, wrong = compare_with_facet_statistics(
+        smooth, [2, 4, 16, 32], [direction(0), direction(10, 30)], 200_000, binning
+    )
     assert max(chi2) < 1.5, chi2
     assert min(wrong) > 2.5, wrong
 
@@ -158,9 +212,9 @@ def smith_g1(tan_theta, alpha, family):
 @pytest.mark.parametrize("family", ["beckmann", pytest.param("ggx", marks=pytest.mark.slow)])
 def test_rough_facets_on_a_flat_field_are_the_microfacet_brdf(family):
     """Beckmann or GGX facets on a flat field: the image is 4 cosθ_o cos⁴θ_h ρ = P22(u)·G1(i)·G1(o) (Mitsuba's
-    separable Smith masking) — the library's slope density times Smith's G1 in closed form, binned with the
-    bilinear tent like the instrument (light beyond the grid is not binned). Tolerance: 4σ per node and 1 %
-    (Mitsuba's rational Beckmann G1 is within 0.35 % of the closed form)."""
+    separable Smith masking) — the library's slope density times Smith's G1 in closed form, averaged over each
+    node's detector cell like the instrument's nearest-node binning (light beyond the outer cells is not binned).
+    Tolerance: 4σ per node and 1 % (Mitsuba's rational Beckmann G1 is within 0.35 % of the closed form)."""
     alpha, theta, pixels, extent = 0.3, 40.0, 15, 0.7
     lobe = lobes.Beckmann(alpha) if family == "beckmann" else lobes.GGX(alpha)
     i = np.array(direction(theta))
@@ -169,8 +223,8 @@ def test_rough_facets_on_a_flat_field_are_the_microfacet_brdf(family):
     )
     image, sigma = m.images[0].values, m.images[0].sigma
     pitch = 2 * extent / (pixels - 1)
-    sub = (np.arange(16) + 0.5) / 16 * 2 - 1  # midpoints across the tent's support, in pitches
-    tent = np.outer(1 - abs(sub), 1 - abs(sub)) * (2 / 16) ** 2
+    sub = (np.arange(16) + 0.5) / 16 - 0.5  # midpoints across the node's cell, in pitches
+    cell = np.full((16, 16), 1 / 16**2)
     nodes = np.linspace(-extent, extent, pixels)[::2]  # every other node (8 × 8), each with 16 × 16 sub-points
     g1_i = smith_g1(math.tan(math.radians(theta)), alpha, family)
     ux = (nodes[:, None] + sub[None, :] * pitch).ravel()
@@ -179,9 +233,8 @@ def test_rough_facets_on_a_flat_field_are_the_microfacet_brdf(family):
     h /= np.linalg.norm(h, axis=-1, keepdims=True)
     o = 2 * (h @ i)[..., None] * h - i
     tan_o = np.where(o[..., 2] > 0, np.hypot(o[..., 0], o[..., 1]) / np.maximum(o[..., 2], 1e-300), np.inf)
-    inside = np.all(np.abs(u) <= extent, axis=-1)  # light beyond the grid is not binned
-    integrand = np.where(inside, np.asarray(lobe.density(u)) * g1_i * smith_g1(tan_o, alpha, family), 0.0)
-    cells = integrand.reshape(8, 16, 8, 16) * tent[None, :, None, :]
+    integrand = np.asarray(lobe.density(u)) * g1_i * smith_g1(tan_o, alpha, family)
+    cells = integrand.reshape(8, 16, 8, 16) * cell[None, :, None, :]
     expected = np.zeros_like(image)
     expected[::2, ::2] = cells.sum(axis=(1, 3))
     sel = np.zeros_like(image, bool)
@@ -198,10 +251,11 @@ def test_a_lossless_mirror_surface_returns_every_ray(surface):
     may slip through a float32 crack at a vertical sliver — Mitsuba offsets a reflected ray's origin by up to 3e-3
     pixels here — counted as ``underside``: 1–3 in 4000 measured, at most 1 in 500 allowed), and the
     image's integral with the convention's weights — Σ image·(i·h)/(cosθ_i cosθ_h)·pitch² — is the detected
-    fraction (all of it on this wide grid). With one reflection the masked light is lost: the check can fail."""
+    fraction (all of it on this wide grid; exactly with bilinear binning, whose shares keep the mean of the
+    factor 1/c, linear in u). With one reflection the masked light is lost: the check can fail."""
     rough = synth.spectral_field(stats.GaussianCorrelation(rms_height=1.5, correlation_length=4.0), size=32, seed=2)
     i = np.array(direction(60, 20))
-    kw = dict(extent=6.0, pixels=65, rays=4000, batches=8, seed=1, surface=surface, progress=False)
+    kw = dict(extent=6.0, pixels=65, rays=4000, batches=8, seed=1, surface=surface, binning="bilinear", progress=False)
     m = instrument.measure(rough, [8], i, bounces=16, **kw)
     record = m.metadata["instrument"]["images"][0]
     lit = record["hit"] + record["from_below"]  # light from below a steep spot's mean plane: shadowed by the body
@@ -233,6 +287,35 @@ def test_same_seed_identical_two_seeds_agree_within_sigma(smooth):
     lit = (a.values > 0) | (c.values > 0)
     z2 = ((a.values - c.values) ** 2 / (a.sigma**2 + c.sigma**2))[lit]
     assert 0.5 < z2.mean() < 1.6, z2.mean()
+
+
+def _lag1(r: np.ndarray, ok: np.ndarray) -> tuple[float, int]:
+    """The lag-1 correlation of ``r`` over neighbouring pairs of ``ok`` pixels, rows and columns pooled."""
+    x, y = [], []
+    for a, m in ((r, ok), (r.T, ok.T)):
+        pair = m[1:] & m[:-1]
+        x.append(a[1:][pair])
+        y.append(a[:-1][pair])
+    x, y = np.concatenate(x), np.concatenate(y)
+    return float(np.mean(x * y) / np.sqrt(np.mean(x * x) * np.mean(y * y))), len(x)
+
+
+def test_nearest_node_binning_leaves_neighbouring_errors_independent(smooth):
+    """The whitened difference of two seeds' images, r = (a − b)/√(σ_a² + σ_b²), has no lag-1 correlation between
+    neighbouring nodes with nearest-node binning (|ρ| within 3/√pairs of 0, as fits' χ² and adequacy test assume),
+    and ρ ≈ 1/4 with bilinear shares (each node shares a cell with its neighbour: E[(1 − f)f]/(2E[(1 − f)²])) —
+    above the fits' residual threshold 0.1. Pixels with at least 10 counts' worth of light in both images."""
+    kw = dict(extent=0.12, pixels=65, rays=80_000, progress=False)
+    floor = 1 / (80_000 * (0.24 / 64) ** 2)  # one count
+    found = {}
+    for binning in instrument.BINNINGS:
+        a, b = (instrument.measure(smooth, 8, direction(0), seed=s, binning=binning, **kw).images[0] for s in (0, 1))
+        ok = (a.values > 10 * floor) & (b.values > 10 * floor)
+        found[binning] = _lag1((a.values - b.values) / np.sqrt(a.sigma**2 + b.sigma**2), ok)
+    rho, pairs = found["nearest"]
+    assert pairs > 1000 and abs(rho) < 3 / math.sqrt(pairs), found
+    rho, pairs = found["bilinear"]
+    assert abs(rho - 0.25) < 3 / math.sqrt(pairs) and rho > 0.1, found
 
 
 def test_any_split_into_tasks_gives_the_same_result(smooth):
@@ -325,6 +408,7 @@ BAD = [
     ({"batches": 1}, "batches"),
     ({"surface": "smooth"}, "pixel_facets"),
     ({"pad": -1}, "pad"),
+    ({"binning": "cic"}, "binning must be"),
     ({"seed": -1}, "seed"),
     ({"seed": 1.5}, "seed"),
     ({"variant": 3}, "variant"),

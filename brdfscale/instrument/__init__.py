@@ -14,7 +14,7 @@
 Nothing here imports Mitsuba until called (:mod:`brdfscale._mitsuba` picks the variant). Guide: docs/instrument.md.
 """
 
-from ._measure import DEFAULT_BATCHES, DEFAULT_RAYS, MAX_BOUNCES, measure, Measurement, Task, TaskResult
+from ._measure import BINNINGS, DEFAULT_BATCHES, DEFAULT_RAYS, MAX_BOUNCES, measure, Measurement, Task, TaskResult
 from ._mesh import MAX_MESH_BYTES, mesh, mesh_arrays, mesh_bytes, SURFACES
 
 
@@ -31,4 +31,5 @@ __all__ = [
     "DEFAULT_RAYS",
     "DEFAULT_BATCHES",
     "MAX_BOUNCES",
+    "BINNINGS",
 ]

@@ -18,8 +18,10 @@ reflected power per unit solid angle per unit power falling on the spots, ``ρ =
 
     w · c / (N h²),     c = cosθ_i cosθ_h / (i·h) = i_z / (i_z + u·i_xy),
 
-on the image nodes around ``u`` with bilinear (cloud-in-cell) shares (:class:`brdfscale.stats.SlopeHistogram`, the
-binning of :func:`brdfscale.synth.gonioreflectometer`), ``h`` the node pitch and ``N`` the *lit* rays: those whose
+on the node nearest to ``u`` (``binning="nearest"``, the default: the node's detector cell of ``h × h`` around it;
+``binning="bilinear"`` shares it among the four nodes around ``u`` with the cloud-in-cell weights of
+:class:`brdfscale.stats.SlopeHistogram`, the binning of :func:`brdfscale.synth.gonioreflectometer`), ``h`` the node
+pitch and ``N`` the *lit* rays: those whose
 light met the surface, and those that would have to come from below the global plane (a spot tilted further than
 the incidence allows), which the sample's body blocks (lit and lost, ``from_below``). Light that meets no surface —
 through an unmeasured hole, past a measured field's edge — is left out (``unmeasured``). For mirror facets
@@ -29,7 +31,15 @@ without masking and shadowing this is exactly the density of the facets' slope o
 
 **The detector.** Node ``(j, k)`` is the half-slope offset ``u = (x_k, y_j)``, ``x, y = linspace(−a, a, n)``; its cell
 of ``h × h`` in half-slope offsets is the detector solid angle ``Ω(u) = 4 (i·h) cos³θ_h h²`` (in the spot frame),
-recorded in the metadata at ``u = 0`` for each incident direction.
+recorded in the metadata at ``u = 0`` for each incident direction. With nearest-node binning a node's value is the
+image averaged over its cell (``g + (h²/24)∇²g`` to second order), every path counts in one node only, and the
+Monte Carlo errors of neighbouring nodes are independent (up to the −1/N of a multinomial), as the fits' χ² and
+their residual test assume. Bilinear shares blur the image with the tent (``g + (h²/12)∇²g``) and correlate
+neighbouring nodes' errors: for a smooth image the lag-1 correlation along a row or column is 1/4 (per axis a node
+collects shares ``1 − f`` from the two cells beside it and shares one cell with its neighbour, which gets ``f``;
+f uniform: ``E[(1 − f)f]/(2E[(1 − f)²]) = (1/6)/(2/3)``), which the fits' adequacy check (docs/fitting.md, lag-1
+autocorrelation above 0.1) reads as structure
+(tests/test_instrument.py::test_nearest_node_binning_leaves_neighbouring_errors_independent measures both).
 
 **σ.** The rays of an image are split into ``batches`` batches with independent random numbers; each batch is an
 unbiased estimate of the same image, and σ is the standard error of their ratio estimate,
@@ -71,6 +81,19 @@ DEFAULT_BATCHES = 32
 """Batches per image: the independent estimates σ comes from (σ itself is then known to about 1/√(2·31) = 13 %)."""
 MAX_BOUNCES = 64
 """The most reflections a path may take."""
+BINNINGS = ("nearest", "bilinear")
+"""How the detector bins a detected path, the default first: ``"nearest"`` — in the node whose ``h × h`` cell holds
+its half-slope offset (independent node errors); ``"bilinear"`` — shared among the four nodes around it (cloud in
+cell, as :func:`brdfscale.synth.gonioreflectometer` bins facets; neighbouring node errors correlated)."""
+
+
+def _check_binning(binning) -> str:
+    if not isinstance(binning, str) or binning not in BINNINGS:
+        raise InvalidInputError(
+            f"binning must be 'nearest' (each path in the node whose cell holds it: independent node errors) or "
+            f"'bilinear' (cloud-in-cell shares of the four nodes around it); got {binning!r}."
+        )
+    return binning
 
 
 @dataclasses.dataclass(frozen=True)
@@ -137,6 +160,7 @@ class Measurement:
         fresnel=None,
         surface: str = "pixel_facets",
         pad: int | None = None,
+        binning: str = "nearest",
         seed: int = 0,
         variant: str | None = None,
     ):
@@ -166,6 +190,7 @@ class Measurement:
         self.surface = _mesh.check_surface(surface)
         self.pad = _mesh.default_pad(field, self.surface) if pad is None else _mesh.check_pad(field, pad)
         _mesh.check_mesh_size(field, self.surface, self.pad)
+        self.binning = _check_binning(binning)
         self.seed = _check_seed(seed)
         self.variant = _check_variant(variant)
         self._spots = [self._spot_set(s) for s in range(len(self.scales))]
@@ -318,8 +343,7 @@ class Measurement:
         u = half[:, :2] / half[:, 2:3]
         c = i[2] * half[:, 2] / (half @ i)
         w = paths.weight[up] * c
-        hist = SlopeHistogram(self.extent, self.pixels)
-        hist.add(u[:, 0], u[:, 1], w)
+        counts = self._bin(u, w)
         tally = {
             "rays": int(len(paths.hit)),
             "hit": int(paths.hit.sum()),
@@ -331,7 +355,20 @@ class Measurement:
             "unmeasured": int(np.count_nonzero(~from_below & ~paths.hit)),
             "orders": np.bincount(paths.order, minlength=self.bounces + 1)[1:].tolist(),
         }
-        return hist.counts.reshape(self.pixels, self.pixels).copy(), tally
+        return counts, tally
+
+    def _bin(self, u: np.ndarray, w: np.ndarray) -> np.ndarray:
+        """The detected weights ``w`` at half-slope offsets ``u`` (E, 2) binned onto the nodes (n, n), rows u_y."""
+        n = self.pixels
+        if self.binning == "bilinear":
+            hist = SlopeHistogram(self.extent, n)
+            hist.add(u[:, 0], u[:, 1], w)
+            return hist.counts.reshape(n, n).copy()
+        g = (u + self.extent) * ((n - 1) / (2 * self.extent))  # in pitches from the first node
+        node = np.floor(g + 0.5)  # the cell [node − ½, node + ½) of pitches
+        inside = np.all((node >= 0) & (node <= n - 1), axis=-1)
+        k = node[inside].astype(np.int64)
+        return np.bincount(k[:, 1] * n + k[:, 0], weights=w[inside], minlength=n * n).reshape(n, n)
 
     # -- the result ----------------------------------------------------------------------------
     def combine(self, results: Sequence[TaskResult]) -> MeasurementSet:
@@ -426,7 +463,12 @@ class Measurement:
                 "detector": {
                     "domain": "half_slope",
                     "node_pitch": h,
-                    "binning": "bilinear (cloud in cell) onto the nodes",
+                    "binning": self.binning,
+                    "cell": (
+                        "each path counts in the node whose pitch × pitch cell of half-slope offsets holds it"
+                        if self.binning == "nearest"
+                        else "each path shared among the four nodes around it (bilinear, cloud in cell)"
+                    ),
                     "solid_angle": "4 (i·h) cos³θ_h · pitch² per node (spot frame)",
                 },
                 "sigma": f"standard error of the ratio estimate over {self.batches} batches, floored at 1/(N·pitch²)",
@@ -484,6 +526,7 @@ def measure(
     fresnel: complex | float | None = None,
     surface: str = "pixel_facets",
     pad: int | None = None,
+    binning: str = "nearest",
     seed: int = 0,
     variant: str | None = None,
     progress: bool = True,
@@ -511,6 +554,8 @@ def measure(
             ``"triangles"`` (the continuous piecewise-linear surface): :mod:`._mesh`.
         pad: the periodic margin in pixels of a periodic field's mesh (default :func:`._mesh.default_pad`; 0 for a
             measured field).
+        binning: ``"nearest"`` (each path in the node whose ``h × h`` cell holds it: independent node errors) or
+            ``"bilinear"`` (cloud-in-cell shares, as synth.gonioreflectometer bins facets): :data:`BINNINGS`.
         seed: an integer ≥ 0; the same seed gives the same measurement bit for bit (on one variant).
         variant: Mitsuba's variant (None: the first of cuda_ad_rgb, llvm_ad_rgb, scalar_rgb that runs here).
         progress: show a progress bar (one step per batch; ``BRDFSCALE_PROGRESS=0`` switches it off).
@@ -541,6 +586,7 @@ def measure(
         fresnel=fresnel,
         surface=surface,
         pad=pad,
+        binning=binning,
         seed=seed,
         variant=variant,
     )
