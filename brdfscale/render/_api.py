@@ -9,8 +9,8 @@ from .._evolve import AbstractMethod, MethodName
 from ..exr import LobeTable
 from ..lobes import AbstractLobe
 from ._masking import masking_choice
-from ._material import DEFAULT_LEVELS, evolved_lobes, lobe_table, tabulate
-from ._plugin import bsdf_class, check_positive, PLUGIN, Tables
+from ._material import DEFAULT_LEVELS, evolved_lobes, gaussian_parameters, lobe_table, tabulate
+from ._plugin import bsdf_class, check_positive, Gaussians, PLUGIN, Tables
 
 
 _REGISTERED: set[tuple[str, str]] = set()
@@ -69,13 +69,17 @@ def bsdf(
     method: MethodName | AbstractMethod = "auto",
     tolerance: float | None = None,
     masking_shapes=None,
+    form: str = "auto",
 ):
     """A Mitsuba BSDF rendering ``base_lobe`` (the BRDF at μ0) evolved with ``statistics`` to each interaction's scale.
 
     The lobe is evolved in JAX once, to every scale of a ladder (:func:`lobe_table`: ``scales``, or ``levels``
-    scales ``μ0·2^k``), and tabulated; Mitsuba interpolates the table (bilinear in the slope offset, linear in ln μ,
-    clamped to the ladder's ends), so rendering never calls JAX. The object goes into ``mi.load_dict`` scenes as
-    any BSDF (``{"type": "rectangle", "bsdf": bsdf(...)}``).
+    scales ``μ0·2^k``), so rendering never calls JAX. Where every evolved lobe is Gaussian (a Gaussian/Beckmann base
+    lobe with Gaussian statistics: :func:`brdfscale.evolve`'s closed form, covariances add) the plugin keeps each
+    scale's amplitude, mean and covariance, interpolates them linearly in ln μ and evaluates the Gaussian and its
+    Smith masking exactly (``form="closed"``); otherwise the lobes are tabulated and Mitsuba interpolates the table
+    (bilinear in the slope offset, linear in ln μ; ``form="table"``). μ is clamped to the ladder's ends. The object
+    goes into ``mi.load_dict`` scenes as any BSDF (``{"type": "rectangle", "bsdf": bsdf(...)}``).
 
     Args:
         base_lobe: a :mod:`brdfscale.lobes` lobe at μ0 (None with an evolved LobeTable).
@@ -96,7 +100,9 @@ def bsdf(
             lobe; docs/render.md).
         masking_shapes: one :mod:`brdfscale.stats` slope density per scale of the ladder whose Smith Λ makes the
             masking tables instead of the evolved shapes' (e.g. Gaussians of the same covariance where the generic
-            quadrature of an evolved non-Gaussian shape is too slow); requires ``scales``.
+            quadrature of an evolved non-Gaussian shape is too slow); requires ``scales`` (table form only).
+        form: ``"auto"`` (closed where the evolved lobes are Gaussian, else table), ``"closed"`` or ``"table"``
+            (docs/render.md, "Accuracy").
 
     Raises InvalidInputError for statistics of another kind or bad options (naming what is accepted),
     :class:`brdfscale.NoBRDFAtScaleError` where the lobe has no BRDF at a scale of the ladder,
@@ -108,26 +114,47 @@ def bsdf(
     choice = masking_choice(masking)
     if scales is None and mu is not None and base_lobe is not None:
         scales = [mu]  # one scale is all a fixed-μ material needs
+    if masking_shapes is not None and form == "auto":
+        form = "table"  # masking shapes of one's own are for tables
     if isinstance(statistics, LobeTable):
-        table, shapes = lobe_table(base_lobe, statistics), None
+        if form not in ("auto", "table"):
+            raise InvalidInputError(
+                f"a LobeTable is rendered as a table: form must be 'auto' or 'table'; got {form!r}."
+            )
+        host = Tables(lobe_table(base_lobe, statistics), choice, mu=mu, texel=texel)
     else:
-        ladder, evolved, mu0 = evolved_lobes(
-            base_lobe, statistics, mu0=mu0, scales=scales, levels=levels, method=method, tolerance=tolerance
+        ladder, evolved, mu0, chosen = evolved_lobes(
+            base_lobe, statistics, mu0=mu0, scales=scales, levels=levels, method=method, tolerance=tolerance, form=form
         )
-        table = tabulate(ladder, evolved, mu0=mu0, size=size, extent=extent, tolerance=tolerance)
-        shapes = [lobe.shape for lobe in evolved]
-        if masking_shapes is not None:
-            if scales is None or tolerance is not None or len(list(masking_shapes)) != len(ladder):
+        params = gaussian_parameters(evolved) if chosen.name == "closed" else None
+        if params is not None:
+            if masking_shapes is not None:
                 raise InvalidInputError(
-                    "masking_shapes needs scales= (and no tolerance, which changes the ladder): one slope density "
-                    f"per scale; got {len(list(masking_shapes))} for {len(ladder)} scales."
+                    "masking_shapes is for tabulated lobes (form='table'); the closed form masks with its own "
+                    "Gaussians exactly."
                 )
-            shapes = list(masking_shapes)
+            host = Gaussians(ladder, params, choice, mu=mu, texel=texel)
+        else:
+            host = _tables(ladder, evolved, mu0, choice, mu, texel, size, extent, tolerance, scales, masking_shapes)
     mi = mitsuba(variant)
-    cls = bsdf_class(mi)
-    obj = cls(mi.Properties(PLUGIN))
-    obj.load(Tables(table, choice, mu=mu, texel=texel, shapes=shapes))
+    obj = bsdf_class(mi)(mi.Properties(PLUGIN))
+    obj.load(host)
     return obj
+
+
+def _tables(ladder, evolved, mu0, choice, mu, texel, size, extent, tolerance, scales, masking_shapes) -> Tables:
+    """The tabulated form of :func:`bsdf`'s evolved lobes, with the masking tables of their shapes or of
+    ``masking_shapes``."""
+    table = tabulate(ladder, evolved, mu0=mu0, size=size, extent=extent, tolerance=tolerance)
+    shapes = [lobe.shape for lobe in evolved]
+    if masking_shapes is not None:
+        if scales is None or tolerance is not None or len(list(masking_shapes)) != len(ladder):
+            raise InvalidInputError(
+                "masking_shapes needs scales= (and no tolerance, which changes the ladder): one slope density "
+                f"per scale; got {len(list(masking_shapes))} for {len(ladder)} scales."
+            )
+        shapes = list(masking_shapes)
+    return Tables(table, choice, mu=mu, texel=texel, shapes=shapes)
 
 
 def FootprintIntegrator(  # noqa: N802 (it builds a Mitsuba object of the current variant's class)

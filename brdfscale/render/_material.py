@@ -17,7 +17,7 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from .. import stats
+from .. import lobes, stats
 from .._errors import InvalidInputError
 from .._evolve import AbstractMethod, evolve, MethodName
 from .._validation import integer, real
@@ -41,7 +41,10 @@ RELEVANT = 1e-3
 """Interpolation errors are measured where the exact lobe exceeds this fraction of its peak (:func:`refine_ladder`)."""
 
 MAX_LEVELS = 128
-"""The most scales :func:`refine_ladder` puts on a ladder (it refuses to go further)."""
+"""The most scales :func:`refine_ladder` puts on a tabulated ladder (it refuses to go further)."""
+
+MAX_CLOSED_LEVELS = 4096
+"""The most scales :func:`refine_ladder` puts on a closed-form ladder (six numbers per scale)."""
 
 MAX_NODES = 1024
 """The most slope nodes per axis :func:`refine_grid` chooses (it refuses to go further)."""
@@ -75,30 +78,104 @@ def refine_grid(evolved, extent: float, size: int, tolerance: float) -> int:
     return size
 
 
-def _probe(lobes_, extent: float, nodes: int = 65):
-    """The densities of ``lobes_`` on ``nodes²`` offsets over ``[−extent, extent]²`` (rows: lobes)."""
-    u = np.linspace(-extent, extent, nodes)
+def gaussian_parameters(evolved) -> np.ndarray | None:
+    """``(L, 6)``: ``[A, c_x, c_y, Σ_xx, Σ_xy, Σ_yy]`` of every lobe, where each is ``A`` times one (unbatched)
+    :class:`brdfscale.stats.Gaussian` of mean c and covariance Σ — what :func:`brdfscale.evolve` returns in closed
+    form for Gaussian/Beckmann lobes and Gaussian statistics (covariances add, seed Eq. 4.4) — else None."""
+    rows = []
+    for lobe in evolved:
+        shape = lobe.shape
+        if type(shape) is not stats.Gaussian or np.shape(shape.cov) != (2, 2):
+            return None
+        cov = np.asarray(shape.cov, float)
+        mean = np.zeros(2) if shape.mean is None else np.asarray(shape.mean, float).reshape(2)
+        rows.append([float(lobe.amplitude), mean[0], mean[1], cov[0, 0], 0.5 * (cov[0, 1] + cov[1, 0]), cov[1, 1]])
+    return np.asarray(rows, float)
+
+
+def gaussian_lobe(row) -> lobes.Lobe:
+    """The lobe of one row of :func:`gaussian_parameters`."""
+    a, cx, cy, sxx, sxy, syy = (float(x) for x in row)
+    return lobes.Lobe(stats.Gaussian(cov=[[sxx, sxy], [sxy, syy]], mean=[cx, cy]), a)
+
+
+class TableForm:
+    """The lobe tabulated on a slope grid per scale, interpolated bilinearly in the offset and linearly in ln μ
+    (what :mod:`._plugin` renders from a :class:`brdfscale.exr.LobeTable`): between two scales a *mixture* of their
+    lobes."""
+
+    name = "table"
+
+    @property
+    def max_levels(self) -> int:
+        return MAX_LEVELS
+
+    def between(self, lower, upper):
+        """What the plugin renders at the geometric midpoint of two scales: the mean of their lobes."""
+        return lambda u: 0.5 * (lower.density(u) + upper.density(u))
+
+
+class GaussianForm:
+    """The closed form of Gaussian lobes: per scale the amplitude, mean and covariance (:func:`gaussian_parameters`),
+    interpolated linearly in ln μ and evaluated exactly (Gaussian density and Smith Λ in closed form) by
+    :mod:`._plugin`. Exact between two scales where the law's covariance is linear in ln μ there (a
+    :class:`brdfscale.stats.MeasuredScaleLaw` between its measured scales)."""
+
+    name = "closed"
+
+    @property
+    def max_levels(self) -> int:
+        return MAX_CLOSED_LEVELS
+
+    def between(self, lower, upper):
+        """The Gaussian lobe of the mean parameters of two scales' lobes."""
+        rows = gaussian_parameters([lower, upper])
+        assert rows is not None  # the closed form is chosen only for Gaussian lobes
+        return gaussian_lobe(rows.mean(axis=0)).density
+
+
+FORMS = {"table": TableForm(), "closed": GaussianForm()}
+"""The forms :func:`brdfscale.render.bsdf` renders a material in (``form=``; ``"auto"``: closed where every
+evolved lobe is Gaussian, else table)."""
+
+
+def choose_form(form: str, evolved) -> TableForm | GaussianForm:
+    """The form ``form`` names for these evolved lobes (InvalidInputError naming the accepted ones)."""
+    if form == "auto":
+        return FORMS["closed" if gaussian_parameters(evolved) is not None else "table"]
+    if form not in FORMS:
+        raise InvalidInputError(f"form must be 'auto' or one of {', '.join(map(repr, FORMS))}; got {form!r}.")
+    if form == "closed" and gaussian_parameters(evolved) is None:
+        raise InvalidInputError(
+            "form='closed' needs Gaussian evolved lobes (a Gaussian/Beckmann base lobe with Gaussian statistics: "
+            "brdfscale.evolve's closed form); these are not — use form='table' or 'auto'."
+        )
+    return FORMS[form]
+
+
+def midpoint_error(lower, upper, middle, extent: float, form=None) -> float:
+    """The largest relative error of the ladder's interpolation at the geometric midpoint of an interval: what the
+    ``form`` renders there (:meth:`TableForm.between`: the mean of the lobes at its ends; :meth:`GaussianForm.between`:
+    the Gaussian of their mean parameters) against ``middle``, the lobe evolved exactly to ``√(μ_a μ_b)``, on 65²
+    offsets over the table's extent where ``middle`` exceeds :data:`RELEVANT` of its peak."""
+    u = np.linspace(-extent, extent, 65)
     grid = jnp.asarray(np.stack(np.meshgrid(u, u), -1).reshape(-1, 2))
-    return np.stack([np.asarray(lobe.density(grid)) for lobe in lobes_])
-
-
-def midpoint_error(lower, upper, middle, extent: float) -> float:
-    """The largest relative error of the ladder's interpolation at the geometric midpoint of an interval: the mean
-    of the lobes at its ends (linear in ln μ, weight ½ each) against ``middle``, the lobe evolved exactly to
-    ``√(μ_a μ_b)``, on 65² offsets over the table's extent where ``middle`` exceeds :data:`RELEVANT` of its peak."""
-    a, b, c = _probe([lower, upper, middle], extent)
+    estimate = np.asarray((form or FORMS["table"]).between(lower, upper)(grid))
+    c = np.asarray(middle.density(grid))
     big = c > RELEVANT * c.max()
-    return float(np.max(np.abs(0.5 * (a[big] + b[big]) / c[big] - 1)))
+    return float(np.max(np.abs(estimate[big] / c[big] - 1)))
 
 
-def refine_ladder(base_lobe, law, mu0: float, ladder, evolved, tolerance: float, method, extent=None):
-    """Bisect (in ln μ) every interval of ``ladder`` whose midpoint error (:func:`midpoint_error`) exceeds
-    ``tolerance``, until none does; returns the refined ``(ladder, evolved)``.
+def refine_ladder(base_lobe, law, mu0: float, ladder, evolved, tolerance: float, method, extent=None, form=None):
+    """Bisect (in ln μ) every interval of ``ladder`` whose midpoint error (:func:`midpoint_error` of the ``form``,
+    default the table's) exceeds ``tolerance``, until none does; returns the refined ``(ladder, evolved)``.
 
     Linear interpolation in ln μ of two lobes of different widths is a mixture, not the lobe between them; its
     error falls as the square of the interval, and is largest where the lobe changes fastest (near μ0, where the
-    law's ``Σ(μ0) − Σ(μ)`` grows fastest). Raises InvalidInputError beyond :data:`MAX_LEVELS` scales."""
+    law's ``Σ(μ0) − Σ(μ)`` grows fastest). The closed form interpolates the covariance instead, exact where the law
+    is linear in ln μ. Raises InvalidInputError beyond :data:`MAX_LEVELS` scales."""
     s0 = law.at(mu0)
+    form = form or FORMS["table"]
     if extent is None:
         extent = max(float(jnp.max(lobe.shape.support_radius(SUPPORT_TOL))) for lobe in evolved)
     mus, out = [float(ladder[0])], [evolved[0]]
@@ -108,10 +185,10 @@ def refine_ladder(base_lobe, law, mu0: float, ladder, evolved, tolerance: float,
         a, b, la, lb = stack.pop()
         mid = math.sqrt(a * b)
         lm = evolve(base_lobe, s0, law.at(mid), method)
-        if midpoint_error(la, lb, lm, extent) > tolerance:
-            if len(mus) + len(stack) + 2 > MAX_LEVELS:
+        if midpoint_error(la, lb, lm, extent, form) > tolerance:
+            if len(mus) + len(stack) + 2 > form.max_levels:
                 raise InvalidInputError(
-                    f"tolerance = {tolerance:g} needs more than {MAX_LEVELS} scales on the ladder "
+                    f"tolerance = {tolerance:g} needs more than {form.max_levels} scales on the ladder "
                     f"(interval [{a:g}, {b:g}] still off); give a larger tolerance or a shorter ladder."
                 )
             stack.append((mid, b, lm, lb))
@@ -167,12 +244,17 @@ def as_scale_law(statistics, mu0):
 
 def default_scales(law, mu0: float, levels: int) -> np.ndarray:
     """The ladder ``μ0 · 2^k`` (k < levels); for a law measured over ``[μ_1, μ_n]`` (``.mu``), ``levels`` scales
-    evenly spaced in ln μ over ``[max(μ0, μ_1), μ_n]``."""
+    evenly spaced in ln μ over ``[max(μ0, μ_1), μ_n]`` together with the law's own scales in that range (a
+    :class:`brdfscale.stats.MeasuredScaleLaw` is linear in ln μ between them, so the closed form's interpolation is
+    exact there)."""
     measured = getattr(law, "mu", None)
     if measured is not None:
+        measured = np.asarray(measured, float)
         lo, hi = max(mu0, float(np.min(measured))), float(np.max(measured))
         if hi > lo:
-            return np.geomspace(lo, hi, levels)
+            inside = measured[(measured > lo) & (measured < hi)]
+            merged = np.unique(np.concatenate([np.geomspace(lo, hi, levels), inside]))
+            return merged[np.concatenate([[True], np.diff(np.log(merged)) > 1e-9])]
     return mu0 * 2.0 ** np.arange(levels)
 
 
@@ -192,10 +274,12 @@ def evolved_lobes(
     levels: int = DEFAULT_LEVELS,
     method: MethodName | AbstractMethod = "auto",
     tolerance: float | None = None,
+    form: str = "table",
 ):
-    """``(ladder, lobes, μ0)``: ``brdfscale.evolve(base_lobe, law.at(μ0), law.at(μ_k), method)`` (seed Eq. 4.4) at
-    every scale ``μ_k`` of the ladder (``scales``, or :func:`default_scales` with ``levels`` scales), refined by
-    :func:`refine_ladder` where ``tolerance`` is given."""
+    """``(ladder, lobes, μ0, form)``: ``brdfscale.evolve(base_lobe, law.at(μ0), law.at(μ_k), method)`` (seed Eq.
+    4.4) at every scale ``μ_k`` of the ladder (``scales``, or :func:`default_scales` with ``levels`` scales), the
+    form they are rendered in (:func:`choose_form` of ``form``), and the ladder refined by :func:`refine_ladder` for
+    that form where ``tolerance`` is given."""
     if not isinstance(base_lobe, AbstractLobe):
         raise InvalidInputError(
             f"base_lobe must be a brdfscale.lobes lobe (the BRDF at μ0); got {type(base_lobe).__name__}."
@@ -205,10 +289,11 @@ def evolved_lobes(
     ladder = default_scales(law, mu0, levels) if scales is None else check_scales(scales)
     s0 = law.at(mu0)
     evolved = [evolve(base_lobe, s0, law.at(float(mu)), method) for mu in ladder]
+    chosen = choose_form(form, evolved)
     if tolerance is not None and len(ladder) > 1:
         tolerance = real(tolerance, "tolerance", minimum=0, strict=True)
-        ladder, evolved = refine_ladder(base_lobe, law, mu0, ladder, evolved, tolerance, method)
-    return ladder, evolved, mu0
+        ladder, evolved = refine_ladder(base_lobe, law, mu0, ladder, evolved, tolerance, method, form=chosen)
+    return ladder, evolved, mu0, chosen
 
 
 def tabulate(
@@ -265,7 +350,7 @@ def lobe_table(
         if base_lobe is not None:
             raise InvalidInputError("a LobeTable is already evolved: pass base_lobe=None with it.")
         return statistics
-    ladder, evolved, mu0 = evolved_lobes(
+    ladder, evolved, mu0, _ = evolved_lobes(
         base_lobe, statistics, mu0=mu0, scales=scales, levels=levels, method=method, tolerance=tolerance
     )
     meta = {"base_lobe": type(base_lobe).__name__, "statistics": type(statistics).__name__}

@@ -42,31 +42,244 @@ _CLASSES: dict[str, type] = {}
 _LOCK = threading.Lock()
 
 
-class Tables:
-    """What the plugin renders, host-side: the padded lobe values, the ladder and the masking tables.
+class Host:
+    """What the plugin renders, host-side, whatever the lobe's form: the ladder ``ln μ_k``, a fixed scale or None
+    (the footprint), the texel, the masking choice (None: no masking)."""
+
+    def __init__(self, scales, masking, *, mu=None, texel=1.0):
+        scales = np.asarray(scales, float)
+        if len(scales) == 1:  # one scale: a constant ladder of two equal planes keeps one code path
+            scales = np.array([scales[0], scales[0] * math.e])
+        self.log_mu = [float(x) for x in np.log(scales)]
+        self.masking = masking
+        self.mu = None if mu is None else float(mu)
+        self.texel = float(texel)
+
+    @staticmethod
+    def doubled(values: np.ndarray) -> np.ndarray:
+        """Per-scale values with a one-scale ladder repeated (the constant ladder of :class:`Host`)."""
+        return np.concatenate([values, values]) if len(values) == 1 else values
+
+
+class Tables(Host):
+    """A tabulated lobe: the padded lobe values (L, N, N) and the G₁ tables of :mod:`._masking`.
 
     ``shapes``: the lobe shapes whose Smith Λ makes the masking tables (default the table's own, tabulated).
     """
 
+    form = "table"
+
     def __init__(self, table, masking, *, mu=None, texel=1.0, shapes=None):
+        super().__init__(table.scales, masking, mu=mu, texel=texel)
         values = scalar_table(table)
-        k, n, _ = values.shape
+        n = values.shape[1]
         h = 2 * table.extent / (n - 1)
-        padded = np.pad(values, ((0, 0), (1, 1), (1, 1)))  # the zero ring of the tent sum
-        scales = np.asarray(table.scales, float)
-        if k == 1:  # one scale: a constant ladder of two equal planes keeps one code path
-            padded = np.concatenate([padded, padded])
-            scales = np.array([scales[0], scales[0] * math.e])
-        self.values = padded  # (L, N, N), rows u_y, columns u_x
-        self.log_mu = [float(x) for x in np.log(scales)]
+        self.values = self.doubled(np.pad(values, ((0, 0), (1, 1), (1, 1))))  # (L, N, N) with the tent sum's zero ring
         self.half = float(table.extent + h)  # the padded grid spans [−half, half]²
-        self.masking = masking
         self.g1 = None
         if masking is not None:
-            g1 = g1_table(table_shapes(table) if shapes is None else shapes)
-            self.g1 = np.concatenate([g1, g1]) if k == 1 else g1  # (L, n_s, n_phi)
-        self.mu = None if mu is None else float(mu)
-        self.texel = float(texel)
+            self.g1 = self.doubled(g1_table(table_shapes(table) if shapes is None else shapes))  # (L, n_s, n_phi)
+
+    def renderer(self, mi):
+        return _TableLobe(mi, self)
+
+
+class Gaussians(Host):
+    """Gaussian lobes in closed form: per scale ``[A, c_x, c_y, Σ_xx, Σ_xy, Σ_yy]`` (L, 6)
+    (:func:`._material.gaussian_parameters`), interpolated linearly in ln μ; density and Smith Λ evaluated exactly."""
+
+    form = "closed"
+
+    def __init__(self, scales, parameters, masking, *, mu=None, texel=1.0):
+        super().__init__(scales, masking, mu=mu, texel=texel)
+        self.parameters = self.doubled(np.asarray(parameters, float))
+
+    def renderer(self, mi):
+        return _GaussianLobe(mi, self)
+
+
+def dr_jit(mi) -> bool:
+    """Whether ``mi``'s variant is a JIT (vectorised) one, not scalar."""
+    import drjit as dr
+
+    return bool(dr.is_jit_v(mi.Float))
+
+
+def ladder_index(dr, mi, x, log_mu):
+    """The continuous ladder index ``j(ln μ)``: k + f between scales k and k + 1 (piecewise linear, clamped)."""
+    j = mi.Float(0.0)
+    for a, b in zip(x[:-1], x[1:]):
+        j += dr.clip((log_mu - a) / (b - a), 0.0, 1.0)
+    return j
+
+
+class _TableLobe:
+    """The tabulated lobe in Dr.Jit (module docstring): a 3-D texture (offset × ladder), Mitsuba's
+    ``MarginalContinuous2D1`` sampler, G₁ textures."""
+
+    key = "table"
+
+    def __init__(self, mi, host: Tables):
+        self.mi, self.host = mi, host
+        L, N, _ = host.values.shape
+        self.levels, self.nodes = L, N
+        self.table = mi.TensorXf(np.ascontiguousarray(host.values[..., None], dtype=np.float32))
+        self.tex = mi.Texture3f(self.table)
+        self.sampler = mi.MarginalContinuous2D1(
+            np.ascontiguousarray(np.maximum(host.values, 0.0), dtype=np.float32), [host.log_mu]
+        )
+        self.g1 = None
+        if host.g1 is not None:
+            self.g1 = mi.Texture3f(mi.TensorXf(np.ascontiguousarray(host.g1[..., None], dtype=np.float32)))
+
+    def at(self, log_mu):
+        """The level: the texture coordinate along the ladder (texel-centred) and ln μ (for the sampler)."""
+        import drjit as dr
+
+        return (ladder_index(dr, self.mi, self.host.log_mu, log_mu) + 0.5) / self.levels, log_mu
+
+    def value(self, m, level):
+        import drjit as dr
+
+        mi, n, half = self.mi, self.nodes, self.host.half
+        px = ((m.x + half) / (2 * half) * (n - 1) + 0.5) / n
+        py = ((m.y + half) / (2 * half) * (n - 1) + 0.5) / n
+        inside = (dr.abs(m.x) < half) & (dr.abs(m.y) < half)
+        # an evolved lobe may dip below 0 (regularisation ringing): shaded as 0, as it is sampled
+        return dr.select(inside, dr.maximum(self.tex.eval(mi.Point3f(px, py, level[0]))[0], 0.0), 0.0)
+
+    def density(self, m, level, active):
+        import drjit as dr
+
+        half = self.host.half
+        pos = self.mi.Point2f((m.x + half) / (2 * half), (m.y + half) / (2 * half))
+        inside = (dr.abs(m.x) < half) & (dr.abs(m.y) < half)
+        return dr.select(inside, self.sampler.eval(pos, [level[1]], active & inside) / (4 * half * half), 0.0)
+
+    def sample(self, sample2, level, active):
+        half = self.host.half
+        pos, _ = self.sampler.sample(sample2, [level[1]], active)
+        return pos * (2 * half) - half
+
+    def _g1_at(self, w, z):
+        import drjit as dr
+
+        mi = self.mi
+        s = dr.sqrt(dr.clip(mi.Frame3f.cos_theta(w), 0.0, 1.0))
+        phi = dr.atan2(w.y, w.x)
+        phi = dr.select(phi < 0, phi + 2 * math.pi, phi)
+        assert self.host.g1 is not None and self.g1 is not None  # masking asks only when there are tables
+        ns, nphi = self.host.g1.shape[1:]
+        ps = (s * (ns - 1) + 0.5) / ns
+        pphi = (phi / (2 * math.pi) * (nphi - 1) + 0.5) / nphi
+        return dr.clip(self.g1.eval(mi.Point3f(pphi, ps, z))[0], 0.0, 1.0)
+
+    def masking(self, wi, wo, level):
+        import drjit as dr
+
+        if self.g1 is None:
+            return self.mi.Float(1.0)
+        a, b = self._g1_at(wi, level[0]), self._g1_at(wo, level[0])
+        if not getattr(self.host.masking, "correlated", True):
+            return a * b
+        den = a + b - a * b  # G₂ = 1/(1 + Λ_i + Λ_o) with Λ = 1/G₁ − 1
+        return dr.select(den > 0, a * b / den, 0.0)
+
+    def tensor(self):
+        return self.table
+
+    def changed(self):
+        self.tex.set_tensor(self.table)
+
+
+class _GaussianLobe:
+    """Gaussian lobes in closed form in Dr.Jit (module docstring): the parameters of the two neighbouring scales
+    gathered and mixed linearly in ln μ; ``A·N(m; c, Σ)``, its exact sampling ``m = c + L z`` (Box–Muller z,
+    ``Σ = L Lᵀ``) and Smith's ``Λ(w) = s φ(1/s) − Φ(−1/s)``, ``s² = vᵀΣv``, ``v = w_xy/w_z``
+    (:mod:`brdfscale.stats._masking`'s closed form)."""
+
+    key = "parameters"
+
+    def __init__(self, mi, host: Gaussians):
+        self.mi, self.host = mi, host
+        self.levels = len(host.parameters)
+        flat = np.ascontiguousarray(host.parameters.ravel(), dtype=np.float32)
+        self.params = mi.Float(flat) if dr_jit(mi) else mi.TensorXf(flat)  # scalar variants: not differentiable
+        self.logs = mi.Float(np.asarray(host.log_mu, np.float32)) if dr_jit(mi) else None
+
+    def at(self, log_mu):
+        """The level: ``(A, c_x, c_y, Σ_xx, Σ_xy, Σ_yy)`` at ln μ, linear in ln μ between the two neighbouring scales
+        (found by binary search: a refined ladder may hold thousands)."""
+        import drjit as dr
+
+        mi, x, L = self.mi, self.host.log_mu, self.levels
+        if not dr_jit(mi):  # scalar variants: one interaction, the host's parameters
+            k = int(min(max(np.searchsorted(x, float(log_mu)) - 1, 0), L - 2))
+            f = min(max((float(log_mu) - x[k]) / (x[k + 1] - x[k]), 0.0), 1.0)
+            return tuple(float(v) for v in (1 - f) * self.host.parameters[k] + f * self.host.parameters[k + 1])
+        k = dr.binary_search(0, L - 2, lambda idx: dr.gather(mi.Float, self.logs, idx + 1) < log_mu)
+        a, b = dr.gather(mi.Float, self.logs, k), dr.gather(mi.Float, self.logs, k + 1)
+        f = dr.clip((log_mu - a) / (b - a), 0.0, 1.0)
+        return tuple(
+            (1 - f) * dr.gather(mi.Float, self.params, 6 * k + c) + f * dr.gather(mi.Float, self.params, 6 * k + 6 + c)
+            for c in range(6)
+        )
+
+    @staticmethod
+    def _normal(dr, m, level):
+        """``N(m; c, Σ)`` per unit slope area."""
+        _, cx, cy, sxx, sxy, syy = level
+        det = sxx * syy - sxy * sxy
+        dx, dy = m.x - cx, m.y - cy
+        q = (syy * dx * dx - 2 * sxy * dx * dy + sxx * dy * dy) / det
+        return dr.exp(-0.5 * q) / (2 * math.pi * dr.sqrt(det))
+
+    def value(self, m, level):
+        import drjit as dr
+
+        return level[0] * self._normal(dr, m, level)
+
+    def density(self, m, level, active):
+        import drjit as dr
+
+        return dr.select(active, self._normal(dr, m, level), 0.0)
+
+    def sample(self, sample2, level, active):
+        import drjit as dr
+
+        _, cx, cy, sxx, sxy, syy = level
+        r = dr.sqrt(-2 * dr.log(dr.maximum(1 - sample2.x, 1e-30)))
+        s, c = dr.sincos(2 * math.pi * sample2.y)
+        zx, zy = r * c, r * s
+        l00 = dr.sqrt(sxx)
+        l10 = sxy / l00
+        l11 = dr.sqrt(dr.maximum(syy - l10 * l10, 0.0))
+        return self.mi.Point2f(cx + l00 * zx, cy + l10 * zx + l11 * zy)
+
+    def _lambda(self, w, level):
+        import drjit as dr
+
+        _, _, _, sxx, sxy, syy = level
+        wz = dr.maximum(w.z, 1e-30)
+        vx, vy = w.x / wz, w.y / wz
+        s2 = vx * vx * sxx + 2 * vx * vy * sxy + vy * vy * syy
+        a = 1 / dr.sqrt(2 * dr.maximum(s2, 1e-30))  # a = μ/α along w's azimuth
+        lam = dr.exp(-a * a) / (2 * a * math.sqrt(math.pi)) - 0.5 * (1 - dr.erf(a))
+        return dr.select(s2 > 0, dr.maximum(lam, 0.0), 0.0)
+
+    def masking(self, wi, wo, level):
+        if self.host.masking is None:
+            return self.mi.Float(1.0)
+        li, lo = self._lambda(wi, level), self._lambda(wo, level)
+        if getattr(self.host.masking, "correlated", True):
+            return 1 / (1 + li + lo)
+        return 1 / ((1 + li) * (1 + lo))
+
+    def tensor(self):
+        return self.params
+
+    def changed(self):
+        pass
 
 
 def footprint(si):
@@ -105,20 +318,17 @@ def _build(mi):
                 )
                 self.load(tables)
 
-        def load(self, tables: Tables):
-            self._host = tables
-            L, N, _ = tables.values.shape
-            self._levels, self._nodes = L, N
-            self._table = mi.TensorXf(np.ascontiguousarray(tables.values[..., None], dtype=np.float32))
-            self._tex = mi.Texture3f(self._table)
-            self._sampler = mi.MarginalContinuous2D1(
-                np.ascontiguousarray(np.maximum(tables.values, 0.0), dtype=np.float32), [tables.log_mu]
-            )
-            self._g1 = None
-            if tables.g1 is not None:
-                self._g1 = mi.Texture3f(mi.TensorXf(np.ascontiguousarray(tables.g1[..., None], dtype=np.float32)))
-                self._correlated = bool(getattr(tables.masking, "correlated", True))
+        def load(self, host: Host):
+            self._host = host
+            self._lobe = host.renderer(mi)
             self._ready = True
+
+        @property
+        def host(self) -> Host:
+            """What this BSDF renders, host-side (:class:`Tables` or :class:`Gaussians`): its ladder ``log_mu``,
+            fixed ``mu``, ``texel``, ``masking`` and its lobe's values (``values``) or parameters
+            (``parameters``)."""
+            return self._host
 
         # -- the scale μ ----------------------------------------------------------------------------------------
         def _log_mu(self, si):
@@ -127,41 +337,6 @@ def _build(mi):
                 return mi.Float(min(max(math.log(self._host.mu), lo), hi))
             mu = footprint(si) / self._host.texel
             return dr.clip(dr.log(dr.maximum(mu, 1e-30)), lo, hi)
-
-        def _level(self, log_mu):
-            """Texture coordinate along the ladder: the piecewise-linear index j(ln μ), texel-centred."""
-            x = self._host.log_mu
-            j = mi.Float(0.0)
-            for a, b in zip(x[:-1], x[1:]):
-                j += dr.clip((log_mu - a) / (b - a), 0.0, 1.0)
-            return (j + 0.5) / self._levels
-
-        def _lobe(self, m, z):
-            n, half = self._nodes, self._host.half
-            px = ((m.x + half) / (2 * half) * (n - 1) + 0.5) / n
-            py = ((m.y + half) / (2 * half) * (n - 1) + 0.5) / n
-            inside = (dr.abs(m.x) < half) & (dr.abs(m.y) < half)
-            # an evolved lobe may dip below 0 (regularisation ringing): shaded as 0, as it is sampled
-            return dr.select(inside, dr.maximum(self._tex.eval(mi.Point3f(px, py, z))[0], 0.0), 0.0)
-
-        def _g1_at(self, w, z):
-            s = dr.sqrt(dr.clip(mi.Frame3f.cos_theta(w), 0.0, 1.0))
-            phi = dr.atan2(w.y, w.x)
-            phi = dr.select(phi < 0, phi + 2 * math.pi, phi)
-            assert self._host.g1 is not None and self._g1 is not None  # _masking asks only when there are tables
-            ns, nphi = self._host.g1.shape[1:]
-            ps = (s * (ns - 1) + 0.5) / ns
-            pphi = (phi / (2 * math.pi) * (nphi - 1) + 0.5) / nphi
-            return dr.clip(self._g1.eval(mi.Point3f(pphi, ps, z))[0], 0.0, 1.0)
-
-        def _masking(self, wi, wo, z):
-            if self._g1 is None:
-                return mi.Float(1.0)
-            a, b = self._g1_at(wi, z), self._g1_at(wo, z)
-            if not self._correlated:
-                return a * b
-            den = a + b - a * b  # G₂ = 1/(1 + Λ_i + Λ_o) with Λ = 1/G₁ − 1
-            return dr.select(den > 0, a * b / den, 0.0)
 
         def _half(self, wi, wo):
             h = dr.normalize(wi + wo)
@@ -173,8 +348,10 @@ def _build(mi):
             ci, co = mi.Frame3f.cos_theta(wi), mi.Frame3f.cos_theta(wo)
             active = active & (ci > 0) & (co > 0)
             h, m = self._half(wi, wo)
-            z = self._level(self._log_mu(si))
-            value = self._lobe(m, z) / (4 * ci * dr.square(dr.square(h.z))) * self._masking(wi, wo, z)
+            level = self._lobe.at(self._log_mu(si))
+            value = (
+                self._lobe.value(m, level) / (4 * ci * dr.square(dr.square(h.z))) * self._lobe.masking(wi, wo, level)
+            )
             return dr.select(active, value, 0.0), active
 
         def _density(self, si, wo, active):
@@ -182,14 +359,10 @@ def _build(mi):
             ci, co = mi.Frame3f.cos_theta(wi), mi.Frame3f.cos_theta(wo)
             h, m = self._half(wi, wo)
             active = active & (ci > 0) & (co > 0)
-            half = self._host.half
-            pos = mi.Point2f((m.x + half) / (2 * half), (m.y + half) / (2 * half))
-            inside = (dr.abs(m.x) < half) & (dr.abs(m.y) < half)
-            p_unit = self._sampler.eval(pos, [self._log_mu(si)], active & inside)
-            p_m = p_unit / (4 * half * half)
+            p_m = self._lobe.density(m, self._lobe.at(self._log_mu(si)), active)
             cos_ih = dr.dot(wi, h)
             pdf = p_m / (h.z * h.z * h.z * 4 * cos_ih)
-            return dr.select(active & inside & (cos_ih > 0), pdf, 0.0)
+            return dr.select(active & (cos_ih > 0) & (p_m > 0), pdf, 0.0)
 
         def eval(self, ctx, si, wo, active=True):
             if not ctx.is_enabled(mi.BSDFFlags.GlossyReflection):
@@ -207,9 +380,7 @@ def _build(mi):
 
         def sample(self, ctx, si, sample1, sample2, active=True):
             wi = si.wi
-            half = self._host.half
-            pos, _ = self._sampler.sample(sample2, [self._log_mu(si)], active)
-            m = pos * (2 * half) - half
+            m = self._lobe.sample(sample2, self._lobe.at(self._log_mu(si)), active)
             h = dr.normalize(mi.Vector3f(m.x, m.y, 1.0))
             wo = 2 * dr.dot(wi, h) * h - wi
             bs = dr.zeros(mi.BSDFSample3f)
@@ -223,16 +394,16 @@ def _build(mi):
             return bs, mi.Spectrum(dr.select(ok, value / dr.maximum(bs.pdf, 1e-30), 0.0))
 
         def traverse(self, callback):
-            callback.put("table", self._table, mi.ParamFlags.Differentiable)
+            callback.put(self._lobe.key, self._lobe.tensor(), mi.ParamFlags.Differentiable)
 
         def parameters_changed(self, keys):
-            self._tex.set_tensor(self._table)
+            self._lobe.changed()
 
         def to_string(self):
             host = self._host
             mu = "from the footprint" if host.mu is None else f"{host.mu:g}"
             return (
-                f"BrdfscaleBSDF[levels={self._levels}, mu={mu}, texel={host.texel:g}, "
+                f"BrdfscaleBSDF[form={host.form}, levels={self._lobe.levels}, mu={mu}, texel={host.texel:g}, "
                 f"masking={type(host.masking).__name__ if host.masking is not None else 'none'}]"
             )
 
