@@ -854,3 +854,23 @@ def test_bench_render_quick(tmp_path):
     assert {r["where"] for r in records} == {"ladder node", "between nodes"}
     assert all(r["directions"] > 0 and r["max_relative"] >= r["median_relative"] >= 0 for r in records)
     assert isinstance(payload["targets"]["eval_within_1e-4"]["met"], bool)
+
+
+@pytest.mark.slow  # ray tracing and eight fits: ~1 min on 2 cores
+def test_instrument_fits_quick(tmp_path):
+    pytest.importorskip("mitsuba")
+    from experiments import instrument_fits
+
+    payload = instrument_fits.run(quick=True, out=tmp_path)
+    assert json.loads((tmp_path / "instrument_fits.json").read_text())["summary"] == payload["summary"]
+    fits = payload["fits"]
+    assert [(f["theta_i_deg"], f["masking"]) for f in fits] == [(t, m) for t in (0.0, 70.0) for m in ("none", "smith")]
+    for f in fits:
+        assert f["optimiser"] == "converged" and f["outcome"] in {"ok", "inadequate", "undetermined", "not_converged"}
+        (row,) = f["score"]["delta_sigma"]  # two scales: one ΔΣ
+        assert all(math.isfinite(v) for v in row["relative_bias_aligned"].values())
+    (surface,) = payload["surfaces"]
+    assert surface["truth"]["binning"] in instrument_fits.BINNING_VARIANCE
+    assert len(payload["noise"]) == 2 and all(math.isfinite(n["lag1_rows"]) for n in payload["noise"])
+    assert set(payload["summary"]["grazing_bias"][surface["label"]]) == {"none", "smith"}
+    assert "| gaussian_0.3 | 70° |" in instrument_fits.table(payload)
