@@ -138,6 +138,12 @@ MODELS = Choices(
             "the anisotropic model's isotropic, centred special case: ΔΣ(μ0, μk) = d_k I "
             "(fitting.AnisotropicModel(isotropic=True))",
         ),
+        Choice(
+            "anisotropic_law",
+            "the anisotropic model's base lobe (--shape) with ΔΣ(μ0, μ) from a continuous scale law: principal "
+            "axes at a free angle, each variance a width law (floor + power law) in μ, so it predicts unseen "
+            "scales (fitting.AnisotropicLawModel)",
+        ),
         Choice("parametric", "a lobe family and a scale law of its slope statistics (fitting.ParametricModel)"),
         Choice("nonparametric", "a tabulated base lobe and relative statistics (fitting.NonParametricModel)"),
         Choice(

@@ -72,6 +72,10 @@ MAX_Z = 3.0
 ANISOTROPY = 2.0
 """A file is *anisotropic* when the eigenvalue ratio of Σ(μ0) exceeds this."""
 ENTRIES = (("xx", 0, 0), ("xy", 0, 1), ("yy", 1, 1))
+LAWS = {"law": "width", "law_spline": "spline"}
+"""The held-out rows of :class:`fitting.AnisotropicLawModel`: its per-axis width law and its monotone spline law."""
+DEFAULT_ROWS = {"anisotropic_law": "law"}
+"""The held-out row of a default model that has a scale law (besides ``parametric``: ``isotropic``)."""
 QUICK_FIT_ARGS = ("--steps", "0")
 """``--quick``'s only change to the fit's defaults: no sampling (Laplace only), so that a smoke test stays short."""
 
@@ -195,8 +199,21 @@ def held_out(mset, statistics, default_model: str) -> dict:
         "status": aniso_fit.status,
         "wall_s": round(time.perf_counter() - t0, 2),
     }
+    for key, law in LAWS.items():
+        t0 = time.perf_counter()
+        model = fitting.AnisotropicLawModel(law, scales=data.scales)
+        law_fit = fitting.fit(model, data)
+        prediction = np.asarray(model.predict(np.asarray(law_fit.theta), full))
+        out[key] = {
+            "l1": l1(prediction, full, held),
+            "train_reduced_chi2": law_fit.chi2 / law_fit.dof,
+            "status": law_fit.status,
+            "wall_s": round(time.perf_counter() - t0, 2),
+        }
     if default_model == "parametric":
         out["default"] = {**out["isotropic"], "model": default_model}
+    elif default_model in DEFAULT_ROWS:
+        out["default"] = {**out[DEFAULT_ROWS[default_model]], "model": default_model}
     else:
         out["default"] = {
             "model": default_model,

@@ -6,7 +6,8 @@ The chain, each step in its own module:
 * :class:`Dataset` — images of a :class:`brdfscale.MeasurementSet` with σ and masks;
 * :class:`ParametricModel`, :class:`NonParametricModel`, :class:`AnisotropicModel` — forward maps
   θ ↦ images built on :func:`brdfscale.evolve` (the last, the command's default: a lobe of full
-  covariance — Gaussian, GGX or Student-t — and ΔΣ(μ0, μk)), :class:`AnisotropicNonParametricModel`
+  covariance — Gaussian, GGX or Student-t — and ΔΣ(μ0, μk)), :class:`AnisotropicLawModel` (the same
+  base lobe, ΔΣ from a continuous anisotropic scale law: any μ), :class:`AnisotropicNonParametricModel`
   (tabulated base lobe, ``R_k(W)`` over the W plane); :func:`compare` — which model the data prefer (AIC, BIC);
 * :class:`TopographyData` — a topography's Σ(μ) as a joint data term (``Dataset.with_topography``);
 * :func:`fit` — optimistix least squares (Levenberg–Marquardt by default), multi-start,
@@ -44,6 +45,7 @@ named ``fitting`` is installed and a local ``fitting.py`` cannot take its place.
 
 from ._adequacy import assess, lobe_widths, Outcome, resolution
 from ._anisotropic import AnisotropicModel
+from ._anisotropic_law import AnisotropicLawModel
 from ._batch import BatchPlan, COMPILE_ROWS, explain_plan, fit_many
 from ._checkpoint import rewind_checkpoint
 from ._compare import compare, Comparison
@@ -82,6 +84,7 @@ __all__ = [
     "SOLVERS",
     "AbstractModel",
     "AnisotropicModel",
+    "AnisotropicLawModel",
     "AnisotropicNonParametricModel",
     "BatchPlan",
     "Comparison",

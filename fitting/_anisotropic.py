@@ -134,6 +134,19 @@ def _from_cholesky(log_xx, yx, log_yy) -> Float[Array, "2 2"]:
     return jnp.stack([jnp.stack([a * a, a * yx]), jnp.stack([a * yx, yx * yx + c * c])])
 
 
+def radial_relative_statistics(differences: Float[Array, "k 2 2"], W: Float[Array, " w"]) -> Float[Array, "k w"]:
+    """The geometric mean over the directions of the circle |W| of ``R_k(W) = exp(−½ Wᵀ ΔΣ_k W)``:
+    ``exp(−¼ |W|² tr ΔΣ_k)`` (:meth:`AnisotropicModel.relative_statistics`)."""
+    trace = differences[:, 0, 0] + differences[:, 1, 1]
+    return jnp.exp(-0.25 * trace[:, None] * jnp.asarray(W)[None, :] ** 2)
+
+
+def plane_relative_statistics(differences: Float[Array, "k 2 2"], W: Float[Array, "w 2"]) -> Float[Array, "k w"]:
+    """``R_k(W) = exp(−½ Wᵀ ΔΣ_k W)`` at points W of the plane."""
+    W = jnp.asarray(W)
+    return jnp.exp(-0.5 * jnp.einsum("wi,kij,wj->kw", W, differences, W))
+
+
 class AnisotropicModel(AbstractModel):
     """Base lobe of full scale matrix and free mean at μ0 — Gaussian, GGX or Student-t — with
     monotone covariance differences ΔΣ_k (module docstring).
@@ -235,9 +248,17 @@ class AnisotropicModel(AbstractModel):
         return values
 
     def predict_points(self, theta, scales, points):
+        return self.predict_with(theta, self.parts(theta)[3], points)
+
+    def predict_with(
+        self, theta: Float[Array, " n"], differences: Float[Array, "k 2 2"], points: Float[Array, "k p 2"]
+    ) -> Float[Array, "k p"]:
+        """θ's base lobe at ``points[0]`` and, for k ≥ 1, evolved by the covariance differences
+        ``differences[k]`` (ΔΣ_k ⪰ 0) at ``points[k]``; θ's own increments are not used (shared with
+        :class:`fitting.AnisotropicLawModel`, whose ΔΣ follow a scale law)."""
         # the base lobe at μ0; at μ_k the evolution by the relative statistics R_k = exp(−½ Wᵀ ΔΣ_k W)
         base = self.base_lobe(theta)
-        amplitude, c0, mean, differences = self.parts(theta)
+        amplitude, c0, mean, _ = self.parts(theta)
         if self.shape == "gaussian":
             # brdfscale.evolve(lobe, N(0, ΔΣ_k), δ)'s closed form: covariance C0 + ΔΣ_k
             coarser = jax.vmap(
@@ -258,17 +279,13 @@ class AnisotropicModel(AbstractModel):
         ``R_k`` over the directions of the circle |W|, ``exp(−¼ |W|² tr ΔΣ_k)`` (the mean of
         ``Wᵀ ΔΣ W`` over directions is ``½ |W|² tr ΔΣ``); for an isotropic ΔΣ it is ``R_k`` itself.
         :meth:`relative_statistics_plane` gives ``R_k`` over the W plane."""
-        d = self.covariance_differences(theta, scales)
-        trace = d[:, 0, 0] + d[:, 1, 1]
-        return jnp.exp(-0.25 * trace[:, None] * jnp.asarray(W)[None, :] ** 2)
+        return radial_relative_statistics(self.covariance_differences(theta, scales), W)
 
     def relative_statistics_plane(
         self, theta: Float[Array, " n"], W: Float[Array, "w 2"], scales: Float[Array, " k"]
     ) -> Float[Array, "k w"]:
         """``R_k(W) = S(W, μ0)/S(W, μ_k) = exp(−½ Wᵀ ΔΣ_k W)`` at points ``W`` of the plane."""
-        d = self.covariance_differences(theta, scales)
-        W = jnp.asarray(W)
-        return jnp.exp(-0.5 * jnp.einsum("wi,kij,wj->kw", W, d, W))
+        return plane_relative_statistics(self.covariance_differences(theta, scales), W)
 
     def initial(self, data):
         """From the pixels above half the peak (:func:`image_moments`); a heavy-tailed base lobe
@@ -294,6 +311,29 @@ class AnisotropicModel(AbstractModel):
         for k in range(1, self.n_scales):
             theta += _cholesky_coordinates(cov[k] - cov[k - 1], floor / self.n_scales)
         return np.asarray(theta + tail)
+
+    def start_scales(self, theta0):
+        """The jitter of the starts (:meth:`fitting.AbstractModel.start_scales`) in the lobe's own
+        units: 1 for the logarithms (a relative change of every width, of A and ν); the centre
+        by the base lobe's standard deviation along each axis, ``√C0_xx``, ``√C0_yy``; each
+        Cholesky off-diagonal ``L_yx`` by its factor's ``L_yy`` (a shear of the ellipse
+        relative to its width). Unscaled, a spread of 0.5 moved the centre by half the slope
+        range — off a lobe 0.05 wide, where no solver finds its way back (7 of 8 starts of
+        experiments/bench_anisotropic.py's set ran to ``max_steps`` at χ² 130 × the optimum's)."""
+        theta0 = np.asarray(theta0, dtype=float)
+        scales = np.ones_like(theta0)
+        if self.isotropic:
+            return scales
+        c0 = np.asarray(_from_cholesky(*theta0[1:4]))
+        scales[2] = math.exp(theta0[3])
+        start = 4
+        if not self.centred:
+            scales[4:6] = np.sqrt(np.diag(c0))
+            start = 6
+        for k in range(self.n_scales - 1):
+            i = start + 3 * k
+            scales[i + 1] = math.exp(theta0[i + 2])
+        return scales
 
     def bounds(self, data):
         """A uniform prior in θ: amplitude 1e-8 … 1e8; the Cholesky diagonals (standard deviations

@@ -140,6 +140,7 @@ def test_every_name_in_the_table_is_accepted_by_fitting():
         "nonparametric": fitting.NonParametricModel,
         "anisotropic": fitting.AnisotropicModel,
         "isotropic": fitting.AnisotropicModel,
+        "anisotropic_law": fitting.AnisotropicLawModel,
         "nonparametric_anisotropic": fitting.AnisotropicNonParametricModel,
     }.keys() == set(choices.MODELS)
     for shape in choices.SHAPES:

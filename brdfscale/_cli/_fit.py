@@ -66,7 +66,7 @@ def add_fit_options(parser) -> None:
         "--shape",
         choices=SHAPES.names,
         default=MODEL.shape,
-        help=f"base lobe shape of the anisotropic and isotropic models — {SHAPES.help()}",
+        help=f"base lobe shape of the anisotropic, isotropic and anisotropic_law models — {SHAPES.help()}",
     )
     parser.add_argument(
         "--family",
@@ -180,8 +180,10 @@ def check_fit_options(args) -> None:
         raise InvalidInputError(f"--fix {', '.join(repeated)} given more than once; fix each quantity once.")
     if args.fix and args.model != "parametric":
         raise InvalidInputError("--fix applies to the parametric model only (--model parametric).")
-    if args.shape != MODEL.shape and args.model not in ("anisotropic", "isotropic"):
-        raise InvalidInputError("--shape applies to the anisotropic and isotropic models only (--model anisotropic).")
+    if args.shape != MODEL.shape and args.model not in ("anisotropic", "isotropic", "anisotropic_law"):
+        raise InvalidInputError(
+            "--shape applies to the anisotropic and isotropic models and to anisotropic_law only (--model anisotropic)."
+        )
     if args.regularisation is not None and args.model != "nonparametric":
         raise InvalidInputError("--regularisation applies to the non-parametric model only (--model nonparametric).")
 
@@ -292,6 +294,7 @@ COMPARED = (
     ("isotropic", {"model": "isotropic", "shape": "gaussian"}),
     ("anisotropic", {"model": "anisotropic", "shape": "gaussian"}),
     ("anisotropic:student_t", {"model": "anisotropic", "shape": "student_t"}),
+    ("anisotropic_law", {"model": "anisotropic_law", "shape": "gaussian"}),
 )
 
 
@@ -301,7 +304,8 @@ def _candidates(spec: "FitSpec") -> "list[tuple[str, FitSpec]]":
 
     specs = [(name, dataclasses.replace(spec, **fields)) for name, fields in COMPARED]
     if all((s.model, s.shape) != (spec.model, spec.shape) for _, s in specs):
-        own = spec.model if spec.model not in ("anisotropic", "isotropic") else f"{spec.model}:{spec.shape}"
+        shaped = ("anisotropic", "isotropic", "anisotropic_law")
+        own = spec.model if spec.model not in shaped else f"{spec.model}:{spec.shape}"
         specs.append((own, spec))
     return specs
 

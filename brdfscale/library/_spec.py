@@ -70,6 +70,13 @@ def make_model(
             "lobe": f"{shape} ({'isotropic, centred' if isotropic else 'full covariance, free centre'})",
             "scale_law": "ΔΣ per scale" + (" (d_k I)" if isotropic else " (full 2 × 2)"),
         }
+    elif model == "anisotropic_law":
+        built = fitting.AnisotropicLawModel("width", shape=shape)
+        info = {
+            "kind": model,
+            "lobe": f"{shape} (full covariance, free centre)",
+            "scale_law": "Σ(μ) = R(φ) diag(α_1(μ)², α_2(μ)²)/2 R(φ)ᵀ, α_a a width law per principal axis",
+        }
     elif model == "nonparametric_anisotropic":
         if isinstance(regularisation, str):
             raise InvalidInputError(
