@@ -1,5 +1,5 @@
-"""The watchdog of a local Ray instance: stops the Ray processes a library driver started once
-that driver is gone, however it ended (SIGKILL included). Standard library only, run as a
+"""The watchdog of a local Ray instance: stops the Ray processes a driver (a library run, an instrument
+measurement) started once that driver is gone, however it ended (SIGKILL included). Standard library only, run as a
 script by path (``python -I -S _watchdog.py DRIVER_PID``) so that it starts in milliseconds
 without importing brdfscale or JAX.
 
@@ -10,7 +10,8 @@ agents the raylet starts (``ray::DashboardAgent``, ``ray::RuntimeEnvAgent``) out
 workers gone). ``tests/test_library_robustness.py`` measures that nothing of the run is left
 a few seconds after the driver's SIGKILL.
 
-How: :func:`brdfscale.library.fit_library` starts this process in a session of its own, just
+How: :func:`brdfscale._cluster.ray_session` (for :func:`brdfscale.library.fit_library` and
+:meth:`brdfscale.instrument.Measurement.measure`) starts this process in a session of its own, just
 before ``ray.init``, with a pipe as its standard input whose writing end only the driver holds.
 While the driver lives, every 0.2 s the watchdog records the driver's descendants that are Ray's
 (a command line under Ray's package or named ``ray::…`` when first seen) and everything below

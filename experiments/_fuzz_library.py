@@ -39,7 +39,7 @@ import sys
 import tempfile
 import time
 
-from brdfscale.library._watchdog import alive, descendants
+from brdfscale._watchdog import alive, descendants
 from experiments import _fuzz_common
 
 

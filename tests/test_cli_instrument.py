@@ -61,6 +61,7 @@ def test_missing_llvm_is_named_in_one_line(tmp_path, capsys, monkeypatch):
         (["--instrument", "raytraced", "--noise", "poisson:100"], "--noise: an option of --instrument facets only"),
         (["--instrument", "raytraced", "--weighting", "projected_area"], "--weighting: an option of --instrument"),
         (["--instrument", "raytraced", "--micro", "ggx"], "--micro names the pixel facets' distribution"),
+        (["--workers", "2"], "--workers: an option of --instrument raytraced only"),
     ],
 )
 def test_options_of_the_other_instrument_are_refused(tmp_path, capsys, monkeypatch, extra, named):
@@ -95,3 +96,20 @@ def test_raytraced_measurement_is_written_and_deterministic(tmp_path, capsys):
         np.testing.assert_array_equal(np.asarray(pa.values), np.asarray(pb.values))
     assert a.metadata["command"].endswith("--instrument raytraced --rays 4000 --bounces 2")
     assert a.metadata["seed"] == 3
+
+
+@pytest.mark.slow  # a local Ray instance (~30 s on the shared 2 cores)
+def test_raytraced_measurement_on_ray_workers_is_the_same_file(tmp_path):
+    """--workers 2: the images traced as tasks on a local Ray instance give the in-process file's images bit for bit
+    (and the same recorded command: where it ran is no part of the result)."""
+    pytest.importorskip("mitsuba")
+    pytest.importorskip("ray")
+    argv = ["--instrument", "raytraced", "--rays", "2000", "--seed", "3", "--incident", "30"]
+    here, there = tmp_path / "a.exr", tmp_path / "b.exr"
+    assert cli.main(_argv(here, *argv)) == 0
+    assert cli.main(_argv(there, *argv, "--workers", "2")) == 0
+    a, b = exr.read_measurements(here), exr.read_measurements(there)
+    for pa, pb in zip(a.images, b.images, strict=True):
+        np.testing.assert_array_equal(np.asarray(pa.values), np.asarray(pb.values))
+        np.testing.assert_array_equal(np.asarray(pa.sigma), np.asarray(pb.sigma))
+    assert a.metadata["command"] == b.metadata["command"]

@@ -74,6 +74,8 @@ LAYERS = {
         "brdfscale._shadow",
         "brdfscale._slopes",
         "brdfscale._mitsuba",
+        "brdfscale._cluster",
+        "brdfscale._watchdog",
     ),
     1: (
         "brdfscale.stats",

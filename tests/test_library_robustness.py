@@ -20,7 +20,7 @@ import pytest
 
 import brdfscale._files
 from brdfscale import InvalidInputError, library, MeasurementFileError, OutputWriteError
-from brdfscale.library._watchdog import alive, descendants
+from brdfscale._watchdog import alive, descendants
 from tests.helpers import run_cli, write_library
 
 

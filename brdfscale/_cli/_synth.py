@@ -73,7 +73,7 @@ def _noise(text: str):
 
 INSTRUMENTS = ("facets", "raytraced")
 """--instrument's names, the default first: facet statistics (synth.gonioreflectometer) or the ray tracer."""
-_RAYTRACED_ONLY = ("--rays", "--bounces", "--variant", "--micro")
+_RAYTRACED_ONLY = ("--rays", "--bounces", "--variant", "--micro", "--workers", "--address")
 _FACETS_ONLY = ("--noise", "--resolution", "--weighting")
 _RAYTRACED_WHY = " (the ray tracer's σ is its Monte Carlo error, its resolution its detector's)."
 
@@ -209,6 +209,19 @@ def register(subparsers) -> None:
         metavar="NAME",
         help="with --instrument raytraced: Mitsuba's variant (llvm_ad_rgb, scalar_rgb, cuda_ad_rgb; default: the "
         "first of these that runs here)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=integer(1, 4096),
+        default=None,
+        help="with --instrument raytraced: trace the images as tasks on a local Ray instance with this many CPUs "
+        "(the same file as in this process; needs brdfscale[cluster])",
+    )
+    parser.add_argument(
+        "--address",
+        default=None,
+        help="with --instrument raytraced: trace the images as tasks on the Ray cluster at this address (e.g. auto, "
+        "or HOST:6379; the same file as in this process; needs brdfscale[cluster])",
     )
     parser.add_argument(
         "--dtype", choices=("float32", "float16"), default="float32", help="pixel type (default float32)"
@@ -364,6 +377,8 @@ def _raytraced(args, field, mus, incident, extent, seed_value, trace_seed, comma
         pixels=args.pixels,
         micro=field.micro,
         seed=int(trace_seed.generate_state(1)[0]),
+        workers=args.workers,
+        address=args.address,
         **given,
     )
     mset.metadata["seed"] = seed_value

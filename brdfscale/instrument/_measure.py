@@ -51,7 +51,9 @@ over the spots (the random choice of spot per ray included), not the spread of t
 **Determinism and tasks.** Batch ``b`` of image ``(scale s, incident k)`` draws its random numbers from
 ``numpy.random.SeedSequence(seed, spawn_key=(0, s, k, b))`` and is traced on its own, and the batches are summed in
 a fixed order, so a measurement is bit-identical for a seed whatever the split into :class:`Task` s
-(:meth:`Measurement.tasks`) and the order they run in (on one Mitsuba variant; variants differ in rounding).
+(:meth:`Measurement.tasks`) and the order they run in (on one Mitsuba variant; variants differ in rounding) — in this
+process or as Ray tasks (:meth:`Measurement.measure` with ``executor="ray"``, through :mod:`brdfscale._cluster`, the
+mechanism :func:`brdfscale.library.fit_library` runs on; tests/test_instrument.py checks the two equal).
 """
 
 from __future__ import annotations
@@ -65,7 +67,7 @@ import numpy as np
 from jaxtyping import ArrayLike, Float
 
 from .. import lobes, stats, synth
-from .._errors import InvalidInputError
+from .._errors import BrdfscaleError, InvalidInputError
 from .._measurement import LobeImage, MeasurementSet
 from .._show import progress_bar
 from .._validation import integer, real, real_array
@@ -406,15 +408,76 @@ class Measurement:
             records.append(_image_record(mu, i, tallies, h))
         return MeasurementSet(tuple(images), self._metadata(records, h))
 
-    def measure(self, *, progress: bool = True) -> MeasurementSet:
-        """Run every task here, with a progress bar (one step per batch), and combine them."""
-        tasks = self.tasks()
-        results = []
+    def measure(
+        self,
+        *,
+        progress: bool = True,
+        executor: str = "auto",
+        address: str | None = None,
+        workers: int | None = None,
+        cpus_per_task: float = 1,
+        retries: int = 2,
+        batches_per_task: int | None = None,
+    ) -> MeasurementSet:
+        """Run every task — in this process, or as Ray tasks the way :func:`brdfscale.library.fit_library` runs a
+        library's batches (:mod:`brdfscale._cluster`) — with a progress bar (one step per batch), and combine them:
+        the same set, bit for bit, wherever the tasks ran (on one Mitsuba variant; the Ray workers build their scene
+        in the variant this process resolved).
+
+        Args:
+            progress: show a progress bar (``BRDFSCALE_PROGRESS=0`` switches it off).
+            executor: ``"process"`` (every task here), ``"ray"`` (a local Ray instance with ``workers`` CPUs, or the
+                cluster at ``address``; the extra ``brdfscale[cluster]``), ``"auto"`` (default: Ray when ``address``
+                or ``workers`` is given).
+            address, workers, cpus_per_task, retries: as for :func:`brdfscale.library.fit_library` (a task's
+                retries when its worker died).
+            batches_per_task: batches per task (:meth:`tasks`; default one task per image).
+        """
+        from .. import _cluster
+
+        executor = _cluster.resolve_executor(executor, address, workers)
+        if workers is not None:
+            workers = integer(workers, "workers", 1)
+        cpus_per_task = real(cpus_per_task, "cpus_per_task", minimum=0, strict=True)
+        retries = integer(retries, "retries", 0)
+        tasks = self.tasks(batches_per_task)
+        results: list[TaskResult | None] = [None] * len(tasks)
         with progress_bar(total=len(tasks) * self.batches, desc="instrument", unit="batch", enabled=progress) as bar:
-            for task in tasks:
-                results.append(self.run(task))
-                bar.update(len(task.batches))
-        return self.combine(results)
+            if executor == "process":
+                for k, task in enumerate(tasks):
+                    results[k] = self.run(task)
+                    bar.update(len(task.batches))
+            else:
+                shipped = self._shipped()
+                instead = "measure in this process, without address= and workers="
+                with _cluster.ray_session(address, workers, instead=instead) as ray:
+                    done = _cluster.as_completed(
+                        ray, _run_task, shipped, tasks, cpus_per_task=cpus_per_task, retries=retries
+                    )
+                    try:
+                        for k, result in done:
+                            results[k] = result
+                            bar.update(len(tasks[k].batches))
+                    except Exception as err:  # noqa: BLE001 — a task failed (past its retries, if its worker died)
+                        cause = getattr(err, "cause", None)
+                        if isinstance(cause, BrdfscaleError):
+                            raise cause from None
+                        text = f"{type(err).__name__}: {' '.join(str(err).split())[:300]}"
+                        raise BrdfscaleError(f"a task of the measurement failed on Ray: {text}") from err
+        return self.combine([r for r in results if r is not None])
+
+    def _shipped(self) -> Measurement:
+        """A copy to send to other processes: its Mitsuba variant the one this process resolved (so every worker
+        traces in the same variant), a token that lets a worker keep its scene from task to task
+        (:func:`_run_task`), no scene of its own."""
+        import copy
+        import uuid
+
+        mi = self._scene()[0]
+        shipped = copy.copy(self)  # through __getstate__: without the scene
+        shipped.variant = mi.variant()
+        shipped.__dict__["_token"] = uuid.uuid4().hex
+        return shipped
 
     def _metadata(self, records: list, h: float) -> dict:
         import brdfscale
@@ -477,6 +540,21 @@ class Measurement:
         }
 
 
+_WORKER_PLAN: dict[str, Measurement] = {}
+"""On a Ray worker: the plan of the measurement it traces (by its token), kept from task to task so that its scene
+is built once per worker and measurement; replaced by the next measurement's."""
+
+
+def _run_task(plan: Measurement, task: Task) -> TaskResult:
+    """One task on a Ray worker (:meth:`Measurement.measure`): ``plan.run(task)`` with the worker's copy of the plan."""
+    token = plan.__dict__.get("_token", "")
+    kept = _WORKER_PLAN.get(token)
+    if kept is None:
+        _WORKER_PLAN.clear()
+        _WORKER_PLAN[token] = kept = plan
+    return kept.run(task)
+
+
 def _image_record(mu: float, i: np.ndarray, tallies: list[dict], h: float) -> dict:
     keys = ("rays", "hit", "escaped", "detected", "bounce_limit", "underside", "from_below", "unmeasured")
     total = {key: sum(t[key] for t in tallies) for key in keys}
@@ -530,6 +608,9 @@ def measure(
     seed: int = 0,
     variant: str | None = None,
     progress: bool = True,
+    executor: str = "auto",
+    address: str | None = None,
+    workers: int | None = None,
 ) -> MeasurementSet:
     """Measure the lobes of ``field`` at each scale μ and incident direction with the ray-traced instrument.
 
@@ -559,6 +640,13 @@ def measure(
         seed: an integer ≥ 0; the same seed gives the same measurement bit for bit (on one variant).
         variant: Mitsuba's variant (None: the first of cuda_ad_rgb, llvm_ad_rgb, scalar_rgb that runs here).
         progress: show a progress bar (one step per batch; ``BRDFSCALE_PROGRESS=0`` switches it off).
+        executor: where the tasks (one per image) run: ``"process"`` (here), ``"ray"`` (Ray tasks, the extra
+            ``brdfscale[cluster]``: a local instance of ``workers`` CPUs or the cluster at ``address``) or
+            ``"auto"`` (default: Ray when ``address`` or ``workers`` is given) — the same result, bit for bit
+            (:meth:`Measurement.measure`, which also takes ``cpus_per_task``, ``retries`` and
+            ``batches_per_task``).
+        address: a Ray cluster's address (``"auto"``, ``"HOST:6379"``).
+        workers: CPUs of a local Ray instance started (and stopped) for the measurement.
 
     Returns:
         A :class:`brdfscale.MeasurementSet`, one image per (μ, i), scales outermost, with σ the Monte Carlo standard
@@ -569,8 +657,9 @@ def measure(
     Raises:
         InvalidInputError: any argument out of its range (named, with what is accepted), a spot size that is not a
             whole number of pixels, a mesh above ``MAX_MESH_BYTES`` — before any ray is traced.
-        MissingDependencyError: Mitsuba is not installed or the variant asked for cannot run here (one line saying
-            what to install).
+        MissingDependencyError: Mitsuba is not installed or the variant asked for cannot run here, or Ray is not
+            installed with ``executor="ray"`` (one line saying what to install).
+        BrdfscaleError: a Ray task failed for another reason than bad input (its worker died past its retries).
     """
     plan = Measurement(
         field,
@@ -590,4 +679,4 @@ def measure(
         seed=seed,
         variant=variant,
     )
-    return plan.measure(progress=progress)
+    return plan.measure(progress=progress, executor=executor, address=address, workers=workers)

@@ -1,18 +1,16 @@
 """The library driver: batches of materials to tasks, in-process or on Ray; the index; resume."""
 
-import contextlib
 import dataclasses
 import datetime
 import json
 import os
 import re
-import subprocess
-import sys
 import time
 from typing import Any
 
+from .._cluster import ray_session, resolve_executor
 from .._compilation_cache import directory_in_use
-from .._errors import InvalidInputError, MeasurementFileError, MissingDependencyError, OutputWriteError
+from .._errors import InvalidInputError, MeasurementFileError, OutputWriteError
 from .._files import exclusive, write_text
 from .._json import json_text
 from .._show import progress_bar, Shown, Table
@@ -291,48 +289,10 @@ class _Index:
         write_text(self.path, json_text(self.doc, indent=1), overwrite=True)
 
 
-@contextlib.contextmanager
 def _ray(address, workers):
-    """Ray, initialised for the run: connected to the cluster at ``address``, or a local instance
-    with ``workers`` CPUs started here and stopped at the end — by ``ray.shutdown()``, and, should
-    this process die first (even by SIGKILL), by the watchdog (:mod:`._watchdog`)."""
-    try:
-        import ray
-    except ImportError:
-        raise MissingDependencyError(
-            "executor='ray' needs Ray: pip install 'brdfscale[cluster]' (or run the library "
-            "in-process, without address= and workers=)."
-        ) from None
-    if ray.is_initialized():  # the caller's own Ray: used as it is, left running
-        yield ray
-        return
-    options: dict[str, Any] = dict(include_dashboard=False, log_to_driver=False, configure_logging=False)
-    if address:
-        ray.init(address=address, **options)
-        try:
-            yield ray
-        finally:
-            ray.shutdown()  # disconnects; the cluster's processes are not this run's
-        return
-    watchdog = subprocess.Popen(
-        [sys.executable, "-I", "-S", os.path.join(os.path.dirname(os.path.abspath(__file__)), "_watchdog.py")]
-        + [str(os.getpid())],
-        stdin=subprocess.PIPE,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-        start_new_session=True,  # outlives this process, and a kill of its process group
-        close_fds=True,
-    )
-    try:
-        ray.init(num_cpus=workers, **options)
-        try:
-            yield ray
-        finally:
-            ray.shutdown()
-    finally:
-        assert watchdog.stdin is not None
-        watchdog.stdin.close()  # end of file: the watchdog stops what is left of the instance, and exits
-        watchdog.wait()
+    """Ray for the run (:func:`brdfscale._cluster.ray_session`: the cluster at ``address``, or a local instance of
+    ``workers`` CPUs stopped at the end, by the watchdog :mod:`brdfscale._watchdog` should this process die first)."""
+    return ray_session(address, workers, instead="run the library in-process, without address= and workers=")
 
 
 def _batches(todo, batch):
@@ -386,7 +346,7 @@ def fit_library(
     the index and retried by the next run; the library goes on. Hidden entries of a directory
     (names starting with ``.``) are listed through ``stream``. A local Ray instance started
     here is stopped when this process ends, however it ends (a watchdog process,
-    :mod:`brdfscale.library._watchdog`). docs/library.md states the guarantees.
+    :mod:`brdfscale._watchdog`). docs/library.md states the guarantees.
 
     Raises:
         InvalidInputError: bad arguments, a source that does not exist or named twice, an index
@@ -407,12 +367,7 @@ def fit_library(
     retries = integer(retries, "retries", 0)
     if workers is not None:
         workers = integer(workers, "workers", 1)
-    if executor not in ("auto", "process", "ray"):
-        raise InvalidInputError(f"executor must be 'auto', 'process' or 'ray'; got {executor!r}.")
-    if executor == "auto":
-        executor = "ray" if (address or workers) else "process"
-    if executor == "process" and (address or workers):
-        raise InvalidInputError("address and workers are Ray's: use executor='ray' (or 'auto').")
+    executor = resolve_executor(executor, address, workers)
     if executor == "process":
         from ..checks import require_float64
 

@@ -1,0 +1,109 @@
+"""Ray for work split into tasks — a library's batches of materials (:mod:`brdfscale.library`), a measurement's
+batches of rays (:mod:`brdfscale.instrument`): the one place that picks the executor, starts or joins Ray (the
+optional extra ``brdfscale[cluster]``), stops what it started, and maps a function over tasks on it.
+
+* :func:`resolve_executor` — ``"auto"``/``"process"``/``"ray"`` and ``address``/``workers`` checked, ``"auto"``
+  resolved (Ray when either is given);
+* :func:`ray_session` — Ray initialised for a run: the cluster at ``address``, or a local instance of ``workers`` CPUs
+  started here and stopped at the end, also when this process dies first (the watchdog,
+  :mod:`brdfscale._watchdog`); a Ray the caller initialised is used as it is and left running;
+* :func:`as_completed` — ``function(shared, item)`` for every item as Ray tasks, ``shared`` put into Ray's object
+  store once, the results yielded as they arrive with their item's index.
+
+Nothing here imports Ray until called.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import subprocess
+import sys
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any
+
+from ._errors import InvalidInputError, MissingDependencyError
+
+
+EXECUTORS = ("auto", "process", "ray")
+"""Where tasks run: ``"auto"`` — Ray when ``address`` or ``workers`` is given, else this process; ``"process"`` —
+one after another in this process; ``"ray"`` — as Ray tasks."""
+
+
+def resolve_executor(executor, address, workers) -> str:
+    """``"process"`` or ``"ray"``: ``executor`` checked (:data:`EXECUTORS`) and ``"auto"`` resolved; ``address`` and
+    ``workers`` (Ray's) refused in-process. InvalidInputError naming what is accepted."""
+    if not isinstance(executor, str) or executor not in EXECUTORS:
+        raise InvalidInputError(f"executor must be 'auto', 'process' or 'ray'; got {executor!r}.")
+    if address is not None and not isinstance(address, str):
+        raise InvalidInputError(
+            "address must be a Ray cluster's address (e.g. 'auto' or 'HOST:6379') or None; "
+            f"got {type(address).__name__}."
+        )
+    if executor == "auto":
+        return "ray" if (address or workers) else "process"
+    if executor == "process" and (address or workers):
+        raise InvalidInputError("address and workers are Ray's: use executor='ray' (or 'auto').")
+    return executor
+
+
+@contextlib.contextmanager
+def ray_session(address: str | None, workers: int | None, *, instead: str):
+    """Ray, initialised for the run: connected to the cluster at ``address``, or a local instance with ``workers``
+    CPUs (None: the machine's) started here and stopped at the end — by ``ray.shutdown()``, and, should this process
+    die first (even by SIGKILL), by the watchdog (:mod:`brdfscale._watchdog`). A Ray the caller initialised is used
+    as it is and left running. Without Ray: MissingDependencyError naming the extra, and ``instead`` (what to do
+    without it)."""
+    try:
+        import ray
+    except ImportError:
+        raise MissingDependencyError(
+            f"executor='ray' needs Ray: pip install 'brdfscale[cluster]' (or {instead})."
+        ) from None
+    if ray.is_initialized():  # the caller's own Ray: used as it is, left running
+        yield ray
+        return
+    options: dict[str, Any] = dict(include_dashboard=False, log_to_driver=False, configure_logging=False)
+    if address:
+        ray.init(address=address, **options)
+        try:
+            yield ray
+        finally:
+            ray.shutdown()  # disconnects; the cluster's processes are not this run's
+        return
+    watchdog = subprocess.Popen(
+        [sys.executable, "-I", "-S", os.path.join(os.path.dirname(os.path.abspath(__file__)), "_watchdog.py")]
+        + [str(os.getpid())],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,  # outlives this process, and a kill of its process group
+        close_fds=True,
+    )
+    try:
+        ray.init(num_cpus=workers, **options)
+        try:
+            yield ray
+        finally:
+            ray.shutdown()
+    finally:
+        assert watchdog.stdin is not None
+        watchdog.stdin.close()  # end of file: the watchdog stops what is left of the instance, and exits
+        watchdog.wait()
+
+
+def as_completed(
+    ray, function: Callable, shared, items: Sequence, *, cpus_per_task: float = 1, retries: int = 2
+) -> Iterator[tuple[int, Any]]:
+    """``function(shared, item)`` for every item as a Ray task (``cpus_per_task`` CPUs, ``retries`` retries of a task
+    whose worker died; an exception the function raises is not retried), ``shared`` put into the object store once;
+    yields ``(index of the item, result)`` as each task completes. A task that failed raises here, as Ray's
+    ``RayTaskError`` (its ``cause`` the function's exception) or a worker's death past its retries."""
+    remote: Any = ray.remote  # Any: Ray's stubs type a task's .remote() without its keywords
+    task = remote(num_cpus=cpus_per_task, max_retries=retries, retry_exceptions=False)(function)
+    reference = ray.put(shared)
+    pending = {task.remote(reference, item): k for k, item in enumerate(items)}
+    while pending:
+        ready, _ = ray.wait(list(pending), num_returns=1)
+        k = pending.pop(ready[0])
+        yield k, ray.get(ready[0])
