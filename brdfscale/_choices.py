@@ -141,8 +141,8 @@ MODELS = Choices(
         Choice(
             "anisotropic_law",
             "the anisotropic model's base lobe (--shape) with ΔΣ(μ0, μ) from a continuous scale law: principal "
-            "axes at a free angle, each variance a width law (floor + power law) in μ, so it predicts unseen "
-            "scales (fitting.AnisotropicLawModel)",
+            "axes at a free angle, each variance a width law (floor + power law) in μ or, --law spline, a monotone "
+            "spline in ln μ, so it predicts unseen scales (fitting.AnisotropicLawModel)",
         ),
         Choice("parametric", "a lobe family and a scale law of its slope statistics (fitting.ParametricModel)"),
         Choice("nonparametric", "a tabulated base lobe and relative statistics (fitting.NonParametricModel)"),
@@ -181,6 +181,11 @@ LAWS = Choices(
         Choice(
             "gaussian_surface",
             "GaussianSurface(GaussianCorrelation(rms_height, correlation_length), box window); Beckmann only",
+        ),
+        Choice(
+            "spline",
+            "monotone splines in ln mu of the principal slope variances (stats.MonotoneSplineLaw, 3 knots over the "
+            "fitted scales; beyond them the power law of the end rate); anisotropic_law only",
         ),
     ),
     default="width",

@@ -130,7 +130,11 @@ def test_every_name_in_the_table_is_accepted_by_fitting():
         assert fitting.SAMPLERS[name]().name == name
     for family in choices.FAMILIES:
         for law in choices.LAWS:
-            if law == "gaussian_surface" and family != "beckmann":  # the table says: Beckmann only
+            if law == "spline":  # the table says: anisotropic_law only
+                with pytest.raises(InvalidInputError, match="law must be one of"):
+                    fitting.ParametricModel(family, family, law=law)
+                assert fitting.AnisotropicLawModel(law, scales=[1.0, 2.0]).names
+            elif law == "gaussian_surface" and family != "beckmann":  # the table says: Beckmann only
                 with pytest.raises(Exception, match="gaussian_surface"):
                     fitting.ParametricModel(family, family, law=law)
             else:

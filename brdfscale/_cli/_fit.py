@@ -75,7 +75,10 @@ def add_fit_options(parser) -> None:
         help=f"family of the base lobe and of the slope statistics (parametric model) — {FAMILIES.help()}",
     )
     parser.add_argument(
-        "--law", choices=LAWS.names, default=MODEL.law, help=f"scale law of the parametric model — {LAWS.help()}"
+        "--law",
+        choices=LAWS.names,
+        default=MODEL.law,
+        help=f"scale law of the parametric and anisotropic_law models — {LAWS.help()}",
     )
     parser.add_argument(
         "--masking",
@@ -294,7 +297,7 @@ COMPARED = (
     ("isotropic", {"model": "isotropic", "shape": "gaussian"}),
     ("anisotropic", {"model": "anisotropic", "shape": "gaussian"}),
     ("anisotropic:student_t", {"model": "anisotropic", "shape": "student_t"}),
-    ("anisotropic_law", {"model": "anisotropic_law", "shape": "gaussian"}),
+    ("anisotropic_law", {"model": "anisotropic_law", "shape": "gaussian", "law": "width"}),
 )
 
 
@@ -303,9 +306,10 @@ def _candidates(spec: "FitSpec") -> "list[tuple[str, FitSpec]]":
     import dataclasses
 
     specs = [(name, dataclasses.replace(spec, **fields)) for name, fields in COMPARED]
-    if all((s.model, s.shape) != (spec.model, spec.shape) for _, s in specs):
+    if all((s.model, s.shape, s.law) != (spec.model, spec.shape, spec.law) for _, s in specs):
         shaped = ("anisotropic", "isotropic", "anisotropic_law")
         own = spec.model if spec.model not in shaped else f"{spec.model}:{spec.shape}"
+        own += f":{spec.law}" if spec.model == "anisotropic_law" else ""
         specs.append((own, spec))
     return specs
 

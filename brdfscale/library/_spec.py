@@ -71,11 +71,12 @@ def make_model(
             "scale_law": "ΔΣ per scale" + (" (d_k I)" if isotropic else " (full 2 × 2)"),
         }
     elif model == "anisotropic_law":
-        built = fitting.AnisotropicLawModel("width", shape=shape)
+        built = fitting.AnisotropicLawModel(law, scales=data.scales, shape=shape)
+        axes = "α_a a width law" if law == "width" else "ln σ_a a monotone spline in ln μ"
         info = {
             "kind": model,
             "lobe": f"{shape} (full covariance, free centre)",
-            "scale_law": "Σ(μ) = R(φ) diag(α_1(μ)², α_2(μ)²)/2 R(φ)ᵀ, α_a a width law per principal axis",
+            "scale_law": f"Σ(μ) = R(φ) diag(σ_1²(μ), σ_2²(μ)) R(φ)ᵀ, {axes} per principal axis ({law})",
         }
     elif model == "nonparametric_anisotropic":
         if isinstance(regularisation, str):
