@@ -38,6 +38,12 @@ is listed in :attr:`Outcome.problems`):
      fit's 2 × images tests, is below ``p_value``. False-alarm rate and power are measured in
      tests/test_adequacy.py (model-generated data over seeds; GGX data fitted by a Beckmann model).
 
+   A scale where the prediction at the estimate is not finite at a valid pixel (an overflow or
+   0/0 of the model; masked pixels are left out whatever it predicts there) has no χ² and no
+   autocorrelation: its figures are None (null in fit.json; ``brdfscale fit`` prints
+   "undefined"), never NaN — a NaN compares False with every threshold and would pass — and it
+   is inadequate first of all, the reason naming the scale and how many pixels.
+
    Status ``"inadequate"``, naming the worst scale and its figure.
 3. **Converged**: the optimiser's best start reported success (:attr:`FitResult.status`) and,
    when sampled, the chains passed R̂ and ESS (:attr:`SampleResult.status`, which names the
@@ -88,7 +94,8 @@ class Outcome:
     (``mu``, ``width_px`` — the lobe's narrower principal rms width in image pixels —, and after
     a fit ``chi2``, ``dof``, ``reduced_chi2``, ``chi2_p``, ``lag1_rows``, ``lag1_cols``,
     ``lag1_p``, the largest autocorrelations over the scale's images and the Bonferroni-corrected
-    p-value of the larger); ``thresholds``: those used.
+    p-value of the larger — None, not NaN, where the prediction is not finite at a valid pixel:
+    module docstring, point 2); ``thresholds``: those used.
     """
 
     status: Status
@@ -231,6 +238,10 @@ def undetermined_statistics(fit: FitResult, unit: str | None = None) -> str | No
     )
 
 
+_FIGURES = ("chi2", "reduced_chi2", "chi2_p", "lag1_rows", "lag1_cols", "lag1_p")
+"""A fitted scale's figures (:class:`Outcome`'s ``scales``); None where its prediction is not finite."""
+
+
 def _lag1(r: np.ndarray, valid: np.ndarray, axis: int) -> tuple[float, int]:
     """Lag-1 autocorrelation of ``r`` along ``axis`` over neighbouring valid pairs, and the pair count."""
     a, b = (np.moveaxis(x, axis, -1) for x in (r, valid))
@@ -266,8 +277,12 @@ def assess(
     check_fit(problem, fit, "assess(problem, fit)")
     data, model = problem.data, problem.model
     theta = jnp.clip(jnp.asarray(fit.theta), problem.lower, problem.upper)
-    whitened = (np.asarray(predict_images(model, theta, data)) - np.asarray(data.values)) * np.asarray(data.weight)
     weight = np.asarray(data.weight)
+    valid_pixels = weight > 0
+    # masked pixels (weight 0) are left out, whatever the model predicts there (∞ · 0 would be NaN)
+    with np.errstate(invalid="ignore", over="ignore"):
+        residual = (np.asarray(predict_images(model, theta, data)) - np.asarray(data.values)) * weight
+    whitened = np.where(valid_pixels, residual, 0.0)
     scales = np.asarray(data.scales)
     resolved = resolution(data, unit=unit, thresholds=thresholds)
     n_total, p = max(data.n_data, 1), len(fit.names)
@@ -275,9 +290,21 @@ def assess(
     rows, inadequate = [], []
     for k, mu in enumerate(scales):
         images = data.images_of_scale(k)
-        n_k = int(np.count_nonzero(weight[images]))
-        chi2 = float(np.sum(whitened[images] ** 2))
+        n_k = int(np.count_nonzero(valid_pixels[images]))
         dof = max(n_k - p * n_k / n_total, 1.0)
+        where = _mu_text(float(mu), unit)
+        undefined = int(np.count_nonzero(~np.isfinite(whitened[images])))
+        if undefined:  # no χ² and no autocorrelation: the scale's figures are None (null), never NaN
+            rows.append({**resolved.scales[k], "dof": dof, **dict.fromkeys(_FIGURES)})
+            inadequate.append(
+                (
+                    np.inf,
+                    f"model inadequate at {where}: its prediction is not finite at {undefined} of the {n_k} valid "
+                    "pixels (χ² undefined)",
+                )
+            )
+            continue
+        chi2 = float(np.sum(whitened[images] ** 2))
         lag = {0: 0.0, 1: 0.0}
         p_lag = 1.0
         for i in images:
@@ -299,7 +326,6 @@ def assess(
             "lag1_p": min(p_lag, 1.0),
         }
         rows.append(row)
-        where = _mu_text(float(mu), unit)
         if row["reduced_chi2"] > thresholds.max_reduced_chi2 and row["chi2_p"] < thresholds.p_value:
             inadequate.append(
                 (

@@ -471,10 +471,10 @@ def print_outcome(doc: dict, stream=print) -> None:
         f"{'p':>8s} {'width':>6s}"
     )
     for row in outcome["scales"]:
-        stream(
-            f"    {row['mu']:14.4g} {row['reduced_chi2']:8.3f} {row['chi2_p']:8.2g} {row['lag1_rows']:10.3f} "
-            f"{row['lag1_cols']:10.3f} {row['lag1_p']:8.2g} {row['width_px']:6.2f}"
-        )
+        # None: the prediction is not finite at a valid pixel of the scale (fitting.assess), no figure at all
+        figures = (("reduced_chi2", "8.3f"), ("chi2_p", "8.2g"), ("lag1_rows", "10.3f"), ("lag1_cols", "10.3f"))
+        figures += (("lag1_p", "8.2g"), ("width_px", "6.2f"))
+        stream(f"    {row['mu']:14.4g} " + " ".join(table_cell(row[key], spec, "undefined") for key, spec in figures))
     stream(f"  outcome: {outcome['status']}" + (f" — {outcome['reason']}" if outcome["reason"] else ""))
 
 
@@ -489,12 +489,23 @@ def print_truth(doc: dict, stream=print) -> None:
     )
     for name, row in doc["parameters"].items():
         truth = row.get("truth")
-        q = row["quantiles_5_50_95"] or [float("nan")] * 3
-        std = row["std"] if row["std"] is not None else float("nan")
+        q = row["quantiles_5_50_95"] or [None] * 3  # None: undetermined by the data (no std, no interval)
+        std = row["std"]
         est = row["median"] if row["median"] is not None else row["estimate_map"]
-        pull = f"{abs(est - truth) / std:.2f}" if truth is not None and std > 0 else "—"
-        truth_text = f"{truth:10.4g}" if truth is not None else f"{'unknown':>10s}"
-        stream(f"{name:20s} {truth_text} {est:10.4g} {std:10.3g} {q[0]:10.4g} {q[2]:10.4g}  {pull}")
+        pull = f"{abs(est - truth) / std:.2f}" if truth is not None and std is not None and std > 0 else "—"
+        cells = (table_cell(truth, "10.4g", "unknown"), table_cell(est, "10.4g", "undefined"))
+        cells += (table_cell(std, "10.3g", "undetermined"), table_cell(q[0], "10.4g", "—"))
+        cells += (table_cell(q[2], "10.4g", "—"),)
+        stream(f"{name:20s} {' '.join(cells)}  {pull}")
+
+
+def table_cell(value, spec: str, missing: str) -> str:
+    """``value`` in the format ``spec`` (width first) of a text table, or the word ``missing``
+    right-aligned in that width where it is None or not finite: a table never prints nan."""
+    if value is not None and math.isfinite(value):
+        return f"{value:{spec}}"
+    width = int(spec.split(".")[0] or 0)
+    return f"{missing:>{width}s}"
 
 
 def sampling_line(diag: dict) -> str:
@@ -539,8 +550,9 @@ def print_determined(doc: dict, stream=print) -> None:
             bound = " — its estimate is at a bound of its prior range" if f"log {name}" in at_bounds else ""
             stream(f"  {name:12s} {value:.5g} ± {row['std']:.4g}{arviz}{bound}")
         else:
-            lo, hi = row.get("prior_range") or (float("nan"), float("nan"))
-            stream(f"  {name:12s} undetermined by the data (prior range {lo:.3g} … {hi:.3g}; best fit {value:.4g})")
+            lo, hi = row.get("prior_range") or (None, None)
+            prior = f"{table_cell(lo, '.3g', '?')} … {table_cell(hi, '.3g', '?')}"
+            stream(f"  {name:12s} undetermined by the data (prior range {prior}; best fit {value:.4g})")
     if doc.get("covariance_differences"):
         stream("  what the data determine — ΔΣ(μ0, μk) = Σ(μ0) − Σ(μk), [xx, xy, yy] ± std (slope²):")
         for d in doc["covariance_differences"]:
