@@ -343,10 +343,21 @@ class AnisotropicLawModel(AbstractModel):
         phi = (phi + math.pi / 2) % math.pi - math.pi / 2
         rot = np.array([[math.cos(phi), -math.sin(phi)], [math.sin(phi), math.cos(phi)]])
         along = np.einsum("ia,kij,ja->ka", rot, delta, rot)  # (K, 2): ΔΣ along axes 1, 2
-        along = np.maximum(along, 0.05 * max(float(along[-1].max()), 1e-30))
+        # a change the half-maximum moments do not resolve starts at 5 % of the base lobe's variance (as the increments
+        # of AnisotropicModel.initial), inside every law's prior box
+        along = np.maximum(along, 0.05 * float(np.trace(cov[0])) / 2)
         law = self.law.initial(np.asarray(data.scales), along)
         tail = list(start[-1:]) if self.shape == "student_t" else []
         return np.asarray([*start[: self._n_base], phi, *law, *tail])
+
+    def start_scales(self, theta0):
+        """The jitter of the starts: the base lobe's coordinates as :meth:`AnisotropicModel.start_scales`
+        scales them (the centre by the lobe's width), 1 for φ (radians) and the law's logarithms."""
+        theta0 = np.asarray(theta0, dtype=float)
+        lobe = self.lobe.start_scales(np.asarray(self._split(jnp.asarray(theta0))[0]))
+        scales = np.ones_like(theta0)
+        scales[: self._n_base] = lobe[: self._n_base]
+        return scales
 
     def bounds(self, data):
         """The base lobe's prior (:meth:`AnisotropicModel.bounds`), φ in [−π, π], the law's box."""
