@@ -270,3 +270,29 @@ def test_refuses_bad_arguments_and_scales_where_no_lobe_exists():
         heavy.predict_at(theta_t, MU0, [0.5], u)
     with pytest.raises(InvalidInputError, match="u must have shape"):
         model.predict_at(theta, MU0, [2.0, 4.0], u)
+
+
+def test_the_command_builds_it_and_compares_it():
+    """``brdfscale fit --model anisotropic_law [--law spline] [--shape student_t]`` reaches the model
+    (brdfscale.library.FitSpec, the one place a spec becomes a model), and ``--compare`` fits it
+    beside the per-scale models."""
+    from brdfscale._cli import build_parser
+    from brdfscale._cli._fit import _candidates, check_fit_options, spec_of
+
+    def spec(*extra):
+        args = build_parser().parse_args(["fit", "m.exr", "--out", "d", *extra])
+        check_fit_options(args)
+        return spec_of(args)
+
+    model, info = spec("--model", "anisotropic_law").model_for(SMALL)
+    assert isinstance(model, fitting.AnisotropicLawModel) and "log alpha_max_1" in model.names
+    assert info["kind"] == "anisotropic_law" and info["solver"] == "lm_normal" and "(width)" in info["scale_law"]
+    model, info = spec("--model", "anisotropic_law", "--law", "spline", "--shape", "student_t").model_for(SMALL)
+    assert "log rate_2_2" in model.names and model.names[-1] == "log nu"
+    assert (model.law.mu_min, model.law.mu_max) == (SCALES[0], SCALES[2])  # the knots span the fitted scales
+    with pytest.raises(InvalidInputError, match="law must be one of"):
+        spec("--model", "anisotropic_law", "--law", "gaussian_surface").model_for(SMALL)
+    names = [name for name, _ in _candidates(spec())]
+    assert names == ["isotropic", "anisotropic", "anisotropic:student_t", "anisotropic_law"]
+    names = [name for name, _ in _candidates(spec("--model", "anisotropic_law", "--law", "spline"))]
+    assert names[-1] == "anisotropic_law:gaussian:spline"
