@@ -30,6 +30,11 @@ def small_library(tmp_path_factory):
     return directory
 
 
+def _command(*arguments: str) -> list[str]:
+    """``python -m brdfscale fit-library ARGUMENTS``: a driver in a process of its own."""
+    return [sys.executable, "-m", "brdfscale", "fit-library", *arguments]
+
+
 def _index(out):
     with open(os.path.join(out, library.INDEX)) as f:
         return json.load(f)
@@ -80,20 +85,7 @@ def test_library_in_process_reports_the_corrupt_file_and_resumes(small_library, 
     # a second run while one holds the directory: refused at once
     with exclusive(out, what="library directory"):
         code = subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "brdfscale",
-                "fit-library",
-                str(small_library),
-                "--out",
-                out,
-                "--starts",
-                "2",
-                "--batch",
-                "2",
-                "--no-progress",
-            ],
+            _command(str(small_library), "--out", out, "--starts", "2", "--batch", "2", "--no-progress"),
             capture_output=True,
             text=True,
             cwd=ROOT,
@@ -209,20 +201,7 @@ def _done(out):
 @pytest.mark.slow  # 27 s on 2 cores (a subprocess compiles its own programs): .ci/run's second step runs it
 def test_a_driver_killed_mid_library_resumes_with_each_material_fitted_once(small_library, tmp_path):
     out = str(tmp_path / "out")
-    command = [
-        sys.executable,
-        "-m",
-        "brdfscale",
-        "fit-library",
-        str(small_library),
-        "--out",
-        out,
-        "--batch",
-        "1",
-        "--starts",
-        "2",
-        "--no-progress",
-    ]
+    command = _command(str(small_library), "--out", out, "--batch", "1", "--starts", "2", "--no-progress")
     driver = subprocess.Popen(
         command, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
     )
@@ -257,23 +236,8 @@ def test_ray_with_2_workers_equals_in_process_and_survives_a_killed_worker(small
         main(["fit-library", str(small_library), "--out", local, "--batch", "2", "--starts", "2", "--no-progress"]) == 4
     )
     # Ray: 2 workers, figures on (so a material's report takes seconds: time to kill its worker mid-task)
-    command = [
-        sys.executable,
-        "-m",
-        "brdfscale",
-        "fit-library",
-        str(small_library),
-        "--out",
-        ray_out,
-        "--batch",
-        "2",
-        "--starts",
-        "2",
-        "--workers",
-        "2",
-        "--figures",
-        "--no-progress",
-    ]
+    command = _command(str(small_library), "--out", ray_out, "--batch", "2", "--starts", "2", "--workers", "2")
+    command += ["--figures", "--no-progress"]
     driver = subprocess.Popen(command, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     killed = None
     try:
