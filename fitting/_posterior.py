@@ -233,7 +233,8 @@ def padded_rows(problem):
     :func:`fitting.fit_many` pads a material to. Padded rows add exactly 0 to χ², but XLA may
     sum a longer vector in another order: evaluated on the padded rows, the log-density of
     :func:`fitting.sample` is bit for bit the one :func:`fitting.sample_many` evaluates in its
-    bucket (so their chains are equal, not just to rounding), and the compiled sampling
+    bucket where XLA compiles the stacked arithmetic alike (so their chains are equal, not just
+    to rounding; :mod:`fitting._sample_many`, "What is equal"), and the compiled sampling
     programs depend on the rung of points, not on the dataset's layout (materials of one rung
     share them). The price: at most 1.5 × the rows (above 8 points per scale)."""
     rows = problem.rows()
