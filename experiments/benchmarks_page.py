@@ -879,6 +879,8 @@ def _real_fit_rows(d: dict, noises=None) -> list[list[str]]:
                 num(default_l1, ".3f"),
                 num(h.get("isotropic", {}).get("l1"), ".3f"),
                 num(h.get("second_moment", {}).get("l1"), ".3f"),
+                num(h.get("law", {}).get("l1"), ".3f"),
+                num(h.get("law_spline", {}).get("l1"), ".3f"),
                 num(h.get("noise_floor_l1"), ".3f"),
                 num(r.get("wall_cold_s"), ".1f"),
                 num(r.get("wall_warm_s"), ".1f"),
@@ -899,10 +901,25 @@ _REAL_FIT_HEADER = [
     "held-out L1, default",
     "isotropic",
     "second moment",
+    "law (width)",
+    "law (spline)",
     "noise floor",
     "cold s",
     "warm s",
 ]
+
+
+def _held_out_run_line(d: dict) -> str:
+    """Where the held-out columns come from a later ``--held-out-only`` run than the rest of the table."""
+    run = d.get("held_out_run")
+    if not run:
+        return ""
+    return (
+        f" The held-out columns of {', '.join(f'`{r}`' for r in run['records'])} are from `{run['command']}` "
+        f"(code at commit `{(run.get('code_commit') or '?')[:7]}`, {run['machine'].get('date_utc', '?')}, "
+        f"{run['total_s']:.0f} s; its default model, `{run['default_model']}`, gives the 'default' column); every "
+        "other column is from the run named above."
+    )
 
 
 def real_fits() -> str:
@@ -920,8 +937,9 @@ def real_fits() -> str:
             f"{d['total_s']:.0f} s in all). " + load_line(d),
             f"The default fit of `brdfscale fit` on that commit: model {', '.join(models)}. Held-out: the "
             f"{d['train_scales']} finest scales fitted, the coarser ones predicted; relative L1 against the "
-            "synthesised measurement (noise floor: the noise-free lobe against the noisy one). Anisotropy: the "
-            "eigenvalue ratio of the file's Σ(μ0).",
+            "synthesised measurement (noise floor: the noise-free lobe against the noisy one); law: "
+            "`fitting.AnisotropicLawModel` (width law per principal axis, or monotone spline in ln μ). Anisotropy: "
+            "the eigenvalue ratio of the file's Σ(μ0)." + _held_out_run_line(d),
             table(_REAL_FIT_HEADER, _real_fit_rows(d)),
             "Targets (issue 31):\n\n"
             f"- χ²/dof ≤ 1.5, or an explicit verdict naming why (exit 5 inadequate, 7 undetermined): "
@@ -1459,28 +1477,29 @@ def render_bench() -> str:
         "plane materials: one BSDF evaluation per pixel)\n\n" + table(["render", "ms", "frames/s"], rows)
     ]
     acc = d["eval_accuracy"]
-    rows = [
-        [
-            f"{r['mu']:.3g}",
-            r["where"],
-            str(r["directions"]),
-            f"{r['median_relative']:.2g}",
-            f"{r['p99_relative']:.2g}",
-            f"{r['max_relative']:.2g}",
+    for form, e in acc["forms"].items():
+        rows = [
+            [
+                f"{r['mu']:.3g}",
+                r["where"],
+                str(r["directions"]),
+                f"{r['median_relative']:.2g}",
+                f"{r['p99_relative']:.2g}",
+                f"{r['max_relative']:.2g}",
+            ]
+            for r in e["records"]
         ]
-        for r in acc["records"]
-    ]
-    out.append(
-        f"\nThe plugin's eval against brdfscale's evolved, masked lobe ({acc['surface']} law, {acc['table_nodes']}² "
-        + (
-            f"table nodes on {acc['refined_levels']} scales — tolerance {acc['tolerance']:g}, "
-            f"{acc['table_bytes_float32'] / 2**20:.0f} MiB of float32, built in {acc['build_seconds']:.0f} s; "
-            if "tolerance" in acc
-            else "table nodes; "
+        what = (
+            f"{e['table_nodes']}² table nodes on {e['ladder_levels']} scales, tolerance {e['options']['tolerance']:g}, "
+            f"{e['table_bytes_float32'] / 2**20:.0f} MiB of float32"
+            if form == "table"
+            else f"Gaussian parameters on {e['ladder_levels']} scales ({e['parameter_bytes_float32']} bytes)"
         )
-        + "relative error where the lobe exceeds 1e-3 of its largest value)\n\n"
-        + table(["μ", "where", "directions", "median", "99 %", "max"], rows)
-    )
+        out.append(
+            f"\nThe plugin's eval against brdfscale's evolved, masked lobe — `form=\"{form}\"` ({acc['surface']} law; "
+            f"{what}, built in {e['build_seconds']:.1f} s; relative error where the lobe exceeds 1e-3 of its largest "
+            "value)\n\n" + table(["μ", "where", "directions", "median", "99 %", "max"], rows)
+        )
     t = d["targets"]
     lines = []
     if "error_half_of_lean_mu_ge_8" in t:
@@ -1500,11 +1519,12 @@ def render_bench() -> str:
             f"{k}: {'no equal error reached' if v is None else f'{v:.3g}×'}" for k, v in y["speedups"].items()
         )
         lines.append(f"* ≥ 100× faster than the micro-geometry at equal error ({cells}) — {met(y['met'])}")
-    z = t["eval_within_1e-4"]
-    lines.append(
-        f"* eval within 1e-4 relative of the lobe: max {z['max_relative']:.2g}, worst median "
-        f"{z['worst_median_relative']:.2g} — {met(z['met'])}"
-    )
+    for form in acc["forms"]:
+        z = t[f"eval_within_1e-4_{form}"]
+        lines.append(
+            f'* eval within 1e-4 relative of the lobe, `form="{form}"`: max {z["max_relative"]:.2g}, worst median '
+            f"{z['worst_median_relative']:.2g} — {met(z['met'])}"
+        )
     out.append("\nTargets (issue 33):\n\n" + "\n".join(lines))
     out.append("\n" + machine_line(d) + " " + load_line(d))
     return "\n".join(out)

@@ -36,8 +36,9 @@ with the lobe for the footprint μ (texels, √area of the pixel's footprint):
   of the slope plane here, a rotated frame in (b)) and Mitsuba's α-clamping, not by the lobe's shape. The material
   one would want for a non-Gaussian surface, the evolution with the *measured histograms*, is attempted at every
   level and recorded (``tabulated_evolution``): where the histograms do not nest (seed Eq. 3.1 violated, as study 1
-  finds on real surfaces) the library refuses it. The material is built with ``tolerance=TOLERANCE`` (its ladder and
-  slope grid refined: docs/render.md, "Accuracy of the tables");
+  finds on real surfaces) the library refuses it. The material is rendered in the plugin's closed form (a Gaussian
+  lobe: per-scale covariance, exact between the law's scales; ``tolerance=TOLERANCE`` checks it: docs/render.md,
+  "Accuracy");
 * ``brdfscale_t`` — (d) a non-Gaussian material: ``Beckmann(α0)`` evolved with :class:`MomentStudentTLaw`, per level
   the bivariate Student t with the facets' covariance and the tail index ``ν = 4 + 6/κ`` of their excess kurtosis κ
   (:func:`tail_indices`), on ``T_LADDER`` scales; its Smith masking from Gaussians of LEAN's covariance C(μ)
@@ -85,11 +86,12 @@ CAMERA_HEIGHT = render_plane.CAMERA_HEIGHT / render_plane.TEXEL  # texels
 ANISOTROPIC_SLOPE_SCALE = 12.0
 REAL_FILE = Path(__file__).resolve().parent.parent / "tests" / "data" / "topographies" / "di-3.di"
 SURFACES = ("di-3", "anisotropic")
-METHODS = ("naive", "lean", "brdfscale", "brdfscale_t")
+METHODS = ("naive", "lean", "brdfscale", "brdfscale_t", "empirical")
 NU_MAX = 1000.0
 T_LADDER = 17  # scales of the Student-t material's ladder (evolved numerically: no refinement)
-TOLERANCE = 1e-2  # render.bsdf(tolerance=…) of the Gaussian material (closed forms: cheap)
+TOLERANCE = 1e-4  # render.bsdf(tolerance=…) of the Gaussian material (closed form: exact between the law's scales)
 LOBE_NODES = 256
+EMPIRICAL_NODES = 257
 EVOLVE_GRID = 256
 MEAN_SLOPE_SAMPLES = 16
 RAYS_PER_PASS = 1 << 21
@@ -158,7 +160,7 @@ def level_statistics(field: synth.HeightField, alpha0: float, levels: list[int])
     for record, k, nu in zip(records, kurtosis, nus):
         record.update(excess_kurtosis=k, student_t_nu=nu)
     t_law = MomentStudentTLaw(law, levels, nus)
-    return {"law": law, "t_law": t_law, "covs": covs, "records": records, "facets": facets}
+    return {"law": law, "t_law": t_law, "covs": covs, "records": records, "facets": facets, "field": field}
 
 
 class MomentStudentTLaw:
@@ -195,6 +197,61 @@ def tail_indices(field: synth.HeightField, levels: list[int]) -> tuple[list[floa
         kurtosis.append(k)
         nus.append(NU_MAX if k <= 6 / (NU_MAX - 4) else 4 + 6 / k)
     return kurtosis, nus
+
+
+def nesting(field: synth.HeightField, levels: list[int]) -> list[dict]:
+    """Whether the pixel slopes nest as the seed's evolution assumes, per level b and axis: the slopes ``m = M_b + r``
+    (M_b the block mean, r the deviation within the block, what a footprint's lobe describes). Evolution with
+    independent r (seed Eq. 3.1) makes the cumulants add: the variance (exact here for box blocks, law of total
+    variance) and the fourth cumulant, so r's excess kurtosis would be ``(κ₄(m) − κ₄(M_b))/var(r)²``; the measured
+    one is ``κ₄(r)/var(r)²``. Where they differ the evolved non-Gaussian lobe has the wrong shape."""
+    m = pixel_slopes(np.asarray(field.heights))
+    out = []
+    for b in levels[1:]:
+        blocks = window_slopes(m, b, "box")
+        mb = np.repeat(np.repeat(blocks, b, axis=0), b, axis=1)
+        r = m - mb
+        record = {"level_px": b}
+        for axis, name in ((0, "x"), (1, "y")):
+
+            def k4(v):
+                v = v - v.mean()
+                return float(np.mean(v**4) - 3 * np.mean(v**2) ** 2)
+
+            x, big, small = m[..., axis].ravel(), blocks[..., axis].ravel(), r[..., axis].ravel()
+            var_r = float(np.var(small))
+            record[name] = {
+                "variance_sum_check": float(np.var(x) - np.var(big) - var_r),
+                "residual_excess_kurtosis": k4(small) / var_r**2,
+                "independent_excess_kurtosis": (k4(x) - k4(big)) / var_r**2,
+            }
+        out.append(record)
+    return out
+
+
+def empirical_table(field: synth.HeightField, alpha0: float, levels: list[int], size: int = EMPIRICAL_NODES):
+    """The diagnosis material's lobes: at each level b, Beckmann(α0) convolved with the *measured* distribution of
+    the pixel slopes' deviations from their b × b block mean (what a footprint of b texels holds, no nesting assumed;
+    b = 1: Beckmann(α0) itself), as a :class:`brdfscale.exr.LobeTable` — a histogram on ``size²`` nodes smoothed by
+    the Gaussian of covariance α0²/2·I (scipy.ndimage), over ± the 99.9 % quantile of the deviations plus 4 α0."""
+    from scipy import ndimage
+
+    from brdfscale import exr
+
+    m = pixel_slopes(np.asarray(field.heights))
+    deviations = []
+    for b in levels:
+        blocks = window_slopes(m, b, "box")
+        deviations.append((m - np.repeat(np.repeat(blocks, b, axis=0), b, axis=1)).reshape(-1, 2))
+    extent = max(float(np.quantile(np.abs(r), 0.999)) for r in deviations) + 4 * alpha0
+    h = 2 * extent / (size - 1)
+    edges = np.linspace(-extent - h / 2, extent + h / 2, size + 1)
+    values = []
+    for r in deviations:
+        counts, _, _ = np.histogram2d(r[:, 1], r[:, 0], bins=[edges, edges])  # rows u_y, columns u_x
+        density = ndimage.gaussian_filter(counts, alpha0 / math.sqrt(2) / h, mode="constant") / (len(r) * h * h)
+        values.append(density)
+    return exr.LobeTable(np.asarray(levels, float), extent, np.asarray(values))
 
 
 def tabulated_evolution(facets, alpha0: float) -> list[dict]:
@@ -333,8 +390,9 @@ class MicroGeometry:
             ]
         )
 
-    def render(self, spp: int, seed: int) -> tuple[np.ndarray, float]:
-        """The mean radiance per pixel over ``spp`` jittered rays, and the wall time (seconds)."""
+    def render(self, spp: int, seed: int, shadows: bool = True) -> tuple[np.ndarray, float]:
+        """The mean radiance per pixel over ``spp`` jittered rays, and the wall time (seconds); ``shadows=False``:
+        without the shadow ray (every hit lit: the diagnosis of how much the geometry's shadowing weighs)."""
         import drjit as dr
 
         mi, cam = self.mi, self.camera
@@ -359,7 +417,9 @@ class MicroGeometry:
             ray = mi.Ray3f(mi.Point3f(0.0, 0.0, CAMERA_HEIGHT), d)
             si = self.scene.ray_intersect(ray)
             light = mi.Vector3f(*map(float, self.light))
-            lit = si.is_valid() & ~self.scene.ray_test(si.spawn_ray(light), si.is_valid())
+            lit = si.is_valid()
+            if shadows:
+                lit &= ~self.scene.ray_test(si.spawn_ray(light), si.is_valid())
             value = self.bsdf.eval(mi.BSDFContext(), si, si.to_local(light), lit)[0]
             value = dr.select(lit, value, 0.0)
             sums = dr.block_sum(value, m)
@@ -433,20 +493,27 @@ def render_planes(mi, camera, mu, mean_slope, light, level_stats, levels, alpha0
     images["lean"] = out
     seconds["lean"] = time.perf_counter() - t0
 
-    material = render.bsdf(
-        lobes.Beckmann(alpha0),
-        level_stats["law"],
-        mu0=1.0,
-        texel=1.0,
-        size=LOBE_NODES,
-        masking=masking,
-        variant=VARIANT,
-        tolerance=TOLERANCE,
-    )
-    shade(mi, material, wi[:8], wo[:8], np.ones(8))  # compile
-    t0 = time.perf_counter()
-    images["brdfscale"] = shade(mi, material, wi, wo, mus)
-    seconds["brdfscale"] = time.perf_counter() - t0
+    def timed(name, material):
+        """Shade every pixel with ``material`` at its footprint (after a compiling call): image and seconds."""
+        shade(mi, material, wi[:8], wo[:8], np.ones(8))  # compile
+        t0 = time.perf_counter()
+        images[name] = shade(mi, material, wi, wo, mus)
+        seconds[name] = time.perf_counter() - t0
+
+    def material(law, **options):
+        """``render.bsdf`` of the base lobe Beckmann(α0) at μ0 = 1 texel evolved with ``law``."""
+        return render.bsdf(
+            lobes.Beckmann(alpha0),
+            law,
+            mu0=1.0,
+            texel=1.0,
+            size=LOBE_NODES,
+            masking=masking,
+            variant=VARIANT,
+            **options,
+        )
+
+    timed("brdfscale", material(level_stats["law"], tolerance=TOLERANCE))
 
     # the non-Gaussian material: Beckmann(α0) evolved with the moment-matched Student-t law; its masking tables from
     # Gaussians of the same covariance (LEAN's), as Smith Λ of an evolved Student-t shape is a slow quadrature
@@ -459,24 +526,25 @@ def render_planes(mi, camera, mu, mean_slope, light, level_stats, levels, alpha0
         for m in ladder
     ]
     try:
-        material_t = render.bsdf(
-            lobes.Beckmann(alpha0),
-            level_stats["t_law"],
-            mu0=1.0,
-            texel=1.0,
-            size=LOBE_NODES,
-            masking=masking,
-            variant=VARIANT,
-            scales=ladder,
-            masking_shapes=gaussians,
-        )
+        material_t = material(level_stats["t_law"], scales=ladder, masking_shapes=gaussians)
     except bs.NoBRDFAtScaleError as err:
         level_stats["t_refused"] = str(err).split(". ")[0]
     else:
-        shade(mi, material_t, wi[:8], wo[:8], np.ones(8))  # compile
-        t0 = time.perf_counter()
-        images["brdfscale_t"] = shade(mi, material_t, wi, wo, mus)
-        seconds["brdfscale_t"] = time.perf_counter() - t0
+        timed("brdfscale_t", material_t)
+
+    # the diagnosis material: the measured within-footprint slope distributions (no evolution), masked like (d)
+    table = empirical_table(level_stats["field"], alpha0, levels)
+    timed(
+        "empirical",
+        render.bsdf(
+            None,
+            table,
+            texel=1.0,
+            masking=masking,
+            variant=VARIANT,
+            masking_shapes=[stats.Gaussian(cov=np.asarray(c)) for c in level_stats["covs"]],
+        ),
+    )
     return {k: v.reshape(mu.shape) for k, v in images.items()}, seconds
 
 
@@ -531,6 +599,21 @@ def summary_errors(image, truth, mu, threshold: float = 8.0) -> dict:
     }
 
 
+def shadowing(truth: np.ndarray, unshadowed: np.ndarray, mu: np.ndarray) -> list[dict]:
+    """Per μ band: the truth's band mean without and with the micro-geometry's shadow rays (relative to the truth's
+    mean): the part of the truth that no plane material models (none shadows one footprint by another)."""
+    scale = truth.mean()
+    bands = bands_of(mu)
+    return [
+        {
+            "mu_band_px": [2.0**b, 2.0 ** (b + 1)],
+            "truth": float(truth[bands == b].mean() / scale),
+            "without_shadow_rays": float(unshadowed[bands == b].mean() / scale),
+        }
+        for b in np.unique(bands)
+    ]
+
+
 def equal_error_spp(ladder: list[dict], target: float, key: str) -> float | None:
     """The spp at which the micro-geometry's error ``key`` falls to ``target`` (log-log interpolation along the
     ladder; None when even the largest spp is above it; the smallest spp when already below)."""
@@ -575,6 +658,7 @@ def run(
     for spp in (reference_spp, *ladder_spp):  # compile every kernel first (Dr.Jit compiles one per pass size)
         geometry.render(spp, seed + 99)
     truth, truth_seconds = geometry.render(reference_spp, seed + 1)
+    unshadowed, _ = geometry.render(max(ladder_spp), seed + 1, shadows=False)
     ladder = []
     for k, spp in enumerate(ladder_spp):
         image, seconds = geometry.render(spp, seed + 1000 + k)
@@ -634,6 +718,13 @@ def run(
         "errors": errors,
         "equal_error": equal,
         "alpha_convention_max_relative_error": alpha_convention_error(mi),
+        "diagnosis": {
+            "shadowing": shadowing(truth, unshadowed, mu),
+            "nesting": nesting(field, levels),
+            "model_spread_mu_ge_8": float(
+                np.std([errors[m]["mu_ge_threshold"]["bias_mean_over_bands"] for m in methods if m != "naive"])
+            ),
+        },
     }
     write_results(directory, surface, payload)
     if figures:

@@ -337,6 +337,20 @@ def test_gradients_reach_the_closed_forms_parameters(closed):
     assert np.count_nonzero(grad[:, 3:]) > 0
 
 
+def test_masking_shapes_of_a_lobe_table_are_one_per_scale(material):
+    """A LobeTable with masking_shapes: G₂ from the shapes given (Gaussians: closed-form Λ), one per table scale."""
+    mi, _, table, evolved = material
+    with pytest.raises(brdfscale.InvalidInputError, match="one slope density per scale of the LobeTable"):
+        render.bsdf(None, table, masking_shapes=[stats.Gaussian(sigma=0.1)], variant="llvm_ad_rgb")
+    obj = render.bsdf(None, table, masking_shapes=[lobe.shape for lobe in evolved], mu=3.0, variant="llvm_ad_rgb")
+    i, o = directions_near_lobe(np.random.default_rng(15), 200)
+    got = np.asarray(obj.eval(mi.BSDFContext(), interactions(mi, o, 3.0), vec(mi, i))[0])
+    ref = reference_rho(table, evolved, 3.0, i, o)
+    big = ref > 1e-3 * ref.max()
+    assert np.median(np.abs(got[big] / ref[big] - 1)) < 1e-3  # the G₁ tables' direction interpolation (≤ 1 %)
+    assert np.max(np.abs(got[big] / ref[big] - 1)) < 1e-2
+
+
 def test_the_form_is_checked():
     with pytest.raises(brdfscale.InvalidInputError, match="form must be 'auto' or one of 'table', 'closed'"):
         render.bsdf(base_lobe(), LAW, mu0=MU0, scales=[1.0], form="cubic")

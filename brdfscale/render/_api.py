@@ -100,7 +100,8 @@ def bsdf(
             lobe; docs/render.md).
         masking_shapes: one :mod:`brdfscale.stats` slope density per scale of the ladder whose Smith Λ makes the
             masking tables instead of the evolved shapes' (e.g. Gaussians of the same covariance where the generic
-            quadrature of an evolved non-Gaussian shape is too slow); requires ``scales`` (table form only).
+            quadrature of an evolved non-Gaussian shape is too slow); requires ``scales`` (table form only), or
+            one per scale of a LobeTable (whose own tabulated shapes' quadrature is slow).
         form: ``"auto"`` (closed where the evolved lobes are Gaussian, else table), ``"closed"`` or ``"table"``
             (docs/render.md, "Accuracy").
 
@@ -121,7 +122,16 @@ def bsdf(
             raise InvalidInputError(
                 f"a LobeTable is rendered as a table: form must be 'auto' or 'table'; got {form!r}."
             )
-        host = Tables(lobe_table(base_lobe, statistics), choice, mu=mu, texel=texel)
+        table = lobe_table(base_lobe, statistics)
+        shapes = None
+        if masking_shapes is not None:
+            shapes = list(masking_shapes)
+            if len(shapes) != len(table.scales):
+                raise InvalidInputError(
+                    f"masking_shapes needs one slope density per scale of the LobeTable ({len(table.scales)}); got "
+                    f"{len(shapes)}."
+                )
+        host = Tables(table, choice, mu=mu, texel=texel, shapes=shapes)
     else:
         ladder, evolved, mu0, chosen = evolved_lobes(
             base_lobe, statistics, mu0=mu0, scales=scales, levels=levels, method=method, tolerance=tolerance, form=form
