@@ -144,6 +144,14 @@ class AbstractModel(Shown, eqx.Module):
     def identifiability_notes(self) -> tuple[str, ...]:
         """What the model assumes to make absolute quantities determinable (docs/conventions.md §2)."""
 
+    def start_scales(self, theta0: np.ndarray) -> np.ndarray:
+        """Per coordinate of θ, the standard deviation of a jittered start per unit of ``spread``
+        (:func:`fitting.fit`'s starts, :func:`fitting._problem.starting_points`), given the
+        data-driven start ``theta0``: 1 by default (logarithms of positive quantities, or
+        coordinates of order 1); a model with coordinates in other units (a lobe's centre in
+        slope units) scales them by its own widths."""
+        return np.ones_like(np.asarray(theta0, dtype=float))
+
     def penalty(self, theta: Float[Array, " n"]) -> Float[Array, " m"]:
         """Whitened prior residuals appended to the data residuals (none by default)."""
         return jnp.zeros((0,), dtype=theta.dtype)

@@ -156,11 +156,12 @@ def check_fit(problem, fit, what: str) -> None:
 
 def starting_points(problem, options) -> np.ndarray:
     """The model's data-driven start and ``options.starts − 1`` jittered copies (normal,
-    standard deviation ``options.spread`` in θ, seed ``options.seed``), clipped to the box."""
+    standard deviation ``options.spread`` times the model's :meth:`~fitting.AbstractModel.start_scales`
+    in θ, seed ``options.seed``), clipped to the box."""
     lo, hi = np.asarray(problem.lower), np.asarray(problem.upper)
     theta0 = np.clip(problem.model.initial(problem.data), lo, hi)
     rng = np.random.default_rng(options.seed)
-    jitter = rng.normal(0.0, options.spread, (options.starts - 1, theta0.size))
+    jitter = rng.normal(0.0, options.spread, (options.starts - 1, theta0.size)) * problem.model.start_scales(theta0)
     return np.clip(np.vstack([theta0, theta0 + jitter]), lo, hi)
 
 

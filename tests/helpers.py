@@ -370,25 +370,35 @@ def anisotropic_differences():
     return np.cumsum([np.zeros((2, 2)), *ANISO_TRUTH["steps"]], axis=0)
 
 
-def anisotropic_dataset(seed, noise=0.01, floor=1e-3):
-    """Images of the true anisotropic Gaussian lobe at the three scales with Gaussian noise."""
+def noisy_dataset(lobes, scales, extent, rng, noise=0.01, floor=1e-3):
+    """A fitting.Dataset of normal-incidence images of the noiseless ``lobes`` (one square array per
+    scale, rows u_y) over ``[−extent, extent]²``, each with Gaussian noise of standard deviation
+    ``noise × its peak + floor`` drawn from ``rng`` image by image (σ stored)."""
     from brdfscale import fitting
 
-    rng, u = np.random.default_rng(seed), anisotropic_grid()
     images = []
-    for mu, d in zip(ANISO_SCALES, anisotropic_differences()):
-        v = gaussian(u, ANISO_TRUTH["mean"], ANISO_TRUTH["C0"] + d, ANISO_TRUTH["amplitude"])
+    for mu, v in zip(scales, lobes):
         sigma = noise * v.max() + floor
         images.append(
             bs.LobeImage(
                 mu=mu,
                 incident=[0.0, 0.0, 1.0],
-                extent=ANISO_EXTENT,
+                extent=extent,
                 values=v + sigma * rng.standard_normal(v.shape),
                 sigma=np.full(v.shape, sigma),
             )
         )
     return fitting.Dataset.from_measurements(bs.MeasurementSet(tuple(images)))
+
+
+def anisotropic_dataset(seed, noise=0.01, floor=1e-3):
+    """Images of the true anisotropic Gaussian lobe at the three scales with Gaussian noise."""
+    u = anisotropic_grid()
+    lobes = [
+        gaussian(u, ANISO_TRUTH["mean"], ANISO_TRUTH["C0"] + d, ANISO_TRUTH["amplitude"])
+        for d in anisotropic_differences()
+    ]
+    return noisy_dataset(lobes, ANISO_SCALES, ANISO_EXTENT, np.random.default_rng(seed), noise, floor)
 
 
 def anisotropic_theta(model, amplitude, c0, mean, differences):
