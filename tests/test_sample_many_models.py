@@ -10,7 +10,7 @@ import pytest
 from tests.helpers import material
 
 
-@pytest.mark.slow  # ~30 s on 2 cores (the anisotropic model's programs compile three times)
+@pytest.mark.slow  # ~35 s of CPU (the anisotropic model's programs compile for the stack and alone)
 def test_anisotropic_materials_sampled_together_agree_with_sample_to_rounding():
     import jax
 
