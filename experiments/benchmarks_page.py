@@ -979,6 +979,75 @@ def real_fits_summary() -> str:
     )
 
 
+_SPEED_LABELS = {
+    "default": "default (NUTS)",
+    "default_no_sampling": "`--steps 0` (fit, Laplace, report)",
+    "hmc": "`--sampler hmc`",
+    "nonparametric_anisotropic": "`--model nonparametric_anisotropic --steps 0`",
+    "student_t_no_sampling": "`--shape student_t --steps 0`",
+}
+
+
+def anisotropic_speed() -> str:
+    """docs/fitting.md: wall and CPU time of ``brdfscale fit`` on the 8-scale, 65² px set (issue 31 item 8)."""
+    d = load("bench_anisotropic")
+    if d is None or "runs" not in d:
+        return "(bench_anisotropic.json missing)"
+
+    def cell(row, key, fmt="{:.1f}"):
+        return "—" if row is None or row.get(key) is None else fmt.format(row[key])
+
+    rows = []
+    for name, entry in d["runs"].items():
+        cold, warm = entry.get("cold"), entry.get("warm")
+        last = warm or cold or {}
+        sampled = last.get("sampler")
+        draws = (
+            "—"
+            if not sampled
+            else f"{sampled}, {last['chains']} × ({last['burn_in']} + {last['steps'] - last['burn_in']})"
+        )
+        timing = last.get("timing_s") or {}
+        rows.append(
+            [
+                _SPEED_LABELS.get(name, name),
+                f"{cell(cold, 'wall_s')} / {cell(warm, 'wall_s')}",
+                f"{cell(cold, 'cpu_s')} / {cell(warm, 'cpu_s')}",
+                f"{cell(cold, 'load_1min_before')} / {cell(warm, 'load_1min_before')}",
+                draws,
+                "—" if not timing else f"{timing['warmup_s']:.1f} / {timing['sampling_s']:.1f}",
+                "—" if not sampled else f"{last['min_ess_bulk']:.0f} ({last['ess_margin']:.1f}×)",
+                "—" if not sampled else f"{last['max_r_hat']:.4f}",
+                " / ".join(str(r["exit"]) for r in (cold, warm) if r is not None),
+            ]
+        )
+    header = [
+        "run",
+        "wall s (cold / warm)",
+        "CPU s (cold / warm)",
+        "load before (cold / warm)",
+        "sampler, chains × (warm-up + draws)",
+        "warm-up / draws s (warm run)",
+        "min ESS_bulk (× 400)",
+        "max R̂",
+        "exit",
+    ]
+    met_lines = [f"- {k}: {met(v)}" for k, v in (d.get("met") or {}).items()]
+    return "\n\n".join(
+        [
+            machine_line(d)
+            + f" Command: `flock /tmp/brdfscale-bench.lock python -m experiments.bench_anisotropic` (each run "
+            f"`{d['command']}`); set: {d['measurements']['file']}, {d['measurements']['scales']} scales, "
+            f"{d['measurements']['pixels']}² px, noise {d['measurements']['noise']}.",
+            table(header, rows),
+            "Targets (issue 31 item 8; wall time, 2 cores): default ≤ "
+            f"{d['targets']['default_cold_s']:.0f} s cold and ≤ {d['targets']['default_warm_s']:.0f} s warm, the "
+            f"non-parametric anisotropic model ≤ {d['targets']['nonparametric_anisotropic_cold_s']:.0f} s cold:\n\n"
+            + "\n".join(met_lines),
+        ]
+    )
+
+
 def cli_cache() -> str:
     d = load("bench_cli_cache")
     if d is None:
@@ -1471,7 +1540,7 @@ def render_bench() -> str:
     fps = sp["frames_per_second"]
     rows = [[name, f"{1e3 * sp['seconds_best'][name]:.1f}", f"{fps[name]:.3g}"] for name in fps]
     out = [
-        f"Frames of {sp['image'][0]}×{sp['image'][1]} px (best of {len(sp['all_seconds']['naive'])}; "
+        f"Frames of {sp['image'][0]}×{sp['image'][1]} px (best of {sp['repeat']}; "
         "the micro-geometry: "
         f"{sp['instances']} instances of a {sp['triangles_per_tile']:,}-triangle tile, 1 spp with a shadow ray; the "
         "plane materials: one BSDF evaluation per pixel)\n\n" + table(["render", "ms", "frames/s"], rows)
@@ -1546,6 +1615,7 @@ SECTIONS = [
     ("benchmarks.md", "Rendering (bench_render)", render_bench),
     ("topography.md", "Fits of measured surfaces (bench_real_fits)", real_fits_summary),
     ("fitting.md", "Samplers (bench_samplers)", samplers),
+    ("fitting.md", "Speed of the default fit (bench_anisotropic)", anisotropic_speed),
     ("fitting.md", "Calibration (calibration_fit)", calibration),
     ("library.md", "Throughput (bench_library)", library),
     ("so3.md", "SO(3) benchmark (bench_so3)", so3_details),

@@ -49,7 +49,8 @@ Errors (relative to the truth's mean radiance, per μ band a factor 2 wide): ``b
 (the part a statistical model can remove; sparkle averages out) and ``mean_abs`` — per-pixel mean |Δ| (includes the
 sparkle of individual facets that no plane material reproduces). Time to equal error: the micro-geometry rendered at
 1, 2, 4, … spp (fresh seeds, kernels compiled beforehand) against the reference; the spp (log-log interpolated) at
-which its error equals a plane material's, its time, and the plane material's shading time.
+which its error equals a plane material's, its measured time there (the ladder's frame times, log-log interpolated:
+:func:`ladder_seconds`), and the plane material's shading time.
 
 Run:  python -m experiments.render_validation [--width 192 --height 128 --size 512 --reference-spp 1024]
 Writes experiments/results/render_validation/<surface>.{json,png,exr}.
@@ -456,8 +457,11 @@ def level_weights(mu: np.ndarray, levels: list[int]) -> np.ndarray:
     return np.stack([np.where(lo == k, 1 - w, 0.0) + np.where(lo + 1 == k, w, 0.0) for k in range(len(levels))])
 
 
-def render_planes(mi, camera, mu, mean_slope, light, level_stats, levels, alpha0, masking=True) -> tuple[dict, dict]:
-    """The three plane materials shaded once per pixel centre; images and shading seconds per method."""
+def render_planes(
+    mi, camera, mu, mean_slope, light, level_stats, levels, alpha0, masking=True, repeat: int = 1
+) -> tuple[dict, dict]:
+    """The plane materials shaded once per pixel centre; images and shading seconds per method (the best of
+    ``repeat`` timed runs after a compiling one)."""
     from brdfscale import render
 
     row, col = np.mgrid[0 : camera.height, 0 : camera.width] + 0.5
@@ -471,34 +475,41 @@ def render_planes(mi, camera, mu, mean_slope, light, level_stats, levels, alpha0
     weights = level_weights(mus, levels)
     images, seconds = {}, {}
 
+    def best(name, run):
+        """``images[name] = run()`` and ``seconds[name]``: its best wall time over ``repeat`` runs after a compiling
+        one."""
+        run()
+        times = []
+        for _ in range(repeat):
+            t0 = time.perf_counter()
+            images[name] = run()
+            times.append(time.perf_counter() - t0)
+        seconds[name] = min(times)
+
     basis = frame(normals)
     wi, wo = local(-view, basis), local(lights, basis)
     naive = roughconductor(mi, alpha0)
-    shade(mi, naive, wi[:8], wo[:8])  # compile
-    t0 = time.perf_counter()
-    images["naive"] = shade(mi, naive, wi, wo)
-    seconds["naive"] = time.perf_counter() - t0
+    best("naive", lambda: shade(mi, naive, wi, wo))
 
     lean = []
     for cov in level_stats["covs"]:
         w, v = np.linalg.eigh(cov)
         lean.append((roughconductor(mi, math.sqrt(2 * w[1]), math.sqrt(2 * w[0])), math.atan2(v[1, 1], v[0, 1])))
-    t0 = time.perf_counter()
-    out = np.zeros(len(view))
-    for k, (material, angle) in enumerate(lean):
-        sel = weights[k] > 0
-        if np.any(sel):
-            b = frame(normals[sel], angle)
-            out[sel] += weights[k][sel] * shade(mi, material, local(-view[sel], b), local(lights[sel], b))
-    images["lean"] = out
-    seconds["lean"] = time.perf_counter() - t0
+
+    def lean_image():
+        out = np.zeros(len(view))
+        for k, (material, angle) in enumerate(lean):
+            sel = weights[k] > 0
+            if np.any(sel):
+                b = frame(normals[sel], angle)
+                out[sel] += weights[k][sel] * shade(mi, material, local(-view[sel], b), local(lights[sel], b))
+        return out
+
+    best("lean", lean_image)
 
     def timed(name, material):
-        """Shade every pixel with ``material`` at its footprint (after a compiling call): image and seconds."""
-        shade(mi, material, wi[:8], wo[:8], np.ones(8))  # compile
-        t0 = time.perf_counter()
-        images[name] = shade(mi, material, wi, wo, mus)
-        seconds[name] = time.perf_counter() - t0
+        """Shade every pixel with ``material`` at its footprint: image and seconds."""
+        best(name, lambda: shade(mi, material, wi, wo, mus))
 
     def material(law, **options):
         """``render.bsdf`` of the base lobe Beckmann(α0) at μ0 = 1 texel evolved with ``law``."""
@@ -614,6 +625,14 @@ def shadowing(truth: np.ndarray, unshadowed: np.ndarray, mu: np.ndarray) -> list
     ]
 
 
+def ladder_seconds(ladder: list[dict], spp: float) -> float:
+    """The micro-geometry's measured wall time at ``spp`` samples per pixel: log-log interpolation of the ladder's
+    timed renders (each a full frame with its passes and transfers), the smallest spp's time below it."""
+    counts = np.array([x["spp"] for x in ladder], float)
+    seconds = np.array([x["seconds"] for x in ladder], float)
+    return float(np.exp(np.interp(math.log(max(spp, counts[0])), np.log(counts), np.log(seconds))))
+
+
 def equal_error_spp(ladder: list[dict], target: float, key: str) -> float | None:
     """The spp at which the micro-geometry's error ``key`` falls to ``target`` (log-log interpolation along the
     ladder; None when even the largest spp is above it; the smallest spp when already below)."""
@@ -677,7 +696,6 @@ def run(
     methods = [m for m in METHODS if m in images]
     errors = {m: summary_errors(images[m], truth, mu) for m in methods}
     equal = {}
-    per_spp = truth_seconds / reference_spp
     for m in methods:
         entry = {"shading_seconds": seconds[m]}
         for key, name in (("mean_abs", "mean_abs"), ("far_mean_abs", "mean_abs"), ("far_bias", "bias_mean_over_bands")):
@@ -686,8 +704,8 @@ def run(
             entry[key] = {
                 "error": target,
                 "micro_geometry_spp": spp_eq,
-                "micro_geometry_seconds": None if spp_eq is None else spp_eq * per_spp,
-                "speedup": None if spp_eq is None else spp_eq * per_spp / seconds[m],
+                "micro_geometry_seconds": None if spp_eq is None else ladder_seconds(ladder, spp_eq),
+                "speedup": None if spp_eq is None else ladder_seconds(ladder, spp_eq) / seconds[m],
             }
         equal[m] = entry
     all_images = {"truth": truth, **images, "mu": mu}

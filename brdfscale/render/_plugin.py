@@ -55,6 +55,13 @@ class Host:
         self.mu = None if mu is None else float(mu)
         self.texel = float(texel)
 
+    form: str = ""
+    """``"table"`` or ``"closed"`` (the subclass's)."""
+
+    def renderer(self, mi):
+        """The Dr.Jit evaluator of this form for ``mi``'s variant."""
+        raise NotImplementedError
+
     @staticmethod
     def doubled(values: np.ndarray) -> np.ndarray:
         """Per-scale values with a one-scale ladder repeated (the constant ladder of :class:`Host`)."""
