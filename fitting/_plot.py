@@ -61,6 +61,15 @@ def _relative(model, thetas, W, data):
 
 
 @eqx.filter_jit
+def _relative_axes(model, thetas, W, data):
+    """``R_k`` along the W_x and W_y axes for every draw: shape (draws, 2, k, w) (models with
+    ``relative_statistics_plane``: the anisotropic ones)."""
+    zero = jnp.zeros_like(W)
+    along = (jnp.stack([W, zero], axis=-1), jnp.stack([zero, W], axis=-1))
+    return jax.vmap(lambda t: jnp.stack([model.relative_statistics_plane(t, a, data.scales) for a in along]))(thetas)
+
+
+@eqx.filter_jit
 def _absolute(model, thetas, W, data):
     """``S(W, μ_k)`` for every draw and measured scale (parametric models)."""
 
@@ -141,16 +150,33 @@ def _zoom(data, i: int) -> tuple[float, float, float, float]:
     return (cx - half, cx + half, cy - half, cy + half)
 
 
+RESIDUAL_RANGE = 4.0
+"""The least half-range of the residual panels' colour scale, in σ."""
+
+
+def _residual_range(residual: np.ndarray, window, e: float) -> float:
+    """The half-range of a residual panel: :data:`RESIDUAL_RANGE` σ, or the 99th percentile of
+    ``|residual|`` inside the shown ``window`` where it is larger (rounded up to a whole σ), so
+    the structure of a poor fit's residuals is not one saturated colour."""
+    n = residual.shape[0]
+    x = np.linspace(-e, e, n)
+    inside = ((x >= window[0]) & (x <= window[1]))[None, :] & ((x >= window[2]) & (x <= window[3]))[:, None]
+    shown = np.abs(residual[inside])
+    return max(RESIDUAL_RANGE, float(np.ceil(np.quantile(shown, 0.99)))) if shown.size else RESIDUAL_RANGE
+
+
 def plot_fit(problem: Problem, fit: FitResult, *, unit: str | None = None):
     """Data, fit and whitened residuals at every measured scale (the report's ``data_vs_fit.png``).
 
     One row per scale (its first image): (1) the data ``A·g(u)`` over the slope offsets
     ``u`` (per unit slope²), (2) the model at the estimate on the same colour scale, (3) the
-    whitened residual ``(fit − data)/σ`` on [−4, 4] (0 where masked); each with its colour
-    bar. Each row is zoomed to where its lobe is — a square about the lobe's centre, five rms
-    widths (at least eight pixels) from it, from the data's second moments
-    (:func:`fitting.lobe_widths`' pixels) — so that a narrow lobe on a wide image is not a dot;
-    the title says when a row is zoomed. ``unit``: the length unit of μ in the titles (None:
+    whitened residual ``(fit − data)/σ`` (0 where masked) on [−r, r], ``r`` = 4 or, where
+    larger, the 99th percentile of ``|residual|`` in the panel rounded up (a poor fit's
+    residual structure is then not one saturated colour); each with its colour bar. Each row
+    is zoomed to where its lobe is — a square about the lobe's centre, five rms widths (at
+    least eight pixels) from it, from the data's second moments (:func:`fitting.lobe_widths`'
+    pixels) — so that a narrow lobe on a wide image is not a dot; the title says when a row is
+    zoomed (tests/test_plot_fit.py). ``unit``: the length unit of μ in the titles (None:
     pixels of the height field). Axes: 6 per scale.
 
     Returns a ``matplotlib.figure.Figure`` (made without pyplot).
@@ -174,11 +200,13 @@ def plot_fit(problem: Problem, fit: FitResult, *, unit: str | None = None):
         window = _zoom(data, i)
         zoomed = window != (-e, e, -e, e)
         vmax = max(obs.max(), fitted.max())
+        residual = (fitted - obs) * w
+        r = _residual_range(residual, window, e)
         for col, (img, title, label, kw) in enumerate(
             (
                 (obs, "data", _LOBE_UNIT, dict(vmin=0, vmax=vmax)),
                 (fitted, "fit", _LOBE_UNIT, dict(vmin=0, vmax=vmax)),
-                ((fitted - obs) * w, "(fit − data)/σ", "(fit − data)/σ", dict(vmin=-4, vmax=4, cmap="RdBu_r")),
+                (residual, "(fit − data)/σ", "(fit − data)/σ", dict(vmin=-r, vmax=r, cmap="RdBu_r")),
             )
         ):
             ax = axes[row, col]
@@ -194,10 +222,10 @@ def plot_fit(problem: Problem, fit: FitResult, *, unit: str | None = None):
     return fig
 
 
-def _band(ax, W, curves, color, label):
+def _band(ax, W, curves, color, label, ls="-"):
     lo, mid, hi = np.percentile(curves, [5, 50, 95], axis=0)
     ax.fill_between(W, lo, hi, color=color, alpha=0.3, lw=0)
-    ax.plot(W, mid, color=color, lw=1.2, label=label)
+    ax.plot(W, mid, color=color, lw=1.2, ls=ls, label=label)
 
 
 def statistics_figure(problem: Problem, fit: FitResult, draws, true_theta, *, unit: str | None = None):
@@ -217,18 +245,31 @@ def statistics_figure(problem: Problem, fit: FitResult, draws, true_theta, *, un
         else 8.0 / float(np.sqrt(q["C0_xx"] + q["C0_yy"]))
     )
     W = jnp.linspace(0.0, w_max, 200)
-    relative = np.asarray(_relative(model, jnp.asarray(draws), W, data))
+    planar = hasattr(model, "relative_statistics_plane")  # an anisotropic model: R_k depends on W's direction
     w = np.asarray(W)  # matplotlib iterates over what it is given: a JAX array costs a dispatch per element
-    fig = _figures.figure(11 if absolute else 6, 4)
-    axes = fig.subplots(1, 2 if absolute else 1, squeeze=False)[0]
+    wide = absolute or planar
+    fig = _figures.figure(11 if wide else 6, 4)
+    axes = fig.subplots(1, 2 if wide else 1, squeeze=False)[0]
     colors = _figures.colormap("viridis")(np.linspace(0, 0.9, len(scales)))
-    for k in range(1, len(scales)):
-        _band(axes[0], w, relative[:, k], colors[k], _mu_title(scales[k], unit))
-        if true_theta is not None:
-            axes[0].plot(w, np.asarray(model.relative_statistics(true_theta, W, data.scales))[k], "k--", lw=0.8)
-    axes[0].set_title(
-        f"S(W, μ0)/S(W, μ), μ0 = {scales[0]:.4g} {unit or 'px'}: determined by the data (5–95 % band)", fontsize=9
-    )
+    mu0 = f"μ0 = {scales[0]:.4g} {unit or 'px'}"
+    if planar:
+        relative = np.asarray(_relative_axes(model, jnp.asarray(draws), W, data))
+        for k in range(1, len(scales)):
+            _band(axes[0], w, relative[:, 0, k], colors[k], _mu_title(scales[k], unit))
+            _band(axes[0], w, relative[:, 1, k], colors[k], None, ls="--")
+        axes[0].plot([], [], "k-", lw=1.2, label="along W_x")
+        axes[0].plot([], [], "k--", lw=1.2, label="along W_y")
+        axes[0].set_title(f"S(W, μ0)/S(W, μ) along W_x and W_y, {mu0} (5–95 % band)", fontsize=9)
+        axes[0].set_xlabel("W_x or W_y (rad per unit slope)")
+        _differences_panel(axes[1], fit, unit)
+    else:
+        relative = np.asarray(_relative(model, jnp.asarray(draws), W, data))
+        for k in range(1, len(scales)):
+            _band(axes[0], w, relative[:, k], colors[k], _mu_title(scales[k], unit))
+            if true_theta is not None:
+                axes[0].plot(w, np.asarray(model.relative_statistics(true_theta, W, data.scales))[k], "k--", lw=0.8)
+        axes[0].set_title(f"S(W, μ0)/S(W, μ), {mu0}: determined by the data (5–95 % band)", fontsize=9)
+        axes[0].set_xlabel("|W| (rad per unit slope)")
     axes[0].set_ylabel("S(W, μ0)/S(W, μ)")
     if absolute:
         curves = np.asarray(_absolute(model, jnp.asarray(draws), W, data))
@@ -238,13 +279,46 @@ def statistics_figure(problem: Problem, fit: FitResult, draws, true_theta, *, un
                 axes[1].plot(w, np.asarray(model.statistics_at(true_theta, mu).cf_radial(W)), "k--", lw=0.8)
         axes[1].set_title("S(W, μ): absolute via the scale law's S(W, ∞) = 1", fontsize=9)
         axes[1].set_ylabel("S(W, μ)")
+        axes[1].set_xlabel("|W| (rad per unit slope)")
     for ax in axes:
         if true_theta is not None:
             ax.plot([], [], "k--", lw=0.8, label="truth")
-        ax.set_xlabel("|W| (rad per unit slope)")
         ax.legend(fontsize=7)
         _figures.small_ticks(ax)
     return fig
+
+
+def _differences_panel(ax, fit: FitResult, unit: str | None) -> None:
+    """ΔΣ(μ0, μ) = Σ(μ0) − Σ(μ) against μ, its xx, yy and xy entries with their standard errors
+    (``fit.covariance_differences``, what fit.json reports): the anisotropic models' statistics
+    by direction, in slope² (a topography's Σ(μ0) − Σ(μ) is the same quantity). An entry without
+    a standard error (undetermined) is drawn hollow, without a bar."""
+    entries = [d for d in fit.covariance_differences if d.get("value") is not None]
+    if not entries:
+        ax.text(0.5, 0.5, "no ΔΣ in this fit result", ha="center", va="center", transform=ax.transAxes)
+        ax.plot([], [], " ", label="ΔΣ: none")
+    mus = np.array([float(d["mu"]) for d in entries])
+    for (a, b, name), marker in zip(((0, 0, "xx"), (1, 1, "yy"), (0, 1, "xy")), ("o", "s", "^")):
+        value = np.array([np.nan if d["value"][a][b] is None else float(d["value"][a][b]) for d in entries])
+        std = np.array(
+            [np.nan if d.get("std") is None or d["std"][a][b] is None else float(d["std"][a][b]) for d in entries]
+        )
+        known = np.isfinite(std)
+        line = ax.errorbar(mus[known], value[known], yerr=std[known], fmt=marker, ms=4, capsize=2, label=f"ΔΣ_{name}")
+        if np.any(~known):
+            colour = line[0].get_color()
+            ax.plot(mus[~known], value[~known], marker, ms=4, mfc="none", color=colour)
+    if entries and np.any([d.get("std") is None or None in sum(d["std"], []) for d in entries]):
+        ax.plot([], [], "ko", mfc="none", ms=4, label="no standard error (undetermined)")
+    ax.axhline(0.0, color="0.6", lw=0.6)
+    ax.set_xscale("log")
+    if entries:  # ticks at the measured scales (a log axis over less than a decade labels 2.25×10⁰ …)
+        ax.set_xticks(mus, [f"{m:.3g}" for m in mus])
+        ax.minorticks_off()
+    mu0 = f"{float(entries[0]['mu0']):.4g} {unit or 'px'}" if entries else "μ0"
+    ax.set_title(f"ΔΣ(μ0, μ) = Σ(μ0) − Σ(μ) ± standard error, μ0 = {mu0}", fontsize=9)
+    ax.set_xlabel(f"facet size μ ({unit or 'px'})")
+    ax.set_ylabel("ΔΣ (slope²)")
 
 
 def plot_recovered_statistics(
@@ -260,12 +334,16 @@ def plot_recovered_statistics(
 
     Panels: (1) the ratios ``S(W, μ0)/S(W, μ)`` for every coarser measured scale — what
     multi-scale data determine — as median and 5–95 % band over 400 posterior draws (MCMC
-    ``samples`` when given, else the fit's Laplace approximation); (2, parametric models) the
-    absolute ``S(W, μ)`` at every measured scale, which rests on the scale law's boundary
-    condition ``S(W, ∞) = 1``. Known truth (``truth``: parameter values, e.g. from
-    :func:`fitting.truth_of`) is drawn dashed. W in radians per unit slope; ``unit``: the length
-    unit of μ in the titles and legends (None: pixels of the height field). Axes: 2 for a
-    parametric model, 1 for the non-parametric one.
+    ``samples`` when given, else the fit's Laplace approximation) — for the anisotropic models
+    (whose ratio ``exp(−½ Wᵀ ΔΣ W)`` depends on W's direction) along the W_x axis (solid) and
+    the W_y axis (dashed), else against ``|W|``; (2, parametric models) the absolute
+    ``S(W, μ)`` at every measured scale, which rests on the scale law's boundary condition
+    ``S(W, ∞) = 1``; (2, anisotropic models) ``ΔΣ(μ0, μ)``'s xx, yy and xy entries against μ
+    with their standard errors (``fit.covariance_differences``; hollow: no standard error).
+    Known truth (``truth``: parameter values, e.g. from :func:`fitting.truth_of`) is drawn
+    dashed (parametric models). W in radians per unit slope; ``unit``: the length unit of μ in
+    the titles and legends (None: pixels of the height field). Axes: 2 for a parametric or an
+    anisotropic model, 1 for the isotropic non-parametric one.
 
     Returns a ``matplotlib.figure.Figure`` (made without pyplot).
 

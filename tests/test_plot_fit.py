@@ -4,6 +4,8 @@ unit. The data are hand-built Gaussian lobe images (no fit is run: the figure re
 model's prediction at θ, so a FitResult at any θ of the model is enough); the lobe's mass inside the
 window is measured on the image itself, not recomputed from the zoom rule."""
 
+import equinox as eqx
+import jax.numpy as jnp
 import matplotlib.pyplot as plt
 import numpy as np
 import pytest
@@ -110,5 +112,118 @@ def test_the_statistics_figure_names_mus_unit(narrow):
         texts = [fig.axes[0].get_title()] + [t.get_text() for ax in fig.axes for t in ax.get_legend().get_texts()]
         mus = [t for t in texts if "μ" in t]
         assert mus and all(t.count(" m") >= 1 for t in mus), texts
+    finally:
+        plt.close(fig)
+
+
+def _residual_panels(fig):
+    """(axes, image) of every residual panel (the third of each row)."""
+    return [(ax, ax.images[0]) for ax in fig.axes if ax.images and not hasattr(ax, "_colorbar")][2::3]
+
+
+def _shown(ax, image) -> np.ndarray:
+    """The |values| of ``image`` inside the axes' limits."""
+    x = np.linspace(-EXTENT, EXTENT, SIZE)
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    inside = ((x >= x0) & (x <= x1))[None, :] & ((y0 <= x) & (x <= y1))[:, None]
+    return np.abs(np.asarray(image.get_array()))[inside]
+
+
+def test_the_residual_colour_scale_widens_for_a_poor_fit_only(narrow):
+    """The model at θ predicts a lobe unlike the data (a poor fit, residuals of hundreds of σ): the
+    residual panels' range is wider than ±4 and saturates at most 1 % of the pixels shown (plus
+    rounding up); data equal to the prediction up to noise within ±1 σ keep ±4."""
+    images, problem, result = narrow
+    fig = plot.fit(problem, result)
+    try:
+        for ax, image in _residual_panels(fig):
+            low, high = image.get_clim()
+            shown = _shown(ax, image)
+            assert low == -high and high > 4 and shown.max() > 4, (high, shown.max())
+            assert np.mean(shown > high) <= 0.01, (high, np.quantile(shown, 0.99))
+    finally:
+        plt.close(fig)
+    predicted = np.asarray(eqx.filter_jit(problem.model.predict)(jnp.asarray(result.theta), problem.data))
+    rng = np.random.default_rng(3)
+    exact = [
+        bs.LobeImage(
+            mu=image.mu,
+            incident=image.incident,
+            extent=EXTENT,
+            values=problem.data.image(i, predicted[i]) + rng.uniform(-1, 1, (SIZE, SIZE)),
+            sigma=np.ones((SIZE, SIZE)),
+        )
+        for i, image in enumerate(images)
+    ]
+    problem2, result2 = _problem_and_fit(exact)
+    fig = plot.fit(problem2, result2)
+    try:
+        assert all(image.get_clim() == (-4.0, 4.0) for _, image in _residual_panels(fig))
+    finally:
+        plt.close(fig)
+
+
+def test_the_statistics_of_an_anisotropic_fit_by_direction():
+    """AnisotropicModel at known ΔΣ (tests/helpers.py ANISO_TRUTH): the ratio panel draws
+    exp(−½ W² ΔΣ_xx) along W_x (solid) and exp(−½ W² ΔΣ_yy) along W_y (dashed) — the closed form of a
+    Gaussian change of the lobe, not the direction average — and the ΔΣ panel the entries of
+    fit.covariance_differences with their standard errors (an entry without one hollow)."""
+    from tests import helpers
+
+    data = helpers.anisotropic_dataset(0)
+    model = fitting.AnisotropicModel(3)
+    truth = helpers.ANISO_TRUTH
+    differences = helpers.anisotropic_differences()
+    theta = np.asarray(helpers.anisotropic_theta(model, truth["amplitude"], truth["C0"], truth["mean"], differences))
+    n = len(model.names)
+    entries = [
+        {
+            "mu0": helpers.ANISO_SCALES[0],
+            "mu": mu,
+            "value": d.tolist(),
+            "std": None if k == 2 else (0.1 * np.abs(d) + 1e-4).tolist(),
+        }
+        for k, (mu, d) in enumerate(zip(helpers.ANISO_SCALES, differences), start=0)
+        if k > 0
+    ]
+    result = fitting.FitResult(
+        names=model.names,
+        theta=theta,
+        covariance=np.eye(n) * 1e-14,  # the draws sit at θ: the bands' medians are the curves at θ
+        chi2=1.0,
+        n_data=data.values.size,
+        status="converged",
+        starts=[],
+        estimates={},
+        std={},
+        quantiles={},
+        eigenvalues=np.ones(n),
+        undetermined=[],
+        notes=[],
+        solver="lm_normal",
+        at_bounds=[],
+        ratios={},
+        combinations=[],
+        covariance_differences=entries,
+    )
+    fig = plot.recovered_statistics(fitting.Problem(model, data), result, unit="m")
+    try:
+        ratio, delta = fig.axes[:2]
+        drawn = [line for line in ratio.get_lines() if len(line.get_xdata()) > 1]
+        assert len(drawn) == 4  # two coarser scales × two directions
+        for j, line in enumerate(drawn):
+            k, axis = 1 + j // 2, j % 2
+            W = np.asarray(line.get_xdata())
+            expected = np.exp(-0.5 * W**2 * differences[k][axis, axis])
+            assert line.get_linestyle() == ("-" if axis == 0 else "--")
+            np.testing.assert_allclose(line.get_ydata(), expected, rtol=1e-6, atol=1e-9)
+        assert "W_x" in ratio.get_title() and "m" in ratio.get_title()
+        bars = delta.containers
+        assert len(bars) == 3
+        for container, (a, b) in zip(bars, ((0, 0), (1, 1), (0, 1))):
+            np.testing.assert_allclose(container.lines[0].get_ydata(), [differences[1][a, b]])
+        hollow = [line for line in delta.get_lines() if line.get_markerfacecolor() == "none" and len(line.get_xdata())]
+        assert len(hollow) == 3 and all(line.get_xdata()[0] == helpers.ANISO_SCALES[2] for line in hollow)
+        assert "(m)" in delta.get_xlabel()
     finally:
         plt.close(fig)
