@@ -13,7 +13,7 @@ detector records it (its bilinear binning: :func:`_binned`).
 
 Error budget of the comparison: the instrument's σ (its Monte Carlo standard error, per pixel and of the image's
 sum); the nearly-flat term of the geometric facets, of order ``ALPHA_GEO²`` (4·10⁻⁴ here: the seed's error grows like
-α² of the facets it treats as flat); Mitsuba's rational approximation of Beckmann's G₁ (< 0.35 % per factor). The
+α² of the facets it treats as flat); Mitsuba's rational approximation of Beckmann's G₁ (< 0.35 % per factor; its GGX G₁ is exact). The
 unmasked model must miss by more than that budget at grazing incidence, so that the test can fail.
 """
 
@@ -29,7 +29,11 @@ pytest.importorskip("mitsuba")
 instrument = pytest.importorskip("brdfscale.instrument")
 
 ALPHA_GEO, ALPHA_MICRO = 0.02, 0.3
-G1_APPROXIMATION = 2 * 0.0035  # Mitsuba's Beckmann G₁, two factors
+
+
+def _g1_approximation(micro) -> float:
+    """Mitsuba's Beckmann G₁ is a rational approximation within 0.35 % (two factors); its GGX G₁ is exact."""
+    return 0.0 if isinstance(micro, stats.GGX) else 2 * 0.0035  # stats.Beckmann(α) is a stats.Gaussian
 
 
 def _field(size: int, micro) -> synth.HeightField:
@@ -55,12 +59,21 @@ def _binned(g: np.ndarray) -> np.ndarray:
     return np.apply_along_axis(lambda c: np.convolve(c, k, mode="same"), 0, rows)
 
 
-def _compare(micro, *, size, thetas, rays, pixels=33):
+def _compare(micro, *, size, thetas, rays, pixels=33, surface="pixel_facets"):
     field = _field(size, micro)
     extent = 4 * ALPHA_MICRO / math.sqrt(2)  # ±4 σ per axis of the micro lobe
     incident = np.array([[math.sin(math.radians(t)), 0.0, math.cos(math.radians(t))] for t in thetas])
     measured = instrument.measure(
-        field, [float(size)], incident, extent=extent, pixels=pixels, rays=rays, bounces=1, seed=7, progress=False
+        field,
+        [float(size)],
+        incident,
+        extent=extent,
+        pixels=pixels,
+        rays=rays,
+        bounces=1,
+        seed=7,
+        surface=surface,
+        progress=False,
     )
     seed_model = synth.gonioreflectometer(field, [float(size)], incident, extent=extent, pixels=pixels)
     x = np.linspace(-extent, extent, pixels)
@@ -84,13 +97,14 @@ def _compare(micro, *, size, thetas, rays, pixels=33):
     return out
 
 
-def _check(results, thetas):
+def _check(results, thetas, micro):
+    g1 = _g1_approximation(micro)
     for theta, (g_inst, sigma, masked, unmasked, inner) in zip(thetas, results, strict=True):
         total = g_inst.sum()
         mc = math.sqrt((sigma**2).sum()) / total
-        budget = 3 * mc + ALPHA_GEO**2 + G1_APPROXIMATION
+        budget = 3 * mc + ALPHA_GEO**2 + g1
         assert abs(masked.sum() / total - 1) <= budget, (theta, masked.sum() / total, budget)
-        chi2 = np.mean(((g_inst - masked) ** 2 / (sigma**2 + (G1_APPROXIMATION * masked) ** 2))[inner])
+        chi2 = np.mean(((g_inst - masked) ** 2 / (sigma**2 + (g1 * masked) ** 2))[inner])
         assert chi2 < 2.0, (theta, chi2)
         if theta >= 70:  # where masking matters, the seed's model (G = 1) is outside the same budget
             assert unmasked.sum() / total - 1 > 2 * budget, (theta, unmasked.sum() / total, budget)
@@ -103,26 +117,35 @@ def _check(results, thetas):
 )
 def test_smith_masking_matches_the_instrument_at_grazing_incidence(micro):
     """The tiny default version: a 32² field, one incidence (75°), 4·10⁴ rays (GGX in the slow suite)."""
-    _check(_compare(micro, size=32, thetas=[75.0], rays=40_000), [75.0])
+    _check(_compare(micro, size=32, thetas=[75.0], rays=40_000), [75.0], micro)
 
 
 @pytest.mark.slow  # ~15 s each on 2 cores: 5 incidences × 2·10⁵ rays
 def test_smith_masking_matches_the_instrument_up_to_80_degrees_beckmann():
     thetas = [0.0, 40.0, 60.0, 70.0, 80.0]
-    _check(_compare(stats.Beckmann(ALPHA_MICRO), size=128, thetas=thetas, rays=200_000), thetas)
+    _check(
+        _compare(stats.Beckmann(ALPHA_MICRO), size=128, thetas=thetas, rays=200_000),
+        thetas,
+        stats.Beckmann(ALPHA_MICRO),
+    )
 
 
 @pytest.mark.slow
 def test_smith_masking_matches_the_instrument_up_to_70_degrees_ggx():
     thetas = [0.0, 40.0, 60.0, 70.0]
-    _check(_compare(stats.GGX(ALPHA_MICRO), size=128, thetas=thetas, rays=200_000), thetas)
+    _check(_compare(stats.GGX(ALPHA_MICRO), size=128, thetas=thetas, rays=200_000), thetas, stats.GGX(ALPHA_MICRO))
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True,
-    reason="a finding, not yet explained: at 80° the GGX model's energy is 1.5 % above the instrument's, against a "
-    "budget of 1.3 % (3 MC errors + α_geo²; GGX's G₁ is exact in Mitsuba); Beckmann meets the same budget there",
-)
-def test_smith_masking_matches_the_instrument_at_80_degrees_ggx():
-    _check(_compare(stats.GGX(ALPHA_MICRO), size=128, thetas=[80.0], rays=200_000), [80.0])
+@pytest.mark.parametrize("surface, passes", [("triangles", True), ("pixel_facets", False)])
+def test_smith_masking_matches_the_instrument_at_80_degrees_ggx(surface, passes):
+    """At 80° on GGX micro-facets the pixel-facet mesh's vertical slivers intercept grazing light the model does not
+    hold (the model's energy 0.95 % above the instrument's, against a budget of 0.87 %: 3 MC errors + α_geo²); on
+    the continuous triangulated surface the same comparison is within 0.51 % (docs/results.md §7: the slivers grow
+    with the slopes' mixed second differences and tan θ_i)."""
+    results = _compare(stats.GGX(ALPHA_MICRO), size=128, thetas=[80.0], rays=200_000, surface=surface)
+    if passes:
+        _check(results, [80.0], stats.GGX(ALPHA_MICRO))
+    else:
+        with pytest.raises(AssertionError):
+            _check(results, [80.0], stats.GGX(ALPHA_MICRO))
