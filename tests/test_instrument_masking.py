@@ -13,8 +13,8 @@ detector records it (its bilinear binning: :func:`_binned`).
 
 Error budget of the comparison: the instrument's σ (its Monte Carlo standard error, per pixel and of the image's
 sum); the nearly-flat term of the geometric facets, of order ``ALPHA_GEO²`` (4·10⁻⁴ here: the seed's error grows like
-α² of the facets it treats as flat); Mitsuba's rational approximation of Beckmann's G₁ (< 0.35 % per factor; its GGX G₁ is exact). The
-unmasked model must miss by more than that budget at grazing incidence, so that the test can fail.
+α² of the facets it treats as flat); Mitsuba's rational approximation of Beckmann's G₁ (< 0.35 % per factor; its GGX
+G₁ is exact). The unmasked model must miss by more than that budget at grazing incidence, so that the test can fail.
 """
 
 import math
