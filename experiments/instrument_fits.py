@@ -36,13 +36,21 @@ not depend on the incidence (nearly-flat term, binning, lobe shape). The grazing
 masking choice on a surface when every ΔΣ and C0 component at 70° and 80° has |z_shift| ≤ 3 — recorded per
 surface in ``summary``.
 
-Why the verdict is "inadequate" (:func:`noise_correlation`): the same surface is measured a second time with
-another seed; the whitened difference of the two measurements ``(a − b)/√(σ_a² + σ_b²)`` is pure Monte Carlo noise,
-and its lag-1 autocorrelation along rows and columns is what binning alone puts into any fit's residuals. Bilinear
-(cloud-in-cell) shares of a ray spread uniformly over a cell give neighbouring nodes a correlation of exactly
-(2 · E[f(1 − f)] · E[b²]) / (4 · E[(1 − f)²] · E[b²]) = (1/3)/(4/3) = 1/4 (``CIC_LAG1``), above the adequacy
-test's 0.1 (``brdfscale.choices.ADEQUACY.max_lag1``), so that test fails on instrument data whatever the model;
-χ²/dof per scale says separately whether the lobe model itself is adequate.
+Why a verdict is not "ok" — four measurements, each of one candidate cause:
+
+* *binning* (:func:`noise_correlation`): the noise surface is measured a second time with another seed; the
+  whitened difference ``(a − b)/√(σ_a² + σ_b²)`` is pure Monte Carlo noise, and its lag-1 autocorrelation along rows
+  and columns is what the detector's binning alone puts into any fit's residuals (its χ²/dof: σ's calibration).
+  Bilinear (cloud-in-cell) shares of a ray spread uniformly over a cell give neighbouring nodes a correlation of
+  exactly (2 · E[f(1 − f)] · E[b²]) / (4 · E[(1 − f)²] · E[b²]) = (1/3)/(4/3) = 1/4 (``CIC_LAG1``), above the
+  adequacy test's 0.1 (``brdfscale.choices.ADEQUACY.max_lag1``), so with ``binning="bilinear"`` that test fails
+  whatever the model; nearest-node binning (the instrument's default) leaves the errors independent;
+* *the images* (:func:`image_moments`): the second moments of the 0° images against the aligned truth's;
+* *the lobe model* (:func:`seed_control`): the seed's instrument (:func:`brdfscale.synth.gonioreflectometer`,
+  nearly flat, no masking) imaging the same field at normal incidence, with Gaussian noise of the ray tracer's own
+  σ, fitted by the same model — the model's adequacy for this field's lobes at this noise, without the ray tracer;
+* *σ* (:func:`with_sigma_of`): the noise surface's sets fitted with the other seed's σ, an error estimate
+  independent of the values.
 
 Run:  nice -n 10 python -m experiments.instrument_fits [--quick] [--out DIR]
 (an accuracy study, not a timing one: no bench lock; ``--quick``: one 64² surface, two scales, two incidences,
@@ -53,6 +61,7 @@ Writes experiments/results/instrument_fits/instrument_fits.json.
 import argparse
 import json
 import math
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -69,7 +78,7 @@ from brdfscale import fitting, synth
 from brdfscale.choices import ADEQUACY
 from brdfscale.fitting._adequacy import _lag1
 from experiments import instrument_study as surfaces_of
-from experiments._studies import study_dir, write_results
+from experiments._studies import study_dir, tabulated_moments, write_results
 
 
 STUDY = "instrument_fits"
@@ -312,11 +321,13 @@ def shift(fit: dict, normal: dict) -> dict:
 
 
 def noise_correlation(a: bs.MeasurementSet, b: bs.MeasurementSet) -> list:
-    """Per image of two measurements of one surface with different seeds: χ²/dof of the whitened difference
-    ``(a − b)/√(σ_a² + σ_b²)`` over the pixels either reached (σ's calibration) and its lag-1 autocorrelation along
-    rows and columns (fitting.assess's statistic) over all pixels, as the fits see them."""
+    """Per image of ``a`` and its image in ``b`` (same scale and incidence; two measurements of one surface with
+    different seeds): χ²/dof of the whitened difference ``(a − b)/√(σ_a² + σ_b²)`` over the pixels either reached
+    (σ's calibration) and its lag-1 autocorrelation along rows and columns (fitting.assess's statistic) over all
+    pixels, as the fits see them."""
     out = []
-    for p, q in zip(a.images, b.images, strict=True):
+    for p in a.images:  # the image of b at the same scale and incidence
+        q = next(q for q in b.images if q.mu == p.mu and np.allclose(q.incident, p.incident))
         va, vb = np.asarray(p.values), np.asarray(q.values)
         sa, sb = np.asarray(p.sigma), np.asarray(q.sigma)
         r = (va - vb) / np.hypot(sa, sb)
@@ -336,6 +347,52 @@ def noise_correlation(a: bs.MeasurementSet, b: bs.MeasurementSet) -> list:
             }
         )
     return out
+
+
+def with_sigma_of(a: bs.MeasurementSet, b: bs.MeasurementSet) -> bs.MeasurementSet:
+    """``a``'s values with the σ of ``b``'s image at the same scale and incidence: an estimate of the same Monte Carlo
+    error made from other rays, so independent of ``a``'s values. The instrument's σ comes from the spread of its own
+    batches, and where few rays land (a lobe's tails) a pixel that happened to get few gets a small σ too (zero rays:
+    the one-count floor), so with its own σ a weighted fit leans towards the low pixels — towards narrower lobes; with
+    an independent σ it does not. The fit of both says how much of a bias that makes."""
+    images = []
+    for p in a.images:
+        q = next(q for q in b.images if q.mu == p.mu and np.allclose(q.incident, p.incident))
+        images.append(bs.LobeImage(p.mu, p.incident, p.extent, np.asarray(p.values), np.asarray(q.sigma)))
+    return bs.MeasurementSet(images, dict(a.metadata))
+
+
+def image_moments(normal: bs.MeasurementSet, truths: dict) -> list:
+    """Per scale: the variances (x, y) of the instrument's 0° image as its second moments over the grid, divided by
+    the aligned truth's lobe variances plus the binning's — whether the images themselves hold the truth's lobes,
+    whatever a model fitted to them makes of them."""
+    out = []
+    for k, image in enumerate(normal.images):
+        _, cov = tabulated_moments(np.asarray(image.values), image.extent)
+        truth = np.diag(truths["aligned_lobe_covariance"][k]) + truths["binning_variance"]
+        out.append(
+            {"mu": image.mu, "variance_ratio": (np.diag(cov) / truth).tolist(), "variance": np.diag(cov).tolist()}
+        )
+    return out
+
+
+# -- the control: the seed's instrument at the same noise --------------------------------------------------
+
+
+def seed_control(field: synth.HeightField, mus: list, normal: bs.MeasurementSet) -> bs.MeasurementSet:
+    """:func:`brdfscale.synth.gonioreflectometer`'s exact images of the same field (the seed's nearly-flat
+    instrument: no masking, no interreflection, the offsets ``m − m_f``) at normal incidence, with Gaussian noise of
+    the instrument's own σ (``normal``: its 0° images) added and stored: fitted by the same model, it says whether
+    the lobe model is adequate for this field's lobes at this noise, whatever the ray tracer adds."""
+    first = normal.images[0]
+    exact = synth.gonioreflectometer(field, mus, [0.0, 0.0, 1.0], extent=first.extent, pixels=first.size)
+    rng = np.random.default_rng(SEED)
+    images = []
+    for image in exact.images:
+        sigma = np.asarray(next(p for p in normal.images if p.mu == image.mu).sigma)
+        values = np.asarray(image.values) + rng.normal(size=sigma.shape) * sigma
+        images.append(bs.LobeImage(image.mu, image.incident, image.extent, values, sigma))
+    return bs.MeasurementSet(images, dict(exact.metadata))
 
 
 # -- the study -----------------------------------------------------------------------------------
@@ -364,14 +421,19 @@ def study_surface(kind: str, value, config: dict, measure) -> tuple[dict, list, 
         seed=SEED,
     )
     measuring = time.perf_counter() - t0
+    print(f"{label}: measured in {measuring:.0f} s", file=sys.stderr, flush=True)
     truths = truth(field, mus, pitch, binning_of(mset))
     fits = []
     for theta in config["theta_i_deg"]:
         one = subset(mset, theta)
         for masking in MASKINGS:
             rec = {"surface": label, "theta_i_deg": theta, **fit_set(one, masking)}
+            print(f"{label} {theta:g}° {masking}: {rec['outcome']} ({rec['seconds']} s)", file=sys.stderr, flush=True)
             rec["score"] = score(rec, truths)
             fits.append(rec)
+    moments = image_moments(subset(mset, 0.0), truths)
+    control = {"surface": label, "theta_i_deg": 0.0, **fit_set(seed_control(field, mus, subset(mset, 0.0)), "none")}
+    control["score"] = score(control, truths)  # its ΔΣ against the facet statistics (its C0 has bilinear binning)
     for rec in fits:
         normal = next(f for f in fits if f["masking"] == rec["masking"] and f["theta_i_deg"] == 0.0)
         rec["shift_from_normal"] = shift(rec, normal)
@@ -392,6 +454,8 @@ def study_surface(kind: str, value, config: dict, measure) -> tuple[dict, list, 
             _relative(a, f) for a, f in zip(truths["aligned"], truths["facet_statistics"], strict=True)
         ],
         "seconds_measuring": round(measuring, 1),
+        "control": control,
+        "image_moments_0deg": moments,
         "instrument": {k: mset.metadata["instrument"].get(k) for k in ("variant", "detector", "rays", "bounces")},
     }
     return described, fits, (field, mus, extent, mset)
@@ -451,7 +515,7 @@ def run(*, quick: bool = False, out=None, measure=None) -> dict:
     config = configuration(quick)
     directory = study_dir(STUDY, out) if out is not None or not quick else Path(tempfile.mkdtemp())
     started = time.perf_counter()
-    described, fits, noise = [], [], []
+    described, fits, noise, swapped = [], [], [], []
     for kind, value in config["surfaces"]:
         info, rows, (field, mus, extent, mset) = study_surface(kind, value, config, measure)
         described.append(info)
@@ -470,11 +534,19 @@ def run(*, quick: bool = False, out=None, measure=None) -> dict:
             )
             same = bs.MeasurementSet([p for t in thetas for p in subset(mset, t).images], dict(mset.metadata))
             noise += [{"surface": info["label"], **n} for n in noise_correlation(same, other)]
+            truths = info["truth"]
+            for t in thetas:
+                for masking in MASKINGS:
+                    rec = {"surface": info["label"], "theta_i_deg": t, "sigma": f"seed {NOISE_SEED}"}
+                    rec.update(fit_set(with_sigma_of(subset(mset, t), subset(other, t)), masking))
+                    rec["score"] = score(rec, truths)
+                    swapped.append(rec)
     payload = {
         "config": {**config, "seed": SEED, "noise_seed": NOISE_SEED, "maskings": list(MASKINGS)},
         "surfaces": described,
         "fits": fits,
         "noise": noise,
+        "sigma_swap": swapped,
         "seconds": round(time.perf_counter() - started, 1),
     }
     payload["summary"] = summarise(payload)
@@ -513,6 +585,90 @@ def table(payload: dict) -> str:
             f"{both(lambda f: 100 * f['score']['delta_sigma'][-1]['relative_bias_aligned']['yy'], '{:+.1f} %')} | "
             f"{both(lambda f: 100 * f['score']['C0_relative_bias']['xx'], '{:+.1f} %')} | "
             f"{both(zshift, '{:.1f}')} | {both(lambda f: zmax(f, 'z_aligned'), '{:.1f}')} |"
+        )
+    return "\n".join(lines)
+
+
+RESULT = Path(__file__).resolve().parent / "results" / STUDY / f"{STUDY}.json"
+
+
+def block(path: Path = RESULT) -> str:
+    """The generated block of docs/instrument.md, "Fits of instrument data", from the committed JSON
+    (experiments/benchmarks_page.py splices it in; tests/test_experiments_smoke.py checks the page is current)."""
+    if not path.exists():
+        return f"({path.name} missing: run the study)"
+    d = json.loads(path.read_text())
+    c, s = d["config"], d["summary"]
+    binning = sorted({x["truth"]["binning"] for x in d["surfaces"]})
+    lines = [
+        f"{c['rays']:,} rays per image, bounces {c['bounces']}, {c['pixels']}² px, {'/'.join(binning)} binning; "
+        f"fields {c['size']}² px, scales {c['scales_px']} px; seed {c['seed']}; run time {d['seconds']:.0f} s "
+        f'({d["machine"].get("cpu_count", "?")} CPUs, shared). Each cell: `masking="none"` / `"smith"`; '
+        "biases relative to the aligned truth, ΔΣ at the coarsest scale; z_shift against the same masking's 0° fit.",
+        "",
+        table(d),
+        "",
+        "**Grazing-incidence bias removed?** (every ΔΣ and C0 component at θ_i ≥ "
+        f"{GRAZING_DEG:g}° within {MAX_Z:g} standard errors of the same masking's 0° fit)",
+        "",
+        "| surface | none: max \\|z_shift\\| | smith: max \\|z_shift\\| | removed by smith |",
+        "|---|---|---|---|",
+    ]
+    for x in d["surfaces"]:
+        g = s["grazing_bias"][x["label"]]
+        lines.append(
+            f"| {x['label']} | {g['none']['max_abs_z_shift']:.1f} | {g['smith']['max_abs_z_shift']:.1f} | "
+            f"{'yes' if g['smith']['removed'] else 'no'} |"
+        )
+    lines += [
+        "",
+        '**Why the verdict is not ok at normal incidence** (0°, `masking="none"`): the instrument\'s fit beside the '
+        "control (the seed's instrument imaging the same field, with Gaussian noise of the instrument's σ) and the "
+        "truths: the μ0 lobe's excess kurtosis (aligned, x / y), the nearly-flat term (aligned ΔΣ_xx ÷ facet "
+        "statistics' − 1, coarsest scale); biases of C0_xx against the aligned lobe (binning added) and of ΔΣ_xx "
+        "(coarsest) against the aligned truth (the control's against the facet statistics).",
+        "",
+        "| surface | χ²/dof: instrument / control | outcome: instrument / control | μ0 lobe excess kurtosis "
+        "| nearly-flat term | 0° image's variance_xx ÷ truth's, per scale | C0_xx bias: instrument / control "
+        "| ΔΣ_xx bias: instrument / control |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for x in d["surfaces"]:
+        f = next(
+            f for f in d["fits"] if f["surface"] == x["label"] and f["theta_i_deg"] == 0 and f["masking"] == "none"
+        )
+        k, ctl = x["truth"]["aligned_lobe_excess_kurtosis"][0], x["control"]
+        ratios = ", ".join(f"{m['variance_ratio'][0]:.3f}" for m in x.get("image_moments_0deg", []))
+        lines.append(
+            f"| {x['label']} | {f['reduced_chi2']:.2f} / {ctl['reduced_chi2']:.2f} | {f['outcome']} / {ctl['outcome']} "
+            f"| {k[0]:.2f} / {k[1]:.2f} | {100 * x['nearly_flat_term'][-1]['xx']:+.1f} % "
+            f"| {ratios} "
+            f"| {100 * f['score']['C0_relative_bias']['xx']:+.1f} % / "
+            f"{100 * ctl['score']['C0_relative_bias']['xx']:+.1f} % "
+            f"| {100 * f['score']['delta_sigma'][-1]['relative_bias_aligned']['xx']:+.1f} % / "
+            f"{100 * ctl['score']['delta_sigma'][-1]['relative_bias_facet_statistics']['xx']:+.1f} % |"
+        )
+    if s["noise_lag1_median"] is not None:
+        lines += [
+            "",
+            f"Monte Carlo noise alone (two seeds, {d['noise'][0]['surface']}, {len(d['noise'])} images): median lag-1 "
+            f"autocorrelation {s['noise_lag1_median']:.3f} (adequacy threshold {s['max_lag1_threshold']:g}; bilinear "
+            f"binning would give {s['cic_lag1']:g}), median χ²/dof of the whitened difference "
+            f"{s['noise_reduced_chi2_median']:.2f}.",
+        ]
+    for r in d.get("sigma_swap", []):
+        own = next(
+            f
+            for f in d["fits"]
+            if (f["surface"], f["theta_i_deg"], f["masking"]) == (r["surface"], r["theta_i_deg"], r["masking"])
+        )
+        lines.append(
+            f"σ of seed {d['config']['noise_seed']} instead of its own, {r['surface']} at {r['theta_i_deg']:g}° "
+            f"(`{r['masking']}`): C0_xx bias {100 * own['score']['C0_relative_bias']['xx']:+.1f} % → "
+            f"{100 * r['score']['C0_relative_bias']['xx']:+.1f} %, ΔΣ_xx bias "
+            f"{100 * own['score']['delta_sigma'][-1]['relative_bias_aligned']['xx']:+.1f} % → "
+            f"{100 * r['score']['delta_sigma'][-1]['relative_bias_aligned']['xx']:+.1f} %, χ²/dof "
+            f"{own['reduced_chi2']:.2f} → {r['reduced_chi2']:.2f}."
         )
     return "\n".join(lines)
 

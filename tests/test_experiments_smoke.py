@@ -886,7 +886,7 @@ def test_bench_render_quick(tmp_path):
     assert isinstance(payload["targets"]["eval_within_1e-4"]["met"], bool)
 
 
-@pytest.mark.slow  # ray tracing and eight fits: ~1 min on 2 cores
+@pytest.mark.slow  # ray tracing and seven fits: 1–3 min on 2 shared cores
 def test_instrument_fits_quick(tmp_path):
     pytest.importorskip("mitsuba")
     from experiments import instrument_fits
