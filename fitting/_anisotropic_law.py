@@ -50,6 +50,7 @@ and a synthetic anisotropic field's law recovered within 3 standard errors at he
 
 import abc
 import math
+from collections.abc import Sequence
 from typing import ClassVar
 
 import equinox as eqx
@@ -287,7 +288,11 @@ class AnisotropicLawModel(AbstractModel):
         return self.lobe.predict_with(self._split(theta)[0], self.covariance_differences(theta, scales), points)
 
     def predict_at(
-        self, theta: Float[Array, " n"], mu0: float, mu: Float[ArrayLike, " m"], u: Float[ArrayLike, "m p 2"]
+        self,
+        theta: Float[Array, " n"],
+        mu0: float,
+        mu: Float[ArrayLike, "*scales"] | Sequence[float],
+        u: Float[ArrayLike, "m p 2"],
     ) -> Float[Array, "m p"]:
         """The lobe at scales ``mu`` (any, coarser or finer than μ0 = ``mu0``, the finest fitted scale)
         evaluated at offsets ``u[j]``: the base lobe evolved by ``ΔΣ(μ0, μ_j)``.

@@ -249,6 +249,12 @@ def test_a_gaussian_lobe_is_predicted_at_a_finer_scale_where_it_exists():
     np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-12 * want.max())
 
 
+@pytest.mark.wrong_types
+def test_refuses_a_centred_flag_that_is_not_a_bool():
+    with pytest.raises(InvalidInputError, match="centred must be True or False"):
+        fitting.AnisotropicLawModel(centred=1)
+
+
 def test_refuses_bad_arguments_and_scales_where_no_lobe_exists():
     with pytest.raises(InvalidInputError, match="law must be one of"):
         fitting.AnisotropicLawModel("gaussian_surface")
@@ -256,8 +262,6 @@ def test_refuses_bad_arguments_and_scales_where_no_lobe_exists():
         fitting.AnisotropicLawModel("spline")
     with pytest.raises(InvalidInputError, match="shape must be one of"):
         fitting.AnisotropicLawModel(shape="cauchy")
-    with pytest.raises(InvalidInputError, match="centred must be True or False"):
-        fitting.AnisotropicLawModel(centred=1)
     model = fitting.AnisotropicLawModel()
     theta = theta_of(model, BASE["amplitude"], BASE["C0"], BASE["mean"], LAW)
     u = np.zeros((1, 3, 2))
