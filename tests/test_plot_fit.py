@@ -227,3 +227,16 @@ def test_the_statistics_of_an_anisotropic_fit_by_direction():
         assert "(m)" in delta.get_xlabel()
     finally:
         plt.close(fig)
+
+
+def test_a_scale_laws_legend_names_mus_length_units():
+    """A scale law carries no unit: plot.statistics' legend says μ is in its length units."""
+    from brdfscale import stats
+
+    law = stats.ScaledFamily(stats.Beckmann, stats.WidthLaw(0.2, 1.0, 0.8))
+    fig = plot.statistics(law, mu=[0.5, 2.0], size=33)
+    try:
+        labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+        assert labels == ["μ = 0.5 (length units)", "μ = 2 (length units)"], labels
+    finally:
+        plt.close(fig)

@@ -245,7 +245,8 @@ def _entries(statistics, mu, labels):
         scales = np.atleast_1d(np.asarray(mu, dtype=float)) if not isinstance(mu, (str, bytes)) else None
         if scales is None or scales.ndim != 1 or scales.size == 0 or not np.all(np.isfinite(scales) & (scales > 0)):
             raise InvalidInputError(f"mu must be one or more positive facet sizes; got {mu!r}.")
-        entries = [(f"μ = {m:.4g}", statistics.at(float(m))) for m in scales]
+        # a scale law carries no unit: μ is in the length units it was built in (the scene's)
+        entries = [(f"μ = {m:.4g} (length units)", statistics.at(float(m))) for m in scales]
     else:
         if mu is not None:
             raise InvalidInputError(
@@ -282,7 +283,8 @@ def statistics(statistics, *, mu=None, labels=None, extent=None, w_max=None, siz
         statistics: a :mod:`brdfscale.stats` distribution (also :mod:`brdfscale.plus`), a
             sequence of them, or a scale law (``AbstractScaleLaw``) drawn at the facet sizes ``mu``.
         mu: facet sizes for a scale law (legend: μ).
-        labels: one legend label per statistic (default: the class names, or μ).
+        labels: one legend label per statistic (default: the class names, or for a law
+            "μ = … (length units)": a law carries no unit).
         extent: half-width of the slope window; default the largest radius holding a density
             above 10⁻³ of its peak.
         w_max: the largest frequency drawn; default where the slowest transform has fallen to
