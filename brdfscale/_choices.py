@@ -234,10 +234,12 @@ class SampleDefaults:
     # steps None: the sampler's own (its ``default_steps``, fitting._sampler). Emcee's ensembles need
     # long chains (τ of tens of steps); NUTS/HMC, Laplace-preconditioned, draw nearly independent
     # samples each step, so far fewer pass the convergence check (ESS_bulk ≥ 400, R̂ ≤ 1.01; docs/fitting.md,
-    # "Speed of the default fit", measures the margin)
+    # "Speed of the default fit", measures the margin). The warm-up tunes only the step size (the Laplace
+    # covariance is the mass matrix): on bench_anisotropic's 27-parameter posterior it had settled after
+    # 100 steps (averaged ε 0.62 against 0.64–0.66 after 250, R̂ ≤ 1.003, every chain converged)
     emcee_steps: int = 2000
     gradient_steps: int = 1000
-    gradient_warmup: int = 250
+    gradient_warmup: int = 100
 
     def steps_for(self, sampler: str) -> int:
         """The steps a sampler runs when none are given (``steps=None``): ``emcee_steps`` for

@@ -226,7 +226,7 @@ class NUTS(_Gradient):
     """BlackJAX's NUTS (multinomial, iterative; Laplace-preconditioned), ``chains`` chains vmapped (module docstring).
 
     Args:
-        warmup: warm-up steps per chain (default 250, ``brdfscale.choices.SAMPLE.gradient_warmup``;
+        warmup: warm-up steps per chain (default 100, ``brdfscale.choices.SAMPLE.gradient_warmup``;
             kept in the chain, discarded as burn-in).
         target_acceptance: the dual averaging's target mean acceptance (default 0.8).
         max_doublings: the most trajectory doublings (default 10: at most 1023 leapfrog steps).
@@ -261,7 +261,7 @@ class HMC(_Gradient):
         trajectory_length: T (default π/2: for a Gaussian the Laplace mass matrix whitens, a
             quarter period, after which a draw is independent of its start; the jitter keeps
             T away from the half and full periods, where fixed-length HMC returns to its start).
-        warmup: warm-up steps per chain (default 250, as for :class:`NUTS`).
+        warmup: warm-up steps per chain (default 100, as for :class:`NUTS`).
         target_acceptance: the dual averaging's target acceptance (default 0.8).
         jitter: the step size's relative jitter per transition (default 0.2).
         adapt_mass_matrix: as for :class:`NUTS` (BlackJAX's window adaptation then runs

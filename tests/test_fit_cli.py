@@ -16,6 +16,7 @@ import pytest
 
 from brdfscale import exr, fitting
 from brdfscale._cli import main
+from brdfscale.choices import SAMPLE
 
 
 TRUTH = dict(amplitude=0.8, alpha_lobe=0.06, alpha_max=0.2, mu_c=1.0, exponent=0.8)
@@ -279,8 +280,8 @@ def test_a_chain_too_short_to_converge_exits_6_and_the_default_draws_exit_0(tmp_
     printed = capsys.readouterr()
     assert printed.err.startswith("brdfscale fit: not converged: ") and "ESS_bulk < 400" in printed.err
     doc = json.loads((tmp_path / "short" / "fit.json").read_text())
-    assert doc["outcome"]["status"] == "not_converged" and doc["mcmc"]["steps"] == 250 + 5
+    assert doc["outcome"]["status"] == "not_converged" and doc["mcmc"]["steps"] == SAMPLE.gradient_warmup + 5
     assert main([*fit, str(tmp_path / "default")]) == 0
     doc = json.loads((tmp_path / "default" / "fit.json").read_text())
-    assert doc["mcmc"]["sampler"] == "nuts" and doc["mcmc"]["steps"] == 250 + 1000
+    assert doc["mcmc"]["sampler"] == "nuts" and doc["mcmc"]["steps"] == SAMPLE.gradient_warmup + SAMPLE.gradient_steps
     assert doc["mcmc"]["status"] == "converged" and doc["outcome"]["status"] == "ok"

@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 from brdfscale import fitting, InvalidInputError
+from brdfscale.choices import SAMPLE
 from brdfscale.fitting import _diagnostics
 from tests.helpers import Linear, linear_measurements, parametric_dataset, TRUTHS
 
@@ -406,14 +407,14 @@ def test_the_width_law_with_two_scales_converges_in_the_determined_subspace(samp
 
 def test_steps_none_is_the_samplers_own_and_the_gradient_default_converges_with_margin(linear):
     """``steps=None`` (the default) runs the sampler's ``default_steps`` — NUTS/HMC 1000 draws after
-    250 warm-up steps, emcee 2000 (brdfscale.choices.SAMPLE) — and NUTS's defaults pass the
+    100 warm-up steps, emcee 2000 (brdfscale.choices.SAMPLE) — and NUTS's defaults pass the
     convergence check (R̂ ≤ 1.01, ESS_bulk ≥ 400) on the linear-Gaussian posterior with ≥ 3× margin."""
     problem, res, mean, cov = linear
     assert fitting.Emcee().steps_of(None) == 2000 and fitting.Emcee().steps_of(7) == 7
     assert fitting.NUTS().steps_of(None) == fitting.HMC().steps_of(None) == 1000
-    assert fitting.NUTS().warmup == fitting.HMC().warmup == 250
+    assert fitting.NUTS().warmup == fitting.HMC().warmup == SAMPLE.gradient_warmup == 100
     s = fitting.sample(problem, res, sampler="nuts", chunk=CHUNK, progress=False, seed=3)
-    assert s.chain.shape == (250 + 1000, 4, 3) and s.burn == 250
+    assert s.chain.shape == (100 + 1000, 4, 3) and s.burn == 100
     assert s.status == "converged"
     ess = min(row["ess_bulk"] for row in s.summary().values())
     assert ess >= 3 * _diagnostics.ESS_BULK_LIMIT, ess
