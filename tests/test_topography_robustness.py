@@ -414,3 +414,29 @@ def test_the_figures_lobe_cuts_are_readable_on_an_outlier_dominated_surface():
         assert 0.01 < high < 0.05 and np.count_nonzero((nodes > low) & (nodes < high)) >= 20
     titles = [ax.get_title() for ax in fig.axes if "μ" in ax.get_title()] + [fig._suptitle.get_text()]
     assert len(titles) >= 4 and all("µm" in t for t in titles), titles
+
+
+def test_the_figures_lobe_marginals_hold_the_lobes_mass_and_smooth_a_quantised_files_comb():
+    """The lobe panels draw marginals ∫ g_μ du_y, ∫ g_μ du_x: each integrates to the lobe table's
+    mass (trapezoid over the drawn line against the table's own sum, which a cut through u = 0 does
+    not). Heights quantised to a step that puts the slope offsets on a comb coarser than the table's
+    nodes (a confocal file's case): the drawn marginals have no empty node in their core and the
+    title says they are averaged; the same field unquantised is drawn as it is."""
+    rng = np.random.default_rng(2)
+    smooth = 0.004 * np.cumsum(np.cumsum(rng.standard_normal((128, 128)), axis=0), axis=1) / 40
+    for quantum, averaged in ((None, False), (8e-4, True)):
+        h = smooth if quantum is None else np.round(smooth / quantum) * quantum
+        field = topography.from_array(h, 1.0, detrend="plane")
+        stats = synth.facet_statistics(field, [2.0, 8.0], bins=129, extent=synth.robust_extent(field))
+        fig = plot.facet_statistics(stats, field=field)
+        for panel in fig.axes[1:3]:
+            assert ("moving average" in panel.get_title()) is averaged, panel.get_title()
+            for line, result in zip(panel.get_lines(), [r for r in stats if r.block != (1, 1)]):
+                u, g = np.asarray(line.get_xdata()), np.nan_to_num(np.asarray(line.get_ydata()))
+                values = np.asarray(result.lobe.values)
+                step = 2 * np.asarray(result.lobe.extent) / (np.array(values.shape[::-1]) - 1)
+                table = values.sum() * step[0] * step[1]  # the table's mass (rectangle rule)
+                np.testing.assert_allclose(np.trapezoid(g, u), table, rtol=0.03)
+                low, high = panel.get_xlim()
+                core = (np.abs(u) < 0.3 * high) if averaged else slice(None, 0)
+                assert np.all(g[core] > 0)

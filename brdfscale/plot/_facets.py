@@ -1,24 +1,24 @@
 """Facet statistics of a surface against the facet size: Σ(μ), its errors, the facet counts and g_μ."""
 
-import math
-
 import numpy as np
 
 from .._errors import InvalidInputError
 from .._show import display_unit
-from ._common import colormap, figure, SLOPE_DENSITY, small_ticks
+from ._common import colormap, figure, small_ticks
 
 
-def _cut(lobe, axis: int):
-    """The tabulated lobe along u_x (axis 0) or u_y (axis 1) through u = 0: (u, values)."""
+def _marginal(lobe, axis: int):
+    """The marginal density of the tabulated lobe along u_x (axis 0) or u_y (axis 1):
+    ``∫ g(u) du_y`` (resp. ``du_x``) by the trapezoid rule over the table's nodes — (u, values).
+
+    A marginal holds every facet's count; a cut through ``u = 0`` holds one row's, which on a
+    measured file with quantised heights is a comb of empty and full nodes on the log axis."""
     values, extent = np.asarray(lobe.values, dtype=float), np.asarray(lobe.extent, dtype=float)
     if axis == 1:
         values, extent = values.T, extent[::-1]
     n_other, n = values.shape
-    pos = (n_other - 1) / 2  # the fractional row where the other coordinate is 0 (the grid is centred)
-    j = min(int(math.floor(pos)), n_other - 2)
-    w = pos - j
-    return np.linspace(-extent[0], extent[0], n), (1 - w) * values[j] + w * values[j + 1]
+    step = 2.0 * extent[1] / (n_other - 1)
+    return np.linspace(-extent[0], extent[0], n), (values.sum(axis=0) - 0.5 * (values[0] + values[-1])) * step
 
 
 def facet_statistics(results, *, field=None):
@@ -28,10 +28,12 @@ def facet_statistics(results, *, field=None):
     Left: σ_x(μ) = √Σ_xx, σ_y(μ) = √Σ_yy log–log, error bars from
     :attr:`~brdfscale.synth.FacetStatistics.covariance_error` (δσ = δΣ/2σ), the number of facets
     at each point (a flat surface, Σ = 0 at every scale, is drawn on a linear axis and said so).
-    Middle and right: cuts through ``g_μ`` along u_x and u_y at up to four scales above one
-    pixel (at one pixel ``g_μ`` is the micro lobe alone), over the central interval that holds
-    :data:`CUT_MASS` of each cut (widened by a quarter) — quantiles, so that the few outlier
-    pixels of a measured file do not set the range. Every title names μ's unit.
+    Middle and right: the marginals of ``g_μ`` along u_x and u_y (``∫ g_μ du_y``, ``∫ g_μ du_x``:
+    every facet's count, where a cut through ``u = 0`` holds one row's and shows a measured
+    file's quantised heights as a comb) at up to four scales above one pixel (at one pixel
+    ``g_μ`` is the micro lobe alone), over the central interval that holds :data:`CUT_MASS` of
+    each marginal (widened by a quarter) — quantiles, so that the few outlier pixels of a
+    measured file do not set the range. Every title names μ's unit.
 
     Args:
         results: the :class:`brdfscale.synth.FacetStatistics` of :func:`brdfscale.synth.facet_statistics`.
@@ -101,12 +103,14 @@ def facet_statistics(results, *, field=None):
         shown = [shown[k] for k in np.unique(np.rint(np.linspace(0, len(shown) - 1, 4)).astype(int))]
     colours = colormap("viridis")(np.linspace(0.0, 0.85, max(len(shown), 1)))
     span = f"{results[shown[0]].mu / size:.3g}–{results[shown[-1]].mu / size:.3g} {unit}" if shown else ""
-    for axis, panel, name in ((0, cx, "u_x (u_y = 0)"), (1, cy, "u_y (u_x = 0)")):
-        reach, peak, edge = 0.0, 0.0, 0.0
+    for axis, panel, name, other in ((0, cx, "u_x", "u_y"), (1, cy, "u_y", "u_x")):
+        reach, peak, edge, widest = 0.0, 0.0, 0.0, 1
         for colour, k in zip(colours, shown):
-            u, g = _cut(results[k].lobe, axis)
+            u, g = _marginal(results[k].lobe, axis)
             if not g.max() > 0:
                 continue
+            g, width = _smoothed(g, _mass_reach(u, g, CORE_MASS), u)
+            widest = max(widest, width)
             reach, peak = max(reach, _mass_reach(u, g, CUT_MASS)), max(peak, float(g.max()))
             edge = max(edge, float(u[-1]))
             panel.semilogy(
@@ -129,8 +133,12 @@ def facet_statistics(results, *, field=None):
                 0.5, 0.5, "no scale above one pixel", ha="center", va="center", transform=panel.transAxes, fontsize=8
             )
         panel.set_xlabel(f"slope offset {name}", fontsize=8)
-        panel.set_ylabel(f"g_μ ({SLOPE_DENSITY})", fontsize=8)
-        panel.set_title(f"within-facet lobe g_μ along {name[:3]}" + (f", μ = {span}" if span else ""), fontsize=9)
+        panel.set_ylabel(f"∫ g_μ d{other} (per unit slope)", fontsize=8)
+        smoothed = f", moving average of ≤ {widest} nodes" if widest > 1 else ""
+        panel.set_title(
+            f"within-facet lobe g_μ along {name}" + (f", μ = {span}" if span else "") + f"\nmarginal{smoothed}",
+            fontsize=9,
+        )
         small_ticks(panel)
     name = None if field is None else field.description.get("file") or field.description.get("name")
     what = f"facet-slope statistics at μ = {mus[0] / size:.3g}–{mus[-1] / size:.3g} {unit}"
@@ -139,9 +147,40 @@ def facet_statistics(results, *, field=None):
 
 
 CUT_MASS = 0.998
-"""The share of each cut's mass the lobe panels show: their range is the central interval
-holding it (quantiles of the cut, widened by a quarter), not the farthest non-zero node, so
+"""The share of each marginal's mass the lobe panels show: their range is the central interval
+holding it (quantiles of the marginal, widened by a quarter), not the farthest non-zero node, so
 one outlier pixel does not shrink the lobe to a spike."""
+
+
+MAX_AVERAGE = 31
+"""The widest moving average (nodes) the lobe panels apply to a marginal (:func:`_smoothed`)."""
+CORE_MASS = 0.9
+"""The share of a marginal's mass whose central interval :func:`_smoothed` examines for a comb
+(the lobe's core: contiguous for a lobe; gaps farther out, e.g. between the core and a side
+lobe of steps, are the surface's and are left as they are)."""
+COMB_VARIATION = 1.5
+"""The most total variation a shown marginal may have, relative to a single-peaked curve's."""
+
+
+def _smoothed(g: np.ndarray, reach: float, u: np.ndarray) -> tuple[np.ndarray, int]:
+    """``g`` averaged over the narrowest odd window of nodes (1, 3, …, :data:`MAX_AVERAGE`) after
+    which, inside ``|u| ≤ reach``, it has no empty node and a total variation at most
+    :data:`COMB_VARIATION` times a single-peaked curve's (``2 max − g(ends)``), and that window's
+    width. A measured file's quantised heights put the facets' slope offsets on a comb of values
+    whose spacing is several table nodes: full nodes between (nearly) empty ones, which a log
+    axis draws as spikes; the average (a box of unit sum) keeps the mass and shows the lobe's
+    shape. A smooth, well-sampled lobe is drawn as it is (width 1)."""
+    inside = np.abs(u) <= reach
+    smooth, width = g, 1
+    for width in range(1, MAX_AVERAGE + 1, 2):
+        smooth = np.convolve(g, np.full(width, 1.0 / width), mode="same") if width > 1 else g
+        shown = smooth[inside]
+        if shown.size < 3:
+            return smooth, width
+        single = 2.0 * shown.max() - shown[0] - shown[-1]
+        if np.all(shown > 0) and np.abs(np.diff(shown)).sum() <= COMB_VARIATION * single:
+            return smooth, width
+    return smooth, width
 
 
 def _mass_reach(u: np.ndarray, g: np.ndarray, mass: float) -> float:
