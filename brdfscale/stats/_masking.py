@@ -39,6 +39,18 @@ a :class:`Mixture`, and otherwise read from the transform,
   is exact).
 * :class:`PixelGaussians` (a lobe image's pixels, equal Gaussians on the nodes): the same mixture
   rule over its nodes, vectorised (one normal closed form per pixel and direction).
+* :class:`Tabulated` (a table's tent sum, ``s = Σ_p v_p Λ_x Λ_y``): the same mixture rule over its
+  nodes, exact. A tent of node ``p`` projects onto ``v`` as ``a_p + A S + B T`` with
+  ``a_p = v·(m_p − c)``, ``A = |v_x| h_x``, ``B = |v_y| h_y`` and S, T independent triangular on
+  [−1, 1], so ``Λ = Σ_p h_x h_y v_p E[(a_p − 1 + A S + B T)₊]``. The inner expectation over S is a
+  cubic spline in closed form, ``E[(b + A S)₊] = A g(b/A)`` with ``g(u) = (1 + u)³/6`` on [−1, 0],
+  ``u + (1 − u)³/6`` on [0, 1] (``b₊`` beyond); the one over T is a piecewise polynomial of degree
+  ≤ 4 between the break points ``t ∈ {−1, 0, 1}`` and where ``b = a + B t`` crosses ``−A, 0, A``,
+  so three Gauss–Legendre points per piece integrate it exactly. No cancellation: every piece is
+  evaluated where it holds, ``A → 0`` or ``B → 0`` included. Its mean is ``center + h_x h_y Σ_p v_p
+  m_p`` (tents are symmetric). The cost is O(nodes) per direction, where the transform's
+  quadrature of the generic path costs O(nodes × :data:`NODES`) (experiments/bench_masking.py
+  measures both).
 
 **The generic path** (every other density: :class:`Tabulated`, :class:`StudentT`, evolved
 shapes of :func:`brdfscale.evolve`, observed nearly-specular statistics, …) needs only the
@@ -91,6 +103,7 @@ from ._mixture import Mixture
 from ._pixels import PixelGaussians
 from ._require import require_density
 from ._student import StudentT
+from ._tabulated import Tabulated
 
 
 __all__ = ["smith_lambda"]
@@ -182,6 +195,12 @@ def _mean(density: AbstractSlopeDensity) -> Array | None:
         return density.mean
     if isinstance(density, PixelGaussians):
         return density.centroid()
+    if isinstance(density, Tabulated):
+        x, y = density.nodes()
+        h = density.spacing
+        mass = h[0] * h[1] * density.values
+        mean = jnp.stack([jnp.sum(mass.sum(axis=0) * x), jnp.sum(mass.sum(axis=1) * y)])
+        return mean if density.center is None else mean + density.center
     if isinstance(density, Mixture):
         means = [_mean(c) for c in density.components]
         terms = [w * m for w, m in zip(density.weights, means) if m is not None]
@@ -223,6 +242,8 @@ def _hinge(density: AbstractSlopeDensity, v: Array, c: Array | None) -> Array:
         )
     if isinstance(density, PixelGaussians):
         return _pixel_hinge(density, v, c)
+    if isinstance(density, Tabulated):
+        return _tabulated_hinge(density, v, c)
     return _generic_hinge(density, v, c)
 
 
@@ -269,6 +290,98 @@ def _pixel_hinge(density: PixelGaussians, v: Array, c: Array | None) -> Array:
 
     flat = jnp.reshape(v, (-1, 2))
     return jnp.reshape(in_blocks(rows, flat, 8 * 8 * nodes.shape[0]), shape)
+
+
+_GAUSS3 = (np.array([-math.sqrt(0.6), 0.0, math.sqrt(0.6)]), np.array([5 / 9, 8 / 9, 5 / 9]))
+"""Three-point Gauss–Legendre nodes and weights on [−1, 1]: exact for polynomials of degree ≤ 5."""
+
+
+def _row_hinges(values: Array, h) -> tuple[Array, Array, Array]:
+    """For each row ``f`` of ``values`` (a tent sum along the row, spacing ``h``, bordered by a zero node at each
+    end), ``K(x) = ∫ f(m)(m − x)₊ dm`` and its tail mass ``F(x) = ∫_x^∞ f`` (``K' = −F``, ``K'' = f``) at the knots
+    ``X_k = X_0 + k h`` (k = 0 … n + 1; ``X_0`` one spacing below the first node), by the exact recursion from the
+    right ``F_k = F_{k+1} + h(f_k + f_{k+1})/2``, ``K_k = K_{k+1} + h F_{k+1} + h²(f_k/6 + f_{k+1}/3)``.
+    Returns ``(f, K, F)`` of shape (rows, n + 2)."""
+    f = jnp.pad(values, ((0, 0), (1, 1)))
+    mass = h * (f[:, :-1] + f[:, 1:]) / 2  # per cell
+    moment = h**2 * (f[:, :-1] / 6 + f[:, 1:] / 3)  # ∫_cell f(m)(m − X_k) dm
+
+    def from_right(a):  # Σ_{l ≥ k} a_l, then 0 at the last knot: sums of terms ≥ 0, no cancellation
+        return jnp.pad(jnp.cumsum(a[:, ::-1], axis=1)[:, ::-1], ((0, 0), (0, 1)))
+
+    F = from_right(mass)
+    K = from_right(moment + h * F[:, 1:])
+    return f, K, F
+
+
+def _hinge_at(x: Array, start, h, tables: tuple[Array, Array, Array], flip) -> Array:
+    """``K(x)`` of every row (:func:`_row_hinges`, stacked: index 0 the rows, 1 the rows reflected, picked by
+    ``flip``) at ``x`` (rows, …): the cubic of x's cell ``K_k − F_k s + f_k s²/2 + (f_{k+1} − f_k) s³/(6h)``,
+    ``s = x − X_k``; left of the knots the line ``K_0 + F_0 (X_0 − x)``, right of them 0."""
+    f, K, F = tables  # (2, rows, knots)
+    _, count, knots = f.shape
+    last = knots - 1
+    g = (x - start) / h
+    k = jnp.clip(jnp.floor(g), 0, last - 1).astype(jnp.int32)
+    s = x - (start + k * h)
+    row = (flip.astype(jnp.int32) * count + jnp.arange(count).reshape((-1,) + (1,) * (x.ndim - 1))) * knots
+    fk, fk1, Kk, Fk = (jnp.take(a.reshape(-1), row + k + d) for a, d in ((f, 0), (f, 1), (K, 0), (F, 0)))
+    inside = Kk - Fk * s + fk * s**2 / 2 + (fk1 - fk) * s**3 / (6 * h)
+    K0, F0 = (jnp.take(a.reshape(-1), row) for a in (K, F))
+    return jnp.where(g <= 0, K0 - F0 * (x - start), jnp.where(g >= last, 0.0, inside))
+
+
+def _sweep(tables, start, h, across, h_across, along, side, b0) -> Array:
+    """``h_a |v_l| Σ_j E_T[K_j((b0 − v_a a_j − v_a h_a T)/|v_l|)]`` for one direction (scalars ``along`` = v_l the
+    component along the rows, ``side`` = v_a across them; ``across`` the rows' positions a_j; K of the rows
+    reflected where v_l < 0), T triangular on [−1, 1] (module docstring); exact: K is cubic between knots, the
+    tent linear, three Gauss points per piece."""
+    gx, gw = _GAUSS3
+    gx, gw = jnp.asarray(gx, h.dtype), jnp.asarray(gw, h.dtype)
+    scale = jnp.abs(along)
+    safe = jnp.where(scale > 0, scale, 1.0)
+    centre = (b0 - side * across) / safe  # (rows,): the hinge's position along the row at T = 0
+    slope = side * h_across / safe  # the position moves by −slope·T, |slope| ≤ h
+    # the pieces in T: −1, 0, 1 and where the position crosses a knot near it (virtual knots are harmless)
+    k0 = jnp.floor((centre - start) / h)
+    knots = start + (k0[:, None] + jnp.arange(-1.0, 3.0, dtype=h.dtype)) * h  # (rows, 4)
+    cross = (centre[:, None] - knots) / jnp.where(slope != 0, slope, 1.0)
+    cross = jnp.where(slope != 0, jnp.clip(cross, -1.0, 1.0), 0.0)
+    fixed = jnp.broadcast_to(jnp.array([-1.0, 0.0, 1.0], h.dtype), (centre.shape[0], 3))
+    edges = jnp.sort(jnp.concatenate([fixed, cross], axis=1), axis=1)  # (rows, 7)
+    mid, half = (edges[:, 1:] + edges[:, :-1]) / 2, (edges[:, 1:] - edges[:, :-1]) / 2
+    t = mid[..., None] + half[..., None] * gx  # (rows, 6 pieces, 3 points)
+    value = _hinge_at(centre[:, None, None] - slope * t, start, h, tables, along < 0)
+    total = jnp.sum(value * (1 - jnp.abs(t)) * gw * half[..., None])
+    return jnp.where(scale > 0, h_across * scale * total, 0.0)
+
+
+def _tabulated_hinge(density: Tabulated, v: Array, c: Array | None) -> Array:
+    """``E[(v·(m − c) − 1)₊]`` of a table's tent sum, exactly, at O(rows + columns) per direction (module
+    docstring): summed along the table's rows when ``|v_x| h_x ≥ |v_y| h_y``, else along its columns."""
+    x, y = density.nodes()
+    h = density.spacing
+    dtype = jnp.result_type(v.dtype, density.values.dtype)
+    values = density.values.astype(dtype)
+    offset = _minus(density.center, c)
+    b0 = 1.0 - _along(v, offset)  # the hinge in the table's own coordinates: v·d − b0, d = m − center
+
+    def both(table, step):  # f(m) and f(−m) along each row: the nodes are symmetric about 0
+        return tuple(jnp.stack(pair) for pair in zip(_row_hinges(table, step), _row_hinges(table[:, ::-1], step)))
+
+    rows, cols = both(values, h[0]), both(values.T, h[1])
+    start_x, start_y = -density.extent[0] - h[0], -density.extent[1] - h[1]
+
+    def one(vv, b):
+        along_x = _sweep(rows, start_x, h[0], y, h[1], vv[0], vv[1], b)
+        along_y = _sweep(cols, start_y, h[1], x, h[0], vv[1], vv[0], b)
+        return jnp.where(jnp.abs(vv[0]) * h[0] >= jnp.abs(vv[1]) * h[1], along_x, along_y)
+
+    flat_v = jnp.reshape(v, (-1, 2)).astype(dtype)
+    flat_b = jnp.reshape(jnp.broadcast_to(b0, v.shape[:-1]), (-1,)).astype(dtype)
+    per_direction = 8 * 2 * 18 * 12 * (values.shape[0] + values.shape[1])  # two sweeps' temporaries
+    out = in_blocks(lambda block: jax.vmap(one)(*block), (flat_v, flat_b), per_direction)
+    return jnp.maximum(jnp.reshape(out, v.shape[:-1]), 0.0)
 
 
 def _generic_hinge(density: AbstractSlopeDensity, v: Array, c: Array | None, nodes: int = NODES) -> Array:
