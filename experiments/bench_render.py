@@ -221,6 +221,12 @@ def main(argv=None) -> dict:
         help="only re-read the study's band errors (after rerunning experiments.render_validation) into the existing "
         "JSON and recompute the verdicts; speed and eval accuracy are kept",
     )
+    parser.add_argument(
+        "--keep-speed",
+        action="store_true",
+        help="keep the existing JSON's speed section (marked kept_from its date) and rerun the rest: for runs "
+        "without the bench lock's time",
+    )
     args = parser.parse_args(argv)
     if args.refresh_bands:
         folder = RESULTS if args.out is None else Path(args.out)
@@ -230,10 +236,16 @@ def main(argv=None) -> dict:
         files.write_text(folder / "bench_render.json", json.dumps(payload, indent=2) + "\n", overwrite=True)
         return payload
     started = time.perf_counter()
+    folder = RESULTS if args.out is None else Path(args.out)
+    if args.keep_speed:
+        previous = json.loads((folder / "bench_render.json").read_text())
+        kept = {**previous["speed"], "kept_from": previous["machine"]["date_utc"]}
     payload = {
         "machine": machine(),
         "load_average_at_start": list(os.getloadavg()),
-        "speed": speed(width=args.width, height=args.height, size=args.size, repeat=args.repeat),
+        "speed": kept
+        if args.keep_speed
+        else speed(width=args.width, height=args.height, size=args.size, repeat=args.repeat),
         "eval_accuracy": eval_accuracy(size=min(args.size, 256), n=args.directions, seed=args.seed),
         "bands": bands(),
     }

@@ -950,7 +950,16 @@ def real_fits() -> str:
             f"{t['delta_sigma_within_3_std']['of']} runs);\n"
             f"- held-out error ≤ ½ of the isotropic default's on the anisotropic files: "
             + ("not evaluated (no anisotropic file)" if held["met"] is None else met(held["met"]))
-            + f" ({held['passed']} of {held['of']} runs);\n"
+            + f" ({held['passed']} of {held['of']} runs)"
+            + "".join(
+                f"; by the {label} law (not the default): {t[key]['passed']} of {t[key]['of']} runs"
+                for key, label in (
+                    ("held_out_half_of_isotropic_by_law", "width"),
+                    ("held_out_half_of_isotropic_by_law_spline", "spline"),
+                )
+                if t.get(key, {}).get("of")
+            )
+            + ";\n"
             f"- no run ends with exit 0 and an unflagged problem: {met(t['no_exit_0_with_unflagged_problem']['met'])}"
             + ("" if not problems else " — " + "; ".join(f"{k}: {', '.join(v)}" for k, v in problems.items()))
             + ".",
@@ -1539,11 +1548,15 @@ def render_bench() -> str:
     sp = d["speed"]
     fps = sp["frames_per_second"]
     rows = [[name, f"{1e3 * sp['seconds_best'][name]:.1f}", f"{fps[name]:.3g}"] for name in fps]
+    rounds = sp.get("repeat") or len(sp["all_seconds"]["naive"])
     out = [
-        f"Frames of {sp['image'][0]}×{sp['image'][1]} px (best of {sp['repeat']}; "
+        f"Frames of {sp['image'][0]}×{sp['image'][1]} px (best of {rounds}; "
         "the micro-geometry: "
         f"{sp['instances']} instances of a {sp['triangles_per_tile']:,}-triangle tile, 1 spp with a shadow ray; the "
-        "plane materials: one BSDF evaluation per pixel)\n\n" + table(["render", "ms", "frames/s"], rows)
+        "plane materials: one BSDF evaluation per pixel"
+        + (f"; measured {sp['kept_from']}, before the closed form" if "kept_from" in sp else "")
+        + ")\n\n"
+        + table(["render", "ms", "frames/s"], rows)
     ]
     acc = d["eval_accuracy"]
     for form, e in acc["forms"].items():
@@ -1599,6 +1612,13 @@ def render_bench() -> str:
     return "\n".join(out)
 
 
+def instrument_fits() -> str:
+    """docs/instrument.md: the fits on instrument data (experiments/instrument_fits.py, issue 32 item 6)."""
+    from experiments import instrument_fits as study
+
+    return study.block()
+
+
 SECTIONS = [
     ("benchmarks.md", "Core evolution (bench_evolve)", evolve),
     ("benchmarks.md", "Queries (bench_queries)", queries),
@@ -1613,6 +1633,7 @@ SECTIONS = [
     ("benchmarks.md", "Scene planner (bench_planner)", planner),
     ("benchmarks.md", "Ray-traced instrument (bench_instrument)", instrument),
     ("benchmarks.md", "Rendering (bench_render)", render_bench),
+    ("instrument.md", "Fits of instrument data (instrument_fits)", instrument_fits),
     ("topography.md", "Fits of measured surfaces (bench_real_fits)", real_fits_summary),
     ("fitting.md", "Samplers (bench_samplers)", samplers),
     ("fitting.md", "Speed of the default fit (bench_anisotropic)", anisotropic_speed),
