@@ -656,6 +656,7 @@ def block(path: Path = RESULT) -> str:
             f"binning would give {s['cic_lag1']:g}), median χ²/dof of the whitened difference "
             f"{s['noise_reduced_chi2_median']:.2f}.",
         ]
+    lines += [""] if d.get("sigma_swap") else []
     for r in d.get("sigma_swap", []):
         own = next(
             f
@@ -663,7 +664,7 @@ def block(path: Path = RESULT) -> str:
             if (f["surface"], f["theta_i_deg"], f["masking"]) == (r["surface"], r["theta_i_deg"], r["masking"])
         )
         lines.append(
-            f"σ of seed {d['config']['noise_seed']} instead of its own, {r['surface']} at {r['theta_i_deg']:g}° "
+            f"- σ of seed {d['config']['noise_seed']} instead of its own, {r['surface']} at {r['theta_i_deg']:g}° "
             f"(`{r['masking']}`): C0_xx bias {100 * own['score']['C0_relative_bias']['xx']:+.1f} % → "
             f"{100 * r['score']['C0_relative_bias']['xx']:+.1f} %, ΔΣ_xx bias "
             f"{100 * own['score']['delta_sigma'][-1]['relative_bias_aligned']['xx']:+.1f} % → "
