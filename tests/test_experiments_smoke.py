@@ -741,7 +741,7 @@ def test_bench_real_fits_z_scores_and_targets_by_hand():
     assert brf.z_summary([{**row, "z": {"xx": 1.0, "xy": None, "yy": -4.0}}]) == {"max_abs_z": 4.0, "undefined_z": 1}
 
 
-@pytest.mark.slow  # 1–4 min on 2 loaded cores: synth twice, a cold fit without sampling, two held-out fits
+@pytest.mark.slow  # 2–6 min on 2 loaded cores: synth twice, a cold fit without sampling, four held-out fits
 def test_bench_real_fits_quick(tmp_path):
     from experiments import bench_real_fits as brf
 
@@ -754,7 +754,7 @@ def test_bench_real_fits_quick(tmp_path):
     assert len(r["covariance_differences"]) == len(r["scales"]) - 1
     h = r["held_out"]
     assert len(h["train_scales"]) == brf.TRAIN_SCALES and len(h["held_out_scales"]) == len(r["scales"]) - 5
-    for name in ("isotropic", "second_moment"):
+    for name in ("isotropic", "second_moment", "law", "law_spline"):
         assert 0 < h[name]["l1"] < 2
     assert 0 < h["noise_floor_l1"] < 1
 
