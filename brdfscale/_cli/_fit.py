@@ -314,11 +314,11 @@ def _candidates(spec: "FitSpec") -> "list[tuple[str, FitSpec]]":
     return specs
 
 
-def _compare(fitting, spec, data, stream):
+def _compare(fitting, spec, data, stream, unit=None):
     """Fit every candidate of ``--compare``; returns the preferred (smallest BIC) model's
     ``(spec, model, info, result)`` with the comparison table in ``info["comparison"]``."""
     stream(
-        f"comparing models on {len(data.scale_of_image)} images at scales μ = {[float(s) for s in data.scales]} "
+        f"comparing models on {len(data.scale_of_image)} images at scales {scales_text(data.scales, unit)} "
         f"({data.n_data} valid pixels), {spec.starts} starts each ..."
     )
     fitted = {}
@@ -359,7 +359,7 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
         stream("choosing the smoothness weight by generalised cross-validation (one pilot fit) ...")
     result = None
     if getattr(args, "compare", False):
-        spec, model, info, result = _compare(fitting, spec, data, stream)
+        spec, model, info, result = _compare(fitting, spec, data, stream, unit)
     else:
         model, info = spec.model_for(data)
     if spec.sampler is not None:
@@ -386,7 +386,7 @@ def _fit_and_report(
     """Fit (unless ``result``, --compare's fit of this model, is given), sample and write the report."""
     if result is None:
         stream(
-            f"fitting {len(data.scale_of_image)} images at scales μ = {[float(s) for s in data.scales]} "
+            f"fitting {len(data.scale_of_image)} images at scales {scales_text(data.scales, unit)} "
             f"({data.n_data} valid pixels), {len(model.names)} parameters, {spec.starts} starts ..."
         )
         result = spec.fit(model, data)
@@ -432,6 +432,11 @@ def run(args) -> int:
         print_truth(doc)
         print_outcome(doc)
     return outcome_status(doc["outcome"])
+
+
+def scales_text(scales, unit: str | None) -> str:
+    """``μ = [a, b, …] UNIT`` for a progress line: μ's length unit (:func:`mu_unit`; px where None)."""
+    return f"μ = [{', '.join(f'{float(s):.4g}' for s in scales)}] {unit or 'px'}"
 
 
 def mu_unit(metadata) -> str | None:
@@ -530,6 +535,7 @@ def print_determined(doc: dict, stream=print) -> None:
     """The parameters (undetermined ones with their prior range, no interval), then the ratios
     S(W, μ0)/S(W, μk) the data determine, from a report document (fitting.write_report)."""
     summary = (doc.get("mcmc") or {}).get("summary") or {}
+    unit = (doc.get("data") or {}).get("unit") or "px"
     at_bounds = set((doc.get("optimisation") or {}).get("at_prior_bounds") or ())
     for name, row in doc["parameters"].items():
         if name.startswith("D["):
@@ -565,7 +571,7 @@ def print_determined(doc: dict, stream=print) -> None:
                 else f"{d['value'][a][b]:.4g}" + (f" ± {d['std'][a][b]:.2g}" if d["std"][a][b] is not None else " (±?)")
                 for a, b in ((0, 0), (0, 1), (1, 1))
             )
-            stream(f"    μ0 = {d['mu0']:g}, μk = {d['mu']:g}: [{entries}]")
+            stream(f"    μ0 = {d['mu0']:g} {unit}, μk = {d['mu']:g} {unit}: [{entries}]")
     if doc.get("ratios"):
         stream("  what the data determine — S(W, μ0)/S(W, μk):")
         for name, r in doc["ratios"].items():
@@ -573,4 +579,4 @@ def print_determined(doc: dict, stream=print) -> None:
             std = f"± {r['std']:.3g}" if r["std"] is not None else "(undetermined)"
             # None: no finite value at the estimate (fitting.summarise_ratios), "undetermined" as a std of None
             shown = f"{value:.4g} {std}" if value is not None else "undetermined (no finite value at the estimate)"
-            stream(f"    {name:28s} {shown}   (μ0 = {r['mu0']:g}, μk = {r['mu']:g})")
+            stream(f"    {name:28s} {shown}   (μ0 = {r['mu0']:g} {unit}, μk = {r['mu']:g} {unit})")
