@@ -191,6 +191,8 @@ def test_tabulated_path_equals_the_transform_quadrature(shape, extent, centre):
     for random tables of several shapes, extents and centres and directions of every azimuth — axis-aligned
     ones included, where one tent's projection collapses — within the quadrature's own accuracy (1e-7 of Λ +
     1e-10); and the table's exact mean against the transform's difference quotient (1e-10)."""
+    import equinox as eqx
+
     from brdfscale.stats import _masking
 
     rng = np.random.default_rng(3)
@@ -199,9 +201,11 @@ def test_tabulated_path_equals_the_transform_quadrature(shape, extent, centre):
     phi = np.concatenate([rng.uniform(0, 2 * math.pi, 40), [0.0, math.pi / 2, math.pi, 1.5 * math.pi]])
     w = np.stack([_direction(t, p) for t, p in zip(theta, phi)])
     ours = np.asarray(stats.smith_lambda(density, w))
-    mean = _masking._mean(density)
-    np.testing.assert_allclose(np.asarray(mean), np.asarray(_masking._transform_mean(density)), atol=1e-10)
-    fourier = np.asarray(_masking._generic_hinge(density, jnp.asarray(w[:, :2] / w[:, 2:]), mean))
+    mean = eqx.filter_jit(_masking._mean)(density)  # compiled: eagerly, op by op, these take seconds
+    np.testing.assert_allclose(
+        np.asarray(mean), np.asarray(eqx.filter_jit(_masking._transform_mean)(density)), atol=1e-10
+    )
+    fourier = np.asarray(eqx.filter_jit(_masking._generic_hinge)(density, jnp.asarray(w[:, :2] / w[:, 2:]), mean))
     np.testing.assert_allclose(ours, fourier, rtol=1e-7, atol=1e-10)
     assert np.count_nonzero(ours > 1e-6) > 20 and ours.max() > 0.1  # masking happens: the check can fail
 

@@ -6,7 +6,8 @@
   their own mean planes, mirror/Beckmann/GGX facets with optional Fresnel, shadowing and masking by ray
   intersection, interreflection up to ``bounces``;
 * :class:`Measurement` — the same measurement split into :class:`Task` s that give the same result, bit for bit,
-  whatever the split (run in this process or on any cluster that can pickle them);
+  whatever the split, run in this process or as Ray tasks (``measure(..., workers=N)`` or ``address=``, the extra
+  ``brdfscale[cluster]``, as ``fit-library`` runs a library) or on any cluster that can pickle them;
 * :func:`mesh` — a height field as a Mitsuba triangle mesh, its pixel facets (default) or the continuous
   triangulation (:data:`SURFACES`), unmeasured pixels left out, bounded by :data:`MAX_MESH_BYTES`;
   :func:`mesh_arrays` the same as NumPy arrays, :func:`mesh_bytes` its size.
