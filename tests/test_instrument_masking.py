@@ -9,7 +9,7 @@ uncorrelated ``G₁(i)·G₁(o)``, Walter et al. 2007). Measured at the spot tha
 with ``P₂₂`` the micro-slope density convolved with the pixel-slope density — which is exactly
 :func:`brdfscale.synth.gonioreflectometer`'s image of the same field (α_eff² = α_geo² + α_micro² for Beckmann) — and
 ``G`` Smith's masking of that density (:class:`brdfscale.lobes.SmithMasking` with ``correlated=False``), as the
-detector records it (its bilinear binning: :func:`_binned`).
+detector records it (its nearest-node binning: :func:`_binned`).
 
 Error budget of the comparison: the instrument's σ (its Monte Carlo standard error, per pixel and of the image's
 sum); the nearly-flat term of the geometric facets, of order ``ALPHA_GEO²`` (4·10⁻⁴ here: the seed's error grows like
@@ -51,10 +51,10 @@ def _outgoing(i: np.ndarray, u: np.ndarray) -> np.ndarray:
 
 
 def _binned(g: np.ndarray) -> np.ndarray:
-    """The model as the detector records it: light deposited bilinearly onto the nodes (cloud in cell) is the density
-    convolved with the pixel tent, ``g + (h²/12)∇²g`` to second order in the pitch h — per axis the kernel
-    ``[1, 10, 1]/12`` on the nodes (zero beyond the grid)."""
-    k = np.array([1.0, 10.0, 1.0]) / 12
+    """The model as the detector records it: light counted in the node whose cell holds it (the instrument's default
+    ``binning="nearest"``) is the density averaged over the pixel cell, ``g + (h²/24)∇²g`` to second order in the
+    pitch h — per axis the kernel ``[1, 22, 1]/24`` on the nodes (zero beyond the grid)."""
+    k = np.array([1.0, 22.0, 1.0]) / 24
     rows = np.apply_along_axis(lambda r: np.convolve(r, k, mode="same"), 1, g)
     return np.apply_along_axis(lambda c: np.convolve(c, k, mode="same"), 0, rows)
 
