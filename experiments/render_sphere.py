@@ -14,9 +14,10 @@ facets, one texel = :data:`TEXEL` scene units, Beckmann α0 = 0.04 at μ0 = 1 te
   towards the silhouette (``1/cos`` of the view angle) where a fixed roughness cannot follow.
 
 The footprint image is the film's mean over each pixel's samples, misses counting 0: at the silhouette (pixels
-partly covered) it reads low, while the BSDF sees each sample's own footprint. No micro-geometry ground truth: the measured tile displaced onto a sphere at these distances needs ~10⁸ triangles
-(not feasible on this CPU within the study's budget); what the study shows is where and by how much the three
-materials differ, per distance, and the footprint across the sphere.
+partly covered) it reads low, while the BSDF sees each sample's own footprint. No micro-geometry ground truth:
+the measured tile displaced onto a sphere at these distances needs ~10⁸ triangles (not feasible on this CPU within
+the study's budget); what the study shows is where and by how much the three materials differ, per distance, and
+the footprint across the sphere.
 
 Run:  python -m experiments.render_sphere  →  experiments/results/render_sphere/sphere.{json,png}
 """
