@@ -392,26 +392,39 @@ class AnisotropicNonParametricModel(AbstractModel):
     # --- starting point and prior box -----------------------------------------------------------
 
     def initial(self, data):
-        """The μ0 images (averaged) read at the base nodes, floored at 1e-6 of their peak; the
-        profiles of the measured lobes' half-maximum covariance differences (constant in ρ, no
-        higher harmonics: Gaussian statistics)."""
+        """The μ0 images (averaged) read at the base nodes where they stand above their noise (3 times
+        the image's median σ), elsewhere the Gaussian of the μ0 lobe's half-maximum moments
+        (:func:`image_moments`, amplitude :func:`moments`'s), floored at e⁻³⁸ of the peak (inside the
+        prior box); the profiles of the measured lobes' half-maximum covariance differences (constant
+        in ρ, no higher harmonics: Gaussian statistics). Reading the noise itself at the outer nodes
+        (the logarithm of noise, or of a floor where it is negative) made the spline of ``log g0``
+        ring between neighbouring nodes up to e⁴⁴ (experiments/bench_anisotropic.py's set: χ²/dof
+        5e33 at the start, still 5e27 after 12 steps)."""
         amp, _ = moments(data)
-        _, cov = image_moments(data)
+        centre, cov = image_moments(data)
         nx, ny = np.asarray(self.node_x), np.asarray(self.node_y)
-        stacked = []
+        yy, xx = np.meshgrid(ny, nx, indexing="ij")
+        nodes = np.stack([xx, yy], -1)
+        d = nodes - centre[0]
+        q = np.einsum("...i,ij,...j->...", d, np.linalg.inv(cov[0]), d)
+        gaussian = amp * np.exp(-0.5 * q) / (2 * math.pi * math.sqrt(np.linalg.det(cov[0])))
+        stacked, significant = [], []
         for i in data.images_of_scale(0):
             n, a = data.image_sizes[i], data.extents[i]
-            valid = data.image(i, np.asarray(data.weight[i])) > 0
+            weight = data.image(i, np.asarray(data.weight[i]))
+            valid = weight > 0
             img = np.where(valid, data.image(i, np.asarray(data.values[i])), 0.0)
+            noise = 3.0 / np.median(weight[valid])  # 3 × the median σ (weight = 1/σ)
             ux = data.image(i, np.asarray(data.offsets[i, :, 0]))
             if ux[0, 0] == ux[0, 1]:  # u_x constant along a row: rows are x; make them y
                 img = img.T
             x = np.linspace(-a, a, n)
             read = scipy.interpolate.RegularGridInterpolator((x, x), img, bounds_error=False, fill_value=0.0)
-            yy, xx = np.meshgrid(ny, nx, indexing="ij")
-            stacked.append(read(np.stack([yy, xx], -1)))
-        base = np.mean(stacked, axis=0)
-        base = np.log(np.maximum(base, max(base.max(), 1e-300) * 1e-6)).ravel()
+            values = read(np.stack([yy, xx], -1))
+            stacked.append(values)
+            significant.append(values > noise)
+        base = np.where(np.all(significant, axis=0), np.mean(stacked, axis=0), gaussian)
+        base = np.log(np.maximum(base, max(base.max(), 1e-300) * math.exp(-38.0))).ravel()
         v = self.reference_variance
         J1 = len(self.knots)
         rows = []
