@@ -1027,7 +1027,7 @@ def anisotropic_speed() -> str:
                 "—" if not timing else f"{timing['warmup_s']:.1f} / {timing['sampling_s']:.1f}",
                 "—" if not sampled else f"{last['min_ess_bulk']:.0f} ({last['ess_margin']:.1f}×)",
                 "—" if not sampled else f"{last['max_r_hat']:.4f}",
-                " / ".join(str(r["exit"]) for r in (cold, warm) if r is not None),
+                " / ".join("killed at timeout" if r.get("timed_out") else str(r["exit"]) for r in (cold, warm) if r),
             ]
         )
     header = [
