@@ -1120,7 +1120,7 @@ def samplers() -> str:
     d = load("bench_samplers")
     if d is None or "problems" not in d:
         return "(bench_samplers.json missing)"
-    labels = {"emcee": "`Emcee(walkers=16)`, 4 × 16 walkers", "nuts": "`NUTS()`", "hmc": "`HMC()`"}
+    labels = {"emcee": "`Emcee(walkers=16)`, 4 × 16 walkers", "nuts": "`NUTS(warmup=500)`", "hmc": "`HMC(warmup=500)`"}
     blocks = [machine_line(d)]
     for pname, p in d["problems"].items():
         s = p["settings"]
