@@ -205,7 +205,7 @@ MASKING = Choices(
     default="none",
 )
 """Masking and shadowing in a lobe's ρ, the measurement-set forward model and the fits (docs/masking.md);
-the default stays the seed's (none) until the instrument study (issue 32 item 5) decides."""
+the default stays the seed's (none), as the instrument study (issue 32 item 5) decided (docs/masking.md)."""
 
 
 @dataclasses.dataclass(frozen=True)
