@@ -27,7 +27,8 @@ standard errors):
   nearly-flat term (the seed's linearisation of the rotation), independent of incidence and of masking.
 
 The lobe at μ0 is compared too: the fit's base covariance ``C0`` against the aligned lobe's covariance plus the
-variance ``h²/6`` per axis that the instrument's bilinear (cloud-in-cell) binning adds (a tent of one pitch h).
+variance per axis that the instrument's binning adds (:data:`BINNING_VARIANCE`: ``h²/12`` for nearest-node binning,
+the default; ``h²/6`` for bilinear, cloud-in-cell shares, a tent of one pitch h).
 
 Scores per fit: z = (fit − truth)/std_fit per ΔΣ component (xx, xy, yy; std the fit's Laplace standard error);
 the relative bias of ΔΣ_xx, ΔΣ_yy (x lies in the incidence plane, where masking acts) and C0_xx, C0_yy; and the
