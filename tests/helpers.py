@@ -415,3 +415,27 @@ def anisotropic_theta(model, amplitude, c0, mean, differences):
     for s in steps:
         theta += chol(s)
     return jnp.asarray(theta)
+
+
+def fit_at(names, theta, covariance, n_data: int, *, solver: str = "lm", **extra) -> fitting.FitResult:
+    """A ``fitting.FitResult`` at θ with covariance ``covariance`` and nothing else (no starts, estimates, notes or
+    undetermined directions; χ² 1): what a figure or an export reads of a fit, for tests that run no fit.
+    ``extra``: further fields (``covariance_differences``, ``ratios``, …)."""
+    return fitting.FitResult(
+        names=names,
+        theta=theta,
+        covariance=covariance,
+        chi2=1.0,
+        n_data=n_data,
+        status="converged",
+        starts=[],
+        estimates={},
+        std={},
+        quantiles={},
+        eigenvalues=np.ones(len(names)),
+        undetermined=[],
+        notes=[],
+        solver=solver,
+        at_bounds=[],
+        **extra,
+    )

@@ -12,6 +12,7 @@ import pytest
 
 import brdfscale as bs
 from brdfscale import fitting, plot
+from tests import helpers
 
 
 SIZE, EXTENT = 41, 1.0  # image pitch 0.05 slope
@@ -32,26 +33,7 @@ def _problem_and_fit(images, unit="m"):
     mset = bs.MeasurementSet(tuple(images), metadata={"unit": unit})
     problem = fitting.Problem(model, fitting.Dataset.from_measurements(mset))
     theta = np.asarray(model.theta_from(dict(amplitude=1.0, alpha_lobe=0.05, alpha_max=0.2, mu_c=1e-6, exponent=0.8)))
-    n = len(model.names)
-    result = fitting.FitResult(
-        names=model.names,
-        theta=theta,
-        covariance=np.eye(n) * 1e-4,
-        chi2=1.0,
-        n_data=3 * SIZE * SIZE,
-        status="converged",
-        starts=[],
-        estimates={},
-        std={},
-        quantiles={},
-        eigenvalues=np.ones(n),
-        undetermined=[],
-        notes=[],
-        solver="lm",
-        at_bounds=[],
-        ratios={},
-        combinations=[],
-    )
+    result = helpers.fit_at(model.names, theta, np.eye(len(model.names)) * 1e-4, 3 * SIZE * SIZE)
     return problem, result
 
 
@@ -168,14 +150,11 @@ def test_the_statistics_of_an_anisotropic_fit_by_direction():
     exp(−½ W² ΔΣ_xx) along W_x (solid) and exp(−½ W² ΔΣ_yy) along W_y (dashed) — the closed form of a
     Gaussian change of the lobe, not the direction average — and the ΔΣ panel the entries of
     fit.covariance_differences with their standard errors (an entry without one hollow)."""
-    from tests import helpers
-
     data = helpers.anisotropic_dataset(0)
     model = fitting.AnisotropicModel(3)
     truth = helpers.ANISO_TRUTH
     differences = helpers.anisotropic_differences()
     theta = np.asarray(helpers.anisotropic_theta(model, truth["amplitude"], truth["C0"], truth["mean"], differences))
-    n = len(model.names)
     entries = [
         {
             "mu0": helpers.ANISO_SCALES[0],
@@ -186,24 +165,13 @@ def test_the_statistics_of_an_anisotropic_fit_by_direction():
         for k, (mu, d) in enumerate(zip(helpers.ANISO_SCALES, differences), start=0)
         if k > 0
     ]
-    result = fitting.FitResult(
-        names=model.names,
-        theta=theta,
-        covariance=np.eye(n) * 1e-14,  # the draws sit at θ: the bands' medians are the curves at θ
-        chi2=1.0,
-        n_data=data.values.size,
-        status="converged",
-        starts=[],
-        estimates={},
-        std={},
-        quantiles={},
-        eigenvalues=np.ones(n),
-        undetermined=[],
-        notes=[],
+    n = len(model.names)
+    result = helpers.fit_at(
+        model.names,
+        theta,
+        np.eye(n) * 1e-14,  # the draws sit at θ: the bands' medians are the curves at θ
+        data.values.size,
         solver="lm_normal",
-        at_bounds=[],
-        ratios={},
-        combinations=[],
         covariance_differences=entries,
     )
     fig = plot.recovered_statistics(fitting.Problem(model, data), result, unit="m")
