@@ -3,7 +3,7 @@ batches of rays (:mod:`brdfscale.instrument`): the one place that picks the exec
 optional extra ``brdfscale[cluster]``), stops what it started, and maps a function over tasks on it.
 
 * :func:`resolve_executor` — ``"auto"``/``"process"``/``"ray"`` and ``address``/``workers`` checked, ``"auto"``
-  resolved (Ray when either is given);
+  resolved (Ray when either is given); :func:`check_options` — ``workers``, ``cpus_per_task``, ``retries`` checked;
 * :func:`ray_session` — Ray initialised for a run: the cluster at ``address``, or a local instance of ``workers`` CPUs
   started here and stopped at the end, also when this process dies first (the watchdog,
   :mod:`brdfscale._watchdog`); a Ray the caller initialised is used as it is and left running;
@@ -45,6 +45,19 @@ def resolve_executor(executor, address, workers) -> str:
     if executor == "process" and (address or workers):
         raise InvalidInputError("address and workers are Ray's: use executor='ray' (or 'auto').")
     return executor
+
+
+def check_options(workers, cpus_per_task, retries) -> tuple[int | None, float, int]:
+    """``(workers, cpus_per_task, retries)`` checked: ``workers`` None or an integer ≥ 1 (CPUs of a local Ray
+    instance), ``cpus_per_task`` a real > 0 (the CPUs Ray reserves for a task), ``retries`` an integer ≥ 0 (Ray's
+    retries of a task whose worker died). InvalidInputError naming what is accepted."""
+    from ._validation import integer, real
+
+    return (
+        None if workers is None else integer(workers, "workers", 1),
+        real(cpus_per_task, "cpus_per_task", minimum=0, strict=True),
+        integer(retries, "retries", 0),
+    )
 
 
 @contextlib.contextmanager

@@ -435,11 +435,8 @@ class Measurement:
         """
         from .. import _cluster
 
+        workers, cpus_per_task, retries = _cluster.check_options(workers, cpus_per_task, retries)
         executor = _cluster.resolve_executor(executor, address, workers)
-        if workers is not None:
-            workers = integer(workers, "workers", 1)
-        cpus_per_task = real(cpus_per_task, "cpus_per_task", minimum=0, strict=True)
-        retries = integer(retries, "retries", 0)
         tasks = self.tasks(batches_per_task)
         results: list[TaskResult | None] = [None] * len(tasks)
         with progress_bar(total=len(tasks) * self.batches, desc="instrument", unit="batch", enabled=progress) as bar:

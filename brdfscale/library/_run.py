@@ -8,7 +8,7 @@ import re
 import time
 from typing import Any
 
-from .._cluster import ray_session, resolve_executor
+from .._cluster import check_options, ray_session, resolve_executor
 from .._compilation_cache import directory_in_use
 from .._errors import InvalidInputError, MeasurementFileError, OutputWriteError
 from .._files import exclusive, write_text
@@ -364,9 +364,7 @@ def fit_library(
     if not isinstance(spec, FitSpec):
         raise InvalidInputError(f"spec must be a brdfscale.library.FitSpec; got {type(spec).__name__}.")
     batch = integer(batch, "batch", 1)
-    retries = integer(retries, "retries", 0)
-    if workers is not None:
-        workers = integer(workers, "workers", 1)
+    workers, cpus_per_task, retries = check_options(workers, cpus_per_task, retries)
     executor = resolve_executor(executor, address, workers)
     if executor == "process":
         from ..checks import require_float64
