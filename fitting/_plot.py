@@ -165,6 +165,32 @@ def _residual_range(residual: np.ndarray, window, e: float) -> float:
     return max(RESIDUAL_RANGE, float(np.ceil(np.quantile(shown, 0.99)))) if shown.size else RESIDUAL_RANGE
 
 
+_WIDTH, _ROW = 10.5, 2.7
+"""The width of :func:`plot_fit`'s figure and the height of one of its rows (one scale), in inches."""
+_MARGINS = {"left": 0.7, "right": 0.65, "top": 0.25, "bottom": 0.45, "across": 1.2, "between": 0.62}
+""":func:`plot_fit`'s fixed margins in inches: outside the grid, then ``across`` between the panels
+of a row (a colour bar with its ticks and label, the next panel's y label and ticks) and
+``between`` the rows (x ticks and label, the next row's titles)."""
+
+
+def _fixed_grid(rows: int) -> dict:
+    """:func:`plot_fit`'s panel grid (``gridspec_kw`` of ``rows`` × 3 panels) with the margins of
+    :data:`_MARGINS`: every panel of the figure has the same title, labels and colour bar, so one
+    fixed layout fits them all; constrained layout measured the 6·rows axes' text twice per save
+    (~2.5 of ~3.5 s CPU of the figure on 8 scales)."""
+    m, height = _MARGINS, _ROW * rows
+    width = (_WIDTH - m["left"] - m["right"] - 2 * m["across"]) / 3
+    tall = (height - m["top"] - m["bottom"] - (rows - 1) * m["between"]) / rows
+    return {
+        "left": m["left"] / _WIDTH,
+        "right": 1 - m["right"] / _WIDTH,
+        "top": 1 - m["top"] / height,
+        "bottom": m["bottom"] / height,
+        "wspace": m["across"] / width,
+        "hspace": m["between"] / tall,
+    }
+
+
 def plot_fit(problem: Problem, fit: FitResult, *, unit: str | None = None):
     """Data, fit and whitened residuals at every measured scale (the report's ``data_vs_fit.png``).
 
@@ -191,8 +217,8 @@ def plot_fit(problem: Problem, fit: FitResult, *, unit: str | None = None):
     data, model = problem.data, problem.model
     pred = np.asarray(predict_images(model, jnp.clip(jnp.asarray(fit.theta), problem.lower, problem.upper), data))
     first = [data.scale_of_image.index(k) for k in range(len(np.asarray(data.scales)))]
-    fig = _figures.figure(10.5, 2.7 * len(first))
-    axes = fig.subplots(len(first), 3, squeeze=False)
+    fig = _figures.figure(_WIDTH, _ROW * len(first), layout=None)  # a fixed grid (_fixed_grid), not constrained layout
+    axes = fig.subplots(len(first), 3, squeeze=False, gridspec_kw=_fixed_grid(len(first)))
     for row, i in enumerate(first):
         obs, fitted = data.image(i, data.values[i]), data.image(i, pred[i])
         w = data.image(i, data.weight[i])

@@ -9,6 +9,8 @@ import jax.numpy as jnp
 import matplotlib.pyplot as plt
 import numpy as np
 import pytest
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.transforms import Bbox
 
 import brdfscale as bs
 from brdfscale import fitting, plot
@@ -83,6 +85,39 @@ def test_a_lobe_that_fills_its_image_is_not_zoomed():
             whole = pytest.approx((-EXTENT, EXTENT))
             assert ax.get_xlim() == whole and ax.get_ylim() == whole
             assert "zoomed" not in ax.get_title() and " px: " in ax.get_title(), ax.get_title()  # no unit given: px
+    finally:
+        plt.close(fig)
+
+
+@pytest.mark.parametrize("gain", [1.0, 3e5])
+def test_the_fixed_layout_keeps_every_panels_text_inside_the_figure_and_apart(gain):
+    """plot_fit places its panels on a fixed grid (fitting._plot._fixed_grid, not constrained
+    layout): drawn, each panel with its colour bar — titles, tick labels, axis and colour-bar
+    labels — lies inside the figure and overlaps no other panel's, also with six-digit lobe values
+    (wide colour-bar tick labels)."""
+    images = [_gaussian_image(mu, (0.0, 0.0), sd) for mu, sd in zip(SCALES, (0.06, 0.08, 0.09))]
+    images = [
+        bs.LobeImage(mu=i.mu, incident=i.incident, extent=i.extent, values=i.values * gain, sigma=i.sigma)
+        for i in images
+    ]
+    problem, result = _problem_and_fit(images)
+    fig = plot.fit(problem, result, unit="m")
+    try:
+        canvas = FigureCanvasAgg(fig)  # what savefig(…png) draws with
+        canvas.draw()
+        renderer = canvas.get_renderer()
+        panels = [ax for ax in fig.axes if not hasattr(ax, "_colorbar")]
+        bars = [ax for ax in fig.axes if hasattr(ax, "_colorbar")]
+        assert len(panels) == len(bars) == 9
+        boxes = []
+        for ax, bar in zip(panels, bars):  # fig.axes: each panel, then its colour bar
+            assert bar._colorbar.mappable is ax.images[0]
+            box = Bbox.union([ax.get_tightbbox(renderer), bar.get_tightbbox(renderer)])
+            assert fig.bbox.contains(box.x0, box.y0) and fig.bbox.contains(box.x1, box.y1), (ax.get_title(), box)
+            boxes.append(box)
+        for i, a in enumerate(boxes):
+            for j, b in enumerate(boxes[:i]):
+                assert not a.overlaps(b), (panels[i].get_title(), panels[j].get_title(), a, b)
     finally:
         plt.close(fig)
 
