@@ -51,7 +51,7 @@ def facet_offsets(field, mu, *, aligned=False):
 
     b = int(mu)
     pixel = synth.facet_slopes(field, 1)
-    window = synth.facet_slopes(field, mu)
+    window = synth.facet_slopes(field, float(mu))
     r, c = window.shape[:2]
     blocks = np.moveaxis(pixel[: r * b, : c * b].reshape(r, b, c, b, 2), 2, 1).reshape(r * c, b * b, 2)
     window = window.reshape(r * c, 1, 2)
