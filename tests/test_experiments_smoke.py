@@ -888,10 +888,13 @@ def test_bench_render_quick(tmp_path):
     )
     assert json.loads((tmp_path / "bench_render.json").read_text())["speed"]["image"] == [24, 16]
     assert {"micro_geometry_1spp", "naive", "lean", "brdfscale"} <= set(payload["speed"]["frames_per_second"])
-    records = payload["eval_accuracy"]["records"]
-    assert {r["where"] for r in records} == {"ladder node", "between nodes"}
-    assert all(r["directions"] > 0 and r["max_relative"] >= r["median_relative"] >= 0 for r in records)
-    assert isinstance(payload["targets"]["eval_within_1e-4"]["met"], bool)
+    forms = payload["eval_accuracy"]["forms"]
+    assert set(forms) == {"closed", "table"} and {e["form"] for e in forms.values()} == {"closed", "table"}
+    for form, entry in forms.items():
+        records = entry["records"]
+        assert {r["where"] for r in records} == {"ladder node", "between nodes"}
+        assert all(r["directions"] > 0 and r["max_relative"] >= r["median_relative"] >= 0 for r in records)
+        assert isinstance(payload["targets"][f"eval_within_1e-4_{form}"]["met"], bool)
 
 
 @pytest.mark.slow  # ray tracing and seven fits: 1–3 min on 2 shared cores
