@@ -817,20 +817,25 @@ table = render.lobe_table(base, law, mu0=1.0, scales=[1.0, 3.0, 9.0], size=48)
 obj = render.bsdf(None, table, masking=False)
 rng = np.random.default_rng(0)
 ctx = mi.BSDFContext()
+def draw(mu):  # o, its mirror direction i about a half-vector near the lobe, o's interaction at footprint mu
+    o = rng.normal(size=3); o[2] = abs(o[2]) + 0.5; o /= np.linalg.norm(o)
+    m = np.array([0.04, -0.03]) + 0.15 * rng.normal(size=2)
+    h = np.array([m[0], m[1], 1.0]); h /= np.linalg.norm(h)
+    i = 2 * o.dot(h) * h - o
+    if i[2] < 0.05:
+        return o, i, None
+    si = dr.zeros(mi.SurfaceInteraction3f)
+    si.wi = mi.Vector3f(*o); si.dp_du = mi.Vector3f(1, 0, 0); si.dp_dv = mi.Vector3f(0, 1, 0)
+    si.duv_dx = mi.Vector2f(mu, 0); si.duv_dy = mi.Vector2f(0, mu)
+    return o, i, si
 worst = 0.0
 for mu in (1.0, 2.0, 9.0):
     w = np.log(table.scales); t = np.log(mu); k = min(np.searchsorted(w, t, side="right") - 1, 1)
     f = (t - w[k]) / (w[k + 1] - w[k])
     for _ in range(60):
-        o = rng.normal(size=3); o[2] = abs(o[2]) + 0.5; o /= np.linalg.norm(o)
-        m = np.array([0.04, -0.03]) + 0.15 * rng.normal(size=2)
-        h = np.array([m[0], m[1], 1.0]); h /= np.linalg.norm(h)
-        i = 2 * o.dot(h) * h - o
-        if i[2] < 0.05:
+        o, i, si = draw(mu)
+        if si is None:
             continue
-        si = dr.zeros(mi.SurfaceInteraction3f)
-        si.wi = mi.Vector3f(*o); si.dp_du = mi.Vector3f(1, 0, 0); si.dp_dv = mi.Vector3f(0, 1, 0)
-        si.duv_dx = mi.Vector2f(mu, 0); si.duv_dy = mi.Vector2f(0, mu)
         got = obj.eval(ctx, si, mi.Vector3f(*i))[0]
         ref = (1 - f) * float(lobes.Tabulated(table.values[k], extent=table.extent).evaluate(i, o)) + f * float(
             lobes.Tabulated(table.values[k + 1], extent=table.extent).evaluate(i, o))
@@ -844,15 +849,9 @@ assert "form=closed" in str(closed)
 for mu in (1.0, 3.0):
     lobe = brdfscale.evolve(base, law.at(1.0), law.at(mu))
     for _ in range(40):
-        o = rng.normal(size=3); o[2] = abs(o[2]) + 0.5; o /= np.linalg.norm(o)
-        m = np.array([0.04, -0.03]) + 0.15 * rng.normal(size=2)
-        h = np.array([m[0], m[1], 1.0]); h /= np.linalg.norm(h)
-        i = 2 * o.dot(h) * h - o
-        if i[2] < 0.05:
+        o, i, si = draw(mu)
+        if si is None:
             continue
-        si = dr.zeros(mi.SurfaceInteraction3f)
-        si.wi = mi.Vector3f(*o); si.dp_du = mi.Vector3f(1, 0, 0); si.dp_dv = mi.Vector3f(0, 1, 0)
-        si.duv_dx = mi.Vector2f(mu, 0); si.duv_dy = mi.Vector2f(0, mu)
         got = closed.eval(ctx, si, mi.Vector3f(*i))[0]
         ref = float(lobe.evaluate(i, o, masking=lobes.SmithMasking()))
         bs, weight = closed.sample(ctx, si, 0.5, mi.Point2f(*rng.random(2)))
