@@ -17,8 +17,10 @@ from __future__ import annotations
 
 import contextlib
 import os
+import signal
 import subprocess
 import sys
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
@@ -61,10 +63,26 @@ def check_options(workers, cpus_per_task, retries) -> tuple[int | None, float, i
 
 
 @contextlib.contextmanager
+def _sigterm_kept() -> Iterator[None]:
+    """The process's SIGTERM handler as it was before, once the block ends: ``ray.init`` replaces it (with
+    ``sys.exit``) and ``ray.shutdown`` leaves Ray's in place, a change of the caller's process that outlives the run.
+    Only the main thread can set a handler (elsewhere Ray does not set one either)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = signal.getsignal(signal.SIGTERM)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, before if before is not None else signal.SIG_DFL)
+
+
+@contextlib.contextmanager
 def ray_session(address: str | None, workers: int | None, *, instead: str):
     """Ray, initialised for the run: connected to the cluster at ``address``, or a local instance with ``workers``
     CPUs (None: the machine's) started here and stopped at the end — by ``ray.shutdown()``, and, should this process
-    die first (even by SIGKILL), by the watchdog (:mod:`brdfscale._watchdog`). A Ray the caller initialised is used
+    die first (even by SIGKILL), by the watchdog (:mod:`brdfscale._watchdog`); the SIGTERM handler Ray installs is
+    replaced by the caller's again at the end (``tests/test_cluster.py``). A Ray the caller initialised is used
     as it is and left running. Without Ray: MissingDependencyError naming the extra, and ``instead`` (what to do
     without it)."""
     try:
@@ -78,11 +96,12 @@ def ray_session(address: str | None, workers: int | None, *, instead: str):
         return
     options: dict[str, Any] = dict(include_dashboard=False, log_to_driver=False, configure_logging=False)
     if address:
-        ray.init(address=address, **options)
-        try:
-            yield ray
-        finally:
-            ray.shutdown()  # disconnects; the cluster's processes are not this run's
+        with _sigterm_kept():
+            ray.init(address=address, **options)
+            try:
+                yield ray
+            finally:
+                ray.shutdown()  # disconnects; the cluster's processes are not this run's
         return
     watchdog = subprocess.Popen(
         [sys.executable, "-I", "-S", os.path.join(os.path.dirname(os.path.abspath(__file__)), "_watchdog.py")]
@@ -94,11 +113,12 @@ def ray_session(address: str | None, workers: int | None, *, instead: str):
         close_fds=True,
     )
     try:
-        ray.init(num_cpus=workers, **options)
-        try:
-            yield ray
-        finally:
-            ray.shutdown()
+        with _sigterm_kept():
+            ray.init(num_cpus=workers, **options)
+            try:
+                yield ray
+            finally:
+                ray.shutdown()
     finally:
         assert watchdog.stdin is not None
         watchdog.stdin.close()  # end of file: the watchdog stops what is left of the instance, and exits

@@ -2,6 +2,9 @@
 ``instrument.Measurement.measure``) take them from: bad values are refused with InvalidInputError naming the
 option and what it accepts, before any work or output."""
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -43,3 +46,32 @@ def test_instrument_refuses_bad_ray_options_before_tracing():
         plan.measure(progress=False, cpus_per_task=-1)
     with pytest.raises(InvalidInputError, match=r"retries"):
         plan.measure(progress=False, retries=-1)
+
+
+_SIGTERM_SCRIPT = """
+import signal
+from brdfscale import _cluster
+
+def mine(signum, frame):
+    pass
+
+def power(base, exponent):
+    return base**exponent
+
+signal.signal(signal.SIGTERM, mine)
+with _cluster.ray_session(None, 1, instead="") as ray:
+    results = dict(_cluster.as_completed(ray, power, 2, [3, 4]))
+    during = signal.getsignal(signal.SIGTERM)
+assert results == {0: 8, 1: 16}, results
+assert during is not mine, "Ray did not replace the handler: this test no longer tests anything"
+assert signal.getsignal(signal.SIGTERM) is mine, signal.getsignal(signal.SIGTERM)
+"""
+
+
+@pytest.mark.slow  # a local Ray instance (~15 s)
+def test_a_local_ray_session_gives_the_callers_sigterm_handler_back():
+    """``ray.init`` replaces the process's SIGTERM handler and ``ray.shutdown`` leaves it replaced: the session puts
+    the caller's back. In a Python process of its own, as a user's script (a Ray driver is never a pytest worker)."""
+    pytest.importorskip("ray")
+    run = subprocess.run([sys.executable, "-c", _SIGTERM_SCRIPT], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-3000:]
