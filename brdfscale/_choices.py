@@ -3,8 +3,13 @@
 
 Importing it imports neither JAX nor NumPy, so the command's help starts without them.
 
-* :data:`SOLVERS`, :data:`SAMPLERS`, :data:`MODELS`, :data:`FAMILIES`, :data:`LAWS`, :data:`SHAPES` — the names
-  a fit accepts, each with a one-line description and the default (:class:`Choices`);
+* :data:`SOLVERS`, :data:`SAMPLERS`, :data:`MODELS`, :data:`FAMILIES`, :data:`LAWS`, :data:`SHAPES`,
+  :data:`MASKING` — the names a fit accepts, each with a one-line description and the default (:class:`Choices`);
+* :data:`INSTRUMENTS`, :data:`BINNINGS`, :data:`MESHES`, :data:`EXECUTORS` — the instruments of ``brdfscale synth``,
+  and the ray-traced instrument's (:mod:`brdfscale.instrument`) detector binnings, meshes and executors (the last
+  also :func:`brdfscale.library.fit_library`'s);
+* :data:`FORMS`, :data:`OUTPUTS`, :data:`FOOTPRINTS` — :mod:`brdfscale.render`'s material forms and its
+  integrator's outputs and footprints;
 * :class:`FitDefaults`, :class:`SampleDefaults`, :class:`ModelDefaults` — the defaults of the
   options of ``fitting.fit``/``fit_many``, ``fitting.sample``/``sample_many`` and of the models;
   their instances :data:`FIT`, :data:`SAMPLE`, :data:`MODEL` are what the functions'
@@ -21,12 +26,19 @@ from ._errors import InvalidInputError
 
 
 __all__ = [
+    "BINNINGS",
+    "EXECUTORS",
     "FAMILIES",
     "FIT",
+    "FOOTPRINTS",
+    "FORMS",
+    "INSTRUMENTS",
     "LAWS",
     "MASKING",
+    "MESHES",
     "MODEL",
     "MODELS",
+    "OUTPUTS",
     "SAMPLE",
     "SAMPLERS",
     "SHAPES",
@@ -206,6 +218,107 @@ MASKING = Choices(
 )
 """Masking and shadowing in a lobe's ρ, the measurement-set forward model and the fits (docs/masking.md);
 the default stays the seed's (none), as the instrument study (issue 32 item 5) decided (docs/masking.md)."""
+
+
+INSTRUMENTS = Choices(
+    "instrument",
+    (
+        Choice(
+            "facets",
+            "lobes from facet statistics under the seed's nearly-flat assumptions (brdfscale.synth.gonioreflectometer)",
+        ),
+        Choice(
+            "raytraced",
+            "the virtual gonioreflectometer of brdfscale.instrument, which ray-traces the height field in Mitsuba 3 "
+            "(masking, shadowing, interreflection; σ = the Monte Carlo error; needs brdfscale[render])",
+        ),
+    ),
+    default="facets",
+)
+"""The instrument ``brdfscale synth`` images a surface with (``--instrument``; docs/instrument.md)."""
+
+BINNINGS = Choices(
+    "binning",
+    (
+        Choice(
+            "nearest",
+            "each detected path in the node whose h × h cell holds its half-slope offset (independent node errors)",
+        ),
+        Choice(
+            "bilinear",
+            "shared among the four nodes around it (cloud in cell, as brdfscale.synth.gonioreflectometer bins "
+            "facets; neighbouring node errors correlated)",
+        ),
+    ),
+    default="nearest",
+)
+"""How the ray-traced instrument's detector bins a detected path (``brdfscale.instrument.measure(binning=)``;
+docs/instrument.md, "The detector"; tests/test_instrument.py measures both binnings' node correlations)."""
+
+MESHES = Choices(
+    "surface",
+    (
+        Choice(
+            "pixel_facets",
+            "the HeightField's pixel facets, the library's own surface model (as brdfscale.synth takes statistics "
+            "of), each facet over its whole pixel, joined by vertical slivers",
+        ),
+        Choice("triangles", "the continuous piecewise-linear surface through the heights (triangles A and B)"),
+    ),
+    default="pixel_facets",
+)
+"""The mesh the ray-traced instrument makes of a height field (``brdfscale.instrument.measure(surface=)``,
+``instrument.mesh``; docs/instrument.md, "The surface")."""
+
+EXECUTORS = Choices(
+    "executor",
+    (
+        Choice("auto", "Ray when address or workers is given, else this process"),
+        Choice("process", "one task after another in this process"),
+        Choice("ray", "as Ray tasks (the extra brdfscale[cluster])"),
+    ),
+    default="auto",
+)
+"""Where tasks run: a library's batches (``brdfscale.library.fit_library(executor=)``) and a ray-traced
+measurement's (``brdfscale.instrument.measure(executor=)``); :mod:`brdfscale._cluster` resolves ``"auto"``."""
+
+FORMS = Choices(
+    "form",
+    (
+        Choice("auto", "closed where every evolved lobe is Gaussian, else table"),
+        Choice(
+            "table",
+            "lobe tables on a log-μ ladder, interpolated by Mitsuba (bilinear in the slope offset, linear in ln μ)",
+        ),
+        Choice(
+            "closed",
+            "the Gaussian lobe in closed form, its covariance interpolated linearly in ln μ (Gaussian evolved lobes "
+            "only), Smith masking exact",
+        ),
+    ),
+    default="auto",
+)
+"""The form ``brdfscale.render.bsdf(form=)`` renders a material in (docs/render.md)."""
+
+OUTPUTS = Choices(
+    "output",
+    (
+        Choice("radiance", "the rendered radiance"),
+        Choice("footprint", "each pixel's first-hit footprint length (scene units) instead of radiance"),
+    ),
+    default="radiance",
+)
+"""What ``brdfscale.render.FootprintIntegrator(output=)`` writes (docs/render.md)."""
+
+FOOTPRINTS = Choices(
+    "footprint",
+    (
+        Choice("pixel", "the pixel's own footprint"),
+        Choice("sample", "Mitsuba's per-sample ray differentials (1/√spp of the pixel's)"),
+    ),
+    default="pixel",
+)
+"""The observation scale ``brdfscale.render.FootprintIntegrator(footprint=)`` gives a first hit (docs/render.md)."""
 
 
 @dataclasses.dataclass(frozen=True)

@@ -24,19 +24,14 @@ import threading
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
+from ._choices import EXECUTORS
 from ._errors import InvalidInputError, MissingDependencyError
 
 
-EXECUTORS = ("auto", "process", "ray")
-"""Where tasks run: ``"auto"`` — Ray when ``address`` or ``workers`` is given, else this process; ``"process"`` —
-one after another in this process; ``"ray"`` — as Ray tasks."""
-
-
 def resolve_executor(executor, address, workers) -> str:
-    """``"process"`` or ``"ray"``: ``executor`` checked (:data:`EXECUTORS`) and ``"auto"`` resolved; ``address`` and
-    ``workers`` (Ray's) refused in-process. InvalidInputError naming what is accepted."""
-    if not isinstance(executor, str) or executor not in EXECUTORS:
-        raise InvalidInputError(f"executor must be 'auto', 'process' or 'ray'; got {executor!r}.")
+    """``"process"`` or ``"ray"``: ``executor`` checked (:data:`brdfscale.choices.EXECUTORS`) and ``"auto"``
+    resolved; ``address`` and ``workers`` (Ray's) refused in-process. InvalidInputError naming what is accepted."""
+    EXECUTORS.check(executor)
     if address is not None and not isinstance(address, str):
         raise InvalidInputError(
             "address must be a Ray cluster's address (e.g. 'auto' or 'HOST:6379') or None; "

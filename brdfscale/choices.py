@@ -3,6 +3,10 @@
 * :data:`SOLVERS`, :data:`SAMPLERS`, :data:`MODELS`, :data:`SHAPES`, :data:`FAMILIES`, :data:`LAWS`,
   :data:`MASKING` — each a :class:`Choices`: the accepted names in order, a one-line description of each
   (``SAMPLERS.summary("nuts")``, ``SAMPLERS.help()``) and the default (``SAMPLERS.default``);
+* :data:`INSTRUMENTS`, :data:`BINNINGS`, :data:`MESHES`, :data:`EXECUTORS` — ``brdfscale synth --instrument``, and
+  :mod:`brdfscale.instrument`'s detector binnings, meshes (``surface=``) and executors (also
+  :func:`brdfscale.library.fit_library`'s); :data:`FORMS`, :data:`OUTPUTS`, :data:`FOOTPRINTS` —
+  :mod:`brdfscale.render`'s material forms and its integrator's outputs and footprints;
 * :class:`FitDefaults`, :class:`SampleDefaults`, :class:`ModelDefaults` and their defaults
   :data:`FIT`, :data:`SAMPLE`, :data:`MODEL` — what ``fitting.fit``/``fit_many``,
   ``fitting.sample``/``sample_many``, the fitting models, :class:`brdfscale.library.FitSpec`
@@ -17,16 +21,23 @@ the command's and the functions' defaults are these.
 from ._choices import (
     ADEQUACY,
     AdequacyDefaults,
+    BINNINGS,
     Choice,
     Choices,
+    EXECUTORS,
     FAMILIES,
     FIT,
     FitDefaults,
+    FOOTPRINTS,
+    FORMS,
+    INSTRUMENTS,
     LAWS,
     MASKING,
+    MESHES,
     MODEL,
     ModelDefaults,
     MODELS,
+    OUTPUTS,
     SAMPLE,
     SampleDefaults,
     SAMPLERS,
@@ -37,12 +48,19 @@ from ._choices import (
 
 __all__ = [
     "ADEQUACY",
+    "BINNINGS",
+    "EXECUTORS",
     "FAMILIES",
     "FIT",
+    "FOOTPRINTS",
+    "FORMS",
+    "INSTRUMENTS",
     "LAWS",
     "MASKING",
+    "MESHES",
     "MODEL",
     "MODELS",
+    "OUTPUTS",
     "SAMPLE",
     "SAMPLERS",
     "SHAPES",

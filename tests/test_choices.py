@@ -11,9 +11,10 @@ import re
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
-from brdfscale import choices, fitting, InvalidInputError, library
+from brdfscale import choices, fitting, InvalidInputError, library, lobes, stats
 from brdfscale._cli import build_parser, FLAGS, in_flags
 
 
@@ -199,3 +200,41 @@ def test_library_messages_name_python_arguments_not_flags():
             f"{path.relative_to(ROOT)}:{line}: {text!r}" for line, text in _raised_texts(path) if flag.search(text)
         ]
     assert not found, "\n".join(found)
+
+
+def test_the_instrument_and_render_names_are_the_table_s_and_each_is_accepted():
+    """brdfscale synth --instrument, the ray-traced instrument's binnings, meshes and executors, and render's forms,
+    outputs and footprints: the names the modules accept are the table's (one place), the instrument's public names
+    are the same objects, and an unknown name is refused by the library's own exception naming the argument."""
+    from brdfscale import _cluster, instrument, synth
+    from brdfscale.render import _integrator, _material
+
+    assert instrument.BINNINGS is choices.BINNINGS and instrument.SURFACES is choices.MESHES
+    for name in choices.INSTRUMENTS:
+        assert (
+            build_parser().parse_args(["synth", "gaussian", "--out", "m.exr", "--instrument", name]).instrument == name
+        )
+    assert build_parser().parse_args(["synth", "gaussian", "--out", "m.exr"]).instrument == choices.INSTRUMENTS.default
+    field = synth.HeightField(np.zeros((8, 8)), 1.0, periodic=True)
+    for binning in choices.BINNINGS:
+        for surface in choices.MESHES:
+            plan = instrument.Measurement(field, [2.0], [0.0, 0.0, 1.0], extent=0.5, binning=binning, surface=surface)
+            assert (plan.binning, plan.surface) == (binning, surface)
+    assert {_cluster.resolve_executor(name, None, None) for name in choices.EXECUTORS} == {"process", "ray"}
+    gaussian = [lobes.Lobe(stats.Gaussian(sigma=0.1))]  # an evolved Gaussian lobe: the closed form applies
+    assert [_material.choose_form(name, gaussian).name for name in choices.FORMS] == ["closed", "table", "closed"]
+    for output in choices.OUTPUTS:
+        for footprint in choices.FOOTPRINTS:
+            assert _integrator.check_options(2, output, footprint) == (2, output, footprint)
+    for table, refuse in (
+        (choices.BINNINGS, lambda: instrument.Measurement(field, [2.0], [0, 0, 1.0], extent=0.5, binning="cic")),
+        (choices.MESHES, lambda: instrument.Measurement(field, [2.0], [0, 0, 1.0], extent=0.5, surface="smooth")),
+        (choices.EXECUTORS, lambda: _cluster.resolve_executor("cluster", None, None)),
+        (choices.FORMS, lambda: _material.choose_form("cubic", gaussian)),
+        (choices.OUTPUTS, lambda: _integrator.check_options(2, "depth", "pixel")),
+        (choices.FOOTPRINTS, lambda: _integrator.check_options(2, "radiance", "texel")),
+    ):
+        with pytest.raises(InvalidInputError, match=f"{table.what} must be one of {', '.join(map(repr, table))}; got"):
+            refuse()
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["synth", "gaussian", "--out", "m.exr", "--instrument", "camera"])

@@ -352,7 +352,7 @@ def test_masking_shapes_of_a_lobe_table_are_one_per_scale(material):
 
 
 def test_the_form_is_checked():
-    with pytest.raises(brdfscale.InvalidInputError, match="form must be 'auto' or one of 'table', 'closed'"):
+    with pytest.raises(brdfscale.InvalidInputError, match="form must be one of 'auto', 'table', 'closed'"):
         render.bsdf(base_lobe(), LAW, mu0=MU0, scales=[1.0], form="cubic")
     with pytest.raises(brdfscale.InvalidInputError, match="form='closed' needs Gaussian evolved lobes"):
         mixture = lobes.Lobe(stats.Mixture([0.5, 0.5], [stats.Gaussian(sigma=0.05), stats.Gaussian(sigma=0.1)]))

@@ -18,6 +18,7 @@ at the finest scale is then a resolved spot). Each choice is recorded in the fil
 import argparse
 import math
 
+from .._choices import INSTRUMENTS
 from .._errors import InvalidInputError
 from ._options import integer, MAX_SEED, output_file, real, scales, seed
 from ._topography import add_reading_options, read_field, reading_command
@@ -71,8 +72,6 @@ def _noise(text: str):
     )
 
 
-INSTRUMENTS = ("facets", "raytraced")
-"""--instrument's names, the default first: facet statistics (synth.gonioreflectometer) or the ray tracer."""
 _RAYTRACED_ONLY = ("--rays", "--bounces", "--variant", "--micro", "--workers", "--address")
 _FACETS_ONLY = ("--noise", "--resolution", "--weighting")
 _RAYTRACED_WHY = " (the ray tracer's σ is its Monte Carlo error, its resolution its detector's)."
@@ -175,11 +174,9 @@ def register(subparsers) -> None:
     )
     parser.add_argument(
         "--instrument",
-        choices=INSTRUMENTS,
-        default=INSTRUMENTS[0],
-        help="facets (default): lobes from facet statistics under the seed's nearly-flat assumptions; raytraced: "
-        "the virtual gonioreflectometer of brdfscale.instrument, which ray-traces the height field in Mitsuba 3 "
-        "(masking, shadowing, interreflection; σ = the Monte Carlo error; needs brdfscale[render])",
+        choices=INSTRUMENTS.names,
+        default=INSTRUMENTS.default,
+        help=f"the instrument — {INSTRUMENTS.help()}",
     )
     parser.add_argument(
         "--rays",

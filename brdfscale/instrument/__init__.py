@@ -9,14 +9,15 @@
   whatever the split, run in this process or as Ray tasks (``measure(..., workers=N)`` or ``address=``, the extra
   ``brdfscale[cluster]``, as ``fit-library`` runs a library) or on any cluster that can pickle them;
 * :func:`mesh` — a height field as a Mitsuba triangle mesh, its pixel facets (default) or the continuous
-  triangulation (:data:`SURFACES`), unmeasured pixels left out, bounded by :data:`MAX_MESH_BYTES`;
-  :func:`mesh_arrays` the same as NumPy arrays, :func:`mesh_bytes` its size.
+  triangulation (:data:`SURFACES`, which is ``brdfscale.choices.MESHES``), unmeasured pixels left out, bounded by
+  :data:`MAX_MESH_BYTES`; :func:`mesh_arrays` the same as NumPy arrays, :func:`mesh_bytes` its size.
 
 Nothing here imports Mitsuba until called (:mod:`brdfscale._mitsuba` picks the variant). Guide: docs/instrument.md.
 """
 
-from ._measure import BINNINGS, DEFAULT_BATCHES, DEFAULT_RAYS, MAX_BOUNCES, measure, Measurement, Task, TaskResult
-from ._mesh import MAX_MESH_BYTES, mesh, mesh_arrays, mesh_bytes, SURFACES
+from .._choices import BINNINGS, MESHES as SURFACES  # the names live in brdfscale.choices; kept here, public before
+from ._measure import DEFAULT_BATCHES, DEFAULT_RAYS, MAX_BOUNCES, measure, Measurement, Task, TaskResult
+from ._mesh import MAX_MESH_BYTES, mesh, mesh_arrays, mesh_bytes
 
 
 __all__ = [

@@ -67,6 +67,7 @@ import numpy as np
 from jaxtyping import ArrayLike, Float
 
 from .. import lobes, stats, synth
+from .._choices import BINNINGS, EXECUTORS, MESHES
 from .._errors import BrdfscaleError, InvalidInputError
 from .._measurement import LobeImage, MeasurementSet
 from .._show import progress_bar
@@ -83,19 +84,6 @@ DEFAULT_BATCHES = 32
 """Batches per image: the independent estimates σ comes from (σ itself is then known to about 1/√(2·31) = 13 %)."""
 MAX_BOUNCES = 64
 """The most reflections a path may take."""
-BINNINGS = ("nearest", "bilinear")
-"""How the detector bins a detected path, the default first: ``"nearest"`` — in the node whose ``h × h`` cell holds
-its half-slope offset (independent node errors); ``"bilinear"`` — shared among the four nodes around it (cloud in
-cell, as :func:`brdfscale.synth.gonioreflectometer` bins facets; neighbouring node errors correlated)."""
-
-
-def _check_binning(binning) -> str:
-    if not isinstance(binning, str) or binning not in BINNINGS:
-        raise InvalidInputError(
-            f"binning must be 'nearest' (each path in the node whose cell holds it: independent node errors) or "
-            f"'bilinear' (cloud-in-cell shares of the four nodes around it); got {binning!r}."
-        )
-    return binning
 
 
 @dataclasses.dataclass(frozen=True)
@@ -160,9 +148,9 @@ class Measurement:
         spots: int | None = None,
         batches: int = DEFAULT_BATCHES,
         fresnel=None,
-        surface: str = "pixel_facets",
+        surface: str = MESHES.default,
         pad: int | None = None,
-        binning: str = "nearest",
+        binning: str = BINNINGS.default,
         seed: int = 0,
         variant: str | None = None,
     ):
@@ -189,10 +177,10 @@ class Measurement:
         if self.rays < self.batches:
             raise InvalidInputError(f"rays must be at least batches = {self.batches}; got rays={self.rays}.")
         self.spots = None if spots is None else integer(spots, "spots", 1)
-        self.surface = _mesh.check_surface(surface)
+        self.surface = MESHES.check(surface)
         self.pad = _mesh.default_pad(field, self.surface) if pad is None else _mesh.check_pad(field, pad)
         _mesh.check_mesh_size(field, self.surface, self.pad)
-        self.binning = _check_binning(binning)
+        self.binning = BINNINGS.check(binning)
         self.seed = _check_seed(seed)
         self.variant = _check_variant(variant)
         self._spots = [self._spot_set(s) for s in range(len(self.scales))]
@@ -412,7 +400,7 @@ class Measurement:
         self,
         *,
         progress: bool = True,
-        executor: str = "auto",
+        executor: str = EXECUTORS.default,
         address: str | None = None,
         workers: int | None = None,
         cpus_per_task: float = 1,
@@ -599,13 +587,13 @@ def measure(
     spots: int | None = None,
     batches: int = DEFAULT_BATCHES,
     fresnel: complex | float | None = None,
-    surface: str = "pixel_facets",
+    surface: str = MESHES.default,
     pad: int | None = None,
-    binning: str = "nearest",
+    binning: str = BINNINGS.default,
     seed: int = 0,
     variant: str | None = None,
     progress: bool = True,
-    executor: str = "auto",
+    executor: str = EXECUTORS.default,
     address: str | None = None,
     workers: int | None = None,
 ) -> MeasurementSet:
@@ -633,7 +621,8 @@ def measure(
         pad: the periodic margin in pixels of a periodic field's mesh (default :func:`._mesh.default_pad`; 0 for a
             measured field).
         binning: ``"nearest"`` (each path in the node whose ``h × h`` cell holds it: independent node errors) or
-            ``"bilinear"`` (cloud-in-cell shares, as synth.gonioreflectometer bins facets): :data:`BINNINGS`.
+            ``"bilinear"`` (cloud-in-cell shares, as synth.gonioreflectometer bins facets):
+            :data:`brdfscale.choices.BINNINGS`.
         seed: an integer ≥ 0; the same seed gives the same measurement bit for bit (on one variant).
         variant: Mitsuba's variant (None: the first of cuda_ad_rgb, llvm_ad_rgb, scalar_rgb that runs here).
         progress: show a progress bar (one step per batch; ``BRDFSCALE_PROGRESS=0`` switches it off).

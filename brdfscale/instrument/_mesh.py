@@ -1,5 +1,5 @@
-"""A height field as a triangle mesh for Mitsuba 3, in one of two surfaces (:data:`SURFACES`); unmeasured pixels
-left out.
+"""A height field as a triangle mesh for Mitsuba 3, in one of two surfaces (:data:`brdfscale.choices.MESHES`);
+unmeasured pixels left out.
 
 Lengths are in pixel units of x (``Δx = 1``; ``Δy/Δx`` and the heights divided by ``Δx``, less their mean), so
 float32 keeps the same relative precision whatever the field's unit; slopes are ratios of lengths and do not change.
@@ -39,6 +39,7 @@ import math
 
 import numpy as np
 
+from .._choices import MESHES
 from .._errors import InvalidInputError
 from .._validation import integer
 from ..synth import HeightField
@@ -50,21 +51,6 @@ facets with a periodic margin of up to 300 pixels per side, 22 M triangles). Mit
 top (a small multiple of the buffers)."""
 
 
-SURFACES = ("pixel_facets", "triangles")
-"""The two meshes of a height field, the default first: ``"pixel_facets"`` — the library's own surface model, each
-pixel facet over its whole pixel, joined by vertical slivers; ``"triangles"`` — the continuous piecewise-linear
-surface through the nodes (triangles A and B)."""
-
-
-def check_surface(surface) -> str:
-    if not isinstance(surface, str) or surface not in SURFACES:
-        raise InvalidInputError(
-            f"surface must be 'pixel_facets' (the HeightField's pixel facets, as brdfscale.synth measures them) or "
-            f"'triangles' (the continuous piecewise-linear surface through the heights); got {surface!r}."
-        )
-    return surface
-
-
 def _nodes(field: HeightField, pad: int) -> tuple[int, int]:
     """Nodes per axis of the meshed grid, ``(rows, cols)``."""
     ny, nx = field.shape
@@ -73,16 +59,16 @@ def _nodes(field: HeightField, pad: int) -> tuple[int, int]:
     return ny, nx
 
 
-def mesh_counts(field: HeightField, surface: str = "pixel_facets", pad: int = 0) -> tuple[int, int]:
+def mesh_counts(field: HeightField, surface: str = MESHES.default, pad: int = 0) -> tuple[int, int]:
     """``(vertices, triangles)`` of :func:`mesh` at most (every quad measured, no sliver degenerate)."""
     rows, cols = _nodes(field, pad)
     quads = (rows - 1) * (cols - 1)
-    if check_surface(surface) == "triangles":
+    if MESHES.check(surface) == "triangles":
         return rows * cols, 2 * quads
     return rows * cols + quads, 4 * quads
 
 
-def mesh_bytes(field: HeightField, surface: str = "pixel_facets", pad: int = 0) -> int:
+def mesh_bytes(field: HeightField, surface: str = MESHES.default, pad: int = 0) -> int:
     """The bytes of the vertex and index buffers of :func:`mesh` for ``field`` (``12·V + 12·F``: float32 vertex
     triples, uint32 index triples; an upper bound with a mask or flat quads)."""
     vertices, triangles = mesh_counts(field, surface, pad)
@@ -132,13 +118,13 @@ def check_field(field) -> HeightField:
 
 
 def mesh_arrays(
-    field: HeightField, surface: str = "pixel_facets", pad: int = 0, *, quads: bool = True
+    field: HeightField, surface: str = MESHES.default, pad: int = 0, *, quads: bool = True
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """The mesh as NumPy arrays: vertices ``(V, 3)`` float32 (pixel units), faces ``(F, 3)`` uint32 and, per face,
     the pixel quad it belongs to ``(F, 2)`` int64 ``(row, col)`` in the field's own indices (wrapped in the margin;
     None with ``quads=False``). Built in uint32 and float32 throughout: peak memory about three times the buffers."""
     check_field(field)
-    surface = check_surface(surface)
+    surface = MESHES.check(surface)
     pad = check_pad(field, pad)
     check_mesh_size(field, surface, pad)
     ny, nx = field.shape
@@ -193,7 +179,7 @@ def mesh_arrays(
     return vertices, faces, found
 
 
-def mesh(field: HeightField, *, surface: str = "pixel_facets", pad: int = 0, variant: str | None = None):
+def mesh(field: HeightField, *, surface: str = MESHES.default, pad: int = 0, variant: str | None = None):
     """The height field as a Mitsuba 3 triangle mesh (``mi.Mesh``, face normals only, no BSDF of its own).
 
     Geometry and conventions: module docstring (pixel units of x; ``surface`` ``"pixel_facets"`` or
@@ -222,7 +208,7 @@ def mesh(field: HeightField, *, surface: str = "pixel_facets", pad: int = 0, var
     return shape
 
 
-def default_pad(field: HeightField, surface: str = "pixel_facets", grazing_deg: float = 5.0) -> int:
+def default_pad(field: HeightField, surface: str = MESHES.default, grazing_deg: float = 5.0) -> int:
     """The periodic margin the instrument uses: the horizontal distance, in pixels, over which a ray 5° above the
     horizon falls through the field's height range, plus one, capped by the field's size and :data:`MAX_MESH_BYTES`
     (0 for a measured field)."""

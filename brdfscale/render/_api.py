@@ -4,6 +4,7 @@ import sys
 import threading
 
 from .. import _mitsuba
+from .._choices import FOOTPRINTS, FORMS, OUTPUTS
 from .._errors import InvalidInputError
 from .._evolve import AbstractMethod, MethodName
 from ..exr import LobeTable
@@ -69,7 +70,7 @@ def bsdf(
     method: MethodName | AbstractMethod = "auto",
     tolerance: float | None = None,
     masking_shapes=None,
-    form: str = "auto",
+    form: str = FORMS.default,
 ):
     """A Mitsuba BSDF rendering ``base_lobe`` (the BRDF at μ0) evolved with ``statistics`` to each interaction's scale.
 
@@ -168,7 +169,11 @@ def _tables(ladder, evolved, mu0, choice, mu, texel, size, extent, tolerance, sc
 
 
 def FootprintIntegrator(  # noqa: N802 (it builds a Mitsuba object of the current variant's class)
-    *, max_depth: int = 3, output: str = "radiance", footprint: str = "pixel", variant: str | None = None
+    *,
+    max_depth: int = 3,
+    output: str = OUTPUTS.default,
+    footprint: str = FOOTPRINTS.default,
+    variant: str | None = None,
 ):
     """The path tracer ``"brdfscale_footprint"`` (brdfscale/render/_integrator.py), as a Mitsuba integrator object.
 

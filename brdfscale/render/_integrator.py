@@ -16,6 +16,7 @@ renders the first hit's footprint length instead of radiance (0 where nothing is
 
 import threading
 
+from .._choices import FOOTPRINTS, OUTPUTS
 from .._errors import InvalidInputError
 from ._plugin import footprint
 
@@ -23,8 +24,6 @@ from ._plugin import footprint
 INTEGRATOR = "brdfscale_footprint"
 """The name the integrator is registered under (:func:`brdfscale.render.register`)."""
 
-OUTPUTS = ("radiance", "footprint")
-FOOTPRINTS = ("pixel", "sample")
 
 _CLASSES: dict[str, type] = {}
 _LOCK = threading.Lock()
@@ -34,10 +33,8 @@ def check_options(max_depth, output, footprint) -> tuple[int, str, str]:
     """The integrator's options, or InvalidInputError naming what is accepted."""
     if isinstance(max_depth, bool) or not isinstance(max_depth, int) or max_depth < 1:
         raise InvalidInputError(f"max_depth must be an integer ≥ 1 (path segments); got {max_depth!r}.")
-    if output not in OUTPUTS:
-        raise InvalidInputError(f"output must be one of {OUTPUTS}; got {output!r}.")
-    if footprint not in FOOTPRINTS:
-        raise InvalidInputError(f"footprint must be one of {FOOTPRINTS}; got {footprint!r}.")
+    OUTPUTS.check(output)
+    FOOTPRINTS.check(footprint)
     return max_depth, output, footprint
 
 
@@ -58,7 +55,9 @@ def _build(mi):
         def __init__(self, props):
             mi.SamplingIntegrator.__init__(self, props)
             self.max_depth, self.output, self.footprint = check_options(
-                props.get("max_depth", 3), props.get("output", "radiance"), props.get("footprint", "pixel")
+                props.get("max_depth", 3),
+                props.get("output", OUTPUTS.default),
+                props.get("footprint", FOOTPRINTS.default),
             )
 
         def sample(self, scene, sampler, ray, medium=None, active=True):

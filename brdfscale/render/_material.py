@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .. import lobes, stats
+from .._choices import FORMS
 from .._errors import InvalidInputError
 from .._evolve import AbstractMethod, evolve, MethodName
 from .._validation import integer, real
@@ -134,23 +135,22 @@ class GaussianForm:
         return gaussian_lobe(rows.mean(axis=0)).density
 
 
-FORMS = {"table": TableForm(), "closed": GaussianForm()}
-"""The forms :func:`brdfscale.render.bsdf` renders a material in (``form=``; ``"auto"``: closed where every
-evolved lobe is Gaussian, else table)."""
+_BY_NAME = {form.name: form for form in (TableForm(), GaussianForm())}
+"""The forms :func:`brdfscale.render.bsdf` renders a material in, by name (``form=``: the names and ``"auto"`` are
+:data:`brdfscale.choices.FORMS`)."""
 
 
 def choose_form(form: str, evolved) -> TableForm | GaussianForm:
-    """The form ``form`` names for these evolved lobes (InvalidInputError naming the accepted ones)."""
-    if form == "auto":
-        return FORMS["closed" if gaussian_parameters(evolved) is not None else "table"]
-    if form not in FORMS:
-        raise InvalidInputError(f"form must be 'auto' or one of {', '.join(map(repr, FORMS))}; got {form!r}.")
+    """The form ``form`` names for these evolved lobes (InvalidInputError naming the accepted ones); ``"auto"``:
+    closed where every evolved lobe is Gaussian, else table."""
+    if FORMS.check(form) == "auto":
+        return _BY_NAME["closed" if gaussian_parameters(evolved) is not None else "table"]
     if form == "closed" and gaussian_parameters(evolved) is None:
         raise InvalidInputError(
             "form='closed' needs Gaussian evolved lobes (a Gaussian/Beckmann base lobe with Gaussian statistics: "
             "brdfscale.evolve's closed form); these are not — use form='table' or 'auto'."
         )
-    return FORMS[form]
+    return _BY_NAME[form]
 
 
 def midpoint_error(lower, upper, middle, extent: float, form=None) -> float:
@@ -160,7 +160,7 @@ def midpoint_error(lower, upper, middle, extent: float, form=None) -> float:
     offsets over the table's extent where ``middle`` exceeds :data:`RELEVANT` of its peak."""
     u = np.linspace(-extent, extent, 65)
     grid = jnp.asarray(np.stack(np.meshgrid(u, u), -1).reshape(-1, 2))
-    estimate = np.asarray((form or FORMS["table"]).between(lower, upper)(grid))
+    estimate = np.asarray((form or _BY_NAME["table"]).between(lower, upper)(grid))
     c = np.asarray(middle.density(grid))
     big = c > RELEVANT * c.max()
     return float(np.max(np.abs(estimate[big] / c[big] - 1)))
@@ -175,7 +175,7 @@ def refine_ladder(base_lobe, law, mu0: float, ladder, evolved, tolerance: float,
     law's ``Σ(μ0) − Σ(μ)`` grows fastest). The closed form interpolates the covariance instead, exact where the law
     is linear in ln μ. Raises InvalidInputError beyond :data:`MAX_LEVELS` scales."""
     s0 = law.at(mu0)
-    form = form or FORMS["table"]
+    form = form or _BY_NAME["table"]
     if extent is None:
         extent = max(float(jnp.max(lobe.shape.support_radius(SUPPORT_TOL))) for lobe in evolved)
     mus, out = [float(ladder[0])], [evolved[0]]
