@@ -77,7 +77,6 @@ import numpy as np
 import brdfscale as bs
 from brdfscale import fitting, synth
 from brdfscale.choices import ADEQUACY
-from brdfscale.fitting._adequacy import _lag1
 from experiments import instrument_study as surfaces_of
 from experiments._studies import study_dir, tabulated_moments, write_results
 
@@ -334,8 +333,8 @@ def noise_correlation(a: bs.MeasurementSet, b: bs.MeasurementSet) -> list:
         r = (va - vb) / np.hypot(sa, sb)
         lit = (va > 0) | (vb > 0)
         valid = np.ones(r.shape, bool)
-        rows, pairs = _lag1(r, valid, 1)
-        cols, _ = _lag1(r, valid, 0)
+        rows, pairs = fitting.lag1_correlation(r, valid, 1)
+        cols, _ = fitting.lag1_correlation(r, valid, 0)
         out.append(
             {
                 "mu": p.mu,

@@ -23,8 +23,8 @@ The chain, each step in its own module:
   materials and sharded over the devices, one compiled program per bucket, each result
   :func:`sample`'s;
 * :func:`assess` — can the outcome be trusted: the lobes resolved, the model adequate (χ²/dof
-  per scale, residual structure), the optimiser and sampler converged (:class:`Outcome`, the
-  ``brdfscale fit`` exit status);
+  per scale, residual structure: :func:`lag1_correlation`), the optimiser and sampler converged
+  (:class:`Outcome`, the ``brdfscale fit`` exit status);
 * :func:`write_report` — fit.json, figures, evolved lobe tables;
 * :func:`plot_fit`, :func:`plot_recovered_statistics`, :func:`plot_corner` — the report's figures
   as ``matplotlib.figure.Figure`` objects made without pyplot (a notebook shows them; also
@@ -43,7 +43,7 @@ installed as ``brdfscale.fitting`` (pyproject's ``package-dir``), so no top-leve
 named ``fitting`` is installed and a local ``fitting.py`` cannot take its place.
 """
 
-from ._adequacy import assess, lobe_widths, Outcome, resolution
+from ._adequacy import assess, lag1_correlation, lobe_widths, Outcome, resolution
 from ._anisotropic import AnisotropicModel
 from ._anisotropic_law import AnisotropicLawModel
 from ._batch import BatchPlan, COMPILE_ROWS, explain_plan, fit_many
@@ -105,6 +105,7 @@ __all__ = [
     "explain_plan",
     "fit",
     "fit_many",
+    "lag1_correlation",
     "lobe_widths",
     "log_posterior",
     "plot_corner",

@@ -30,7 +30,8 @@ is listed in :attr:`Outcome.problems`):
      pixels); the scale fails when ``χ²_k/dof_k > max_reduced_chi2`` (1.5) and its χ² tail
      probability ``P(χ²_{dof_k} ≥ χ²_k) < p_value`` (1e-3);
    * residual structure: the lag-1 autocorrelation of the residuals along the rows and along
-     the columns of every image, ``ρ = Σ r_j r_{j+1} / Σ r_j²`` over neighbouring valid pairs.
+     the columns of every image, ``ρ = Σ r_j r_{j+1} / √(Σ r_j² Σ r_{j+1}²)`` over neighbouring valid
+     pairs (:func:`lag1_correlation`).
      For a correct model with independent noise, ``ρ·√n_pairs`` is standard normal; a misfit
      that is smooth over the image (a wrong lobe shape, an anisotropic lobe fitted by an
      isotropic model, a cross-shaped residual) makes neighbours agree and ρ large. The test
@@ -69,7 +70,9 @@ from typing import Literal
 
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import ArrayLike, Bool, Float
 
+from brdfscale import InvalidInputError
 from brdfscale.choices import ADEQUACY, AdequacyDefaults
 
 from ._data import Dataset
@@ -241,9 +244,35 @@ _FIGURES = ("chi2", "reduced_chi2", "chi2_p", "lag1_rows", "lag1_cols", "lag1_p"
 """A fitted scale's figures (:class:`Outcome`'s ``scales``); None where its prediction is not finite."""
 
 
-def _lag1(r: np.ndarray, valid: np.ndarray, axis: int) -> tuple[float, int]:
-    """Lag-1 autocorrelation of ``r`` along ``axis`` over neighbouring valid pairs, and the pair count."""
-    a, b = (np.moveaxis(x, axis, -1) for x in (r, valid))
+def lag1_correlation(
+    residuals: Float[ArrayLike, "*shape"], valid: Bool[ArrayLike, "*shape"], axis: int
+) -> tuple[float, int]:
+    """The lag-1 autocorrelation of ``residuals`` along ``axis`` over neighbouring valid pairs, and the pair count:
+    :func:`assess`'s statistic of residual structure (module docstring, point 2).
+
+    With ``(x_j, y_j) = (r_j, r_{j+1})`` every pair of neighbours along ``axis`` that are both ``valid``,
+    ``ρ = Σ x_j y_j / √(Σ x_j² · Σ y_j²)`` (the normalised cross product, so |ρ| ≤ 1 by Cauchy–Schwarz; ρ = 0 and
+    0 pairs when no pair is valid, and ρ = 0 when every paired residual is 0). For independent zero-mean residuals
+    ``ρ·√pairs`` is standard normal. Verified against a NumPy loop over the pairs in tests/test_adequacy.py, and its
+    false-alarm rate and power through :func:`assess` there too.
+
+    Args:
+        residuals: whitened residuals ``(prediction − data)/σ`` of an image (leading axes: several images).
+        valid: the pixels that count, the same shape.
+        axis: the axis along which neighbours are paired (of an image: 1 along its rows, 0 along its columns).
+
+    Raises:
+        InvalidInputError: shapes that differ, or an axis the arrays do not have.
+    """
+    r, ok = np.asarray(residuals, float), np.asarray(valid, bool)
+    if r.shape != ok.shape or r.ndim < 1 or isinstance(axis, bool) or not isinstance(axis, (int, np.integer)):
+        raise InvalidInputError(
+            f"residuals and valid must be arrays of one shape and axis an integer; got shapes {r.shape} and "
+            f"{ok.shape}, axis {axis!r}."
+        )
+    if not -r.ndim <= axis < r.ndim:
+        raise InvalidInputError(f"axis must be one of the arrays' {r.ndim} axes; got {axis}.")
+    a, b = (np.moveaxis(x, int(axis), -1) for x in (r, ok))
     pairs = b[..., :-1] & b[..., 1:]
     n = int(np.count_nonzero(pairs))
     if n == 0:
@@ -312,7 +341,7 @@ def assess(
             n = data.image_sizes[i]
             r, valid = whitened[i, : n * n].reshape(n, n), weight[i, : n * n].reshape(n, n) > 0
             for axis in (0, 1):
-                rho, pairs = _lag1(r, valid, axis)
+                rho, pairs = lag1_correlation(r, valid, axis)
                 lag[axis] = max(lag[axis], rho)
                 if pairs:
                     p_lag = min(p_lag, float(stats.norm.sf(rho * np.sqrt(pairs))) * n_tests)

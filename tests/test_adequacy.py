@@ -15,7 +15,7 @@ import math
 import numpy as np
 import pytest
 
-from brdfscale import fitting, synth
+from brdfscale import fitting, InvalidInputError, synth
 from brdfscale.choices import ADEQUACY
 
 
@@ -69,6 +69,47 @@ def _false_alarms(seeds) -> list:
         else:
             assert outcome.reason == "" and not outcome.problems
     return flagged
+
+
+def _lag1_by_hand(r, valid, axis):
+    """ρ = Σ x y / √(Σ x² Σ y²) over the neighbouring pairs (x, y) = (r[j], r[j + 1]) along ``axis`` that are both
+    valid, one pair at a time."""
+    r, valid = np.moveaxis(r, axis, -1), np.moveaxis(valid, axis, -1)
+    sxy = sxx = syy = 0.0
+    pairs = 0
+    for index in np.ndindex(r.shape[:-1]):
+        for j in range(r.shape[-1] - 1):
+            if valid[index][j] and valid[index][j + 1]:
+                x, y = r[index][j], r[index][j + 1]
+                sxy, sxx, syy, pairs = sxy + x * y, sxx + x * x, syy + y * y, pairs + 1
+    return (sxy / math.sqrt(sxx * syy) if sxx * syy > 0 else 0.0), pairs
+
+
+@pytest.mark.parametrize("shape", [(7, 9), (2, 5, 6)])
+def test_lag1_correlation_is_the_pairwise_sum_by_hand(shape):
+    """fitting.lag1_correlation (assess's residual-structure statistic) against a loop over the valid pairs, along
+    each axis, with a mask; a smooth residual gives ρ near 1, an alternating one −1; no valid pair gives (0, 0)."""
+    rng = np.random.default_rng(7)
+    r, valid = rng.normal(size=shape), rng.random(shape) > 0.3
+    for axis in range(-1, len(shape)):
+        got, pairs = fitting.lag1_correlation(r, valid, axis)
+        want, want_pairs = _lag1_by_hand(r, valid, axis)
+        assert pairs == want_pairs > 0 and got == pytest.approx(want, rel=1e-12, abs=1e-15)
+    ramp = np.add.outer(np.arange(8.0), np.zeros(5)) + 1.0
+    assert fitting.lag1_correlation(ramp, np.ones_like(ramp, bool), 0)[0] > 0.9
+    assert fitting.lag1_correlation((-1.0) ** np.arange(6.0), np.ones(6, bool), 0) == (-1.0, 5)
+    assert fitting.lag1_correlation(r, np.zeros(shape, bool), 0) == (0.0, 0)
+
+
+@pytest.mark.wrong_types
+def test_lag1_correlation_refuses_mismatched_shapes_and_axes():
+    r = np.zeros((4, 5))
+    with pytest.raises(InvalidInputError, match=r"one shape .* got shapes \(4, 5\) and \(5, 4\)"):
+        fitting.lag1_correlation(r, np.ones((5, 4), bool), 0)
+    with pytest.raises(InvalidInputError, match="axis must be one of the arrays' 2 axes; got 2"):
+        fitting.lag1_correlation(r, np.ones((4, 5), bool), 2)
+    with pytest.raises(InvalidInputError, match="axis an integer"):
+        fitting.lag1_correlation(r, np.ones((4, 5), bool), 0.5)
 
 
 def test_a_correct_model_is_not_flagged():
