@@ -284,3 +284,25 @@ def test_fit_runs_on_a_topography_measurement_set(tmp_path, capsys):
     # the exit status is the report's verdict (docs/fitting.md): di-3's lobes are not Beckmann, so 5 with the report
     assert (status, doc["outcome"]["status"]) in ((0, "ok"), (5, "inadequate"))
     assert doc["optimisation"]["reduced_chi2"] > 0 and "alpha_lobe" in doc["parameters"]
+
+
+def test_readmes_measured_surface_commands_name_a_file_and_options_that_exist(di_field):
+    """README's measured-surface block, as a new user copies it from the root of a clone: the file it
+    names exists, every ``brdfscale`` line parses, and the ``--scales`` README gives as an example are
+    whole numbers of pixels of that file (a walk-through found ``di-3.di`` without its folder, and
+    ``--scales 1um,4um``, 25.6 pixels of di-3, refused)."""
+    import shlex
+
+    root = Path(__file__).resolve().parents[1]  # the block runs from the root of a clone
+    readme = (root / "README.md").read_text(encoding="utf-8")
+    block = next(b for b in (c.split("```")[0] for c in readme.split("```bash")[1:]) if "synth --topography" in b)
+    lines = [line.split("#")[0].strip() for line in block.splitlines()]
+    variables = dict(line.split("=", 1) for line in lines if "=" in line and " " not in line)
+    assert list(variables) == ["FILE"] and (root / variables["FILE"]).resolve() == Path(DI).resolve()
+    commands = [shlex.split(line.replace("$FILE", DI)) for line in lines if line.startswith("brdfscale")]
+    assert [c[1] for c in commands] == ["topography", "synth", "fit"]
+    parser = cli.build_parser()
+    for argv in commands:
+        assert parser.parse_args(argv[1:]).func
+    example = readme.split("`--scales ")[1].split("`")[0]
+    assert scales(example).resolve(di_field) == [16 * PX, 64 * PX]
