@@ -12,11 +12,18 @@ time, and the masking-aware model against the instrument.
 3. **Masking-aware model against the instrument**: Gaussian fields (256² px, ℓ = 8 px) of rms slope 0.1, 0.2 and
    0.3, incidences 0°, 40°, 60°, 70°, 80°, the largest scale (the whole roughness in the spot), bounces 3: the
    energy ratio model ÷ instrument of the seed's nearly-flat model and of the masking-aware model (× Smith G₂),
-   from experiments/instrument_study.py's predictions. Target: the masking-aware model within 2 % or twice the
-   Monte Carlo error wherever the seed-only model is off by more than 10 %.
+   from experiments/instrument_study.py's predictions (Smith's Λ of the tabulated within-facet lobe), with the
+   relative L1 error of each image and the L1 that the instrument's Monte Carlo noise alone gives (``mc_l1_floor``:
+   with nearest-node binning the pixels' errors are independent, and an L1 at the floor is noise). Target: the
+   masking-aware model within 2 % or twice the Monte Carlo error wherever the seed-only model is off by more than 10 %.
 
 Run:  flock /tmp/brdfscale-bench.lock python -m experiments.bench_instrument [--threads 2] [--quick]
 Writes experiments/results/bench_instrument.json (the table of docs/benchmarks.md: experiments/benchmarks_page.py).
+``--only PART[,PART]`` (``speed``, ``full``, ``accuracy``) runs those parts alone and merges them into the committed
+JSON, as bench_anisotropic's ``--only`` does: parts 1 and 2 report wall times (run them under the bench lock on an
+idle machine), part 3 only accuracy (``nice -n 10 python -m experiments.bench_instrument --only accuracy``, no lock).
+Each part records its own date, load average at its start and end, and wall time (``parts``), and ``--note TEXT`` a
+line on the conditions it ran in (shown with the table).
 """
 
 import argparse
@@ -29,7 +36,7 @@ import time
 
 import numpy as np
 
-from experiments._bench import machine, write_json
+from experiments._bench import machine, RESULTS, write_json
 
 
 VARIANTS = ("scalar_rgb", "llvm_ad_rgb", "cuda_ad_rgb")
@@ -39,6 +46,7 @@ FULL_SIZE, FULL_SCALES, FULL_INCIDENCE = 512, 8, (0.0, 40.0, 70.0)
 ACCURACY_SIZE, ACCURACY_SLOPES, ACCURACY_INCIDENCE = 256, (0.1, 0.2, 0.3), (0.0, 40.0, 60.0, 70.0, 80.0)
 ACCURACY_RAYS, ACCURACY_BOUNCES = 100_000, 3
 TARGET_SECONDS = 600.0
+PARTS = ("speed", "full", "accuracy")
 
 
 def _limit_threads(threads: int) -> None:
@@ -143,6 +151,7 @@ def accuracy(*, size: int, slopes, thetas, rays: int, bounces: int) -> list:
                     "mc_energy": seed["mc_energy"],
                     "seed_l1": seed["l1"],
                     "masking_l1": masking["l1"],
+                    "mc_l1_floor": seed["mc_l1_floor"],
                 }
             )
     return rows
@@ -162,6 +171,13 @@ def verdict(rows: list) -> dict:
     }
 
 
+def merged(previous: dict, record: dict, only) -> dict:
+    """``previous`` (a committed JSON) with the parts ``only`` of ``record`` in place of its own, their conditions
+    (``parts``) added to its, and ``record``'s machine (the versions that ran last)."""
+    parts = {**previous.get("parts", {}), **{part: record["parts"][part] for part in only}}
+    return {**previous, "machine": record["machine"], **{part: record[part] for part in only}, "parts": parts}
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--threads", type=int, default=2, help="Dr.Jit threads (default 2: the issue's 2 cores)")
@@ -169,7 +185,15 @@ def main(argv=None):
     parser.add_argument("--speed", metavar="VARIANT", help=argparse.SUPPRESS)  # one variant, in its own process
     parser.add_argument("--full", metavar="SIZE", help=argparse.SUPPRESS)
     parser.add_argument("--out", default=None, help="write the JSON here instead of experiments/results/")
+    parser.add_argument(
+        "--only", default=None, help=f"comma-separated parts of {PARTS} to run, merged into the committed JSON"
+    )
+    parser.add_argument("--note", default=None, help="a line on the conditions of this run, kept with each part")
     args = parser.parse_args(argv)
+    only = PARTS if args.only is None else tuple(args.only.split(","))
+    unknown = [p for p in only if p not in PARTS]
+    if unknown or not only:
+        parser.error(f"--only: unknown parts {unknown}; known: {list(PARTS)}")
     quick = args.quick
     if args.speed:
         size, rays = (64, 2_000) if quick else (SPEED_SIZE, SPEED_RAYS)
@@ -179,18 +203,36 @@ def main(argv=None):
         print(json.dumps(full(size=int(args.full), scales=3 if quick else FULL_SCALES, threads=args.threads)))
         return
     started = time.perf_counter()
-    record = {"machine": machine(), "load_average_at_start": list(os.getloadavg())}
-    record["speed"] = [_in_process("--speed", v, args.threads, quick) for v in VARIANTS]
-    record["full"] = _in_process("--full", str(64 if quick else FULL_SIZE), args.threads, quick)
-    rows = accuracy(
-        size=32 if quick else ACCURACY_SIZE,
-        slopes=ACCURACY_SLOPES[-1:] if quick else ACCURACY_SLOPES,
-        thetas=(0.0, 80.0) if quick else ACCURACY_INCIDENCE,
-        rays=2_000 if quick else ACCURACY_RAYS,
-        bounces=ACCURACY_BOUNCES,
-    )
-    record["accuracy"] = {"rows": rows, "verdict": verdict(rows), "rays": ACCURACY_RAYS, "bounces": ACCURACY_BOUNCES}
+    record = {"machine": machine(), "load_average_at_start": list(os.getloadavg()), "parts": {}}
+
+    def accuracy_part():
+        rows = accuracy(
+            size=32 if quick else ACCURACY_SIZE,
+            slopes=ACCURACY_SLOPES[-1:] if quick else ACCURACY_SLOPES,
+            thetas=(0.0, 80.0) if quick else ACCURACY_INCIDENCE,
+            rays=2_000 if quick else ACCURACY_RAYS,
+            bounces=ACCURACY_BOUNCES,
+        )
+        return {"rows": rows, "verdict": verdict(rows), "rays": ACCURACY_RAYS, "bounces": ACCURACY_BOUNCES}
+
+    run = {
+        "speed": lambda: [_in_process("--speed", v, args.threads, quick) for v in VARIANTS],
+        "full": lambda: _in_process("--full", str(64 if quick else FULL_SIZE), args.threads, quick),
+        "accuracy": accuracy_part,
+    }
+    for part in only:
+        conditions = {"date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+        conditions["load_average_at_start"] = list(os.getloadavg())
+        t0 = time.perf_counter()
+        record[part] = run[part]()
+        conditions["seconds"] = round(time.perf_counter() - t0, 1)
+        conditions["load_average_at_end"] = list(os.getloadavg())
+        if args.note:
+            conditions["note"] = args.note
+        record["parts"][part] = conditions
     record["seconds"] = round(time.perf_counter() - started, 1)
+    if only != PARTS and not (args.out or quick):  # merged into the committed JSON: its other parts are kept
+        record = merged(json.loads((RESULTS / "bench_instrument.json").read_text()), record, only)
     if args.out or quick:
         path = args.out or os.devnull
         with open(path, "w") as f:

@@ -1469,6 +1469,26 @@ def library() -> str:
     return "\n".join(lines)
 
 
+def _instrument_parts(d: dict) -> list[str]:
+    """bench_instrument's parts, each with its date, load and note (``--only`` merges parts run at different times)."""
+    parts = d.get("parts")
+    if not parts:
+        return [load_line(d)]
+    lines = ["Each part with its own run (`--only` merges parts into the JSON):", ""]
+    for name in ("speed", "full", "accuracy"):
+        if name not in parts:  # a part not rerun since the last full run, which recorded one load for all
+            lines.append(f"- `{name}`: from the last full run ({load_line(d).lower().rstrip('.')}).")
+        else:
+            p = parts[name]
+            lines.append(
+                f"- `{name}`: {p['date_utc']}, {p['seconds']:.0f} s, load average (1 min) "
+                f"{p['load_average_at_start'][0]:.2f} at its start and {p['load_average_at_end'][0]:.2f} at its end"
+                + (f" — {p['note']}" if p.get("note") else "")
+                + "."
+            )
+    return lines
+
+
 def instrument() -> str:
     """docs/benchmarks.md: the ray-traced gonioreflectometer (experiments/bench_instrument.py)."""
     d = load("bench_instrument")
@@ -1490,7 +1510,11 @@ def instrument() -> str:
                 f"{r['rays']:,} rays, {r['field']}, {r['threads']} threads",
             ]
         )
-    out = [load_line(d), "", table(["variant", "rays/s", "best s", "first run s (compiles)", "measurement"], rows)]
+    out = [
+        *_instrument_parts(d),
+        "",
+        table(["variant", "rays/s", "best s", "first run s (compiles)", "measurement"], rows),
+    ]
     f = d["full"]
     if "seconds" in f:
         out.append(
@@ -1511,6 +1535,7 @@ def instrument() -> str:
             f"{r['mc_energy']:.4f}",
             f"{r['seed_l1']:.3f}",
             f"{r['masking_l1']:.3f}",
+            f"{r['mc_l1_floor']:.3f}" if "mc_l1_floor" in r else "–",
         ]
         for r in a["rows"]
     ]
@@ -1518,7 +1543,16 @@ def instrument() -> str:
     out.append(
         f"\nModel ÷ instrument ({a['rays']:,} rays, bounces {a['bounces']}, the largest scale):\n\n"
         + table(
-            ["rms slope", "θi", "energy: seed", "energy: masking-aware", "MC error", "L1: seed", "L1: masking-aware"],
+            [
+                "rms slope",
+                "θi",
+                "energy: seed",
+                "energy: masking-aware",
+                "MC error",
+                "L1: seed",
+                "L1: masking-aware",
+                "L1 of MC noise alone",
+            ],
             rows,
         )
         + f"\n\nTarget (masking-aware within 2 % or 2 MC errors wherever the seed-only model is off by > 10 %): "

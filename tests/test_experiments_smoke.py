@@ -675,6 +675,26 @@ def test_bench_instrument_verdict_by_hand():
     assert not bench_instrument.verdict(rows[2:])["met"]  # no case where the seed is off: nothing shown
 
 
+def test_bench_instrument_only_merges_its_parts_into_the_committed_json():
+    from experiments import bench_instrument
+
+    previous = {
+        "machine": "old",
+        "load_average_at_start": [5.0],
+        "speed": ["old speed"],
+        "full": {"seconds": 56.0},
+        "accuracy": {"rows": ["old"]},
+        "parts": {"speed": {"date_utc": "T0"}, "accuracy": {"date_utc": "T0"}},
+    }
+    record = {"machine": "new", "accuracy": {"rows": ["new"]}, "parts": {"accuracy": {"date_utc": "T1"}}}
+    out = bench_instrument.merged(previous, record, ("accuracy",))
+    assert out["accuracy"] == {"rows": ["new"]} and out["machine"] == "new"
+    assert out["speed"] == ["old speed"] and out["full"] == {"seconds": 56.0}  # the parts not run are kept
+    assert out["parts"] == {"speed": {"date_utc": "T0"}, "accuracy": {"date_utc": "T1"}}
+    assert previous["parts"]["accuracy"] == {"date_utc": "T0"}  # the committed record is not changed in place
+    assert bench_instrument.merged({}, record, ("accuracy",))["parts"] == {"accuracy": {"date_utc": "T1"}}
+
+
 @pytest.mark.slow  # ray tracing and evolutions: ~1 min on 2 cores
 def test_instrument_study_quick(tmp_path):
     pytest.importorskip("mitsuba")
