@@ -43,6 +43,7 @@ Beckmann statistics and any scale law, with ``v0 = alpha_lobe²/2`` and ``ΔΣ_k
 α(μ_k)²)/2 · I`` (tests/test_anisotropic.py checks the predictions equal).
 """
 
+import abc
 import math
 from typing import ClassVar
 
@@ -134,20 +135,34 @@ def _from_cholesky(log_xx, yx, log_yy) -> Float[Array, "2 2"]:
     return jnp.stack([jnp.stack([a * a, a * yx]), jnp.stack([a * yx, yx * yx + c * c])])
 
 
-def radial_relative_statistics(differences: Float[Array, "k 2 2"], W: Float[Array, " w"]) -> Float[Array, "k w"]:
-    """The geometric mean over the directions of the circle |W| of ``R_k(W) = exp(−½ Wᵀ ΔΣ_k W)``:
-    ``exp(−¼ |W|² tr ΔΣ_k)`` (:meth:`AnisotropicModel.relative_statistics`)."""
-    trace = differences[:, 0, 0] + differences[:, 1, 1]
-    return jnp.exp(-0.25 * trace[:, None] * jnp.asarray(W)[None, :] ** 2)
+class AbstractCovarianceModel(AbstractModel):
+    """A model whose scales differ by covariance differences ``ΔΣ_k = Σ(μ0) − Σ(μ_k)`` of the slope statistics
+    (:meth:`covariance_differences`), so its relative statistics are ``R_k(W) = S(W, μ0)/S(W, μ_k) =
+    exp(−½ Wᵀ ΔΣ_k W)`` (seed Eq. 4.4: Gaussian statistics' covariances add): :class:`AnisotropicModel` and
+    :class:`fitting.AnisotropicLawModel`, which share these two methods here."""
+
+    @abc.abstractmethod
+    def covariance_differences(self, theta: Float[Array, " n"], scales: Float[Array, " k"]) -> Float[Array, "k 2 2"]:
+        """``ΔΣ(μ0, μ_k)`` at each scale."""
+
+    def relative_statistics(self, theta, W, scales):
+        """``R_k`` at radii ``|W|`` (W of shape (w,)): for an anisotropic ΔΣ_k the geometric mean of
+        ``R_k`` over the directions of the circle |W|, ``exp(−¼ |W|² tr ΔΣ_k)`` (the mean of
+        ``Wᵀ ΔΣ W`` over directions is ``½ |W|² tr ΔΣ``); for an isotropic ΔΣ it is ``R_k`` itself.
+        :meth:`relative_statistics_plane` gives ``R_k`` over the W plane."""
+        differences = self.covariance_differences(theta, scales)
+        trace = differences[:, 0, 0] + differences[:, 1, 1]
+        return jnp.exp(-0.25 * trace[:, None] * jnp.asarray(W)[None, :] ** 2)
+
+    def relative_statistics_plane(
+        self, theta: Float[Array, " n"], W: Float[Array, "w 2"], scales: Float[Array, " k"]
+    ) -> Float[Array, "k w"]:
+        """``R_k(W) = S(W, μ0)/S(W, μ_k) = exp(−½ Wᵀ ΔΣ_k W)`` at points ``W`` of the plane."""
+        W = jnp.asarray(W)
+        return jnp.exp(-0.5 * jnp.einsum("wi,kij,wj->kw", W, self.covariance_differences(theta, scales), W))
 
 
-def plane_relative_statistics(differences: Float[Array, "k 2 2"], W: Float[Array, "w 2"]) -> Float[Array, "k w"]:
-    """``R_k(W) = exp(−½ Wᵀ ΔΣ_k W)`` at points W of the plane."""
-    W = jnp.asarray(W)
-    return jnp.exp(-0.5 * jnp.einsum("wi,kij,wj->kw", W, differences, W))
-
-
-class AnisotropicModel(AbstractModel):
+class AnisotropicModel(AbstractCovarianceModel):
     """Base lobe of full scale matrix and free mean at μ0 — Gaussian, GGX or Student-t — with
     monotone covariance differences ΔΣ_k (module docstring).
 
@@ -273,19 +288,6 @@ class AnisotropicModel(AbstractModel):
                 differences[1:], points[1:]
             )
         return jnp.concatenate([base.density(points[0])[None], coarser])
-
-    def relative_statistics(self, theta, W, scales):
-        """``R_k`` at radii ``|W|`` (W of shape (w,)): for an anisotropic ΔΣ_k the geometric mean of
-        ``R_k`` over the directions of the circle |W|, ``exp(−¼ |W|² tr ΔΣ_k)`` (the mean of
-        ``Wᵀ ΔΣ W`` over directions is ``½ |W|² tr ΔΣ``); for an isotropic ΔΣ it is ``R_k`` itself.
-        :meth:`relative_statistics_plane` gives ``R_k`` over the W plane."""
-        return radial_relative_statistics(self.covariance_differences(theta, scales), W)
-
-    def relative_statistics_plane(
-        self, theta: Float[Array, " n"], W: Float[Array, "w 2"], scales: Float[Array, " k"]
-    ) -> Float[Array, "k w"]:
-        """``R_k(W) = S(W, μ0)/S(W, μ_k) = exp(−½ Wᵀ ΔΣ_k W)`` at points ``W`` of the plane."""
-        return plane_relative_statistics(self.covariance_differences(theta, scales), W)
 
     def initial(self, data):
         """From the pixels above half the peak (:func:`image_moments`); a heavy-tailed base lobe

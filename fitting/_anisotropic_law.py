@@ -64,9 +64,8 @@ from brdfscale import InvalidInputError, lobes, stats
 from brdfscale.checks import flag, integer
 from brdfscale.choices import MODEL, SHAPES
 
-from ._anisotropic import AnisotropicModel, image_moments, plane_relative_statistics, radial_relative_statistics
+from ._anisotropic import AbstractCovarianceModel, AnisotropicModel, image_moments
 from ._data import Dataset
-from ._model import AbstractModel
 from ._parametric import ParametricModel
 
 
@@ -185,7 +184,7 @@ def _rotated(phi, variances):
     return jnp.stack([jnp.stack([c * c * v1 + s * s * v2, xy], -1), jnp.stack([xy, s * s * v1 + c * c * v2], -1)], -2)
 
 
-class AnisotropicLawModel(AbstractModel):
+class AnisotropicLawModel(AbstractCovarianceModel):
     """:class:`AnisotropicModel`'s base lobe with ΔΣ(μ0, μ) from a continuous anisotropic scale law
     (module docstring): it predicts any scale.
 
@@ -326,16 +325,6 @@ class AnisotropicLawModel(AbstractModel):
                 )
         points = jnp.concatenate([jnp.zeros((1, u.shape[1], 2), u.dtype), u])
         return self.lobe.predict_with(self._split(theta)[0], differences, points)[1:]
-
-    def relative_statistics(self, theta, W, scales):
-        """``R_k`` at radii |W|: the geometric mean over directions, as :meth:`AnisotropicModel.relative_statistics`."""
-        return radial_relative_statistics(self.covariance_differences(theta, scales), W)
-
-    def relative_statistics_plane(
-        self, theta: Float[Array, " n"], W: Float[Array, "w 2"], scales: Float[Array, " k"]
-    ) -> Float[Array, "k w"]:
-        """``R_k(W) = exp(−½ Wᵀ ΔΣ_k W)`` at points ``W`` of the plane."""
-        return plane_relative_statistics(self.covariance_differences(theta, scales), W)
 
     def initial(self, data):
         """The base lobe's start (:meth:`AnisotropicModel.initial`); φ the principal axis of the measured

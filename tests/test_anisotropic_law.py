@@ -180,6 +180,32 @@ def test_jit_grad_vmap_equal_eager(law, shape):
         )
 
 
+def test_relative_statistics_are_those_of_the_hand_written_covariance_differences():
+    """R_k(W) = exp(−½ Wᵀ ΔΣ_k W) over the plane with ΔΣ by hand (true_difference), and at radii |W| the geometric
+    mean of R_k over 720 directions of the circle (one compilation: eager evaluation compiles op by op);
+    AnisotropicModel inherits the same methods (fitting._anisotropic.AbstractCovarianceModel), its ΔΣ tested in
+    tests/test_anisotropic.py."""
+    model = fitting.AnisotropicLawModel()
+    theta = theta_of(model, BASE["amplitude"], BASE["C0"], BASE["mean"], LAW)
+    scales = jnp.asarray(SCALES)
+    W = np.array([[0.0, 0.0], [3.0, -1.0], [-2.0, 5.0], [7.0, 4.0]])
+    differences = np.stack([true_difference(mu) for mu in SCALES])
+    want = np.exp(-0.5 * np.einsum("wi,kij,wj->kw", W, differences, W))
+    radii = np.array([0.0, 2.0, 6.0])
+    both = eqx.filter_jit(
+        lambda m, t, w, r: (m.relative_statistics_plane(t, w, scales), m.relative_statistics(t, r, scales))
+    )
+    plane, radial = (np.asarray(x) for x in both(model, theta, jnp.asarray(W), jnp.asarray(radii)))
+    np.testing.assert_allclose(plane, want, rtol=1e-12)
+    phi = np.arange(720) * (2 * np.pi / 720)  # the trapezoidal rule: exact for the quadratic form's harmonics
+    circle = np.stack([np.cos(phi), np.sin(phi)], -1)
+    log_r = -0.5 * np.einsum("pi,kij,pj->kp", circle, differences, circle)
+    geometric = np.exp(np.outer(log_r.mean(axis=1), radii**2))
+    np.testing.assert_allclose(radial, geometric)
+    for method in ("relative_statistics", "relative_statistics_plane"):  # AnisotropicModel's are these same methods
+        assert getattr(fitting.AnisotropicModel, method) is getattr(fitting.AnisotropicLawModel, method)
+
+
 @pytest.fixture(scope="module")
 def recovered():  # one fit: ≈ 20 s on 2 shared cores (the tests that use it are slow)
     data = dataset(SCALES[:TRAIN])
