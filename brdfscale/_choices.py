@@ -17,40 +17,13 @@ Importing it imports neither JAX nor NumPy, so the command's help starts without
   themselves are checked where they are used: ``fitting``'s own option classes).
 
 tests/test_choices.py checks that every name here is accepted by fitting and by the command,
-and that the command's defaults and the library's signatures equal these.
+and that the command's defaults and the library's signatures equal these. The public names are
+:mod:`brdfscale.choices`'s ``__all__`` (the one list; tests/test_choices.py checks it holds every table here).
 """
 
 import dataclasses
 
 from ._errors import InvalidInputError
-
-
-__all__ = [
-    "BINNINGS",
-    "EXECUTORS",
-    "FAMILIES",
-    "FIT",
-    "FOOTPRINTS",
-    "FORMS",
-    "INSTRUMENTS",
-    "LAWS",
-    "MASKING",
-    "MESHES",
-    "MODEL",
-    "MODELS",
-    "OUTPUTS",
-    "SAMPLE",
-    "SAMPLERS",
-    "SHAPES",
-    "SOLVERS",
-    "Choice",
-    "Choices",
-    "AdequacyDefaults",
-    "ADEQUACY",
-    "FitDefaults",
-    "ModelDefaults",
-    "SampleDefaults",
-]
 
 
 @dataclasses.dataclass(frozen=True)

@@ -238,3 +238,19 @@ def test_the_instrument_and_render_names_are_the_table_s_and_each_is_accepted():
             refuse()
     with pytest.raises(SystemExit):
         build_parser().parse_args(["synth", "gaussian", "--out", "m.exr", "--instrument", "camera"])
+
+
+def test_the_public_module_names_every_table_and_default():
+    """brdfscale.choices's __all__ (the one list of the public names) holds every Choices table, every defaults
+    class and instance of brdfscale._choices, and nothing it does not define."""
+    from brdfscale import _choices
+
+    classes = {value for value in vars(_choices).values() if isinstance(value, type)}
+    ours = {cls for cls in classes if cls.__module__ == _choices.__name__}  # Choice, Choices, the defaults classes
+    defined = {
+        name
+        for name, value in vars(_choices).items()
+        if not name.startswith("_") and (value in ours or isinstance(value, tuple(ours)))
+    }
+    assert set(choices.__all__) == defined and len(choices.__all__) == len(defined)
+    assert all(getattr(choices, name) is getattr(_choices, name) for name in defined)
