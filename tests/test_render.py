@@ -785,6 +785,33 @@ def test_the_footprint_integrator_agrees_with_mitsubas_path_tracer_at_a_fixed_sc
     assert ours.mean() > 0.05
 
 
+def test_the_plugin_classes_are_built_once_per_variant_also_from_many_threads():
+    """brdfscale.render._variants.per_variant (the BSDF's and the integrator's classes): one build per variant, the
+    same class after that, whichever thread asks first."""
+    import threading
+    import types
+
+    from brdfscale.render._variants import per_variant
+
+    builds = []
+
+    @per_variant
+    def made(mi) -> type:
+        """A class per variant."""
+        builds.append(mi.variant())
+        return type(f"Made_{mi.variant()}", (), {})
+
+    fakes = {name: types.SimpleNamespace(variant=lambda name=name: name) for name in ("scalar_rgb", "llvm_ad_rgb")}
+    got = []
+    threads = [threading.Thread(target=lambda f=f: got.append(made(f))) for f in [*fakes.values()] * 8]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert sorted(builds) == ["llvm_ad_rgb", "scalar_rgb"] and len(set(got)) == 2 and len(got) == 16
+    assert made(fakes["scalar_rgb"]).__name__ == "Made_scalar_rgb" and made.__doc__ == "A class per variant."
+
+
 def test_register_is_idempotent_and_loads_a_lobe_table_from_exr(tmp_path, material):
     mi, _, table, _ = material
     path = tmp_path / "lobes.exr"

@@ -14,19 +14,14 @@ interactions have none and the BSDF uses its ladder's finest scale there (or its
 renders the first hit's footprint length instead of radiance (0 where nothing is hit): the quantity the BSDF sees.
 """
 
-import threading
-
 from .._choices import FOOTPRINTS, OUTPUTS
 from .._errors import InvalidInputError
 from ._plugin import footprint
+from ._variants import per_variant
 
 
 INTEGRATOR = "brdfscale_footprint"
 """The name the integrator is registered under (:func:`brdfscale.render.register`)."""
-
-
-_CLASSES: dict[str, type] = {}
-_LOCK = threading.Lock()
 
 
 def check_options(max_depth, output, footprint) -> tuple[int, str, str]:
@@ -46,7 +41,9 @@ def _mis(a, b):
     return dr.select(a2 + b2 > 0, a2 / (a2 + b2), 0.0)
 
 
-def _build(mi):
+@per_variant
+def integrator_class(mi) -> type:
+    """The integrator class for the current variant of ``mi`` (built once per variant)."""
     import drjit as dr
 
     class FootprintIntegrator(mi.SamplingIntegrator):
@@ -121,12 +118,3 @@ def _build(mi):
             return f"FootprintIntegrator[max_depth={self.max_depth}, output={self.output}, footprint={self.footprint}]"
 
     return FootprintIntegrator
-
-
-def integrator_class(mi) -> type:
-    """The integrator class for the current variant of ``mi``."""
-    variant = mi.variant()
-    with _LOCK:
-        if variant not in _CLASSES:
-            _CLASSES[variant] = _build(mi)
-        return _CLASSES[variant]

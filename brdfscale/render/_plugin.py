@@ -25,7 +25,6 @@ Any lobe shape is sampled exactly so — anisotropic and off-centre ones include
 """
 
 import math
-import threading
 
 import numpy as np
 
@@ -33,13 +32,11 @@ from .._errors import InvalidInputError
 from ..exr import read_lobe_table
 from ._masking import g1_table, table_shapes
 from ._material import scalar_table
+from ._variants import per_variant
 
 
 PLUGIN = "brdfscale"
 """The name the BSDF is registered under (:func:`brdfscale.render.register`)."""
-
-_CLASSES: dict[str, type] = {}
-_LOCK = threading.Lock()
 
 
 class Host:
@@ -300,7 +297,9 @@ def footprint(si):
     return dr.sqrt(dr.norm(dr.cross(dp_dx, dp_dy)))
 
 
-def _build(mi):
+@per_variant
+def bsdf_class(mi) -> type:
+    """The BSDF class for the current variant of ``mi`` (built once per variant: Mitsuba's types depend on it)."""
     import drjit as dr
 
     class BrdfscaleBSDF(mi.BSDF):
@@ -415,15 +414,6 @@ def _build(mi):
             )
 
     return BrdfscaleBSDF
-
-
-def bsdf_class(mi) -> type:
-    """The BSDF class for the current variant of ``mi`` (one per variant: Mitsuba's types depend on it)."""
-    variant = mi.variant()
-    with _LOCK:
-        if variant not in _CLASSES:
-            _CLASSES[variant] = _build(mi)
-        return _CLASSES[variant]
 
 
 def check_positive(value, name: str, what: str) -> float:
