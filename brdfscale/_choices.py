@@ -5,9 +5,10 @@ Importing it imports neither JAX nor NumPy, so the command's help starts without
 
 * :data:`SOLVERS`, :data:`SAMPLERS`, :data:`MODELS`, :data:`FAMILIES`, :data:`LAWS`, :data:`SHAPES`,
   :data:`MASKING` — the names a fit accepts, each with a one-line description and the default (:class:`Choices`);
-* :data:`INSTRUMENTS`, :data:`BINNINGS`, :data:`MESHES`, :data:`EXECUTORS` — the instruments of ``brdfscale synth``,
-  and the ray-traced instrument's (:mod:`brdfscale.instrument`) detector binnings, meshes and executors (the last
-  also :func:`brdfscale.library.fit_library`'s);
+* :data:`INSTRUMENTS`, :data:`WEIGHTINGS`, :data:`MICRO_FACETS` — ``brdfscale synth``'s instruments, pixel-facet
+  weightings (also ``synth.gonioreflectometer``'s) and rough facets; :data:`BINNINGS`, :data:`MESHES`,
+  :data:`EXECUTORS` — the ray-traced instrument's (:mod:`brdfscale.instrument`) detector binnings, meshes and
+  executors (the last also :func:`brdfscale.library.fit_library`'s);
 * :data:`FORMS`, :data:`OUTPUTS`, :data:`FOOTPRINTS` — :mod:`brdfscale.render`'s material forms and its
   integrator's outputs and footprints;
 * :class:`FitDefaults`, :class:`SampleDefaults`, :class:`ModelDefaults` — the defaults of the
@@ -209,6 +210,31 @@ INSTRUMENTS = Choices(
     default="facets",
 )
 """The instrument ``brdfscale synth`` images a surface with (``--instrument``; docs/instrument.md)."""
+
+WEIGHTINGS = Choices(
+    "weighting",
+    (
+        Choice(
+            "nearly_flat",
+            "every pixel facet reflects the same light, the seed's approximation (the lobe does not depend on i)",
+        ),
+        Choice("projected_area", "each facet weighted by the light it intercepts, its area projected towards i"),
+    ),
+    default="nearly_flat",
+)
+"""The pixel-facet weighting of the facet-statistics instrument (``brdfscale.synth.gonioreflectometer(weighting=)``,
+``brdfscale synth --weighting``)."""
+
+MICRO_FACETS = Choices(
+    "micro",
+    (
+        Choice("beckmann", "Beckmann facets (brdfscale.stats.Beckmann of roughness --micro-alpha)"),
+        Choice("ggx", "GGX facets (brdfscale.stats.GGX of roughness --micro-alpha)"),
+    ),
+    default="beckmann",
+)
+"""The rough pixel facets' microfacet distribution of ``brdfscale synth --micro`` (in Python: the density object,
+``HeightField(micro=)``)."""
 
 BINNINGS = Choices(
     "binning",

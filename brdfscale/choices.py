@@ -3,8 +3,9 @@
 * :data:`SOLVERS`, :data:`SAMPLERS`, :data:`MODELS`, :data:`SHAPES`, :data:`FAMILIES`, :data:`LAWS`,
   :data:`MASKING` — each a :class:`Choices`: the accepted names in order, a one-line description of each
   (``SAMPLERS.summary("nuts")``, ``SAMPLERS.help()``) and the default (``SAMPLERS.default``);
-* :data:`INSTRUMENTS`, :data:`BINNINGS`, :data:`MESHES`, :data:`EXECUTORS` — ``brdfscale synth --instrument``, and
-  :mod:`brdfscale.instrument`'s detector binnings, meshes (``surface=``) and executors (also
+* :data:`INSTRUMENTS`, :data:`WEIGHTINGS`, :data:`MICRO_FACETS` — ``brdfscale synth``'s ``--instrument``,
+  ``--weighting`` (also ``synth.gonioreflectometer``'s) and ``--micro``; :data:`BINNINGS`, :data:`MESHES`,
+  :data:`EXECUTORS` — :mod:`brdfscale.instrument`'s detector binnings, meshes (``surface=``) and executors (also
   :func:`brdfscale.library.fit_library`'s); :data:`FORMS`, :data:`OUTPUTS`, :data:`FOOTPRINTS` —
   :mod:`brdfscale.render`'s material forms and its integrator's outputs and footprints;
 * :class:`FitDefaults`, :class:`SampleDefaults`, :class:`ModelDefaults` and their defaults
@@ -34,6 +35,7 @@ from ._choices import (
     LAWS,
     MASKING,
     MESHES,
+    MICRO_FACETS,
     MODEL,
     ModelDefaults,
     MODELS,
@@ -43,6 +45,7 @@ from ._choices import (
     SAMPLERS,
     SHAPES,
     SOLVERS,
+    WEIGHTINGS,
 )
 
 
@@ -58,6 +61,7 @@ __all__ = [
     "LAWS",
     "MASKING",
     "MESHES",
+    "MICRO_FACETS",
     "MODEL",
     "MODELS",
     "OUTPUTS",
@@ -65,6 +69,7 @@ __all__ = [
     "SAMPLERS",
     "SHAPES",
     "SOLVERS",
+    "WEIGHTINGS",
     "Choice",
     "Choices",
     "AdequacyDefaults",

@@ -209,12 +209,11 @@ def test_the_instrument_and_render_names_are_the_table_s_and_each_is_accepted():
     from brdfscale import _cluster, instrument, synth
     from brdfscale.render import _integrator, _material
 
+    parser = build_parser()
     assert instrument.BINNINGS is choices.BINNINGS and instrument.SURFACES is choices.MESHES
     for name in choices.INSTRUMENTS:
-        assert (
-            build_parser().parse_args(["synth", "gaussian", "--out", "m.exr", "--instrument", name]).instrument == name
-        )
-    assert build_parser().parse_args(["synth", "gaussian", "--out", "m.exr"]).instrument == choices.INSTRUMENTS.default
+        assert parser.parse_args(["synth", "gaussian", "--out", "m.exr", "--instrument", name]).instrument == name
+    assert parser.parse_args(["synth", "gaussian", "--out", "m.exr"]).instrument == choices.INSTRUMENTS.default
     field = synth.HeightField(np.zeros((8, 8)), 1.0, periodic=True)
     for binning in choices.BINNINGS:
         for surface in choices.MESHES:
@@ -237,7 +236,21 @@ def test_the_instrument_and_render_names_are_the_table_s_and_each_is_accepted():
         with pytest.raises(InvalidInputError, match=f"{table.what} must be one of {', '.join(map(repr, table))}; got"):
             refuse()
     with pytest.raises(SystemExit):
-        build_parser().parse_args(["synth", "gaussian", "--out", "m.exr", "--instrument", "camera"])
+        parser.parse_args(["synth", "gaussian", "--out", "m.exr", "--instrument", "camera"])
+    for flag, table in (("--weighting", choices.WEIGHTINGS), ("--micro", choices.MICRO_FACETS)):
+        for name in table:
+            assert getattr(parser.parse_args(["synth", "gaussian", "--out", "m.exr", flag, name]), flag[2:]) == name
+        with pytest.raises(SystemExit):
+            parser.parse_args(["synth", "gaussian", "--out", "m.exr", flag, "no-such-name"])
+
+
+@pytest.mark.wrong_types  # synth.gonioreflectometer's weighting is typed as the Literal of its names
+def test_the_facet_instrument_refuses_an_unknown_weighting_with_the_table_s_message():
+    from brdfscale import synth
+
+    field = synth.HeightField(np.zeros((8, 8)), 1.0, periodic=True)
+    with pytest.raises(InvalidInputError, match="weighting must be one of 'nearly_flat', 'projected_area'; got 'x'"):
+        synth.gonioreflectometer(field, [2.0], [0.0, 0.0, 1.0], extent=0.5, weighting="x")
 
 
 def test_the_public_module_names_every_table_and_default():

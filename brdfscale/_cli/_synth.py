@@ -18,7 +18,7 @@ at the finest scale is then a resolved spot). Each choice is recorded in the fil
 import argparse
 import math
 
-from .._choices import INSTRUMENTS
+from .._choices import INSTRUMENTS, MICRO_FACETS, WEIGHTINGS
 from .._errors import InvalidInputError
 from ._options import integer, MAX_SEED, output_file, real, scales, seed
 from ._topography import add_reading_options, read_field, reading_command
@@ -168,9 +168,9 @@ def register(subparsers) -> None:
     )
     parser.add_argument(
         "--weighting",
-        choices=("nearly_flat", "projected_area"),
+        choices=WEIGHTINGS.names,
         default=None,
-        help="pixel-facet weighting of --instrument facets (default nearly_flat, the seed's approximation)",
+        help=f"pixel-facet weighting of --instrument facets — {WEIGHTINGS.help()}",
     )
     parser.add_argument(
         "--instrument",
@@ -195,10 +195,10 @@ def register(subparsers) -> None:
     )
     parser.add_argument(
         "--micro",
-        choices=("beckmann", "ggx"),
+        choices=MICRO_FACETS.names,
         default=None,
-        help="with --instrument raytraced and --micro-alpha: the pixel facets' microfacet distribution "
-        "(default beckmann)",
+        help=f"with --instrument raytraced and --micro-alpha: the pixel facets' microfacet distribution — "
+        f"{MICRO_FACETS.help()}",
     )
     parser.add_argument(
         "--variant",
@@ -288,7 +288,7 @@ def run(args) -> int:
         _mitsuba.mitsuba(args.variant)
     seed_value = _SEED if args.seed is None else args.seed
     surface_seed, noise_seed = np.random.SeedSequence(seed_value).spawn(2)
-    micro_kind = stats.GGX if args.micro == "ggx" else stats.Beckmann
+    micro_kind = {"beckmann": stats.Beckmann, "ggx": stats.GGX}[args.micro or MICRO_FACETS.default]
     micro = None if args.micro_alpha is None else micro_kind(args.micro_alpha)
     if args.topography is None:
         size = _SIZE if args.size is None else args.size
@@ -342,7 +342,7 @@ def run(args) -> int:
         pixels=args.pixels,
         noise=noise,
         resolution=resolution,
-        weighting=args.weighting or "nearly_flat",
+        weighting=args.weighting or WEIGHTINGS.default,
         seed=np.random.default_rng(noise_seed) if noise is not None else None,
     )
     mset.metadata["seed"] = seed_value

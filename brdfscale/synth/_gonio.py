@@ -11,6 +11,7 @@ import numpy as np
 from jaxtyping import ArrayLike, Float
 
 from .. import stats
+from .._choices import WEIGHTINGS
 from .._errors import InvalidInputError
 from .._measurement import LobeImage, MeasurementSet
 from .._validation import integer, real, real_array, RealNumber
@@ -244,8 +245,7 @@ def gonioreflectometer(
     albedo = real_array(albedo, "albedo")
     if albedo.shape not in ((), (3,)) or not np.all(albedo > 0):
         raise InvalidInputError(f"albedo must be a positive scalar or an RGB triple; got {albedo!r}.")
-    if not isinstance(weighting, str) or weighting not in ("nearly_flat", "projected_area"):
-        raise InvalidInputError(f"weighting must be 'nearly_flat' or 'projected_area'; got {weighting!r}.")
+    WEIGHTINGS.check(weighting)
     if noise is not None and not isinstance(noise, (PoissonNoise, GaussianNoise)):
         raise InvalidInputError(f"noise must be PoissonNoise, GaussianNoise or None; got {type(noise).__name__}.")
     if noise is not None and seed is None:
