@@ -244,7 +244,6 @@ def test_the_instrument_and_render_names_are_the_table_s_and_each_is_accepted():
             parser.parse_args(["synth", "gaussian", "--out", "m.exr", flag, "no-such-name"])
 
 
-@pytest.mark.wrong_types  # synth.gonioreflectometer's weighting is typed as the Literal of its names
 def test_the_facet_instrument_refuses_an_unknown_weighting_with_the_table_s_message():
     from brdfscale import synth
 

@@ -3,7 +3,6 @@
 import dataclasses
 import functools
 from collections.abc import Sequence
-from typing import Literal
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -163,9 +162,6 @@ def _box_covariance(law: stats.GaussianSurface, mu):
     return law.slope_covariance(mu)
 
 
-Weighting = Literal["nearly_flat", "projected_area"]
-
-
 def gonioreflectometer(
     field: HeightField,
     scales,
@@ -176,7 +172,7 @@ def gonioreflectometer(
     noise: PoissonNoise | GaussianNoise | None = None,
     resolution: float = 0.0,
     albedo=1.0,
-    weighting: Weighting = "nearly_flat",
+    weighting: str = WEIGHTINGS.default,
     seed=None,
 ) -> MeasurementSet:
     """Measure the lobes of ``field`` at each scale μ and incident direction i.
