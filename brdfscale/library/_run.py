@@ -8,6 +8,7 @@ import re
 import time
 from typing import Any
 
+from .._choices import EXECUTORS
 from .._cluster import check_options, ray_session, resolve_executor
 from .._compilation_cache import directory_in_use
 from .._errors import InvalidInputError, MeasurementFileError, OutputWriteError
@@ -305,7 +306,7 @@ def fit_library(
     *,
     spec: FitSpec | None = None,
     batch: int = 16,
-    executor: str = "auto",
+    executor: str = EXECUTORS.default,
     address: str | None = None,
     workers: int | None = None,
     cpus_per_task: float = 1,
