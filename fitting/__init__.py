@@ -44,7 +44,7 @@ named ``fitting`` is installed and a local ``fitting.py`` cannot take its place.
 """
 
 from ._adequacy import assess, lag1_correlation, lobe_widths, Outcome, resolution
-from ._anisotropic import AnisotropicModel
+from ._anisotropic import AbstractCovarianceModel, AnisotropicModel
 from ._anisotropic_law import AnisotropicLawModel
 from ._batch import BatchPlan, COMPILE_ROWS, explain_plan, fit_many
 from ._checkpoint import rewind_checkpoint
@@ -82,6 +82,7 @@ __all__ = [
     "RATIO_FREQUENCIES",
     "SAMPLERS",
     "SOLVERS",
+    "AbstractCovarianceModel",
     "AbstractModel",
     "AnisotropicModel",
     "AnisotropicLawModel",
