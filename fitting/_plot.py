@@ -391,8 +391,9 @@ def corner_figure(model, draws, truth: dict | None, fit: FitResult | None = None
     """The figure of :func:`plot_corner` from given draws of θ, drawn by the ``corner`` package."""
     import corner
 
+    # in the model's order (quantities_at's keys: fitting._derived.quantity_names, no eager evaluation)
     q = {k: np.asarray(v) for k, v in _quantities(model, jnp.asarray(draws)).items()}
-    order = list(model.quantities(jnp.asarray(draws[0])))  # the model's order (vmap returns the keys sorted)
+    order = list(q)
     left_out = [n for n in order if fit is not None and fit.std.get(n, 0.0) is None]
     names = [n for n in order if n not in left_out and np.ptp(q[n]) > 0][:CORNER_MAX]
     d = len(names)
