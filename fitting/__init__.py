@@ -50,7 +50,7 @@ from ._batch import BatchPlan, COMPILE_ROWS, explain_plan, fit_many
 from ._checkpoint import rewind_checkpoint
 from ._compare import compare, Comparison
 from ._data import Dataset, PointData
-from ._derived import RATIO_FREQUENCIES, ratio_frequencies
+from ._derived import compare_covariance_differences, covariance_truth, RATIO_FREQUENCIES, ratio_frequencies
 from ._fit import fit
 from ._joint import TopographyData
 from ._model import AbstractModel
@@ -125,5 +125,7 @@ __all__ = [
     "summarise",
     "summarise_ratios",
     "truth_of",
+    "covariance_truth",
+    "compare_covariance_differences",
     "write_report",
 ]

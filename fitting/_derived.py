@@ -9,13 +9,19 @@ at θ and at draws of θ — the one place every result, report, figure and samp
   and their values at the Laplace draws, for one material or a stack (what
   :mod:`fitting._analysis` summarises);
 * :func:`covariance_differences`, :func:`summarise_covariance_differences` — ΔΣ(μ0, μ_k) =
-  Σ(μ0) − Σ(μ_k) of any model at θ and with its Laplace standard errors.
+  Σ(μ0) − Σ(μ_k) of any model at θ and with its Laplace standard errors;
+* :func:`covariance_truth`, :func:`compare_covariance_differences` — the true ΔΣ of the surface a measurement set
+  was made from, where its metadata records the surface's facet statistics, and the pulls of a fit's ΔΣ against it.
 """
+
+import math
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+
+from brdfscale import InvalidInputError
 
 from ._data import Dataset
 from ._model import moments
@@ -25,7 +31,9 @@ from ._parametric import ParametricModel
 __all__ = [
     "RATIO_FREQUENCIES",
     "FIXED_NOTE",
+    "compare_covariance_differences",
     "covariance_differences",
+    "covariance_truth",
     "evaluate",
     "evaluate_many",
     "is_isotropic",
@@ -215,3 +223,75 @@ def is_isotropic(model) -> bool:
         or bool(getattr(model, "isotropic", False))
         or getattr(model, "harmonics", None) == 0
     )
+
+
+def covariance_truth(metadata, scales) -> list | None:
+    """The true ΔΣ(μ0, μ_k) = C(μ0) − C(μ_k) of the surface a measurement set was made from, for every coarser scale
+    of ``scales`` (the fitted scales, μ0 the first), where the set's metadata records the covariance C(μ) of the
+    surface's μ-facet slopes at each of ``metadata["scales"]`` under ``metadata["truth"]["facet_slope_covariance"]``
+    — as :func:`brdfscale.synth.gonioreflectometer` (``brdfscale synth``, ``--topography`` included) and
+    :func:`brdfscale.instrument.measure` write it. This is the realisation's own ΔΣ (the images were made from
+    these very facets), the quantity a fit's ``covariance_differences`` estimates (seed Eq. 4.4: the lobe at μ_k is
+    the lobe at μ0 widened by ΔΣ, for Gaussian increments). A list of 2 × 2 lists (slope²), one per coarser scale;
+    None where the metadata records no facet statistics or not at every fitted scale (a file from elsewhere).
+
+    A record that is there but damaged (not one 2 × 2 finite symmetric matrix per recorded scale) raises
+    InvalidInputError naming the key — before the fit, as :func:`fitting.truth_of` does. Verified in
+    ``tests/test_covariance_truth.py`` against the facet slopes of the file's field computed by hand."""
+    record = metadata.get("truth") if isinstance(metadata, dict) else None
+    if not isinstance(record, dict) or "facet_slope_covariance" not in record:
+        return None
+    key = "truth.facet_slope_covariance"
+    recorded = metadata.get("scales")
+    try:
+        covariances = np.asarray(record["facet_slope_covariance"], dtype=float)
+        recorded = np.asarray(recorded, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        covariances, recorded = np.zeros(0), np.zeros(0)
+    if (
+        covariances.ndim != 3
+        or covariances.shape[1:] != (2, 2)
+        or len(covariances) != len(recorded)
+        or not (np.all(np.isfinite(covariances)) and np.all(np.isfinite(recorded)))
+        or not np.allclose(covariances, np.swapaxes(covariances, 1, 2))
+    ):
+        raise InvalidInputError(
+            f"metadata {key} must hold one symmetric 2 × 2 covariance of finite numbers per scale of the metadata's "
+            f"scales ({len(recorded)} recorded); got an array of shape {np.shape(covariances)}. Correct or remove it "
+            "from the measurement set's metadata."
+        )
+    at = []
+    for mu in np.asarray(scales, dtype=float).reshape(-1):
+        match = np.flatnonzero(np.isclose(recorded, mu, rtol=1e-9, atol=0.0))
+        if len(match) != 1:
+            return None
+        at.append(covariances[match[0]])
+    return [(at[0] - c).tolist() for c in at[1:]]
+
+
+def compare_covariance_differences(entries: list[dict], truth: list | None) -> list[dict]:
+    """``entries`` (:func:`summarise_covariance_differences`, fit.json's ``covariance_differences``) with, where
+    ``truth`` (:func:`covariance_truth`) is known, each entry's ``"truth"`` (its 2 × 2 true ΔΣ) and ``"pull"``:
+    ``(value − truth)/std`` per component, None where the fit gave no standard error or the model fixes the entry
+    (an isotropic model's ΔΣ_xy: no pull on what was not measured). The entries are returned unchanged without
+    truth, or when it does not have one matrix per entry."""
+    if truth is None or len(truth) != len(entries):
+        return entries
+    out = []
+    for d, t in zip(entries, truth):
+        fixed = d.get("fixed") or [[False, False], [False, False]]
+        pull = [
+            [
+                (d["value"][a][b] - t[a][b]) / d["std"][a][b]
+                if d["value"][a][b] is not None
+                and d["std"][a][b] is not None
+                and d["std"][a][b] > 0
+                and not fixed[a][b]
+                and math.isfinite(d["std"][a][b])
+                else None
+                for b in range(2)
+            ]
+            for a in range(2)
+        ]
+        out.append({**d, "truth": [list(map(float, row)) for row in t], "pull": pull})
+    return out

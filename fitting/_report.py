@@ -26,6 +26,7 @@ from brdfscale.checks import flag
 from brdfscale.files import atomic_write, exclusive, json_text, jsonable, write_bytes, write_text
 
 from ._adequacy import assess
+from ._derived import compare_covariance_differences
 from ._model import predict_images
 from ._parametric import ParametricModel
 from ._plot import (
@@ -361,6 +362,7 @@ def write_report(
     overwrite: bool = False,
     figures: bool = True,
     unit: str | None = None,
+    covariance_truth: list | None = None,
 ) -> dict:
     """Write ``fit.json``, ``data_vs_fit.png``, ``statistics.png``, ``corner.png``, the
     evolved lobe tables (``evolved_lobes.exr``) and, for a sampled fit with ArviZ installed,
@@ -378,6 +380,9 @@ def write_report(
     reason and the per-scale figures (``brdfscale fit`` maps its status to the exit status).
     ``unit``: the length unit of the scales μ (the measurement set's ``metadata["unit"]``; None:
     pixels of the height field), in ``data.unit``, the figures' titles and the outcome's reason.
+    ``covariance_truth``: the true ΔΣ(μ0, μ_k) of the surface the set was made from
+    (:func:`fitting.covariance_truth` of its metadata); each entry of ``covariance_differences`` then also holds
+    its ``truth`` and ``pull`` (:func:`fitting.compare_covariance_differences`).
 
     Everything is checked before the first file is written: the arguments, and (without
     ``overwrite``) that none of those files exists. ``fit.json`` is written last.
@@ -419,7 +424,8 @@ def write_report(
         "outcome": assess(problem, fit, samples, unit=unit).to_json(),
         "parameters": summarise(problem, fit, samples, truth),
         "ratios": summarise_ratios(problem, fit, samples),
-        "covariance_differences": fit.covariance_differences,  # ΔΣ(μ0, μk) ± Laplace std (fitting._derived)
+        # ΔΣ(μ0, μk) ± Laplace std, with truth and pulls where the set records its surface (fitting._derived)
+        "covariance_differences": compare_covariance_differences(fit.covariance_differences, covariance_truth),
         "identifiability": fit.to_json()["identifiability"],
         "optimisation": {
             k: v for k, v in fit.to_json().items() if k not in ("identifiability", "ratios", "covariance_differences")

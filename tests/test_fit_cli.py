@@ -182,6 +182,11 @@ def test_readme_measured_surface_chain_runs_as_written(tmp_path, capsys):
         if "prior range" in line:
             lo, hi, best = (float(x) for x in re.findall(r"range (\S+) … (\S+); best fit (\S+)\)", line)[0])
             assert lo * (1 - 1e-3) <= best <= hi * (1 + 1e-3), line
+    # ΔΣ against the facet statistics the file records of di-3 (fitting.covariance_truth), printed with the pulls
+    truth = fitting.covariance_truth(exr.read_measurements(data).metadata, doc["data"]["scales"])
+    assert truth is not None and [d["truth"] for d in doc["covariance_differences"]] == truth
+    assert "ΔΣ(μ0, μk) against the facet statistics of the surface the file was made from" in printed.out
+    assert re.search(r"\d+ of \d+ entries within 3 std of the truth", printed.out)
 
 
 def test_an_estimate_on_a_prior_bound_is_said_to_be_there():

@@ -365,6 +365,7 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
     if spec.sampler is not None:
         check_sampler_options(args, len(model.names))
     truth = fitting.truth_of(model, mset.metadata)  # a damaged truth is refused before the work, not after
+    delta_truth = fitting.covariance_truth(mset.metadata, data.scales)  # ΔΣ of the set's own surface, if recorded
     # before the long work: a complete report refused, an incomplete one beside a complete chain resumed
     checkpoint = os.path.join(args.out, "chain.h5")
     if getattr(args, "rewind_checkpoint", False):  # a damaged chain's verified chunks kept first
@@ -376,12 +377,23 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
         stream(resuming)
     with files.exclusive(args.out, what="output directory"):
         return _fit_and_report(
-            fitting, spec, data, model, info, truth, args, stream, resume=resuming is not None, unit=unit, result=result
+            fitting,
+            spec,
+            data,
+            model,
+            info,
+            truth,
+            args,
+            stream,
+            resume=resuming is not None,
+            unit=unit,
+            result=result,
+            covariance_truth=delta_truth,
         )
 
 
 def _fit_and_report(
-    fitting, spec, data, model, info, truth, args, stream, resume=False, unit=None, result=None
+    fitting, spec, data, model, info, truth, args, stream, resume=False, unit=None, result=None, covariance_truth=None
 ) -> dict:
     """Fit (unless ``result``, --compare's fit of this model, is given), sample and write the report."""
     if result is None:
@@ -416,6 +428,7 @@ def _fit_and_report(
         model_info=info,
         overwrite=args.force or resume,  # resumed: the partial report's files are written anew
         unit=unit,
+        covariance_truth=covariance_truth,
     )
 
 
@@ -485,7 +498,10 @@ def print_outcome(doc: dict, stream=print) -> None:
 
 def print_truth(doc: dict, stream=print) -> None:
     """Truth against estimate for every quantity with a known truth in the measurement set's
-    metadata (:func:`fitting.truth_of`), with the pull |estimate − truth|/std; nothing without truth."""
+    metadata (:func:`fitting.truth_of`), with the pull |estimate − truth|/std, then ΔΣ(μ0, μk) against the
+    set's own surface where it records its facet statistics (:func:`fitting.covariance_truth`) with the pull
+    (estimate − truth)/std per entry; nothing without truth."""
+    print_covariance_truth(doc, stream)
     rows = {name: row for name, row in doc["parameters"].items() if row.get("truth") is not None}
     if not rows:
         return
@@ -502,6 +518,31 @@ def print_truth(doc: dict, stream=print) -> None:
         cells += (table_cell(std, "10.3g", "undetermined"), table_cell(q[0], "10.4g", "—"))
         cells += (table_cell(q[2], "10.4g", "—"),)
         stream(f"{name:20s} {' '.join(cells)}  {pull}")
+
+
+def print_covariance_truth(doc: dict, stream=print) -> None:
+    """ΔΣ(μ0, μk) of the fit against the facet statistics of the surface the set was made from, per entry xx, xy,
+    yy: truth, estimate ± std and the pull (estimate − truth)/std (— where the fit gave no std or the model fixes
+    the entry); the largest |pull|. Nothing where fit.json's entries carry no truth."""
+    rows = [d for d in doc.get("covariance_differences") or () if d.get("truth") is not None]
+    if not rows:
+        return
+    unit = (doc.get("data") or {}).get("unit") or "px"
+    stream("ΔΣ(μ0, μk) against the facet statistics of the surface the file was made from (slope²):")
+    stream(f"  {'μ0, μk':>16s} {'entry':>5s} {'truth':>10s} {'estimate':>10s} {'± std':>10s}  (est−truth)/std")
+    pulls = []
+    for d in rows:
+        for name, a, b in (("xx", 0, 0), ("xy", 0, 1), ("yy", 1, 1)):
+            pull = d["pull"][a][b]
+            if pull is not None:
+                pulls.append(abs(pull))
+            cells = (table_cell(d["truth"][a][b], "10.4g", "unknown"),)
+            cells += (table_cell(d["value"][a][b], "10.4g", "undefined"), table_cell(d["std"][a][b], "10.3g", "—"))
+            scales = f"{d['mu0']:g}, {d['mu']:g} {unit}"
+            stream(f"  {scales:>16s} {name:>5s} {' '.join(cells)}  {table_cell(pull, '.2f', '—')}")
+    if pulls:
+        within = sum(p <= 3 for p in pulls)
+        stream(f"  {within} of {len(pulls)} entries within 3 std of the truth; largest |pull| {max(pulls):.3g}")
 
 
 def table_cell(value, spec: str, missing: str) -> str:
