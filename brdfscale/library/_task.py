@@ -135,21 +135,22 @@ def fit_batch(
             data = spec.dataset(mset)
             model, info = spec.model_for(data)
             truth = fitting.truth_of(model, mset.metadata)
+            delta_truth = fitting.covariance_truth(mset.metadata, data.scales)  # ΔΣ of its surface, if recorded
         except Exception as err:  # noqa: BLE001 — one material's failure is recorded, the library goes on
             records.append(_record(name, "failed", t0, error=_failure(err)))
             continue
-        todo.append((name, data, model, info, truth))
+        todo.append((name, data, model, info, truth, delta_truth))
     if not todo:
         return records
     t0 = time.perf_counter()
-    fits = spec.fit_many([m for _, _, m, _, _ in todo], [d for _, d, _, _, _ in todo], batch=batch)
+    fits = spec.fit_many([t[2] for t in todo], [t[1] for t in todo], batch=batch)
     fit_seconds = (time.perf_counter() - t0) / len(todo)
     draws = [None] * len(todo)
     if spec.sampler in ("nuts", "hmc"):
         # the gradient samplers vectorise: every material's chains in one program per bucket
         # (fitting.sample_many, equal to fitting.sample per material); emcee samples per material below
-        draws = spec.sample_many([fitting.Problem(m, d) for _, d, m, _, _ in todo], fits, batch=batch)
-    for (name, data, model, info, truth), result, drawn in zip(todo, fits, draws):
+        draws = spec.sample_many([fitting.Problem(t[2], t[1]) for t in todo], fits, batch=batch)
+    for (name, data, model, info, truth, delta_truth), result, drawn in zip(todo, fits, draws):
         t1 = time.perf_counter()
         if isinstance(result, Exception) or isinstance(drawn, Exception):
             records.append(
@@ -173,6 +174,7 @@ def fit_batch(
                     model_info=info,
                     overwrite=True,
                     figures=spec.figures,
+                    covariance_truth=delta_truth,
                 )
             try:
                 os.rename(partial, final)
