@@ -377,7 +377,8 @@ def assess(
             )
     problems = list(resolved.problems)
     inadequate.sort(key=lambda item: -item[0])
-    problems += [text + " — try another lobe family, scale law or model" for _, text in inadequate[:1]]
+    advice = " — compare other lobe shapes and models (fitting.compare; brdfscale fit --compare, --shape, --model)"
+    problems += [text + advice for _, text in inadequate[:1]]
     problems += [text for _, text in inadequate[1:]]
     if fit.status != "converged":
         problems.append(

@@ -19,7 +19,6 @@ from ._fit import (
     outcome_status,
     print_outcome,
     print_truth,
-    sampling_line,
 )
 from ._options import integer, make_directory, MAX_SEED, Parser, seed
 
@@ -183,8 +182,6 @@ def _run(args, exr, start) -> int:
     for name, text in _TRUTH_SOURCES[args.source].items():
         if name in doc["parameters"]:
             print(f"  {name:20s} {text}")
-    if doc["mcmc"]:
-        print(sampling_line(doc["mcmc"]).strip())
     print(f"reduced χ² = {doc['optimisation']['reduced_chi2']:.3f}; finished in {time.perf_counter() - start:.0f} s")
     print_outcome(doc)
     return outcome_status(doc["outcome"])  # the exit status tells the truth: 5, 6 or 7 as brdfscale fit
