@@ -40,6 +40,7 @@ from typing import Any, TYPE_CHECKING
 from ._errors import (
     BrdfscaleError as BrdfscaleError,
     InvalidInputError as InvalidInputError,
+    LobeCutWarning as LobeCutWarning,
     MeasurementFileError as MeasurementFileError,
     MethodNotApplicableError as MethodNotApplicableError,
     MissingDependencyError as MissingDependencyError,
@@ -85,6 +86,7 @@ _TABLE = (  # the one list of the public names: (module relative to brdfscale, n
         (
             "BrdfscaleError",
             "InvalidInputError",
+            "LobeCutWarning",
             "MeasurementFileError",
             "MethodNotApplicableError",
             "MissingDependencyError",

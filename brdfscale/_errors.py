@@ -84,6 +84,13 @@ class UnprotectedHeaderWarning(UserWarning):
     metadata are not. Rewrite it (read and write again) to protect them."""
 
 
+class LobeCutWarning(UserWarning):
+    """A synthesised lobe image holds less of its lobe's light than :data:`brdfscale.synth.LIGHT_INSIDE` (95 %):
+    the image's extent is too small for the lobe — typically a rough micro-facet lobe, whose tails the default
+    extent (:func:`brdfscale.synth.robust_extent`, from the pixel slopes) does not count. The message names the
+    worst scale, the share and the fix (a larger extent)."""
+
+
 class ToleranceRelaxedWarning(UserWarning):
     """An evaluation honours a looser error than the ``tol`` asked (e.g. a capped FFT grid that
     cannot resolve a heavy-tailed or very narrow lobe to it). The tolerance honoured is recorded

@@ -7,6 +7,7 @@ brdfscale.geometry from normals built by a cross product, closed-form densities.
 """
 
 import math
+import re
 
 import jax
 import numpy as np
@@ -609,3 +610,30 @@ def test_plus_distribution_is_not_a_micro_lobe():
     nearly = plus.NearlySpecular(0.9, [0.001], 0.01, smooth=stats.Beckmann(0.05), smooth_weight=0.1)
     image = synth.gonioreflectometer(_flat(nearly), [4.0], [0, 0, 1.0], extent=0.5, pixels=17).images[0]
     assert image.values.sum() * (1 / 16) ** 2 == pytest.approx(1.0, abs=0.02)  # coarse 17² grid
+
+
+def test_an_image_that_cuts_its_lobe_warns_with_the_share_it_holds():
+    """gonioreflectometer warns (brdfscale.LobeCutWarning) when an image holds less than synth.LIGHT_INSIDE of its
+    lobe's light, with the share: here a mirror micro lobe, so the light inside is the share of the pixel facets'
+    offsets from their facet's mean slope that land on the image — counted here by hand from facet_slopes."""
+    import warnings
+
+    from brdfscale import LobeCutWarning
+
+    field = synth.spectral_field(GAUSS_ISO, size=64, seed=4)
+    mu, pixels = 4.0, 33
+    pixel = np.asarray(synth.facet_slopes(field, 1.0))
+    facet = np.asarray(synth.facet_slopes(field, mu))
+    offsets = pixel - np.repeat(np.repeat(facet, 4, axis=0), 4, axis=1)
+    extent = 0.1 * synth.robust_extent(field)  # the offsets at μ = 4 are much narrower than the pixel slopes
+    by_hand = np.mean(np.all(np.abs(offsets) <= extent, axis=-1))
+    with pytest.warns(LobeCutWarning, match=r"μ = 4 holds only (\d+) % of its lobe's light") as caught:
+        synth.gonioreflectometer(field, [mu], [0, 0, 1.0], extent=extent, pixels=pixels)
+    share = float(re.search(r"holds only (\d+) %", str(caught[0].message)).group(1)) / 100
+    assert by_hand < synth.LIGHT_INSIDE and share == pytest.approx(by_hand, abs=0.02)  # a pitch's edge, rounding
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", LobeCutWarning)  # the default extent holds the mirror lobe
+        synth.gonioreflectometer(field, [mu], [0, 0, 1.0], extent=synth.robust_extent(field), pixels=pixels)
+    rough = synth.spectral_field(GAUSS_ISO, size=64, seed=4, micro=stats.GGX(0.5))
+    with pytest.warns(LobeCutWarning, match=r"rough micro-facet lobe's tails: GGX"):
+        synth.gonioreflectometer(rough, [mu], [0, 0, 1.0], extent=synth.robust_extent(field), pixels=pixels)

@@ -21,7 +21,7 @@ coarser grids beyond), Poisson counts by :data:`MAX_EXPECTED_COUNT` (1e18).
 """
 
 from ._facets import facet_slopes, facet_statistics, FacetStatistics, global_slopes, steepest_slope
-from ._gonio import GaussianNoise, gonioreflectometer, MAX_EXPECTED_COUNT, PoissonNoise, robust_extent
+from ._gonio import GaussianNoise, gonioreflectometer, LIGHT_INSIDE, MAX_EXPECTED_COUNT, PoissonNoise, robust_extent
 from ._named import named_surface, SURFACES
 from ._profiles import blazed, scratches
 from ._random import as_generator
@@ -45,6 +45,7 @@ __all__ = [
     "PoissonNoise",
     "gonioreflectometer",
     "robust_extent",
+    "LIGHT_INSIDE",
     "as_generator",
     "MAX_GRID_BYTES",
     "MAX_EXPECTED_COUNT",

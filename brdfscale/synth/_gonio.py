@@ -2,6 +2,7 @@
 
 import dataclasses
 import functools
+import warnings
 from collections.abc import Sequence
 
 import equinox as eqx
@@ -11,7 +12,7 @@ from jaxtyping import ArrayLike, Float
 
 from .. import stats
 from .._choices import WEIGHTINGS
-from .._errors import InvalidInputError
+from .._errors import InvalidInputError, LobeCutWarning
 from .._measurement import LobeImage, MeasurementSet
 from .._validation import integer, real, real_array, RealNumber
 from ..geometry import validate_directions
@@ -124,6 +125,10 @@ EXTENT_FACTOR = 1.5
 """The factor :func:`robust_extent` multiplies that quantile by."""
 
 
+LIGHT_INSIDE = 0.95
+"""The share of a lobe's light an image of :func:`gonioreflectometer` must hold; below it, LobeCutWarning."""
+
+
 def robust_extent(field: HeightField, *, quantile: float = EXTENT_QUANTILE, factor: float = EXTENT_FACTOR) -> float:
     """A half-width for :func:`gonioreflectometer`'s images from robust slope quantiles:
     ``factor × quantile_q |m − m̄|`` over the measured pixel facets' normal slopes m (the finest
@@ -215,6 +220,12 @@ def gonioreflectometer(
         :class:`brdfscale.stats.GaussianSurface` with a box window and 256 quadrature
         nodes in k when the field has a spectrum).
 
+    Warns:
+        LobeCutWarning: an image holds less than :data:`LIGHT_INSIDE` of its lobe's light (the node sum of the
+            cropped lobe density times the pitch², the density being per sample added: the share of the facet
+            offsets, blurred by the micro lobe, that land on the image) — the extent is too small; the message
+            names the worst scale and its share (``tests/test_synth.py``).
+
     Raises:
         InvalidInputError: checked before any work, for a ``field`` that is not a
             :class:`HeightField`; ``scales`` that are not real numbers or not whole numbers
@@ -258,7 +269,7 @@ def gonioreflectometer(
         "use fewer pixels, a smaller resolution or a larger extent (a coarser pitch)",
     )
     crop = slice(pad, pad + pixels)
-    images, truth = [], {"facet_slope_mean": [], "facet_slope_covariance": []}
+    images, truth, inside = [], {"facet_slope_mean": [], "facet_slope_covariance": []}, []
     law = None if field.spectrum is None else stats.GaussianSurface(field.spectrum, window="box", n_k=256)
     pixel, _ = facet_samples(field, (1, 1))  # the measured pixel facets' own normal slopes
     truth["pixel_slope_covariance"] = np.cov(pixel.T).tolist()
@@ -282,9 +293,20 @@ def gonioreflectometer(
                 hist = SlopeHistogram(extent + pad * h, pixels + 2 * pad)
                 offset_histogram(field, mu, hist, incident=i if weighting == "projected_area" else None)
                 lobe = blur(hist.density(), h, field.micro, resolution)[crop, crop]
+                inside.append((float(lobe.sum()) * h * h, mu))
             clean = lobe[..., None] * albedo if albedo.ndim else lobe * albedo
             values, sigma = (clean, None) if sample is None else sample(clean)
             images.append(LobeImage(mu=mu, incident=i, extent=extent, values=values, sigma=sigma))
+    share, worst = min(inside)
+    if share < LIGHT_INSIDE:
+        warnings.warn(
+            f"the image at μ = {worst:g} holds only {100 * share:.0f} % of its lobe's light (extent {extent:.4g}): "
+            f"the lobe is wider than the image (a rough micro-facet lobe's tails: {type(field.micro).__name__}); "
+            "give a larger extent (brdfscale synth --extent) for the images to hold at least "
+            f"{100 * LIGHT_INSIDE:.0f} %.",
+            LobeCutWarning,
+            stacklevel=2,
+        )
     metadata = {
         "generator": "brdfscale.synth.gonioreflectometer",
         "surface": field.description,
