@@ -75,6 +75,22 @@ def test_no_overwrite_without_force(tmp_path, capsys):
     assert out.read_bytes() != before
 
 
+def test_a_lobe_cut_by_the_default_extent_is_one_warning_line(tmp_path, capsys):
+    """Rough micro facets (--micro-alpha) and the default extent (the pixel slopes'): the images cut the lobe, and
+    the command says so in one line on stderr (brdfscale.LobeCutWarning through the command's warning format, not
+    Python's file:line and source line), then writes the file; Python's warning settings are as before."""
+    import warnings
+
+    out = tmp_path / "rough.exr"
+    before = warnings.showwarning
+    argv = ["synth", "gaussian", "--out", str(out), "--size", "64", "--scales", "4,16", "--pixels", "9"]
+    assert cli.main([*argv, "--micro-alpha", "0.5"]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("brdfscale synth: warning: the image at μ = "), err
+    assert "of its lobe's light" in err[0] and "--extent" in err[0] and out.exists()
+    assert warnings.showwarning is before
+
+
 def test_info_on_lobe_table_and_on_a_bad_file(tmp_path, capsys):
     table = exr.LobeTable([1.0, 2.0], 0.1, np.ones((2, 5, 5)))
     path = tmp_path / "t.exr"

@@ -20,10 +20,12 @@ Statuses 5 and 6 come after a complete report is written: the report holds the d
 refusal before the work (``fit``: no report; the line holds the details — fitting.resolution).
 """
 
+import contextlib
 import errno
 import importlib
 import re
 import sys
+import warnings
 
 from .._errors import BrdfscaleError, OutputInUseError, OutputWriteError
 from ._options import Parser
@@ -100,6 +102,24 @@ def build_parser() -> Parser:
     return parser
 
 
+@contextlib.contextmanager
+def _one_line_warnings(name: str, debug: bool):
+    """A warning raised while a command runs prints as one line on stderr, ``brdfscale CMD: warning: MESSAGE``
+    (whitespace collapsed), like the command's errors — not Python's ``file:line: Category: message`` and source
+    line, which are kept under ``--debug``. The process's warning filters and ``warnings.showwarning`` are as
+    before afterwards (``warnings.catch_warnings``); which warnings show, and how often, is Python's filters' choice."""
+    if debug:
+        yield
+        return
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        print(f"{name}: warning: {' '.join(str(message).split())}", file=sys.stderr if file is None else file)
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show
+        yield
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
@@ -114,7 +134,8 @@ def main(argv: list[str] | None = None) -> int:
             from .._compilation_cache import enable
 
             enable()
-        return int(args.func(args) or 0)
+        with _one_line_warnings(name, args.debug):
+            return int(args.func(args) or 0)
     except OutputInUseError as err:
         print(f"{name}: error: {in_flags(str(err))}", file=sys.stderr)
         return EXIT_IN_USE
