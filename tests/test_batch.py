@@ -68,6 +68,7 @@ def test_batched_fits_equal_one_at_a_time_fits_on_ragged_data(ragged):
         _assert_same_fit(a, b)
 
 
+@pytest.mark.slow  # ~20 s on 2 cores: keeps the default suite under its 6 minutes
 def test_mixed_models_go_to_separate_buckets_and_keep_their_order(ragged):
     models = [fitting.ParametricModel(), fitting.ParametricModel(fixed={"mu_c": 1.0})] * 2
     data = ragged[:4]
@@ -170,6 +171,7 @@ _SHARDED = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow  # ~20 s on 2 cores: keeps the default suite under its 6 minutes
 def test_batched_fits_divided_over_4_devices_equal_one_device_bit_for_bit():
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=4", "JAX_PLATFORMS": "cpu"}
     run = subprocess.run(

@@ -99,6 +99,7 @@ def test_hmc_with_window_adaptation_equals_sample(ragged):
         _assert_same(one, result)
 
 
+@pytest.mark.slow  # ~20 s on 2 cores: keeps the default suite under its 6 minutes
 def test_materials_of_another_sampled_dimension_go_to_their_own_bucket(ragged, monkeypatch):
     """A fit with a stricter undetermined_std has an undetermined combination: its chain samples a
     2-dimensional plane instead of 3, so it cannot share the others' program (same model, same points)."""
