@@ -143,13 +143,13 @@ def fit_batch(
     if not todo:
         return records
     t0 = time.perf_counter()
-    fits = spec.fit_many([t[2] for t in todo], [t[1] for t in todo], batch=batch)
+    fits = spec.fit_many([m for _, _, m, *_ in todo], [d for _, d, *_ in todo], batch=batch)
     fit_seconds = (time.perf_counter() - t0) / len(todo)
     draws = [None] * len(todo)
     if spec.sampler in ("nuts", "hmc"):
         # the gradient samplers vectorise: every material's chains in one program per bucket
         # (fitting.sample_many, equal to fitting.sample per material); emcee samples per material below
-        draws = spec.sample_many([fitting.Problem(t[2], t[1]) for t in todo], fits, batch=batch)
+        draws = spec.sample_many([fitting.Problem(m, d) for _, d, m, *_ in todo], fits, batch=batch)
     for (name, data, model, info, truth, delta_truth), result, drawn in zip(todo, fits, draws):
         t1 = time.perf_counter()
         if isinstance(result, Exception) or isinstance(drawn, Exception):

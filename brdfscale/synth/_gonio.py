@@ -17,7 +17,7 @@ from .._measurement import LobeImage, MeasurementSet
 from .._validation import integer, real, real_array, RealNumber
 from ..geometry import validate_directions
 from ..stats import SlopeHistogram
-from ._facets import blur, check_field, check_scales, facet_samples, kernel_padding, offset_histogram
+from ._facets import _is_mirror, blur, check_field, check_scales, facet_samples, kernel_padding, offset_histogram
 from ._random import as_generator, seed_record
 from ._surface import HeightField, parameter_record
 
@@ -301,8 +301,13 @@ def gonioreflectometer(
     if share < LIGHT_INSIDE:
         warnings.warn(
             f"the image at μ = {worst:g} holds only {100 * share:.0f} % of its lobe's light (extent {extent:.4g}): "
-            f"the lobe is wider than the image (a rough micro-facet lobe's tails: {type(field.micro).__name__}); "
-            "give a larger extent (brdfscale synth --extent) for the images to hold at least "
+            "the lobe is wider than the image ("
+            + (
+                "the pixel facets' offsets from their facet's slope spread beyond it"
+                if _is_mirror(field.micro)
+                else f"a rough micro-facet lobe's tails: {type(field.micro).__name__}"
+            )
+            + "); give a larger extent (extent=, brdfscale synth --extent) for the images to hold at least "
             f"{100 * LIGHT_INSIDE:.0f} %.",
             LobeCutWarning,
             stacklevel=2,
