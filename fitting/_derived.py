@@ -226,14 +226,25 @@ def is_isotropic(model) -> bool:
 
 
 def covariance_truth(metadata, scales) -> list | None:
-    """The true ΔΣ(μ0, μ_k) = C(μ0) − C(μ_k) of the surface a measurement set was made from, for every coarser scale
-    of ``scales`` (the fitted scales, μ0 the first), where the set's metadata records the covariance C(μ) of the
-    surface's μ-facet slopes at each of ``metadata["scales"]`` under ``metadata["truth"]["facet_slope_covariance"]``
-    — as :func:`brdfscale.synth.gonioreflectometer` (``brdfscale synth``, ``--topography`` included) and
-    :func:`brdfscale.instrument.measure` write it. This is the realisation's own ΔΣ (the images were made from
-    these very facets), the quantity a fit's ``covariance_differences`` estimates (seed Eq. 4.4: the lobe at μ_k is
-    the lobe at μ0 widened by ΔΣ, for Gaussian increments). A list of 2 × 2 lists (slope²), one per coarser scale;
-    None where the metadata records no facet statistics or not at every fitted scale (a file from elsewhere).
+    """The true ΔΣ(μ0, μ_k) of the surface a measurement set was made from, for every coarser scale of ``scales``
+    (the fitted scales, μ0 the first): the widening of the lobe the set's images hold, from the truth
+    ``brdfscale synth`` (``--topography`` included) and the ray-traced instrument record in the metadata. A list of
+    2 × 2 lists (slope²), one per coarser scale; None where the metadata records no facet statistics or not at
+    every fitted scale (a file from elsewhere).
+
+    * Where the record has ``truth.offset_covariance`` (:func:`brdfscale.synth.gonioreflectometer` with the
+      ``nearly_flat`` weighting: every pixel facet counts once) it is ``O(μ_k) − O(μ0)``, O(μ) the covariance of
+      the pixel slopes' offsets from their facet's slope that the image at μ holds before the micro lobe's and
+      the resolution's blur (:func:`brdfscale.synth.offset_moments`): what the images determine.
+    * Otherwise (the instrument; the ``projected_area`` weighting, whose images weight each pixel by its light)
+      it is ``C(μ0) − C(μ_k)`` of ``truth.facet_slope_covariance``, the covariance C(μ) of the surface's μ-facet
+      slopes (seed Eq. 4.4: the lobe at μ_k is the lobe at μ0 widened by ΔΣ, for Gaussian increments).
+
+    The two agree when every scale's images come from the same pixels (the law of total variance) and differ
+    where the pixel population changes with μ: a field with unmeasured pixels is measured in fewer places by a
+    coarser facet, which on frt-1 of tests/data leaves out the steep pixels by the holes — between 2 and 24
+    pixels the facets' ΔΣ is positive while the images narrow (tests/test_covariance_truth.py checks the truth
+    against the noise-free images' own moments).
 
     A record that is there but damaged (not one 2 × 2 finite symmetric matrix per recorded scale) raises
     InvalidInputError naming the key — before the fit, as :func:`fitting.truth_of` does. Verified in
@@ -241,10 +252,20 @@ def covariance_truth(metadata, scales) -> list | None:
     record = metadata.get("truth") if isinstance(metadata, dict) else None
     if not isinstance(record, dict) or "facet_slope_covariance" not in record:
         return None
-    key = "truth.facet_slope_covariance"
+    offsets = "offset_covariance" in record and metadata.get("weighting", "nearly_flat") == "nearly_flat"
+    key = "offset_covariance" if offsets else "facet_slope_covariance"
+    at = _recorded_covariances(metadata, record, key, scales)
+    if at is None:
+        return None
+    return [(c - at[0]).tolist() if offsets else (at[0] - c).tolist() for c in at[1:]]
+
+
+def _recorded_covariances(metadata, record, key, scales) -> list | None:
+    """``record[key]`` (one symmetric 2 × 2 matrix per ``metadata["scales"]``) at each of ``scales``; None when a
+    fitted scale was not recorded; InvalidInputError naming ``truth.KEY`` when the record is damaged."""
     recorded = metadata.get("scales")
     try:
-        covariances = np.asarray(record["facet_slope_covariance"], dtype=float)
+        covariances = np.asarray(record[key], dtype=float)
         recorded = np.asarray(recorded, dtype=float).reshape(-1)
     except (TypeError, ValueError):
         covariances, recorded = np.zeros(0), np.zeros(0)
@@ -256,9 +277,9 @@ def covariance_truth(metadata, scales) -> list | None:
         or not np.allclose(covariances, np.swapaxes(covariances, 1, 2))
     ):
         raise InvalidInputError(
-            f"metadata {key} must hold one symmetric 2 × 2 covariance of finite numbers per scale of the metadata's "
-            f"scales ({len(recorded)} recorded); got an array of shape {np.shape(covariances)}. Correct or remove it "
-            "from the measurement set's metadata."
+            f"metadata truth.{key} must hold one symmetric 2 × 2 covariance of finite numbers per scale of the "
+            f"metadata's scales ({len(recorded)} recorded); got an array of shape {np.shape(covariances)}. Correct "
+            "or remove it from the measurement set's metadata."
         )
     at = []
     for mu in np.asarray(scales, dtype=float).reshape(-1):
@@ -266,7 +287,7 @@ def covariance_truth(metadata, scales) -> list | None:
         if len(match) != 1:
             return None
         at.append(covariances[match[0]])
-    return [(at[0] - c).tolist() for c in at[1:]]
+    return at
 
 
 def compare_covariance_differences(entries: list[dict], truth: list | None) -> list[dict]:

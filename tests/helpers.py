@@ -25,6 +25,7 @@ import json
 import math
 import os
 import traceback
+from pathlib import Path
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -35,6 +36,9 @@ import brdfscale as bs
 from brdfscale import exr, fitting, LobeImage, MeasurementSet
 from brdfscale._cli import main as cli_main
 from brdfscale.exr import _format
+
+TOPOGRAPHIES = Path(__file__).resolve().parent / "data" / "topographies"
+"""The measured instrument files of tests/data (their licences in its README.md)."""
 
 
 # -- the linear-Gaussian model ----------------------------------------------------------------------

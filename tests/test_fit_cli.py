@@ -185,7 +185,7 @@ def test_readme_measured_surface_chain_runs_as_written(tmp_path, capsys):
     # ΔΣ against the facet statistics the file records of di-3 (fitting.covariance_truth), printed with the pulls
     truth = fitting.covariance_truth(exr.read_measurements(data).metadata, doc["data"]["scales"])
     assert truth is not None and [d["truth"] for d in doc["covariance_differences"]] == truth
-    assert "ΔΣ(μ0, μk) against the facet statistics of the surface the file was made from" in printed.out
+    assert "ΔΣ(μ0, μk) against the surface the file was made from" in printed.out
     assert re.search(r"\d+ of \d+ entries within 3 std of the truth", printed.out)
 
 

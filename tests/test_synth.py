@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from brdfscale import geometry, InvalidInputError, stats, synth
+from brdfscale import geometry, InvalidInputError, stats, synth, topography
 from brdfscale.stats._histogram import SlopeHistogram
 
 
@@ -637,3 +637,32 @@ def test_an_image_that_cuts_its_lobe_warns_with_the_share_it_holds():
     rough = synth.spectral_field(GAUSS_ISO, size=64, seed=4, micro=stats.GGX(0.5))
     with pytest.warns(LobeCutWarning, match=r"rough micro-facet lobe's tails: GGX"):
         synth.gonioreflectometer(rough, [mu], [0, 0, 1.0], extent=synth.robust_extent(field), pixels=pixels)
+
+
+def test_offset_moments_equal_the_offsets_computed_by_hand_on_a_field_with_holes():
+    """synth.offset_moments against loops over the windows: every pixel facet of a window measured throughout,
+    its forward-difference normal slope minus the mean of its window's (a non-periodic 23 × 29 field with two
+    holes and windows of 3 × 3 pixel facets that do not tile it: the trailing row and column are left out)."""
+    rng = np.random.default_rng(5)
+    heights = rng.normal(size=(23, 29)).cumsum(axis=1) * 1e-3
+    mask = np.ones(heights.shape, bool)
+    mask[4, 7] = mask[15:17, 20] = False
+    field = topography.from_array(heights, 1e-6, mask=mask, detrend=None)
+    h = field.heights
+    offsets = []
+    for r0 in range(0, 21, 3):  # 22 × 28 pixel facets: 7 × 9 whole windows
+        for c0 in range(0, 27, 3):
+            if not field.mask[r0 : r0 + 4, c0 : c0 + 4].all():  # a pixel facet needs its corners measured
+                continue
+            m = [(-(h[r, c + 1] - h[r, c]) / 1e-6, -(h[r + 1, c] - h[r, c]) / 1e-6) for r in range(r0, r0 + 3)
+                 for c in range(c0, c0 + 3)]
+            m = np.asarray(m)
+            offsets.extend(m - m.mean(axis=0))
+    offsets = np.asarray(offsets)
+    mean, cov = synth.offset_moments(field, 3e-6)
+    np.testing.assert_allclose(mean, offsets.mean(axis=0), atol=1e-9)
+    np.testing.assert_allclose(cov, np.cov(offsets.T, bias=True), rtol=1e-10)
+    with pytest.raises(InvalidInputError, match="mu"):
+        synth.offset_moments(field, 2.5e-6)
+    with pytest.raises(InvalidInputError, match="HeightField"):
+        synth.offset_moments(heights, 3e-6)

@@ -521,14 +521,14 @@ def print_truth(doc: dict, stream=print) -> None:
 
 
 def print_covariance_truth(doc: dict, stream=print) -> None:
-    """ΔΣ(μ0, μk) of the fit against the facet statistics of the surface the set was made from, per entry xx, xy,
+    """ΔΣ(μ0, μk) of the fit against the truth of the surface the set was made from (fitting.covariance_truth), per entry xx, xy,
     yy: truth, estimate ± std and the pull (estimate − truth)/std (— where the fit gave no std or the model fixes
     the entry); the largest |pull|. Nothing where fit.json's entries carry no truth."""
     rows = [d for d in doc.get("covariance_differences") or () if d.get("truth") is not None]
     if not rows:
         return
     unit = (doc.get("data") or {}).get("unit") or "px"
-    stream("ΔΣ(μ0, μk) against the facet statistics of the surface the file was made from (slope²):")
+    stream("ΔΣ(μ0, μk) against the surface the file was made from (fitting.covariance_truth; slope²):")
     stream(f"  {'μ0, μk':>16s} {'entry':>5s} {'truth':>10s} {'estimate':>10s} {'± std':>10s}  (est−truth)/std")
     pulls = []
     for d in rows:

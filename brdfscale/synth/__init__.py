@@ -9,7 +9,7 @@
 * Statistics: :func:`facet_slopes`, :func:`facet_statistics` (``s(·, μ)`` and the
   within-facet lobe ``g_μ`` as :class:`brdfscale.stats.Tabulated`, with facet counts,
   effective independent facets and standard errors of ``Σ(μ)``), :func:`global_slopes`,
-  :func:`steepest_slope`.
+  :func:`steepest_slope`, :func:`offset_moments` (the moments of the lobe a measurement at μ holds).
 * Measurements: :func:`gonioreflectometer` turns a surface into a
   :class:`brdfscale.MeasurementSet` with :class:`PoissonNoise` or :class:`GaussianNoise`
   and an optional angular resolution; :func:`robust_extent` sizes its images from robust slope quantiles.
@@ -20,7 +20,7 @@ bounded by :data:`MAX_GRID_BYTES` (2**31 bytes of float64 nodes, 16384² — use
 coarser grids beyond), Poisson counts by :data:`MAX_EXPECTED_COUNT` (1e18).
 """
 
-from ._facets import facet_slopes, facet_statistics, FacetStatistics, global_slopes, steepest_slope
+from ._facets import facet_slopes, facet_statistics, FacetStatistics, global_slopes, offset_moments, steepest_slope
 from ._gonio import GaussianNoise, gonioreflectometer, LIGHT_INSIDE, MAX_EXPECTED_COUNT, PoissonNoise, robust_extent
 from ._named import named_surface, SURFACES
 from ._profiles import blazed, scratches
@@ -40,6 +40,7 @@ __all__ = [
     "facet_slopes",
     "facet_statistics",
     "global_slopes",
+    "offset_moments",
     "steepest_slope",
     "GaussianNoise",
     "PoissonNoise",

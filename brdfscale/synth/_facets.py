@@ -188,8 +188,10 @@ def _pixel_strips(field: HeightField, block: tuple[int, int] | None):
         yield start, stop, mx, my, valid
 
 
-def offset_histogram(field: HeightField, mu: float | None, hist: SlopeHistogram, incident=None) -> SlopeHistogram:
-    """Accumulate pixel slopes relative to their facet at scale μ (all pixels when μ is None).
+def _offsets(field: HeightField, mu: float | None, incident=None):
+    """Yield ``(u_x, u_y, weights)`` chunk by chunk: the pixel facets' normal slopes relative to the slope
+    of their facet at scale μ (the pixel slopes themselves when μ is None) and their weights (None: each
+    counts once) — the samples of :func:`offset_histogram` and :func:`offset_moments`.
 
     Only pixel facets in measured windows count (measured pixel facets when μ is None). With
     ``incident`` (a unit vector towards the light) every pixel facet is weighted by the
@@ -213,8 +215,45 @@ def offset_histogram(field: HeightField, mu: float | None, hist: SlopeHistogram,
             mx, my = mx[valid], my[valid]
             weights = None if weights is None else weights[valid]
         if mx.size:
-            hist.add(mx, my, weights)
+            yield mx.ravel(), my.ravel(), None if weights is None else weights.ravel()
+
+
+def offset_histogram(field: HeightField, mu: float | None, hist: SlopeHistogram, incident=None) -> SlopeHistogram:
+    """Accumulate pixel slopes relative to their facet at scale μ (all pixels when μ is None) into
+    ``hist`` (the samples and weights of :func:`_offsets`)."""
+    for mx, my, weights in _offsets(field, mu, incident):
+        hist.add(mx, my, weights)
     return hist
+
+
+def offset_moments(field: HeightField, mu: float) -> tuple[Float[np.ndarray, "2"], Float[np.ndarray, "2 2"]]:
+    """The mean (2,) and covariance (2, 2) of the pixel slopes' offsets from their facet's slope at scale μ —
+    the first and second moments of the lobe :func:`offset_histogram` accumulates (every pixel facet of a measured
+    window counts once: the nearly-flat weighting), before the micro lobe's and the resolution's blur. The
+    covariance is the population one (divided by N, not N − 1).
+
+    It is what :func:`brdfscale.synth.gonioreflectometer`'s image at μ holds, and for a field measured
+    throughout whose windows tile the same pixels at every scale it is the law of total variance's
+    ``Cov(pixel slopes) − C(μ)``: the difference of two scales' offset covariances is the facet statistics'
+    ``C(μ0) − C(μ_k)``. Where the pixel population changes with μ (unmeasured pixels: a coarser facet is
+    measured in fewer places; the pixels past the last whole window) the two differ — even in sign on frt-1 of
+    tests/data (tests/test_covariance_truth.py). Sums are accumulated chunk by chunk about the first chunk's
+    mean (no cancellation, constant memory)."""
+    check_field(field)
+    field.block(mu)  # a scale that is not a whole number of pixels is refused here
+    total, first, second, shift = 0, np.zeros(2), np.zeros((2, 2)), None
+    for mx, my, _ in _offsets(field, mu):
+        u = np.stack((mx, my), axis=-1)
+        if shift is None:
+            shift = u.mean(axis=0)
+        d = u - shift
+        total += len(d)
+        first += d.sum(axis=0)
+        second += d.T @ d
+    if shift is None:
+        raise InvalidInputError(f"no pixel facet lies in a measured window of mu={mu:g}; use a smaller scale.")
+    mean = first / total
+    return shift + mean, second / total - np.outer(mean, mean)
 
 
 def covariance_error(

@@ -17,7 +17,16 @@ from .._measurement import LobeImage, MeasurementSet
 from .._validation import integer, real, real_array, RealNumber
 from ..geometry import validate_directions
 from ..stats import SlopeHistogram
-from ._facets import _is_mirror, blur, check_field, check_scales, facet_samples, kernel_padding, offset_histogram
+from ._facets import (
+    _is_mirror,
+    blur,
+    check_field,
+    check_scales,
+    facet_samples,
+    kernel_padding,
+    offset_histogram,
+    offset_moments,
+)
 from ._random import as_generator, seed_record
 from ._surface import HeightField, parameter_record
 
@@ -216,7 +225,9 @@ def gonioreflectometer(
     Returns:
         A :class:`brdfscale.MeasurementSet` with one image per (μ, i), scales outermost; its
         ``metadata`` records the surface, the instrument and the truth (the pixel facets' slope
-        covariance, facet-slope mean and covariance per scale, and the analytic ``Σ(μ)`` of
+        covariance, facet-slope mean and covariance per scale, the covariance of the offsets each scale's
+        images hold, ``offset_covariance`` (:func:`offset_moments`, before the micro lobe's and the resolution's
+        blur; the lobe's widening between two scales, :func:`fitting.covariance_truth`), and the analytic ``Σ(μ)`` of
         :class:`brdfscale.stats.GaussianSurface` with a box window and 256 quadrature
         nodes in k when the field has a spectrum).
 
@@ -269,7 +280,8 @@ def gonioreflectometer(
         "use fewer pixels, a smaller resolution or a larger extent (a coarser pitch)",
     )
     crop = slice(pad, pad + pixels)
-    images, truth, inside = [], {"facet_slope_mean": [], "facet_slope_covariance": []}, []
+    images, inside = [], []
+    truth = {"facet_slope_mean": [], "facet_slope_covariance": [], "offset_covariance": []}
     law = None if field.spectrum is None else stats.GaussianSurface(field.spectrum, window="box", n_k=256)
     pixel, _ = facet_samples(field, (1, 1))  # the measured pixel facets' own normal slopes
     truth["pixel_slope_covariance"] = np.cov(pixel.T).tolist()
@@ -285,6 +297,7 @@ def gonioreflectometer(
         truth["facet_slope_covariance"].append(
             np.cov(samples.T).tolist() if len(samples) > 1 else [[0.0, 0.0], [0.0, 0.0]]
         )
+        truth["offset_covariance"].append(offset_moments(field, mu)[1].tolist())
         if law is not None:
             truth["analytic_facet_slope_covariance"].append(np.asarray(_box_covariance(law, jnp.asarray(mu))).tolist())
         lobe = None
