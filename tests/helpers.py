@@ -37,6 +37,7 @@ from brdfscale import exr, fitting, LobeImage, MeasurementSet
 from brdfscale._cli import main as cli_main
 from brdfscale.exr import _format
 
+
 TOPOGRAPHIES = Path(__file__).resolve().parent / "data" / "topographies"
 """The measured instrument files of tests/data (their licences in its README.md)."""
 

@@ -13,7 +13,6 @@ import pytest
 
 from brdfscale import fitting, InvalidInputError, stats, synth, topography
 from brdfscale._cli._fit import print_covariance_truth
-
 from tests.helpers import TOPOGRAPHIES
 
 
@@ -86,11 +85,12 @@ def _image_covariance(image):
 def test_on_a_field_with_holes_the_truth_is_what_the_images_hold_not_the_facets_difference():
     """frt-1 (a confocal map with 31 % of its pixels unmeasured, by its steepest slopes): a coarser facet is
     measured in fewer places, so the pixel population of the images changes with μ and the facets' C(μ0) − C(μ)
-    is not what the images widen by: here the images even narrow (the coarse windows leave out the steep pixels). The recorded truth is the images' own widening: checked against
-    the second moments of noise-free images that hold all their light (an extent beyond the steepest pixel
-    slope, 0.68, by twice: an offset from a facet's slope, the mean of its pixels', is at most twice as large), within
-    0.2 % (measured 0.1 %, the histogram's binning; at 12× the robust extent, 0.008 % of the light lies outside and the moments' difference
-    is 7 % off: the second moment lives in the tails)."""
+    is not what the images widen by: here the images even narrow (the coarse windows leave out the steep
+    pixels). The recorded truth is the images' own widening: checked against the second moments of noise-free
+    images that hold all their light (an extent beyond twice the steepest pixel slope, 0.68: an offset from a
+    facet's slope, the mean of its pixels', is at most twice as large), within 0.2 % (measured 0.1 %, the
+    histogram's binning; at 12× the robust extent, 0.008 % of the light lies outside and the moments'
+    difference is 7 % off: the second moment lives in the tails)."""
     field = topography.read(TOPOGRAPHIES / "frt-1.frt")
     scales = [field.spacing[0] * b for b in (2, 24)]
     extent = 2.1 * synth.steepest_slope(field)

@@ -654,8 +654,11 @@ def test_offset_moments_equal_the_offsets_computed_by_hand_on_a_field_with_holes
         for c0 in range(0, 27, 3):
             if not field.mask[r0 : r0 + 4, c0 : c0 + 4].all():  # a pixel facet needs its corners measured
                 continue
-            m = [(-(h[r, c + 1] - h[r, c]) / 1e-6, -(h[r + 1, c] - h[r, c]) / 1e-6) for r in range(r0, r0 + 3)
-                 for c in range(c0, c0 + 3)]
+            m = [
+                (-(h[r, c + 1] - h[r, c]) / 1e-6, -(h[r + 1, c] - h[r, c]) / 1e-6)
+                for r in range(r0, r0 + 3)
+                for c in range(c0, c0 + 3)
+            ]
             m = np.asarray(m)
             offsets.extend(m - m.mean(axis=0))
     offsets = np.asarray(offsets)

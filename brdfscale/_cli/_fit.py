@@ -521,9 +521,9 @@ def print_truth(doc: dict, stream=print) -> None:
 
 
 def print_covariance_truth(doc: dict, stream=print) -> None:
-    """ΔΣ(μ0, μk) of the fit against the truth of the surface the set was made from (fitting.covariance_truth), per entry xx, xy,
-    yy: truth, estimate ± std and the pull (estimate − truth)/std (— where the fit gave no std or the model fixes
-    the entry); the largest |pull|. Nothing where fit.json's entries carry no truth."""
+    """ΔΣ(μ0, μk) of the fit against the truth of the surface the set was made from (fitting.covariance_truth),
+    per entry xx, xy, yy: truth, estimate ± std and the pull (estimate − truth)/std (— where the fit gave no std or
+    the model fixes the entry); the largest |pull|. Nothing where fit.json's entries carry no truth."""
     rows = [d for d in doc.get("covariance_differences") or () if d.get("truth") is not None]
     if not rows:
         return
