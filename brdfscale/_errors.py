@@ -85,10 +85,11 @@ class UnprotectedHeaderWarning(UserWarning):
 
 
 class LobeCutWarning(UserWarning):
-    """A synthesised lobe image holds less of its lobe's light than :data:`brdfscale.synth.LIGHT_INSIDE` (95 %):
-    the image's extent is too small for the lobe — typically a rough micro-facet lobe, whose tails the default
-    extent (:func:`brdfscale.synth.robust_extent`, from the pixel slopes) does not count. The message names the
-    worst scale, the share and the fix (a larger extent)."""
+    """A synthesised or ray-traced lobe image holds less of its lobe's light than
+    :data:`brdfscale.synth.LIGHT_INSIDE` (95 %): the image's extent is too small for the lobe — typically a rough
+    micro-facet lobe, whose tails the default extent (:func:`brdfscale.synth.robust_extent`, from the pixel slopes)
+    does not count. Warned by :func:`brdfscale.synth.gonioreflectometer` and :func:`brdfscale.instrument.measure`;
+    the message names the worst scale, the share and the fix (a larger extent)."""
 
 
 class ToleranceRelaxedWarning(UserWarning):

@@ -61,6 +61,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import warnings
 from collections.abc import Sequence
 
 import numpy as np
@@ -68,7 +69,7 @@ from jaxtyping import ArrayLike, Float
 
 from .. import lobes, stats, synth
 from .._choices import BINNINGS, EXECUTORS, MESHES
-from .._errors import BrdfscaleError, InvalidInputError
+from .._errors import BrdfscaleError, InvalidInputError, LobeCutWarning
 from .._measurement import LobeImage, MeasurementSet
 from .._show import progress_bar
 from .._validation import integer, real, real_array
@@ -339,6 +340,7 @@ class Measurement:
             "hit": int(paths.hit.sum()),
             "escaped": float(paths.weight.sum()),
             "detected": float(paths.weight[up].sum()),
+            "weighted": float(w.sum()),  # detected light × c: the share on the nodes is Σ counts / this
             "bounce_limit": int(paths.limited.sum()),
             "underside": int(paths.underside.sum()),
             "from_below": int(np.count_nonzero(from_below & ~paths.hit)),
@@ -375,7 +377,7 @@ class Measurement:
         if missing:
             raise InvalidInputError(f"{len(missing)} batches have no result, the first {missing[0]}.")
         h = 2 * self.extent / (self.pixels - 1)
-        images, records = [], []
+        images, records, inside = [], [], []
         for s, k in self.images:
             parts = [found[(s, k, b)] for b in range(self.batches)]
             counts = np.stack([p[0] for p in parts]) / h**2
@@ -393,7 +395,21 @@ class Measurement:
             mu, i = self.scales[s], self.incident[k]
             images.append(LobeImage(mu=mu, incident=i, extent=self.extent, values=values, sigma=sigma))
             tallies = [p[2] for p in parts]
-            records.append(_image_record(mu, i, tallies, h))
+            weighted = sum(t.get("weighted", 0.0) for t in tallies)
+            share = float(sum(p[0].sum() for p in parts) / weighted) if weighted > 0 else 1.0
+            records.append({**_image_record(mu, i, tallies, h), "light_inside": share})
+            inside.append((share, mu))
+        share, worst = min(inside)
+        if share < synth.LIGHT_INSIDE:
+            warnings.warn(
+                f"the image at μ = {worst:g} holds only {100 * share:.0f} % of the light detected for it (extent "
+                f"{self.extent:.4g}): the lobe is wider than the image (the facets' offsets from their spot's slope, "
+                f"the {self.micro.kind} micro-facets' lobe and what interreflection adds); give a larger "
+                f"extent (extent=, brdfscale synth --instrument raytraced --extent) for the images to hold at least "
+                f"{100 * synth.LIGHT_INSIDE:.0f} % (each image's share is its record's light_inside).",
+                LobeCutWarning,
+                stacklevel=3,
+            )
         return MeasurementSet(tuple(images), self._metadata(records, h))
 
     def measure(
@@ -638,7 +654,12 @@ def measure(
         A :class:`brdfscale.MeasurementSet`, one image per (μ, i), scales outermost, with σ the Monte Carlo standard
         error; ``metadata`` in synth.gonioreflectometer's keys plus ``instrument`` (variant, versions, rays, batches,
         bounces, spots, micro, seed, margin, mesh size, detector, and per image the fractions of light that met the
-        surface, escaped, was detected, or was lost at the bounce limit or through a hole).
+        surface, escaped, was detected, or was lost at the bounce limit or through a hole, and ``light_inside``: the
+        share of the detected light that fell on the image's nodes).
+
+    Warns:
+        LobeCutWarning: an image holds less than :data:`brdfscale.synth.LIGHT_INSIDE` of its detected light (the
+            extent is too small); the message names the worst scale and its share (``tests/test_instrument.py``).
 
     Raises:
         InvalidInputError: any argument out of its range (named, with what is accepted), a spot size that is not a
