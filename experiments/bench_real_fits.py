@@ -41,6 +41,10 @@ change with scale, refused before a fit; :func:`explicit`); every ΔΣ component
 from the topography); no run ends with exit 0 and an unflagged problem (a χ²/dof > 1.5 on some
 scale, a |z| > 3, or an unresolved lobe).
 
+4. **ΔΣ without a model** (``--moments-only``, :func:`moments_only`): the images' own second moments against
+   the sets' recorded truth at synth's default extent and at four times it — what the data determine before any
+   model, and how much of it the image's edge cuts off.
+
 Run:  flock /tmp/brdfscale-bench.lock python -m experiments.bench_real_fits [--quick] [--out DIR]
 (``--quick``: di-3 alone at the first noise level, no warm run, the fit without sampling
 (``--steps 0``); written to a temporary folder unless --out. ``--rescore JSON``: recompute a run's
@@ -341,6 +345,94 @@ def held_out_only(*, files=FILES, noises=NOISES, path: Path) -> dict:
     return payload
 
 
+EXTENT_FACTORS = (1.0, 4.0)
+"""The image half-widths of :func:`moments_only`: synth's default (``robust_extent``) and four times it."""
+
+
+def moments_only(*, files=FILES, noises=NOISES, path: Path) -> dict:
+    """ΔΣ from the images' own second moments (:func:`fitting.moment_covariance_differences`, no model, no fit)
+    against the truth the synthesised sets record (:func:`fitting.covariance_truth`: the widening the images hold),
+    for every file and noise level at synth's default extent and at four times it, merged into ``path`` under
+    ``"moments"``. Per row: the entries within 3 standard errors of the truth and the largest |pull|, how many
+    scale pairs are marked truncated, the moments' ΔΣ over the truth at the coarsest scale (xx, yy), the share of
+    the light the noise-free images hold (coarsest scale), and the images' truth over the facets' C(μ0) − C(μk)
+    (the pixel population's change with μ). Synthesis only: seconds per file, no lock needed."""
+    import jax
+
+    from brdfscale import exr, files as files_, fitting, synth, topography
+
+    jax.config.update("jax_enable_x64", True)
+    payload = json.loads(path.read_text())
+    started = time.perf_counter()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in files:
+            default = synth.robust_extent(topography.read(DATA / name))
+            for factor in EXTENT_FACTORS:
+                extent = ["--extent", repr(factor * default)]
+                clean_exr = Path(tmp) / f"{Path(name).stem}_{factor:g}_clean.exr"
+                command("synth", "--topography", str(DATA / name), "--noise", "none", *extent, "--out", str(clean_exr))
+                clean = exr.read_measurements(clean_exr)
+                image = clean.images[-1]
+                pitch = 2 * image.extent / (np.shape(image.values)[0] - 1)
+                light = float(np.sum(image.values) * pitch**2)
+                truth = fitting.covariance_truth(clean.metadata, sorted(set(clean.scales)))
+                facets = np.asarray(clean.metadata["truth"]["facet_slope_covariance"])
+                population = [float(truth[-1][a][a] / (facets[0][a][a] - facets[-1][a][a])) for a in (0, 1)]
+                for noise in noises:
+                    m_exr = Path(tmp) / f"{Path(name).stem}_{factor:g}_{noise.replace(':', '_')}.exr"
+                    made = command(
+                        "synth", "--topography", str(DATA / name), "--noise", noise, *extent, "--out", str(m_exr)
+                    )
+                    if made["exit"] != 0:
+                        raise RuntimeError(f"synth of {name} at {noise} failed: {made['line']}")
+                    mset = exr.read_measurements(m_exr)
+                    data = fitting.Dataset.from_measurements(mset)
+                    entries = fitting.compare_covariance_differences(
+                        fitting.moment_covariance_differences(data),
+                        fitting.covariance_truth(mset.metadata, data.scales),
+                    )
+                    every = [e["pull"][a][b] for e in entries for a, b in ((0, 0), (0, 1), (1, 1))]
+                    pulls = [abs(p) for p in every if p is not None]  # None: no finite value or std
+                    last = entries[-1]
+                    rows.append(
+                        {
+                            "file": name,
+                            "noise": noise,
+                            "extent_factor": factor,
+                            "extent": factor * default,
+                            "within_3_std": sum(p <= 3 for p in pulls),
+                            "entries": len(every),
+                            "undefined": len(every) - len(pulls),
+                            "max_abs_pull": max(pulls, default=None),
+                            "truncated_pairs": sum(bool(e["truncated"]) for e in entries),
+                            "pairs": len(entries),
+                            "coarsest_over_truth": [
+                                None if last["value"][a][a] is None else last["value"][a][a] / last["truth"][a][a]
+                                for a in (0, 1)
+                            ],
+                            "light_held_coarsest": light,
+                            "truth_over_facets_coarsest": population,
+                        }
+                    )
+                    r = rows[-1]
+                    print(
+                        f"{name} {noise} ×{factor:g}: {r['within_3_std']}/{r['entries']} within 3 std, max|pull| "
+                        f"{r['max_abs_pull']}, truncated {r['truncated_pairs']}/{r['pairs']}",
+                        flush=True,
+                    )
+    payload["moments"] = {
+        "code_commit": code_commit(),
+        "command": "python -m experiments.bench_real_fits --moments-only",
+        "machine": machine(),
+        "total_s": round(time.perf_counter() - started, 1),
+        "extent_factors": list(EXTENT_FACTORS),
+        "rows": rows,
+    }
+    files_.write_text(path, json.dumps(payload, indent=2) + "\n", overwrite=True)  # atomic
+    return payload
+
+
 def unflagged(record: dict) -> list[str]:
     """Problems of a run that ended with exit 0 (module docstring, last target)."""
     if record.get("fit", {}).get("exit") != 0:
@@ -483,7 +575,16 @@ def main(argv=None):
         help="recompute the held-out rows of experiments/results/bench_real_fits.json (or --out's) with this code's "
         "default model and laws, the first noise level's records first; no fit command, no wall times",
     )
+    parser.add_argument(
+        "--moments-only",
+        action="store_true",
+        help="ΔΣ from the images' own second moments against the sets' truth, at synth's default extent and 4× it "
+        "(merged into experiments/results/bench_real_fits.json or --out's; synthesis only, no fit)",
+    )
     args = parser.parse_args(argv)
+    if args.moments_only:
+        path = (args.out or Path(__file__).resolve().parent / "results") / "bench_real_fits.json"
+        return moments_only(path=path)
     if args.held_out_only:
         path = (args.out or Path(__file__).resolve().parent / "results") / "bench_real_fits.json"
         payload = held_out_only(path=path)

@@ -22,6 +22,7 @@ The chain, each step in its own module:
 * :func:`sample_many` — NUTS/HMC on many materials' posteriors at once: vmapped over the
   materials and sharded over the devices, one compiled program per bucket, each result
   :func:`sample`'s;
+* :func:`moment_covariance_differences` — ΔΣ(μ0, μk) from the images' own second moments, no model;
 * :func:`assess` — can the outcome be trusted: the lobes resolved, the model adequate (χ²/dof
   per scale, residual structure: :func:`lag1_correlation`), the optimiser and sampler converged
   (:class:`Outcome`, the ``brdfscale fit`` exit status);
@@ -54,6 +55,7 @@ from ._derived import compare_covariance_differences, covariance_truth, RATIO_FR
 from ._fit import fit
 from ._joint import TopographyData
 from ._model import AbstractModel
+from ._moments import moment_covariance_differences
 from ._nonparametric import NonParametricModel, RelativeStatistics
 from ._nonparametric_aniso import AnisotropicNonParametricModel
 from ._parametric import ParametricModel
@@ -126,6 +128,7 @@ __all__ = [
     "summarise_ratios",
     "truth_of",
     "covariance_truth",
+    "moment_covariance_differences",
     "compare_covariance_differences",
     "write_report",
 ]

@@ -28,6 +28,7 @@ from brdfscale.files import atomic_write, exclusive, json_text, jsonable, write_
 from ._adequacy import assess
 from ._derived import compare_covariance_differences
 from ._model import predict_images
+from ._moments import moment_covariance_differences
 from ._parametric import ParametricModel
 from ._plot import (
     _quantities,
@@ -380,9 +381,12 @@ def write_report(
     reason and the per-scale figures (``brdfscale fit`` maps its status to the exit status).
     ``unit``: the length unit of the scales μ (the measurement set's ``metadata["unit"]``; None:
     pixels of the height field), in ``data.unit``, the figures' titles and the outcome's reason.
+    ``moment_covariance_differences``: ΔΣ(μ0, μ_k) from the images' own second moments
+    (:func:`fitting.moment_covariance_differences`: no model; ``truncated`` where an image's edge holds light).
     ``covariance_truth``: the true ΔΣ(μ0, μ_k) of the surface the set was made from
-    (:func:`fitting.covariance_truth` of its metadata); each entry of ``covariance_differences`` then also holds
-    its ``truth`` and ``pull`` (:func:`fitting.compare_covariance_differences`).
+    (:func:`fitting.covariance_truth` of its metadata); each entry of ``covariance_differences`` and
+    ``moment_covariance_differences`` then also holds its ``truth`` and ``pull``
+    (:func:`fitting.compare_covariance_differences`).
 
     Everything is checked before the first file is written: the arguments, and (without
     ``overwrite``) that none of those files exists. ``fit.json`` is written last.
@@ -426,6 +430,10 @@ def write_report(
         "ratios": summarise_ratios(problem, fit, samples),
         # ΔΣ(μ0, μk) ± Laplace std, with truth and pulls where the set records its surface (fitting._derived)
         "covariance_differences": compare_covariance_differences(fit.covariance_differences, covariance_truth),
+        # the same from the images' own second moments, model-independent (fitting._moments)
+        "moment_covariance_differences": compare_covariance_differences(
+            moment_covariance_differences(problem.data), covariance_truth
+        ),
         "identifiability": fit.to_json()["identifiability"],
         "optimisation": {
             k: v for k, v in fit.to_json().items() if k not in ("identifiability", "ratios", "covariance_differences")

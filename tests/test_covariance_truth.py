@@ -130,7 +130,23 @@ def test_the_command_prints_truth_estimate_and_pull_per_entry():
     rows = {line.split()[3]: line for line in lines[2:5]}
     assert rows["xx"].split()[-1] == "-3.50" and rows["xy"].split()[-1] == "2.00" and rows["yy"].split()[-1] == "—"
     assert "1, 4 µm" in rows["xx"]
-    assert lines[-1] == "  1 of 2 entries within 3 std of the truth; largest |pull| 3.5"
+    assert lines[-1] == "  fit: 1 of 2 entries within 3 std of the truth; largest |pull| 3.5"
+    # with the images' own moments (fit.json's moment_covariance_differences): three more columns and a summary
+    moments = fitting.compare_covariance_differences(
+        [_entry([[0.015, 0.0003], [0.0003, 0.0049]], [[0.001, 0.0001], [0.0001, 0.0002]])],
+        [[[0.016, 0.0], [0.0, 0.005]]],
+    )
+    lines.clear()
+    doc = {"covariance_differences": entries, "moment_covariance_differences": moments, "data": {"unit": "µm"}}
+    print_covariance_truth(doc, stream=lines.append)
+    assert lines[1].split()[-3:] == ["moments", "±", "std", "pull"][1:] and "moments" in lines[1]
+    rows = {line.split()[3]: line.split() for line in lines[2:5]}
+    assert rows["xx"][-1] == "-1.00" and rows["xy"][-1] == "3.00" and rows["yy"][-1] == "-0.50"
+    assert rows["xx"][-4] == "-3.50"  # the fit's pull beside
+    assert lines[-2:] == [
+        "  fit: 1 of 2 entries within 3 std of the truth; largest |pull| 3.5",
+        "  moments: 3 of 3 entries within 3 std of the truth; largest |pull| 3",
+    ]
     lines.clear()
     print_covariance_truth({"covariance_differences": [_entry([[0.0] * 2] * 2, [[None] * 2] * 2)]}, lines.append)
     assert lines == []  # no truth: nothing printed

@@ -521,28 +521,39 @@ def print_truth(doc: dict, stream=print) -> None:
 
 
 def print_covariance_truth(doc: dict, stream=print) -> None:
-    """ΔΣ(μ0, μk) of the fit against the truth of the surface the set was made from (fitting.covariance_truth),
-    per entry xx, xy, yy: truth, estimate ± std and the pull (estimate − truth)/std (— where the fit gave no std or
-    the model fixes the entry); the largest |pull|. Nothing where fit.json's entries carry no truth."""
+    """ΔΣ(μ0, μk) of the fit and of the images' own second moments (fit.json's ``moment_covariance_differences``)
+    against the truth of the surface the set was made from (fitting.covariance_truth), per entry xx, xy, yy:
+    truth, each estimate ± std and its pull (estimate − truth)/std (— where there is no std or the model fixes the
+    entry); per estimate how many entries lie within 3 std and the largest |pull|. Nothing where fit.json's
+    entries carry no truth."""
     rows = [d for d in doc.get("covariance_differences") or () if d.get("truth") is not None]
     if not rows:
         return
+    moments = [d for d in doc.get("moment_covariance_differences") or () if d.get("truth") is not None]
+    moments = moments if len(moments) == len(rows) else [None] * len(rows)
     unit = (doc.get("data") or {}).get("unit") or "px"
     stream("ΔΣ(μ0, μk) against the surface the file was made from (fitting.covariance_truth; slope²):")
-    stream(f"  {'μ0, μk':>16s} {'entry':>5s} {'truth':>10s} {'estimate':>10s} {'± std':>10s}  (est−truth)/std")
-    pulls = []
-    for d in rows:
+    header = f"  {'μ0, μk':>16s} {'entry':>5s} {'truth':>10s} {'fit':>10s} {'± std':>9s} {'pull':>7s}"
+    stream(header + (f" {'moments':>10s} {'± std':>9s} {'pull':>7s}" if moments[0] is not None else ""))
+    pulls = {"fit": [], "moments": []}
+    for d, m in zip(rows, moments):
         for name, a, b in (("xx", 0, 0), ("xy", 0, 1), ("yy", 1, 1)):
-            pull = d["pull"][a][b]
-            if pull is not None:
-                pulls.append(abs(pull))
-            cells = (table_cell(d["truth"][a][b], "10.4g", "unknown"),)
-            cells += (table_cell(d["value"][a][b], "10.4g", "undefined"), table_cell(d["std"][a][b], "10.3g", "—"))
+            cells = [table_cell(d["truth"][a][b], "10.4g", "unknown")]
+            for label, e in (("fit", d), ("moments", m)):
+                if e is None:
+                    continue
+                pull = e["pull"][a][b]
+                if pull is not None:
+                    pulls[label].append(abs(pull))
+                cells += [table_cell(e["value"][a][b], "10.4g", "undefined"), table_cell(e["std"][a][b], "9.3g", "—")]
+                cells.append(table_cell(pull, "7.2f", "—"))
             scales = f"{d['mu0']:g}, {d['mu']:g} {unit}"
-            stream(f"  {scales:>16s} {name:>5s} {' '.join(cells)}  {table_cell(pull, '.2f', '—')}")
-    if pulls:
-        within = sum(p <= 3 for p in pulls)
-        stream(f"  {within} of {len(pulls)} entries within 3 std of the truth; largest |pull| {max(pulls):.3g}")
+            stream(f"  {scales:>16s} {name:>5s} {' '.join(cells)}")
+    for label, found in pulls.items():
+        if found:
+            within = sum(p <= 3 for p in found)
+            largest = f"largest |pull| {max(found):.3g}"
+            stream(f"  {label}: {within} of {len(found)} entries within 3 std of the truth; {largest}")
 
 
 def table_cell(value, spec: str, missing: str) -> str:
@@ -613,6 +624,15 @@ def print_determined(doc: dict, stream=print) -> None:
                 for a, b in ((0, 0), (0, 1), (1, 1))
             )
             stream(f"    μ0 = {d['mu0']:g} {unit}, μk = {d['mu']:g} {unit}: [{entries}]")
+    if doc.get("moment_covariance_differences"):
+        stream("  the same from the images' own second moments, no model (fitting.moment_covariance_differences):")
+        for d in doc["moment_covariance_differences"]:
+            entries = ", ".join(
+                "undefined" if d["value"][a][b] is None else f"{d['value'][a][b]:.4g} ± {d['std'][a][b]:.2g}"
+                for a, b in ((0, 0), (0, 1), (1, 1))
+            )
+            cut = " — truncated: the lobe passes an image's edge" if d.get("truncated") else ""
+            stream(f"    μ0 = {d['mu0']:g} {unit}, μk = {d['mu']:g} {unit}: [{entries}]{cut}")
     if doc.get("ratios"):
         stream("  what the data determine — S(W, μ0)/S(W, μk):")
         for name, r in doc["ratios"].items():
