@@ -12,7 +12,9 @@ counts per unit lobe value, read noise in counts):
    scale), the overall χ²/dof, and the wall time — *cold* with an empty compilation cache
    (``BRDFSCALE_COMPILATION_CACHE`` pointing at a new folder) and, for the first noise level,
    *warm*: the same command again on the now-filled cache.
-2. **ΔΣ against the topography**: ``covariance_differences`` of fit.json against
+2. **ΔΣ against the topography** (and, from fit.json, the fit's and the images' own moments' ΔΣ against the truth
+   the synthesised set records, ``truth_pulls``; the moments' largest |z| against the topography too):
+   ``covariance_differences`` of fit.json against
    ``Σ(μ0) − Σ(μk)`` of :func:`brdfscale.synth.facet_statistics` on the same field at the same
    scales, as z-scores ``(fit − topography)/√(std_fit² + e0² + ek²)`` per component (xx, xy, yy;
    e the topography's stated standard errors) — tests/test_joint.py's definition.
@@ -131,6 +133,15 @@ def z_scores(fitted: list[dict], statistics) -> list[dict]:
             }
         )
     return rows
+
+
+def pull_summary(entries: list[dict]) -> dict:
+    """fit.json's pulls of ΔΣ entries against the set's truth (fitting.compare_covariance_differences): how many of
+    the xx, xy, yy pulls lie within 3, of how many defined ones, and the largest |pull| (None without any)."""
+    pulls = [
+        abs(e["pull"][a][b]) for e in entries if e.get("pull") for _, a, b in ENTRIES if e["pull"][a][b] is not None
+    ]
+    return {"within_3": sum(p <= 3 for p in pulls), "of": len(pulls), "max_abs": max(pulls, default=None)}
 
 
 def z_summary(rows: list[dict]) -> dict:
@@ -277,6 +288,12 @@ def study(name: str, noise: str, workdir: Path, *, warm: bool, fit_args: tuple[s
     record["topography_anisotropy"] = float(eig[1] / eig[0])
     record["covariance_differences"] = z_scores(doc.get("covariance_differences", []), statistics)
     record.update(z_summary(record["covariance_differences"]))
+    # the images' own moments (no model) against the topography, and both against the set's recorded truth
+    moments = z_scores(doc.get("moment_covariance_differences", []), statistics)
+    record["moment_max_abs_z"] = z_summary(moments)["max_abs_z"]
+    record["truth_pulls"] = {
+        key: pull_summary(doc.get(key, [])) for key in ("covariance_differences", "moment_covariance_differences")
+    }
 
     record["held_out"] = held_out_record(mset, clean_exr, statistics, doc["model"]["kind"])
     return record
@@ -406,6 +423,7 @@ def moments_only(*, files=FILES, noises=NOISES, path: Path) -> dict:
                             "undefined": len(every) - len(pulls),
                             "max_abs_pull": max(pulls, default=None),
                             "truncated_pairs": sum(bool(e["truncated"]) for e in entries),
+                            "narrow_pairs": sum("narrower than a node pitch" in e.get("note", "") for e in entries),
                             "pairs": len(entries),
                             "coarsest_over_truth": [
                                 None if last["value"][a][a] is None else last["value"][a][a] / last["truth"][a][a]

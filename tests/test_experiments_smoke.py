@@ -767,6 +767,10 @@ def test_bench_real_fits_z_scores_and_targets_by_hand():
     assert brf.explicit(refused) and not brf.explicit(hidden) and brf.unflagged(silent)
     assert brf.targets([refused])["chi2_or_inadequate"]["met"]
     assert brf.z_summary([{**row, "z": {"xx": 1.0, "xy": None, "yy": -4.0}}]) == {"max_abs_z": 4.0, "undefined_z": 1}
+    # fit.json's pulls against the set's truth: xx, xy, yy of each entry, None left out
+    entries = [{"pull": [[1.0, -3.5], [-3.5, None]]}, {"pull": [[2.9, 0.1], [0.1, -0.2]]}, {"value": 0}]
+    assert brf.pull_summary(entries) == {"within_3": 4, "of": 5, "max_abs": 3.5}
+    assert brf.pull_summary([]) == {"within_3": 0, "of": 0, "max_abs": None}
 
 
 @pytest.mark.slow  # 2–6 min on 2 loaded cores: synth twice, a cold fit without sampling, four held-out fits
@@ -780,11 +784,30 @@ def test_bench_real_fits_quick(tmp_path):
     if r["fit"]["exit"] != 0:
         assert r["fit"]["line"].startswith("brdfscale fit: ") and r["outcome"]["status"] != "ok"
     assert len(r["covariance_differences"]) == len(r["scales"]) - 1
+    pulls = r["truth_pulls"]["moment_covariance_differences"]  # the images' own moments against the set's truth
+    assert pulls["of"] == 3 * (len(r["scales"]) - 1) and pulls["max_abs"] is not None
     h = r["held_out"]
     assert len(h["train_scales"]) == brf.TRAIN_SCALES and len(h["held_out_scales"]) == len(r["scales"]) - 5
     for name in ("isotropic", "second_moment", "law", "law_spline"):
         assert 0 < h[name]["l1"] < 2
     assert 0 < h["noise_floor_l1"] < 1
+
+
+@pytest.mark.slow  # ~20 s: four synth commands of di-3
+def test_bench_real_fits_moments_only(tmp_path):
+    """--moments-only merges its rows into an existing JSON and leaves the rest; one row per extent factor, the
+    moments' pulls counted over every entry of the seven scale pairs."""
+    from experiments import bench_real_fits as brf
+
+    path = tmp_path / "bench_real_fits.json"
+    path.write_text(json.dumps({"records": [], "targets": {"kept": True}}))
+    payload = brf.moments_only(files=brf.FILES[:1], noises=brf.NOISES[:1], path=path)
+    assert json.loads(path.read_text()) == payload and payload["targets"] == {"kept": True}
+    rows = payload["moments"]["rows"]
+    assert [r["extent_factor"] for r in rows] == list(brf.EXTENT_FACTORS)
+    for r in rows:
+        assert r["pairs"] == 7 and r["entries"] == 21 and 0 <= r["within_3_std"] <= 21
+        assert 0.9 < r["light_held_coarsest"] <= 1 + 1e-9
 
 
 # -- issue 33: render validation on micro-geometry (experiments/render_validation.py) ------------------------------
