@@ -15,8 +15,9 @@ lobes. What a detector adds to every image alike cancels in the difference: the 
 for cell averages, ``h²/6`` for the cloud-in-cell shares of ``brdfscale.synth``), an angular resolution blur, the
 micro-facets' own lobe — when every image has the same node pitch (``extent`` and pixels) and every lobe spreads
 over several cells (its light then falls anywhere within them); a set whose pitches differ between scales, or a
-lobe narrower than ``ADEQUACY.min_lobe_pixels`` (1) pitch (rms along its narrower axis; mirror facets at μ0 of one
-pixel: every offset is 0, a point on a node that adds no cell term), gets a ``note`` saying the cell terms do not
+lobe narrower than ``ADEQUACY.min_lobe_pixels`` (1) pitch (rms along its narrower axis, by more than 3 standard errors
+of its variance; mirror facets at μ0 of one pixel: every offset is 0, a point on a node that adds no cell term),
+gets a ``note`` saying the cell terms do not
 cancel.
 
 **Standard errors.** C is a ratio of sums linear in the values; to first order ``∂C_ab/∂v_j = ((u_j − m)_a (u_j −
@@ -60,7 +61,8 @@ NARROW_NOTE = (
     "a lobe narrower than a node pitch: the detector's cell term (up to h²/12 per axis for cell averages, h²/6 for "
     "cloud-in-cell shares) is not the same at both scales — ΔΣ may be off by that much"
 )
-"""The ``note`` of an entry with a lobe narrower than ``ADEQUACY.min_lobe_pixels`` node pitches (rms, narrower axis)."""
+"""The ``note`` of an entry with a lobe narrower than ``ADEQUACY.min_lobe_pixels`` node pitches (rms, narrower axis,
+even 3 standard errors of its variance above the estimate)."""
 
 
 def _image_moments(data: Dataset, i: int) -> tuple[np.ndarray, np.ndarray, bool]:
@@ -104,8 +106,10 @@ def moment_covariance_differences(data: Dataset) -> list[dict]:
         cov = np.mean([m[0] for m in moments], axis=0)
         std = np.sqrt(np.sum([m[1] ** 2 for m in moments], axis=0)) / len(moments)
         pitch = [2 * data.extents[i] / (data.image_sizes[i] - 1) for i in images]
+        # narrow: even 3 standard errors above its estimate, the narrower axis's variance is below (min_lobe_pixels
+        # pitches)² — a noisy image's C is not called narrow for its noise
         narrow = any(
-            not np.sqrt(max(float(np.linalg.eigvalsh(m[0])[0]), 0.0)) / h >= ADEQUACY.min_lobe_pixels
+            float(np.linalg.eigvalsh(m[0])[0]) + 3 * float(np.max(m[1])) < (ADEQUACY.min_lobe_pixels * h) ** 2
             for m, h in zip(moments, pitch)
         )
         per_scale.append((cov, std, any(m[2] for m in moments), {round(h, 12) for h in pitch}, narrow))

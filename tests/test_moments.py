@@ -93,7 +93,7 @@ def test_noise_free_synthesised_images_give_the_recorded_truth():
     cell = (2 * extent / 128) ** 2 / 6
     for scales in ([2.0, 4.0, 16.0], [1.0, 4.0]):
         mset = synth.gonioreflectometer(field, scales, [0, 0, 1.0], extent=extent, pixels=129)
-        entries = fitting.moment_covariance_differences(fitting.Dataset.from_measurements(mset, default_sigma=1.0))
+        entries = fitting.moment_covariance_differences(fitting.Dataset.from_measurements(mset, default_sigma=1e-3))
         truth = np.asarray(fitting.covariance_truth(mset.metadata, scales))
         values = np.asarray([e["value"] for e in entries])
         if scales[0] == 2.0:
