@@ -47,7 +47,9 @@ scale, a |z| > 3, or an unresolved lobe).
    the sets' recorded truth at synth's default extent and at four times it — what the data determine before any
    model, and how much of it the image's edge cuts off.
 
-Run:  flock /tmp/brdfscale-bench.lock python -m experiments.bench_real_fits [--quick] [--out DIR]
+Run:  flock /tmp/brdfscale-bench.lock python -m experiments.bench_real_fits [--quick] [--out DIR] [--resume]
+(the JSON is written after every record, ``"complete": false`` until the last; ``--resume`` continues an
+interrupted run of the same commit, keeping its records.)
 (``--quick``: di-3 alone at the first noise level, no warm run, the fit without sampling
 (``--steps 0``); written to a temporary folder unless --out. ``--rescore JSON``: recompute a run's
 derived fields from its records.) Writes experiments/results/bench_real_fits.json; the tables of
@@ -66,7 +68,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments._bench import machine, write_json
+from experiments._bench import machine
 
 
 DATA = Path(__file__).resolve().parent.parent / "tests" / "data" / "topographies"
@@ -523,44 +525,73 @@ def code_commit() -> str | None:
 
 
 def run(
-    *, files=FILES, noises=NOISES, warm: bool = True, fit_args: tuple[str, ...] = (), out: Path | None = None
+    *,
+    files=FILES,
+    noises=NOISES,
+    warm: bool = True,
+    fit_args: tuple[str, ...] = (),
+    out: Path | None = None,
+    resume: bool = False,
 ) -> dict:
+    """The benchmark (module docstring, 1–3), written after every record: an interrupted run leaves a JSON with
+    ``"complete": false`` and the records done, and ``resume`` continues it — the records of (file, noise) already
+    there are kept, the others run, on the same code (a run of another commit is refused, naming both). A
+    ``moments`` section (``--moments-only``) in the file is kept."""
     import jax
 
+    from brdfscale import files as files_
+
     jax.config.update("jax_enable_x64", True)
-    started = time.perf_counter()
-    load = os.getloadavg()[0]
-    records = []
-    with tempfile.TemporaryDirectory() as tmp:
-        for name in files:
-            for j, noise in enumerate(noises):
-                record = study(name, noise, Path(tmp), warm=warm and j == 0, fit_args=fit_args)
-                held = {k: v.get("l1") for k, v in record.get("held_out", {}).items() if isinstance(v, dict)}
-                print(
-                    f"{name} {noise}: exit {record.get('fit', record['synth'])['exit']}, "
-                    f"χ²/dof {record.get('reduced_chi2', float('nan')):.3g}, max|z| {record.get('max_abs_z')}, "
-                    f"held-out L1 {held}",
-                    flush=True,
-                )
-                records.append(record)
+    path = (out or Path(__file__).resolve().parent / "results") / "bench_real_fits.json"
+    earlier = json.loads(path.read_text()) if path.exists() else {}
+    commit = code_commit()
+    done = {}
+    if resume and not earlier.get("complete", True):
+        if earlier.get("code_commit") != commit:
+            raise SystemExit(
+                f"{path} is an interrupted run of commit {earlier.get('code_commit')}, this code is {commit}: "
+                "run without --resume to start again"
+            )
+        done = {(r["file"], r["noise"]): r for r in earlier["records"]}
+    started = time.perf_counter() - (earlier.get("total_s", 0.0) if done else 0.0)
     payload = {
-        "machine": machine(),
-        "load_average_at_start": load,
-        "code_commit": code_commit(),
+        "machine": earlier["machine"] if done else machine(),
+        "load_average_at_start": earlier["load_average_at_start"] if done else os.getloadavg()[0],
+        "code_commit": commit,
         "command": "flock /tmp/brdfscale-bench.lock python -m experiments.bench_real_fits",
         "fit_args": list(fit_args),
         "files": list(files),
         "noises": list(noises),
         "train_scales": TRAIN_SCALES,
-        "records": records,
-        "targets": targets(records),
-        "total_s": round(time.perf_counter() - started, 1),
+        "records": [],
+        "complete": False,
+        **({"resumed_at": earlier.get("resumed_at", []) + [machine()["date_utc"]]} if done else {}),
+        **({"moments": earlier["moments"]} if "moments" in earlier else {}),
     }
-    if out is None:
-        write_json("bench_real_fits", payload)
-    else:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "bench_real_fits.json").write_text(json.dumps(payload, indent=2) + "\n")
+
+    def write():
+        payload["targets"] = targets(payload["records"])
+        payload["total_s"] = round(time.perf_counter() - started, 1)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        files_.write_text(path, json.dumps(payload, indent=2) + "\n", overwrite=True)  # atomic
+
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in files:
+            for j, noise in enumerate(noises):
+                record = done.get((name, noise)) or study(
+                    name, noise, Path(tmp), warm=warm and j == 0, fit_args=fit_args
+                )
+                held = {k: v.get("l1") for k, v in record.get("held_out", {}).items() if isinstance(v, dict)}
+                print(
+                    f"{name} {noise}: exit {record.get('fit', record['synth'])['exit']}, "
+                    f"χ²/dof {record.get('reduced_chi2', float('nan')):.3g}, max|z| {record.get('max_abs_z')}, "
+                    f"held-out L1 {held}" + (" (kept from the interrupted run)" if (name, noise) in done else ""),
+                    flush=True,
+                )
+                payload["records"].append(record)
+                write()
+    payload["complete"] = True
+    write()
     return payload
 
 
@@ -580,6 +611,11 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="di-3 at the first noise level, no warm run, no sampling")
     parser.add_argument("--out", type=Path, default=None, help="write the JSON here instead of experiments/results")
+    parser.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue an interrupted full run (its JSON has complete: false) on the same commit: keep its records",
+    )
     parser.add_argument(
         "--rescore",
         type=Path,
@@ -617,7 +653,7 @@ def main(argv=None):
         out = args.out or Path(tempfile.mkdtemp(prefix="bench_real_fits_"))
         payload = run(files=FILES[:1], noises=NOISES[:1], warm=False, fit_args=QUICK_FIT_ARGS, out=out)
     else:
-        payload = run(out=args.out)
+        payload = run(out=args.out, resume=args.resume)
     print(json.dumps(payload["targets"], indent=1))
     return payload
 

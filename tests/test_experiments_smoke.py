@@ -793,6 +793,40 @@ def test_bench_real_fits_quick(tmp_path):
     assert 0 < h["noise_floor_l1"] < 1
 
 
+def test_bench_real_fits_writes_after_every_record_and_resumes(tmp_path, monkeypatch):
+    """A run stopped in its third record leaves a JSON with the first two and complete: false; --resume keeps them
+    (study is not called for them again) and completes it, keeping a moments section; a run of another commit is
+    refused. ``study`` is replaced by a stub: the bookkeeping is tested, not the fits."""
+    from experiments import bench_real_fits as brf
+
+    calls = []
+
+    def study(name, noise, workdir, *, warm, fit_args=()):
+        calls.append((name, noise))
+        if len(calls) == 3 and not resumed:
+            raise KeyboardInterrupt
+        return {"file": name, "noise": noise, "synth": {"exit": 7, "line": "brdfscale fit: undetermined: x"}}
+
+    monkeypatch.setattr(brf, "study", study)
+    resumed = False
+    with pytest.raises(KeyboardInterrupt):
+        brf.run(files=brf.FILES[:2], out=tmp_path)
+    path = tmp_path / "bench_real_fits.json"
+    partial = json.loads(path.read_text())
+    assert partial["complete"] is False and len(partial["records"]) == 2
+    partial["moments"] = {"rows": []}
+    path.write_text(json.dumps(partial))
+    resumed, calls[:] = True, []
+    payload = brf.run(files=brf.FILES[:2], out=tmp_path, resume=True)
+    assert calls == [(brf.FILES[1], brf.NOISES[0]), (brf.FILES[1], brf.NOISES[1])]
+    assert payload["complete"] is True and len(payload["records"]) == 4 and payload["moments"] == {"rows": []}
+    assert json.loads(path.read_text()) == payload and len(payload["resumed_at"]) == 1
+    payload["complete"], payload["code_commit"] = False, "0" * 40
+    path.write_text(json.dumps(payload))
+    with pytest.raises(SystemExit, match="interrupted run of commit 0000"):
+        brf.run(files=brf.FILES[:2], out=tmp_path, resume=True)
+
+
 @pytest.mark.slow  # ~20 s: four synth commands of di-3
 def test_bench_real_fits_moments_only(tmp_path):
     """--moments-only merges its rows into an existing JSON and leaves the rest; one row per extent factor, the
