@@ -667,5 +667,9 @@ def test_offset_moments_equal_the_offsets_computed_by_hand_on_a_field_with_holes
     np.testing.assert_allclose(cov, np.cov(offsets.T, bias=True), rtol=1e-10)
     with pytest.raises(InvalidInputError, match="mu"):
         synth.offset_moments(field, 2.5e-6)
+
+
+@pytest.mark.wrong_types
+def test_offset_moments_refuses_a_field_that_is_not_a_height_field():
     with pytest.raises(InvalidInputError, match="HeightField"):
-        synth.offset_moments(heights, 3e-6)
+        synth.offset_moments(np.zeros((8, 8)), 3e-6)
