@@ -277,7 +277,8 @@ def study(name: str, noise: str, workdir: Path, *, warm: bool, fit_args: tuple[s
     record["outcome"] = {"status": outcome["status"], "reason": outcome["reason"], "problems": outcome["problems"]}
     record["reduced_chi2"] = doc["optimisation"]["reduced_chi2"]
     record["scales"] = [
-        {k: s.get(k) for k in ("mu", "width_px", "reduced_chi2", "lag1_rows", "lag1_cols")} for s in outcome["scales"]
+        {k: s.get(k) for k in ("mu", "width_px", "reduced_chi2", "lag1_rows", "lag1_cols", "moments_z")}
+        for s in outcome["scales"]
     ]
     record["sampler_status"] = (doc.get("mcmc") or {}).get("status")
 

@@ -38,6 +38,16 @@ is listed in :attr:`Outcome.problems`):
      fails when ``ρ > max_lag1`` (0.1) and its one-sided p-value, Bonferroni-corrected over the
      fit's 2 × images tests, is below ``p_value``. False-alarm rate and power are measured in
      tests/test_adequacy.py (model-generated data over seeds; GGX data fitted by a Beckmann model).
+   * second moments: ΔΣ(μ0, μ) of the model's images against the images' own, both by
+     :func:`fitting.moment_covariance_differences` on the same pixels with the data's σ (the model's prediction at
+     the estimate in place of the data's values): the statistic the fit reports, measured without a model. The same
+     estimator on the same pixels cuts both alike where the lobe passes the image's edge, so the test needs no
+     rule for tails an image does not show. ``z = (ΔΣ_model − ΔΣ_data)/std`` per entry (xx, xy, yy); the scale
+     fails when the largest |z|'s two-sided p-value, Bonferroni-corrected over the 3 entries of every coarser
+     scale, is below ``p_value`` — a significance test alone: ΔΣ is what the fit is for, so a miss the data
+     resolve is a miss. It catches what χ² and the neighbours' correlation miss: faint, broad tails, each pixel
+     within its noise, that carry the second moment (tests/test_adequacy.py: a Gaussian core with such tails
+     passes both and fails this; the lobes of the real files of tests/data).
 
    A scale where the prediction at the estimate is not finite at a valid pixel (an overflow or
    0/0 of the model; masked pixels are left out whatever it predicts there) has no χ² and no
@@ -77,6 +87,7 @@ from brdfscale.choices import ADEQUACY, AdequacyDefaults
 
 from ._data import Dataset
 from ._model import predict_images
+from ._moments import moment_covariance_differences
 from ._problem import check_fit, Problem
 from ._result import FitResult
 
@@ -96,7 +107,8 @@ class Outcome:
     (``mu``, ``width_px`` — the lobe's narrower principal rms width in image pixels —, and after
     a fit ``chi2``, ``dof``, ``reduced_chi2``, ``chi2_p``, ``lag1_rows``, ``lag1_cols``,
     ``lag1_p``, the largest autocorrelations over the scale's images and the Bonferroni-corrected
-    p-value of the larger — None, not NaN, where the prediction is not finite at a valid pixel:
+    p-value of the larger, ``moments_z``, ``moments_entry``, ``moments_p``, the second-moment test of the pair
+    (μ0, μ) — None, not NaN, where the prediction is not finite at a valid pixel, and the moments' at μ0:
     module docstring, point 2); ``thresholds``: those used.
     """
 
@@ -244,6 +256,35 @@ _FIGURES = ("chi2", "reduced_chi2", "chi2_p", "lag1_rows", "lag1_cols", "lag1_p"
 """A fitted scale's figures (:class:`Outcome`'s ``scales``); None where its prediction is not finite."""
 
 
+_MOMENT_FIGURES = ("moments_z", "moments_entry", "moments_p")
+"""A fitted scale's second-moment test (:func:`_moment_misses`); None at μ0 and where it is not defined."""
+
+
+def _moment_misses(data: Dataset, prediction: np.ndarray, stats) -> list[dict]:
+    """Per scale, the second-moment test of :func:`assess` (module docstring, point 2): ``moments_z``, the largest
+    (signed) ``(ΔΣ_model − ΔΣ_data)/std`` over xx, xy, yy of the pair (μ0, μ), ``moments_entry`` its entry and
+    ``moments_p`` its two-sided p-value, Bonferroni-corrected over the 3 entries of every coarser scale; None at μ0
+    and where either ΔΣ is not defined (a scale without light, a prediction not finite at a valid pixel)."""
+    observed = moment_covariance_differences(data)
+    with np.errstate(invalid="ignore", over="ignore"):
+        predicted = moment_covariance_differences(data, prediction)
+    n_tests = 3 * len(observed)
+    out: list[dict] = [dict.fromkeys(_MOMENT_FIGURES)]
+    for seen, model in zip(observed, predicted):
+        best: dict = dict.fromkeys(_MOMENT_FIGURES)
+        for name, a, b in _ENTRIES:
+            v, m, s = seen["value"][a][b], model["value"][a][b], seen["std"][a][b]
+            if v is None or m is None or not s:
+                continue
+            z = (m - v) / s
+            if best["moments_z"] is None or abs(z) > abs(best["moments_z"]):
+                best = {"moments_z": z, "moments_entry": name, "moments_p": None}
+        if best["moments_z"] is not None:
+            best["moments_p"] = min(1.0, 2 * float(stats.norm.sf(abs(best["moments_z"]))) * n_tests)
+        out.append(best)
+    return out
+
+
 def lag1_correlation(
     residuals: Float[ArrayLike, "*shape"], valid: Bool[ArrayLike, "*shape"], axis: int
 ) -> tuple[float, int]:
@@ -310,13 +351,15 @@ def assess(
     weight = np.asarray(data.weight)
     valid_pixels = weight > 0
     # masked pixels (weight 0) are left out, whatever the model predicts there (∞ · 0 would be NaN)
+    prediction = np.asarray(predict_images(model, theta, data))
     with np.errstate(invalid="ignore", over="ignore"):
-        residual = (np.asarray(predict_images(model, theta, data)) - np.asarray(data.values)) * weight
+        residual = (prediction - np.asarray(data.values)) * weight
     whitened = np.where(valid_pixels, residual, 0.0)
     scales = np.asarray(data.scales)
     resolved = resolution(data, unit=unit, thresholds=thresholds)
     n_total, p = max(data.n_data, 1), len(fit.names)
     n_tests = 2 * len(data.scale_of_image)
+    moments = _moment_misses(data, np.where(valid_pixels, prediction, 0.0), stats)
     rows, inadequate = [], []
     for k, mu in enumerate(scales):
         images = data.images_of_scale(k)
@@ -325,7 +368,7 @@ def assess(
         where = _mu_text(float(mu), unit)
         undefined = int(np.count_nonzero(~np.isfinite(whitened[images])))
         if undefined:  # no χ² and no autocorrelation: the scale's figures are None (null), never NaN
-            rows.append({**resolved.scales[k], "dof": dof, **dict.fromkeys(_FIGURES)})
+            rows.append({**resolved.scales[k], "dof": dof, **dict.fromkeys(_FIGURES + _MOMENT_FIGURES)})
             inadequate.append(
                 (
                     np.inf,
@@ -354,6 +397,7 @@ def assess(
             "lag1_rows": lag[1],
             "lag1_cols": lag[0],
             "lag1_p": min(p_lag, 1.0),
+            **moments[k],
         }
         rows.append(row)
         if row["reduced_chi2"] > thresholds.max_reduced_chi2 and row["chi2_p"] < thresholds.p_value:
@@ -362,6 +406,17 @@ def assess(
                     row["reduced_chi2"] / thresholds.max_reduced_chi2,
                     f"model inadequate at {where}: χ²/dof = {row['reduced_chi2']:.3g} "
                     f"(> {thresholds.max_reduced_chi2:g}, p = {row['chi2_p']:.2g})",
+                )
+            )
+        if row["moments_p"] is not None and row["moments_p"] < thresholds.p_value:
+            z, entry = row["moments_z"], row["moments_entry"]
+            inadequate.append(
+                (
+                    abs(z) / float(stats.norm.isf(thresholds.p_value / (2 * 3 * (len(scales) - 1)))),
+                    f"model inadequate at {where}: its images' second moments miss the data's — ΔΣ_{entry}(μ0, μ) "
+                    f"of its lobes over the images' pixels is {z:+.3g} standard errors off the images' own "
+                    f"(p = {row['moments_p']:.2g}): the lobes' tails are not the model's shape "
+                    "(the images' own ΔΣ: fit.json's moment_covariance_differences)",
                 )
             )
         largest = max(lag.values())

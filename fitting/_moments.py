@@ -37,13 +37,21 @@ widening of the part of the lobe the image holds. An entry whose images' edges a
 Verified in tests/test_moments.py: the moments and their errors by hand on small images, the errors against the
 scatter over noise realisations, ΔΣ of noise-free synthesised images against the recorded truth
 (:func:`fitting.covariance_truth`), the edge check on a cut lobe.
+
+**A model's images.** ``values=`` takes the moments of other values on the same nodes with the same σ — a fitted
+model's prediction (``model.predict(theta, data)``): the same estimator on the same pixels, so truncation, the
+cells and the micro lobe act on both alike, and the difference of the two is a test of the model that needs no rule
+for the tails an image cannot show (:func:`fitting.assess`, point 2).
 """
 
 import numpy as np
+from jaxtyping import ArrayLike, Float
 
+from brdfscale import InvalidInputError
 from brdfscale.choices import ADEQUACY
 
 from ._data import Dataset
+from ._model import require_dataset
 
 
 __all__ = ["moment_covariance_differences"]
@@ -65,10 +73,11 @@ NARROW_NOTE = (
 even 3 standard errors of its variance above the estimate)."""
 
 
-def _image_moments(data: Dataset, i: int) -> tuple[np.ndarray, np.ndarray, bool]:
-    """Image ``i``'s covariance C (2, 2), its standard errors (2, 2), and whether its edge holds light above noise."""
+def _image_moments(data: Dataset, values: np.ndarray, i: int) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Image ``i``'s covariance C (2, 2) of ``values`` (the data's, or a model's on its nodes), its standard errors
+    (2, 2) by the data's σ, and whether its edge holds light above noise."""
     n = data.image_sizes[i]
-    v = np.asarray(data.values[i, : n * n], dtype=float)
+    v = np.asarray(values[i, : n * n], dtype=float)
     w = np.asarray(data.weight[i, : n * n], dtype=float)
     u = np.asarray(data.offsets[i, : n * n], dtype=float)
     valid = w > 0
@@ -92,17 +101,36 @@ def _image_moments(data: Dataset, i: int) -> tuple[np.ndarray, np.ndarray, bool]
     return cov, std, truncated
 
 
-def moment_covariance_differences(data: Dataset) -> list[dict]:
+def moment_covariance_differences(data: Dataset, values: Float[ArrayLike, "images pixels"] | None = None) -> list[dict]:
     """ΔΣ(μ0, μ_k) = C(μ_k) − C(μ0) of the images' own second moments for every coarser scale, with standard errors
     (module docstring): ``{"mu0", "mu", "value": [[xx, xy], [xy, yy]], "std": [[…], […]], "truncated": bool}``
     (slope units², the entries of :func:`fitting.FitResult.covariance_differences`; ``"note"`` when truncated or
     when the two scales' node pitches differ). Model-independent: no fit is needed, and any model's ΔΣ can be
-    compared with it. A scale whose images hold no positive light has None values."""
+    compared with it. A scale whose images hold no positive light has None values.
+
+    ``values``: the values whose moments are taken, in ``data.values``' layout (default: the data's own) — a model's
+    prediction on the same nodes, whose ΔΣ over the images' pixels is then comparable with the data's (module
+    docstring, "A model's images"); the standard errors and the edge check stay the data's σ.
+
+    Raises:
+        InvalidInputError: ``data`` is not a :class:`fitting.Dataset`, or ``values`` is not of ``data.values``' shape.
+    """
+    require_dataset(data, "moment_covariance_differences(data)")
+    if values is None:
+        values = np.asarray(data.values)
+    else:
+        values = np.asarray(values, dtype=float)
+        if values.shape != tuple(data.values.shape):
+            raise InvalidInputError(
+                f"moment_covariance_differences(data, values): values must have data.values' shape "
+                f"{tuple(data.values.shape)} (images × padded pixels, as model.predict(theta, data) gives); "
+                f"got {values.shape}."
+            )
     scales = np.asarray(data.scales)
     per_scale = []
     for k in range(len(scales)):
         images = list(data.images_of_scale(k))
-        moments = [_image_moments(data, i) for i in images]
+        moments = [_image_moments(data, values, i) for i in images]
         cov = np.mean([m[0] for m in moments], axis=0)
         std = np.sqrt(np.sum([m[1] ** 2 for m in moments], axis=0)) / len(moments)
         pitch = [2 * data.extents[i] / (data.image_sizes[i] - 1) for i in images]

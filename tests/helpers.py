@@ -444,3 +444,15 @@ def fit_at(names, theta, covariance, n_data: int, *, solver: str = "lm", **extra
         at_bounds=[],
         **extra,
     )
+
+
+def image_covariance(values, extent):
+    """The second central moment (2, 2) of an image's node values over its offsets u (rows u_y, columns u_x, the
+    nodes of ``[−extent, extent]²``), written out with NumPy's weighted covariance (the values as weights):
+    the oracle of fitting.moment_covariance_differences (tests/test_moments.py, tests/test_adequacy.py) and of the
+    recorded ΔΣ truth (tests/test_covariance_truth.py)."""
+    values = np.asarray(values, dtype=float)
+    x = np.linspace(-extent, extent, values.shape[0])
+    ux, uy = np.meshgrid(x, x)
+    u = np.stack((ux.ravel(), uy.ravel()), axis=-1)
+    return np.cov(u.T, aweights=values.ravel(), bias=True)

@@ -54,14 +54,16 @@ def test_a_scale_whose_prediction_is_not_finite_has_no_chi2_and_is_inadequate(ho
     # the masked +∞ is left out: scale 0's figures are the hole-free model's own
     clean = fitting.assess(fitting.Problem(Linear(), problem.data), fit).scales
     assert masked == clean[0] and np.isfinite(masked["reduced_chi2"]) and masked["chi2_p"] > 1e-3
-    assert [holed[key] for key in ("chi2", "reduced_chi2", "chi2_p", "lag1_rows", "lag1_cols", "lag1_p")] == [None] * 6
+    figures = ("chi2", "reduced_chi2", "chi2_p", "lag1_rows", "lag1_cols", "lag1_p", "moments_z", "moments_p")
+    assert [holed[key] for key in figures] == [None] * 8
     assert holed["dof"] == clean[1]["dof"] and holed["mu"] == 2.0 and holed["width_px"] == clean[1]["width_px"]
     assert outcome.status == "inadequate"
     assert outcome.reason.startswith("model inadequate at μ = 2 px: its prediction is not finite at 1 of the 36 valid")
     lines = _table({"outcome": outcome.to_json(), "data": {"unit": None}})
     text = "\n".join(lines)
     assert re.search(r"\bnan\b", text, re.IGNORECASE) is None, text
-    assert re.fullmatch(r" +2 +undefined +undefined +undefined +undefined +undefined +[0-9.]+", lines[3]), text
+    assert re.fullmatch(r" +2( +undefined){7} +[0-9.]+", lines[3]), text
+    assert re.fullmatch(r" +1 +[0-9.]+ +[0-9.]+ +[0-9.]+ +[0-9.]+ +[0-9.]+ +— +— +[0-9.]+", lines[2]), text  # μ0
     assert lines[-1] == f"  outcome: inadequate — {outcome.reason}"
 
 

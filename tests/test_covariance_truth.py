@@ -13,7 +13,7 @@ import pytest
 
 from brdfscale import fitting, InvalidInputError, stats, synth, topography
 from brdfscale._cli._fit import print_covariance_truth
-from tests.helpers import TOPOGRAPHIES
+from tests.helpers import image_covariance, TOPOGRAPHIES
 
 
 @pytest.fixture(scope="module")
@@ -68,20 +68,6 @@ def test_a_damaged_record_is_refused_naming_its_key(made, damage, key):
         fitting.covariance_truth(metadata, scales)
 
 
-def _image_covariance(image):
-    """The second central moment (2, 2) of a noise-free image's node values over its offsets u (rows u_y,
-    columns u_x): the node sum of a cloud-in-cell histogram has the samples' mean exactly and their covariance
-    plus the tent's h²/6 per axis, the same at every scale (as is the resolution blur's), so differences of two
-    scales are the samples' own."""
-    v = np.asarray(image.values, dtype=float)
-    x = np.linspace(-image.extent, image.extent, v.shape[0])
-    ux, uy = np.meshgrid(x, x)
-    u = np.stack((ux.ravel(), uy.ravel()), axis=-1)
-    w = v.ravel() / v.sum()
-    d = u - w @ u
-    return (d * w[:, None]).T @ d
-
-
 def test_on_a_field_with_holes_the_truth_is_what_the_images_hold_not_the_facets_difference():
     """frt-1 (a confocal map with 31 % of its pixels unmeasured, by its steepest slopes): a coarser facet is
     measured in fewer places, so the pixel population of the images changes with μ and the facets' C(μ0) − C(μ)
@@ -96,7 +82,10 @@ def test_on_a_field_with_holes_the_truth_is_what_the_images_hold_not_the_facets_
     extent = 2.1 * synth.steepest_slope(field)
     mset = synth.gonioreflectometer(field, scales, [0, 0, 1.0], extent=extent, pixels=1025)
     (truth,) = np.asarray(fitting.covariance_truth(mset.metadata, scales))
-    images = _image_covariance(mset.images[1]) - _image_covariance(mset.images[0])
+    # the node sum of a cloud-in-cell histogram has the samples' mean exactly and their covariance plus the tent's
+    # h²/6 per axis, the same at every scale (as is the resolution blur's): differences are the samples' own
+    near, far = mset.images
+    images = image_covariance(far.values, far.extent) - image_covariance(near.values, near.extent)
     np.testing.assert_allclose(truth, images, rtol=2e-3, atol=2e-3 * abs(truth[0, 0]))
     facets = np.asarray(mset.metadata["truth"]["facet_slope_covariance"])
     assert truth[0, 0] < 0 < facets[0][0, 0] - facets[1][0, 0]

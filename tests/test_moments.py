@@ -6,7 +6,8 @@ lobes, unequal pitches and masked pixels."""
 import numpy as np
 import pytest
 
-from brdfscale import fitting, LobeImage, MeasurementSet, stats, synth
+from brdfscale import fitting, InvalidInputError, LobeImage, MeasurementSet, stats, synth
+from tests.helpers import image_covariance
 
 
 def _set(images, metadata=None):
@@ -22,15 +23,6 @@ def _gaussian(extent, n, cov, amplitude=1.0, centre=(0.0, 0.0)):
     return amplitude * np.exp(-0.5 * q) / (2 * np.pi * np.sqrt(np.linalg.det(cov)))
 
 
-def _by_hand(values, extent):
-    """C of an image's node values over its offsets (rows u_y, columns u_x), written out."""
-    n = values.shape[0]
-    x = np.linspace(-extent, extent, n)
-    ux, uy = np.meshgrid(x, x)
-    u = np.stack((ux.ravel(), uy.ravel()), axis=-1)
-    return np.cov(u.T, aweights=values.ravel(), bias=True)
-
-
 def test_moments_and_errors_by_hand():
     """Values and standard errors against np.cov with the values as weights and the errors by central finite
     differences of that very np.cov in every pixel (linear propagation of independent σ)."""
@@ -41,14 +33,16 @@ def test_moments_and_errors_by_hand():
     sa, sb = rng.uniform(0.05, 0.2, (n, n)), rng.uniform(0.05, 0.2, (n, n))
     data = _set([LobeImage(1.0, (0, 0, 1.0), extent, a, sa), LobeImage(4.0, (0, 0, 1.0), extent, b, sb)])
     (entry,) = fitting.moment_covariance_differences(data)
-    np.testing.assert_allclose(entry["value"], _by_hand(b, extent) - _by_hand(a, extent), rtol=1e-10, atol=1e-14)
+    np.testing.assert_allclose(
+        entry["value"], image_covariance(b, extent) - image_covariance(a, extent), rtol=1e-10, atol=1e-14
+    )
 
     def errors(values, sigma):
         var = np.zeros((2, 2))
         for j in np.ndindex(values.shape):
             step = np.zeros_like(values)
             step[j] = 1e-6
-            g = (_by_hand(values + step, extent) - _by_hand(values - step, extent)) / 2e-6
+            g = (image_covariance(values + step, extent) - image_covariance(values - step, extent)) / 2e-6
             var += (g * sigma[j]) ** 2
         return var
 
@@ -66,7 +60,7 @@ def test_errors_match_the_scatter_over_noise_realisations():
     extent, n = 0.3, 25
     clean = [_gaussian(extent, n, [[0.003, 0.001], [0.001, 0.002]]), _gaussian(extent, n, [[0.006, 0.0], [0.0, 0.005]])]
     sigma = [0.02 * c.max() * np.ones_like(c) for c in clean]
-    truth = _by_hand(clean[1], extent) - _by_hand(clean[0], extent)
+    truth = image_covariance(clean[1], extent) - image_covariance(clean[0], extent)
     draws, reported = [], None
     for _ in range(400):
         images = [
@@ -164,3 +158,29 @@ def test_several_images_of_a_scale_are_averaged(incidences):
     (single,) = fitting.moment_covariance_differences(_set([images[0], images[incidences]]))
     np.testing.assert_allclose(entry["value"], single["value"], rtol=1e-12)
     np.testing.assert_allclose(entry["std"], np.asarray(single["std"]) / np.sqrt(incidences), rtol=1e-12)
+
+
+def test_the_moments_of_other_values_on_the_same_nodes_keep_the_datas_errors():
+    """``values=``: a model's prediction in data.values' layout gets the same estimator on the same pixels — its
+    values by hand, the data's σ for the errors (so that fitting.assess can divide the two ΔΣ's difference by the
+    data's); the data's own values give the default exactly; another shape is refused, naming the one needed."""
+    rng = np.random.default_rng(3)
+    extent, n = 0.2, 9
+    clean = [_gaussian(extent, n, [[0.004, 0.001], [0.001, 0.003]]), _gaussian(extent, n, [[0.007, 0.0], [0.0, 0.005]])]
+    sigma = [0.01 * np.ones_like(c) for c in clean]
+    noisy = [c + s * rng.standard_normal(c.shape) for c, s in zip(clean, sigma)]
+    data = _set([LobeImage(mu, (0, 0, 1.0), extent, v, s) for mu, v, s in zip((1.0, 2.0), noisy, sigma)])
+    assert fitting.moment_covariance_differences(data, np.asarray(data.values)) == (
+        fitting.moment_covariance_differences(data)
+    )
+    other = np.zeros(np.asarray(data.values).shape)
+    for i, c in enumerate(clean):
+        other[i, : n * n] = c.ravel()
+    (entry,) = fitting.moment_covariance_differences(data, other)
+    (own,) = fitting.moment_covariance_differences(data)
+    want = image_covariance(clean[1], extent) - image_covariance(clean[0], extent)
+    np.testing.assert_allclose(entry["value"], want, rtol=1e-10, atol=1e-14)
+    # the errors: C's derivatives at the other values, weighted by the data's σ — the same to first order
+    np.testing.assert_allclose(entry["std"], own["std"], rtol=0.05)
+    with pytest.raises(InvalidInputError, match=r"values must have data.values' shape \(2, 81\)"):
+        fitting.moment_covariance_differences(data, other[:, :80])
