@@ -315,6 +315,15 @@ def held_out_record(mset, clean_exr: Path, statistics, default_model: str) -> di
     return out
 
 
+def save(path: Path, payload: dict) -> None:
+    """``payload`` as indented JSON at ``path``, atomically (brdfscale.files.write_text, replacing what is there):
+    every part of this benchmark writes its file here, so that an interrupted run never leaves half a file."""
+    from brdfscale import files
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    files.write_text(path, json.dumps(payload, indent=2) + "\n", overwrite=True)
+
+
 def held_out_only(*, files=FILES, noises=NOISES, path: Path) -> dict:
     """Recompute the held-out rows (module docstring, 3) of the records in ``path`` — synthesis and library
     fits only, no ``brdfscale fit`` run and no wall time, so no lock is needed — with the default model of the
@@ -323,7 +332,7 @@ def held_out_only(*, files=FILES, noises=NOISES, path: Path) -> dict:
     held-out rows (the chain refused its data, exit 7) is left as it is. ``path`` is rewritten after each record."""
     import jax
 
-    from brdfscale import exr, files as files_, synth, topography
+    from brdfscale import exr, synth, topography
     from brdfscale.choices import MODELS
 
     jax.config.update("jax_enable_x64", True)
@@ -359,7 +368,7 @@ def held_out_only(*, files=FILES, noises=NOISES, path: Path) -> dict:
                 run_info["total_s"] = round(time.perf_counter() - started, 1)
                 payload["held_out_run"] = run_info
                 payload["targets"] = targets(payload["records"])
-                files_.write_text(path, json.dumps(payload, indent=2) + "\n", overwrite=True)  # atomic
+                save(path, payload)
                 held = {k: v.get("l1") for k, v in record["held_out"].items() if isinstance(v, dict)}
                 print(f"{name} {noise}: held-out L1 {held}", flush=True)
     return payload
@@ -379,7 +388,7 @@ def moments_only(*, files=FILES, noises=NOISES, path: Path) -> dict:
     (the pixel population's change with μ). Synthesis only: seconds per file, no lock needed."""
     import jax
 
-    from brdfscale import exr, files as files_, fitting, synth, topography
+    from brdfscale import exr, fitting, synth, topography
 
     jax.config.update("jax_enable_x64", True)
     payload = json.loads(path.read_text())
@@ -450,7 +459,7 @@ def moments_only(*, files=FILES, noises=NOISES, path: Path) -> dict:
         "extent_factors": list(EXTENT_FACTORS),
         "rows": rows,
     }
-    files_.write_text(path, json.dumps(payload, indent=2) + "\n", overwrite=True)  # atomic
+    save(path, payload)
     return payload
 
 
@@ -540,8 +549,6 @@ def run(
     ``moments`` section (``--moments-only``) in the file is kept."""
     import jax
 
-    from brdfscale import files as files_
-
     jax.config.update("jax_enable_x64", True)
     path = (out or Path(__file__).resolve().parent / "results") / "bench_real_fits.json"
     earlier = json.loads(path.read_text()) if path.exists() else {}
@@ -573,8 +580,7 @@ def run(
     def write():
         payload["targets"] = targets(payload["records"])
         payload["total_s"] = round(time.perf_counter() - started, 1)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        files_.write_text(path, json.dumps(payload, indent=2) + "\n", overwrite=True)  # atomic
+        save(path, payload)
 
     with tempfile.TemporaryDirectory() as tmp:
         for name in files:

@@ -877,6 +877,7 @@ def _real_fit_rows(d: dict, noises=None) -> list[list[str]]:
                 num(max((s["reduced_chi2"] for s in r.get("scales", [])), default=None), ".3g"),
                 num(r.get("max_abs_z"), ".3g") + (f" ({r['undefined_z']} without std)" if r.get("undefined_z") else ""),
                 _pulls_cell(r),
+                num(_moments_z(r), ".3g"),
                 num(default_l1, ".3f"),
                 num(h.get("isotropic", {}).get("l1"), ".3f"),
                 num(h.get("second_moment", {}).get("l1"), ".3f"),
@@ -888,6 +889,13 @@ def _real_fit_rows(d: dict, noises=None) -> list[list[str]]:
             ]
         )
     return rows
+
+
+def _moments_z(record: dict) -> float | None:
+    """The largest |z| of fitting.assess's second-moment test over a record's scales: the model's ΔΣ over the
+    images' pixels against the images' own (None before the test was recorded, or where nothing was fitted)."""
+    z = [abs(s["moments_z"]) for s in record.get("scales", []) if s.get("moments_z") is not None]
+    return max(z, default=None)
 
 
 def _pulls_cell(record: dict) -> str:
@@ -912,6 +920,7 @@ _REAL_FIT_HEADER = [
     "worst scale's χ²/dof",
     "max ΔΣ |z|",
     "ΔΣ within 3 std of the set's truth: fit / moments",
+    "model's ΔΣ against the images' moments, max |z|",
     "held-out L1, default",
     "isotropic",
     "second moment",
@@ -1058,6 +1067,7 @@ _SPEED_LABELS = {
     "default": "default (NUTS)",
     "default_no_sampling": "`--steps 0` (fit, Laplace, report)",
     "hmc": "`--sampler hmc`",
+    "imh": "`--sampler imh`",
     "nonparametric_anisotropic": "`--model nonparametric_anisotropic --steps 0`",
     "student_t_no_sampling": "`--shape student_t --steps 0`",
 }

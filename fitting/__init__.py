@@ -15,7 +15,8 @@ The chain, each step in its own module:
 * :func:`fit_many` — many materials at once: padded, bucketed and divided over the devices,
   one compiled program per bucket (solves one at a time on CPUs, vmapped on accelerators),
   results equal to :func:`fit`'s (:func:`explain_plan`);
-* :func:`sample` — emcee (:class:`Emcee`), BlackJAX NUTS (:class:`NUTS`) or HMC (:class:`HMC`)
+* :func:`sample` — emcee (:class:`Emcee`), BlackJAX NUTS (:class:`NUTS`) or HMC (:class:`HMC`), or independence
+  Metropolis–Hastings from the Laplace approximation (:class:`IMH`)
   on one posterior in smooth coordinates, ≥ 4 independent chains in one compiled program,
   chunked HDF5 checkpoints resumable bit for bit, ArviZ's R̂/ESS/MCSE and a status that
   names any failed criterion (:class:`SampleResult`, ``to_arviz()``);
@@ -71,7 +72,7 @@ from ._report import (
 )
 from ._result import FitResult
 from ._resume import report_problem, resume_report
-from ._sample import Emcee, HMC, log_posterior, NUTS, sample, SampleResult, SAMPLERS
+from ._sample import Emcee, HMC, IMH, log_posterior, NUTS, sample, SampleResult, SAMPLERS
 from ._sample_many import sample_many
 from ._simulate import simulate
 from ._solve import resolve_solver, SOLVERS
@@ -80,6 +81,7 @@ from ._solve import resolve_solver, SOLVERS
 __all__ = [
     "COMPILE_ROWS",
     "HMC",
+    "IMH",
     "NUTS",
     "RATIO_FREQUENCIES",
     "SAMPLERS",

@@ -53,10 +53,7 @@ class Problem(Shown, eqx.Module):
     def __init__(self, model: AbstractModel, data: Dataset):
         require_float64("fitting.Problem")
         if not isinstance(model, AbstractModel):
-            raise InvalidInputError(
-                f"Problem(model, data) needs a fitting model (ParametricModel or "
-                f"NonParametricModel) as model; got {type(model).__name__}."
-            )
+            raise InvalidInputError(f"Problem(model, data) needs {FITTING_MODEL} as model; got {type(model).__name__}.")
         require_dataset(data, "Problem(model, data)")
         model.check_data(data)
         if data.topography is not None:  # a joint fit compares ΔΣ: the model must have finite second moments
@@ -125,11 +122,18 @@ class Rows(eqx.Module):
         return self.chi2_of_residuals(self.residuals(theta))
 
 
+FITTING_MODEL = (
+    "a fitting model (fitting.AnisotropicModel, AnisotropicLawModel, AnisotropicNonParametricModel, "
+    "ParametricModel, NonParametricModel, or a subclass of fitting.AbstractModel of your own)"
+)
+"""What :class:`Problem` and :func:`check_pair` ask for, in their messages."""
+
+
 def check_pair(model, data, what: str) -> None:
     """InvalidInputError naming ``what`` unless ``model`` is a fitting model and ``data`` a Dataset."""
     if not isinstance(model, AbstractModel) or not isinstance(data, Dataset):
         raise InvalidInputError(
-            f"{what} needs a fitting model (ParametricModel or NonParametricModel) and a fitting.Dataset "
+            f"{what} needs {FITTING_MODEL} and a fitting.Dataset "
             f"(fitting.Dataset.from_measurements); got {type(model).__name__} and {type(data).__name__}."
         )
 

@@ -1,4 +1,4 @@
-"""Posterior sampling: emcee, NUTS or HMC on one posterior, independent chains, resumable checkpoints, diagnostics.
+"""Posterior sampling: emcee, NUTS, HMC or IMH on one posterior, independent chains, resumable checkpoints, diagnostics.
 
 Every sampler draws from the same posterior, :func:`fitting.log_posterior` — ``−½χ²(θ)``
 uniform on the model's prior box, in the model's unconstrained coordinates θ — through the
@@ -10,7 +10,11 @@ same smooth, unbounded coordinates z, ``θ = lo + (hi − lo)·σ(z)``, Jacobian
   call per half-step (:mod:`fitting._sample_emcee`);
 * :class:`fitting.NUTS`, :class:`fitting.HMC` — BlackJAX's kernels with the Laplace covariance
   as inverse mass matrix, step size tuned in a recorded warm-up, ``chains`` chains vmapped in
-  one compiled program (:mod:`fitting._sample_blackjax`).
+  one compiled program (:mod:`fitting._sample_blackjax`);
+* :class:`fitting.IMH` — independence Metropolis–Hastings with the Laplace approximation (a Student-t about it) as
+  the proposal of every step: one log-density and no gradient per step, ``chains`` chains vmapped in one compiled
+  program; fast where that approximation is close to the posterior, stuck (and said so by the status) where it is
+  not (:mod:`fitting._sample_imh`).
 
 Directions the data do not determine (the fit's ``undetermined`` combinations) are not
 sampled: every sampler moves in the determined subspace through the optimum, those
@@ -63,12 +67,13 @@ from ._problem import check_fit, Problem
 from ._result import FitResult
 from ._sample_blackjax import HMC, NUTS
 from ._sample_emcee import Emcee
+from ._sample_imh import IMH
 from ._sampler import AbstractSampler
 
 
-__all__ = ["HMC", "NUTS", "SAMPLERS", "Emcee", "SampleResult", "log_posterior", "sample"]
+__all__ = ["HMC", "IMH", "NUTS", "SAMPLERS", "Emcee", "SampleResult", "log_posterior", "sample"]
 
-SAMPLERS = {"emcee": Emcee, "nuts": NUTS, "hmc": HMC}
+SAMPLERS = {"emcee": Emcee, "nuts": NUTS, "hmc": HMC, "imh": IMH}
 """The samplers by name: ``sample(..., sampler="nuts")`` is ``sampler=fitting.NUTS()``."""
 
 
@@ -342,7 +347,7 @@ def resolve_sampler(sampler, walkers=None, moves=None) -> AbstractSampler:
         got = repr(sampler) if isinstance(sampler, str) else type(sampler).__name__
         raise InvalidInputError(
             f"sampler must be one of {sorted(SAMPLERS)} or a sampler object "
-            f"(fitting.Emcee, fitting.NUTS, fitting.HMC); got {got}."
+            f"(fitting.Emcee, fitting.NUTS, fitting.HMC, fitting.IMH); got {got}."
         )
     if walkers is not None or moves is not None:
         raise sampler.refuse_walkers()
@@ -388,13 +393,13 @@ def sample(
             settings: :class:`fitting.Emcee` ``(walkers=, moves=)``, :class:`fitting.NUTS`
             ``(warmup=, target_acceptance=, max_doublings=, adapt_mass_matrix=)``,
             :class:`fitting.HMC` ``(trajectory_length=, warmup=, target_acceptance=, jitter=,
-            adapt_mass_matrix=)``.
+            adapt_mass_matrix=)``, ``"imh"`` or :class:`fitting.IMH` ``(dof=, scale=)``.
         chains: independent chains (default 4): emcee ensembles, or NUTS/HMC chains, each
             started from its own Laplace draw; R̂ compares them.
         steps: steps per trajectory after the warm-up, at least 2 (emcee: all steps, the
             burn-in found afterwards among them; NUTS/HMC: draws after their ``warmup``
             steps); None (default): the sampler's own ``default_steps`` — NUTS/HMC 1000
-            draws, emcee 2000 steps (:data:`brdfscale.choices.SAMPLE`). A resumed run
+            draws, IMH 3000 steps, emcee 2000 steps (:data:`brdfscale.choices.SAMPLE`). A resumed run
             continues up to this count; of a checkpoint that holds more, the first are returned.
         chunk: steps between checkpoints (and NUTS/HMC's compiled block of steps).
         checkpoint: HDF5 path; an existing checkpoint of the same run is resumed.

@@ -45,6 +45,7 @@ SAMPLERS = {
     "emcee": dict(sampler=fitting.Emcee(walkers=8), steps=40),
     "nuts": dict(sampler=fitting.NUTS(warmup=20), steps=20),
     "hmc": dict(sampler=fitting.HMC(warmup=20), steps=20),
+    "imh": dict(sampler=fitting.IMH(), steps=40),
 }
 
 

@@ -154,7 +154,7 @@ def test_every_name_in_the_table_is_accepted_by_fitting():
 
 def test_the_table_refuses_unknown_names_naming_the_argument():
     assert choices.SAMPLERS.check("hmc") == "hmc"
-    with pytest.raises(InvalidInputError, match="sampler must be one of 'nuts', 'hmc', 'emcee'; got 'gibbs'"):
+    with pytest.raises(InvalidInputError, match="sampler must be one of 'nuts', 'hmc', 'emcee', 'imh'; got 'gibbs'"):
         choices.SAMPLERS.check("gibbs")
     assert len(choices.SOLVERS) == len(set(choices.SOLVERS.names)) == 6
 

@@ -549,6 +549,12 @@ def test_arguments_of_the_wrong_type_are_named(small_problem):
         fitting.Problem(fitting.ParametricModel(), mset3)
     with pytest.raises(InvalidInputError, match="Dataset.from_measurements"):
         fitting.NonParametricModel(mset3)
+    # what is not a model is named, with every model the library has (the anisotropic ones first: the default)
+    two_images = fitting.Dataset.from_measurements(MeasurementSet((_image(1.0), _image(2.0))))
+    with pytest.raises(InvalidInputError, match=r"needs a fitting model \(fitting.AnisotropicModel, .* got str"):
+        fitting.Problem("anisotropic", two_images)
+    with pytest.raises(InvalidInputError, match=r"fit\(model, data\) needs a fitting model \(fitting.AnisotropicModel"):
+        fitting.fit("anisotropic", two_images)
     two = fitting.Dataset.from_measurements(MeasurementSet((_image(1.0), _image(2.0))))
     for kw, match in [
         (dict(starts="a"), "starts must be an integer ≥ 1"),

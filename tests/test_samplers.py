@@ -45,6 +45,7 @@ SAMPLERS = {
     "emcee": dict(sampler="emcee", walkers=8, steps=1000),
     "nuts": dict(sampler=fitting.NUTS(warmup=150), steps=800),
     "hmc": dict(sampler=fitting.HMC(warmup=150), steps=800),
+    "imh": dict(sampler="imh", steps=800),
 }
 CHUNK = 100  # one compiled block for every NUTS/HMC test (the compiled program is reused across tests)
 
@@ -80,6 +81,22 @@ def test_each_sampler_recovers_the_exact_linear_gaussian_posterior(linear, name)
         assert by_chain.shape == (4, 8 * (1000 - s.burn))
         assert s.summary()["q0"] == _diagnostics.summary_row(by_chain)
         assert s.status == "converged", s.status
+    elif name == "imh":
+        # no warm-up; the Student-t proposal (10 degrees of freedom) about the exact posterior is accepted at the
+        # rate E[min(1, w'/w)] of its importance weights, computed here by Monte Carlo from the t and the Gaussian
+        assert s.status == "converged", s.status
+        assert s.chain.shape == (800, 4, 3) and s.burn == 0 and s.warmup["steps"] == 0
+        rng = np.random.default_rng(0)
+        xi = rng.standard_normal((200_000, 3)) / np.sqrt(rng.chisquare(10, (200_000, 1)) / 10)
+        r2 = np.sum(xi**2, axis=1)
+        log_w = -0.5 * r2 + 6.5 * np.log1p(r2 / 10)  # log N(ξ) − log t₁₀(ξ), up to a constant
+        w = np.exp(log_w - log_w.max())
+        # E over independent pairs (current state ~ the posterior, i.e. q weighted by w; proposal ~ q)
+        state = rng.choice(w.size, 20_000, p=w / w.sum())
+        proposal = rng.integers(0, w.size, 20_000)
+        expected = np.mean(np.minimum(1.0, w[proposal] / w[state]))
+        assert abs(s.acceptance - expected) < 0.02, (s.acceptance, expected)
+        assert s.warmup["acceptance_rate"] == pytest.approx(s.acceptance, rel=1e-12)
     else:
         assert s.status == "converged", s.status
         assert s.chain.shape == (950, 4, 3) and s.burn == 150 and s.divergent == 0
@@ -104,6 +121,7 @@ RESUMABLE = {
     "nuts": dict(sampler=fitting.NUTS(warmup=150), steps=150),
     "hmc": dict(sampler=fitting.HMC(warmup=150), steps=150),
     "nuts-windows": dict(sampler=fitting.NUTS(warmup=40, adapt_mass_matrix=True), steps=150),
+    "imh": dict(sampler=fitting.IMH(dof=5.0), steps=250),
 }
 
 
@@ -134,6 +152,8 @@ def test_an_interrupted_run_resumes_bit_identically(linear, name, tmp_path, monk
     with monkeypatch.context() as patch:
         if name == "emcee":  # 1 call for the start, 2 per step: stops inside the second chunk
             _interrupt_after(patch, fitting._sample_emcee, "_batched_log_density", 1 + 2 * 55)
+        elif name == "imh":  # two chunks are done
+            _interrupt_after(patch, fitting._sample_imh, "_advance", 2)
         else:  # the warm-up (its block, for the windows) and one chunk are done
             _interrupt_after(patch, fitting._sample_blackjax, "_advance", 1 if name == "nuts-windows" else 2)
         with pytest.raises(KeyboardInterrupt):
@@ -141,7 +161,7 @@ def test_an_interrupted_run_resumes_bit_identically(linear, name, tmp_path, monk
     with h5py.File(tmp_path / "c.h5") as f:
         committed = int(f.attrs["steps_done"])
     # NUTS/HMC chunks end where the warm-up (150 steps) does: 100 + 50 committed after two chunks
-    assert committed == {"emcee": 50, "nuts": 150, "hmc": 150, "nuts-windows": 140}[name]
+    assert committed == {"emcee": 50, "nuts": 150, "hmc": 150, "nuts-windows": 140, "imh": 200}[name]
     resumed = fitting.sample(problem, res, checkpoint=tmp_path / "c.h5", **kw)
     for a, b in [(full.chain, resumed.chain), (full.log_prob, resumed.log_prob)] + [
         (full.stats[k], resumed.stats[k]) for k in full.stats
@@ -357,7 +377,7 @@ def test_an_undetermined_direction_is_held_and_the_determined_subspace_sampled_e
 
 def test_sampler_choices_and_arguments_are_checked(linear):
     problem, res, _, _ = linear
-    assert fitting.SAMPLERS == {"emcee": fitting.Emcee, "nuts": fitting.NUTS, "hmc": fitting.HMC}
+    assert fitting.SAMPLERS == {"emcee": fitting.Emcee, "nuts": fitting.NUTS, "hmc": fitting.HMC, "imh": fitting.IMH}
     for kw, match in [
         (dict(sampler="metropolis"), "sampler must be one of"),
         (dict(sampler=3), "sampler must be one of"),
@@ -376,6 +396,9 @@ def test_sampler_choices_and_arguments_are_checked(linear):
         (lambda: fitting.HMC(trajectory_length=0), "trajectory_length"),
         (lambda: fitting.NUTS(warmup=10, adapt_mass_matrix=True), "warmup ≥ 20"),
         (lambda: fitting.Emcee(moves="gibbs"), "moves must be one of"),
+        (lambda: fitting.IMH(dof=0.0), r"dof \(or math.inf: a Gaussian\) must be a finite number > 0"),
+        (lambda: fitting.IMH(dof=-math.inf), r"dof \(or math.inf: a Gaussian\) must be"),
+        (lambda: fitting.IMH(scale=0.0), "scale must be a finite number > 0"),
     ]:
         with pytest.raises(InvalidInputError, match=match):
             make()

@@ -148,9 +148,9 @@ def add_fit_options(parser) -> None:
         "--steps",
         type=integer(0, 1_000_000),
         default=SAMPLE.steps,
-        help="draws per chain after the warm-up (nuts, hmc) or emcee steps per walker, 0–1000000 "
-        f"(default: {SAMPLE.steps_text()}; 0: Laplace only); the chains are kept in memory: chains × walkers × "
-        f"steps × parameters × 8 bytes ≤ {CHAIN_BUDGET // 2**30} GiB",
+        help="draws per chain after the warm-up (nuts, hmc), steps per chain (imh) or emcee steps per walker, "
+        f"0–1000000 (default: {SAMPLE.steps_text()}; 0: Laplace only); the chains are kept in memory: "
+        f"chains × walkers × steps × parameters × 8 bytes ≤ {CHAIN_BUDGET // 2**30} GiB",
     )
     parser.add_argument(
         "--walkers",

@@ -114,7 +114,8 @@ class FitSpec:
     of :mod:`brdfscale.choices` (``fitting.fit``'s, ``fitting.sample``'s and the models').
 
     ``sampler`` None (default) gives the Laplace uncertainties of :func:`fitting.fit_many` only;
-    ``"nuts"``, ``"hmc"`` or ``"emcee"`` also samples each material's posterior
+    a name of :data:`brdfscale.choices.SAMPLERS` (``"nuts"``, ``"hmc"``, ``"emcee"``, ``"imh"``) also samples each
+    material's posterior
     (:func:`fitting.sample`, ``chains`` × ``steps``, checkpointed in the material's directory).
     ``figures`` adds the report's three PNG figures per material (on a CPU they take longer than
     the fit; off by default).
@@ -217,7 +218,7 @@ class FitSpec:
         fitting = _fitting()
         if self.sampler is None:
             raise InvalidInputError(
-                "this FitSpec samples nothing (sampler=None); give sampler='nuts', 'hmc' or 'emcee'."
+                f"this FitSpec samples nothing (sampler=None); give sampler= one of {', '.join(map(repr, SAMPLERS))}."
             )
         sampler = fitting.Emcee(walkers=walkers) if self.sampler == "emcee" else self.sampler
         return fitting.sample(
