@@ -87,7 +87,7 @@ from brdfscale.choices import ADEQUACY, AdequacyDefaults
 
 from ._data import Dataset
 from ._model import predict_images
-from ._moments import moment_covariance_differences
+from ._moments import moment_covariance_differences, weighted_moments
 from ._problem import check_fit, Problem
 from ._result import FitResult
 
@@ -150,10 +150,8 @@ def lobe_moments(
     keep = valid & (v * w > thresholds.significance) & (v > thresholds.peak_fraction * peak)
     if np.count_nonzero(keep) < 2:
         return None
-    mass = v[keep] / v[keep].sum()
-    centre = mass @ u[keep]
-    centred = u[keep] - centre
-    return centre, (centred * mass[:, None]).T @ centred
+    centre, _, cov = weighted_moments(u[keep], v[keep])
+    return centre, cov
 
 
 def _widths_and_faint(data: Dataset, thresholds: AdequacyDefaults) -> tuple[list[float], list[bool]]:

@@ -73,6 +73,17 @@ NARROW_NOTE = (
 even 3 standard errors of its variance above the estimate)."""
 
 
+def weighted_moments(u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The mean m (2,), the centred offsets u − m (N, 2) and the covariance Σ v (u − m)(u − m)ᵀ / Σ v (2, 2) of
+    offsets ``u`` (N, 2) weighted by values ``v`` (N,) of positive sum: the one computation of a lobe's moments
+    over a selection of its pixels (here every valid pixel; :func:`fitting._adequacy.lobe_moments` the
+    significant ones)."""
+    total = v.sum()
+    mean = v @ u / total
+    d = u - mean
+    return mean, d, (d * v[:, None]).T @ d / total
+
+
 def _image_moments(data: Dataset, values: np.ndarray, i: int) -> tuple[np.ndarray, np.ndarray, bool]:
     """Image ``i``'s covariance C (2, 2) of ``values`` (the data's, or a model's on its nodes), its standard errors
     (2, 2) by the data's σ, and whether its edge holds light above noise."""
@@ -87,10 +98,8 @@ def _image_moments(data: Dataset, values: np.ndarray, i: int) -> tuple[np.ndarra
     if not total > 0:
         nan = np.full((2, 2), np.nan)
         return nan, nan, False
-    mean = v @ u / total
-    d = u - mean
+    _, d, cov = weighted_moments(u, v)
     products = d[:, :, None] * d[:, None, :]  # (N, 2, 2)
-    cov = np.einsum("j,jab->ab", v, products) / total
     grad = (products - cov[None]) / total
     std = np.sqrt(np.einsum("jab,j->ab", grad**2, sigma**2))
     ring = np.zeros((n, n), bool)
