@@ -945,6 +945,20 @@ def _held_out_run_line(d: dict) -> str:
     )
 
 
+def _incomplete_line(d: dict) -> str:
+    """Where the run was stopped before its last record: which (file, noise) pairs it has not run, and that the
+    targets below count the records it has."""
+    if d.get("complete", True):
+        return ""
+    done = {(r["file"], r["noise"]) for r in d["records"]}
+    missing = [f"`{f}` `{n}`" for f in d["files"] for n in d["noises"] if (f, n) not in done]
+    return (
+        f" **Incomplete run**: {len(done)} of {len(d['files']) * len(d['noises'])} records; not run: "
+        f"{', '.join(missing)} (the targets below count the records there are; `--resume` on the same commit "
+        "continues it)."
+    )
+
+
 def real_fits() -> str:
     """docs/benchmarks.md: README's measured-surface chain on every file of tests/data/topographies (issue 31)."""
     d = load("bench_real_fits")
@@ -957,7 +971,10 @@ def real_fits() -> str:
     return "\n\n".join(
         [
             machine_line(d) + f" Command: `{d['command']}` (code at commit `{(d.get('code_commit') or '?')[:7]}`; "
-            f"{d['total_s']:.0f} s in all). " + load_line(d),
+            f"{d['total_s']:.0f} s in all). "
+            + load_line(d)
+            + _incomplete_line(d)
+            + (f" Conditions: {d['conditions']}." if d.get("conditions") else ""),
             f"The default fit of `brdfscale fit` on that commit: model {', '.join(models)}. Held-out: the "
             f"{d['train_scales']} finest scales fitted, the coarser ones predicted; relative L1 against the "
             "synthesised measurement (noise floor: the noise-free lobe against the noisy one); law: "

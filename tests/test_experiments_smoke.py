@@ -821,6 +821,12 @@ def test_bench_real_fits_writes_after_every_record_and_resumes(tmp_path, monkeyp
     assert calls == [(brf.FILES[1], brf.NOISES[0]), (brf.FILES[1], brf.NOISES[1])]
     assert payload["complete"] is True and len(payload["records"]) == 4 and payload["moments"] == {"rows": []}
     assert json.loads(path.read_text()) == payload and len(payload["resumed_at"]) == 1
+    # the page names what an interrupted run has not run, and says nothing of a complete one
+    from experiments import benchmarks_page
+
+    assert benchmarks_page._incomplete_line(payload) == ""
+    line = benchmarks_page._incomplete_line(partial)
+    assert "**Incomplete run**: 2 of 4 records" in line and f"`{brf.FILES[1]}` `{brf.NOISES[1]}`" in line
     payload["complete"], payload["code_commit"] = False, "0" * 40
     path.write_text(json.dumps(payload))
     with pytest.raises(SystemExit, match="interrupted run of commit 0000"):
