@@ -357,9 +357,9 @@ class SampleDefaults:
     emcee_steps: int = 2000
     gradient_steps: int = 1000
     gradient_warmup: int = 100
-    # independence Metropolis–Hastings: one log-density per step, so its steps are cheap; at the acceptance rates of
-    # a close Laplace approximation (0.6–0.8) its draws are correlated over a few steps, and R̂ ≤ 1.01 on the folded
-    # quantities wants about as many as NUTS's (docs/fitting.md, "Speed of the default fit")
+    # independence Metropolis–Hastings: one log-density per step, so its steps are cheap; its draws are correlated
+    # over a few steps (a rejected proposal repeats the state), and 1000 left R̂ too close to the 1.01 limit on the
+    # benchmark's set; 3000 give R̂ 1.003 there (docs/fitting.md, "Speed of the default fit", bench_anisotropic)
     imh_steps: int = 3000
 
     def steps_for(self, sampler: str) -> int:

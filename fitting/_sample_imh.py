@@ -67,9 +67,9 @@ class IMH(AbstractSampler):
             tails make the sampler slow to leave a posterior's tail the Laplace approximation underestimates).
         scale: the proposal's scale matrix in units of the Laplace covariance (default 1.0; > 1 widens it).
 
-    Fast where the Laplace approximation is close to the posterior (an adequate fit of many pixels: acceptance
-    rates of 0.6–0.8 on the 27-parameter anisotropic model's posterior, docs/fitting.md); where it is not, the
-    chains stick and the status says not converged — NUTS (the default) adapts to any smooth posterior.
+    Fast where the Laplace approximation is close to the posterior (an adequate fit of many pixels: the
+    27-parameter anisotropic model's posterior in docs/fitting.md, "Speed of the default fit"); where it is not,
+    the chains stick and the status says not converged — NUTS (the default) adapts to any smooth posterior.
     """
 
     dof: float = 10.0
