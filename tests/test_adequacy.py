@@ -13,6 +13,7 @@ import dataclasses
 import functools
 import math
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -153,7 +154,7 @@ def _tailed(seed: int, tail: float):
     model = fitting.AnisotropicModel(len(ANISO_SCALES))
     result = fitting.fit(model, data, starts=2, seed=seed)
     problem = fitting.Problem(model, data)
-    prediction = model.predict(np.clip(result.theta, problem.lower, problem.upper), data)
+    prediction = model.predict(jnp.clip(jnp.asarray(result.theta), problem.lower, problem.upper), data)
     return (
         fitting.assess(problem, result),
         fitting.moment_covariance_differences(data),
