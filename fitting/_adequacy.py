@@ -258,15 +258,20 @@ _MOMENT_FIGURES = ("moments_z", "moments_entry", "moments_p")
 """A fitted scale's second-moment test (:func:`_moment_misses`); None at μ0 and where it is not defined."""
 
 
-def _moment_misses(data: Dataset, prediction: np.ndarray, stats) -> list[dict]:
+def _moment_tests(n_scales: int) -> int:
+    """The Bonferroni count of the second-moment test: the 3 entries (xx, xy, yy) of every coarser scale's ΔΣ."""
+    return 3 * (n_scales - 1)
+
+
+def _moment_misses(data: Dataset, prediction: np.ndarray, observed: list[dict], stats) -> list[dict]:
     """Per scale, the second-moment test of :func:`assess` (module docstring, point 2): ``moments_z``, the largest
     (signed) ``(ΔΣ_model − ΔΣ_data)/std`` over xx, xy, yy of the pair (μ0, μ), ``moments_entry`` its entry and
-    ``moments_p`` its two-sided p-value, Bonferroni-corrected over the 3 entries of every coarser scale; None at μ0
-    and where either ΔΣ is not defined (a scale without light, a prediction not finite at a valid pixel)."""
-    observed = moment_covariance_differences(data)
+    ``moments_p`` its two-sided p-value, Bonferroni-corrected over :func:`_moment_tests`; None at μ0 and where
+    either ΔΣ is not defined (a scale without light, a prediction not finite at a valid pixel). ``observed``: the
+    data's own :func:`moment_covariance_differences`."""
     with np.errstate(invalid="ignore", over="ignore"):
         predicted = moment_covariance_differences(data, prediction)
-    n_tests = 3 * len(observed)
+    n_tests = _moment_tests(len(data.scales))
     out: list[dict] = [dict.fromkeys(_MOMENT_FIGURES)]
     for seen, model in zip(observed, predicted):
         best: dict = dict.fromkeys(_MOMENT_FIGURES)
@@ -341,6 +346,20 @@ def assess(
     Raises:
         InvalidInputError: ``fit`` does not belong to ``problem``.
     """
+    return assess_against(problem, fit, samples, unit=unit, thresholds=thresholds, observed_moments=None)
+
+
+def assess_against(
+    problem: Problem,
+    fit: FitResult,
+    samples=None,
+    *,
+    unit: str | None,
+    thresholds: AdequacyDefaults,
+    observed_moments: list[dict] | None,
+) -> Outcome:
+    """:func:`assess` with the data's own :func:`moment_covariance_differences` given where the caller has them
+    (:func:`fitting.write_report` writes them to fit.json too: computed once); None computes them."""
     from scipy import stats  # here, not at import: scipy.stats costs ~0.7 s of every command's start
 
     check_fit(problem, fit, "assess(problem, fit)")
@@ -357,7 +376,9 @@ def assess(
     resolved = resolution(data, unit=unit, thresholds=thresholds)
     n_total, p = max(data.n_data, 1), len(fit.names)
     n_tests = 2 * len(data.scale_of_image)
-    moments = _moment_misses(data, np.where(valid_pixels, prediction, 0.0), stats)
+    if observed_moments is None:
+        observed_moments = moment_covariance_differences(data)
+    moments = _moment_misses(data, np.where(valid_pixels, prediction, 0.0), observed_moments, stats)
     rows, inadequate = [], []
     for k, mu in enumerate(scales):
         images = data.images_of_scale(k)
@@ -410,7 +431,7 @@ def assess(
             z, entry = row["moments_z"], row["moments_entry"]
             inadequate.append(
                 (
-                    abs(z) / float(stats.norm.isf(thresholds.p_value / (2 * 3 * (len(scales) - 1)))),
+                    abs(z) / float(stats.norm.isf(thresholds.p_value / (2 * _moment_tests(len(scales))))),
                     f"model inadequate at {where}: its images' second moments miss the data's — ΔΣ_{entry}(μ0, μ) "
                     f"of its lobes over the images' pixels is {z:+.3g} standard errors off the images' own "
                     f"(p = {row['moments_p']:.2g}): the lobes' tails are not the model's shape "

@@ -173,6 +173,17 @@ class Stored:
         self.subspace = subspace
 
 
+def resumed_blocks(resumed: "Stored | None", steps: int) -> tuple[list, dict | None]:
+    """A resumed run's first ``steps`` stored steps as one block (θ, log p(θ), statistics) and the sampler's
+    carry after the last, as host arrays; ``([], None)`` when there is nothing to resume (no checkpoint, or one
+    with no step done). What the chain-driving samplers (:class:`fitting.NUTS`, :class:`fitting.HMC`,
+    :class:`fitting.IMH`) continue from."""
+    if resumed is None or resumed.steps == 0:
+        return [], None
+    block = (resumed.chain[:steps], resumed.log_prob[:steps], {k: v[:steps] for k, v in resumed.stats.items()})
+    return [block], {k: np.asarray(v) for k, v in resumed.state.items()}
+
+
 class _Damaged(Exception):
     """A check failed: ``reason``; ``good`` steps (whole chunks before the failure) verify."""
 

@@ -289,8 +289,14 @@ def laplace(target: Target, fit, iterations: int = 100) -> tuple[np.ndarray, np.
     return zeta, (V / np.clip(lam, 1e-300, None)) @ V.T
 
 
-def initial_positions(centre, cov, n: int, rng: np.random.Generator, scale: float = 1.0) -> np.ndarray:
-    """``n`` draws of the Laplace approximation, ``centre + scale·L ξ`` (L Lᵀ = cov)."""
+def covariance_root(cov) -> np.ndarray:
+    """A square root L of a covariance, L Lᵀ = cov, from its eigendecomposition (negative rounding clipped to 0):
+    the Laplace approximation's draws (:func:`initial_positions`) and :class:`fitting.IMH`'s proposal."""
     lam, V = np.linalg.eigh(cov)
-    root = V * np.sqrt(np.clip(lam, 0, None))
+    return V * np.sqrt(np.clip(lam, 0, None))
+
+
+def initial_positions(centre, root, n: int, rng: np.random.Generator, scale: float = 1.0) -> np.ndarray:
+    """``n`` draws of the Laplace approximation, ``centre + scale·L ξ`` (``root`` = L, L Lᵀ = the covariance:
+    :func:`covariance_root`)."""
     return centre + scale * rng.standard_normal((n, centre.size)) @ root.T

@@ -23,9 +23,10 @@ import numpy as np
 import brdfscale
 from brdfscale import BrdfscaleError, InvalidInputError, MeasurementFileError, OutputWriteError
 from brdfscale.checks import flag
+from brdfscale.choices import ADEQUACY
 from brdfscale.files import atomic_write, exclusive, json_text, jsonable, write_bytes, write_text
 
-from ._adequacy import assess
+from ._adequacy import assess_against
 from ._derived import compare_covariance_differences
 from ._model import predict_images
 from ._moments import moment_covariance_differences
@@ -364,6 +365,7 @@ def write_report(
     figures: bool = True,
     unit: str | None = None,
     covariance_truth: list | None = None,
+    not_sampled: str | None = None,
 ) -> dict:
     """Write ``fit.json``, ``data_vs_fit.png``, ``statistics.png``, ``corner.png``, the
     evolved lobe tables (``evolved_lobes.exr``) and, for a sampled fit with ArviZ installed,
@@ -386,7 +388,9 @@ def write_report(
     ``covariance_truth``: the true ΔΣ(μ0, μ_k) of the surface the set was made from
     (:func:`fitting.covariance_truth` of its metadata); each entry of ``covariance_differences`` and
     ``moment_covariance_differences`` then also holds its ``truth`` and ``pull``
-    (:func:`fitting.compare_covariance_differences`).
+    (:func:`fitting.compare_covariance_differences`). ``not_sampled``: why a fit that was to be sampled was not
+    (``brdfscale fit`` does not sample a fit whose Laplace-level verdict is "inadequate"); ``mcmc`` then reads
+    ``{"status": "not sampled: …"}`` instead of null.
 
     Everything is checked before the first file is written: the arguments, and (without
     ``overwrite``) that none of those files exists. ``fit.json`` is written last.
@@ -407,6 +411,11 @@ def write_report(
         raise InvalidInputError(f"model_info must be a dict or None; got {type(model_info).__name__}.")
     if unit is not None and not isinstance(unit, str):
         raise InvalidInputError(f"unit must be a length unit's name (str) or None; got {type(unit).__name__}.")
+    if not_sampled is not None and (samples is not None or not isinstance(not_sampled, str) or not not_sampled):
+        raise InvalidInputError(
+            "not_sampled must be None or, for a fit given without samples, a non-empty str saying why it was not "
+            f"sampled; got {not_sampled!r}" + (" with samples." if samples is not None else ".")
+        )
     overwrite = flag(overwrite, "overwrite")
     # everything that can fail on the arguments is computed before the first file is written
     model = problem.model
@@ -415,6 +424,7 @@ def write_report(
     # the draws of plot_recovered_statistics and plot_corner, drawn only for the figures
     draws = posterior_draws(problem, fit, samples) if figures else None
     corner_draws = posterior_draws(problem, fit, samples, n=CORNER_DRAWS) if figures else None
+    observed_moments = moment_covariance_differences(problem.data)  # the verdict's and fit.json's
     doc = {
         "brdfscale_version": brdfscale.__version__,
         "python": platform.python_version(),
@@ -425,20 +435,26 @@ def write_report(
             "valid_pixels": problem.data.n_data,
             "unit": unit,
         },
-        "outcome": assess(problem, fit, samples, unit=unit).to_json(),
+        "outcome": assess_against(
+            problem, fit, samples, unit=unit, thresholds=ADEQUACY, observed_moments=observed_moments
+        ).to_json(),
         "parameters": summarise(problem, fit, samples, truth),
         "ratios": summarise_ratios(problem, fit, samples),
         # ΔΣ(μ0, μk) ± Laplace std, with truth and pulls where the set records its surface (fitting._derived)
         "covariance_differences": compare_covariance_differences(fit.covariance_differences, covariance_truth),
         # the same from the images' own second moments, model-independent (fitting._moments)
-        "moment_covariance_differences": compare_covariance_differences(
-            moment_covariance_differences(problem.data), covariance_truth
-        ),
+        "moment_covariance_differences": compare_covariance_differences(observed_moments, covariance_truth),
         "identifiability": fit.to_json()["identifiability"],
         "optimisation": {
             k: v for k, v in fit.to_json().items() if k not in ("identifiability", "ratios", "covariance_differences")
         },
-        "mcmc": None if samples is None else samples.diagnostics(),
+        "mcmc": (
+            samples.diagnostics()
+            if samples is not None
+            else None
+            if not_sampled is None
+            else {"status": f"not sampled: {not_sampled}"}
+        ),
     }
     try:
         json_text(doc)

@@ -44,7 +44,8 @@ from brdfscale.checks import flag, integer, real
 from brdfscale.choices import SAMPLE
 from brdfscale.show import progress_bar
 
-from ._posterior import initial_positions, laplace
+from ._checkpoint import resumed_blocks
+from ._posterior import covariance_root, initial_positions, laplace
 from ._sampler import AbstractSampler
 
 
@@ -128,13 +129,8 @@ class _Gradient(AbstractSampler):
         _blackjax()  # a missing BlackJAX is named before any work
         total = self.warmup + steps
         spec = self._spec()
-        blocks = []
-        if resumed is not None and resumed.steps > 0:
-            blocks.append(
-                (resumed.chain[:total], resumed.log_prob[:total], {k: v[:total] for k, v in resumed.stats.items()})
-            )
-            carry = {k: np.asarray(v) for k, v in resumed.state.items()}
-        else:
+        blocks, carry = resumed_blocks(resumed, total)
+        if carry is None:
             z0, cov = starts(target, fit, chains, seed)
             carry = _host(_initial_carry(target, jnp.asarray(z0), jnp.asarray(cov)))
         done = blocks[0][0].shape[0] if blocks else 0
@@ -209,7 +205,7 @@ def starts(target, fit, chains, seed):
     """The chains' starts ζ (chains, m) — draws of the Laplace approximation in ζ with
     ``np.random.default_rng(seed)`` — and its covariance (the initial inverse mass matrix)."""
     mode, cov = laplace(target, fit)
-    return initial_positions(mode, cov, chains, np.random.default_rng(seed)), cov
+    return initial_positions(mode, covariance_root(cov), chains, np.random.default_rng(seed)), cov
 
 
 def join(blocks, axis=0):

@@ -30,7 +30,7 @@ from brdfscale.choices import SAMPLE
 from brdfscale.show import progress_bar
 
 from . import _diagnostics as diag
-from ._posterior import initial_positions, laplace, log_jacobian_np, theta_of_z_np
+from ._posterior import covariance_root, initial_positions, laplace, log_jacobian_np, theta_of_z_np
 from ._sampler import AbstractSampler
 
 
@@ -154,8 +154,9 @@ class Emcee(AbstractSampler):
         else:
             rng = np.random.default_rng(seed)
             mode, cov = laplace(target, fit)
-            centres = np.vstack([mode, initial_positions(mode, cov, chains - 1, rng)])
-            p0 = np.concatenate([initial_positions(c, cov, walkers, rng, scale=0.1) for c in centres])
+            root = covariance_root(cov)
+            centres = np.vstack([mode, initial_positions(mode, root, chains - 1, rng)])
+            p0 = np.concatenate([initial_positions(c, root, walkers, rng, scale=0.1) for c in centres])
             sampler.random_state = np.random.RandomState(seed).get_state()
             state = emcee.State(p0, log_prob=logp(p0), random_state=sampler.random_state)
         done = sum(c.shape[0] for c in chains_out)

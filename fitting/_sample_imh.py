@@ -48,7 +48,8 @@ from brdfscale.checks import real
 from brdfscale.choices import SAMPLE
 from brdfscale.show import progress_bar
 
-from ._posterior import initial_positions, laplace
+from ._checkpoint import resumed_blocks
+from ._posterior import covariance_root, initial_positions, laplace
 from ._sampler import AbstractSampler
 
 
@@ -102,17 +103,12 @@ class IMH(AbstractSampler):
     def run(self, target, fit, *, chains, steps, seed, store, resumed, progress, chunk):
         """The chain (steps, chains, d) in θ, log_prob, the acceptance probabilities and the proposal's record;
         resumed from ``resumed`` where it holds steps, each chunk appended to ``store``."""
-        blocks = []
-        if resumed is not None and resumed.steps > 0:
-            blocks.append(
-                (resumed.chain[:steps], resumed.log_prob[:steps], {k: v[:steps] for k, v in resumed.stats.items()})
-            )
-            carry = {k: np.asarray(v) for k, v in resumed.state.items()}
-        else:
+        blocks, carry = resumed_blocks(resumed, steps)
+        if carry is None:
             mode, cov = laplace(target, fit)
-            lam, V = np.linalg.eigh(cov)
-            root = self.scale * V * np.sqrt(np.clip(lam, 0.0, None))
-            z0 = initial_positions(mode, cov, chains, np.random.default_rng(seed))
+            root = covariance_root(cov)
+            z0 = initial_positions(mode, root, chains, np.random.default_rng(seed))
+            root = self.scale * root
             carry = _host(_initial_carry(target, jnp.asarray(z0), jnp.asarray(mode), jnp.asarray(root), self.dof))
         done = blocks[0][0].shape[0] if blocks else 0
         timing = {"warmup_s": 0.0, "sampling_s": 0.0}

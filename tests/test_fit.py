@@ -455,7 +455,12 @@ def test_write_report_checks_every_file_before_writing(small_problem, tmp_path):
     (out / "notes.txt").write_text("mine")
     doc = fitting.write_report(out, problem, res, overwrite=True, figures=False)
     assert doc["figures"] == [] and not list(out.glob("*.png")) and (out / "notes.txt").read_text() == "mine"
-    assert json.loads((out / "fit.json").read_text())["figures"] == []
+    assert json.loads((out / "fit.json").read_text())["figures"] == [] and doc["mcmc"] is None
+    # a fit that was to be sampled and was not says why (brdfscale fit's inadequate fits)
+    doc = fitting.write_report(out, problem, res, overwrite=True, figures=False, not_sampled="the reason")
+    assert json.loads((out / "fit.json").read_text())["mcmc"] == {"status": "not sampled: the reason"}
+    with pytest.raises(InvalidInputError, match="not_sampled must be None or"):
+        fitting.write_report(out, problem, res, overwrite=True, figures=False, not_sampled="")
 
 
 def test_sample_checkpoint_paths_and_first_chunk_resume(small_problem, tmp_path):

@@ -107,7 +107,8 @@ def _simulated_file(tmp_path, family: str, seed: int) -> str:
 def test_a_correct_model_exits_0_with_pulls_and_a_wrong_one_exits_5(tmp_path, capsys):
     """Beckmann lobes fitted by the Beckmann model: exit 0, the truth/pull table printed as the demo
     prints it; GGX lobes fitted by the same model: exit 5 after the complete report, one line on
-    stderr naming the worst scale and its figure."""
+    stderr naming the worst scale and its figure — not sampled though sampling was asked for (inadequate before
+    sampling; fit.json's mcmc says so), sampled with --sample-inadequate."""
     fit = ["--no-compilation-cache", "fit", "--model", "parametric", "--steps", "0", "--starts", "2"]
     fit += ["--no-progress", "--out"]
     assert main([*fit, str(tmp_path / "ok"), _simulated_file(tmp_path, "beckmann", 3)]) == 0
@@ -122,13 +123,25 @@ def test_a_correct_model_exits_0_with_pulls_and_a_wrong_one_exits_5(tmp_path, ca
         pull = "—" if row["std"] is None else f"{abs(estimate - value) / row['std']:.2f}"  # — : undetermined
         assert printed.out.split(f"\n{name} ")[1].splitlines()[0].endswith(f"  {pull}")
 
-    assert main([*fit, str(tmp_path / "wrong"), _simulated_file(tmp_path, "ggx", 3)]) == 5
+    # the wrong model with sampling asked for: not sampled (inadequate before sampling), the same verdict
+    steps = fit.index("--steps")
+    sampled = [*fit[:steps], *fit[steps + 2 : -1], "--sampler", "imh", "--steps", "30", "--out"]
+    wrong = _simulated_file(tmp_path, "ggx", 3)
+    assert main([*sampled, str(tmp_path / "wrong"), wrong]) == 5
     printed = capsys.readouterr()
     (line,) = printed.err.splitlines()
     assert line.startswith("brdfscale fit: inadequate: model inadequate at μ = ") and " px: " in line
+    assert "  not sampled: the model is inadequate before sampling" in printed.out
     doc = json.loads((tmp_path / "wrong" / "fit.json").read_text())
     assert doc["outcome"]["status"] == "inadequate" and doc["outcome"]["reason"] in line
+    assert doc["mcmc"] == {"status": "not sampled: " + printed.out.split("  not sampled: ")[1].splitlines()[0]}
     assert (tmp_path / "wrong" / "data_vs_fit.png").exists()  # the complete report, then the status
+    assert not (tmp_path / "wrong" / "chain.h5").exists()
+    # --sample-inadequate: sampled all the same, still exit 5
+    assert main([*sampled, str(tmp_path / "anyway"), "--sample-inadequate", wrong]) == 5
+    doc = json.loads((tmp_path / "anyway" / "fit.json").read_text())
+    assert doc["outcome"]["status"] == "inadequate" and doc["mcmc"]["sampler"] == "imh"
+    assert (tmp_path / "anyway" / "chain.h5").exists()
 
 
 def test_an_unresolved_lobe_is_refused_with_7_before_the_fit(tmp_path, capsys):

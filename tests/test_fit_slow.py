@@ -150,7 +150,8 @@ def test_imh_is_fast_where_the_laplace_approximation_holds_and_says_so_where_it_
     measured, out = tmp_path / "X.exr", tmp_path / "F"
     assert main(["synth", "--topography", str(topography), "--noise", "poisson:200:1", "--out", str(measured)]) == 0
     capsys.readouterr()
-    assert main(["fit", str(measured), "--out", str(out), "--sampler", "imh", "--no-progress"]) == 5
+    argv = ["fit", str(measured), "--out", str(out), "--sampler", "imh", "--sample-inadequate", "--no-progress"]
+    assert main(argv) == 5
     doc = json.loads((out / "fit.json").read_text())
     assert doc["outcome"]["status"] == "inadequate"
     assert doc["mcmc"]["status"].startswith("not converged: R̂ > 1.01 for "), doc["mcmc"]["status"]

@@ -190,7 +190,7 @@ def test_one_slope_spike_in_a_file_keeps_the_commands_lobes_resolved(tmp_path, c
     assert min(fitting.lobe_widths(data)) >= 1.0
 
 
-@pytest.mark.slow  # ≈ 40 s on 2 loaded cores: synth, a fit and a short sampler run
+@pytest.mark.slow  # ≈ 40 s on 2 loaded cores: synth and a fit (its sampler not run: inadequate before sampling)
 def test_an_isotropic_model_on_the_striated_file_exits_5_naming_why(tmp_path, capsys):
     """A deliberately wrong model: the isotropic parametric model on the striated confocal file plu-1
     (Σ_yy/Σ_xx of 3–35). The command writes its complete report, prints the verdict in one line on
@@ -201,6 +201,8 @@ def test_an_isotropic_model_on_the_striated_file_exits_5_naming_why(tmp_path, ca
     argv = ["fit", str(path), "--out", str(out), "--model", "parametric", "--no-progress"]
     code, _, err = _main([*argv, "--sampler", "emcee", "--steps", "200"], capsys)
     assert code == 5, err
+    status = json.loads((out / "fit.json").read_text())["mcmc"]["status"]
+    assert status.startswith("not sampled: the model is inadequate"), status  # no sampler run: inadequate already
     last = err.strip().splitlines()[-1]
     assert last.startswith("brdfscale fit: inadequate: model inadequate at μ = ") and " m: " in last, last
     doc = json.loads((out / "fit.json").read_text())

@@ -139,6 +139,12 @@ def add_fit_options(parser) -> None:
         f"{SAMPLE.sampler} too; in earlier releases it defaulted to emcee)",
     )
     parser.add_argument(
+        "--sample-inadequate",
+        action="store_true",
+        help="sample the posterior even where the fit is inadequate before sampling (by default such a fit is "
+        "reported with its Laplace uncertainties only, exit status 5)",
+    )
+    parser.add_argument(
         "--chains",
         type=integer(1, 64),
         default=SAMPLE.chains,
@@ -408,8 +414,12 @@ def _fit_and_report(
     )
     for item in result.undetermined:
         stream(f"  not determined by the data: {item['combination']}")
-    samples = None
+    samples, not_sampled = None, None
     if spec.sampler is not None:
+        not_sampled = _not_worth_sampling(fitting, fitting.Problem(model, data), result, args, unit)
+        if not_sampled is not None:
+            stream(f"  not sampled: {not_sampled}")
+    if spec.sampler is not None and not_sampled is None:
         samples = spec.sample(
             fitting.Problem(model, data),
             result,
@@ -429,7 +439,21 @@ def _fit_and_report(
         overwrite=args.force or resume,  # resumed: the partial report's files are written anew
         unit=unit,
         covariance_truth=covariance_truth,
+        not_sampled=not_sampled,
     )
+
+
+def _not_worth_sampling(fitting, problem, result, args, unit) -> str | None:
+    """Why the fit's posterior is not sampled, or None: a fit whose Laplace-level verdict (:func:`fitting.assess`
+    without samples) is "inadequate" is reported without MCMC — the posterior of a model its data reject says
+    nothing more about the surface, and on real surfaces it is the slowest posterior to sample (NUTS at its
+    largest trees) — unless ``--sample-inadequate``. The exit status is 5 either way."""
+    if getattr(args, "sample_inadequate", False):
+        return None
+    verdict = fitting.assess(problem, result, unit=unit)
+    if verdict.status != "inadequate":
+        return None
+    return "the model is inadequate before sampling (exit status 5 either way); --sample-inadequate samples it anyway"
 
 
 def run(args) -> int:
