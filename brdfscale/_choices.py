@@ -111,8 +111,13 @@ SAMPLERS = Choices(
             "independence Metropolis–Hastings from the Laplace approximation, one log-density per step (fitting.IMH): "
             "fast where that approximation is close (an adequate fit), stuck where it is not",
         ),
+        Choice(
+            "auto",
+            "imh where the Pareto k̂ of its proposal's importance weights says the Laplace approximation covers the "
+            "posterior, nuts otherwise (fitting.Auto)",
+        ),
     ),
-    default="nuts",
+    default="auto",
 )
 
 MODELS = Choices(
@@ -361,18 +366,32 @@ class SampleDefaults:
     # over a few steps (a rejected proposal repeats the state), and 1000 left R̂ too close to the 1.01 limit on the
     # benchmark's set; 3000 give R̂ 1.003 there (docs/fitting.md, "Speed of the default fit", bench_anisotropic)
     imh_steps: int = 3000
+    # fitting.Auto: k̂ from 2000 proposal draws (one log-density each; the PSIS paper's threshold for that many is
+    # 1 − 1/log10(2000) = 0.697) at most 0.7 runs IMH (docs/fitting.md, "Samplers" and "Speed of the default fit")
+    auto_draws: int = 2000
+    auto_max_k: float = 0.7
+    # fitting.sample_many runs one program over many materials: a gradient sampler, not auto's per-posterior choice
+    batched_sampler: str = "nuts"
 
     def steps_for(self, sampler: str) -> int:
         """The steps a sampler runs when none are given (``steps=None``): ``emcee_steps`` for
         emcee, ``imh_steps`` for independence Metropolis–Hastings, ``gradient_steps`` draws for NUTS and HMC
         (their ``default_steps``)."""
-        return {"emcee": self.emcee_steps, "imh": self.imh_steps}.get(sampler, self.gradient_steps)
+        return {"emcee": self.emcee_steps, "imh": self.imh_steps, "auto": self.auto_steps}.get(
+            sampler, self.gradient_steps
+        )
+
+    @property
+    def auto_steps(self) -> int:
+        """The most steps auto's choice runs by default (its IMH's or NUTS's warm-up and draws): the bound of a
+        chain's memory before the choice is made; the run itself takes the chosen sampler's own."""
+        return max(self.imh_steps, self.gradient_warmup + self.gradient_steps)
 
     def steps_text(self) -> str:
         """What ``steps=None`` means, in words (the command's help)."""
         return (
             f"the sampler's own: nuts and hmc {self.gradient_steps} draws after {self.gradient_warmup} "
-            f"warm-up steps, imh {self.imh_steps} steps, emcee {self.emcee_steps} steps"
+            f"warm-up steps, imh {self.imh_steps} steps, emcee {self.emcee_steps} steps; auto those of its choice"
         )
 
 

@@ -6,11 +6,13 @@ process per run.
 Runs, each timed from process start to exit:
 
 * ``default``: ``brdfscale fit M.exr --out D`` — the default model (fitting.AnisotropicModel,
-  Gaussian base lobe, solver ``auto`` = lm_normal) and the default sampler (NUTS, its default
-  chains and steps) — with a *cold* compilation cache (an empty ``BRDFSCALE_COMPILATION_CACHE``)
+  Gaussian base lobe, solver ``auto`` = lm_normal) and the default sampler (``auto``: IMH where the Pareto k̂ of
+  its proposal's weights allows, NUTS otherwise; the chosen sampler's default chains and steps; the row records the
+  choice) — with a *cold* compilation cache (an empty ``BRDFSCALE_COMPILATION_CACHE``)
   and then *warm* (the same cache, now filled, into another output directory);
 * ``default_no_sampling``: the same with ``--steps 0`` (optimisation, Laplace, report), cold and
   warm: ``default − default_no_sampling`` is the sampling's share, ``cold − warm`` the compilation's;
+* ``nuts``: ``--sampler nuts`` (the default before auto), cold and warm;
 * ``hmc``: ``--sampler hmc`` (static HMC, faster than NUTS on this near-Gaussian posterior),
   cold and warm;
 * ``imh``: ``--sampler imh`` (independence Metropolis–Hastings from the Laplace approximation: one log-density
@@ -152,6 +154,7 @@ def run(args: list[str], cache: Path, out: Path, timeout: float | None = None) -
             fit_status=opt.get("status"),
             reduced_chi2=opt.get("reduced_chi2"),
             sampler=mcmc.get("sampler"),
+            chosen_by=mcmc.get("chosen_by"),
             sampler_status=mcmc.get("status"),
             outcome=(doc.get("outcome") or {}).get("status"),
         )
@@ -177,12 +180,13 @@ def run(args: list[str], cache: Path, out: Path, timeout: float | None = None) -
 RUNS = {
     "default": [],
     "default_no_sampling": ["--steps", "0"],
+    "nuts": ["--sampler", "nuts"],
     "hmc": ["--sampler", "hmc"],
     "imh": ["--sampler", "imh"],
     "nonparametric_anisotropic": ["--model", "nonparametric_anisotropic", "--steps", "0"],
     "student_t_no_sampling": ["--shape", "student_t", "--steps", "0"],
 }
-QUICK = ("default", "default_no_sampling", "hmc", "imh")
+QUICK = ("default", "default_no_sampling", "nuts", "hmc", "imh")
 
 
 def main(

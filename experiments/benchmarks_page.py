@@ -1081,8 +1081,9 @@ def real_fits_summary() -> str:
 
 
 _SPEED_LABELS = {
-    "default": "default (NUTS)",
+    "default": "default (auto)",
     "default_no_sampling": "`--steps 0` (fit, Laplace, report)",
+    "nuts": "`--sampler nuts` (the default before auto)",
     "hmc": "`--sampler hmc`",
     "imh": "`--sampler imh`",
     "nonparametric_anisotropic": "`--model nonparametric_anisotropic --steps 0`",
@@ -1103,11 +1104,13 @@ def anisotropic_speed() -> str:
     for name, entry in d["runs"].items():
         cold, warm = entry.get("cold"), entry.get("warm")
         last = warm or cold or {}
-        sampled = last.get("sampler")
+        sampled, chosen = last.get("sampler"), last.get("chosen_by")
+        k = None if not chosen else chosen["pareto_k"]
+        why = "" if not chosen else " (auto: k̂ " + ("∞" if k is None else f"{k:.2f}") + ")"
         draws = (
             "—"
             if not sampled
-            else f"{sampled}, {last['chains']} × ({last['burn_in']} + {last['steps'] - last['burn_in']})"
+            else f"{sampled}{why}, {last['chains']} × ({last['burn_in']} + {last['steps'] - last['burn_in']})"
         )
         timing = last.get("timing_s") or {}
         rows.append(

@@ -16,8 +16,9 @@ The chain, each step in its own module:
   one compiled program per bucket (solves one at a time on CPUs, vmapped on accelerators),
   results equal to :func:`fit`'s (:func:`explain_plan`);
 * :func:`sample` — emcee (:class:`Emcee`), BlackJAX NUTS (:class:`NUTS`) or HMC (:class:`HMC`), or independence
-  Metropolis–Hastings from the Laplace approximation (:class:`IMH`)
-  on one posterior in smooth coordinates, ≥ 4 independent chains in one compiled program,
+  Metropolis–Hastings from the Laplace approximation (:class:`IMH`), or by default :class:`Auto`: IMH where the
+  Pareto k̂ of its proposal's importance weights (:func:`pareto_k`) says the approximation covers the posterior,
+  NUTS elsewhere; on one posterior in smooth coordinates, ≥ 4 independent chains in one compiled program,
   chunked HDF5 checkpoints resumable bit for bit, ArviZ's R̂/ESS/MCSE and a status that
   names any failed criterion (:class:`SampleResult`, ``to_arviz()``);
 * :func:`sample_many` — NUTS/HMC on many materials' posteriors at once: vmapped over the
@@ -53,6 +54,7 @@ from ._checkpoint import rewind_checkpoint
 from ._compare import compare, Comparison
 from ._data import Dataset, PointData
 from ._derived import compare_covariance_differences, covariance_truth, RATIO_FREQUENCIES, ratio_frequencies
+from ._diagnostics import pareto_k
 from ._fit import fit
 from ._joint import TopographyData
 from ._model import AbstractModel
@@ -72,7 +74,7 @@ from ._report import (
 )
 from ._result import FitResult
 from ._resume import report_problem, resume_report
-from ._sample import Emcee, HMC, IMH, log_posterior, NUTS, sample, SampleResult, SAMPLERS
+from ._sample import Auto, Emcee, HMC, IMH, log_posterior, NUTS, sample, SampleResult, SAMPLERS
 from ._sample_many import sample_many
 from ._simulate import simulate
 from ._solve import resolve_solver, SOLVERS
@@ -88,6 +90,7 @@ __all__ = [
     "SOLVERS",
     "AbstractCovarianceModel",
     "AbstractModel",
+    "Auto",
     "AnisotropicModel",
     "AnisotropicLawModel",
     "AnisotropicNonParametricModel",
@@ -131,6 +134,7 @@ __all__ = [
     "truth_of",
     "covariance_truth",
     "moment_covariance_differences",
+    "pareto_k",
     "compare_covariance_differences",
     "write_report",
 ]

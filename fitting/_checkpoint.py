@@ -435,6 +435,21 @@ class Checkpoint:
                     f.close()
 
 
+def recorded_signature(path) -> dict | None:
+    """The signature (module docstring) a checkpoint at ``path`` records, or None where there is no file or no
+    readable signature — read without verifying the chunks: what :meth:`fitting.Auto.choose` continues from, before
+    :meth:`Checkpoint.load` verifies the file and says what is wrong with one it cannot read."""
+    if path is None or not os.path.isfile(path):
+        return None
+    try:
+        with _h5py().File(path, "r") as f:
+            text = f.attrs.get("signature")
+        text = text.decode() if isinstance(text, bytes) else text
+        return json.loads(text) if isinstance(text, str) else None
+    except _READ_ERRORS:  # not HDF5, damaged, not JSON: load() names the fault
+        return None
+
+
 def verify(path, signature: str | None = None, stats=None) -> tuple[Stored, dict]:
     """The verified contents of the checkpoint ``path`` (module docstring) and its record
     (``signature``: the run's JSON record; ``steps``: steps committed).

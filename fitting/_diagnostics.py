@@ -25,6 +25,7 @@ emcee runs (2 τ_max, at most half the chain).
 """
 
 import logging
+import math
 
 import numpy as np
 from scipy import fft, stats
@@ -40,6 +41,7 @@ __all__ = [
     "integrated_time",
     "mcse_mean",
     "mcse_sd",
+    "pareto_k",
     "r_hat",
     "summary_row",
 ]
@@ -192,3 +194,40 @@ def integrated_time(chain) -> np.ndarray:
             return emcee.autocorr.integrated_time(chain, quiet=True)
     finally:
         logger.setLevel(level)
+
+
+def pareto_k(log_weights) -> float:
+    """The Pareto k̂ of importance weights given by their logarithms (any common offset): the shape of a generalised
+    Pareto distribution fitted to the largest weights — how heavy their right tail is — as in Pareto smoothed
+    importance sampling (Vehtari, Simpson, Gelman, Yao & Gabry 2024, *Pareto smoothed importance sampling*, JMLR
+    25(72); ArviZ's ``psislw``, whose k̂ this equals: tests/test_samplers.py).
+
+    The tail is the M = ⌈min(S/5, 3√S)⌉ largest of S weights, above the next largest; the shape comes from Zhang
+    and Stephens' (2009) empirical-Bayes fit of the exceedances, shrunk towards 0.5 by a prior worth 10 draws.
+    k̂ < 0.5: the weights have a finite variance; 0.5–0.7: finite mean, the estimate slow to converge; above 0.7
+    the importance sampler — and an independence sampler with that proposal — is not to be trusted. ``inf`` when
+    fewer than 5 weights exceed the tail's threshold (a few weights dominate, or too few draws). Non-finite log
+    weights count as weight 0.
+    """
+    x = np.asarray(log_weights, dtype=float).ravel()
+    x = np.where(np.isfinite(x), x, -np.inf)
+    if x.size < 5 or not np.isfinite(np.max(x)):
+        return math.inf
+    x = x - np.max(x)
+    order = np.sort(x)
+    cutoff = max(order[-int(np.ceil(min(0.2 * x.size, 3 * np.sqrt(x.size)))) - 1], np.log(np.finfo(float).tiny))
+    tail = np.sort(x[x > cutoff])
+    if tail.size <= 4:
+        return math.inf
+    exceed = np.exp(tail) - np.exp(cutoff)
+    n = exceed.size
+    m_est = 30 + int(n**0.5)
+    b = 1 - np.sqrt(m_est / (np.arange(1, m_est + 1, dtype=float) - 0.5))
+    b = b / (3 * exceed[int(n / 4 + 0.5) - 1]) + 1 / exceed[-1]
+    k = np.log1p(-b[:, None] * exceed).mean(axis=1)
+    length = n * (np.log(-(b / k)) - k - 1)
+    weights = 1 / np.exp(length - length[:, None]).sum(axis=1)
+    keep = weights >= 10 * np.finfo(float).eps
+    b, weights = b[keep], weights[keep] / weights[keep].sum()
+    k_post = np.log1p(-np.sum(b * weights) * exceed).mean()
+    return float((n * k_post + 10 * 0.5) / (n + 10))

@@ -29,6 +29,7 @@ import os
 
 from brdfscale import InvalidInputError
 from brdfscale.checks import flag
+from brdfscale.choices import SAMPLE
 
 from ._checkpoint import verify
 from ._report import check_report_directory, report_files
@@ -75,7 +76,7 @@ def report_problem(directory) -> str | None:
     return None
 
 
-def resume_report(out_dir, overwrite: bool = False, *, checkpoint=None, steps: int = 0) -> str | None:
+def resume_report(out_dir, overwrite: bool = False, *, checkpoint=None, steps: int | None = 0) -> str | None:
     """Decide, before the long work, whether a report into ``out_dir`` is fresh or resumed (module docstring).
 
     Args:
@@ -85,7 +86,8 @@ def resume_report(out_dir, overwrite: bool = False, *, checkpoint=None, steps: i
         checkpoint: the run's checkpoint path (``DIR/chain.h5`` for ``brdfscale fit``); needed
             when ``steps`` > 0.
         steps: the draws per chain the run asks for (after a NUTS/HMC warm-up; all steps for
-            emcee); 0 when it does not sample.
+            emcee and IMH); 0 when it does not sample; None: the default steps of the sampler the checkpoint
+            records (:meth:`brdfscale.choices.SampleDefaults.steps_for`: the one :class:`fitting.Auto` chose).
 
     Returns:
         None for a fresh report, or one line saying that the report phase is resumed and why.
@@ -115,7 +117,10 @@ def resume_report(out_dir, overwrite: bool = False, *, checkpoint=None, steps: i
     if checkpoint is None or not os.path.isfile(checkpoint):
         return _refuse(out_dir, " There is no chain beside them, so they are not a report in progress of this run.")
     stored, record = verify(checkpoint)
-    warmup = int(record["signature"].get("sampler", {}).get("warmup", 0))  # NUTS/HMC keep it in the chain
+    sampler = record["signature"].get("sampler", {})
+    warmup = int(sampler.get("warmup", 0))  # NUTS/HMC keep it in the chain
+    if steps is None:
+        steps = SAMPLE.steps_for(sampler.get("name", ""))
     if stored.steps < warmup + steps:
         return _refuse(
             out_dir,

@@ -43,6 +43,7 @@ import dataclasses
 import functools
 import hashlib
 import os
+import time
 
 import jax
 import numpy as np
@@ -54,7 +55,7 @@ from brdfscale.files import exclusive
 from brdfscale.show import progress_mode, Shown, Table
 
 from . import _diagnostics as diag
-from ._checkpoint import Checkpoint
+from ._checkpoint import Checkpoint, recorded_signature
 from ._derived import quantities_at
 from ._posterior import (
     COORDINATES,
@@ -65,15 +66,16 @@ from ._posterior import (
 )
 from ._problem import check_fit, Problem
 from ._result import FitResult
+from ._sample_auto import Auto
 from ._sample_blackjax import HMC, NUTS
 from ._sample_emcee import Emcee
 from ._sample_imh import IMH
-from ._sampler import AbstractSampler
+from ._sampler import AbstractChoice
 
 
-__all__ = ["HMC", "IMH", "NUTS", "SAMPLERS", "Emcee", "SampleResult", "log_posterior", "sample"]
+__all__ = ["HMC", "IMH", "NUTS", "SAMPLERS", "Auto", "Emcee", "SampleResult", "log_posterior", "sample"]
 
-SAMPLERS = {"emcee": Emcee, "nuts": NUTS, "hmc": HMC, "imh": IMH}
+SAMPLERS = {"emcee": Emcee, "nuts": NUTS, "hmc": HMC, "imh": IMH, "auto": Auto}
 """The samplers by name: ``sample(..., sampler="nuts")`` is ``sampler=fitting.NUTS()``."""
 
 
@@ -101,6 +103,11 @@ class SampleResult(Shown):
     burn-in's share of its run (emcee has no warm-up phase; its burn-in is found afterwards);
     ``sampling_s`` — the rest. The first call of a problem shape includes compilation in them.
 
+    ``chosen_by``: where a rule chose the sampler (:class:`fitting.Auto`), its record — ``chose`` (``sampler``,
+    the one that ran), the ``pareto_k`` of the proposal's importance weights (None: infinite), the ``limit`` it was
+    held to and the ``draws`` weighed (a resumed run's: the record of the run that wrote the checkpoint); None where
+    the sampler was given. ``timing["choice_s"]``: the seconds the choice took in this call.
+
     ``tau``, ``ess``, ``tau_reliable``: emcee's integrated autocorrelation time per
     coordinate after the burn-in, ``ESS = W·(steps − burn)/τ``, and whether the chain is
     ≥ 50 τ long. :meth:`summary` gives ArviZ's figures (R̂, bulk/tail ESS, MCSE),
@@ -127,6 +134,7 @@ class SampleResult(Shown):
     prior: str = PRIOR_TEXT
     coordinates: str = COORDINATES
     timing: dict | None = None
+    chosen_by: dict | None = None
 
     @property
     def samples(self) -> np.ndarray:
@@ -309,6 +317,7 @@ class SampleResult(Shown):
             "timing_s": self.timing,
             "summary": self.summary(),
             "warmup": warmup,
+            "chosen_by": self.chosen_by,
             "prior": self.prior,
             "coordinates": self.coordinates,
             "undetermined_combinations": [u.get("combination") for u in self.undetermined],
@@ -338,16 +347,16 @@ def _digest(tree) -> str:
     return h.hexdigest()[:32]
 
 
-def resolve_sampler(sampler, walkers=None, moves=None) -> AbstractSampler:
+def resolve_sampler(sampler, walkers=None, moves=None) -> AbstractChoice:
     """The sampler object of ``sample``'s ``sampler`` (a name of :data:`SAMPLERS`, with
-    ``walkers``/``moves`` where it takes them, or an :class:`AbstractSampler` as it is)."""
+    ``walkers``/``moves`` where it takes them, or an :class:`AbstractChoice` as it is)."""
     if isinstance(sampler, str) and sampler in SAMPLERS:
         return SAMPLERS[sampler].from_name(walkers, moves)
-    if not isinstance(sampler, AbstractSampler):
+    if not isinstance(sampler, AbstractChoice):
         got = repr(sampler) if isinstance(sampler, str) else type(sampler).__name__
         raise InvalidInputError(
             f"sampler must be one of {sorted(SAMPLERS)} or a sampler object "
-            f"(fitting.Emcee, fitting.NUTS, fitting.HMC, fitting.IMH); got {got}."
+            f"(fitting.Emcee, fitting.NUTS, fitting.HMC, fitting.IMH, fitting.Auto); got {got}."
         )
     if walkers is not None or moves is not None:
         raise sampler.refuse_walkers()
@@ -388,18 +397,21 @@ def sample(
         problem: the model and data (as used by :func:`fitting.fit`).
         fit: its point estimate; the starts and the preconditioning come from its Laplace
             approximation (in the sampling coordinates z, :mod:`fitting._posterior`).
-        sampler: ``"nuts"`` (default, :data:`brdfscale.choices.SAMPLERS`; emcee in earlier
-            releases), ``"hmc"``, ``"emcee"``, or a sampler object with its
+        sampler: ``"auto"`` (default, :data:`brdfscale.choices.SAMPLERS`: IMH where the Pareto k̂ of its
+            proposal's importance weights is at most 0.7, NUTS otherwise — :class:`fitting.Auto`; NUTS before,
+            emcee in earlier releases), ``"nuts"``, ``"hmc"``, ``"emcee"``, ``"imh"``, or a sampler object with its
             settings: :class:`fitting.Emcee` ``(walkers=, moves=)``, :class:`fitting.NUTS`
             ``(warmup=, target_acceptance=, max_doublings=, adapt_mass_matrix=)``,
             :class:`fitting.HMC` ``(trajectory_length=, warmup=, target_acceptance=, jitter=,
-            adapt_mass_matrix=)``, ``"imh"`` or :class:`fitting.IMH` ``(dof=, scale=)``.
+            adapt_mass_matrix=)``, :class:`fitting.IMH` ``(dof=, scale=)``,
+            :class:`fitting.Auto` ``(imh=, fallback=, max_k=, draws=)``.
         chains: independent chains (default 4): emcee ensembles, or NUTS/HMC chains, each
             started from its own Laplace draw; R̂ compares them.
         steps: steps per trajectory after the warm-up, at least 2 (emcee: all steps, the
             burn-in found afterwards among them; NUTS/HMC: draws after their ``warmup``
             steps); None (default): the sampler's own ``default_steps`` — NUTS/HMC 1000
-            draws, IMH 3000 steps, emcee 2000 steps (:data:`brdfscale.choices.SAMPLE`). A resumed run
+            draws, IMH 3000 steps, emcee 2000 steps, auto those of the sampler it chooses
+            (:data:`brdfscale.choices.SAMPLE`). A resumed run
             continues up to this count; of a checkpoint that holds more, the first are returned.
         chunk: steps between checkpoints (and NUTS/HMC's compiled block of steps).
         checkpoint: HDF5 path; an existing checkpoint of the same run is resumed.
@@ -432,9 +444,10 @@ def sample(
     """
     check_fit(problem, fit, "sample(problem, fit)")
     d = len(problem.model.names)
-    sampler = resolve_sampler(sampler, walkers, moves)
+    rule = resolve_sampler(sampler, walkers, moves)
     chains = integer(chains, "chains", 1)
-    steps = integer(sampler.steps_of(steps), "steps", 2)  # one step has no transition: no acceptance, no τ
+    if steps is not None:
+        steps = integer(steps, "steps", 2)  # one step has no transition: no acceptance, no τ
     chunk = integer(chunk, "chunk", 1)
     seed = integer(seed, "seed", 0)
     overwrite = flag(overwrite, "overwrite")
@@ -442,6 +455,12 @@ def sample(
     if progress:
         progress_mode()  # a BRDFSCALE_PROGRESS it does not accept is refused before any work
     m = sampled_dimension(problem, fit, "sample(problem, fit)")
+    # the sampler that runs: the rule's choice (fitting.Auto), or a resumed run's as its checkpoint records it
+    recorded = None if checkpoint is None or overwrite else recorded_signature(os.fspath(checkpoint))
+    started = time.perf_counter()
+    sampler, chosen_by = rule.choose(problem, fit, m=m, chains=chains, seed=seed, recorded=recorded)
+    choice_s = time.perf_counter() - started
+    steps = integer(sampler.steps_of(steps), "steps", 2)
     settings = sampler.settings(m)
     W = sampler.trajectories(m, chains)
 
@@ -460,6 +479,7 @@ def sample(
             "seed": seed,
             "coordinates": COORDINATES,
             "undetermined": len(fit.undetermined),
+            **({"chosen_by": chosen_by} if chosen_by is not None else {}),
         }
         store = Checkpoint(checkpoint, signature, W, d, chunk, sampler.stats, m)
     lock = contextlib.nullcontext() if store is None else exclusive(store.path, what="checkpoint")
@@ -481,10 +501,14 @@ def sample(
             progress=progress,
             chunk=chunk,
         )
-    return _diagnose(posterior, fit, sampler, settings, chains, chain, log_prob, stats, warmup, timing)
+    if chosen_by is not None:
+        timing = {**timing, "choice_s": choice_s}
+    return _diagnose(posterior, fit, sampler, settings, chains, chain, log_prob, stats, warmup, timing, chosen_by)
 
 
-def _diagnose(posterior, fit, sampler, settings, chains, chain, log_prob, stats, warmup, timing) -> SampleResult:
+def _diagnose(
+    posterior, fit, sampler, settings, chains, chain, log_prob, stats, warmup, timing, chosen_by=None
+) -> SampleResult:
     problem = posterior.problem
     # τ is NaN for a coordinate no walker moved in (zero variance; short chains, stuck
     # ensembles): taken as ∞ — burn-in half the chain (emcee), ESS 0, τ not reliable (JSON: null)
@@ -526,13 +550,19 @@ def _diagnose(posterior, fit, sampler, settings, chains, chain, log_prob, stats,
         undetermined=list(fit.undetermined),
         held=held,
         timing=_timing(timing, burn, n_steps),
+        chosen_by=chosen_by,
     )
 
 
 def _timing(timing, burn, n_steps) -> dict:
-    """NUTS/HMC time their warm-up apart; emcee's burn-in gets its share of the run's steps."""
+    """NUTS/HMC time their warm-up apart; emcee's burn-in gets its share of the run's steps. A rule's choice of the
+    sampler (``choice_s``, :class:`fitting.Auto`) is kept apart."""
     if "run_s" not in timing:
         return dict(timing)
     timed = timing["steps"]
     warm = timing["run_s"] * max(burn - (n_steps - timed), 0) / timed if timed else 0.0
-    return {"warmup_s": warm, "sampling_s": timing["run_s"] - warm}
+    return {
+        "warmup_s": warm,
+        "sampling_s": timing["run_s"] - warm,
+        **{k: timing[k] for k in ("choice_s",) if k in timing},
+    }

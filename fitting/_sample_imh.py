@@ -100,6 +100,27 @@ class IMH(AbstractSampler):
         """None: the chains start from draws of the Laplace approximation and nothing adapts (module docstring)."""
         return 0, warmup
 
+    def log_weights(self, target, fit, *, draws: int, seed: int, batch: int) -> np.ndarray:
+        """``log w = log p − log q`` (up to one constant) at ``draws`` independent draws of this sampler's proposal
+        q: the importance weights whose Pareto k̂ (:func:`fitting.pareto_k`) says whether q covers the posterior
+        (:class:`fitting.Auto`). Drawn from NumPy's generator of ``(seed, 1)``, apart from the chains' streams;
+        weighed ``batch`` at a time (the chains' count) by the program that weighs the chains' starts, so that a run
+        that goes on to sample with this sampler compiles nothing more."""
+        mode, cov = laplace(target, fit)
+        root = self.scale * covariance_root(cov)
+        rng = np.random.default_rng([seed, 1])
+        xi = rng.standard_normal((draws, mode.size))
+        if not math.isinf(self.dof):
+            xi = xi / np.sqrt(rng.chisquare(self.dof, (draws, 1)) / self.dof)
+        z = mode + xi @ root.T
+        z = np.concatenate([z, np.broadcast_to(mode, (-draws % batch, mode.size))])  # whole batches
+        mode_, root_ = jnp.asarray(mode), jnp.asarray(root)
+        out = [
+            np.asarray(_initial_carry(target, jnp.asarray(z[i : i + batch]), mode_, root_, self.dof)["log_weight"])
+            for i in range(0, z.shape[0], batch)
+        ]
+        return np.concatenate(out)[:draws]
+
     def run(self, target, fit, *, chains, steps, seed, store, resumed, progress, chunk):
         """The chain (steps, chains, d) in θ, log_prob, the acceptance probabilities and the proposal's record;
         resumed from ``resumed`` where it holds steps, each chunk appended to ``store``."""

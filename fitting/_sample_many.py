@@ -166,7 +166,7 @@ def sample_many(
     problems,
     fits,
     *,
-    sampler=SAMPLE.sampler,
+    sampler=SAMPLE.batched_sampler,
     chains: int = SAMPLE.chains,
     steps: int | None = SAMPLE.steps,
     chunk: int = SAMPLE.chunk,

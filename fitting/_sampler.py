@@ -1,19 +1,22 @@
-"""The abstract sampler of :func:`fitting.sample`: what :class:`fitting.Emcee`, :class:`fitting.NUTS`
-and :class:`fitting.HMC` implement, so that ``sample`` and ``sample_many`` ask the object
-instead of testing its type.
+"""The abstract samplers of :func:`fitting.sample`: what :class:`fitting.Emcee`, :class:`fitting.NUTS`,
+:class:`fitting.HMC`, :class:`fitting.IMH` and :class:`fitting.Auto` implement, so that ``sample`` and
+``sample_many`` ask the object instead of testing its type.
 
-A sampler is a frozen dataclass of its settings (checked when made) that
+What ``sample(..., sampler=)`` accepts is an :class:`AbstractChoice`: it names itself (``name``: the key of
+:data:`fitting.SAMPLERS`), answers for the arguments that belong to one sampler only (:meth:`~AbstractChoice.from_name`,
+:meth:`~AbstractChoice.refuse_walkers`) and for being vectorised over materials (:meth:`~AbstractChoice.check_batched`),
+and says which sampler runs the chains of a posterior (:meth:`~AbstractChoice.choose`): a sampler itself, or
+:class:`fitting.Auto`'s pick by the posterior's fit.
 
-* names itself (``name``: the key of :data:`fitting.SAMPLERS`) and the per-step statistics it
-  records (``stats``: name → HDF5 dtype);
+A sampler (:class:`AbstractSampler`) is a frozen dataclass of its settings (checked when made) that
+
+* records its per-step statistics (``stats``: name → HDF5 dtype);
 * says how many steps it runs when ``sample`` is given none (``default_steps``: emcee's
   ensembles need long chains, the Laplace-preconditioned gradient samplers far fewer draws for
   the same effective sample size — :data:`brdfscale.choices.SAMPLE`; :meth:`steps_of`);
 * says what a checkpoint records of it (:meth:`settings`) and how many trajectories ``chains``
   independent chains have (:meth:`trajectories`);
-* runs the chains (:meth:`run`) and finds the burn-in of the run (:meth:`burn_in`);
-* answers for the arguments that belong to one sampler only (:meth:`from_name`,
-  :meth:`refuse_walkers`) and for being vectorised over materials (:meth:`check_batched`).
+* runs the chains (:meth:`run`) and finds the burn-in of the run (:meth:`burn_in`).
 """
 
 import abc
@@ -24,23 +27,25 @@ import numpy as np
 from brdfscale import InvalidInputError
 
 
-__all__ = ["AbstractSampler"]
+__all__ = ["AbstractChoice", "AbstractSampler"]
 
 
-class AbstractSampler(abc.ABC):
-    """The interface every sampler of :func:`fitting.sample` implements (module docstring)."""
+class AbstractChoice(abc.ABC):
+    """What :func:`fitting.sample` accepts as ``sampler=`` (module docstring): a sampler, or a rule that picks one."""
 
     name: ClassVar[str] = ""
-    stats: ClassVar[dict] = {}
-    default_steps: ClassVar[int] = 0
 
-    def steps_of(self, steps) -> int:
-        """``steps`` as given, or this sampler's :attr:`default_steps` where it is None (the
-        default of :func:`fitting.sample`, :func:`fitting.sample_many` and ``brdfscale fit``)."""
-        return self.default_steps if steps is None else steps
+    @abc.abstractmethod
+    def choose(
+        self, problem, fit, *, m: int, chains: int, seed: int, recorded: dict | None
+    ) -> tuple["AbstractSampler", dict | None]:
+        """The sampler that runs the chains of ``problem``'s posterior about ``fit`` (``m`` sampled coordinates,
+        ``chains`` chains, ``seed``), and the record of the choice (None: nothing was chosen). ``recorded``: the
+        signature a checkpoint of this run holds (None: none), so that a resumed run continues with the sampler that
+        wrote it."""
 
     @classmethod
-    def from_name(cls, walkers=None, moves=None) -> "AbstractSampler":
+    def from_name(cls, walkers=None, moves=None) -> "AbstractChoice":
         """The sampler chosen by name (``sample(..., sampler="nuts")``), with ``sample``'s
         ``walkers=``/``moves=`` where this sampler takes them; InvalidInputError otherwise."""
         if walkers is not None or moves is not None:
@@ -58,6 +63,22 @@ class AbstractSampler(abc.ABC):
     def check_batched(self) -> None:
         """InvalidInputError unless this sampler runs many materials' posteriors in one
         program (:func:`fitting.sample_many`)."""
+
+
+class AbstractSampler(AbstractChoice):
+    """The interface every sampler of :func:`fitting.sample` implements (module docstring)."""
+
+    stats: ClassVar[dict] = {}
+    default_steps: ClassVar[int] = 0
+
+    def choose(self, problem, fit, *, m, chains, seed, recorded) -> tuple["AbstractSampler", dict | None]:
+        """This sampler: it runs the chains itself."""
+        return self, None
+
+    def steps_of(self, steps) -> int:
+        """``steps`` as given, or this sampler's :attr:`default_steps` where it is None (the
+        default of :func:`fitting.sample`, :func:`fitting.sample_many` and ``brdfscale fit``)."""
+        return self.default_steps if steps is None else steps
 
     @abc.abstractmethod
     def settings(self, d: int) -> dict:

@@ -28,6 +28,7 @@ import pytest
 
 import brdfscale
 from brdfscale import fitting, InvalidInputError, MeasurementFileError, OutputWriteError
+from brdfscale.choices import SAMPLE
 from brdfscale.fitting import _checkpoint, _resume
 from tests.helpers import (
     comparable_report,
@@ -296,6 +297,9 @@ def test_resume_report_decides_from_the_report_and_the_verified_chain(runs, tmp_
     assert "\n" not in line
     with pytest.raises(InvalidInputError, match="holds 40 of the 50 steps asked"):
         fitting.resume_report(out, checkpoint=out / "chain.h5", steps=30)
+    # steps None (a command run with --steps not given): the recorded sampler's own default, NUTS's 1000 draws
+    with pytest.raises(InvalidInputError, match=f"holds 40 of the {20 + SAMPLE.gradient_steps} steps asked"):
+        fitting.resume_report(out, checkpoint=out / "chain.h5", steps=None)
     (out / "fit.json").write_text('{"parameters": {}')  # cut short: not a finished report
     assert fitting.resume_report(out, checkpoint=out / "chain.h5", steps=20) is not None
     (out / "fit.json").write_text("{}")  # a JSON object without a report's sections: not a finished report

@@ -60,7 +60,11 @@ def test_command_line_defaults_equal_the_library_defaults():
             getattr(args, option) == fit[option] == fit_many[option] == spec[option] == getattr(choices.FIT, option)
         ), option
     for option in ("sampler", "chains", "steps", "seed"):
-        assert getattr(args, option) == sample[option] == sample_many[option] == getattr(choices.SAMPLE, option), option
+        assert getattr(args, option) == sample[option] == getattr(choices.SAMPLE, option), option
+        if option != "sampler":
+            assert sample_many[option] == sample[option], option
+    # sample_many runs one program over many materials: a gradient sampler, not auto's per-posterior choice
+    assert sample_many["sampler"] == choices.SAMPLE.batched_sampler == "nuts" != choices.SAMPLE.sampler == "auto"
     for option in ("chains", "steps"):
         assert spec[option] == getattr(choices.SAMPLE, option), option
     assert spec["sampler"] is None  # a library samples only when asked; then --steps > 0 passes --sampler's default
@@ -82,7 +86,7 @@ def test_command_line_defaults_equal_the_library_defaults():
 
 
 def test_the_help_states_the_defaults_the_parser_uses(capsys):
-    """``brdfscale fit --help`` says each default, and names the default sampler (NUTS), not emcee."""
+    """``brdfscale fit --help`` says each default, and names the default sampler (auto), not emcee."""
     with pytest.raises(SystemExit):
         build_parser().parse_args(["fit", "--help"])
     text = " ".join(capsys.readouterr().out.split())
@@ -100,7 +104,8 @@ def test_the_help_states_the_defaults_the_parser_uses(capsys):
         ("--shape", choices.SHAPES),
     ):
         assert f"{table.default} (default): {table.summary(table.default)}" in text, flag
-    assert "(optimistix, then NUTS by default: --sampler)" in text and "optimistix + emcee" not in text
+    said = f"(optimistix, then the sampler --sampler names, by default auto: {choices.SAMPLERS.summary('auto')}; "
+    assert said in text and "optimistix + emcee" not in text
 
 
 @pytest.mark.parametrize(
@@ -154,7 +159,8 @@ def test_every_name_in_the_table_is_accepted_by_fitting():
 
 def test_the_table_refuses_unknown_names_naming_the_argument():
     assert choices.SAMPLERS.check("hmc") == "hmc"
-    with pytest.raises(InvalidInputError, match="sampler must be one of 'nuts', 'hmc', 'emcee', 'imh'; got 'gibbs'"):
+    said = "sampler must be one of 'nuts', 'hmc', 'emcee', 'imh', 'auto'; got 'gibbs'"
+    with pytest.raises(InvalidInputError, match=said):
         choices.SAMPLERS.check("gibbs")
     assert len(choices.SOLVERS) == len(set(choices.SOLVERS.names)) == 6
 

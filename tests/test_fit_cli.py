@@ -290,16 +290,21 @@ def test_compare_reports_the_model_the_data_prefer(tmp_path, capsys):
 @pytest.mark.slow  # one fit and two NUTS runs compiled afresh: 30–120 s on 2 shared cores
 def test_a_chain_too_short_to_converge_exits_6_and_the_default_draws_exit_0(tmp_path, capsys):
     """An adequate fit sampled with NUTS: 5 draws per chain cannot reach ESS_bulk ≥ 400, so the
-    report says not_converged, names the criterion, and the command exits 6; the default draws
-    (``--steps`` not given: the sampler's own, brdfscale.choices.SAMPLE) pass the same check: exit 0."""
+    report says not_converged, names the criterion, and the command exits 6; the default sampler (auto) and draws
+    (``--steps`` not given: the chosen sampler's own, brdfscale.choices.SAMPLE) pass the same check: exit 0."""
     path = _simulated_file(tmp_path, "beckmann", 3)
     fit = ["fit", "--model", "parametric", "--starts", "2", "--no-progress", path, "--out"]
-    assert main([*fit, str(tmp_path / "short"), "--steps", "5"]) == 6
+    assert main([*fit, str(tmp_path / "short"), "--sampler", "nuts", "--steps", "5"]) == 6
     printed = capsys.readouterr()
     assert printed.err.startswith("brdfscale fit: not converged: ") and "ESS_bulk < 400" in printed.err
     doc = json.loads((tmp_path / "short" / "fit.json").read_text())
     assert doc["outcome"]["status"] == "not_converged" and doc["mcmc"]["steps"] == SAMPLE.gradient_warmup + 5
     assert main([*fit, str(tmp_path / "default")]) == 0
+    printed = capsys.readouterr().out
     doc = json.loads((tmp_path / "default" / "fit.json").read_text())
-    assert doc["mcmc"]["sampler"] == "nuts" and doc["mcmc"]["steps"] == SAMPLE.gradient_warmup + SAMPLE.gradient_steps
+    chosen = doc["mcmc"]["chosen_by"]
+    assert chosen["name"] == "auto" and doc["mcmc"]["sampler"] == chosen["chose"]
+    own = {"imh": SAMPLE.imh_steps, "nuts": SAMPLE.gradient_warmup + SAMPLE.gradient_steps}
+    assert doc["mcmc"]["steps"] == own[chosen["chose"]]
     assert doc["mcmc"]["status"] == "converged" and doc["outcome"]["status"] == "ok"
+    assert f"  {chosen['chose']} (auto: Pareto k̂ of its proposal's weights {chosen['pareto_k']:.2f} " in printed

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from brdfscale import fitting
+from brdfscale import exr, fitting
 from brdfscale.choices import SAMPLE
 from tests.helpers import ANISO_SCALES, anisotropic_dataset, parametric_dataset, TRUTHS
 
@@ -130,7 +130,9 @@ def test_imh_is_fast_where_the_laplace_approximation_holds_and_says_so_where_it_
     default 3000 steps pass the convergence check with margin. On opd-1.opd synthesised at poisson:200:1, whose
     lobes the default model does not describe (χ²/dof ≈ 86), the Gauss–Newton covariance is far from the
     posterior: the chains stick, and the sampler's status says not converged — R̂ and the ESS named — while the
-    fit's outcome stays "inadequate" (exit 5), never a silent 0."""
+    fit's outcome stays "inadequate" (exit 5), never a silent 0. The default sampler (fitting.Auto) tells the two
+    apart before any chain runs: the Pareto k̂ of the proposal's importance weights is below 0.5 on the first
+    (IMH runs) and above 1 on the second (NUTS runs)."""
     from pathlib import Path
 
     from brdfscale._cli import main
@@ -145,6 +147,11 @@ def test_imh_is_fast_where_the_laplace_approximation_holds_and_says_so_where_it_
         summary = s.summary()
         assert min(r["ess_bulk"] for r in summary.values()) > 4 * 400
         assert max(r["r_hat"] for r in summary.values()) < 1.005
+        # the default sampler (fitting.Auto) sees it: the proposal's weights have a light tail, IMH runs
+        chosen = fitting.Auto().choose(
+            fitting.Problem(model, data), res, m=len(model.names), chains=4, seed=seed, recorded=None
+        )
+        assert chosen[0].name == "imh" and chosen[1]["pareto_k"] < 0.5, chosen[1]
 
     topography = Path(__file__).parent / "data" / "topographies" / "opd-1.opd"
     measured, out = tmp_path / "X.exr", tmp_path / "F"
@@ -156,3 +163,10 @@ def test_imh_is_fast_where_the_laplace_approximation_holds_and_says_so_where_it_
     assert doc["outcome"]["status"] == "inadequate"
     assert doc["mcmc"]["status"].startswith("not converged: R̂ > 1.01 for "), doc["mcmc"]["status"]
     assert "sampler not converged" in " ".join(doc["outcome"]["problems"])
+    # and Auto would not have run IMH there: the weights' Pareto tail is far heavier than its limit allows
+    data = fitting.Dataset.from_measurements(exr.read_measurements(str(measured)))
+    model = fitting.AnisotropicModel(len(data.scales))
+    res = fitting.fit(model, data)
+    m = len(model.names) - len(res.undetermined)
+    sampler, record = fitting.Auto().choose(fitting.Problem(model, data), res, m=m, chains=4, seed=0, recorded=None)
+    assert sampler.name == "nuts" and (record["pareto_k"] is None or record["pareto_k"] > 1.0), record

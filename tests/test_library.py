@@ -168,6 +168,29 @@ def test_library_samples_with_nuts_batched_equal_to_sample_per_material(small_li
             assert report["summary"][quantity] == row, quantity  # the same chain, bit for bit
 
 
+def test_which_samplers_a_library_batches_and_which_it_runs_per_material():
+    """FitSpec.batched asks the sampler (check_batched): NUTS and HMC run the task's materials in one program,
+    emcee, IMH and auto one material after another (each checkpointed); no sampler, neither."""
+    for name, batched in [("nuts", True), ("hmc", True), ("emcee", False), ("imh", False), ("auto", False)]:
+        assert library.FitSpec(sampler=name).batched is batched, name
+    assert library.FitSpec().batched is False
+
+
+@pytest.mark.slow
+def test_library_samples_with_auto_per_material(small_library, tmp_path, capsys):
+    """--sampler auto (the command's default sampler) samples each material after its fit, checkpointed in its
+    directory, and the report records the choice; once, the library sampled only with nuts, hmc and emcee, and
+    --sampler imh wrote reports without a chain."""
+    sources = [str(small_library / "material_001.exr")]
+    out = tmp_path / "out"
+    argv = ["fit-library", *sources, "--out", str(out), "--model", "parametric", "--starts", "2"]
+    argv += ["--steps", "200", "--sampler", "auto", "--chains", "2", "--no-progress"]
+    assert main(argv) == 0, capsys.readouterr().out
+    report = _fit_json(out, "material_001")["mcmc"]
+    assert report["chosen_by"]["name"] == "auto" and report["sampler"] == report["chosen_by"]["chose"]
+    assert report["chains"] == 2 and (out / "materials" / "material_001" / "chain.h5").exists()
+
+
 def test_sources_are_named_uniquely_and_missing_ones_refused(tmp_path):
     (tmp_path / "a" / "b").mkdir(parents=True)
     (tmp_path / "c").mkdir()

@@ -125,6 +125,9 @@ def test_what_sample_many_refuses(ragged):
     for sampler in ("emcee", fitting.Emcee(walkers=8)):
         with pytest.raises(InvalidInputError, match="do not vectorise across materials"):
             fitting.sample_many(problems, fits, sampler=sampler)
+    for sampler in ("auto", fitting.Auto(), "imh"):  # fitting.sample's default is not sample_many's (NUTS)
+        with pytest.raises(InvalidInputError, match="NUTS or HMC only"):
+            fitting.sample_many(problems, fits, sampler=sampler)
     for args, match in [
         ((problems, fits[:2]), "pair up"),
         ((problems[0], fits[0]), "sequence of problems"),

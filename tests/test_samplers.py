@@ -152,6 +152,89 @@ def test_one_imh_chunk_under_jit_equals_eager_and_its_acceptance_is_scipys_t_den
         assert acceptance[0, c] == pytest.approx(min(1.0, math.exp(w_new - w_old)), rel=1e-9)
 
 
+# -- auto: IMH where its proposal covers the posterior, NUTS elsewhere ----------------------
+
+
+@pytest.mark.parametrize(
+    "draws",
+    [
+        lambda rng: rng.standard_normal(2000),  # log-normal weights: k̂ ≈ 0.4
+        lambda rng: np.log(rng.pareto(1 / 0.8, 3000)),  # Pareto weights of shape k = 0.8
+        lambda rng: -np.log(rng.uniform(size=1000)),  # exponential weights: k = 0
+        lambda rng: np.log(rng.uniform(size=500)),  # bounded weights: k < 0
+    ],
+)
+def test_pareto_k_is_arviz_psis_k_hat(draws):
+    """fitting.pareto_k against ArviZ's Pareto smoothed importance sampling (az.psislw) on weights of known tails."""
+    az = pytest.importorskip("arviz")
+    log_w = draws(np.random.default_rng(4))
+    expected = float(az.psislw(log_w.copy())[1])
+    assert fitting.pareto_k(log_w) == pytest.approx(expected, rel=1e-12, abs=1e-12)
+    assert fitting.pareto_k(log_w + 123.0) == pytest.approx(expected, rel=1e-12, abs=1e-12)  # any offset
+
+
+def test_pareto_k_of_heavy_tails_is_large_and_of_too_few_weights_infinite():
+    rng = np.random.default_rng(5)
+    assert fitting.pareto_k(np.log(rng.pareto(1 / 1.5, 4000))) > 1.0  # shape 1.5: no mean
+    assert fitting.pareto_k(rng.standard_normal(4)) == math.inf  # fewer than 5 weights
+    assert fitting.pareto_k(np.full(100, -np.inf)) == math.inf  # every weight 0
+    spiky = np.concatenate([np.zeros(1000), [50.0]])  # one weight dominates: the tail above the cut holds 1
+    assert fitting.pareto_k(spiky) == math.inf
+
+
+def test_auto_chooses_imh_on_a_gaussian_posterior_and_recovers_it(linear):
+    """The linear-Gaussian posterior is what the Laplace approximation says it is: the Student-t proposal's weights
+    are bounded (k̂ well below 0.7), so auto runs IMH — recorded in ``chosen_by`` — and its draws are the exact
+    posterior's."""
+    problem, res, mean, cov = linear
+    s = fitting.sample(problem, res, chunk=CHUNK, progress=False, seed=3, steps=800)  # the default: auto
+    assert s.sampler == "imh" and s.status == "converged", s.status
+    chosen = s.chosen_by
+    assert chosen is not None and chosen["name"] == "auto" and chosen["chose"] == "imh"
+    assert chosen["pareto_k"] < 0.5 and chosen["limit"] == pytest.approx(min(0.7, 1 - 1 / math.log10(2000)))
+    assert chosen["draws"] == SAMPLE.auto_draws and s.diagnostics()["chosen_by"] == chosen
+    assert s.timing is not None and s.timing["choice_s"] > 0
+    # k̂ is that of the proposal's weights, recomputed here from the same draws
+    from brdfscale.fitting import _posterior
+
+    weights = fitting.IMH().log_weights(_posterior.target(problem, res), res, draws=2000, seed=3, batch=4)
+    assert chosen["pareto_k"] == fitting.pareto_k(weights)
+    _assert_gaussian(s.samples, s, mean, cov, s.names)
+
+
+def test_auto_falls_back_where_k_hat_is_above_its_limit(linear):
+    """With a limit no k̂ meets, auto runs its fallback (here NUTS with a short warm-up); the record says why."""
+    problem, res, mean, cov = linear
+    rule = fitting.Auto(fallback=fitting.NUTS(warmup=150), max_k=-10.0)
+    s = fitting.sample(problem, res, sampler=rule, chunk=CHUNK, progress=False, seed=3, steps=800)
+    assert s.sampler == "nuts" and s.chosen_by["chose"] == "nuts" and s.chosen_by["limit"] == -10.0
+    assert s.chosen_by["pareto_k"] > -10.0 and s.warmup["steps"] == 150
+    _assert_gaussian(s.samples, s, mean, cov, s.names)
+    with pytest.raises(InvalidInputError, match="imh must be a fitting.IMH"):
+        fitting.Auto(imh=fitting.NUTS())
+    with pytest.raises(InvalidInputError, match="fallback must be a sampler object"):
+        fitting.Auto(fallback=fitting.Auto())
+
+
+def test_an_interrupted_auto_run_resumes_with_the_sampler_its_checkpoint_records(linear, tmp_path, monkeypatch):
+    """The choice is part of the checkpoint's signature: a resumed run continues with the sampler that wrote the
+    chain — even where k̂, recomputed, would now choose the other (here made to) — bit for bit."""
+    problem, res, _, _ = linear
+    kw = dict(chunk=CHUNK, progress=False, seed=5, steps=250)
+    full = fitting.sample(problem, res, **kw)
+    assert full.sampler == "imh"
+    with monkeypatch.context() as patch:
+        _interrupt_after(patch, fitting._sample_imh, "_advance", 2)
+        with pytest.raises(KeyboardInterrupt):
+            fitting.sample(problem, res, checkpoint=tmp_path / "c.h5", **kw)
+    with monkeypatch.context() as patch:
+        patch.setattr(fitting._sample_auto, "pareto_k", lambda weights: 5.0)  # a fresh choice would be NUTS
+        assert fitting.sample(problem, res, **kw).sampler == "nuts"
+        resumed = fitting.sample(problem, res, checkpoint=tmp_path / "c.h5", **kw)
+    assert resumed.sampler == "imh" and resumed.chosen_by == full.chosen_by
+    assert np.array_equal(resumed.chain, full.chain) and np.array_equal(resumed.log_prob, full.log_prob)
+
+
 # -- resume -------------------------------------------------------------------------------
 
 RESUMABLE = {
@@ -415,7 +498,13 @@ def test_an_undetermined_direction_is_held_and_the_determined_subspace_sampled_e
 
 def test_sampler_choices_and_arguments_are_checked(linear):
     problem, res, _, _ = linear
-    assert fitting.SAMPLERS == {"emcee": fitting.Emcee, "nuts": fitting.NUTS, "hmc": fitting.HMC, "imh": fitting.IMH}
+    assert fitting.SAMPLERS == {
+        "emcee": fitting.Emcee,
+        "nuts": fitting.NUTS,
+        "hmc": fitting.HMC,
+        "imh": fitting.IMH,
+        "auto": fitting.Auto,
+    }
     for kw, match in [
         (dict(sampler="metropolis"), "sampler must be one of"),
         (dict(sampler=3), "sampler must be one of"),
@@ -437,6 +526,8 @@ def test_sampler_choices_and_arguments_are_checked(linear):
         (lambda: fitting.IMH(dof=0.0), r"dof \(or math.inf: a Gaussian\) must be a finite number > 0"),
         (lambda: fitting.IMH(dof=-math.inf), r"dof \(or math.inf: a Gaussian\) must be"),
         (lambda: fitting.IMH(scale=0.0), "scale must be a finite number > 0"),
+        (lambda: fitting.Auto(draws=50), "draws must be an integer ≥ 100"),
+        (lambda: fitting.Auto(max_k=math.nan), "max_k must be a finite number"),
     ]:
         with pytest.raises(InvalidInputError, match=match):
             make()

@@ -136,7 +136,7 @@ def add_fit_options(parser) -> None:
         choices=SAMPLERS.names,
         default=SAMPLE.sampler,
         help=f"posterior sampler — {SAMPLERS.help()}; docs/fitting.md (fitting.sample defaults to "
-        f"{SAMPLE.sampler} too; in earlier releases it defaulted to emcee)",
+        f"{SAMPLE.sampler} too; nuts before it, emcee in earlier releases)",
     )
     parser.add_argument(
         "--sample-inadequate",
@@ -179,10 +179,8 @@ def add_fit_options(parser) -> None:
 
 
 def check_fit_options(args) -> None:
-    """Cross-option checks that need no data: each --fix name once; --steps not given is
-    --sampler's own default (:meth:`brdfscale.choices.SampleDefaults.steps_for`)."""
-    if args.steps is None:
-        args.steps = SAMPLE.steps_for(args.sampler)
+    """Cross-option checks that need no data: each --fix name once, options of one model given for it only (--steps
+    not given stays None: the sampler's own default, :func:`asked_steps`)."""
     names = [name for name, _ in args.fix]
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
@@ -197,9 +195,16 @@ def check_fit_options(args) -> None:
         raise InvalidInputError("--regularisation applies to the non-parametric model only (--model nonparametric).")
 
 
+def asked_steps(args) -> int:
+    """--steps, or where it is not given the most steps --sampler runs by its own default
+    (:meth:`brdfscale.choices.SampleDefaults.steps_for`; auto: the larger of its two choices')."""
+    return SAMPLE.steps_for(args.sampler) if args.steps is None else args.steps
+
+
 def check_sampler_options(args, n_parameters: int) -> None:
     """--sampler, --chains, --walkers and --steps against the model's size, before the fit runs."""
-    if args.steps == 1:
+    steps = asked_steps(args)
+    if steps == 1:
         raise InvalidInputError("--steps 1 has no transition to measure (no acceptance rate, no τ); give 0 or ≥ 2.")
     sampler, chains = args.sampler, args.chains
     if sampler != "emcee" and args.walkers is not None:
@@ -213,10 +218,10 @@ def check_sampler_options(args, n_parameters: int) -> None:
                 f"least {2 * n_parameters} walkers."
             )
         walkers += walkers % 2
-    size = chains * walkers * args.steps * n_parameters * 8
+    size = chains * walkers * steps * n_parameters * 8
     if size > CHAIN_BUDGET:
         raise InvalidInputError(
-            f"--chains {chains} × {walkers} walkers × --steps {args.steps} × {n_parameters} parameters "
+            f"--chains {chains} × {walkers} walkers × --steps {steps} × {n_parameters} parameters "
             f"is {size / 2**30:.1f} GiB of chains; at most {CHAIN_BUDGET // 2**30} GiB (fewer steps, "
             "chains or walkers)."
         )
@@ -227,7 +232,6 @@ def spec_of(args, *, sampler: bool = True):
     ``--steps 0``: no sampling)."""
     from ..library import FitSpec
 
-    steps = SAMPLE.steps_for(args.sampler) if args.steps is None else args.steps  # check_fit_options may not have run
     return FitSpec(
         model=args.model,
         shape=args.shape,
@@ -241,9 +245,9 @@ def spec_of(args, *, sampler: bool = True):
         starts=args.starts,
         max_steps=args.max_steps,
         seed=args.seed,
-        sampler=args.sampler if sampler and steps > 0 else None,
+        sampler=args.sampler if sampler and asked_steps(args) > 0 else None,
         chains=args.chains,
-        steps=steps,
+        steps=args.steps,  # None: the sampler's own (auto: that of the sampler it chooses)
         default_sigma=getattr(args, "default_sigma", None),
         masking=args.masking,
         figures=getattr(args, "figures", True),
@@ -266,8 +270,9 @@ def register(subparsers) -> None:
         "fit",
         help="fit slope statistics and base lobe to a multi-scale measurement set (EXR)",
         description="Recover the facet-slope statistics S(W, μ) and the base lobe at the finest scale from "
-        f"lobe images at several scales, with uncertainties (optimistix, then {SAMPLE.sampler.upper()} by default: "
-        "--sampler). Writes DIR/fit.json, figures and the evolved lobe tables. Every default is the library's "
+        f"lobe images at several scales, with uncertainties (optimistix, then the sampler --sampler names, by default "
+        f"{SAMPLE.sampler}: {SAMPLERS.summary(SAMPLE.sampler)}; a fit inadequate before sampling is not sampled). "
+        "Writes DIR/fit.json, figures and the evolved lobe tables. Every default is the library's "
         f"own (brdfscale.choices): --starts {FIT.starts} (6 in earlier releases of the command).",
     )
     parser.add_argument("measurements", help="multi-part OpenEXR measurement set (brdfscale.exr format)")
@@ -608,9 +613,14 @@ def sampling_line(diag: dict) -> str:
         else f"{diag['chains']} chains"
     )
     figures = (f", min ESS_bulk = {min(ess):.0f}" if ess else "") + (f", max R̂ = {max(rhat):.3f}" if rhat else "")
+    chosen = diag.get("chosen_by")
+    if chosen:  # fitting.Auto's choice and why
+        k = "∞" if chosen["pareto_k"] is None else f"{chosen['pareto_k']:.2f}"
+        relation = "≤" if chosen["pareto_k"] is not None and chosen["pareto_k"] <= chosen["limit"] else ">"
+        chosen = f" ({chosen['name']}: Pareto k̂ of its proposal's weights {k} {relation} {chosen['limit']:.2f})"
     return (
-        f"  {diag['sampler']}: {sizes} × {diag['steps']} steps (warm-up/burn-in {diag['burn_in']}){figures}; "
-        f"{diag['status']}"
+        f"  {diag['sampler']}{chosen or ''}: {sizes} × {diag['steps']} steps (warm-up/burn-in {diag['burn_in']})"
+        f"{figures}; {diag['status']}"
     )
 
 

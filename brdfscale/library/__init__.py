@@ -10,7 +10,8 @@ process or across the hosts of a Ray cluster, resumable, with nothing lost (docs
 
 What is where in ``OUT``: ``library.json`` (options, runs, per material its source, status,
 χ²/dof, error, attempts), ``materials/NAME/`` (the report of :func:`fitting.write_report`:
-``fit.json``, figures, ``evolved_lobes.exr``; ``posterior.nc`` when sampled, and emcee's checkpoint ``chain.h5``).
+``fit.json``, figures, ``evolved_lobes.exr``; ``posterior.nc`` when sampled, and the checkpoint ``chain.h5`` of a
+sampler that runs per material: emcee, imh, auto).
 """
 
 from ._run import find_materials, fit_library, INDEX, LibraryResult

@@ -323,7 +323,8 @@ def fit_library(
             :func:`find_materials` names the materials).
         out: the output directory (created): ``library.json`` (the index) and
             ``materials/NAME/`` per material (``fit.json``, figures, tables; ``posterior.nc`` when
-            sampled, and emcee's checkpoint ``chain.h5``). Held for the run (a second run into it raises
+            sampled, and the checkpoint ``chain.h5`` of a sampler that runs per material: emcee, imh,
+            auto). Held for the run (a second run into it raises
             :class:`~brdfscale.OutputInUseError`).
         spec: the model and fit options (:class:`FitSpec`), the same for every material.
         batch: materials per task (≥ 1, default 16).

@@ -114,8 +114,8 @@ class FitSpec:
     of :mod:`brdfscale.choices` (``fitting.fit``'s, ``fitting.sample``'s and the models').
 
     ``sampler`` None (default) gives the Laplace uncertainties of :func:`fitting.fit_many` only;
-    a name of :data:`brdfscale.choices.SAMPLERS` (``"nuts"``, ``"hmc"``, ``"emcee"``, ``"imh"``) also samples each
-    material's posterior
+    a name of :data:`brdfscale.choices.SAMPLERS` (``"nuts"``, ``"hmc"``, ``"emcee"``, ``"imh"``, ``"auto"``) also
+    samples each material's posterior
     (:func:`fitting.sample`, ``chains`` × ``steps``, checkpointed in the material's directory).
     ``figures`` adds the report's three PNG figures per material (on a CPU they take longer than
     the fit; off by default).
@@ -183,6 +183,18 @@ class FitSpec:
         return _fitting().Dataset.from_measurements(
             measurements, default_sigma=self.default_sigma, masking=self.masking
         )
+
+    @property
+    def batched(self) -> bool:
+        """Whether ``sampler`` samples many materials' posteriors in one program (:meth:`sample_many`: NUTS, HMC);
+        False for the samplers that run per material (:meth:`sample`: emcee, imh, auto) and for no sampler."""
+        if self.sampler is None:
+            return False
+        try:
+            _fitting().SAMPLERS[self.sampler]().check_batched()
+        except InvalidInputError:
+            return False
+        return True
 
     def fit(self, model, data):
         """:func:`fitting.fit` of ``model`` to ``data`` with these options."""

@@ -1,5 +1,5 @@
 """One batch of a library: read, fit together (:func:`fitting.fit_many`), sample (NUTS and HMC
-together, :func:`fitting.sample_many`; emcee per material, checkpointed), report — the unit of
+together, :func:`fitting.sample_many`; emcee, IMH and auto per material, checkpointed), report — the unit of
 work that runs in the driver's process or as a Ray task (JAX is imported inside it).
 
 Every material's report is written into ``materials/.NAME.partial/`` (held with
@@ -146,9 +146,9 @@ def fit_batch(
     fits = spec.fit_many([m for _, _, m, *_ in todo], [d for _, d, *_ in todo], batch=batch)
     fit_seconds = (time.perf_counter() - t0) / len(todo)
     draws = [None] * len(todo)
-    if spec.sampler in ("nuts", "hmc"):
+    if spec.batched:
         # the gradient samplers vectorise: every material's chains in one program per bucket
-        # (fitting.sample_many, equal to fitting.sample per material); emcee samples per material below
+        # (fitting.sample_many, equal to fitting.sample per material); the others sample per material below
         draws = spec.sample_many([fitting.Problem(m, d) for _, d, m, *_ in todo], fits, batch=batch)
     for (name, data, model, info, truth, delta_truth), result, drawn in zip(todo, fits, draws):
         t1 = time.perf_counter()
@@ -163,7 +163,7 @@ def fit_batch(
             with exclusive(partial, what="material directory"):
                 samples = drawn
                 problem = fitting.Problem(model, data)
-                if spec.sampler == "emcee":  # resumable within the material: its chain's checkpoint
+                if spec.sampler is not None and not spec.batched:  # resumable within the material: its checkpoint
                     samples = spec.sample(problem, result, checkpoint=os.path.join(partial, "chain.h5"), progress=False)
                 doc = fitting.write_report(
                     partial,
