@@ -104,8 +104,8 @@ class IMH(AbstractSampler):
         """``log w = log p − log q`` (up to one constant) at ``draws`` independent draws of this sampler's proposal
         q: the importance weights whose Pareto k̂ (:func:`fitting.pareto_k`) says whether q covers the posterior
         (:class:`fitting.Auto`). Drawn from NumPy's generator of ``(seed, 1)``, apart from the chains' streams;
-        weighed ``batch`` at a time (the chains' count) by the program that weighs the chains' starts, so that a run
-        that goes on to sample with this sampler compiles nothing more."""
+        weighed ``batch`` at a time (the chains' count) by the computation that weighs the chains' starts, in one
+        compiled program that maps over the batches (one dispatch; memory for one batch at a time)."""
         mode, cov = laplace(target, fit)
         root = self.scale * covariance_root(cov)
         rng = np.random.default_rng([seed, 1])
@@ -114,12 +114,10 @@ class IMH(AbstractSampler):
             xi = xi / np.sqrt(rng.chisquare(self.dof, (draws, 1)) / self.dof)
         z = mode + xi @ root.T
         z = np.concatenate([z, np.broadcast_to(mode, (-draws % batch, mode.size))])  # whole batches
-        mode_, root_ = jnp.asarray(mode), jnp.asarray(root)
-        out = [
-            np.asarray(_initial_carry(target, jnp.asarray(z[i : i + batch]), mode_, root_, self.dof)["log_weight"])
-            for i in range(0, z.shape[0], batch)
-        ]
-        return np.concatenate(out)[:draws]
+        weights = _batched_log_weights(
+            target, jnp.asarray(z.reshape(-1, batch, mode.size)), jnp.asarray(mode), jnp.asarray(root), self.dof
+        )
+        return np.asarray(weights).reshape(-1)[:draws]
 
     def run(self, target, fit, *, chains, steps, seed, store, resumed, progress, chunk):
         """The chain (steps, chains, d) in θ, log_prob, the acceptance probabilities and the proposal's record;
@@ -175,6 +173,12 @@ def _log_q(xi, dof):
     if math.isinf(dof):
         return -0.5 * r2
     return -0.5 * (dof + xi.shape[-1]) * jnp.log1p(r2 / dof)
+
+
+@eqx.filter_jit
+def _batched_log_weights(target, z, mode, root, dof):
+    """:func:`_initial_carry`'s log weights of every batch ``z[i]`` (batches, batch, m), one batch at a time."""
+    return jax.lax.map(lambda batch: _initial_carry(target, batch, mode, root, dof)["log_weight"], z)
 
 
 @eqx.filter_jit
