@@ -3,6 +3,7 @@
 import json
 import os
 import platform
+import subprocess
 import time
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -31,6 +32,16 @@ def machine() -> dict:
         "versions": versions,
         "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
+
+
+def code_commit() -> str | None:
+    """The commit of the code benchmarked: ``git rev-parse HEAD`` of this checkout, or the ``COMMIT`` file of
+    a ``git archive`` snapshot (a benchmark run on a frozen copy while the working tree changes)."""
+    root = Path(__file__).resolve().parent.parent
+    if (root / "COMMIT").exists():
+        return (root / "COMMIT").read_text().strip()
+    done = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True)
+    return done.stdout.strip() or None
 
 
 def best_time(fn, *, repeat: int = 5, number: int = 1, budget: float = 0.0) -> float:

@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments._bench import machine, RESULTS, write_json
+from experiments._bench import code_commit, machine, RESULTS, write_json
 
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -143,6 +143,7 @@ def run(args: list[str], cache: Path, out: Path, timeout: float | None = None) -
         "load_1min_before": round(load, 2),
         "load_1min_after": round(os.getloadavg()[0], 2),
         "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "code_commit": code_commit(),  # --only merges rows of several runs: each names its code
     }
     report = out / "fit.json"
     if report.exists():

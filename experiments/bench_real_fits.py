@@ -68,7 +68,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments._bench import machine
+from experiments._bench import code_commit, machine
 
 
 DATA = Path(__file__).resolve().parent.parent / "tests" / "data" / "topographies"
@@ -522,16 +522,6 @@ def targets(records: list[dict]) -> dict:
             "problems": {k: v for k, v in problems.items() if v},
         },
     }
-
-
-def code_commit() -> str | None:
-    """The commit of the code benchmarked: ``git rev-parse HEAD`` of this checkout, or the ``COMMIT`` file of
-    a ``git archive`` snapshot (a benchmark run on a frozen copy while the working tree changes)."""
-    root = Path(__file__).resolve().parent.parent
-    if (root / "COMMIT").exists():
-        return (root / "COMMIT").read_text().strip()
-    done = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True)
-    return done.stdout.strip() or None
 
 
 def run(
