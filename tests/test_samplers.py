@@ -210,10 +210,14 @@ def test_auto_falls_back_where_k_hat_is_above_its_limit(linear):
     assert s.sampler == "nuts" and s.chosen_by["chose"] == "nuts" and s.chosen_by["limit"] == -10.0
     assert s.chosen_by["pareto_k"] > -10.0 and s.warmup["steps"] == 150
     _assert_gaussian(s.samples, s, mean, cov, s.names)
+
+
+@pytest.mark.wrong_types
+def test_auto_refuses_samplers_of_the_wrong_kind():
     with pytest.raises(InvalidInputError, match="imh must be a fitting.IMH"):
-        fitting.Auto(imh=fitting.NUTS())
+        fitting.Auto(imh=fitting.NUTS())  # type: ignore[arg-type]
     with pytest.raises(InvalidInputError, match="fallback must be a sampler object"):
-        fitting.Auto(fallback=fitting.Auto())
+        fitting.Auto(fallback=fitting.Auto())  # type: ignore[arg-type]
 
 
 def test_an_interrupted_auto_run_resumes_with_the_sampler_its_checkpoint_records(linear, tmp_path, monkeypatch):
