@@ -197,6 +197,11 @@ MASKING = Choices(
             "Smith's height-correlated masking-shadowing G2 = 1/(1 + Λ(i) + Λ(o)) of the lobe's own slope density "
             "(brdfscale.lobes.SmithMasking)",
         ),
+        Choice(
+            "smith_ms",
+            "smith with the light it loses to interreflection added back in the single-scattered lobe's shape, "
+            "G2/E(i) (Turquin 2019; brdfscale.lobes.SmithMasking(multiple_scattering=True))",
+        ),
     ),
     default="none",
 )

@@ -45,6 +45,11 @@ REPEAT = 2
 FULL_SIZE, FULL_SCALES, FULL_INCIDENCE = 512, 8, (0.0, 40.0, 70.0)
 ACCURACY_SIZE, ACCURACY_SLOPES, ACCURACY_INCIDENCE = 256, (0.1, 0.2, 0.3), (0.0, 40.0, 60.0, 70.0, 80.0)
 ACCURACY_RAYS, ACCURACY_BOUNCES = 100_000, 3
+ACCURACY_MESHES = ("triangles", "pixel_facets")
+TARGET_MESH = "triangles"
+"""The mesh the accuracy target is judged on: the continuous surface, every facet of which is in the slope density
+Smith's Λ is computed from. The pixel-facet mesh adds vertical walls at every pixel edge, which are in no slope
+density and intercept 2–5 % more light at 70–80° (docs/masking.md); its rows are reported beside."""
 TARGET_SECONDS = 600.0
 PARTS = ("speed", "full", "accuracy")
 
@@ -125,50 +130,84 @@ def full(*, size: int, scales: int, threads: int) -> dict:
     }
 
 
-def accuracy(*, size: int, slopes, thetas, rays: int, bounces: int) -> list:
-    """Energy ratios model ÷ instrument of the seed-only and masking-aware models at the largest scale."""
+def accuracy(*, size: int, slopes, thetas, rays: int, bounces: int, meshes=ACCURACY_MESHES) -> list:
+    """Energy ratios model ÷ instrument of the seed-only and masking-aware models at the largest scale, on each of
+    the instrument's meshes."""
     from brdfscale import instrument, synth
-    from experiments.instrument_study import gaussian_surface, incident_directions, predictions, scores
+    from experiments.instrument_study import escape_record, gaussian_surface, incident_directions, predictions, scores
 
     rows = []
-    for rms in slopes:
+    for mesh, rms in ((mesh, rms) for mesh in meshes for rms in slopes):
         field = gaussian_surface(rms, size=size)
         extent = synth.robust_extent(field)
         incident = incident_directions(thetas)
         mus = [float(size)]
         mset = instrument.measure(
-            field, mus, incident, extent=extent, pixels=65, rays=rays, bounces=bounces, seed=0, progress=False
+            field,
+            mus,
+            incident,
+            extent=extent,
+            pixels=65,
+            rays=rays,
+            bounces=bounces,
+            seed=0,
+            progress=False,
+            surface=mesh,
         )
-        model = predictions(field, mus, incident, extent, 65)
+        model = predictions(field, mus, incident, extent, 65, mesh)
         for k, image in enumerate(mset.images):
             seed, masking = scores(model["seed"][k], image), scores(model["masking"][k], image)
+            ms = scores(model["masking_ms"][k], image)
             rows.append(
                 {
+                    "mesh": mesh,
                     "rms_slope": rms,
                     "theta_i_deg": thetas[k],
                     "seed_energy_ratio": seed["energy_ratio"],
                     "masking_energy_ratio": masking["energy_ratio"],
+                    "masking_ms_energy_ratio": ms["energy_ratio"],
                     "mc_energy": seed["mc_energy"],
                     "seed_l1": seed["l1"],
                     "masking_l1": masking["l1"],
+                    "masking_ms_l1": ms["l1"],
                     "mc_l1_floor": seed["mc_l1_floor"],
+                    "escaped_by_order": escape_record(mset, k)["escaped_by_order"],
                 }
             )
     return rows
 
 
-def verdict(rows: list) -> dict:
+def verdict(rows: list, model: str = "masking_ms") -> dict:
+    """Is ``model`` within 2 % (or 2 MC errors) of the instrument wherever the seed-only model is off by more than
+    10 %? Rows of one mesh."""
+
     def within(r):
-        return abs(r["masking_energy_ratio"] - 1) <= max(0.02, 2 * r["mc_energy"])
+        return abs(r[f"{model}_energy_ratio"] - 1) <= max(0.02, 2 * r["mc_energy"])
 
     seed_off = [r for r in rows if abs(r["seed_energy_ratio"] - 1) > 0.10]
     return {
         "rows": len(rows),
-        "masking_within": sum(within(r) for r in rows),
+        "within": sum(within(r) for r in rows),
         "seed_off_by_more_than_10pc": len(seed_off),
-        "masking_within_where_seed_off": sum(within(r) for r in seed_off),
+        "within_where_seed_off": sum(within(r) for r in seed_off),
+        "failing": [
+            [r["rms_slope"], r["theta_i_deg"], round(r[f"{model}_energy_ratio"], 4)] for r in rows if not within(r)
+        ],
         "met": bool(seed_off) and all(within(r) for r in seed_off),
     }
+
+
+def verdicts(rows: list) -> dict:
+    """:func:`verdict` per mesh and model (``masking``: single scattering, ``masking_ms``: with the multiply scattered
+    light); the target is judged on ``TARGET_MESH`` (module docstring)."""
+    meshes = sorted({r["mesh"] for r in rows})
+    out = {
+        mesh: {m: verdict([r for r in rows if r["mesh"] == mesh], m) for m in ("masking", "masking_ms")}
+        for mesh in meshes
+    }
+    out["target_mesh"] = TARGET_MESH
+    out["met"] = TARGET_MESH in out and out[TARGET_MESH]["masking_ms"]["met"]
+    return out
 
 
 def merged(previous: dict, record: dict, only) -> dict:
@@ -213,7 +252,7 @@ def main(argv=None):
             rays=2_000 if quick else ACCURACY_RAYS,
             bounces=ACCURACY_BOUNCES,
         )
-        return {"rows": rows, "verdict": verdict(rows), "rays": ACCURACY_RAYS, "bounces": ACCURACY_BOUNCES}
+        return {"rows": rows, "verdict": verdicts(rows), "rays": ACCURACY_RAYS, "bounces": ACCURACY_BOUNCES}
 
     run = {
         "speed": lambda: [_in_process("--speed", v, args.threads, quick) for v in VARIANTS],

@@ -20,6 +20,9 @@ Against each instrument image four predictions are scored, all from the same hei
   points into the surface);
 * **masking_separable** — the same with the uncorrelated ``G₁(i)·G₁(o)`` (``SmithMasking(correlated=False)``): the
   other end of Smith's height correlation;
+* **masking_ms** — the masking-aware model with the light it loses to interreflection added back in its own shape
+  (``lobes.SmithMasking(multiple_scattering=True)``, ``"smith_ms"``: ``G₂/E(i)``, ``E(i)`` the single-scattering
+  albedo of the same density, :meth:`brdfscale.lobes.SmithMasking.albedo`);
 * **masking_gaussian** — the height-correlated G₂ with Λ of the Gaussian of the lobe's mean and covariance (what a
   Beckmann fit carries): the role of the density's tails.
 
@@ -222,7 +225,7 @@ def smith_g2(
     return np.where(above, g2, 0.0)
 
 
-PREDICTIONS = ("seed", "masking", "masking_separable", "masking_gaussian")
+PREDICTIONS = ("seed", "masking", "masking_separable", "masking_gaussian", "masking_ms")
 
 
 def _both_triangles(field, build, values) -> list[np.ndarray]:
@@ -280,6 +283,7 @@ def predictions(field, mus, incident, extent, pixels, mesh: str = "pixel_facets"
         out["masking"].append(flat * smith_g2(pixel, i, u))
         out["masking_separable"].append(flat * smith_g2(pixel, i, u, correlated=False))
         out["masking_gaussian"].append(flat * smith_g2(gaussian_density(values, wide), i, u))
+        out["masking_ms"].append(flat * smith_g2(pixel, i, u) / float(lobes.SmithMasking().albedo(pixel, i)))
     return out
 
 

@@ -6,6 +6,8 @@ half-vector slope offsets ``u`` (docs/conventions.md §6; the measured ρ is tha
 
     v(u) = G₂(i, o(u)) · A·g_μ(u),     o(u) = reflect(i, h(u)),  h(u) = (u, 1)/√(1 + |u|²),
 
+(``G₂/E(i)`` with multiply scattered light, ``"smith_ms"``: :meth:`brdfscale.lobes.SmithMasking.albedo`),
+
 the outgoing direction of the pixel (the mirror facet of slope u reflects i into o). G₂ is the
 masking choice's (:class:`brdfscale.lobes.SmithMasking`: ``1/(1 + Λ(i) + Λ(o))``) with the lobe
 at that scale as the facet-slope density — which does not depend on the incident direction
@@ -42,24 +44,25 @@ SMALLEST_FACTOR = 1e-9
 
 def _outgoing(incident, extent: float, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(i, o, leaves)`` per pixel of an ``n × n`` image over ``[−extent, extent]²``: the incident
-    direction broadcast, the outgoing direction ``reflect(i, h(u))`` (the normal z where it does not
+    direction (3,), the outgoing direction ``reflect(i, h(u))`` (the normal z where it does not
     leave the surface) and whether it leaves (o_z > 0)."""
     x = np.linspace(-extent, extent, n)
     u = np.stack(np.meshgrid(x, x, indexing="xy"), axis=-1)
     h = np.asarray(geometry.slope_to_direction(u))
-    i = np.broadcast_to(np.asarray(incident, dtype=float), h.shape)
-    o = np.asarray(geometry.reflect(i, h))
+    i = np.asarray(incident, dtype=float)
+    o = np.asarray(geometry.reflect(np.broadcast_to(i, h.shape), h))
     o = o / np.linalg.norm(o, axis=-1, keepdims=True)
     leaves = o[..., 2] > 0
     return i, np.where(leaves[..., None], o, np.array([0.0, 0.0, 1.0])), leaves
 
 
 def masking_factor(masking: lobes.AbstractMasking, density, incident, extent: float, n: int) -> np.ndarray:
-    """``G₂(i, o(u))`` with the facet-slope density ``density`` at every pixel of an ``n × n`` image
+    """The masking choice's factor (``G₂(i, o(u))``, or ``G₂/E(i)`` with multiply scattered light:
+    ``masking.factor``) with the facet-slope density ``density`` at every pixel of an ``n × n`` image
     over ``[−extent, extent]²``; 0 where no light leaves towards the pixel's detector direction or
     the factor is below :data:`SMALLEST_FACTOR`."""
     i, o, leaves = _outgoing(incident, extent, n)
-    g = np.asarray(masking.g2(density, i, o))
+    g = np.asarray(masking.factor(density, i, o))
     return np.where(leaves & (g >= SMALLEST_FACTOR), g, 0.0)
 
 

@@ -82,8 +82,9 @@ class AbstractLobe(Shown, eqx.Module):
         ``m_inf``: global facet slope (..., 2), default flat. Units: 1/sr.
         ``masking``: None (the library default, ``brdfscale.choices.MASKING``: ``"none"``), a
         name of ``choices.MASKING`` or a :class:`AbstractMasking`; the masked ρ is the unmasked
-        one times ``masking.g2(self.shape, i, o, m_inf)`` (docs/masking.md). :class:`NoMasking`
-        returns the unmasked ρ itself.
+        one times ``masking.factor(self.shape, i, o, m_inf)`` — Smith's ``G₂``, or ``G₂/E(i)`` with
+        multiply scattered light (``"smith_ms"``; docs/masking.md). :class:`NoMasking` returns the
+        unmasked ρ itself.
 
         Accurate to grazing angles (θ = 89.9°: relative error ≤ 1e-13 in float64 against
         mpmath, experiments/stability.py). The lobe's relative error grows with the half-vector
@@ -100,7 +101,7 @@ class AbstractLobe(Shown, eqx.Module):
         rho = self.density(u) * microfacet_factor_of_valid(i, o)
         if isinstance(masking, NoMasking):
             return rho
-        return rho * masking.g2(self.shape, i, o, m_inf)
+        return rho * masking.factor(self.shape, i, o, m_inf)
 
 
 def _amplitude(a):

@@ -42,6 +42,12 @@ def masking_choice(masking):
         ) from None
     if isinstance(choice, lobes.NoMasking):
         return None
+    if isinstance(choice, lobes.SmithMasking) and choice.multiple_scattering:
+        raise InvalidInputError(
+            "the Mitsuba plugin takes Smith's single-scattering G2 only: the multiple-scattering compensation "
+            "(lobes.SmithMasking(multiple_scattering=True), 'smith_ms') depends on the incident direction alone and "
+            "is not reciprocal (docs/masking.md); pass masking=True or 'smith'."
+        )
     if isinstance(choice, lobes.SmithMasking):
         return choice
     raise InvalidInputError(

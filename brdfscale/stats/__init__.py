@@ -15,7 +15,7 @@ from ._families import Beckmann, Delta, Disk, Gaussian, GGX
 from ._grid import FrequencyGrid
 from ._histogram import SlopeHistogram
 from ._learned_laws import MonotoneSplineLaw, StudentTLaw
-from ._masking import smith_lambda
+from ._masking import mean_slope, smith_lambda
 from ._measured import MeasuredScaleLaw
 from ._mixture import Mixture
 from ._pixels import PixelGaussians
@@ -62,4 +62,5 @@ __all__ = [
     "StudentTLaw",
     "window_power",
     "smith_lambda",
+    "mean_slope",
 ]
