@@ -566,8 +566,9 @@ def instrument() -> str:
             f"{sum(timing.values()):.0f} s (load average {load_avg.get('before', ['?'])[0]:.1f} before, "
             f"{load_avg.get('after', ['?'])[0]:.1f} after, 2 cores shared); largest MC error of an image's energy "
             f"{s['max_mc_energy']:.2%}. Entries at each surface's largest scale: energy ratio model ÷ instrument of "
-            f"the seed's model / the masking-aware model (× Smith's height-correlated G₂) against the instrument "
-            f"with {most} bounces, in brackets the masking-aware model ÷ the single-scattering instrument.\n"
+            f"the seed's model / the masking-aware model (× Smith's height-correlated G₂) / the same with the "
+            f"multiply scattered light (`smith_ms`, × G₂/E(i)) against the instrument with {most} bounces, in "
+            "brackets the masking-aware model ÷ the single-scattering instrument.\n"
         )
     ]
     largest = {}
@@ -590,8 +591,11 @@ def instrument() -> str:
                 if r is None:
                     cells.append("–")
                     continue
-                e = {k: r[f"{k}_bounces{most}"]["energy_ratio"] for k in ("seed", "masking")}
-                cells.append(f"{e['seed']:.3f} / {e['masking']:.3f} ({r[f'masking_bounces{lo}']['energy_ratio']:.3f})")
+                e = {k: r[f"{k}_bounces{most}"]["energy_ratio"] for k in ("seed", "masking", "masking_ms")}
+                cells.append(
+                    f"{e['seed']:.3f} / {e['masking']:.3f} / {e['masking_ms']:.3f} "
+                    f"({r[f'masking_bounces{lo}']['energy_ratio']:.3f})"
+                )
             if any(x != "–" for x in cells):
                 rows.append([f"{label} (rms slope {info['rms_slope']:.3g})", mesh.replace("_", " "), *cells])
     out.append(table(["surface", "mesh", *[f"θi = {t:g}°" for t in thetas]], rows))
