@@ -591,10 +591,13 @@ def instrument() -> str:
                 if r is None:
                     cells.append("–")
                     continue
-                e = {k: r[f"{k}_bounces{most}"]["energy_ratio"] for k in ("seed", "masking", "masking_ms")}
+                e = {
+                    k: r[f"{k}_bounces{most}"]["energy_ratio"]
+                    for k in ("seed", "masking", "masking_ms")
+                    if k + f"_bounces{most}" in r
+                }
                 cells.append(
-                    f"{e['seed']:.3f} / {e['masking']:.3f} / {e['masking_ms']:.3f} "
-                    f"({r[f'masking_bounces{lo}']['energy_ratio']:.3f})"
+                    " / ".join(f"{x:.3f}" for x in e.values()) + f" ({r[f'masking_bounces{lo}']['energy_ratio']:.3f})"
                 )
             if any(x != "–" for x in cells):
                 rows.append([f"{label} (rms slope {info['rms_slope']:.3g})", mesh.replace("_", " "), *cells])

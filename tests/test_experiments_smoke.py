@@ -664,15 +664,26 @@ def test_bench_instrument_verdict_by_hand():
         {"seed_energy_ratio": 1.30, "masking_energy_ratio": 1.05, "mc_energy": 0.03},  # within 2 MC errors
         {"seed_energy_ratio": 1.01, "masking_energy_ratio": 0.95, "mc_energy": 0.001},  # seed fine, masking off
     ]
-    v = bench_instrument.verdict(rows)
+    for r, ms in zip(rows, (0.97, 1.0, 1.0), strict=True):
+        r.update(rms_slope=0.2, theta_i_deg=70.0, masking_ms_energy_ratio=ms)
+    v = bench_instrument.verdict(rows, "masking")
     assert v == {
         "rows": 3,
-        "masking_within": 2,
+        "within": 2,
         "seed_off_by_more_than_10pc": 2,
-        "masking_within_where_seed_off": 2,
+        "within_where_seed_off": 2,
+        "failing": [[0.2, 70.0, 0.95]],
         "met": True,
     }
-    assert not bench_instrument.verdict(rows[2:])["met"]  # no case where the seed is off: nothing shown
+    assert not bench_instrument.verdict(rows[2:], "masking")["met"]  # no case where the seed is off: nothing shown
+    # the multiple-scattering model misses the first row (3 % off): not met; the target is judged on one mesh
+    assert (
+        bench_instrument.verdict(rows)["failing"] == [[0.2, 70.0, 0.97]] and not bench_instrument.verdict(rows)["met"]
+    )
+    both = [{**r, "mesh": mesh} for mesh in ("triangles", "pixel_facets") for r in rows]
+    both[0]["masking_ms_energy_ratio"] = 1.0  # on the triangulated mesh only
+    out = bench_instrument.verdicts(both)
+    assert out["target_mesh"] == "triangles" and out["met"] and not out["pixel_facets"]["masking_ms"]["met"]
 
 
 def test_bench_instrument_only_merges_its_parts_into_the_committed_json():
