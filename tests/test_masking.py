@@ -606,7 +606,16 @@ def test_multiple_scattering_choice_factor_name_and_where_it_is_refused():
     assert ratio[0] > 1 and np.all(tilted[~lit] == 0)
     # a measurement set's masking record names it; the Mitsuba plugin refuses it (not reciprocal)
     mset, _ = _masked_beckmann_set(n=9)
-    assert fitting.Dataset.from_measurements(mset, masking="smith_ms").masking == "smith_ms"
+    with_ms = fitting.Dataset.from_measurements(mset, masking="smith_ms")
+    single = fitting.Dataset.from_measurements(mset, masking="smith")
+    assert with_ms.masking == "smith_ms"
+    # the same unmasked density, so each image's values are smith's times that image's E(i): a per-incidence
+    # constant, which a fit of one incidence puts into the lobe's amplitude (its ΔΣ and C0 are smith's)
+    for k, img in enumerate(mset.images):
+        valid = np.asarray(single.weight[k]) > 0
+        ratio = np.asarray(with_ms.values[k])[valid] / np.asarray(single.values[k])[valid]
+        np.testing.assert_allclose(ratio, ratio[0], rtol=1e-12)
+        assert 0.5 < ratio[0] <= 1.0 and (ratio[0] < 0.999 or img.incident[2] > 0.9)
     with pytest.raises(InvalidInputError, match="not reciprocal"):
         render.bsdf(lobes.Beckmann(0.2), stats.WidthLaw(0.1, 1.0, 0.5), mu0=1.0, masking="smith_ms")
 
