@@ -191,6 +191,49 @@ def test_library_samples_with_auto_per_material(small_library, tmp_path, capsys)
     assert report["chains"] == 2 and (out / "materials" / "material_001" / "chain.h5").exists()
 
 
+@pytest.mark.slow  # three libraries of one material, each fitted and two sampled: ~40 s on 2 cores
+def test_a_library_does_not_sample_an_inadequate_fit_unless_asked(tmp_path, capsys):
+    """FitSpec's rule, as `brdfscale fit` applies it: GGX lobes fitted by the Beckmann model are inadequate before
+    sampling, so neither the batched sampler (nuts: left out of fitting.sample_many) nor a per-material one (imh)
+    samples them — the report's mcmc says why, no chain.h5 — and --sample-inadequate samples them all the same.
+    An index written before the option existed (no sample_inadequate key) is continued, not refused."""
+    from brdfscale import exr, fitting
+
+    ggx = fitting.ParametricModel("ggx", "ggx")
+    truth = dict(amplitude=1.0, alpha_lobe=0.1, alpha_max=0.3, mu_c=4.0, exponent=1.0)  # tests/test_fit_cli.py's
+    mset = fitting.simulate(ggx, truth, (1.0, 4.0, 16.0), size=25, extent=0.5, noise=0.02, floor=1e-3, seed=3)
+    source = tmp_path / "ggx.exr"
+    exr.write_measurements(str(source), mset)
+    base = ["fit-library", str(source), "--model", "parametric", "--starts", "2", "--chains", "2", "--no-progress"]
+    for sampler in ("nuts", "imh"):
+        out = tmp_path / sampler
+        assert main([*base, "--out", str(out), "--sampler", sampler, "--steps", "20"]) == 0, capsys.readouterr().out
+        doc = _fit_json(out, "ggx")
+        assert doc["outcome"]["status"] == "inadequate"
+        assert doc["mcmc"]["status"].startswith("not sampled: the model is inadequate before sampling"), sampler
+        assert not (out / "materials" / "ggx" / "chain.h5").exists()
+        assert _index(out)["spec"]["sample_inadequate"] is False
+    out = tmp_path / "anyway"
+    argv = [*base, "--out", str(out), "--sampler", "nuts", "--steps", "20", "--sample-inadequate"]
+    assert main(argv) == 0
+    doc = _fit_json(out, "ggx")
+    assert doc["outcome"]["status"] == "inadequate" and doc["mcmc"]["sampler"] == "nuts"
+    # an index without the key (written before the option): continued with the option's default, not refused
+    index = _index(tmp_path / "nuts")
+    del index["spec"]["sample_inadequate"]
+    (tmp_path / "nuts" / library.INDEX).write_text(json.dumps(index))
+    capsys.readouterr()
+    assert main([*base, "--out", str(tmp_path / "nuts"), "--sampler", "nuts", "--steps", "20"]) == 0
+    assert "other options" not in capsys.readouterr().out
+
+
+def test_fit_spec_sample_inadequate_is_a_flag_recorded_in_the_index():
+    assert library.FitSpec().sample_inadequate is False and library.FitSpec().to_json()["sample_inadequate"] is False
+    assert library.FitSpec(sample_inadequate=True).to_json()["sample_inadequate"] is True
+    with pytest.raises(InvalidInputError, match="sample_inadequate must be True or False"):
+        library.FitSpec(sample_inadequate="yes")  # type: ignore[arg-type]
+
+
 def test_sources_are_named_uniquely_and_missing_ones_refused(tmp_path):
     (tmp_path / "a" / "b").mkdir(parents=True)
     (tmp_path / "c").mkdir()

@@ -251,6 +251,7 @@ def spec_of(args, *, sampler: bool = True):
         default_sigma=getattr(args, "default_sigma", None),
         masking=args.masking,
         figures=getattr(args, "figures", True),
+        sample_inadequate=bool(getattr(args, "sample_inadequate", False)),
     )
 
 
@@ -419,14 +420,14 @@ def _fit_and_report(
     )
     for item in result.undetermined:
         stream(f"  not determined by the data: {item['combination']}")
-    samples, not_sampled = None, None
-    if spec.sampler is not None:
-        not_sampled = _not_worth_sampling(fitting, fitting.Problem(model, data), result, args, unit)
-        if not_sampled is not None:
-            stream(f"  not sampled: {not_sampled}")
+    problem = fitting.Problem(model, data)
+    samples = None
+    not_sampled = spec.not_sampled_because(problem, result, unit=unit)  # FitSpec's rule: not where inadequate
+    if not_sampled is not None:
+        stream(f"  not sampled: {not_sampled}")
     if spec.sampler is not None and not_sampled is None:
         samples = spec.sample(
-            fitting.Problem(model, data),
+            problem,
             result,
             walkers=args.walkers,
             checkpoint=os.path.join(args.out, "chain.h5"),
@@ -436,7 +437,7 @@ def _fit_and_report(
         stream(sampling_line(samples.diagnostics()))
     return fitting.write_report(
         args.out,
-        fitting.Problem(model, data),
+        problem,
         result,
         samples,
         truth=truth,
@@ -446,19 +447,6 @@ def _fit_and_report(
         covariance_truth=covariance_truth,
         not_sampled=not_sampled,
     )
-
-
-def _not_worth_sampling(fitting, problem, result, args, unit) -> str | None:
-    """Why the fit's posterior is not sampled, or None: a fit whose Laplace-level verdict (:func:`fitting.assess`
-    without samples) is "inadequate" is reported without MCMC — the posterior of a model its data reject says
-    nothing more about the surface, and on real surfaces it is the slowest posterior to sample (NUTS at its
-    largest trees) — unless ``--sample-inadequate``. The exit status is 5 either way."""
-    if getattr(args, "sample_inadequate", False):
-        return None
-    verdict = fitting.assess(problem, result, unit=unit)
-    if verdict.status != "inadequate":
-        return None
-    return "the model is inadequate before sampling (exit status 5 either way); --sample-inadequate samples it anyway"
 
 
 def run(args) -> int:

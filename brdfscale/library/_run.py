@@ -215,8 +215,10 @@ class _Index:
                     f"{self.path}: unreadable library index ({problem}); move it away (the reports in "
                     f"{os.path.join(out, 'materials')} are verified and kept) or give another out= directory."
                 )
-            if doc["spec"] != spec.to_json() and not force:
-                earlier = doc["spec"]
+            # a key the index lacks was recorded before the option existed: its default (FitSpec's fields)
+            recorded = {**FitSpec().to_json(), **doc["spec"]}
+            if recorded != spec.to_json() and not force:
+                earlier = recorded
                 changed = ", ".join(
                     f"{k}={earlier.get(k)!r}" for k in sorted(spec.to_json()) if earlier.get(k) != spec.to_json()[k]
                 )

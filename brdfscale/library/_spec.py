@@ -120,6 +120,12 @@ class FitSpec:
     ``figures`` adds the report's three PNG figures per material (on a CPU they take longer than
     the fit; off by default).
 
+    A fit whose verdict before sampling (:func:`fitting.assess` without samples) is "inadequate"
+    is not sampled — the posterior of a model its data reject says nothing more about the surface,
+    and on real surfaces it is the slowest to sample — unless ``sample_inadequate``: the rule of
+    :meth:`not_sampled_because`, which ``brdfscale fit`` and :func:`brdfscale.library.fit_library`
+    both apply (``--sample-inadequate`` on the command line).
+
     :meth:`model_for`, :meth:`fit` and :meth:`sample` hand the options on to :mod:`fitting`:
     the one place where a spec becomes arguments.
     """
@@ -142,6 +148,7 @@ class FitSpec:
     default_sigma: float | None = None
     masking: str = MASKING.default
     figures: bool = False
+    sample_inadequate: bool = False
 
     def __post_init__(self):
         MODELS.check(self.model)
@@ -156,6 +163,8 @@ class FitSpec:
             )
         if self.default_sigma is not None and not (math.isfinite(self.default_sigma) and self.default_sigma > 0):
             raise InvalidInputError(f"default_sigma must be a positive number; got {self.default_sigma!r}.")
+        if not isinstance(self.sample_inadequate, bool):
+            raise InvalidInputError(f"sample_inadequate must be True or False; got {self.sample_inadequate!r}.")
         object.__setattr__(self, "fixed", tuple(sorted(dict(self.fixed).items())))
 
     def to_json(self) -> dict:
@@ -195,6 +204,20 @@ class FitSpec:
         except InvalidInputError:
             return False
         return True
+
+    def not_sampled_because(self, problem, fit, *, unit: str | None = None) -> str | None:
+        """Why this spec does not sample ``fit`` of ``problem``, or None where it samples it: it samples (``sampler``
+        set), ``sample_inadequate`` is False and :func:`fitting.assess` of the fit without samples (computed only
+        then; ``unit`` the scales' length unit) says "inadequate". The reason is what :func:`fitting.write_report`'s
+        ``not_sampled`` records."""
+        if self.sampler is None or self.sample_inadequate:
+            return None
+        if _fitting().assess(problem, fit, unit=unit).status != "inadequate":
+            return None
+        return (
+            "the model is inadequate before sampling (exit status 5 either way); --sample-inadequate "
+            "(FitSpec(sample_inadequate=True)) samples it anyway"
+        )
 
     def fit(self, model, data):
         """:func:`fitting.fit` of ``model`` to ``data`` with these options."""

@@ -145,12 +145,24 @@ def fit_batch(
     t0 = time.perf_counter()
     fits = spec.fit_many([m for _, _, m, *_ in todo], [d for _, d, *_ in todo], batch=batch)
     fit_seconds = (time.perf_counter() - t0) / len(todo)
+    problems = [fitting.Problem(m, d) for _, d, m, *_ in todo]
+    # FitSpec's rule: a fit inadequate before sampling is not sampled (unless spec.sample_inadequate)
+    not_sampled = [
+        None if isinstance(result, Exception) else spec.not_sampled_because(problem, result)
+        for problem, result in zip(problems, fits, strict=True)
+    ]
     draws = [None] * len(todo)
     if spec.batched:
         # the gradient samplers vectorise: every material's chains in one program per bucket
         # (fitting.sample_many, equal to fitting.sample per material); the others sample per material below
-        draws = spec.sample_many([fitting.Problem(m, d) for _, d, m, *_ in todo], fits, batch=batch)
-    for (name, data, model, info, truth, delta_truth), result, drawn in zip(todo, fits, draws):
+        wanted = [k for k, result in enumerate(fits) if not_sampled[k] is None and not isinstance(result, Exception)]
+        if wanted:
+            drawn = spec.sample_many([problems[k] for k in wanted], [fits[k] for k in wanted], batch=batch)
+            for k, d in zip(wanted, drawn, strict=True):
+                draws[k] = d
+    for (name, data, model, info, truth, delta_truth), problem, result, drawn, reason in zip(
+        todo, problems, fits, draws, not_sampled, strict=True
+    ):
         t1 = time.perf_counter()
         if isinstance(result, Exception) or isinstance(drawn, Exception):
             records.append(
@@ -162,8 +174,7 @@ def fit_batch(
             os.makedirs(partial, exist_ok=True)
             with exclusive(partial, what="material directory"):
                 samples = drawn
-                problem = fitting.Problem(model, data)
-                if spec.sampler is not None and not spec.batched:  # resumable within the material: its checkpoint
+                if spec.sampler is not None and not spec.batched and reason is None:  # resumable: its checkpoint
                     samples = spec.sample(problem, result, checkpoint=os.path.join(partial, "chain.h5"), progress=False)
                 doc = fitting.write_report(
                     partial,
@@ -175,6 +186,7 @@ def fit_batch(
                     overwrite=True,
                     figures=spec.figures,
                     covariance_truth=delta_truth,
+                    not_sampled=reason,
                 )
             try:
                 os.rename(partial, final)
