@@ -637,6 +637,7 @@ def test_albedo_gradient_against_the_definitions_derivative():
     assert float(jax.grad(_albedo_of_alpha)(0.35)) == pytest.approx(reference, rel=1e-3)
 
 
+@_SLOW  # eager dispatch of the rule's 12288-node program op by op: 7 s
 def test_albedo_jit_vmap_and_pixel_rule():
     """E(α) under jit and vmap equals eager to rounding; a PixelGaussians image of the Beckmann density (its own
     nodes, 41² over ±4.5σ) gives the closed-form density's E within 2e-3."""
@@ -647,7 +648,6 @@ def test_albedo_jit_vmap_and_pixel_rule():
     assert batched[1] == pytest.approx(eager, rel=1e-12) and batched[0] == pytest.approx(
         float(_albedo_of_alpha(0.2)), rel=1e-12
     )
-    assert np.all(np.isfinite(np.asarray(jax.grad(_albedo_of_alpha)(0.35))))
     sigma = 0.35 / math.sqrt(2)
     x = np.linspace(-4.5 * sigma, 4.5 * sigma, 41)
     values = np.exp(-(x[None, :] ** 2 + x[:, None] ** 2) / (2 * sigma**2))
