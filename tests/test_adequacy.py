@@ -162,6 +162,7 @@ def _tailed(seed: int, tail: float):
     )
 
 
+@pytest.mark.slow  # 9 s on 2 cores: the default suite measured 402 s at ff4fa2c (budget 360)
 def test_faint_broad_tails_pass_chi2_and_the_neighbours_test_and_fail_the_second_moments():
     """Power of the second-moment test where the other two have none: tails of at most 0.5 σ per pixel (the
     coarsest scale's) leave χ²/dof ≤ 1.1 and lag-1 autocorrelations ≤ 0.1 at every scale, yet shift the second

@@ -219,6 +219,7 @@ def _python_blocks(path: Path) -> list[tuple[int, str]]:
     return blocks
 
 
+@pytest.mark.slow  # 14 s on 2 cores: the default suite measured 402 s at ff4fa2c (budget 360)
 def test_core_examples_run(tmp_path, monkeypatch):
     """Every python block of docs/core.md, in order, in one namespace, in float64 (the first
     block switches it on, as a user's script would)."""
@@ -345,6 +346,7 @@ def _python_blocks_and_output(path: Path) -> list[tuple[int, str, str | None]]:
     return out
 
 
+@pytest.mark.slow  # 17 s on 2 cores: the default suite measured 402 s at ff4fa2c (budget 360)
 def test_topography_examples_run_and_print_what_the_page_shows(monkeypatch):
     """Every python block of docs/topography.md, in order, in one namespace, from the
     repository root (the page reads tests/data/topographies/); each block's output has the

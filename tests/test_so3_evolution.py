@@ -220,6 +220,7 @@ def test_tilt_twist_against_sampled_frames():
     assert np.max(np.abs(mc - op[:3, B - 3 : B + 2, B - 3 : B + 2])) < 0.03
 
 
+@pytest.mark.slow  # 8 s on 2 cores: the default suite measured 402 s at ff4fa2c (budget 360)
 def test_tilt_twist_is_jittable_and_differentiable():
     """operator(B) under jit with the density as a traced argument equals the eager result, and
     its derivative in the roughness matches a central difference (same grid: the resolution is
