@@ -186,6 +186,7 @@ def test_an_optimistix_solver_object_is_accepted_where_a_name_is():
         fitting.fit(model, data, solver=object())
 
 
+@pytest.mark.slow  # 10 s on 2 cores: the default suite measured 372 s in a clean clone at fc7a33e (budget 360)
 def test_normal_equation_steps_reach_the_optimum_of_qr_steps():
     """``solver="lm_normal"`` (Levenberg–Marquardt whose steps solve the normal equations by
     Cholesky) ends at the optimum and covariance of the default QR steps on a well-conditioned
@@ -372,6 +373,7 @@ def test_posterior_matches_laplace_on_a_well_determined_problem(small_problem):
 # -- command line --------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # 9 s on 2 cores: the default suite measured 372 s in a clean clone at fc7a33e (budget 360)
 def test_fit_command_writes_report_and_refuses_to_overwrite(tmp_path, capsys):
     from brdfscale import exr
 

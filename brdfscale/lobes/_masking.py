@@ -197,16 +197,23 @@ class SmithMasking(AbstractMasking):
         """
         density = stats.require_density(density, "density")
         i = validate_directions(i, "i")
-        nodes, weights = _albedo_rule(density)
-        d = nodes - stats.mean_slope(density).astype(nodes.dtype)
-        h = slope_to_direction(d)  # (Q, 3)
-        ii = i[..., None, :]
-        o = reflect(ii, h)
-        lit = jnp.sum(ii * h, axis=-1) / (ii[..., 2] * h[..., 2])
-        leaves = (o[..., 2] > 0) & (lit > 0)
-        safe = _above_or_normal(o / jnp.linalg.norm(o, axis=-1, keepdims=True), leaves)
-        g = SmithMasking(correlated=self.correlated).g2(density, jnp.broadcast_to(ii, safe.shape), safe)
-        return jnp.sum(weights * jnp.where(leaves, lit * g, 0.0), axis=-1)
+        stats.smith_lambda(density, i)  # its refusals (a density without a first moment, …), before tracing
+        return _albedo(SmithMasking(correlated=self.correlated), density, i)
+
+
+@eqx.filter_jit
+def _albedo(masking: "SmithMasking", density: stats.AbstractSlopeDensity, i: Array) -> Array:
+    """:meth:`SmithMasking.albedo` of validated directions (compiled once per density structure and batch shape)."""
+    nodes, weights = _albedo_rule(density)
+    d = nodes - stats.mean_slope(density).astype(nodes.dtype)
+    h = slope_to_direction(d)  # (Q, 3)
+    ii = i[..., None, :]
+    o = reflect(ii, h)
+    lit = jnp.sum(ii * h, axis=-1) / (ii[..., 2] * h[..., 2])
+    leaves = (o[..., 2] > 0) & (lit > 0)
+    safe = _above_or_normal(o / jnp.linalg.norm(o, axis=-1, keepdims=True), leaves)
+    g = masking.g2(density, jnp.broadcast_to(ii, safe.shape), safe)
+    return jnp.sum(weights * jnp.where(leaves, lit * g, 0.0), axis=-1)
 
 
 def _albedo_rule(density: stats.AbstractSlopeDensity) -> tuple[Array, Array]:
