@@ -230,6 +230,10 @@ def test_a_library_does_not_sample_an_inadequate_fit_unless_asked(tmp_path, caps
 def test_fit_spec_sample_inadequate_is_a_flag_recorded_in_the_index():
     assert library.FitSpec().sample_inadequate is False and library.FitSpec().to_json()["sample_inadequate"] is False
     assert library.FitSpec(sample_inadequate=True).to_json()["sample_inadequate"] is True
+
+
+@pytest.mark.wrong_types
+def test_fit_spec_refuses_a_sample_inadequate_that_is_not_a_flag():
     with pytest.raises(InvalidInputError, match="sample_inadequate must be True or False"):
         library.FitSpec(sample_inadequate="yes")  # type: ignore[arg-type]
 
