@@ -309,6 +309,11 @@ FORMS = Choices(
             "the Gaussian lobe in closed form, its covariance interpolated linearly in ln μ (Gaussian evolved lobes "
             "only), Smith masking exact",
         ),
+        Choice(
+            "spline",
+            "lobe tables on a ladder evenly spaced in ln μ, interpolated by tricubic B-splines through the values "
+            "(slope offset and ln μ; the G₁ tables likewise)",
+        ),
     ),
     default="auto",
 )

@@ -15,7 +15,8 @@ Three parts, one JSON (experiments/results/bench_render.json):
   law.at(μ))`` evaluated with Smith masking (:meth:`brdfscale.lobes.AbstractLobe.evaluate`, height-correlated
   ``G₂``), the law the di-3 surface's measured one; the material built with ``tolerance=1e-2`` (the ladder refined
   in ln μ and the slope grid refined until their interpolation is within 1e-2 of the evolved lobe: docs/render.md);
-  μ at three ladder nodes, at the midpoints of the two finest intervals and at four random scales in [1, 32];
+  μ at three ladder nodes, at the midpoints of the two finest intervals and at four random scales in [1, 32]. The
+  spline form (tricubic B-splines, docs/render.md) on the law's own scales refined with ``tolerance=1e-4``;
   directions whose half-vector slope is drawn from the lobe itself (values that matter), both within 72.5° of the
   normal. Relative errors where the reference exceeds 1e-3 of the largest value.
 
@@ -53,6 +54,7 @@ TARGET_EVAL = 1e-4
 LADDER = 9
 EVAL_TOLERANCE = 1e-2  # render.bsdf(tolerance=…): the ladder refined until its ln-μ interpolation is within it
 EVAL_NODES = 257  # slope nodes per axis to start from; tolerance refines the grid (nested) where bilinear needs more
+SPLINE_NODES = 65  # the spline form's start (its error falls as h⁴: it needs far fewer)
 
 
 def speed(*, width: int, height: int, size: int, repeat: int) -> dict:
@@ -84,9 +86,10 @@ def speed(*, width: int, height: int, size: int, repeat: int) -> dict:
 
 
 def eval_accuracy(*, size: int, n: int, seed: int) -> dict:
-    """The plugin's eval against the exactly evolved, Smith-masked lobe, for the material in both forms (module
+    """The plugin's eval against the exactly evolved, Smith-masked lobe, for the material in three forms (module
     docstring): ``closed`` (the default for this Gaussian material: covariances interpolated in ln μ, exact between
-    the law's scales, which the default ladder holds) and ``table`` (tabulated, refined to ``EVAL_TOLERANCE``)."""
+    the law's scales, which the default ladder holds), ``table`` (tabulated, refined to ``EVAL_TOLERANCE``) and
+    ``spline`` (tabulated, tricubic B-splines, refined to ``TARGET_EVAL``)."""
     rv = render_validation
     mi = rv.mitsuba()
     from brdfscale import render
@@ -99,6 +102,8 @@ def eval_accuracy(*, size: int, n: int, seed: int) -> dict:
     forms = {
         "closed": dict(tolerance=TARGET_EVAL),  # default ladder: the law's scales on it
         "table": dict(scales=ladder, size=EVAL_NODES, tolerance=EVAL_TOLERANCE, form="table"),
+        # the law's own scales (uniform in ln μ, each a break of the spline ladder), refined to the target
+        "spline": dict(scales=levels, size=SPLINE_NODES, tolerance=TARGET_EVAL, form="spline"),
     }
     out = {"surface": SURFACE, "tile_size": size, "forms": {}}
     for form, options in forms.items():
@@ -127,6 +132,11 @@ def eval_accuracy(*, size: int, n: int, seed: int) -> dict:
         if host.form == "table":
             entry["table_nodes"] = int(host.values.shape[1] - 2)  # the refined grid, without the zero ring
             entry["table_bytes_float32"] = int(host.values.nbytes // 2)
+        elif host.form == "spline":
+            entry["table_nodes"] = int(host.values.shape[1] - 4)  # the refined grid, without the two zero rings
+            entry["table_bytes_float32"] = int(host.values.nbytes // 2)  # the sampler's values
+            entry["coefficient_bytes_float32"] = int(host.coefficients.nbytes // 2)  # what eval reads
+            entry["runs"] = len(host.breaks) - 1
         else:
             entry["parameter_bytes_float32"] = int(host.parameters.nbytes // 2)
         out["forms"][form] = entry

@@ -227,7 +227,12 @@ def test_the_instrument_and_render_names_are_the_table_s_and_each_is_accepted():
             assert (plan.binning, plan.surface) == (binning, surface)
     assert {_cluster.resolve_executor(name, None, None) for name in choices.EXECUTORS} == {"process", "ray"}
     gaussian = [lobes.Lobe(stats.Gaussian(sigma=0.1))]  # an evolved Gaussian lobe: the closed form applies
-    assert [_material.choose_form(name, gaussian).name for name in choices.FORMS] == ["closed", "table", "closed"]
+    assert [_material.choose_form(name, gaussian).name for name in choices.FORMS] == [
+        "closed",
+        "table",
+        "closed",
+        "spline",
+    ]
     for output in choices.OUTPUTS:
         for footprint in choices.FOOTPRINTS:
             assert _integrator.check_options(2, output, footprint) == (2, output, footprint)

@@ -11,7 +11,7 @@ from ..exr import LobeTable
 from ..lobes import AbstractLobe
 from ._masking import masking_choice
 from ._material import DEFAULT_LEVELS, evolved_lobes, gaussian_parameters, lobe_table, tabulate
-from ._plugin import bsdf_class, check_positive, Gaussians, PLUGIN, Tables
+from ._plugin import bsdf_class, check_positive, Gaussians, PLUGIN, Splines, Tables
 
 
 _REGISTERED: set[tuple[str, str]] = set()
@@ -119,9 +119,9 @@ def bsdf(
     if masking_shapes is not None and form == "auto":
         form = "table"  # masking shapes of one's own are for tables
     if isinstance(statistics, LobeTable):
-        if form not in ("auto", "table"):
+        if form not in ("auto", "table", "spline"):
             raise InvalidInputError(
-                f"a LobeTable is rendered as a table: form must be 'auto' or 'table'; got {form!r}."
+                f"a LobeTable is rendered from its values: form must be 'auto', 'table' or 'spline'; got {form!r}."
             )
         table = lobe_table(base_lobe, statistics)
         shapes = None
@@ -132,9 +132,9 @@ def bsdf(
                     f"masking_shapes needs one slope density per scale of the LobeTable ({len(table.scales)}); got "
                     f"{len(shapes)}."
                 )
-        host = Tables(table, choice, mu=mu, texel=texel, shapes=shapes)
+        host = (Splines if form == "spline" else Tables)(table, choice, mu=mu, texel=texel, shapes=shapes)
     else:
-        ladder, evolved, mu0, chosen = evolved_lobes(
+        ladder, evolved, mu0, chosen, breaks = evolved_lobes(
             base_lobe, statistics, mu0=mu0, scales=scales, levels=levels, method=method, tolerance=tolerance, form=form
         )
         params = gaussian_parameters(evolved) if chosen.name == "closed" else None
@@ -146,17 +146,22 @@ def bsdf(
                 )
             host = Gaussians(ladder, params, choice, mu=mu, texel=texel)
         else:
-            host = _tables(ladder, evolved, mu0, choice, mu, texel, size, extent, tolerance, scales, masking_shapes)
+            host = _tables(
+                ladder, evolved, mu0, choice, mu, texel, size, extent, tolerance, scales, masking_shapes, chosen, breaks
+            )
     mi = mitsuba(variant)
     obj = bsdf_class(mi)(mi.Properties(PLUGIN))
     obj.load(host)
     return obj
 
 
-def _tables(ladder, evolved, mu0, choice, mu, texel, size, extent, tolerance, scales, masking_shapes) -> Tables:
-    """The tabulated form of :func:`bsdf`'s evolved lobes, with the masking tables of their shapes or of
-    ``masking_shapes``."""
-    table = tabulate(ladder, evolved, mu0=mu0, size=size, extent=extent, tolerance=tolerance)
+def _tables(
+    ladder, evolved, mu0, choice, mu, texel, size, extent, tolerance, scales, masking_shapes, form, breaks
+) -> Tables | Splines:
+    """The tabulated form (``form``: the table's or the spline's, with its ``breaks``) of :func:`bsdf`'s evolved
+    lobes, with the masking tables of their shapes or of ``masking_shapes``."""
+    meta = None if breaks is None else {"spline_breaks": [int(k) for k in breaks]}
+    table = tabulate(ladder, evolved, mu0=mu0, size=size, extent=extent, tolerance=tolerance, form=form, metadata=meta)
     shapes = [lobe.shape for lobe in evolved]
     if masking_shapes is not None:
         if scales is None or tolerance is not None or len(list(masking_shapes)) != len(ladder):
@@ -165,7 +170,7 @@ def _tables(ladder, evolved, mu0, choice, mu, texel, size, extent, tolerance, sc
                 f"per scale; got {len(list(masking_shapes))} for {len(ladder)} scales."
             )
         shapes = list(masking_shapes)
-    return Tables(table, choice, mu=mu, texel=texel, shapes=shapes)
+    return (Splines if form.name == "spline" else Tables)(table, choice, mu=mu, texel=texel, shapes=shapes)
 
 
 def FootprintIntegrator(  # noqa: N802 (it builds a Mitsuba object of the current variant's class)

@@ -24,6 +24,7 @@ from .._evolve import AbstractMethod, evolve, MethodName
 from .._validation import integer, real
 from ..exr import LobeTable
 from ..lobes import AbstractLobe
+from ._spline import GHOSTS, on_grid, prefilter, runs, runs_coefficients
 
 
 ACCEPTED = (
@@ -50,6 +51,15 @@ MAX_CLOSED_LEVELS = 4096
 MAX_NODES = 1024
 """The most slope nodes per axis :func:`refine_grid` chooses (it refuses to go further)."""
 
+MAX_SPLINE_LEVELS = 257
+"""The most scales :func:`refine_uniform_ladder` puts on a spline ladder (it refuses to go further)."""
+
+RUN_INTERVALS = 8
+"""A spline run refined to this many intervals or more is cut in two runs (:func:`refine_runs`)."""
+
+SPLINE_PAD = 2
+"""Zero nodes around a spline table's slope grid (the B-spline reaches two nodes: beyond them the lobe is 0)."""
+
 
 def grid_error(lobe, extent: float, size: int) -> float:
     """The largest relative error of bilinear interpolation on ``size²`` nodes over ``[−extent, extent]²``: at every
@@ -65,16 +75,36 @@ def grid_error(lobe, extent: float, size: int) -> float:
     return float(np.max(np.abs(corners[big] / exact[big] - 1))) if big.any() else 0.0
 
 
-def refine_grid(evolved, extent: float, size: int, tolerance: float) -> int:
-    """The smallest ``size, 2·size − 1, 4·size − 3, …`` (nested grids) whose bilinear interpolation of every lobe is
-    within ``tolerance`` (:func:`grid_error`); InvalidInputError beyond :data:`MAX_NODES` nodes per axis."""
+def spline_grid_error(lobe, extent: float, size: int) -> float:
+    """The largest relative error of the cubic B-spline (:mod:`._spline`) through the lobe's density on ``size²``
+    nodes over ``[−extent, extent]²`` bordered by :data:`SPLINE_PAD` rings of zero nodes — what the spline form
+    renders — at every cell centre, where the lobe exceeds :data:`RELEVANT` of its largest value."""
+    h = 2 * extent / (size - 1)
+    u = -extent + h * np.arange(-SPLINE_PAD, size + SPLINE_PAD)
+    nodes = np.array(lobe.density(jnp.asarray(np.stack(np.meshgrid(u, u), -1).reshape(-1, 2)))).reshape(len(u), -1)
+    ring = np.zeros(len(u), bool)
+    ring[:SPLINE_PAD] = ring[-SPLINE_PAD:] = True
+    nodes[ring] = 0.0
+    nodes[:, ring] = 0.0
+    x = np.arange(len(u) - 1) + 0.5
+    estimate = on_grid(prefilter(nodes), [x, x])
+    c = u[:-1] + 0.5 * h
+    exact = np.asarray(lobe.density(jnp.asarray(np.stack(np.meshgrid(c, c), -1).reshape(-1, 2)))).reshape(len(c), -1)
+    big = exact > RELEVANT * max(exact.max(), nodes.max())
+    return float(np.max(np.abs(estimate[big] / exact[big] - 1))) if big.any() else 0.0
+
+
+def refine_grid(evolved, extent: float, size: int, tolerance: float, measure=grid_error) -> int:
+    """The smallest ``size, 2·size − 1, 4·size − 3, …`` (nested grids) whose interpolation of every lobe is within
+    ``tolerance`` by ``measure`` (:func:`grid_error`: bilinear, the table form's; :func:`spline_grid_error`: the
+    spline form's); InvalidInputError beyond :data:`MAX_NODES` nodes per axis."""
     for lobe in sorted(evolved, key=lambda lobe: float(jnp.max(lobe.shape.support_radius(SUPPORT_TOL)))):
-        while (error := grid_error(lobe, extent, size)) > tolerance:
+        while (error := measure(lobe, extent, size)) > tolerance:
             size = 2 * size - 1
             if size > MAX_NODES:
                 raise InvalidInputError(
-                    f"tolerance = {tolerance:g} needs more than {MAX_NODES} slope nodes per axis (bilinear error "
-                    f"{error:.2g} on {(size + 1) // 2}); give a larger tolerance or a smaller extent."
+                    f"tolerance = {tolerance:g} needs more than {MAX_NODES} slope nodes per axis (interpolation "
+                    f"error {error:.2g} on {(size + 1) // 2}); give a larger tolerance or a smaller extent."
                 )
     return size
 
@@ -106,10 +136,16 @@ class TableForm:
     lobes."""
 
     name = "table"
+    measure = staticmethod(grid_error)
+    """The slope grid's interpolation error (:func:`refine_grid`)."""
 
     @property
     def max_levels(self) -> int:
         return MAX_LEVELS
+
+    def refine(self, base_lobe, law, mu0, ladder, evolved, tolerance, method):
+        """The ladder refined until its interpolation is within ``tolerance`` (:func:`refine_ladder`), and no breaks."""
+        return (*refine_ladder(base_lobe, law, mu0, ladder, evolved, tolerance, method, form=self), None)
 
     def between(self, lower, upper):
         """What the plugin renders at the geometric midpoint of two scales: the mean of their lobes."""
@@ -123,10 +159,13 @@ class GaussianForm:
     :class:`brdfscale.stats.MeasuredScaleLaw` between its measured scales)."""
 
     name = "closed"
+    measure = None
 
     @property
     def max_levels(self) -> int:
         return MAX_CLOSED_LEVELS
+
+    refine = TableForm.refine
 
     def between(self, lower, upper):
         """The Gaussian lobe of the mean parameters of two scales' lobes."""
@@ -135,12 +174,33 @@ class GaussianForm:
         return gaussian_lobe(rows.mean(axis=0)).density
 
 
-_BY_NAME = {form.name: form for form in (TableForm(), GaussianForm())}
+class SplineForm:
+    """The lobe tabulated on a slope grid per scale, interpolated by a tricubic B-spline through the values
+    (:mod:`._spline`; Dr.Jit's ``eval_cubic``), its G₁ tables likewise: the error falls as the fourth power of the
+    steps (the table form's as the square), so far fewer scales and nodes reach a tolerance. Along ln μ the ladder is
+    cut into runs of equal steps (:func:`spline_breaks`: also at a measured law's own scales, where its Σ has kinks),
+    each interpolated by its own spline with cubically extrapolated ends; the refinement halves a run's steps
+    (:func:`refine_runs`)."""
+
+    name = "spline"
+    measure = staticmethod(spline_grid_error)
+
+    @property
+    def max_levels(self) -> int:
+        return MAX_SPLINE_LEVELS
+
+    def refine(self, base_lobe, law, mu0, ladder, evolved, tolerance, method):
+        """The ladder refined until its splines are within ``tolerance``, and its breaks (:func:`refine_runs`)."""
+        return refine_runs(base_lobe, law, mu0, ladder, evolved, tolerance, method)
+
+
+TABLE, CLOSED, SPLINE = TableForm(), GaussianForm(), SplineForm()
+_BY_NAME = {form.name: form for form in (TABLE, CLOSED, SPLINE)}
 """The forms :func:`brdfscale.render.bsdf` renders a material in, by name (``form=``: the names and ``"auto"`` are
 :data:`brdfscale.choices.FORMS`)."""
 
 
-def choose_form(form: str, evolved) -> TableForm | GaussianForm:
+def choose_form(form: str, evolved) -> TableForm | GaussianForm | SplineForm:
     """The form ``form`` names for these evolved lobes (InvalidInputError naming the accepted ones); ``"auto"``:
     closed where every evolved lobe is Gaussian, else table."""
     if FORMS.check(form) == "auto":
@@ -160,7 +220,7 @@ def midpoint_error(lower, upper, middle, extent: float, form=None) -> float:
     offsets over the table's extent where ``middle`` exceeds :data:`RELEVANT` of its peak."""
     u = np.linspace(-extent, extent, 65)
     grid = jnp.asarray(np.stack(np.meshgrid(u, u), -1).reshape(-1, 2))
-    estimate = np.asarray((form or _BY_NAME["table"]).between(lower, upper)(grid))
+    estimate = np.asarray((form or TABLE).between(lower, upper)(grid))
     c = np.asarray(middle.density(grid))
     big = c > RELEVANT * c.max()
     return float(np.max(np.abs(estimate[big] / c[big] - 1)))
@@ -175,7 +235,7 @@ def refine_ladder(base_lobe, law, mu0: float, ladder, evolved, tolerance: float,
     law's ``Σ(μ0) − Σ(μ)`` grows fastest). The closed form interpolates the covariance instead, exact where the law
     is linear in ln μ. Raises InvalidInputError beyond :data:`MAX_LEVELS` scales."""
     s0 = law.at(mu0)
-    form = form or _BY_NAME["table"]
+    form = form or TABLE
     if extent is None:
         extent = max(float(jnp.max(lobe.shape.support_radius(SUPPORT_TOL))) for lobe in evolved)
     mus, out = [float(ladder[0])], [evolved[0]]
@@ -197,6 +257,74 @@ def refine_ladder(base_lobe, law, mu0: float, ladder, evolved, tolerance: float,
         mus.append(b)
         out.append(lb)
     return np.asarray(mus), out
+
+
+def spline_breaks(ladder, law) -> list[int]:
+    """Where the spline form's interpolation in ln μ restarts: the ends and breaks of the ladder's runs of equal
+    ln-μ steps (:func:`brdfscale.render._spline.runs`), and every scale of the ladder that is one of the law's own
+    (``law.mu``: a :class:`brdfscale.stats.MeasuredScaleLaw` is linear in ln μ between them, so the lobe has a kink
+    there that one spline across it would smear over its neighbours)."""
+    x = np.log(np.asarray(ladder, float))
+    breaks = set(runs(x))
+    own = getattr(law, "mu", None)
+    if own is not None:
+        own = np.log(np.asarray(own, float))
+        breaks |= {k for k, v in enumerate(x) if np.any(np.abs(own - v) <= 1e-9 * max(1.0, abs(v)))}
+    return sorted(breaks)
+
+
+def spline_run_error(evolved, middles, extent: float) -> float:
+    """The largest relative error of one run's spline in ln μ (:func:`brdfscale.render._spline.runs_coefficients`)
+    through ``evolved`` (its lobes, equal ln-μ steps) at every interval's midpoint, against ``middles`` (the lobes
+    evolved exactly to ``√(μ_k μ_{k+1})``), on 65² offsets over the table's extent where each middle lobe exceeds
+    :data:`RELEVANT` of its peak."""
+    u = np.linspace(-extent, extent, 65)
+    grid = jnp.asarray(np.stack(np.meshgrid(u, u), -1).reshape(-1, 2))
+    nodes = np.stack([np.asarray(lobe.density(grid)) for lobe in evolved])
+    coefficients = runs_coefficients(nodes, [0, len(evolved) - 1])  # the offset axis: clamped, evaluated at nodes
+    estimate = on_grid(coefficients, [GHOSTS + np.arange(len(evolved) - 1) + 0.5, np.arange(len(u) ** 2)])
+    worst = 0.0
+    for row, middle in zip(estimate, middles):
+        c = np.asarray(middle.density(grid))
+        big = c > RELEVANT * c.max()
+        worst = max(worst, float(np.max(np.abs(row[big] / c[big] - 1))))
+    return worst
+
+
+def refine_runs(base_lobe, law, mu0: float, ladder, evolved, tolerance: float, method, extent=None):
+    """Refine the runs of the ladder (:func:`spline_breaks`) until each one's spline is within ``tolerance`` of the
+    lobe evolved exactly to every midpoint (:func:`spline_run_error`): a run that misses has its ln-μ steps halved
+    (the midpoint lobes join the ladder), and one of :data:`RUN_INTERVALS` or more intervals is then cut in two
+    runs checked apart, so only the part of the range where the lobe changes fastest (near μ0) gets the finest
+    steps. Returns the refined ``(ladder, evolved, breaks)``; InvalidInputError beyond :data:`MAX_SPLINE_LEVELS`
+    scales."""
+    s0 = law.at(mu0)
+    if extent is None:
+        extent = max(float(jnp.max(lobe.shape.support_radius(SUPPORT_TOL))) for lobe in evolved)
+    ladder, evolved = [float(x) for x in ladder], list(evolved)
+    breaks = spline_breaks(ladder, law)
+    pending = list(zip(breaks[:-1], breaks[1:]))
+    done = []
+    while pending:
+        a, b = pending.pop()  # from the last run down: indices below a stay valid
+        mids = [math.sqrt(p * q) for p, q in zip(ladder[a:b], ladder[a + 1 : b + 1])]
+        middles = [evolve(base_lobe, s0, law.at(mu), method) for mu in mids]
+        error = spline_run_error(evolved[a : b + 1], middles, extent)
+        if error <= tolerance:
+            done.append(a)
+            continue
+        if len(ladder) + len(mids) > MAX_SPLINE_LEVELS:
+            raise InvalidInputError(
+                f"tolerance = {tolerance:g} needs more than {MAX_SPLINE_LEVELS} scales on the spline ladder (error "
+                f"{error:.2g} on [{ladder[a]:g}, {ladder[b]:g}]); give a larger tolerance or a shorter ladder."
+            )
+        shift = b - a
+        done = [k + shift if k > a else k for k in done]
+        ladder[a : b + 1] = [x for pair in zip(ladder[a:b], mids) for x in pair] + [ladder[b]]
+        evolved[a : b + 1] = [lobe for pair in zip(evolved[a:b], middles) for lobe in pair] + [evolved[b]]
+        n = 2 * (b - a)
+        pending += [(a, a + n // 2), (a + n // 2, a + n)] if n >= RUN_INTERVALS else [(a, a + n)]
+    return np.asarray(ladder), evolved, sorted(set(done) | {len(ladder) - 1})
 
 
 def _fit_law(fit, mu0):
@@ -292,22 +420,25 @@ def evolved_lobes(
     chosen = choose_form(form, evolved)
     if tolerance is not None and len(ladder) > 1:
         tolerance = real(tolerance, "tolerance", minimum=0, strict=True)
-        ladder, evolved = refine_ladder(base_lobe, law, mu0, ladder, evolved, tolerance, method, form=chosen)
-    return ladder, evolved, mu0, chosen
+        ladder, evolved, breaks = chosen.refine(base_lobe, law, mu0, ladder, evolved, tolerance, method)
+    else:
+        breaks = spline_breaks(ladder, law) if chosen.name == "spline" else None
+    return ladder, evolved, mu0, chosen, breaks
 
 
 def tabulate(
-    ladder, evolved, *, mu0, size: int = 128, extent: float | None = None, metadata=None, tolerance=None
+    ladder, evolved, *, mu0, size: int = 128, extent: float | None = None, metadata=None, tolerance=None, form=None
 ) -> LobeTable:
     """The lobes ``evolved`` (one per scale of ``ladder``) on ``size × size`` nodes over ``[−extent, extent]²``
     (default extent: the largest ``support_radius(1e-4)`` of their shapes); with ``tolerance``, on more nodes where
-    bilinear interpolation needs them (:func:`refine_grid`)."""
+    the ``form``'s interpolation (default the table's, bilinear) needs them (:func:`refine_grid`)."""
     size = integer(size, "size", 4)
     if extent is None:
         extent = max(float(jnp.max(lobe.shape.support_radius(SUPPORT_TOL))) for lobe in evolved)
     extent = real(extent, "extent", minimum=0, strict=True)
     if tolerance is not None:
-        size = refine_grid(evolved, extent, size, real(tolerance, "tolerance", minimum=0, strict=True))
+        measure = (form or TABLE).measure
+        size = refine_grid(evolved, extent, size, real(tolerance, "tolerance", minimum=0, strict=True), measure)
     meta = {"what": "brdfscale.render.lobe_table: base lobe evolved from mu0 to each scale", "mu0": float(mu0)}
     return LobeTable.from_lobes(ladder, evolved, extent=extent, size=size, metadata={**meta, **(metadata or {})})
 
@@ -350,7 +481,7 @@ def lobe_table(
         if base_lobe is not None:
             raise InvalidInputError("a LobeTable is already evolved: pass base_lobe=None with it.")
         return statistics
-    ladder, evolved, mu0, _ = evolved_lobes(
+    ladder, evolved, mu0, _, _ = evolved_lobes(
         base_lobe, statistics, mu0=mu0, scales=scales, levels=levels, method=method, tolerance=tolerance
     )
     meta = {"base_lobe": type(base_lobe).__name__, "statistics": type(statistics).__name__}

@@ -31,7 +31,8 @@ import numpy as np
 from .._errors import InvalidInputError
 from ..exr import read_lobe_table
 from ._masking import g1_table, table_shapes
-from ._material import scalar_table
+from ._material import scalar_table, SPLINE_PAD
+from ._spline import extend, GHOSTS, PERIODIC_PAD, runs, runs_coefficients
 from ._variants import per_variant
 
 
@@ -86,6 +87,59 @@ class Tables(Host):
 
     def renderer(self, mi):
         return _TableLobe(mi, self)
+
+
+class Splines(Host):
+    """A tabulated lobe rendered by tricubic B-splines (:mod:`._spline`): the lobe values bordered by
+    :data:`._material.SPLINE_PAD` rings of zero nodes (L, N, N) — what the sampler draws from, as the table form's
+    — and, run by run of the ladder (``breaks``: the table's ``metadata["spline_breaks"]`` where
+    :func:`brdfscale.render.bsdf` wrote them, else its runs of equal ln-μ steps), the B-spline coefficients of the
+    values and of the G₁ tables of :mod:`._masking` (ghost nodes beyond the ends of ln μ and s, periodic in φ).
+
+    ``shapes``: the lobe shapes whose Smith Λ makes the masking tables (default the table's own, tabulated).
+    """
+
+    form = "spline"
+
+    def __init__(self, table, masking, *, mu=None, texel=1.0, shapes=None):
+        super().__init__(table.scales, masking, mu=mu, texel=texel)
+        count = len(self.log_mu)
+        breaks = table.metadata.get("spline_breaks") if len(table.scales) > 1 else None
+        if breaks is None:
+            breaks = runs(self.log_mu)
+        ok = isinstance(breaks, (list, tuple)) and len(breaks) >= 2 and all(isinstance(k, int) for k in breaks)
+        breaks = list(breaks) if ok else [0]
+        if not ok or breaks[0] != 0 or breaks[-1] != count - 1 or any(q <= p for p, q in zip(breaks, breaks[1:])):
+            raise InvalidInputError(
+                f"the table's metadata spline_breaks must be increasing level indices from 0 to {count - 1}; got "
+                f"{breaks!r} — drop the key to split the ladder into its runs of equal ln-μ steps."
+            )
+        steps = np.diff(self.log_mu)
+        for p, q in zip(breaks, breaks[1:]):
+            if np.ptp(steps[p:q]) > 1e-6 * steps[p:q].mean():
+                raise InvalidInputError(
+                    f"the spline form needs equal ln-μ steps between breaks; levels {p}…{q} of this table are not — "
+                    "drop spline_breaks from its metadata or render it with form='table'."
+                )
+        self.breaks = [int(k) for k in breaks]
+        values = scalar_table(table)
+        n = values.shape[1]
+        h = 2 * table.extent / (n - 1)
+        pad = ((0, 0), (SPLINE_PAD, SPLINE_PAD), (SPLINE_PAD, SPLINE_PAD))
+        self.values = self.doubled(np.pad(values, pad))  # (L, N, N) with the zero rings
+        self.half = float(table.extent + SPLINE_PAD * h)  # the padded grid spans [−half, half]²
+        self.coefficients = runs_coefficients(self.values, self.breaks)
+        self.g1 = None
+        if masking is not None:
+            g1 = self.doubled(g1_table(table_shapes(table) if shapes is None else shapes))[..., :-1]  # φ = 2π is 0
+            self.g1 = runs_coefficients(extend(g1, axis=1), self.breaks, periodic=(2,), extrapolated=(1,))
+        offset, self.runs = 0, []
+        for p, q in zip(self.breaks, self.breaks[1:]):  # (ln μ at its start, step, nodes, first coefficient index)
+            self.runs.append((self.log_mu[p], (self.log_mu[q] - self.log_mu[p]) / (q - p), q - p + 1, offset))
+            offset += q - p + 1 + 2 * GHOSTS
+
+    def renderer(self, mi):
+        return _SplineLobe(mi, self)
 
 
 class Gaussians(Host):
@@ -194,6 +248,63 @@ class _TableLobe:
 
     def changed(self):
         self.tex.set_tensor(self.table)
+
+
+class _SplineLobe(_TableLobe):
+    """The spline form in Dr.Jit (:class:`Splines`): Dr.Jit's ``eval_cubic`` of the coefficient textures (lobe and
+    G₁) at the run of the ladder that holds ln μ; sampling and its density are the table form's, from the values at
+    the nodes."""
+
+    key = "coefficients"
+
+    def __init__(self, mi, host: Splines):
+        self.mi, self.host = mi, host
+        L, N, _ = host.values.shape
+        self.levels, self.nodes = L, N
+        self.depth = host.coefficients.shape[0]
+        self.table = mi.TensorXf(np.ascontiguousarray(host.coefficients[..., None], dtype=np.float32))
+        self.tex = mi.Texture3f(self.table)
+        self.sampler = mi.MarginalContinuous2D1(
+            np.ascontiguousarray(np.maximum(host.values, 0.0), dtype=np.float32), [host.log_mu]
+        )
+        self.g1 = None
+        if host.g1 is not None:
+            self.g1 = mi.Texture3f(mi.TensorXf(np.ascontiguousarray(host.g1[..., None], dtype=np.float32)))
+
+    def at(self, log_mu):
+        """The level: the texture coordinate of ln μ in its run's block (:func:`._spline.runs_coefficients`) and
+        ln μ (for the sampler)."""
+        import drjit as dr
+
+        start, step, count, offset = (self.mi.Float(v) for v in self.host.runs[0])
+        for run in self.host.runs[1:]:
+            later = log_mu >= run[0]
+            start, step, count, offset = (dr.select(later, v, old) for v, old in zip(run, (start, step, count, offset)))
+        j = dr.clip((log_mu - start) / step, 0.0, count - 1.0)
+        return (offset + GHOSTS + j + 0.5) / self.depth, log_mu
+
+    def value(self, m, level):
+        import drjit as dr
+
+        mi, n, half = self.mi, self.nodes, self.host.half
+        px = ((m.x + half) / (2 * half) * (n - 1) + 0.5) / n
+        py = ((m.y + half) / (2 * half) * (n - 1) + 0.5) / n
+        inside = (dr.abs(m.x) < half) & (dr.abs(m.y) < half)
+        # the spline may ring below 0 in the tails: shaded as 0, as the sampler's non-negative values are drawn
+        return dr.select(inside, dr.maximum(self.tex.eval_cubic(mi.Point3f(px, py, level[0]))[0], 0.0), 0.0)
+
+    def _g1_at(self, w, z):
+        import drjit as dr
+
+        mi = self.mi
+        s = dr.sqrt(dr.clip(mi.Frame3f.cos_theta(w), 0.0, 1.0))
+        phi = dr.atan2(w.y, w.x)
+        phi = dr.select(phi < 0, phi + 2 * math.pi, phi)
+        assert self.host.g1 is not None and self.g1 is not None  # masking asks only when there are tables
+        height, width = self.host.g1.shape[1:]  # n_s + 2·GHOSTS, n_φ − 1 + 2·PERIODIC_PAD
+        ps = (s * (height - 2 * GHOSTS - 1) + GHOSTS + 0.5) / height
+        pphi = (phi / (2 * math.pi) * (width - 2 * PERIODIC_PAD) + PERIODIC_PAD + 0.5) / width
+        return dr.clip(self.g1.eval_cubic(mi.Point3f(pphi, ps, z))[0], 0.0, 1.0)
 
 
 class _GaussianLobe:
