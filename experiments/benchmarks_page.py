@@ -1725,12 +1725,19 @@ def render_bench() -> str:
             ]
             for r in e["records"]
         ]
-        what = (
-            f"{e['table_nodes']}² table nodes on {e['ladder_levels']} scales, tolerance {e['options']['tolerance']:g}, "
-            f"{e['table_bytes_float32'] / 2**20:.0f} MiB of float32"
-            if form == "table"
-            else f"Gaussian parameters on {e['ladder_levels']} scales ({e['parameter_bytes_float32']} bytes)"
-        )
+        if form == "table":
+            what = (
+                f"{e['table_nodes']}² table nodes on {e['ladder_levels']} scales, tolerance "
+                f"{e['options']['tolerance']:g}, {e['table_bytes_float32'] / 2**20:.0f} MiB of float32"
+            )
+        elif form == "spline":
+            what = (
+                f"{e['table_nodes']}² nodes on {e['ladder_levels']} scales in {e['runs']} runs, tolerance "
+                f"{e['options']['tolerance']:g}, {e['coefficient_bytes_float32'] / 2**20:.0f} MiB of float32 "
+                f"coefficients and as much for the sampler's values"
+            )
+        else:
+            what = f"Gaussian parameters on {e['ladder_levels']} scales ({e['parameter_bytes_float32']} bytes)"
         out.append(
             f"\nThe plugin's eval against brdfscale's evolved, masked lobe — `form=\"{form}\"` ({acc['surface']} law; "
             f"{what}, built in {e['build_seconds']:.1f} s; relative error where the lobe exceeds 1e-3 of its largest "

@@ -259,6 +259,16 @@ def test_a_lobe_table_renders_as_a_spline_with_its_breaks_and_refuses_bad_ones(t
                 form="spline",
                 variant="llvm_ad_rgb",
             )
+    law = stats.MeasuredScaleLaw(np.array([1.0, 2.0, 4.0]), np.array([np.eye(2) * v for v in (0.03, 0.02, 0.01)]))
+    recorded = render.lobe_table(base_lobe(), law, mu0=MU0, scales=np.geomspace(1.0, 4.0, 5), size=24, form="spline")
+    assert recorded.metadata["spline_breaks"] == [0, 2, 4]  # the law's scales, written with the table
+    exr.write_lobe_table(str(tmp_path / "measured.exr"), recorded)
+    again = render.bsdf(
+        None, exr.read_lobe_table(str(tmp_path / "measured.exr")), masking=False, form="spline", variant="llvm_ad_rgb"
+    )
+    assert again.host.breaks == [0, 2, 4]
+    with pytest.raises(InvalidInputError, match="'table' or 'spline'"):
+        render.lobe_table(base_lobe(), LAW, mu0=MU0, scales=[1.0, 2.0], form="closed")
     with pytest.raises(InvalidInputError, match="'auto', 'table' or 'spline'"):
         render.bsdf(None, table, form="closed", variant="llvm_ad_rgb")
 

@@ -79,8 +79,9 @@ def bsdf(
     lobe with Gaussian statistics: :func:`brdfscale.evolve`'s closed form, covariances add) the plugin keeps each
     scale's amplitude, mean and covariance, interpolates them linearly in ln μ and evaluates the Gaussian and its
     Smith masking exactly (``form="closed"``); otherwise the lobes are tabulated and Mitsuba interpolates the table
-    (bilinear in the slope offset, linear in ln μ; ``form="table"``). μ is clamped to the ladder's ends. The object
-    goes into ``mi.load_dict`` scenes as any BSDF (``{"type": "rectangle", "bsdf": bsdf(...)}``).
+    (bilinear in the slope offset, linear in ln μ; ``form="table"``; or by tricubic B-splines, ``form="spline"``).
+    μ is clamped to the ladder's ends. The object goes into ``mi.load_dict`` scenes as any BSDF
+    (``{"type": "rectangle", "bsdf": bsdf(...)}``).
 
     Args:
         base_lobe: a :mod:`brdfscale.lobes` lobe at μ0 (None with an evolved LobeTable).
@@ -103,7 +104,8 @@ def bsdf(
             masking tables instead of the evolved shapes' (e.g. Gaussians of the same covariance where the generic
             quadrature of an evolved non-Gaussian shape is too slow); requires ``scales`` (table form only), or
             one per scale of a LobeTable (whose own tabulated shapes' quadrature is slow).
-        form: ``"auto"`` (closed where the evolved lobes are Gaussian, else table), ``"closed"`` or ``"table"``
+        form: ``"auto"`` (closed where the evolved lobes are Gaussian, else table), ``"closed"``, ``"table"``
+            (bilinear in the offset, linear in ln μ) or ``"spline"`` (tricubic B-splines: the accurate tables)
             (docs/render.md, "Accuracy").
 
     Raises InvalidInputError for statistics of another kind or bad options (naming what is accepted),

@@ -454,6 +454,7 @@ def lobe_table(
     extent: float | None = None,
     method: MethodName | AbstractMethod = "auto",
     tolerance: float | None = None,
+    form: str = "table",
 ) -> LobeTable:
     """The evolved lobe ``A·g(u, μ_k)`` tabulated at every scale of a ladder (what :func:`bsdf` renders).
 
@@ -472,6 +473,9 @@ def lobe_table(
             relative error of the exactly evolved lobe at every interval's midpoint, and the slope grid
             (:func:`refine_grid`) until bilinear interpolation is within it at every cell centre (None: the ladder
             and grid as given).
+        form: ``"table"`` or ``"spline"``: the interpolation the ladder and grid are refined for; ``"spline"``
+            also records the spline's breaks in the table's metadata (``"spline_breaks"``: :func:`spline_breaks`,
+            e.g. at a measured law's own scales), which ``bsdf(None, table, form="spline")`` renders with.
 
     Raises InvalidInputError for statistics of another kind (naming those accepted), a missing ``mu0``, a bad ladder
     or grid; :class:`brdfscale.NoBRDFAtScaleError` where no lobe exists at a scale of the ladder (finer than the
@@ -481,11 +485,15 @@ def lobe_table(
         if base_lobe is not None:
             raise InvalidInputError("a LobeTable is already evolved: pass base_lobe=None with it.")
         return statistics
-    ladder, evolved, mu0, _, _ = evolved_lobes(
-        base_lobe, statistics, mu0=mu0, scales=scales, levels=levels, method=method, tolerance=tolerance
+    if FORMS.check(form) not in ("table", "spline"):
+        raise InvalidInputError(f"form must be 'table' or 'spline' (a lobe table's interpolation); got {form!r}.")
+    ladder, evolved, mu0, chosen, breaks = evolved_lobes(
+        base_lobe, statistics, mu0=mu0, scales=scales, levels=levels, method=method, tolerance=tolerance, form=form
     )
-    meta = {"base_lobe": type(base_lobe).__name__, "statistics": type(statistics).__name__}
-    return tabulate(ladder, evolved, mu0=mu0, size=size, extent=extent, metadata=meta, tolerance=tolerance)
+    meta: dict = {"base_lobe": type(base_lobe).__name__, "statistics": type(statistics).__name__}
+    if breaks is not None:
+        meta["spline_breaks"] = [int(k) for k in breaks]
+    return tabulate(ladder, evolved, mu0=mu0, size=size, extent=extent, metadata=meta, tolerance=tolerance, form=chosen)
 
 
 def scalar_table(table: LobeTable) -> np.ndarray:
