@@ -73,7 +73,31 @@ def report_problem(directory) -> str | None:
             return "fit.json lists a file that is not a path"
         if not os.path.isfile(os.path.join(directory, os.path.basename(file))):
             return f"{os.path.basename(file)}, listed in fit.json, is missing"
+    stopped = _stopped(doc)
+    if stopped is not None:
+        return (
+            f"its sampling stopped at the time limit after {stopped.get('steps')} of {stopped.get('steps_asked')} steps"
+        )
     return None
+
+
+def _stopped_run(directory) -> dict | None:
+    """The ``mcmc.stopped`` record of the report in ``directory`` (:func:`_stopped`), or None (none, or no
+    readable fit.json)."""
+    try:
+        with open(os.path.join(os.fspath(directory), "fit.json"), encoding="utf-8") as f:
+            doc = json.load(f)
+    except (OSError, ValueError, RecursionError):
+        return None
+    return _stopped(doc) if isinstance(doc, dict) else None
+
+
+def _stopped(doc: dict) -> dict | None:
+    """A report's record of a sampling run ended at its time limit (``mcmc.stopped``: :attr:`SampleResult.stopped`),
+    or None."""
+    mcmc = doc.get("mcmc")
+    stopped = mcmc.get("stopped") if isinstance(mcmc, dict) else None
+    return stopped if isinstance(stopped, dict) else None
 
 
 def resume_report(out_dir, overwrite: bool = False, *, checkpoint=None, steps: int | None = 0) -> str | None:
@@ -88,6 +112,9 @@ def resume_report(out_dir, overwrite: bool = False, *, checkpoint=None, steps: i
         steps: the draws per chain the run asks for (after a NUTS/HMC warm-up; all steps for
             emcee and IMH); 0 when it does not sample; None: the default steps of the sampler the checkpoint
             records (:meth:`brdfscale.choices.SampleDefaults.steps_for`: the one :class:`fitting.Auto` chose).
+
+    A report whose sampling ended at its time limit (fit.json's ``mcmc.stopped``) is a report in progress: its chain
+    continues (the run samples from the checkpoint up to the steps asked) and its files are written anew.
 
     Returns:
         None for a fresh report, or one line saying that the report phase is resumed and why.
@@ -117,6 +144,11 @@ def resume_report(out_dir, overwrite: bool = False, *, checkpoint=None, steps: i
     if checkpoint is None or not os.path.isfile(checkpoint):
         return _refuse(out_dir, " There is no chain beside them, so they are not a report in progress of this run.")
     stored, record = verify(checkpoint)
+    if _stopped_run(out_dir) is not None:  # a report of a run ended at its time limit: its chain continues
+        return (
+            f"resuming the report in {out_dir}: {problem}; the chain {checkpoint} ({stored.steps} steps, every chunk "
+            "verified) continues and the report's files are written anew"
+        )
     sampler = record["signature"].get("sampler", {})
     warmup = int(sampler.get("warmup", 0))  # NUTS/HMC keep it in the chain
     if steps is None:

@@ -49,7 +49,7 @@ import jax
 import numpy as np
 
 from brdfscale import InvalidInputError
-from brdfscale.checks import flag, integer
+from brdfscale.checks import flag, integer, real
 from brdfscale.choices import SAMPLE
 from brdfscale.files import exclusive
 from brdfscale.show import progress_mode, Shown, Table
@@ -108,6 +108,10 @@ class SampleResult(Shown):
     held to and the ``draws`` weighed (a resumed run's: the record of the run that wrote the checkpoint); None where
     the sampler was given. ``timing["choice_s"]``: the seconds the choice took in this call.
 
+    ``stopped``: where the run ended at :func:`fitting.sample`'s ``time_limit`` before the steps it was asked for,
+    ``{"time_limit_s", "steps", "steps_asked"}`` (the steps held, warm-up included, and those a complete run holds);
+    the status then names it first. None: the run is complete.
+
     ``tau``, ``ess``, ``tau_reliable``: emcee's integrated autocorrelation time per
     coordinate after the burn-in, ``ESS = W·(steps − burn)/τ``, and whether the chain is
     ≥ 50 τ long. :meth:`summary` gives ArviZ's figures (R̂, bulk/tail ESS, MCSE),
@@ -135,6 +139,7 @@ class SampleResult(Shown):
     coordinates: str = COORDINATES
     timing: dict | None = None
     chosen_by: dict | None = None
+    stopped: dict | None = None
 
     @property
     def samples(self) -> np.ndarray:
@@ -197,9 +202,15 @@ class SampleResult(Shown):
         return 0 if d is None else int(np.sum(d[self.burn :]))
 
     def problems(self) -> list[str]:
-        """What keeps the run from counting as converged (empty when it does): R̂ above
-        1.01 or bulk ESS below 400 on a determined quantity, divergent transitions."""
+        """What keeps the run from counting as converged (empty when it does): the time limit reached before
+        the steps asked for, R̂ above 1.01 or bulk ESS below 400 on a determined quantity, divergent transitions."""
         out = []
+        if self.stopped is not None:
+            s = self.stopped
+            out.append(
+                f"time limit of {s['time_limit_s']:g} s reached after {s['steps']} of {s['steps_asked']} steps "
+                "(run again with the same checkpoint to continue)"
+            )
         rows = self._summary
         gated = self._gated()
         high = [(n, rows[n]["r_hat"]) for n in gated if not rows[n]["r_hat"] <= diag.R_HAT_LIMIT]
@@ -318,6 +329,7 @@ class SampleResult(Shown):
             "summary": self.summary(),
             "warmup": warmup,
             "chosen_by": self.chosen_by,
+            "stopped": self.stopped,
             "prior": self.prior,
             "coordinates": self.coordinates,
             "undetermined_combinations": [u.get("combination") for u in self.undetermined],
@@ -390,6 +402,7 @@ def sample(
     progress: bool = True,
     walkers: int | None = None,
     moves: str | None = None,
+    time_limit: float | None = None,
 ) -> SampleResult:
     """Sample the posterior of ``problem`` starting from the Laplace approximation of ``fit``.
 
@@ -422,6 +435,10 @@ def sample(
             with the environment variable ``BRDFSCALE_PROGRESS=0``).
         walkers, moves: with ``sampler="emcee"``, the :class:`fitting.Emcee` settings
             (walkers per ensemble, default ``max(32, 4·dim)``; ``"stretch"`` or ``"de"``).
+        time_limit: seconds (from this call) after which the run ends at the next chunk's end, with at least two
+            draws after the warm-up (NUTS/HMC's warm-up always completes); the result then holds the steps done
+            (``SampleResult.stopped``), its status is "not converged" naming the limit, and the checkpoint keeps
+            them: a call with the same checkpoint continues the run. None (default): no limit.
 
     Returns:
         A :class:`SampleResult`; read its ``status`` before trusting the intervals.
@@ -441,6 +458,8 @@ def sample(
         OutputWriteError: ``checkpoint`` cannot be written (a full disk — checked before each
             chunk — or an I/O error; the chunks committed before are kept).
         OutputInUseError: another run holds ``checkpoint``.
+
+    ``time_limit`` not a positive number is an InvalidInputError too.
     """
     check_fit(problem, fit, "sample(problem, fit)")
     d = len(problem.model.names)
@@ -450,6 +469,9 @@ def sample(
         steps = integer(steps, "steps", 2)  # one step has no transition: no acceptance, no τ
     chunk = integer(chunk, "chunk", 1)
     seed = integer(seed, "seed", 0)
+    if time_limit is not None:
+        time_limit = real(time_limit, "time_limit", minimum=0, strict=True)
+    deadline = None if time_limit is None else time.monotonic() + time_limit
     overwrite = flag(overwrite, "overwrite")
     progress = flag(progress, "progress")
     if progress:
@@ -500,14 +522,21 @@ def sample(
             resumed=resumed,
             progress=progress,
             chunk=chunk,
+            deadline=deadline,
         )
     if chosen_by is not None:
         timing = {**timing, "choice_s": choice_s}
-    return _diagnose(posterior, fit, sampler, settings, chains, chain, log_prob, stats, warmup, timing, chosen_by)
+    asked = sampler.total(steps)
+    stopped = None
+    if chain.shape[0] < asked:  # only the deadline ends a run early
+        stopped = {"time_limit_s": time_limit, "steps": int(chain.shape[0]), "steps_asked": int(asked)}
+    return _diagnose(
+        posterior, fit, sampler, settings, chains, chain, log_prob, stats, warmup, timing, chosen_by, stopped
+    )
 
 
 def _diagnose(
-    posterior, fit, sampler, settings, chains, chain, log_prob, stats, warmup, timing, chosen_by=None
+    posterior, fit, sampler, settings, chains, chain, log_prob, stats, warmup, timing, chosen_by=None, stopped=None
 ) -> SampleResult:
     problem = posterior.problem
     # τ is NaN for a coordinate no walker moved in (zero variance; short chains, stuck
@@ -551,6 +580,7 @@ def _diagnose(
         held=held,
         timing=_timing(timing, burn, n_steps),
         chosen_by=chosen_by,
+        stopped=stopped,
     )
 
 

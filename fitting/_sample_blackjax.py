@@ -46,7 +46,7 @@ from brdfscale.show import progress_bar
 
 from ._checkpoint import resumed_blocks
 from ._posterior import covariance_root, initial_positions, laplace
-from ._sampler import AbstractSampler
+from ._sampler import AbstractSampler, out_of_time
 
 
 __all__ = ["HMC", "NUTS"]
@@ -123,9 +123,14 @@ class _Gradient(AbstractSampler):
             "mass matrix fixed at the Laplace covariance"
         )
 
-    def run(self, target, fit, *, chains, steps, seed, store, resumed, progress, chunk):
+    def total(self, steps: int) -> int:
+        """The warm-up and the draws."""
+        return self.warmup + steps
+
+    def run(self, target, fit, *, chains, steps, seed, store, resumed, progress, chunk, deadline=None):
         """The chain (warmup + steps, chains, d) in θ, log_prob, per-step statistics and the
-        warm-up record; resumed from ``resumed`` where it holds steps, each chunk appended to ``store``."""
+        warm-up record; resumed from ``resumed`` where it holds steps, each chunk appended to ``store``;
+        ended early, after the warm-up, where :func:`fitting._sampler.out_of_time` says so for ``deadline``."""
         _blackjax()  # a missing BlackJAX is named before any work
         total = self.warmup + steps
         spec = self._spec()
@@ -148,11 +153,12 @@ class _Gradient(AbstractSampler):
                 timing,
                 bar.update,
                 commit,
+                deadline=deadline,
             )
         chain, log_prob, stats = join(blocks + more)
         return chain, log_prob, stats, self.warmup_record(carry, stats["acceptance_rate"]), timing
 
-    def drive(self, window, advance, carry, done, total, chunk, key, timing, update, commit, axis=0):
+    def drive(self, window, advance, carry, done, total, chunk, key, timing, update, commit, axis=0, deadline=None):
         """Steps ``done … total − 1`` of the chains from ``carry``, chunk by chunk: the warm-up
         (BlackJAX's window adaptation in one call, ``window(carry, key, warmup)``, where
         ``adapt_mass_matrix``), then ``advance(carry, start, n, key, warmup, chunk)`` for
@@ -162,7 +168,8 @@ class _Gradient(AbstractSampler):
         ends where the warm-up does (its time is reported apart); a step's key depends on its
         index only, so the chunking changes no draw. After each call ``commit(block, carry)``
         (the checkpoint) and ``update(steps)`` (the progress bar); the seconds computing are
-        added to ``timing``. Returns the host carry and the blocks (θ, log p(θ), statistics)."""
+        added to ``timing``; the loop ends early where :func:`fitting._sampler.out_of_time` says so for
+        ``deadline`` (draws after the warm-up). Returns the host carry and the blocks (θ, log p(θ), statistics)."""
         blocks = []
         if self.adapt_mass_matrix and done < self.warmup:
             started = time.perf_counter()
@@ -173,7 +180,7 @@ class _Gradient(AbstractSampler):
             commit(block, carry)
             done = self.warmup
             update(self.warmup)
-        while done < total:
+        while done < total and not out_of_time(deadline, done - self.warmup):
             n = min(chunk, total - done, self.warmup - done if done < self.warmup else chunk)
             steps = (slice(None),) * axis + (slice(0, n),)
             started = time.perf_counter()

@@ -31,7 +31,7 @@ from brdfscale.show import progress_bar
 
 from . import _diagnostics as diag
 from ._posterior import covariance_root, initial_positions, laplace, log_jacobian_np, theta_of_z_np
-from ._sampler import AbstractSampler
+from ._sampler import AbstractSampler, out_of_time
 
 
 __all__ = ["Emcee"]
@@ -116,7 +116,7 @@ class Emcee(AbstractSampler):
         burn = int(min(np.ceil(2 * np.max(tau_all)), n_steps // 2)) if np.all(np.isfinite(tau_all)) else n_steps // 2
         return burn, {"kind": "burn-in: the first 2 τ_max steps (at most half the chain), discarded", "steps": burn}
 
-    def run(self, target, fit, *, chains, steps, seed, store, resumed, progress, chunk):
+    def run(self, target, fit, *, chains, steps, seed, store, resumed, progress, chunk, deadline=None):
         """The chain (steps, W, d) in θ and log_prob (steps, W); resumed from ``resumed`` (a
         :class:`~fitting._checkpoint.Stored`) where it holds steps, every chunk appended to ``store``."""
         emcee = _emcee()
@@ -160,9 +160,10 @@ class Emcee(AbstractSampler):
             sampler.random_state = np.random.RandomState(seed).get_state()
             state = emcee.State(p0, log_prob=logp(p0), random_state=sampler.random_state)
         done = sum(c.shape[0] for c in chains_out)
-        timing = {"run_s": 0.0, "steps": steps - done}  # this call's computing (checkpoint writes excluded)
+        first = done
+        timing = {"run_s": 0.0, "steps": 0}  # this call's computing (checkpoint writes excluded)
         with progress_bar(enabled=progress, total=steps, initial=min(done, steps), desc="emcee", unit="step") as bar:
-            while done < steps:
+            while done < steps and not out_of_time(deadline, done):
                 k = min(chunk, steps - done)
                 started = time.perf_counter()
                 block, block_lp = np.empty((k, n, m)), np.empty((k, n))
@@ -195,6 +196,7 @@ class Emcee(AbstractSampler):
                 chains_out.append(theta)
                 log_probs.append(lp_theta)
                 done += k
+        timing["steps"] = done - first  # fewer than asked where the deadline ended the run
         return np.concatenate(chains_out), np.concatenate(log_probs), {}, None, timing
 
 

@@ -50,7 +50,7 @@ from brdfscale.show import progress_bar
 
 from ._checkpoint import resumed_blocks
 from ._posterior import covariance_root, initial_positions, laplace
-from ._sampler import AbstractSampler
+from ._sampler import AbstractSampler, out_of_time
 
 
 __all__ = ["IMH"]
@@ -119,9 +119,10 @@ class IMH(AbstractSampler):
         )
         return np.asarray(weights).reshape(-1)[:draws]
 
-    def run(self, target, fit, *, chains, steps, seed, store, resumed, progress, chunk):
+    def run(self, target, fit, *, chains, steps, seed, store, resumed, progress, chunk, deadline=None):
         """The chain (steps, chains, d) in θ, log_prob, the acceptance probabilities and the proposal's record;
-        resumed from ``resumed`` where it holds steps, each chunk appended to ``store``."""
+        resumed from ``resumed`` where it holds steps, each chunk appended to ``store``; ended early where
+        :func:`fitting._sampler.out_of_time` says so for ``deadline``."""
         blocks, carry = resumed_blocks(resumed, steps)
         if carry is None:
             mode, cov = laplace(target, fit)
@@ -134,7 +135,7 @@ class IMH(AbstractSampler):
         key = jax.random.PRNGKey(seed)
         advance = functools.partial(_advance, target, self.dof)
         with progress_bar(enabled=progress, total=steps, initial=min(done, steps), desc=self.name, unit="step") as bar:
-            while done < steps:
+            while done < steps and not out_of_time(deadline, done):
                 n = min(chunk, steps - done)
                 started = time.perf_counter()
                 carry, out = advance(carry, np.int64(done), np.int64(n), key, chunk)

@@ -20,6 +20,7 @@ A sampler (:class:`AbstractSampler`) is a frozen dataclass of its settings (chec
 """
 
 import abc
+import time
 from typing import ClassVar
 
 import numpy as np
@@ -28,6 +29,13 @@ from brdfscale import InvalidInputError
 
 
 __all__ = ["AbstractChoice", "AbstractSampler"]
+
+
+def out_of_time(deadline: float | None, drawn: int) -> bool:
+    """Whether a run given a ``deadline`` (a ``time.monotonic()`` reading: :func:`fitting.sample`'s ``time_limit``)
+    stops before its next chunk: the deadline has passed and at least two draws after any warm-up are in (a chain
+    needs two for a transition; the warm-up always completes, as no draw is possible without it)."""
+    return deadline is not None and drawn >= 2 and time.monotonic() >= deadline
 
 
 class AbstractChoice(abc.ABC):
@@ -80,6 +88,10 @@ class AbstractSampler(AbstractChoice):
         default of :func:`fitting.sample`, :func:`fitting.sample_many` and ``brdfscale fit``)."""
         return self.default_steps if steps is None else steps
 
+    def total(self, steps: int) -> int:
+        """The steps a run of ``steps`` holds when complete (NUTS/HMC: their warm-up too)."""
+        return steps
+
     @abc.abstractmethod
     def settings(self, d: int) -> dict:
         """What the checkpoint records of this sampler for a sampled dimension ``d``."""
@@ -90,11 +102,12 @@ class AbstractSampler(AbstractChoice):
 
     @abc.abstractmethod
     def run(
-        self, target, fit, *, chains, steps, seed, store, resumed, progress, chunk
+        self, target, fit, *, chains, steps, seed, store, resumed, progress, chunk, deadline=None
     ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray], dict | None, dict[str, float]]:
         """The chain (steps, W, d) in θ, log p(θ) (steps, W), per-step statistics, the warm-up
         record (or None) and the timing; resumed from ``resumed`` where it holds steps, each
-        chunk appended to ``store``."""
+        chunk appended to ``store``; ended early, between chunks, where :func:`out_of_time`
+        says so for ``deadline``."""
 
     @abc.abstractmethod
     def burn_in(self, chain, warmup) -> tuple[int, dict | None]:

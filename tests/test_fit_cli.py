@@ -308,3 +308,29 @@ def test_a_chain_too_short_to_converge_exits_6_and_the_default_draws_exit_0(tmp_
     assert doc["mcmc"]["steps"] == own[chosen["chose"]]
     assert doc["mcmc"]["status"] == "converged" and doc["outcome"]["status"] == "ok"
     assert f"  {chosen['chose']} (auto: Pareto k̂ of its proposal's weights {chosen['pareto_k']:.2f} " in printed
+
+
+@pytest.mark.slow  # one fit and three IMH runs compiled afresh: ≈ 30 s on 2 cores
+def test_a_time_limit_exits_6_and_the_same_command_continues_the_chain(tmp_path, capsys):
+    """--time-limit: the sampling ends after its first chunk, the report says so (mcmc.stopped, status not
+    converged) and the command exits 6 with one line naming the limit; the same command run again resumes the
+    report, continues the chain from DIR/chain.h5 to the steps asked, and ends as an unlimited run does."""
+    path = _simulated_file(tmp_path, "beckmann", 3)
+    fit = ["fit", "--model", "parametric", "--starts", "2", "--no-progress", "--sampler", "imh", path, "--out"]
+    out = tmp_path / "limited"
+    assert main([*fit, str(out), "--time-limit", "0.001"]) == 6
+    printed = capsys.readouterr()
+    last = printed.err.strip().splitlines()[-1]  # (ArviZ may warn first, on its import)
+    assert last.startswith("brdfscale fit: not converged: ") and "time limit of 0.001 s reached" in last
+    doc = json.loads((out / "fit.json").read_text())
+    assert doc["mcmc"]["stopped"] == {"time_limit_s": 0.001, "steps": SAMPLE.chunk, "steps_asked": SAMPLE.imh_steps}
+    assert doc["outcome"]["status"] == "not_converged"
+    assert main([*fit, str(out)]) == 0  # no --force: the report in progress resumes, the chain continues
+    printed = capsys.readouterr().out
+    assert "its sampling stopped at the time limit after" in printed and "continues" in printed
+    doc = json.loads((out / "fit.json").read_text())
+    assert doc["mcmc"]["stopped"] is None and doc["mcmc"]["steps"] == SAMPLE.imh_steps
+    assert main([*fit, str(tmp_path / "whole")]) == 0
+    whole = json.loads((tmp_path / "whole" / "fit.json").read_text())
+    assert whole["mcmc"]["summary"] == doc["mcmc"]["summary"]  # the continued chain is the unlimited run's
+    assert main([*fit, str(out)]) == 2  # a complete report is refused as before

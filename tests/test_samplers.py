@@ -307,6 +307,30 @@ def test_an_interrupted_run_resumes_bit_identically(linear, name, tmp_path, monk
         fitting.sample(problem, res, checkpoint=tmp_path / "c.h5", **kw)
 
 
+@pytest.mark.parametrize("name", ["emcee", "imh", "nuts"])
+def test_a_time_limit_ends_the_run_after_a_chunk_of_draws_and_the_checkpoint_continues_it(linear, name, tmp_path):
+    """time_limit: the run ends at the first chunk's end once the limit has passed, with its warm-up complete and a
+    chunk of draws in (here a limit already passed: exactly that); the result and its status say so; the same call
+    with the checkpoint and no limit continues the run to the uninterrupted run's chain, bit for bit."""
+    problem, res, _, _ = linear
+    kw = dict(chunk=50 if name == "emcee" else CHUNK, progress=False, seed=5, **RESUMABLE[name])
+    full = fitting.sample(problem, res, **kw)
+    assert full.stopped is None and full.diagnostics()["stopped"] is None
+    cut = fitting.sample(problem, res, checkpoint=tmp_path / "c.h5", time_limit=1e-9, **kw)
+    # emcee: its first chunk (50 of 60 steps); IMH: 100 of 250; NUTS: the warm-up (150) and a chunk of 100 draws
+    held, asked = {"emcee": (50, 60), "imh": (100, 250), "nuts": (250, 300)}[name]
+    assert cut.stopped == {"time_limit_s": 1e-9, "steps": held, "steps_asked": asked}
+    assert cut.chain.shape[0] == held and np.array_equal(cut.chain, full.chain[:held])
+    assert cut.status.startswith(f"not converged: time limit of 1e-09 s reached after {held} of {asked} steps")
+    assert cut.diagnostics()["stopped"] == cut.stopped
+    rest = fitting.sample(problem, res, checkpoint=tmp_path / "c.h5", **kw)
+    assert rest.stopped is None and np.array_equal(rest.chain, full.chain)
+    assert np.array_equal(rest.log_prob, full.log_prob)
+    for bad in (0, -1.0, float("nan")):
+        with pytest.raises(InvalidInputError, match="time_limit"):
+            fitting.sample(problem, res, time_limit=bad, **kw)
+
+
 def fitting_errors():
     import brdfscale
 

@@ -159,6 +159,15 @@ def add_fit_options(parser) -> None:
         f"chains × walkers × steps × parameters × 8 bytes ≤ {CHAIN_BUDGET // 2**30} GiB",
     )
     parser.add_argument(
+        "--time-limit",
+        type=real(0.0, 1e7, strict_lo=True),
+        default=None,
+        metavar="SECONDS",
+        help="end the sampling at the first chunk's end after SECONDS (the warm-up always completes, then at least "
+        "two draws): the report is written with the steps done and its status is not converged (exit status 6); "
+        "the same command run again continues the chain from DIR/chain.h5 (default: no limit)",
+    )
+    parser.add_argument(
         "--walkers",
         type=integer(2, 4096),
         default=None,
@@ -433,6 +442,7 @@ def _fit_and_report(
             checkpoint=os.path.join(args.out, "chain.h5"),
             overwrite=args.force,
             progress=not args.no_progress,
+            time_limit=getattr(args, "time_limit", None),
         )
         stream(sampling_line(samples.diagnostics()))
     return fitting.write_report(

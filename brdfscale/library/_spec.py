@@ -247,9 +247,11 @@ class FitSpec:
         checkpoint: str | os.PathLike | None = None,
         overwrite: bool = False,
         progress: bool = True,
+        time_limit: float | None = None,
     ):
         """:func:`fitting.sample` with these options (``sampler`` must be set); ``walkers``: emcee's
-        walkers per ensemble (default ``max(32, 4·dim)``)."""
+        walkers per ensemble (default ``max(32, 4·dim)``); ``time_limit``: seconds after which the run ends
+        early (:func:`fitting.sample`'s; a condition of this run, not an option of the spec)."""
         fitting = _fitting()
         if self.sampler is None:
             raise InvalidInputError(
@@ -266,6 +268,7 @@ class FitSpec:
             checkpoint=checkpoint,
             overwrite=overwrite,
             progress=progress,
+            time_limit=time_limit,
         )
 
     def sample_many(self, problems, fits, *, batch: int, errors: str = "return"):
