@@ -1734,7 +1734,8 @@ def render_bench() -> str:
             what = (
                 f"{e['table_nodes']}² nodes on {e['ladder_levels']} scales in {e['runs']} runs, tolerance "
                 f"{e['options']['tolerance']:g}, {e['coefficient_bytes_float32'] / 2**20:.0f} MiB of float32 "
-                f"coefficients and as much for the sampler's values"
+                f"coefficients (with each run's ghost levels) and {e['table_bytes_float32'] / 2**20:.0f} MiB of values "
+                "for the sampler"
             )
         else:
             what = f"Gaussian parameters on {e['ladder_levels']} scales ({e['parameter_bytes_float32']} bytes)"

@@ -53,6 +53,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from .. import stats
+from .._blocks import in_blocks
 from .._choices import MASKING
 from .._errors import InvalidInputError
 from .._show import Shown
@@ -201,19 +202,30 @@ class SmithMasking(AbstractMasking):
         return _albedo(SmithMasking(correlated=self.correlated), density, i)
 
 
+_ALBEDO_BYTES_PER_NODE = 8 * 32
+"""Temporaries of :func:`_albedo` per direction and node of its rule (float64: reflected directions, the lit
+fraction, G₂ and its two Λ, with room to spare): its directions are taken in blocks of the library's budget."""
+
+
 @eqx.filter_jit
 def _albedo(masking: "SmithMasking", density: stats.AbstractSlopeDensity, i: Array) -> Array:
-    """:meth:`SmithMasking.albedo` of validated directions (compiled once per density structure and batch shape)."""
+    """:meth:`SmithMasking.albedo` of validated directions (compiled once per density structure and batch shape),
+    the directions in blocks (:func:`brdfscale._blocks.in_blocks`: memory bounded whatever their number)."""
     nodes, weights = _albedo_rule(density)
     d = nodes - stats.mean_slope(density).astype(nodes.dtype)
     h = slope_to_direction(d)  # (Q, 3)
-    ii = i[..., None, :]
-    o = reflect(ii, h)
-    lit = jnp.sum(ii * h, axis=-1) / (ii[..., 2] * h[..., 2])
-    leaves = (o[..., 2] > 0) & (lit > 0)
-    safe = _above_or_normal(o / jnp.linalg.norm(o, axis=-1, keepdims=True), leaves)
-    g = masking.g2(density, jnp.broadcast_to(ii, safe.shape), safe)
-    return jnp.sum(weights * jnp.where(leaves, lit * g, 0.0), axis=-1)
+
+    def block(rows: Array) -> Array:
+        ii = rows[:, None, :]
+        o = reflect(ii, h)
+        lit = jnp.sum(ii * h, axis=-1) / (ii[..., 2] * h[..., 2])
+        leaves = (o[..., 2] > 0) & (lit > 0)
+        safe = _above_or_normal(o / jnp.linalg.norm(o, axis=-1, keepdims=True), leaves)
+        g = masking.g2(density, jnp.broadcast_to(ii, safe.shape), safe)
+        return jnp.sum(weights * jnp.where(leaves, lit * g, 0.0), axis=-1)
+
+    flat = jnp.reshape(i, (-1, 3))
+    return jnp.reshape(in_blocks(block, flat, _ALBEDO_BYTES_PER_NODE * h.shape[0]), i.shape[:-1])
 
 
 def _albedo_rule(density: stats.AbstractSlopeDensity) -> tuple[Array, Array]:
