@@ -435,8 +435,9 @@ def sample(
             with the environment variable ``BRDFSCALE_PROGRESS=0``).
         walkers, moves: with ``sampler="emcee"``, the :class:`fitting.Emcee` settings
             (walkers per ensemble, default ``max(32, 4·dim)``; ``"stretch"`` or ``"de"``).
-        time_limit: seconds (from this call) after which the run ends at the next chunk's end, with at least two
-            draws after the warm-up (NUTS/HMC's warm-up always completes); the result then holds the steps done
+        time_limit: seconds (from this call) after which the run ends, with at least two draws after the warm-up
+            (NUTS/HMC's warm-up always completes; the chunks of draws are paced to the time left,
+            :func:`fitting._sampler.paced`); the result then holds the steps done
             (``SampleResult.stopped``), its status is "not converged" naming the limit, and the checkpoint keeps
             them: a call with the same checkpoint continues the run. None (default): no limit.
 

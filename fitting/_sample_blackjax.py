@@ -46,7 +46,7 @@ from brdfscale.show import progress_bar
 
 from ._checkpoint import resumed_blocks
 from ._posterior import covariance_root, initial_positions, laplace
-from ._sampler import AbstractSampler, out_of_time
+from ._sampler import AbstractSampler, out_of_time, paced
 
 
 __all__ = ["HMC", "NUTS"]
@@ -170,7 +170,7 @@ class _Gradient(AbstractSampler):
         (the checkpoint) and ``update(steps)`` (the progress bar); the seconds computing are
         added to ``timing``; the loop ends early where :func:`fitting._sampler.out_of_time` says so for
         ``deadline`` (draws after the warm-up). Returns the host carry and the blocks (θ, log p(θ), statistics)."""
-        blocks = []
+        blocks, first = [], done
         if self.adapt_mass_matrix and done < self.warmup:
             started = time.perf_counter()
             carry, block = window(carry, key, self.warmup)
@@ -182,6 +182,9 @@ class _Gradient(AbstractSampler):
             update(self.warmup)
         while done < total and not out_of_time(deadline, done - self.warmup):
             n = min(chunk, total - done, self.warmup - done if done < self.warmup else chunk)
+            if done >= self.warmup:  # draws: at the pace of this call's steps so far (the warm-up's for the first)
+                spent = timing["warmup_s"] + timing["sampling_s"]
+                n = paced(n, deadline, spent, done - first, done - self.warmup)
             steps = (slice(None),) * axis + (slice(0, n),)
             started = time.perf_counter()
             # NumPy in, NumPy out: the carry's dtypes never change (no weak types), so the one

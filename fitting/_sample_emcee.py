@@ -31,7 +31,7 @@ from brdfscale.show import progress_bar
 
 from . import _diagnostics as diag
 from ._posterior import covariance_root, initial_positions, laplace, log_jacobian_np, theta_of_z_np
-from ._sampler import AbstractSampler, out_of_time
+from ._sampler import AbstractSampler, out_of_time, paced
 
 
 __all__ = ["Emcee"]
@@ -164,7 +164,7 @@ class Emcee(AbstractSampler):
         timing = {"run_s": 0.0, "steps": 0}  # this call's computing (checkpoint writes excluded)
         with progress_bar(enabled=progress, total=steps, initial=min(done, steps), desc="emcee", unit="step") as bar:
             while done < steps and not out_of_time(deadline, done):
-                k = min(chunk, steps - done)
+                k = paced(min(chunk, steps - done), deadline, timing["run_s"], done - first, done)
                 started = time.perf_counter()
                 block, block_lp = np.empty((k, n, m)), np.empty((k, n))
                 for j, new in enumerate(sampler.sample(state, iterations=k, store=False)):

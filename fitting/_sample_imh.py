@@ -50,7 +50,7 @@ from brdfscale.show import progress_bar
 
 from ._checkpoint import resumed_blocks
 from ._posterior import covariance_root, initial_positions, laplace
-from ._sampler import AbstractSampler, out_of_time
+from ._sampler import AbstractSampler, out_of_time, paced
 
 
 __all__ = ["IMH"]
@@ -135,8 +135,9 @@ class IMH(AbstractSampler):
         key = jax.random.PRNGKey(seed)
         advance = functools.partial(_advance, target, self.dof)
         with progress_bar(enabled=progress, total=steps, initial=min(done, steps), desc=self.name, unit="step") as bar:
+            first = done
             while done < steps and not out_of_time(deadline, done):
-                n = min(chunk, steps - done)
+                n = paced(min(chunk, steps - done), deadline, timing["sampling_s"], done - first, done)
                 started = time.perf_counter()
                 carry, out = advance(carry, np.int64(done), np.int64(n), key, chunk)
                 carry = _host(carry)

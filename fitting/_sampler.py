@@ -31,11 +31,30 @@ from brdfscale import InvalidInputError
 __all__ = ["AbstractChoice", "AbstractSampler"]
 
 
+PROBE = 8
+"""Steps of a time-limited run's first chunk of draws where the call has no pace measured yet (:func:`paced`)."""
+
+
 def out_of_time(deadline: float | None, drawn: int) -> bool:
     """Whether a run given a ``deadline`` (a ``time.monotonic()`` reading: :func:`fitting.sample`'s ``time_limit``)
     stops before its next chunk: the deadline has passed and at least two draws after any warm-up are in (a chain
     needs two for a transition; the warm-up always completes, as no draw is possible without it)."""
     return deadline is not None and drawn >= 2 and time.monotonic() >= deadline
+
+
+def paced(n: int, deadline: float | None, seconds: float, steps: int, drawn: int) -> int:
+    """The steps of a run's next chunk of draws, at most ``n``: with a ``deadline``, as many as the time left allows
+    at the pace this call has measured (``seconds`` computing ``steps``), at least one and at least what brings the
+    draws to two; :data:`PROBE` steps where no pace is measured yet; past the deadline, only what brings the draws
+    to two. A limit is then overrun by about a step, not by a chunk (the chunking changes no draw)."""
+    if deadline is None:
+        return n
+    left = deadline - time.monotonic()
+    if left <= 0:
+        return max(min(n, 2 - drawn), 1)
+    if steps <= 0 or seconds <= 0:
+        return min(n, PROBE)
+    return max(min(n, int(left / (seconds / steps))), 2 - drawn, 1)
 
 
 class AbstractChoice(abc.ABC):

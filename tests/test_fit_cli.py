@@ -312,9 +312,10 @@ def test_a_chain_too_short_to_converge_exits_6_and_the_default_draws_exit_0(tmp_
 
 @pytest.mark.slow  # one fit and three IMH runs compiled afresh: ≈ 30 s on 2 cores
 def test_a_time_limit_exits_6_and_the_same_command_continues_the_chain(tmp_path, capsys):
-    """--time-limit: the sampling ends after its first chunk, the report says so (mcmc.stopped, status not
-    converged) and the command exits 6 with one line naming the limit; the same command run again resumes the
-    report, continues the chain from DIR/chain.h5 to the steps asked, and ends as an unlimited run does."""
+    """--time-limit: the sampling ends after two steps (the limit passed during the fit), the report says so
+    (mcmc.stopped, status not converged) and the command exits 6 with one line naming the limit; the same command
+    run again resumes the report, continues the chain from DIR/chain.h5 to the steps asked, and ends as an unlimited
+    run does."""
     path = _simulated_file(tmp_path, "beckmann", 3)
     fit = ["fit", "--model", "parametric", "--starts", "2", "--no-progress", "--sampler", "imh", path, "--out"]
     out = tmp_path / "limited"
@@ -323,7 +324,7 @@ def test_a_time_limit_exits_6_and_the_same_command_continues_the_chain(tmp_path,
     last = printed.err.strip().splitlines()[-1]  # (ArviZ may warn first, on its import)
     assert last.startswith("brdfscale fit: not converged: ") and "time limit of 0.001 s reached" in last
     doc = json.loads((out / "fit.json").read_text())
-    assert doc["mcmc"]["stopped"] == {"time_limit_s": 0.001, "steps": SAMPLE.chunk, "steps_asked": SAMPLE.imh_steps}
+    assert doc["mcmc"]["stopped"] == {"time_limit_s": 0.001, "steps": 2, "steps_asked": SAMPLE.imh_steps}
     assert doc["outcome"]["status"] == "not_converged"
     assert main([*fit, str(out)]) == 0  # no --force: the report in progress resumes, the chain continues
     printed = capsys.readouterr().out

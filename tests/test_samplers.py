@@ -309,16 +309,17 @@ def test_an_interrupted_run_resumes_bit_identically(linear, name, tmp_path, monk
 
 @pytest.mark.parametrize("name", ["emcee", "imh", "nuts"])
 def test_a_time_limit_ends_the_run_after_a_chunk_of_draws_and_the_checkpoint_continues_it(linear, name, tmp_path):
-    """time_limit: the run ends at the first chunk's end once the limit has passed, with its warm-up complete and a
-    chunk of draws in (here a limit already passed: exactly that); the result and its status say so; the same call
-    with the checkpoint and no limit continues the run to the uninterrupted run's chain, bit for bit."""
+    """time_limit: the run ends at a chunk's end once the limit has passed, with its warm-up complete and at least
+    two draws in, its chunks of draws paced to the time left (here a limit already passed: the warm-up and exactly
+    two draws); the result and its status say so; the same call with the checkpoint and no limit continues the run
+    to the uninterrupted run's chain, bit for bit."""
     problem, res, _, _ = linear
     kw = dict(chunk=50 if name == "emcee" else CHUNK, progress=False, seed=5, **RESUMABLE[name])
     full = fitting.sample(problem, res, **kw)
     assert full.stopped is None and full.diagnostics()["stopped"] is None
     cut = fitting.sample(problem, res, checkpoint=tmp_path / "c.h5", time_limit=1e-9, **kw)
-    # emcee: its first chunk (50 of 60 steps); IMH: 100 of 250; NUTS: the warm-up (150) and a chunk of 100 draws
-    held, asked = {"emcee": (50, 60), "imh": (100, 250), "nuts": (250, 300)}[name]
+    # emcee and IMH: two steps; NUTS: the warm-up (150) and two draws
+    held, asked = {"emcee": (2, 60), "imh": (2, 250), "nuts": (152, 300)}[name]
     assert cut.stopped == {"time_limit_s": 1e-9, "steps": held, "steps_asked": asked}
     assert cut.chain.shape[0] == held and np.array_equal(cut.chain, full.chain[:held])
     assert cut.status.startswith(f"not converged: time limit of 1e-09 s reached after {held} of {asked} steps")
@@ -329,6 +330,22 @@ def test_a_time_limit_ends_the_run_after_a_chunk_of_draws_and_the_checkpoint_con
     for bad in (0, -1.0, float("nan")):
         with pytest.raises(InvalidInputError, match="time_limit"):
             fitting.sample(problem, res, time_limit=bad, **kw)
+
+
+def test_chunks_of_draws_are_paced_to_the_time_left(monkeypatch):
+    """fitting._sampler.paced with the clock fixed: no deadline, the chunk; past it, only what brings the draws to
+    two; no pace measured yet, PROBE steps; else the steps that fit the time left at the measured pace, within
+    [max(1, 2 − drawn), n]."""
+    from brdfscale.fitting import _sampler
+
+    monkeypatch.setattr(_sampler.time, "monotonic", lambda: 100.0)
+    assert _sampler.paced(200, None, 5.0, 10, 0) == 200
+    assert _sampler.paced(200, 99.0, 5.0, 10, 0) == 2 and _sampler.paced(200, 99.0, 5.0, 10, 1) == 1
+    assert _sampler.paced(200, 110.0, 0.0, 0, 0) == _sampler.PROBE
+    assert _sampler.paced(200, 110.0, 5.0, 10, 0) == 20  # 10 s left at 0.5 s a step
+    assert _sampler.paced(10, 110.0, 5.0, 10, 0) == 10 and _sampler.paced(200, 100.1, 5.0, 10, 0) == 2
+    assert _sampler.paced(200, 100.1, 5.0, 10, 7) == 1
+    assert not _sampler.out_of_time(None, 5) and not _sampler.out_of_time(99.0, 1) and _sampler.out_of_time(99.0, 2)
 
 
 def fitting_errors():

@@ -163,9 +163,10 @@ def add_fit_options(parser) -> None:
         type=real(0.0, 1e7, strict_lo=True),
         default=None,
         metavar="SECONDS",
-        help="end the sampling at the first chunk's end after SECONDS (the warm-up always completes, then at least "
-        "two draws): the report is written with the steps done and its status is not converged (exit status 6); "
-        "the same command run again continues the chain from DIR/chain.h5 (default: no limit)",
+        help="end the sampling after SECONDS (the warm-up always completes, then at least two draws; the chunks of "
+        "draws are paced to the time left): the report is written with the steps done and its status is not "
+        "converged (exit status 6); the same command run again continues the chain from DIR/chain.h5 (default: "
+        "no limit)",
     )
     parser.add_argument(
         "--walkers",
