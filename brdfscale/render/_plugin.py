@@ -177,11 +177,13 @@ class _TableLobe:
 
     key = "table"
 
-    def __init__(self, mi, host: Tables):
+    def __init__(self, mi, host: "Tables | Splines", texels=None):
+        """``texels``: what the lobe texture holds (default the host's values; the spline form's coefficients)."""
         self.mi, self.host = mi, host
         L, N, _ = host.values.shape
         self.levels, self.nodes = L, N
-        self.table = mi.TensorXf(np.ascontiguousarray(host.values[..., None], dtype=np.float32))
+        texels = host.values if texels is None else texels
+        self.table = mi.TensorXf(np.ascontiguousarray(texels[..., None], dtype=np.float32))
         self.tex = mi.Texture3f(self.table)
         self.sampler = mi.MarginalContinuous2D1(
             np.ascontiguousarray(np.maximum(host.values, 0.0), dtype=np.float32), [host.log_mu]
@@ -203,8 +205,20 @@ class _TableLobe:
         px = ((m.x + half) / (2 * half) * (n - 1) + 0.5) / n
         py = ((m.y + half) / (2 * half) * (n - 1) + 0.5) / n
         inside = (dr.abs(m.x) < half) & (dr.abs(m.y) < half)
-        # an evolved lobe may dip below 0 (regularisation ringing): shaded as 0, as it is sampled
-        return dr.select(inside, dr.maximum(self.tex.eval(mi.Point3f(px, py, level[0]))[0], 0.0), 0.0)
+        # an evolved lobe may dip below 0 (regularisation ringing, a spline's tails): shaded as 0, as it is sampled
+        return dr.select(inside, dr.maximum(self._fetch(self.tex, mi.Point3f(px, py, level[0])), 0.0), 0.0)
+
+    @staticmethod
+    def _fetch(texture, point):
+        """The texture's value at ``point``: bilinear (trilinear with the ladder)."""
+        return texture.eval(point)[0]
+
+    def _g1_position(self, s, phi):
+        """The G₁ texture's coordinates ``(φ, s)`` of ``s = √cosθ`` and the azimuth (node-centred, φ's end node
+        repeating its first)."""
+        assert self.host.g1 is not None
+        ns, nphi = self.host.g1.shape[1:]
+        return (phi / (2 * math.pi) * (nphi - 1) + 0.5) / nphi, (s * (ns - 1) + 0.5) / ns
 
     def density(self, m, level, active):
         import drjit as dr
@@ -227,10 +241,8 @@ class _TableLobe:
         phi = dr.atan2(w.y, w.x)
         phi = dr.select(phi < 0, phi + 2 * math.pi, phi)
         assert self.host.g1 is not None and self.g1 is not None  # masking asks only when there are tables
-        ns, nphi = self.host.g1.shape[1:]
-        ps = (s * (ns - 1) + 0.5) / ns
-        pphi = (phi / (2 * math.pi) * (nphi - 1) + 0.5) / nphi
-        return dr.clip(self.g1.eval(mi.Point3f(pphi, ps, z))[0], 0.0, 1.0)
+        pphi, ps = self._g1_position(s, phi)
+        return dr.clip(self._fetch(self.g1, mi.Point3f(pphi, ps, z)), 0.0, 1.0)
 
     def masking(self, wi, wo, level):
         import drjit as dr
@@ -256,20 +268,11 @@ class _SplineLobe(_TableLobe):
     the nodes."""
 
     key = "coefficients"
+    host: Splines
 
     def __init__(self, mi, host: Splines):
-        self.mi, self.host = mi, host
-        L, N, _ = host.values.shape
-        self.levels, self.nodes = L, N
+        super().__init__(mi, host, host.coefficients)
         self.depth = host.coefficients.shape[0]
-        self.table = mi.TensorXf(np.ascontiguousarray(host.coefficients[..., None], dtype=np.float32))
-        self.tex = mi.Texture3f(self.table)
-        self.sampler = mi.MarginalContinuous2D1(
-            np.ascontiguousarray(np.maximum(host.values, 0.0), dtype=np.float32), [host.log_mu]
-        )
-        self.g1 = None
-        if host.g1 is not None:
-            self.g1 = mi.Texture3f(mi.TensorXf(np.ascontiguousarray(host.g1[..., None], dtype=np.float32)))
 
     def at(self, log_mu):
         """The level: the texture coordinate of ln μ in its run's block (:func:`._spline.runs_coefficients`) and
@@ -283,28 +286,19 @@ class _SplineLobe(_TableLobe):
         j = dr.clip((log_mu - start) / step, 0.0, count - 1.0)
         return (offset + GHOSTS + j + 0.5) / self.depth, log_mu
 
-    def value(self, m, level):
-        import drjit as dr
+    @staticmethod
+    def _fetch(texture, point):
+        """The cubic B-spline of the texture's coefficients at ``point`` (:mod:`._spline`)."""
+        return texture.eval_cubic(point)[0]
 
-        mi, n, half = self.mi, self.nodes, self.host.half
-        px = ((m.x + half) / (2 * half) * (n - 1) + 0.5) / n
-        py = ((m.y + half) / (2 * half) * (n - 1) + 0.5) / n
-        inside = (dr.abs(m.x) < half) & (dr.abs(m.y) < half)
-        # the spline may ring below 0 in the tails: shaded as 0, as the sampler's non-negative values are drawn
-        return dr.select(inside, dr.maximum(self.tex.eval_cubic(mi.Point3f(px, py, level[0]))[0], 0.0), 0.0)
-
-    def _g1_at(self, w, z):
-        import drjit as dr
-
-        mi = self.mi
-        s = dr.sqrt(dr.clip(mi.Frame3f.cos_theta(w), 0.0, 1.0))
-        phi = dr.atan2(w.y, w.x)
-        phi = dr.select(phi < 0, phi + 2 * math.pi, phi)
-        assert self.host.g1 is not None and self.g1 is not None  # masking asks only when there are tables
+    def _g1_position(self, s, phi):
+        """The coordinates ``(φ, s)`` in the G₁ coefficients: ghost nodes beyond the ends of s, φ periodic with
+        wrapped padding."""
+        assert self.host.g1 is not None
         height, width = self.host.g1.shape[1:]  # n_s + 2·GHOSTS, n_φ − 1 + 2·PERIODIC_PAD
         ps = (s * (height - 2 * GHOSTS - 1) + GHOSTS + 0.5) / height
         pphi = (phi / (2 * math.pi) * (width - 2 * PERIODIC_PAD) + PERIODIC_PAD + 0.5) / width
-        return dr.clip(self.g1.eval_cubic(mi.Point3f(pphi, ps, z))[0], 0.0, 1.0)
+        return pphi, ps
 
 
 class _GaussianLobe:
