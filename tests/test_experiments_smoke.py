@@ -983,7 +983,8 @@ def test_bench_render_quick(tmp_path):
     assert json.loads((tmp_path / "bench_render.json").read_text())["speed"]["image"] == [24, 16]
     assert {"micro_geometry_1spp", "naive", "lean", "brdfscale"} <= set(payload["speed"]["frames_per_second"])
     forms = payload["eval_accuracy"]["forms"]
-    assert set(forms) == {"closed", "table"} and {e["form"] for e in forms.values()} == {"closed", "table"}
+    every = {"closed", "table", "spline"}
+    assert set(forms) == every and {e["form"] for e in forms.values()} == every
     for form, entry in forms.items():
         records = entry["records"]
         assert {r["where"] for r in records} == {"ladder node", "between nodes"}
