@@ -50,46 +50,43 @@ def report_problem(directory) -> str | None:
     beside it. The one check of a finished report, for ``brdfscale fit`` (:func:`resume_report`)
     and for each material of a library (``brdfscale.library``). Verified in
     tests/test_checkpoint_integrity.py and tests/test_library_robustness.py."""
+    return _report_state(directory)[0]
+
+
+def _report_state(directory) -> tuple[str | None, dict | None]:
+    """:func:`report_problem`'s answer and the report's ``mcmc.stopped`` record (:func:`_stopped`; None where there
+    is none), from one read of ``fit.json``."""
     directory = os.fspath(directory)
     try:
         with open(os.path.join(directory, "fit.json"), encoding="utf-8") as f:
             doc = json.load(f)
     except FileNotFoundError:
-        return "no fit.json (the report is incomplete)"
+        return "no fit.json (the report is incomplete)", None
     except (OSError, ValueError, RecursionError) as err:
-        return f"fit.json is unreadable ({' '.join(str(err).split())[:160]})"
+        return f"fit.json is unreadable ({' '.join(str(err).split())[:160]})", None
     if not isinstance(doc, dict):
-        return "fit.json is not a report"
+        return "fit.json is not a report", None
     missing = [key for key in REPORT_KEYS if key not in doc]
     if missing:
-        return f"fit.json is incomplete (no {', '.join(missing)})"
+        return f"fit.json is incomplete (no {', '.join(missing)})", _stopped(doc)
     if not isinstance(doc["figures"], list) or not isinstance(doc["tables"], (list, str)):
-        return "fit.json's list of figures or tables is damaged"
+        return "fit.json's list of figures or tables is damaged", _stopped(doc)
     listed = [*doc["figures"], *(doc["tables"] if isinstance(doc["tables"], list) else [])]
     if isinstance(doc.get("posterior"), str) and not doc["posterior"].startswith("not written"):
         listed.append(doc["posterior"])
     for file in listed:
         if not isinstance(file, str):
-            return "fit.json lists a file that is not a path"
+            return "fit.json lists a file that is not a path", _stopped(doc)
         if not os.path.isfile(os.path.join(directory, os.path.basename(file))):
-            return f"{os.path.basename(file)}, listed in fit.json, is missing"
+            return f"{os.path.basename(file)}, listed in fit.json, is missing", _stopped(doc)
     stopped = _stopped(doc)
     if stopped is not None:
         return (
-            f"its sampling stopped at the time limit after {stopped.get('steps')} of {stopped.get('steps_asked')} steps"
+            f"its sampling stopped at the time limit after {stopped.get('steps')} of {stopped.get('steps_asked')} "
+            "steps",
+            stopped,
         )
-    return None
-
-
-def _stopped_run(directory) -> dict | None:
-    """The ``mcmc.stopped`` record of the report in ``directory`` (:func:`_stopped`), or None (none, or no
-    readable fit.json)."""
-    try:
-        with open(os.path.join(os.fspath(directory), "fit.json"), encoding="utf-8") as f:
-            doc = json.load(f)
-    except (OSError, ValueError, RecursionError):
-        return None
-    return _stopped(doc) if isinstance(doc, dict) else None
+    return None, None
 
 
 def _stopped(doc: dict) -> dict | None:
@@ -133,7 +130,7 @@ def resume_report(out_dir, overwrite: bool = False, *, checkpoint=None, steps: i
     if not os.path.isdir(out_dir) or not any(os.path.lexists(p) for p in report_files(out_dir)):
         check_report_directory(out_dir, False)  # nothing there: creates the directory (or names what is wrong)
         return None
-    problem = report_problem(out_dir)
+    problem, stopped = _report_state(out_dir)
     if problem is None:
         return _refuse(out_dir, "")  # a finished report: refused, its files listed
     if steps == 0:
@@ -144,7 +141,7 @@ def resume_report(out_dir, overwrite: bool = False, *, checkpoint=None, steps: i
     if checkpoint is None or not os.path.isfile(checkpoint):
         return _refuse(out_dir, " There is no chain beside them, so they are not a report in progress of this run.")
     stored, record = verify(checkpoint)
-    if _stopped_run(out_dir) is not None:  # a report of a run ended at its time limit: its chain continues
+    if stopped is not None:  # a report of a run ended at its time limit: its chain continues
         return (
             f"resuming the report in {out_dir}: {problem}; the chain {checkpoint} ({stored.steps} steps, every chunk "
             "verified) continues and the report's files are written anew"

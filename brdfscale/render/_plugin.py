@@ -54,7 +54,7 @@ class Host:
         self.texel = float(texel)
 
     form: str = ""
-    """``"table"`` or ``"closed"`` (the subclass's)."""
+    """``"table"``, ``"spline"`` or ``"closed"`` (the subclass's)."""
 
     def renderer(self, mi):
         """The Dr.Jit evaluator of this form for ``mi``'s variant."""
@@ -73,14 +73,17 @@ class Tables(Host):
     """
 
     form = "table"
+    pad: int = 1
+    """The rings of zero nodes around the lobe values (the table form's one: the tent sum's zero ring)."""
 
     def __init__(self, table, masking, *, mu=None, texel=1.0, shapes=None):
         super().__init__(table.scales, masking, mu=mu, texel=texel)
         values = scalar_table(table)
         n = values.shape[1]
         h = 2 * table.extent / (n - 1)
-        self.values = self.doubled(np.pad(values, ((0, 0), (1, 1), (1, 1))))  # (L, N, N) with the tent sum's zero ring
-        self.half = float(table.extent + h)  # the padded grid spans [−half, half]²
+        pad = ((0, 0), (self.pad, self.pad), (self.pad, self.pad))
+        self.values = self.doubled(np.pad(values, pad))  # (L, N, N) with the zero rings
+        self.half = float(table.extent + self.pad * h)  # the padded grid spans [−half, half]²
         self.g1 = None
         if masking is not None:
             self.g1 = self.doubled(g1_table(table_shapes(table) if shapes is None else shapes))  # (L, n_s, n_phi)
@@ -89,7 +92,7 @@ class Tables(Host):
         return _TableLobe(mi, self)
 
 
-class Splines(Host):
+class Splines(Tables):
     """A tabulated lobe rendered by tricubic B-splines (:mod:`._spline`): the lobe values bordered by
     :data:`._material.SPLINE_PAD` rings of zero nodes (L, N, N) — what the sampler draws from, as the table form's
     — and, run by run of the ladder (``breaks``: the table's ``metadata["spline_breaks"]`` where
@@ -100,9 +103,10 @@ class Splines(Host):
     """
 
     form = "spline"
+    pad = SPLINE_PAD
 
     def __init__(self, table, masking, *, mu=None, texel=1.0, shapes=None):
-        super().__init__(table.scales, masking, mu=mu, texel=texel)
+        super().__init__(table, masking, mu=mu, texel=texel, shapes=shapes)  # the padded values and G₁ tables
         count = len(self.log_mu)
         breaks = table.metadata.get("spline_breaks") if len(table.scales) > 1 else None
         if breaks is None:
@@ -122,16 +126,9 @@ class Splines(Host):
                     "drop spline_breaks from its metadata or render it with form='table'."
                 )
         self.breaks = [int(k) for k in breaks]
-        values = scalar_table(table)
-        n = values.shape[1]
-        h = 2 * table.extent / (n - 1)
-        pad = ((0, 0), (SPLINE_PAD, SPLINE_PAD), (SPLINE_PAD, SPLINE_PAD))
-        self.values = self.doubled(np.pad(values, pad))  # (L, N, N) with the zero rings
-        self.half = float(table.extent + SPLINE_PAD * h)  # the padded grid spans [−half, half]²
         self.coefficients = runs_coefficients(self.values, self.breaks)
-        self.g1 = None
-        if masking is not None:
-            g1 = self.doubled(g1_table(table_shapes(table) if shapes is None else shapes))[..., :-1]  # φ = 2π is 0
+        if self.g1 is not None:
+            g1 = self.g1[..., :-1]  # φ = 2π is φ = 0
             self.g1 = runs_coefficients(extend(g1, axis=1), self.breaks, periodic=(2,), extrapolated=(1,))
         offset, self.runs = 0, []
         for p, q in zip(self.breaks, self.breaks[1:]):  # (ln μ at its start, step, nodes, first coefficient index)
