@@ -904,6 +904,37 @@ def test_render_validation_equal_error_spp_inverts_a_power_law():
     assert rv.equal_error_spp(ladder, 0.01, "e") is None
 
 
+def test_render_validation_shading_fresh_arrays_runs_one_kernel():
+    """shade() on fresh NumPy arrays runs the same kernel every call (drjit_float's 64-byte-aligned copies): with
+    NumPy's own buffers, whose start Dr.Jit compiles into its loads, about one call in two was a new kernel (10–30 ms
+    of LLVM: bench_render's 28 ms frames). Checked by the kernels' hashes in Dr.Jit's history (a hash, not a
+    compile count: a kernel met in an earlier process comes from Dr.Jit's disk cache)."""
+    import drjit as dr
+
+    rv = _render_validation()
+    mi = rv.mitsuba()
+    rng = np.random.default_rng(0)
+    values = rng.random(1001)
+    np.testing.assert_array_equal(np.asarray(rv.drjit_float(mi, values[1:])), values[1:].astype(np.float32))
+    material = rv.roughconductor(mi, 0.3)
+
+    def directions():
+        d = rng.normal(size=(997, 3)) * [1.0, 1.0, 0.2] + [0.0, 0.0, 1.0]
+        return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+    rv.shade(mi, material, directions(), directions())  # compiled (or read from the disk cache) here
+    was = dr.flag(dr.JitFlag.KernelHistory)
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        dr.kernel_history()  # cleared
+        for _ in range(8):
+            rv.shade(mi, material, directions(), directions())
+        hashes = {k["hash"] for k in dr.kernel_history() if k.get("hash")}
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, was)
+    assert len(hashes) == 1, hashes
+
+
 @pytest.mark.slow  # 20–60 s on 2 cores (Mitsuba compiles the tracer's kernels)
 def test_render_validation_micro_geometry_of_a_flat_field_is_the_plane_material():
     """A flat height field, meshed, tiled and traced (jittered camera rays, shadow rays), renders what the naive
