@@ -321,8 +321,8 @@ def drjit_float(mi, values: np.ndarray):
     """``mi.Float`` of ``values`` (float32) from a copy whose data start on a :data:`ALIGNMENT`-byte boundary.
 
     On the LLVM variants Dr.Jit reads a NumPy array's own buffer and compiles its kernels with aligned or unaligned
-    loads according to where that buffer starts; NumPy's allocations start on a 16-byte boundary only, so the same
-    eval on fresh arrays compiled a new kernel about one call in two (25–30 ms of LLVM per call against 1 ms: the
+    loads according to whether that buffer starts on a 64-byte boundary, which NumPy's do by chance; with seven such
+    inputs per eval, the same eval on fresh arrays compiled a new kernel about one call in two (25–30 ms of LLVM per call against 1 ms: the
     frame times of bench_render, where one material's best of three took 28 ms). Aligned copies give every call the
     same kernel."""
     values = np.ascontiguousarray(values, np.float32).ravel()
