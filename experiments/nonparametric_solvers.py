@@ -7,7 +7,8 @@ least-squares problem on experiments/bench_anisotropic.py's synthetic set (8 sca
    parameters its smallest eigenvectors load on (the directions the data do not determine).
 3. Gauss–Newton with a backtracking line search (Armijo, step halved until χ² falls by 1e-4 of the predicted
    decrease), its step from the eigen-decomposition of ``JᵀJ`` with eigenvalues below ``rcond`` × the largest left
-   out, stopped when the expected distance to the minimum ``EDM = ½ gᵀ(JᵀJ)⁺g`` (χ² units) falls below 1e-3 or after
+   out, stopped when the expected distance to the minimum ``EDM = ½ gᵀ(JᵀJ)⁺g`` (g = Jᵀr: the decrease of ½χ² the
+   Newton step predicts) falls below 1e-3 or after
    ``--iterations``: χ², EDM, step length and time per iteration, for ``rcond`` 1e-9 and 1e-12 — not a solver of the
    library, a measurement of how far the problem is from the optimum after a given amount of work.
 

@@ -1214,3 +1214,31 @@ def test_masking_in_the_forward_model_reduces_the_grazing_bias_of_a_fit():
     assert all(f["optimiser"] == "converged" for f in rows)
     assert shift["none"] < -5 and c0[("none", 80.0)] < c0[("none", 0.0)]  # narrower along x at grazing incidence
     assert abs(shift["smith"]) < abs(shift["none"])
+
+
+# -- issue 31: why the anisotropic non-parametric fit is slow (experiments/nonparametric_solvers.py) ---------------
+
+
+def test_nonparametric_solvers_gauss_newton_solves_a_linear_problem_and_stops_on_edm():
+    """The study's line-searched Gauss–Newton on a linear least-squares problem ``r = A θ − b``: the first step lands
+    on NumPy's lstsq solution (χ² equal to 1e-9 relative), the second measures EDM ≈ 0 there and stops; the first
+    EDM is the decrease of ½χ² it predicts, ½ gᵀ(AᵀA)⁻¹g = ½ (χ²(θ0) − χ²_min) for a linear problem."""
+    import jax.numpy as jnp
+
+    from experiments import nonparametric_solvers as study
+
+    rng = np.random.default_rng(3)
+    A, b = rng.normal(size=(40, 5)), rng.normal(size=40)
+
+    class Linear:
+        def residuals(self, theta):
+            return jnp.asarray(A) @ theta - jnp.asarray(b)
+
+    theta0 = jnp.zeros(5)
+    rows = study.gauss_newton(Linear(), theta0, rcond=1e-12, iterations=10)
+    best = np.linalg.lstsq(A, b, rcond=None)[0]
+    chi2_min = float(np.sum((A @ best - b) ** 2))
+    assert len(rows) == 2
+    assert rows[0]["chi2"] == pytest.approx(chi2_min, rel=1e-9)
+    assert rows[0]["edm"] == pytest.approx(0.5 * (float(b @ b) - chi2_min), rel=1e-9)
+    assert rows[1]["edm"] < study.EDM_STOP
