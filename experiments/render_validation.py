@@ -322,9 +322,9 @@ def drjit_float(mi, values: np.ndarray):
 
     On the LLVM variants Dr.Jit reads a NumPy array's own buffer and compiles its kernels with aligned or unaligned
     loads according to whether that buffer starts on a 64-byte boundary, which NumPy's do by chance; with seven such
-    inputs per eval, the same eval on fresh arrays compiled a new kernel about one call in two (25–30 ms of LLVM per call against 1 ms: the
-    frame times of bench_render, where one material's best of three took 28 ms). Aligned copies give every call the
-    same kernel."""
+    inputs per eval, the same eval on fresh arrays often compiled a new kernel (bench_render's frame times, where one
+    material's best of three took 28 ms against about 1 ms). Aligned copies give every call the same kernel
+    (tests/test_experiments_smoke.py checks the kernels' hashes)."""
     values = np.ascontiguousarray(values, np.float32).ravel()
     buffer = np.empty(values.size + ALIGNMENT // 4, np.float32)
     start = (-buffer.ctypes.data % ALIGNMENT) // 4

@@ -906,8 +906,8 @@ def test_render_validation_equal_error_spp_inverts_a_power_law():
 
 def test_render_validation_shading_fresh_arrays_runs_one_kernel():
     """shade() on fresh NumPy arrays runs the same kernel every call (drjit_float's 64-byte-aligned copies): with
-    NumPy's own buffers, whose start Dr.Jit compiles into its loads, about one call in two was a new kernel (10–30 ms
-    of LLVM: bench_render's 28 ms frames). Checked by the kernels' hashes in Dr.Jit's history (a hash, not a
+    NumPy's own buffers, whose start Dr.Jit compiles into its loads, calls often ran a new kernel (bench_render's
+    28 ms frames). Checked by the kernels' hashes in Dr.Jit's history (a hash, not a
     compile count: a kernel met in an earlier process comes from Dr.Jit's disk cache)."""
     import drjit as dr
 
