@@ -96,12 +96,13 @@ def median(sorted_times: list) -> float:
     return 0.5 * (sorted_times[(n - 1) // 2] + sorted_times[n // 2])
 
 
-def write_json(name: str, payload: dict) -> Path:
-    """Write ``results/<name>.json`` atomically (temporary file + rename)."""
+def write_json(name: str, payload: dict, folder: str | Path | None = None) -> Path:
+    """Write ``<folder>/<name>.json`` atomically (temporary file + rename); ``folder`` defaults to ``results/``."""
     from brdfscale import files as _files
 
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    path = RESULTS / f"{name}.json"
+    folder = RESULTS if folder is None else Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{name}.json"
 
     _files.write_text(path, json.dumps(payload, indent=2, sort_keys=False) + "\n", overwrite=True)
     return path

@@ -123,12 +123,7 @@ def main(argv=None) -> dict:
         rows = gauss_newton(problem, theta0, rcond=rcond, iterations=args.iterations)
         payload["gauss_newton"][f"{rcond:g}"] = {"rcond": rcond, "iterations": rows}
         print(f"Gauss–Newton rcond {rcond:g}:", rows[-1], flush=True)
-    if args.out:
-        out = Path(args.out) / "nonparametric_solvers.json"
-        out.parent.mkdir(parents=True, exist_ok=True)
-        bs.files.write_text(out, __import__("json").dumps(payload, indent=2) + "\n", overwrite=True)
-    else:
-        write_json("nonparametric_solvers", payload)
+    write_json("nonparametric_solvers", payload, args.out)
     return payload
 
 

@@ -66,20 +66,20 @@ def _report_state(directory) -> tuple[str | None, dict | None]:
         return f"fit.json is unreadable ({' '.join(str(err).split())[:160]})", None
     if not isinstance(doc, dict):
         return "fit.json is not a report", None
+    stopped = _stopped(doc)
     missing = [key for key in REPORT_KEYS if key not in doc]
     if missing:
-        return f"fit.json is incomplete (no {', '.join(missing)})", _stopped(doc)
+        return f"fit.json is incomplete (no {', '.join(missing)})", stopped
     if not isinstance(doc["figures"], list) or not isinstance(doc["tables"], (list, str)):
-        return "fit.json's list of figures or tables is damaged", _stopped(doc)
+        return "fit.json's list of figures or tables is damaged", stopped
     listed = [*doc["figures"], *(doc["tables"] if isinstance(doc["tables"], list) else [])]
     if isinstance(doc.get("posterior"), str) and not doc["posterior"].startswith("not written"):
         listed.append(doc["posterior"])
     for file in listed:
         if not isinstance(file, str):
-            return "fit.json lists a file that is not a path", _stopped(doc)
+            return "fit.json lists a file that is not a path", stopped
         if not os.path.isfile(os.path.join(directory, os.path.basename(file))):
-            return f"{os.path.basename(file)}, listed in fit.json, is missing", _stopped(doc)
-    stopped = _stopped(doc)
+            return f"{os.path.basename(file)}, listed in fit.json, is missing", stopped
     if stopped is not None:
         return (
             f"its sampling stopped at the time limit after {stopped.get('steps')} of {stopped.get('steps_asked')} "
