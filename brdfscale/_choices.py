@@ -94,6 +94,12 @@ SOLVERS = Choices(
             "images; it squares the condition number",
         ),
         Choice("gauss_newton", "Gauss–Newton (optimistix.GaussNewton)"),
+        Choice(
+            "gauss_newton_edm",
+            "Gauss–Newton with a line search, the directions the data do not determine left out, stopped when "
+            "the expected distance to the minimum is below 1e-3 of the reduced χ² (fitting._gauss_newton): "
+            "for many parameters with undetermined ones, e.g. the anisotropic non-parametric model",
+        ),
         Choice("dogleg", "Powell's dogleg (optimistix.Dogleg)"),
         Choice("bfgs", "BFGS, a minimiser of ½‖r‖² (optimistix.BFGS)"),
     ),
@@ -345,7 +351,8 @@ class FitDefaults:
     """The defaults of ``fitting.fit`` and ``fitting.fit_many`` (their docstrings say what each option does)."""
 
     solver: str = SOLVERS.default
-    starts: int = 8
+    starts: int | str = "auto"
+    model_starts: int = 8
     spread: float = 0.5
     seed: int = 0
     max_steps: int = 256

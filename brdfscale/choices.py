@@ -11,7 +11,8 @@
 * :class:`FitDefaults`, :class:`SampleDefaults`, :class:`ModelDefaults` and their defaults
   :data:`FIT`, :data:`SAMPLE`, :data:`MODEL` — what ``fitting.fit``/``fit_many``,
   ``fitting.sample``/``sample_many``, the fitting models, :class:`brdfscale.library.FitSpec`
-  and the ``brdfscale fit``/``fit-library`` options default to (``FIT.starts`` is 8);
+  and the ``brdfscale fit``/``fit-library`` options default to (``FIT.starts`` is ``"auto"``: the model's
+  ``preferred_starts``, ``FIT.model_starts`` = 8 unless the model says otherwise);
 * :class:`AdequacyDefaults` and :data:`ADEQUACY` — the thresholds of ``fitting.assess`` (the
   outcome of a fit and the command's exit statuses 5–7).
 

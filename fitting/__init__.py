@@ -55,7 +55,7 @@ from ._compare import compare, Comparison
 from ._data import Dataset, PointData
 from ._derived import compare_covariance_differences, covariance_truth, RATIO_FREQUENCIES, ratio_frequencies
 from ._diagnostics import pareto_k
-from ._fit import fit
+from ._fit import fit, resolve_starts
 from ._joint import TopographyData
 from ._model import AbstractModel
 from ._moments import moment_covariance_differences
@@ -122,6 +122,7 @@ __all__ = [
     "ratio_frequencies",
     "report_files",
     "resolve_solver",
+    "resolve_starts",
     "report_problem",
     "resume_report",
     "rewind_checkpoint",

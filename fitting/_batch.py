@@ -59,10 +59,10 @@ from brdfscale.show import progress_bar
 from ._analysis import results_of_starts
 from ._data import Dataset, PointData
 from ._devices import device_list as _devices, joined, on_devices, split
-from ._fit import FitOptions
+from ._fit import FitOptions, resolve_starts
 from ._model import AbstractModel
 from ._problem import check_pair, Problem, Rows, stack_trees, starting_points
-from ._solve import resolve_solver, solve_rows
+from ._solve import solve_rows
 
 
 __all__ = ["COMPILE_ROWS", "BatchPlan", "bucket_points", "explain_plan", "fit_many"]
@@ -331,7 +331,7 @@ def fit_many(
     batch: int = 64,
     devices=None,
     solver=FIT.solver,
-    starts: int = FIT.starts,
+    starts: int | str = FIT.starts,
     spread: float = FIT.spread,
     seed: int = FIT.seed,
     max_steps: int = FIT.max_steps,
@@ -381,8 +381,9 @@ def fit_many(
             ``"raise"``/``"return"``.
     """
     problems = _problems(models, datasets)
-    options = FitOptions(
-        solver=resolve_solver(solver, [p.model for p in problems]),
+    options = FitOptions.for_models(
+        [p.model for p in problems],
+        solver=solver,
         starts=starts,
         max_steps=max_steps,
         spread=spread,
@@ -447,16 +448,17 @@ def explain_plan(
     *,
     batch: int = 64,
     devices=None,
-    starts: int = FIT.starts,
+    starts: int | str = FIT.starts,
     compile_rows: int = COMPILE_ROWS,
     lanes=None,
 ) -> BatchPlan:
     """The :class:`BatchPlan` :func:`fit_many` would follow for these arguments (nothing is
     fitted); ``plan.explain()`` says it in words."""
+    problems = _problems(models, datasets)
     device_list = _devices(devices)
     return plan(
-        _problems(models, datasets),
-        integer(starts, "starts", 1),
+        problems,
+        integer(resolve_starts(starts, [p.model for p in problems]), "starts", 1),
         integer(batch, "batch", 1),
         len(device_list),
         integer(compile_rows, "compile_rows", 0),

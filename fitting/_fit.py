@@ -23,7 +23,7 @@ from ._result import FitResult
 from ._solve import check_solver, make_solver, resolve_solver, solve
 
 
-__all__ = ["FitOptions", "fit"]
+__all__ = ["FitOptions", "fit", "resolve_starts"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -31,13 +31,13 @@ class FitOptions:
     """The options of :func:`fit` (and :func:`fitting.fit_many`), checked when made.
 
     ``solver`` a name of :data:`fitting.SOLVERS` or an optimistix solver object; ``starts``,
-    ``max_steps`` integers ≥ 1; ``spread`` finite ≥ 0; ``seed`` an integer ≥ 0; ``rtol``,
-    ``atol`` finite ≥ 0, not both 0; ``undetermined_std`` finite > 0 — else
+    ``max_steps`` integers ≥ 1 (:meth:`for_models` resolves ``"auto"`` of both); ``spread`` finite ≥ 0;
+    ``seed`` an integer ≥ 0; ``rtol``, ``atol`` finite ≥ 0, not both 0; ``undetermined_std`` finite > 0 — else
     :class:`~brdfscale.InvalidInputError` naming the option.
     """
 
     solver: object = FIT.solver
-    starts: int = FIT.starts
+    starts: int = FIT.model_starts
     max_steps: int = FIT.max_steps
     spread: float = FIT.spread
     seed: int = FIT.seed
@@ -61,9 +61,27 @@ class FitOptions:
         for name, value in checked.items():
             object.__setattr__(self, name, value)
 
+    @classmethod
+    def for_models(cls, models, *, solver, starts, **options) -> "FitOptions":
+        """The options for fitting ``models``, ``"auto"`` resolved: the solver by
+        :func:`fitting.resolve_solver`, the starts by :func:`resolve_starts`; the rest checked as
+        :class:`FitOptions` checks them."""
+        return cls(solver=resolve_solver(solver, models), starts=resolve_starts(starts, models), **options)
+
     def optimiser(self):
         """The optimistix solver object of these options (:func:`fitting._solve.make_solver`)."""
         return make_solver(self.solver, self.rtol, self.atol)
+
+
+def resolve_starts(starts, models) -> int:
+    """``starts`` itself, or for ``"auto"`` the most any of ``models`` prefers (their
+    ``preferred_starts``: ``brdfscale.choices.FIT.model_starts`` = 8, 1 for the anisotropic
+    non-parametric model; one number serves a batch). Anything else is checked by :class:`FitOptions`."""
+    if isinstance(starts, str):
+        if starts != "auto":
+            raise InvalidInputError(f"starts must be an integer ≥ 1 or 'auto' (the model's own count); got {starts!r}.")
+        return max((getattr(m, "preferred_starts", FIT.model_starts) for m in models), default=FIT.model_starts)
+    return starts
 
 
 def fit(
@@ -71,7 +89,7 @@ def fit(
     data: Dataset,
     *,
     solver=FIT.solver,
-    starts: int = FIT.starts,
+    starts: int | str = FIT.starts,
     spread: float = FIT.spread,
     seed: int = FIT.seed,
     max_steps: int = FIT.max_steps,
@@ -92,9 +110,10 @@ def fit(
             ``optimistix.LevenbergMarquardt(rtol=1e-8, atol=1e-8)``),
             used as it is: its own tolerances and norm apply, not ``rtol``/``atol``; the
             result's ``solver`` is then its class name.
-        starts: number of starts: the model's data-driven start plus ``starts − 1`` jittered
-            copies (normal, standard deviation ``spread`` in θ), all clipped to the prior box.
-            They share one compiled solve.
+        starts: number of starts, or ``"auto"`` (default: the model's ``preferred_starts``,
+            :func:`resolve_starts` — 8, 1 for :class:`~fitting.AnisotropicNonParametricModel`): the
+            model's data-driven start plus ``starts − 1`` jittered copies (normal, standard
+            deviation ``spread`` in θ), all clipped to the prior box. They share one compiled solve.
         seed: seed of the jitter.
         max_steps, rtol, atol: optimistix settings: a start has converged when an accepted
             step changes θ by less than ``atol + rtol·|θ_i|`` and the residuals by less than
@@ -119,8 +138,9 @@ def fit(
             every start ending with a non-finite χ².
     """
     check_pair(model, data, "fit(model, data)")
-    options = FitOptions(
-        solver=resolve_solver(solver, [model]),
+    options = FitOptions.for_models(
+        [model],
+        solver=solver,
         starts=starts,
         max_steps=max_steps,
         spread=spread,

@@ -36,6 +36,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from brdfscale import InvalidInputError, MeasurementSet
+from brdfscale.choices import FIT
 from brdfscale.show import Shown
 
 from ._data import Dataset
@@ -84,6 +85,11 @@ class AbstractModel(Shown, eqx.Module):
     #: Levenberg–Marquardt with QR steps; the anisotropic models, whose rows far outnumber their
     #: parameters, take its normal-equation steps ("lm_normal", :mod:`fitting._solve`).
     preferred_solver: ClassVar[str] = "lm"
+
+    #: The number of starts that ``starts="auto"`` (the default of :func:`fitting.fit`) gives this
+    #: model: ``brdfscale.choices.FIT.model_starts`` (8); the anisotropic non-parametric model, whose
+    #: hundreds of coordinates a jittered copy of its data-driven start does not explore, takes 1.
+    preferred_starts: ClassVar[int] = FIT.model_starts
 
     @property
     @abc.abstractmethod

@@ -172,7 +172,10 @@ class AnisotropicNonParametricModel(AbstractModel):
     harmonics: int = eqx.field(static=True)
     smoothness: float = eqx.field(static=True)
     reference_variance: float = eqx.field(static=True)
-    preferred_solver: ClassVar[str] = "lm_normal"
+    # hundreds of coordinates, some undetermined where the μ0 lobe is below the noise: the truncated,
+    # EDM-stopped Gauss–Newton from the one data-driven start (docs/fitting.md; experiments/nonparametric_solvers.py)
+    preferred_solver: ClassVar[str] = "gauss_newton_edm"
+    preferred_starts: ClassVar[int] = 1
     pitch: float = eqx.field(static=True)
     origin: float = eqx.field(static=True)
     grid_points: int = eqx.field(static=True)

@@ -48,6 +48,8 @@ import optimistix as optx
 
 from brdfscale import choices, InvalidInputError
 
+from ._gauss_newton import GaussNewtonEDM
+
 
 __all__ = [
     "RESULT_NAMES",
@@ -75,6 +77,7 @@ _SOLVER_CLASSES = {
     "gauss_newton": optx.GaussNewton,
     "dogleg": optx.Dogleg,
     "bfgs": optx.BFGS,
+    "gauss_newton_edm": GaussNewtonEDM,
 }
 
 # optimistix's result names, in the order of the codes a solve returns (index = code); through the

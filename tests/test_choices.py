@@ -162,7 +162,7 @@ def test_the_table_refuses_unknown_names_naming_the_argument():
     said = "sampler must be one of 'nuts', 'hmc', 'emcee', 'imh', 'auto'; got 'gibbs'"
     with pytest.raises(InvalidInputError, match=said):
         choices.SAMPLERS.check("gibbs")
-    assert len(choices.SOLVERS) == len(set(choices.SOLVERS.names)) == 6
+    assert len(choices.SOLVERS) == len(set(choices.SOLVERS.names)) == 7
 
 
 def test_every_flag_the_translation_names_exists():
@@ -277,3 +277,12 @@ def test_the_public_module_names_every_table_and_default():
     }
     assert set(choices.__all__) == defined and len(choices.__all__) == len(defined)
     assert all(getattr(choices, name) is getattr(_choices, name) for name in defined)
+
+
+def test_starts_is_auto_or_a_count():
+    """``--starts`` takes ``auto`` (the default: the model's own count, fitting.resolve_starts) or 1–256."""
+    assert _parsed("fit").starts == choices.FIT.starts == "auto"
+    assert _parsed("fit", "--starts", "3").starts == 3
+    for bad in ("0", "257", "many"):
+        with pytest.raises(SystemExit):
+            _parsed("fit", "--starts", bad)

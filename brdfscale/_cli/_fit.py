@@ -46,6 +46,11 @@ def _fixed(text: str) -> tuple[str, float]:
     return name.strip(), number
 
 
+def _starts(text: str):
+    """``auto`` or an integer in [1, 256]."""
+    return text if text == "auto" else integer(1, 256)(text)
+
+
 def _smoothness(text: str):
     """``auto``/``gcv`` or a weight in [0, 1e6]."""
     if text in ("auto", "gcv"):
@@ -100,10 +105,11 @@ def add_fit_options(parser) -> None:
     )
     parser.add_argument(
         "--starts",
-        type=integer(1, 256),
+        type=_starts,
         default=FIT.starts,
-        help=f"multi-start count, 1–256 (default {FIT.starts}, fitting.fit's; earlier releases of the "
-        "command defaulted to 6)",
+        help=f"multi-start count, 1–256, or auto: the model's own count, {FIT.model_starts} (1 for the anisotropic "
+        f"non-parametric model) (default {FIT.starts}, fitting.fit's; earlier releases of the command "
+        "defaulted to 6, then 8)",
     )
     parser.add_argument(
         "--max-steps",
@@ -284,7 +290,8 @@ def register(subparsers) -> None:
         f"lobe images at several scales, with uncertainties (optimistix, then the sampler --sampler names, by default "
         f"{SAMPLE.sampler}: {SAMPLERS.summary(SAMPLE.sampler)}; a fit inadequate before sampling is not sampled). "
         "Writes DIR/fit.json, figures and the evolved lobe tables. Every default is the library's "
-        f"own (brdfscale.choices): --starts {FIT.starts} (6 in earlier releases of the command).",
+        f"own (brdfscale.choices): --starts {FIT.starts} ({FIT.model_starts}, 1 for the anisotropic non-parametric "
+        "model; 6 in earlier releases of the command).",
     )
     parser.add_argument("measurements", help="multi-part OpenEXR measurement set (brdfscale.exr format)")
     add_fit_options(parser)
@@ -341,7 +348,7 @@ def _compare(fitting, spec, data, stream, unit=None):
     ``(spec, model, info, result)`` with the comparison table in ``info["comparison"]``."""
     stream(
         f"comparing models on {len(data.scale_of_image)} images at scales {scales_text(data.scales, unit)} "
-        f"({data.n_data} valid pixels), {spec.starts} starts each ..."
+        f"({data.n_data} valid pixels), {spec.starts} starts each (auto: the model's own) ..."
     )
     fitted = {}
     for name, candidate in _candidates(spec):
@@ -421,7 +428,8 @@ def _fit_and_report(
     if result is None:
         stream(
             f"fitting {len(data.scale_of_image)} images at scales {scales_text(data.scales, unit)} "
-            f"({data.n_data} valid pixels), {len(model.names)} parameters, {spec.starts} starts ..."
+            f"({data.n_data} valid pixels), {len(model.names)} parameters, "
+            f"{fitting.resolve_starts(spec.starts, [model])} start(s) ..."
         )
         result = spec.fit(model, data)
     stream(

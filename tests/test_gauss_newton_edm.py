@@ -1,0 +1,153 @@
+"""The solver ``"gauss_newton_edm"`` (fitting._gauss_newton, issue 31 item 8): line-searched
+Gauss–Newton with the undetermined directions left out, stopped on the expected distance to the
+minimum. Checked against what nobody here wrote: NumPy's least squares (linear problems, the
+minimum-norm step for a rank-deficient one) and SciPy's ``least_squares`` (a nonlinear model), and
+against the library's own Levenberg–Marquardt on the same problem; σ scaled by 60 decades; the
+vmapped/mapped solve of ``fitting.fit_many`` against ``fitting.fit``."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.optimize
+
+from brdfscale import choices, fitting, InvalidInputError, MeasurementSet
+from tests.helpers import Linear, linear_measurements, parametric_dataset, TRUTHS
+
+
+jax.config.update("jax_enable_x64", True)
+
+EDM_TOLERANCE = fitting._gauss_newton.EDM_TOLERANCE  # the package's private module, as tests/test_fit.py reads _solve
+GaussNewtonEDM = fitting._gauss_newton.GaussNewtonEDM
+
+
+def _design(model, data):
+    """The whitened design matrix and data of a linear model: r(θ) = A θ − b."""
+    problem = fitting.Problem(model, data)
+    n = len(model.names)
+    b = -np.asarray(problem.residuals(jnp.zeros(n)))
+    A = np.asarray(jax.jacfwd(problem.residuals)(jnp.zeros(n)))
+    return A, b
+
+
+def test_linear_problem_lands_on_lstsq_in_one_step_and_stops():
+    """A linear problem: the first (full, accepted) step is NumPy's lstsq solution; the EDM there is 0,
+    so the solve stops on the next check — two steps, status converged."""
+    model, data = Linear(), fitting.Dataset.from_measurements(linear_measurements(seed=4))
+    A, b = _design(model, data)
+    best = np.linalg.lstsq(A, b, rcond=None)[0]
+    result = fitting.fit(model, data, starts=1, solver="gauss_newton_edm")
+    assert result.solver == "gauss_newton_edm" and result.status == "converged"
+    np.testing.assert_allclose(result.theta, best, rtol=0, atol=1e-10)
+    assert result.chi2 == pytest.approx(float(np.sum((A @ best - b) ** 2)), rel=1e-12)
+    assert result.starts[0]["steps"] <= 2
+
+
+def test_rank_deficient_problem_leaves_the_null_direction_where_it_started():
+    """``Linear(duplicate=True)``: θ2 and θ3 multiply the same basis, so θ2 − θ3 is not determined.
+    The step is the minimum-norm least-squares step (NumPy's lstsq of the rank-deficient design, which
+    leaves out singular values below its rcond too): θ2 − θ3 keeps its start, χ² is the minimum.
+    (Levenberg–Marquardt moves that direction by whatever its damping gives it.)"""
+    model, data = Linear(duplicate=True), fitting.Dataset.from_measurements(linear_measurements(seed=5))
+    A, b = _design(model, data)
+    start = np.array([0.3, -0.2, 1.5, -0.5])
+    problem = fitting.Problem(model, data)
+    theta, code, steps, chi2, _ = fitting._solve.solve(problem, jnp.asarray(start), GaussNewtonEDM(1e-6, 1e-6), 64)
+    expected = start + np.linalg.lstsq(A, b - A @ start, rcond=None)[0]
+    assert fitting._solve.result_name(int(code)) == "successful"
+    np.testing.assert_allclose(np.asarray(theta), expected, rtol=0, atol=1e-9)
+    assert float(theta[2] - theta[3]) == pytest.approx(start[2] - start[3], abs=1e-9)
+    assert float(chi2) == pytest.approx(float(np.sum((A @ expected - b) ** 2)), rel=1e-12)
+
+
+def test_nonlinear_fit_stops_within_its_edm_of_scipys_optimum():
+    """The parametric model (nonlinear) on a noisy set: SciPy's ``least_squares`` (trust region,
+    tolerances at 1e-15) gives the optimum. The EDM stop leaves at most EDM ≤ τ·‖r‖²/m of ½χ² to gain
+    (r the m rows the solver sees), so χ² − χ²_min ≤ 2τ·‖r‖²/m up to the quadratic model's error (a factor 2
+    allowed for it), and θ̂ within √(2 EDM) ≈ 0.045 standard errors of the optimum
+    (0.1 allowed, by the Laplace covariance)."""
+    model = fitting.ParametricModel()
+    _, data = parametric_dataset(model, TRUTHS[1], 0.01, seed=7)
+    problem = fitting.Problem(model, data)
+    result = fitting.fit(model, data, starts=1, solver="gauss_newton_edm")
+    assert result.status == "converged"
+    fun = jax.jit(lambda t: problem.residuals(t))
+    jac = jax.jit(jax.jacfwd(lambda t: problem.residuals(t)))
+    reference = scipy.optimize.least_squares(
+        lambda t: np.asarray(fun(jnp.asarray(t))),
+        result.theta,
+        jac=lambda t: np.asarray(jac(jnp.asarray(t))),
+        bounds=(np.asarray(problem.lower), np.asarray(problem.upper)),
+        xtol=1e-15,
+        ftol=1e-15,
+        gtol=1e-15,
+    )
+    r = np.asarray(fun(jnp.asarray(result.theta)))  # the rows the solver sees (replicate pixels merged)
+    offset = result.chi2 - float(r @ r)  # χ²'s within-group constant (fitting.Problem)
+    chi2_min = 2 * reference.cost + offset
+    assert chi2_min <= result.chi2 <= chi2_min + 2 * 2 * EDM_TOLERANCE * float(r @ r) / np.count_nonzero(r)
+    delta = result.theta - reference.x
+    assert float(np.sqrt(delta @ np.linalg.solve(result.covariance, delta))) < 0.1
+
+
+@pytest.mark.parametrize("factor", [1e-30, 1e30])
+def test_the_stop_does_not_depend_on_the_scale_of_sigma(factor):
+    """σ × c for c = 1e±30: the same steps, θ̂ to 1e-8 and χ²·c² to 1e-8 relative (the EDM test
+    compares two quantities that scale alike: fitting._gauss_newton)."""
+    model = fitting.ParametricModel()
+    mset, data = parametric_dataset(model, TRUTHS[1], 0.01, seed=7, size=12)
+    scaled = MeasurementSet(
+        tuple(
+            type(img)(mu=img.mu, incident=img.incident, extent=img.extent, values=img.values, sigma=img.sigma * factor)
+            for img in mset.images
+        ),
+        mset.metadata,
+    )
+    one = fitting.fit(model, data, starts=1, solver="gauss_newton_edm")
+    other = fitting.fit(model, fitting.Dataset.from_measurements(scaled), starts=1, solver="gauss_newton_edm")
+    assert other.status == one.status == "converged"
+    assert other.starts[0]["steps"] == one.starts[0]["steps"]
+    np.testing.assert_allclose(other.theta, one.theta, rtol=1e-8, atol=1e-8)
+    assert other.chi2 * factor**2 == pytest.approx(one.chi2, rel=1e-8)
+
+
+def test_fit_many_gives_what_fit_gives():
+    """``fitting.fit_many`` (the solves mapped over materials × starts) with this solver: the optimum,
+    χ² and step counts of ``fitting.fit`` for each material."""
+    model = fitting.ParametricModel()
+    data = [parametric_dataset(model, TRUTHS[i], 0.01, seed=i, size=12)[1] for i in (0, 1)]
+    many = fitting.fit_many(model, data, starts=2, solver="gauss_newton_edm")
+    for d, m in zip(data, many):
+        single = fitting.fit(model, d, starts=2, solver="gauss_newton_edm")
+        assert m.solver == single.solver == "gauss_newton_edm" and m.status == single.status
+        np.testing.assert_allclose(m.theta, single.theta, rtol=0, atol=1e-9)
+        assert m.chi2 == pytest.approx(single.chi2, rel=1e-10)
+
+
+def test_the_choice_names_the_solver():
+    """The name is one of brdfscale.choices.SOLVERS, with its summary, and make_solver builds this class
+    with the tolerances given."""
+    assert "gauss_newton_edm" in choices.SOLVERS.names and "expected distance" in choices.SOLVERS.summary(
+        "gauss_newton_edm"
+    )
+    solver = fitting._solve.make_solver("gauss_newton_edm", 1e-5, 1e-7)
+    assert isinstance(solver, GaussNewtonEDM) and (solver.rtol, solver.atol) == (1e-5, 1e-7)
+
+
+def test_the_anisotropic_non_parametric_model_takes_this_solver_from_one_start():
+    """``solver="auto"``, ``starts="auto"`` (the defaults of fit, fit_many and the command) resolve to this
+    solver and one start for the anisotropic non-parametric model, to lm_normal and 8 starts for the
+    anisotropic model; a batch of both takes the most starts; a bad count is refused naming "auto"."""
+    data = fitting.Dataset.from_measurements(linear_measurements(size=9))
+    nonparametric = fitting.AnisotropicNonParametricModel(data, base_nodes=5, n_knots=2)
+    anisotropic = fitting.AnisotropicModel(2)
+    assert fitting.resolve_solver("auto", [nonparametric]) == "gauss_newton_edm"
+    assert fitting.resolve_starts("auto", [nonparametric]) == 1
+    assert fitting.resolve_starts("auto", [anisotropic]) == choices.FIT.model_starts == 8
+    assert fitting.resolve_starts("auto", [nonparametric, anisotropic]) == 8
+    assert fitting.resolve_starts(3, [nonparametric]) == 3
+    assert fitting.explain_plan(nonparametric, [data]).starts == 1
+    with pytest.raises(InvalidInputError, match="starts must be an integer ≥ 1 or 'auto'"):
+        fitting.fit(anisotropic, data, starts="many")
+    with pytest.raises(InvalidInputError, match="starts must be an integer ≥ 1"):
+        fitting.fit(anisotropic, data, starts=0)
