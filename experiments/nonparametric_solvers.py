@@ -1,8 +1,9 @@
 """Why the anisotropic non-parametric model's fit is slow (issue 31 item 8: ≤ 3 min cold, unmet): its
 least-squares problem on experiments/bench_anisotropic.py's synthetic set (8 scales, 65² px), three ways.
 
-1. ``fitting.fit(model, data, starts=1)`` as the command runs it per start (the model's preferred solver,
-   Levenberg–Marquardt with normal-equation steps, ``max_steps`` 256): wall time, result, χ².
+1. ``fitting.fit(model, data, starts=1, solver="lm_normal")`` as the command ran it per start before the
+   model preferred ``gauss_newton_edm`` (Levenberg–Marquardt with normal-equation steps, ``max_steps`` 256): wall
+   time, result, χ².
 2. The Gauss–Newton Hessian ``JᵀJ`` at the model's start: its smallest eigenvalues against its largest and the
    parameters its smallest eigenvectors load on (the directions the data do not determine).
 3. Gauss–Newton with a backtracking line search (Armijo, step halved until χ² falls by 1e-4 of the predicted
@@ -11,6 +12,9 @@ least-squares problem on experiments/bench_anisotropic.py's synthetic set (8 sca
    Newton step predicts) falls below 1e-3 or after
    ``--iterations``: χ², EDM, step length and time per iteration, for ``rcond`` 1e-9 and 1e-12 — not a solver of the
    library, a measurement of how far the problem is from the optimum after a given amount of work.
+4. ``fitting.fit(model, data)`` with its defaults now (``solver="auto"``: the model's ``gauss_newton_edm``, the
+   iteration of 3 with ``rcond`` 1e-9 in the library; ``starts="auto"``: 1), twice — the first call compiles: wall
+   time, result, steps (accepted and rejected trial points), χ².
 
 Model: ``fitting.AnisotropicNonParametricModel(data, base_nodes=13, n_knots=8)`` — the command's defaults
 (``brdfscale.choices.MODEL``), regularisation 3.
@@ -99,7 +103,7 @@ def main(argv=None) -> dict:
     }
 
     started = time.perf_counter()
-    result = fitting.fit(model, data, starts=1)
+    result = fitting.fit(model, data, starts=1, solver="lm_normal")
     payload["fit"] = {
         "seconds": time.perf_counter() - started,
         "solver": result.solver,
@@ -123,6 +127,22 @@ def main(argv=None) -> dict:
         rows = gauss_newton(problem, theta0, rcond=rcond, iterations=args.iterations)
         payload["gauss_newton"][f"{rcond:g}"] = {"rcond": rcond, "iterations": rows}
         print(f"Gauss–Newton rcond {rcond:g}:", rows[-1], flush=True)
+    payload["library_default"] = []
+    for call in ("first (compiles)", "second"):
+        started = time.perf_counter()
+        result = fitting.fit(model, data)
+        payload["library_default"].append(
+            {
+                "call": call,
+                "seconds": time.perf_counter() - started,
+                "solver": result.solver,
+                "starts": len(result.starts),
+                "status": result.status,
+                "chi2": float(result.chi2),
+                "steps": result.starts[0].get("steps"),
+            }
+        )
+        print("library default:", payload["library_default"][-1], flush=True)
     write_json("nonparametric_solvers", payload, args.out)
     return payload
 
