@@ -652,7 +652,7 @@ def main(argv=None):
         return payload
     if args.rescore is not None:
         payload = rescore(json.loads(args.rescore.read_text()))
-        args.rescore.write_text(json.dumps(payload, indent=2) + "\n")
+        save(args.rescore, payload)
         print(json.dumps(payload["targets"], indent=1))
         return payload
     if args.quick:

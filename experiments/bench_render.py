@@ -42,7 +42,7 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np
 
 import brdfscale as bs
-from brdfscale import files, lobes
+from brdfscale import lobes
 from experiments import render_plane, render_validation
 from experiments._bench import machine, RESULTS, write_json
 
@@ -243,7 +243,7 @@ def main(argv=None) -> dict:
         payload = json.loads((folder / "bench_render.json").read_text())
         payload["bands"] = bands()
         payload["targets"] = targets(payload)
-        files.write_text(folder / "bench_render.json", json.dumps(payload, indent=2) + "\n", overwrite=True)
+        write_json("bench_render", payload, folder)
         return payload
     started = time.perf_counter()
     folder = RESULTS if args.out is None else Path(args.out)
@@ -261,10 +261,7 @@ def main(argv=None) -> dict:
     }
     payload["targets"] = targets(payload)
     payload["seconds"] = time.perf_counter() - started
-    if args.out is None:
-        write_json("bench_render", payload)
-    else:
-        files.write_text(Path(args.out) / "bench_render.json", json.dumps(payload, indent=2) + "\n", overwrite=True)
+    write_json("bench_render", payload, folder)
     return payload
 
 
