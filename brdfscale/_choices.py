@@ -84,7 +84,7 @@ SOLVERS = Choices(
         Choice(
             "auto",
             "the model's own choice: lm_normal for the anisotropic models (many rows per parameter), "
-            "lm for the others (the model's preferred_solver)",
+            "gauss_newton_edm for the anisotropic non-parametric one, lm for the others (the model's preferred_solver)",
         ),
         Choice("lm", "Levenberg–Marquardt (optimistix.LevenbergMarquardt)"),
         Choice(

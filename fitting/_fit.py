@@ -102,10 +102,13 @@ def fit(
     Args:
         model, data: what to fit to what.
         solver: ``"auto"`` (default: the model's ``preferred_solver`` — ``"lm_normal"`` for the
-            anisotropic models, ``"lm"`` for the others; the result records which),
+            anisotropic models, ``"gauss_newton_edm"`` for the anisotropic non-parametric one, ``"lm"``
+            for the others; the result records which),
             ``"lm"`` (Levenberg–Marquardt), ``"lm_normal"`` (its steps by the
             normal equations: faster for many rows, e.g. the anisotropic models),
-            ``"gauss_newton"``, ``"dogleg"`` or ``"bfgs"`` (a minimiser of ½‖r‖²), or an
+            ``"gauss_newton"``, ``"gauss_newton_edm"`` (line-searched, the undetermined directions
+            left out, stopped on the expected distance to the minimum: fitting._gauss_newton),
+            ``"dogleg"`` or ``"bfgs"`` (a minimiser of ½‖r‖²), or an
             optimistix least-squares solver or minimiser object (e.g.
             ``optimistix.LevenbergMarquardt(rtol=1e-8, atol=1e-8)``),
             used as it is: its own tolerances and norm apply, not ``rtol``/``atol``; the

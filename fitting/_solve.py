@@ -69,7 +69,8 @@ QR), Levenberg–Marquardt with normal-equation steps (``lm_normal``:
 ``JᵀJ + λI`` by Cholesky — one n × n system per step instead of a QR of the m × n Jacobian, the
 difference experiments/bench_anisotropic.py ``--normal`` measures on the anisotropic model's
 8-scale, 65² px fit; it squares the condition number, so it suits well-conditioned problems with
-many rows), Gauss–Newton, dogleg, BFGS (a minimiser of ½‖r‖²)."""
+many rows), Gauss–Newton, Gauss–Newton stopped on the expected distance to the minimum
+(``gauss_newton_edm``: :mod:`fitting._gauss_newton`), dogleg, BFGS (a minimiser of ½‖r‖²)."""
 
 _SOLVER_CLASSES = {
     "lm": optx.LevenbergMarquardt,
@@ -220,7 +221,7 @@ def solve_rows(rows, y0, solver, max_steps):
     χ²(θ̂) and ``∂r/∂θ(θ̂)``.
 
     The solver works on the normalised rows ``r̃ = ν r`` (module docstring); χ² and the Jacobian
-    returned are those of ``r``. The Gauss–Newton family (LM, dogleg) carries ``r̃`` and ``J̃`` in
+    returned are those of ``r``. The Gauss–Newton family (LM, dogleg, gauss_newton_edm) carries ``r̃`` and ``J̃`` in
     its state (``f_info``: the linearisation at the last accepted point, which is θ̂), so they are
     read from there rather than evaluated once more; other solvers evaluate them."""
     scale = normalisation(rows.residuals(y0))
