@@ -990,7 +990,15 @@ def real_fits() -> str:
             f"{t['delta_sigma_within_3_std']['of']} runs);\n"
             f"- held-out error ≤ ½ of the isotropic default's on the anisotropic files: "
             + ("not evaluated (no anisotropic file)" if held["met"] is None else met(held["met"]))
-            + f" ({held['passed']} of {held['of']} runs)"
+            + f" ({held['passed']} of {held['of']} runs"
+            + (
+                f"; on {len(held['unreachable_by_noise_floor'])} of them "
+                f"({', '.join(held['unreachable_by_noise_floor'])}) "
+                "no prediction can meet it: the noise floor of the measure is above ½ of the isotropic default's error"
+                if held.get("unreachable_by_noise_floor")
+                else ""
+            )
+            + ")"
             + "".join(
                 f"; by the {label} law (not the default): {t[key]['passed']} of {t[key]['of']} runs"
                 for key, label in (

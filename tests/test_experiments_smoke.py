@@ -768,6 +768,18 @@ def test_bench_real_fits_z_scores_and_targets_by_hand():
     assert targets["chi2_or_inadequate"]["met"] and targets["no_exit_0_with_unflagged_problem"]["met"]
     assert targets["delta_sigma_within_3_std"] == {"met": False, "passed": 1, "of": 2}
     assert targets["held_out_half_of_isotropic_on_anisotropic_files"]["met"] is None  # no anisotropic file
+    # held-out on anisotropic files: the runs whose noise floor is above ½ of the isotropic default's L1 are named
+    held = {"isotropic": {"l1": 0.4}, "default": {"l1": 0.3}, "noise_floor_l1": 0.25}
+    aniso = {**record(5, "inadequate", [ok_scale], 1.0), "topography_anisotropy": 3.0}
+    counted = brf.targets(
+        [{**aniso, "held_out": held}, {**aniso, "noise": "m", "held_out": {**held, "noise_floor_l1": 0.1}}]
+    )
+    assert counted["held_out_half_of_isotropic_on_anisotropic_files"] == {
+        "met": False,
+        "passed": 0,
+        "of": 2,
+        "unreachable_by_noise_floor": ["f n5inadequate"],
+    }
     assert not brf.targets([hidden])["no_exit_0_with_unflagged_problem"]["met"]
     refused = {
         "file": "f",
