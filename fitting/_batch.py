@@ -356,7 +356,10 @@ def fit_many(
             list of ``jax.Device``; the batch axis is divided over them (module docstring, step 4).
         solver, starts, spread, seed, max_steps, rtol, atol, undetermined_std: as for
             :func:`fitting.fit`, for every material (the seed is each material's, so each
-            material gets the starts ``fit`` would give it).
+            material gets the starts ``fit`` would give it; with ``"auto"`` and models of different
+            preferences one count and one solver serve them all: the most starts any prefers, and
+            ``"lm"`` unless every model prefers the same solver — :func:`fitting.resolve_starts`,
+            :func:`fitting.resolve_solver`).
         compile_rows: the bucketing's exchange rate (:func:`plan`): padded rows worth one
             more compiled program (default :data:`COMPILE_ROWS`, of the order measured on a 2-core
             CPU; on an accelerator a solve row is cheaper, so larger values merge more); 0 keeps every

@@ -1,18 +1,23 @@
 """A Gauss–Newton solver that stops when the statistics are settled: line-searched Gauss–Newton
 steps with the undetermined directions left out, stopped on the expected distance to the minimum
-(the solver ``"gauss_newton_edm"`` of :data:`fitting.SOLVERS`; docs/fitting.md, "Solvers").
+(the solver ``"gauss_newton_edm"`` of :data:`fitting.SOLVERS`; docs/fitting.md, "Estimation").
 
 The solve minimises ``½‖r(θ)‖²`` (``r`` the whitened residual rows, normalised as
-:mod:`fitting._solve` says). At an accepted point with Jacobian ``J`` and gradient ``g = Jᵀr``,
+:mod:`fitting._solve` says; m the non-zero rows). At an accepted point with Jacobian ``J`` and
+gradient ``g = Jᵀr``,
 
-    δ = −(JᵀJ)⁺ g,   (JᵀJ)⁺ = Σ_{λ_i > ρ λ_max} v_i v_iᵀ / λ_i   (ρ = :data:`RCOND`),
+    δ = −(JᵀJ)⁺ g,   (JᵀJ)⁺ = Σ_{kept i} v_i v_iᵀ / λ_i,
 
-the Gauss–Newton step on the eigen-decomposition of ``JᵀJ`` with the eigenvalues below ρ times the
-largest left out: the directions the data do not determine (e.g. the anisotropic non-parametric
-model's base-lobe nodes where the lobe is below the noise at every scale: their derivative is the
-lobe itself, ≈ 0, and ``JᵀJ`` is singular there — experiments/nonparametric_solvers.py) are not
-moved, where Levenberg–Marquardt keeps damping them. The step is scaled by a backtracking line search
-(Armijo: halved until ``½‖r‖²`` falls by at least 1e-4 of the decrease the linearisation predicts).
+the Gauss–Newton step on the eigen-decomposition ``JᵀJ = Σ λ_i v_i v_iᵀ`` with the directions the
+data do not determine left out: those whose curvature in units of the inverse variance, inflated by the
+reduced χ², ``λ_i · m/‖r‖²``, is below :data:`FLAT` (a Laplace standard deviation above
+``1/√FLAT`` ≈ 32 in θ, far beyond the fit's report of a direction as not determined at 1 —
+``undetermined_std``), and those below :data:`RCOND` × the largest (rounding). Both tests are
+invariant under scaling σ (λ and ‖r‖² scale alike). Such directions — e.g. the anisotropic
+non-parametric model's base-lobe nodes where the lobe is below the noise at every scale: their
+derivative is the lobe itself, ≈ 0 (experiments/nonparametric_solvers.py) — are not moved, where
+Levenberg–Marquardt keeps damping them. The step is scaled by a backtracking line search (Armijo:
+halved until ``½‖r‖²`` falls by at least 1e-4 of the decrease the linearisation predicts).
 
 **Stop.** The expected distance to the minimum of ``½χ²`` (MINUIT's EDM; −log-likelihood units),
 
@@ -20,16 +25,18 @@ moved, where Levenberg–Marquardt keeps damping them. The step is scaled by a b
 
 the decrease the full step predicts, is compared with the reduced χ²: the solve stops when
 
-    EDM ≤ τ · χ²/m   (τ = :data:`EDM_TOLERANCE`, m the non-zero rows),
+    EDM ≤ τ · ‖r‖²/m   (τ = :data:`EDM_TOLERANCE`),
 
-or when optimistix's own test (``rtol``/``atol`` on θ and on the residuals, as for the other named
-solvers) is met. For an adequate model (χ²/m ≈ 1) that is EDM ≤ 1e-3: θ̂ lies within about
-√(2 EDM) ≈ 0.045 standard errors of the optimum along every determined direction — what the
-uncertainties need, where optimistix's test asks for the rounding level and the 470-parameter fit of
-experiments/nonparametric_solvers.py takes 256 Levenberg–Marquardt steps without reaching it. For an
-inadequate model the test loosens with χ²/m, as the standard errors scaled by √(χ²/m) do. The test is
-the same in normalised and in raw units (both sides scale by ν²), so it keeps the solve's scale
-invariance (tests/test_gauss_newton_edm.py).
+and on nothing else (optimistix's ``rtol``/``atol`` test is not used: a step cut short by the line
+search can change θ and r by little while far from the minimum). For an adequate model (‖r‖²/m ≈ 1)
+that is EDM ≤ 1e-3: θ̂ lies within about √(2 EDM) ≈ 0.045 standard errors of the optimum along every
+direction kept — what the uncertainties need, where optimistix's test asks for the rounding level and the
+470-parameter fit of experiments/nonparametric_solvers.py takes 256 Levenberg–Marquardt steps without
+reaching it. For an inadequate model the test loosens with ‖r‖²/m, as standard errors scaled by
+√(χ²/dof) do. Like the cut, it is the same in normalised and in raw units, so the solve keeps
+:mod:`fitting._solve`'s scale invariance (tests/test_gauss_newton_edm.py). A start that already meets
+it is stationary by this solver's own test: :func:`fitting._solve.solve_rows` reports it converged, not
+``stopped_at_start`` (:meth:`GaussNewtonEDM.settled`).
 
 Each iteration materialises ``J`` once (forward mode, one pass per parameter) and decomposes the n × n
 matrix ``JᵀJ`` (n the parameters): meant for problems with many more rows than parameters.
@@ -39,6 +46,7 @@ from collections.abc import Callable
 from typing import Any
 
 import equinox as eqx
+import jax
 import jax.flatten_util as jfu
 import jax.numpy as jnp
 import lineax as lx
@@ -46,14 +54,38 @@ import optimistix as optx
 from jaxtyping import Array, Bool, Float, PyTree
 
 
-__all__ = ["EDM_TOLERANCE", "GaussNewtonEDM", "RCOND"]
+__all__ = ["EDM_TOLERANCE", "FLAT", "GaussNewtonEDM", "RCOND"]
 
 EDM_TOLERANCE = 1e-3
 """τ: the solve stops when the expected distance to the minimum is at most τ times the reduced χ²
 (module docstring)."""
 
-RCOND = 1e-9
-"""ρ: eigenvalues of ``JᵀJ`` below ρ times the largest are left out of the step (module docstring)."""
+FLAT = 1e-3
+"""Directions whose curvature ``λ · m/‖r‖²`` is below this are left out of the step (module docstring)."""
+
+RCOND = 1e-12
+"""Eigenvalues of ``JᵀJ`` below this times the largest are left out too (rounding; module docstring)."""
+
+
+def _rows(residual) -> jax.Array:
+    """m: the non-zero rows (padding rows of :func:`fitting.fit_many` are zero), at least 1."""
+    return jnp.maximum(jnp.count_nonzero(residual), 1).astype(residual.dtype)
+
+
+def truncated_step(jac: Float[Array, "m n"], residual: Float[Array, " m"], *, flat: float = FLAT, rcond: float = RCOND):
+    """``(δ⁺, EDM)``: the Gauss–Newton step ``(JᵀJ)⁺Jᵀr`` (to be subtracted) with the undetermined directions
+    left out, and ``EDM = ½ gᵀ(JᵀJ)⁺g`` (module docstring; traced)."""
+    gradient = jac.T @ residual
+    values, vectors = jnp.linalg.eigh(jac.T @ jac)
+    curvature = values * _rows(residual) / jnp.maximum(residual @ residual, jnp.finfo(residual.dtype).tiny)
+    keep = (values > rcond * values[-1]) & (curvature > flat)
+    newton = vectors @ jnp.where(keep, (vectors.T @ gradient) / jnp.where(keep, values, 1.0), 0.0)
+    return newton, 0.5 * gradient @ newton
+
+
+def settled(edm, residual, tolerance: float = EDM_TOLERANCE) -> jax.Array:
+    """Whether ``EDM ≤ τ · ‖r‖²/m`` (module docstring; traced)."""
+    return edm <= tolerance * (residual @ residual) / _rows(residual)
 
 
 class _DescentState(eqx.Module):
@@ -65,6 +97,7 @@ class _DescentState(eqx.Module):
 class _TruncatedNewtonDescent(optx.AbstractDescent):
     """The truncated Gauss–Newton step and its EDM at a linearisation (module docstring)."""
 
+    flat: float
     rcond: float
 
     def init(self, y, f_info_struct) -> _DescentState:
@@ -76,13 +109,9 @@ class _TruncatedNewtonDescent(optx.AbstractDescent):
         flat, unravel = jfu.ravel_pytree(y)
         jac = lx.materialise(f_info.jac).as_matrix()  # m × n
         residual, _ = jfu.ravel_pytree(f_info.residual)
-        gradient = jac.T @ residual
-        values, vectors = jnp.linalg.eigh(jac.T @ jac)
-        keep = values > self.rcond * values[-1]
-        newton = vectors @ jnp.where(keep, (vectors.T @ gradient) / jnp.where(keep, values, 1.0), 0.0)
-        finite = jnp.all(jnp.isfinite(newton))
+        newton, edm = truncated_step(jac, residual, flat=self.flat, rcond=self.rcond)
+        finite = jnp.all(jnp.isfinite(newton)) & jnp.isfinite(edm)
         result = optx.RESULTS.where(finite, optx.RESULTS.successful, optx.RESULTS.nonlinear_divergence)
-        edm = 0.5 * gradient @ newton
         return _DescentState(unravel(newton.astype(flat.dtype)), jnp.where(finite, edm, jnp.inf), result)
 
     def step(self, step_size, state: _DescentState):
@@ -95,8 +124,9 @@ class GaussNewtonEDM(optx.AbstractGaussNewton):
     (module docstring; ``fitting.fit(..., solver="gauss_newton_edm")``).
 
     Args:
-        rtol, atol, norm: optimistix's convergence test on θ and the residuals (also stops).
-        rcond: eigenvalues of ``JᵀJ`` below ``rcond`` × the largest are left out (:data:`RCOND`).
+        rtol, atol, norm: kept for optimistix's interface (the named solvers are made with them); not
+            used: the EDM is the only stop (module docstring).
+        flat, rcond: the directions left out (:data:`FLAT`, :data:`RCOND`).
         edm_tolerance: τ of the EDM stop (:data:`EDM_TOLERANCE`).
     """
 
@@ -114,21 +144,27 @@ class GaussNewtonEDM(optx.AbstractGaussNewton):
         atol: float,
         norm: Callable[[PyTree], Float[Array, ""]] = optx.rms_norm,
         *,
+        flat: float = FLAT,
         rcond: float = RCOND,
         edm_tolerance: float = EDM_TOLERANCE,
     ):
         self.rtol, self.atol, self.norm = rtol, atol, norm
-        self.descent = _TruncatedNewtonDescent(rcond)
+        self.descent = _TruncatedNewtonDescent(flat, rcond)
         self.search = optx.BacktrackingArmijo(decrease_factor=0.5, slope=1e-4)
         self.verbose = _quiet
         self.edm_tolerance = edm_tolerance
 
     def terminate(self, fn, y, args, options: dict[str, Any], state, tags) -> tuple[Bool[Array, ""], optx.RESULTS]:
-        done, result = super().terminate(fn, y, args, options, state, tags)
+        # the EDM of the last accepted point (infinite before the first step); optimistix's own test
+        # (state.terminate) is not used: module docstring
         residual, _ = jfu.ravel_pytree(state.f_info.residual)
-        rows = jnp.maximum(jnp.count_nonzero(residual), 1).astype(residual.dtype)
-        settled = state.descent_state.edm <= self.edm_tolerance * jnp.sum(residual**2) / rows
-        return done | (~state.first_step & settled), result
+        return settled(state.descent_state.edm, residual, self.edm_tolerance), state.result
+
+    def settled(self, jac: Float[Array, "m n"], residual: Float[Array, " m"]) -> jax.Array:
+        """Whether a point with this Jacobian and these residuals meets this solver's stop (traced):
+        :func:`fitting._solve.solve_rows` asks it of a start the solve returned unmoved."""
+        _, edm = truncated_step(jac, residual, flat=self.descent.flat, rcond=self.descent.rcond)
+        return settled(edm, residual, self.edm_tolerance)
 
 
 def _quiet(**kwargs) -> None:

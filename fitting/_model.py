@@ -83,7 +83,8 @@ class AbstractModel(Shown, eqx.Module):
 
     #: The solver that ``solver="auto"`` (the default of :func:`fitting.fit`) uses for this model:
     #: Levenberg–Marquardt with QR steps; the anisotropic models, whose rows far outnumber their
-    #: parameters, take its normal-equation steps ("lm_normal", :mod:`fitting._solve`).
+    #: parameters, take its normal-equation steps ("lm_normal", :mod:`fitting._solve`), the anisotropic
+    #: non-parametric one "gauss_newton_edm" (:mod:`fitting._gauss_newton`).
     preferred_solver: ClassVar[str] = "lm"
 
     #: The number of starts that ``starts="auto"`` (the default of :func:`fitting.fit`) gives this

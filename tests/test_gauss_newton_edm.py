@@ -8,10 +8,11 @@ vmapped/mapped solve of ``fitting.fit_many`` against ``fitting.fit``."""
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optimistix as optx
 import pytest
 import scipy.optimize
 
-from brdfscale import choices, fitting, InvalidInputError, MeasurementSet
+from brdfscale import choices, fitting, InvalidInputError
 from tests.helpers import Linear, linear_measurements, parametric_dataset, TRUTHS
 
 
@@ -90,33 +91,80 @@ def test_nonlinear_fit_stops_within_its_edm_of_scipys_optimum():
     assert float(np.sqrt(delta @ np.linalg.solve(result.covariance, delta))) < 0.1
 
 
+def _linear_problem(seed=6, rows=60, columns=4):
+    rng = np.random.default_rng(seed)
+    return rng.normal(size=(rows, columns)), rng.normal(size=rows)
+
+
 @pytest.mark.parametrize("factor", [1e-30, 1e30])
-def test_the_stop_does_not_depend_on_the_scale_of_sigma(factor):
-    """σ × c for c = 1e±30: the same steps, θ̂ to 1e-8 and χ²·c² to 1e-8 relative (the EDM test
-    compares two quantities that scale alike: fitting._gauss_newton)."""
+def test_the_stop_does_not_depend_on_the_scale_of_the_residuals(factor):
+    """The solver alone (optimistix.least_squares, no normalisation by fitting._solve) on the parametric
+    model's whitened rows times c = 1e±30: the same steps and θ̂ to 1e-8 (every test it makes — the line
+    search, the directions left out, the EDM stop — compares quantities that scale alike)."""
     model = fitting.ParametricModel()
-    mset, data = parametric_dataset(model, TRUTHS[1], 0.01, seed=7, size=12)
-    scaled = MeasurementSet(
-        tuple(
-            type(img)(mu=img.mu, incident=img.incident, extent=img.extent, values=img.values, sigma=img.sigma * factor)
-            for img in mset.images
-        ),
-        mset.metadata,
+    _, data = parametric_dataset(model, TRUTHS[1], 0.01, seed=7, size=12)
+    problem = fitting.Problem(model, data)
+    y0 = jnp.asarray(model.initial(data))
+
+    def solve(c):
+        sol = optx.least_squares(
+            lambda t, _: c * problem.residuals(t), GaussNewtonEDM(1e-6, 1e-6), y0, max_steps=256, throw=False
+        )
+        return np.asarray(sol.value), int(sol.stats["num_steps"]), sol.result
+
+    one, steps, result = solve(1.0)
+    other, other_steps, other_result = solve(factor)
+    assert result == other_result == optx.RESULTS.successful
+    assert other_steps == steps
+    np.testing.assert_allclose(other, one, rtol=1e-8, atol=1e-8)
+
+
+def test_a_start_that_meets_the_stop_is_converged_not_stopped_at_start():
+    """A start 0.01 standard errors from the optimum of a linear problem meets the EDM stop at once: the solve
+    returns it unmoved, and fitting._solve reports it converged ("successful"), not "stopped_at_start" (its
+    cosine test alone would: the cosine there exceeds 1e-4)."""
+    model, data = Linear(), fitting.Dataset.from_measurements(linear_measurements(seed=4))
+    A, b = _design(model, data)
+    best = np.linalg.lstsq(A, b, rcond=None)[0]
+    std = np.sqrt(np.diag(np.linalg.inv(A.T @ A)))
+    start = best + 0.01 * std
+    problem = fitting.Problem(model, data)
+    theta, code, steps, chi2, jac = fitting._solve.solve(problem, jnp.asarray(start), GaussNewtonEDM(1e-6, 1e-6), 64)
+    r = A @ np.asarray(theta) - b
+    assert np.all(np.asarray(theta) == start)  # unmoved
+    assert np.max(np.abs(r @ A) / (np.linalg.norm(A, axis=0) * np.linalg.norm(r))) > fitting._solve.STATIONARY_COSINE
+    assert fitting._solve.result_name(int(code)) == "successful"
+
+
+def test_directions_flatter_than_the_noise_are_left_where_they_started():
+    """A linear problem whose last column is scaled down until its curvature λ·m/‖r‖² is below FLAT while its
+    eigenvalue is far above RCOND × the largest (high signal-to-noise elsewhere): that coordinate keeps its start,
+    the others are NumPy's lstsq of the problem without it (the step is the least-squares step of the kept
+    directions: the other coordinates up to the tiny coupling, so to 1e-6)."""
+    A, b = _linear_problem()
+    A = A * np.array([1e2, 1e2, 1e2, 3e-3])  # λ of the last ≈ 4.5e-4, ≈ 5e-10 of λ_max ≈ 8e5: far above RCOND
+    curvature = np.sum(A[:, 3] ** 2) * len(b) / np.sum((A @ np.linalg.lstsq(A, b, rcond=None)[0] - b) ** 2)
+    assert (
+        curvature < fitting._gauss_newton.FLAT
+        and np.sum(A[:, 3] ** 2) > 100 * fitting._gauss_newton.RCOND * np.linalg.norm(A, 2) ** 2
     )
-    one = fitting.fit(model, data, starts=1, solver="gauss_newton_edm")
-    other = fitting.fit(model, fitting.Dataset.from_measurements(scaled), starts=1, solver="gauss_newton_edm")
-    assert other.status == one.status == "converged"
-    assert other.starts[0]["steps"] == one.starts[0]["steps"]
-    np.testing.assert_allclose(other.theta, one.theta, rtol=1e-8, atol=1e-8)
-    assert other.chi2 * factor**2 == pytest.approx(one.chi2, rel=1e-8)
+    start = np.array([0.0, 0.0, 0.0, 0.7])
+    sol = optx.least_squares(
+        lambda t, _: jnp.asarray(A) @ t - jnp.asarray(b), GaussNewtonEDM(1e-6, 1e-6), jnp.asarray(start), max_steps=64
+    )
+    theta = np.asarray(sol.value)
+    assert theta[3] == pytest.approx(start[3], abs=1e-6)  # lstsq moves it by ≈ −70 (kept eigenvectors: ~1e-9)
+    expected = np.linalg.lstsq(A[:, :3], b - A[:, 3] * start[3], rcond=None)[0]
+    np.testing.assert_allclose(theta[:3], expected, rtol=1e-6, atol=0)
 
 
-def test_fit_many_gives_what_fit_gives():
-    """``fitting.fit_many`` (the solves mapped over materials × starts) with this solver: the optimum,
-    χ² and step counts of ``fitting.fit`` for each material."""
+@pytest.mark.parametrize("lanes", [None, "all"])
+def test_fit_many_gives_what_fit_gives(lanes):
+    """``fitting.fit_many`` with this solver — the solves mapped over materials × starts one by one (``lanes=None``
+    on CPUs) and vmapped (``"all"``, as on accelerators): the optimum and χ² of ``fitting.fit`` for each material."""
     model = fitting.ParametricModel()
     data = [parametric_dataset(model, TRUTHS[i], 0.01, seed=i, size=12)[1] for i in (0, 1)]
-    many = fitting.fit_many(model, data, starts=2, solver="gauss_newton_edm")
+    many = fitting.fit_many(model, data, starts=2, solver="gauss_newton_edm", lanes=lanes)
     for d, m in zip(data, many):
         single = fitting.fit(model, d, starts=2, solver="gauss_newton_edm")
         assert m.solver == single.solver == "gauss_newton_edm" and m.status == single.status

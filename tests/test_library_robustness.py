@@ -305,3 +305,19 @@ def test_sigkill_of_a_driver_with_ray_workers_leaves_no_ray_process(fitted, tmp_
             _fit(fitted / "reference", name)["optimisation"]["theta"],
             rtol=1e-9,
         )
+
+
+def test_an_index_recorded_before_starts_auto_is_continued():
+    """An index written before ``starts="auto"`` recorded the count (8): the default spec ("auto") continues it for
+    every model whose own count is 8, and is refused naming starts=8 for the anisotropic non-parametric model (1);
+    any other difference is named as before."""
+    from brdfscale.library._run import spec_differences
+
+    old = {**library.FitSpec().to_json(), "starts": 8}
+    assert spec_differences(old, library.FitSpec()) == ""
+    assert spec_differences({**old, "model": "parametric"}, library.FitSpec(model="parametric")) == ""
+    assert spec_differences(old, library.FitSpec(starts=8)) == ""
+    assert spec_differences(old, library.FitSpec(starts=3)) == "starts=8"
+    nonparametric = {**old, "model": "nonparametric_anisotropic"}
+    assert spec_differences(nonparametric, library.FitSpec(model="nonparametric_anisotropic")) == "starts=8"
+    assert spec_differences({"model": "parametric"}, library.FitSpec()) == "model='parametric'"

@@ -9,6 +9,7 @@ own), and the parsed options become one :class:`brdfscale.library.FitSpec` (:fun
 which hands them to fitting.
 """
 
+import argparse
 import math
 import os
 import sys
@@ -48,7 +49,12 @@ def _fixed(text: str) -> tuple[str, float]:
 
 def _starts(text: str):
     """``auto`` or an integer in [1, 256]."""
-    return text if text == "auto" else integer(1, 256)(text)
+    if text == "auto":
+        return text
+    try:
+        return integer(1, 256)(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"must be auto or an integer in [1, 256]; got {text!r:.40}") from None
 
 
 def _smoothness(text: str):
@@ -348,7 +354,9 @@ def _compare(fitting, spec, data, stream, unit=None):
     ``(spec, model, info, result)`` with the comparison table in ``info["comparison"]``."""
     stream(
         f"comparing models on {len(data.scale_of_image)} images at scales {scales_text(data.scales, unit)} "
-        f"({data.n_data} valid pixels), {spec.starts} starts each (auto: the model's own) ..."
+        f"({data.n_data} valid pixels), "
+        + ("each model's own number of starts" if spec.starts == "auto" else f"{spec.starts} starts each")
+        + " ..."
     )
     fitted = {}
     for name, candidate in _candidates(spec):

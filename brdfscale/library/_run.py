@@ -191,6 +191,22 @@ def _unwritable(doc) -> str | None:
     return None
 
 
+def spec_differences(recorded: dict, spec: FitSpec) -> str:
+    """The options of an index's recorded spec that differ from ``spec``, as ``name=recorded value, …``
+    ("" if none). A key the index lacks was recorded before the option existed: its default (FitSpec's
+    fields). ``starts`` is compared as the count it means for the spec's model (:meth:`FitSpec.starts_count`):
+    an index written before ``starts="auto"`` recorded the count (8), which ``"auto"`` still means for every
+    model but the anisotropic non-parametric one (1)."""
+    recorded = {**FitSpec().to_json(), **recorded}
+    mine = spec.to_json()
+    if recorded["model"] == mine["model"]:
+        try:
+            recorded["starts"], mine["starts"] = spec.starts_count(recorded["starts"]), spec.starts_count()
+        except InvalidInputError:  # a recorded value that is no count: compared as it is
+            pass
+    return ", ".join(f"{k}={recorded.get(k)!r}" for k in sorted(mine) if recorded.get(k) != mine[k])
+
+
 class _Index:
     """``OUT/library.json``: the options, and per material its source and last record. Written
     atomically by the driver alone (after every batch), its schema checked on every start
@@ -215,13 +231,8 @@ class _Index:
                     f"{self.path}: unreadable library index ({problem}); move it away (the reports in "
                     f"{os.path.join(out, 'materials')} are verified and kept) or give another out= directory."
                 )
-            # a key the index lacks was recorded before the option existed: its default (FitSpec's fields)
-            recorded = {**FitSpec().to_json(), **doc["spec"]}
-            if recorded != spec.to_json() and not force:
-                earlier = recorded
-                changed = ", ".join(
-                    f"{k}={earlier.get(k)!r}" for k in sorted(spec.to_json()) if earlier.get(k) != spec.to_json()[k]
-                )
+            changed = spec_differences(doc["spec"], spec)
+            if changed and not force:
                 raise InvalidInputError(
                     f"{out} holds a library fitted with other options (there {changed}); rerun with the same options "
                     "to continue it, or give another out= directory "

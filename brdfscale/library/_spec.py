@@ -139,7 +139,7 @@ class FitSpec:
     knots: int = MODEL.knots
     regularisation: float | str | None = MODEL.regularisation
     solver: str = FIT.solver
-    starts: int = FIT.starts
+    starts: int | str = FIT.starts
     max_steps: int = FIT.max_steps
     seed: int = FIT.seed
     sampler: str | None = None
@@ -171,6 +171,18 @@ class FitSpec:
         doc = dataclasses.asdict(self)
         doc["fixed"] = dict(self.fixed)
         return doc
+
+    def starts_count(self, starts=None) -> int:
+        """The number of starts ``starts`` (default: this spec's) means for this spec's model: an integer as it is,
+        ``"auto"`` the model's ``preferred_starts`` (:func:`fitting.resolve_starts`; 1 for the anisotropic
+        non-parametric model, 8 for the others)."""
+        fitting = _fitting()
+        kind = (
+            fitting.AnisotropicNonParametricModel
+            if self.model == "nonparametric_anisotropic"
+            else fitting.AbstractModel
+        )
+        return fitting.resolve_starts(self.starts if starts is None else starts, [kind])
 
     def model_for(self, data):
         """:func:`make_model` with these options: ``(model, info)``."""
