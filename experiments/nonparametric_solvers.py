@@ -13,8 +13,9 @@ least-squares problem on experiments/bench_anisotropic.py's synthetic set (8 sca
    ``--iterations``: χ², EDM, step length and time per iteration, for ``rcond`` 1e-9 and 1e-12 — not a solver of the
    library, a measurement of how far the problem is from the optimum after a given amount of work.
 4. ``fitting.fit(model, data)`` with its defaults now (``solver="auto"``: the model's ``gauss_newton_edm``, the
-   iteration of 3 with ``rcond`` 1e-9 in the library; ``starts="auto"``: 1), twice — the first call compiles: wall
-   time, result, steps (accepted and rejected trial points), χ².
+   iteration of 3 in the library, its directions left out by their curvature against the noise rather than by
+   ``rcond`` — fitting._gauss_newton; ``starts="auto"``: 1), twice — the first call compiles: wall time, result,
+   steps (accepted and rejected trial points), χ².
 
 Model: ``fitting.AnisotropicNonParametricModel(data, base_nodes=13, n_knots=8)`` — the command's defaults
 (``brdfscale.choices.MODEL``), regularisation 3.

@@ -8,12 +8,13 @@ gradient ``g = Jᵀr``,
 
     δ = −(JᵀJ)⁺ g,   (JᵀJ)⁺ = Σ_{kept i} v_i v_iᵀ / λ_i,
 
-the Gauss–Newton step on the eigen-decomposition ``JᵀJ = Σ λ_i v_i v_iᵀ`` with the directions the
-data do not determine left out: those whose curvature in units of the inverse variance, inflated by the
-reduced χ², ``λ_i · m/‖r‖²``, is below :data:`FLAT` (a Laplace standard deviation above
-``1/√FLAT`` ≈ 32 in θ, far beyond the fit's report of a direction as not determined at 1 —
-``undetermined_std``), and those below :data:`RCOND` × the largest (rounding). Both tests are
-invariant under scaling σ (λ and ‖r‖² scale alike). Such directions — e.g. the anisotropic
+the Gauss–Newton step on the eigen-decomposition ``JᵀJ = Σ λ_i v_i v_iᵀ`` with the directions left out
+whose eigenvalue is below :data:`RCOND` × the largest — unless the noise determines them: a direction
+whose curvature in units of the inverse variance, inflated by the reduced χ², ``λ_i · m/‖r‖²``, is at
+least :data:`DETERMINED` (a Laplace standard deviation of at most 1 in θ, where the fit's report calls a
+direction determined, ``undetermined_std``) is always kept, however large the largest eigenvalue (high
+signal-to-noise data): a direction the report calls determined is never one the solver did not fit. Both
+tests are invariant under scaling σ (λ and ‖r‖² scale alike). The directions left out — e.g. the anisotropic
 non-parametric model's base-lobe nodes where the lobe is below the noise at every scale: their
 derivative is the lobe itself, ≈ 0 (experiments/nonparametric_solvers.py) — are not moved, where
 Levenberg–Marquardt keeps damping them. The step is scaled by a backtracking line search (Armijo:
@@ -54,17 +55,18 @@ import optimistix as optx
 from jaxtyping import Array, Bool, Float, PyTree
 
 
-__all__ = ["EDM_TOLERANCE", "FLAT", "GaussNewtonEDM", "RCOND"]
+__all__ = ["DETERMINED", "EDM_TOLERANCE", "GaussNewtonEDM", "RCOND"]
 
 EDM_TOLERANCE = 1e-3
 """τ: the solve stops when the expected distance to the minimum is at most τ times the reduced χ²
 (module docstring)."""
 
-FLAT = 1e-3
-"""Directions whose curvature ``λ · m/‖r‖²`` is below this are left out of the step (module docstring)."""
+RCOND = 1e-9
+"""Eigenvalues of ``JᵀJ`` below this times the largest are left out of the step (module docstring)."""
 
-RCOND = 1e-12
-"""Eigenvalues of ``JᵀJ`` below this times the largest are left out too (rounding; module docstring)."""
+DETERMINED = 1.0
+"""A direction whose curvature ``λ · m/‖r‖²`` is at least this is kept whatever :data:`RCOND` says (module
+docstring)."""
 
 
 def _rows(residual) -> jax.Array:
@@ -72,13 +74,13 @@ def _rows(residual) -> jax.Array:
     return jnp.maximum(jnp.count_nonzero(residual), 1).astype(residual.dtype)
 
 
-def truncated_step(jac: Float[Array, "m n"], residual: Float[Array, " m"], *, flat: float = FLAT, rcond: float = RCOND):
+def truncated_step(jac: Float[Array, "m n"], residual: Float[Array, " m"], *, rcond: float = RCOND):
     """``(δ⁺, EDM)``: the Gauss–Newton step ``(JᵀJ)⁺Jᵀr`` (to be subtracted) with the undetermined directions
     left out, and ``EDM = ½ gᵀ(JᵀJ)⁺g`` (module docstring; traced)."""
     gradient = jac.T @ residual
     values, vectors = jnp.linalg.eigh(jac.T @ jac)
     curvature = values * _rows(residual) / jnp.maximum(residual @ residual, jnp.finfo(residual.dtype).tiny)
-    keep = (values > rcond * values[-1]) & (curvature > flat)
+    keep = (values > rcond * values[-1]) | (curvature >= DETERMINED)
     newton = vectors @ jnp.where(keep, (vectors.T @ gradient) / jnp.where(keep, values, 1.0), 0.0)
     return newton, 0.5 * gradient @ newton
 
@@ -97,7 +99,6 @@ class _DescentState(eqx.Module):
 class _TruncatedNewtonDescent(optx.AbstractDescent):
     """The truncated Gauss–Newton step and its EDM at a linearisation (module docstring)."""
 
-    flat: float
     rcond: float
 
     def init(self, y, f_info_struct) -> _DescentState:
@@ -109,7 +110,7 @@ class _TruncatedNewtonDescent(optx.AbstractDescent):
         flat, unravel = jfu.ravel_pytree(y)
         jac = lx.materialise(f_info.jac).as_matrix()  # m × n
         residual, _ = jfu.ravel_pytree(f_info.residual)
-        newton, edm = truncated_step(jac, residual, flat=self.flat, rcond=self.rcond)
+        newton, edm = truncated_step(jac, residual, rcond=self.rcond)
         finite = jnp.all(jnp.isfinite(newton)) & jnp.isfinite(edm)
         result = optx.RESULTS.where(finite, optx.RESULTS.successful, optx.RESULTS.nonlinear_divergence)
         return _DescentState(unravel(newton.astype(flat.dtype)), jnp.where(finite, edm, jnp.inf), result)
@@ -126,7 +127,7 @@ class GaussNewtonEDM(optx.AbstractGaussNewton):
     Args:
         rtol, atol, norm: kept for optimistix's interface (the named solvers are made with them); not
             used: the EDM is the only stop (module docstring).
-        flat, rcond: the directions left out (:data:`FLAT`, :data:`RCOND`).
+        rcond: the directions left out (:data:`RCOND`; those :data:`DETERMINED` by the noise are kept).
         edm_tolerance: τ of the EDM stop (:data:`EDM_TOLERANCE`).
     """
 
@@ -144,12 +145,11 @@ class GaussNewtonEDM(optx.AbstractGaussNewton):
         atol: float,
         norm: Callable[[PyTree], Float[Array, ""]] = optx.rms_norm,
         *,
-        flat: float = FLAT,
         rcond: float = RCOND,
         edm_tolerance: float = EDM_TOLERANCE,
     ):
         self.rtol, self.atol, self.norm = rtol, atol, norm
-        self.descent = _TruncatedNewtonDescent(flat, rcond)
+        self.descent = _TruncatedNewtonDescent(rcond)
         self.search = optx.BacktrackingArmijo(decrease_factor=0.5, slope=1e-4)
         self.verbose = _quiet
         self.edm_tolerance = edm_tolerance
@@ -163,7 +163,7 @@ class GaussNewtonEDM(optx.AbstractGaussNewton):
     def settled(self, jac: Float[Array, "m n"], residual: Float[Array, " m"]) -> jax.Array:
         """Whether a point with this Jacobian and these residuals meets this solver's stop (traced):
         :func:`fitting._solve.solve_rows` asks it of a start the solve returned unmoved."""
-        _, edm = truncated_step(jac, residual, flat=self.descent.flat, rcond=self.descent.rcond)
+        _, edm = truncated_step(jac, residual, rcond=self.descent.rcond)
         return settled(edm, residual, self.edm_tolerance)
 
 

@@ -136,26 +136,30 @@ def test_a_start_that_meets_the_stop_is_converged_not_stopped_at_start():
     assert fitting._solve.result_name(int(code)) == "successful"
 
 
-def test_directions_flatter_than_the_noise_are_left_where_they_started():
-    """A linear problem whose last column is scaled down until its curvature λ·m/‖r‖² is below FLAT while its
-    eigenvalue is far above RCOND × the largest (high signal-to-noise elsewhere): that coordinate keeps its start,
-    the others are NumPy's lstsq of the problem without it (the step is the least-squares step of the kept
-    directions: the other coordinates up to the tiny coupling, so to 1e-6)."""
+@pytest.mark.parametrize("scale, kept", [(3e-3, False), (0.5, True)])
+def test_relatively_tiny_directions_are_left_out_unless_the_noise_determines_them(scale, kept):
+    """A linear problem whose last column is scaled down until its eigenvalue is below RCOND × the largest (the
+    others high signal-to-noise). Flatter than the noise too (curvature λ·m/‖r‖² < DETERMINED): that coordinate
+    keeps its start (lstsq would move it by ≈ −70) and the others are the least-squares solution without it.
+    Determined by the noise (curvature ≥ DETERMINED): it is fitted like the others — NumPy's lstsq of the whole
+    problem — rather than left where it started and then reported determined."""
     A, b = _linear_problem()
-    A = A * np.array([1e2, 1e2, 1e2, 3e-3])  # λ of the last ≈ 4.5e-4, ≈ 5e-10 of λ_max ≈ 8e5: far above RCOND
-    curvature = np.sum(A[:, 3] ** 2) * len(b) / np.sum((A @ np.linalg.lstsq(A, b, rcond=None)[0] - b) ** 2)
-    assert (
-        curvature < fitting._gauss_newton.FLAT
-        and np.sum(A[:, 3] ** 2) > 100 * fitting._gauss_newton.RCOND * np.linalg.norm(A, 2) ** 2
-    )
+    A = A * np.array([1e5, 1e5, 1e5, scale])
+    lam, lam_max = np.sum(A[:, 3] ** 2), np.linalg.norm(A, 2) ** 2
+    curvature = lam * len(b) / np.sum((A @ np.linalg.lstsq(A, b, rcond=None)[0] - b) ** 2)
+    assert lam < 0.1 * fitting._gauss_newton.RCOND * lam_max
+    assert (curvature >= fitting._gauss_newton.DETERMINED) == kept
     start = np.array([0.0, 0.0, 0.0, 0.7])
     sol = optx.least_squares(
         lambda t, _: jnp.asarray(A) @ t - jnp.asarray(b), GaussNewtonEDM(1e-6, 1e-6), jnp.asarray(start), max_steps=64
     )
     theta = np.asarray(sol.value)
-    assert theta[3] == pytest.approx(start[3], abs=1e-6)  # lstsq moves it by ≈ −70 (kept eigenvectors: ~1e-9)
-    expected = np.linalg.lstsq(A[:, :3], b - A[:, 3] * start[3], rcond=None)[0]
-    np.testing.assert_allclose(theta[:3], expected, rtol=1e-6, atol=0)
+    if kept:
+        np.testing.assert_allclose(theta, np.linalg.lstsq(A, b, rcond=None)[0], rtol=1e-6, atol=0)
+    else:
+        assert theta[3] == pytest.approx(start[3], abs=1e-6)  # the kept eigenvectors' share of it: ~1e-9
+        expected = np.linalg.lstsq(A[:, :3], b - A[:, 3] * start[3], rcond=None)[0]
+        np.testing.assert_allclose(theta[:3], expected, rtol=1e-6, atol=0)
 
 
 @pytest.mark.parametrize("lanes", [None, "all"])
