@@ -157,14 +157,14 @@ class GaussNewtonEDM(optx.AbstractGaussNewton):
     def terminate(self, fn, y, args, options: dict[str, Any], state, tags) -> tuple[Bool[Array, ""], optx.RESULTS]:
         # the EDM of the last accepted point (infinite before the first step); optimistix's own test
         # (state.terminate) is not used: module docstring
-        residual, _ = jfu.ravel_pytree(state.f_info.residual)
-        return settled(state.descent_state.edm, residual, self.edm_tolerance), state.result
+        return self.settled(state), state.result
 
-    def settled(self, jac: Float[Array, "m n"], residual: Float[Array, " m"]) -> jax.Array:
-        """Whether a point with this Jacobian and these residuals meets this solver's stop (traced):
+    def settled(self, state) -> jax.Array:
+        """Whether the last accepted point of a solve that ended in ``state`` (``Solution.state``) meets this
+        solver's stop (traced; the EDM its final descent computed there, not decomposed again):
         :func:`fitting._solve.solve_rows` asks it of a start the solve returned unmoved."""
-        _, edm = truncated_step(jac, residual, rcond=self.descent.rcond)
-        return settled(edm, residual, self.edm_tolerance)
+        residual, _ = jfu.ravel_pytree(state.f_info.residual)
+        return settled(state.descent_state.edm, residual, self.edm_tolerance)
 
 
 def _quiet(**kwargs) -> None:

@@ -92,6 +92,13 @@ class AbstractModel(Shown, eqx.Module):
     #: hundreds of coordinates a jittered copy of its data-driven start does not explore, takes 1.
     preferred_starts: ClassVar[int] = FIT.model_starts
 
+    #: Whether ``brdfscale fit`` and :func:`brdfscale.library.fit_library` sample this model's posterior
+    #: when a sampler is asked for without a number of steps (``--steps`` / ``FitSpec.steps`` None; the rule
+    #: of :meth:`brdfscale.library.FitSpec.not_sampled_because`): True; the anisotropic non-parametric
+    #: model, whose hundreds of coordinates make a chain far slower than its fit, keeps its Laplace
+    #: uncertainties unless steps are given.
+    sampled_by_default: ClassVar[bool] = True
+
     @property
     @abc.abstractmethod
     def names(self) -> tuple[str, ...]:

@@ -159,7 +159,8 @@ class AnisotropicNonParametricModel(AbstractModel):
             ``N = next_fast_len((1 + padding) · g)``.
 
     θ = (``log base[r,c]`` row-major (row: y), then per coarser scale k and function f the
-    profile values ``P_{k,f}(ρ_j)/v`` (j from 0, from 1 for the harmonics n ≥ 2)).
+    profile values ``P_{k,f}(ρ_j)/v`` (j from 0, from 1 for the harmonics n ≥ 2)), named
+    ``"P{k}[{f}](W={ρ_j}) [v]"`` — in units of v; no "/" in a name, which NetCDF (posterior.nc) refuses).
 
     Raises:
         InvalidInputError: ``data`` not a :class:`~fitting.Dataset`, an image without a positive
@@ -176,6 +177,8 @@ class AnisotropicNonParametricModel(AbstractModel):
     # EDM-stopped Gauss–Newton from the one data-driven start (docs/fitting.md; experiments/nonparametric_solvers.py)
     preferred_solver: ClassVar[str] = "gauss_newton_edm"
     preferred_starts: ClassVar[int] = 1
+    # a chain over those coordinates is far slower than the fit: Laplace unless steps are asked for
+    sampled_by_default: ClassVar[bool] = False
     pitch: float = eqx.field(static=True)
     origin: float = eqx.field(static=True)
     grid_points: int = eqx.field(static=True)
@@ -247,7 +250,7 @@ class AnisotropicNonParametricModel(AbstractModel):
         nb = self.base_nodes
         base = tuple(f"log base[{r},{c}]" for r in range(nb) for c in range(nb))
         profiles = tuple(
-            f"P{k}[{name}](W={self.knots[j]:.4g})/v"
+            f"P{k}[{name}](W={self.knots[j]:.4g}) [v]"
             for k in range(1, self.n_scales)
             for f, name in enumerate(self._functions)
             for j in range(self._first_knot(f), len(self.knots))

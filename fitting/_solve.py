@@ -239,7 +239,7 @@ def solve_rows(rows, y0, solver, max_steps):
     at_start = jnp.all(sol.value == y0)
     stationary = _stationary(rows, sol.value, residuals, jac)
     if isinstance(solver, GaussNewtonEDM):  # a start that meets its stop is stationary by its own test
-        stationary = stationary | solver.settled(jac, residuals)
+        stationary = stationary | solver.settled(sol.state)
     code = jnp.where(
         successful & at_start & ~stationary,
         RESULT_NAMES.index("stopped_at_start"),

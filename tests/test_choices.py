@@ -145,14 +145,16 @@ def test_every_name_in_the_table_is_accepted_by_fitting():
                     fitting.ParametricModel(family, family, law=law)
             else:
                 assert fitting.ParametricModel(family, family, law=law).names
-    assert {
+    classes = {
         "parametric": fitting.ParametricModel,
         "nonparametric": fitting.NonParametricModel,
         "anisotropic": fitting.AnisotropicModel,
         "isotropic": fitting.AnisotropicModel,
         "anisotropic_law": fitting.AnisotropicLawModel,
         "nonparametric_anisotropic": fitting.AnisotropicNonParametricModel,
-    }.keys() == set(choices.MODELS)
+    }
+    assert classes.keys() == set(choices.MODELS)
+    assert all(library.model_class(name) is cls for name, cls in classes.items())  # the one name → class table
     for shape in choices.SHAPES:
         assert fitting.AnisotropicModel(2, shape=shape).shape == shape
 

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 import brdfscale._files
-from brdfscale import InvalidInputError, library, MeasurementFileError, OutputWriteError
+from brdfscale import choices, InvalidInputError, library, MeasurementFileError, OutputWriteError
 from brdfscale._watchdog import alive, descendants
 from tests.helpers import run_cli, write_library
 
@@ -321,3 +321,19 @@ def test_an_index_recorded_before_starts_auto_is_continued():
     nonparametric = {**old, "model": "nonparametric_anisotropic"}
     assert spec_differences(nonparametric, library.FitSpec(model="nonparametric_anisotropic")) == "starts=8"
     assert spec_differences({"model": "parametric"}, library.FitSpec()) == "model='parametric'"
+
+
+def test_a_model_not_sampled_by_default_keeps_laplace_unless_steps_are_given():
+    """FitSpec.not_sampled_because, the rule of ``brdfscale fit`` and fit_library: the anisotropic non-parametric
+    model (``sampled_by_default`` False, looked up through the one name → class table) is not sampled when a
+    sampler is asked for without steps, and the reason says how to sample it; with steps, or for any other model,
+    the rule is the inadequacy one (here switched off by sample_inadequate, so no fit is needed)."""
+    assert not library.model_class("nonparametric_anisotropic").sampled_by_default
+    assert all(library.model_class(m).sampled_by_default for m in choices.MODELS if m != "nonparametric_anisotropic")
+    spec = library.FitSpec(model="nonparametric_anisotropic", sampler="auto", sample_inadequate=True)
+    reason = spec.not_sampled_because(None, None)
+    assert "--steps N" in reason and "Laplace" in reason
+    assert library.FitSpec(model="nonparametric_anisotropic", sampler=None).not_sampled_because(None, None) is None
+    given = library.FitSpec(model="nonparametric_anisotropic", sampler="nuts", steps=50, sample_inadequate=True)
+    assert given.not_sampled_because(None, None) is None
+    assert library.FitSpec(sampler="auto", sample_inadequate=True).not_sampled_because(None, None) is None

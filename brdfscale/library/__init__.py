@@ -15,7 +15,7 @@ sampler that runs per material: emcee, imh, auto).
 """
 
 from ._run import find_materials, fit_library, INDEX, LibraryResult
-from ._spec import FitSpec, make_model
+from ._spec import FitSpec, make_model, model_class
 
 
-__all__ = ["fit_library", "FitSpec", "LibraryResult", "find_materials", "make_model", "INDEX"]
+__all__ = ["fit_library", "FitSpec", "LibraryResult", "find_materials", "make_model", "model_class", "INDEX"]

@@ -10,7 +10,19 @@ from .._choices import FAMILIES, FIT, LAWS, MASKING, MODEL, MODELS, SAMPLE, SAMP
 from .._errors import InvalidInputError
 
 
-__all__ = ["FitSpec", "make_model"]
+__all__ = ["FitSpec", "make_model", "model_class"]
+
+#: The fitting class each name of :data:`brdfscale.choices.MODELS` builds (``fitting.<name>``): the one
+#: name → class decision, for :func:`make_model` and for what a spec asks of a class before any data
+#: (:meth:`FitSpec.starts_count`, :meth:`FitSpec.not_sampled_because`).
+_MODEL_CLASSES = {
+    "anisotropic": "AnisotropicModel",
+    "isotropic": "AnisotropicModel",
+    "anisotropic_law": "AnisotropicLawModel",
+    "parametric": "ParametricModel",
+    "nonparametric": "NonParametricModel",
+    "nonparametric_anisotropic": "AnisotropicNonParametricModel",
+}
 
 
 def _fitting() -> types.ModuleType:
@@ -19,6 +31,16 @@ def _fitting() -> types.ModuleType:
     from .. import fitting
 
     return fitting
+
+
+def model_class(model: str) -> type:
+    """The :mod:`fitting` class that the model name ``model`` (:data:`brdfscale.choices.MODELS`) builds.
+
+    Raises:
+        InvalidInputError: not a model name (naming those accepted).
+    """
+    MODELS.check(model)
+    return getattr(_fitting(), _MODEL_CLASSES[model])
 
 
 def make_model(
@@ -46,10 +68,10 @@ def make_model(
     """
     fitting = _fitting()
     fixed = dict(fixed or {})
-    MODELS.check(model)
+    cls = model_class(model)
     if model == "parametric":
         try:
-            built = fitting.ParametricModel(family, family, law=law, fixed=fixed)
+            built = cls(family, family, law=law, fixed=fixed)
             fitting.Problem(built, data)  # fixed values inside their prior box for these data
         except InvalidInputError as err:
             if not fixed:
@@ -64,14 +86,14 @@ def make_model(
         }
     elif model in ("anisotropic", "isotropic"):
         isotropic = model == "isotropic"
-        built = fitting.AnisotropicModel(len(data.scales), isotropic=isotropic, shape=shape)
+        built = cls(len(data.scales), isotropic=isotropic, shape=shape)
         info = {
             "kind": model,
             "lobe": f"{shape} ({'isotropic, centred' if isotropic else 'full covariance, free centre'})",
             "scale_law": "ΔΣ per scale" + (" (d_k I)" if isotropic else " (full 2 × 2)"),
         }
     elif model == "anisotropic_law":
-        built = fitting.AnisotropicLawModel(law, scales=data.scales, shape=shape)
+        built = cls(law, scales=data.scales, shape=shape)
         axes = "α_a a width law" if law == "width" else "ln σ_a a monotone spline in ln μ"
         info = {
             "kind": model,
@@ -85,7 +107,7 @@ def make_model(
                 "(the automatic choice is the isotropic non-parametric model's)."
             )
         weight = MODEL.smoothness if regularisation is None else regularisation
-        built = fitting.AnisotropicNonParametricModel(data, base_nodes=base_nodes, n_knots=knots, regularisation=weight)
+        built = cls(data, base_nodes=base_nodes, n_knots=knots, regularisation=weight)
         info = {
             "kind": "nonparametric_anisotropic",
             "base_nodes": built.base_nodes,
@@ -94,7 +116,7 @@ def make_model(
             "smoothness": built.smoothness,
         }
     else:
-        built = fitting.NonParametricModel(data, base_nodes=base_nodes, n_knots=knots, regularisation=regularisation)
+        built = cls(data, base_nodes=base_nodes, n_knots=knots, regularisation=regularisation)
         info = {
             "kind": "nonparametric",
             "base_nodes": built.base_nodes,
@@ -176,13 +198,7 @@ class FitSpec:
         """The number of starts ``starts`` (default: this spec's) means for this spec's model: an integer as it is,
         ``"auto"`` the model's ``preferred_starts`` (:func:`fitting.resolve_starts`; 1 for the anisotropic
         non-parametric model, 8 for the others)."""
-        fitting = _fitting()
-        kind = (
-            fitting.AnisotropicNonParametricModel
-            if self.model == "nonparametric_anisotropic"
-            else fitting.AbstractModel
-        )
-        return fitting.resolve_starts(self.starts if starts is None else starts, [kind])
+        return _fitting().resolve_starts(self.starts if starts is None else starts, [model_class(self.model)])
 
     def model_for(self, data):
         """:func:`make_model` with these options: ``(model, info)``."""
@@ -219,10 +235,19 @@ class FitSpec:
 
     def not_sampled_because(self, problem, fit, *, unit: str | None = None) -> str | None:
         """Why this spec does not sample ``fit`` of ``problem``, or None where it samples it: it samples (``sampler``
-        set), ``sample_inadequate`` is False and :func:`fitting.assess` of the fit without samples (computed only
+        set), and either ``steps`` is None for a model not ``sampled_by_default`` (the anisotropic non-parametric
+        model) or ``sample_inadequate`` is False and :func:`fitting.assess` of the fit without samples (computed only
         then; ``unit`` the scales' length unit) says "inadequate". The reason is what :func:`fitting.write_report`'s
         ``not_sampled`` records."""
-        if self.sampler is None or self.sample_inadequate:
+        if self.sampler is None:
+            return None
+        if self.steps is None and not model_class(self.model).sampled_by_default:
+            return (
+                f"the {self.model} model's posterior is sampled only where steps are given (--steps N, "
+                "FitSpec(steps=N)): its hundreds of coordinates make a chain far slower than the fit; the "
+                "uncertainties are the Laplace approximation's"
+            )
+        if self.sample_inadequate:
             return None
         if _fitting().assess(problem, fit, unit=unit).status != "inadequate":
             return None
