@@ -37,6 +37,11 @@ def di_field():
     return topography.read(DI)
 
 
+def doc_mask(path):
+    """The measured pixels of an instrument file as read (None: all)."""
+    return topography.read(path, detrend=None).mask
+
+
 def _status(argv) -> int:
     """The exit status of ``brdfscale ARGV``, argparse's usage errors (SystemExit) included."""
     try:
@@ -75,12 +80,17 @@ def test_outputs_agree_with_facet_statistics(tmp_path, capsys, di_field):
     assert (out / "statistics.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_unmeasured_pixels_are_counted_as_excluded_windows(tmp_path):
+def test_unmeasured_pixels_are_counted_as_excluded_windows(tmp_path, capsys):
     out = tmp_path / "frt"
     assert (
         _status(["topography", FRT, "--scales", "auto:2", "--bins", "17", "--detrend", "none", "--out", str(out)]) == 0
     )
     doc = json.loads((out / "statistics.json").read_text(encoding="utf-8"))
+    # frt-1's heights lie on a lattice (topography.height_quantum): said on stdout and in statistics.md
+    quantum = doc["topography"]["height_quantum"]
+    assert quantum == topography.height_quantum(topography.read(FRT, detrend=None).heights, doc_mask(FRT))
+    said = f"heights quantised in steps of {quantum:.4g} m: pixel slopes on a lattice of {quantum / 2.4e-5:.4g} (x)"
+    assert said in capsys.readouterr().out and said in (out / "statistics.md").read_text(encoding="utf-8")
     field = doc["field"]
     assert field["unmeasured_pixels"] > 0.2 * 500 * 500 and doc["topography"]["detrend"] is None
     for row in doc["scales"]:

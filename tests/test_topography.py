@@ -390,3 +390,66 @@ def test_facet_windows_on_arbitrary_masked_rectangles(ny, nx, pitch, missing, se
         if s.count > 1:
             assert np.allclose(s.covariance, np.cov(windows.T), rtol=1e-9, atol=1e-12)
             assert np.all(np.isfinite(s.covariance_error)) and s.independent <= s.count
+
+
+# -- height quantisation (issue 31: the lobes of a quantised file are combs) ---------------------------------------
+
+
+def test_the_height_quantum_of_real_files_and_of_rounded_heights(st):
+    """plu-1 stores heights in steps of 2⁻⁸ µm (every neighbour difference a whole multiple of it, checked on the
+    raw file here, not by the function); di-3 is on a lattice too; opd-1's 1e-14 m gaps are float noise of
+    unquantised heights (more distinct heights than half the pixels): None. Rounded random heights give their
+    step, unrounded ones None; NaN and masked entries are left out."""
+    plu = topography.read(DATA / "plu-1.plu")
+    raw = topography.read(DATA / "plu-1.plu", detrend=None).heights
+    steps = np.abs(np.diff(raw, axis=1)) / (2**-8 * 1e-6)
+    assert np.all(np.abs(steps - np.round(steps)) < 1e-6)  # the lattice, seen directly
+    assert plu.description["height_quantum"] == pytest.approx(2**-8 * 1e-6, rel=1e-9)
+    assert topography.read(DATA / "opd-1.opd").description["height_quantum"] is None
+    assert topography.read(DATA / "di-3.di").description["height_quantum"] > 0
+    rng = np.random.default_rng(0)
+    h = rng.normal(size=(64, 64)) * 5.0
+    assert topography.height_quantum(h) is None
+    q = 0.37
+    rounded = np.round(h / q) * q
+    assert topography.height_quantum(rounded) == pytest.approx(q, rel=1e-9)
+    rounded[3, 4] = np.nan
+    mask = np.ones(h.shape, bool)
+    mask[5, :] = False
+    rounded[5, :] = h[5, :]  # unquantised but masked
+    assert topography.height_quantum(rounded, mask) == pytest.approx(q, rel=1e-9)
+    assert topography.height_quantum(rounded) is None  # unmasked, the off-lattice row breaks the lattice
+    assert topography.height_quantum(np.zeros((4, 4))) is None
+    field = topography.from_array(np.round(h / q) * q, 1.0, unit="µm")
+    assert field.description["height_quantum"] == pytest.approx(q * 1e-6, rel=1e-9)  # in metres
+    with pytest.raises(InvalidInputError, match="mask must have the shape"):
+        topography.height_quantum(h, np.ones((3, 3), bool))
+
+
+def test_synth_blurs_a_quantised_files_comb_by_default(st):
+    """``brdfscale synth --topography``'s default resolution on plu-1 is its slope quantum (4.8 image pixels, above
+    the 2 pixels of an unquantised file): the coarse lobe's spectrum at the comb's frequency (one quantum) falls
+    from 4.8 % of its mass (2 pixels) to below 1e-4."""
+    from brdfscale._cli._synth import default_resolution, TOPOGRAPHY_RESOLUTION
+
+    field = topography.read(DATA / "plu-1.plu")
+    extent, pixels = synth.robust_extent(field), 65
+    quantum = field.description["height_quantum"] / field.spacing[0]
+    resolution, text = default_resolution(field, extent, pixels)
+    assert resolution == pytest.approx(quantum) and "slope quantum" in text
+    two_pixels = TOPOGRAPHY_RESOLUTION * 2 * extent / (pixels - 1)
+    assert quantum > two_pixels
+    unquantised = topography.read(DATA / "opd-1.opd")
+    assert default_resolution(unquantised, extent, pixels) == (two_pixels, f"2 image pixels: {two_pixels:.6g}")
+
+    def comb(resolution):
+        mset = synth.gonioreflectometer(
+            field, [64 * field.spacing[0]], np.array([[0, 0, 1.0]]), extent=extent, pixels=pixels, resolution=resolution
+        )
+        spectrum = np.abs(np.fft.fft2(np.asarray(mset.images[0].values)))
+        k = round(2 * extent / quantum)  # the comb's cycles across the image
+        near = range(-k - 1, k + 2)
+        ring = [spectrum[i, j] for i in near for j in near if max(abs(i), abs(j)) >= k - 1]
+        return max(ring) / spectrum[0, 0]
+
+    assert comb(two_pixels) > 0.03 and comb(resolution) < 1e-4

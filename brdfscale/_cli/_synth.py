@@ -11,7 +11,8 @@ Defaults made for ``brdfscale fit`` (README's measured-surface chain): the image
 robust slope quantiles (:func:`brdfscale.synth.robust_extent`, never the steepest pixel); with
 --topography, Poisson noise with read noise (:data:`TOPOGRAPHY_NOISE`: every image stores σ) and
 an instrument resolution of :data:`TOPOGRAPHY_RESOLUTION` image pixels (a mirror pixel facet's lobe
-at the finest scale is then a resolved spot). Each choice is recorded in the file's metadata
+at the finest scale is then a resolved spot), or of the file's slope quantum where its heights are quantised
+and that is larger (:func:`default_resolution`). Each choice is recorded in the file's metadata
 (``defaults``).
 """
 
@@ -29,6 +30,26 @@ TOPOGRAPHY_NOISE = "poisson:200:1"
 """--noise's default with --topography: 200 counts per unit lobe value and 1 count of Gaussian read noise."""
 TOPOGRAPHY_RESOLUTION = 2.0
 """--resolution's default with --topography, in image pixel pitches ``2·extent/(pixels − 1)``."""
+
+
+def default_resolution(field, extent: float, pixels: int) -> tuple[float, str]:
+    """--resolution's default with --topography and the metadata's words for it: :data:`TOPOGRAPHY_RESOLUTION`
+    image pixels, or the field's slope quantum where that is larger — the height step of a quantised file
+    (``field.description["height_quantum"]``, :func:`brdfscale.topography.height_quantum`) over the smaller pixel
+    pitch. Its pixel slopes lie on a lattice of that step, so its within-facet lobes are combs of spikes one
+    quantum apart, the instrument's digitisation rather than the surface's; a Gaussian blur of one quantum's
+    standard deviation leaves of the comb a relative ripple of 2·exp(−2π²) ≈ 5e-9. On tests/data's plu-1 (a
+    quantum of 4.8 image pixels) the coarse lobe's spectrum at the comb's frequency is above 3 % of its mass with
+    2 image pixels and below 1e-4 with one quantum (tests/test_topography.py)."""
+    pixel = TOPOGRAPHY_RESOLUTION * 2 * extent / (pixels - 1)
+    quantum = field.description.get("height_quantum")
+    slope_quantum = 0.0 if quantum is None else quantum / min(field.spacing)
+    if slope_quantum > pixel:
+        return slope_quantum, (
+            f"the slope quantum (height step {quantum:.4g} m / pitch {min(field.spacing):.4g} m), above "
+            f"{TOPOGRAPHY_RESOLUTION:g} image pixels: {slope_quantum:.6g}"
+        )
+    return pixel, f"{TOPOGRAPHY_RESOLUTION:g} image pixels: {pixel:.6g}"
 
 
 def _incident(text: str) -> tuple[float, float, float]:
@@ -136,7 +157,9 @@ def register(subparsers) -> None:
         default=None,
         help="instrument blur, slope std, 0–10; default 0 for SURFACE, for --topography "
         f"{TOPOGRAPHY_RESOLUTION:g} image pixels (2·extent/(pixels − 1) each): an instrument resolves no finer "
-        "than its pixels, and the finest scale's lobe of mirror pixel facets is then a resolved spot, not one pixel",
+        "than its pixels, and the finest scale's lobe of mirror pixel facets is then a resolved spot, not one pixel; "
+        "or the file's slope quantum (height step / pitch) where its heights are quantised and that is larger: "
+        "its lobes are otherwise combs of spikes one quantum apart",
     )
     parser.add_argument(
         "--micro-alpha",
@@ -322,17 +345,15 @@ def run(args) -> int:
         return _raytraced(args, field, mus, incident, extent, seed_value, noise_seed, command, source)
     noise = args.noise if args.noise is not None else _noise(TOPOGRAPHY_NOISE) if topography else "none"
     noise = None if noise == "none" else noise
-    resolution = args.resolution
+    resolution, resolution_text = args.resolution, None
     if resolution is None:
-        resolution = TOPOGRAPHY_RESOLUTION * 2 * extent / (args.pixels - 1) if topography else 0.0
+        resolution, resolution_text = default_resolution(field, extent, args.pixels) if topography else (0.0, "0")
     defaults = {
         "extent": None
         if args.extent is not None
         else f"robust_extent: 1.5 × the 99th percentile of the pixel slopes' |m − m̄|: {extent:.6g}",
         "noise": None if args.noise is not None else (TOPOGRAPHY_NOISE if topography else "none"),
-        "resolution": None
-        if args.resolution is not None
-        else (f"{TOPOGRAPHY_RESOLUTION:g} image pixels: {resolution:.6g}" if topography else "0"),
+        "resolution": resolution_text,
     }
     mset = synth.gonioreflectometer(
         field,

@@ -234,7 +234,17 @@ def summary_line(doc: dict) -> str:
         + f", channel {ch.get('index')} {ch.get('name')!r}"
         + f", detrend {trend}, {f['unmeasured_pixels']} unmeasured pixels"
         + (f"\n{square_note(square)}" if square else "")
+        + (f"\n{quantum_note(d['height_quantum'], dx, dy)}" if d.get("height_quantum") else "")
         + ("\nnote: the surface is flat (every measured pixel slope is 0): Σ(μ) = 0 at every scale" if flat else "")
+    )
+
+
+def quantum_note(quantum: float, dx: float, dy: float) -> str:
+    """One line: the file's heights on a lattice (:func:`brdfscale.topography.height_quantum`), its slope quantum."""
+    return (
+        f"note: heights quantised in steps of {quantum:.4g} m: pixel slopes on a lattice of {quantum / dx:.4g} "
+        f"(x) × {quantum / dy:.4g} (y), so the lobes g_μ are combs of spikes that far apart (brdfscale synth "
+        "--topography blurs its lobes by one quantum by default where that exceeds 2 image pixels)"
     )
 
 
@@ -320,6 +330,11 @@ def markdown(doc: dict) -> str:
             else ""
         ),
         *([f"* {square_note(f['square_pixels'])[6:]}"] if f.get("square_pixels") else []),
+        *(
+            [f"* {quantum_note(doc['topography']['height_quantum'], *f['spacing_m'])[6:]}"]
+            if doc["topography"].get("height_quantum")
+            else []
+        ),
         *(["* the surface is flat: every measured pixel slope is 0"] if f.get("flat") else []),
         f"* lobes g_μ tabulated on {doc['bins']} × {doc['bins']} nodes"
         + (f" over ±{doc['lobe_extent']:.4g} (synth.robust_extent)" if doc.get("lobe_extent") else ""),

@@ -11,7 +11,8 @@ measurement set of it, and ``brdfscale fit`` fits that.
   optional extra ``pip install "brdfscale[topography]"``);
 * :func:`from_array` — your own array of heights, with its pixel pitch, unit and mask;
 * :func:`detrend` — the explicit, recorded removal of a plane or a quadratic;
-* :func:`resample` — a field onto square pixels (separable cubic convolution, recorded).
+* :func:`resample` — a field onto square pixels (separable cubic convolution, recorded);
+* :func:`height_quantum` — the instrument's height step, where its heights lie on a lattice (recorded).
 
 Damaged files: every failure of SurfaceTopography's readers becomes a
 :class:`brdfscale.MeasurementFileError` naming the file and the reason, and so does a height
@@ -27,7 +28,16 @@ are excluded. Provenance — file, format, instrument, channel, units, the detre
 coefficients — is in ``field.description``.
 """
 
-from ._array import detrend, DETRENDS, from_array, PITCH_RANGE_M, square_pitch, UNITS
+from ._array import (
+    detrend,
+    DETRENDS,
+    from_array,
+    height_quantum,
+    PITCH_RANGE_M,
+    QUANTISED_DISTINCT,
+    square_pitch,
+    UNITS,
+)
 from ._read import read
 from ._resample import INTERPOLATION, resample
 
@@ -38,6 +48,8 @@ __all__ = [
     "detrend",
     "resample",
     "square_pitch",
+    "height_quantum",
+    "QUANTISED_DISTINCT",
     "DETRENDS",
     "UNITS",
     "PITCH_RANGE_M",

@@ -128,6 +128,49 @@ def square_pitch(dx: float, dy: float) -> tuple[tuple[float, float], dict | None
     return (d, d), record
 
 
+#: A height map is quantised when fewer than this fraction of its measured pixels hold distinct heights
+#: (:func:`height_quantum`).
+QUANTISED_DISTINCT = 0.5
+
+
+def height_quantum(heights: Real[ArrayLike, "..."], mask: Bool[ArrayLike, "..."] | None = None) -> float | None:
+    """The instrument's height step: the median gap between consecutive distinct measured heights, where the
+    heights lie on a lattice — fewer than :data:`QUANTISED_DISTINCT` of the measured pixels hold distinct
+    heights and 99 % of the gaps are whole multiples of that step (to 1 %); None otherwise (unquantised heights,
+    or fewer than two distinct ones). In the unit of ``heights``; NaN entries and ``mask`` False are unmeasured.
+
+    A quantised height map puts its pixel slopes on a lattice of one *slope quantum*, step/Δ per axis: the
+    within-facet lobes of its facets are then combs of spikes one quantum apart (docs/results.md, study 5,
+    "Height quantisation"), which ``brdfscale synth --topography`` blurs away by default (its ``--resolution``).
+    :func:`from_array` records it in ``description["height_quantum"]`` (metres; before detrending, which moves
+    the heights off the lattice but keeps the slopes' step). Verified on the files in tests/data (plu-1: 2⁻⁸ µm)
+    and on rounded synthetic heights (tests/test_topography.py).
+
+    Raises:
+        InvalidInputError: heights that are not real numbers, or a mask of another shape.
+    """
+    try:
+        h = np.asarray(heights, dtype=float)
+    except (TypeError, ValueError) as err:
+        raise InvalidInputError(f"heights must be an array of real numbers; got {type(heights).__name__} ({err}).")
+    valid = np.isfinite(h)
+    if mask is not None:
+        m = boolean_mask(mask, "mask")
+        if m.shape != h.shape:
+            raise InvalidInputError(f"mask must have the shape of heights, {h.shape}; got {m.shape}.")
+        valid &= m
+    measured = h[valid]
+    distinct = np.unique(measured)
+    if len(distinct) < 2 or len(distinct) >= QUANTISED_DISTINCT * measured.size:
+        return None
+    gaps = np.diff(distinct)
+    step = float(np.median(gaps))
+    multiple = gaps / step
+    if np.mean(np.abs(multiple - np.round(multiple)) <= 0.01) < 0.99:
+        return None
+    return step
+
+
 def from_array(
     heights: Real[ArrayLike, "ny nx"],
     spacing,
@@ -221,6 +264,8 @@ def from_array(
         raise InvalidInputError("no height is measured: every entry is NaN or masked.")
     if min(h.shape) < 4:
         raise InvalidInputError(f"heights must be at least 4 × 4 pixels (rows y, columns x); got shape {h.shape}.")
+    with np.errstate(over="ignore"):  # the lattice of the heights given, before detrending moves them off it
+        quantum = height_quantum(h, valid)
     with np.errstate(over="ignore"):  # heights beyond float64 in metres are refused by HeightField
         h, trend = _fit_trend(np.where(valid, h, 0.0) * scale, mode, valid)
     if not np.all(np.isfinite(h)):
@@ -237,6 +282,7 @@ def from_array(
         "spacing": list(spacing_m),
         **({"square_pixels": square} if square else {}),
         "unmeasured": int(np.count_nonzero(~valid)),
+        "height_quantum": None if quantum is None else quantum * scale,  # metres; None: not quantised
         **(dict(description) if description else {}),
     }
     return HeightField(
