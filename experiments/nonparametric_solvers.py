@@ -17,8 +17,10 @@ least-squares problem on experiments/bench_anisotropic.py's synthetic set (8 sca
    ``rcond`` — fitting._gauss_newton; ``starts="auto"``: 1), twice — the first call compiles: wall time, result,
    steps (accepted and rejected trial points), χ².
 
-Model: ``fitting.AnisotropicNonParametricModel(data, base_nodes=13, n_knots=8)`` — the command's defaults
-(``brdfscale.choices.MODEL``), regularisation 3.
+Model: ``fitting.AnisotropicNonParametricModel(data, base_nodes=13, n_knots=8, odd_harmonics=0)`` — the
+command's defaults (``brdfscale.choices.MODEL``), regularisation 3, without the odd part (R_k's phase, added to
+the model after this study; its default ``odd_harmonics=2`` adds 4 × 9 × 7 = 252 coordinates): the study is of
+the 470-coordinate even model it was run on.
 
 Run:  flock /tmp/brdfscale-bench.lock python -m experiments.nonparametric_solvers [--iterations 80]
 Writes experiments/results/nonparametric_solvers.json.
@@ -90,7 +92,9 @@ def main(argv=None) -> dict:
         path = Path(tmp) / "m.exr"
         described = synthetic_set(path)
         data = fitting.Dataset.from_measurements(bs.exr.read_measurements(str(path)))
-    model = fitting.AnisotropicNonParametricModel(data, base_nodes=MODEL.base_nodes, n_knots=MODEL.knots)
+    model = fitting.AnisotropicNonParametricModel(
+        data, base_nodes=MODEL.base_nodes, n_knots=MODEL.knots, odd_harmonics=0
+    )
     problem = fitting.Problem(model, data)
     theta0 = jnp.asarray(model.initial(data))
     payload = {

@@ -427,15 +427,9 @@ def consistency_test(
 
 
 def height_quantum(path) -> float | None:
-    """The instrument's height step (m): the median gap between consecutive distinct measured
-    heights of the file as read (no detrending), when fewer than half the pixels have distinct
-    heights (the heights are then a lattice); None for unquantised data."""
-    raw = topography.read(path, detrend=None)
-    h = raw.heights if raw.mask is None else raw.heights[raw.mask]
-    distinct = np.unique(h)
-    if len(distinct) >= 0.5 * h.size or len(distinct) < 2:
-        return None
-    return float(np.median(np.diff(distinct)))
+    """The instrument's height step (m) of the file, :func:`brdfscale.topography.height_quantum` as
+    :func:`brdfscale.topography.read` records it; None for unquantised data."""
+    return topography.read(path, detrend=None).description["height_quantum"]
 
 
 # -- masking and shadowing ----------------------------------------------------------------------

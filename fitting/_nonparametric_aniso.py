@@ -3,39 +3,45 @@ per coarser scale the relative statistics ``R_k(W) = S(W, μ0)/S(W, μ_k)`` over
 (docs/fitting.md, "The anisotropic non-parametric model").
 
 Seed Eq. 4.4, ``G(W, μ_k) = G(W, μ0) R_k(W)``, needs of the statistics only ``R_k``. This model
-writes its logarithm in polar W = ρ(cos φ, sin φ) as
+writes its logarithm in polar W = ρ(cos φ, sin φ) as an even and an odd part,
 
-    D_k(W) = −log R_k(W) = ρ² Σ_f P_{k,f}(ρ) A_f(φ),
-    A_f ∈ {1, cos 2φ, sin 2φ, cos 4φ, sin 4φ, …, cos 2Nφ, sin 2Nφ}   (N = ``harmonics``),
+    log R_k(W) = −D_k(W) + i Ψ_k(W),
+    D_k(W) = ρ² Σ_f P_{k,f}(ρ) A_f(φ),   A_f ∈ {1, cos 2φ, sin 2φ, …, cos 2Nφ, sin 2Nφ}   (N = ``harmonics``),
+    Ψ_k(W) = ρ³ Σ_g Q_{k,g}(ρ) B_g(φ),   B_g ∈ {cos φ, sin φ, cos 3φ, sin 3φ, …, sin (2M−1)φ}   (M = ``odd_harmonics``),
 
-each radial profile ``P_{k,f}`` piecewise linear in ρ on the knots ``ρ_j = j W_max/J``
-(j = 0 … J) and constant beyond ``W_max``; the profiles of the harmonics n ≥ 2 vanish at ρ = 0,
+each radial profile ``P_{k,f}``, ``Q_{k,g}`` piecewise linear in ρ on the knots ``ρ_j = j W_max/J``
+(j = 0 … J) and constant beyond ``W_max``; the profiles of the even harmonics n ≥ 2 vanish at ρ = 0,
 so that ``D_k`` is twice differentiable at W = 0 (their terms are O(ρ³)).
 
 What is imposed, and why:
 
 * ``R_k(0) = 1`` (``D_k(0) = 0``: the ρ² factor) — the relative density ``r_k`` integrates to 1;
-* ``R_k > 0`` (``exp(−D_k)``);
-* ``R_k(−W) = R_k(W)`` (even harmonics only) — ``R_k`` real: the relative density is
-  centro-symmetric, i.e. the statistics change scale without moving their mean (the mean facet
-  slope of a stationary surface is the mean of its gradient at every scale) and without odd
-  cumulants (skewness changes are neglected). The base lobe carries any centre and skew;
+* ``R_k(−W) = conj R_k(W)`` (D even, Ψ odd) — the relative density is real;
+* no linear term in Ψ (the ρ³ factor) — the statistics change scale without moving their mean (the mean facet
+  slope of a stationary surface is the mean of its gradient at every scale); the base lobe carries any centre;
 * a smoothness prior: second differences of every profile across the knots, times
   ``regularisation`` (in units of the reference variance v = the finest lobe's half-maximum
-  variance, so the weight is dimensionless), appended as residual rows.
+  variance, and v^{3/2} for the odd profiles, so the weight is dimensionless), appended as residual rows.
 
-Not imposed: ``R_k ≤ 1``, a positive density ``r_k``, ordering in μ (``D_{k+1} ≥ D_k``). They
+Not imposed: ``|R_k| ≤ 1``, a positive density ``r_k``, ordering in μ (``D_{k+1} ≥ D_k``). They
 hold when coarse-graining is a convolution by a density, as for Gaussian statistics, but not for
 every measured pair of slope densities, and the data judge them.
+
+Why an odd part: the within-facet lobes of a measured surface change their skewness with the facet size. On the
+lobes synthesised from tests/data's plu-1 (``brdfscale synth --topography``) the skewness along x runs −0.003,
+−0.017, −0.038, −0.045, −0.026, … over the scales, and the fit without an odd part (``odd_harmonics=0``, the
+model's form before) left residual stripes across u_x whose χ²/dof per scale followed that skewness (3 to 84);
+docs/fitting.md, "The anisotropic non-parametric model", has the measured figures.
 
 The covariance difference is exact from θ: near 0, ``D_k ≈ ρ²(a + b cos 2φ + c sin 2φ) =
 a(W_x² + W_y²) + b(W_x² − W_y²) + 2c W_x W_y = ½ Wᵀ ΔΣ_k W`` with a, b, c the profiles at ρ = 0, so
 
     ΔΣ_k = −∇² log R_k(0) = 2 [[a + b, c], [c, a − b]]
 
-(:meth:`covariance_differences`; Gaussian statistics are the special case of constant profiles and
-no higher harmonics, ``R_k = exp(−½ Wᵀ ΔΣ_k W)``; ``harmonics=0`` is the isotropic case
-``R_k = exp(−ρ² P_{k,0}(ρ))``).
+(:meth:`covariance_differences`; Gaussian statistics are the special case of constant profiles,
+no higher harmonics and no odd part, ``R_k = exp(−½ Wᵀ ΔΣ_k W)``; ``harmonics=0, odd_harmonics=0`` is the
+isotropic case ``R_k = exp(−ρ² P_{k,0}(ρ))``), and so is the third cumulant the evolution adds, from the odd
+profiles at ρ = 0 (:meth:`third_cumulant_differences`).
 
 **Base lobe.** ``log g0`` is tabulated on ``base_nodes × base_nodes`` nodes, per axis dense near the
 μ0 lobe's centre and stretched (sinh) out to the edge of the largest image, and interpolated to
@@ -53,8 +59,10 @@ samples and the periodisation (what the evolved lobe puts more than ``padding`` 
 the grid's edge re-enters at the opposite edge); the base lobe is zero beyond the largest image (its
 mass there is not modelled). tests/test_nonparametric_aniso.py checks it against the closed-form
 Gaussian evolution, covariances adding, to 1e-6 of the peak (the FFT alone) and 1e-7 (the whole
-forward map at the pixels). ``R_k`` even makes ``g_k`` real, the Nyquist frequency included, so a
-real FFT (half the plane) suffices. The images are then read at their pixels by
+forward map at the pixels). ``R_k(−W) = conj R_k(W)`` makes ``g_k`` real, so a real FFT (half the plane)
+suffices (at an even N's Nyquist frequency π/h the odd part's values at ±W_y are not each other's conjugates,
+and the inverse real FFT keeps their Hermitian part: an error only where the μ0 lobe's transform, resolved by the
+pixels, is negligible). The images are then read at their pixels by
 bilinear interpolation: exact where the pixels are the model grid's nodes (images of one pitch and
 centring, as ``brdfscale synth`` writes them).
 """
@@ -151,6 +159,9 @@ class AnisotropicNonParametricModel(AbstractModel):
         base_nodes: the base lobe's ``log g0`` on ``base_nodes × base_nodes`` nodes (odd, ≥ 5).
         n_knots: J, the radial knots after ρ = 0 (≥ 1).
         harmonics: N, the highest angular harmonic ``cos 2Nφ``/``sin 2Nφ`` (0: isotropic ``R_k``).
+        odd_harmonics: M, the odd part's highest harmonic ``cos (2M−1)φ``/``sin (2M−1)φ`` (default 2:
+            ``cos φ, sin φ, cos 3φ, sin 3φ``, the whole third cumulant; 0: ``R_k`` real, the relative density
+            centro-symmetric — the model before odd parts were added).
         w_max: the last knot (default: ``6/σ_min``, σ_min the μ0 lobe's smallest standard
             deviation, where a Gaussian lobe's transform has fallen to e⁻¹⁸, capped at the model
             grid's Nyquist frequency π/h).
@@ -159,8 +170,9 @@ class AnisotropicNonParametricModel(AbstractModel):
             ``N = next_fast_len((1 + padding) · g)``.
 
     θ = (``log base[r,c]`` row-major (row: y), then per coarser scale k and function f the
-    profile values ``P_{k,f}(ρ_j)/v`` (j from 0, from 1 for the harmonics n ≥ 2)), named
-    ``"P{k}[{f}](W={ρ_j}) [v]"`` — in units of v; no "/" in a name, which NetCDF (posterior.nc) refuses).
+    profile values ``P_{k,f}(ρ_j)/v`` (j from 0, from 1 for the harmonics n ≥ 2), then its odd profiles
+    ``Q_{k,g}(ρ_j)/v^{3/2}`` (j from 0)), named ``"P{k}[{f}](W={ρ_j}) [v]"`` and ``"Q{k}[{g}](W={ρ_j}) [v^1.5]"``
+    — in units of v; no "/" in a name, which NetCDF (posterior.nc) refuses).
 
     Raises:
         InvalidInputError: ``data`` not a :class:`~fitting.Dataset`, an image without a positive
@@ -171,6 +183,7 @@ class AnisotropicNonParametricModel(AbstractModel):
     base_nodes: int = eqx.field(static=True)
     knots: tuple[float, ...] = eqx.field(static=True)
     harmonics: int = eqx.field(static=True)
+    odd_harmonics: int = eqx.field(static=True)
     smoothness: float = eqx.field(static=True)
     reference_variance: float = eqx.field(static=True)
     # hundreds of coordinates, some undetermined where the μ0 lobe is below the noise: the truncated,
@@ -194,6 +207,7 @@ class AnisotropicNonParametricModel(AbstractModel):
         base_nodes: int = 17,
         n_knots: int = 6,
         harmonics: int = 2,
+        odd_harmonics: int = 2,
         w_max: float | None = None,
         regularisation: float = MODEL.smoothness,
         padding: float = 0.5,
@@ -205,6 +219,7 @@ class AnisotropicNonParametricModel(AbstractModel):
         self.n_scales = int(data.scales.shape[0])
         self.base_nodes = base_nodes
         self.harmonics = integer(harmonics, "harmonics", 0)
+        self.odd_harmonics = integer(odd_harmonics, "odd_harmonics", 0)
         n_knots = integer(n_knots, "n_knots", 1)
         padding = real(padding, "padding", minimum=0.0, strict=True)
         self.smoothness = real(regularisation, "regularisation", minimum=0.0)
@@ -237,9 +252,22 @@ class AnisotropicNonParametricModel(AbstractModel):
         return self.base_nodes**2
 
     @property
+    def _per_scale(self) -> int:
+        """The even profile values per coarser scale: 3 functions from ρ = 0, the higher harmonics from ρ_1."""
+        J1, F = len(self.knots), len(self._functions)
+        return 3 * J1 + (F - 3) * (J1 - 1) if F > 1 else J1
+
+    @property
     def _functions(self) -> tuple[str, ...]:
         """The angular functions' names: ``1``, ``cos2φ``, ``sin2φ``, ``cos4φ``, …"""
         return ("1", *(f"{t}{2 * n}φ" for n in range(1, self.harmonics + 1) for t in ("cos", "sin")))
+
+    @property
+    def _odd_functions(self) -> tuple[str, ...]:
+        """The odd part's angular functions: ``cosφ``, ``sinφ``, ``cos3φ``, ``sin3φ``, …"""
+        return tuple(
+            f"{t}{'' if m == 1 else 2 * m - 1}φ" for m in range(1, self.odd_harmonics + 1) for t in ("cos", "sin")
+        )
 
     def _first_knot(self, f: int) -> int:
         """The first free knot of function f: 0 for the harmonics n ≤ 1, 1 above (zero at ρ = 0)."""
@@ -255,7 +283,13 @@ class AnisotropicNonParametricModel(AbstractModel):
             for f, name in enumerate(self._functions)
             for j in range(self._first_knot(f), len(self.knots))
         )
-        return base + profiles
+        odd = tuple(
+            f"Q{k}[{name}](W={w:.4g}) [v^1.5]"
+            for k in range(1, self.n_scales)
+            for name in self._odd_functions
+            for w in self.knots
+        )
+        return base + profiles + odd
 
     @property
     def radial(self) -> bool:
@@ -285,8 +319,8 @@ class AnisotropicNonParametricModel(AbstractModel):
         """``P_{k,f}(ρ_j)`` (slope units²) for k = 0 … K−1 (row 0 zero), every function f, j = 0 … J."""
         theta = jnp.asarray(theta)
         J1, F = len(self.knots), len(self._functions)
-        per_scale = 3 * J1 + (F - 3) * (J1 - 1) if F > 1 else J1
-        rows = theta[self._n_base :].reshape(self.n_scales - 1, per_scale) * self.reference_variance
+        even = theta[self._n_base : self._n_base + (self.n_scales - 1) * self._per_scale]
+        rows = even.reshape(self.n_scales - 1, self._per_scale) * self.reference_variance
         low = rows[:, : min(F, 3) * J1].reshape(self.n_scales - 1, min(F, 3), J1)
         if F > 3:
             high = rows[:, 3 * J1 :].reshape(self.n_scales - 1, F - 3, J1 - 1)
@@ -294,21 +328,49 @@ class AnisotropicNonParametricModel(AbstractModel):
             low = jnp.concatenate([low, high], axis=1)
         return jnp.concatenate([jnp.zeros((1, F, J1), low.dtype), low])
 
-    def log_relative(self, theta: Float[Array, " n"], W: Float[Array, "... 2"]) -> Float[Array, "k ..."]:
-        """``log R_k(W) = −D_k(W)`` for every measured scale at points ``W`` of the plane."""
-        W = jnp.asarray(W)
-        P = self.profiles(theta)
+    def odd_profiles(self, theta: Float[Array, " n"]) -> Float[Array, "k g j"]:
+        """``Q_{k,g}(ρ_j)`` (slope units³) for k = 0 … K−1 (row 0 zero), every odd function g, j = 0 … J."""
+        theta = jnp.asarray(theta)
+        G, J1 = len(self._odd_functions), len(self.knots)
+        start = self._n_base + (self.n_scales - 1) * self._per_scale
+        rows = theta[start : start + (self.n_scales - 1) * G * J1].reshape(self.n_scales - 1, G, J1)
+        rows = rows * self.reference_variance**1.5
+        return jnp.concatenate([jnp.zeros((1, G, J1), rows.dtype), rows])
+
+    def _polar(self, W):
         rho2 = jnp.sum(W * W, axis=-1)
         rho = jnp.sqrt(jnp.where(rho2 > 0, rho2, 1.0)) * (rho2 > 0)
-        phi = jnp.arctan2(W[..., 1], W[..., 0])
+        return rho2, rho, jnp.arctan2(W[..., 1], W[..., 0])
+
+    def _radial(self, profiles, rho):
+        """The profiles (k, f, j) read at radii ``rho`` (…): (k, f, …), constant beyond the last knot."""
+        knots = jnp.asarray(self.knots, dtype=profiles.dtype)
+        t = jnp.clip(rho, knots[0], knots[-1])
+        return jax.vmap(jax.vmap(lambda p: jnp.interp(t, knots, p)))(profiles)
+
+    def log_relative(self, theta: Float[Array, " n"], W: Float[Array, "... 2"]) -> Float[Array, "k ..."]:
+        """``log |R_k(W)| = −D_k(W)`` (the even part) for every measured scale at points ``W`` of the plane."""
+        W = jnp.asarray(W)
+        rho2, rho, phi = self._polar(W)
         angular = [jnp.ones_like(phi)]
         for n in range(1, self.harmonics + 1):
             angular += [jnp.cos(2 * n * phi), jnp.sin(2 * n * phi)]
-        knots = jnp.asarray(self.knots, dtype=P.dtype)
-        t = jnp.clip(rho, knots[0], knots[-1])
-        radial = jax.vmap(jax.vmap(lambda p: jnp.interp(t, knots, p)))(P)  # (k, f, *w)
+        radial = self._radial(self.profiles(theta), rho)  # (k, f, *w)
         total = sum(radial[:, f] * a[None] for f, a in enumerate(angular))
         return -rho2[None] * total
+
+    def phase(self, theta: Float[Array, " n"], W: Float[Array, "... 2"]) -> Float[Array, "k ..."]:
+        """``Ψ_k(W) = arg R_k(W) = ρ³ Σ_g Q_{k,g}(ρ) B_g(φ)`` (the odd part; module docstring)."""
+        W = jnp.asarray(W)
+        rho2, rho, phi = self._polar(W)
+        if not self.odd_harmonics:
+            return jnp.zeros((self.n_scales, *phi.shape), phi.dtype)
+        angular = []
+        for m in range(1, self.odd_harmonics + 1):
+            angular += [jnp.cos((2 * m - 1) * phi), jnp.sin((2 * m - 1) * phi)]
+        radial = self._radial(self.odd_profiles(theta), rho)
+        total = sum(radial[:, g] * a[None] for g, a in enumerate(angular))
+        return (rho2 * rho)[None] * total
 
     def covariance_differences(self, theta: Float[Array, " n"], scales: Float[Array, " k"]) -> Float[Array, "k 2 2"]:
         """ΔΣ(μ0, μ_k) = 2 [[a + b, c], [c, a − b]] (module docstring), exact from θ; row 0 is 0."""
@@ -317,6 +379,19 @@ class AnisotropicNonParametricModel(AbstractModel):
         a = P[:, 0]
         b, c = (P[:, 1], P[:, 2]) if self.harmonics else (jnp.zeros_like(a), jnp.zeros_like(a))
         return 2 * jnp.stack([jnp.stack([a + b, c], -1), jnp.stack([c, a - b], -1)], -2)
+
+    def third_cumulant_differences(self, theta: Float[Array, " n"]) -> Float[Array, "k 4"]:
+        """κ3(g_k) − κ3(g_0) = κ3(r_k), the third cumulants the evolution adds, ``[xxx, xxy, xyy, yyy]`` (slope³),
+        exact from θ; row 0 is 0. With the odd profiles at ρ = 0 ``Q_{cos φ}, Q_{sin φ}, Q_{cos 3φ}, Q_{sin 3φ}``
+        (``c1, s1, c3, s3``), ``Ψ_k ≈ κ3(W, W, W)/6`` near 0 (``R_k = ∫ r_k(v) e^{−iW·v} dv``) gives
+        ``κ_xxx = 6(c1 + c3)``, ``κ_xxy = 2(s1 + 3 s3)``, ``κ_xyy = 2(c1 − 3 c3)``, ``κ_yyy = 6(s1 − s3)``;
+        the harmonics above 3φ vanish at 0 faster than ρ³. tests/test_nonparametric_aniso.py checks it against
+        the third central moments of the evolved lobes on the model grid."""
+        Q = self.odd_profiles(theta)[:, :, 0]
+        zero = jnp.zeros_like(Q[:, 0]) if Q.shape[1] == 0 else None
+        c1, s1 = (zero, zero) if zero is not None else (Q[:, 0], Q[:, 1])
+        c3, s3 = (Q[:, 2], Q[:, 3]) if Q.shape[1] >= 4 else (jnp.zeros_like(c1), jnp.zeros_like(c1))
+        return jnp.stack([6 * (c1 + c3), 2 * (s1 + 3 * s3), 2 * (c1 - 3 * c3), 6 * (s1 - s3)], axis=-1)
 
     def base_grid(self, theta: Float[Array, " n"]) -> Float[Array, "g g"]:
         """``g0`` on the model grid (rows: y), positive."""
@@ -336,7 +411,12 @@ class AnisotropicNonParametricModel(AbstractModel):
 
     def evolved_grids(self, theta: Float[Array, " n"]) -> Float[Array, "k g g"]:
         """``g_k`` on the model grid for every measured scale (module docstring: zero-padded FFT)."""
-        return evolve_on_grid(self.base_grid(theta), lambda W: self.log_relative(theta, W), self.pitch, self.fft_size)
+        return evolve_on_grid(
+            self.base_grid(theta),
+            lambda W: self.log_relative(theta, W) + 1j * self.phase(theta, W),
+            self.pitch,
+            self.fft_size,
+        )
 
     def predict_points(self, theta, scales, points):
         grids = self.evolved_grids(theta)
@@ -388,12 +468,17 @@ class AnisotropicNonParametricModel(AbstractModel):
     def relative_statistics_plane(
         self, theta: Float[Array, " n"], W: Float[Array, "w 2"], scales: Float[Array, " k"]
     ) -> Float[Array, "k w"]:
-        """``R_k(W) = S(W, μ0)/S(W, μ_k)`` at points ``W`` of the plane."""
+        """``|R_k(W)| = |S(W, μ0)/S(W, μ_k)|`` at points ``W`` of the plane (the odd part is R_k's phase,
+        :meth:`phase`)."""
         del scales
         return jnp.exp(self.log_relative(theta, W))
 
     def penalty(self, theta):
-        return smoothness_rows(self.profiles(theta)[1:] / self.reference_variance, self.smoothness)
+        v = self.reference_variance
+        even = smoothness_rows(self.profiles(theta)[1:] / v, self.smoothness)
+        if not self.odd_harmonics:
+            return even
+        return jnp.concatenate([even, smoothness_rows(self.odd_profiles(theta)[1:] / v**1.5, self.smoothness)])
 
     # --- starting point and prior box -----------------------------------------------------------
 
@@ -443,7 +528,8 @@ class AnisotropicNonParametricModel(AbstractModel):
                 row += [np.zeros(J1 - 1)] * (2 * (self.harmonics - 1))
             rows.append(np.concatenate(row))
         del amp
-        return np.concatenate([base, *rows])
+        odd = np.zeros((self.n_scales - 1) * len(self._odd_functions) * J1)  # no skewness change to start
+        return np.concatenate([base, *rows, odd])
 
     def bounds(self, data):
         """log base values within log(peak) − 40 … log(peak) + 10 (peak: the μ0 lobe's estimated

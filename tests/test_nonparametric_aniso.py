@@ -78,7 +78,7 @@ def gaussian_set(seed=0, **kw):
 
 def gaussian_theta(model, differences, base_theta):
     """θ with the given base part and constant profiles for Gaussian statistics of ΔΣ_k:
-    a = (xx + yy)/4, b = (xx − yy)/4, c = xy/2 (per reference variance), no higher harmonics."""
+    a = (xx + yy)/4, b = (xx − yy)/4, c = xy/2 (per reference variance), no higher harmonics, no odd part."""
     rows, J1, v = [], len(model.knots), model.reference_variance
     for d in differences[1:]:
         d = np.asarray(d) / v
@@ -87,7 +87,8 @@ def gaussian_theta(model, differences, base_theta):
             row += [np.full(J1, (d[0, 0] - d[1, 1]) / 4), np.full(J1, d[0, 1] / 2)]
             row += [np.zeros(J1 - 1)] * (2 * (model.harmonics - 1))
         rows.append(np.concatenate(row))
-    return jnp.asarray(np.concatenate([np.asarray(base_theta), *rows]))
+    theta = np.concatenate([np.asarray(base_theta), *rows])
+    return jnp.asarray(np.concatenate([theta, np.zeros(len(model.names) - theta.size)]))  # no odd part
 
 
 def model_grid(model):
@@ -194,9 +195,9 @@ def test_covariance_differences_are_the_hessian_of_log_R(model):
 
 
 def test_isotropic_special_case(data):
-    """harmonics=0: R_k depends on |W| only, equals the radial relative_statistics, and a Gaussian
+    """harmonics=0, odd_harmonics=0: R_k depends on |W| only, equals the radial relative_statistics, and a Gaussian
     base lobe evolves to the Gaussian of covariance C0 + d I."""
-    model = fitting.AnisotropicNonParametricModel(data, base_nodes=9, n_knots=3, harmonics=0)
+    model = fitting.AnisotropicNonParametricModel(data, base_nodes=9, n_knots=3, harmonics=0, odd_harmonics=0)
     assert all("cos" not in n and "sin" not in n for n in model.names)
     rng = np.random.default_rng(2)
     theta = jnp.asarray(rng.normal(size=len(model.names)) * 0.3)
@@ -259,6 +260,8 @@ def test_bad_options_are_refused(data):
         fitting.AnisotropicNonParametricModel(data, base_nodes=8)
     with pytest.raises(InvalidInputError, match="harmonics"):
         fitting.AnisotropicNonParametricModel(data, harmonics=-1)
+    with pytest.raises(InvalidInputError, match="odd_harmonics"):
+        fitting.AnisotropicNonParametricModel(data, odd_harmonics=-1)
     with pytest.raises(InvalidInputError, match="regularisation"):
         fitting.AnisotropicNonParametricModel(data, regularisation=-1.0)
 
@@ -363,3 +366,44 @@ def test_start_of_a_noisy_set_does_not_ring():
     peak = float(np.max(np.asarray(data.values[0])))
     assert 0.5 * peak < base.max() < 1.5 * peak, base.max() / peak
     assert np.all(base > 0)
+
+
+def test_the_odd_part_adds_the_third_cumulants_it_states():
+    """The odd part (R_k's phase Ψ_k = ρ³ Σ Q B(φ)): the evolved lobes' third central moments on the model grid,
+    less the Gaussian base lobe's, equal third_cumulant_differences (cumulants add under convolution; the
+    grid's moments are the oracle, the closed form of the cumulants from Ψ's cubic term is the method's);
+    their means and covariances are the Gaussian evolution's, the odd part changing neither."""
+    data = gaussian_set(size=49, extent=1.5)
+    model = fitting.AnisotropicNonParametricModel(data, base_nodes=9, n_knots=3, harmonics=1)
+    assert model.odd_harmonics == 2 and [n for n in model.names if n.startswith("Q1[")][::4] == [
+        "Q1[cosφ](W=0) [v^1.5]",
+        "Q1[sinφ](W=0) [v^1.5]",
+        "Q1[cos3φ](W=0) [v^1.5]",
+        "Q1[sin3φ](W=0) [v^1.5]",
+    ]
+    x = model_grid(model)
+    base = np.log(gaussian(np.stack(np.meshgrid(model.node_x, model.node_y), -1), MEAN, C0, 2.0)).ravel()
+    theta = np.array(gaussian_theta(model, DIFFERENCES, base))
+    odd = np.array([[0.05, -0.03, 0.02, 0.01], [-0.02, 0.04, -0.01, 0.03]])  # (k, g) in units of v^1.5
+    J1 = len(model.knots)
+    theta[-2 * 4 * J1 :] = np.repeat(odd[:, :, None], J1, axis=2).ravel()  # constant profiles
+    grids = np.asarray(model.evolved_grids(jnp.asarray(theta)))
+    stated = np.asarray(model.third_cumulant_differences(jnp.asarray(theta)))
+    assert np.all(stated[0] == 0)
+
+    def moments(g):
+        w = g / g.sum()
+        mean = np.einsum("ij,ijk->k", w, x)
+        d = x - mean
+        cov = np.einsum("ij,ijk,ijl->kl", w, d, d)
+        k3 = [np.sum(w * d[..., 0] ** (3 - n) * d[..., 1] ** n) for n in range(4)]
+        return mean, cov, np.array(k3)
+
+    m0, c0, k0 = moments(grids[0])
+    np.testing.assert_allclose(k0, 0.0, atol=1e-9)  # the Gaussian base lobe
+    for k in (1, 2):
+        mean, cov, k3 = moments(grids[k])
+        np.testing.assert_allclose(mean, m0, atol=1e-9)
+        np.testing.assert_allclose(cov, C0 + DIFFERENCES[k], atol=1e-8)
+        np.testing.assert_allclose(k3 - k0, stated[k], rtol=1e-6, atol=1e-9)
+        assert np.max(np.abs(stated[k])) > 1e-4  # not vanishingly small: the check has teeth

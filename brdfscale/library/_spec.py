@@ -113,6 +113,7 @@ def make_model(
             "base_nodes": built.base_nodes,
             "knots_W": list(built.knots),
             "harmonics": built.harmonics,
+            "odd_harmonics": built.odd_harmonics,
             "smoothness": built.smoothness,
         }
     else:
