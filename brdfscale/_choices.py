@@ -151,7 +151,8 @@ MODELS = Choices(
         Choice(
             "nonparametric_anisotropic",
             "a tabulated base lobe of any shape and centre, and relative statistics R_k(W) over the W plane: "
-            "radial knots × even angular harmonics (fitting.AnisotropicNonParametricModel)",
+            "radial knots × angular harmonics, even for its modulus and odd for its phase (a change of skewness) "
+            "(fitting.AnisotropicNonParametricModel)",
         ),
     ),
     default="anisotropic",

@@ -17,10 +17,9 @@ least-squares problem on experiments/bench_anisotropic.py's synthetic set (8 sca
    ``rcond`` — fitting._gauss_newton; ``starts="auto"``: 1), twice — the first call compiles: wall time, result,
    steps (accepted and rejected trial points), χ².
 
-Model: ``fitting.AnisotropicNonParametricModel(data, base_nodes=13, n_knots=8, odd_harmonics=0)`` — the
-command's defaults (``brdfscale.choices.MODEL``), regularisation 3, without the odd part (R_k's phase, added to
-the model after this study; its default ``odd_harmonics=2`` adds 4 × 9 × 7 = 252 coordinates): the study is of
-the 470-coordinate even model it was run on.
+Model: ``fitting.AnisotropicNonParametricModel(data, base_nodes=13, n_knots=8)`` — the command's defaults
+(``brdfscale.choices.MODEL``), regularisation 3, no odd part (``odd_harmonics=0``, pinned: the odd part was added
+to the model after this study).
 
 Run:  flock /tmp/brdfscale-bench.lock python -m experiments.nonparametric_solvers [--iterations 80]
 Writes experiments/results/nonparametric_solvers.json.

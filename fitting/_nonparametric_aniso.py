@@ -11,7 +11,8 @@ writes its logarithm in polar W = ρ(cos φ, sin φ) as an even and an odd part,
 
 each radial profile ``P_{k,f}``, ``Q_{k,g}`` piecewise linear in ρ on the knots ``ρ_j = j W_max/J``
 (j = 0 … J) and constant beyond ``W_max``; the profiles of the even harmonics n ≥ 2 vanish at ρ = 0,
-so that ``D_k`` is twice differentiable at W = 0 (their terms are O(ρ³)).
+so that ``D_k`` is twice differentiable at W = 0 (their terms are O(ρ³)), and so do those of the odd harmonics
+5φ and above, so that Ψ_k is three times differentiable there (their terms are O(ρ⁴)).
 
 What is imposed, and why:
 
@@ -27,11 +28,14 @@ Not imposed: ``|R_k| ≤ 1``, a positive density ``r_k``, ordering in μ (``D_{k
 hold when coarse-graining is a convolution by a density, as for Gaussian statistics, but not for
 every measured pair of slope densities, and the data judge them.
 
-Why an odd part: the within-facet lobes of a measured surface change their skewness with the facet size. On the
-lobes synthesised from tests/data's plu-1 (``brdfscale synth --topography``) the skewness along x runs −0.003,
-−0.017, −0.038, −0.045, −0.026, … over the scales, and the fit without an odd part (``odd_harmonics=0``, the
-model's form before) left residual stripes across u_x whose χ²/dof per scale followed that skewness (3 to 84);
-docs/fitting.md, "The anisotropic non-parametric model", has the measured figures.
+Why an odd part, and why it is not the default: the within-facet lobes of a measured surface change their
+skewness with the facet size, which a real ``R_k`` cannot follow. experiments/real_nonparametric.py (JSON
+experiments/results/real_nonparametric.json; docs/fitting.md, "The anisotropic non-parametric model") fits the
+lobes ``brdfscale synth --topography`` makes of tests/data's plu-1 with and without it. Its 252 more coordinates
+(8 scales, 8 knots) make each iteration dearer and the fit slower to settle: on experiments/bench_anisotropic.py's
+synthetic set, whose lobes have no skew, the model with ``odd_harmonics=2`` used all 256 solver steps (396 s, a
+run of b113c53, not committed) where the default converges in about a minute. Pass it where the residuals show
+odd structure.
 
 The covariance difference is exact from θ: near 0, ``D_k ≈ ρ²(a + b cos 2φ + c sin 2φ) =
 a(W_x² + W_y²) + b(W_x² − W_y²) + 2c W_x W_y = ½ Wᵀ ΔΣ_k W`` with a, b, c the profiles at ρ = 0, so
@@ -60,9 +64,9 @@ the grid's edge re-enters at the opposite edge); the base lobe is zero beyond th
 mass there is not modelled). tests/test_nonparametric_aniso.py checks it against the closed-form
 Gaussian evolution, covariances adding, to 1e-6 of the peak (the FFT alone) and 1e-7 (the whole
 forward map at the pixels). ``R_k(−W) = conj R_k(W)`` makes ``g_k`` real, so a real FFT (half the plane)
-suffices (at an even N's Nyquist frequency π/h the odd part's values at ±W_y are not each other's conjugates,
-and the inverse real FFT keeps their Hermitian part: an error only where the μ0 lobe's transform, resolved by the
-pixels, is negligible). The images are then read at their pixels by
+suffices (on an even N's Nyquist column and row, ±π/h, the sin 2nφ and odd terms' values at ±W are not each
+other's conjugates, and the inverse real FFT keeps their Hermitian part: an error only where the μ0 lobe's
+transform, resolved by the pixels, is negligible). The images are then read at their pixels by
 bilinear interpolation: exact where the pixels are the model grid's nodes (images of one pitch and
 centring, as ``brdfscale synth`` writes them).
 """
@@ -152,16 +156,17 @@ def evolve_on_grid(base: Float[Array, "g g"], log_ratio, pitch: float, size: int
 
 class AnisotropicNonParametricModel(AbstractModel):
     """Tabulated base lobe + anisotropic relative statistics ``R_k(W)`` in polar W with radial
-    knots × even angular harmonics (module docstring).
+    knots × angular harmonics, even (the modulus) and odd (the phase) (module docstring).
 
     Args:
         data: the dataset (fixes the number of scales, the model grid and the nodes).
         base_nodes: the base lobe's ``log g0`` on ``base_nodes × base_nodes`` nodes (odd, ≥ 5).
         n_knots: J, the radial knots after ρ = 0 (≥ 1).
         harmonics: N, the highest angular harmonic ``cos 2Nφ``/``sin 2Nφ`` (0: isotropic ``R_k``).
-        odd_harmonics: M, the odd part's highest harmonic ``cos (2M−1)φ``/``sin (2M−1)φ`` (default 2:
-            ``cos φ, sin φ, cos 3φ, sin 3φ``, the whole third cumulant; 0: ``R_k`` real, the relative density
-            centro-symmetric — the model before odd parts were added).
+        odd_harmonics: M, the odd part's highest harmonic ``cos (2M−1)φ``/``sin (2M−1)φ`` (0, the default:
+            no odd part, ``R_k`` real and the relative density centro-symmetric; 2: ``cos φ, sin φ, cos 3φ,
+            sin 3φ``, the whole third cumulant — module docstring, "Why an odd part", for what it does on a real
+            file and why it is not the default).
         w_max: the last knot (default: ``6/σ_min``, σ_min the μ0 lobe's smallest standard
             deviation, where a Gaussian lobe's transform has fallen to e⁻¹⁸, capped at the model
             grid's Nyquist frequency π/h).
@@ -207,7 +212,7 @@ class AnisotropicNonParametricModel(AbstractModel):
         base_nodes: int = 17,
         n_knots: int = 6,
         harmonics: int = 2,
-        odd_harmonics: int = 2,
+        odd_harmonics: int = 0,
         w_max: float | None = None,
         regularisation: float = MODEL.smoothness,
         padding: float = 0.5,
@@ -269,6 +274,16 @@ class AnisotropicNonParametricModel(AbstractModel):
             f"{t}{'' if m == 1 else 2 * m - 1}φ" for m in range(1, self.odd_harmonics + 1) for t in ("cos", "sin")
         )
 
+    def _first_odd_knot(self, g: int) -> int:
+        """The first free knot of odd function g: 0 for φ and 3φ (the third cumulant), 1 above (zero at ρ = 0:
+        ρ³ cos 5φ is not a cubic polynomial, so its profile must vanish there for Ψ to have third derivatives)."""
+        return 0 if g < 4 else 1
+
+    @property
+    def _odd_per_scale(self) -> int:
+        J1, G = len(self.knots), len(self._odd_functions)
+        return min(G, 4) * J1 + max(G - 4, 0) * (J1 - 1)
+
     def _first_knot(self, f: int) -> int:
         """The first free knot of function f: 0 for the harmonics n ≤ 1, 1 above (zero at ρ = 0)."""
         return 0 if f < 3 else 1
@@ -284,10 +299,10 @@ class AnisotropicNonParametricModel(AbstractModel):
             for j in range(self._first_knot(f), len(self.knots))
         )
         odd = tuple(
-            f"Q{k}[{name}](W={w:.4g}) [v^1.5]"
+            f"Q{k}[{name}](W={self.knots[j]:.4g}) [v^1.5]"
             for k in range(1, self.n_scales)
-            for name in self._odd_functions
-            for w in self.knots
+            for g, name in enumerate(self._odd_functions)
+            for j in range(self._first_odd_knot(g), len(self.knots))
         )
         return base + profiles + odd
 
@@ -331,11 +346,15 @@ class AnisotropicNonParametricModel(AbstractModel):
     def odd_profiles(self, theta: Float[Array, " n"]) -> Float[Array, "k g j"]:
         """``Q_{k,g}(ρ_j)`` (slope units³) for k = 0 … K−1 (row 0 zero), every odd function g, j = 0 … J."""
         theta = jnp.asarray(theta)
-        G, J1 = len(self._odd_functions), len(self.knots)
-        start = self._n_base + (self.n_scales - 1) * self._per_scale
-        rows = theta[start : start + (self.n_scales - 1) * G * J1].reshape(self.n_scales - 1, G, J1)
+        G, J1, K1 = len(self._odd_functions), len(self.knots), self.n_scales - 1
+        start = self._n_base + K1 * self._per_scale
+        rows = theta[start : start + K1 * self._odd_per_scale].reshape(K1, self._odd_per_scale)
         rows = rows * self.reference_variance**1.5
-        return jnp.concatenate([jnp.zeros((1, G, J1), rows.dtype), rows])
+        low = rows[:, : min(G, 4) * J1].reshape(K1, min(G, 4), J1)
+        if G > 4:
+            high = rows[:, 4 * J1 :].reshape(K1, G - 4, J1 - 1)
+            low = jnp.concatenate([low, jnp.concatenate([jnp.zeros_like(high[..., :1]), high], axis=-1)], axis=1)
+        return jnp.concatenate([jnp.zeros((1, G, J1), low.dtype), low])
 
     def _polar(self, W):
         rho2 = jnp.sum(W * W, axis=-1)
@@ -385,12 +404,13 @@ class AnisotropicNonParametricModel(AbstractModel):
         exact from θ; row 0 is 0. With the odd profiles at ρ = 0 ``Q_{cos φ}, Q_{sin φ}, Q_{cos 3φ}, Q_{sin 3φ}``
         (``c1, s1, c3, s3``), ``Ψ_k ≈ κ3(W, W, W)/6`` near 0 (``R_k = ∫ r_k(v) e^{−iW·v} dv``) gives
         ``κ_xxx = 6(c1 + c3)``, ``κ_xxy = 2(s1 + 3 s3)``, ``κ_xyy = 2(c1 − 3 c3)``, ``κ_yyy = 6(s1 − s3)``;
-        the harmonics above 3φ vanish at 0 faster than ρ³. tests/test_nonparametric_aniso.py checks it against
+        the harmonics above 3φ vanish at 0 like ρ⁴ (their profiles are 0 at ρ = 0).
+        tests/test_nonparametric_aniso.py checks it against
         the third central moments of the evolved lobes on the model grid."""
         Q = self.odd_profiles(theta)[:, :, 0]
-        zero = jnp.zeros_like(Q[:, 0]) if Q.shape[1] == 0 else None
-        c1, s1 = (zero, zero) if zero is not None else (Q[:, 0], Q[:, 1])
-        c3, s3 = (Q[:, 2], Q[:, 3]) if Q.shape[1] >= 4 else (jnp.zeros_like(c1), jnp.zeros_like(c1))
+        zero = jnp.zeros(Q.shape[0], Q.dtype)
+        c1, s1 = (Q[:, 0], Q[:, 1]) if Q.shape[1] >= 2 else (zero, zero)
+        c3, s3 = (Q[:, 2], Q[:, 3]) if Q.shape[1] >= 4 else (zero, zero)
         return jnp.stack([6 * (c1 + c3), 2 * (s1 + 3 * s3), 2 * (c1 - 3 * c3), 6 * (s1 - s3)], axis=-1)
 
     def base_grid(self, theta: Float[Array, " n"]) -> Float[Array, "g g"]:
@@ -460,10 +480,7 @@ class AnisotropicNonParametricModel(AbstractModel):
         gives ``R_k`` over the plane."""
         del scales
         W = jnp.asarray(W)
-        P = self.profiles(theta)[:, 0]
-        knots = jnp.asarray(self.knots, dtype=P.dtype)
-        t = jnp.clip(jnp.abs(W), knots[0], knots[-1])
-        return jnp.exp(-(W**2)[None] * jax.vmap(lambda p: jnp.interp(t, knots, p))(P))
+        return jnp.exp(-(W**2)[None] * self._radial(self.profiles(theta)[:, :1], jnp.abs(W))[:, 0])
 
     def relative_statistics_plane(
         self, theta: Float[Array, " n"], W: Float[Array, "w 2"], scales: Float[Array, " k"]
@@ -528,7 +545,7 @@ class AnisotropicNonParametricModel(AbstractModel):
                 row += [np.zeros(J1 - 1)] * (2 * (self.harmonics - 1))
             rows.append(np.concatenate(row))
         del amp
-        odd = np.zeros((self.n_scales - 1) * len(self._odd_functions) * J1)  # no skewness change to start
+        odd = np.zeros((self.n_scales - 1) * self._odd_per_scale)  # no skewness change to start
         return np.concatenate([base, *rows, odd])
 
     def bounds(self, data):

@@ -285,7 +285,7 @@ def statistics_figure(problem: Problem, fit: FitResult, draws, true_theta, *, un
             _band(axes[0], w, relative[:, 1, k], colors[k], None, ls="--")
         axes[0].plot([], [], "k-", lw=1.2, label="along W_x")
         axes[0].plot([], [], "k--", lw=1.2, label="along W_y")
-        axes[0].set_title(f"S(W, μ0)/S(W, μ) along W_x and W_y, {mu0} (5–95 % band)", fontsize=9)
+        axes[0].set_title(f"|S(W, μ0)/S(W, μ)| along W_x and W_y, {mu0} (5–95 % band)", fontsize=9)
         axes[0].set_xlabel("W_x or W_y (rad per unit slope)")
         _differences_panel(axes[1], fit, unit)
     else:

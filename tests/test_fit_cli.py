@@ -335,3 +335,15 @@ def test_a_time_limit_exits_6_and_the_same_command_continues_the_chain(tmp_path,
     whole = json.loads((tmp_path / "whole" / "fit.json").read_text())
     assert whole["mcmc"]["summary"] == doc["mcmc"]["summary"]  # the continued chain is the unlimited run's
     assert main([*fit, str(out)]) == 2  # a complete report is refused as before
+
+
+def test_the_undetermined_combinations_printed_are_capped_and_the_rest_counted():
+    from brdfscale._cli._fit import SHOWN_UNDETERMINED, undetermined_lines
+
+    items = [{"combination": f"1.00·log base[0,{i}]"} for i in range(SHOWN_UNDETERMINED + 3)]
+    lines = undetermined_lines(items)
+    assert lines[:-1] == [f"  not determined by the data: 1.00·log base[0,{i}]" for i in range(SHOWN_UNDETERMINED)]
+    assert (
+        lines[-1].startswith("  … and 3 more combinations") and "identifiability.undetermined_combinations" in lines[-1]
+    )
+    assert undetermined_lines(items[:2]) == [f"  not determined by the data: 1.00·log base[0,{i}]" for i in range(2)]

@@ -332,7 +332,8 @@ def test_a_model_not_sampled_by_default_keeps_laplace_unless_steps_are_given():
     assert all(library.model_class(m).sampled_by_default for m in choices.MODELS if m != "nonparametric_anisotropic")
     spec = library.FitSpec(model="nonparametric_anisotropic", sampler="auto", sample_inadequate=True)
     reason = spec.not_sampled_because(None, None)
-    assert "--steps N" in reason and "Laplace" in reason
+    assert "--steps N" in reason and "Laplace" in reason and spec.not_sampled_by_default == reason
+    assert library.FitSpec(sampler="auto").not_sampled_by_default is None
     assert library.FitSpec(model="nonparametric_anisotropic", sampler=None).not_sampled_because(None, None) is None
     given = library.FitSpec(model="nonparametric_anisotropic", sampler="nuts", steps=50, sample_inadequate=True)
     assert given.not_sampled_because(None, None) is None

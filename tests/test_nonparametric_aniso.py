@@ -195,9 +195,9 @@ def test_covariance_differences_are_the_hessian_of_log_R(model):
 
 
 def test_isotropic_special_case(data):
-    """harmonics=0, odd_harmonics=0: R_k depends on |W| only, equals the radial relative_statistics, and a Gaussian
-    base lobe evolves to the Gaussian of covariance C0 + d I."""
-    model = fitting.AnisotropicNonParametricModel(data, base_nodes=9, n_knots=3, harmonics=0, odd_harmonics=0)
+    """harmonics=0 (and no odd part, the default): R_k depends on |W| only, equals the radial
+    relative_statistics, and a Gaussian base lobe evolves to the Gaussian of covariance C0 + d I."""
+    model = fitting.AnisotropicNonParametricModel(data, base_nodes=9, n_knots=3, harmonics=0)
     assert all("cos" not in n and "sin" not in n for n in model.names)
     rng = np.random.default_rng(2)
     theta = jnp.asarray(rng.normal(size=len(model.names)) * 0.3)
@@ -374,8 +374,8 @@ def test_the_odd_part_adds_the_third_cumulants_it_states():
     grid's moments are the oracle, the closed form of the cumulants from Ψ's cubic term is the method's);
     their means and covariances are the Gaussian evolution's, the odd part changing neither."""
     data = gaussian_set(size=49, extent=1.5)
-    model = fitting.AnisotropicNonParametricModel(data, base_nodes=9, n_knots=3, harmonics=1)
-    assert model.odd_harmonics == 2 and [n for n in model.names if n.startswith("Q1[")][::4] == [
+    model = fitting.AnisotropicNonParametricModel(data, base_nodes=9, n_knots=3, harmonics=1, odd_harmonics=2)
+    assert [n for n in model.names if n.startswith("Q1[")][::4] == [
         "Q1[cosφ](W=0) [v^1.5]",
         "Q1[sinφ](W=0) [v^1.5]",
         "Q1[cos3φ](W=0) [v^1.5]",
@@ -407,3 +407,28 @@ def test_the_odd_part_adds_the_third_cumulants_it_states():
         np.testing.assert_allclose(cov, C0 + DIFFERENCES[k], atol=1e-8)
         np.testing.assert_allclose(k3 - k0, stated[k], rtol=1e-6, atol=1e-9)
         assert np.max(np.abs(stated[k])) > 1e-4  # not vanishingly small: the check has teeth
+
+
+@pytest.mark.parametrize(("harmonics", "odd"), [(2, 0), (2, 1), (2, 2), (1, 3)])
+def test_every_odd_coordinate_sets_the_profile_value_its_name_states(data, harmonics, odd):
+    """θ's layout: each coordinate named ``Q{k}[{g}](W=ρ_j)`` moves the odd profile Q_{k,g}(ρ_j) alone (by
+    v^1.5), none of the even ones; the harmonics 5φ and above have no coordinate at ρ = 0; with no odd part the
+    third cumulants are 0."""
+    model = fitting.AnisotropicNonParametricModel(data, base_nodes=5, n_knots=3, harmonics=harmonics, odd_harmonics=odd)
+    functions = ["cosφ", "sinφ", "cos3φ", "sin3φ", "cos5φ", "sin5φ"][: 2 * odd]
+    names = [n for n in model.names if n.startswith("Q")]
+    assert len(names) == (len(SCALES) - 1) * (min(2 * odd, 4) * 4 + max(2 * odd - 4, 0) * 3)
+    v = model.reference_variance
+    for name in names:
+        k, g = int(name[1]), functions.index(name[name.index("[") + 1 : name.index("]")])
+        j = model.knots.index(min(model.knots, key=lambda w, t=float(name.split("W=")[1].split(")")[0]): abs(w - t)))
+        theta = np.zeros(len(model.names))
+        theta[model.names.index(name)] = 1.0
+        Q = np.asarray(model.odd_profiles(jnp.asarray(theta)))
+        expected = np.zeros_like(Q)
+        expected[k, g, j] = v**1.5
+        np.testing.assert_allclose(Q, expected, rtol=1e-12)
+        assert not np.any(np.asarray(model.profiles(jnp.asarray(theta))))
+        assert g < 4 or j > 0
+    stated = np.asarray(model.third_cumulant_differences(jnp.zeros(len(model.names))))
+    assert stated.shape == (len(SCALES), 4) and not np.any(stated)

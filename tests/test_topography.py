@@ -438,7 +438,8 @@ def test_synth_blurs_a_quantised_files_comb_by_default(st):
     resolution, text = default_resolution(field, extent, pixels)
     assert resolution == pytest.approx(quantum) and "slope quantum" in text
     two_pixels = TOPOGRAPHY_RESOLUTION * 2 * extent / (pixels - 1)
-    assert quantum > two_pixels
+    assert quantum / (two_pixels / 2) == pytest.approx(4.84, abs=0.01)  # image pixels (docs/topography.md: 4.8)
+    assert quantum == pytest.approx(0.00235, abs=5e-6)
     unquantised = topography.read(DATA / "opd-1.opd")
     assert default_resolution(unquantised, extent, pixels) == (two_pixels, f"2 image pixels: {two_pixels:.6g}")
 

@@ -26,6 +26,10 @@ if TYPE_CHECKING:
 from ._rewind import add_rewind_option, rewind
 
 
+#: The combinations the data do not determine printed after the fit (the rest are in fit.json's identifiability):
+#: the anisotropic non-parametric model leaves dozens of its base lobe's edge nodes undetermined.
+SHOWN_UNDETERMINED = 5
+
 #: The chain is held in memory (and in chain.h5): walkers × steps × parameters × 8 bytes at most.
 CHAIN_BUDGET = 2 * 2**30
 
@@ -198,6 +202,18 @@ def add_fit_options(parser) -> None:
         help="no progress bar (BRDFSCALE_PROGRESS=0 in the environment turns off every bar)",
     )
     parser.add_argument("--force", action="store_true", help="overwrite DIR/fit.json and restart DIR/chain.h5")
+
+
+def undetermined_lines(undetermined: list[dict]) -> list[str]:
+    """The lines printed after the fit for the combinations the data do not determine: the first
+    :data:`SHOWN_UNDETERMINED`, then how many more fit.json lists."""
+    lines = [f"  not determined by the data: {item['combination']}" for item in undetermined[:SHOWN_UNDETERMINED]]
+    if len(undetermined) > SHOWN_UNDETERMINED:
+        lines.append(
+            f"  … and {len(undetermined) - SHOWN_UNDETERMINED} more combinations not determined by the data "
+            "(all in fit.json: identifiability.undetermined_combinations)"
+        )
+    return lines
 
 
 def check_fit_options(args) -> None:
@@ -399,7 +415,8 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
         spec, model, info, result = _compare(fitting, spec, data, stream, unit)
     else:
         model, info = spec.model_for(data)
-    if spec.sampler is not None:
+    sampling = spec.sampler is not None and spec.not_sampled_by_default is None
+    if sampling:
         check_sampler_options(args, len(model.names))
     truth = fitting.truth_of(model, mset.metadata)  # a damaged truth is refused before the work, not after
     delta_truth = fitting.covariance_truth(mset.metadata, data.scales)  # ΔΣ of the set's own surface, if recorded
@@ -407,9 +424,7 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
     checkpoint = os.path.join(args.out, "chain.h5")
     if getattr(args, "rewind_checkpoint", False):  # a damaged chain's verified chunks kept first
         stream(rewind(fitting, checkpoint, args.force))
-    resuming = fitting.resume_report(
-        args.out, args.force, checkpoint=checkpoint, steps=args.steps if spec.sampler else 0
-    )
+    resuming = fitting.resume_report(args.out, args.force, checkpoint=checkpoint, steps=args.steps if sampling else 0)
     if resuming:
         stream(resuming)
     with files.exclusive(args.out, what="output directory"):
@@ -444,8 +459,8 @@ def _fit_and_report(
         f"  {result.status}: χ²/dof = {result.chi2 / result.dof:.3f}, "
         f"{sum(s['at_best'] for s in result.starts)}/{len(result.starts)} starts at the optimum"
     )
-    for item in result.undetermined:
-        stream(f"  not determined by the data: {item['combination']}")
+    for line in undetermined_lines(result.undetermined):
+        stream(line)
     problem = fitting.Problem(model, data)
     samples = None
     not_sampled = spec.not_sampled_because(problem, result, unit=unit)  # FitSpec's rule: not where inadequate

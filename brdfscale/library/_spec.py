@@ -234,6 +234,19 @@ class FitSpec:
             return False
         return True
 
+    @property
+    def not_sampled_by_default(self) -> str | None:
+        """Why this spec samples no fit at all, known before any fit (the first rule of :meth:`not_sampled_because`;
+        ``brdfscale fit`` then checks no sampler options): a sampler asked for without steps for a model not
+        ``sampled_by_default`` (the anisotropic non-parametric model); None otherwise."""
+        if self.sampler is None or self.steps is not None or model_class(self.model).sampled_by_default:
+            return None
+        return (
+            f"the {self.model} model's posterior is sampled only where steps are given (--steps N, "
+            "FitSpec(steps=N)): its hundreds of coordinates make a chain far slower than the fit; the "
+            "uncertainties are the Laplace approximation's"
+        )
+
     def not_sampled_because(self, problem, fit, *, unit: str | None = None) -> str | None:
         """Why this spec does not sample ``fit`` of ``problem``, or None where it samples it: it samples (``sampler``
         set), and either ``steps`` is None for a model not ``sampled_by_default`` (the anisotropic non-parametric
@@ -242,12 +255,8 @@ class FitSpec:
         ``not_sampled`` records."""
         if self.sampler is None:
             return None
-        if self.steps is None and not model_class(self.model).sampled_by_default:
-            return (
-                f"the {self.model} model's posterior is sampled only where steps are given (--steps N, "
-                "FitSpec(steps=N)): its hundreds of coordinates make a chain far slower than the fit; the "
-                "uncertainties are the Laplace approximation's"
-            )
+        if self.not_sampled_by_default is not None:
+            return self.not_sampled_by_default
         if self.sample_inadequate:
             return None
         if _fitting().assess(problem, fit, unit=unit).status != "inadequate":
