@@ -25,6 +25,7 @@ from experiments import (
     evolution_accuracy,
     instrument_fits as fits,
     instrument_study,
+    real_nonparametric,
     render_plane,
     validity,
 )
@@ -1254,3 +1255,17 @@ def test_nonparametric_solvers_gauss_newton_solves_a_linear_problem_and_stops_on
     assert rows[0]["chi2"] == pytest.approx(chi2_min, rel=1e-9)
     assert rows[0]["edm"] == pytest.approx(0.5 * (float(b @ b) - chi2_min), rel=1e-9)
     assert rows[1]["edm"] < study.EDM_STOP
+
+
+def test_real_nonparametric_skewness_of_a_two_gaussian_mixture():
+    """experiments/real_nonparametric.skewness against the closed form of a zero-mean mixture of two Gaussians along
+    u_x (E[x³]/E[x²]^1.5 from the components' moments), symmetric along u_y."""
+    w, m, s = np.array([0.7, 0.3]), np.array([-0.03, 0.07]), 0.04
+    x = np.linspace(-0.5, 0.5, 401)
+    ux, uy = np.meshgrid(x, x)
+    lobe = sum(wi * np.exp(-((ux - mi) ** 2 + uy**2) / (2 * s * s)) for wi, mi in zip(w, m))
+    image = LobeImage(mu=1.0, incident=[0, 0, 1.0], extent=0.5, values=lobe)
+    (row,) = real_nonparametric.skewness(MeasurementSet((image,)))
+    second, third = np.sum(w * (m**2 + s * s)), np.sum(w * (m**3 + 3 * m * s * s))
+    assert row["skewness_x"] == pytest.approx(third / second**1.5, rel=1e-6)
+    assert abs(row["skewness_y"]) < 1e-9 and row["mu"] == 1.0

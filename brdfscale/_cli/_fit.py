@@ -171,7 +171,9 @@ def add_fit_options(parser) -> None:
         type=integer(0, 1_000_000),
         default=SAMPLE.steps,
         help="draws per chain after the warm-up (nuts, hmc), steps per chain (imh) or emcee steps per walker, "
-        f"0–1000000 (default: {SAMPLE.steps_text()}; 0: Laplace only); the chains are kept in memory: "
+        f"0–1000000 (default: {SAMPLE.steps_text()}; 0: Laplace only; not given, --model nonparametric_anisotropic "
+        "is not sampled: its hundreds of coordinates make a chain far slower than its fit); the chains are kept in "
+        "memory: "
         f"chains × walkers × steps × parameters × 8 bytes ≤ {CHAIN_BUDGET // 2**30} GiB",
     )
     parser.add_argument(
