@@ -12,12 +12,12 @@ from brdfscale._choices import MODELS
 
 jax.config.update("jax_enable_x64", True)
 
-from test_nonparametric_aniso import gaussian_set  # noqa: E402
+from tests.helpers import anisotropic_dataset  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def data():
-    return gaussian_set()
+    return anisotropic_dataset(0)
 
 
 @pytest.mark.parametrize("name", MODELS.names)
