@@ -431,12 +431,12 @@ class AnisotropicNonParametricModel(AbstractModel):
 
     def evolved_grids(self, theta: Float[Array, " n"]) -> Float[Array, "k g g"]:
         """``g_k`` on the model grid for every measured scale (module docstring: zero-padded FFT)."""
-        return evolve_on_grid(
-            self.base_grid(theta),
-            lambda W: self.log_relative(theta, W) + 1j * self.phase(theta, W),
-            self.pitch,
-            self.fft_size,
-        )
+
+        def log_ratio(W):  # real, and a real product in the hot path, where there is no odd part
+            even = self.log_relative(theta, W)
+            return even + 1j * self.phase(theta, W) if self.odd_harmonics else even
+
+        return evolve_on_grid(self.base_grid(theta), log_ratio, self.pitch, self.fft_size)
 
     def predict_points(self, theta, scales, points):
         grids = self.evolved_grids(theta)
