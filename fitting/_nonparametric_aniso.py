@@ -257,12 +257,6 @@ class AnisotropicNonParametricModel(AbstractModel):
         return self.base_nodes**2
 
     @property
-    def _per_scale(self) -> int:
-        """The even profile values per coarser scale: 3 functions from ρ = 0, the higher harmonics from ρ_1."""
-        J1, F = len(self.knots), len(self._functions)
-        return 3 * J1 + (F - 3) * (J1 - 1) if F > 1 else J1
-
-    @property
     def _functions(self) -> tuple[str, ...]:
         """The angular functions' names: ``1``, ``cos2φ``, ``sin2φ``, ``cos4φ``, …"""
         return ("1", *(f"{t}{2 * n}φ" for n in range(1, self.harmonics + 1) for t in ("cos", "sin")))
@@ -274,37 +268,32 @@ class AnisotropicNonParametricModel(AbstractModel):
             f"{t}{'' if m == 1 else 2 * m - 1}φ" for m in range(1, self.odd_harmonics + 1) for t in ("cos", "sin")
         )
 
-    def _first_odd_knot(self, g: int) -> int:
-        """The first free knot of odd function g: 0 for φ and 3φ (the third cumulant), 1 above (zero at ρ = 0:
-        ρ³ cos 5φ is not a cubic polynomial, so its profile must vanish there for Ψ to have third derivatives)."""
-        return 0 if g < 4 else 1
+    def _layout(self, odd: bool) -> tuple[tuple[str, ...], int, int]:
+        """The even (``odd=False``: P, A_f) or odd part (Q, B_g) of θ's profiles: its angular functions' names, how
+        many of them (the first) have a coordinate at ρ = 0, and its profile values per coarser scale. The others'
+        profiles vanish at ρ = 0 and start at ρ_1: the even harmonics n ≥ 2 (``D_k`` twice differentiable at 0)
+        and the odd ones 5φ and above (ρ³ cos 5φ is not a cubic polynomial: ``Ψ_k`` three times differentiable),
+        so the free ones there are ``1, cos 2φ, sin 2φ`` and ``cos φ, sin φ, cos 3φ, sin 3φ`` (the third cumulant)."""
+        functions = self._odd_functions if odd else self._functions
+        at_zero, J1 = min(len(functions), 4 if odd else 3), len(self.knots)
+        return functions, at_zero, at_zero * J1 + (len(functions) - at_zero) * (J1 - 1)
 
-    @property
-    def _odd_per_scale(self) -> int:
-        J1, G = len(self.knots), len(self._odd_functions)
-        return min(G, 4) * J1 + max(G - 4, 0) * (J1 - 1)
-
-    def _first_knot(self, f: int) -> int:
-        """The first free knot of function f: 0 for the harmonics n ≤ 1, 1 above (zero at ρ = 0)."""
-        return 0 if f < 3 else 1
+    def _first_knot(self, f: int, odd: bool) -> int:
+        """The first free knot of the part's function f: 0, or 1 where its profile is 0 at ρ = 0 (:meth:`_layout`)."""
+        return 0 if f < self._layout(odd)[1] else 1
 
     @property
     def names(self) -> tuple[str, ...]:
         nb = self.base_nodes
         base = tuple(f"log base[{r},{c}]" for r in range(nb) for c in range(nb))
         profiles = tuple(
-            f"P{k}[{name}](W={self.knots[j]:.4g}) [v]"
+            f"{letter}{k}[{name}](W={self.knots[j]:.4g}) [{unit}]"
+            for odd, letter, unit in ((False, "P", "v"), (True, "Q", "v^1.5"))
             for k in range(1, self.n_scales)
-            for f, name in enumerate(self._functions)
-            for j in range(self._first_knot(f), len(self.knots))
+            for f, name in enumerate(self._layout(odd)[0])
+            for j in range(self._first_knot(f, odd), len(self.knots))
         )
-        odd = tuple(
-            f"Q{k}[{name}](W={self.knots[j]:.4g}) [v^1.5]"
-            for k in range(1, self.n_scales)
-            for g, name in enumerate(self._odd_functions)
-            for j in range(self._first_odd_knot(g), len(self.knots))
-        )
-        return base + profiles + odd
+        return base + profiles
 
     @property
     def radial(self) -> bool:
@@ -330,31 +319,27 @@ class AnisotropicNonParametricModel(AbstractModel):
 
     # --- the parts of θ -------------------------------------------------------------------------
 
+    def _unpack(self, theta: Float[Array, " n"], odd: bool) -> Float[Array, "k f j"]:
+        """The even (``odd=False``) or odd part's profiles from θ (:meth:`_layout`), in slope units² (³): θ's
+        values times v (v^{3/2}), 0 at ρ = 0 for the functions without a coordinate there, row 0 zero."""
+        functions, at_zero, per_scale = self._layout(odd)
+        F, J1, K1 = len(functions), len(self.knots), self.n_scales - 1
+        start = self._n_base + (K1 * self._layout(False)[2] if odd else 0)
+        rows = jnp.asarray(theta)[start : start + K1 * per_scale].reshape(K1, per_scale)
+        rows = rows * (self.reference_variance**1.5 if odd else self.reference_variance)
+        low = rows[:, : at_zero * J1].reshape(K1, at_zero, J1)
+        if F > at_zero:
+            high = rows[:, at_zero * J1 :].reshape(K1, F - at_zero, J1 - 1)
+            low = jnp.concatenate([low, jnp.concatenate([jnp.zeros_like(high[..., :1]), high], axis=-1)], axis=1)
+        return jnp.concatenate([jnp.zeros((1, F, J1), low.dtype), low])
+
     def profiles(self, theta: Float[Array, " n"]) -> Float[Array, "k f j"]:
         """``P_{k,f}(ρ_j)`` (slope units²) for k = 0 … K−1 (row 0 zero), every function f, j = 0 … J."""
-        theta = jnp.asarray(theta)
-        J1, F = len(self.knots), len(self._functions)
-        even = theta[self._n_base : self._n_base + (self.n_scales - 1) * self._per_scale]
-        rows = even.reshape(self.n_scales - 1, self._per_scale) * self.reference_variance
-        low = rows[:, : min(F, 3) * J1].reshape(self.n_scales - 1, min(F, 3), J1)
-        if F > 3:
-            high = rows[:, 3 * J1 :].reshape(self.n_scales - 1, F - 3, J1 - 1)
-            high = jnp.concatenate([jnp.zeros_like(high[..., :1]), high], axis=-1)
-            low = jnp.concatenate([low, high], axis=1)
-        return jnp.concatenate([jnp.zeros((1, F, J1), low.dtype), low])
+        return self._unpack(theta, odd=False)
 
     def odd_profiles(self, theta: Float[Array, " n"]) -> Float[Array, "k g j"]:
         """``Q_{k,g}(ρ_j)`` (slope units³) for k = 0 … K−1 (row 0 zero), every odd function g, j = 0 … J."""
-        theta = jnp.asarray(theta)
-        G, J1, K1 = len(self._odd_functions), len(self.knots), self.n_scales - 1
-        start = self._n_base + K1 * self._per_scale
-        rows = theta[start : start + K1 * self._odd_per_scale].reshape(K1, self._odd_per_scale)
-        rows = rows * self.reference_variance**1.5
-        low = rows[:, : min(G, 4) * J1].reshape(K1, min(G, 4), J1)
-        if G > 4:
-            high = rows[:, 4 * J1 :].reshape(K1, G - 4, J1 - 1)
-            low = jnp.concatenate([low, jnp.concatenate([jnp.zeros_like(high[..., :1]), high], axis=-1)], axis=1)
-        return jnp.concatenate([jnp.zeros((1, G, J1), low.dtype), low])
+        return self._unpack(theta, odd=True)
 
     def _polar(self, W):
         rho2 = jnp.sum(W * W, axis=-1)
@@ -367,29 +352,37 @@ class AnisotropicNonParametricModel(AbstractModel):
         t = jnp.clip(rho, knots[0], knots[-1])
         return jax.vmap(jax.vmap(lambda p: jnp.interp(t, knots, p)))(profiles)
 
+    def _log_ratio_parts(
+        self, theta: Float[Array, " n"], W: Float[Array, "... 2"], parts: tuple[bool, ...]
+    ) -> list[Float[Array, "k ..."]]:
+        """For each part asked (False: even, True: odd), ``−D_k(W)`` or ``Ψ_k(W)`` for every measured scale, from
+        one polar transform of ``W`` (:meth:`evolved_grids` asks for both)."""
+        rho2, rho, phi = self._polar(jnp.asarray(W))
+        out = []
+        for odd in parts:
+            if odd and not self.odd_harmonics:  # Ψ_k = 0 (an empty sum would not have its shape)
+                out.append(jnp.zeros((self.n_scales, *phi.shape), phi.dtype))
+                continue
+            if odd:
+                orders = [2 * m - 1 for m in range(1, self.odd_harmonics + 1)]  # B_g: cos φ, sin φ, cos 3φ, …
+                angular = [t(n * phi) for n in orders for t in (jnp.cos, jnp.sin)]
+            else:
+                angular = [jnp.ones_like(phi)]  # A_f: 1, cos 2φ, sin 2φ, …
+                angular += [t(2 * n * phi) for n in range(1, self.harmonics + 1) for t in (jnp.cos, jnp.sin)]
+            radial = self._radial(self._unpack(theta, odd), rho)  # (k, f, *w)
+            total = sum(radial[:, f] * a[None] for f, a in enumerate(angular))
+            out.append((rho2 * rho)[None] * total if odd else -rho2[None] * total)
+        return out
+
     def log_relative(self, theta: Float[Array, " n"], W: Float[Array, "... 2"]) -> Float[Array, "k ..."]:
         """``log |R_k(W)| = −D_k(W)`` (the even part) for every measured scale at points ``W`` of the plane."""
-        W = jnp.asarray(W)
-        rho2, rho, phi = self._polar(W)
-        angular = [jnp.ones_like(phi)]
-        for n in range(1, self.harmonics + 1):
-            angular += [jnp.cos(2 * n * phi), jnp.sin(2 * n * phi)]
-        radial = self._radial(self.profiles(theta), rho)  # (k, f, *w)
-        total = sum(radial[:, f] * a[None] for f, a in enumerate(angular))
-        return -rho2[None] * total
+        (even,) = self._log_ratio_parts(theta, W, (False,))
+        return even
 
     def phase(self, theta: Float[Array, " n"], W: Float[Array, "... 2"]) -> Float[Array, "k ..."]:
         """``Ψ_k(W) = arg R_k(W) = ρ³ Σ_g Q_{k,g}(ρ) B_g(φ)`` (the odd part; module docstring)."""
-        W = jnp.asarray(W)
-        rho2, rho, phi = self._polar(W)
-        if not self.odd_harmonics:
-            return jnp.zeros((self.n_scales, *phi.shape), phi.dtype)
-        angular = []
-        for m in range(1, self.odd_harmonics + 1):
-            angular += [jnp.cos((2 * m - 1) * phi), jnp.sin((2 * m - 1) * phi)]
-        radial = self._radial(self.odd_profiles(theta), rho)
-        total = sum(radial[:, g] * a[None] for g, a in enumerate(angular))
-        return (rho2 * rho)[None] * total
+        (odd,) = self._log_ratio_parts(theta, W, (True,))
+        return odd
 
     def covariance_differences(self, theta: Float[Array, " n"], scales: Float[Array, " k"]) -> Float[Array, "k 2 2"]:
         """ΔΣ(μ0, μ_k) = 2 [[a + b, c], [c, a − b]] (module docstring), exact from θ; row 0 is 0."""
@@ -433,8 +426,10 @@ class AnisotropicNonParametricModel(AbstractModel):
         """``g_k`` on the model grid for every measured scale (module docstring: zero-padded FFT)."""
 
         def log_ratio(W):  # real, and a real product in the hot path, where there is no odd part
-            even = self.log_relative(theta, W)
-            return even + 1j * self.phase(theta, W) if self.odd_harmonics else even
+            if not self.odd_harmonics:
+                return self.log_relative(theta, W)
+            even, odd = self._log_ratio_parts(theta, W, (False, True))  # one polar transform for both
+            return even + 1j * odd
 
         return evolve_on_grid(self.base_grid(theta), log_ratio, self.pitch, self.fft_size)
 
@@ -545,7 +540,7 @@ class AnisotropicNonParametricModel(AbstractModel):
                 row += [np.zeros(J1 - 1)] * (2 * (self.harmonics - 1))
             rows.append(np.concatenate(row))
         del amp
-        odd = np.zeros((self.n_scales - 1) * self._odd_per_scale)  # no skewness change to start
+        odd = np.zeros((self.n_scales - 1) * self._layout(True)[2])  # no skewness change to start
         return np.concatenate([base, *rows, odd])
 
     def bounds(self, data):
