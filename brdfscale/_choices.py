@@ -446,7 +446,9 @@ class AdequacyDefaults:
       frequency: sampled without loss; narrower ones alias, and within a pixel nothing is measured);
     * ``significance``, ``peak_fraction``: the pixels whose second moments measure a lobe's width —
       above ``significance`` σ and above ``peak_fraction`` of the image's peak (noise far from the lobe
-      would otherwise dominate the moments).
+      would otherwise dominate the moments);
+    * ``away_fraction``: where the misfit lies — the pixels where the model predicts less than this fraction of
+      its image's peak are *away from the lobe* (``fitting.assess``'s ``away_share``: a diagnosis, no test).
     """
 
     max_reduced_chi2: float = 1.5
@@ -455,6 +457,7 @@ class AdequacyDefaults:
     min_lobe_pixels: float = 1.0
     significance: float = 3.0
     peak_fraction: float = 0.05
+    away_fraction: float = 0.01
 
 
 #: The defaults.

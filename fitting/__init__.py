@@ -46,7 +46,7 @@ installed as ``brdfscale.fitting`` (pyproject's ``package-dir``), so no top-leve
 named ``fitting`` is installed and a local ``fitting.py`` cannot take its place.
 """
 
-from ._adequacy import assess, lag1_correlation, lobe_widths, Outcome, resolution
+from ._adequacy import assess, away_from_lobe, lag1_correlation, lobe_widths, Outcome, resolution
 from ._anisotropic import AbstractCovarianceModel, AnisotropicModel
 from ._anisotropic_law import AnisotropicLawModel
 from ._batch import BatchPlan, COMPILE_ROWS, explain_plan, fit_many
@@ -108,6 +108,7 @@ __all__ = [
     "SampleResult",
     "TopographyData",
     "assess",
+    "away_from_lobe",
     "check_report_directory",
     "compare",
     "explain_plan",

@@ -49,6 +49,13 @@ is listed in :attr:`Outcome.problems`):
      within its noise, that carry the second moment (tests/test_adequacy.py: a Gaussian core with such tails
      passes both and fails this; the lobes of the real files of tests/data).
 
+   * where the misfit lies (a diagnosis, no test: :func:`away_from_lobe`): the share of a scale's χ² excess
+     ``Σ (r² − 1)`` at pixels where the model predicts less than ``away_fraction`` (1 %) of its peak, and the
+     slope offset of the largest excess of data over model there. A χ² failure with most of its excess away from
+     the lobe says so in its reason, with that offset: the model holds the lobe and misses light beyond it
+     (tails, or satellite peaks — the lobes synthesised from tests/data's mnt-1, whose pixel slopes have side
+     peaks at ±0.16 from rare steps of one height, show them at that offset; docs/fitting.md).
+
    A scale where the prediction at the estimate is not finite at a valid pixel (an overflow or
    0/0 of the model; masked pixels are left out whatever it predicts there) has no χ² and no
    autocorrelation: its figures are None (null in fit.json; ``brdfscale fit`` prints
@@ -92,7 +99,7 @@ from ._problem import check_fit, Problem
 from ._result import FitResult
 
 
-__all__ = ["Outcome", "assess", "lobe_moments", "lobe_widths", "resolution"]
+__all__ = ["Outcome", "assess", "away_from_lobe", "lag1_correlation", "lobe_moments", "lobe_widths", "resolution"]
 
 Status = Literal["ok", "undetermined", "inadequate", "not_converged"]
 
@@ -108,7 +115,8 @@ class Outcome:
     a fit ``chi2``, ``dof``, ``reduced_chi2``, ``chi2_p``, ``lag1_rows``, ``lag1_cols``,
     ``lag1_p``, the largest autocorrelations over the scale's images and the Bonferroni-corrected
     p-value of the larger, ``moments_z``, ``moments_entry``, ``moments_p``, the second-moment test of the pair
-    (μ0, μ) — None, not NaN, where the prediction is not finite at a valid pixel, and the moments' at μ0:
+    (μ0, μ), ``away_share``, ``away_peak_offset``, ``away_peak_z``, where the misfit lies (:func:`away_from_lobe`)
+    — None, not NaN, where the prediction is not finite at a valid pixel, and the moments' at μ0:
     module docstring, point 2); ``thresholds``: those used.
     """
 
@@ -254,6 +262,65 @@ _FIGURES = ("chi2", "reduced_chi2", "chi2_p", "lag1_rows", "lag1_cols", "lag1_p"
 """A fitted scale's figures (:class:`Outcome`'s ``scales``); None where its prediction is not finite."""
 
 
+_AWAY_FIGURES = ("away_share", "away_peak_offset", "away_peak_z")
+"""A fitted scale's diagnosis of where its misfit lies (:func:`away_from_lobe`); None where it is not defined."""
+
+
+def away_from_lobe(
+    values: Float[ArrayLike, "n_img n_pix"],
+    prediction: Float[ArrayLike, "n_img n_pix"],
+    weight: Float[ArrayLike, "n_img n_pix"],
+    offsets: Float[ArrayLike, "n_img n_pix 2"],
+    sizes,
+    fraction: float,
+) -> dict:
+    """Where a scale's misfit lies: in the lobe or away from it (:func:`assess`, module docstring, point 2).
+
+    Over the images given (one scale's: rows of ``values``, ``prediction``, ``weight`` = 1/σ, 0 where masked,
+    and the pixels' slope ``offsets``; ``sizes`` their sides n, each image's first n² entries its pixels, row
+    by row), with the whitened residuals ``r = (prediction − data)/σ`` at the valid pixels:
+
+    * ``away_share``: the part of the excess ``Σ (r² − 1)`` that lies *away from the lobe*, at the pixels where
+      the model predicts less than ``fraction`` of its image's largest prediction, ``Σ_away (r² − 1) / Σ (r² −
+      1)`` clipped to [0, 1]; None where the excess is not positive (nothing to place). Near 1: the model
+      describes the lobe and misses something beyond it — tails, or light in places the lobe does not reach
+      (satellite peaks: a surface with steps of one height puts them at the step's slope); near 0: the lobe's
+      own shape is wrong.
+    * ``away_peak_offset``, ``away_peak_z``: the slope offset (u_x, u_y) of the away pixel with the largest
+      excess of data over model, measured over its 3 × 3 neighbourhood of away pixels, ``−Σ r/√count`` (the
+      sum of independent unit normals divided by √count: itself a unit normal where the model holds), and that
+      value; None without away pixels.
+
+    Verified on lobes with a satellite peak and on a lobe of the wrong shape in tests/test_adequacy.py.
+    """
+    values, prediction, weight, offsets = (np.asarray(x, float) for x in (values, prediction, weight, offsets))
+    excess = away = 0.0
+    best_z, best_u = -np.inf, None
+    for i, n in enumerate(sizes):
+        ok = weight[i, : n * n].reshape(n, n) > 0
+        p = prediction[i, : n * n].reshape(n, n)
+        with np.errstate(invalid="ignore", over="ignore"):  # a masked pixel's ∞ · 0: left out by ``ok``
+            r = np.where(ok, (p - values[i, : n * n].reshape(n, n)) * weight[i, : n * n].reshape(n, n), 0.0)
+        far = ok & (p < fraction * np.max(np.where(ok, p, -np.inf)))
+        excess += float(np.sum(np.where(ok, r * r - 1, 0.0)))
+        away += float(np.sum(np.where(far, r * r - 1, 0.0)))
+        if not far.any():
+            continue
+        # the 3 × 3 neighbourhood sums of −r and of the count over away pixels (zero-padded shifts)
+        s, c = np.pad(np.where(far, -r, 0.0), 1), np.pad(far.astype(float), 1)
+        box = sum(s[a : a + n, b : b + n] for a in range(3) for b in range(3))
+        count = sum(c[a : a + n, b : b + n] for a in range(3) for b in range(3))
+        z = np.where(far, box / np.sqrt(np.maximum(count, 1.0)), -np.inf)
+        j = int(np.argmax(z))
+        if z.flat[j] > best_z:
+            best_z, best_u = float(z.flat[j]), offsets[i, j].tolist()
+    return {
+        "away_share": min(max(away / excess, 0.0), 1.0) if excess > 0 and np.isfinite(excess) else None,
+        "away_peak_offset": best_u,
+        "away_peak_z": best_z if best_u is not None else None,
+    }
+
+
 _MOMENT_FIGURES = ("moments_z", "moments_entry", "moments_p")
 """A fitted scale's second-moment test (:func:`_moment_misses`); None at μ0 and where it is not defined."""
 
@@ -286,6 +353,19 @@ def _moment_misses(data: Dataset, prediction: np.ndarray, observed: list[dict], 
             best["moments_p"] = min(1.0, 2 * float(stats.norm.sf(abs(best["moments_z"]))) * n_tests)
         out.append(best)
     return out
+
+
+def _away_text(row: dict, thresholds: AdequacyDefaults) -> str:
+    """The inadequate reason's clause on where the misfit lies (:func:`away_from_lobe`), when most of a scale's χ²
+    excess is away from the lobe ("" otherwise)."""
+    share, u, z = row["away_share"], row["away_peak_offset"], row["away_peak_z"]
+    if share is None or share < 0.5 or u is None:
+        return ""
+    return (
+        f"; {share:.0%} of the scale's χ² excess lies where the model predicts < {thresholds.away_fraction:g} of its "
+        f"peak, the largest at slope offset ({u[0]:+.3g}, {u[1]:+.3g}) ({z:.3g} σ): tails or light away from the lobe "
+        "that the model does not have (steps of one height in a surface put satellite peaks at their slope)"
+    )
 
 
 def lag1_correlation(
@@ -387,12 +467,13 @@ def assess_against(
         where = _mu_text(float(mu), unit)
         undefined = int(np.count_nonzero(~np.isfinite(whitened[images])))
         if undefined:  # no χ² and no autocorrelation: the scale's figures are None (null), never NaN
-            rows.append({**resolved.scales[k], "dof": dof, **dict.fromkeys(_FIGURES + _MOMENT_FIGURES)})
+            rows.append({**resolved.scales[k], "dof": dof, **dict.fromkeys(_FIGURES + _MOMENT_FIGURES + _AWAY_FIGURES)})
             inadequate.append(
                 (
                     np.inf,
                     f"model inadequate at {where}: its prediction is not finite at {undefined} of the {n_k} valid "
                     "pixels (χ² undefined)",
+                    "",
                 )
             )
             continue
@@ -417,14 +498,24 @@ def assess_against(
             "lag1_cols": lag[0],
             "lag1_p": min(p_lag, 1.0),
             **moments[k],
+            **away_from_lobe(
+                np.asarray(data.values)[images],
+                prediction[images],
+                weight[images],
+                np.asarray(data.offsets)[images],
+                [data.image_sizes[i] for i in images],
+                thresholds.away_fraction,
+            ),
         }
         rows.append(row)
+        away = _away_text(row, thresholds)  # on the headline only: where the worst scale's misfit lies
         if row["reduced_chi2"] > thresholds.max_reduced_chi2 and row["chi2_p"] < thresholds.p_value:
             inadequate.append(
                 (
                     row["reduced_chi2"] / thresholds.max_reduced_chi2,
                     f"model inadequate at {where}: χ²/dof = {row['reduced_chi2']:.3g} "
                     f"(> {thresholds.max_reduced_chi2:g}, p = {row['chi2_p']:.2g})",
+                    away,
                 )
             )
         if row["moments_p"] is not None and row["moments_p"] < thresholds.p_value:
@@ -436,6 +527,7 @@ def assess_against(
                     f"of its lobes over the images' pixels is {z:+.3g} standard errors off the images' own "
                     f"(p = {row['moments_p']:.2g}): the lobes' tails are not the model's shape "
                     "(the images' own ΔΣ: fit.json's moment_covariance_differences)",
+                    away,
                 )
             )
         largest = max(lag.values())
@@ -447,13 +539,14 @@ def assess_against(
                     f"model inadequate at {where}: residual structure, lag-1 autocorrelation of the whitened "
                     f"residuals along the {direction} {largest:.2f} "
                     f"(> {thresholds.max_lag1:g}, p = {row['lag1_p']:.2g})",
+                    away,
                 )
             )
     problems = list(resolved.problems)
     inadequate.sort(key=lambda item: -item[0])
     advice = " — compare other lobe shapes and models (fitting.compare; brdfscale fit --compare, --shape, --model)"
-    problems += [text + advice for _, text in inadequate[:1]]
-    problems += [text for _, text in inadequate[1:]]
+    problems += [text + away + advice for _, text, away in inadequate[:1]]
+    problems += [text for _, text, _ in inadequate[1:]]
     if fit.status != "converged":
         problems.append(
             f"not converged: the optimiser's best start ended with {fit.status} (allow the solver more steps)"

@@ -16,7 +16,7 @@ import sys
 import types
 from typing import TYPE_CHECKING
 
-from .._choices import FAMILIES, FIT, LAWS, MASKING, MODEL, MODELS, SAMPLE, SAMPLERS, SHAPES, SOLVERS
+from .._choices import ADEQUACY, FAMILIES, FIT, LAWS, MASKING, MODEL, MODELS, SAMPLE, SAMPLERS, SHAPES, SOLVERS
 from .._errors import InvalidInputError
 from ._options import integer, MAX_SEED, output_directory, real, seed
 
@@ -545,20 +545,24 @@ def print_outcome(doc: dict, stream=print) -> None:
         f"autocorrelation of the whitened residuals > {t['max_lag1']:g} (each at p < {t['p_value']:g}), or the "
         f"model's ΔΣ(μ0, μ) over the images' pixels misses their own second moments (ΔΣ z: the largest of xx, xy, "
         f"yy in standard errors; p < {t['p_value']:g}); lobe width: rms along its narrower axis in image pixels "
-        f"(≥ {t['min_lobe_pixels']:g} needed):"
+        f"(≥ {t['min_lobe_pixels']:g} needed); away: the share of χ² − n where the model predicts < "
+        f"{t.get('away_fraction', ADEQUACY.away_fraction):g} of its peak (near 1: the misfit lies beyond the lobe):"
     )
     stream(
         f"    {'μ (' + unit + ')':>14s} {'χ²/dof':>8s} {'p':>8s} {'lag-1 rows':>10s} {'lag-1 cols':>10s} "
-        f"{'p':>8s} {'ΔΣ z':>8s} {'p':>8s} {'width':>6s}"
+        f"{'p':>8s} {'ΔΣ z':>8s} {'p':>8s} {'width':>6s} {'away':>5s}"
     )
     for k, row in enumerate(outcome["scales"]):
         # None: the prediction is not finite at a valid pixel of the scale (fitting.assess), no figure at all;
         # reports written before the second-moment test have no moments_z (—)
         figures = (("reduced_chi2", "8.3f"), ("chi2_p", "8.2g"), ("lag1_rows", "10.3f"), ("lag1_cols", "10.3f"))
         figures += (("lag1_p", "8.2g"), ("moments_z", "+8.3g"), ("moments_p", "8.2g"), ("width_px", "6.2f"))
+        figures += (("away_share", "5.2f"),)
         cells = []
         for key, spec in figures:
             missing = "—" if key.startswith("moments") and (k == 0 or key not in row) else "undefined"
+            if key == "away_share" and (row.get("reduced_chi2") is not None or key not in row):
+                missing = "—"  # no χ² excess to place, or a report written before the column
             cells.append(table_cell(row.get(key), spec, missing))
         stream(f"    {row['mu']:14.4g} " + " ".join(cells))
     stream(f"  outcome: {outcome['status']}" + (f" — {outcome['reason']}" if outcome["reason"] else ""))
