@@ -91,7 +91,12 @@ def test_unmeasured_pixels_are_counted_as_excluded_windows(tmp_path, capsys):
     expected = topography.height_quantum(topography.read(FRT, detrend=None).heights, doc_mask(FRT))
     assert quantum == pytest.approx(expected, rel=1e-9)
     said = f"heights quantised in steps of {quantum:.4g} m: pixel slopes on a lattice of {quantum / 2.4e-5:.4g} (x)"
-    assert said in capsys.readouterr().out and said in (out / "statistics.md").read_text(encoding="utf-8")
+    printed, md = capsys.readouterr().out, (out / "statistics.md").read_text(encoding="utf-8")
+    assert said in printed and said in md
+    # under 1 % of its pixel slopes carry nearly all of their variance (topography.slope_outliers): said too
+    outliers = topography.slope_outliers(topography.read(FRT, detrend=None))
+    assert doc["field"]["slope_outliers"] == json.loads(json.dumps(outliers.to_json()))
+    assert outliers.dominated and outliers.note()[6:] in printed and outliers.note()[6:] in md
     field = doc["field"]
     assert field["unmeasured_pixels"] > 0.2 * 500 * 500 and doc["topography"]["detrend"] is None
     for row in doc["scales"]:

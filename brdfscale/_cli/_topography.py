@@ -156,7 +156,7 @@ def lobe_extent(field) -> float | None:
 
 def document(field, results, bins: int, command: str, extent: float | None = None) -> dict:
     """statistics.json's content: provenance, the field's geometry and per scale the statistics."""
-    from .. import __version__
+    from .. import __version__, topography
 
     dx, dy = field.spacing
     measured = field.heights.size if field.mask is None else int(field.mask.sum())
@@ -177,6 +177,8 @@ def document(field, results, bins: int, command: str, extent: float | None = Non
             "flat": field.steepest_slope == 0,
             # pitches equal to a relative 1e-3 made square: the pitches as given and their difference
             "square_pixels": field.description.get("square_pixels"),
+            # the few pixel slopes that can carry nearly all of Σ (topography.slope_outliers)
+            "slope_outliers": topography.slope_outliers(field).to_json(),
         },
         "bins": bins,
         "lobe_extent": extent,  # the half-width of the g_μ grids (null: the full range of the slopes)
@@ -235,6 +237,7 @@ def summary_line(doc: dict) -> str:
         + f", detrend {trend}, {f['unmeasured_pixels']} unmeasured pixels"
         + (f"\n{square_note(square)}" if square else "")
         + (f"\n{quantum_note(d['height_quantum'], dx, dy)}" if d.get("height_quantum") else "")
+        + (f"\n{outliers}" if (outliers := outliers_note(f)) else "")
         + ("\nnote: the surface is flat (every measured pixel slope is 0): Σ(μ) = 0 at every scale" if flat else "")
     )
 
@@ -246,6 +249,17 @@ def quantum_note(quantum: float, dx: float, dy: float) -> str:
         f"(x) × {quantum / dy:.4g} (y), so the lobes g_μ are combs of spikes that far apart (brdfscale synth "
         "--topography blurs its lobes by one quantum by default where that exceeds 2 image pixels)"
     )
+
+
+def outliers_note(field_record: dict) -> str | None:
+    """One line where a few pixel slopes carry most of Σ (:meth:`brdfscale.topography.SlopeOutliers.note`; None
+    otherwise, and for statistics.json written before the record)."""
+    from .. import topography
+
+    record = field_record.get("slope_outliers")
+    if not record:
+        return None
+    return topography.SlopeOutliers(**{k: tuple(v) if isinstance(v, list) else v for k, v in record.items()}).note()
 
 
 def square_note(record: dict) -> str:
@@ -336,6 +350,7 @@ def markdown(doc: dict) -> str:
             else []
         ),
         *(["* the surface is flat: every measured pixel slope is 0"] if f.get("flat") else []),
+        *([f"* {outliers[6:]}"] if (outliers := outliers_note(f)) else []),
         f"* lobes g_μ tabulated on {doc['bins']} × {doc['bins']} nodes"
         + (f" over ±{doc['lobe_extent']:.4g} (synth.robust_extent)" if doc.get("lobe_extent") else ""),
         "",

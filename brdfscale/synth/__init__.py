@@ -6,7 +6,7 @@
   built-in named surfaces of :func:`named_surface`; all in a :class:`HeightField` — the one
   height-field type, which also holds measured surfaces (rectangular, per-axis pitch, a mask
   of unmeasured pixels, not periodic) from :mod:`brdfscale.topography`.
-* Statistics: :func:`facet_slopes`, :func:`facet_statistics` (``s(·, μ)`` and the
+* Statistics: :func:`facet_slopes`, :func:`pixel_slopes`, :func:`facet_statistics` (``s(·, μ)`` and the
   within-facet lobe ``g_μ`` as :class:`brdfscale.stats.Tabulated`, with facet counts,
   effective independent facets and standard errors of ``Σ(μ)``), :func:`global_slopes`,
   :func:`steepest_slope`, :func:`offset_moments` (the moments of the lobe a measurement at μ holds).
@@ -20,7 +20,15 @@ bounded by :data:`MAX_GRID_BYTES` (2**31 bytes of float64 nodes, 16384² — use
 coarser grids beyond), Poisson counts by :data:`MAX_EXPECTED_COUNT` (1e18).
 """
 
-from ._facets import facet_slopes, facet_statistics, FacetStatistics, global_slopes, offset_moments, steepest_slope
+from ._facets import (
+    facet_slopes,
+    facet_statistics,
+    FacetStatistics,
+    global_slopes,
+    offset_moments,
+    pixel_slopes,
+    steepest_slope,
+)
 from ._gonio import GaussianNoise, gonioreflectometer, LIGHT_INSIDE, MAX_EXPECTED_COUNT, PoissonNoise, robust_extent
 from ._named import named_surface, SURFACES
 from ._profiles import blazed, scratches
@@ -38,6 +46,7 @@ __all__ = [
     "named_surface",
     "FacetStatistics",
     "facet_slopes",
+    "pixel_slopes",
     "facet_statistics",
     "global_slopes",
     "offset_moments",

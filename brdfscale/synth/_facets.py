@@ -120,7 +120,16 @@ def facet_slopes(field: HeightField, mu: float) -> Float[np.ndarray, "rows cols 
     ``O(n²/b)`` memory.
     """
     check_field(field)
-    block = field.block(mu)
+    return _block_slopes(field, field.block(mu))
+
+
+def pixel_slopes(field: HeightField) -> Float[np.ndarray, "rows cols 2"]:
+    """Normal slopes of the pixel facets, shape ``field.facet_grid + (2,)``: :func:`facet_slopes` of the one-pixel
+    window (whatever the pitches, square or not); NaN where a pixel facet touches an unmeasured pixel."""
+    return _block_slopes(check_field(field), (1, 1))
+
+
+def _block_slopes(field: HeightField, block: tuple[int, int]) -> np.ndarray:
     mx, my = _facet_slope_components(field, block)
     valid = _window_validity(field, block)
     if valid is not None:

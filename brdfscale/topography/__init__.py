@@ -12,7 +12,8 @@ measurement set of it, and ``brdfscale fit`` fits that.
 * :func:`from_array` — your own array of heights, with its pixel pitch, unit and mask;
 * :func:`detrend` — the explicit, recorded removal of a plane or a quadratic;
 * :func:`resample` — a field onto square pixels (separable cubic convolution, recorded);
-* :func:`height_quantum` — the instrument's height step, where its heights lie on a lattice (recorded).
+* :func:`height_quantum` — the instrument's height step, where its heights lie on a lattice (recorded);
+* :func:`slope_outliers` — the few pixel slopes that can carry nearly all of Σ (spikes, steps of one height).
 
 Damaged files: every failure of SurfaceTopography's readers becomes a
 :class:`brdfscale.MeasurementFileError` naming the file and the reason, and so does a height
@@ -38,6 +39,7 @@ from ._array import (
     square_pitch,
     UNITS,
 )
+from ._outliers import OUTLIER_THRESHOLD, slope_outliers, SlopeOutliers
 from ._read import read
 from ._resample import INTERPOLATION, resample
 
@@ -49,6 +51,9 @@ __all__ = [
     "resample",
     "square_pitch",
     "height_quantum",
+    "slope_outliers",
+    "SlopeOutliers",
+    "OUTLIER_THRESHOLD",
     "QUANTISED_DISTINCT",
     "DETRENDS",
     "UNITS",
