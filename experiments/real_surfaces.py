@@ -137,7 +137,7 @@ def square_pitch(field) -> float:
 
 def pixel_slopes(field) -> np.ndarray:
     """The measured pixel facets' normal slopes (N, 2)."""
-    m = synth.facet_slopes(field, square_pitch(field)).reshape(-1, 2)
+    m = synth.pixel_slopes(field).reshape(-1, 2)
     return m[np.isfinite(m[:, 0])]
 
 
