@@ -767,7 +767,16 @@ def test_bench_real_fits_z_scores_and_targets_by_hand():
     assert brf.unflagged(honest) == [] and len(brf.unflagged(hidden)) == 2
     targets = brf.targets([honest, record(0, "ok", [ok_scale], 1.0)])
     assert targets["chi2_or_inadequate"]["met"] and targets["no_exit_0_with_unflagged_problem"]["met"]
-    assert targets["delta_sigma_within_3_std"] == {"met": False, "passed": 1, "of": 2}
+    assert targets["delta_sigma_within_3_std"] == {
+        "met": False,
+        "passed": 1,
+        "of": 2,
+        "missed_on_outlier_dominated_files": [],
+    }
+    # a miss on a file whose Σ a few pixel slopes carry (topography.slope_outliers) is named; a pass is not
+    spiky = {"slope_outliers": {"fraction": [0.01, 0.01], "variance_share": [0.9, 0.2], "dominated": True}}
+    named = brf.targets([{**honest, **spiky}, {**record(0, "ok", [ok_scale], 1.0), **spiky}])
+    assert named["delta_sigma_within_3_std"]["missed_on_outlier_dominated_files"] == ["f n5inadequate"]
     assert targets["held_out_half_of_isotropic_on_anisotropic_files"]["met"] is None  # no anisotropic file
     # held-out on anisotropic files: the runs whose noise floor is above ½ of the isotropic default's L1 are named
     held = {"isotropic": {"l1": 0.4}, "default": {"l1": 0.3}, "noise_floor_l1": 0.25}
