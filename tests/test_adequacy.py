@@ -307,6 +307,25 @@ def test_a_reported_statistic_without_standard_error_is_undetermined():
     assert told.status == "undetermined" and f"1 of {len(ratios)} ratios ({name})" in told.reason
 
 
+def test_an_undetermined_fit_is_not_sampled_unless_asked():
+    """FitSpec's rule (brdfscale fit and fit-library): a fit whose reported statistics have no standard error
+    before sampling is not sampled — its verdict reads the Laplace analysis, which no chain changes — and the
+    reason says so; sample_inadequate samples it all the same; a fit that is ok is sampled."""
+    from brdfscale import library
+
+    problem, result, outcome = _assessed("beckmann", "beckmann", 0)
+    spec = library.FitSpec(model="parametric", sampler="auto")
+    assert outcome.status == "ok" and spec.not_sampled_because(problem, result) is None
+    blind = dataclasses.replace(
+        result,
+        covariance_differences=[{**d, "std": [[None, None], [None, None]]} for d in result.covariance_differences],
+    )
+    assert fitting.assess(problem, blind).status == "undetermined"
+    reason = spec.not_sampled_because(problem, blind)
+    assert reason.startswith("the data do not determine the statistics the fit reports") and "exit status 7" in reason
+    assert dataclasses.replace(spec, sample_inadequate=True).not_sampled_because(problem, blind) is None
+
+
 def test_the_isotropic_models_covariance_is_fixed_not_measured():
     """ΔΣ_xy of an isotropic model is 0 by construction: no standard error (not "± 0"), marked
     fixed in fit.json's entries and in the printed table."""
@@ -387,8 +406,8 @@ def test_relative_statistics_far_out_in_w_are_finite(family):
 @pytest.mark.slow  # synth of a 600 × 960 field and one fit without sampling: ≈ 1 min on 2 shared cores
 def test_a_real_surface_at_low_counts_ends_undetermined_not_ok(tmp_path, capsys):
     """mnt-1.mnt (tests/data) synthesised at poisson:0.05:1 and fitted by the parametric model: the
-    data determine none of its diagonal ΔΣ — exit 7 with one line naming them, never a silent 0;
-    fit.json gives ΔΣ_xy as fixed by the isotropic model."""
+    data determine none of its diagonal ΔΣ — exit 7 with one line naming them, never a silent 0, and no chain run
+    for a verdict it cannot change; fit.json gives ΔΣ_xy as fixed by the isotropic model."""
     import json
     from pathlib import Path
 
@@ -398,12 +417,15 @@ def test_a_real_surface_at_low_counts_ends_undetermined_not_ok(tmp_path, capsys)
     data, out = tmp_path / "X.exr", tmp_path / "F"
     assert main(["synth", "--topography", str(topography), "--noise", "poisson:0.05:1", "--out", str(data)]) == 0
     capsys.readouterr()
-    fit = ["fit", str(data), "--out", str(out), "--model", "parametric", "--steps", "0", "--no-progress"]
+    # sampling asked for (the default sampler, auto): not sampled, as the verdict cannot change (FitSpec's rule)
+    fit = ["fit", str(data), "--out", str(out), "--model", "parametric", "--no-progress"]
     assert main(fit) == 7
     (line,) = capsys.readouterr().err.splitlines()
     assert line.startswith("brdfscale fit: undetermined: the data do not determine ") and "ΔΣ_xx at μ = " in line
     doc = json.loads((out / "fit.json").read_text())
     assert doc["outcome"]["status"] == "undetermined"
+    assert doc["mcmc"]["status"].startswith("not sampled: the data do not determine the statistics the fit reports")
+    assert not (out / "chain.h5").exists()
     for d in doc["covariance_differences"]:
         assert d["std"][0][0] is None and d["std"][1][1] is None and d["value"][0][0] is not None
         assert d["fixed"] == [[False, True], [True, False]] and d["std"][0][1] is None

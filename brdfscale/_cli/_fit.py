@@ -157,8 +157,8 @@ def add_fit_options(parser) -> None:
     parser.add_argument(
         "--sample-inadequate",
         action="store_true",
-        help="sample the posterior even where the fit is inadequate before sampling (by default such a fit is "
-        "reported with its Laplace uncertainties only, exit status 5)",
+        help="sample the posterior even where the fit is inadequate (exit status 5) or its reported statistics "
+        "undetermined (7) before sampling (by default such a fit is reported with its Laplace uncertainties only)",
     )
     parser.add_argument(
         "--chains",

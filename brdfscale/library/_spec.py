@@ -143,11 +143,13 @@ class FitSpec:
     ``figures`` adds the report's three PNG figures per material (on a CPU they take longer than
     the fit; off by default).
 
-    A fit whose verdict before sampling (:func:`fitting.assess` without samples) is "inadequate"
-    is not sampled — the posterior of a model its data reject says nothing more about the surface,
-    and on real surfaces it is the slowest to sample — unless ``sample_inadequate``: the rule of
-    :meth:`not_sampled_because`, which ``brdfscale fit`` and :func:`brdfscale.library.fit_library`
-    both apply (``--sample-inadequate`` on the command line).
+    A fit whose verdict before sampling (:func:`fitting.assess` without samples) is "inadequate" or
+    "undetermined" is not sampled — the posterior of a model its data reject says nothing more about the
+    surface, and on real surfaces it is the slowest to sample; a statistic without a standard error stays so
+    whatever the chains do (the verdict reads the Laplace analysis), so sampling could only add exit status 6 to
+    a 7 after minutes — unless ``sample_inadequate``: the rule of :meth:`not_sampled_because`, which
+    ``brdfscale fit`` and :func:`brdfscale.library.fit_library` both apply (``--sample-inadequate`` on the
+    command line).
 
     :meth:`model_for`, :meth:`fit` and :meth:`sample` hand the options on to :mod:`fitting`:
     the one place where a spec becomes arguments.
@@ -251,20 +253,24 @@ class FitSpec:
         """Why this spec does not sample ``fit`` of ``problem``, or None where it samples it: it samples (``sampler``
         set), and either ``steps`` is None for a model not ``sampled_by_default`` (the anisotropic non-parametric
         model) or ``sample_inadequate`` is False and :func:`fitting.assess` of the fit without samples (computed only
-        then; ``unit`` the scales' length unit) says "inadequate". The reason is what :func:`fitting.write_report`'s
-        ``not_sampled`` records."""
+        then; ``unit`` the scales' length unit) says "inadequate" or "undetermined". The reason is what
+        :func:`fitting.write_report`'s ``not_sampled`` records."""
         if self.sampler is None:
             return None
         if self.not_sampled_by_default is not None:
             return self.not_sampled_by_default
         if self.sample_inadequate:
             return None
-        if _fitting().assess(problem, fit, unit=unit).status != "inadequate":
-            return None
-        return (
-            "the model is inadequate before sampling (exit status 5 either way); --sample-inadequate "
-            "(FitSpec(sample_inadequate=True)) samples it anyway"
-        )
+        status = _fitting().assess(problem, fit, unit=unit).status
+        anyway = "--sample-inadequate (FitSpec(sample_inadequate=True)) samples it anyway"
+        if status == "inadequate":
+            return f"the model is inadequate before sampling (exit status 5 either way); {anyway}"
+        if status == "undetermined":
+            return (
+                "the data do not determine the statistics the fit reports (no standard error: exit status 7, which "
+                f"sampling cannot change — the verdict reads the Laplace analysis); {anyway}"
+            )
+        return None
 
     def fit(self, model, data):
         """:func:`fitting.fit` of ``model`` to ``data`` with these options."""

@@ -146,7 +146,7 @@ def fit_batch(
     fits = spec.fit_many([m for _, _, m, *_ in todo], [d for _, d, *_ in todo], batch=batch)
     fit_seconds = (time.perf_counter() - t0) / len(todo)
     problems = [fitting.Problem(m, d) for _, d, m, *_ in todo]
-    # FitSpec's rule: a fit inadequate before sampling is not sampled (unless spec.sample_inadequate)
+    # FitSpec's rule: a fit inadequate or undetermined before sampling is not sampled (unless spec.sample_inadequate)
     not_sampled = [
         None if isinstance(result, Exception) else spec.not_sampled_because(problem, result)
         for problem, result in zip(problems, fits, strict=True)
