@@ -447,8 +447,9 @@ class AdequacyDefaults:
     * ``significance``, ``peak_fraction``: the pixels whose second moments measure a lobe's width —
       above ``significance`` σ and above ``peak_fraction`` of the image's peak (noise far from the lobe
       would otherwise dominate the moments);
-    * ``away_fraction``: where the misfit lies — the pixels where the model predicts less than this fraction of
-      its image's peak are *away from the lobe* (``fitting.assess``'s ``away_share``: a diagnosis, no test).
+    * ``away_fraction``, ``away_verdict_share``: where the misfit lies — the pixels where the model predicts less
+      than ``away_fraction`` of its image's peak are *away from the lobe* (``fitting.assess``'s ``away_share``: a
+      diagnosis, no test); the verdict says so where the failing scale's share is above ``away_verdict_share``.
     """
 
     max_reduced_chi2: float = 1.5
@@ -458,6 +459,7 @@ class AdequacyDefaults:
     significance: float = 3.0
     peak_fraction: float = 0.05
     away_fraction: float = 0.01
+    away_verdict_share: float = 0.5
 
 
 #: The defaults.

@@ -304,6 +304,7 @@ def study(name: str, noise: str, workdir: Path, *, warm: bool, fit_args: tuple[s
     record["topography_anisotropy"] = float(eig[1] / eig[0])
     outliers = topography.slope_outliers(field)
     record["slope_outliers"] = {
+        "threshold": outliers.threshold,
         "fraction": list(outliers.fraction),
         "variance_share": list(outliers.variance_share),
         "dominated": outliers.dominated,

@@ -26,8 +26,8 @@ The chain, each step in its own module:
   :func:`sample`'s;
 * :func:`moment_covariance_differences` — ΔΣ(μ0, μk) from the images' own second moments, no model;
 * :func:`assess` — can the outcome be trusted: the lobes resolved, the model adequate (χ²/dof
-  per scale, residual structure: :func:`lag1_correlation`), the optimiser and sampler converged
-  (:class:`Outcome`, the ``brdfscale fit`` exit status);
+  per scale, residual structure: :func:`lag1_correlation`; where the misfit lies: :func:`away_from_lobe`), the
+  optimiser and sampler converged (:class:`Outcome`, the ``brdfscale fit`` exit status);
 * :func:`write_report` — fit.json, figures, evolved lobe tables;
 * :func:`plot_fit`, :func:`plot_recovered_statistics`, :func:`plot_corner` — the report's figures
   as ``matplotlib.figure.Figure`` objects made without pyplot (a notebook shows them; also

@@ -51,8 +51,9 @@ is listed in :attr:`Outcome.problems`):
 
    * where the misfit lies (a diagnosis, no test: :func:`away_from_lobe`): the share of a scale's χ² excess
      ``Σ (r² − 1)`` at pixels where the model predicts less than ``away_fraction`` (1 %) of its peak, and the
-     slope offset of the largest excess of data over model there. A χ² failure with most of its excess away from
-     the lobe says so in its reason, with that offset: the model holds the lobe and misses light beyond it
+     slope offset of the largest excess of data over model there. Where the scale that fails worst (whichever
+     test it fails) has more than ``away_verdict_share`` (½) of its excess away from the lobe, the verdict says so,
+     with that offset: the model holds the lobe and misses light beyond it
      (tails, or satellite peaks — the lobes synthesised from tests/data's mnt-1, whose pixel slopes have side
      peaks at ±0.16 from rare steps of one height, show them at that offset; docs/fitting.md).
 
@@ -90,6 +91,7 @@ import numpy as np
 from jaxtyping import ArrayLike, Bool, Float
 
 from brdfscale import InvalidInputError
+from brdfscale.checks import real
 from brdfscale.choices import ADEQUACY, AdequacyDefaults
 
 from ._data import Dataset
@@ -271,7 +273,7 @@ def away_from_lobe(
     prediction: Float[ArrayLike, "n_img n_pix"],
     weight: Float[ArrayLike, "n_img n_pix"],
     offsets: Float[ArrayLike, "n_img n_pix 2"],
-    sizes,
+    sizes: "list[int]",
     fraction: float,
 ) -> dict:
     """Where a scale's misfit lies: in the lobe or away from it (:func:`assess`, module docstring, point 2).
@@ -292,8 +294,33 @@ def away_from_lobe(
       value; None without away pixels.
 
     Verified on lobes with a satellite peak and on a lobe of the wrong shape in tests/test_adequacy.py.
+
+    Raises:
+        InvalidInputError: arrays of other shapes, sides whose squares exceed the pixels, a ``fraction`` outside
+            (0, 1).
     """
-    values, prediction, weight, offsets = (np.asarray(x, float) for x in (values, prediction, weight, offsets))
+    try:
+        values, prediction, weight, offsets = (np.asarray(x, float) for x in (values, prediction, weight, offsets))
+        sizes = [int(n) for n in sizes]
+    except (TypeError, ValueError) as err:
+        raise InvalidInputError(f"away_from_lobe takes arrays of real numbers and whole image sides; {err}.") from None
+    shape = values.shape
+    if (
+        len(shape) != 2
+        or prediction.shape != shape
+        or weight.shape != shape
+        or offsets.shape != (*shape, 2)
+        or len(sizes) != shape[0]
+        or any(n < 1 or n * n > shape[1] for n in sizes)
+    ):
+        raise InvalidInputError(
+            "away_from_lobe needs values, prediction and weight of one shape (images, pixels), offsets of that shape "
+            "plus (2,), and one side n per image with n² ≤ pixels; got shapes "
+            f"{values.shape}, {prediction.shape}, {weight.shape}, {offsets.shape} and sides {sizes}."
+        )
+    fraction = real(fraction, "fraction (of the image's largest prediction)", minimum=0.0, strict=True)
+    if fraction >= 1:
+        raise InvalidInputError(f"fraction must lie between 0 and 1 (exclusive); got {fraction}.")
     excess = away = 0.0
     best_z, best_u = -np.inf, None
     for i, n in enumerate(sizes):
@@ -356,10 +383,10 @@ def _moment_misses(data: Dataset, prediction: np.ndarray, observed: list[dict], 
 
 
 def _away_text(row: dict, thresholds: AdequacyDefaults) -> str:
-    """The inadequate reason's clause on where the misfit lies (:func:`away_from_lobe`), when most of a scale's χ²
-    excess is away from the lobe ("" otherwise)."""
+    """The verdict's clause on where the misfit lies (:func:`away_from_lobe`), when more than
+    ``away_verdict_share`` of the failing scale's χ² excess is away from the lobe ("" otherwise)."""
     share, u, z = row["away_share"], row["away_peak_offset"], row["away_peak_z"]
-    if share is None or share < 0.5 or u is None:
+    if share is None or share <= thresholds.away_verdict_share or u is None:
         return ""
     return (
         f"; {share:.0%} of the scale's χ² excess lies where the model predicts < {thresholds.away_fraction:g} of its "

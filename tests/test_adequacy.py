@@ -491,20 +491,32 @@ def test_away_from_lobe_places_a_satellite_peak_and_a_wrong_core():
     _, wide, _ = _lobe_images(0.0, width=0.065)
     core = fitting.away_from_lobe(lobe[None], wide[None], weight, u[None], [n], 0.01)
     assert core["away_share"] < 0.1
-    # a perfect model: no excess to place (None), and no masked pixel is counted
+    # a perfect model: no excess to place (None)
     exact = fitting.away_from_lobe(lobe[None], lobe[None], weight, u[None], [n], 0.01)
     assert exact["away_share"] is None and exact["away_peak_z"] == pytest.approx(0.0, abs=1e-12)
 
 
+@pytest.mark.wrong_types
+def test_away_from_lobe_refuses_bad_arguments():
+    u, lobe, data = _lobe_images(0.05)
+    ok = (data[None], lobe[None], np.ones((1, 65 * 65)), u[None], [65], 0.01)
+    for at, bad in ((1, lobe[None, :-1]), (3, u[None, :, :1]), (4, [66]), (4, [65, 65]), (5, 0.0), (5, 1.0), (5, "x")):
+        args = list(ok)
+        args[at] = bad
+        with pytest.raises(InvalidInputError, match="away_from_lobe needs|fraction"):
+            fitting.away_from_lobe(*args)
+
+
 def test_an_inadequate_reason_names_where_the_misfit_lies():
     """The headline of an inadequate fit carries the away clause exactly when its worst scale has most of its χ²
-    excess away from the lobe (the GGX-fitted-by-Beckmann case above: its share is recorded per scale)."""
+    excess away from the lobe (the GGX-fitted-by-Beckmann case above, one branch; the other: the slow mnt-1 test
+    below)."""
     _, _, outcome = _assessed("ggx", "beckmann", 0)
     assert all(row["away_share"] is None or 0.0 <= row["away_share"] <= 1.0 for row in outcome.scales)
     shares = [
         row["away_share"]
         for row in outcome.scales
-        if outcome.reason.startswith(f"model inadequate at μ = {row['mu']:.4g}")
+        if outcome.reason.startswith(f"model inadequate at μ = {row['mu']:.4g} px:")
     ]
     assert len(shares) == 1
     assert ("of the scale's χ² excess lies where the model predicts" in outcome.reason) == (shares[0] >= 0.5)
@@ -531,7 +543,8 @@ def test_on_mnt1_the_misfit_lies_at_the_satellite_peaks_of_its_steps(tmp_path, c
         m = np.abs(np.diff(h, axis=axis)) / pitch
         m = m[np.isfinite(m)]
         side, between = np.mean((m > 0.14) & (m < 0.18)), np.mean((m > 0.06) & (m < 0.12))
-        assert 1e-3 < side < 2e-2 and between < 1e-4, (axis, side, between)
+        # as docs/fitting.md and the docstring quote them
+        assert (f"{100 * side:.2f}", f"{100 * between:.2g}") == {1: ("0.45", "0.0035"), 0: ("0.94", "0.0054")}[axis]
     data, out = tmp_path / "X.exr", tmp_path / "F"
     assert main(["synth", "--topography", str(path), "--noise", "poisson:200:1", "--out", str(data)]) == 0
     capsys.readouterr()
@@ -541,7 +554,11 @@ def test_on_mnt1_the_misfit_lies_at_the_satellite_peaks_of_its_steps(tmp_path, c
     rows = json.loads((out / "fit.json").read_text())["outcome"]["scales"]
     for k, row in enumerate(rows[1:], start=1):
         assert row["away_share"] > 0.95, row
-        u = sorted(abs(c) for c in row["away_peak_offset"])
-        # μ1's facets are 2 pixels wide: a step inside one moves its mean by half, so its pixels sit half a step off
-        side = (0.06, 0.09) if k == 1 else (0.14, 0.18)
-        assert u[0] < 0.02 and side[0] < u[1] < side[1] and row["away_peak_z"] > 20, row
+        ux, uy = row["away_peak_offset"]
+        assert abs(ux) < 0.02, row  # the largest excess lies along y, where 0.94 % of the pairs are steps
+        if k == 1:  # μ1's facets are 2 pixels wide: a step inside one moves its mean by half a step
+            assert f"{abs(uy):.3f}" == "0.073", row
+        else:  # as docs/fitting.md quotes them
+            assert 0.1535 <= abs(uy) <= 0.1615 and 52.5 <= row["away_peak_z"] < 62.5, row
+    offsets = [f"({r['away_peak_offset'][0]:+.3g}, {r['away_peak_offset'][1]:+.3g})" for r in rows[1:]]
+    assert any(f"the largest at slope offset {o}" in line for o in offsets), line

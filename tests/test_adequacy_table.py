@@ -66,6 +66,11 @@ def test_a_scale_whose_prediction_is_not_finite_has_no_chi2_and_is_inadequate(ho
     mu0 = r" +1 +[0-9.]+ +[0-9.]+ +[0-9.]+ +[0-9.]+ +[0-9.]+ +— +— +[0-9.]+ +(—|[0-9.]+)"  # no ΔΣ at μ0
     assert re.fullmatch(mu0, lines[2]), text
     assert lines[-1] == f"  outcome: inadequate — {outcome.reason}"
+    # a report written before the away column: "—" there, the rest as before
+    old = outcome.to_json()
+    for row in old["scales"]:
+        del row["away_share"]
+    assert _table({"outcome": old, "data": {"unit": None}})[2].endswith(" —")
 
 
 def test_the_truth_table_prints_an_undetermined_quantity_in_words():
