@@ -252,6 +252,7 @@ def test_jit_grad_vmap_equal_eager():
     np.testing.assert_allclose(batched[1], eqx.filter_jit(model.predict)(stack[1], data), rtol=1e-12, atol=peak_bound)
 
 
+@pytest.mark.slow  # ≈ 8 s on 2 cores (the eager pass compiles op by op): the default suite is near its 360 s budget
 def test_odd_part_jit_grad_vmap_equal_eager():
     """The model with an odd part (complex log R_k = −D_k + iΨ_k; every odd coordinate non-zero) under jax.jit,
     jax.grad and jax.vmap: the jitted prediction equals the eager one, the jitted gradient of the sum of squared
