@@ -5,6 +5,7 @@ References nobody here wrote: SurfaceTopography (its readers, its polyfit detren
 hand-computed planes and masks, and an explicit window-by-window average written below.
 """
 
+import json
 import math
 from pathlib import Path
 
@@ -493,6 +494,7 @@ def test_slope_outliers_find_steps_of_one_height_and_what_they_carry():
         closed = (f * (1 - f) ** 2 * s**2 + f * v) / (f * (1 - f) * s**2 + v)
         assert got.variance_share[a] == pytest.approx(closed, rel=1e-3)
         assert got.dominated and "steps of 3e-07 m" in got.note() and got.to_json()["threshold"] == 10.0
+        assert topography.SlopeOutliers.from_json(json.loads(json.dumps(got.to_json()))) == got
     rng = np.random.default_rng(1)
     lattice = 1e-8 * (rng.random((100, 120)) < 0.2)
     flat = topography.slope_outliers(topography.from_array(lattice, 1e-6, detrend=None))

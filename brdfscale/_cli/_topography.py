@@ -259,7 +259,7 @@ def outliers_note(field_record: dict) -> str | None:
     record = field_record.get("slope_outliers")
     if not record:
         return None
-    return topography.SlopeOutliers(**{k: tuple(v) if isinstance(v, list) else v for k, v in record.items()}).note()
+    return topography.SlopeOutliers.from_json(record).note()
 
 
 def square_note(record: dict) -> str:

@@ -77,6 +77,23 @@ class SlopeOutliers:
     def to_json(self) -> dict:
         return dataclasses.asdict(self)
 
+    @classmethod
+    def from_json(cls, record: dict) -> "SlopeOutliers":
+        """The inverse of :meth:`to_json` (JSON's lists back to pairs; a record without ``unit`` has None)."""
+
+        def pair(key: str) -> tuple:
+            return tuple(record[key])
+
+        return cls(
+            threshold=float(record["threshold"]),
+            fraction=pair("fraction"),
+            variance_share=pair("variance_share"),
+            robust_sd=pair("robust_sd"),
+            step=pair("step"),
+            step_share=pair("step_share"),
+            unit=record.get("unit"),
+        )
+
 
 def slope_outliers(field: HeightField, threshold: float = OUTLIER_THRESHOLD) -> SlopeOutliers:
     """The pixel slopes of ``field`` beyond ``threshold`` robust standard deviations of their median, per axis,
