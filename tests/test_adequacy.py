@@ -322,7 +322,8 @@ def test_an_undetermined_fit_is_not_sampled_unless_asked():
     )
     assert fitting.assess(problem, blind).status == "undetermined"
     reason = spec.not_sampled_because(problem, blind)
-    assert reason.startswith("the data do not determine the statistics the fit reports") and "exit status 7" in reason
+    assert reason.startswith("the fit is undetermined before sampling") and "exit status 7" in reason
+    assert "the data do not determine 6 of 6 ΔΣ(μ0, μk) components" in reason  # the verdict's own words
     assert dataclasses.replace(spec, sample_inadequate=True).not_sampled_because(problem, blind) is None
 
 
@@ -424,7 +425,7 @@ def test_a_real_surface_at_low_counts_ends_undetermined_not_ok(tmp_path, capsys)
     assert line.startswith("brdfscale fit: undetermined: the data do not determine ") and "ΔΣ_xx at μ = " in line
     doc = json.loads((out / "fit.json").read_text())
     assert doc["outcome"]["status"] == "undetermined"
-    assert doc["mcmc"]["status"].startswith("not sampled: the data do not determine the statistics the fit reports")
+    assert doc["mcmc"]["status"].startswith("not sampled: the fit is undetermined before sampling")
     assert not (out / "chain.h5").exists()
     for d in doc["covariance_differences"]:
         assert d["std"][0][0] is None and d["std"][1][1] is None and d["value"][0][0] is not None

@@ -140,7 +140,9 @@ def test_library_samples_with_nuts_batched_equal_to_sample_per_material(small_li
     from brdfscale import exr, fitting
 
     jax.config.update("jax_enable_x64", True)
-    sources = [str(small_library / "material_001.exr"), str(small_library / "material_003.exr")]
+    # materials whose lobes are resolved at every scale: material_001's is not (0.88 image pixels at μ0), and a fit
+    # undetermined before sampling is not sampled (FitSpec.not_sampled_because)
+    sources = [str(small_library / "material_000.exr"), str(small_library / "material_003.exr")]
     out = tmp_path / "out"
     argv = ["fit-library", *sources, "--out", str(out), "--model", "parametric", "--starts", "2"]
     argv += ["--steps", "30", "--sampler", "nuts", "--chains", "2", "--no-progress"]
@@ -156,7 +158,7 @@ def test_library_samples_with_nuts_batched_equal_to_sample_per_material(small_li
     data = [fitting.Dataset.from_measurements(exr.read_measurements(path)) for path in sources]
     model = fitting.ParametricModel()
     fits = fitting.fit_many(model, data, starts=2)
-    for name, d, fit in zip(("material_001", "material_003"), data, fits):
+    for name, d, fit in zip(("material_000", "material_003"), data, fits):
         alone = fitting.sample(fitting.Problem(model, d), fit, sampler="nuts", chains=2, steps=30, progress=False)
         doc = _fit_json(out, name)
         assert doc["optimisation"]["theta_names"] == list(alone.names)  # the same model's posterior
@@ -180,15 +182,24 @@ def test_which_samplers_a_library_batches_and_which_it_runs_per_material():
 def test_library_samples_with_auto_per_material(small_library, tmp_path, capsys):
     """--sampler auto (the command's default sampler) samples each material after its fit, checkpointed in its
     directory, and the report records the choice; once, the library sampled only with nuts, hmc and emcee, and
-    --sampler imh wrote reports without a chain."""
-    sources = [str(small_library / "material_001.exr")]
+    --sampler imh wrote reports without a chain. A material whose lobe is not resolved (undetermined before
+    sampling: FitSpec.not_sampled_because) is not sampled, and its report says why."""
+    sources = [str(small_library / "material_000.exr"), str(small_library / "material_001.exr")]
     out = tmp_path / "out"
     argv = ["fit-library", *sources, "--out", str(out), "--model", "parametric", "--starts", "2"]
     argv += ["--steps", "200", "--sampler", "auto", "--chains", "2", "--no-progress"]
     assert main(argv) == 0, capsys.readouterr().out
-    report = _fit_json(out, "material_001")["mcmc"]
+    report = _fit_json(out, "material_000")["mcmc"]
     assert report["chosen_by"]["name"] == "auto" and report["sampler"] == report["chosen_by"]["chose"]
-    assert report["chains"] == 2 and (out / "materials" / "material_001" / "chain.h5").exists()
+    assert report["chains"] == 2 and (out / "materials" / "material_000" / "chain.h5").exists()
+    # material_001's lobe at μ0 is 0.88 image pixels wide: undetermined before sampling, so not sampled
+    unresolved = _fit_json(out, "material_001")
+    assert (
+        unresolved["outcome"]["status"] == "undetermined"
+        and not (out / "materials" / "material_001" / "chain.h5").exists()
+    )
+    assert unresolved["mcmc"]["status"].startswith("not sampled: the fit is undetermined before sampling")
+    assert "0.88 image pixels wide" in unresolved["mcmc"]["status"]
 
 
 @pytest.mark.slow  # three libraries of one material, each fitted and two sampled: ~40 s on 2 cores

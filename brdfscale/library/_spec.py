@@ -261,14 +261,14 @@ class FitSpec:
             return self.not_sampled_by_default
         if self.sample_inadequate:
             return None
-        status = _fitting().assess(problem, fit, unit=unit).status
+        outcome = _fitting().assess(problem, fit, unit=unit)
         anyway = "--sample-inadequate (FitSpec(sample_inadequate=True)) samples it anyway"
-        if status == "inadequate":
+        if outcome.status == "inadequate":
             return f"the model is inadequate before sampling (exit status 5 either way); {anyway}"
-        if status == "undetermined":
+        if outcome.status == "undetermined":  # an unresolved lobe, or a statistic without a standard error
             return (
-                "the data do not determine the statistics the fit reports (no standard error: exit status 7, which "
-                f"sampling cannot change — the verdict reads the Laplace analysis); {anyway}"
+                "the fit is undetermined before sampling, which no chain changes (exit status 7 either way: the "
+                f"verdict reads the data's resolution and the Laplace analysis) — {outcome.reason}; {anyway}"
             )
         return None
 
