@@ -268,6 +268,12 @@ _AWAY_FIGURES = ("away_share", "away_peak_offset", "away_peak_z")
 """A fitted scale's diagnosis of where its misfit lies (:func:`away_from_lobe`); None where it is not defined."""
 
 
+def _box3(x: np.ndarray) -> np.ndarray:
+    """The sum of ``x`` over each entry's 3 × 3 neighbourhood (zero beyond the edges)."""
+    padded, (rows, cols) = np.pad(x, 1), x.shape
+    return np.sum([padded[a : a + rows, b : b + cols] for a in range(3) for b in range(3)], axis=0)
+
+
 def away_from_lobe(
     values: Float[ArrayLike, "n_img n_pix"],
     prediction: Float[ArrayLike, "n_img n_pix"],
@@ -333,10 +339,8 @@ def away_from_lobe(
         away += float(np.sum(np.where(far, r * r - 1, 0.0)))
         if not far.any():
             continue
-        # the 3 × 3 neighbourhood sums of −r and of the count over away pixels (zero-padded shifts)
-        s, c = np.pad(np.where(far, -r, 0.0), 1), np.pad(far.astype(float), 1)
-        box = sum(s[a : a + n, b : b + n] for a in range(3) for b in range(3))
-        count = sum(c[a : a + n, b : b + n] for a in range(3) for b in range(3))
+        # the 3 × 3 neighbourhood sums of −r and of the count over away pixels
+        box, count = _box3(np.where(far, -r, 0.0)), _box3(far.astype(float))
         z = np.where(far, box / np.sqrt(np.maximum(count, 1.0)), -np.inf)
         j = int(np.argmax(z))
         if z.flat[j] > best_z:
@@ -476,8 +480,9 @@ def assess_against(
     valid_pixels = weight > 0
     # masked pixels (weight 0) are left out, whatever the model predicts there (∞ · 0 would be NaN)
     prediction = np.asarray(predict_images(model, theta, data))
+    values, offsets = np.asarray(data.values), np.asarray(data.offsets)  # once, not per scale
     with np.errstate(invalid="ignore", over="ignore"):
-        residual = (prediction - np.asarray(data.values)) * weight
+        residual = (prediction - values) * weight
     whitened = np.where(valid_pixels, residual, 0.0)
     scales = np.asarray(data.scales)
     resolved = resolution(data, unit=unit, thresholds=thresholds)
@@ -526,10 +531,10 @@ def assess_against(
             "lag1_p": min(p_lag, 1.0),
             **moments[k],
             **away_from_lobe(
-                np.asarray(data.values)[images],
+                values[images],
                 prediction[images],
                 weight[images],
-                np.asarray(data.offsets)[images],
+                offsets[images],
                 [data.image_sizes[i] for i in images],
                 thresholds.away_fraction,
             ),
