@@ -39,3 +39,17 @@ def _no_persistent_compilation_cache(request, monkeypatch):
     ``compilation_cache`` exercise it themselves."""
     if request.node.get_closest_marker("compilation_cache") is None:
         monkeypatch.setattr("brdfscale._compilation_cache.enable", lambda directory=None: None)
+
+
+def pytest_runtest_teardown(item, nextitem):
+    """After a slow study's last test in a module (``-m slow``, .ci/run's last step), JAX's caches of
+    compiled programs are emptied. A long-lived xdist worker otherwise keeps every program it
+    compiled, each with its executable memory mappings (about three per program, which
+    ``jax.clear_caches`` releases: measured with /proc/self/maps), and one such worker failed with
+    "LLVM compilation error: Cannot allocate memory" late in a clean-clone run: the kernel's
+    ``vm.max_map_count`` (65 530 there) bounds a process's mappings. Not in the default suite, whose
+    modules share compiled programs and whose time is budgeted."""
+    if nextitem is not None and nextitem.module is item.module:
+        return
+    if item.get_closest_marker("slow") is not None:
+        jax.clear_caches()
