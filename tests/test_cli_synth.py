@@ -193,3 +193,6 @@ def test_synth_topography_records_only_the_defaults_it_used(tmp_path):
     assert set(mset.metadata["defaults"]) == {"extent", "resolution"}
     assert mset.metadata["extent"] == pytest.approx(synth.robust_extent(topography.read(DI)))
     assert mset.metadata["noise"]["type"] == "gaussian" and all(image.sigma is not None for image in mset.images)
+    # the field's slope outliers, for fit's ΔΣ-truth table (what carries the surface's Σ)
+    outliers = topography.slope_outliers(topography.read(DI)).to_json()
+    assert mset.metadata["truth"]["slope_outliers"] == json.loads(json.dumps(outliers))

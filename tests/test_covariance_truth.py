@@ -7,6 +7,7 @@ and np.cov) and against the second moments of the set's own noise-free images, o
 the real frt-1 file (holes by its steepest pixels), not against the recorded numbers alone."""
 
 import copy
+import json
 
 import numpy as np
 import pytest
@@ -139,3 +140,24 @@ def test_the_command_prints_truth_estimate_and_pull_per_entry():
     lines.clear()
     print_covariance_truth({"covariance_differences": [_entry([[0.0] * 2] * 2, [[None] * 2] * 2)]}, lines.append)
     assert lines == []  # no truth: nothing printed
+
+
+def test_the_truth_table_says_when_a_few_pixel_slopes_carry_the_surfaces_sigma():
+    """brdfscale synth --topography records the field's slope outliers (truth.slope_outliers); the command's ΔΣ
+    table then ends with their note where they carry most of Σ (the truth is theirs), and with nothing more where
+    they do not; a damaged record is the library's own error naming the record."""
+    entries = fitting.compare_covariance_differences(
+        [_entry([[0.009, 0.001], [0.001, 0.004]], [[0.002, 0.0005], [0.0005, None]])], [[[0.016, 0.0], [0.0, 0.005]]]
+    )
+    doc = {"covariance_differences": entries, "data": {"unit": "µm"}}
+    spiky = topography.SlopeOutliers(10.0, (0.007, 0.01), (0.994, 0.2), (0.01, 0.01), (3e-7, None), (0.65, 0.0), "m")
+    calm = topography.SlopeOutliers(10.0, (0.001, 0.001), (0.07, 0.06), (0.01, 0.01), (None, None), (0.0, 0.0), "m")
+    tables = {}
+    for name, outliers in (("spiky", spiky), ("calm", calm), ("none", None)):
+        truth = {} if outliers is None else {"slope_outliers": json.loads(json.dumps(outliers.to_json()))}
+        tables[name] = []
+        print_covariance_truth(doc, tables[name].append, surface={"truth": truth})
+    assert tables["spiky"][-1] == f"  {spiky.note()}" and "99.4 % of their variance" in tables["spiky"][-1]
+    assert tables["calm"] == tables["none"] == tables["spiky"][:-1]
+    with pytest.raises(InvalidInputError, match="damaged slope-outlier record.*fraction"):
+        print_covariance_truth(doc, [].append, surface={"truth": {"slope_outliers": {"threshold": 10}}})

@@ -24,6 +24,7 @@ from ._options import integer, MAX_SEED, output_directory, real, seed
 if TYPE_CHECKING:
     from ..library import FitSpec
 from ._rewind import add_rewind_option, rewind
+from ._topography import outliers_note
 
 
 #: The combinations the data do not determine printed after the fit (the rest are in fit.json's identifiability):
@@ -422,6 +423,8 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
         check_sampler_options(args, len(model.names))
     truth = fitting.truth_of(model, mset.metadata)  # a damaged truth is refused before the work, not after
     delta_truth = fitting.covariance_truth(mset.metadata, data.scales)  # ΔΣ of the set's own surface, if recorded
+    if isinstance(truth_record := mset.metadata.get("truth"), dict):
+        outliers_note(truth_record)  # a damaged slope-outlier record refused before the work, as the truth is
     # before the long work: a complete report refused, an incomplete one beside a complete chain resumed
     checkpoint = os.path.join(args.out, "chain.h5")
     if getattr(args, "rewind_checkpoint", False):  # a damaged chain's verified chunks kept first
@@ -503,7 +506,7 @@ def run(args) -> int:
     if "parameters" in doc:  # a report was written (a refused fit writes none)
         print(f"wrote {os.path.join(args.out, 'fit.json')}")
         print_determined(doc)
-        print_truth(doc)
+        print_truth(doc, surface=mset.metadata)
         print_outcome(doc)
     return outcome_status(doc["outcome"])
 
@@ -568,12 +571,14 @@ def print_outcome(doc: dict, stream=print) -> None:
     stream(f"  outcome: {outcome['status']}" + (f" — {outcome['reason']}" if outcome["reason"] else ""))
 
 
-def print_truth(doc: dict, stream=print) -> None:
+def print_truth(doc: dict, stream=print, surface: dict | None = None) -> None:
     """Truth against estimate for every quantity with a known truth in the measurement set's
     metadata (:func:`fitting.truth_of`), with the pull |estimate − truth|/std, then ΔΣ(μ0, μk) against the
     set's own surface where it records its facet statistics (:func:`fitting.covariance_truth`) with the pull
-    (estimate − truth)/std per entry; nothing without truth."""
-    print_covariance_truth(doc, stream)
+    (estimate − truth)/std per entry and, where ``surface`` (the set's metadata) records that a few pixel slopes
+    carry most of that surface's Σ (``truth.slope_outliers``, written by ``brdfscale synth --topography``), the
+    note saying so; nothing without truth."""
+    print_covariance_truth(doc, stream, surface)
     rows = {name: row for name, row in doc["parameters"].items() if row.get("truth") is not None}
     if not rows:
         return
@@ -592,12 +597,13 @@ def print_truth(doc: dict, stream=print) -> None:
         stream(f"{name:20s} {' '.join(cells)}  {pull}")
 
 
-def print_covariance_truth(doc: dict, stream=print) -> None:
+def print_covariance_truth(doc: dict, stream=print, surface: dict | None = None) -> None:
     """ΔΣ(μ0, μk) of the fit and of the images' own second moments (fit.json's ``moment_covariance_differences``)
     against the truth of the surface the set was made from (fitting.covariance_truth), per entry xx, xy, yy:
     truth, each estimate ± std and its pull (estimate − truth)/std (— where there is no std or the model fixes the
-    entry); per estimate how many entries lie within 3 std and the largest |pull|. Nothing where fit.json's
-    entries carry no truth."""
+    entry); per estimate how many entries lie within 3 std and the largest |pull|; then the note of
+    ``surface["truth"]["slope_outliers"]`` where a few pixel slopes carry most of the surface's Σ (the truth is
+    then theirs). Nothing where fit.json's entries carry no truth."""
     rows = [d for d in doc.get("covariance_differences") or () if d.get("truth") is not None]
     if not rows:
         return
@@ -626,6 +632,9 @@ def print_covariance_truth(doc: dict, stream=print) -> None:
             within = sum(p <= 3 for p in found)
             largest = f"largest |pull| {max(found):.3g}"
             stream(f"  {label}: {within} of {len(found)} entries within 3 std of the truth; {largest}")
+    truth = (surface or {}).get("truth")
+    if isinstance(truth, dict) and (note := outliers_note(truth)):
+        stream(f"  {note}")
 
 
 def table_cell(value, spec: str, missing: str) -> str:

@@ -373,7 +373,10 @@ def run(args) -> int:
 
 
 def _write(args, mset, field, mus, source) -> int:
-    from .. import exr
+    from .. import exr, topography
+
+    if args.topography is not None:  # the few pixel slopes that can carry Σ: fit's ΔΣ-truth table says so
+        mset.metadata.setdefault("truth", {})["slope_outliers"] = topography.slope_outliers(field).to_json()
 
     exr.write_measurements(args.out, mset, overwrite=args.force, dtype=args.dtype)
     shown = ", ".join(f"{mu:.6g}" for mu in mus) + ("" if field.unit is None else f" {field.unit}")

@@ -4,6 +4,7 @@ import dataclasses
 
 import numpy as np
 
+from .._errors import InvalidInputError
 from .._validation import real
 from ..synth import HeightField, pixel_slopes
 
@@ -79,20 +80,35 @@ class SlopeOutliers:
 
     @classmethod
     def from_json(cls, record: dict) -> "SlopeOutliers":
-        """The inverse of :meth:`to_json` (JSON's lists back to pairs; a record without ``unit`` has None)."""
+        """The inverse of :meth:`to_json` (JSON's lists back to pairs; a record without ``unit`` has None).
 
-        def pair(key: str) -> tuple:
-            return tuple(record[key])
+        Raises:
+            InvalidInputError: ``record`` is not such a record (a key missing, not a pair of numbers, or a
+                threshold that is not a number), naming what is wrong.
+        """
 
-        return cls(
-            threshold=float(record["threshold"]),
-            fraction=pair("fraction"),
-            variance_share=pair("variance_share"),
-            robust_sd=pair("robust_sd"),
-            step=pair("step"),
-            step_share=pair("step_share"),
-            unit=record.get("unit"),
-        )
+        def pair(key: str, optional: bool = False) -> tuple:
+            value = record[key]
+            if not isinstance(value, (list, tuple)) or len(value) != 2:
+                raise TypeError(key)
+            return tuple(None if optional and v is None else float(v) for v in value)
+
+        try:
+            return cls(
+                threshold=float(record["threshold"]),
+                fraction=pair("fraction"),
+                variance_share=pair("variance_share"),
+                robust_sd=pair("robust_sd"),
+                step=pair("step", optional=True),
+                step_share=pair("step_share"),
+                unit=record.get("unit"),
+            )
+        except (KeyError, TypeError, ValueError, AttributeError) as error:
+            raise InvalidInputError(
+                f"a damaged slope-outlier record ({type(error).__name__}: {error}): expected the keys threshold, "
+                "fraction, variance_share, robust_sd, step, step_share (pairs x, y of numbers; step's may be null) "
+                "as SlopeOutliers.to_json writes them; write it again (brdfscale topography or synth --topography)."
+            ) from None
 
 
 def slope_outliers(field: HeightField, threshold: float = OUTLIER_THRESHOLD) -> SlopeOutliers:
