@@ -884,12 +884,21 @@ def _real_fit_rows(d: dict, noises=None) -> list[list[str]]:
                 num(h.get("second_moment", {}).get("l1"), ".3f"),
                 num(h.get("law", {}).get("l1"), ".3f"),
                 num(h.get("law_spline", {}).get("l1"), ".3f"),
+                _measured_cell(h.get("law_measured")),
                 num(h.get("noise_floor_l1"), ".3f"),
                 num(r.get("wall_cold_s"), ".1f"),
                 num(r.get("wall_warm_s"), ".1f"),
             ]
         )
     return rows
+
+
+def _measured_cell(row: dict | None) -> str:
+    """The held-out L1 of fitting.predict_from_measured and the base it chose (— before it was recorded)."""
+    if not row:
+        return "—"
+    l1 = row.get("l1")
+    return f"{'—' if l1 is None else format(l1, '.3f')} ({row.get('base', '?')})"
 
 
 def _outliers_cell(record: dict) -> str:
@@ -937,6 +946,7 @@ _REAL_FIT_HEADER = [
     "second moment",
     "law (width)",
     "law (spline)",
+    "law from the measured lobe (base)",
     "noise floor",
     "cold s",
     "warm s",
@@ -989,7 +999,10 @@ def real_fits() -> str:
             f"The default fit of `brdfscale fit` on that commit: model {', '.join(models)}. Held-out: the "
             f"{d['train_scales']} finest scales fitted, the coarser ones predicted; relative L1 against the "
             "synthesised measurement (noise floor: the noise-free lobe against the noisy one); law: "
-            "`fitting.AnisotropicLawModel` (width law per principal axis, or monotone spline in ln μ). Anisotropy: "
+            "`fitting.AnisotropicLawModel` (width law per principal axis, or monotone spline in ln μ); law from the "
+            "measured lobe: the width law's fit, the held-out scales predicted by `fitting.predict_from_measured` "
+            "from the lobe measured at the coarsest fitted scale (base: the measured lobe or, where its validation "
+            "says so, the model's). Anisotropy: "
             "the eigenvalue ratio of the file's Σ(μ0)." + _held_out_run_line(d),
             table(_REAL_FIT_HEADER, _real_fit_rows(d)),
             "Targets (issue 31):\n\n"
@@ -1023,6 +1036,12 @@ def real_fits() -> str:
                     ("held_out_half_of_isotropic_by_law_spline", "spline"),
                 )
                 if t.get(key, {}).get("of")
+            )
+            + (
+                f"; by the width law's fit predicted from the measured lobe (`fitting.predict_from_measured`, not the "
+                f"command's default): {met(m['met'])} ({m['passed']} of {m['of']} runs)"
+                if (m := t.get("held_out_half_of_isotropic_by_law_measured", {})).get("of")
+                else ""
             )
             + ";\n"
             f"- no run ends with exit 0 and an unflagged problem: {met(t['no_exit_0_with_unflagged_problem']['met'])}"

@@ -25,6 +25,8 @@ The chain, each step in its own module:
   materials and sharded over the devices, one compiled program per bucket, each result
   :func:`sample`'s;
 * :func:`moment_covariance_differences` — ΔΣ(μ0, μk) from the images' own second moments, no model;
+* :func:`predict_from_measured` — unseen coarser scales from the lobe measured at the coarsest fitted scale,
+  widened by a fitted scale law's increment (seed Eq. 4.4 started there);
 * :func:`assess` — can the outcome be trusted: the lobes resolved, the model adequate (χ²/dof
   per scale, residual structure: :func:`lag1_correlation`; where the misfit lies: :func:`away_from_lobe`), the
   optimiser and sampler converged (:class:`Outcome`, the ``brdfscale fit`` exit status);
@@ -57,6 +59,7 @@ from ._derived import compare_covariance_differences, covariance_truth, RATIO_FR
 from ._diagnostics import pareto_k
 from ._fit import fit, resolve_starts
 from ._joint import TopographyData
+from ._measured import MeasuredPrediction, predict_from_measured
 from ._model import AbstractModel
 from ._moments import moment_covariance_differences
 from ._nonparametric import NonParametricModel, RelativeStatistics
@@ -99,6 +102,7 @@ __all__ = [
     "Dataset",
     "Emcee",
     "FitResult",
+    "MeasuredPrediction",
     "NonParametricModel",
     "Outcome",
     "ParametricModel",
@@ -118,6 +122,7 @@ __all__ = [
     "lobe_widths",
     "log_posterior",
     "plot_corner",
+    "predict_from_measured",
     "plot_fit",
     "plot_recovered_statistics",
     "ratio_frequencies",

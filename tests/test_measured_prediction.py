@@ -1,0 +1,177 @@
+"""fitting.predict_from_measured: unseen coarser scales from the lobe measured at the coarsest fitted scale,
+widened by a fitted law's Gaussian increment (seed Eq. 4.4 started there; issue 31, the held-out target).
+
+Oracles: the Gaussian identity written by hand (a Gaussian lobe of covariance C widened by ΔΣ is the Gaussian of
+C + ΔΣ, helpers.gaussian) with the law's ΔΣ written out (tests/test_anisotropic_law.py's width law); central
+differences for the gradient; eager for jit."""
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import brdfscale as bs
+from brdfscale import fitting, InvalidInputError
+
+
+jax.config.update("jax_enable_x64", True)
+
+from helpers import gaussian, rotation  # noqa: E402
+
+from fitting._measured import widen  # noqa: E402
+
+
+MU0 = 1.0
+LAW = {"phi": 0.5, "axes": [(0.12, 2.0, 1.0), (0.06, 3.0, 1.5)]}  # (alpha_max, mu_c, exponent) per axis
+MEAN = np.array([0.02, -0.01])
+C0 = rotation(-0.3) @ np.diag([0.004, 0.0015]) @ rotation(-0.3).T
+AMPLITUDE = 2.0
+FITTED, UNSEEN = (1.0, 2.0, 4.0), (8.0, 16.0)
+N, EXTENT = 41, 0.5  # pitch 0.025: the narrowest lobe's sd along its minor axis is ~1.5 pixels
+
+
+def width(alpha_max, mu_c, exponent, mu):
+    return alpha_max * (1 + (mu / mu_c) ** 2) ** (-exponent / 2)
+
+
+def true_difference(mu, mu0=MU0):
+    d = [(width(*axis, mu0) ** 2 - width(*axis, mu) ** 2) / 2 for axis in LAW["axes"]]
+    return rotation(LAW["phi"]) @ np.diag(d) @ rotation(LAW["phi"]).T
+
+
+def theta_of(c0=C0, mean=MEAN):
+    L = np.linalg.cholesky(c0)
+    theta = [math.log(AMPLITUDE), math.log(L[0, 0]), L[1, 0], math.log(L[1, 1]), *mean, LAW["phi"]]
+    for axis in LAW["axes"]:
+        theta += [math.log(v) for v in axis]
+    return jnp.asarray(theta)
+
+
+def truth(mu):
+    x = np.linspace(-EXTENT, EXTENT, N)
+    return gaussian(np.stack(np.meshgrid(x, x), axis=-1), MEAN, C0 + true_difference(mu), AMPLITUDE)
+
+
+def dataset(scales, noise=0.0, seed=0, n=N):
+    rng = np.random.default_rng(seed)
+    images = []
+    for mu in scales:
+        v = truth(mu) if n == N else np.ones((n, n))
+        sigma = noise * v.max() + 1e-3
+        images.append(
+            bs.LobeImage(
+                mu=mu,
+                incident=[0.0, 0.0, 1.0],
+                extent=EXTENT,
+                values=v + (sigma * rng.standard_normal(v.shape) if noise else 0.0),
+                sigma=np.full(v.shape, sigma),
+            )
+        )
+    return fitting.Dataset.from_measurements(bs.MeasurementSet(tuple(images)))
+
+
+MODEL = fitting.AnisotropicLawModel()
+
+
+def _flat(data):
+    return np.asarray(data.values)[:, : N * N]
+
+
+@pytest.mark.parametrize("c0", [C0, np.diag([0.002, 0.006])], ids=["model's base right", "model's base wrong"])
+def test_the_measured_lobe_widened_by_the_law_is_the_gaussian_of_the_summed_covariance(c0):
+    """Noise-free Gaussian lobes at the fitted scales: the prediction at unseen scales is the hand-written
+    Gaussian of C0 + ΔΣ(μ0, μ) (rotated, anisotropic, off-centre: a confusion of the grid's axes fails it) — also
+    when the model's own base lobe is wrong, since the lobe comes from the measurement: the model fills only the
+    padding beyond the image's edge, 4–8 standard deviations out, whose light moves in by the increment's width
+    (1e-9 of the peak with the right base, 1e-7 with the wrong one, measured 1e-8); at a fitted scale it is the
+    measured lobe itself."""
+    data, target = dataset(FITTED), dataset(FITTED + UNSEEN)
+    out = fitting.predict_from_measured(MODEL, theta_of(c0), data, target, base="measured")
+    assert out.base == "measured" and out.validation is None and out.source_scales == (1.0, 2.0, 4.0, 4.0, 4.0)
+    got = np.asarray(out.values)[:, : N * N]
+    for i, mu in enumerate(FITTED + UNSEEN):
+        want = truth(mu).ravel()
+        np.testing.assert_allclose(got[i], want, rtol=0, atol=(1e-9 if c0 is C0 else 1e-7) * want.max())
+    model_only = fitting.predict_from_measured(MODEL, theta_of(c0), data, target, base="model")
+    error = np.abs(np.asarray(model_only.values)[3, : N * N] - truth(8.0).ravel()).max() / truth(8.0).max()
+    assert (error < 1e-9) == (c0 is C0)  # the model's own prediction is right only with the right base
+
+
+def test_masked_pixels_of_the_measured_lobe_are_filled_by_the_model():
+    """Pixels no image measured (weight 0) take the model's lobe at that scale: with the true θ the prediction is
+    unchanged; their measured values are not used (set to garbage)."""
+    data, target = dataset(FITTED), dataset(UNSEEN)
+    hole = np.zeros((len(FITTED), data.values.shape[1]), bool)
+    hole[2, : N * N] = (np.arange(N * N) % 7) == 0
+    damaged = dataclasses.replace(
+        data, weight=jnp.where(hole, 0.0, data.weight), values=jnp.where(hole, 1e6, data.values)
+    )
+    got = np.asarray(fitting.predict_from_measured(MODEL, theta_of(), damaged, target, base="measured").values)
+    for i, mu in enumerate(UNSEEN):
+        np.testing.assert_allclose(got[i, : N * N], truth(mu).ravel(), rtol=0, atol=1e-9 * truth(mu).max())
+
+
+def test_auto_keeps_the_measured_lobe_where_the_model_misses_and_the_model_where_noise_dominates():
+    """base="auto" validates on the coarsest fitted scale: noise-free data and a model with the wrong base lobe →
+    the measured lobe (its χ² ~0); the true θ and noise of 30 % of the peak → the model's lobe (the measured base
+    adds its own noise)."""
+    target = dataset(UNSEEN)
+    wrong = fitting.predict_from_measured(MODEL, theta_of(np.diag([0.002, 0.006])), dataset(FITTED), target)
+    assert wrong.base == "measured" and wrong.validation["measured"] < 1e-6 < wrong.validation["model"]
+    assert wrong.validation["scales"] == (2.0, 4.0) and wrong.validation["n"] == N * N
+    noisy = fitting.predict_from_measured(MODEL, theta_of(), dataset(FITTED, noise=0.3, seed=1), target)
+    assert noisy.base == "model" and noisy.validation["model"] < noisy.validation["measured"]
+    assert "base='model'" in repr(noisy) and "χ²/n measured" in repr(noisy)
+
+
+def test_refuses_models_without_a_law_bad_bases_finer_scales_and_foreign_grids():
+    data = dataset(FITTED)
+    with pytest.raises(InvalidInputError, match="scale law defined at any μ.*AnisotropicModel"):
+        fitting.predict_from_measured(fitting.AnisotropicModel(3), jnp.zeros(13), data, dataset(UNSEEN))
+    with pytest.raises(InvalidInputError, match="base must be one of 'auto', 'measured', 'model'; got 'best'"):
+        fitting.predict_from_measured(MODEL, theta_of(), data, dataset(UNSEEN), base="best")
+    with pytest.raises(InvalidInputError, match="finer than the finest fitted scale"):
+        fitting.predict_from_measured(MODEL, theta_of(), data, dataset((0.5, 8.0)), base="measured")
+    with pytest.raises(InvalidInputError, match="has the target's pixel grid"):
+        fitting.predict_from_measured(MODEL, theta_of(), data, dataset(UNSEEN, n=31), base="measured")
+    with pytest.raises(InvalidInputError, match="target must be a fitting.Dataset"):
+        fitting.predict_from_measured(MODEL, theta_of(), data, None)
+    with pytest.raises(InvalidInputError, match="needs two fitted scales"):
+        fitting.predict_from_measured(MODEL, theta_of(), _one_scale(data), dataset(UNSEEN))
+
+
+def _one_scale(data):
+    return dataclasses.replace(
+        data,
+        offsets=data.offsets[:1],
+        values=data.values[:1],
+        weight=data.weight[:1],
+        scales=data.scales[:1],
+        scale_of_image=(0,),
+        image_sizes=data.image_sizes[:1],
+        extents=data.extents[:1],
+    )
+
+
+def test_widen_under_jit_and_grad_equals_eager_and_central_differences():
+    """The convolution core: jit equal to eager; its gradient in ΔΣ equal to central differences."""
+    image = jnp.asarray(truth(1.0))
+    steps = jnp.asarray([[EXTENT * 2 / (N - 1), 0.0], [0.0, EXTENT * 2 / (N - 1)]])
+    delta = jnp.asarray(true_difference(8.0))
+    eager = widen(image, steps, delta)
+    np.testing.assert_allclose(jax.jit(widen)(image, steps, delta), eager, rtol=0, atol=1e-12 * float(eager.max()))
+    probe = jnp.asarray(np.random.default_rng(2).standard_normal(image.shape))
+
+    def f(d):
+        return jnp.sum(widen(image, steps, d) * probe)
+
+    grad = jax.jit(jax.grad(f))(delta)
+    for a, b in ((0, 0), (0, 1), (1, 1)):
+        e = np.zeros((2, 2))
+        e[a, b] = e[b, a] = 1e-7
+        fd = (f(delta + e) - f(delta - e)) / 2e-7
+        analytic = grad[a, b] + (grad[b, a] if a != b else 0.0)
+        assert float(analytic) == pytest.approx(float(fd), rel=1e-5)
