@@ -107,7 +107,7 @@ class SlopeOutliers:
             raise InvalidInputError(
                 f"a damaged slope-outlier record ({type(error).__name__}: {error}): expected the keys threshold, "
                 "fraction, variance_share, robust_sd, step, step_share (pairs x, y of numbers; step's may be null) "
-                "as SlopeOutliers.to_json writes them; write it again (brdfscale topography or synth --topography)."
+                "as SlopeOutliers.to_json writes them; make it again: topography.slope_outliers(field).to_json()."
             ) from None
 
 
