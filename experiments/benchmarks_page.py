@@ -1039,7 +1039,17 @@ def real_fits() -> str:
             )
             + (
                 f"; by the width law's fit predicted from the measured lobe (`fitting.predict_from_measured`, not the "
-                f"command's default): {met(m['met'])} ({m['passed']} of {m['of']} runs)"
+                f"command's default): {met(m['met'])} ({m['passed']} of {m['of']} runs"
+                + (
+                    "; missed only where the noise floor allows no prediction to meet it"
+                    if m.get("missed_where_reachable") == [] and not m["met"]
+                    else (
+                        f"; missed where reachable: {', '.join(m['missed_where_reachable'])}"
+                        if m.get("missed_where_reachable")
+                        else ""
+                    )
+                )
+                + ")"
                 if (m := t.get("held_out_half_of_isotropic_by_law_measured", {})).get("of")
                 else ""
             )

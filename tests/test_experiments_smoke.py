@@ -790,6 +790,18 @@ def test_bench_real_fits_z_scores_and_targets_by_hand():
         "of": 2,
         "unreachable_by_noise_floor": ["f n5inadequate"],
     }
+    # a predictor's row (here the measured-lobe one) names its misses outside the unreachable runs
+    rows = [
+        {**aniso, "held_out": {**held, "law_measured": {"l1": 0.3}}},
+        {**aniso, "noise": "m", "held_out": {**held, "noise_floor_l1": 0.1, "law_measured": {"l1": 0.3}}},
+        {**aniso, "noise": "k", "held_out": {**held, "noise_floor_l1": 0.1, "law_measured": {"l1": 0.2}}},
+    ]
+    assert brf.targets(rows)["held_out_half_of_isotropic_by_law_measured"] == {
+        "met": False,
+        "passed": 1,
+        "of": 3,
+        "missed_where_reachable": ["f m"],
+    }
     assert not brf.targets([hidden])["no_exit_0_with_unflagged_problem"]["met"]
     refused = {
         "file": "f",
