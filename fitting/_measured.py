@@ -53,16 +53,19 @@ largest |offset|."""
 class MeasuredPrediction:
     """What :func:`predict_from_measured` returns.
 
-    ``values`` (n_img, n_pix): the predicted lobe at every pixel of every image of the target Dataset (padding
-    pixels: 0); ``base``: ``"measured"`` or ``"model"``, the lobe the predictions start from; ``source_scales``:
-    per target image the fitted scale μ_s it starts from; ``validation``: with ``base="auto"``, the χ²/n of the
-    two bases at the coarsest fitted scale (keys ``measured``, ``model``, ``n`` pixels, ``scales`` (μ_{K−1},
-    μ_K)), else None.
+    ``values`` (n_img, n_pix): the predicted lobe at every pixel of every target image (padding pixels: 0);
+    ``scales``: each target image's scale μ; ``source_scales``: the fitted scale μ_s each starts from;
+    ``images``: the target :class:`Dataset` (its grids: :meth:`Dataset.image` reshapes a row of ``values``);
+    ``base``: ``"measured"`` or ``"model"``, the lobe the predictions start from; ``validation``: with
+    ``base="auto"``, the χ²/n of the two bases at the coarsest fitted scale (keys ``measured``, ``model``, ``n``
+    pixels, ``scales`` (μ_{K−1}, μ_K)), else None.
     """
 
     values: Float[Array, "n_img n_pix"]
     base: str
+    scales: tuple[float, ...]
     source_scales: tuple[float, ...]
+    images: Dataset
     validation: dict | None = None
 
     def __repr__(self) -> str:
@@ -71,7 +74,8 @@ class MeasuredPrediction:
             if self.validation is None
             else (f", χ²/n measured {self.validation['measured']:.3g} vs model {self.validation['model']:.3g}")
         )
-        return f"MeasuredPrediction({self.values.shape[0]} images, base={self.base!r}{chosen})"
+        shown = ", ".join(f"{mu:.4g}" for mu in sorted(set(self.scales)))
+        return f"MeasuredPrediction({self.values.shape[0]} images at μ = [{shown}], base={self.base!r}{chosen})"
 
 
 def _grid(data: Dataset, i: int) -> tuple[np.ndarray, np.ndarray]:
@@ -165,12 +169,13 @@ def _measured_base(model, theta, data: Dataset, k: int, u: np.ndarray, e: np.nda
 def _predict(model, theta, data: Dataset, target: Dataset, base: str):
     scales = np.asarray(data.scales, dtype=float)
     mu0 = float(scales[0])
-    rows, sources = [], []
+    rows, sources, mus = [], [], []
     n_pix = target.values.shape[1]
     for j, k_t in enumerate(target.scale_of_image):
         mu = float(target.scales[k_t])
         s = _source_scale(scales, mu)
         sources.append(float(scales[s]))
+        mus.append(mu)
         u, e = _grid(target, j)
         n = u.shape[0]
         if base == "model":
@@ -181,7 +186,7 @@ def _predict(model, theta, data: Dataset, target: Dataset, base: str):
             delta = model.covariance_differences(theta, jnp.asarray([scales[s], mu]))[1]
             row = widen(image, jnp.asarray(e), delta)[pad : pad + n, pad : pad + n].reshape(-1)
         rows.append(jnp.pad(row, (0, n_pix - n * n)))
-    return jnp.stack(rows), tuple(sources)
+    return jnp.stack(rows), tuple(mus), tuple(sources)
 
 
 def _chi2(prediction, data: Dataset, images) -> tuple[float, int]:
@@ -206,8 +211,9 @@ def predict_from_measured(
         model: a model with a scale law at any μ (:class:`fitting.AnisotropicLawModel`).
         theta: its fitted coordinates (``fitting.fit(model, data).theta``).
         data: the fitted Dataset: its images are the measured lobes, its finest scale the model's μ0.
-        target: the images to predict (their values are not used): each on the grid of a fitted image, at a scale
-            no finer than ``data``'s finest.
+        target: the images to predict — a Dataset (its values are not used), each image on the grid of a fitted
+            image at a scale no finer than ``data``'s finest — or scales μ (a number or a sequence, in ``data``'s
+            unit of μ), each predicted on the grids of ``data``'s images at its coarsest scale.
         base: ``"measured"`` (the measured lobe), ``"model"`` (the model's own prediction,
             ``model.predict_at``) or ``"auto"`` (the one that predicts ``data``'s coarsest scale better from the
             next finer one: module docstring; needs two fitted scales).
@@ -217,13 +223,14 @@ def predict_from_measured(
 
     Raises:
         InvalidInputError: a model without a law at any μ; ``base`` not one of :data:`BASES`; a target scale finer
-            than μ0; a target image on a grid no fitted image at its source scale has; ``data`` or ``target`` not a
-            Dataset.
+            than μ0; a target image on a grid no fitted image at its source scale has; ``data`` not a Dataset;
+            ``target`` neither a Dataset nor finite positive scales.
     """
     _check_model(model)
-    for name, value in (("data", data), ("target", target)):
-        if not isinstance(value, Dataset):
-            raise InvalidInputError(f"{name} must be a fitting.Dataset; got {type(value).__name__}.")
+    if not isinstance(data, Dataset):
+        raise InvalidInputError(f"data must be a fitting.Dataset; got {type(data).__name__}.")
+    if not isinstance(target, Dataset):
+        target = _at_scales(data, target)
     if base not in BASES:
         raise InvalidInputError(f"base must be one of {', '.join(map(repr, BASES))}; got {base!r}.")
     theta = jnp.asarray(theta, dtype=jnp.asarray(data.values).dtype)
@@ -234,8 +241,8 @@ def predict_from_measured(
             raise InvalidInputError("base='auto' needs two fitted scales (it validates on the coarsest); give base=.")
         images = list(data.images_of_scale(k))
         finer = _restricted(data, k - 1)
-        measured, _ = _predict(model, theta, finer, _restricted(data, k, images), "measured")
-        own, _ = _predict(model, theta, data, _restricted(data, k, images), "model")
+        measured, _, _ = _predict(model, theta, finer, _restricted(data, k, images), "measured")
+        own, _, _ = _predict(model, theta, data, _restricted(data, k, images), "model")
         chi_measured, n = _chi2(measured, data, images)
         chi_model, _ = _chi2(own, data, images)
         base = "measured" if chi_measured < chi_model else "model"
@@ -245,8 +252,34 @@ def predict_from_measured(
             "n": n,
             "scales": (float(data.scales[k - 1]), float(data.scales[k])),
         }
-    values, sources = _predict(model, theta, data, target, base)
-    return MeasuredPrediction(values, base, sources, validation)
+    values, mus, sources = _predict(model, theta, data, target, base)
+    return MeasuredPrediction(values, base, mus, sources, target, validation)
+
+
+def _at_scales(data: Dataset, scales) -> Dataset:
+    """A target Dataset: every image of ``data``'s coarsest scale, at each of ``scales`` (sorted, distinct)."""
+    try:
+        mus = np.atleast_1d(np.asarray(scales, dtype=float))
+    except (TypeError, ValueError):
+        mus = np.array([np.nan])
+    if mus.ndim != 1 or mus.size == 0 or not np.all(np.isfinite(mus)) or not np.all(mus > 0):
+        raise InvalidInputError(
+            f"target must be a fitting.Dataset or finite positive scales μ (a number or a sequence); got {scales!r}."
+        )
+    mus = np.unique(mus)
+    source = list(data.images_of_scale(len(data.scales) - 1))
+    keep = jnp.asarray([i for _ in mus for i in source])
+    return dataclasses.replace(
+        data,
+        offsets=data.offsets[keep],
+        values=jnp.zeros_like(data.values[keep]),
+        weight=data.weight[keep],
+        scales=jnp.asarray(mus, dtype=data.scales.dtype),
+        scale_of_image=tuple(k for k in range(len(mus)) for _ in source),
+        image_sizes=tuple(data.image_sizes[int(i)] for i in keep),
+        extents=tuple(data.extents[int(i)] for i in keep),
+        topography=None,
+    )
 
 
 def _restricted(data: Dataset, k: int, images=None) -> Dataset:
@@ -262,4 +295,5 @@ def _restricted(data: Dataset, k: int, images=None) -> Dataset:
         scale_of_image=tuple(data.scale_of_image[i] for i in keep),
         image_sizes=tuple(data.image_sizes[i] for i in keep),
         extents=tuple(data.extents[i] for i in keep),
+        topography=None,
     )

@@ -7,6 +7,7 @@ differences for the gradient; eager for jit."""
 
 import dataclasses
 import math
+import re
 
 import jax
 import jax.numpy as jnp
@@ -21,7 +22,7 @@ jax.config.update("jax_enable_x64", True)
 
 from helpers import gaussian, rotation  # noqa: E402
 
-from fitting._measured import widen  # noqa: E402
+from brdfscale.fitting._measured import widen  # noqa: E402
 
 
 MU0 = 1.0
@@ -91,6 +92,7 @@ def test_the_measured_lobe_widened_by_the_law_is_the_gaussian_of_the_summed_cova
     data, target = dataset(FITTED), dataset(FITTED + UNSEEN)
     out = fitting.predict_from_measured(MODEL, theta_of(c0), data, target, base="measured")
     assert out.base == "measured" and out.validation is None and out.source_scales == (1.0, 2.0, 4.0, 4.0, 4.0)
+    assert out.scales == FITTED + UNSEEN and out.images is target
     got = np.asarray(out.values)[:, : N * N]
     for i, mu in enumerate(FITTED + UNSEEN):
         want = truth(mu).ravel()
@@ -137,8 +139,9 @@ def test_refuses_models_without_a_law_bad_bases_finer_scales_and_foreign_grids()
         fitting.predict_from_measured(MODEL, theta_of(), data, dataset((0.5, 8.0)), base="measured")
     with pytest.raises(InvalidInputError, match="has the target's pixel grid"):
         fitting.predict_from_measured(MODEL, theta_of(), data, dataset(UNSEEN, n=31), base="measured")
-    with pytest.raises(InvalidInputError, match="target must be a fitting.Dataset"):
-        fitting.predict_from_measured(MODEL, theta_of(), data, None)
+    for bad in (None, [], [8.0, -1.0], [[8.0]], "x", float("nan")):
+        with pytest.raises(InvalidInputError, match="target must be a fitting.Dataset or finite positive scales"):
+            fitting.predict_from_measured(MODEL, theta_of(), data, bad)
     with pytest.raises(InvalidInputError, match="needs two fitted scales"):
         fitting.predict_from_measured(MODEL, theta_of(), _one_scale(data), dataset(UNSEEN))
 
@@ -175,3 +178,79 @@ def test_widen_under_jit_and_grad_equals_eager_and_central_differences():
         fd = (f(delta + e) - f(delta - e)) / 2e-7
         analytic = grad[a, b] + (grad[b, a] if a != b else 0.0)
         assert float(analytic) == pytest.approx(float(fd), rel=1e-5)
+
+
+def test_scales_as_target_predict_on_the_grids_of_the_coarsest_fitted_scale():
+    """target=scales: one image per scale (sorted, distinct) on the grid of the coarsest fitted scale's image,
+    equal to the prediction for a target Dataset of those images; ``images.image`` gives each one's grid."""
+    data = dataset(FITTED)
+    by_scales = fitting.predict_from_measured(MODEL, theta_of(), data, [16.0, 8.0, 16.0], base="measured")
+    by_dataset = fitting.predict_from_measured(MODEL, theta_of(), data, dataset(UNSEEN), base="measured")
+    assert by_scales.scales == UNSEEN and by_scales.source_scales == (4.0, 4.0)
+    np.testing.assert_array_equal(np.asarray(by_scales.values), np.asarray(by_dataset.values))
+    assert by_scales.images.image(1, by_scales.values[1]).shape == (N, N)
+    assert repr(by_scales) == "MeasuredPrediction(2 images at μ = [8, 16], base='measured')"
+
+
+def test_the_commands_predict_option_refuses_before_the_work(tmp_path):
+    """``brdfscale fit --predict``: a malformed list is argparse's exit 2; a model without a law at any μ, with
+    --compare, a scale finer than μ0, or an existing DIR/predicted_lobes.exr without --force are refused naming
+    the fix, before any fit (check_predict)."""
+    from brdfscale._cli import build_parser
+    from brdfscale._cli._fit import check_predict, PREDICTED
+
+    def args(*extra):
+        return build_parser().parse_args(["fit", "m.exr", "--out", str(tmp_path), *extra])
+
+    for bad in ("1,x", "", "0", "-2", ",".join(["1"] * 65)):
+        with pytest.raises(SystemExit) as exit_:
+            args("--predict", bad)
+        assert exit_.value.code == 2
+    assert args("--predict", "8, 16").predict == (8.0, 16.0)
+    data = dataset(FITTED)
+    check_predict(args("--model", "anisotropic_law"), data, None)  # no --predict: nothing to check
+    check_predict(args("--model", "anisotropic_law", "--predict", "1,8"), data, None)  # μ0 itself is allowed
+    with pytest.raises(InvalidInputError, match="--predict needs a model with a scale law.*--model anisotropic_law"):
+        check_predict(args("--predict", "8"), data, None)
+    with pytest.raises(InvalidInputError, match="without --compare"):
+        check_predict(args("--model", "anisotropic_law", "--compare", "--predict", "8"), data, None)
+    with pytest.raises(InvalidInputError, match="--predict 0.5 lies below the finest measured scale μ0 = 1 px"):
+        check_predict(args("--model", "anisotropic_law", "--predict", "0.5,8"), data, None)
+    (tmp_path / PREDICTED).write_text("the user's")
+    with pytest.raises(InvalidInputError, match=f"{PREDICTED} exists; .*--force"):
+        check_predict(args("--model", "anisotropic_law", "--predict", "8"), data, None)
+    check_predict(args("--model", "anisotropic_law", "--predict", "8", "--force"), data, None)
+
+
+@pytest.mark.slow
+def test_the_command_writes_the_predicted_lobes(tmp_path, capsys):
+    """End to end: noise-free Gaussian lobes at four scales, ``brdfscale fit --model anisotropic_law --predict``:
+    DIR/predicted_lobes.exr holds the lobes at the two unseen scales, equal to the hand-written Gaussians of
+    C0 + ΔΣ(μ0, μ) to 1e-3 of the peak (the law fitted to noise-free data, extrapolated; the file's float32
+    values), and the command says what the prediction started from."""
+    import brdfscale._cli as cli
+    from brdfscale import exr
+
+    images = []
+    for mu in (*FITTED, 8.0):
+        v = truth(mu)
+        sigma = np.full(v.shape, 1e-3)
+        images.append(bs.LobeImage(mu=mu, incident=[0.0, 0.0, 1.0], extent=EXTENT, values=v, sigma=sigma))
+    measurements = tmp_path / "m.exr"
+    exr.write_measurements(measurements, bs.MeasurementSet(tuple(images)))
+    out = tmp_path / "fit"
+    argv = ["fit", str(measurements), "--model", "anisotropic_law", "--steps", "0", "--out", str(out)]
+    cli.main([*argv, "--predict", "32,16"])
+    printed = capsys.readouterr().out
+    assert re.search(
+        r"predicted_lobes.exr: 2 lobes at μ = \[16, 32\] px, predicted from the (measured|model's) lobe "
+        r"at μ = 8 px; at the coarsest fitted scale χ²/n",
+        printed,
+    )
+    predicted = exr.read_measurements(out / "predicted_lobes.exr")
+    assert [image.mu for image in predicted.images] == [16.0, 32.0]
+    assert predicted.metadata["base"] in ("measured", "model") and predicted.metadata["source_scales"] == [8.0, 8.0]
+    for image in predicted.images:
+        want = truth(image.mu)
+        np.testing.assert_allclose(np.asarray(image.values), want, rtol=0, atol=1e-3 * want.max())
+    assert cli.main([*argv, "--predict", "16"]) == 2  # the file is there: refused without --force

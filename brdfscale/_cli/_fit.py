@@ -69,6 +69,25 @@ def _smoothness(text: str):
     return real(0.0, 1e6)(text)
 
 
+PREDICTED = "predicted_lobes.exr"
+"""The file ``--predict`` writes into the output directory."""
+
+
+def _scale_list(text: str) -> tuple[float, ...]:
+    """``--predict``'s type: 1–64 comma-separated finite positive scales μ (numbers, the set's unit of μ)."""
+    items = [t.strip() for t in text.split(",")] if isinstance(text, str) and len(text) <= 2000 else []
+    parse = real(0.0, 1e30, strict_lo=True)
+    try:
+        values = tuple(parse(t) for t in items)
+    except argparse.ArgumentTypeError:
+        values = ()
+    if not 1 <= len(values) <= 64:
+        raise argparse.ArgumentTypeError(
+            f"must be 1 to 64 comma-separated positive numbers (scales μ in the set's unit); got {text!r:.60}"
+        )
+    return values
+
+
 def add_fit_options(parser) -> None:
     """Options shared by ``fit`` and ``demo``."""
     parser.add_argument(
@@ -236,6 +255,70 @@ def check_fit_options(args) -> None:
         raise InvalidInputError("--regularisation applies to the non-parametric model only (--model nonparametric).")
 
 
+def check_predict(args, data, unit) -> None:
+    """``--predict`` against the model and the data, before the work: a model with a scale law at any μ
+    (``--model anisotropic_law``, not ``--compare``'s choice), no scale finer than the finest measured one, and no
+    DIR/predicted_lobes.exr to overwrite without ``--force``."""
+    predict = getattr(args, "predict", None)
+    if predict is None:
+        return
+    if args.model != "anisotropic_law" or getattr(args, "compare", False):
+        raise InvalidInputError(
+            "--predict needs a model with a scale law at any μ: --model anisotropic_law, without --compare (the "
+            "per-scale models determine ΔΣ at the measured scales only)."
+        )
+    finest = float(data.scales[0])
+    finer = [mu for mu in predict if mu < finest * (1 - 1e-9)]
+    if finer:
+        raise InvalidInputError(
+            f"--predict {', '.join(f'{mu:g}' for mu in finer)} lies below the finest measured scale μ0 = {finest:g} "
+            f"{unit or 'px'}; predict at μ ≥ μ0 (towards finer scales the evolution is a deconvolution)."
+        )
+    path = os.path.join(args.out, PREDICTED)
+    if os.path.lexists(path) and not args.force:
+        raise InvalidInputError(f"{path} exists; choose another --out or pass --force to replace it.")
+
+
+def write_predictions(fitting, problem, result, args, unit) -> str:
+    """``--predict``: :func:`fitting.predict_from_measured` at the clipped estimate (the printed one), written as
+    a measurement set to DIR/predicted_lobes.exr (atomic; replaced only with --force); one line saying what."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    from .. import exr, LobeImage, MeasurementSet
+
+    theta = jnp.clip(jnp.asarray(result.theta), problem.lower, problem.upper)
+    out = fitting.predict_from_measured(problem.model, theta, problem.data, args.predict)
+    images = tuple(
+        LobeImage(
+            mu=mu,
+            incident=np.array([0.0, 0.0, 1.0]),
+            extent=out.images.extents[i],
+            values=np.clip(out.images.image(i, out.values[i]), 0, None),
+        )
+        for i, mu in enumerate(out.scales)
+    )
+    metadata = {
+        "source": "brdfscale fit --predict (fitting.predict_from_measured)",
+        "base": out.base,
+        "source_scales": list(out.source_scales),
+        "validation": out.validation,
+        **({"unit": unit} if unit else {}),
+    }
+    path = os.path.join(args.out, PREDICTED)
+    exr.write_measurements(path, MeasurementSet(images, metadata=metadata), overwrite=args.force)
+    shown = scales_text(sorted(set(out.scales)), unit)
+    why = (
+        ""
+        if out.validation is None
+        else f"; at the coarsest fitted scale χ²/n {out.validation['measured']:.3g} from the measured lobe, "
+        f"{out.validation['model']:.3g} from the model's"
+    )
+    lobe = "measured lobe" if out.base == "measured" else "model's lobe"
+    source = f"the {lobe} at μ = {max(out.source_scales):.4g} {unit or 'px'}"
+    return f"wrote {path}: {len(images)} lobes at {shown}, predicted from {source}{why}"
+
+
 def asked_steps(args) -> int:
     """--steps, or where it is not given the most steps --sampler runs by its own default
     (:meth:`brdfscale.choices.SampleDefaults.steps_for`; auto: the larger of its two choices')."""
@@ -342,6 +425,16 @@ def register(subparsers) -> None:
         "another) to the data, print their AIC and BIC (fitting.compare) and report — sample, write, exit status — "
         "the one of smallest BIC; the table in fit.json's model.comparison",
     )
+    parser.add_argument(
+        "--predict",
+        type=_scale_list,
+        default=None,
+        metavar="MU[,MU...]",
+        help="with --model anisotropic_law: the lobes at these scales μ (the set's unit of μ, none finer than its "
+        "finest), predicted from the lobe measured at the coarsest fitted scale widened by the fitted law — or from "
+        "the model's own lobe where that predicts the coarsest fitted scale better from the next finer one "
+        f"(fitting.predict_from_measured) — written to DIR/{PREDICTED}",
+    )
     parser.set_defaults(func=run)
 
 
@@ -408,6 +501,7 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
         data = data.with_topography(fitting.TopographyData.from_field(field, data.scales))
         stream(f"joint fit with the facet statistics of {args.topography} at the {len(data.scales)} measured scales")
     unit = mu_unit(mset.metadata)
+    check_predict(args, data, unit)  # before the work: a prediction that cannot be made, or would overwrite
     resolved = fitting.resolution(data, unit=unit)  # a lobe narrower than a few pixels is refused before the work
     if not resolved.ok:  # the caller prints the one-line reason with the exit status (outcome_status)
         return {"outcome": resolved.to_json(), "data": {"unit": unit}}
@@ -482,6 +576,8 @@ def _fit_and_report(
             time_limit=getattr(args, "time_limit", None),
         )
         stream(sampling_line(samples.diagnostics()))
+    if getattr(args, "predict", None) is not None:
+        stream(write_predictions(fitting, problem, result, args, unit))
     return fitting.write_report(
         args.out,
         problem,
