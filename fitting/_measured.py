@@ -22,14 +22,20 @@ Noise in the measured lobe passes into the prediction. ``base="auto"`` decides b
 model's lobe by the data themselves: it predicts the coarsest fitted scale from the next finer one both ways (the
 measured lobe at ``μ_{K−1}`` widened by ``ΔΣ(μ_{K−1}, μ_K)``, and the model's lobe at ``μ_K``) and keeps the base
 whose χ² against the measured images at ``μ_K`` is smaller. Both χ² count the target's noise alike; the measured
-one counts its base's noise too, so it wins only where the model's shape misses by more than the noise.
-Verified in tests/test_measured_prediction.py (the Gaussian identity against the closed form, masked pixels, the
-choice on noisy and on mis-shaped data, refusals, jit equal to eager).
+one counts its base's noise too, so it wins only where the model's shape misses by more than the noise. The model
+was fitted to ``μ_K`` too, so its χ² there is in-sample: the choice leans towards the model by its few degrees of
+freedom against the thousands of pixels, a bias towards the smoother prediction. The two coarsest fitted scales'
+images must share a pixel grid for this validation (else give ``base``).
+Verified in tests/test_measured_prediction.py (the Gaussian identity against the closed form, masked pixels,
+replicate images, the choice on noisy and on mis-shaped data, refusals; the convolution core :func:`widen` under
+jit and grad). The function itself runs on concrete arrays (its choices are Python's), not under ``jax.jit``.
 """
 
 import dataclasses
 import math
 
+import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -54,7 +60,8 @@ class MeasuredPrediction:
     """What :func:`predict_from_measured` returns.
 
     ``values`` (n_img, n_pix): the predicted lobe at every pixel of every target image (padding pixels: 0);
-    ``scales``: each target image's scale μ; ``source_scales``: the fitted scale μ_s each starts from;
+    ``scales``: each target image's scale μ; ``source_scales``: the fitted scale μ_s each starts from (with
+    ``base="model"``: μ0, the model's lobe evolving from there);
     ``images``: the target :class:`Dataset` (its grids: :meth:`Dataset.image` reshapes a row of ``values``);
     ``base``: ``"measured"`` or ``"model"``, the lobe the predictions start from; ``validation``: with
     ``base="auto"``, the χ²/n of the two bases at the coarsest fitted scale (keys ``measured``, ``model``, ``n``
@@ -116,6 +123,13 @@ def widen(image: Float[Array, "m m"], steps: Float[Array, "2 2"], delta: Float[A
     return jnp.real(jnp.fft.ifft2(jnp.fft.fft2(image) * jnp.exp(-0.5 * q)))
 
 
+# compiled once per model and grid size: the work of one prediction is a few array programs, which eager dispatch
+# would compile op by op (the existence checks of predict_at hold here: every scale is ≥ μ0, checked before)
+_lobe_at = eqx.filter_jit(lambda model, theta, mu0, mu, u: model.predict_at(theta, mu0, mu, u))
+_differences = eqx.filter_jit(lambda model, theta, scales: model.covariance_differences(theta, scales))
+_widen = jax.jit(widen)
+
+
 def _check_model(model) -> None:
     if not (callable(getattr(model, "predict_at", None)) and callable(getattr(model, "covariance_differences", None))):
         raise InvalidInputError(
@@ -136,18 +150,25 @@ def _source_scale(scales: np.ndarray, mu: float) -> int:
     return int(below[-1])
 
 
+def _on_grid(data: Dataset, i: int, u: np.ndarray) -> bool:
+    """Whether image ``i`` of ``data`` lies on the grid of offsets ``u`` (n, n, 2)."""
+    n = u.shape[0]
+    if data.image_sizes[i] != n:
+        return False
+    mine = np.asarray(data.offsets[i, : n * n]).reshape(n, n, 2)
+    return bool(np.allclose(mine, u, rtol=0, atol=_GRID_RTOL * max(float(np.abs(u).max()), 1e-300)))
+
+
+def _same_grid(data: Dataset, i: int, j: int) -> bool:
+    n = data.image_sizes[j]
+    return _on_grid(data, i, np.asarray(data.offsets[j, : n * n]).reshape(n, n, 2))
+
+
 def _measured_base(model, theta, data: Dataset, k: int, u: np.ndarray, e: np.ndarray, pad: int):
     """The σ-weighted mean of ``data``'s images at scale ``k`` on the grid ``u``, padded by ``pad`` pixels, with
     the model's lobe at that scale wherever no image measured a pixel."""
     n = u.shape[0]
-    same = [
-        i
-        for i in data.images_of_scale(k)
-        if data.image_sizes[i] == n
-        and np.allclose(
-            np.asarray(data.offsets[i, : n * n]).reshape(n, n, 2), u, rtol=0, atol=_GRID_RTOL * np.abs(u).max()
-        )
-    ]
+    same = [i for i in data.images_of_scale(k) if _on_grid(data, i, u)]
     if not same:
         raise InvalidInputError(
             f"no fitted image at μ = {float(data.scales[k]):g} has the target's pixel grid ({n} × {n} pixels, "
@@ -156,7 +177,7 @@ def _measured_base(model, theta, data: Dataset, k: int, u: np.ndarray, e: np.nda
         )
     points = _padded_points(u, e, pad)
     mu0, mu = float(data.scales[0]), float(data.scales[k])
-    model_lobe = model.predict_at(theta, mu0, jnp.asarray([mu]), jnp.asarray(points.reshape(1, -1, 2)))[0]
+    model_lobe = _lobe_at(model, theta, mu0, jnp.asarray([mu]), jnp.asarray(points.reshape(1, -1, 2)))[0]
     model_lobe = model_lobe.reshape(points.shape[:2])
     w2 = jnp.stack([data.weight[i, : n * n] ** 2 for i in same]).reshape(len(same), n, n)
     v = jnp.stack([data.values[i, : n * n] for i in same]).reshape(len(same), n, n)
@@ -179,13 +200,15 @@ def _predict(model, theta, data: Dataset, target: Dataset, base: str):
         u, e = _grid(target, j)
         n = u.shape[0]
         if base == "model":
-            row = model.predict_at(theta, mu0, jnp.asarray([mu]), jnp.asarray(u.reshape(1, -1, 2)))[0]
+            row = _lobe_at(model, theta, mu0, jnp.asarray([mu]), jnp.asarray(u.reshape(1, -1, 2)))[0]
         else:
             pad = max(2, math.ceil(n / 2))
             image = _measured_base(model, theta, data, s, u, e, pad)
-            delta = model.covariance_differences(theta, jnp.asarray([scales[s], mu]))[1]
-            row = widen(image, jnp.asarray(e), delta)[pad : pad + n, pad : pad + n].reshape(-1)
+            delta = _differences(model, theta, jnp.asarray([scales[s], mu]))[1]
+            row = _widen(image, jnp.asarray(e), delta)[pad : pad + n, pad : pad + n].reshape(-1)
         rows.append(jnp.pad(row, (0, n_pix - n * n)))
+    if base == "model":
+        sources = [mu0] * len(sources)
     return jnp.stack(rows), tuple(mus), tuple(sources)
 
 
@@ -223,8 +246,9 @@ def predict_from_measured(
 
     Raises:
         InvalidInputError: a model without a law at any μ; ``base`` not one of :data:`BASES`; a target scale finer
-            than μ0; a target image on a grid no fitted image at its source scale has; ``data`` not a Dataset;
-            ``target`` neither a Dataset nor finite positive scales.
+            than μ0; a target image on a grid no fitted image at its source scale has; ``base="auto"`` where the
+            two coarsest fitted scales' images lie on different grids; ``data`` not a Dataset; ``target`` neither a
+            Dataset nor finite positive scales.
     """
     _check_model(model)
     if not isinstance(data, Dataset):
@@ -233,6 +257,9 @@ def predict_from_measured(
         target = _at_scales(data, target)
     if base not in BASES:
         raise InvalidInputError(f"base must be one of {', '.join(map(repr, BASES))}; got {base!r}.")
+    scales = np.asarray(data.scales, dtype=float)
+    for k_t in sorted(set(target.scale_of_image)):  # every refusal of the targets before any work
+        _source_scale(scales, float(target.scales[k_t]))
     theta = jnp.asarray(theta, dtype=jnp.asarray(data.values).dtype)
     validation = None
     if base == "auto":
@@ -241,6 +268,12 @@ def predict_from_measured(
             raise InvalidInputError("base='auto' needs two fitted scales (it validates on the coarsest); give base=.")
         images = list(data.images_of_scale(k))
         finer = _restricted(data, k - 1)
+        if not any(_same_grid(data, i, j) for i in images for j in finer.images_of_scale(k - 1)):
+            raise InvalidInputError(
+                f"base='auto' validates by predicting the coarsest fitted scale μ = {scales[k]:g} from the next finer "
+                f"one, μ = {scales[k - 1]:g}, whose images lie on other pixel grids; give base='measured' or "
+                "base='model'."
+            )
         measured, _, _ = _predict(model, theta, finer, _restricted(data, k, images), "measured")
         own, _, _ = _predict(model, theta, data, _restricted(data, k, images), "model")
         chi_measured, n = _chi2(measured, data, images)
@@ -267,7 +300,10 @@ def _at_scales(data: Dataset, scales) -> Dataset:
             f"target must be a fitting.Dataset or finite positive scales μ (a number or a sequence); got {scales!r}."
         )
     mus = np.unique(mus)
-    source = list(data.images_of_scale(len(data.scales) - 1))
+    source = []  # one image per distinct grid of the coarsest scale (replicates on one grid share a prediction)
+    for i in data.images_of_scale(len(data.scales) - 1):
+        if not any(_same_grid(data, i, j) for j in source):
+            source.append(i)
     keep = jnp.asarray([i for _ in mus for i in source])
     return dataclasses.replace(
         data,

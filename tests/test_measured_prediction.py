@@ -56,7 +56,7 @@ def truth(mu):
     return gaussian(np.stack(np.meshgrid(x, x), axis=-1), MEAN, C0 + true_difference(mu), AMPLITUDE)
 
 
-def dataset(scales, noise=0.0, seed=0, n=N):
+def _images(scales, noise=0.0, seed=0, n=N, incident=(0.0, 0.0, 1.0)):
     rng = np.random.default_rng(seed)
     images = []
     for mu in scales:
@@ -65,13 +65,17 @@ def dataset(scales, noise=0.0, seed=0, n=N):
         images.append(
             bs.LobeImage(
                 mu=mu,
-                incident=[0.0, 0.0, 1.0],
+                incident=list(incident),
                 extent=EXTENT,
                 values=v + (sigma * rng.standard_normal(v.shape) if noise else 0.0),
                 sigma=np.full(v.shape, sigma),
             )
         )
-    return fitting.Dataset.from_measurements(bs.MeasurementSet(tuple(images)))
+    return images
+
+
+def dataset(scales, noise=0.0, seed=0, n=N):
+    return fitting.Dataset.from_measurements(bs.MeasurementSet(tuple(_images(scales, noise, seed, n))))
 
 
 MODEL = fitting.AnisotropicLawModel()
@@ -144,6 +148,9 @@ def test_refuses_models_without_a_law_bad_bases_finer_scales_and_foreign_grids()
             fitting.predict_from_measured(MODEL, theta_of(), data, bad)
     with pytest.raises(InvalidInputError, match="needs two fitted scales"):
         fitting.predict_from_measured(MODEL, theta_of(), _one_scale(data), dataset(UNSEEN))
+    mixed = fitting.Dataset.from_measurements(bs.MeasurementSet((*_images((1.0, 2.0)), *_images((4.0,), n=31))))
+    with pytest.raises(InvalidInputError, match="base='auto' validates .* other pixel grids; give base="):
+        fitting.predict_from_measured(MODEL, theta_of(), mixed, [8.0])
 
 
 def _one_scale(data):
@@ -194,10 +201,10 @@ def test_scales_as_target_predict_on_the_grids_of_the_coarsest_fitted_scale():
 
 def test_the_commands_predict_option_refuses_before_the_work(tmp_path):
     """``brdfscale fit --predict``: a malformed list is argparse's exit 2; a model without a law at any μ, with
-    --compare, a scale finer than μ0, or an existing DIR/predicted_lobes.exr without --force are refused naming
-    the fix, before any fit (check_predict)."""
+    --compare, a scale finer than μ0 (check_predict), or an existing DIR/predicted_lobes.exr without --force
+    unless the run resumes its own (check_predicted_file) are refused naming the fix, before any fit."""
     from brdfscale._cli import build_parser
-    from brdfscale._cli._fit import check_predict, PREDICTED
+    from brdfscale._cli._fit import check_predict, check_predicted_file, PREDICTED
 
     def args(*extra):
         return build_parser().parse_args(["fit", "m.exr", "--out", str(tmp_path), *extra])
@@ -214,12 +221,14 @@ def test_the_commands_predict_option_refuses_before_the_work(tmp_path):
         check_predict(args("--predict", "8"), data, None)
     with pytest.raises(InvalidInputError, match="without --compare"):
         check_predict(args("--model", "anisotropic_law", "--compare", "--predict", "8"), data, None)
-    with pytest.raises(InvalidInputError, match="--predict 0.5 lies below the finest measured scale μ0 = 1 px"):
+    with pytest.raises(InvalidInputError, match="--predict 0.5: below the finest measured scale μ0 = 1 px"):
         check_predict(args("--model", "anisotropic_law", "--predict", "0.5,8"), data, None)
     (tmp_path / PREDICTED).write_text("the user's")
     with pytest.raises(InvalidInputError, match=f"{PREDICTED} exists; .*--force"):
-        check_predict(args("--model", "anisotropic_law", "--predict", "8"), data, None)
-    check_predict(args("--model", "anisotropic_law", "--predict", "8", "--force"), data, None)
+        check_predicted_file(args("--model", "anisotropic_law", "--predict", "8"), resume=False)
+    check_predicted_file(args("--model", "anisotropic_law", "--predict", "8", "--force"), resume=False)
+    check_predicted_file(args("--model", "anisotropic_law", "--predict", "8"), resume=True)  # its own, resumed
+    check_predicted_file(args("--model", "anisotropic_law"), resume=False)  # no --predict: not this run's file
 
 
 @pytest.mark.slow
@@ -243,14 +252,35 @@ def test_the_command_writes_the_predicted_lobes(tmp_path, capsys):
     cli.main([*argv, "--predict", "32,16"])
     printed = capsys.readouterr().out
     assert re.search(
-        r"predicted_lobes.exr: 2 lobes at μ = \[16, 32\] px, predicted from the (measured|model's) lobe "
-        r"at μ = 8 px; at the coarsest fitted scale χ²/n",
+        r"predicted_lobes.exr: 2 lobes at μ = \[16, 32\] px, predicted from the "
+        r"(measured lobe at μ = 8|model's lobe at μ = 1) px; at the coarsest fitted scale χ²/n",
         printed,
     )
     predicted = exr.read_measurements(out / "predicted_lobes.exr")
     assert [image.mu for image in predicted.images] == [16.0, 32.0]
-    assert predicted.metadata["base"] in ("measured", "model") and predicted.metadata["source_scales"] == [8.0, 8.0]
+    start = {"measured": 8.0, "model": 1.0}[predicted.metadata["base"]]  # the model's lobe evolves from μ0
+    assert predicted.metadata["source_scales"] == [start, start] and predicted.metadata["masking"] == "none"
     for image in predicted.images:
         want = truth(image.mu)
         np.testing.assert_allclose(np.asarray(image.values), want, rtol=0, atol=1e-3 * want.max())
     assert cli.main([*argv, "--predict", "16"]) == 2  # the file is there: refused without --force
+
+
+def test_replicate_images_at_a_scale_are_averaged_by_their_weights():
+    """Two images at each fitted scale on one grid (two incidences, independent noise): the measured base is their
+    σ-weighted mean — the prediction equals the one from a set holding that mean alone — and a list of scales
+    predicts one image per distinct grid, not one per replicate."""
+    first = _images(FITTED, noise=0.05, seed=4)
+    second = _images(FITTED, noise=0.1, seed=5, incident=(0.6, 0.0, 0.8))
+    both = fitting.Dataset.from_measurements(bs.MeasurementSet((*first, *second)))
+    out = fitting.predict_from_measured(MODEL, theta_of(), both, [8.0], base="measured")
+    assert out.values.shape[0] == 1 and out.scales == (8.0,)
+    w1, w2 = 1 / (0.05 * truth(4.0).max() + 1e-3) ** 2, 1 / (0.1 * truth(4.0).max() + 1e-3) ** 2
+    mean = (w1 * first[2].values + w2 * second[2].values) / (w1 + w2)
+    alone = [
+        *first[:2],
+        bs.LobeImage(mu=4.0, incident=[0.0, 0.0, 1.0], extent=EXTENT, values=mean, sigma=first[2].sigma),
+    ]
+    single = fitting.Dataset.from_measurements(bs.MeasurementSet(tuple(alone)))
+    want = fitting.predict_from_measured(MODEL, theta_of(), single, [8.0], base="measured")
+    np.testing.assert_allclose(np.asarray(out.values), np.asarray(want.values), rtol=0, atol=1e-12 * truth(8.0).max())

@@ -967,6 +967,23 @@ def test_export_of_a_height_field_is_lean_mip_mapping(tmp_path):
         assert alphas[level][1]["brdfscale.convention"] == "ggx_alpha"
 
 
+def test_export_of_a_field_of_rectangular_pixels(tmp_path):
+    """Rectangular pixels (Δx ≠ Δy, beyond the square tolerance) are exported too: level ℓ's mean slope is the mean
+    of its 2^ℓ × 2^ℓ pixel slopes (synth.pixel_slopes, which takes each axis's own pitch), its μ 2^ℓ √(Δx Δy)."""
+    heights = np.random.default_rng(3).standard_normal((16, 16)) * 1e-7
+    field = brdfscale.topography.from_array(heights, (1e-6, 2e-6), unit="m", detrend=None)
+    path = tmp_path / "rect.exr"
+    render.export_roughness(field, path, convention="lean_moments", levels=3)
+    parts = read_with_openimageio(path)
+    pixel = brdfscale.synth.pixel_slopes(field)
+    h, w = pixel.shape[:2]
+    for level in range(3):
+        b = 2**level
+        blocks = pixel[: h // 4 * 4, : w // 4 * 4].reshape(h // 4 * 4 // b, b, w // 4 * 4 // b, b, 2)
+        np.testing.assert_allclose(parts[level][0]["B_y"], blocks[..., 1].mean(axis=(1, 3)), rtol=1e-5, atol=1e-6)
+        assert float(parts[level][1]["brdfscale.mu"]) == pytest.approx(b * math.sqrt(2e-12), rel=1e-12)
+
+
 # -- docs/render.md ----------------------------------------------------------------------------------------------------
 
 

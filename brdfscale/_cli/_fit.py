@@ -257,8 +257,8 @@ def check_fit_options(args) -> None:
 
 def check_predict(args, data, unit) -> None:
     """``--predict`` against the model and the data, before the work: a model with a scale law at any μ
-    (``--model anisotropic_law``, not ``--compare``'s choice), no scale finer than the finest measured one, and no
-    DIR/predicted_lobes.exr to overwrite without ``--force``."""
+    (``--model anisotropic_law``, not ``--compare``'s choice) and no scale finer than the finest measured one
+    (:func:`check_predicted_file`: nothing overwritten)."""
     predict = getattr(args, "predict", None)
     if predict is None:
         return
@@ -271,17 +271,23 @@ def check_predict(args, data, unit) -> None:
     finer = [mu for mu in predict if mu < finest * (1 - 1e-9)]
     if finer:
         raise InvalidInputError(
-            f"--predict {', '.join(f'{mu:g}' for mu in finer)} lies below the finest measured scale μ0 = {finest:g} "
+            f"--predict {', '.join(f'{mu:g}' for mu in finer)}: below the finest measured scale μ0 = {finest:g} "
             f"{unit or 'px'}; predict at μ ≥ μ0 (towards finer scales the evolution is a deconvolution)."
         )
+
+
+def check_predicted_file(args, resume: bool) -> None:
+    """``--predict`` writes DIR/predicted_lobes.exr: an existing one is replaced only with ``--force`` or when the
+    run resumes an interrupted one (whose predictions it is)."""
     path = os.path.join(args.out, PREDICTED)
-    if os.path.lexists(path) and not args.force:
+    if getattr(args, "predict", None) is not None and os.path.lexists(path) and not (args.force or resume):
         raise InvalidInputError(f"{path} exists; choose another --out or pass --force to replace it.")
 
 
-def write_predictions(fitting, problem, result, args, unit) -> str:
+def write_predictions(fitting, problem, result, args, unit, resume: bool = False) -> str:
     """``--predict``: :func:`fitting.predict_from_measured` at the clipped estimate (the printed one), written as
-    a measurement set to DIR/predicted_lobes.exr (atomic; replaced only with --force); one line saying what."""
+    a measurement set to DIR/predicted_lobes.exr (atomic; replaced only with --force or on resuming); one line
+    saying what. With ``--masking`` the lobes are the model's, masking removed (recorded as ``masking``)."""
     import jax.numpy as jnp
     import numpy as np
 
@@ -303,10 +309,11 @@ def write_predictions(fitting, problem, result, args, unit) -> str:
         "base": out.base,
         "source_scales": list(out.source_scales),
         "validation": out.validation,
+        "masking": problem.data.masking,
         **({"unit": unit} if unit else {}),
     }
     path = os.path.join(args.out, PREDICTED)
-    exr.write_measurements(path, MeasurementSet(images, metadata=metadata), overwrite=args.force)
+    exr.write_measurements(path, MeasurementSet(images, metadata=metadata), overwrite=args.force or resume)
     shown = scales_text(sorted(set(out.scales)), unit)
     why = (
         ""
@@ -314,8 +321,10 @@ def write_predictions(fitting, problem, result, args, unit) -> str:
         else f"; at the coarsest fitted scale χ²/n {out.validation['measured']:.3g} from the measured lobe, "
         f"{out.validation['model']:.3g} from the model's"
     )
+    starts = ", ".join(f"{mu:.4g}" for mu in sorted(set(out.source_scales)))
     lobe = "measured lobe" if out.base == "measured" else "model's lobe"
-    source = f"the {lobe} at μ = {max(out.source_scales):.4g} {unit or 'px'}"
+    removed = "" if problem.data.masking == "none" else f" ({problem.data.masking} masking removed, as fitted)"
+    source = f"the {lobe} at μ = {starts} {unit or 'px'}{removed}"
     return f"wrote {path}: {len(images)} lobes at {shown}, predicted from {source}{why}"
 
 
@@ -526,6 +535,7 @@ def fit_measurements(mset, args, *, stream=print) -> dict:
     resuming = fitting.resume_report(args.out, args.force, checkpoint=checkpoint, steps=args.steps if sampling else 0)
     if resuming:
         stream(resuming)
+    check_predicted_file(args, resume=resuming is not None)
     with files.exclusive(args.out, what="output directory"):
         return _fit_and_report(
             fitting,
@@ -576,9 +586,7 @@ def _fit_and_report(
             time_limit=getattr(args, "time_limit", None),
         )
         stream(sampling_line(samples.diagnostics()))
-    if getattr(args, "predict", None) is not None:
-        stream(write_predictions(fitting, problem, result, args, unit))
-    return fitting.write_report(
+    doc = fitting.write_report(
         args.out,
         problem,
         result,
@@ -590,6 +598,9 @@ def _fit_and_report(
         covariance_truth=covariance_truth,
         not_sampled=not_sampled,
     )
+    if getattr(args, "predict", None) is not None:  # after the report: a failure here loses no fit
+        stream(write_predictions(fitting, problem, result, args, unit, resume=resume))
+    return doc
 
 
 def run(args) -> int:

@@ -5,8 +5,8 @@ texel of level ℓ (``2^ℓ × 2^ℓ`` texels of level 0) needs is its lobe's fi
 
 * from a height field (:class:`brdfscale.synth.HeightField`; level 0 = one pixel facet): the mean slope
   ``B = E[m]`` and the raw second moments ``M = E[m mᵀ] + C_micro`` of the pixel facets it covers (``m = −∇h``,
-  :func:`brdfscale.synth.facet_slopes`; ``C_micro`` the covariance of the field's micro lobe) — linear in the
-  pixels, so each level is the 2×2 mean of the one below (LEAN mapping, Olano & Baker 2010);
+  :func:`brdfscale.synth.pixel_slopes`, square or rectangular pixels; ``C_micro`` the covariance of the field's
+  micro lobe) — linear in the pixels, so each level is the 2×2 mean of the one below (LEAN mapping, Olano & Baker 2010);
 * from statistics (a scale law or a FitResult, with ``base_lobe`` and ``mu0``): the lobe at ``μ_ℓ = μ0 · 2^ℓ``
   evolved as :func:`brdfscale.render.lobe_table` does, its moments exact for the tabulated tent sum — the same at
   every texel (``resolution`` texels on a side at level 0).
@@ -75,7 +75,7 @@ def field_moments(field, levels: int | None) -> list[tuple[np.ndarray, np.ndarra
     level-(levels−1) blocks)."""
     from .. import synth
 
-    slopes = synth.facet_slopes(field, float(min(field.spacing)))
+    slopes = synth.pixel_slopes(field)  # square or rectangular pixels alike
     if not np.all(np.isfinite(slopes)):
         raise InvalidInputError("the field has unmeasured pixels (mask); export needs a fully measured field.")
     h, w = slopes.shape[:2]
@@ -156,7 +156,8 @@ def export_roughness(
 
     Each part: float32 channels (:data:`CHANNELS`), ``brdfscale.kind = "roughness_mip_chain"``,
     ``brdfscale.mip_level``, ``brdfscale.mu`` (the level's scale, double; for a field ``2^ℓ`` pixel pitches in its
-    length unit). Returns the channels per level. Raises InvalidInputError for a convention or source of another kind
+    length unit — for rectangular pixels Δx × Δy, ``2^ℓ √(Δx Δy)``, the side of the square of the texel's area).
+    Returns the channels per level. Raises InvalidInputError for a convention or source of another kind
     (naming those accepted), :class:`brdfscale.OutputWriteError` when the file cannot be written.
     """
     if convention not in CONVENTIONS:
@@ -167,7 +168,7 @@ def export_roughness(
 
     if isinstance(source, synth.HeightField):
         moments = field_moments(source, levels)
-        pitch = float(min(source.spacing))
+        pitch = math.sqrt(source.spacing[0] * source.spacing[1])  # the side of a square of the pixel's area
         mus = [pitch * 2**k for k in range(len(moments))]
     else:
         resolution = integer(resolution, "resolution", 1)
