@@ -33,12 +33,13 @@ jit and grad). The function itself runs on concrete arrays (its choices are Pyth
 
 import dataclasses
 import math
+from collections.abc import Sequence
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from brdfscale import InvalidInputError
 
@@ -222,7 +223,7 @@ def predict_from_measured(
     model,
     theta: Float[Array, " n"],
     data: Dataset,
-    target: Dataset,
+    target: Dataset | float | Sequence[float] | Float[ArrayLike, " k"],
     *,
     base: str = "auto",
 ) -> MeasuredPrediction:

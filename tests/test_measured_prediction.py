@@ -143,7 +143,7 @@ def test_refuses_models_without_a_law_bad_bases_finer_scales_and_foreign_grids()
         fitting.predict_from_measured(MODEL, theta_of(), data, dataset((0.5, 8.0)), base="measured")
     with pytest.raises(InvalidInputError, match="has the target's pixel grid"):
         fitting.predict_from_measured(MODEL, theta_of(), data, dataset(UNSEEN, n=31), base="measured")
-    for bad in (None, [], [8.0, -1.0], [[8.0]], "x", float("nan")):
+    for bad in ([], [8.0, -1.0], float("nan")):
         with pytest.raises(InvalidInputError, match="target must be a fitting.Dataset or finite positive scales"):
             fitting.predict_from_measured(MODEL, theta_of(), data, bad)
     with pytest.raises(InvalidInputError, match="needs two fitted scales"):
@@ -151,6 +151,15 @@ def test_refuses_models_without_a_law_bad_bases_finer_scales_and_foreign_grids()
     mixed = fitting.Dataset.from_measurements(bs.MeasurementSet((*_images((1.0, 2.0)), *_images((4.0,), n=31))))
     with pytest.raises(InvalidInputError, match="base='auto' validates .* other pixel grids; give base="):
         fitting.predict_from_measured(MODEL, theta_of(), mixed, [8.0])
+
+
+@pytest.mark.wrong_types
+def test_refuses_a_target_of_another_type():
+    """A target neither a Dataset nor numbers: the library's own error (the annotation's check answers first
+    where jaxtyping's runtime checks are on)."""
+    for bad in (None, "x", {"mu": 8.0}, [[8.0]]):
+        with pytest.raises(InvalidInputError, match="target must be a fitting.Dataset or finite positive scales"):
+            fitting.predict_from_measured(MODEL, theta_of(), dataset(FITTED), bad)
 
 
 def _one_scale(data):
