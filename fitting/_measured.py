@@ -41,7 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from brdfscale import InvalidInputError
+from brdfscale import InvalidInputError, LobeImage, MeasurementSet
 
 from ._data import Dataset
 
@@ -75,6 +75,29 @@ class MeasuredPrediction:
     source_scales: tuple[float, ...]
     images: Dataset
     validation: dict | None = None
+
+    def to_measurements(self, metadata: dict | None = None) -> MeasurementSet:
+        """The predicted lobes as a :class:`brdfscale.MeasurementSet` (one :class:`brdfscale.LobeImage` per target
+        image, values clipped at 0, no σ, incident along the normal — the lobe in slope offsets does not depend on
+        it), for :func:`brdfscale.exr.write_measurements`; its metadata: ``metadata`` and the prediction's
+        ``base``, ``source_scales``, ``validation`` and ``masking`` (that of the fitted images: with masking
+        other than none, lobes without masking–shadowing, as the model's are)."""
+        images = tuple(
+            LobeImage(
+                mu=mu,
+                incident=np.array([0.0, 0.0, 1.0]),
+                extent=self.images.extents[i],
+                values=np.clip(self.images.image(i, self.values[i]), 0, None),
+            )
+            for i, mu in enumerate(self.scales)
+        )
+        record = {
+            "base": self.base,
+            "source_scales": list(self.source_scales),
+            "validation": self.validation,
+            "masking": self.images.masking,
+        }
+        return MeasurementSet(images, metadata={**(metadata or {}), **record})
 
     def __repr__(self) -> str:
         chosen = (

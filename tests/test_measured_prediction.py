@@ -196,7 +196,7 @@ def test_widen_under_jit_and_grad_equals_eager_and_central_differences():
         assert float(analytic) == pytest.approx(float(fd), rel=1e-5)
 
 
-def test_scales_as_target_predict_on_the_grids_of_the_coarsest_fitted_scale():
+def test_scales_as_target_predict_on_the_grids_of_the_coarsest_fitted_scale(tmp_path):
     """target=scales: one image per scale (sorted, distinct) on the grid of the coarsest fitted scale's image,
     equal to the prediction for a target Dataset of those images; ``images.image`` gives each one's grid."""
     data = dataset(FITTED)
@@ -206,6 +206,17 @@ def test_scales_as_target_predict_on_the_grids_of_the_coarsest_fitted_scale():
     np.testing.assert_array_equal(np.asarray(by_scales.values), np.asarray(by_dataset.values))
     assert by_scales.images.image(1, by_scales.values[1]).shape == (N, N)
     assert repr(by_scales) == "MeasuredPrediction(2 images at μ = [8, 16], base='measured')"
+    # as a measurement set, written and read back (float32 in the file)
+    from brdfscale import exr
+
+    exr.write_measurements(tmp_path / "p.exr", by_scales.to_measurements({"note": "mine"}))
+    back = exr.read_measurements(tmp_path / "p.exr")
+    assert [image.mu for image in back.images] == [8.0, 16.0] and back.metadata["note"] == "mine"
+    assert back.metadata["base"] == "measured" and back.metadata["source_scales"] == [4.0, 4.0]
+    assert back.metadata["masking"] == "none" and back.metadata["validation"] is None
+    for i, image in enumerate(back.images):
+        want = np.clip(by_scales.images.image(i, by_scales.values[i]), 0, None)
+        np.testing.assert_allclose(np.asarray(image.values), want, rtol=1e-6, atol=1e-12)
 
 
 def test_the_commands_predict_option_refuses_before_the_work(tmp_path):

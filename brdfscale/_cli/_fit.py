@@ -289,31 +289,14 @@ def write_predictions(fitting, problem, result, args, unit, resume: bool = False
     a measurement set to DIR/predicted_lobes.exr (atomic; replaced only with --force or on resuming); one line
     saying what. With ``--masking`` the lobes are the model's, masking removed (recorded as ``masking``)."""
     import jax.numpy as jnp
-    import numpy as np
 
-    from .. import exr, LobeImage, MeasurementSet
+    from .. import exr
 
     theta = jnp.clip(jnp.asarray(result.theta), problem.lower, problem.upper)
     out = fitting.predict_from_measured(problem.model, theta, problem.data, args.predict)
-    images = tuple(
-        LobeImage(
-            mu=mu,
-            incident=np.array([0.0, 0.0, 1.0]),
-            extent=out.images.extents[i],
-            values=np.clip(out.images.image(i, out.values[i]), 0, None),
-        )
-        for i, mu in enumerate(out.scales)
-    )
-    metadata = {
-        "source": "brdfscale fit --predict (fitting.predict_from_measured)",
-        "base": out.base,
-        "source_scales": list(out.source_scales),
-        "validation": out.validation,
-        "masking": problem.data.masking,
-        **({"unit": unit} if unit else {}),
-    }
+    metadata = {"source": "brdfscale fit --predict (fitting.predict_from_measured)", **({"unit": unit} if unit else {})}
     path = os.path.join(args.out, PREDICTED)
-    exr.write_measurements(path, MeasurementSet(images, metadata=metadata), overwrite=args.force or resume)
+    exr.write_measurements(path, out.to_measurements(metadata), overwrite=args.force or resume)
     shown = scales_text(sorted(set(out.scales)), unit)
     why = (
         ""
@@ -325,7 +308,7 @@ def write_predictions(fitting, problem, result, args, unit, resume: bool = False
     lobe = "measured lobe" if out.base == "measured" else "model's lobe"
     removed = "" if problem.data.masking == "none" else f" ({problem.data.masking} masking removed, as fitted)"
     source = f"the {lobe} at μ = {starts} {unit or 'px'}{removed}"
-    return f"wrote {path}: {len(images)} lobes at {shown}, predicted from {source}{why}"
+    return f"wrote {path}: {len(out.scales)} lobes at {shown}, predicted from {source}{why}"
 
 
 def asked_steps(args) -> int:
