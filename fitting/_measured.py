@@ -215,11 +215,12 @@ def _predict(model, theta, data: Dataset, target: Dataset, base: str):
     scales = np.asarray(data.scales, dtype=float)
     mu0 = float(scales[0])
     rows, sources, mus = [], [], []
+    bases = {}  # the padded measured lobe per (source scale, grid): made once for every target it serves
     n_pix = target.values.shape[1]
     for j, k_t in enumerate(target.scale_of_image):
         mu = float(target.scales[k_t])
         s = _source_scale(scales, mu)
-        sources.append(float(scales[s]))
+        sources.append(mu0 if base == "model" else float(scales[s]))  # the model's lobe evolves from μ0
         mus.append(mu)
         u, e = _grid(target, j)
         n = u.shape[0]
@@ -227,12 +228,13 @@ def _predict(model, theta, data: Dataset, target: Dataset, base: str):
             row = _lobe_at(model, theta, mu0, jnp.asarray([mu]), jnp.asarray(u.reshape(1, -1, 2)))[0]
         else:
             pad = max(2, math.ceil(n / 2))
-            image = _measured_base(model, theta, data, s, u, e, pad)
+            key = (s, n, *u[0, 0].tolist(), *e.ravel().tolist())
+            if key not in bases:
+                bases[key] = _measured_base(model, theta, data, s, u, e, pad)
+            image = bases[key]
             delta = _differences(model, theta, jnp.asarray([scales[s], mu]))[1]
             row = _widen(image, jnp.asarray(e), delta)[pad : pad + n, pad : pad + n].reshape(-1)
         rows.append(jnp.pad(row, (0, n_pix - n * n)))
-    if base == "model":
-        sources = [mu0] * len(sources)
     return jnp.stack(rows), tuple(mus), tuple(sources)
 
 
@@ -292,7 +294,7 @@ def predict_from_measured(
             raise InvalidInputError("base='auto' needs two fitted scales (it validates on the coarsest); give base=.")
         images = list(data.images_of_scale(k))
         finer = _restricted(data, k - 1)
-        if not any(_same_grid(data, i, j) for i in images for j in finer.images_of_scale(k - 1)):
+        if not any(_same_grid(data, i, j) for i in images for j in data.images_of_scale(k - 1)):
             raise InvalidInputError(
                 f"base='auto' validates by predicting the coarsest fitted scale μ = {scales[k]:g} from the next finer "
                 f"one, μ = {scales[k - 1]:g}, whose images lie on other pixel grids; give base='measured' or "
