@@ -33,9 +33,12 @@ counts per unit lobe value, read noise in counts):
      the five finest scales (amplitude, centre, C0 at μ0) widened by the topography's
      ``ΔΣ = Σ(μ0) − Σ(μk)`` (increments' eigenvalues floored at 0, so that they are monotone as the
      model requires): ``C0 + ΔΣ(μ0, μk)``;
-   * ``default`` — the command's default model when it has a scale law that predicts unseen scales
-     (the parametric model does); a model of per-scale ΔΣ_k (``anisotropic``) cannot extrapolate,
-     recorded as such;
+   * ``default`` — the command's default model as ``brdfscale fit --predict`` predicts with it: the parametric
+     model by its own scale law; the per-scale model (``anisotropic``, the default) by
+     :func:`fitting.predict_from_measured` with its fit's ``covariance_differences`` — the lobe measured at the
+     coarsest fitted scale widened by a width law fitted to those ΔΣ estimates
+     (:func:`fitting.law_from_differences`; ``base="auto"`` as ``law_measured``); any other model is recorded as
+     unable to predict;
    * ``law``, ``law_spline`` — :class:`fitting.AnisotropicLawModel` (width law, monotone spline law) fitted to
      the five finest scales: its own lobe at the held-out scales;
    * ``law_measured`` — the width law's fit, the held-out scales predicted by
@@ -257,6 +260,18 @@ def held_out(mset, statistics, default_model: str) -> dict:
             }
     if default_model == "parametric":
         out["default"] = {**out["isotropic"], "model": default_model}
+    elif default_model == "anisotropic":  # brdfscale fit --predict: a width law fitted to the fit's ΔΣ estimates
+        t0 = time.perf_counter()
+        differences = aniso_fit.covariance_differences
+        measured = fitting.predict_from_measured(aniso, aniso_fit.theta, data, full, differences=differences)
+        out["default"] = {
+            "model": default_model,
+            "l1": l1(np.asarray(measured.values), full, held),
+            "base": measured.base,
+            "validation": measured.validation,
+            "law": {"chi2": measured.law.chi2, "dof": measured.law.dof} if measured.law else None,
+            "wall_s": round(time.perf_counter() - t0, 2),
+        }
     elif default_model in DEFAULT_ROWS:
         out["default"] = {**out[DEFAULT_ROWS[default_model]], "model": default_model}
     else:

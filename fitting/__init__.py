@@ -26,7 +26,8 @@ The chain, each step in its own module:
   :func:`sample`'s;
 * :func:`moment_covariance_differences` — ΔΣ(μ0, μk) from the images' own second moments, no model;
 * :func:`predict_from_measured` — unseen coarser scales from the lobe measured at the coarsest fitted scale,
-  widened by a fitted scale law's increment (seed Eq. 4.4 started there);
+  widened by a fitted scale law's increment (seed Eq. 4.4 started there); :func:`law_from_differences` — that law
+  for the per-scale model, fitted to its ΔΣ estimates;
 * :func:`assess` — can the outcome be trusted: the lobes resolved, the model adequate (χ²/dof
   per scale, residual structure: :func:`lag1_correlation`; where the misfit lies: :func:`away_from_lobe`), the
   optimiser and sampler converged (:class:`Outcome`, the ``brdfscale fit`` exit status);
@@ -59,6 +60,7 @@ from ._derived import compare_covariance_differences, covariance_truth, RATIO_FR
 from ._diagnostics import pareto_k
 from ._fit import fit, resolve_starts
 from ._joint import TopographyData
+from ._law_from_differences import law_from_differences, LawFromDifferences
 from ._measured import MeasuredPrediction, predict_from_measured
 from ._model import AbstractModel
 from ._moments import moment_covariance_differences
@@ -102,6 +104,7 @@ __all__ = [
     "Dataset",
     "Emcee",
     "FitResult",
+    "LawFromDifferences",
     "MeasuredPrediction",
     "NonParametricModel",
     "Outcome",
@@ -124,6 +127,7 @@ __all__ = [
     "plot_corner",
     "plot_fit",
     "plot_recovered_statistics",
+    "law_from_differences",
     "predict_from_measured",
     "ratio_frequencies",
     "report_files",

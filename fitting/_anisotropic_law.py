@@ -204,7 +204,15 @@ class AnisotropicLawModel(AbstractCovarianceModel):
     lobe: AnisotropicModel
     preferred_solver: ClassVar[str] = "lm_normal"
 
-    def __init__(self, law="width", *, scales=None, knots: int = 3, centred: bool = False, shape: str = MODEL.shape):
+    def __init__(
+        self,
+        law: "str | Law" = "width",
+        *,
+        scales=None,
+        knots: int = 3,
+        centred: bool = False,
+        shape: str = MODEL.shape,
+    ):
         if isinstance(law, Law):
             self.law = law
         elif law == "width":

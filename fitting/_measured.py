@@ -43,7 +43,9 @@ from jaxtyping import Array, ArrayLike, Float
 
 from brdfscale import InvalidInputError, LobeImage, MeasurementSet
 
+from ._anisotropic import AnisotropicModel
 from ._data import Dataset
+from ._law_from_differences import law_from_differences, LawFromDifferences
 
 
 __all__ = ["BASES", "MeasuredPrediction", "predict_from_measured"]
@@ -75,6 +77,7 @@ class MeasuredPrediction:
     source_scales: tuple[float, ...]
     images: Dataset
     validation: dict | None = None
+    law: LawFromDifferences | None = None
 
     def to_measurements(self, metadata: dict | None = None) -> MeasurementSet:
         """The predicted lobes as a :class:`brdfscale.MeasurementSet` (one :class:`brdfscale.LobeImage` per target
@@ -96,6 +99,7 @@ class MeasuredPrediction:
             "source_scales": list(self.source_scales),
             "validation": self.validation,
             "masking": self.images.masking,
+            **({"law": self.law.to_json()} if self.law is not None else {}),
         }
         return MeasurementSet(images, metadata={**(metadata or {}), **record})
 
@@ -154,13 +158,31 @@ _differences = eqx.filter_jit(lambda model, theta, scales: model.covariance_diff
 _widen = jax.jit(widen)
 
 
-def _check_model(model) -> None:
+def _law_model(model, theta, data: Dataset, differences):
+    """``(model, θ, law)`` to predict with: a model with a scale law at any μ as it is (law None); the per-scale
+    :class:`fitting.AnisotropicModel` with the law fitted to its ``differences`` (:func:`law_from_differences`)."""
+    if isinstance(model, AnisotropicModel):
+        if differences is None:
+            raise InvalidInputError(
+                "the per-scale AnisotropicModel determines ΔΣ at the measured scales only: give differences= "
+                "(the fit's FitResult.covariance_differences), to which a width law is fitted to reach other scales "
+                "(fitting.law_from_differences)."
+            )
+        law = law_from_differences(model, theta, differences, data)
+        return law.model, law.theta, law
     if not (callable(getattr(model, "predict_at", None)) and callable(getattr(model, "covariance_differences", None))):
         raise InvalidInputError(
             "model must carry a scale law defined at any μ (fitting.AnisotropicLawModel: predict_at and "
-            f"covariance_differences at any scales); got {type(model).__name__}. The per-scale models "
-            "(AnisotropicModel, AnisotropicNonParametricModel) determine ΔΣ at the measured scales only."
+            f"covariance_differences at any scales), or be the per-scale fitting.AnisotropicModel with its "
+            f"differences; got {type(model).__name__}. The non-parametric models determine ΔΣ at the measured "
+            "scales only."
         )
+    if differences is not None:
+        raise InvalidInputError(
+            f"differences= is for the per-scale AnisotropicModel; {type(model).__name__} carries its own scale law: "
+            "omit differences."
+        )
+    return model, theta, None
 
 
 def _source_scale(scales: np.ndarray, mu: float) -> int:
@@ -251,13 +273,15 @@ def predict_from_measured(
     target: Dataset | float | Sequence[float] | Float[ArrayLike, " k"],
     *,
     base: str = "auto",
+    differences: list[dict] | None = None,
 ) -> MeasuredPrediction:
     """The lobes of ``target``'s images predicted from the lobes measured in ``data`` and the scale law of
     ``model`` at ``theta`` (fitted to ``data``): seed Eq. 4.4 from the coarsest fitted scale ``μ_s ≤ μ`` of each
     target image, the measured lobe there widened by the law's ``ΔΣ(μ_s, μ)`` (module docstring).
 
     Args:
-        model: a model with a scale law at any μ (:class:`fitting.AnisotropicLawModel`).
+        model: a model with a scale law at any μ (:class:`fitting.AnisotropicLawModel`), or the per-scale
+            :class:`fitting.AnisotropicModel` with ``differences``.
         theta: its fitted coordinates (``fitting.fit(model, data).theta``).
         data: the fitted Dataset: its images are the measured lobes, its finest scale the model's μ0.
         target: the images to predict — a Dataset (its values are not used), each image on the grid of a fitted
@@ -266,19 +290,24 @@ def predict_from_measured(
         base: ``"measured"`` (the measured lobe), ``"model"`` (the model's own prediction,
             ``model.predict_at``) or ``"auto"`` (the one that predicts ``data``'s coarsest scale better from the
             next finer one: module docstring; needs two fitted scales).
+        differences: with the per-scale model only, its fit's ``FitResult.covariance_differences``: a width law
+            fitted to them (:func:`fitting.law_from_differences`) carries ΔΣ beyond the measured scales, the model's
+            base lobe is kept.
 
     Returns:
-        :class:`MeasuredPrediction`: the values, the base used and, for ``"auto"``, the two χ²/n it chose by.
+        :class:`MeasuredPrediction`: the values, the base used, for ``"auto"`` the two χ²/n it chose by, and the
+        law fitted to ``differences``.
 
     Raises:
-        InvalidInputError: a model without a law at any μ; ``base`` not one of :data:`BASES`; a target scale finer
-            than μ0; a target image on a grid no fitted image at its source scale has; ``base="auto"`` where the
-            two coarsest fitted scales' images lie on different grids; ``data`` not a Dataset; ``target`` neither a
-            Dataset nor finite positive scales.
+        InvalidInputError: a model without a law at any μ (the per-scale model without ``differences``, or
+            ``differences`` with a model of its own law; :func:`fitting.law_from_differences`' refusals); ``base``
+            not one of :data:`BASES`; a target scale finer than μ0; a target image on a grid no fitted image at its
+            source scale has; ``base="auto"`` where the two coarsest fitted scales' images lie on different grids;
+            ``data`` not a Dataset; ``target`` neither a Dataset nor finite positive scales.
     """
-    _check_model(model)
     if not isinstance(data, Dataset):
         raise InvalidInputError(f"data must be a fitting.Dataset; got {type(data).__name__}.")
+    model, theta, law = _law_model(model, theta, data, differences)
     if not isinstance(target, Dataset):
         target = _at_scales(data, target)
     if base not in BASES:
@@ -312,7 +341,7 @@ def predict_from_measured(
             "scales": (float(data.scales[k - 1]), float(data.scales[k])),
         }
     values, mus, sources = _predict(model, theta, data, target, base)
-    return MeasuredPrediction(values, base, mus, sources, target, validation)
+    return MeasuredPrediction(values, base, mus, sources, target, validation, law)
 
 
 def _at_scales(data: Dataset, scales) -> Dataset:

@@ -135,8 +135,12 @@ def test_auto_keeps_the_measured_lobe_where_the_model_misses_and_the_model_where
 
 def test_refuses_models_without_a_law_bad_bases_finer_scales_and_foreign_grids():
     data = dataset(FITTED)
-    with pytest.raises(InvalidInputError, match="scale law defined at any μ.*AnisotropicModel"):
-        fitting.predict_from_measured(fitting.AnisotropicModel(3), jnp.zeros(13), data, dataset(UNSEEN))
+    with pytest.raises(InvalidInputError, match="scale law defined at any μ.*got ParametricModel"):
+        fitting.predict_from_measured(fitting.ParametricModel(), jnp.zeros(4), data, dataset(UNSEEN))
+    with pytest.raises(InvalidInputError, match="per-scale AnisotropicModel .* give differences="):
+        fitting.predict_from_measured(fitting.AnisotropicModel(3), jnp.zeros(12), data, dataset(UNSEEN))
+    with pytest.raises(InvalidInputError, match="carries its own scale law: omit differences"):
+        fitting.predict_from_measured(MODEL, theta_of(), data, dataset(UNSEEN), differences=[])
     with pytest.raises(InvalidInputError, match="base must be one of 'auto', 'measured', 'model'; got 'best'"):
         fitting.predict_from_measured(MODEL, theta_of(), data, dataset(UNSEEN), base="best")
     with pytest.raises(InvalidInputError, match="finer than the finest fitted scale"):
@@ -237,8 +241,10 @@ def test_the_commands_predict_option_refuses_before_the_work(tmp_path):
     data = dataset(FITTED)
     check_predict(args("--model", "anisotropic_law"), data, None)  # no --predict: nothing to check
     check_predict(args("--model", "anisotropic_law", "--predict", "1,8"), data, None)  # μ0 itself is allowed
-    with pytest.raises(InvalidInputError, match="--predict needs a model with a scale law.*--model anisotropic_law"):
-        check_predict(args("--predict", "8"), data, None)
+    check_predict(args("--predict", "8"), data, None)  # the default (per-scale) model: a law fitted to its ΔΣ
+    for model in ("isotropic", "parametric"):
+        with pytest.raises(InvalidInputError, match=f"--predict needs --model anisotropic, anisotropic_law.*{model}"):
+            check_predict(args("--model", model, "--predict", "8"), data, None)
     with pytest.raises(InvalidInputError, match="without --compare"):
         check_predict(args("--model", "anisotropic_law", "--compare", "--predict", "8"), data, None)
     with pytest.raises(InvalidInputError, match="--predict 0.5: below the finest measured scale μ0 = 1 px"):
@@ -252,11 +258,13 @@ def test_the_commands_predict_option_refuses_before_the_work(tmp_path):
 
 
 @pytest.mark.slow
-def test_the_command_writes_the_predicted_lobes(tmp_path, capsys):
-    """End to end: noise-free Gaussian lobes at four scales, ``brdfscale fit --model anisotropic_law --predict``:
-    DIR/predicted_lobes.exr holds the lobes at the two unseen scales, equal to the hand-written Gaussians of
-    C0 + ΔΣ(μ0, μ) to 1e-3 of the peak (the law fitted to noise-free data, extrapolated; the file's float32
-    values), and the command says what the prediction started from."""
+@pytest.mark.parametrize("model", ["anisotropic_law", "anisotropic"])
+def test_the_command_writes_the_predicted_lobes(tmp_path, capsys, model):
+    """End to end: noise-free Gaussian lobes at four scales, ``brdfscale fit --model anisotropic_law --predict``
+    and the default per-scale model's (a width law fitted to its ΔΣ estimates): DIR/predicted_lobes.exr holds the
+    lobes at the two unseen scales, equal to the hand-written Gaussians of C0 + ΔΣ(μ0, μ) to 1e-3 of the peak (the
+    law fitted to noise-free data, extrapolated; the file's float32 values), and the command says what the
+    prediction started from."""
     import brdfscale._cli as cli
     from brdfscale import exr
 
@@ -268,18 +276,20 @@ def test_the_command_writes_the_predicted_lobes(tmp_path, capsys):
     measurements = tmp_path / "m.exr"
     exr.write_measurements(measurements, bs.MeasurementSet(tuple(images)))
     out = tmp_path / "fit"
-    argv = ["fit", str(measurements), "--model", "anisotropic_law", "--steps", "0", "--out", str(out)]
+    argv = ["fit", str(measurements), "--model", model, "--steps", "0", "--out", str(out)]
     cli.main([*argv, "--predict", "32,16"])
     printed = capsys.readouterr().out
     assert re.search(
         r"predicted_lobes.exr: 2 lobes at μ = \[16, 32\] px, predicted from the "
-        r"(measured lobe at μ = 8|model's lobe at μ = 1) px; at the coarsest fitted scale χ²/n",
+        r"(measured lobe at μ = 8|model's lobe at μ = 1) px; at the coarsest fitted scale χ²/n .*"
+        + (r"; ΔΣ from a width law fitted to the per-scale ΔΣ \(χ²/dof = .*/2\)" if model == "anisotropic" else ""),
         printed,
     )
     predicted = exr.read_measurements(out / "predicted_lobes.exr")
     assert [image.mu for image in predicted.images] == [16.0, 32.0]
     start = {"measured": 8.0, "model": 1.0}[predicted.metadata["base"]]  # the model's lobe evolves from μ0
     assert predicted.metadata["source_scales"] == [start, start] and predicted.metadata["masking"] == "none"
+    assert ("law" in predicted.metadata) == (model == "anisotropic")
     for image in predicted.images:
         want = truth(image.mu)
         np.testing.assert_allclose(np.asarray(image.values), want, rtol=0, atol=1e-3 * want.max())
@@ -304,3 +314,69 @@ def test_replicate_images_at_a_scale_are_averaged_by_their_weights():
     single = fitting.Dataset.from_measurements(bs.MeasurementSet(tuple(alone)))
     want = fitting.predict_from_measured(MODEL, theta_of(), single, [8.0], base="measured")
     np.testing.assert_allclose(np.asarray(out.values), np.asarray(want.values), rtol=0, atol=1e-12 * truth(8.0).max())
+
+
+SCALES = (1.0, 2.0, 4.0, 8.0, 16.0)
+
+
+def _per_scale_theta(differences):
+    """The per-scale model's θ whose ΔΣ_k are ``differences`` (K−1 matrices of increasing, PD increments)."""
+    theta, previous = list(np.asarray(theta_of())[:6]), np.zeros((2, 2))
+    for d in differences:
+        L = np.linalg.cholesky(d - previous)
+        theta += [math.log(L[0, 0]), L[1, 0], math.log(L[1, 1])]
+        previous = d
+    return jnp.asarray(theta)
+
+
+def _entries(differences, rel=1e-4):
+    return [
+        {"mu0": SCALES[0], "mu": mu, "value": d.tolist(), "std": [[rel * abs(d).max()] * 2] * 2}
+        for mu, d in zip(SCALES[1:], differences)
+    ]
+
+
+def test_a_width_law_fitted_to_per_scale_differences_carries_them_to_unseen_scales():
+    """ΔΣ_k of the per-scale model made by a known anisotropic width law (rotated, two different axes): the law
+    fitted to them (fitting.law_from_differences) gives ΔΣ at the unseen scales 32 and 64 equal to the true law's
+    to 1e-6 of its largest entry, with χ² ≈ 0 on 12 − 7 = 5 dof; predict_from_measured with the per-scale model and
+    its differences then equals the prediction of the true law model (1e-9 of the peak)."""
+    data = dataset(SCALES)
+    truths = [true_difference(mu) for mu in SCALES[1:]]
+    model = fitting.AnisotropicModel(len(SCALES))
+    law = fitting.law_from_differences(model, _per_scale_theta(truths), _entries(truths), data)
+    assert law.dof == 5 and law.chi2 < 1e-12 and isinstance(law.model, fitting.AnisotropicLawModel)
+    assert re.fullmatch(r"LawFromDifferences\(Width law on 5 scales, χ²/dof = .*/5, φ = .* rad\)", repr(law))
+    got = np.asarray(law.model.covariance_differences(law.theta, jnp.asarray([1.0, 32.0, 64.0])))[1:]
+    for mu, g in zip((32.0, 64.0), got):
+        np.testing.assert_allclose(g, true_difference(mu), rtol=0, atol=1e-6 * abs(true_difference(mu)).max())
+    out = fitting.predict_from_measured(
+        model, _per_scale_theta(truths), data, [32.0], base="measured", differences=_entries(truths)
+    )
+    want = fitting.predict_from_measured(MODEL, theta_of(), data, [32.0], base="measured")
+    np.testing.assert_allclose(np.asarray(out.values), np.asarray(want.values), rtol=0, atol=1e-9 * truth(32.0).max())
+    assert out.law is not None and out.to_measurements().metadata["law"]["dof"] == 5
+
+
+def test_law_from_differences_refuses_what_it_cannot_fit():
+    """Another model or the isotropic per-scale one, a θ of the wrong length, entries not one per coarser scale or
+    at other scales, damaged entries, fewer determined components than the law's coordinates: the library's error
+    naming the fix."""
+    data = dataset(SCALES)
+    truths = [true_difference(mu) for mu in SCALES[1:]]
+    model, theta, entries = fitting.AnisotropicModel(len(SCALES)), _per_scale_theta(truths), _entries(truths)
+    with pytest.raises(InvalidInputError, match="per-scale fitting.AnisotropicModel .* got AnisotropicLawModel"):
+        fitting.law_from_differences(MODEL, theta_of(), entries, data)
+    with pytest.raises(InvalidInputError, match="isotropic AnisotropicModel .* not determined"):
+        fitting.law_from_differences(fitting.AnisotropicModel(len(SCALES), isotropic=True), theta[:6], entries, data)
+    with pytest.raises(InvalidInputError, match="theta must have the model's 18 coordinates"):
+        fitting.law_from_differences(model, theta[:-1], entries, data)
+    with pytest.raises(InvalidInputError, match="one entry per coarser scale \\(4 for these data\\)"):
+        fitting.law_from_differences(model, theta, entries[:-1], data)
+    with pytest.raises(InvalidInputError, match="is at μ = 3, the data's scale 1 at μ = 2"):
+        fitting.law_from_differences(model, theta, [{**entries[0], "mu": 3.0}, *entries[1:]], data)
+    with pytest.raises(InvalidInputError, match="must hold 'mu', 'value' and 'std'"):
+        fitting.law_from_differences(model, theta, [{"mu": 2.0}, *entries[1:]], data)
+    few = [{**e, "std": [[None, None], [None, None]]} for e in entries[:3]] + entries[3:]
+    with pytest.raises(InvalidInputError, match="has 7 coordinates .* only 3 determined components"):
+        fitting.law_from_differences(model, theta, few, data)

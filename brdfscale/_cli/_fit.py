@@ -72,6 +72,10 @@ def _smoothness(text: str):
 PREDICTED = "predicted_lobes.exr"
 """The file ``--predict`` writes into the output directory."""
 
+PREDICTING_MODELS = ("anisotropic", "anisotropic_law")
+"""The ``--model`` names ``--predict`` takes: :func:`fitting.predict_from_measured`'s models (AnisotropicModel with
+its ΔΣ estimates, AnisotropicLawModel; library._spec makes them from these names)."""
+
 
 def _scale_list(text: str) -> tuple[float, ...]:
     """``--predict``'s type: 1–64 comma-separated finite positive scales μ (numbers, the set's unit of μ)."""
@@ -257,15 +261,17 @@ def check_fit_options(args) -> None:
 
 def check_predict(args, data, unit) -> None:
     """``--predict`` against the model and the data, before the work: a model with a scale law at any μ
-    (``--model anisotropic_law``, not ``--compare``'s choice) and no scale finer than the finest measured one
-    (:func:`check_predicted_file`: nothing overwritten)."""
+    (``--model anisotropic_law``) or the per-scale one (``anisotropic``, the default: a width law fitted to its ΔΣ
+    estimates carries them on, fitting.law_from_differences) — not ``--compare``'s choice — and no
+    scale finer than the finest measured one (:func:`check_predicted_file`: nothing overwritten)."""
     predict = getattr(args, "predict", None)
     if predict is None:
         return
-    if args.model != "anisotropic_law" or getattr(args, "compare", False):
+    compare = getattr(args, "compare", False)
+    if args.model not in PREDICTING_MODELS or compare:
         raise InvalidInputError(
-            "--predict needs a model with a scale law at any μ: --model anisotropic_law, without --compare (the "
-            "per-scale models determine ΔΣ at the measured scales only)."
+            f"--predict needs --model {', '.join(PREDICTING_MODELS)} (a scale law, or per-scale ΔΣ a law is fitted "
+            f"to), without --compare; got --model {args.model}{' --compare' if compare else ''}."
         )
     finest = float(data.scales[0])
     finer = [mu for mu in predict if mu < finest * (1 - 1e-9)]
@@ -293,7 +299,9 @@ def write_predictions(fitting, problem, result, args, unit, resume: bool = False
     from .. import exr
 
     theta = jnp.clip(jnp.asarray(result.theta), problem.lower, problem.upper)
-    out = fitting.predict_from_measured(problem.model, theta, problem.data, args.predict)
+    per_scale = isinstance(problem.model, fitting.AnisotropicModel)  # ΔΣ beyond its scales: a law fitted to them
+    differences = result.covariance_differences if per_scale else None
+    out = fitting.predict_from_measured(problem.model, theta, problem.data, args.predict, differences=differences)
     metadata = {"source": "brdfscale fit --predict (fitting.predict_from_measured)", **({"unit": unit} if unit else {})}
     path = os.path.join(args.out, PREDICTED)
     exr.write_measurements(path, out.to_measurements(metadata), overwrite=args.force or resume)
@@ -308,7 +316,13 @@ def write_predictions(fitting, problem, result, args, unit, resume: bool = False
     lobe = "measured lobe" if out.base == "measured" else "model's lobe"
     removed = "" if problem.data.masking == "none" else f" ({problem.data.masking} masking removed, as fitted)"
     source = f"the {lobe} at μ = {starts} {unit or 'px'}{removed}"
-    return f"wrote {path}: {len(out.scales)} lobes at {shown}, predicted from {source}{why}"
+    law = (
+        ""
+        if out.law is None
+        else f"; ΔΣ from a {type(out.law.model.law).__name__.lower()} law fitted to the per-scale ΔΣ "
+        f"(χ²/dof = {out.law.chi2:.3g}/{out.law.dof})"
+    )
+    return f"wrote {path}: {len(out.scales)} lobes at {shown}, predicted from {source}{why}{law}"
 
 
 def asked_steps(args) -> int:
@@ -422,8 +436,9 @@ def register(subparsers) -> None:
         type=_scale_list,
         default=None,
         metavar="MU[,MU...]",
-        help="with --model anisotropic_law: the lobes at these scales μ (the set's unit of μ, none finer than its "
-        "finest), predicted from the lobe measured at the coarsest fitted scale widened by the fitted law — or from "
+        help=f"with --model {', '.join(PREDICTING_MODELS)}: the lobes at these scales μ (the set's unit of μ, none "
+        "finer than its finest), predicted from the lobe measured at the coarsest fitted scale widened by the fitted "
+        "law (the per-scale model: a width law fitted to its ΔΣ estimates) — or from "
         "the model's own lobe where that predicts the coarsest fitted scale better from the next finer one "
         f"(fitting.predict_from_measured) — written to DIR/{PREDICTED}",
     )

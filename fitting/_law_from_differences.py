@@ -1,0 +1,221 @@
+"""A scale law fitted to a per-scale model's ΔΣ estimates: what carries :class:`fitting.AnisotropicModel`'s fit to
+scales it has not measured (:func:`law_from_differences`).
+
+The per-scale model determines ``ΔΣ_k = Σ(μ0) − Σ(μ_k)`` at the measured scales only (its coordinates are one
+increment per scale). To predict a coarser, unmeasured scale μ, something must say how Σ goes on beyond μ_K: a
+scale law. This module fits one to the estimates themselves — a second stage on the fit, nothing refitted to the
+images — by weighted least squares over the determined entries of every ``ΔΣ(μ0, μ_k)``,
+
+    χ²(φ, p) = Σ_k Σ_{ab ∈ xx, xy, yy} ((ΔΣ_law(μ0, μ_k; φ, p)_ab − ΔΣ_k,ab) / std_k,ab)²,
+
+with ``ΔΣ_law`` that of :class:`fitting.AnisotropicLawModel`'s law (principal axes at a free angle φ, each principal
+variance a :class:`fitting.Width` law unless another is given). The standard errors are the fit's (``FitResult``'s
+``covariance_differences``, each component's own: their correlations are left out, so χ² is a guide to the law's
+adequacy, not a calibrated test). An entry without a standard error (undetermined, or fixed by an isotropic model)
+is left out. The law's coordinates are kept inside their prior box (``Law.bounds``) by a logistic map.
+
+The result is an :class:`fitting.AnisotropicLawModel` with the per-scale model's base lobe (amplitude, C0, centre,
+tail index) and the fitted law, and its θ: :func:`fitting.predict_from_measured` then predicts any coarser scale —
+from the measured lobe widened by the law's ΔΣ between the coarsest fitted scale and the target, the law's own
+increments between measured scales matching the per-scale estimates to their standard errors where the law fits.
+
+Verified in tests/test_measured_prediction.py: ΔΣ_k made by a known width law are recovered and extrapolated to a
+coarser scale to 1e-6 of the law's own; refusals (models, entries, too few of them).
+"""
+
+import dataclasses
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array, ArrayLike, Float
+
+from brdfscale import InvalidInputError
+
+from ._anisotropic import AnisotropicModel
+from ._anisotropic_law import AnisotropicLawModel, Law
+from ._data import Dataset
+
+
+__all__ = ["LawFromDifferences", "law_from_differences"]
+
+_ENTRIES = ((0, 0), (0, 1), (1, 1))
+_SOLVER = optx.LevenbergMarquardt(rtol=1e-10, atol=1e-12)
+_MAX_STEPS = 2000
+_PHI_STARTS = (0.0, math.pi / 4, -math.pi / 4, math.pi / 2)
+"""The starts of φ, offsets from the principal axis of the coarsest ΔΣ estimate (the best start is kept)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class LawFromDifferences:
+    """What :func:`law_from_differences` returns: ``model`` (:class:`fitting.AnisotropicLawModel`, the per-scale
+    model's base lobe and the fitted law) and its ``theta``; ``chi2`` and ``dof`` of the law against the ΔΣ
+    entries it was fitted to (``dof``: determined entries − the law's coordinates − 1 for φ); ``scales`` the
+    measured scales (μ0 first)."""
+
+    model: AnisotropicLawModel
+    theta: Float[Array, " n"]
+    chi2: float
+    dof: int
+    scales: tuple[float, ...]
+
+    @property
+    def reduced_chi2(self) -> float:
+        """χ²/dof (inf where dof is 0: the law has as many coordinates as entries)."""
+        return self.chi2 / self.dof if self.dof > 0 else math.inf
+
+    def to_json(self) -> dict:
+        """``{"law", "fitted_to", "chi2", "dof", "theta": {name: value}}`` (a report's or a file's record)."""
+        return {
+            "law": type(self.model.law).__name__.lower(),
+            "fitted_to": "the per-scale model's covariance_differences (their standard errors)",
+            "chi2": self.chi2,
+            "dof": self.dof,
+            "theta": {n: float(v) for n, v in zip(self.model.names, np.asarray(self.theta))},
+        }
+
+    def __repr__(self) -> str:
+        law = type(self.model.law).__name__
+        return (
+            f"LawFromDifferences({law} law on {len(self.scales)} scales, χ²/dof = {self.chi2:.3g}/{self.dof}, "
+            f"φ = {float(self.theta[self.model.names.index('phi')]):.3g} rad)"
+        )
+
+
+def _base_coordinates(model: AnisotropicModel, theta: np.ndarray) -> list[float]:
+    """The law model's base-lobe coordinates (``log amplitude``, ``log L0_xx``, ``L0_yx``, ``log L0_yy`` and,
+    uncentred, ``mean_x``, ``mean_y``) of the per-scale model's θ (the same names, in the same order)."""
+    return [float(x) for x in theta[: 4 if model.centred else 6]]
+
+
+def _entries(differences, scales: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(index of the scale (K,), value, std)`` of every determined ΔΣ component, flattened."""
+    if not isinstance(differences, (list, tuple)) or len(differences) != len(scales) - 1:
+        raise InvalidInputError(
+            f"differences must be the fit's covariance_differences: one entry per coarser scale ({len(scales) - 1} "
+            f"for these data), as FitResult.covariance_differences gives; got {differences!r:.200}."
+        )
+    index, value, std = [], [], []
+    for k, entry in enumerate(differences, start=1):
+        try:
+            mu, v, s = float(entry["mu"]), entry["value"], entry["std"]
+        except (TypeError, KeyError, ValueError):
+            raise InvalidInputError(
+                f"differences[{k - 1}] must hold 'mu', 'value' and 'std' (FitResult.covariance_differences); "
+                f"got {entry!r:.200}."
+            ) from None
+        if not math.isclose(mu, float(scales[k]), rel_tol=1e-9):
+            raise InvalidInputError(
+                f"differences[{k - 1}] is at μ = {mu:g}, the data's scale {k} at μ = {float(scales[k]):g}: give the "
+                "covariance_differences of the fit to these data."
+            )
+        for a, b in _ENTRIES:
+            x = None if v is None or v[a][b] is None else float(v[a][b])
+            e = None if s is None or s[a][b] is None else float(s[a][b])
+            if x is not None and e is not None and math.isfinite(x) and math.isfinite(e) and e > 0:
+                index.append((k, a, b))
+                value.append(x)
+                std.append(e)
+    return np.asarray(index, int).reshape(-1, 3), np.asarray(value, float), np.asarray(std, float)
+
+
+@eqx.filter_jit
+def _solve(model, base, tail, lo, hi, scales, index, value, std, z0):
+    def theta_of(z):
+        p = lo + (hi - lo) * jax.nn.sigmoid(z[1:])
+        return jnp.concatenate([base, z[:1], p, tail])
+
+    def residuals(z, _):
+        delta = model.covariance_differences(theta_of(z), scales)
+        return (delta[index[:, 0], index[:, 1], index[:, 2]] - value) / std
+
+    solution = optx.least_squares(residuals, _SOLVER, z0, max_steps=_MAX_STEPS, throw=False)
+    r = residuals(solution.value, None)
+    return theta_of(solution.value), jnp.sum(r**2)
+
+
+def law_from_differences(
+    model: AnisotropicModel,
+    theta: Float[ArrayLike, " n"],
+    differences: list[dict],
+    data: Dataset,
+    *,
+    law: str | Law = "width",
+) -> LawFromDifferences:
+    """A scale law fitted to the per-scale model's ΔΣ estimates (module docstring): the
+    :class:`fitting.AnisotropicLawModel` of the same base lobe whose law's ΔΣ(μ0, μ_k) best matches
+    ``differences`` by their standard errors.
+
+    Args:
+        model: the fitted :class:`fitting.AnisotropicModel` (per-scale ΔΣ_k, not the isotropic case; any shape).
+        theta: its fitted coordinates.
+        differences: the fit's ``covariance_differences`` (``FitResult.covariance_differences``: per coarser scale
+            ``{"mu", "value", "std"}``).
+        data: the fitted Dataset (its scales; the law's prior box).
+        law: ``"width"`` (default) or ``"spline"`` (:class:`fitting.AnisotropicLawModel`'s laws), or a
+            :class:`fitting.Law`.
+
+    Returns:
+        :class:`LawFromDifferences`: the law model, its θ and the law's χ² against the entries.
+
+    Raises:
+        InvalidInputError: ``model`` not an anisotropic :class:`fitting.AnisotropicModel`; ``theta`` not of its length;
+            ``differences`` not one entry per coarser scale of ``data`` at its scales; fewer determined entries than
+            the law has coordinates (φ included); ``data`` not a Dataset.
+    """
+    if not isinstance(model, AnisotropicModel):
+        raise InvalidInputError(
+            "model must be the per-scale fitting.AnisotropicModel whose ΔΣ_k the law is fitted to; got "
+            f"{type(model).__name__} (a fitting.AnisotropicLawModel carries its own law: use it as it is)."
+        )
+    if model.isotropic:
+        raise InvalidInputError(
+            "model is the isotropic AnisotropicModel (one ΔΣ number per scale): the anisotropic law's two axes and "
+            "orientation are not determined by it; fit AnisotropicModel(n_scales) (isotropic=False) or "
+            "AnisotropicLawModel instead."
+        )
+    if not isinstance(data, Dataset):
+        raise InvalidInputError(f"data must be a fitting.Dataset; got {type(data).__name__}.")
+    theta = np.asarray(theta, dtype=float)
+    if theta.shape != (len(model.names),):
+        raise InvalidInputError(f"theta must have the model's {len(model.names)} coordinates; got shape {theta.shape}.")
+    scales = np.asarray(data.scales, dtype=float)
+    index, value, std = _entries(differences, scales)
+    law_model = AnisotropicLawModel(law, scales=scales, centred=model.centred, shape=model.shape)
+    n_law = len(law_model.law.names) + 1  # and φ
+    if len(value) < n_law:
+        raise InvalidInputError(
+            f"the {type(law_model.law).__name__} law has {n_law} coordinates (φ included) and the differences only "
+            f"{len(value)} determined components: measure more scales, or give a law of fewer coordinates."
+        )
+    lo, hi = (np.asarray(b, float) for b in law_model.law.bounds(data))
+    # the start: φ along the coarsest estimate's principal axis, the law's own start from ΔΣ along the two axes
+    delta = np.zeros((len(scales), 2, 2))
+    for (k, a, b), x in zip(index, value):
+        delta[k, a, b] = delta[k, b, a] = x
+    w, v = np.linalg.eigh(delta[-1])
+    phi0 = math.atan2(v[1, 1], v[0, 1])
+    tail = theta[-1:] if model.shape == "student_t" else theta[:0]
+    args = [jnp.asarray(x) for x in (_base_coordinates(model, theta), tail, lo, hi, scales, index, value, std)]
+    best = None
+    for offset in _PHI_STARTS:
+        phi = phi0 + offset
+        rot = np.array([[math.cos(phi), -math.sin(phi)], [math.sin(phi), math.cos(phi)]])
+        along = np.einsum("ia,kij,ja->ka", rot, delta, rot)
+        along = np.maximum(along, 1e-3 * max(float(np.abs(along).max()), 1e-300))
+        p0 = np.asarray(law_model.law.initial(scales, along), float)
+        p0 = np.clip(p0, lo + 1e-6 * (hi - lo), hi - 1e-6 * (hi - lo))
+        z0 = np.concatenate([[phi], np.log((p0 - lo) / (hi - p0))])
+        fitted, chi2 = _solve(law_model, *args, jnp.asarray(z0))  # pyright: ignore[reportCallIssue]
+        if np.all(np.isfinite(np.asarray(fitted))) and (best is None or float(chi2) < best[1]):
+            best = (fitted, float(chi2))
+    if best is None:
+        raise InvalidInputError("the law's fit to the differences is not finite from any start; check the entries.")
+    fitted = np.array(best[0])
+    i = law_model.names.index("phi")
+    fitted[i] = (fitted[i] + math.pi / 2) % math.pi - math.pi / 2  # ΔΣ is periodic in φ with period π
+    scales_ = tuple(float(s) for s in scales)
+    return LawFromDifferences(law_model, jnp.asarray(fitted), best[1], len(value) - n_law, scales_)
