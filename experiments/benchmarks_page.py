@@ -1002,7 +1002,9 @@ def real_fits() -> str:
             "`fitting.AnisotropicLawModel` (width law per principal axis, or monotone spline in ln μ); law from the "
             "measured lobe: the width law's fit, the held-out scales predicted by `fitting.predict_from_measured` "
             "from the lobe measured at the coarsest fitted scale (base: the measured lobe or, where its validation "
-            "says so, the model's). Anisotropy: "
+            "says so, the model's); default: the command's default model as `brdfscale fit --predict` predicts with "
+            "it (the per-scale `AnisotropicModel`: the same from the measured lobe, widened by a width law fitted to "
+            "its ΔΣ estimates, `fitting.law_from_differences`). Anisotropy: "
             "the eigenvalue ratio of the file's Σ(μ0)." + _held_out_run_line(d),
             table(_REAL_FIT_HEADER, _real_fit_rows(d)),
             "Targets (issue 31):\n\n"
@@ -1017,7 +1019,15 @@ def real_fits() -> str:
                 if (missed := t["delta_sigma_within_3_std"].get("missed_on_outlier_dominated_files"))
                 else ""
             )
-            + ");\n"
+            + ")"
+            + (
+                f"; by the images' own second moments (`fitting.moment_covariance_differences`, no model; fit.json's "
+                f"`moment_covariance_differences`): {mm['passed']} of {mm['of']} runs"
+                + (f", missed: {', '.join(mm['missed'])}" if mm.get("missed") else "")
+                if (mm := t.get("delta_sigma_within_3_std_by_image_moments"))
+                else ""
+            )
+            + ";\n"
             "- held-out error ≤ ½ of the isotropic default's on the anisotropic files: "
             + ("not evaluated (no anisotropic file)" if held["met"] is None else met(held["met"]))
             + f" ({held['passed']} of {held['of']} runs"
@@ -1027,6 +1037,11 @@ def real_fits() -> str:
                 "no prediction can meet it: the noise floor of the measure is above ½ of the isotropic default's error"
                 if held.get("unreachable_by_noise_floor")
                 else ""
+            )
+            + (
+                f"; missed where reachable: {', '.join(held['missed_where_reachable'])}"
+                if held.get("missed_where_reachable")
+                else ("; none missed where reachable" if "missed_where_reachable" in held and held["of"] else "")
             )
             + ")"
             + "".join(

@@ -777,6 +777,15 @@ def test_bench_real_fits_z_scores_and_targets_by_hand():
     spiky = {"slope_outliers": {"fraction": [0.01, 0.01], "variance_share": [0.9, 0.2], "dominated": True}}
     named = brf.targets([{**honest, **spiky}, {**record(0, "ok", [ok_scale], 1.0), **spiky}])
     assert named["delta_sigma_within_3_std"]["missed_on_outlier_dominated_files"] == ["f n5inadequate"]
+    # the images' own moments' ΔΣ against the topography: counted alike, a run without a finite |z| a miss
+    by_moments = brf.targets([{**honest, "moment_max_abs_z": 2.9}, {**honest, "noise": "m", "moment_max_abs_z": 3.1}])
+    assert by_moments["delta_sigma_within_3_std_by_image_moments"] == {
+        "met": False,
+        "passed": 1,
+        "of": 2,
+        "missed": ["f m"],
+    }
+    assert targets["delta_sigma_within_3_std_by_image_moments"]["passed"] == 0  # no moment_max_abs_z recorded
     assert targets["held_out_half_of_isotropic_on_anisotropic_files"]["met"] is None  # no anisotropic file
     # held-out on anisotropic files: the runs whose noise floor is above ½ of the isotropic default's L1 are named
     held = {"isotropic": {"l1": 0.4}, "default": {"l1": 0.3}, "noise_floor_l1": 0.25}
@@ -789,6 +798,7 @@ def test_bench_real_fits_z_scores_and_targets_by_hand():
         "passed": 0,
         "of": 2,
         "unreachable_by_noise_floor": ["f n5inadequate"],
+        "missed_where_reachable": ["f m"],
     }
     # a predictor's row (here the measured-lobe one) names its misses outside the unreachable runs
     rows = [
