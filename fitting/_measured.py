@@ -109,8 +109,9 @@ class MeasuredPrediction:
             if self.validation is None
             else (f", χ²/n measured {self.validation['measured']:.3g} vs model {self.validation['model']:.3g}")
         )
+        law = "" if self.law is None else f", law χ²/dof {self.law.chi2:.3g}/{self.law.dof}"
         shown = ", ".join(f"{mu:.4g}" for mu in sorted(set(self.scales)))
-        return f"MeasuredPrediction({self.values.shape[0]} images at μ = [{shown}], base={self.base!r}{chosen})"
+        return f"MeasuredPrediction({self.values.shape[0]} images at μ = [{shown}], base={self.base!r}{chosen}{law})"
 
 
 def _grid(data: Dataset, i: int) -> tuple[np.ndarray, np.ndarray]:

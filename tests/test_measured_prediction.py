@@ -356,6 +356,7 @@ def test_a_width_law_fitted_to_per_scale_differences_carries_them_to_unseen_scal
     want = fitting.predict_from_measured(MODEL, theta_of(), data, [32.0], base="measured")
     np.testing.assert_allclose(np.asarray(out.values), np.asarray(want.values), rtol=0, atol=1e-9 * truth(32.0).max())
     assert out.law is not None and out.to_measurements().metadata["law"]["dof"] == 5
+    assert re.fullmatch(r"MeasuredPrediction\(1 images at μ = \[32\], base='measured', law χ²/dof .*/5\)", repr(out))
 
 
 def test_law_from_differences_refuses_what_it_cannot_fit():
