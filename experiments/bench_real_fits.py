@@ -347,7 +347,8 @@ def study(name: str, noise: str, workdir: Path, *, warm: bool, fit_args: tuple[s
     record.update(z_summary(record["covariance_differences"]))
     # the images' own moments (no model) against the topography, and both against the set's recorded truth
     moments = z_scores(doc.get("moment_covariance_differences", []), statistics)
-    record["moment_max_abs_z"] = z_summary(moments)["max_abs_z"]
+    summary = z_summary(moments)
+    record["moment_max_abs_z"], record["moment_undefined_z"] = summary["max_abs_z"], summary["undefined_z"]
     record["truth_pulls"] = {
         key: pull_summary(doc.get(key, [])) for key in ("covariance_differences", "moment_covariance_differences")
     }
@@ -548,7 +549,11 @@ def targets(records: list[dict]) -> dict:
     """The issue's four targets over all records (module docstring)."""
     chi2 = [(r.get("reduced_chi2") or math.inf) <= MAX_REDUCED_CHI2 or explicit(r) for r in records]
     z = [r.get("max_abs_z") is not None and r["max_abs_z"] <= MAX_Z and not r.get("undefined_z") for r in records]
-    moments = [r.get("moment_max_abs_z") is not None and r["moment_max_abs_z"] <= MAX_Z for r in records]
+    # (a record written before moment_undefined_z was recorded counts its defined components only)
+    moments = [
+        r.get("moment_max_abs_z") is not None and r["moment_max_abs_z"] <= MAX_Z and not r.get("moment_undefined_z")
+        for r in records
+    ]
     held, by_law, unreachable = [], {key: [] for key in (*LAWS, MEASURED_ROW)}, []
     for r in records:
         h = r.get("held_out")

@@ -1021,8 +1021,15 @@ def real_fits() -> str:
             )
             + ")"
             + (
-                f"; by the images' own second moments (`fitting.moment_covariance_differences`, no model; fit.json's "
-                f"`moment_covariance_differences`): {mm['passed']} of {mm['of']} runs"
+                "; by the images' own second moments (`fitting.moment_covariance_differences`, no model; fit.json's "
+                "`moment_covariance_differences`"
+                + (
+                    "; records of a run before components without a standard error were counted: their largest |z| "
+                    "over those with one"
+                    if any("moment_undefined_z" not in r for r in d["records"] if "moment_max_abs_z" in r)
+                    else ""
+                )
+                + f"): {mm['passed']} of {mm['of']} runs"
                 + (f", missed: {', '.join(mm['missed'])}" if mm.get("missed") else "")
                 if (mm := t.get("delta_sigma_within_3_std_by_image_moments"))
                 else ""

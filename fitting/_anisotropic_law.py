@@ -340,18 +340,31 @@ class AnisotropicLawModel(AbstractCovarianceModel):
         from the measured ΔΣ along the two axes."""
         start = self.lobe.initial(data)
         _, cov = image_moments(data)
-        delta = cov - cov[0]
-        w, v = np.linalg.eigh(delta[-1])
-        phi = math.atan2(v[1, 1], v[0, 1])  # the larger eigenvalue's axis as axis 1
-        phi = (phi + math.pi / 2) % math.pi - math.pi / 2
-        rot = np.array([[math.cos(phi), -math.sin(phi)], [math.sin(phi), math.cos(phi)]])
-        along = np.einsum("ia,kij,ja->ka", rot, delta, rot)  # (K, 2): ΔΣ along axes 1, 2
         # a change the half-maximum moments do not resolve starts at 5 % of the base lobe's variance (as the increments
         # of AnisotropicModel.initial), inside every law's prior box
-        along = np.maximum(along, 0.05 * float(np.trace(cov[0])) / 2)
-        law = self.law.initial(np.asarray(data.scales), along)
+        phi, law = self.law_start(np.asarray(data.scales), cov - cov[0], 0.05 * float(np.trace(cov[0])) / 2)
         tail = list(start[-1:]) if self.shape == "student_t" else []
         return np.asarray([*start[: self._n_base], phi, *law, *tail])
+
+    def law_start(
+        self, scales: np.ndarray, delta: np.ndarray, floor: float, phi: float | None = None
+    ) -> tuple[float, list[float]]:
+        """``(φ, the law's start)`` for estimates ``delta`` (K, 2, 2) of ΔΣ(μ0, μ_k) at ``scales``: φ the principal
+        axis of the coarsest (the larger eigenvalue's as axis 1; or the ``phi`` given), the law's own start
+        (:meth:`Law.initial`) from ΔΣ along the two axes, each floored at ``floor``."""
+        if phi is None:
+            w, v = np.linalg.eigh(delta[-1])
+            phi = math.atan2(v[1, 1], v[0, 1])
+            phi = (phi + math.pi / 2) % math.pi - math.pi / 2
+        rot = np.array([[math.cos(phi), -math.sin(phi)], [math.sin(phi), math.cos(phi)]])
+        along = np.einsum("ia,kij,ja->ka", rot, delta, rot)  # (K, 2): ΔΣ along axes 1, 2
+        return phi, list(self.law.initial(np.asarray(scales), np.maximum(along, floor)))
+
+    @property
+    def n_base(self) -> int:
+        """The base lobe's coordinates at the head of θ (those of :class:`AnisotropicModel`, same names, same
+        order)."""
+        return self._n_base
 
     def start_scales(self, theta0):
         """The jitter of the starts: the base lobe's coordinates as :meth:`AnisotropicModel.start_scales`

@@ -61,6 +61,13 @@ class LawFromDifferences:
     chi2: float
     dof: int
     scales: tuple[float, ...]
+    converged: bool = True
+
+    @staticmethod
+    def scales_needed(law: str | Law = "width") -> int:
+        """The fewest measured scales (μ0 included) whose ΔΣ estimates determine ``law``: its coordinates and φ
+        need as many components, three (xx, xy, yy) per coarser scale."""
+        return 1 + math.ceil(_n_coordinates(AnisotropicLawModel(law, scales=(1.0, 2.0))) / len(_ENTRIES))
 
     @property
     def reduced_chi2(self) -> float:
@@ -74,6 +81,7 @@ class LawFromDifferences:
             "fitted_to": "the per-scale model's covariance_differences (their standard errors)",
             "chi2": self.chi2,
             "dof": self.dof,
+            "converged": self.converged,
             "theta": {n: float(v) for n, v in zip(self.model.names, np.asarray(self.theta))},
         }
 
@@ -85,10 +93,24 @@ class LawFromDifferences:
         )
 
 
-def _base_coordinates(model: AnisotropicModel, theta: np.ndarray) -> list[float]:
-    """The law model's base-lobe coordinates (``log amplitude``, ``log L0_xx``, ``L0_yx``, ``log L0_yy`` and,
-    uncentred, ``mean_x``, ``mean_y``) of the per-scale model's θ (the same names, in the same order)."""
-    return [float(x) for x in theta[: 4 if model.centred else 6]]
+def _n_coordinates(law_model: AnisotropicLawModel) -> int:
+    """The coordinates :func:`law_from_differences` fits: the law's and φ."""
+    return len(law_model.law.names) + 1
+
+
+def _matrix(x, what: str) -> np.ndarray | None:
+    """A 2 × 2 array of floats (None entries: NaN) of an entry's ``value`` or ``std``; None for None."""
+    if x is None:
+        return None
+    try:
+        m = np.array([[np.nan if c is None else float(c) for c in row] for row in x], dtype=float)
+    except (TypeError, ValueError):
+        m = np.zeros(0)
+    if m.shape != (2, 2):
+        raise InvalidInputError(
+            f"{what} must be a 2 × 2 matrix of numbers (None where not determined); got {x!r:.200}."
+        )
+    return m
 
 
 def _entries(differences, scales: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -107,18 +129,21 @@ def _entries(differences, scales: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
                 f"differences[{k - 1}] must hold 'mu', 'value' and 'std' (FitResult.covariance_differences); "
                 f"got {entry!r:.200}."
             ) from None
-        if not math.isclose(mu, float(scales[k]), rel_tol=1e-9):
-            raise InvalidInputError(
-                f"differences[{k - 1}] is at μ = {mu:g}, the data's scale {k} at μ = {float(scales[k]):g}: give the "
-                "covariance_differences of the fit to these data."
-            )
+        mu0 = entry.get("mu0", scales[0]) if isinstance(entry, dict) else scales[0]
+        for name, got, want in (("μ", mu, scales[k]), ("μ0", mu0, scales[0])):
+            if not (isinstance(got, (int, float)) and math.isclose(float(got), float(want), rel_tol=1e-9)):
+                raise InvalidInputError(
+                    f"differences[{k - 1}] has {name} = {got!r}, the data's {name} = {float(want):g} there: give the "
+                    "covariance_differences of the fit to these data."
+                )
+        v, s = _matrix(v, f"differences[{k - 1}]['value']"), _matrix(s, f"differences[{k - 1}]['std']")
+        if v is None or s is None:
+            continue
         for a, b in _ENTRIES:
-            x = None if v is None or v[a][b] is None else float(v[a][b])
-            e = None if s is None or s[a][b] is None else float(s[a][b])
-            if x is not None and e is not None and math.isfinite(x) and math.isfinite(e) and e > 0:
+            if math.isfinite(v[a, b]) and math.isfinite(s[a, b]) and s[a, b] > 0:
                 index.append((k, a, b))
-                value.append(x)
-                std.append(e)
+                value.append(float(v[a, b]))
+                std.append(float(s[a, b]))
     return np.asarray(index, int).reshape(-1, 3), np.asarray(value, float), np.asarray(std, float)
 
 
@@ -134,7 +159,7 @@ def _solve(model, base, tail, lo, hi, scales, index, value, std, z0):
 
     solution = optx.least_squares(residuals, _SOLVER, z0, max_steps=_MAX_STEPS, throw=False)
     r = residuals(solution.value, None)
-    return theta_of(solution.value), jnp.sum(r**2)
+    return theta_of(solution.value), jnp.sum(r**2), solution.result == optx.RESULTS.successful
 
 
 def law_from_differences(
@@ -179,43 +204,49 @@ def law_from_differences(
         )
     if not isinstance(data, Dataset):
         raise InvalidInputError(f"data must be a fitting.Dataset; got {type(data).__name__}.")
-    theta = np.asarray(theta, dtype=float)
-    if theta.shape != (len(model.names),):
-        raise InvalidInputError(f"theta must have the model's {len(model.names)} coordinates; got shape {theta.shape}.")
+    try:
+        theta = np.asarray(theta, dtype=float)
+    except (TypeError, ValueError):
+        theta = np.full(0, np.nan)
+    if theta.shape != (len(model.names),) or not np.all(np.isfinite(theta)):
+        raise InvalidInputError(
+            f"theta must be the model's {len(model.names)} finite coordinates (FitResult.theta); got shape "
+            f"{theta.shape}{'' if np.all(np.isfinite(theta)) else ' with non-finite values'}."
+        )
     scales = np.asarray(data.scales, dtype=float)
     index, value, std = _entries(differences, scales)
     law_model = AnisotropicLawModel(law, scales=scales, centred=model.centred, shape=model.shape)
-    n_law = len(law_model.law.names) + 1  # and φ
+    n_law = _n_coordinates(law_model)
     if len(value) < n_law:
         raise InvalidInputError(
             f"the {type(law_model.law).__name__} law has {n_law} coordinates (φ included) and the differences only "
-            f"{len(value)} determined components: measure more scales, or give a law of fewer coordinates."
+            f"{len(value)} determined components: it needs the estimates of at least "
+            f"{LawFromDifferences.scales_needed(law_model.law)} measured scales, each ΔΣ determined."
         )
     lo, hi = (np.asarray(b, float) for b in law_model.law.bounds(data))
-    # the start: φ along the coarsest estimate's principal axis, the law's own start from ΔΣ along the two axes
     delta = np.zeros((len(scales), 2, 2))
     for (k, a, b), x in zip(index, value):
         delta[k, a, b] = delta[k, b, a] = x
-    w, v = np.linalg.eigh(delta[-1])
-    phi0 = math.atan2(v[1, 1], v[0, 1])
+    floor = 1e-3 * max(float(np.abs(delta).max()), 1e-300)  # an axis without change starts just above none
+    phi0, _ = law_model.law_start(scales, delta, floor)
     tail = theta[-1:] if model.shape == "student_t" else theta[:0]
-    args = [jnp.asarray(x) for x in (_base_coordinates(model, theta), tail, lo, hi, scales, index, value, std)]
+    args = [jnp.asarray(x) for x in (theta[: law_model.n_base], tail, lo, hi, scales, index, value, std)]
     best = None
     for offset in _PHI_STARTS:
-        phi = phi0 + offset
-        rot = np.array([[math.cos(phi), -math.sin(phi)], [math.sin(phi), math.cos(phi)]])
-        along = np.einsum("ia,kij,ja->ka", rot, delta, rot)
-        along = np.maximum(along, 1e-3 * max(float(np.abs(along).max()), 1e-300))
-        p0 = np.asarray(law_model.law.initial(scales, along), float)
-        p0 = np.clip(p0, lo + 1e-6 * (hi - lo), hi - 1e-6 * (hi - lo))
+        phi, p0 = law_model.law_start(scales, delta, floor, phi0 + offset)
+        p0 = np.clip(np.asarray(p0, float), lo + 1e-6 * (hi - lo), hi - 1e-6 * (hi - lo))
         z0 = np.concatenate([[phi], np.log((p0 - lo) / (hi - p0))])
-        fitted, chi2 = _solve(law_model, *args, jnp.asarray(z0))  # pyright: ignore[reportCallIssue]
-        if np.all(np.isfinite(np.asarray(fitted))) and (best is None or float(chi2) < best[1]):
-            best = (fitted, float(chi2))
+        fitted, chi2, ok = _solve(law_model, *args, jnp.asarray(z0))  # pyright: ignore[reportCallIssue]
+        finite = np.all(np.isfinite(np.asarray(fitted))) and math.isfinite(float(chi2))
+        if finite and (best is None or float(chi2) < best[1]):
+            best = (fitted, float(chi2), bool(ok))
     if best is None:
-        raise InvalidInputError("the law's fit to the differences is not finite from any start; check the entries.")
+        raise InvalidInputError(
+            "the width law's fit to the ΔΣ estimates is not finite from any start (the estimates or their standard "
+            "errors out of any law's reach); predict from a fitting.AnisotropicLawModel fitted to the images instead."
+        )
     fitted = np.array(best[0])
     i = law_model.names.index("phi")
     fitted[i] = (fitted[i] + math.pi / 2) % math.pi - math.pi / 2  # ΔΣ is periodic in φ with period π
     scales_ = tuple(float(s) for s in scales)
-    return LawFromDifferences(law_model, jnp.asarray(fitted), best[1], len(value) - n_law, scales_)
+    return LawFromDifferences(law_model, jnp.asarray(fitted), best[1], len(value) - n_law, scales_, best[2])

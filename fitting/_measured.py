@@ -163,13 +163,13 @@ def _law_model(model, theta, data: Dataset, differences):
     """``(model, θ, law)`` to predict with: a model with a scale law at any μ as it is (law None); the per-scale
     :class:`fitting.AnisotropicModel` with the law fitted to its ``differences`` (:func:`law_from_differences`)."""
     if isinstance(model, AnisotropicModel):
-        if differences is None:
+        if differences is None and not model.isotropic:
             raise InvalidInputError(
                 "the per-scale AnisotropicModel determines ΔΣ at the measured scales only: give differences= "
                 "(the fit's FitResult.covariance_differences), to which a width law is fitted to reach other scales "
                 "(fitting.law_from_differences)."
             )
-        law = law_from_differences(model, theta, differences, data)
+        law = law_from_differences(model, theta, differences or [], data)  # isotropic: refused there
         return law.model, law.theta, law
     if not (callable(getattr(model, "predict_at", None)) and callable(getattr(model, "covariance_differences", None))):
         raise InvalidInputError(
@@ -308,7 +308,6 @@ def predict_from_measured(
     """
     if not isinstance(data, Dataset):
         raise InvalidInputError(f"data must be a fitting.Dataset; got {type(data).__name__}.")
-    model, theta, law = _law_model(model, theta, data, differences)
     if not isinstance(target, Dataset):
         target = _at_scales(data, target)
     if base not in BASES:
@@ -316,6 +315,7 @@ def predict_from_measured(
     scales = np.asarray(data.scales, dtype=float)
     for k_t in sorted(set(target.scale_of_image)):  # every refusal of the targets before any work
         _source_scale(scales, float(target.scales[k_t]))
+    model, theta, law = _law_model(model, theta, data, differences)
     theta = jnp.asarray(theta, dtype=jnp.asarray(data.values).dtype)
     validation = None
     if base == "auto":

@@ -778,12 +778,18 @@ def test_bench_real_fits_z_scores_and_targets_by_hand():
     named = brf.targets([{**honest, **spiky}, {**record(0, "ok", [ok_scale], 1.0), **spiky}])
     assert named["delta_sigma_within_3_std"]["missed_on_outlier_dominated_files"] == ["f n5inadequate"]
     # the images' own moments' ΔΣ against the topography: counted alike, a run without a finite |z| a miss
-    by_moments = brf.targets([{**honest, "moment_max_abs_z": 2.9}, {**honest, "noise": "m", "moment_max_abs_z": 3.1}])
+    by_moments = brf.targets(
+        [
+            {**honest, "moment_max_abs_z": 2.9},
+            {**honest, "noise": "m", "moment_max_abs_z": 3.1},
+            {**honest, "noise": "u", "moment_max_abs_z": 2.0, "moment_undefined_z": 1},
+        ]
+    )
     assert by_moments["delta_sigma_within_3_std_by_image_moments"] == {
         "met": False,
         "passed": 1,
-        "of": 2,
-        "missed": ["f m"],
+        "of": 3,
+        "missed": ["f m", "f u"],
     }
     assert targets["delta_sigma_within_3_std_by_image_moments"]["passed"] == 0  # no moment_max_abs_z recorded
     assert targets["held_out_half_of_isotropic_on_anisotropic_files"]["met"] is None  # no anisotropic file

@@ -241,7 +241,10 @@ def test_the_commands_predict_option_refuses_before_the_work(tmp_path):
     data = dataset(FITTED)
     check_predict(args("--model", "anisotropic_law"), data, None)  # no --predict: nothing to check
     check_predict(args("--model", "anisotropic_law", "--predict", "1,8"), data, None)  # μ0 itself is allowed
-    check_predict(args("--predict", "8"), data, None)  # the default (per-scale) model: a law fitted to its ΔΣ
+    # the default (per-scale) model: a law fitted to its ΔΣ, which needs four scales (seven coordinates)
+    check_predict(args("--predict", "8"), dataset((*FITTED, 8.0)), None)
+    with pytest.raises(InvalidInputError, match="--predict with --model anisotropic .* needs 4 measured scales, .* 3"):
+        check_predict(args("--predict", "8"), data, None)
     for model in ("isotropic", "parametric"):
         with pytest.raises(InvalidInputError, match=f"--predict needs --model anisotropic, anisotropic_law.*{model}"):
             check_predict(args("--model", model, "--predict", "8"), data, None)
@@ -370,14 +373,26 @@ def test_law_from_differences_refuses_what_it_cannot_fit():
         fitting.law_from_differences(MODEL, theta_of(), entries, data)
     with pytest.raises(InvalidInputError, match="isotropic AnisotropicModel .* not determined"):
         fitting.law_from_differences(fitting.AnisotropicModel(len(SCALES), isotropic=True), theta[:6], entries, data)
-    with pytest.raises(InvalidInputError, match="theta must have the model's 18 coordinates"):
+    with pytest.raises(InvalidInputError, match="theta must be the model's 18 finite coordinates"):
         fitting.law_from_differences(model, theta[:-1], entries, data)
     with pytest.raises(InvalidInputError, match="one entry per coarser scale \\(4 for these data\\)"):
         fitting.law_from_differences(model, theta, entries[:-1], data)
-    with pytest.raises(InvalidInputError, match="is at μ = 3, the data's scale 1 at μ = 2"):
+    with pytest.raises(InvalidInputError, match="has μ = 3.0, the data's μ = 2 there"):
         fitting.law_from_differences(model, theta, [{**entries[0], "mu": 3.0}, *entries[1:]], data)
+    with pytest.raises(InvalidInputError, match="has μ0 = 99.0, the data's μ0 = 1 there"):
+        fitting.law_from_differences(model, theta, [{**entries[0], "mu0": 99.0}, *entries[1:]], data)
     with pytest.raises(InvalidInputError, match="must hold 'mu', 'value' and 'std'"):
         fitting.law_from_differences(model, theta, [{"mu": 2.0}, *entries[1:]], data)
+    for bad in ([[1.0, 2.0]], 3.0, [["a", 0.0], [0.0, 1.0]], [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]):
+        with pytest.raises(InvalidInputError, match=r"differences\[0\]\['std'\] must be a 2 × 2 matrix of numbers"):
+            fitting.law_from_differences(model, theta, [{**entries[0], "std": bad}, *entries[1:]], data)
+    for bad in (theta.at[0].set(jnp.nan), ["a"] * 18):
+        with pytest.raises(InvalidInputError, match="theta must be the model's 18 finite coordinates"):
+            fitting.law_from_differences(model, bad, entries, data)
     few = [{**e, "std": [[None, None], [None, None]]} for e in entries[:3]] + entries[3:]
-    with pytest.raises(InvalidInputError, match="has 7 coordinates .* only 3 determined components"):
+    with pytest.raises(InvalidInputError, match="has 7 coordinates .* only 3 determined components: .* at least 4"):
         fitting.law_from_differences(model, theta, few, data)
+    assert fitting.LawFromDifferences.scales_needed() == 4 and fitting.LawFromDifferences.scales_needed("spline") == 4
+    # the isotropic per-scale model is refused by predict_from_measured as by law_from_differences, with or without
+    with pytest.raises(InvalidInputError, match="isotropic AnisotropicModel"):
+        fitting.predict_from_measured(fitting.AnisotropicModel(len(SCALES), isotropic=True), theta[:6], data, [32.0])

@@ -273,6 +273,12 @@ def check_predict(args, data, unit) -> None:
             f"--predict needs --model {', '.join(PREDICTING_MODELS)} (a scale law, or per-scale ΔΣ a law is fitted "
             f"to), without --compare; got --model {args.model}{' --compare' if compare else ''}."
         )
+    needed = load_fitting().LawFromDifferences.scales_needed()
+    if args.model == "anisotropic" and len(data.scales) < needed:
+        raise InvalidInputError(
+            f"--predict with --model anisotropic fits a width law to the per-scale ΔΣ: it needs {needed} measured "
+            f"scales, the data have {len(data.scales)}; measure more scales or use --model anisotropic_law."
+        )
     finest = float(data.scales[0])
     finer = [mu for mu in predict if mu < finest * (1 - 1e-9)]
     if finer:
@@ -291,7 +297,8 @@ def check_predicted_file(args, resume: bool) -> None:
 
 
 def write_predictions(fitting, problem, result, args, unit, resume: bool = False) -> str:
-    """``--predict``: :func:`fitting.predict_from_measured` at the clipped estimate (the printed one), written as
+    """``--predict``: :func:`fitting.predict_from_measured` at the clipped estimate (the printed one; for the
+    per-scale model, with the law fitted to the report's ΔΣ estimates, those of the unclipped estimate), written as
     a measurement set to DIR/predicted_lobes.exr (atomic; replaced only with --force or on resuming); one line
     saying what. With ``--masking`` the lobes are the model's, masking removed (recorded as ``masking``)."""
     import jax.numpy as jnp
