@@ -20,7 +20,8 @@ from the measured lobe widened by the law's ΔΣ between the coarsest fitted sca
 increments between measured scales matching the per-scale estimates to their standard errors where the law fits.
 
 Verified in tests/test_measured_prediction.py: ΔΣ_k made by a known width law are recovered and extrapolated to a
-coarser scale to 1e-6 of the law's own; refusals (models, entries, too few of them).
+coarser scale to 1e-6 of the law's own, also over hypothesis-drawn orientations, anisotropy ratios and axis laws;
+refusals (models, entries, too few of them).
 """
 
 import dataclasses
