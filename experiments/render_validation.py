@@ -647,6 +647,26 @@ def shadowing(truth: np.ndarray, unshadowed: np.ndarray, mu: np.ndarray) -> list
     ]
 
 
+def signed_bias(images: dict, truth: np.ndarray, unshadowed: np.ndarray, mu: np.ndarray) -> dict:
+    """Per material and μ band, the *signed* band bias (band mean − the truth's band mean, ÷ the truth's mean; the
+    ``bias`` of :func:`band_errors` is its absolute value) against the truth and against the truth without its
+    shadow rays: whether shadowing that no plane material has would close a material's bias (it darkens every
+    band, so it can only close a bias of the material's brightness)."""
+    scale = truth.mean()
+    bands = bands_of(mu)
+    return {
+        m: [
+            {
+                "mu_band_px": [2.0**b, 2.0 ** (b + 1)],
+                "truth": float((image[bands == b].mean() - truth[bands == b].mean()) / scale),
+                "without_shadow_rays": float((image[bands == b].mean() - unshadowed[bands == b].mean()) / scale),
+            }
+            for b in np.unique(bands)
+        ]
+        for m, image in images.items()
+    }
+
+
 def ladder_seconds(ladder: list[dict], spp: float) -> float:
     """The micro-geometry's measured wall time at ``spp`` samples per pixel: log-log interpolation of the ladder's
     timed renders (each a full frame with its passes and transfers), the smallest spp's time below it."""
@@ -760,6 +780,7 @@ def run(
         "alpha_convention_max_relative_error": alpha_convention_error(mi),
         "diagnosis": {
             "shadowing": shadowing(truth, unshadowed, mu),
+            "signed_bias": signed_bias({m: images[m] for m in methods}, truth, unshadowed, mu),
             "nesting": nesting(field, levels),
             "model_spread_mu_ge_8": float(
                 np.std([errors[m]["mu_ge_threshold"]["bias_mean_over_bands"] for m in methods if m != "naive"])

@@ -837,10 +837,31 @@ def render_validation() -> str:
                 ]
                 for x in diagnosis["nesting"]
             ]
+            signed = diagnosis.get("signed_bias")
+            signed_text = ""
+            if signed:
+                bands = [x["mu_band_px"] for x in next(iter(signed.values())) if x["mu_band_px"][0] >= 8]
+                signed_rows = [
+                    [
+                        m,
+                        *[
+                            f"{x['truth']:+.3f} / {x['without_shadow_rays']:+.3f}"
+                            for x in rows
+                            if x["mu_band_px"][0] >= 8
+                        ],
+                    ]
+                    for m, rows in signed.items()
+                ]
+                signed_text = (
+                    "\n\nthe signed band bias where μ ≥ 8 (band mean − the truth's, ÷ its mean), against the truth / "
+                    "against the truth without shadow rays\n\n"
+                    + table(["material", *[f"μ∈[{a:g},{b:g})" for a, b in bands]], signed_rows)
+                )
             out.append(
                 f"Diagnosis ({d['surface']}): the truth's band means (÷ its mean) with and without the micro-geometry's"
                 " shadow rays — shadowing that no plane material has\n\n"
                 + table(["μ band", "truth", "without shadow rays", "change"], shadow)
+                + signed_text
                 + "\n\nand the within-footprint slope deviations' excess kurtosis, measured / what independent "
                 "nesting (the seed's evolution) implies from the pixel and block-mean slopes\n\n"
                 + table(["level (texels)", "x: measured / nesting", "y: measured / nesting"], nest)

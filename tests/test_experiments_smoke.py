@@ -954,6 +954,25 @@ def test_render_validation_equal_error_spp_inverts_a_power_law():
     assert rv.equal_error_spp(ladder, 0.01, "e") is None
 
 
+def test_render_validation_signed_bias_by_hand():
+    """The signed band bias: (band mean − the truth's band mean) ÷ the truth's mean, against the truth and the truth
+    without shadow rays, per μ band [2^b, 2^(b+1)); its absolute value is band_errors' bias."""
+    rv = _render_validation()
+    mu = np.array([1.0, 1.5, 8.0, 9.0, 12.0])
+    truth, unshadowed = np.array([1.0, 3.0, 2.0, 4.0, 0.0]), np.array([2.0, 3.0, 3.0, 4.0, 2.0])
+    image = np.array([2.0, 2.0, 1.0, 4.0, 1.0])
+    (rows,) = rv.signed_bias({"m": image}, truth, unshadowed, mu).values()
+    scale = truth.mean()
+    assert [r["mu_band_px"] for r in rows] == [[1.0, 2.0], [8.0, 16.0]]
+    assert rows[0]["truth"] == pytest.approx((2.0 - 2.0) / scale) and rows[0]["without_shadow_rays"] == pytest.approx(
+        (2.0 - 2.5) / scale
+    )
+    assert rows[1]["truth"] == pytest.approx(0.0)
+    assert rows[1]["without_shadow_rays"] == pytest.approx((2.0 - 3.0) / scale)
+    biases = [b["bias"] for b in rv.band_errors(image, truth, mu)]
+    assert biases == pytest.approx([abs(r["truth"]) for r in rows])
+
+
 def test_render_validation_shading_fresh_arrays_runs_one_kernel():
     """shade() on fresh NumPy arrays runs the same kernel every call (drjit_float's 64-byte-aligned copies): with
     NumPy's own buffers, whose start Dr.Jit compiles into its loads, calls often ran a new kernel (bench_render's

@@ -400,8 +400,6 @@ def test_law_from_differences_refuses_what_it_cannot_fit():
     data = dataset(SCALES)
     truths = [true_difference(mu) for mu in SCALES[1:]]
     model, theta, entries = fitting.AnisotropicModel(len(SCALES)), _per_scale_theta(truths), _entries(truths)
-    with pytest.raises(InvalidInputError, match="per-scale fitting.AnisotropicModel .* got AnisotropicLawModel"):
-        fitting.law_from_differences(MODEL, theta_of(), entries, data)
     with pytest.raises(InvalidInputError, match="isotropic AnisotropicModel .* not determined"):
         fitting.law_from_differences(fitting.AnisotropicModel(len(SCALES), isotropic=True), theta[:6], entries, data)
     with pytest.raises(InvalidInputError, match="theta must be the model's 18 finite coordinates"):
@@ -417,9 +415,8 @@ def test_law_from_differences_refuses_what_it_cannot_fit():
     for bad in ([[1.0, 2.0]], 3.0, [["a", 0.0], [0.0, 1.0]], [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]):
         with pytest.raises(InvalidInputError, match=r"differences\[0\]\['std'\] must be a 2 × 2 matrix of numbers"):
             fitting.law_from_differences(model, theta, [{**entries[0], "std": bad}, *entries[1:]], data)
-    for bad in (theta.at[0].set(jnp.nan), ["a"] * 18):
-        with pytest.raises(InvalidInputError, match="theta must be the model's 18 finite coordinates"):
-            fitting.law_from_differences(model, bad, entries, data)
+    with pytest.raises(InvalidInputError, match="theta must be the model's 18 finite coordinates"):
+        fitting.law_from_differences(model, theta.at[0].set(jnp.nan), entries, data)
     few = [{**e, "std": [[None, None], [None, None]]} for e in entries[:3]] + entries[3:]
     with pytest.raises(InvalidInputError, match="has 7 coordinates .* only 3 determined components: .* at least 4"):
         fitting.law_from_differences(model, theta, few, data)
@@ -427,3 +424,17 @@ def test_law_from_differences_refuses_what_it_cannot_fit():
     # the isotropic per-scale model is refused by predict_from_measured as by law_from_differences, with or without
     with pytest.raises(InvalidInputError, match="isotropic AnisotropicModel"):
         fitting.predict_from_measured(fitting.AnisotropicModel(len(SCALES), isotropic=True), theta[:6], data, [32.0])
+
+
+@pytest.mark.wrong_types
+def test_law_from_differences_refuses_a_model_or_theta_of_another_type():
+    """A law model in place of the per-scale one, a θ of strings: the library's own error (the annotation's check
+    answers first where jaxtyping's runtime checks are on)."""
+    data = dataset(SCALES)
+    truths = [true_difference(mu) for mu in SCALES[1:]]
+    model, theta, entries = fitting.AnisotropicModel(len(SCALES)), _per_scale_theta(truths), _entries(truths)
+    with pytest.raises(InvalidInputError, match="per-scale fitting.AnisotropicModel .* got AnisotropicLawModel"):
+        fitting.law_from_differences(MODEL, theta_of(), entries, data)
+    with pytest.raises(InvalidInputError, match="theta must be the model's 18 finite coordinates"):
+        fitting.law_from_differences(model, ["a"] * 18, entries, data)
+    assert theta.shape == (18,)
