@@ -841,21 +841,22 @@ def render_validation() -> str:
             signed_text = ""
             if signed:
                 bands = [x["mu_band_px"] for x in next(iter(signed.values())) if x["mu_band_px"][0] >= 8]
-                signed_rows = [
-                    [
-                        m,
-                        *[
-                            f"{x['truth']:+.3f} / {x['without_shadow_rays']:+.3f}"
-                            for x in rows
-                            if x["mu_band_px"][0] >= 8
-                        ],
-                    ]
-                    for m, rows in signed.items()
-                ]
+                signed_rows = []
+                for m, rows in signed.items():
+                    far = [x for x in rows if x["mu_band_px"][0] >= 8]
+                    mean = {k: sum(abs(x[k]) for x in far) / len(far) for k in ("truth", "without_shadow_rays")}
+                    signed_rows.append(
+                        [
+                            m,
+                            *[f"{x['truth']:+.3f} / {x['without_shadow_rays']:+.3f}" for x in far],
+                            f"{mean['truth']:.3f} / {mean['without_shadow_rays']:.3f}",
+                        ]
+                    )
                 signed_text = (
                     "\n\nthe signed band bias where μ ≥ 8 (band mean − the truth's, ÷ its mean), against the truth / "
-                    "against the truth without shadow rays\n\n"
-                    + table(["material", *[f"μ∈[{a:g},{b:g})" for a, b in bands]], signed_rows)
+                    "against the truth without shadow rays, and the mean of its absolute values over those bands (the "
+                    "first is the tables' 'bias, μ ≥ 8')\n\n"
+                    + table(["material", *[f"μ∈[{a:g},{b:g})" for a, b in bands], "mean |·|"], signed_rows)
                 )
             out.append(
                 f"Diagnosis ({d['surface']}): the truth's band means (÷ its mean) with and without the micro-geometry's"
