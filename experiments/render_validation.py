@@ -61,6 +61,7 @@ Writes experiments/results/render_validation/<surface>.{json,png,exr}.
 
 import argparse
 import math
+import os
 import time
 from pathlib import Path
 
@@ -711,6 +712,7 @@ def run(
     check_tabulated: bool = True,
     masking: bool = True,
 ) -> dict:
+    load = os.getloadavg()[0]  # the machine's load before the study's timed renders (recorded: times depend on it)
     directory = study_dir("render_validation", out)
     mi = mitsuba()
     field = height_field(surface, size, seed)
@@ -782,6 +784,7 @@ def run(
         "triangles_per_tile": geometry.triangles,
         "reference_spp": reference_spp,
         "reference_seconds": truth_seconds,
+        "load_average_at_start": load,
         "micro_geometry_ladder": ladder,
         "errors": errors,
         "equal_error": equal,

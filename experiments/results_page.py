@@ -839,7 +839,7 @@ def render_validation() -> str:
             ]
             signed = diagnosis.get("signed_bias")
             signed_text = ""
-            if signed:
+            if signed and any(x["mu_band_px"][0] >= 8 for x in next(iter(signed.values()))):
                 bands = [x["mu_band_px"] for x in next(iter(signed.values())) if x["mu_band_px"][0] >= 8]
                 signed_rows = []
                 for m, rows in signed.items():
