@@ -85,13 +85,28 @@ class Laplace(Shown):
         keep = ~self.undetermined_mask
         return self.eigenvectors[:, keep] / np.sqrt(self.eigenvalues[keep])
 
-    def variances(self, gradients: Float[np.ndarray, "q d"]) -> tuple[np.ndarray, np.ndarray]:
-        """The linearised variances of quantities with these gradients: (determined part, undetermined part)."""
+    def _whitened(self, gradients) -> np.ndarray:
+        """``g V Λ_f^{-1/2}`` (q, d): the gradients in the eigen-directions, each divided by its standard
+        deviation ``1/√λ`` (λ floored at ``NULL · λ_max``: a null direction's contribution is large, not
+        infinite) — the one policy behind :meth:`variances` and :meth:`covariance_of`."""
         g = np.atleast_2d(np.asarray(gradients, dtype=float))
         floor = np.maximum(self.eigenvalues, NULL * max(float(self.eigenvalues[-1]), 1e-300))
         with np.errstate(invalid="ignore", over="ignore"):  # a non-finite gradient: NaN, not determined
-            projected = (g @ self.eigenvectors) ** 2 / floor
+            return (g @ self.eigenvectors) / np.sqrt(floor)
+
+    def variances(self, gradients: Float[np.ndarray, "q d"]) -> tuple[np.ndarray, np.ndarray]:
+        """The linearised variances of quantities with these gradients: (determined part, undetermined part)."""
+        projected = self._whitened(gradients) ** 2
         return projected[:, ~self.undetermined_mask].sum(axis=1), projected[:, self.undetermined_mask].sum(axis=1)
+
+    def covariance_of(self, gradients: Float[np.ndarray, "q d"]) -> Float[np.ndarray, "q q"]:
+        """The linearised joint covariance of quantities with these gradients, ``g V Λ_f⁻¹ Vᵀ gᵀ`` (q, q): its
+        diagonal is the sum of :meth:`variances`' two parts (the same floor of the null directions), its
+        off-diagonal the correlations that the standard errors alone leave out (used by
+        :func:`fitting.law_from_differences` through ``FitResult.differences_covariance``)."""
+        w = self._whitened(gradients)
+        with np.errstate(invalid="ignore", over="ignore"):
+            return w @ w.T
 
     def quantity_is_determined(self, gradients: Float[np.ndarray, "q d"]) -> np.ndarray:
         """True for each quantity whose gradient is finite and whose variance is finite and at most

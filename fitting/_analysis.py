@@ -161,6 +161,9 @@ class _Analysis:
             }
             for i in np.flatnonzero(keep)[::-1]
         ]
+        differences, differences_covariance = summarise_covariance_differences(
+            model, np.clip(self.theta, self.problem.lower, self.problem.upper), scales, analysis
+        )
         return FitResult(
             names=names,
             theta=self.theta,
@@ -180,9 +183,8 @@ class _Analysis:
             eigenvectors=analysis.eigenvectors,
             ratios=ratios,
             combinations=combinations,
-            covariance_differences=summarise_covariance_differences(
-                model, np.clip(self.theta, self.problem.lower, self.problem.upper), scales, analysis
-            ),
+            covariance_differences=differences,
+            differences_covariance=differences_covariance,
         )
 
 

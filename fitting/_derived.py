@@ -31,6 +31,7 @@ from ._parametric import ParametricModel
 __all__ = [
     "RATIO_FREQUENCIES",
     "FIXED_NOTE",
+    "DIFFERENCE_COMPONENTS",
     "compare_covariance_differences",
     "covariance_differences",
     "covariance_truth",
@@ -164,10 +165,18 @@ def _covariance_differences_and_jacobian(model, theta, scales):
     return flat(theta), jax.jacfwd(flat)(theta)
 
 
-def summarise_covariance_differences(model, theta, scales, analysis) -> list[dict]:
+DIFFERENCE_COMPONENTS = ((0, 0), (0, 1), (1, 1))
+"""The components of a ΔΣ(μ0, μ_k) that :func:`summarise_covariance_differences`' joint covariance orders its rows
+by, per coarser scale: xx, xy, yy."""
+
+
+def summarise_covariance_differences(model, theta, scales, analysis) -> tuple[list[dict], np.ndarray]:
     """ΔΣ(μ0, μ_k) for every coarser measured scale with standard errors: ``{"mu0", "mu", "value":
     [[xx, xy], [xy, yy]], "std": [[…], […]]}`` (slope units², fit.json's
-    ``covariance_differences``).
+    ``covariance_differences``), and their joint covariance (``FitResult.differences_covariance``):
+    ``3(K − 1)`` rows and columns, per coarser scale the components :data:`DIFFERENCE_COMPONENTS` (xx, xy, yy),
+    ``g Cov(θ) gᵀ`` by the same policy (:meth:`brdfscale.laplace.Laplace.covariance_of`: its diagonal is the
+    squared std), NaN in the rows and columns of an entry without std.
 
     The standard errors propagate the Laplace covariance of θ linearly, ``Var ΔΣ_ab = g_abᵀ Cov(θ)
     g_ab`` with ``g_ab = ∂ΔΣ_ab/∂θ`` (``jax.jacfwd``), through ``analysis``
@@ -190,6 +199,10 @@ def summarise_covariance_differences(model, theta, scales, analysis) -> list[dic
     var_d, var_u = analysis.variances(safe)
     determined = analysis.quantity_is_determined(safe) & finite
     std = np.where(determined, np.sqrt(np.maximum(var_d + var_u, 0.0)), np.nan)
+    rows = np.array([4 * (k - 1) + 2 * a + b for k in range(1, len(scales)) for a, b in DIFFERENCE_COMPONENTS], int)
+    kept = determined[rows] & ~np.array([fixed[a][b] for _ in range(1, len(scales)) for a, b in DIFFERENCE_COMPONENTS])
+    joint = np.full((rows.size, rows.size), np.nan)
+    joint[np.ix_(kept, kept)] = analysis.covariance_of(safe[rows[kept]])
     out = []
     for k in range(1, len(scales)):
         block = slice(4 * (k - 1), 4 * k)
@@ -206,7 +219,7 @@ def summarise_covariance_differences(model, theta, scales, analysis) -> list[dic
                 **({"fixed": [list(row) for row in fixed], "note": FIXED_NOTE} if isotropic else {}),
             }
         )
-    return out
+    return out, joint
 
 
 FIXED_NOTE = "ΔΣ_xy = 0 fixed by the isotropic model (not measured; no standard error)"

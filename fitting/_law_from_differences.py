@@ -10,9 +10,18 @@ images — by weighted least squares over the determined entries of every ``ΔΣ
 
 with ``ΔΣ_law`` that of :class:`fitting.AnisotropicLawModel`'s law (principal axes at a free angle φ, each principal
 variance a :class:`fitting.Width` law unless another is given). The standard errors are the fit's (``FitResult``'s
-``covariance_differences``, each component's own: their correlations are left out, so χ² is a guide to the law's
-adequacy, not a calibrated test). An entry without a standard error (undetermined, or fixed by an isotropic model)
-is left out. The law's coordinates are kept inside their prior box (``Law.bounds``) by a logistic map.
+``covariance_differences``). With their joint covariance ``C`` (``covariance=FitResult.differences_covariance``: the
+Laplace covariance of θ propagated linearly, the components of one scale and of different scales correlated through
+the shared coordinates) the sum is the generalised least squares'
+
+    χ²(φ, p) = rᵀ C⁺ r,   r = ΔΣ_law − ΔΣ over the determined components,
+
+(``C⁺`` the pseudo-inverse over the eigen-directions of ``C`` above ``1e-10`` of its largest; the others, and the
+law's coordinates, taken from the degrees of freedom), a calibrated test of the law: ``p_value`` is χ²'s survival
+function at ``dof`` (Gaussian errors, a law linear enough near its optimum). Without it the components are taken
+as independent and χ² is only a guide (``p_value`` None). An entry without a standard error (undetermined, or fixed
+by an isotropic model) is left out. The law's coordinates are kept inside their prior box (``Law.bounds``) by a
+logistic map.
 
 The result is an :class:`fitting.AnisotropicLawModel` with the per-scale model's base lobe (amplitude, C0, centre,
 tail index) and the fitted law, and its θ: :func:`fitting.predict_from_measured` then predicts any coarser scale —
@@ -21,7 +30,9 @@ increments between measured scales matching the per-scale estimates to their sta
 
 Verified in tests/test_measured_prediction.py: ΔΣ_k made by a known width law are recovered and extrapolated to a
 coarser scale to 1e-6 of the law's own, also over hypothesis-drawn orientations, anisotropy ratios and axis laws;
-refusals (models, entries, too few of them).
+with a correlated covariance, χ² against a hand-written ``rᵀ C⁻¹ r`` at the law's optimum and ``p_value`` against
+SciPy's χ² distribution; a fit's ``differences_covariance`` against the covariance of ΔΣ over Laplace draws;
+refusals (models, entries, covariances, too few of them).
 """
 
 import dataclasses
@@ -35,15 +46,20 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Float
 
 from brdfscale import InvalidInputError
+from brdfscale.choices import ADEQUACY
 
 from ._anisotropic import AnisotropicModel
 from ._anisotropic_law import AnisotropicLawModel, Law
 from ._data import Dataset
+from ._derived import DIFFERENCE_COMPONENTS
 
 
 __all__ = ["LawFromDifferences", "law_from_differences"]
 
-_ENTRIES = ((0, 0), (0, 1), (1, 1))
+_ENTRIES = DIFFERENCE_COMPONENTS
+_RANK = 1e-10
+"""Eigen-directions of the components' covariance below this fraction of its largest eigenvalue are left out of the
+generalised χ² (and of its degrees of freedom)."""
 _SOLVER = optx.LevenbergMarquardt(rtol=1e-10, atol=1e-12)
 _MAX_STEPS = 2000
 _PHI_STARTS = (0.0, math.pi / 4, -math.pi / 4, math.pi / 2)
@@ -54,8 +70,10 @@ _PHI_STARTS = (0.0, math.pi / 4, -math.pi / 4, math.pi / 2)
 class LawFromDifferences:
     """What :func:`law_from_differences` returns: ``model`` (:class:`fitting.AnisotropicLawModel`, the per-scale
     model's base lobe and the fitted law) and its ``theta``; ``chi2`` and ``dof`` of the law against the ΔΣ
-    entries it was fitted to (``dof``: determined entries − the law's coordinates − 1 for φ); ``scales`` the
-    measured scales (μ0 first)."""
+    entries it was fitted to (``dof``: determined entries — with a covariance, its eigen-directions kept — − the
+    law's coordinates − 1 for φ); ``scales`` the measured scales (μ0 first); ``converged`` the solve's outcome;
+    ``correlated`` whether χ² is the generalised one (the components' joint covariance given): only then is
+    :attr:`p_value` a test."""
 
     model: AnisotropicLawModel
     theta: Float[Array, " n"]
@@ -63,6 +81,7 @@ class LawFromDifferences:
     dof: int
     scales: tuple[float, ...]
     converged: bool = True
+    correlated: bool = False
 
     @staticmethod
     def scales_needed(law: str | Law = "width") -> int:
@@ -71,25 +90,50 @@ class LawFromDifferences:
         return 1 + math.ceil(_n_coordinates(AnisotropicLawModel(law, scales=(1.0, 2.0))) / len(_ENTRIES))
 
     @property
-    def reduced_chi2(self) -> float:
-        """χ²/dof (inf where dof is 0: the law has as many coordinates as entries)."""
-        return self.chi2 / self.dof if self.dof > 0 else math.inf
+    def p_value(self) -> float | None:
+        """The probability of a χ² at least this large were the law true (χ²'s survival function at ``dof``):
+        None where the components were taken as independent (``correlated`` False: χ² is then a guide, not a
+        test) or no degree of freedom is left."""
+        if not self.correlated or self.dof < 1:
+            return None
+        from scipy import stats  # here, not at import (as fitting._adequacy)
+
+        return float(stats.chi2.sf(self.chi2, self.dof))
+
+    def inadequate_because(self, thresholds=None) -> str | None:
+        """One line saying why the law does not describe the ΔΣ estimates it was fitted to, or None: by the rule of
+        :func:`fitting.assess` (``thresholds``: :data:`brdfscale.choices.ADEQUACY` unless given) — χ²/dof above
+        ``max_reduced_chi2`` and ``p_value`` below its ``p_value``. Only a generalised χ² (``correlated``) is
+        tested: without the covariance None."""
+        thresholds = ADEQUACY if thresholds is None else thresholds
+        p = self.p_value
+        if p is None or self.chi2 / self.dof <= thresholds.max_reduced_chi2 or p >= thresholds.p_value:
+            return None
+        return (
+            f"the {type(self.model.law).__name__.lower()} law fitted to the per-scale ΔΣ estimates does not describe "
+            f"them (generalised χ²/dof = {self.chi2:.3g}/{self.dof}, p = {p:.2g} < {thresholds.p_value:g}): "
+            "predictions beyond the measured scales extrapolate through it"
+        )
 
     def to_json(self) -> dict:
         """``{"law", "fitted_to", "chi2", "dof", "theta": {name: value}}`` (a report's or a file's record)."""
         return {
             "law": type(self.model.law).__name__.lower(),
-            "fitted_to": "the per-scale model's covariance_differences (their standard errors)",
+            "fitted_to": "the per-scale model's covariance_differences ("
+            + ("their joint covariance: generalised least squares" if self.correlated else "their standard errors")
+            + ")",
             "chi2": self.chi2,
             "dof": self.dof,
+            "p_value": self.p_value,
             "converged": self.converged,
             "theta": {n: float(v) for n, v in zip(self.model.names, np.asarray(self.theta))},
         }
 
     def __repr__(self) -> str:
         law = type(self.model.law).__name__
+        p = "" if self.p_value is None else f", p = {self.p_value:.3g}"
         return (
-            f"LawFromDifferences({law} law on {len(self.scales)} scales, χ²/dof = {self.chi2:.3g}/{self.dof}, "
+            f"LawFromDifferences({law} law on {len(self.scales)} scales, χ²/dof = {self.chi2:.3g}/{self.dof}{p}, "
             f"φ = {float(self.theta[self.model.names.index('phi')]):.3g} rad)"
         )
 
@@ -114,14 +158,15 @@ def _matrix(x, what: str) -> np.ndarray | None:
     return m
 
 
-def _entries(differences, scales: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(index of the scale (K,), value, std)`` of every determined ΔΣ component, flattened."""
+def _entries(differences, scales: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(index (k, a, b), value, std, row)`` of every determined ΔΣ component, flattened; ``row`` its row in
+    ``FitResult.differences_covariance`` (``3(k − 1) + c``, c the component's place in :data:`_ENTRIES`)."""
     if not isinstance(differences, (list, tuple)) or len(differences) != len(scales) - 1:
         raise InvalidInputError(
             f"differences must be the fit's covariance_differences: one entry per coarser scale ({len(scales) - 1} "
             f"for these data), as FitResult.covariance_differences gives; got {differences!r:.200}."
         )
-    index, value, std = [], [], []
+    index, value, std, row = [], [], [], []
     for k, entry in enumerate(differences, start=1):
         try:
             mu, v, s = float(entry["mu"]), entry["value"], entry["std"]
@@ -140,23 +185,66 @@ def _entries(differences, scales: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
         v, s = _matrix(v, f"differences[{k - 1}]['value']"), _matrix(s, f"differences[{k - 1}]['std']")
         if v is None or s is None:
             continue
-        for a, b in _ENTRIES:
+        for c, (a, b) in enumerate(_ENTRIES):
             if math.isfinite(v[a, b]) and math.isfinite(s[a, b]) and s[a, b] > 0:
                 index.append((k, a, b))
                 value.append(float(v[a, b]))
                 std.append(float(s[a, b]))
-    return np.asarray(index, int).reshape(-1, 3), np.asarray(value, float), np.asarray(std, float)
+                row.append(len(_ENTRIES) * (k - 1) + c)
+    return (
+        np.asarray(index, int).reshape(-1, 3),
+        np.asarray(value, float),
+        np.asarray(std, float),
+        np.asarray(row, int),
+    )
+
+
+def _whitening(covariance, rows: np.ndarray, std: np.ndarray, n_scales: int) -> np.ndarray:
+    """``W`` with ``χ² = |W r|²``: ``diag(1/std)`` without a covariance; with one, ``Λ^{-1/2} Uᵀ`` of its
+    eigen-decomposition over the used components, the directions below :data:`_RANK` of the largest left out.
+    The covariance is checked against the entries it claims to describe (its diagonal their squared std)."""
+    if covariance is None:
+        return np.diag(1.0 / std)
+    m = len(_ENTRIES) * (n_scales - 1)
+    try:
+        c = np.asarray(covariance, dtype=float)
+    except (TypeError, ValueError):
+        c = np.zeros(0)
+    if c.shape != (m, m):
+        raise InvalidInputError(
+            f"covariance must be the differences' joint covariance, FitResult.differences_covariance: {m} × {m} "
+            f"(xx, xy, yy per coarser scale); got shape {c.shape}."
+        )
+    used = c[np.ix_(rows, rows)]
+    if not np.all(np.isfinite(used)) or not np.allclose(used, used.T, rtol=1e-9, atol=0.0):
+        raise InvalidInputError(
+            "covariance must be finite and symmetric over the determined entries of differences (the fit's "
+            "FitResult.differences_covariance, NaN only where an entry has no std)."
+        )
+    if not np.allclose(np.sqrt(np.diag(used)), std, rtol=1e-6, atol=0.0):
+        raise InvalidInputError(
+            "covariance's diagonal is not the square of differences' standard errors: give the "
+            "differences_covariance of the same fit as the covariance_differences."
+        )
+    eigenvalues, vectors = np.linalg.eigh(used)
+    if eigenvalues[0] < -1e-9 * eigenvalues[-1]:
+        raise InvalidInputError(
+            f"covariance is not positive semi-definite over the determined entries (eigenvalue {eigenvalues[0]:.3g} "
+            f"against {eigenvalues[-1]:.3g}): give the fit's FitResult.differences_covariance."
+        )
+    keep = eigenvalues > _RANK * eigenvalues[-1]
+    return vectors[:, keep].T / np.sqrt(eigenvalues[keep])[:, None]
 
 
 @eqx.filter_jit
-def _solve(model, base, tail, lo, hi, scales, index, value, std, z0):
+def _solve(model, base, tail, lo, hi, scales, index, value, whiten, z0):
     def theta_of(z):
         p = lo + (hi - lo) * jax.nn.sigmoid(z[1:])
         return jnp.concatenate([base, z[:1], p, tail])
 
     def residuals(z, _):
         delta = model.covariance_differences(theta_of(z), scales)
-        return (delta[index[:, 0], index[:, 1], index[:, 2]] - value) / std
+        return whiten @ (delta[index[:, 0], index[:, 1], index[:, 2]] - value)
 
     solution = optx.least_squares(residuals, _SOLVER, z0, max_steps=_MAX_STEPS, throw=False)
     r = residuals(solution.value, None)
@@ -170,10 +258,12 @@ def law_from_differences(
     data: Dataset,
     *,
     law: str | Law = "width",
+    covariance: Float[ArrayLike, "m m"] | None = None,
 ) -> LawFromDifferences:
     """A scale law fitted to the per-scale model's ΔΣ estimates (module docstring): the
     :class:`fitting.AnisotropicLawModel` of the same base lobe whose law's ΔΣ(μ0, μ_k) best matches
-    ``differences`` by their standard errors.
+    ``differences`` by their standard errors, or by their joint ``covariance`` (generalised least squares: then
+    ``p_value`` tests the law).
 
     Args:
         model: the fitted :class:`fitting.AnisotropicModel` (per-scale ΔΣ_k, not the isotropic case; any shape).
@@ -183,6 +273,9 @@ def law_from_differences(
         data: the fitted Dataset (its scales; the law's prior box).
         law: ``"width"`` (default) or ``"spline"`` (:class:`fitting.AnisotropicLawModel`'s laws), or a
             :class:`fitting.Law`.
+        covariance: the differences' joint covariance, ``FitResult.differences_covariance`` of the same fit
+            (3(K − 1) rows: xx, xy, yy per coarser scale; NaN where an entry has no std); None: the components
+            taken as independent (χ² a guide only).
 
     Returns:
         :class:`LawFromDifferences`: the law model, its θ and the law's χ² against the entries.
@@ -190,7 +283,9 @@ def law_from_differences(
     Raises:
         InvalidInputError: ``model`` not an anisotropic :class:`fitting.AnisotropicModel`; ``theta`` not of its length;
             ``differences`` not one entry per coarser scale of ``data`` at its scales; fewer determined entries than
-            the law has coordinates (φ included); ``data`` not a Dataset.
+            the law has coordinates (φ included); ``data`` not a Dataset; ``covariance`` not of that shape, not
+            finite and symmetric over the determined entries, its diagonal not their squared std, or not positive
+            semi-definite.
     """
     if not isinstance(model, AnisotropicModel):
         raise InvalidInputError(
@@ -215,7 +310,7 @@ def law_from_differences(
             f"{theta.shape}{'' if np.all(np.isfinite(theta)) else ' with non-finite values'}."
         )
     scales = np.asarray(data.scales, dtype=float)
-    index, value, std = _entries(differences, scales)
+    index, value, std, rows = _entries(differences, scales)
     law_model = AnisotropicLawModel(law, scales=scales, centred=model.centred, shape=model.shape)
     n_law = _n_coordinates(law_model)
     if len(value) < n_law:
@@ -224,6 +319,13 @@ def law_from_differences(
             f"{len(value)} determined components: it needs the estimates of at least "
             f"{LawFromDifferences.scales_needed(law_model.law)} measured scales, each ΔΣ determined."
         )
+    whiten = _whitening(covariance, rows, std, len(scales))
+    n_kept = whiten.shape[0]
+    if n_kept < n_law:
+        raise InvalidInputError(
+            f"covariance leaves {n_kept} independent directions of the {len(value)} determined components, fewer "
+            f"than the {n_law} coordinates of the {type(law_model.law).__name__} law (φ included)."
+        )
     lo, hi = (np.asarray(b, float) for b in law_model.law.bounds(data))
     delta = np.zeros((len(scales), 2, 2))
     for (k, a, b), x in zip(index, value):
@@ -231,7 +333,7 @@ def law_from_differences(
     floor = 1e-3 * max(float(np.abs(delta).max()), 1e-300)  # an axis without change starts just above none
     phi0, _ = law_model.law_start(scales, delta, floor)
     tail = theta[-1:] if model.shape == "student_t" else theta[:0]
-    args = [jnp.asarray(x) for x in (theta[: law_model.n_base], tail, lo, hi, scales, index, value, std)]
+    args = [jnp.asarray(x) for x in (theta[: law_model.n_base], tail, lo, hi, scales, index, value, whiten)]
     best = None
     for offset in _PHI_STARTS:
         phi, p0 = law_model.law_start(scales, delta, floor, phi0 + offset)
@@ -250,4 +352,6 @@ def law_from_differences(
     i = law_model.names.index("phi")
     fitted[i] = (fitted[i] + math.pi / 2) % math.pi - math.pi / 2  # ΔΣ is periodic in φ with period π
     scales_ = tuple(float(s) for s in scales)
-    return LawFromDifferences(law_model, jnp.asarray(fitted), best[1], len(value) - n_law, scales_, best[2])
+    return LawFromDifferences(
+        law_model, jnp.asarray(fitted), best[1], n_kept - n_law, scales_, best[2], correlated=covariance is not None
+    )

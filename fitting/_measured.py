@@ -159,9 +159,10 @@ _differences = eqx.filter_jit(lambda model, theta, scales: model.covariance_diff
 _widen = jax.jit(widen)
 
 
-def _law_model(model, theta, data: Dataset, differences):
+def _law_model(model, theta, data: Dataset, differences, covariance):
     """``(model, θ, law)`` to predict with: a model with a scale law at any μ as it is (law None); the per-scale
-    :class:`fitting.AnisotropicModel` with the law fitted to its ``differences`` (:func:`law_from_differences`)."""
+    :class:`fitting.AnisotropicModel` with the law fitted to its ``differences`` (:func:`law_from_differences`,
+    by their joint ``covariance`` where given)."""
     if isinstance(model, AnisotropicModel):
         if differences is None and not model.isotropic:
             raise InvalidInputError(
@@ -169,7 +170,9 @@ def _law_model(model, theta, data: Dataset, differences):
                 "(the fit's FitResult.covariance_differences), to which a width law is fitted to reach other scales "
                 "(fitting.law_from_differences)."
             )
-        law = law_from_differences(model, theta, differences or [], data)  # isotropic: refused there
+        # the isotropic per-scale model (with or without differences) is refused by law_from_differences, in one place
+        entries = [] if differences is None else differences
+        law = law_from_differences(model, theta, entries, data, covariance=covariance)
         return law.model, law.theta, law
     if not (callable(getattr(model, "predict_at", None)) and callable(getattr(model, "covariance_differences", None))):
         raise InvalidInputError(
@@ -178,10 +181,10 @@ def _law_model(model, theta, data: Dataset, differences):
             f"differences; got {type(model).__name__}. The non-parametric models determine ΔΣ at the measured "
             "scales only."
         )
-    if differences is not None:
+    if differences is not None or covariance is not None:
         raise InvalidInputError(
-            f"differences= is for the per-scale AnisotropicModel; {type(model).__name__} carries its own scale law: "
-            "omit differences."
+            f"differences= and differences_covariance= are for the per-scale AnisotropicModel; "
+            f"{type(model).__name__} carries its own scale law: omit them."
         )
     return model, theta, None
 
@@ -275,6 +278,7 @@ def predict_from_measured(
     *,
     base: str = "auto",
     differences: list[dict] | None = None,
+    differences_covariance: Float[ArrayLike, "m m"] | None = None,
 ) -> MeasuredPrediction:
     """The lobes of ``target``'s images predicted from the lobes measured in ``data`` and the scale law of
     ``model`` at ``theta`` (fitted to ``data``): seed Eq. 4.4 from the coarsest fitted scale ``μ_s ≤ μ`` of each
@@ -294,6 +298,8 @@ def predict_from_measured(
         differences: with the per-scale model only, its fit's ``FitResult.covariance_differences``: a width law
             fitted to them (:func:`fitting.law_from_differences`) carries ΔΣ beyond the measured scales, the model's
             base lobe is kept.
+        differences_covariance: with ``differences``, their joint covariance (``FitResult.differences_covariance``
+            of the same fit): the law is then fitted by generalised least squares and its ``p_value`` tests it.
 
     Returns:
         :class:`MeasuredPrediction`: the values, the base used, for ``"auto"`` the two χ²/n it chose by, and the
@@ -315,7 +321,7 @@ def predict_from_measured(
     scales = np.asarray(data.scales, dtype=float)
     for k_t in sorted(set(target.scale_of_image)):  # every refusal of the targets before any work
         _source_scale(scales, float(target.scales[k_t]))
-    model, theta, law = _law_model(model, theta, data, differences)
+    model, theta, law = _law_model(model, theta, data, differences, differences_covariance)
     theta = jnp.asarray(theta, dtype=jnp.asarray(data.values).dtype)
     validation = None
     if base == "auto":

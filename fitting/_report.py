@@ -442,11 +442,15 @@ def write_report(
         "ratios": summarise_ratios(problem, fit, samples),
         # ΔΣ(μ0, μk) ± Laplace std, with truth and pulls where the set records its surface (fitting._derived)
         "covariance_differences": compare_covariance_differences(fit.covariance_differences, covariance_truth),
+        # their joint covariance (per coarser scale xx, xy, yy; null where an entry has no std): FitResult's
+        "differences_covariance": fit.to_json()["differences_covariance"],
         # the same from the images' own second moments, model-independent (fitting._moments)
         "moment_covariance_differences": compare_covariance_differences(observed_moments, covariance_truth),
         "identifiability": fit.to_json()["identifiability"],
         "optimisation": {
-            k: v for k, v in fit.to_json().items() if k not in ("identifiability", "ratios", "covariance_differences")
+            k: v
+            for k, v in fit.to_json().items()
+            if k not in ("identifiability", "ratios", "covariance_differences", "differences_covariance")
         },
         "mcmc": (
             samples.diagnostics()

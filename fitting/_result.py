@@ -51,6 +51,9 @@ class FitResult(Shown):
     # ΔΣ(μ0, μk) = Σ(μ0) − Σ(μk) per coarser scale: {"mu0", "mu", "value" 2×2, "std" 2×2, "fixed" 2×2,
     # "note" only when the model fixes an entry} (fitting._derived.summarise_covariance_differences)
     covariance_differences: list = dataclasses.field(default_factory=list)
+    # their joint covariance, 3(K − 1) rows: per coarser scale xx, xy, yy (fitting._derived.DIFFERENCE_COMPONENTS);
+    # NaN rows and columns where an entry has no std (the correlations fitting.law_from_differences' χ² needs)
+    differences_covariance: np.ndarray | None = None
 
     @property
     def dof(self) -> int:
@@ -165,7 +168,15 @@ class FitResult(Shown):
             },
             "ratios": self.ratios,
             "covariance_differences": self.covariance_differences,
+            "differences_covariance": _nan_as_none(self.differences_covariance),
         }
+
+
+def _nan_as_none(matrix: np.ndarray | None) -> list | None:
+    """A matrix as nested lists, None (JSON null) where an entry is not finite."""
+    if matrix is None:
+        return None
+    return [[float(x) if np.isfinite(x) else None for x in row] for row in np.asarray(matrix, float)]
 
 
 def _entry(difference: dict, a: int, b: int) -> str:

@@ -79,6 +79,37 @@ def test_fit_json_holds_the_covariance_differences(data, fitted, tmp_path):
     assert "covariance_differences" not in on_disk["optimisation"]
 
 
+def test_the_differences_joint_covariance_is_the_laplace_covariance_propagated(data, fitted, tmp_path):
+    """FitResult.differences_covariance (per coarser scale xx, xy, yy) is J Cov(θ) Jᵀ with J by central finite
+    differences of ΔΣ at the clipped estimate (not jax.jacfwd) and Cov(θ) the fit's, to 1e-6 of its largest entry;
+    its diagonal the square of covariance_differences' std; the components correlated (|ρ| > 0.3 somewhere: what
+    the std alone leave out); fit.json holds it beside covariance_differences, not under optimisation."""
+    import json
+
+    model = fitting.AnisotropicModel(3)
+    problem = fitting.Problem(model, data)
+    theta = np.clip(fitted.theta, problem.lower, problem.upper)
+    assert not fitted.undetermined  # Cov(θ) is then the whole of the Laplace policy
+
+    def flat(t):
+        d = np.asarray(covariance_differences(model, jnp.asarray(t), jnp.asarray(data.scales)))[1:]
+        return np.concatenate([[m[0, 0], m[0, 1], m[1, 1]] for m in d])
+
+    h = 1e-6
+    jac = np.array([(flat(theta + h * e) - flat(theta - h * e)) / (2 * h) for e in np.eye(theta.size)]).T
+    joint = fitted.differences_covariance
+    assert joint.shape == (6, 6)
+    np.testing.assert_allclose(joint, jac @ fitted.covariance @ jac.T, rtol=0, atol=1e-6 * np.abs(joint).max())
+    std = np.concatenate([[d["std"][0][0], d["std"][0][1], d["std"][1][1]] for d in fitted.covariance_differences])
+    np.testing.assert_allclose(np.sqrt(np.diag(joint)), std, rtol=1e-12)
+    correlation = joint / np.outer(std, std)
+    assert np.abs(correlation - np.eye(6)).max() > 0.3
+    fitting.write_report(tmp_path / "r", problem, fitted, figures=False)
+    on_disk = json.loads((tmp_path / "r" / "fit.json").read_text())
+    np.testing.assert_array_equal(np.asarray(on_disk["differences_covariance"]), joint)
+    assert "differences_covariance" not in on_disk["optimisation"]
+
+
 @settings(max_examples=15, deadline=None)
 @given(
     phi=st.floats(0.0, math.pi),

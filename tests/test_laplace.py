@@ -32,6 +32,19 @@ def test_linear_gaussian_posterior_is_exact():
     assert np.allclose(exact.std(g), np.sqrt(np.einsum("qi,ij,qj->q", g, np.linalg.inv(A.T @ A), g)), rtol=1e-10)
 
 
+def test_the_joint_covariance_of_quantities_is_g_cov_gt_with_the_variances_on_its_diagonal():
+    """covariance_of: for a linear Gaussian posterior g (AᵀA)⁻¹ gᵀ (an undetermined direction included: the
+    floor only touches null ones); its diagonal the two parts of variances() summed, wherever a direction is null."""
+    rng = np.random.default_rng(2)
+    A = rng.standard_normal((50, 3)) * [1.0, 10.0, 0.1]
+    g = rng.standard_normal((4, 3))
+    analysis = laplace(A, ("a", "b", "c"))
+    np.testing.assert_allclose(analysis.covariance_of(g), g @ np.linalg.inv(A.T @ A) @ g.T, rtol=1e-10)
+    null = laplace(np.column_stack([A[:, :2], A[:, 0]]), ("a", "b", "c"))
+    determined, undetermined = null.variances(g)
+    np.testing.assert_allclose(np.diag(null.covariance_of(g)), determined + undetermined, rtol=1e-12)
+
+
 def test_a_null_direction_is_named_and_quantities_along_it_get_no_error():
     rng = np.random.default_rng(1)
     A = rng.standard_normal((40, 2))

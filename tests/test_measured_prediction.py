@@ -141,7 +141,7 @@ def test_refuses_models_without_a_law_bad_bases_finer_scales_and_foreign_grids()
         fitting.predict_from_measured(fitting.ParametricModel(), jnp.zeros(4), data, dataset(UNSEEN))
     with pytest.raises(InvalidInputError, match="per-scale AnisotropicModel .* give differences="):
         fitting.predict_from_measured(fitting.AnisotropicModel(3), jnp.zeros(12), data, dataset(UNSEEN))
-    with pytest.raises(InvalidInputError, match="carries its own scale law: omit differences"):
+    with pytest.raises(InvalidInputError, match="carries its own scale law: omit them"):
         fitting.predict_from_measured(MODEL, theta_of(), data, dataset(UNSEEN), differences=[])
     with pytest.raises(InvalidInputError, match="base must be one of 'auto', 'measured', 'model'; got 'best'"):
         fitting.predict_from_measured(MODEL, theta_of(), data, dataset(UNSEEN), base="best")
@@ -264,30 +264,32 @@ def test_the_commands_predict_option_refuses_before_the_work(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("model", ["anisotropic_law", "anisotropic"])
-def test_the_command_writes_the_predicted_lobes(tmp_path, capsys, model):
-    """End to end: noise-free Gaussian lobes at four scales, ``brdfscale fit --model anisotropic_law --predict``
+def test_the_command_writes_the_predicted_lobes(tmp_path, capsys, monkeypatch, model):
+    """End to end: Gaussian lobes at four scales with white noise at their σ (1e-5 of the peak), ``brdfscale fit
+    --model anisotropic_law --predict``
     and the default per-scale model's (a width law fitted to its ΔΣ estimates): DIR/predicted_lobes.exr holds the
     lobes at the two unseen scales, equal to the hand-written Gaussians of C0 + ΔΣ(μ0, μ) to 1e-3 of the peak (the
-    law fitted to noise-free data, extrapolated; the file's float32 values), and the command says what the
-    prediction started from."""
+    law fitted, extrapolated; the file's float32 values), the command says what the prediction started from and
+    exits 0 (the fit adequate, the law not rejected) — 5, with the law's reason, where the law is rejected."""
     import brdfscale._cli as cli
     from brdfscale import exr
 
-    images = []
+    images, rng = [], np.random.default_rng(3)
     for mu in (*FITTED, 8.0):
-        v = truth(mu)
+        v = truth(mu) + rng.normal(0.0, 1e-3, (N, N))  # white noise at σ (1e-5 of the peak): the fit adequate
         sigma = np.full(v.shape, 1e-3)
         images.append(bs.LobeImage(mu=mu, incident=[0.0, 0.0, 1.0], extent=EXTENT, values=v, sigma=sigma))
     measurements = tmp_path / "m.exr"
     exr.write_measurements(measurements, bs.MeasurementSet(tuple(images)))
     out = tmp_path / "fit"
     argv = ["fit", str(measurements), "--model", model, "--steps", "0", "--out", str(out)]
-    cli.main([*argv, "--predict", "32,16"])
+    per_scale = model == "anisotropic"
+    assert cli.main([*argv, "--predict", "32,16"]) == 0  # the law fits the noise-free ΔΣ: the fit's verdict stands
     printed = capsys.readouterr().out
     assert re.search(
         r"predicted_lobes.exr: 2 lobes at μ = \[16, 32\] px, predicted from the "
         r"(measured lobe at μ = 8|model's lobe at μ = 1) px; at the coarsest fitted scale χ²/n .*"
-        + (r"; ΔΣ from a width law fitted to the per-scale ΔΣ \(χ²/dof = .*/2\)" if model == "anisotropic" else ""),
+        + (r"; ΔΣ from a width law fitted to the per-scale ΔΣ \(χ²/dof = .*/2, p = [^)]*\)" if per_scale else ""),
         printed,
     )
     predicted = exr.read_measurements(out / "predicted_lobes.exr")
@@ -299,6 +301,12 @@ def test_the_command_writes_the_predicted_lobes(tmp_path, capsys, model):
         want = truth(image.mu)
         np.testing.assert_allclose(np.asarray(image.values), want, rtol=0, atol=1e-3 * want.max())
     assert cli.main([*argv, "--predict", "16"]) == 2  # the file is there: refused without --force
+    if model == "anisotropic":  # a law the ΔΣ reject turns the command's verdict to inadequate, its line on stderr
+        reason = "the width law fitted to the per-scale ΔΣ estimates does not describe them (test)"
+        monkeypatch.setattr(fitting.LawFromDifferences, "inadequate_because", lambda self, thresholds=None: reason)
+        capsys.readouterr()
+        assert cli.main([*argv, "--predict", "16", "--force"]) == 5
+        assert f"brdfscale fit: inadequate: {reason}" in capsys.readouterr().err
 
 
 def test_replicate_images_at_a_scale_are_averaged_by_their_weights():
@@ -438,3 +446,126 @@ def test_law_from_differences_refuses_a_model_or_theta_of_another_type():
     with pytest.raises(InvalidInputError, match="theta must be the model's 18 finite coordinates"):
         fitting.law_from_differences(model, ["a"] * 18, entries, data)
     assert theta.shape == (18,)
+
+
+def _components(differences):
+    """The xx, xy, yy of each 2 × 2 matrix, flattened (FitResult.differences_covariance's order)."""
+    return np.concatenate([[d[0, 0], d[0, 1], d[1, 1]] for d in differences])
+
+
+def _correlated(truths, rel=1e-3, rho=0.6):
+    """A covariance of the components of ``truths`` with correlations ρ^|i − j| and std ``rel`` × each scale's
+    largest entry, and the entries (FitResult.covariance_differences) of ``values`` with its std."""
+    std = np.repeat([rel * abs(d).max() for d in truths], 3)
+    i = np.arange(std.size)
+    return rho ** np.abs(i[:, None] - i[None, :]) * np.outer(std, std)
+
+
+def _with_std(values, covariance):
+    std = np.sqrt(np.diag(covariance)).reshape(-1, 3)
+    out = []
+    for mu, v, s in zip(SCALES[1:], values.reshape(-1, 3), std):
+        out.append(
+            {
+                "mu0": SCALES[0],
+                "mu": mu,
+                "value": [[v[0], v[1]], [v[1], v[2]]],
+                "std": [[s[0], s[1]], [s[1], s[2]]],
+            }
+        )
+    return out
+
+
+def test_with_the_joint_covariance_the_laws_chi2_is_the_generalised_one_and_a_calibrated_test():
+    """ΔΣ_k of a known width law plus noise drawn from a covariance with correlations 0.6^|i−j| between the
+    components: with ``covariance=`` the law's χ² equals rᵀ C⁻¹ r written by hand at the fitted law (r its ΔΣ
+    minus the data), is at most that of the true law (an optimum), ``p_value`` is SciPy's χ²(5) survival function
+    of it, and over 24 draws the p-values are uniform (Kolmogorov–Smirnov p > 1e-3; their χ² mean within 3
+    standard errors of 5). Without the covariance χ² is the diagonal one and p_value None."""
+    from scipy import stats
+
+    data = dataset(SCALES)
+    truths = [true_difference(mu) for mu in SCALES[1:]]
+    model, theta = fitting.AnisotropicModel(len(SCALES)), _per_scale_theta(truths)
+    covariance = _correlated(truths)
+    root = np.linalg.cholesky(covariance)
+    rng = np.random.default_rng(7)
+    chi2, p = [], []
+    for draw in range(24):
+        values = _components(truths) + root @ rng.standard_normal(12)
+        law = fitting.law_from_differences(model, theta, _with_std(values, covariance), data, covariance=covariance)
+        assert law.correlated and law.dof == 5 and law.converged
+        fitted = _components(np.asarray(law.model.covariance_differences(law.theta, jnp.asarray(SCALES)))[1:])
+        r = fitted - values
+        assert law.chi2 == pytest.approx(r @ np.linalg.solve(covariance, r), rel=1e-8)
+        z = np.linalg.solve(root, values - _components(truths))
+        assert law.chi2 <= z @ z * (1 + 1e-9)
+        assert law.p_value == pytest.approx(stats.chi2.sf(law.chi2, 5), rel=1e-12)
+        chi2.append(law.chi2)
+        p.append(law.p_value)
+        if draw == 0:
+            shown = r"LawFromDifferences\(Width law on 5 scales, χ²/dof = .*/5, p = .*, φ = .*\)"
+            assert re.fullmatch(shown, repr(law))
+            assert law.to_json()["p_value"] == law.p_value
+            diagonal = fitting.law_from_differences(model, theta, _with_std(values, covariance), data)
+            assert not diagonal.correlated and diagonal.p_value is None and diagonal.inadequate_because() is None
+    assert stats.kstest(p, "uniform").pvalue > 1e-3
+    assert abs(np.mean(chi2) - 5) < 3 * math.sqrt(2 * 5 / len(chi2))
+
+
+def test_a_law_the_differences_reject_makes_the_prediction_inadequate():
+    """ΔΣ_k that no width law makes (the third scale's change halved: not monotone in μ) with errors of 1e-3: with
+    the joint covariance the law is rejected — ``inadequate_because`` names the generalised χ² and p — and the
+    exact ones are not; predict_from_measured carries the covariance through (the law's p in its repr)."""
+    data = dataset(SCALES)
+    truths = [true_difference(mu) for mu in SCALES[1:]]
+    model, theta = fitting.AnisotropicModel(len(SCALES)), _per_scale_theta(truths)
+    covariance = _correlated(truths)
+    exact = fitting.law_from_differences(
+        model, theta, _with_std(_components(truths), covariance), data, covariance=covariance
+    )
+    assert exact.inadequate_because() is None and exact.p_value > 0.99
+    bent = [t * f for t, f in zip(truths, (1.0, 1.0, 0.5, 1.0))]
+    law = fitting.law_from_differences(
+        model, theta, _with_std(_components(bent), covariance), data, covariance=covariance
+    )
+    assert re.fullmatch(
+        r"the width law fitted to the per-scale ΔΣ estimates does not describe them \(generalised χ²/dof = .*/5, "
+        r"p = .* < 0.001\): predictions beyond the measured scales extrapolate through it",
+        law.inadequate_because() or "",
+    )
+    out = fitting.predict_from_measured(
+        model,
+        theta,
+        data,
+        [32.0],
+        base="measured",
+        differences=_with_std(_components(truths), covariance),
+        differences_covariance=covariance,
+    )
+    assert out.law is not None and out.law.correlated and "p = " in repr(out.law)
+
+
+def test_law_from_differences_refuses_a_covariance_that_is_not_the_differences():
+    """A covariance of another shape, asymmetric, not finite over the determined entries, whose diagonal is not their
+    squared std, or not positive semi-definite: the library's error naming what to give."""
+    data = dataset(SCALES)
+    truths = [true_difference(mu) for mu in SCALES[1:]]
+    model, theta = fitting.AnisotropicModel(len(SCALES)), _per_scale_theta(truths)
+    covariance = _correlated(truths)
+    entries = _with_std(_components(truths), covariance)
+
+    def refused(c, match):
+        with pytest.raises(InvalidInputError, match=match):
+            fitting.law_from_differences(model, theta, entries, data, covariance=c)
+
+    refused(covariance[:-1, :-1], "12 × 12 .* got shape \\(11, 11\\)")
+    asymmetric = covariance.copy()
+    asymmetric[0, 1] *= 2
+    refused(asymmetric, "finite and symmetric")
+    refused(np.where(np.eye(12, dtype=bool), np.nan, covariance), "finite and symmetric")
+    refused(2 * covariance, "diagonal is not the square of differences' standard errors")
+    s = np.sqrt(np.diag(covariance))
+    refused(np.outer(s, s) * (np.eye(12) * 2 - 1), "not positive semi-definite")
+    with pytest.raises(InvalidInputError, match="differences_covariance= are for the per-scale AnisotropicModel"):
+        fitting.predict_from_measured(MODEL, theta_of(), data, [32.0], differences_covariance=covariance)

@@ -296,19 +296,23 @@ def check_predicted_file(args, resume: bool) -> None:
         raise InvalidInputError(f"{path} exists; choose another --out or pass --force to replace it.")
 
 
-def write_predictions(fitting, problem, result, args, unit, resume: bool = False) -> str:
+def write_predictions(fitting, problem, result, args, unit, resume: bool = False) -> tuple[str, str | None]:
     """``--predict``: :func:`fitting.predict_from_measured` at the clipped estimate (the printed one; for the
-    per-scale model, with the law fitted to the report's ΔΣ estimates, those of the unclipped estimate), written as
-    a measurement set to DIR/predicted_lobes.exr (atomic; replaced only with --force or on resuming); one line
-    saying what. With ``--masking`` the lobes are the model's, masking removed (recorded as ``masking``)."""
+    per-scale model, with the law fitted to the report's ΔΣ estimates, those of the unclipped estimate, by their
+    joint covariance), written as a measurement set to DIR/predicted_lobes.exr (atomic; replaced only with --force
+    or on resuming); returns one line saying what, and why the law is inadequate (``LawFromDifferences.
+    inadequate_because``) or None. With ``--masking`` the lobes are the model's, masking removed (recorded as
+    ``masking``)."""
     import jax.numpy as jnp
 
     from .. import exr
 
     theta = jnp.clip(jnp.asarray(result.theta), problem.lower, problem.upper)
     per_scale = isinstance(problem.model, fitting.AnisotropicModel)  # ΔΣ beyond its scales: a law fitted to them
-    differences = result.covariance_differences if per_scale else None
-    out = fitting.predict_from_measured(problem.model, theta, problem.data, args.predict, differences=differences)
+    differences, joint = (result.covariance_differences, result.differences_covariance) if per_scale else (None, None)
+    out = fitting.predict_from_measured(
+        problem.model, theta, problem.data, args.predict, differences=differences, differences_covariance=joint
+    )
     metadata = {"source": "brdfscale fit --predict (fitting.predict_from_measured)", **({"unit": unit} if unit else {})}
     path = os.path.join(args.out, PREDICTED)
     exr.write_measurements(path, out.to_measurements(metadata), overwrite=args.force or resume)
@@ -327,9 +331,13 @@ def write_predictions(fitting, problem, result, args, unit, resume: bool = False
         ""
         if out.law is None
         else f"; ΔΣ from a {type(out.law.model.law).__name__.lower()} law fitted to the per-scale ΔΣ "
-        f"(χ²/dof = {out.law.chi2:.3g}/{out.law.dof}{'' if out.law.converged else ', its solve not converged'})"
+        f"(χ²/dof = {out.law.chi2:.3g}/{out.law.dof}"
+        f"{'' if out.law.p_value is None else f', p = {out.law.p_value:.2g}'}"
+        f"{'' if out.law.converged else ', its solve not converged'})"
     )
-    return f"wrote {path}: {len(out.scales)} lobes at {shown}, predicted from {source}{why}{law}"
+    return f"wrote {path}: {len(out.scales)} lobes at {shown}, predicted from {source}{why}{law}", (
+        None if out.law is None else out.law.inadequate_because()
+    )
 
 
 def asked_steps(args) -> int:
@@ -445,9 +453,9 @@ def register(subparsers) -> None:
         metavar="MU[,MU...]",
         help=f"with --model {', '.join(PREDICTING_MODELS)}: the lobes at these scales μ (the set's unit of μ, none "
         "finer than its finest), predicted from the lobe measured at the coarsest fitted scale widened by the fitted "
-        "law (the per-scale model: a width law fitted to its ΔΣ estimates) — or from "
-        "the model's own lobe where that predicts the coarsest fitted scale better from the next finer one "
-        f"(fitting.predict_from_measured) — written to DIR/{PREDICTED}",
+        "law (the per-scale model: a width law fitted to its ΔΣ estimates by their joint covariance; exit status 5 "
+        "where they reject it) — or from the model's own lobe where that predicts the coarsest fitted scale better "
+        f"from the next finer one (fitting.predict_from_measured) — written to DIR/{PREDICTED}",
     )
     parser.set_defaults(func=run)
 
@@ -604,7 +612,12 @@ def _fit_and_report(
         not_sampled=not_sampled,
     )
     if getattr(args, "predict", None) is not None:  # after the report: a failure here loses no fit
-        stream(write_predictions(fitting, problem, result, args, unit, resume=resume))
+        line, law_problem = write_predictions(fitting, problem, result, args, unit, resume=resume)
+        stream(line)
+        if law_problem is not None and doc["outcome"]["status"] == "ok":
+            # the fit to the images is fit.json's verdict; the law the predictions rest on is tested here (its
+            # record: predicted_lobes.exr's metadata "law"), and the command's status says when it fails
+            doc = {**doc, "outcome": {**doc["outcome"], "status": "inadequate", "reason": law_problem}}
     return doc
 
 
