@@ -35,10 +35,10 @@ counts per unit lobe value, read noise in counts):
      model requires): ``C0 + ΔΣ(μ0, μk)``;
    * ``default`` — the command's default model as ``brdfscale fit --predict`` predicts with it: the parametric
      model by its own scale law; the per-scale model (``anisotropic``, the default) by
-     :func:`fitting.predict_from_measured` with its fit's ``covariance_differences`` — the lobe measured at the
-     coarsest fitted scale widened by a width law fitted to those ΔΣ estimates
-     (:func:`fitting.law_from_differences`; ``base="auto"`` as ``law_measured``); any other model is recorded as
-     unable to predict;
+     :func:`fitting.predict_from_measured` with its fit's ``covariance_differences`` and their joint covariance
+     (``differences_covariance``) — the lobe measured at the coarsest fitted scale widened by a width law fitted to
+     those ΔΣ estimates by generalised least squares (:func:`fitting.law_from_differences`; its χ², dof and p in
+     the record; ``base="auto"`` as ``law_measured``); any other model is recorded as unable to predict;
    * ``law``, ``law_spline`` — :class:`fitting.AnisotropicLawModel` (width law, monotone spline law) fitted to
      the five finest scales: its own lobe at the held-out scales;
    * ``law_measured`` — the width law's fit, the held-out scales predicted by
@@ -262,14 +262,20 @@ def held_out(mset, statistics, default_model: str) -> dict:
         out["default"] = {**out["isotropic"], "model": default_model}
     elif default_model == "anisotropic":  # brdfscale fit --predict: a width law fitted to the fit's ΔΣ estimates
         t0 = time.perf_counter()
-        differences = aniso_fit.covariance_differences
-        measured = fitting.predict_from_measured(aniso, aniso_fit.theta, data, full, differences=differences)
+        differences, joint = aniso_fit.covariance_differences, aniso_fit.differences_covariance
+        measured = fitting.predict_from_measured(
+            aniso, aniso_fit.theta, data, full, differences=differences, differences_covariance=joint
+        )
         out["default"] = {
             "model": default_model,
             "l1": l1(np.asarray(measured.values), full, held),
             "base": measured.base,
             "validation": measured.validation,
-            "law": {"chi2": measured.law.chi2, "dof": measured.law.dof} if measured.law else None,
+            "law": (
+                {"chi2": measured.law.chi2, "dof": measured.law.dof, "p_value": measured.law.p_value}
+                if measured.law
+                else None
+            ),
             "wall_s": round(time.perf_counter() - t0, 2),
         }
     elif default_model in DEFAULT_ROWS:
