@@ -749,6 +749,51 @@ def instrument() -> str:
     return "\n".join(out)
 
 
+MASKING_NAMES = {
+    "closed": "brdfscale (closed form, masking of the slopes within the footprint)",
+    "footprint_masking": "the same lobes tabulated, the same masking (control)",
+    "all_scale_masking": "the same tables, masking of every scale's slopes",
+    "no_masking": "the closed form without masking",
+}
+
+
+def masking_diagnosis() -> list[str]:
+    """experiments/render_masking.py: study 8's brdfscale material with its masking changed, per surface the signed
+    band bias where μ ≥ 8 and its mean |·| (the ratio to LEAN's from the study's own JSON)."""
+    path = RESULTS / "render_masking" / "masking.json"
+    if not path.exists():
+        return []
+    d = json.loads(path.read_text())
+    out = []
+    for surface, record in d["surfaces"].items():
+        study = RESULTS / "render_validation" / f"{surface}.json"
+        lean = None
+        if study.exists():
+            lean = json.loads(study.read_text())["errors"]["lean"]["mu_ge_threshold"]["bias_mean_over_bands"]
+        first = next(iter(record["signed_bias"].values()))
+        bands = [x["mu_band_px"] for x in first if x["mu_band_px"][0] >= 8]
+        rows = []
+        for name, signed in record["signed_bias"].items():
+            far = [x for x in signed if x["mu_band_px"][0] >= 8]
+            mean = record["far_bias"][name]
+            rows.append(
+                [
+                    MASKING_NAMES.get(name, name),
+                    *[f"{x['truth']:+.3f} / {x['without_shadow_rays']:+.3f}" for x in far],
+                    f"{mean['truth']:.3f} / {mean['without_shadow_rays']:.3f}",
+                    "—" if lean is None else f"{mean['truth'] / lean:.2f}",
+                ]
+            )
+        out.append(
+            f"Masking across footprints ({surface}; `{d['command']}`, code at {d['code_commit'][:7]}): the brdfscale "
+            "material with only its masking changed — the signed band bias where μ ≥ 8 against the truth / against "
+            "the truth without shadow rays, the mean of its absolute values, and that mean over LEAN's (the "
+            "target: ≤ 0.5)\n\n"
+            + table(["material", *[f"μ∈[{a:g},{b:g})" for a, b in bands], "mean |·|", "÷ LEAN's"], rows)
+        )
+    return out
+
+
 def render_validation() -> str:
     """Study 8 (experiments/render_validation.py): three plane materials against the micro-geometry truth."""
     paths = sorted((RESULTS / "render_validation").glob("*.json"))
@@ -867,6 +912,7 @@ def render_validation() -> str:
                 "nesting (the seed's evolution) implies from the pixel and block-mean slopes\n\n"
                 + table(["level (texels)", "x: measured / nesting", "y: measured / nesting"], nest)
             )
+    out.extend(masking_diagnosis())
     sphere = RESULTS / "render_sphere" / "sphere.json"
     if sphere.exists():
         d = json.loads(sphere.read_text())

@@ -1059,6 +1059,41 @@ def test_render_validation_smoke(tmp_path):
     assert (tmp_path / "di-3.png").exists()
 
 
+def test_render_masking_far_bias_is_the_mean_absolute_signed_bias_where_mu_is_at_least_8():
+    from experiments import render_masking
+
+    bands = [
+        {"mu_band_px": [4.0, 8.0], "truth": 5.0, "without_shadow_rays": 5.0},
+        {"mu_band_px": [8.0, 16.0], "truth": -0.2, "without_shadow_rays": 0.1},
+        {"mu_band_px": [16.0, 32.0], "truth": 0.4, "without_shadow_rays": -0.3},
+    ]
+    assert render_masking.far_bias(bands, "truth") == pytest.approx(0.3)
+    assert render_masking.far_bias(bands, "without_shadow_rays") == pytest.approx(0.2)
+    assert render_masking.far_bias(bands[:1], "truth") is None
+
+
+@pytest.mark.slow  # ≈ 15 s on 2 cores (JAX lobe tables, Mitsuba compilation)
+def test_render_masking_smoke(tmp_path):
+    """The masking diagnosis on a small scene, written as returned: masking only darkens — in every μ band the
+    masked closed form's mean ≤ the unmasked one's, and the every-scale masking's ≤ the within-footprint masking's
+    of the same lobe tables (Smith Λ grows with the slope covariance; float32 rounding allowed) — and the table
+    control within 0.05 of the closed form's band biases."""
+    _render_validation()
+    from experiments import render_masking
+
+    argv = ["--surfaces", "anisotropic", "--width", "48", "--height", "32", "--size", "128"]
+    payload = render_masking.main([*argv, "--reference-spp", "16", "--unshadowed-spp", "4", "--out", str(tmp_path)])
+    on_disk = json.loads((tmp_path / "masking.json").read_text())
+    assert on_disk["surfaces"]["anisotropic"]["far_bias"] == payload["surfaces"]["anisotropic"]["far_bias"]
+    assert on_disk["command"].startswith("python -m experiments.render_masking --surfaces anisotropic")
+    record = payload["surfaces"]["anisotropic"]
+    assert set(record["signed_bias"]) == set(render_masking.MATERIALS)
+    bands = {m: np.array([b["truth"] for b in rows]) for m, rows in record["signed_bias"].items()}
+    assert np.all(bands["closed"] <= bands["no_masking"] + 1e-6)
+    assert np.all(bands["all_scale_masking"] <= bands["footprint_masking"] + 1e-6)
+    np.testing.assert_allclose(bands["footprint_masking"], bands["closed"], rtol=0, atol=0.05)
+
+
 @pytest.mark.slow  # ≈ 30 s on 2 cores (JAX evolutions of the accuracy check, Mitsuba compilation)
 def test_bench_render_quick(tmp_path):
     _render_validation()
