@@ -96,7 +96,9 @@ class Laplace(Shown):
 
     def variances(self, gradients: Float[np.ndarray, "q d"]) -> tuple[np.ndarray, np.ndarray]:
         """The linearised variances of quantities with these gradients: (determined part, undetermined part)."""
-        projected = self._whitened(gradients) ** 2
+        whitened = self._whitened(gradients)
+        with np.errstate(invalid="ignore", over="ignore"):  # as in _whitened: NaN or inf, not determined
+            projected = whitened**2
         return projected[:, ~self.undetermined_mask].sum(axis=1), projected[:, self.undetermined_mask].sum(axis=1)
 
     def covariance_of(self, gradients: Float[np.ndarray, "q d"]) -> Float[np.ndarray, "q q"]:

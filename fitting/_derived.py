@@ -200,7 +200,8 @@ def summarise_covariance_differences(model, theta, scales, analysis) -> tuple[li
     determined = analysis.quantity_is_determined(safe) & finite
     std = np.where(determined, np.sqrt(np.maximum(var_d + var_u, 0.0)), np.nan)
     rows = np.array([4 * (k - 1) + 2 * a + b for k in range(1, len(scales)) for a, b in DIFFERENCE_COMPONENTS], int)
-    kept = determined[rows] & ~np.array([fixed[a][b] for _ in range(1, len(scales)) for a, b in DIFFERENCE_COMPONENTS])
+    is_fixed = np.array([fixed[a][b] for _ in range(1, len(scales)) for a, b in DIFFERENCE_COMPONENTS], dtype=bool)
+    kept = determined[rows] & ~is_fixed
     joint = np.full((rows.size, rows.size), np.nan)
     joint[np.ix_(kept, kept)] = analysis.covariance_of(safe[rows[kept]])
     out = []

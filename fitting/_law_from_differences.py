@@ -16,12 +16,12 @@ the shared coordinates) the sum is the generalised least squares'
 
     χ²(φ, p) = rᵀ C⁺ r,   r = ΔΣ_law − ΔΣ over the determined components,
 
-(``C⁺`` the pseudo-inverse over the eigen-directions of ``C`` above ``1e-10`` of its largest; the others, and the
-law's coordinates, taken from the degrees of freedom), a calibrated test of the law: ``p_value`` is χ²'s survival
-function at ``dof`` (Gaussian errors, a law linear enough near its optimum). Without it the components are taken
-as independent and χ² is only a guide (``p_value`` None). An entry without a standard error (undetermined, or fixed
-by an isotropic model) is left out. The law's coordinates are kept inside their prior box (``Law.bounds``) by a
-logistic map.
+(``C⁺`` the pseudo-inverse over the eigen-directions of the components' correlation matrix above ``1e-10`` of its
+largest; the others, and the law's coordinates, taken from the degrees of freedom), a calibrated test of the law:
+``p_value`` is χ²'s survival function at ``dof`` (Gaussian errors, a law linear enough near its optimum). Without
+it the components are taken as independent and χ² is only a guide (``p_value`` None). An entry without a standard
+error (undetermined, or fixed by an isotropic model) is left out. The law's coordinates are kept inside their prior
+box (``Law.bounds``) by a logistic map.
 
 The result is an :class:`fitting.AnisotropicLawModel` with the per-scale model's base lobe (amplitude, C0, centre,
 tail index) and the fitted law, and its θ: :func:`fitting.predict_from_measured` then predicts any coarser scale —
@@ -31,12 +31,14 @@ increments between measured scales matching the per-scale estimates to their sta
 Verified in tests/test_measured_prediction.py: ΔΣ_k made by a known width law are recovered and extrapolated to a
 coarser scale to 1e-6 of the law's own, also over hypothesis-drawn orientations, anisotropy ratios and axis laws;
 with a correlated covariance, χ² against a hand-written ``rᵀ C⁻¹ r`` at the law's optimum and ``p_value`` against
-SciPy's χ² distribution; a fit's ``differences_covariance`` against the covariance of ΔΣ over Laplace draws;
-refusals (models, entries, covariances, too few of them).
+SciPy's χ² distribution (uniform over draws); components whose standard errors differ by 10⁶ all kept; refusals
+(models, entries, covariances, too few of them); in tests/test_anisotropic.py a fit's ``differences_covariance``
+against ``J Cov(θ) Jᵀ`` with J by finite differences.
 """
 
 import dataclasses
 import math
+from collections.abc import Sequence
 
 import equinox as eqx
 import jax
@@ -116,7 +118,8 @@ class LawFromDifferences:
         )
 
     def to_json(self) -> dict:
-        """``{"law", "fitted_to", "chi2", "dof", "theta": {name: value}}`` (a report's or a file's record)."""
+        """``{"law", "fitted_to", "chi2", "dof", "p_value", "converged", "theta": {name: value}}`` (a report's or a
+        file's record; ``fitted_to`` says whether by the joint covariance or the standard errors alone)."""
         return {
             "law": type(self.model.law).__name__.lower(),
             "fitted_to": "the per-scale model's covariance_differences ("
@@ -200,14 +203,16 @@ def _entries(differences, scales: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
 
 
 def _whitening(covariance, rows: np.ndarray, std: np.ndarray, n_scales: int) -> np.ndarray:
-    """``W`` with ``χ² = |W r|²``: ``diag(1/std)`` without a covariance; with one, ``Λ^{-1/2} Uᵀ`` of its
-    eigen-decomposition over the used components, the directions below :data:`_RANK` of the largest left out.
-    The covariance is checked against the entries it claims to describe (its diagonal their squared std)."""
+    """``W`` with ``χ² = |W r|²``: ``diag(1/std)`` without a covariance; with one, ``Λ^{-1/2} Uᵀ D⁻¹`` of the
+    eigen-decomposition ``U Λ Uᵀ`` of the used components' *correlation* matrix ``D⁻¹ C D⁻¹`` (``D = diag(std)``:
+    which directions count does not depend on the components' units), the directions below :data:`_RANK` of its
+    largest eigenvalue left out. The covariance is checked against the entries it claims to describe (its diagonal
+    their squared std; symmetric to 1e-9 of ``std_i std_j``, then symmetrised)."""
     if covariance is None:
         return np.diag(1.0 / std)
     m = len(_ENTRIES) * (n_scales - 1)
     try:
-        c = np.asarray(covariance, dtype=float)
+        c = np.asarray(covariance, dtype=float)  # fit.json's nested lists: null (None) becomes NaN
     except (TypeError, ValueError):
         c = np.zeros(0)
     if c.shape != (m, m):
@@ -216,7 +221,8 @@ def _whitening(covariance, rows: np.ndarray, std: np.ndarray, n_scales: int) -> 
             f"(xx, xy, yy per coarser scale); got shape {c.shape}."
         )
     used = c[np.ix_(rows, rows)]
-    if not np.all(np.isfinite(used)) or not np.allclose(used, used.T, rtol=1e-9, atol=0.0):
+    scale = np.outer(std, std)
+    if not np.all(np.isfinite(used)) or np.any(np.abs(used - used.T) > 1e-9 * scale):
         raise InvalidInputError(
             "covariance must be finite and symmetric over the determined entries of differences (the fit's "
             "FitResult.differences_covariance, NaN only where an entry has no std)."
@@ -226,14 +232,15 @@ def _whitening(covariance, rows: np.ndarray, std: np.ndarray, n_scales: int) -> 
             "covariance's diagonal is not the square of differences' standard errors: give the "
             "differences_covariance of the same fit as the covariance_differences."
         )
-    eigenvalues, vectors = np.linalg.eigh(used)
+    correlation = (used + used.T) / (2 * scale)
+    eigenvalues, vectors = np.linalg.eigh(correlation)
     if eigenvalues[0] < -1e-9 * eigenvalues[-1]:
         raise InvalidInputError(
-            f"covariance is not positive semi-definite over the determined entries (eigenvalue {eigenvalues[0]:.3g} "
-            f"against {eigenvalues[-1]:.3g}): give the fit's FitResult.differences_covariance."
+            f"covariance is not positive semi-definite over the determined entries (its correlation matrix has the "
+            f"eigenvalue {eigenvalues[0]:.3g}): give the fit's FitResult.differences_covariance."
         )
     keep = eigenvalues > _RANK * eigenvalues[-1]
-    return vectors[:, keep].T / np.sqrt(eigenvalues[keep])[:, None]
+    return vectors[:, keep].T / np.sqrt(eigenvalues[keep])[:, None] / std[None, :]
 
 
 @eqx.filter_jit
@@ -258,7 +265,7 @@ def law_from_differences(
     data: Dataset,
     *,
     law: str | Law = "width",
-    covariance: Float[ArrayLike, "m m"] | None = None,
+    covariance: Float[ArrayLike, "m m"] | Sequence[Sequence[float | None]] | None = None,
 ) -> LawFromDifferences:
     """A scale law fitted to the per-scale model's ΔΣ estimates (module docstring): the
     :class:`fitting.AnisotropicLawModel` of the same base lobe whose law's ΔΣ(μ0, μ_k) best matches

@@ -278,7 +278,7 @@ def predict_from_measured(
     *,
     base: str = "auto",
     differences: list[dict] | None = None,
-    differences_covariance: Float[ArrayLike, "m m"] | None = None,
+    differences_covariance: Float[ArrayLike, "m m"] | Sequence[Sequence[float | None]] | None = None,
 ) -> MeasuredPrediction:
     """The lobes of ``target``'s images predicted from the lobes measured in ``data`` and the scale law of
     ``model`` at ``theta`` (fitted to ``data``): seed Eq. 4.4 from the coarsest fitted scale ``μ_s ≤ μ`` of each

@@ -284,7 +284,7 @@ def test_the_command_writes_the_predicted_lobes(tmp_path, capsys, monkeypatch, m
     out = tmp_path / "fit"
     argv = ["fit", str(measurements), "--model", model, "--steps", "0", "--out", str(out)]
     per_scale = model == "anisotropic"
-    assert cli.main([*argv, "--predict", "32,16"]) == 0  # the law fits the noise-free ΔΣ: the fit's verdict stands
+    assert cli.main([*argv, "--predict", "32,16"]) == 0  # the law fits the ΔΣ estimates: the fit's verdict stands
     printed = capsys.readouterr().out
     assert re.search(
         r"predicted_lobes.exr: 2 lobes at μ = \[16, 32\] px, predicted from the "
@@ -306,7 +306,8 @@ def test_the_command_writes_the_predicted_lobes(tmp_path, capsys, monkeypatch, m
         monkeypatch.setattr(fitting.LawFromDifferences, "inadequate_because", lambda self, thresholds=None: reason)
         capsys.readouterr()
         assert cli.main([*argv, "--predict", "16", "--force"]) == 5
-        assert f"brdfscale fit: inadequate: {reason}" in capsys.readouterr().err
+        shown = capsys.readouterr()
+        assert f"brdfscale fit: inadequate: {reason}" in shown.err and f"outcome: inadequate — {reason}" in shown.out
 
 
 def test_replicate_images_at_a_scale_are_averaged_by_their_weights():
@@ -544,6 +545,34 @@ def test_a_law_the_differences_reject_makes_the_prediction_inadequate():
         differences_covariance=covariance,
     )
     assert out.law is not None and out.law.correlated and "p = " in repr(out.law)
+
+
+def test_the_generalised_chi2_keeps_components_of_any_units_and_reads_fit_json():
+    """Independent components whose standard errors differ by 10⁶ (the first scale's measured far better): every one
+    is kept (dof 5, χ² equal to the diagonal fit's), as the cut is made on the correlation matrix; the covariance as
+    fit.json holds it — nested lists, null where an entry has no std — and one off by rounding from symmetric give
+    the same law as the array."""
+    data = dataset(SCALES)
+    truths = [true_difference(mu) for mu in SCALES[1:]]
+    model, theta = fitting.AnisotropicModel(len(SCALES)), _per_scale_theta(truths)
+    std = np.repeat([1e-9, 1e-3, 1e-3, 1e-3], 3) * abs(truths[-1]).max()
+    covariance = np.diag(std**2)
+    values = _components(truths) + np.random.default_rng(1).standard_normal(12) * std
+    entries = _with_std(values, covariance)
+    law = fitting.law_from_differences(model, theta, entries, data, covariance=covariance)
+    diagonal = fitting.law_from_differences(model, theta, entries, data)
+    assert law.dof == diagonal.dof == 5 and law.chi2 == pytest.approx(diagonal.chi2, rel=1e-6)
+    covariance = _correlated(truths)
+    entries = _with_std(_components(truths) * 1.001, covariance)
+    want = fitting.law_from_differences(model, theta, entries, data, covariance=covariance)
+    as_json = [[float(x) for x in row] for row in covariance]
+    as_json[0][5] = as_json[0][5] * (1 + 1e-13)  # J Cov Jᵀ is symmetric to rounding only
+    entries[1]["std"][0][1] = entries[1]["std"][1][0] = None  # an entry without std: its row and column null
+    as_json[4] = [None] * 12
+    for row in as_json:
+        row[4] = None
+    got = fitting.law_from_differences(model, theta, entries, data, covariance=as_json)
+    assert got.dof == want.dof - 1 and got.correlated and got.p_value is not None
 
 
 def test_law_from_differences_refuses_a_covariance_that_is_not_the_differences():

@@ -298,8 +298,8 @@ def check_predicted_file(args, resume: bool) -> None:
 
 def write_predictions(fitting, problem, result, args, unit, resume: bool = False) -> tuple[str, str | None]:
     """``--predict``: :func:`fitting.predict_from_measured` at the clipped estimate (the printed one; for the
-    per-scale model, with the law fitted to the report's ΔΣ estimates, those of the unclipped estimate, by their
-    joint covariance), written as a measurement set to DIR/predicted_lobes.exr (atomic; replaced only with --force
+    per-scale model, with the law fitted to the report's ΔΣ estimates — computed at that clipped estimate too — by
+    their joint covariance), written as a measurement set to DIR/predicted_lobes.exr (atomic; replaced only with --force
     or on resuming); returns one line saying what, and why the law is inadequate (``LawFromDifferences.
     inadequate_because``) or None. With ``--masking`` the lobes are the model's, masking removed (recorded as
     ``masking``)."""
@@ -617,7 +617,9 @@ def _fit_and_report(
         if law_problem is not None and doc["outcome"]["status"] == "ok":
             # the fit to the images is fit.json's verdict; the law the predictions rest on is tested here (its
             # record: predicted_lobes.exr's metadata "law"), and the command's status says when it fails
-            doc = {**doc, "outcome": {**doc["outcome"], "status": "inadequate", "reason": law_problem}}
+            outcome = doc["outcome"]
+            problems = [*outcome.get("problems", []), law_problem]  # fitting.assess's form: one line each
+            doc = {**doc, "outcome": {**outcome, "status": "inadequate", "reason": law_problem, "problems": problems}}
     return doc
 
 
