@@ -453,6 +453,42 @@ class MicroGeometry:
             k += 1
         return (total / spp).reshape(cam.height, cam.width), time.perf_counter() - started
 
+    def visible_slopes(self, spp: int, seed: int) -> np.ndarray:
+        """Per pixel, the slope (−n̄_x/n̄_z, −n̄_y/n̄_z) of the mean unit normal n̄ of the triangles the camera's
+        ``spp`` jittered rays hit (upper side; H, W, 2): the micro-geometry's own visibility-weighted normal, where
+        the plane materials take the footprint's mean texel slope (:func:`mean_slopes`);
+        experiments/render_visibility.py compares them. The same rays as :meth:`render` with the same seed."""
+        import drjit as dr
+
+        mi, cam = self.mi, self.camera
+        pixels = cam.width * cam.height
+        per_pass = max(1, min(spp, RAYS_PER_PASS // pixels))
+        total = np.zeros((pixels, 3))
+        done, k = 0, 0
+        while done < spp:
+            m = min(per_pass, spp - done)
+            idx = dr.arange(mi.UInt32, pixels * m)
+            pix = idx // m
+            sampler = mi.load_dict({"type": "independent"})
+            sampler.seed(seed * 1_000_003 + k, pixels * m)
+            jitter = sampler.next_2d()
+            col = mi.Float(pix % cam.width) + jitter.x
+            row = mi.Float(pix // cam.width) + jitter.y
+            x = (2 * col / cam.width - 1) * cam.half * cam.width / cam.height
+            y = (1 - 2 * row / cam.height) * cam.half
+            f, r, u = (mi.Vector3f(*map(float, v)) for v in (cam.forward, cam.right, cam.up))
+            d = dr.normalize(f + x * r + y * u)
+            si = self.scene.ray_intersect(mi.Ray3f(mi.Point3f(0.0, 0.0, CAMERA_HEIGHT), d))
+            hit = si.is_valid()
+            n = dr.select(si.n.z < 0, -si.n, si.n)  # the upper side's normal
+            sums = [dr.block_sum(dr.select(hit, v, 0.0), m) for v in (n.x, n.y, n.z)]
+            dr.eval(sums)
+            total += np.stack([np.asarray(v, float) for v in sums], axis=1)
+            done += m
+            k += 1
+        z = np.maximum(total[:, 2], 1e-12)
+        return np.stack([-total[:, 0] / z, -total[:, 1] / z], axis=1).reshape(cam.height, cam.width, 2)
+
 
 # -- the plane renders -------------------------------------------------------------------------------------------
 
