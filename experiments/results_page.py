@@ -794,6 +794,49 @@ def masking_diagnosis() -> list[str]:
     return out
 
 
+def visibility_diagnosis() -> list[str]:
+    """experiments/render_visibility.py: the plane materials with the footprint mean normal (study 8's) and with the
+    micro-geometry's visible mean normal, per surface the signed band bias where μ ≥ 8, and how far the normals
+    differ per band."""
+    path = RESULTS / "render_visibility" / "visibility.json"
+    if not path.exists():
+        return []
+    d = json.loads(path.read_text())
+    out = []
+    for surface, record in d["surfaces"].items():
+        first = next(iter(record["signed_bias"].values()))
+        bands = [x["mu_band_px"] for x in first if x["mu_band_px"][0] >= 8]
+        rows = []
+        for name, signed in record["signed_bias"].items():
+            far = [x for x in signed if x["mu_band_px"][0] >= 8]
+            mean = record["far_bias"][name]
+            rows.append(
+                [
+                    name,
+                    *[f"{x['truth']:+.3f} / {x['without_shadow_rays']:+.3f}" for x in far],
+                    f"{mean['truth']:.3f} / {mean['without_shadow_rays']:.3f}",
+                ]
+            )
+        differences = [
+            [
+                f"[{r['mu_band_px'][0]:g}, {r['mu_band_px'][1]:g})",
+                f"{r['mean'][0]:+.3f} / {r['mean'][1]:+.3f}",
+                f"{r['rms'][0]:.3f} / {r['rms'][1]:.3f}",
+            ]
+            for r in record["normal_differences"]
+        ]
+        out.append(
+            f"The normal a pixel sees ({surface}; `{d['command']}`, code at {d['code_commit'][:7]}): the materials "
+            "shaded with the footprint's mean texel slope (study 8's) and with the mean normal of the triangles the "
+            "truth's own camera rays hit — the signed band bias where μ ≥ 8 against the truth / against the truth "
+            "without shadow rays, and its mean |·|\n\n"
+            + table(["material, normal", *[f"μ∈[{a:g},{b:g})" for a, b in bands], "mean |·|"], rows)
+            + "\n\nand the visible normal's slope minus the footprint's per μ band, mean and rms, x / y (the camera "
+            "looks along +y)\n\n" + table(["μ band", "mean, x / y", "rms, x / y"], differences)
+        )
+    return out
+
+
 def render_validation() -> str:
     """Study 8 (experiments/render_validation.py): three plane materials against the micro-geometry truth."""
     paths = sorted((RESULTS / "render_validation").glob("*.json"))
@@ -913,6 +956,7 @@ def render_validation() -> str:
                 + table(["level (texels)", "x: measured / nesting", "y: measured / nesting"], nest)
             )
     out.extend(masking_diagnosis())
+    out.extend(visibility_diagnosis())
     sphere = RESULTS / "render_sphere" / "sphere.json"
     if sphere.exists():
         d = json.loads(sphere.read_text())
