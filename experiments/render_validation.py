@@ -60,6 +60,7 @@ Writes experiments/results/render_validation/<surface>.{json,png,exr}.
 """
 
 import argparse
+import dataclasses
 import math
 import os
 import time
@@ -414,16 +415,15 @@ class MicroGeometry:
             ]
         )
 
-    def render(self, spp: int, seed: int, shadows: bool = True) -> tuple[np.ndarray, float]:
-        """The mean radiance per pixel over ``spp`` jittered rays, and the wall time (seconds); ``shadows=False``:
-        without the shadow ray (every hit lit: the diagnosis of how much the geometry's shadowing weighs)."""
+    def _passes(self, spp: int, seed: int):
+        """The camera's ``spp`` jittered rays per pixel in passes of at most :data:`RAYS_PER_PASS` rays: yields
+        ``(m, si)`` per pass — m rays per pixel, pixel-major, and their first hits (the same rays for the same
+        ``spp`` and ``seed``)."""
         import drjit as dr
 
         mi, cam = self.mi, self.camera
         pixels = cam.width * cam.height
         per_pass = max(1, min(spp, RAYS_PER_PASS // pixels))
-        total = np.zeros(pixels)
-        started = time.perf_counter()
         done, k = 0, 0
         while done < spp:
             m = min(per_pass, spp - done)
@@ -438,9 +438,20 @@ class MicroGeometry:
             y = (1 - 2 * row / cam.height) * cam.half
             f, r, u = (mi.Vector3f(*map(float, v)) for v in (cam.forward, cam.right, cam.up))
             d = dr.normalize(f + x * r + y * u)
-            ray = mi.Ray3f(mi.Point3f(0.0, 0.0, CAMERA_HEIGHT), d)
-            si = self.scene.ray_intersect(ray)
-            light = mi.Vector3f(*map(float, self.light))
+            yield m, self.scene.ray_intersect(mi.Ray3f(mi.Point3f(0.0, 0.0, CAMERA_HEIGHT), d))
+            done += m
+            k += 1
+
+    def render(self, spp: int, seed: int, shadows: bool = True) -> tuple[np.ndarray, float]:
+        """The mean radiance per pixel over ``spp`` jittered rays, and the wall time (seconds); ``shadows=False``:
+        without the shadow ray (every hit lit: the diagnosis of how much the geometry's shadowing weighs)."""
+        import drjit as dr
+
+        mi, cam = self.mi, self.camera
+        total = np.zeros(cam.width * cam.height)
+        started = time.perf_counter()
+        light = mi.Vector3f(*map(float, self.light))
+        for m, si in self._passes(spp, seed):
             lit = si.is_valid()
             if shadows:
                 lit &= ~self.scene.ray_test(si.spawn_ray(light), si.is_valid())
@@ -449,45 +460,26 @@ class MicroGeometry:
             sums = dr.block_sum(value, m)
             dr.eval(sums)
             total += np.asarray(sums, dtype=float)
-            done += m
-            k += 1
         return (total / spp).reshape(cam.height, cam.width), time.perf_counter() - started
 
     def visible_slopes(self, spp: int, seed: int) -> np.ndarray:
-        """Per pixel, the slope (−n̄_x/n̄_z, −n̄_y/n̄_z) of the mean unit normal n̄ of the triangles the camera's
-        ``spp`` jittered rays hit (upper side; H, W, 2): the micro-geometry's own visibility-weighted normal, where
-        the plane materials take the footprint's mean texel slope (:func:`mean_slopes`);
-        experiments/render_visibility.py compares them. The same rays as :meth:`render` with the same seed."""
+        """Per pixel, the normal slope ``m = (n̄_x/n̄_z, n̄_y/n̄_z)`` (= −∇h, :func:`experiments._studies.pixel_slopes`'
+        convention) of the mean unit normal n̄ of the triangles the camera's ``spp`` jittered rays hit (upper side;
+        H, W, 2): the micro-geometry's own visibility-weighted normal, where the plane materials take the
+        footprint's mean texel slope (:func:`mean_slopes`); experiments/render_visibility.py compares them. The same
+        rays as :meth:`render` with the same seed."""
         import drjit as dr
 
-        mi, cam = self.mi, self.camera
-        pixels = cam.width * cam.height
-        per_pass = max(1, min(spp, RAYS_PER_PASS // pixels))
-        total = np.zeros((pixels, 3))
-        done, k = 0, 0
-        while done < spp:
-            m = min(per_pass, spp - done)
-            idx = dr.arange(mi.UInt32, pixels * m)
-            pix = idx // m
-            sampler = mi.load_dict({"type": "independent"})
-            sampler.seed(seed * 1_000_003 + k, pixels * m)
-            jitter = sampler.next_2d()
-            col = mi.Float(pix % cam.width) + jitter.x
-            row = mi.Float(pix // cam.width) + jitter.y
-            x = (2 * col / cam.width - 1) * cam.half * cam.width / cam.height
-            y = (1 - 2 * row / cam.height) * cam.half
-            f, r, u = (mi.Vector3f(*map(float, v)) for v in (cam.forward, cam.right, cam.up))
-            d = dr.normalize(f + x * r + y * u)
-            si = self.scene.ray_intersect(mi.Ray3f(mi.Point3f(0.0, 0.0, CAMERA_HEIGHT), d))
+        cam = self.camera
+        total = np.zeros((cam.width * cam.height, 3))
+        for m, si in self._passes(spp, seed):
             hit = si.is_valid()
             n = dr.select(si.n.z < 0, -si.n, si.n)  # the upper side's normal
             sums = [dr.block_sum(dr.select(hit, v, 0.0), m) for v in (n.x, n.y, n.z)]
             dr.eval(sums)
             total += np.stack([np.asarray(v, float) for v in sums], axis=1)
-            done += m
-            k += 1
         z = np.maximum(total[:, 2], 1e-12)
-        return np.stack([-total[:, 0] / z, -total[:, 1] / z], axis=1).reshape(cam.height, cam.width, 2)
+        return np.stack([total[:, 0] / z, total[:, 1] / z], axis=1).reshape(cam.height, cam.width, 2)
 
 
 # -- the plane renders -------------------------------------------------------------------------------------------
@@ -508,6 +500,89 @@ def mean_slopes(field: synth.HeightField, camera, mu: np.ndarray, seed: int) -> 
     return out
 
 
+def pixel_geometry(camera, mean_slope: np.ndarray, light: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """At each pixel centre (pixel-major, (H·W, 3) each): the view ray, the light direction and the unit normal
+    ``(m, 1)/|·|`` of a plane of normal slope ``mean_slope`` (H, W, 2)."""
+    row, col = np.mgrid[0 : camera.height, 0 : camera.width] + 0.5
+    _, view = camera.hit(col, row)
+    view = view.reshape(-1, 3)
+    m = mean_slope.reshape(-1, 2)
+    normals = np.concatenate([m, np.ones((len(m), 1))], 1)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    return view, np.broadcast_to(light, view.shape), normals
+
+
+def plane_directions(camera, mean_slope: np.ndarray, light: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(wi, wo)``: the directions towards the camera and the light in each pixel's plane frame
+    (:func:`pixel_geometry`, :func:`frame`), what :func:`shade` takes."""
+    view, lights, normals = pixel_geometry(camera, mean_slope, light)
+    basis = frame(normals)
+    return local(-view, basis), local(lights, basis)
+
+
+@dataclasses.dataclass
+class Scene:
+    """Study 8's scene for one surface (:func:`scene`): the tile, camera, per-pixel footprints, levels, their
+    statistics and the micro-geometry."""
+
+    field: synth.HeightField
+    camera: render_plane.Camera
+    mu: np.ndarray
+    levels: list[int]
+    level_stats: dict
+    geometry: "MicroGeometry"
+
+
+def scene(surface: str, size: int, width: int, height: int, alpha0: float, seed: int = 0) -> Scene:
+    """The scene :func:`run` renders (and the diagnoses reuse): ``surface``'s periodic ``size``² tile, study 4's
+    camera at ``width`` × ``height``, μ per pixel, the power-of-two levels up to the coarsest footprint (at most
+    size/8), their statistics and the meshed micro-geometry."""
+    field = height_field(surface, size, seed)
+    camera = render_plane.Camera(width, height)
+    mu = render_plane.footprints(camera)
+    levels = [2**k for k in range(math.ceil(math.log2(max(mu.max(), 2))) + 1) if 2**k <= size // 8]
+    statistics = level_statistics(field, alpha0, levels)
+    return Scene(field, camera, mu, levels, statistics, MicroGeometry(field, camera, alpha0))
+
+
+def add_scene_arguments(parser) -> None:
+    """The options every study 8 script takes: image, tile, α0, the truth's samples, the surfaces."""
+    parser.add_argument("--width", type=int, default=192)
+    parser.add_argument("--height", type=int, default=128)
+    parser.add_argument("--size", type=int, default=512, help="periodic tile size (texels)")
+    parser.add_argument("--alpha0", type=float, default=ALPHA0, help="Beckmann roughness of one texel")
+    parser.add_argument("--reference-spp", type=int, default=1024)
+    parser.add_argument("--surfaces", nargs="+", default=list(SURFACES), choices=SURFACES)
+
+
+def diagnosis_main(argv, *, name: str, study: str, run) -> dict:
+    """The command line of a study 8 diagnosis (experiments/render_masking.py, render_visibility.py): the scene's
+    options and ``--unshadowed-spp``; ``run(surface=…, size=…, width=…, height=…, alpha0=…, reference_spp=…,
+    unshadowed_spp=…)`` per surface; writes ``experiments/results/<name>/<file>.json`` (``--out``) with the commit
+    and the command."""
+    import sys
+
+    from experiments._bench import code_commit
+
+    module = sys.modules[run.__module__]
+    folder, file = name.split("/")
+    parser = argparse.ArgumentParser(description=(module.__doc__ or study).splitlines()[0])
+    add_scene_arguments(parser)
+    parser.add_argument("--unshadowed-spp", type=int, default=256, help="study 8's: its ladder's largest spp")
+    parser.add_argument("--out", default=None, help=f"output folder (default experiments/results/{folder})")
+    args = parser.parse_args(argv)
+    options = dict(width=args.width, height=args.height, size=args.size, alpha0=args.alpha0)
+    spp = dict(reference_spp=args.reference_spp, unshadowed_spp=args.unshadowed_spp)
+    payload = {
+        "study": study,
+        "code_commit": code_commit(),
+        "command": " ".join([f"python -m {run.__module__}", *(sys.argv[1:] if argv is None else argv)]),
+        "surfaces": {s: run(surface=s, **options, **spp) for s in args.surfaces},
+    }
+    write_results(study_dir(folder, args.out), file, payload)
+    return payload
+
+
 def level_weights(mu: np.ndarray, levels: list[int]) -> np.ndarray:
     """Weights (len(levels), …) of linear interpolation in log₂ μ between the levels (clamped at the ends)."""
     pos = np.clip(np.log2(np.maximum(mu, 1.0)), 0, len(levels) - 1)
@@ -523,13 +598,7 @@ def render_planes(
     ``repeat`` timed runs after a compiling one)."""
     from brdfscale import render
 
-    row, col = np.mgrid[0 : camera.height, 0 : camera.width] + 0.5
-    _, view = camera.hit(col, row)
-    view = view.reshape(-1, 3)
-    m = mean_slope.reshape(-1, 2)
-    normals = np.concatenate([m, np.ones((len(m), 1))], 1)
-    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    lights = np.broadcast_to(light, view.shape)
+    view, lights, normals = pixel_geometry(camera, mean_slope, light)
     mus = mu.ravel()
     weights = level_weights(mus, levels)
     images, seconds = {}, {}
@@ -751,13 +820,10 @@ def run(
     load = os.getloadavg()[0]  # the machine's load before the study's timed renders (recorded: times depend on it)
     directory = study_dir("render_validation", out)
     mi = mitsuba()
-    field = height_field(surface, size, seed)
-    camera = render_plane.Camera(width, height)
-    mu = render_plane.footprints(camera)
-    levels = [2**k for k in range(math.ceil(math.log2(max(mu.max(), 2))) + 1) if 2**k <= size // 8]
-    level_stats = level_statistics(field, alpha0, levels)
+    setup = scene(surface, size, width, height, alpha0, seed)
+    field, camera, mu, levels = setup.field, setup.camera, setup.mu, setup.levels
+    level_stats, geometry = setup.level_stats, setup.geometry
     tabulated = tabulated_evolution(level_stats["facets"], alpha0) if check_tabulated else None
-    geometry = MicroGeometry(field, camera, alpha0)
     for spp in (reference_spp, *ladder_spp):  # compile every kernel first (Dr.Jit compiles one per pass size)
         geometry.render(spp, seed + 99)
     truth, truth_seconds = geometry.render(reference_spp, seed + 1)
@@ -868,14 +934,9 @@ def plot(images: dict, errors: dict, path: Path, title: str) -> None:
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--width", type=int, default=192)
-    parser.add_argument("--height", type=int, default=128)
-    parser.add_argument("--size", type=int, default=512, help="periodic tile size (texels)")
-    parser.add_argument("--alpha0", type=float, default=ALPHA0, help="Beckmann roughness of one texel")
-    parser.add_argument("--reference-spp", type=int, default=1024)
+    add_scene_arguments(parser)
     parser.add_argument("--ladder-spp", type=int, nargs="+", default=[1, 2, 4, 8, 16, 32, 64, 128, 256])
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--surfaces", nargs="+", default=list(SURFACES), choices=SURFACES)
     parser.add_argument("--out", default=None, help="output folder (default experiments/results/render_validation)")
     args = parser.parse_args(argv)
     for surface in args.surfaces:

@@ -22,10 +22,6 @@ Writes experiments/results/render_visibility/visibility.json (docs/results.md §
 experiments/results_page.py).
 """
 
-import argparse
-import math
-import sys
-
 import jax
 
 
@@ -34,8 +30,7 @@ jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 
 from brdfscale import lobes, render  # noqa: E402
-from experiments import render_plane, render_validation as rv  # noqa: E402
-from experiments._studies import study_dir, write_results  # noqa: E402
+from experiments import render_validation as rv  # noqa: E402
 from experiments.render_masking import far_bias  # noqa: E402
 
 
@@ -43,22 +38,8 @@ NORMALS = ("footprint", "visible")
 MATERIALS = ("naive", "brdfscale")
 
 
-def shade_with(mi, materials: dict, camera, mu: np.ndarray, slopes: np.ndarray, light: np.ndarray) -> dict:
-    """Every material shaded at each pixel centre's view with the plane normal of ``slopes`` (H, W, 2) and the
-    pixel's footprint μ (images (H, W))."""
-    row, col = np.mgrid[0 : camera.height, 0 : camera.width] + 0.5
-    _, view = camera.hit(col, row)
-    view = view.reshape(-1, 3)
-    m = slopes.reshape(-1, 2)
-    normals = np.concatenate([m, np.ones((len(m), 1))], 1)
-    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
-    basis = rv.frame(normals)
-    wi, wo = rv.local(-view, basis), rv.local(np.broadcast_to(light, view.shape), basis)
-    return {name: rv.shade(mi, bsdf, wi, wo, mu.ravel()).reshape(mu.shape) for name, bsdf in materials.items()}
-
-
 def normal_differences(footprint: np.ndarray, visible: np.ndarray, mu: np.ndarray) -> list[dict]:
-    """Per μ band: the mean and rms of (visible − footprint) slope, x and y."""
+    """Per μ band: the mean and rms of (visible − footprint) normal slope, x and y."""
     bands = rv.bands_of(mu)
     out = []
     for b in np.unique(bands):
@@ -86,23 +67,18 @@ def run(
 ) -> dict:
     """One surface: study 8's truth, the truth without shadow rays, both normals, both materials with each."""
     mi = rv.mitsuba()
-    field = rv.height_field(surface, size, seed)
-    camera = render_plane.Camera(width, height)
-    mu = render_plane.footprints(camera)
-    levels = [2**k for k in range(math.ceil(math.log2(max(mu.max(), 2))) + 1) if 2**k <= size // 8]
-    level_stats = rv.level_statistics(field, alpha0, levels)
-    geometry = rv.MicroGeometry(field, camera, alpha0)
-    truth, _ = geometry.render(reference_spp, seed + 1)
-    unshadowed, _ = geometry.render(unshadowed_spp, seed + 1, shadows=False)
+    setup = rv.scene(surface, size, width, height, alpha0, seed)
+    truth, _ = setup.geometry.render(reference_spp, seed + 1)
+    unshadowed, _ = setup.geometry.render(unshadowed_spp, seed + 1, shadows=False)
     normals = {
-        "footprint": rv.mean_slopes(field, camera, mu, seed + 2),
-        "visible": geometry.visible_slopes(reference_spp, seed + 1),  # the truth's own camera rays
+        "footprint": rv.mean_slopes(setup.field, setup.camera, setup.mu, seed + 2),
+        "visible": setup.geometry.visible_slopes(reference_spp, seed + 1),  # the truth's own camera rays
     }
     materials = {
         "naive": rv.roughconductor(mi, alpha0),
         "brdfscale": render.bsdf(
             lobes.Beckmann(alpha0),
-            level_stats["law"],
+            setup.level_stats["law"],
             mu0=1.0,
             texel=1.0,
             size=rv.LOBE_NODES,
@@ -113,9 +89,10 @@ def run(
     }
     images = {}
     for normal, slopes in normals.items():
-        for name, image in shade_with(mi, materials, camera, mu, slopes, geometry.light).items():
-            images[f"{name}, {normal} normal"] = image
-    signed = rv.signed_bias(images, truth, unshadowed, mu)
+        wi, wo = rv.plane_directions(setup.camera, slopes, setup.geometry.light)
+        for name, bsdf in materials.items():
+            images[f"{name}, {normal} normal"] = rv.shade(mi, bsdf, wi, wo, setup.mu.ravel()).reshape(setup.mu.shape)
+    signed = rv.signed_bias(images, truth, unshadowed, setup.mu)
     return {
         "surface": surface,
         "tile_size": size,
@@ -123,7 +100,7 @@ def run(
         "alpha0": alpha0,
         "reference_spp": reference_spp,
         "unshadowed_spp": unshadowed_spp,
-        "normal_differences": normal_differences(normals["footprint"], normals["visible"], mu),
+        "normal_differences": normal_differences(normals["footprint"], normals["visible"], setup.mu),
         "signed_bias": signed,
         "far_bias": {
             name: {"truth": far_bias(bands, "truth"), "without_shadow_rays": far_bias(bands, "without_shadow_rays")}
@@ -133,38 +110,12 @@ def run(
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--width", type=int, default=192)
-    parser.add_argument("--height", type=int, default=128)
-    parser.add_argument("--size", type=int, default=512, help="periodic tile size (texels)")
-    parser.add_argument("--alpha0", type=float, default=rv.ALPHA0)
-    parser.add_argument("--reference-spp", type=int, default=1024)
-    parser.add_argument("--unshadowed-spp", type=int, default=256, help="study 8's: its ladder's largest spp")
-    parser.add_argument("--surfaces", nargs="+", default=list(rv.SURFACES), choices=rv.SURFACES)
-    parser.add_argument("--out", default=None, help="output folder (default experiments/results/render_visibility)")
-    args = parser.parse_args(argv)
-    from experiments._bench import code_commit
-
-    surfaces = {
-        s: run(
-            surface=s,
-            size=args.size,
-            width=args.width,
-            height=args.height,
-            alpha0=args.alpha0,
-            reference_spp=args.reference_spp,
-            unshadowed_spp=args.unshadowed_spp,
-        )
-        for s in args.surfaces
-    }
-    payload = {
-        "study": "the normal a pixel sees: footprint mean against the micro-geometry's visible mean",
-        "code_commit": code_commit(),
-        "command": " ".join(["python -m experiments.render_visibility", *(sys.argv[1:] if argv is None else argv)]),
-        "surfaces": surfaces,
-    }
-    write_results(study_dir("render_visibility", args.out), "visibility", payload)
-    return payload
+    return rv.diagnosis_main(
+        argv,
+        name="render_visibility/visibility",
+        study="the normal a pixel sees: footprint mean against the micro-geometry's visible mean",
+        run=run,
+    )
 
 
 if __name__ == "__main__":

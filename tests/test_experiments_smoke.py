@@ -1108,14 +1108,22 @@ def test_render_visibility_normal_differences_by_hand():
 
 @pytest.mark.slow  # ≈ 30 s on 2 cores (JAX lobe tables, Mitsuba compilation)
 def test_render_visibility_smoke(tmp_path):
-    """The visible-normal diagnosis: on a flat field every hit's normal is the plane's (visible slopes 0); on the
-    anisotropic surface its footprint-normal brdfscale row is render_masking's closed-form row to the last digit
-    (the same truth, seeds, normals and material), and the visible normals differ from the footprint's."""
+    """The visible-normal diagnosis: on a flat field every hit's normal is the plane's (visible slopes 0); on a
+    smooth low-relief field (rms slope ≈ 0.03) the visible slopes follow the footprints' mean slopes (correlation
+    > 0.5 per axis: the same convention m = −∇h, a sign error would make it negative); on the anisotropic surface
+    its footprint-normal brdfscale row is render_masking's closed-form row to the last digit (the same truth, seeds,
+    normals and material), and the visible normals differ from the footprint's."""
     rv = _render_validation()
     from experiments import render_masking, render_visibility
 
-    flat = rv.MicroGeometry(synth.HeightField(np.zeros((128, 128)), 1.0), render_plane.Camera(24, 16), alpha0=0.4)
+    camera = render_plane.Camera(24, 16)
+    flat = rv.MicroGeometry(synth.HeightField(np.zeros((128, 128)), 1.0), camera, alpha0=0.4)
     np.testing.assert_allclose(flat.visible_slopes(4, seed=1), 0.0, atol=1e-6)
+    smooth = synth.spectral_field(stats.GaussianCorrelation(rms_height=0.5, correlation_length=24.0), size=128, seed=4)
+    visible = rv.MicroGeometry(smooth, camera, alpha0=0.4).visible_slopes(16, seed=1)
+    footprint = rv.mean_slopes(smooth, camera, render_plane.footprints(camera), seed=2)
+    for axis in (0, 1):
+        assert np.corrcoef(visible[..., axis].ravel(), footprint[..., axis].ravel())[0, 1] > 0.5
     argv = ["--surfaces", "anisotropic", "--width", "48", "--height", "32", "--size", "128"]
     argv += ["--reference-spp", "16", "--unshadowed-spp", "4"]
     visible = render_visibility.main([*argv, "--out", str(tmp_path / "v")])["surfaces"]["anisotropic"]
