@@ -450,8 +450,8 @@ class MicroGeometry:
         mi, cam = self.mi, self.camera
         total = np.zeros(cam.width * cam.height)
         started = time.perf_counter()
-        light = mi.Vector3f(*map(float, self.light))
         for m, si in self._passes(spp, seed):
+            light = mi.Vector3f(*map(float, self.light))  # per pass (below: why)
             lit = si.is_valid()
             if shadows:
                 lit &= ~self.scene.ray_test(si.spawn_ray(light), si.is_valid())
@@ -460,6 +460,8 @@ class MicroGeometry:
             sums = dr.block_sum(value, m)
             dr.eval(sums)
             total += np.asarray(sums, dtype=float)
+        # one light vector made before the loop was evaluated at the first pass's size and refused by a later pass
+        # of another size (Dr.Jit: "operands have incompatible sizes", 192 × 128 px at 256 spp)
         return (total / spp).reshape(cam.height, cam.width), time.perf_counter() - started
 
     def visible_slopes(self, spp: int, seed: int) -> np.ndarray:

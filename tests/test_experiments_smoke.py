@@ -1005,17 +1005,21 @@ def test_render_validation_shading_fresh_arrays_runs_one_kernel():
 
 
 @pytest.mark.slow  # 20–60 s on 2 cores (Mitsuba compiles the tracer's kernels)
-def test_render_validation_micro_geometry_of_a_flat_field_is_the_plane_material():
+def test_render_validation_micro_geometry_of_a_flat_field_is_the_plane_material(monkeypatch):
     """A flat height field, meshed, tiled and traced (jittered camera rays, shadow rays), renders what the naive
     plane material gives averaged over each pixel (8 × 8 points): the tracer's camera, light and frames agree with
     the planes'. Tolerances: per pixel 5 % (about 3 standard deviations of 256 jittered rays on the glint's steepest
-    pixels, where the radiance changes by a factor 3 across a pixel), the image mean 0.5 %."""
+    pixels, where the radiance changes by a factor 3 across a pixel), the image mean 0.5 %. The rays go in passes of
+    unequal size (100, 100, 56 per pixel: a pass of another size once failed), and without shadow rays the flat
+    field renders the same image (nothing shadows it)."""
     rv = _render_validation()
     mi = rv.mitsuba()
     field = synth.HeightField(np.zeros((128, 128)), 1.0)
     camera = render_plane.Camera(24, 16)
+    monkeypatch.setattr(rv, "RAYS_PER_PASS", 100 * 24 * 16)
     geometry = rv.MicroGeometry(field, camera, alpha0=0.4)
     truth, _ = geometry.render(256, seed=1)
+    np.testing.assert_array_equal(geometry.render(256, seed=1, shadows=False)[0], truth)
     row, col = np.mgrid[0:16, 0:24]
     sub = (np.arange(8) + 0.5) / 8
     _, view = camera.hit(
