@@ -560,15 +560,14 @@ def add_scene_arguments(parser) -> None:
 def diagnosis_main(argv, *, name: str, study: str, run) -> dict:
     """The command line of a study 8 diagnosis (experiments/render_masking.py, render_visibility.py): the scene's
     options and ``--unshadowed-spp``; ``run(surface=…, size=…, width=…, height=…, alpha0=…, reference_spp=…,
-    unshadowed_spp=…)`` per surface; writes ``experiments/results/<name>/<file>.json`` (``--out``) with the commit
-    and the command."""
+    unshadowed_spp=…)`` per surface; ``name`` is ``"<folder>/<file>"``: the script experiments/<folder>.py writes
+    ``experiments/results/<folder>/<file>.json`` (or into ``--out``) with the commit and the command."""
     import sys
 
     from experiments._bench import code_commit
 
-    module = sys.modules[run.__module__]
-    folder, file = name.split("/")
-    parser = argparse.ArgumentParser(description=(module.__doc__ or study).splitlines()[0])
+    folder, file = name.split("/")  # the script is experiments/<folder>.py
+    parser = argparse.ArgumentParser(description=(sys.modules[run.__module__].__doc__ or study).splitlines()[0])
     add_scene_arguments(parser)
     parser.add_argument("--unshadowed-spp", type=int, default=256, help="study 8's: its ladder's largest spp")
     parser.add_argument("--out", default=None, help=f"output folder (default experiments/results/{folder})")
@@ -578,7 +577,7 @@ def diagnosis_main(argv, *, name: str, study: str, run) -> dict:
     payload = {
         "study": study,
         "code_commit": code_commit(),
-        "command": " ".join([f"python -m {run.__module__}", *(sys.argv[1:] if argv is None else argv)]),
+        "command": " ".join([f"python -m experiments.{folder}", *(sys.argv[1:] if argv is None else argv)]),
         "surfaces": {s: run(surface=s, **options, **spp) for s in args.surfaces},
     }
     write_results(study_dir(folder, args.out), file, payload)
