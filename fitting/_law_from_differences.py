@@ -102,6 +102,14 @@ class LawFromDifferences:
 
         return float(stats.chi2.sf(self.chi2, self.dof))
 
+    @property
+    def p_text(self) -> str | None:
+        """``p = …`` for a line (``p < 1e-300`` where it underflows to 0), None where there is no p."""
+        p = self.p_value
+        if p is None:
+            return None
+        return "p < 1e-300" if p == 0 else f"p = {p:.2g}"
+
     def inadequate_because(self, thresholds=None) -> str | None:
         """One line saying why the law does not describe the ΔΣ estimates it was fitted to, or None: by the rule of
         :func:`fitting.assess` (``thresholds``: :data:`brdfscale.choices.ADEQUACY` unless given) — χ²/dof above
@@ -113,7 +121,7 @@ class LawFromDifferences:
             return None
         return (
             f"the {type(self.model.law).__name__.lower()} law fitted to the per-scale ΔΣ estimates does not describe "
-            f"them (generalised χ²/dof = {self.chi2:.3g}/{self.dof}, p = {p:.2g} < {thresholds.p_value:g}): "
+            f"them (generalised χ²/dof = {self.chi2:.3g}/{self.dof}, {self.p_text} < {thresholds.p_value:g}): "
             "predictions beyond the measured scales extrapolate through it"
         )
 
@@ -134,7 +142,7 @@ class LawFromDifferences:
 
     def __repr__(self) -> str:
         law = type(self.model.law).__name__
-        p = "" if self.p_value is None else f", p = {self.p_value:.3g}"
+        p = "" if self.p_text is None else f", {self.p_text}"
         return (
             f"LawFromDifferences({law} law on {len(self.scales)} scales, χ²/dof = {self.chi2:.3g}/{self.dof}{p}, "
             f"φ = {float(self.theta[self.model.names.index('phi')]):.3g} rad)"

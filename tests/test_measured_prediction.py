@@ -289,7 +289,11 @@ def test_the_command_writes_the_predicted_lobes(tmp_path, capsys, monkeypatch, m
     assert re.search(
         r"predicted_lobes.exr: 2 lobes at μ = \[16, 32\] px, predicted from the "
         r"(measured lobe at μ = 8|model's lobe at μ = 1) px; at the coarsest fitted scale χ²/n .*"
-        + (r"; ΔΣ from a width law fitted to the per-scale ΔΣ \(χ²/dof = .*/2, p = [^)]*\)" if per_scale else ""),
+        + (
+            r"; ΔΣ from a width law fitted to the per-scale ΔΣ \(χ²/dof = .*/2, p (= [^)]*|< 1e-300)\)"
+            if per_scale
+            else ""
+        ),
         printed,
     )
     predicted = exr.read_measurements(out / "predicted_lobes.exr")
@@ -532,8 +536,13 @@ def test_a_law_the_differences_reject_makes_the_prediction_inadequate():
     )
     assert re.fullmatch(
         r"the width law fitted to the per-scale ΔΣ estimates does not describe them \(generalised χ²/dof = .*/5, "
-        r"p = .* < 0.001\): predictions beyond the measured scales extrapolate through it",
+        r"p (= .*|< 1e-300) < 0.001\): predictions beyond the measured scales extrapolate through it",
         law.inadequate_because() or "",
+    )
+    assert law.p_text == ("p < 1e-300" if law.p_value == 0 else f"p = {law.p_value:.2g}")
+    assert (
+        exact.p_text == f"p = {exact.p_value:.2g}"
+        and fitting.law_from_differences(model, theta, _with_std(_components(truths), covariance), data).p_text is None
     )
     out = fitting.predict_from_measured(
         model,

@@ -332,7 +332,7 @@ def write_predictions(fitting, problem, result, args, unit, resume: bool = False
         if out.law is None
         else f"; ΔΣ from a {type(out.law.model.law).__name__.lower()} law fitted to the per-scale ΔΣ "
         f"(χ²/dof = {out.law.chi2:.3g}/{out.law.dof}"
-        f"{'' if out.law.p_value is None else f', p = {out.law.p_value:.2g}'}"
+        f"{'' if out.law.p_text is None else f', {out.law.p_text}'}"
         f"{'' if out.law.converged else ', its solve not converged'})"
     )
     return f"wrote {path}: {len(out.scales)} lobes at {shown}, predicted from {source}{why}{law}", (
