@@ -557,6 +557,30 @@ def add_scene_arguments(parser) -> None:
     parser.add_argument("--surfaces", nargs="+", default=list(SURFACES), choices=SURFACES)
 
 
+FAR = 8.0
+"""Texels: the footprints the band-bias target is about (μ ≥ 8; bench_render's verdicts)."""
+
+
+def far_bias(bands: list[dict], key: str) -> float | None:
+    """The mean of |signed band bias| (:func:`signed_bias`' ``key``: ``"truth"`` or ``"without_shadow_rays"``) over
+    the bands whose lower edge is ≥ :data:`FAR` texels; None where there is none."""
+    far = [abs(b[key]) for b in bands if b["mu_band_px"][0] >= FAR]
+    return float(np.mean(far)) if far else None
+
+
+def diagnosis_record(signed: dict, **fields) -> dict:
+    """A diagnosis' record of one surface: ``fields`` (its scene and options), the signed band biases per material
+    and their :func:`far_bias` against the truth and against the truth without shadow rays."""
+    return {
+        **fields,
+        "signed_bias": signed,
+        "far_bias": {
+            name: {"truth": far_bias(bands, "truth"), "without_shadow_rays": far_bias(bands, "without_shadow_rays")}
+            for name, bands in signed.items()
+        },
+    }
+
+
 def diagnosis_main(argv, *, name: str, study: str, run) -> dict:
     """The command line of a study 8 diagnosis (experiments/render_masking.py, render_visibility.py): the scene's
     options and ``--unshadowed-spp``; ``run(surface=…, size=…, width=…, height=…, alpha0=…, reference_spp=…,

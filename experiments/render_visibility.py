@@ -9,7 +9,7 @@ towards the camera (the others are hidden behind the relief), displaced from the
 heights. Here each material is shaded twice on study 8's scene, surfaces and seeds — with the footprint mean
 normal (the study's) and with the mean slope of the triangles the truth's own camera rays hit
 (:meth:`render_validation.MicroGeometry.visible_slopes`, the same jittered rays as the truth) — and the signed band
-biases compared (:func:`render_validation.signed_bias`; mean |·| where μ ≥ 8, :func:`render_masking.far_bias`).
+biases compared (:func:`render_validation.signed_bias`; mean |·| where μ ≥ 8, :func:`render_validation.far_bias`).
 The visible mean is what no renderer has without tracing the relief: a diagnosis of where the bias comes from, not
 a material.
 
@@ -31,7 +31,6 @@ import numpy as np  # noqa: E402
 
 from brdfscale import lobes, render  # noqa: E402
 from experiments import render_validation as rv  # noqa: E402
-from experiments.render_masking import far_bias  # noqa: E402
 
 
 NORMALS = ("footprint", "visible")
@@ -92,21 +91,16 @@ def run(
         wi, wo = rv.plane_directions(setup.camera, slopes, setup.geometry.light)
         for name, bsdf in materials.items():
             images[f"{name}, {normal} normal"] = rv.shade(mi, bsdf, wi, wo, setup.mu.ravel()).reshape(setup.mu.shape)
-    signed = rv.signed_bias(images, truth, unshadowed, setup.mu)
-    return {
-        "surface": surface,
-        "tile_size": size,
-        "image": [width, height],
-        "alpha0": alpha0,
-        "reference_spp": reference_spp,
-        "unshadowed_spp": unshadowed_spp,
-        "normal_differences": normal_differences(normals["footprint"], normals["visible"], setup.mu),
-        "signed_bias": signed,
-        "far_bias": {
-            name: {"truth": far_bias(bands, "truth"), "without_shadow_rays": far_bias(bands, "without_shadow_rays")}
-            for name, bands in signed.items()
-        },
-    }
+    return rv.diagnosis_record(
+        rv.signed_bias(images, truth, unshadowed, setup.mu),
+        surface=surface,
+        tile_size=size,
+        image=[width, height],
+        alpha0=alpha0,
+        reference_spp=reference_spp,
+        unshadowed_spp=unshadowed_spp,
+        normal_differences=normal_differences(normals["footprint"], normals["visible"], setup.mu),
+    )
 
 
 def main(argv=None):

@@ -757,6 +757,25 @@ MASKING_NAMES = {
 }
 
 
+def far_signed_rows(record: dict, names: dict | None = None) -> tuple[list, list[list[str]]]:
+    """A study 8 diagnosis' record (experiments.render_validation.diagnosis_record): the μ bands ≥ 8 and per
+    material a row — its name (``names`` maps it), the signed band biases against the truth / the truth without shadow
+    rays, their mean |·| (its ``far_bias``)."""
+    first = next(iter(record["signed_bias"].values()))
+    bands = [x["mu_band_px"] for x in first if x["mu_band_px"][0] >= 8]
+    rows = []
+    for name, signed in record["signed_bias"].items():
+        mean = record["far_bias"][name]
+        rows.append(
+            [
+                (names or {}).get(name, name),
+                *[f"{x['truth']:+.3f} / {x['without_shadow_rays']:+.3f}" for x in signed if x["mu_band_px"][0] >= 8],
+                f"{mean['truth']:.3f} / {mean['without_shadow_rays']:.3f}",
+            ]
+        )
+    return bands, rows
+
+
 def masking_diagnosis() -> list[str]:
     """experiments/render_masking.py: study 8's brdfscale material with its masking changed, per surface the signed
     band bias where μ ≥ 8 and its mean |·| (the ratio to LEAN's from the study's own JSON)."""
@@ -770,20 +789,9 @@ def masking_diagnosis() -> list[str]:
         lean = None
         if study.exists():
             lean = json.loads(study.read_text())["errors"]["lean"]["mu_ge_threshold"]["bias_mean_over_bands"]
-        first = next(iter(record["signed_bias"].values()))
-        bands = [x["mu_band_px"] for x in first if x["mu_band_px"][0] >= 8]
-        rows = []
-        for name, signed in record["signed_bias"].items():
-            far = [x for x in signed if x["mu_band_px"][0] >= 8]
-            mean = record["far_bias"][name]
-            rows.append(
-                [
-                    MASKING_NAMES.get(name, name),
-                    *[f"{x['truth']:+.3f} / {x['without_shadow_rays']:+.3f}" for x in far],
-                    f"{mean['truth']:.3f} / {mean['without_shadow_rays']:.3f}",
-                    "—" if lean is None else f"{mean['truth'] / lean:.2f}",
-                ]
-            )
+        bands, rows = far_signed_rows(record, MASKING_NAMES)
+        for row, mean in zip(rows, record["far_bias"].values()):
+            row.append("—" if lean is None else f"{mean['truth'] / lean:.2f}")
         out.append(
             f"Masking across footprints ({surface}; `{d['command']}`, code at {d['code_commit'][:7]}): the brdfscale "
             "material with only its masking changed — the signed band bias where μ ≥ 8 against the truth / against "
@@ -804,19 +812,7 @@ def visibility_diagnosis() -> list[str]:
     d = json.loads(path.read_text())
     out = []
     for surface, record in d["surfaces"].items():
-        first = next(iter(record["signed_bias"].values()))
-        bands = [x["mu_band_px"] for x in first if x["mu_band_px"][0] >= 8]
-        rows = []
-        for name, signed in record["signed_bias"].items():
-            far = [x for x in signed if x["mu_band_px"][0] >= 8]
-            mean = record["far_bias"][name]
-            rows.append(
-                [
-                    name,
-                    *[f"{x['truth']:+.3f} / {x['without_shadow_rays']:+.3f}" for x in far],
-                    f"{mean['truth']:.3f} / {mean['without_shadow_rays']:.3f}",
-                ]
-            )
+        bands, rows = far_signed_rows(record)
         differences = [
             [
                 f"[{r['mu_band_px'][0]:g}, {r['mu_band_px'][1]:g})",

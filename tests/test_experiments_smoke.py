@@ -1063,17 +1063,17 @@ def test_render_validation_smoke(tmp_path):
     assert (tmp_path / "di-3.png").exists()
 
 
-def test_render_masking_far_bias_is_the_mean_absolute_signed_bias_where_mu_is_at_least_8():
-    from experiments import render_masking
+def test_render_validation_far_bias_is_the_mean_absolute_signed_bias_where_mu_is_at_least_8():
+    from experiments import render_validation
 
     bands = [
         {"mu_band_px": [4.0, 8.0], "truth": 5.0, "without_shadow_rays": 5.0},
         {"mu_band_px": [8.0, 16.0], "truth": -0.2, "without_shadow_rays": 0.1},
         {"mu_band_px": [16.0, 32.0], "truth": 0.4, "without_shadow_rays": -0.3},
     ]
-    assert render_masking.far_bias(bands, "truth") == pytest.approx(0.3)
-    assert render_masking.far_bias(bands, "without_shadow_rays") == pytest.approx(0.2)
-    assert render_masking.far_bias(bands[:1], "truth") is None
+    assert render_validation.far_bias(bands, "truth") == pytest.approx(0.3)
+    assert render_validation.far_bias(bands, "without_shadow_rays") == pytest.approx(0.2)
+    assert render_validation.far_bias(bands[:1], "truth") is None
 
 
 @pytest.mark.slow  # ≈ 15 s on 2 cores (JAX lobe tables, Mitsuba compilation)
