@@ -60,8 +60,8 @@ __all__ = ["LawFromDifferences", "law_from_differences"]
 
 _ENTRIES = DIFFERENCE_COMPONENTS
 _RANK = 1e-10
-"""Eigen-directions of the components' covariance below this fraction of its largest eigenvalue are left out of the
-generalised χ² (and of its degrees of freedom)."""
+"""Eigen-directions of the components' correlation matrix below this fraction of its largest eigenvalue are left out
+of the generalised χ² (and of its degrees of freedom)."""
 _SOLVER = optx.LevenbergMarquardt(rtol=1e-10, atol=1e-12)
 _MAX_STEPS = 2000
 _PHI_STARTS = (0.0, math.pi / 4, -math.pi / 4, math.pi / 2)

@@ -425,6 +425,7 @@ def write_report(
     draws = posterior_draws(problem, fit, samples) if figures else None
     corner_draws = posterior_draws(problem, fit, samples, n=CORNER_DRAWS) if figures else None
     observed_moments = moment_covariance_differences(problem.data)  # the verdict's and fit.json's
+    fit_json = fit.to_json()
     doc = {
         "brdfscale_version": brdfscale.__version__,
         "python": platform.python_version(),
@@ -443,13 +444,13 @@ def write_report(
         # ΔΣ(μ0, μk) ± Laplace std, with truth and pulls where the set records its surface (fitting._derived)
         "covariance_differences": compare_covariance_differences(fit.covariance_differences, covariance_truth),
         # their joint covariance (per coarser scale xx, xy, yy; null where an entry has no std): FitResult's
-        "differences_covariance": fit.to_json()["differences_covariance"],
+        "differences_covariance": fit_json["differences_covariance"],
         # the same from the images' own second moments, model-independent (fitting._moments)
         "moment_covariance_differences": compare_covariance_differences(observed_moments, covariance_truth),
-        "identifiability": fit.to_json()["identifiability"],
+        "identifiability": fit_json["identifiability"],
         "optimisation": {
             k: v
-            for k, v in fit.to_json().items()
+            for k, v in fit_json.items()
             if k not in ("identifiability", "ratios", "covariance_differences", "differences_covariance")
         },
         "mcmc": (
