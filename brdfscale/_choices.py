@@ -3,7 +3,7 @@
 
 Importing it imports neither JAX nor NumPy, so the command's help starts without them.
 
-* :data:`SOLVERS`, :data:`SAMPLERS`, :data:`MODELS`, :data:`FAMILIES`, :data:`LAWS`, :data:`SHAPES`,
+* :data:`SOLVERS`, :data:`SAMPLERS`, :data:`MODELS`, :data:`FAMILIES`, :data:`LAWS`, :data:`SHAPES`, :data:`INCREMENTS`,
   :data:`MASKING` — the names a fit accepts, each with a one-line description and the default (:class:`Choices`);
 * :data:`INSTRUMENTS`, :data:`WEIGHTINGS`, :data:`MICRO_FACETS` — ``brdfscale synth``'s instruments, pixel-facet
   weightings (also ``synth.gonioreflectometer``'s) and rough facets; :data:`BINNINGS`, :data:`MESHES`,
@@ -164,6 +164,19 @@ SHAPES = Choices(
         Choice("gaussian", "Gaussian (Beckmann) base lobe"),
         Choice("ggx", "GGX base lobe (bivariate Student-t of tail index 2)"),
         Choice("student_t", "bivariate Student-t base lobe with a free tail index ν (heavy tails)"),
+    ),
+    default="gaussian",
+)
+
+INCREMENTS = Choices(
+    "increments",
+    (
+        Choice("gaussian", "each scale's change a Gaussian of covariance ΔΣ_k (Gaussian statistics: covariances add)"),
+        Choice(
+            "mixture",
+            "each scale's change a two-Gaussian scale mixture of the same covariance ΔΣ_k, its tail weight and "
+            "width ratio shared by the scales (heavy-tailed changes: a few steep facets)",
+        ),
     ),
     default="gaussian",
 )
@@ -415,13 +428,14 @@ class SampleDefaults:
 
 @dataclasses.dataclass(frozen=True)
 class ModelDefaults:
-    """The defaults of the fitting models' options: ``fitting.AnisotropicModel(shape=)``,
+    """The defaults of the fitting models' options: ``fitting.AnisotropicModel(shape=, increments=)``,
     ``fitting.ParametricModel(family, family, law=)`` and
     ``fitting.NonParametricModel(base_nodes=, n_knots=, regularisation=)`` (``regularisation``
     None: the weight ``smoothness`` of the smoothness prior)."""
 
     model: str = MODELS.default
     shape: str = SHAPES.default
+    increments: str = INCREMENTS.default
     family: str = FAMILIES.default
     law: str = LAWS.default
     base_nodes: int = 13

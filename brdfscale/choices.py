@@ -1,7 +1,7 @@
 """The names a fit accepts and the defaults of its options, in one table (JAX-free).
 
-* :data:`SOLVERS`, :data:`SAMPLERS`, :data:`MODELS`, :data:`SHAPES`, :data:`FAMILIES`, :data:`LAWS`,
-  :data:`MASKING` — each a :class:`Choices`: the accepted names in order, a one-line description of each
+* :data:`SOLVERS`, :data:`SAMPLERS`, :data:`MODELS`, :data:`SHAPES`, :data:`INCREMENTS`, :data:`FAMILIES`,
+  :data:`LAWS`, :data:`MASKING` — each a :class:`Choices`: the accepted names in order, a one-line description of each
   (``SAMPLERS.summary("nuts")``, ``SAMPLERS.help()``) and the default (``SAMPLERS.default``);
 * :data:`INSTRUMENTS`, :data:`WEIGHTINGS`, :data:`MICRO_FACETS` — ``brdfscale synth``'s ``--instrument``,
   ``--weighting`` (also ``synth.gonioreflectometer``'s) and ``--micro``; :data:`BINNINGS`, :data:`MESHES`,
@@ -32,6 +32,7 @@ from ._choices import (
     FitDefaults,
     FOOTPRINTS,
     FORMS,
+    INCREMENTS,
     INSTRUMENTS,
     LAWS,
     MASKING,
@@ -58,6 +59,7 @@ __all__ = [
     "FIT",
     "FOOTPRINTS",
     "FORMS",
+    "INCREMENTS",
     "INSTRUMENTS",
     "LAWS",
     "MASKING",

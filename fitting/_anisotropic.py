@@ -35,7 +35,25 @@ quadrature of the same integral the error is ≤ 5e-7 of the peak for every ν o
 * per coarser scale k = 1 … K−1 the increment ``ΔΣ_k − ΔΣ_{k−1} = M_k M_kᵀ`` by its Cholesky
   factor (``log M{k}_xx``, ``M{k}_yx``, ``log M{k}_yy``), so ``ΔΣ_k = Σ_{j≤k} M_j M_jᵀ`` is
   positive definite and monotone in k (``ΔΣ_{k+1} − ΔΣ_k`` positive definite) by construction;
+* ``logit w``, ``log f-1`` (``increments="mixture"`` only; below) — the increments' tail weight and width ratio;
 * ``log nu`` (last; ``shape="student_t"`` only) — the tail index, 1 ≤ ν ≤ 200 in the prior.
+
+Heavy-tailed increments (``increments="mixture"``). On a real surface the change of the lobe between two scales
+is often not Gaussian: a few steep facets carry most of the slope variance (on frt-1 of tests/data 0.9 % of the
+pixel slopes carry 98 % of Σ, :func:`brdfscale.topography.slope_outliers`), so the lobe at μ_k has a core of the
+μ0 lobe's width and tails far wider. The change is then a two-Gaussian scale mixture of covariance ΔΣ_k,
+
+    K_k = (1 − w) N(0, s_c ΔΣ_k) + w N(0, s_t ΔΣ_k),   s_c = 1/(1 − w + w f),  s_t = f s_c,
+
+whose covariance is ΔΣ_k exactly (``(1 − w) s_c + w s_t = 1``), so ΔΣ_k keeps its meaning — the second-moment
+difference a topography measures — while the tail weight ``w`` and the ratio ``f > 1`` of the two components'
+variances (shared by every scale: two coordinates, not two per scale) give the change its kurtosis, ``3[(1 − w +
+w f²)/(1 − w + w f)² − 1]`` in excess. Its relative statistics are ``R_k(W) = (1 − w) exp(−½ s_c Wᵀ ΔΣ_k W) + w
+exp(−½ s_t Wᵀ ΔΣ_k W)`` (seed Eq. 4.4 with the kernel's characteristic function), and the lobe at μ_k is
+``A Σ_j Σ_i c_j v_i N(u; m0, C_j + s_i ΔΣ_k)`` over the base lobe's components C_j (one for a Gaussian lobe,
+the scale mixture above for a heavy-tailed one) and the kernel's two. ``f → 1`` is the Gaussian increment.
+(:meth:`AbstractCovarianceModel.increment_mixture`; tests/test_increments.py checks the density against SciPy's
+quadrature of the convolution and R_k against the kernel's characteristic function by quadrature.)
 
 ``isotropic=True`` is the special case ``C0 = v0 I``, ``M_k M_kᵀ = d_k I``, centred (θ: ``log
 amplitude``, ``log v0``, ``log d_k``): it is :class:`fitting.ParametricModel`'s Beckmann lobe with
@@ -55,13 +73,13 @@ from jaxtyping import Array, Float
 
 from brdfscale import evolve, InvalidInputError, lobes, stats
 from brdfscale.checks import integer
-from brdfscale.choices import MODEL, SHAPES
+from brdfscale.choices import INCREMENTS, MODEL, SHAPES
 
 from ._data import Dataset
 from ._model import AbstractModel, moments
 
 
-__all__ = ["AnisotropicModel", "image_moments", "MIXTURE_CUTOFF", "MIXTURE_NODES", "NU_RANGE"]
+__all__ = ["AnisotropicModel", "image_moments", "MIXTURE_CUTOFF", "MIXTURE_NODES", "NU_RANGE", "TAIL_START"]
 
 MIXTURE_NODES = 64
 """Trapezoidal nodes in ln τ of a heavy-tailed lobe's Gaussian scale mixture (module docstring)."""
@@ -73,6 +91,13 @@ truncation, ~3e-7, then dominates the trapezoidal rule's error on 64 nodes down 
 NU_RANGE = (1.0, 200.0)
 """The prior range of the Student-t tail index ν (ν = 1: Cauchy-like tails; 200: Gaussian to
 within the noise of any lobe measured here)."""
+
+TAIL_START = (0.1, 5.0)
+"""The start of a mixture increment's tail weight w and variance ratio f (``increments="mixture"``): on the real files
+of tests/data the fits end at w 0.005–0.3, f 2–14 (experiments/bench_increments.py)."""
+
+_TAIL_BOUNDS = ((-12.0, 4.0), (math.log(0.05), math.log(1e4)))
+"""The prior box of ``logit w`` (w from 6e-6 to 0.98) and ``log f-1`` (f from 1.05 to 1e4)."""
 
 _HALF_MAX_FACTOR = 2 / math.log(2)
 """A Gaussian of covariance C exceeds half its peak on the ellipse ``dᵀC⁻¹d ≤ 2 ln 2``; the uniform
@@ -115,13 +140,14 @@ _NU_START = 4.0
 def _mixture_density(
     d: Float[Array, "n 2"],
     factor: Float[Array, " j"],
+    scale: Float[Array, " j"],
     weight: Float[Array, " j"],
     c0: Float[Array, "2 2"],
     delta: Float[Array, "2 2"],
 ) -> Float[Array, " n"]:
-    """``Σ_j w_j N(d; 0, c_j C0 + ΔΣ)`` (the Gaussian written out: one 2 × 2 determinant and
+    """``Σ_j w_j N(d; 0, c_j C0 + s_j ΔΣ)`` (the Gaussian written out: one 2 × 2 determinant and
     inverse per component)."""
-    cov = factor[:, None, None] * c0 + delta
+    cov = factor[:, None, None] * c0 + scale[:, None, None] * delta
     a, b, c = cov[:, 0, 0, None], cov[:, 0, 1, None], cov[:, 1, 1, None]
     det = a * c - b * b
     x, y = d[None, :, 0], d[None, :, 1]
@@ -145,21 +171,34 @@ class AbstractCovarianceModel(AbstractModel):
     def covariance_differences(self, theta: Float[Array, " n"], scales: Float[Array, " k"]) -> Float[Array, "k 2 2"]:
         """``ΔΣ(μ0, μ_k)`` at each scale."""
 
+    def increment_mixture(self, theta: Float[Array, " n"]) -> tuple[Float[Array, " i"], Float[Array, " i"]]:
+        """``(v_i, s_i)``: the change between μ0 and μ_k is ``Σ_i v_i N(0, s_i ΔΣ_k)`` with ``Σ v_i s_i = 1``
+        (its covariance is ΔΣ_k). Here one Gaussian, ``(1,), (1,)``; :class:`AnisotropicModel` with
+        ``increments="mixture"`` two (module docstring)."""
+        one = jnp.ones(1, jnp.asarray(theta).dtype)
+        return one, one
+
     def relative_statistics(self, theta, W, scales):
         """``R_k`` at radii ``|W|`` (W of shape (w,)): for an anisotropic ΔΣ_k the geometric mean of
         ``R_k`` over the directions of the circle |W|, ``exp(−¼ |W|² tr ΔΣ_k)`` (the mean of
-        ``Wᵀ ΔΣ W`` over directions is ``½ |W|² tr ΔΣ``); for an isotropic ΔΣ it is ``R_k`` itself.
+        ``Wᵀ ΔΣ W`` over directions is ``½ |W|² tr ΔΣ``), taken per component of a mixture increment
+        (:meth:`increment_mixture`) and mixed; for an isotropic ΔΣ it is ``R_k`` itself.
         :meth:`relative_statistics_plane` gives ``R_k`` over the W plane."""
         differences = self.covariance_differences(theta, scales)
         trace = differences[:, 0, 0] + differences[:, 1, 1]
-        return jnp.exp(-0.25 * trace[:, None] * jnp.asarray(W)[None, :] ** 2)
+        weight, scale = self.increment_mixture(theta)
+        exponent = -0.25 * scale[:, None, None] * trace[None, :, None] * jnp.asarray(W)[None, None, :] ** 2
+        return jnp.sum(weight[:, None, None] * jnp.exp(exponent), axis=0)
 
     def relative_statistics_plane(
         self, theta: Float[Array, " n"], W: Float[Array, "w 2"], scales: Float[Array, " k"]
     ) -> Float[Array, "k w"]:
-        """``R_k(W) = S(W, μ0)/S(W, μ_k) = exp(−½ Wᵀ ΔΣ_k W)`` at points ``W`` of the plane."""
+        """``R_k(W) = S(W, μ0)/S(W, μ_k) = Σ_i v_i exp(−½ s_i Wᵀ ΔΣ_k W)`` at points ``W`` of the plane (one term,
+        ``exp(−½ Wᵀ ΔΣ_k W)``, for Gaussian increments: :meth:`increment_mixture`)."""
         W = jnp.asarray(W)
-        return jnp.exp(-0.5 * jnp.einsum("wi,kij,wj->kw", W, self.covariance_differences(theta, scales), W))
+        quadratic = jnp.einsum("wi,kij,wj->kw", W, self.covariance_differences(theta, scales), W)
+        weight, scale = self.increment_mixture(theta)
+        return jnp.sum(weight[:, None, None] * jnp.exp(-0.5 * scale[:, None, None] * quadratic[None]), axis=0)
 
 
 class AnisotropicModel(AbstractCovarianceModel):
@@ -172,27 +211,46 @@ class AnisotropicModel(AbstractCovarianceModel):
         centred: hold the lobe's centre at the origin (no ``mean_x``, ``mean_y`` in θ).
         shape: the base lobe's shape, a name of :data:`brdfscale.choices.SHAPES`: ``"gaussian"``
             (default), ``"ggx"`` (Student-t, ν = 2) or ``"student_t"`` (free ν, θ's last coordinate).
+        increments: the change between scales, a name of :data:`brdfscale.choices.INCREMENTS`: ``"gaussian"``
+            (default) or ``"mixture"`` (heavy-tailed: ``logit w``, ``log f-1`` before ν; module docstring).
 
     Raises:
-        InvalidInputError: ``n_scales`` not an integer ≥ 2; an unknown ``shape``.
+        InvalidInputError: ``n_scales`` not an integer ≥ 2; an unknown ``shape`` or ``increments``.
     """
 
     n_scales: int = eqx.field(static=True)
     isotropic: bool = eqx.field(static=True)
     centred: bool = eqx.field(static=True)
     shape: str = eqx.field(static=True)
+    increments: str = eqx.field(static=True)
     preferred_solver: ClassVar[str] = "lm_normal"
 
-    def __init__(self, n_scales: int, *, isotropic: bool = False, centred: bool = False, shape: str = MODEL.shape):
+    def __init__(
+        self,
+        n_scales: int,
+        *,
+        isotropic: bool = False,
+        centred: bool = False,
+        shape: str = MODEL.shape,
+        increments: str = MODEL.increments,
+    ):
         self.n_scales = integer(n_scales, "n_scales", 2)
         if not isinstance(isotropic, bool) or not isinstance(centred, bool):
             raise InvalidInputError(f"isotropic and centred must be True or False; got {isotropic!r} and {centred!r}.")
         self.isotropic, self.centred = isotropic, centred or isotropic
         self.shape = SHAPES.check(shape)
+        self.increments = INCREMENTS.check(increments)
+
+    @property
+    def tail_names(self) -> tuple[str, ...]:
+        """The coordinates at θ's end, after the base lobe and the increments: the mixture increment's (``logit w``,
+        ``log f-1``) and the tail index's (``log nu``, last), each where the model has it."""
+        mixture = ("logit w", "log f-1") if self.increments == "mixture" else ()
+        return mixture + (("log nu",) if self.shape == "student_t" else ())
 
     @property
     def names(self) -> tuple[str, ...]:
-        tail = ("log nu",) if self.shape == "student_t" else ()
+        tail = self.tail_names
         if self.isotropic:
             return ("log amplitude", "log v0", *(f"log d{k}" for k in range(1, self.n_scales)), *tail)
         base = ("log amplitude", "log L0_xx", "L0_yx", "log L0_yy")
@@ -221,8 +279,7 @@ class AnisotropicModel(AbstractCovarianceModel):
     def parts(self, theta: Float[Array, " n"]) -> tuple:
         """``(A, C0 (2, 2), m0 (2,), ΔΣ (K, 2, 2))`` of θ, ``ΔΣ[0] = 0``."""
         theta = jnp.asarray(theta)
-        if self.shape == "student_t":
-            theta = theta[:-1]  # ν: tail_index
+        theta = theta[: theta.shape[0] - len(self.tail_names)]  # w, f: increment_mixture; ν: tail_index
         amplitude = jnp.exp(theta[0])
         if self.isotropic:
             eye = jnp.eye(2, dtype=theta.dtype)
@@ -237,6 +294,17 @@ class AnisotropicModel(AbstractCovarianceModel):
             steps = jax.vmap(_from_cholesky)(m[:, 0], m[:, 1], m[:, 2])
         zero = jnp.zeros((1, 2, 2), theta.dtype)
         return amplitude, c0, mean, jnp.concatenate([zero, jnp.cumsum(steps, axis=0)])
+
+    def increment_mixture(self, theta: Float[Array, " n"]) -> tuple[Float[Array, " i"], Float[Array, " i"]]:
+        """``(v_i, s_i)`` of the change between scales (:meth:`AbstractCovarianceModel.increment_mixture`):
+        ``((1 − w, w), (s_c, s_t))`` for ``increments="mixture"`` (module docstring), one Gaussian otherwise."""
+        if self.increments == "gaussian":
+            return super().increment_mixture(theta)
+        theta = jnp.asarray(theta)
+        i = theta.shape[0] - len(self.tail_names)
+        w, f = jax.nn.sigmoid(theta[i]), 1 + jnp.exp(theta[i + 1])
+        core = 1 / (1 - w + w * f)
+        return jnp.stack([1 - w, w]), jnp.stack([core, f * core])
 
     def covariance_differences(self, theta: Float[Array, " n"], scales: Float[Array, " k"]) -> Float[Array, "k 2 2"]:
         """ΔΣ(μ0, μ_k) for every measured scale (row 0 is 0): exact, from θ."""
@@ -253,11 +321,15 @@ class AnisotropicModel(AbstractCovarianceModel):
 
     def quantities(self, theta):
         """Amplitude, the base lobe's covariance (Gaussian) or scale matrix (Student-t, GGX)
-        ``C0_*``, its centre and (Student-t) ν."""
+        ``C0_*``, its centre, (mixture increments) the tail weight ``w_tail`` and variance ratio ``f_tail`` and
+        (Student-t) ν."""
         amplitude, c0, mean, _ = self.parts(theta)
         values = {"amplitude": amplitude, "C0_xx": c0[0, 0], "C0_xy": c0[0, 1], "C0_yy": c0[1, 1]}
         if not self.centred:
             values.update(mean_x=mean[0], mean_y=mean[1])
+        if self.increments == "mixture":
+            weight, scale = self.increment_mixture(theta)
+            values.update(w_tail=weight[1], f_tail=scale[1] / scale[0])
         if self.shape == "student_t":
             values["nu"] = self.tail_index(theta)
         return values
@@ -274,17 +346,23 @@ class AnisotropicModel(AbstractCovarianceModel):
         # the base lobe at μ0; at μ_k the evolution by the relative statistics R_k = exp(−½ Wᵀ ΔΣ_k W)
         base = self.base_lobe(theta)
         amplitude, c0, mean, _ = self.parts(theta)
-        if self.shape == "gaussian":
+        if self.shape == "gaussian" and self.increments == "gaussian":
             # brdfscale.evolve(lobe, N(0, ΔΣ_k), δ)'s closed form: covariance C0 + ΔΣ_k
             coarser = jax.vmap(
                 lambda d, u: evolve(
                     base, stats.Gaussian(cov=d), stats.Delta(), method="closed_form", check=False
                 ).density(u)
             )(differences[1:], points[1:])
-        else:  # the scale mixture of the module docstring, every component's covariance + ΔΣ_k
+        else:  # the scale mixtures of the module docstring: every pair of a lobe's and an increment's components
             nu = self.tail_index(theta)
-            factor, weight = stats.StudentT(cov=c0, nu=nu).gaussian_mixture(MIXTURE_NODES, MIXTURE_CUTOFF)
-            coarser = jax.vmap(lambda d, u: amplitude * _mixture_density(u - mean, factor, weight, c0, d))(
+            if nu is None:
+                factor = weight = jnp.ones(1, c0.dtype)
+            else:
+                factor, weight = stats.StudentT(cov=c0, nu=nu).gaussian_mixture(MIXTURE_NODES, MIXTURE_CUTOFF)
+            v, s = self.increment_mixture(theta)
+            factor, scale = jnp.repeat(factor, s.shape[0]), jnp.tile(s, factor.shape[0])
+            weight = (weight[:, None] * v[None, :]).reshape(-1)
+            coarser = jax.vmap(lambda d, u: amplitude * _mixture_density(u - mean, factor, scale, weight, c0, d))(
                 differences[1:], points[1:]
             )
         return jnp.concatenate([base.density(points[0])[None], coarser])
@@ -300,6 +378,11 @@ class AnisotropicModel(AbstractCovarianceModel):
             cov = cov.copy()
             cov[0] *= 2 * math.log(2) / (nu * (2 ** (2 / (nu + 2)) - 1))
         tail = [math.log(_NU_START)] if self.shape == "student_t" else []
+        if self.increments == "mixture":  # the half-maximum moments see the core, s_c ΔΣ: ΔΣ is 1/s_c of them
+            w, f = TAIL_START
+            tail = [math.log(w / (1 - w)), math.log(f - 1), *tail]
+            cov = cov.copy()
+            cov[1:] = cov[0] + (cov[1:] - cov[0]) * (1 - w + w * f)
         pixel2 = min((2 * a / (n - 1)) ** 2 for a, n in zip(data.extents, data.image_sizes))
         amp, _ = moments(data)
         if self.isotropic:
@@ -340,10 +423,13 @@ class AnisotropicModel(AbstractCovarianceModel):
     def bounds(self, data):
         """A uniform prior in θ: amplitude 1e-8 … 1e8; the Cholesky diagonals (standard deviations
         along an axis) 1e-6 … 10 in slope units, their off-diagonals ±10; the centre inside the
-        largest image; (isotropic) variances 1e-12 … 100; (Student-t) ν in :data:`NU_RANGE`."""
+        largest image; (isotropic) variances 1e-12 … 100; (mixture increments) w from 6e-6 to 0.98, f from 1.05
+        to 1e4; (Student-t) ν in :data:`NU_RANGE`."""
         extent = max(data.extents)
         amp, sd = (math.log(1e-8), math.log(1e8)), (math.log(1e-6), math.log(10.0))
         tail_lo, tail_hi = ([math.log(NU_RANGE[0])], [math.log(NU_RANGE[1])]) if self.shape == "student_t" else ([], [])
+        if self.increments == "mixture":
+            tail_lo, tail_hi = [b[0] for b in _TAIL_BOUNDS] + tail_lo, [b[1] for b in _TAIL_BOUNDS] + tail_hi
         if self.isotropic:
             var = (2 * sd[0], 2 * sd[1])
             lo = [amp[0]] + [var[0]] * self.n_scales

@@ -62,7 +62,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 from brdfscale import InvalidInputError, lobes, stats
 from brdfscale.checks import flag, integer
-from brdfscale.choices import MODEL, SHAPES
+from brdfscale.choices import INCREMENTS, MODEL, SHAPES
 
 from ._anisotropic import AbstractCovarianceModel, AnisotropicModel, image_moments
 from ._data import Dataset
@@ -195,9 +195,11 @@ class AnisotropicLawModel(AbstractCovarianceModel):
         knots: the spline's knots per axis (≥ 2; default 3).
         centred: hold the lobe's centre at the origin.
         shape: the base lobe's shape, a name of :data:`brdfscale.choices.SHAPES`.
+        increments: the change between scales, a name of :data:`brdfscale.choices.INCREMENTS`
+            (:class:`AnisotropicModel`'s: ``"mixture"`` a two-Gaussian scale mixture of covariance ΔΣ).
 
     Raises:
-        InvalidInputError: an unknown law or shape; ``law="spline"`` without at least two scales.
+        InvalidInputError: an unknown law, shape or increments; ``law="spline"`` without at least two scales.
     """
 
     law: Law
@@ -212,6 +214,7 @@ class AnisotropicLawModel(AbstractCovarianceModel):
         knots: int = 3,
         centred: bool = False,
         shape: str = MODEL.shape,
+        increments: str = MODEL.increments,
     ):
         if isinstance(law, Law):
             self.law = law
@@ -226,11 +229,17 @@ class AnisotropicLawModel(AbstractCovarianceModel):
             self.law = Spline(float(mus[0]), float(mus[-1]), knots)
         else:
             raise InvalidInputError(f"law must be one of {list(ANISOTROPIC_LAWS)} or a fitting Law; got {law!r}.")
-        self.lobe = AnisotropicModel(2, centred=flag(centred, "centred"), shape=SHAPES.check(shape))
+        self.lobe = AnisotropicModel(
+            2, centred=flag(centred, "centred"), shape=SHAPES.check(shape), increments=INCREMENTS.check(increments)
+        )
 
     @property
     def shape(self) -> str:
         return self.lobe.shape
+
+    @property
+    def increments(self) -> str:
+        return self.lobe.increments
 
     @property
     def centred(self) -> bool:
@@ -242,8 +251,7 @@ class AnisotropicLawModel(AbstractCovarianceModel):
 
     @property
     def names(self) -> tuple[str, ...]:
-        tail = ("log nu",) if self.shape == "student_t" else ()
-        return (*self.lobe.names[: self._n_base], "phi", *self.law.names, *tail)
+        return (*self.lobe.names[: self._n_base], "phi", *self.law.names, *self.lobe.tail_names)
 
     @property
     def radial(self) -> bool:
@@ -261,7 +269,7 @@ class AnisotropicLawModel(AbstractCovarianceModel):
         """``(θ of self.lobe, φ, the law's coordinates)``; the lobe's one increment is unused (zeros)."""
         theta = jnp.asarray(theta)
         nb, nl = self._n_base, len(self.law.names)
-        tail = theta[-1:] if self.shape == "student_t" else theta[:0]
+        tail = theta[theta.shape[0] - len(self.lobe.tail_names) :]
         lobe = jnp.concatenate([theta[:nb], jnp.zeros(3, theta.dtype), tail])
         return lobe, theta[nb], theta[nb + 1 : nb + 1 + nl]
 
@@ -285,6 +293,10 @@ class AnisotropicLawModel(AbstractCovarianceModel):
 
     def tail_index(self, theta) -> Float[Array, ""] | None:
         return self.lobe.tail_index(self._split(theta)[0])
+
+    def increment_mixture(self, theta):
+        """The base lobe's model's (:meth:`AnisotropicModel.increment_mixture`)."""
+        return self.lobe.increment_mixture(self._split(theta)[0])
 
     def quantities(self, theta):
         """The base lobe's (:meth:`AnisotropicModel.quantities`), ``phi`` and the law's parameters."""
@@ -315,11 +327,12 @@ class AnisotropicLawModel(AbstractCovarianceModel):
             raise InvalidInputError(f"u must have shape (len(mu), points, 2) = ({mu.shape[0]}, p, 2); got {u.shape}.")
         concrete = not isinstance(mu, jax.core.Tracer) and not isinstance(theta, jax.core.Tracer)
         finer = np.asarray(mu) < float(mu0) if concrete else np.zeros(0, bool)
-        if finer.any() and self.shape != "gaussian":
+        if finer.any() and (self.shape != "gaussian" or self.increments != "gaussian"):
+            what = f"a {self.shape} lobe" if self.shape != "gaussian" else "a lobe with mixture increments"
             raise InvalidInputError(
-                f"a {self.shape} lobe has no lobe at scales finer than μ0 = {float(mu0):g} (μ = "
-                f"{np.asarray(mu)[finer].tolist()}): the deconvolution of a heavy-tailed lobe by Gaussian "
-                "statistics does not exist; predict at μ ≥ μ0."
+                f"{what} has no lobe at scales finer than μ0 = {float(mu0):g} (μ = "
+                f"{np.asarray(mu)[finer].tolist()}): the deconvolution of a heavy-tailed lobe, or by heavy-tailed "
+                "increments, does not exist; predict at μ ≥ μ0."
             )
         scales = jnp.concatenate([jnp.asarray([mu0], mu.dtype), mu])
         differences = self.covariance_differences(theta, scales)
@@ -343,7 +356,7 @@ class AnisotropicLawModel(AbstractCovarianceModel):
         # a change the half-maximum moments do not resolve starts at 5 % of the base lobe's variance (as the increments
         # of AnisotropicModel.initial), inside every law's prior box
         phi, law = self.law_start(np.asarray(data.scales), cov - cov[0], 0.05 * float(np.trace(cov[0])) / 2)
-        tail = list(start[-1:]) if self.shape == "student_t" else []
+        tail = list(start[len(start) - len(self.lobe.tail_names) :])
         return np.asarray([*start[: self._n_base], phi, *law, *tail])
 
     def law_start(
@@ -379,7 +392,7 @@ class AnisotropicLawModel(AbstractCovarianceModel):
         """The base lobe's prior (:meth:`AnisotropicModel.bounds`), φ in [−π, π], the law's box."""
         lo, hi = self.lobe.bounds(data)
         law_lo, law_hi = self.law.bounds(data)
-        tail = slice(-1, None) if self.shape == "student_t" else slice(0, 0)
+        tail = slice(len(lo) - len(self.lobe.tail_names), None)
         n = self._n_base
         return (
             np.asarray([*lo[:n], -math.pi, *law_lo, *lo[tail]]),

@@ -326,7 +326,9 @@ def law_from_differences(
         )
     scales = np.asarray(data.scales, dtype=float)
     index, value, std, rows = _entries(differences, scales)
-    law_model = AnisotropicLawModel(law, scales=scales, centred=model.centred, shape=model.shape)
+    law_model = AnisotropicLawModel(
+        law, scales=scales, centred=model.centred, shape=model.shape, increments=model.increments
+    )
     n_law = _n_coordinates(law_model)
     if len(value) < n_law:
         raise InvalidInputError(
@@ -347,7 +349,7 @@ def law_from_differences(
         delta[k, a, b] = delta[k, b, a] = x
     floor = 1e-3 * max(float(np.abs(delta).max()), 1e-300)  # an axis without change starts just above none
     phi0, _ = law_model.law_start(scales, delta, floor)
-    tail = theta[-1:] if model.shape == "student_t" else theta[:0]
+    tail = theta[len(theta) - len(model.tail_names) :]  # the increments' tail and ν, as the law's model has them
     args = [jnp.asarray(x) for x in (theta[: law_model.n_base], tail, lo, hi, scales, index, value, whiten)]
     best = None
     for offset in _PHI_STARTS:

@@ -38,6 +38,7 @@ from collections.abc import Sequence
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import jax.scipy.special
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
@@ -137,10 +138,18 @@ def _padded_points(u: np.ndarray, e: np.ndarray, pad: int) -> np.ndarray:
     return u[0, 0] + np.einsum("ab,ijb->ija", e, np.stack([j1, j0], axis=-1))
 
 
-def widen(image: Float[Array, "m m"], steps: Float[Array, "2 2"], delta: Float[Array, "2 2"]) -> Float[Array, "m m"]:
+def widen(
+    image: Float[Array, "m m"],
+    steps: Float[Array, "2 2"],
+    delta: Float[Array, "2 2"],
+    mixture: tuple[Float[Array, " i"], Float[Array, " i"], Float[Array, "2 2"]] | None = None,
+) -> Float[Array, "m m"]:
     """``image ⊛ N(0, delta)`` on its grid: the DFT of ``image`` times ``exp(−½ WᵀΔW)`` at the grid's frequencies
     (``steps``: the offset steps along the grid's axes 1 and 0 as columns), periodic — pad the image first.
-    Pure jax.numpy: differentiable in ``delta`` and ``image``."""
+    ``mixture = (v, s, before)``: the change between two scales of a model with mixture increments
+    (:meth:`fitting.AnisotropicModel.increment_mixture`, ``before`` = ΔΣ(μ0, μ_s), ``delta`` = ΔΣ(μ_s, μ)): the
+    factor is seed Eq. 4.4's ``S(W, μ_s)/S(W, μ) = R(W, μ)/R(W, μ_s)`` with ``R = Σ_i v_i exp(−½ s_i Wᵀ ΔΣ(μ0, ·)
+    W)`` (by log-sum-exp; bounded, as ΔΣ grows with μ). Pure jax.numpy: differentiable in ``delta`` and ``image``."""
     m = image.shape[0]
     omega = 2 * jnp.pi * jnp.fft.fftfreq(m)  # radians per pixel along each grid axis
     w0, w1 = jnp.meshgrid(omega, omega, indexing="ij")  # axis 0, axis 1 of the image
@@ -148,8 +157,22 @@ def widen(image: Float[Array, "m m"], steps: Float[Array, "2 2"], delta: Float[A
     winv = jnp.linalg.inv(steps).T
     wx = winv[0, 0] * w1 + winv[0, 1] * w0
     wy = winv[1, 0] * w1 + winv[1, 1] * w0
-    q = delta[0, 0] * wx**2 + 2 * delta[0, 1] * wx * wy + delta[1, 1] * wy**2
-    return jnp.real(jnp.fft.ifft2(jnp.fft.fft2(image) * jnp.exp(-0.5 * q)))
+
+    def quadratic(d):
+        return d[0, 0] * wx**2 + 2 * d[0, 1] * wx * wy + d[1, 1] * wy**2
+
+    q = quadratic(delta)
+    if mixture is None:
+        factor = jnp.exp(-0.5 * q)
+    else:
+        v, s, before = mixture
+        qb = quadratic(before)
+        log_v, s = jnp.log(v)[:, None, None], s[:, None, None]
+        factor = jnp.exp(
+            jax.scipy.special.logsumexp(log_v - 0.5 * s * (qb + q)[None], axis=0)
+            - jax.scipy.special.logsumexp(log_v - 0.5 * s * qb[None], axis=0)
+        )
+    return jnp.real(jnp.fft.ifft2(jnp.fft.fft2(image) * factor))
 
 
 # compiled once per model and grid size: the work of one prediction is a few array programs, which eager dispatch
@@ -258,8 +281,13 @@ def _predict(model, theta, data: Dataset, target: Dataset, base: str):
             if key not in bases:
                 bases[key] = _measured_base(model, theta, data, s, u, e, pad)
             image = bases[key]
-            delta = _differences(model, theta, jnp.asarray([scales[s], mu]))[1]
-            row = _widen(image, jnp.asarray(e), delta)[pad : pad + n, pad : pad + n].reshape(-1)
+            mixture = None
+            if getattr(model, "increments", "gaussian") == "mixture":  # the change from μ_s by Eq. 4.4's ratio
+                d = _differences(model, theta, jnp.asarray([mu0, scales[s], mu]))
+                delta, mixture = d[2] - d[1], (*model.increment_mixture(theta), d[1])
+            else:
+                delta = _differences(model, theta, jnp.asarray([scales[s], mu]))[1]
+            row = _widen(image, jnp.asarray(e), delta, mixture)[pad : pad + n, pad : pad + n].reshape(-1)
         rows.append(jnp.pad(row, (0, n_pix - n * n)))
     return jnp.stack(rows), tuple(mus), tuple(sources)
 

@@ -323,6 +323,6 @@ def test_the_command_builds_it_and_compares_it():
     with pytest.raises(InvalidInputError, match="law must be one of"):
         spec("--model", "anisotropic_law", "--law", "gaussian_surface").model_for(SMALL)
     names = [name for name, _ in _candidates(spec())]
-    assert names == ["isotropic", "anisotropic", "anisotropic:student_t", "anisotropic_law"]
+    assert names == ["isotropic", "anisotropic", "anisotropic:student_t", "anisotropic:mixture", "anisotropic_law"]
     names = [name for name, _ in _candidates(spec("--model", "anisotropic_law", "--law", "spline"))]
     assert names[-1] == "anisotropic_law:gaussian:spline"

@@ -278,7 +278,7 @@ def test_compare_reports_the_model_the_data_prefer(tmp_path, capsys):
     assert comparison["preferred"] == {"bic": "anisotropic", "aic": "anisotropic"}
     assert comparison["reported"] == "anisotropic" and doc["model"]["kind"] == "anisotropic"
     rows = {r["model"]: r for r in comparison["rows"]}
-    assert set(rows) == {"isotropic", "anisotropic", "anisotropic:student_t", "anisotropic_law"}
+    assert set(rows) == {"isotropic", "anisotropic", "anisotropic:student_t", "anisotropic:mixture", "anisotropic_law"}
     assert rows["isotropic"]["delta_bic"] > 10 and rows["anisotropic"]["delta_bic"] == 0
     assert doc["optimisation"]["reduced_chi2"] * (rows["anisotropic"]["n"] - 12) == pytest.approx(
         rows["anisotropic"]["chi2"], rel=1e-9

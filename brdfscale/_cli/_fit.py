@@ -16,7 +16,20 @@ import sys
 import types
 from typing import TYPE_CHECKING
 
-from .._choices import ADEQUACY, FAMILIES, FIT, LAWS, MASKING, MODEL, MODELS, SAMPLE, SAMPLERS, SHAPES, SOLVERS
+from .._choices import (
+    ADEQUACY,
+    FAMILIES,
+    FIT,
+    INCREMENTS,
+    LAWS,
+    MASKING,
+    MODEL,
+    MODELS,
+    SAMPLE,
+    SAMPLERS,
+    SHAPES,
+    SOLVERS,
+)
 from .._errors import InvalidInputError
 from ._options import integer, MAX_SEED, output_directory, real, seed
 
@@ -106,6 +119,13 @@ def add_fit_options(parser) -> None:
         choices=SHAPES.names,
         default=MODEL.shape,
         help=f"base lobe shape of the anisotropic, isotropic and anisotropic_law models — {SHAPES.help()}",
+    )
+    parser.add_argument(
+        "--increments",
+        choices=INCREMENTS.names,
+        default=MODEL.increments,
+        help=f"the change of the lobe between scales in the anisotropic, isotropic and anisotropic_law models — "
+        f"{INCREMENTS.help()}",
     )
     parser.add_argument(
         "--family",
@@ -255,6 +275,11 @@ def check_fit_options(args) -> None:
         raise InvalidInputError(
             "--shape applies to the anisotropic and isotropic models and to anisotropic_law only (--model anisotropic)."
         )
+    if args.increments != MODEL.increments and args.model not in ("anisotropic", "isotropic", "anisotropic_law"):
+        raise InvalidInputError(
+            "--increments applies to the anisotropic and isotropic models and to anisotropic_law only "
+            "(--model anisotropic)."
+        )
     if args.regularisation is not None and args.model != "nonparametric":
         raise InvalidInputError("--regularisation applies to the non-parametric model only (--model nonparametric).")
 
@@ -380,6 +405,7 @@ def spec_of(args, *, sampler: bool = True):
     return FitSpec(
         model=args.model,
         shape=args.shape,
+        increments=args.increments,
         family=args.family,
         law=args.law,
         fixed=tuple(args.fix),
@@ -463,10 +489,11 @@ def register(subparsers) -> None:
 #: The candidates of ``--compare``: (name in the table, FitSpec fields); the anisotropic
 #: non-parametric model is left out (minutes per fit; name it with --model to include it).
 COMPARED = (
-    ("isotropic", {"model": "isotropic", "shape": "gaussian"}),
-    ("anisotropic", {"model": "anisotropic", "shape": "gaussian"}),
-    ("anisotropic:student_t", {"model": "anisotropic", "shape": "student_t"}),
-    ("anisotropic_law", {"model": "anisotropic_law", "shape": "gaussian", "law": "width"}),
+    ("isotropic", {"model": "isotropic", "shape": "gaussian", "increments": "gaussian"}),
+    ("anisotropic", {"model": "anisotropic", "shape": "gaussian", "increments": "gaussian"}),
+    ("anisotropic:student_t", {"model": "anisotropic", "shape": "student_t", "increments": "gaussian"}),
+    ("anisotropic:mixture", {"model": "anisotropic", "shape": "gaussian", "increments": "mixture"}),
+    ("anisotropic_law", {"model": "anisotropic_law", "shape": "gaussian", "increments": "gaussian", "law": "width"}),
 )
 
 
@@ -475,9 +502,11 @@ def _candidates(spec: "FitSpec") -> "list[tuple[str, FitSpec]]":
     import dataclasses
 
     specs = [(name, dataclasses.replace(spec, **fields)) for name, fields in COMPARED]
-    if all((s.model, s.shape, s.law) != (spec.model, spec.shape, spec.law) for _, s in specs):
+    key = (spec.model, spec.shape, spec.increments, spec.law)
+    if all((s.model, s.shape, s.increments, s.law) != key for _, s in specs):
         shaped = ("anisotropic", "isotropic", "anisotropic_law")
         own = spec.model if spec.model not in shaped else f"{spec.model}:{spec.shape}"
+        own += f":{spec.increments}" if spec.model in shaped and spec.increments != "gaussian" else ""
         own += f":{spec.law}" if spec.model == "anisotropic_law" else ""
         specs.append((own, spec))
     return specs

@@ -6,7 +6,7 @@ import math
 import os
 import types
 
-from .._choices import FAMILIES, FIT, LAWS, MASKING, MODEL, MODELS, SAMPLE, SAMPLERS, SHAPES, SOLVERS
+from .._choices import FAMILIES, FIT, INCREMENTS, LAWS, MASKING, MODEL, MODELS, SAMPLE, SAMPLERS, SHAPES, SOLVERS
 from .._errors import InvalidInputError
 
 
@@ -48,6 +48,7 @@ def make_model(
     *,
     model=MODEL.model,
     shape=MODEL.shape,
+    increments=MODEL.increments,
     family=MODEL.family,
     law=MODEL.law,
     fixed=None,
@@ -60,7 +61,8 @@ def make_model(
     ``model``): a :class:`fitting.AnisotropicModel` (default; base lobe ``shape``; ``"isotropic"``
     its isotropic special case), a :class:`fitting.ParametricModel` (``family`` for lobe and
     statistics, scale ``law``, ``fixed`` values checked inside their prior box for these data) or a
-    non-parametric model built from ``data``. The report's ``solver`` is the one ``solver`` stands
+    non-parametric model built from ``data``; ``increments`` the change between scales of the anisotropic models
+    (:data:`brdfscale.choices.INCREMENTS`). The report's ``solver`` is the one ``solver`` stands
     for with this model (``"auto"`` resolved).
 
     Raises:
@@ -86,19 +88,21 @@ def make_model(
         }
     elif model in ("anisotropic", "isotropic"):
         isotropic = model == "isotropic"
-        built = cls(len(data.scales), isotropic=isotropic, shape=shape)
+        built = cls(len(data.scales), isotropic=isotropic, shape=shape, increments=increments)
         info = {
             "kind": model,
             "lobe": f"{shape} ({'isotropic, centred' if isotropic else 'full covariance, free centre'})",
             "scale_law": "ΔΣ per scale" + (" (d_k I)" if isotropic else " (full 2 × 2)"),
+            "increments": INCREMENTS.summary(increments),
         }
     elif model == "anisotropic_law":
-        built = cls(law, scales=data.scales, shape=shape)
+        built = cls(law, scales=data.scales, shape=shape, increments=increments)
         axes = "α_a a width law" if law == "width" else "ln σ_a a monotone spline in ln μ"
         info = {
             "kind": model,
             "lobe": f"{shape} (full covariance, free centre)",
             "scale_law": f"Σ(μ) = R(φ) diag(σ_1²(μ), σ_2²(μ)) R(φ)ᵀ, {axes} per principal axis ({law})",
+            "increments": INCREMENTS.summary(increments),
         }
     elif model == "nonparametric_anisotropic":
         if isinstance(regularisation, str):
@@ -157,6 +161,7 @@ class FitSpec:
 
     model: str = MODEL.model
     shape: str = MODEL.shape
+    increments: str = MODEL.increments
     family: str = MODEL.family
     law: str = MODEL.law
     fixed: tuple = ()
@@ -178,6 +183,7 @@ class FitSpec:
     def __post_init__(self):
         MODELS.check(self.model)
         SHAPES.check(self.shape)
+        INCREMENTS.check(self.increments)
         FAMILIES.check(self.family)
         LAWS.check(self.law)
         MASKING.check(self.masking)
@@ -209,6 +215,7 @@ class FitSpec:
             data,
             model=self.model,
             shape=self.shape,
+            increments=self.increments,
             family=self.family,
             law=self.law,
             fixed=dict(self.fixed),
