@@ -93,7 +93,7 @@ def make_model(
             "kind": model,
             "lobe": f"{shape} ({'isotropic, centred' if isotropic else 'full covariance, free centre'})",
             "scale_law": "ΔΣ per scale" + (" (d_k I)" if isotropic else " (full 2 × 2)"),
-            "increments": INCREMENTS.summary(increments),
+            "increments": f"{increments}: {INCREMENTS.summary(increments)}",
         }
     elif model == "anisotropic_law":
         built = cls(law, scales=data.scales, shape=shape, increments=increments)
@@ -102,7 +102,7 @@ def make_model(
             "kind": model,
             "lobe": f"{shape} (full covariance, free centre)",
             "scale_law": f"Σ(μ) = R(φ) diag(σ_1²(μ), σ_2²(μ)) R(φ)ᵀ, {axes} per principal axis ({law})",
-            "increments": INCREMENTS.summary(increments),
+            "increments": f"{increments}: {INCREMENTS.summary(increments)}",
         }
     elif model == "nonparametric_anisotropic":
         if isinstance(regularisation, str):
