@@ -103,14 +103,17 @@ def study(name: str, noise: str, workdir: Path) -> dict:
 
 
 def summary(records: list[dict]) -> dict:
-    """Per model: runs whose every ΔΣ pull lies within 3, runs whose fit is adequate (χ²/dof per scale); and the runs
-    BIC gives to the mixture."""
+    """Per model: runs whose every ΔΣ component has a standard error and a pull within 3, the components within 3,
+    runs whose fit :func:`fitting.assess` calls ok; and the runs BIC gives to the mixture."""
     fitted = [r for r in records if "gaussian" in r]
     out = {}
     for m in MODELS:
         out[m] = {
-            "all_within_3": sum(
-                r[m]["pulls"]["of"] > 0 and r[m]["pulls"]["within_3"] == r[m]["pulls"]["of"] for r in fitted
+            "all_within_3": sum(  # every component has a standard error and lies within 3 of it
+                r[m]["pulls"]["of"] > 0
+                and r[m]["pulls"]["undefined"] == 0
+                and r[m]["pulls"]["within_3"] == r[m]["pulls"]["of"]
+                for r in fitted
             ),
             "components_within_3": sum(r[m]["pulls"]["within_3"] for r in fitted),
             "components": sum(r[m]["pulls"]["of"] for r in fitted),

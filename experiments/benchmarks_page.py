@@ -1156,6 +1156,87 @@ def real_fits_summary() -> str:
     )
 
 
+def _increments_summary_line(d: dict) -> str:
+    s = d["summary"]
+    g, m = s["gaussian"], s["mixture"]
+    return (
+        f"BIC prefers the mixture in {s['bic_prefers_mixture']} of {g['runs']} sets; ΔΣ components within 3 "
+        f"standard errors of the set's truth: {g['components_within_3']} of {g['components']} (Gaussian increments), "
+        f"{m['components_within_3']} of {m['components']} (mixture); sets with every component within 3: "
+        f"{g['all_within_3']} and {m['all_within_3']} of {g['runs']}; fits adequate by fitting.assess: {g['ok']} and "
+        f"{m['ok']} of {g['runs']}."
+    )
+
+
+def increments() -> str:
+    """docs/benchmarks.md: Gaussian against mixture increments on the measured files (bench_increments)."""
+    d = load("bench_increments")
+    if d is None:
+        return "(bench_increments.json missing)"
+    rows = []
+    for r in d["records"]:
+        if "gaussian" not in r:
+            rows.append([f"`{r['file']}`", f"`{r['noise']}`", f"synth exit {r['synth']['exit']}"] + ["—"] * 7)
+            continue
+        g, m = r["gaussian"], r["mixture"]
+
+        def pulls(x):
+            p = x["pulls"]
+            undefined = f" ({p['undefined']} without std)" if p["undefined"] else ""
+            return f"{p['within_3']} of {p['of']}{undefined}"
+
+        tail = m.get("tail", {})
+        rows.append(
+            [
+                f"`{r['file']}`",
+                f"`{r['noise']}`",
+                f"{g['reduced_chi2']:.3g} → {m['reduced_chi2']:.3g}",
+                f"{g['outcome']} → {m['outcome']}",
+                f"{pulls(g)} → {pulls(m)}",
+                f"{g['pulls']['max_abs']:.3g} → {m['pulls']['max_abs']:.3g}"
+                if g["pulls"]["max_abs"] is not None and m["pulls"]["max_abs"] is not None
+                else "—",
+                f"{tail.get('w', float('nan')):.3g}",
+                f"{tail.get('f', float('nan')):.3g}",
+                r["preferred"]["bic"],
+                f"{g['wall_s']:.0f} / {m['wall_s']:.0f}",
+            ]
+        )
+    header = [
+        "file",
+        "noise",
+        "χ²/dof: Gaussian → mixture",
+        "verdict (fitting.assess)",
+        "ΔΣ components within 3 std of the set's truth",
+        "max |pull|",
+        "w",
+        "f",
+        "BIC prefers",
+        "fit s (Gaussian / mixture)",
+    ]
+    return "\n\n".join(
+        [
+            f"{machine_line(d)} Command: `{d['command']}` (code at commit `{(d.get('code_commit') or '?')[:7]}`; "
+            f"{d.get('total_s', 0):.0f} s in all). {load_line(d)}"
+            + ("" if d.get("complete") else " **Incomplete run.**"),
+            table(header, rows),
+            _increments_summary_line(d),
+        ]
+    )
+
+
+def increments_summary() -> str:
+    """docs/fitting.md: the one-line summary of bench_increments."""
+    d = load("bench_increments")
+    if d is None:
+        return "(bench_increments.json missing)"
+    return (
+        f"*From `experiments/results/bench_increments.json` ({d['machine'].get('date_utc', '?')}, code at commit "
+        f"`{(d.get('code_commit') or '?')[:7]}`; the table per file is in [benchmarks](benchmarks.md)).* "
+        + _increments_summary_line(d)
+    )
+
+
 _SPEED_LABELS = {
     "default": "default (auto)",
     "default_no_sampling": "`--steps 0` (fit, Laplace, report)",
@@ -1868,6 +1949,7 @@ SECTIONS = [
     ("benchmarks.md", "Synthesis (bench_synth)", synth),
     ("benchmarks.md", "Measured surfaces (bench_topography)", topography),
     ("benchmarks.md", "Fits of measured surfaces (bench_real_fits)", real_fits),
+    ("benchmarks.md", "Heavy-tailed increments (bench_increments)", increments),
     ("benchmarks.md", "Scene planner (bench_planner)", planner),
     ("benchmarks.md", "Ray-traced instrument (bench_instrument)", instrument),
     ("benchmarks.md", "Rendering (bench_render)", render_bench),
@@ -1875,6 +1957,7 @@ SECTIONS = [
     ("topography.md", "Fits of measured surfaces (bench_real_fits)", real_fits_summary),
     ("fitting.md", "Samplers (bench_samplers)", samplers),
     ("fitting.md", "Speed of the default fit (bench_anisotropic)", anisotropic_speed),
+    ("fitting.md", "Heavy-tailed increments (bench_increments)", increments_summary),
     ("fitting.md", "Calibration (calibration_fit)", calibration),
     ("library.md", "Throughput (bench_library)", library),
     ("so3.md", "SO(3) benchmark (bench_so3)", so3_details),
