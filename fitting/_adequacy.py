@@ -576,7 +576,10 @@ def assess_against(
             )
     problems = list(resolved.problems)
     inadequate.sort(key=lambda item: -item[0])
-    advice = " — compare other lobe shapes and models (fitting.compare; brdfscale fit --compare, --shape, --increments, --model)"
+    advice = (
+        " — compare other lobe shapes and models (fitting.compare; brdfscale fit --compare, --shape, --increments, "
+        "--model)"
+    )
     problems += [text + away + advice for _, text, away in inadequate[:1]]
     problems += [text for _, text, _ in inadequate[1:]]
     if fit.status != "converged":

@@ -94,7 +94,8 @@ within the noise of any lobe measured here)."""
 
 TAIL_START = (0.1, 5.0)
 """The start of a mixture increment's tail weight w and variance ratio f (``increments="mixture"``): on the real files
-of tests/data the fits end at w 0.005–0.3, f 2–14 (experiments/bench_increments.py)."""
+of tests/data the fits end at w from 0.001 to 0.33 and f from 2 to the prior's 1e4 (experiments/bench_increments.py's
+table in docs/benchmarks.md)."""
 
 _TAIL_BOUNDS = ((-12.0, 4.0), (math.log(0.05), math.log(1e4)))
 """The prior box of ``logit w`` (w from 6e-6 to 0.98) and ``log f-1`` (f from 1.05 to 1e4)."""
@@ -306,6 +307,16 @@ class AnisotropicModel(AbstractCovarianceModel):
         core = 1 / (1 - w + w * f)
         return jnp.stack([1 - w, w]), jnp.stack([core, f * core])
 
+    @property
+    def start_widening(self) -> float:
+        """ΔΣ over the widening the half-maximum moments of the images show, at the start (:meth:`initial`, and
+        :meth:`fitting.AnisotropicLawModel.initial`): those moments see the core of a mixture increment, ``s_c ΔΣ``,
+        so ΔΣ starts at ``1/s_c = 1 − w + w f`` of them (:data:`TAIL_START`); 1 for Gaussian increments."""
+        if self.increments == "gaussian":
+            return 1.0
+        w, f = TAIL_START
+        return 1 - w + w * f
+
     def covariance_differences(self, theta: Float[Array, " n"], scales: Float[Array, " k"]) -> Float[Array, "k 2 2"]:
         """ΔΣ(μ0, μ_k) for every measured scale (row 0 is 0): exact, from θ."""
         del scales  # one increment per measured scale: the layout fixes them
@@ -378,11 +389,11 @@ class AnisotropicModel(AbstractCovarianceModel):
             cov = cov.copy()
             cov[0] *= 2 * math.log(2) / (nu * (2 ** (2 / (nu + 2)) - 1))
         tail = [math.log(_NU_START)] if self.shape == "student_t" else []
-        if self.increments == "mixture":  # the half-maximum moments see the core, s_c ΔΣ: ΔΣ is 1/s_c of them
+        if self.increments == "mixture":
             w, f = TAIL_START
             tail = [math.log(w / (1 - w)), math.log(f - 1), *tail]
             cov = cov.copy()
-            cov[1:] = cov[0] + (cov[1:] - cov[0]) * (1 - w + w * f)
+            cov[1:] = cov[0] + (cov[1:] - cov[0]) * self.start_widening
         pixel2 = min((2 * a / (n - 1)) ** 2 for a, n in zip(data.extents, data.image_sizes))
         amp, _ = moments(data)
         if self.isotropic:

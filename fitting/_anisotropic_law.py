@@ -39,8 +39,9 @@ Laws of the principal variances (a :class:`Law` object carries its parameters, s
 
 θ: AnisotropicModel's base coordinates (``log amplitude``, ``log L0_xx``, ``L0_yx``, ``log L0_yy``,
 ``mean_x``, ``mean_y`` unless centred), then ``phi`` (radians, prior −π … π: two periods, so that the
-optimiser reaches any orientation from its start), then the law's coordinates, then (Student-t)
-``log nu``. The data determine ΔΣ only: absolute Σ(μ) rests on the law's boundary condition.
+optimiser reaches any orientation from its start), then the law's coordinates, then (mixture increments,
+``increments="mixture"``: :class:`AnisotropicModel`'s) ``logit w``, ``log f-1``, then (Student-t) ``log nu``.
+The data determine ΔΣ only: absolute Σ(μ) rests on the law's boundary condition.
 
 Verified in tests/test_anisotropic_law.py: predictions against a hand-written Gaussian of covariance
 ``C0 + ΔΣ`` over hypothesis-drawn orientations and anisotropy ratios, ΔΣ positive semidefinite and
@@ -355,7 +356,8 @@ class AnisotropicLawModel(AbstractCovarianceModel):
         _, cov = image_moments(data)
         # a change the half-maximum moments do not resolve starts at 5 % of the base lobe's variance (as the increments
         # of AnisotropicModel.initial), inside every law's prior box
-        phi, law = self.law_start(np.asarray(data.scales), cov - cov[0], 0.05 * float(np.trace(cov[0])) / 2)
+        delta = (cov - cov[0]) * self.lobe.start_widening  # a mixture increment's ΔΣ exceeds its core's widening
+        phi, law = self.law_start(np.asarray(data.scales), delta, 0.05 * float(np.trace(cov[0])) / 2)
         tail = list(start[len(start) - len(self.lobe.tail_names) :])
         return np.asarray([*start[: self._n_base], phi, *law, *tail])
 

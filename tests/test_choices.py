@@ -80,7 +80,7 @@ def test_command_line_defaults_equal_the_library_defaults():
     )
     # fit-library: the same, but no sampling unless --steps is given (FitSpec's sampler None)
     lib = _parsed("fit-library")
-    for option in ("solver", "starts", "max_steps", "seed", "model", "family", "law", "chains"):
+    for option in ("solver", "starts", "max_steps", "seed", "model", "family", "law", "chains", "increments"):
         assert getattr(lib, option) == getattr(args, option), option
     assert lib.steps == 0 and lib.sampler == choices.SAMPLE.sampler
 
@@ -102,6 +102,7 @@ def test_the_help_states_the_defaults_the_parser_uses(capsys):
         ("--family", choices.FAMILIES),
         ("--law", choices.LAWS),
         ("--shape", choices.SHAPES),
+        ("--increments", choices.INCREMENTS),
     ):
         assert f"{table.default} (default): {table.summary(table.default)}" in text, flag
     said = f"(optimistix, then the sampler --sampler names, by default auto: {choices.SAMPLERS.summary('auto')}; "
@@ -117,6 +118,7 @@ def test_the_help_states_the_defaults_the_parser_uses(capsys):
         (choices.FAMILIES, "family"),
         (choices.LAWS, "law"),
         (choices.SHAPES, "shape"),
+        (choices.INCREMENTS, "increments"),
     ],
 )
 def test_every_name_in_the_table_is_accepted_by_the_command_and_the_library(table, option):
@@ -157,6 +159,9 @@ def test_every_name_in_the_table_is_accepted_by_fitting():
     assert all(library.model_class(name) is cls for name, cls in classes.items())  # the one name → class table
     for shape in choices.SHAPES:
         assert fitting.AnisotropicModel(2, shape=shape).shape == shape
+    for increments in choices.INCREMENTS:
+        assert fitting.AnisotropicModel(2, increments=increments).increments == increments
+        assert fitting.AnisotropicLawModel(increments=increments).increments == increments
 
 
 def test_the_table_refuses_unknown_names_naming_the_argument():

@@ -211,6 +211,11 @@ def test_an_estimate_on_a_prior_bound_is_said_to_be_there():
     print_determined(doc, stream=lines.append)
     assert lines[0].startswith("  exponent") and lines[0].endswith("its estimate is at a bound of its prior range")
     assert lines[1].startswith("  alpha_max") and "bound" not in lines[1]
+    # a coordinate of θ that no quantity's line names (a mixture's f, a Cholesky factor) has a line of its own
+    doc["optimisation"]["at_prior_bounds"] = ["log exponent", "log f-1"]
+    lines = []
+    print_determined(doc, stream=lines.append)
+    assert lines[2] == "  θ coordinates at a prior bound: log f-1 (fit.json's optimisation.at_prior_bounds)"
 
 
 # -- the default model, --shape and --compare (issue 31 items 1 and 8) -------------------------------------

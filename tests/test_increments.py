@@ -102,8 +102,9 @@ def test_mixture_lobe_is_scipy_quadrature_of_the_convolution():
 
 def test_relative_statistics_are_the_kernels_characteristic_function_and_its_covariance_is_delta_sigma():
     """``relative_statistics_plane`` equals ``∫ cos(W·d) K(d) dd`` by Gauss–Legendre quadrature at points of the W
-    plane; the kernel's second moments by the same quadrature are ΔΣ_k (to 1e-9), whatever w and f — so ΔΣ_k stays the
-    second-moment difference a topography measures."""
+    plane; ``−∇²_W log R_k`` at W = 0 (jax.hessian of the model's R_k) is ΔΣ_k, as are the second moments of the
+    kernel written out, by the same quadrature (to 1e-9), whatever w and f — so ΔΣ_k stays the second-moment
+    difference a topography measures."""
     model = fitting.AnisotropicModel(2, increments="mixture")
     w, f = 0.3, 6.0
     theta = theta_of(model, 1.0, C0, MEAN, [np.zeros((2, 2)), STEP], w, f)
@@ -115,7 +116,12 @@ def test_relative_statistics_are_the_kernels_characteristic_function_and_its_cov
         )
         assert got[1, j] == pytest.approx(expected, abs=1e-9)
         assert got[0, j] == pytest.approx(1.0, abs=1e-15)  # ΔΣ_0 = 0: no change at μ0
-    for a, b in ((0, 0), (0, 1), (1, 1)):
+    # ΔΣ_k = −∇²_W log R_k(W) at W = 0 (the second-moment difference the reports give for every model), from the model
+    hessian = jax.hessian(
+        lambda x: jnp.log(model.relative_statistics_plane(theta, x[None], jnp.asarray(SCALES[:2]))[1, 0])
+    )(jnp.zeros(2))
+    np.testing.assert_allclose(-np.asarray(hessian), STEP, rtol=1e-12, atol=1e-15)
+    for a, b in ((0, 0), (0, 1), (1, 1)):  # and the kernel written out has that covariance (the oracle's own check)
         moment = quadrature(lambda x, y: (x, y)[a] * (x, y)[b] * kernel(np.stack([x, y], -1), STEP, w, f), STEP, f)
         assert moment == pytest.approx(STEP[a, b], abs=1e-9 * abs(STEP).max())
 

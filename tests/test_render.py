@@ -577,8 +577,9 @@ def test_bad_statistics_and_options_are_refused_naming_what_is_accepted():
         render.export_roughness(np.zeros((8, 8)), "/nonexistent/x.exr")
 
 
-def fit_result_of_the_law(scales):
-    """A fitting.FitResult whose covariance differences are the Beckmann law's, ΔΣ_k = (α(μ0)² − α(μ_k)²)/2 · I."""
+def fit_result_of_the_law(scales, name="a"):
+    """A fitting.FitResult whose covariance differences are the Beckmann law's, ΔΣ_k = (α(μ0)² − α(μ_k)²)/2 · I
+    (its one coordinate named ``name``)."""
     from brdfscale import fitting
 
     diffs = []
@@ -586,16 +587,16 @@ def fit_result_of_the_law(scales):
         d = (float(LAW.law(scales[0])) ** 2 - float(LAW.law(mu)) ** 2) / 2
         diffs.append({"mu0": scales[0], "mu": mu, "value": [[d, 0.0], [0.0, d]], "std": [[1e-4, None], [None, 1e-4]]})
     return fitting.FitResult(
-        names=("a",),
+        names=(name,),
         theta=np.zeros(1),
         covariance=np.eye(1),
         chi2=1.0,
         n_data=10,
         status="converged",
         starts=[],
-        estimates={"a": 0.0},
-        std={"a": 0.1},
-        quantiles={"a": None},
+        estimates={name: 0.0},
+        std={name: 0.1},
+        quantiles={name: None},
         eigenvalues=np.ones(1),
         undetermined=[],
         notes=[],
@@ -618,6 +619,14 @@ def test_a_fit_result_renders_like_its_law_at_the_fitted_scales():
     undetermined.covariance_differences[0]["value"][0][1] = None
     with pytest.raises(brdfscale.InvalidInputError, match="not all determined"):
         render.lobe_table(base_lobe(), undetermined)
+
+
+def test_a_fit_of_mixture_increments_is_refused():
+    """A material evolves by Gaussian statistics of ΔΣ: the fit of a model with heavy-tailed (mixture) increments
+    would render another surface, and is refused naming the alternatives."""
+    fit = fit_result_of_the_law(LADDER, name="logit w")
+    with pytest.raises(brdfscale.InvalidInputError, match="mixture increments.*increments='gaussian'"):
+        render.lobe_table(base_lobe(), fit, scales=LADDER, size=16)
 
 
 def test_tables_are_deterministic_and_rgb_tables_are_refused(material):

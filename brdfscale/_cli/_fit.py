@@ -853,6 +853,9 @@ def print_determined(doc: dict, stream=print) -> None:
             lo, hi = row.get("prior_range") or (None, None)
             prior = f"{table_cell(lo, '.3g', '?')} … {table_cell(hi, '.3g', '?')}"
             stream(f"  {name:12s} undetermined by the data (prior range {prior}; best fit {value:.4g})")
+    unnamed = sorted(at_bounds - {f"log {name}" for name in doc["parameters"]})
+    if unnamed:  # coordinates of θ that no line above names (a Cholesky factor, a mixture's w or f, …)
+        stream(f"  θ coordinates at a prior bound: {', '.join(unnamed)} (fit.json's optimisation.at_prior_bounds)")
     if doc.get("covariance_differences"):
         stream("  what the data determine — ΔΣ(μ0, μk) = Σ(μ0) − Σ(μk), [xx, xy, yy] ± std (slope²):")
         for d in doc["covariance_differences"]:

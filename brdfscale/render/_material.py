@@ -334,6 +334,12 @@ def _fit_law(fit, mu0):
     ``Σ(μ0)`` is; the law takes ``Σ(μ0) = K`` with K the smallest multiple of the identity that keeps every
     ``K − ΔΣ_k`` positive definite (plus 1e-6), and ``Σ(μ_k) = K − ΔΣ_k``.
     """
+    if "logit w" in tuple(getattr(fit, "names", ())):  # fitting.AnisotropicModel(increments="mixture")
+        raise InvalidInputError(
+            "the FitResult is of a model with mixture increments (heavy-tailed changes between scales, "
+            "increments='mixture'), while a material evolves its lobe by Gaussian statistics of ΔΣ: that would render "
+            f"another surface. Give instead the fit of Gaussian increments (increments='gaussian'), or {ACCEPTED}."
+        )
     diffs = fit.covariance_differences
     if not diffs:
         raise InvalidInputError(
