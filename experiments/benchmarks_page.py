@@ -880,6 +880,7 @@ def _real_fit_rows(d: dict, noises=None) -> list[list[str]]:
                 _pulls_cell(r),
                 num(_moments_z(r), ".3g"),
                 num(default_l1, ".3f"),
+                num(h.get("mixture", {}).get("l1"), ".3f"),
                 num(h.get("isotropic", {}).get("l1"), ".3f"),
                 num(h.get("second_moment", {}).get("l1"), ".3f"),
                 num(h.get("law", {}).get("l1"), ".3f"),
@@ -942,6 +943,7 @@ _REAL_FIT_HEADER = [
     "ΔΣ within 3 std of the set's truth: fit / moments",
     "model's ΔΣ against the images' moments, max |z|",
     "held-out L1, default",
+    "mixture increments",
     "isotropic",
     "second moment",
     "law (width)",
@@ -1004,7 +1006,9 @@ def real_fits() -> str:
             "from the lobe measured at the coarsest fitted scale (base: the measured lobe or, where its validation "
             "says so, the model's); default: the command's default model as `brdfscale fit --predict` predicts with "
             "it (the per-scale `AnisotropicModel`: the same from the measured lobe, widened by a width law fitted to "
-            "its ΔΣ estimates, `fitting.law_from_differences`). Anisotropy: "
+            "its ΔΣ estimates, `fitting.law_from_differences`); mixture increments: the same with "
+            "`--increments mixture` (the measured lobe widened by Eq. 4.4's ratio of the mixture's relative "
+            "statistics; — before it was recorded). Anisotropy: "
             "the eigenvalue ratio of the file's Σ(μ0)." + _held_out_run_line(d),
             table(_REAL_FIT_HEADER, _real_fit_rows(d)),
             "Targets (issue 31):\n\n"
@@ -1058,6 +1062,13 @@ def real_fits() -> str:
                     ("held_out_half_of_isotropic_by_law_spline", "spline"),
                 )
                 if t.get(key, {}).get("of")
+            )
+            + (
+                f"; by the default model with mixture increments (`--increments mixture --predict`, not the default): "
+                f"{t['held_out_half_of_isotropic_by_mixture']['passed']} of "
+                f"{t['held_out_half_of_isotropic_by_mixture']['of']} runs"
+                if t.get("held_out_half_of_isotropic_by_mixture", {}).get("of")
+                else ""
             )
             + (
                 f"; by the width law's fit predicted from the measured lobe (`fitting.predict_from_measured`, not the "

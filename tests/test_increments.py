@@ -1,7 +1,7 @@
 """Mixture increments: ``fitting.AnisotropicModel(increments="mixture")`` and the models and functions that carry
 it (issue 31, items 1 and 3: heavy-tailed changes between scales).
 
-Oracles: SciPy's Gauss–Legendre quadrature (400² nodes) of the convolution of the base lobe with the kernel written
+Oracles: SciPy's Gauss–Legendre quadrature (300² nodes) of the convolution of the base lobe with the kernel written
 out with SciPy's multivariate normal density (not the model's closed form), the kernel's characteristic function and
 second moments by the same quadrature, the Gaussian-increment model (the limit f → 1), and eager evaluation for
 jit/grad/vmap."""
@@ -52,7 +52,7 @@ def _box(delta, f):
     return 12 * math.sqrt(f * delta[0, 0]), 12 * math.sqrt(f * delta[1, 1])
 
 
-def quadrature(integrand, delta, f, nodes=400):
+def quadrature(integrand, delta, f, nodes=300):
     """``∫∫ integrand(x, y) dx dy`` over :func:`_box` by SciPy's Gauss–Legendre rule on ``nodes`` × ``nodes`` points
     (the integrand vectorised over arrays of x and y)."""
     from scipy.special import roots_legendre
@@ -240,25 +240,39 @@ def test_fit_recovers_mixture_increments_and_the_gaussian_increment_is_flagged(m
     assert fitting.assess(fitting.Problem(model, mixture_data), heavy).status == "ok"
 
 
-def test_the_law_model_the_law_from_differences_and_the_measured_prediction_carry_the_increments():
-    """AnisotropicLawModel(increments="mixture"): θ ends with the mixture's coordinates (then ν); no lobe finer
-    than μ0; law_from_differences of a mixture model gives a mixture law model with the fit's w and f; and
-    predict_from_measured widens a noise-free measured lobe of that law model by Eq. 4.4's ratio of the mixture's
-    relative statistics, which equals the model's own lobe at the unseen scale (1e-7 of the peak: the padding)."""
-    import brdfscale as bs
-
-    law = fitting.AnisotropicLawModel(increments="mixture", shape="student_t")
-    assert law.names[-3:] == ("logit w", "log f-1", "log nu") and law.increments == "mixture"
-    model = fitting.AnisotropicLawModel(increments="mixture")
-    assert model.names[-2:] == ("logit w", "log f-1")
+def _law_theta():
+    """θ of ``AnisotropicLawModel(increments="mixture")``: the base lobe C0, MEAN, φ = 0.5, two width laws, w = 0.2,
+    f = 6."""
     L = np.linalg.cholesky(C0)
-    theta = jnp.asarray(
+    return jnp.asarray(
         [math.log(2.0), math.log(L[0, 0]), L[1, 0], math.log(L[1, 1]), *MEAN, 0.5]
         + [math.log(v) for v in (0.12, 2.0, 1.0, 0.06, 3.0, 1.5)]
         + [math.log(0.2 / 0.8), math.log(5.0)]
     )
+
+
+def test_the_law_model_carries_the_increments():
+    """AnisotropicLawModel(increments="mixture"): θ ends with the mixture's coordinates (then ν); no lobe finer
+    than μ0."""
+    law = fitting.AnisotropicLawModel(increments="mixture", shape="student_t")
+    assert law.names[-3:] == ("logit w", "log f-1", "log nu") and law.increments == "mixture"
+    model = fitting.AnisotropicLawModel(increments="mixture")
+    assert model.names[-2:] == ("logit w", "log f-1")
+    theta = _law_theta()
     with pytest.raises(InvalidInputError, match="mixture increments has no lobe at scales finer than"):
         model.predict_at(theta, 1.0, [0.5], jnp.zeros((1, 3, 2)))
+
+
+@pytest.mark.slow  # ~10 s: predictions on 41² grids and a law fit
+def test_law_from_differences_and_the_measured_prediction_carry_the_increments():
+    """law_from_differences of a mixture model gives a mixture law model with the fit's w and f; and
+    predict_from_measured widens a noise-free measured lobe of a mixture law model by Eq. 4.4's ratio of the
+    mixture's relative statistics, which equals the model's own lobe at the unseen scale (1e-7 of the peak: the
+    padding), where a Gaussian widening by ΔΣ(μ_s, μ) misses it."""
+    import brdfscale as bs
+
+    model = fitting.AnisotropicLawModel(increments="mixture")
+    theta = _law_theta()
     n, extent = 41, 0.5
     x = np.linspace(-extent, extent, n)
     u = np.stack(np.meshgrid(x, x), axis=-1).reshape(1, -1, 2)
