@@ -1406,3 +1406,22 @@ def test_real_nonparametric_skewness_of_a_two_gaussian_mixture():
     second, third = np.sum(w * (m**2 + s * s)), np.sum(w * (m**3 + 3 * m * s * s))
     assert row["skewness_x"] == pytest.approx(third / second**1.5, rel=1e-6)
     assert abs(row["skewness_y"]) < 1e-9 and row["mu"] == 1.0
+
+
+def test_bench_increments_counts_a_set_as_all_within_only_with_every_standard_error():
+    """experiments.bench_increments.summary by hand: a set whose defined pulls all lie within 3 but with components
+    lacking a standard error is not counted as all within; components and verdicts are summed per model."""
+    from experiments.bench_increments import summary
+
+    def model(within, of, undefined, outcome="ok"):
+        return {"pulls": {"within_3": within, "of": of, "undefined": undefined}, "outcome": outcome}
+
+    records = [
+        {"gaussian": model(3, 3, 0), "mixture": model(2, 2, 1, "undetermined"), "preferred": {"bic": "mixture"}},
+        {"gaussian": model(1, 3, 0, "inadequate"), "mixture": model(3, 3, 0), "preferred": {"bic": "gaussian"}},
+        {"synth": {"exit": 7}},  # refused before a fit: not counted
+    ]
+    s = summary(records)
+    assert s["gaussian"] == {"all_within_3": 1, "components_within_3": 4, "components": 6, "ok": 1, "runs": 2}
+    assert s["mixture"] == {"all_within_3": 1, "components_within_3": 5, "components": 5, "ok": 1, "runs": 2}
+    assert s["bic_prefers_mixture"] == 1

@@ -97,7 +97,9 @@ def test_mixture_lobe_is_scipy_quadrature_of_the_convolution():
         np.testing.assert_allclose(got[k], expected, rtol=0, atol=1e-8 * expected.max())
     q = model.quantities(theta)
     assert float(q["w_tail"]) == pytest.approx(w, rel=1e-12) and float(q["f_tail"]) == pytest.approx(f, rel=1e-12)
-    np.testing.assert_allclose(np.asarray(model.covariance_differences(theta, SCALES)), differences, atol=1e-15)
+    np.testing.assert_allclose(
+        np.asarray(model.covariance_differences(theta, jnp.asarray(SCALES))), differences, atol=1e-15
+    )
 
 
 def test_relative_statistics_are_the_kernels_characteristic_function_and_its_covariance_is_delta_sigma():
