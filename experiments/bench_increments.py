@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from experiments._bench import code_commit, machine, write_json
-from experiments.bench_real_fits import command, DATA, FILES, NOISES
+from experiments.bench_real_fits import command, DATA, FILES, NOISES, pull_summary
 
 
 MODELS = ("gaussian", "mixture")
@@ -34,23 +34,13 @@ MODELS = ("gaussian", "mixture")
 
 
 def pulls(fit, truth) -> dict:
-    """How many of the fit's ΔΣ pulls against ``truth`` lie within 3, of how many defined, and the largest |pull|."""
+    """How many of the fit's ΔΣ pulls against ``truth`` lie within 3, of how many defined, and the largest |pull|
+    (:func:`experiments.bench_real_fits.pull_summary`), and how many components have none."""
     from brdfscale import fitting
 
     entries = fitting.compare_covariance_differences(fit.covariance_differences, truth)
-    symmetric = [
-        abs(e["pull"][a][b])
-        for e in entries
-        if e.get("pull")
-        for a, b in ((0, 0), (0, 1), (1, 1))
-        if e["pull"][a][b] is not None
-    ]
-    return {
-        "within_3": sum(p <= 3 for p in symmetric),
-        "of": len(symmetric),
-        "max_abs": max(symmetric, default=None),
-        "undefined": 3 * len(entries) - len(symmetric),
-    }
+    summary = pull_summary(entries)
+    return {**summary, "undefined": 3 * len(entries) - summary["of"]}
 
 
 def fit_record(model, data, truth, unit) -> tuple[dict, object]:

@@ -262,6 +262,10 @@ def undetermined_lines(undetermined: list[dict]) -> list[str]:
     return lines
 
 
+SHAPED_MODELS = ("anisotropic", "isotropic", "anisotropic_law")
+"""The models that take ``--shape`` and ``--increments`` (and are named ``model:shape[:increments]`` by --compare)."""
+
+
 def check_fit_options(args) -> None:
     """Cross-option checks that need no data: each --fix name once, options of one model given for it only (--steps
     not given stays None: the sampler's own default, :func:`asked_steps`)."""
@@ -271,11 +275,11 @@ def check_fit_options(args) -> None:
         raise InvalidInputError(f"--fix {', '.join(repeated)} given more than once; fix each quantity once.")
     if args.fix and args.model != "parametric":
         raise InvalidInputError("--fix applies to the parametric model only (--model parametric).")
-    if args.shape != MODEL.shape and args.model not in ("anisotropic", "isotropic", "anisotropic_law"):
+    if args.shape != MODEL.shape and args.model not in SHAPED_MODELS:
         raise InvalidInputError(
             "--shape applies to the anisotropic and isotropic models and to anisotropic_law only (--model anisotropic)."
         )
-    if args.increments != MODEL.increments and args.model not in ("anisotropic", "isotropic", "anisotropic_law"):
+    if args.increments != MODEL.increments and args.model not in SHAPED_MODELS:
         raise InvalidInputError(
             "--increments applies to the anisotropic and isotropic models and to anisotropic_law only "
             "(--model anisotropic)."
@@ -504,9 +508,8 @@ def _candidates(spec: "FitSpec") -> "list[tuple[str, FitSpec]]":
     specs = [(name, dataclasses.replace(spec, **fields)) for name, fields in COMPARED]
     key = (spec.model, spec.shape, spec.increments, spec.law)
     if all((s.model, s.shape, s.increments, s.law) != key for _, s in specs):
-        shaped = ("anisotropic", "isotropic", "anisotropic_law")
-        own = spec.model if spec.model not in shaped else f"{spec.model}:{spec.shape}"
-        own += f":{spec.increments}" if spec.model in shaped and spec.increments != "gaussian" else ""
+        own = spec.model if spec.model not in SHAPED_MODELS else f"{spec.model}:{spec.shape}"
+        own += f":{spec.increments}" if spec.model in SHAPED_MODELS and spec.increments != "gaussian" else ""
         own += f":{spec.law}" if spec.model == "anisotropic_law" else ""
         specs.append((own, spec))
     return specs
