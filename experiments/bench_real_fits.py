@@ -191,7 +191,7 @@ def l1(prediction: np.ndarray, data, images) -> float:
 
 def _cholesky_coordinates(matrix: np.ndarray) -> list[float]:
     """``(log L_xx, L_yx, log L_yy)`` of a symmetric matrix, its eigenvalues floored at 1e-12 of the largest
-    (fitting.AnisotropicModel's coordinates of a positive-definite increment)."""
+    (fitting.AnisotropicModel's coordinates of a scale's lobe covariance C_k = C0 + ΔΣ_k)."""
     w, v = np.linalg.eigh(0.5 * (matrix + matrix.T))
     w = np.maximum(w, 1e-12 * max(float(w.max()), 1e-300))
     L = np.linalg.cholesky((v * w) @ v.T)
@@ -226,12 +226,12 @@ def held_out(mset, statistics, default_model: str) -> dict:
     names = list(aniso.names)
     theta = np.asarray(aniso_fit.theta, float)
     full_model = fitting.AnisotropicModel(len(mus))
-    base = {n: theta[names.index(n)] for n in names if not n.startswith(("log M", "M"))}
+    base = {n: theta[names.index(n)] for n in names[:6]}  # amplitude, C0's Cholesky factor, centre
+    c0 = np.asarray(aniso.parts(theta)[1])
     topo = [statistics[0].covariance - s.covariance for s in statistics]
-    increments = [topo[k] - topo[k - 1] for k in range(1, len(mus))]
     steps = {}
-    for k, inc in enumerate(increments, start=1):
-        steps.update(zip((f"log M{k}_xx", f"M{k}_yx", f"log M{k}_yy"), _cholesky_coordinates(inc)))
+    for k in range(1, len(mus)):  # the lobe's covariance at μ_k: C0 widened by the topography's ΔΣ
+        steps.update(zip((f"log L{k}_xx", f"L{k}_yx", f"log L{k}_yy"), _cholesky_coordinates(c0 + topo[k])))
     full_theta = np.array([{**base, **steps}[n] for n in full_model.names])
     prediction = np.asarray(full_model.predict(full_theta, full))
     out["second_moment"] = {

@@ -32,9 +32,9 @@ quadrature of the same integral the error is ≤ 5e-7 of the peak for every ν o
   (``log L0_xx``, ``L0_yx``, ``log L0_yy``): every θ gives a positive-definite C0 of any
   orientation;
 * ``mean_x``, ``mean_y`` — the lobe's centre (slope units; left out with ``centred=True``);
-* per coarser scale k = 1 … K−1 the increment ``ΔΣ_k − ΔΣ_{k−1} = M_k M_kᵀ`` by its Cholesky
-  factor (``log M{k}_xx``, ``M{k}_yx``, ``log M{k}_yy``), so ``ΔΣ_k = Σ_{j≤k} M_j M_jᵀ`` is
-  positive definite and monotone in k (``ΔΣ_{k+1} − ΔΣ_k`` positive definite) by construction;
+* per coarser scale k = 1 … K−1 the lobe's covariance at μ_k, ``C_k = C0 + ΔΣ_k``, by its Cholesky factor
+  (``log L{k}_xx``, ``L{k}_yx``, ``log L{k}_yy``, as C0's), so ``ΔΣ_k = C_k − C0``: a full symmetric matrix of
+  either sign, every θ giving a positive-definite lobe covariance at every scale;
 * ``logit w``, ``log f-1`` (``increments="mixture"`` only; below) — the increments' tail weight and width ratio;
 * ``log nu`` (last; ``shape="student_t"`` only) — the tail index, 1 ≤ ν ≤ 200 in the prior.
 
@@ -55,10 +55,26 @@ the scale mixture above for a heavy-tailed one) and the kernel's two. ``f → 1`
 (:meth:`AbstractCovarianceModel.increment_mixture`; tests/test_increments.py checks the density against SciPy's
 quadrature of the convolution and R_k against the kernel's characteristic function by quadrature.)
 
-``isotropic=True`` is the special case ``C0 = v0 I``, ``M_k M_kᵀ = d_k I``, centred (θ: ``log
-amplitude``, ``log v0``, ``log d_k``): it is :class:`fitting.ParametricModel`'s Beckmann lobe with
-Beckmann statistics and any scale law, with ``v0 = alpha_lobe²/2`` and ``ΔΣ_k = (α(μ0)² −
-α(μ_k)²)/2 · I`` (tests/test_anisotropic.py checks the predictions equal).
+``isotropic=True`` is the special case ``C_k = v_k I``, centred (θ: ``log amplitude``, ``log v0``, ``log v_k``,
+``ΔΣ_k = (v_k − v0) I``): it is :class:`fitting.ParametricModel`'s Beckmann lobe with Beckmann statistics and any
+scale law, with ``v0 = alpha_lobe²/2`` and ``ΔΣ_k = (α(μ0)² − α(μ_k)²)/2 · I`` (tests/test_anisotropic.py checks the
+predictions equal).
+
+**Why the lobe's covariance per scale, not the increments.** Physically ΔΣ_k is positive semi-definite and grows
+with k (a coarser facet averages finer slopes), and an earlier θ built that in: the Cholesky factors of the
+increments ``ΔΣ_k − ΔΣ_{k−1}``, logarithms on their diagonals. Where the data leave an increment near zero — below
+the noise, as between neighbouring scales of a measured surface — its logarithm has no curvature down to the
+prior's floor: the fit called it undetermined and left out the increment's uncertainty, so ΔΣ's standard errors
+were too small (opd-1 of tests/data at ``poisson:0.05:1``: ΔΣ_xx at the fourth scale 13.8 standard errors off
+the surface's own), the optimiser found the optimum from 1 of 8 starts, and the samplers met a plateau ending in
+a cliff (NUTS: divergences, no convergence in 300 s). The lobe's covariance at a scale is never near zero — the
+images resolve it — so its log-Cholesky coordinates are curved everywhere, the posterior is close to Gaussian,
+and a ΔΣ_k the data cannot tell from zero gets a standard error that says so (estimates may then fall slightly
+below zero or out of order, within their errors; a scale law fitted to them, :func:`fitting.law_from_differences`,
+is monotone). Where the base lobe or the change is a scale mixture (``shape`` ``"student_t"``, ``"ggx"``;
+``increments="mixture"``) a component's covariance ``c_j C0 + s_i ΔΣ_k`` must be positive definite as well: a
+component that is not (a ΔΣ_k far below zero: Eq. 4.4's deconvolution of a heavy tail does not exist) contributes
+nothing, so the residuals rise there like a wall (:func:`_mixture_density`).
 """
 
 import abc
@@ -127,10 +143,15 @@ def image_moments(data: Dataset) -> tuple[np.ndarray, np.ndarray]:
     return centre / count[:, None], cov / count[:, None, None]
 
 
+def _spd(matrix: np.ndarray, floor: float) -> np.ndarray:
+    """A symmetric matrix with its eigenvalues floored at ``floor``."""
+    w, v = np.linalg.eigh(0.5 * (matrix + matrix.T))
+    return (v * np.maximum(w, floor)) @ v.T
+
+
 def _cholesky_coordinates(matrix: np.ndarray, floor: float) -> tuple[float, float, float]:
     """``(log L_xx, L_yx, log L_yy)`` of a symmetric matrix with its eigenvalues floored at ``floor``."""
-    w, v = np.linalg.eigh(0.5 * (matrix + matrix.T))
-    L = np.linalg.cholesky((v * np.maximum(w, floor)) @ v.T)
+    L = np.linalg.cholesky(_spd(matrix, floor))
     return math.log(L[0, 0]), float(L[1, 0]), math.log(L[1, 1])
 
 
@@ -147,12 +168,17 @@ def _mixture_density(
     delta: Float[Array, "2 2"],
 ) -> Float[Array, " n"]:
     """``Σ_j w_j N(d; 0, c_j C0 + s_j ΔΣ)`` (the Gaussian written out: one 2 × 2 determinant and
-    inverse per component)."""
+    inverse per component); a component whose covariance is not positive definite counts 0."""
     cov = factor[:, None, None] * c0 + scale[:, None, None] * delta
+    # a component whose covariance is not positive definite (ΔΣ far below zero) contributes nothing: computed with a
+    # valid stand-in (c_j C0) so that neither its value nor its gradient is NaN, then weighted 0 (module docstring)
+    valid = (cov[:, 0, 0] > 0) & (cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] ** 2 > 0)
+    cov = jnp.where(valid[:, None, None], cov, factor[:, None, None] * c0)
     a, b, c = cov[:, 0, 0, None], cov[:, 0, 1, None], cov[:, 1, 1, None]
     det = a * c - b * b
     x, y = d[None, :, 0], d[None, :, 1]
     q = (c * x * x - 2 * b * x * y + a * y * y) / det
+    weight = jnp.where(valid, weight, 0.0)
     return jnp.sum(weight[:, None] * jnp.exp(-0.5 * q) / (2 * jnp.pi * jnp.sqrt(det)), axis=0)
 
 
@@ -203,8 +229,8 @@ class AbstractCovarianceModel(AbstractModel):
 
 
 class AnisotropicModel(AbstractCovarianceModel):
-    """Base lobe of full scale matrix and free mean at μ0 — Gaussian, GGX or Student-t — with
-    monotone covariance differences ΔΣ_k (module docstring).
+    """Base lobe of full scale matrix and free mean at μ0 — Gaussian, GGX or Student-t — with a
+    covariance difference ΔΣ_k per coarser scale (module docstring).
 
     Args:
         n_scales: the number of measured scales K (≥ 2; the model has K − 1 increments).
@@ -253,10 +279,10 @@ class AnisotropicModel(AbstractCovarianceModel):
     def names(self) -> tuple[str, ...]:
         tail = self.tail_names
         if self.isotropic:
-            return ("log amplitude", "log v0", *(f"log d{k}" for k in range(1, self.n_scales)), *tail)
+            return ("log amplitude", "log v0", *(f"log v{k}" for k in range(1, self.n_scales)), *tail)
         base = ("log amplitude", "log L0_xx", "L0_yx", "log L0_yy")
         mean = () if self.centred else ("mean_x", "mean_y")
-        steps = tuple(n for k in range(1, self.n_scales) for n in (f"log M{k}_xx", f"M{k}_yx", f"log M{k}_yy"))
+        steps = tuple(n for k in range(1, self.n_scales) for n in (f"log L{k}_xx", f"L{k}_yx", f"log L{k}_yy"))
         return base + mean + steps + tail
 
     def tail_index(self, theta: Float[Array, " n"]) -> Float[Array, ""] | None:
@@ -278,23 +304,24 @@ class AnisotropicModel(AbstractCovarianceModel):
         )
 
     def parts(self, theta: Float[Array, " n"]) -> tuple:
-        """``(A, C0 (2, 2), m0 (2,), ΔΣ (K, 2, 2))`` of θ, ``ΔΣ[0] = 0``."""
+        """``(A, C0 (2, 2), m0 (2,), ΔΣ (K, 2, 2))`` of θ: ``ΔΣ_k = C_k − C0``, ``ΔΣ[0] = 0`` exactly."""
         theta = jnp.asarray(theta)
         theta = theta[: theta.shape[0] - len(self.tail_names)]  # w, f: increment_mixture; ν: tail_index
         amplitude = jnp.exp(theta[0])
+        eye = jnp.eye(2, dtype=theta.dtype)
         if self.isotropic:
-            eye = jnp.eye(2, dtype=theta.dtype)
-            c0 = jnp.exp(theta[1]) * eye
-            steps = jnp.exp(theta[2:])[:, None, None] * eye
+            variances = jnp.exp(theta[1:])  # v0, v_1 … v_{K−1}
+            c0 = variances[0] * eye
+            differences = (variances - variances[0])[:, None, None] * eye
             mean = jnp.zeros(2, theta.dtype)
         else:
-            c0 = _from_cholesky(theta[1], theta[2], theta[3])
             start = 4 if self.centred else 6
             mean = jnp.zeros(2, theta.dtype) if self.centred else theta[4:6]
-            m = theta[start:].reshape(self.n_scales - 1, 3)
-            steps = jax.vmap(_from_cholesky)(m[:, 0], m[:, 1], m[:, 2])
-        zero = jnp.zeros((1, 2, 2), theta.dtype)
-        return amplitude, c0, mean, jnp.concatenate([zero, jnp.cumsum(steps, axis=0)])
+            factors = jnp.concatenate([theta[1:4], theta[start:]]).reshape(self.n_scales, 3)
+            covariances = jax.vmap(_from_cholesky)(factors[:, 0], factors[:, 1], factors[:, 2])  # C_k
+            c0 = covariances[0]
+            differences = covariances - c0
+        return amplitude, c0, mean, differences
 
     def increment_mixture(self, theta: Float[Array, " n"]) -> tuple[Float[Array, " i"], Float[Array, " i"]]:
         """``(v_i, s_i)`` of the change between scales (:meth:`AbstractCovarianceModel.increment_mixture`):
@@ -395,17 +422,20 @@ class AnisotropicModel(AbstractCovarianceModel):
             cov = cov.copy()
             cov[1:] = cov[0] + (cov[1:] - cov[0]) * self.start_widening
         pixel2 = min((2 * a / (n - 1)) ** 2 for a, n in zip(data.extents, data.image_sizes))
+        floor = max(pixel2 / 12, 1e-30)
         amp, _ = moments(data)
+        # ΔΣ_k starts at the positive part of the measured widening: C_k = C0 + that is positive definite
+        w, v = np.linalg.eigh(0.5 * (cov - cov[0] + np.swapaxes(cov - cov[0], 1, 2)))
+        widening = np.einsum("kij,kj,klj->kil", v, np.maximum(w, 0), v)
         if self.isotropic:
-            var = np.trace(cov, axis1=1, axis2=2) / 2
-            steps = np.maximum(np.diff(var), 0.05 * var[0] / self.n_scales)
-            return np.concatenate([np.log(np.concatenate([[amp, var[0]], steps])), tail])
-        floor = 0.05 * float(np.trace(cov[0])) / 2
-        theta = [math.log(amp), *_cholesky_coordinates(cov[0], max(pixel2 / 12, 1e-30))]
+            var = np.trace(cov[0]) / 2 + np.trace(widening, axis1=1, axis2=2) / 2
+            return np.concatenate([[math.log(amp)], np.log(np.maximum(var[: self.n_scales], floor)), tail])
+        c0 = _spd(cov[0], floor)
+        theta = [math.log(amp), *_cholesky_coordinates(c0, floor)]
         if not self.centred:
             theta += list(centre[0])
         for k in range(1, self.n_scales):
-            theta += _cholesky_coordinates(cov[k] - cov[k - 1], floor / self.n_scales)
+            theta += _cholesky_coordinates(c0 + widening[k], floor)
         return np.asarray(theta + tail)
 
     def start_scales(self, theta0):
@@ -426,14 +456,14 @@ class AnisotropicModel(AbstractCovarianceModel):
         if not self.centred:
             scales[4:6] = np.sqrt(np.diag(c0))
             start = 6
-        for k in range(self.n_scales - 1):
+        for k in range(self.n_scales - 1):  # each scale's Cholesky factor as C0's
             i = start + 3 * k
             scales[i + 1] = math.exp(theta0[i + 2])
         return scales
 
     def bounds(self, data):
-        """A uniform prior in θ: amplitude 1e-8 … 1e8; the Cholesky diagonals (standard deviations
-        along an axis) 1e-6 … 10 in slope units, their off-diagonals ±10; the centre inside the
+        """A uniform prior in θ: amplitude 1e-8 … 1e8; the Cholesky diagonals of C0 and of every C_k (standard
+        deviations along an axis) 1e-6 … 10 in slope units, their off-diagonals ±10; the centre inside the
         largest image; (isotropic) variances 1e-12 … 100; (mixture increments) w from 6e-6 to 0.98, f from 1.05
         to 1e4; (Student-t) ν in :data:`NU_RANGE`."""
         extent = max(data.extents)

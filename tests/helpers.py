@@ -416,9 +416,8 @@ def anisotropic_theta(model, amplitude, c0, mean, differences):
     theta = [math.log(amplitude), *chol(c0)]
     if not model.centred:
         theta += list(mean)
-    steps = np.diff(np.asarray(differences), axis=0)
-    for s in steps:
-        theta += chol(s)
+    for d in np.asarray(differences)[1:]:  # the lobe's covariance C_k = C0 + ΔΣ_k at each coarser scale
+        theta += chol(np.asarray(c0) + d)
     return jnp.asarray(theta)
 
 

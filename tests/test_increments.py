@@ -151,7 +151,7 @@ def test_the_mixture_keeps_delta_sigma_over_orientations_anisotropy_and_tails(w,
     r = np.asarray(model.relative_statistics_plane(theta, W, jnp.asarray([1.0, 2.0])))[1]
     assert r[0] == pytest.approx(1.0, abs=1e-15) and np.all(r[1:] < 1) and np.all(r[1:] > 0)
     iso = fitting.AnisotropicModel(2, isotropic=True, increments="mixture")
-    t_iso = jnp.asarray([0.0, math.log(0.01), math.log(0.004), math.log(w / (1 - w)), math.log(f - 1)])
+    t_iso = jnp.asarray([0.0, math.log(0.01), math.log(0.014), math.log(w / (1 - w)), math.log(f - 1)])  # ΔΣ = 0.004 I
     radii = jnp.asarray([0.0, 5.0, 25.0])
     along = np.stack([np.cos(phi) * np.asarray(radii), np.sin(phi) * np.asarray(radii)], axis=-1)
     np.testing.assert_allclose(

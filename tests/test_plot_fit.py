@@ -204,7 +204,7 @@ def test_the_statistics_of_an_anisotropic_fit_by_direction():
     result = helpers.fit_at(
         model.names,
         theta,
-        np.eye(n) * 1e-14,  # the draws sit at θ: the bands' medians are the curves at θ
+        np.eye(n) * 1e-18,  # the draws sit at θ: the bands' medians are the curves at θ
         data.values.size,
         solver="lm_normal",
         covariance_differences=entries,
