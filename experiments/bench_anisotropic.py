@@ -1,7 +1,8 @@
 """Wall time of ``brdfscale fit`` with its default model (issue 31, item 8): an 8-scale, 65² px
-measurement set made from tests/data/topographies/mi-1.mi (synth.gonioreflectometer, Poisson 200
-counts + 1 count read noise), fitted as a user runs it — a fresh ``python -m brdfscale fit``
-process per run.
+measurement set — by default a synthetic one the default model describes (:func:`synthetic_set`); with
+``--real NAME`` README's chain on a real file of tests/data/topographies (:func:`real_set`); with ``--mi-1`` the
+earlier set made from mi-1.mi at ``poisson:200:1`` (:func:`measurement_set`) — fitted as a user runs it, a fresh
+``python -m brdfscale fit`` process per run.
 
 Runs, each timed from process start to exit:
 
@@ -26,8 +27,9 @@ anisotropic model ≤ 3 min cold. The machine's load average is recorded before 
 used (user + system, all its threads): on a loaded machine the wall time grows with the load, the
 CPU time far less — it bounds what the run needs of an idle machine's cores.
 
-Run: ``flock /tmp/brdfscale-bench.lock python -m experiments.bench_anisotropic [--quick]``
-(writes experiments/results/bench_anisotropic.json; ``--quick`` leaves out the non-parametric
+Run: ``flock /tmp/brdfscale-bench.lock python -m experiments.bench_anisotropic [--quick] [--real NAME]``
+(writes experiments/results/bench_anisotropic.json, with ``--real`` bench_anisotropic_real.json: the runs
+:data:`REAL_RUNS` only; ``--quick`` leaves out the non-parametric
 model and the Student-t shape; ``--only NAME[,NAME]`` runs those runs alone and merges them into the
 existing JSON, each row with its own date and load; ``--timeout S`` kills a run after S seconds and
 records it as timed out).
@@ -71,6 +73,40 @@ def measurement_set(path: Path) -> dict:
     )
     exr.write_measurements(str(path), mset)
     return {"file": "tests/data/topographies/mi-1.mi", "scales": len(mus), "pixels": 65, "noise": "poisson:200:1"}
+
+
+REAL_NOISE = "poisson:0.05:1"
+"""The real set's noise: at 0.05 counts per unit of the lobe the default model is adequate to the images (at
+``poisson:200:1`` its fits of the real files are inadequate and not sampled: docs/benchmarks.md), so the run times
+the whole default fit, sampling included."""
+
+
+def real_set(path: Path, name: str) -> dict:
+    """README's chain on the real file ``tests/data/topographies/NAME``: ``brdfscale synth --topography FILE --noise
+    REAL_NOISE --out`` (synth's defaults: 8 scales, 65² px), written again without the synthesised surface's record
+    (metadata ``truth``) — the file as an instrument would hand it over, which records no surface to test the fit's ΔΣ
+    against (fitting.assess's ``covariance_truth``; a fit that misses that truth is not sampled, so it would time
+    no sampling)."""
+    from brdfscale import exr, MeasurementSet
+
+    source = ROOT / "tests/data/topographies" / name
+    made = path.with_name("synth.exr")
+    subprocess.run(
+        [sys.executable, "-m", "brdfscale", "synth", "--topography", str(source), "--noise", REAL_NOISE, "--out", made],
+        check=True,
+        capture_output=True,
+    )
+    mset = exr.read_measurements(str(made))
+    exr.write_measurements(
+        str(path), MeasurementSet(mset.images, {k: v for k, v in mset.metadata.items() if k != "truth"})
+    )
+    sizes = {int(np.shape(image.values)[0]) for image in mset.images}
+    return {
+        "file": f"tests/data/topographies/{name} (brdfscale synth, its surface's record removed)",
+        "scales": len({float(image.mu) for image in mset.images}),
+        "pixels": max(sizes),
+        "noise": REAL_NOISE,
+    }
 
 
 def synthetic_set(path: Path) -> dict:
@@ -188,17 +224,29 @@ RUNS = {
     "student_t_no_sampling": ["--shape", "student_t", "--steps", "0"],
 }
 QUICK = ("default", "default_no_sampling", "nuts", "hmc", "imh")
+REAL_RUNS = ("default", "default_no_sampling", "nuts")
+
+
+def _name(mi1: bool, real: str | None) -> str:
+    return "bench_anisotropic_mi1" if mi1 else "bench_anisotropic_real" if real else "bench_anisotropic"
 
 
 def main(
-    quick: bool = False, mi1: bool = False, only: tuple[str, ...] | None = None, timeout: float | None = None
+    quick: bool = False,
+    mi1: bool = False,
+    only: tuple[str, ...] | None = None,
+    timeout: float | None = None,
+    real: str | None = None,
 ) -> dict:
-    names = only or (QUICK if quick else tuple(RUNS))
+    names = only or (REAL_RUNS if real else QUICK if quick else tuple(RUNS))
     runs = {name: RUNS[name] for name in names}
     results: dict = {"machine": machine(), "command": "python -m brdfscale fit M.exr --out D --no-progress [ARGS]"}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        results["measurements"] = (measurement_set if mi1 else synthetic_set)(tmp / "m.exr")
+        if real:
+            results["measurements"] = real_set(tmp / "m.exr", real)
+        else:
+            results["measurements"] = (measurement_set if mi1 else synthetic_set)(tmp / "m.exr")
         results["runs"] = {}
         for name, extra in runs.items():
             cache = tmp / f"cache-{name}"
@@ -208,7 +256,7 @@ def main(
                 entry["warm"] = run([str(tmp / "m.exr"), *extra], cache, tmp / f"{name}-warm", timeout)
             results["runs"][name] = entry
             if only is None:  # what has run, if stopped (--only merges at the end)
-                write_json("bench_anisotropic_mi1" if mi1 else "bench_anisotropic", {**results, "complete": False})
+                write_json(_name(mi1, real), {**results, "complete": False})
     results["complete"] = True
     return summarise(results)
 
@@ -245,6 +293,9 @@ def summarise(results: dict) -> dict:
 
 if __name__ == "__main__":
     mi1 = "--mi-1" in sys.argv[1:]
+    real = sys.argv[sys.argv.index("--real") + 1] if "--real" in sys.argv[1:] else None
+    if real is not None and not (ROOT / "tests/data/topographies" / real).is_file():
+        raise SystemExit(f"--real: no file {real!r} in tests/data/topographies")
     only = None
     if "--only" in sys.argv[1:]:
         only = tuple(sys.argv[sys.argv.index("--only") + 1].split(","))
@@ -252,13 +303,13 @@ if __name__ == "__main__":
         if unknown:
             raise SystemExit(f"--only: unknown runs {unknown}; known: {list(RUNS)}")
     timeout = float(sys.argv[sys.argv.index("--timeout") + 1]) if "--timeout" in sys.argv[1:] else None
-    out = main("--quick" in sys.argv[1:], mi1, only, timeout)
+    out = main("--quick" in sys.argv[1:], mi1, only, timeout, real)
+    name = _name(mi1, real)
     if only:  # merged into the JSON of the last full or quick run
-        name = "bench_anisotropic_mi1" if mi1 else "bench_anisotropic"
         previous = RESULTS / f"{name}.json"
         if previous.exists():
             merged = json.loads(previous.read_text())
             merged["runs"].update(out["runs"])
             out = summarise(merged)
     print(json.dumps(out.get("profile"), indent=1), json.dumps(out.get("met")))
-    print("wrote", write_json("bench_anisotropic_mi1" if mi1 else "bench_anisotropic", out))
+    print("wrote", write_json(name, out))

@@ -1262,10 +1262,21 @@ _SPEED_LABELS = {
 
 
 def anisotropic_speed() -> str:
-    """docs/fitting.md: wall and CPU time of ``brdfscale fit`` on the 8-scale, 65² px set (issue 31 item 8)."""
+    """docs/fitting.md: wall and CPU time of ``brdfscale fit`` on the 8-scale, 65² px sets (issue 31 item 8): the
+    synthetic set and, where measured, README's chain on a real file (``--real NAME``)."""
     d = load("bench_anisotropic")
     if d is None or "runs" not in d:
         return "(bench_anisotropic.json missing)"
+    blocks = [_anisotropic_speed(d, "")]
+    real = load("bench_anisotropic_real")
+    if real is not None and "runs" in real:
+        name = real["measurements"]["file"].split("/")[-1].split(" ")[0]
+        blocks.append(f"**A real surface's set** (`--real {name}`):\n\n" + _anisotropic_speed(real, f" --real {name}"))
+    return "\n\n".join(blocks)
+
+
+def _anisotropic_speed(d: dict, flag: str) -> str:
+    """One set's table and targets (:func:`anisotropic_speed`)."""
 
     def cell(row, key, fmt="{:.1f}"):
         return "—" if row is None or row.get(key) is None else fmt.format(row[key])
@@ -1311,7 +1322,7 @@ def anisotropic_speed() -> str:
     return "\n\n".join(
         [
             machine_line(d)
-            + f" Command: `flock /tmp/brdfscale-bench.lock python -m experiments.bench_anisotropic` (each run "
+            + f" Command: `flock /tmp/brdfscale-bench.lock python -m experiments.bench_anisotropic{flag}` (each run "
             f"`{d['command']}`); set: {d['measurements']['file']}, {d['measurements']['scales']} scales, "
             f"{d['measurements']['pixels']}² px, noise {d['measurements']['noise']}.",
             table(header, rows),

@@ -63,6 +63,18 @@ is listed in :attr:`Outcome.problems`):
    "undefined"), never NaN — a NaN compares False with every threshold and would pass — and it
    is inadequate first of all, the reason naming the scale and how many pixels.
 
+   * against a known truth (only where the caller gives one: ``covariance_truth``, the ΔΣ(μ0, μ_k) of the surface a
+     synthesised set was made from, :func:`fitting.covariance_truth` of its metadata; ``brdfscale fit`` and
+     :func:`fitting.write_report` pass it): the fit's ΔΣ entries' pulls ``(estimate − truth)/std``
+     (:func:`fitting.compare_covariance_differences`); the fit fails when the largest |pull|'s two-sided p-value,
+     Bonferroni-corrected over the entries with a standard error, is below ``p_value``. It catches what no test
+     of the images can: at low counts a lobe's tails lie below the noise, so a Gaussian lobe fits every scale
+     (χ², neighbours and the images' own moments, whose errors are then large, all pass) while its ΔΣ — its
+     core's widening — misses the surface's second moments by many of its own standard errors (the lobes
+     synthesised from the real files of tests/data at ``poisson:0.05:1``: docs/benchmarks.md). Without the
+     check such a fit ended "ok". Its line comes after those of the images' own tests, whatever its size (they say
+     where the model misses the images; it leads only where they pass).
+
    Status ``"inadequate"``, naming the worst scale and its figure.
 3. **Converged**: the optimiser's best start reported success (:attr:`FitResult.status`) and,
    when sampled, the chains passed R̂ and ESS (:attr:`SampleResult.status`, which names the
@@ -95,6 +107,7 @@ from brdfscale.checks import real
 from brdfscale.choices import ADEQUACY, AdequacyDefaults
 
 from ._data import Dataset
+from ._derived import compare_covariance_differences
 from ._model import predict_images
 from ._moments import moment_covariance_differences, weighted_moments
 from ._problem import check_fit, Problem
@@ -444,6 +457,7 @@ def assess(
     *,
     unit: str | None = None,
     thresholds: AdequacyDefaults = ADEQUACY,
+    covariance_truth: list | None = None,
 ) -> Outcome:
     """Resolution, model adequacy and convergence of a fit (module docstring); returns the :class:`Outcome`.
 
@@ -453,11 +467,60 @@ def assess(
         samples: its :class:`SampleResult` when sampled (None: the optimiser's status only).
         unit: μ's length unit for the reason (None: pixels of the height field).
         thresholds: :class:`brdfscale.choices.AdequacyDefaults` (default ``ADEQUACY``).
+        covariance_truth: the true ΔΣ(μ0, μ_k) where known (:func:`fitting.covariance_truth` of a synthesised set's
+            metadata): the fit's ΔΣ is then tested against it too (module docstring, point 2).
 
     Raises:
         InvalidInputError: ``fit`` does not belong to ``problem``.
     """
-    return assess_against(problem, fit, samples, unit=unit, thresholds=thresholds, observed_moments=None)
+    return assess_against(
+        problem,
+        fit,
+        samples,
+        unit=unit,
+        thresholds=thresholds,
+        observed_moments=None,
+        covariance_truth=covariance_truth,
+    )
+
+
+def _truth_miss(fit: FitResult, covariance_truth, unit, thresholds: AdequacyDefaults, stats) -> tuple | None:
+    """The fit's ΔΣ against a known truth (module docstring, point 2): ``(severity, line, "")`` where the largest
+    |pull| fails the Bonferroni-corrected test, None where it passes or there is nothing to test."""
+    if covariance_truth is None:
+        return None
+    expected = (len(fit.covariance_differences), 2, 2)
+    try:
+        shape = np.shape(np.asarray(covariance_truth, dtype=float))
+    except (TypeError, ValueError):
+        shape = None
+    if shape != expected or not np.all(np.isfinite(np.asarray(covariance_truth, dtype=float))):
+        raise InvalidInputError(
+            f"covariance_truth must be the true ΔΣ(μ0, μk) of every coarser scale, {expected[0]} finite 2 × 2 "
+            f"matrices (fitting.covariance_truth of the set's metadata), or None; got {covariance_truth!r:.80}."
+        )
+    entries = compare_covariance_differences(fit.covariance_differences, covariance_truth)
+    pulls = [
+        (abs(pull[i][j]), pull[i][j], name, entry["mu"])
+        for entry in entries
+        if (pull := entry.get("pull")) is not None
+        for name, (i, j) in zip(("xx", "xy", "yy"), ((0, 0), (0, 1), (1, 1)))
+        if pull[i][j] is not None
+    ]
+    if not pulls:
+        return None
+    size, z, name, mu = max(pulls)
+    p = min(1.0, 2 * float(stats.norm.sf(size)) * len(pulls))
+    if p >= thresholds.p_value:
+        return None
+    limit = float(stats.norm.isf(thresholds.p_value / (2 * len(pulls))))
+    line = (
+        f"model inadequate at {_mu_text(float(mu), unit)}: its ΔΣ_{name}(μ0, μ) is {z:+.3g} standard errors off the "
+        f"truth the file records (fitting.covariance_truth; p = {p:.2g} over {len(pulls)} entries): its error bars "
+        "do not cover the surface — the lobes' shape, below the noise, is not the model's (the images' own ΔΣ, "
+        "model-free: fit.json's moment_covariance_differences)"
+    )
+    return size / limit, line, ""
 
 
 def assess_against(
@@ -468,6 +531,7 @@ def assess_against(
     unit: str | None,
     thresholds: AdequacyDefaults,
     observed_moments: list[dict] | None,
+    covariance_truth: list | None = None,
 ) -> Outcome:
     """:func:`assess` with the data's own :func:`moment_covariance_differences` given where the caller has them
     (:func:`fitting.write_report` writes them to fit.json too: computed once); None computes them."""
@@ -576,6 +640,10 @@ def assess_against(
             )
     problems = list(resolved.problems)
     inadequate.sort(key=lambda item: -item[0])
+    # after the images' own tests, whatever its size: a failed test of the images says where the model misses
+    truth_miss = _truth_miss(fit, covariance_truth, unit, thresholds, stats)
+    if truth_miss is not None:
+        inadequate.append(truth_miss)
     advice = (
         " — compare other lobe shapes and models (fitting.compare; brdfscale fit --compare, --shape, --increments, "
         "--model)"

@@ -388,7 +388,8 @@ def write_report(
     ``covariance_truth``: the true ΔΣ(μ0, μ_k) of the surface the set was made from
     (:func:`fitting.covariance_truth` of its metadata); each entry of ``covariance_differences`` and
     ``moment_covariance_differences`` then also holds its ``truth`` and ``pull``
-    (:func:`fitting.compare_covariance_differences`). ``not_sampled``: why a fit that was to be sampled was not
+    (:func:`fitting.compare_covariance_differences`), and the verdict tests the fit's ΔΣ against it
+    (:func:`fitting.assess`'s ``covariance_truth``). ``not_sampled``: why a fit that was to be sampled was not
     (``brdfscale fit`` does not sample a fit whose Laplace-level verdict is "inadequate"); ``mcmc`` then reads
     ``{"status": "not sampled: …"}`` instead of null.
 
@@ -437,7 +438,13 @@ def write_report(
             "unit": unit,
         },
         "outcome": assess_against(
-            problem, fit, samples, unit=unit, thresholds=ADEQUACY, observed_moments=observed_moments
+            problem,
+            fit,
+            samples,
+            unit=unit,
+            thresholds=ADEQUACY,
+            observed_moments=observed_moments,
+            covariance_truth=covariance_truth,
         ).to_json(),
         "parameters": summarise(problem, fit, samples, truth),
         "ratios": summarise_ratios(problem, fit, samples),

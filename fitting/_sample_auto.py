@@ -16,9 +16,9 @@ JMLR 25(72)). The chains run with IMH when
 :class:`~fitting.SampleResult` names the sampler that ran and, in ``chosen_by``, k̂, the threshold and the draws;
 its status checks the chains as for any sampler.
 
-Measured: k̂ below 0.5 on the anisotropic model's posterior over lobes it describes, above 1 on opd-1.opd
-synthesised at ``poisson:200:1``, whose lobes it does not describe (tests/test_fit_slow.py); the speed benchmark's
-rows record theirs (``experiments/bench_anisotropic.py``; docs/fitting.md, "Speed of the default fit").
+Measured: k̂ below 0.5 on the anisotropic model's posterior over lobes it describes, above 1 on the parametric
+model's from three close scales at 10 % noise, where IMH's chains stick (tests/test_fit_slow.py); the speed
+benchmark's rows record theirs (``experiments/bench_anisotropic.py``; docs/fitting.md, "Speed of the default fit").
 
 A checkpoint records the choice in its signature: a resumed run continues with the sampler that wrote it, whatever
 a recomputed k̂ would say. Verified in tests/test_samplers.py.

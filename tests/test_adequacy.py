@@ -193,6 +193,45 @@ def test_faint_broad_tails_pass_chi2_and_the_neighbours_test_and_fail_the_second
     assert all(abs(row["moments_z"]) < 3 for row in clean.scales[1:])
 
 
+@functools.cache
+def _anisotropic_fit():
+    u = np.stack(np.meshgrid(*[np.linspace(-0.5, 0.5, 33)] * 2), axis=-1)  # the lobes resolved: ≥ 1.4 px wide
+    lobes = [
+        gaussian(u, ANISO_TRUTH["mean"], ANISO_TRUTH["C0"] + d, ANISO_TRUTH["amplitude"])
+        for d in anisotropic_differences()
+    ]
+    data = noisy_dataset(lobes, ANISO_SCALES, 0.5, np.random.default_rng(5))
+    model = fitting.AnisotropicModel(len(ANISO_SCALES))
+    return fitting.Problem(model, data), fitting.fit(model, data, starts=2)
+
+
+def test_a_fit_off_the_truth_the_file_records_is_inadequate():
+    """assess(covariance_truth=): the fit's ΔΣ pulls against a known truth, Bonferroni over the entries with a standard
+    error (6 here). At the true ΔΣ the fit is ok; with the truth's ΔΣ_xx at the coarsest scale moved by 6 of its
+    standard errors it is inadequate, the line giving the pull and p = 2·Φ(−|z|)·6 written out here; moved by 3.5
+    (p = 0.0056 > 1e-3) it passes; without a truth nothing is tested."""
+    problem, fit = _anisotropic_fit()
+    truth = [np.asarray(t) for t in anisotropic_differences()[1:]]
+    assert fitting.assess(problem, fit, covariance_truth=[t.tolist() for t in truth]).status == "ok"
+    entry = fit.covariance_differences[-1]
+    value, std = entry["value"][0][0], entry["std"][0][0]
+    for shift, status in ((6.0, "inadequate"), (3.5, "ok")):
+        moved = [t.copy() for t in truth]
+        moved[-1][0, 0] = value - shift * std
+        outcome = fitting.assess(problem, fit, covariance_truth=[t.tolist() for t in moved])
+        assert outcome.status == status, outcome.reason
+        if status == "inadequate":
+            p = min(1.0, 2 * _normal_sf(shift) * 6)
+            assert outcome.reason.startswith(
+                f"model inadequate at μ = {ANISO_SCALES[-1]:.4g} px: its ΔΣ_xx(μ0, μ) is {shift:+.3g} standard errors "
+                f"off the truth the file records (fitting.covariance_truth; p = {p:.2g} over 6 entries)"
+            ), outcome.reason
+    assert fitting.assess(problem, fit).status == "ok"
+    for bad in ("not a truth", truth[:1], [[[0.0, 0.0], [0.0, float("nan")]]] * 2):
+        with pytest.raises(InvalidInputError, match="covariance_truth must be the true ΔΣ"):
+            fitting.assess(problem, fit, covariance_truth=bad)
+
+
 def _normal_sf(z: float) -> float:
     return 0.5 * math.erfc(z / math.sqrt(2))
 

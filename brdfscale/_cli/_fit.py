@@ -617,7 +617,8 @@ def _fit_and_report(
         stream(line)
     problem = fitting.Problem(model, data)
     samples = None
-    not_sampled = spec.not_sampled_because(problem, result, unit=unit)  # FitSpec's rule: not where inadequate
+    # FitSpec's rule: not where inadequate (the set's recorded ΔΣ included)
+    not_sampled = spec.not_sampled_because(problem, result, unit=unit, covariance_truth=covariance_truth)
     if not_sampled is not None:
         stream(f"  not sampled: {not_sampled}")
     if spec.sampler is not None and not_sampled is None:

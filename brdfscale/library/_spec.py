@@ -256,19 +256,21 @@ class FitSpec:
             "uncertainties are the Laplace approximation's"
         )
 
-    def not_sampled_because(self, problem, fit, *, unit: str | None = None) -> str | None:
+    def not_sampled_because(
+        self, problem, fit, *, unit: str | None = None, covariance_truth: list | None = None
+    ) -> str | None:
         """Why this spec does not sample ``fit`` of ``problem``, or None where it samples it: it samples (``sampler``
         set), and either ``steps`` is None for a model not ``sampled_by_default`` (the anisotropic non-parametric
         model) or ``sample_inadequate`` is False and :func:`fitting.assess` of the fit without samples (computed only
-        then; ``unit`` the scales' length unit) says "inadequate" or "undetermined". The reason is what
-        :func:`fitting.write_report`'s ``not_sampled`` records."""
+        then; ``unit`` the scales' length unit, ``covariance_truth`` the set's recorded ΔΣ where known) says
+        "inadequate" or "undetermined". The reason is what :func:`fitting.write_report`'s ``not_sampled`` records."""
         if self.sampler is None:
             return None
         if self.not_sampled_by_default is not None:
             return self.not_sampled_by_default
         if self.sample_inadequate:
             return None
-        outcome = _fitting().assess(problem, fit, unit=unit)
+        outcome = _fitting().assess(problem, fit, unit=unit, covariance_truth=covariance_truth)
         anyway = "--sample-inadequate (FitSpec(sample_inadequate=True)) samples it anyway"
         if outcome.status == "inadequate":
             return f"the model is inadequate before sampling (exit status 5 either way); {anyway}"
