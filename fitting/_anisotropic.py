@@ -65,9 +65,9 @@ with k (a coarser facet averages finer slopes), and an earlier θ built that in:
 increments ``ΔΣ_k − ΔΣ_{k−1}``, logarithms on their diagonals. Where the data leave an increment near zero — below
 the noise, as between neighbouring scales of a measured surface — its logarithm has no curvature down to the
 prior's floor: the fit called it undetermined and left out the increment's uncertainty, so ΔΣ's standard errors
-were too small (opd-1 of tests/data at ``poisson:0.05:1``: ΔΣ_xx at the fourth scale 13.8 standard errors off
-the surface's own), the optimiser found the optimum from 1 of 8 starts, and the samplers met a plateau ending in
-a cliff (NUTS: divergences, no convergence in 300 s). The lobe's covariance at a scale is never near zero — the
+were too small, the optimiser ended short of the optimum from most starts (on tests/test_anisotropic.py's set with
+a zero change between two scales it did not converge), and the samplers met a plateau ending in a cliff (NUTS
+diverged or ran out of time on the real files of tests/data at ``poisson:0.05:1``). The lobe's covariance at a scale is never near zero — the
 images resolve it — so its log-Cholesky coordinates are curved everywhere, the posterior is close to Gaussian,
 and a ΔΣ_k the data cannot tell from zero gets a standard error that says so (estimates may then fall slightly
 below zero or out of order, within their errors; a scale law fitted to them, :func:`fitting.law_from_differences`,
@@ -233,7 +233,7 @@ class AnisotropicModel(AbstractCovarianceModel):
     covariance difference ΔΣ_k per coarser scale (module docstring).
 
     Args:
-        n_scales: the number of measured scales K (≥ 2; the model has K − 1 increments).
+        n_scales: the number of measured scales K (≥ 2; the model has a covariance per scale).
         isotropic: the isotropic, centred special case (module docstring).
         centred: hold the lobe's centre at the origin (no ``mean_x``, ``mean_y`` in θ).
         shape: the base lobe's shape, a name of :data:`brdfscale.choices.SHAPES`: ``"gaussian"``

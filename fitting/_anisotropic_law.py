@@ -354,8 +354,8 @@ class AnisotropicLawModel(AbstractCovarianceModel):
         from the measured ΔΣ along the two axes."""
         start = self.lobe.initial(data)
         _, cov = image_moments(data)
-        # a change the half-maximum moments do not resolve starts at 5 % of the base lobe's variance (as the increments
-        # of AnisotropicModel.initial), inside every law's prior box
+        # a change the half-maximum moments do not resolve starts at 5 % of the base lobe's variance: inside every law's
+        # prior box (a width law's logarithms need a positive start)
         delta = (cov - cov[0]) * self.lobe.start_widening  # a mixture increment's ΔΣ exceeds its core's widening
         phi, law = self.law_start(np.asarray(data.scales), delta, 0.05 * float(np.trace(cov[0])) / 2)
         tail = list(start[len(start) - len(self.lobe.tail_names) :])
