@@ -21,11 +21,11 @@ Runs, each timed from process start to exit:
 * ``student_t_no_sampling``: ``--shape student_t --steps 0``, cold and warm;
 * ``nonparametric_anisotropic``: ``--model nonparametric_anisotropic --steps 0``, cold.
 
-Targets (issue 31 item 8): default ≤ 60 s cold and ≤ 15 s warm on 2 cores; the non-parametric
-anisotropic model ≤ 3 min cold — each met only by a run that ends with exit status 0 (in time and converged). The machine's load average is recorded before and after every run
-(the wall times are only as good as the machine was idle), and so is the CPU time the run's process
-used (user + system, all its threads): on a loaded machine the wall time grows with the load, the
-CPU time far less — it bounds what the run needs of an idle machine's cores.
+Targets (issue 31 item 8): default ≤ 60 s cold and ≤ 15 s warm on 2 cores; the non-parametric anisotropic model ≤ 3
+min cold — each met only by a run that ends with exit status 0 (in time and converged). The machine's load average
+is recorded before and after every run (the wall times are only as good as the machine was idle), and so is the CPU
+time the run's process used (user + system, all its threads): on a loaded machine the wall time grows with the
+load, the CPU time far less — it bounds what the run needs of an idle machine's cores.
 
 Run: ``flock /tmp/brdfscale-bench.lock python -m experiments.bench_anisotropic [--quick] [--real NAME]``
 (writes experiments/results/bench_anisotropic.json, with ``--real`` bench_anisotropic_real.json: the runs
@@ -275,6 +275,7 @@ def summarise(results: dict) -> dict:
         ),
         "fit_and_report_warm_s (no sampling, warm)": r["default_no_sampling"]["warm"]["wall_s"],
     }
+
     def within(row: dict, target: str) -> bool:
         """In time, and a fit that ended well: exit 0 (a run that stopped early or did not converge meets no target)."""
         return not row.get("timed_out") and row["exit"] == 0 and row["wall_s"] <= TARGETS[target]

@@ -1329,8 +1329,7 @@ def _anisotropic_speed(d: dict, flag: str) -> str:
             "Targets (issue 31 item 8; wall time, 2 cores): default ≤ "
             f"{d['targets']['default_cold_s']:.0f} s cold and ≤ {d['targets']['default_warm_s']:.0f} s warm, the "
             f"non-parametric anisotropic model ≤ {d['targets']['nonparametric_anisotropic_cold_s']:.0f} s cold, "
-            "each by a run that ends with exit status 0:\n\n"
-            + "\n".join(met_lines),
+            "each by a run that ends with exit status 0:\n\n" + "\n".join(met_lines),
         ]
     )
 

@@ -67,14 +67,14 @@ the noise, as between neighbouring scales of a measured surface — its logarith
 prior's floor: the fit called it undetermined and left out the increment's uncertainty, so ΔΣ's standard errors
 were too small, the optimiser ended short of the optimum from most starts (on tests/test_anisotropic.py's set with
 a zero change between two scales it did not converge), and the samplers met a plateau ending in a cliff (NUTS
-diverged or ran out of time on the real files of tests/data at ``poisson:0.05:1``). The lobe's covariance at a scale is never near zero — the
-images resolve it — so its log-Cholesky coordinates are curved everywhere, the posterior is close to Gaussian,
-and a ΔΣ_k the data cannot tell from zero gets a standard error that says so (estimates may then fall slightly
-below zero or out of order, within their errors; a scale law fitted to them, :func:`fitting.law_from_differences`,
-is monotone). Where the base lobe or the change is a scale mixture (``shape`` ``"student_t"``, ``"ggx"``;
-``increments="mixture"``) a component's covariance ``c_j C0 + s_i ΔΣ_k`` must be positive definite as well: a
-component that is not (a ΔΣ_k far below zero: Eq. 4.4's deconvolution of a heavy tail does not exist) contributes
-nothing, so the residuals rise there like a wall (:func:`_mixture_density`).
+diverged or ran out of time on the real files of tests/data at ``poisson:0.05:1``). The lobe's covariance at a
+scale is never near zero — the images resolve it — so its log-Cholesky coordinates are curved everywhere, the
+posterior is close to Gaussian, and a ΔΣ_k the data cannot tell from zero gets a standard error that says so
+(estimates may then fall slightly below zero or out of order, within their errors; a scale law fitted to them,
+:func:`fitting.law_from_differences`, is monotone). Where the base lobe or the change is a scale mixture (``shape``
+``"student_t"``, ``"ggx"``; ``increments="mixture"``) a component's covariance ``c_j C0 + s_i ΔΣ_k`` must be
+positive definite as well: a component that is not (a ΔΣ_k far below zero: Eq. 4.4's deconvolution of a heavy tail
+does not exist) contributes nothing, so the residuals rise there like a wall (:func:`_mixture_density`).
 """
 
 import abc
