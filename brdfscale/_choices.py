@@ -132,7 +132,7 @@ MODELS = Choices(
         Choice(
             "anisotropic",
             "a base lobe of full covariance (any orientation, --shape gaussian, ggx or student_t) and free "
-            "centre, and monotone covariance differences ΔΣ(μ0, μk), a full 2 × 2 matrix per scale "
+            "centre, and the covariance difference ΔΣ(μ0, μk), a full 2 × 2 matrix per scale "
             "(fitting.AnisotropicModel)",
         ),
         Choice(

@@ -297,9 +297,14 @@ def summarise(results: dict) -> dict:
 
 if __name__ == "__main__":
     mi1 = "--mi-1" in sys.argv[1:]
-    real = sys.argv[sys.argv.index("--real") + 1] if "--real" in sys.argv[1:] else None
-    if real is not None and not (ROOT / "tests/data/topographies" / real).is_file():
-        raise SystemExit(f"--real: no file {real!r} in tests/data/topographies")
+    real = None
+    if "--real" in sys.argv[1:]:
+        at = sys.argv.index("--real") + 1
+        real = sys.argv[at] if at < len(sys.argv) else ""
+        if not real or not (ROOT / "tests/data/topographies" / real).is_file():
+            raise SystemExit(f"--real NAME: a file of tests/data/topographies; got {real!r}")
+        if mi1:
+            raise SystemExit("--real and --mi-1 are two sets: give one")
     only = None
     if "--only" in sys.argv[1:]:
         only = tuple(sys.argv[sys.argv.index("--only") + 1].split(","))

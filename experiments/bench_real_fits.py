@@ -31,8 +31,8 @@ counts per unit lobe value, read noise in counts):
      width law, fitting.fit's defaults): its scale law extrapolates to any μ;
    * ``second_moment`` — LEAN-style: the Gaussian lobe of :class:`fitting.AnisotropicModel` fitted to
      the five finest scales (amplitude, centre, C0 at μ0) widened by the topography's
-     ``ΔΣ = Σ(μ0) − Σ(μk)`` (increments' eigenvalues floored at 0, so that they are monotone as the
-     model requires): ``C0 + ΔΣ(μ0, μk)``;
+     ``ΔΣ = Σ(μ0) − Σ(μk)``: ``C0 + ΔΣ(μ0, μk)`` (its eigenvalues floored at 1e-12 of the largest, the model's
+     Cholesky coordinates of each scale's lobe covariance);
    * ``default`` — the command's default model as ``brdfscale fit --predict`` predicts with it: the parametric
      model by its own scale law; the per-scale model (``anisotropic``, the default) by
      :func:`fitting.predict_from_measured` with its fit's ``covariance_differences`` and their joint covariance

@@ -517,8 +517,8 @@ def _truth_miss(fit: FitResult, covariance_truth, unit, thresholds: AdequacyDefa
     line = (
         f"model inadequate at {_mu_text(float(mu), unit)}: its ΔΣ_{name}(μ0, μ) is {z:+.3g} standard errors off the "
         f"truth the file records (fitting.covariance_truth; p = {p:.2g} over {len(pulls)} entries): its error bars "
-        "do not cover the surface — the lobes' shape, below the noise, is not the model's (the images' own ΔΣ, "
-        "model-free: fit.json's moment_covariance_differences)"
+        "do not cover the surface — the model misses what the images hold of it (tails below the noise or past the "
+        "image's edge, masking; the images' own ΔΣ, model-free: fit.json's moment_covariance_differences)"
     )
     return size / limit, line, ""
 

@@ -379,7 +379,8 @@ class AnisotropicModel(AbstractCovarianceModel):
         self, theta: Float[Array, " n"], differences: Float[Array, "k 2 2"], points: Float[Array, "k p 2"]
     ) -> Float[Array, "k p"]:
         """θ's base lobe at ``points[0]`` and, for k ≥ 1, evolved by the covariance differences
-        ``differences[k]`` (ΔΣ_k ⪰ 0) at ``points[k]``; θ's own increments are not used (shared with
+        ``differences[k]`` (C0 + ΔΣ_k positive definite; a scale mixture's components: :func:`_mixture_density`) at
+        ``points[k]``; θ's own increments are not used (shared with
         :class:`fitting.AnisotropicLawModel`, whose ΔΣ follow a scale law)."""
         # the base lobe at μ0; at μ_k the evolution by the relative statistics R_k = exp(−½ Wᵀ ΔΣ_k W)
         base = self.base_lobe(theta)
@@ -410,27 +411,27 @@ class AnisotropicModel(AbstractCovarianceModel):
         starts at ν = :data:`_NU_START` with the scale matrix whose half-maximum ellipse is the
         measured one (``(1 + q/ν)^{−(ν+2)/2} = ½`` at ``q = ν(2^{2/(ν+2)} − 1)`` against the
         Gaussian's ``q = 2 ln 2``)."""
-        centre, cov = image_moments(data)
+        centre, measured = image_moments(data)
         nu = {"gaussian": None, "ggx": 2.0, "student_t": _NU_START}[self.shape]
+        c0 = measured[0].copy()
         if nu is not None:
-            cov = cov.copy()
-            cov[0] *= 2 * math.log(2) / (nu * (2 ** (2 / (nu + 2)) - 1))
+            c0 *= 2 * math.log(2) / (nu * (2 ** (2 / (nu + 2)) - 1))
         tail = [math.log(_NU_START)] if self.shape == "student_t" else []
         if self.increments == "mixture":
             w, f = TAIL_START
             tail = [math.log(w / (1 - w)), math.log(f - 1), *tail]
-            cov = cov.copy()
-            cov[1:] = cov[0] + (cov[1:] - cov[0]) * self.start_widening
         pixel2 = min((2 * a / (n - 1)) ** 2 for a, n in zip(data.extents, data.image_sizes))
         floor = max(pixel2 / 12, 1e-30)
         amp, _ = moments(data)
-        # ΔΣ_k starts at the positive part of the measured widening: C_k = C0 + that is positive definite
-        w, v = np.linalg.eigh(0.5 * (cov - cov[0] + np.swapaxes(cov - cov[0], 1, 2)))
-        widening = np.einsum("kij,kj,klj->kil", v, np.maximum(w, 0), v)
+        # ΔΣ_k starts at the positive part of the widening the half-maximum moments show (a mixture increment's ΔΣ
+        # exceeds its core's: × start_widening), so that C_k = C0 + ΔΣ_k is positive definite
+        change = measured - measured[0]
+        w, v = np.linalg.eigh(0.5 * (change + np.swapaxes(change, 1, 2)))
+        widening = np.einsum("kij,kj,klj->kil", v, np.maximum(w, 0), v) * self.start_widening
         if self.isotropic:
-            var = np.trace(cov[0]) / 2 + np.trace(widening, axis1=1, axis2=2) / 2
+            var = np.trace(c0) / 2 + np.trace(widening, axis1=1, axis2=2) / 2
             return np.concatenate([[math.log(amp)], np.log(np.maximum(var[: self.n_scales], floor)), tail])
-        c0 = _spd(cov[0], floor)
+        c0 = _spd(c0, floor)
         theta = [math.log(amp), *_cholesky_coordinates(c0, floor)]
         if not self.centred:
             theta += list(centre[0])

@@ -175,6 +175,20 @@ def test_every_theta_gives_a_lobe_at_every_scale():
     assert signs == {-1.0, 1.0}
 
 
+def test_the_start_widens_by_the_measured_moments_whatever_the_shape(data):
+    """initial: ΔΣ_k starts at the positive part of the widening of the half-maximum moments
+    (fitting._anisotropic.image_moments), the same for every lobe shape (a heavy-tailed shape rescales C0 only)."""
+    _, cov = fitting._anisotropic.image_moments(data)
+    expected = []
+    for k in range(len(SCALES)):
+        w, v = np.linalg.eigh(cov[k] - cov[0])
+        expected.append((v * np.maximum(w, 0)) @ v.T)
+    for shape in ("gaussian", "ggx", "student_t"):
+        model = fitting.AnisotropicModel(len(SCALES), shape=shape)
+        start = np.asarray(model.parts(jnp.asarray(model.initial(data)))[3])
+        np.testing.assert_allclose(start, expected, rtol=1e-9, atol=1e-15)
+
+
 def test_a_change_below_zero_is_still_the_hand_written_gaussian():
     """ΔΣ_k with a negative eigenvalue (C0 + ΔΣ_k positive definite): the lobe is N(m0, C0 + ΔΣ_k), written out."""
     model = fitting.AnisotropicModel(3)

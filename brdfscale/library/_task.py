@@ -148,8 +148,10 @@ def fit_batch(
     problems = [fitting.Problem(m, d) for _, d, m, *_ in todo]
     # FitSpec's rule: a fit inadequate or undetermined before sampling is not sampled (unless spec.sample_inadequate)
     not_sampled = [
-        None if isinstance(result, Exception) else spec.not_sampled_because(problem, result)
-        for problem, result in zip(problems, fits, strict=True)
+        None
+        if isinstance(result, Exception)
+        else spec.not_sampled_because(problem, result, covariance_truth=entry[5])  # the set's recorded ΔΣ too
+        for entry, problem, result in zip(todo, problems, fits, strict=True)
     ]
     draws = [None] * len(todo)
     if spec.batched:
