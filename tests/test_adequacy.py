@@ -227,9 +227,16 @@ def test_a_fit_off_the_truth_the_file_records_is_inadequate():
                 f"off the truth the file records (fitting.covariance_truth; p = {p:.2g} over 6 entries)"
             ), outcome.reason
     assert fitting.assess(problem, fit).status == "ok"
-    for bad in ("not a truth", truth[:1], [[[0.0, 0.0], [0.0, float("nan")]]] * 2):
+    for bad in ([t.tolist() for t in truth[:1]], [[[0.0, 0.0], [0.0, float("nan")]]] * 2):
         with pytest.raises(InvalidInputError, match="covariance_truth must be the true ΔΣ"):
             fitting.assess(problem, fit, covariance_truth=bad)
+
+
+@pytest.mark.wrong_types
+def test_a_truth_that_is_not_a_list_is_refused_by_the_librarys_error():
+    problem, fit = _anisotropic_fit()
+    with pytest.raises(InvalidInputError, match="covariance_truth must be the true ΔΣ"):
+        fitting.assess(problem, fit, covariance_truth="not a truth")
 
 
 def _normal_sf(z: float) -> float:
