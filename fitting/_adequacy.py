@@ -491,10 +491,10 @@ def _truth_miss(fit: FitResult, covariance_truth, unit, thresholds: AdequacyDefa
         return None
     expected = (len(fit.covariance_differences), 2, 2)
     try:
-        shape = np.shape(np.asarray(covariance_truth, dtype=float))
+        values = np.asarray(covariance_truth, dtype=float)
     except (TypeError, ValueError):
-        shape = None
-    if shape != expected or not np.all(np.isfinite(np.asarray(covariance_truth, dtype=float))):
+        values = None
+    if values is None or values.shape != expected or not np.all(np.isfinite(values)):
         raise InvalidInputError(
             f"covariance_truth must be the true ΔΣ(μ0, μk) of every coarser scale, {expected[0]} finite 2 × 2 "
             f"matrices (fitting.covariance_truth of the set's metadata), or None; got {covariance_truth!r:.80}."
@@ -504,7 +504,7 @@ def _truth_miss(fit: FitResult, covariance_truth, unit, thresholds: AdequacyDefa
         (abs(pull[i][j]), pull[i][j], name, entry["mu"])
         for entry in entries
         if (pull := entry.get("pull")) is not None
-        for name, (i, j) in zip(("xx", "xy", "yy"), ((0, 0), (0, 1), (1, 1)))
+        for name, i, j in _ENTRIES
         if pull[i][j] is not None
     ]
     if not pulls:
