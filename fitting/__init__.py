@@ -31,7 +31,7 @@ The chain, each step in its own module:
 * :func:`assess` — can the outcome be trusted: the lobes resolved, the model adequate (χ²/dof
   per scale, residual structure: :func:`lag1_correlation`; where the misfit lies: :func:`away_from_lobe`), the
   optimiser and sampler converged (:class:`Outcome`, the ``brdfscale fit`` exit status);
-* :func:`write_report` — fit.json, figures, evolved lobe tables;
+* :func:`write_report` — fit.json, figures, evolved lobe tables; :func:`record_problem` — a problem found after it;
 * :func:`plot_fit`, :func:`plot_recovered_statistics`, :func:`plot_corner` — the report's figures
   as ``matplotlib.figure.Figure`` objects made without pyplot (a notebook shows them; also
   ``brdfscale.plot.fit`` and its siblings, docs/plotting.md);
@@ -71,6 +71,7 @@ from ._plot import plot_corner, plot_fit, plot_recovered_statistics
 from ._problem import Problem
 from ._report import (
     check_report_directory,
+    record_problem,
     report_files,
     summarise,
     summarise_ratios,
@@ -148,4 +149,5 @@ __all__ = [
     "pareto_k",
     "compare_covariance_differences",
     "write_report",
+    "record_problem",
 ]

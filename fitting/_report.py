@@ -48,7 +48,7 @@ from ._result import FitResult
 from ._sample import SampleResult
 
 
-__all__ = ["summarise", "write_report", "truth_of", "report_files", "check_report_directory"]
+__all__ = ["summarise", "write_report", "record_problem", "truth_of", "report_files", "check_report_directory"]
 
 _FIGURES = ("data_vs_fit.png", "statistics.png", "corner.png")
 _TABLES = "evolved_lobes.exr"
@@ -479,6 +479,37 @@ def write_report(
         return _write_files(
             out_dir, problem, fit, model, (draws, corner_draws), true_theta, truth, doc, overwrite, samples, figures
         )
+
+
+def record_problem(out_dir, doc: dict, problem: str) -> dict:
+    """The report ``doc`` that :func:`write_report` wrote into ``out_dir``, amended by a problem found after it and
+    written again: ``problem`` (one line, :func:`assess`'s form) is appended to the outcome's ``problems``, and an
+    outcome that was ``"ok"`` becomes ``"inadequate"`` with it as its reason (a worse outcome keeps its status and
+    reason). ``brdfscale fit --predict`` records so the scale law its predictions rest on when the fit's ΔΣ
+    estimates reject it (``LawFromDifferences.inadequate_because``): fit.json then says what the command's exit
+    status says (5), not "ok". fit.json is replaced atomically (the rest of the report stays as written); returns
+    the amended document. tests/test_measured_prediction.py checks the file after a rejected law.
+
+    Raises:
+        InvalidInputError: ``doc`` has no outcome (not a report) or ``problem`` is not a non-empty string.
+        MeasurementFileError: fit.json cannot be written.
+    """
+    outcome = doc.get("outcome") if isinstance(doc, dict) else None
+    if not isinstance(outcome, dict) or "status" not in outcome:
+        raise InvalidInputError("record_problem(out_dir, doc, problem) needs the report write_report returned as doc.")
+    if not isinstance(problem, str) or not problem.strip():
+        raise InvalidInputError(f"record_problem: problem must be a non-empty line of text; got {problem!r}.")
+    amended = {**outcome, "problems": [*outcome.get("problems", []), problem]}
+    if outcome["status"] == "ok":
+        amended.update(status="inadequate", reason=problem)
+    doc = {**doc, "outcome": amended}
+    target = os.path.join(out_dir, "fit.json")
+    with exclusive(out_dir, what="report directory"):
+        try:
+            write_text(target, json_text(jsonable(doc), indent=2), overwrite=True, error=InvalidInputError)
+        except OSError as err:
+            raise MeasurementFileError(f"the report cannot be written into {out_dir}: {err}") from None
+    return doc
 
 
 def _write_files(

@@ -465,6 +465,24 @@ def test_write_report_checks_every_file_before_writing(small_problem, tmp_path):
     assert json.loads((out / "fit.json").read_text())["mcmc"] == {"status": "not sampled: the reason"}
     with pytest.raises(InvalidInputError, match="not_sampled must be None or"):
         fitting.write_report(out, problem, res, overwrite=True, figures=False, not_sampled="")
+    # a problem found after the report (brdfscale fit --predict's rejected law) joins fit.json's outcome
+    before = json.loads((out / "fit.json").read_text())
+    ok = {**doc, "outcome": {**doc["outcome"], "status": "ok", "reason": "the fit is adequate"}}
+    amended = fitting.record_problem(out, ok, "the law is rejected (test)")
+    written = json.loads((out / "fit.json").read_text())
+    assert written == amended and {k: v for k, v in written.items() if k != "outcome"} == {
+        k: v for k, v in before.items() if k != "outcome"
+    }
+    assert written["outcome"]["problems"] == [*before["outcome"].get("problems", []), "the law is rejected (test)"]
+    assert (written["outcome"]["status"], written["outcome"]["reason"]) == ("inadequate", "the law is rejected (test)")
+    worse = {**amended, "outcome": {**amended["outcome"], "status": "not_converged", "reason": "the solver stopped"}}
+    kept = fitting.record_problem(out, worse, "x")  # a worse verdict stands, the line joins its problems
+    assert (kept["outcome"]["status"], kept["outcome"]["reason"]) == ("not_converged", "the solver stopped")
+    assert kept["outcome"]["problems"][-1] == "x" and json.loads((out / "fit.json").read_text()) == kept
+    with pytest.raises(InvalidInputError, match="needs the report write_report returned"):
+        fitting.record_problem(out, {"figures": []}, "x")
+    with pytest.raises(InvalidInputError, match="non-empty line"):
+        fitting.record_problem(out, doc, " ")
 
 
 def test_sample_checkpoint_paths_and_first_chunk_resume(small_problem, tmp_path):

@@ -7,6 +7,7 @@ differences for the gradient; eager for jit."""
 
 import dataclasses
 import functools
+import json
 import math
 import re
 
@@ -312,6 +313,8 @@ def test_the_command_writes_the_predicted_lobes(tmp_path, capsys, monkeypatch, m
         assert cli.main([*argv, "--predict", "16", "--force"]) == 5
         shown = capsys.readouterr()
         assert f"brdfscale fit: inadequate: {reason}" in shown.err and f"outcome: inadequate — {reason}" in shown.out
+        outcome = json.loads((out / "fit.json").read_text())["outcome"]  # the file says what the exit status says
+        assert (outcome["status"], outcome["reason"], outcome["problems"][-1]) == ("inadequate", reason, reason)
 
 
 def test_replicate_images_at_a_scale_are_averaged_by_their_weights():

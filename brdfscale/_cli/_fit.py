@@ -647,12 +647,10 @@ def _fit_and_report(
     if getattr(args, "predict", None) is not None:  # after the report: a failure here loses no fit
         line, law_problem = write_predictions(fitting, problem, result, args, unit, resume=resume)
         stream(line)
-        if law_problem is not None and doc["outcome"]["status"] == "ok":
-            # the fit to the images is fit.json's verdict; the law the predictions rest on is tested here (its
-            # record: predicted_lobes.exr's metadata "law"), and the command's status says when it fails
-            outcome = doc["outcome"]
-            problems = [*outcome.get("problems", []), law_problem]  # fitting.assess's form: one line each
-            doc = {**doc, "outcome": {**outcome, "status": "inadequate", "reason": law_problem, "problems": problems}}
+        if law_problem is not None:
+            # the law the predictions rest on is tested here (its record: predicted_lobes.exr's metadata "law"); a
+            # rejected one joins fit.json's outcome, so the file says what the command's exit status says
+            doc = fitting.record_problem(args.out, doc, law_problem)
     return doc
 
 
