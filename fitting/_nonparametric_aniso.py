@@ -123,6 +123,28 @@ def _stretched_nodes(centre: float, sd: float, lo: float, hi: float, n: int) -> 
     return np.concatenate([centre - side(centre - lo)[::-1], [centre], centre + side(hi - centre)])
 
 
+_SIGNAL_FLOOR = 2.0
+"""The least ``ln(F/N)`` :func:`_noise_frequency` uses (a lobe whose flux is hardly above its noise still gets
+knots out to ``2/σ_min``)."""
+
+
+def _noise_frequency(data: Dataset, sd_min: float) -> float:
+    """The frequency where the μ0 lobe's transform falls to the noise of the images' transform, along the lobe's
+    narrow axis: a Gaussian lobe of flux F has ``|DFT| = F e^{−σ²W²/2}``, the noise of one DFT coefficient of
+    the μ0 images is ``N = (Σ σ_i²)^{1/2}`` over their valid pixels, so ``W_noise = √(2 ln(F/N))/σ_min``
+    (``ln(F/N)`` at least :data:`_SIGNAL_FLOOR`). Beyond it R_k multiplies noise: knots there are held by the
+    smoothness prior alone, and on README's chain at ``poisson:0.05:1`` (F/N ≈ 37 on mi-1) the solve spent its
+    steps on them (docs/fitting.md, "The anisotropic non-parametric model")."""
+    flux = noise2 = 0.0
+    for i in data.images_of_scale(0):
+        weight = np.asarray(data.weight[i])
+        valid = weight > 0
+        flux += float(np.sum(np.where(valid, np.asarray(data.values[i]), 0.0)))
+        noise2 += float(np.sum(1.0 / weight[valid] ** 2))
+    ratio = flux / math.sqrt(noise2) if noise2 > 0 else math.inf
+    return math.sqrt(2.0 * max(math.log(ratio) if ratio > 0 else 0.0, _SIGNAL_FLOOR)) / sd_min
+
+
 def _fast_length(n: int) -> int:
     """The smallest 2^a 3^b 5^c ≥ n (an FFT length without large prime factors)."""
     best = 2 ** math.ceil(math.log2(max(n, 1)))
@@ -169,7 +191,8 @@ class AnisotropicNonParametricModel(AbstractModel):
             file and why it is not the default).
         w_max: the last knot (default: ``6/σ_min``, σ_min the μ0 lobe's smallest standard
             deviation, where a Gaussian lobe's transform has fallen to e⁻¹⁸, capped at the model
-            grid's Nyquist frequency π/h).
+            grid's Nyquist frequency π/h and at the frequency where the μ0 lobe's transform falls to the
+            images' noise, ``√(2 ln(F/N))/σ_min`` (:func:`_noise_frequency`)).
         regularisation: the smoothness prior's weight (≥ 0; module docstring).
         padding: the zero padding of the FFT grid, a fraction (> 0) of the model grid's side:
             ``N = next_fast_len((1 + padding) · g)``.
@@ -239,8 +262,8 @@ class AnisotropicNonParametricModel(AbstractModel):
         sd = np.sqrt(np.maximum(np.diag(cov[0]), h * h / 12))
         self.reference_variance = float(np.trace(cov[0]) / 2)
         if w_max is None:
-            eig = np.linalg.eigvalsh(cov[0])
-            w_max = min(6.0 / math.sqrt(max(eig[0], h * h / 12)), math.pi / h)
+            sd_min = math.sqrt(max(float(np.linalg.eigvalsh(cov[0])[0]), h * h / 12))
+            w_max = min(6.0 / sd_min, math.pi / h, _noise_frequency(data, sd_min))
         w_max = real(w_max, "w_max", minimum=0.0, strict=True)
         self.knots = tuple(np.linspace(0.0, w_max, n_knots + 1).tolist())
         ends = (self.origin, self.origin + (self.grid_points - 1) * h)

@@ -136,30 +136,95 @@ def test_a_start_that_meets_the_stop_is_converged_not_stopped_at_start():
     assert fitting._solve.result_name(int(code)) == "successful"
 
 
-@pytest.mark.parametrize("scale, kept", [(3e-3, False), (0.5, True)])
-def test_relatively_tiny_directions_are_left_out_unless_the_noise_determines_them(scale, kept):
-    """A linear problem whose last column is scaled down until its eigenvalue is below RCOND × the largest (the
-    others high signal-to-noise). Flatter than the noise too (curvature λ·m/‖r‖² < DETERMINED): that coordinate
-    keeps its start (lstsq would move it by ≈ −70) and the others are the least-squares solution without it.
-    Determined by the noise (curvature ≥ DETERMINED): it is fitted like the others — NumPy's lstsq of the whole
-    problem — rather than left where it started and then reported determined."""
-    A, b = _linear_problem()
-    A = A * np.array([1e5, 1e5, 1e5, scale])
-    lam, lam_max = np.sum(A[:, 3] ** 2), np.linalg.norm(A, 2) ** 2
-    curvature = lam * len(b) / np.sum((A @ np.linalg.lstsq(A, b, rcond=None)[0] - b) ** 2)
-    assert lam < 0.1 * fitting._gauss_newton.RCOND * lam_max
-    assert (curvature >= fitting._gauss_newton.DETERMINED) == kept
-    start = np.array([0.0, 0.0, 0.0, 0.7])
+def _solve_linear(A, b, start):
     sol = optx.least_squares(
         lambda t, _: jnp.asarray(A) @ t - jnp.asarray(b), GaussNewtonEDM(1e-6, 1e-6), jnp.asarray(start), max_steps=64
     )
-    theta = np.asarray(sol.value)
+    assert sol.result == optx.RESULTS.successful
+    return np.asarray(sol.value)
+
+
+def _tests_at(A, b, theta):
+    """Curvature c and predicted gain G (module docstring of fitting._gauss_newton) of every eigen-direction of
+    ``AᵀA`` at ``theta``, in ascending eigenvalue order, with the eigenvectors."""
+    values, vectors = np.linalg.eigh(A.T @ A)
+    r = A @ theta - b
+    per_variance = len(b) / (r @ r)
+    along = vectors.T @ (A.T @ r)
+    return values * per_variance, along**2 / values * per_variance, vectors
+
+
+@pytest.mark.parametrize("scale, kept", [(0.05, False), (0.5, True)])
+def test_directions_the_noise_does_not_determine_are_left_out(scale, kept):
+    """A linear problem whose last column is scaled down (the others high signal-to-noise, × 1e5), its eigenvalue
+    above the rounding level (RCOND × the largest). Flatter than the noise (curvature λ·m/‖r‖² < DETERMINED) and
+    no significant gain from moving it: that coordinate keeps its start (lstsq would move it) and the others are
+    the least-squares solution without it. Determined by the noise (curvature ≥ DETERMINED): it is fitted like
+    the others — NumPy's lstsq of the whole problem — rather than left where it started and reported determined."""
+    A, b = _linear_problem()
+    A = A * np.array([1e5, 1e5, 1e5, scale])
+    start = np.array([0.0, 0.0, 0.0, 0.7])
+    best = np.linalg.lstsq(A, b, rcond=None)[0]
+    lam, lam_max = np.sum(A[:, 3] ** 2), np.linalg.norm(A, 2) ** 2
+    assert lam > fitting._gauss_newton.RCOND * lam_max
+    curvature = lam * len(b) / np.sum((A @ best - b) ** 2)
+    assert (curvature >= fitting._gauss_newton.DETERMINED) == kept
+    theta = _solve_linear(A, b, start)
     if kept:
-        np.testing.assert_allclose(theta, np.linalg.lstsq(A, b, rcond=None)[0], rtol=1e-6, atol=0)
+        np.testing.assert_allclose(theta, best, rtol=1e-6, atol=0)
     else:
+        first = np.concatenate([np.linalg.lstsq(A[:, :3], b - A[:, 3] * start[3], rcond=None)[0], start[3:]])
+        c, gain, _ = _tests_at(A, b, first)  # where the solve is after its first step: nothing asks for θ3
+        assert c[0] < fitting._gauss_newton.DETERMINED and gain[0] < fitting._gauss_newton.SIGNIFICANT_GAIN
+        assert abs(best[3] - start[3]) > 1.0  # lstsq would move it
         assert theta[3] == pytest.approx(start[3], abs=1e-6)  # the kept eigenvectors' share of it: ~1e-9
-        expected = np.linalg.lstsq(A[:, :3], b - A[:, 3] * start[3], rcond=None)[0]
-        np.testing.assert_allclose(theta[:3], expected, rtol=1e-6, atol=0)
+        np.testing.assert_allclose(theta[:3], first[:3], rtol=1e-6, atol=0)
+
+
+def test_a_direction_of_ordinary_size_that_the_noise_does_not_determine_is_left_out():
+    """Four columns of one size, the last × 0.05: its eigenvalue is 1e-3 of the largest — far above the rounding
+    level (and above the 1e-9 that alone kept a direction before) — but its curvature λ·m/‖r‖² is below
+    DETERMINED and moving along it promises less than SIGNIFICANT_GAIN. The solve does not move θ along that
+    eigenvector (its share of θ − start stays at the rounding level), fits the others — the gradient vanishes on
+    the kept subspace — and so ends above the full least-squares χ²."""
+    A, b = _linear_problem()
+    A = A * np.array([1.0, 1.0, 1.0, 0.05])
+    start = np.array([0.3, -0.2, 0.1, 0.7])
+    c, gain, vectors = _tests_at(A, b, start)
+    values = np.linalg.eigvalsh(A.T @ A)
+    assert values[0] > 1e-4 * values[-1] and np.all(c[1:] >= fitting._gauss_newton.DETERMINED)
+    assert fitting._gauss_newton.FLAT <= c[0] < fitting._gauss_newton.DETERMINED
+    assert gain[0] < fitting._gauss_newton.SIGNIFICANT_GAIN
+    theta = _solve_linear(A, b, start)
+    assert abs(vectors[:, 0] @ (theta - start)) < 1e-9  # the undetermined direction: not moved
+    np.testing.assert_allclose(vectors[:, 1:].T @ (A.T @ (A @ theta - b)), 0.0, atol=1e-9)  # the rest: fitted
+    best = np.linalg.lstsq(A, b, rcond=None)[0]
+    assert np.sum((A @ theta - b) ** 2) > np.sum((A @ best - b) ** 2)
+
+
+def test_an_undetermined_direction_the_data_ask_for_is_fitted():
+    """The same problem started 40 away along θ3: the direction is as flat (curvature < DETERMINED) but the step
+    along it promises a decrease of χ² above SIGNIFICANT_GAIN × the reduced χ² — a log-amplitude whose lobe
+    the data show brighter than the start — so it is kept, and the linear problem is solved: NumPy's lstsq."""
+    A, b = _linear_problem()
+    A = A * np.array([1.0, 1.0, 1.0, 0.05])
+    start = np.array([0.3, -0.2, 0.1, 40.7])
+    c, gain, _ = _tests_at(A, b, start)
+    assert fitting._gauss_newton.FLAT <= c[0] < fitting._gauss_newton.DETERMINED
+    assert gain[0] > 2 * fitting._gauss_newton.SIGNIFICANT_GAIN
+    np.testing.assert_allclose(_solve_linear(A, b, start), np.linalg.lstsq(A, b, rcond=None)[0], rtol=1e-6, atol=1e-8)
+
+
+def test_a_direction_flatter_than_flat_is_left_out_whatever_it_promises():
+    """The last column × 1e-3: curvature below FLAT (a standard deviation above 10 in θ). Started 2000 away, the
+    step along it promises a large decrease, but so flat a direction is where a log-amplitude drifts towards 0
+    by one unit per step: it is left out — θ does not move along it."""
+    A, b = _linear_problem()
+    A = A * np.array([1.0, 1.0, 1.0, 1e-3])
+    start = np.array([0.3, -0.2, 0.1, 2000.0])
+    c, gain, vectors = _tests_at(A, b, start)
+    assert c[0] < fitting._gauss_newton.FLAT and gain[0] > fitting._gauss_newton.SIGNIFICANT_GAIN
+    assert abs(vectors[:, 0] @ (_solve_linear(A, b, start) - start)) < 1e-9  # not moved along it
 
 
 @pytest.mark.parametrize("lanes", [None, "all"])
