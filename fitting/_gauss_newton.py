@@ -29,8 +29,9 @@ invariant under scaling σ (λ, ``(vᵀg)²`` and ``‖r‖²`` scale alike). Be
 wherever its eigenvalue was above 1e-9 of the largest or ``c_i ≥ 1``: on README's chain at ``poisson:0.05:1``
 (mi-1, the μ0 lobe's flux 37 times its noise) that kept dozens of such nodes, which walked one after another to
 the prior's floor, and the solve ran out of steps (docs/fitting.md, "The anisotropic non-parametric model";
-tests/test_gauss_newton_edm.py checks each case on linear problems). The step is scaled by a backtracking line search (Armijo:
-halved until ``½‖r‖²`` falls by at least 1e-4 of the decrease the linearisation predicts).
+tests/test_gauss_newton_edm.py checks each case on linear problems).
+
+The step is scaled by a backtracking line search (Armijo: halved until ``½‖r‖²`` falls by at least 1e-4 of the decrease the linearisation predicts).
 
 **Stop.** The expected distance to the minimum of ``½χ²`` (MINUIT's EDM; −log-likelihood units),
 
