@@ -31,7 +31,8 @@ wherever its eigenvalue was above 1e-9 of the largest or ``c_i ≥ 1``: on READM
 the prior's floor, and the solve ran out of steps (docs/fitting.md, "The anisotropic non-parametric model";
 tests/test_gauss_newton_edm.py checks each case on linear problems).
 
-The step is scaled by a backtracking line search (Armijo: halved until ``½‖r‖²`` falls by at least 1e-4 of the decrease the linearisation predicts).
+The step is scaled by a backtracking line search (Armijo: halved until ``½‖r‖²`` falls by at least 1e-4 of the
+decrease the linearisation predicts).
 
 **Stop.** The expected distance to the minimum of ``½χ²`` (MINUIT's EDM; −log-likelihood units),
 
