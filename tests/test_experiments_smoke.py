@@ -1394,6 +1394,21 @@ def test_nonparametric_solvers_gauss_newton_solves_a_linear_problem_and_stops_on
     assert rows[1]["edm"] < study.EDM_STOP
 
 
+def test_nonparametric_solvers_library_only_replaces_its_rows_and_keeps_the_study(tmp_path, monkeypatch):
+    """``--library-only`` reruns the library's default fit alone (4 of the module docstring, here a stand-in) and
+    writes it into the existing JSON: the study's rows (1–3) and the file's own commit stay as they were."""
+    import json
+
+    from experiments import nonparametric_solvers as study
+
+    earlier = {"code_commit": "abc", "fit": {"status": "max_steps"}, "library_default": [{"call": "old"}]}
+    (tmp_path / "nonparametric_solvers.json").write_text(json.dumps(earlier))
+    monkeypatch.setattr(study, "library_default", lambda model, data: [{"call": "new", "code_commit": "def"}])
+    study.main(["--library-only", "--out", str(tmp_path)])
+    written = json.loads((tmp_path / "nonparametric_solvers.json").read_text())
+    assert written == {**earlier, "library_default": [{"call": "new", "code_commit": "def"}]}
+
+
 def test_real_nonparametric_skewness_of_a_two_gaussian_mixture():
     """experiments/real_nonparametric.skewness against the closed form of a zero-mean mixture of two Gaussians along
     u_x (E[x³]/E[x²]^1.5 from the components' moments), symmetric along u_y."""
