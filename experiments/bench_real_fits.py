@@ -95,7 +95,6 @@ MAX_REDUCED_CHI2 = 1.5
 MAX_Z = 3.0
 ANISOTROPY = 2.0
 """A file is *anisotropic* when the eigenvalue ratio of Σ(μ0) exceeds this."""
-ENTRIES = (("xx", 0, 0), ("xy", 0, 1), ("yy", 1, 1))
 LAWS = {"law": "width", "law_spline": "spline"}
 """The held-out rows of :class:`fitting.AnisotropicLawModel`: its per-axis width law and its monotone spline law."""
 
@@ -140,6 +139,8 @@ def _finite(x) -> float | None:
 
 def z_scores(fitted: list[dict], statistics) -> list[dict]:
     """Per coarser scale: ΔΣ of the fit against the topography's, as z per component (module docstring, 2)."""
+    from brdfscale.fitting import DIFFERENCE_ENTRIES
+
     rows = []
     for d, s in zip(fitted, statistics[1:]):
         topo = statistics[0].covariance - s.covariance
@@ -150,12 +151,12 @@ def z_scores(fitted: list[dict], statistics) -> list[dict]:
         rows.append(
             {
                 "mu": d["mu"],
-                "fit": {n: float(value[a, b]) for n, a, b in ENTRIES},
-                "fit_std": {n: _finite(std[a, b]) for n, a, b in ENTRIES},
-                "topography": {n: float(topo[a, b]) for n, a, b in ENTRIES},
-                "topography_std": {n: float(err[a, b]) for n, a, b in ENTRIES},
-                "z": {n: _finite(z[a, b]) for n, a, b in ENTRIES},
-                "fixed": [n for n, a, b in ENTRIES if fixed[a, b]],
+                "fit": {n: float(value[a, b]) for n, a, b in DIFFERENCE_ENTRIES},
+                "fit_std": {n: _finite(std[a, b]) for n, a, b in DIFFERENCE_ENTRIES},
+                "topography": {n: float(topo[a, b]) for n, a, b in DIFFERENCE_ENTRIES},
+                "topography_std": {n: float(err[a, b]) for n, a, b in DIFFERENCE_ENTRIES},
+                "z": {n: _finite(z[a, b]) for n, a, b in DIFFERENCE_ENTRIES},
+                "fixed": [n for n, a, b in DIFFERENCE_ENTRIES if fixed[a, b]],
             }
         )
     return rows
@@ -164,8 +165,14 @@ def z_scores(fitted: list[dict], statistics) -> list[dict]:
 def pull_summary(entries: list[dict]) -> dict:
     """fit.json's pulls of ΔΣ entries against the set's truth (fitting.compare_covariance_differences): how many of
     the xx, xy, yy pulls lie within 3, of how many defined ones, and the largest |pull| (None without any)."""
+    from brdfscale.fitting import DIFFERENCE_ENTRIES
+
     pulls = [
-        abs(e["pull"][a][b]) for e in entries if e.get("pull") for _, a, b in ENTRIES if e["pull"][a][b] is not None
+        abs(e["pull"][a][b])
+        for e in entries
+        if e.get("pull")
+        for _, a, b in DIFFERENCE_ENTRIES
+        if e["pull"][a][b] is not None
     ]
     return {"within_3": sum(p <= 3 for p in pulls), "of": len(pulls), "max_abs": max(pulls, default=None)}
 

@@ -99,7 +99,6 @@ NOISE_INCIDENCE_DEG = (0.0, 80.0)
 MAX_Z = 3.0
 CIC_LAG1 = 0.25
 """Lag-1 correlation of bilinearly binned Monte Carlo noise between neighbouring nodes (module docstring)."""
-ENTRIES = (("xx", 0, 0), ("xy", 0, 1), ("yy", 1, 1))
 
 
 def configuration(quick: bool) -> dict:
@@ -267,7 +266,7 @@ def fit_set(mset: bs.MeasurementSet, masking: str) -> dict:
 def _z(value, std, reference) -> dict:
     value, reference = np.asarray(value, float), np.asarray(reference, float)
     std = np.asarray([[np.nan if s is None else s for s in row] for row in std], float)
-    return {n: _finite((value[a, b] - reference[a, b]) / std[a, b]) for n, a, b in ENTRIES}
+    return {n: _finite((value[a, b] - reference[a, b]) / std[a, b]) for n, a, b in fitting.DIFFERENCE_ENTRIES}
 
 
 def _finite(x) -> float | None:
@@ -305,7 +304,7 @@ def shift(fit: dict, normal: dict) -> dict:
 
     def z(a, sa, b, sb):
         out = {}
-        for n, i, j in ENTRIES:
+        for n, i, j in fitting.DIFFERENCE_ENTRIES:
             s = [sa[i][j], sb[i][j]]
             out[n] = None if None in s else _finite((a[i][j] - b[i][j]) / math.hypot(*s))
         return out

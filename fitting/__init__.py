@@ -56,7 +56,13 @@ from ._batch import BatchPlan, COMPILE_ROWS, explain_plan, fit_many
 from ._checkpoint import rewind_checkpoint
 from ._compare import compare, Comparison
 from ._data import Dataset, PointData
-from ._derived import compare_covariance_differences, covariance_truth, RATIO_FREQUENCIES, ratio_frequencies
+from ._derived import (
+    compare_covariance_differences,
+    covariance_truth,
+    DIFFERENCE_ENTRIES,
+    RATIO_FREQUENCIES,
+    ratio_frequencies,
+)
 from ._diagnostics import pareto_k
 from ._fit import fit, resolve_starts
 from ._joint import TopographyData
@@ -88,6 +94,7 @@ from ._solve import resolve_solver, SOLVERS
 
 __all__ = [
     "COMPILE_ROWS",
+    "DIFFERENCE_ENTRIES",
     "HMC",
     "IMH",
     "NUTS",

@@ -107,7 +107,7 @@ from brdfscale.checks import real
 from brdfscale.choices import ADEQUACY, AdequacyDefaults
 
 from ._data import Dataset
-from ._derived import compare_covariance_differences
+from ._derived import compare_covariance_differences, DIFFERENCE_ENTRIES
 from ._model import predict_images
 from ._moments import moment_covariance_differences, weighted_moments
 from ._problem import check_fit, Problem
@@ -238,9 +238,6 @@ def resolution(data: Dataset, *, unit: str | None = None, thresholds: AdequacyDe
     return Outcome("undetermined", problems[0], tuple(problems), rows, thresholds)
 
 
-_ENTRIES = (("xx", 0, 0), ("xy", 0, 1), ("yy", 1, 1))
-
-
 def undetermined_statistics(fit: FitResult, unit: str | None = None) -> str | None:
     """The line naming the reported statistics without a standard error (module docstring,
     **Identified**), or None when every one has one."""
@@ -249,7 +246,7 @@ def undetermined_statistics(fit: FitResult, unit: str | None = None) -> str | No
     total = 0
     for d in fit.covariance_differences:
         fixed = d.get("fixed") or [[False] * 2] * 2
-        for name, a, b in _ENTRIES:
+        for name, a, b in DIFFERENCE_ENTRIES:
             if fixed[a][b] or d["value"][a][b] is None:
                 continue
             total += 1
@@ -386,7 +383,7 @@ def _moment_misses(data: Dataset, prediction: np.ndarray, observed: list[dict], 
     out: list[dict] = [dict.fromkeys(_MOMENT_FIGURES)]
     for seen, model in zip(observed, predicted):
         best: dict = dict.fromkeys(_MOMENT_FIGURES)
-        for name, a, b in _ENTRIES:
+        for name, a, b in DIFFERENCE_ENTRIES:
             v, m, s = seen["value"][a][b], model["value"][a][b], seen["std"][a][b]
             if v is None or m is None or not s:
                 continue
@@ -504,7 +501,7 @@ def _truth_miss(fit: FitResult, covariance_truth, unit, thresholds: AdequacyDefa
         (abs(pull[i][j]), pull[i][j], name, entry["mu"])
         for entry in entries
         if (pull := entry.get("pull")) is not None
-        for name, i, j in _ENTRIES
+        for name, i, j in DIFFERENCE_ENTRIES
         if pull[i][j] is not None
     ]
     if not pulls:

@@ -32,6 +32,7 @@ __all__ = [
     "RATIO_FREQUENCIES",
     "FIXED_NOTE",
     "DIFFERENCE_COMPONENTS",
+    "DIFFERENCE_ENTRIES",
     "compare_covariance_differences",
     "covariance_differences",
     "covariance_truth",
@@ -165,9 +166,13 @@ def _covariance_differences_and_jacobian(model, theta, scales):
     return flat(theta), jax.jacfwd(flat)(theta)
 
 
-DIFFERENCE_COMPONENTS = ((0, 0), (0, 1), (1, 1))
-"""The components of a ΔΣ(μ0, μ_k) that :func:`summarise_covariance_differences`' joint covariance orders its rows
-by, per coarser scale: xx, xy, yy."""
+DIFFERENCE_ENTRIES = (("xx", 0, 0), ("xy", 0, 1), ("yy", 1, 1))
+"""The entries of a ΔΣ(μ0, μ_k), each ``(name, row, column)`` of its 2 × 2 matrix, in the order fit.json, the
+command's tables and :func:`summarise_covariance_differences`' joint covariance give them: xx, xy, yy (public as
+``fitting.DIFFERENCE_ENTRIES``, the one table of them)."""
+
+DIFFERENCE_COMPONENTS = tuple((a, b) for _, a, b in DIFFERENCE_ENTRIES)
+""":data:`DIFFERENCE_ENTRIES` without the names: the ``(row, column)`` of xx, xy, yy."""
 
 
 def summarise_covariance_differences(model, theta, scales, analysis) -> tuple[list[dict], np.ndarray]:

@@ -773,7 +773,7 @@ def print_covariance_truth(doc: dict, stream=print, surface: dict | None = None)
     stream(header + (f" {'moments':>10s} {'± std':>9s} {'pull':>7s}" if moments[0] is not None else ""))
     pulls = {"fit": [], "moments": []}
     for d, m in zip(rows, moments):
-        for name, a, b in (("xx", 0, 0), ("xy", 0, 1), ("yy", 1, 1)):
+        for name, a, b in load_fitting().DIFFERENCE_ENTRIES:
             cells = [table_cell(d["truth"][a][b], "10.4g", "unknown")]
             for label, e in (("fit", d), ("moments", m)):
                 if e is None:
