@@ -96,6 +96,7 @@ The thresholds are :data:`brdfscale.choices.ADEQUACY` (:class:`brdfscale.choices
 """
 
 import dataclasses
+import math
 from typing import Literal
 
 import jax.numpy as jnp
@@ -205,6 +206,30 @@ def lobe_widths(data: Dataset, thresholds: AdequacyDefaults = ADEQUACY) -> list[
     return _widths_and_faint(data, thresholds)[0]
 
 
+def _narrow(widths, faint, min_lobe_pixels: float) -> list[int]:
+    """The scales whose lobe, not too faint to measure, is narrower than ``min_lobe_pixels`` image pixels."""
+    return [k for k, w in enumerate(widths) if not faint[k] and w < min_lobe_pixels]
+
+
+def with_adequacy_problem(outcome: dict, problem: str) -> dict:
+    """``outcome`` (:meth:`Outcome.to_json`'s form, fit.json's ``outcome``) with an adequacy problem found after
+    :func:`assess` — ``brdfscale fit --predict``'s scale law rejected by the fit's ΔΣ — ranked as :func:`assess`
+    ranks its checks (resolution, adequacy, convergence, identifiability: the first that fails decides): an
+    outcome ``"undetermined"`` by the resolution check (a scale's lobe too faint or narrower than
+    ``min_lobe_pixels``, read from its rows) or already ``"inadequate"`` keeps its status and reason; ``"ok"``,
+    ``"not_converged"`` and ``"undetermined"`` by identifiability become ``"inadequate"`` with ``problem`` as the
+    reason. ``problem`` joins ``problems`` in every case."""
+    scales = outcome.get("scales") or []
+    faint = [bool(s.get("faint")) for s in scales]
+    widths = [s.get("width_px") if s.get("width_px") is not None else math.inf for s in scales]
+    limit = (outcome.get("thresholds") or {}).get("min_lobe_pixels", ADEQUACY.min_lobe_pixels)
+    unresolved = any(faint) or bool(_narrow(widths, faint, limit))
+    amended = {**outcome, "problems": [*outcome.get("problems", []), problem]}
+    if outcome["status"] != "inadequate" and not (outcome["status"] == "undetermined" and unresolved):
+        amended.update(status="inadequate", reason=problem)
+    return amended
+
+
 def resolution(data: Dataset, *, unit: str | None = None, thresholds: AdequacyDefaults = ADEQUACY) -> Outcome:
     """The resolution check alone (before a fit: a lobe narrower than ``min_lobe_pixels`` image
     pixels at any scale, or too faint to measure, makes the outcome ``"undetermined"``); ``unit``
@@ -224,7 +249,7 @@ def resolution(data: Dataset, *, unit: str | None = None, thresholds: AdequacyDe
             "with more counts (a longer exposure; for brdfscale synth, a larger count scale in --noise); if the "
             "lobe also lies within a pixel, a smaller image extent or a finer angular resolution"
         )
-    narrow = [k for k, w in enumerate(widths) if not faint[k] and w < thresholds.min_lobe_pixels]
+    narrow = _narrow(widths, faint, thresholds.min_lobe_pixels)
     if narrow:
         worst = min(narrow, key=lambda k: widths[k])
         problems.append(

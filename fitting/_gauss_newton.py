@@ -14,9 +14,12 @@ the data neither determine nor ask to move along. In units of the inverse varian
 predicts is ``G_i = (v_iᵀg)²/λ_i · s``; it is kept where its eigenvalue is above the decomposition's rounding
 level (:data:`RCOND` × the largest) and
 
-* it is determined: ``c_i ≥`` :data:`DETERMINED` (a Laplace standard deviation of at most 1 in θ, where the
-  fit's report calls a direction determined, ``undetermined_std``) — so a direction the report calls determined
-  is never one the solver did not fit; or
+* it is determined: ``c_i ≥`` :data:`DETERMINED` (a Laplace standard deviation of at most 1 in θ, inflated by
+  the reduced χ²; the fit's report calls a direction determined, ``undetermined_std``, by its Fisher eigenvalue
+  uninflated, ``λ_i ≥ 1`` in the rows' own units, so where ``‖r‖²/m ≤ 1`` — residuals no larger than the noise —
+  no direction the report calls determined is one the solver did not fit; where the residuals exceed the noise,
+  ``c_i = λ_i/(‖r‖²/m)`` is the stricter test, and a direction with ``1 ≤ λ_i < ‖r‖²/m`` is fitted only where it
+  promises a significant gain); or
 * the data ask for it: ``G_i ≥`` :data:`SIGNIFICANT_GAIN` (the step would lower χ² by 9 times the reduced χ²,
   a three-standard-deviation improvement) and ``c_i ≥`` :data:`FLAT` (a standard deviation of at most 10 in θ).
 
@@ -24,9 +27,12 @@ Left out, and so not moved from where they are: the rest — e.g. the anisotropi
 base-lobe nodes where the lobe is below the noise at every scale (``log g0`` there: its derivative is the lobe
 itself, ≈ 0, and a Gauss–Newton step drives it towards −∞ by about 1 per step, the line search cutting every
 other coordinate's step with it), where Levenberg–Marquardt keeps damping them; a node whose lobe the data show
-brighter than the start (a heavy tail started from a Gaussian) has a large ``G_i`` and is fitted. Every test is
-invariant under scaling σ (λ, ``(vᵀg)²`` and ``‖r‖²`` scale alike). Before (to stop 52), a direction was kept
-wherever its eigenvalue was above 1e-9 of the largest or ``c_i ≥ 1``: on README's chain at ``poisson:0.05:1``
+brighter than the start (a heavy tail started from a Gaussian) has a large ``G_i`` and is fitted. Each direction
+is tested alone: several left out, each promising less than 9, may together promise more — the EDM stop is over
+the kept directions, so "converged" says nothing of them (for a log-amplitude below the noise ``G_i ≈ c_i < 1``).
+Every test is invariant under scaling σ (λ and ``‖r‖²`` scale alike, and so do ``(vᵀg)²/λ`` and ``‖r‖²``). An
+earlier rule (to December 2026) kept a direction wherever its eigenvalue was above 1e-9 of the largest or
+``c_i ≥ 1``: on README's chain at ``poisson:0.05:1``
 (mi-1, the μ0 lobe's flux 37 times its noise) that kept dozens of such nodes, which walked one after another to
 the prior's floor, and the solve ran out of steps (docs/fitting.md, "The anisotropic non-parametric model";
 tests/test_gauss_newton_edm.py checks each case on linear problems).

@@ -130,18 +130,23 @@ knots out to ``2/σ_min``)."""
 
 def _noise_frequency(data: Dataset, sd_min: float) -> float:
     """The frequency where the μ0 lobe's transform falls to the noise of the images' transform, along the lobe's
-    narrow axis: a Gaussian lobe of flux F has ``|DFT| = F e^{−σ²W²/2}``, the noise of one DFT coefficient of
-    the μ0 images is ``N = (Σ σ_i²)^{1/2}`` over their valid pixels, so ``W_noise = √(2 ln(F/N))/σ_min``
-    (``ln(F/N)`` at least :data:`_SIGNAL_FLOOR`). Beyond it R_k multiplies noise: knots there are held by the
-    smoothness prior alone, and on README's chain at ``poisson:0.05:1`` (F/N ≈ 37 on mi-1) the solve spent its
-    steps on them (docs/fitting.md, "The anisotropic non-parametric model")."""
-    flux = noise2 = 0.0
+    narrow axis: a Gaussian lobe of flux F (the sum of an image's valid pixels) has ``|DFT| = F e^{−σ²W²/2}``, the
+    noise of one DFT coefficient of the image is ``N = (Σ σ_i²)^{1/2}`` over those pixels, so
+    ``W_noise = √(2 ln(F/N))/σ_min``; replicate μ0 images are independent measurements of that coefficient, so
+    their ratios add in quadrature, ``F/N = (Σ_images (F/N)²)^{1/2}`` (whatever each image's pixel pitch);
+    ``ln(F/N)`` is at least :data:`_SIGNAL_FLOOR` (also where F ≤ 0). Beyond it R_k multiplies noise: knots there
+    are held by the smoothness prior alone, and on README's chain at ``poisson:0.05:1`` (F/N ≈ 37 on mi-1) the
+    solve spent its steps on them (docs/fitting.md, "The anisotropic non-parametric model";
+    tests/test_nonparametric_aniso.py checks the closed form, masked pixels, replicates and the floor)."""
+    squares = 0.0
     for i in data.images_of_scale(0):
-        weight = np.asarray(data.weight[i])
+        weight = np.asarray(data.weight[i])  # 0 at masked and padding pixels
         valid = weight > 0
-        flux += float(np.sum(np.where(valid, np.asarray(data.values[i]), 0.0)))
-        noise2 += float(np.sum(1.0 / weight[valid] ** 2))
-    ratio = flux / math.sqrt(noise2) if noise2 > 0 else math.inf
+        flux = float(np.sum(np.where(valid, np.asarray(data.values[i]), 0.0)))
+        noise2 = float(np.sum(1.0 / weight[valid] ** 2))
+        if flux > 0 and noise2 > 0:
+            squares += flux**2 / noise2
+    ratio = math.sqrt(squares)
     return math.sqrt(2.0 * max(math.log(ratio) if ratio > 0 else 0.0, _SIGNAL_FLOOR)) / sd_min
 
 

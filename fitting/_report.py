@@ -26,7 +26,7 @@ from brdfscale.checks import flag
 from brdfscale.choices import ADEQUACY
 from brdfscale.files import atomic_write, exclusive, json_text, jsonable, write_bytes, write_text
 
-from ._adequacy import assess_against
+from ._adequacy import assess_against, with_adequacy_problem
 from ._derived import compare_covariance_differences
 from ._model import predict_images
 from ._moments import moment_covariance_differences
@@ -482,33 +482,36 @@ def write_report(
 
 
 def record_problem(out_dir, doc: dict, problem: str) -> dict:
-    """The report ``doc`` that :func:`write_report` wrote into ``out_dir``, amended by a problem found after it and
-    written again: ``problem`` (one line, :func:`assess`'s form) is appended to the outcome's ``problems``, and an
-    outcome that was ``"ok"`` becomes ``"inadequate"`` with it as its reason (a worse outcome keeps its status and
-    reason). ``brdfscale fit --predict`` records so the scale law its predictions rest on when the fit's ΔΣ
-    estimates reject it (``LawFromDifferences.inadequate_because``): fit.json then says what the command's exit
-    status says (5), not "ok". fit.json is replaced atomically (the rest of the report stays as written); returns
-    the amended document. tests/test_measured_prediction.py checks the file after a rejected law.
+    """The report ``doc`` that :func:`write_report` wrote into ``out_dir``, amended by an adequacy problem found
+    after it and written again: ``problem`` (one line, :func:`assess`'s form) joins the outcome's ``problems``, and
+    the status is the one :func:`assess` would have given with it among its adequacy tests — ``"ok"``,
+    ``"not_converged"`` and an identifiability ``"undetermined"`` become ``"inadequate"`` with it as the reason, a
+    resolution ``"undetermined"`` or an ``"inadequate"`` stand (``fitting._adequacy.with_adequacy_problem``).
+    ``brdfscale fit --predict`` records so the scale law its predictions rest on when the fit's ΔΣ estimates reject
+    it (``LawFromDifferences.inadequate_because``): fit.json then says what the command's exit status says (5), not
+    "ok". fit.json is replaced atomically under the directory's lock (the rest of the report stays as written);
+    returns the amended document. tests/test_fit.py checks the file and the ranking, tests/test_measured_prediction.py
+    the command's fit.json after a rejected law.
 
     Raises:
-        InvalidInputError: ``doc`` has no outcome (not a report) or ``problem`` is not a non-empty string.
-        MeasurementFileError: fit.json cannot be written.
+        InvalidInputError: ``doc`` has no outcome (not a report), ``problem`` is not a non-empty string, or
+            ``out_dir`` is not a directory.
+        OutputInUseError: another process holds the directory.
+        OutputWriteError: fit.json cannot be written (e.g. a full disk).
     """
     outcome = doc.get("outcome") if isinstance(doc, dict) else None
-    if not isinstance(outcome, dict) or "status" not in outcome:
+    if not isinstance(outcome, dict) or "status" not in outcome or not isinstance(outcome.get("problems", []), list):
         raise InvalidInputError("record_problem(out_dir, doc, problem) needs the report write_report returned as doc.")
     if not isinstance(problem, str) or not problem.strip():
         raise InvalidInputError(f"record_problem: problem must be a non-empty line of text; got {problem!r}.")
-    amended = {**outcome, "problems": [*outcome.get("problems", []), problem]}
-    if outcome["status"] == "ok":
-        amended.update(status="inadequate", reason=problem)
-    doc = {**doc, "outcome": amended}
-    target = os.path.join(out_dir, "fit.json")
+    doc = {**doc, "outcome": with_adequacy_problem(outcome, problem)}
     with exclusive(out_dir, what="report directory"):
-        try:
-            write_text(target, json_text(jsonable(doc), indent=2), overwrite=True, error=InvalidInputError)
-        except OSError as err:
-            raise MeasurementFileError(f"the report cannot be written into {out_dir}: {err}") from None
+        write_text(
+            os.path.join(out_dir, "fit.json"),
+            json_text(jsonable(doc), indent=2),
+            overwrite=True,
+            error=InvalidInputError,
+        )
     return doc
 
 

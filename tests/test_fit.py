@@ -475,14 +475,28 @@ def test_write_report_checks_every_file_before_writing(small_problem, tmp_path):
     }
     assert written["outcome"]["problems"] == [*before["outcome"].get("problems", []), "the law is rejected (test)"]
     assert (written["outcome"]["status"], written["outcome"]["reason"]) == ("inadequate", "the law is rejected (test)")
-    worse = {**amended, "outcome": {**amended["outcome"], "status": "not_converged", "reason": "the solver stopped"}}
-    kept = fitting.record_problem(out, worse, "x")  # a worse verdict stands, the line joins its problems
-    assert (kept["outcome"]["status"], kept["outcome"]["reason"]) == ("not_converged", "the solver stopped")
-    assert kept["outcome"]["problems"][-1] == "x" and json.loads((out / "fit.json").read_text()) == kept
+    # ranked as assess ranks its checks: adequacy before convergence and identifiability, after resolution
+    base = amended["outcome"]
+    narrow = [{**row, "width_px": 0.5, "faint": False} for row in base["scales"]]
+    for status, scales, kept in [
+        ("not_converged", base["scales"], False),
+        ("undetermined", base["scales"], False),  # identifiability: the rows' lobes are resolved
+        ("undetermined", narrow, True),  # resolution: a lobe narrower than min_lobe_pixels
+        ("inadequate", base["scales"], True),
+    ]:
+        earlier = {**amended, "outcome": {**base, "status": status, "reason": "earlier", "scales": scales}}
+        now = fitting.record_problem(out, earlier, "x")
+        assert (now["outcome"]["status"], now["outcome"]["reason"]) == (
+            (status, "earlier") if kept else ("inadequate", "x")
+        )
+        assert now["outcome"]["problems"][-1] == "x" and json.loads((out / "fit.json").read_text()) == now
+    assert all(row["width_px"] >= base["thresholds"]["min_lobe_pixels"] for row in base["scales"])
     with pytest.raises(InvalidInputError, match="needs the report write_report returned"):
         fitting.record_problem(out, {"figures": []}, "x")
     with pytest.raises(InvalidInputError, match="non-empty line"):
         fitting.record_problem(out, doc, " ")
+    with pytest.raises(InvalidInputError, match="needs the report write_report returned"):
+        fitting.record_problem(out, {**doc, "outcome": {**doc["outcome"], "problems": "one"}}, "x")
 
 
 def test_sample_checkpoint_paths_and_first_chunk_resume(small_problem, tmp_path):

@@ -20,7 +20,7 @@ jax.config.update("jax_enable_x64", True)
 
 from brdfscale import fitting  # noqa: E402
 from brdfscale.fitting._derived import covariance_differences  # noqa: E402
-from brdfscale.fitting._nonparametric_aniso import _fast_length, evolve_on_grid  # noqa: E402
+from brdfscale.fitting._nonparametric_aniso import _fast_length, _noise_frequency, evolve_on_grid  # noqa: E402
 
 
 SCALES = (1.0, 2.0, 4.0)
@@ -74,6 +74,39 @@ def dataset(lobes, seed=0, noise=0.01, floor=1e-3, size=SIZE, extent=EXTENT):
 
 def gaussian_set(seed=0, **kw):
     return dataset([lambda u, d=d: gaussian(u, MEAN, C0 + d, 2.0) for d in DIFFERENCES], seed, **kw)
+
+
+def test_the_last_knot_stops_where_the_lobe_s_transform_meets_the_noise():
+    """``_noise_frequency``: for μ0 images of known flux F (the sum of the valid pixels) and σ, ``√(2 ln(F/N))/σ_min``
+    with N = (Σ σ²)^{1/2} over the valid pixels only (a masked pixel counts in neither), replicate images adding
+    their F/N in quadrature, ln(F/N) floored at 2 (also for a flux ≤ 0); the model's default ``w_max`` is the least
+    of that, 6/σ_min and π/h."""
+
+    def image(mu, value, sigma, mask=None):
+        v = np.full((SIZE, SIZE), value)
+        return LobeImage(
+            mu=mu, incident=[0.0, 0.0, 1.0], extent=EXTENT, values=v, sigma=np.full(v.shape, sigma), mask=mask
+        )
+
+    coarser = [image(mu, 1.0, 0.1) for mu in SCALES[1:]]
+    mask = np.ones((SIZE, SIZE), bool)
+    mask[:5] = False  # 5 of 17 rows masked
+    cases = [
+        ([image(1.0, 1.0, 0.01)], SIZE * SIZE / (0.01 * SIZE)),  # F = 289, N = 0.17
+        ([image(1.0, 1.0, 0.01, mask)], 12 * SIZE / (0.01 * math.sqrt(12 * SIZE))),
+        ([image(1.0, 1.0, 0.01), image(1.0, 1.0, 0.02)], math.hypot(SIZE / 0.01, SIZE / 0.02)),
+        ([image(1.0, 1e-4, 0.01)], math.exp(2.0)),  # F/N = 0.17: the floor
+        ([image(1.0, -1.0, 0.01)], math.exp(2.0)),
+    ]
+    for first, ratio in cases:
+        data = fitting.Dataset.from_measurements(MeasurementSet((*first, *coarser)))
+        assert _noise_frequency(data, 0.02) == pytest.approx(math.sqrt(2 * math.log(ratio)) / 0.02, rel=1e-12)
+    data = gaussian_set()
+    model = fitting.AnisotropicNonParametricModel(data)
+    centre, cov = fitting._anisotropic.image_moments(data)
+    h = 2 * EXTENT / (SIZE - 1)
+    sd = math.sqrt(max(float(np.linalg.eigvalsh(cov[0])[0]), h * h / 12))
+    assert model.knots[-1] == pytest.approx(min(6 / sd, math.pi / h, _noise_frequency(data, sd)), rel=1e-12)
 
 
 def gaussian_theta(model, differences, base_theta):
