@@ -504,14 +504,16 @@ def record_problem(out_dir, doc: dict, problem: str) -> dict:
         raise InvalidInputError("record_problem(out_dir, doc, problem) needs the report write_report returned as doc.")
     if not isinstance(problem, str) or not problem.strip():
         raise InvalidInputError(f"record_problem: problem must be a non-empty line of text; got {problem!r}.")
-    doc = {**doc, "outcome": with_adequacy_problem(outcome, problem)}
     with exclusive(out_dir, what="report directory"):
-        write_text(
-            os.path.join(out_dir, "fit.json"),
-            json_text(jsonable(doc), indent=2),
-            overwrite=True,
-            error=InvalidInputError,
-        )
+        return _write_fit_json(out_dir, {**doc, "outcome": with_adequacy_problem(outcome, problem)}, overwrite=True)
+
+
+def _write_fit_json(out_dir, doc: dict, overwrite: bool) -> dict:
+    """Write ``doc`` as DIR/fit.json (atomic; replaced only with ``overwrite``); returns its JSON-ready copy."""
+    doc = cast(dict, jsonable(doc))  # jsonable returns a dict's JSON-ready copy as a dict
+    write_text(
+        os.path.join(out_dir, "fit.json"), json_text(doc, indent=2), overwrite=overwrite, error=InvalidInputError
+    )
     return doc
 
 
@@ -545,9 +547,7 @@ def _write_files(
         for stale in report_files(out_dir):
             if stale not in written and os.path.lexists(stale):
                 os.remove(stale)
-        doc = cast(dict, jsonable(doc))  # jsonable returns a dict's JSON-ready copy as a dict
-        text = json_text(doc, indent=2)
-        write_text(target, text, overwrite=overwrite, error=InvalidInputError)
+        doc = _write_fit_json(out_dir, doc, overwrite)
     except OSError as err:
         raise MeasurementFileError(f"the report cannot be written into {out_dir}: {err}") from None
     return doc
