@@ -21,21 +21,29 @@ level (:data:`RCOND` × the largest) and
   ``c_i = λ_i/(‖r‖²/m)`` is the stricter test, and a direction with ``1 ≤ λ_i < ‖r‖²/m`` is fitted only where it
   promises a significant gain); or
 * the data ask for it: ``G_i ≥`` :data:`SIGNIFICANT_GAIN` (the step would lower χ² by 9 times the reduced χ²,
-  a three-standard-deviation improvement) and ``c_i ≥`` :data:`FLAT` (a standard deviation of at most 10 in θ).
+  a three-standard-deviation improvement) and ``c_i ≥`` :data:`FLAT` (a standard deviation of at most 10 in θ);
+  or
+* several ask for it together: of the directions left so far with ``c_i ≥ FLAT``, k in all, their gains
+  summed exceed what k directions at their optimum give by chance (under that hypothesis each ``G_i`` is a χ²
+  variable of one degree of freedom, independent, so their sum is χ² of k: the joint test at the single test's
+  level, ``p = P(χ²₁ > 9) = 0.0027``, the threshold ``q_k = χ²_k``'s upper ``p`` quantile, :func:`joint_thresholds`,
+  ``q_1 = 9``). Then the largest-gain ones among them are kept, one by one, until the gains of those still left
+  out no longer pass that test for their number — so "converged" (the EDM over the kept directions) also says
+  that the directions left out, together, have nothing significant to give.
 
 Left out, and so not moved from where they are: the rest — e.g. the anisotropic non-parametric model's
 base-lobe nodes where the lobe is below the noise at every scale (``log g0`` there: its derivative is the lobe
 itself, ≈ 0, and a Gauss–Newton step drives it towards −∞ by about 1 per step, the line search cutting every
-other coordinate's step with it), where Levenberg–Marquardt keeps damping them; a node whose lobe the data show
-brighter than the start (a heavy tail started from a Gaussian) has a large ``G_i`` and is fitted. Each direction
-is tested alone: several left out, each promising less than 9, may together promise more — the EDM stop is over
-the kept directions, so "converged" says nothing of them (for a log-amplitude below the noise ``G_i ≈ c_i < 1``).
+other coordinate's step with it), where Levenberg–Marquardt keeps damping them (for such a log-amplitude
+``G_i ≈ c_i < 1``: k of them sum below k, and ``q_k`` is about ``k + 3√(2k)``); a node whose lobe the data show
+brighter than the start (a heavy tail started from a Gaussian) has a large ``G_i`` and is fitted.
 Every test is invariant under scaling σ (λ and ``‖r‖²`` scale alike, and so do ``(vᵀg)²/λ`` and ``‖r‖²``). An
 earlier rule (to December 2026) kept a direction wherever its eigenvalue was above 1e-9 of the largest or
 ``c_i ≥ 1``: on README's chain at ``poisson:0.05:1``
 (mi-1, the μ0 lobe's flux 37 times its noise) that kept dozens of such nodes, which walked one after another to
 the prior's floor, and the solve ran out of steps (docs/fitting.md, "The anisotropic non-parametric model";
-tests/test_gauss_newton_edm.py checks each case on linear problems).
+tests/test_gauss_newton_edm.py checks each case on linear problems). Until the joint test (December 2026) the
+directions were tested one at a time only.
 
 The step is scaled by a backtracking line search (Armijo: halved until ``½‖r‖²`` falls by at least 1e-4 of the
 decrease the linearisation predicts).
@@ -71,11 +79,22 @@ import jax
 import jax.flatten_util as jfu
 import jax.numpy as jnp
 import lineax as lx
+import numpy as np
 import optimistix as optx
+import scipy.stats
 from jaxtyping import Array, Bool, Float, PyTree
 
 
-__all__ = ["DETERMINED", "EDM_TOLERANCE", "FLAT", "GaussNewtonEDM", "RCOND", "SIGNIFICANT_GAIN"]
+__all__ = [
+    "DETERMINED",
+    "EDM_TOLERANCE",
+    "FLAT",
+    "GaussNewtonEDM",
+    "JOINT_LEVEL",
+    "RCOND",
+    "SIGNIFICANT_GAIN",
+    "joint_thresholds",
+]
 
 EDM_TOLERANCE = 1e-3
 """τ: the solve stops when the expected distance to the minimum is at most τ times the reduced χ²
@@ -95,6 +114,10 @@ least this many times the reduced χ² (module docstring)."""
 FLAT = 0.01
 """…and where its curvature is at least this (module docstring)."""
 
+JOINT_LEVEL = float(scipy.stats.chi2.sf(SIGNIFICANT_GAIN, 1))
+"""The level of the joint test of the directions left out, that of the single test: ``P(χ²₁ > 9) ≈ 0.0027``
+(module docstring)."""
+
 
 def _rows(residual) -> jax.Array:
     """m: the non-zero rows (padding rows of :func:`fitting.fit_many` are zero), at least 1."""
@@ -112,8 +135,29 @@ def truncated_step(jac: Float[Array, "m n"], residual: Float[Array, " m"], *, rc
     curvature = values * per_variance
     gain = along**2 / jnp.where(resolved, values, 1.0) * per_variance  # the χ² decrease the step along vᵢ predicts
     keep = resolved & ((curvature >= DETERMINED) | ((gain >= SIGNIFICANT_GAIN) & (curvature >= FLAT)))
+    keep = keep | _jointly_significant(resolved & ~keep & (curvature >= FLAT), gain)
     newton = vectors @ jnp.where(keep, along / jnp.where(keep, values, 1.0), 0.0)
     return newton, 0.5 * gradient @ newton
+
+
+def joint_thresholds(n: int) -> np.ndarray:
+    """``q_k`` for k = 0 … n: the upper :data:`JOINT_LEVEL` quantile of χ² with k degrees of freedom (``q_0 = ∞``;
+    ``q_1`` = :data:`SIGNIFICANT_GAIN`), the threshold of the joint test (module docstring). SciPy's ``chi2.isf``,
+    at trace time (n is the parameter count, static)."""
+    return np.concatenate([[np.inf], scipy.stats.chi2.isf(JOINT_LEVEL, np.arange(1, n + 1))])
+
+
+def _jointly_significant(candidate: Bool[Array, " n"], gain: Float[Array, " n"]) -> Bool[Array, " n"]:
+    """The candidates to keep by the joint test (module docstring): the j largest gains among the k candidates, j
+    the least for which the other k − j gains sum below ``q_{k−j}`` (traced)."""
+    n = gain.shape[0]
+    order = jnp.argsort(jnp.where(candidate, -gain, jnp.inf))  # the candidates first, largest gain first
+    ranked = jnp.where(candidate[order], gain[order], 0.0)
+    left = jnp.cumsum(ranked[::-1])[::-1]  # left[j]: the gains summed over the candidates ranked j and after
+    remaining = jnp.sum(candidate) - jnp.arange(n)  # how many candidates those are
+    significant = (remaining > 0) & (left >= jnp.asarray(joint_thresholds(n), gain.dtype)[jnp.maximum(remaining, 0)])
+    kept = jnp.argmin(jnp.append(significant, False).astype(jnp.int32))  # the first j whose rest is not significant
+    return jnp.zeros(n, bool).at[order].set(jnp.arange(n) < kept)
 
 
 def settled(edm, residual, tolerance: float = EDM_TOLERANCE) -> jax.Array:

@@ -11,6 +11,7 @@ import numpy as np
 import optimistix as optx
 import pytest
 import scipy.optimize
+import scipy.stats
 
 from brdfscale import choices, fitting, InvalidInputError
 from tests.helpers import Linear, linear_measurements, parametric_dataset, TRUTHS
@@ -225,6 +226,63 @@ def test_a_direction_flatter_than_flat_is_left_out_whatever_it_promises():
     c, gain, vectors = _tests_at(A, b, start)
     assert c[0] < fitting._gauss_newton.FLAT and gain[0] > fitting._gauss_newton.SIGNIFICANT_GAIN
     assert abs(vectors[:, 0] @ (_solve_linear(A, b, start) - start)) < 1e-9  # not moved along it
+
+
+def _orthogonal_problem(scales, rows=2000, seed=11):
+    """``A = Q diag(scales)`` (Q: orthonormal columns, so the eigen-directions of ``AᵀA`` are the coordinates) and
+    ``b = A θ* + e``, e orthogonal to A's range with ``‖e‖² = rows``: the optimum is θ* exactly, at a reduced χ²
+    of 1."""
+    rng = np.random.default_rng(seed)
+    q, _ = np.linalg.qr(rng.normal(size=(rows, len(scales) + 1)))
+    truth = rng.normal(size=len(scales))
+    noise = q[:, -1] * np.sqrt(rows)
+    A = q[:, :-1] * np.asarray(scales)
+    return A, A @ truth + noise, truth
+
+
+def test_the_joint_test_keeps_the_largest_gains_until_the_rest_is_not_significant():
+    """Worked by hand: candidate gains 4, 5, 4.5, 3, 6, 2 (and a non-candidate's 100) sum to 24.5 ≥ q_6 = 20.06
+    (SciPy's χ²₆ upper 0.0027 quantile); without the 6 the rest sum 18.5 ≥ q_5 = 18.21; without the 5 too 13.5 <
+    q_4 = 16.25: the 6 and the 5 are kept. At 0.3 times those gains (7.35 < 20.06) none is. q_1 is the single
+    test's 9; jit gives what eager gives."""
+    g = fitting._gauss_newton
+    thresholds = g.joint_thresholds(6)
+    np.testing.assert_allclose(thresholds[1:], scipy.stats.chi2.isf(scipy.stats.chi2.sf(9.0, 1), np.arange(1, 7)))
+    assert thresholds[0] == np.inf and thresholds[1] == pytest.approx(g.SIGNIFICANT_GAIN, rel=1e-12)
+    assert thresholds[6] == pytest.approx(20.062, abs=1e-3) and thresholds[5] == pytest.approx(18.205, abs=1e-3)
+    candidate = jnp.array([True, True, False, True, True, True, True])
+    gain = jnp.array([4.0, 5.0, 100.0, 4.5, 3.0, 6.0, 2.0])
+    expected = [False, True, False, False, False, True, False]
+    assert list(np.asarray(g._jointly_significant(candidate, gain))) == expected
+    assert list(np.asarray(jax.jit(g._jointly_significant)(candidate, gain))) == expected
+    assert not np.any(np.asarray(g._jointly_significant(candidate, 0.3 * gain)))
+    assert not np.any(np.asarray(g._jointly_significant(jnp.zeros(7, bool), gain)))
+
+
+def test_directions_that_ask_for_it_together_are_fitted():
+    """Three determined coordinates and six flat ones (curvature 0.2–0.3, between FLAT and DETERMINED), each of the six
+    started where moving it alone promises a χ² decrease of about 8 — below SIGNIFICANT_GAIN, so the test of one
+    direction at a time leaves all six where they started — while together they promise about 50, far above
+    χ²₆'s upper 0.0027 quantile (20.06). The joint test fits them: at the end at most one is left out, and what is
+    left out promises less than its threshold; χ² falls by more than 40 below what fitting the determined three
+    alone leaves."""
+    g = fitting._gauss_newton
+    flat = np.array([0.45, 0.47, 0.49, 0.51, 0.53, 0.55])  # distinct: the eigen-directions are the coordinates
+    A, b, truth = _orthogonal_problem(np.concatenate([[100.0, 110.0, 120.0], flat]))
+    offsets = np.sqrt(8.5) / flat * np.array([1, -1, 1, -1, 1, -1])
+    start = truth + np.concatenate([[0.0, 0.0, 0.0], offsets])
+    c, gain, _ = _tests_at(A, b, start)  # ascending eigenvalues: the six flat ones first
+    assert np.all((c[:6] >= g.FLAT) & (c[:6] < g.DETERMINED)) and np.all(c[6:] >= g.DETERMINED)
+    assert np.all(gain[:6] < g.SIGNIFICANT_GAIN) and np.sum(gain[:6]) > 2 * g.joint_thresholds(6)[6]
+    theta = _solve_linear(A, b, start)
+    np.testing.assert_allclose(theta[:3], truth[:3], rtol=0, atol=1e-8)
+    moved = np.abs(theta[3:] - truth[3:]) < 1e-6
+    assert moved.sum() >= 5
+    c_end, gain_end, vectors = _tests_at(A, b, theta)
+    left = np.abs(vectors.T @ (theta - truth)) > 1e-6
+    assert np.sum(gain_end[left]) < g.joint_thresholds(int(left.sum()))[int(left.sum())]
+    alone = np.sum((A @ np.concatenate([truth[:3], start[3:]]) - b) ** 2)  # the determined three fitted, not the six
+    assert np.sum((A @ theta - b) ** 2) < alone - 40
 
 
 @pytest.mark.parametrize("lanes", [None, "all"])
