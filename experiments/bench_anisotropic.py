@@ -103,6 +103,7 @@ def real_set(path: Path, name: str) -> dict:
     sizes = {int(np.shape(image.values)[0]) for image in mset.images}
     return {
         "file": f"tests/data/topographies/{name} (brdfscale synth, its surface's record removed)",
+        "real": name,  # the --real argument, which docs/fitting.md's table names
         "scales": len({float(image.mu) for image in mset.images}),
         "pixels": max(sizes),
         "noise": REAL_NOISE,

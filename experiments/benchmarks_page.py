@@ -1270,7 +1270,7 @@ def anisotropic_speed() -> str:
     blocks = [_anisotropic_speed(d, "")]
     real = load("bench_anisotropic_real")
     if real is not None and "runs" in real:
-        name = real["measurements"]["file"].split("/")[-1].split(" ")[0]
+        name = real["measurements"]["real"]
         blocks.append(f"**A real surface's set** (`--real {name}`):\n\n" + _anisotropic_speed(real, f" --real {name}"))
     return "\n\n".join(blocks)
 

@@ -1449,6 +1449,7 @@ def test_bench_anisotropic_real_set_is_the_chains_file_without_its_surface_recor
 
     info = bench_anisotropic.real_set(tmp_path / "m.exr", "opd-1.opd")
     assert info["scales"] == 8 and info["pixels"] == 65 and info["noise"] == "poisson:0.05:1"
+    assert info["real"] == "opd-1.opd"  # what docs/fitting.md's table names
     plain, made = exr.read_measurements(str(tmp_path / "m.exr")), exr.read_measurements(str(tmp_path / "synth.exr"))
     assert "truth" in made.metadata and "truth" not in plain.metadata
     assert {k: v for k, v in made.metadata.items() if k != "truth"} == plain.metadata
