@@ -319,6 +319,10 @@ if __name__ == "__main__":
         previous = RESULTS / f"{name}.json"
         if previous.exists():
             merged = json.loads(previous.read_text())
+            before, now = merged.get("measurements", {}), out["measurements"]
+            if any(before.get(k) != now.get(k) for k in before):  # other rows measured another set: not merged
+                raise SystemExit(f"--only: {previous} holds runs of another set ({before}); run them all again")
+            merged["measurements"] = now  # the same set, described as this code describes it
             merged["runs"].update(out["runs"])
             out = summarise(merged)
     print(json.dumps(out.get("profile"), indent=1), json.dumps(out.get("met")))
