@@ -1474,3 +1474,68 @@ def test_bench_anisotropic_meets_a_target_only_with_a_fit_that_ended_well():
     assert met == {"default_cold_s": True, "default_warm_s": False, "nonparametric_anisotropic_cold_s": False}
     runs["nonparametric_anisotropic"]["cold"]["exit"] = 0
     assert bench_anisotropic.summarise({"runs": runs})["met"]["nonparametric_anisotropic_cold_s"] is True
+
+
+def _chain_record(**commands):
+    """A corpus_chain record: a readable 2-D file whose commands ended as given (``name=(exit, line)``)."""
+    record = {"file": "f.dat", "reader": {"kind": "2D uniform"}}
+    for name, (code, line) in commands.items():
+        record[name] = {"exit": code, "line": line, "traceback": False, "wall_s": 1.0}
+    return record
+
+
+def test_corpus_chain_names_what_a_user_should_not_meet():
+    """corpus_chain.defects: an undocumented status (1), a traceback on the terminal, a timeout, and an exit 0
+    whose fit.json shows a scale's χ²/dof above 1.5 or a lobe under a pixel are defects; a refusal (2), an
+    inadequate fit (5) and an undetermined one (7) are not. summarise counts them, and the 2-D topographies that
+    ``topography`` refused."""
+    from experiments import corpus_chain
+
+    fine = _chain_record(topography=(0, "wrote D"), synth=(0, "wrote m.exr"), fit=(5, "brdfscale fit: inadequate: …"))
+    refused = _chain_record(topography=(2, "brdfscale topography: too small"), synth=(2, "too small"))
+    assert corpus_chain.defects(fine) == [] and corpus_chain.defects(refused) == []
+    crash = _chain_record(topography=(1, "brdfscale topography: unexpected failure (KeyError)"))
+    crash["topography"]["traceback"] = True
+    assert corpus_chain.defects(crash) == [
+        "topography: exit 1 (brdfscale topography: unexpected failure (KeyError))",
+        "topography: a Python traceback reached the terminal",
+    ]
+    stuck = _chain_record(topography=(0, ""), synth=(None, "timed out after 900 s"))
+    assert corpus_chain.defects(stuck) == ["synth: timed out after 900 s"]
+    quiet = _chain_record(topography=(0, ""), synth=(0, ""), fit=(0, "brdfscale fit: ok"))
+    quiet["scales"] = [
+        {"mu": 1.0, "width_px": 3.0, "reduced_chi2": 1.1},
+        {"mu": 2.0, "width_px": 0.5, "reduced_chi2": 4.0},
+    ]
+    assert corpus_chain.defects(quiet) == [
+        "fit: exit 0 with χ²/dof 4 at μ = 2",
+        "fit: exit 0 with a lobe 0.5 px wide at μ = 2",
+    ]
+    summary = corpus_chain.summarise([fine, refused, crash, stuck, quiet])
+    assert summary["files"] == 5 and summary["reader"] == {"2D uniform": 5}
+    assert summary["exit_statuses"]["topography"] == {"0": 3, "1": 1, "2": 1}
+    assert summary["exit_statuses"]["synth"] == {"0": 2, "2": 1, "None": 1}
+    assert summary["chain_completed"] == 2 and set(summary["defects"]) == {"f.dat"}
+    assert summary["refused_2d"] == ["f.dat"]
+
+
+@pytest.mark.slow  # four brdfscale processes (~15 s on 2 cores): .ci/run's second step
+def test_corpus_chain_on_files_no_reader_takes(tmp_path):
+    """corpus_chain.run on a corpus of an empty file and a text file that is no height map: SurfaceTopography
+    cannot read either, ``topography`` and ``synth`` refuse both with exit 2 and one line, no traceback, no fit, no
+    defect; the JSON is complete, with each file's size and SHA-256."""
+    from experiments import corpus_chain
+
+    corpus = tmp_path / "corpus"
+    corpus.mkdir()
+    (corpus / "empty.txt").write_bytes(b"")
+    (corpus / "prose.txt").write_text("This is not a height map.\nNor is this line.\n")
+    out = tmp_path / "chain.json"
+    payload = corpus_chain.run(corpus, out, source="test")
+    assert json.loads(out.read_text())["complete"] is True and payload["corpus"]["source"] == "test"
+    for record in payload["records"]:
+        assert record["reader"]["kind"] == "unreadable"
+        assert record["topography"]["exit"] == 2 and record["synth"]["exit"] == 2 and "fit" not in record
+        assert not record["topography"]["traceback"] and record["topography"]["line"].startswith("brdfscale topography")
+    assert payload["records"][0]["sha256"] == "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855"
+    assert payload["summary"]["defects"] == {} and payload["summary"]["chain_completed"] == 0
