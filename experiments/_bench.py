@@ -34,6 +34,41 @@ def machine() -> dict:
     }
 
 
+TRACEBACK = "Traceback (most recent call last)"
+"""What Python prints before a traceback: a command that lets one reach the terminal has a defect."""
+
+
+def brdfscale_command(*args: str, env: dict | None = None, timeout: float = 900) -> dict:
+    """``brdfscale ARGS`` in a fresh process (``python -m brdfscale``, matplotlib's Agg backend): its exit status
+    (None past ``timeout`` seconds), its last non-empty line (stderr's, else stdout's), whether a Python traceback
+    reached the terminal, and the wall time."""
+    import sys
+
+    t0 = time.perf_counter()
+    try:
+        done = subprocess.run(
+            [sys.executable, "-m", "brdfscale", *args],
+            capture_output=True,
+            text=True,
+            env={**os.environ, "MPLBACKEND": "Agg", **(env or {})},
+            timeout=timeout,
+        )
+    except subprocess.TimeoutExpired:
+        return {
+            "exit": None,
+            "line": f"timed out after {timeout:g} s",
+            "traceback": False,
+            "wall_s": round(time.perf_counter() - t0, 2),
+        }
+    lines = [line for line in (done.stderr.strip().splitlines() or done.stdout.strip().splitlines()) if line.strip()]
+    return {
+        "exit": done.returncode,
+        "line": lines[-1] if lines else "",
+        "traceback": TRACEBACK in done.stderr or TRACEBACK in done.stdout,
+        "wall_s": round(time.perf_counter() - t0, 2),
+    }
+
+
 def code_commit() -> str | None:
     """The commit of the code benchmarked: ``git rev-parse HEAD`` of this checkout, or the ``COMMIT`` file of
     a ``git archive`` snapshot (a benchmark run on a frozen copy while the working tree changes)."""

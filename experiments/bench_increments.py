@@ -26,8 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments._bench import code_commit, machine, write_json
-from experiments.bench_real_fits import command, DATA, FILES, NOISES, pull_summary
+from experiments._bench import brdfscale_command as command, code_commit, machine, write_json
+from experiments.bench_real_fits import DATA, FILES, NOISES, pull_summary
 
 
 MODELS = ("gaussian", "mixture")

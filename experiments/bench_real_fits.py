@@ -76,15 +76,13 @@ import argparse
 import json
 import math
 import os
-import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from experiments._bench import code_commit, machine
+from experiments._bench import brdfscale_command as command, code_commit, machine
 
 
 DATA = Path(__file__).resolve().parent.parent / "tests" / "data" / "topographies"
@@ -109,27 +107,6 @@ far from Gaussian, where NUTS takes long trajectories, then ends with exit 6 nam
 past the benchmark's 900-second timeout)."""
 QUICK_FIT_ARGS = ("--steps", "0")
 """``--quick``'s only change to the fit's defaults: no sampling (Laplace only), so that a smoke test stays short."""
-
-
-def command(*args: str, env: dict | None = None, timeout: float = 900) -> dict:
-    """Run ``brdfscale ARGS`` in a subprocess: exit status, the last stderr line, wall time."""
-    t0 = time.perf_counter()
-    try:
-        done = subprocess.run(
-            [sys.executable, "-m", "brdfscale", *args],
-            capture_output=True,
-            text=True,
-            env={**os.environ, "MPLBACKEND": "Agg", **(env or {})},
-            timeout=timeout,
-        )
-    except subprocess.TimeoutExpired:
-        return {"exit": None, "line": f"timed out after {timeout:g} s", "wall_s": round(time.perf_counter() - t0, 2)}
-    lines = [line for line in (done.stderr.strip().splitlines() or done.stdout.strip().splitlines()) if line.strip()]
-    return {
-        "exit": done.returncode,
-        "line": lines[-1] if lines else "",
-        "wall_s": round(time.perf_counter() - t0, 2),
-    }
 
 
 def _finite(x) -> float | None:

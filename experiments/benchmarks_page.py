@@ -1167,6 +1167,75 @@ def real_fits_summary() -> str:
     )
 
 
+def _short(line: str, limit: int = 170) -> str:
+    """A command's last line for a table cell: the command's name dropped, cut at ``limit`` characters."""
+    for prefix in ("brdfscale fit: ", "brdfscale synth: ", "brdfscale topography: "):
+        line = line.removeprefix(prefix)
+    return line if len(line) <= limit else line[: limit - 1].rstrip() + "…"
+
+
+def corpus_chain() -> str:
+    """docs/topography.md: README's chain on every file of SurfaceTopography's test corpus (corpus_chain.json)."""
+    d = load("corpus_chain")
+    if d is None or "summary" not in d:
+        return "(corpus_chain.json missing or incomplete)"
+    s, records = d["summary"], d["records"]
+    commands = ("topography", "synth", "fit")
+
+    def statuses(r):
+        return " / ".join(str(r[c]["exit"]) if c in r else "—" for c in commands)
+
+    def last(r):
+        ran = [c for c in commands if c in r]
+        return _short(r[ran[-1]]["line"]) if ran else ""
+
+    areal = [r for r in records if r["reader"]["kind"] == "2D uniform"]
+    other = [r for r in records if r["reader"]["kind"] != "2D uniform"]
+    fits = s["exit_statuses"].get("fit", {})
+    defects = s["defects"]
+    rescored = f", summary by `{d['summary_code_commit'][:7]}`" if d.get("summary_code_commit") else ""
+    head = (
+        f"*From `experiments/results/corpus_chain.json` ({d['machine'].get('date_utc', '?')}, code at commit "
+        f"`{(d.get('code_commit') or '?')[:7]}`{rescored}; "
+        f"{d.get('total_s', 0) / 60:.0f} min on {d['machine'].get('cpu_count', '?')} CPUs). Corpus: "
+        f"{d['corpus']['source']}.* Command: `python -m experiments.corpus_chain --corpus DIR`."
+    )
+    counts = ", ".join(f"{n} {k}" for k, n in s["reader"].items())
+    verdicts = ", ".join(f"{n} with exit {k}" for k, n in fits.items())
+    lines = [
+        head,
+        f"{s['files']} files; SurfaceTopography itself makes of them: {counts}. The chain reached the fit's verdict on "
+        f"{s['chain_completed']} ({verdicts or 'none'}). Defects (an undocumented status, a traceback, a timeout, "
+        "an exit 0 hiding a problem): "
+        + ("; ".join(f"`{f}`: {', '.join(v)}" for f, v in defects.items()) if defects else "**none**")
+        + ".",
+        "Files SurfaceTopography reads as areal height maps (exit statuses of `topography` / `synth` / `fit`; the "
+        "last line of the last command run, cut at 170 characters: the full lines are in the JSON):",
+        table(
+            ["file", "pixels", "exit statuses", "last line"],
+            [
+                [f"`{r['file']}`", " × ".join(map(str, r["reader"].get("shape", []))), statuses(r), last(r)]
+                for r in areal
+            ],
+        ),
+        "The other files (SurfaceTopography's own verdict, and brdfscale's):",
+        table(
+            ["file", "SurfaceTopography", "exit statuses", "last line"],
+            [
+                [
+                    f"`{r['file']}`",
+                    r["reader"]["kind"]
+                    + (f" ({_short(r['reader']['error'], 90)})" if r["reader"].get("error") else ""),
+                    statuses(r),
+                    last(r),
+                ]
+                for r in other
+            ],
+        ),
+    ]
+    return "\n\n".join(lines)
+
+
 def _increments_summary_line(d: dict) -> str:
     from experiments.bench_increments import summary
 
@@ -1979,6 +2048,7 @@ SECTIONS = [
     ("benchmarks.md", "Rendering (bench_render)", render_bench),
     ("instrument.md", "Fits of instrument data (instrument_fits)", instrument_fits),
     ("topography.md", "Fits of measured surfaces (bench_real_fits)", real_fits_summary),
+    ("topography.md", "Files nobody here chose (corpus_chain)", corpus_chain),
     ("fitting.md", "Samplers (bench_samplers)", samplers),
     ("fitting.md", "Speed of the default fit (bench_anisotropic)", anisotropic_speed),
     ("fitting.md", "Heavy-tailed increments (bench_increments)", increments_summary),

@@ -1508,8 +1508,8 @@ def test_corpus_chain_names_what_a_user_should_not_meet():
         {"mu": 2.0, "width_px": 0.5, "reduced_chi2": 4.0},
     ]
     assert corpus_chain.defects(quiet) == [
-        "fit: exit 0 with χ²/dof 4 at μ = 2",
-        "fit: exit 0 with a lobe 0.5 px wide at μ = 2",
+        "fit: exit 0 with χ²/dof 4 on a scale",
+        "fit: exit 0 with a lobe narrower than 1 image pixel",
     ]
     summary = corpus_chain.summarise([fine, refused, crash, stuck, quiet])
     assert summary["files"] == 5 and summary["reader"] == {"2D uniform": 5}
