@@ -221,6 +221,24 @@ def test_the_command_refuses_denormal_and_huge_heights_in_one_line(tmp_path, cap
     assert not (tmp_path / "out" / "statistics.json").exists()
 
 
+def test_a_file_without_a_height_unit_is_refused_naming_the_way_round(tmp_path, capsys):
+    """SurfaceTopography's own test file ``10x10-one_channel_without_name.ibw`` (Asylum Igor; a 10 × 10 map whose
+    heights carry no unit, tests/data/topographies/README.md): ``read`` refuses it as a MeasurementFileError that
+    says the file records no unit and names ``from_array``, the way to give the unit; the commands end with exit
+    2 and that one line (experiments/corpus_chain.py met it)."""
+    path = str(DATA / "10x10-one_channel_without_name.ibw")
+    with pytest.raises(MeasurementFileError, match=r"records no unit for its heights.*topography\.from_array"):
+        topography.read(path)
+    for command in (
+        ["topography", path, "--out", str(tmp_path / "t")],
+        ["synth", "--topography", path, "--out", str(tmp_path / "m.exr")],
+    ):
+        code, _, err = _main(command, capsys)
+        lines = err.strip().splitlines()
+        assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
+        assert "records no unit for its heights" in lines[0] and "from_array(heights, spacing, unit=...)" in lines[0]
+
+
 # -- nearly square pixels ------------------------------------------------------------------------------
 
 

@@ -131,8 +131,11 @@ def _decode(st, name: str, channel):
         raise MeasurementFileError(f"{name}: channel {index} ({info.name!r}) is a line scan, not an areal height map.")
     unit = topo.unit
     if unit not in UNITS:
+        what = "records no unit for its heights" if unit is None else f"gives its heights in {unit!r}"
         raise MeasurementFileError(
-            f"{name}: the heights' unit {topo.unit!r} is not a length unit brdfscale knows ({', '.join(UNITS)})."
+            f"{name}: the file {what}, not a length unit brdfscale knows ({', '.join(UNITS)}); if you know the unit "
+            "and the pitch, pass the heights to brdfscale.topography.from_array(heights, spacing, unit=...) "
+            "(docs/topography.md, 'Your own array')."
         )
     heights = topo.heights()
     mask = ~np.ma.getmaskarray(heights) if np.ma.isMaskedArray(heights) else None
