@@ -285,6 +285,31 @@ def test_directions_that_ask_for_it_together_are_fitted():
     assert np.sum((A @ theta - b) ** 2) < alone - 40
 
 
+def test_the_step_under_jit_and_vmap_is_the_eager_step():
+    """``truncated_step`` (with the joint test) jitted and vmapped over three problems — the six flat directions
+    that together ask to be fitted, the same started at their optimum (none asks), a rank-deficient design — gives
+    the eager step and EDM: the same directions kept (the steps agree to rounding)."""
+    g = fitting._gauss_newton
+    flat = np.array([0.45, 0.47, 0.49, 0.51, 0.53, 0.55])
+    A, b, truth = _orthogonal_problem(np.concatenate([[100.0, 110.0, 120.0], flat]), rows=400)
+    gains = 7.6 + 0.25 * np.arange(6)  # distinct: which one the joint test leaves out is not a tie
+    away = truth + np.concatenate([[0.0, 0.0, 0.0], np.sqrt(gains) / flat * np.array([1, -1, 1, -1, 1, -1])])
+    deficient = A.copy()
+    deficient[:, 8] = deficient[:, 7]
+    jacs = np.stack([A, A, deficient])
+    residuals = np.stack([A @ away - b, A @ truth - b, deficient @ away - b])
+    eager = [g.truncated_step(jnp.asarray(j), jnp.asarray(r)) for j, r in zip(jacs, residuals)]
+    jitted = [jax.jit(g.truncated_step)(jnp.asarray(j), jnp.asarray(r)) for j, r in zip(jacs, residuals)]
+    mapped = jax.vmap(g.truncated_step)(jnp.asarray(jacs), jnp.asarray(residuals))
+    for k, (step, edm) in enumerate(eager):
+        scale = max(float(np.max(np.abs(step))), 1.0)  # at the optimum the step is rounding: ~1e-18
+        for other_step, other_edm in (jitted[k], (mapped[0][k], mapped[1][k])):
+            np.testing.assert_allclose(np.asarray(other_step), np.asarray(step), rtol=0, atol=1e-9 * scale)
+            assert float(other_edm) == pytest.approx(float(edm), rel=1e-9, abs=1e-12)
+    moved = np.abs(np.asarray(eager[0][0])[3:]) > 1e-6  # the first problem: the joint test keeps five of six
+    assert moved.sum() == 5 and not np.any(np.abs(np.asarray(eager[1][0])) > 1e-9)
+
+
 @pytest.mark.parametrize("lanes", [None, "all"])
 def test_fit_many_gives_what_fit_gives(lanes):
     """``fitting.fit_many`` with this solver — the solves mapped over materials × starts one by one (``lanes=None``
