@@ -4,6 +4,7 @@ import json
 import os
 import platform
 import subprocess
+import sys
 import time
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -41,9 +42,7 @@ TRACEBACK = "Traceback (most recent call last)"
 def brdfscale_command(*args: str, env: dict | None = None, timeout: float = 900) -> dict:
     """``brdfscale ARGS`` in a fresh process (``python -m brdfscale``, matplotlib's Agg backend): its exit status
     (None past ``timeout`` seconds), its last non-empty line (stderr's, else stdout's), whether a Python traceback
-    reached the terminal, and the wall time."""
-    import sys
-
+    reached the terminal, how many non-empty lines it wrote on stderr, and the wall time."""
     t0 = time.perf_counter()
     try:
         done = subprocess.run(
@@ -58,6 +57,7 @@ def brdfscale_command(*args: str, env: dict | None = None, timeout: float = 900)
             "exit": None,
             "line": f"timed out after {timeout:g} s",
             "traceback": False,
+            "stderr_lines": 0,
             "wall_s": round(time.perf_counter() - t0, 2),
         }
     lines = [line for line in (done.stderr.strip().splitlines() or done.stdout.strip().splitlines()) if line.strip()]
@@ -65,6 +65,7 @@ def brdfscale_command(*args: str, env: dict | None = None, timeout: float = 900)
         "exit": done.returncode,
         "line": lines[-1] if lines else "",
         "traceback": TRACEBACK in done.stderr or TRACEBACK in done.stdout,
+        "stderr_lines": sum(1 for line in done.stderr.splitlines() if line.strip()),
         "wall_s": round(time.perf_counter() - t0, 2),
     }
 

@@ -228,6 +228,37 @@ QUICK = ("default", "default_no_sampling", "nuts", "hmc", "imh")
 REAL_RUNS = ("default", "default_no_sampling", "nuts")
 
 
+def images_digest(path: Path) -> str:
+    """SHA-256 of a measurement set's images (scales, values, σ and masks in file order): what the rows of one JSON
+    must share to be merged (the file's metadata, e.g. its provenance, may differ between two writes of one set)."""
+    import hashlib
+
+    from brdfscale import exr
+
+    digest = hashlib.sha256()
+    for image in exr.read_measurements(str(path)).images:
+        for part in (image.mu, image.values, image.sigma, image.mask):
+            digest.update(b"-" if part is None else np.ascontiguousarray(np.asarray(part, dtype=float)).tobytes())
+    return digest.hexdigest()
+
+
+def mergeable(name: str, measurements: dict, folder: Path = RESULTS) -> dict | None:
+    """The JSON ``folder/name.json`` that ``--only``'s rows join, or None where there is none: refused (SystemExit)
+    where its rows were measured on another set — a description that differs, or images of another digest (a JSON
+    without one, written before it was recorded, is judged by its description)."""
+    previous = folder / f"{name}.json"
+    if not previous.exists():
+        return None
+    merged = json.loads(previous.read_text())
+    before = merged.get("measurements", {})
+    differs = [k for k in before if before[k] != measurements.get(k)]
+    if differs:
+        raise SystemExit(
+            f"--only: {previous} holds runs of another set ({', '.join(differs)} differ: {before}); run them all again"
+        )
+    return merged
+
+
 def _name(mi1: bool, real: str | None) -> str:
     return "bench_anisotropic_mi1" if mi1 else "bench_anisotropic_real" if real else "bench_anisotropic"
 
@@ -248,6 +279,9 @@ def main(
             results["measurements"] = real_set(tmp / "m.exr", real)
         else:
             results["measurements"] = (measurement_set if mi1 else synthetic_set)(tmp / "m.exr")
+        results["measurements"]["images_sha256"] = images_digest(tmp / "m.exr")
+        if only is not None:
+            mergeable(_name(mi1, real), results["measurements"])  # refused before the runs, not after
         results["runs"] = {}
         for name, extra in runs.items():
             cache = tmp / f"cache-{name}"
@@ -315,15 +349,9 @@ if __name__ == "__main__":
     timeout = float(sys.argv[sys.argv.index("--timeout") + 1]) if "--timeout" in sys.argv[1:] else None
     out = main("--quick" in sys.argv[1:], mi1, only, timeout, real)
     name = _name(mi1, real)
-    if only:  # merged into the JSON of the last full or quick run
-        previous = RESULTS / f"{name}.json"
-        if previous.exists():
-            merged = json.loads(previous.read_text())
-            before, now = merged.get("measurements", {}), out["measurements"]
-            if any(before.get(k) != now.get(k) for k in before):  # other rows measured another set: not merged
-                raise SystemExit(f"--only: {previous} holds runs of another set ({before}); run them all again")
-            merged["measurements"] = now  # the same set, described as this code describes it
-            merged["runs"].update(out["runs"])
-            out = summarise(merged)
+    if only and (merged := mergeable(name, out["measurements"])) is not None:  # joins the last full or quick run
+        merged["measurements"] = out["measurements"]  # the same set, described as this code describes it
+        merged["runs"].update(out["runs"])
+        out = summarise(merged)
     print(json.dumps(out.get("profile"), indent=1), json.dumps(out.get("met")))
     print("wrote", write_json(name, out))

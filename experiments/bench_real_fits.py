@@ -537,7 +537,7 @@ def unflagged(record: dict) -> list[str]:
     if record.get("fit", {}).get("exit") != 0:
         return []
     found = []
-    worst = max((s["reduced_chi2"] or 0.0) for s in record.get("scales", [{"reduced_chi2": 0.0}]))
+    worst = max(((s["reduced_chi2"] or 0.0) for s in record.get("scales", [])), default=0.0)
     if worst > MAX_REDUCED_CHI2:
         found.append(f"χ²/dof {worst:.3g} on a scale")
     if (record.get("max_abs_z") or 0.0) > MAX_Z:

@@ -1178,12 +1178,14 @@ def corpus_chain() -> str:
     """docs/topography.md: README's chain on every file of SurfaceTopography's test corpus (corpus_chain.json)."""
     d = load("corpus_chain")
     if d is None or "summary" not in d:
-        return "(corpus_chain.json missing or incomplete)"
+        return "(corpus_chain.json: a complete run is missing)"
     s, records = d["summary"], d["records"]
     commands = ("topography", "synth", "fit")
 
     def statuses(r):
-        return " / ".join(str(r[c]["exit"]) if c in r else "—" for c in commands)
+        return " / ".join(
+            ("timed out" if r[c]["exit"] is None else str(r[c]["exit"])) if c in r else "—" for c in commands
+        )
 
     def last(r):
         ran = [c for c in commands if c in r]
@@ -1198,19 +1200,20 @@ def corpus_chain() -> str:
         f"*From `experiments/results/corpus_chain.json` ({d['machine'].get('date_utc', '?')}, code at commit "
         f"`{(d.get('code_commit') or '?')[:7]}`{rescored}; "
         f"{d.get('total_s', 0) / 60:.0f} min on {d['machine'].get('cpu_count', '?')} CPUs). Corpus: "
-        f"{d['corpus']['source']}.* Command: `python -m experiments.corpus_chain --corpus DIR`."
+        f"{d['corpus']['source'] or 'not recorded'}.* Command: `python -m experiments.corpus_chain --corpus DIR`."
     )
     counts = ", ".join(f"{n} {k}" for k, n in s["reader"].items())
-    verdicts = ", ".join(f"{n} with exit {k}" for k, n in fits.items())
+    verdicts = ", ".join(f"{n} {'timed out' if k == 'None' else f'with exit {k}'}" for k, n in fits.items())
     lines = [
         head,
-        f"{s['files']} files; SurfaceTopography itself makes of them: {counts}. The chain reached the fit's verdict on "
-        f"{s['chain_completed']} ({verdicts or 'none'}). Defects (an undocumented status, a traceback, a timeout, "
-        "an exit 0 hiding a problem): "
+        f"{s['files']} files; SurfaceTopography itself makes of them: {counts}. The chain reached the fit on "
+        f"{s['fits']} ({verdicts or 'none'}). Defects (an undocumented status, a traceback, a timeout, a refusal "
+        "in more than one line, an exit 0 hiding a problem): "
         + ("; ".join(f"`{f}`: {', '.join(v)}" for f, v in defects.items()) if defects else "**none**")
         + ".",
         "Files SurfaceTopography reads as areal height maps (exit statuses of `topography` / `synth` / `fit`; the "
-        "last line of the last command run, cut at 170 characters: the full lines are in the JSON):",
+        "last line of the last command run, cut at 170 characters — the full lines are in the JSON —, its folders "
+        "written `WORK/` and `CORPUS/`):",
         table(
             ["file", "pixels", "exit statuses", "last line"],
             [

@@ -24,18 +24,21 @@ level (:data:`RCOND` × the largest) and
   a three-standard-deviation improvement) and ``c_i ≥`` :data:`FLAT` (a standard deviation of at most 10 in θ);
   or
 * several ask for it together: of the directions left so far with ``c_i ≥ FLAT``, k in all, their gains
-  summed exceed what k directions at their optimum give by chance (under that hypothesis each ``G_i`` is a χ²
-  variable of one degree of freedom, independent, so their sum is χ² of k: the joint test at the single test's
-  level, ``p = P(χ²₁ > 9) = 0.0027``, the threshold ``q_k = χ²_k``'s upper ``p`` quantile, :func:`joint_thresholds`,
-  ``q_1 = 9``). Then the largest-gain ones among them are kept, one by one, until the gains of those still left
-  out no longer pass that test for their number — so "converged" (the EDM over the kept directions) also says
-  that the directions left out, together, have nothing significant to give.
+  summed reach ``q_k``, the upper ``p = P(χ²₁ > 9) = 0.0027`` quantile of χ² with k degrees of freedom
+  (:func:`joint_thresholds`; ``q_1 = 9``, the single test). Why: where the current values of those k coordinates
+  are the true ones, each ``v_iᵀg`` is the noise's projection, ``N(0, λ_i)`` in whitened units and independent
+  across the orthogonal ``v_i``, so each ``G_i`` is χ²₁ (with ``s`` ≈ 1) and their sum χ²_k; the candidates are
+  also those whose ``G_i`` fell below 9, so the test rejects that hypothesis at most at level ``p``. Then the
+  largest-gain candidates are kept one by one until the gains of those still left out sum below ``q`` for their
+  number — so "converged" (the EDM over the kept directions) also says that the directions left out with
+  ``c_i ≥ FLAT``, together, have nothing significant to give (flatter ones and those at the rounding level are
+  left out whatever they promise).
 
 Left out, and so not moved from where they are: the rest — e.g. the anisotropic non-parametric model's
 base-lobe nodes where the lobe is below the noise at every scale (``log g0`` there: its derivative is the lobe
 itself, ≈ 0, and a Gauss–Newton step drives it towards −∞ by about 1 per step, the line search cutting every
 other coordinate's step with it), where Levenberg–Marquardt keeps damping them (for such a log-amplitude
-``G_i ≈ c_i < 1``: k of them sum below k, and ``q_k`` is about ``k + 3√(2k)``); a node whose lobe the data show
+``G_i ≈ c_i < 1``: k of them sum below k, and ``q_k > k``); a node whose lobe the data show
 brighter than the start (a heavy tail started from a Gaussian) has a large ``G_i`` and is fitted.
 Every test is invariant under scaling σ (λ and ``‖r‖²`` scale alike, and so do ``(vᵀg)²/λ`` and ``‖r‖²``). An
 earlier rule (to December 2026) kept a direction wherever its eigenvalue was above 1e-9 of the largest or

@@ -1476,33 +1476,38 @@ def test_bench_anisotropic_meets_a_target_only_with_a_fit_that_ended_well():
     assert bench_anisotropic.summarise({"runs": runs})["met"]["nonparametric_anisotropic_cold_s"] is True
 
 
-def _chain_record(**commands):
-    """A corpus_chain record: a readable 2-D file whose commands ended as given (``name=(exit, line)``)."""
-    record = {"file": "f.dat", "reader": {"kind": "2D uniform"}}
-    for name, (code, line) in commands.items():
-        record[name] = {"exit": code, "line": line, "traceback": False, "wall_s": 1.0}
+def _chain_record(name, **commands):
+    """A corpus_chain record: a file SurfaceTopography reads as 2-D whose commands ended as given
+    (``command=(exit, line)``, one line on stderr)."""
+    record = {"file": name, "reader": {"kind": "2D uniform"}}
+    for command, (code, line) in commands.items():
+        record[command] = {"exit": code, "line": line, "traceback": False, "stderr_lines": 1, "wall_s": 1.0}
     return record
 
 
 def test_corpus_chain_names_what_a_user_should_not_meet():
-    """corpus_chain.defects: an undocumented status (1), a traceback on the terminal, a timeout, and an exit 0
-    whose fit.json shows a scale's χ²/dof above 1.5 or a lobe under a pixel are defects; a refusal (2), an
-    inadequate fit (5) and an undetermined one (7) are not. summarise counts them, and the 2-D topographies that
-    ``topography`` refused."""
+    """corpus_chain.defects: an undocumented status (1), a traceback on the terminal, a timeout, a refusal in more
+    than one line, and an exit 0 without fit.json or whose fit.json shows a scale's χ²/dof above 1.5 or a lobe
+    under a pixel are defects; a refusal (2) in one line, an inadequate fit (5) and an undetermined one (7) are
+    not. summarise counts them, and lists the 2-D files that ``topography`` refused."""
     from experiments import corpus_chain
 
-    fine = _chain_record(topography=(0, "wrote D"), synth=(0, "wrote m.exr"), fit=(5, "brdfscale fit: inadequate: …"))
-    refused = _chain_record(topography=(2, "brdfscale topography: too small"), synth=(2, "too small"))
+    fine = _chain_record("fine", topography=(0, "wrote D"), synth=(0, "wrote m.exr"), fit=(5, "inadequate: …"))
+    fine["scales"] = [{"mu": 1.0, "width_px": 3.0, "reduced_chi2": 40.0}]
+    refused = _chain_record("refused", topography=(2, "too small"), synth=(2, "too small"))
     assert corpus_chain.defects(fine) == [] and corpus_chain.defects(refused) == []
-    crash = _chain_record(topography=(1, "brdfscale topography: unexpected failure (KeyError)"))
+    crash = _chain_record("crash", topography=(1, "unexpected failure (KeyError)"))
     crash["topography"]["traceback"] = True
     assert corpus_chain.defects(crash) == [
-        "topography: exit 1 (brdfscale topography: unexpected failure (KeyError))",
+        "topography: exit 1 (unexpected failure (KeyError))",
         "topography: a Python traceback reached the terminal",
     ]
-    stuck = _chain_record(topography=(0, ""), synth=(None, "timed out after 900 s"))
+    stuck = _chain_record("stuck", topography=(0, ""), synth=(None, "timed out after 900 s"))
     assert corpus_chain.defects(stuck) == ["synth: timed out after 900 s"]
-    quiet = _chain_record(topography=(0, ""), synth=(0, ""), fit=(0, "brdfscale fit: ok"))
+    wordy = _chain_record("wordy", topography=(2, "error: …"))
+    wordy["topography"]["stderr_lines"] = 3
+    assert corpus_chain.defects(wordy) == ["topography: a refusal in 3 lines"]
+    quiet = _chain_record("quiet", topography=(0, ""), synth=(0, ""), fit=(0, "ok"))
     quiet["scales"] = [
         {"mu": 1.0, "width_px": 3.0, "reduced_chi2": 1.1},
         {"mu": 2.0, "width_px": 0.5, "reduced_chi2": 4.0},
@@ -1511,31 +1516,72 @@ def test_corpus_chain_names_what_a_user_should_not_meet():
         "fit: exit 0 with χ²/dof 4 on a scale",
         "fit: exit 0 with a lobe narrower than 1 image pixel",
     ]
-    summary = corpus_chain.summarise([fine, refused, crash, stuck, quiet])
-    assert summary["files"] == 5 and summary["reader"] == {"2D uniform": 5}
-    assert summary["exit_statuses"]["topography"] == {"0": 3, "1": 1, "2": 1}
-    assert summary["exit_statuses"]["synth"] == {"0": 2, "2": 1, "None": 1}
-    assert summary["chain_completed"] == 2 and set(summary["defects"]) == {"f.dat"}
-    assert summary["refused_2d"] == ["f.dat"]
+    silent = _chain_record("silent", topography=(0, ""), synth=(0, ""), fit=(0, "ok"))
+    assert corpus_chain.defects(silent) == ["fit: exit 0 without fit.json"]
+    summary = corpus_chain.summarise([fine, refused, crash, stuck, wordy, quiet, silent])
+    assert summary["files"] == 7 and summary["reader"] == {"2D uniform": 7}
+    assert summary["exit_statuses"]["topography"] == {"0": 4, "1": 1, "2": 2}
+    assert summary["exit_statuses"]["synth"] == {"0": 3, "2": 1, "None": 1}
+    assert summary["exit_statuses"]["fit"] == {"0": 2, "5": 1} and summary["fits"] == 3
+    assert set(summary["defects"]) == {"crash", "stuck", "wordy", "quiet", "silent"}
+    assert summary["refused_2d"] == ["refused", "wordy"]
 
 
-@pytest.mark.slow  # four brdfscale processes (~15 s on 2 cores): .ci/run's second step
+@pytest.mark.slow  # five brdfscale processes (~20 s on 2 cores): .ci/run's second step
 def test_corpus_chain_on_files_no_reader_takes(tmp_path):
-    """corpus_chain.run on a corpus of an empty file and a text file that is no height map: SurfaceTopography
-    cannot read either, ``topography`` and ``synth`` refuse both with exit 2 and one line, no traceback, no fit, no
-    defect; the JSON is complete, with each file's size and SHA-256."""
+    """corpus_chain.run on a corpus of an empty file, a NumPy height map without a pitch and a text file that is no
+    height map: SurfaceTopography reads the first as 0 × 0 pixels, the second's heights without a physical size,
+    and cannot read the third; ``topography`` and ``synth`` refuse each with exit 2 in one line, no traceback, no
+    fit, no defect; the JSON is complete, with each file's size and SHA-256 and its folders written CORPUS/;
+    --resume of another corpus is refused."""
+    pytest.importorskip("SurfaceTopography")
     from experiments import corpus_chain
 
     corpus = tmp_path / "corpus"
     corpus.mkdir()
     (corpus / "empty.txt").write_bytes(b"")
+    np.save(corpus / "heights.npy", np.random.default_rng(0).standard_normal((16, 16)))
     (corpus / "prose.txt").write_text("This is not a height map.\nNor is this line.\n")
     out = tmp_path / "chain.json"
     payload = corpus_chain.run(corpus, out, source="test")
     assert json.loads(out.read_text())["complete"] is True and payload["corpus"]["source"] == "test"
+    kinds = {r["file"]: r["reader"]["kind"] for r in payload["records"]}
+    assert kinds == {"empty.txt": "no heights", "heights.npy": "2D, no pitch", "prose.txt": "unreadable"}
     for record in payload["records"]:
-        assert record["reader"]["kind"] == "unreadable"
-        assert record["topography"]["exit"] == 2 and record["synth"]["exit"] == 2 and "fit" not in record
-        assert not record["topography"]["traceback"] and record["topography"]["line"].startswith("brdfscale topography")
+        for command in ("topography", "synth"):
+            c = record[command]
+            assert c["exit"] == 2 and c["stderr_lines"] == 1 and not c["traceback"], c
+            assert c["line"].startswith(f"brdfscale {command}: error: CORPUS/{record['file']}"), c["line"]
+        assert "fit" not in record
+    assert "holds no heights" in payload["records"][0]["topography"]["line"]
+    assert "not their pitch" in payload["records"][1]["topography"]["line"]
     assert payload["records"][0]["sha256"] == "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855"
-    assert payload["summary"]["defects"] == {} and payload["summary"]["chain_completed"] == 0
+    assert payload["summary"]["defects"] == {} and payload["summary"]["fits"] == 0
+    assert payload["summary"]["refused_2d"] == ["heights.npy"]
+    with pytest.raises(SystemExit, match="run without --resume"):
+        corpus_chain.run(corpus, out, source="another", resume=True)
+
+
+def test_bench_anisotropic_merges_rows_of_one_set_only(tmp_path):
+    """bench_anisotropic --only: ``images_digest`` is the same for two writes of one set whose metadata differ and
+    changes with the pixels; ``mergeable`` returns the previous JSON for the same description and digest, None where
+    there is none, and refuses (SystemExit naming what differs) another set — before any run."""
+    from experiments import bench_anisotropic
+
+    images = [
+        LobeImage(mu=m, incident=(0, 0, 1), values=np.full((5, 5), m), extent=1.0, sigma=np.ones((5, 5)))
+        for m in (1.0, 2.0)
+    ]
+    exr.write_measurements(str(tmp_path / "a.exr"), MeasurementSet(images, {"note": "first"}))
+    exr.write_measurements(str(tmp_path / "b.exr"), MeasurementSet(images, {"note": "second"}))
+    changed = np.full((5, 5), 2.0) + np.eye(5) * 1e-3  # (EXR holds float32)
+    images[1] = LobeImage(mu=2.0, incident=(0, 0, 1), values=changed, extent=1.0, sigma=np.ones((5, 5)))
+    exr.write_measurements(str(tmp_path / "c.exr"), MeasurementSet(images))
+    a, b, c = (bench_anisotropic.images_digest(tmp_path / f"{k}.exr") for k in "abc")
+    assert a == b != c
+    described = {"file": "set", "images_sha256": a}
+    assert bench_anisotropic.mergeable("rows", described, tmp_path) is None
+    (tmp_path / "rows.json").write_text(json.dumps({"measurements": described, "runs": {"x": {}}}))
+    assert bench_anisotropic.mergeable("rows", dict(described), tmp_path)["runs"] == {"x": {}}
+    with pytest.raises(SystemExit, match="images_sha256 differ"):
+        bench_anisotropic.mergeable("rows", {"file": "set", "images_sha256": c}, tmp_path)

@@ -74,8 +74,8 @@ def test_truncated_files_are_refused_naming_the_file(tmp_path):
         assert "\n" not in str(err.value)
 
 
-class _Channel:
-    name = "Z"
+class _Channel:  # what brdfscale reads of SurfaceTopography's ChannelInfo
+    name, dim, physical_sizes = "Z", 2, (8.0, 8.0)
 
 
 @pytest.mark.parametrize(
@@ -237,6 +237,40 @@ def test_a_file_without_a_height_unit_is_refused_naming_the_way_round(tmp_path, 
         lines = err.strip().splitlines()
         assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
         assert "records no unit for its heights" in lines[0] and "from_array(heights, spacing, unit=...)" in lines[0]
+
+
+def test_a_file_without_a_pitch_is_refused_naming_the_way_round(tmp_path, capsys):
+    """A NumPy ``.npy`` height map (SurfaceTopography reads its heights but no physical size; its own
+    ``example-2d.npy`` and ``matrix-5.txt`` are such files): refused before SurfaceTopography's "physical_sizes could
+    not be extracted", as a MeasurementFileError that says the pitch is missing and names ``from_array`` — not the
+    reader's "check the file is an undamaged instrument height map" (experiments/corpus_chain.py met it)."""
+    path = tmp_path / "heights.npy"
+    np.save(path, np.random.default_rng(0).standard_normal((16, 16)))
+    with pytest.raises(MeasurementFileError, match=r"not their pitch.*topography\.from_array") as caught:
+        topography.read(str(path))
+    assert "undamaged" not in str(caught.value)
+    code, _, err = _main(["topography", str(path), "--out", str(tmp_path / "t")], capsys)
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "not their pitch" in err, err
+
+
+def test_an_empty_file_holds_no_heights(tmp_path):
+    """An empty ``.txt`` (SurfaceTopography's HGT reader takes it as a 0 × 0 map without a physical size): refused
+    as holding no heights — not as a map without a pitch."""
+    path = tmp_path / "empty.txt"
+    path.write_bytes(b"")
+    with pytest.raises(MeasurementFileError, match=r"holds no heights \(0 × 0 pixels") as caught:
+        topography.read(str(path))
+    assert "pitch" not in str(caught.value)
+
+
+def test_a_channel_that_is_not_heights_is_refused_naming_the_height_channels():
+    """di-3.di's channel 1 is the AFM's amplitude error (SurfaceTopography gives its unit as ('µm', None)): refused
+    naming what it holds and the file's other channels, with the option that chooses one — not from_array."""
+    with pytest.raises(
+        MeasurementFileError, match=r"channel 1 \('AmplitudeError'\) holds .*--channel.*3: 'Height'"
+    ) as e:
+        topography.read(str(DATA / "di-3.di"), channel=1)
+    assert "from_array" not in str(e.value)
 
 
 # -- nearly square pixels ------------------------------------------------------------------------------

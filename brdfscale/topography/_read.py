@@ -126,16 +126,28 @@ def _decode(st, name: str, channel):
         raise MeasurementFileError(f"{name}: the file holds no data channel.")
     index = _channel_index(name, reader, channels, channel)
     info = channels[index]
+    if 0 in tuple(info.nb_grid_pts or ()):  # e.g. an empty file, which SurfaceTopography's HGT reader takes as 0 × 0
+        shape = " × ".join(map(str, info.nb_grid_pts))
+        raise MeasurementFileError(f"{name}: holds no heights ({shape} pixels as {type(reader).__name__} reads it).")
+    if info.dim == 2 and info.physical_sizes is None:  # SurfaceTopography's topography() would ask for them
+        raise MeasurementFileError(
+            f"{name}: channel {index} ({info.name!r}) records its heights but not their pitch (the file's physical "
+            f"size); {_AS_ARRAY}"
+        )
     topo = reader.topography(channel_index=index)
     if topo.dim != 2:
         raise MeasurementFileError(f"{name}: channel {index} ({info.name!r}) is a line scan, not an areal height map.")
     unit = topo.unit
     if unit not in UNITS:
-        what = "records no unit for its heights" if unit is None else f"gives its heights in {unit!r}"
+        if unit is None:
+            raise MeasurementFileError(
+                f"{name}: channel {index} ({info.name!r}) records no unit for its heights; {_AS_ARRAY}"
+            )
+        others = ", ".join(f"{i}: {c.name!r}" for i, c in enumerate(channels) if i != index)
         raise MeasurementFileError(
-            f"{name}: the file {what}, not a length unit brdfscale knows ({', '.join(UNITS)}); if you know the unit "
-            "and the pitch, pass the heights to brdfscale.topography.from_array(heights, spacing, unit=...) "
-            "(docs/topography.md, 'Your own array')."
+            f"{name}: channel {index} ({info.name!r}) holds {unit!r}, not heights in a length unit brdfscale knows "
+            f"({', '.join(UNITS)})"
+            + (f"; choose a height channel (channel=, the command's --channel) among {others}." if others else ".")
         )
     heights = topo.heights()
     mask = ~np.ma.getmaskarray(heights) if np.ma.isMaskedArray(heights) else None
@@ -184,6 +196,13 @@ def _reason(err: Exception) -> str:
         return f"no reader recognises the format; it tried {len(tried)}: {', '.join(tried)}"
     first = text.splitlines()[0] if text else ""
     return f"{type(err).__name__}: {first[:300]}" if first else type(err).__name__
+
+
+_AS_ARRAY = (
+    "if you know it, pass the heights with their pitch and unit to brdfscale.topography.from_array(heights, "
+    "spacing, unit=...) (docs/topography.md, 'Your own array')."
+)
+"""The way round for a file that records heights without their pitch or unit."""
 
 
 def _channel_index(name, reader, channels, channel) -> int:
