@@ -75,7 +75,7 @@ def test_truncated_files_are_refused_naming_the_file(tmp_path):
 
 
 class _Channel:  # what brdfscale reads of SurfaceTopography's ChannelInfo
-    name, dim, physical_sizes = "Z", 2, (8.0, 8.0)
+    name, dim, nb_grid_pts, physical_sizes = "Z", 2, (8, 8), (8.0, 8.0)
 
 
 @pytest.mark.parametrize(
@@ -143,6 +143,26 @@ def test_reader_logging_stays_off_the_terminal(tmp_path, capfd):
         assert "\n" not in str(err)
     out, err = capfd.readouterr()
     assert out == "" and "could not reshape" not in err
+
+
+def test_a_readers_python_warning_stays_off_the_terminal_and_joins_the_reason(tmp_path, monkeypatch, recwarn):
+    """openpyxl warns (Python's warnings) about an image inside SurfaceTopography's own ``mitutoyo_2_mock.xlsx``
+    while reading it, which put a second line before the refusal (experiments/corpus_chain.py met it): what a
+    reader warns is kept off the terminal like what it logs, and a file that cannot be read gets its first line in
+    the reason."""
+    path = tmp_path / "scan.di"
+    path.write_bytes(b"not really")
+
+    def warn_then_fail(_):
+        import warnings
+
+        warnings.warn("wmf image format is not supported so the image is being dropped", UserWarning, stacklevel=1)
+        raise KeyError("ScanSize")
+
+    monkeypatch.setattr(st_module, "open_topography", warn_then_fail)
+    with pytest.raises(MeasurementFileError, match=r"KeyError.*it logged: wmf image format is not supported"):
+        topography.read(path)
+    assert not any("wmf" in str(w.message) for w in recwarn)
 
 
 # -- absurd pitches and heights ----------------------------------------------------------------------
@@ -271,6 +291,22 @@ def test_a_channel_that_is_not_heights_is_refused_naming_the_height_channels():
     ) as e:
         topography.read(str(DATA / "di-3.di"), channel=1)
     assert "from_array" not in str(e.value)
+
+
+def test_synth_refuses_a_default_that_gives_one_scale(tmp_path, capsys):
+    """A 4 × 7 height map (SurfaceTopography's own ``sdf-1.sdf`` is one): ``--scales auto:8`` admits a single facet
+    scale, and ``fit`` needs two — ``synth --topography`` refuses in one line naming the default and the way round
+    (it wrote a one-scale set that ``fit`` then refused, experiments/corpus_chain.py met it); the scales given by
+    name are made."""
+    path = _text_file(tmp_path / "small.txt", np.random.default_rng(5).standard_normal((4, 7)) * 1e-8)
+    code, _, err = _main(["synth", "--topography", path, "--out", str(tmp_path / "m.exr")], capsys)
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and "admits one facet scale" in lines[0], err
+    assert "(the default)" in lines[0] and "1px,2px" in lines[0] and not (tmp_path / "m.exr").exists()
+    code, _, err = _main(
+        ["synth", "--topography", path, "--scales", "1px,2px", "--out", str(tmp_path / "m.exr")], capsys
+    )
+    assert code == 0, err
 
 
 # -- nearly square pixels ------------------------------------------------------------------------------

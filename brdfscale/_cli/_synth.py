@@ -338,6 +338,14 @@ def run(args) -> int:
         source = f"{field.description.get('file', args.topography)}, {ny} × {nx} measured field"
         command = f"brdfscale synth --topography {args.topography} {reading_command(args)} --scales {chosen}"
     mus = chosen.resolve(field)
+    if chosen.auto is not None and len(mus) < 2:  # what fit needs; a single scale asked for by name is made
+        (ny, nx) = field.shape
+        given = "" if args.scales is not None else " (the default)"
+        raise InvalidInputError(
+            f"--scales {chosen.text}{given}: this {ny} × {nx} field admits one facet scale "
+            f"(μ = {mus[0]:g} {field.unit or 'px'}); brdfscale fit needs two or more: give --scales two sizes the "
+            "field holds (e.g. 1px,2px), or measure a larger field."
+        )
     topography = args.topography is not None
     extent = args.extent if args.extent is not None else synth.robust_extent(field)
     incident = np.array(args.incident) if args.incident else np.array([[0.0, 0.0, 1.0]])

@@ -6,6 +6,7 @@ import logging
 import math
 import os
 import re
+import warnings
 
 import numpy as np
 
@@ -96,14 +97,20 @@ def _file_errors(name: str, st):
     """The one boundary around SurfaceTopography: any exception of its readers (KeyError,
     dateutil's ParserError, IndexError, struct and zlib errors, MemoryError, …) becomes a
     MeasurementFileError naming the file and the reason; brdfscale's own errors pass. What the
-    readers log meanwhile is kept (:data:`_READER_LOGGERS`)."""
+    readers log or warn meanwhile is kept off the terminal (:data:`_READER_LOGGERS`, Python warnings), and the
+    first of it is added to the reason of a file that cannot be read."""
     kept = _Kept()
     loggers = [logging.getLogger(n) for n in _READER_LOGGERS]
     saved = [(lg.handlers[:], lg.propagate) for lg in loggers]
     for lg in loggers:
         lg.handlers, lg.propagate = [kept], False
     try:
-        yield
+        with warnings.catch_warnings(record=True) as warned:  # e.g. openpyxl's on an image inside a .xlsx
+            warnings.simplefilter("always")
+            try:
+                yield
+            finally:
+                kept.lines.extend(" ".join(str(w.message).split())[:200] for w in warned)
     except BrdfscaleError:
         raise
     except Exception as err:
