@@ -1202,7 +1202,7 @@ def corpus_chain() -> str:
         f"{d.get('total_s', 0) / 60:.0f} min on {d['machine'].get('cpu_count', '?')} CPUs). Corpus: "
         f"{d['corpus']['source'] or 'not recorded'}.* Command: `python -m experiments.corpus_chain --corpus DIR`."
     )
-    counts = ", ".join(f"{n} {k}" for k, n in s["reader"].items())
+    counts = "; ".join(f"{k}: {n}" for k, n in s["reader"].items())
     verdicts = ", ".join(f"{n} {'timed out' if k == 'None' else f'with exit {k}'}" for k, n in fits.items())
     lines = [
         head,
