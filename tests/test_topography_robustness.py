@@ -283,14 +283,17 @@ def test_an_empty_file_holds_no_heights(tmp_path):
     assert "pitch" not in str(caught.value)
 
 
-def test_a_channel_that_is_not_heights_is_refused_naming_the_height_channels():
+def test_a_channel_that_is_not_heights_is_refused_naming_the_height_channels(tmp_path, capsys):
     """di-3.di's channel 1 is the AFM's amplitude error (SurfaceTopography gives its unit as ('µm', None)): refused
-    naming what it holds and the file's other channels, with the option that chooses one — not from_array."""
+    naming what it holds and the file's other channels, with the argument that chooses one (``channel=``, which the
+    command writes ``--channel``) — not from_array."""
     with pytest.raises(
-        MeasurementFileError, match=r"channel 1 \('AmplitudeError'\) holds .*--channel.*3: 'Height'"
+        MeasurementFileError, match=r"channel 1 \('AmplitudeError'\) holds .*channel= among .*3: 'Height'"
     ) as e:
         topography.read(str(DATA / "di-3.di"), channel=1)
     assert "from_array" not in str(e.value)
+    code, _, err = _main(["topography", str(DATA / "di-3.di"), "--channel", "1", "--out", str(tmp_path / "t")], capsys)
+    assert code == 2 and "choose a height channel with --channel among" in err and "channel=" not in err, err
 
 
 def test_synth_refuses_a_default_that_gives_one_scale(tmp_path, capsys):

@@ -56,6 +56,7 @@ FLAGS = {
     "masking=": "--masking",
     "out_dir=": "--out",
     "out=": "--out",
+    "channel=": "--channel",
     "address=": "--address",
     "workers=": "--workers",
     "fixed:": "--fix:",

@@ -153,8 +153,7 @@ def _decode(st, name: str, channel):
         others = ", ".join(f"{i}: {c.name!r}" for i, c in enumerate(channels) if i != index)
         raise MeasurementFileError(
             f"{name}: channel {index} ({info.name!r}) holds {unit!r}, not heights in a length unit brdfscale knows "
-            f"({', '.join(UNITS)})"
-            + (f"; choose a height channel (channel=, the command's --channel) among {others}." if others else ".")
+            f"({', '.join(UNITS)})" + (f"; choose a height channel with channel= among {others}." if others else ".")
         )
     heights = topo.heights()
     mask = ~np.ma.getmaskarray(heights) if np.ma.isMaskedArray(heights) else None
