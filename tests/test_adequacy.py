@@ -183,11 +183,8 @@ def test_faint_broad_tails_pass_chi2_and_the_neighbours_test_and_fail_the_second
                 name: (b["value"][i][j] - a["value"][i][j]) / a["std"][i][j]
                 for name, i, j in (("xx", 0, 0), ("xy", 0, 1), ("yy", 1, 1))
             }
-            # two computations of one z (assess's, and this recomputation from the predicted images), equal to
-            # rounding: 1.04e-12 relative apart on the 2026-12-07 install, at ffed9a5 as at later commits (the
-            # same two numbers), within 1e-12 on earlier ones — rel=1e-9 still tells any other z apart
-            assert row["moments_z"] == pytest.approx(z[row["moments_entry"]], rel=1e-9)
-            assert abs(row["moments_z"]) == pytest.approx(max(abs(v) for v in z.values()), rel=1e-9)
+            assert row["moments_z"] == pytest.approx(z[row["moments_entry"]], rel=1e-12)
+            assert abs(row["moments_z"]) == pytest.approx(max(abs(v) for v in z.values()), rel=1e-12)
             assert row["moments_p"] == pytest.approx(min(1.0, 2 * 3 * len(seen) * _normal_sf(abs(row["moments_z"]))))
         worst = outcome.scales[-1]
         assert worst["moments_z"] < -4 and worst["moments_p"] < ADEQUACY.p_value
