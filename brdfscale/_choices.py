@@ -477,5 +477,9 @@ class AdequacyDefaults:
 
 
 #: The defaults.
+#: The fewest distinct scales μ a fit accepts (``fitting.Dataset``): the evolution between scales carries the
+#: information; ``brdfscale synth``'s automatic scales refuse a field that admits fewer.
+MIN_FIT_SCALES = 2
+
 FIT, SAMPLE, MODEL = FitDefaults(), SampleDefaults(), ModelDefaults()
 ADEQUACY = AdequacyDefaults()

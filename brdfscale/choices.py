@@ -13,6 +13,7 @@
   ``fitting.sample``/``sample_many``, the fitting models, :class:`brdfscale.library.FitSpec`
   and the ``brdfscale fit``/``fit-library`` options default to (``FIT.starts`` is ``"auto"``: the model's
   ``preferred_starts``, ``FIT.model_starts`` = 8 unless the model says otherwise);
+* :data:`MIN_FIT_SCALES` — the fewest distinct scales a fit accepts (2);
 * :class:`AdequacyDefaults` and :data:`ADEQUACY` — the thresholds of ``fitting.assess`` (the
   outcome of a fit and the command's exit statuses 5–7).
 
@@ -38,6 +39,7 @@ from ._choices import (
     MASKING,
     MESHES,
     MICRO_FACETS,
+    MIN_FIT_SCALES,
     MODEL,
     ModelDefaults,
     MODELS,
@@ -65,6 +67,7 @@ __all__ = [
     "MASKING",
     "MESHES",
     "MICRO_FACETS",
+    "MIN_FIT_SCALES",
     "MODEL",
     "MODELS",
     "OUTPUTS",

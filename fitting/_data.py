@@ -43,6 +43,7 @@ from jaxtyping import Array, Float
 
 from brdfscale import InvalidInputError, lobes, MeasurementSet
 from brdfscale.checks import real, require_float64
+from brdfscale.choices import MIN_FIT_SCALES
 from brdfscale.show import concrete, Shown, Values
 
 from ._joint import TopographyData
@@ -137,10 +138,10 @@ class Dataset(Shown, eqx.Module):
         if not isinstance(mset, MeasurementSet):
             raise InvalidInputError(f"expected a brdfscale.MeasurementSet; got {type(mset).__name__}.")
         scales = tuple(float(s) for s in mset.scales)
-        if len(scales) < 2:
+        if len(scales) < MIN_FIT_SCALES:
             raise InvalidInputError(
-                f"a fit needs images at two or more distinct scales μ; got only μ = {scales}. The evolution "
-                "between scales is what carries the information about the slope statistics."
+                f"a fit needs images at {MIN_FIT_SCALES} or more distinct scales μ; got only μ = {scales}. The "
+                "evolution between scales is what carries the information about the slope statistics."
             )
         if default_sigma is not None:
             default_sigma = real(default_sigma, "default_sigma", minimum=0.0, strict=True)

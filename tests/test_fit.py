@@ -40,7 +40,7 @@ def _image(mu, sigma=True, mask=None, values=None):
 
 
 def test_dataset_refuses_what_cannot_be_fitted():
-    with pytest.raises(InvalidInputError, match="two or more distinct scales"):
+    with pytest.raises(InvalidInputError, match="at 2 or more distinct scales"):
         fitting.Dataset.from_measurements(MeasurementSet((_image(1.0), _image(1.0))))
     with pytest.raises(InvalidInputError, match="default_sigma"):
         fitting.Dataset.from_measurements(MeasurementSet((_image(1.0), _image(2.0, sigma=False))))

@@ -133,12 +133,27 @@ def test_a_tilted_plane_on_non_square_pixels_has_the_exact_slope_and_detrends_to
     assert s.count == (11 // 2) * (19 // 5) and np.allclose(s.mean, [-a, -b], rtol=1e-12)
     assert np.allclose(s.covariance, 0, atol=1e-20)
     flat = topography.from_array(a * x + b * y, (dx, dy), detrend="plane")
-    assert np.max(np.abs(flat.heights)) < 1e-18 and np.allclose(
-        flat.description["trend"]["coefficients"][1:], [a * nx * dx, b * ny * dy], rtol=1e-10
+    assert (
+        not np.any(flat.heights)
+        and flat.description["height_quantum"] is None
+        and np.allclose(flat.description["trend"]["coefficients"][1:], [a * nx * dx, b * ny * dy], rtol=1e-10)
     )
     with pytest.raises(InvalidInputError, match="whole number of pixels along both axes"):
         raw.block(3e-6)
     assert all(abs(mu / dx - round(mu / dx)) < 1e-9 and abs(mu / dy - round(mu / dy)) < 1e-9 for mu in raw.scales(4))
+
+
+def test_a_texture_far_below_the_tilt_is_kept_and_only_the_trends_rounding_is_made_zero():
+    """The plane's rounding (rms ≤ topography.PLANE_ROUNDING = 1e-12 of the heights' span) detrends to exactly 0;
+    a texture 1e-9 of the span — below any instrument's digitisation, 3 decades above float64's rounding — is kept
+    to its own rounding (the least-squares fit of the tilt leaves it, less its own small tilt)."""
+    y, x = np.mgrid[0:16, 0:24] * 1e-6
+    plane = 0.3 * x - 0.2 * y
+    texture = 1e-9 * np.ptp(plane) * np.random.default_rng(0).standard_normal(plane.shape)
+    field = topography.from_array(plane + texture, 1e-6, detrend="plane")
+    kept = topography.from_array(texture, 1e-6, detrend="plane").heights
+    assert np.any(field.heights) and np.allclose(field.heights, kept, rtol=0, atol=1e-4 * np.std(texture))
+    assert topography.PLANE_ROUNDING == 1e-12
 
 
 def test_one_unmeasured_pixel_excludes_exactly_the_windows_that_touch_it():

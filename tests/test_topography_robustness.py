@@ -259,6 +259,24 @@ def test_a_file_without_a_height_unit_is_refused_naming_the_way_round(tmp_path, 
         assert "records no unit for its heights" in lines[0] and "from_array(heights, spacing, unit=...)" in lines[0]
 
 
+def test_a_file_of_an_exact_plane_is_a_flat_field_and_synth_refuses_it_in_one_line(tmp_path, capsys):
+    """SurfaceTopography's own ``nc-1.nc`` (tests/data/topographies/README.md): 10 × 5 pixels of 1 nm whose heights
+    are an exact plane, steps of 2 nm. Detrended, it is a flat field — every height exactly 0, no slope quantum
+    (the tilt's 2 nm step is no lattice of its slopes) — so ``topography`` says the surface is flat and
+    ``synth --topography`` refuses it with exit 2 and one line. Before, the plane's rounding (rms slope 2e-15)
+    passed for a texture and the tilt's step for a slope quantum of 2, and synth asked for a 9e16² image grid
+    (experiments/corpus_chain.py met it)."""
+    path = str(DATA / "nc-1.nc")
+    field = topography.read(path)
+    assert field.shape == (10, 5) and not np.any(field.heights) and field.description["height_quantum"] is None
+    code, out, err = _main(["topography", path, "--out", str(tmp_path / "t")], capsys)
+    assert code == 0 and "the surface is flat" in out + err, (out, err)
+    code, _, err = _main(["synth", "--topography", path, "--out", str(tmp_path / "m.exr")], capsys)
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
+    assert "flat field has no lobe to image" in lines[0] and not (tmp_path / "m.exr").exists()
+
+
 def test_a_file_without_a_pitch_is_refused_naming_the_way_round(tmp_path, capsys):
     """A NumPy ``.npy`` height map (SurfaceTopography reads its heights but no physical size; its own
     ``example-2d.npy`` and ``matrix-5.txt`` are such files): refused before SurfaceTopography's "physical_sizes could
@@ -286,12 +304,12 @@ def test_an_empty_file_holds_no_heights(tmp_path):
 def test_a_channel_that_is_not_heights_is_refused_naming_the_height_channels(tmp_path, capsys):
     """di-3.di's channel 1 is the AFM's amplitude error (SurfaceTopography gives its unit as ('µm', None)): refused
     naming what it holds and the file's other channels, with the argument that chooses one (``channel=``, which the
-    command writes ``--channel``) — not from_array."""
+    command writes ``--channel``) — not from_array, and not channel 2, the phase, whose unit is ('µm', None) too."""
     with pytest.raises(
         MeasurementFileError, match=r"channel 1 \('AmplitudeError'\) holds .*channel= among .*3: 'Height'"
     ) as e:
         topography.read(str(DATA / "di-3.di"), channel=1)
-    assert "from_array" not in str(e.value)
+    assert "from_array" not in str(e.value) and "'Phase'" not in str(e.value) and "0: 'ZSensor'" in str(e.value)
     code, _, err = _main(["topography", str(DATA / "di-3.di"), "--channel", "1", "--out", str(tmp_path / "t")], capsys)
     assert code == 2 and "choose a height channel with --channel among" in err and "channel=" not in err, err
 
@@ -300,7 +318,7 @@ def test_synth_refuses_a_default_that_gives_one_scale(tmp_path, capsys):
     """A 4 × 7 height map (SurfaceTopography's own ``sdf-1.sdf`` is one): ``--scales auto:8`` admits a single facet
     scale, and ``fit`` needs two — ``synth --topography`` refuses in one line naming the default and the way round
     (it wrote a one-scale set that ``fit`` then refused, experiments/corpus_chain.py met it); the scales given by
-    name are made."""
+    name, and one automatic scale asked for (``auto:1``), are made."""
     path = _text_file(tmp_path / "small.txt", np.random.default_rng(5).standard_normal((4, 7)) * 1e-8)
     code, _, err = _main(["synth", "--topography", path, "--out", str(tmp_path / "m.exr")], capsys)
     lines = err.strip().splitlines()
@@ -310,6 +328,10 @@ def test_synth_refuses_a_default_that_gives_one_scale(tmp_path, capsys):
         ["synth", "--topography", path, "--scales", "1px,2px", "--out", str(tmp_path / "m.exr")], capsys
     )
     assert code == 0, err
+    code, _, err = _main(
+        ["synth", "--topography", path, "--scales", "auto:1", "--out", str(tmp_path / "a.exr")], capsys
+    )
+    assert code == 0, err  # one scale asked for is made, as by name
 
 
 # -- nearly square pixels ------------------------------------------------------------------------------

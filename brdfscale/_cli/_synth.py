@@ -19,7 +19,7 @@ and that is larger (:func:`default_resolution`). Each choice is recorded in the 
 import argparse
 import math
 
-from .._choices import INSTRUMENTS, MICRO_FACETS, WEIGHTINGS
+from .._choices import INSTRUMENTS, MICRO_FACETS, MIN_FIT_SCALES, WEIGHTINGS
 from .._errors import InvalidInputError
 from ._options import integer, MAX_SEED, output_file, real, scales, seed
 from ._topography import add_reading_options, read_field, reading_command
@@ -338,13 +338,14 @@ def run(args) -> int:
         source = f"{field.description.get('file', args.topography)}, {ny} × {nx} measured field"
         command = f"brdfscale synth --topography {args.topography} {reading_command(args)} --scales {chosen}"
     mus = chosen.resolve(field)
-    if chosen.auto is not None and len(mus) < 2:  # what fit needs; a single scale asked for by name is made
-        (ny, nx) = field.shape
+    if chosen.auto is not None and len(mus) < min(chosen.auto, MIN_FIT_SCALES):  # fewer than a fit needs and
+        (ny, nx) = field.shape  # than asked for; a single scale asked for (by name or auto:1) is made
         given = "" if args.scales is not None else " (the default)"
+        larger = "measure a larger field" if args.topography is not None else "give a larger --size"
         raise InvalidInputError(
             f"--scales {chosen.text}{given}: this {ny} × {nx} field admits one facet scale "
-            f"(μ = {mus[0]:g} {field.unit or 'px'}); brdfscale fit needs two or more: give --scales two sizes the "
-            "field holds (e.g. 1px,2px), or measure a larger field."
+            f"(μ = {mus[0]:g} {field.unit or 'px'}); brdfscale fit needs {MIN_FIT_SCALES} or more: give --scales two "
+            f"sizes the field holds (e.g. 1px,2px), or {larger}."
         )
     topography = args.topography is not None
     extent = args.extent if args.extent is not None else synth.robust_extent(field)

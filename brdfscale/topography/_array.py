@@ -64,7 +64,8 @@ def detrend(
     normalised coordinates ``ξ = k/n_x``, ``η = j/n_y`` of pixel ``[j, k]`` — the
     parametrisation of SurfaceTopography's ``polyfit``, so the coefficients are its
     coefficients for the same heights (tests/test_topography.py). Detrending changes the
-    heights, not the pitch: slopes change by the trend's gradient.
+    heights, not the pitch: slopes change by the trend's gradient. Heights that are the trend
+    to the fit's rounding (rms at most :data:`PLANE_ROUNDING` of their span) detrend to exactly 0.
 
     Returns the detrended heights (unmeasured entries 0) and a record ``{"mode", "terms",
     "coefficients"}`` for the field's provenance, the coefficients in the unit of the heights
@@ -103,7 +104,19 @@ def _fit_trend(h: np.ndarray, mode: str | None, valid: np.ndarray) -> tuple[np.n
     coefficients, *_ = np.linalg.lstsq(design, h[valid] - reference, rcond=None)
     trend = sum(c * t for c, t in zip(coefficients, columns))
     record["coefficients"] = [float(c) + (reference if k == 0 else 0.0) for k, c in enumerate(coefficients)]
-    return np.where(valid, (h - reference) - trend, 0.0), record
+    residual = np.where(valid, (h - reference) - trend, 0.0)
+    # heights that are the trend to the fit's rounding (a tilted plane: a test file's) detrend to exactly 0, as a
+    # flat field does; else their rounding noise (~1e-16 of the heights) would pass for a texture of slopes ~1e-15
+    span = float(np.max(np.abs(h[valid] - reference)))
+    if span > 0 and np.sqrt(np.mean((residual[valid] / span) ** 2)) <= PLANE_ROUNDING:  # no underflow: ratios
+        residual = np.zeros_like(residual)
+    return residual, record
+
+
+#: Detrended heights whose rms is at most this fraction of the heights' span (about 4500 float64 roundings) are
+#: the trend's rounding, not a texture: :func:`from_array` makes them exactly 0 (a plane is a flat field). Any
+#: instrument's texture is above 1e-8 of its span (24-bit digitisers: 6e-8).
+PLANE_ROUNDING = 1e-12
 
 
 def square_pitch(dx: float, dy: float) -> tuple[tuple[float, float], dict | None]:
@@ -200,7 +213,9 @@ def from_array(
             own mask), or None.
         detrend: ``"plane"`` (default: tilt removed), ``"curvature"`` (a quadratic removed)
             or None, by least squares over the measured pixels (:func:`detrend`); recorded
-            in the provenance with its coefficients.
+            in the provenance with its coefficients. Heights that are the trend to its fit's
+            rounding (rms at most :data:`PLANE_ROUNDING` of their span: a tilted plane) become
+            exactly 0, a flat field without a slope quantum.
         periodic: True only for a height map that is periodic (a simulation's); then
             ``detrend`` must be None, since a removed plane is not periodic.
         micro: the pixel facets' own lobe (default mirror facets, ``stats.Delta()``).
@@ -272,6 +287,8 @@ def from_array(
         raise InvalidInputError(
             f"heights in {unit} overflow float64 when converted to metres or detrended; they are not a surface's."
         )
+    if mode is not None and not h.any():
+        quantum = None  # a plane: its heights' lattice (the tilt's step) puts no slope of the detrended field on one
     spacing_m, square = square_pitch(dx * scale, dy * scale)
     provenance = {
         "generator": "brdfscale.topography.from_array",

@@ -136,21 +136,22 @@ def _decode(st, name: str, channel):
     if 0 in tuple(info.nb_grid_pts or ()):  # e.g. an empty file, which SurfaceTopography's HGT reader takes as 0 × 0
         shape = " × ".join(map(str, info.nb_grid_pts))
         raise MeasurementFileError(f"{name}: holds no heights ({shape} pixels as {type(reader).__name__} reads it).")
-    if info.dim == 2 and info.physical_sizes is None:  # SurfaceTopography's topography() would ask for them
+    if info.dim != 2:
+        raise MeasurementFileError(f"{name}: channel {index} ({info.name!r}) is a line scan, not an areal height map.")
+    if info.physical_sizes is None:  # SurfaceTopography's topography() would ask for them
         raise MeasurementFileError(
             f"{name}: channel {index} ({info.name!r}) records its heights but not their pitch (the file's physical "
             f"size); {_AS_ARRAY}"
         )
     topo = reader.topography(channel_index=index)
-    if topo.dim != 2:
-        raise MeasurementFileError(f"{name}: channel {index} ({info.name!r}) is a line scan, not an areal height map.")
     unit = topo.unit
     if unit not in UNITS:
         if unit is None:
             raise MeasurementFileError(
                 f"{name}: channel {index} ({info.name!r}) records no unit for its heights; {_AS_ARRAY}"
             )
-        others = ", ".join(f"{i}: {c.name!r}" for i, c in enumerate(channels) if i != index)
+        # the other channels in a length unit (SurfaceTopography gives others' units as tuples: ('µm', None))
+        others = ", ".join(f"{i}: {c.name!r}" for i, c in enumerate(channels) if i != index and c.unit in UNITS)
         raise MeasurementFileError(
             f"{name}: channel {index} ({info.name!r}) holds {unit!r}, not heights in a length unit brdfscale knows "
             f"({', '.join(UNITS)})" + (f"; choose a height channel with channel= among {others}." if others else ".")
