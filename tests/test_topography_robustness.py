@@ -145,11 +145,10 @@ def test_reader_logging_stays_off_the_terminal(tmp_path, capfd):
     assert out == "" and "could not reshape" not in err
 
 
-def test_a_readers_python_warning_stays_off_the_terminal_and_joins_the_reason(tmp_path, monkeypatch, recwarn):
+def test_a_readers_python_warning_joins_the_reason_of_a_file_it_cannot_read(tmp_path, monkeypatch, recwarn):
     """openpyxl warns (Python's warnings) about an image inside SurfaceTopography's own ``mitutoyo_2_mock.xlsx``
     while reading it, which put a second line before the refusal (experiments/corpus_chain.py met it): what a
-    reader warns is kept off the terminal like what it logs, and a file that cannot be read gets its first line in
-    the reason."""
+    reader warns joins the reason of a file that cannot be read (its first line) instead of printing before it."""
     path = tmp_path / "scan.di"
     path.write_bytes(b"not really")
 
@@ -163,6 +162,23 @@ def test_a_readers_python_warning_stays_off_the_terminal_and_joins_the_reason(tm
     with pytest.raises(MeasurementFileError, match=r"KeyError.*it logged: wmf image format is not supported"):
         topography.read(path)
     assert not any("wmf" in str(w.message) for w in recwarn)
+
+
+def test_a_readers_python_warning_on_a_file_it_reads_is_the_callers_again(monkeypatch):
+    """The same warning from a reader that then reads the file (nc-1.nc) is issued again once the file is read —
+    as the reader issued it (its category), under the caller's own filters — not swallowed."""
+    real = st_module.open_topography
+
+    def warn_then_read(name):
+        import warnings
+
+        warnings.warn("wmf image format is not supported so the image is being dropped", UserWarning, stacklevel=1)
+        return real(name)
+
+    monkeypatch.setattr(st_module, "open_topography", warn_then_read)
+    with pytest.warns(UserWarning, match="wmf image format is not supported"):
+        field = topography.read(str(DATA / "nc-1.nc"))
+    assert field.shape == (10, 5)
 
 
 # -- absurd pitches and heights ----------------------------------------------------------------------

@@ -82,6 +82,11 @@ def read(path, *, channel: int | str | None = None, detrend: str | None = "plane
 _READER_LOGGERS = ("SurfaceTopography", "igor2", "netCDF4", "h5py", "PIL", "tifffile")
 
 
+def _line(text: str) -> str:
+    """What a reader logged or warned, as one line of at most 200 characters."""
+    return " ".join(text.split())[:200]
+
+
 class _Kept(logging.Handler):
     def __init__(self):
         super().__init__(logging.DEBUG)
@@ -89,7 +94,7 @@ class _Kept(logging.Handler):
 
     def emit(self, record):
         with contextlib.suppress(Exception):
-            self.lines.append(" ".join(record.getMessage().split())[:200])
+            self.lines.append(_line(record.getMessage()))
 
 
 @contextlib.contextmanager
@@ -97,8 +102,9 @@ def _file_errors(name: str, st):
     """The one boundary around SurfaceTopography: any exception of its readers (KeyError,
     dateutil's ParserError, IndexError, struct and zlib errors, MemoryError, …) becomes a
     MeasurementFileError naming the file and the reason; brdfscale's own errors pass. What the
-    readers log or warn meanwhile is kept off the terminal (:data:`_READER_LOGGERS`, Python warnings), and the
-    first of it is added to the reason of a file that cannot be read."""
+    readers log meanwhile is kept off the terminal (:data:`_READER_LOGGERS`); what they log, and the Python
+    warnings the caller's filters let through, joins the reason of a file that cannot be read (its first line),
+    and the warnings are issued again, as they were, once the file is read."""
     kept = _Kept()
     loggers = [logging.getLogger(n) for n in _READER_LOGGERS]
     saved = [(lg.handlers[:], lg.propagate) for lg in loggers]
@@ -106,11 +112,12 @@ def _file_errors(name: str, st):
         lg.handlers, lg.propagate = [kept], False
     try:
         with warnings.catch_warnings(record=True) as warned:  # e.g. openpyxl's on an image inside a .xlsx
-            warnings.simplefilter("always")
             try:
                 yield
             finally:
-                kept.lines.extend(" ".join(str(w.message).split())[:200] for w in warned)
+                kept.lines.extend(_line(str(w.message)) for w in warned)
+        for w in warned:  # read: the warnings are the caller's again (the command prints each as one line)
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, source=w.source)
     except BrdfscaleError:
         raise
     except Exception as err:
