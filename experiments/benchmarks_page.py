@@ -1215,9 +1215,9 @@ def corpus_chain() -> str:
         "last line of the last command run, cut at 170 characters — the full lines are in the JSON —, its folders "
         "written `WORK/` and `CORPUS/`):",
         table(
-            ["file", "pixels", "exit statuses", "last line"],
-            [
-                [f"`{r['file']}`", " × ".join(map(str, r["reader"].get("shape", []))), statuses(r), last(r)]
+            ["file", "pixels (rows × columns)", "exit statuses", "last line"],
+            [  # SurfaceTopography's shape is (columns, rows): brdfscale's lines say rows × columns
+                [f"`{r['file']}`", " × ".join(map(str, r["reader"].get("shape", [])[::-1])), statuses(r), last(r)]
                 for r in areal
             ],
         ),

@@ -21,8 +21,9 @@ status, its last line (the run's folders written ``WORK/``, the corpus's ``CORPU
 stderr, whether a Python traceback reached the terminal, the wall time; per file: its size, SHA-256, and what
 SurfaceTopography itself makes of it (:func:`reader_verdict`, in a process of its own with a timeout: a 2-D
 uniform topography, one without a pitch or a unit, none at all, a line scan, a non-uniform one, or its reader's
-error) — so that a refusal can be told apart from a defect. fit.json's outcome, χ²/dof per scale and lobe widths
-are kept where the fit wrote it.
+error; read from SurfaceTopography's channel information and ``topography()``) — for the reader of the table, to
+judge whether a refusal is fair: :func:`defects` does not read it. fit.json's outcome, χ²/dof per scale and lobe
+widths are kept where the fit wrote it.
 
 A file is a **defect** of brdfscale (:func:`defects`) where a command
 
@@ -32,9 +33,10 @@ A file is a **defect** of brdfscale (:func:`defects`) where a command
   narrower than one image pixel: ``bench_real_fits.unflagged``), or without fit.json;
 * refuses (exit 2) in more than one line.
 
-Not counted, but listed for reading (the summary's ``refused_2d``): the files SurfaceTopography reads as a 2-D
-topography that ``topography`` refuses — a field too small for eight scales, or a channel that is not heights, is
-a fair refusal; the line says which.
+Not counted, but listed for reading (the summary's ``refused_2d``, file → the command that refused): the files
+SurfaceTopography reads as a 2-D topography that a command refuses (exit 2) — a field under 4 × 4 pixels or one
+that admits a single facet scale, a flat field, a channel that is not heights, is a fair refusal; the line says
+which.
 
 Run:  python -m experiments.corpus_chain --corpus DIR [--out JSON] [--only NAME ...] [--resume] [--source TEXT]
 (``--rescore``: the summary of ``--out``'s records recomputed by this code, its commit recorded, nothing run.)
@@ -130,8 +132,9 @@ def _relative(command: dict, workdir: Path, corpus: Path) -> dict:
     return {**command, "line": line}
 
 
-def study(path: Path, workdir: Path) -> dict:
-    """One file: the reader's verdict, then the three commands as far as they get."""
+def study(path: Path, workdir: Path, index: int) -> dict:
+    """One file: the reader's verdict, then the three commands as far as they get (their outputs named by the
+    file's ``index`` in the corpus: names that differ only in punctuation do not meet)."""
     data = path.read_bytes()
     record: dict = {
         "file": path.name,
@@ -139,7 +142,7 @@ def study(path: Path, workdir: Path) -> dict:
         "sha256": hashlib.sha256(data).hexdigest(),
         "reader": reader_verdict(path),
     }
-    tag = path.name.replace(".", "_")
+    tag = f"{index:04d}"
     env = {"BRDFSCALE_COMPILATION_CACHE": str(workdir / "cache")}  # one cache for the run: a user's second file
 
     def command(*args):
@@ -189,7 +192,7 @@ def defects(record: dict) -> list[str]:
 def summarise(records: list[dict]) -> dict:
     """Counts over the records: by SurfaceTopography's verdict, by each command's exit status (over the records
     that ran it), how many reached the fit, the files with defects, and the files SurfaceTopography reads as 2-D
-    that ``topography`` refused (for reading)."""
+    that a command refused, with the first that did (for reading)."""
     by_status = {
         name: {str(k): sum(1 for r in records if name in r and r[name]["exit"] == k) for k in _statuses(records, name)}
         for name in COMMANDS
@@ -203,11 +206,12 @@ def summarise(records: list[dict]) -> dict:
         "exit_statuses": by_status,
         "fits": sum(1 for r in records if "fit" in r),
         "defects": {r["file"]: d for r in records if (d := defects(r))},
-        "refused_2d": [
-            r["file"]
+        "refused_2d": {
+            r["file"]: refused[0]
             for r in records
-            if r["reader"]["kind"].startswith("2D") and (r.get("topography") or {}).get("exit") == 2
-        ],
+            if r["reader"]["kind"].startswith("2D")
+            and (refused := [n for n in COMMANDS if (r.get(n) or {}).get("exit") == 2])
+        },
     }
 
 
@@ -249,10 +253,10 @@ def run(
     }
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
-        for path in files:
+        for index, path in enumerate(files):
             if path.name in done:
                 continue
-            record = study(path, Path(tmp))
+            record = study(path, Path(tmp), index)
             records.append(record)
             marks = ", ".join(f"{n} {record[n]['exit']}" for n in COMMANDS if n in record)
             print(
@@ -262,7 +266,8 @@ def run(
             )
             elapsed = round(spent + time.perf_counter() - started, 1)
             write_json(out.stem, {**payload, "records": records, "complete": False, "spent_s": elapsed}, out.parent)
-    payload.update(records=records, complete=True, total_s=round(spent + time.perf_counter() - started, 1))
+    total = round(spent + time.perf_counter() - started, 1)
+    payload.update(records=records, complete=True, total_s=total, spent_s=total)  # spent_s: what --resume adds to
     payload["summary"] = summarise(records)
     write_json(out.stem, payload, out.parent)
     return payload

@@ -1489,7 +1489,7 @@ def test_corpus_chain_names_what_a_user_should_not_meet():
     """corpus_chain.defects: an undocumented status (1), a traceback on the terminal, a timeout, a refusal in more
     than one line, and an exit 0 without fit.json or whose fit.json shows a scale's χ²/dof above 1.5 or a lobe
     under a pixel are defects; a refusal (2) in one line, an inadequate fit (5) and an undetermined one (7) are
-    not. summarise counts them, and lists the 2-D files that ``topography`` refused."""
+    not. summarise counts them, and lists the 2-D files that a command refused, with the first that did."""
     from experiments import corpus_chain
 
     fine = _chain_record("fine", topography=(0, "wrote D"), synth=(0, "wrote m.exr"), fit=(5, "inadequate: …"))
@@ -1524,7 +1524,9 @@ def test_corpus_chain_names_what_a_user_should_not_meet():
     assert summary["exit_statuses"]["synth"] == {"0": 3, "2": 1, "None": 1}
     assert summary["exit_statuses"]["fit"] == {"0": 2, "5": 1} and summary["fits"] == 3
     assert set(summary["defects"]) == {"crash", "stuck", "wordy", "quiet", "silent"}
-    assert summary["refused_2d"] == ["refused", "wordy"]
+    assert summary["refused_2d"] == {"refused": "topography", "wordy": "topography"}
+    late = _chain_record("late", topography=(0, "wrote D"), synth=(2, "a flat field has no lobe"))
+    assert corpus_chain.summarise([late])["refused_2d"] == {"late": "synth"}
 
 
 @pytest.mark.slow  # five brdfscale processes (~20 s on 2 cores): .ci/run's second step
@@ -1557,7 +1559,7 @@ def test_corpus_chain_on_files_no_reader_takes(tmp_path):
     assert "not their pitch" in payload["records"][1]["topography"]["line"]
     assert payload["records"][0]["sha256"] == "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855"
     assert payload["summary"]["defects"] == {} and payload["summary"]["fits"] == 0
-    assert payload["summary"]["refused_2d"] == ["heights.npy"]
+    assert payload["summary"]["refused_2d"] == {"heights.npy": "topography"}
     with pytest.raises(SystemExit, match="run without --resume"):
         corpus_chain.run(corpus, out, source="another", resume=True)
 
