@@ -374,7 +374,9 @@ def test_a_scale_mixture_component_without_a_covariance_counts_nothing():
     assert 0 < kept.sum() < kept.size
     expected = sum(w * gaussian(u, np.zeros(2), (f - 0.6) * c0, 1.0) for f, w in zip(factor[kept], weight[kept]))
     np.testing.assert_allclose(got, expected, rtol=1e-10, atol=1e-12 * expected.max())
-    grad = jax.grad(lambda t: jnp.sum(model.predict_points(t, jnp.asarray([1.0, 2.0]), jnp.asarray(np.stack([u, u])))))
+    grad = jax.jit(
+        jax.grad(lambda t: jnp.sum(model.predict_points(t, jnp.asarray([1.0, 2.0]), jnp.asarray(np.stack([u, u])))))
+    )
     assert np.all(np.isfinite(np.asarray(grad(theta))))
 
 
