@@ -476,10 +476,10 @@ class AdequacyDefaults:
     away_verdict_share: float = 0.5
 
 
-#: The defaults.
 #: The fewest distinct scales μ a fit accepts (``fitting.Dataset``): the evolution between scales carries the
 #: information; ``brdfscale synth``'s automatic scales refuse a field that admits fewer.
 MIN_FIT_SCALES = 2
 
+#: The defaults.
 FIT, SAMPLE, MODEL = FitDefaults(), SampleDefaults(), ModelDefaults()
 ADEQUACY = AdequacyDefaults()

@@ -45,9 +45,7 @@ def simulate(
         replicates: images per scale (different incident directions, same lobe).
         seed: NumPy random seed.
     """
-    scales = sorted(float(s) for s in scales)
-    if len(set(scales)) < 2:
-        raise InvalidInputError(f"simulate needs at least two distinct scales; got {scales}.")
+    scales = sorted(float(s) for s in scales)  # fewer than fitting.Dataset accepts: refused there, below
     if noise < 0 or floor <= 0:
         raise InvalidInputError(f"need noise ≥ 0 and floor > 0; got noise={noise}, floor={floor}.")
     rng = np.random.default_rng(seed)

@@ -11,7 +11,6 @@ import numpy as np
 import optimistix as optx
 import pytest
 import scipy.optimize
-import scipy.stats
 
 from brdfscale import choices, fitting, InvalidInputError
 from tests.helpers import Linear, linear_measurements, parametric_dataset, TRUTHS

@@ -133,10 +133,8 @@ def test_a_tilted_plane_on_non_square_pixels_has_the_exact_slope_and_detrends_to
     assert s.count == (11 // 2) * (19 // 5) and np.allclose(s.mean, [-a, -b], rtol=1e-12)
     assert np.allclose(s.covariance, 0, atol=1e-20)
     flat = topography.from_array(a * x + b * y, (dx, dy), detrend="plane")
-    assert (
-        not np.any(flat.heights)
-        and flat.description["height_quantum"] is None
-        and np.allclose(flat.description["trend"]["coefficients"][1:], [a * nx * dx, b * ny * dy], rtol=1e-10)
+    assert not np.any(flat.heights) and np.allclose(
+        flat.description["trend"]["coefficients"][1:], [a * nx * dx, b * ny * dy], rtol=1e-10
     )
     with pytest.raises(InvalidInputError, match="whole number of pixels along both axes"):
         raw.block(3e-6)
@@ -144,16 +142,21 @@ def test_a_tilted_plane_on_non_square_pixels_has_the_exact_slope_and_detrends_to
 
 
 def test_a_texture_far_below_the_tilt_is_kept_and_only_the_trends_rounding_is_made_zero():
-    """The plane's rounding (rms ≤ topography.PLANE_ROUNDING = 1e-12 of the heights' span) detrends to exactly 0;
-    a texture 1e-9 of the span — below any instrument's digitisation, 3 decades above float64's rounding — is kept
-    to its own rounding (the least-squares fit of the tilt leaves it, less its own small tilt)."""
+    """The plane's rounding (rms ≤ topography.PLANE_ROUNDING = 1e-12 of the largest |height|) detrends to exactly
+    0, also on an offset of 1 mm or 1 cm in nm (whose conversion to metres rounds each height at 1e-16 of the
+    offset, hundreds of times the plane's own rounding); a texture 1e-9 of the heights — below any instrument's
+    digitisation, 3 decades above float64's rounding — is kept to its own rounding (the fit of the tilt leaves it,
+    less its own small tilt)."""
     y, x = np.mgrid[0:16, 0:24] * 1e-6
     plane = 0.3 * x - 0.2 * y
-    texture = 1e-9 * np.ptp(plane) * np.random.default_rng(0).standard_normal(plane.shape)
+    texture = 1e-9 * np.max(np.abs(plane)) * np.random.default_rng(0).standard_normal(plane.shape)
     field = topography.from_array(plane + texture, 1e-6, detrend="plane")
     kept = topography.from_array(texture, 1e-6, detrend="plane").heights
     assert np.any(field.heights) and np.allclose(field.heights, kept, rtol=0, atol=1e-4 * np.std(texture))
-    assert topography.PLANE_ROUNDING == 1e-12
+    k, j = np.mgrid[0:10, 0:5]
+    for offset in (0.0, 1e6, 1e7):  # nm: none, 1 mm, 1 cm
+        tilted = topography.from_array(offset + 9.0 - 2.0 * k + 3.0 * j, 1.0, unit="nm", detrend="plane")
+        assert not np.any(tilted.heights), offset
 
 
 def test_one_unmeasured_pixel_excludes_exactly_the_windows_that_touch_it():

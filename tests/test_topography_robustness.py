@@ -181,6 +181,26 @@ def test_a_readers_python_warning_on_a_file_it_reads_is_the_callers_again(monkey
     assert field.shape == (10, 5)
 
 
+def test_a_readers_warning_on_a_file_whose_heights_are_refused_is_not_shown(tmp_path, monkeypatch, capsys, recwarn):
+    """A reader that warns and hands over a 3 × 3 map: the refusal (too small, from_array's) is the one line the
+    command prints — the warning is shown only for a file that is read and accepted."""
+    path = _text_file(tmp_path / "tiny.txt", np.arange(9.0).reshape(3, 3) * 1e-8)
+    real = st_module.open_topography
+
+    def warn_then_read(name):
+        import warnings
+
+        warnings.warn("wmf image format is not supported so the image is being dropped", UserWarning, stacklevel=1)
+        return real(name)
+
+    monkeypatch.setattr(st_module, "open_topography", warn_then_read)
+    with pytest.raises(MeasurementFileError, match="at least 4 × 4 pixels"):
+        topography.read(path)
+    assert not any("wmf" in str(w.message) for w in recwarn)
+    code, _, err = _main(["topography", path, "--out", str(tmp_path / "t")], capsys)
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "wmf" not in err, err
+
+
 # -- absurd pitches and heights ----------------------------------------------------------------------
 
 
@@ -330,6 +350,41 @@ def test_a_channel_that_is_not_heights_is_refused_naming_the_height_channels(tmp
     assert code == 2 and "choose a height channel with --channel among" in err and "channel=" not in err, err
 
 
+class _Info:  # SurfaceTopography ≥ 1.27's ChannelInfo, as an Asylum .ibw's: the lateral unit on every channel
+    dim, nb_grid_pts, physical_sizes, unit = 2, (8, 8), (8e-6, 8e-6), "m"
+
+    def __init__(self, name, data_unit, is_height_channel):
+        self.name, self.data_unit, self.is_height_channel = name, data_unit, is_height_channel
+
+
+def test_a_channel_of_phase_or_volts_is_refused_from_its_data_unit_naming_the_height_channels(tmp_path, monkeypatch):
+    """An AFM file's phase channel (SurfaceTopography's own spot_1-1000nm.ibw: data unit 'deg', not a height channel,
+    its ``unit`` the lateral 'm' like every channel's): refused before its values are read as metres, naming the
+    height channels — not the phase or the potential, whose lateral unit is a length too."""
+    path = tmp_path / "scan.ibw"
+    path.write_bytes(b"not read")
+    channels = [
+        _Info("HeightTrace", "m", True),
+        _Info("PhaseTrace", "deg", False),
+        _Info("NapPotentialTrace", "V", False),
+        _Info("HeightRetrace", "m", True),
+    ]
+
+    class Reader:
+        default_channel = channels[0]
+
+        def __init__(self):
+            self.channels = channels
+
+        def topography(self, channel_index=0):
+            raise AssertionError("a channel that is not heights is not read")
+
+    monkeypatch.setattr(st_module, "open_topography", lambda _: Reader())
+    with pytest.raises(MeasurementFileError, match=r"channel 1 \('PhaseTrace'\) holds 'deg', not heights") as e:
+        topography.read(str(path), channel=1)
+    assert "among 0: 'HeightTrace', 3: 'HeightRetrace'." in str(e.value) and "Nap" not in str(e.value)
+
+
 def test_synth_refuses_a_default_that_gives_one_scale(tmp_path, capsys):
     """A 4 × 7 height map (SurfaceTopography's own ``sdf-1.sdf`` is one): ``--scales auto:8`` admits a single facet
     scale, and ``fit`` needs two — ``synth --topography`` refuses in one line naming the default and the way round
@@ -338,7 +393,7 @@ def test_synth_refuses_a_default_that_gives_one_scale(tmp_path, capsys):
     path = _text_file(tmp_path / "small.txt", np.random.default_rng(5).standard_normal((4, 7)) * 1e-8)
     code, _, err = _main(["synth", "--topography", path, "--out", str(tmp_path / "m.exr")], capsys)
     lines = err.strip().splitlines()
-    assert code == 2 and len(lines) == 1 and "admits one facet scale" in lines[0], err
+    assert code == 2 and len(lines) == 1 and "admits 1 facet scale (μ = " in lines[0], err
     assert "(the default)" in lines[0] and "1px,2px" in lines[0] and not (tmp_path / "m.exr").exists()
     code, _, err = _main(
         ["synth", "--topography", path, "--scales", "1px,2px", "--out", str(tmp_path / "m.exr")], capsys

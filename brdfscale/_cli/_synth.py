@@ -342,10 +342,12 @@ def run(args) -> int:
         (ny, nx) = field.shape  # than asked for; a single scale asked for (by name or auto:1) is made
         given = "" if args.scales is not None else " (the default)"
         larger = "measure a larger field" if args.topography is not None else "give a larger --size"
+        admitted = ", ".join(f"{mu:g}" for mu in mus)
         raise InvalidInputError(
-            f"--scales {chosen.text}{given}: this {ny} × {nx} field admits one facet scale "
-            f"(μ = {mus[0]:g} {field.unit or 'px'}); brdfscale fit needs {MIN_FIT_SCALES} or more: give --scales two "
-            f"sizes the field holds (e.g. 1px,2px), or {larger}."
+            f"--scales {chosen.text}{given}: this {ny} × {nx} field admits {len(mus)} facet scale"
+            f"{'s' if len(mus) != 1 else ''} (μ = {admitted} {field.unit or 'px'}); brdfscale fit needs "
+            f"{MIN_FIT_SCALES} or more: give --scales {MIN_FIT_SCALES} sizes the field holds (e.g. 1px,2px), or "
+            f"{larger}."
         )
     topography = args.topography is not None
     extent = args.extent if args.extent is not None else synth.robust_extent(field)

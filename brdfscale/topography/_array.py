@@ -65,7 +65,7 @@ def detrend(
     parametrisation of SurfaceTopography's ``polyfit``, so the coefficients are its
     coefficients for the same heights (tests/test_topography.py). Detrending changes the
     heights, not the pitch: slopes change by the trend's gradient. Heights that are the trend
-    to the fit's rounding (rms at most :data:`PLANE_ROUNDING` of their span) detrend to exactly 0.
+    to the fit's rounding (rms at most :data:`PLANE_ROUNDING` of the largest |height|) detrend to exactly 0.
 
     Returns the detrended heights (unmeasured entries 0) and a record ``{"mode", "terms",
     "coefficients"}`` for the field's provenance, the coefficients in the unit of the heights
@@ -105,17 +105,18 @@ def _fit_trend(h: np.ndarray, mode: str | None, valid: np.ndarray) -> tuple[np.n
     trend = sum(c * t for c, t in zip(coefficients, columns))
     record["coefficients"] = [float(c) + (reference if k == 0 else 0.0) for k, c in enumerate(coefficients)]
     residual = np.where(valid, (h - reference) - trend, 0.0)
-    # heights that are the trend to the fit's rounding (a tilted plane: a test file's) detrend to exactly 0, as a
+    # heights that are the trend to the fit's rounding (a tilted plane, a test file's) detrend to exactly 0, as a
     # flat field does; else their rounding noise (~1e-16 of the heights) would pass for a texture of slopes ~1e-15
-    span = float(np.max(np.abs(h[valid] - reference)))
-    if span > 0 and np.sqrt(np.mean((residual[valid] / span) ** 2)) <= PLANE_ROUNDING:  # no underflow: ratios
+    size = float(np.max(np.abs(h[valid])))  # the rounding of each height given (and of the fit) scales with it
+    if 0 < size < np.inf and np.sqrt(np.mean((residual[valid] / size) ** 2)) <= PLANE_ROUNDING:  # ratios: no underflow
         residual = np.zeros_like(residual)
     return residual, record
 
 
-#: Detrended heights whose rms is at most this fraction of the heights' span (about 4500 float64 roundings) are
-#: the trend's rounding, not a texture: :func:`from_array` makes them exactly 0 (a plane is a flat field). Any
-#: instrument's texture is above 1e-8 of its span (24-bit digitisers: 6e-8).
+#: Detrended heights whose rms is at most this fraction of the largest |height| given (about 4500 float64
+#: roundings of it) are the trend's rounding, not a texture: :func:`from_array` makes them exactly 0 (a plane,
+#: or a quadratic with ``detrend="curvature"``, is then a flat field), whatever offset the heights sit on. Any
+#: instrument's texture is above 1e-8 of its range (24-bit digitisers: 6e-8).
 PLANE_ROUNDING = 1e-12
 
 
@@ -214,8 +215,8 @@ def from_array(
         detrend: ``"plane"`` (default: tilt removed), ``"curvature"`` (a quadratic removed)
             or None, by least squares over the measured pixels (:func:`detrend`); recorded
             in the provenance with its coefficients. Heights that are the trend to its fit's
-            rounding (rms at most :data:`PLANE_ROUNDING` of their span: a tilted plane) become
-            exactly 0, a flat field without a slope quantum.
+            rounding (rms at most :data:`PLANE_ROUNDING` of the largest |height|: an exact plane,
+            or quadratic) become exactly 0, a flat field without a slope quantum.
         periodic: True only for a height map that is periodic (a simulation's); then
             ``detrend`` must be None, since a removed plane is not periodic.
         micro: the pixel facets' own lobe (default mirror facets, ``stats.Delta()``).

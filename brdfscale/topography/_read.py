@@ -7,6 +7,7 @@ import math
 import os
 import re
 import warnings
+from typing import NoReturn
 
 import numpy as np
 
@@ -67,12 +68,14 @@ def read(path, *, channel: int | str | None = None, detrend: str | None = "plane
             else "is not a regular file"
         )
         raise MeasurementFileError(f"{name}: {what}; expected an instrument height map (e.g. .di, .opd, .plu, .frt).")
-    with _file_errors(name, st):
+    with _file_errors(name, st) as warned:
         heights, mask, spacing, unit, description = _decode(st, name, channel)
     try:
         field = from_array(heights, spacing, unit=unit, mask=mask, detrend=mode, description=description)
     except InvalidInputError as err:  # the file's heights or pitch, not the caller's arguments
         raise MeasurementFileError(f"{name}: the height map it holds cannot be used: {err}") from None
+    for w in warned:  # read: the reader's warnings, which passed the caller's filters, shown as they came
+        warnings.showwarning(w.message, w.category, w.filename, w.lineno, w.file, w.line)
     return field if micro is None else dataclasses.replace(field, micro=micro)
 
 
@@ -103,8 +106,8 @@ def _file_errors(name: str, st):
     dateutil's ParserError, IndexError, struct and zlib errors, MemoryError, …) becomes a
     MeasurementFileError naming the file and the reason; brdfscale's own errors pass. What the
     readers log meanwhile is kept off the terminal (:data:`_READER_LOGGERS`); what they log, and the Python
-    warnings the caller's filters let through, joins the reason of a file that cannot be read (its first line),
-    and the warnings are issued again, as they were, once the file is read."""
+    warnings the caller's filters let through, joins the reason of a file that cannot be read (its first line).
+    Yields the list of those warnings, which :func:`read` shows once the file is read and its heights accepted."""
     kept = _Kept()
     loggers = [logging.getLogger(n) for n in _READER_LOGGERS]
     saved = [(lg.handlers[:], lg.propagate) for lg in loggers]
@@ -113,11 +116,9 @@ def _file_errors(name: str, st):
     try:
         with warnings.catch_warnings(record=True) as warned:  # e.g. openpyxl's on an image inside a .xlsx
             try:
-                yield
+                yield warned
             finally:
                 kept.lines.extend(_line(str(w.message)) for w in warned)
-        for w in warned:  # read: the warnings are the caller's again (the command prints each as one line)
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, source=w.source)
     except BrdfscaleError:
         raise
     except Exception as err:
@@ -143,26 +144,27 @@ def _decode(st, name: str, channel):
     if 0 in tuple(info.nb_grid_pts or ()):  # e.g. an empty file, which SurfaceTopography's HGT reader takes as 0 × 0
         shape = " × ".join(map(str, info.nb_grid_pts))
         raise MeasurementFileError(f"{name}: holds no heights ({shape} pixels as {type(reader).__name__} reads it).")
-    if info.dim != 2:
+    if info.dim == 1:
         raise MeasurementFileError(f"{name}: channel {index} ({info.name!r}) is a line scan, not an areal height map.")
+    if not _holds_heights(info) and _data_unit(info) is not None:  # a phase in degrees, a deflection in volts
+        _not_heights(name, index, info, _data_unit(info), channels)
     if info.physical_sizes is None:  # SurfaceTopography's topography() would ask for them
         raise MeasurementFileError(
             f"{name}: channel {index} ({info.name!r}) records its heights but not their pitch (the file's physical "
             f"size); {_AS_ARRAY}"
         )
     topo = reader.topography(channel_index=index)
+    if topo.dim != 2:  # the channel's information said otherwise
+        raise MeasurementFileError(
+            f"{name}: channel {index} ({info.name!r}) is not an areal height map (it reads as {topo.dim}-D)."
+        )
     unit = topo.unit
     if unit not in UNITS:
         if unit is None:
             raise MeasurementFileError(
                 f"{name}: channel {index} ({info.name!r}) records no unit for its heights; {_AS_ARRAY}"
             )
-        # the other channels in a length unit (SurfaceTopography gives others' units as tuples: ('µm', None))
-        others = ", ".join(f"{i}: {c.name!r}" for i, c in enumerate(channels) if i != index and c.unit in UNITS)
-        raise MeasurementFileError(
-            f"{name}: channel {index} ({info.name!r}) holds {unit!r}, not heights in a length unit brdfscale knows "
-            f"({', '.join(UNITS)})" + (f"; choose a height channel with channel= among {others}." if others else ".")
-        )
+        _not_heights(name, index, info, unit, channels)
     heights = topo.heights()
     mask = ~np.ma.getmaskarray(heights) if np.ma.isMaskedArray(heights) else None
     heights = np.ma.getdata(heights)
@@ -185,6 +187,29 @@ def _decode(st, name: str, channel):
         "acquisition_time": jsonable((topo.info or {}).get("acquisition_time"), other=str),
     }
     return heights.T, None if mask is None else mask.T, spacing, unit, description
+
+
+def _data_unit(info):
+    """The unit of a channel's values (SurfaceTopography's ``data_unit``; ``unit``, the lateral one, where a
+    version has no ``data_unit``): a length for heights, e.g. 'deg' or 'V' for a phase or a deflection, a tuple
+    such as ('µm', None) for an AFM's amplitude error."""
+    unit = getattr(info, "data_unit", None)
+    return unit if unit is not None else getattr(info, "unit", None)
+
+
+def _holds_heights(info) -> bool:
+    """Whether SurfaceTopography says a channel holds heights in a length unit brdfscale knows."""
+    unit = _data_unit(info)
+    return bool(getattr(info, "is_height_channel", True)) and isinstance(unit, str) and unit in UNITS
+
+
+def _not_heights(name: str, index: int, info, unit, channels) -> NoReturn:
+    """The refusal of a channel that does not hold heights, naming the file's channels that do."""
+    others = ", ".join(f"{i}: {c.name!r}" for i, c in enumerate(channels) if i != index and _holds_heights(c))
+    raise MeasurementFileError(
+        f"{name}: channel {index} ({info.name!r}) holds {unit!r}, not heights in a length unit brdfscale knows "
+        f"({', '.join(UNITS)})" + (f"; choose a height channel with channel= among {others}." if others else ".")
+    )
 
 
 def _pitch(name: str, lx, nx, ly, ny, unit: str) -> tuple[float, float]:
