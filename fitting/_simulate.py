@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from brdfscale import InvalidInputError, LobeImage, MeasurementSet
+from brdfscale.choices import MIN_FIT_SCALES
 
 from ._data import Dataset
 from ._model import predict_images
@@ -45,7 +46,9 @@ def simulate(
         replicates: images per scale (different incident directions, same lobe).
         seed: NumPy random seed.
     """
-    scales = sorted(float(s) for s in scales)  # fewer than fitting.Dataset accepts: refused there, below
+    scales = sorted(float(s) for s in scales)
+    if len(set(scales)) < MIN_FIT_SCALES:  # before the images are made (fitting.Dataset's minimum)
+        raise InvalidInputError(f"simulate needs at least {MIN_FIT_SCALES} distinct scales; got {scales}.")
     if noise < 0 or floor <= 0:
         raise InvalidInputError(f"need noise ≥ 0 and floor > 0; got noise={noise}, floor={floor}.")
     rng = np.random.default_rng(seed)

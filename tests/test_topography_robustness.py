@@ -10,6 +10,7 @@ averaged over a rectangular window (Dirichlet sums, written below).
 import io
 import json
 import math
+import types
 from pathlib import Path
 
 import numpy as np
@@ -164,9 +165,10 @@ def test_a_readers_python_warning_joins_the_reason_of_a_file_it_cannot_read(tmp_
     assert not any("wmf" in str(w.message) for w in recwarn)
 
 
-def test_a_readers_python_warning_on_a_file_it_reads_is_the_callers_again(monkeypatch):
-    """The same warning from a reader that then reads the file (nc-1.nc) is issued again once the file is read —
-    as the reader issued it (its category), under the caller's own filters — not swallowed."""
+def test_a_readers_python_warning_on_a_file_it_reads_is_the_callers_again(tmp_path, monkeypatch, capsys):
+    """The same warning from a reader that then reads the file (nc-1.nc) is shown once the file is read and its
+    heights accepted — as the reader issued it (its category; the caller's filters applied when it did), not
+    swallowed; the command prints it as one line of its own."""
     real = st_module.open_topography
 
     def warn_then_read(name):
@@ -179,6 +181,11 @@ def test_a_readers_python_warning_on_a_file_it_reads_is_the_callers_again(monkey
     with pytest.warns(UserWarning, match="wmf image format is not supported"):
         field = topography.read(str(DATA / "nc-1.nc"))
     assert field.shape == (10, 5)
+    code, _, err = _main(["topography", str(DATA / "nc-1.nc"), "--out", str(tmp_path / "t")], capsys)
+    warned = [line for line in err.splitlines() if "wmf" in line]
+    assert code == 0 and warned == [
+        "brdfscale topography: warning: wmf image format is not supported so the image is being dropped"
+    ], err
 
 
 def test_a_readers_warning_on_a_file_whose_heights_are_refused_is_not_shown(tmp_path, monkeypatch, capsys, recwarn):
@@ -347,27 +354,34 @@ def test_a_channel_that_is_not_heights_is_refused_naming_the_height_channels(tmp
         topography.read(str(DATA / "di-3.di"), channel=1)
     assert "from_array" not in str(e.value) and "'Phase'" not in str(e.value) and "0: 'ZSensor'" in str(e.value)
     code, _, err = _main(["topography", str(DATA / "di-3.di"), "--channel", "1", "--out", str(tmp_path / "t")], capsys)
-    assert code == 2 and "choose a height channel with --channel among" in err and "channel=" not in err, err
+    assert code == 2 and "reads as heights with --channel among" in err and "channel=" not in err, err
 
 
 class _Info:  # SurfaceTopography ≥ 1.27's ChannelInfo, as an Asylum .ibw's: the lateral unit on every channel
     dim, nb_grid_pts, physical_sizes, unit = 2, (8, 8), (8e-6, 8e-6), "m"
 
-    def __init__(self, name, data_unit, is_height_channel):
+    def __init__(self, name, kind, data_unit, is_height_channel):
         self.name, self.data_unit, self.is_height_channel = name, data_unit, is_height_channel
+        self.data_kind = types.SimpleNamespace(value=kind)
 
 
 def test_a_channel_of_phase_or_volts_is_refused_from_its_data_unit_naming_the_height_channels(tmp_path, monkeypatch):
-    """An AFM file's phase channel (SurfaceTopography's own spot_1-1000nm.ibw: data unit 'deg', not a height channel,
-    its ``unit`` the lateral 'm' like every channel's): refused before its values are read as metres, naming the
-    height channels — not the phase or the potential, whose lateral unit is a length too."""
+    """The channels of SurfaceTopography's own spot_1-1000nm.ibw (Asylum; SurfaceTopography 1.27.1's channel
+    information, every ``unit`` the lateral 'm'): its phase (data unit 'deg', not a height channel) is refused
+    before its values are read as metres, saying what it holds, and the line names the channels SurfaceTopography
+    reads as heights — the two height channels and, by its judgement (a length unit), the two amplitudes; not the
+    phases or the potentials."""
     path = tmp_path / "scan.ibw"
     path.write_bytes(b"not read")
     channels = [
-        _Info("HeightTrace", "m", True),
-        _Info("PhaseTrace", "deg", False),
-        _Info("NapPotentialTrace", "V", False),
-        _Info("HeightRetrace", "m", True),
+        _Info("HeightTrace", "height", "m", True),
+        _Info("HeightRetrace", "height", "m", True),
+        _Info("AmplitudeTrace", "height", "m", True),
+        _Info("AmplitudeRetrace", "height", "m", True),
+        _Info("PhaseTrace", "phase", "deg", False),
+        _Info("PhaseRetrace", "phase", "deg", False),
+        _Info("NapPotentialTrace", "voltage", "V", False),
+        _Info("NapPotentialRetrace", "voltage", "V", False),
     ]
 
     class Reader:
@@ -380,9 +394,11 @@ def test_a_channel_of_phase_or_volts_is_refused_from_its_data_unit_naming_the_he
             raise AssertionError("a channel that is not heights is not read")
 
     monkeypatch.setattr(st_module, "open_topography", lambda _: Reader())
-    with pytest.raises(MeasurementFileError, match=r"channel 1 \('PhaseTrace'\) holds 'deg', not heights") as e:
-        topography.read(str(path), channel=1)
-    assert "among 0: 'HeightTrace', 3: 'HeightRetrace'." in str(e.value) and "Nap" not in str(e.value)
+    with pytest.raises(MeasurementFileError, match=r"channel 4 \('PhaseTrace'\) holds phase data \('deg'\), not") as e:
+        topography.read(str(path), channel=4)
+    assert str(e.value).endswith(
+        "with channel= among 0: 'HeightTrace', 1: 'HeightRetrace', 2: 'AmplitudeTrace', 3: 'AmplitudeRetrace'."
+    )
 
 
 def test_synth_refuses_a_default_that_gives_one_scale(tmp_path, capsys):

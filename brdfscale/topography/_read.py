@@ -50,15 +50,18 @@ def read(path, *, channel: int | str | None = None, detrend: str | None = "plane
     Raises:
         MissingDependencyError: SurfaceTopography is not installed (``brdfscale[topography]``).
         MeasurementFileError: the file is missing, unreadable, of no format SurfaceTopography
-            knows, or holds no areal height map with physical sizes (a line scan, or a file
-            without lateral calibration).
+            knows, or holds no areal height map with physical sizes (a line scan, a file
+            without lateral calibration or without a height unit, no heights at all), or the
+            channel asked for is not heights (a phase, a deflection: SurfaceTopography's
+            ``is_height_channel`` and ``data_unit``); also where the heights it holds are refused
+            by :func:`from_array`.
         InvalidInputError: a bad ``channel``, ``detrend`` or ``micro``.
     """
     st = _surface_topography()
     name = os.fspath(path) if isinstance(path, (str, os.PathLike)) else None
     if name is None:
         raise InvalidInputError(f"path must be a file name (str or os.PathLike); got {type(path).__name__}.")
-    mode = check_mode(detrend)  # the caller's arguments are checked before the file is opened
+    mode = check_mode(detrend)  # checked before the file is opened (micro, by HeightField, once it is read)
     if not os.path.isfile(name):
         what = (
             "is a directory"
@@ -74,9 +77,10 @@ def read(path, *, channel: int | str | None = None, detrend: str | None = "plane
         field = from_array(heights, spacing, unit=unit, mask=mask, detrend=mode, description=description)
     except InvalidInputError as err:  # the file's heights or pitch, not the caller's arguments
         raise MeasurementFileError(f"{name}: the height map it holds cannot be used: {err}") from None
+    field = field if micro is None else dataclasses.replace(field, micro=micro)  # micro checked by HeightField
     for w in warned:  # read: the reader's warnings, which passed the caller's filters, shown as they came
         warnings.showwarning(w.message, w.category, w.filename, w.lineno, w.file, w.line)
-    return field if micro is None else dataclasses.replace(field, micro=micro)
+    return field
 
 
 #: The loggers of SurfaceTopography and the libraries its readers use: what they log while a
@@ -146,8 +150,9 @@ def _decode(st, name: str, channel):
         raise MeasurementFileError(f"{name}: holds no heights ({shape} pixels as {type(reader).__name__} reads it).")
     if info.dim == 1:
         raise MeasurementFileError(f"{name}: channel {index} ({info.name!r}) is a line scan, not an areal height map.")
-    if not _holds_heights(info) and _data_unit(info) is not None:  # a phase in degrees, a deflection in volts
-        _not_heights(name, index, info, _data_unit(info), channels)
+    unit = getattr(info, "data_unit", None)  # SurfaceTopography's unit of the values (``unit`` is the lateral one)
+    if not getattr(info, "is_height_channel", True) or not (unit is None or _length_unit(unit)):
+        _not_heights(name, index, info, unit, channels)  # a phase in degrees, a deflection in volts, ('µm', None)
     if info.physical_sizes is None:  # SurfaceTopography's topography() would ask for them
         raise MeasurementFileError(
             f"{name}: channel {index} ({info.name!r}) records its heights but not their pitch (the file's physical "
@@ -159,7 +164,7 @@ def _decode(st, name: str, channel):
             f"{name}: channel {index} ({info.name!r}) is not an areal height map (it reads as {topo.dim}-D)."
         )
     unit = topo.unit
-    if unit not in UNITS:
+    if not _length_unit(unit):
         if unit is None:
             raise MeasurementFileError(
                 f"{name}: channel {index} ({info.name!r}) records no unit for its heights; {_AS_ARRAY}"
@@ -189,27 +194,30 @@ def _decode(st, name: str, channel):
     return heights.T, None if mask is None else mask.T, spacing, unit, description
 
 
-def _data_unit(info):
-    """The unit of a channel's values (SurfaceTopography's ``data_unit``; ``unit``, the lateral one, where a
-    version has no ``data_unit``): a length for heights, e.g. 'deg' or 'V' for a phase or a deflection, a tuple
-    such as ('µm', None) for an AFM's amplitude error."""
-    unit = getattr(info, "data_unit", None)
-    return unit if unit is not None else getattr(info, "unit", None)
+def _length_unit(unit) -> bool:
+    """Whether ``unit`` is a length unit brdfscale knows (:data:`UNITS`; SurfaceTopography gives some channels'
+    units as tuples, e.g. ('µm', None))."""
+    return isinstance(unit, str) and unit in UNITS
 
 
 def _holds_heights(info) -> bool:
-    """Whether SurfaceTopography says a channel holds heights in a length unit brdfscale knows."""
-    unit = _data_unit(info)
-    return bool(getattr(info, "is_height_channel", True)) and isinstance(unit, str) and unit in UNITS
+    """Whether SurfaceTopography reads a channel as heights (``is_height_channel``) in a length unit brdfscale
+    knows — its judgement, which counts an AFM's amplitude in metres as heights."""
+    unit = getattr(info, "data_unit", None)
+    return bool(getattr(info, "is_height_channel", True)) and (unit is None or _length_unit(unit))
 
 
 def _not_heights(name: str, index: int, info, unit, channels) -> NoReturn:
-    """The refusal of a channel that does not hold heights, naming the file's channels that do."""
+    """The refusal of a channel that does not hold heights, naming the channels that SurfaceTopography reads as
+    heights."""
     others = ", ".join(f"{i}: {c.name!r}" for i, c in enumerate(channels) if i != index and _holds_heights(c))
-    raise MeasurementFileError(
-        f"{name}: channel {index} ({info.name!r}) holds {unit!r}, not heights in a length unit brdfscale knows "
-        f"({', '.join(UNITS)})" + (f"; choose a height channel with channel= among {others}." if others else ".")
-    )
+    if not getattr(info, "is_height_channel", True):
+        kind = getattr(getattr(info, "data_kind", None), "value", None) or "other"
+        what = f"holds {kind} data ({unit!r}), not heights (SurfaceTopography: not a height channel)"
+    else:
+        what = f"holds {unit!r}, not heights in a length unit brdfscale knows ({', '.join(UNITS)})"
+    choose = f"; choose a channel SurfaceTopography reads as heights with channel= among {others}." if others else "."
+    raise MeasurementFileError(f"{name}: channel {index} ({info.name!r}) {what}{choose}")
 
 
 def _pitch(name: str, lx, nx, ly, ny, unit: str) -> tuple[float, float]:
