@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from brdfscale import fitting, InvalidInputError, synth
+from brdfscale import fitting, InvalidInputError, stats, synth
 from brdfscale.choices import ADEQUACY
 from tests.helpers import ANISO_SCALES, ANISO_TRUTH, anisotropic_differences, gaussian, noisy_dataset
 
@@ -318,8 +318,12 @@ def test_robust_extent_refuses_bad_arguments():
     for kwargs in ({"quantile": 0.0}, {"quantile": 1.5}, {"factor": -1.0}):
         with pytest.raises(InvalidInputError, match="quantile must lie in"):
             synth.robust_extent(field, **kwargs)
-    with pytest.raises(InvalidInputError, match="flat field"):
+    with pytest.raises(
+        InvalidInputError, match="flat field's lobe is its facets' own, here mirror .* no lobe to image"
+    ):
         synth.robust_extent(synth.HeightField(np.zeros((16, 16)), 1.0))
+    with pytest.raises(InvalidInputError, match=r"flat field's lobe is its facets' own \(GGX\): give its extent"):
+        synth.robust_extent(synth.HeightField(np.zeros((16, 16)), 1.0, micro=stats.GGX(0.1)))
 
 
 def test_robust_extent_of_gaussian_slopes_is_their_rayleigh_quantile():

@@ -154,7 +154,8 @@ def robust_extent(field: HeightField, *, quantile: float = EXTENT_QUANTILE, fact
 
     Raises:
         InvalidInputError: ``field`` is not a :class:`HeightField`, ``quantile`` not in (0, 1],
-            ``factor`` not positive, or the field is flat (no slope to image).
+            ``factor`` not positive, or the field is flat (its lobe is its facets' own lobe: none for
+            mirror facets; for others, its extent is the caller's to give).
     """
     check_field(field)
     q, f = real(quantile, "quantile"), real(factor, "factor")
@@ -164,9 +165,15 @@ def robust_extent(field: HeightField, *, quantile: float = EXTENT_QUANTILE, fact
     deviation = np.hypot(*(slopes - slopes.mean(axis=0)).T)
     extent = f * float(np.quantile(deviation, q))
     if not extent > 0:
+        flat = f"the field's pixel slopes do not vary (the {q:g} quantile of |m − m̄| is 0): a flat field's lobe is"
+        if isinstance(field.micro, stats.Delta):
+            raise InvalidInputError(
+                f"{flat} its facets' own, here mirror facets' (micro=stats.Delta(), a measured file's default): a "
+                "spike at one slope, no lobe to image."
+            )
         raise InvalidInputError(
-            f"the field's pixel slopes do not vary (the {q:g} quantile of |m − m̄| is 0): a flat field "
-            "has no lobe to image; give the extent explicitly."
+            f"{flat} its facets' own ({type(field.micro).__name__}): give its extent explicitly (extent=, brdfscale "
+            "synth --extent)."
         )
     return extent
 
