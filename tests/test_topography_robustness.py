@@ -165,10 +165,8 @@ def test_a_readers_python_warning_joins_the_reason_of_a_file_it_cannot_read(tmp_
     assert not any("wmf" in str(w.message) for w in recwarn)
 
 
-def test_a_readers_python_warning_on_a_file_it_reads_is_the_callers_again(tmp_path, monkeypatch, capsys):
-    """The same warning from a reader that then reads the file (nc-1.nc) is shown once the file is read and its
-    heights accepted — as the reader issued it (its category; the caller's filters applied when it did), not
-    swallowed; the command prints it as one line of its own."""
+def _reader_that_warns(monkeypatch):
+    """SurfaceTopography's reader, patched to warn as openpyxl does (mitutoyo_2_mock.xlsx) before it reads."""
     real = st_module.open_topography
 
     def warn_then_read(name):
@@ -178,6 +176,13 @@ def test_a_readers_python_warning_on_a_file_it_reads_is_the_callers_again(tmp_pa
         return real(name)
 
     monkeypatch.setattr(st_module, "open_topography", warn_then_read)
+
+
+def test_a_readers_python_warning_on_a_file_it_reads_is_the_callers_again(tmp_path, monkeypatch, capsys):
+    """The same warning from a reader that then reads the file (nc-1.nc) is shown once the file is read and its
+    heights accepted — as the reader issued it (its category; the caller's filters applied when it did), not
+    swallowed; the command prints it as one line of its own."""
+    _reader_that_warns(monkeypatch)
     with pytest.warns(UserWarning, match="wmf image format is not supported"):
         field = topography.read(str(DATA / "nc-1.nc"))
     assert field.shape == (10, 5)
@@ -192,15 +197,7 @@ def test_a_readers_warning_on_a_file_whose_heights_are_refused_is_not_shown(tmp_
     """A reader that warns and hands over a 3 × 3 map: the refusal (too small, from_array's) is the one line the
     command prints — the warning is shown only for a file that is read and accepted."""
     path = _text_file(tmp_path / "tiny.txt", np.arange(9.0).reshape(3, 3) * 1e-8)
-    real = st_module.open_topography
-
-    def warn_then_read(name):
-        import warnings
-
-        warnings.warn("wmf image format is not supported so the image is being dropped", UserWarning, stacklevel=1)
-        return real(name)
-
-    monkeypatch.setattr(st_module, "open_topography", warn_then_read)
+    _reader_that_warns(monkeypatch)
     with pytest.raises(MeasurementFileError, match="at least 4 × 4 pixels"):
         topography.read(path)
     assert not any("wmf" in str(w.message) for w in recwarn)
