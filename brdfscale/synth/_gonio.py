@@ -172,8 +172,7 @@ def robust_extent(field: HeightField, *, quantile: float = EXTENT_QUANTILE, fact
                 "spike at one slope, no lobe to image."
             )
         raise InvalidInputError(
-            f"{flat} its facets' own ({type(field.micro).__name__}): give its extent explicitly (extent=, brdfscale "
-            "synth --extent)."
+            f"{flat} its facets' own ({type(field.micro).__name__}): give its extent explicitly (extent=)."
         )
     return extent
 
