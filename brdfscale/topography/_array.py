@@ -42,9 +42,15 @@ DETRENDS: dict[str | None, tuple[str, ...]] = {
 }
 
 
+def is_length_unit(unit) -> bool:
+    """Whether ``unit`` is one of :data:`UNITS` (SurfaceTopography gives some channels' units as tuples, e.g.
+    ('µm', None))."""
+    return isinstance(unit, str) and unit in UNITS
+
+
 def metres_per(unit) -> float:
     """The size of one ``unit`` in metres (InvalidInputError naming the accepted units)."""
-    if not isinstance(unit, str) or unit not in UNITS:
+    if not is_length_unit(unit):
         raise InvalidInputError(f"unit must be one of {', '.join(repr(u) for u in UNITS)}; got {unit!r}.")
     return UNITS[unit]
 

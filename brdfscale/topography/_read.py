@@ -13,7 +13,7 @@ import numpy as np
 
 from .._errors import BrdfscaleError, InvalidInputError, MeasurementFileError, MissingDependencyError
 from .._json import jsonable
-from ._array import check_mode, from_array, UNITS
+from ._array import check_mode, from_array, is_length_unit, UNITS
 
 
 def _surface_topography():
@@ -150,9 +150,8 @@ def _decode(st, name: str, channel):
         raise MeasurementFileError(f"{name}: holds no heights ({shape} pixels as {type(reader).__name__} reads it).")
     if info.dim == 1:
         raise MeasurementFileError(f"{name}: channel {index} ({info.name!r}) is a line scan, not an areal height map.")
-    unit = getattr(info, "data_unit", None)  # SurfaceTopography's unit of the values (``unit`` is the lateral one)
-    if not getattr(info, "is_height_channel", True) or not (unit is None or _length_unit(unit)):
-        _not_heights(name, index, info, unit, channels)  # a phase in degrees, a deflection in volts, ('µm', None)
+    if not _holds_heights(info):  # a phase in degrees, a deflection in volts, ('µm', None)
+        _not_heights(name, index, info, getattr(info, "data_unit", None), channels)
     if info.physical_sizes is None:  # SurfaceTopography's topography() would ask for them
         raise MeasurementFileError(
             f"{name}: channel {index} ({info.name!r}) records its heights but not their pitch (the file's physical "
@@ -164,7 +163,7 @@ def _decode(st, name: str, channel):
             f"{name}: channel {index} ({info.name!r}) is not an areal height map (it reads as {topo.dim}-D)."
         )
     unit = topo.unit
-    if not _length_unit(unit):
+    if not is_length_unit(unit):
         if unit is None:
             raise MeasurementFileError(
                 f"{name}: channel {index} ({info.name!r}) records no unit for its heights; {_AS_ARRAY}"
@@ -194,17 +193,11 @@ def _decode(st, name: str, channel):
     return heights.T, None if mask is None else mask.T, spacing, unit, description
 
 
-def _length_unit(unit) -> bool:
-    """Whether ``unit`` is a length unit brdfscale knows (:data:`UNITS`; SurfaceTopography gives some channels'
-    units as tuples, e.g. ('µm', None))."""
-    return isinstance(unit, str) and unit in UNITS
-
-
 def _holds_heights(info) -> bool:
     """Whether SurfaceTopography reads a channel as heights (``is_height_channel``) in a length unit brdfscale
     knows — its judgement, which counts an AFM's amplitude in metres as heights."""
     unit = getattr(info, "data_unit", None)
-    return bool(getattr(info, "is_height_channel", True)) and (unit is None or _length_unit(unit))
+    return bool(getattr(info, "is_height_channel", True)) and (unit is None or is_length_unit(unit))
 
 
 def _not_heights(name: str, index: int, info, unit, channels) -> NoReturn:
