@@ -1442,6 +1442,7 @@ def test_bench_increments_counts_a_set_as_all_within_only_with_every_standard_er
     assert s["bic_prefers_mixture"] == 1
 
 
+@pytest.mark.slow  # a synth of a real file (≈ 6 s): the default suite's 6-minute budget
 def test_bench_anisotropic_real_set_is_the_chains_file_without_its_surface_record(tmp_path):
     """bench_anisotropic --real: README's synth of a file of tests/data (8 scales, 65² px, poisson:0.05:1) written
     again without the metadata ``truth`` — the images unchanged, every other metadata entry kept."""

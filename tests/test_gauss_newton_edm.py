@@ -96,7 +96,8 @@ def _linear_problem(seed=6, rows=60, columns=4):
     return rng.normal(size=(rows, columns)), rng.normal(size=rows)
 
 
-@pytest.mark.parametrize("factor", [1e-30, 1e30])
+# 1e-30 in the slow step (the default suite's 6-minute budget; the other extreme runs by default)
+@pytest.mark.parametrize("factor", [pytest.param(1e-30, marks=pytest.mark.slow), 1e30])
 def test_the_stop_does_not_depend_on_the_scale_of_the_residuals(factor):
     """The solver alone (optimistix.least_squares, no normalisation by fitting._solve) on the parametric
     model's whitened rows times c = 1e±30: the same steps and θ̂ to 1e-8 (every test it makes — the line
@@ -308,7 +309,8 @@ def test_the_step_under_jit_and_vmap_is_the_eager_step():
     assert moved.sum() == 5 and not np.any(np.abs(np.asarray(eager[1][0])) > 1e-9)
 
 
-@pytest.mark.parametrize("lanes", [None, "all"])
+# "all" (the vmapped lanes of accelerators) in the slow step: the default suite's 6-minute budget
+@pytest.mark.parametrize("lanes", [None, pytest.param("all", marks=pytest.mark.slow)])
 def test_fit_many_gives_what_fit_gives(lanes):
     """``fitting.fit_many`` with this solver — the solves mapped over materials × starts one by one (``lanes=None``
     on CPUs) and vmapped (``"all"``, as on accelerators): the optimum and χ² of ``fitting.fit`` for each material."""

@@ -164,6 +164,7 @@ def test_brdfscale_fitting_is_the_fitting_folder_and_no_top_level_fitting_is_ins
     assert got == {"fitting": False}
 
 
+@pytest.mark.slow  # two fresh interpreters (≈ 9 s): the default suite's 6-minute budget
 def test_a_local_fitting_py_cannot_shadow_brdfscale_fitting(tmp_path):
     """A file or folder named ``fitting`` in the working directory is another module: it cannot
     take brdfscale.fitting's place, whether imported before or not at all."""

@@ -266,7 +266,10 @@ def _interrupt_after(monkeypatch, module, name, calls):
     monkeypatch.setattr(module, name, interrupting)
 
 
-@pytest.mark.parametrize("name", list(RESUMABLE))
+# nuts-windows in the slow step (the default suite's 6-minute budget): nuts without windows runs by default
+@pytest.mark.parametrize(
+    "name", [pytest.param(n, marks=pytest.mark.slow) if n == "nuts-windows" else n for n in RESUMABLE]
+)
 def test_an_interrupted_run_resumes_bit_identically(linear, name, tmp_path, monkeypatch):
     """Killed in the middle of the run (after some chunks were committed), the run resumes
     from the checkpoint and gives the uninterrupted run's chain, log-probabilities and
@@ -441,7 +444,8 @@ def test_to_arviz_round_trips_through_netcdf(linear, tmp_path):
         assert table.loc[name, "r_hat"] == pytest.approx(ours[name]["r_hat"], rel=1e-10)
 
 
-@pytest.mark.parametrize("name", ["emcee", "nuts", "hmc"])
+# nuts in the slow step (the default suite's 6-minute budget): hmc, its BlackJAX sibling, runs by default
+@pytest.mark.parametrize("name", ["emcee", pytest.param("nuts", marks=pytest.mark.slow), "hmc"])
 def test_arviz_summary_and_trace_by_variable_name_on_every_sampler(linear, name):
     """ArviZ's conventions on every sampler's output: one posterior variable per coordinate and
     per determined quantity, so ``az.summary(data, var_names=[…])`` selects by the model's names

@@ -311,6 +311,7 @@ def test_no_module_of_stats_imports_one_that_imports_it_back():
             visit(node, [node])
 
 
+@pytest.mark.slow  # a fresh interpreter per module: the default suite's 6-minute budget
 def test_each_stats_module_imports_alone_in_a_fresh_interpreter():
     """Every module of brdfscale/stats imports by itself: in a fresh interpreter, with the
     package __init__ files not run at all (stub packages) and every brdfscale module dropped
