@@ -261,7 +261,10 @@ def write_text(
 
 
 def _write(path, fill, expected: int | None, overwrite: bool, error, foreign) -> str:
-    path = os.fspath(path)
+    try:
+        path = os.fspath(path)
+    except TypeError:
+        raise InvalidInputError(f"path must be a file path (str or os.PathLike); got {type(path).__name__}.") from None
     if not overwrite and os.path.lexists(path):
         raise error(f"{path}: file exists; pass overwrite=True to replace it.")
     directory = os.path.dirname(os.path.abspath(path))

@@ -575,6 +575,56 @@ def test_bad_statistics_and_options_are_refused_naming_what_is_accepted():
         render.export_roughness(LAW, "/nonexistent/x.exr", mu0=1.0)
     with pytest.raises(brdfscale.InvalidInputError, match="source must be a synth.HeightField.*LobeTable"):
         render.export_roughness(np.zeros((8, 8)), "/nonexistent/x.exr")
+    rgb = lobes.Beckmann(0.05, amplitude=[0.9, 0.5, 0.2])
+    with pytest.raises(brdfscale.InvalidInputError, match=r"renders one channel.*shape \(3,\)"):
+        render.bsdf(rgb, LAW, mu0=1.0)
+    with pytest.raises(brdfscale.InvalidInputError, match="renders one channel"):
+        render.export_roughness(LAW, "/nonexistent/x.exr", base_lobe=rgb, mu0=1.0)
+    with pytest.raises(brdfscale.InvalidInputError, match="path must be a file path"):
+        render.export_roughness(LAW, None, base_lobe=lobes.Beckmann(0.1), mu0=1.0, levels=1, size=16)
+
+
+@pytest.mark.parametrize(
+    "base, law, what",
+    [
+        (lobes.GGX(0.05), LAW, "base_lobe"),
+        (lobes.Lobe(stats.StudentT(sigma=0.05, nu=2.0)), LAW, "base_lobe"),
+        (lobes.Beckmann(0.05), stats.ScaledFamily(stats.GGX, stats.WidthLaw(0.3, 1.0, 1.0)), "the statistics at μ0"),
+    ],
+)
+def test_export_refuses_lobes_without_finite_second_moments(base, law, what):
+    """Engines' roughness is second moments: for GGX slopes (or Student-t with ν ≤ 2) the tabulated moments are the
+    table's truncation (the α of a GGX 0.05 lobe read 0.134, 0.119, 0.118 at 32², 64², 128² nodes), so the export
+    refuses them, before any tabulation."""
+    with pytest.raises(brdfscale.InvalidInputError, match=f"{what}.*no finite second moments"):
+        render.export_roughness(law, "/nonexistent/x.exr", base_lobe=base, mu0=1.0, levels=2, size=16)
+
+
+def test_export_of_statistics_is_an_octave_mip_chain(tmp_path):
+    """Level ℓ is the lobe at μ0·2^ℓ over ``resolution >> ℓ`` texels: for a FitResult from its own μ0 (not its
+    fitted scales), for measured statistics at most the levels they reach (the default, and ``levels`` beyond them
+    refused); a LobeTable's scales must double per level (its first ``levels`` taken); a Student-t lobe of ν = 4
+    (finite variance) is exported."""
+    fit = fit_result_of_the_law([1.0, 2.0, 3.0, 8.0])
+    path = tmp_path / "fit.exr"
+    images = render.export_roughness(fit, path, base_lobe=lobes.Beckmann(0.1), levels=3, resolution=4, size=32)
+    parts = read_with_openimageio(path)
+    assert [float(a["brdfscale.mu"]) for _, a in parts] == [1.0, 2.0, 4.0]
+    assert [im["alpha_x"].shape for im in images] == [(4, 4), (2, 2), (1, 1)]
+    assert len(render.export_roughness(fit, tmp_path / "all.exr", base_lobe=lobes.Beckmann(0.1), size=16)) == 4
+    with pytest.raises(brdfscale.InvalidInputError, match="levels must be at most 4.*measured up to μ = 8"):
+        render.export_roughness(fit, tmp_path / "x.exr", base_lobe=lobes.Beckmann(0.1), levels=5, size=16)
+    table = render.lobe_table(lobes.Beckmann(0.1), LAW, mu0=1.0, scales=[1.0, 2.0, 4.0], size=16)
+    assert len(render.export_roughness(table, tmp_path / "t.exr", levels=2)) == 2
+    with pytest.raises(brdfscale.InvalidInputError, match="levels must be at most 3"):
+        render.export_roughness(table, tmp_path / "t4.exr", levels=4)
+    uneven = render.lobe_table(lobes.Beckmann(0.1), LAW, mu0=1.0, scales=[1.0, 1.5, 2.0], size=16)
+    with pytest.raises(brdfscale.InvalidInputError, match="scale doubles per level.*1, 1.5"):
+        render.export_roughness(uneven, tmp_path / "u.exr", levels=2)
+    with pytest.raises(brdfscale.InvalidInputError, match="already evolved"):
+        render.export_roughness(table, tmp_path / "b.exr", base_lobe=lobes.Beckmann(0.1))
+    student = lobes.Lobe(stats.StudentT(sigma=0.05, nu=4.0))
+    assert len(render.export_roughness(LAW, tmp_path / "s.exr", base_lobe=student, mu0=1.0, levels=2, size=16)) == 2
 
 
 def fit_result_of_the_law(scales, name="a"):
@@ -638,6 +688,10 @@ def test_tables_are_deterministic_and_rgb_tables_are_refused(material):
         render.bsdf(None, rgb, masking=False, variant="llvm_ad_rgb")
     with pytest.raises(brdfscale.InvalidInputError, match="already evolved"):
         render.bsdf(base_lobe(), table, masking=False)
+    with pytest.raises(brdfscale.InvalidInputError, match="mu0= and scales= are for statistics"):
+        render.bsdf(None, table, mu0=5.0, masking=False)
+    with pytest.raises(brdfscale.InvalidInputError, match="mu0= and scales= are for statistics"):
+        render.bsdf(None, table, scales=[4.0, 8.0], masking=False)
     with pytest.raises(brdfscale.InvalidInputError, match="output must be one of"):
         render.FootprintIntegrator(output="mu")
 
@@ -836,6 +890,31 @@ def test_register_is_idempotent_and_loads_a_lobe_table_from_exr(tmp_path, materi
     b = np.asarray(direct.eval(ctx, interactions(mi, o, 0.0), vec(mi, i))[0])
     np.testing.assert_allclose(a, b, rtol=1e-6)  # the table written as float32: float32 in both
     assert mi.load_dict({"type": "brdfscale_footprint", "max_depth": 2}) is not None
+
+
+def test_a_scenes_brdfscale_bsdf_checks_its_values_as_bsdf_does(tmp_path, material):
+    """``{"type": "brdfscale", …}`` in a scene: without ``filename`` it is refused naming it; ``mu`` and ``texel``
+    must be positive (``mu`` absent: the footprint) and ``masking`` one of what :func:`render.bsdf` accepts — the
+    library's message, under Mitsuba's RuntimeError (Mitsuba wraps what a plugin's constructor raises)."""
+    mi, _, table, _ = material
+    path = tmp_path / "lobes.exr"
+    brdfscale.exr.write_lobe_table(path, table)
+    render.register()
+    cases = [
+        ({}, "needs filename="),
+        ({"filename": str(path), "mu": -4.0}, "mu must be a positive number"),
+        ({"filename": str(path), "mu": float("nan")}, "mu must be a positive number"),
+        ({"filename": str(path), "texel": 0.0}, "texel must be a positive number"),
+        ({"filename": str(path), "texel": -0.01}, "texel must be a positive number"),
+        ({"filename": str(path), "masking": "false"}, "masking must be True"),
+    ]
+    for props, message in cases:
+        with pytest.raises((brdfscale.InvalidInputError, RuntimeError), match=message):
+            mi.load_dict({"type": "brdfscale", **props})
+    none = mi.load_dict({"type": "brdfscale", "filename": str(path), "masking": "none"})
+    smith = mi.load_dict({"type": "brdfscale", "filename": str(path), "masking": "smith", "mu": 3.0})
+    assert none.host.masking is None and none.host.mu is None
+    assert isinstance(smith.host.masking, lobes.SmithMasking) and smith.host.mu == 3.0
 
 
 # -- the scalar variant (a process of its own: the variant is process-wide) -------------------------------------------

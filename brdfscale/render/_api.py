@@ -11,7 +11,7 @@ from ..exr import LobeTable
 from ..lobes import AbstractLobe
 from ._masking import masking_choice
 from ._material import DEFAULT_LEVELS, evolved_lobes, gaussian_parameters, lobe_table, tabulate
-from ._plugin import bsdf_class, check_positive, Gaussians, PLUGIN, Splines, Tables
+from ._plugin import bsdf_class, check_filename, check_positive, Gaussians, PLUGIN, Splines, Tables
 
 
 _REGISTERED: set[tuple[str, str]] = set()
@@ -45,7 +45,7 @@ def register(variant: str | None = None) -> str:
     with _LOCK:
         if (key, PLUGIN) not in _REGISTERED:
             cls = bsdf_class(mi)
-            mi.register_bsdf(PLUGIN, lambda props: cls(props))
+            mi.register_bsdf(PLUGIN, lambda props: check_filename(props) or cls(props))
             _REGISTERED.add((key, PLUGIN))
         if (key, INTEGRATOR) not in _REGISTERED:
             icls = integrator_class(mi)
@@ -126,6 +126,11 @@ def bsdf(
                 f"a LobeTable is rendered from its values: form must be 'auto', 'table' or 'spline'; got {form!r}."
             )
         table = lobe_table(base_lobe, statistics)
+        if mu0 is not None or scales is not None:
+            raise InvalidInputError(
+                "mu0= and scales= are for statistics; a LobeTable is already evolved at its own scales: omit them "
+                "(mu= fixes the scale the table is rendered at)."
+            )
         shapes = None
         if masking_shapes is not None:
             shapes = list(masking_shapes)

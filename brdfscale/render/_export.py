@@ -24,7 +24,7 @@ from .. import stats
 from .._errors import InvalidInputError
 from .._validation import flag, integer
 from ..files import atomic_write
-from ._material import ACCEPTED, lobe_table, scalar_table
+from ._material import ACCEPTED, as_scale_law, lobe_table, scalar_table
 
 
 _ALPHA = (
@@ -95,6 +95,65 @@ def field_moments(field, levels: int | None) -> list[tuple[np.ndarray, np.ndarra
     return out
 
 
+DEFAULT_STATISTICS_LEVELS = 9
+"""Mip levels of statistics when ``levels`` is not given (fewer where measured statistics end sooner)."""
+
+
+def _statistics_levels(law, mu0: float, levels) -> int:
+    """The mip levels ``μ0 · 2^ℓ`` of a scale law: ``levels``, or :data:`DEFAULT_STATISTICS_LEVELS`; for statistics
+    measured up to a largest scale (``law.mu``), at most the levels within it."""
+    measured = getattr(law, "mu", None)
+    top = None
+    if measured is not None:
+        hi = float(np.max(np.asarray(measured, float)))
+        top = int(math.floor(math.log2(hi / mu0) * (1 + 1e-12))) + 1 if hi >= mu0 else 0
+    if levels is None:
+        return DEFAULT_STATISTICS_LEVELS if top is None else max(1, min(DEFAULT_STATISTICS_LEVELS, top))
+    levels = integer(levels, "levels", 1)
+    if top is not None and levels > max(top, 1):
+        raise InvalidInputError(
+            f"levels must be at most {max(top, 1)}: level ℓ is the lobe at μ0 · 2^ℓ from μ0 = {mu0:g}, and the "
+            f"statistics are measured up to μ = {hi:g}."
+        )
+    return levels
+
+
+def _check_octaves(scales: np.ndarray) -> None:
+    """A mip chain halves its texels per level, so the scale must double per level."""
+    ratios = scales[1:] / scales[:-1]
+    if not np.allclose(ratios, 2.0, rtol=1e-6, atol=0):
+        raise InvalidInputError(
+            "a mip chain's scale doubles per level (its texels halve), and the LobeTable's scales "
+            f"{', '.join(f'{s:g}' for s in scales)} do not: tabulate at μ0 · 2^ℓ "
+            "(brdfscale.render.lobe_table(base_lobe, statistics, mu0=mu0, scales=mu0 * 2.0 ** np.arange(levels)))."
+        )
+
+
+def _check_finite_variance(density, what: str) -> None:
+    """Refuse a density without finite second moments (GGX, Student-t with ν ≤ 2, mixtures with such a part), whose
+    exported roughness would depend on the table's extent, not on the lobe: its transform's curvature at W = 0,
+    ``(1 − Re S(W))/|W|²``, tends to a constant as |W| → 0 only when the second moments are finite (it grows like
+    ``ln(1/|W|)`` for GGX). Compared on three directions at the radius r where ``1 − Re S`` first falls below 10⁻⁶
+    (halving from |W| = 1) and at r/4: equal within 1 % for finite moments."""
+    directions = np.array([[1.0, 0.0], [0.0, 1.0], [math.sqrt(0.5), math.sqrt(0.5)]])
+
+    def curvature(radius):
+        return (1.0 - np.real(np.asarray(density.cf(radius * directions)))) / radius**2
+
+    r = 1.0
+    for _ in range(200):
+        if np.all(curvature(r) * r * r < 1e-6):
+            break
+        r /= 2
+    near, nearer = curvature(r), curvature(r / 4)
+    if not np.all(np.isfinite(nearer)) or np.any(np.abs(nearer - near) > 1e-2 * np.abs(near) + 1e-300):
+        raise InvalidInputError(
+            f"{what} ({type(density).__name__}) has no finite second moments (GGX slopes, Student-t with ν ≤ 2), "
+            "and engines' roughness comes from second moments: its exported alpha would be the table's truncation. "
+            "Give a base lobe and statistics with finite variance (Beckmann/Gaussian, Student-t with ν > 2)."
+        )
+
+
 def table_moments(table) -> list[tuple[np.ndarray, np.ndarray]]:
     """``(B, M)`` of each scale's tabulated lobe, exact for the tent sum (a tent of pitch h adds h²/6 per axis)."""
     values = np.maximum(scalar_table(table), 0.0)
@@ -146,13 +205,16 @@ def export_roughness(
     Args:
         source: a :class:`brdfscale.synth.HeightField` (per-texel moments of its pixel facets; level 0 = one pixel
             facet), or statistics as for :func:`brdfscale.render.bsdf` (a scale law with ``base_lobe`` and
-            ``mu0``: level ℓ is the lobe at ``μ0 · 2^ℓ``; a FitResult with ``base_lobe``: ``levels`` scales evenly
-            spaced in ln μ over its fitted scales; uniform over ``resolution >> ℓ`` texels), or an evolved
-            :class:`brdfscale.exr.LobeTable` (level ℓ its ℓ-th scale).
+            ``mu0``, or a FitResult with ``base_lobe``, μ0 then the fit's own: level ℓ is the lobe at ``μ0 · 2^ℓ``,
+            uniform over ``resolution >> ℓ`` texels; base lobe and statistics must have finite second moments), or
+            an evolved :class:`brdfscale.exr.LobeTable` (level ℓ its ℓ-th scale; its scales must double per
+            level).
         path: the .exr file (written atomically; an existing file only with ``overwrite``).
         convention: ``"ggx_alpha"``, ``"beckmann_alpha"`` or ``"lean_moments"`` (:data:`CONVENTIONS`; the text is
             each part's ``brdfscale.convention_text`` attribute, the name ``brdfscale.convention``).
-        levels: mip levels (default: a field down to one texel, statistics 9).
+        levels: mip levels (default: a field down to one texel; statistics 9, or as many as measured statistics
+            reach — a FitResult's fitted scales, a :class:`brdfscale.stats.MeasuredScaleLaw`'s range; a LobeTable
+            all its scales).
 
     Each part: float32 channels (:data:`CHANNELS`), ``brdfscale.kind = "roughness_mip_chain"``,
     ``brdfscale.mip_level``, ``brdfscale.mu`` (the level's scale, double; for a field ``2^ℓ`` pixel pitches in its
@@ -167,27 +229,52 @@ def export_roughness(
     from ..exr import LobeTable
 
     if isinstance(source, synth.HeightField):
+        if base_lobe is not None or mu0 is not None:
+            raise InvalidInputError(
+                "base_lobe= and mu0= are for statistics; a height field's texels carry its own facets and micro lobe: "
+                "omit them."
+            )
         moments = field_moments(source, levels)
         pitch = math.sqrt(source.spacing[0] * source.spacing[1])  # the side of a square of the pixel's area
         mus = [pitch * 2**k for k in range(len(moments))]
     else:
         resolution = integer(resolution, "resolution", 1)
-        n_levels = 9 if levels is None else integer(levels, "levels", 1)
         if isinstance(source, LobeTable):
+            if base_lobe is not None or mu0 is not None:
+                raise InvalidInputError(
+                    "base_lobe= and mu0= are for statistics; a LobeTable is already evolved: omit them."
+                )
             table = lobe_table(None, source)
+            scales = np.asarray(table.scales, float)
+            n_levels = len(scales) if levels is None else integer(levels, "levels", 1)
+            if n_levels > len(scales):
+                raise InvalidInputError(
+                    f"levels must be at most {len(scales)}: the LobeTable has {len(scales)} scales."
+                )
+            scales = scales[:n_levels]
+            _check_octaves(scales)
+            table_levels = table_moments(table)[:n_levels]
         elif base_lobe is None:
             raise InvalidInputError(
                 f"source must be a synth.HeightField, or {ACCEPTED} (statistics with base_lobe= and mu0=); got "
                 f"{type(source).__name__}" + (" without base_lobe." if callable(getattr(source, "at", None)) else ".")
             )
         else:
-            if mu0 is None and not hasattr(source, "covariance_differences"):
-                raise InvalidInputError("mu0 is required with a scale law: the scale at which base_lobe holds.")
-            scales = None if mu0 is None else float(mu0) * 2.0 ** np.arange(n_levels)
+            law, mu0 = as_scale_law(source, mu0)  # a FitResult's μ0 is its own
+            n_levels = _statistics_levels(law, mu0, levels)
+            scales = mu0 * 2.0 ** np.arange(n_levels)
+            for what, density in (
+                ("base_lobe", getattr(base_lobe, "shape", None)),
+                (f"the statistics at μ0 = {mu0:g}", law.at(mu0)),
+                (f"the statistics at μ = {scales[-1]:g}", law.at(float(scales[-1]))),
+            ):
+                if density is not None:
+                    _check_finite_variance(density, what)
             table = lobe_table(base_lobe, source, mu0=mu0, scales=scales, levels=n_levels, size=size)
-        mus = [float(s) for s in table.scales]
+            table_levels = table_moments(table)
+        mus = [float(s) for s in scales]
         moments = []
-        for k, (b, m) in enumerate(table_moments(table)):
+        for k, (b, m) in enumerate(table_levels):
             side = max(1, resolution >> k)
             moments.append((np.broadcast_to(b, (side, side, 2)), np.broadcast_to(m, (side, side, 2, 2))))
     images = [convert(b, m, convention) for b, m in moments]

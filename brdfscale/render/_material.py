@@ -418,6 +418,11 @@ def evolved_lobes(
         raise InvalidInputError(
             f"base_lobe must be a brdfscale.lobes lobe (the BRDF at μ0); got {type(base_lobe).__name__}."
         )
+    if np.ndim(base_lobe.amplitude) != 0:
+        raise InvalidInputError(
+            f"the Mitsuba plugin renders one channel, and base_lobe's amplitude has shape "
+            f"{np.shape(base_lobe.amplitude)} (RGB): render each channel's lobe as its own material."
+        )
     law, mu0 = as_scale_law(statistics, mu0)
     levels = integer(levels, "levels", 1)
     ladder = default_scales(law, mu0, levels) if scales is None else check_scales(scales)

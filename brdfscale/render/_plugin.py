@@ -414,17 +414,7 @@ def bsdf_class(mi) -> type:
             self.m_flags = flags
             self._ready = False
             if "filename" in props:
-                mu = props.get("mu", 0.0)
-                masking = props.get("masking", True)
-                from ._masking import masking_choice
-
-                tables = Tables(
-                    read_lobe_table(str(props.get("filename"))),
-                    masking_choice(bool(masking)),
-                    mu=None if mu <= 0 else mu,
-                    texel=props.get("texel", 1.0),
-                )
-                self.load(tables)
+                self.load(scene_tables(props))
 
         def load(self, host: Host):
             self._host = host
@@ -516,6 +506,31 @@ def bsdf_class(mi) -> type:
             )
 
     return BrdfscaleBSDF
+
+
+def scene_tables(props) -> "Tables":
+    """The :class:`Tables` a scene's ``{"type": "brdfscale", "filename": …, "mu": …, "masking": …, "texel": …}``
+    asks for, each value checked as :func:`brdfscale.render.bsdf` checks it: ``mu`` positive (absent: the footprint),
+    ``texel`` positive, ``masking`` what ``bsdf`` accepts."""
+    from ._masking import masking_choice
+
+    mu = props.get("mu") if "mu" in props else None
+    if mu is not None:
+        mu = check_positive(mu, "mu", "a fixed scale; omit it to take the scale from the ray footprint")
+    texel = check_positive(props.get("texel", 1.0), "texel", "the scene length of one unit of μ")
+    masking = masking_choice(props.get("masking", True))
+    return Tables(read_lobe_table(str(props.get("filename"))), masking, mu=mu, texel=texel)
+
+
+def check_filename(props) -> None:
+    """A scene's ``"brdfscale"`` BSDF needs ``filename`` (the Python-built one, :func:`brdfscale.render.bsdf`, is
+    loaded by its builder instead)."""
+    if "filename" not in props:
+        raise InvalidInputError(
+            "the 'brdfscale' BSDF of a scene needs filename= (an evolved lobe table: brdfscale.exr.write_lobe_table "
+            "of brdfscale.render.lobe_table(...)); or build the BSDF in Python with brdfscale.render.bsdf(...) and "
+            "put that object in the scene dictionary."
+        )
 
 
 def check_positive(value, name: str, what: str) -> float:
