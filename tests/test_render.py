@@ -580,6 +580,8 @@ def test_bad_statistics_and_options_are_refused_naming_what_is_accepted():
         render.bsdf(rgb, LAW, mu0=1.0)
     with pytest.raises(brdfscale.InvalidInputError, match="renders one channel"):
         render.export_roughness(LAW, "/nonexistent/x.exr", base_lobe=rgb, mu0=1.0)
+    with pytest.raises(brdfscale.InvalidInputError, match="mirror.*give scales above μ0"):
+        render.bsdf(lobes.Mirror(), LAW, mu0=1.0)
     with pytest.raises(brdfscale.InvalidInputError, match="path must be a file path"):
         render.export_roughness(LAW, None, base_lobe=lobes.Beckmann(0.1), mu0=1.0, levels=1, size=16)
 
@@ -1017,9 +1019,7 @@ def test_export_of_a_scale_law_reads_back_with_the_closed_form_alpha(tmp_path):
     """A Beckmann lobe α0 evolved by a Beckmann width law: α(μ)² = α0² + α_law(μ0)² − α_law(μ)² per axis (Gaussian
     covariances add), read back by OpenImageIO from the mip chain."""
     path = tmp_path / "rough.exr"
-    render.export_roughness(
-        LAW, path, base_lobe=lobes.Beckmann(0.1), mu0=1.0, convention="beckmann_alpha", levels=4, size=256
-    )
+    render.export_roughness(LAW, path, base_lobe=lobes.Beckmann(0.1), mu0=1.0, convention="beckmann_alpha", levels=4)
     parts = read_with_openimageio(path)
     assert len(parts) == 4
     for level, (channels, attrs) in enumerate(parts):
@@ -1028,10 +1028,26 @@ def test_export_of_a_scale_law_reads_back_with_the_closed_form_alpha(tmp_path):
         assert attrs["brdfscale.convention"] == "beckmann_alpha" and attrs["brdfscale.mip_level"] == level
         assert "not alpha squared" in attrs["brdfscale.convention_text"]
         assert float(attrs["brdfscale.mu"]) == mu
-        # tabulation on 256² nodes: second moments to ~1e-4 relative
-        np.testing.assert_allclose(channels["alpha_x"], alpha, rtol=1e-3)
-        np.testing.assert_allclose(channels["alpha_y"], alpha, rtol=1e-3)
-        np.testing.assert_allclose(channels["rho"], 0.0, atol=1e-4)
+        # Gaussian lobes: their moments in closed form, written as float32
+        np.testing.assert_allclose(channels["alpha_x"], alpha, rtol=1e-6)
+        np.testing.assert_allclose(channels["alpha_y"], alpha, rtol=1e-6)
+        np.testing.assert_allclose(channels["rho"], 0.0, atol=1e-7)
+    # a Student-t lobe (ν = 6: covariance σ² ν/(ν − 2)) is tabulated: its moments from the table, within 1e-3
+    student = tmp_path / "student.exr"
+    sigma, nu = 0.05, 6.0
+    render.export_roughness(
+        LAW,
+        student,
+        base_lobe=lobes.Lobe(stats.StudentT(sigma=sigma, nu=nu)),
+        mu0=1.0,
+        convention="beckmann_alpha",
+        levels=3,
+    )
+    for level, (channels, _) in enumerate(read_with_openimageio(student)):
+        mu = 2.0**level
+        variance = sigma**2 * nu / (nu - 2) + (float(LAW.law(1.0)) ** 2 - float(LAW.law(mu)) ** 2) / 2
+        np.testing.assert_allclose(channels["alpha_x"], math.sqrt(2 * variance), rtol=1e-3)
+        np.testing.assert_allclose(channels["alpha_y"], math.sqrt(2 * variance), rtol=1e-3)
 
 
 def test_export_of_a_height_field_is_lean_mip_mapping(tmp_path):

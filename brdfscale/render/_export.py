@@ -8,8 +8,10 @@ texel of level ℓ (``2^ℓ × 2^ℓ`` texels of level 0) needs is its lobe's fi
   :func:`brdfscale.synth.pixel_slopes`, square or rectangular pixels; ``C_micro`` the covariance of the field's
   micro lobe) — linear in the pixels, so each level is the 2×2 mean of the one below (LEAN mapping, Olano & Baker 2010);
 * from statistics (a scale law or a FitResult, with ``base_lobe`` and ``mu0``): the lobe at ``μ_ℓ = μ0 · 2^ℓ``
-  evolved as :func:`brdfscale.render.lobe_table` does, its moments exact for the tabulated tent sum — the same at
-  every texel (``resolution`` texels on a side at level 0).
+  evolved as :func:`brdfscale.render.lobe_table` does, its moments in closed form where the evolved lobes are
+  Gaussian (a Gaussian/Beckmann base lobe and Gaussian statistics: covariances add), else the trapezoid sums of the
+  lobe sampled on ``size²`` nodes — the same at every texel (``resolution`` texels on a side at level 0); of an
+  evolved :class:`brdfscale.exr.LobeTable`, those of the tent sum it defines (what the plugin renders).
 
 The texel lobe's covariance ``Σ = M − B Bᵀ`` becomes the engine's numbers in the convention named in the file
 (:data:`CONVENTIONS`, stated word for word in each part's header).
@@ -24,7 +26,7 @@ from .. import stats
 from .._errors import InvalidInputError
 from .._validation import flag, integer
 from ..files import atomic_write
-from ._material import ACCEPTED, as_scale_law, lobe_table, scalar_table
+from ._material import ACCEPTED, as_scale_law, evolved_lobes, gaussian_parameters, lobe_table, scalar_table, tabulate
 
 
 _ALPHA = (
@@ -154,8 +156,20 @@ def _check_finite_variance(density, what: str) -> None:
         )
 
 
-def table_moments(table) -> list[tuple[np.ndarray, np.ndarray]]:
-    """``(B, M)`` of each scale's tabulated lobe, exact for the tent sum (a tent of pitch h adds h²/6 per axis)."""
+def gaussian_moments(params: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``(B, M)`` of Gaussian lobes in closed form from :func:`gaussian_parameters`' rows ``[A, c_x, c_y, Σ_xx, Σ_xy,
+    Σ_yy]``: ``B = c``, ``M = Σ + c cᵀ`` (exact: no table)."""
+    out = []
+    for _, cx, cy, sxx, sxy, syy in np.asarray(params, float):
+        b = np.array([cx, cy])
+        out.append((b, np.array([[sxx, sxy], [sxy, syy]]) + np.outer(b, b)))
+    return out
+
+
+def table_moments(table, tent: bool = True) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``(B, M)`` of each scale's tabulated lobe: with ``tent``, exact for the tent sum the plugin renders (a tent of
+    pitch h adds h²/6 per axis: a LobeTable's own lobe); without, the node sums alone — the trapezoid rule for the
+    moments of the lobe the nodes sample (an evolved lobe's, without the interpolant's h²/6)."""
     values = np.maximum(scalar_table(table), 0.0)
     n = values.shape[-1]
     x = np.linspace(-table.extent, table.extent, n)
@@ -164,8 +178,9 @@ def table_moments(table) -> list[tuple[np.ndarray, np.ndarray]]:
     for v in values:
         p = v / v.sum()
         bx, by = (p.sum(axis=0) * x).sum(), (p.sum(axis=1) * x).sum()
-        mxx = (p.sum(axis=0) * x**2).sum() + h * h / 6
-        myy = (p.sum(axis=1) * x**2).sum() + h * h / 6
+        spread = h * h / 6 if tent else 0.0
+        mxx = (p.sum(axis=0) * x**2).sum() + spread
+        myy = (p.sum(axis=1) * x**2).sum() + spread
         mxy = (p * x[None, :] * x[:, None]).sum()
         out.append((np.array([bx, by]), np.array([[mxx, mxy], [mxy, myy]])))
     return out
@@ -270,8 +285,13 @@ def export_roughness(
             ):
                 if density is not None:
                     _check_finite_variance(density, what)
-            table = lobe_table(base_lobe, source, mu0=mu0, scales=scales, levels=n_levels, size=size)
-            table_levels = table_moments(table)
+            ladder, evolved, mu0, _, _ = evolved_lobes(base_lobe, source, mu0=mu0, scales=scales, levels=n_levels)
+            params = gaussian_parameters(evolved)
+            if params is None:
+                table = tabulate(ladder, evolved, mu0=mu0, size=integer(size, "size", 4))
+                table_levels = table_moments(table, tent=False)  # the evolved lobe's, not the interpolant's
+            else:
+                table_levels = gaussian_moments(params)
         mus = [float(s) for s in scales]
         moments = []
         for k, (b, m) in enumerate(table_levels):

@@ -426,6 +426,12 @@ def evolved_lobes(
     law, mu0 = as_scale_law(statistics, mu0)
     levels = integer(levels, "levels", 1)
     ladder = default_scales(law, mu0, levels) if scales is None else check_scales(scales)
+    if isinstance(getattr(base_lobe, "shape", None), stats.Delta) and float(ladder[0]) <= mu0 * (1 + 1e-12):
+        raise InvalidInputError(
+            f"base_lobe is a mirror (a spike) and the ladder starts at μ0 = {mu0:g}, where the material's lobe is "
+            "that spike, which no table or closed form holds: give scales above μ0 (scales=[…], e.g. "
+            "mu0 · 2 ** k for k ≥ 1), or a base lobe with a width."
+        )
     s0 = law.at(mu0)
     evolved = [evolve(base_lobe, s0, law.at(float(mu)), method) for mu in ladder]
     chosen = choose_form(form, evolved)
