@@ -582,8 +582,6 @@ def test_bad_statistics_and_options_are_refused_naming_what_is_accepted():
         render.export_roughness(LAW, "/nonexistent/x.exr", base_lobe=rgb, mu0=1.0)
     with pytest.raises(brdfscale.InvalidInputError, match="mirror.*give scales above μ0"):
         render.bsdf(lobes.Mirror(), LAW, mu0=1.0)
-    with pytest.raises(brdfscale.InvalidInputError, match="path must be a file path"):
-        render.export_roughness(LAW, None, base_lobe=lobes.Beckmann(0.1), mu0=1.0, levels=1, size=16)
 
 
 @pytest.mark.parametrize(
@@ -696,6 +694,26 @@ def test_tables_are_deterministic_and_rgb_tables_are_refused(material):
         render.bsdf(None, table, scales=[4.0, 8.0], masking=False)
     with pytest.raises(brdfscale.InvalidInputError, match="output must be one of"):
         render.FootprintIntegrator(output="mu")
+    for depth in (0, -3):
+        with pytest.raises(brdfscale.InvalidInputError, match="max_depth must be an integer ≥ 1"):
+            render.FootprintIntegrator(max_depth=depth)
+
+
+@pytest.mark.wrong_types
+def test_an_export_path_that_is_not_a_path_is_refused():
+    """The one write path (files.atomic_write) refuses a path of another type with the library's error."""
+    with pytest.raises(brdfscale.InvalidInputError, match="path must be a file path.*NoneType"):
+        render.export_roughness(LAW, None, base_lobe=lobes.Beckmann(0.1), mu0=1.0, levels=1, size=16)
+
+
+@pytest.mark.wrong_types
+def test_the_integrators_depth_is_an_integer_python_or_numpy():
+    """max_depth by the library's one integer check: a NumPy integer is taken, a float or a bool is refused."""
+    llvm()
+    for depth in (2.0, True):
+        with pytest.raises(brdfscale.InvalidInputError, match="max_depth must be an integer ≥ 1"):
+            render.FootprintIntegrator(max_depth=depth, variant="llvm_ad_rgb")
+    assert render.FootprintIntegrator(max_depth=np.int64(2), variant="llvm_ad_rgb") is not None  # pyright: ignore
 
 
 @pytest.mark.wrong_types

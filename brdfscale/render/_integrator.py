@@ -15,7 +15,7 @@ renders the first hit's footprint length instead of radiance (0 where nothing is
 """
 
 from .._choices import FOOTPRINTS, OUTPUTS
-from .._errors import InvalidInputError
+from .._validation import integer
 from ._plugin import footprint
 from ._variants import per_variant
 
@@ -26,8 +26,7 @@ INTEGRATOR = "brdfscale_footprint"
 
 def check_options(max_depth, output, footprint) -> tuple[int, str, str]:
     """The integrator's options, or InvalidInputError naming what is accepted."""
-    if isinstance(max_depth, bool) or not isinstance(max_depth, int) or max_depth < 1:
-        raise InvalidInputError(f"max_depth must be an integer ≥ 1 (path segments); got {max_depth!r}.")
+    max_depth = integer(max_depth, "max_depth", 1)  # path segments; Python or NumPy integers
     OUTPUTS.check(output)
     FOOTPRINTS.check(footprint)
     return max_depth, output, footprint
