@@ -260,11 +260,25 @@ def write_text(
     return write_bytes(path, text.encode(encoding), overwrite=overwrite, error=error)
 
 
-def _write(path, fill, expected: int | None, overwrite: bool, error, foreign) -> str:
+def file_path(path, what: str = "a file") -> str:
+    """``path`` as a str (bytes decoded as the file system does), or InvalidInputError when it cannot name a file:
+    not a str, bytes or os.PathLike, empty, or holding a NUL character. Every write goes through it
+    (:func:`atomic_write`), and brdfscale.exr's readers too."""
     try:
-        path = os.fspath(path)
+        p = os.fspath(path)
     except TypeError:
-        raise InvalidInputError(f"path must be a file path (str or os.PathLike); got {type(path).__name__}.") from None
+        raise InvalidInputError(
+            f"path must be a str or os.PathLike naming {what}; got {type(path).__name__} {path!r:.80}."
+        ) from None
+    if isinstance(p, bytes):
+        p = os.fsdecode(p)
+    if not p or "\0" in p:
+        raise InvalidInputError(f"path must be a non-empty file name without NUL characters; got {p!r:.80}.")
+    return p
+
+
+def _write(path, fill, expected: int | None, overwrite: bool, error, foreign) -> str:
+    path = file_path(path)
     if not overwrite and os.path.lexists(path):
         raise error(f"{path}: file exists; pass overwrite=True to replace it.")
     directory = os.path.dirname(os.path.abspath(path))

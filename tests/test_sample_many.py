@@ -75,7 +75,8 @@ def _count_traces(monkeypatch):
     return calls
 
 
-@pytest.mark.slow  # ~11 s; test_hmc_with_window_adaptation_equals_sample keeps sample_many = sample by default
+@pytest.mark.slow  # ~11 s; sample_many = sample: test_hmc_with_window_adaptation_equals_sample (slow too); window
+# adaptation in the default suite: tests/test_samplers.py's nuts-windows resume
 def test_nuts_on_ragged_materials_equals_sample_one_at_a_time(ragged, monkeypatch):
     problems, fits = ragged
     traces = _count_traces(monkeypatch)

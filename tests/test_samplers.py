@@ -266,10 +266,7 @@ def _interrupt_after(monkeypatch, module, name, calls):
     monkeypatch.setattr(module, name, interrupting)
 
 
-# nuts-windows in the slow step (the default suite's 6-minute budget): nuts without windows runs by default
-@pytest.mark.parametrize(
-    "name", [pytest.param(n, marks=pytest.mark.slow) if n == "nuts-windows" else n for n in RESUMABLE]
-)
+@pytest.mark.parametrize("name", list(RESUMABLE))  # nuts-windows: the default suite's one run of window adaptation
 def test_an_interrupted_run_resumes_bit_identically(linear, name, tmp_path, monkeypatch):
     """Killed in the middle of the run (after some chunks were committed), the run resumes
     from the checkpoint and gives the uninterrupted run's chain, log-probabilities and

@@ -5,26 +5,11 @@ import stat
 
 import OpenEXR
 
-from .._errors import InvalidInputError, MeasurementFileError
-from .._files import atomic_write
+from .._errors import MeasurementFileError
+from .._files import atomic_write, file_path
 from .._validation import flag
 from ._diagnostics import captured, pass_on, summary
 from ._format import MAX_EXPANSION, MAX_SIDE, PREFIX
-
-
-def file_path(path) -> str:
-    """``path`` as a str, or InvalidInputError when it cannot name a file."""
-    try:
-        p = os.fspath(path)
-    except TypeError:
-        raise InvalidInputError(
-            f"path must be a str or os.PathLike naming an .exr file; got {type(path).__name__} {path!r}."
-        ) from None
-    if isinstance(p, bytes):
-        p = os.fsdecode(p)
-    if not p or "\0" in p:
-        raise InvalidInputError(f"path must be a non-empty file name without NUL characters; got {p!r}.")
-    return p
 
 
 def write_parts(path, parts: list, overwrite: bool) -> None:
@@ -36,7 +21,7 @@ def write_parts(path, parts: list, overwrite: bool) -> None:
     OutputWriteError naming the path and the free space when it cannot be written
     (permissions, full disk, an I/O error — OpenEXR reports these as RuntimeError).
     """
-    path = file_path(path)
+    path = file_path(path, "an .exr file")
     overwrite = flag(overwrite, "overwrite")
     if os.path.isdir(path):
         raise MeasurementFileError(f"{path}: is a directory; give the path of an .exr file to write (e.g. inside it).")
@@ -108,7 +93,7 @@ def open_parts(path) -> list:
     :data:`MAX_SIDE` pixels a side, or whose pixels would decode to more than
     :data:`MAX_EXPANSION` times the file's size, is refused before any pixel is decoded.
     """
-    path = file_path(path)
+    path = file_path(path, "an .exr file")
     _check_readable(path)
     headers, said = _open(path, header_only=True)
     budget = MAX_EXPANSION * os.path.getsize(path) + 2**20

@@ -3,10 +3,11 @@
 import numpy as np
 
 from .._errors import BrdfscaleError, InvalidInputError, MeasurementFileError
+from .._files import file_path
 from .._measurement import LobeImage, MeasurementSet
 from .._validation import flag
 from ._format import FORMAT, PartReader, PREFIX
-from ._io import file_path, open_parts, write_parts
+from ._io import open_parts, write_parts
 from ._parts import check_dtype, image_channels, metadata_json, part_header, read_image_part, sealed_part
 
 
@@ -32,7 +33,7 @@ def write_measurements(path, mset: MeasurementSet, *, overwrite: bool = False, d
         MeasurementFileError: ``path`` exists (and not ``overwrite``), is a directory, or
             cannot be written.
     """
-    path = file_path(path)
+    path = file_path(path, "an .exr file")
     overwrite = flag(overwrite, "overwrite")
     if not isinstance(mset, MeasurementSet):
         raise InvalidInputError(f"mset must be a brdfscale.MeasurementSet; got {type(mset).__name__}.")

@@ -11,10 +11,11 @@ import numpy.typing as npt
 from jaxtyping import Float
 
 from .._errors import BrdfscaleError, InvalidInputError, MeasurementFileError
+from .._files import file_path
 from .._validation import flag, integer, real, real_array
 from ..lobes import AbstractLobe
 from ._format import PartReader, PREFIX
-from ._io import file_path, open_parts, write_parts
+from ._io import open_parts, write_parts
 from ._parts import check_dtype, image_channels, metadata_json, part_header, read_image_part, sealed_part
 
 
@@ -155,7 +156,7 @@ def write_lobe_table(path, table: LobeTable, *, overwrite: bool = False, dtype: 
     (overflow, or underflow to 0 beyond its precision) raise InvalidInputError, a
     directory or unwritable ``path`` MeasurementFileError.
     """
-    path = file_path(path)
+    path = file_path(path, "an .exr file")
     overwrite = flag(overwrite, "overwrite")
     if not isinstance(table, LobeTable):
         raise InvalidInputError(f"table must be a brdfscale.exr.LobeTable; got {type(table).__name__}.")

@@ -8,10 +8,12 @@ texel of level ℓ (``2^ℓ × 2^ℓ`` texels of level 0) needs is its lobe's fi
   :func:`brdfscale.synth.pixel_slopes`, square or rectangular pixels; ``C_micro`` the covariance of the field's
   micro lobe) — linear in the pixels, so each level is the 2×2 mean of the one below (LEAN mapping, Olano & Baker 2010);
 * from statistics (a scale law or a FitResult, with ``base_lobe`` and ``mu0``): the lobe at ``μ_ℓ = μ0 · 2^ℓ``
-  evolved as :func:`brdfscale.render.lobe_table` does, its moments in closed form where the evolved lobes are
-  Gaussian (a Gaussian/Beckmann base lobe and Gaussian statistics: covariances add), else the trapezoid sums of the
-  lobe sampled on ``size²`` nodes — the same at every texel (``resolution`` texels on a side at level 0); of an
-  evolved :class:`brdfscale.exr.LobeTable`, those of the tent sum it defines (what the plugin renders).
+  evolved as :func:`brdfscale.render.lobe_table` does. Its moments are in closed form where base lobe and
+  statistics have known ones (:func:`cumulants`: Gaussian/Beckmann, Student-t, disk, table and mixtures of these —
+  seed Eq. 4.4 multiplies transforms, so cumulants add, :func:`evolved_moments`), else the node sums of the lobe
+  sampled on ``size²`` nodes; densities without finite second moments (GGX, Student-t with ν ≤ 2) are refused. The
+  same at every texel (``resolution`` texels on a side at level 0). Of an evolved :class:`brdfscale.exr.LobeTable`:
+  those of the tent sum it defines (what the plugin renders).
 
 The texel lobe's covariance ``Σ = M − B Bᵀ`` becomes the engine's numbers in the convention named in the file
 (:data:`CONVENTIONS`, stated word for word in each part's header).
@@ -26,7 +28,7 @@ from .. import stats
 from .._errors import InvalidInputError
 from .._validation import flag, integer
 from ..files import atomic_write
-from ._material import ACCEPTED, as_scale_law, evolved_lobes, gaussian_parameters, lobe_table, scalar_table, tabulate
+from ._material import ACCEPTED, as_scale_law, evolved_lobes, lobe_table, scalar_table, tabulate
 
 
 _ALPHA = (
@@ -107,14 +109,18 @@ def _statistics_levels(law, mu0: float, levels) -> int:
     measured = getattr(law, "mu", None)
     top = None
     if measured is not None:
-        hi = float(np.max(np.asarray(measured, float)))
-        top = int(math.floor(math.log2(hi / mu0) * (1 + 1e-12))) + 1 if hi >= mu0 else 0
+        lo, hi = float(np.min(np.asarray(measured, float))), float(np.max(np.asarray(measured, float)))
+        if not lo * (1 - 1e-12) <= mu0 <= hi * (1 + 1e-12):
+            raise InvalidInputError(
+                f"mu0 = {mu0:g} is outside the range the statistics are measured over, [{lo:g}, {hi:g}]."
+            )
+        top = int(math.floor(math.log2(hi / mu0) * (1 + 1e-12))) + 1
     if levels is None:
-        return DEFAULT_STATISTICS_LEVELS if top is None else max(1, min(DEFAULT_STATISTICS_LEVELS, top))
+        return DEFAULT_STATISTICS_LEVELS if top is None else min(DEFAULT_STATISTICS_LEVELS, top)
     levels = integer(levels, "levels", 1)
-    if top is not None and levels > max(top, 1):
+    if top is not None and levels > top:
         raise InvalidInputError(
-            f"levels must be at most {max(top, 1)}: level ℓ is the lobe at μ0 · 2^ℓ from μ0 = {mu0:g}, and the "
+            f"levels must be at most {top}: level ℓ is the lobe at μ0 · 2^ℓ from μ0 = {mu0:g}, and the "
             f"statistics are measured up to μ = {hi:g}."
         )
     return levels
@@ -131,38 +137,80 @@ def _check_octaves(scales: np.ndarray) -> None:
         )
 
 
-def _check_finite_variance(density, what: str) -> None:
-    """Refuse a density without finite second moments (GGX, Student-t with ν ≤ 2, mixtures with such a part), whose
-    exported roughness would depend on the table's extent, not on the lobe: its transform's curvature at W = 0,
-    ``(1 − Re S(W))/|W|²``, tends to a constant as |W| → 0 only when the second moments are finite (it grows like
-    ``ln(1/|W|)`` for GGX). Compared on three directions at the radius r where ``1 − Re S`` first falls below 10⁻⁶
-    (halving from |W| = 1) and at r/4: equal within 1 % for finite moments."""
-    directions = np.array([[1.0, 0.0], [0.0, 1.0], [math.sqrt(0.5), math.sqrt(0.5)]])
-
-    def curvature(radius):
-        return (1.0 - np.real(np.asarray(density.cf(radius * directions)))) / radius**2
-
-    r = 1.0
-    for _ in range(200):
-        if np.all(curvature(r) * r * r < 1e-6):
-            break
-        r /= 2
-    near, nearer = curvature(r), curvature(r / 4)
-    if not np.all(np.isfinite(nearer)) or np.any(np.abs(nearer - near) > 1e-2 * np.abs(near) + 1e-300):
-        raise InvalidInputError(
-            f"{what} ({type(density).__name__}) has no finite second moments (GGX slopes, Student-t with ν ≤ 2), "
-            "and engines' roughness comes from second moments: its exported alpha would be the table's truncation. "
-            "Give a base lobe and statistics with finite variance (Beckmann/Gaussian, Student-t with ν > 2)."
-        )
+def _infinite(density) -> InvalidInputError:
+    return InvalidInputError(
+        f"{type(density).__name__} slopes have no finite second moments (GGX; Student-t with ν ≤ 2), and engines' "
+        "roughness comes from second moments: exported from a table it would be the table's truncation. Give a "
+        "base lobe and statistics of finite variance (Beckmann/Gaussian, Student-t with ν > 2, a disk, a table)."
+    )
 
 
-def gaussian_moments(params: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
-    """``(B, M)`` of Gaussian lobes in closed form from :func:`gaussian_parameters`' rows ``[A, c_x, c_y, Σ_xx, Σ_xy,
-    Σ_yy]``: ``B = c``, ``M = Σ + c cᵀ`` (exact: no table)."""
+def cumulants(density) -> tuple[np.ndarray, np.ndarray] | None:
+    """``(mean, covariance)`` of a slope density in closed form — :class:`stats.Delta`, :class:`stats.Gaussian`,
+    :class:`stats.StudentT` (``Σ ν/(ν − 2)``), :class:`stats.Disk` (``r²/4`` per axis), :class:`stats.Tabulated`
+    (its nodes' tent sum: node sums plus ``h²/6`` per axis) and :class:`stats.Mixture` of these — None for a density
+    of another kind. InvalidInputError for one without finite second moments (GGX, Student-t with ν ≤ 2)."""
+    mean = None if isinstance(density, stats.Mixture) else getattr(density, "mean", None)
+    centre = np.zeros(2) if mean is None else np.asarray(mean, float)
+    if centre.shape != (2,):
+        return None  # a batch of densities
+    if isinstance(density, stats.Delta):
+        return centre, np.zeros((2, 2))
+    if isinstance(density, stats.Gaussian):
+        return centre, np.asarray(density.cov, float)
+    if isinstance(density, stats.GGX):
+        raise _infinite(density)
+    if isinstance(density, stats.StudentT):
+        nu = float(density.nu)
+        if nu <= 2:
+            raise _infinite(density)
+        return centre, np.asarray(density.cov, float) * nu / (nu - 2)
+    if isinstance(density, stats.Disk):
+        return centre, np.eye(2) * float(density.radius) ** 2 / 4
+    if isinstance(density, stats.Tabulated):
+        x, y = (np.asarray(a, float) for a in density.nodes())
+        h = np.asarray(density.spacing, float)
+        p = np.asarray(density.values, float)
+        p = p / p.sum()
+        b = np.array([(p.sum(axis=0) * x).sum(), (p.sum(axis=1) * y).sum()])
+        dx, dy = x - b[0], y - b[1]
+        cxx = (p.sum(axis=0) * dx**2).sum() + h[0] ** 2 / 6
+        cyy = (p.sum(axis=1) * dy**2).sum() + h[1] ** 2 / 6
+        cxy = (p * dx[None, :] * dy[:, None]).sum()
+        centre = b if density.center is None else b + np.asarray(density.center, float)
+        return centre, np.array([[cxx, cxy], [cxy, cyy]])
+    if isinstance(density, stats.Mixture):
+        parts = []
+        for component in density.components:
+            part = cumulants(component)
+            if part is None:
+                return None
+            parts.append(part)
+        w = np.asarray(density.weights, float)
+        b = np.zeros(2)
+        raw = np.zeros((2, 2))
+        for wk, (m, c) in zip(w, parts):
+            b = b + wk * m
+            raw = raw + wk * (c + np.outer(m, m))
+        return b, raw - np.outer(b, b)
+    return None
+
+
+def evolved_moments(base, first, at) -> list[tuple[np.ndarray, np.ndarray]] | None:
+    """``(B, M)`` of the base lobe evolved from the statistics ``first`` (at μ0) to each of ``at`` (seed Eq. 4.4:
+    the transforms multiply, ``G(μ) = G(μ0) S(μ0)/S(μ)``, so cumulants add): ``B = b0 + m(μ0) − m(μ)``,
+    ``M = C0 + Σ(μ0) − Σ(μ) + B Bᵀ`` — None where a density's moments are not known in closed form."""
+    known = []
+    for density in (base, first, *at):
+        moments = None if density is None else cumulants(density)
+        if moments is None:
+            return None
+        known.append(moments)
+    (b0, c0), (m_first, s_first) = known[0], known[1]
     out = []
-    for _, cx, cy, sxx, sxy, syy in np.asarray(params, float):
-        b = np.array([cx, cy])
-        out.append((b, np.array([[sxx, sxy], [sxy, syy]]) + np.outer(b, b)))
+    for m, s in known[2:]:
+        b = b0 + m_first - m
+        out.append((b, c0 + s_first - s + np.outer(b, b)))
     return out
 
 
@@ -237,6 +285,7 @@ def export_roughness(
     Returns the channels per level. Raises InvalidInputError for a convention or source of another kind
     (naming those accepted), :class:`brdfscale.OutputWriteError` when the file cannot be written.
     """
+    size = integer(size, "size", 4)
     if convention not in CONVENTIONS:
         raise InvalidInputError(f"convention must be one of {', '.join(map(repr, CONVENTIONS))}; got {convention!r}.")
     overwrite = flag(overwrite, "overwrite")
@@ -278,20 +327,24 @@ def export_roughness(
             law, mu0 = as_scale_law(source, mu0)  # a FitResult's μ0 is its own
             n_levels = _statistics_levels(law, mu0, levels)
             scales = mu0 * 2.0 ** np.arange(n_levels)
-            for what, density in (
-                ("base_lobe", getattr(base_lobe, "shape", None)),
-                (f"the statistics at μ0 = {mu0:g}", law.at(mu0)),
-                (f"the statistics at μ = {scales[-1]:g}", law.at(float(scales[-1]))),
-            ):
-                if density is not None:
-                    _check_finite_variance(density, what)
-            ladder, evolved, mu0, _, _ = evolved_lobes(base_lobe, source, mu0=mu0, scales=scales, levels=n_levels)
-            params = gaussian_parameters(evolved)
-            if params is None:
-                table = tabulate(ladder, evolved, mu0=mu0, size=integer(size, "size", 4))
-                table_levels = table_moments(table, tent=False)  # the evolved lobe's, not the interpolant's
-            else:
-                table_levels = gaussian_moments(params)
+            shape = getattr(base_lobe, "shape", None)
+            table_levels = evolved_moments(shape, law.at(mu0), [law.at(float(mu)) for mu in scales])
+            # the evolution itself (its existence: NoBRDFAtScaleError; a mirror's μ0 level is the mirror itself)
+            mirror = isinstance(shape, stats.Delta)
+            if not (mirror and n_levels == 1):
+                evolving = scales[1:] if mirror else scales
+                ladder, evolved, mu0, _, _ = evolved_lobes(base_lobe, source, mu0=mu0, scales=evolving, levels=n_levels)
+                if table_levels is None:  # the evolved lobes sampled on size² nodes: their node sums
+                    if mirror:
+                        raise InvalidInputError(
+                            "a mirror base lobe evolved by statistics of this kind has no closed-form moments at μ0, "
+                            "where it is a spike no table holds; give statistics of known moments (Gaussian, "
+                            "Student-t, disk, table) or a base lobe with a width."
+                        )
+                    table = tabulate(ladder, evolved, mu0=mu0, size=size)
+                    table_levels = table_moments(table, tent=False)  # the evolved lobes', not the interpolant's
+            elif table_levels is None:
+                raise InvalidInputError("a mirror base lobe of unknown statistics: give statistics of known moments.")
         mus = [float(s) for s in scales]
         moments = []
         for k, (b, m) in enumerate(table_levels):
