@@ -157,7 +157,8 @@ def cumulants(density) -> tuple[np.ndarray, np.ndarray] | None:
     if isinstance(density, stats.Delta):
         return centre, np.zeros((2, 2))
     if isinstance(density, stats.Gaussian):
-        return centre, np.asarray(density.cov, float)
+        cov = np.asarray(density.cov, float)
+        return (centre, cov) if cov.shape == (2, 2) else None  # None: a batch
     if isinstance(density, stats.GGX):
         raise _infinite(density)
     if isinstance(density, stats.StudentT):
