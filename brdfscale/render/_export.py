@@ -330,22 +330,19 @@ def export_roughness(
             scales = mu0 * 2.0 ** np.arange(n_levels)
             shape = getattr(base_lobe, "shape", None)
             table_levels = evolved_moments(shape, law.at(mu0), [law.at(float(mu)) for mu in scales])
-            # the evolution itself (its existence: NoBRDFAtScaleError; a mirror's μ0 level is the mirror itself)
             mirror = isinstance(shape, stats.Delta)
-            if not (mirror and n_levels == 1):
-                evolving = scales[1:] if mirror else scales
+            if mirror and table_levels is None:
+                raise InvalidInputError(
+                    "a mirror base lobe evolved by statistics of this kind has no closed-form moments at μ0, where it "
+                    "is a spike no table holds; give statistics of known moments (Gaussian, Student-t, disk, table) "
+                    "or a base lobe with a width."
+                )
+            evolving = scales[1:] if mirror else scales  # a mirror's μ0 level is the mirror itself
+            if len(evolving):  # the evolution itself: its existence (NoBRDFAtScaleError), else its sampled lobes
                 ladder, evolved, mu0, _, _ = evolved_lobes(base_lobe, source, mu0=mu0, scales=evolving, levels=n_levels)
-                if table_levels is None:  # the evolved lobes sampled on size² nodes: their node sums
-                    if mirror:
-                        raise InvalidInputError(
-                            "a mirror base lobe evolved by statistics of this kind has no closed-form moments at μ0, "
-                            "where it is a spike no table holds; give statistics of known moments (Gaussian, "
-                            "Student-t, disk, table) or a base lobe with a width."
-                        )
-                    table = tabulate(ladder, evolved, mu0=mu0, size=size)
-                    table_levels = table_moments(table, tent=False)  # the evolved lobes', not the interpolant's
-            elif table_levels is None:
-                raise InvalidInputError("a mirror base lobe of unknown statistics: give statistics of known moments.")
+                if table_levels is None:  # the evolved lobes' node sums, not the interpolant's (no tent term)
+                    table_levels = table_moments(tabulate(ladder, evolved, mu0=mu0, size=size), tent=False)
+            assert table_levels is not None  # a mirror of unknown moments is refused above, other lobes sampled
         mus = [float(s) for s in scales]
         moments = []
         for k, (b, m) in enumerate(table_levels):
